@@ -1,0 +1,12 @@
+#!/usr/bin/env bash
+# Build prerequisites, then the full test suite (the command the README and CI use).
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+
+bash scripts/setup.sh
+
+if [[ ! -d ../shared ]]; then
+    echo "test.sh: ../shared (Zemax reference data) not found; tests that need it will be skipped."
+fi
+
+cargo test --release --all-targets

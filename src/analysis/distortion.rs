@@ -1,0 +1,104 @@
+use super::chief_rays;
+use crate::error::{Error, Result};
+use crate::system::SequentialSystem;
+use crate::tracer::{RayStatus, Tracer};
+
+/// One grid point of a Zemax-style Grid Distortion listing (mm on the image surface, its own frame).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct DistortionPoint {
+    /// Grid indices (−N/2..N/2): `i` along x (outer loop, as Zemax lists), `j` along y.
+    pub i: i32,
+    pub j: i32,
+    pub x_field_mm: f64,
+    pub y_field_mm: f64,
+    /// Real chief-ray position, absolute (Zemax's real + ref).
+    pub real_x_mm: f64,
+    pub real_y_mm: f64,
+    /// Predicted position, absolute: ref + ABCD · field.
+    pub pred_x_mm: f64,
+    pub pred_y_mm: f64,
+    /// sign(|real−ref| − |pred−ref|) · 100 · |real − pred| / |pred − ref| (Zemax's definition).
+    pub distortion_pct: f64,
+    pub status: RayStatus,
+}
+
+/// A grid distortion at one wavelength.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DistortionGrid {
+    pub wavelength_nm: f64,
+    /// Image of the on-axis field (Zemax's Xref, Yref).
+    pub reference_mm: [f64; 2],
+    /// Predicted-coordinate matrix [A, B, C, D]: d(image)/d(field) of the chief ray at the axis.
+    pub abcd: [f64; 4],
+    pub points: Vec<DistortionPoint>,
+    /// Largest |distortion_pct|, with its sign.
+    pub max_distortion_pct: f64,
+}
+
+/// Trace an `n × n` grid of chief rays over ±`half_width_mm` of object field at `wavelength_nm`.
+///
+/// The predicted (paraxial) coordinates use the first-order matrix of the real chief-ray map at the axis,
+/// computed by central differences over ±1e-4 of the half width: for a system with coordinate breaks this
+/// is what Zemax's "Predicted coordinate ABCD matrix" reports (e.g. A = −1.003 for SP).
+pub fn grid_distortion(system: &SequentialSystem, tracer: &dyn Tracer, wavelength_nm: f64, n: usize, half_width_mm: f64) -> Result<DistortionGrid> {
+    if n < 1 {
+        return Err(Error::invalid("distortion grid size must be at least 1"));
+    }
+    if !(half_width_mm.is_finite() && half_width_mm > 0.0) {
+        return Err(Error::invalid(format!("distortion half width {half_width_mm} mm: must be finite and > 0")));
+    }
+    let h = 1e-4 * half_width_mm;
+    let probes = [[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]];
+    let pr = tracer.trace(system, &chief_rays(system, &probes, wavelength_nm)?)?;
+    if pr.status.iter().any(|s| *s != RayStatus::Ok) {
+        return Err(Error::invalid(format!("the near-axis chief rays do not reach the image at {wavelength_nm} nm")));
+    }
+    let reference_mm = [pr.x[0], pr.y[0]];
+    let a = (pr.x[1] - pr.x[2]) / (2.0 * h);
+    let c = (pr.y[1] - pr.y[2]) / (2.0 * h);
+    let b = (pr.x[3] - pr.x[4]) / (2.0 * h);
+    let d = (pr.y[3] - pr.y[4]) / (2.0 * h);
+
+    let half = (n as i32 - 1) / 2;
+    let step = if n > 1 { 2.0 * half_width_mm / (n - 1) as f64 } else { 0.0 };
+    let mut fields = Vec::with_capacity(n * n);
+    let mut idx = Vec::with_capacity(n * n);
+    for ii in 0..n as i32 {
+        for jj in 0..n as i32 {
+            let (x, y) = (-half_width_mm + ii as f64 * step, -half_width_mm + jj as f64 * step);
+            fields.push([if n == 1 { 0.0 } else { x }, if n == 1 { 0.0 } else { y }]);
+            idx.push((ii - half, jj - half));
+        }
+    }
+    let out = tracer.trace(system, &chief_rays(system, &fields, wavelength_nm)?)?;
+    let mut points = Vec::with_capacity(fields.len());
+    let mut max_distortion_pct: f64 = 0.0;
+    for (k, f) in fields.iter().enumerate() {
+        let (px, py) = (a * f[0] + b * f[1], c * f[0] + d * f[1]);
+        let ok = out.status[k] == RayStatus::Ok;
+        let (rx, ry) = if ok { (out.x[k] - reference_mm[0], out.y[k] - reference_mm[1]) } else { (0.0, 0.0) };
+        let pred_r = px.hypot(py);
+        let distortion_pct = if ok && pred_r > 0.0 {
+            let sign = if rx.hypot(ry) < pred_r { -1.0 } else { 1.0 };
+            sign * 100.0 * (rx - px).hypot(ry - py) / pred_r
+        } else {
+            0.0
+        };
+        if distortion_pct.abs() > max_distortion_pct.abs() {
+            max_distortion_pct = distortion_pct;
+        }
+        points.push(DistortionPoint {
+            i: idx[k].0,
+            j: idx[k].1,
+            x_field_mm: f[0],
+            y_field_mm: f[1],
+            real_x_mm: if ok { out.x[k] } else { 0.0 },
+            real_y_mm: if ok { out.y[k] } else { 0.0 },
+            pred_x_mm: reference_mm[0] + px,
+            pred_y_mm: reference_mm[1] + py,
+            distortion_pct,
+            status: out.status[k],
+        });
+    }
+    Ok(DistortionGrid { wavelength_nm, reference_mm, abcd: [a, b, c, d], points, max_distortion_pct })
+}

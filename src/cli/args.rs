@@ -1,0 +1,185 @@
+use clap::{Args, Parser, Subcommand};
+use std::path::PathBuf;
+
+/// diffcassi — exact ray tracing of coded-aperture snapshot spectral imagers (CASSI), matching Zemax.
+///
+/// Systems come from a preset (sp, ap, msp, map: the reference paper's four systems, built from their
+/// Zemax prescriptions) or a spec file (.toml, .json, the paper's .yml, or a Zemax prescription .csv).
+/// Lengths are millimetres, wavelengths nanometres, angles degrees.
+#[derive(Parser, Debug)]
+#[command(name = "diffcassi", version, about, long_about = None, propagate_version = true)]
+pub struct Cli {
+    /// Worker threads (default: all cores). Results do not depend on it.
+    #[arg(long, global = true)]
+    pub threads: Option<usize>,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Print the resolved system: surfaces (pickups and solves evaluated), pupil, media.
+    Info(InfoArgs),
+    /// Trace rays of one field and wavelength; write per-ray image positions and outcomes.
+    Trace(SpotArgs),
+    /// Spot diagrams (centroid, RMS and GEO radius) for fields × wavelengths; CSV/JSON/PNG.
+    Spot(SpotArgs),
+    /// Grid distortion like Zemax's listing: N×N chief rays, real vs predicted; CSV/JSON/PNG.
+    Distortion(DistortionArgs),
+    /// Spatio-spectral spreading: chief-ray position vs wavelength for one field; CSV/PNG.
+    Dispersion(DispersionArgs),
+    /// The scene→detector mapping cube f(x_s, y_s, λ) → (x_d, y_d) as NPY.
+    Mapping(MappingArgs),
+    /// Analyse a preset end to end (spots, distortion, dispersion) and write every table and plot to a folder.
+    Report(ReportArgs),
+    /// Throughput of the analytic tracer (rays/s) on SP-like workloads, printed as a table.
+    Bench(BenchArgs),
+    /// Write a system (preset or file) as a TOML or JSON spec.
+    ExportSpec(ExportArgs),
+}
+
+/// Which system to use.
+#[derive(Args, Debug, Clone)]
+pub struct SystemArgs {
+    /// A preset: sp, ap, msp, map.
+    #[arg(long, conflicts_with = "system")]
+    pub preset: Option<String>,
+    /// A spec file: .toml, .json, .yml/.yaml (paper format) or .csv (Zemax prescription).
+    #[arg(long)]
+    pub system: Option<PathBuf>,
+    /// Extra AGF glass catalogue(s) to load beside the built-in glasses.
+    #[arg(long = "glass-catalog")]
+    pub glass_catalogs: Vec<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub struct InfoArgs {
+    #[command(flatten)]
+    pub system: SystemArgs,
+    /// Print the resolved spec as JSON instead of the table.
+    #[arg(long)]
+    pub json: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct SpotArgs {
+    #[command(flatten)]
+    pub system: SystemArgs,
+    /// Wavelength(s) in nm: `520`, `450,520,650`, or `450:650:28` (first:last:count). Default: the system's.
+    #[arg(long = "wavelength-nm", alias = "wavelengths-nm")]
+    pub wavelength_nm: Option<String>,
+    /// Field point(s) as object height `X,Y` mm; repeat for several. Default: the system's fields.
+    #[arg(long = "field-mm", allow_hyphen_values = true)]
+    pub field_mm: Vec<String>,
+    /// Pupil sampling: chief, marginal, hexapolar:RINGS, grid:N, grid-step:STEP, random:N:SEED.
+    #[arg(long, default_value = "hexapolar:12")]
+    pub pupil: String,
+    /// Read normalised pupil coordinates from the `px,py` columns of a CSV (other columns and `#` lines ignored).
+    #[arg(long = "pupil-csv")]
+    pub pupil_csv: Option<PathBuf>,
+    /// Per-ray CSV: px,py,x_mm,y_mm,status (plus field and wavelength columns when several).
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    /// Statistics (and, for `trace`, rays) as JSON.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Spot diagram PNG.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub struct DistortionArgs {
+    #[command(flatten)]
+    pub system: SystemArgs,
+    /// Wavelength (nm). Default: the primary wavelength.
+    #[arg(long = "wavelength-nm")]
+    pub wavelength_nm: Option<f64>,
+    /// Grid points per side (odd numbers include the axis, like Zemax).
+    #[arg(long, default_value_t = 13)]
+    pub grid: usize,
+    /// Half width of the square object field (mm).
+    #[arg(long = "half-width-mm", default_value_t = 2.5)]
+    pub half_width_mm: f64,
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Arrow magnification in the PNG.
+    #[arg(long = "arrow-scale", default_value_t = 10.0)]
+    pub arrow_scale: f64,
+}
+
+#[derive(Args, Debug)]
+pub struct DispersionArgs {
+    #[command(flatten)]
+    pub system: SystemArgs,
+    /// Field point `X,Y` mm (default: the axis).
+    #[arg(long = "field-mm", default_value = "0,0", allow_hyphen_values = true)]
+    pub field_mm: String,
+    /// Wavelengths: list or first:last:count (default: the paper's 28 bands, 450:650:28).
+    #[arg(long = "wavelengths-nm", alias = "wavelength-nm", default_value = "450:650:28")]
+    pub wavelengths_nm: String,
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub struct MappingArgs {
+    #[command(flatten)]
+    pub system: SystemArgs,
+    #[arg(long, default_value_t = 512)]
+    pub height: usize,
+    #[arg(long, default_value_t = 512)]
+    pub width: usize,
+    /// Scene pixel pitch on the object plane (mm).
+    #[arg(long = "pitch-mm", default_value_t = 0.01)]
+    pub pitch_mm: f64,
+    /// Wavelengths: list or first:last:count.
+    #[arg(long = "wavelengths-nm", default_value = "450:650:28")]
+    pub wavelengths_nm: String,
+    /// Output NPY, shape (H, W, Nλ, 2), detector (x, y) mm; a companion `<stem>_valid.npy` (u8, H×W×Nλ)
+    /// flags rays that arrived.
+    #[arg(long)]
+    pub npy: PathBuf,
+    /// Write float64 instead of float32.
+    #[arg(long)]
+    pub f64: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct ReportArgs {
+    #[command(flatten)]
+    pub system: SystemArgs,
+    /// Output folder.
+    #[arg(long, default_value = "out")]
+    pub out: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    #[arg(long, default_value = "sp")]
+    pub preset: String,
+    /// Rays per wavelength.
+    #[arg(long, default_value_t = 100_000)]
+    pub rays: usize,
+    /// Number of wavelengths (450–650 nm).
+    #[arg(long, default_value_t = 28)]
+    pub wavelengths: usize,
+    /// Repetitions (the best is reported).
+    #[arg(long, default_value_t = 3)]
+    pub repeat: usize,
+}
+
+#[derive(Args, Debug)]
+pub struct ExportArgs {
+    #[command(flatten)]
+    pub system: SystemArgs,
+    /// Output .toml or .json.
+    #[arg(long)]
+    pub out: PathBuf,
+}

@@ -1,0 +1,616 @@
+use super::args::*;
+use crate::analysis::{self, linspace, DistortionGrid, SpotDiagram};
+use crate::error::{Error, Result};
+use crate::io::{write_atomic, write_npy_f32, write_npy_f64, write_npy_u8, CsvValue, CsvWriter};
+use crate::materials::GlassCatalog;
+use crate::plot;
+use crate::rays::{PupilPattern, RayBatch};
+use crate::spec::{Driver, SurfaceKind, SystemSpec};
+use crate::system::SequentialSystem;
+use crate::tracer::{AnalyticTracer, RayStatus, Tracer};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+pub(super) fn run(command: Command) -> Result<()> {
+    match command {
+        Command::Info(a) => info(a),
+        Command::Trace(a) => trace(a),
+        Command::Spot(a) => spot(a),
+        Command::Distortion(a) => distortion(a),
+        Command::Dispersion(a) => dispersion(a),
+        Command::Mapping(a) => mapping(a),
+        Command::Report(a) => report(a),
+        Command::Bench(a) => bench(a),
+        Command::ExportSpec(a) => export_spec(a),
+    }
+}
+
+// ---------------------------------------------------------------- argument parsing
+
+/// The spec named by `--preset` or `--system`.
+pub fn load_spec(args: &SystemArgs) -> Result<SystemSpec> {
+    match (&args.preset, &args.system) {
+        (Some(p), None) => crate::presets::spec(p),
+        (None, Some(path)) => crate::spec::load_spec_file(path),
+        (None, None) => Err(Error::invalid("give a system: --preset sp|ap|msp|map or --system FILE")),
+        (Some(_), Some(_)) => Err(Error::invalid("give either --preset or --system, not both")),
+    }
+}
+
+/// Build the system named by the arguments, with any extra glass catalogues.
+pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
+    let spec = load_spec(args)?;
+    let mut catalog = GlassCatalog::builtin();
+    for path in spec.glass_catalogs.iter().map(PathBuf::from).chain(args.glass_catalogs.iter().cloned()) {
+        catalog.merge(GlassCatalog::from_agf_file(&path)?);
+    }
+    SequentialSystem::build_with_catalog(&spec, &catalog)
+}
+
+/// `520`, `450,520,650` or `450:650:28` (first:last:count) → wavelengths in nm.
+pub fn parse_wavelengths(text: &str) -> Result<Vec<f64>> {
+    let bad = |why: &str| Error::invalid(format!("--wavelength-nm `{text}`: {why} (use 520, 450,520,650 or 450:650:28)"));
+    let num = |s: &str| -> Result<f64> {
+        let v: f64 = s.trim().parse().map_err(|_| bad(&format!("`{s}` is not a number")))?;
+        if !(v.is_finite() && v > 0.0) {
+            return Err(bad(&format!("{v} must be finite and > 0")));
+        }
+        Ok(v)
+    };
+    if text.contains(':') {
+        let parts: Vec<&str> = text.split(':').collect();
+        if parts.len() != 3 {
+            return Err(bad("a range needs first:last:count"));
+        }
+        let count: usize = parts[2].trim().parse().map_err(|_| bad("count is not a whole number"))?;
+        if count == 0 {
+            return Err(bad("count must be ≥ 1"));
+        }
+        return Ok(linspace(num(parts[0])?, num(parts[1])?, count));
+    }
+    text.split(',').map(num).collect()
+}
+
+/// `X,Y` → field point (mm).
+pub fn parse_field(text: &str) -> Result<[f64; 2]> {
+    let bad = |why: String| Error::invalid(format!("--field-mm `{text}`: {why} (use X,Y in mm, e.g. 2.5,0)"));
+    let parts: Vec<&str> = text.split(',').collect();
+    if parts.len() != 2 {
+        return Err(bad("expected two numbers".into()));
+    }
+    let mut v = [0.0f64; 2];
+    for (k, p) in parts.iter().enumerate() {
+        v[k] = p.trim().parse().map_err(|_| bad(format!("`{p}` is not a number")))?;
+        if !v[k].is_finite() {
+            return Err(bad(format!("{} is not finite", v[k])));
+        }
+    }
+    Ok(v)
+}
+
+/// `chief`, `marginal`, `hexapolar:R`, `grid:N`, `grid-step:S`, `random:N:SEED`.
+pub fn parse_pupil(text: &str) -> Result<PupilPattern> {
+    let bad = |why: &str| Error::invalid(format!("--pupil `{text}`: {why} (chief, marginal, hexapolar:RINGS, grid:N, grid-step:STEP, random:N:SEED)"));
+    let parts: Vec<&str> = text.split(':').collect();
+    let int = |k: usize| -> Result<usize> { parts.get(k).ok_or_else(|| bad("missing number"))?.parse().map_err(|_| bad("not a whole number")) };
+    let p = match parts[0] {
+        "chief" => PupilPattern::Chief,
+        "marginal" => PupilPattern::Marginal,
+        "hexapolar" => PupilPattern::Hexapolar { rings: int(1)? },
+        "grid" => PupilPattern::Grid { n: int(1)? },
+        "grid-step" => {
+            let step: f64 = parts.get(1).ok_or_else(|| bad("missing step"))?.parse().map_err(|_| bad("step is not a number"))?;
+            if !(step > 0.0 && step <= 1.0) {
+                return Err(bad("step must be in (0, 1]"));
+            }
+            PupilPattern::GridStep { step }
+        }
+        "random" => PupilPattern::Random { n: int(1)?, seed: int(2)? as u64 },
+        _ => return Err(bad("unknown pattern")),
+    };
+    Ok(p)
+}
+
+fn pupil_points(a: &SpotArgs) -> Result<Vec<[f64; 2]>> {
+    match &a.pupil_csv {
+        Some(path) => {
+            let cols = crate::io::read_columns(path, &["px", "py"])?;
+            let pts: Vec<[f64; 2]> = cols[0].iter().zip(&cols[1]).map(|(x, y)| [*x, *y]).collect();
+            if pts.is_empty() {
+                return Err(Error::File { path: path.display().to_string(), message: "no pupil rows".into() });
+            }
+            Ok(pts)
+        }
+        None => Ok(parse_pupil(&a.pupil)?.points()),
+    }
+}
+
+fn fields(a: &[String], system: &SequentialSystem) -> Result<Vec<[f64; 2]>> {
+    if a.is_empty() {
+        if system.spec.fields_mm.is_empty() {
+            return Err(Error::invalid("the system defines no fields: give --field-mm X,Y"));
+        }
+        return Ok(system.spec.fields_mm.clone());
+    }
+    a.iter().map(|f| parse_field(f)).collect()
+}
+
+fn wavelengths_or_system(w: &Option<String>, system: &SequentialSystem) -> Result<Vec<f64>> {
+    match w {
+        Some(t) => parse_wavelengths(t),
+        None => Ok(system.spec.wavelengths_nm.clone()),
+    }
+}
+
+fn say_written(path: &Path) {
+    eprintln!("wrote {}", path.display());
+}
+
+fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| Error::invalid(format!("JSON encoding failed: {e}")))?;
+    write_atomic(path, text.as_bytes())?;
+    say_written(path);
+    Ok(())
+}
+
+// ---------------------------------------------------------------- info / export
+
+fn cell_text(c: Option<&crate::spec::Cell>) -> String {
+    match c {
+        None => String::new(),
+        Some(c) => {
+            let flag = match (&c.driver, c.variable) {
+                (Driver::Pickup(p), _) => format!(" P{}", p.surface),
+                (Driver::ChiefRay, _) => " C".into(),
+                (Driver::Fixed, true) => " V".into(),
+                _ => String::new(),
+            };
+            format!("{:.4}{flag}", c.value)
+        }
+    }
+}
+
+/// The resolved Lens Data Editor as text.
+pub fn lde_table(system: &SequentialSystem) -> String {
+    use std::fmt::Write;
+    let spec = &system.spec;
+    let mut s = String::new();
+    let _ = writeln!(s, "system `{}` — {}", spec.name, spec.description);
+    let _ = writeln!(
+        s,
+        "aperture {:?}, ray aiming {:?}, primary {} nm, wavelengths {:?} nm, fields {:?} mm",
+        spec.aperture, spec.ray_aiming, spec.primary_wavelength_nm, spec.wavelengths_nm, spec.fields_mm
+    );
+    let p = &system.pupil;
+    let _ = writeln!(
+        s,
+        "paraxial entrance pupil: {:.4} mm from the object, radius {:.4} mm{}; stop surface {} (paraxial stop radius {:.4} mm)",
+        p.distance_mm,
+        p.radius_mm,
+        if p.magnification_sign < 0.0 { ", inverted image of the stop" } else { "" },
+        system.stop_index,
+        p.stop_radius_mm
+    );
+    let n = system.indices(spec.primary_wavelength_nm).unwrap_or_default();
+    let _ = writeln!(s, "{:>3} {:<18} {:<14} {:>12} {:>12} {:<8} {:>9} {:>8} {:>9}  parameters (flags: V variable, Pn pickup, C chief-ray solve)", "#", "type", "comment", "radius", "thickness", "material", "n@primary", "semi-dia", "aperture");
+    for (i, surf) in spec.surfaces.iter().enumerate() {
+        let kind = format!(
+            "{}{}",
+            if i == 0 { "OBJ " } else if i + 1 == spec.surfaces.len() { "IMA " } else if i == system.stop_index { "STO " } else { "" },
+            surf.kind.label()
+        );
+        let params = match surf.kind {
+            SurfaceKind::CoordinateBreak => format!(
+                "dec x {} dec y {} tilt x {} tilt y {} tilt z {} order {}",
+                cell_text(surf.decenter_x_mm.as_ref()),
+                cell_text(surf.decenter_y_mm.as_ref()),
+                cell_text(surf.tilt_x_deg.as_ref()),
+                cell_text(surf.tilt_y_deg.as_ref()),
+                cell_text(surf.tilt_z_deg.as_ref()),
+                surf.order
+            ),
+            SurfaceKind::Paraxial => format!("f {}", cell_text(surf.focal_length_mm.as_ref())),
+            _ => {
+                let mut t = String::new();
+                if let Some(k) = &surf.conic {
+                    t += &format!("conic {}", cell_text(Some(k)));
+                }
+                for (k, a) in surf.asphere_coefficients.iter().enumerate() {
+                    t += &format!(" a{} {:e}", 2 * (k + 1), a.value);
+                }
+                t
+            }
+        };
+        let _ = writeln!(
+            s,
+            "{:>3} {:<18} {:<14} {:>12} {:>12} {:<8} {:>9} {:>8} {:>9}  {}",
+            i,
+            kind,
+            surf.comment.chars().take(14).collect::<String>(),
+            surf.radius_mm.as_ref().map(|r| cell_text(Some(r))).unwrap_or_else(|| if surf.kind == SurfaceKind::CoordinateBreak { String::new() } else { "inf".into() }),
+            cell_text(Some(&surf.thickness_mm)),
+            surf.material.clone().unwrap_or_default(),
+            n.get(i).map(|v| format!("{v:.6}")).unwrap_or_default(),
+            surf.semi_diameter_mm.map(|v| format!("{v:.3}")).unwrap_or_default(),
+            match &surf.aperture {
+                Some(crate::surfaces::Aperture::Circular { semi_diameter_mm, .. }) => format!("circ {semi_diameter_mm}"),
+                Some(crate::surfaces::Aperture::Rectangular { half_width_x_mm, half_width_y_mm, .. }) => format!("rect {half_width_x_mm}×{half_width_y_mm}"),
+                _ => String::new(),
+            },
+            params
+        );
+    }
+    s
+}
+
+fn info(a: InfoArgs) -> Result<()> {
+    let system = load_system(&a.system)?;
+    if a.json {
+        println!("{}", crate::spec::to_json(&system.spec)?);
+    } else {
+        print!("{}", lde_table(&system));
+    }
+    Ok(())
+}
+
+fn export_spec(a: ExportArgs) -> Result<()> {
+    let system = load_system(&a.system)?;
+    crate::spec::save_spec_file(&system.spec, &a.out)?;
+    say_written(&a.out);
+    Ok(())
+}
+
+// ---------------------------------------------------------------- trace / spot
+
+fn trace(a: SpotArgs) -> Result<()> {
+    let system = load_system(&a.system)?;
+    let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
+    let fs = fields(&a.field_mm, &system)?;
+    if ws.len() != 1 || fs.len() != 1 {
+        return Err(Error::invalid(format!(
+            "trace takes one --wavelength-nm and one --field-mm (got {} wavelengths, {} fields); use `spot` for several",
+            ws.len(),
+            fs.len()
+        )));
+    }
+    let pupil = pupil_points(&a)?;
+    let rays = analysis::field_rays(&system, fs[0], &pupil, ws[0])?;
+    let out = AnalyticTracer::default().trace(&system, &rays)?;
+    let ok = out.ok_count();
+    println!("traced {} rays of field ({}, {}) mm at {} nm: {} ok, {} failed", out.len(), fs[0][0], fs[0][1], ws[0], ok, out.len() - ok);
+    if let Some(path) = &a.csv {
+        let mut w = CsvWriter::new(path, &["px", "py", "x_mm", "y_mm", "dir_x", "dir_y", "dir_z", "status", "stop_surface"])?;
+        w.comment(&format!("system {}; field ({}, {}) mm; wavelength {} nm; image-surface frame", system.name(), fs[0][0], fs[0][1], ws[0]));
+        for i in 0..out.len() {
+            let okr = out.status[i] == RayStatus::Ok;
+            let num = |v: f64| if okr { CsvValue::F64(v) } else { CsvValue::Str("") };
+            let surf = if okr { CsvValue::Str("") } else { CsvValue::Int(out.surface[i] as i64) };
+            w.row(&[CsvValue::F64(pupil[i][0]), CsvValue::F64(pupil[i][1]), num(out.x[i]), num(out.y[i]), num(out.dir_x[i]), num(out.dir_y[i]), num(out.dir_z[i]), CsvValue::Str(out.status[i].label()), surf])?;
+        }
+        w.finish()?;
+        say_written(path);
+    }
+    if let Some(path) = &a.json {
+        let rays: Vec<serde_json::Value> = (0..out.len())
+            .map(|i| serde_json::json!({"px": pupil[i][0], "py": pupil[i][1], "x_mm": out.x[i], "y_mm": out.y[i], "status": out.status[i].label()}))
+            .collect();
+        write_json(path, &serde_json::json!({"system": system.name(), "field_mm": fs[0], "wavelength_nm": ws[0], "rays": rays}))?;
+    }
+    Ok(())
+}
+
+fn spot_summary(s: &SpotDiagram) -> serde_json::Value {
+    serde_json::json!({
+        "field_mm": s.field_mm,
+        "wavelength_nm": s.wavelength_nm,
+        "rays": s.status.len(),
+        "rays_ok": s.stats.map(|t| t.count).unwrap_or(0),
+        "centroid_mm": s.stats.map(|t| t.centroid_mm),
+        "chief_mm": s.chief_mm,
+        "rms_radius_um": s.stats.map(|t| t.rms_radius_um),
+        "geo_radius_um": s.stats.map(|t| t.geo_radius_um),
+        "rms_radius_chief_um": s.rms_radius_chief_um,
+    })
+}
+
+fn print_spot_table(spots: &[SpotDiagram]) {
+    println!("{:>16} {:>9} {:>11} {:>24} {:>10} {:>10} {:>10}", "field (mm)", "λ (nm)", "rays ok", "centroid (mm)", "RMS (µm)", "GEO (µm)", "RMS/chief");
+    for s in spots {
+        let ok = s.stats.map(|t| t.count).unwrap_or(0);
+        let (c, r, g) = s.stats.map(|t| (format!("({:.6}, {:.6})", t.centroid_mm[0], t.centroid_mm[1]), format!("{:.3}", t.rms_radius_um), format!("{:.3}", t.geo_radius_um))).unwrap_or_default();
+        println!(
+            "{:>16} {:>9} {:>11} {:>24} {:>10} {:>10} {:>10}",
+            format!("({}, {})", s.field_mm[0], s.field_mm[1]),
+            s.wavelength_nm,
+            format!("{ok}/{}", s.status.len()),
+            c,
+            r,
+            g,
+            s.rms_radius_chief_um.map(|v| format!("{v:.3}")).unwrap_or_default()
+        );
+    }
+}
+
+/// One panel per (field, wavelength), each centred on its own centroid: in a dispersive system the
+/// wavelengths of one field land hundreds of µm apart, so sharing a panel would hide every spot's shape.
+fn spot_plot(path: &Path, title: &str, spots: &[SpotDiagram], fields: &[[f64; 2]]) -> Result<()> {
+    let panels: Vec<plot::SpotPanel> = spots
+        .iter()
+        .filter_map(|s| {
+            let ok: Vec<usize> = (0..s.status.len()).filter(|&i| s.status[i] == RayStatus::Ok).collect();
+            if ok.is_empty() {
+                return None;
+            }
+            let k = fields.iter().position(|f| *f == s.field_mm).map(|k| format!("F{} ", k + 1)).unwrap_or_default();
+            Some(plot::SpotPanel {
+                label: format!("{k}({}, {}) mm · {} nm", s.field_mm[0], s.field_mm[1], s.wavelength_nm),
+                series: vec![plot::SpotSeries {
+                    label: format!("{} nm", s.wavelength_nm),
+                    x_um: ok.iter().map(|&i| s.x_mm[i] * 1e3).collect(),
+                    y_um: ok.iter().map(|&i| s.y_mm[i] * 1e3).collect(),
+                }],
+            })
+        })
+        .collect();
+    plot::spot_diagram(path, title, &panels)?;
+    say_written(path);
+    Ok(())
+}
+
+fn compute_spots(system: &SequentialSystem, fs: &[[f64; 2]], ws: &[f64], pupil: &[[f64; 2]]) -> Result<Vec<SpotDiagram>> {
+    let tracer = AnalyticTracer::default();
+    let mut spots = Vec::new();
+    for f in fs {
+        for &w in ws {
+            spots.push(analysis::spot_diagram(system, &tracer, *f, w, pupil)?);
+        }
+    }
+    Ok(spots)
+}
+
+fn write_spot_csv(path: &Path, system: &SequentialSystem, spots: &[SpotDiagram]) -> Result<()> {
+    let several = spots.len() > 1;
+    let mut header = vec!["px", "py", "x_mm", "y_mm", "status"];
+    if several {
+        header.extend(["field_x_mm", "field_y_mm", "wavelength_nm"]);
+    }
+    let mut w = CsvWriter::new(path, &header)?;
+    w.comment(&format!("system {}; image positions in the image surface's frame (mm); failed rays have empty positions", system.name()));
+    for s in spots {
+        for i in 0..s.status.len() {
+            let ok = s.status[i] == RayStatus::Ok;
+            let num = |v: f64| if ok { CsvValue::F64(v) } else { CsvValue::Str("") };
+            let mut row = vec![CsvValue::F64(s.pupil[i][0]), CsvValue::F64(s.pupil[i][1]), num(s.x_mm[i]), num(s.y_mm[i]), CsvValue::Str(s.status[i].label())];
+            if several {
+                row.extend([CsvValue::F64(s.field_mm[0]), CsvValue::F64(s.field_mm[1]), CsvValue::F64(s.wavelength_nm)]);
+            }
+            w.row(&row)?;
+        }
+    }
+    w.finish()?;
+    say_written(path);
+    Ok(())
+}
+
+fn spot(a: SpotArgs) -> Result<()> {
+    let system = load_system(&a.system)?;
+    let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
+    let fs = fields(&a.field_mm, &system)?;
+    let pupil = pupil_points(&a)?;
+    let spots = compute_spots(&system, &fs, &ws, &pupil)?;
+    print_spot_table(&spots);
+    if let Some(path) = &a.csv {
+        write_spot_csv(path, &system, &spots)?;
+    }
+    if let Some(path) = &a.json {
+        write_json(path, &serde_json::json!({"system": system.name(), "spots": spots.iter().map(spot_summary).collect::<Vec<_>>()}))?;
+    }
+    if let Some(path) = &a.png {
+        spot_plot(path, &format!("{} spot diagram", system.name()), &spots, &fs)?;
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------- distortion / dispersion / mapping
+
+fn write_distortion_csv(path: &Path, system: &SequentialSystem, g: &DistortionGrid) -> Result<()> {
+    let mut w = CsvWriter::new(
+        path,
+        &["i", "j", "x_field_mm", "y_field_mm", "r_field_mm", "pred_x_mm", "pred_y_mm", "real_x_mm", "real_y_mm", "distortion_pct", "status"],
+    )?;
+    w.comment(&format!("system {}; wavelength {} nm; positions absolute in the image surface's frame (mm)", system.name(), g.wavelength_nm));
+    w.comment(&format!("reference (on-axis chief ray) Xref_mm={} Yref_mm={}", g.reference_mm[0], g.reference_mm[1]));
+    w.comment(&format!("predicted = ref + ABCD·field, A={} B={} C={} D={}; max distortion {}%", g.abcd[0], g.abcd[1], g.abcd[2], g.abcd[3], g.max_distortion_pct));
+    for p in &g.points {
+        let ok = p.status == RayStatus::Ok;
+        let num = |v: f64| if ok { CsvValue::F64(v) } else { CsvValue::Str("") };
+        w.row(&[
+            CsvValue::Int(p.i as i64),
+            CsvValue::Int(p.j as i64),
+            CsvValue::F64(p.x_field_mm),
+            CsvValue::F64(p.y_field_mm),
+            CsvValue::F64(p.x_field_mm.hypot(p.y_field_mm)),
+            CsvValue::F64(p.pred_x_mm),
+            CsvValue::F64(p.pred_y_mm),
+            num(p.real_x_mm),
+            num(p.real_y_mm),
+            num(p.distortion_pct),
+            CsvValue::Str(p.status.label()),
+        ])?;
+    }
+    w.finish()?;
+    say_written(path);
+    Ok(())
+}
+
+fn distortion_plot(path: &Path, system: &SequentialSystem, g: &DistortionGrid, arrow_scale: f64) -> Result<()> {
+    let pts: Vec<plot::DistortionPoint> = g
+        .points
+        .iter()
+        .filter(|p| p.status == RayStatus::Ok)
+        .map(|p| plot::DistortionPoint { paraxial_x_mm: p.pred_x_mm, paraxial_y_mm: p.pred_y_mm, real_x_mm: p.real_x_mm, real_y_mm: p.real_y_mm })
+        .collect();
+    plot::distortion_map(path, &format!("{} grid distortion at {} nm (max {:.3} %)", system.name(), g.wavelength_nm, g.max_distortion_pct), &pts, arrow_scale)?;
+    say_written(path);
+    Ok(())
+}
+
+fn distortion(a: DistortionArgs) -> Result<()> {
+    let system = load_system(&a.system)?;
+    let w = a.wavelength_nm.unwrap_or(system.primary_wavelength_nm());
+    let g = analysis::grid_distortion(&system, &AnalyticTracer::default(), w, a.grid, a.half_width_mm)?;
+    let failed = g.points.iter().filter(|p| p.status != RayStatus::Ok).count();
+    let max_disp_um = g.points.iter().filter(|p| p.status == RayStatus::Ok).map(|p| 1e3 * (p.real_x_mm - p.pred_x_mm).hypot(p.real_y_mm - p.pred_y_mm)).fold(0.0, f64::max);
+    println!(
+        "{}: {}×{} grid at {w} nm over ±{} mm: reference ({:.6}, {:.6}) mm, ABCD [{:.5}, {:.5}, {:.5}, {:.5}], max distortion {:.4} % ({max_disp_um:.2} µm), {failed} rays failed",
+        system.name(), a.grid, a.grid, a.half_width_mm, g.reference_mm[0], g.reference_mm[1], g.abcd[0], g.abcd[1], g.abcd[2], g.abcd[3], g.max_distortion_pct
+    );
+    if let Some(p) = &a.csv {
+        write_distortion_csv(p, &system, &g)?;
+    }
+    if let Some(p) = &a.json {
+        write_json(p, &g)?;
+    }
+    if let Some(p) = &a.png {
+        distortion_plot(p, &system, &g, a.arrow_scale)?;
+    }
+    Ok(())
+}
+
+fn dispersion(a: DispersionArgs) -> Result<()> {
+    let system = load_system(&a.system)?;
+    let ws = parse_wavelengths(&a.wavelengths_nm)?;
+    let field = parse_field(&a.field_mm)?;
+    let c = analysis::dispersion_curve(&system, &AnalyticTracer::default(), field, &ws)?;
+    println!("{}: field ({}, {}) mm, {}–{} nm: spatio-spectral spreading {:.2} µm ({:.1} px of 10 µm)", system.name(), field[0], field[1], ws[0], ws[ws.len() - 1], c.spread_um, c.spread_um / 10.0);
+    if let Some(p) = &a.csv {
+        let mut w = CsvWriter::new(p, &["wavelength_nm", "x_mm", "y_mm"])?;
+        w.comment(&format!("system {}; chief ray of field ({}, {}) mm; spread {} um", system.name(), field[0], field[1], c.spread_um));
+        for k in 0..ws.len() {
+            w.row_f64(&[ws[k], c.x_mm[k], c.y_mm[k]])?;
+        }
+        w.finish()?;
+        say_written(p);
+    }
+    if let Some(p) = &a.png {
+        plot::dispersion_curve(p, &format!("{} spatio-spectral spreading ({:.1} µm)", system.name(), c.spread_um), &c.wavelength_nm, &c.x_mm, &c.y_mm)?;
+        say_written(p);
+    }
+    Ok(())
+}
+
+fn mapping(a: MappingArgs) -> Result<()> {
+    let system = load_system(&a.system)?;
+    let ws = parse_wavelengths(&a.wavelengths_nm)?;
+    let t0 = Instant::now();
+    let cube = analysis::mapping_cube(&system, &AnalyticTracer::default(), a.height, a.width, a.pitch_mm, &ws)?;
+    let secs = t0.elapsed().as_secs_f64();
+    let n = a.height * a.width * ws.len();
+    println!("{}: mapping {}×{}×{} = {n} chief rays in {secs:.2} s ({:.2} M rays/s), {} did not arrive", system.name(), a.height, a.width, ws.len(), n as f64 / secs / 1e6, cube.invalid_count());
+    let shape = [a.height, a.width, ws.len(), 2];
+    if a.f64 {
+        write_npy_f64(&a.npy, &shape, &cube.positions_mm)?;
+    } else {
+        let v: Vec<f32> = cube.positions_mm.iter().map(|&x| x as f32).collect();
+        write_npy_f32(&a.npy, &shape, &v)?;
+    }
+    say_written(&a.npy);
+    let stem = a.npy.file_stem().and_then(|s| s.to_str()).unwrap_or("mapping");
+    let valid = a.npy.with_file_name(format!("{stem}_valid.npy"));
+    write_npy_u8(&valid, &shape[..3], &cube.valid)?;
+    say_written(&valid);
+    let wl = a.npy.with_file_name(format!("{stem}_wavelengths_nm.npy"));
+    write_npy_f64(&wl, &[ws.len()], &ws)?;
+    say_written(&wl);
+    Ok(())
+}
+
+// ---------------------------------------------------------------- report (the main job until rendering lands)
+
+fn report(a: ReportArgs) -> Result<()> {
+    let system = load_system(&a.system)?;
+    let out = &a.out;
+    std::fs::create_dir_all(out).map_err(|e| Error::File { path: out.display().to_string(), message: format!("cannot create: {e}") })?;
+    let name = system.name().to_string();
+    let t0 = Instant::now();
+    write_atomic(out.join("system.txt"), lde_table(&system).as_bytes())?;
+    crate::spec::save_spec_file(&system.spec, out.join("system.toml"))?;
+    let fs = system.spec.fields_mm.clone();
+    let ws = system.spec.wavelengths_nm.clone();
+    let pupil = PupilPattern::Hexapolar { rings: 16 }.points();
+    let spots = compute_spots(&system, &fs, &ws, &pupil)?;
+    print_spot_table(&spots);
+    write_spot_csv(&out.join("spots.csv"), &system, &spots)?;
+    spot_plot(&out.join("spots.png"), &format!("{name} spot diagrams (hexapolar, 16 rings)"), &spots, &fs)?;
+    let tracer = AnalyticTracer::default();
+    let mut grids = Vec::new();
+    for &w in &ws {
+        let g = analysis::grid_distortion(&system, &tracer, w, 13, 2.5)?;
+        write_distortion_csv(&out.join(format!("distortion_{}nm.csv", w)), &system, &g)?;
+        distortion_plot(&out.join(format!("distortion_{}nm.png", w)), &system, &g, 10.0)?;
+        println!("distortion at {w} nm: max {:.4} %", g.max_distortion_pct);
+        grids.push(serde_json::json!({"wavelength_nm": w, "reference_mm": g.reference_mm, "abcd": g.abcd, "max_distortion_pct": g.max_distortion_pct}));
+    }
+    let bands = linspace(450.0, 650.0, 28);
+    let c = analysis::dispersion_curve(&system, &tracer, [0.0, 0.0], &bands)?;
+    plot::dispersion_curve(out.join("dispersion.png"), &format!("{name} spatio-spectral spreading ({:.1} µm)", c.spread_um), &c.wavelength_nm, &c.x_mm, &c.y_mm)?;
+    say_written(&out.join("dispersion.png"));
+    println!("spatio-spectral spreading 450–650 nm: {:.2} µm", c.spread_um);
+    write_json(
+        &out.join("report.json"),
+        &serde_json::json!({
+            "system": name, "version": env!("CARGO_PKG_VERSION"),
+            "spots": spots.iter().map(spot_summary).collect::<Vec<_>>(),
+            "distortion": grids,
+            "dispersion": {"wavelength_nm": c.wavelength_nm, "x_mm": c.x_mm, "y_mm": c.y_mm, "spread_um": c.spread_um},
+            "seconds": t0.elapsed().as_secs_f64(),
+        }),
+    )?;
+    println!("report of `{name}` written to {} in {:.2} s", out.display(), t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+// ---------------------------------------------------------------- bench
+
+/// The bench workload: `rays` rays per wavelength over the system's fields (seeded random pupil).
+pub fn bench_batch(system: &SequentialSystem, rays: usize, wavelengths: &[f64]) -> Result<RayBatch> {
+    let fs = if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() };
+    let mut batch = RayBatch::with_capacity(rays * wavelengths.len());
+    for (k, &w) in wavelengths.iter().enumerate() {
+        let pupil = PupilPattern::Random { n: rays, seed: 1000 + k as u64 }.points();
+        for (i, p) in pupil.iter().enumerate() {
+            let f = fs[i % fs.len()];
+            let (o, d) = crate::rays::object_ray(system, f, p[0], p[1]);
+            batch.push(o, d, w);
+        }
+    }
+    Ok(batch)
+}
+
+fn bench(a: BenchArgs) -> Result<()> {
+    let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
+    let ws = linspace(450.0, 650.0, a.wavelengths.max(1));
+    let batch = bench_batch(&system, a.rays, &ws)?;
+    let tracer = AnalyticTracer::default();
+    let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    println!("analytic f64 tracer, preset {}, {} rays ({} per wavelength × {} wavelengths), {} intersections per ray, best of {}", system.name(), batch.len(), a.rays, ws.len(), system.surfaces_per_ray(), a.repeat);
+    println!("| threads | seconds | M rays/s | M ray-surface intersections/s |");
+    println!("|---|---|---|---|");
+    let mut thread_counts = vec![1];
+    if cores > 1 {
+        thread_counts.push(cores);
+    }
+    for threads in thread_counts {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().map_err(|e| Error::invalid(e.to_string()))?;
+        let mut best = f64::INFINITY;
+        for _ in 0..a.repeat.max(1) {
+            let t = Instant::now();
+            let out = pool.install(|| tracer.trace(&system, &batch))?;
+            best = best.min(t.elapsed().as_secs_f64());
+            std::hint::black_box(out);
+        }
+        let rps = batch.len() as f64 / best;
+        println!("| {threads} | {best:.3} | {:.2} | {:.1} |", rps / 1e6, rps * system.surfaces_per_ray() as f64 / 1e6);
+    }
+    Ok(())
+}

@@ -1,0 +1,166 @@
+//! Optical materials: glass catalogues, dispersion formulas and media.
+//!
+//! This module reproduces how Zemax OpticStudio turns a glass name into a
+//! refractive index:
+//!
+//! * [`agf`] reads Zemax `.AGF` glass catalogues (UTF-8, Latin-1 or UTF-16 with BOM),
+//! * [`dispersion`] evaluates the 13 AGF dispersion formulas (wavelength in µm inside),
+//! * [`glass`] holds one catalogue entry ([`Glass`]) with its valid wavelength range,
+//! * [`catalog`] stores glasses by case-insensitive name ([`GlassCatalog`]), including a
+//!   small built-in table so the binary works without any catalogue file,
+//! * [`medium`] is what a surface of the ray tracer refracts into ([`Medium`]).
+//!
+//! All public wavelengths are in **nanometres** (`wavelength_nm`); the conversion to the
+//! micrometres used by the AGF formulas happens inside [`DispersionFormula`].
+//!
+//! Indices are *relative to air* exactly as the catalogue gives them. Zemax evaluates the
+//! catalogue formula unchanged when the system temperature/pressure equal the catalogue
+//! reference (20 °C, 1 atm), which is the only case modelled here: thermal (`TD`) data are
+//! parsed and kept in [`Glass::thermal`] but never applied. System air is the index
+//! reference, so [`Medium::Air`] has index exactly `1.0`.
+//!
+//! # Example
+//!
+//! ```
+//! use diffcassi::materials::{GlassCatalog, Medium, WavelengthPolicy};
+//!
+//! let catalog = GlassCatalog::builtin();
+//! let bk7 = catalog.get("n-bk7")?; // case-insensitive, like Zemax
+//! let n_d = bk7.refractive_index(587.5618)?;
+//! assert!((n_d - 1.5168).abs() < 1e-4);
+//!
+//! // Out of the catalogue's LD range is an error unless explicitly allowed.
+//! assert!(bk7.refractive_index(5000.0).is_err());
+//! let medium = Medium::Glass(bk7);
+//! let n_ir = medium.refractive_index(5000.0, WavelengthPolicy::AllowExtrapolation)?;
+//! assert!(n_ir.is_finite());
+//! assert_eq!(Medium::Air.refractive_index(550.0, WavelengthPolicy::Strict)?, 1.0);
+//! # Ok::<(), diffcassi::materials::MaterialError>(())
+//! ```
+
+pub mod agf;
+pub mod catalog;
+pub mod dispersion;
+pub mod glass;
+pub mod medium;
+
+pub use agf::{decode_agf_bytes, parse_agf, parse_agf_document, AgfDocument};
+pub use catalog::GlassCatalog;
+pub use dispersion::{DispersionFormula, C_LINE_NM, D_LINE_NM, F_LINE_NM};
+pub use glass::{ExtraData, Glass, GlassInfo, GlassStatus, ThermalData, TransmissionPoint};
+pub use medium::{Medium, WavelengthPolicy};
+
+/// Everything that can go wrong when reading catalogues or evaluating indices.
+///
+/// Every message names the glass (or medium) and the offending value; parse errors name the
+/// source (file name or path) and the 1-based line number.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum MaterialError {
+    /// No glass of that name in the catalogue (lookup is case-insensitive).
+    #[error("unknown glass '{name}'{}", format_suggestions(.suggestions))]
+    UnknownGlass {
+        /// The name that was asked for, as given.
+        name: String,
+        /// A few catalogue names close to `name` (may be empty).
+        suggestions: Vec<String>,
+    },
+
+    /// The wavelength is outside the catalogue's `LD` range of the glass.
+    #[error(
+        "wavelength {wavelength_nm} nm is outside the valid range [{min_nm}, {max_nm}] nm \
+         of glass {glass} (use WavelengthPolicy::AllowExtrapolation to evaluate anyway)"
+    )]
+    WavelengthOutOfRange {
+        /// Glass name.
+        glass: String,
+        /// Requested wavelength.
+        wavelength_nm: f64,
+        /// Lower end of the catalogue range.
+        min_nm: f64,
+        /// Upper end of the catalogue range.
+        max_nm: f64,
+    },
+
+    /// The requested wavelength is NaN or infinite.
+    #[error("non-finite wavelength {wavelength_nm} nm requested for {medium}")]
+    NonFiniteWavelength {
+        /// Glass or medium name.
+        medium: String,
+        /// The offending wavelength.
+        wavelength_nm: f64,
+    },
+
+    /// The dispersion formula produced NaN, ±∞ or a non-positive index
+    /// (e.g. a negative n² far outside the fitted range).
+    #[error("glass {glass}: dispersion formula gives invalid index {index} at {wavelength_nm} nm")]
+    NonFiniteIndex {
+        /// Glass name.
+        glass: String,
+        /// Wavelength at which the formula was evaluated.
+        wavelength_nm: f64,
+        /// The invalid result.
+        index: f64,
+    },
+
+    /// Malformed AGF text. `source_name` is the file name/path given to the parser
+    /// (the field cannot be called `source`: thiserror reserves that name for error chains).
+    #[error("{source_name}:{line}: {message}")]
+    AgfParse {
+        /// File name or path of the catalogue.
+        source_name: String,
+        /// 1-based line number.
+        line: usize,
+        /// What is wrong (names the glass and the offending token where relevant).
+        message: String,
+    },
+
+    /// The AGF formula number is not one of 1..=13.
+    #[error("glass {glass}: unsupported dispersion formula number {formula} (Zemax AGF formulas are 1..=13)")]
+    UnsupportedFormula {
+        /// Glass name.
+        glass: String,
+        /// The formula number found.
+        formula: i64,
+    },
+
+    /// Fewer dispersion coefficients than the formula needs.
+    #[error("glass {glass}: dispersion formula {formula} ({formula_name}) needs {expected} coefficients, found {found}")]
+    CoefficientCount {
+        /// Glass name.
+        glass: String,
+        /// AGF formula number.
+        formula: u32,
+        /// Formula name.
+        formula_name: &'static str,
+        /// Number of coefficients the formula uses.
+        expected: usize,
+        /// Number of coefficients provided.
+        found: usize,
+    },
+
+    /// A catalogue file could not be read.
+    #[error("cannot read glass catalogue {path}: {message}")]
+    Io {
+        /// Path as given.
+        path: String,
+        /// The I/O error text.
+        message: String,
+    },
+
+    /// The bytes of a catalogue could not be decoded to text.
+    #[error("{source_name}: cannot decode glass catalogue text: {message}")]
+    Encoding {
+        /// File name or path of the catalogue.
+        source_name: String,
+        /// What is wrong.
+        message: String,
+    },
+}
+
+fn format_suggestions(suggestions: &[String]) -> String {
+    if suggestions.is_empty() {
+        String::new()
+    } else {
+        format!(" (did you mean: {}?)", suggestions.join(", "))
+    }
+}

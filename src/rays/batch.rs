@@ -1,0 +1,87 @@
+use super::object_ray;
+use crate::system::SequentialSystem;
+use glam::DVec3;
+
+/// Rays in object space, struct-of-arrays (mm, unit directions, nm), in the object surface's frame.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RayBatch {
+    pub origin_x: Vec<f64>,
+    pub origin_y: Vec<f64>,
+    pub origin_z: Vec<f64>,
+    pub dir_x: Vec<f64>,
+    pub dir_y: Vec<f64>,
+    pub dir_z: Vec<f64>,
+    pub wavelength_nm: Vec<f64>,
+}
+
+impl RayBatch {
+    pub fn with_capacity(n: usize) -> Self {
+        RayBatch {
+            origin_x: Vec::with_capacity(n),
+            origin_y: Vec::with_capacity(n),
+            origin_z: Vec::with_capacity(n),
+            dir_x: Vec::with_capacity(n),
+            dir_y: Vec::with_capacity(n),
+            dir_z: Vec::with_capacity(n),
+            wavelength_nm: Vec::with_capacity(n),
+        }
+    }
+    pub fn len(&self) -> usize {
+        self.origin_x.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.origin_x.is_empty()
+    }
+    pub fn push(&mut self, origin: DVec3, direction: DVec3, wavelength_nm: f64) {
+        self.origin_x.push(origin.x);
+        self.origin_y.push(origin.y);
+        self.origin_z.push(origin.z);
+        self.dir_x.push(direction.x);
+        self.dir_y.push(direction.y);
+        self.dir_z.push(direction.z);
+        self.wavelength_nm.push(wavelength_nm);
+    }
+    pub fn origin(&self, i: usize) -> DVec3 {
+        DVec3::new(self.origin_x[i], self.origin_y[i], self.origin_z[i])
+    }
+    pub fn direction(&self, i: usize) -> DVec3 {
+        DVec3::new(self.dir_x[i], self.dir_y[i], self.dir_z[i])
+    }
+    /// Append another batch.
+    pub fn extend(&mut self, other: &RayBatch) {
+        self.origin_x.extend_from_slice(&other.origin_x);
+        self.origin_y.extend_from_slice(&other.origin_y);
+        self.origin_z.extend_from_slice(&other.origin_z);
+        self.dir_x.extend_from_slice(&other.dir_x);
+        self.dir_y.extend_from_slice(&other.dir_y);
+        self.dir_z.extend_from_slice(&other.dir_z);
+        self.wavelength_nm.extend_from_slice(&other.wavelength_nm);
+    }
+    /// All columns have the same length.
+    pub fn is_consistent(&self) -> bool {
+        let n = self.len();
+        [self.origin_y.len(), self.origin_z.len(), self.dir_x.len(), self.dir_y.len(), self.dir_z.len(), self.wavelength_nm.len()]
+            .iter()
+            .all(|&l| l == n)
+    }
+
+    /// Rays of one field point through the given normalised pupil points at one wavelength.
+    pub fn for_field(system: &SequentialSystem, field_mm: [f64; 2], pupil: &[[f64; 2]], wavelength_nm: f64) -> Self {
+        let mut b = RayBatch::with_capacity(pupil.len());
+        for &[px, py] in pupil {
+            let (o, d) = object_ray(system, field_mm, px, py);
+            b.push(o, d, wavelength_nm);
+        }
+        b
+    }
+
+    /// Chief rays of many field points at one wavelength.
+    pub fn chief_rays(system: &SequentialSystem, fields_mm: &[[f64; 2]], wavelength_nm: f64) -> Self {
+        let mut b = RayBatch::with_capacity(fields_mm.len());
+        for &f in fields_mm {
+            let (o, d) = object_ray(system, f, 0.0, 0.0);
+            b.push(o, d, wavelength_nm);
+        }
+        b
+    }
+}

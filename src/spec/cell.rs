@@ -1,0 +1,132 @@
+use serde::{Deserialize, Serialize};
+
+/// A numeric cell of the Lens Data Editor: its value and what drives it.
+///
+/// In a file a fixed cell is a bare number (`tilt_y_deg = -30.0`); otherwise a table:
+/// `{ value = 30.0, pickup = { surface = 7, scale = 1.0 } }`, `{ solve = "chief_ray" }`,
+/// `{ value = 50.0, variable = true }`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(from = "CellRepr", into = "CellRepr")]
+pub struct Cell {
+    /// The value (for pickups and solves: the last resolved value, informative only).
+    pub value: f64,
+    /// Marked variable ("V"): free for optimisation; otherwise treated as a fixed value.
+    pub variable: bool,
+    pub driver: Driver,
+}
+
+/// What determines a cell's value.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize, Default)]
+pub enum Driver {
+    #[default]
+    Fixed,
+    /// value = scale · source + offset, read from `surface` (same column unless `column` is set). ("P")
+    Pickup(Pickup),
+    /// Coordinate Break decenter/tilt solved so the primary-wavelength chief ray follows the new axis. ("C")
+    ChiefRay,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Pickup {
+    pub surface: usize,
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub scale: f64,
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub offset: f64,
+    /// Source column name (e.g. "tilt_x_deg"); defaults to the same column.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub column: Option<String>,
+}
+
+fn one() -> f64 {
+    1.0
+}
+fn is_one(v: &f64) -> bool {
+    *v == 1.0
+}
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+
+impl Cell {
+    pub fn fixed(value: f64) -> Self {
+        Cell { value, variable: false, driver: Driver::Fixed }
+    }
+    pub fn variable(value: f64) -> Self {
+        Cell { value, variable: true, driver: Driver::Fixed }
+    }
+    pub fn pickup(value: f64, surface: usize, scale: f64) -> Self {
+        Cell { value, variable: false, driver: Driver::Pickup(Pickup { surface, scale, offset: 0.0, column: None }) }
+    }
+    pub fn chief_ray(value: f64) -> Self {
+        Cell { value, variable: false, driver: Driver::ChiefRay }
+    }
+}
+
+impl Default for Cell {
+    fn default() -> Self {
+        Cell::fixed(0.0)
+    }
+}
+
+impl From<f64> for Cell {
+    fn from(v: f64) -> Self {
+        Cell::fixed(v)
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(untagged)]
+enum CellRepr {
+    Value(f64),
+    Table(CellTable),
+}
+
+#[derive(Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CellTable {
+    #[serde(default)]
+    value: f64,
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    variable: bool,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pickup: Option<Pickup>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    solve: Option<SolveName>,
+}
+
+#[derive(Serialize, Deserialize, Clone, Copy)]
+#[serde(rename_all = "snake_case")]
+enum SolveName {
+    ChiefRay,
+}
+
+impl From<CellRepr> for Cell {
+    fn from(r: CellRepr) -> Self {
+        match r {
+            CellRepr::Value(v) => Cell::fixed(v),
+            CellRepr::Table(t) => {
+                let driver = match (t.pickup, t.solve) {
+                    (Some(p), _) => Driver::Pickup(p),
+                    (None, Some(SolveName::ChiefRay)) => Driver::ChiefRay,
+                    (None, None) => Driver::Fixed,
+                };
+                Cell { value: t.value, variable: t.variable, driver }
+            }
+        }
+    }
+}
+
+impl From<Cell> for CellRepr {
+    fn from(c: Cell) -> Self {
+        match c.driver {
+            Driver::Fixed if !c.variable => CellRepr::Value(c.value),
+            Driver::Fixed => CellRepr::Table(CellTable { value: c.value, variable: true, pickup: None, solve: None }),
+            Driver::Pickup(p) => CellRepr::Table(CellTable { value: c.value, variable: c.variable, pickup: Some(p), solve: None }),
+            Driver::ChiefRay => {
+                CellRepr::Table(CellTable { value: c.value, variable: c.variable, pickup: None, solve: Some(SolveName::ChiefRay) })
+            }
+        }
+    }
+}

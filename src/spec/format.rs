@@ -1,0 +1,51 @@
+use super::SystemSpec;
+use crate::error::{Error, Result};
+use std::path::Path;
+
+/// Parse a TOML spec; errors carry `source_name` and TOML's line/column and field path.
+pub fn from_toml(text: &str, source_name: &str) -> Result<SystemSpec> {
+    let spec: SystemSpec = toml::from_str(text).map_err(|e| Error::spec(source_name, format!("invalid TOML spec: {e}")))?;
+    spec.validate().map_err(|m| Error::spec(source_name, m))?;
+    Ok(spec)
+}
+
+/// Parse a JSON spec; errors carry `source_name`, line and column.
+pub fn from_json(text: &str, source_name: &str) -> Result<SystemSpec> {
+    let spec: SystemSpec = serde_json::from_str(text).map_err(|e| Error::spec(source_name, format!("invalid JSON spec: {e}")))?;
+    spec.validate().map_err(|m| Error::spec(source_name, m))?;
+    Ok(spec)
+}
+
+pub fn to_toml(spec: &SystemSpec) -> Result<String> {
+    toml::to_string_pretty(spec).map_err(|e| Error::invalid(format!("cannot write spec `{}` as TOML: {e}", spec.name)))
+}
+
+pub fn to_json(spec: &SystemSpec) -> Result<String> {
+    serde_json::to_string_pretty(spec).map_err(|e| Error::invalid(format!("cannot write spec `{}` as JSON: {e}", spec.name)))
+}
+
+/// Load a spec by extension: `.toml`, `.json`, `.yml`/`.yaml` (the reference paper's format, imported),
+/// `.csv` (a Zemax prescription transcription, see [`super::zemax_csv`]).
+pub fn load_spec_file(path: impl AsRef<Path>) -> Result<SystemSpec> {
+    let path = path.as_ref();
+    let name = path.display().to_string();
+    let text = std::fs::read_to_string(path).map_err(|e| Error::File { path: name.clone(), message: format!("cannot read: {e}") })?;
+    match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
+        Some("toml") => from_toml(&text, &name),
+        Some("json") => from_json(&text, &name),
+        Some("yml") | Some("yaml") => super::yaml::import_yaml(&text, &name),
+        Some("csv") => super::zemax_csv::import_prescription(&text, &name, &super::zemax_csv::SystemData::paper_defaults()),
+        other => Err(Error::spec(&name, format!("unknown spec extension {:?}: use .toml, .json, .yml or .csv", other.unwrap_or("")))),
+    }
+}
+
+/// Write a spec as TOML or JSON (by extension), atomically.
+pub fn save_spec_file(spec: &SystemSpec, path: impl AsRef<Path>) -> Result<()> {
+    let path = path.as_ref();
+    let text = match path.extension().and_then(|e| e.to_str()) {
+        Some("json") => to_json(spec)?,
+        _ => to_toml(spec)?,
+    };
+    crate::io::write_atomic(path, text.as_bytes())?;
+    Ok(())
+}

@@ -1,0 +1,212 @@
+use super::Cell;
+use crate::surfaces::Aperture;
+use serde::{Deserialize, Serialize};
+
+/// The "Surface Type" column.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SurfaceKind {
+    /// Plane, sphere or conic (radius + conic).
+    Standard,
+    /// Conic plus even polynomial terms α₁r² … α₈r¹⁶.
+    EvenAsphere,
+    /// Ideal thin lens of focal length `focal_length_mm`.
+    Paraxial,
+    /// Coordinate Break: decenter x/y, tilt x/y/z, order; keeps the medium before it.
+    CoordinateBreak,
+}
+
+impl SurfaceKind {
+    pub fn label(self) -> &'static str {
+        match self {
+            SurfaceKind::Standard => "Standard",
+            SurfaceKind::EvenAsphere => "Even Asphere",
+            SurfaceKind::Paraxial => "Paraxial",
+            SurfaceKind::CoordinateBreak => "Coordinate Break",
+        }
+    }
+}
+
+/// One row of the Lens Data Editor. Lengths in mm, angles in degrees.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SurfaceSpec {
+    #[serde(rename = "type")]
+    pub kind: SurfaceKind,
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub comment: String,
+    /// This surface is the aperture stop.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub stop: bool,
+    /// Radius of curvature (mm); absent means infinity (flat).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub radius_mm: Option<Cell>,
+    /// Distance to the next surface along the local z after this surface (after a break's own transform).
+    #[serde(default)]
+    pub thickness_mm: Cell,
+    /// Glass name after this surface; absent means air. Not allowed on Coordinate Breaks.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub material: Option<String>,
+    /// Informative semi-diameter (does not clip; see `aperture`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub semi_diameter_mm: Option<f64>,
+    /// A clipping aperture ("(aper)" in the LDE).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub aperture: Option<Aperture>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub conic: Option<Cell>,
+    /// Even asphere α₁..α₈ (coefficient of r², r⁴, …), mm^(1−2i).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub asphere_coefficients: Vec<Cell>,
+    /// Paraxial surface focal length (mm).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub focal_length_mm: Option<Cell>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decenter_x_mm: Option<Cell>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub decenter_y_mm: Option<Cell>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tilt_x_deg: Option<Cell>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tilt_y_deg: Option<Cell>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tilt_z_deg: Option<Cell>,
+    /// Coordinate Break order flag: 0 = decenter then tilt X, Y, Z; 1 = tilt Z, Y, X then decenter.
+    #[serde(default, skip_serializing_if = "is_zero_u8")]
+    pub order: u8,
+}
+
+fn is_zero_u8(v: &u8) -> bool {
+    *v == 0
+}
+
+/// The numeric columns a pickup may name.
+pub const COLUMNS: &[&str] = &[
+    "radius_mm",
+    "thickness_mm",
+    "conic",
+    "focal_length_mm",
+    "decenter_x_mm",
+    "decenter_y_mm",
+    "tilt_x_deg",
+    "tilt_y_deg",
+    "tilt_z_deg",
+    "asphere_1",
+    "asphere_2",
+    "asphere_3",
+    "asphere_4",
+    "asphere_5",
+    "asphere_6",
+    "asphere_7",
+    "asphere_8",
+];
+
+impl SurfaceSpec {
+    /// A bare surface of the given kind with every optional column empty.
+    pub fn new(kind: SurfaceKind) -> Self {
+        SurfaceSpec {
+            kind,
+            comment: String::new(),
+            stop: false,
+            radius_mm: None,
+            thickness_mm: Cell::fixed(0.0),
+            material: None,
+            semi_diameter_mm: None,
+            aperture: None,
+            conic: None,
+            asphere_coefficients: Vec::new(),
+            focal_length_mm: None,
+            decenter_x_mm: None,
+            decenter_y_mm: None,
+            tilt_x_deg: None,
+            tilt_y_deg: None,
+            tilt_z_deg: None,
+            order: 0,
+        }
+    }
+
+    pub fn standard(radius_mm: Option<f64>, thickness_mm: f64, material: Option<&str>) -> Self {
+        let mut s = SurfaceSpec::new(SurfaceKind::Standard);
+        s.radius_mm = radius_mm.map(Cell::fixed);
+        s.thickness_mm = Cell::fixed(thickness_mm);
+        s.material = material.map(str::to_string);
+        s
+    }
+
+    pub fn paraxial(focal_length_mm: f64, thickness_mm: f64) -> Self {
+        let mut s = SurfaceSpec::new(SurfaceKind::Paraxial);
+        s.focal_length_mm = Some(Cell::fixed(focal_length_mm));
+        s.thickness_mm = Cell::fixed(thickness_mm);
+        s
+    }
+
+    /// A Coordinate Break (lengths mm, angles degrees), order 0.
+    pub fn coordinate_break(decenter_x_mm: f64, decenter_y_mm: f64, tilt_x_deg: f64, tilt_y_deg: f64, tilt_z_deg: f64, thickness_mm: f64) -> Self {
+        let mut s = SurfaceSpec::new(SurfaceKind::CoordinateBreak);
+        s.decenter_x_mm = Some(Cell::fixed(decenter_x_mm));
+        s.decenter_y_mm = Some(Cell::fixed(decenter_y_mm));
+        s.tilt_x_deg = Some(Cell::fixed(tilt_x_deg));
+        s.tilt_y_deg = Some(Cell::fixed(tilt_y_deg));
+        s.tilt_z_deg = Some(Cell::fixed(tilt_z_deg));
+        s.thickness_mm = Cell::fixed(thickness_mm);
+        s
+    }
+
+    /// The cell of a named column (see [`COLUMNS`]), if present.
+    pub fn cell(&self, column: &str) -> Option<&Cell> {
+        match column {
+            "radius_mm" => self.radius_mm.as_ref(),
+            "thickness_mm" => Some(&self.thickness_mm),
+            "conic" => self.conic.as_ref(),
+            "focal_length_mm" => self.focal_length_mm.as_ref(),
+            "decenter_x_mm" => self.decenter_x_mm.as_ref(),
+            "decenter_y_mm" => self.decenter_y_mm.as_ref(),
+            "tilt_x_deg" => self.tilt_x_deg.as_ref(),
+            "tilt_y_deg" => self.tilt_y_deg.as_ref(),
+            "tilt_z_deg" => self.tilt_z_deg.as_ref(),
+            c if c.starts_with("asphere_") => {
+                c[8..].parse::<usize>().ok().filter(|i| *i >= 1).and_then(|i| self.asphere_coefficients.get(i - 1))
+            }
+            _ => None,
+        }
+    }
+
+    /// Mutable access to a named column's cell, if present.
+    pub fn cell_mut(&mut self, column: &str) -> Option<&mut Cell> {
+        match column {
+            "radius_mm" => self.radius_mm.as_mut(),
+            "thickness_mm" => Some(&mut self.thickness_mm),
+            "conic" => self.conic.as_mut(),
+            "focal_length_mm" => self.focal_length_mm.as_mut(),
+            "decenter_x_mm" => self.decenter_x_mm.as_mut(),
+            "decenter_y_mm" => self.decenter_y_mm.as_mut(),
+            "tilt_x_deg" => self.tilt_x_deg.as_mut(),
+            "tilt_y_deg" => self.tilt_y_deg.as_mut(),
+            "tilt_z_deg" => self.tilt_z_deg.as_mut(),
+            c if c.starts_with("asphere_") => match c[8..].parse::<usize>() {
+                Ok(i) if i >= 1 => self.asphere_coefficients.get_mut(i - 1),
+                _ => None,
+            },
+            _ => None,
+        }
+    }
+
+    /// The columns present on this surface, in LDE order.
+    pub fn present_columns(&self) -> Vec<String> {
+        let mut cols: Vec<String> = COLUMNS[..9].iter().filter(|c| self.cell(c).is_some()).map(|c| c.to_string()).collect();
+        cols.extend((1..=self.asphere_coefficients.len()).map(|i| format!("asphere_{i}")));
+        cols
+    }
+
+    /// Columns that are meaningful for this surface type (others are a spec error).
+    pub fn allowed_columns(&self) -> &'static [&'static str] {
+        match self.kind {
+            SurfaceKind::Standard => &["radius_mm", "thickness_mm", "conic"],
+            SurfaceKind::EvenAsphere => &["radius_mm", "thickness_mm", "conic"],
+            SurfaceKind::Paraxial => &["thickness_mm", "focal_length_mm"],
+            SurfaceKind::CoordinateBreak => {
+                &["thickness_mm", "decenter_x_mm", "decenter_y_mm", "tilt_x_deg", "tilt_y_deg", "tilt_z_deg"]
+            }
+        }
+    }
+}

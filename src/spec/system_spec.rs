@@ -1,0 +1,174 @@
+use super::{Cell, SurfaceKind, SurfaceSpec};
+use crate::materials::WavelengthPolicy;
+use serde::{Deserialize, Serialize};
+
+/// The system aperture (Zemax "System Explorer → Aperture").
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", content = "value", rename_all = "snake_case")]
+pub enum SystemAperture {
+    /// n·sin θ of the marginal ray in object space.
+    ObjectSpaceNa(f64),
+    /// Entrance pupil diameter (mm).
+    EntrancePupilDiameter(f64),
+}
+
+/// How rays are aimed at the pupil (Zemax "Ray Aiming").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RayAiming {
+    /// Normalised pupil coordinates are positions on the paraxial entrance pupil (Zemax default).
+    #[default]
+    Off,
+    /// Rays are aimed so that they cross the stop surface at (px, py) × the paraxial stop radius.
+    Real,
+}
+
+/// A whole sequential system: system data + the surface table. Surface 0 is the object, the last the image.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SystemSpec {
+    pub name: String,
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub description: String,
+    pub aperture: SystemAperture,
+    #[serde(default)]
+    pub ray_aiming: RayAiming,
+    /// System wavelengths (nm).
+    pub wavelengths_nm: Vec<f64>,
+    /// Primary wavelength (nm): chief-ray solves and paraxial data use it.
+    pub primary_wavelength_nm: f64,
+    /// Object heights (x, y) of the field points, mm.
+    pub fields_mm: Vec<[f64; 2]>,
+    /// Whether wavelengths outside a glass's catalogue range are an error (default) or extrapolated.
+    #[serde(default)]
+    pub wavelength_policy: WavelengthPolicy,
+    /// Extra AGF catalogues to load (paths relative to the spec file); the built-in glasses are always there.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub glass_catalogs: Vec<String>,
+    pub surfaces: Vec<SurfaceSpec>,
+}
+
+impl SystemSpec {
+    /// Index of the stop surface: the one flagged `stop`, else surface 1 (Zemax's default).
+    pub fn stop_index(&self) -> usize {
+        self.surfaces.iter().position(|s| s.stop).unwrap_or(1)
+    }
+
+    /// Basic structural and numeric checks; `Err` carries "surface N field: message".
+    pub fn validate(&self) -> Result<(), String> {
+        if self.surfaces.len() < 3 {
+            return Err(format!(
+                "a system needs at least an object, one surface and an image surface (found {} surfaces)",
+                self.surfaces.len()
+            ));
+        }
+        if self.wavelengths_nm.is_empty() {
+            return Err("wavelengths_nm: empty list".into());
+        }
+        for (i, w) in self.wavelengths_nm.iter().enumerate() {
+            if !(w.is_finite() && *w > 0.0) {
+                return Err(format!("wavelengths_nm[{i}] = {w}: must be finite and > 0"));
+            }
+        }
+        if !(self.primary_wavelength_nm.is_finite() && self.primary_wavelength_nm > 0.0) {
+            return Err(format!("primary_wavelength_nm = {}: must be finite and > 0", self.primary_wavelength_nm));
+        }
+        for (i, f) in self.fields_mm.iter().enumerate() {
+            if !(f[0].is_finite() && f[1].is_finite()) {
+                return Err(format!("fields_mm[{i}] = {:?}: not finite", f));
+            }
+        }
+        match self.aperture {
+            SystemAperture::ObjectSpaceNa(na) if !(na.is_finite() && na > 0.0 && na < 1.0) => {
+                return Err(format!("aperture object_space_na = {na}: must be in (0, 1)"))
+            }
+            SystemAperture::EntrancePupilDiameter(d) if !(d.is_finite() && d > 0.0) => {
+                return Err(format!("aperture entrance_pupil_diameter = {d}: must be finite and > 0"))
+            }
+            _ => {}
+        }
+        let stops = self.surfaces.iter().filter(|s| s.stop).count();
+        if stops > 1 {
+            return Err(format!("{stops} surfaces are flagged stop; exactly one may be"));
+        }
+        let last = self.surfaces.len() - 1;
+        let stop = self.stop_index();
+        if stop == 0 || stop == last {
+            return Err(format!("surface {stop}: the object or image surface cannot be the stop"));
+        }
+        for (i, s) in self.surfaces.iter().enumerate() {
+            let at = |field: &str, msg: String| format!("surface {i} ({}) {field}: {msg}", s.kind.label());
+            if (i == 0 || i == last) && s.kind == SurfaceKind::CoordinateBreak {
+                return Err(at("type", "the object and image surfaces cannot be Coordinate Breaks".into()));
+            }
+            if s.kind == SurfaceKind::CoordinateBreak && s.material.is_some() {
+                return Err(at("material", format!("{:?}: a Coordinate Break keeps the previous medium", s.material)));
+            }
+            if s.kind == SurfaceKind::CoordinateBreak && s.order > 1 {
+                return Err(at("order", format!("{}: must be 0 or 1", s.order)));
+            }
+            if i == 0 && s.thickness_mm.value.is_infinite() {
+                return Err(at("thickness_mm", "infinite object distance is not supported (finite conjugates)".into()));
+            }
+            if let Some(sd) = s.semi_diameter_mm {
+                if !(sd.is_finite() && sd >= 0.0) {
+                    return Err(at("semi_diameter_mm", format!("{sd}: must be finite and >= 0")));
+                }
+            }
+            if let Some(ap) = &s.aperture {
+                ap.validate().map_err(|m| at("aperture", m))?;
+            }
+            if s.asphere_coefficients.len() > 8 {
+                return Err(at("asphere_coefficients", format!("{} terms: at most 8 (r² … r¹⁶)", s.asphere_coefficients.len())));
+            }
+            if !s.asphere_coefficients.is_empty() && s.kind != SurfaceKind::EvenAsphere {
+                return Err(at("asphere_coefficients", "only allowed on even_asphere surfaces".into()));
+            }
+            let allowed = s.allowed_columns();
+            for col in s.present_columns() {
+                if !col.starts_with("asphere_") && !allowed.contains(&col.as_str()) {
+                    return Err(at(&col, format!("not a column of a {} surface (allowed: {})", s.kind.label(), allowed.join(", "))));
+                }
+                let cell: &Cell = s.cell(&col).expect("present");
+                if !cell.value.is_finite() {
+                    return Err(at(&col, format!("{} is not finite", cell.value)));
+                }
+                if let super::Driver::Pickup(p) = &cell.driver {
+                    if p.surface >= self.surfaces.len() {
+                        return Err(at(&col, format!("pickup from surface {} which does not exist (system has {})", p.surface, self.surfaces.len())));
+                    }
+                    if p.surface == i && p.column.as_deref().unwrap_or(&col) == col {
+                        return Err(at(&col, "pickup from itself".into()));
+                    }
+                    if !(p.scale.is_finite() && p.offset.is_finite()) {
+                        return Err(at(&col, format!("pickup scale {} / offset {} not finite", p.scale, p.offset)));
+                    }
+                    let src_col = p.column.clone().unwrap_or(col.clone());
+                    if !super::COLUMNS.contains(&src_col.as_str()) {
+                        return Err(at(&col, format!("pickup column `{src_col}` unknown (columns: {})", super::COLUMNS.join(", "))));
+                    }
+                }
+                if cell.driver == super::Driver::ChiefRay && s.kind != SurfaceKind::CoordinateBreak {
+                    return Err(at(&col, "chief-ray solves exist only on Coordinate Break decenters and tilts".into()));
+                }
+                if cell.driver == super::Driver::ChiefRay && col == "thickness_mm" {
+                    return Err(at(&col, "a chief-ray solve applies to decenters and tilts, not thickness".into()));
+                }
+            }
+            match s.kind {
+                SurfaceKind::Paraxial => match &s.focal_length_mm {
+                    None => return Err(at("focal_length_mm", "missing".into())),
+                    Some(c) if c.value == 0.0 => return Err(at("focal_length_mm", "0 is not a lens".into())),
+                    _ => {}
+                },
+                _ => {}
+            }
+            if let Some(r) = &s.radius_mm {
+                if r.value == 0.0 {
+                    return Err(at("radius_mm", "0: use no radius for a flat surface".into()));
+                }
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,192 @@
+use super::SurfaceShape;
+use glam::DVec3;
+
+/// An exact intersection in the surface's local frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Signed distance along the (unit) direction, mm. Negative values are virtual propagation.
+    pub t: f64,
+    pub point: DVec3,
+    /// Unit normal at `point`, oriented toward local +z.
+    pub normal: DVec3,
+}
+
+/// Why no intersection was returned: a classified outcome, never a NaN.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum IntersectFailure {
+    /// The line does not meet the surface (or meets it outside the conic's domain / off the vertex branch).
+    Missed,
+    /// The even-asphere root solve did not converge within its iteration budget.
+    NoConvergence,
+}
+
+/// Intersect the line p + t·d (local frame, `d` unit) with the surface, on the vertex branch.
+pub fn intersect(shape: &SurfaceShape, p: DVec3, d: DVec3) -> Result<Hit, IntersectFailure> {
+    match shape {
+        SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => intersect_plane(p, d),
+        SurfaceShape::Conic { curvature, conic } => {
+            if *curvature == 0.0 {
+                return intersect_plane(p, d);
+            }
+            let t = conic_root(*curvature, *conic, p, d)?;
+            let point = p + d * t;
+            Ok(Hit { t, point, normal: shape.normal(point) })
+        }
+        SurfaceShape::EvenAsphere { curvature, conic, .. } => {
+            let t0 = if *curvature == 0.0 {
+                intersect_plane(p, d)?.t
+            } else {
+                // The base conic's root is an excellent start; fall back to the vertex plane.
+                conic_root(*curvature, *conic, p, d).or_else(|_| intersect_plane(p, d).map(|h| h.t))?
+            };
+            let t = asphere_newton(shape, p, d, t0)?;
+            let point = p + d * t;
+            let normal = shape.normal(point);
+            if !normal.is_finite() {
+                return Err(IntersectFailure::Missed);
+            }
+            Ok(Hit { t, point, normal })
+        }
+    }
+}
+
+#[inline]
+fn intersect_plane(p: DVec3, d: DVec3) -> Result<Hit, IntersectFailure> {
+    if d.z == 0.0 {
+        return Err(IntersectFailure::Missed);
+    }
+    let t = -p.z / d.z;
+    let point = DVec3::new(p.x + t * d.x, p.y + t * d.y, 0.0);
+    if !point.is_finite() {
+        return Err(IntersectFailure::Missed);
+    }
+    Ok(Hit { t, point, normal: DVec3::Z })
+}
+
+/// Vertex-branch root of c(x²+y²+(1+k)z²) − 2z = 0 along p + t d.
+///
+/// With A t² + 2B′ t + C = 0, the root t = C / q, q = −(B′ + sign(B′)√(B′² − AC)), is the one that tends
+/// to the plane root −p_z/d_z as c → 0 and never suffers cancellation (Numerical Recipes §5.6).
+#[inline]
+fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<f64, IntersectFailure> {
+    let kk = 1.0 + k;
+    let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
+    let b = c * (p.x * d.x + p.y * d.y + kk * p.z * d.z) - d.z;
+    let cc = c * (p.x * p.x + p.y * p.y + kk * p.z * p.z) - 2.0 * p.z;
+    let disc = b * b - a * cc;
+    if !(disc >= 0.0) {
+        return Err(IntersectFailure::Missed);
+    }
+    let q = -(b + b.signum() * disc.sqrt());
+    if q == 0.0 {
+        return Err(IntersectFailure::Missed);
+    }
+    let t = cc / q;
+    let point = p + d * t;
+    // On the vertex branch the sag formula holds; otherwise the line only meets the other sheet / half.
+    let r2 = point.x * point.x + point.y * point.y;
+    let domain = 1.0 - kk * c * c * r2;
+    if !t.is_finite() || domain < 0.0 {
+        return Err(IntersectFailure::Missed);
+    }
+    let sag = c * r2 / (1.0 + domain.sqrt());
+    if (point.z - sag).abs() > 1e-9 * (1.0 + point.z.abs()) {
+        return Err(IntersectFailure::Missed);
+    }
+    Ok(t)
+}
+
+/// Newton's method on f(t) = z(t) − sag(x(t), y(t)), guarded by a bracket: once a sign change is seen,
+/// a step leaving the bracket (or landing where the sag is undefined) is replaced by bisection.
+fn asphere_newton(shape: &SurfaceShape, p: DVec3, d: DVec3, t0: f64) -> Result<f64, IntersectFailure> {
+    const MAX_ITER: usize = 100;
+    let eval = |t: f64| -> (f64, f64) {
+        let q = p + d * t;
+        let f = q.z - shape.sag(q.x, q.y);
+        let (gx, gy) = shape.sag_gradient(q.x, q.y);
+        (f, d.z - gx * d.x - gy * d.y)
+    };
+    let mut t = t0;
+    let (mut lo, mut hi): (Option<f64>, Option<f64>) = (None, None); // f(lo) < 0 < f(hi)
+    for _ in 0..MAX_ITER {
+        let (f, fp) = eval(t);
+        if !f.is_finite() {
+            match (lo, hi) {
+                (Some(a), Some(b)) => {
+                    // Undefined point inside the bracket: move toward the side we came from.
+                    t = 0.5 * (a + b);
+                    continue;
+                }
+                _ => return Err(IntersectFailure::Missed),
+            }
+        }
+        if f == 0.0 {
+            return Ok(t);
+        }
+        if f < 0.0 {
+            lo = Some(t);
+        } else {
+            hi = Some(t);
+        }
+        let mut next = t - f / fp;
+        if let (Some(a), Some(b)) = (lo, hi) {
+            let (min, max) = if a < b { (a, b) } else { (b, a) };
+            if !(next > min && next < max) {
+                next = 0.5 * (a + b);
+            }
+            if (max - min) <= 4.0 * f64::EPSILON * (1.0 + t.abs()) {
+                return Ok(next);
+            }
+        } else if !next.is_finite() {
+            return Err(IntersectFailure::NoConvergence);
+        }
+        if (next - t).abs() <= 1e-15 * (1.0 + t.abs()) {
+            let (fn_, _) = eval(next);
+            return if fn_.is_finite() && fn_.abs() < 1e-9 { Ok(next) } else { Err(IntersectFailure::NoConvergence) };
+        }
+        t = next;
+    }
+    // Accept a converged residual even if the step criterion never fired (round-off limit cycle).
+    let (f, _) = eval(t);
+    if f.is_finite() && f.abs() < 1e-12 {
+        Ok(t)
+    } else {
+        Err(IntersectFailure::NoConvergence)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sphere_hit_on_vertex_branch() {
+        let s = SurfaceShape::Conic { curvature: 1.0 / 10.0, conic: 0.0 };
+        let h = intersect(&s, DVec3::new(3.0, 4.0, -20.0), DVec3::Z).unwrap();
+        assert!((h.point.z - (10.0 - (100.0f64 - 25.0).sqrt())).abs() < 1e-13);
+        let h2 = intersect(&SurfaceShape::Conic { curvature: -0.1, conic: 0.0 }, DVec3::new(3.0, 4.0, 5.0), -DVec3::Z).unwrap();
+        assert!((h2.point.z + (10.0 - 75f64.sqrt())).abs() < 1e-13);
+    }
+
+    #[test]
+    fn sphere_miss_is_classified() {
+        let s = SurfaceShape::Conic { curvature: 1.0 / 10.0, conic: 0.0 };
+        assert_eq!(intersect(&s, DVec3::new(11.0, 0.0, -1.0), DVec3::Z), Err(IntersectFailure::Missed));
+        assert_eq!(intersect(&SurfaceShape::Plane, DVec3::ZERO, DVec3::X), Err(IntersectFailure::Missed));
+    }
+
+    #[test]
+    fn asphere_newton_converges_to_sag() {
+        let s = SurfaceShape::EvenAsphere { curvature: 0.03, conic: -1.0, coefficients: vec![2e-3, -5e-5, 1e-7] };
+        let d = DVec3::new(0.1, -0.05, 1.0).normalize();
+        let h = intersect(&s, DVec3::new(2.0, 1.5, -3.0), d).unwrap();
+        assert!((h.point.z - s.sag(h.point.x, h.point.y)).abs() < 1e-13);
+    }
+
+    #[test]
+    fn paraboloid_k_minus_one() {
+        let s = SurfaceShape::Conic { curvature: 0.05, conic: -1.0 };
+        let h = intersect(&s, DVec3::new(7.0, 0.0, -1.0), DVec3::Z).unwrap();
+        assert!((h.point.z - 0.05 * 49.0 / 2.0).abs() < 1e-13);
+    }
+}

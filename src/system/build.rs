@@ -1,0 +1,314 @@
+//! spec → [`SequentialSystem`]: media, pickups, paraxial pupil, frames and chief-ray solves.
+use super::paraxial::{entrance_pupil, ParaxialSurface};
+use super::{PathStep, ResolvedSurface, SequentialSystem, StopProbe};
+use crate::error::{Error, Result};
+use crate::geometry::{coordinate_break_frame, BreakOrder, Frame};
+use crate::materials::{GlassCatalog, Medium};
+use crate::spec::{Driver, SurfaceKind, SystemSpec};
+use crate::surfaces::{Aperture, SurfaceShape};
+use glam::DVec3;
+use std::collections::HashMap;
+
+const CB_COLUMNS: [&str; 5] = ["decenter_x_mm", "decenter_y_mm", "tilt_x_deg", "tilt_y_deg", "tilt_z_deg"];
+
+impl SequentialSystem {
+    /// Build with the built-in glass table plus the spec's `glass_catalogs` (paths relative to the CWD).
+    pub fn build(spec: &SystemSpec) -> Result<Self> {
+        let mut catalog = GlassCatalog::builtin();
+        for path in &spec.glass_catalogs {
+            catalog.merge(GlassCatalog::from_agf_file(path)?);
+        }
+        Self::build_with_catalog(spec, &catalog)
+    }
+
+    /// Build against an explicit glass catalogue.
+    pub fn build_with_catalog(spec: &SystemSpec, catalog: &GlassCatalog) -> Result<Self> {
+        spec.validate().map_err(|m| Error::spec(&spec.name, m))?;
+        let n = spec.surfaces.len();
+        let sys_err = |surface: usize, field: &str, message: String| Error::System {
+            system: spec.name.clone(),
+            surface,
+            field: field.to_string(),
+            message,
+        };
+
+        // Media: a Coordinate Break keeps the medium before it; blank = air.
+        let mut media: Vec<Medium> = Vec::with_capacity(n);
+        for (i, s) in spec.surfaces.iter().enumerate() {
+            let m = match (&s.material, s.kind) {
+                (_, SurfaceKind::CoordinateBreak) => media[i - 1].clone(),
+                (None, _) => Medium::Air,
+                (Some(name), _) if name.eq_ignore_ascii_case("air") => Medium::Air,
+                (Some(name), _) => Medium::Glass(catalog.get(name).map_err(|e| sys_err(i, "material", e.to_string()))?),
+            };
+            media.push(m);
+        }
+        // Every system wavelength must be valid in every glass (unless extrapolation is allowed).
+        let mut wavelengths = spec.wavelengths_nm.clone();
+        wavelengths.push(spec.primary_wavelength_nm);
+        for (i, m) in media.iter().enumerate() {
+            for &w in &wavelengths {
+                m.refractive_index(w, spec.wavelength_policy).map_err(|e| sys_err(i, "material", e.to_string()))?;
+            }
+        }
+
+        // Pass 1: every cell except chief-ray solves (and pickups that depend on them).
+        let mut values: Vec<HashMap<String, Option<f64>>> = vec![HashMap::new(); n];
+        for i in 0..n {
+            for col in spec.surfaces[i].present_columns() {
+                let v = resolve_cell(spec, i, &col, 0).map_err(|m| sys_err(i, &col, m))?;
+                values[i].insert(col, v);
+            }
+        }
+        let value = |values: &Vec<HashMap<String, Option<f64>>>, i: usize, col: &str| -> Option<f64> {
+            values[i].get(col).copied().flatten()
+        };
+
+        // Paraxial entrance pupil at the primary wavelength (needs no frames).
+        let primary = spec.primary_wavelength_nm;
+        let mut n_primary = Vec::with_capacity(n);
+        for m in &media {
+            n_primary.push(m.refractive_index(primary, spec.wavelength_policy)?);
+        }
+        let stop_index = spec.stop_index();
+        let mut parax = Vec::with_capacity(n);
+        for (i, s) in spec.surfaces.iter().enumerate() {
+            let r = value(&values, i, "radius_mm");
+            let alpha1 = if s.kind == SurfaceKind::EvenAsphere { value(&values, i, "asphere_1").unwrap_or(0.0) } else { 0.0 };
+            parax.push(ParaxialSurface {
+                kind: s.kind,
+                curvature: r.map(|r| 1.0 / r).unwrap_or(0.0) + 2.0 * alpha1,
+                focal_length_mm: value(&values, i, "focal_length_mm").unwrap_or(f64::INFINITY),
+                thickness_mm: value(&values, i, "thickness_mm").ok_or_else(|| sys_err(i, "thickness_mm", "unresolved".into()))?,
+                n_after: n_primary[i],
+            });
+        }
+        let pupil = entrance_pupil(&parax, stop_index, spec.aperture).map_err(|m| sys_err(stop_index, "stop", m))?;
+
+        // Pass 2: frames, solving chief-ray cells in surface order.
+        let mut resolved_spec = spec.clone();
+        let mut surfaces: Vec<ResolvedSurface> = Vec::with_capacity(n);
+        let mut path: Vec<PathStep> = Vec::new();
+        let mut current = Frame::IDENTITY; // frame at the vertex of the surface being placed
+        let mut last_step_frame = Frame::IDENTITY; // frame of the previous traced surface (object = identity)
+        let mut stop_probe: Option<StopProbe> = None;
+        for i in 0..n {
+            let s = &spec.surfaces[i];
+            let surface_frame = current;
+            let mut next = current;
+            let mut shape = None;
+            if s.kind == SurfaceKind::CoordinateBreak {
+                // Late pickups (sources solved by now).
+                for col in CB_COLUMNS {
+                    if value(&values, i, col).is_none() {
+                        if let Some(Driver::Pickup(p)) = s.cell(col).map(|c| &c.driver) {
+                            let src_col = p.column.as_deref().unwrap_or(col);
+                            let v = value(&values, p.surface, src_col).ok_or_else(|| {
+                                sys_err(i, col, format!("pickup from surface {} `{src_col}`, which is not resolved before this surface", p.surface))
+                            })?;
+                            values[i].insert(col.to_string(), Some(p.scale * v + p.offset));
+                        }
+                    }
+                }
+                let solved: Vec<&str> =
+                    CB_COLUMNS.iter().copied().filter(|c| s.cell(c).map(|c| c.driver == Driver::ChiefRay).unwrap_or(false)).collect();
+                if !solved.is_empty() {
+                    let partial = SequentialSystem {
+                        spec: resolved_spec.clone(),
+                        surfaces: surfaces.clone(),
+                        stop_index,
+                        pupil,
+                        path: path.clone(),
+                        // Before the stop is placed there is nothing to aim at: steps > path.len() says so.
+                        stop_probe: stop_probe.clone().unwrap_or_else(|| StopProbe { steps: usize::MAX, probe: path_step(&Frame::IDENTITY, &Frame::IDENTITY, 0, SurfaceShape::Plane, Aperture::None), chief_crossing: (0.0, 0.0) }),
+                    };
+                    let field = spec.fields_mm.first().copied().unwrap_or([0.0, 0.0]);
+                    let (p_local, d_local) = chief_ray_at(&partial, &last_step_frame, &surface_frame, field, &n_primary)
+                        .map_err(|m| sys_err(i, solved[0], format!("chief-ray solve failed: {m}")))?;
+                    let order = if s.order == 0 { BreakOrder::DecenterThenTilt } else { BreakOrder::TiltThenDecenter };
+                    let get = |values: &Vec<HashMap<String, Option<f64>>>, c: &str| value(values, i, c).unwrap_or(0.0);
+                    let sol = solve_chief_ray_break(
+                        p_local,
+                        d_local,
+                        [get(&values, CB_COLUMNS[0]), get(&values, CB_COLUMNS[1]), get(&values, CB_COLUMNS[2]), get(&values, CB_COLUMNS[3]), get(&values, CB_COLUMNS[4])],
+                        [0, 1, 2, 3, 4].map(|k| solved.contains(&CB_COLUMNS[k])),
+                        order,
+                    );
+                    for (k, col) in CB_COLUMNS.iter().enumerate() {
+                        if solved.contains(col) {
+                            values[i].insert(col.to_string(), Some(sol[k]));
+                        }
+                    }
+                }
+                let g = |c: &str| value(&values, i, c).unwrap_or(0.0);
+                next = coordinate_break_frame(
+                    &current,
+                    g("decenter_x_mm"),
+                    g("decenter_y_mm"),
+                    g("tilt_x_deg").to_radians(),
+                    g("tilt_y_deg").to_radians(),
+                    g("tilt_z_deg").to_radians(),
+                    if s.order == 0 { BreakOrder::DecenterThenTilt } else { BreakOrder::TiltThenDecenter },
+                );
+            } else {
+                let curvature = value(&values, i, "radius_mm").map(|r| 1.0 / r).unwrap_or(0.0);
+                let conic = value(&values, i, "conic").unwrap_or(0.0);
+                shape = Some(match s.kind {
+                    SurfaceKind::Paraxial => SurfaceShape::Paraxial { focal_length: value(&values, i, "focal_length_mm").unwrap_or(f64::INFINITY) },
+                    SurfaceKind::EvenAsphere => SurfaceShape::EvenAsphere {
+                        curvature,
+                        conic,
+                        coefficients: (1..=s.asphere_coefficients.len()).map(|k| value(&values, i, &format!("asphere_{k}")).unwrap_or(0.0)).collect(),
+                    },
+                    _ if curvature == 0.0 => SurfaceShape::Plane,
+                    _ => SurfaceShape::Conic { curvature, conic },
+                });
+            }
+            let thickness = value(&values, i, "thickness_mm").unwrap_or(0.0);
+            // Write resolved values back into the spec's cells.
+            for col in resolved_spec.surfaces[i].present_columns() {
+                if let (Some(cell), Some(v)) = (resolved_spec.surfaces[i].cell_mut(&col), value(&values, i, &col)) {
+                    cell.value = v;
+                }
+            }
+            let surface = ResolvedSurface {
+                index: i,
+                kind: s.kind,
+                comment: s.comment.clone(),
+                is_stop: i == stop_index,
+                frame: surface_frame,
+                shape: shape.clone(),
+                aperture: s.aperture.clone().unwrap_or(Aperture::None),
+                medium_after: media[i].clone(),
+                thickness_mm: thickness,
+                semi_diameter_mm: s.semi_diameter_mm,
+            };
+            if i == stop_index {
+                // The stop's own figure (a plane for a Coordinate Break stop), reached after the steps so far.
+                let probe_shape = shape.clone().unwrap_or(SurfaceShape::Plane);
+                stop_probe = Some(StopProbe { steps: path.len(), probe: path_step(&last_step_frame, &surface_frame, i, probe_shape, Aperture::None), chief_crossing: (0.0, 0.0) });
+            }
+            if i > 0 {
+                if let Some(shape) = shape {
+                    path.push(path_step(&last_step_frame, &surface_frame, i, shape, surface.aperture.clone()));
+                    last_step_frame = surface_frame;
+                }
+            }
+            surfaces.push(surface);
+            current = next.advanced(thickness);
+        }
+        let stop_probe = stop_probe.expect("validated: the stop is a surface of the system");
+        let mut system = SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, path, stop_probe };
+        let field = spec.fields_mm.first().copied().unwrap_or([0.0, 0.0]);
+        let (o, d) = crate::rays::object_ray(&system, field, 0.0, 0.0);
+        system.stop_probe.chief_crossing = crate::rays::stop_crossing(&system, &n_primary, o, d).unwrap_or((0.0, 0.0));
+        Ok(system)
+    }
+}
+
+/// The step from frame `from` into surface `surface` placed at `to`.
+fn path_step(from: &Frame, to: &Frame, surface: usize, shape: SurfaceShape, aperture: Aperture) -> PathStep {
+    // p_to = R_toᵀ R_from (p_from − o), o = the new vertex in `from` coordinates.
+    let offset = from.point_to_local(to.origin);
+    let rotation = to.rotation.transpose() * from.rotation;
+    PathStep { surface, rotation, offset, shape, aperture }
+}
+
+/// Pass-1 value of a cell: `Ok(None)` when it depends on a chief-ray solve (resolved in pass 2).
+fn resolve_cell(spec: &SystemSpec, i: usize, col: &str, depth: usize) -> Result<Option<f64>, String> {
+    if depth > spec.surfaces.len() {
+        return Err("pickup cycle".into());
+    }
+    let cell = spec.surfaces[i].cell(col).ok_or_else(|| format!("surface {i} has no `{col}` column to pick up"))?;
+    match &cell.driver {
+        Driver::Fixed => Ok(Some(cell.value)),
+        Driver::ChiefRay => Ok(None),
+        Driver::Pickup(p) => {
+            let src_col = p.column.as_deref().unwrap_or(col);
+            if spec.surfaces.get(p.surface).is_none() {
+                return Err(format!("pickup from surface {} which does not exist", p.surface));
+            }
+            let v = resolve_cell(spec, p.surface, src_col, depth + 1)?;
+            if v.is_none() && p.surface > i {
+                return Err(format!("pickup from later surface {} whose value is a chief-ray solve", p.surface));
+            }
+            Ok(v.map(|v| p.scale * v + p.offset))
+        }
+    }
+}
+
+/// Trace the primary chief ray of `field` through the surfaces placed so far and intersect it with the
+/// plane z = 0 of `break_frame`. Returns the point and direction in `break_frame`'s coordinates.
+fn chief_ray_at(partial: &SequentialSystem, last_frame: &Frame, break_frame: &Frame, field: [f64; 2], n: &[f64]) -> Result<(DVec3, DVec3), String> {
+    let (p0, d0) = if partial.spec.ray_aiming == crate::spec::RayAiming::Off || partial.stop_probe.steps > partial.path.len() {
+        crate::rays::object_ray(partial, field, 0.0, 0.0)
+    } else {
+        crate::rays::aimed_ray(partial, n, field, 0.0, 0.0).map_err(|e| e.to_string())?
+    };
+    let (p, d) = crate::tracer::kernel::trace_steps(&partial.path, n, p0, d0).map_err(|(st, s)| format!("chief ray {st:?} at surface {s}"))?;
+    // p, d are in last_frame coordinates: to global, then to the break's frame.
+    let pg = last_frame.point_to_global(p);
+    let dg = last_frame.dir_to_global(d);
+    let pl = break_frame.point_to_local(pg);
+    let dl = break_frame.dir_to_local(dg);
+    if dl.z == 0.0 {
+        return Err("chief ray parallel to the break plane".into());
+    }
+    let t = -pl.z / dl.z;
+    Ok((pl + dl * t, dl))
+}
+
+/// Decenters and tilts (mm, degrees) for the solved parameters so that the chief ray passing through
+/// `p` (on the break plane) with direction `d` goes through the new origin along the new +z (as far as
+/// the solved subset allows; unsolved parameters keep their values).
+fn solve_chief_ray_break(p: DVec3, d: DVec3, mut v: [f64; 5], solved: [bool; 5], order: BreakOrder) -> [f64; 5] {
+    use crate::geometry::{rot_x, rot_y};
+    match order {
+        BreakOrder::DecenterThenTilt => {
+            if solved[0] {
+                v[0] = p.x;
+            }
+            if solved[1] {
+                v[1] = p.y;
+            }
+            // R = Rx(a) Ry(b) Rz(c). Solve a so that d has no component along the new y (independent of b),
+            // then b so that it has none along the new x.
+            if solved[2] {
+                v[2] = (-d.y).atan2(d.z).to_degrees();
+            }
+            if solved[3] {
+                let d1 = rot_x(v[2].to_radians()).transpose() * d;
+                v[3] = d1.x.atan2(d1.z).to_degrees();
+            }
+            if solved[4] {
+                v[4] = 0.0; // rotation about the chief ray itself is free: Zemax leaves it at zero
+            }
+        }
+        BreakOrder::TiltThenDecenter => {
+            // R = Rz(c) Ry(b) Rx(a): the z axis after Rz is unchanged, so solve b then a in the Rz frame.
+            let dz = crate::geometry::rot_z(v[4].to_radians()).transpose() * d;
+            if solved[3] {
+                v[3] = dz.x.atan2((dz.y * dz.y + dz.z * dz.z).sqrt()).to_degrees();
+            }
+            let d2 = rot_y(v[3].to_radians()).transpose() * dz;
+            if solved[2] {
+                v[2] = (-d2.y).atan2(d2.z).to_degrees();
+            }
+            if solved[4] {
+                v[4] = 0.0;
+            }
+            // Decenter along the tilted axes: the chief ray's crossing of the new origin plane.
+            let r = crate::geometry::rot_z(v[4].to_radians()) * rot_y(v[3].to_radians()) * rot_x(v[2].to_radians());
+            // The chief ray crosses the tilted plane z′ = 0 at q; the decenter puts the origin there.
+            let (pr, dr) = (r.transpose() * p, r.transpose() * d);
+            let pr = if dr.z != 0.0 { pr - dr * (pr.z / dr.z) } else { pr };
+            if solved[0] {
+                v[0] = pr.x;
+            }
+            if solved[1] {
+                v[1] = pr.y;
+            }
+        }
+    }
+    v
+}

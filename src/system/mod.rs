@@ -1,0 +1,98 @@
+//! The resolved sequential system: every surface placed in global space, pickups and chief-ray solves
+//! evaluated, media known, the paraxial entrance pupil located. This is what tracer backends consume.
+//!
+//! ```
+//! use diffcassi::system::SequentialSystem;
+//! let sys = SequentialSystem::build(&diffcassi::presets::spec("sp").unwrap()).unwrap();
+//! assert_eq!(sys.surfaces.len(), 20);
+//! // Zemax shows the chief-ray-solved decenter of surface 15 as 2.408 mm.
+//! assert!((sys.spec.surfaces[15].decenter_x_mm.as_ref().unwrap().value - 2.408).abs() < 5e-4);
+//! ```
+mod build;
+mod paraxial;
+mod surface;
+
+pub use paraxial::*;
+pub use surface::*;
+
+use crate::error::{Error, Result};
+use crate::spec::SystemSpec;
+
+/// A sequential system ready to trace.
+#[derive(Clone, Debug)]
+pub struct SequentialSystem {
+    /// The spec with every pickup and solve resolved (cell values are the values used).
+    pub spec: SystemSpec,
+    pub surfaces: Vec<ResolvedSurface>,
+    pub stop_index: usize,
+    /// Paraxial entrance pupil at the primary wavelength.
+    pub pupil: EntrancePupil,
+    /// The refracting surfaces after the object, in order, with frame-to-frame transforms.
+    pub(crate) path: Vec<PathStep>,
+    /// How to reach the stop for ray aiming: the first `steps` path steps, then `probe` (intersection only).
+    pub(crate) stop_probe: StopProbe,
+}
+
+/// Where the stop sits relative to the traced path (used by ray aiming).
+#[derive(Clone, Debug)]
+pub(crate) struct StopProbe {
+    pub steps: usize,
+    pub probe: PathStep,
+    /// Where the primary-wavelength chief ray of the first field crosses the stop (local x, y), aiming off.
+    pub chief_crossing: (f64, f64),
+}
+
+impl SequentialSystem {
+    pub fn name(&self) -> &str {
+        &self.spec.name
+    }
+
+    /// Refractive index after each surface at `wavelength_nm` (index 0: object space), honouring the
+    /// spec's wavelength policy (out-of-range is an error unless extrapolation is allowed).
+    pub fn indices(&self, wavelength_nm: f64) -> Result<Vec<f64>> {
+        if !(wavelength_nm.is_finite() && wavelength_nm > 0.0) {
+            return Err(Error::invalid(format!("wavelength {wavelength_nm} nm: must be finite and > 0")));
+        }
+        self.surfaces
+            .iter()
+            .map(|s| s.medium_after.refractive_index(wavelength_nm, self.spec.wavelength_policy).map_err(Error::from))
+            .collect()
+    }
+
+    /// The image surface (last).
+    pub fn image(&self) -> &ResolvedSurface {
+        self.surfaces.last().expect("a built system has surfaces")
+    }
+
+    pub fn primary_wavelength_nm(&self) -> f64 {
+        self.spec.primary_wavelength_nm
+    }
+
+    /// Number of ray–surface intersections per traced ray (refracting surfaces + image).
+    pub fn surfaces_per_ray(&self) -> usize {
+        self.path.len()
+    }
+}
+
+#[doc(hidden)]
+impl SequentialSystem {
+    pub fn stop_probe_steps(&self) -> usize {
+        self.stop_probe.steps
+    }
+    pub fn debug_stop_crossing(&self, n: &[f64], o: glam::DVec3, d: glam::DVec3) -> Option<(f64, f64)> {
+        let probe = &self.stop_probe;
+        let (p, d) = crate::tracer::kernel::trace_steps(&self.path[..probe.steps], n, o, d).ok()?;
+        let step = &probe.probe;
+        let (p, d) = (step.rotation * (p - step.offset), step.rotation * d);
+        let hit = crate::surfaces::intersect(&step.shape, p, d).ok()?;
+        Some((hit.point.x, hit.point.y))
+    }
+}
+#[doc(hidden)]
+impl SequentialSystem {
+    /// (surface index, x, y) where the ray crosses the k-th path step.
+    pub fn debug_crossings(&self, n: &[f64], o: glam::DVec3, d: glam::DVec3, k: usize) -> (usize, f64, f64) {
+        let (p, _) = crate::tracer::kernel::trace_steps(&self.path[..k], n, o, d).unwrap();
+        (self.path[k - 1].surface, p.x, p.y)
+    }
+}

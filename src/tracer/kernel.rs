@@ -1,0 +1,101 @@
+//! The f64 per-ray kernel shared by every analytic trace: frame change, exact intersection, aperture,
+//! refraction (vector Snell's law) or ideal-lens deflection.
+use super::RayStatus;
+use crate::surfaces::{intersect, IntersectFailure, SurfaceShape};
+use crate::system::PathStep;
+use glam::DVec3;
+
+/// Refract unit `d` at unit normal `normal` from index `n1` into `n2` (vector Snell's law,
+/// d′ = μ d + (√(1 − μ²(1 − cos²θᵢ)) − μ cos θᵢ) n̂ with n̂ oriented along d). `None` on total internal
+/// reflection.
+#[inline]
+pub fn refract(d: DVec3, normal: DVec3, n1: f64, n2: f64) -> Option<DVec3> {
+    let mut nrm = normal;
+    let mut cos_i = d.dot(nrm);
+    if cos_i < 0.0 {
+        nrm = -nrm;
+        cos_i = -cos_i;
+    }
+    let mu = n1 / n2;
+    let k = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
+    if k < 0.0 {
+        return None;
+    }
+    Some(mu * d + (k.sqrt() - mu * cos_i) * nrm)
+}
+
+/// Ideal thin lens in the local plane z = 0 at point `p`: direction tangents map as
+/// tan′ = (n₁/n₂)·tan − h/f (Zemax's Paraxial surface; in air, tan′ = tan − h/f).
+#[inline]
+pub fn paraxial_deflect(p: DVec3, d: DVec3, focal_length: f64, n1: f64, n2: f64) -> DVec3 {
+    let mu = n1 / n2;
+    let tx = mu * d.x / d.z - p.x / focal_length;
+    let ty = mu * d.y / d.z - p.y / focal_length;
+    let v = DVec3::new(tx, ty, 1.0).normalize();
+    if d.z < 0.0 {
+        -v
+    } else {
+        v
+    }
+}
+
+/// Trace (p, d), given in the object surface's frame, along `path`. `n[i]` is the index after surface i.
+/// Returns (p, d) in the frame of the last step, or the status and the surface where the ray stopped.
+#[inline]
+pub(crate) fn trace_steps(path: &[PathStep], n: &[f64], mut p: DVec3, mut d: DVec3) -> Result<(DVec3, DVec3), (RayStatus, usize)> {
+    for step in path {
+        p = step.rotation * (p - step.offset);
+        d = step.rotation * d;
+        let hit = match intersect(&step.shape, p, d) {
+            Ok(h) => h,
+            Err(IntersectFailure::Missed) => return Err((RayStatus::Missed, step.surface)),
+            Err(IntersectFailure::NoConvergence) => return Err((RayStatus::NoConvergence, step.surface)),
+        };
+        p = hit.point;
+        if !step.aperture.contains(p.x, p.y) {
+            return Err((RayStatus::Vignetted, step.surface));
+        }
+        let (n1, n2) = (n[step.surface - 1], n[step.surface]);
+        match step.shape {
+            SurfaceShape::Paraxial { focal_length } => d = paraxial_deflect(p, d, focal_length, n1, n2),
+            _ if n1 != n2 => match refract(d, hit.normal, n1, n2) {
+                Some(r) => d = r,
+                None => return Err((RayStatus::TotalInternalReflection, step.surface)),
+            },
+            _ => {}
+        }
+    }
+    Ok((p, d))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn snell_law_holds() {
+        let d = DVec3::new(0.5f64.sin(), 0.0, 0.5f64.cos());
+        let r = refract(d, DVec3::Z, 1.0, 1.5).unwrap();
+        assert!((r.length() - 1.0).abs() < 1e-15);
+        assert!((0.5f64.sin() - 1.5 * r.x).abs() < 1e-15);
+    }
+
+    #[test]
+    fn critical_angle_is_tir() {
+        let crit = (1.0f64 / 1.5).asin();
+        let above = DVec3::new((crit + 1e-9).sin(), 0.0, (crit + 1e-9).cos());
+        let below = DVec3::new((crit - 1e-9).sin(), 0.0, (crit - 1e-9).cos());
+        assert!(refract(above, DVec3::Z, 1.5, 1.0).is_none());
+        let r = refract(below, DVec3::Z, 1.5, 1.0).unwrap();
+        assert!(r.is_finite());
+    }
+
+    #[test]
+    fn ideal_lens_focuses_parallel_rays() {
+        let f = 50.0;
+        let p = DVec3::new(3.0, -2.0, 0.0);
+        let d = paraxial_deflect(p, DVec3::Z, f, 1.0, 1.0);
+        let at_focus = p + d * (f / d.z);
+        assert!(at_focus.x.abs() < 1e-13 && at_focus.y.abs() < 1e-13);
+    }
+}

@@ -1,0 +1,60 @@
+//! Tracer backends. [`Tracer`] is the one interface; [`AnalyticTracer`] (exact f64, sequential) is the
+//! reference implementation, and the Embree backend implements the same trait.
+//!
+//! ```
+//! use diffcassi::{presets, rays::RayBatch, system::SequentialSystem, tracer::{AnalyticTracer, Tracer, RayStatus}};
+//! let sys = SequentialSystem::build(&presets::spec("ap").unwrap()).unwrap();
+//! let rays = RayBatch::chief_rays(&sys, &[[0.0, 0.0]], 520.0);
+//! let out = AnalyticTracer::default().trace(&sys, &rays).unwrap();
+//! assert_eq!(out.status[0], RayStatus::Ok);
+//! assert!(out.x[0].abs() < 1e-6); // the primary chief ray lands on the image origin
+//! ```
+mod analytic;
+pub mod kernel;
+mod traced;
+
+pub use analytic::*;
+pub use traced::*;
+
+use crate::error::Result;
+use crate::rays::RayBatch;
+use crate::system::SequentialSystem;
+
+/// A backend that traces object-space rays to the image surface.
+pub trait Tracer: Send + Sync {
+    /// Short name for tables and logs ("analytic-f64", "embree-mesh", …).
+    fn name(&self) -> String;
+    /// Trace every ray of `rays` (object frame) to the image surface. Rays that miss, are vignetted or
+    /// totally reflect are classified in `status`; their positions are NaN-free (set to 0).
+    /// Errors are for the batch as a whole (e.g. a wavelength outside a glass's range).
+    fn trace(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<TracedBatch>;
+}
+
+/// Outcome of one ray.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[repr(u8)]
+pub enum RayStatus {
+    Ok = 0,
+    /// No intersection with a surface (or off the conic's vertex branch).
+    Missed = 1,
+    /// Outside a surface aperture.
+    Vignetted = 2,
+    TotalInternalReflection = 3,
+    /// Even-asphere intersection did not converge.
+    NoConvergence = 4,
+    /// Non-finite or zero-length input ray.
+    InvalidInput = 5,
+}
+
+impl RayStatus {
+    pub fn label(self) -> &'static str {
+        match self {
+            RayStatus::Ok => "ok",
+            RayStatus::Missed => "missed",
+            RayStatus::Vignetted => "vignetted",
+            RayStatus::TotalInternalReflection => "tir",
+            RayStatus::NoConvergence => "no_convergence",
+            RayStatus::InvalidInput => "invalid_input",
+        }
+    }
+}

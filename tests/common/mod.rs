@@ -1,0 +1,82 @@
+//! Shared helpers for the integration tests: locating `../shared/reference` and reading Zemax exports.
+#![allow(dead_code)]
+use std::path::PathBuf;
+
+/// `../shared/reference` beside the repository, or `None` (the caller prints SKIP and returns).
+pub fn reference_dir() -> Option<PathBuf> {
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/reference");
+    p.is_dir().then_some(p)
+}
+
+#[macro_export]
+macro_rules! require_reference {
+    () => {
+        match common::reference_dir() {
+            Some(p) => p,
+            None => {
+                eprintln!("SKIP {}: ../shared/reference is absent", module_path!());
+                return;
+            }
+        }
+    };
+}
+
+/// A CSV with `#` header comments: (comments, column names, rows).
+pub fn read_commented_csv(path: &std::path::Path) -> (Vec<String>, Vec<String>, Vec<Vec<f64>>) {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut comments = Vec::new();
+    let mut header = Vec::new();
+    let mut rows = Vec::new();
+    for line in text.lines() {
+        let l = line.trim();
+        if l.is_empty() {
+            continue;
+        }
+        if let Some(c) = l.strip_prefix('#') {
+            comments.push(c.trim().to_string());
+        } else if header.is_empty() {
+            header = l.split(',').map(|s| s.trim().to_string()).collect();
+        } else {
+            rows.push(l.split(',').map(|s| s.trim().parse::<f64>().unwrap_or_else(|_| panic!("{}: bad number in `{l}`", path.display()))).collect());
+        }
+    }
+    (comments, header, rows)
+}
+
+pub fn column(header: &[String], name: &str) -> usize {
+    header.iter().position(|h| h == name).unwrap_or_else(|| panic!("no column {name} in {header:?}"))
+}
+
+/// A Zemax grid-distortion export: (Xref, Yref, rows of (x_field, y_field, real_x_abs, real_y_abs, pred_x_rel, pred_y_rel)).
+pub fn zemax_grid(path: &std::path::Path) -> ([f64; 2], Vec<[f64; 6]>) {
+    let (comments, header, rows) = read_commented_csv(path);
+    let line = comments.iter().find(|c| c.contains("Xref_mm=")).expect("Xref line");
+    let num = |key: &str| -> f64 {
+        let s = &line[line.find(key).unwrap() + key.len()..];
+        s.split_whitespace().next().unwrap().parse().unwrap()
+    };
+    let reference = [num("Xref_mm="), num("Yref_mm=")];
+    let (xf, yf, rx, ry, px, py) = (
+        column(&header, "x_field_mm"),
+        column(&header, "y_field_mm"),
+        column(&header, "real_x_mm"),
+        column(&header, "real_y_mm"),
+        column(&header, "pred_x_mm"),
+        column(&header, "pred_y_mm"),
+    );
+    (reference, rows.iter().map(|r| [r[xf], r[yf], r[rx] + reference[0], r[ry] + reference[1], r[px], r[py]]).collect())
+}
+
+/// A Zemax ray-position export: (field (x, y) mm, rows of (px, py, x, y)).
+pub fn zemax_rays(path: &std::path::Path) -> ([f64; 2], Vec<[f64; 4]>) {
+    let (comments, header, rows) = read_commented_csv(path);
+    let get = |key: &str| -> f64 {
+        comments.iter().find_map(|c| c.strip_prefix(key)).map(|v| v.trim().parse().unwrap()).unwrap_or_else(|| panic!("no {key}"))
+    };
+    let field = [get("x_field_mm:"), get("y_field_mm:")];
+    let (a, b, c, d) = (column(&header, "px"), column(&header, "py"), column(&header, "x_mm"), column(&header, "y_mm"));
+    (field, rows.iter().map(|r| [r[a], r[b], r[c], r[d]]).collect())
+}
+
+pub const SYSTEMS: [(&str, &str); 2] = [("sp", "SP_single_prism_aligned"), ("ap", "AP_amici_prism_aligned")];
+pub const WAVELENGTHS: [(usize, f64); 3] = [(1, 450.0), (2, 520.0), (3, 650.0)];
