@@ -572,25 +572,10 @@ fn report(a: ReportArgs) -> Result<()> {
 
 // ---------------------------------------------------------------- bench
 
-/// The bench workload: `rays` rays per wavelength over the system's fields (seeded random pupil).
-pub fn bench_batch(system: &SequentialSystem, rays: usize, wavelengths: &[f64]) -> Result<RayBatch> {
-    let fs = if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() };
-    let mut batch = RayBatch::with_capacity(rays * wavelengths.len());
-    for (k, &w) in wavelengths.iter().enumerate() {
-        let pupil = PupilPattern::Random { n: rays, seed: 1000 + k as u64 }.points();
-        for (i, p) in pupil.iter().enumerate() {
-            let f = fs[i % fs.len()];
-            let (o, d) = crate::rays::object_ray(system, f, p[0], p[1]);
-            batch.push(o, d, w);
-        }
-    }
-    Ok(batch)
-}
-
 fn bench(a: BenchArgs) -> Result<()> {
     let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let ws = linspace(450.0, 650.0, a.wavelengths.max(1));
-    let batch = bench_batch(&system, a.rays, &ws)?;
+    let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000);
     let tracer = AnalyticTracer::default();
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     println!("analytic f64 tracer, preset {}, {} rays ({} per wavelength × {} wavelengths), {} intersections per ray, best of {}", system.name(), batch.len(), a.rays, ws.len(), system.surfaces_per_ray(), a.repeat);

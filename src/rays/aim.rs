@@ -15,7 +15,18 @@ use glam::DVec3;
 /// (pupil at infinity), (px, py) scale the direction sines by sin θ_marginal around +z.
 pub fn object_ray(system: &SequentialSystem, field_mm: [f64; 2], px: f64, py: f64) -> (DVec3, DVec3) {
     let origin = DVec3::new(field_mm[0], field_mm[1], 0.0);
-    (origin, direction_through_pupil(system, origin, px * system.pupil.radius_mm, py * system.pupil.radius_mm))
+    let r = pupil_scale(system);
+    (origin, direction_through_pupil(system, origin, px * r, py * r))
+}
+
+/// Pupil-plane units per normalised pupil coordinate: the entrance-pupil radius, or 1 in telecentric object
+/// space (where the pupil is at infinity and (px, py) scale direction sines instead).
+fn pupil_scale(system: &SequentialSystem) -> f64 {
+    if system.pupil.is_telecentric() {
+        1.0
+    } else {
+        system.pupil.radius_mm
+    }
 }
 
 /// Direction from `origin` through the point (u, v) of the paraxial entrance-pupil plane (or, for a
@@ -23,7 +34,7 @@ pub fn object_ray(system: &SequentialSystem, field_mm: [f64; 2], px: f64, py: f6
 fn direction_through_pupil(system: &SequentialSystem, origin: DVec3, u: f64, v: f64) -> DVec3 {
     let pupil = &system.pupil;
     if pupil.is_telecentric() {
-        let s = pupil.sin_marginal / pupil.radius_mm.max(f64::MIN_POSITIVE);
+        let s = pupil.sin_marginal; // (u, v) are normalised pupil coordinates here (scale 1)
         let (sx, sy) = (u * s, v * s);
         let z = (1.0 - sx * sx - sy * sy).max(0.0).sqrt();
         return DVec3::new(sx, sy, z);
@@ -54,7 +65,7 @@ pub(crate) fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3,
 /// ray aiming. `n` are the indices at `wavelength_nm` ([`SequentialSystem::indices`]).
 pub fn aimed_ray(system: &SequentialSystem, n: &[f64], field_mm: [f64; 2], px: f64, py: f64) -> Result<(DVec3, DVec3)> {
     let origin = DVec3::new(field_mm[0], field_mm[1], 0.0);
-    let r_ep = system.pupil.radius_mm;
+    let r_ep = pupil_scale(system);
     let (mut u, mut v) = (px * r_ep, py * r_ep);
     if system.spec.ray_aiming == RayAiming::Off {
         return Ok((origin, direction_through_pupil(system, origin, u, v)));

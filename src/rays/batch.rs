@@ -75,6 +75,22 @@ impl RayBatch {
         b
     }
 
+    /// A reproducible benchmark workload: `rays_per_wavelength` rays per wavelength, cycling over the
+    /// system's fields (the axis if it has none), pupil points uniform in the disk from a ChaCha8 stream
+    /// seeded with `seed + wavelength index`. Ray aiming off (object-space rays through the paraxial pupil).
+    pub fn seeded_workload(system: &SequentialSystem, rays_per_wavelength: usize, wavelengths_nm: &[f64], seed: u64) -> Self {
+        let fields = if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() };
+        let mut batch = RayBatch::with_capacity(rays_per_wavelength * wavelengths_nm.len());
+        for (k, &w) in wavelengths_nm.iter().enumerate() {
+            let pupil = super::PupilPattern::Random { n: rays_per_wavelength, seed: seed + k as u64 }.points();
+            for (i, p) in pupil.iter().enumerate() {
+                let (o, d) = object_ray(system, fields[i % fields.len()], p[0], p[1]);
+                batch.push(o, d, w);
+            }
+        }
+        batch
+    }
+
     /// Chief rays of many field points at one wavelength.
     pub fn chief_rays(system: &SequentialSystem, fields_mm: &[[f64; 2]], wavelength_nm: f64) -> Self {
         let mut b = RayBatch::with_capacity(fields_mm.len());
