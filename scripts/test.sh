@@ -9,4 +9,6 @@ if [[ ! -d ../shared ]]; then
     echo "test.sh: ../shared (Zemax reference data) not found; tests that need it will be skipped."
 fi
 
+# Unit, integration and CLI tests, benches compiled and run once in test mode, then the doc examples.
 cargo test --release --all-targets
+cargo test --release --doc

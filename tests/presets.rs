@@ -102,3 +102,48 @@ fn spec_round_trips_through_toml_and_json() {
         assert_eq!(a.pupil, b.pupil);
     }
 }
+
+/// Zemax fills the Semi-Diameter column itself (no `U` flag): the marginal-ray footprint over all fields and
+/// wavelengths plus a 1 mm "Semi-Diameter Margin" (the stop: the on-axis primary footprint, no margin).
+/// On every surface ahead of the first tilted prism face the footprint depends only on the field points and
+/// the entrance pupil, and there we reproduce Zemax's numbers to their display precision in all four systems
+/// — mSP and mAP included, whose exports are withheld — which pins the pupil's position, size and
+/// orientation. Further on, Zemax's estimates are smaller than the exact footprint maximum on the SP family's
+/// tilted faces (7–39 µm; 1.3 µm on AP's first Amici face) — Zemax's estimate is not the exact maximum
+/// there, for reasons not identified. What must hold is one-sided: Zemax's value, found with real rays,
+/// never exceeds the exact maximum of the same rays' footprint. Every value is printed.
+#[test]
+fn automatic_semi_diameters_reproduce_the_lens_data_editor() {
+    for name in presets::NAMES {
+        let sys = SequentialSystem::build(&presets::spec(name).unwrap()).unwrap();
+        let ours = analysis::automatic_semi_diameters(&sys, 1.0, 720).unwrap();
+        let first_tilted = sys.surfaces.iter().find(|s| s.kind == SurfaceKind::Standard && s.index > 0 && s.frame.rotation.z_axis.z < 1.0 - 1e-12).unwrap().index;
+        let csv = presets::prescription_csv(name).unwrap();
+        let mut header: Vec<&str> = vec![];
+        let (mut exact, mut bounded) = (0, 0);
+        for line in csv.lines().filter(|l| !l.starts_with('#')) {
+            let cols: Vec<&str> = line.split(',').collect();
+            if header.is_empty() {
+                header = cols;
+                continue;
+            }
+            let get = |c: &str| cols[header.iter().position(|h| *h == c).unwrap()].trim();
+            let surf: usize = get("surf").parse().unwrap();
+            let main = get("semi_diameter").split('(').next().unwrap().trim().to_string();
+            if main.is_empty() || main.contains('U') || get("type").contains("IMAGE") {
+                continue; // user-set, or a coordinate break
+            }
+            let shown: f64 = main.parse().unwrap();
+            let Some(&(_, computed)) = ours.iter().find(|(s, _)| *s == surf) else { continue };
+            println!("{name} surface {surf}: Zemax {shown:.3}, diffcassi {computed:.4}");
+            if surf < first_tilted {
+                assert!((computed - shown).abs() <= 0.0005 + 1e-9, "{name} surface {surf}: {computed:.4} vs Zemax {shown:.3}");
+                exact += 1;
+            } else {
+                assert!(computed - shown >= -0.0005, "{name} surface {surf}: {computed:.4} below Zemax's {shown:.3}");
+                bounded += 1;
+            }
+        }
+        assert!(exact >= 3 && bounded >= 1, "{name}: {exact} exact and {bounded} bounded semi-diameters checked");
+    }
+}

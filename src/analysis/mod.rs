@@ -12,11 +12,13 @@
 mod dispersion;
 mod distortion;
 mod mapping;
+mod semi_diameter;
 mod spot;
 
 pub use dispersion::*;
 pub use distortion::*;
 pub use mapping::*;
+pub use semi_diameter::*;
 pub use spot::*;
 
 use crate::error::{Error, Result};

@@ -737,7 +737,8 @@ fn lower(model: &Model, name: &str, source_name: &str) -> R<(SystemSpec, Vec<(us
     let spec = SystemSpec {
         name: name.to_string(),
         description: format!(
-            "imported from {source_name} (paper YAML, {} groups): object-space telecentric chief rays as the paper's tracer",
+            "imported from {source_name} (paper YAML, {} groups): object-space telecentric chief rays as the paper's tracer; \
+             glass indices relative to air = 1 (Zemax), whereas the paper's dO gives air n = 1.000293",
             model.groups.len()
         ),
         aperture: SystemAperture::ObjectSpaceNa(0.05),

@@ -96,3 +96,9 @@ impl SequentialSystem {
         (self.path[k - 1].surface, p.x, p.y)
     }
 }
+#[doc(hidden)]
+impl SequentialSystem {
+    pub fn path_len(&self) -> usize {
+        self.path.len()
+    }
+}

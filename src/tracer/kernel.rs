@@ -39,6 +39,18 @@ pub fn paraxial_deflect(p: DVec3, d: DVec3, focal_length: f64, n1: f64, n2: f64)
     }
 }
 
+/// Like [`trace_steps`], also recording every hit point in its surface's local frame into `hits`.
+pub(crate) fn trace_steps_recording(path: &[PathStep], n: &[f64], mut p: DVec3, mut d: DVec3, hits: &mut Vec<DVec3>) -> Result<(DVec3, DVec3), (RayStatus, usize)> {
+    hits.clear();
+    for step in path {
+        let (q, e) = trace_steps(std::slice::from_ref(step), n, p, d)?;
+        hits.push(q);
+        p = q;
+        d = e;
+    }
+    Ok((p, d))
+}
+
 /// Trace (p, d), given in the object surface's frame, along `path`. `n[i]` is the index after surface i.
 /// Returns (p, d) in the frame of the last step, or the status and the surface where the ray stopped.
 #[inline]
