@@ -25,6 +25,7 @@ fn singlet(asphere: &[f64]) -> SystemSpec {
         primary_wavelength_nm: 587.6,
         fields_mm: vec![[0.0, 0.0], [0.0, 3.0]],
         wavelength_policy: Default::default(),
+        air_index: 1.0,
         glass_catalogs: vec![],
         surfaces: vec![
             SurfaceSpec::standard(None, 100.0, None),

@@ -42,10 +42,22 @@ pub struct SystemSpec {
     /// Whether wavelengths outside a glass's catalogue range are an error (default) or extrapolated.
     #[serde(default)]
     pub wavelength_policy: WavelengthPolicy,
+    /// Refractive index given to `Air` (default 1: catalogue indices are relative to air and system air is
+    /// the reference, as in Zemax at its default 20 °C / 1 atm). The reference paper's tracer uses 1.000293
+    /// with the same (relative) glass data; its YAML imports set that value to reproduce it.
+    #[serde(default = "default_air_index", skip_serializing_if = "is_default_air_index")]
+    pub air_index: f64,
     /// Extra AGF catalogues to load (paths relative to the spec file); the built-in glasses are always there.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub glass_catalogs: Vec<String>,
     pub surfaces: Vec<SurfaceSpec>,
+}
+
+fn default_air_index() -> f64 {
+    1.0
+}
+fn is_default_air_index(v: &f64) -> bool {
+    *v == 1.0
 }
 
 impl SystemSpec {
@@ -69,6 +81,9 @@ impl SystemSpec {
             if !(w.is_finite() && *w > 0.0) {
                 return Err(format!("wavelengths_nm[{i}] = {w}: must be finite and > 0"));
             }
+        }
+        if !(self.air_index.is_finite() && self.air_index >= 1.0 && self.air_index < 1.1) {
+            return Err(format!("air_index = {}: must be in [1, 1.1)", self.air_index));
         }
         if !(self.primary_wavelength_nm.is_finite() && self.primary_wavelength_nm > 0.0) {
             return Err(format!("primary_wavelength_nm = {}: must be finite and > 0", self.primary_wavelength_nm));

@@ -54,7 +54,7 @@
 //! * Stop: the paper's tracer has no stop; its chief ray leaves the object parallel to +z. When the first
 //!   surface is a `ThinLens`, the import reproduces that with a dummy plane (flagged stop) at the thin
 //!   lens's back focal point, which makes the object space telecentric (to 5·10⁻¹¹ rad, see
-//!   `STOP_DEFOCUS`). Otherwise the first surface is the stop. System data: object-space NA 0.05, fields (0,0), (2.5,0), (0,2.5), (2.5,2.5) mm, the file's
+//!   the ThinLens's back focal point). Otherwise the first surface is the stop. System data: object-space NA 0.05, fields (0,0), (2.5,0), (0,2.5), (2.5,2.5) mm, the file's
 //!   wavelengths, primary 520 nm, ray aiming off.
 //! * Glass names are kept as written (catalogue look-up is case-insensitive and happens when the system is
 //!   built); note that dO gives air the index 1.000293 while Zemax (and diffcassi) measure glass indices
@@ -587,14 +587,14 @@ fn parse(root: &Node) -> R<Model> {
 // ---------------------------------------------------------------------------------------------------
 
 /// Relative transforms below these are rounding noise: no Coordinate Break is written for them.
+/// dO's `Material('air')`: n = 1.000293 without dispersion, used with catalogue (air-relative) glass data.
+/// The paper calibrated its files under this convention; set [`SystemSpec::air_index`] to 1 for Zemax's.
+pub const PAPER_AIR_INDEX: f64 = 1.000293;
+
 const DECENTER_EPS_MM: f64 = 1e-12;
 const TILT_EPS_RAD: f64 = 1e-13;
 
-/// Relative offset of the stop from the ThinLens's back focal point. Exactly 0 would give a pupil at
-/// infinity, which the ray generator cannot trace yet (`EntrancePupil::radius_mm` is then ∞, and the chief
-/// ray's pupil point 0·∞ is NaN); 1e-9 puts the entrance pupil ~f·10⁹ away, i.e. chief rays parallel to the
-/// axis within 2.5 mm / (5·10¹⁰ mm) = 5·10⁻¹¹ rad — telecentric for every practical purpose.
-const STOP_DEFOCUS: f64 = 1e-9;
+
 
 /// Builds the surface list while tracking the frame of the last non-break surface.
 struct Sequence {
@@ -713,7 +713,7 @@ fn lower(model: &Model, name: &str, source_name: &str) -> R<(SystemSpec, Vec<(us
                         let mut stop = SurfaceSpec::standard(None, 0.0, after.as_deref());
                         stop.stop = true;
                         stop.comment = format!("stop: back focal plane of {} (telecentric object space, as the paper's tracer)", s.path);
-                        let s_stop = f * (1.0 + STOP_DEFOCUS);
+                        let s_stop = f; // exactly telecentric: the entrance pupil is at infinity
                         seq.surfaces[seq.last].thickness_mm = Cell::fixed(s_stop);
                         let focal = frame.advanced(s_stop);
                         seq.push(stop, focal);
@@ -737,8 +737,8 @@ fn lower(model: &Model, name: &str, source_name: &str) -> R<(SystemSpec, Vec<(us
     let spec = SystemSpec {
         name: name.to_string(),
         description: format!(
-            "imported from {source_name} (paper YAML, {} groups): object-space telecentric chief rays as the paper's tracer; \
-             glass indices relative to air = 1 (Zemax), whereas the paper's dO gives air n = 1.000293",
+            "imported from {source_name} (paper YAML, {} groups): object-space telecentric chief rays and air n = {PAPER_AIR_INDEX} \
+             (catalogue glass indices unchanged), as the paper's tracer",
             model.groups.len()
         ),
         aperture: SystemAperture::ObjectSpaceNa(0.05),
@@ -747,6 +747,7 @@ fn lower(model: &Model, name: &str, source_name: &str) -> R<(SystemSpec, Vec<(us
         primary_wavelength_nm: 520.0,
         fields_mm: vec![[0.0, 0.0], [2.5, 0.0], [0.0, 2.5], [2.5, 2.5]],
         wavelength_policy: WavelengthPolicy::default(),
+        air_index: PAPER_AIR_INDEX,
         glass_catalogs: Vec::new(),
         surfaces: seq.surfaces,
     };

@@ -215,6 +215,7 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
         primary_wavelength_nm: data.primary_wavelength_nm,
         fields_mm: data.fields_mm.clone(),
         wavelength_policy: WavelengthPolicy::Strict,
+        air_index: 1.0,
         glass_catalogs: Vec::new(),
         surfaces,
     };

@@ -68,7 +68,7 @@ impl SequentialSystem {
         let primary = spec.primary_wavelength_nm;
         let mut n_primary = Vec::with_capacity(n);
         for m in &media {
-            n_primary.push(m.refractive_index(primary, spec.wavelength_policy)?);
+            n_primary.push(super::medium_index(m, spec, primary)?);
         }
         let stop_index = spec.stop_index();
         let mut parax = Vec::with_capacity(n);

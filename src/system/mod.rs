@@ -42,6 +42,12 @@ pub(crate) struct StopProbe {
     pub chief_crossing: (f64, f64),
 }
 
+/// Index of a medium at `wavelength_nm` under the spec's air index and wavelength policy.
+pub(crate) fn medium_index(m: &crate::materials::Medium, spec: &SystemSpec, wavelength_nm: f64) -> Result<f64> {
+    let n = m.refractive_index(wavelength_nm, spec.wavelength_policy)?;
+    Ok(if m.is_air() { spec.air_index } else { n })
+}
+
 impl SequentialSystem {
     pub fn name(&self) -> &str {
         &self.spec.name
@@ -53,10 +59,7 @@ impl SequentialSystem {
         if !(wavelength_nm.is_finite() && wavelength_nm > 0.0) {
             return Err(Error::invalid(format!("wavelength {wavelength_nm} nm: must be finite and > 0")));
         }
-        self.surfaces
-            .iter()
-            .map(|s| s.medium_after.refractive_index(wavelength_nm, self.spec.wavelength_policy).map_err(Error::from))
-            .collect()
+        self.surfaces.iter().map(|s| medium_index(&s.medium_after, &self.spec, wavelength_nm)).collect()
     }
 
     /// The image surface (last).
