@@ -21,6 +21,7 @@ pub enum IntersectFailure {
 }
 
 /// Intersect the line p + t·d (local frame, `d` unit) with the surface, on the vertex branch.
+#[inline]
 pub fn intersect(shape: &SurfaceShape, p: DVec3, d: DVec3) -> Result<Hit, IntersectFailure> {
     match shape {
         SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => intersect_plane(p, d),
