@@ -37,6 +37,19 @@ fn grid_distortion_matches_zemax() {
     assert!(worst.1 <= 1.0, "grid max |Δ| {:.3} µm > 1.0 µm", worst.1);
 }
 
+/// Our `GridStep { step: 0.025 }` pupil is exactly the grid of Zemax's spot exports.
+#[test]
+fn grid_step_pupil_is_zemaxs() {
+    let refdir = require_reference!();
+    let (_, rows) = common::zemax_rays(&refdir.join("zemax/SP_single_prism_aligned/ray_positions_wavelength_W1_field_F1.csv"));
+    let mut theirs: Vec<(i64, i64)> = rows.iter().map(|r| ((r[0] * 1e4).round() as i64, (r[1] * 1e4).round() as i64)).collect();
+    let mut ours: Vec<(i64, i64)> =
+        PupilPattern::GridStep { step: 0.025 }.points().iter().map(|p| ((p[0] * 1e4).round() as i64, (p[1] * 1e4).round() as i64)).collect();
+    theirs.sort();
+    ours.sort();
+    assert_eq!(ours, theirs);
+}
+
 /// Per-case comparison of a spot export with our trace of the same pupil coordinates.
 struct SpotRow {
     name: &'static str,

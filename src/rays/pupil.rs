@@ -12,7 +12,8 @@ pub enum PupilPattern {
     Hexapolar { rings: usize },
     /// Square grid of `n × n` points spanning [−1, 1] (step 2/(n−1)), keeping px² + py² ≤ 1.
     Grid { n: usize },
-    /// Zemax-style grid of step `step` from −1 + step/2 … (the spot-export grid used step 0.025 centred on 0).
+    /// Zemax's square pupil grid: points (i·step, j·step) strictly inside the unit circle (Zemax leaves
+    /// out the points exactly on it; step 0.025 gives the 5013 rays of the reference spot exports).
     GridStep { step: f64 },
     /// `n` points uniform in the disk, from a ChaCha8 stream seeded with `seed`.
     Random { n: usize, seed: u64 },
@@ -57,7 +58,7 @@ impl PupilPattern {
                 for i in -k..=k {
                     for j in -k..=k {
                         let (px, py) = (i as f64 * step, j as f64 * step);
-                        if px * px + py * py <= 1.0 + 1e-12 {
+                        if px * px + py * py < 1.0 - 1e-12 {
                             v.push([px, py]);
                         }
                     }

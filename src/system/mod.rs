@@ -77,31 +77,3 @@ impl SequentialSystem {
     }
 }
 
-#[doc(hidden)]
-impl SequentialSystem {
-    pub fn stop_probe_steps(&self) -> usize {
-        self.stop_probe.steps
-    }
-    pub fn debug_stop_crossing(&self, n: &[f64], o: glam::DVec3, d: glam::DVec3) -> Option<(f64, f64)> {
-        let probe = &self.stop_probe;
-        let (p, d) = crate::tracer::kernel::trace_steps(&self.path[..probe.steps], n, o, d).ok()?;
-        let step = &probe.probe;
-        let (p, d) = (step.rotation * (p - step.offset), step.rotation * d);
-        let hit = crate::surfaces::intersect(&step.shape, p, d).ok()?;
-        Some((hit.point.x, hit.point.y))
-    }
-}
-#[doc(hidden)]
-impl SequentialSystem {
-    /// (surface index, x, y) where the ray crosses the k-th path step.
-    pub fn debug_crossings(&self, n: &[f64], o: glam::DVec3, d: glam::DVec3, k: usize) -> (usize, f64, f64) {
-        let (p, _) = crate::tracer::kernel::trace_steps(&self.path[..k], n, o, d).unwrap();
-        (self.path[k - 1].surface, p.x, p.y)
-    }
-}
-#[doc(hidden)]
-impl SequentialSystem {
-    pub fn path_len(&self) -> usize {
-        self.path.len()
-    }
-}
