@@ -10,7 +10,7 @@ fn trace_28_wavelengths(c: &mut Criterion) {
     let ws = linspace(450.0, 650.0, 28);
     for preset in ["sp", "ap", "msp", "map"] {
         let sys = SequentialSystem::build(&presets::spec(preset).unwrap()).unwrap();
-        let batch = RayBatch::seeded_workload(&sys, 10_000, &ws, 1000);
+        let batch = RayBatch::seeded_workload(&sys, 10_000, &ws, 1000).unwrap();
         g.throughput(Throughput::Elements(batch.len() as u64));
         for threads in [1usize, 2] {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

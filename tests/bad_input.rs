@@ -49,7 +49,12 @@ fn wavelength_outside_glass_range() {
 #[test]
 fn wavelength_outside_range_at_trace_time() {
     let sys = SequentialSystem::build(&sp()).unwrap();
-    let rays = RayBatch::chief_rays(&sys, &[[0.0, 0.0]], 3000.0);
+    // Ray generation refuses it…
+    let e = RayBatch::chief_rays(&sys, &[[0.0, 0.0]], 3000.0).unwrap_err().to_string();
+    assert_mentions(&e, &["3000", "N-BK7"]);
+    // …and so does the tracer for a hand-made batch.
+    let mut rays = RayBatch::default();
+    rays.push(glam::DVec3::ZERO, glam::DVec3::Z, 3000.0);
     let e = AnalyticTracer::default().trace(&sys, &rays).unwrap_err().to_string();
     assert_mentions(&e, &["3000", "N-BK7"]);
 }

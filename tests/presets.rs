@@ -1,6 +1,5 @@
 //! The four presets: they build from the embedded Zemax prescriptions, their pickups reproduce every value
 //! the Lens Data Editor shows, their chief-ray solves reproduce Zemax's solved values, and they trace.
-use diffcassi::analysis::chief_rays;
 use diffcassi::prelude::*;
 use diffcassi::spec::zemax_csv::{import_prescription, SystemData};
 use diffcassi::spec::{Driver, SurfaceKind};
@@ -11,7 +10,7 @@ fn every_preset_builds_and_traces_all_fields() {
     for name in presets::NAMES {
         let sys = SequentialSystem::build(&presets::spec(name).unwrap()).unwrap();
         for w in [450.0, 520.0, 650.0] {
-            let out = tracer.trace(&sys, &chief_rays(&sys, &sys.spec.fields_mm, w).unwrap()).unwrap();
+            let out = tracer.trace(&sys, &RayBatch::chief_rays(&sys, &sys.spec.fields_mm, w).unwrap()).unwrap();
             assert!(out.status.iter().all(|s| *s == RayStatus::Ok), "{name} at {w} nm: {:?}", out.status);
             assert!(out.x.iter().chain(&out.y).all(|v| v.is_finite() && v.abs() < 5.0), "{name}: positions on the detector");
         }
@@ -69,7 +68,7 @@ fn primary_chief_ray_of_aligned_systems_lands_on_the_image_origin() {
     let tracer = AnalyticTracer::default();
     for name in ["sp", "ap"] {
         let sys = SequentialSystem::build(&presets::spec(name).unwrap()).unwrap();
-        let out = tracer.trace(&sys, &chief_rays(&sys, &[[0.0, 0.0]], 520.0).unwrap()).unwrap();
+        let out = tracer.trace(&sys, &RayBatch::chief_rays(&sys, &[[0.0, 0.0]], 520.0).unwrap()).unwrap();
         assert!(out.x[0].abs() < 1e-9 && out.y[0].abs() < 1e-9, "{name}: ({}, {})", out.x[0], out.y[0]);
     }
 }
@@ -81,8 +80,8 @@ fn misaligned_presets_differ_from_aligned_ones() {
     for (a, m) in [("sp", "msp"), ("ap", "map")] {
         let sa = SequentialSystem::build(&presets::spec(a).unwrap()).unwrap();
         let sm = SequentialSystem::build(&presets::spec(m).unwrap()).unwrap();
-        let fa = tracer.trace(&sa, &chief_rays(&sa, &[[2.5, 0.0]], 450.0).unwrap()).unwrap();
-        let fm = tracer.trace(&sm, &chief_rays(&sm, &[[2.5, 0.0]], 450.0).unwrap()).unwrap();
+        let fa = tracer.trace(&sa, &RayBatch::chief_rays(&sa, &[[2.5, 0.0]], 450.0).unwrap()).unwrap();
+        let fm = tracer.trace(&sm, &RayBatch::chief_rays(&sm, &[[2.5, 0.0]], 450.0).unwrap()).unwrap();
         let dy = (fa.y[0] - fm.y[0]).abs();
         assert!(dy > 1e-3, "{m}: the misalignment must show ({dy} mm)");
     }

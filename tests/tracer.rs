@@ -1,6 +1,5 @@
 //! The analytic tracer beyond the presets: aspheres, apertures, TIR, pupils, ray aiming, order flags,
 //! determinism.
-use diffcassi::analysis::{chief_rays, field_rays};
 use diffcassi::prelude::*;
 use diffcassi::spec::{Cell, RayAiming, SurfaceKind, SurfaceSpec, SystemAperture};
 use diffcassi::surfaces::Aperture;
@@ -44,9 +43,9 @@ fn even_asphere_system_traces_and_zero_terms_equal_the_conic() {
     let zero = SequentialSystem::build(&singlet(&[0.0, 0.0])).unwrap();
     let asph = SequentialSystem::build(&singlet(&[1e-5, -2e-8])).unwrap();
     let pupil = PupilPattern::Hexapolar { rings: 6 }.points();
-    let a = tracer.trace(&conic, &field_rays(&conic, [0.0, 3.0], &pupil, 587.6).unwrap()).unwrap();
-    let b = tracer.trace(&zero, &field_rays(&zero, [0.0, 3.0], &pupil, 587.6).unwrap()).unwrap();
-    let c = tracer.trace(&asph, &field_rays(&asph, [0.0, 3.0], &pupil, 587.6).unwrap()).unwrap();
+    let a = tracer.trace(&conic, &RayBatch::for_field(&conic, [0.0, 3.0], &pupil, 587.6).unwrap()).unwrap();
+    let b = tracer.trace(&zero, &RayBatch::for_field(&zero, [0.0, 3.0], &pupil, 587.6).unwrap()).unwrap();
+    let c = tracer.trace(&asph, &RayBatch::for_field(&asph, [0.0, 3.0], &pupil, 587.6).unwrap()).unwrap();
     assert!(a.status.iter().chain(&b.status).chain(&c.status).all(|s| *s == RayStatus::Ok));
     for i in 0..a.len() {
         assert!((a.x[i] - b.x[i]).abs() < 1e-12 && (a.y[i] - b.y[i]).abs() < 1e-12);
@@ -60,14 +59,14 @@ fn aperture_vignettes_and_edges_pass() {
     let mut spec = singlet(&[]);
     spec.surfaces[2].aperture = Some(Aperture::circular(1.0));
     let sys = SequentialSystem::build(&spec).unwrap();
-    let out = AnalyticTracer::default().trace(&sys, &field_rays(&sys, [0.0, 0.0], &PupilPattern::Grid { n: 21 }.points(), 587.6).unwrap()).unwrap();
+    let out = AnalyticTracer::default().trace(&sys, &RayBatch::for_field(&sys, [0.0, 0.0], &PupilPattern::Grid { n: 21 }.points(), 587.6).unwrap()).unwrap();
     let vig = out.status.iter().filter(|s| **s == RayStatus::Vignetted).count();
     assert!(vig > 0 && vig < out.len(), "some but not all rays vignetted ({vig} of {})", out.len());
     assert!(out.surface.iter().zip(&out.status).all(|(s, st)| *st == RayStatus::Ok || *s == 2));
     // Rectangular aperture.
     spec.surfaces[2].aperture = Some(Aperture::Rectangular { half_width_x_mm: 10.0, half_width_y_mm: 0.5, decenter_x_mm: 0.0, decenter_y_mm: 0.0 });
     let sys = SequentialSystem::build(&spec).unwrap();
-    let out = AnalyticTracer::default().trace(&sys, &field_rays(&sys, [0.0, 0.0], &[[1.0, 0.0], [0.0, 1.0]], 587.6).unwrap()).unwrap();
+    let out = AnalyticTracer::default().trace(&sys, &RayBatch::for_field(&sys, [0.0, 0.0], &[[1.0, 0.0], [0.0, 1.0]], 587.6).unwrap()).unwrap();
     assert_eq!(out.status, vec![RayStatus::Ok, RayStatus::Vignetted]);
 }
 
@@ -83,7 +82,7 @@ fn total_internal_reflection_is_classified() {
         SurfaceSpec::standard(None, 0.0, None),
     ];
     let sys = SequentialSystem::build(&spec).unwrap();
-    let out = AnalyticTracer::default().trace(&sys, &chief_rays(&sys, &[[0.0, 0.0]], 587.6).unwrap()).unwrap();
+    let out = AnalyticTracer::default().trace(&sys, &RayBatch::chief_rays(&sys, &[[0.0, 0.0]], 587.6).unwrap()).unwrap();
     assert_eq!(out.status[0], RayStatus::TotalInternalReflection);
     assert_eq!(out.surface[0], 3);
     assert!(out.x[0] == 0.0 && out.y[0] == 0.0, "no NaN, no stale numbers for failed rays");
@@ -107,7 +106,7 @@ fn entrance_pupil_diameter_and_telecentric_object_space() {
     t.surfaces[0].thickness_mm = Cell::fixed(50.0);
     let sys = SequentialSystem::build(&t).unwrap();
     assert!(sys.pupil.is_telecentric(), "{:?}", sys.pupil);
-    let rays = chief_rays(&sys, &[[1.0, 2.0]], 587.6).unwrap();
+    let rays = RayBatch::chief_rays(&sys, &[[1.0, 2.0]], 587.6).unwrap();
     assert!(rays.direction(0).x.abs() < 1e-15 && rays.direction(0).y.abs() < 1e-15, "telecentric chief rays are parallel to the axis");
     let out = AnalyticTracer::default().trace(&sys, &rays).unwrap();
     // 4f relay: image = −object.
@@ -126,8 +125,8 @@ fn real_ray_aiming_hits_the_stop_where_asked() {
     }
     // AP's stop is a coordinate break just after the relay: aiming barely moves the rays.
     let off = SequentialSystem::build(&presets::spec("ap").unwrap()).unwrap();
-    let a = AnalyticTracer::default().trace(&sys, &field_rays(&sys, [2.5, 0.0], &[[0.5, 0.5]], 520.0).unwrap()).unwrap();
-    let b = AnalyticTracer::default().trace(&off, &field_rays(&off, [2.5, 0.0], &[[0.5, 0.5]], 520.0).unwrap()).unwrap();
+    let a = AnalyticTracer::default().trace(&sys, &RayBatch::for_field(&sys, [2.5, 0.0], &[[0.5, 0.5]], 520.0).unwrap()).unwrap();
+    let b = AnalyticTracer::default().trace(&off, &RayBatch::for_field(&off, [2.5, 0.0], &[[0.5, 0.5]], 520.0).unwrap()).unwrap();
     assert!((a.x[0] - b.x[0]).abs() < 1e-3);
 }
 
@@ -156,8 +155,8 @@ fn order_one_break_undoes_order_zero_break() {
     let a = SequentialSystem::build(&base).unwrap();
     let b = SequentialSystem::build(&spec).unwrap();
     let fields = [[2.5, -1.0], [0.0, 0.0]];
-    let ra = AnalyticTracer::default().trace(&a, &chief_rays(&a, &fields, 500.0).unwrap()).unwrap();
-    let rb = AnalyticTracer::default().trace(&b, &chief_rays(&b, &fields, 500.0).unwrap()).unwrap();
+    let ra = AnalyticTracer::default().trace(&a, &RayBatch::chief_rays(&a, &fields, 500.0).unwrap()).unwrap();
+    let rb = AnalyticTracer::default().trace(&b, &RayBatch::chief_rays(&b, &fields, 500.0).unwrap()).unwrap();
     for i in 0..2 {
         assert!((ra.x[i] - rb.x[i]).abs() < 1e-12 && (ra.y[i] - rb.y[i]).abs() < 1e-12);
     }
@@ -166,7 +165,7 @@ fn order_one_break_undoes_order_zero_break() {
 #[test]
 fn results_do_not_depend_on_thread_count() {
     let sys = SequentialSystem::build(&presets::spec("msp").unwrap()).unwrap();
-    let batch = RayBatch::seeded_workload(&sys, 5000, &[450.0, 550.0, 650.0], 7);
+    let batch = RayBatch::seeded_workload(&sys, 5000, &[450.0, 550.0, 650.0], 7).unwrap();
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     let two = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
     let tracer = AnalyticTracer { chunk_size: 333 };
@@ -183,7 +182,7 @@ fn mapping_cube_equals_chief_rays() {
     assert_eq!(cube.invalid_count(), 0);
     for (r, c, b) in [(0, 0, 0), (5, 3, 2), (2, 1, 1)] {
         let xy = analysis::MappingCube::scene_xy(6, 4, 0.5, r, c);
-        let out = AnalyticTracer::default().trace(&sys, &chief_rays(&sys, &[xy], ws[b]).unwrap()).unwrap();
+        let out = AnalyticTracer::default().trace(&sys, &RayBatch::chief_rays(&sys, &[xy], ws[b]).unwrap()).unwrap();
         assert_eq!(cube.get(r, c, b).unwrap(), [out.x[0], out.y[0]]);
     }
     // Row 0 is the top of the scene (+y), column 0 its left (−x).

@@ -6,7 +6,7 @@
 //!   sensor plane), written here from the dO source, not from the importer: same image points to 1e-9 mm.
 //! * The imported systems are compared with the Zemax presets they approximate (table printed).
 //! * Error messages name the file, the YAML field path and the value.
-use diffcassi::analysis::{chief_rays, grid_distortion};
+use diffcassi::analysis::grid_distortion;
 use diffcassi::materials::{GlassCatalog, WavelengthPolicy};
 use diffcassi::prelude::*;
 use diffcassi::spec::yaml::import_yaml;
@@ -57,7 +57,7 @@ fn import(dir: &std::path::Path, file: &str) -> SystemSpec {
 }
 
 fn chief_positions(sys: &SequentialSystem, fields: &[[f64; 2]], w: f64) -> Vec<(f64, f64)> {
-    let out = AnalyticTracer::default().trace(sys, &chief_rays(sys, fields, w).unwrap()).unwrap();
+    let out = AnalyticTracer::default().trace(sys, &RayBatch::chief_rays(sys, fields, w).unwrap()).unwrap();
     assert!(out.status.iter().all(|s| *s == RayStatus::Ok), "{}: chief rays at {w} nm: {:?}", sys.name(), out.status);
     (0..out.len()).map(|k| (out.x[k], out.y[k])).collect()
 }

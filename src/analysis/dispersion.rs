@@ -1,4 +1,4 @@
-use super::chief_rays;
+use crate::rays::RayBatch;
 use crate::error::{Error, Result};
 use crate::system::SequentialSystem;
 use crate::tracer::{RayStatus, Tracer};
@@ -21,7 +21,7 @@ pub fn dispersion_curve(system: &SequentialSystem, tracer: &dyn Tracer, field_mm
     }
     let (mut xs, mut ys) = (Vec::new(), Vec::new());
     for &w in wavelengths_nm {
-        let out = tracer.trace(system, &chief_rays(system, &[field_mm], w)?)?;
+        let out = tracer.trace(system, &RayBatch::chief_rays(system, &[field_mm], w)?)?;
         if out.status[0] != RayStatus::Ok {
             return Err(Error::invalid(format!(
                 "dispersion curve: the chief ray of field ({}, {}) mm at {w} nm is {} at surface {}",

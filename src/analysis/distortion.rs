@@ -1,4 +1,4 @@
-use super::chief_rays;
+use crate::rays::RayBatch;
 use crate::error::{Error, Result};
 use crate::system::SequentialSystem;
 use crate::tracer::{RayStatus, Tracer};
@@ -49,7 +49,7 @@ pub fn grid_distortion(system: &SequentialSystem, tracer: &dyn Tracer, wavelengt
     }
     let h = 1e-4 * half_width_mm;
     let probes = [[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]];
-    let pr = tracer.trace(system, &chief_rays(system, &probes, wavelength_nm)?)?;
+    let pr = tracer.trace(system, &RayBatch::chief_rays(system, &probes, wavelength_nm)?)?;
     if pr.status.iter().any(|s| *s != RayStatus::Ok) {
         return Err(Error::invalid(format!("the near-axis chief rays do not reach the image at {wavelength_nm} nm")));
     }
@@ -70,7 +70,7 @@ pub fn grid_distortion(system: &SequentialSystem, tracer: &dyn Tracer, wavelengt
             idx.push((ii - half, jj - half));
         }
     }
-    let out = tracer.trace(system, &chief_rays(system, &fields, wavelength_nm)?)?;
+    let out = tracer.trace(system, &RayBatch::chief_rays(system, &fields, wavelength_nm)?)?;
     let mut points = Vec::with_capacity(fields.len());
     let mut max_distortion_pct: f64 = 0.0;
     for (k, f) in fields.iter().enumerate() {

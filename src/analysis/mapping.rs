@@ -1,4 +1,4 @@
-use super::chief_rays;
+use crate::rays::RayBatch;
 use crate::error::{Error, Result};
 use crate::system::SequentialSystem;
 use crate::tracer::{RayStatus, Tracer};
@@ -50,7 +50,7 @@ pub fn mapping_cube(system: &SequentialSystem, tracer: &dyn Tracer, height: usiz
     let mut positions_mm = vec![0.0; height * width * nl * 2];
     let mut valid = vec![0u8; height * width * nl];
     for (b, &w) in wavelengths_nm.iter().enumerate() {
-        let out = tracer.trace(system, &chief_rays(system, &fields, w)?)?;
+        let out = tracer.trace(system, &RayBatch::chief_rays(system, &fields, w)?)?;
         for p in 0..fields.len() {
             let k = p * nl + b;
             if out.status[p] == RayStatus::Ok {

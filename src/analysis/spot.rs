@@ -1,4 +1,4 @@
-use super::field_rays;
+use crate::rays::RayBatch;
 use crate::error::Result;
 use crate::system::SequentialSystem;
 use crate::tracer::{RayStatus, Tracer};
@@ -58,7 +58,7 @@ pub struct SpotDiagram {
 pub fn spot_diagram(system: &SequentialSystem, tracer: &dyn Tracer, field_mm: [f64; 2], wavelength_nm: f64, pupil: &[[f64; 2]]) -> Result<SpotDiagram> {
     let mut pts = pupil.to_vec();
     pts.push([0.0, 0.0]); // the chief ray, traced alongside
-    let out = tracer.trace(system, &field_rays(system, field_mm, &pts, wavelength_nm)?)?;
+    let out = tracer.trace(system, &RayBatch::for_field(system, field_mm, &pts, wavelength_nm)?)?;
     let n = pupil.len();
     let chief_mm = (out.status[n] == RayStatus::Ok).then(|| [out.x[n], out.y[n]]);
     let ok = |i: &usize| out.status[*i] == RayStatus::Ok;

@@ -274,7 +274,7 @@ fn trace(a: SpotArgs) -> Result<()> {
         )));
     }
     let pupil = pupil_points(&a)?;
-    let rays = analysis::field_rays(&system, fs[0], &pupil, ws[0])?;
+    let rays = RayBatch::for_field(&system, fs[0], &pupil, ws[0])?;
     let out = AnalyticTracer::default().trace(&system, &rays)?;
     let ok = out.ok_count();
     println!("traced {} rays of field ({}, {}) mm at {} nm: {} ok, {} failed", out.len(), fs[0][0], fs[0][1], ws[0], ok, out.len() - ok);
@@ -575,7 +575,7 @@ fn report(a: ReportArgs) -> Result<()> {
 fn bench(a: BenchArgs) -> Result<()> {
     let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let ws = linspace(450.0, 650.0, a.wavelengths.max(1));
-    let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000);
+    let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000)?;
     let tracer = AnalyticTracer::default();
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     println!("analytic f64 tracer, preset {}, {} rays ({} per wavelength × {} wavelengths), {} intersections per ray, best of {}", system.name(), batch.len(), a.rays, ws.len(), system.surfaces_per_ray(), a.repeat);

@@ -1,4 +1,5 @@
-use super::object_ray;
+use super::aimed_ray;
+use crate::error::{Error, Result};
 use crate::system::SequentialSystem;
 use glam::DVec3;
 
@@ -65,39 +66,58 @@ impl RayBatch {
             .all(|&l| l == n)
     }
 
-    /// Rays of one field point through the given normalised pupil points at one wavelength.
-    pub fn for_field(system: &SequentialSystem, field_mm: [f64; 2], pupil: &[[f64; 2]], wavelength_nm: f64) -> Self {
-        let mut b = RayBatch::with_capacity(pupil.len());
+    /// Rays of one field point (object height, mm) through normalised pupil points at one wavelength,
+    /// aimed as the system says ([`crate::spec::RayAiming`]). Errors: a non-finite input, a wavelength
+    /// outside a glass's range, or a ray that cannot be aimed.
+    pub fn for_field(system: &SequentialSystem, field_mm: [f64; 2], pupil: &[[f64; 2]], wavelength_nm: f64) -> Result<Self> {
+        check_field(field_mm)?;
+        let n = system.indices(wavelength_nm)?;
+        let mut batch = RayBatch::with_capacity(pupil.len());
         for &[px, py] in pupil {
-            let (o, d) = object_ray(system, field_mm, px, py);
-            b.push(o, d, wavelength_nm);
+            if !(px.is_finite() && py.is_finite()) {
+                return Err(Error::invalid(format!("pupil coordinate ({px}, {py}) is not finite")));
+            }
+            let (o, d) = aimed_ray(system, &n, field_mm, px, py)?;
+            batch.push(o, d, wavelength_nm);
         }
-        b
+        Ok(batch)
+    }
+
+    /// Chief rays of many field points at one wavelength, aimed as the system says.
+    pub fn chief_rays(system: &SequentialSystem, fields_mm: &[[f64; 2]], wavelength_nm: f64) -> Result<Self> {
+        let n = system.indices(wavelength_nm)?;
+        let mut batch = RayBatch::with_capacity(fields_mm.len());
+        for &f in fields_mm {
+            check_field(f)?;
+            let (o, d) = aimed_ray(system, &n, f, 0.0, 0.0)?;
+            batch.push(o, d, wavelength_nm);
+        }
+        Ok(batch)
     }
 
     /// A reproducible benchmark workload: `rays_per_wavelength` rays per wavelength, cycling over the
     /// system's fields (the axis if it has none), pupil points uniform in the disk from a ChaCha8 stream
-    /// seeded with `seed + wavelength index`. Ray aiming off (object-space rays through the paraxial pupil).
-    pub fn seeded_workload(system: &SequentialSystem, rays_per_wavelength: usize, wavelengths_nm: &[f64], seed: u64) -> Self {
+    /// seeded with `seed + wavelength index`, aimed as the system says.
+    pub fn seeded_workload(system: &SequentialSystem, rays_per_wavelength: usize, wavelengths_nm: &[f64], seed: u64) -> Result<Self> {
         let fields = if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() };
         let mut batch = RayBatch::with_capacity(rays_per_wavelength * wavelengths_nm.len());
         for (k, &w) in wavelengths_nm.iter().enumerate() {
+            let n = system.indices(w)?;
             let pupil = super::PupilPattern::Random { n: rays_per_wavelength, seed: seed + k as u64 }.points();
             for (i, p) in pupil.iter().enumerate() {
-                let (o, d) = object_ray(system, fields[i % fields.len()], p[0], p[1]);
+                let (o, d) = aimed_ray(system, &n, fields[i % fields.len()], p[0], p[1])?;
                 batch.push(o, d, w);
             }
         }
-        batch
+        Ok(batch)
     }
 
-    /// Chief rays of many field points at one wavelength.
-    pub fn chief_rays(system: &SequentialSystem, fields_mm: &[[f64; 2]], wavelength_nm: f64) -> Self {
-        let mut b = RayBatch::with_capacity(fields_mm.len());
-        for &f in fields_mm {
-            let (o, d) = object_ray(system, f, 0.0, 0.0);
-            b.push(o, d, wavelength_nm);
-        }
-        b
+}
+
+fn check_field(field_mm: [f64; 2]) -> Result<()> {
+    if field_mm[0].is_finite() && field_mm[1].is_finite() {
+        Ok(())
+    } else {
+        Err(Error::invalid(format!("field point ({}, {}) mm is not finite", field_mm[0], field_mm[1])))
     }
 }

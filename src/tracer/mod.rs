@@ -4,7 +4,7 @@
 //! ```
 //! use diffcassi::{presets, rays::RayBatch, system::SequentialSystem, tracer::{AnalyticTracer, Tracer, RayStatus}};
 //! let sys = SequentialSystem::build(&presets::spec("ap").unwrap()).unwrap();
-//! let rays = RayBatch::chief_rays(&sys, &[[0.0, 0.0]], 520.0);
+//! let rays = RayBatch::chief_rays(&sys, &[[0.0, 0.0]], 520.0).unwrap();
 //! let out = AnalyticTracer::default().trace(&sys, &rays).unwrap();
 //! assert_eq!(out.status[0], RayStatus::Ok);
 //! assert!(out.x[0].abs() < 1e-6); // the primary chief ray lands on the image origin
