@@ -182,15 +182,17 @@ pub fn lde_table(system: &SequentialSystem) -> String {
         spec.aperture, spec.ray_aiming, spec.primary_wavelength_nm, spec.wavelengths_nm, spec.fields_mm
     );
     let p = &system.pupil;
-    let _ = writeln!(
-        s,
-        "paraxial entrance pupil: {:.4} mm from the object, radius {:.4} mm{}; stop surface {} (paraxial stop radius {:.4} mm)",
-        p.distance_mm,
-        p.radius_mm,
-        if p.magnification_sign < 0.0 { ", inverted image of the stop" } else { "" },
-        system.stop_index,
-        p.stop_radius_mm
-    );
+    let where_ = if p.is_telecentric() {
+        "at infinity (telecentric object space)".to_string()
+    } else {
+        format!(
+            "{:.4} mm from the object, radius {:.4} mm{}",
+            p.distance_mm,
+            p.radius_mm,
+            if p.magnification_sign < 0.0 { ", an inverted image of the stop" } else { "" }
+        )
+    };
+    let _ = writeln!(s, "paraxial entrance pupil {where_}; stop surface {} (paraxial stop radius {:.4} mm)", system.stop_index, p.stop_radius_mm);
     let n = system.indices(spec.primary_wavelength_nm).unwrap_or_default();
     let _ = writeln!(s, "{:>3} {:<18} {:<14} {:>12} {:>12} {:<8} {:>9} {:>8} {:>9}  parameters (flags: V variable, Pn pickup, C chief-ray solve)", "#", "type", "comment", "radius", "thickness", "material", "n@primary", "semi-dia", "aperture");
     for (i, surf) in spec.surfaces.iter().enumerate() {

@@ -185,6 +185,17 @@ mod tests {
     }
 
     #[test]
+    fn asphere_failures_are_classified() {
+        // A steep asphere the ray cannot meet: a classified miss, never a panic or a NaN hit.
+        let s = SurfaceShape::EvenAsphere { curvature: 0.2, conic: 0.0, coefficients: vec![0.0, 5.0] };
+        let r = intersect(&s, DVec3::new(0.0, 0.0, -1.0), DVec3::X);
+        assert!(matches!(r, Err(IntersectFailure::Missed) | Err(IntersectFailure::NoConvergence)), "{r:?}");
+        // Outside the conic's domain (r > 1/c): missed.
+        let s = SurfaceShape::EvenAsphere { curvature: 0.5, conic: 0.0, coefficients: vec![1e-3] };
+        assert!(intersect(&s, DVec3::new(3.0, 0.0, -1.0), DVec3::Z).is_err());
+    }
+
+    #[test]
     fn paraboloid_k_minus_one() {
         let s = SurfaceShape::Conic { curvature: 0.05, conic: -1.0 };
         let h = intersect(&s, DVec3::new(7.0, 0.0, -1.0), DVec3::Z).unwrap();
