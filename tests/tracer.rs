@@ -119,10 +119,23 @@ fn real_ray_aiming_hits_the_stop_where_asked() {
     spec.ray_aiming = RayAiming::Real;
     let sys = SequentialSystem::build(&spec).unwrap();
     let n = sys.indices(450.0).unwrap();
+    let r_stop = sys.pupil.stop_radius_mm;
     for (px, py) in [(0.0, 0.0), (1.0, 0.0), (0.3, -0.7)] {
         let (o, d) = diffcassi::rays::aimed_ray(&sys, &n, [2.5, 2.5], px, py).unwrap();
-        assert!(o.is_finite() && d.is_finite());
+        let (x, y) = diffcassi::rays::stop_crossing(&sys, &n, o, d).unwrap();
+        assert!((x - px * r_stop).abs() < 1e-9 && (y - py * r_stop).abs() < 1e-9, "({px}, {py}) crosses the stop at ({x}, {y})");
     }
+    // SP's stop sits 3 mm off the unaimed chief ray: aiming moves the on-axis chief ray onto the stop's
+    // vertex, which changes the chief-ray solve (Zemax shows 2.408 mm, obtained only with aiming off).
+    let mut sp = presets::spec("sp").unwrap();
+    sp.ray_aiming = RayAiming::Real;
+    let aimed = SequentialSystem::build(&sp).unwrap();
+    let solved = aimed.spec.surfaces[15].decenter_x_mm.as_ref().unwrap().value;
+    assert!((solved - 2.408).abs() > 0.1, "aimed SP solve {solved}");
+    let n = aimed.indices(520.0).unwrap();
+    let (o, d) = diffcassi::rays::aimed_ray(&aimed, &n, [0.0, 0.0], 0.0, 0.0).unwrap();
+    let (x, y) = diffcassi::rays::stop_crossing(&aimed, &n, o, d).unwrap();
+    assert!(x.abs() < 1e-9 && y.abs() < 1e-9);
     // AP's stop is a coordinate break just after the relay: aiming barely moves the rays.
     let off = SequentialSystem::build(&presets::spec("ap").unwrap()).unwrap();
     let a = AnalyticTracer::default().trace(&sys, &RayBatch::for_field(&sys, [2.5, 0.0], &[[0.5, 0.5]], 520.0).unwrap()).unwrap();

@@ -25,43 +25,42 @@ pub fn automatic_semi_diameters(system: &SequentialSystem, margin_mm: f64, edge_
         for &w in &system.spec.wavelengths_nm {
             let n = system.indices(w)?;
             let primary_on_axis = fi == 0 && w == system.primary_wavelength_nm();
-            // Radius at step k of the edge ray at angle a (NaN when the ray fails).
-            let mut radius = |a: f64, k: usize| -> f64 {
-                let Ok((o, d)) = aimed_ray(system, &n, *field, a.cos(), a.sin()) else { return f64::NAN };
-                match trace_steps_recording(&system.path, &n, o, d, &mut hits) {
-                    Ok(_) => hits[k].x.hypot(hits[k].y),
-                    Err(_) => f64::NAN,
-                }
+            // Radii at every step of the edge ray at angle a (None when the ray fails).
+            let mut radii = |a: f64| -> Option<Vec<f64>> {
+                let (o, d) = aimed_ray(system, &n, *field, a.cos(), a.sin()).ok()?;
+                trace_steps_recording(&system.path, &n, o, d, &mut hits).ok()?;
+                Some(hits.iter().map(|h| h.x.hypot(h.y)).collect())
             };
-            for k in 0..steps.len() {
-                if Some(k) == stop_step && !primary_on_axis {
-                    continue;
-                }
-                let step = std::f64::consts::TAU / edge_samples as f64;
-                let (mut a_best, mut r_best) = (0.0, f64::NEG_INFINITY);
-                for j in 0..edge_samples {
-                    let a = j as f64 * step;
-                    let r = radius(a, k);
-                    if r > r_best {
-                        a_best = a;
-                        r_best = r;
+            let step = std::f64::consts::TAU / edge_samples as f64;
+            // One pass over the edge samples finds, for every surface, the best sample…
+            let mut sampled: Vec<(f64, f64)> = vec![(0.0, f64::NEG_INFINITY); steps.len()];
+            for j in 0..edge_samples {
+                let a = j as f64 * step;
+                if let Some(r) = radii(a) {
+                    for k in 0..steps.len() {
+                        if r[k] > sampled[k].1 {
+                            sampled[k] = (a, r[k]);
+                        }
                     }
                 }
-                // Golden-section refinement of the maximum around the best sample.
-                let (mut lo, mut hi) = (a_best - step, a_best + step);
+            }
+            // …then a golden-section search refines each surface's maximum around it.
+            for k in 0..steps.len() {
+                if (Some(k) == stop_step && !primary_on_axis) || !sampled[k].1.is_finite() {
+                    continue;
+                }
+                let at = |a: f64, radii: &mut dyn FnMut(f64) -> Option<Vec<f64>>| radii(a).map(|r| r[k]).unwrap_or(f64::NEG_INFINITY);
+                let (mut lo, mut hi) = (sampled[k].0 - step, sampled[k].0 + step);
                 let g = 0.5 * (5f64.sqrt() - 1.0);
                 for _ in 0..60 {
                     let (m1, m2) = (hi - g * (hi - lo), lo + g * (hi - lo));
-                    if radius(m1, k) > radius(m2, k) {
+                    if at(m1, &mut radii) > at(m2, &mut radii) {
                         hi = m2;
                     } else {
                         lo = m1;
                     }
                 }
-                let r = radius(0.5 * (lo + hi), k).max(r_best);
-                if r.is_finite() {
-                    best[k] = best[k].max(r);
-                }
+                best[k] = best[k].max(at(0.5 * (lo + hi), &mut radii).max(sampled[k].1));
             }
         }
     }

@@ -48,8 +48,9 @@ fn direction_through_pupil(system: &SequentialSystem, origin: DVec3, u: f64, v: 
     (if pupil.distance_mm < 0.0 { -w } else { w }).normalize()
 }
 
-/// Where a ray from the object crosses the stop surface, in the stop's local (x, y).
-pub(crate) fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3, d: DVec3) -> Option<(f64, f64)> {
+/// Where a ray from the object (object frame, `n` the indices at its wavelength) crosses the stop surface,
+/// in the stop's local (x, y) mm; `None` when it does not get there.
+pub fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3, d: DVec3) -> Option<(f64, f64)> {
     let probe = &system.stop_probe;
     let (p, d) = trace_steps(&system.path[..probe.steps], n, origin, d).ok()?;
     let step = &probe.probe;
@@ -61,8 +62,8 @@ pub(crate) fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3,
 /// The object-space ray for (field, px, py) at `wavelength_nm` under the system's ray-aiming mode.
 ///
 /// With [`RayAiming::Real`] the ray is aimed (Newton iteration, finite-difference Jacobian) so that it
-/// crosses the real stop surface at (px, py) × the paraxial stop radius, at its own wavelength — Zemax's
-/// ray aiming. `n` are the indices at `wavelength_nm` ([`SequentialSystem::indices`]).
+/// crosses the real stop surface at (px, py) × the paraxial stop radius from the stop's vertex, at its own
+/// wavelength — Zemax's ray aiming (the chief ray passes through the centre of the stop). `n` are the indices at `wavelength_nm` ([`SequentialSystem::indices`]).
 pub fn aimed_ray(system: &SequentialSystem, n: &[f64], field_mm: [f64; 2], px: f64, py: f64) -> Result<(DVec3, DVec3)> {
     let origin = DVec3::new(field_mm[0], field_mm[1], 0.0);
     let r_ep = pupil_scale(system);
@@ -71,8 +72,7 @@ pub fn aimed_ray(system: &SequentialSystem, n: &[f64], field_mm: [f64; 2], px: f
         return Ok((origin, direction_through_pupil(system, origin, u, v)));
     }
     let r_stop = system.pupil.stop_radius_mm;
-    let c = system.stop_probe.chief_crossing;
-    let (tx, ty) = (c.0 + px * r_stop, c.1 + py * r_stop);
+    let (tx, ty) = (px * r_stop, py * r_stop);
     let fail = |why: &str| Error::invalid(format!("ray aiming failed for field ({}, {}) mm, pupil ({px}, {py}): {why}", field_mm[0], field_mm[1]));
     let eval = |u: f64, v: f64| stop_crossing(system, n, origin, direction_through_pupil(system, origin, u, v));
     let h = 1e-7 * r_ep.max(1.0);

@@ -120,7 +120,7 @@ impl SequentialSystem {
                         pupil,
                         path: path.clone(),
                         // Before the stop is placed there is nothing to aim at: steps > path.len() says so.
-                        stop_probe: stop_probe.clone().unwrap_or_else(|| StopProbe { steps: usize::MAX, probe: path_step(&Frame::IDENTITY, &Frame::IDENTITY, 0, SurfaceShape::Plane, Aperture::None), chief_crossing: (0.0, 0.0) }),
+                        stop_probe: stop_probe.clone().unwrap_or_else(|| StopProbe { steps: usize::MAX, probe: path_step(&Frame::IDENTITY, &Frame::IDENTITY, 0, SurfaceShape::Plane, Aperture::None) }),
                     };
                     let field = spec.fields_mm.first().copied().unwrap_or([0.0, 0.0]);
                     let (p_local, d_local) = chief_ray_at(&partial, &last_step_frame, &surface_frame, field, &n_primary)
@@ -186,7 +186,7 @@ impl SequentialSystem {
             if i == stop_index {
                 // The stop's own figure (a plane for a Coordinate Break stop), reached after the steps so far.
                 let probe_shape = shape.clone().unwrap_or(SurfaceShape::Plane);
-                stop_probe = Some(StopProbe { steps: path.len(), probe: path_step(&last_step_frame, &surface_frame, i, probe_shape, Aperture::None), chief_crossing: (0.0, 0.0) });
+                stop_probe = Some(StopProbe { steps: path.len(), probe: path_step(&last_step_frame, &surface_frame, i, probe_shape, Aperture::None) });
             }
             if i > 0 {
                 if let Some(shape) = shape {
@@ -198,11 +198,7 @@ impl SequentialSystem {
             current = next.advanced(thickness);
         }
         let stop_probe = stop_probe.expect("validated: the stop is a surface of the system");
-        let mut system = SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, path, stop_probe };
-        let field = spec.fields_mm.first().copied().unwrap_or([0.0, 0.0]);
-        let (o, d) = crate::rays::object_ray(&system, field, 0.0, 0.0);
-        system.stop_probe.chief_crossing = crate::rays::stop_crossing(&system, &n_primary, o, d).unwrap_or((0.0, 0.0));
-        Ok(system)
+        Ok(SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, path, stop_probe })
     }
 }
 

@@ -38,8 +38,6 @@ pub struct SequentialSystem {
 pub(crate) struct StopProbe {
     pub steps: usize,
     pub probe: PathStep,
-    /// Where the primary-wavelength chief ray of the first field crosses the stop (local x, y), aiming off.
-    pub chief_crossing: (f64, f64),
 }
 
 /// Index of a medium at `wavelength_nm` under the spec's air index and wavelength policy.
