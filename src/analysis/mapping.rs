@@ -11,10 +11,10 @@ pub struct MappingCube {
     pub width: usize,
     pub wavelength_nm: Vec<f64>,
     pub pixel_pitch_mm: f64,
-    /// Detector (x, y) mm, C order [row][col][λ][xy]. Entries of rays that did not arrive are 0 and
+    /// Detector (x, y) mm, C order `[row][col][λ][xy]`. Entries of rays that did not arrive are 0 and
     /// flagged in `valid`.
     pub positions_mm: Vec<f64>,
-    /// 1 where the chief ray arrived, 0 otherwise, C order [row][col][λ].
+    /// 1 where the chief ray arrived, 0 otherwise, C order `[row][col][λ]`.
     pub valid: Vec<u8>,
 }
 
