@@ -11,6 +11,8 @@
 //! ```
 mod analytic;
 pub mod kernel;
+#[cfg(feature = "embree")]
+pub mod embree;
 mod traced;
 
 pub use analytic::*;

@@ -1,0 +1,650 @@
+//! Safe RAII wrapper over the Embree 4 C API.
+//!
+//! * [`Device`] is a cheap `Clone` (an `Arc` around the `RTCDevice`); every [`Geometry`], [`Scene`] and
+//!   [`CommittedScene`] holds one, so the device is released last whatever order handles are dropped in.
+//! * Tracing is only possible on a [`CommittedScene`], obtained from [`Scene::commit`] (which consumes the
+//!   scene), so an uncommitted or modified-after-commit scene cannot be traced.
+//! * Rays with non-finite components, a zero direction or `tnear > tfar` are reported as misses without
+//!   being handed to Embree.
+use std::ffi::{CStr, CString};
+use std::sync::Arc;
+
+use super::sys;
+
+/// Embree's `RTC_INVALID_GEOMETRY_ID`: the `geom_id` of a miss.
+pub const INVALID_GEOMETRY_ID: u32 = sys::RTC_INVALID_GEOMETRY_ID;
+
+/// Embree's error codes (`enum RTCError`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum EmbreeErrorCode {
+    Unknown,
+    InvalidArgument,
+    InvalidOperation,
+    OutOfMemory,
+    UnsupportedCpu,
+    Cancelled,
+    LevelZeroRaytracingSupportMissing,
+    /// A code this wrapper does not know (newer Embree).
+    Other(u32),
+}
+
+impl EmbreeErrorCode {
+    fn from_raw(code: sys::RTCError) -> Option<Self> {
+        Some(match code {
+            sys::RTC_ERROR_NONE => return None,
+            sys::RTC_ERROR_UNKNOWN => Self::Unknown,
+            sys::RTC_ERROR_INVALID_ARGUMENT => Self::InvalidArgument,
+            sys::RTC_ERROR_INVALID_OPERATION => Self::InvalidOperation,
+            sys::RTC_ERROR_OUT_OF_MEMORY => Self::OutOfMemory,
+            sys::RTC_ERROR_UNSUPPORTED_CPU => Self::UnsupportedCpu,
+            sys::RTC_ERROR_CANCELLED => Self::Cancelled,
+            sys::RTC_ERROR_LEVEL_ZERO_RAYTRACING_SUPPORT_MISSING => Self::LevelZeroRaytracingSupportMissing,
+            other => Self::Other(other),
+        })
+    }
+
+    /// The C name, e.g. `"RTC_ERROR_INVALID_ARGUMENT"`.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Unknown => "RTC_ERROR_UNKNOWN",
+            Self::InvalidArgument => "RTC_ERROR_INVALID_ARGUMENT",
+            Self::InvalidOperation => "RTC_ERROR_INVALID_OPERATION",
+            Self::OutOfMemory => "RTC_ERROR_OUT_OF_MEMORY",
+            Self::UnsupportedCpu => "RTC_ERROR_UNSUPPORTED_CPU",
+            Self::Cancelled => "RTC_ERROR_CANCELLED",
+            Self::LevelZeroRaytracingSupportMissing => "RTC_ERROR_LEVEL_ZERO_RAYTRACING_SUPPORT_MISSING",
+            Self::Other(_) => "RTC_ERROR_(unknown code)",
+        }
+    }
+}
+
+/// An Embree error: the code and Embree's message (`rtcGetDeviceLastErrorMessage`), plus what we were doing.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+#[error("Embree {} while {context}: {message}", code.name())]
+pub struct EmbreeError {
+    pub code: EmbreeErrorCode,
+    pub message: String,
+    pub context: String,
+}
+
+impl EmbreeError {
+    fn invalid(context: &str, message: impl Into<String>) -> Self {
+        EmbreeError { code: EmbreeErrorCode::InvalidArgument, message: message.into(), context: context.into() }
+    }
+}
+
+/// Reads (and clears) the error state of `device` (NULL: the thread's device-creation error).
+fn take_error(device: sys::RTCDevice, context: &str) -> Result<(), EmbreeError> {
+    // SAFETY: both functions accept NULL (thread-local state) or a live device.
+    let code = unsafe { sys::rtcGetDeviceError(device) };
+    match EmbreeErrorCode::from_raw(code) {
+        None => Ok(()),
+        Some(code) => {
+            let msg = unsafe { sys::rtcGetDeviceLastErrorMessage(device) };
+            let message = if msg.is_null() {
+                String::new()
+            } else {
+                // SAFETY: Embree returns a NUL-terminated string valid until the next error.
+                unsafe { CStr::from_ptr(msg) }.to_string_lossy().into_owned()
+            };
+            Err(EmbreeError { code, message, context: context.into() })
+        }
+    }
+}
+
+struct DeviceInner {
+    raw: sys::RTCDevice,
+}
+
+impl Drop for DeviceInner {
+    fn drop(&mut self) {
+        // SAFETY: we own one reference, taken in Device::new.
+        unsafe { sys::rtcReleaseDevice(self.raw) }
+    }
+}
+
+// SAFETY: Embree devices are thread-safe (the API may be called from any thread).
+unsafe impl Send for DeviceInner {}
+unsafe impl Sync for DeviceInner {}
+
+/// An Embree device (`rtcNewDevice`). Clones share it; it is released when the last clone and the last
+/// geometry/scene made from it are dropped.
+#[derive(Clone)]
+pub struct Device {
+    inner: Arc<DeviceInner>,
+}
+
+impl std::fmt::Debug for Device {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Device").field("raw", &self.inner.raw).finish()
+    }
+}
+
+impl Device {
+    /// `rtcNewDevice(config)`, e.g. `""`, `"threads=1"`, `"verbose=1,isa=avx2"`. A bad config string is an
+    /// [`EmbreeError`] carrying Embree's message.
+    pub fn new(config: &str) -> Result<Self, EmbreeError> {
+        let cfg = CString::new(config)
+            .map_err(|_| EmbreeError::invalid("creating the device", format!("config string {config:?} contains a NUL byte")))?;
+        // SAFETY: valid NUL-terminated string.
+        let raw = unsafe { sys::rtcNewDevice(cfg.as_ptr()) };
+        let context = format!("creating the device with config {config:?}");
+        if raw.is_null() {
+            take_error(std::ptr::null_mut(), &context)?;
+            return Err(EmbreeError { code: EmbreeErrorCode::Unknown, message: "rtcNewDevice returned NULL".into(), context });
+        }
+        let device = Device { inner: Arc::new(DeviceInner { raw }) };
+        device.check(&context)?;
+        Ok(device)
+    }
+
+    /// The version of the Embree library linked at build time (from the installed headers).
+    pub fn embree_version() -> &'static str {
+        env!("DIFFCASSI_EMBREE_VERSION")
+    }
+
+    /// The raw handle (valid while `self` lives).
+    pub fn raw(&self) -> sys::RTCDevice {
+        self.inner.raw
+    }
+
+    /// Returns (and clears) the device's pending error, if any.
+    pub fn check(&self, context: &str) -> Result<(), EmbreeError> {
+        take_error(self.inner.raw, context)
+    }
+
+    fn same(&self, other: &Device) -> bool {
+        Arc::ptr_eq(&self.inner, &other.inner)
+    }
+}
+
+/// A committed Embree geometry (`RTCGeometry`). Currently triangle meshes.
+// TODO(issue 3): user geometry (analytic conics) comes with the backend proper.
+pub struct Geometry {
+    raw: sys::RTCGeometry,
+    device: Device,
+}
+
+// SAFETY: a committed geometry is immutable here; Embree objects may be released from any thread.
+unsafe impl Send for Geometry {}
+unsafe impl Sync for Geometry {}
+
+impl Drop for Geometry {
+    fn drop(&mut self) {
+        // SAFETY: we own one reference (rtcNewGeometry); scenes that attached it hold their own.
+        unsafe { sys::rtcReleaseGeometry(self.raw) }
+    }
+}
+
+impl Geometry {
+    /// A triangle mesh (`RTC_GEOMETRY_TYPE_TRIANGLE`) from `vertices` and `indices` (copied into
+    /// Embree-owned, correctly padded buffers), committed. Indices must be < `vertices.len()`.
+    pub fn triangle_mesh(device: &Device, vertices: &[[f32; 3]], indices: &[[u32; 3]]) -> Result<Self, EmbreeError> {
+        const CTX: &str = "creating a triangle mesh";
+        if vertices.is_empty() || indices.is_empty() {
+            return Err(EmbreeError::invalid(CTX, "a triangle mesh needs at least one vertex and one triangle"));
+        }
+        if let Some((i, t)) = indices.iter().enumerate().find(|(_, t)| t.iter().any(|&k| k as usize >= vertices.len())) {
+            return Err(EmbreeError::invalid(CTX, format!("triangle {i} {t:?} indexes past the {} vertices", vertices.len())));
+        }
+        if let Some(i) = vertices.iter().position(|v| v.iter().any(|c| !c.is_finite())) {
+            return Err(EmbreeError::invalid(CTX, format!("vertex {i} {:?} is not finite", vertices[i])));
+        }
+        // SAFETY: live device; the geometry is owned by `geom` from here on (released on every error path).
+        let raw = unsafe { sys::rtcNewGeometry(device.raw(), sys::RTC_GEOMETRY_TYPE_TRIANGLE) };
+        if raw.is_null() {
+            device.check(CTX)?;
+            return Err(EmbreeError { code: EmbreeErrorCode::Unknown, message: "rtcNewGeometry returned NULL".into(), context: CTX.into() });
+        }
+        let geom = Geometry { raw, device: device.clone() };
+        unsafe {
+            let vb = sys::rtcSetNewGeometryBuffer(raw, sys::RTC_BUFFER_TYPE_VERTEX, 0, sys::RTC_FORMAT_FLOAT3, 12, vertices.len());
+            device.check(CTX)?;
+            if vb.is_null() {
+                return Err(EmbreeError { code: EmbreeErrorCode::OutOfMemory, message: "no vertex buffer".into(), context: CTX.into() });
+            }
+            // SAFETY: Embree allocated vertices.len() items of 12 bytes (plus padding).
+            std::ptr::copy_nonoverlapping(vertices.as_ptr() as *const f32, vb as *mut f32, vertices.len() * 3);
+            let ib = sys::rtcSetNewGeometryBuffer(raw, sys::RTC_BUFFER_TYPE_INDEX, 0, sys::RTC_FORMAT_UINT3, 12, indices.len());
+            device.check(CTX)?;
+            if ib.is_null() {
+                return Err(EmbreeError { code: EmbreeErrorCode::OutOfMemory, message: "no index buffer".into(), context: CTX.into() });
+            }
+            std::ptr::copy_nonoverlapping(indices.as_ptr() as *const u32, ib as *mut u32, indices.len() * 3);
+            sys::rtcCommitGeometry(raw);
+        }
+        device.check(CTX)?;
+        Ok(geom)
+    }
+
+    pub fn raw(&self) -> sys::RTCGeometry {
+        self.raw
+    }
+}
+
+struct SceneHandle {
+    raw: sys::RTCScene,
+    _device: Device,
+}
+
+impl Drop for SceneHandle {
+    fn drop(&mut self) {
+        // SAFETY: we own one reference (rtcNewScene); it releases the attached geometries' references.
+        unsafe { sys::rtcReleaseScene(self.raw) }
+    }
+}
+
+// SAFETY: see Geometry; a CommittedScene is only read (rtcIntersect* is thread-safe on a committed scene).
+unsafe impl Send for SceneHandle {}
+unsafe impl Sync for SceneHandle {}
+
+/// A scene being built. Attach geometries, then [`Scene::commit`] it to trace.
+pub struct Scene {
+    handle: SceneHandle,
+}
+
+impl Scene {
+    pub fn new(device: &Device) -> Result<Self, EmbreeError> {
+        // SAFETY: live device.
+        let raw = unsafe { sys::rtcNewScene(device.raw()) };
+        if raw.is_null() {
+            device.check("creating a scene")?;
+            return Err(EmbreeError { code: EmbreeErrorCode::Unknown, message: "rtcNewScene returned NULL".into(), context: "creating a scene".into() });
+        }
+        Ok(Scene { handle: SceneHandle { raw, _device: device.clone() } })
+    }
+
+    /// Attaches `geometry` (the scene keeps its own reference, so `geometry` may be dropped afterwards) and
+    /// returns its geometry ID (the `geom_id` of hits on it).
+    pub fn attach(&mut self, geometry: &Geometry) -> Result<u32, EmbreeError> {
+        if !self.handle._device.same(&geometry.device) {
+            return Err(EmbreeError::invalid("attaching a geometry", "the geometry belongs to another device"));
+        }
+        // SAFETY: both live and from the same device.
+        let id = unsafe { sys::rtcAttachGeometry(self.handle.raw, geometry.raw) };
+        self.handle._device.check("attaching a geometry")?;
+        Ok(id)
+    }
+
+    /// `rtcCommitScene`: builds the BVH. Consumes the scene, so it can no longer be modified.
+    pub fn commit(self) -> Result<CommittedScene, EmbreeError> {
+        // SAFETY: live scene.
+        unsafe { sys::rtcCommitScene(self.handle.raw) };
+        self.handle._device.check("committing the scene")?;
+        Ok(CommittedScene { handle: self.handle })
+    }
+}
+
+/// A ray: origin, direction (need not be normalised; `t` is in units of `dir`), and the `[tnear, tfar]`
+/// interval.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray {
+    pub org: [f32; 3],
+    pub dir: [f32; 3],
+    pub tnear: f32,
+    pub tfar: f32,
+}
+
+impl Ray {
+    pub fn new(org: [f32; 3], dir: [f32; 3]) -> Self {
+        Ray { org, dir, tnear: 0.0, tfar: f32::INFINITY }
+    }
+
+    /// Whether Embree may be given this ray (finite origin and direction, non-zero direction,
+    /// `0 <= tnear <= tfar`, no NaN).
+    pub fn is_valid(&self) -> bool {
+        self.org.iter().chain(&self.dir).all(|c| c.is_finite())
+            && self.dir.iter().any(|&c| c != 0.0)
+            && self.tnear >= 0.0
+            && self.tnear <= self.tfar // false for NaN
+    }
+}
+
+/// The result of one ray. On a miss `geom_id == INVALID_GEOMETRY_ID`, `t` is infinite and the rest zero.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    pub t: f32,
+    pub geom_id: u32,
+    pub prim_id: u32,
+    /// Unnormalised geometric normal (for triangles `(v1 - v0) × (v2 - v0)`... as Embree defines it).
+    pub ng: [f32; 3],
+    pub u: f32,
+    pub v: f32,
+}
+
+impl Hit {
+    pub const MISS: Hit = Hit { t: f32::INFINITY, geom_id: INVALID_GEOMETRY_ID, prim_id: INVALID_GEOMETRY_ID, ng: [0.0; 3], u: 0.0, v: 0.0 };
+
+    pub fn is_hit(&self) -> bool {
+        self.geom_id != INVALID_GEOMETRY_ID
+    }
+}
+
+#[repr(C, align(64))]
+struct Valid16([i32; 16]);
+
+fn intersect_args() -> sys::RTCIntersectArguments {
+    let mut args = sys::RTCIntersectArguments::default();
+    // SAFETY: initialises the struct exactly as the installed header's rtcInitIntersectArguments does.
+    unsafe { sys::diffcassi_rtcInitIntersectArguments(&mut args) };
+    args
+}
+
+/// A committed scene: immutable, `Send + Sync`, traceable from many threads at once.
+pub struct CommittedScene {
+    handle: SceneHandle,
+}
+
+impl CommittedScene {
+    /// `rtcIntersect1`: the closest hit of `ray` in `[tnear, tfar]`.
+    pub fn intersect1(&self, ray: &Ray) -> Hit {
+        if !ray.is_valid() {
+            return Hit::MISS;
+        }
+        let mut rh = sys::RTCRayHit::default();
+        rh.ray.org_x = ray.org[0];
+        rh.ray.org_y = ray.org[1];
+        rh.ray.org_z = ray.org[2];
+        rh.ray.dir_x = ray.dir[0];
+        rh.ray.dir_y = ray.dir[1];
+        rh.ray.dir_z = ray.dir[2];
+        rh.ray.tnear = ray.tnear;
+        rh.ray.tfar = ray.tfar;
+        rh.ray.mask = u32::MAX;
+        rh.hit.geomID = INVALID_GEOMETRY_ID;
+        rh.hit.primID = INVALID_GEOMETRY_ID;
+        rh.hit.instID = [INVALID_GEOMETRY_ID; 1];
+        let mut args = intersect_args();
+        // SAFETY: committed scene, properly aligned and initialised ray/hit and arguments.
+        unsafe { sys::rtcIntersect1(self.handle.raw, &mut rh, &mut args) };
+        if rh.hit.geomID == INVALID_GEOMETRY_ID {
+            return Hit::MISS;
+        }
+        Hit {
+            t: rh.ray.tfar,
+            geom_id: rh.hit.geomID,
+            prim_id: rh.hit.primID,
+            ng: [rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z],
+            u: rh.hit.u,
+            v: rh.hit.v,
+        }
+    }
+
+    /// `rtcIntersect16`: lanes with `valid[i] == false` (or an invalid ray, see [`Ray::is_valid`]) are not
+    /// traced and come back as [`Hit::MISS`].
+    #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
+    pub fn intersect16(&self, rays: &[Ray; 16], valid: &[bool; 16]) -> [Hit; 16] {
+        let mut out = [Hit::MISS; 16];
+        let mut mask = Valid16([0; 16]);
+        // RTCRayHit16 is 64-byte aligned by its bindgen type (checked against C in sys.rs).
+        let mut rh = Box::<sys::RTCRayHit16>::default();
+        for i in 0..16 {
+            let r = &rays[i];
+            mask.0[i] = if valid[i] && r.is_valid() { -1 } else { 0 };
+            rh.ray.org_x[i] = r.org[0];
+            rh.ray.org_y[i] = r.org[1];
+            rh.ray.org_z[i] = r.org[2];
+            rh.ray.dir_x[i] = r.dir[0];
+            rh.ray.dir_y[i] = r.dir[1];
+            rh.ray.dir_z[i] = r.dir[2];
+            rh.ray.tnear[i] = if mask.0[i] != 0 { r.tnear } else { 0.0 };
+            rh.ray.tfar[i] = if mask.0[i] != 0 { r.tfar } else { -1.0 };
+            rh.ray.mask[i] = u32::MAX;
+            rh.hit.geomID[i] = INVALID_GEOMETRY_ID;
+            rh.hit.primID[i] = INVALID_GEOMETRY_ID;
+            rh.hit.instID[0][i] = INVALID_GEOMETRY_ID;
+        }
+        if mask.0.iter().all(|&m| m == 0) {
+            return out;
+        }
+        debug_assert_eq!((&*rh as *const sys::RTCRayHit16 as usize) % 64, 0);
+        let mut args = intersect_args();
+        // SAFETY: committed scene; valid mask and ray/hit packet 64-byte aligned and initialised.
+        unsafe { sys::rtcIntersect16(mask.0.as_ptr(), self.handle.raw, &mut *rh, &mut args) };
+        for i in 0..16 {
+            if mask.0[i] != 0 && rh.hit.geomID[i] != INVALID_GEOMETRY_ID {
+                out[i] = Hit {
+                    t: rh.ray.tfar[i],
+                    geom_id: rh.hit.geomID[i],
+                    prim_id: rh.hit.primID[i],
+                    ng: [rh.hit.Ng_x[i], rh.hit.Ng_y[i], rh.hit.Ng_z[i]],
+                    u: rh.hit.u[i],
+                    v: rh.hit.v[i],
+                };
+            }
+        }
+        out
+    }
+
+    pub fn raw(&self) -> sys::RTCScene {
+        self.handle.raw
+    }
+}
+
+/// Runs `f` with the x86 MXCSR flush-to-zero (FTZ) and denormals-are-zero (DAZ) bits set on the current
+/// thread, as Embree recommends for performance, and restores the previous MXCSR afterwards (also on
+/// panic). On other architectures `f` just runs.
+pub fn with_flush_denormals<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    {
+        struct Restore(u32);
+        impl Drop for Restore {
+            fn drop(&mut self) {
+                mxcsr::set(self.0);
+            }
+        }
+        let old = mxcsr::get();
+        let _restore = Restore(old);
+        mxcsr::set(old | mxcsr::FTZ | mxcsr::DAZ);
+        f()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        f()
+    }
+}
+
+/// Direct MXCSR access (`stmxcsr`/`ldmxcsr`; the `_mm_getcsr` intrinsics are deprecated in Rust).
+#[cfg(target_arch = "x86_64")]
+pub mod mxcsr {
+    /// Flush to zero (bit 15).
+    pub const FTZ: u32 = 1 << 15;
+    /// Denormals are zero (bit 6).
+    pub const DAZ: u32 = 1 << 6;
+
+    pub fn get() -> u32 {
+        let mut v: u32 = 0;
+        // SAFETY: stores MXCSR to a local; SSE is baseline on x86_64.
+        unsafe { core::arch::asm!("stmxcsr [{}]", in(reg) &mut v, options(nostack, preserves_flags)) };
+        v
+    }
+
+    pub fn set(v: u32) {
+        // SAFETY: loads a value derived from the current MXCSR (only FTZ/DAZ toggled).
+        unsafe { core::arch::asm!("ldmxcsr [{}]", in(reg) &v, options(nostack, readonly, preserves_flags)) };
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::mem::{align_of, size_of};
+
+    /// Unit right triangle (0,0,0)-(1,0,0)-(0,1,0) in z = 0 (geometry 0) and a unit quad (two triangles)
+    /// in z = 2 spanning [2,3]×[0,1] (geometry 1).
+    fn scene() -> (Device, CommittedScene, u32, u32) {
+        let device = Device::new("threads=1").unwrap();
+        let tri = Geometry::triangle_mesh(&device, &[[0., 0., 0.], [1., 0., 0.], [0., 1., 0.]], &[[0, 1, 2]]).unwrap();
+        let quad = Geometry::triangle_mesh(
+            &device,
+            &[[2., 0., 2.], [3., 0., 2.], [3., 1., 2.], [2., 1., 2.]],
+            &[[0, 1, 2], [0, 2, 3]],
+        )
+        .unwrap();
+        let mut s = Scene::new(&device).unwrap();
+        let t = s.attach(&tri).unwrap();
+        let q = s.attach(&quad).unwrap();
+        drop((tri, quad)); // the scene keeps its own references
+        (device, s.commit().unwrap(), t, q)
+    }
+
+    fn down(x: f32, y: f32) -> Ray {
+        Ray::new([x, y, 5.0], [0.0, 0.0, -1.0])
+    }
+
+    #[test]
+    fn layouts_match_embree_4_3() {
+        assert_eq!(Device::embree_version().split('.').take(2).collect::<Vec<_>>(), ["4", "3"]);
+        assert_eq!(size_of::<sys::RTCRayHit>(), 96);
+        assert_eq!(align_of::<sys::RTCRayHit>(), 16);
+        assert_eq!(size_of::<sys::RTCRayHit16>(), sys::c_layout::C_SIZEOF_RTCRayHit16);
+        assert_eq!(align_of::<sys::RTCRayHit16>(), 64);
+        assert_eq!(size_of::<sys::RTCRayQueryContext>(), sys::c_layout::C_SIZEOF_RTCRayQueryContext);
+        assert_eq!(size_of::<sys::RTCIntersectArguments>(), sys::c_layout::C_SIZEOF_RTCIntersectArguments);
+        let a = intersect_args();
+        assert_eq!(a.flags, sys::RTC_RAY_QUERY_FLAG_INCOHERENT);
+        assert!(a.context.is_null() && a.filter.is_none() && a.intersect.is_none());
+    }
+
+    fn check_tri(h: &Hit, tri: u32, x: f32, y: f32) {
+        assert_eq!(h.geom_id, tri);
+        assert_eq!(h.prim_id, 0);
+        assert!((h.t - 5.0).abs() < 1e-6, "{h:?}");
+        // (v1 - v0) × (v2 - v0) = +z; u, v barycentrics = (x, y) here.
+        assert!(h.ng[0].abs() < 1e-6 && h.ng[1].abs() < 1e-6 && h.ng[2] > 0.0, "{h:?}");
+        assert!((h.u - x).abs() < 1e-6 && (h.v - y).abs() < 1e-6, "{h:?}");
+    }
+
+    fn check_quad(h: &Hit, quad: u32, prim: u32) {
+        assert_eq!(h.geom_id, quad);
+        assert_eq!(h.prim_id, prim);
+        assert!((h.t - 3.0).abs() < 1e-6, "{h:?}");
+        assert!(h.ng[2] > 0.0 && h.ng[0].abs() < 1e-6 && h.ng[1].abs() < 1e-6, "{h:?}");
+    }
+
+    #[test]
+    fn intersect1_hits_misses_and_rejects_nan() {
+        let (_d, s, tri, quad) = scene();
+        check_tri(&s.intersect1(&down(0.25, 0.25)), tri, 0.25, 0.25);
+        check_quad(&s.intersect1(&down(2.8, 0.2)), quad, 0);
+        check_quad(&s.intersect1(&down(2.2, 0.8)), quad, 1);
+        let miss = s.intersect1(&down(0.8, 0.8)); // beyond the hypotenuse
+        assert_eq!(miss.geom_id, INVALID_GEOMETRY_ID);
+        assert!(!miss.is_hit() && miss.t.is_infinite());
+        let mut short = down(0.25, 0.25);
+        short.tfar = 4.0;
+        assert!(!s.intersect1(&short).is_hit());
+        for bad in [
+            Ray::new([f32::NAN, 0.2, 5.0], [0.0, 0.0, -1.0]),
+            Ray::new([0.2, 0.2, 5.0], [0.0, f32::NAN, -1.0]),
+            Ray::new([0.2, 0.2, 5.0], [0.0, 0.0, 0.0]),
+            Ray { tfar: f32::NAN, ..down(0.2, 0.2) },
+            Ray::new([0.2, 0.2, f32::INFINITY], [0.0, 0.0, -1.0]),
+        ] {
+            assert_eq!(s.intersect1(&bad), Hit::MISS);
+        }
+    }
+
+    #[test]
+    fn intersect16_matches_intersect1_and_honours_valid_mask() {
+        let (_d, s, tri, quad) = scene();
+        let mut rays = [down(0.8, 0.8); 16];
+        rays[0] = down(0.25, 0.25);
+        rays[1] = down(2.8, 0.2);
+        rays[2] = down(2.2, 0.8);
+        rays[3] = down(0.1, 0.6);
+        rays[4] = Ray::new([f32::NAN; 3], [0.0, 0.0, -1.0]);
+        rays[5] = down(0.25, 0.25); // hit, but masked out below
+        rays[15] = down(0.5, 0.25);
+        let mut valid = [true; 16];
+        valid[5] = false;
+        let hits = with_flush_denormals(|| s.intersect16(&rays, &valid));
+        check_tri(&hits[0], tri, 0.25, 0.25);
+        check_quad(&hits[1], quad, 0);
+        check_quad(&hits[2], quad, 1);
+        check_tri(&hits[3], tri, 0.1, 0.6);
+        check_tri(&hits[15], tri, 0.5, 0.25);
+        assert_eq!(hits[4], Hit::MISS);
+        assert_eq!(hits[5], Hit::MISS);
+        for (i, h) in hits.iter().enumerate() {
+            if valid[i] {
+                assert_eq!(*h, s.intersect1(&rays[i]), "lane {i}");
+            }
+        }
+        assert!(s.intersect16(&rays, &[false; 16]).iter().all(|h| *h == Hit::MISS));
+    }
+
+    #[test]
+    fn bad_config_is_an_error_with_embree_message() {
+        // Embree 4.3 ignores unknown keys and ISA names, but rejects a malformed value.
+        let e = Device::new("threads=abc").unwrap_err();
+        assert_eq!(e.code, EmbreeErrorCode::Unknown, "{e}");
+        assert!(e.message.contains("integer expected"), "{e:?}");
+        let text = e.to_string();
+        assert!(text.contains("RTC_ERROR_UNKNOWN") && text.contains("threads=abc"), "{text}");
+        let e = Device::new("a\0b").unwrap_err();
+        assert_eq!(e.code, EmbreeErrorCode::InvalidArgument);
+        assert!(Device::new("threads=1").is_ok());
+    }
+
+    #[test]
+    fn bad_mesh_is_an_error_not_ub() {
+        let d = Device::new("").unwrap();
+        assert!(Geometry::triangle_mesh(&d, &[[0.0; 3]; 3], &[[0, 1, 3]]).is_err());
+        assert!(Geometry::triangle_mesh(&d, &[[f32::NAN; 3]; 3], &[[0, 1, 2]]).is_err());
+        let other = Device::new("").unwrap();
+        let g = Geometry::triangle_mesh(&other, &[[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], &[[0, 1, 2]]).unwrap();
+        assert!(Scene::new(&d).unwrap().attach(&g).is_err());
+    }
+
+    #[test]
+    fn drop_order_does_not_matter() {
+        // Device first, then scene and geometry.
+        let (d, s, _, _) = scene();
+        drop(d);
+        assert!(s.intersect1(&down(0.25, 0.25)).is_hit());
+        drop(s);
+        // Scene first, geometry after, device last; and an uncommitted scene dropped before its device.
+        let d = Device::new("").unwrap();
+        let g = Geometry::triangle_mesh(&d, &[[0.0; 3], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], &[[0, 1, 2]]).unwrap();
+        let mut s = Scene::new(&d).unwrap();
+        s.attach(&g).unwrap();
+        let c = s.commit().unwrap();
+        let u = Scene::new(&d).unwrap();
+        drop(d);
+        drop(c);
+        drop(u);
+        drop(g);
+    }
+
+    #[test]
+    fn committed_scene_is_shareable_across_threads() {
+        let (_d, s, tri, _) = scene();
+        std::thread::scope(|sc| {
+            for _ in 0..2 {
+                sc.spawn(|| check_tri(&s.intersect1(&down(0.25, 0.25)), tri, 0.25, 0.25));
+            }
+        });
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn flush_denormals_sets_and_restores_mxcsr() {
+        // Valgrind does not emulate MXCSR.FTZ/DAZ (it ignores the bits and warns), so nothing to check there.
+        if std::env::var("LD_PRELOAD").is_ok_and(|p| p.contains("vgpreload")) {
+            eprintln!("SKIP flush_denormals_sets_and_restores_mxcsr: running under valgrind");
+            return;
+        }
+        let before = mxcsr::get();
+        let (inside, tiny) = with_flush_denormals(|| {
+            let x = std::hint::black_box(f32::MIN_POSITIVE);
+            (mxcsr::get(), std::hint::black_box(x / 4.0))
+        });
+        assert_eq!(inside & (mxcsr::FTZ | mxcsr::DAZ), mxcsr::FTZ | mxcsr::DAZ);
+        assert_eq!(tiny, 0.0);
+        assert_eq!(mxcsr::get(), before);
+        let r = std::panic::catch_unwind(|| with_flush_denormals(|| panic!("boom")));
+        assert!(r.is_err());
+        assert_eq!(mxcsr::get(), before);
+    }
+}
