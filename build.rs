@@ -30,7 +30,7 @@ mod embree {
 
     fn install_hint() -> String {
         "Embree >= 4.3 with its headers is needed for the `embree` feature. Install it with \
-         `bash scripts/setup.sh` (Debian >= 13 / Ubuntu >= 24.04: `apt-get install libembree-dev libclang-dev`; \
+         `DIFFCASSI_EMBREE=install bash scripts/setup.sh` (Debian >= 13 / Ubuntu >= 24.04: `apt-get install libembree-dev libclang-dev`; \
          Debian 12: add Debian 13 \"trixie\" as an apt source pinned to priority 100 and run \
          `apt-get install -t trixie libembree-dev` -- note that on Debian 12 this upgrades libc6/libstdc++6, \
          which setup.sh refuses to do unless DIFFCASSI_EMBREE=trixie-force), or build/unpack Embree 4.3 \
@@ -166,7 +166,7 @@ mod embree {
             .derive_default(true)
             .layout_tests(true)
             .generate()
-            .unwrap_or_else(|e| panic!("bindgen over {include}/embree4/rtcore.h failed: {e} (is libclang-dev installed? `bash scripts/setup.sh`)"));
+            .unwrap_or_else(|e| panic!("bindgen over {include}/embree4/rtcore.h failed: {e} (is libclang-dev installed? `DIFFCASSI_EMBREE=install bash scripts/setup.sh`)"));
         bindings.write_to_file(out.join("embree_bindings.rs")).expect("write embree_bindings.rs");
 
         // 2. The C shim for the `static inline` initialisers (compiled with the same headers).
