@@ -14,6 +14,8 @@
 mod aperture;
 mod intersect;
 mod shape;
+mod tessellate;
 pub use aperture::*;
 pub use intersect::*;
 pub use shape::*;
+pub use tessellate::*;
