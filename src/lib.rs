@@ -14,7 +14,7 @@
 //! let system = SequentialSystem::build(&presets::spec("sp")?)?;
 //! let spot = analysis::spot_diagram(&system, &AnalyticTracer::default(), [0.0, 0.0], 520.0,
 //!                                   &PupilPattern::Hexapolar { rings: 8 }.points())?;
-//! assert!(spot.rms_radius_um < 10.0);
+//! assert!(spot.rms_radius_um() < 10.0);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 pub mod analysis;

@@ -48,10 +48,15 @@ pub struct SpotDiagram {
     pub chief_mm: Option<[f64; 2]>,
     /// Statistics of the arrived rays about their centroid (`None` when none arrived).
     pub stats: Option<SpotStats>,
-    /// RMS radius about the centroid (µm), 0 when no ray arrived (see `stats`).
-    pub rms_radius_um: f64,
     /// RMS radius about the chief ray (µm), Zemax's default reference.
     pub rms_radius_chief_um: Option<f64>,
+}
+
+impl SpotDiagram {
+    /// RMS radius about the centroid (µm), 0 when no ray arrived (see `stats`).
+    pub fn rms_radius_um(&self) -> f64 {
+        self.stats.map(|s| s.rms_radius_um).unwrap_or(0.0)
+    }
 }
 
 /// Trace the normalised pupil points `pupil` of field `field_mm` at `wavelength_nm`.
@@ -79,7 +84,6 @@ pub fn spot_diagram(system: &SequentialSystem, tracer: &dyn Tracer, field_mm: [f
         y_mm: out.y[..n].to_vec(),
         status: out.status[..n].to_vec(),
         chief_mm,
-        rms_radius_um: stats.map(|s| s.rms_radius_um).unwrap_or(0.0),
         stats,
         rms_radius_chief_um,
     })

@@ -65,12 +65,12 @@ pub fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3, d: DVe
 /// crosses the real stop surface at (px, py) × the paraxial stop radius from the stop's vertex, at its own
 /// wavelength — Zemax's ray aiming (the chief ray passes through the centre of the stop). `n` are the indices at `wavelength_nm` ([`SequentialSystem::indices`]).
 pub fn aimed_ray(system: &SequentialSystem, n: &[f64], field_mm: [f64; 2], px: f64, py: f64) -> Result<(DVec3, DVec3)> {
+    if system.spec.ray_aiming == RayAiming::Off {
+        return Ok(object_ray(system, field_mm, px, py));
+    }
     let origin = DVec3::new(field_mm[0], field_mm[1], 0.0);
     let r_ep = pupil_scale(system);
     let (mut u, mut v) = (px * r_ep, py * r_ep);
-    if system.spec.ray_aiming == RayAiming::Off {
-        return Ok((origin, direction_through_pupil(system, origin, u, v)));
-    }
     let r_stop = system.pupil.stop_radius_mm;
     let (tx, ty) = (px * r_stop, py * r_stop);
     let fail = |why: &str| Error::invalid(format!("ray aiming failed for field ({}, {}) mm, pupil ({px}, {py}): {why}", field_mm[0], field_mm[1]));

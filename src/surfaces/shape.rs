@@ -54,26 +54,6 @@ impl SurfaceShape {
         };
         (2.0 * x * dz_dr2, 2.0 * y * dz_dr2)
     }
-
-    pub fn is_flat(&self) -> bool {
-        matches!(self, SurfaceShape::Plane | SurfaceShape::Paraxial { .. })
-            || matches!(self, SurfaceShape::Conic { curvature, .. } if *curvature == 0.0)
-    }
-
-    /// Largest r² inside the conic's domain (infinite when the conic is defined everywhere).
-    pub fn max_r2(&self) -> f64 {
-        match self {
-            SurfaceShape::Conic { curvature: c, conic: k } | SurfaceShape::EvenAsphere { curvature: c, conic: k, .. } => {
-                let q = (1.0 + k) * c * c;
-                if q > 0.0 {
-                    1.0 / q
-                } else {
-                    f64::INFINITY
-                }
-            }
-            _ => f64::INFINITY,
-        }
-    }
 }
 
 /// Conic sag written as c r² / (1 + √(1 − (1+k)c²r²)) — no cancellation as c → 0.
