@@ -26,6 +26,8 @@ pub mod materials;
 pub mod plot;
 pub mod presets;
 pub mod rays;
+pub mod render;
+pub mod scene;
 pub mod spec;
 pub mod surfaces;
 pub mod system;

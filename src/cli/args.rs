@@ -36,6 +36,12 @@ pub enum Command {
     Bench(BenchArgs),
     /// Write a system (preset or file) as a TOML or JSON spec.
     ExportSpec(ExportArgs),
+    /// Render a coded acquisition of a hyperspectral scene (default: the synthetic demo scene).
+    Render(super::render::RenderArgs),
+    /// Render every scene of a folder, tracing the system's light transport once.
+    RenderDataset(super::render::RenderDatasetArgs),
+    /// Time the paper-scale acquisition and dataset mode, printed as a table.
+    BenchRender(super::render::BenchRenderArgs),
 }
 
 /// Which system to use.

@@ -22,6 +22,9 @@ pub(super) fn run(command: Command) -> Result<()> {
         Command::Report(a) => report(a),
         Command::Bench(a) => bench(a),
         Command::ExportSpec(a) => export_spec(a),
+        Command::Render(a) => super::render::render(a),
+        Command::RenderDataset(a) => super::render::render_dataset(a),
+        Command::BenchRender(a) => super::render::bench_render(a),
     }
 }
 

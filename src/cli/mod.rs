@@ -6,9 +6,11 @@
 //! diffcassi spot --preset ap --wavelength-nm 520 --field-mm 2.5,0 --pupil-csv rays.csv --csv spot.csv
 //! diffcassi mapping --preset msp --npy mapping.npy
 //! diffcassi report --preset sp --out out/sp
+//! diffcassi render --preset sp                  # the main job: out/render-sp
 //! ```
 mod args;
 mod commands;
+pub mod render;
 
 pub use args::*;
 use clap::Parser;

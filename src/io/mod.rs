@@ -36,7 +36,9 @@
 
 pub mod atomic;
 pub mod csv;
+pub mod exr;
 pub mod npy;
+pub mod png16;
 
 use std::path::{Path, PathBuf};
 
@@ -75,6 +77,14 @@ pub enum IoError {
     /// A malformed or unsupported `.npy` file.
     #[error("{}: not a supported .npy file: {reason}", path.display())]
     Npy { path: PathBuf, reason: String },
+
+    /// A malformed, truncated or unsupported OpenEXR file (see [`exr`]).
+    #[error("{}: {reason}", path.display())]
+    Exr { path: PathBuf, reason: String },
+
+    /// A malformed, truncated or unsupported PNG file (see [`png16`]).
+    #[error("{}: {reason}", path.display())]
+    Png { path: PathBuf, reason: String },
 
     /// The CSV file has no header line (it is empty or holds only comments and blank lines).
     #[error("{}: no header line (the file is empty or holds only '#' comments and blank lines)", path.display())]
@@ -183,6 +193,8 @@ impl IoError {
             IoError::Io { path, .. }
             | IoError::ShapeMismatch { path, .. }
             | IoError::Npy { path, .. }
+            | IoError::Exr { path, .. }
+            | IoError::Png { path, .. }
             | IoError::CsvNoHeader { path }
             | IoError::CsvMissingColumn { path, .. }
             | IoError::CsvDuplicateColumn { path, .. }

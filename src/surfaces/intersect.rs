@@ -21,7 +21,7 @@ pub enum IntersectFailure {
 }
 
 /// Intersect the line p + t·d (local frame, `d` unit) with the surface, on the vertex branch.
-#[inline]
+#[inline(always)]
 pub fn intersect(shape: &SurfaceShape, p: DVec3, d: DVec3) -> Result<Hit, IntersectFailure> {
     match shape {
         SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => intersect_plane(p, d),
@@ -68,7 +68,7 @@ fn intersect_plane(p: DVec3, d: DVec3) -> Result<Hit, IntersectFailure> {
 ///
 /// With A t² + 2B′ t + C = 0, the root t = C / q, q = −(B′ + sign(B′)√(B′² − AC)), is the one that tends
 /// to the plane root −p_z/d_z as c → 0 and never suffers cancellation (Numerical Recipes §5.6).
-#[inline]
+#[inline(always)]
 fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<f64, IntersectFailure> {
     let kk = 1.0 + k;
     let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);

@@ -56,26 +56,35 @@ pub(crate) fn trace_steps_recording(path: &[PathStep], n: &[f64], mut p: DVec3, 
 #[inline]
 pub(crate) fn trace_steps(path: &[PathStep], n: &[f64], mut p: DVec3, mut d: DVec3) -> Result<(DVec3, DVec3), (RayStatus, usize)> {
     for step in path {
-        p = step.rotation * (p - step.offset);
-        d = step.rotation * d;
-        let hit = match intersect(&step.shape, p, d) {
-            Ok(h) => h,
-            Err(IntersectFailure::Missed) => return Err((RayStatus::Missed, step.surface)),
-            Err(IntersectFailure::NoConvergence) => return Err((RayStatus::NoConvergence, step.surface)),
-        };
-        p = hit.point;
-        if !step.aperture.contains(p.x, p.y) {
-            return Err((RayStatus::Vignetted, step.surface));
-        }
-        let (n1, n2) = (n[step.surface - 1], n[step.surface]);
-        match step.shape {
-            SurfaceShape::Paraxial { focal_length } => d = paraxial_deflect(p, d, focal_length, n1, n2),
-            _ if n1 != n2 => match refract(d, hit.normal, n1, n2) {
-                Some(r) => d = r,
-                None => return Err((RayStatus::TotalInternalReflection, step.surface)),
-            },
-            _ => {}
-        }
+        (p, d) = trace_step(step, n, p, d)?;
+    }
+    Ok((p, d))
+}
+
+/// One step of [`trace_steps`]: into the step's frame, intersect, clip, refract. Exposed so that callers
+/// can interleave several independent rays step by step (instruction-level parallelism) with exactly the
+/// same arithmetic, hence bit-identical results.
+#[inline(always)]
+pub(crate) fn trace_step(step: &PathStep, n: &[f64], p: DVec3, d: DVec3) -> Result<(DVec3, DVec3), (RayStatus, usize)> {
+    let p = step.rotation * (p - step.offset);
+    let mut d = step.rotation * d;
+    let hit = match intersect(&step.shape, p, d) {
+        Ok(h) => h,
+        Err(IntersectFailure::Missed) => return Err((RayStatus::Missed, step.surface)),
+        Err(IntersectFailure::NoConvergence) => return Err((RayStatus::NoConvergence, step.surface)),
+    };
+    let p = hit.point;
+    if !step.aperture.contains(p.x, p.y) {
+        return Err((RayStatus::Vignetted, step.surface));
+    }
+    let (n1, n2) = (n[step.surface - 1], n[step.surface]);
+    match step.shape {
+        SurfaceShape::Paraxial { focal_length } => d = paraxial_deflect(p, d, focal_length, n1, n2),
+        _ if n1 != n2 => match refract(d, hit.normal, n1, n2) {
+            Some(r) => d = r,
+            None => return Err((RayStatus::TotalInternalReflection, step.surface)),
+        },
+        _ => {}
     }
     Ok((p, d))
 }

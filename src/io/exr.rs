@@ -1,0 +1,123 @@
+//! OpenEXR images with named `f32` channels (via the `exr` crate): one layer, any number of channels,
+//! all of the same size. Used for acquisitions (`acquisition.exr`, one channel `Y`), rendered cubes
+//! (one channel per band, names zero-padded so they sort) and KAIST-style multichannel scenes.
+//!
+//! Writing is atomic (the file is encoded in memory, then [`super::write_atomic`]). Reading accepts
+//! `f16`, `f32` and `u32` channels (converted to `f32`) and reports truncated or malformed files as
+//! [`IoError::Exr`] naming the file.
+//!
+//! ```
+//! use diffcassi::io::exr::{read_exr, write_exr, ExrChannel};
+//! # fn main() -> Result<(), diffcassi::io::IoError> {
+//! let path = std::env::temp_dir().join(format!("diffcassi_exr_doc_{}.exr", std::process::id()));
+//! let ch = ExrChannel { name: "band_00_450.0nm".into(), data: vec![0.0, 0.5, 1.0, 2.0] };
+//! write_exr(&path, 2, 2, &[ch])?;
+//! let img = read_exr(&path)?;
+//! assert_eq!((img.width, img.height), (2, 2));
+//! assert_eq!(img.channels[0].name, "band_00_450.0nm");
+//! assert_eq!(img.channels[0].data[3], 2.0);
+//! # std::fs::remove_file(&path).ok();
+//! # Ok(())
+//! # }
+//! ```
+use super::{write_atomic, IoError};
+use exr::prelude::{read, AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, ReadChannels, ReadLayers, SmallVec, Vec2, WritableImage};
+use std::path::Path;
+
+/// One named channel, row-major (row 0 first), `width × height` samples.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExrChannel {
+    pub name: String,
+    pub data: Vec<f32>,
+}
+
+/// An EXR image: size and channels (in the file's order, which EXR keeps sorted by name).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ExrImage {
+    pub width: usize,
+    pub height: usize,
+    pub channels: Vec<ExrChannel>,
+}
+
+fn exr_err(path: &Path, reason: impl Into<String>) -> IoError {
+    IoError::Exr { path: path.to_path_buf(), reason: reason.into() }
+}
+
+/// Write `channels` (each `width × height` f32, row-major) as one EXR layer, lossless (ZIP), atomically.
+pub fn write_exr(path: impl AsRef<Path>, width: usize, height: usize, channels: &[ExrChannel]) -> Result<(), IoError> {
+    let path = path.as_ref();
+    if width == 0 || height == 0 || channels.is_empty() {
+        return Err(exr_err(path, format!("cannot write an empty image ({width}×{height}, {} channels)", channels.len())));
+    }
+    let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
+    for c in channels {
+        if c.data.len() != width * height {
+            return Err(IoError::ShapeMismatch { path: path.to_path_buf(), shape: vec![height, width], expected: width * height, actual: c.data.len() });
+        }
+        if c.name.is_empty() || !c.name.is_ascii() {
+            return Err(exr_err(path, format!("channel name `{}` must be non-empty ASCII", c.name)));
+        }
+        list.push(AnyChannel::new(c.name.as_str(), FlatSamples::F32(c.data.clone())));
+    }
+    let layer = Layer::new((width, height), LayerAttributes::named("diffcassi"), Encoding::SMALL_LOSSLESS, AnyChannels::sort(list));
+    let image = Image::from_layer(layer);
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    image.write().non_parallel().to_buffered(&mut bytes).map_err(|e| exr_err(path, format!("cannot encode: {e}")))?;
+    write_atomic(path, bytes.get_ref())
+}
+
+/// Read the first layer of an EXR file, every channel as `f32`.
+pub fn read_exr(path: impl AsRef<Path>) -> Result<ExrImage, IoError> {
+    let path = path.as_ref();
+    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, "cannot read", e))?;
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .pedantic()
+        .non_parallel()
+        .from_buffered(std::io::Cursor::new(bytes))
+        .map_err(|e| exr_err(path, format!("not a readable OpenEXR file (truncated or malformed?): {e}")))?;
+    let layer = image.layer_data;
+    let (width, height) = (layer.size.width(), layer.size.height());
+    let mut channels = Vec::with_capacity(layer.channel_data.list.len());
+    for c in layer.channel_data.list {
+        if c.sampling != Vec2(1, 1) {
+            return Err(exr_err(path, format!("channel `{}` is subsampled ({:?}); only full-resolution channels are supported", c.name, c.sampling)));
+        }
+        let data: Vec<f32> = match c.sample_data {
+            FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+            FlatSamples::F32(v) => v,
+            FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
+        };
+        if data.len() != width * height {
+            return Err(exr_err(path, format!("channel `{}` holds {} samples, expected {width}×{height}", c.name, data.len())));
+        }
+        channels.push(ExrChannel { name: c.name.to_string(), data });
+    }
+    Ok(ExrImage { width, height, channels })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_many_channels_and_truncation() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.exr");
+        let (w, h) = (7, 5);
+        let chans: Vec<ExrChannel> = (0..12).map(|k| ExrChannel { name: format!("band_{k:02}"), data: (0..w * h).map(|i| (i * 13 + k) as f32 * 0.25).collect() }).collect();
+        write_exr(&p, w, h, &chans).unwrap();
+        let img = read_exr(&p).unwrap();
+        assert_eq!((img.width, img.height), (w, h));
+        assert_eq!(img.channels, chans);
+        let bytes = std::fs::read(&p).unwrap();
+        std::fs::write(&p, &bytes[..bytes.len() * 2 / 3]).unwrap();
+        let e = read_exr(&p).unwrap_err().to_string();
+        assert!(e.contains("c.exr") && e.contains("OpenEXR"), "{e}");
+        assert!(write_exr(&p, w, h, &[ExrChannel { name: "Y".into(), data: vec![0.0; 3] }]).is_err());
+    }
+}

@@ -1,0 +1,287 @@
+//! Rendering a coded acquisition: H_c(:,:,λ) = H(:,:,λ) ⊙ M traced plane by plane to the detector, each
+//! plane blurred by its Airy disk, weighted by B/K and summed (see the [module docs](super)).
+//!
+//! Parallelism: bands are rendered in parallel (rayon), the planes of a band in order inside one task, and
+//! the band images summed in band order afterwards; every ray's random numbers depend only on
+//! (seed, plane, pixel, sample). So the result is bit-identical for any thread count.
+use super::airy::AiryKernel;
+use super::detector::Detector;
+use super::mask::Mask;
+use super::sampling::{RaySampler, Sampling};
+use super::spectral::SpectralSampling;
+use super::transport::{PlaneContext, PlaneTransport, RayStats};
+use crate::error::{Error, Result};
+use crate::scene::SpectralCube;
+use crate::system::SequentialSystem;
+use crate::tracer::Tracer;
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// The Airy blur: disk diameter `diameter_px` at `reference_nm`, ∝ λ, truncated at dark ring `rings`.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct AiryConfig {
+    pub diameter_px: f64,
+    pub reference_nm: f64,
+    pub rings: usize,
+}
+
+impl Default for AiryConfig {
+    fn default() -> Self {
+        AiryConfig { diameter_px: 2.5, reference_nm: 520.0, rings: 3 }
+    }
+}
+
+/// Render settings (the scene and the mask come separately).
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RenderConfig {
+    /// Scene pixels (height, width) on the object plane.
+    pub scene_height: usize,
+    pub scene_width: usize,
+    /// Scene pixel pitch on the object plane (mm).
+    pub scene_pitch_mm: f64,
+    pub detector_pitch_mm: f64,
+    /// Extra detector margin (pixels) beyond the computed footprint.
+    pub detector_extra_px: usize,
+    pub spectral: SpectralSampling,
+    pub rays_per_pixel: usize,
+    pub sampling: Sampling,
+    pub seed: u64,
+    /// `None`: no diffraction blur.
+    pub airy: Option<AiryConfig>,
+    /// Go through the `Tracer` trait in batches even for the analytic backend (for checks).
+    pub force_batched: bool,
+}
+
+impl RenderConfig {
+    /// The paper's acquisition: `size × size` scene at 10 µm, 28 bands × 4, 20 rays, Airy 2.5 px at 520 nm.
+    pub fn paper(size: usize) -> Self {
+        RenderConfig {
+            scene_height: size,
+            scene_width: size,
+            scene_pitch_mm: 0.01,
+            detector_pitch_mm: 0.01,
+            detector_extra_px: 0,
+            spectral: SpectralSampling::paper(),
+            rays_per_pixel: 20,
+            sampling: Sampling::Stratified,
+            seed: 0,
+            airy: Some(AiryConfig::default()),
+            force_batched: false,
+        }
+    }
+}
+
+/// A system, tracer, mask and settings ready to render: detector sized, Airy kernels built.
+pub struct Renderer<'a> {
+    pub system: &'a SequentialSystem,
+    pub tracer: &'a dyn Tracer,
+    pub config: RenderConfig,
+    pub mask: Mask,
+    pub detector: Detector,
+    pub kernels: Vec<Option<AiryKernel>>,
+    sampler: RaySampler,
+}
+
+/// Wall-clock split of a render (s).
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct Timings {
+    /// Tracing rays and building footprints (summed over threads).
+    pub trace_thread_seconds: f64,
+    /// Applying footprints to the scene (summed over threads).
+    pub splat_thread_seconds: f64,
+    /// Airy convolutions (summed over threads).
+    pub airy_thread_seconds: f64,
+    /// Wall clock of the whole render.
+    pub wall_seconds: f64,
+}
+
+/// A rendered acquisition.
+#[derive(Clone, Debug)]
+pub struct Acquisition {
+    pub detector: Detector,
+    /// Detector image, row-major, f64 sums of the band images in band order.
+    pub image: Vec<f64>,
+    /// Per-band detector images (the acquisition is their sum), when requested.
+    pub bands: Option<Vec<Vec<f32>>>,
+    pub stats: RayStats,
+    pub timings: Timings,
+}
+
+impl Acquisition {
+    pub fn total(&self) -> f64 {
+        self.image.iter().sum()
+    }
+    pub fn image_f32(&self) -> Vec<f32> {
+        self.image.iter().map(|&v| v as f32).collect()
+    }
+}
+
+impl<'a> Renderer<'a> {
+    pub fn new(system: &'a SequentialSystem, tracer: &'a dyn Tracer, config: RenderConfig, mask: Mask) -> Result<Self> {
+        let (h, w) = (config.scene_height, config.scene_width);
+        if h == 0 || w == 0 {
+            return Err(Error::invalid(format!("scene size {h}×{w}: must be ≥ 1")));
+        }
+        if (h * w) as u64 > u32::MAX as u64 {
+            return Err(Error::invalid(format!("scene size {h}×{w} is too large")));
+        }
+        if mask.height != h || mask.width != w {
+            return Err(Error::invalid(format!("the mask is {}×{} but the scene is {h}×{w}", mask.height, mask.width)));
+        }
+        if config.rays_per_pixel == 0 {
+            return Err(Error::invalid("rays per pixel must be ≥ 1"));
+        }
+        if !(config.scene_pitch_mm.is_finite() && config.scene_pitch_mm > 0.0) {
+            return Err(Error::invalid(format!("scene pitch {} mm must be finite and > 0", config.scene_pitch_mm)));
+        }
+        for &w in &config.spectral.planes_nm {
+            system.indices(w)?; // a plane outside a glass's range is an error now, not mid-render
+        }
+        let kernels: Vec<Option<AiryKernel>> = config
+            .spectral
+            .planes_nm
+            .iter()
+            .map(|&l| config.airy.map(|a| AiryKernel::for_wavelength(l, a.diameter_px, a.reference_nm, a.rings)))
+            .collect();
+        let airy_r = kernels.iter().flatten().map(|k| k.truncation_radius_px).fold(0.0, f64::max);
+        let detector = Detector::covering(system, tracer, h, w, config.scene_pitch_mm, &config.spectral.planes_nm, config.detector_pitch_mm, airy_r, config.detector_extra_px)?;
+        if detector.width > u16::MAX as usize || detector.height > u16::MAX as usize {
+            return Err(Error::invalid(format!("detector {}×{} exceeds 65535 pixels per side", detector.width, detector.height)));
+        }
+        let sampler = RaySampler::new(config.rays_per_pixel, config.sampling);
+        Ok(Renderer { system, tracer, config, mask, detector, kernels, sampler })
+    }
+
+    fn context(&self) -> PlaneContext<'_> {
+        PlaneContext {
+            system: self.system,
+            tracer: self.tracer,
+            direct_kernel: !self.config.force_batched && self.tracer.name() == "analytic-f64",
+            detector: &self.detector,
+            scene_height: self.config.scene_height,
+            scene_width: self.config.scene_width,
+            scene_pitch_mm: self.config.scene_pitch_mm,
+            mask: &self.mask.values,
+            sampler: &self.sampler,
+            seed: self.config.seed,
+        }
+    }
+
+    /// Rays traced per render (open pixels × rays × planes).
+    pub fn rays_per_render(&self) -> u64 {
+        let open = self.mask.values.iter().filter(|&&v| v > 0.0).count() as u64;
+        open * self.config.rays_per_pixel as u64 * self.config.spectral.planes() as u64
+    }
+
+    /// Trace one plane's light transport.
+    pub fn trace_plane(&self, plane: usize) -> Result<PlaneTransport> {
+        self.context().trace_plane(plane, self.config.spectral.planes_nm[plane])
+    }
+
+    /// Trace every plane (in parallel; the result does not depend on the thread count). `progress` is
+    /// called with each finished plane's ray count.
+    pub fn trace_all(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<Vec<PlaneTransport>> {
+        (0..self.config.spectral.planes())
+            .into_par_iter()
+            .map(|p| {
+                let t = self.trace_plane(p)?;
+                progress(t.stats.traced);
+                Ok(t)
+            })
+            .collect()
+    }
+
+    /// Check the scene fits the render (size; values are finite by construction).
+    fn check_scene(&self, scene: &SpectralCube) -> Result<()> {
+        if scene.height != self.config.scene_height || scene.width != self.config.scene_width {
+            return Err(Error::invalid(format!(
+                "the scene is {}×{} but the render expects {}×{} (fit it first)",
+                scene.height, scene.width, self.config.scene_height, self.config.scene_width
+            )));
+        }
+        Ok(())
+    }
+
+    /// Render `scene`, tracing every plane (per-scene mode). `keep_bands` keeps the per-band images.
+    pub fn render(&self, scene: &SpectralCube, keep_bands: bool, progress: &(dyn Fn(u64) + Sync)) -> Result<Acquisition> {
+        self.render_with(scene, None, keep_bands, progress)
+    }
+
+    /// Render `scene` with a light transport traced beforehand ([`Renderer::trace_all`]); bit-identical to
+    /// [`Renderer::render`].
+    pub fn render_cached(&self, scene: &SpectralCube, transport: &[PlaneTransport], keep_bands: bool, progress: &(dyn Fn(u64) + Sync)) -> Result<Acquisition> {
+        if transport.len() != self.config.spectral.planes() {
+            return Err(Error::invalid(format!("cached transport has {} planes, the render {}", transport.len(), self.config.spectral.planes())));
+        }
+        self.render_with(scene, Some(transport), keep_bands, progress)
+    }
+
+    fn render_with(&self, scene: &SpectralCube, cached: Option<&[PlaneTransport]>, keep_bands: bool, progress: &(dyn Fn(u64) + Sync)) -> Result<Acquisition> {
+        self.check_scene(scene)?;
+        let t0 = Instant::now();
+        let sp = &self.config.spectral;
+        let nb = sp.bands_nm.len();
+        let det = self.detector;
+        let npix = det.pixels();
+        let band_planes: Vec<Vec<usize>> = (0..nb).map(|b| (0..sp.planes()).filter(|&p| sp.plane_band[p] == b).collect()).collect();
+        let results: Vec<Result<(Vec<f32>, RayStats, [f64; 3])>> = band_planes
+            .par_iter()
+            .map(|planes| {
+                let mut band = vec![0.0f64; npix];
+                let mut stats = RayStats::default();
+                let mut secs = [0.0f64; 3];
+                for &p in planes {
+                    let t = Instant::now();
+                    let owned;
+                    let tr = match cached {
+                        Some(c) => &c[p],
+                        None => {
+                            owned = self.trace_plane(p)?;
+                            &owned
+                        }
+                    };
+                    secs[0] += t.elapsed().as_secs_f64();
+                    stats.add(&tr.stats);
+                    let t = Instant::now();
+                    let mut values = scene.plane(sp.planes_nm[p]);
+                    for (v, m) in values.iter_mut().zip(&self.mask.values) {
+                        *v *= *m;
+                    }
+                    let mut img = vec![0.0f32; npix];
+                    tr.apply(&values, &mut img, det.width);
+                    secs[1] += t.elapsed().as_secs_f64();
+                    let t = Instant::now();
+                    let img = match &self.kernels[p] {
+                        Some(k) => k.convolve(&img, det.width, det.height),
+                        None => img,
+                    };
+                    for (a, b) in band.iter_mut().zip(&img) {
+                        *a += sp.plane_weight * *b as f64;
+                    }
+                    secs[2] += t.elapsed().as_secs_f64();
+                    progress(tr.stats.traced);
+                }
+                Ok((band.iter().map(|&v| v as f32).collect(), stats, secs))
+            })
+            .collect();
+        let mut image = vec![0.0f64; npix];
+        let mut stats = RayStats::default();
+        let mut timings = Timings::default();
+        let mut bands = Vec::new();
+        for r in results {
+            let (band, s, secs) = r?;
+            for (a, b) in image.iter_mut().zip(&band) {
+                *a += *b as f64;
+            }
+            stats.add(&s);
+            timings.trace_thread_seconds += secs[0];
+            timings.splat_thread_seconds += secs[1];
+            timings.airy_thread_seconds += secs[2];
+            if keep_bands {
+                bands.push(band);
+            }
+        }
+        timings.wall_seconds = t0.elapsed().as_secs_f64();
+        Ok(Acquisition { detector: det, image, bands: keep_bands.then_some(bands), stats, timings })
+    }
+}

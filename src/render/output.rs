@@ -1,0 +1,102 @@
+//! Files of a rendered acquisition, all written atomically (temporary file + rename):
+//! `acquisition.exr` (one f32 channel `Y`, detector-sized), `acquisition.png` (16-bit preview, linear,
+//! scaled so the maximum is 65535; the scale is in the sidecar), optional `cube.exr` (the per-band detector
+//! images — their sum is the acquisition — one channel per band named `band_NN_<λ>nm`, zero-padded so they
+//! sort), `mask.png`, optional `mapping.npy` (+ `mapping_valid.npy`, `mapping_wavelengths_nm.npy`: the
+//! chief-ray mapping cube at the band wavelengths, detector mm) and `render.json`, written last, whose
+//! presence marks the outputs complete.
+use super::engine::{Acquisition, Renderer};
+use crate::error::{Error, Result};
+use crate::io::exr::{write_exr, ExrChannel};
+use crate::io::png16::write_png_gray16;
+use crate::io::write_atomic;
+use crate::scene::band_channel_name;
+use std::path::Path;
+
+/// Names of the files that must exist for a render folder to count as complete.
+pub const REQUIRED_OUTPUTS: [&str; 3] = ["acquisition.exr", "acquisition.png", "render.json"];
+
+/// Whether `dir` holds a complete render (every required file; `render.json` is written last).
+pub fn outputs_complete(dir: &Path) -> bool {
+    REQUIRED_OUTPUTS.iter().all(|f| dir.join(f).is_file())
+}
+
+/// Write `acquisition.exr`, `acquisition.png` and (if the bands were kept) `cube.exr`. Returns the preview
+/// scale (PNG value = min(65535, round(value × scale))).
+pub fn write_images(dir: &Path, renderer: &Renderer, acq: &Acquisition) -> Result<f64> {
+    let det = &acq.detector;
+    let img = acq.image_f32();
+    write_exr(dir.join("acquisition.exr"), det.width, det.height, &[ExrChannel { name: "Y".into(), data: img.clone() }])?;
+    let max = acq.image.iter().cloned().fold(0.0, f64::max);
+    let scale = if max > 0.0 { 65535.0 / max } else { 0.0 };
+    let png: Vec<u16> = acq.image.iter().map(|&v| (v.max(0.0) * scale).round().min(65535.0) as u16).collect();
+    write_png_gray16(dir.join("acquisition.png"), det.width, det.height, &png)?;
+    if let Some(bands) = &acq.bands {
+        let b = &renderer.config.spectral.bands_nm;
+        let channels: Vec<ExrChannel> = bands.iter().enumerate().map(|(k, d)| ExrChannel { name: band_channel_name(k, b.len(), b[k]), data: d.clone() }).collect();
+        write_exr(dir.join("cube.exr"), det.width, det.height, &channels)?;
+    }
+    Ok(scale)
+}
+
+/// Write the chief-ray mapping cube of the scene grid at the band wavelengths.
+pub fn write_mapping(dir: &Path, renderer: &Renderer) -> Result<()> {
+    let c = &renderer.config;
+    let ws = &c.spectral.bands_nm;
+    let cube = crate::analysis::mapping_cube(renderer.system, renderer.tracer, c.scene_height, c.scene_width, c.scene_pitch_mm, ws)?;
+    let shape = [c.scene_height, c.scene_width, ws.len(), 2];
+    let v: Vec<f32> = cube.positions_mm.iter().map(|&x| x as f32).collect();
+    crate::io::write_npy_f32(dir.join("mapping.npy"), &shape, &v)?;
+    crate::io::write_npy_u8(dir.join("mapping_valid.npy"), &shape[..3], &cube.valid)?;
+    crate::io::write_npy_f64(dir.join("mapping_wavelengths_nm.npy"), &[ws.len()], ws)?;
+    Ok(())
+}
+
+/// The sidecar's common part: everything needed to reproduce the render.
+pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value, preview_scale: f64, seconds_total: f64, threads: usize) -> serde_json::Value {
+    let c = &renderer.config;
+    let traced = acq.stats.traced;
+    serde_json::json!({
+        "version": env!("CARGO_PKG_VERSION"),
+        "system": renderer.system.name(),
+        "system_spec": serde_json::to_value(&renderer.system.spec).unwrap_or(serde_json::Value::Null),
+        "tracer": renderer.tracer.name(),
+        "scene": scene,
+        "scene_size": c.scene_height,
+        "scene_height": c.scene_height,
+        "scene_width": c.scene_width,
+        "scene_pitch_mm": c.scene_pitch_mm,
+        "seed": c.seed,
+        "sampling": c.sampling,
+        "rays_per_pixel": c.rays_per_pixel,
+        "bands_nm": c.spectral.bands_nm,
+        "bands": c.spectral.bands_nm.len(),
+        "planes": c.spectral.planes(),
+        "planes_nm": c.spectral.planes_nm,
+        "plane_weight": c.spectral.plane_weight,
+        "spectral_interpolation": "linear in wavelength between the scene's bands, constant beyond its range",
+        "airy": c.airy,
+        "mask": renderer.mask.description,
+        "mask_opening": renderer.mask.opening(),
+        "detector": acq.detector,
+        "detector_convention": "pixel (row i, col j) centre at x = x_left_mm + (j + 0.5) pitch, y = y_top_mm - (i + 0.5) pitch, image-surface frame",
+        "rays_traced": traced,
+        "rays_nominal": (c.scene_height * c.scene_width * c.rays_per_pixel * c.spectral.planes()) as u64,
+        "ray_stats": acq.stats,
+        "transmission": acq.stats.transmission(),
+        "acquisition_total": acq.total(),
+        "preview_scale": preview_scale,
+        "threads": threads,
+        "seconds_total": seconds_total,
+        "seconds_render": acq.timings.wall_seconds,
+        "timings": acq.timings,
+        "rays_per_second": if acq.timings.wall_seconds > 0.0 { traced as f64 / acq.timings.wall_seconds } else { 0.0 },
+    })
+}
+
+/// Write `render.json` (last: its presence marks the folder complete).
+pub fn write_sidecar(dir: &Path, value: &serde_json::Value) -> Result<()> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| Error::invalid(format!("JSON encoding failed: {e}")))?;
+    write_atomic(dir.join("render.json"), text.as_bytes())?;
+    Ok(())
+}
