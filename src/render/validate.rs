@@ -5,7 +5,8 @@
 //! pixel, several rows of the region) traced to the detector, i.e. mapped through the dispersion curve and
 //! spread by the geometric PSF, then blurred by the bilinear splat (a 1-pixel tent) and the Airy disk's
 //! line-spread function, and averaged over rows (vertical blur moves no energy out of a uniform region's
-//! interior, so the row average only sees x).
+//! interior, so the row average only sees x; a scene row covers |m_y| detector rows, m_y the vertical
+//! magnification at each wavelength, which divides the energy per detector row).
 use super::airy::AiryKernel;
 use super::detector::Detector;
 use super::engine::RenderConfig;
@@ -42,7 +43,19 @@ pub fn slit_prediction(system: &SequentialSystem, tracer: &dyn Tracer, cfg: &Ren
             }
         }
         let out = tracer.trace(system, &batch)?;
-        let per_ray = s / out.len() as f64; // mean over the sampled rows and rays
+        // Energy per detector row: a scene row spreads over |m_y| detector rows (m_y the vertical
+        // magnification at this wavelength, from the chief rays of the first and last rows).
+        let m_y = if rows.len() > 1 {
+            let (ra, rb) = (rows[0], rows[rows.len() - 1]);
+            let f = [ra, rb].map(|r| MappingCube::scene_xy(cfg.scene_height, cfg.scene_width, cfg.scene_pitch_mm, r, slit_col));
+            let c = tracer.trace(system, &RayBatch::chief_rays(system, &f, w)?)?;
+            let dv = (c.y[1] - c.y[0]).abs() / detector.pitch_mm;
+            let ds = (rb as f64 - ra as f64).abs() * cfg.scene_pitch_mm / detector.pitch_mm;
+            if c.status.iter().all(|s| *s == RayStatus::Ok) && dv > 0.0 { dv / ds } else { 1.0 }
+        } else {
+            1.0
+        };
+        let per_ray = s / out.len() as f64 / m_y; // mean over the sampled rows and rays
         // Tent (bilinear) deposit of each ray's column coordinate.
         let mut tent = vec![0.0f64; dw];
         for i in 0..out.len() {
