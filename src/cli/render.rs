@@ -318,6 +318,16 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     Ok(())
 }
 
+/// CPU seconds (user + system) used by this process so far, from /proc/self/stat (Linux, USER_HZ = 100);
+/// `None` elsewhere. On a shared machine wall time alone hides how much of the cores the run was given.
+fn process_cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    let after = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = after.split_whitespace().collect();
+    let (u, k): (f64, f64) = (f.get(11)?.parse().ok()?, f.get(12)?.parse().ok()?);
+    Some((u + k) / 100.0)
+}
+
 pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let system = crate::system::SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let n = a.scene_size;
@@ -327,9 +337,18 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let tracer = AnalyticTracer::default();
     let threads = rayon::current_num_threads();
     println!("render bench: {}, {n}×{n} scene, {} planes, {} rays per pixel per plane, mask opening {}, {threads} threads", system.name(), a.planes, a.rays, a.opening);
-    println!("| what | seconds | rays traced | M rays/s |");
-    println!("|---|---|---|---|");
-    let row = |what: &str, secs: f64, rays: u64| println!("| {what} | {secs:.2} | {rays} | {:.2} |", if secs > 0.0 { rays as f64 / secs / 1e6 } else { 0.0 });
+    println!("| what | wall s | CPU s | rays traced | M rays/s (wall) |");
+    println!("|---|---|---|---|---|");
+    let cpu0 = std::cell::Cell::new(process_cpu_seconds());
+    let row = |what: &str, secs: f64, rays: u64| {
+        let now = process_cpu_seconds();
+        let cpu = match (cpu0.get(), now) {
+            (Some(a), Some(b)) => format!("{:.1}", b - a),
+            _ => "n/a".into(),
+        };
+        cpu0.set(now);
+        println!("| {what} | {secs:.2} | {cpu} | {rays} | {:.2} |", if secs > 0.0 { rays as f64 / secs / 1e6 } else { 0.0 })
+    };
     let t = Instant::now();
     let renderer = Renderer::new(&system, &tracer, cfg.clone(), Mask::random(n, n, a.opening, 0)?)?;
     let setup = t.elapsed().as_secs_f64();
@@ -348,6 +367,7 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let bytes: usize = transport.iter().map(|p| p.bytes()).sum();
     row(&format!("dataset: trace the transport once ({:.2} GB)", bytes as f64 / 1e9), t.elapsed().as_secs_f64(), transport.iter().map(|p| p.stats.traced).sum());
     let mut per = Vec::new();
+    cpu0.set(process_cpu_seconds());
     for s in 0..a.scenes.max(1) {
         let sc = synthetic_scene(n, n, &synthetic_wavelengths(), 100 + s as u64);
         let t = Instant::now();
@@ -356,6 +376,6 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
         std::hint::black_box(r);
     }
     let mean = per.iter().sum::<f64>() / per.len() as f64;
-    row(&format!("dataset: per scene (mean of {})", per.len()), mean, 0);
+    row(&format!("dataset: per scene (wall: mean of {}; CPU: all of them)", per.len()), mean, 0);
     Ok(())
 }
