@@ -17,7 +17,8 @@
 //! let mut cfg = RenderConfig::paper(8);
 //! cfg.spectral = SpectralSampling::new(vec![500.0, 520.0, 540.0], 2)?;
 //! cfg.rays_per_pixel = 4;
-//! let r = Renderer::new(&system, &AnalyticTracer::default(), cfg, Mask::open(8, 8))?;
+//! let tracer = AnalyticTracer::default();
+//! let r = Renderer::new(&system, &tracer, cfg, Mask::open(8, 8))?;
 //! let scene = SpectralCube::uniform(8, 8, vec![500.0, 540.0], 1.0);
 //! let acq = r.render(&scene, false, &|_| {})?;
 //! // Energy: 64 pixels × 3 bands, everything arrives.
