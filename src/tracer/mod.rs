@@ -46,6 +46,11 @@ pub enum RayStatus {
     NoConvergence = 4,
     /// Non-finite or zero-length input ray.
     InvalidInput = 5,
+    /// Non-sequential tracers: absorbed by a side wall of a solid (a prism's side/top/bottom face, a lens
+    /// rim) — the ray left the optical path through a face that is not an optical surface.
+    Absorbed = 6,
+    /// Non-sequential tracers: more surface interactions than the tracer's bounce limit.
+    BounceLimit = 7,
 }
 
 impl RayStatus {
@@ -57,6 +62,8 @@ impl RayStatus {
             RayStatus::TotalInternalReflection => "tir",
             RayStatus::NoConvergence => "no_convergence",
             RayStatus::InvalidInput => "invalid_input",
+            RayStatus::Absorbed => "absorbed",
+            RayStatus::BounceLimit => "bounce_limit",
         }
     }
 }
