@@ -215,3 +215,41 @@ fn results_do_not_depend_on_threads_or_packets() {
     assert_eq!(a, run(2, true));
     assert_eq!(a, run(2, false));
 }
+
+#[test]
+fn cli_backend_flags_keep_the_csv_columns() {
+    let dir = tempfile::tempdir().unwrap();
+    let exe = env!("CARGO_BIN_EXE_diffcassi");
+    let run = |args: &[&str]| {
+        let out = std::process::Command::new(exe).args(args).output().unwrap();
+        assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    let read = |name: &str| std::fs::read_to_string(dir.path().join(name)).unwrap();
+    let header = |text: &str| text.lines().find(|l| !l.starts_with('#')).unwrap().to_string();
+    let p = |n: &str| dir.path().join(n).to_string_lossy().to_string();
+    run(&["distortion", "--preset", "ap", "--csv", &p("a.csv")]);
+    run(&["distortion", "--preset", "ap", "--backend", "embree-user", "--refine", "f64", "--csv", &p("u.csv")]);
+    run(&["distortion", "--preset", "ap", "--backend", "embree-mesh", "--mesh-max-sag-um", "0.5", "--refine", "none", "--csv", &p("m.csv")]);
+    assert_eq!(header(&read("a.csv")), header(&read("u.csv")));
+    assert_eq!(header(&read("a.csv")), header(&read("m.csv")));
+    run(&["spot", "--preset", "sp", "--backend", "embree-mesh", "--mesh-segments", "24", "--csv", &p("s.csv")]);
+    run(&["spot", "--preset", "sp", "--csv", &p("s0.csv")]);
+    assert_eq!(header(&read("s.csv")), header(&read("s0.csv")));
+    // Refined Embree reproduces the analytic CSV's numbers.
+    let nums = |t: &str| t.lines().filter(|l| !l.starts_with('#')).skip(1).flat_map(|l| l.split(',').filter_map(|v| v.parse::<f64>().ok()).collect::<Vec<_>>()).collect::<Vec<_>>();
+    let (a, u) = (nums(&read("a.csv")), nums(&read("u.csv")));
+    assert_eq!(a.len(), u.len());
+    assert!(a.iter().zip(&u).all(|(x, y)| (x - y).abs() <= 1e-6 * (1.0 + x.abs())));
+    // Bad values are errors naming the flag value.
+    for (args, needle) in [
+        (vec!["distortion", "--preset", "sp", "--backend", "embree-mush"], "embree-mush"),
+        (vec!["distortion", "--preset", "sp", "--backend", "embree-user", "--refine", "f32"], "f32"),
+        (vec!["distortion", "--preset", "sp", "--refine", "none"], "Embree backends only"),
+        (vec!["distortion", "--preset", "sp", "--backend", "embree-mesh", "--mesh-segments", "0"], "segments = 0"),
+    ] {
+        let out = std::process::Command::new(exe).args(&args).output().unwrap();
+        assert!(!out.status.success());
+        assert!(String::from_utf8_lossy(&out.stderr).contains(needle), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    }
+}

@@ -52,6 +52,24 @@ pub struct SystemArgs {
     pub glass_catalogs: Vec<PathBuf>,
 }
 
+/// Which tracer backend and its precision.
+#[derive(Args, Debug, Clone)]
+pub struct BackendArgs {
+    /// Tracer: analytic (exact f64, sequential), embree-user (Embree, analytic user geometry) or
+    /// embree-mesh (Embree, tessellated surfaces); the Embree ones trace non-sequentially.
+    #[arg(long, default_value = "analytic")]
+    pub backend: String,
+    /// Embree hit refinement: f64 (re-solve each hit exactly: equals the analytic tracer) or none (f32 hits).
+    #[arg(long, default_value = "f64")]
+    pub refine: String,
+    /// embree-mesh: tessellate to this maximum chord-sag error (µm) [default 1].
+    #[arg(long = "mesh-max-sag-um", conflicts_with = "mesh_segments")]
+    pub mesh_max_sag_um: Option<f64>,
+    /// embree-mesh: tessellate with this many segments (rings; 6× around circular apertures).
+    #[arg(long = "mesh-segments")]
+    pub mesh_segments: Option<usize>,
+}
+
 #[derive(Args, Debug)]
 pub struct InfoArgs {
     #[command(flatten)]
@@ -65,6 +83,8 @@ pub struct InfoArgs {
 pub struct SpotArgs {
     #[command(flatten)]
     pub system: SystemArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Wavelength(s) in nm: `520`, `450,520,650`, or `450:650:28` (first:last:count). Default: the system's.
     #[arg(long = "wavelength-nm", alias = "wavelengths-nm")]
     pub wavelength_nm: Option<String>,
@@ -92,6 +112,8 @@ pub struct SpotArgs {
 pub struct DistortionArgs {
     #[command(flatten)]
     pub system: SystemArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Wavelength (nm). Default: the primary wavelength.
     #[arg(long = "wavelength-nm")]
     pub wavelength_nm: Option<f64>,
@@ -116,6 +138,8 @@ pub struct DistortionArgs {
 pub struct DispersionArgs {
     #[command(flatten)]
     pub system: SystemArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Field point `X,Y` mm (default: the axis).
     #[arg(long = "field-mm", default_value = "0,0", allow_hyphen_values = true)]
     pub field_mm: String,
@@ -132,6 +156,8 @@ pub struct DispersionArgs {
 pub struct MappingArgs {
     #[command(flatten)]
     pub system: SystemArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     #[arg(long, default_value_t = 512)]
     pub height: usize,
     #[arg(long, default_value_t = 512)]
@@ -164,6 +190,10 @@ pub struct ReportArgs {
 pub struct BenchArgs {
     #[arg(long, default_value = "sp")]
     pub preset: String,
+    /// Backends to compare, comma-separated: analytic, embree-user, embree-user:none,
+    /// embree-mesh:SAG_UM (f64-refined), embree-mesh:SAG_UM:none.
+    #[arg(long, default_value = "analytic")]
+    pub backends: String,
     /// Rays per wavelength.
     #[arg(long, default_value_t = 100_000)]
     pub rays: usize,

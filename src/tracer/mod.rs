@@ -10,12 +10,14 @@
 //! assert!(out.x[0].abs() < 1e-6); // the primary chief ray lands on the image origin
 //! ```
 mod analytic;
+mod backend;
 pub mod kernel;
 #[cfg(feature = "embree")]
 pub mod embree;
 mod traced;
 
 pub use analytic::*;
+pub use backend::*;
 pub use traced::*;
 
 use crate::error::Result;
