@@ -378,23 +378,25 @@ fn rim(g: &Group) -> Vec<DVec3> {
         .collect()
 }
 
+/// Triangles of the band between two closed polygons of `RIM_SAMPLES` vertices each, stored one after the
+/// other (vertex k of the first joined to vertex k of the second).
+fn band_triangles() -> Vec<[u32; 3]> {
+    let n = RIM_SAMPLES as u32;
+    (0..n).flat_map(|i| {
+        let j = (i + 1) % n;
+        [[i, j, n + j], [i, n + j, n + i]]
+    })
+    .collect()
+}
+
 /// Ruled side wall joining the rims of two consecutive groups.
 fn wall_mesh(a: &Group, b: &Group) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
-    let (ra, rb) = (rim(a), rim(b));
-    let n = RIM_SAMPLES as u32;
-    let vertices: Vec<[f32; 3]> = ra.iter().chain(&rb).map(|v| v.as_vec3().to_array()).collect();
-    let mut triangles = Vec::with_capacity(2 * RIM_SAMPLES);
-    for i in 0..n {
-        let j = (i + 1) % n;
-        triangles.push([i, j, n + j]);
-        triangles.push([i, n + j, n + i]);
-    }
-    (vertices, triangles)
+    let vertices: Vec<[f32; 3]> = rim(a).iter().chain(&rim(b)).map(|v| v.as_vec3().to_array()).collect();
+    (vertices, band_triangles())
 }
 
 /// Flat absorbing blade outside `ap`, in the plane z = sag at the rim, `width` wide.
 fn blade_mesh(g: &Group, ap: &Aperture, width: f64) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
-    let n = RIM_SAMPLES as u32;
     let mut vertices = Vec::with_capacity(2 * RIM_SAMPLES);
     let (inner, outer): (Vec<(f64, f64)>, Vec<(f64, f64)>) = (0..RIM_SAMPLES)
         .map(|i| {
@@ -422,11 +424,5 @@ fn blade_mesh(g: &Group, ap: &Aperture, width: f64) -> (Vec<[f32; 3]>, Vec<[u32;
         let (ix, iy) = inner[k];
         vertices.push(g.frame.point_to_global(DVec3::new(x, y, z_of(ix, iy))).as_vec3().to_array());
     }
-    let mut triangles = Vec::with_capacity(2 * RIM_SAMPLES);
-    for i in 0..n {
-        let j = (i + 1) % n;
-        triangles.push([i, j, n + j]);
-        triangles.push([i, n + j, n + i]);
-    }
-    (vertices, triangles)
+    (vertices, band_triangles())
 }
