@@ -27,6 +27,8 @@ set -euo pipefail
 APT_PACKAGES=(
     pkg-config
     build-essential
+    cmake # the C++ API's CMake package and tests (cpp/)
+    g++   # C++17 compiler for the C++ API (also in build-essential; listed because cpp/ needs it)
 )
 if [[ "${DIFFCASSI_EMBREE:-}" == install || "${DIFFCASSI_EMBREE:-}" == trixie-force ]]; then
     APT_PACKAGES+=(libclang-dev) # bindgen, for the embree feature
