@@ -18,7 +18,8 @@
 //! let sys = diffcassi_cpp::load_preset("sp")?;
 //! let grid = sys.distortion_grid("analytic", 520.0, 3, 2.5)?;
 //! assert_eq!(grid.points.len(), 9);
-//! assert!(sys.trace("warp-drive", &[], &[], &[], &[], &[], &[], &[]).unwrap_err().to_string().contains("unknown backend"));
+//! let err = sys.trace("warp-drive", &[], &[], &[], &[], &[], &[], &[]).err().unwrap();
+//! assert!(err.to_string().contains("unknown backend `warp-drive`"));
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 //!
