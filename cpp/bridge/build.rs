@@ -27,7 +27,7 @@ fn main() {
 
     let manifest = PathBuf::from(env::var_os("CARGO_MANIFEST_DIR").expect("cargo sets CARGO_MANIFEST_DIR"));
     let out = PathBuf::from(env::var_os("OUT_DIR").expect("cargo sets OUT_DIR"));
-    let include = manifest.join("../include");
+    let include = manifest.parent().expect("cpp/bridge has a parent").join("include");
     let bridge_h = include.join("diffcassi/bridge.h");
     let cxx_h = include.join("rust/cxx.h");
     refresh(&out.join("cxxbridge/include/diffcassi-cpp/src/lib.rs.h"), &bridge_h);
