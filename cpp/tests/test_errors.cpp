@@ -3,6 +3,7 @@
 #include <diffcassi/diffcassi.hpp>
 
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <fstream>
 #include <string>
@@ -74,6 +75,7 @@ int main() {
   }
   expect_error("distortion grid of size 0", [&] { sys.distortion_grid(520.0, 0, 2.5); }, {"at least 1"});
   expect_error("mapping cube 0 wide", [&] { sys.mapping_cube(4, 0, 0.01, {520.0}); }, {"every dimension"});
+  expect_error("mapping cube too large", [&] { sys.mapping_cube(SIZE_MAX / 2, 3, 0.01, {520.0}); }, {"too large"});
   expect_error("pupil x/y lengths differ", [&] { sys.spot_diagram({0.0, 0.0}, 520.0, {0.0, 0.5}, {0.0}); }, {"pupil points"});
   expect_error("bad pupil pattern", [] { diffcassi::pupil_points("hexagonal:3"); }, {"unknown pattern"});
   expect_error("NaN field", [&] { sys.chief_rays({std::nan("")}, {0.0}, 520.0); }, {"not finite"});

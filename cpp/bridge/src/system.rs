@@ -61,6 +61,16 @@ fn value(c: &Option<Cell>) -> f64 {
     c.as_ref().map_or(0.0, |c| c.value)
 }
 
+/// The element count of an output of the given dimensions, or an error when it cannot be allocated (an
+/// overflowing size from C++ would otherwise panic, and a panic across the bridge aborts the process).
+fn checked_size(what: &str, dims: &[usize]) -> Result<usize> {
+    const LIMIT: usize = isize::MAX as usize / 16; // elements of at most 16 bytes must fit an allocation
+    dims.iter()
+        .try_fold(1usize, |n, &d| n.checked_mul(d))
+        .filter(|&n| n <= LIMIT)
+        .ok_or_else(|| Error::invalid(format!("{what} {dims:?} is too large to allocate")))
+}
+
 fn check_same_len(what: &str, a: &[f64], b: &[f64]) -> Result<()> {
     if a.len() != b.len() {
         return Err(Error::invalid(format!("{what}: x has {} values but y has {}", a.len(), b.len())));
@@ -151,6 +161,7 @@ impl System {
     }
 
     pub fn seeded_workload(&self, rays_per_wavelength: usize, wavelengths_nm: &[f64], seed: u64) -> Result<Box<Rays>> {
+        checked_size("seeded workload (rays per wavelength, wavelengths)", &[rays_per_wavelength, wavelengths_nm.len()])?;
         Ok(Box::new(Rays(RayBatch::seeded_workload(&self.system, rays_per_wavelength, wavelengths_nm, seed)?)))
     }
 
@@ -204,6 +215,7 @@ impl System {
     }
 
     pub fn distortion_grid(&self, backend: &str, wavelength_nm: f64, n: usize, half_width_mm: f64) -> Result<DistortionGrid> {
+        checked_size("distortion grid", &[n, n])?;
         let tracer = self.backends.get(&self.system, backend)?;
         let g = analysis::grid_distortion(&self.system, tracer.as_ref(), wavelength_nm, n, half_width_mm)?;
         Ok(DistortionGrid {
@@ -231,6 +243,7 @@ impl System {
     }
 
     pub fn mapping_cube(&self, backend: &str, height: usize, width: usize, pixel_pitch_mm: f64, wavelengths_nm: &[f64]) -> Result<Box<Mapping>> {
+        checked_size("mapping cube (height, width, wavelengths, xy)", &[height, width, wavelengths_nm.len(), 2])?;
         let tracer = self.backends.get(&self.system, backend)?;
         Ok(Box::new(Mapping(analysis::mapping_cube(&self.system, tracer.as_ref(), height, width, pixel_pitch_mm, wavelengths_nm)?)))
     }
@@ -258,6 +271,13 @@ mod tests {
         assert!(e.contains("unknown spec format `yaml`"), "{e}");
         let e = load_spec_file("/nonexistent/sys.toml").err().unwrap().to_string();
         assert!(e.starts_with("/nonexistent/sys.toml: cannot read"), "{e}");
+        let sys = load_preset("sp").unwrap();
+        let e = sys.mapping_cube("analytic", usize::MAX / 2, 3, 0.01, &[520.0]).err().unwrap().to_string();
+        assert!(e.contains("too large"), "{e}");
+        let e = sys.distortion_grid("analytic", 520.0, 1 << 40, 2.5).err().unwrap().to_string();
+        assert!(e.contains("too large"), "{e}");
+        let e = sys.seeded_workload(usize::MAX, &[450.0, 520.0], 1).err().unwrap().to_string();
+        assert!(e.contains("too large"), "{e}");
     }
 
     #[test]
