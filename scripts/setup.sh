@@ -24,6 +24,8 @@ set -euo pipefail
 APT_PACKAGES=(
     pkg-config
     build-essential
+    cmake # the C++ API's CMake package and tests (cpp/)
+    g++   # C++17 compiler for the C++ API (also in build-essential; listed because cpp/ needs it)
 )
 case "${DIFFCASSI_EMBREE:-install}" in
     install) WANT_EMBREE=1 ;;

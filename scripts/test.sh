@@ -16,3 +16,16 @@ cargo test --release --doc
 
 # The analytic tracer alone must keep building without Embree (`--no-default-features`).
 cargo check --release --no-default-features --lib --bins --tests
+
+# The C++ API (cpp/, README "Using diffcassi from C++"): the bridge crate's Rust tests, then the CMake build
+# of the static and shared libraries, the example, the C++ tests and the bench, all run by ctest.
+cargo test --release -p diffcassi-cpp
+export CTEST_OUTPUT_ON_FAILURE=1 CMAKE_BUILD_PARALLEL_LEVEL="${CMAKE_BUILD_PARALLEL_LEVEL:-2}"
+cmake -S cpp -B build-cpp && cmake --build build-cpp && ctest --test-dir build-cpp
+# The build refreshes the generated header in cpp/include; a difference from the committed copy means the
+# committed header is stale.
+if git rev-parse --is-inside-work-tree >/dev/null 2>&1 && ! git diff --quiet -- cpp/include; then
+    git diff --stat -- cpp/include
+    echo "test.sh: cpp/include is stale: the build regenerated the cxx bridge header; commit it" >&2
+    exit 1
+fi

@@ -190,8 +190,8 @@ pub struct ReportArgs {
 pub struct BenchArgs {
     #[arg(long, default_value = "sp")]
     pub preset: String,
-    /// Backends to compare, comma-separated: analytic, embree-user, embree-user:none,
-    /// embree-mesh:SAG_UM (f64-refined), embree-mesh:SAG_UM:none.
+    /// Backends to compare, comma-separated: analytic, embree-user[:f64|:none],
+    /// embree-mesh[:SAG_UM][:f64|:none] (defaults f64 refinement, 1 µm).
     #[arg(long, default_value = "analytic")]
     pub backends: String,
     /// Rays per wavelength.

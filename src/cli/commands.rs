@@ -590,30 +590,11 @@ fn report(a: ReportArgs) -> Result<()> {
 
 // ---------------------------------------------------------------- bench
 
-/// `analytic`, `embree-user[:none]`, `embree-mesh:SAG_UM[:none]` → a backend configuration.
-fn parse_bench_backend(text: &str) -> Result<crate::tracer::BackendConfig> {
-    let parts: Vec<&str> = text.trim().split(':').collect();
-    let mut cfg: crate::tracer::BackendConfig = parts[0].parse()?;
-    let mut rest = &parts[1..];
-    if cfg.backend == crate::tracer::Backend::EmbreeMesh {
-        let um = rest.first().ok_or_else(|| Error::invalid(format!("--backends `{text}`: embree-mesh needs its chord-sag bound, e.g. embree-mesh:1")))?;
-        let um: f64 = um.parse().map_err(|_| Error::invalid(format!("--backends `{text}`: `{um}` is not a number of µm")))?;
-        cfg.mesh = crate::surfaces::MeshResolution::MaxSagErrorUm(um);
-        rest = &rest[1..];
-    }
-    match rest {
-        [] => {}
-        [r] if cfg.backend != crate::tracer::Backend::Analytic => cfg.refine = r.parse()?,
-        _ => return Err(Error::invalid(format!("--backends `{text}`: use analytic, embree-user[:none] or embree-mesh:SAG_UM[:none]"))),
-    }
-    Ok(cfg)
-}
-
 fn bench(a: BenchArgs) -> Result<()> {
     let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let ws = linspace(450.0, 650.0, a.wavelengths.max(1));
     let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000)?;
-    let configs: Vec<crate::tracer::BackendConfig> = a.backends.split(',').map(parse_bench_backend).collect::<Result<_>>()?;
+    let configs: Vec<crate::tracer::BackendConfig> = a.backends.split(',').map(str::parse).collect::<Result<_>>()?;
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let reference = AnalyticTracer::default().trace(&system, &batch)?;
     println!(

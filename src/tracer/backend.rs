@@ -6,6 +6,8 @@
 //! let cfg: BackendConfig = "analytic".parse().unwrap();
 //! assert_eq!(cfg.build().unwrap().name(), "analytic-f64");
 //! assert!("embree-mush".parse::<BackendConfig>().is_err());
+//! let mesh: BackendConfig = "embree-mesh:0.5:none".parse().unwrap();
+//! assert_eq!(mesh.mesh, diffcassi::surfaces::MeshResolution::MaxSagErrorUm(0.5));
 //! ```
 use super::{AnalyticTracer, Tracer};
 use crate::error::{Error, Result};
@@ -46,15 +48,31 @@ impl Default for BackendConfig {
 
 impl std::str::FromStr for BackendConfig {
     type Err = Error;
-    /// `analytic`, `embree-user`, `embree-mesh` (default options).
-    fn from_str(s: &str) -> Result<Self> {
-        let backend = match s.trim() {
-            "analytic" => Backend::Analytic,
+    /// `analytic` (alias `analytic-f64`), `embree-user[:f64|:none]`, `embree-mesh[:SAG_UM][:f64|:none]`
+    /// (defaults: f64 refinement, 1 µm chord-sag bound).
+    fn from_str(text: &str) -> Result<Self> {
+        let bad = |why: &str| Error::invalid(format!("backend `{text}`: {why} (use analytic, embree-user[:f64|:none] or embree-mesh[:SAG_UM][:f64|:none])"));
+        let parts: Vec<&str> = text.trim().split(':').collect();
+        let backend = match parts[0] {
+            "analytic" | "analytic-f64" => Backend::Analytic,
             "embree-user" => Backend::EmbreeUser,
             "embree-mesh" => Backend::EmbreeMesh,
-            other => return Err(Error::invalid(format!("backend `{other}`: expected analytic, embree-user or embree-mesh"))),
+            other => return Err(bad(&format!("unknown backend `{other}`"))),
         };
-        Ok(BackendConfig { backend, ..Default::default() })
+        let mut cfg = BackendConfig { backend, ..Default::default() };
+        let mut rest = &parts[1..];
+        if backend == Backend::EmbreeMesh {
+            if let Some(um) = rest.first().and_then(|v| v.parse::<f64>().ok()) {
+                cfg.mesh = MeshResolution::MaxSagErrorUm(um);
+                rest = &rest[1..];
+            }
+        }
+        match rest {
+            [] => {}
+            [r] if backend != Backend::Analytic => cfg.refine = r.parse()?,
+            _ => return Err(bad("unexpected options")),
+        }
+        Ok(cfg)
     }
 }
 

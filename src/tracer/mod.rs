@@ -14,10 +14,12 @@ mod backend;
 pub mod kernel;
 #[cfg(feature = "embree")]
 pub mod embree;
+mod slices;
 mod traced;
 
 pub use analytic::*;
 pub use backend::*;
+pub use slices::*;
 pub use traced::*;
 
 use crate::error::Result;
@@ -32,6 +34,12 @@ pub trait Tracer: Send + Sync {
     /// totally reflect are classified in `status`; their positions are NaN-free (set to 0).
     /// Errors are for the batch as a whole (e.g. a wavelength outside a glass's range).
     fn trace(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<TracedBatch>;
+    /// [`Tracer::trace`] over borrowed columns (zero copy in; the C++ API's path). The default copies
+    /// them into a [`RayBatch`]; backends that can read the slices directly override it, with results
+    /// identical to `trace` on the same rays.
+    fn trace_slices(&self, system: &SequentialSystem, rays: RaySlices<'_>) -> Result<TracedBatch> {
+        self.trace(system, &rays.to_batch())
+    }
 }
 
 /// Outcome of one ray.
