@@ -22,7 +22,7 @@
 //
 // Not yet exposed (the Rust capabilities are being built; they are added here when they land, see
 // cpp/bridge/src/lib.rs "Extension points"): rendering an acquisition into a caller buffer, Jacobians,
-// and the Embree backends (the names "embree-user"/"embree-mesh" are accepted and raise "not available").
+// and the Embree backends ("embree-user[:f64|:none]", "embree-mesh[:SAG_UM][:f64|:none]").
 #pragma once
 
 #include "rust/cxx.h"  // cxx's runtime (rust::Error, …); shares include guards with the generated header
@@ -338,7 +338,7 @@ class System {
 };
 
 inline std::vector<std::string> preset_names() { return detail::strings(ffi::preset_names()); }
-/// Every backend name trace() accepts (some may raise "not available" in this build).
+/// Every backend name trace() accepts (Embree ones take options, see diffcassi::tracer::BackendConfig).
 inline std::vector<std::string> backend_names() { return detail::strings(ffi::backend_names()); }
 inline std::string version() { return detail::string(ffi::version()); }
 /// "chief", "marginal", "hexapolar:R", "grid:N", "grid-step:S", "random:N:SEED".
