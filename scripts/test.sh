@@ -21,7 +21,10 @@ cargo check --release --no-default-features --lib --bins --tests
 # of the static and shared libraries, the example, the C++ tests and the bench, all run by ctest.
 cargo test --release -p diffcassi-cpp
 export CTEST_OUTPUT_ON_FAILURE=1 CMAKE_BUILD_PARALLEL_LEVEL="${CMAKE_BUILD_PARALLEL_LEVEL:-2}"
-cmake -S cpp -B build-cpp && cmake --build build-cpp && ctest --test-dir build-cpp
+# (One command per line: under `set -e` a failure inside an `a && b && c` list would not stop the script.)
+cmake -S cpp -B build-cpp
+cmake --build build-cpp
+ctest --test-dir build-cpp
 # The build refreshes the generated header in cpp/include; a difference from the committed copy means the
 # committed header is stale.
 if git rev-parse --is-inside-work-tree >/dev/null 2>&1 && ! git diff --quiet -- cpp/include; then
