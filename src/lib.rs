@@ -19,6 +19,7 @@
 //! ```
 pub mod analysis;
 pub mod cli;
+pub mod diff;
 pub mod error;
 pub mod geometry;
 pub mod io;
