@@ -9,6 +9,7 @@
 //! ```
 mod args;
 mod commands;
+mod design;
 
 pub use args::*;
 use clap::Parser;

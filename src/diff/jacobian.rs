@@ -174,3 +174,86 @@ impl DiffSystem {
         Ok(JacobianBatch { traced, params: self.params.iter().map(|p| p.name()).collect(), jac, finite })
     }
 }
+
+/// The incidence of a ray on one path step, with derivatives: the data of a total-internal-reflection
+/// margin.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Incidence {
+    /// Surface index of the step.
+    pub surface: usize,
+    /// cos θᵢ (normal oriented along the ray) and ∂/∂θ_k.
+    pub cos_i: f64,
+    pub d_cos_i: Vec<f64>,
+    /// Indices before and after, and their derivatives.
+    pub n1: f64,
+    pub n2: f64,
+    pub dn1: Vec<f64>,
+    pub dn2: Vec<f64>,
+}
+
+impl DiffSystem {
+    /// Surface index of each path step.
+    pub fn step_surfaces(&self) -> Vec<usize> {
+        self.system.path.iter().map(|s| s.surface).collect()
+    }
+
+    /// For each ray, its incidence on path step `step` (`None` if it does not get there).
+    pub fn incidence(&self, rays: &RayBatch, step: usize) -> Result<Vec<Option<Incidence>>> {
+        let kk = self.k();
+        let path = &self.system.path;
+        if step >= path.len() {
+            return Err(Error::invalid(format!("incidence: step {step} of a {}-step path", path.len())));
+        }
+        let mut out = Vec::with_capacity(rays.len());
+        for i in 0..rays.len() {
+            let (n, dn) = self.index_tangents(rays.wavelength_nm[i])?;
+            let o = rays.origin(i);
+            let d0 = rays.direction(i);
+            let len = d0.length();
+            let (mut dp, mut dd) = (vec![DVec3::ZERO; kk], vec![DVec3::ZERO; kk]);
+            if !(len > 0.0) {
+                out.push(None);
+                continue;
+            }
+            let Ok((p, d)) = trace_tangents(&path[..step], &self.steps[..step], &n, &dn, o, d0 / len, &mut dp, &mut dd) else {
+                out.push(None);
+                continue;
+            };
+            let (st, tan) = (&path[step], &self.steps[step]);
+            let pr = p - st.offset;
+            let (p1, d1) = (st.rotation * pr, st.rotation * d);
+            for k in 0..kk {
+                dp[k] = st.rotation * dp[k];
+                dd[k] = st.rotation * dd[k];
+            }
+            for &k in &tan.frame_active {
+                dp[k] += tan.rotation[k] * pr - st.rotation * tan.offset[k];
+                dd[k] += tan.rotation[k] * d;
+            }
+            let Ok(hit) = crate::surfaces::intersect(&st.shape, p1, d1) else {
+                out.push(None);
+                continue;
+            };
+            let local = super::hit::SurfaceLocal::at(&st.shape, hit.point);
+            let sgn = if d1.dot(hit.normal) < 0.0 { -1.0 } else { 1.0 };
+            let nrm = hit.normal * sgn;
+            let d_cos_i = (0..kk)
+                .map(|k| {
+                    let ht = local.tangent(d1, dp[k] + dd[k] * hit.t, &tan.shape[k]);
+                    dd[k].dot(nrm) + d1.dot(ht.normal * sgn)
+                })
+                .collect();
+            let s = st.surface;
+            out.push(Some(Incidence {
+                surface: s,
+                cos_i: d1.dot(nrm),
+                d_cos_i,
+                n1: n[s - 1],
+                n2: n[s],
+                dn1: dn[(s - 1) * kk..s * kk].to_vec(),
+                dn2: dn[s * kk..(s + 1) * kk].to_vec(),
+            }));
+        }
+        Ok(out)
+    }
+}
