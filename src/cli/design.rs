@@ -57,6 +57,9 @@ pub struct AmiciArgs {
     /// Adam iterations of the continuous-glass stage.
     #[arg(long, default_value_t = 400)]
     pub iterations: usize,
+    /// w_t of the final angle re-optimisation (the paper's 5e3 applies in the continuous stage).
+    #[arg(long = "final-thickness-weight", default_value_t = 500.0)]
+    pub final_thickness_weight: f64,
     /// AGF catalogue for the glass distance and the snapping (default: ../shared/reference/glass/SCHOTT.AGF
     /// when present, else the built-in glasses).
     #[arg(long = "glass-catalog")]
@@ -197,7 +200,13 @@ pub(super) fn design_cmd(a: DesignArgs) -> Result<()> {
 
 fn amici_cmd(a: AmiciArgs) -> Result<()> {
     let catalog = crate::design::design_catalog(a.glass_catalog.as_deref())?;
-    let opts = crate::design::AmiciOptions { seed: a.seed, iterations: a.iterations, ..Default::default() };
+    if !(a.final_thickness_weight.is_finite() && a.final_thickness_weight >= 0.0) {
+        return Err(Error::invalid(format!("--final-thickness-weight {}: must be finite and ≥ 0", a.final_thickness_weight)));
+    }
+    if a.iterations == 0 {
+        return Err(Error::invalid("--iterations 0: the continuous stage needs at least one Adam iteration"));
+    }
+    let opts = crate::design::AmiciOptions { seed: a.seed, iterations: a.iterations, final_thickness_weight: a.final_thickness_weight, ..Default::default() };
     let out = crate::design::design_amici(&catalog, &opts)?;
     out.print();
     if let Some(p) = &a.report {

@@ -69,6 +69,8 @@ pub struct AmiciLoss<'a> {
     pub target_dispersion_rad: f64,
     /// Loss grid points per side.
     pub grid: usize,
+    /// Weight of L_t (the paper's 5e3 by default).
+    pub thickness_weight: f64,
 }
 
 impl<'a> AmiciLoss<'a> {
@@ -81,7 +83,7 @@ impl<'a> AmiciLoss<'a> {
             }
         }
         let set = ParamSet::new(spec, catalog, free)?;
-        Ok(AmiciLoss { set, glass_map: if continuous { glass_map } else { None }, target_dispersion_rad, grid: 7 })
+        Ok(AmiciLoss { set, glass_map: if continuous { glass_map } else { None }, target_dispersion_rad, grid: 7, thickness_weight: WEIGHTS[3] })
     }
 
     /// Design vector → ParamSet values, and the diagonal d(value)/d(design).
@@ -193,16 +195,17 @@ impl<'a> AmiciLoss<'a> {
         }
         let max_eps = worst.0;
         push(w[1] * max_eps, worst.1.iter().map(|v| w[1] * v).collect(), &mut res, &mut jac);
-        // L_D: deviation of the centre wavelength's chief ray (radians), both planes.
-        push(w[2] * a_c[0], (0..kk).map(|k| w[2] * da_c[k][0]).collect(), &mut res, &mut jac);
-        push(w[2] * a_c[1], (0..kk).map(|k| w[2] * da_c[k][1]).collect(), &mut res, &mut jac);
+        // L_D: deviation of the centre wavelength's chief ray (mrad), both planes.
+        push(w[2] * 1e3 * a_c[0], (0..kk).map(|k| w[2] * 1e3 * da_c[k][0]).collect(), &mut res, &mut jac);
+        push(w[2] * 1e3 * a_c[1], (0..kk).map(|k| w[2] * 1e3 * da_c[k][1]).collect(), &mut res, &mut jac);
         let r_dev = (res[2], res[3]);
         // L_t = 2A1² + A2² (radians): residuals √2·A1, A2 in design units (u1 = A1°, u2 = A2°).
         let (a1, a2) = (u[1] * deg, u[2] * deg);
-        res.push(w[3] * 2f64.sqrt() * a1);
-        jac.extend((0..n).map(|c| if c == 1 { w[3] * 2f64.sqrt() * deg } else { 0.0 }));
-        res.push(w[3] * a2);
-        jac.extend((0..n).map(|c| if c == 2 { w[3] * deg } else { 0.0 }));
+        let wt = self.thickness_weight.sqrt();
+        res.push(wt * 2f64.sqrt() * a1);
+        jac.extend((0..n).map(|c| if c == 1 { wt * 2f64.sqrt() * deg } else { 0.0 }));
+        res.push(wt * a2);
+        jac.extend((0..n).map(|c| if c == 2 { wt * deg } else { 0.0 }));
         // L_g = w_g·it·Σ d²(glass, nearest catalogue glass).
         let mut lg = 0.0;
         if let Some(map) = self.glass_map {
@@ -239,7 +242,7 @@ impl<'a> AmiciLoss<'a> {
                 r_delta * r_delta,
                 res[1] * res[1],
                 r_dev.0 * r_dev.0 + r_dev.1 * r_dev.1,
-                WEIGHTS[3] * (2.0 * a1 * a1 + a2 * a2),
+                self.thickness_weight * (2.0 * a1 * a1 + a2 * a2),
                 lg,
                 (w[5] * sp).powi(2),
             ],
