@@ -19,7 +19,7 @@ pub struct JacobianBatch {
     pub traced: TracedBatch,
     /// The free parameters' names, in column order.
     pub params: Vec<String>,
-    /// `jac[(ray * 6 + c) * K + k]` = ∂(x, y, z, dir_x, dir_y, dir_z)[c] / ∂θ_k in the image frame
+    /// `jac[(ray * 6 + c) * K + k]` = ∂(component c of x, y, z, dir_x, dir_y, dir_z) / ∂θ_k in the image frame
     /// (mm or direction units per parameter unit). Zero for rays whose status is not `Ok`.
     pub jac: Vec<f64>,
     /// False for an `Ok` ray whose derivatives are not finite (grazing incidence, a kink); its row is zeroed.
