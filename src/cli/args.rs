@@ -36,6 +36,10 @@ pub enum Command {
     Bench(BenchArgs),
     /// Write a system (preset or file) as a TOML or JSON spec.
     ExportSpec(ExportArgs),
+    /// Optical design by exact derivatives (`design amici`: the paper's double-Amici prism).
+    Design(super::design::DesignArgs),
+    /// Recover a misalignment (e.g. the prism tilt) from another system's spot centroids.
+    Calibrate(super::design::CalibrateArgs),
 }
 
 /// Which system to use.

@@ -22,6 +22,8 @@ pub(super) fn run(command: Command) -> Result<()> {
         Command::Report(a) => report(a),
         Command::Bench(a) => bench(a),
         Command::ExportSpec(a) => export_spec(a),
+        Command::Design(a) => super::design::design_cmd(a),
+        Command::Calibrate(a) => super::design::calibrate_cmd(a),
     }
 }
 

@@ -9,6 +9,7 @@
 //! ```
 mod args;
 mod commands;
+mod design;
 
 pub use args::*;
 /// Text forms shared with other front ends (the C++ API parses pupil patterns the same way).
