@@ -220,16 +220,7 @@ impl DiffSystem {
                 continue;
             };
             let (st, tan) = (&path[step], &self.steps[step]);
-            let pr = p - st.offset;
-            let (p1, d1) = (st.rotation * pr, st.rotation * d);
-            for k in 0..kk {
-                dp[k] = st.rotation * dp[k];
-                dd[k] = st.rotation * dd[k];
-            }
-            for &k in &tan.frame_active {
-                dp[k] += tan.rotation[k] * pr - st.rotation * tan.offset[k];
-                dd[k] += tan.rotation[k] * d;
-            }
+            let (p1, d1) = super::kernel::enter_frame(st, tan, p, d, &mut dp, &mut dd);
             let Ok(hit) = crate::surfaces::intersect(&st.shape, p1, d1) else {
                 out.push(None);
                 continue;

@@ -35,6 +35,21 @@ impl StepTangent {
 /// (one per parameter; seeded by the caller). `n[i]` is the index after surface i and
 /// `dn[i * K + k]` its derivative with respect to parameter k.
 #[allow(clippy::too_many_arguments)]
+/// Into `step`'s frame (p ← R(p − o), d ← R d) with the tangents: dp ← R dp + dR (p − o) − R do,
+/// dd ← R dd + dR d for the parameters that move the frame.
+pub(crate) fn enter_frame(step: &PathStep, tan: &StepTangent, p: DVec3, d: DVec3, dp: &mut [DVec3], dd: &mut [DVec3]) -> (DVec3, DVec3) {
+    let pr = p - step.offset;
+    for k in 0..dp.len() {
+        dp[k] = step.rotation * dp[k];
+        dd[k] = step.rotation * dd[k];
+    }
+    for &k in &tan.frame_active {
+        dp[k] += tan.rotation[k] * pr - step.rotation * tan.offset[k];
+        dd[k] += tan.rotation[k] * d;
+    }
+    (step.rotation * pr, step.rotation * d)
+}
+
 pub(crate) fn trace_tangents(
     path: &[PathStep],
     tangents: &[StepTangent],
@@ -47,18 +62,7 @@ pub(crate) fn trace_tangents(
 ) -> Result<(DVec3, DVec3), (RayStatus, usize)> {
     let kk = dp.len();
     for (step, tan) in path.iter().zip(tangents) {
-        let pr = p - step.offset;
-        p = step.rotation * pr;
-        let d_in = d;
-        d = step.rotation * d;
-        for k in 0..kk {
-            dp[k] = step.rotation * dp[k];
-            dd[k] = step.rotation * dd[k];
-        }
-        for &k in &tan.frame_active {
-            dp[k] += tan.rotation[k] * pr - step.rotation * tan.offset[k];
-            dd[k] += tan.rotation[k] * d_in;
-        }
+        (p, d) = enter_frame(step, tan, p, d, dp, dd);
         let hit = match intersect(&step.shape, p, d) {
             Ok(h) => h,
             Err(IntersectFailure::Missed) => return Err((RayStatus::Missed, step.surface)),
