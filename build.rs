@@ -147,7 +147,7 @@ mod embree {
         }
         println!("cargo:rustc-link-lib=dylib=embree4");
         println!("cargo:rerun-if-changed={}", found.include.join("embree4/rtcore_config.h").display());
-        println!("cargo:rerun-if-changed=src/tracer/embree/shim.c");
+        println!("cargo:rerun-if-changed=src/tracer/embree/shim.cpp");
         println!("cargo:rustc-env=DIFFCASSI_EMBREE_VERSION={version}");
         println!("cargo:rustc-env=DIFFCASSI_EMBREE_FOUND_VIA={}", found.how);
 
@@ -169,14 +169,26 @@ mod embree {
             .unwrap_or_else(|e| panic!("bindgen over {include}/embree4/rtcore.h failed: {e} (is libclang-dev installed? `DIFFCASSI_EMBREE=install bash scripts/setup.sh`)"));
         bindings.write_to_file(out.join("embree_bindings.rs")).expect("write embree_bindings.rs");
 
-        // 2. The C shim for the `static inline` initialisers (compiled with the same headers).
-        cc::Build::new().file("src/tracer/embree/shim.c").include(&found.include).warnings(true).compile("diffcassi_embree_shim");
+        // 2. The C++ shim for the `static inline` initialisers and the RTCRayHitN accessors (same headers).
+        cc::Build::new().cpp(true).file("src/tracer/embree/shim.cpp").include(&found.include).warnings(true).compile("diffcassi_embree_shim");
 
         // 3. C layout probe: compile and run a program that prints the C layouts as Rust constants.
         let probe_src = out.join("embree_layout_probe.c");
         let probe_exe = out.join("embree_layout_probe");
         let mut c = String::from("#include <stdio.h>\n#include <stddef.h>\n#include <embree4/rtcore.h>\n#define P(n, v) printf(\"pub const %s: usize = %zu;\\n\", n, (size_t)(v))\nint main(void) {\n");
-        for ty in ["RTCRay", "RTCHit", "RTCRayHit", "RTCRay16", "RTCHit16", "RTCRayHit16", "RTCRayQueryContext", "RTCIntersectArguments"] {
+        for ty in [
+            "RTCRay",
+            "RTCHit",
+            "RTCRayHit",
+            "RTCRay16",
+            "RTCHit16",
+            "RTCRayHit16",
+            "RTCRayQueryContext",
+            "RTCIntersectArguments",
+            "RTCBounds",
+            "RTCBoundsFunctionArguments",
+            "RTCIntersectFunctionNArguments",
+        ] {
             c += &format!("  P(\"C_SIZEOF_{ty}\", sizeof(struct {ty}));\n  P(\"C_ALIGNOF_{ty}\", _Alignof(struct {ty}));\n");
         }
         for (ty, field) in [
@@ -194,6 +206,14 @@ mod embree {
             ("RTCIntersectArguments", "context"),
             ("RTCIntersectArguments", "filter"),
             ("RTCIntersectArguments", "intersect"),
+            ("RTCIntersectArguments", "flags"),
+            ("RTCBounds", "upper_x"),
+            ("RTCBoundsFunctionArguments", "geometryUserPtr"),
+            ("RTCBoundsFunctionArguments", "bounds_o"),
+            ("RTCIntersectFunctionNArguments", "valid"),
+            ("RTCIntersectFunctionNArguments", "geometryUserPtr"),
+            ("RTCIntersectFunctionNArguments", "rayhit"),
+            ("RTCIntersectFunctionNArguments", "N"),
         ] {
             c += &format!("  P(\"C_OFFSETOF_{ty}_{field}\", offsetof(struct {ty}, {field}));\n");
         }

@@ -5,21 +5,18 @@
 # only when they are missing. Silent when everything is already there; prints one line per
 # package installed. Later native dependencies are added by appending to APT_PACKAGES.
 #
-# Embree >= 4.3 and libclang (for the optional, not yet complete `embree` cargo feature) are installed only
-# when asked for with DIFFCASSI_EMBREE=install: the default build does not need them. Embree comes from the
-# distribution on Debian >= 13 / Ubuntu >= 24.04. On Debian 12 it can only come from Debian 13 ("trixie"): the script
-# first simulates `apt-get install -t trixie libembree-dev` against a temporary apt configuration and
-# only if that upgrades NO installed package (libc6, libstdc++6, gcc, dpkg, ...) does it add trixie as a
-# pinned source (/etc/apt/sources.list.d/diffcassi-trixie.sources, Pin-Priority 100 in
-# /etc/apt/preferences.d/diffcassi-trixie) and install from it. Otherwise it prints one warning line, records
-# what would have moved in /var/lib/diffcassi/embree-trixie.refused, and carries on: the default build does
-# not need Embree. (Measured on Debian 12.11: trixie's libembree4-4 needs libc6 >= 2.38 and libstdc++6 >= 14,
-# so it would upgrade 25 packages, libc6 2.36 -> 2.41 among them; the script therefore refuses there.)
-# Environment:
-#   DIFFCASSI_EMBREE unset          nothing Embree-related is done (default);
-#   DIFFCASSI_EMBREE=install        install libclang-dev and Embree >= 4.3 where that moves no installed package;
-#   DIFFCASSI_EMBREE=trixie-force   the same, accepting the upgrades trixie's Embree drags in (throwaway
-#                                   containers only).
+# Embree >= 4.3 (the default `embree` cargo feature) and libclang (bindgen) are installed too, unless
+# DIFFCASSI_EMBREE=skip (for `cargo build --no-default-features`, the analytic tracer alone). Embree comes from
+# the distribution on Debian >= 13 / Ubuntu >= 24.04. On Debian 12 it comes from Debian 13 ("trixie"): the script
+# adds trixie as an apt source (/etc/apt/sources.list.d/diffcassi-trixie.sources) pinned to priority 100
+# (/etc/apt/preferences.d/diffcassi-trixie), so nothing moves to trixie unless asked for, and runs
+# `apt-get install -t trixie libembree-dev`: only libembree and what it requires move. Measured on a fresh
+# Debian 12 (debootstrap bookworm, 2026-11-22): that upgrades 21 packages -- libc6 2.36 -> 2.41, libstdc++6 and the
+# gcc runtime libraries 12 -> 14, dpkg, base-files (so /etc/os-release then reads 13) -- and installs 8
+# (libembree4-4 4.3.3, TBB 2022); afterwards gcc-12/g++-12, cargo/rustc and the whole test suite
+# (including `--features embree`) still build and pass. Environment:
+#   DIFFCASSI_EMBREE unset or =install   install Embree >= 4.3 + libclang-dev (default);
+#   DIFFCASSI_EMBREE=skip                do nothing Embree-related (build with --no-default-features).
 #
 # The plot font is vendored in assets/fonts/, so fonts-dejavu-core is NOT needed.
 set -euo pipefail
@@ -27,14 +24,20 @@ set -euo pipefail
 APT_PACKAGES=(
     pkg-config
     build-essential
+    cmake # the C++ API's CMake package and tests (cpp/)
+    g++   # C++17 compiler for the C++ API (also in build-essential; listed because cpp/ needs it)
 )
-if [[ "${DIFFCASSI_EMBREE:-}" == install || "${DIFFCASSI_EMBREE:-}" == trixie-force ]]; then
+case "${DIFFCASSI_EMBREE:-install}" in
+    install) WANT_EMBREE=1 ;;
+    skip) WANT_EMBREE=0 ;;
+    *) echo "setup.sh: error: DIFFCASSI_EMBREE=${DIFFCASSI_EMBREE} (expected install or skip)" >&2; exit 1 ;;
+esac
+if ((WANT_EMBREE)); then
     APT_PACKAGES+=(libclang-dev) # bindgen, for the embree feature
 fi
 EMBREE_MIN_VERSION=4.3
 TRIXIE_SOURCES=/etc/apt/sources.list.d/diffcassi-trixie.sources
 TRIXIE_PREFERENCES=/etc/apt/preferences.d/diffcassi-trixie
-TRIXIE_REFUSED=/var/lib/diffcassi/embree-trixie.refused
 
 die() {
     echo "setup.sh: error: $*" >&2
@@ -69,7 +72,8 @@ embree_version() {
 
 # True when Embree >= EMBREE_MIN_VERSION should be installed and is not.
 embree_wanted() {
-    [[ "${DIFFCASSI_EMBREE:-}" == install || "${DIFFCASSI_EMBREE:-}" == trixie-force ]] || return 1
+    ((WANT_EMBREE)) || return 1
+    [[ -z "${EMBREE_DIR:-}" ]] || return 1 # the user points build.rs at their own Embree
     local v
     v=$(embree_version) || return 0
     ! dpkg --compare-versions "$v" ge "$EMBREE_MIN_VERSION"
@@ -97,8 +101,8 @@ fi
 
 export DEBIAN_FRONTEND=noninteractive
 log=$(mktemp)
-tmpapt=$(mktemp -d)
-trap 'rm -rf "$log" "$tmpapt"' EXIT
+
+trap 'rm -f "$log"' EXIT
 
 apt_install() { # apt_install <description> <apt-get install args...>
     local what=$1
@@ -132,8 +136,7 @@ embree_done() {
 }
 
 embree_unavailable() {
-    echo "setup.sh: warning: Embree >= $EMBREE_MIN_VERSION not installed: $*; the optional 'embree' cargo feature is unavailable (the default build does not need it)." >&2
-    exit 0
+    die "Embree >= $EMBREE_MIN_VERSION cannot be installed: $*. Set EMBREE_DIR to an Embree 4.3 install, or build without Embree (DIFFCASSI_EMBREE=skip, cargo --no-default-features)."
 }
 
 trixie_source() {
@@ -172,41 +175,9 @@ if [[ "$os_id" != debian || "$os_version" != 12 ]]; then
     embree_unavailable "no known source of libembree-dev >= $EMBREE_MIN_VERSION for $os_id $os_version (install Embree 4.3 and set EMBREE_DIR, see README)"
 fi
 
-# Debian 12: trixie, but only if it moves nothing that is already installed.
-libc_version=$(dpkg-query -W -f='${Version}' libc6 2>/dev/null || true)
-if [[ "${DIFFCASSI_EMBREE:-}" != trixie-force && -f "$TRIXIE_REFUSED" ]] \
-    && [[ "$(head -n1 "$TRIXIE_REFUSED")" == "libc6 $libc_version" ]]; then
-    embree_unavailable "trixie's libembree-dev would upgrade installed packages (list in $TRIXIE_REFUSED; delete it to re-check)"
-fi
-
-mkdir -p "$tmpapt/sources" "$tmpapt/preferences" "$tmpapt/lists/partial"
-for f in /etc/apt/sources.list.d/*.sources /etc/apt/sources.list.d/*.list; do
-    [[ -f "$f" && "$f" != "$TRIXIE_SOURCES" ]] && cp "$f" "$tmpapt/sources/"
-done
-[[ -f /etc/apt/sources.list ]] && cp /etc/apt/sources.list "$tmpapt/sources/00-sources.list"
-trixie_source >"$tmpapt/sources/diffcassi-trixie.sources"
-trixie_preferences >"$tmpapt/preferences/diffcassi-trixie"
-chmod -R a+rX "$tmpapt"
-tmp_opts=(-o Dir::Etc::SourceList=/dev/null -o "Dir::Etc::SourceParts=$tmpapt/sources"
-          -o "Dir::Etc::PreferencesParts=$tmpapt/preferences" -o "Dir::State::Lists=$tmpapt/lists")
-if ! "${SUDO[@]}" apt-get "${tmp_opts[@]}" update -qq >"$log" 2>&1; then
-    cat "$log" >&2
-    die "apt-get update with Debian 13 (trixie) added failed (needed to check libembree-dev)"
-fi
-if ! "${SUDO[@]}" apt-get "${tmp_opts[@]}" -s install -y --no-install-recommends -t trixie libembree-dev >"$log" 2>&1; then
-    cat "$log" >&2
-    die "simulated 'apt-get install -t trixie libembree-dev' failed"
-fi
-# "Inst pkg [installed-version] (new-version ...)": an upgrade of something already installed.
-upgrades=$(sed -n 's/^Inst \([^ ]*\) \[\([^]]*\)\] (\([^ ]*\) .*/\1 \2 -> \3/p' "$log")
-if [[ -n "$upgrades" && "${DIFFCASSI_EMBREE:-}" != trixie-force ]]; then
-    "${SUDO[@]}" mkdir -p "$(dirname "$TRIXIE_REFUSED")"
-    { echo "libc6 $libc_version"; echo "$upgrades"; } | "${SUDO[@]}" tee "$TRIXIE_REFUSED" >/dev/null
-    embree_unavailable "on Debian 12, 'apt-get install -t trixie libembree-dev' would upgrade $(echo "$upgrades" | wc -l) installed packages ($(echo "$upgrades" | grep -E '^(libc6|libstdc\+\+6|libgcc-s1) ' | tr '\n' ',' | sed 's/,$//; s/,/, /g'), ...; full list in $TRIXIE_REFUSED), which would replace the toolchain's runtime"
-fi
-
+# Debian 12: from Debian 13 (trixie), pinned to 100 so only libembree and what it requires move.
 trixie_source | "${SUDO[@]}" tee "$TRIXIE_SOURCES" >/dev/null
 trixie_preferences | "${SUDO[@]}" tee "$TRIXIE_PREFERENCES" >/dev/null
 apt_install "libembree-dev (Debian 13)" -t trixie libembree-dev
-"${SUDO[@]}" rm -f "$TRIXIE_REFUSED"
+"${SUDO[@]}" rm -rf /var/lib/diffcassi/embree-trixie.refused
 embree_done

@@ -9,20 +9,26 @@ if [[ ! -d ../shared ]]; then
     echo "test.sh: ../shared (Zemax reference data) not found; tests that need it will be skipped."
 fi
 
-# Unit, integration and CLI tests, benches compiled and run once in test mode, then the doc examples.
+# Unit, integration and CLI tests (the Embree backend included: it is a default feature), benches compiled and
+# run once in test mode, then the doc examples.
 cargo test --release --all-targets
 cargo test --release --doc
 
-# The Embree backend (optional feature `embree`): only where Embree >= 4.3 is installed (scripts/setup.sh
-# cannot install it on Debian 12 without upgrading libc6, see there) or EMBREE_DIR points at one.
-embree_found() {
-    [[ -n "${EMBREE_DIR:-}" ]] || pkg-config --atleast-version=4.3 embree4 2>/dev/null && return 0
-    local cfg
-    cfg=$(grep -s -h '^#define RTC_VERSION ' /usr/include/embree4/rtcore_config.h /usr/local/include/embree4/rtcore_config.h | head -n1)
-    [[ -n "$cfg" && "${cfg##* }" -ge 40300 ]]
-}
-if embree_found; then
-    cargo test --release --features embree --lib tracer::embree
-else
-    echo "test.sh: SKIP embree backend tests (Embree >= 4.3 not installed; see scripts/setup.sh)"
+# The analytic tracer alone must keep building without Embree (`--no-default-features`).
+cargo check --release --no-default-features --lib --bins --tests
+
+# The C++ API (cpp/, README "Using diffcassi from C++"): the bridge crate's Rust tests, then the CMake build
+# of the static and shared libraries, the example, the C++ tests and the bench, all run by ctest.
+cargo test --release -p diffcassi-cpp
+export CTEST_OUTPUT_ON_FAILURE=1 CMAKE_BUILD_PARALLEL_LEVEL="${CMAKE_BUILD_PARALLEL_LEVEL:-2}"
+# (One command per line: under `set -e` a failure inside an `a && b && c` list would not stop the script.)
+cmake -S cpp -B build-cpp
+cmake --build build-cpp
+ctest --test-dir build-cpp
+# The build refreshes the generated header in cpp/include; a difference from the committed copy means the
+# committed header is stale.
+if git rev-parse --is-inside-work-tree >/dev/null 2>&1 && ! git diff --quiet -- cpp/include; then
+    git diff --stat -- cpp/include
+    echo "test.sh: cpp/include is stale: the build regenerated the cxx bridge header; commit it" >&2
+    exit 1
 fi

@@ -18,11 +18,15 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 pub mod analysis;
+pub mod calibration;
 pub mod cli;
+pub mod design;
+pub mod diff;
 pub mod error;
 pub mod geometry;
 pub mod io;
 pub mod materials;
+pub mod optim;
 pub mod plot;
 pub mod presets;
 pub mod rays;

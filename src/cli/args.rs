@@ -42,6 +42,10 @@ pub enum Command {
     RenderDataset(super::render::RenderDatasetArgs),
     /// Time the paper-scale acquisition and dataset mode, printed as a table.
     BenchRender(super::render::BenchRenderArgs),
+    /// Optical design by exact derivatives (`design amici`: the paper's double-Amici prism).
+    Design(super::design::DesignArgs),
+    /// Recover a misalignment (e.g. the prism tilt) from another system's spot centroids.
+    Calibrate(super::design::CalibrateArgs),
 }
 
 /// Which system to use.
@@ -58,6 +62,24 @@ pub struct SystemArgs {
     pub glass_catalogs: Vec<PathBuf>,
 }
 
+/// Which tracer backend and its precision.
+#[derive(Args, Debug, Clone)]
+pub struct BackendArgs {
+    /// Tracer: analytic (exact f64, sequential), embree-user (Embree, analytic user geometry) or
+    /// embree-mesh (Embree, tessellated surfaces); the Embree ones trace non-sequentially.
+    #[arg(long, default_value = "analytic")]
+    pub backend: String,
+    /// Embree hit refinement: f64 (re-solve each hit exactly: equals the analytic tracer) or none (f32 hits).
+    #[arg(long, default_value = "f64")]
+    pub refine: String,
+    /// embree-mesh: tessellate to this maximum chord-sag error (µm) [default 1].
+    #[arg(long = "mesh-max-sag-um", conflicts_with = "mesh_segments")]
+    pub mesh_max_sag_um: Option<f64>,
+    /// embree-mesh: tessellate with this many segments (rings; 6× around circular apertures).
+    #[arg(long = "mesh-segments")]
+    pub mesh_segments: Option<usize>,
+}
+
 #[derive(Args, Debug)]
 pub struct InfoArgs {
     #[command(flatten)]
@@ -71,6 +93,8 @@ pub struct InfoArgs {
 pub struct SpotArgs {
     #[command(flatten)]
     pub system: SystemArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Wavelength(s) in nm: `520`, `450,520,650`, or `450:650:28` (first:last:count). Default: the system's.
     #[arg(long = "wavelength-nm", alias = "wavelengths-nm")]
     pub wavelength_nm: Option<String>,
@@ -98,6 +122,8 @@ pub struct SpotArgs {
 pub struct DistortionArgs {
     #[command(flatten)]
     pub system: SystemArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Wavelength (nm). Default: the primary wavelength.
     #[arg(long = "wavelength-nm")]
     pub wavelength_nm: Option<f64>,
@@ -122,6 +148,8 @@ pub struct DistortionArgs {
 pub struct DispersionArgs {
     #[command(flatten)]
     pub system: SystemArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Field point `X,Y` mm (default: the axis).
     #[arg(long = "field-mm", default_value = "0,0", allow_hyphen_values = true)]
     pub field_mm: String,
@@ -138,6 +166,8 @@ pub struct DispersionArgs {
 pub struct MappingArgs {
     #[command(flatten)]
     pub system: SystemArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     #[arg(long, default_value_t = 512)]
     pub height: usize,
     #[arg(long, default_value_t = 512)]
@@ -170,6 +200,10 @@ pub struct ReportArgs {
 pub struct BenchArgs {
     #[arg(long, default_value = "sp")]
     pub preset: String,
+    /// Backends to compare, comma-separated: analytic, embree-user[:f64|:none],
+    /// embree-mesh[:SAG_UM][:f64|:none] (defaults f64 refinement, 1 µm).
+    #[arg(long, default_value = "analytic")]
+    pub backends: String,
     /// Rays per wavelength.
     #[arg(long, default_value_t = 100_000)]
     pub rays: usize,

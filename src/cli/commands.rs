@@ -25,6 +25,8 @@ pub(super) fn run(command: Command) -> Result<()> {
         Command::Render(a) => super::render::render(a),
         Command::RenderDataset(a) => super::render::render_dataset(a),
         Command::BenchRender(a) => super::render::bench_render(a),
+        Command::Design(a) => super::design::design_cmd(a),
+        Command::Calibrate(a) => super::design::calibrate_cmd(a),
     }
 }
 
@@ -48,6 +50,22 @@ pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
         catalog.merge(GlassCatalog::from_agf_file(&path)?);
     }
     SequentialSystem::build_with_catalog(&spec, &catalog)
+}
+
+/// The tracer named by `--backend`, `--refine`, `--mesh-max-sag-um`, `--mesh-segments`.
+pub fn make_tracer(a: &BackendArgs) -> Result<Box<dyn Tracer>> {
+    let mut cfg: crate::tracer::BackendConfig = a.backend.parse()?;
+    cfg.refine = a.refine.parse()?;
+    if let Some(um) = a.mesh_max_sag_um {
+        cfg.mesh = crate::surfaces::MeshResolution::MaxSagErrorUm(um);
+    }
+    if let Some(n) = a.mesh_segments {
+        cfg.mesh = crate::surfaces::MeshResolution::Segments(n);
+    }
+    if cfg.backend == crate::tracer::Backend::Analytic && (a.mesh_max_sag_um.is_some() || a.mesh_segments.is_some() || a.refine != "f64") {
+        return Err(Error::invalid("--refine, --mesh-max-sag-um and --mesh-segments apply to the Embree backends only (--backend embree-user|embree-mesh)"));
+    }
+    cfg.build()
 }
 
 /// `520`, `450,520,650` or `450:650:28` (first:last:count) → wavelengths in nm.
@@ -280,7 +298,8 @@ fn trace(a: SpotArgs) -> Result<()> {
     }
     let pupil = pupil_points(&a)?;
     let rays = RayBatch::for_field(&system, fs[0], &pupil, ws[0])?;
-    let out = AnalyticTracer::default().trace(&system, &rays)?;
+    let tracer = make_tracer(&a.backend)?;
+    let out = tracer.trace(&system, &rays)?;
     let ok = out.ok_count();
     println!("traced {} rays of field ({}, {}) mm at {} nm: {} ok, {} failed", out.len(), fs[0][0], fs[0][1], ws[0], ok, out.len() - ok);
     if let Some(path) = &a.csv {
@@ -362,12 +381,11 @@ fn spot_plot(path: &Path, title: &str, spots: &[SpotDiagram], fields: &[[f64; 2]
     Ok(())
 }
 
-fn compute_spots(system: &SequentialSystem, fs: &[[f64; 2]], ws: &[f64], pupil: &[[f64; 2]]) -> Result<Vec<SpotDiagram>> {
-    let tracer = AnalyticTracer::default();
+fn compute_spots(system: &SequentialSystem, tracer: &dyn Tracer, fs: &[[f64; 2]], ws: &[f64], pupil: &[[f64; 2]]) -> Result<Vec<SpotDiagram>> {
     let mut spots = Vec::new();
     for f in fs {
         for &w in ws {
-            spots.push(analysis::spot_diagram(system, &tracer, *f, w, pupil)?);
+            spots.push(analysis::spot_diagram(system, tracer, *f, w, pupil)?);
         }
     }
     Ok(spots)
@@ -402,7 +420,7 @@ fn spot(a: SpotArgs) -> Result<()> {
     let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
     let fs = fields(&a.field_mm, &system)?;
     let pupil = pupil_points(&a)?;
-    let spots = compute_spots(&system, &fs, &ws, &pupil)?;
+    let spots = compute_spots(&system, make_tracer(&a.backend)?.as_ref(), &fs, &ws, &pupil)?;
     print_spot_table(&spots);
     if let Some(path) = &a.csv {
         write_spot_csv(path, &system, &spots)?;
@@ -463,7 +481,7 @@ fn distortion_plot(path: &Path, system: &SequentialSystem, g: &DistortionGrid, a
 fn distortion(a: DistortionArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let w = a.wavelength_nm.unwrap_or(system.primary_wavelength_nm());
-    let g = analysis::grid_distortion(&system, &AnalyticTracer::default(), w, a.grid, a.half_width_mm)?;
+    let g = analysis::grid_distortion(&system, make_tracer(&a.backend)?.as_ref(), w, a.grid, a.half_width_mm)?;
     let failed = g.points.iter().filter(|p| p.status != RayStatus::Ok).count();
     let max_disp_um = g.points.iter().filter(|p| p.status == RayStatus::Ok).map(|p| 1e3 * (p.real_x_mm - p.pred_x_mm).hypot(p.real_y_mm - p.pred_y_mm)).fold(0.0, f64::max);
     println!(
@@ -486,7 +504,7 @@ fn dispersion(a: DispersionArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let ws = parse_wavelengths(&a.wavelengths_nm)?;
     let field = parse_field(&a.field_mm)?;
-    let c = analysis::dispersion_curve(&system, &AnalyticTracer::default(), field, &ws)?;
+    let c = analysis::dispersion_curve(&system, make_tracer(&a.backend)?.as_ref(), field, &ws)?;
     println!("{}: field ({}, {}) mm, {}–{} nm: spatio-spectral spreading {:.2} µm ({:.1} px of 10 µm)", system.name(), field[0], field[1], ws[0], ws[ws.len() - 1], c.spread_um, c.spread_um / 10.0);
     if let Some(p) = &a.csv {
         let mut w = CsvWriter::new(p, &["wavelength_nm", "x_mm", "y_mm"])?;
@@ -508,7 +526,7 @@ fn mapping(a: MappingArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let ws = parse_wavelengths(&a.wavelengths_nm)?;
     let t0 = Instant::now();
-    let cube = analysis::mapping_cube(&system, &AnalyticTracer::default(), a.height, a.width, a.pitch_mm, &ws)?;
+    let cube = analysis::mapping_cube(&system, make_tracer(&a.backend)?.as_ref(), a.height, a.width, a.pitch_mm, &ws)?;
     let secs = t0.elapsed().as_secs_f64();
     let n = a.height * a.width * ws.len();
     println!("{}: mapping {}×{}×{} = {n} chief rays in {secs:.2} s ({:.2} M rays/s), {} did not arrive", system.name(), a.height, a.width, ws.len(), n as f64 / secs / 1e6, cube.invalid_count());
@@ -543,7 +561,7 @@ fn report(a: ReportArgs) -> Result<()> {
     let fs = system.spec.fields_mm.clone();
     let ws = system.spec.wavelengths_nm.clone();
     let pupil = PupilPattern::Hexapolar { rings: 16 }.points();
-    let spots = compute_spots(&system, &fs, &ws, &pupil)?;
+    let spots = compute_spots(&system, &AnalyticTracer::default(), &fs, &ws, &pupil)?;
     print_spot_table(&spots);
     write_spot_csv(&out.join("spots.csv"), &system, &spots)?;
     spot_plot(&out.join("spots.png"), &format!("{name} spot diagrams (hexapolar, 16 rings)"), &spots, &fs)?;
@@ -581,26 +599,54 @@ fn bench(a: BenchArgs) -> Result<()> {
     let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let ws = linspace(450.0, 650.0, a.wavelengths.max(1));
     let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000)?;
-    let tracer = AnalyticTracer::default();
+    let configs: Vec<crate::tracer::BackendConfig> = a.backends.split(',').map(str::parse).collect::<Result<_>>()?;
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-    println!("analytic f64 tracer, preset {}, {} rays ({} per wavelength × {} wavelengths), {} intersections per ray, best of {}", system.name(), batch.len(), a.rays, ws.len(), system.surfaces_per_ray(), a.repeat);
-    println!("| threads | seconds | M rays/s | M ray-surface intersections/s |");
-    println!("|---|---|---|---|");
+    let reference = AnalyticTracer::default().trace(&system, &batch)?;
+    println!(
+        "preset {}, {} rays ({} per wavelength × {} wavelengths, seeded pupil samples over the system's fields), {} sequential surfaces per ray, best of {}",
+        system.name(),
+        batch.len(),
+        a.rays,
+        ws.len(),
+        system.surfaces_per_ray(),
+        a.repeat
+    );
+    println!("| backend | threads | seconds | M rays/s | vs analytic | max error µm | rms error µm |");
+    println!("|---|---|---|---|---|---|---|");
     let mut thread_counts = vec![1];
     if cores > 1 {
         thread_counts.push(cores);
     }
-    for threads in thread_counts {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().map_err(|e| Error::invalid(e.to_string()))?;
-        let mut best = f64::INFINITY;
-        for _ in 0..a.repeat.max(1) {
-            let t = Instant::now();
-            let out = pool.install(|| tracer.trace(&system, &batch))?;
-            best = best.min(t.elapsed().as_secs_f64());
-            std::hint::black_box(out);
+    let mut analytic_rps: std::collections::HashMap<usize, f64> = std::collections::HashMap::new();
+    for cfg in &configs {
+        let tracer = cfg.build()?;
+        // Scene construction (Embree) is not part of the timing: build it once.
+        let out = tracer.trace(&system, &batch)?;
+        let (mut max, mut s2, mut n) = (0.0f64, 0.0, 0usize);
+        for i in 0..out.len() {
+            if out.status[i] == RayStatus::Ok && reference.status[i] == RayStatus::Ok {
+                let e = 1e3 * (out.x[i] - reference.x[i]).hypot(out.y[i] - reference.y[i]);
+                max = max.max(e);
+                s2 += e * e;
+                n += 1;
+            }
         }
-        let rps = batch.len() as f64 / best;
-        println!("| {threads} | {best:.3} | {:.2} | {:.1} |", rps / 1e6, rps * system.surfaces_per_ray() as f64 / 1e6);
+        for &threads in &thread_counts {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().map_err(|e| Error::invalid(e.to_string()))?;
+            let mut best = f64::INFINITY;
+            for _ in 0..a.repeat.max(1) {
+                let t = Instant::now();
+                let out = pool.install(|| tracer.trace(&system, &batch))?;
+                best = best.min(t.elapsed().as_secs_f64());
+                std::hint::black_box(out);
+            }
+            let rps = batch.len() as f64 / best;
+            if cfg.backend == crate::tracer::Backend::Analytic {
+                analytic_rps.insert(threads, rps);
+            }
+            let ratio = analytic_rps.get(&threads).map(|r| format!("{:.2}×", rps / r)).unwrap_or_else(|| "–".into());
+            println!("| {} | {threads} | {best:.3} | {:.2} | {ratio} | {max:.2e} | {:.2e} |", tracer.name(), rps / 1e6, (s2 / n.max(1) as f64).sqrt());
+        }
     }
     Ok(())
 }

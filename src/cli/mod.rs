@@ -11,8 +11,11 @@
 mod args;
 mod commands;
 pub mod render;
+mod design;
 
 pub use args::*;
+/// Text forms shared with other front ends (the C++ API parses pupil patterns the same way).
+pub use commands::{parse_pupil, parse_wavelengths};
 use clap::Parser;
 
 /// Entry point of the binary: parse, run, print errors; returns the process exit code

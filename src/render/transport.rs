@@ -41,12 +41,15 @@ pub struct RayStats {
     pub traced: u64,
     /// Reached the image surface.
     pub arrived: u64,
-    /// Stopped early, by status: missed, vignetted, TIR, no convergence, invalid input.
+    /// Stopped early, by status: missed, vignetted, TIR, no convergence, invalid input, absorbed, bounce limit.
     pub missed: u64,
     pub vignetted: u64,
     pub tir: u64,
     pub no_convergence: u64,
     pub invalid_input: u64,
+    /// Non-sequential backends only: absorbed by a mechanical wall, or over the bounce limit.
+    pub absorbed: u64,
+    pub bounce_limit: u64,
     /// Splat weight (in rays) that fell off the detector.
     pub off_detector: f64,
 }
@@ -60,6 +63,8 @@ impl RayStats {
         self.tir += o.tir;
         self.no_convergence += o.no_convergence;
         self.invalid_input += o.invalid_input;
+        self.absorbed += o.absorbed;
+        self.bounce_limit += o.bounce_limit;
         self.off_detector += o.off_detector;
     }
     fn count(&mut self, s: RayStatus) {
@@ -70,6 +75,8 @@ impl RayStats {
             RayStatus::TotalInternalReflection => self.tir += 1,
             RayStatus::NoConvergence => self.no_convergence += 1,
             RayStatus::InvalidInput => self.invalid_input += 1,
+            RayStatus::Absorbed => self.absorbed += 1,
+            RayStatus::BounceLimit => self.bounce_limit += 1,
         }
     }
     /// Fraction of the traced rays that reached the detector.

@@ -13,9 +13,11 @@
 //! ```
 mod aperture;
 mod intersect;
+mod patch;
 mod shape;
 mod tessellate;
 pub use aperture::*;
 pub use intersect::*;
+pub use patch::*;
 pub use shape::*;
 pub use tessellate::*;

@@ -1,5 +1,5 @@
 use super::kernel::trace_steps;
-use super::{RayStatus, TracedBatch, Tracer};
+use super::{RaySlices, RayStatus, TracedBatch, Tracer};
 use crate::error::Result;
 use crate::rays::RayBatch;
 use crate::system::SequentialSystem;
@@ -39,10 +39,12 @@ impl Tracer for AnalyticTracer {
     }
 
     fn trace(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<TracedBatch> {
-        if !rays.is_consistent() {
-            return Err(crate::error::Error::invalid("ray batch columns have different lengths"));
-        }
-        let table = index_table(system, &rays.wavelength_nm)?;
+        self.trace_slices(system, rays.as_slices()?)
+    }
+
+    /// The one implementation: reads the borrowed columns in place.
+    fn trace_slices(&self, system: &SequentialSystem, rays: RaySlices<'_>) -> Result<TracedBatch> {
+        let table = index_table(system, rays.wavelength_nm())?;
         let n = rays.len();
         let mut out = TracedBatch::zeroed(n);
         let chunk = self.chunk_size.max(1);

@@ -10,12 +10,16 @@
 //! assert!(out.x[0].abs() < 1e-6); // the primary chief ray lands on the image origin
 //! ```
 mod analytic;
+mod backend;
 pub mod kernel;
 #[cfg(feature = "embree")]
 pub mod embree;
+mod slices;
 mod traced;
 
 pub use analytic::*;
+pub use backend::*;
+pub use slices::*;
 pub use traced::*;
 
 use crate::error::Result;
@@ -30,6 +34,12 @@ pub trait Tracer: Send + Sync {
     /// totally reflect are classified in `status`; their positions are NaN-free (set to 0).
     /// Errors are for the batch as a whole (e.g. a wavelength outside a glass's range).
     fn trace(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<TracedBatch>;
+    /// [`Tracer::trace`] over borrowed columns (zero copy in; the C++ API's path). The default copies
+    /// them into a [`RayBatch`]; backends that can read the slices directly override it, with results
+    /// identical to `trace` on the same rays.
+    fn trace_slices(&self, system: &SequentialSystem, rays: RaySlices<'_>) -> Result<TracedBatch> {
+        self.trace(system, &rays.to_batch())
+    }
 }
 
 /// Outcome of one ray.
@@ -46,6 +56,11 @@ pub enum RayStatus {
     NoConvergence = 4,
     /// Non-finite or zero-length input ray.
     InvalidInput = 5,
+    /// Non-sequential tracers: absorbed by a side wall of a solid (a prism's side/top/bottom face, a lens
+    /// rim) — the ray left the optical path through a face that is not an optical surface.
+    Absorbed = 6,
+    /// Non-sequential tracers: more surface interactions than the tracer's bounce limit.
+    BounceLimit = 7,
 }
 
 impl RayStatus {
@@ -57,6 +72,8 @@ impl RayStatus {
             RayStatus::TotalInternalReflection => "tir",
             RayStatus::NoConvergence => "no_convergence",
             RayStatus::InvalidInput => "invalid_input",
+            RayStatus::Absorbed => "absorbed",
+            RayStatus::BounceLimit => "bounce_limit",
         }
     }
 }

@@ -1,8 +1,13 @@
-//! Embree 4.3 backend (feature `embree`). So far: raw bindings generated from the installed headers
-//! ([`sys`], with compile-time layout checks against the C compiler) and a small safe RAII wrapper
-//! ([`Device`], [`Geometry`], [`Scene`] → [`CommittedScene`], [`with_flush_denormals`]).
-//! The [`Tracer`](super::Tracer) implementation on top of it comes next.
+//! Embree 4.3 backend (feature `embree`, on by default): raw bindings generated from the installed headers
+//! ([`sys`], with compile-time layout checks against the C compiler), a small safe RAII wrapper
+//! ([`Device`], [`Geometry`], [`Scene`] → [`CommittedScene`], [`with_flush_denormals`]), the scene of solids
+//! built from a sequential system ([`OpticalScene`]) and the non-sequential [`EmbreeTracer`] implementing
+//! [`Tracer`](super::Tracer).
+mod scene;
 pub mod sys;
+mod tracer;
 mod wrapper;
 
+pub use scene::*;
+pub use tracer::*;
 pub use wrapper::*;

@@ -15,10 +15,15 @@ pub mod c_layout {
 pub const RTC_INVALID_GEOMETRY_ID: u32 = u32::MAX;
 
 extern "C" {
-    /// `rtcInitRayQueryContext` (static inline in the header), exported by src/tracer/embree/shim.c.
+    /// `rtcInitRayQueryContext` (static inline in the header), exported by src/tracer/embree/shim.cpp.
     pub fn diffcassi_rtcInitRayQueryContext(context: *mut RTCRayQueryContext);
-    /// `rtcInitIntersectArguments` (static inline in the header), exported by src/tracer/embree/shim.c.
+    /// `rtcInitIntersectArguments` (static inline in the header), exported by src/tracer/embree/shim.cpp.
     pub fn diffcassi_rtcInitIntersectArguments(args: *mut RTCIntersectArguments);
+    /// Lane `i` of a user-geometry callback's packet into `out` = org xyz, dir xyz, tnear, tfar; returns
+    /// the ray mask (shim.cpp, using the header's RTCRayN accessors).
+    pub fn diffcassi_user_ray(args: *const RTCIntersectFunctionNArguments, i: u32, out: *mut f32) -> u32;
+    /// Commit a hit at `t` with geometric normal `ng` on lane `i` (shim.cpp).
+    pub fn diffcassi_user_report_hit(args: *const RTCIntersectFunctionNArguments, i: u32, t: f32, ng_x: f32, ng_y: f32, ng_z: f32);
 }
 
 use core::mem::{align_of, offset_of, size_of};
@@ -51,6 +56,17 @@ const _: () = assert!(offset_of!(RTCRay16, tfar) == C_OFFSETOF_RTCRay16_tfar);
 const _: () = assert!(offset_of!(RTCIntersectArguments, context) == C_OFFSETOF_RTCIntersectArguments_context);
 const _: () = assert!(offset_of!(RTCIntersectArguments, filter) == C_OFFSETOF_RTCIntersectArguments_filter);
 const _: () = assert!(offset_of!(RTCIntersectArguments, intersect) == C_OFFSETOF_RTCIntersectArguments_intersect);
+const _: () = assert!(offset_of!(RTCIntersectArguments, flags) == C_OFFSETOF_RTCIntersectArguments_flags);
+const _: () = assert!(size_of::<RTCBounds>() == C_SIZEOF_RTCBounds);
+const _: () = assert!(offset_of!(RTCBounds, upper_x) == C_OFFSETOF_RTCBounds_upper_x);
+const _: () = assert!(size_of::<RTCBoundsFunctionArguments>() == C_SIZEOF_RTCBoundsFunctionArguments);
+const _: () = assert!(offset_of!(RTCBoundsFunctionArguments, geometryUserPtr) == C_OFFSETOF_RTCBoundsFunctionArguments_geometryUserPtr);
+const _: () = assert!(offset_of!(RTCBoundsFunctionArguments, bounds_o) == C_OFFSETOF_RTCBoundsFunctionArguments_bounds_o);
+const _: () = assert!(size_of::<RTCIntersectFunctionNArguments>() == C_SIZEOF_RTCIntersectFunctionNArguments);
+const _: () = assert!(offset_of!(RTCIntersectFunctionNArguments, valid) == C_OFFSETOF_RTCIntersectFunctionNArguments_valid);
+const _: () = assert!(offset_of!(RTCIntersectFunctionNArguments, geometryUserPtr) == C_OFFSETOF_RTCIntersectFunctionNArguments_geometryUserPtr);
+const _: () = assert!(offset_of!(RTCIntersectFunctionNArguments, rayhit) == C_OFFSETOF_RTCIntersectFunctionNArguments_rayhit);
+const _: () = assert!(offset_of!(RTCIntersectFunctionNArguments, N) == C_OFFSETOF_RTCIntersectFunctionNArguments_N);
 const _: () = assert!(RTC_INVALID_GEOMETRY_ID == C_RTC_INVALID_GEOMETRY_ID);
 
 // Embree 4.3 as built by Debian/Intel (RTC_MAX_INSTANCE_LEVEL_COUNT 1, RTC_GEOMETRY_INSTANCE_ARRAY, x86_64):

@@ -143,6 +143,13 @@ impl Device {
         env!("DIFFCASSI_EMBREE_VERSION")
     }
 
+    /// Whether this Embree build honours ray masks (`RTC_DEVICE_PROPERTY_RAY_MASK_SUPPORTED`; on by
+    /// default since Embree 4). The tracer relies on them to skip the surface a ray just left.
+    pub fn supports_ray_masks(&self) -> bool {
+        // SAFETY: live device; a property query has no side effects.
+        unsafe { sys::rtcGetDeviceProperty(self.inner.raw, sys::RTC_DEVICE_PROPERTY_RAY_MASK_SUPPORTED) != 0 }
+    }
+
     /// The raw handle (valid while `self` lives).
     pub fn raw(&self) -> sys::RTCDevice {
         self.inner.raw
@@ -158,11 +165,27 @@ impl Device {
     }
 }
 
-/// A committed Embree geometry (`RTCGeometry`). Currently triangle meshes.
-// TODO(issue 3): user geometry (analytic conics) comes with the backend proper.
+/// An analytic surface for Embree's user geometry (`RTC_GEOMETRY_TYPE_USER`, one primitive): the
+/// callbacks Embree calls during BVH build (`bounds`) and traversal (`intersect`).
+pub trait UserGeometry: Send + Sync {
+    /// Conservative axis-aligned bounds (lower, upper) of the primitive, scene coordinates.
+    fn bounds(&self) -> ([f32; 3], [f32; 3]);
+    /// The closest hit of the ray `org + t·dir` with `tnear <= t <= tfar` (t in units of `dir`): its `t`
+    /// and a (not necessarily unit) geometric normal, or `None`.
+    fn intersect(&self, org: [f32; 3], dir: [f32; 3], tnear: f32, tfar: f32) -> Option<(f32, [f32; 3])>;
+}
+
+/// What `geometryUserPtr` points at: kept alive by every [`Geometry`] and [`Scene`] that uses it.
+struct UserSlot {
+    object: Arc<dyn UserGeometry>,
+    mask: u32,
+}
+
+/// A committed Embree geometry (`RTCGeometry`): a triangle mesh or an analytic user geometry.
 pub struct Geometry {
     raw: sys::RTCGeometry,
     device: Device,
+    user: Option<Arc<UserSlot>>,
 }
 
 // SAFETY: a committed geometry is immutable here; Embree objects may be released from any thread.
@@ -196,7 +219,7 @@ impl Geometry {
             device.check(CTX)?;
             return Err(EmbreeError { code: EmbreeErrorCode::Unknown, message: "rtcNewGeometry returned NULL".into(), context: CTX.into() });
         }
-        let geom = Geometry { raw, device: device.clone() };
+        let geom = Geometry { raw, device: device.clone(), user: None };
         unsafe {
             let vb = sys::rtcSetNewGeometryBuffer(raw, sys::RTC_BUFFER_TYPE_VERTEX, 0, sys::RTC_FORMAT_FLOAT3, 12, vertices.len());
             device.check(CTX)?;
@@ -217,8 +240,91 @@ impl Geometry {
         Ok(geom)
     }
 
+    /// An analytic user geometry (one primitive) whose bounds and intersections come from `object`,
+    /// committed with geometry mask `mask` (a ray hits it only if `ray.mask & mask != 0`).
+    pub fn user(device: &Device, object: Arc<dyn UserGeometry>, mask: u32) -> Result<Self, EmbreeError> {
+        const CTX: &str = "creating a user geometry";
+        let (lo, hi) = object.bounds();
+        if !(lo.iter().chain(&hi).all(|c| c.is_finite()) && lo.iter().zip(&hi).all(|(l, h)| l <= h)) {
+            return Err(EmbreeError::invalid(CTX, format!("bounds {lo:?}..{hi:?} are not finite and ordered")));
+        }
+        // SAFETY: live device; owned by `geom` from here on.
+        let raw = unsafe { sys::rtcNewGeometry(device.raw(), sys::RTC_GEOMETRY_TYPE_USER) };
+        if raw.is_null() {
+            device.check(CTX)?;
+            return Err(EmbreeError { code: EmbreeErrorCode::Unknown, message: "rtcNewGeometry returned NULL".into(), context: CTX.into() });
+        }
+        let slot = Arc::new(UserSlot { object, mask });
+        let geom = Geometry { raw, device: device.clone(), user: Some(slot.clone()) };
+        // SAFETY: the user pointer stays valid while any Geometry/Scene holding `slot` lives, and Embree
+        // only calls back while a scene using this geometry is alive.
+        unsafe {
+            sys::rtcSetGeometryUserPrimitiveCount(raw, 1);
+            sys::rtcSetGeometryUserData(raw, Arc::as_ptr(&slot) as *mut std::ffi::c_void);
+            sys::rtcSetGeometryBoundsFunction(raw, Some(user_bounds), std::ptr::null_mut());
+            sys::rtcSetGeometryIntersectFunction(raw, Some(user_intersect));
+            sys::rtcSetGeometryMask(raw, mask);
+            sys::rtcCommitGeometry(raw);
+        }
+        device.check(CTX)?;
+        Ok(geom)
+    }
+
+    /// Sets the geometry mask (a ray hits this geometry only if `ray.mask & mask != 0`) and recommits.
+    pub fn with_mask(self, mask: u32) -> Result<Self, EmbreeError> {
+        // SAFETY: live geometry, not yet attached anywhere we would race with (we own it).
+        unsafe {
+            sys::rtcSetGeometryMask(self.raw, mask);
+            sys::rtcCommitGeometry(self.raw);
+        }
+        self.device.check("setting a geometry mask")?;
+        Ok(self)
+    }
+
     pub fn raw(&self) -> sys::RTCGeometry {
         self.raw
+    }
+}
+
+/// Embree's bounds callback for [`Geometry::user`].
+unsafe extern "C" fn user_bounds(args: *const sys::RTCBoundsFunctionArguments) {
+    // SAFETY: Embree passes valid arguments; geometryUserPtr is the UserSlot set in Geometry::user.
+    let a = &*args;
+    let slot = &*(a.geometryUserPtr as *const UserSlot);
+    let (lo, hi) = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| slot.object.bounds()))
+        .unwrap_or(([0.0; 3], [0.0; 3]));
+    let b = &mut *a.bounds_o;
+    b.lower_x = lo[0];
+    b.lower_y = lo[1];
+    b.lower_z = lo[2];
+    b.upper_x = hi[0];
+    b.upper_y = hi[1];
+    b.upper_z = hi[2];
+}
+
+/// Embree's intersect callback for [`Geometry::user`]: every valid lane whose mask matches the geometry's
+/// is intersected analytically; a closer hit within [tnear, tfar] is committed through the shim.
+unsafe extern "C" fn user_intersect(args: *const sys::RTCIntersectFunctionNArguments) {
+    // SAFETY: Embree passes valid arguments with `N` lanes; geometryUserPtr is our UserSlot.
+    let a = &*args;
+    let slot = &*(a.geometryUserPtr as *const UserSlot);
+    for i in 0..a.N {
+        if *a.valid.add(i as usize) == 0 {
+            continue;
+        }
+        let mut r = [0.0f32; 8];
+        let ray_mask = sys::diffcassi_user_ray(args, i, r.as_mut_ptr());
+        if ray_mask & slot.mask == 0 {
+            continue;
+        }
+        let hit = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            slot.object.intersect([r[0], r[1], r[2]], [r[3], r[4], r[5]], r[6], r[7])
+        }));
+        if let Ok(Some((t, ng))) = hit {
+            if t >= r[6] && t <= r[7] {
+                sys::diffcassi_user_report_hit(args, i, t, ng[0], ng[1], ng[2]);
+            }
+        }
     }
 }
 
@@ -241,6 +347,7 @@ unsafe impl Sync for SceneHandle {}
 /// A scene being built. Attach geometries, then [`Scene::commit`] it to trace.
 pub struct Scene {
     handle: SceneHandle,
+    user_slots: Vec<Arc<UserSlot>>,
 }
 
 impl Scene {
@@ -251,7 +358,7 @@ impl Scene {
             device.check("creating a scene")?;
             return Err(EmbreeError { code: EmbreeErrorCode::Unknown, message: "rtcNewScene returned NULL".into(), context: "creating a scene".into() });
         }
-        Ok(Scene { handle: SceneHandle { raw, _device: device.clone() } })
+        Ok(Scene { handle: SceneHandle { raw, _device: device.clone() }, user_slots: Vec::new() })
     }
 
     /// Attaches `geometry` (the scene keeps its own reference, so `geometry` may be dropped afterwards) and
@@ -263,7 +370,19 @@ impl Scene {
         // SAFETY: both live and from the same device.
         let id = unsafe { sys::rtcAttachGeometry(self.handle.raw, geometry.raw) };
         self.handle._device.check("attaching a geometry")?;
+        if let Some(slot) = &geometry.user {
+            self.user_slots.push(slot.clone());
+        }
         Ok(id)
+    }
+
+    /// `RTC_SCENE_FLAG_ROBUST`: watertight triangle intersection (no ray slips between two triangles
+    /// sharing an edge) at some speed cost. Needed by optical meshes, where rays on symmetry planes hit
+    /// mesh edges exactly.
+    pub fn set_robust(&mut self) -> Result<(), EmbreeError> {
+        // SAFETY: live, uncommitted scene.
+        unsafe { sys::rtcSetSceneFlags(self.handle.raw, sys::RTC_SCENE_FLAG_ROBUST) };
+        self.handle._device.check("setting RTC_SCENE_FLAG_ROBUST")
     }
 
     /// `rtcCommitScene`: builds the BVH. Consumes the scene, so it can no longer be modified.
@@ -271,7 +390,7 @@ impl Scene {
         // SAFETY: live scene.
         unsafe { sys::rtcCommitScene(self.handle.raw) };
         self.handle._device.check("committing the scene")?;
-        Ok(CommittedScene { handle: self.handle })
+        Ok(CommittedScene { handle: self.handle, _user_slots: self.user_slots })
     }
 }
 
@@ -283,11 +402,13 @@ pub struct Ray {
     pub dir: [f32; 3],
     pub tnear: f32,
     pub tfar: f32,
+    /// Ray mask: only geometries with `geometry mask & mask != 0` are hit (all by default).
+    pub mask: u32,
 }
 
 impl Ray {
     pub fn new(org: [f32; 3], dir: [f32; 3]) -> Self {
-        Ray { org, dir, tnear: 0.0, tfar: f32::INFINITY }
+        Ray { org, dir, tnear: 0.0, tfar: f32::INFINITY, mask: u32::MAX }
     }
 
     /// Whether Embree may be given this ray (finite origin and direction, non-zero direction,
@@ -332,7 +453,9 @@ fn intersect_args() -> sys::RTCIntersectArguments {
 
 /// A committed scene: immutable, `Send + Sync`, traceable from many threads at once.
 pub struct CommittedScene {
+    // Field order = drop order: the Embree scene is released before the user data it may call into.
     handle: SceneHandle,
+    _user_slots: Vec<Arc<UserSlot>>,
 }
 
 impl CommittedScene {
@@ -350,7 +473,7 @@ impl CommittedScene {
         rh.ray.dir_z = ray.dir[2];
         rh.ray.tnear = ray.tnear;
         rh.ray.tfar = ray.tfar;
-        rh.ray.mask = u32::MAX;
+        rh.ray.mask = ray.mask;
         rh.hit.geomID = INVALID_GEOMETRY_ID;
         rh.hit.primID = INVALID_GEOMETRY_ID;
         rh.hit.instID = [INVALID_GEOMETRY_ID; 1];
@@ -372,12 +495,18 @@ impl CommittedScene {
 
     /// `rtcIntersect16`: lanes with `valid[i] == false` (or an invalid ray, see [`Ray::is_valid`]) are not
     /// traced and come back as [`Hit::MISS`].
-    #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
     pub fn intersect16(&self, rays: &[Ray; 16], valid: &[bool; 16]) -> [Hit; 16] {
+        self.intersect16_with(rays, valid, false)
+    }
+
+    /// [`Self::intersect16`] with the `RTC_RAY_QUERY_FLAG_COHERENT` hint when `coherent` (rays of one
+    /// bundle: similar origins and directions).
+    #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
+    pub fn intersect16_with(&self, rays: &[Ray; 16], valid: &[bool; 16], coherent: bool) -> [Hit; 16] {
         let mut out = [Hit::MISS; 16];
         let mut mask = Valid16([0; 16]);
         // RTCRayHit16 is 64-byte aligned by its bindgen type (checked against C in sys.rs).
-        let mut rh = Box::<sys::RTCRayHit16>::default();
+        let mut rh = sys::RTCRayHit16::default();
         for i in 0..16 {
             let r = &rays[i];
             mask.0[i] = if valid[i] && r.is_valid() { -1 } else { 0 };
@@ -389,7 +518,7 @@ impl CommittedScene {
             rh.ray.dir_z[i] = r.dir[2];
             rh.ray.tnear[i] = if mask.0[i] != 0 { r.tnear } else { 0.0 };
             rh.ray.tfar[i] = if mask.0[i] != 0 { r.tfar } else { -1.0 };
-            rh.ray.mask[i] = u32::MAX;
+            rh.ray.mask[i] = r.mask;
             rh.hit.geomID[i] = INVALID_GEOMETRY_ID;
             rh.hit.primID[i] = INVALID_GEOMETRY_ID;
             rh.hit.instID[0][i] = INVALID_GEOMETRY_ID;
@@ -397,10 +526,13 @@ impl CommittedScene {
         if mask.0.iter().all(|&m| m == 0) {
             return out;
         }
-        debug_assert_eq!((&*rh as *const sys::RTCRayHit16 as usize) % 64, 0);
+        debug_assert_eq!((&rh as *const sys::RTCRayHit16 as usize) % 64, 0);
         let mut args = intersect_args();
+        if coherent {
+            args.flags = sys::RTC_RAY_QUERY_FLAG_COHERENT;
+        }
         // SAFETY: committed scene; valid mask and ray/hit packet 64-byte aligned and initialised.
-        unsafe { sys::rtcIntersect16(mask.0.as_ptr(), self.handle.raw, &mut *rh, &mut args) };
+        unsafe { sys::rtcIntersect16(mask.0.as_ptr(), self.handle.raw, &mut rh, &mut args) };
         for i in 0..16 {
             if mask.0[i] != 0 && rh.hit.geomID[i] != INVALID_GEOMETRY_ID {
                 out[i] = Hit {

@@ -1,0 +1,87 @@
+//! Reference values for the C++ bit-identity test (`cpp/tests/test_bitwise.cpp`), computed with the Rust
+//! API only (`diffcassi`, not this bridge) in a separate process: for each preset, a ray batch (seeded
+//! workload plus rays that fail in each way) and its trace, a 13×13 grid distortion, a mapping cube and a
+//! spot diagram. Every f64 is written as its IEEE-754 bit pattern in hex, so the C++ side compares bits.
+//!
+//! ```text
+//! cargo run --release -p diffcassi-cpp --example cpp_reference -- target/cpp_reference.txt
+//! ```
+//! Format: whitespace-separated tokens, a keyword before each record (see `cpp/tests/reference.hpp`).
+use diffcassi::analysis;
+use diffcassi::prelude::*;
+use glam::DVec3;
+use std::fmt::Write as _;
+
+fn hex(v: f64) -> String {
+    format!("{:016x}", v.to_bits())
+}
+
+/// The batch: a seeded workload over three wavelengths, rays aimed outside the pupil (vignetted or
+/// missed), a ray pointing backwards, a non-finite origin and a zero direction.
+fn batch(sys: &SequentialSystem) -> diffcassi::Result<RayBatch> {
+    let mut b = RayBatch::seeded_workload(sys, 200, &[450.0, 520.0, 650.0], 11)?;
+    b.extend(&RayBatch::for_field(sys, [2.5, 2.5], &[[3.0, 0.0], [0.0, -3.0], [-2.0, 2.0], [20.0, 0.0], [0.0, 40.0], [-60.0, 0.0], [200.0, 200.0], [1000.0, 0.0]], 520.0)?);
+    let (o, d) = (b.origin(0), b.direction(0));
+    b.push(o, -d, 520.0);
+    b.push(DVec3::new(f64::NAN, 0.0, 0.0), d, 520.0);
+    b.push(o, DVec3::ZERO, 650.0);
+    Ok(b)
+}
+
+fn main() -> diffcassi::Result<()> {
+    let path = std::env::args().nth(1).unwrap_or_else(|| "cpp_reference.txt".into());
+    let tracer = AnalyticTracer::default();
+    let mut s = String::from("diffcassi-cpp-reference 1\n");
+    for preset in diffcassi::presets::NAMES {
+        let sys = SequentialSystem::build(&diffcassi::presets::spec(preset)?)?;
+        writeln!(s, "case {preset}").unwrap();
+
+        let rays = batch(&sys)?;
+        let out = tracer.trace(&sys, &rays)?;
+        writeln!(s, "rays {}", rays.len()).unwrap();
+        for i in 0..rays.len() {
+            let (o, d) = (rays.origin(i), rays.direction(i));
+            writeln!(s, "{} {} {} {} {} {} {}", hex(o.x), hex(o.y), hex(o.z), hex(d.x), hex(d.y), hex(d.z), hex(rays.wavelength_nm[i])).unwrap();
+        }
+        writeln!(s, "traced {} ok {}", out.len(), out.ok_count()).unwrap();
+        for i in 0..out.len() {
+            writeln!(s, "{} {} {} {} {} {} {} {}", hex(out.x[i]), hex(out.y[i]), hex(out.z[i]), hex(out.dir_x[i]), hex(out.dir_y[i]), hex(out.dir_z[i]), out.status[i] as u8, out.surface[i]).unwrap();
+        }
+
+        let (w, n, half) = (450.0, 13, 2.5);
+        let g = analysis::grid_distortion(&sys, &tracer, w, n, half)?;
+        writeln!(s, "distortion {} {n} {}", hex(w), hex(half)).unwrap();
+        writeln!(s, "{} {} {} {} {} {} {}", hex(g.reference_mm[0]), hex(g.reference_mm[1]), hex(g.abcd[0]), hex(g.abcd[1]), hex(g.abcd[2]), hex(g.abcd[3]), hex(g.max_distortion_pct)).unwrap();
+        for p in &g.points {
+            writeln!(
+                s,
+                "{} {} {} {} {} {} {} {} {} {}",
+                p.i, p.j, hex(p.x_field_mm), hex(p.y_field_mm), hex(p.real_x_mm), hex(p.real_y_mm), hex(p.pred_x_mm), hex(p.pred_y_mm), hex(p.distortion_pct), p.status as u8
+            )
+            .unwrap();
+        }
+
+        let (h, wd, pitch) = (9, 11, 0.25);
+        let wl = analysis::linspace(450.0, 650.0, 4);
+        let m = analysis::mapping_cube(&sys, &tracer, h, wd, pitch, &wl)?;
+        writeln!(s, "mapping {h} {wd} {} {}", hex(pitch), wl.len()).unwrap();
+        writeln!(s, "{}", wl.iter().map(|v| hex(*v)).collect::<Vec<_>>().join(" ")).unwrap();
+        for k in 0..m.valid.len() {
+            writeln!(s, "{} {} {}", hex(m.positions_mm[2 * k]), hex(m.positions_mm[2 * k + 1]), m.valid[k]).unwrap();
+        }
+
+        let pupil = PupilPattern::Hexapolar { rings: 6 }.points();
+        let sp = analysis::spot_diagram(&sys, &tracer, [2.5, 0.0], 450.0, &pupil)?;
+        let st = sp.stats.expect("the reference spot has arrived rays");
+        writeln!(s, "spot {} {} {} {}", hex(sp.field_mm[0]), hex(sp.field_mm[1]), hex(sp.wavelength_nm), pupil.len()).unwrap();
+        for (k, p) in pupil.iter().enumerate() {
+            writeln!(s, "{} {} {} {} {}", hex(p[0]), hex(p[1]), hex(sp.x_mm[k]), hex(sp.y_mm[k]), sp.status[k] as u8).unwrap();
+        }
+        let chief = sp.chief_mm.expect("the reference spot's chief ray arrives");
+        writeln!(s, "{} {} {} {} {} {} {} {}", st.count, hex(st.centroid_mm[0]), hex(st.centroid_mm[1]), hex(st.rms_radius_um), hex(st.geo_radius_um), hex(chief[0]), hex(chief[1]), hex(sp.rms_radius_chief_um.unwrap_or(0.0))).unwrap();
+    }
+    s.push_str("end\n");
+    diffcassi::io::write_atomic(std::path::Path::new(&path), s.as_bytes())?;
+    eprintln!("wrote {path}");
+    Ok(())
+}

@@ -1,0 +1,263 @@
+//! # diffcassi-cpp: the C++ API of diffcassi, through a [`cxx`] bridge
+//!
+//! C++ tools load a system (preset, spec file or spec string), list its surfaces and wavelengths, trace
+//! struct-of-arrays batches with a named backend (zero copy in: the C++ columns are read in place; one
+//! allocation out: the tracer's own result columns, viewed from C++ without copying), and run the spot,
+//! grid-distortion and mapping-cube analyses. Rust errors arrive in C++ as exceptions carrying the Rust
+//! message (`rust::Error`, rethrown as `diffcassi::Error` by the wrapper header).
+//!
+//! This crate is a workspace member of its own (`cpp/bridge`) so that the main crate and its `build.rs`
+//! stay free of C++; `cargo build -p diffcassi-cpp` produces `libdiffcassi_cpp.a`, and `cpp/CMakeLists.txt`
+//! turns it into the installed static and shared libraries. C++ code includes
+//! `cpp/include/diffcassi/diffcassi.hpp` (RAII, span-like views, exceptions) or the raw generated header
+//! `cpp/include/diffcassi/bridge.h` (written by `build.rs`; `scripts/test.sh` fails if the committed copy
+//! is stale).
+//!
+//! Used from Rust (the same calls C++ makes):
+//! ```
+//! let sys = diffcassi_cpp::load_preset("sp")?;
+//! let grid = sys.distortion_grid("analytic", 520.0, 3, 2.5)?;
+//! assert_eq!(grid.points.len(), 9);
+//! let err = sys.trace("warp-drive", &[], &[], &[], &[], &[], &[], &[]).err().unwrap();
+//! assert!(err.to_string().contains("unknown backend `warp-drive`"));
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+//!
+//! ## Thread safety
+//! A loaded [`System`] is immutable: every method takes `&self`, the type is `Send + Sync` (checked at
+//! compile time below), and traces from several C++ threads on one `System` run concurrently on rayon's
+//! global pool with results identical to sequential calls (each ray is independent; see
+//! `cpp/tests/test_threads.cpp`). The only shared mutable state is the per-system backend cache, behind a
+//! mutex held just long enough to look a backend up. Result objects (`Traced`, `Spot`, `Mapping`, `Rays`)
+//! are owned values: read them from any thread, move them between threads.
+//!
+//! ## Extension points (not exposed yet)
+//! - **Rendering** an acquisition into a caller-visible buffer (issue 5, `diffcassi::render`, in progress
+//!   elsewhere): add `fn render_acquisition(self: &System, …, out: &mut [f32]) -> Result<()>` to the
+//!   bridge below, writing into the C++ buffer, and a `System::render_into` wrapper in `diffcassi.hpp`.
+//! - **Jacobians** (issue 4, `diffcassi::diff`, in progress elsewhere): add
+//!   `fn trace_jacobian(self: &System, parameters: &[String], …) -> Result<Box<Jacobian>>` returning
+//!   column views like [`Traced`].
+//! - **Backends**: every backend name goes through [`backend::tracer_for`] (`analytic`,
+//!   `embree-user[:f64|:none]`, `embree-mesh[:SAG_UM][:f64|:none]`).
+//!
+//! None of these is stubbed: they do not exist in the C++ API until the Rust capability does.
+
+pub mod backend;
+mod results;
+mod system;
+
+pub use results::{Mapping, Rays, Spot, Traced};
+pub use system::{load_preset, load_spec_file, load_spec_string, System};
+
+use results::{backend_names, linspace, preset_names, pupil_points, version};
+
+#[cxx::bridge(namespace = "diffcassi::ffi")]
+pub mod ffi {
+    /// One row of the resolved Lens Data Editor (pickups and solves evaluated). Lengths mm, angles degrees.
+    #[derive(Clone, Debug)]
+    struct SurfaceInfo {
+        index: usize,
+        /// "Standard", "Even Asphere", "Paraxial", "Coordinate Break".
+        kind: String,
+        comment: String,
+        is_stop: bool,
+        /// Glass after the surface; empty for air.
+        material: String,
+        /// Radius of curvature; +infinity for a flat surface (Zemax shows "Infinity").
+        radius_mm: f64,
+        thickness_mm: f64,
+        conic: f64,
+        /// Paraxial surface focal length (0 for other kinds).
+        focal_length_mm: f64,
+        /// Semi-diameter (given or automatic); `has_semi_diameter` false when unknown (then 0).
+        semi_diameter_mm: f64,
+        has_semi_diameter: bool,
+        /// Coordinate Break decenters and tilts (0 for other kinds), and its order flag.
+        decenter_x_mm: f64,
+        decenter_y_mm: f64,
+        tilt_x_deg: f64,
+        tilt_y_deg: f64,
+        tilt_z_deg: f64,
+        order: u8,
+        /// The surface's local frame origin in global coordinates.
+        vertex_global_mm: [f64; 3],
+    }
+
+    /// Spot statistics about the centroid (`valid` false when no ray arrived; then all 0).
+    #[derive(Clone, Copy, Debug)]
+    struct SpotStats {
+        valid: bool,
+        count: usize,
+        centroid_x_mm: f64,
+        centroid_y_mm: f64,
+        rms_radius_um: f64,
+        geo_radius_um: f64,
+    }
+
+    /// One point of a Zemax-style Grid Distortion (see `diffcassi::analysis::DistortionPoint`).
+    #[derive(Clone, Copy, Debug)]
+    struct DistortionPoint {
+        i: i32,
+        j: i32,
+        x_field_mm: f64,
+        y_field_mm: f64,
+        real_x_mm: f64,
+        real_y_mm: f64,
+        pred_x_mm: f64,
+        pred_y_mm: f64,
+        distortion_pct: f64,
+        /// `diffcassi::RayStatus` as u8 (0 ok, 1 missed, 2 vignetted, 3 tir, 4 no_convergence, 5 invalid_input).
+        status: u8,
+    }
+
+    /// A grid distortion at one wavelength.
+    #[derive(Clone, Debug)]
+    struct DistortionGrid {
+        wavelength_nm: f64,
+        /// Image of the on-axis field (Zemax's Xref, Yref), mm.
+        reference_mm: [f64; 2],
+        /// Predicted-coordinate matrix [A, B, C, D].
+        abcd: [f64; 4],
+        max_distortion_pct: f64,
+        /// n × n points, x-major (Zemax's listing order).
+        points: Vec<DistortionPoint>,
+    }
+
+    /// Normalised pupil points (px, py) of a pattern.
+    #[derive(Clone, Debug)]
+    struct PupilPoints {
+        px: Vec<f64>,
+        py: Vec<f64>,
+    }
+
+    extern "Rust" {
+        /// A loaded, immutable, thread-safe system.
+        type System;
+        /// Rays made by the library (aimed as the system says); columns viewable from C++.
+        type Rays;
+        /// A traced batch: image-surface positions/directions, status, stop surface per ray.
+        type Traced;
+        /// A spot diagram.
+        type Spot;
+        /// A scene → detector mapping cube.
+        type Mapping;
+
+        // ---- loading (errors: unknown preset, unreadable/malformed spec, unknown glass, …)
+        fn load_preset(name: &str) -> Result<Box<System>>;
+        /// `.toml`, `.json` (our format), `.yml` (the paper's), `.csv` (Zemax prescription).
+        fn load_spec_file(path: &str) -> Result<Box<System>>;
+        /// `format`: "toml", "json" or "auto" (JSON if the text starts with `{`); `source_name` names the
+        /// text in error messages.
+        fn load_spec_string(text: &str, format: &str, source_name: &str) -> Result<Box<System>>;
+        fn preset_names() -> Vec<String>;
+        /// Every backend name `trace` accepts (some may be unavailable in this build).
+        fn backend_names() -> Vec<String>;
+        fn version() -> String;
+        /// `chief`, `marginal`, `hexapolar:R`, `grid:N`, `grid-step:S`, `random:N:SEED`.
+        fn pupil_points(pattern: &str) -> Result<PupilPoints>;
+        /// `count` evenly spaced values from `first` to `last` (inclusive).
+        fn linspace(first: f64, last: f64, count: usize) -> Vec<f64>;
+
+        // ---- system data
+        fn name(self: &System) -> &str;
+        fn description(self: &System) -> &str;
+        fn surfaces(self: &System) -> Vec<SurfaceInfo>;
+        fn surface_count(self: &System) -> usize;
+        fn stop_index(self: &System) -> usize;
+        fn wavelengths_nm(self: &System) -> &[f64];
+        fn primary_wavelength_nm(self: &System) -> f64;
+        /// Field points, interleaved (x0, y0, x1, y1, …), mm.
+        fn fields_mm(self: &System) -> Vec<f64>;
+        /// Ray–surface intersections per traced ray.
+        fn surfaces_per_ray(self: &System) -> usize;
+        /// The resolved spec in our TOML / JSON format.
+        fn to_toml(self: &System) -> Result<String>;
+        fn to_json(self: &System) -> Result<String>;
+
+        // ---- rays
+        fn rays_for_field(self: &System, field_x_mm: f64, field_y_mm: f64, px: &[f64], py: &[f64], wavelength_nm: f64) -> Result<Box<Rays>>;
+        fn chief_rays(self: &System, field_x_mm: &[f64], field_y_mm: &[f64], wavelength_nm: f64) -> Result<Box<Rays>>;
+        fn seeded_workload(self: &System, rays_per_wavelength: usize, wavelengths_nm: &[f64], seed: u64) -> Result<Box<Rays>>;
+
+        // ---- tracing (zero copy in, one allocation out)
+        #[allow(clippy::too_many_arguments)]
+        fn trace(
+            self: &System,
+            backend: &str,
+            origin_x: &[f64],
+            origin_y: &[f64],
+            origin_z: &[f64],
+            dir_x: &[f64],
+            dir_y: &[f64],
+            dir_z: &[f64],
+            wavelength_nm: &[f64],
+        ) -> Result<Box<Traced>>;
+        /// Trace library-made rays (no copy either way).
+        fn trace_rays(self: &System, backend: &str, rays: &Rays) -> Result<Box<Traced>>;
+        /// Bench helper: time `reps` traces of `rays` natively in Rust (no FFI inside the loop); seconds per trace.
+        fn time_rust_trace(self: &System, backend: &str, rays: &Rays, reps: usize) -> Result<Vec<f64>>;
+
+        // ---- analyses
+        #[allow(clippy::too_many_arguments)]
+        fn spot_diagram(self: &System, backend: &str, field_x_mm: f64, field_y_mm: f64, wavelength_nm: f64, px: &[f64], py: &[f64]) -> Result<Box<Spot>>;
+        fn distortion_grid(self: &System, backend: &str, wavelength_nm: f64, n: usize, half_width_mm: f64) -> Result<DistortionGrid>;
+        fn mapping_cube(self: &System, backend: &str, height: usize, width: usize, pixel_pitch_mm: f64, wavelengths_nm: &[f64]) -> Result<Box<Mapping>>;
+
+        // ---- Rays columns
+        fn len(self: &Rays) -> usize;
+        fn origin_x(self: &Rays) -> &[f64];
+        fn origin_y(self: &Rays) -> &[f64];
+        fn origin_z(self: &Rays) -> &[f64];
+        fn dir_x(self: &Rays) -> &[f64];
+        fn dir_y(self: &Rays) -> &[f64];
+        fn dir_z(self: &Rays) -> &[f64];
+        fn wavelength_nm(self: &Rays) -> &[f64];
+
+        // ---- Traced columns (image surface frame; failed rays: 0 and the surface where they stopped)
+        fn len(self: &Traced) -> usize;
+        fn ok_count(self: &Traced) -> usize;
+        fn x(self: &Traced) -> &[f64];
+        fn y(self: &Traced) -> &[f64];
+        fn z(self: &Traced) -> &[f64];
+        fn dir_x(self: &Traced) -> &[f64];
+        fn dir_y(self: &Traced) -> &[f64];
+        fn dir_z(self: &Traced) -> &[f64];
+        fn status(self: &Traced) -> &[u8];
+        /// Surface where a failed ray stopped (`u32::MAX` for arrived rays).
+        fn surface(self: &Traced) -> &[u32];
+
+        // ---- Spot
+        fn field_mm(self: &Spot) -> [f64; 2];
+        fn wavelength_nm(self: &Spot) -> f64;
+        fn x_mm(self: &Spot) -> &[f64];
+        fn y_mm(self: &Spot) -> &[f64];
+        fn status(self: &Spot) -> &[u8];
+        fn has_chief(self: &Spot) -> bool;
+        fn chief_mm(self: &Spot) -> [f64; 2];
+        fn stats(self: &Spot) -> SpotStats;
+        /// RMS radius about the chief ray (µm; 0 without a chief ray or arrived rays).
+        fn rms_radius_chief_um(self: &Spot) -> f64;
+
+        // ---- Mapping
+        fn height(self: &Mapping) -> usize;
+        fn width(self: &Mapping) -> usize;
+        fn pixel_pitch_mm(self: &Mapping) -> f64;
+        fn wavelength_nm(self: &Mapping) -> &[f64];
+        /// Detector (x, y) mm, C order [row][col][λ][xy]; 0 where `valid` is 0.
+        fn positions_mm(self: &Mapping) -> &[f64];
+        /// 1 where the chief ray arrived, C order [row][col][λ].
+        fn valid(self: &Mapping) -> &[u8];
+        fn invalid_count(self: &Mapping) -> usize;
+    }
+}
+
+// A loaded system is shared between C++ threads by `const System&`.
+const _: fn() = || {
+    fn shareable<T: Send + Sync>() {}
+    shareable::<System>();
+    shareable::<Traced>();
+    shareable::<Rays>();
+    shareable::<Spot>();
+    shareable::<Mapping>();
+};

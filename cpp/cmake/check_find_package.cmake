@@ -1,0 +1,26 @@
+# ctest find_package_consumer: install the package into the build tree, configure and build a separate
+# project that uses find_package(diffcassi) (cpp/tests/find_package), and run its static and shared
+# programs. Variables: BUILD_DIR, SOURCE_DIR, GENERATOR.
+set(_stage "${BUILD_DIR}/stage")
+set(_consumer "${BUILD_DIR}/find_package_consumer")
+file(REMOVE_RECURSE "${_stage}" "${_consumer}")
+function(run)
+  execute_process(COMMAND ${ARGN} RESULT_VARIABLE _rc OUTPUT_VARIABLE _out ERROR_VARIABLE _err)
+  if(NOT _rc EQUAL 0)
+    message(FATAL_ERROR "failed (${_rc}): ${ARGN}\n${_out}\n${_err}")
+  endif()
+  set(LAST_OUTPUT "${_out}" PARENT_SCOPE)
+endfunction()
+run("${CMAKE_COMMAND}" --install "${BUILD_DIR}" --prefix "${_stage}")
+run("${CMAKE_COMMAND}" -S "${SOURCE_DIR}/tests/find_package" -B "${_consumer}" -G "${GENERATOR}"
+    "-DCMAKE_PREFIX_PATH=${_stage}" -DCMAKE_BUILD_TYPE=Release)
+run("${CMAKE_COMMAND}" --build "${_consumer}")
+foreach(_kind static shared)
+  run("${_consumer}/trace_grid_${_kind}" ap 520)
+  string(REGEX MATCHALL "\n-?[0-9]+,-?[0-9]+," _rows "${LAST_OUTPUT}")
+  list(LENGTH _rows _n)
+  if(NOT _n EQUAL 169)
+    message(FATAL_ERROR "trace_grid_${_kind} (find_package consumer) printed ${_n} grid rows, expected 169")
+  endif()
+  message(STATUS "find_package(diffcassi) consumer, ${_kind} library: 169 grid rows")
+endforeach()

@@ -1,0 +1,358 @@
+// diffcassi C++ API: the idiomatic wrapper over the generated cxx bridge (diffcassi/bridge.h).
+//
+// C++17. RAII handles (move-only; the Rust objects are freed when they go out of scope), read-only
+// span-like views of Rust-owned columns (no copy out), caller-owned input columns read in place (no copy
+// in), and exceptions: every error raised in Rust arrives as diffcassi::Error whose what() is the Rust
+// message (e.g. "unknown preset `xyz` (presets: sp, ap, msp, map)").
+//
+//   #include <diffcassi/diffcassi.hpp>
+//   auto sys  = diffcassi::System::preset("sp");
+//   auto grid = sys.distortion_grid(520.0, 13, 2.5);          // Zemax-style grid distortion
+//   auto rays = sys.seeded_workload(1000, {450.0, 650.0}, 7);   // or your own columns, see RayColumns
+//   auto out  = sys.trace(rays.columns());                     // backend "analytic" by default
+//   for (std::size_t i = 0; i < out.size(); ++i)
+//     if (out.status(i) == diffcassi::RayStatus::Ok) use(out.x()[i], out.y()[i]);
+//
+// Units: mm, nm, degrees (as in the Rust crate and its spec files).
+//
+// Thread safety: a System is immutable once loaded; every member function is const and may be called
+// concurrently from several threads on one System (tests/test_threads.cpp). Traces run on the library's
+// rayon thread pool and their results do not depend on which thread called or how many threads run.
+// Result objects (Traced, Spot, Mapping, Rays) are independent values: read them from any thread.
+//
+// Not yet exposed (the Rust capabilities are being built; they are added here when they land, see
+// cpp/bridge/src/lib.rs "Extension points"): rendering an acquisition into a caller buffer, Jacobians,
+// and the Embree backends ("embree-user[:f64|:none]", "embree-mesh[:SAG_UM][:f64|:none]").
+#pragma once
+
+#include "rust/cxx.h"  // cxx's runtime (rust::Error, …); shares include guards with the generated header
+#include "diffcassi/bridge.h"
+
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <string_view>
+#include <utility>
+#include <vector>
+
+namespace diffcassi {
+
+/// Every error raised by the library; what() carries the Rust message.
+class Error : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+/// A read-only, non-owning view of contiguous elements (std::span<const T> in C++20 terms).
+template <class T>
+class View {
+ public:
+  constexpr View() noexcept = default;
+  constexpr View(const T* data, std::size_t size) noexcept : data_(data), size_(size) {}
+  View(rust::Slice<const T> s) noexcept : data_(s.data()), size_(s.size()) {}  // NOLINT: implicit by design
+  View(const std::vector<T>& v) noexcept : data_(v.data()), size_(v.size()) {}  // NOLINT
+
+  const T* data() const noexcept { return data_; }
+  std::size_t size() const noexcept { return size_; }
+  bool empty() const noexcept { return size_ == 0; }
+  const T* begin() const noexcept { return data_; }
+  const T* end() const noexcept { return data_ + size_; }
+  const T& operator[](std::size_t i) const noexcept { return data_[i]; }
+  const T& at(std::size_t i) const {
+    if (i >= size_) throw std::out_of_range("diffcassi::View index " + std::to_string(i) + " >= size " + std::to_string(size_));
+    return data_[i];
+  }
+  std::vector<T> to_vector() const { return std::vector<T>(begin(), end()); }
+
+ private:
+  const T* data_ = nullptr;
+  std::size_t size_ = 0;
+};
+
+/// Outcome of one ray (the values of Rust's diffcassi::tracer::RayStatus).
+enum class RayStatus : std::uint8_t {
+  Ok = 0,
+  Missed = 1,
+  Vignetted = 2,
+  TotalInternalReflection = 3,
+  NoConvergence = 4,
+  InvalidInput = 5,
+};
+
+inline const char* label(RayStatus s) noexcept {
+  switch (s) {
+    case RayStatus::Ok: return "ok";
+    case RayStatus::Missed: return "missed";
+    case RayStatus::Vignetted: return "vignetted";
+    case RayStatus::TotalInternalReflection: return "tir";
+    case RayStatus::NoConvergence: return "no_convergence";
+    case RayStatus::InvalidInput: return "invalid_input";
+  }
+  return "unknown";
+}
+
+using SurfaceInfo = ffi::SurfaceInfo;
+using SpotStats = ffi::SpotStats;
+using DistortionPoint = ffi::DistortionPoint;
+using DistortionGrid = ffi::DistortionGrid;
+
+namespace detail {
+// Run a bridge call; a Rust error (rust::Error) or text that is not UTF-8 (rust::Str) becomes diffcassi::Error.
+template <class F>
+auto call(F&& f) -> decltype(f()) {
+  try {
+    return f();
+  } catch (const rust::Error& e) {
+    throw Error(e.what());
+  } catch (const std::invalid_argument& e) {
+    throw Error(std::string("invalid argument: ") + e.what());
+  }
+}
+inline rust::Str str(std::string_view s) { return rust::Str(s.data(), s.size()); }
+template <class T>
+rust::Slice<const T> slice(View<T> v) noexcept { return rust::Slice<const T>(v.data(), v.size()); }
+template <class T>
+rust::Slice<const T> slice(const std::vector<T>& v) noexcept { return rust::Slice<const T>(v.data(), v.size()); }
+inline std::string string(const rust::String& s) { return std::string(s.data(), s.size()); }
+inline std::vector<std::string> strings(const rust::Vec<rust::String>& v) {
+  std::vector<std::string> out;
+  out.reserve(v.size());
+  for (const auto& s : v) out.push_back(string(s));
+  return out;
+}
+}  // namespace detail
+
+/// Rays in object space as caller-owned columns (mm, directions need not be unit, nm), struct of arrays.
+/// The library reads them in place; all seven must have the same length (else diffcassi::Error).
+struct RayColumns {
+  View<double> origin_x, origin_y, origin_z;
+  View<double> dir_x, dir_y, dir_z;
+  View<double> wavelength_nm;
+  std::size_t size() const noexcept { return origin_x.size(); }
+};
+
+/// A simple owning struct-of-arrays container for rays built in C++.
+struct RayBuffer {
+  std::vector<double> origin_x, origin_y, origin_z, dir_x, dir_y, dir_z, wavelength_nm;
+  void reserve(std::size_t n) {
+    for (auto* v : {&origin_x, &origin_y, &origin_z, &dir_x, &dir_y, &dir_z, &wavelength_nm}) v->reserve(n);
+  }
+  void push(std::array<double, 3> origin, std::array<double, 3> direction, double wavelength) {
+    origin_x.push_back(origin[0]);
+    origin_y.push_back(origin[1]);
+    origin_z.push_back(origin[2]);
+    dir_x.push_back(direction[0]);
+    dir_y.push_back(direction[1]);
+    dir_z.push_back(direction[2]);
+    wavelength_nm.push_back(wavelength);
+  }
+  std::size_t size() const noexcept { return origin_x.size(); }
+  RayColumns columns() const { return {origin_x, origin_y, origin_z, dir_x, dir_y, dir_z, wavelength_nm}; }
+};
+
+/// Rays made by the library (aimed as the system says). Views stay valid while this object lives.
+class Rays {
+ public:
+  explicit Rays(rust::Box<ffi::Rays> raw) : raw_(std::move(raw)) {}
+  std::size_t size() const noexcept { return raw_->len(); }
+  View<double> origin_x() const noexcept { return raw_->origin_x(); }
+  View<double> origin_y() const noexcept { return raw_->origin_y(); }
+  View<double> origin_z() const noexcept { return raw_->origin_z(); }
+  View<double> dir_x() const noexcept { return raw_->dir_x(); }
+  View<double> dir_y() const noexcept { return raw_->dir_y(); }
+  View<double> dir_z() const noexcept { return raw_->dir_z(); }
+  View<double> wavelength_nm() const noexcept { return raw_->wavelength_nm(); }
+  RayColumns columns() const noexcept { return {origin_x(), origin_y(), origin_z(), dir_x(), dir_y(), dir_z(), wavelength_nm()}; }
+  /// A C++-owned copy.
+  RayBuffer to_buffer() const {
+    return {origin_x().to_vector(), origin_y().to_vector(), origin_z().to_vector(), dir_x().to_vector(),
+            dir_y().to_vector(),    dir_z().to_vector(),    wavelength_nm().to_vector()};
+  }
+  const ffi::Rays& raw() const noexcept { return *raw_; }
+
+ private:
+  rust::Box<ffi::Rays> raw_;
+};
+
+/// A traced batch in the image surface's frame: positions (mm), unit directions, status, and for failed
+/// rays the surface where they stopped (their positions/directions are 0, never NaN). The columns are the
+/// tracer's own result buffers, viewed without copying; they stay valid while this object lives.
+class Traced {
+ public:
+  explicit Traced(rust::Box<ffi::Traced> raw) : raw_(std::move(raw)) {}
+  std::size_t size() const noexcept { return raw_->len(); }
+  std::size_t ok_count() const noexcept { return raw_->ok_count(); }
+  View<double> x() const noexcept { return raw_->x(); }
+  View<double> y() const noexcept { return raw_->y(); }
+  View<double> z() const noexcept { return raw_->z(); }
+  View<double> dir_x() const noexcept { return raw_->dir_x(); }
+  View<double> dir_y() const noexcept { return raw_->dir_y(); }
+  View<double> dir_z() const noexcept { return raw_->dir_z(); }
+  /// RayStatus values as bytes.
+  View<std::uint8_t> status_codes() const noexcept { return raw_->status(); }
+  RayStatus status(std::size_t i) const { return static_cast<RayStatus>(status_codes().at(i)); }
+  /// Surface index where a failed ray stopped (0xFFFFFFFF for arrived rays).
+  View<std::uint32_t> surface() const noexcept { return raw_->surface(); }
+  const ffi::Traced& raw() const noexcept { return *raw_; }
+
+ private:
+  rust::Box<ffi::Traced> raw_;
+};
+
+/// A spot diagram of one field and wavelength.
+class Spot {
+ public:
+  explicit Spot(rust::Box<ffi::Spot> raw) : raw_(std::move(raw)) {}
+  std::array<double, 2> field_mm() const noexcept { return raw_->field_mm(); }
+  double wavelength_nm() const noexcept { return raw_->wavelength_nm(); }
+  View<double> x_mm() const noexcept { return raw_->x_mm(); }
+  View<double> y_mm() const noexcept { return raw_->y_mm(); }
+  View<std::uint8_t> status_codes() const noexcept { return raw_->status(); }
+  bool has_chief() const noexcept { return raw_->has_chief(); }
+  /// Chief-ray position (mm); (0, 0) when !has_chief().
+  std::array<double, 2> chief_mm() const noexcept { return raw_->chief_mm(); }
+  SpotStats stats() const noexcept { return raw_->stats(); }
+  double rms_radius_chief_um() const noexcept { return raw_->rms_radius_chief_um(); }
+  const ffi::Spot& raw() const noexcept { return *raw_; }
+
+ private:
+  rust::Box<ffi::Spot> raw_;
+};
+
+/// The scene → detector mapping cube f(x_s, y_s, λ) = (x_d, y_d): chief rays of every scene pixel centre.
+class Mapping {
+ public:
+  explicit Mapping(rust::Box<ffi::Mapping> raw) : raw_(std::move(raw)) {}
+  std::size_t height() const noexcept { return raw_->height(); }
+  std::size_t width() const noexcept { return raw_->width(); }
+  double pixel_pitch_mm() const noexcept { return raw_->pixel_pitch_mm(); }
+  View<double> wavelength_nm() const noexcept { return raw_->wavelength_nm(); }
+  /// Detector (x, y) mm, C order [row][col][band][xy]; 0 where valid() is 0.
+  View<double> positions_mm() const noexcept { return raw_->positions_mm(); }
+  /// 1 where the chief ray arrived, C order [row][col][band].
+  View<std::uint8_t> valid() const noexcept { return raw_->valid(); }
+  std::size_t invalid_count() const noexcept { return raw_->invalid_count(); }
+  std::size_t index(std::size_t row, std::size_t col, std::size_t band) const noexcept {
+    return (row * width() + col) * wavelength_nm().size() + band;
+  }
+  bool valid(std::size_t row, std::size_t col, std::size_t band) const { return valid().at(index(row, col, band)) == 1; }
+  std::array<double, 2> position_mm(std::size_t row, std::size_t col, std::size_t band) const {
+    const std::size_t k = index(row, col, band);
+    return {positions_mm().at(2 * k), positions_mm().at(2 * k + 1)};
+  }
+  const ffi::Mapping& raw() const noexcept { return *raw_; }
+
+ private:
+  rust::Box<ffi::Mapping> raw_;
+};
+
+/// A loaded optical system. Immutable and thread-safe (see the top of this header).
+class System {
+ public:
+  /// One of the presets "sp", "ap", "msp", "map" (case-insensitive).
+  static System preset(std::string_view name) {
+    return System(detail::call([&] { return ffi::load_preset(detail::str(name)); }));
+  }
+  /// A spec file: .toml/.json (diffcassi's format), .yml (the paper's), .csv (Zemax prescription).
+  static System from_file(std::string_view path) {
+    return System(detail::call([&] { return ffi::load_spec_file(detail::str(path)); }));
+  }
+  /// A spec held in memory; format "toml", "json" or "auto"; source_name names it in error messages.
+  static System from_string(std::string_view text, std::string_view format = "auto", std::string_view source_name = "<string>") {
+    return System(detail::call([&] { return ffi::load_spec_string(detail::str(text), detail::str(format), detail::str(source_name)); }));
+  }
+
+  std::string name() const { return std::string(raw_->name()); }
+  std::string description() const { return std::string(raw_->description()); }
+  /// The resolved Lens Data Editor (pickups and solves evaluated), surface 0 = object.
+  rust::Vec<SurfaceInfo> surfaces() const { return raw_->surfaces(); }
+  std::size_t surface_count() const noexcept { return raw_->surface_count(); }
+  std::size_t stop_index() const noexcept { return raw_->stop_index(); }
+  View<double> wavelengths_nm() const noexcept { return raw_->wavelengths_nm(); }
+  double primary_wavelength_nm() const noexcept { return raw_->primary_wavelength_nm(); }
+  std::vector<std::array<double, 2>> fields_mm() const {
+    const auto flat = raw_->fields_mm();
+    std::vector<std::array<double, 2>> out;
+    for (std::size_t i = 0; i + 1 < flat.size(); i += 2) out.push_back({flat[i], flat[i + 1]});
+    return out;
+  }
+  std::size_t surfaces_per_ray() const noexcept { return raw_->surfaces_per_ray(); }
+  std::string to_toml() const { return detail::string(detail::call([&] { return raw_->to_toml(); })); }
+  std::string to_json() const { return detail::string(detail::call([&] { return raw_->to_json(); })); }
+
+  // ---- rays
+  /// Rays of one field point (mm) through normalised pupil points (px, py) at one wavelength (nm).
+  Rays rays_for_field(std::array<double, 2> field_mm, const std::vector<double>& px, const std::vector<double>& py, double wavelength_nm) const {
+    return Rays(detail::call([&] { return raw_->rays_for_field(field_mm[0], field_mm[1], detail::slice(px), detail::slice(py), wavelength_nm); }));
+  }
+  Rays chief_rays(const std::vector<double>& field_x_mm, const std::vector<double>& field_y_mm, double wavelength_nm) const {
+    return Rays(detail::call([&] { return raw_->chief_rays(detail::slice(field_x_mm), detail::slice(field_y_mm), wavelength_nm); }));
+  }
+  /// A reproducible workload: rays_per_wavelength rays per wavelength over the system's fields, pupil
+  /// points uniform in the disk from a ChaCha8 stream seeded with seed + wavelength index.
+  Rays seeded_workload(std::size_t rays_per_wavelength, const std::vector<double>& wavelengths_nm, std::uint64_t seed) const {
+    return Rays(detail::call([&] { return raw_->seeded_workload(rays_per_wavelength, detail::slice(wavelengths_nm), seed); }));
+  }
+
+  // ---- tracing
+  /// Trace caller-owned columns (read in place) with a backend ("analytic"; see backend_names()).
+  Traced trace(const RayColumns& r, std::string_view backend = "analytic") const {
+    return Traced(detail::call([&] {
+      return raw_->trace(detail::str(backend), detail::slice(r.origin_x), detail::slice(r.origin_y), detail::slice(r.origin_z),
+                         detail::slice(r.dir_x), detail::slice(r.dir_y), detail::slice(r.dir_z), detail::slice(r.wavelength_nm));
+    }));
+  }
+  Traced trace(const Rays& rays, std::string_view backend = "analytic") const {
+    return Traced(detail::call([&] { return raw_->trace_rays(detail::str(backend), rays.raw()); }));
+  }
+  /// Bench helper: seconds per trace of `rays`, timed natively in Rust around Tracer::trace, reps times.
+  std::vector<double> time_rust_trace(const Rays& rays, std::size_t reps, std::string_view backend = "analytic") const {
+    const auto t = detail::call([&] { return raw_->time_rust_trace(detail::str(backend), rays.raw(), reps); });
+    return std::vector<double>(t.begin(), t.end());
+  }
+
+  // ---- analyses
+  Spot spot_diagram(std::array<double, 2> field_mm, double wavelength_nm, const std::vector<double>& px, const std::vector<double>& py,
+                    std::string_view backend = "analytic") const {
+    return Spot(detail::call([&] {
+      return raw_->spot_diagram(detail::str(backend), field_mm[0], field_mm[1], wavelength_nm, detail::slice(px), detail::slice(py));
+    }));
+  }
+  /// Zemax-style Grid Distortion: n × n chief rays over ±half_width_mm of object field.
+  DistortionGrid distortion_grid(double wavelength_nm, std::size_t n, double half_width_mm, std::string_view backend = "analytic") const {
+    return detail::call([&] { return raw_->distortion_grid(detail::str(backend), wavelength_nm, n, half_width_mm); });
+  }
+  /// The H × W × Nλ mapping cube (scene pixel centres on a pixel_pitch_mm grid, row 0 at +y).
+  Mapping mapping_cube(std::size_t height, std::size_t width, double pixel_pitch_mm, const std::vector<double>& wavelengths_nm,
+                       std::string_view backend = "analytic") const {
+    return Mapping(detail::call([&] { return raw_->mapping_cube(detail::str(backend), height, width, pixel_pitch_mm, detail::slice(wavelengths_nm)); }));
+  }
+
+  const ffi::System& raw() const noexcept { return *raw_; }
+
+ private:
+  explicit System(rust::Box<ffi::System> raw) : raw_(std::move(raw)) {}
+  rust::Box<ffi::System> raw_;
+};
+
+inline std::vector<std::string> preset_names() { return detail::strings(ffi::preset_names()); }
+/// Every backend name trace() accepts (Embree ones take options, see diffcassi::tracer::BackendConfig).
+inline std::vector<std::string> backend_names() { return detail::strings(ffi::backend_names()); }
+inline std::string version() { return detail::string(ffi::version()); }
+/// "chief", "marginal", "hexapolar:R", "grid:N", "grid-step:S", "random:N:SEED".
+struct PupilPoints {
+  std::vector<double> px, py;
+  std::size_t size() const noexcept { return px.size(); }
+};
+inline PupilPoints pupil_points(std::string_view pattern) {
+  const auto p = detail::call([&] { return ffi::pupil_points(detail::str(pattern)); });
+  return {std::vector<double>(p.px.begin(), p.px.end()), std::vector<double>(p.py.begin(), p.py.end())};
+}
+inline std::vector<double> linspace(double first, double last, std::size_t count) {
+  const auto v = ffi::linspace(first, last, count);
+  return std::vector<double>(v.begin(), v.end());
+}
+
+}  // namespace diffcassi

@@ -1,0 +1,219 @@
+//! `diffcassi calibrate` and `diffcassi design amici`: the derivative-based commands.
+use crate::calibration::{add_noise, calibrate, observe, CalibrationSetup};
+use crate::diff::{preset_alias, Param, ParamSet};
+use crate::error::{Error, Result};
+use crate::materials::GlassCatalog;
+use crate::spec::SystemSpec;
+use clap::{Args, Subcommand};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+
+#[derive(Args, Debug)]
+pub struct CalibrateArgs {
+    /// The nominal system: a preset (sp, ap, msp, map) or a spec file.
+    #[arg(long)]
+    pub from: String,
+    /// The system whose spot centroids are observed: a preset or a spec file.
+    #[arg(long)]
+    pub observed: String,
+    /// Parameters to fit (repeat or comma-separate): prism_tilt_x|y|z, or s<N>.<column> (e.g. s4.tilt_x_deg).
+    #[arg(long, required = true, value_delimiter = ',')]
+    pub free: Vec<String>,
+    /// Gaussian noise added to each observed centroid coordinate (µm).
+    #[arg(long = "noise-um", default_value_t = 0.0)]
+    pub noise_um: f64,
+    /// Seed of the noise (ChaCha8).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Observation set: standard (5×5 fields over ±2.5 mm × 450/520/650 nm × 37 pupil rays) or small.
+    #[arg(long, default_value = "standard")]
+    pub setup: String,
+    /// JSON report.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Write the calibrated system spec (TOML or JSON).
+    #[arg(long = "system-out")]
+    pub system_out: Option<PathBuf>,
+}
+
+#[derive(Args, Debug)]
+pub struct DesignArgs {
+    #[command(subcommand)]
+    pub command: DesignCommand,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum DesignCommand {
+    /// Optimise the double-Amici prism (α_c, A1, A2, two glasses) to match a 60° N-BK7 prism's dispersion
+    /// (the reference paper's design), snap the glasses to the catalogue and re-optimise the angles.
+    Amici(AmiciArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct AmiciArgs {
+    /// Seed of the start-point perturbation (results are deterministic for a seed).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Adam iterations of the continuous-glass stage.
+    #[arg(long, default_value_t = 400)]
+    pub iterations: usize,
+    /// w_t of the final angle re-optimisation (the paper's 5e3 applies in the continuous stage).
+    #[arg(long = "final-thickness-weight", default_value_t = 500.0)]
+    pub final_thickness_weight: f64,
+    /// AGF catalogue for the glass distance and the snapping (default: ../shared/reference/glass/SCHOTT.AGF
+    /// when present, else the built-in glasses).
+    #[arg(long = "glass-catalog")]
+    pub glass_catalog: Option<PathBuf>,
+    /// JSON report.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// The designed system spec (TOML or JSON).
+    #[arg(long = "system-out")]
+    pub system_out: Option<PathBuf>,
+}
+
+fn spec_of(text: &str) -> Result<SystemSpec> {
+    if crate::presets::NAMES.contains(&text.to_ascii_lowercase().as_str()) {
+        crate::presets::spec(text)
+    } else {
+        crate::spec::load_spec_file(Path::new(text))
+    }
+}
+
+fn resolve_param(system: &str, name: &str) -> Result<Param> {
+    match preset_alias(system, name) {
+        Some(p) => Ok(p),
+        None if name.starts_with("prism_tilt") => {
+            Err(Error::invalid(format!("--free {name}: the alias is defined for the presets (sp, ap, msp, map), not `{system}`; give s<N>.<column>")))
+        }
+        None => Param::parse(name),
+    }
+}
+
+fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
+    let text = serde_json::to_string_pretty(value).map_err(|e| Error::invalid(format!("JSON: {e}")))?;
+    crate::io::write_atomic(path, text.as_bytes())?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+pub(super) fn write_spec(path: &Path, spec: &SystemSpec) -> Result<()> {
+    let text = match path.extension().and_then(|e| e.to_str()) {
+        Some("json") => serde_json::to_string_pretty(spec).map_err(|e| Error::invalid(format!("JSON: {e}")))?,
+        _ => crate::spec::to_toml(spec)?,
+    };
+    crate::io::write_atomic(path, text.as_bytes())?;
+    println!("wrote {}", path.display());
+    Ok(())
+}
+
+pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
+    if !(a.noise_um.is_finite() && a.noise_um >= 0.0) {
+        return Err(Error::invalid(format!("--noise-um {}: must be finite and ≥ 0", a.noise_um)));
+    }
+    let setup = match a.setup.as_str() {
+        "standard" => CalibrationSetup::standard(),
+        "small" => CalibrationSetup::small(),
+        s => return Err(Error::invalid(format!("--setup `{s}`: use standard or small"))),
+    };
+    let from = spec_of(&a.from)?;
+    let observed_spec = spec_of(&a.observed)?;
+    let params: Vec<Param> = a.free.iter().map(|n| resolve_param(&a.from, n.trim())).collect::<Result<_>>()?;
+    let set = ParamSet::new(from, GlassCatalog::builtin(), params.clone())?;
+    let observed_sys = crate::system::SequentialSystem::build(&observed_spec)?;
+    let clean = observe(&observed_sys, &setup)?;
+    // Truth, when the observed system names the same parameter (alias or same surface layout).
+    let truth: Vec<Option<f64>> = a
+        .free
+        .iter()
+        .zip(&params)
+        .map(|(name, p)| {
+            let q = preset_alias(&a.observed, name.trim()).unwrap_or_else(|| p.clone());
+            match q {
+                Param::Cell { surface, ref column } => observed_spec.surfaces.get(surface).and_then(|s| s.cell(column)).map(|c| c.value),
+                _ => None,
+            }
+        })
+        .collect();
+    let fit_with = |noise: f64, seed: u64| -> Result<(crate::calibration::CalibrationFit, serde_json::Value)> {
+        let mut obs = clean.clone();
+        if noise > 0.0 {
+            add_noise(&mut obs, noise, seed);
+        }
+        let fit = calibrate(&set, &obs, &setup)?;
+        let mut rec = serde_json::Map::new();
+        let mut err = serde_json::Map::new();
+        for (k, name) in a.free.iter().enumerate() {
+            rec.insert(name.trim().to_string(), json!(fit.x[k]));
+            if let Some(t) = truth[k] {
+                err.insert(name.trim().to_string(), json!(fit.x[k] - t));
+            }
+        }
+        let v = json!({
+            "noise_um": noise, "seed": seed, "recovered": rec, "error": err,
+            "residual_um": fit.residual_um, "max_residual_um": fit.max_residual_um,
+            "iterations": fit.report.iterations, "stop_reason": fit.report.stop_reason, "warnings": fit.report.warnings,
+        });
+        Ok((fit, v))
+    };
+    let (fit, main) = fit_with(a.noise_um, a.seed)?;
+    let (_, study) = fit_with(1.0, a.seed)?;
+    println!("calibrate {} → {}: {} centroids ({} fields × {} wavelengths × {} pupil rays)", a.from, a.observed, clean.len(), setup.fields_mm.len(), setup.wavelengths_nm.len(), setup.pupil.len());
+    println!("{:16} {:>14} {:>14} {:>14} {:>16}", "parameter", "start", "recovered", "truth", "error (1 µm noise)");
+    let start = set.values()?;
+    for (k, name) in a.free.iter().enumerate() {
+        let t = truth[k].map(|v| format!("{v:.6}")).unwrap_or_else(|| "?".into());
+        let e1 = study["error"].get(name.trim()).and_then(|v| v.as_f64()).map(|v| format!("{v:+.2e}")).unwrap_or_else(|| "?".into());
+        println!("{:16} {:>14.6} {:>14.8} {:>14} {:>16}", name.trim(), start[k], fit.x[k], t, e1);
+    }
+    println!("residual {:.4} µm RMS, {:.4} µm max ({} iterations, {})", fit.residual_um, fit.max_residual_um, fit.report.iterations, fit.report.stop_reason);
+    let mut rec = serde_json::Map::new();
+    let mut tr = serde_json::Map::new();
+    for (k, name) in a.free.iter().enumerate() {
+        rec.insert(name.trim().to_string(), json!(fit.x[k]));
+        tr.insert(name.trim().to_string(), json!(truth[k]));
+    }
+    let report = json!({
+        "from": a.from, "observed": a.observed,
+        "free": a.free, "parameters": params.iter().map(|p| p.name()).collect::<Vec<_>>(),
+        "start": start, "recovered": rec, "truth": tr, "error": main["error"],
+        "residual_um": fit.residual_um, "max_residual_um": fit.max_residual_um,
+        "noise_um": a.noise_um, "seed": a.seed,
+        "iterations": fit.report.iterations, "stop_reason": fit.report.stop_reason, "warnings": fit.report.warnings,
+        "noise_study": study,
+        "setup": {"fields_mm": setup.fields_mm, "wavelengths_nm": setup.wavelengths_nm, "pupil_rays": setup.pupil.len()},
+    });
+    if let Some(p) = &a.report {
+        write_json(p, &report)?;
+    }
+    if let Some(p) = &a.system_out {
+        write_spec(p, &set.with_values(&fit.x)?.spec)?;
+    }
+    Ok(())
+}
+
+pub(super) fn design_cmd(a: DesignArgs) -> Result<()> {
+    match a.command {
+        DesignCommand::Amici(a) => amici_cmd(a),
+    }
+}
+
+fn amici_cmd(a: AmiciArgs) -> Result<()> {
+    let catalog = crate::design::design_catalog(a.glass_catalog.as_deref())?;
+    if !(a.final_thickness_weight.is_finite() && a.final_thickness_weight >= 0.0) {
+        return Err(Error::invalid(format!("--final-thickness-weight {}: must be finite and ≥ 0", a.final_thickness_weight)));
+    }
+    if a.iterations == 0 {
+        return Err(Error::invalid("--iterations 0: the continuous stage needs at least one Adam iteration"));
+    }
+    let opts = crate::design::AmiciOptions { seed: a.seed, iterations: a.iterations, final_thickness_weight: a.final_thickness_weight, ..Default::default() };
+    let out = crate::design::design_amici(&catalog, &opts)?;
+    out.print();
+    if let Some(p) = &a.report {
+        write_json(p, &serde_json::to_value(&out.report).map_err(|e| Error::invalid(format!("JSON: {e}")))?)?;
+    }
+    if let Some(p) = &a.system_out {
+        write_spec(p, &out.spec)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,434 @@
+//! [`DiffSystem`]: a built system plus the derivatives of everything the per-ray kernel reads — path-step
+//! rotations and offsets, surface figures, refractive indices — with respect to the free parameters.
+//!
+//! How the system-level derivatives are obtained (forward mode with [`super::dual::Dn`], replaying
+//! [`SequentialSystem::build`] in the same order):
+//! - **Frames**: the vertex frames are composed exactly as the build does (Coordinate Break
+//!   R·Rx(a)·Ry(b)·Rz(c) after a decenter for order 0, the reverse for order 1; thickness along the new z),
+//!   so δR and δo follow from the chain rule; a path step's (R_toᵀ R_from, R_fromᵀ(o_to − o_from)) too.
+//! - **Pickups**: value = scale·source + offset ⇒ δvalue = scale·δsource (recursively, through chains).
+//! - **Chief-ray solves**: the solved value s(θ) is the root of g(s, θ) = 0, g the chief ray's coordinate
+//!   in the new frame (its x, y at the new origin for decenters; its direction's y, x components for the
+//!   tilts). By the implicit function theorem ds/dθ = −(∂g/∂θ)/(∂g/∂s). The root has a closed form
+//!   (the decenter is the crossing point, the tilts are atan2 of the direction), and differentiating that
+//!   closed form gives exactly −g_θ/g_s; ∂g/∂θ comes from tracing the primary chief ray with tangents
+//!   through the surfaces placed so far (the same per-ray kernel), from an object ray whose direction
+//!   moves with the paraxial entrance pupil (its y–nu trace is differentiated too).
+//! - **Indices**: a model glass's n(λ; n_d, V_d) is differentiated analytically; dn/dλ of catalogue
+//!   glasses comes from [`super::dispersion`]. Chief-ray solves use the primary wavelength, so the ray
+//!   wavelength parameter does not move them.
+use super::dual::*;
+use super::glass_model::CauchyGlass;
+use super::hit::ShapeTangent;
+use super::kernel::{trace_tangents, StepTangent};
+use super::param::{Param, ParamSet};
+use crate::error::{Error, Result};
+use crate::materials::Medium;
+use crate::spec::{Driver, RayAiming, SurfaceKind, SystemSpec};
+use crate::system::SequentialSystem;
+use glam::{DMat3, DVec3};
+use std::collections::{BTreeMap, HashMap};
+
+const CB_COLUMNS: [&str; 5] = ["decenter_x_mm", "decenter_y_mm", "tilt_x_deg", "tilt_y_deg", "tilt_z_deg"];
+
+/// A system with the derivatives of its geometry and media with respect to free parameters.
+#[derive(Clone, Debug)]
+pub struct DiffSystem {
+    /// The traceable system at the current parameter values.
+    pub system: SequentialSystem,
+    pub params: Vec<Param>,
+    /// One per `system.path` step.
+    pub(crate) steps: Vec<StepTangent>,
+    /// δR, δo of the image surface's frame (global), per parameter.
+    pub image_rotation_tangent: Vec<DMat3>,
+    pub image_origin_tangent: Vec<DVec3>,
+    /// Derivative of every resolved numeric cell (surface → column → per-parameter tangent), including
+    /// pickups and chief-ray solves.
+    pub cell_tangents: Vec<BTreeMap<String, Vec<f64>>>,
+    models: BTreeMap<String, CauchyGlass>,
+}
+
+/// A frame with dual entries.
+#[derive(Clone)]
+struct DFrame {
+    o: V3,
+    r: M3,
+}
+
+impl DFrame {
+    fn identity(k: usize) -> Self {
+        DFrame { o: v3_const(DVec3::ZERO, k), r: m3_const(DMat3::IDENTITY, k) }
+    }
+    fn point_to_local(&self, p: &V3) -> V3 {
+        m3_mul_v3(&m3_transpose(&self.r), &v3_sub(p, &self.o))
+    }
+    fn point_to_global(&self, p: &V3) -> V3 {
+        v3_add(&self.o, &m3_mul_v3(&self.r, p))
+    }
+    fn advanced(&self, t: &Dn) -> Self {
+        DFrame { o: v3_add(&self.o, &v3_scale(&m3_col(&self.r, 2), t)), r: self.r.clone() }
+    }
+}
+
+fn deg(v: &Dn) -> Dn {
+    v.scale(std::f64::consts::PI / 180.0)
+}
+fn to_deg(v: &Dn) -> Dn {
+    v.scale(180.0 / std::f64::consts::PI)
+}
+
+/// [`crate::geometry::coordinate_break_frame`] with duals (lengths mm, angles radians).
+fn cb_frame(f: &DFrame, dx: &Dn, dy: &Dn, a: &Dn, b: &Dn, c: &Dn, order: u8) -> DFrame {
+    let k = dx.k();
+    let dec = [dx.clone(), dy.clone(), Dn::constant(0.0, k)];
+    if order == 0 {
+        let o = f.point_to_global(&dec);
+        DFrame { o, r: m3_mul(&f.r, &m3_mul(&m3_mul(&rot_x(a), &rot_y(b)), &rot_z(c))) }
+    } else {
+        let r = m3_mul(&f.r, &m3_mul(&m3_mul(&rot_z(c), &rot_y(b)), &rot_x(a)));
+        DFrame { o: v3_add(&f.o, &m3_mul_v3(&r, &dec)), r }
+    }
+}
+
+/// The chief-ray solve of a break (mirror of the build's closed form) with duals; values mm / degrees.
+fn solve_break(p: &V3, d: &V3, v: &[Dn; 5], solved: [bool; 5], order: u8) -> [Dn; 5] {
+    let k = p[0].k();
+    let mut v = v.clone();
+    if order == 0 {
+        if solved[0] {
+            v[0] = p[0].clone();
+        }
+        if solved[1] {
+            v[1] = p[1].clone();
+        }
+        if solved[2] {
+            v[2] = to_deg(&(-&d[1]).atan2(&d[2]));
+        }
+        if solved[3] {
+            let d1 = m3_mul_v3(&m3_transpose(&rot_x(&deg(&v[2]))), d);
+            v[3] = to_deg(&d1[0].atan2(&d1[2]));
+        }
+        if solved[4] {
+            v[4] = Dn::constant(0.0, k);
+        }
+    } else {
+        let dz = m3_mul_v3(&m3_transpose(&rot_z(&deg(&v[4]))), d);
+        if solved[3] {
+            let h = (&(&dz[1] * &dz[1]) + &(&dz[2] * &dz[2])).sqrt();
+            v[3] = to_deg(&dz[0].atan2(&h));
+        }
+        let d2 = m3_mul_v3(&m3_transpose(&rot_y(&deg(&v[3]))), &dz);
+        if solved[2] {
+            v[2] = to_deg(&(-&d2[1]).atan2(&d2[2]));
+        }
+        if solved[4] {
+            v[4] = Dn::constant(0.0, k);
+        }
+        let r = m3_mul(&m3_mul(&rot_z(&deg(&v[4])), &rot_y(&deg(&v[3]))), &rot_x(&deg(&v[2])));
+        let rt = m3_transpose(&r);
+        let (mut pr, dr) = (m3_mul_v3(&rt, p), m3_mul_v3(&rt, d));
+        if dr[2].v != 0.0 {
+            let s = &pr[2] / &dr[2];
+            pr = v3_sub(&pr, &v3_scale(&dr, &s));
+        }
+        if solved[0] {
+            v[0] = pr[0].clone();
+        }
+        if solved[1] {
+            v[1] = pr[1].clone();
+        }
+    }
+    v
+}
+
+/// Pass-1 tangent of a cell (`None` when it depends on a chief-ray solve), mirroring the build's resolve.
+fn cell_tangent(spec: &SystemSpec, free: &[Param], i: usize, col: &str, depth: usize) -> Result<Option<Vec<f64>>> {
+    let kk = free.len();
+    if depth > spec.surfaces.len() {
+        return Err(Error::invalid("pickup cycle"));
+    }
+    let Some(cell) = spec.surfaces[i].cell(col) else { return Ok(Some(vec![0.0; kk])) };
+    match &cell.driver {
+        Driver::Fixed => {
+            let mut d = vec![0.0; kk];
+            if let Some(k) = free.iter().position(|p| matches!(p, Param::Cell { surface, column } if *surface == i && column == col)) {
+                d[k] = 1.0;
+            }
+            Ok(Some(d))
+        }
+        Driver::ChiefRay => Ok(None),
+        Driver::Pickup(p) => {
+            let src = p.column.as_deref().unwrap_or(col);
+            Ok(cell_tangent(spec, free, p.surface, src, depth + 1)?.map(|d| d.iter().map(|x| p.scale * x).collect()))
+        }
+    }
+}
+
+impl DiffSystem {
+    /// Build the system of `set` and the derivatives of its path with respect to `set.free`.
+    pub fn new(set: &ParamSet) -> Result<DiffSystem> {
+        let system = set.system()?;
+        let kk = set.free.len();
+        let spec = system.spec.clone();
+        let n = spec.surfaces.len();
+        let models = set.models.clone();
+        let mut ds = DiffSystem {
+            system,
+            params: set.free.clone(),
+            steps: Vec::new(),
+            image_rotation_tangent: vec![DMat3::ZERO; kk],
+            image_origin_tangent: vec![DVec3::ZERO; kk],
+            cell_tangents: vec![BTreeMap::new(); n],
+            models,
+        };
+        // Pass 1: tangents of every cell not depending on a solve.
+        let mut dcell: Vec<HashMap<String, Option<Vec<f64>>>> = vec![HashMap::new(); n];
+        for i in 0..n {
+            for col in spec.surfaces[i].present_columns() {
+                let t = cell_tangent(&spec, &set.free, i, &col, 0)?;
+                dcell[i].insert(col, t);
+            }
+        }
+        let value = |i: usize, col: &str| spec.surfaces[i].cell(col).map(|c| c.value).unwrap_or(0.0);
+        let dual = |dcell: &Vec<HashMap<String, Option<Vec<f64>>>>, i: usize, col: &str| -> Dn {
+            match dcell[i].get(col) {
+                Some(Some(d)) => Dn::new(value(i, col), d.clone()),
+                _ => Dn::constant(value(i, col), kk),
+            }
+        };
+
+        // Indices at the primary wavelength and their tangents (no wavelength parameter: solves use the
+        // primary wavelength whatever the rays' wavelength).
+        let primary = spec.primary_wavelength_nm;
+        let (n_primary, dn_primary) = ds.index_tangents_inner(primary, false)?;
+        let has_solves = spec.surfaces.iter().any(|s| s.present_columns().iter().any(|c| s.cell(c).map(|c| c.driver == Driver::ChiefRay).unwrap_or(false)));
+        let pupil_distance = if has_solves { Some(ds.pupil_distance(&dcell, &n_primary, &dn_primary)?) } else { None };
+
+        let mut current = DFrame::identity(kk);
+        let mut last_step_frame = DFrame::identity(kk);
+        let mut image_frame = DFrame::identity(kk);
+        for i in 0..n {
+            let s = &spec.surfaces[i];
+            let surface_frame = current.clone();
+            let mut next = current.clone();
+            let mut shape_tangent: Option<Vec<ShapeTangent>> = None;
+            if s.kind == SurfaceKind::CoordinateBreak {
+                for col in CB_COLUMNS {
+                    if let Some(Driver::Pickup(p)) = s.cell(col).map(|c| &c.driver) {
+                        if matches!(dcell[i].get(col), Some(None)) {
+                            let src = p.column.as_deref().unwrap_or(col);
+                            let d = dcell[p.surface].get(src).cloned().flatten().ok_or_else(|| {
+                                Error::invalid(format!("surface {i} {col}: pickup source {} {src} is not resolved before this surface", p.surface))
+                            })?;
+                            dcell[i].insert(col.to_string(), Some(d.iter().map(|x| p.scale * x).collect()));
+                        }
+                    }
+                }
+                let solved: [bool; 5] = CB_COLUMNS.map(|c| s.cell(c).map(|c| c.driver == Driver::ChiefRay).unwrap_or(false));
+                if solved.iter().any(|b| *b) {
+                    let (p, d) = ds.chief_ray_at(i, &last_step_frame, &surface_frame, pupil_distance.as_ref(), &n_primary, &dn_primary)?;
+                    // Unsolved columns keep their (possibly free or picked-up) values.
+                    let v: [Dn; 5] = std::array::from_fn(|k| if solved[k] { Dn::constant(value(i, CB_COLUMNS[k]), kk) } else { dual(&dcell, i, CB_COLUMNS[k]) });
+                    let sol = solve_break(&p, &d, &v, solved, s.order);
+                    for (k, col) in CB_COLUMNS.iter().enumerate() {
+                        if solved[k] {
+                            if (sol[k].v - value(i, col)).abs() > 1e-6 * (1.0 + value(i, col).abs()) {
+                                return Err(Error::invalid(format!(
+                                    "surface {i} {col}: chief-ray solve replay gives {} but the build solved {}",
+                                    sol[k].v,
+                                    value(i, col)
+                                )));
+                            }
+                            dcell[i].insert(col.to_string(), Some(sol[k].d.clone()));
+                        }
+                    }
+                }
+                let g = |c: &str| dual(&dcell, i, c);
+                next = cb_frame(&current, &g("decenter_x_mm"), &g("decenter_y_mm"), &deg(&g("tilt_x_deg")), &deg(&g("tilt_y_deg")), &deg(&g("tilt_z_deg")), s.order);
+            } else {
+                // Curvature: a free curvature, or c = 1/R with δc = −δR/R².
+                let curvature = match set.free.iter().position(|p| *p == Param::Curvature { surface: i }) {
+                    Some(k) => Dn::seed(s.radius_mm.as_ref().map(|r| 1.0 / r.value).unwrap_or(0.0), kk, k),
+                    None => match &s.radius_mm {
+                        Some(_) => dual(&dcell, i, "radius_mm").recip(),
+                        None => Dn::constant(0.0, kk),
+                    },
+                };
+                let conic = dual(&dcell, i, "conic");
+                let focal = dual(&dcell, i, "focal_length_mm");
+                let asph: Vec<Dn> = (1..=s.asphere_coefficients.len()).map(|j| dual(&dcell, i, &format!("asphere_{j}"))).collect();
+                shape_tangent = Some(
+                    (0..kk)
+                        .map(|k| {
+                            let mut t = ShapeTangent { curvature: curvature.d[k], conic: conic.d[k], focal_length: focal.d[k], ..Default::default() };
+                            for (j, a) in asph.iter().enumerate() {
+                                t.asphere[j] = a.d[k];
+                            }
+                            t
+                        })
+                        .collect(),
+                );
+            }
+            let thickness = dual(&dcell, i, "thickness_mm");
+            if i > 0 {
+                if let Some(shape) = shape_tangent {
+                    let offset = last_step_frame.point_to_local(&surface_frame.o);
+                    let rotation = m3_mul(&m3_transpose(&surface_frame.r), &last_step_frame.r);
+                    let mut st = StepTangent::zero(kk);
+                    st.shape = shape;
+                    for k in 0..kk {
+                        st.rotation[k] = m3_tangent(&rotation, k);
+                        st.offset[k] = v3_tangent(&offset, k);
+                        if st.rotation[k] != DMat3::ZERO || st.offset[k] != DVec3::ZERO {
+                            st.frame_active.push(k);
+                        }
+                    }
+                    let step = &ds.system.path[ds.steps.len()];
+                    debug_assert!((v3_value(&offset) - step.offset).length() < 1e-9 * (1.0 + step.offset.length()));
+                    debug_assert_eq!(step.surface, i);
+                    ds.steps.push(st);
+                    last_step_frame = surface_frame.clone();
+                }
+            }
+            if i == n - 1 {
+                image_frame = surface_frame.clone();
+            }
+            current = next.advanced(&thickness);
+        }
+        for k in 0..kk {
+            ds.image_rotation_tangent[k] = m3_tangent(&image_frame.r, k);
+            ds.image_origin_tangent[k] = v3_tangent(&image_frame.o, k);
+        }
+        for (i, m) in dcell.into_iter().enumerate() {
+            for (col, d) in m {
+                ds.cell_tangents[i].insert(col, d.unwrap_or_else(|| vec![0.0; kk]));
+            }
+        }
+        Ok(ds)
+    }
+
+    pub fn k(&self) -> usize {
+        self.params.len()
+    }
+
+    /// Indices after every surface at `wavelength_nm` and their tangents `dn[surface * K + k]`.
+    pub fn index_tangents(&self, wavelength_nm: f64) -> Result<(Vec<f64>, Vec<f64>)> {
+        self.index_tangents_inner(wavelength_nm, true)
+    }
+
+    fn index_tangents_inner(&self, wavelength_nm: f64, with_wavelength: bool) -> Result<(Vec<f64>, Vec<f64>)> {
+        let kk = self.k();
+        let n = self.system.indices(wavelength_nm)?;
+        let mut dn = vec![0.0; n.len() * kk];
+        for (i, s) in self.system.surfaces.iter().enumerate() {
+            let Medium::Glass(g) = &s.medium_after else { continue };
+            let (dnd, dvd, dl) = match self.models.get(&g.name) {
+                Some(m) => {
+                    let (_, a, b, c) = m.index_derivatives(wavelength_nm);
+                    (a, b, c)
+                }
+                None => (0.0, 0.0, super::dispersion::index_and_slope(&g.formula, wavelength_nm).1),
+            };
+            for (k, p) in self.params.iter().enumerate() {
+                dn[i * kk + k] = match p {
+                    Param::GlassNd(name) if *name == g.name => dnd,
+                    Param::GlassVd(name) if *name == g.name => dvd,
+                    Param::Wavelength if with_wavelength => dl,
+                    _ => 0.0,
+                };
+            }
+        }
+        Ok((n, dn))
+    }
+
+    /// Distance object → paraxial entrance pupil as a dual (the y–nu trace of
+    /// [`crate::system::EntrancePupil`] differentiated); infinite (telecentric) has no tangent.
+    fn pupil_distance(&self, dcell: &[HashMap<String, Option<Vec<f64>>>], n: &[f64], dn: &[f64]) -> Result<Dn> {
+        let kk = self.k();
+        let spec = &self.system.spec;
+        let stop = self.system.stop_index;
+        let value = |i: usize, col: &str| spec.surfaces[i].cell(col).map(|c| c.value).unwrap_or(0.0);
+        let dual = |i: usize, col: &str| -> Dn {
+            match dcell[i].get(col) {
+                Some(Some(d)) => Dn::new(value(i, col), d.clone()),
+                _ => Dn::constant(value(i, col), kk),
+            }
+        };
+        let nd = |i: usize| Dn::new(n[i], dn[i * kk..(i + 1) * kk].to_vec());
+        let power = |i: usize| -> Dn {
+            let s = &spec.surfaces[i];
+            match s.kind {
+                SurfaceKind::Standard | SurfaceKind::EvenAsphere => {
+                    let c = match self.params.iter().position(|p| *p == Param::Curvature { surface: i }) {
+                        Some(k) => Dn::seed(s.radius_mm.as_ref().map(|r| 1.0 / r.value).unwrap_or(0.0), kk, k),
+                        None if s.radius_mm.is_some() => dual(i, "radius_mm").recip(),
+                        None => Dn::constant(0.0, kk),
+                    };
+                    let c = if s.kind == SurfaceKind::EvenAsphere && !s.asphere_coefficients.is_empty() { &c + &dual(i, "asphere_1").scale(2.0) } else { c };
+                    &c * &(&nd(i) - &nd(i - 1))
+                }
+                SurfaceKind::Paraxial => &nd(i) / &dual(i, "focal_length_mm"),
+                SurfaceKind::CoordinateBreak => Dn::constant(0.0, kk),
+            }
+        };
+        let height = |y0: f64, nu0: f64| -> Dn {
+            let (mut y, mut nu) = (Dn::constant(y0, kk), Dn::constant(nu0, kk));
+            for i in 1..=stop {
+                y = &y + &(&(&dual(i - 1, "thickness_mm") * &nu) / &nd(i - 1));
+                if i == stop {
+                    break;
+                }
+                nu = &nu - &(&y * &power(i));
+            }
+            y
+        };
+        let (a, b) = (height(1.0, 0.0), height(0.0, 1.0));
+        if a.v.abs() < 1e-14 * b.v.abs() {
+            return Ok(Dn::constant(f64::INFINITY, kk));
+        }
+        let d = &(&nd(0) * &b) / &a;
+        if (d.v - self.system.pupil.distance_mm).abs() > 1e-9 * (1.0 + d.v.abs()) {
+            return Err(Error::invalid(format!("pupil replay {} mm differs from the build's {} mm", d.v, self.system.pupil.distance_mm)));
+        }
+        Ok(d)
+    }
+
+    /// The primary chief ray of the first field, traced with tangents through the steps placed so far and
+    /// met with the plane z = 0 of the break at surface `i`: (point, direction) in the break's frame.
+    fn chief_ray_at(&self, i: usize, last: &DFrame, brk: &DFrame, pupil_distance: Option<&Dn>, n: &[f64], dn: &[f64]) -> Result<(V3, V3)> {
+        let kk = self.k();
+        let sys = &self.system;
+        let m = self.steps.len();
+        let stop_placed = sys.stop_index < i;
+        if sys.spec.ray_aiming != RayAiming::Off && stop_placed {
+            return Err(Error::invalid(format!(
+                "surface {i}: derivatives of chief-ray solves under real ray aiming are not implemented (set ray_aiming = \"off\" or fix the solve)"
+            )));
+        }
+        let field = sys.spec.fields_mm.first().copied().unwrap_or([0.0, 0.0]);
+        let origin = DVec3::new(field[0], field[1], 0.0);
+        let pd = pupil_distance.cloned().unwrap_or_else(|| Dn::constant(sys.pupil.distance_mm, kk));
+        let dir: V3 = if !pd.v.is_finite() {
+            v3_const(DVec3::Z, kk)
+        } else {
+            let w = [Dn::constant(-origin.x, kk), Dn::constant(-origin.y, kk), pd.clone()];
+            let w = if pd.v < 0.0 { v3_scale(&w, &Dn::constant(-1.0, kk)) } else { w };
+            v3_normalize(&w)
+        };
+        let d0 = v3_value(&dir);
+        let mut dp = vec![DVec3::ZERO; kk];
+        let mut dd: Vec<DVec3> = (0..kk).map(|k| v3_tangent(&dir, k)).collect();
+        let (p, d) = trace_tangents(&sys.path[..m], &self.steps[..m], n, dn, origin, d0, &mut dp, &mut dd)
+            .map_err(|(st, s)| Error::invalid(format!("surface {i}: chief ray {} at surface {s} while differentiating its solve", st.label())))?;
+        let (p, d) = (v3_from(p, &dp), v3_from(d, &dd));
+        let pg = last.point_to_global(&p);
+        let dg = m3_mul_v3(&last.r, &d);
+        let pl = brk.point_to_local(&pg);
+        let dl = m3_mul_v3(&m3_transpose(&brk.r), &dg);
+        if dl[2].v == 0.0 {
+            return Err(Error::invalid(format!("surface {i}: chief ray parallel to the break plane")));
+        }
+        let t = &(-&pl[2]) / &dl[2];
+        Ok((v3_add(&pl, &v3_scale(&dl, &t)), dl))
+    }
+}

@@ -1,0 +1,362 @@
+//! Exact ray hits on a *bounded* surface patch — a figure over its clear aperture — for non-sequential
+//! tracing (the Embree backend's analytic user geometry and its f64 hit refinement).
+//!
+//! The sequential tracer ([`super::intersect`]) needs one root: the vertex-branch crossing of an
+//! unbounded surface. A non-sequential tracer asks a different question: *where, after `tmin`, does this
+//! ray first meet the piece of surface that physically exists?* — a ray reflected inside a prism may meet
+//! a face from behind, a ray may pass beside a lens. [`SurfacePatch::first_hit`] answers that:
+//! * plane / paraxial plane: t = −p_z/d_z;
+//! * conic: both roots of c(x²+y²+(1+k)z²) − 2z = 0 along the ray, in increasing t, each checked to lie on
+//!   the vertex branch (the sag formula's sheet) and inside the aperture;
+//! * even asphere: the ray is clipped to the patch's bounding cylinder and z-slab, f(t) = z − sag(x, y)
+//!   is sampled for the first sign change and the bracket refined by safeguarded Newton (Newton steps
+//!   that leave the bracket become bisections), so grazing rays cannot diverge.
+//!
+//! [`SurfacePatch::nearest_root`] re-solves a hit already located approximately (an f32 Embree hit on a
+//! mesh or a user geometry) in f64: the root nearest to the approximate distance, without the aperture
+//! test (the surface was already identified).
+//!
+//! ```
+//! use diffcassi::surfaces::{Aperture, SurfacePatch, SurfaceShape};
+//! use glam::DVec3;
+//! let lens = SurfacePatch::new(SurfaceShape::Conic { curvature: 1.0 / 33.34, conic: 0.0 }, Aperture::circular(12.7)).unwrap();
+//! let t = lens.first_hit(DVec3::new(3.0, 0.0, -5.0), DVec3::Z, 0.0, f64::INFINITY).unwrap();
+//! assert!((t - 5.0 - lens.shape.sag(3.0, 0.0)).abs() < 1e-12);
+//! // From inside the glass going back toward −z, the same surface is met from behind.
+//! assert!(lens.first_hit(DVec3::new(3.0, 0.0, 2.0), -DVec3::Z, 0.0, f64::INFINITY).is_some());
+//! ```
+use super::{Aperture, SurfaceShape};
+use glam::DVec3;
+
+/// A surface figure over a finite clear aperture, with conservative local bounds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SurfacePatch {
+    pub shape: SurfaceShape,
+    /// Circular or rectangular: the patch's extent.
+    pub aperture: Aperture,
+    /// Largest distance of an aperture point from the local z axis (mm).
+    r_max: f64,
+    /// Conservative z range of the patch (mm).
+    z_min: f64,
+    z_max: f64,
+}
+
+/// Samples of f(t) along the clipped ray when searching an even asphere's first root.
+const ASPHERE_SAMPLES: usize = 64;
+
+impl SurfacePatch {
+    /// Errors: an aperture that is `None` (a patch must be bounded) or invalid, or a figure undefined
+    /// somewhere over the aperture (a conic beyond its domain).
+    pub fn new(shape: SurfaceShape, aperture: Aperture) -> Result<Self, String> {
+        aperture.validate()?;
+        let r_max = match aperture {
+            Aperture::None => return Err("a surface patch needs a finite aperture (circular or rectangular)".into()),
+            Aperture::Circular { semi_diameter_mm, decenter_x_mm, decenter_y_mm, .. } => semi_diameter_mm + decenter_x_mm.hypot(decenter_y_mm),
+            Aperture::Rectangular { half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm } => {
+                (half_width_x_mm + decenter_x_mm.abs()).hypot(half_width_y_mm + decenter_y_mm.abs())
+            }
+        };
+        // z range: the sag is rotationally symmetric, so sample it radially over [0, r_max].
+        let (mut z_min, mut z_max) = (0.0f64, 0.0f64);
+        const N: usize = 1024;
+        for i in 0..=N {
+            let r = r_max * i as f64 / N as f64;
+            let z = shape.sag(r, 0.0);
+            if !z.is_finite() {
+                return Err(format!("the surface is undefined at r = {r:.4} mm inside its aperture (r_max {r_max:.4} mm)"));
+            }
+            z_min = z_min.min(z);
+            z_max = z_max.max(z);
+        }
+        // Margin for the sag between samples (a smooth sag varies by far less than this between samples).
+        let pad = 1e-6 + 1e-3 * (z_max - z_min);
+        Ok(SurfacePatch { shape, aperture, r_max, z_min: z_min - pad, z_max: z_max + pad })
+    }
+
+    /// Conservative local bounding box (lower, upper), mm.
+    pub fn local_bounds(&self) -> (DVec3, DVec3) {
+        let (lo, hi) = match self.aperture {
+            Aperture::Rectangular { half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm } => (
+                DVec3::new(decenter_x_mm - half_width_x_mm, decenter_y_mm - half_width_y_mm, self.z_min),
+                DVec3::new(decenter_x_mm + half_width_x_mm, decenter_y_mm + half_width_y_mm, self.z_max),
+            ),
+            Aperture::Circular { semi_diameter_mm: r, decenter_x_mm: dx, decenter_y_mm: dy, .. } => {
+                (DVec3::new(dx - r, dy - r, self.z_min), DVec3::new(dx + r, dy + r, self.z_max))
+            }
+            Aperture::None => (DVec3::splat(-self.r_max), DVec3::splat(self.r_max)),
+        };
+        (lo, hi)
+    }
+
+    /// Smallest t in (tmin, tmax] at which p + t·d (local frame, `d` unit) meets the patch inside its
+    /// aperture, or `None`.
+    pub fn first_hit(&self, p: DVec3, d: DVec3, tmin: f64, tmax: f64) -> Option<f64> {
+        let inside = |t: f64| -> bool {
+            let q = p + d * t;
+            t > tmin && t <= tmax && self.aperture.contains(q.x, q.y)
+        };
+        match &self.shape {
+            SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => plane_root(p, d).filter(|&t| inside(t)),
+            SurfaceShape::Conic { curvature, conic } => {
+                let (t1, t2) = conic_roots(*curvature, *conic, p, d);
+                [t1, t2].into_iter().flatten().find(|&t| inside(t))
+            }
+            SurfaceShape::EvenAsphere { .. } => {
+                let (a, b) = self.clip(p, d, tmin, tmax)?;
+                self.asphere_first_root(p, d, a, b).filter(|&t| inside(t))
+            }
+        }
+    }
+
+    /// The root of the surface equation along p + t·d nearest to `t_guess` (the f64 refinement of an
+    /// approximate hit on this surface), without the aperture test; `None` if the line does not meet the
+    /// figure near there.
+    pub fn nearest_root(&self, p: DVec3, d: DVec3, t_guess: f64) -> Option<f64> {
+        match &self.shape {
+            SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => plane_root(p, d),
+            SurfaceShape::Conic { curvature, conic } => {
+                let (t1, t2) = conic_roots(*curvature, *conic, p, d);
+                [t1, t2].into_iter().flatten().min_by(|a, b| (a - t_guess).abs().total_cmp(&(b - t_guess).abs()))
+            }
+            SurfaceShape::EvenAsphere { .. } => {
+                // Search a window around the guess that grows until it brackets a root.
+                let mut w = 1e-3 + 1e-6 * t_guess.abs();
+                for _ in 0..12 {
+                    if let Some(t) = self.asphere_nearest_in(p, d, t_guess - w, t_guess + w, t_guess) {
+                        return Some(t);
+                    }
+                    w *= 4.0;
+                }
+                None
+            }
+        }
+    }
+
+    /// The part of (tmin, tmax] inside the bounding cylinder r ≤ r_max and slab z_min ≤ z ≤ z_max.
+    fn clip(&self, p: DVec3, d: DVec3, tmin: f64, tmax: f64) -> Option<(f64, f64)> {
+        let (mut a, mut b) = (tmin, tmax);
+        // Slab.
+        if d.z.abs() > 0.0 {
+            let (t1, t2) = ((self.z_min - p.z) / d.z, (self.z_max - p.z) / d.z);
+            a = a.max(t1.min(t2));
+            b = b.min(t1.max(t2));
+        } else if p.z < self.z_min || p.z > self.z_max {
+            return None;
+        }
+        // Cylinder: (px + t dx)² + (py + t dy)² ≤ r².
+        let qa = d.x * d.x + d.y * d.y;
+        let qb = p.x * d.x + p.y * d.y;
+        let qc = p.x * p.x + p.y * p.y - self.r_max * self.r_max;
+        if qa > 0.0 {
+            let disc = qb * qb - qa * qc;
+            if disc < 0.0 {
+                return None;
+            }
+            let s = disc.sqrt();
+            a = a.max((-qb - s) / qa);
+            b = b.min((-qb + s) / qa);
+        } else if qc > 0.0 {
+            return None;
+        }
+        (a.is_finite() && b.is_finite() && a <= b).then_some((a, b))
+    }
+
+    fn f(&self, p: DVec3, d: DVec3, t: f64) -> f64 {
+        let q = p + d * t;
+        q.z - self.shape.sag(q.x, q.y)
+    }
+
+    /// First sign change of f on [a, b] by sampling, refined.
+    fn asphere_first_root(&self, p: DVec3, d: DVec3, a: f64, b: f64) -> Option<f64> {
+        let h = (b - a) / ASPHERE_SAMPLES as f64;
+        let mut t0 = a;
+        let mut f0 = self.f(p, d, a);
+        if f0 == 0.0 && a > 0.0 {
+            return Some(a);
+        }
+        for i in 1..=ASPHERE_SAMPLES {
+            let t1 = if i == ASPHERE_SAMPLES { b } else { a + h * i as f64 };
+            let f1 = self.f(p, d, t1);
+            if f0.is_finite() && f1.is_finite() && (f0 == 0.0 || f0.signum() != f1.signum()) {
+                return self.refine_bracket(p, d, t0, t1);
+            }
+            (t0, f0) = (t1, f1);
+        }
+        None
+    }
+
+    /// The sign change on [a, b] nearest to `guess`.
+    fn asphere_nearest_in(&self, p: DVec3, d: DVec3, a: f64, b: f64, guess: f64) -> Option<f64> {
+        let n = 16;
+        let ts: Vec<f64> = (0..=n).map(|i| a + (b - a) * i as f64 / n as f64).collect();
+        let fs: Vec<f64> = ts.iter().map(|&t| self.f(p, d, t)).collect();
+        let mut best: Option<f64> = None;
+        for i in 0..n {
+            if fs[i].is_finite() && fs[i + 1].is_finite() && (fs[i] == 0.0 || fs[i].signum() != fs[i + 1].signum()) {
+                if let Some(t) = self.refine_bracket(p, d, ts[i], ts[i + 1]) {
+                    if best.is_none_or(|b| (t - guess).abs() < (b - guess).abs()) {
+                        best = Some(t);
+                    }
+                }
+            }
+        }
+        best
+    }
+
+    /// Safeguarded Newton on a bracket [a, b] with a sign change: Newton steps that leave the bracket
+    /// become bisections.
+    fn refine_bracket(&self, p: DVec3, d: DVec3, mut a: f64, mut b: f64) -> Option<f64> {
+        let mut fa = self.f(p, d, a);
+        if fa == 0.0 {
+            return Some(a);
+        }
+        let mut t = 0.5 * (a + b);
+        for _ in 0..200 {
+            let q = p + d * t;
+            let f = q.z - self.shape.sag(q.x, q.y);
+            if !f.is_finite() {
+                return None;
+            }
+            if f == 0.0 {
+                return Some(t);
+            }
+            if f.signum() == fa.signum() {
+                a = t;
+                fa = f;
+            } else {
+                b = t;
+            }
+            let (gx, gy) = self.shape.sag_gradient(q.x, q.y);
+            let fp = d.z - gx * d.x - gy * d.y;
+            let newton = t - f / fp;
+            t = if fp != 0.0 && newton > a.min(b) && newton < a.max(b) { newton } else { 0.5 * (a + b) };
+            if (b - a).abs() <= 4.0 * f64::EPSILON * (1.0 + t.abs()) {
+                return Some(t);
+            }
+        }
+        Some(t)
+    }
+}
+
+#[inline]
+fn plane_root(p: DVec3, d: DVec3) -> Option<f64> {
+    (d.z != 0.0).then(|| -p.z / d.z).filter(|t| t.is_finite())
+}
+
+/// Both roots (ascending, each `None` if absent or off the vertex branch) of c(x²+y²+(1+k)z²) − 2z = 0
+/// along p + t·d, computed without cancellation (Numerical Recipes §5.6).
+fn conic_roots(c: f64, k: f64, p: DVec3, d: DVec3) -> (Option<f64>, Option<f64>) {
+    if c == 0.0 {
+        return (plane_root(p, d), None);
+    }
+    let kk = 1.0 + k;
+    let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
+    let b = c * (p.x * d.x + p.y * d.y + kk * p.z * d.z) - d.z;
+    let cc = c * (p.x * p.x + p.y * p.y + kk * p.z * p.z) - 2.0 * p.z;
+    let on_branch = |t: f64| -> Option<f64> {
+        if !t.is_finite() {
+            return None;
+        }
+        let q = p + d * t;
+        let r2 = q.x * q.x + q.y * q.y;
+        let domain = 1.0 - kk * c * c * r2;
+        if domain < 0.0 {
+            return None;
+        }
+        let sag = c * r2 / (1.0 + domain.sqrt());
+        ((q.z - sag).abs() <= 1e-9 * (1.0 + q.z.abs())).then_some(t)
+    };
+    if a == 0.0 {
+        // Linear: 2 b t + cc = 0.
+        return (if b != 0.0 { on_branch(-cc / (2.0 * b)) } else { None }, None);
+    }
+    let disc = b * b - a * cc;
+    if !(disc >= 0.0) {
+        return (None, None);
+    }
+    let q = -(b + if b >= 0.0 { 1.0 } else { -1.0 } * disc.sqrt());
+    let (r1, r2) = if q != 0.0 { (cc / q, q / a) } else { (0.0, 0.0) };
+    let (lo, hi) = if r1 <= r2 { (r1, r2) } else { (r2, r1) };
+    match (on_branch(lo), on_branch(hi)) {
+        (None, h) => (h, None),
+        (l, h) => (l, h),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sphere(r: f64, sd: f64) -> SurfacePatch {
+        SurfacePatch::new(SurfaceShape::Conic { curvature: 1.0 / r, conic: 0.0 }, Aperture::circular(sd)).unwrap()
+    }
+
+    #[test]
+    fn plane_patch_respects_aperture_and_interval() {
+        let p = SurfacePatch::new(SurfaceShape::Plane, Aperture::circular(2.0)).unwrap();
+        assert_eq!(p.first_hit(DVec3::new(1.0, 0.0, -1.0), DVec3::Z, 0.0, 10.0), Some(1.0));
+        assert_eq!(p.first_hit(DVec3::new(3.0, 0.0, -1.0), DVec3::Z, 0.0, 10.0), None);
+        assert_eq!(p.first_hit(DVec3::new(1.0, 0.0, -1.0), DVec3::Z, 0.0, 0.5), None);
+        assert_eq!(p.first_hit(DVec3::new(1.0, 0.0, 1.0), -DVec3::Z, 0.0, 10.0), Some(1.0));
+        assert_eq!(p.first_hit(DVec3::new(1.0, 0.0, -1.0), DVec3::X, 0.0, 10.0), None);
+    }
+
+    #[test]
+    fn sphere_first_hit_matches_sequential_root_and_backside() {
+        let s = sphere(33.34, 12.7);
+        for x in [0.0, 3.0, 9.0, 12.5] {
+            let p = DVec3::new(x, 0.5, -4.0);
+            let seq = crate::surfaces::intersect(&s.shape, p, DVec3::Z).unwrap().t;
+            let t = s.first_hit(p, DVec3::Z, 0.0, f64::INFINITY).unwrap();
+            assert!((t - seq).abs() < 1e-12, "{x}: {t} vs {seq}");
+            // From behind (inside the lens) the same point.
+            let q = p + DVec3::Z * (t + 2.0);
+            let back = s.first_hit(q, -DVec3::Z, 0.0, f64::INFINITY).unwrap();
+            assert!((back - 2.0).abs() < 1e-12);
+        }
+        // The far half of the sphere (z > R) is not part of the patch.
+        assert!(s.first_hit(DVec3::new(0.0, 0.0, 40.0), DVec3::Z, 0.0, f64::INFINITY).is_none());
+    }
+
+    #[test]
+    fn asphere_first_root_and_nearest_root() {
+        let shape = SurfaceShape::EvenAsphere { curvature: 1.0 / 40.0, conic: -1.0, coefficients: vec![0.0, 1e-5, -2e-8] };
+        let a = SurfacePatch::new(shape.clone(), Aperture::circular(10.0)).unwrap();
+        for (x, dx) in [(0.0, 0.0), (4.0, 0.1), (-7.0, 0.3), (9.0, -0.5)] {
+            let p = DVec3::new(x, 1.0, -3.0);
+            let d = DVec3::new(dx, 0.05, 1.0).normalize();
+            let t = a.first_hit(p, d, 0.0, f64::INFINITY).unwrap();
+            let q = p + d * t;
+            assert!((q.z - shape.sag(q.x, q.y)).abs() < 1e-12, "{x}");
+            let seq = crate::surfaces::intersect(&shape, p, d).unwrap().t;
+            assert!((t - seq).abs() < 1e-10);
+            let near = a.nearest_root(p, d, t + 3e-4).unwrap();
+            assert!((near - t).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn grazing_ray_on_plane_and_sphere_is_classified_not_nan() {
+        let s = sphere(20.0, 5.0);
+        let p = DVec3::new(-10.0, 0.0, s.shape.sag(4.9, 0.0));
+        let d = DVec3::new(1.0, 0.0, 1e-9).normalize();
+        if let Some(t) = s.first_hit(p, d, 0.0, f64::INFINITY) {
+            assert!(t.is_finite());
+        }
+        let plane = SurfacePatch::new(SurfaceShape::Plane, Aperture::circular(5.0)).unwrap();
+        assert_eq!(plane.first_hit(DVec3::new(-10.0, 0.0, 0.0), DVec3::X, 0.0, f64::INFINITY), None);
+    }
+
+    #[test]
+    fn bounds_contain_the_patch_and_bad_patches_are_errors() {
+        let s = sphere(-15.0, 12.0);
+        let (lo, hi) = s.local_bounds();
+        for i in 0..=100 {
+            let r = 12.0 * i as f64 / 100.0;
+            let z = s.shape.sag(r, 0.0);
+            assert!(z >= lo.z && z <= hi.z && r <= hi.x && -r >= lo.x);
+        }
+        assert!(SurfacePatch::new(SurfaceShape::Plane, Aperture::None).is_err());
+        assert!(SurfacePatch::new(SurfaceShape::Conic { curvature: 1.0 / 5.0, conic: 0.0 }, Aperture::circular(6.0)).is_err());
+    }
+}

@@ -1,0 +1,364 @@
+//! [`EmbreeTracer`]: the non-sequential Embree backend of the [`Tracer`] trait.
+//!
+//! Each ray is followed through the [`OpticalScene`]: Embree finds the next geometry (f32, the cheap
+//! preliminary hit), then the surface interaction is computed in f64 — exactly re-solved on the
+//! identified surface with [`Refinement::F64`], or taken from Embree's f32 distance with
+//! [`Refinement::None`] (mesh normals interpolated from the exact vertex normals, user-geometry normals
+//! from the callback). Refraction is vector Snell's law with the media on the two sides of the
+//! interface; total internal reflection is *followed* (the ray reflects and goes on) until the detector,
+//! an absorber (side wall → [`RayStatus::Absorbed`], aperture blade → [`RayStatus::Vignetted`]), a miss,
+//! or [`EmbreeOptions::max_bounces`] interactions ([`RayStatus::BounceLimit`]).
+//!
+//! The surface a ray just left is excluded from its next query with Embree's ray masks (one bit per
+//! interface), so a ray never re-hits its own surface at t ≈ 0 (the classic self-intersection problem);
+//! consequently a ray cannot meet the *same* surface twice in a row, which for these systems (planes and
+//! lens surfaces convex toward the ray) never happens physically.
+//!
+//! Where precision is lost: Embree works in f32 on global coordinates (up to ~300 mm here, ulp ≈ 3e-5 mm),
+//! so unrefined hit points carry ~1e-5 mm errors, and mesh facets add their chord-sag error to positions
+//! and their interpolated normals an O(h²) direction error. With [`Refinement::F64`] the f32 result only
+//! *identifies* the surface, and the answers equal the analytic tracer's.
+//!
+//! ```no_run
+//! use diffcassi::prelude::*;
+//! use diffcassi::tracer::embree::{EmbreeOptions, EmbreeTracer};
+//! let sys = SequentialSystem::build(&presets::spec("sp")?)?;
+//! let rays = RayBatch::chief_rays(&sys, &[[0.0, 0.0], [2.5, 2.5]], 520.0)?;
+//! let out = EmbreeTracer::new(EmbreeOptions::default()).trace(&sys, &rays)?;
+//! let exact = AnalyticTracer::default().trace(&sys, &rays)?;
+//! assert!((out.x[1] - exact.x[1]).abs() < 1e-6);
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+use super::scene::{OpticalScene, Role, SceneObject, SceneOptions, SurfaceRepresentation};
+use super::wrapper::{with_flush_denormals, Hit, Ray};
+use crate::error::{Error, Result};
+use crate::rays::RayBatch;
+use crate::surfaces::MeshResolution;
+use crate::system::SequentialSystem;
+use crate::tracer::analytic::index_table;
+use crate::tracer::kernel::{paraxial_deflect, refract};
+use crate::tracer::{RayStatus, TracedBatch, Tracer};
+use glam::DVec3;
+use rayon::prelude::*;
+use std::sync::{Arc, Mutex};
+
+/// How an Embree hit becomes a surface interaction.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Refinement {
+    /// Use Embree's f32 distance (and the mesh's interpolated or the callback's normal).
+    None,
+    /// Re-solve the hit exactly in f64 on the surface Embree identified.
+    F64,
+}
+
+/// Embree backend options.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EmbreeOptions {
+    pub scene: SceneOptions,
+    pub refine: Refinement,
+    /// Trace bundles of 16 consecutive rays with `rtcIntersect16` instead of one by one (`rtcIntersect1`).
+    pub packets: bool,
+    /// Most surface interactions (refractions + reflections) per ray.
+    pub max_bounces: u32,
+    /// Rays per rayon task.
+    pub chunk_size: usize,
+}
+
+impl Default for EmbreeOptions {
+    fn default() -> Self {
+        EmbreeOptions { scene: SceneOptions::default(), refine: Refinement::F64, packets: true, max_bounces: 64, chunk_size: 1024 }
+    }
+}
+
+impl EmbreeOptions {
+    /// Analytic user geometry.
+    pub fn user(refine: Refinement) -> Self {
+        EmbreeOptions { refine, ..Default::default() }
+    }
+    /// Tessellated surfaces.
+    pub fn mesh(resolution: MeshResolution, refine: Refinement) -> Self {
+        EmbreeOptions { scene: SceneOptions { representation: SurfaceRepresentation::Mesh(resolution), ..Default::default() }, refine, ..Default::default() }
+    }
+}
+
+/// Per-ray diagnostics of a non-sequential trace.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TraceDetails {
+    /// Total internal reflections followed.
+    pub reflections: Vec<u16>,
+    /// Surface interactions (refractions, reflections, ideal-lens deflections).
+    pub interactions: Vec<u16>,
+    /// Largest |z − sag(x, y)| of the ray's hit points on their exact surfaces (mm): the geometric error
+    /// of the hit (0 with f64 refinement up to rounding; the chord-sag error for meshes).
+    pub max_hit_deviation_mm: Vec<f64>,
+}
+
+/// The Embree backend. The scene of a system is built on first use and cached (keyed by the resolved
+/// spec), so repeated batches on one system pay for it once.
+pub struct EmbreeTracer {
+    pub options: EmbreeOptions,
+    cache: Mutex<Option<(String, Arc<OpticalScene>)>>,
+}
+
+impl std::fmt::Debug for EmbreeTracer {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("EmbreeTracer").field("options", &self.options).finish()
+    }
+}
+
+/// One ray's state during the non-sequential walk (global frame).
+#[derive(Clone, Copy)]
+struct Walk {
+    p: DVec3,
+    d: DVec3,
+    exclude: u32,
+    interactions: u16,
+    reflections: u16,
+    max_dev: f64,
+    last_surface: u32,
+    done: bool,
+    status: RayStatus,
+    out_p: DVec3,
+    out_d: DVec3,
+}
+
+impl Walk {
+    fn new(o: DVec3, d: DVec3) -> Self {
+        let len = d.length();
+        let valid = o.is_finite() && d.is_finite() && len > 0.0;
+        Walk {
+            p: o,
+            d: if valid { d / len } else { DVec3::Z },
+            exclude: 0,
+            interactions: 0,
+            reflections: 0,
+            max_dev: 0.0,
+            last_surface: 0,
+            done: !valid,
+            status: if valid { RayStatus::Ok } else { RayStatus::InvalidInput },
+            out_p: DVec3::ZERO,
+            out_d: DVec3::ZERO,
+        }
+    }
+    fn ray(&self) -> Ray {
+        let mut r = Ray::new(self.p.as_vec3().to_array(), self.d.as_vec3().to_array());
+        r.mask = !self.exclude;
+        r
+    }
+    fn finish(&mut self, status: RayStatus, surface: usize) {
+        self.done = true;
+        self.status = status;
+        self.last_surface = surface as u32;
+    }
+}
+
+impl EmbreeTracer {
+    pub fn new(options: EmbreeOptions) -> Self {
+        EmbreeTracer { options, cache: Mutex::new(None) }
+    }
+
+    /// The scene of `system` (built, or taken from the cache).
+    pub fn scene_for(&self, system: &SequentialSystem) -> Result<Arc<OpticalScene>> {
+        let key = format!("{:?}", system.spec);
+        let mut cache = self.cache.lock().map_err(|_| Error::invalid("Embree scene cache poisoned by an earlier panic"))?;
+        if let Some((k, s)) = cache.as_ref() {
+            if *k == key {
+                return Ok(s.clone());
+            }
+        }
+        let scene = Arc::new(OpticalScene::build(system, &self.options.scene)?);
+        *cache = Some((key, scene.clone()));
+        Ok(scene)
+    }
+
+    /// Trace with per-ray diagnostics.
+    pub fn trace_detailed(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<(TracedBatch, TraceDetails)> {
+        if !rays.is_consistent() {
+            return Err(Error::invalid("ray batch columns have different lengths"));
+        }
+        if self.options.max_bounces == 0 || self.options.max_bounces > u16::MAX as u32 {
+            return Err(Error::invalid(format!("max_bounces = {}: must be in 1..=65535", self.options.max_bounces)));
+        }
+        let table = index_table(system, &rays.wavelength_nm)?;
+        let scene = self.scene_for(system)?;
+        let n = rays.len();
+        let chunk = self.options.chunk_size.max(16);
+        let walks: Vec<Walk> = (0..n.div_ceil(chunk))
+            .into_par_iter()
+            .flat_map_iter(|c| {
+                let range = c * chunk..((c + 1) * chunk).min(n);
+                with_flush_denormals(|| self.trace_range(&scene, &table, rays, range))
+            })
+            .collect();
+        let mut out = TracedBatch::zeroed(n);
+        let mut details = TraceDetails { reflections: vec![0; n], interactions: vec![0; n], max_hit_deviation_mm: vec![0.0; n] };
+        for (i, w) in walks.iter().enumerate() {
+            out.status[i] = w.status;
+            details.reflections[i] = w.reflections;
+            details.interactions[i] = w.interactions;
+            details.max_hit_deviation_mm[i] = w.max_dev;
+            if w.status == RayStatus::Ok {
+                (out.x[i], out.y[i], out.z[i]) = (w.out_p.x, w.out_p.y, w.out_p.z);
+                (out.dir_x[i], out.dir_y[i], out.dir_z[i]) = (w.out_d.x, w.out_d.y, w.out_d.z);
+            } else {
+                out.surface[i] = w.last_surface;
+            }
+        }
+        Ok((out, details))
+    }
+
+    fn trace_range(&self, scene: &OpticalScene, table: &std::collections::HashMap<u64, Vec<f64>>, rays: &RayBatch, range: std::ops::Range<usize>) -> Vec<Walk> {
+        let mut walks: Vec<Walk> = range.clone().map(|i| Walk::new(rays.origin(i), rays.direction(i))).collect();
+        let idx: Vec<&Vec<f64>> = range.map(|i| table.get(&rays.wavelength_nm[i].to_bits()).expect("every batch wavelength is in the table")).collect();
+        if self.options.packets {
+            for (ws, ns) in walks.chunks_mut(16).zip(idx.chunks(16)) {
+                loop {
+                    let mut packet = [Ray::new([0.0; 3], [0.0, 0.0, 1.0]); 16];
+                    let mut valid = [false; 16];
+                    for (k, w) in ws.iter().enumerate() {
+                        if !w.done {
+                            packet[k] = w.ray();
+                            valid[k] = true;
+                        }
+                    }
+                    if !valid.iter().any(|v| *v) {
+                        break;
+                    }
+                    // Incoherent packets: Embree 4.3.3's coherent (frustum) traversal, with
+                    // RTC_RAY_QUERY_FLAG_COHERENT, was measured to drop hits here (SP, on-axis hexapolar
+                    // bundle: 9 of 16 lanes missed the doublet's second surface, with user geometry and
+                    // meshes alike, also after splitting packets by direction octant), so it is not used.
+                    let hits = scene.scene.intersect16_with(&packet, &valid, false);
+                    for (k, w) in ws.iter_mut().enumerate() {
+                        if valid[k] {
+                            self.interact(scene, ns[k], w, &hits[k]);
+                        }
+                    }
+                }
+            }
+        } else {
+            for (w, n) in walks.iter_mut().zip(&idx) {
+                while !w.done {
+                    let hit = scene.scene.intersect1(&w.ray());
+                    self.interact(scene, n, w, &hit);
+                }
+            }
+        }
+        walks
+    }
+
+    /// Apply what the geometry Embree found does to the ray.
+    fn interact(&self, scene: &OpticalScene, n: &[f64], w: &mut Walk, hit: &Hit) {
+        if !hit.is_hit() {
+            let s = w.last_surface as usize;
+            w.finish(RayStatus::Missed, s);
+            return;
+        }
+        let obj = &scene.objects[hit.geom_id as usize];
+        match &obj.role {
+            Role::Wall { surface } => w.finish(RayStatus::Absorbed, *surface),
+            Role::Blade { surface } => w.finish(RayStatus::Vignetted, *surface),
+            Role::Detector { surface } => match self.locate(obj, w, hit) {
+                Some((p, _)) => {
+                    w.out_p = p;
+                    w.out_d = obj.frame.dir_to_local(w.d);
+                    w.finish(RayStatus::Ok, *surface);
+                    w.last_surface = u32::MAX;
+                }
+                None => w.finish(RayStatus::NoConvergence, *surface),
+            },
+            Role::Interface { surfaces, front_medium, back_medium, paraxial_focal_mm } => {
+                let surface = *surfaces.last().expect("an interface has surfaces");
+                let Some((p, normal)) = self.locate(obj, w, hit) else {
+                    w.finish(RayStatus::NoConvergence, surface);
+                    return;
+                };
+                let d = obj.frame.dir_to_local(w.d);
+                // The normal points to the back side (+z): a ray with d·n > 0 goes front → back.
+                let forward = d.dot(normal) > 0.0;
+                let (n1, n2) = if forward { (n[*front_medium], n[*back_medium]) } else { (n[*back_medium], n[*front_medium]) };
+                let new_d = match paraxial_focal_mm {
+                    Some(f) => paraxial_deflect(p, d, *f, n1, n2),
+                    None => match refract(d, normal, n1, n2) {
+                        Some(r) => r,
+                        None => {
+                            // Total internal reflection: followed, not dropped.
+                            w.reflections = w.reflections.saturating_add(1);
+                            d - 2.0 * d.dot(normal) * normal
+                        }
+                    },
+                };
+                w.p = obj.frame.point_to_global(p);
+                w.d = obj.frame.dir_to_global(new_d).normalize();
+                w.exclude = obj.mask;
+                w.last_surface = surface as u32;
+                w.interactions = w.interactions.saturating_add(1);
+                if w.interactions as u32 >= self.options.max_bounces {
+                    w.finish(RayStatus::BounceLimit, surface);
+                }
+            }
+        }
+    }
+
+    /// The hit point and unit normal (oriented toward local +z) in the object's local frame.
+    fn locate(&self, obj: &SceneObject, w: &mut Walk, hit: &Hit) -> Option<(DVec3, DVec3)> {
+        let patch = obj.patch.as_ref()?;
+        let p0 = obj.frame.point_to_local(w.p);
+        let d = obj.frame.dir_to_local(w.d);
+        // Embree's t is measured from the f32-rounded origin along the f32 direction (|d₃₂| ≈ 1).
+        let t_embree = hit.t as f64;
+        let (p, normal) = match self.options.refine {
+            Refinement::F64 => {
+                let t = patch.nearest_root(p0, d, t_embree)?;
+                let mut p = p0 + d * t;
+                if matches!(patch.shape, crate::surfaces::SurfaceShape::Plane | crate::surfaces::SurfaceShape::Paraxial { .. }) {
+                    p.z = 0.0; // exactly on the plane, as the sequential tracer puts it
+                }
+                (p, patch.shape.normal(p))
+            }
+            Refinement::None => {
+                let p = p0 + d * t_embree;
+                let n_global = match &obj.mesh {
+                    Some(mesh) => {
+                        let tri = mesh.triangles.get(hit.prim_id as usize)?;
+                        let (u, v) = (hit.u as f64, hit.v as f64);
+                        (1.0 - u - v) * mesh.normals[tri[0] as usize] + u * mesh.normals[tri[1] as usize] + v * mesh.normals[tri[2] as usize]
+                    }
+                    None => DVec3::new(hit.ng[0] as f64, hit.ng[1] as f64, hit.ng[2] as f64),
+                };
+                let mut nl = obj.frame.dir_to_local(n_global).normalize();
+                if nl.z < 0.0 {
+                    nl = -nl;
+                }
+                (p, nl)
+            }
+        };
+        if !(p.is_finite() && normal.is_finite()) {
+            return None;
+        }
+        let sag = patch.shape.sag(p.x, p.y);
+        if sag.is_finite() {
+            w.max_dev = w.max_dev.max((p.z - sag).abs());
+        }
+        Some((p, normal))
+    }
+}
+
+impl Tracer for EmbreeTracer {
+    fn name(&self) -> String {
+        let geometry = match self.options.scene.representation {
+            SurfaceRepresentation::User => "embree-user".to_string(),
+            SurfaceRepresentation::Mesh(MeshResolution::Segments(n)) => format!("embree-mesh(segments={n})"),
+            SurfaceRepresentation::Mesh(MeshResolution::MaxSagErrorUm(e)) => format!("embree-mesh(max-sag={e}um)"),
+        };
+        let refine = match self.options.refine {
+            Refinement::F64 => "refine=f64",
+            Refinement::None => "refine=none",
+        };
+        format!("{geometry},{refine}{}", if self.options.packets { "" } else { ",single" })
+    }
+
+    fn trace(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<TracedBatch> {
+        self.trace_detailed(system, rays).map(|(out, _)| out)
+    }
+}
