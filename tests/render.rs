@@ -438,6 +438,32 @@ fn cli_render_writes_the_interface_files() {
     assert_eq!(json(&out1.join("render.json"))["threads"], 1);
 }
 
+/// `render --backend embree-user` (f64-refined hits) renders the same acquisition as the analytic tracer,
+/// through the batched `Tracer` path; `--backend embree-mesh --refine none` differs, but only slightly.
+#[cfg(feature = "embree")]
+#[test]
+fn cli_render_backends_agree() {
+    let d = tmpdir();
+    let args = |out: &Path, extra: &[&str]| {
+        let mut v: Vec<String> = ["render", "--preset", "sp", "--synthetic", "2", "--scene-size", "24", "--planes", "6", "--rays", "3", "--no-mapping", "--out"].iter().map(|s| s.to_string()).collect();
+        v.push(out.to_str().unwrap().into());
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    let (a, e, m) = (d.path().join("a"), d.path().join("e"), d.path().join("m"));
+    for (out, extra) in [(&a, &[][..]), (&e, &["--backend", "embree-user"][..]), (&m, &["--backend", "embree-mesh", "--mesh-max-sag-um", "10", "--refine", "none"][..])] {
+        let o = bin().args(args(out, extra)).output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    }
+    assert_eq!(json(&e.join("render.json"))["tracer"], "embree-user,refine=f64");
+    let (va, ve, vm) = (exr_values(&a.join("acquisition.exr")), exr_values(&e.join("acquisition.exr")), exr_values(&m.join("acquisition.exr")));
+    let max = va.iter().cloned().fold(0f32, f32::max);
+    let worst = |v: &[f32]| va.iter().zip(v).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max) / max;
+    assert!(worst(&ve) < 1e-5, "embree-user f64 vs analytic: {}", worst(&ve));
+    let wm = worst(&vm);
+    assert!(wm > 0.0 && wm < 0.05, "embree-mesh 10 µm unrefined vs analytic: {wm}");
+}
+
 #[test]
 fn cli_render_dataset_matches_per_scene_renders_and_skips_complete_scenes() {
     let d = tmpdir();

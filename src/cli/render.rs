@@ -6,8 +6,8 @@
 //! diffcassi render-dataset --scenes scenes/ --preset sp --out out/sp-dataset
 //! diffcassi bench-render --preset sp                              # the paper-scale timing table
 //! ```
-use super::args::SystemArgs;
-use super::commands::{load_system, parse_wavelengths};
+use super::args::{BackendArgs, SystemArgs};
+use super::commands::{load_system, make_tracer, parse_wavelengths};
 use crate::error::{Error, Result};
 use crate::render::{dataset, output, AiryConfig, Mask, PlaneTransport, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
@@ -22,6 +22,8 @@ use std::time::Instant;
 pub struct RenderCommon {
     #[command(flatten)]
     pub system: SystemArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Scene side N (pixels of 10 µm on the object plane): scenes are cropped/resized to N×N.
     #[arg(long = "scene-size", default_value_t = 512)]
     pub scene_size: usize,
@@ -227,8 +229,8 @@ pub fn render(a: RenderArgs) -> Result<()> {
         }
     };
     let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
-    let tracer = AnalyticTracer::default();
-    let renderer = Renderer::new(&system, &tracer, cfg, mask)?;
+    let tracer = make_tracer(&a.common.backend)?;
+    let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
     let pb = progress_bar(renderer.rays_per_render(), &format!("render {}", system.name()));
     let acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
     pb.finish_and_clear();
@@ -266,8 +268,8 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     if todo.is_empty() {
         return Ok(());
     }
-    let tracer = AnalyticTracer::default();
-    let renderer = Renderer::new(&system, &tracer, cfg, mask)?;
+    let tracer = make_tracer(&a.common.backend)?;
+    let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
     if !a.common.no_mapping && !a.out.join("mapping.npy").is_file() {
         output::write_mapping(&a.out, &renderer)?;
     }
