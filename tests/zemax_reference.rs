@@ -123,8 +123,10 @@ fn spots_match_zemax() {
 /// OPEN: Zemax's SP spot export for off-axis fields does not use the pupil of its own Grid Distortion
 /// (whose chief rays we match to 0.01 µm): its "chief" ray of F2 lands 0.66 µm from the grid's. A pure
 /// pupil shift (field- and wavelength-dependent, scale exactly 1) of our rays reproduces it to the export's
-/// quantisation (0.029 µm RMS), which points at a ray-aiming mode we have not identified. Run with
-/// `--ignored` to see the figures.
+/// quantisation (0.029 µm RMS per coordinate), but no Zemax convention tested predicts that shift without
+/// fitting it (paraxial pupil at the traced wavelength, telecentric object space, real ray aiming, other
+/// stops, vignetting factors: README, "What the SP spot export's pupil is not";
+/// `cargo run --release --example zemax_pupil_hypotheses`). Run with `--ignored` to see the figures.
 #[test]
 #[ignore = "open discrepancy with Zemax's SP off-axis spot export; see the doc comment"]
 fn sp_off_axis_spots_match_zemax() {
