@@ -83,7 +83,7 @@ pub struct BackendArgs {
     /// pixel, for the mapping cube an interpolation stride) whose error measured on this system and these
     /// wavelengths is within this many µm of the analytic f64 result; prints the choice. Excludes
     /// --backend/--refine/--mesh-*.
-    #[arg(long = "tolerance-um")]
+    #[arg(long = "tolerance-um", allow_negative_numbers = true)]
     pub tolerance_um: Option<f64>,
     /// Directory of the --tolerance-um calibration cache [default: $DIFFCASSI_CACHE_DIR, else
     /// $XDG_CACHE_HOME/diffcassi, else ~/.cache/diffcassi].

@@ -97,6 +97,11 @@ fn floats_text(v: &[f64]) -> String {
     v.iter().map(|x| format!("{:016x}", x.to_bits())).collect::<Vec<_>>().join(",")
 }
 
+/// Equal up to JSON's last-digit rounding (the key already pins the exact values).
+fn same_floats(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-12 * y.abs().max(1.0))
+}
+
 fn finite_nonneg(v: f64) -> bool {
     v.is_finite() && v >= 0.0
 }
@@ -142,7 +147,7 @@ pub fn calibrate_backends(system: &SequentialSystem, wavelengths_nm: &[f64], cac
     cached(
         cache,
         &key,
-        |c: &BackendCalibration| c.candidates.len() == n && c.candidates.iter().all(measured_ok) && c.wavelengths_nm == wavelengths_nm,
+        |c: &BackendCalibration| c.candidates.len() == n && c.candidates.iter().all(measured_ok) && same_floats(&c.wavelengths_nm, wavelengths_nm),
         || {
             let rays = RaySetSpec::calibration().build(system, wavelengths_nm)?;
             let reference = AnalyticTracer::default().trace(system, &rays)?;
