@@ -23,6 +23,7 @@ pub mod cli;
 pub mod design;
 pub mod diff;
 pub mod error;
+pub mod fidelity;
 pub mod geometry;
 pub mod io;
 pub mod materials;

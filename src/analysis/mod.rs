@@ -12,12 +12,15 @@
 mod dispersion;
 mod distortion;
 mod mapping;
+mod mapping_interp;
 mod semi_diameter;
 mod spot;
 
 pub use dispersion::*;
 pub use distortion::*;
 pub use mapping::*;
+pub use mapping_interp::mapping_cube_interpolated;
+pub(crate) use mapping_interp::NodeGrid;
 pub use semi_diameter::*;
 pub use spot::*;
 

@@ -62,22 +62,33 @@ pub struct SystemArgs {
     pub glass_catalogs: Vec<PathBuf>,
 }
 
-/// Which tracer backend and its precision.
+/// Which tracer backend and its precision, or a tolerance that chooses them.
 #[derive(Args, Debug, Clone)]
 pub struct BackendArgs {
     /// Tracer: analytic (exact f64, sequential), embree-user (Embree, analytic user geometry) or
-    /// embree-mesh (Embree, tessellated surfaces); the Embree ones trace non-sequentially.
-    #[arg(long, default_value = "analytic")]
-    pub backend: String,
-    /// Embree hit refinement: f64 (re-solve each hit exactly: equals the analytic tracer) or none (f32 hits).
-    #[arg(long, default_value = "f64")]
-    pub refine: String,
+    /// embree-mesh (Embree, tessellated surfaces); the Embree ones trace non-sequentially [default: analytic].
+    #[arg(long)]
+    pub backend: Option<String>,
+    /// Embree hit refinement: f64 (re-solve each hit exactly: equals the analytic tracer) or none (f32 hits)
+    /// [default: f64].
+    #[arg(long)]
+    pub refine: Option<String>,
     /// embree-mesh: tessellate to this maximum chord-sag error (µm) [default 1].
     #[arg(long = "mesh-max-sag-um", conflicts_with = "mesh_segments")]
     pub mesh_max_sag_um: Option<f64>,
     /// embree-mesh: tessellate with this many segments (rings; 6× around circular apertures).
     #[arg(long = "mesh-segments")]
     pub mesh_segments: Option<usize>,
+    /// Choose the cheapest configuration (backend, tessellation, refinement; for renders also rays per
+    /// pixel, for the mapping cube an interpolation stride) whose error measured on this system and these
+    /// wavelengths is within this many µm of the analytic f64 result; prints the choice. Excludes
+    /// --backend/--refine/--mesh-*.
+    #[arg(long = "tolerance-um", allow_negative_numbers = true)]
+    pub tolerance_um: Option<f64>,
+    /// Directory of the --tolerance-um calibration cache [default: $DIFFCASSI_CACHE_DIR, else
+    /// $XDG_CACHE_HOME/diffcassi, else ~/.cache/diffcassi].
+    #[arg(long = "calibration-cache")]
+    pub calibration_cache: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]
@@ -198,21 +209,34 @@ pub struct ReportArgs {
 
 #[derive(Args, Debug)]
 pub struct BenchArgs {
+    /// `tradeoff`: the speed/accuracy frontier of every backend and model (CSV, table, PNG) instead of the
+    /// rays/s table.
+    #[arg(value_parser = ["tradeoff"])]
+    pub mode: Option<String>,
     #[arg(long, default_value = "sp")]
     pub preset: String,
     /// Backends to compare, comma-separated: analytic, embree-user[:f64|:none],
-    /// embree-mesh[:SAG_UM][:f64|:none] (defaults f64 refinement, 1 µm).
+    /// embree-mesh[:SAG_UM][:f64|:none] (defaults f64 refinement, 1 µm). (Not with `tradeoff`, which runs them all.)
     #[arg(long, default_value = "analytic")]
     pub backends: String,
-    /// Rays per wavelength.
+    /// Rays per wavelength (not with `tradeoff`).
     #[arg(long, default_value_t = 100_000)]
     pub rays: usize,
     /// Number of wavelengths (450–650 nm).
     #[arg(long, default_value_t = 28)]
     pub wavelengths: usize,
-    /// Repetitions (the best is reported).
-    #[arg(long, default_value_t = 3)]
-    pub repeat: usize,
+    /// Repetitions (the best is reported) [default: 3; `tradeoff`: 3, 2 with --quick].
+    #[arg(long)]
+    pub repeat: Option<usize>,
+    /// `tradeoff`: write the rows as CSV.
+    #[arg(long)]
+    pub csv: Option<PathBuf>,
+    /// `tradeoff`: write the frontier plot (PNG).
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// `tradeoff`: small workloads (under a minute on 2 cores); without it, the README's sizes.
+    #[arg(long)]
+    pub quick: bool,
 }
 
 #[derive(Args, Debug)]

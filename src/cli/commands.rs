@@ -54,15 +54,17 @@ pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
 
 /// The tracer named by `--backend`, `--refine`, `--mesh-max-sag-um`, `--mesh-segments`.
 pub fn make_tracer(a: &BackendArgs) -> Result<Box<dyn Tracer>> {
-    let mut cfg: crate::tracer::BackendConfig = a.backend.parse()?;
-    cfg.refine = a.refine.parse()?;
+    let mut cfg: crate::tracer::BackendConfig = a.backend.as_deref().unwrap_or("analytic").parse()?;
+    if let Some(r) = &a.refine {
+        cfg.refine = r.parse()?;
+    }
     if let Some(um) = a.mesh_max_sag_um {
         cfg.mesh = crate::surfaces::MeshResolution::MaxSagErrorUm(um);
     }
     if let Some(n) = a.mesh_segments {
         cfg.mesh = crate::surfaces::MeshResolution::Segments(n);
     }
-    if cfg.backend == crate::tracer::Backend::Analytic && (a.mesh_max_sag_um.is_some() || a.mesh_segments.is_some() || a.refine != "f64") {
+    if cfg.backend == crate::tracer::Backend::Analytic && (a.mesh_max_sag_um.is_some() || a.mesh_segments.is_some() || a.refine.as_deref().is_some_and(|r| r != "f64")) {
         return Err(Error::invalid("--refine, --mesh-max-sag-um and --mesh-segments apply to the Embree backends only (--backend embree-user|embree-mesh)"));
     }
     cfg.build()
@@ -298,7 +300,7 @@ fn trace(a: SpotArgs) -> Result<()> {
     }
     let pupil = pupil_points(&a)?;
     let rays = RayBatch::for_field(&system, fs[0], &pupil, ws[0])?;
-    let tracer = make_tracer(&a.backend)?;
+    let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, rays.len() as u64)?;
     let out = tracer.trace(&system, &rays)?;
     let ok = out.ok_count();
     println!("traced {} rays of field ({}, {}) mm at {} nm: {} ok, {} failed", out.len(), fs[0][0], fs[0][1], ws[0], ok, out.len() - ok);
@@ -420,7 +422,8 @@ fn spot(a: SpotArgs) -> Result<()> {
     let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
     let fs = fields(&a.field_mm, &system)?;
     let pupil = pupil_points(&a)?;
-    let spots = compute_spots(&system, make_tracer(&a.backend)?.as_ref(), &fs, &ws, &pupil)?;
+    let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, ((pupil.len() + 1) * fs.len() * ws.len()) as u64)?;
+    let spots = compute_spots(&system, tracer.as_ref(), &fs, &ws, &pupil)?;
     print_spot_table(&spots);
     if let Some(path) = &a.csv {
         write_spot_csv(path, &system, &spots)?;
@@ -481,7 +484,8 @@ fn distortion_plot(path: &Path, system: &SequentialSystem, g: &DistortionGrid, a
 fn distortion(a: DistortionArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let w = a.wavelength_nm.unwrap_or(system.primary_wavelength_nm());
-    let g = analysis::grid_distortion(&system, make_tracer(&a.backend)?.as_ref(), w, a.grid, a.half_width_mm)?;
+    let tracer = super::fidelity::tracer_for(&a.backend, &system, &[w], (a.grid * a.grid + 5) as u64)?;
+    let g = analysis::grid_distortion(&system, tracer.as_ref(), w, a.grid, a.half_width_mm)?;
     let failed = g.points.iter().filter(|p| p.status != RayStatus::Ok).count();
     let max_disp_um = g.points.iter().filter(|p| p.status == RayStatus::Ok).map(|p| 1e3 * (p.real_x_mm - p.pred_x_mm).hypot(p.real_y_mm - p.pred_y_mm)).fold(0.0, f64::max);
     println!(
@@ -504,7 +508,8 @@ fn dispersion(a: DispersionArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let ws = parse_wavelengths(&a.wavelengths_nm)?;
     let field = parse_field(&a.field_mm)?;
-    let c = analysis::dispersion_curve(&system, make_tracer(&a.backend)?.as_ref(), field, &ws)?;
+    let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, ws.len() as u64)?;
+    let c = analysis::dispersion_curve(&system, tracer.as_ref(), field, &ws)?;
     println!("{}: field ({}, {}) mm, {}–{} nm: spatio-spectral spreading {:.2} µm ({:.1} px of 10 µm)", system.name(), field[0], field[1], ws[0], ws[ws.len() - 1], c.spread_um, c.spread_um / 10.0);
     if let Some(p) = &a.csv {
         let mut w = CsvWriter::new(p, &["wavelength_nm", "x_mm", "y_mm"])?;
@@ -525,11 +530,16 @@ fn dispersion(a: DispersionArgs) -> Result<()> {
 fn mapping(a: MappingArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let ws = parse_wavelengths(&a.wavelengths_nm)?;
+    let (tracer, stride) = super::fidelity::mapping_for(&a.backend, &system, a.height, a.width, a.pitch_mm, &ws)?;
     let t0 = Instant::now();
-    let cube = analysis::mapping_cube(&system, make_tracer(&a.backend)?.as_ref(), a.height, a.width, a.pitch_mm, &ws)?;
+    let cube = analysis::mapping_cube_interpolated(&system, tracer.as_ref(), a.height, a.width, a.pitch_mm, &ws, stride)?;
     let secs = t0.elapsed().as_secs_f64();
     let n = a.height * a.width * ws.len();
-    println!("{}: mapping {}×{}×{} = {n} chief rays in {secs:.2} s ({:.2} M rays/s), {} did not arrive", system.name(), a.height, a.width, ws.len(), n as f64 / secs / 1e6, cube.invalid_count());
+    if stride > 1 {
+        println!("{}: mapping {}×{}×{} = {n} entries in {secs:.2} s ({:.2} M entries/s; chief rays every {stride} pixels, cubic interpolation between)", system.name(), a.height, a.width, ws.len(), n as f64 / secs / 1e6);
+    } else {
+        println!("{}: mapping {}×{}×{} = {n} chief rays in {secs:.2} s ({:.2} M rays/s), {} did not arrive", system.name(), a.height, a.width, ws.len(), n as f64 / secs / 1e6, cube.invalid_count());
+    }
     let shape = [a.height, a.width, ws.len(), 2];
     if a.f64 {
         write_npy_f64(&a.npy, &shape, &cube.positions_mm)?;
@@ -596,6 +606,13 @@ fn report(a: ReportArgs) -> Result<()> {
 // ---------------------------------------------------------------- bench
 
 fn bench(a: BenchArgs) -> Result<()> {
+    if a.mode.as_deref() == Some("tradeoff") {
+        return super::fidelity::bench_tradeoff(&a);
+    }
+    if a.csv.is_some() || a.png.is_some() || a.quick {
+        return Err(Error::invalid("--csv, --png and --quick belong to `diffcassi bench tradeoff`"));
+    }
+    let repeat = a.repeat.unwrap_or(3);
     let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let ws = linspace(450.0, 650.0, a.wavelengths.max(1));
     let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000)?;
@@ -609,7 +626,7 @@ fn bench(a: BenchArgs) -> Result<()> {
         a.rays,
         ws.len(),
         system.surfaces_per_ray(),
-        a.repeat
+        repeat
     );
     println!("| backend | threads | seconds | M rays/s | vs analytic | max error µm | rms error µm |");
     println!("|---|---|---|---|---|---|---|");
@@ -634,7 +651,7 @@ fn bench(a: BenchArgs) -> Result<()> {
         for &threads in &thread_counts {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().map_err(|e| Error::invalid(e.to_string()))?;
             let mut best = f64::INFINITY;
-            for _ in 0..a.repeat.max(1) {
+            for _ in 0..repeat.max(1) {
                 let t = Instant::now();
                 let out = pool.install(|| tracer.trace(&system, &batch))?;
                 best = best.min(t.elapsed().as_secs_f64());

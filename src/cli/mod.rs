@@ -12,6 +12,7 @@ mod args;
 mod commands;
 pub mod render;
 mod design;
+mod fidelity;
 
 pub use args::*;
 /// Text forms shared with other front ends (the C++ API parses pupil patterns the same way).

@@ -7,7 +7,7 @@
 //! diffcassi bench-render --preset sp                              # the paper-scale timing table
 //! ```
 use super::args::{BackendArgs, SystemArgs};
-use super::commands::{load_system, make_tracer, parse_wavelengths};
+use super::commands::{load_system, parse_wavelengths};
 use crate::error::{Error, Result};
 use crate::render::{dataset, output, AiryConfig, Mask, PlaneTransport, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
@@ -33,9 +33,9 @@ pub struct RenderCommon {
     /// Spectral planes K over the bands' range (K = bands × oversampling; 112 = 28 × 4, the paper's).
     #[arg(long, default_value_t = 112)]
     pub planes: usize,
-    /// Rays per scene pixel per plane.
-    #[arg(long, default_value_t = 20)]
-    pub rays: usize,
+    /// Rays per scene pixel per plane [default: 20; with --tolerance-um, chosen].
+    #[arg(long)]
+    pub rays: Option<usize>,
     /// Seed of the rays' random numbers.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -146,12 +146,12 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
     if !(a.airy_diameter_px.is_finite() && a.airy_diameter_px > 0.0) {
         return Err(Error::invalid(format!("--airy-diameter-px {}: must be finite and > 0", a.airy_diameter_px)));
     }
-    if a.rays == 0 {
+    if a.rays == Some(0) {
         return Err(Error::invalid("--rays must be ≥ 1"));
     }
     let mut cfg = RenderConfig::paper(n);
     cfg.spectral = spectral;
-    cfg.rays_per_pixel = a.rays;
+    cfg.rays_per_pixel = a.rays.unwrap_or(20);
     cfg.seed = a.seed;
     cfg.sampling = parse_sampling(&a.sampling)?;
     cfg.airy = (!a.no_airy).then_some(AiryConfig { diameter_px: a.airy_diameter_px, ..AiryConfig::default() });
@@ -166,6 +166,12 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
         None => Mask::random(n, n, a.opening, a.mask_seed)?,
     };
     Ok((cfg, mask))
+}
+
+/// The tracer and rays per pixel: as given, or chosen by `--tolerance-um`.
+fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
+    let open = mask.values.iter().filter(|&&v| v > 0.0).count();
+    super::fidelity::render_for(&a.backend, a.rays, system, cfg, open)
 }
 
 fn scene_wavelengths(a: &RenderCommon) -> Result<Option<Vec<f64>>> {
@@ -219,7 +225,9 @@ fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Acquisition, 
 pub fn render(a: RenderArgs) -> Result<()> {
     let t0 = Instant::now();
     let system = load_system(&a.common.system)?;
-    let (cfg, mask) = config_from(&a.common)?;
+    let (mut cfg, mask) = config_from(&a.common)?;
+    let (tracer, rays) = render_tracer(&a.common, &system, &cfg, &mask)?;
+    cfg.rays_per_pixel = rays;
     let n = a.common.scene_size;
     let (scene, desc) = match &a.scene {
         Some(p) => load_fitted(p, &a.common)?,
@@ -229,7 +237,6 @@ pub fn render(a: RenderArgs) -> Result<()> {
         }
     };
     let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
-    let tracer = make_tracer(&a.common.backend)?;
     let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
     let pb = progress_bar(renderer.rays_per_render(), &format!("render {}", system.name()));
     let acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
@@ -258,7 +265,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
 pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     let t0 = Instant::now();
     let system = load_system(&a.common.system)?;
-    let (cfg, mask) = config_from(&a.common)?;
+    let (mut cfg, mask) = config_from(&a.common)?;
     let scenes = dataset::find_scenes(&a.scenes)?;
     if scenes.is_empty() {
         return Err(Error::File { path: a.scenes.display().to_string(), message: "no scenes (.exr, .npy, or folders of .png)".into() });
@@ -268,7 +275,8 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     if todo.is_empty() {
         return Ok(());
     }
-    let tracer = make_tracer(&a.common.backend)?;
+    let (tracer, rays) = render_tracer(&a.common, &system, &cfg, &mask)?;
+    cfg.rays_per_pixel = rays;
     let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
     if !a.common.no_mapping && !a.out.join("mapping.npy").is_file() {
         output::write_mapping(&a.out, &renderer)?;

@@ -43,6 +43,7 @@ pub mod colors;
 pub mod dispersion;
 pub mod distortion;
 pub mod font;
+pub mod frontier;
 pub mod line;
 pub mod spot;
 
@@ -57,6 +58,7 @@ pub use colors::wavelength_to_rgb;
 pub use dispersion::{dispersion_curve, DISPERSION_CURVE_SIZE};
 pub use distortion::{distortion_map, DistortionPoint, DISTORTION_MAP_SIZE};
 pub use font::ensure_font;
+pub use frontier::{frontier_plot, FrontierPoint, FRONTIER_PANEL_SIZE};
 pub use line::{line_plot, LINE_PLOT_SIZE};
 pub use spot::{spot_diagram, spot_diagram_size, SpotPanel, SpotSeries};
 

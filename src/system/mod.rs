@@ -73,5 +73,10 @@ impl SequentialSystem {
     pub fn surfaces_per_ray(&self) -> usize {
         self.path.len()
     }
+
+    /// Surface indices of the sequential path's steps, in order (what a ray meets until it stops).
+    pub fn path_surfaces(&self) -> Vec<usize> {
+        self.path.iter().map(|p| p.surface).collect()
+    }
 }
 

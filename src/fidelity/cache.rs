@@ -1,0 +1,132 @@
+//! The calibration cache of `--tolerance-um`: one small JSON file per (kind, key), where the key is a
+//! 64-bit FNV-1a hash of the crate version, the calibration kind, the resolved system spec (JSON) and the
+//! wavelengths (and any kind-specific settings). A missing, unreadable, corrupt or mismatching entry is
+//! recomputed, never trusted; writes are atomic (temporary file + rename).
+//!
+//! Directory: `--calibration-cache DIR`, else `$DIFFCASSI_CACHE_DIR`, else `$XDG_CACHE_HOME/diffcassi`,
+//! else `$HOME/.cache/diffcassi`; with none of them, nothing is cached.
+//!
+//! ```
+//! use diffcassi::fidelity::cache::{fnv1a64, CacheKey};
+//! assert_eq!(fnv1a64(b""), 0xcbf29ce484222325);
+//! let k = CacheKey::new("rays", &["spec text", "450,650"]);
+//! assert_eq!(k, CacheKey::new("rays", &["spec text", "450,650"]));
+//! assert_ne!(k, CacheKey::new("rays", &["spec text", "450,651"]));
+//! ```
+use crate::error::{Error, Result};
+use serde::{de::DeserializeOwned, Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// FNV-1a, 64 bit (Fowler–Noll–Vo): a stable hash (unlike std's `DefaultHasher`, the same in every build).
+pub fn fnv1a64(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in bytes {
+        h ^= *b as u64;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+/// Kind + hash of everything a calibration depends on.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CacheKey {
+    pub kind: String,
+    pub hash: u64,
+}
+
+impl CacheKey {
+    /// Key of `parts` (the crate version is always included).
+    pub fn new(kind: &str, parts: &[&str]) -> Self {
+        let mut text = format!("diffcassi {}\u{1}{kind}", env!("CARGO_PKG_VERSION"));
+        for p in parts {
+            text.push('\u{1}');
+            text.push_str(p);
+        }
+        CacheKey { kind: kind.to_string(), hash: fnv1a64(text.as_bytes()) }
+    }
+    pub fn file_name(&self) -> String {
+        format!("calibration-{}-{:016x}.json", self.kind, self.hash)
+    }
+}
+
+/// The cache directory from an explicit choice or the environment (see the module docs).
+pub fn cache_dir(explicit: Option<&Path>) -> Option<PathBuf> {
+    if let Some(p) = explicit {
+        return Some(p.to_path_buf());
+    }
+    let env = |k: &str| std::env::var_os(k).filter(|v| !v.is_empty()).map(PathBuf::from);
+    env("DIFFCASSI_CACHE_DIR").or_else(|| env("XDG_CACHE_HOME").map(|p| p.join("diffcassi"))).or_else(|| env("HOME").map(|p| p.join(".cache").join("diffcassi")))
+}
+
+#[derive(Serialize, Deserialize)]
+struct Entry<T> {
+    version: String,
+    kind: String,
+    key: String,
+    payload: T,
+}
+
+/// What a lookup found.
+pub enum Lookup<T> {
+    Hit(T),
+    Miss,
+    /// The file exists but cannot be trusted (why).
+    Corrupt(String),
+}
+
+/// Read the entry of `key` from `dir`. `valid` checks the payload (finite numbers, expected sizes…).
+pub fn load<T: DeserializeOwned>(dir: &Path, key: &CacheKey, valid: impl Fn(&T) -> bool) -> Lookup<T> {
+    let path = dir.join(key.file_name());
+    let text = match std::fs::read_to_string(&path) {
+        Ok(t) => t,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Lookup::Miss,
+        Err(e) => return Lookup::Corrupt(format!("{}: cannot read: {e}", path.display())),
+    };
+    let entry: Entry<T> = match serde_json::from_str(&text) {
+        Ok(e) => e,
+        Err(e) => return Lookup::Corrupt(format!("{}: not a calibration entry: {e}", path.display())),
+    };
+    if entry.version != env!("CARGO_PKG_VERSION") || entry.kind != key.kind || entry.key != format!("{:016x}", key.hash) {
+        return Lookup::Corrupt(format!("{}: entry is for another key or version", path.display()));
+    }
+    if !valid(&entry.payload) {
+        return Lookup::Corrupt(format!("{}: implausible values", path.display()));
+    }
+    Lookup::Hit(entry.payload)
+}
+
+/// Write the entry of `key` into `dir` (created if needed), atomically. Returns the file's path.
+pub fn store<T: Serialize>(dir: &Path, key: &CacheKey, payload: &T) -> Result<PathBuf> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::File { path: dir.display().to_string(), message: format!("cannot create the calibration cache directory: {e}") })?;
+    let entry = Entry { version: env!("CARGO_PKG_VERSION").to_string(), kind: key.kind.clone(), key: format!("{:016x}", key.hash), payload };
+    let text = serde_json::to_string_pretty(&entry).map_err(|e| Error::invalid(format!("calibration JSON encoding failed: {e}")))?;
+    let path = dir.join(key.file_name());
+    crate::io::write_atomic(&path, text.as_bytes())?;
+    Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn corrupt_entries_are_not_trusted() {
+        let dir = tempfile::tempdir().unwrap();
+        let key = CacheKey::new("test", &["a"]);
+        assert!(matches!(load::<Vec<f64>>(dir.path(), &key, |_| true), Lookup::Miss));
+        store(dir.path(), &key, &vec![1.0, 2.0]).unwrap();
+        assert!(matches!(load::<Vec<f64>>(dir.path(), &key, |v| v.len() == 2), Lookup::Hit(v) if v == vec![1.0, 2.0]));
+        // The validator rejects it.
+        assert!(matches!(load::<Vec<f64>>(dir.path(), &key, |v| v.len() == 3), Lookup::Corrupt(_)));
+        // Truncated file.
+        let p = dir.path().join(key.file_name());
+        let text = std::fs::read_to_string(&p).unwrap();
+        std::fs::write(&p, &text[..text.len() / 2]).unwrap();
+        assert!(matches!(load::<Vec<f64>>(dir.path(), &key, |_| true), Lookup::Corrupt(_)));
+        // Another key's entry under this name.
+        store(dir.path(), &CacheKey::new("test", &["b"]), &vec![3.0]).unwrap();
+        let other = dir.path().join(CacheKey::new("test", &["b"]).file_name());
+        std::fs::copy(&other, &p).unwrap();
+        assert!(matches!(load::<Vec<f64>>(dir.path(), &key, |_| true), Lookup::Corrupt(_)));
+    }
+}

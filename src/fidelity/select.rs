@@ -1,0 +1,461 @@
+//! Fidelity from a tolerance: choose the cheapest configuration whose *measured* error on this system and
+//! these wavelengths is within the tolerance (µm, image plane, against the analytic f64 reference).
+//!
+//! Three jobs, three sets of candidates:
+//!
+//! * **rays** (trace, spot, distortion, dispersion): the backends of [`candidate_configs`]
+//!   (analytic f64; Embree user geometry f64/none; Embree meshes at 10, 1, 0.1 µm chord-sag, f64/none),
+//!   each measured on the [`RaySetSpec::calibration`] set at the job's wavelengths: error (max over rays,
+//!   plus classification mismatches, which disqualify) and throughput in the same run.
+//! * **mapping**: the backends (exact cube) and the interpolated cube of
+//!   [`crate::analysis::mapping_cube_interpolated`] at strides 2–32 on the analytic tracer, whose error is
+//!   measured at 261 check pixels (seeded random + corners + centre) at the shortest, middle and longest
+//!   wavelength against exactly traced chief rays, and whose cost is timed at the middle wavelength.
+//! * **render**: backends × rays per pixel N. The render's error (µm) is defined as the error of where a
+//!   scene pixel's energy lands on the detector: the backend's position error plus the Monte-Carlo
+//!   standard error of the mean landing position of N rays, σ/√N, with σ the RMS radius of a pixel's ray
+//!   landings about their mean (pupil × pixel area; largest over a 3×3 grid of pixels at the shortest,
+//!   middle and longest plane, 1024 stratified rays each). σ/√N is the standard error of independent
+//!   sampling; the stratified sampler does at least about as well (Owen 1997: variance ≤ N/(N−1) × that
+//!   of independent sampling).
+//!
+//! Cost = set-up (Embree scene) + job size / measured throughput. The analytic tracer is the exact
+//! reference; another configuration replaces it only when its predicted cost is below the analytic's by
+//! the margin [`SPEED_MARGIN`], so timing noise alone never trades exactness for nothing. Calibrations are
+//! cached ([`super::cache`]).
+use super::cache::{self, CacheKey, Lookup};
+use super::measure::{backend_text, candidate_configs, measure, time_best, Measured};
+use super::workload::RaySetSpec;
+use crate::analysis::{mapping_cube_interpolated, MappingCube, NodeGrid};
+use crate::error::{Error, Result};
+use crate::rays::{aimed_ray, object_ray, RayBatch};
+use crate::render::{RaySampler, RenderConfig};
+use crate::spec::RayAiming;
+use crate::system::SequentialSystem;
+use crate::tracer::{AnalyticTracer, Backend, BackendConfig, RayStatus, Tracer};
+use rand::{Rng, SeedableRng};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// A non-reference configuration must be predicted this many times cheaper than the analytic tracer
+/// to be chosen over it.
+pub const SPEED_MARGIN: f64 = 1.25;
+/// Chord-sag bounds (µm) of the mesh candidates of `--tolerance-um`. (0.01 µm is left out: its scene takes
+/// ~26 s to build for SP, longer than the analytic trace of any job here, and its unrefined error, f32
+/// limited, is no better than user geometry's; `bench tradeoff` measures it.)
+pub const SELECTOR_MESH_SAG_UM: [f64; 3] = [10.0, 1.0, 0.1];
+/// Interpolation strides the mapping selector considers.
+pub const MAPPING_STRIDES: [usize; 6] = [1, 2, 4, 8, 16, 32];
+/// Most rays per pixel a render tolerance may ask for.
+pub const MAX_RAYS_PER_PIXEL: usize = 4096;
+
+/// Where calibrations are cached (`None`: not at all).
+#[derive(Clone, Debug, Default)]
+pub struct CacheOptions {
+    pub dir: Option<PathBuf>,
+}
+
+impl CacheOptions {
+    /// The default directory (environment), or `explicit`.
+    pub fn resolve(explicit: Option<&Path>) -> Self {
+        CacheOptions { dir: cache::cache_dir(explicit) }
+    }
+    pub fn none() -> Self {
+        CacheOptions { dir: None }
+    }
+}
+
+/// Where a calibration came from, for the printed explanation.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Provenance {
+    Measured { rays: usize, seconds: f64 },
+    Cached(PathBuf),
+}
+
+impl std::fmt::Display for Provenance {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Provenance::Measured { rays, seconds } => write!(f, "calibrated now on {rays} rays in {seconds:.2} s"),
+            Provenance::Cached(p) => write!(f, "calibration from the cache {}", p.display()),
+        }
+    }
+}
+
+fn check_tolerance(tolerance_um: f64) -> Result<()> {
+    if tolerance_um.is_finite() && tolerance_um > 0.0 {
+        Ok(())
+    } else {
+        Err(Error::invalid(format!("--tolerance-um {tolerance_um}: must be finite and > 0")))
+    }
+}
+
+fn spec_text(system: &SequentialSystem) -> String {
+    serde_json::to_string(&system.spec).unwrap_or_else(|_| format!("{:?}", system.spec))
+}
+
+fn floats_text(v: &[f64]) -> String {
+    v.iter().map(|x| format!("{:016x}", x.to_bits())).collect::<Vec<_>>().join(",")
+}
+
+/// Equal up to JSON's last-digit rounding (the key already pins the exact values).
+fn same_floats(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-12 * y.abs().max(1.0))
+}
+
+fn finite_nonneg(v: f64) -> bool {
+    v.is_finite() && v >= 0.0
+}
+
+fn measured_ok(m: &Measured) -> bool {
+    finite_nonneg(m.error.max_um) && finite_nonneg(m.error.rms_um) && m.rays_per_s.is_finite() && m.rays_per_s > 0.0 && finite_nonneg(m.setup_seconds) && m.backend.parse::<BackendConfig>().is_ok()
+}
+
+/// Load-or-compute through the cache; returns the payload and its provenance.
+fn cached<T: serde::Serialize + serde::de::DeserializeOwned>(cache: &CacheOptions, key: &CacheKey, valid: impl Fn(&T) -> bool, compute: impl FnOnce() -> Result<(T, usize)>) -> Result<(T, Provenance)> {
+    if let Some(dir) = &cache.dir {
+        match cache::load::<T>(dir, key, &valid) {
+            Lookup::Hit(t) => return Ok((t, Provenance::Cached(dir.join(key.file_name())))),
+            Lookup::Miss => {}
+            Lookup::Corrupt(why) => eprintln!("fidelity: ignoring a corrupt calibration cache entry ({why}); recomputing"),
+        }
+    }
+    let t0 = Instant::now();
+    let (payload, rays) = compute()?;
+    let prov = Provenance::Measured { rays, seconds: t0.elapsed().as_secs_f64() };
+    if let Some(dir) = &cache.dir {
+        if let Err(e) = cache::store(dir, key, &payload) {
+            eprintln!("fidelity: could not cache the calibration: {e}");
+        }
+    }
+    Ok((payload, prov))
+}
+
+/// The backend candidates measured on the calibration set of `system` at `wavelengths_nm`.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct BackendCalibration {
+    pub wavelengths_nm: Vec<f64>,
+    pub rays: usize,
+    pub candidates: Vec<Measured>,
+}
+
+/// Measure every backend candidate (cached).
+pub fn calibrate_backends(system: &SequentialSystem, wavelengths_nm: &[f64], cache: &CacheOptions) -> Result<(BackendCalibration, Provenance)> {
+    let configs = candidate_configs(&SELECTOR_MESH_SAG_UM);
+    let cfg_text: Vec<String> = configs.iter().map(backend_text).collect();
+    let key = CacheKey::new("backends", &[&spec_text(system), &floats_text(wavelengths_nm), &cfg_text.join(";")]);
+    let n = configs.len();
+    cached(
+        cache,
+        &key,
+        |c: &BackendCalibration| c.candidates.len() == n && c.candidates.iter().all(measured_ok) && same_floats(&c.wavelengths_nm, wavelengths_nm),
+        || {
+            let rays = RaySetSpec::calibration().build(system, wavelengths_nm)?;
+            let reference = AnalyticTracer::default().trace(system, &rays)?;
+            let mut candidates = Vec::new();
+            for cfg in &configs {
+                candidates.push(measure(system, cfg, &rays, &reference, 3)?.0);
+            }
+            Ok((BackendCalibration { wavelengths_nm: wavelengths_nm.to_vec(), rays: rays.len(), candidates }, rays.len() * (3 * n + 1)))
+        },
+    )
+}
+
+/// A chosen configuration and why.
+#[derive(Clone, Debug)]
+pub struct Choice {
+    pub config: BackendConfig,
+    /// Predicted error (µm) of the choice.
+    pub error_um: f64,
+    /// Predicted cost of the job (s) with the choice, and with the analytic tracer.
+    pub predicted_seconds: f64,
+    pub analytic_seconds: f64,
+    /// One or two lines: what was chosen, the candidates with their error and speed.
+    pub explanation: String,
+}
+
+fn pick<T: Clone>(items: &[(T, f64, f64, bool)]) -> Option<(T, f64, f64)> {
+    // items: (candidate, error, cost, is_reference); feasible ones only.
+    let reference = items.iter().find(|i| i.3);
+    let best = items.iter().filter(|i| !i.3).min_by(|a, b| a.2.total_cmp(&b.2));
+    match (reference, best) {
+        (Some(r), Some(b)) if b.2 * SPEED_MARGIN < r.2 => Some((b.0.clone(), b.1, b.2)),
+        (Some(r), _) => Some((r.0.clone(), r.1, r.2)),
+        (None, Some(b)) => Some((b.0.clone(), b.1, b.2)),
+        (None, None) => None,
+    }
+}
+
+fn fmt_err(e: f64) -> String {
+    if e == 0.0 {
+        "0".into()
+    } else {
+        format!("{e:.2e}")
+    }
+}
+
+/// Choose the backend for a job of `job_rays` rays at tolerance `tolerance_um` from a calibration.
+pub fn choose_backend(cal: &BackendCalibration, tolerance_um: f64, job_rays: u64) -> Result<Choice> {
+    check_tolerance(tolerance_um)?;
+    let cost = |m: &Measured| m.setup_seconds + job_rays as f64 / m.rays_per_s;
+    let analytic = cal.candidates.iter().find(|m| m.backend == "analytic").ok_or_else(|| Error::invalid("calibration lacks the analytic reference"))?;
+    let items: Vec<(&Measured, f64, f64, bool)> = cal.candidates.iter().filter(|m| m.error.within(tolerance_um)).map(|m| (m, m.error.max_um, cost(m), m.backend == "analytic")).collect();
+    let (m, err, secs) = pick(&items).ok_or_else(|| Error::invalid(format!("no configuration meets --tolerance-um {tolerance_um}")))?;
+    let list: Vec<String> = cal
+        .candidates
+        .iter()
+        .map(|c| format!("{} {} µm{} {:.2} M rays/s", c.backend, fmt_err(c.error.max_um), if c.error.mismatches > 0 { format!(" ({} mismatches)", c.error.mismatches) } else { String::new() }, c.rays_per_s / 1e6))
+        .collect();
+    let explanation = format!(
+        "fidelity: tolerance {tolerance_um} µm → --backend {} (max error {} µm ≤ {tolerance_um}, predicted {:.3} s for {job_rays} rays; analytic {:.3} s)\n  candidates (max error vs analytic f64, throughput): {}",
+        m.backend,
+        fmt_err(err),
+        secs,
+        cost(analytic),
+        list.join("; ")
+    );
+    Ok(Choice { config: m.backend.parse()?, error_um: err, predicted_seconds: secs, analytic_seconds: cost(analytic), explanation })
+}
+
+// ---------------------------------------------------------------- mapping
+
+/// One interpolation stride measured.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct StrideModel {
+    pub stride: usize,
+    /// Interpolation error at the check pixels (µm); `None` when a node did not arrive.
+    pub error: Option<super::ErrorStats>,
+    /// Seconds to build the cube at one wavelength (analytic tracer).
+    pub seconds_per_wavelength: f64,
+}
+
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct MappingCalibration {
+    pub strides: Vec<StrideModel>,
+}
+
+/// The check pixels: 256 seeded random pixels, the four corners and the centre.
+fn check_pixels(height: usize, width: usize) -> Vec<(usize, usize)> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x6d61_7070);
+    let mut v: Vec<(usize, usize)> = (0..256).map(|_| (rng.gen_range(0..height), rng.gen_range(0..width))).collect();
+    v.extend([(0, 0), (0, width - 1), (height - 1, 0), (height - 1, width - 1), (height / 2, width / 2)]);
+    v
+}
+
+fn three_wavelengths(ws: &[f64]) -> Vec<f64> {
+    let mut s = ws.to_vec();
+    s.sort_by(f64::total_cmp);
+    let mut v = vec![s[0], s[s.len() / 2], s[s.len() - 1]];
+    v.dedup();
+    v
+}
+
+/// Measure the interpolated mapping at each stride (cached).
+pub fn calibrate_mapping(system: &SequentialSystem, height: usize, width: usize, pitch_mm: f64, wavelengths_nm: &[f64], cache: &CacheOptions) -> Result<(MappingCalibration, Provenance)> {
+    if height == 0 || width == 0 || wavelengths_nm.is_empty() {
+        return Err(Error::invalid(format!("mapping cube {height}×{width}×{}: every dimension must be ≥ 1", wavelengths_nm.len())));
+    }
+    let key = CacheKey::new("mapping", &[&spec_text(system), &floats_text(wavelengths_nm), &format!("{height}x{width}@{:016x}", pitch_mm.to_bits())]);
+    cached(
+        cache,
+        &key,
+        |c: &MappingCalibration| {
+            c.strides.len() == MAPPING_STRIDES.len()
+                && c.strides.iter().all(|s| finite_nonneg(s.seconds_per_wavelength) && s.error.map_or(true, |e| finite_nonneg(e.max_um) && finite_nonneg(e.rms_um)))
+        },
+        || {
+            let tracer = AnalyticTracer::default();
+            let ws3 = three_wavelengths(wavelengths_nm);
+            let mid = ws3[ws3.len() / 2];
+            let px = check_pixels(height, width);
+            let fields: Vec<[f64; 2]> = px.iter().map(|&(r, c)| MappingCube::scene_xy(height, width, pitch_mm, r, c)).collect();
+            let mut exact = Vec::new();
+            for &w in &ws3 {
+                exact.push(tracer.trace(system, &RayBatch::chief_rays(system, &fields, w)?)?);
+            }
+            let mut rays = fields.len() * ws3.len();
+            let mut strides = Vec::new();
+            for &s in &MAPPING_STRIDES {
+                let t = Instant::now();
+                let built = mapping_cube_interpolated(system, &tracer, height, width, pitch_mm, &[mid], s);
+                let seconds_per_wavelength = t.elapsed().as_secs_f64();
+                let error = match (s, built) {
+                    (1, Ok(_)) => Some(super::ErrorStats::default()),
+                    (_, Err(_)) => None,
+                    (_, Ok(_)) => match NodeGrid::trace(system, &tracer, height, width, pitch_mm, &ws3, s) {
+                        Err(_) => None,
+                        Ok(g) => {
+                            rays += g.rows * g.cols * ws3.len();
+                            let mut acc = super::ErrorAccumulator::default();
+                            for (b, ex) in exact.iter().enumerate() {
+                                for (k, &(r, c)) in px.iter().enumerate() {
+                                    if ex.status[k] == RayStatus::Ok {
+                                        let v = g.at(r, c, b);
+                                        acc.add_mm(v[0] - ex.x[k], v[1] - ex.y[k]);
+                                    } else {
+                                        acc.mismatches += 1;
+                                    }
+                                }
+                            }
+                            Some(acc.finish())
+                        }
+                    },
+                };
+                rays += if s == 1 { height * width } else { NodeGrid::count(height, width, s) };
+                strides.push(StrideModel { stride: s, error, seconds_per_wavelength });
+            }
+            Ok((MappingCalibration { strides }, rays))
+        },
+    )
+}
+
+/// The chosen mapping model: a backend and an interpolation stride.
+#[derive(Clone, Debug)]
+pub struct MappingChoice {
+    pub config: BackendConfig,
+    pub stride: usize,
+    pub error_um: f64,
+    pub explanation: String,
+}
+
+/// Choose backend and stride for an H×W×Nλ cube at `tolerance_um`.
+pub fn choose_mapping(backends: &BackendCalibration, mapping: &MappingCalibration, tolerance_um: f64, wavelengths: usize) -> Result<MappingChoice> {
+    check_tolerance(tolerance_um)?;
+    let nl = wavelengths as f64;
+    let analytic = backends.candidates.iter().find(|m| m.backend == "analytic").ok_or_else(|| Error::invalid("calibration lacks the analytic reference"))?;
+    let exact = mapping.strides.iter().find(|s| s.stride == 1).ok_or_else(|| Error::invalid("mapping calibration lacks stride 1"))?;
+    let exact_secs = exact.seconds_per_wavelength * nl;
+    // (backend text, stride, error, cost, is_reference)
+    let mut all: Vec<((String, usize), f64, f64, bool)> = Vec::new();
+    for m in &backends.candidates {
+        let cost = m.setup_seconds + exact_secs * analytic.rays_per_s / m.rays_per_s;
+        all.push(((m.backend.clone(), 1), if m.error.mismatches > 0 { f64::INFINITY } else { m.error.max_um }, cost, m.backend == "analytic"));
+    }
+    for s in mapping.strides.iter().filter(|s| s.stride > 1) {
+        let e = s.error.map(|e| if e.mismatches > 0 { f64::INFINITY } else { e.max_um }).unwrap_or(f64::INFINITY);
+        all.push((("analytic".into(), s.stride), e, s.seconds_per_wavelength * nl, false));
+    }
+    let feasible: Vec<_> = all.iter().filter(|i| i.1 <= tolerance_um).cloned().collect();
+    let ((backend, stride), err, secs) = pick(&feasible).ok_or_else(|| Error::invalid(format!("no mapping model meets --tolerance-um {tolerance_um}")))?;
+    let list: Vec<String> = all
+        .iter()
+        .map(|((b, s), e, c, _)| format!("{b}{} {} µm {:.3} s", if *s > 1 { format!(" stride {s}") } else { String::new() }, if e.is_finite() { fmt_err(*e) } else { "n/a".into() }, c))
+        .collect();
+    let explanation = format!(
+        "fidelity: tolerance {tolerance_um} µm → mapping with --backend {backend}, {} (max error {} µm, predicted {secs:.3} s; exact analytic {exact_secs:.3} s)\n  candidates (max error vs exact analytic chief rays, predicted time): {}",
+        if stride > 1 { format!("chief rays every {stride} pixels, cubic interpolation between") } else { "every chief ray traced".into() },
+        fmt_err(err),
+        list.join("; ")
+    );
+    Ok(MappingChoice { config: backend.parse()?, stride, error_um: err, explanation })
+}
+
+// ---------------------------------------------------------------- render
+
+/// The render's Monte-Carlo spread.
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
+pub struct RenderCalibration {
+    /// Largest RMS radius (µm) of one scene pixel's ray landings about their mean, over the check pixels
+    /// and planes.
+    pub sigma_um: f64,
+}
+
+/// Measure σ of the render `config` (cached).
+pub fn calibrate_render(system: &SequentialSystem, config: &RenderConfig, cache: &CacheOptions) -> Result<(RenderCalibration, Provenance)> {
+    let (h, w) = (config.scene_height, config.scene_width);
+    if h == 0 || w == 0 || config.spectral.planes_nm.is_empty() {
+        return Err(Error::invalid("render calibration: empty scene or no planes"));
+    }
+    let key = CacheKey::new("render", &[&spec_text(system), &floats_text(&config.spectral.planes_nm), &format!("{h}x{w}@{:016x} {:?}", config.scene_pitch_mm.to_bits(), config.sampling)]);
+    cached(
+        cache,
+        &key,
+        |c: &RenderCalibration| c.sigma_um.is_finite() && c.sigma_um > 0.0,
+        || {
+            const M: usize = 1024;
+            let sampler = RaySampler::new(M, config.sampling);
+            let mut samples = vec![[0.0; 4]; M];
+            let tracer = AnalyticTracer::default();
+            let mut sigma: f64 = 0.0;
+            let mut rays = 0;
+            for (p, &wl) in three_wavelengths(&config.spectral.planes_nm).iter().enumerate() {
+                let n = system.indices(wl)?;
+                for row in [0, h / 2, h - 1] {
+                    for col in [0, w / 2, w - 1] {
+                        sampler.fill(config.seed ^ 0xca11b, p as u64, (row * w + col) as u64, &mut samples);
+                        let c = MappingCube::scene_xy(h, w, config.scene_pitch_mm, row, col);
+                        let mut batch = RayBatch::with_capacity(M);
+                        for s in &samples {
+                            let field = [c[0] + (s[2] - 0.5) * config.scene_pitch_mm, c[1] - (s[3] - 0.5) * config.scene_pitch_mm];
+                            let (o, d) = if system.spec.ray_aiming == RayAiming::Off { object_ray(system, field, s[0], s[1]) } else { aimed_ray(system, &n, field, s[0], s[1])? };
+                            batch.push(o, d, wl);
+                        }
+                        rays += M;
+                        let out = tracer.trace(system, &batch)?;
+                        if let Some(st) = crate::analysis::spot_stats((0..out.len()).filter(|&i| out.status[i] == RayStatus::Ok).map(|i| (out.x[i], out.y[i]))) {
+                            sigma = sigma.max(st.rms_radius_um);
+                        }
+                    }
+                }
+            }
+            if !(sigma > 0.0) {
+                return Err(Error::invalid("render calibration: no ray of the check pixels arrived"));
+            }
+            Ok((RenderCalibration { sigma_um: sigma }, rays))
+        },
+    )
+}
+
+/// The chosen render fidelity: backend and rays per pixel.
+#[derive(Clone, Debug)]
+pub struct RenderChoice {
+    pub config: BackendConfig,
+    pub rays_per_pixel: usize,
+    pub error_um: f64,
+    pub explanation: String,
+}
+
+/// Choose backend and rays per pixel for a render of `rays_per_n` rays per unit N at `tolerance_um`.
+pub fn choose_render(backends: &BackendCalibration, render: &RenderCalibration, tolerance_um: f64, rays_per_n: u64) -> Result<RenderChoice> {
+    check_tolerance(tolerance_um)?;
+    let sigma = render.sigma_um;
+    let mut items: Vec<((String, usize), f64, f64, bool)> = Vec::new();
+    let mut notes = Vec::new();
+    for m in backends.candidates.iter().filter(|m| m.error.mismatches == 0) {
+        let room = tolerance_um - m.error.max_um;
+        if room <= 0.0 {
+            continue;
+        }
+        let n = ((sigma / room).powi(2)).ceil().max(1.0);
+        if n > MAX_RAYS_PER_PIXEL as f64 {
+            notes.push(format!("{} would need {n:.0} rays per pixel", m.backend));
+            continue;
+        }
+        let n = n as usize;
+        let err = m.error.max_um + sigma / (n as f64).sqrt();
+        items.push(((m.backend.clone(), n), err, m.setup_seconds + (n as u64 * rays_per_n) as f64 / m.rays_per_s, m.backend == "analytic"));
+    }
+    let ((backend, n), err, secs) = pick(&items).ok_or_else(|| {
+        Error::invalid(format!(
+            "--tolerance-um {tolerance_um}: a render's splat position has a Monte-Carlo standard error σ/√N with σ = {sigma:.2} µm here, so it needs N = {:.0} rays per pixel per plane, above the limit {MAX_RAYS_PER_PIXEL}; give a tolerance ≥ {:.3} µm",
+            (sigma / tolerance_um).powi(2).ceil(),
+            sigma / (MAX_RAYS_PER_PIXEL as f64).sqrt()
+        ))
+    })?;
+    let explanation = format!(
+        "fidelity: tolerance {tolerance_um} µm → --backend {backend} --rays {n} (error {} µm = trace error + σ/√N, σ = {sigma:.2} µm the RMS spread of one pixel's ray landings; predicted {secs:.2} s)\n  candidates: {}{}",
+        fmt_err(err),
+        items.iter().map(|((b, n), e, c, _)| format!("{b} N={n} {} µm {c:.2} s", fmt_err(*e))).collect::<Vec<_>>().join("; "),
+        if notes.is_empty() { String::new() } else { format!("; {}", notes.join("; ")) }
+    );
+    Ok(RenderChoice { config: backend.parse()?, rays_per_pixel: n, error_um: err, explanation })
+}
+
+/// Convenience for tests and callers: time one tracer on a ray set (best of `repeat`), rays/s.
+pub fn rays_per_second(tracer: &dyn Tracer, system: &SequentialSystem, rays: &RayBatch, repeat: usize) -> Result<f64> {
+    Ok(rays.len() as f64 / time_best(tracer, system, rays, repeat)?.1)
+}
+
+/// Whether `cfg` is the exact reference.
+pub fn is_reference(cfg: &BackendConfig) -> bool {
+    cfg.backend == Backend::Analytic
+}

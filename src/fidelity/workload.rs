@@ -1,0 +1,100 @@
+//! The ray sets the trade-off is measured on: fixed and seeded, so every run traces the same rays.
+//!
+//! * [`RaySetSpec::tradeoff`]: the issue's set — an N×N grid-distortion set of chief rays over the object
+//!   field (13×13 over ±2.5 mm for the presets) plus full-pupil spots (uniform random pupil points from a
+//!   seeded ChaCha8 stream) of the system's fields, at every wavelength (28 from 450 to 650 nm).
+//! * [`RaySetSpec::calibration`]: the small set `--tolerance-um` measures candidates on: a 5×5 field grid
+//!   plus the system's fields, a hexapolar pupil of 3 rings (37 rays), at the job's own wavelengths.
+//! * [`RaySetSpec::fresh`]: an independent check set (random fields inside the field extent, random pupil
+//!   points, another seed), for verifying a selection on rays it was not calibrated on.
+//!
+//! ```
+//! use diffcassi::prelude::*;
+//! use diffcassi::fidelity::RaySetSpec;
+//! let sys = SequentialSystem::build(&presets::spec("sp")?)?;
+//! let set = RaySetSpec::tradeoff(13, 50, 7).build(&sys, &[450.0, 650.0])?;
+//! assert_eq!(set.len(), 2 * (169 + 4 * 50));
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+use crate::error::{Error, Result};
+use crate::rays::{PupilPattern, RayBatch};
+use crate::system::SequentialSystem;
+use rand::{Rng, SeedableRng};
+
+/// Which rays: a grid of chief rays, pupil samples of fields, at each wavelength.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RaySetSpec {
+    /// Chief rays on a `grid × grid` lattice over ±(field half width) in x and y (0: none).
+    pub grid: usize,
+    /// Pupil points traced for each field.
+    pub pupil: PupilPattern,
+    /// Fields: the system's own (`None`), or `Some(k)` random fields inside the field extent from `seed`.
+    pub random_fields: Option<usize>,
+    pub seed: u64,
+}
+
+impl RaySetSpec {
+    /// The trade-off bench set: `grid`² chief rays plus `pupil_rays` seeded full-pupil rays per system field.
+    pub fn tradeoff(grid: usize, pupil_rays: usize, seed: u64) -> Self {
+        RaySetSpec { grid, pupil: PupilPattern::Random { n: pupil_rays, seed }, random_fields: None, seed }
+    }
+    /// The small calibration set of `--tolerance-um`.
+    pub fn calibration() -> Self {
+        RaySetSpec { grid: 5, pupil: PupilPattern::Hexapolar { rings: 3 }, random_fields: None, seed: 0 }
+    }
+    /// A fresh check set, independent of the calibration set: `fields` random fields × `pupil_rays` random
+    /// pupil points each, seeded.
+    pub fn fresh(fields: usize, pupil_rays: usize, seed: u64) -> Self {
+        RaySetSpec { grid: 0, pupil: PupilPattern::Random { n: pupil_rays, seed: seed ^ 0x5eed }, random_fields: Some(fields), seed }
+    }
+
+    /// Build the rays for `system` at `wavelengths_nm`.
+    pub fn build(&self, system: &SequentialSystem, wavelengths_nm: &[f64]) -> Result<RayBatch> {
+        if wavelengths_nm.is_empty() {
+            return Err(Error::invalid("a ray set needs at least one wavelength"));
+        }
+        let half = field_half_width_mm(system);
+        let mut grid_fields = Vec::with_capacity(self.grid * self.grid);
+        if self.grid > 0 && half > 0.0 {
+            let step = if self.grid > 1 { 2.0 * half / (self.grid - 1) as f64 } else { 0.0 };
+            for i in 0..self.grid {
+                for j in 0..self.grid {
+                    let (x, y) = if self.grid == 1 { (0.0, 0.0) } else { (-half + i as f64 * step, -half + j as f64 * step) };
+                    grid_fields.push([x, y]);
+                }
+            }
+        } else if self.grid > 0 {
+            grid_fields.push([0.0, 0.0]);
+        }
+        let fields: Vec<[f64; 2]> = match self.random_fields {
+            None => {
+                if system.spec.fields_mm.is_empty() {
+                    vec![[0.0, 0.0]]
+                } else {
+                    system.spec.fields_mm.clone()
+                }
+            }
+            Some(k) => {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(self.seed);
+                (0..k).map(|_| [half * (2.0 * rng.gen::<f64>() - 1.0), half * (2.0 * rng.gen::<f64>() - 1.0)]).collect()
+            }
+        };
+        let pupil = self.pupil.points();
+        let mut batch = RayBatch::with_capacity(wavelengths_nm.len() * (grid_fields.len() + fields.len() * pupil.len()));
+        for &w in wavelengths_nm {
+            if !grid_fields.is_empty() {
+                batch.extend(&RayBatch::chief_rays(system, &grid_fields, w)?);
+            }
+            for f in &fields {
+                batch.extend(&RayBatch::for_field(system, *f, &pupil, w)?);
+            }
+        }
+        Ok(batch)
+    }
+}
+
+/// Half width (mm) of the square object field the system's fields span (largest |x| or |y|); 0 when the
+/// system has no off-axis field.
+pub fn field_half_width_mm(system: &SequentialSystem) -> f64 {
+    system.spec.fields_mm.iter().map(|f| f[0].abs().max(f[1].abs())).fold(0.0, f64::max)
+}
