@@ -36,10 +36,15 @@ pub fn spot_stats(points: impl Iterator<Item = (f64, f64)> + Clone) -> Option<Sp
 }
 
 /// A spot diagram: every ray of one field and wavelength at the image surface.
+///
+/// The per-ray vectors (`pupil`, `x_mm`, `y_mm`, `status`) are empty after [`SpotDiagram::keep_statistics_only`];
+/// `rays` still counts the traced rays.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct SpotDiagram {
     pub field_mm: [f64; 2],
     pub wavelength_nm: f64,
+    /// Rays traced (without the chief ray).
+    pub rays: usize,
     pub pupil: Vec<[f64; 2]>,
     pub x_mm: Vec<f64>,
     pub y_mm: Vec<f64>,
@@ -53,6 +58,16 @@ pub struct SpotDiagram {
 }
 
 impl SpotDiagram {
+    /// Drop the per-ray results, keeping the statistics: for callers that want only centroids and radii,
+    /// so a sweep over many fields and wavelengths holds one spot's rays at a time.
+    pub fn keep_statistics_only(&mut self) {
+        for v in [&mut self.x_mm, &mut self.y_mm] {
+            *v = Vec::new();
+        }
+        self.pupil = Vec::new();
+        self.status = Vec::new();
+    }
+
     /// RMS radius about the centroid (µm), 0 when no ray arrived (see `stats`).
     pub fn rms_radius_um(&self) -> f64 {
         self.stats.map(|s| s.rms_radius_um).unwrap_or(0.0)
@@ -79,6 +94,7 @@ pub fn spot_diagram(system: &SequentialSystem, tracer: &dyn Tracer, field_mm: [f
     Ok(SpotDiagram {
         field_mm,
         wavelength_nm,
+        rays: n,
         pupil: pupil.to_vec(),
         x_mm: out.x[..n].to_vec(),
         y_mm: out.y[..n].to_vec(),
@@ -87,4 +103,27 @@ pub fn spot_diagram(system: &SequentialSystem, tracer: &dyn Tracer, field_mm: [f
         stats,
         rms_radius_chief_um,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tracer::AnalyticTracer;
+
+    /// Statistics-only spots keep the numbers and the ray count, and hold no per-ray results.
+    #[test]
+    fn statistics_only_keeps_the_statistics() {
+        let system = SequentialSystem::build(&crate::presets::spec("sp").unwrap()).unwrap();
+        let pupil = crate::rays::PupilPattern::Hexapolar { rings: 4 }.points();
+        let full = spot_diagram(&system, &AnalyticTracer::default(), [2.5, 0.0], 520.0, &pupil).unwrap();
+        let mut lean = full.clone();
+        lean.keep_statistics_only();
+        assert_eq!(lean.rays, pupil.len());
+        assert_eq!(full.rays, full.status.len());
+        assert!(lean.x_mm.is_empty() && lean.y_mm.is_empty() && lean.status.is_empty() && lean.pupil.is_empty());
+        assert_eq!(lean.stats, full.stats);
+        assert_eq!(lean.chief_mm, full.chief_mm);
+        assert_eq!(lean.rms_radius_chief_um, full.rms_radius_chief_um);
+        assert!(full.stats.unwrap().count > 0);
+    }
 }

@@ -329,7 +329,7 @@ fn spot_summary(s: &SpotDiagram) -> serde_json::Value {
     serde_json::json!({
         "field_mm": s.field_mm,
         "wavelength_nm": s.wavelength_nm,
-        "rays": s.status.len(),
+        "rays": s.rays,
         "rays_ok": s.stats.map(|t| t.count).unwrap_or(0),
         "centroid_mm": s.stats.map(|t| t.centroid_mm),
         "chief_mm": s.chief_mm,
@@ -348,7 +348,7 @@ fn print_spot_table(spots: &[SpotDiagram]) {
             "{:>16} {:>9} {:>11} {:>24} {:>10} {:>10} {:>10}",
             format!("({}, {})", s.field_mm[0], s.field_mm[1]),
             s.wavelength_nm,
-            format!("{ok}/{}", s.status.len()),
+            format!("{ok}/{}", s.rays),
             c,
             r,
             g,
@@ -383,11 +383,17 @@ fn spot_plot(path: &Path, title: &str, spots: &[SpotDiagram], fields: &[[f64; 2]
     Ok(())
 }
 
-fn compute_spots(system: &SequentialSystem, tracer: &dyn Tracer, fs: &[[f64; 2]], ws: &[f64], pupil: &[[f64; 2]]) -> Result<Vec<SpotDiagram>> {
+/// Spot diagrams of every field × wavelength; `keep_rays: false` keeps only their statistics (the table
+/// and JSON need no per-ray results), so memory holds one spot's rays at a time.
+fn compute_spots(system: &SequentialSystem, tracer: &dyn Tracer, fs: &[[f64; 2]], ws: &[f64], pupil: &[[f64; 2]], keep_rays: bool) -> Result<Vec<SpotDiagram>> {
     let mut spots = Vec::new();
     for f in fs {
         for &w in ws {
-            spots.push(analysis::spot_diagram(system, tracer, *f, w, pupil)?);
+            let mut s = analysis::spot_diagram(system, tracer, *f, w, pupil)?;
+            if !keep_rays {
+                s.keep_statistics_only();
+            }
+            spots.push(s);
         }
     }
     Ok(spots)
@@ -423,7 +429,7 @@ fn spot(a: SpotArgs) -> Result<()> {
     let fs = fields(&a.field_mm, &system)?;
     let pupil = pupil_points(&a)?;
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, ((pupil.len() + 1) * fs.len() * ws.len()) as u64)?;
-    let spots = compute_spots(&system, tracer.as_ref(), &fs, &ws, &pupil)?;
+    let spots = compute_spots(&system, tracer.as_ref(), &fs, &ws, &pupil, a.csv.is_some() || a.png.is_some())?;
     print_spot_table(&spots);
     if let Some(path) = &a.csv {
         write_spot_csv(path, &system, &spots)?;
@@ -558,7 +564,7 @@ fn mapping(a: MappingArgs) -> Result<()> {
     Ok(())
 }
 
-// ---------------------------------------------------------------- report (the main job until rendering lands)
+// ---------------------------------------------------------------- report (tables and plots of a preset)
 
 fn report(a: ReportArgs) -> Result<()> {
     let system = load_system(&a.system)?;
@@ -571,7 +577,7 @@ fn report(a: ReportArgs) -> Result<()> {
     let fs = system.spec.fields_mm.clone();
     let ws = system.spec.wavelengths_nm.clone();
     let pupil = PupilPattern::Hexapolar { rings: 16 }.points();
-    let spots = compute_spots(&system, &AnalyticTracer::default(), &fs, &ws, &pupil)?;
+    let spots = compute_spots(&system, &AnalyticTracer::default(), &fs, &ws, &pupil, true)?;
     print_spot_table(&spots);
     write_spot_csv(&out.join("spots.csv"), &system, &spots)?;
     spot_plot(&out.join("spots.png"), &format!("{name} spot diagrams (hexapolar, 16 rings)"), &spots, &fs)?;
