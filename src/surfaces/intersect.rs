@@ -66,8 +66,13 @@ fn intersect_plane(p: DVec3, d: DVec3) -> Result<Hit, IntersectFailure> {
 
 /// Vertex-branch root of c(x²+y²+(1+k)z²) − 2z = 0 along p + t d.
 ///
-/// With A t² + 2B′ t + C = 0, the root t = C / q, q = −(B′ + sign(B′)√(B′² − AC)), is the one that tends
-/// to the plane root −p_z/d_z as c → 0 and never suffers cancellation (Numerical Recipes §5.6).
+/// With A t² + 2B′ t + C = 0 the two roots are t₁ = C / q and t₂ = q / A, q = −(B′ + sign(B′)√(B′² − AC)),
+/// both free of cancellation (Numerical Recipes §5.6). t₁ is the one that tends to the plane root
+/// −p_z/d_z as c → 0, and it is taken when it lies on the vertex branch (the sheet the sag formula
+/// describes). It does not always: once the ray starts beyond the centre of curvature (c·p_z > 1 for a
+/// ray along z, e.g. 14 mm in front of a concave R = −10 mm sphere) B′ changes sign, t₁ becomes the
+/// crossing of the far half of the sphere and t₂ the vertex-branch one. Each root is therefore tested
+/// against the branch, t₁ first.
 #[inline(always)]
 fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<f64, IntersectFailure> {
     let kk = 1.0 + k;
@@ -82,19 +87,29 @@ fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<f64, IntersectFailur
     if q == 0.0 {
         return Err(IntersectFailure::Missed);
     }
-    let t = cc / q;
-    let point = p + d * t;
     // On the vertex branch the sag formula holds; otherwise the line only meets the other sheet / half.
-    let r2 = point.x * point.x + point.y * point.y;
-    let domain = 1.0 - kk * c * c * r2;
-    if !t.is_finite() || domain < 0.0 {
-        return Err(IntersectFailure::Missed);
+    let on_branch = |t: f64| -> bool {
+        if !t.is_finite() {
+            return false;
+        }
+        let point = p + d * t;
+        let r2 = point.x * point.x + point.y * point.y;
+        let domain = 1.0 - kk * c * c * r2;
+        if domain < 0.0 {
+            return false;
+        }
+        let sag = c * r2 / (1.0 + domain.sqrt());
+        (point.z - sag).abs() <= 1e-9 * (1.0 + point.z.abs())
+    };
+    let t1 = cc / q;
+    if on_branch(t1) {
+        return Ok(t1);
     }
-    let sag = c * r2 / (1.0 + domain.sqrt());
-    if (point.z - sag).abs() > 1e-9 * (1.0 + point.z.abs()) {
-        return Err(IntersectFailure::Missed);
+    let t2 = q / a;
+    if a != 0.0 && on_branch(t2) {
+        return Ok(t2);
     }
-    Ok(t)
+    Err(IntersectFailure::Missed)
 }
 
 /// Newton's method on f(t) = z(t) − sag(x(t), y(t)), guarded by a bracket: once a sign change is seen,
@@ -193,6 +208,17 @@ mod tests {
         // Outside the conic's domain (r > 1/c): missed.
         let s = SurfaceShape::EvenAsphere { curvature: 0.5, conic: 0.0, coefficients: vec![1e-3] };
         assert!(intersect(&s, DVec3::new(3.0, 0.0, -1.0), DVec3::Z).is_err());
+    }
+
+    #[test]
+    fn ray_from_beyond_the_centre_of_curvature_meets_the_vertex() {
+        // Concave R = −10 mm, ray along the axis starting 14 mm in front (beyond the centre of curvature):
+        // the vertex (t = 14), not the far half of the sphere (t = −6).
+        let s = SurfaceShape::Conic { curvature: -0.1, conic: 0.0 };
+        let h = intersect(&s, DVec3::new(0.0, 0.0, -14.0), DVec3::Z).unwrap();
+        assert!((h.t - 14.0).abs() < 1e-12 && h.point.z.abs() < 1e-12, "{h:?}");
+        let h = intersect(&s, DVec3::new(2.0, 1.0, -30.0), DVec3::new(0.01, 0.0, 1.0).normalize()).unwrap();
+        assert!((h.point.z - s.sag(h.point.x, h.point.y)).abs() < 1e-12 && h.point.z < 0.0);
     }
 
     #[test]

@@ -24,6 +24,30 @@ pub fn refract(d: DVec3, normal: DVec3, n1: f64, n2: f64) -> Option<DVec3> {
     Some(mu * d + (k.sqrt() - mu * cos_i) * nrm)
 }
 
+/// The unit vector along a ray direction given with any finite, non-zero length, or `None` for a
+/// non-finite or zero direction (an invalid input ray).
+///
+/// `d / |d|` alone fails at the extremes of f64: |d|² overflows to ∞ for components beyond ~1e154 (the
+/// quotient is then 0) and underflows to 0 below ~1e-154 (the ray looks zero-length). Scaling by the
+/// largest component first keeps |d/m| in [1, √3], so every finite non-zero direction is accepted.
+/// Ordinary directions take the plain path, so their results are unchanged bit for bit.
+#[inline]
+pub fn unit_direction(d: DVec3) -> Option<DVec3> {
+    if !d.is_finite() {
+        return None;
+    }
+    let len2 = d.length_squared();
+    if len2.is_finite() && len2 > 1e-300 {
+        return Some(d / len2.sqrt());
+    }
+    let m = d.abs().max_element();
+    if !(m > 0.0) {
+        return None;
+    }
+    let s = d / m;
+    Some(s / s.length())
+}
+
 /// Ideal thin lens in the local plane z = 0 at point `p`: direction tangents map as
 /// tan′ = (n₁/n₂)·tan − h/f (Zemax's Paraxial surface; in air, tan′ = tan − h/f).
 #[inline]
