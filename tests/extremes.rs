@@ -845,64 +845,126 @@ mod properties {
         TestRunner::new_with_rng(config, TestRng::from_seed(RngAlgorithm::ChaCha, &[seed; 32]))
     }
 
-    /// (curvature, conic, α₂ (r⁴), α₃ (r⁶)) and 16 rays (x, y, tilt x, tilt y).
-    fn case() -> impl Strategy<Value = ((f64, f64, f64, f64), Vec<(f64, f64, f64, f64)>)> {
+    /// (curvature, conic, α₂ (r⁴), α₃ (r⁶)) and 24 rays (x, y, tilt x, tilt y), tilts up to ±`tilt`. The
+    /// conic is exactly −1 (paraboloid) in a third of the cases, else oblate to strongly hyperbolic; the
+    /// aspheric terms reach up to 8 mm of sag over the 16 mm mechanical aperture.
+    fn case(tilt: f64) -> impl Strategy<Value = ((f64, f64, f64, f64), Vec<(f64, f64, f64, f64)>)> {
         (
-            (-0.03f64..0.03, -5.0f64..1.0, -1e-4f64..1e-4, -1e-6f64..1e-6),
-            proptest::collection::vec((-7.0f64..7.0, -7.0f64..7.0, -0.2f64..0.2, -0.2f64..0.2), 16),
+            (-0.05f64..0.05, prop_oneof![Just(-1.0f64), -5.0f64..1.0], -1e-4f64..1e-4, -5e-7f64..5e-7),
+            proptest::collection::vec((-12.0f64..12.0, -12.0f64..12.0, -tilt..tilt, -tilt..tilt), 24),
         )
     }
 
-    /// air → random even asphere (N-BK7, image 8 mm inside the glass). Asserted for every ray: finite
-    /// outputs and a classified status from every backend; analytic and Embree (user geometry, refined)
-    /// classify alike and land within 1e-6 mm; the analytic refraction satisfies
-    /// n₁ sin θ₁ = n₂ sin θ₂ about the exact normal at the exact hit to 1e-12, coplanar to 1e-12.
-    #[test]
-    fn random_rays_through_random_aspheres() {
-        let n2 = n_bk7(587.6);
-        let stats = std::cell::Cell::new((0usize, 0usize));
-        runner(24, 7)
-            .run(&case(), |((c, k, a2, a3), rays_in)| {
-                let mut s = single_surface(Kind::Asphere, 1.0, None, 10.0, Some("N-BK7"), 8.0);
+    /// Random rays through a random even asphere (vertex 10 mm after the object, image 8 mm after it):
+    /// `glass_first` = false: air → N-BK7 (image inside the glass); true: N-BK7 → air (rays steep enough
+    /// to be totally reflected). Asserted for every ray: finite outputs and a classified status from
+    /// every backend; an analytic refraction satisfies n₁ sin θ₁ = n₂ sin θ₂ about the exact normal at
+    /// the exact hit to 1e-12, coplanar to 1e-12 (rays inside the lens, below); analytic and Embree (user geometry, refined) classify
+    /// alike (TIR at the same surface included) and land within 1e-6 mm.
+    ///
+    /// Where the two models differ by construction the comparison is skipped, and counted: the sequential
+    /// surface is unbounded and may be met *behind* the image plane (virtual propagation), the physical
+    /// lens ends at its 16 mm mechanical rim. So systems whose figure leaves the slab 0.5 mm < z < 17.5 mm
+    /// (object at 0, vertex at 10, image at 18) over that rim are discarded (`prop_assume`), and only rays
+    /// that stay within r ≤ 15 mm across the slab, and land within 40 mm of the axis (the Embree detector
+    /// is 41 mm), are compared. A ray inside the lens goes from below the figure to above it, so by
+    /// continuity it *must* meet it: the analytic tracer must say `ok` (or `tir`).
+    fn random_asphere_property(glass_first: bool, tilt: f64, cases: u32) -> (usize, usize, usize, usize) {
+        let (n1, n2) = if glass_first { (n_bk7(587.6), 1.0) } else { (1.0, n_bk7(587.6)) };
+        let (object_medium, after) = if glass_first { (Some("N-BK7"), None) } else { (None, Some("N-BK7")) };
+        // (arrived, tir, compared, skipped)
+        let stats = std::cell::Cell::new((0usize, 0usize, 0usize, 0usize));
+        // EXTREMES_SEED=n explores other (still reproducible) case sets; CI runs seed 7.
+        let seed = std::env::var("EXTREMES_SEED").ok().and_then(|v| v.parse().ok()).unwrap_or(7);
+        runner(cases, seed)
+            .run(&case(tilt), |((c, k, a2, a3), rays_in)| {
+                let mut s = single_surface(Kind::Asphere, 1.0, object_medium, 10.0, after, 8.0);
                 let r = &mut s.surfaces[1];
-                r.radius_mm = Some(Cell::fixed(if c == 0.0 { 0.0 } else { 1.0 / c }));
-                if c == 0.0 {
-                    r.radius_mm = None;
-                }
+                r.radius_mm = if c == 0.0 { None } else { Some(Cell::fixed(1.0 / c)) };
                 r.conic = Some(Cell::fixed(k));
                 r.asphere_coefficients = vec![Cell::fixed(0.0), Cell::fixed(a2), Cell::fixed(a3)];
                 let sys = build(&s);
+                let shape = sys.surfaces[1].shape.clone().unwrap();
+                let sags: Vec<f64> = (0..=160).map(|i| shape.sag(0.1 * i as f64, 0.0)).collect();
+                prop_assume!(sags.iter().all(|z| z.is_finite() && *z > -9.5 && *z < 7.5), "figure undefined or out of the slab");
                 let mut rays = RayBatch::default();
                 for (x, y, tx, ty) in &rays_in {
                     rays.push(DVec3::new(*x, *y, 0.0), DVec3::new(*tx, *ty, 1.0).normalize(), 587.6);
                 }
                 let a = analytic(&sys, &rays);
-                let shape = sys.surfaces[1].shape.clone().unwrap();
                 let f = sys.surfaces[1].frame;
+                // Inside the lens: r ≤ 15 mm at both ends of the slab (r along a line is convex in t).
+                let inside: Vec<bool> = (0..rays.len())
+                    .map(|i| {
+                        let (o, d) = (rays.origin(i), rays.direction(i));
+                        [0.5, 17.5].iter().all(|z| {
+                            let q = o + d * ((z - o.z) / d.z);
+                            q.x.hypot(q.y) <= 15.0
+                        })
+                    })
+                    .collect();
+                // …and, for a ray that arrives, landing on the Embree detector (r ≤ 40 of its 41 mm).
+                let compare: Vec<bool> = (0..rays.len()).map(|i| inside[i] && (a.class[i] != Class::Ok || a.out.x[i].hypot(a.out.y[i]) <= 40.0)).collect();
                 for i in 0..rays.len() {
-                    prop_assert!(matches!(a.class[i], Class::Ok | Class::Missed | Class::NoConvergence), "{:?}", a.class[i]);
+                    if inside[i] {
+                        prop_assert!(matches!(a.class[i], Class::Ok | Class::Tir(1)), "ray {} crosses the figure inside the lens: {:?}", i, a.class[i]);
+                    }
+                    prop_assert!(matches!(a.class[i], Class::Ok | Class::Missed | Class::NoConvergence | Class::Tir(1)), "{:?}", a.class[i]);
+                    let (ar, tir, co, sk) = stats.get();
+                    if a.class[i] == Class::Tir(1) {
+                        stats.set((ar, tir + 1, co, sk));
+                    }
                     if a.class[i] != Class::Ok {
                         continue;
                     }
-                    stats.set((stats.get().0 + 1, stats.get().1));
+                    stats.set((ar + 1, tir, co, sk));
+                    // Snell's law is checked where the crossing is well defined: inside the lens. Outside,
+                    // Newton on the unbounded sequential figure may converge to a remote crossing (seen:
+                    // t = −186 mm, r = 87 mm for a ray passing beside a strong asphere), which any rounding
+                    // difference can move to another root.
+                    if !inside[i] {
+                        continue;
+                    }
                     let hit = diffcassi::surfaces::intersect(&shape, f.point_to_local(rays.origin(i)), f.dir_to_local(rays.direction(i))).unwrap();
                     let d2 = sys.image().frame.dir_to_global(DVec3::new(a.out.dir_x[i], a.out.dir_y[i], a.out.dir_z[i]));
-                    let (res, oop) = snell_residual(rays.direction(i), d2, f.dir_to_global(hit.normal), 1.0, n2);
-                    prop_assert!(res.abs() < 1e-12 && oop < 1e-12, "ray {i}: Snell residual {res:e}, out of plane {oop:e}");
+                    let (res, oop) = snell_residual(rays.direction(i), d2, f.dir_to_global(hit.normal), n1, n2);
+                    prop_assert!(res.abs() < 1e-12 && oop < 1e-12, "ray {}: Snell residual {:e}, out of plane {:e}", i, res, oop);
                 }
                 #[cfg(feature = "embree")]
                 {
                     let e = backends::embree(&sys, &rays, 0);
-                    prop_assert_eq!(&e.class, &a.class, "c {} k {} a2 {} a3 {}", c, k, a2, a3);
-                    let err = max_position_error(&e.out, &a.out);
-                    prop_assert!(err < 1e-6, "refined Embree {err:e} mm from analytic");
-                    stats.set((stats.get().0, stats.get().1 + 1));
+                    for i in (0..rays.len()).filter(|&i| compare[i]) {
+                        prop_assert_eq!(e.class[i], a.class[i], "ray {}", i);
+                        if a.class[i] == Class::Ok {
+                            let err = ((e.out.x[i] - a.out.x[i]).powi(2) + (e.out.y[i] - a.out.y[i]).powi(2)).sqrt();
+                            prop_assert!(err < 1e-6, "ray {}: refined Embree {:e} mm from analytic", i, err);
+                        }
+                    }
+                    let n = compare.iter().filter(|c| **c).count();
+                    let (ar, tir, co, sk) = stats.get();
+                    stats.set((ar, tir, co + n, sk + rays.len() - n));
                 }
                 Ok(())
             })
             .unwrap();
-        let (arrived, compared) = stats.get();
-        eprintln!("random aspheres: {arrived} rays arrived and satisfied Snell; {compared} systems compared with Embree");
-        assert!(arrived > 200, "the property test exercised too few rays: {arrived}");
+        stats.get()
+    }
+
+    #[test]
+    fn random_rays_through_random_aspheres() {
+        let (arrived, _, compared, skipped) = random_asphere_property(false, 0.5, 64);
+        eprintln!("air → random asphere: {arrived} rays arrived (Snell checked inside the lens); {compared} compared with Embree, {skipped} not (outside the lens)");
+        assert!(arrived > 800, "the property test exercised too few rays: {arrived}");
+        #[cfg(feature = "embree")]
+        assert!(compared > 2 * skipped, "too few rays compared: {compared} vs {skipped} skipped");
+    }
+
+    #[test]
+    fn random_rays_out_of_glass_through_random_aspheres() {
+        let (arrived, tir, compared, skipped) = random_asphere_property(true, 1.2, 64);
+        eprintln!("glass → random asphere: {arrived} rays arrived (Snell checked inside the lens), {tir} totally reflected; {compared} compared with Embree, {skipped} not");
+        assert!(arrived > 200 && tir > 200, "the property test exercised too few rays: {arrived} arrived, {tir} TIR");
+        #[cfg(feature = "embree")]
+        assert!(compared > skipped / 2, "too few rays compared: {compared} vs {skipped} skipped");
     }
 }

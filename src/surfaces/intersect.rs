@@ -34,13 +34,21 @@ pub fn intersect(shape: &SurfaceShape, p: DVec3, d: DVec3) -> Result<Hit, Inters
             Ok(Hit { t, point, normal: shape.normal(point) })
         }
         SurfaceShape::EvenAsphere { curvature, conic, .. } => {
-            let t0 = if *curvature == 0.0 {
-                intersect_plane(p, d)?.t
-            } else {
-                // The base conic's root is an excellent start; fall back to the vertex plane.
-                conic_root(*curvature, *conic, p, d).or_else(|_| intersect_plane(p, d).map(|h| h.t))?
-            };
-            let t = asphere_newton(shape, p, d, t0)?;
+            // Starts: the base conic's root (an excellent start when the aspheric terms are mild), then the
+            // vertex plane's. The conic root can lie far from the asphere's crossing — near the rim of the
+            // conic's domain, even behind the ray, where strong aspheric terms have bent the figure away
+            // — and Newton from there leaves the domain; the plane root is then the better start.
+            let plane = intersect_plane(p, d).map(|h| h.t);
+            let conic_start = if *curvature == 0.0 { Err(IntersectFailure::Missed) } else { conic_root(*curvature, *conic, p, d) };
+            let mut result = Err(IntersectFailure::Missed);
+            for t0 in [conic_start, plane] {
+                let Ok(t0) = t0 else { continue };
+                result = asphere_newton(shape, p, d, t0);
+                if result.is_ok() {
+                    break;
+                }
+            }
+            let t = result?;
             let point = p + d * t;
             let normal = shape.normal(point);
             if !normal.is_finite() {
@@ -219,6 +227,20 @@ mod tests {
         assert!((h.t - 14.0).abs() < 1e-12 && h.point.z.abs() < 1e-12, "{h:?}");
         let h = intersect(&s, DVec3::new(2.0, 1.0, -30.0), DVec3::new(0.01, 0.0, 1.0).normalize()).unwrap();
         assert!((h.point.z - s.sag(h.point.x, h.point.y)).abs() < 1e-12 && h.point.z < 0.0);
+    }
+
+    #[test]
+    fn strong_asphere_falls_back_to_the_plane_start() {
+        // The base conic's root lies behind the ray at the rim of its domain (t = −13.1, r = 22 mm), where
+        // Newton leaves the domain; from the vertex plane's root it converges to the crossing at t = 13.44
+        // (found independently by the bounded patch's sampled search).
+        let s = SurfaceShape::EvenAsphere { curvature: -0.04056854136652041, conic: 0.25615930532203046, coefficients: vec![0.0, 8.918683760134837e-5] };
+        let p = DVec3::new(10.753351557283526, 7.235889264117773, -10.0);
+        let d = DVec3::new(-0.7303541173436519, -0.6166695427291766, 1.0).normalize();
+        let h = intersect(&s, p, d).unwrap();
+        let patch = crate::surfaces::SurfacePatch::new(s.clone(), crate::surfaces::Aperture::circular(16.0)).unwrap();
+        let t = patch.first_hit(p, d, 0.0, f64::INFINITY).unwrap();
+        assert!((h.t - t).abs() < 1e-9 && (h.t - 13.4388).abs() < 1e-3, "{} vs {t}", h.t);
     }
 
     #[test]

@@ -385,6 +385,20 @@ mod tests {
     }
 
     #[test]
+    fn grazing_ray_finds_a_root_pair_between_samples() {
+        // A ray at 89.99° through the vertex of a convex asphere enters there and leaves ≈ 0.035 mm
+        // further on, far closer than the 64 samples along the clipped ray (≈ 0.5 mm apart), with f < 0 at
+        // every sample: the pair is found through the extremum of f between samples.
+        let shape = SurfaceShape::EvenAsphere { curvature: 0.01, conic: -0.5, coefficients: vec![0.0, 5e-5, 2e-6] };
+        let a = SurfacePatch::new(shape, Aperture::circular(16.0)).unwrap();
+        let th = 89.99f64.to_radians();
+        let d = DVec3::new(th.sin(), 0.0, th.cos());
+        let t = a.first_hit(-d, d, 0.0, f64::INFINITY).expect("the vertex is hit");
+        assert!((t - 1.0).abs() < 1e-9, "{t}");
+        assert!((a.nearest_root(-d, d, 1.0 + 1e-4).unwrap() - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
     fn grazing_ray_on_plane_and_sphere_is_classified_not_nan() {
         let s = sphere(20.0, 5.0);
         let p = DVec3::new(-10.0, 0.0, s.shape.sag(4.9, 0.0));

@@ -98,5 +98,8 @@ impl Tracer for AnalyticTracer {
 /// Trace one ray (object frame) at one wavelength: the image-frame position and direction, or the status.
 pub fn trace_single(system: &SequentialSystem, origin: DVec3, direction: DVec3, wavelength_nm: f64) -> Result<std::result::Result<(DVec3, DVec3), (RayStatus, usize)>> {
     let n = system.indices(wavelength_nm)?;
-    Ok(trace_steps(&system.path, &n, origin, direction.normalize()))
+    match unit_direction(direction).filter(|_| origin.is_finite()) {
+        Some(d) => Ok(trace_steps(&system.path, &n, origin, d)),
+        None => Ok(Err((RayStatus::InvalidInput, 0))),
+    }
 }

@@ -136,6 +136,22 @@ mod tests {
     }
 
     #[test]
+    fn unit_direction_survives_overflow_and_underflow() {
+        let d = DVec3::new(0.1, -0.05, 1.0);
+        let u = unit_direction(d).unwrap();
+        assert_eq!(u, d / d.length(), "ordinary directions take the plain path");
+        for scale in [2f64.powi(1000), 2f64.powi(-1000), 1e-310] {
+            let v = unit_direction(d * scale).unwrap();
+            // 1e-310 is subnormal: its components keep only ~1e-12 relative precision.
+            let tol = if scale < 1e-300 { 1e-10 } else { 1e-15 };
+            assert!((v - u).length() < tol, "scale {scale:e}: {v:?}");
+        }
+        for bad in [DVec3::ZERO, DVec3::new(f64::NAN, 0.0, 1.0), DVec3::new(0.0, f64::INFINITY, 1.0)] {
+            assert_eq!(unit_direction(bad), None);
+        }
+    }
+
+    #[test]
     fn ideal_lens_focuses_parallel_rays() {
         let f = 50.0;
         let p = DVec3::new(3.0, -2.0, 0.0);
