@@ -214,6 +214,7 @@ mod backends {
 }
 
 /// The analytic run and every Embree run (`meshes`: include the tessellated backends).
+#[cfg_attr(not(feature = "embree"), allow(unused_variables))]
 fn all_runs(sys: &SequentialSystem, rays: &RayBatch, meshes: bool) -> Vec<Run> {
     #[allow(unused_mut)]
     let mut runs = vec![analytic(sys, rays)];
@@ -904,6 +905,7 @@ mod properties {
                     })
                     .collect();
                 // …and, for a ray that arrives, landing on the Embree detector (r ≤ 40 of its 41 mm).
+                #[cfg_attr(not(feature = "embree"), allow(unused_variables))]
                 let compare: Vec<bool> = (0..rays.len()).map(|i| inside[i] && (a.class[i] != Class::Ok || a.out.x[i].hypot(a.out.y[i]) <= 40.0)).collect();
                 for i in 0..rays.len() {
                     if inside[i] {
