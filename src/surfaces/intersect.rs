@@ -34,13 +34,21 @@ pub fn intersect(shape: &SurfaceShape, p: DVec3, d: DVec3) -> Result<Hit, Inters
             Ok(Hit { t, point, normal: shape.normal(point) })
         }
         SurfaceShape::EvenAsphere { curvature, conic, .. } => {
-            let t0 = if *curvature == 0.0 {
-                intersect_plane(p, d)?.t
-            } else {
-                // The base conic's root is an excellent start; fall back to the vertex plane.
-                conic_root(*curvature, *conic, p, d).or_else(|_| intersect_plane(p, d).map(|h| h.t))?
-            };
-            let t = asphere_newton(shape, p, d, t0)?;
+            // Starts: the base conic's root (an excellent start when the aspheric terms are mild), then the
+            // vertex plane's. The conic root can lie far from the asphere's crossing — near the rim of the
+            // conic's domain, even behind the ray, where strong aspheric terms have bent the figure away
+            // — and Newton from there leaves the domain; the plane root is then the better start.
+            let plane = intersect_plane(p, d).map(|h| h.t);
+            let conic_start = if *curvature == 0.0 { Err(IntersectFailure::Missed) } else { conic_root(*curvature, *conic, p, d) };
+            let mut result = Err(IntersectFailure::Missed);
+            for t0 in [conic_start, plane] {
+                let Ok(t0) = t0 else { continue };
+                result = asphere_newton(shape, p, d, t0);
+                if result.is_ok() {
+                    break;
+                }
+            }
+            let t = result?;
             let point = p + d * t;
             let normal = shape.normal(point);
             if !normal.is_finite() {
@@ -66,8 +74,13 @@ fn intersect_plane(p: DVec3, d: DVec3) -> Result<Hit, IntersectFailure> {
 
 /// Vertex-branch root of c(x²+y²+(1+k)z²) − 2z = 0 along p + t d.
 ///
-/// With A t² + 2B′ t + C = 0, the root t = C / q, q = −(B′ + sign(B′)√(B′² − AC)), is the one that tends
-/// to the plane root −p_z/d_z as c → 0 and never suffers cancellation (Numerical Recipes §5.6).
+/// With A t² + 2B′ t + C = 0 the two roots are t₁ = C / q and t₂ = q / A, q = −(B′ + sign(B′)√(B′² − AC)),
+/// both free of cancellation (Numerical Recipes §5.6). t₁ is the one that tends to the plane root
+/// −p_z/d_z as c → 0, and it is taken when it lies on the vertex branch (the sheet the sag formula
+/// describes). It does not always: once the ray starts beyond the centre of curvature (c·p_z > 1 for a
+/// ray along z, e.g. 14 mm in front of a concave R = −10 mm sphere) B′ changes sign, t₁ becomes the
+/// crossing of the far half of the sphere and t₂ the vertex-branch one. Each root is therefore tested
+/// against the branch, t₁ first.
 #[inline(always)]
 fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<f64, IntersectFailure> {
     let kk = 1.0 + k;
@@ -82,19 +95,29 @@ fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<f64, IntersectFailur
     if q == 0.0 {
         return Err(IntersectFailure::Missed);
     }
-    let t = cc / q;
-    let point = p + d * t;
     // On the vertex branch the sag formula holds; otherwise the line only meets the other sheet / half.
-    let r2 = point.x * point.x + point.y * point.y;
-    let domain = 1.0 - kk * c * c * r2;
-    if !t.is_finite() || domain < 0.0 {
-        return Err(IntersectFailure::Missed);
+    let on_branch = |t: f64| -> bool {
+        if !t.is_finite() {
+            return false;
+        }
+        let point = p + d * t;
+        let r2 = point.x * point.x + point.y * point.y;
+        let domain = 1.0 - kk * c * c * r2;
+        if domain < 0.0 {
+            return false;
+        }
+        let sag = c * r2 / (1.0 + domain.sqrt());
+        (point.z - sag).abs() <= 1e-9 * (1.0 + point.z.abs())
+    };
+    let t1 = cc / q;
+    if on_branch(t1) {
+        return Ok(t1);
     }
-    let sag = c * r2 / (1.0 + domain.sqrt());
-    if (point.z - sag).abs() > 1e-9 * (1.0 + point.z.abs()) {
-        return Err(IntersectFailure::Missed);
+    let t2 = q / a;
+    if a != 0.0 && on_branch(t2) {
+        return Ok(t2);
     }
-    Ok(t)
+    Err(IntersectFailure::Missed)
 }
 
 /// Newton's method on f(t) = z(t) − sag(x(t), y(t)), guarded by a bracket: once a sign change is seen,
@@ -193,6 +216,31 @@ mod tests {
         // Outside the conic's domain (r > 1/c): missed.
         let s = SurfaceShape::EvenAsphere { curvature: 0.5, conic: 0.0, coefficients: vec![1e-3] };
         assert!(intersect(&s, DVec3::new(3.0, 0.0, -1.0), DVec3::Z).is_err());
+    }
+
+    #[test]
+    fn ray_from_beyond_the_centre_of_curvature_meets_the_vertex() {
+        // Concave R = −10 mm, ray along the axis starting 14 mm in front (beyond the centre of curvature):
+        // the vertex (t = 14), not the far half of the sphere (t = −6).
+        let s = SurfaceShape::Conic { curvature: -0.1, conic: 0.0 };
+        let h = intersect(&s, DVec3::new(0.0, 0.0, -14.0), DVec3::Z).unwrap();
+        assert!((h.t - 14.0).abs() < 1e-12 && h.point.z.abs() < 1e-12, "{h:?}");
+        let h = intersect(&s, DVec3::new(2.0, 1.0, -30.0), DVec3::new(0.01, 0.0, 1.0).normalize()).unwrap();
+        assert!((h.point.z - s.sag(h.point.x, h.point.y)).abs() < 1e-12 && h.point.z < 0.0);
+    }
+
+    #[test]
+    fn strong_asphere_falls_back_to_the_plane_start() {
+        // The base conic's root lies behind the ray at the rim of its domain (t = −13.1, r = 22 mm), where
+        // Newton leaves the domain; from the vertex plane's root it converges to the crossing at t = 13.44
+        // (found independently by the bounded patch's sampled search).
+        let s = SurfaceShape::EvenAsphere { curvature: -0.04056854136652041, conic: 0.25615930532203046, coefficients: vec![0.0, 8.918683760134837e-5] };
+        let p = DVec3::new(10.753351557283526, 7.235889264117773, -10.0);
+        let d = DVec3::new(-0.7303541173436519, -0.6166695427291766, 1.0).normalize();
+        let h = intersect(&s, p, d).unwrap();
+        let patch = crate::surfaces::SurfacePatch::new(s.clone(), crate::surfaces::Aperture::circular(16.0)).unwrap();
+        let t = patch.first_hit(p, d, 0.0, f64::INFINITY).unwrap();
+        assert!((h.t - t).abs() < 1e-9 && (h.t - 13.4388).abs() < 1e-3, "{} vs {t}", h.t);
     }
 
     #[test]

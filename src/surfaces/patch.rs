@@ -166,7 +166,51 @@ impl SurfacePatch {
         q.z - self.shape.sag(q.x, q.y)
     }
 
-    /// First sign change of f on [a, b] by sampling, refined.
+    /// df/dt = d_z − ∇sag · (d_x, d_y).
+    fn f_prime(&self, p: DVec3, d: DVec3, t: f64) -> f64 {
+        let q = p + d * t;
+        let (gx, gy) = self.shape.sag_gradient(q.x, q.y);
+        d.z - gx * d.x - gy * d.y
+    }
+
+    /// A sub-interval of [t0, t1] over which f changes sign, given f0 = f(t0), f1 = f(t1) (finite), or
+    /// `None`. Besides a plain sign change it finds a *pair* of roots between two samples of equal sign:
+    /// a grazing ray crosses the figure and comes back within a fraction of the sample spacing (a ray at
+    /// 89.99° through an asphere's vertex re-crosses it 0.03 mm further on). If df/dt changes sign in
+    /// between with f heading toward zero, the extremum is located by bisection on df/dt, and when f
+    /// there has the opposite sign (or is 0), [t0, t_extremum] brackets the first root.
+    fn sign_change(&self, p: DVec3, d: DVec3, t0: f64, f0: f64, t1: f64, f1: f64) -> Option<(f64, f64)> {
+        if f0 == 0.0 || f0.signum() != f1.signum() {
+            return Some((t0, t1));
+        }
+        let (g0, g1) = (self.f_prime(p, d, t0), self.f_prime(p, d, t1));
+        // f < 0 needs a maximum (f′: + → −), f > 0 a minimum (f′: − → +).
+        let toward_zero = if f0 < 0.0 { g0 > 0.0 && g1 < 0.0 } else { g0 < 0.0 && g1 > 0.0 };
+        if !(g0.is_finite() && g1.is_finite() && toward_zero) {
+            return None;
+        }
+        let (mut a, mut b) = (t0, t1);
+        for _ in 0..200 {
+            let m = 0.5 * (a + b);
+            if m <= a || m >= b {
+                break;
+            }
+            let g = self.f_prime(p, d, m);
+            if !g.is_finite() {
+                return None;
+            }
+            if g.signum() == g0.signum() {
+                a = m;
+            } else {
+                b = m;
+            }
+        }
+        let te = 0.5 * (a + b);
+        let fe = self.f(p, d, te);
+        (fe.is_finite() && (fe == 0.0 || fe.signum() != f0.signum())).then_some((t0, te))
+    }
+
+    /// First sign change of f on [a, b] by sampling (including root pairs between samples), refined.
     fn asphere_first_root(&self, p: DVec3, d: DVec3, a: f64, b: f64) -> Option<f64> {
         let h = (b - a) / ASPHERE_SAMPLES as f64;
         let mut t0 = a;
@@ -177,8 +221,10 @@ impl SurfacePatch {
         for i in 1..=ASPHERE_SAMPLES {
             let t1 = if i == ASPHERE_SAMPLES { b } else { a + h * i as f64 };
             let f1 = self.f(p, d, t1);
-            if f0.is_finite() && f1.is_finite() && (f0 == 0.0 || f0.signum() != f1.signum()) {
-                return self.refine_bracket(p, d, t0, t1);
+            if f0.is_finite() && f1.is_finite() {
+                if let Some((lo, hi)) = self.sign_change(p, d, t0, f0, t1, f1) {
+                    return self.refine_bracket(p, d, lo, hi);
+                }
             }
             (t0, f0) = (t1, f1);
         }
@@ -192,8 +238,11 @@ impl SurfacePatch {
         let fs: Vec<f64> = ts.iter().map(|&t| self.f(p, d, t)).collect();
         let mut best: Option<f64> = None;
         for i in 0..n {
-            if fs[i].is_finite() && fs[i + 1].is_finite() && (fs[i] == 0.0 || fs[i].signum() != fs[i + 1].signum()) {
-                if let Some(t) = self.refine_bracket(p, d, ts[i], ts[i + 1]) {
+            if !(fs[i].is_finite() && fs[i + 1].is_finite()) {
+                continue;
+            }
+            if let Some((lo, hi)) = self.sign_change(p, d, ts[i], fs[i], ts[i + 1], fs[i + 1]) {
+                if let Some(t) = self.refine_bracket(p, d, lo, hi) {
                     if best.is_none_or(|b| (t - guess).abs() < (b - guess).abs()) {
                         best = Some(t);
                     }
@@ -333,6 +382,20 @@ mod tests {
             let near = a.nearest_root(p, d, t + 3e-4).unwrap();
             assert!((near - t).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn grazing_ray_finds_a_root_pair_between_samples() {
+        // A ray at 89.99° through the vertex of a convex asphere enters there and leaves ≈ 0.035 mm
+        // further on, far closer than the 64 samples along the clipped ray (≈ 0.5 mm apart), with f < 0 at
+        // every sample: the pair is found through the extremum of f between samples.
+        let shape = SurfaceShape::EvenAsphere { curvature: 0.01, conic: -0.5, coefficients: vec![0.0, 5e-5, 2e-6] };
+        let a = SurfacePatch::new(shape, Aperture::circular(16.0)).unwrap();
+        let th = 89.99f64.to_radians();
+        let d = DVec3::new(th.sin(), 0.0, th.cos());
+        let t = a.first_hit(-d, d, 0.0, f64::INFINITY).expect("the vertex is hit");
+        assert!((t - 1.0).abs() < 1e-9, "{t}");
+        assert!((a.nearest_root(-d, d, 1.0 + 1e-4).unwrap() - 1.0).abs() < 1e-9);
     }
 
     #[test]

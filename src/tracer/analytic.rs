@@ -1,4 +1,4 @@
-use super::kernel::trace_steps;
+use super::kernel::{trace_steps, unit_direction};
 use super::{RaySlices, RayStatus, TracedBatch, Tracer};
 use crate::error::Result;
 use crate::rays::RayBatch;
@@ -70,14 +70,12 @@ impl Tracer for AnalyticTracer {
                     }
                     let idx = cached.1.expect("every batch wavelength is in the table");
                     let o = rays.origin(i);
-                    let d = rays.direction(i);
-                    let len = d.length();
-                    if !(o.is_finite() && d.is_finite()) || !(len > 0.0) {
+                    let Some(d) = unit_direction(rays.direction(i)).filter(|_| o.is_finite()) else {
                         st[k] = RayStatus::InvalidInput;
                         sf[k] = 0;
                         continue;
-                    }
-                    match trace_steps(path, idx, o, d / len) {
+                    };
+                    match trace_steps(path, idx, o, d) {
                         Ok((p, dir)) => {
                             x[k] = p.x;
                             y[k] = p.y;
@@ -100,5 +98,8 @@ impl Tracer for AnalyticTracer {
 /// Trace one ray (object frame) at one wavelength: the image-frame position and direction, or the status.
 pub fn trace_single(system: &SequentialSystem, origin: DVec3, direction: DVec3, wavelength_nm: f64) -> Result<std::result::Result<(DVec3, DVec3), (RayStatus, usize)>> {
     let n = system.indices(wavelength_nm)?;
-    Ok(trace_steps(&system.path, &n, origin, direction.normalize()))
+    match unit_direction(direction).filter(|_| origin.is_finite()) {
+        Some(d) => Ok(trace_steps(&system.path, &n, origin, d)),
+        None => Ok(Err((RayStatus::InvalidInput, 0))),
+    }
 }

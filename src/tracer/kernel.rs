@@ -24,6 +24,30 @@ pub fn refract(d: DVec3, normal: DVec3, n1: f64, n2: f64) -> Option<DVec3> {
     Some(mu * d + (k.sqrt() - mu * cos_i) * nrm)
 }
 
+/// The unit vector along a ray direction given with any finite, non-zero length, or `None` for a
+/// non-finite or zero direction (an invalid input ray).
+///
+/// `d / |d|` alone fails at the extremes of f64: |d|² overflows to ∞ for components beyond ~1e154 (the
+/// quotient is then 0) and underflows to 0 below ~1e-154 (the ray looks zero-length). Scaling by the
+/// largest component first keeps |d/m| in [1, √3], so every finite non-zero direction is accepted.
+/// Ordinary directions take the plain path, so their results are unchanged bit for bit.
+#[inline]
+pub fn unit_direction(d: DVec3) -> Option<DVec3> {
+    if !d.is_finite() {
+        return None;
+    }
+    let len2 = d.length_squared();
+    if len2.is_finite() && len2 > 1e-300 {
+        return Some(d / len2.sqrt());
+    }
+    let m = d.abs().max_element();
+    if !(m > 0.0) {
+        return None;
+    }
+    let s = d / m;
+    Some(s / s.length())
+}
+
 /// Ideal thin lens in the local plane z = 0 at point `p`: direction tangents map as
 /// tan′ = (n₁/n₂)·tan − h/f (Zemax's Paraxial surface; in air, tan′ = tan − h/f).
 #[inline]
@@ -109,6 +133,22 @@ mod tests {
         assert!(refract(above, DVec3::Z, 1.5, 1.0).is_none());
         let r = refract(below, DVec3::Z, 1.5, 1.0).unwrap();
         assert!(r.is_finite());
+    }
+
+    #[test]
+    fn unit_direction_survives_overflow_and_underflow() {
+        let d = DVec3::new(0.1, -0.05, 1.0);
+        let u = unit_direction(d).unwrap();
+        assert_eq!(u, d / d.length(), "ordinary directions take the plain path");
+        for scale in [2f64.powi(1000), 2f64.powi(-1000), 1e-310] {
+            let v = unit_direction(d * scale).unwrap();
+            // 1e-310 is subnormal: its components keep only ~1e-12 relative precision.
+            let tol = if scale < 1e-300 { 1e-10 } else { 1e-15 };
+            assert!((v - u).length() < tol, "scale {scale:e}: {v:?}");
+        }
+        for bad in [DVec3::ZERO, DVec3::new(f64::NAN, 0.0, 1.0), DVec3::new(0.0, f64::INFINITY, 1.0)] {
+            assert_eq!(unit_direction(bad), None);
+        }
     }
 
     #[test]

@@ -69,12 +69,15 @@ pub(crate) enum Role {
     /// Refracting (or ideal-lens) interface. `surfaces`: the merged sequential surfaces; media are indices
     /// into [`SequentialSystem::indices`].
     Interface { surfaces: Vec<usize>, front_medium: usize, back_medium: usize, paraxial_focal_mm: Option<f64> },
-    /// The image surface.
-    Detector { surface: usize },
-    /// Absorbing blade outside an explicit aperture of `surface` (→ vignetted).
-    Blade { surface: usize },
-    /// Absorbing side wall of the solid that starts at `surface` (→ absorbed).
-    Wall { surface: usize },
+    /// The image surface, with the media before and after it: the sequential tracer refracts at the image
+    /// surface like at any other, so the detector reports the same (refracted) direction.
+    Detector { surface: usize, front_medium: usize, back_medium: usize },
+    /// Absorbing blade outside an explicit aperture of `surface` (→ vignetted). `interface`: the object
+    /// index of the group's refracting geometry (`None` for a virtual group, e.g. a stop in air).
+    Blade { surface: usize, interface: Option<usize> },
+    /// Absorbing side wall of the solid that starts at `surface` (→ absorbed). `ends`: the object indices
+    /// of the refracting geometries whose rims the wall joins (f64 refinement settles ties with them).
+    Wall { surface: usize, ends: Vec<usize> },
 }
 
 /// One geometry of the scene (indexed by Embree geometry ID).
@@ -89,6 +92,9 @@ pub(crate) struct SceneObject {
     pub mesh: Option<MeshNormals>,
     /// Geometry mask bit.
     pub mask: u32,
+    /// The explicit apertures (with their sequential surface) of the object's group, in its local frame:
+    /// with f64 refinement the aperture test is repeated on the exact hit point (see the tracer).
+    pub apertures: Vec<(usize, Aperture)>,
 }
 
 pub(crate) struct MeshNormals {
@@ -134,7 +140,7 @@ struct Group {
     surfaces: Vec<usize>,
     frame: Frame,
     shape: SurfaceShape,
-    explicit: Vec<Aperture>,
+    explicit: Vec<(usize, Aperture)>,
     /// Clear aperture used for the geometry and the rim.
     clear: Aperture,
     front_medium: usize,
@@ -160,6 +166,16 @@ impl OpticalScene {
         if !device.supports_ray_masks() {
             return Err(Error::invalid("this Embree build does not support ray masks (RTC_DEVICE_PROPERTY_RAY_MASK_SUPPORTED), which the tracer needs"));
         }
+        // A negative object distance puts the object after surface 1 (a virtual object, reached by
+        // propagating rays backwards as a sequential tracer may); a non-sequential tracer only follows rays
+        // forward, so every ray would silently miss. Refuse it with the reason instead.
+        let object_mm = system.surfaces[0].thickness_mm;
+        if object_mm < 0.0 {
+            return Err(Error::invalid(format!(
+                "system `{}`: surface 0 thickness {object_mm} mm < 0 is a virtual object; the Embree backends trace rays forward only (use the analytic backend)",
+                system.name()
+            )));
+        }
         let groups = group_surfaces(system, options)?;
         let interfaces = groups.iter().filter(|g| !g.virtual_).count();
         if interfaces > MAX_INTERFACES {
@@ -184,7 +200,12 @@ impl OpticalScene {
             Ok(())
         };
 
+        // Interface object of each group, and the walls (object index, group) whose ends are filled in
+        // once every group's interface exists.
+        let mut group_interface: Vec<Option<usize>> = Vec::with_capacity(groups.len());
+        let mut walls: Vec<(usize, usize)> = Vec::new();
         for (gi, g) in groups.iter().enumerate() {
+            let mut interface_object = None;
             // The optical interface (or detector).
             if !g.virtual_ {
                 let patch = SurfacePatch::new(g.shape.clone(), g.clear.clone())
@@ -192,7 +213,7 @@ impl OpticalScene {
                 let mask = 1u32 << next_bit;
                 next_bit += 1;
                 let role = if g.is_image {
-                    Role::Detector { surface: g.surfaces[0] }
+                    Role::Detector { surface: g.surfaces[0], front_medium: g.front_medium, back_medium: g.back_medium }
                 } else {
                     Role::Interface {
                         surfaces: g.surfaces.clone(),
@@ -220,14 +241,20 @@ impl OpticalScene {
                         (geom, Some(MeshNormals { normals, triangles: m.triangles }))
                     }
                 };
-                attach(&mut scene, &mut objects, geom, SceneObject { role, frame: g.frame, patch: Some(patch), mesh, mask })?;
+                interface_object = Some(objects.len());
+                attach(&mut scene, &mut objects, geom, SceneObject { role, frame: g.frame, patch: Some(patch), mesh, mask, apertures: g.explicit.clone() })?;
             }
+            group_interface.push(interface_object);
             // Blades outside explicit apertures.
-            for ap in &g.explicit {
+            for (surface, ap) in &g.explicit {
                 let (v, t) = blade_mesh(g, ap, options.blade_width_mm);
                 triangle_count += t.len();
                 let geom = Geometry::triangle_mesh(&device, &v, &t).and_then(|g| g.with_mask(ABSORBER_MASK)).map_err(embree_err)?;
-                attach(&mut scene, &mut objects, geom, SceneObject { role: Role::Blade { surface: g.surfaces[0] }, frame: g.frame, patch: None, mesh: None, mask: ABSORBER_MASK })?;
+                // The group's figure over its clear aperture: f64 refinement re-decides a blade hit on
+                // it (None if the figure cannot be bounded there; the blade then decides in f32).
+                let patch = SurfacePatch::new(g.shape.clone(), g.clear.clone()).ok();
+                let role = Role::Blade { surface: *surface, interface: interface_object };
+                attach(&mut scene, &mut objects, geom, SceneObject { role, frame: g.frame, patch, mesh: None, mask: ABSORBER_MASK, apertures: g.explicit.clone() })?;
                 absorbers += 1;
             }
             // Side walls of the solid between this group and the next, when the medium between is glass.
@@ -236,9 +263,15 @@ impl OpticalScene {
                     let (v, t) = wall_mesh(g, next);
                     triangle_count += t.len();
                     let geom = Geometry::triangle_mesh(&device, &v, &t).and_then(|g| g.with_mask(ABSORBER_MASK)).map_err(embree_err)?;
-                    attach(&mut scene, &mut objects, geom, SceneObject { role: Role::Wall { surface: g.surfaces[0] }, frame: g.frame, patch: None, mesh: None, mask: ABSORBER_MASK })?;
+                    walls.push((objects.len(), gi));
+                    attach(&mut scene, &mut objects, geom, SceneObject { role: Role::Wall { surface: g.surfaces[0], ends: Vec::new() }, frame: g.frame, patch: None, mesh: None, mask: ABSORBER_MASK, apertures: Vec::new() })?;
                     absorbers += 1;
                 }
+            }
+        }
+        for (object, gi) in walls {
+            if let Role::Wall { ends, .. } = &mut objects[object].role {
+                *ends = [group_interface[gi], group_interface.get(gi + 1).copied().flatten()].into_iter().flatten().collect();
             }
         }
         let scene = scene.commit().map_err(embree_err)?;
@@ -321,7 +354,7 @@ fn group_surfaces(system: &SequentialSystem, options: &SceneOptions) -> Result<V
             g.surfaces.push(s);
             g.back_medium = s;
             if step.aperture != Aperture::None {
-                g.explicit.push(step.aperture.clone());
+                g.explicit.push((s, step.aperture.clone()));
             }
             continue;
         }
@@ -329,7 +362,7 @@ fn group_surfaces(system: &SequentialSystem, options: &SceneOptions) -> Result<V
             surfaces: vec![s],
             frame: system.surfaces[s].frame,
             shape: step.shape.clone(),
-            explicit: if step.aperture != Aperture::None { vec![step.aperture.clone()] } else { vec![] },
+            explicit: if step.aperture != Aperture::None { vec![(s, step.aperture.clone())] } else { vec![] },
             clear: Aperture::None,
             front_medium: s - 1,
             back_medium: s,
@@ -345,19 +378,30 @@ fn group_surfaces(system: &SequentialSystem, options: &SceneOptions) -> Result<V
         // Several explicit apertures on coincident surfaces: each gets its blade; the clear geometry uses
         // the first (the blades of the others clip what it would let through).
         g.clear = match g.explicit.first() {
-            Some(ap) => ap.clone(),
+            Some((_, ap)) => ap.clone(),
             None => Aperture::circular(mechanical),
         };
     }
     Ok(groups)
 }
 
-/// Point on the boundary of `ap` at polar angle `a` about its centre (local x, y).
+/// Point on the boundary of `ap` at polar angle `a` about its centre (local x, y). On a rectangle, the
+/// sample angle nearest a corner (within half the rim's angular step) gives the corner itself, so the
+/// rim polygon is the rectangle exactly (without it the polygon cuts the corners, and rays through
+/// the aperture's corners met the side wall or the blade).
 fn rim_point(ap: &Aperture, a: f64) -> (f64, f64) {
     let (c, s) = (a.cos(), a.sin());
     match *ap {
         Aperture::Circular { semi_diameter_mm: r, decenter_x_mm: dx, decenter_y_mm: dy, .. } => (dx + r * c, dy + r * s),
         Aperture::Rectangular { half_width_x_mm: hx, half_width_y_mm: hy, decenter_x_mm: dx, decenter_y_mm: dy } => {
+            let half_step = std::f64::consts::PI / RIM_SAMPLES as f64;
+            for (sx, sy) in [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)] {
+                let corner = f64::atan2(sy * hy, sx * hx);
+                let diff = (a - corner).rem_euclid(std::f64::consts::TAU);
+                if diff < half_step || std::f64::consts::TAU - diff <= half_step {
+                    return (dx + sx * hx, dy + sy * hy);
+                }
+            }
             // Where the ray from the centre at angle a leaves the rectangle.
             let k = (hx / c.abs().max(1e-300)).min(hy / s.abs().max(1e-300));
             (dx + k * c, dy + k * s)
@@ -366,13 +410,22 @@ fn rim_point(ap: &Aperture, a: f64) -> (f64, f64) {
     }
 }
 
-/// The rim of a group's clear aperture, on its figure, in global coordinates.
+/// The rim of a group's clear aperture, on its figure, in global coordinates: the side walls start here.
+///
+/// A circular rim is drawn as the polygon *circumscribed* about the circle (vertices at r / cos(π/N),
+/// heights those of the circle's points): an inscribed polygon would cut up to r(1 − cos(π/N)) off the
+/// clear aperture, and rays entering there (inside the aperture) would meet the wall at once.
 fn rim(g: &Group) -> Vec<DVec3> {
+    let out = 1.0 / (std::f64::consts::PI / RIM_SAMPLES as f64).cos();
     (0..RIM_SAMPLES)
         .map(|i| {
             let a = std::f64::consts::TAU * i as f64 / RIM_SAMPLES as f64;
             let (x, y) = rim_point(&g.clear, a);
             let z = g.shape.sag(x, y);
+            let (x, y) = match g.clear {
+                Aperture::Circular { decenter_x_mm: dx, decenter_y_mm: dy, .. } => (dx + (x - dx) * out, dy + (y - dy) * out),
+                _ => (x, y),
+            };
             g.frame.point_to_global(DVec3::new(x, y, if z.is_finite() { z } else { 0.0 }))
         })
         .collect()

@@ -36,7 +36,7 @@ use crate::rays::RayBatch;
 use crate::surfaces::MeshResolution;
 use crate::system::SequentialSystem;
 use crate::tracer::analytic::index_table;
-use crate::tracer::kernel::{paraxial_deflect, refract};
+use crate::tracer::kernel::{paraxial_deflect, refract, unit_direction};
 use crate::tracer::{RayStatus, TracedBatch, Tracer};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -91,6 +91,10 @@ pub struct TraceDetails {
     /// Largest |z − sag(x, y)| of the ray's hit points on their exact surfaces (mm): the geometric error
     /// of the hit (0 with f64 refinement up to rounding; the chord-sag error for meshes).
     pub max_hit_deviation_mm: Vec<f64>,
+    /// Sequential index of the surface where the ray was first totally internally reflected, `u32::MAX`
+    /// if it never was: where the sequential tracer would have stopped it with
+    /// [`RayStatus::TotalInternalReflection`] (the classification the two backends share).
+    pub first_reflection_surface: Vec<u32>,
 }
 
 /// The Embree backend. The scene of a system is built on first use and cached (keyed by the resolved
@@ -111,10 +115,13 @@ impl std::fmt::Debug for EmbreeTracer {
 struct Walk {
     p: DVec3,
     d: DVec3,
+    /// Start of the next query's interval (mm along `d`), 0 except right after passing an aperture edge.
+    tnear: f32,
     exclude: u32,
     interactions: u16,
     reflections: u16,
     max_dev: f64,
+    first_reflection: u32,
     last_surface: u32,
     done: bool,
     status: RayStatus,
@@ -124,15 +131,17 @@ struct Walk {
 
 impl Walk {
     fn new(o: DVec3, d: DVec3) -> Self {
-        let len = d.length();
-        let valid = o.is_finite() && d.is_finite() && len > 0.0;
+        let unit = unit_direction(d).filter(|_| o.is_finite());
+        let valid = unit.is_some();
         Walk {
             p: o,
-            d: if valid { d / len } else { DVec3::Z },
+            d: unit.unwrap_or(DVec3::Z),
+            tnear: 0.0,
             exclude: 0,
             interactions: 0,
             reflections: 0,
             max_dev: 0.0,
+            first_reflection: u32::MAX,
             last_surface: 0,
             done: !valid,
             status: if valid { RayStatus::Ok } else { RayStatus::InvalidInput },
@@ -143,6 +152,7 @@ impl Walk {
     fn ray(&self) -> Ray {
         let mut r = Ray::new(self.p.as_vec3().to_array(), self.d.as_vec3().to_array());
         r.mask = !self.exclude;
+        r.tnear = self.tnear;
         r
     }
     fn finish(&mut self, status: RayStatus, surface: usize) {
@@ -191,12 +201,13 @@ impl EmbreeTracer {
             })
             .collect();
         let mut out = TracedBatch::zeroed(n);
-        let mut details = TraceDetails { reflections: vec![0; n], interactions: vec![0; n], max_hit_deviation_mm: vec![0.0; n] };
+        let mut details = TraceDetails { reflections: vec![0; n], interactions: vec![0; n], max_hit_deviation_mm: vec![0.0; n], first_reflection_surface: vec![u32::MAX; n] };
         for (i, w) in walks.iter().enumerate() {
             out.status[i] = w.status;
             details.reflections[i] = w.reflections;
             details.interactions[i] = w.interactions;
             details.max_hit_deviation_mm[i] = w.max_dev;
+            details.first_reflection_surface[i] = w.first_reflection;
             if w.status == RayStatus::Ok {
                 (out.x[i], out.y[i], out.z[i]) = (w.out_p.x, w.out_p.y, w.out_p.z);
                 (out.dir_x[i], out.dir_y[i], out.dir_z[i]) = (w.out_d.x, w.out_d.y, w.out_d.z);
@@ -249,6 +260,8 @@ impl EmbreeTracer {
 
     /// Apply what the geometry Embree found does to the ray.
     fn interact(&self, scene: &OpticalScene, n: &[f64], w: &mut Walk, hit: &Hit) {
+        let retried = w.tnear > 0.0;
+        w.tnear = 0.0;
         if !hit.is_hit() {
             let s = w.last_surface as usize;
             w.finish(RayStatus::Missed, s);
@@ -256,48 +269,148 @@ impl EmbreeTracer {
         }
         let obj = &scene.objects[hit.geom_id as usize];
         match &obj.role {
-            Role::Wall { surface } => w.finish(RayStatus::Absorbed, *surface),
-            Role::Blade { surface } => w.finish(RayStatus::Vignetted, *surface),
-            Role::Detector { surface } => match self.locate(obj, w, hit) {
-                Some((p, _)) => {
-                    w.out_p = p;
-                    w.out_d = obj.frame.dir_to_local(w.d);
-                    w.finish(RayStatus::Ok, *surface);
-                    w.last_surface = u32::MAX;
+            Role::Wall { surface, ends } => {
+                // A ray refracted exactly at the rim of a solid's face starts on the side wall, which
+                // shares that rim: a wall hit within a few f32 ulps of the ray's start is that shared edge
+                // (a self-intersection, like re-hitting the surface just left), not an exit through the
+                // side. Query again past it; a genuine wall hit further on still absorbs.
+                let eps = 16.0 * f32::EPSILON * (w.p.abs().max_element().max(1.0) as f32);
+                if w.interactions > 0 && hit.t < eps && !retried {
+                    w.tnear = eps;
+                    return;
+                }
+                // A ray entering a face at its rim meets the wall's edge and the face at the same f32
+                // distance, and Embree may report either. With f64 refinement, if the ray meets one of the
+                // faces the wall joins (inside its clear aperture, decided in f64) no later than the wall
+                // (up to f32 rounding), it reaches that face: the interaction is with the face.
+                if self.options.refine == Refinement::F64 {
+                    let tie = 64.0 * f64::from(f32::EPSILON) * w.p.abs().max_element().max(1.0);
+                    for &k in ends {
+                        let face = &scene.objects[k];
+                        if face.mask == w.exclude {
+                            continue;
+                        }
+                        let Some(patch) = face.patch.as_ref() else { continue };
+                        let (p, d) = (face.frame.point_to_local(w.p), face.frame.dir_to_local(w.d));
+                        let Some(t) = patch.nearest_root(p, d, hit.t as f64).filter(|t| *t >= -tie && *t <= hit.t as f64 + tie) else { continue };
+                        let q = p + d * t;
+                        // Outside an explicit aperture: the blade, which starts at the same rim, stops it.
+                        if let Some((s, _)) = face.apertures.iter().find(|(_, ap)| !ap.contains(q.x, q.y)) {
+                            return w.finish(RayStatus::Vignetted, *s);
+                        }
+                        if patch.aperture.contains(q.x, q.y) {
+                            return self.interact(scene, n, w, &Hit { t: t as f32, geom_id: k as u32, ..*hit });
+                        }
+                    }
+                }
+                w.finish(RayStatus::Absorbed, *surface)
+            }
+            Role::Blade { surface, interface } => {
+                // Aperture edges are decided in f64 when refining (closed apertures, as in the sequential
+                // tracer). Embree's f32 blade may catch a ray that passes the aperture: its inner edge is
+                // an inscribed polygon (inside a circular edge by r(1 − cos(π/N))) and f32 rounds the ray
+                // origin by up to 2⁻²⁴ of the coordinates. Re-solve the hit on the exact figure and test
+                // the apertures on that point.
+                if self.options.refine == Refinement::F64 {
+                    if let Some(p) = self.exact_point(obj, w, hit) {
+                        if obj.apertures.iter().all(|(_, ap)| ap.contains(p.x, p.y)) {
+                            match interface {
+                                // The ray meets the refracting surface inside its aperture (unless it
+                                // has just been refracted there and only touches the blade's edge).
+                                Some(k) if scene.objects[*k].mask != w.exclude => self.refract_at(scene, &scene.objects[*k], n, w, hit),
+                                // A virtual surface (a stop in air): the ray passes unchanged. The next
+                                // query starts a few f32 ulps further, past this blade.
+                                _ => {
+                                    w.p = obj.frame.point_to_global(p);
+                                    let scale = w.p.abs().max_element().max(1.0) as f32;
+                                    w.tnear = 16.0 * f32::EPSILON * scale;
+                                }
+                            }
+                            return;
+                        }
+                    }
+                }
+                w.finish(RayStatus::Vignetted, *surface)
+            }
+            Role::Detector { surface, front_medium, back_medium } => match self.locate(obj, w, hit) {
+                Some((p, normal)) => {
+                    let d = obj.frame.dir_to_local(w.d);
+                    // The sequential tracer refracts at the image surface too (glass before it, air after).
+                    let (n1, n2) = (n[*front_medium], n[*back_medium]);
+                    let out = if n1 != n2 { refract(d, normal, n1, n2) } else { Some(d) };
+                    match out {
+                        Some(d) => {
+                            w.out_p = p;
+                            w.out_d = d;
+                            w.finish(RayStatus::Ok, *surface);
+                            w.last_surface = u32::MAX;
+                        }
+                        None => w.finish(RayStatus::TotalInternalReflection, *surface),
+                    }
                 }
                 None => w.finish(RayStatus::NoConvergence, *surface),
             },
-            Role::Interface { surfaces, front_medium, back_medium, paraxial_focal_mm } => {
-                let surface = *surfaces.last().expect("an interface has surfaces");
-                let Some((p, normal)) = self.locate(obj, w, hit) else {
-                    w.finish(RayStatus::NoConvergence, surface);
-                    return;
-                };
-                let d = obj.frame.dir_to_local(w.d);
-                // The normal points to the back side (+z): a ray with d·n > 0 goes front → back.
-                let forward = d.dot(normal) > 0.0;
-                let (n1, n2) = if forward { (n[*front_medium], n[*back_medium]) } else { (n[*back_medium], n[*front_medium]) };
-                let new_d = match paraxial_focal_mm {
-                    Some(f) => paraxial_deflect(p, d, *f, n1, n2),
-                    None => match refract(d, normal, n1, n2) {
-                        Some(r) => r,
-                        None => {
-                            // Total internal reflection: followed, not dropped.
-                            w.reflections = w.reflections.saturating_add(1);
-                            d - 2.0 * d.dot(normal) * normal
-                        }
-                    },
-                };
-                w.p = obj.frame.point_to_global(p);
-                w.d = obj.frame.dir_to_global(new_d).normalize();
-                w.exclude = obj.mask;
-                w.last_surface = surface as u32;
-                w.interactions = w.interactions.saturating_add(1);
-                if w.interactions as u32 >= self.options.max_bounces {
-                    w.finish(RayStatus::BounceLimit, surface);
-                }
+            Role::Interface { .. } => self.refract_at(scene, obj, n, w, hit),
+        }
+    }
+
+    /// The ray meets interface `obj` (located from `hit`): refract, deflect (ideal lens) or reflect (TIR).
+    fn refract_at(&self, _scene: &OpticalScene, obj: &SceneObject, n: &[f64], w: &mut Walk, hit: &Hit) {
+        let Role::Interface { surfaces, front_medium, back_medium, paraxial_focal_mm } = &obj.role else {
+            return w.finish(RayStatus::NoConvergence, w.last_surface as usize);
+        };
+        let surface = *surfaces.last().expect("an interface has surfaces");
+        let Some((p, normal)) = self.locate(obj, w, hit) else {
+            w.finish(RayStatus::NoConvergence, surface);
+            return;
+        };
+        // With f64 refinement the explicit apertures are decided on the exact hit point (closed sets, as
+        // in the sequential tracer): f32 rounding may have let a ray one ulp outside reach the surface.
+        if self.options.refine == Refinement::F64 {
+            if let Some((s, _)) = obj.apertures.iter().find(|(_, ap)| !ap.contains(p.x, p.y)) {
+                w.finish(RayStatus::Vignetted, *s);
+                return;
             }
         }
+        let d = obj.frame.dir_to_local(w.d);
+        // The normal points to the back side (+z): a ray with d·n > 0 goes front → back.
+        let forward = d.dot(normal) > 0.0;
+        let (n1, n2) = if forward { (n[*front_medium], n[*back_medium]) } else { (n[*back_medium], n[*front_medium]) };
+        let new_d = match paraxial_focal_mm {
+            Some(f) => paraxial_deflect(p, d, *f, n1, n2),
+            None => match refract(d, normal, n1, n2) {
+                Some(r) => r,
+                None => {
+                    // Total internal reflection: followed, not dropped.
+                    w.reflections = w.reflections.saturating_add(1);
+                    if w.first_reflection == u32::MAX {
+                        w.first_reflection = surface as u32;
+                    }
+                    d - 2.0 * d.dot(normal) * normal
+                }
+            },
+        };
+        w.p = obj.frame.point_to_global(p);
+        w.d = obj.frame.dir_to_global(new_d).normalize();
+        w.exclude = obj.mask;
+        w.last_surface = surface as u32;
+        w.interactions = w.interactions.saturating_add(1);
+        if w.interactions as u32 >= self.options.max_bounces {
+            w.finish(RayStatus::BounceLimit, surface);
+        }
+    }
+
+    /// The exact (f64) point where the ray meets `obj`'s figure near Embree's distance, local frame.
+    fn exact_point(&self, obj: &SceneObject, w: &Walk, hit: &Hit) -> Option<DVec3> {
+        let patch = obj.patch.as_ref()?;
+        let p0 = obj.frame.point_to_local(w.p);
+        let d = obj.frame.dir_to_local(w.d);
+        let t = patch.nearest_root(p0, d, hit.t as f64)?;
+        let mut p = p0 + d * t;
+        if matches!(patch.shape, crate::surfaces::SurfaceShape::Plane | crate::surfaces::SurfaceShape::Paraxial { .. }) {
+            p.z = 0.0;
+        }
+        p.is_finite().then_some(p)
     }
 
     /// The hit point and unit normal (oriented toward local +z) in the object's local frame.
