@@ -167,6 +167,41 @@ impl DiffSystem {
         self.jacobian_from_hits(rays, &traced, &log)
     }
 
+    /// Jacobians with the backend `config` names: the analytic sequential trace ([`DiffSystem::trace`]) or,
+    /// for the Embree backends, [`DiffSystem::trace_embree`] (f64 refinement required). Every ray whose
+    /// Jacobian is not usable gets its reason, for either backend.
+    pub fn trace_with_backend(&self, config: &crate::tracer::BackendConfig, rays: &RayBatch) -> Result<HitJacobianBatch> {
+        match config.backend {
+            crate::tracer::Backend::Analytic => {
+                let batch = self.trace(rays)?;
+                let unavailable = (0..batch.len())
+                    .map(|i| match batch.traced.status[i] {
+                        RayStatus::Ok if batch.finite[i] => None,
+                        RayStatus::Ok => Some("derivatives not finite (grazing incidence or a kink)".to_string()),
+                        s => Some(format!("ray did not arrive ({} at surface {})", s.label(), batch.traced.surface[i])),
+                    })
+                    .collect();
+                Ok(HitJacobianBatch { batch, unavailable })
+            }
+            #[cfg(feature = "embree")]
+            crate::tracer::Backend::EmbreeUser | crate::tracer::Backend::EmbreeMesh => {
+                use crate::tracer::embree::{EmbreeOptions, EmbreeTracer, Refinement};
+                if config.refine != crate::tracer::Refine::F64 {
+                    return Err(Error::invalid(
+                        "Jacobians from Embree hits need f64-refined hits (refine f64): an unrefined hit is not on the exact surface",
+                    ));
+                }
+                let options =
+                    if config.backend == crate::tracer::Backend::EmbreeUser { EmbreeOptions::user(Refinement::F64) } else { EmbreeOptions::mesh(config.mesh, Refinement::F64) };
+                self.trace_embree(&EmbreeTracer::new(options), rays)
+            }
+            #[cfg(not(feature = "embree"))]
+            crate::tracer::Backend::EmbreeUser | crate::tracer::Backend::EmbreeMesh => {
+                Err(Error::invalid("the Embree backends are not in this build (rebuild with the default `embree` feature)"))
+            }
+        }
+    }
+
     /// One ray: seed the tangents, replay the path at the recorded hits. `Err` names why the recorded
     /// path is not the sequential one.
     #[allow(clippy::too_many_arguments)]
