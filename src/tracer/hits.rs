@@ -16,7 +16,7 @@
 //! let (traced, log) = sequential_hits(&sys, &rays)?;
 //! assert_eq!(traced, AnalyticTracer::default().trace(&sys, &rays)?);
 //! let hits = log.ray(0);
-//! assert_eq!(hits.len(), sys.path.len());                  // one record per path step
+//! assert_eq!(hits.len(), sys.surfaces_per_ray());         // one record per path step
 //! assert_eq!(hits.last().unwrap().kind, HitKind::Detector);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
