@@ -1,5 +1,7 @@
 //! Cost of derivatives: trace + Jacobian for 1, 10 and 50 free parameters against a plain trace, on SP
 //! (10 000 rays at 3 wavelengths). `cargo bench --bench derivatives`; the ratio to `plain` is the cost.
+//! With the `embree` feature also the Jacobians at refined Embree hits (`embree_jacobian/*`) against a
+//! plain Embree trace (`embree_plain`).
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use diffcassi::diff::{Param, ParamSet};
 use diffcassi::materials::GlassCatalog;
@@ -36,6 +38,18 @@ fn derivative_cost(c: &mut Criterion) {
     for k in [1usize, 10, 50] {
         let ds = ParamSet::new(spec.clone(), GlassCatalog::builtin(), params(&spec, k)).unwrap().build().unwrap();
         g.bench_with_input(BenchmarkId::new("jacobian", format!("{k}params")), &rays, |b, rays| b.iter(|| ds.trace(rays).unwrap()));
+    }
+    // The same Jacobians at refined Embree hits (user geometry): the Embree trace recording its hits,
+    // then implicit differentiation at them; and the plain Embree trace for its own ratio.
+    #[cfg(feature = "embree")]
+    {
+        use diffcassi::tracer::embree::{EmbreeOptions, EmbreeTracer, Refinement};
+        let embree = EmbreeTracer::new(EmbreeOptions::user(Refinement::F64));
+        g.bench_function("embree_plain", |b| b.iter(|| embree.trace(&sys, &rays).unwrap()));
+        for k in [1usize, 10, 50] {
+            let ds = ParamSet::new(spec.clone(), GlassCatalog::builtin(), params(&spec, k)).unwrap().build().unwrap();
+            g.bench_with_input(BenchmarkId::new("embree_jacobian", format!("{k}params")), &rays, |b, rays| b.iter(|| ds.trace_embree(&embree, rays).unwrap()));
+        }
     }
     g.finish();
 }

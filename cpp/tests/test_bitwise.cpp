@@ -3,9 +3,11 @@
 // The reference file is written by a separate Rust program that uses only the `diffcassi` crate (not the
 // bridge): cpp/bridge/examples/cpp_reference.rs. For every preset it holds a ray batch (seeded workload,
 // rays aimed outside the pupil, a backwards ray, a NaN origin, a zero direction) with its trace, a 13x13
-// grid distortion, a mapping cube and a spot diagram, every double as its bit pattern in hex. This program
-// rebuilds the batch in C++-owned std::vectors, traces it through the C++ API, runs the same analyses, and
-// compares every value's bits.
+// grid distortion, a mapping cube, a spot diagram, the batch's Jacobians for five parameters named as C++
+// names them (analytic and Embree hits) and two small renders (a random mask from opening and seed; an
+// explicit mask), every double as its bit pattern in hex. This program rebuilds the batch in C++-owned
+// std::vectors, traces it through the C++ API, runs the same analyses, Jacobians and renders (scene and
+// mask filled in C++ by the reference's formulas), and compares every value's bits.
 //
 //   test_bitwise <reference file>
 #include <diffcassi/diffcassi.hpp>
@@ -55,6 +57,92 @@ struct Counter {
     }
   }
 };
+
+// ---- Jacobians of the batch: traced values, availability and the SoA derivatives.
+std::pair<std::size_t, std::size_t> run_jacobian(const diffcassi::System& sys, const std::string& preset, const diffcassi::RayBuffer& rays) {
+  expect("jacobian");
+  const std::string backend = word();
+  const auto kk = static_cast<std::size_t>(integer());
+  std::vector<std::string> names(kk);
+  for (auto& n : names) n = word();
+  const auto n = static_cast<std::size_t>(integer());
+  const auto j = sys.jacobian(rays.columns(), names, backend);
+  Counter c;
+  const std::string at0 = preset + " jacobian " + backend;
+  CHECK(j.size() == n && j.parameter_count() == kk && j.values().size() == 6 * kk * n);
+  const auto canonical = j.parameters();
+  for (std::size_t k = 0; k < kk; ++k) {
+    const std::string name = word();
+    if (k < canonical.size() && canonical[k] != name) check::fail(at0 + ": parameter " + canonical[k] + " vs Rust " + name, __FILE__, __LINE__);
+  }
+  std::size_t available = 0;
+  for (std::size_t i = 0; i < n && i < j.size(); ++i) {
+    const std::string at = at0 + " ray " + std::to_string(i);
+    c.same(j.x()[i], hexd(), at + " x");
+    c.same(j.y()[i], hexd(), at + " y");
+    c.same(j.z()[i], hexd(), at + " z");
+    c.same(j.dir_x()[i], hexd(), at + " dir_x");
+    c.same(j.dir_y()[i], hexd(), at + " dir_y");
+    c.same(j.dir_z()[i], hexd(), at + " dir_z");
+    c.same_int(j.status_codes()[i], integer(), at + " status");
+    c.same_int(j.available(i), integer(), at + " available");
+    available += j.available(i);
+    // An unavailable ray says why; an available one has no reason.
+    if (j.available(i) != j.reason(i).empty()) check::fail(at + ": reason `" + j.reason(i) + "`", __FILE__, __LINE__);
+  }
+  for (std::size_t comp = 0; comp < 6; ++comp)
+    for (std::size_t k = 0; k < kk; ++k) {
+      const auto col = j.column(comp, k);
+      for (std::size_t i = 0; i < n; ++i) c.same(col[i], hexd(), at0 + " d" + std::to_string(comp) + "/d" + names[k] + " ray " + std::to_string(i));
+    }
+  CHECK(available > n / 2);
+  return {c.values, c.mismatches};
+}
+
+// ---- a render into a caller buffer: scene and mask filled here by the reference's formulas.
+std::pair<std::size_t, std::size_t> run_render(const diffcassi::System& sys, const std::string& preset) {
+  expect("render");
+  const std::string backend = word();
+  const auto h = static_cast<std::size_t>(integer()), w = static_cast<std::size_t>(integer()), nb = static_cast<std::size_t>(integer());
+  auto o = diffcassi::default_render_options();
+  o.planes = static_cast<std::size_t>(integer());
+  o.rays_per_pixel = static_cast<std::size_t>(integer());
+  o.seed = static_cast<std::uint64_t>(integer());
+  const bool explicit_mask = integer() == 1;
+  o.mask_opening = hexd();
+  o.mask_seed = static_cast<std::uint64_t>(integer());
+  std::vector<double> wl(nb);
+  for (auto& v : wl) v = hexd();
+  std::vector<float> scene(h * w * nb), mask;
+  for (std::size_t q = 0; q < scene.size(); ++q) {
+    const std::size_t r = q / nb / w, col = (q / nb) % w, b = q % nb;
+    scene[q] = static_cast<float>(0.25 + 0.05 * static_cast<double>((r * 7 + col * 3 + b * 5) % 11));
+  }
+  if (explicit_mask) {
+    const float levels[3] = {0.0f, 0.5f, 1.0f};
+    for (std::size_t q = 0; q < h * w; ++q) mask.push_back(levels[(q / w + 2 * (q % w)) % 3]);
+  }
+  const diffcassi::SceneView view{h, w, wl, scene};
+  const auto d = sys.render_detector(h, w, wl, o, backend);
+  Counter c;
+  const std::string at = preset + " render " + backend + (explicit_mask ? " explicit mask" : " random mask");
+  c.same_int(static_cast<long long>(d.detector_height), integer(), at + " detector height");
+  c.same_int(static_cast<long long>(d.detector_width), integer(), at + " detector width");
+  c.same(d.detector_pitch_mm, hexd(), at + " pitch");
+  c.same(d.x_left_mm, hexd(), at + " x_left");
+  c.same(d.y_top_mm, hexd(), at + " y_top");
+  std::vector<double> image(d.detector_height * d.detector_width, -1.0);  // the caller's buffer
+  const auto info = sys.render_into(view, mask, o, image.data(), image.size(), backend);
+  c.same_int(static_cast<long long>(info.rays_traced), integer(), at + " rays traced");
+  c.same_int(static_cast<long long>(info.rays_arrived), integer(), at + " rays arrived");
+  double total = 0;
+  for (std::size_t q = 0; q < image.size(); ++q) {
+    c.same(image[q], hexd(), at + " pixel " + std::to_string(q));
+    total += image[q];
+  }
+  CHECK(total > 0.0 && info.rays_traced > 0);
+  return {c.values, c.mismatches};
+}
 
 void run_case(const std::string& preset) {
   const auto sys = diffcassi::System::preset(preset);
@@ -173,6 +261,19 @@ void run_case(const std::string& preset) {
   sp.same(spot.chief_mm()[1], hexd(), preset + " chief y");
   sp.same(spot.rms_radius_chief_um(), hexd(), preset + " rms about chief");
 
+  std::size_t jv = 0, jm = 0, rv = 0, rm = 0;
+  for (int b = 0; b < 2; ++b) {
+    const auto r = run_jacobian(sys, preset, rays);
+    jv += r.first;
+    jm += r.second;
+  }
+  for (int b = 0; b < 2; ++b) {
+    const auto r = run_render(sys, preset);
+    rv += r.first;
+    rm += r.second;
+  }
+  std::printf("%-3s  jacobians (analytic, embree-user): %zu values, %zu differ | renders (random mask, explicit mask): %zu values, %zu differ\n",
+              preset.c_str(), jv, jm, rv, rm);
   std::printf("%-3s  trace: %zu rays (%zu ok, %zu missed, %zu vignetted, %zu invalid), %zu values, %zu differ | "
               "distortion: %zu values, %zu differ | mapping: %zu values, %zu differ | spot: %zu values, %zu differ\n",
               preset.c_str(), out.size(), failed_kinds[0], failed_kinds[1], failed_kinds[2], failed_kinds[5], trace.values,

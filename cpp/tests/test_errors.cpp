@@ -80,6 +80,55 @@ int main() {
   expect_error("bad pupil pattern", [] { diffcassi::pupil_points("hexagonal:3"); }, {"unknown pattern"});
   expect_error("NaN field", [&] { sys.chief_rays({std::nan("")}, {0.0}, 520.0); }, {"not finite"});
 
+  // Jacobians: parameter names and backends.
+  expect_error("unknown parameter name", [&] { sys.jacobian(rays.columns(), {"s4.tilt_q_deg"}); }, {"free parameter `s4.tilt_q_deg`", "s<N>.<column>"});
+  expect_error("parameter on a missing surface", [&] { sys.jacobian(rays.columns(), {"s99.thickness_mm"}); }, {"99"});
+  expect_error("unknown glass parameter", [&] { sys.jacobian(rays.columns(), {"glass_nd:UNOBTAINIUM"}); }, {"UNOBTAINIUM"});
+  expect_error("no free parameters", [&] { sys.jacobian(rays.columns(), {}); }, {"no free parameters"});
+  expect_error("empty parameter name", [&] { sys.jacobian(rays.columns(), {"wavelength", ""}); }, {"an empty name"});
+  expect_error("comma in a parameter name", [&] { sys.jacobian(rays.columns(), {"wavelength,ray.dir_x"}); }, {"cannot contain ','"});
+  expect_error("unrefined Embree Jacobian", [&] { sys.jacobian(rays.columns(), {"wavelength"}, "embree-user:none"); }, {"refine f64"});
+  {
+    auto cols = rays.columns();
+    cols.origin_z = diffcassi::View<double>(cols.origin_z.data(), 3);
+    expect_error("Jacobian column lengths differ", [&] { sys.jacobian(cols, {"wavelength"}); }, {"different lengths"});
+  }
+
+  // Renders: buffer and input sizes.
+  {
+    auto o = diffcassi::default_render_options();
+    o.planes = 3;
+    o.rays_per_pixel = 1;
+    const std::vector<double> wl{500.0, 520.0, 540.0};
+    std::vector<float> scene(4 * 4 * 3, 1.0f);
+    const diffcassi::SceneView view{4, 4, wl, scene};
+    const auto d = sys.render_detector(4, 4, wl, o);
+    std::vector<double> out(d.detector_height * d.detector_width);
+    expect_error("render buffer too small", [&] { sys.render_into(view, {}, o, out.data(), out.size() - 1); },
+                 {"output buffer has", "render_detector"});
+    std::vector<double> big(out.size() + 5);
+    expect_error("render buffer too large", [&] { sys.render_into(view, {}, o, big.data(), big.size()); }, {"output buffer has"});
+    const diffcassi::SceneView short_scene{4, 4, wl, diffcassi::View<float>(scene.data(), scene.size() - 2)};
+    expect_error("scene size mismatch", [&] { sys.render_into(short_scene, {}, o, out.data(), out.size()); }, {"46 values for a 4×4×3 cube"});
+    std::vector<float> mask(15, 1.0f);
+    expect_error("mask size mismatch", [&] { sys.render_into(view, mask, o, out.data(), out.size()); }, {"the mask has 15 values", "4×4"});
+    mask.assign(16, 1.0f);
+    mask[5] = 2.0f;
+    expect_error("mask value out of range", [&] { sys.render_into(view, mask, o, out.data(), out.size()); }, {"row 1, col 1", "[0, 1]"});
+    auto bad = o;
+    bad.mask_opening = 1.5;
+    expect_error("mask opening out of range", [&] { sys.render_into(view, {}, bad, out.data(), out.size()); }, {"opening ratio 1.5"});
+    bad = o;
+    bad.rays_per_pixel = 0;
+    expect_error("zero rays per pixel", [&] { sys.render_detector(4, 4, wl, bad); }, {"rays per pixel"});
+    auto one = o;
+    one.planes = 1;
+    expect_error("render wavelength out of range", [&] { sys.render_detector(4, 4, std::vector<double>{5000.0}, one); }, {"5000"});
+    // After the errors the same buffer renders.
+    const auto info = sys.render_into(view, {}, o, out.data(), out.size());
+    CHECK(info.rays_traced > 0 && info.rays_arrived == info.rays_traced);
+  }
+
   // Errors are ordinary C++ exceptions, catchable as std::exception too.
   try {
     System::preset("zzz");

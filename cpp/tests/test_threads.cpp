@@ -1,5 +1,6 @@
 // Thread safety: several std::threads trace concurrently on ONE loaded System (and compute grid
-// distortions, and hit errors) and every result equals, bit for bit, the same call made alone beforehand.
+// distortions, Jacobians and small renders, and hit errors) and every result equals, bit for bit, the same
+// call made alone beforehand.
 #include <diffcassi/diffcassi.hpp>
 
 #include <atomic>
@@ -49,8 +50,20 @@ int main() {
     CHECK(expected.back().ok_count() > 0);
   }
   const auto expected_grid = sys.distortion_grid(520.0, 13, 2.5);
+  // A Jacobian of a small batch and a small render, each made alone first.
+  const auto jac_rays = sys.seeded_workload(200, {480.0, 600.0}, 9).to_buffer();
+  const std::vector<std::string> params{"prism_tilt_x", "glass_nd:N-SK2", "wavelength"};
+  const auto expected_jac = sys.jacobian(jac_rays.columns(), params).values().to_vector();
+  auto ro = diffcassi::default_render_options();
+  ro.planes = 4;
+  ro.rays_per_pixel = 2;
+  const std::vector<double> rwl{500.0, 540.0};
+  std::vector<float> rscene(8 * 8 * 2);
+  for (std::size_t q = 0; q < rscene.size(); ++q) rscene[q] = static_cast<float>(q % 7) * 0.25f;
+  const diffcassi::SceneView rview{8, 8, rwl, rscene};
+  const auto expected_render = sys.render(rview, {}, ro);
 
-  std::atomic<int> traces{0}, grids{0}, errors{0}, wrong{0};
+  std::atomic<int> traces{0}, grids{0}, jacobians{0}, renders{0}, errors{0}, wrong{0};
   std::vector<std::thread> pool;
   for (int t = 0; t < kThreads; ++t) {
     pool.emplace_back([&, t] {
@@ -61,6 +74,15 @@ int main() {
         if ((t + it) % 3 == 0) {
           if (!same(sys.distortion_grid(520.0, 13, 2.5), expected_grid)) ++wrong;
           ++grids;
+        }
+        if ((t + it) % 4 == 2) {
+          const auto j = sys.jacobian(jac_rays.columns(), params);
+          if (!same_bits(j.values(), expected_jac)) ++wrong;
+          ++jacobians;
+        }
+        if ((t + it) % 4 == 3) {
+          if (!same_bits(sys.render(rview, {}, ro), expected_render)) ++wrong;
+          ++renders;
         }
         if ((t + it) % 4 == 1) {
           try {
@@ -73,11 +95,13 @@ int main() {
     });
   }
   for (auto& th : pool) th.join();
-  std::printf("%d threads on one System: %d traces, %d distortion grids, %d errors caught, %d results differ from the sequential ones\n",
-              kThreads, traces.load(), grids.load(), errors.load(), wrong.load());
+  std::printf("%d threads on one System: %d traces, %d distortion grids, %d Jacobians, %d renders, %d errors caught, %d results differ "
+              "from the sequential ones\n",
+              kThreads, traces.load(), grids.load(), jacobians.load(), renders.load(), errors.load(), wrong.load());
   CHECK(wrong.load() == 0);
   CHECK(traces.load() == kThreads * kIterations);
   CHECK(errors.load() > 0);
+  CHECK(jacobians.load() > 0 && renders.load() > 0);
 
   // Loading concurrently is safe too (independent systems).
   std::vector<std::thread> loaders;

@@ -60,7 +60,6 @@ pub(crate) fn trace_tangents(
     dp: &mut [DVec3],
     dd: &mut [DVec3],
 ) -> Result<(DVec3, DVec3), (RayStatus, usize)> {
-    let kk = dp.len();
     for (step, tan) in path.iter().zip(tangents) {
         (p, d) = enter_frame(step, tan, p, d, dp, dd);
         let hit = match intersect(&step.shape, p, d) {
@@ -74,68 +73,91 @@ pub(crate) fn trace_tangents(
             return Err((RayStatus::Vignetted, step.surface));
         }
         let local = SurfaceLocal::at(&step.shape, q);
-        let (n1, n2) = (n[step.surface - 1], n[step.surface]);
-        let mu = n1 / n2;
-        let dn1 = &dn[(step.surface - 1) * kk..step.surface * kk];
-        let dn2 = &dn[step.surface * kk..(step.surface + 1) * kk];
-        match step.shape {
-            SurfaceShape::Paraxial { focal_length: f } => {
-                let d_out = paraxial_deflect(q, d, f, n1, n2);
-                let tx = mu * d.x / d.z - q.x / f;
-                let ty = mu * d.y / d.z - q.y / f;
-                let w = DVec3::new(tx, ty, 1.0);
-                let (wl, v) = (w.length(), w.normalize());
-                let sign = if d.z < 0.0 { -1.0 } else { 1.0 };
-                for k in 0..kk {
-                    let ht = local.tangent(d, dp[k] + dd[k] * t, &tan.shape[k]);
-                    let dq = ht.point;
-                    let dmu = (dn1[k] - mu * dn2[k]) / n2;
-                    let df = tan.shape[k].focal_length;
-                    let ddk = dd[k];
-                    let dtx = dmu * d.x / d.z + mu * (ddk.x * d.z - d.x * ddk.z) / (d.z * d.z) - dq.x / f + q.x * df / (f * f);
-                    let dty = dmu * d.y / d.z + mu * (ddk.y * d.z - d.y * ddk.z) / (d.z * d.z) - dq.y / f + q.y * df / (f * f);
-                    let dw = DVec3::new(dtx, dty, 0.0);
-                    dd[k] = (dw - v * v.dot(dw)) * (sign / wl);
-                    dp[k] = dq;
-                }
-                p = q;
-                d = d_out;
-            }
-            _ => {
-                // Vector Snell's law with the normal oriented along d (as in `refract`).
-                let mut nrm = hit.normal;
-                let mut cos_i = d.dot(nrm);
-                let mut sgn = 1.0;
-                if cos_i < 0.0 {
-                    nrm = -nrm;
-                    cos_i = -cos_i;
-                    sgn = -1.0;
-                }
-                let kappa = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
-                let d_out = if n1 != n2 {
-                    match refract(d, hit.normal, n1, n2) {
-                        Some(r) => r,
-                        None => return Err((RayStatus::TotalInternalReflection, step.surface)),
-                    }
-                } else {
-                    d
-                };
-                let sk = kappa.max(0.0).sqrt();
-                for k in 0..kk {
-                    let ht = local.tangent(d, dp[k] + dd[k] * t, &tan.shape[k]);
-                    let dnrm = ht.normal * sgn;
-                    let dmu = (dn1[k] - mu * dn2[k]) / n2;
-                    let ddk = dd[k];
-                    let dcos = ddk.dot(nrm) + d.dot(dnrm);
-                    let dkappa = -2.0 * mu * dmu * (1.0 - cos_i * cos_i) + 2.0 * mu * mu * cos_i * dcos;
-                    let dsk = dkappa / (2.0 * sk);
-                    dd[k] = d * dmu + ddk * mu + nrm * (dsk - dmu * cos_i - mu * dcos) + dnrm * (sk - mu * cos_i);
-                    dp[k] = ht.point;
-                }
-                p = q;
-                d = d_out;
-            }
-        }
+        d = interact_tangents(step, tan, &local, q, hit.normal, t, d, n, dn, dp, dd).map_err(|status| (status, step.surface))?;
+        p = q;
     }
     Ok((p, d))
+}
+
+/// The interaction at a hit of path step `step` with the tangents: the hit tangent (implicit
+/// differentiation, [`SurfaceLocal::tangent`] with the ray tangent δp + t·δd at the hit, `t` the distance
+/// from the point the tangents `dp` refer to), then vector Snell's law or the ideal lens differentiated.
+/// `q` is the hit point and `normal` the unit surface normal there (local frame), `d` the incoming unit
+/// direction. Updates `dp` (→ δq) and `dd` (→ δd′) and returns d′, or TIR.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub(crate) fn interact_tangents(
+    step: &PathStep,
+    tan: &StepTangent,
+    local: &SurfaceLocal,
+    q: DVec3,
+    normal: DVec3,
+    t: f64,
+    d: DVec3,
+    n: &[f64],
+    dn: &[f64],
+    dp: &mut [DVec3],
+    dd: &mut [DVec3],
+) -> Result<DVec3, RayStatus> {
+    let kk = dp.len();
+    let (n1, n2) = (n[step.surface - 1], n[step.surface]);
+    let mu = n1 / n2;
+    let dn1 = &dn[(step.surface - 1) * kk..step.surface * kk];
+    let dn2 = &dn[step.surface * kk..(step.surface + 1) * kk];
+    match step.shape {
+        SurfaceShape::Paraxial { focal_length: f } => {
+            let d_out = paraxial_deflect(q, d, f, n1, n2);
+            let tx = mu * d.x / d.z - q.x / f;
+            let ty = mu * d.y / d.z - q.y / f;
+            let w = DVec3::new(tx, ty, 1.0);
+            let (wl, v) = (w.length(), w.normalize());
+            let sign = if d.z < 0.0 { -1.0 } else { 1.0 };
+            for k in 0..kk {
+                let ht = local.tangent(d, dp[k] + dd[k] * t, &tan.shape[k]);
+                let dq = ht.point;
+                let dmu = (dn1[k] - mu * dn2[k]) / n2;
+                let df = tan.shape[k].focal_length;
+                let ddk = dd[k];
+                let dtx = dmu * d.x / d.z + mu * (ddk.x * d.z - d.x * ddk.z) / (d.z * d.z) - dq.x / f + q.x * df / (f * f);
+                let dty = dmu * d.y / d.z + mu * (ddk.y * d.z - d.y * ddk.z) / (d.z * d.z) - dq.y / f + q.y * df / (f * f);
+                let dw = DVec3::new(dtx, dty, 0.0);
+                dd[k] = (dw - v * v.dot(dw)) * (sign / wl);
+                dp[k] = dq;
+            }
+            Ok(d_out)
+        }
+        _ => {
+            // Vector Snell's law with the normal oriented along d (as in `refract`).
+            let mut nrm = normal;
+            let mut cos_i = d.dot(nrm);
+            let mut sgn = 1.0;
+            if cos_i < 0.0 {
+                nrm = -nrm;
+                cos_i = -cos_i;
+                sgn = -1.0;
+            }
+            let kappa = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
+            let d_out = if n1 != n2 {
+                match refract(d, normal, n1, n2) {
+                    Some(r) => r,
+                    None => return Err(RayStatus::TotalInternalReflection),
+                }
+            } else {
+                d
+            };
+            let sk = kappa.max(0.0).sqrt();
+            for k in 0..kk {
+                let ht = local.tangent(d, dp[k] + dd[k] * t, &tan.shape[k]);
+                let dnrm = ht.normal * sgn;
+                let dmu = (dn1[k] - mu * dn2[k]) / n2;
+                let ddk = dd[k];
+                let dcos = ddk.dot(nrm) + d.dot(dnrm);
+                let dkappa = -2.0 * mu * dmu * (1.0 - cos_i * cos_i) + 2.0 * mu * mu * cos_i * dcos;
+                let dsk = dkappa / (2.0 * sk);
+                dd[k] = d * dmu + ddk * mu + nrm * (dsk - dmu * cos_i - mu * dcos) + dnrm * (sk - mu * cos_i);
+                dp[k] = ht.point;
+            }
+            Ok(d_out)
+        }
+    }
 }

@@ -11,6 +11,9 @@
 //!   derivatives.
 //! - [`kernel`]: the per-ray forward trace (frame changes, hits, vector Snell, ideal lens).
 //! - [`jacobian`]: [`DiffSystem::trace`] → [`JacobianBatch`] for a [`crate::rays::RayBatch`].
+//! - [`from_hits`]: [`DiffSystem::jacobian_from_hits`] — the same Jacobians at hits another backend found
+//!   (the Embree tracer's refined hits: `DiffSystem::trace_embree`), with a reason for every ray whose
+//!   recorded path is not the sequential one.
 //!
 //! ```
 //! use diffcassi::diff::{Param, ParamSet};
@@ -26,6 +29,7 @@
 //! ```
 pub mod dispersion;
 pub mod dual;
+pub mod from_hits;
 pub mod glass_model;
 pub mod hit;
 pub mod jacobian;
@@ -33,6 +37,7 @@ pub mod kernel;
 pub mod param;
 pub mod system;
 
+pub use from_hits::HitJacobianBatch;
 pub use jacobian::JacobianBatch;
 pub use param::{preset_alias, Param, ParamSet};
 pub use system::DiffSystem;

@@ -11,6 +11,7 @@
 //! ```
 mod analytic;
 mod backend;
+pub mod hits;
 pub mod kernel;
 #[cfg(feature = "embree")]
 pub mod embree;

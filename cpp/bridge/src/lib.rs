@@ -31,22 +31,23 @@
 //! mutex held just long enough to look a backend up. Result objects (`Traced`, `Spot`, `Mapping`, `Rays`)
 //! are owned values: read them from any thread, move them between threads.
 //!
-//! ## Extension points (not exposed yet)
-//! - **Rendering** an acquisition into a caller-visible buffer (issue 5, `diffcassi::render`, in progress
-//!   elsewhere): add `fn render_acquisition(self: &System, …, out: &mut [f32]) -> Result<()>` to the
-//!   bridge below, writing into the C++ buffer, and a `System::render_into` wrapper in `diffcassi.hpp`.
-//! - **Jacobians** (issue 4, `diffcassi::diff`, in progress elsewhere): add
-//!   `fn trace_jacobian(self: &System, parameters: &[String], …) -> Result<Box<Jacobian>>` returning
-//!   column views like [`Traced`].
+//! ## Jacobians and rendering
+//! - **Jacobians** ([`jacobian`]): free parameters by name (those of `diffcassi calibrate --free`),
+//!   ∂(image position, direction)/∂θ of a batch as struct-of-arrays in one allocation, with the analytic
+//!   or an Embree backend (f64-refined hits); per ray, whether it is available and why not.
+//! - **Rendering** ([`render`]): a coded acquisition of a caller's scene cube and mask (or a random mask
+//!   from opening and seed) into the caller's buffer, sized by [`System::render_detector`]; no files.
 //! - **Backends**: every backend name goes through [`backend::tracer_for`] (`analytic`,
 //!   `embree-user[:f64|:none]`, `embree-mesh[:SAG_UM][:f64|:none]`).
-//!
-//! None of these is stubbed: they do not exist in the C++ API until the Rust capability does.
 
 pub mod backend;
+pub mod jacobian;
+pub mod render;
 mod results;
 mod system;
 
+pub use jacobian::Jacobian;
+pub use render::default_render_options;
 pub use results::{Mapping, Rays, Spot, Traced};
 pub use system::{load_preset, load_spec_file, load_spec_string, System};
 
@@ -124,6 +125,37 @@ pub mod ffi {
         points: Vec<DistortionPoint>,
     }
 
+    /// Render settings (see `render.rs`; `default_render_options()` gives the paper's).
+    #[derive(Clone, Copy, Debug)]
+    struct RenderOptions {
+        /// Spectral planes over the bands' range (0: 4 per band).
+        planes: usize,
+        rays_per_pixel: usize,
+        seed: u64,
+        scene_pitch_mm: f64,
+        detector_pitch_mm: f64,
+        /// Airy blur, disk diameter in detector pixels at 520 nm (∝ λ).
+        airy: bool,
+        airy_diameter_px: f64,
+        /// Random binary mask used when no mask values are given.
+        mask_opening: f64,
+        mask_seed: u64,
+    }
+
+    /// The detector of a render (and, after a render, its ray counts).
+    #[derive(Clone, Copy, Debug)]
+    struct RenderInfo {
+        detector_height: usize,
+        detector_width: usize,
+        detector_pitch_mm: f64,
+        /// x of the left edge of column 0 and y of the top edge of row 0 (mm, image-surface frame).
+        x_left_mm: f64,
+        y_top_mm: f64,
+        planes: usize,
+        rays_traced: u64,
+        rays_arrived: u64,
+    }
+
     /// Normalised pupil points (px, py) of a pattern.
     #[derive(Clone, Debug)]
     struct PupilPoints {
@@ -142,6 +174,8 @@ pub mod ffi {
         type Spot;
         /// A scene → detector mapping cube.
         type Mapping;
+        /// A batch's Jacobians (SoA, one allocation) with its traced values.
+        type Jacobian;
 
         // ---- loading (errors: unknown preset, unreadable/malformed spec, unknown glass, …)
         fn load_preset(name: &str) -> Result<Box<System>>;
@@ -158,6 +192,7 @@ pub mod ffi {
         fn pupil_points(pattern: &str) -> Result<PupilPoints>;
         /// `count` evenly spaced values from `first` to `last` (inclusive).
         fn linspace(first: f64, last: f64, count: usize) -> Vec<f64>;
+        fn default_render_options() -> RenderOptions;
 
         // ---- system data
         fn name(self: &System) -> &str;
@@ -203,6 +238,52 @@ pub mod ffi {
         fn spot_diagram(self: &System, backend: &str, field_x_mm: f64, field_y_mm: f64, wavelength_nm: f64, px: &[f64], py: &[f64]) -> Result<Box<Spot>>;
         fn distortion_grid(self: &System, backend: &str, wavelength_nm: f64, n: usize, half_width_mm: f64) -> Result<DistortionGrid>;
         fn mapping_cube(self: &System, backend: &str, height: usize, width: usize, pixel_pitch_mm: f64, wavelengths_nm: &[f64]) -> Result<Box<Mapping>>;
+
+        // ---- Jacobians (free parameters by name, comma-separated; errors: unknown name, no parameter,
+        //      ragged columns, unrefined Embree backend)
+        #[allow(clippy::too_many_arguments)]
+        fn trace_jacobian(
+            self: &System,
+            backend: &str,
+            parameters: &str,
+            origin_x: &[f64],
+            origin_y: &[f64],
+            origin_z: &[f64],
+            dir_x: &[f64],
+            dir_y: &[f64],
+            dir_z: &[f64],
+            wavelength_nm: &[f64],
+        ) -> Result<Box<Jacobian>>;
+
+        // ---- rendering into a caller buffer (scene [row][col][band] f32; mask H×W or empty; out: detector)
+        fn render_detector(self: &System, backend: &str, height: usize, width: usize, wavelengths_nm: &[f64], options: &RenderOptions) -> Result<RenderInfo>;
+        #[allow(clippy::too_many_arguments)]
+        fn render(
+            self: &System,
+            backend: &str,
+            height: usize,
+            width: usize,
+            wavelengths_nm: &[f64],
+            scene: &[f32],
+            mask: &[f32],
+            options: &RenderOptions,
+            out: &mut [f64],
+        ) -> Result<RenderInfo>;
+
+        // ---- Jacobian: values[(c·K + k)·N + i], c over x, y, z, dir_x, dir_y, dir_z
+        fn len(self: &Jacobian) -> usize;
+        fn parameter_count(self: &Jacobian) -> usize;
+        fn parameters(self: &Jacobian) -> Vec<String>;
+        fn values(self: &Jacobian) -> &[f64];
+        fn available(self: &Jacobian) -> &[u8];
+        fn reason(self: &Jacobian, i: usize) -> &str;
+        fn traced_x(self: &Jacobian) -> &[f64];
+        fn traced_y(self: &Jacobian) -> &[f64];
+        fn traced_z(self: &Jacobian) -> &[f64];
+        fn traced_dir_x(self: &Jacobian) -> &[f64];
+        fn traced_dir_y(self: &Jacobian) -> &[f64];
+        fn traced_dir_z(self: &Jacobian) -> &[f64];
+        fn traced_status(self: &Jacobian) -> &[u8];
 
         // ---- Rays columns
         fn len(self: &Rays) -> usize;
@@ -260,4 +341,5 @@ const _: fn() = || {
     shareable::<Rays>();
     shareable::<Spot>();
     shareable::<Mapping>();
+    shareable::<Jacobian>();
 };

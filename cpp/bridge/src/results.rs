@@ -25,7 +25,7 @@ pub struct Spot(pub SpotDiagram);
 pub struct Mapping(pub MappingCube);
 
 /// `RayStatus` is `#[repr(u8)]` with discriminants 0..=5, so a slice of it is a valid slice of `u8`.
-fn status_bytes(s: &[RayStatus]) -> &[u8] {
+pub(crate) fn status_bytes(s: &[RayStatus]) -> &[u8] {
     const _: () = assert!(std::mem::size_of::<RayStatus>() == 1 && std::mem::align_of::<RayStatus>() == 1);
     // SAFETY: same size and alignment (checked above), every RayStatus value is a valid u8, and the
     // returned slice borrows `s` immutably for its whole lifetime.

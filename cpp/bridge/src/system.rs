@@ -22,7 +22,7 @@ use std::time::Instant;
 /// A built [`SequentialSystem`] plus the backends made for it so far.
 pub struct System {
     system: SequentialSystem,
-    backends: BackendCache,
+    pub(crate) backends: BackendCache,
 }
 
 fn wrap(system: SequentialSystem) -> Box<System> {
@@ -63,7 +63,7 @@ fn value(c: &Option<Cell>) -> f64 {
 
 /// The element count of an output of the given dimensions, or an error when it cannot be allocated (an
 /// overflowing size from C++ would otherwise panic, and a panic across the bridge aborts the process).
-fn checked_size(what: &str, dims: &[usize]) -> Result<usize> {
+pub(crate) fn checked_size(what: &str, dims: &[usize]) -> Result<usize> {
     const LIMIT: usize = isize::MAX as usize / 16; // elements of at most 16 bytes must fit an allocation
     dims.iter()
         .try_fold(1usize, |n, &d| n.checked_mul(d))

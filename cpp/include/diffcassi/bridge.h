@@ -963,12 +963,15 @@ namespace diffcassi {
     struct SpotStats;
     struct DistortionPoint;
     struct DistortionGrid;
+    struct RenderOptions;
+    struct RenderInfo;
     struct PupilPoints;
     struct System;
     struct Rays;
     struct Traced;
     struct Spot;
     struct Mapping;
+    struct Jacobian;
   }
 }
 
@@ -1060,6 +1063,45 @@ struct DistortionGrid final {
 };
 #endif // CXXBRIDGE1_STRUCT_diffcassi$ffi$DistortionGrid
 
+#ifndef CXXBRIDGE1_STRUCT_diffcassi$ffi$RenderOptions
+#define CXXBRIDGE1_STRUCT_diffcassi$ffi$RenderOptions
+// Render settings (see `render.rs`; `default_render_options()` gives the paper's).
+struct RenderOptions final {
+  // Spectral planes over the bands' range (0: 4 per band).
+  ::std::size_t planes CXX_DEFAULT_VALUE(0);
+  ::std::size_t rays_per_pixel CXX_DEFAULT_VALUE(0);
+  ::std::uint64_t seed CXX_DEFAULT_VALUE(0);
+  double scene_pitch_mm CXX_DEFAULT_VALUE(0);
+  double detector_pitch_mm CXX_DEFAULT_VALUE(0);
+  // Airy blur, disk diameter in detector pixels at 520 nm (∝ λ).
+  bool airy CXX_DEFAULT_VALUE(false);
+  double airy_diameter_px CXX_DEFAULT_VALUE(0);
+  // Random binary mask used when no mask values are given.
+  double mask_opening CXX_DEFAULT_VALUE(0);
+  ::std::uint64_t mask_seed CXX_DEFAULT_VALUE(0);
+
+  using IsRelocatable = ::std::true_type;
+};
+#endif // CXXBRIDGE1_STRUCT_diffcassi$ffi$RenderOptions
+
+#ifndef CXXBRIDGE1_STRUCT_diffcassi$ffi$RenderInfo
+#define CXXBRIDGE1_STRUCT_diffcassi$ffi$RenderInfo
+// The detector of a render (and, after a render, its ray counts).
+struct RenderInfo final {
+  ::std::size_t detector_height CXX_DEFAULT_VALUE(0);
+  ::std::size_t detector_width CXX_DEFAULT_VALUE(0);
+  double detector_pitch_mm CXX_DEFAULT_VALUE(0);
+  // x of the left edge of column 0 and y of the top edge of row 0 (mm, image-surface frame).
+  double x_left_mm CXX_DEFAULT_VALUE(0);
+  double y_top_mm CXX_DEFAULT_VALUE(0);
+  ::std::size_t planes CXX_DEFAULT_VALUE(0);
+  ::std::uint64_t rays_traced CXX_DEFAULT_VALUE(0);
+  ::std::uint64_t rays_arrived CXX_DEFAULT_VALUE(0);
+
+  using IsRelocatable = ::std::true_type;
+};
+#endif // CXXBRIDGE1_STRUCT_diffcassi$ffi$RenderInfo
+
 #ifndef CXXBRIDGE1_STRUCT_diffcassi$ffi$PupilPoints
 #define CXXBRIDGE1_STRUCT_diffcassi$ffi$PupilPoints
 // Normalised pupil points (px, py) of a pattern.
@@ -1107,6 +1149,9 @@ struct System final : public ::rust::Opaque {
   ::rust::Box<::diffcassi::ffi::Spot> spot_diagram(::rust::Str backend, double field_x_mm, double field_y_mm, double wavelength_nm, ::rust::Slice<double const> px, ::rust::Slice<double const> py) const;
   ::diffcassi::ffi::DistortionGrid distortion_grid(::rust::Str backend, double wavelength_nm, ::std::size_t n, double half_width_mm) const;
   ::rust::Box<::diffcassi::ffi::Mapping> mapping_cube(::rust::Str backend, ::std::size_t height, ::std::size_t width, double pixel_pitch_mm, ::rust::Slice<double const> wavelengths_nm) const;
+  ::rust::Box<::diffcassi::ffi::Jacobian> trace_jacobian(::rust::Str backend, ::rust::Str parameters, ::rust::Slice<double const> origin_x, ::rust::Slice<double const> origin_y, ::rust::Slice<double const> origin_z, ::rust::Slice<double const> dir_x, ::rust::Slice<double const> dir_y, ::rust::Slice<double const> dir_z, ::rust::Slice<double const> wavelength_nm) const;
+  ::diffcassi::ffi::RenderInfo render_detector(::rust::Str backend, ::std::size_t height, ::std::size_t width, ::rust::Slice<double const> wavelengths_nm, ::diffcassi::ffi::RenderOptions const &options) const;
+  ::diffcassi::ffi::RenderInfo render(::rust::Str backend, ::std::size_t height, ::std::size_t width, ::rust::Slice<double const> wavelengths_nm, ::rust::Slice<float const> scene, ::rust::Slice<float const> mask, ::diffcassi::ffi::RenderOptions const &options, ::rust::Slice<double > out) const;
   ~System() = delete;
 
 private:
@@ -1223,6 +1268,34 @@ private:
 };
 #endif // CXXBRIDGE1_STRUCT_diffcassi$ffi$Mapping
 
+#ifndef CXXBRIDGE1_STRUCT_diffcassi$ffi$Jacobian
+#define CXXBRIDGE1_STRUCT_diffcassi$ffi$Jacobian
+// A batch's Jacobians (SoA, one allocation) with its traced values.
+struct Jacobian final : public ::rust::Opaque {
+  ::std::size_t len() const noexcept;
+  ::std::size_t parameter_count() const noexcept;
+  ::rust::Vec<::rust::String> parameters() const noexcept;
+  ::rust::Slice<double const> values() const noexcept;
+  ::rust::Slice<::std::uint8_t const> available() const noexcept;
+  ::rust::Str reason(::std::size_t i) const noexcept;
+  ::rust::Slice<double const> traced_x() const noexcept;
+  ::rust::Slice<double const> traced_y() const noexcept;
+  ::rust::Slice<double const> traced_z() const noexcept;
+  ::rust::Slice<double const> traced_dir_x() const noexcept;
+  ::rust::Slice<double const> traced_dir_y() const noexcept;
+  ::rust::Slice<double const> traced_dir_z() const noexcept;
+  ::rust::Slice<::std::uint8_t const> traced_status() const noexcept;
+  ~Jacobian() = delete;
+
+private:
+  friend ::rust::layout;
+  struct layout {
+    static ::std::size_t size() noexcept;
+    static ::std::size_t align() noexcept;
+  };
+};
+#endif // CXXBRIDGE1_STRUCT_diffcassi$ffi$Jacobian
+
 ::rust::Box<::diffcassi::ffi::System> load_preset(::rust::Str name);
 
 // `.toml`, `.json` (our format), `.yml` (the paper's), `.csv` (Zemax prescription).
@@ -1244,6 +1317,8 @@ private:
 
 // `count` evenly spaced values from `first` to `last` (inclusive).
 ::rust::Vec<double> linspace(double first, double last, ::std::size_t count) noexcept;
+
+::diffcassi::ffi::RenderOptions default_render_options() noexcept;
 } // namespace ffi
 } // namespace diffcassi
 

@@ -20,9 +20,9 @@
 // rayon thread pool and their results do not depend on which thread called or how many threads run.
 // Result objects (Traced, Spot, Mapping, Rays) are independent values: read them from any thread.
 //
-// Not yet exposed (the Rust capabilities are being built; they are added here when they land, see
-// cpp/bridge/src/lib.rs "Extension points"): rendering an acquisition into a caller buffer, Jacobians,
-// and the Embree backends ("embree-user[:f64|:none]", "embree-mesh[:SAG_UM][:f64|:none]").
+// Also: Jacobians (free parameters by name, SoA derivatives in one allocation; System::jacobian) and
+// rendering a coded acquisition into a caller buffer (System::render_detector + System::render_into).
+// Backends by name: "analytic", "embree-user[:f64|:none]", "embree-mesh[:SAG_UM][:f64|:none]".
 #pragma once
 
 #include "rust/cxx.h"  // cxx's runtime (rust::Error, …); shares include guards with the generated header
@@ -79,6 +79,9 @@ enum class RayStatus : std::uint8_t {
   TotalInternalReflection = 3,
   NoConvergence = 4,
   InvalidInput = 5,
+  /// Non-sequential (Embree) backends: absorbed by a side wall, or over the bounce limit.
+  Absorbed = 6,
+  BounceLimit = 7,
 };
 
 inline const char* label(RayStatus s) noexcept {
@@ -89,6 +92,8 @@ inline const char* label(RayStatus s) noexcept {
     case RayStatus::TotalInternalReflection: return "tir";
     case RayStatus::NoConvergence: return "no_convergence";
     case RayStatus::InvalidInput: return "invalid_input";
+    case RayStatus::Absorbed: return "absorbed";
+    case RayStatus::BounceLimit: return "bounce_limit";
   }
   return "unknown";
 }
@@ -97,6 +102,8 @@ using SurfaceInfo = ffi::SurfaceInfo;
 using SpotStats = ffi::SpotStats;
 using DistortionPoint = ffi::DistortionPoint;
 using DistortionGrid = ffi::DistortionGrid;
+using RenderOptions = ffi::RenderOptions;
+using RenderInfo = ffi::RenderInfo;
 
 namespace detail {
 // Run a bridge call; a Rust error (rust::Error) or text that is not UTF-8 (rust::Str) becomes diffcassi::Error.
@@ -248,6 +255,64 @@ class Mapping {
   rust::Box<ffi::Mapping> raw_;
 };
 
+/// Jacobians of a traced batch: d(x, y, z, dir_x, dir_y, dir_z at the image surface)/d(parameter k) for
+/// N rays and K free parameters, struct of arrays in one allocation: values()[(c * K + k) * N + i], so the
+/// derivatives of one output component by one parameter are contiguous over the rays (column(c, k)).
+/// Units: mm (positions) or direction components, per unit of the parameter (mm, degrees, nm, …).
+/// Rays whose Jacobian is unavailable (did not arrive; with an Embree backend also a path that is not the
+/// sequential one, e.g. a followed total internal reflection) have zeros and a reason.
+class Jacobian {
+ public:
+  /// Output components, in the order of the c index.
+  enum Component : std::size_t { X = 0, Y = 1, Z = 2, DirX = 3, DirY = 4, DirZ = 5 };
+  explicit Jacobian(rust::Box<ffi::Jacobian> raw) : raw_(std::move(raw)) {}
+  std::size_t size() const noexcept { return raw_->len(); }
+  std::size_t parameter_count() const noexcept { return raw_->parameter_count(); }
+  /// Canonical parameter names in column order (aliases such as prism_tilt_x resolved to s<N>.<column>).
+  std::vector<std::string> parameters() const {
+    std::vector<std::string> out;
+    for (const auto& s : raw_->parameters()) out.push_back(detail::string(s));
+    return out;
+  }
+  View<double> values() const noexcept { return raw_->values(); }
+  /// d(component c)/d(parameter k) for every ray.
+  View<double> column(std::size_t c, std::size_t k) const {
+    const std::size_t n = size(), kk = parameter_count();
+    if (c >= 6 || k >= kk) throw Error("Jacobian::column(" + std::to_string(c) + ", " + std::to_string(k) + "): out of range");
+    return View<double>(values().data() + (c * kk + k) * n, n);
+  }
+  double at(std::size_t ray, std::size_t c, std::size_t k) const { return column(c, k).at(ray); }
+  bool available(std::size_t i) const { return View<std::uint8_t>(raw_->available()).at(i) == 1; }
+  View<std::uint8_t> available_flags() const noexcept { return raw_->available(); }
+  /// Why ray i's Jacobian is unavailable ("" if it is available).
+  std::string reason(std::size_t i) const { return std::string(raw_->reason(i)); }
+  // The traced values (as Traced's columns).
+  View<double> x() const noexcept { return raw_->traced_x(); }
+  View<double> y() const noexcept { return raw_->traced_y(); }
+  View<double> z() const noexcept { return raw_->traced_z(); }
+  View<double> dir_x() const noexcept { return raw_->traced_dir_x(); }
+  View<double> dir_y() const noexcept { return raw_->traced_dir_y(); }
+  View<double> dir_z() const noexcept { return raw_->traced_dir_z(); }
+  View<std::uint8_t> status_codes() const noexcept { return raw_->traced_status(); }
+  RayStatus status(std::size_t i) const { return static_cast<RayStatus>(status_codes().at(i)); }
+  const ffi::Jacobian& raw() const noexcept { return *raw_; }
+
+ private:
+  rust::Box<ffi::Jacobian> raw_;
+};
+
+/// The paper's render settings (4 planes per band, 20 rays per pixel, seed 0, 10 µm pixels, Airy 2.5 px at
+/// 520 nm, random mask of opening 0.5, seed 0); change the fields you need.
+inline RenderOptions default_render_options() { return ffi::default_render_options(); }
+
+/// A hyperspectral scene held by the caller: height × width × bands floats, C order [row][col][band]
+/// (row 0 at +y on the object plane), at strictly increasing band wavelengths (nm). Read in place.
+struct SceneView {
+  std::size_t height = 0, width = 0;
+  View<double> wavelengths_nm;
+  View<float> values;
+};
+
 /// A loaded optical system. Immutable and thread-safe (see the top of this header).
 class System {
  public:
@@ -328,6 +393,53 @@ class System {
   Mapping mapping_cube(std::size_t height, std::size_t width, double pixel_pitch_mm, const std::vector<double>& wavelengths_nm,
                        std::string_view backend = "analytic") const {
     return Mapping(detail::call([&] { return raw_->mapping_cube(detail::str(backend), height, width, pixel_pitch_mm, detail::slice(wavelengths_nm)); }));
+  }
+
+  // ---- Jacobians
+  /// Trace `rays` with d(image position, direction)/d(parameters): `parameters` are the names
+  /// `diffcassi calibrate --free` takes ("s4.tilt_x_deg", "s16.curvature", "glass_nd:N-BK7",
+  /// "glass_vd:N-SF10", "wavelength", "ray.origin_x", "ray.dir_y", and on presets "prism_tilt_x|y|z").
+  /// Backend "analytic", or "embree-user" / "embree-mesh[:SAG_UM]" (f64-refined hits; the derivatives
+  /// are taken at Embree's hits). An unknown name throws diffcassi::Error.
+  Jacobian jacobian(const RayColumns& r, const std::vector<std::string>& parameters, std::string_view backend = "analytic") const {
+    std::string list;
+    for (const auto& p : parameters) {
+      if (p.find(',') != std::string::npos) throw Error("free parameter `" + p + "`: a name cannot contain ','");
+      if (!list.empty()) list += ',';
+      list += p;
+    }
+    return Jacobian(detail::call([&] {
+      return raw_->trace_jacobian(detail::str(backend), detail::str(list), detail::slice(r.origin_x), detail::slice(r.origin_y),
+                                  detail::slice(r.origin_z), detail::slice(r.dir_x), detail::slice(r.dir_y), detail::slice(r.dir_z),
+                                  detail::slice(r.wavelength_nm));
+    }));
+  }
+
+  // ---- rendering
+  /// The detector a render of a height × width scene at these band wavelengths produces: size the output
+  /// buffer render_into needs as detector_height * detector_width doubles.
+  RenderInfo render_detector(std::size_t height, std::size_t width, const View<double>& wavelengths_nm, const RenderOptions& options,
+                             std::string_view backend = "analytic") const {
+    return detail::call([&] { return raw_->render_detector(detail::str(backend), height, width, detail::slice(wavelengths_nm), options); });
+  }
+  /// Render the coded acquisition of `scene` through the mask (height × width transmissions in [0, 1];
+  /// an empty view: the random mask of options.mask_opening / mask_seed) into `out` (row-major detector
+  /// image, exactly render_detector's size, else diffcassi::Error). Returns the detector and ray counts.
+  RenderInfo render_into(const SceneView& scene, View<float> mask, const RenderOptions& options, double* out, std::size_t out_size,
+                         std::string_view backend = "analytic") const {
+    return detail::call([&] {
+      return raw_->render(detail::str(backend), scene.height, scene.width, detail::slice(scene.wavelengths_nm), detail::slice(scene.values),
+                          detail::slice(mask), options, rust::Slice<double>(out, out_size));
+    });
+  }
+  /// render_detector + render_into into a new vector.
+  std::vector<double> render(const SceneView& scene, View<float> mask, const RenderOptions& options, RenderInfo* info = nullptr,
+                             std::string_view backend = "analytic") const {
+    const auto d = render_detector(scene.height, scene.width, scene.wavelengths_nm, options, backend);
+    std::vector<double> out(d.detector_height * d.detector_width);
+    const auto done = render_into(scene, mask, options, out.data(), out.size(), backend);
+    if (info) *info = done;
+    return out;
   }
 
   const ffi::System& raw() const noexcept { return *raw_; }

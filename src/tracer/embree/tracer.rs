@@ -36,6 +36,7 @@ use crate::rays::RayBatch;
 use crate::surfaces::MeshResolution;
 use crate::system::SequentialSystem;
 use crate::tracer::analytic::index_table;
+use crate::tracer::hits::{HitKind, HitLog, HitRecord};
 use crate::tracer::kernel::{paraxial_deflect, refract, unit_direction};
 use crate::tracer::{RayStatus, TracedBatch, Tracer};
 use glam::DVec3;
@@ -183,6 +184,19 @@ impl EmbreeTracer {
 
     /// Trace with per-ray diagnostics.
     pub fn trace_detailed(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<(TracedBatch, TraceDetails)> {
+        self.trace_inner(system, rays, false).map(|(out, details, _)| (out, details))
+    }
+
+    /// Trace with per-ray diagnostics and the [`HitLog`] of every interaction: the interface hit (its
+    /// merged sequential surfaces), the hit point in its frame (f64-refined with [`Refinement::F64`]), the
+    /// incoming direction, the media, and whether the ray refracted, was deflected by an ideal lens or
+    /// totally reflected; the detector hit last. Recording is only done here: [`Self::trace_detailed`] and
+    /// [`Tracer::trace`] record nothing. The traced values are the same bits either way.
+    pub fn trace_with_hits(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<(TracedBatch, TraceDetails, HitLog)> {
+        self.trace_inner(system, rays, true).map(|(out, details, log)| (out, details, log.unwrap_or_default()))
+    }
+
+    fn trace_inner(&self, system: &SequentialSystem, rays: &RayBatch, record: bool) -> Result<(TracedBatch, TraceDetails, Option<HitLog>)> {
         if !rays.is_consistent() {
             return Err(Error::invalid("ray batch columns have different lengths"));
         }
@@ -193,13 +207,19 @@ impl EmbreeTracer {
         let scene = self.scene_for(system)?;
         let n = rays.len();
         let chunk = self.options.chunk_size.max(16);
-        let walks: Vec<Walk> = (0..n.div_ceil(chunk))
+        let parts: Vec<(Vec<Walk>, Vec<Vec<HitRecord>>)> = (0..n.div_ceil(chunk))
             .into_par_iter()
-            .flat_map_iter(|c| {
+            .map(|c| {
                 let range = c * chunk..((c + 1) * chunk).min(n);
-                with_flush_denormals(|| self.trace_range(&scene, &table, rays, range))
+                with_flush_denormals(|| self.trace_range(&scene, &table, rays, range, record))
             })
             .collect();
+        let mut walks: Vec<Walk> = Vec::with_capacity(n);
+        let mut logs: Vec<Vec<HitRecord>> = Vec::with_capacity(if record { n } else { 0 });
+        for (w, l) in parts {
+            walks.extend(w);
+            logs.extend(l);
+        }
         let mut out = TracedBatch::zeroed(n);
         let mut details = TraceDetails { reflections: vec![0; n], interactions: vec![0; n], max_hit_deviation_mm: vec![0.0; n], first_reflection_surface: vec![u32::MAX; n] };
         for (i, w) in walks.iter().enumerate() {
@@ -215,14 +235,23 @@ impl EmbreeTracer {
                 out.surface[i] = w.last_surface;
             }
         }
-        Ok((out, details))
+        Ok((out, details, record.then(|| HitLog::from_rays(logs))))
     }
 
-    fn trace_range(&self, scene: &OpticalScene, table: &std::collections::HashMap<u64, Vec<f64>>, rays: &RayBatch, range: std::ops::Range<usize>) -> Vec<Walk> {
+    /// Walk the rays of `range`; with `record`, also one hit list per ray (empty vector otherwise).
+    fn trace_range(
+        &self,
+        scene: &OpticalScene,
+        table: &std::collections::HashMap<u64, Vec<f64>>,
+        rays: &RayBatch,
+        range: std::ops::Range<usize>,
+        record: bool,
+    ) -> (Vec<Walk>, Vec<Vec<HitRecord>>) {
         let mut walks: Vec<Walk> = range.clone().map(|i| Walk::new(rays.origin(i), rays.direction(i))).collect();
+        let mut logs: Vec<Vec<HitRecord>> = if record { vec![Vec::new(); walks.len()] } else { Vec::new() };
         let idx: Vec<&Vec<f64>> = range.map(|i| table.get(&rays.wavelength_nm[i].to_bits()).expect("every batch wavelength is in the table")).collect();
         if self.options.packets {
-            for (ws, ns) in walks.chunks_mut(16).zip(idx.chunks(16)) {
+            for (p, (ws, ns)) in walks.chunks_mut(16).zip(idx.chunks(16)).enumerate() {
                 loop {
                     let mut packet = [Ray::new([0.0; 3], [0.0, 0.0, 1.0]); 16];
                     let mut valid = [false; 16];
@@ -242,24 +271,26 @@ impl EmbreeTracer {
                     let hits = scene.scene.intersect16_with(&packet, &valid, false);
                     for (k, w) in ws.iter_mut().enumerate() {
                         if valid[k] {
-                            self.interact(scene, ns[k], w, &hits[k]);
+                            // Not recording: `logs` is empty and `get_mut` gives None.
+                            self.interact(scene, ns[k], w, &hits[k], logs.get_mut(p * 16 + k));
                         }
                     }
                 }
             }
         } else {
-            for (w, n) in walks.iter_mut().zip(&idx) {
+            for (i, (w, n)) in walks.iter_mut().zip(&idx).enumerate() {
                 while !w.done {
                     let hit = scene.scene.intersect1(&w.ray());
-                    self.interact(scene, n, w, &hit);
+                    self.interact(scene, n, w, &hit, logs.get_mut(i));
                 }
             }
         }
-        walks
+        (walks, logs)
     }
 
     /// Apply what the geometry Embree found does to the ray.
-    fn interact(&self, scene: &OpticalScene, n: &[f64], w: &mut Walk, hit: &Hit) {
+    /// With `log`, the interaction is appended to it as a [`HitRecord`].
+    fn interact(&self, scene: &OpticalScene, n: &[f64], w: &mut Walk, hit: &Hit, log: Option<&mut Vec<HitRecord>>) {
         let retried = w.tnear > 0.0;
         w.tnear = 0.0;
         if !hit.is_hit() {
@@ -299,7 +330,7 @@ impl EmbreeTracer {
                             return w.finish(RayStatus::Vignetted, *s);
                         }
                         if patch.aperture.contains(q.x, q.y) {
-                            return self.interact(scene, n, w, &Hit { t: t as f32, geom_id: k as u32, ..*hit });
+                            return self.interact(scene, n, w, &Hit { t: t as f32, geom_id: k as u32, ..*hit }, log);
                         }
                     }
                 }
@@ -317,7 +348,7 @@ impl EmbreeTracer {
                             match interface {
                                 // The ray meets the refracting surface inside its aperture (unless it
                                 // has just been refracted there and only touches the blade's edge).
-                                Some(k) if scene.objects[*k].mask != w.exclude => self.refract_at(scene, &scene.objects[*k], n, w, hit),
+                                Some(k) if scene.objects[*k].mask != w.exclude => self.refract_at(scene, &scene.objects[*k], n, w, hit, log),
                                 // A virtual surface (a stop in air): the ray passes unchanged. The next
                                 // query starts a few f32 ulps further, past this blade.
                                 _ => {
@@ -339,9 +370,15 @@ impl EmbreeTracer {
                     let (n1, n2) = (n[*front_medium], n[*back_medium]);
                     let out = if n1 != n2 { refract(d, normal, n1, n2) } else { Some(d) };
                     match out {
-                        Some(d) => {
+                        Some(out_d) => {
+                            if let Some(log) = log {
+                                // The incoming direction, as for every record (the image surface's media are
+                                // the sequential path's: medium s − 1 before it, s after it).
+                                let s = *surface as u32;
+                                log.push(HitRecord { first_surface: s, last_surface: s, point: p, direction: d, medium_in: s - 1, medium_out: s, kind: HitKind::Detector });
+                            }
                             w.out_p = p;
-                            w.out_d = d;
+                            w.out_d = out_d;
                             w.finish(RayStatus::Ok, *surface);
                             w.last_surface = u32::MAX;
                         }
@@ -350,12 +387,13 @@ impl EmbreeTracer {
                 }
                 None => w.finish(RayStatus::NoConvergence, *surface),
             },
-            Role::Interface { .. } => self.refract_at(scene, obj, n, w, hit),
+            Role::Interface { .. } => self.refract_at(scene, obj, n, w, hit, log),
         }
     }
 
     /// The ray meets interface `obj` (located from `hit`): refract, deflect (ideal lens) or reflect (TIR).
-    fn refract_at(&self, _scene: &OpticalScene, obj: &SceneObject, n: &[f64], w: &mut Walk, hit: &Hit) {
+    /// With `log`, the interaction is appended to it as a [`HitRecord`].
+    fn refract_at(&self, _scene: &OpticalScene, obj: &SceneObject, n: &[f64], w: &mut Walk, hit: &Hit, log: Option<&mut Vec<HitRecord>>) {
         let Role::Interface { surfaces, front_medium, back_medium, paraxial_focal_mm } = &obj.role else {
             return w.finish(RayStatus::NoConvergence, w.last_surface as usize);
         };
@@ -375,9 +413,14 @@ impl EmbreeTracer {
         let d = obj.frame.dir_to_local(w.d);
         // The normal points to the back side (+z): a ray with d·n > 0 goes front → back.
         let forward = d.dot(normal) > 0.0;
-        let (n1, n2) = if forward { (n[*front_medium], n[*back_medium]) } else { (n[*back_medium], n[*front_medium]) };
+        let (m1, m2) = if forward { (*front_medium, *back_medium) } else { (*back_medium, *front_medium) };
+        let (n1, n2) = (n[m1], n[m2]);
+        let mut kind = HitKind::Refraction;
         let new_d = match paraxial_focal_mm {
-            Some(f) => paraxial_deflect(p, d, *f, n1, n2),
+            Some(f) => {
+                kind = HitKind::Deflection;
+                paraxial_deflect(p, d, *f, n1, n2)
+            }
             None => match refract(d, normal, n1, n2) {
                 Some(r) => r,
                 None => {
@@ -386,10 +429,15 @@ impl EmbreeTracer {
                     if w.first_reflection == u32::MAX {
                         w.first_reflection = surface as u32;
                     }
+                    kind = HitKind::Reflection;
                     d - 2.0 * d.dot(normal) * normal
                 }
             },
         };
+        if let Some(log) = log {
+            let (medium_in, medium_out) = if kind == HitKind::Reflection { (m1, m1) } else { (m1, m2) };
+            log.push(HitRecord { first_surface: surfaces[0] as u32, last_surface: surface as u32, point: p, direction: d, medium_in: medium_in as u32, medium_out: medium_out as u32, kind });
+        }
         w.p = obj.frame.point_to_global(p);
         w.d = obj.frame.dir_to_global(new_d).normalize();
         w.exclude = obj.mask;
