@@ -215,6 +215,9 @@ fn cli_tolerance_prints_the_choice_and_caches_it() {
         let o = run(&a);
         assert!(o.status.success() && text(&o).contains("fidelity: tolerance 1 µm →"), "{cmd:?}: {}", text(&o));
     }
+    let rep = dir.path().join("report");
+    let o = run(&["report", "--preset", "sp", "--out", rep.to_str().unwrap(), "--tolerance-um", "1", "--calibration-cache", cache.to_str().unwrap()]);
+    assert!(o.status.success() && text(&o).contains("fidelity: tolerance 1 µm →") && rep.join("report.json").is_file(), "report: {}", text(&o));
     let out = dir.path().join("r");
     let o = run(&["render", "--preset", "sp", "--scene-size", "8", "--bands", "450,650", "--planes", "2", "--no-mapping", "--tolerance-um", "5", "--calibration-cache", cache.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(o.status.success() && text(&o).contains("--rays"), "{}", text(&o));

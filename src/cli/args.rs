@@ -202,6 +202,8 @@ pub struct MappingArgs {
 pub struct ReportArgs {
     #[command(flatten)]
     pub system: SystemArgs,
+    #[command(flatten)]
+    pub backend: BackendArgs,
     /// Output folder.
     #[arg(long, default_value = "out")]
     pub out: PathBuf,

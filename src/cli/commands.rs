@@ -577,21 +577,25 @@ fn report(a: ReportArgs) -> Result<()> {
     let fs = system.spec.fields_mm.clone();
     let ws = system.spec.wavelengths_nm.clone();
     let pupil = PupilPattern::Hexapolar { rings: 16 }.points();
-    let spots = compute_spots(&system, &AnalyticTracer::default(), &fs, &ws, &pupil, true)?;
+    let bands = linspace(450.0, 650.0, 28);
+    // One tracer for every analysis of the report (chosen from --tolerance-um over all its wavelengths and rays).
+    let all_wavelengths: Vec<f64> = ws.iter().chain(&bands).copied().collect();
+    let job_rays = ((pupil.len() + 1) * fs.len() * ws.len() + 169 * ws.len() + bands.len()) as u64;
+    let tracer = super::fidelity::tracer_for(&a.backend, &system, &all_wavelengths, job_rays)?;
+    let tracer = tracer.as_ref();
+    let spots = compute_spots(&system, tracer, &fs, &ws, &pupil, true)?;
     print_spot_table(&spots);
     write_spot_csv(&out.join("spots.csv"), &system, &spots)?;
     spot_plot(&out.join("spots.png"), &format!("{name} spot diagrams (hexapolar, 16 rings)"), &spots, &fs)?;
-    let tracer = AnalyticTracer::default();
     let mut grids = Vec::new();
     for &w in &ws {
-        let g = analysis::grid_distortion(&system, &tracer, w, 13, 2.5)?;
+        let g = analysis::grid_distortion(&system, tracer, w, 13, 2.5)?;
         write_distortion_csv(&out.join(format!("distortion_{}nm.csv", w)), &system, &g)?;
         distortion_plot(&out.join(format!("distortion_{}nm.png", w)), &system, &g, 10.0)?;
         println!("distortion at {w} nm: max {:.4} %", g.max_distortion_pct);
         grids.push(serde_json::json!({"wavelength_nm": w, "reference_mm": g.reference_mm, "abcd": g.abcd, "max_distortion_pct": g.max_distortion_pct}));
     }
-    let bands = linspace(450.0, 650.0, 28);
-    let c = analysis::dispersion_curve(&system, &tracer, [0.0, 0.0], &bands)?;
+    let c = analysis::dispersion_curve(&system, tracer, [0.0, 0.0], &bands)?;
     plot::dispersion_curve(out.join("dispersion.png"), &format!("{name} spatio-spectral spreading ({:.1} µm)", c.spread_um), &c.wavelength_nm, &c.x_mm, &c.y_mm)?;
     say_written(&out.join("dispersion.png"));
     println!("spatio-spectral spreading 450–650 nm: {:.2} µm", c.spread_um);
