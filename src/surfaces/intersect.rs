@@ -72,6 +72,19 @@ fn intersect_plane(p: DVec3, d: DVec3) -> Result<Hit, IntersectFailure> {
     Ok(Hit { t, point, normal: DVec3::Z })
 }
 
+/// Whether `point` (on the quadric c(x²+y²+kk·z²) − 2z = 0, kk = 1 + conic) lies on its vertex branch, where
+/// the sag formula z = c r² / (1 + √(1 − kk c² r²)) holds; otherwise it is on the other sheet or half.
+#[inline(always)]
+pub(crate) fn on_conic_vertex_branch(point: DVec3, c: f64, kk: f64) -> bool {
+    let r2 = point.x * point.x + point.y * point.y;
+    let domain = 1.0 - kk * c * c * r2;
+    if domain < 0.0 {
+        return false;
+    }
+    let sag = c * r2 / (1.0 + domain.sqrt());
+    (point.z - sag).abs() <= 1e-9 * (1.0 + point.z.abs())
+}
+
 /// Vertex-branch root of c(x²+y²+(1+k)z²) − 2z = 0 along p + t d.
 ///
 /// With A t² + 2B′ t + C = 0 the two roots are t₁ = C / q and t₂ = q / A, q = −(B′ + sign(B′)√(B′² − AC)),
@@ -95,20 +108,7 @@ fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<f64, IntersectFailur
     if q == 0.0 {
         return Err(IntersectFailure::Missed);
     }
-    // On the vertex branch the sag formula holds; otherwise the line only meets the other sheet / half.
-    let on_branch = |t: f64| -> bool {
-        if !t.is_finite() {
-            return false;
-        }
-        let point = p + d * t;
-        let r2 = point.x * point.x + point.y * point.y;
-        let domain = 1.0 - kk * c * c * r2;
-        if domain < 0.0 {
-            return false;
-        }
-        let sag = c * r2 / (1.0 + domain.sqrt());
-        (point.z - sag).abs() <= 1e-9 * (1.0 + point.z.abs())
-    };
+    let on_branch = |t: f64| t.is_finite() && on_conic_vertex_branch(p + d * t, c, kk);
     let t1 = cc / q;
     if on_branch(t1) {
         return Ok(t1);

@@ -25,6 +25,7 @@
 //! // From inside the glass going back toward −z, the same surface is met from behind.
 //! assert!(lens.first_hit(DVec3::new(3.0, 0.0, 2.0), -DVec3::Z, 0.0, f64::INFINITY).is_some());
 //! ```
+use super::intersect::on_conic_vertex_branch;
 use super::{Aperture, SurfaceShape};
 use glam::DVec3;
 
@@ -302,19 +303,7 @@ fn conic_roots(c: f64, k: f64, p: DVec3, d: DVec3) -> (Option<f64>, Option<f64>)
     let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
     let b = c * (p.x * d.x + p.y * d.y + kk * p.z * d.z) - d.z;
     let cc = c * (p.x * p.x + p.y * p.y + kk * p.z * p.z) - 2.0 * p.z;
-    let on_branch = |t: f64| -> Option<f64> {
-        if !t.is_finite() {
-            return None;
-        }
-        let q = p + d * t;
-        let r2 = q.x * q.x + q.y * q.y;
-        let domain = 1.0 - kk * c * c * r2;
-        if domain < 0.0 {
-            return None;
-        }
-        let sag = c * r2 / (1.0 + domain.sqrt());
-        ((q.z - sag).abs() <= 1e-9 * (1.0 + q.z.abs())).then_some(t)
-    };
+    let on_branch = |t: f64| -> Option<f64> { (t.is_finite() && on_conic_vertex_branch(p + d * t, c, kk)).then_some(t) };
     if a == 0.0 {
         // Linear: 2 b t + cc = 0.
         return (if b != 0.0 { on_branch(-cc / (2.0 * b)) } else { None }, None);
