@@ -118,18 +118,8 @@ fn render_rays_per_pixel_meet_the_tolerance_as_a_standard_error() {
                 p.footprints
                     .iter()
                     .map(|f| {
-                        let (mut s, mut x, mut y) = (0.0, 0.0, 0.0);
-                        let mut k = f.start as usize;
-                        for i in 0..f.h as usize {
-                            for j in 0..f.w as usize {
-                                let wgt = p.weights[k] as f64;
-                                s += wgt;
-                                x += wgt * (f.x0 as usize + j) as f64;
-                                y += wgt * (f.y0 as usize + i) as f64;
-                                k += 1;
-                            }
-                        }
-                        (f.pixel, x / s * 10.0, y / s * 10.0) // µm (10 µm pixels)
+                        let (x, y) = p.centroid_px(f).expect("a footprint carries weight");
+                        (f.pixel, x * 10.0, y * 10.0) // µm (10 µm pixels)
                     })
                     .collect::<Vec<_>>()
             })

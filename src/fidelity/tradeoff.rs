@@ -112,28 +112,7 @@ fn render_setup(size: usize, rays: usize, wavelengths: &[f64]) -> Result<RenderS
 
 /// Footprint centroids (detector px, column/row) per (plane, scene pixel).
 fn centroids(transport: &[PlaneTransport]) -> Vec<std::collections::HashMap<u32, (f64, f64)>> {
-    transport
-        .iter()
-        .map(|t| {
-            t.footprints
-                .iter()
-                .filter_map(|f| {
-                    let (mut s, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
-                    let mut k = f.start as usize;
-                    for r in 0..f.h as usize {
-                        for c in 0..f.w as usize {
-                            let wgt = t.weights[k] as f64;
-                            s += wgt;
-                            sx += wgt * (f.x0 as usize + c) as f64;
-                            sy += wgt * (f.y0 as usize + r) as f64;
-                            k += 1;
-                        }
-                    }
-                    (s > 0.0).then(|| (f.pixel, (sx / s, sy / s)))
-                })
-                .collect()
-        })
-        .collect()
+    transport.iter().map(|t| t.footprints.iter().filter_map(|f| t.centroid_px(f).map(|c| (f.pixel, c))).collect()).collect()
 }
 
 /// Centroid displacement (µm) between two transports, pixel by pixel (fixed order: planes, then pixels

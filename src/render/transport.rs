@@ -103,6 +103,22 @@ impl PlaneTransport {
         self.footprints.capacity() * std::mem::size_of::<Footprint>() + self.weights.capacity() * 4
     }
 
+    /// Weighted centre of footprint `f`'s deposit (detector pixels: column, row), `None` if it carries no weight.
+    pub fn centroid_px(&self, f: &Footprint) -> Option<(f64, f64)> {
+        let (mut s, mut sx, mut sy) = (0.0f64, 0.0f64, 0.0f64);
+        let mut k = f.start as usize;
+        for r in 0..f.h as usize {
+            for c in 0..f.w as usize {
+                let wgt = self.weights[k] as f64;
+                s += wgt;
+                sx += wgt * (f.x0 as usize + c) as f64;
+                sy += wgt * (f.y0 as usize + r) as f64;
+                k += 1;
+            }
+        }
+        (s > 0.0).then(|| (sx / s, sy / s))
+    }
+
     /// Add Σ value(pixel)·footprint(pixel) to `image` (detector-sized, row-major), in footprint order.
     pub fn apply(&self, values: &[f32], image: &mut [f32], detector_width: usize) {
         for f in &self.footprints {

@@ -372,10 +372,9 @@ impl EmbreeTracer {
                     match out {
                         Some(out_d) => {
                             if let Some(log) = log {
-                                // The incoming direction, as for every record (the image surface's media are
-                                // the sequential path's: medium s − 1 before it, s after it).
+                                // The incoming direction, as for every record.
                                 let s = *surface as u32;
-                                log.push(HitRecord { first_surface: s, last_surface: s, point: p, direction: d, medium_in: s - 1, medium_out: s, kind: HitKind::Detector });
+                                log.push(HitRecord { first_surface: s, last_surface: s, point: p, direction: d, medium_in: *front_medium as u32, medium_out: *back_medium as u32, kind: HitKind::Detector });
                             }
                             w.out_p = p;
                             w.out_d = out_d;
