@@ -17,6 +17,9 @@
 //!    rays land against Zemax's Grid Distortion chief rays for the same field and wavelength.
 //!
 //! `cargo run --release --example zemax_pupil_hypotheses -- shift|field|models|vignetting`
+#[path = "../tests/common/mod.rs"]
+mod common;
+
 use diffcassi::prelude::*;
 use diffcassi::rays::{object_ray, stop_crossing};
 use diffcassi::spec::{Driver, RayAiming};
@@ -26,16 +29,15 @@ use glam::DVec3;
 const WAVELENGTHS: [f64; 3] = [450.0, 520.0, 650.0];
 const FIELDS: [[f64; 2]; 4] = [[0.0, 0.0], [2.5, 0.0], [0.0, 2.5], [2.5, 2.5]];
 
+/// Zemax's SP ray-position export for wavelength `wi` and field `fi`: rows of (px, py, x_mm, y_mm).
 fn rows(wi: usize, fi: usize) -> Vec<[f64; 4]> {
-    let path = format!("../shared/reference/zemax/SP_single_prism_aligned/ray_positions_wavelength_W{wi}_field_F{fi}.csv");
-    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}"));
-    text.lines()
-        .filter(|l| !l.starts_with('#') && !l.starts_with("px"))
-        .map(|l| {
-            let v: Vec<f64> = l.split(',').map(|v| v.parse().unwrap()).collect();
-            [v[0], v[1], v[2], v[3]]
-        })
-        .collect()
+    common::zemax_rays(&reference_file(&format!("ray_positions_wavelength_W{wi}_field_F{fi}.csv"))).1
+}
+
+/// A file of Zemax's SP exports in `../shared/reference`.
+fn reference_file(name: &str) -> std::path::PathBuf {
+    let dir = common::reference_dir().expect("this example needs ../shared/reference");
+    dir.join("zemax/SP_single_prism_aligned").join(name)
 }
 
 /// Image point of the ray from `origin` with direction `d`.
@@ -234,16 +236,6 @@ fn vignetting(sys: &SequentialSystem) {
 
 /// Zemax's Grid Distortion chief-ray image position (absolute: real + ref) of field point `f` at `w` nm.
 fn grid_chief(w: f64, f: [f64; 2]) -> Option<[f64; 2]> {
-    let path = format!("../shared/reference/zemax/SP_single_prism_aligned/grid_distorsions_{}nm.csv", w as i32);
-    let text = std::fs::read_to_string(&path).ok()?;
-    let reference: Vec<f64> = text
-        .lines()
-        .find(|l| l.contains("Xref_mm="))?
-        .split(|c: char| c == '=' || c.is_whitespace())
-        .filter_map(|t| t.parse().ok())
-        .collect();
-    text.lines().filter(|l| !l.starts_with('#') && !l.starts_with('i')).find_map(|l| {
-        let v: Vec<f64> = l.split(',').map(|t| t.parse().unwrap_or(f64::NAN)).collect();
-        ((v[2] - f[0]).abs() < 1e-6 && (v[3] - f[1]).abs() < 1e-6).then(|| [v[7] + reference[0], v[8] + reference[1]])
-    })
+    let (_, grid) = common::zemax_grid(&reference_file(&format!("grid_distorsions_{}nm.csv", w as i32)));
+    grid.iter().find(|r| (r[0] - f[0]).abs() < 1e-6 && (r[1] - f[1]).abs() < 1e-6).map(|r| [r[2], r[3]])
 }
