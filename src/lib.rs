@@ -31,6 +31,7 @@ pub mod optim;
 pub mod plot;
 pub mod presets;
 pub mod rays;
+pub mod recon;
 pub mod render;
 pub mod scene;
 pub mod spec;
