@@ -1,4 +1,4 @@
-//! Diagnosis behind the open SP off-axis spot finding (README, "Accuracy against Zemax"): for every field
+//! Diagnosis behind the open SP off-axis spot finding (docs/accuracy.md): for every field
 //! and wavelength of a Zemax spot export, fit the affine map (shift ox, oy; scale 1+sx, 1+sy) of Zemax's
 //! normalised pupil coordinates onto ours that best reproduces Zemax's image points (Gauss–Newton on every
 //! 7th ray). A correct pupil model gives ox = oy = sx = sy = 0 at the export's quantisation (0.029 µm RMS).

@@ -1,4 +1,4 @@
-//! Evidence behind the open SP off-axis spot finding (README, "Accuracy against Zemax" → "What the SP spot
+//! Evidence behind the open SP off-axis spot finding (docs/accuracy.md, "What the SP spot
 //! export's pupil is not"). For every field and wavelength of Zemax's SP spot export (needs
 //! `../shared/reference`):
 //!

@@ -17,7 +17,7 @@ cargo test --release --doc
 # The analytic tracer alone must keep building without Embree (`--no-default-features`).
 cargo check --release --no-default-features --lib --bins --tests
 
-# The C++ API (cpp/, README "Using diffcassi from C++"): the bridge crate's Rust tests, then the CMake build
+# The C++ API (cpp/, docs/cpp.md): the bridge crate's Rust tests, then the CMake build
 # of the static and shared libraries, the example, the C++ tests and the bench, all run by ctest.
 cargo test --release -p diffcassi-cpp
 export CTEST_OUTPUT_ON_FAILURE=1 CMAKE_BUILD_PARALLEL_LEVEL="${CMAKE_BUILD_PARALLEL_LEVEL:-2}"

@@ -1,5 +1,5 @@
 //! The external referee: diffcassi against Zemax OpticStudio's own exports for SP and AP
-//! (`../shared/reference/zemax`). Prints the accuracy table quoted in the README.
+//! (`../shared/reference/zemax`). Prints the accuracy table quoted in docs/accuracy.md.
 mod common;
 use diffcassi::analysis::{grid_distortion, spot_diagram, spot_stats};
 use diffcassi::prelude::*;
@@ -124,7 +124,7 @@ fn spots_match_zemax() {
 /// Grid Distortion (whose chief rays we match to 0.01 µm): its chief ray of F4 lands up to 2.3 µm from the
 /// grid's. Per-field vignetting factors (a pupil decentre, VDX/VDY, with no compression) fitted at 520 nm
 /// reproduce the export at 450 and 650 nm to ≤ 0.13 µm per ray, so the export carries field data that the
-/// prescription we were given does not hold (README, "What the SP spot export's pupil is (and is not)";
+/// prescription we were given does not hold (docs/accuracy.md, "What the SP spot export's pupil is (and is not)";
 /// `cargo run --release --example zemax_pupil_hypotheses -- vignetting`). Shipping fitted factors would be
 /// fitting the referee, so this stays ignored until the SP field data are available.
 #[test]

@@ -281,7 +281,7 @@ pub const CSV_COLUMNS: [&str; 17] = [
 pub fn write_csv(path: &Path, system: &SequentialSystem, opts: &TradeoffOptions, rows: &[TradeoffRow]) -> Result<()> {
     let mut w = CsvWriter::new(path, &CSV_COLUMNS)?;
     w.comment(&format!(
-        "diffcassi {} bench tradeoff: system {}, {} wavelengths 450-650 nm, {} mode; errors are image-plane distances (um) to the analytic f64 reference; render errors are splat-centroid displacements (see README)",
+        "diffcassi {} bench tradeoff: system {}, {} wavelengths 450-650 nm, {} mode; errors are image-plane distances (um) to the analytic f64 reference; render errors are splat-centroid displacements (see docs/tradeoff.md)",
         env!("CARGO_PKG_VERSION"),
         system.name(),
         opts.wavelengths,
@@ -313,7 +313,7 @@ pub fn write_csv(path: &Path, system: &SequentialSystem, opts: &TradeoffOptions,
     Ok(())
 }
 
-/// A Markdown table of the rows (for the terminal and the README).
+/// A Markdown table of the rows (for the terminal and docs/tradeoff.md).
 pub fn markdown(rows: &[TradeoffRow]) -> String {
     let mut s = String::from("| workload | backend | options | max error µm | RMS error µm | mismatches | M rays/s | M items/s | vs analytic | set-up s |\n|---|---|---|---|---|---|---|---|---|---|\n");
     for r in rows {
