@@ -12,7 +12,11 @@
 //! [`solver::SolverConfig`]; TV denoising by Chambolle's projection in [`tv`]. See docs/reconstruction.md.
 pub mod exact;
 pub mod layout;
+pub mod mapping;
 pub mod operator;
+pub mod shift;
 
 pub use exact::ExactOperator;
+pub use mapping::{MappingInterpolation, MappingOperator};
+pub use shift::ShiftOperator;
 pub use operator::{CubeShape, ImageShape, Operator};
