@@ -95,6 +95,24 @@ pub fn transport_support(t: &PlaneTransport) -> Rect {
 /// [`AiryKernel::convolve`] (zero terms skipped), so the result is bit-identical to it. Returns the
 /// rectangle of `out` written.
 pub fn convolve_support(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usize, height: usize, support: Rect) -> Rect {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        return unsafe { convolve_support_avx2(k, src, out, width, height, support) };
+    }
+    convolve_support_body(k, src, out, width, height, support)
+}
+
+/// [`convolve_support`] compiled for AVX2 (8-lane saxpys). Multiplies and adds stay separate (no FMA
+/// contraction), so every lane computes the same IEEE operations as the scalar/SSE2 build: bit-identical.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn convolve_support_avx2(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usize, height: usize, support: Rect) -> Rect {
+    convolve_support_body(k, src, out, width, height, support)
+}
+
+#[inline(always)]
+fn convolve_support_body(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usize, height: usize, support: Rect) -> Rect {
     if support.is_empty() {
         return support;
     }
@@ -139,6 +157,23 @@ pub fn convolve_support(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usi
 /// zero-padded convolution, evaluated only on `target`): the correlation with the kernel, terms outside the
 /// image dropped.
 pub fn correlate_support(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usize, height: usize, target: Rect) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        return unsafe { correlate_support_avx2(k, y, out, width, height, target) };
+    }
+    correlate_support_body(k, y, out, width, height, target)
+}
+
+/// [`correlate_support`] compiled for AVX2 (no FMA: bit-identical to the portable build).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn correlate_support_avx2(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usize, height: usize, target: Rect) {
+    correlate_support_body(k, y, out, width, height, target)
+}
+
+#[inline(always)]
+fn correlate_support_body(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usize, height: usize, target: Rect) {
     if target.is_empty() {
         return;
     }
