@@ -4,7 +4,8 @@
 //!
 //! `cargo bench --bench recon` (criterion for Φ, Φᵀ, TV; then a one-shot 100-iteration reconstruction whose
 //! per-iteration times give "one GAP-TV iteration"; a table is printed at the end). `DIFFCASSI_BENCH_SIZE`
-//! overrides the scene size (default 512) and `DIFFCASSI_BENCH_ITERATIONS` the iteration count (100). Under
+//! overrides the scene size (default 512), `DIFFCASSI_BENCH_RAYS` the rays per pixel (20) and
+//! `DIFFCASSI_BENCH_ITERATIONS` the iteration count (100). Under
 //! `cargo test --all-targets` (no `--bench` flag) it runs once at 32×32 with 3 iterations, to stay cheap.
 use criterion::Criterion;
 use diffcassi::analysis::linspace;
@@ -24,7 +25,7 @@ fn main() {
     let bench_mode = std::env::args().any(|a| a == "--bench");
     let size = env_usize("DIFFCASSI_BENCH_SIZE").unwrap_or(if bench_mode { 512 } else { 32 });
     let iterations = env_usize("DIFFCASSI_BENCH_ITERATIONS").unwrap_or(if bench_mode { 100 } else { 3 });
-    let rays = if bench_mode { 20 } else { 2 };
+    let rays = env_usize("DIFFCASSI_BENCH_RAYS").unwrap_or(if bench_mode { 20 } else { 2 });
     let system = SequentialSystem::build(&presets::spec("sp").unwrap()).unwrap();
     let tracer = AnalyticTracer::default();
     let mut cfg = RenderConfig::paper(size);
