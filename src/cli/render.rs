@@ -3,13 +3,14 @@
 //! ```text
 //! diffcassi render --preset sp                                   # synthetic demo scene → out/render-sp
 //! diffcassi render --preset ap --scene scene.exr --out out/ap     # a KAIST-style EXR
+//! diffcassi render --preset sp --noise shot,read,adc --full-well-e 20000 --read-noise-e 2 --adc-bits 12
 //! diffcassi render-dataset --scenes scenes/ --preset sp --out out/sp-dataset
 //! diffcassi bench-render --preset sp                              # the paper-scale timing table
 //! ```
 use super::args::{BackendArgs, SystemArgs};
 use super::commands::{load_system, parse_wavelengths};
 use crate::error::{Error, Result};
-use crate::render::{dataset, output, AiryConfig, Mask, PlaneTransport, RenderConfig, Renderer, Sampling, SpectralSampling};
+use crate::render::{dataset, output, AiryConfig, Mask, NoiseConfig, PlaneTransport, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
 use crate::tracer::AnalyticTracer;
 use clap::Args;
@@ -84,6 +85,86 @@ pub struct RenderArgs {
     /// Output folder (default out/render-<system>).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    #[command(flatten)]
+    pub noise: NoiseArgs,
+}
+
+/// Sensor noise on the finished acquisition (off unless `--noise` is given); see `docs/noise.md`.
+#[derive(Args, Debug, Clone, Default)]
+pub struct NoiseArgs {
+    /// Sensor noise sources, a comma list of shot (Poisson photon noise), read (Gaussian read noise), adc
+    /// (quantisation); `none` or absent: no noise.
+    #[arg(long)]
+    pub noise: Option<String>,
+    /// Full-well capacity (electrons): the ADC's full scale and, without --electrons-per-unit, the electrons of
+    /// the clean acquisition's brightest pixel [default: 20000].
+    #[arg(long = "full-well-e")]
+    pub full_well_e: Option<f64>,
+    /// Exposure: photo-electrons per acquisition unit (instead of mapping the peak to the full well).
+    #[arg(long = "electrons-per-unit")]
+    pub electrons_per_unit: Option<f64>,
+    /// Read noise σ (electrons) [default with `read`: 2].
+    #[arg(long = "read-noise-e")]
+    pub read_noise_e: Option<f64>,
+    /// ADC bit depth [default with `adc`: 12].
+    #[arg(long = "adc-bits")]
+    pub adc_bits: Option<u32>,
+    /// Seed of the noise's random numbers [default: 0].
+    #[arg(long = "noise-seed")]
+    pub noise_seed: Option<u64>,
+}
+
+impl NoiseArgs {
+    /// The noise the options describe (`None`: off). Options of a source that is not selected are errors.
+    pub fn config(&self) -> Result<Option<NoiseConfig>> {
+        let list = self.noise.as_deref().unwrap_or("none").trim();
+        let mut cfg = NoiseConfig::default();
+        let (mut read, mut adc) = (false, false);
+        if list != "none" {
+            for item in list.split(',').map(str::trim) {
+                match item {
+                    "shot" => cfg.shot = true,
+                    "read" => read = true,
+                    "adc" => adc = true,
+                    _ => return Err(Error::invalid(format!("--noise `{item}`: use a comma list of shot, read, adc (or none)"))),
+                }
+            }
+        }
+        let on = cfg.shot || read || adc;
+        let given = [
+            ("--full-well-e", self.full_well_e.is_some()),
+            ("--electrons-per-unit", self.electrons_per_unit.is_some()),
+            ("--noise-seed", self.noise_seed.is_some()),
+        ];
+        if let Some((name, _)) = given.iter().find(|g| g.1 && !on) {
+            return Err(Error::invalid(format!("{name} needs --noise (shot, read and/or adc)")));
+        }
+        if self.read_noise_e.is_some() && !read {
+            return Err(Error::invalid("--read-noise-e needs `read` in --noise"));
+        }
+        if self.adc_bits.is_some() && !adc {
+            return Err(Error::invalid("--adc-bits needs `adc` in --noise"));
+        }
+        if !on {
+            return Ok(None);
+        }
+        if let Some(f) = self.full_well_e {
+            cfg.full_well_e = f;
+        }
+        cfg.electrons_per_unit = self.electrons_per_unit;
+        if read {
+            cfg.read_noise_e = self.read_noise_e.unwrap_or(2.0);
+            if cfg.read_noise_e == 0.0 {
+                return Err(Error::invalid("--read-noise-e 0 with `read` in --noise: drop `read` instead"));
+            }
+        }
+        if adc {
+            cfg.adc_bits = Some(self.adc_bits.unwrap_or(12));
+        }
+        cfg.seed = self.noise_seed.unwrap_or(0);
+        cfg.validate().map_err(|e| Error::invalid(format!("--noise: {e}")))?;
+        Ok(Some(cfg))
+    }
 }
 
 #[derive(Args, Debug)]
@@ -99,6 +180,10 @@ pub struct RenderDatasetArgs {
     /// Keep the traced light transport in memory up to this size (GB); beyond it, trace per scene.
     #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
     pub transport_memory_gb: f64,
+    /// Sensor noise; each scene's noise seed is `--noise-seed` + a hash of the scene's name (FNV-1a), so a
+    /// scene's noise does not depend on which other scenes are in the folder.
+    #[command(flatten)]
+    pub noise: NoiseArgs,
 }
 
 #[derive(Args, Debug)]
@@ -224,6 +309,7 @@ fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Acquisition, 
 
 pub fn render(a: RenderArgs) -> Result<()> {
     let t0 = Instant::now();
+    let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = config_from(&a.common)?;
     let (tracer, rays) = render_tracer(&a.common, &system, &cfg, &mask)?;
@@ -239,9 +325,11 @@ pub fn render(a: RenderArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
     let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
     let pb = progress_bar(renderer.rays_per_render(), &format!("render {}", system.name()));
-    let acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
+    let mut acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
     pb.finish_and_clear();
-    let json = write_all(&out, &renderer, &acq, &desc, t0, serde_json::json!({}), !a.common.no_mapping)?;
+    // Sensor noise on the acquisition (the per-band images of --cube stay clean).
+    let noise_json = apply_noise(noise.as_ref(), &mut acq, a.noise.noise.as_deref().unwrap_or(""), false)?;
+    let json = write_all(&out, &renderer, &acq, &desc, t0, serde_json::json!({"noise": noise_json}), !a.common.no_mapping)?;
     println!(
         "{}: {}×{} scene, {} planes × {} rays: {} rays in {:.2} s ({:.2} M rays/s, {} threads), detector {}×{}, transmission {:.4}; total {:.2} s → {}",
         system.name(),
@@ -262,8 +350,29 @@ pub fn render(a: RenderArgs) -> Result<()> {
     Ok(())
 }
 
+/// 64-bit FNV-1a hash of a scene name (the per-scene noise seed offset).
+fn name_hash(name: &str) -> u64 {
+    name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
+}
+
+/// Apply the sensor noise (if any) to an acquisition and describe it for render.json.
+fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::Acquisition, sources: &str, quiet: bool) -> Result<serde_json::Value> {
+    let Some(nc) = noise else { return Ok(serde_json::Value::Null) };
+    let report = nc.apply(&mut acq.image)?;
+    if !quiet {
+        println!(
+            "sensor noise ({sources}): {:.4} e⁻ per unit, peak {:.0} e⁻{}",
+            report.electrons_per_unit,
+            report.peak_electrons,
+            report.adc_gain_e_per_dn.map(|g| format!(", ADC {:.4} e⁻/DN, {} saturated pixels", g, report.saturated_pixels)).unwrap_or_default()
+        );
+    }
+    Ok(nc.to_json(&report))
+}
+
 pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     let t0 = Instant::now();
+    let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = config_from(&a.common)?;
     let scenes = dataset::find_scenes(&a.scenes)?;
@@ -309,7 +418,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
         let ts = Instant::now();
         pb_scenes.set_message(s.name.clone());
         let (scene, desc) = load_fitted(&s.path, &a.common)?;
-        let acq = match &cached {
+        let mut acq = match &cached {
             Some(t) => renderer.render_cached(&scene, t, a.common.cube, &|_| {})?,
             None => {
                 let pb = progress_bar(renderer.rays_per_render(), &s.name);
@@ -318,7 +427,9 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
                 acq
             }
         };
-        let extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64()});
+        let scene_noise = noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() });
+        let noise_json = apply_noise(scene_noise.as_ref(), &mut acq, "", true)?;
+        let extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json});
         write_all(&a.out.join(&s.name), &renderer, &acq, &desc, ts, extra, false)?;
         pb_scenes.println(format!("{}: {:.2} s", s.name, ts.elapsed().as_secs_f64()));
         pb_scenes.inc(1);

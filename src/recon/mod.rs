@@ -15,6 +15,7 @@ pub mod exact;
 pub mod gap;
 pub mod layout;
 pub mod mapping;
+pub mod metrics;
 pub mod operator;
 pub mod shift;
 pub mod solver;
@@ -22,7 +23,8 @@ pub mod tv;
 
 pub use exact::ExactOperator;
 pub use mapping::{MappingInterpolation, MappingOperator};
-pub use shift::ShiftOperator;
+pub use metrics::{evaluate, Evaluation, Metrics};
 pub use solver::{reconstruct, Reconstruction, SolverConfig, SolverKind};
 pub use tv::TvCoupling;
 pub use operator::{CubeShape, ImageShape, Operator};
+pub use shift::ShiftOperator;
