@@ -40,6 +40,8 @@ pub enum Command {
     Render(super::render::RenderArgs),
     /// Render every scene of a folder, tracing the system's light transport once.
     RenderDataset(super::render::RenderDatasetArgs),
+    /// Write a test scene (RGB photograph uplifted to spectra, ColorChecker chart, synthetic) as NPY/EXR + sRGB preview.
+    MakeScene(super::make_scene::MakeSceneArgs),
     /// Time the paper-scale acquisition and dataset mode, printed as a table.
     BenchRender(super::render::BenchRenderArgs),
     /// Optical design by exact derivatives (`design amici`: the paper's double-Amici prism).

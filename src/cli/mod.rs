@@ -7,12 +7,14 @@
 //! diffcassi mapping --preset msp --npy mapping.npy
 //! diffcassi report --preset sp --out out/sp
 //! diffcassi render --preset sp                  # the main job: out/render-sp
+//! diffcassi make-scene --rgb data/scenes/coffee.png --out out/coffee.npy
 //! ```
 mod args;
 mod commands;
 pub mod render;
 mod design;
 mod fidelity;
+mod make_scene;
 
 pub use args::*;
 /// Text forms shared with other front ends (the C++ API parses pupil patterns the same way).
