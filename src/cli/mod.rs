@@ -8,11 +8,13 @@
 //! diffcassi report --preset sp --out out/sp
 //! diffcassi render --preset sp                  # the main job: out/render-sp
 //! diffcassi make-scene --rgb data/scenes/coffee.png --out out/coffee.npy
+//! diffcassi evaluate --truth scene.npy --estimate cube.npy --json metrics.json
 //! ```
 mod args;
 mod commands;
 pub mod render;
 mod design;
+pub mod evaluate;
 mod fidelity;
 mod make_scene;
 

@@ -4,6 +4,8 @@
 //! adjoint Φᵀ) → **solver** (iterative, sees only an [`operator::Operator`]) → **metrics** (the field's
 //! RMSE / PSNR / SSIM / SAM). The operator/solver split follows solver libraries: an operator knows apply
 //! and adjoint; a solver knows only operators.
+pub mod metrics;
 pub mod operator;
 
+pub use metrics::{evaluate, Evaluation, Metrics};
 pub use operator::{CubeShape, ImageShape, Operator};
