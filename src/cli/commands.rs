@@ -26,6 +26,8 @@ pub(super) fn run(command: Command) -> Result<()> {
         Command::RenderDataset(a) => super::render::render_dataset(a),
         Command::BenchRender(a) => super::render::bench_render(a),
         Command::MakeScene(a) => super::make_scene::make_scene(a),
+        Command::Reconstruct(a) => super::reconstruct::reconstruct(a),
+        Command::Study(a) => super::study::study(a),
         Command::Evaluate(a) => super::evaluate::evaluate(a),
         Command::Design(a) => super::design::design_cmd(a),
         Command::Calibrate(a) => super::design::calibrate_cmd(a),
