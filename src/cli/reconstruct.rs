@@ -17,7 +17,7 @@
 //! D65, [`crate::scene::colorimetry`]) and `reconstruct.json` (settings, per-iteration residual, seconds).
 use super::args::BackendArgs;
 use crate::error::{Error, Result};
-use crate::recon::{ExactOperator, MappingInterpolation, MappingOperator, Operator, ShiftOperator};
+use crate::recon::{ExactOperator, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind};
 use crate::render::{AiryConfig, Mask, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{colorimetry, save_exr, save_npy, SpectralCube};
 use crate::system::SequentialSystem;
@@ -294,19 +294,50 @@ pub struct SolveSettings {
     pub tv_weight: Option<f64>,
 }
 
-/// The result of a solve: the cube (C order), the per-iteration data residual ‖y − Φx‖ / ‖y‖, the solver's
-/// resolved settings (JSON) and seconds.
+/// The result of a solve: the cube (C order), the per-iteration relative data residual, the solver's
+/// resolved settings and record (JSON) and seconds.
 pub struct Solved {
     pub cube: Vec<f32>,
+    /// Per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂ ([`crate::recon::Reconstruction::residuals`]).
     pub residuals: Vec<f64>,
+    pub final_residual: f64,
     pub settings: Value,
     pub seconds: f64,
 }
 
-/// Run the solver on `op` and the acquisition `y`, with an iteration progress bar when `show_progress`.
+/// The solver configuration the settings describe (the solver's defaults, overridden by iterations / TV weight).
+pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
+    let kind: SolverKind = s.solver.parse().map_err(|_| Error::invalid(format!("--solver `{}`: use gap-tv or admm-tv", s.solver)))?;
+    let mut cfg = SolverConfig::for_solver(kind);
+    if let Some(n) = s.iterations {
+        cfg.iterations = n;
+    }
+    if let Some(w) = s.tv_weight {
+        cfg.tv_weight = w as f32;
+    }
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+/// Run the solver on `op` and the acquisition `y` (starting from 0), with an iteration progress bar when
+/// `show_progress`.
 pub fn solve(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_progress: bool) -> Result<Solved> {
-    let _ = (op, y, s, show_progress, iteration_bar(0, ""));
-    Err(Error::invalid("solvers are not merged yet"))
+    let cfg = solver_config(s)?;
+    let pb = if show_progress { iteration_bar(cfg.iterations as u64, &format!("{} / {}", op.name(), cfg.solver.name())) } else { ProgressBar::hidden() };
+    let rec = crate::recon::reconstruct(op, y, None, &cfg, &|_, r| {
+        pb.set_message(format!("{} / {}: residual {r:.3e}", op.name(), cfg.solver.name()));
+        pb.inc(1);
+    })?;
+    pb.finish_and_clear();
+    if let Some(i) = rec.cube.iter().position(|v| !v.is_finite()) {
+        return Err(Error::invalid(format!("the solver produced a non-finite value at index {i}: not written")));
+    }
+    let settings = serde_json::to_value(&rec.config).unwrap_or(Value::Null);
+    let mut record = serde_json::to_value(&rec).unwrap_or(Value::Null);
+    if let Some(o) = record.as_object_mut() {
+        o.remove("residuals");
+    }
+    Ok(Solved { residuals: rec.residuals.clone(), final_residual: rec.final_residual, settings: serde_json::json!({"config": settings, "record": record}), seconds: rec.seconds, cube: rec.cube })
 }
 
 pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
@@ -356,7 +387,8 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
         "shape": {"height": c.height, "width": c.width, "bands": c.bands},
         "bands_nm": record.bands_nm(),
         "residual": solved.residuals,
-        "residual_definition": "‖y − Φx_k‖₂ / ‖y‖₂ after iteration k",
+        "residual_definition": "per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂, v_k the point iteration k projects (GAP: θ_{k−1})",
+        "final_residual": solved.final_residual,
         "threads": rayon::current_num_threads(),
         "seconds_operator": seconds_operator,
         "seconds_solve": solved.seconds,
@@ -372,7 +404,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
         c.width,
         c.bands,
         solved.residuals.len(),
-        solved.residuals.last().copied().unwrap_or(f64::NAN),
+        solved.final_residual,
         seconds_operator,
         solved.seconds,
         t0.elapsed().as_secs_f64(),
@@ -381,10 +413,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     Ok(())
 }
 
-/// Reject an unknown solver before any work.
+/// Reject an unknown solver or bad solver settings before any work.
 pub fn check_solver(s: &SolveSettings) -> Result<()> {
-    match s.solver.as_str() {
-        "gap-tv" | "admm-tv" => Ok(()),
-        other => Err(Error::invalid(format!("--solver `{other}`: use gap-tv or admm-tv"))),
-    }
+    solver_config(s).map(|_| ())
 }

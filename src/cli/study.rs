@@ -192,6 +192,21 @@ fn render_config(a: &StudyArgs, bands: &[f64]) -> Result<RenderConfig> {
     Ok(cfg)
 }
 
+/// A canonical text of a configuration, floats at 10 significant digits: serde_json's default float parsing
+/// is not bit-exact on round trip, so configurations read back are compared through this key.
+fn config_key(v: &Value) -> String {
+    match v {
+        Value::Number(n) if n.is_f64() => format!("{:.9e}", n.as_f64().unwrap_or(f64::NAN)),
+        Value::Array(a) => format!("[{}]", a.iter().map(config_key).collect::<Vec<_>>().join(",")),
+        Value::Object(o) => format!("{{{}}}", o.iter().map(|(k, v)| format!("{k}:{}", config_key(v))).collect::<Vec<_>>().join(",")),
+        other => other.to_string(),
+    }
+}
+
+fn same_config(stored: Option<&Value>, config: &Value) -> bool {
+    stored.is_some_and(|s| config_key(s) == config_key(config))
+}
+
 fn read_json(path: &Path) -> Option<Value> {
     serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
 }
@@ -318,6 +333,16 @@ pub fn study(a: StudyArgs) -> Result<()> {
         "operator_seed": op_seed, "mask": mask.description, "mask_open_pixels": mask.values.iter().filter(|&&v| v > 0.0).count(),
         "airy_diameter_px": a.airy_diameter_px, "iterations": a.iterations, "tv_weight": a.tv_weight, "tracer": tracer.name(),
     });
+    // Renders depend on everything but the operator seed and the solver settings.
+    let render_key = {
+        let mut r = config.clone();
+        if let Some(o) = r.as_object_mut() {
+            for k in ["operator_seed", "iterations", "tv_weight"] {
+                o.remove(k);
+            }
+        }
+        r
+    };
     std::fs::create_dir_all(&a.out).map_err(|e| Error::File { path: a.out.display().to_string(), message: format!("cannot create: {e}") })?;
     mask.save_png(&a.out.join("mask.png"))?;
     println!(
@@ -332,16 +357,16 @@ pub fn study(a: StudyArgs) -> Result<()> {
         // ---- renders ----
         let dirs: Vec<PathBuf> = scenes.iter().map(|s| a.out.join("renders").join(preset).join(&s.name)).collect();
         let todo: Vec<usize> = (0..scenes.len())
-            .filter(|&i| !(output::outputs_complete(&dirs[i]) && read_json(&dirs[i].join("render.json")).and_then(|j| j.get("study_config").cloned()) == Some(config.clone())))
+            .filter(|&i| !(output::outputs_complete(&dirs[i]) && same_config(read_json(&dirs[i].join("render.json")).as_ref().and_then(|j| j.get("study_config")), &render_key)))
             .collect();
         let tr = Instant::now();
-        render_scenes(system, &tracer, &cfg, &mask, &scenes, &dirs, &todo, &config, budget)?;
+        render_scenes(system, &tracer, &cfg, &mask, &scenes, &dirs, &todo, &render_key, budget)?;
         if !todo.is_empty() {
             println!("{}: rendered {} scenes in {:.1} s", system_label(preset), todo.len(), tr.elapsed().as_secs_f64());
         }
         // ---- cells ----
         let cell_path = |s: &str, op: OperatorKind, solver: &str| a.out.join("cells").join(preset).join(s).join(format!("{}-{solver}.json", op.name()));
-        let done = |p: &Path| read_json(p).is_some_and(|j| j.get("config") == Some(&config) && cell_from_json(&j).is_some());
+        let done = |p: &Path| read_json(p).is_some_and(|j| same_config(j.get("config"), &config) && cell_from_json(&j).is_some());
         let record = RenderRecord::load(&dirs[0])?; // all scenes of a system share system, configuration and mask
         for &op_kind in &operators {
             let pending: Vec<(usize, &String)> = scenes.iter().enumerate().flat_map(|(i, s)| solvers.iter().map(move |v| (i, v)).filter(move |(_, v)| !done(&cell_path(&s.name, op_kind, v)))).collect();
@@ -361,12 +386,12 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
                 let ev = evaluate(&scene.cube, &estimate)?;
-                let final_residual = solved.residuals.last().copied().unwrap_or(f64::NAN);
+                let final_residual = solved.final_residual;
                 let rjson = json!({
                     "from": dirs[i].display().to_string(), "system": system.name(), "operator": op_kind.name(), "operator_seed": op_seed,
                     "acquisition_seed": a.seed, "oracle": op_seed == a.seed, "tracer": tracer.name(), "solver": solver, "solver_settings": solved.settings,
                     "shape": {"height": c.height, "width": c.width, "bands": c.bands}, "bands_nm": bands, "residual": solved.residuals,
-                    "residual_definition": "‖y − Φx_k‖₂ / ‖y‖₂ after iteration k", "threads": rayon::current_num_threads(),
+                    "residual_definition": "per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂, v_k the point iteration k projects (GAP: θ_{k−1})", "final_residual": final_residual, "threads": rayon::current_num_threads(),
                     "seconds_operator": seconds_operator, "seconds_solve": solved.seconds, "seconds": solved.seconds,
                 });
                 let rdir = a.out.join("recon").join(preset).join(&scene.name).join(format!("{}-{solver}", op_kind.name()));
