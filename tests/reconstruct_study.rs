@@ -143,3 +143,103 @@ fn study_bad_input_is_a_clear_error() {
     assert!(stderr(&o).contains("m.png") && stderr(&o).contains("8×8"), "{}", stderr(&o));
     assert!(!out.exists());
 }
+
+fn read_json(p: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+}
+
+#[test]
+fn reconstruct_writes_every_output_for_every_operator() {
+    let d = tempfile::tempdir().unwrap();
+    let r = d.path().join("render");
+    tiny_render(&r, "sp", None);
+    for op in ["exact", "mapping", "mapping-nearest", "shift"] {
+        let out = d.path().join(format!("rec-{op}"));
+        let o = run(&["reconstruct", "--from", s(&r), "--operator", op, "--iterations", "3", "--out", s(&out)]);
+        assert!(o.status.success(), "{op}: {}", stderr(&o));
+        let (shape, data) = diffcassi::io::read_npy_f64(out.join("cube.npy")).unwrap();
+        assert_eq!(shape, vec![16, 16, 8], "{op}");
+        assert!(data.iter().all(|v| v.is_finite()));
+        assert!(std::fs::read(out.join("cube.npy")).unwrap().windows(5).any(|w| w == b"'<f4'"), "float32 NPY");
+        for f in ["cube.exr", "rgb.png", "cube_wavelengths_nm.npy"] {
+            assert!(out.join(f).is_file(), "{op}: {f}");
+        }
+        let j = read_json(&out.join("reconstruct.json"));
+        assert!(j["seconds"].as_f64().unwrap() > 0.0);
+        assert_eq!(j["residual"].as_array().unwrap().len(), 3);
+        assert_eq!(j["operator"], op);
+        assert_eq!(j["operator_seed"], 1, "default: acquisition seed + 1");
+        assert_eq!(j["oracle"], false);
+        let cube = diffcassi::scene::load_scene(&out.join("cube.npy"), None).unwrap();
+        assert_eq!(cube.wavelengths_nm.len(), 8);
+    }
+    // The oracle, and a rerun replacing the previous result in place.
+    let out = d.path().join("rec-exact");
+    let o = run(&["reconstruct", "--from", s(&r), "--operator-seed", "same", "--iterations", "2", "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let j = read_json(&out.join("reconstruct.json"));
+    assert_eq!((j["operator_seed"].as_u64(), j["oracle"].as_bool()), (Some(0), Some(true)));
+    assert_eq!(j["residual"].as_array().unwrap().len(), 2);
+    assert!(std::fs::read_dir(d.path()).unwrap().flatten().all(|e| !e.file_name().to_string_lossy().starts_with('.')), "no temporary folders left");
+}
+
+fn mtimes(dir: &Path) -> Vec<(PathBuf, std::time::SystemTime)> {
+    let mut v = Vec::new();
+    for e in std::fs::read_dir(dir).unwrap().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            v.extend(mtimes(&p));
+        } else {
+            v.push((p.clone(), e.metadata().unwrap().modified().unwrap()));
+        }
+    }
+    v.sort();
+    v
+}
+
+#[test]
+fn tiny_study_writes_tables_and_resumes() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("study");
+    let args = ["study", "--synthetic", "2", "--scene-size", "24", "--presets", "ap,sp", "--bands", "450:650:8", "--planes", "8", "--rays", "2", "--iterations", "3", "--out", s(&out)];
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("12 cells computed, 0 already done"), "{}", String::from_utf8_lossy(&o.stdout));
+    let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    for c in ["scene", "system", "operator", "solver", "psnr_db", "psnr_band_db", "ssim", "sam_rad", "sam_deg", "rmse", "seconds_solve"] {
+        assert!(header.contains(&c), "column {c}");
+    }
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 2 * 2 * 3);
+    let psnr = header.iter().position(|h| *h == "psnr_db").unwrap();
+    assert!(rows.iter().all(|r| r[psnr].parse::<f64>().unwrap().is_finite()));
+    let md = std::fs::read_to_string(out.join("study.md")).unwrap();
+    assert!(md.contains("| metric | operator | AP | SP |"), "{md}");
+    for op in ["exact", "mapping", "shift"] {
+        assert!(md.contains(&format!("| PSNR (dB) | {op} |")), "{md}");
+    }
+    assert!(md.contains("Ablation"));
+    assert_eq!(diffcassi::plot::png_dimensions(out.join("study_psnr.png")).unwrap(), diffcassi::plot::BAR_PLOT_SIZE);
+    // Every render folder is a valid `reconstruct --from` input.
+    assert!(out.join("renders/sp/synthetic01/render.json").is_file());
+    // Resume: nothing is recomputed, no cell or render file touched.
+    let cells_before = mtimes(&out.join("cells"));
+    let renders_before = mtimes(&out.join("renders"));
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("0 cells computed, 12 already done"), "{}", String::from_utf8_lossy(&o.stdout));
+    assert_eq!(mtimes(&out.join("cells")), cells_before);
+    assert_eq!(mtimes(&out.join("renders")), renders_before);
+    // A missing cell is recomputed alone; a changed solver setting recomputes the cells but not the renders.
+    std::fs::remove_file(out.join("cells/sp/synthetic00/shift-gap-tv.json")).unwrap();
+    let o = run(&args);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("1 cells computed, 11 already done"), "{}", String::from_utf8_lossy(&o.stdout));
+    let mut changed = args.to_vec();
+    let k = changed.iter().position(|a| *a == "3").unwrap();
+    changed[k] = "4";
+    let o = run(&changed);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("12 cells computed, 0 already done"), "{}", String::from_utf8_lossy(&o.stdout));
+    assert_eq!(mtimes(&out.join("renders")), renders_before);
+}
