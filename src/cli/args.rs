@@ -40,6 +40,12 @@ pub enum Command {
     Render(super::render::RenderArgs),
     /// Render every scene of a folder, tracing the system's light transport once.
     RenderDataset(super::render::RenderDatasetArgs),
+    /// Reconstruct the cube from a render folder's acquisition (operator exact/mapping/shift, solver GAP-TV/ADMM-TV).
+    Reconstruct(super::reconstruct::ReconstructArgs),
+    /// The paper's four-system study: render scenes through every system, reconstruct with every operator, evaluate.
+    Study(super::study::StudyArgs),
+    /// Write a test scene (RGB photograph uplifted to spectra, ColorChecker chart, synthetic) as NPY/EXR + sRGB preview.
+    MakeScene(super::make_scene::MakeSceneArgs),
     /// Time the paper-scale acquisition and dataset mode, printed as a table.
     BenchRender(super::render::BenchRenderArgs),
     /// Quality metrics of an estimated cube against the truth: RMSE, PSNR (paper and MST), SSIM, SAM.

@@ -7,6 +7,9 @@
 //! diffcassi mapping --preset msp --npy mapping.npy
 //! diffcassi report --preset sp --out out/sp
 //! diffcassi render --preset sp                  # the main job: out/render-sp
+//! diffcassi make-scene --rgb data/scenes/coffee.png --out out/coffee.npy
+//! diffcassi reconstruct --from out/render-sp --operator exact --out out/recon-sp
+//! diffcassi study --presets ap,sp,map,msp --operators exact,mapping,shift --scenes data/scenes --scene-size 128 --out out/study
 //! diffcassi evaluate --truth scene.npy --estimate cube.npy --json metrics.json
 //! ```
 mod args;
@@ -15,6 +18,9 @@ pub mod render;
 mod design;
 pub mod evaluate;
 mod fidelity;
+mod make_scene;
+pub mod reconstruct;
+pub mod study;
 
 pub use args::*;
 /// Text forms shared with other front ends (the C++ API parses pupil patterns the same way).

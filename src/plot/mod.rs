@@ -9,6 +9,7 @@
 //! | [`distortion_map`] | paraxial grid + magnified arrows to the real positions, coloured by \|Δ\| | [`DISTORTION_MAP_SIZE`] |
 //! | [`dispersion_curve`] | detector x and y vs wavelength, spread in µm | [`DISPERSION_CURVE_SIZE`] |
 //! | [`line_plot`] | generic x/y line series with legend | [`LINE_PLOT_SIZE`] |
+//! | [`grouped_bars`] | grouped bars (mean) with ± whiskers | [`BAR_PLOT_SIZE`] |
 //!
 //! Common behaviour:
 //!
@@ -39,6 +40,7 @@
 //! # }
 //! ```
 
+pub mod bars;
 pub mod colors;
 pub mod dispersion;
 pub mod distortion;
@@ -54,6 +56,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
+pub use bars::{grouped_bars, BarSeries, BAR_PLOT_SIZE};
 pub use colors::wavelength_to_rgb;
 pub use dispersion::{dispersion_curve, DISPERSION_CURVE_SIZE};
 pub use distortion::{distortion_map, DistortionPoint, DISTORTION_MAP_SIZE};

@@ -14,8 +14,8 @@ pub struct DatasetScene {
     pub path: PathBuf,
 }
 
-/// Scenes of `dir`, sorted by name: `.exr` files, `.npy` cubes (not their `*_wavelengths_nm.npy` lists) and
-/// sub-folders holding `.png` files.
+/// Scenes of `dir`, sorted by name: `.exr` files, `.npy` cubes (not their `*_wavelengths_nm.npy` lists), RGB
+/// `.png` photographs (uplifted to spectra) and sub-folders holding `.png` files (one per band, CAVE-style).
 pub fn find_scenes(dir: &Path) -> Result<Vec<DatasetScene>> {
     let entries = std::fs::read_dir(dir).map_err(|e| Error::File { path: dir.display().to_string(), message: format!("cannot list the scenes folder: {e}") })?;
     let mut out = Vec::new();
@@ -29,6 +29,7 @@ pub fn find_scenes(dir: &Path) -> Result<Vec<DatasetScene>> {
             match ext.as_deref() {
                 Some("exr") => true,
                 Some("npy") => !stem.ends_with("_wavelengths_nm") && !stem.ends_with("_wavelengths"),
+                Some("png") => true, // an RGB photograph, uplifted to spectra (crate::scene::natural)
                 _ => false,
             }
         };

@@ -40,8 +40,10 @@ pub fn wavelength_from_name(name: &str) -> Option<f64> {
     found
 }
 
-/// Load a scene from a `.exr` file, a `.npy` file or a folder of PNGs. `wavelengths_nm` overrides the
-/// wavelengths found in the files (its length must match the number of bands).
+/// Load a scene from a `.exr` file, a `.npy` file, a folder of PNGs, or one RGB `.png` photograph (uplifted to
+/// reflectance spectra, [`super::natural`]). `wavelengths_nm` overrides the wavelengths found in the files (its
+/// length must match the number of bands); for an RGB photograph it gives the wavelengths to evaluate (default
+/// 28 bands 450–650 nm).
 pub fn load_scene(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<SpectralCube> {
     if path.is_dir() {
         return load_png_stack(path, wavelengths_nm);
@@ -52,7 +54,8 @@ pub fn load_scene(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<Spectra
     match path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() {
         Some("exr") => load_exr(path, wavelengths_nm),
         Some("npy") => load_npy(path, wavelengths_nm),
-        _ => Err(file_err(path, "unknown scene format: give a .exr file, a .npy cube (H, W, B) or a folder of per-band PNGs")),
+        Some("png") => super::natural::load_rgb_scene(path, wavelengths_nm),
+        _ => Err(file_err(path, "unknown scene format: give a .exr file, a .npy cube (H, W, B), an RGB .png photograph (uplifted to spectra) or a folder of per-band PNGs")),
     }
 }
 
