@@ -38,8 +38,10 @@ pub enum Command {
     ExportSpec(ExportArgs),
     /// Render a coded acquisition of a hyperspectral scene (default: the synthetic demo scene).
     Render(super::render::RenderArgs),
-    /// Render every scene of a folder, tracing the system's light transport once.
-    RenderDataset(super::render::RenderDatasetArgs),
+    /// Render every scene of a folder (or one shard of it), tracing the system's light transport once.
+    RenderDataset(super::dataset::RenderDatasetArgs),
+    /// Which scenes of a render-dataset output are done, missing or corrupt (exit 1 unless all done).
+    DatasetStatus(super::dataset::DatasetStatusArgs),
     /// Time the paper-scale acquisition and dataset mode, printed as a table.
     BenchRender(super::render::BenchRenderArgs),
     /// Optical design by exact derivatives (`design amici`: the paper's double-Amici prism).

@@ -1,15 +1,15 @@
-//! `render`, `render-dataset` and `bench-render`: coded acquisitions of hyperspectral scenes.
+//! `render` and `bench-render`: coded acquisitions of hyperspectral scenes (`render-dataset` is in
+//! [`super::dataset`], which uses the helpers here).
 //!
 //! ```text
 //! diffcassi render --preset sp                                   # synthetic demo scene → out/render-sp
 //! diffcassi render --preset ap --scene scene.exr --out out/ap     # a KAIST-style EXR
-//! diffcassi render-dataset --scenes scenes/ --preset sp --out out/sp-dataset
 //! diffcassi bench-render --preset sp                              # the paper-scale timing table
 //! ```
 use super::args::{BackendArgs, SystemArgs};
 use super::commands::{load_system, parse_wavelengths};
 use crate::error::{Error, Result};
-use crate::render::{dataset, output, AiryConfig, Mask, PlaneTransport, RenderConfig, Renderer, Sampling, SpectralSampling};
+use crate::render::{output, AiryConfig, Mask, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
 use crate::tracer::AnalyticTracer;
 use clap::Args;
@@ -87,21 +87,6 @@ pub struct RenderArgs {
 }
 
 #[derive(Args, Debug)]
-pub struct RenderDatasetArgs {
-    #[command(flatten)]
-    pub common: RenderCommon,
-    /// Folder of scenes (.exr, .npy, PNG sub-folders).
-    #[arg(long)]
-    pub scenes: PathBuf,
-    /// Output folder: one sub-folder per scene.
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Keep the traced light transport in memory up to this size (GB); beyond it, trace per scene.
-    #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
-    pub transport_memory_gb: f64,
-}
-
-#[derive(Args, Debug)]
 pub struct BenchRenderArgs {
     #[arg(long, default_value = "sp")]
     pub preset: String,
@@ -127,7 +112,7 @@ fn parse_sampling(s: &str) -> Result<Sampling> {
     }
 }
 
-fn parse_fit(s: &str) -> Result<Fit> {
+pub(super) fn parse_fit(s: &str) -> Result<Fit> {
     match s {
         "crop" => Ok(Fit::Crop),
         "resize" => Ok(Fit::Resize),
@@ -169,17 +154,17 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
 }
 
 /// The tracer and rays per pixel: as given, or chosen by `--tolerance-um`.
-fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
+pub(super) fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
     let open = mask.values.iter().filter(|&&v| v > 0.0).count();
     super::fidelity::render_for(&a.backend, a.rays, system, cfg, open)
 }
 
-fn scene_wavelengths(a: &RenderCommon) -> Result<Option<Vec<f64>>> {
+pub(super) fn scene_wavelengths(a: &RenderCommon) -> Result<Option<Vec<f64>>> {
     a.scene_wavelengths.as_deref().map(parse_wavelengths).transpose()
 }
 
 /// Load and fit a scene file; returns the cube and its JSON description.
-fn load_fitted(path: &Path, a: &RenderCommon) -> Result<(SpectralCube, serde_json::Value)> {
+pub(super) fn load_fitted(path: &Path, a: &RenderCommon) -> Result<(SpectralCube, serde_json::Value)> {
     let ws = scene_wavelengths(a)?;
     let raw = load_scene(path, ws.as_deref())?;
     let fit = parse_fit(&a.fit)?;
@@ -188,7 +173,7 @@ fn load_fitted(path: &Path, a: &RenderCommon) -> Result<(SpectralCube, serde_jso
     Ok((cube, desc))
 }
 
-fn progress_bar(total: u64, what: &str) -> ProgressBar {
+pub(super) fn progress_bar(total: u64, what: &str) -> ProgressBar {
     let pb = ProgressBar::new(total);
     pb.set_style(
         ProgressStyle::with_template("{msg} [{elapsed_precise}] {wide_bar} {human_pos}/{human_len} rays, {per_sec}, ETA {eta}")
@@ -207,7 +192,7 @@ fn default_out(a: &RenderCommon) -> PathBuf {
     PathBuf::from("out").join(format!("render-{name}"))
 }
 
-fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Acquisition, scene: &serde_json::Value, t0: Instant, extra: serde_json::Value, mapping: bool) -> Result<serde_json::Value> {
+pub(super) fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Acquisition, scene: &serde_json::Value, t0: Instant, extra: serde_json::Value, mapping: bool) -> Result<serde_json::Value> {
     std::fs::create_dir_all(dir).map_err(|e| Error::File { path: dir.display().to_string(), message: format!("cannot create: {e}") })?;
     let scale = output::write_images(dir, renderer, acq)?;
     renderer.mask.save_png(&dir.join("mask.png"))?;
@@ -259,72 +244,6 @@ pub fn render(a: RenderArgs) -> Result<()> {
         t0.elapsed().as_secs_f64(),
         out.display()
     );
-    Ok(())
-}
-
-pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
-    let t0 = Instant::now();
-    let system = load_system(&a.common.system)?;
-    let (mut cfg, mask) = config_from(&a.common)?;
-    let scenes = dataset::find_scenes(&a.scenes)?;
-    if scenes.is_empty() {
-        return Err(Error::File { path: a.scenes.display().to_string(), message: "no scenes (.exr, .npy, or folders of .png)".into() });
-    }
-    let todo: Vec<&dataset::DatasetScene> = scenes.iter().filter(|s| !output::outputs_complete(&a.out.join(&s.name))).collect();
-    println!("{} scenes in {}, {} to render ({} complete, skipped)", scenes.len(), a.scenes.display(), todo.len(), scenes.len() - todo.len());
-    if todo.is_empty() {
-        return Ok(());
-    }
-    let (tracer, rays) = render_tracer(&a.common, &system, &cfg, &mask)?;
-    cfg.rays_per_pixel = rays;
-    let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
-    if !a.common.no_mapping && !a.out.join("mapping.npy").is_file() {
-        output::write_mapping(&a.out, &renderer)?;
-    }
-    renderer.mask.save_png(&a.out.join("mask.png"))?;
-    // Estimate the transport's memory from its middle plane.
-    let planes = renderer.config.spectral.planes();
-    let t_trace = Instant::now();
-    let probe = renderer.trace_plane(planes / 2)?;
-    let estimate = probe.bytes() as f64 * planes as f64 * 1.25;
-    let budget = a.transport_memory_gb * 1e9;
-    let cached: Option<Vec<PlaneTransport>> = if todo.len() > 1 && estimate <= budget {
-        let pb = progress_bar(renderer.rays_per_render(), "tracing the light transport");
-        let t = renderer.trace_all(&|k| pb.inc(k))?;
-        pb.finish_and_clear();
-        let bytes: usize = t.iter().map(|p| p.bytes()).sum();
-        println!("light transport traced in {:.2} s ({:.2} GB), reused for {} scenes", t_trace.elapsed().as_secs_f64(), bytes as f64 / 1e9, todo.len());
-        Some(t)
-    } else {
-        if todo.len() > 1 {
-            println!("light transport would need ~{:.2} GB > {:.2} GB: tracing each scene", estimate / 1e9, a.transport_memory_gb);
-        }
-        None
-    };
-    let transport_seconds = t_trace.elapsed().as_secs_f64();
-    drop(probe);
-    let pb_scenes = ProgressBar::new(todo.len() as u64);
-    pb_scenes.set_style(ProgressStyle::with_template("scenes [{elapsed_precise}] {wide_bar} {pos}/{len}, {per_sec}, ETA {eta} {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()));
-    for s in &todo {
-        let ts = Instant::now();
-        pb_scenes.set_message(s.name.clone());
-        let (scene, desc) = load_fitted(&s.path, &a.common)?;
-        let acq = match &cached {
-            Some(t) => renderer.render_cached(&scene, t, a.common.cube, &|_| {})?,
-            None => {
-                let pb = progress_bar(renderer.rays_per_render(), &s.name);
-                let acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
-                pb.finish_and_clear();
-                acq
-            }
-        };
-        let extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64()});
-        write_all(&a.out.join(&s.name), &renderer, &acq, &desc, ts, extra, false)?;
-        pb_scenes.println(format!("{}: {:.2} s", s.name, ts.elapsed().as_secs_f64()));
-        pb_scenes.inc(1);
-    }
-    pb_scenes.finish_and_clear();
-    println!("rendered {} scenes into {} in {:.2} s", todo.len(), a.out.display(), t0.elapsed().as_secs_f64());
     Ok(())
 }
 
