@@ -31,6 +31,7 @@ APT_PACKAGES=(
     # services; the test does not use them (its daemons run in a private network namespace with their own
     # key, socket and configuration in a temporary folder).
     munge
+    jq # JSON in tests/slurm/run.sh (the tasks' JSON Lines, render.json without timings)
     slurm-client
     slurmctld
     slurmd
