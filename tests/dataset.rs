@@ -157,8 +157,8 @@ fn another_configuration_is_refused_or_rerendered() {
     assert!(e.contains("seed: recorded 0 ≠ requested 5") && e.contains("--on-mismatch rerender") && e.contains("s00"), "{e}");
     assert!(o.stdout.is_empty());
     assert_eq!(snapshot(&out), before, "refusal wrote something");
-    // Rays and mask changes are mismatches too.
-    for extra in [&["--rays", "3"][..], &["--mask-seed", "1"][..], &["--cube"][..]] {
+    // Sampling, mask and output-set changes are mismatches too.
+    for extra in [&["--sampling", "independent"][..], &["--opening", "0.4"][..], &["--mask-seed", "1"][..], &["--cube"][..]] {
         let o = render_dataset(&sc, &out, extra);
         assert_eq!(o.status.code(), Some(1), "{extra:?}");
     }
