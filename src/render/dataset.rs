@@ -405,7 +405,14 @@ pub fn read_manifest(out: &Path) -> Result<(Value, Vec<String>)> {
 // ---------------------------------------------------------------- all-or-nothing scene folders
 
 fn host_name() -> String {
-    std::fs::read_to_string("/proc/sys/kernel/hostname").map(|s| s.trim().to_string()).ok().filter(|s| !s.is_empty() && !s.contains(['/', '.'])).unwrap_or_else(|| "host".into())
+    // The short name (before any dot), so the temporary names keep a single `.` structure.
+    let name = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+    let short = name.trim().split('.').next().unwrap_or("").to_string();
+    if short.is_empty() || short.contains('/') {
+        "host".into()
+    } else {
+        short
+    }
 }
 
 /// A fresh, empty temporary folder for scene `name` beside its final folder: `out/.NAME.partial-HOST-PID`.
