@@ -199,7 +199,7 @@ task_state() { # task_state JOBID TASK
 # a task can be killed in flight.
 JOB1=$(DIFFCASSI_DEBUG_SCENE_DELAY_MS=1500 submit run1 --array=0-$((SHARDS - 1)))
 victim=
-for _ in $(seq 300); do
+for _ in $(seq 600); do
     partial=$(find "$T/out" -maxdepth 1 -name '.*.partial-*' -print -quit 2>/dev/null || true)
     if [[ -n "$partial" ]]; then
         scene=$(basename "$partial")
@@ -210,7 +210,7 @@ for _ in $(seq 300); do
     fi
     sleep 0.05
 done
-[[ -n "$victim" ]] || fail "no scene in flight seen within 15 s"
+[[ -n "$victim" ]] || fail "no scene in flight seen within 30 s"
 scancel "${JOB1}_${victim}"
 echo "Slurm test: job $JOB1 submitted ($SHARDS tasks); killed task $victim while scene $scene was in flight"
 wait_job "$JOB1" 60
