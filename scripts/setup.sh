@@ -26,6 +26,15 @@ APT_PACKAGES=(
     build-essential
     cmake # the C++ API's CMake package and tests (cpp/)
     g++   # C++17 compiler for the C++ API (also in build-essential; listed because cpp/ needs it)
+    # The real Slurm test (tests/slurm/run.sh, docs/slurm.md): a one-node cluster started by the test itself
+    # (Debian 12 ships Slurm 22.05). With systemd, installing these enables the distribution's munge/slurm
+    # services; the test does not use them (its daemons run in a private network namespace with their own
+    # key, socket and configuration in a temporary folder).
+    munge
+    jq # JSON in tests/slurm/run.sh (the tasks' JSON Lines, render.json without timings)
+    slurm-client
+    slurmctld
+    slurmd
 )
 case "${DIFFCASSI_EMBREE:-install}" in
     install) WANT_EMBREE=1 ;;

@@ -14,6 +14,10 @@ fi
 cargo test --release --all-targets
 cargo test --release --doc
 
+# The real Slurm test (docs/slurm.md): a one-node Slurm cluster in a private network namespace renders a job
+# array, one task killed and resubmitted; prints SKIP (exit 0) where it cannot run (not root, no namespaces).
+bash tests/slurm/run.sh
+
 # The analytic tracer alone must keep building without Embree (`--no-default-features`).
 cargo check --release --no-default-features --lib --bins --tests
 

@@ -478,7 +478,10 @@ fn cli_render_dataset_matches_per_scene_renders_and_skips_complete_scenes() {
     args.extend(common);
     let o = run(&args);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(String::from_utf8_lossy(&o.stdout).contains("light transport traced"));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("light transport traced"));
+    // stdout is JSON Lines only: one line per scene.
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout).lines().map(|l| serde_json::from_str(l).unwrap()).collect();
+    assert_eq!(lines.iter().map(|l| (l["scene"].as_str().unwrap(), l["status"].as_str().unwrap())).collect::<Vec<_>>(), [("a", "rendered"), ("b", "rendered")]);
     for s in ["a", "b"] {
         let single = d.path().join(format!("single-{s}"));
         let file = scenes.join(if s == "a" { "a.npy" } else { "b.exr" });
@@ -492,7 +495,8 @@ fn cli_render_dataset_matches_per_scene_renders_and_skips_complete_scenes() {
     // Second run: everything complete, nothing rendered.
     let o = run(&args);
     assert!(o.status.success());
-    assert!(String::from_utf8_lossy(&o.stdout).contains("0 to render (2 complete, skipped)"), "{}", String::from_utf8_lossy(&o.stdout));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("0 to render, 2 complete (skipped)"), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(String::from_utf8_lossy(&o.stdout).matches("\"status\":\"skipped\"").count(), 2);
 }
 
 #[test]

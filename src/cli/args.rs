@@ -38,8 +38,10 @@ pub enum Command {
     ExportSpec(ExportArgs),
     /// Render a coded acquisition of a hyperspectral scene (default: the synthetic demo scene).
     Render(super::render::RenderArgs),
-    /// Render every scene of a folder, tracing the system's light transport once.
-    RenderDataset(super::render::RenderDatasetArgs),
+    /// Render every scene of a folder (or one shard of it), tracing the system's light transport once.
+    RenderDataset(super::dataset::RenderDatasetArgs),
+    /// Which scenes of a render-dataset output are done, missing or corrupt (exit 1 unless all done).
+    DatasetStatus(super::dataset::DatasetStatusArgs),
     /// Reconstruct the cube from a render folder's acquisition (operator exact/mapping/shift, solver GAP-TV/ADMM-TV).
     Reconstruct(super::reconstruct::ReconstructArgs),
     /// The paper's four-system study: render scenes through every system, reconstruct with every operator, evaluate.

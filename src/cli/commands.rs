@@ -11,29 +11,6 @@ use crate::tracer::{AnalyticTracer, RayStatus, Tracer};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-pub(super) fn run(command: Command) -> Result<()> {
-    match command {
-        Command::Info(a) => info(a),
-        Command::Trace(a) => trace(a),
-        Command::Spot(a) => spot(a),
-        Command::Distortion(a) => distortion(a),
-        Command::Dispersion(a) => dispersion(a),
-        Command::Mapping(a) => mapping(a),
-        Command::Report(a) => report(a),
-        Command::Bench(a) => bench(a),
-        Command::ExportSpec(a) => export_spec(a),
-        Command::Render(a) => super::render::render(a),
-        Command::RenderDataset(a) => super::render::render_dataset(a),
-        Command::BenchRender(a) => super::render::bench_render(a),
-        Command::MakeScene(a) => super::make_scene::make_scene(a),
-        Command::Reconstruct(a) => super::reconstruct::reconstruct(a),
-        Command::Study(a) => super::study::study(a),
-        Command::Evaluate(a) => super::evaluate::evaluate(a),
-        Command::Design(a) => super::design::design_cmd(a),
-        Command::Calibrate(a) => super::design::calibrate_cmd(a),
-    }
-}
-
 // ---------------------------------------------------------------- argument parsing
 
 /// The spec named by `--preset` or `--system`.
@@ -272,7 +249,7 @@ pub fn lde_table(system: &SequentialSystem) -> String {
     s
 }
 
-fn info(a: InfoArgs) -> Result<()> {
+pub(super) fn info(a: InfoArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     if a.json {
         println!("{}", crate::spec::to_json(&system.spec)?);
@@ -282,7 +259,7 @@ fn info(a: InfoArgs) -> Result<()> {
     Ok(())
 }
 
-fn export_spec(a: ExportArgs) -> Result<()> {
+pub(super) fn export_spec(a: ExportArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     crate::spec::save_spec_file(&system.spec, &a.out)?;
     say_written(&a.out);
@@ -291,7 +268,7 @@ fn export_spec(a: ExportArgs) -> Result<()> {
 
 // ---------------------------------------------------------------- trace / spot
 
-fn trace(a: SpotArgs) -> Result<()> {
+pub(super) fn trace(a: SpotArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
     let fs = fields(&a.field_mm, &system)?;
@@ -427,7 +404,7 @@ fn write_spot_csv(path: &Path, system: &SequentialSystem, spots: &[SpotDiagram])
     Ok(())
 }
 
-fn spot(a: SpotArgs) -> Result<()> {
+pub(super) fn spot(a: SpotArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
     let fs = fields(&a.field_mm, &system)?;
@@ -491,7 +468,7 @@ fn distortion_plot(path: &Path, system: &SequentialSystem, g: &DistortionGrid, a
     Ok(())
 }
 
-fn distortion(a: DistortionArgs) -> Result<()> {
+pub(super) fn distortion(a: DistortionArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let w = a.wavelength_nm.unwrap_or(system.primary_wavelength_nm());
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &[w], (a.grid * a.grid + 5) as u64)?;
@@ -514,7 +491,7 @@ fn distortion(a: DistortionArgs) -> Result<()> {
     Ok(())
 }
 
-fn dispersion(a: DispersionArgs) -> Result<()> {
+pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let ws = parse_wavelengths(&a.wavelengths_nm)?;
     let field = parse_field(&a.field_mm)?;
@@ -537,7 +514,7 @@ fn dispersion(a: DispersionArgs) -> Result<()> {
     Ok(())
 }
 
-fn mapping(a: MappingArgs) -> Result<()> {
+pub(super) fn mapping(a: MappingArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let ws = parse_wavelengths(&a.wavelengths_nm)?;
     let (tracer, stride) = super::fidelity::mapping_for(&a.backend, &system, a.height, a.width, a.pitch_mm, &ws)?;
@@ -570,7 +547,7 @@ fn mapping(a: MappingArgs) -> Result<()> {
 
 // ---------------------------------------------------------------- report (tables and plots of a preset)
 
-fn report(a: ReportArgs) -> Result<()> {
+pub(super) fn report(a: ReportArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let out = &a.out;
     std::fs::create_dir_all(out).map_err(|e| Error::File { path: out.display().to_string(), message: format!("cannot create: {e}") })?;
@@ -619,7 +596,7 @@ fn report(a: ReportArgs) -> Result<()> {
 
 // ---------------------------------------------------------------- bench
 
-fn bench(a: BenchArgs) -> Result<()> {
+pub(super) fn bench(a: BenchArgs) -> Result<()> {
     if a.mode.as_deref() == Some("tradeoff") {
         return super::fidelity::bench_tradeoff(&a);
     }

@@ -11,9 +11,12 @@
 //! diffcassi reconstruct --from out/render-sp --operator exact --out out/recon-sp
 //! diffcassi study --presets ap,sp,map,msp --operators exact,mapping,shift --scenes data/scenes --scene-size 128 --out out/study
 //! diffcassi evaluate --truth scene.npy --estimate cube.npy --json metrics.json
+//! diffcassi render-dataset --scenes scenes/ --preset sp --out out/ds --shard 0/4
+//! diffcassi dataset-status out/ds --scenes scenes/
 //! ```
 mod args;
 mod commands;
+mod dataset;
 pub mod render;
 mod design;
 pub mod evaluate;
@@ -44,11 +47,38 @@ pub fn main() -> i32 {
             return 1;
         }
     }
-    match commands::run(cli.command) {
+    match run(cli.command) {
         Ok(()) => 0,
         Err(e) => {
             eprintln!("error: {e:#}");
             1
         }
+    }
+}
+
+/// One function per subcommand. The dispatch lives here, in the parent, so that the command modules
+/// (`commands`, `render`, `dataset`, `design`) need not import one another to be reached.
+fn run(command: Command) -> crate::error::Result<()> {
+    use commands::*;
+    match command {
+        Command::Info(a) => info(a),
+        Command::Trace(a) => trace(a),
+        Command::Spot(a) => spot(a),
+        Command::Distortion(a) => distortion(a),
+        Command::Dispersion(a) => dispersion(a),
+        Command::Mapping(a) => mapping(a),
+        Command::Report(a) => report(a),
+        Command::Bench(a) => bench(a),
+        Command::ExportSpec(a) => export_spec(a),
+        Command::Render(a) => render::render(a),
+        Command::RenderDataset(a) => dataset::render_dataset(a),
+        Command::DatasetStatus(a) => dataset::dataset_status(a),
+        Command::BenchRender(a) => render::bench_render(a),
+        Command::MakeScene(a) => make_scene::make_scene(a),
+        Command::Reconstruct(a) => reconstruct::reconstruct(a),
+        Command::Study(a) => study::study(a),
+        Command::Evaluate(a) => evaluate::evaluate(a),
+        Command::Design(a) => design::design_cmd(a),
+        Command::Calibrate(a) => design::calibrate_cmd(a),
     }
 }

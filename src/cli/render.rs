@@ -1,16 +1,16 @@
-//! `render`, `render-dataset` and `bench-render`: coded acquisitions of hyperspectral scenes.
+//! `render` and `bench-render`: coded acquisitions of hyperspectral scenes (`render-dataset` is in
+//! [`super::dataset`], which uses the helpers here).
 //!
 //! ```text
 //! diffcassi render --preset sp                                   # synthetic demo scene → out/render-sp
 //! diffcassi render --preset ap --scene scene.exr --out out/ap     # a KAIST-style EXR
 //! diffcassi render --preset sp --noise shot,read,adc --full-well-e 20000 --read-noise-e 2 --adc-bits 12
-//! diffcassi render-dataset --scenes scenes/ --preset sp --out out/sp-dataset
 //! diffcassi bench-render --preset sp                              # the paper-scale timing table
 //! ```
 use super::args::{BackendArgs, SystemArgs};
 use super::commands::{load_system, parse_wavelengths};
 use crate::error::{Error, Result};
-use crate::render::{dataset, output, AiryConfig, Mask, NoiseConfig, PlaneTransport, RenderConfig, Renderer, Sampling, SpectralSampling};
+use crate::render::{output, AiryConfig, Mask, NoiseConfig, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
 use crate::tracer::AnalyticTracer;
 use clap::Args;
@@ -168,25 +168,6 @@ impl NoiseArgs {
 }
 
 #[derive(Args, Debug)]
-pub struct RenderDatasetArgs {
-    #[command(flatten)]
-    pub common: RenderCommon,
-    /// Folder of scenes (.exr, .npy, PNG sub-folders).
-    #[arg(long)]
-    pub scenes: PathBuf,
-    /// Output folder: one sub-folder per scene.
-    #[arg(long)]
-    pub out: PathBuf,
-    /// Keep the traced light transport in memory up to this size (GB); beyond it, trace per scene.
-    #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
-    pub transport_memory_gb: f64,
-    /// Sensor noise; each scene's noise seed is `--noise-seed` + a hash of the scene's name (FNV-1a), so a
-    /// scene's noise does not depend on which other scenes are in the folder.
-    #[command(flatten)]
-    pub noise: NoiseArgs,
-}
-
-#[derive(Args, Debug)]
 pub struct BenchRenderArgs {
     #[arg(long, default_value = "sp")]
     pub preset: String,
@@ -212,7 +193,7 @@ fn parse_sampling(s: &str) -> Result<Sampling> {
     }
 }
 
-fn parse_fit(s: &str) -> Result<Fit> {
+pub(super) fn parse_fit(s: &str) -> Result<Fit> {
     match s {
         "crop" => Ok(Fit::Crop),
         "resize" => Ok(Fit::Resize),
@@ -254,17 +235,17 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
 }
 
 /// The tracer and rays per pixel: as given, or chosen by `--tolerance-um`.
-fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
+pub(super) fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
     let open = mask.values.iter().filter(|&&v| v > 0.0).count();
     super::fidelity::render_for(&a.backend, a.rays, system, cfg, open)
 }
 
-fn scene_wavelengths(a: &RenderCommon) -> Result<Option<Vec<f64>>> {
+pub(super) fn scene_wavelengths(a: &RenderCommon) -> Result<Option<Vec<f64>>> {
     a.scene_wavelengths.as_deref().map(parse_wavelengths).transpose()
 }
 
 /// Load and fit a scene file; returns the cube and its JSON description.
-fn load_fitted(path: &Path, a: &RenderCommon) -> Result<(SpectralCube, serde_json::Value)> {
+pub(super) fn load_fitted(path: &Path, a: &RenderCommon) -> Result<(SpectralCube, serde_json::Value)> {
     let ws = scene_wavelengths(a)?;
     let raw = load_scene(path, ws.as_deref())?;
     let fit = parse_fit(&a.fit)?;
@@ -273,7 +254,7 @@ fn load_fitted(path: &Path, a: &RenderCommon) -> Result<(SpectralCube, serde_jso
     Ok((cube, desc))
 }
 
-fn progress_bar(total: u64, what: &str) -> ProgressBar {
+pub(super) fn progress_bar(total: u64, what: &str) -> ProgressBar {
     let pb = ProgressBar::new(total);
     pb.set_style(
         ProgressStyle::with_template("{msg} [{elapsed_precise}] {wide_bar} {human_pos}/{human_len} rays, {per_sec}, ETA {eta}")
@@ -292,7 +273,7 @@ fn default_out(a: &RenderCommon) -> PathBuf {
     PathBuf::from("out").join(format!("render-{name}"))
 }
 
-fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Acquisition, scene: &serde_json::Value, t0: Instant, extra: serde_json::Value, mapping: bool) -> Result<serde_json::Value> {
+pub(super) fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Acquisition, scene: &serde_json::Value, t0: Instant, extra: serde_json::Value, mapping: bool) -> Result<serde_json::Value> {
     std::fs::create_dir_all(dir).map_err(|e| Error::File { path: dir.display().to_string(), message: format!("cannot create: {e}") })?;
     let scale = output::write_images(dir, renderer, acq)?;
     renderer.mask.save_png(&dir.join("mask.png"))?;
@@ -351,12 +332,12 @@ pub fn render(a: RenderArgs) -> Result<()> {
 }
 
 /// 64-bit FNV-1a hash of a scene name (the per-scene noise seed offset).
-fn name_hash(name: &str) -> u64 {
+pub(super) fn name_hash(name: &str) -> u64 {
     name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
 }
 
 /// Apply the sensor noise (if any) to an acquisition and describe it for render.json.
-fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::Acquisition, sources: &str, quiet: bool) -> Result<serde_json::Value> {
+pub(super) fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::Acquisition, sources: &str, quiet: bool) -> Result<serde_json::Value> {
     let Some(nc) = noise else { return Ok(serde_json::Value::Null) };
     let report = nc.apply(&mut acq.image)?;
     if !quiet {
@@ -368,75 +349,6 @@ fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::Acquisition
         );
     }
     Ok(nc.to_json(&report))
-}
-
-pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
-    let t0 = Instant::now();
-    let noise = a.noise.config()?;
-    let system = load_system(&a.common.system)?;
-    let (mut cfg, mask) = config_from(&a.common)?;
-    let scenes = dataset::find_scenes(&a.scenes)?;
-    if scenes.is_empty() {
-        return Err(Error::File { path: a.scenes.display().to_string(), message: "no scenes (.exr, .npy, or folders of .png)".into() });
-    }
-    let todo: Vec<&dataset::DatasetScene> = scenes.iter().filter(|s| !output::outputs_complete(&a.out.join(&s.name))).collect();
-    println!("{} scenes in {}, {} to render ({} complete, skipped)", scenes.len(), a.scenes.display(), todo.len(), scenes.len() - todo.len());
-    if todo.is_empty() {
-        return Ok(());
-    }
-    let (tracer, rays) = render_tracer(&a.common, &system, &cfg, &mask)?;
-    cfg.rays_per_pixel = rays;
-    let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
-    if !a.common.no_mapping && !a.out.join("mapping.npy").is_file() {
-        output::write_mapping(&a.out, &renderer)?;
-    }
-    renderer.mask.save_png(&a.out.join("mask.png"))?;
-    // Estimate the transport's memory from its middle plane.
-    let planes = renderer.config.spectral.planes();
-    let t_trace = Instant::now();
-    let probe = renderer.trace_plane(planes / 2)?;
-    let estimate = probe.bytes() as f64 * planes as f64 * 1.25;
-    let budget = a.transport_memory_gb * 1e9;
-    let cached: Option<Vec<PlaneTransport>> = if todo.len() > 1 && estimate <= budget {
-        let pb = progress_bar(renderer.rays_per_render(), "tracing the light transport");
-        let t = renderer.trace_all(&|k| pb.inc(k))?;
-        pb.finish_and_clear();
-        let bytes: usize = t.iter().map(|p| p.bytes()).sum();
-        println!("light transport traced in {:.2} s ({:.2} GB), reused for {} scenes", t_trace.elapsed().as_secs_f64(), bytes as f64 / 1e9, todo.len());
-        Some(t)
-    } else {
-        if todo.len() > 1 {
-            println!("light transport would need ~{:.2} GB > {:.2} GB: tracing each scene", estimate / 1e9, a.transport_memory_gb);
-        }
-        None
-    };
-    let transport_seconds = t_trace.elapsed().as_secs_f64();
-    drop(probe);
-    let pb_scenes = ProgressBar::new(todo.len() as u64);
-    pb_scenes.set_style(ProgressStyle::with_template("scenes [{elapsed_precise}] {wide_bar} {pos}/{len}, {per_sec}, ETA {eta} {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()));
-    for s in &todo {
-        let ts = Instant::now();
-        pb_scenes.set_message(s.name.clone());
-        let (scene, desc) = load_fitted(&s.path, &a.common)?;
-        let mut acq = match &cached {
-            Some(t) => renderer.render_cached(&scene, t, a.common.cube, &|_| {})?,
-            None => {
-                let pb = progress_bar(renderer.rays_per_render(), &s.name);
-                let acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
-                pb.finish_and_clear();
-                acq
-            }
-        };
-        let scene_noise = noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() });
-        let noise_json = apply_noise(scene_noise.as_ref(), &mut acq, "", true)?;
-        let extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json});
-        write_all(&a.out.join(&s.name), &renderer, &acq, &desc, ts, extra, false)?;
-        pb_scenes.println(format!("{}: {:.2} s", s.name, ts.elapsed().as_secs_f64()));
-        pb_scenes.inc(1);
-    }
-    pb_scenes.finish_and_clear();
-    println!("rendered {} scenes into {} in {:.2} s", todo.len(), a.out.display(), t0.elapsed().as_secs_f64());
-    Ok(())
 }
 
 /// CPU seconds (user + system) used by this process so far, from /proc/self/stat (Linux, USER_HZ = 100);

@@ -3,7 +3,38 @@
 //! scene). The transport lives in memory only while it fits a budget; otherwise every scene is traced
 //! afresh. Either way each scene's result is bit-identical to rendering it alone with the same seed
 //! (same footprints, applied in the same order).
+//!
+//! This module holds what `render-dataset` and `dataset-status` share, so that both commands agree on
+//! what "done" means:
+//!
+//! - [`Shard`]: a deterministic partition of the *full* sorted scene list (scene index mod N = K), computed
+//!   before finished scenes are skipped, so a re-run never moves a scene to another shard (Slurm job arrays).
+//! - [`configuration`]: the canonical description of a render request (system, tracer, sizes, bands,
+//!   planes, rays, seeds, mask content, options), free of timings. Every scene's `render.json` records it
+//!   under `"configuration"`, and `dataset.json` at the root of the output folder records the request of
+//!   the last run, beside the scene list and the shared outputs (mask, mapping cube).
+//! - [`check_scene`] / [`check_shared`]: done, missing, damaged (unreadable, truncated or altered outputs:
+//!   every output's size and CRC-32 is recorded when it is written) or rendered with another configuration.
+//! - [`commit_scene`]: a scene's outputs are written into a hidden sibling folder (`.NAME.partial-HOST-PID`)
+//!   and renamed into place at the end, so a killed task leaves either nothing or the complete set.
+//!
+//! ```
+//! use diffcassi::render::dataset::{Shard, DatasetScene};
+//! let scenes: Vec<DatasetScene> = (0..10).map(|i| DatasetScene { name: format!("s{i:02}"), path: format!("s{i:02}.npy").into() }).collect();
+//! // `--shard 1/4`: scenes 1, 5, 9 of the full sorted list.
+//! let shard = Shard::parse("1/4", |_| None).unwrap();
+//! let mine: Vec<&str> = shard.select(&scenes).iter().map(|s| s.name.as_str()).collect();
+//! assert_eq!(mine, ["s01", "s05", "s09"]);
+//! // `--shard slurm` reads the array task's index and count from the environment.
+//! let env = |k: &str| match k { "SLURM_ARRAY_TASK_ID" => Some("2".to_string()), "SLURM_ARRAY_TASK_COUNT" => Some("4".to_string()), _ => None };
+//! assert_eq!(Shard::parse("slurm", env).unwrap(), Shard::new(2, 4).unwrap());
+//! ```
+use super::engine::Renderer;
 use crate::error::{Error, Result};
+use crate::scene::Fit;
+use serde_json::{json, Map, Value};
+use std::fmt;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// A scene found in a dataset folder.
@@ -45,4 +76,702 @@ pub fn find_scenes(dir: &Path) -> Result<Vec<DatasetScene>> {
         }
     }
     Ok(out)
+}
+
+// ---------------------------------------------------------------- shards
+
+/// Shard `index` of `count`: the scenes whose index in the full sorted scene list is ≡ `index` (mod `count`).
+/// Round-robin rather than contiguous blocks, so shards get similar mixes when scene sizes drift with
+/// their names.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shard {
+    pub index: usize,
+    pub count: usize,
+}
+
+/// Environment variables `--shard slurm` reads (set by Slurm in every task of a job array).
+pub const SLURM_TASK_ID: &str = "SLURM_ARRAY_TASK_ID";
+pub const SLURM_TASK_COUNT: &str = "SLURM_ARRAY_TASK_COUNT";
+
+impl Shard {
+    /// Everything in one shard (no `--shard`).
+    pub const WHOLE: Shard = Shard { index: 0, count: 1 };
+
+    pub fn new(index: usize, count: usize) -> std::result::Result<Shard, String> {
+        if count == 0 {
+            return Err("the shard count N must be ≥ 1".into());
+        }
+        if index >= count {
+            return Err(format!("shard index {index} is out of range for {count} shards (K must be in 0..{count}, i.e. 0 ≤ K < N)"));
+        }
+        Ok(Shard { index, count })
+    }
+
+    /// `K/N`, `slurm` (K and N from `SLURM_ARRAY_TASK_ID` / `SLURM_ARRAY_TASK_COUNT`) or `slurm/N` (K from
+    /// Slurm, N explicit: a resubmitted subset of an array, e.g. `--array=2`, reports a count of 1).
+    /// `env` looks up environment variables (`|k| std::env::var(k).ok()` in the command line).
+    pub fn parse(text: &str, env: impl Fn(&str) -> Option<String>) -> std::result::Result<Shard, String> {
+        let usage = "use K/N (0 ≤ K < N), slurm, or slurm/N";
+        let whole = |s: &str, what: &str| -> std::result::Result<usize, String> { s.trim().parse::<usize>().map_err(|_| format!("{what} `{s}` is not a whole number ≥ 0; {usage}")) };
+        let t = text.trim();
+        let (k_text, n_text) = t.split_once('/').map(|(k, n)| (k, Some(n))).unwrap_or((t, None));
+        if k_text.eq_ignore_ascii_case("slurm") {
+            let var = |name: &str| -> std::result::Result<String, String> {
+                env(name).filter(|v| !v.trim().is_empty()).ok_or_else(|| format!("`{text}` needs the Slurm variable {name}, which is not set (not inside a Slurm job array?); outside Slurm {usage}"))
+            };
+            let k: usize = var(SLURM_TASK_ID)?.trim().parse().map_err(|_| format!("{SLURM_TASK_ID}=`{}` is not a whole number", env(SLURM_TASK_ID).unwrap_or_default()))?;
+            let n = match n_text {
+                Some(n) => whole(n, "shard count N")?,
+                None => var(SLURM_TASK_COUNT)?.trim().parse().map_err(|_| format!("{SLURM_TASK_COUNT}=`{}` is not a whole number", env(SLURM_TASK_COUNT).unwrap_or_default()))?,
+            };
+            return Shard::new(k, n).map_err(|e| {
+                let hint = if n_text.is_none() { " (submit the array as --array=0-(N-1); a resubmitted subset of an array must give N: --shard slurm/N)" } else { " (submit the array as --array=0-(N-1))" };
+                format!("{SLURM_TASK_ID}={k}: {e}{hint}")
+            });
+        }
+        let Some(n_text) = n_text else { return Err(format!("`{text}`: {usage}")) };
+        Shard::new(whole(k_text, "shard index K")?, whole(n_text, "shard count N")?)
+    }
+
+    /// Whether the scene at `scene_index` of the full sorted list belongs to this shard.
+    pub fn contains(&self, scene_index: usize) -> bool {
+        scene_index % self.count == self.index
+    }
+
+    /// This shard's scenes, in list order. Depends on the list only, never on which scenes are done.
+    pub fn select<'a>(&self, scenes: &'a [DatasetScene]) -> Vec<&'a DatasetScene> {
+        scenes.iter().enumerate().filter(|(i, _)| self.contains(*i)).map(|(_, s)| s).collect()
+    }
+}
+
+impl fmt::Display for Shard {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+// ---------------------------------------------------------------- configuration
+
+/// Options of a dataset render that are not part of the [`Renderer`] but change its outputs.
+#[derive(Clone, Debug)]
+pub struct DatasetOptions {
+    /// How scenes are brought to the render field.
+    pub fit: Fit,
+    /// Wavelengths (nm) given for the scene files' bands, overriding the files (`--scene-wavelengths`).
+    pub scene_wavelengths_nm: Option<Vec<f64>>,
+    /// Whether each scene folder holds `cube.exr`.
+    pub cube: bool,
+    /// Whether the root holds the mapping cube (`mapping.npy`, `mapping_valid.npy`, `mapping_wavelengths_nm.npy`).
+    pub mapping: bool,
+}
+
+/// Version of the layout of [`configuration`]; a change makes older outputs mismatch (and be re-rendered).
+pub const CONFIGURATION_FORMAT: u32 = 1;
+
+/// The canonical configuration of a dataset render: everything that determines the outputs' bytes and
+/// nothing else (no timings, thread counts, paths of the output folder or diffcassi version). Two renders
+/// with equal configurations and scenes give identical files. The mask is identified by its content
+/// (CRC-32 of its f32 transmissions), not by the file it came from.
+pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
+    let c = &renderer.config;
+    let mask_bytes: Vec<u8> = renderer.mask.values.iter().flat_map(|v| v.to_le_bytes()).collect();
+    json!({
+        "format": CONFIGURATION_FORMAT,
+        "system": renderer.system.name(),
+        "system_spec": serde_json::to_value(&renderer.system.spec).unwrap_or(Value::Null),
+        "tracer": renderer.tracer.name(),
+        "scene_height": c.scene_height,
+        "scene_width": c.scene_width,
+        "scene_pitch_mm": c.scene_pitch_mm,
+        "detector_pitch_mm": c.detector_pitch_mm,
+        "detector_extra_px": c.detector_extra_px,
+        "fit": options.fit,
+        "scene_wavelengths_nm": options.scene_wavelengths_nm,
+        "bands_nm": c.spectral.bands_nm,
+        "planes_nm": c.spectral.planes_nm,
+        "plane_weight": c.spectral.plane_weight,
+        "rays_per_pixel": c.rays_per_pixel,
+        "sampling": c.sampling,
+        "seed": c.seed,
+        "airy": c.airy,
+        "mask": {"height": renderer.mask.height, "width": renderer.mask.width, "description": renderer.mask.description, "values_f32le_crc32": crc32_hex(&mask_bytes)},
+        "cube": options.cube,
+        "mapping": options.mapping,
+    })
+}
+
+/// Human-readable differences between a recorded and a requested configuration (empty when equal).
+pub fn configuration_differences(recorded: &Value, requested: &Value) -> Vec<String> {
+    let (Some(r), Some(q)) = (recorded.as_object(), requested.as_object()) else {
+        return if recorded == requested { vec![] } else { vec!["the configuration is not a JSON object".into()] };
+    };
+    let short = |v: Option<&Value>| -> String {
+        match v {
+            None => "absent".into(),
+            Some(v) => {
+                let s = v.to_string();
+                if s.chars().count() > 60 {
+                    format!("{}…", s.chars().take(57).collect::<String>())
+                } else {
+                    s
+                }
+            }
+        }
+    };
+    let mut keys: Vec<&String> = r.keys().chain(q.keys()).collect();
+    keys.sort();
+    keys.dedup();
+    keys.into_iter().filter(|k| r.get(*k) != q.get(*k)).map(|k| format!("{k}: recorded {} ≠ requested {}", short(r.get(k)), short(q.get(k)))).collect()
+}
+
+// ---------------------------------------------------------------- output records
+
+/// CRC-32 (IEEE) of `bytes` as 8 hex digits.
+pub fn crc32_hex(bytes: &[u8]) -> String {
+    format!("{:08x}", crc32fast::hash(bytes))
+}
+
+fn file_crc32(path: &Path) -> std::io::Result<(u64, String)> {
+    let mut f = std::fs::File::open(path)?;
+    let mut h = crc32fast::Hasher::new();
+    let mut buf = vec![0u8; 1 << 16];
+    let mut n = 0u64;
+    loop {
+        let k = f.read(&mut buf)?;
+        if k == 0 {
+            break;
+        }
+        h.update(&buf[..k]);
+        n += k as u64;
+    }
+    Ok((n, format!("{:08x}", h.finalize())))
+}
+
+/// `{"NAME": {"bytes": N, "crc32": "…"}}` for the files `names` of `dir` (recorded when they are written,
+/// checked by [`verify_records`]).
+pub fn file_records(dir: &Path, names: &[&str]) -> Result<Value> {
+    let mut m = Map::new();
+    for name in names {
+        let p = dir.join(name);
+        let (bytes, crc) = file_crc32(&p).map_err(|e| Error::File { path: p.display().to_string(), message: format!("cannot read back: {e}") })?;
+        m.insert(name.to_string(), json!({"bytes": bytes, "crc32": crc}));
+    }
+    Ok(Value::Object(m))
+}
+
+/// Problems with the files `records` describes: missing, unreadable, truncated (size) or altered (CRC-32).
+pub fn verify_records(dir: &Path, records: &Value) -> Vec<String> {
+    let Some(m) = records.as_object() else { return vec!["the output records are not a JSON object".into()] };
+    let mut problems = Vec::new();
+    for (name, rec) in m {
+        let (want_bytes, want_crc) = (rec["bytes"].as_u64(), rec["crc32"].as_str());
+        let (Some(want_bytes), Some(want_crc)) = (want_bytes, want_crc) else {
+            problems.push(format!("{name}: malformed record {rec}"));
+            continue;
+        };
+        match file_crc32(&dir.join(name)) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => problems.push(format!("{name}: missing")),
+            Err(e) => problems.push(format!("{name}: unreadable ({e})")),
+            Ok((n, _)) if n != want_bytes => problems.push(format!("{name}: {n} bytes, {want_bytes} written (truncated or replaced)")),
+            Ok((_, crc)) if crc != want_crc => problems.push(format!("{name}: CRC-32 {crc}, {want_crc} written (altered)")),
+            Ok(_) => {}
+        }
+    }
+    problems
+}
+
+// ---------------------------------------------------------------- states
+
+/// What a scene folder (or the shared outputs) holds, compared with a requested configuration.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SceneState {
+    /// Complete, intact, rendered with the requested configuration.
+    Done,
+    /// Not rendered (no folder).
+    Missing,
+    /// Present but unreadable, truncated, altered, or incomplete.
+    Damaged(Vec<String>),
+    /// Complete and intact but rendered with another configuration (the differences).
+    Mismatch(Vec<String>),
+}
+
+impl SceneState {
+    /// `done`, `missing` or `corrupt` (damaged or mismatching: `dataset-status`'s words).
+    pub fn word(&self) -> &'static str {
+        match self {
+            SceneState::Done => "done",
+            SceneState::Missing => "missing",
+            SceneState::Damaged(_) | SceneState::Mismatch(_) => "corrupt",
+        }
+    }
+    pub fn problems(&self) -> Vec<String> {
+        match self {
+            SceneState::Done | SceneState::Missing => vec![],
+            SceneState::Damaged(p) => p.clone(),
+            SceneState::Mismatch(d) => d.iter().map(|x| format!("configuration differs: {x}")).collect(),
+        }
+    }
+}
+
+/// Read a JSON sidecar: `Err(problem)` when unreadable or not JSON.
+fn read_json(path: &Path) -> std::result::Result<Value, String> {
+    let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{name}: unreadable ({e})"))?;
+    serde_json::from_str(&text).map_err(|e| format!("{name}: not valid JSON ({e}): truncated or damaged"))
+}
+
+/// Compare a sidecar (`render.json` or `dataset.json`) holding `"configuration"` and an output-records key
+/// with the requested configuration (`None`: only check that the outputs are intact).
+fn check_sidecar(dir: &Path, sidecar: &str, records_key: &str, requested: Option<&Value>) -> SceneState {
+    let path = dir.join(sidecar);
+    if !path.exists() {
+        return SceneState::Damaged(vec![format!("{sidecar}: missing (incomplete output)")]);
+    }
+    let v = match read_json(&path) {
+        Ok(v) => v,
+        Err(p) => return SceneState::Damaged(vec![p]),
+    };
+    let (Some(recorded), Some(records)) = (v.get("configuration"), v.get(records_key)) else {
+        return SceneState::Mismatch(vec![format!("{sidecar} records no configuration or output checksums (written by an older diffcassi or by `render`)")]);
+    };
+    let damaged = verify_records(dir, records);
+    if !damaged.is_empty() {
+        return SceneState::Damaged(damaged);
+    }
+    match requested {
+        Some(q) => {
+            let d = configuration_differences(recorded, q);
+            if d.is_empty() {
+                SceneState::Done
+            } else {
+                SceneState::Mismatch(d)
+            }
+        }
+        None => SceneState::Done,
+    }
+}
+
+/// The state of scene `name` under the output folder `out`.
+pub fn check_scene(out: &Path, name: &str, requested: Option<&Value>) -> SceneState {
+    let dir = out.join(name);
+    match std::fs::symlink_metadata(&dir) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => SceneState::Missing,
+        Err(e) => SceneState::Damaged(vec![format!("{}: unreadable ({e})", dir.display())]),
+        Ok(m) if !m.is_dir() => SceneState::Damaged(vec![format!("{}: not a folder", dir.display())]),
+        Ok(_) => check_sidecar(&dir, "render.json", "outputs", requested),
+    }
+}
+
+/// Name of the root manifest: the request, the scene list and the shared outputs.
+pub const MANIFEST: &str = "dataset.json";
+
+/// The state of the shared outputs (`dataset.json`, `mask.png`, mapping cube) under `out`.
+pub fn check_shared(out: &Path, requested: Option<&Value>) -> SceneState {
+    if !out.join(MANIFEST).exists() {
+        return SceneState::Missing;
+    }
+    check_sidecar(out, MANIFEST, "shared_outputs", requested)
+}
+
+/// The shared outputs' file names for a configuration (`"mapping": true` adds the mapping cube).
+pub fn shared_output_names(configuration: &Value) -> Vec<&'static str> {
+    let mut v = vec!["mask.png"];
+    if configuration["mapping"].as_bool().unwrap_or(false) {
+        v.extend(["mapping.npy", "mapping_valid.npy", "mapping_wavelengths_nm.npy"]);
+    }
+    v
+}
+
+/// The root manifest written after the shared outputs: identical bytes from every shard of one request.
+pub fn manifest(configuration: &Value, scene_names: &[String], shared_records: Value) -> Value {
+    json!({
+        "format": "diffcassi dataset",
+        "configuration": configuration,
+        "scenes": scene_names,
+        "shared_outputs": shared_records,
+    })
+}
+
+/// The configuration and scene list recorded in `out/dataset.json`.
+pub fn read_manifest(out: &Path) -> Result<(Value, Vec<String>)> {
+    let path = out.join(MANIFEST);
+    let v = read_json(&path).map_err(|m| Error::File { path: path.display().to_string(), message: m })?;
+    let names = v["scenes"].as_array().map(|a| a.iter().filter_map(|s| s.as_str().map(String::from)).collect::<Vec<_>>());
+    match (v.get("configuration"), names) {
+        (Some(c), Some(n)) => Ok((c.clone(), n)),
+        _ => Err(Error::File { path: path.display().to_string(), message: "no `configuration` or `scenes`: not written by render-dataset".into() }),
+    }
+}
+
+// ---------------------------------------------------------------- all-or-nothing scene folders
+
+fn host_name() -> String {
+    // The short name (before any dot), so the temporary names keep a single `.` structure.
+    let name = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
+    let short = name.trim().split('.').next().unwrap_or("").to_string();
+    if short.is_empty() || short.contains('/') {
+        "host".into()
+    } else {
+        short
+    }
+}
+
+/// A fresh, empty temporary folder for scene `name` beside its final folder: `out/.NAME.partial-HOST-PID`.
+pub fn partial_dir(out: &Path, name: &str) -> Result<PathBuf> {
+    let p = out.join(format!(".{name}.partial-{}-{}", host_name(), std::process::id()));
+    if p.exists() {
+        std::fs::remove_dir_all(&p).map_err(|e| Error::File { path: p.display().to_string(), message: format!("cannot remove an old temporary folder: {e}") })?;
+    }
+    std::fs::create_dir_all(&p).map_err(|e| Error::File { path: p.display().to_string(), message: format!("cannot create: {e}") })?;
+    Ok(p)
+}
+
+fn is_leftover_of(file_name: &str, scene: Option<&str>) -> bool {
+    let Some(rest) = file_name.strip_prefix('.') else { return false };
+    match scene {
+        Some(s) => rest.strip_prefix(s).is_some_and(|r| r.starts_with(".partial-") || r.starts_with(".old-")),
+        None => rest.contains(".partial-") || rest.contains(".old-") || rest.ends_with(".tmp"),
+    }
+}
+
+/// Temporary folders and files under `out` (and one level below): what a killed or running task leaves
+/// (`.NAME.partial-*`, `.NAME.old-*`, `.FILE.PID.N.tmp`).
+pub fn leftovers(out: &Path) -> Vec<PathBuf> {
+    let mut v = Vec::new();
+    let list = |dir: &Path, v: &mut Vec<PathBuf>, deeper: bool| {
+        if let Ok(rd) = std::fs::read_dir(dir) {
+            for e in rd.flatten() {
+                let name = e.file_name().to_string_lossy().into_owned();
+                if is_leftover_of(&name, None) {
+                    v.push(e.path());
+                } else if deeper && e.path().is_dir() {
+                    if let Ok(rd2) = std::fs::read_dir(e.path()) {
+                        v.extend(rd2.flatten().filter(|f| is_leftover_of(&f.file_name().to_string_lossy(), None)).map(|f| f.path()));
+                    }
+                }
+            }
+        }
+    };
+    list(out, &mut v, true);
+    v.sort();
+    v
+}
+
+/// Remove what earlier (killed) tasks left for scene `name`. Only the shard owning the scene may call it.
+pub fn remove_leftovers(out: &Path, name: &str) -> Result<usize> {
+    let mut n = 0;
+    let Ok(rd) = std::fs::read_dir(out) else { return Ok(0) };
+    for e in rd.flatten() {
+        if is_leftover_of(&e.file_name().to_string_lossy(), Some(name)) {
+            let p = e.path();
+            let r = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+            r.map_err(|e| Error::File { path: p.display().to_string(), message: format!("cannot remove a leftover temporary: {e}") })?;
+            n += 1;
+        }
+    }
+    Ok(n)
+}
+
+/// Move the complete temporary folder `partial` to `out/name`. An existing folder (another configuration,
+/// or damaged) is first renamed aside (`.NAME.old-HOST-PID`) and removed after: a reader sees the old set,
+/// briefly nothing, or the new set, never a mix.
+pub fn commit_scene(partial: &Path, out: &Path, name: &str) -> Result<()> {
+    let dest = out.join(name);
+    let err = |p: &Path, what: &str, e: std::io::Error| Error::File { path: p.display().to_string(), message: format!("{what}: {e}") };
+    // The temporary folder's entries must be on disk before the rename makes them visible.
+    if let Ok(f) = std::fs::File::open(partial) {
+        let _ = f.sync_all();
+    }
+    let old = out.join(format!(".{name}.old-{}-{}", host_name(), std::process::id()));
+    let had_old = std::fs::symlink_metadata(&dest).is_ok();
+    if had_old {
+        std::fs::rename(&dest, &old).map_err(|e| err(&dest, "cannot move the previous output aside", e))?;
+    }
+    std::fs::rename(partial, &dest).map_err(|e| err(&dest, "cannot move the new output into place", e))?;
+    if let Ok(f) = std::fs::File::open(out) {
+        let _ = f.sync_all();
+    }
+    if had_old {
+        let r = if old.is_dir() { std::fs::remove_dir_all(&old) } else { std::fs::remove_file(&old) };
+        r.map_err(|e| err(&old, "cannot remove the previous output", e))?;
+    }
+    Ok(())
+}
+
+// ---------------------------------------------------------------- dataset status
+
+/// One scene's state in [`DatasetStatus`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneReport {
+    pub scene: String,
+    pub state: SceneState,
+}
+
+/// What `dataset-status` reports about an output folder.
+#[derive(Clone, Debug)]
+pub struct DatasetStatus {
+    /// The shared outputs and `dataset.json` (missing: nothing was rendered there yet, or not by render-dataset).
+    pub shared: SceneState,
+    pub scenes: Vec<SceneReport>,
+    /// Temporary folders/files of running or killed tasks (not counted as problems: a running task has them).
+    pub leftovers: Vec<PathBuf>,
+}
+
+impl DatasetStatus {
+    /// Check `out` against the configuration in `out/dataset.json` (or `requested` when given), for the
+    /// scenes `scene_names` (default: the list in `dataset.json`).
+    pub fn check(out: &Path, scene_names: Option<Vec<String>>, requested: Option<Value>) -> Result<DatasetStatus> {
+        let manifest = read_manifest(out);
+        let (requested, names) = match (manifest, scene_names) {
+            (Ok((c, n)), given) => (Some(requested.unwrap_or(c)), given.unwrap_or(n)),
+            (Err(_), Some(given)) => (requested, given),
+            (Err(e), None) => return Err(Error::File { path: out.display().to_string(), message: format!("no scene list: {e} (give --scenes SRC)") }),
+        };
+        let shared = check_shared(out, requested.as_ref());
+        let scenes = names.into_iter().map(|s| SceneReport { state: check_scene(out, &s, requested.as_ref()), scene: s }).collect();
+        Ok(DatasetStatus { shared, scenes, leftovers: leftovers(out) })
+    }
+
+    /// (done, missing, corrupt) scene counts.
+    pub fn counts(&self) -> (usize, usize, usize) {
+        let c = |w: &str| self.scenes.iter().filter(|s| s.state.word() == w).count();
+        (c("done"), c("missing"), c("corrupt"))
+    }
+
+    /// Everything done and the shared outputs intact.
+    pub fn is_clean(&self) -> bool {
+        self.shared == SceneState::Done && self.scenes.iter().all(|s| s.state == SceneState::Done)
+    }
+
+    pub fn to_json(&self) -> Value {
+        let (done, missing, corrupt) = self.counts();
+        json!({
+            "clean": self.is_clean(),
+            "counts": {"scenes": self.scenes.len(), "done": done, "missing": missing, "corrupt": corrupt},
+            "shared": {"status": self.shared.word(), "problems": self.shared.problems()},
+            "scenes": self.scenes.iter().map(|s| json!({"scene": s.scene, "status": s.state.word(), "problems": s.state.problems()})).collect::<Vec<_>>(),
+            "leftovers": self.leftovers.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeSet;
+
+    fn scenes(n: usize) -> Vec<DatasetScene> {
+        (0..n).map(|i| DatasetScene { name: format!("scene{i:03}"), path: PathBuf::from(format!("/x/scene{i:03}.npy")) }).collect()
+    }
+
+    #[test]
+    fn shards_are_disjoint_and_complete() {
+        for n_scenes in [0, 1, 5, 12, 37] {
+            let all = scenes(n_scenes);
+            for count in 1..=7 {
+                let mut seen = BTreeSet::new();
+                let mut total = 0;
+                for k in 0..count {
+                    let mine = Shard::new(k, count).unwrap().select(&all);
+                    total += mine.len();
+                    for s in mine {
+                        assert!(seen.insert(s.name.clone()), "{} in two shards ({count} shards)", s.name);
+                    }
+                    // Balanced: shard sizes differ by at most one.
+                    let len = Shard::new(k, count).unwrap().select(&all).len();
+                    assert!(len == n_scenes / count || len == n_scenes / count + 1, "{len}");
+                }
+                assert_eq!(total, n_scenes);
+                assert_eq!(seen.len(), n_scenes);
+            }
+        }
+    }
+
+    /// The partition depends on the full list only: skipping finished scenes (done before selection or
+    /// after) never moves a scene to another shard, and a shard's members are fixed by their list index.
+    #[test]
+    fn shards_are_stable_under_skipping() {
+        let all = scenes(12);
+        let done: BTreeSet<&str> = ["scene000", "scene003", "scene004", "scene009", "scene011"].into_iter().collect();
+        for k in 0..4 {
+            let shard = Shard::new(k, 4).unwrap();
+            let before: Vec<&str> = shard.select(&all).iter().map(|s| s.name.as_str()).collect();
+            let expected: Vec<String> = (0..12).filter(|i| i % 4 == k).map(|i| format!("scene{i:03}")).collect();
+            assert_eq!(before, expected);
+            // A re-run selects from the same full list, then skips the done ones.
+            let todo: Vec<&str> = shard.select(&all).iter().map(|s| s.name.as_str()).filter(|n| !done.contains(n)).collect();
+            assert!(todo.iter().all(|n| before.contains(n)));
+            for n in &todo {
+                let other = (0..4).filter(|&j| j != k).any(|j| Shard::new(j, 4).unwrap().select(&all).iter().any(|s| s.name == *n));
+                assert!(!other, "{n} in another shard");
+            }
+        }
+        // Adding a done flag to every scene changes nothing in the union of the to-do lists but the done ones.
+        let union: BTreeSet<String> = (0..4).flat_map(|k| Shard::new(k, 4).unwrap().select(&all).into_iter().map(|s| s.name.clone())).filter(|n| !done.contains(n.as_str())).collect();
+        assert_eq!(union.len(), 12 - done.len());
+    }
+
+    #[test]
+    fn shard_parsing() {
+        let none = |_: &str| None;
+        assert_eq!(Shard::parse("0/1", none), Ok(Shard::WHOLE));
+        assert_eq!(Shard::parse(" 3/4 ", none), Ok(Shard { index: 3, count: 4 }));
+        for bad in ["4/4", "0/0", "a/b", "1", "-1/4", "1/-4", "", "/", "1/2/3", "slurm"] {
+            let e = Shard::parse(bad, none).unwrap_err();
+            assert!(!e.is_empty(), "{bad}");
+        }
+        assert!(Shard::parse("4/4", none).unwrap_err().contains("out of range"));
+        assert!(Shard::parse("0/0", none).unwrap_err().contains("≥ 1"));
+        assert!(Shard::parse("slurm", none).unwrap_err().contains(SLURM_TASK_ID));
+        let env = |id: &'static str, count: &'static str| move |k: &str| match k {
+            SLURM_TASK_ID => Some(id.to_string()),
+            SLURM_TASK_COUNT => Some(count.to_string()),
+            _ => None,
+        };
+        assert_eq!(Shard::parse("slurm", env("2", "4")), Ok(Shard { index: 2, count: 4 }));
+        assert_eq!(Shard::parse("SLURM", env("0", "1")), Ok(Shard::WHOLE));
+        // A resubmitted single index reports a count of 1: N must be given.
+        let e = Shard::parse("slurm", env("2", "1")).unwrap_err();
+        assert!(e.contains("slurm/N"), "{e}");
+        assert_eq!(Shard::parse("slurm/4", env("2", "1")), Ok(Shard { index: 2, count: 4 }));
+        assert!(Shard::parse("slurm/4", env("4", "1")).is_err());
+        assert!(Shard::parse("slurm", env("x", "4")).unwrap_err().contains("x"));
+        assert!(Shard::parse("slurm", env("1", "")).unwrap_err().contains(SLURM_TASK_COUNT));
+        assert!(Shard::parse("slurm/0", env("0", "1")).is_err());
+    }
+
+    fn write(p: &Path, bytes: &[u8]) {
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        std::fs::write(p, bytes).unwrap();
+    }
+
+    /// A scene folder as render-dataset writes it (files + render.json with configuration and records).
+    fn fake_scene(out: &Path, name: &str, cfg: &Value) {
+        let dir = out.join(name);
+        write(&dir.join("acquisition.exr"), &[7u8; 300]);
+        write(&dir.join("acquisition.npy"), b"\x93NUMPY\x01\x00v\x00{'descr': '<f4', 'fortran_order': False, 'shape': (2,), }      \n\x00\x00\x80?\x00\x00\x00@");
+        let rec = file_records(&dir, &["acquisition.exr", "acquisition.npy"]).unwrap();
+        let sidecar = json!({"configuration": cfg, "outputs": rec, "seconds_total": 1.5});
+        write(&dir.join("render.json"), serde_json::to_string_pretty(&sidecar).unwrap().as_bytes());
+    }
+
+    #[test]
+    fn scene_states_detect_damage_and_mismatch() {
+        let t = tempfile::tempdir().unwrap();
+        let out = t.path();
+        let cfg = json!({"seed": 1, "rays_per_pixel": 4, "system": "sp"});
+        for s in ["ok", "trunc_exr", "trunc_npy", "flip", "json_cut", "no_json", "other_cfg", "old", "gone_file"] {
+            fake_scene(out, s, &cfg);
+        }
+        let p = |s: &str, f: &str| out.join(s).join(f);
+        // Truncated EXR and NPY, one flipped byte, a truncated render.json, no render.json, a deleted output.
+        let exr = std::fs::read(p("trunc_exr", "acquisition.exr")).unwrap();
+        std::fs::write(p("trunc_exr", "acquisition.exr"), &exr[..100]).unwrap();
+        let npy = std::fs::read(p("trunc_npy", "acquisition.npy")).unwrap();
+        std::fs::write(p("trunc_npy", "acquisition.npy"), &npy[..npy.len() - 3]).unwrap();
+        let mut f = std::fs::read(p("flip", "acquisition.exr")).unwrap();
+        f[10] ^= 1;
+        std::fs::write(p("flip", "acquisition.exr"), f).unwrap();
+        let j = std::fs::read(p("json_cut", "render.json")).unwrap();
+        std::fs::write(p("json_cut", "render.json"), &j[..j.len() / 2]).unwrap();
+        std::fs::remove_file(p("no_json", "render.json")).unwrap();
+        std::fs::remove_file(p("gone_file", "acquisition.npy")).unwrap();
+        // Another seed; and an old-style render.json without configuration.
+        fake_scene(out, "other_cfg", &json!({"seed": 2, "rays_per_pixel": 4, "system": "sp"}));
+        write(&p("old", "render.json"), br#"{"seed": 1}"#);
+        // A file where a folder should be.
+        write(&out.join("a_file"), b"x");
+
+        let st = |s: &str| check_scene(out, s, Some(&cfg));
+        assert_eq!(st("ok"), SceneState::Done);
+        assert_eq!(st("never"), SceneState::Missing);
+        let damaged = |s: &str, needle: &str| match st(s) {
+            SceneState::Damaged(p) => assert!(p.iter().any(|x| x.contains(needle)), "{s}: {p:?}"),
+            other => panic!("{s}: {other:?}"),
+        };
+        damaged("trunc_exr", "acquisition.exr: 100 bytes, 300 written");
+        damaged("trunc_npy", "acquisition.npy");
+        damaged("flip", "altered");
+        damaged("json_cut", "not valid JSON");
+        damaged("no_json", "render.json: missing");
+        damaged("gone_file", "acquisition.npy: missing");
+        damaged("a_file", "not a folder");
+        match st("other_cfg") {
+            SceneState::Mismatch(d) => assert_eq!(d, vec!["seed: recorded 2 ≠ requested 1".to_string()]),
+            other => panic!("{other:?}"),
+        }
+        assert!(matches!(st("old"), SceneState::Mismatch(_)));
+        // Without a requested configuration, only integrity counts.
+        assert_eq!(check_scene(out, "other_cfg", None), SceneState::Done);
+        for s in ["trunc_exr", "flip", "json_cut", "other_cfg"] {
+            assert_eq!(st(s).word(), "corrupt");
+        }
+    }
+
+    #[test]
+    fn dataset_status_counts_and_manifest() {
+        let t = tempfile::tempdir().unwrap();
+        let out = t.path();
+        let cfg = json!({"seed": 1, "mapping": false});
+        let names: Vec<String> = ["a", "b", "c", "d"].iter().map(|s| s.to_string()).collect();
+        // No dataset.json and no scene list: an error naming the way out.
+        let e = DatasetStatus::check(out, None, None).unwrap_err().to_string();
+        assert!(e.contains("--scenes"), "{e}");
+        write(&out.join("mask.png"), b"mask bytes");
+        let shared = file_records(out, &shared_output_names(&cfg)).unwrap();
+        write(&out.join(MANIFEST), serde_json::to_string_pretty(&manifest(&cfg, &names, shared)).unwrap().as_bytes());
+        fake_scene(out, "a", &cfg);
+        fake_scene(out, "b", &cfg);
+        fake_scene(out, "c", &json!({"seed": 9, "mapping": false}));
+        std::fs::create_dir_all(out.join(".d.partial-host-1")).unwrap();
+        let s = DatasetStatus::check(out, None, None).unwrap();
+        assert_eq!(s.shared, SceneState::Done);
+        assert_eq!(s.counts(), (2, 1, 1));
+        assert!(!s.is_clean());
+        assert_eq!(s.leftovers, vec![out.join(".d.partial-host-1")]);
+        assert_eq!(s.to_json()["scenes"][2]["status"], "corrupt");
+        // Only the scenes asked for.
+        let s = DatasetStatus::check(out, Some(vec!["a".into(), "b".into()]), None).unwrap();
+        assert!(s.is_clean());
+        // A damaged shared output makes the dataset unclean.
+        write(&out.join("mask.png"), b"mask byte");
+        let s = DatasetStatus::check(out, Some(vec!["a".into()]), None).unwrap();
+        assert!(matches!(s.shared, SceneState::Damaged(_)), "{:?}", s.shared);
+        assert!(!s.is_clean());
+        // Leftovers of scene d only are removed for d.
+        std::fs::create_dir_all(out.join(".dd.partial-host-1")).unwrap();
+        assert_eq!(remove_leftovers(out, "d").unwrap(), 1);
+        assert_eq!(leftovers(out), vec![out.join(".dd.partial-host-1")]);
+    }
+
+    #[test]
+    fn commit_replaces_a_folder_whole() {
+        let t = tempfile::tempdir().unwrap();
+        let out = t.path();
+        write(&out.join("s/old_only.txt"), b"old");
+        write(&out.join("s/common.txt"), b"old");
+        let p = partial_dir(out, "s").unwrap();
+        write(&p.join("common.txt"), b"new");
+        commit_scene(&p, out, "s").unwrap();
+        assert_eq!(std::fs::read(out.join("s/common.txt")).unwrap(), b"new");
+        assert!(!out.join("s/old_only.txt").exists());
+        assert!(leftovers(out).is_empty(), "{:?}", leftovers(out));
+        let p = partial_dir(out, "fresh").unwrap();
+        write(&p.join("x"), b"1");
+        commit_scene(&p, out, "fresh").unwrap();
+        assert_eq!(std::fs::read(out.join("fresh/x")).unwrap(), b"1");
+        assert!(leftovers(out).is_empty());
+    }
+
+    #[test]
+    fn configuration_differences_name_the_keys() {
+        let a = json!({"seed": 1, "rays_per_pixel": 20, "system_spec": {"x": "a".repeat(100)}});
+        let b = json!({"seed": 1, "rays_per_pixel": 10, "system_spec": {"x": "b".repeat(100)}, "cube": true});
+        let d = configuration_differences(&a, &b);
+        assert_eq!(d.len(), 3, "{d:?}");
+        assert!(d[0].starts_with("cube: recorded absent"));
+        assert!(d[1].contains("rays_per_pixel: recorded 20 ≠ requested 10"));
+        assert!(d[2].starts_with("system_spec") && d[2].contains('…'));
+        assert!(configuration_differences(&a, &a).is_empty());
+    }
 }
