@@ -151,13 +151,22 @@ pub fn check_threads(n: usize) -> Result<usize> {
 
 // ------------------------------------------------------------------ value checks
 
+/// A number for messages: plain when moderate, scientific when huge or tiny (`1e308`, not 309 digits).
+pub fn fmt_num(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e7).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
 /// A resolved length (mm): finite and |v| ≤ [`MAX_LENGTH_MM`]. `Err` holds the reason.
 pub fn check_plausible_length(field: &str, v: f64) -> std::result::Result<(), String> {
     if !v.is_finite() {
         return Err(format!("{field} = {v} is not finite"));
     }
     if v.abs() > MAX_LENGTH_MM {
-        return Err(format!("{field} = {v} mm is outside the plausible range ±{MAX_LENGTH_MM:e} mm (1 km)"));
+        return Err(format!("{field} = {} mm is outside the plausible range ±{MAX_LENGTH_MM:e} mm (1 km)", fmt_num(v)));
     }
     Ok(())
 }
@@ -168,7 +177,7 @@ pub fn check_plausible_tilt(field: &str, v: f64) -> std::result::Result<(), Stri
         return Err(format!("{field} = {v} is not finite"));
     }
     if v.abs() > MAX_TILT_DEG {
-        return Err(format!("{field} = {v}° is outside the plausible range ±{MAX_TILT_DEG}°"));
+        return Err(format!("{field} = {}° is outside the plausible range ±{MAX_TILT_DEG}°", fmt_num(v)));
     }
     Ok(())
 }

@@ -114,7 +114,7 @@ pub fn parse_field(text: &str) -> Result<[f64; 2]> {
     for (k, p) in parts.iter().enumerate() {
         v[k] = p.trim().parse().map_err(|_| bad(format!("`{p}` is not a number")))?;
         if !(v[k].is_finite() && v[k].abs() <= crate::limits::MAX_LENGTH_MM) {
-            return Err(bad(format!("{} is outside ±{:e} mm", v[k], crate::limits::MAX_LENGTH_MM)));
+            return Err(bad(format!("{} is outside ±{:e} mm", crate::limits::fmt_num(v[k]), crate::limits::MAX_LENGTH_MM)));
         }
     }
     Ok(v)
@@ -598,7 +598,7 @@ fn distortion(a: DistortionArgs) -> Result<()> {
         return Err(Error::invalid(format!("--arrow-scale {}: must be finite and > 0", a.arrow_scale)));
     }
     if !(a.half_width_mm.is_finite() && a.half_width_mm > 0.0 && a.half_width_mm <= crate::limits::MAX_LENGTH_MM) {
-        return Err(Error::invalid(format!("--half-width-mm {}: must be in (0, {:e}] mm", a.half_width_mm, crate::limits::MAX_LENGTH_MM)));
+        return Err(Error::invalid(format!("--half-width-mm {}: the half width must be in (0, {:e}] mm", a.half_width_mm, crate::limits::MAX_LENGTH_MM)));
     }
     if a.grid == 0 {
         return Err(Error::invalid("--grid 0: needs at least 1 point per side"));

@@ -253,6 +253,12 @@ impl PlaneContext<'_> {
                 out.stats.traced += sc.rays.len() as u64;
                 let (stats, det) = (&mut out.stats, self.detector);
                 trace_interleaved(&self.system.path, &n, &sc.rays, |res| match res {
+                    // Same classification as `TracedBatch::classify_out_of_range`: an absurd landing is
+                    // counted, never splatted (its pixel index would overflow).
+                    Ok((p, d)) if !(p.is_finite() && d.is_finite() && p.abs().max_element() <= crate::limits::MAX_IMAGE_COORD_MM) => {
+                        stats.count(RayStatus::OutOfRange);
+                        sc.land.push((f64::NAN, f64::NAN));
+                    }
                     Ok((p, _)) => {
                         stats.count(RayStatus::Ok);
                         sc.land.push(det.to_pixel(p.x, p.y));

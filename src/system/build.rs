@@ -219,7 +219,7 @@ fn path_step(from: &Frame, to: &Frame, surface: usize, shape: SurfaceShape, aper
 /// The message of an implausible resolved value, saying where it came from (a pickup, a solve, or as given).
 fn resolved_message(spec: &SystemSpec, i: usize, col: &str, why: String) -> String {
     match spec.surfaces[i].cell(col).map(|c| &c.driver) {
-        Some(Driver::Pickup(p)) => format!("{why} after its pickup from surface {} (scale {}, offset {})", p.surface, p.scale, p.offset),
+        Some(Driver::Pickup(p)) => format!("{why} after its pickup from surface {} (scale {}, offset {})", p.surface, crate::limits::fmt_num(p.scale), crate::limits::fmt_num(p.offset)),
         Some(Driver::ChiefRay) => format!("{why} after its chief-ray solve"),
         _ => why,
     }
