@@ -772,6 +772,13 @@ fn bench(a: BenchArgs) -> Result<()> {
         return Err(Error::invalid("--csv, --png and --quick belong to `diffcassi bench tradeoff`"));
     }
     let repeat = a.repeat.unwrap_or(3);
+    if a.rays == 0 || a.wavelengths == 0 || repeat == 0 {
+        return Err(Error::invalid("--rays, --wavelengths and --repeat must be ≥ 1"));
+    }
+    let what = format!("--rays {} × --wavelengths {}", a.rays, a.wavelengths);
+    let n = a.rays as f64 * a.wavelengths as f64;
+    crate::limits::check_memory(&what, 2.0 * n * crate::limits::BYTES_PER_RAY)?;
+    crate::limits::check_rays(&format!("{what} × --repeat {repeat} × backends × thread counts"), n * (repeat as f64 + 1.0) * 2.0 * a.backends.split(',').count() as f64)?;
     let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let ws = linspace(450.0, 650.0, a.wavelengths.max(1));
     let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000)?;

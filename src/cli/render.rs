@@ -97,7 +97,7 @@ pub struct RenderDatasetArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Keep the traced light transport in memory up to this size (GB); beyond it, trace per scene.
-    #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
+    #[arg(long = "transport-memory-gb", default_value_t = 4.0, value_parser = positive_gb)]
     pub transport_memory_gb: f64,
 }
 
@@ -117,6 +117,16 @@ pub struct BenchRenderArgs {
     /// Scenes rendered in the dataset-mode part.
     #[arg(long, default_value_t = 3)]
     pub scenes: usize,
+}
+
+/// A memory size in GB: finite and ≥ 0 (clap names the option in the error).
+fn positive_gb(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number of GB"))?;
+    if v.is_finite() && v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} GB: must be finite and ≥ 0"))
+    }
 }
 
 fn parse_sampling(s: &str) -> Result<Sampling> {
@@ -389,6 +399,12 @@ fn process_cpu_seconds() -> Option<f64> {
 pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let system = crate::system::SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let n = a.scene_size;
+    if n == 0 || a.planes == 0 || a.planes > crate::limits::MAX_PLANES || a.rays == 0 || !(a.opening.is_finite() && (0.0..=1.0).contains(&a.opening)) {
+        return Err(Error::invalid(format!("--scene-size {n}, --planes {}, --rays {}, --opening {}: sizes must be ≥ 1 (planes ≤ {}), the opening in [0, 1]", a.planes, a.rays, a.opening, crate::limits::MAX_PLANES)));
+    }
+    crate::limits::check_memory(&format!("--scene-size {n} × --planes {}", a.planes), 2.0 * crate::limits::bytes_render(n, 31, 28, a.planes, false, Some(2.5)))?;
+    // Acquisition, all-open acquisition, transport: three renders' rays.
+    crate::limits::check_rays(&format!("--scene-size {n} × --planes {} × --rays {} (× 3 renders)", a.planes, a.rays), 3.0 * (n as f64).powi(2) * a.planes as f64 * a.rays as f64)?;
     let mut cfg = RenderConfig::paper(n);
     cfg.spectral = SpectralSampling::with_planes(crate::analysis::linspace(450.0, 650.0, 28), a.planes)?;
     cfg.rays_per_pixel = a.rays;
