@@ -18,7 +18,7 @@ use std::sync::OnceLock;
 
 // ------------------------------------------------------------------ value ranges (resolved systems, rays)
 
-/// Largest plausible |length| of a resolved system (thickness, decenter, semi-diameter, focal length), mm:
+/// Largest plausible |length| of a resolved system (thickness, decenter), mm:
 /// 1 km. A bench-top CASSI is ~0.3 m long; anything beyond is a typo or an overflowing pickup.
 pub const MAX_LENGTH_MM: f64 = 1e6;
 /// Largest plausible |tilt| of a coordinate break, degrees (one full turn).
@@ -183,12 +183,12 @@ pub fn check_plausible_tilt(field: &str, v: f64) -> std::result::Result<(), Stri
 }
 
 /// A resolved Lens Data Editor cell (after pickups and solves), by column: lengths (`*_mm` except the
-/// radius) within ±[`MAX_LENGTH_MM`], tilts (`*_deg`) within ±[`MAX_TILT_DEG`], everything else (radius,
+/// radius and the focal length, which may be huge for a flat or an inert paraxial lens, f = 10¹⁵ mm) within ±[`MAX_LENGTH_MM`], tilts (`*_deg`) within ±[`MAX_TILT_DEG`], everything else (radius,
 /// conic, asphere coefficients) finite. `Err` holds the reason.
 pub fn check_resolved_cell(column: &str, v: f64) -> std::result::Result<(), String> {
     if column.ends_with("_deg") {
         check_plausible_tilt(column, v)
-    } else if column.ends_with("_mm") && column != "radius_mm" {
+    } else if column.ends_with("_mm") && column != "radius_mm" && column != "focal_length_mm" {
         check_plausible_length(column, v)
     } else if !v.is_finite() {
         Err(format!("{column} = {v} is not finite"))

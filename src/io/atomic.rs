@@ -157,14 +157,13 @@ impl OutputSet {
     pub fn folder(dest: impl AsRef<Path>, marker: &str) -> Result<Self, IoError> {
         let dest = dest.as_ref().to_path_buf();
         let name = dest.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
-        let parent = match dest.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
+        let parent = dest.parent().map(Path::to_path_buf).unwrap_or_default();
         if dest.exists() && !dest.is_dir() {
             return Err(IoError::io(&dest, "cannot write an output folder", std::io::Error::new(std::io::ErrorKind::AlreadyExists, "a file of that name exists")));
         }
-        fs::create_dir_all(&parent).map_err(|e| IoError::io(&parent, "cannot create directory", e))?;
+        if !parent.as_os_str().is_empty() {
+            fs::create_dir_all(&parent).map_err(|e| IoError::io(&parent, "cannot create directory", e))?;
+        }
         let stage = parent.join(format!(".{name}.stage-{}-{}", std::process::id(), stage_counter()));
         fs::create_dir(&stage).map_err(|e| IoError::io(&stage, "cannot create staging folder", e))?;
         Ok(OutputSet { staged: Vec::new(), folder: Some(FolderStage { stage, dest, marker: marker.to_string() }), committed: false })
@@ -179,10 +178,8 @@ impl OutputSet {
     pub fn stage(&mut self, dest: impl AsRef<Path>) -> PathBuf {
         let dest = dest.as_ref().to_path_buf();
         let name = dest.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        let dir = match dest.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
+        // Beside the destination (a bare file name stays relative to the working directory).
+        let dir = dest.parent().map(Path::to_path_buf).unwrap_or_default();
         let tmp = dir.join(format!(".diffcassi-stage-{}-{}-{name}", std::process::id(), stage_counter()));
         self.staged.push((tmp.clone(), dest));
         tmp
