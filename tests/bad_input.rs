@@ -326,10 +326,13 @@ mod cli_table {
         ]),
         ("design", &[
             c("design amici --iterations -3", 2, "--iterations"),
+            c("design amici --iterations 1 --system-out {out}.yaml", 1, "--system-out"),
+            c("design amici --iterations 1 --report {out}.txt", 1, "--report"),
         ]),
         ("calibrate", &[
             c("calibrate --from sp --observed msp --free bogus_param --setup small", 1, "bogus_param"),
             c("calibrate --from sp --observed msp --free prism_tilt_x --setup nonsense", 1, "nonsense"),
+            c("calibrate --from sp --observed msp --free prism_tilt_x --setup small --system-out {out}.yml", 1, "--system-out"),
         ]),
     ];
 
