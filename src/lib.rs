@@ -26,6 +26,7 @@ pub mod error;
 pub mod fidelity;
 pub mod geometry;
 pub mod io;
+pub mod limits;
 pub mod materials;
 pub mod optim;
 pub mod plot;

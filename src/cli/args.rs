@@ -12,6 +12,13 @@ pub struct Cli {
     /// Worker threads (default: all cores). Results do not depend on it.
     #[arg(long, global = true)]
     pub threads: Option<usize>,
+    /// Memory budget (GB) checked before any large allocation; a command whose estimate exceeds it is
+    /// refused with the estimate [default: half of the physical memory, else 16 GB].
+    #[arg(long = "max-memory-gb", global = true)]
+    pub max_memory_gb: Option<f64>,
+    /// Most rays a command may trace (checked before tracing) [default: 2e10].
+    #[arg(long = "max-rays", global = true)]
+    pub max_rays: Option<f64>,
     #[command(subcommand)]
     pub command: Command,
 }
@@ -123,7 +130,7 @@ pub struct SpotArgs {
     #[arg(long = "field-mm", allow_hyphen_values = true)]
     pub field_mm: Vec<String>,
     /// Pupil sampling: chief, marginal, hexapolar:RINGS, grid:N, grid-step:STEP, random:N:SEED.
-    #[arg(long, default_value = "hexapolar:12")]
+    #[arg(long, default_value = "hexapolar:12", conflicts_with = "pupil_csv")]
     pub pupil: String,
     /// Read normalised pupil coordinates from the `px,py` columns of a CSV (other columns and `#` lines ignored).
     #[arg(long = "pupil-csv")]

@@ -53,11 +53,17 @@ pub fn make_tracer(a: &BackendArgs) -> Result<Box<dyn Tracer>> {
 
 /// `520`, `450,520,650` or `450:650:28` (first:last:count) → wavelengths in nm.
 pub fn parse_wavelengths(text: &str) -> Result<Vec<f64>> {
-    let bad = |why: &str| Error::invalid(format!("--wavelength-nm `{text}`: {why} (use 520, 450,520,650 or 450:650:28)"));
+    parse_wavelengths_for("--wavelength-nm", text)
+}
+
+/// [`parse_wavelengths`] for the option named `option` (errors name it).
+pub fn parse_wavelengths_for(option: &str, text: &str) -> Result<Vec<f64>> {
+    let bad = |why: &str| Error::invalid(format!("{option} `{text}`: {why} (use 520, 450,520,650 or 450:650:28)"));
     let num = |s: &str| -> Result<f64> {
         let v: f64 = s.trim().parse().map_err(|_| bad(&format!("`{s}` is not a number")))?;
-        if !(v.is_finite() && v > 0.0) {
-            return Err(bad(&format!("{v} must be finite and > 0")));
+        let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
+        if !(v.is_finite() && (lo..=hi).contains(&v)) {
+            return Err(bad(&format!("{v} nm is outside {lo}–{hi} nm")));
         }
         Ok(v)
     };
@@ -67,10 +73,13 @@ pub fn parse_wavelengths(text: &str) -> Result<Vec<f64>> {
             return Err(bad("a range needs first:last:count"));
         }
         let count: usize = parts[2].trim().parse().map_err(|_| bad("count is not a whole number"))?;
-        if count == 0 {
-            return Err(bad("count must be ≥ 1"));
+        if count == 0 || count > crate::limits::MAX_WAVELENGTHS {
+            return Err(bad(&format!("count {count} must be in 1..={}", crate::limits::MAX_WAVELENGTHS)));
         }
         return Ok(linspace(num(parts[0])?, num(parts[1])?, count));
+    }
+    if text.split(',').count() > crate::limits::MAX_WAVELENGTHS {
+        return Err(bad(&format!("more than {} wavelengths", crate::limits::MAX_WAVELENGTHS)));
     }
     text.split(',').map(num).collect()
 }
@@ -85,8 +94,8 @@ pub fn parse_field(text: &str) -> Result<[f64; 2]> {
     let mut v = [0.0f64; 2];
     for (k, p) in parts.iter().enumerate() {
         v[k] = p.trim().parse().map_err(|_| bad(format!("`{p}` is not a number")))?;
-        if !v[k].is_finite() {
-            return Err(bad(format!("{} is not finite", v[k])));
+        if !(v[k].is_finite() && v[k].abs() <= crate::limits::MAX_LENGTH_MM) {
+            return Err(bad(format!("{} is outside ±{:e} mm", crate::limits::fmt_num(v[k]), crate::limits::MAX_LENGTH_MM)));
         }
     }
     Ok(v)
@@ -100,8 +109,14 @@ pub fn parse_pupil(text: &str) -> Result<PupilPattern> {
     let p = match parts[0] {
         "chief" => PupilPattern::Chief,
         "marginal" => PupilPattern::Marginal,
-        "hexapolar" => PupilPattern::Hexapolar { rings: int(1)? },
-        "grid" => PupilPattern::Grid { n: int(1)? },
+        "hexapolar" => PupilPattern::Hexapolar { rings: int(1)?.max(0) },
+        "grid" => {
+            let n = int(1)?;
+            if n == 0 {
+                return Err(bad("grid:N needs N ≥ 1 (grid:1 is the chief ray)"));
+            }
+            PupilPattern::Grid { n }
+        }
         "grid-step" => {
             let step: f64 = parts.get(1).ok_or_else(|| bad("missing step"))?.parse().map_err(|_| bad("step is not a number"))?;
             if !(step > 0.0 && step <= 1.0) {
@@ -109,10 +124,34 @@ pub fn parse_pupil(text: &str) -> Result<PupilPattern> {
             }
             PupilPattern::GridStep { step }
         }
-        "random" => PupilPattern::Random { n: int(1)?, seed: int(2)? as u64 },
+        "random" => {
+            let n = int(1)?;
+            if n == 0 {
+                return Err(bad("random:N:SEED needs N ≥ 1"));
+            }
+            let seed: u64 = parts.get(2).ok_or_else(|| bad("missing seed"))?.parse().map_err(|_| bad("seed is not a whole number ≥ 0"))?;
+            PupilPattern::Random { n, seed }
+        }
         _ => return Err(bad("unknown pattern")),
     };
+    if parts.len() > match p { PupilPattern::Chief | PupilPattern::Marginal => 1, PupilPattern::Random { .. } => 3, _ => 2 } {
+        return Err(bad("too many `:` parts"));
+    }
+    let count = pupil_count(&p);
+    crate::limits::check_memory(&format!("--pupil {text} ({count:.3e} points)"), count * crate::limits::BYTES_PER_RAY)?;
     Ok(p)
+}
+
+/// Upper bound on the number of points of a pupil pattern, computed without generating them.
+fn pupil_count(p: &PupilPattern) -> f64 {
+    match *p {
+        PupilPattern::Chief => 1.0,
+        PupilPattern::Marginal => 4.0,
+        PupilPattern::Hexapolar { rings } => 1.0 + 3.0 * rings as f64 * (rings as f64 + 1.0),
+        PupilPattern::Grid { n } => (n as f64).powi(2),
+        PupilPattern::GridStep { step } => (2.0 / step + 1.0).powi(2),
+        PupilPattern::Random { n, .. } => n as f64,
+    }
 }
 
 fn pupil_points(a: &SpotArgs) -> Result<Vec<[f64; 2]>> {
@@ -123,10 +162,25 @@ fn pupil_points(a: &SpotArgs) -> Result<Vec<[f64; 2]>> {
             if pts.is_empty() {
                 return Err(Error::File { path: path.display().to_string(), message: "no pupil rows".into() });
             }
+            // Normalised pupil coordinates live in the unit disc (a tiny tolerance for exported rims).
+            if let Some((i, p)) = pts.iter().enumerate().find(|(_, p)| !(p[0].is_finite() && p[1].is_finite() && p[0].hypot(p[1]) <= 1.0 + 1e-9)) {
+                return Err(Error::File {
+                    path: path.display().to_string(),
+                    message: format!("pupil row {} (px, py) = ({}, {}): normalised pupil coordinates must satisfy px² + py² ≤ 1", i + 1, p[0], p[1]),
+                });
+            }
             Ok(pts)
         }
         None => Ok(parse_pupil(&a.pupil)?.points()),
     }
+}
+
+/// Rays of `pupil × fields × wavelengths` within the ray and memory budgets (the CSV/PNG keep every ray).
+fn check_spot_budget(pupil: usize, fields: usize, wavelengths: usize) -> Result<()> {
+    let n = (pupil as f64 + 1.0) * fields as f64 * wavelengths as f64;
+    let what = format!("--pupil × --field-mm × --wavelength-nm ({pupil} × {fields} × {wavelengths})");
+    crate::limits::check_rays(&what, n)?;
+    crate::limits::check_memory(&what, n * crate::limits::BYTES_PER_RAY)
 }
 
 fn fields(a: &[String], system: &SequentialSystem) -> Result<Vec<[f64; 2]>> {
@@ -146,11 +200,44 @@ fn wavelengths_or_system(w: &Option<String>, system: &SequentialSystem) -> Resul
     }
 }
 
+/// Print "wrote PATH", showing a file staged by an [`OutputSet`] under its final name.
 fn say_written(path: &Path) {
-    eprintln!("wrote {}", path.display());
+    eprintln!("wrote {}", final_name(path).display());
+}
+
+/// The destination a staging path stands for: `.diffcassi-stage-<pid>-<n>-NAME` → `NAME`, a folder
+/// component `.DIR.stage-<pid>-<n>` → `DIR`.
+fn final_name(path: &Path) -> PathBuf {
+    path.components()
+        .map(|c| {
+            let s = c.as_os_str().to_string_lossy();
+            if let Some(rest) = s.strip_prefix(".diffcassi-stage-") {
+                rest.splitn(3, '-').nth(2).unwrap_or(&s).to_string()
+            } else if let (true, Some(k)) = (s.starts_with('.'), s.find(".stage-")) {
+                s[1..k].to_string()
+            } else {
+                s.into_owned()
+            }
+        })
+        .collect()
+}
+
+/// Check the format an output option names by its extension before anything is computed or written.
+fn check_extension(option: &str, path: &Option<PathBuf>, allowed: &[&str]) -> Result<()> {
+    if let Some(p) = path {
+        let ext = p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
+        if !allowed.contains(&ext.as_str()) {
+            return Err(Error::invalid(format!("{option} {}: the file name must end in {}", p.display(), allowed.iter().map(|e| format!(".{e}")).collect::<Vec<_>>().join(" or "))));
+        }
+        if p.is_dir() {
+            return Err(Error::invalid(format!("{option} {}: is a directory", p.display())));
+        }
+    }
+    Ok(())
 }
 
 fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
+    crate::limits::check_json_finite(&final_name(path).display().to_string(), value)?;
     let text = serde_json::to_string_pretty(value).map_err(|e| Error::invalid(format!("JSON encoding failed: {e}")))?;
     write_atomic(path, text.as_bytes())?;
     say_written(path);
@@ -279,13 +366,17 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
             fs.len()
         )));
     }
+    check_outputs(&a)?;
     let pupil = pupil_points(&a)?;
+    check_spot_budget(pupil.len(), 1, 1)?;
     let rays = RayBatch::for_field(&system, fs[0], &pupil, ws[0])?;
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, rays.len() as u64)?;
     let out = tracer.trace(&system, &rays)?;
     let ok = out.ok_count();
     println!("traced {} rays of field ({}, {}) mm at {} nm: {} ok, {} failed", out.len(), fs[0][0], fs[0][1], ws[0], ok, out.len() - ok);
+    let mut set = crate::io::OutputSet::files();
     if let Some(path) = &a.csv {
+        let path = &set.stage(path);
         let mut w = CsvWriter::new(path, &["px", "py", "x_mm", "y_mm", "dir_x", "dir_y", "dir_z", "status", "stop_surface"])?;
         w.comment(&format!("system {}; field ({}, {}) mm; wavelength {} nm; image-surface frame", system.name(), fs[0][0], fs[0][1], ws[0]));
         for i in 0..out.len() {
@@ -301,8 +392,9 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
         let rays: Vec<serde_json::Value> = (0..out.len())
             .map(|i| serde_json::json!({"px": pupil[i][0], "py": pupil[i][1], "x_mm": out.x[i], "y_mm": out.y[i], "status": out.status[i].label()}))
             .collect();
-        write_json(path, &serde_json::json!({"system": system.name(), "field_mm": fs[0], "wavelength_nm": ws[0], "rays": rays}))?;
+        write_json(&set.stage(path), &serde_json::json!({"system": system.name(), "field_mm": fs[0], "wavelength_nm": ws[0], "rays": rays}))?;
     }
+    set.commit()?;
     Ok(())
 }
 
@@ -404,23 +496,34 @@ fn write_spot_csv(path: &Path, system: &SequentialSystem, spots: &[SpotDiagram])
     Ok(())
 }
 
+/// `--csv`/`--json`/`--png` name files of their format (checked before any work).
+fn check_outputs(a: &SpotArgs) -> Result<()> {
+    check_extension("--csv", &a.csv, &["csv"])?;
+    check_extension("--json", &a.json, &["json"])?;
+    check_extension("--png", &a.png, &["png"])
+}
+
 pub(super) fn spot(a: SpotArgs) -> Result<()> {
+    check_outputs(&a)?;
     let system = load_system(&a.system)?;
     let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
     let fs = fields(&a.field_mm, &system)?;
     let pupil = pupil_points(&a)?;
+    check_spot_budget(pupil.len(), fs.len(), ws.len())?;
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, ((pupil.len() + 1) * fs.len() * ws.len()) as u64)?;
     let spots = compute_spots(&system, tracer.as_ref(), &fs, &ws, &pupil, a.csv.is_some() || a.png.is_some())?;
     print_spot_table(&spots);
+    let mut set = crate::io::OutputSet::files();
     if let Some(path) = &a.csv {
-        write_spot_csv(path, &system, &spots)?;
+        write_spot_csv(&set.stage(path), &system, &spots)?;
     }
     if let Some(path) = &a.json {
-        write_json(path, &serde_json::json!({"system": system.name(), "spots": spots.iter().map(spot_summary).collect::<Vec<_>>()}))?;
+        write_json(&set.stage(path), &serde_json::json!({"system": system.name(), "spots": spots.iter().map(spot_summary).collect::<Vec<_>>()}))?;
     }
     if let Some(path) = &a.png {
-        spot_plot(path, &format!("{} spot diagram", system.name()), &spots, &fs)?;
+        spot_plot(&set.stage(path), &format!("{} spot diagram", system.name()), &spots, &fs)?;
     }
+    set.commit()?;
     Ok(())
 }
 
@@ -469,6 +572,21 @@ fn distortion_plot(path: &Path, system: &SequentialSystem, g: &DistortionGrid, a
 }
 
 pub(super) fn distortion(a: DistortionArgs) -> Result<()> {
+    check_extension("--csv", &a.csv, &["csv"])?;
+    check_extension("--json", &a.json, &["json"])?;
+    check_extension("--png", &a.png, &["png"])?;
+    if !(a.arrow_scale.is_finite() && a.arrow_scale > 0.0) {
+        return Err(Error::invalid(format!("--arrow-scale {}: must be finite and > 0", a.arrow_scale)));
+    }
+    if !(a.half_width_mm.is_finite() && a.half_width_mm > 0.0 && a.half_width_mm <= crate::limits::MAX_LENGTH_MM) {
+        return Err(Error::invalid(format!("--half-width-mm {}: the half width must be in (0, {:e}] mm", a.half_width_mm, crate::limits::MAX_LENGTH_MM)));
+    }
+    if a.grid == 0 {
+        return Err(Error::invalid("--grid 0: needs at least 1 point per side"));
+    }
+    let n = (a.grid as f64).powi(2);
+    crate::limits::check_rays(&format!("--grid {}", a.grid), n)?;
+    crate::limits::check_memory(&format!("--grid {}", a.grid), n * 250.0)?;
     let system = load_system(&a.system)?;
     let w = a.wavelength_nm.unwrap_or(system.primary_wavelength_nm());
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &[w], (a.grid * a.grid + 5) as u64)?;
@@ -479,26 +597,32 @@ pub(super) fn distortion(a: DistortionArgs) -> Result<()> {
         "{}: {}×{} grid at {w} nm over ±{} mm: reference ({:.6}, {:.6}) mm, ABCD [{:.5}, {:.5}, {:.5}, {:.5}], max distortion {:.4} % ({max_disp_um:.2} µm), {failed} rays failed",
         system.name(), a.grid, a.grid, a.half_width_mm, g.reference_mm[0], g.reference_mm[1], g.abcd[0], g.abcd[1], g.abcd[2], g.abcd[3], g.max_distortion_pct
     );
+    let mut set = crate::io::OutputSet::files();
     if let Some(p) = &a.csv {
-        write_distortion_csv(p, &system, &g)?;
+        write_distortion_csv(&set.stage(p), &system, &g)?;
     }
     if let Some(p) = &a.json {
-        write_json(p, &g)?;
+        write_json(&set.stage(p), &g)?;
     }
     if let Some(p) = &a.png {
-        distortion_plot(p, &system, &g, a.arrow_scale)?;
+        distortion_plot(&set.stage(p), &system, &g, a.arrow_scale)?;
     }
+    set.commit()?;
     Ok(())
 }
 
 pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
-    let system = load_system(&a.system)?;
-    let ws = parse_wavelengths(&a.wavelengths_nm)?;
+    check_extension("--csv", &a.csv, &["csv"])?;
+    check_extension("--png", &a.png, &["png"])?;
+    let ws = parse_wavelengths_for("--wavelengths-nm", &a.wavelengths_nm)?;
     let field = parse_field(&a.field_mm)?;
+    let system = load_system(&a.system)?;
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, ws.len() as u64)?;
     let c = analysis::dispersion_curve(&system, tracer.as_ref(), field, &ws)?;
     println!("{}: field ({}, {}) mm, {}–{} nm: spatio-spectral spreading {:.2} µm ({:.1} px of 10 µm)", system.name(), field[0], field[1], ws[0], ws[ws.len() - 1], c.spread_um, c.spread_um / 10.0);
+    let mut set = crate::io::OutputSet::files();
     if let Some(p) = &a.csv {
+        let p = &set.stage(p);
         let mut w = CsvWriter::new(p, &["wavelength_nm", "x_mm", "y_mm"])?;
         w.comment(&format!("system {}; chief ray of field ({}, {}) mm; spread {} um", system.name(), field[0], field[1], c.spread_um));
         for k in 0..ws.len() {
@@ -508,15 +632,27 @@ pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
         say_written(p);
     }
     if let Some(p) = &a.png {
+        let p = &set.stage(p);
         plot::dispersion_curve(p, &format!("{} spatio-spectral spreading ({:.1} µm)", system.name(), c.spread_um), &c.wavelength_nm, &c.x_mm, &c.y_mm)?;
         say_written(p);
     }
+    set.commit()?;
     Ok(())
 }
 
 pub(super) fn mapping(a: MappingArgs) -> Result<()> {
+    check_extension("--npy", &Some(a.npy.clone()), &["npy"])?;
+    let ws = parse_wavelengths_for("--wavelengths-nm", &a.wavelengths_nm)?;
+    if a.height == 0 || a.width == 0 {
+        return Err(Error::invalid(format!("--height {} --width {}: both must be ≥ 1", a.height, a.width)));
+    }
+    if !(a.pitch_mm.is_finite() && a.pitch_mm > 0.0 && a.pitch_mm <= crate::limits::MAX_LENGTH_MM) {
+        return Err(Error::invalid(format!("--pitch-mm {}: must be in (0, {:e}] mm", a.pitch_mm, crate::limits::MAX_LENGTH_MM)));
+    }
+    let what = format!("--height × --width × --wavelengths-nm ({} × {} × {})", a.height, a.width, ws.len());
+    crate::limits::check_memory(&what, crate::limits::bytes_mapping(a.height, a.width, ws.len()))?;
+    crate::limits::check_rays(&what, a.height as f64 * a.width as f64 * ws.len() as f64)?;
     let system = load_system(&a.system)?;
-    let ws = parse_wavelengths(&a.wavelengths_nm)?;
     let (tracer, stride) = super::fidelity::mapping_for(&a.backend, &system, a.height, a.width, a.pitch_mm, &ws)?;
     let t0 = Instant::now();
     let cube = analysis::mapping_cube_interpolated(&system, tracer.as_ref(), a.height, a.width, a.pitch_mm, &ws, stride)?;
@@ -528,20 +664,31 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
         println!("{}: mapping {}×{}×{} = {n} chief rays in {secs:.2} s ({:.2} M rays/s), {} did not arrive", system.name(), a.height, a.width, ws.len(), n as f64 / secs / 1e6, cube.invalid_count());
     }
     let shape = [a.height, a.width, ws.len(), 2];
+    // A valid entry must hold a finite position in the written precision (an f64 beyond f32::MAX would
+    // become inf beside a set validity flag).
+    let valid_positions = cube.valid.iter().enumerate().filter(|(_, v)| **v != 0).flat_map(|(k, _)| [cube.positions_mm[2 * k], cube.positions_mm[2 * k + 1]]);
     if a.f64 {
-        write_npy_f64(&a.npy, &shape, &cube.positions_mm)?;
+        crate::limits::check_finite_array("mapping cube", valid_positions)?;
+    } else {
+        crate::limits::check_finite_array("mapping cube (float32)", valid_positions.map(|v| v as f32 as f64))?;
+    }
+    let mut set = crate::io::OutputSet::files();
+    let npy = set.stage(&a.npy);
+    if a.f64 {
+        write_npy_f64(&npy, &shape, &cube.positions_mm)?;
     } else {
         let v: Vec<f32> = cube.positions_mm.iter().map(|&x| x as f32).collect();
-        write_npy_f32(&a.npy, &shape, &v)?;
+        write_npy_f32(&npy, &shape, &v)?;
     }
-    say_written(&a.npy);
     let stem = a.npy.file_stem().and_then(|s| s.to_str()).unwrap_or("mapping");
     let valid = a.npy.with_file_name(format!("{stem}_valid.npy"));
-    write_npy_u8(&valid, &shape[..3], &cube.valid)?;
-    say_written(&valid);
+    write_npy_u8(&set.stage(&valid), &shape[..3], &cube.valid)?;
     let wl = a.npy.with_file_name(format!("{stem}_wavelengths_nm.npy"));
-    write_npy_f64(&wl, &[ws.len()], &ws)?;
-    say_written(&wl);
+    write_npy_f64(&set.stage(&wl), &[ws.len()], &ws)?;
+    set.commit()?;
+    for p in [&a.npy, &valid, &wl] {
+        say_written(p);
+    }
     Ok(())
 }
 
@@ -549,8 +696,9 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
 
 pub(super) fn report(a: ReportArgs) -> Result<()> {
     let system = load_system(&a.system)?;
-    let out = &a.out;
-    std::fs::create_dir_all(out).map_err(|e| Error::File { path: out.display().to_string(), message: format!("cannot create: {e}") })?;
+    // Everything is written into a staging folder beside --out and replaces it at the end (all or nothing).
+    let set = crate::io::OutputSet::folder(&a.out, "report.json")?;
+    let out = &set.stage_dir().map(Path::to_path_buf).unwrap_or_else(|| a.out.clone());
     let name = system.name().to_string();
     let t0 = Instant::now();
     write_atomic(out.join("system.txt"), lde_table(&system).as_bytes())?;
@@ -590,7 +738,8 @@ pub(super) fn report(a: ReportArgs) -> Result<()> {
             "seconds": t0.elapsed().as_secs_f64(),
         }),
     )?;
-    println!("report of `{name}` written to {} in {:.2} s", out.display(), t0.elapsed().as_secs_f64());
+    set.commit()?;
+    println!("report of `{name}` written to {} in {:.2} s", a.out.display(), t0.elapsed().as_secs_f64());
     Ok(())
 }
 
@@ -604,6 +753,13 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
         return Err(Error::invalid("--csv, --png and --quick belong to `diffcassi bench tradeoff`"));
     }
     let repeat = a.repeat.unwrap_or(3);
+    if a.rays == 0 || a.wavelengths == 0 || repeat == 0 {
+        return Err(Error::invalid("--rays, --wavelengths and --repeat must be ≥ 1"));
+    }
+    let what = format!("--rays {} × --wavelengths {}", a.rays, a.wavelengths);
+    let n = a.rays as f64 * a.wavelengths as f64;
+    crate::limits::check_memory(&what, 2.0 * n * crate::limits::BYTES_PER_RAY)?;
+    crate::limits::check_rays(&format!("{what} × --repeat {repeat} × backends × thread counts"), n * (repeat as f64 + 1.0) * 2.0 * a.backends.split(',').count() as f64)?;
     let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let ws = linspace(450.0, 650.0, a.wavelengths.max(1));
     let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000)?;

@@ -48,7 +48,7 @@ pub struct RenderDatasetArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Keep the traced light transport in memory up to this size (GB); beyond it, trace per scene.
-    #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
+    #[arg(long = "transport-memory-gb", default_value_t = 4.0, value_parser = super::render::positive_gb)]
     pub transport_memory_gb: f64,
     /// Sensor noise; each scene's noise seed is `--noise-seed` + a hash of the scene's name (FNV-1a), so a
     /// scene's noise does not depend on which other scenes are in the folder or shard.

@@ -91,6 +91,7 @@ fn resolve_param(system: &str, name: &str) -> Result<Param> {
 }
 
 fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
+    crate::limits::check_json_finite(&path.display().to_string(), value)?;
     let text = serde_json::to_string_pretty(value).map_err(|e| Error::invalid(format!("JSON: {e}")))?;
     crate::io::write_atomic(path, text.as_bytes())?;
     println!("wrote {}", path.display());
@@ -98,16 +99,30 @@ fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
 }
 
 pub(super) fn write_spec(path: &Path, spec: &SystemSpec) -> Result<()> {
-    let text = match path.extension().and_then(|e| e.to_str()) {
-        Some("json") => serde_json::to_string_pretty(spec).map_err(|e| Error::invalid(format!("JSON: {e}")))?,
-        _ => crate::spec::to_toml(spec)?,
-    };
-    crate::io::write_atomic(path, text.as_bytes())?;
+    // The format follows the extension (.toml/.json); any other is an error (never TOML in a .yaml).
+    crate::spec::save_spec_file(spec, path)?;
     println!("wrote {}", path.display());
     Ok(())
 }
 
+/// `--system-out` and `--report` name files of their format (checked before the optimisation runs).
+fn check_outputs(system_out: &Option<PathBuf>, report: &Option<PathBuf>) -> Result<()> {
+    if let Some(p) = system_out {
+        let ext = p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+        if !matches!(ext.as_deref(), Some("toml") | Some("json")) {
+            return Err(Error::invalid(format!("--system-out {}: the spec format follows the extension, use .toml or .json", p.display())));
+        }
+    }
+    if let Some(p) = report {
+        if !p.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+            return Err(Error::invalid(format!("--report {}: the report is JSON, name it .json", p.display())));
+        }
+    }
+    Ok(())
+}
+
 pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
+    check_outputs(&a.system_out, &a.report)?;
     if !(a.noise_um.is_finite() && a.noise_um >= 0.0) {
         return Err(Error::invalid(format!("--noise-um {}: must be finite and ≥ 0", a.noise_um)));
     }
@@ -199,6 +214,7 @@ pub(super) fn design_cmd(a: DesignArgs) -> Result<()> {
 }
 
 fn amici_cmd(a: AmiciArgs) -> Result<()> {
+    check_outputs(&a.system_out, &a.report)?;
     let catalog = crate::design::design_catalog(a.glass_catalog.as_deref())?;
     if !(a.final_thickness_weight.is_finite() && a.final_thickness_weight >= 0.0) {
         return Err(Error::invalid(format!("--final-thickness-weight {}: must be finite and ≥ 0", a.final_thickness_weight)));

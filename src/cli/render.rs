@@ -8,7 +8,7 @@
 //! diffcassi bench-render --preset sp                              # the paper-scale timing table
 //! ```
 use super::args::{BackendArgs, SystemArgs};
-use super::commands::{load_system, parse_wavelengths};
+use super::commands::{load_system, parse_wavelengths, parse_wavelengths_for};
 use crate::error::{Error, Result};
 use crate::render::{output, AiryConfig, Mask, NoiseConfig, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
@@ -185,6 +185,16 @@ pub struct BenchRenderArgs {
     pub scenes: usize,
 }
 
+/// A memory size in GB: finite and ≥ 0 (clap names the option in the error).
+pub(super) fn positive_gb(s: &str) -> std::result::Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number of GB"))?;
+    if v.is_finite() && v >= 0.0 {
+        Ok(v)
+    } else {
+        Err(format!("{v} GB: must be finite and ≥ 0"))
+    }
+}
+
 fn parse_sampling(s: &str) -> Result<Sampling> {
     match s {
         "stratified" => Ok(Sampling::Stratified),
@@ -207,14 +217,30 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
     if n == 0 {
         return Err(Error::invalid("--scene-size must be ≥ 1"));
     }
-    let bands = parse_wavelengths(&a.bands)?;
-    let spectral = SpectralSampling::with_planes(bands, a.planes)?;
-    if !(a.airy_diameter_px.is_finite() && a.airy_diameter_px > 0.0) {
-        return Err(Error::invalid(format!("--airy-diameter-px {}: must be finite and > 0", a.airy_diameter_px)));
+    let bands = parse_wavelengths_for("--bands", &a.bands)?;
+    if a.planes == 0 || a.planes > crate::limits::MAX_PLANES {
+        return Err(Error::invalid(format!("--planes {}: must be in 1..={}", a.planes, crate::limits::MAX_PLANES)));
+    }
+    if !(a.airy_diameter_px.is_finite() && a.airy_diameter_px > 0.0 && a.airy_diameter_px <= crate::limits::MAX_AIRY_DIAMETER_PX) {
+        return Err(Error::invalid(format!("--airy-diameter-px {}: must be in (0, {}] pixels", a.airy_diameter_px, crate::limits::MAX_AIRY_DIAMETER_PX)));
     }
     if a.rays == Some(0) {
         return Err(Error::invalid("--rays must be ≥ 1"));
     }
+    if !(a.opening.is_finite() && (0.0..=1.0).contains(&a.opening)) {
+        return Err(Error::invalid(format!("--opening {}: the mask's opening ratio must be in [0, 1]", a.opening)));
+    }
+    parse_fit(&a.fit)?;
+    parse_sampling(&a.sampling)?;
+    let scene_bands = match &a.scene_wavelengths {
+        Some(t) => parse_wavelengths_for("--scene-wavelengths", t)?.len(),
+        None => bands.len().max(31),
+    };
+    let what = format!("--scene-size {n} × --planes {} (× {} bands)", a.planes, bands.len());
+    crate::limits::check_memory(&what, crate::limits::bytes_render(n, scene_bands, bands.len(), a.planes, a.cube, (!a.no_airy).then_some(a.airy_diameter_px)))?;
+    // The ray budget with the given (or default) rays per pixel; a --tolerance-um choice is checked again.
+    check_render_rays(n, a.planes, a.rays.unwrap_or(20))?;
+    let spectral = SpectralSampling::with_planes(bands, a.planes)?;
     let mut cfg = RenderConfig::paper(n);
     cfg.spectral = spectral;
     cfg.rays_per_pixel = a.rays.unwrap_or(20);
@@ -234,6 +260,11 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
     Ok((cfg, mask))
 }
 
+/// Rays of a render: N² pixels × planes × rays per pixel, within the ray budget.
+pub fn check_render_rays(n: usize, planes: usize, rays: usize) -> Result<()> {
+    crate::limits::check_rays(&format!("--scene-size {n} × --planes {planes} × --rays {rays}"), (n as f64).powi(2) * planes as f64 * rays as f64)
+}
+
 /// The tracer and rays per pixel: as given, or chosen by `--tolerance-um`.
 pub(super) fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
     let open = mask.values.iter().filter(|&&v| v > 0.0).count();
@@ -250,8 +281,27 @@ pub(super) fn load_fitted(path: &Path, a: &RenderCommon) -> Result<(SpectralCube
     let raw = load_scene(path, ws.as_deref())?;
     let fit = parse_fit(&a.fit)?;
     let cube = raw.fit(a.scene_size, fit).map_err(|e| Error::File { path: path.display().to_string(), message: e.to_string() })?;
+    check_scene_values(&cube).map_err(|m| Error::File { path: path.display().to_string(), message: m })?;
     let desc = serde_json::json!({"source": path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "native_wavelengths_nm": raw.wavelengths_nm, "fit": fit});
     Ok((cube, desc))
+}
+
+/// Scene radiances must be finite, ≥ 0 and below [`crate::limits::MAX_SCENE_VALUE`] (so that sums over
+/// planes, rays and the Airy kernel cannot overflow the f32 images).
+pub fn check_scene_values(cube: &SpectralCube) -> std::result::Result<(), String> {
+    for (i, &v) in cube.data.iter().enumerate() {
+        let v = v as f64;
+        if !v.is_finite() || v < 0.0 || v > crate::limits::MAX_SCENE_VALUE {
+            let (b, px) = (i % cube.wavelengths_nm.len().max(1), i / cube.wavelengths_nm.len().max(1));
+            return Err(format!(
+                "scene value {v} at pixel ({}, {}), band {b}: radiances must be finite, ≥ 0 and ≤ {:.3e} (f32 range / 10⁹, so the acquisition cannot overflow)",
+                px / cube.width.max(1),
+                px % cube.width.max(1),
+                crate::limits::MAX_SCENE_VALUE
+            ));
+        }
+    }
+    Ok(())
 }
 
 pub(super) fn progress_bar(total: u64, what: &str) -> ProgressBar {
@@ -275,6 +325,8 @@ fn default_out(a: &RenderCommon) -> PathBuf {
 
 pub(super) fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Acquisition, scene: &serde_json::Value, t0: Instant, extra: serde_json::Value, mapping: bool) -> Result<serde_json::Value> {
     std::fs::create_dir_all(dir).map_err(|e| Error::File { path: dir.display().to_string(), message: format!("cannot create: {e}") })?;
+    crate::limits::check_finite_array("acquisition image", acq.image.iter().copied())?;
+    crate::limits::check_finite_array("acquisition image (float32)", acq.image.iter().map(|&v| v as f32 as f64))?;
     let scale = output::write_images(dir, renderer, acq)?;
     renderer.mask.save_png(&dir.join("mask.png"))?;
     if mapping {
@@ -284,6 +336,7 @@ pub(super) fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Ac
     if let (Some(o), serde_json::Value::Object(e)) = (json.as_object_mut(), extra) {
         o.extend(e);
     }
+    crate::limits::check_json_finite("render.json", &json)?;
     output::write_sidecar(dir, &json)?;
     Ok(json)
 }
@@ -293,9 +346,8 @@ pub fn render(a: RenderArgs) -> Result<()> {
     let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = config_from(&a.common)?;
-    let (tracer, rays) = render_tracer(&a.common, &system, &cfg, &mask)?;
-    cfg.rays_per_pixel = rays;
     let n = a.common.scene_size;
+    // The scene is loaded and checked before the (possibly long) tracer calibration and render.
     let (scene, desc) = match &a.scene {
         Some(p) => load_fitted(p, &a.common)?,
         None => {
@@ -303,6 +355,9 @@ pub fn render(a: RenderArgs) -> Result<()> {
             (synthetic_scene(n, n, &synthetic_wavelengths(), seed), serde_json::json!({"source": "synthetic", "synthetic_seed": seed, "native_wavelengths_nm": synthetic_wavelengths()}))
         }
     };
+    let (tracer, rays) = render_tracer(&a.common, &system, &cfg, &mask)?;
+    check_render_rays(n, cfg.spectral.planes(), rays)?;
+    cfg.rays_per_pixel = rays;
     let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
     let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
     let pb = progress_bar(renderer.rays_per_render(), &format!("render {}", system.name()));
@@ -310,7 +365,10 @@ pub fn render(a: RenderArgs) -> Result<()> {
     pb.finish_and_clear();
     // Sensor noise on the acquisition (the per-band images of --cube stay clean).
     let noise_json = apply_noise(noise.as_ref(), &mut acq, a.noise.noise.as_deref().unwrap_or(""), false)?;
-    let json = write_all(&out, &renderer, &acq, &desc, t0, serde_json::json!({"noise": noise_json}), !a.common.no_mapping)?;
+    // All or nothing: the files go to a staging folder beside --out, which replaces --out at the end.
+    let set = crate::io::OutputSet::folder(&out, "render.json")?;
+    let json = write_all(set.stage_dir().unwrap_or(&out), &renderer, &acq, &desc, t0, serde_json::json!({"noise": noise_json}), !a.common.no_mapping)?;
+    set.commit()?;
     println!(
         "{}: {}×{} scene, {} planes × {} rays: {} rays in {:.2} s ({:.2} M rays/s, {} threads), detector {}×{}, transmission {:.4}; total {:.2} s → {}",
         system.name(),
@@ -364,6 +422,12 @@ fn process_cpu_seconds() -> Option<f64> {
 pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let system = crate::system::SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let n = a.scene_size;
+    if n == 0 || a.planes == 0 || a.planes > crate::limits::MAX_PLANES || a.rays == 0 || !(a.opening.is_finite() && (0.0..=1.0).contains(&a.opening)) {
+        return Err(Error::invalid(format!("--scene-size {n}, --planes {}, --rays {}, --opening {}: sizes must be ≥ 1 (planes ≤ {}), the opening in [0, 1]", a.planes, a.rays, a.opening, crate::limits::MAX_PLANES)));
+    }
+    crate::limits::check_memory(&format!("--scene-size {n} × --planes {}", a.planes), 2.0 * crate::limits::bytes_render(n, 31, 28, a.planes, false, Some(2.5)))?;
+    // Acquisition, all-open acquisition, transport: three renders' rays.
+    crate::limits::check_rays(&format!("--scene-size {n} × --planes {} × --rays {} (× 3 renders)", a.planes, a.rays), 3.0 * (n as f64).powi(2) * a.planes as f64 * a.rays as f64)?;
     let mut cfg = RenderConfig::paper(n);
     cfg.spectral = SpectralSampling::with_planes(crate::analysis::linspace(450.0, 650.0, 28), a.planes)?;
     cfg.rays_per_pixel = a.rays;

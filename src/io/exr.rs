@@ -66,10 +66,30 @@ pub fn write_exr(path: impl AsRef<Path>, width: usize, height: usize, channels: 
     write_atomic(path, bytes.get_ref())
 }
 
+/// The decoded size the header declares, checked before the decoder allocates it (a corrupt or hostile
+/// header can declare 10⁸ × 10⁸ pixels in a few bytes; found by `tests/fuzz.rs`): within the memory budget
+/// ([`crate::limits`]) and at most 10⁴ times the file size (no real compression reaches that) above 256 MB.
+fn check_declared_size(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
+        .map_err(|e| exr_err(path, format!("not a readable OpenEXR file (truncated or malformed?): {e}")))?;
+    for h in meta.headers.iter() {
+        let (w, hgt) = (h.layer_size.width() as f64, h.layer_size.height() as f64);
+        let decoded = w * hgt * h.channels.list.len().max(1) as f64 * 4.0;
+        let plausible = (bytes.len() as f64 * 1e4).max(256e6);
+        if decoded > plausible {
+            return Err(exr_err(path, format!("the header declares {w}×{hgt} pixels × {} channels ({:.3e} bytes decoded) from a {}-byte file: corrupt or hostile", h.channels.list.len(), decoded, bytes.len())));
+        }
+        crate::limits::check_memory(&format!("{} ({w}×{hgt} pixels × {} channels)", path.display(), h.channels.list.len()), decoded)
+            .map_err(|e| exr_err(path, e.to_string()))?;
+    }
+    Ok(())
+}
+
 /// Read the first layer of an EXR file, every channel as `f32`.
 pub fn read_exr(path: impl AsRef<Path>) -> Result<ExrImage, IoError> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| IoError::io(path, "cannot read", e))?;
+    check_declared_size(path, &bytes)?;
     let image = read()
         .no_deep_data()
         .largest_resolution_level()
@@ -103,6 +123,24 @@ pub fn read_exr(path: impl AsRef<Path>) -> Result<ExrImage, IoError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Fuzzer regression: a header declaring a huge data window is refused before the decoder allocates it
+    /// (it used to abort the process: "memory allocation of 18301720899686472 bytes failed").
+    #[test]
+    fn huge_declared_data_window_is_an_error_not_an_abort() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("h.exr");
+        write_exr(&p, 4, 3, &[ExrChannel { name: "Y".into(), data: vec![0.5; 12] }]).unwrap();
+        let mut bytes = std::fs::read(&p).unwrap();
+        let key = b"dataWindow\0box2i\0";
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        for (k, v) in [(8usize, 99_999_999i32), (12, 99_999_999)] {
+            bytes[at + k..at + k + 4].copy_from_slice(&v.to_le_bytes());
+        }
+        std::fs::write(&p, &bytes).unwrap();
+        let e = read_exr(&p).unwrap_err().to_string();
+        assert!(e.contains("h.exr") && e.contains("declares"), "{e}");
+    }
 
     #[test]
     fn round_trip_many_channels_and_truncation() {

@@ -42,7 +42,7 @@ pub mod png16;
 
 use std::path::{Path, PathBuf};
 
-pub use atomic::{write_atomic, write_atomic_with};
+pub use atomic::{write_atomic, write_atomic_with, OutputSet};
 pub use csv::{parse_columns, read_columns, CsvValue, CsvWriter};
 pub use npy::{
     read_npy_f64, write_npy, write_npy_f32, write_npy_f64, write_npy_u16, write_npy_u8, NpyElement,

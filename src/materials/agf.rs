@@ -219,9 +219,20 @@ impl<'s> Parser<'s> {
     fn run(mut self, text: &str) -> Result<AgfDocument, MaterialError> {
         let text = text.strip_prefix('\u{FEFF}').unwrap_or(text);
         for (idx, raw) in text.lines().enumerate() {
+            // A catalogue is text: control characters (other than tab, form feed and the DOS end-of-file
+            // mark) or decoding replacement characters mean a binary or corrupt file, not records to skip.
+            if let Some(c) = raw.chars().find(|&c| ((c as u32) < 0x20 && !matches!(c, '\t' | '\r' | '\x0c' | '\x1a')) || c == '\x7f' || c == char::REPLACEMENT_CHARACTER) {
+                return Err(self.err(idx + 1, format!("not an AGF text file: byte/character U+{:04X} (binary or corrupt data)", c as u32)));
+            }
             self.line(idx + 1, raw)?;
         }
         self.finish_current()?;
+        if self.glasses.is_empty() {
+            return Err(self.err(
+                text.lines().count().max(1),
+                "no glass (NM record) in the file: not an AGF catalogue, or an empty one",
+            ));
+        }
         Ok(AgfDocument {
             catalog: self.catalog,
             comments: self.comments,
@@ -567,6 +578,19 @@ IT 3.10000E-01 2.50000E-01 2.50000E+01    \n";
                 message,
             } => (source_name, line, message),
             e => panic!("unexpected error {e:?}"),
+        }
+    }
+
+    #[test]
+    fn binary_or_empty_file_is_an_error_not_an_empty_catalogue() {
+        let (src, line, msg) = parse_err("\x00\x01\x02ELF\x7f binary");
+        assert_eq!(src, "T.AGF");
+        assert!(msg.contains("not an AGF text file") && line == 1, "{line} {msg}");
+        let bytes: Vec<u8> = (0..4096u32).map(|i| (i.wrapping_mul(2654435761) >> 13) as u8).collect();
+        assert!(parse_agf(&bytes, "T.AGF").is_err());
+        for text in ["", "CC only a comment\n", "XX some unknown record\n"] {
+            let (_, _, msg) = parse_err(text);
+            assert!(msg.contains("no glass"), "{text:?}: {msg}");
         }
     }
 

@@ -50,6 +50,8 @@ pub struct RayStats {
     /// Non-sequential backends only: absorbed by a mechanical wall, or over the bounce limit.
     pub absorbed: u64,
     pub bounce_limit: u64,
+    /// Arrived at a non-finite or implausible position ([`RayStatus::OutOfRange`]).
+    pub out_of_range: u64,
     /// Splat weight (in rays) that fell off the detector.
     pub off_detector: f64,
 }
@@ -65,6 +67,7 @@ impl RayStats {
         self.invalid_input += o.invalid_input;
         self.absorbed += o.absorbed;
         self.bounce_limit += o.bounce_limit;
+        self.out_of_range += o.out_of_range;
         self.off_detector += o.off_detector;
     }
     fn count(&mut self, s: RayStatus) {
@@ -77,6 +80,7 @@ impl RayStats {
             RayStatus::InvalidInput => self.invalid_input += 1,
             RayStatus::Absorbed => self.absorbed += 1,
             RayStatus::BounceLimit => self.bounce_limit += 1,
+            RayStatus::OutOfRange => self.out_of_range += 1,
         }
     }
     /// Fraction of the traced rays that reached the detector.
@@ -249,6 +253,12 @@ impl PlaneContext<'_> {
                 out.stats.traced += sc.rays.len() as u64;
                 let (stats, det) = (&mut out.stats, self.detector);
                 trace_interleaved(&self.system.path, &n, &sc.rays, |res| match res {
+                    // Same classification as `TracedBatch::classify_out_of_range`: an absurd landing is
+                    // counted, never splatted (its pixel index would overflow).
+                    Ok((p, d)) if !(p.is_finite() && d.is_finite() && p.abs().max_element() <= crate::limits::MAX_IMAGE_COORD_MM) => {
+                        stats.count(RayStatus::OutOfRange);
+                        sc.land.push((f64::NAN, f64::NAN));
+                    }
                     Ok((p, _)) => {
                         stats.count(RayStatus::Ok);
                         sc.land.push(det.to_pixel(p.x, p.y));

@@ -5,8 +5,8 @@ use serde::{Deserialize, Serialize};
 /// In a file a fixed cell is a bare number (`tilt_y_deg = -30.0`); otherwise a table:
 /// `{ value = 30.0, pickup = { surface = 7, scale = 1.0 } }`, `{ solve = "chief_ray" }`,
 /// `{ value = 50.0, variable = true }`.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(from = "CellRepr", into = "CellRepr")]
+#[derive(Clone, Debug, PartialEq, Serialize)]
+#[serde(into = "CellRepr")]
 pub struct Cell {
     /// The value (for pickups and solves: the last resolved value, informative only).
     pub value: f64,
@@ -76,7 +76,38 @@ impl From<f64> for Cell {
     }
 }
 
-#[derive(Serialize, Deserialize)]
+/// What a cell may be written as, for messages.
+const CELL_FORMS: &str = "a number, or a table such as { value = 50.0, variable = true }, { pickup = { surface = 7, scale = 1.0, offset = 0.0 } } or { solve = \"chief_ray\" }";
+
+/// Deserialized by hand (not `#[serde(untagged)]`) so that a wrong cell says which forms are accepted and,
+/// inside a table, which key is wrong — instead of serde's "did not match any variant of untagged enum".
+impl<'de> Deserialize<'de> for Cell {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = Cell;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(CELL_FORMS)
+            }
+            fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<Cell, E> {
+                Ok(Cell::fixed(v))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<Cell, E> {
+                Ok(Cell::fixed(v as f64))
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Cell, E> {
+                Ok(Cell::fixed(v as f64))
+            }
+            fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<Cell, A::Error> {
+                let t = CellTable::deserialize(serde::de::value::MapAccessDeserializer::new(map))?;
+                Ok(Cell::from(CellRepr::Table(t)))
+            }
+        }
+        d.deserialize_any(V)
+    }
+}
+
+#[derive(Serialize)]
 #[serde(untagged)]
 enum CellRepr {
     Value(f64),

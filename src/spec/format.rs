@@ -39,12 +39,22 @@ pub fn load_spec_file(path: impl AsRef<Path>) -> Result<SystemSpec> {
     }
 }
 
-/// Write a spec as TOML or JSON (by extension), atomically.
+/// Write a spec as TOML or JSON, atomically; the format follows the extension (`.toml` or `.json`, any case)
+/// and any other extension is an error (nothing is written): a `.yaml`/`.csv` name would otherwise hold TOML.
 pub fn save_spec_file(spec: &SystemSpec, path: impl AsRef<Path>) -> Result<()> {
     let path = path.as_ref();
-    let text = match path.extension().and_then(|e| e.to_str()) {
+    let text = match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("json") => to_json(spec)?,
-        _ => to_toml(spec)?,
+        Some("toml") => to_toml(spec)?,
+        other => {
+            return Err(Error::File {
+                path: path.display().to_string(),
+                message: format!(
+                    "cannot write a spec as {}: the format follows the extension, use .toml or .json (the paper's .yml and Zemax .csv are import-only)",
+                    other.map(|e| format!(".{e}")).unwrap_or_else(|| "a file without extension".into())
+                ),
+            })
+        }
     };
     crate::io::write_atomic(path, text.as_bytes())?;
     Ok(())

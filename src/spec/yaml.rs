@@ -85,6 +85,7 @@ pub fn import_yaml(text: &str, source_name: &str) -> crate::Result<super::System
 /// The spec plus, for every non-break surface of it, the global frame dO evaluates it in.
 pub(crate) fn import_with_frames(text: &str, source_name: &str) -> Result<(SystemSpec, Vec<(usize, Frame)>)> {
     let fail = |m: String| Error::spec(source_name, m);
+    check_expansion(text).map_err(fail)?;
     let docs = YamlLoader::load_from_str(text).map_err(|e| {
         let m = e.marker();
         fail(format!("malformed YAML at line {}, column {}: {}", m.line(), m.col() + 1, e.info()))
@@ -107,6 +108,72 @@ pub(crate) fn import_with_frames(text: &str, source_name: &str) -> Result<(Syste
 }
 
 type R<T> = std::result::Result<T, String>;
+
+/// Most nodes (scalars, sequences, mappings) a YAML document may expand to once its aliases are resolved,
+/// and deepest nesting. A paper system file has a few hundred nodes and depth < 10; these bounds stop an
+/// alias bomb ("billion laughs": each anchor referring to the previous one several times) or a deeply
+/// nested document *before* [`YamlLoader`] copies every alias into the tree.
+pub const YAML_MAX_NODES: u64 = 1_000_000;
+pub const YAML_MAX_DEPTH: usize = 256;
+
+/// Count the nodes the document expands to (an alias counts as a copy of its anchor's node) from the
+/// parser's event stream, without building anything; error past [`YAML_MAX_NODES`] / [`YAML_MAX_DEPTH`].
+fn check_expansion(text: &str) -> R<()> {
+    use yaml_rust2::parser::{Event, Parser};
+    let mut parser = Parser::new_from_str(text);
+    // Open collections: (anchor id, expanded nodes so far inside it, counting itself).
+    let mut open: Vec<(usize, u64)> = Vec::new();
+    let mut anchors: std::collections::HashMap<usize, u64> = std::collections::HashMap::new();
+    let mut total: u64 = 0;
+    loop {
+        // A scan error is reported by the loader with its position; stop counting there.
+        let Ok((event, mark)) = parser.next_token() else { return Ok(()) };
+        let add = |n: u64, open: &mut Vec<(usize, u64)>, total: &mut u64| -> R<()> {
+            *total = total.saturating_add(n);
+            if let Some(top) = open.last_mut() {
+                top.1 = top.1.saturating_add(n);
+            }
+            if *total > YAML_MAX_NODES {
+                return Err(format!(
+                    "YAML document expands to more than {YAML_MAX_NODES} nodes (at line {}: aliases `*name` repeating anchors `&name`); a system file needs far fewer",
+                    mark.line()
+                ));
+            }
+            Ok(())
+        };
+        match event {
+            Event::StreamEnd => return Ok(()),
+            Event::Scalar(_, _, anchor, _) => {
+                add(1, &mut open, &mut total)?;
+                if anchor > 0 {
+                    anchors.insert(anchor, 1);
+                }
+            }
+            Event::Alias(id) => {
+                let n = anchors.get(&id).copied().unwrap_or(1);
+                add(n, &mut open, &mut total)?;
+            }
+            Event::SequenceStart(anchor, _) | Event::MappingStart(anchor, _) => {
+                total = total.saturating_add(1);
+                open.push((anchor, 1));
+                if open.len() > YAML_MAX_DEPTH {
+                    return Err(format!("YAML nesting deeper than {YAML_MAX_DEPTH} levels at line {}", mark.line()));
+                }
+            }
+            Event::SequenceEnd | Event::MappingEnd => {
+                if let Some((anchor, n)) = open.pop() {
+                    if anchor > 0 {
+                        anchors.insert(anchor, n);
+                    }
+                    if let Some(top) = open.last_mut() {
+                        top.1 = top.1.saturating_add(n);
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+}
 
 // ---------------------------------------------------------------------------------------------------
 // YAML access with paths
@@ -802,5 +869,30 @@ wavelengths: [520.0]
         let n_local = g.transpose() * plane.rotation.z_axis;
         let expect = DVec3::new(-0.3, -0.1, 1.0).normalize();
         assert!((n_local - expect).length() < 1e-14, "{n_local:?}");
+    }
+
+    /// "Billion laughs": 9 levels of 9 aliases each expand to 9⁹ ≈ 3.9·10⁸ nodes; refused from the event
+    /// stream in milliseconds instead of exhausting memory in the loader.
+    #[test]
+    fn alias_bomb_is_refused_before_expansion() {
+        let mut text = String::from("a0: &a0 [x, x, x, x, x, x, x, x, x]\n");
+        for k in 1..10 {
+            let p = k - 1;
+            text += &format!("a{k}: &a{k} [*a{p}, *a{p}, *a{p}, *a{p}, *a{p}, *a{p}, *a{p}, *a{p}, *a{p}]\n");
+        }
+        let t = std::time::Instant::now();
+        let e = import_yaml(&text, "bomb.yml").unwrap_err().to_string();
+        assert!(e.contains("bomb.yml") && e.contains("expands to more than") && e.contains("anchors"), "{e}");
+        assert!(t.elapsed().as_secs_f64() < 5.0);
+        // A few aliases are fine (and reach the importer's own checks).
+        let e = import_yaml("a: &x [1, 2]\nb: *x\n", "small.yml").unwrap_err().to_string();
+        assert!(!e.contains("expands"), "{e}");
+    }
+
+    #[test]
+    fn deep_nesting_is_refused() {
+        let text = format!("{}{}", "[".repeat(5000), "]".repeat(5000));
+        let e = import_yaml(&text, "deep.yml").unwrap_err().to_string();
+        assert!(e.contains("deep.yml") && (e.contains("deeper than") || e.contains("recursion")), "{e}");
     }
 }

@@ -78,9 +78,16 @@ fn parse_flagged(text: &str, at: &dyn Fn(&str) -> Error) -> Result<Option<Flagge
 }
 
 /// Parse a prescription transcription into a [`SystemSpec`].
+///
+/// Strict: every row has exactly the header's number of fields (a truncated or shortened row is an error,
+/// never a cell silently read as empty), the first surface row is the `OBJECT`, the last one the `IMAGE`
+/// and no other row claims either role; a UTF-8 byte-order mark before the header is skipped.
 pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> Result<SystemSpec> {
+    let text = text.strip_prefix('\u{feff}').unwrap_or(text);
     let mut header: Option<Vec<String>> = None;
     let mut surfaces: Vec<SurfaceSpec> = Vec::new();
+    // (line number, role) of every surface row: OBJECT/IMAGE must be the first/last rows.
+    let mut roles: Vec<(usize, Option<&'static str>)> = Vec::new();
     for (lineno, raw) in text.lines().enumerate() {
         let line_no = lineno + 1;
         let line = raw.trim_end_matches('\r');
@@ -97,6 +104,12 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
             }
             continue;
         };
+        if fields.len() != cols.len() {
+            return Err(Error::spec(
+                source_name,
+                format!("line {line_no}: {} fields but the header has {} (a truncated or malformed row; every row needs all columns, empty ones as `,,`)", fields.len(), cols.len()),
+            ));
+        }
         let get = |name: &str| -> &str {
             cols.iter().position(|c| c == name).and_then(|i| fields.get(i)).map(|s| s.trim()).unwrap_or("")
         };
@@ -111,6 +124,7 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
         let type_text = get("type");
         let upper = type_text.to_ascii_uppercase();
         let is_stop = upper.starts_with("STOP ");
+        roles.push((line_no, if upper.starts_with("OBJECT ") { Some("OBJECT") } else if upper.starts_with("IMAGE ") { Some("IMAGE") } else { None }));
         let bare = upper.trim_start_matches("OBJECT ").trim_start_matches("STOP ").trim_start_matches("IMAGE ").trim();
         let kind = match bare {
             "STANDARD" => SurfaceKind::Standard,
@@ -205,6 +219,18 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
     }
     if surfaces.is_empty() {
         return Err(Error::spec(source_name, "empty system: no surface rows"));
+    }
+    let last = roles.len() - 1;
+    for (k, &(line_no, role)) in roles.iter().enumerate() {
+        let want = if k == 0 { Some("OBJECT") } else if k == last { Some("IMAGE") } else { None };
+        if role != want {
+            let msg = match (want, role) {
+                (Some(w), _) => format!("line {line_no}: surface {k} must be the {w} surface (type `{w} ...`); the file {}", if w == "IMAGE" { "lacks its IMAGE row or is truncated" } else { "lacks its OBJECT row" }),
+                (None, Some(r)) => format!("line {line_no}: surface {k} is marked {r} but only the {} row may be", if r == "OBJECT" { "first" } else { "last" }),
+                (None, None) => continue,
+            };
+            return Err(Error::spec(source_name, msg));
+        }
     }
     let spec = SystemSpec {
         name: data.name.clone(),

@@ -57,6 +57,9 @@ impl SequentialSystem {
         for i in 0..n {
             for col in spec.surfaces[i].present_columns() {
                 let v = resolve_cell(spec, i, &col, 0).map_err(|m| sys_err(i, &col, m))?;
+                if let Some(v) = v {
+                    crate::limits::check_resolved_cell(&col, v).map_err(|m| sys_err(i, &col, resolved_message(spec, i, &col, m)))?;
+                }
                 values[i].insert(col, v);
             }
         }
@@ -165,8 +168,11 @@ impl SequentialSystem {
                 });
             }
             let thickness = value(&values, i, "thickness_mm").unwrap_or(0.0);
-            // Write resolved values back into the spec's cells.
+            // Write resolved values back into the spec's cells (late pickups and solves checked here).
             for col in resolved_spec.surfaces[i].present_columns() {
+                if let Some(v) = value(&values, i, &col) {
+                    crate::limits::check_resolved_cell(&col, v).map_err(|m| sys_err(i, &col, resolved_message(spec, i, &col, m)))?;
+                }
                 if let (Some(cell), Some(v)) = (resolved_spec.surfaces[i].cell_mut(&col), value(&values, i, &col)) {
                     cell.value = v;
                 }
@@ -208,6 +214,15 @@ fn path_step(from: &Frame, to: &Frame, surface: usize, shape: SurfaceShape, aper
     let offset = from.point_to_local(to.origin);
     let rotation = to.rotation.transpose() * from.rotation;
     PathStep { surface, rotation, offset, shape, aperture }
+}
+
+/// The message of an implausible resolved value, saying where it came from (a pickup, a solve, or as given).
+fn resolved_message(spec: &SystemSpec, i: usize, col: &str, why: String) -> String {
+    match spec.surfaces[i].cell(col).map(|c| &c.driver) {
+        Some(Driver::Pickup(p)) => format!("{why} after its pickup from surface {} (scale {}, offset {})", p.surface, crate::limits::fmt_num(p.scale), crate::limits::fmt_num(p.offset)),
+        Some(Driver::ChiefRay) => format!("{why} after its chief-ray solve"),
+        _ => why,
+    }
 }
 
 /// Pass-1 value of a cell: `Ok(None)` when it depends on a chief-ray solve (resolved in pass 2).

@@ -91,6 +91,7 @@ impl Tracer for AnalyticTracer {
                     }
                 }
             });
+        out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
         Ok(out)
     }
 }

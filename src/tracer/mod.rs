@@ -62,6 +62,9 @@ pub enum RayStatus {
     Absorbed = 6,
     /// Non-sequential tracers: more surface interactions than the tracer's bounce limit.
     BounceLimit = 7,
+    /// Arrived, but at a non-finite or implausible position (|x| or |y| beyond
+    /// [`crate::limits::MAX_IMAGE_COORD_MM`]) or direction: an overflow, never reported as `ok`.
+    OutOfRange = 8,
 }
 
 impl RayStatus {
@@ -75,6 +78,7 @@ impl RayStatus {
             RayStatus::InvalidInput => "invalid_input",
             RayStatus::Absorbed => "absorbed",
             RayStatus::BounceLimit => "bounce_limit",
+            RayStatus::OutOfRange => "out_of_range",
         }
     }
 }

@@ -16,6 +16,26 @@ pub struct TracedBatch {
 }
 
 impl TracedBatch {
+    /// Reclassify arrived rays whose position or direction is non-finite or implausible (|x|, |y|, |z|
+    /// beyond [`crate::limits::MAX_IMAGE_COORD_MM`]) as [`RayStatus::OutOfRange`] at `image_surface`, with
+    /// zeroed position and direction (failed rays carry no position). Every tracer calls it last.
+    pub fn classify_out_of_range(&mut self, image_surface: u32) {
+        let lim = crate::limits::MAX_IMAGE_COORD_MM;
+        for i in 0..self.status.len() {
+            if self.status[i] != RayStatus::Ok {
+                continue;
+            }
+            let p = [self.x[i], self.y[i], self.z[i]];
+            let d = [self.dir_x[i], self.dir_y[i], self.dir_z[i]];
+            if p.iter().all(|v| v.is_finite() && v.abs() <= lim) && d.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            self.status[i] = RayStatus::OutOfRange;
+            self.surface[i] = image_surface;
+            (self.x[i], self.y[i], self.z[i], self.dir_x[i], self.dir_y[i], self.dir_z[i]) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+        }
+    }
+
     pub fn zeroed(n: usize) -> Self {
         TracedBatch {
             x: vec![0.0; n],

@@ -24,7 +24,7 @@ pub struct Spot(pub SpotDiagram);
 /// A mapping cube, exactly as `analysis::mapping_cube` returned it.
 pub struct Mapping(pub MappingCube);
 
-/// `RayStatus` is `#[repr(u8)]` with discriminants 0..=5, so a slice of it is a valid slice of `u8`.
+/// `RayStatus` is `#[repr(u8)]` with discriminants 0..=8, so a slice of it is a valid slice of `u8`.
 pub(crate) fn status_bytes(s: &[RayStatus]) -> &[u8] {
     const _: () = assert!(std::mem::size_of::<RayStatus>() == 1 && std::mem::align_of::<RayStatus>() == 1);
     // SAFETY: same size and alignment (checked above), every RayStatus value is a valid u8, and the

@@ -82,6 +82,8 @@ enum class RayStatus : std::uint8_t {
   /// Non-sequential (Embree) backends: absorbed by a side wall, or over the bounce limit.
   Absorbed = 6,
   BounceLimit = 7,
+  /// Arrived at a non-finite or implausible position (beyond 1e6 mm): an overflow, not a result.
+  OutOfRange = 8,
 };
 
 inline const char* label(RayStatus s) noexcept {
@@ -94,6 +96,7 @@ inline const char* label(RayStatus s) noexcept {
     case RayStatus::InvalidInput: return "invalid_input";
     case RayStatus::Absorbed: return "absorbed";
     case RayStatus::BounceLimit: return "bounce_limit";
+    case RayStatus::OutOfRange: return "out_of_range";
   }
   return "unknown";
 }

@@ -235,6 +235,7 @@ impl EmbreeTracer {
                 out.surface[i] = w.last_surface;
             }
         }
+        out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
         Ok((out, details, record.then(|| HitLog::from_rays(logs))))
     }
 

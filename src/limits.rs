@@ -1,0 +1,461 @@
+//! Limits in one place: the physically meaningful range of every quantity a user (or a pickup/solve) can
+//! put into a system, the sizes and counts a command accepts, and each command's resource budget — memory
+//! estimated *before* allocating and traced rays — with the refusal naming the option and the estimate.
+//!
+//! The budget is process-wide, set once by the command line (`--max-memory-gb`, `--max-rays`); library users
+//! get the defaults ([`Budget::default_for_machine`]) unless they call [`set_budget`].
+//!
+//! ```
+//! use diffcassi::limits;
+//! // 10⁶ × 10⁶ mapping entries at ~150 bytes each: refused, naming the options and the estimate.
+//! let e = limits::check_memory("--height/--width/--wavelengths-nm", limits::bytes_mapping(1_000_000, 1_000_000, 28)).unwrap_err();
+//! assert!(e.to_string().contains("--max-memory-gb"));
+//! assert!(limits::check_plausible_length("thickness_mm", 50.0).is_ok());
+//! assert!(limits::check_plausible_length("thickness_mm", 1e308).is_err());
+//! ```
+use crate::error::{Error, Result};
+use std::sync::OnceLock;
+
+// ------------------------------------------------------------------ value ranges (resolved systems, rays)
+
+/// Largest plausible |length| of a resolved system (thickness, decenter), mm:
+/// 1 km. A bench-top CASSI is ~0.3 m long; anything beyond is a typo or an overflowing pickup.
+pub const MAX_LENGTH_MM: f64 = 1e6;
+/// Largest plausible |tilt| of a coordinate break, degrees (one full turn).
+pub const MAX_TILT_DEG: f64 = 360.0;
+/// Largest plausible |coordinate| of a traced ray on the image surface, mm; a ray landing farther (or at a
+/// non-finite position) is classified [`crate::tracer::RayStatus::OutOfRange`], never reported `ok`.
+pub const MAX_IMAGE_COORD_MM: f64 = 1e6;
+/// Wavelengths accepted on the command line, nm (far UV to far IR; glasses narrow it further).
+pub const WAVELENGTH_RANGE_NM: (f64, f64) = (100.0, 20_000.0);
+/// Most wavelengths in one `first:last:count` list.
+pub const MAX_WAVELENGTHS: usize = 100_000;
+/// Most spectral planes of a render (the paper uses 112).
+pub const MAX_PLANES: usize = 100_000;
+/// Airy disk diameter of a render, pixels (the paper: 2.5). The kernel has ~(2.7·d)² taps, convolved with
+/// every plane, so its cost grows as d².
+pub const MAX_AIRY_DIAMETER_PX: f64 = 100.0;
+/// Most worker threads (`--threads`); results do not depend on the count.
+pub const MAX_THREADS: usize = 1024;
+/// Radiance values of a scene must stay below this so that a pixel's sum over planes, rays and the Airy
+/// kernel cannot overflow the f32 images: f32::MAX / 10⁹.
+pub const MAX_SCENE_VALUE: f64 = f32::MAX as f64 / 1e9;
+
+// ------------------------------------------------------------------ budget
+
+/// Memory (bytes) and work (traced rays) a command may use.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Budget {
+    pub memory_bytes: f64,
+    /// Where the memory budget comes from (for messages).
+    pub memory_source: String,
+    pub rays: f64,
+}
+
+/// Default ray budget: 2·10¹⁰ rays, 34 paper-scale acquisitions (512² × 112 planes × 20 rays = 5.9·10⁸).
+pub const DEFAULT_MAX_RAYS: f64 = 2e10;
+/// Fallback memory budget when /proc/meminfo is unreadable: 16 GB.
+pub const FALLBACK_MEMORY_BYTES: f64 = 16e9;
+
+impl Budget {
+    /// Half of the physical memory (`MemTotal` of /proc/meminfo), else 16 GB; [`DEFAULT_MAX_RAYS`].
+    pub fn default_for_machine() -> Self {
+        let (memory_bytes, memory_source) = match physical_memory_bytes() {
+            Some(b) => (b / 2.0, format!("default: half of the {:.1} GB of physical memory", b / 1e9)),
+            None => (FALLBACK_MEMORY_BYTES, "default: 16 GB".to_string()),
+        };
+        Budget { memory_bytes, memory_source, rays: DEFAULT_MAX_RAYS }
+    }
+}
+
+/// `MemTotal` from /proc/meminfo, bytes.
+pub fn physical_memory_bytes() -> Option<f64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let line = text.lines().find(|l| l.starts_with("MemTotal:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024.0)
+}
+
+static BUDGET: OnceLock<Budget> = OnceLock::new();
+
+/// Set the process-wide budget from `--max-memory-gb` / `--max-rays` (each `None`: the default). Values
+/// must be finite and > 0. Only the first call takes effect.
+pub fn set_budget(max_memory_gb: Option<f64>, max_rays: Option<f64>) -> Result<()> {
+    let mut b = Budget::default_for_machine();
+    if let Some(gb) = max_memory_gb {
+        if !(gb.is_finite() && gb > 0.0) {
+            return Err(Error::invalid(format!("--max-memory-gb {gb}: must be a finite number of GB > 0")));
+        }
+        b.memory_bytes = gb * 1e9;
+        b.memory_source = format!("--max-memory-gb {gb}");
+    }
+    if let Some(r) = max_rays {
+        if !(r.is_finite() && r >= 1.0) {
+            return Err(Error::invalid(format!("--max-rays {r}: must be a finite count ≥ 1")));
+        }
+        b.rays = r;
+    }
+    let _ = BUDGET.set(b);
+    Ok(())
+}
+
+/// The process-wide budget.
+pub fn budget() -> &'static Budget {
+    BUDGET.get_or_init(Budget::default_for_machine)
+}
+
+/// Refuse `bytes` over the memory budget, naming the options that set the size (`what`).
+pub fn check_memory(what: &str, bytes: f64) -> Result<()> {
+    let b = budget();
+    if !(bytes <= b.memory_bytes) {
+        return Err(Error::invalid(format!(
+            "{what}: needs an estimated {} of memory, over the budget of {} ({}); reduce {what} or raise --max-memory-gb",
+            gb(bytes),
+            gb(b.memory_bytes),
+            b.memory_source
+        )));
+    }
+    Ok(())
+}
+
+/// Refuse more than the ray budget, naming the options that set the count (`what`).
+pub fn check_rays(what: &str, rays: f64) -> Result<()> {
+    let b = budget();
+    if !(rays <= b.rays) {
+        return Err(Error::invalid(format!(
+            "{what}: {rays:.3e} rays to trace, over the budget of {:.3e} (--max-rays; default {DEFAULT_MAX_RAYS:.0e}, 34 paper-scale acquisitions); reduce {what} or raise --max-rays",
+            b.rays
+        )));
+    }
+    Ok(())
+}
+
+fn gb(bytes: f64) -> String {
+    if bytes.is_finite() && bytes < 1e15 {
+        format!("{:.2} GB", bytes / 1e9)
+    } else if bytes.is_finite() {
+        format!("{:.2e} GB", bytes / 1e9)
+    } else {
+        "more than 10^308 bytes".into()
+    }
+}
+
+/// `--threads`: 1..=[`MAX_THREADS`].
+pub fn check_threads(n: usize) -> Result<usize> {
+    let cores = std::thread::available_parallelism().map(|c| c.get()).unwrap_or(1);
+    if n == 0 || n > MAX_THREADS {
+        return Err(Error::invalid(format!("--threads {n}: must be in 1..={MAX_THREADS} (this machine has {cores} cores; results do not depend on the thread count)")));
+    }
+    Ok(n)
+}
+
+// ------------------------------------------------------------------ value checks
+
+/// A number for messages: plain when moderate, scientific when huge or tiny (`1e308`, not 309 digits).
+pub fn fmt_num(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e7).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// A resolved length (mm): finite and |v| ≤ [`MAX_LENGTH_MM`]. `Err` holds the reason.
+pub fn check_plausible_length(field: &str, v: f64) -> std::result::Result<(), String> {
+    if !v.is_finite() {
+        return Err(format!("{field} = {v} is not finite"));
+    }
+    if v.abs() > MAX_LENGTH_MM {
+        return Err(format!("{field} = {} mm is outside the plausible range ±{MAX_LENGTH_MM:e} mm (1 km)", fmt_num(v)));
+    }
+    Ok(())
+}
+
+/// A resolved tilt (degrees): finite and |v| ≤ [`MAX_TILT_DEG`].
+pub fn check_plausible_tilt(field: &str, v: f64) -> std::result::Result<(), String> {
+    if !v.is_finite() {
+        return Err(format!("{field} = {v} is not finite"));
+    }
+    if v.abs() > MAX_TILT_DEG {
+        return Err(format!("{field} = {}° is outside the plausible range ±{MAX_TILT_DEG}°", fmt_num(v)));
+    }
+    Ok(())
+}
+
+/// A resolved Lens Data Editor cell (after pickups and solves), by column: lengths (`*_mm` except the
+/// radius and the focal length, which may be huge for a flat or an inert paraxial lens, f = 10¹⁵ mm) within ±[`MAX_LENGTH_MM`], tilts (`*_deg`) within ±[`MAX_TILT_DEG`], everything else (radius,
+/// conic, asphere coefficients) finite. `Err` holds the reason.
+pub fn check_resolved_cell(column: &str, v: f64) -> std::result::Result<(), String> {
+    if column.ends_with("_deg") {
+        check_plausible_tilt(column, v)
+    } else if column.ends_with("_mm") && column != "radius_mm" && column != "focal_length_mm" {
+        check_plausible_length(column, v)
+    } else if !v.is_finite() {
+        Err(format!("{column} = {v} is not finite"))
+    } else {
+        Ok(())
+    }
+}
+
+/// Every value finite (an array about to be written): the error names the array, the first bad index and
+/// value.
+pub fn check_finite_array(what: &str, values: impl IntoIterator<Item = f64>) -> Result<()> {
+    for (i, v) in values.into_iter().enumerate() {
+        if !v.is_finite() {
+            return Err(Error::invalid(format!("{what}: element {i} is {v}; refusing to write a non-finite value")));
+        }
+    }
+    Ok(())
+}
+
+/// Every number of a JSON value finite before it is written: `serde_json` writes inf/NaN as `null`, which
+/// would hide them. Returns the JSON path of the first non-finite number. (A `serde_json::Value` cannot
+/// hold one, so the check runs on the serializable value through a checking serializer.)
+pub fn check_json_finite<T: serde::Serialize + ?Sized>(what: &str, value: &T) -> Result<()> {
+    let mut path = Vec::new();
+    match value.serialize(FiniteCheck { path: &mut path }) {
+        Ok(()) => Ok(()),
+        Err(NonFinite(p)) => Err(Error::invalid(format!("{what}: `{p}` is not finite (inf/NaN); refusing to write it as JSON null"))),
+    }
+}
+
+// ------------------------------------------------------------------ memory estimates (bytes)
+
+/// Bytes per traced ray held by `trace`/`spot` (ray batch 56 B, traced batch 60 B, spot columns ~40 B).
+pub const BYTES_PER_RAY: f64 = 160.0;
+
+/// Mapping cube H×W×Nλ: f64 positions (16 B), validity (1 B), the f32/f64 copy written (8–16 B) and the
+/// chief-ray batch and its traced copy (~116 B) ≈ 150 B per entry.
+pub fn bytes_mapping(height: usize, width: usize, wavelengths: usize) -> f64 {
+    height as f64 * width as f64 * wavelengths as f64 * 150.0
+}
+
+/// A render of an N×N scene: the scene cube (8 B per pixel and scene band), mapping cube (16 B per pixel
+/// and band), mask, detector images (at most 2N² pixels: f64 sum, f32 per band, ×planes with --cube),
+/// and the Airy kernels (one per plane).
+pub fn bytes_render(n: usize, scene_bands: usize, bands: usize, planes: usize, cube: bool, airy_diameter_px: Option<f64>) -> f64 {
+    let n2 = n as f64 * n as f64;
+    let detector = 2.0 * n2;
+    let images = detector * (8.0 + 4.0 * bands as f64 + if cube { 4.0 * bands as f64 } else { 0.0 });
+    let taps = airy_diameter_px.map(|d| (2.0 * (1.33 * d * 1.3 + 1.5) + 1.0).powi(2)).unwrap_or(0.0);
+    n2 * (8.0 * scene_bands as f64 + 16.0 * bands as f64 + 8.0) + images + planes as f64 * (taps * 12.0 + 64.0)
+}
+
+// ------------------------------------------------------------------ JSON finiteness checker
+
+#[derive(Debug)]
+struct NonFinite(String);
+impl std::fmt::Display for NonFinite {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "non-finite number at {}", self.0)
+    }
+}
+impl std::error::Error for NonFinite {}
+impl serde::ser::Error for NonFinite {
+    fn custom<M: std::fmt::Display>(msg: M) -> Self {
+        NonFinite(format!("(serialization error: {msg})"))
+    }
+}
+
+struct FiniteCheck<'a> {
+    path: &'a mut Vec<String>,
+}
+
+impl FiniteCheck<'_> {
+    fn float(self, v: f64) -> std::result::Result<(), NonFinite> {
+        if v.is_finite() {
+            Ok(())
+        } else {
+            Err(NonFinite(format!("{}{}", if self.path.is_empty() { "(root)".to_string() } else { self.path.join("") }, if v.is_nan() { " = NaN".to_string() } else { format!(" = {v}") })))
+        }
+    }
+    fn nested<T: serde::Serialize + ?Sized>(&mut self, seg: String, v: &T) -> std::result::Result<(), NonFinite> {
+        self.path.push(seg);
+        let r = v.serialize(FiniteCheck { path: self.path });
+        self.path.pop();
+        r
+    }
+}
+
+struct Compound<'a> {
+    path: &'a mut Vec<String>,
+    index: usize,
+    key: Option<String>,
+}
+
+macro_rules! ok_scalars {
+    ($($f:ident: $t:ty),*) => {$(fn $f(self, _v: $t) -> std::result::Result<(), NonFinite> { Ok(()) })*};
+}
+
+impl<'a> serde::Serializer for FiniteCheck<'a> {
+    type Ok = ();
+    type Error = NonFinite;
+    type SerializeSeq = Compound<'a>;
+    type SerializeTuple = Compound<'a>;
+    type SerializeTupleStruct = Compound<'a>;
+    type SerializeTupleVariant = Compound<'a>;
+    type SerializeMap = Compound<'a>;
+    type SerializeStruct = Compound<'a>;
+    type SerializeStructVariant = Compound<'a>;
+    ok_scalars!(serialize_bool: bool, serialize_i8: i8, serialize_i16: i16, serialize_i32: i32, serialize_i64: i64, serialize_u8: u8, serialize_u16: u16, serialize_u32: u32, serialize_u64: u64, serialize_char: char, serialize_str: &str, serialize_bytes: &[u8]);
+    fn serialize_f32(self, v: f32) -> std::result::Result<(), NonFinite> {
+        self.float(v as f64)
+    }
+    fn serialize_f64(self, v: f64) -> std::result::Result<(), NonFinite> {
+        self.float(v)
+    }
+    fn serialize_none(self) -> std::result::Result<(), NonFinite> {
+        Ok(())
+    }
+    fn serialize_some<T: serde::Serialize + ?Sized>(self, v: &T) -> std::result::Result<(), NonFinite> {
+        v.serialize(self)
+    }
+    fn serialize_unit(self) -> std::result::Result<(), NonFinite> {
+        Ok(())
+    }
+    fn serialize_unit_struct(self, _: &'static str) -> std::result::Result<(), NonFinite> {
+        Ok(())
+    }
+    fn serialize_unit_variant(self, _: &'static str, _: u32, _: &'static str) -> std::result::Result<(), NonFinite> {
+        Ok(())
+    }
+    fn serialize_newtype_struct<T: serde::Serialize + ?Sized>(self, _: &'static str, v: &T) -> std::result::Result<(), NonFinite> {
+        v.serialize(self)
+    }
+    fn serialize_newtype_variant<T: serde::Serialize + ?Sized>(mut self, _: &'static str, _: u32, variant: &'static str, v: &T) -> std::result::Result<(), NonFinite> {
+        self.nested(format!(".{variant}"), v)
+    }
+    fn serialize_seq(self, _: Option<usize>) -> std::result::Result<Compound<'a>, NonFinite> {
+        Ok(Compound { path: self.path, index: 0, key: None })
+    }
+    fn serialize_tuple(self, _: usize) -> std::result::Result<Compound<'a>, NonFinite> {
+        Ok(Compound { path: self.path, index: 0, key: None })
+    }
+    fn serialize_tuple_struct(self, _: &'static str, _: usize) -> std::result::Result<Compound<'a>, NonFinite> {
+        Ok(Compound { path: self.path, index: 0, key: None })
+    }
+    fn serialize_tuple_variant(self, _: &'static str, _: u32, _: &'static str, _: usize) -> std::result::Result<Compound<'a>, NonFinite> {
+        Ok(Compound { path: self.path, index: 0, key: None })
+    }
+    fn serialize_map(self, _: Option<usize>) -> std::result::Result<Compound<'a>, NonFinite> {
+        Ok(Compound { path: self.path, index: 0, key: None })
+    }
+    fn serialize_struct(self, _: &'static str, _: usize) -> std::result::Result<Compound<'a>, NonFinite> {
+        Ok(Compound { path: self.path, index: 0, key: None })
+    }
+    fn serialize_struct_variant(self, _: &'static str, _: u32, _: &'static str, _: usize) -> std::result::Result<Compound<'a>, NonFinite> {
+        Ok(Compound { path: self.path, index: 0, key: None })
+    }
+}
+
+impl Compound<'_> {
+    fn element<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> std::result::Result<(), NonFinite> {
+        let seg = format!("[{}]", self.index);
+        self.index += 1;
+        FiniteCheck { path: self.path }.nested(seg, v)
+    }
+    fn field<T: serde::Serialize + ?Sized>(&mut self, key: &str, v: &T) -> std::result::Result<(), NonFinite> {
+        FiniteCheck { path: self.path }.nested(format!(".{key}"), v)
+    }
+}
+
+macro_rules! seq_like {
+    ($($tr:ident :: $m:ident),*) => {$(
+        impl serde::ser::$tr for Compound<'_> {
+            type Ok = ();
+            type Error = NonFinite;
+            fn $m<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> std::result::Result<(), NonFinite> {
+                self.element(v)
+            }
+            fn end(self) -> std::result::Result<(), NonFinite> {
+                Ok(())
+            }
+        }
+    )*};
+}
+seq_like!(SerializeSeq::serialize_element, SerializeTuple::serialize_element, SerializeTupleStruct::serialize_field, SerializeTupleVariant::serialize_field);
+
+impl serde::ser::SerializeMap for Compound<'_> {
+    type Ok = ();
+    type Error = NonFinite;
+    fn serialize_key<T: serde::Serialize + ?Sized>(&mut self, k: &T) -> std::result::Result<(), NonFinite> {
+        self.key = Some(serde_json::to_value(k).ok().and_then(|v| v.as_str().map(String::from).or(Some(v.to_string()))).unwrap_or_default());
+        Ok(())
+    }
+    fn serialize_value<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> std::result::Result<(), NonFinite> {
+        let k = self.key.take().unwrap_or_default();
+        self.field(&k, v)
+    }
+    fn end(self) -> std::result::Result<(), NonFinite> {
+        Ok(())
+    }
+}
+
+impl serde::ser::SerializeStruct for Compound<'_> {
+    type Ok = ();
+    type Error = NonFinite;
+    fn serialize_field<T: serde::Serialize + ?Sized>(&mut self, key: &'static str, v: &T) -> std::result::Result<(), NonFinite> {
+        self.field(key, v)
+    }
+    fn end(self) -> std::result::Result<(), NonFinite> {
+        Ok(())
+    }
+}
+
+impl serde::ser::SerializeStructVariant for Compound<'_> {
+    type Ok = ();
+    type Error = NonFinite;
+    fn serialize_field<T: serde::Serialize + ?Sized>(&mut self, key: &'static str, v: &T) -> std::result::Result<(), NonFinite> {
+        self.field(key, v)
+    }
+    fn end(self) -> std::result::Result<(), NonFinite> {
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn json_check_names_the_path_of_a_non_finite_number() {
+        #[derive(serde::Serialize)]
+        struct S {
+            a: f64,
+            b: Vec<[f64; 2]>,
+            c: Option<f64>,
+        }
+        check_json_finite("x.json", &S { a: 1.0, b: vec![[0.0, 1.0]], c: None }).unwrap();
+        let e = check_json_finite("x.json", &S { a: 1.0, b: vec![[0.0, 1.0], [2.0, f64::INFINITY]], c: None }).unwrap_err().to_string();
+        assert!(e.contains("x.json") && e.contains(".b[1][1] = inf"), "{e}");
+        let e = check_json_finite("x.json", &S { a: f64::NAN, b: vec![], c: None }).unwrap_err().to_string();
+        assert!(e.contains(".a = NaN"), "{e}");
+        let e = check_json_finite("x.json", &S { a: 0.0, b: vec![], c: Some(f64::NEG_INFINITY) }).unwrap_err().to_string();
+        assert!(e.contains(".c = -inf"), "{e}");
+        // Maps (serde_json::json! values hold only finite numbers, but HashMaps of f64 may not).
+        let mut m = std::collections::BTreeMap::new();
+        m.insert("rms_um", f64::INFINITY);
+        let e = check_json_finite("m.json", &m).unwrap_err().to_string();
+        assert!(e.contains(".rms_um = inf"), "{e}");
+    }
+
+    #[test]
+    fn plausible_ranges() {
+        assert!(check_plausible_length("t", 1e6).is_ok());
+        assert!(check_plausible_length("t", -1e6 - 1.0).unwrap_err().contains("plausible"));
+        assert!(check_plausible_length("t", f64::INFINITY).unwrap_err().contains("not finite"));
+        assert!(check_plausible_tilt("tilt_x_deg", 30.0).is_ok());
+        assert!(check_plausible_tilt("tilt_x_deg", 3e10).unwrap_err().contains("tilt_x_deg"));
+        assert!(check_threads(0).is_err() && check_threads(100_000).is_err() && check_threads(2).is_ok());
+    }
+
+    #[test]
+    fn estimates_grow_with_the_options() {
+        assert!(bytes_mapping(512, 512, 28) < 2e9);
+        assert!(bytes_mapping(100_000, 100_000, 28) > 1e13);
+        let paper = bytes_render(512, 31, 28, 112, false, Some(2.5));
+        assert!(paper > 1e8 && paper < 2e9, "{paper}");
+        assert!(bytes_render(512, 31, 28, 112, false, Some(1e6)) > 1e15);
+        assert!(bytes_render(1_000_000, 31, 28, 112, false, Some(2.5)) > 1e14);
+    }
+}
