@@ -285,7 +285,7 @@ impl<'a> ExactOperator<'a> {
             }
         } else {
             // Streaming: every plane is traced at each use (its support computed then). Trace each once
-            // now, one at a time, so a plane that cannot be traced is an error here, not mid-solve.
+            // now (in parallel, each dropped at once), so a plane that cannot be traced is an error here, not mid-solve.
             (0..planes).into_par_iter().try_for_each(|p| renderer.trace_plane(p).map(|t| progress(t.stats.traced)))?;
             (None, Vec::new(), 0)
         };
