@@ -209,6 +209,39 @@ fn correlate_support_body(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usi
     }
 }
 
+/// T c: add Σ value(pixel)·footprint(pixel) to `image`, in footprint order — the same sums in the same order
+/// as [`PlaneTransport::apply`] (bit-identical), with the common 4-wide windows unrolled.
+pub fn transport_scatter(t: &PlaneTransport, values: &[f32], image: &mut [f32], detector_width: usize) {
+    for f in &t.footprints {
+        let v = values[f.pixel as usize];
+        if v == 0.0 {
+            continue;
+        }
+        let (w, h) = (f.w as usize, f.h as usize);
+        if w == 0 {
+            continue;
+        }
+        let ws = &t.weights[f.start as usize..f.start as usize + w * h];
+        let base = f.y0 as usize * detector_width + f.x0 as usize;
+        if w == 4 {
+            for (r, wr) in ws.chunks_exact(4).enumerate() {
+                let o = base + r * detector_width;
+                let row: &mut [f32; 4] = (&mut image[o..o + 4]).try_into().expect("4-wide window");
+                for c in 0..4 {
+                    row[c] += v * wr[c];
+                }
+            }
+        } else {
+            for (r, wr) in ws.chunks_exact(w).enumerate() {
+                let o = base + r * detector_width;
+                for (a, b) in image[o..o + w].iter_mut().zip(wr) {
+                    *a += v * *b;
+                }
+            }
+        }
+    }
+}
+
 /// Tᵀ z: each footprint's window of `z` weighted by the footprint's splat weights, written to
 /// `values[pixel]` (pixels without a footprint are left untouched).
 pub fn transport_gather(t: &PlaneTransport, z: &[f32], values: &mut [f32], detector_width: usize) {
@@ -368,7 +401,7 @@ impl Operator for ExactOperator<'_> {
                     }
                     // 3: transport.
                     let (tr, sup) = self.plane_transport(p);
-                    tr.apply(&values, &mut img, dw);
+                    transport_scatter(&tr, &values, &mut img, dw);
                     // 4: Airy blur over the support; 5: weighted sum.
                     let (src, rect) = match &self.renderer.kernels[p] {
                         Some(kern) => {
