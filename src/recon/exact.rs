@@ -209,6 +209,39 @@ fn correlate_support_body(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usi
     }
 }
 
+/// T c: add Σ value(pixel)·footprint(pixel) to `image`, in footprint order — the same sums in the same order
+/// as [`PlaneTransport::apply`] (bit-identical), with the common 4-wide windows unrolled.
+pub fn transport_scatter(t: &PlaneTransport, values: &[f32], image: &mut [f32], detector_width: usize) {
+    for f in &t.footprints {
+        let v = values[f.pixel as usize];
+        if v == 0.0 {
+            continue;
+        }
+        let (w, h) = (f.w as usize, f.h as usize);
+        if w == 0 {
+            continue;
+        }
+        let ws = &t.weights[f.start as usize..f.start as usize + w * h];
+        let base = f.y0 as usize * detector_width + f.x0 as usize;
+        if w == 4 {
+            for (r, wr) in ws.chunks_exact(4).enumerate() {
+                let o = base + r * detector_width;
+                let row: &mut [f32; 4] = (&mut image[o..o + 4]).try_into().expect("4-wide window");
+                for c in 0..4 {
+                    row[c] += v * wr[c];
+                }
+            }
+        } else {
+            for (r, wr) in ws.chunks_exact(w).enumerate() {
+                let o = base + r * detector_width;
+                for (a, b) in image[o..o + w].iter_mut().zip(wr) {
+                    *a += v * *b;
+                }
+            }
+        }
+    }
+}
+
 /// Tᵀ z: each footprint's window of `z` weighted by the footprint's splat weights, written to
 /// `values[pixel]` (pixels without a footprint are left untouched).
 pub fn transport_gather(t: &PlaneTransport, z: &[f32], values: &mut [f32], detector_width: usize) {
@@ -236,14 +269,19 @@ pub struct ExactOperator<'a> {
     interp: Vec<(usize, usize, f32)>,
     /// Every plane's transport, or `None` when it did not fit the budget (re-traced on the fly).
     transport: Option<Vec<PlaneTransport>>,
+    /// Support of each kept plane (empty when streaming).
     supports: Vec<Rect>,
     transport_bytes: usize,
 }
 
 impl<'a> ExactOperator<'a> {
     /// Build Φ from a renderer (system, tracer, configuration, mask, seed) for cubes whose bands sit at
-    /// `bands_nm` (strictly increasing). Traces every plane once; keeps the transport when it fits
-    /// `memory_budget_bytes`.
+    /// `bands_nm` (strictly increasing). Traces the middle plane to estimate the transport's size (×K ×1.25);
+    /// when that fits `memory_budget_bytes`, traces and keeps every plane (and still streams if the real
+    /// size exceeds the budget); otherwise keeps nothing and traces planes at each apply/adjoint.
+    ///
+    /// The operator borrows the system and tracer through the renderer (`'a`); bindings that need an owned
+    /// operator can leak both (`Box::leak`) for `'static`.
     pub fn new(renderer: Renderer<'a>, bands_nm: &[f64], memory_budget_bytes: u64) -> Result<Self> {
         Self::with_progress(renderer, bands_nm, memory_budget_bytes, &|_| {})
     }
@@ -276,18 +314,13 @@ impl<'a> ExactOperator<'a> {
             if bytes as u64 <= memory_budget_bytes {
                 (Some(all), supports, bytes)
             } else {
-                (None, supports, 0)
+                (None, Vec::new(), 0)
             }
         } else {
-            let supports: Vec<Result<Rect>> = (0..planes)
-                .into_par_iter()
-                .map(|p| {
-                    let t = renderer.trace_plane(p)?;
-                    progress(t.stats.traced);
-                    Ok(transport_support(&t))
-                })
-                .collect();
-            (None, supports.into_iter().collect::<Result<Vec<_>>>()?, 0)
+            // Streaming: every plane is traced at each use (its support computed then). Trace each once
+            // now (in parallel, each dropped at once), so a plane that cannot be traced is an error here, not mid-solve.
+            (0..planes).into_par_iter().try_for_each(|p| renderer.trace_plane(p).map(|t| progress(t.stats.traced)))?;
+            (None, Vec::new(), 0)
         };
         Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, transport, supports, transport_bytes: bytes })
     }
@@ -310,11 +343,17 @@ impl<'a> ExactOperator<'a> {
         self.transport_bytes
     }
 
-    fn plane_transport(&self, p: usize) -> Cow<'_, PlaneTransport> {
+    /// Plane p's transport and its support (kept, or traced now).
+    fn plane_transport(&self, p: usize) -> (Cow<'_, PlaneTransport>, Rect) {
         match &self.transport {
-            Some(t) => Cow::Borrowed(&t[p]),
-            // Traced successfully at construction with the same inputs; tracing is deterministic.
-            None => Cow::Owned(self.renderer.trace_plane(p).expect("re-tracing a plane that traced at construction")),
+            Some(t) => (Cow::Borrowed(&t[p]), self.supports[p]),
+            None => {
+                // Every plane traced successfully at construction with the same inputs, and tracing is
+                // deterministic: this cannot fail.
+                let t = self.renderer.trace_plane(p).expect("re-tracing a plane of a validated renderer");
+                let r = transport_support(&t);
+                (Cow::Owned(t), r)
+            }
         }
     }
 
@@ -361,9 +400,8 @@ impl Operator for ExactOperator<'_> {
                         *v = ((1.0 - t) * *a + t * *b) * *m;
                     }
                     // 3: transport.
-                    let tr = self.plane_transport(p);
-                    let sup = self.supports[p];
-                    tr.apply(&values, &mut img, dw);
+                    let (tr, sup) = self.plane_transport(p);
+                    transport_scatter(&tr, &values, &mut img, dw);
                     // 4: Airy blur over the support; 5: weighted sum.
                     let (src, rect) = match &self.renderer.kernels[p] {
                         Some(kern) => {
@@ -421,8 +459,7 @@ impl Operator for ExactOperator<'_> {
             let mut z = vec![0.0f32; dw * dh];
             for (i, p) in range.enumerate() {
                 let g = &mut out[i * npix..(i + 1) * npix];
-                let tr = self.plane_transport(p);
-                let sup = self.supports[p];
+                let (tr, sup) = self.plane_transport(p);
                 match &self.renderer.kernels[p] {
                     Some(kern) => {
                         correlate_support(kern, image, &mut z, dw, dh, sup);
