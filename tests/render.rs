@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// The analytic backend (a static so renderers can borrow it anywhere).
-static TRACER: AnalyticTracer = AnalyticTracer { chunk_size: 4096 };
+static TRACER: AnalyticTracer = AnalyticTracer::with_kernel(diffcassi::tracer::Kernel::Simd(None));
 
 fn system(name: &str) -> SequentialSystem {
     SequentialSystem::build(&presets::spec(name).unwrap()).unwrap()

@@ -628,7 +628,7 @@ fn bench(a: BenchArgs) -> Result<()> {
     let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000)?;
     let configs: Vec<crate::tracer::BackendConfig> = a.backends.split(',').map(str::parse).collect::<Result<_>>()?;
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-    let reference = AnalyticTracer::default().trace(&system, &batch)?;
+    let reference = AnalyticTracer::with_kernel(crate::tracer::Kernel::Scalar).trace(&system, &batch)?;
     println!(
         "preset {}, {} rays ({} per wavelength × {} wavelengths, seeded pupil samples over the system's fields), {} sequential surfaces per ray, best of {}",
         system.name(),
@@ -638,15 +638,29 @@ fn bench(a: BenchArgs) -> Result<()> {
         system.surfaces_per_ray(),
         repeat
     );
-    println!("| backend | threads | seconds | M rays/s | vs analytic | max error µm | rms error µm |");
+    println!("| backend | threads | seconds | M rays/s | vs analytic scalar | max error µm | rms error µm |");
     println!("|---|---|---|---|---|---|---|");
     let mut thread_counts = vec![1];
     if cores > 1 {
         thread_counts.push(cores);
     }
     let mut analytic_rps: std::collections::HashMap<usize, f64> = std::collections::HashMap::new();
+    // The analytic backend runs once per f64 kernel: scalar (the reference of the ratio column) and the
+    // SIMD lanes at every instruction set this CPU has.
+    let mut tracers: Vec<(String, bool, Box<dyn crate::tracer::Tracer>)> = Vec::new();
     for cfg in &configs {
-        let tracer = cfg.build()?;
+        if cfg.backend == crate::tracer::Backend::Analytic {
+            tracers.push(("analytic-f64 scalar".into(), true, Box::new(AnalyticTracer::with_kernel(crate::tracer::Kernel::Scalar))));
+            for level in crate::tracer::SimdLevel::available() {
+                let k = crate::tracer::Kernel::Simd(Some(level));
+                tracers.push((format!("analytic-f64 {}", k.name()), false, Box::new(AnalyticTracer::with_kernel(k))));
+            }
+        } else {
+            let t = cfg.build()?;
+            tracers.push((t.name(), false, t));
+        }
+    }
+    for (label, is_reference, tracer) in &tracers {
         // Scene construction (Embree) is not part of the timing: build it once.
         let out = tracer.trace(&system, &batch)?;
         let (mut max, mut s2, mut n) = (0.0f64, 0.0, 0usize);
@@ -668,11 +682,11 @@ fn bench(a: BenchArgs) -> Result<()> {
                 std::hint::black_box(out);
             }
             let rps = batch.len() as f64 / best;
-            if cfg.backend == crate::tracer::Backend::Analytic {
+            if *is_reference {
                 analytic_rps.insert(threads, rps);
             }
             let ratio = analytic_rps.get(&threads).map(|r| format!("{:.2}×", rps / r)).unwrap_or_else(|| "–".into());
-            println!("| {} | {threads} | {best:.3} | {:.2} | {ratio} | {max:.2e} | {:.2e} |", tracer.name(), rps / 1e6, (s2 / n.max(1) as f64).sqrt());
+            println!("| {label} | {threads} | {best:.3} | {:.2} | {ratio} | {max:.2e} | {:.2e} |", rps / 1e6, (s2 / n.max(1) as f64).sqrt());
         }
     }
     Ok(())

@@ -69,6 +69,10 @@ pub struct RenderCommon {
     /// Do not write the mapping cube (mapping.npy).
     #[arg(long = "no-mapping")]
     pub no_mapping: bool,
+    /// f64 ray kernel of the analytic backend: simd (lanes, best instruction set of this CPU), scalar (the
+    /// reference, for benchmarking), or simd-avx512 / simd-avx2 / simd-portable. Same numbers (≤ 1e-12 mm).
+    #[arg(long, default_value = "simd")]
+    pub kernel: String,
 }
 
 #[derive(Args, Debug)]
@@ -117,6 +121,10 @@ pub struct BenchRenderArgs {
     /// Scenes rendered in the dataset-mode part.
     #[arg(long, default_value_t = 3)]
     pub scenes: usize,
+    /// Kernels timed on the acquisition, side by side (comma-separated: simd, scalar, simd-avx2, …); the
+    /// first one also runs the all-open and dataset rows.
+    #[arg(long, default_value = "simd,scalar")]
+    pub kernels: String,
 }
 
 fn parse_sampling(s: &str) -> Result<Sampling> {
@@ -154,6 +162,8 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
     cfg.rays_per_pixel = a.rays.unwrap_or(20);
     cfg.seed = a.seed;
     cfg.sampling = parse_sampling(&a.sampling)?;
+    cfg.kernel = a.kernel.parse()?;
+    cfg.kernel.resolve()?;
     cfg.airy = (!a.no_airy).then_some(AiryConfig { diameter_px: a.airy_diameter_px, ..AiryConfig::default() });
     let mask = match &a.mask {
         Some(p) => {
@@ -344,7 +354,13 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let mut cfg = RenderConfig::paper(n);
     cfg.spectral = SpectralSampling::with_planes(crate::analysis::linspace(450.0, 650.0, 28), a.planes)?;
     cfg.rays_per_pixel = a.rays;
-    let tracer = AnalyticTracer::default();
+    let kernels: Vec<crate::tracer::Kernel> = a.kernels.split(',').map(|k| k.trim().parse()).collect::<Result<_>>()?;
+    for k in &kernels {
+        k.resolve()?;
+    }
+    let Some(&first) = kernels.first() else { return Err(Error::invalid("--kernels: name at least one kernel")) };
+    cfg.kernel = first;
+    let tracer = AnalyticTracer::with_kernel(first);
     let threads = rayon::current_num_threads();
     println!("render bench: {}, {n}×{n} scene, {} planes, {} rays per pixel per plane, mask opening {}, {threads} threads", system.name(), a.planes, a.rays, a.opening);
     println!("| what | wall s | CPU s | rays traced | M rays/s (wall) |");
@@ -365,7 +381,18 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let scene = synthetic_scene(n, n, &synthetic_wavelengths(), 0);
     let t = Instant::now();
     let acq = renderer.render(&scene, false, &|_| {})?;
-    row(&format!("acquisition (setup {setup:.2} s + render)"), t.elapsed().as_secs_f64() + setup, acq.stats.traced);
+    row(&format!("acquisition, {} kernel (setup {setup:.2} s + render)", first.name()), t.elapsed().as_secs_f64() + setup, acq.stats.traced);
+    for &k in &kernels[1..] {
+        let mut c = cfg.clone();
+        c.kernel = k;
+        let tr = AnalyticTracer::with_kernel(k);
+        let t = Instant::now();
+        let other = Renderer::new(&system, &tr, c, renderer.mask.clone())?;
+        let acq_k = other.render(&scene, false, &|_| {})?;
+        let secs = t.elapsed().as_secs_f64();
+        let diff = acq_k.image.iter().zip(&acq.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        row(&format!("acquisition, {} kernel (setup + render; max |Δ| vs {} {diff:.1e})", k.name(), first.name()), secs, acq_k.stats.traced);
+    }
     if a.opening < 1.0 {
         let open = Renderer::new(&system, &tracer, cfg.clone(), Mask::open(n, n))?;
         let t = Instant::now();

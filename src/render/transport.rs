@@ -145,6 +145,9 @@ pub struct PlaneContext<'a> {
     pub tracer: &'a dyn Tracer,
     /// Trace with the f64 kernel directly (only valid for the analytic backend).
     pub direct_kernel: bool,
+    /// On the direct path: the lane kernel at this level ([`crate::tracer::simd`]), or the scalar kernel
+    /// 8 rays interleaved (`None`). Both give the same numbers.
+    pub simd: Option<crate::tracer::SimdLevel>,
     pub detector: &'a Detector,
     pub scene_height: usize,
     pub scene_width: usize,
@@ -247,17 +250,21 @@ impl PlaneContext<'_> {
                     }
                 }
                 out.stats.traced += sc.rays.len() as u64;
-                let (stats, det) = (&mut out.stats, self.detector);
-                trace_interleaved(&self.system.path, &n, &sc.rays, |res| match res {
+                let (stats, det, land) = (&mut out.stats, self.detector, &mut sc.land);
+                let emit = |res: std::result::Result<(DVec3, DVec3), (RayStatus, usize)>| match res {
                     Ok((p, _)) => {
                         stats.count(RayStatus::Ok);
-                        sc.land.push(det.to_pixel(p.x, p.y));
+                        land.push(det.to_pixel(p.x, p.y));
                     }
                     Err((st, _)) => {
                         stats.count(st);
-                        sc.land.push((f64::NAN, f64::NAN));
+                        land.push((f64::NAN, f64::NAN));
                     }
-                });
+                };
+                match self.simd {
+                    Some(level) => crate::tracer::simd::trace_rays(level, &self.system.path, &n, &sc.rays, emit),
+                    None => trace_interleaved(&self.system.path, &n, &sc.rays, emit),
+                }
             } else {
                 sc.batch = RayBatch::with_capacity(open.len() * nr);
                 for &col in &open {
