@@ -23,9 +23,9 @@ pub struct Block {
     pub d: L3,
     /// Still travelling.
     pub alive: Lm,
-    /// For dead lanes: why and where (surface index) they stopped.
-    pub status: [RayStatus; LANES],
-    pub surface: [usize; LANES],
+    /// For dead lanes: why (`RayStatus as u8`) and where (surface index) they stopped.
+    pub status: [u8; LANES],
+    pub surface: [u32; LANES],
 }
 
 impl Default for Block {
@@ -34,7 +34,7 @@ impl Default for Block {
             p: L3::splat(DVec3::ZERO),
             d: L3::splat(DVec3::Z),
             alive: Lm::splat(false),
-            status: [RayStatus::InvalidInput; LANES],
+            status: [RayStatus::InvalidInput as u8; LANES],
             surface: [0; LANES],
         }
     }
@@ -52,11 +52,30 @@ impl Block {
         self.d.z.0[k] = d.z;
         self.alive.0[k] = true;
     }
+    /// Put ray `(p, d)` in lane `k` with `d` of any length; [`Block::normalize_inputs`] then divides the
+    /// directions by their lengths and marks invalid rays.
+    #[inline(always)]
+    pub fn set_raw(&mut self, k: usize, p: DVec3, d: DVec3) {
+        self.set(k, p, d);
+    }
+    /// The renderer's input check and normalisation (`trace_interleaved`: finite origin and direction,
+    /// |d| > 0, d / |d|) for the lanes loaded with [`Block::set_raw`], all lanes at once.
+    #[inline(always)]
+    pub fn normalize_inputs(&mut self) {
+        let len = self.d.dot(self.d).sqrt();
+        let valid = self.alive & self.p.is_finite() & self.d.is_finite() & len.gt(Lf::splat(0.0));
+        self.d = L3 { x: self.d.x / len, y: self.d.y / len, z: self.d.z / len };
+        for k in 0..LANES {
+            if self.alive.0[k] && !valid.0[k] {
+                self.set_invalid(k);
+            }
+        }
+    }
     /// Mark lane `k` dead before tracing (an invalid input ray).
     #[inline(always)]
     pub fn set_invalid(&mut self, k: usize) {
         self.alive.0[k] = false;
-        self.status[k] = RayStatus::InvalidInput;
+        self.status[k] = RayStatus::InvalidInput as u8;
         self.surface[k] = 0;
     }
     /// Lane `k`'s outcome, as [`crate::tracer::kernel::trace_steps`] reports it.
@@ -65,19 +84,34 @@ impl Block {
         if self.alive.0[k] {
             Ok((DVec3::new(self.p.x.0[k], self.p.y.0[k], self.p.z.0[k]), DVec3::new(self.d.x.0[k], self.d.y.0[k], self.d.z.0[k])))
         } else {
-            Err((self.status[k], self.surface[k]))
+            Err((status_from_code(self.status[k]), self.surface[k] as usize))
         }
     }
-    /// Stop the live lanes of `m` with `status` at `surface`.
+    /// Stop the live lanes of `m` with `status` at `surface` (branch-free selects, so they vectorise).
     #[inline(always)]
     fn kill(&mut self, m: Lm, status: RayStatus, surface: usize) {
+        let (code, surface) = (status as u8, surface as u32);
         for k in 0..LANES {
-            if self.alive.0[k] & m.0[k] {
-                self.alive.0[k] = false;
-                self.status[k] = status;
-                self.surface[k] = surface;
-            }
+            let stop = self.alive.0[k] & m.0[k];
+            self.status[k] = if stop { code } else { self.status[k] };
+            self.surface[k] = if stop { surface } else { self.surface[k] };
+            self.alive.0[k] &= !m.0[k];
         }
+    }
+}
+
+/// The [`RayStatus`] of a code stored by [`Block::kill`] (only the sequential kernel's statuses occur).
+#[inline]
+fn status_from_code(code: u8) -> RayStatus {
+    match code {
+        c if c == RayStatus::Missed as u8 => RayStatus::Missed,
+        c if c == RayStatus::Vignetted as u8 => RayStatus::Vignetted,
+        c if c == RayStatus::TotalInternalReflection as u8 => RayStatus::TotalInternalReflection,
+        c if c == RayStatus::NoConvergence as u8 => RayStatus::NoConvergence,
+        c if c == RayStatus::InvalidInput as u8 => RayStatus::InvalidInput,
+        c if c == RayStatus::Absorbed as u8 => RayStatus::Absorbed,
+        c if c == RayStatus::BounceLimit as u8 => RayStatus::BounceLimit,
+        _ => RayStatus::Ok,
     }
 }
 
@@ -108,9 +142,10 @@ fn on_vertex_branch(point: L3, c: f64, kk: f64) -> Lm {
     !domain.lt(Lf::splat(0.0)) & (point.z - sag).abs().le(1e-9 * (1.0 + point.z.abs()))
 }
 
-/// The conic's vertex-branch root (`conic_root` of the scalar code): (found, t).
+/// The conic's vertex-branch root (`conic_root` of the scalar code) for the lanes of `live`: (found, t).
+/// The second root is computed only when a live lane needs it (as the scalar code does per ray).
 #[inline(always)]
-fn conic_root(c: f64, k: f64, p: L3, d: L3) -> (Lm, Lf) {
+fn conic_root(c: f64, k: f64, p: L3, d: L3, live: Lm) -> (Lm, Lf) {
     let kk = 1.0 + k;
     let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
     let b = c * (p.x * d.x + p.y * d.y + kk * p.z * d.z) - d.z;
@@ -120,6 +155,9 @@ fn conic_root(c: f64, k: f64, p: L3, d: L3) -> (Lm, Lf) {
     let ok = disc.ge(Lf::splat(0.0)) & q.ne(Lf::splat(0.0));
     let t1 = cc / q;
     let on1 = t1.is_finite() & on_vertex_branch(p.along(d, t1), c, kk);
+    if !(live & ok & !on1).any() {
+        return (ok & on1, t1);
+    }
     let t2 = q / a;
     let on2 = a.ne(Lf::splat(0.0)) & t2.is_finite() & on_vertex_branch(p.along(d, t2), c, kk);
     (ok & (on1 | on2), Lf::select(on1, t1, t2))
@@ -261,7 +299,7 @@ fn trace_step(step: &PathStep, n: &[&[f64]; LANES], uniform: bool, b: &mut Block
                 let (hit, _, point) = plane(p, d);
                 (hit, point, z_axis)
             } else {
-                let (hit, t) = conic_root(c, k, p, d);
+                let (hit, t) = conic_root(c, k, p, d, b.alive);
                 let point = p.along(d, t);
                 let ck = c * (1.0 + k);
                 let normal = L3 { x: -c * point.x, y: -c * point.y, z: 1.0 - ck * point.z }.normalize();
@@ -271,7 +309,7 @@ fn trace_step(step: &PathStep, n: &[&[f64]; LANES], uniform: bool, b: &mut Block
         SurfaceShape::EvenAsphere { curvature, conic, coefficients } => {
             let (c, k) = (*curvature, *conic);
             let (plane_ok, plane_t, _) = plane(p, d);
-            let (conic_ok, conic_t) = if c == 0.0 { (Lm::splat(false), Lf::splat(0.0)) } else { conic_root(c, k, p, d) };
+            let (conic_ok, conic_t) = if c == 0.0 { (Lm::splat(false), Lf::splat(0.0)) } else { conic_root(c, k, p, d, b.alive) };
             let first = b.alive & conic_ok;
             let (mut ok, mut nc, mut t) = (Lm::splat(false), Lm::splat(false), Lf::splat(0.0));
             if first.any() {
@@ -304,20 +342,21 @@ fn trace_step(step: &PathStep, n: &[&[f64]; LANES], uniform: bool, b: &mut Block
         }
     };
     b.kill(!inside, RayStatus::Vignetted, s);
-    let (n1, n2) = if uniform {
-        (Lf::splat(n[0][s - 1]), Lf::splat(n[0][s]))
+    // n₁/n₂ per lane; one scalar division when every lane has the same table (the same bits).
+    let (n1, n2, mu) = if uniform {
+        let (a, c) = (n[0][s - 1], n[0][s]);
+        (Lf::splat(a), Lf::splat(c), Lf::splat(a / c))
     } else {
         let (mut a, mut c) = ([0.0; LANES], [0.0; LANES]);
         for k in 0..LANES {
             a[k] = n[k][s - 1];
             c[k] = n[k][s];
         }
-        (Lf(a), Lf(c))
+        (Lf(a), Lf(c), Lf(a) / Lf(c))
     };
     let d_new = match step.shape {
         SurfaceShape::Paraxial { focal_length } => {
             // Ideal thin lens (kernel::paraxial_deflect): tan′ = (n₁/n₂)·tan − h/f.
-            let mu = n1 / n2;
             let tx = mu * d.x / d.z - point.x / focal_length;
             let ty = mu * d.y / d.z - point.y / focal_length;
             let v = L3 { x: tx, y: ty, z: Lf::splat(1.0) }.normalize();
@@ -331,7 +370,6 @@ fn trace_step(step: &PathStep, n: &[&[f64]; LANES], uniform: bool, b: &mut Block
             let flip = cos0.lt(Lf::splat(0.0));
             let nrm = L3::select(flip, L3 { x: -normal.x, y: -normal.y, z: -normal.z }, normal);
             let cos_i = Lf::select(flip, -cos0, cos0);
-            let mu = n1 / n2;
             let k = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
             b.kill(differ & k.lt(Lf::splat(0.0)), RayStatus::TotalInternalReflection, s);
             let g = k.sqrt() - mu * cos_i;

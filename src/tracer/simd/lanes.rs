@@ -14,7 +14,7 @@
 use std::ops::{Add, BitAnd, BitOr, Div, Mul, Neg, Not, Sub};
 
 /// Rays traced side by side in one block.
-pub const LANES: usize = 8;
+pub const LANES: usize = 32;
 
 /// `LANES` f64 values.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -236,7 +236,8 @@ mod tests {
     use super::*;
     #[test]
     fn lane_ops_are_the_scalar_ops() {
-        let a = Lf([1.0, -2.0, 0.5, f64::NAN, 3.0, -0.0, 1e300, 7.0]);
+        let vals = [1.0, -2.0, 0.5, f64::NAN, 3.0, -0.0, 1e300, 7.0];
+        let a = Lf(std::array::from_fn(|k| vals[k % 8]));
         let b = Lf::splat(3.0);
         let s = (a * b + a / b - 1.0).sqrt();
         for k in 0..LANES {
@@ -246,7 +247,8 @@ mod tests {
         assert_eq!(a.signum().0[5], -1.0);
         assert!(a.signum().0[3].is_nan());
         let m = a.gt(Lf::splat(0.0));
-        assert_eq!(m.0, [true, false, true, false, true, false, true, true]);
+        let pos = [true, false, true, false, true, false, true, true];
+        assert_eq!(m.0, std::array::from_fn(|k| pos[k % 8]));
         assert_eq!(Lf::select(m, a, b).0[1], 3.0);
         assert!(m.any() && !Lm::splat(false).any());
         assert_eq!((!m & m).any(), false);

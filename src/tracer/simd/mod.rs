@@ -163,33 +163,54 @@ impl std::str::FromStr for Kernel {
     }
 }
 
+/// `block::trace_block`, optionally preceded by `Block::normalize_inputs`, compiled for each level.
+#[inline(always)]
+fn run(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
+    if normalize {
+        b.normalize_inputs();
+    }
+    block::trace_block(path, n, b)
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512dq,avx512vl")]
-unsafe fn trace_block_avx512(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block) {
-    block::trace_block(path, n, b)
+unsafe fn run_avx512(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
+    run(path, n, b, normalize)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn trace_block_avx2(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block) {
-    block::trace_block(path, n, b)
+unsafe fn run_avx2(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
+    run(path, n, b, normalize)
 }
 
-fn trace_block_portable(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block) {
-    block::trace_block(path, n, b)
+fn run_portable(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
+    run(path, n, b, normalize)
 }
 
-/// Trace the live lanes of `b` along `path` at `level` (see [`block::trace_block`]). A level this CPU
-/// cannot run falls back to `Portable` (callers check levels with [`SimdLevel::check`] first).
+#[inline]
+fn dispatch(level: SimdLevel, path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
+    match level {
+        // SAFETY: the target features are checked at run time on the same line.
+        #[cfg(target_arch = "x86_64")]
+        SimdLevel::Avx512 if has_avx512() => unsafe { run_avx512(path, n, b, normalize) },
+        #[cfg(target_arch = "x86_64")]
+        SimdLevel::Avx2 if std::arch::is_x86_feature_detected!("avx2") => unsafe { run_avx2(path, n, b, normalize) },
+        _ => run_portable(path, n, b, normalize),
+    }
+}
+
+/// Trace the live lanes of `b` (unit directions) along `path` at `level` (see [`block::trace_block`]).
+/// A level this CPU cannot run falls back to `Portable` (callers check levels with [`SimdLevel::check`]).
 #[inline]
 pub(crate) fn trace_block(level: SimdLevel, path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block) {
-    match level {
-        #[cfg(target_arch = "x86_64")]
-        SimdLevel::Avx512 if has_avx512() => unsafe { trace_block_avx512(path, n, b) },
-        #[cfg(target_arch = "x86_64")]
-        SimdLevel::Avx2 if std::arch::is_x86_feature_detected!("avx2") => unsafe { trace_block_avx2(path, n, b) },
-        _ => trace_block_portable(path, n, b),
-    }
+    dispatch(level, path, n, b, false)
+}
+
+/// [`trace_block`] for lanes loaded with [`Block::set_raw`]: normalise and check them first.
+#[inline]
+pub(crate) fn trace_block_raw(level: SimdLevel, path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block) {
+    dispatch(level, path, n, b, true)
 }
 
 /// Trace `rays` (object frame, any length, directions of any non-zero length) at one wavelength (`n` the
@@ -201,14 +222,9 @@ pub(crate) fn trace_rays(level: SimdLevel, path: &[PathStep], n: &[f64], rays: &
     for chunk in rays.chunks(LANES) {
         let mut b = Block::default();
         for (k, &(o, dir)) in chunk.iter().enumerate() {
-            let len = dir.length();
-            if o.is_finite() && dir.is_finite() && len > 0.0 {
-                b.set(k, o, dir / len);
-            } else {
-                b.set_invalid(k);
-            }
+            b.set_raw(k, o, dir);
         }
-        trace_block(level, path, &tables, &mut b);
+        trace_block_raw(level, path, &tables, &mut b);
         for k in 0..chunk.len() {
             emit(b.result(k));
         }
