@@ -530,6 +530,29 @@ fn cli_render_dataset_matches_per_scene_renders_and_skips_complete_scenes() {
     assert!(String::from_utf8_lossy(&o.stdout).contains("0 to render (2 complete, skipped)"), "{}", String::from_utf8_lossy(&o.stdout));
 }
 
+/// `render --kernel scalar` (the reference kept for benchmarking) and the default SIMD kernel write the
+/// same acquisition up to f32 rounding, and render.json names the kernel and keeps its timing keys.
+#[test]
+fn cli_render_kernel_switch() {
+    let d = tmpdir();
+    let mut images = Vec::new();
+    for k in ["scalar", "simd"] {
+        let out = d.path().join(k);
+        let o = run(&["render", "--preset", "sp", "--scene-size", "16", "--planes", "4", "--rays", "4", "--no-mapping", "--kernel", k, "--out", out.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let j = json(&out.join("render.json"));
+        assert!(j["kernel"].as_str().unwrap().starts_with(k), "{}", j["kernel"]);
+        for key in ["seconds_render", "seconds_total", "rays_traced"] {
+            assert!(j.get(key).is_some(), "{key} missing");
+        }
+        images.push(diffcassi::io::exr::read_exr(out.join("acquisition.exr")).unwrap());
+    }
+    let (a, b) = (&images[0].channels[0].data, &images[1].channels[0].data);
+    let peak = a.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(peak > 0.0);
+    assert!(a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-6 * peak));
+}
+
 #[test]
 fn cli_render_bad_input_is_a_clear_error() {
     let d = tmpdir();
@@ -539,6 +562,7 @@ fn cli_render_bad_input_is_a_clear_error() {
         (vec!["render", "--preset", "sp", "--planes", "0"], "plane"),
         (vec!["render", "--preset", "sp", "--opening", "1.5", "--scene-size", "8"], "opening"),
         (vec!["render", "--preset", "sp", "--sampling", "sobol"], "sobol"),
+        (vec!["render", "--preset", "sp", "--kernel", "vector"], "vector"),
         (vec!["render", "--preset", "nope"], "nope"),
         (vec!["render-dataset", "--preset", "sp", "--scenes", "/nonexistent", "--out", "/tmp/x"], "/nonexistent"),
     ];

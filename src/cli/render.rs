@@ -125,6 +125,10 @@ pub struct BenchRenderArgs {
     /// first one also runs the all-open and dataset rows.
     #[arg(long, default_value = "simd,scalar")]
     pub kernels: String,
+    /// Parts to run (comma-separated): mapping (the chief-ray mapping cube), acquisition (per-scene render,
+    /// all-open render), dataset (transport once, then per scene).
+    #[arg(long, default_value = "mapping,acquisition,dataset")]
+    pub parts: String,
 }
 
 fn parse_sampling(s: &str) -> Result<Sampling> {
@@ -338,6 +342,34 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     Ok(())
 }
 
+/// The acquisition rows of `bench-render`: `renderer` (the first kernel), then each further kernel on the
+/// same mask and scene (with the largest difference of its image), then the all-open mask.
+fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Renderer, kernels: &[crate::tracer::Kernel], scene: &SpectralCube, setup: f64, opening: f64, row: &dyn Fn(&str, f64, u64)) -> Result<()> {
+    let first = renderer.config.kernel;
+    let t = Instant::now();
+    let acq = renderer.render(scene, false, &|_| {})?;
+    row(&format!("acquisition, {} kernel (setup {setup:.2} s + render)", first.name()), t.elapsed().as_secs_f64() + setup, acq.stats.traced);
+    for &k in &kernels[1..] {
+        let mut c = renderer.config.clone();
+        c.kernel = k;
+        let tr = AnalyticTracer::with_kernel(k);
+        let t = Instant::now();
+        let other = Renderer::new(system, &tr, c, renderer.mask.clone())?;
+        let acq_k = other.render(scene, false, &|_| {})?;
+        let secs = t.elapsed().as_secs_f64();
+        let diff = acq_k.image.iter().zip(&acq.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        row(&format!("acquisition, {} kernel (setup + render; max |Δ| vs {} {diff:.1e})", k.name(), first.name()), secs, acq_k.stats.traced);
+    }
+    if opening < 1.0 {
+        let (n, m) = (renderer.config.scene_height, renderer.config.scene_width);
+        let open = Renderer::new(system, renderer.tracer, renderer.config.clone(), Mask::open(n, m))?;
+        let t = Instant::now();
+        let acq = open.render(scene, false, &|_| {})?;
+        row(&format!("acquisition, all-open mask (every ray), {} kernel", first.name()), t.elapsed().as_secs_f64(), acq.stats.traced);
+    }
+    Ok(())
+}
+
 /// CPU seconds (user + system) used by this process so far, from /proc/self/stat (Linux, USER_HZ = 100);
 /// `None` elsewhere. On a shared machine wall time alone hides how much of the cores the run was given.
 fn process_cpu_seconds() -> Option<f64> {
@@ -375,29 +407,37 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
         cpu0.set(now);
         println!("| {what} | {secs:.2} | {cpu} | {rays} | {:.2} |", if secs > 0.0 { rays as f64 / secs / 1e6 } else { 0.0 })
     };
+    let parts: Vec<&str> = a.parts.split(',').map(str::trim).collect();
+    if let Some(bad) = parts.iter().find(|p| !["mapping", "acquisition", "dataset"].contains(p)) {
+        return Err(Error::invalid(format!("--parts: unknown part `{bad}` (use mapping, acquisition, dataset)")));
+    }
+    // The chief-ray mapping cube (n × n × planes) through each kernel, side by side.
+    let mut mapping_ref: Option<crate::analysis::MappingCube> = None;
+    for &k in kernels.iter().filter(|_| parts.contains(&"mapping")) {
+        let tr = AnalyticTracer::with_kernel(k);
+        let t = Instant::now();
+        let m = crate::analysis::mapping_cube(&system, &tr, n, n, cfg.scene_pitch_mm, &cfg.spectral.planes_nm)?;
+        let secs = t.elapsed().as_secs_f64();
+        let rays = (n * n * cfg.spectral.planes()) as u64;
+        let diff = match &mapping_ref {
+            Some(r) => format!("; max |Δ| vs {} {:.1e} mm", first.name(), m.positions_mm.iter().zip(&r.positions_mm).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)),
+            None => String::new(),
+        };
+        row(&format!("mapping cube {n}×{n}×{}, {} kernel{diff}", cfg.spectral.planes(), k.name()), secs, rays);
+        mapping_ref.get_or_insert(m);
+    }
     let t = Instant::now();
     let renderer = Renderer::new(&system, &tracer, cfg.clone(), Mask::random(n, n, a.opening, 0)?)?;
     let setup = t.elapsed().as_secs_f64();
-    let scene = synthetic_scene(n, n, &synthetic_wavelengths(), 0);
-    let t = Instant::now();
-    let acq = renderer.render(&scene, false, &|_| {})?;
-    row(&format!("acquisition, {} kernel (setup {setup:.2} s + render)", first.name()), t.elapsed().as_secs_f64() + setup, acq.stats.traced);
-    for &k in &kernels[1..] {
-        let mut c = cfg.clone();
-        c.kernel = k;
-        let tr = AnalyticTracer::with_kernel(k);
-        let t = Instant::now();
-        let other = Renderer::new(&system, &tr, c, renderer.mask.clone())?;
-        let acq_k = other.render(&scene, false, &|_| {})?;
-        let secs = t.elapsed().as_secs_f64();
-        let diff = acq_k.image.iter().zip(&acq.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-        row(&format!("acquisition, {} kernel (setup + render; max |Δ| vs {} {diff:.1e})", k.name(), first.name()), secs, acq_k.stats.traced);
+    if !parts.contains(&"acquisition") && !parts.contains(&"dataset") {
+        return Ok(());
     }
-    if a.opening < 1.0 {
-        let open = Renderer::new(&system, &tracer, cfg.clone(), Mask::open(n, n))?;
-        let t = Instant::now();
-        let acq = open.render(&scene, false, &|_| {})?;
-        row("acquisition, all-open mask (every ray)", t.elapsed().as_secs_f64(), acq.stats.traced);
+    let scene = synthetic_scene(n, n, &synthetic_wavelengths(), 0);
+    if parts.contains(&"acquisition") {
+        bench_acquisitions(&system, &renderer, &kernels, &scene, setup, a.opening, &row)?;
+    }
+    if !parts.contains(&"dataset") {
+        return Ok(());
     }
     let t = Instant::now();
     let transport = renderer.trace_all(&|_| {})?;
