@@ -9,6 +9,8 @@
 //! step and bracket-width tests, the 100-iteration budget and its residual test). The scalar code
 //! re-evaluates f at the accepted step before returning; here that evaluation is the next iteration's (the
 //! same numbers), and a lane that accepted on the last iteration is checked after the loop.
+// Index loops over 0..LANES are the idiom LLVM vectorises into whole registers; keep them explicit.
+#![allow(clippy::needless_range_loop)]
 use super::lanes::{L3, LANES, Lf, Lm};
 use crate::surfaces::{Aperture, SurfaceShape};
 use crate::system::PathStep;
