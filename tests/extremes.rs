@@ -23,6 +23,7 @@
 use diffcassi::prelude::*;
 use diffcassi::spec::{Cell, RayAiming, SurfaceKind, SurfaceSpec, SystemAperture};
 use diffcassi::surfaces::{Aperture, SurfaceShape};
+use diffcassi::tracer::{Kernel, SimdLevel};
 use glam::DVec3;
 
 // ---------------------------------------------------------------------------------------------------
@@ -179,9 +180,16 @@ fn assert_clean(label: &str, out: &TracedBatch) {
     }
 }
 
+/// The analytic run, through the scalar reference kernel; on the way, every SIMD dispatch level this CPU
+/// has must give the same statuses and stopping surfaces and positions/directions within 1e-12 (mm),
+/// so every constructed ray of this suite also pins the lane kernel to the scalar one.
 fn analytic(sys: &SequentialSystem, rays: &RayBatch) -> Run {
-    let out = AnalyticTracer::default().trace(sys, rays).unwrap();
+    let out = AnalyticTracer::with_kernel(Kernel::Scalar).trace(sys, rays).unwrap();
     assert_clean("analytic", &out);
+    for level in SimdLevel::available() {
+        let simd = AnalyticTracer::with_kernel(Kernel::Simd(Some(level))).trace(sys, rays).unwrap();
+        assert_simd_agrees(level, &simd, &out);
+    }
     let class = (0..out.len()).map(|i| class_of(out.status[i], out.surface[i], u32::MAX)).collect();
     Run { label: "analytic", exact: true, mesh: false, out, class }
 }
@@ -233,6 +241,18 @@ fn max_position_error(a: &TracedBatch, b: &TracedBatch) -> f64 {
         .filter(|&i| a.status[i] == RayStatus::Ok && b.status[i] == RayStatus::Ok)
         .map(|i| ((a.x[i] - b.x[i]).powi(2) + (a.y[i] - b.y[i]).powi(2) + (a.z[i] - b.z[i]).powi(2)).sqrt())
         .fold(0.0, f64::max)
+}
+
+/// `simd` (traced at `level`) has `scalar`'s statuses and surfaces, and its outputs within 1e-12.
+fn assert_simd_agrees(level: SimdLevel, simd: &TracedBatch, scalar: &TracedBatch) {
+    assert_eq!(simd.status, scalar.status, "SIMD {level:?}: statuses");
+    assert_eq!(simd.surface, scalar.surface, "SIMD {level:?}: stopping surfaces");
+    let cols = |t: &TracedBatch| [t.x.clone(), t.y.clone(), t.z.clone(), t.dir_x.clone(), t.dir_y.clone(), t.dir_z.clone()];
+    for (a, b) in cols(simd).iter().zip(cols(scalar).iter()) {
+        for i in 0..a.len() {
+            assert!((a[i] - b[i]).abs() <= 1e-12, "SIMD {level:?} ray {i}: {} vs scalar {}", a[i], b[i]);
+        }
+    }
 }
 
 /// Every run classifies every ray as `expected`, and the exact runs agree on positions within `tol_mm`.

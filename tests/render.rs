@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// The analytic backend (a static so renderers can borrow it anywhere).
-static TRACER: AnalyticTracer = AnalyticTracer { chunk_size: 4096 };
+static TRACER: AnalyticTracer = AnalyticTracer::with_kernel(diffcassi::tracer::Kernel::Simd(None));
 
 fn system(name: &str) -> SequentialSystem {
     SequentialSystem::build(&presets::spec(name).unwrap()).unwrap()
@@ -303,6 +303,41 @@ fn same_seed_is_bit_identical_across_threads_dataset_mode_and_tracer_path() {
     assert_ne!(r2.render(&scene, false, &quiet).unwrap().image, one.image);
 }
 
+/// The SIMD render equals the scalar-kernel render: the kernels agree to ≤ 1e-12 mm (in fact bit for bit),
+/// so every footprint has the same window and the acquisitions agree to f32 rounding — at every dispatch
+/// level (lane width) this CPU has, and on 1 or 2 threads.
+#[test]
+fn simd_render_equals_the_scalar_render() {
+    for name in ["sp", "map"] {
+        let sys = system(name);
+        let n = 12;
+        let mut cfg = config(n, vec![470.0, 560.0, 640.0], 2, 6);
+        cfg.kernel = diffcassi::tracer::Kernel::Scalar;
+        let mask = Mask::random(n, n, 0.6, 2).unwrap();
+        let scene = scene::synthetic_scene(n, n, &scene::synthetic_wavelengths(), 5);
+        let scalar = Renderer::new(&sys, &TRACER, cfg.clone(), mask.clone()).unwrap();
+        let want = pool(1).install(|| scalar.render(&scene, false, &quiet)).unwrap();
+        let want_t = scalar.trace_plane(3).unwrap();
+        assert!(want.stats.arrived > 0 && want.total() > 0.0);
+        for level in diffcassi::tracer::SimdLevel::available() {
+            let mut c = cfg.clone();
+            c.kernel = diffcassi::tracer::Kernel::Simd(Some(level));
+            let r = Renderer::new(&sys, &TRACER, c, mask.clone()).unwrap();
+            let got = pool(2).install(|| r.render(&scene, false, &quiet)).unwrap();
+            assert_eq!(got.stats, want.stats, "{name} {level:?}: ray counts");
+            let peak = want.image.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (a, b) in got.image.iter().zip(&want.image) {
+                assert!((a - b).abs() <= 1e-6 * peak, "{name} {level:?}: {a} vs {b}");
+            }
+            let t = r.trace_plane(3).unwrap();
+            assert_eq!(t.footprints, want_t.footprints, "{name} {level:?}: footprint windows");
+            for (a, b) in t.weights.iter().zip(&want_t.weights) {
+                assert!((a - b).abs() <= 1e-6 * b.abs().max(1e-6), "{name} {level:?}: weight {a} vs {b}");
+            }
+        }
+    }
+}
+
 // ---------------------------------------------------------------- loaders
 
 fn tmpdir() -> tempfile::TempDir {
@@ -499,6 +534,29 @@ fn cli_render_dataset_matches_per_scene_renders_and_skips_complete_scenes() {
     assert_eq!(String::from_utf8_lossy(&o.stdout).matches("\"status\":\"skipped\"").count(), 2);
 }
 
+/// `render --kernel scalar` (the reference kept for benchmarking) and the default SIMD kernel write the
+/// same acquisition up to f32 rounding, and render.json names the kernel and keeps its timing keys.
+#[test]
+fn cli_render_kernel_switch() {
+    let d = tmpdir();
+    let mut images = Vec::new();
+    for k in ["scalar", "simd"] {
+        let out = d.path().join(k);
+        let o = run(&["render", "--preset", "sp", "--scene-size", "16", "--planes", "4", "--rays", "4", "--no-mapping", "--kernel", k, "--out", out.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let j = json(&out.join("render.json"));
+        assert!(j["kernel"].as_str().unwrap().starts_with(k), "{}", j["kernel"]);
+        for key in ["seconds_render", "seconds_total", "rays_traced"] {
+            assert!(j.get(key).is_some(), "{key} missing");
+        }
+        images.push(diffcassi::io::exr::read_exr(out.join("acquisition.exr")).unwrap());
+    }
+    let (a, b) = (&images[0].channels[0].data, &images[1].channels[0].data);
+    let peak = a.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    assert!(peak > 0.0);
+    assert!(a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-6 * peak));
+}
+
 #[test]
 fn cli_render_bad_input_is_a_clear_error() {
     let d = tmpdir();
@@ -508,6 +566,7 @@ fn cli_render_bad_input_is_a_clear_error() {
         (vec!["render", "--preset", "sp", "--planes", "0"], "plane"),
         (vec!["render", "--preset", "sp", "--opening", "1.5", "--scene-size", "8"], "opening"),
         (vec!["render", "--preset", "sp", "--sampling", "sobol"], "sobol"),
+        (vec!["render", "--preset", "sp", "--kernel", "vector"], "vector"),
         (vec!["render", "--preset", "nope"], "nope"),
         (vec!["render-dataset", "--preset", "sp", "--scenes", "/nonexistent", "--out", "/tmp/x"], "/nonexistent"),
     ];

@@ -181,7 +181,7 @@ fn results_do_not_depend_on_thread_count() {
     let batch = RayBatch::seeded_workload(&sys, 5000, &[450.0, 550.0, 650.0], 7).unwrap();
     let one = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
     let two = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
-    let tracer = AnalyticTracer { chunk_size: 333 };
+    let tracer = AnalyticTracer { chunk_size: 333, ..Default::default() };
     let a = one.install(|| tracer.trace(&sys, &batch).unwrap());
     let b = two.install(|| tracer.trace(&sys, &batch).unwrap());
     assert_eq!(a, b);

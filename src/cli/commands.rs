@@ -745,6 +745,20 @@ pub(super) fn report(a: ReportArgs) -> Result<()> {
 
 // ---------------------------------------------------------------- bench
 
+/// CPU time (s) used so far by all threads of this process: the sum of /proc/self/task/*/schedstat's run
+/// times (ns resolution; Linux only, `None` elsewhere). Rays per CPU-second is rays/s per thread even on
+/// a machine shared with other jobs, where wall time hides how much of the cores a run was given. Threads
+/// that have exited are not counted, so take differences around work done by live threads (rayon's pool).
+pub(crate) fn cpu_seconds() -> Option<f64> {
+    let mut ns = 0u64;
+    for t in std::fs::read_dir("/proc/self/task").ok()?.flatten() {
+        // A thread may exit between the listing and the read: skip it.
+        let Ok(s) = std::fs::read_to_string(t.path().join("schedstat")) else { continue };
+        ns += s.split_whitespace().next().and_then(|v| v.parse::<u64>().ok()).unwrap_or(0);
+    }
+    Some(ns as f64 * 1e-9)
+}
+
 pub(super) fn bench(a: BenchArgs) -> Result<()> {
     if a.mode.as_deref() == Some("tradeoff") {
         return super::fidelity::bench_tradeoff(&a);
@@ -765,7 +779,7 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
     let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000)?;
     let configs: Vec<crate::tracer::BackendConfig> = a.backends.split(',').map(str::parse).collect::<Result<_>>()?;
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-    let reference = AnalyticTracer::default().trace(&system, &batch)?;
+    let reference = AnalyticTracer::with_kernel(crate::tracer::Kernel::Scalar).trace(&system, &batch)?;
     println!(
         "preset {}, {} rays ({} per wavelength × {} wavelengths, seeded pupil samples over the system's fields), {} sequential surfaces per ray, best of {}",
         system.name(),
@@ -775,15 +789,29 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
         system.surfaces_per_ray(),
         repeat
     );
-    println!("| backend | threads | seconds | M rays/s | vs analytic | max error µm | rms error µm |");
-    println!("|---|---|---|---|---|---|---|");
+    println!("| backend | threads | seconds | M rays/s | M rays per CPU-s (per thread) | vs analytic scalar | max error µm | rms error µm |");
+    println!("|---|---|---|---|---|---|---|---|");
     let mut thread_counts = vec![1];
     if cores > 1 {
         thread_counts.push(cores);
     }
     let mut analytic_rps: std::collections::HashMap<usize, f64> = std::collections::HashMap::new();
+    // The analytic backend runs once per f64 kernel: scalar (the reference of the ratio column) and the
+    // SIMD lanes at every instruction set this CPU has.
+    let mut tracers: Vec<(String, bool, Box<dyn crate::tracer::Tracer>)> = Vec::new();
     for cfg in &configs {
-        let tracer = cfg.build()?;
+        if cfg.backend == crate::tracer::Backend::Analytic {
+            tracers.push(("analytic-f64 scalar".into(), true, Box::new(AnalyticTracer::with_kernel(crate::tracer::Kernel::Scalar))));
+            for level in crate::tracer::SimdLevel::available() {
+                let k = crate::tracer::Kernel::Simd(Some(level));
+                tracers.push((format!("analytic-f64 {}", k.name()), false, Box::new(AnalyticTracer::with_kernel(k))));
+            }
+        } else {
+            let t = cfg.build()?;
+            tracers.push((t.name(), false, t));
+        }
+    }
+    for (label, is_reference, tracer) in &tracers {
         // Scene construction (Embree) is not part of the timing: build it once.
         let out = tracer.trace(&system, &batch)?;
         let (mut max, mut s2, mut n) = (0.0f64, 0.0, 0usize);
@@ -797,19 +825,26 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
         }
         for &threads in &thread_counts {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().map_err(|e| Error::invalid(e.to_string()))?;
-            let mut best = f64::INFINITY;
+            let (mut best, mut best_cpu) = (f64::INFINITY, f64::INFINITY);
             for _ in 0..repeat.max(1) {
+                let c = cpu_seconds();
                 let t = Instant::now();
                 let out = pool.install(|| tracer.trace(&system, &batch))?;
                 best = best.min(t.elapsed().as_secs_f64());
+                if let (Some(a), Some(b)) = (c, cpu_seconds()) {
+                    if b > a {
+                        best_cpu = best_cpu.min(b - a);
+                    }
+                }
                 std::hint::black_box(out);
             }
             let rps = batch.len() as f64 / best;
-            if cfg.backend == crate::tracer::Backend::Analytic {
+            let per_cpu = if best_cpu.is_finite() && best_cpu > 0.0 { format!("{:.2}", batch.len() as f64 / best_cpu / 1e6) } else { "n/a".into() };
+            if *is_reference {
                 analytic_rps.insert(threads, rps);
             }
             let ratio = analytic_rps.get(&threads).map(|r| format!("{:.2}×", rps / r)).unwrap_or_else(|| "–".into());
-            println!("| {} | {threads} | {best:.3} | {:.2} | {ratio} | {max:.2e} | {:.2e} |", tracer.name(), rps / 1e6, (s2 / n.max(1) as f64).sqrt());
+            println!("| {label} | {threads} | {best:.3} | {:.2} | {per_cpu} | {ratio} | {max:.2e} | {:.2e} |", rps / 1e6, (s2 / n.max(1) as f64).sqrt());
         }
     }
     Ok(())

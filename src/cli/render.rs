@@ -70,6 +70,10 @@ pub struct RenderCommon {
     /// Do not write the mapping cube (mapping.npy).
     #[arg(long = "no-mapping")]
     pub no_mapping: bool,
+    /// f64 ray kernel of the analytic backend: simd (lanes, best instruction set of this CPU), scalar (the
+    /// reference, for benchmarking), or simd-avx512 / simd-avx2 / simd-portable. Same numbers (≤ 1e-12 mm).
+    #[arg(long, default_value = "simd")]
+    pub kernel: String,
 }
 
 #[derive(Args, Debug)]
@@ -183,6 +187,14 @@ pub struct BenchRenderArgs {
     /// Scenes rendered in the dataset-mode part.
     #[arg(long, default_value_t = 3)]
     pub scenes: usize,
+    /// Kernels timed on the acquisition, side by side (comma-separated: simd, scalar, simd-avx2, …); the
+    /// first one also runs the all-open and dataset rows.
+    #[arg(long, default_value = "simd,scalar")]
+    pub kernels: String,
+    /// Parts to run (comma-separated): mapping (the chief-ray mapping cube), acquisition (per-scene render,
+    /// all-open render), dataset (transport once, then per scene).
+    #[arg(long, default_value = "mapping,acquisition,dataset")]
+    pub parts: String,
 }
 
 /// A memory size in GB: finite and ≥ 0 (clap names the option in the error).
@@ -246,6 +258,8 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
     cfg.rays_per_pixel = a.rays.unwrap_or(20);
     cfg.seed = a.seed;
     cfg.sampling = parse_sampling(&a.sampling)?;
+    cfg.kernel = a.kernel.parse()?;
+    cfg.kernel.resolve()?;
     cfg.airy = (!a.no_airy).then_some(AiryConfig { diameter_px: a.airy_diameter_px, ..AiryConfig::default() });
     let mask = match &a.mask {
         Some(p) => {
@@ -409,6 +423,34 @@ pub(super) fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::
     Ok(nc.to_json(&report))
 }
 
+/// The acquisition rows of `bench-render`: `renderer` (the first kernel), then each further kernel on the
+/// same mask and scene (with the largest difference of its image), then the all-open mask.
+fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Renderer, kernels: &[crate::tracer::Kernel], scene: &SpectralCube, setup: f64, opening: f64, row: &dyn Fn(&str, f64, u64)) -> Result<()> {
+    let first = renderer.config.kernel;
+    let t = Instant::now();
+    let acq = renderer.render(scene, false, &|_| {})?;
+    row(&format!("acquisition, {} kernel (setup {setup:.2} s + render)", first.name()), t.elapsed().as_secs_f64() + setup, acq.stats.traced);
+    for &k in &kernels[1..] {
+        let mut c = renderer.config.clone();
+        c.kernel = k;
+        let tr = AnalyticTracer::with_kernel(k);
+        let t = Instant::now();
+        let other = Renderer::new(system, &tr, c, renderer.mask.clone())?;
+        let acq_k = other.render(scene, false, &|_| {})?;
+        let secs = t.elapsed().as_secs_f64();
+        let diff = acq_k.image.iter().zip(&acq.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        row(&format!("acquisition, {} kernel (setup + render; max |Δ| vs {} {diff:.1e})", k.name(), first.name()), secs, acq_k.stats.traced);
+    }
+    if opening < 1.0 {
+        let (n, m) = (renderer.config.scene_height, renderer.config.scene_width);
+        let open = Renderer::new(system, renderer.tracer, renderer.config.clone(), Mask::open(n, m))?;
+        let t = Instant::now();
+        let acq = open.render(scene, false, &|_| {})?;
+        row(&format!("acquisition, all-open mask (every ray), {} kernel", first.name()), t.elapsed().as_secs_f64(), acq.stats.traced);
+    }
+    Ok(())
+}
+
 /// CPU seconds (user + system) used by this process so far, from /proc/self/stat (Linux, USER_HZ = 100);
 /// `None` elsewhere. On a shared machine wall time alone hides how much of the cores the run was given.
 fn process_cpu_seconds() -> Option<f64> {
@@ -431,7 +473,13 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let mut cfg = RenderConfig::paper(n);
     cfg.spectral = SpectralSampling::with_planes(crate::analysis::linspace(450.0, 650.0, 28), a.planes)?;
     cfg.rays_per_pixel = a.rays;
-    let tracer = AnalyticTracer::default();
+    let kernels: Vec<crate::tracer::Kernel> = a.kernels.split(',').map(|k| k.trim().parse()).collect::<Result<_>>()?;
+    for k in &kernels {
+        k.resolve()?;
+    }
+    let Some(&first) = kernels.first() else { return Err(Error::invalid("--kernels: name at least one kernel")) };
+    cfg.kernel = first;
+    let tracer = AnalyticTracer::with_kernel(first);
     let threads = rayon::current_num_threads();
     println!("render bench: {}, {n}×{n} scene, {} planes, {} rays per pixel per plane, mask opening {}, {threads} threads", system.name(), a.planes, a.rays, a.opening);
     println!("| what | wall s | CPU s | rays traced | M rays/s (wall) |");
@@ -446,18 +494,37 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
         cpu0.set(now);
         println!("| {what} | {secs:.2} | {cpu} | {rays} | {:.2} |", if secs > 0.0 { rays as f64 / secs / 1e6 } else { 0.0 })
     };
+    let parts: Vec<&str> = a.parts.split(',').map(str::trim).collect();
+    if let Some(bad) = parts.iter().find(|p| !["mapping", "acquisition", "dataset"].contains(p)) {
+        return Err(Error::invalid(format!("--parts: unknown part `{bad}` (use mapping, acquisition, dataset)")));
+    }
+    // The chief-ray mapping cube (n × n × planes) through each kernel, side by side.
+    let mut mapping_ref: Option<crate::analysis::MappingCube> = None;
+    for &k in kernels.iter().filter(|_| parts.contains(&"mapping")) {
+        let tr = AnalyticTracer::with_kernel(k);
+        let t = Instant::now();
+        let m = crate::analysis::mapping_cube(&system, &tr, n, n, cfg.scene_pitch_mm, &cfg.spectral.planes_nm)?;
+        let secs = t.elapsed().as_secs_f64();
+        let rays = (n * n * cfg.spectral.planes()) as u64;
+        let diff = match &mapping_ref {
+            Some(r) => format!("; max |Δ| vs {} {:.1e} mm", first.name(), m.positions_mm.iter().zip(&r.positions_mm).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)),
+            None => String::new(),
+        };
+        row(&format!("mapping cube {n}×{n}×{}, {} kernel{diff}", cfg.spectral.planes(), k.name()), secs, rays);
+        mapping_ref.get_or_insert(m);
+    }
     let t = Instant::now();
     let renderer = Renderer::new(&system, &tracer, cfg.clone(), Mask::random(n, n, a.opening, 0)?)?;
     let setup = t.elapsed().as_secs_f64();
+    if !parts.contains(&"acquisition") && !parts.contains(&"dataset") {
+        return Ok(());
+    }
     let scene = synthetic_scene(n, n, &synthetic_wavelengths(), 0);
-    let t = Instant::now();
-    let acq = renderer.render(&scene, false, &|_| {})?;
-    row(&format!("acquisition (setup {setup:.2} s + render)"), t.elapsed().as_secs_f64() + setup, acq.stats.traced);
-    if a.opening < 1.0 {
-        let open = Renderer::new(&system, &tracer, cfg.clone(), Mask::open(n, n))?;
-        let t = Instant::now();
-        let acq = open.render(&scene, false, &|_| {})?;
-        row("acquisition, all-open mask (every ray)", t.elapsed().as_secs_f64(), acq.stats.traced);
+    if parts.contains(&"acquisition") {
+        bench_acquisitions(&system, &renderer, &kernels, &scene, setup, a.opening, &row)?;
+    }
+    if !parts.contains(&"dataset") {
+        return Ok(());
     }
     let t = Instant::now();
     let transport = renderer.trace_all(&|_| {})?;

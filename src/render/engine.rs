@@ -50,6 +50,9 @@ pub struct RenderConfig {
     pub airy: Option<AiryConfig>,
     /// Go through the `Tracer` trait in batches even for the analytic backend (for checks).
     pub force_batched: bool,
+    /// The f64 kernel of the direct (analytic-backend) path: SIMD lanes (default) or scalar (the
+    /// reference, for benchmarks); both give the same numbers.
+    pub kernel: crate::tracer::Kernel,
 }
 
 impl RenderConfig {
@@ -67,6 +70,7 @@ impl RenderConfig {
             seed: 0,
             airy: Some(AiryConfig::default()),
             force_batched: false,
+            kernel: crate::tracer::Kernel::default(),
         }
     }
 }
@@ -80,6 +84,8 @@ pub struct Renderer<'a> {
     pub detector: Detector,
     pub kernels: Vec<Option<AiryKernel>>,
     sampler: RaySampler,
+    /// The resolved SIMD level of `config.kernel` (`None`: scalar).
+    simd: Option<crate::tracer::SimdLevel>,
 }
 
 /// Wall-clock split of a render (s).
@@ -149,7 +155,8 @@ impl<'a> Renderer<'a> {
             return Err(Error::invalid(format!("detector {}×{} exceeds 65535 pixels per side", detector.width, detector.height)));
         }
         let sampler = RaySampler::new(config.rays_per_pixel, config.sampling);
-        Ok(Renderer { system, tracer, config, mask, detector, kernels, sampler })
+        let simd = config.kernel.resolve()?;
+        Ok(Renderer { system, tracer, config, mask, detector, kernels, sampler, simd })
     }
 
     fn context(&self) -> PlaneContext<'_> {
@@ -157,6 +164,7 @@ impl<'a> Renderer<'a> {
             system: self.system,
             tracer: self.tracer,
             direct_kernel: !self.config.force_batched && self.tracer.name() == "analytic-f64",
+            simd: self.simd,
             detector: &self.detector,
             scene_height: self.config.scene_height,
             scene_width: self.config.scene_width,

@@ -61,6 +61,7 @@ pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value
         "system": renderer.system.name(),
         "system_spec": serde_json::to_value(&renderer.system.spec).unwrap_or(serde_json::Value::Null),
         "tracer": renderer.tracer.name(),
+        "kernel": c.kernel.name(),
         "scene": scene,
         "scene_size": c.scene_height,
         "scene_height": c.scene_height,

@@ -43,7 +43,14 @@ pub fn mix64(mut z: u64) -> u64 {
 /// The key of (seed, plane, pixel, index): chained mixes, so nearby keys give unrelated streams.
 #[inline]
 pub fn key(seed: u64, plane: u64, pixel: u64, index: u64) -> u64 {
-    mix64(mix64(mix64(mix64(seed) ^ plane) ^ pixel) ^ index)
+    mix64(pixel_key(seed, plane, pixel) ^ index)
+}
+
+/// The part of [`key`] shared by every index of one (seed, plane, pixel): `key = mix64(pixel_key ^ index)`,
+/// so a pixel's N rays pay one mix each instead of four.
+#[inline]
+fn pixel_key(seed: u64, plane: u64, pixel: u64) -> u64 {
+    mix64(mix64(mix64(seed) ^ plane) ^ pixel)
 }
 
 /// Uniform in [0, 1) from the top 53 bits.
@@ -88,12 +95,13 @@ impl RaySampler {
         let n = self.rays;
         debug_assert_eq!(out.len(), n);
         let (a, b) = self.grid;
+        let pk = pixel_key(seed, plane, pixel);
         match self.mode {
             Sampling::Independent => {
                 for (k, o) in out.iter_mut().enumerate() {
-                    let h1 = key(seed, plane, pixel, 2 * k as u64);
+                    let h1 = mix64(pk ^ (2 * k as u64));
                     let h2 = mix64(h1);
-                    let h3 = key(seed, plane, pixel, 2 * k as u64 + 1);
+                    let h3 = mix64(pk ^ (2 * k as u64 + 1));
                     let h4 = mix64(h3);
                     let p = concentric_disk(unit(h1), unit(h2));
                     *o = [p[0], p[1], unit(h3), unit(h4)];
@@ -102,7 +110,7 @@ impl RaySampler {
             Sampling::Stratified => {
                 // Fisher–Yates permutation of the pixel-area cells, from the pixel's own stream. The
                 // permutation is written into the [2] slots first, then overwritten by the coordinates.
-                let base = key(seed, plane, pixel, u64::MAX);
+                let base = mix64(pk ^ u64::MAX);
                 for (k, o) in out.iter_mut().enumerate() {
                     o[2] = k as f64;
                 }
@@ -113,7 +121,7 @@ impl RaySampler {
                     out[j][2] = t;
                 }
                 for (k, o) in out.iter_mut().enumerate() {
-                    let h1 = key(seed, plane, pixel, k as u64);
+                    let h1 = mix64(pk ^ k as u64);
                     let h2 = mix64(h1);
                     let h3 = mix64(h2);
                     let h4 = mix64(h3);
@@ -131,6 +139,13 @@ impl RaySampler {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn hoisted_pixel_key_is_the_chained_key() {
+        for (s, p, q, i) in [(0u64, 0u64, 0u64, 0u64), (7, 3, 12345, 19), (u64::MAX, 111, 1 << 40, u64::MAX)] {
+            assert_eq!(key(s, p, q, i), mix64(mix64(mix64(mix64(s) ^ p) ^ q) ^ i));
+        }
+    }
 
     #[test]
     fn strata_cover_the_domain_once() {

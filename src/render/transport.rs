@@ -149,6 +149,9 @@ pub struct PlaneContext<'a> {
     pub tracer: &'a dyn Tracer,
     /// Trace with the f64 kernel directly (only valid for the analytic backend).
     pub direct_kernel: bool,
+    /// On the direct path: the lane kernel at this level ([`crate::tracer::simd`]), or the scalar kernel
+    /// 8 rays interleaved (`None`). Both give the same numbers.
+    pub simd: Option<crate::tracer::SimdLevel>,
     pub detector: &'a Detector,
     pub scene_height: usize,
     pub scene_width: usize,
@@ -251,23 +254,27 @@ impl PlaneContext<'_> {
                     }
                 }
                 out.stats.traced += sc.rays.len() as u64;
-                let (stats, det) = (&mut out.stats, self.detector);
-                trace_interleaved(&self.system.path, &n, &sc.rays, |res| match res {
+                let (stats, det, land) = (&mut out.stats, self.detector, &mut sc.land);
+                let emit = |res: std::result::Result<(DVec3, DVec3), (RayStatus, usize)>| match res {
                     // Same classification as `TracedBatch::classify_out_of_range`: an absurd landing is
                     // counted, never splatted (its pixel index would overflow).
                     Ok((p, d)) if !(p.is_finite() && d.is_finite() && p.abs().max_element() <= crate::limits::MAX_IMAGE_COORD_MM) => {
                         stats.count(RayStatus::OutOfRange);
-                        sc.land.push((f64::NAN, f64::NAN));
+                        land.push((f64::NAN, f64::NAN));
                     }
                     Ok((p, _)) => {
                         stats.count(RayStatus::Ok);
-                        sc.land.push(det.to_pixel(p.x, p.y));
+                        land.push(det.to_pixel(p.x, p.y));
                     }
                     Err((st, _)) => {
                         stats.count(st);
-                        sc.land.push((f64::NAN, f64::NAN));
+                        land.push((f64::NAN, f64::NAN));
                     }
-                });
+                };
+                match self.simd {
+                    Some(level) => crate::tracer::simd::trace_rays(level, &self.system.path, &n, &sc.rays, emit),
+                    None => trace_interleaved(&self.system.path, &n, &sc.rays, emit),
+                }
             } else {
                 sc.batch = RayBatch::with_capacity(open.len() * nr);
                 for &col in &open {

@@ -1,4 +1,5 @@
 use super::kernel::{trace_steps, unit_direction};
+use super::simd::{self, Kernel, SimdLevel, LANES};
 use super::{RaySlices, RayStatus, TracedBatch, Tracer};
 use crate::error::Result;
 use crate::rays::RayBatch;
@@ -9,16 +10,26 @@ use std::collections::HashMap;
 
 /// The exact sequential tracer: f64 throughout, exact intersections (closed form for planes and conics,
 /// guarded Newton for even aspheres), vector Snell refraction. Parallel over rays with rayon; every ray is
-/// independent, so results do not depend on the thread count.
+/// independent, so results do not depend on the thread count. The default kernel is the lane-parallel one
+/// ([`super::simd`], the same numbers as the scalar kernel); `Kernel::Scalar` keeps the reference.
 #[derive(Clone, Debug)]
 pub struct AnalyticTracer {
     /// Rays per rayon task.
     pub chunk_size: usize,
+    /// Scalar or SIMD f64 kernel (same results).
+    pub kernel: Kernel,
 }
 
 impl Default for AnalyticTracer {
     fn default() -> Self {
-        AnalyticTracer { chunk_size: 4096 }
+        AnalyticTracer { chunk_size: 4096, kernel: Kernel::Simd(None) }
+    }
+}
+
+impl AnalyticTracer {
+    /// The default tracer with the given kernel.
+    pub const fn with_kernel(kernel: Kernel) -> Self {
+        AnalyticTracer { chunk_size: 4096, kernel }
     }
 }
 
@@ -45,6 +56,11 @@ impl Tracer for AnalyticTracer {
     /// The one implementation: reads the borrowed columns in place.
     fn trace_slices(&self, system: &SequentialSystem, rays: RaySlices<'_>) -> Result<TracedBatch> {
         let table = index_table(system, rays.wavelength_nm())?;
+        if let Some(level) = self.kernel.resolve()? {
+            let mut out = self.trace_lanes(system, rays, &table, level);
+            out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
+            return Ok(out);
+        }
         let n = rays.len();
         let mut out = TracedBatch::zeroed(n);
         let chunk = self.chunk_size.max(1);
@@ -93,6 +109,76 @@ impl Tracer for AnalyticTracer {
             });
         out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
         Ok(out)
+    }
+}
+
+impl AnalyticTracer {
+    /// [`Tracer::trace_slices`] with the lane kernel: blocks of [`LANES`] rays, each lane with its own
+    /// wavelength's index table; the same input checks and outputs as the scalar loop.
+    fn trace_lanes(&self, system: &SequentialSystem, rays: RaySlices<'_>, table: &HashMap<u64, Vec<f64>>, level: SimdLevel) -> TracedBatch {
+        let n = rays.len();
+        let mut out = TracedBatch::zeroed(n);
+        let chunk = self.chunk_size.max(1);
+        let path = &system.path;
+        out.x
+            .par_chunks_mut(chunk)
+            .zip(out.y.par_chunks_mut(chunk))
+            .zip(out.z.par_chunks_mut(chunk))
+            .zip(out.dir_x.par_chunks_mut(chunk))
+            .zip(out.dir_y.par_chunks_mut(chunk))
+            .zip(out.dir_z.par_chunks_mut(chunk))
+            .zip(out.status.par_chunks_mut(chunk))
+            .zip(out.surface.par_chunks_mut(chunk))
+            .enumerate()
+            .for_each(|(c, (((((((x, y), z), dx), dy), dz), st), sf))| {
+                let base = c * chunk;
+                let mut cached: (u64, Option<&Vec<f64>>) = (u64::MAX, None);
+                let first: &[f64] = table.values().next().map(|v| v.as_slice()).unwrap_or(&[]);
+                let mut start = 0;
+                while start < x.len() {
+                    let len = LANES.min(x.len() - start);
+                    let mut b = simd::Block::default();
+                    let mut tables: [&[f64]; LANES] = [first; LANES];
+                    for k in 0..len {
+                        let i = base + start + k;
+                        let w = rays.wavelength_nm[i].to_bits();
+                        if cached.0 != w || cached.1.is_none() {
+                            cached = (w, table.get(&w));
+                        }
+                        let idx = cached.1.expect("every batch wavelength is in the table");
+                        tables[k] = idx;
+                        let o = rays.origin(i);
+                        match unit_direction(rays.direction(i)).filter(|_| o.is_finite()) {
+                            Some(d) => b.set(k, o, d),
+                            None => b.set_invalid(k),
+                        }
+                    }
+                    // Padding lanes share lane 0's table so that a one-wavelength block stays uniform.
+                    for k in len..LANES {
+                        tables[k] = tables[0];
+                    }
+                    simd::trace_block(level, path, &tables, &mut b);
+                    for k in 0..len {
+                        let j = start + k;
+                        match b.result(k) {
+                            Ok((p, dir)) => {
+                                x[j] = p.x;
+                                y[j] = p.y;
+                                z[j] = p.z;
+                                dx[j] = dir.x;
+                                dy[j] = dir.y;
+                                dz[j] = dir.z;
+                            }
+                            Err((status, surface)) => {
+                                st[j] = status;
+                                sf[j] = surface as u32;
+                            }
+                        }
+                    }
+                    start += len;
+                }
+            });
+        out
     }
 }
 

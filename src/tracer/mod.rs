@@ -15,11 +15,13 @@ pub mod hits;
 pub mod kernel;
 #[cfg(feature = "embree")]
 pub mod embree;
+pub mod simd;
 mod slices;
 mod traced;
 
 pub use analytic::*;
 pub use backend::*;
+pub use simd::{Kernel, SimdLevel};
 pub use slices::*;
 pub use traced::*;
 
