@@ -4,6 +4,15 @@
 //! adjoint Φᵀ) → **solver** (iterative, sees only an [`operator::Operator`]) → **metrics** (the field's
 //! RMSE / PSNR / SSIM / SAM). The operator/solver split follows solver libraries: an operator knows apply
 //! and adjoint; a solver knows only operators.
+//!
+//! Operators: [`exact::ExactOperator`] (the renderer's own light transport), [`mapping::MappingOperator`]
+//! (the paper's chief-ray mapping, nearest or bilinear, and its initialisation I = A ∘ f),
+//! [`shift::ShiftOperator`] (the field's simplified SD-CASSI model). Solvers: [`gap::gap_tv`] (GAP-TV,
+//! plain or accelerated) and [`admm::admm_tv`] (ADMM-TV), both through [`solver::reconstruct`] with a
+//! [`solver::SolverConfig`]; TV denoising by Chambolle's projection in [`tv`]. See docs/reconstruction.md.
+pub mod exact;
+pub mod layout;
 pub mod operator;
 
+pub use exact::ExactOperator;
 pub use operator::{CubeShape, ImageShape, Operator};
