@@ -42,6 +42,8 @@ pub enum Command {
     RenderDataset(super::render::RenderDatasetArgs),
     /// Time the paper-scale acquisition and dataset mode, printed as a table.
     BenchRender(super::render::BenchRenderArgs),
+    /// Quality metrics of an estimated cube against the truth: RMSE, PSNR (paper and MST), SSIM, SAM.
+    Evaluate(super::evaluate::EvaluateArgs),
     /// Optical design by exact derivatives (`design amici`: the paper's double-Amici prism).
     Design(super::design::DesignArgs),
     /// Recover a misalignment (e.g. the prism tilt) from another system's spot centroids.

@@ -25,6 +25,7 @@ pub(super) fn run(command: Command) -> Result<()> {
         Command::Render(a) => super::render::render(a),
         Command::RenderDataset(a) => super::render::render_dataset(a),
         Command::BenchRender(a) => super::render::bench_render(a),
+        Command::Evaluate(a) => super::evaluate::evaluate(a),
         Command::Design(a) => super::design::design_cmd(a),
         Command::Calibrate(a) => super::design::calibrate_cmd(a),
     }

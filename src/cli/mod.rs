@@ -7,11 +7,13 @@
 //! diffcassi mapping --preset msp --npy mapping.npy
 //! diffcassi report --preset sp --out out/sp
 //! diffcassi render --preset sp                  # the main job: out/render-sp
+//! diffcassi evaluate --truth scene.npy --estimate cube.npy --json metrics.json
 //! ```
 mod args;
 mod commands;
 pub mod render;
 mod design;
+pub mod evaluate;
 mod fidelity;
 
 pub use args::*;

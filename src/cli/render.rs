@@ -3,13 +3,14 @@
 //! ```text
 //! diffcassi render --preset sp                                   # synthetic demo scene → out/render-sp
 //! diffcassi render --preset ap --scene scene.exr --out out/ap     # a KAIST-style EXR
+//! diffcassi render --preset sp --noise shot,read,adc --full-well-e 20000 --read-noise-e 2 --adc-bits 12
 //! diffcassi render-dataset --scenes scenes/ --preset sp --out out/sp-dataset
 //! diffcassi bench-render --preset sp                              # the paper-scale timing table
 //! ```
 use super::args::{BackendArgs, SystemArgs};
 use super::commands::{load_system, parse_wavelengths};
 use crate::error::{Error, Result};
-use crate::render::{dataset, output, AiryConfig, Mask, PlaneTransport, RenderConfig, Renderer, Sampling, SpectralSampling};
+use crate::render::{dataset, output, AiryConfig, Mask, NoiseConfig, PlaneTransport, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
 use crate::tracer::AnalyticTracer;
 use clap::Args;
@@ -84,6 +85,86 @@ pub struct RenderArgs {
     /// Output folder (default out/render-<system>).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    #[command(flatten)]
+    pub noise: NoiseArgs,
+}
+
+/// Sensor noise on the finished acquisition (off unless `--noise` is given); see `docs/noise.md`.
+#[derive(Args, Debug, Clone, Default)]
+pub struct NoiseArgs {
+    /// Sensor noise sources, a comma list of shot (Poisson photon noise), read (Gaussian read noise), adc
+    /// (quantisation); `none` or absent: no noise.
+    #[arg(long)]
+    pub noise: Option<String>,
+    /// Full-well capacity (electrons): the ADC's full scale and, without --electrons-per-unit, the electrons of
+    /// the clean acquisition's brightest pixel [default: 20000].
+    #[arg(long = "full-well-e")]
+    pub full_well_e: Option<f64>,
+    /// Exposure: photo-electrons per acquisition unit (instead of mapping the peak to the full well).
+    #[arg(long = "electrons-per-unit")]
+    pub electrons_per_unit: Option<f64>,
+    /// Read noise σ (electrons) [default with `read`: 2].
+    #[arg(long = "read-noise-e")]
+    pub read_noise_e: Option<f64>,
+    /// ADC bit depth [default with `adc`: 12].
+    #[arg(long = "adc-bits")]
+    pub adc_bits: Option<u32>,
+    /// Seed of the noise's random numbers [default: 0].
+    #[arg(long = "noise-seed")]
+    pub noise_seed: Option<u64>,
+}
+
+impl NoiseArgs {
+    /// The noise the options describe (`None`: off). Options of a source that is not selected are errors.
+    pub fn config(&self) -> Result<Option<NoiseConfig>> {
+        let list = self.noise.as_deref().unwrap_or("none").trim();
+        let mut cfg = NoiseConfig::default();
+        let (mut read, mut adc) = (false, false);
+        if list != "none" {
+            for item in list.split(',').map(str::trim) {
+                match item {
+                    "shot" => cfg.shot = true,
+                    "read" => read = true,
+                    "adc" => adc = true,
+                    _ => return Err(Error::invalid(format!("--noise `{item}`: use a comma list of shot, read, adc (or none)"))),
+                }
+            }
+        }
+        let on = cfg.shot || read || adc;
+        let given = [
+            ("--full-well-e", self.full_well_e.is_some()),
+            ("--electrons-per-unit", self.electrons_per_unit.is_some()),
+            ("--noise-seed", self.noise_seed.is_some()),
+        ];
+        if let Some((name, _)) = given.iter().find(|g| g.1 && !on) {
+            return Err(Error::invalid(format!("{name} needs --noise (shot, read and/or adc)")));
+        }
+        if self.read_noise_e.is_some() && !read {
+            return Err(Error::invalid("--read-noise-e needs `read` in --noise"));
+        }
+        if self.adc_bits.is_some() && !adc {
+            return Err(Error::invalid("--adc-bits needs `adc` in --noise"));
+        }
+        if !on {
+            return Ok(None);
+        }
+        if let Some(f) = self.full_well_e {
+            cfg.full_well_e = f;
+        }
+        cfg.electrons_per_unit = self.electrons_per_unit;
+        if read {
+            cfg.read_noise_e = self.read_noise_e.unwrap_or(2.0);
+            if cfg.read_noise_e == 0.0 {
+                return Err(Error::invalid("--read-noise-e 0 with `read` in --noise: drop `read` instead"));
+            }
+        }
+        if adc {
+            cfg.adc_bits = Some(self.adc_bits.unwrap_or(12));
+        }
+        cfg.seed = self.noise_seed.unwrap_or(0);
+        cfg.validate().map_err(|e| Error::invalid(format!("--noise: {e}")))?;
+        Ok(Some(cfg))
+    }
 }
 
 #[derive(Args, Debug)]
@@ -224,6 +305,7 @@ fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Acquisition, 
 
 pub fn render(a: RenderArgs) -> Result<()> {
     let t0 = Instant::now();
+    let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = config_from(&a.common)?;
     let (tracer, rays) = render_tracer(&a.common, &system, &cfg, &mask)?;
@@ -239,9 +321,24 @@ pub fn render(a: RenderArgs) -> Result<()> {
     let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
     let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
     let pb = progress_bar(renderer.rays_per_render(), &format!("render {}", system.name()));
-    let acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
+    let mut acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
     pb.finish_and_clear();
-    let json = write_all(&out, &renderer, &acq, &desc, t0, serde_json::json!({}), !a.common.no_mapping)?;
+    // Sensor noise on the acquisition (the per-band images of --cube stay clean).
+    let noise_json = match &noise {
+        Some(nc) => {
+            let report = nc.apply(&mut acq.image)?;
+            println!(
+                "sensor noise ({}): {:.4} e⁻ per unit, peak {:.0} e⁻{}",
+                a.noise.noise.as_deref().unwrap_or(""),
+                report.electrons_per_unit,
+                report.peak_electrons,
+                report.adc_gain_e_per_dn.map(|g| format!(", ADC {:.4} e⁻/DN, {} saturated pixels", g, report.saturated_pixels)).unwrap_or_default()
+            );
+            nc.to_json(&report)
+        }
+        None => serde_json::Value::Null,
+    };
+    let json = write_all(&out, &renderer, &acq, &desc, t0, serde_json::json!({"noise": noise_json}), !a.common.no_mapping)?;
     println!(
         "{}: {}×{} scene, {} planes × {} rays: {} rays in {:.2} s ({:.2} M rays/s, {} threads), detector {}×{}, transmission {:.4}; total {:.2} s → {}",
         system.name(),

@@ -12,7 +12,9 @@
 //! [`solver::SolverConfig`]; TV denoising by Chambolle's projection in [`tv`]. See docs/reconstruction.md.
 pub mod exact;
 pub mod layout;
+pub mod metrics;
 pub mod operator;
 
 pub use exact::ExactOperator;
+pub use metrics::{evaluate, Evaluation, Metrics};
 pub use operator::{CubeShape, ImageShape, Operator};

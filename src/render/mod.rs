@@ -7,7 +7,8 @@
 //! the detector ([`transport`]). Each plane is convolved with its Airy disk ([`airy`]), weighted by B/K and
 //! the planes are summed ([`engine`]). Planes: B bands × F ([`spectral`]). The detector covers the
 //! dispersed footprint ([`detector`]). Dataset mode ([`dataset`]) traces the transport once and applies it
-//! to many scenes, bit-identically.
+//! to many scenes, bit-identically. Optional sensor noise ([`noise`]: shot, read, ADC) is applied to the
+//! finished acquisition.
 //!
 //! ```
 //! use diffcassi::prelude::*;
@@ -30,6 +31,7 @@ pub mod dataset;
 pub mod detector;
 pub mod engine;
 pub mod mask;
+pub mod noise;
 pub mod output;
 pub mod sampling;
 pub mod spectral;
@@ -40,6 +42,7 @@ pub use airy::AiryKernel;
 pub use detector::Detector;
 pub use engine::*;
 pub use mask::Mask;
+pub use noise::{NoiseConfig, NoiseReport};
 pub use sampling::{RaySampler, Sampling};
 pub use spectral::SpectralSampling;
 pub use transport::{Footprint, PlaneTransport, RayStats};
