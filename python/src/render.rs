@@ -9,8 +9,9 @@ use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::system::{tracer, PySystem};
 use clap::Parser;
-use diffcassi::cli::render::{config_from, RenderCommon};
-use diffcassi::render::{output as render_output, Mask, PlaneTransport, RenderConfig, Renderer};
+use diffcassi::cli::render::{config_from, NoiseArgs, RenderCommon};
+use diffcassi::recon::{CubeShape, ExactOperator, ImageShape, Operator};
+use diffcassi::render::{output as render_output, Mask, RenderConfig, Renderer};
 use diffcassi::scene::SpectralCube;
 use diffcassi::system::SequentialSystem;
 use diffcassi::tracer::Tracer;
@@ -106,7 +107,8 @@ fn scene_description(cube: &SpectralCube) -> serde_json::Value {
 /// render.json's content as JSON text).
 #[pyfunction]
 #[pyo3(signature = (system, scene, wavelengths_nm, mask = None, bands_nm = None, planes = None, rays = None, seed = None,
-                    sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic"))]
+                    sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic",
+                    noise = None, full_well_e = None, electrons_per_unit = None, read_noise_e = None, adc_bits = None, noise_seed = None))]
 #[allow(clippy::too_many_arguments)]
 fn _render<'py>(
     py: Python<'py>,
@@ -124,8 +126,16 @@ fn _render<'py>(
     airy_diameter_px: Option<f64>,
     airy: Option<bool>,
     backend: &str,
+    noise: Option<String>,
+    full_well_e: Option<f64>,
+    electrons_per_unit: Option<f64>,
+    read_noise_e: Option<f64>,
+    adc_bits: Option<u32>,
+    noise_seed: Option<u64>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, String)> {
     let t0 = Instant::now();
+    // The CLI's own noise options and checks (`render --noise ...`).
+    let noise = NoiseArgs { noise, full_well_e, electrons_per_unit, read_noise_e, adc_bits, noise_seed }.config().py()?;
     let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
     let cube = scene_cube(scene, ws)?;
     let bands_nm = bands_nm.map(|b| f64_list("bands_nm", b)).transpose()?;
@@ -136,9 +146,14 @@ fn _render<'py>(
     let threads = crate::pool::get_num_threads();
     let (acq, info) = run(py, move || -> diffcassi::Result<_> {
         let r = Renderer::new(&sys, t.as_ref(), cfg, m)?;
-        let acq = r.render(&cube, false, &|_| {})?;
+        let mut acq = r.render(&cube, false, &|_| {})?;
+        let noise_json = match &noise {
+            Some(nc) => nc.to_json(&nc.apply(&mut acq.image)?),
+            None => serde_json::Value::Null,
+        };
         let scale = render_output::preview_scale(&acq);
-        let info = render_output::sidecar(&r, &acq, &scene_description(&cube), scale, t0.elapsed().as_secs_f64(), threads);
+        let mut info = render_output::sidecar(&r, &acq, &scene_description(&cube), scale, t0.elapsed().as_secs_f64(), threads);
+        info["noise"] = noise_json;
         Ok((acq, info))
     })
     .py()?;
@@ -146,31 +161,63 @@ fn _render<'py>(
     Ok((output(py, acq.image, &[h, w])?, info.to_string()))
 }
 
+/// The exact operator together with the system and tracer it borrows, owned as one value.
+pub struct OwnedExact {
+    // Field order is drop order: `op` borrows the system and the tracer below and must go first.
+    pub op: ExactOperator<'static>,
+    _system: Arc<SequentialSystem>,
+    _tracer: Box<dyn Tracer>,
+}
+
+impl Operator for OwnedExact {
+    fn name(&self) -> &str {
+        self.op.name()
+    }
+    fn cube_shape(&self) -> CubeShape {
+        self.op.cube_shape()
+    }
+    fn image_shape(&self) -> ImageShape {
+        self.op.image_shape()
+    }
+    fn apply_into(&self, cube: &[f32], image: &mut [f32]) {
+        self.op.apply_into(cube, image)
+    }
+    fn adjoint_into(&self, image: &[f32], cube: &mut [f32]) {
+        self.op.adjoint_into(image, cube)
+    }
+}
+
+/// Trace the light transport of `system` with these settings once and keep it as the exact operator.
+pub fn owned_exact(py: Python<'_>, system: &Arc<SequentialSystem>, cfg: RenderConfig, mask: Mask, backend: &str) -> PyResult<OwnedExact> {
+    let tr = tracer(backend)?;
+    let system = Arc::clone(system);
+    // SAFETY: the system lives in an Arc and the tracer in a Box, both moved into the returned value and
+    // never replaced; their heap addresses do not move when the value does, and `op`, which borrows
+    // them, is declared first so it is dropped before them.
+    let sys_ref: &'static SequentialSystem = unsafe { &*Arc::as_ptr(&system) };
+    let tr_ref: &'static dyn Tracer = unsafe { &*(tr.as_ref() as *const dyn Tracer) };
+    let op = run(py, move || -> diffcassi::Result<_> {
+        let r = Renderer::new(sys_ref, tr_ref, cfg, mask)?;
+        let t = r.trace_all(&|_| {})?;
+        let bands = r.config.spectral.bands_nm.clone();
+        ExactOperator::from_traced(r, &bands, t)
+    })
+    .py()?;
+    Ok(OwnedExact { op, _system: system, _tracer: tr })
+}
+
 /// The dataset-mode light transport of one system, configuration and mask, traced once: `apply(scene)`
 /// renders a scene with it (bit-identical to `render` with the same settings), the fast path for
-/// on-the-fly training data.
+/// on-the-fly training data; `adjoint(image)` is the exact operator's adjoint.
 #[pyclass(name = "Transport", module = "diffcassi", frozen)]
 pub struct PyTransport {
-    // Field order is drop order: `renderer` borrows the system and tracer below and must go first.
-    renderer: Renderer<'static>,
-    planes: Vec<PlaneTransport>,
+    exact: Arc<OwnedExact>,
     system: Arc<SequentialSystem>,
-    _tracer: Box<dyn Tracer>,
-    backend: String,
 }
 
 impl PyTransport {
-    pub fn renderer(&self) -> &Renderer<'_> {
-        &self.renderer
-    }
-    pub fn planes(&self) -> &[PlaneTransport] {
-        &self.planes
-    }
-    pub fn system(&self) -> &Arc<SequentialSystem> {
-        &self.system
-    }
-    pub fn backend(&self) -> &str {
-        &self.backend
+    fn renderer(&self) -> &Renderer<'static> {
+        self.exact.op.renderer()
     }
 }
 
@@ -200,80 +247,97 @@ impl PyTransport {
         let bands_nm = bands_nm.map(|b| f64_list("bands_nm", b)).transpose()?;
         let o = Options { bands_nm, planes, rays, seed, sampling, opening, mask_seed, airy_diameter_px, airy };
         let (cfg, m) = configure(height, width, &o, mask)?;
-        let tr = tracer(backend)?;
-        let system = Arc::clone(&system.inner);
-        // SAFETY: the system lives in an Arc and the tracer in a Box, both owned by the returned struct and
-        // never replaced (the class is frozen); their heap addresses do not move when the struct does, and
-        // `renderer`, which borrows them, is declared first so it is dropped before them.
-        let sys_ref: &'static SequentialSystem = unsafe { &*Arc::as_ptr(&system) };
-        let tr_ref: &'static dyn Tracer = unsafe { &*(tr.as_ref() as *const dyn Tracer) };
-        let (renderer, planes) = run(py, move || -> diffcassi::Result<_> {
-            let r = Renderer::new(sys_ref, tr_ref, cfg, m)?;
-            let t = r.trace_all(&|_| {})?;
-            Ok((r, t))
-        })
-        .py()?;
-        Ok(PyTransport { renderer, planes, system, _tracer: tr, backend: backend.to_string() })
+        let exact = owned_exact(py, &system.inner, cfg, m, backend)?;
+        Ok(PyTransport { exact: Arc::new(exact), system: Arc::clone(&system.inner) })
     }
 
     /// Render `scene` ((H, W, B) float32; bands at `wavelengths_nm`, default the transport's bands):
-    /// the acquisition (h, w) float64.
+    /// the acquisition (h, w) float64, bit-identical to `render` with the same settings.
     #[pyo3(signature = (scene, wavelengths_nm = None))]
     fn apply<'py>(&self, py: Python<'py>, scene: &Bound<'py, PyAny>, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         let ws = match wavelengths_nm {
             Some(w) => f64_list("wavelengths_nm", w)?,
-            None => self.renderer.config.spectral.bands_nm.clone(),
+            None => self.renderer().config.spectral.bands_nm.clone(),
         };
         let cube = scene_cube(scene, ws)?;
-        let acq = run(py, || self.renderer.render_cached(&cube, &self.planes, false, &|_| {})).py()?;
+        let planes = self.exact.op.transport().ok_or_else(|| value_error("internal: transport not kept"))?;
+        let acq = run(py, || self.renderer().render_cached(&cube, planes, false, &|_| {})).py()?;
         let (h, w) = (acq.detector.height, acq.detector.width);
         output(py, acq.image, &[h, w])
+    }
+
+    /// Φᵀ image: `image` (h, w) float32 or float64 (the detector is small; converted to float32) → the
+    /// cube (H, W, B) float32 at the transport's bands (the exact operator's adjoint).
+    fn adjoint<'py>(&self, py: Python<'py>, image: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let (h, w) = self.detector_shape();
+        let img: Vec<f32> = match input::<f64>("image", image, "float64", 2, "(h, w)") {
+            Ok(a) => {
+                check_shape("image", &a.shape, &[h, w])?;
+                a.slice().iter().map(|&v| v as f32).collect()
+            }
+            Err(_) => {
+                let a = input::<f32>("image", image, "float32", 2, "(h, w)")?;
+                check_shape("image", &a.shape, &[h, w])?;
+                a.slice().to_vec()
+            }
+        };
+        check_finite("image", &img, &[h, w])?;
+        let c = self.exact.cube_shape();
+        let mut cube = vec![0.0f32; c.len()];
+        run(py, || self.exact.adjoint_into(&img, &mut cube));
+        output(py, cube, &[c.height, c.width, c.bands])
+    }
+
+    /// The exact operator Φ of this transport (float32 cube (H, W, B) → image (h, w)), sharing its trace.
+    #[getter]
+    fn operator(&self) -> crate::recon::PyOperator {
+        crate::recon::PyOperator::new(self.exact.clone())
     }
 
     /// (h, w) of the detector images.
     #[getter]
     fn detector_shape(&self) -> (usize, usize) {
-        (self.renderer.detector.height, self.renderer.detector.width)
+        (self.renderer().detector.height, self.renderer().detector.width)
     }
 
     /// (H, W) of the scenes.
     #[getter]
     fn scene_shape(&self) -> (usize, usize) {
-        (self.renderer.config.scene_height, self.renderer.config.scene_width)
+        (self.renderer().config.scene_height, self.renderer().config.scene_width)
     }
 
     /// Heap bytes of the traced transport.
     #[getter]
     fn nbytes(&self) -> usize {
-        self.planes.iter().map(|p| p.bytes()).sum()
+        self.exact.op.transport_bytes()
     }
 
     /// The render bands (nm).
     #[getter]
     fn bands_nm(&self) -> Vec<f64> {
-        self.renderer.config.spectral.bands_nm.clone()
+        self.renderer().config.spectral.bands_nm.clone()
     }
 
     /// The spectral planes (nm).
     #[getter]
     fn planes_nm(&self) -> Vec<f64> {
-        self.renderer.config.spectral.planes_nm.clone()
+        self.renderer().config.spectral.planes_nm.clone()
     }
 
     /// The mask (H, W) float32.
     #[getter]
     fn mask<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-        let m = &self.renderer.mask;
+        let m = &self.renderer().mask;
         output(py, m.values.clone(), &[m.height, m.width])
     }
 
     /// The render configuration as JSON text.
     fn _config_json(&self) -> String {
-        serde_json::to_string(&self.renderer.config).unwrap_or_default()
+        serde_json::to_string(&self.renderer().config).unwrap_or_default()
     }
 
     fn __repr__(&self) -> String {
-        let c = &self.renderer.config;
+        let c = &self.renderer().config;
         format!(
             "Transport('{}', scene {}×{}, {} bands, {} planes, {} rays, detector {}×{}, {:.1} MB)",
             self.system.name(),
@@ -282,11 +346,18 @@ impl PyTransport {
             c.spectral.bands_nm.len(),
             c.spectral.planes(),
             c.rays_per_pixel,
-            self.renderer.detector.height,
-            self.renderer.detector.width,
+            self.renderer().detector.height,
+            self.renderer().detector.width,
             self.nbytes() as f64 / 1e6
         )
     }
+}
+
+pub fn check_shape(name: &str, actual: &[usize], expected: &[usize]) -> PyResult<()> {
+    if actual != expected {
+        return Err(value_error(format!("{name}: expected shape {expected:?}, got {actual:?}")));
+    }
+    Ok(())
 }
 
 /// The channels of an EXR file: {name: (H, W) float32} (to read the CLI's `acquisition.exr`, `cube.exr`).
