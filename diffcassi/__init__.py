@@ -21,7 +21,8 @@ import numpy as np
 
 from . import _native
 from ._errors import DiffcassiError, DiffcassiFileError, DiffcassiValueError
-from ._native import System, Transport, get_num_threads, jacobian, mapping, read_exr, set_num_threads, trace
+from ._native import (Operator, System, Transport, get_num_threads, jacobian, load_scene, mapping, read_exr,
+                      set_num_threads, synthetic_scene, trace)
 
 __version__: str = _native.__version__
 #: Whether the Embree backends (``embree-user``, ``embree-mesh``) were compiled in.
@@ -32,7 +33,7 @@ STATUS = {0: "ok", 1: "missed", 2: "vignetted", 3: "total internal reflection", 
           5: "invalid input", 6: "absorbed", 7: "bounce limit"}
 
 __all__ = [
-    "System", "Transport", "trace", "spot", "distortion", "dispersion", "mapping", "jacobian", "render",
+    "System", "Transport", "Operator", "exact", "metrics", "load_scene", "synthetic_scene", "trace", "spot", "distortion", "dispersion", "mapping", "jacobian", "render",
     "read_exr", "set_num_threads", "get_num_threads", "surfaces", "DiffcassiError", "DiffcassiValueError",
     "DiffcassiFileError", "STATUS", "EMBREE", "__version__",
 ]
@@ -101,13 +102,84 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
     planes 112, rays 20 per pixel per plane, seed 0, stratified sampling, a random binary mask of opening
     0.5 and seed 0 (or ``mask``: (H, W) float32 in [0, 1]), Airy disk 2.5 px at 520 nm. So
     ``render(sp, cube, wl)`` equals ``diffcassi render --preset sp --scene cube.npy --scene-size N`` bit for
-    bit. ``noise``: sensor noise settings (see docs/python.md; ``None``: a clean acquisition, the default).
+    bit. ``noise``: sensor noise as the CLI's ``--noise`` options: ``"shot,read,adc"`` or a dict
+    ``{"noise": "shot,read", "full_well_e": 20000, "read_noise_e": 2, "adc_bits": 12, "noise_seed": 0,
+    "electrons_per_unit": ...}`` (``None``: a clean acquisition, the default); ``info["noise"]`` reports it.
 
     Returns ``(acquisition, info)``: the detector image (h, w) float64 and a dict with ``render.json``'s
     keys (``acquisition_total``, ``detector``, ``bands_nm``, ``planes_nm``, ``rays_traced``, ...).
     """
-    if noise is not None:
-        raise DiffcassiValueError("noise: sensor noise is not available in this build (noise=None renders a clean acquisition)")
+    nz: Dict[str, Any] = {}
+    if isinstance(noise, str):
+        nz = {"noise": noise}
+    elif isinstance(noise, dict):
+        nz = dict(noise)
+        unknown = set(nz) - {"noise", "full_well_e", "electrons_per_unit", "read_noise_e", "adc_bits", "noise_seed"}
+        if unknown:
+            raise DiffcassiValueError(f"noise: unknown keys {sorted(unknown)} (use noise, full_well_e, electrons_per_unit, "
+                                      "read_noise_e, adc_bits, noise_seed: the CLI's --noise options)")
+    elif noise is not None:
+        raise DiffcassiValueError(f"noise: expected None, a string such as 'shot,read,adc' or a dict, got {type(noise).__name__}")
     acq, info = _native._render(system, scene, wavelengths_nm, mask, bands_nm, planes, rays, seed, sampling, opening,
-                                mask_seed, airy_diameter_px, airy, _check_backend(backend))
+                                mask_seed, airy_diameter_px, airy, _check_backend(backend), **nz)
     return acq, _json.loads(info)
+
+
+def exact(system: System, height: int, width: int, mask: Optional[np.ndarray] = None, **settings: Any) -> Operator:
+    """The ``exact`` operator Φ: the renderer's own light transport as a linear map from a float32 cube
+    (H, W, B) at the render bands (``bands_nm``, default the CLI's 450:650:28) to the detector image (h, w).
+    ``settings``: the keywords of :func:`render` (planes, rays, seed, sampling, opening, mask_seed,
+    airy_diameter_px, airy, backend). ``Transport(...).operator`` gives the same operator sharing a trace."""
+    _check_backend(settings.get("backend", "analytic"))
+    return _native.exact_operator(system, height, width, mask, **settings)
+
+
+def _csr_arrays(op: Operator, max_columns: int = 200_000):
+    return op._csr(max_columns)
+
+
+def _to_scipy(self: Operator, max_columns: int = 200_000):
+    """Φ as a ``scipy.sparse.csr_matrix`` of shape (h·w, H·W·B), float32: rows are detector pixels
+    (row-major), columns the cube's entries in C order [row][col][band] (so ``A @ cube.ravel()`` is
+    ``apply(cube).ravel()``). Assembled column by column from ``apply`` (exact; time ∝ columns, so for
+    small problems: more than ``max_columns`` columns raise ValueError). Needs SciPy."""
+    try:
+        import scipy.sparse
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise ImportError("to_scipy needs SciPy: pip install scipy (or use save_npz, which needs only NumPy)") from e
+    indptr, indices, data, shape = _csr_arrays(self, max_columns)
+    return scipy.sparse.csr_matrix((data, indices, indptr), shape=shape)
+
+
+def _save_npz(self: Operator, path, max_columns: int = 200_000, compressed: bool = True) -> None:
+    """Write Φ in ``scipy.sparse.save_npz``'s own layout (keys indices, indptr, format=b"csr", shape, data),
+    with NumPy only: ``scipy.sparse.load_npz(path)`` reads it without diffcassi installed."""
+    indptr, indices, data, shape = _csr_arrays(self, max_columns)
+    save = np.savez_compressed if compressed else np.savez
+    save(path, indices=indices, indptr=indptr, format=np.array(b"csr"), shape=np.array(shape, dtype=np.int64), data=data)
+
+
+Operator.to_scipy = _to_scipy  # type: ignore[attr-defined]
+Operator.save_npz = _save_npz  # type: ignore[attr-defined]
+Operator.to_csr_arrays = lambda self, max_columns=200_000: _csr_arrays(self, max_columns)  # type: ignore[attr-defined]
+Operator.to_csr_arrays.__doc__ = "(indptr int64, indices int64, data float32, shape) of Φ (see to_scipy)."
+Transport.to_scipy = lambda self, max_columns=200_000: _to_scipy(self.operator, max_columns)  # type: ignore[attr-defined]
+Transport.save_npz = lambda self, path, max_columns=200_000: _save_npz(self.operator, path, max_columns)  # type: ignore[attr-defined]
+Transport.detector = property(lambda self: _json.loads(self._detector_json()),  # type: ignore[attr-defined]
+                              doc="The detector: width, height, pitch_mm, x_left_mm, y_top_mm.")
+
+
+def metrics(truth: np.ndarray, estimate: np.ndarray, truth_wavelengths_nm: Optional[Sequence[float]] = None,
+            estimate_wavelengths_nm: Optional[Sequence[float]] = None) -> Dict[str, Any]:
+    """The field's reconstruction metrics of ``estimate`` against ``truth`` ((H, W, B) float32 each; H, W ≥ 11
+    for SSIM): ``rmse``, ``psnr_db`` (paper: one MSE over the cube, peak = max of the truth), ``psnr_band_db``
+    (MST: mean of per-band PSNR on [0, 1]), ``ssim`` (11×11 Gaussian σ 1.5, mean over bands), ``sam_rad``,
+    ``sam_deg``. With both wavelength lists the truth is resampled to the estimate's and the result also
+    holds ``wavelengths_nm``, ``truth_resampled``, ``truth_peak`` (as ``diffcassi evaluate``). An infinite
+    PSNR (identical cubes) is ``inf``."""
+    d = _json.loads(_native._metrics(truth, estimate, truth_wavelengths_nm, estimate_wavelengths_nm))
+    m = d.get("metrics", d)
+    for k in ("psnr_db", "psnr_band_db"):
+        if m.get(k) is None:
+            m[k] = float("inf")
+    return d

@@ -336,6 +336,12 @@ impl PyTransport {
         serde_json::to_string(&self.renderer().config).unwrap_or_default()
     }
 
+    /// The detector as JSON text (width, height, pitch_mm, x_left_mm, y_top_mm; pixel (i, j)'s centre at
+    /// x = x_left_mm + (j + 0.5)·pitch, y = y_top_mm − (i + 0.5)·pitch).
+    fn _detector_json(&self) -> String {
+        serde_json::to_string(&self.renderer().detector).unwrap_or_default()
+    }
+
     fn __repr__(&self) -> String {
         let c = &self.renderer().config;
         format!(
@@ -367,7 +373,40 @@ fn read_exr<'py>(py: Python<'py>, path: std::path::PathBuf) -> PyResult<Vec<(Str
     img.channels.into_iter().map(|c| Ok((c.name, output(py, c.data, &[img.height, img.width])?))).collect()
 }
 
+/// A scene file (KAIST-style `.exr`, `.npy` (H, W, B) with `<stem>_wavelengths_nm.npy`, or a CAVE-style
+/// folder of per-band PNGs) with the CLI's loaders: (cube (H, W, B) float32, wavelengths_nm).
+#[pyfunction]
+#[pyo3(signature = (path, wavelengths_nm = None))]
+fn load_scene<'py>(py: Python<'py>, path: std::path::PathBuf, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, Vec<f64>)> {
+    if !path.exists() {
+        return Err(crate::errors::file_error(format!("{}: no such file or folder", path.display())));
+    }
+    let ws = wavelengths_nm.map(|w| f64_list("wavelengths_nm", w)).transpose()?;
+    let cube = run(py, || diffcassi::scene::load_scene(&path, ws.as_deref())).py()?;
+    let (h, w, b) = (cube.height, cube.width, cube.bands());
+    Ok((output(py, cube.data, &[h, w, b])?, cube.wavelengths_nm))
+}
+
+/// The CLI's synthetic demo scene of `seed` ((H, W, B) float32 at `wavelengths_nm`, default the 31 bands
+/// 400–700 nm the CLI uses): (cube, wavelengths_nm).
+#[pyfunction]
+#[pyo3(signature = (height, width, seed = 0, wavelengths_nm = None))]
+fn synthetic_scene<'py>(py: Python<'py>, height: usize, width: usize, seed: u64, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, Vec<f64>)> {
+    let ws = match wavelengths_nm {
+        Some(w) => f64_list("wavelengths_nm", w)?,
+        None => diffcassi::scene::synthetic_wavelengths(),
+    };
+    if height == 0 || width == 0 || ws.is_empty() {
+        return Err(value_error(format!("synthetic_scene: {height}×{width}×{}: every size must be ≥ 1", ws.len())));
+    }
+    let cube = run(py, || diffcassi::scene::synthetic_scene(height, width, &ws, seed));
+    let b = cube.bands();
+    Ok((output(py, cube.data, &[height, width, b])?, cube.wavelengths_nm))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(load_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(synthetic_scene, m)?)?;
     m.add_function(wrap_pyfunction!(_render, m)?)?;
     m.add_function(wrap_pyfunction!(read_exr, m)?)?;
     m.add_class::<PyTransport>()?;
