@@ -12,7 +12,16 @@
 //! assert_eq!(bm[1], cube[4]); // band 0 of pixel 1
 //! assert_eq!(from_band_major(&bm, 2 * 3, 4), cube);
 //! ```
+use crate::error::{Error, Result};
 use rayon::prelude::*;
+
+/// Check an operator's band wavelengths (nm): at least one, finite, > 0, strictly increasing.
+pub fn check_bands(bands_nm: &[f64]) -> Result<()> {
+    if bands_nm.is_empty() {
+        return Err(Error::invalid("the operator needs at least one band"));
+    }
+    crate::scene::SpectralCube::new(1, 1, bands_nm.to_vec(), vec![0.0; bands_nm.len()], "operator bands").map(|_| ())
+}
 
 /// `[pixel][band]` → `[band][pixel]` for `pixels` pixels of `bands` bands.
 pub fn to_band_major(cube: &[f32], pixels: usize, bands: usize) -> Vec<f32> {

@@ -1,0 +1,177 @@
+//! The `shift` operator: the simplified SD-CASSI model of the field (MST/DAUHST's `shift`, the paper's
+//! "simple" ablation baseline) on the render's own detector grid. Band b of the masked cube is translated
+//! along x by the central field's dispersion, in whole detector pixels; no distortion, no smile, no blur,
+//! unit magnification:
+//!
+//! y(r₀ + σ_y·r, c_b + σ_x·c) += M(r, c)·x(r, c, b).
+//!
+//! c_b and r₀ come from the chief ray of the scene centre (field (0, 0)) at each band, in the detector's
+//! continuous pixel coordinates (u_b, v_b) ([`Detector::to_pixel`]): c_b = round(u_b − σ_x·c̄),
+//! r₀ = round(v_m − σ_y·r̄) with (r̄, c̄) = ((H − 1)/2, (W − 1)/2) the scene's centre and m the middle band
+//! (the y part of the dispersion is ignored: "along x only"). σ_x, σ_y = ±1 is the image orientation of the
+//! centre field (from the chief rays one scene pixel either side): SP's image is inverted (σ = −1 on both
+//! axes), so the model is the field's shift model seen through the same inversion, which lets it be applied
+//! to a rendered acquisition. The dispersion s(b) = c_b − c_0 ([`ShiftOperator::shifts_px`]). Taps off the
+//! detector are dropped. The adjoint gathers the same pixels.
+//!
+//! ```
+//! use diffcassi::recon::{shift::ShiftOperator, CubeShape, ImageShape, Operator};
+//! use diffcassi::render::Mask;
+//! // 2 bands shifted by 0 and 2 pixels, upright.
+//! let op = ShiftOperator::new(CubeShape { height: 2, width: 3, bands: 2 }, ImageShape { height: 2, width: 5 },
+//!                             &Mask::open(2, 3), 0, vec![0, 2], 1, 1)?;
+//! let y = (&op as &dyn Operator).apply(&[1.0; 12])?;
+//! assert_eq!(y, vec![1.0, 1.0, 2.0, 1.0, 1.0, 1.0, 1.0, 2.0, 1.0, 1.0]);
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+use super::operator::{CubeShape, ImageShape, Operator};
+use crate::error::{Error, Result};
+use crate::rays::RayBatch;
+use crate::render::{Mask, Renderer};
+use crate::tracer::RayStatus;
+use rayon::prelude::*;
+
+/// The shift operator (see the [module docs](self)).
+#[derive(Clone, Debug)]
+pub struct ShiftOperator {
+    shape: CubeShape,
+    image: ImageShape,
+    mask: Vec<f32>,
+    row0: i64,
+    columns: Vec<i64>,
+    sigma_x: i64,
+    sigma_y: i64,
+}
+
+impl ShiftOperator {
+    /// Scene pixel (r, c) of band b lands on detector pixel (`row0` + `sigma_y`·r, `columns[b]` +
+    /// `sigma_x`·c); `sigma_*` ∈ {+1, −1}.
+    pub fn new(shape: CubeShape, image: ImageShape, mask: &Mask, row0: i64, columns: Vec<i64>, sigma_x: i64, sigma_y: i64) -> Result<Self> {
+        if shape.is_empty() || image.is_empty() {
+            return Err(Error::invalid(format!("shift operator: empty cube {shape:?} or image {image:?}")));
+        }
+        if mask.height != shape.height || mask.width != shape.width {
+            return Err(Error::invalid(format!("the mask is {}×{} but the cube is {}×{}", mask.height, mask.width, shape.height, shape.width)));
+        }
+        if columns.len() != shape.bands {
+            return Err(Error::invalid(format!("shift operator: {} band columns for {} bands", columns.len(), shape.bands)));
+        }
+        if sigma_x.abs() != 1 || sigma_y.abs() != 1 {
+            return Err(Error::invalid(format!("shift operator: orientation ({sigma_x}, {sigma_y}) must be ±1")));
+        }
+        Ok(ShiftOperator { shape, image, mask: mask.values.clone(), row0, columns, sigma_x, sigma_y })
+    }
+
+    /// The model of the renderer's system at `bands_nm`, on the renderer's detector and mask (see the
+    /// [module docs](self)).
+    pub fn from_renderer(renderer: &Renderer<'_>, bands_nm: &[f64]) -> Result<Self> {
+        super::layout::check_bands(bands_nm)?;
+        let c = &renderer.config;
+        let det = renderer.detector;
+        let trace = |fields: &[[f64; 2]], w: f64| -> Result<Vec<(f64, f64)>> {
+            let out = renderer.tracer.trace(renderer.system, &RayBatch::chief_rays(renderer.system, fields, w)?)?;
+            (0..fields.len())
+                .map(|k| {
+                    if out.status[k] == RayStatus::Ok {
+                        Ok(det.to_pixel(out.x[k], out.y[k]))
+                    } else {
+                        Err(Error::invalid(format!("shift operator: the chief ray of field ({:.4}, {:.4}) mm at {w} nm does not reach the detector ({:?})", fields[k][0], fields[k][1], out.status[k])))
+                    }
+                })
+                .collect()
+        };
+        let mid = bands_nm[bands_nm.len() / 2];
+        let d = c.scene_pitch_mm;
+        let o = trace(&[[d, 0.0], [-d, 0.0], [0.0, d], [0.0, -d], [0.0, 0.0]], mid)?;
+        // Scene columns run to +x, scene rows to −y.
+        let sigma_x = if o[0].0 - o[1].0 >= 0.0 { 1 } else { -1 };
+        let sigma_y = if o[3].1 - o[2].1 >= 0.0 { 1 } else { -1 };
+        let (rc, cc) = ((c.scene_height as f64 - 1.0) / 2.0, (c.scene_width as f64 - 1.0) / 2.0);
+        let row0 = (o[4].1 - sigma_y as f64 * rc).round() as i64;
+        let mut columns = Vec::with_capacity(bands_nm.len());
+        for &w in bands_nm {
+            let p = trace(&[[0.0, 0.0]], w)?;
+            columns.push((p[0].0 - sigma_x as f64 * cc).round() as i64);
+        }
+        let shape = CubeShape { height: c.scene_height, width: c.scene_width, bands: bands_nm.len() };
+        let image = ImageShape { height: det.height, width: det.width };
+        Self::new(shape, image, &renderer.mask, row0, columns, sigma_x, sigma_y)
+    }
+
+    /// Per-band dispersion s(b) = c_b − c_0 (detector pixels).
+    pub fn shifts_px(&self) -> Vec<i64> {
+        self.columns.iter().map(|c| c - self.columns[0]).collect()
+    }
+
+    /// Detector column of scene column 0 per band (c_b), detector row of scene row 0 (r₀), orientation.
+    pub fn placement(&self) -> (&[i64], i64, i64, i64) {
+        (&self.columns, self.row0, self.sigma_x, self.sigma_y)
+    }
+
+    /// Detector row of scene row r, if on the detector.
+    #[inline]
+    fn det_row(&self, r: usize) -> Option<usize> {
+        let i = self.row0 + self.sigma_y * r as i64;
+        (i >= 0 && i < self.image.height as i64).then_some(i as usize)
+    }
+
+    /// Detector column of scene column c in band b, if on the detector.
+    #[inline]
+    fn col(&self, b: usize, c: usize) -> Option<usize> {
+        let j = self.columns[b] + self.sigma_x * c as i64;
+        (j >= 0 && j < self.image.width as i64).then_some(j as usize)
+    }
+}
+
+impl Operator for ShiftOperator {
+    fn name(&self) -> &str {
+        "shift"
+    }
+
+    fn cube_shape(&self) -> CubeShape {
+        self.shape
+    }
+
+    fn image_shape(&self) -> ImageShape {
+        self.image
+    }
+
+    fn apply_into(&self, cube: &[f32], image: &mut [f32]) {
+        let (w, nb, dw) = (self.shape.width, self.shape.bands, self.image.width);
+        image.iter_mut().for_each(|v| *v = 0.0);
+        // Each scene row lands on its own detector row (the same for all bands): parallel over rows.
+        let mut rows: Vec<(usize, &mut [f32])> = image.chunks_mut(dw).enumerate().collect();
+        rows.par_iter_mut().for_each(|(i, row)| {
+            // Invert i = row0 + σ_y·r.
+            let r = (*i as i64 - self.row0) * self.sigma_y;
+            if r < 0 || r >= self.shape.height as i64 {
+                return;
+            }
+            let r = r as usize;
+            for b in 0..nb {
+                for c in 0..w {
+                    if let Some(j) = self.col(b, c) {
+                        let q = r * w + c;
+                        row[j] += self.mask[q] * cube[q * nb + b];
+                    }
+                }
+            }
+        });
+    }
+
+    fn adjoint_into(&self, image: &[f32], cube: &mut [f32]) {
+        let (w, nb, dw) = (self.shape.width, self.shape.bands, self.image.width);
+        cube.par_chunks_mut(w * nb).enumerate().for_each(|(r, row)| {
+            let det = self.det_row(r);
+            for c in 0..w {
+                let m = self.mask[r * w + c];
+                for b in 0..nb {
+                    row[c * nb + b] = match (det, self.col(b, c)) {
+                        (Some(i), Some(j)) => m * image[i * dw + j],
+                        _ => 0.0,
+                    };
+                }
+            }
+        });
+    }
+}
