@@ -183,3 +183,35 @@ def metrics(truth: np.ndarray, estimate: np.ndarray, truth_wavelengths_nm: Optio
         if m.get(k) is None:
             m[k] = float("inf")
     return d
+
+
+def mapping_operator(system: System, height: int, width: int, mask: Optional[np.ndarray] = None,
+                     interpolation: str = "nearest", **settings: Any) -> Operator:
+    """The paper's ``mapping`` operator (each band placed at its chief-ray mapped detector pixel, ``nearest``
+    or ``bilinear``) on the detector and mask of :func:`render` with the same settings; ``.initialisation(acq)``
+    gives the paper's I = A ∘ f."""
+    _check_backend(settings.get("backend", "analytic"))
+    return _native.model_operator("mapping", system, height, width, mask, interpolation=interpolation, **settings)
+
+
+def shift_operator(system: System, height: int, width: int, mask: Optional[np.ndarray] = None, **settings: Any) -> Operator:
+    """The field's simplified SD-CASSI ``shift`` model (band b shifted by the central field's dispersion along x,
+    no distortion, no blur) on the detector and mask of :func:`render` with the same settings."""
+    _check_backend(settings.get("backend", "analytic"))
+    return _native.model_operator("shift", system, height, width, mask, **settings)
+
+
+def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, solver: str = "gap-tv",
+                init: Optional[np.ndarray] = None, **settings: Any) -> Tuple[np.ndarray, Dict[str, Any]]:
+    """Reconstruct a cube (H, W, B) float32 from ``acquisition`` ((h, w) float32; float64 is converted, the
+    image being small) with ``solver`` ``gap-tv`` (accelerated by default) or ``admm-tv``, as
+    ``diffcassi reconstruct``. ``settings`` (default: the library's): iterations (100), step (1), tv_weight (0.1),
+    tv_iterations (5), tv_coupling (``vectorial`` | ``per_band``), accelerated (True), admm_eta (0.01).
+    Returns ``(cube, record)``; the record holds the settings, per-iteration residuals and seconds."""
+    op = operator.operator if isinstance(operator, Transport) else operator
+    acq = np.ascontiguousarray(acquisition, dtype=np.float32) if getattr(acquisition, "dtype", None) == np.float64 else acquisition
+    cube, record = _native._reconstruct(op, acq, solver, init, **settings)
+    return cube, _json.loads(record)
+
+
+__all__ += ["mapping_operator", "shift_operator", "reconstruct"]

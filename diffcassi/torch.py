@@ -32,7 +32,7 @@ except ImportError as _e:  # pragma: no cover - depends on the environment
 
 import diffcassi
 
-__all__ = ["CassiOperator", "CassiDataset", "mapping_initialisation"]
+__all__ = ["CassiOperator", "CassiDataset"]
 
 
 class _SparseApply(torch.autograd.Function):
@@ -148,21 +148,6 @@ class CassiOperator(nn.Module):
 
 
 # ---------------------------------------------------------------------- dataset
-def mapping_initialisation(acquisition: np.ndarray, positions_mm: np.ndarray, valid: np.ndarray, detector: Dict[str, Any]) -> np.ndarray:
-    """The paper's initialisation I = A ∘ f: band b of pixel (r, c) is the acquisition at the detector pixel
-    holding the chief-ray image f(r, c, λ_b) (nearest pixel; 0 where the chief ray does not arrive or lands
-    off the detector). ``positions_mm`` (H, W, B, 2) and ``valid`` from :func:`diffcassi.mapping`;
-    ``detector`` from ``Transport.detector``. Returns (H, W, B) float32."""
-    p = float(detector["pitch_mm"])
-    j = np.floor((positions_mm[..., 0] - float(detector["x_left_mm"])) / p).astype(np.int64)
-    i = np.floor((float(detector["y_top_mm"]) - positions_mm[..., 1]) / p).astype(np.int64)
-    h, w = acquisition.shape
-    ok = valid & (i >= 0) & (i < h) & (j >= 0) & (j < w)
-    out = np.zeros(valid.shape, dtype=np.float32)
-    out[ok] = acquisition[i[ok], j[ok]]
-    return out
-
-
 def _resample(cube: np.ndarray, from_nm: Sequence[float], to_nm: Sequence[float]) -> np.ndarray:
     """Linear interpolation in λ, constant beyond the range (the library's SpectralCube::resample rule)."""
     f, t = np.asarray(from_nm, dtype=np.float64), np.asarray(to_nm, dtype=np.float64)
@@ -235,8 +220,9 @@ class CassiDataset(torch.utils.data.Dataset):
             system = (diffcassi.System.preset(self.system_spec) if self.system_is_preset
                       else diffcassi.System.from_string(self.system_spec))
             t = diffcassi.Transport(system, self.size, self.size, **self.transport_kwargs)
-            pos, valid = diffcassi.mapping(system, self.size, self.size, t.bands_nm)
-            self._state = {"transport": t, "mask": t.mask, "positions": pos, "valid": valid, "detector": t.detector}
+            # The paper's I = A ∘ f, by the library's mapping operator on the same detector and mask.
+            m = diffcassi.mapping_operator(system, self.size, self.size, **self.transport_kwargs)
+            self._state = {"transport": t, "mask": t.mask, "mapping": m}
         return self._state
 
     @property
@@ -269,7 +255,7 @@ class CassiDataset(torch.utils.data.Dataset):
         crop = np.rot90(crop, int(rng.integers(0, 4)), axes=(0, 1))
         truth = np.ascontiguousarray(_resample(np.ascontiguousarray(crop), wl, t.bands_nm), dtype=np.float32)
         acq = t.apply(truth).astype(np.float32)
-        init = mapping_initialisation(acq, st["positions"], st["valid"], st["detector"])
+        init = st["mapping"].initialisation(acq)
         return (torch.from_numpy(acq), torch.from_numpy(st["mask"]),
                 torch.from_numpy(np.ascontiguousarray(truth.transpose(2, 0, 1))),
                 torch.from_numpy(np.ascontiguousarray(init.transpose(2, 0, 1))))

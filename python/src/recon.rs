@@ -9,7 +9,8 @@ use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::render::{check_shape, configure, owned_exact, Options};
 use crate::system::PySystem;
-use diffcassi::recon::{metrics, CubeShape, Operator};
+use diffcassi::recon::{metrics, reconstruct, CubeShape, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, TvCoupling};
+use diffcassi::render::Renderer;
 use diffcassi::scene::SpectralCube;
 use numpy::PyArrayDyn;
 use pyo3::prelude::*;
@@ -20,11 +21,13 @@ use std::sync::Arc;
 #[pyclass(name = "Operator", module = "diffcassi", frozen)]
 pub struct PyOperator {
     op: Arc<dyn Operator>,
+    /// The mapping operator's own type, for its initialisation I = A ∘ f.
+    mapping: Option<Arc<MappingOperator>>,
 }
 
 impl PyOperator {
     pub fn new(op: Arc<dyn Operator>) -> Self {
-        PyOperator { op }
+        PyOperator { op, mapping: None }
     }
 }
 
@@ -72,6 +75,20 @@ impl PyOperator {
         let mut cube = vec![0.0f32; c.len()];
         let y = a.slice();
         run(py, || self.op.adjoint_into(y, &mut cube));
+        output(py, cube, &[c.height, c.width, c.bands])
+    }
+
+    /// The paper's initialisation I = A ∘ f of an acquisition (h, w) float32 (mapping operators only):
+    /// each band's value at its nearest mapped detector pixel, (H, W, B) float32.
+    fn initialisation<'py>(&self, py: Python<'py>, acquisition: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let m = self.mapping.as_ref().ok_or_else(|| value_error(format!("initialisation: only the mapping operator has one (this is `{}`)", self.op.name())))?;
+        let i = self.op.image_shape();
+        let a = input::<f32>("acquisition", acquisition, "float32", 2, "(h, w)")?;
+        check_shape("acquisition", &a.shape, &[i.height, i.width])?;
+        check_finite("acquisition", a.slice(), &a.shape)?;
+        let acq = a.slice();
+        let cube = run(py, || m.initialisation(acq)).py()?;
+        let c = self.op.cube_shape();
         output(py, cube, &[c.height, c.width, c.bands])
     }
 
@@ -169,6 +186,117 @@ fn exact_operator(
     Ok(PyOperator::new(Arc::new(owned_exact(py, &system.inner, cfg, m, backend)?)))
 }
 
+/// The `mapping` (interpolation `nearest` or `bilinear`) or `shift` operator of `system` with these render
+/// settings (the same detector and mask as `render`/`Transport` with them; cubes at `bands_nm`).
+#[pyfunction]
+#[pyo3(signature = (kind, system, height, width, mask = None, bands_nm = None, planes = None, rays = None, seed = None,
+                    sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic",
+                    interpolation = "nearest"))]
+#[allow(clippy::too_many_arguments)]
+fn model_operator(
+    py: Python<'_>,
+    kind: &str,
+    system: &PySystem,
+    height: usize,
+    width: usize,
+    mask: Option<&Bound<'_, PyAny>>,
+    bands_nm: Option<&Bound<'_, PyAny>>,
+    planes: Option<usize>,
+    rays: Option<usize>,
+    seed: Option<u64>,
+    sampling: Option<String>,
+    opening: Option<f64>,
+    mask_seed: Option<u64>,
+    airy_diameter_px: Option<f64>,
+    airy: Option<bool>,
+    backend: &str,
+    interpolation: &str,
+) -> PyResult<PyOperator> {
+    let bands_nm = bands_nm.map(|b| crate::arrays::f64_list("bands_nm", b)).transpose()?;
+    let o = Options { bands_nm, planes, rays, seed, sampling, opening, mask_seed, airy_diameter_px, airy };
+    let (cfg, m) = configure(height, width, &o, mask)?;
+    let interp = match interpolation {
+        "nearest" => MappingInterpolation::Nearest,
+        "bilinear" => MappingInterpolation::Bilinear,
+        other => return Err(value_error(format!("interpolation `{other}`: use nearest or bilinear"))),
+    };
+    if kind != "mapping" && kind != "shift" {
+        return Err(value_error(format!("operator `{kind}`: use exact, mapping or shift")));
+    }
+    let tr = crate::system::tracer(backend)?;
+    let sys = Arc::clone(&system.inner);
+    let kind = kind.to_string();
+    run(py, move || -> diffcassi::Result<PyOperator> {
+        let bands = cfg.spectral.bands_nm.clone();
+        let r = Renderer::new(&sys, tr.as_ref(), cfg, m)?;
+        Ok(if kind == "mapping" {
+            let op = Arc::new(MappingOperator::from_renderer(&r, &bands, interp)?);
+            PyOperator { op: op.clone(), mapping: Some(op) }
+        } else {
+            PyOperator::new(Arc::new(ShiftOperator::from_renderer(&r, &bands)?))
+        })
+    })
+    .py()
+}
+
+/// Reconstruct a cube from `acquisition` (h, w) float32 through `operator` with GAP-TV or ADMM-TV
+/// (`diffcassi::recon::reconstruct`); `None` settings are the library's defaults. Returns (cube (H, W, B)
+/// float32, the record as JSON: settings, per-iteration residuals, seconds).
+#[pyfunction]
+#[pyo3(signature = (operator, acquisition, solver = "gap-tv", init = None, iterations = None, step = None, tv_weight = None,
+                    tv_iterations = None, tv_coupling = None, accelerated = None, admm_eta = None))]
+#[allow(clippy::too_many_arguments)]
+fn _reconstruct<'py>(
+    py: Python<'py>,
+    operator: &PyOperator,
+    acquisition: &Bound<'py, PyAny>,
+    solver: &str,
+    init: Option<&Bound<'py, PyAny>>,
+    iterations: Option<usize>,
+    step: Option<f32>,
+    tv_weight: Option<f32>,
+    tv_iterations: Option<usize>,
+    tv_coupling: Option<&str>,
+    accelerated: Option<bool>,
+    admm_eta: Option<f32>,
+) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, String)> {
+    let kind: SolverKind = solver.parse().py()?;
+    let mut cfg = SolverConfig::for_solver(kind);
+    cfg.iterations = iterations.unwrap_or(cfg.iterations);
+    cfg.step = step.unwrap_or(cfg.step);
+    cfg.tv_weight = tv_weight.unwrap_or(cfg.tv_weight);
+    cfg.tv_iterations = tv_iterations.unwrap_or(cfg.tv_iterations);
+    cfg.accelerated = accelerated.unwrap_or(cfg.accelerated);
+    cfg.admm_eta = admm_eta.unwrap_or(cfg.admm_eta);
+    if let Some(c) = tv_coupling {
+        cfg.tv_coupling = match c {
+            "vectorial" => TvCoupling::Vectorial,
+            "per_band" | "per-band" => TvCoupling::PerBand,
+            other => return Err(value_error(format!("tv_coupling `{other}`: use vectorial or per_band"))),
+        };
+    }
+    cfg.validate().py()?;
+    let i = operator.op.image_shape();
+    let c = operator.op.cube_shape();
+    let a = input::<f32>("acquisition", acquisition, "float32", 2, "(h, w)")?;
+    check_shape("acquisition", &a.shape, &[i.height, i.width])?;
+    check_finite("acquisition", a.slice(), &a.shape)?;
+    let init = match init {
+        Some(x) => {
+            let x = input::<f32>("init", x, "float32", 3, "(H, W, B)")?;
+            check_shape("init", &x.shape, &[c.height, c.width, c.bands])?;
+            check_finite("init", x.slice(), &x.shape)?;
+            Some(x.slice().to_vec())
+        }
+        None => None,
+    };
+    let op = &operator.op;
+    let y = a.slice();
+    let rec = run(py, || reconstruct(op.as_ref(), y, init.as_deref(), &cfg, &|_, _| {})).py()?;
+    let record = serde_json::to_string(&rec).map_err(|e| value_error(format!("internal: {e}")))?;
+    Ok((output(py, rec.cube, &[c.height, c.width, c.bands])?, record))
+}
+
 fn cube_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<(Vec<usize>, Vec<f32>)> {
     let a = input::<f32>(name, obj, "float32", 3, "(H, W, B)")?;
     check_finite(name, a.slice(), &a.shape)?;
@@ -211,6 +339,8 @@ fn _metrics(
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyOperator>()?;
     m.add_function(wrap_pyfunction!(exact_operator, m)?)?;
+    m.add_function(wrap_pyfunction!(model_operator, m)?)?;
+    m.add_function(wrap_pyfunction!(_reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(_metrics, m)?)?;
     Ok(())
 }

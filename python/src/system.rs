@@ -55,18 +55,17 @@ pub fn ray_batch(origins: &Bound<'_, PyAny>, directions: &Bound<'_, PyAny>, wave
         )));
     }
     check_finite("wavelengths_nm", w.slice(), &w.shape)?;
-    let mut b = RayBatch::with_capacity(n);
     let (os, ds) = (o.slice(), d.slice());
-    for i in 0..n {
-        b.origin_x.push(os[3 * i]);
-        b.origin_y.push(os[3 * i + 1]);
-        b.origin_z.push(os[3 * i + 2]);
-        b.dir_x.push(ds[3 * i]);
-        b.dir_y.push(ds[3 * i + 1]);
-        b.dir_z.push(ds[3 * i + 2]);
-    }
-    b.wavelength_nm.extend_from_slice(w.slice());
-    Ok(b)
+    let column = |v: &[f64], k: usize| -> Vec<f64> { v.chunks_exact(3).map(|p| p[k]).collect() };
+    Ok(RayBatch {
+        origin_x: column(os, 0),
+        origin_y: column(os, 1),
+        origin_z: column(os, 2),
+        dir_x: column(ds, 0),
+        dir_y: column(ds, 1),
+        dir_z: column(ds, 2),
+        wavelength_nm: w.slice().to_vec(),
+    })
 }
 
 /// The rays of a batch as the tuple (origins (N, 3), directions (N, 3), wavelengths_nm (N,)).
@@ -85,12 +84,15 @@ fn rays_out<'py>(py: Python<'py>, b: &RayBatch) -> PyResult<(Bound<'py, PyArrayD
 /// (N,) uint8 (0 = ok; `diffcassi.STATUS` names the codes), surface (N,) uint32 (where a ray stopped).
 pub fn traced_out<'py>(py: Python<'py>, t: TracedBatch) -> PyResult<Bound<'py, PyDict>> {
     let n = t.len();
-    let mut p = Vec::with_capacity(3 * n);
-    let mut d = Vec::with_capacity(3 * n);
-    for i in 0..n {
-        p.extend_from_slice(&[t.x[i], t.y[i], t.z[i]]);
-        d.extend_from_slice(&[t.dir_x[i], t.dir_y[i], t.dir_z[i]]);
-    }
+    let interleave = |a: &[f64], b: &[f64], c: &[f64]| -> Vec<f64> {
+        let mut v = vec![0.0; 3 * n];
+        for (((o, x), y), z) in v.chunks_exact_mut(3).zip(a).zip(b).zip(c) {
+            o.copy_from_slice(&[*x, *y, *z]);
+        }
+        v
+    };
+    let p = interleave(&t.x, &t.y, &t.z);
+    let d = interleave(&t.dir_x, &t.dir_y, &t.dir_z);
     let status: Vec<u8> = t.status.iter().map(|s| *s as u8).collect();
     let dict = PyDict::new(py);
     dict.set_item("positions", output(py, p, &[n, 3])?)?;
@@ -131,14 +133,14 @@ impl PySystem {
     /// A TOML or JSON spec held in a string (`format`: `toml`, `json`).
     #[staticmethod]
     #[pyo3(signature = (text, format = "toml"))]
-    fn from_string(text: &str, format: &str) -> PyResult<Self> {
+    fn from_string(py: Python<'_>, text: &str, format: &str) -> PyResult<Self> {
         let spec = match format {
             "toml" => diffcassi::spec::from_toml(text, "<string>"),
             "json" => diffcassi::spec::from_json(text, "<string>"),
             other => return Err(value_error(format!("format `{other}`: use toml or json"))),
         }
         .py()?;
-        SequentialSystem::build(&spec).py().map(Self::wrap)
+        run(py, move || SequentialSystem::build(&spec)).py().map(Self::wrap)
     }
 
     #[getter]
