@@ -35,6 +35,7 @@ APT_PACKAGES=(
     slurm-client
     slurmctld
     slurmd
+    python3-venv # the Python package's venv (.venv/, below)
 )
 case "${DIFFCASSI_EMBREE:-install}" in
     install) WANT_EMBREE=1 ;;
@@ -47,6 +48,31 @@ fi
 EMBREE_MIN_VERSION=4.3
 TRIXIE_SOURCES=/etc/apt/sources.list.d/diffcassi-trixie.sources
 TRIXIE_PREFERENCES=/etc/apt/preferences.d/diffcassi-trixie
+
+# --- Python package (docs/python.md) -------------------------------------------------------
+# A venv under the repository (.venv/) with maturin, numpy, scipy, pytest and PyTorch (PyPI's default wheel;
+# DIFFCASSI_TORCH=skip leaves torch out and the torch tests then SKIP with the reason); DIFFCASSI_PYTHON=skip
+# skips the whole venv. Silent when everything is there.
+REPO_ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+python_setup() {
+    [[ "${DIFFCASSI_PYTHON:-install}" == skip ]] && return 0
+    local venv="$REPO_ROOT/.venv" py=python3
+    [[ -x /usr/bin/python3 ]] && py=/usr/bin/python3
+    if [[ ! -x "$venv/bin/python" ]]; then
+        "$py" -m venv "$venv" || die "cannot create the Python venv $venv (python3-venv missing?)"
+        echo "setup.sh: created the Python venv .venv/"
+    fi
+    local want=(maturin numpy scipy pytest)
+    [[ "${DIFFCASSI_TORCH:-install}" == skip ]] || want+=(torch)
+    local missing_py=()
+    for m in "${want[@]}"; do
+        "$venv/bin/python" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('$m') is None)" 2>/dev/null || missing_py+=("$m")
+    done
+    if ((${#missing_py[@]} > 0)); then
+        "$venv/bin/pip" install -q "${missing_py[@]}" || die "pip install ${missing_py[*]} into .venv failed"
+        echo "setup.sh: installed into .venv: ${missing_py[*]}"
+    fi
+}
 
 die() {
     echo "setup.sh: error: $*" >&2
@@ -92,6 +118,7 @@ os_id=$(. /etc/os-release 2>/dev/null && echo "${ID:-}")
 os_version=$(. /etc/os-release 2>/dev/null && echo "${VERSION_ID:-}")
 
 if ((${#missing[@]} == 0)) && ! embree_wanted; then
+    python_setup
     exit 0
 fi
 
@@ -170,6 +197,7 @@ EOF
 }
 
 if ! embree_wanted; then
+    python_setup
     exit 0
 fi
 
@@ -177,6 +205,7 @@ if [[ "$os_id" == debian && "${os_version%%.*}" -ge 13 ]] 2>/dev/null \
     || { [[ "$os_id" == ubuntu ]] && dpkg --compare-versions "$os_version" ge 24.04; }; then
     apt_install libembree-dev libembree-dev
     embree_done
+    python_setup
     exit 0
 fi
 
@@ -190,3 +219,4 @@ trixie_preferences | "${SUDO[@]}" tee "$TRIXIE_PREFERENCES" >/dev/null
 apt_install "libembree-dev (Debian 13)" -t trixie libembree-dev
 "${SUDO[@]}" rm -rf /var/lib/diffcassi/embree-trixie.refused
 embree_done
+python_setup

@@ -36,3 +36,13 @@ if git rev-parse --is-inside-work-tree >/dev/null 2>&1 && ! git diff --quiet -- 
     echo "test.sh: cpp/include is stale: the build regenerated the cxx bridge header; commit it" >&2
     exit 1
 fi
+
+# The Python package (docs/python.md): built into the repository's venv (.venv/, made by setup.sh) with
+# maturin from the same cargo target directory, then its pytest suite (tests/python/). DIFFCASSI_PYTHON=skip
+# leaves it out; without torch (DIFFCASSI_TORCH=skip) the torch tests report SKIP.
+if [[ "${DIFFCASSI_PYTHON:-install}" != skip ]]; then
+    py_start=$SECONDS
+    VIRTUAL_ENV="$PWD/.venv" PATH="$PWD/.venv/bin:$PATH" .venv/bin/maturin develop --release --quiet
+    .venv/bin/python -m pytest -q tests/python
+    echo "test.sh: Python package built and tested in $((SECONDS - py_start)) s"
+fi

@@ -280,6 +280,48 @@ impl ParamSet {
     }
 }
 
+/// The free parameters named in the comma-separated `list` for a system called `system_name`: the names
+/// `diffcassi calibrate --free` takes, plus the preset aliases ([`preset_alias`]) on the presets. Used by
+/// every binding (C++, Python) that takes parameters by name.
+///
+/// ```
+/// let ps = diffcassi::diff::param::parse_parameter_list("sp", "prism_tilt_x, wavelength")?;
+/// assert_eq!(ps.len(), 2);
+/// assert!(diffcassi::diff::param::parse_parameter_list("sp", " , ").is_err());
+/// # Ok::<(), diffcassi::Error>(())
+/// ```
+pub fn parse_parameter_list(system_name: &str, list: &str) -> Result<Vec<Param>> {
+    let names: Vec<&str> = list.split(',').map(str::trim).collect();
+    if names.iter().all(|n| n.is_empty()) {
+        return Err(Error::invalid("Jacobian requested with no free parameters"));
+    }
+    names
+        .iter()
+        .map(|n| {
+            if n.is_empty() {
+                return Err(Error::invalid(format!("free parameters `{list}`: an empty name")));
+            }
+            match preset_alias(system_name, n) {
+                Some(p) => Ok(p),
+                None => Param::parse(n),
+            }
+        })
+        .collect()
+}
+
+impl ParamSet {
+    /// The parameter set of the comma-separated `list` ([`parse_parameter_list`]) on a built system: its
+    /// spec, with the built-in glasses plus the spec's catalogues, as [`SequentialSystem::build`] loads them.
+    pub fn for_system(system: &SequentialSystem, list: &str) -> Result<ParamSet> {
+        let params = parse_parameter_list(system.name(), list)?;
+        let mut catalog = GlassCatalog::builtin();
+        for path in &system.spec.glass_catalogs {
+            catalog.merge(GlassCatalog::from_agf_file(path)?);
+        }
+        ParamSet::new(system.spec.clone(), catalog, params)
+    }
+}
+
 /// Named parameters of the reference systems (`prism_tilt_x|y|z`: the Coordinate Break that carries the
 /// prism's 5° misalignment in mSP/mAP, or the break where that tilt would go in SP/AP).
 ///

@@ -260,6 +260,23 @@ pub fn transport_gather(t: &PlaneTransport, z: &[f32], values: &mut [f32], detec
     }
 }
 
+/// Per plane of `renderer`: (lower band, upper band, weight of the upper band) of the cube bands `bands_nm`
+/// (validated exactly as a scene's would be).
+fn interpolation_table(renderer: &Renderer<'_>, bands_nm: &[f64]) -> Result<Vec<(usize, usize, f32)>> {
+    let probe = SpectralCube::new(1, 1, bands_nm.to_vec(), vec![0.0; bands_nm.len()], "exact operator bands")?;
+    let nb = bands_nm.len();
+    Ok(renderer
+        .config
+        .spectral
+        .planes_nm
+        .iter()
+        .map(|&w| {
+            let (k, t) = probe.interpolation(w);
+            (k, (k + 1).min(nb - 1), t as f32)
+        })
+        .collect())
+}
+
 /// The renderer as a linear operator (see the [module docs](self)).
 pub struct ExactOperator<'a> {
     renderer: Renderer<'a>,
@@ -289,19 +306,7 @@ impl<'a> ExactOperator<'a> {
     /// [`ExactOperator::new`] reporting traced rays to `progress` (for a progress bar; the total is
     /// [`Renderer::rays_per_render`]).
     pub fn with_progress(renderer: Renderer<'a>, bands_nm: &[f64], memory_budget_bytes: u64, progress: &(dyn Fn(u64) + Sync)) -> Result<Self> {
-        // Validate the bands exactly as a scene would be.
-        let probe = SpectralCube::new(1, 1, bands_nm.to_vec(), vec![0.0; bands_nm.len()], "exact operator bands")?;
-        let nb = bands_nm.len();
-        let interp = renderer
-            .config
-            .spectral
-            .planes_nm
-            .iter()
-            .map(|&w| {
-                let (k, t) = probe.interpolation(w);
-                (k, (k + 1).min(nb - 1), t as f32)
-            })
-            .collect();
+        let interp = interpolation_table(&renderer, bands_nm)?;
         let planes = renderer.config.spectral.planes();
         // Probe the memory with the middle plane, then trace all planes (in parallel) if they should fit.
         let middle = renderer.trace_plane(planes / 2)?;
@@ -490,5 +495,26 @@ impl Operator for ExactOperator<'_> {
             }
         });
         from_band_major_into(&bm, npix, cs.bands, cube);
+    }
+}
+
+/// Building Φ from a transport traced beforehand (the Python `Transport`: one trace serves both the
+/// bit-exact dataset-mode render and the operator).
+impl<'a> ExactOperator<'a> {
+    /// Φ from `transport` = `renderer.trace_all(..)` of this very renderer (not traced again; kept whatever
+    /// its size).
+    pub fn from_traced(renderer: Renderer<'a>, bands_nm: &[f64], transport: Vec<PlaneTransport>) -> Result<Self> {
+        if transport.len() != renderer.config.spectral.planes() {
+            return Err(crate::error::Error::invalid(format!("exact operator: {} traced planes for a render of {}", transport.len(), renderer.config.spectral.planes())));
+        }
+        let interp = interpolation_table(&renderer, bands_nm)?;
+        let supports = transport.iter().map(transport_support).collect();
+        let bytes = transport.iter().map(|t| t.bytes()).sum();
+        Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, transport: Some(transport), supports, transport_bytes: bytes })
+    }
+
+    /// The kept transport, one entry per plane (`None` when streaming).
+    pub fn transport(&self) -> Option<&[PlaneTransport]> {
+        self.transport.as_deref()
     }
 }

@@ -21,14 +21,24 @@ pub fn outputs_complete(dir: &Path) -> bool {
     REQUIRED_OUTPUTS.iter().all(|f| dir.join(f).is_file())
 }
 
+/// The 16-bit preview's scale: 65535 / the acquisition's maximum (0 for a black acquisition); `render.json`
+/// records it as `preview_scale`.
+pub fn preview_scale(acq: &Acquisition) -> f64 {
+    let max = acq.image.iter().cloned().fold(0.0, f64::max);
+    if max > 0.0 {
+        65535.0 / max
+    } else {
+        0.0
+    }
+}
+
 /// Write `acquisition.exr`, `acquisition.png` and (if the bands were kept) `cube.exr`. Returns the preview
 /// scale (PNG value = min(65535, round(value × scale))).
 pub fn write_images(dir: &Path, renderer: &Renderer, acq: &Acquisition) -> Result<f64> {
     let det = &acq.detector;
     let img = acq.image_f32();
     write_exr(dir.join("acquisition.exr"), det.width, det.height, &[ExrChannel { name: "Y".into(), data: img.clone() }])?;
-    let max = acq.image.iter().cloned().fold(0.0, f64::max);
-    let scale = if max > 0.0 { 65535.0 / max } else { 0.0 };
+    let scale = preview_scale(acq);
     let png: Vec<u16> = acq.image.iter().map(|&v| (v.max(0.0) * scale).round().min(65535.0) as u16).collect();
     write_png_gray16(dir.join("acquisition.png"), det.width, det.height, &png)?;
     if let Some(bands) = &acq.bands {

@@ -22,9 +22,8 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 use crate::system::System;
-use diffcassi::diff::{preset_alias, Param, ParamSet};
-use diffcassi::error::{Error, Result};
-use diffcassi::materials::GlassCatalog;
+use diffcassi::diff::{Param, ParamSet};
+use diffcassi::error::Result;
 use diffcassi::tracer::{BackendConfig, RaySlices, TracedBatch};
 
 /// A batch's Jacobians: the traced values, the parameters' canonical names, the SoA derivatives, and per
@@ -38,35 +37,14 @@ pub struct Jacobian {
 }
 
 /// The free parameters named in `list` (comma-separated) for a system called `system_name` (preset
-/// aliases apply to the presets).
+/// aliases apply to the presets): [`diffcassi::diff::param::parse_parameter_list`].
 pub fn parse_parameters(system_name: &str, list: &str) -> Result<Vec<Param>> {
-    let names: Vec<&str> = list.split(',').map(str::trim).collect();
-    if names.iter().all(|n| n.is_empty()) {
-        return Err(Error::invalid("Jacobian requested with no free parameters"));
-    }
-    names
-        .iter()
-        .map(|n| {
-            if n.is_empty() {
-                return Err(Error::invalid(format!("free parameters `{list}`: an empty name")));
-            }
-            match preset_alias(system_name, n) {
-                Some(p) => Ok(p),
-                None => Param::parse(n),
-            }
-        })
-        .collect()
+    diffcassi::diff::param::parse_parameter_list(system_name, list)
 }
 
-/// The parameter set of `parameters` on the loaded system (its spec, built-in glasses plus the spec's
-/// catalogues, as `SequentialSystem::build` loads them).
+/// The parameter set of `parameters` on the loaded system: [`ParamSet::for_system`].
 pub fn parameter_set(system: &diffcassi::system::SequentialSystem, parameters: &str) -> Result<ParamSet> {
-    let params = parse_parameters(system.name(), parameters)?;
-    let mut catalog = GlassCatalog::builtin();
-    for path in &system.spec.glass_catalogs {
-        catalog.merge(GlassCatalog::from_agf_file(path)?);
-    }
-    ParamSet::new(system.spec.clone(), catalog, params)
+    ParamSet::for_system(system, parameters)
 }
 
 impl System {

@@ -1,0 +1,217 @@
+"""diffcassi: coded-aperture snapshot spectral imager (CASSI) simulation from Python.
+
+Exact f64 ray tracing (Zemax-exact), Monte-Carlo rendering of coded acquisitions, the dataset-mode light
+transport as an object, and (when built with them) the reconstruction operators, solvers and metrics of the
+Rust library ``diffcassi``. NumPy in, NumPy out; the GIL is released during every heavy call; the thread
+count is set with :func:`set_num_threads`. See docs/python.md.
+
+>>> import numpy as np, diffcassi
+>>> sp = diffcassi.System.preset("sp")
+>>> scene = np.ones((16, 16, 28), np.float32)
+>>> acq, info = diffcassi.render(sp, scene, np.linspace(450, 650, 28), rays=2, planes=28)
+>>> acq.shape == (info["detector"]["height"], info["detector"]["width"])
+True
+"""
+from __future__ import annotations
+
+import json as _json
+from typing import Any, Dict, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _native
+from ._errors import DiffcassiError, DiffcassiFileError, DiffcassiValueError
+from ._native import (Operator, System, Transport, get_num_threads, jacobian, load_scene, mapping, read_exr,
+                      set_num_threads, synthetic_scene, trace)
+
+__version__: str = _native.__version__
+#: Whether the Embree backends (``embree-user``, ``embree-mesh``) were compiled in.
+EMBREE: bool = _native.EMBREE
+
+#: Ray status codes of :func:`trace` (``status`` array) and their names.
+STATUS = {0: "ok", 1: "missed", 2: "vignetted", 3: "total internal reflection", 4: "no convergence",
+          5: "invalid input", 6: "absorbed", 7: "bounce limit"}
+
+__all__ = [
+    "System", "Transport", "Operator", "exact", "metrics", "load_scene", "synthetic_scene", "trace", "spot", "distortion", "dispersion", "mapping", "jacobian", "render",
+    "read_exr", "set_num_threads", "get_num_threads", "surfaces", "DiffcassiError", "DiffcassiValueError",
+    "DiffcassiFileError", "STATUS", "EMBREE", "__version__",
+]
+
+
+def _check_backend(backend: str) -> str:
+    if not isinstance(backend, str):
+        raise DiffcassiValueError(f"backend: expected a string such as 'analytic', got {type(backend).__name__}")
+    if backend.startswith("embree") and not EMBREE:
+        raise DiffcassiValueError(
+            f"backend `{backend}`: this diffcassi was built without Embree; install Embree 4.3 "
+            "(bash scripts/setup.sh) and reinstall (pip install .), or use backend='analytic'")
+    return backend
+
+
+def surfaces(system: System) -> list:
+    """The resolved Lens Data Editor of ``system``: one dict per surface (index, kind, material, radius_mm,
+    thickness_mm, conic, semi_diameter_mm, decenters, tilts, vertex_global_mm)."""
+    return _json.loads(system._surfaces_json())
+
+
+# `System.surfaces` as a property (the class is compiled; the property is added here).
+System.surfaces = property(surfaces, doc=surfaces.__doc__)  # type: ignore[attr-defined]
+
+
+def spot(system: System, field_mm: Sequence[float], wavelength_nm: float, pupil: Union[str, np.ndarray, None] = None,
+         backend: str = "analytic") -> Dict[str, Any]:
+    """Spot diagram of one field (x, y mm) at one wavelength: a dict with ``x_mm``, ``y_mm``, ``status``,
+    ``pupil``, ``chief_mm``, ``stats`` (centroid_mm, rms_radius_um, geo_radius_um) and
+    ``rms_radius_chief_um``. ``pupil``: a pattern (default ``hexapolar:12``, as the CLI) or (N, 2) float64
+    normalised pupil points. Arrays are returned as NumPy float64."""
+    d = _json.loads(_native._spot(system, list(field_mm), float(wavelength_nm), pupil, _check_backend(backend)))
+    for k in ("x_mm", "y_mm", "pupil"):
+        d[k] = np.asarray(d[k], dtype=np.float64)
+    return d
+
+
+def distortion(system: System, wavelength_nm: Optional[float] = None, grid: int = 13, half_width_mm: float = 2.5,
+               backend: str = "analytic") -> Dict[str, Any]:
+    """Zemax-style grid distortion (``grid`` × ``grid`` chief rays over ±``half_width_mm``) at
+    ``wavelength_nm`` (default: the primary): dict with ``reference_mm``, ``abcd``, ``max_distortion_pct`` and
+    ``points`` (one dict per grid point, as the CLI's CSV)."""
+    w = system.primary_wavelength_nm if wavelength_nm is None else float(wavelength_nm)
+    return _json.loads(_native._distortion(system, w, int(grid), float(half_width_mm), _check_backend(backend)))
+
+
+def dispersion(system: System, wavelengths_nm: Sequence[float] = tuple(np.linspace(450, 650, 28)),
+               field_mm: Sequence[float] = (0.0, 0.0), backend: str = "analytic") -> Dict[str, Any]:
+    """Chief-ray positions of one field over wavelength (the paper's spreading curve): dict with
+    ``wavelength_nm``, ``x_mm``, ``y_mm`` (NumPy arrays) and ``spread_um``."""
+    d = _json.loads(_native._dispersion(system, list(field_mm), wavelengths_nm, _check_backend(backend)))
+    for k in ("wavelength_nm", "x_mm", "y_mm"):
+        d[k] = np.asarray(d[k], dtype=np.float64)
+    return d
+
+
+def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], mask: Optional[np.ndarray] = None, *,
+           bands_nm: Optional[Sequence[float]] = None, planes: Optional[int] = None, rays: Optional[int] = None,
+           seed: Optional[int] = None, sampling: Optional[str] = None, opening: Optional[float] = None,
+           mask_seed: Optional[int] = None, airy_diameter_px: Optional[float] = None, airy: Optional[bool] = None,
+           backend: str = "analytic", noise: Optional[dict] = None) -> Tuple[np.ndarray, Dict[str, Any]]:
+    """Render the coded acquisition of ``scene`` through ``system``.
+
+    ``scene``: (H, W, B) float32, C-contiguous, finite, its bands at ``wavelengths_nm`` (B values).
+    Every setting left at ``None`` is the CLI's default (``diffcassi render --help``): bands 450:650:28,
+    planes 112, rays 20 per pixel per plane, seed 0, stratified sampling, a random binary mask of opening
+    0.5 and seed 0 (or ``mask``: (H, W) float32 in [0, 1]), Airy disk 2.5 px at 520 nm. So
+    ``render(sp, cube, wl)`` equals ``diffcassi render --preset sp --scene cube.npy --scene-size N`` bit for
+    bit. ``noise``: sensor noise as the CLI's ``--noise`` options: ``"shot,read,adc"`` or a dict
+    ``{"noise": "shot,read", "full_well_e": 20000, "read_noise_e": 2, "adc_bits": 12, "noise_seed": 0,
+    "electrons_per_unit": ...}`` (``None``: a clean acquisition, the default); ``info["noise"]`` reports it.
+
+    Returns ``(acquisition, info)``: the detector image (h, w) float64 and a dict with ``render.json``'s
+    keys (``acquisition_total``, ``detector``, ``bands_nm``, ``planes_nm``, ``rays_traced``, ...).
+    """
+    nz: Dict[str, Any] = {}
+    if isinstance(noise, str):
+        nz = {"noise": noise}
+    elif isinstance(noise, dict):
+        nz = dict(noise)
+        unknown = set(nz) - {"noise", "full_well_e", "electrons_per_unit", "read_noise_e", "adc_bits", "noise_seed"}
+        if unknown:
+            raise DiffcassiValueError(f"noise: unknown keys {sorted(unknown)} (use noise, full_well_e, electrons_per_unit, "
+                                      "read_noise_e, adc_bits, noise_seed: the CLI's --noise options)")
+    elif noise is not None:
+        raise DiffcassiValueError(f"noise: expected None, a string such as 'shot,read,adc' or a dict, got {type(noise).__name__}")
+    acq, info = _native._render(system, scene, wavelengths_nm, mask, bands_nm, planes, rays, seed, sampling, opening,
+                                mask_seed, airy_diameter_px, airy, _check_backend(backend), **nz)
+    return acq, _json.loads(info)
+
+
+def exact(system: System, height: int, width: int, mask: Optional[np.ndarray] = None, **settings: Any) -> Operator:
+    """The ``exact`` operator Φ: the renderer's own light transport as a linear map from a float32 cube
+    (H, W, B) at the render bands (``bands_nm``, default the CLI's 450:650:28) to the detector image (h, w).
+    ``settings``: the keywords of :func:`render` (planes, rays, seed, sampling, opening, mask_seed,
+    airy_diameter_px, airy, backend). ``Transport(...).operator`` gives the same operator sharing a trace."""
+    _check_backend(settings.get("backend", "analytic"))
+    return _native.exact_operator(system, height, width, mask, **settings)
+
+
+def _csr_arrays(op: Operator, max_columns: int = 200_000):
+    return op._csr(max_columns)
+
+
+def _to_scipy(self: Operator, max_columns: int = 200_000):
+    """Φ as a ``scipy.sparse.csr_matrix`` of shape (h·w, H·W·B), float32: rows are detector pixels
+    (row-major), columns the cube's entries in C order [row][col][band] (so ``A @ cube.ravel()`` is
+    ``apply(cube).ravel()``). Assembled column by column from ``apply`` (exact; time ∝ columns, so for
+    small problems: more than ``max_columns`` columns raise ValueError). Needs SciPy."""
+    try:
+        import scipy.sparse
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise ImportError("to_scipy needs SciPy: pip install scipy (or use save_npz, which needs only NumPy)") from e
+    indptr, indices, data, shape = _csr_arrays(self, max_columns)
+    return scipy.sparse.csr_matrix((data, indices, indptr), shape=shape)
+
+
+def _save_npz(self: Operator, path, max_columns: int = 200_000, compressed: bool = True) -> None:
+    """Write Φ in ``scipy.sparse.save_npz``'s own layout (keys indices, indptr, format=b"csr", shape, data),
+    with NumPy only: ``scipy.sparse.load_npz(path)`` reads it without diffcassi installed."""
+    indptr, indices, data, shape = _csr_arrays(self, max_columns)
+    save = np.savez_compressed if compressed else np.savez
+    save(path, indices=indices, indptr=indptr, format=np.array(b"csr"), shape=np.array(shape, dtype=np.int64), data=data)
+
+
+Operator.to_scipy = _to_scipy  # type: ignore[attr-defined]
+Operator.save_npz = _save_npz  # type: ignore[attr-defined]
+Operator.to_csr_arrays = lambda self, max_columns=200_000: _csr_arrays(self, max_columns)  # type: ignore[attr-defined]
+Operator.to_csr_arrays.__doc__ = "(indptr int64, indices int64, data float32, shape) of Φ (see to_scipy)."
+Transport.to_scipy = lambda self, max_columns=200_000: _to_scipy(self.operator, max_columns)  # type: ignore[attr-defined]
+Transport.save_npz = lambda self, path, max_columns=200_000: _save_npz(self.operator, path, max_columns)  # type: ignore[attr-defined]
+Transport.detector = property(lambda self: _json.loads(self._detector_json()),  # type: ignore[attr-defined]
+                              doc="The detector: width, height, pitch_mm, x_left_mm, y_top_mm.")
+
+
+def metrics(truth: np.ndarray, estimate: np.ndarray, truth_wavelengths_nm: Optional[Sequence[float]] = None,
+            estimate_wavelengths_nm: Optional[Sequence[float]] = None) -> Dict[str, Any]:
+    """The field's reconstruction metrics of ``estimate`` against ``truth`` ((H, W, B) float32 each; H, W ≥ 11
+    for SSIM): ``rmse``, ``psnr_db`` (paper: one MSE over the cube, peak = max of the truth), ``psnr_band_db``
+    (MST: mean of per-band PSNR on [0, 1]), ``ssim`` (11×11 Gaussian σ 1.5, mean over bands), ``sam_rad``,
+    ``sam_deg``. With both wavelength lists the truth is resampled to the estimate's and the result also
+    holds ``wavelengths_nm``, ``truth_resampled``, ``truth_peak`` (as ``diffcassi evaluate``). An infinite
+    PSNR (identical cubes) is ``inf``."""
+    d = _json.loads(_native._metrics(truth, estimate, truth_wavelengths_nm, estimate_wavelengths_nm))
+    m = d.get("metrics", d)
+    for k in ("psnr_db", "psnr_band_db"):
+        if m.get(k) is None:
+            m[k] = float("inf")
+    return d
+
+
+def mapping_operator(system: System, height: int, width: int, mask: Optional[np.ndarray] = None,
+                     interpolation: str = "nearest", **settings: Any) -> Operator:
+    """The paper's ``mapping`` operator (each band placed at its chief-ray mapped detector pixel, ``nearest``
+    or ``bilinear``) on the detector and mask of :func:`render` with the same settings; ``.initialisation(acq)``
+    gives the paper's I = A ∘ f."""
+    _check_backend(settings.get("backend", "analytic"))
+    return _native.model_operator("mapping", system, height, width, mask, interpolation=interpolation, **settings)
+
+
+def shift_operator(system: System, height: int, width: int, mask: Optional[np.ndarray] = None, **settings: Any) -> Operator:
+    """The field's simplified SD-CASSI ``shift`` model (band b shifted by the central field's dispersion along x,
+    no distortion, no blur) on the detector and mask of :func:`render` with the same settings."""
+    _check_backend(settings.get("backend", "analytic"))
+    return _native.model_operator("shift", system, height, width, mask, **settings)
+
+
+def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, solver: str = "gap-tv",
+                init: Optional[np.ndarray] = None, **settings: Any) -> Tuple[np.ndarray, Dict[str, Any]]:
+    """Reconstruct a cube (H, W, B) float32 from ``acquisition`` ((h, w) float32; float64 is converted, the
+    image being small) with ``solver`` ``gap-tv`` (accelerated by default) or ``admm-tv``, as
+    ``diffcassi reconstruct``. ``settings`` (default: the library's): iterations (100), step (1), tv_weight (0.1),
+    tv_iterations (5), tv_coupling (``vectorial`` | ``per_band``), accelerated (True), admm_eta (0.01).
+    Returns ``(cube, record)``; the record holds the settings, per-iteration residuals and seconds."""
+    op = operator.operator if isinstance(operator, Transport) else operator
+    acq = np.ascontiguousarray(acquisition, dtype=np.float32) if getattr(acquisition, "dtype", None) == np.float64 else acquisition
+    cube, record = _native._reconstruct(op, acq, solver, init, **settings)
+    return cube, _json.loads(record)
+
+
+__all__ += ["mapping_operator", "shift_operator", "reconstruct"]

@@ -1,0 +1,346 @@
+//! Reconstruction from Python: operators (apply/adjoint/shapes, sparse export) and metrics.
+//!
+//! An `Operator` wraps any `diffcassi::recon::Operator` (float32 cube (H, W, B) ↔ image (h, w)). Its
+//! sparse matrix (`_csr`) is assembled column by column from `apply` on unit cubes, in parallel: exact for
+//! any operator, O(columns × apply) in time, so meant for the small problems a torch module or a SciPy
+//! check uses (a cap on the column count guards against a paper-size call).
+use crate::arrays::{check_finite, input, output};
+use crate::errors::{value_error, IntoPy};
+use crate::pool::run;
+use crate::render::{check_shape, configure, owned_exact, Options};
+use crate::system::PySystem;
+use diffcassi::recon::{metrics, reconstruct, CubeShape, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, TvCoupling};
+use diffcassi::render::Renderer;
+use diffcassi::scene::SpectralCube;
+use numpy::PyArrayDyn;
+use pyo3::prelude::*;
+use rayon::prelude::*;
+use std::sync::Arc;
+
+/// A linear operator Φ: cube (H, W, B) float32 → detector image (h, w) float32, with its adjoint.
+#[pyclass(name = "Operator", module = "diffcassi", frozen)]
+pub struct PyOperator {
+    op: Arc<dyn Operator>,
+    /// The mapping operator's own type, for its initialisation I = A ∘ f.
+    mapping: Option<Arc<MappingOperator>>,
+}
+
+impl PyOperator {
+    pub fn new(op: Arc<dyn Operator>) -> Self {
+        PyOperator { op, mapping: None }
+    }
+}
+
+#[pymethods]
+impl PyOperator {
+    #[getter]
+    fn name(&self) -> String {
+        self.op.name().to_string()
+    }
+
+    /// (H, W, B) of the cubes.
+    #[getter]
+    fn cube_shape(&self) -> (usize, usize, usize) {
+        let c = self.op.cube_shape();
+        (c.height, c.width, c.bands)
+    }
+
+    /// (h, w) of the images.
+    #[getter]
+    fn image_shape(&self) -> (usize, usize) {
+        let i = self.op.image_shape();
+        (i.height, i.width)
+    }
+
+    /// Φ cube: `cube` (H, W, B) float32 → image (h, w) float32.
+    fn apply<'py>(&self, py: Python<'py>, cube: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let c = self.op.cube_shape();
+        let a = input::<f32>("cube", cube, "float32", 3, "(H, W, B)")?;
+        check_shape("cube", &a.shape, &[c.height, c.width, c.bands])?;
+        check_finite("cube", a.slice(), &a.shape)?;
+        let i = self.op.image_shape();
+        let mut img = vec![0.0f32; i.len()];
+        let x = a.slice();
+        run(py, || self.op.apply_into(x, &mut img));
+        output(py, img, &[i.height, i.width])
+    }
+
+    /// Φᵀ image: `image` (h, w) float32 → cube (H, W, B) float32.
+    fn adjoint<'py>(&self, py: Python<'py>, image: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let i = self.op.image_shape();
+        let a = input::<f32>("image", image, "float32", 2, "(h, w)")?;
+        check_shape("image", &a.shape, &[i.height, i.width])?;
+        check_finite("image", a.slice(), &a.shape)?;
+        let c = self.op.cube_shape();
+        let mut cube = vec![0.0f32; c.len()];
+        let y = a.slice();
+        run(py, || self.op.adjoint_into(y, &mut cube));
+        output(py, cube, &[c.height, c.width, c.bands])
+    }
+
+    /// The paper's initialisation I = A ∘ f of an acquisition (h, w) float32 (mapping operators only):
+    /// each band's value at its nearest mapped detector pixel, (H, W, B) float32.
+    fn initialisation<'py>(&self, py: Python<'py>, acquisition: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let m = self.mapping.as_ref().ok_or_else(|| value_error(format!("initialisation: only the mapping operator has one (this is `{}`)", self.op.name())))?;
+        let i = self.op.image_shape();
+        let a = input::<f32>("acquisition", acquisition, "float32", 2, "(h, w)")?;
+        check_shape("acquisition", &a.shape, &[i.height, i.width])?;
+        check_finite("acquisition", a.slice(), &a.shape)?;
+        let acq = a.slice();
+        let cube = run(py, || m.initialisation(acq)).py()?;
+        let c = self.op.cube_shape();
+        output(py, cube, &[c.height, c.width, c.bands])
+    }
+
+    /// The matrix of Φ in CSR form: (indptr int64 (h·w + 1), indices int64, data float32, (h·w, H·W·B)).
+    /// Rows are detector pixels (row-major), columns cube entries in C order [row][col][band]. Assembled
+    /// from Φ applied to unit cubes; refuses more than `max_columns` columns.
+    #[pyo3(signature = (max_columns = 200_000))]
+    fn _csr<'py>(
+        &self,
+        py: Python<'py>,
+        max_columns: usize,
+    ) -> PyResult<(Bound<'py, PyArrayDyn<i64>>, Bound<'py, PyArrayDyn<i64>>, Bound<'py, PyArrayDyn<f32>>, (usize, usize))> {
+        let (c, i) = (self.op.cube_shape(), self.op.image_shape());
+        let (rows, cols) = (i.len(), c.len());
+        if cols > max_columns {
+            return Err(value_error(format!(
+                "to_scipy/save_npz: the operator has {cols} columns ({}×{}×{}), more than max_columns = {max_columns} (the matrix is assembled column by column; use a smaller problem)",
+                c.height, c.width, c.bands
+            )));
+        }
+        let op = &self.op;
+        // Column j's nonzeros (row, value), in parallel over fixed blocks of columns.
+        let columns: Vec<Vec<(u32, f32)>> = run(py, || {
+            (0..cols)
+                .into_par_iter()
+                .map_init(
+                    || (vec![0.0f32; cols], vec![0.0f32; rows]),
+                    |(unit, img), j| {
+                        unit[j] = 1.0;
+                        img.iter_mut().for_each(|v| *v = 0.0);
+                        op.apply_into(unit, img);
+                        unit[j] = 0.0;
+                        img.iter().enumerate().filter(|(_, v)| **v != 0.0).map(|(r, v)| (r as u32, *v)).collect()
+                    },
+                )
+                .collect()
+        });
+        // Transpose the columns into CSR (rows in order, columns ascending within a row).
+        let mut counts = vec![0i64; rows + 1];
+        for col in &columns {
+            for (r, _) in col {
+                counts[*r as usize + 1] += 1;
+            }
+        }
+        for r in 0..rows {
+            counts[r + 1] += counts[r];
+        }
+        let nnz = counts[rows] as usize;
+        let mut next: Vec<i64> = counts[..rows].to_vec();
+        let mut indices = vec![0i64; nnz];
+        let mut data = vec![0.0f32; nnz];
+        for (j, col) in columns.iter().enumerate() {
+            for (r, v) in col {
+                let k = next[*r as usize] as usize;
+                indices[k] = j as i64;
+                data[k] = *v;
+                next[*r as usize] += 1;
+            }
+        }
+        Ok((output(py, counts, &[rows + 1])?, output(py, indices, &[nnz])?, output(py, data, &[nnz])?, (rows, cols)))
+    }
+
+    fn __repr__(&self) -> String {
+        let (c, i) = (self.op.cube_shape(), self.op.image_shape());
+        format!("Operator('{}', cube {}×{}×{} → image {}×{})", self.op.name(), c.height, c.width, c.bands, i.height, i.width)
+    }
+}
+
+/// The `exact` operator: the renderer's light transport as a linear map (same settings and defaults as
+/// `render`; cubes at the render bands `bands_nm`).
+#[pyfunction]
+#[pyo3(signature = (system, height, width, mask = None, bands_nm = None, planes = None, rays = None, seed = None,
+                    sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic"))]
+#[allow(clippy::too_many_arguments)]
+fn exact_operator(
+    py: Python<'_>,
+    system: &PySystem,
+    height: usize,
+    width: usize,
+    mask: Option<&Bound<'_, PyAny>>,
+    bands_nm: Option<&Bound<'_, PyAny>>,
+    planes: Option<usize>,
+    rays: Option<usize>,
+    seed: Option<u64>,
+    sampling: Option<String>,
+    opening: Option<f64>,
+    mask_seed: Option<u64>,
+    airy_diameter_px: Option<f64>,
+    airy: Option<bool>,
+    backend: &str,
+) -> PyResult<PyOperator> {
+    let bands_nm = bands_nm.map(|b| crate::arrays::f64_list("bands_nm", b)).transpose()?;
+    let o = Options { bands_nm, planes, rays, seed, sampling, opening, mask_seed, airy_diameter_px, airy };
+    let (cfg, m) = configure(height, width, &o, mask)?;
+    Ok(PyOperator::new(Arc::new(owned_exact(py, &system.inner, cfg, m, backend)?)))
+}
+
+/// The `mapping` (interpolation `nearest` or `bilinear`) or `shift` operator of `system` with these render
+/// settings (the same detector and mask as `render`/`Transport` with them; cubes at `bands_nm`).
+#[pyfunction]
+#[pyo3(signature = (kind, system, height, width, mask = None, bands_nm = None, planes = None, rays = None, seed = None,
+                    sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic",
+                    interpolation = "nearest"))]
+#[allow(clippy::too_many_arguments)]
+fn model_operator(
+    py: Python<'_>,
+    kind: &str,
+    system: &PySystem,
+    height: usize,
+    width: usize,
+    mask: Option<&Bound<'_, PyAny>>,
+    bands_nm: Option<&Bound<'_, PyAny>>,
+    planes: Option<usize>,
+    rays: Option<usize>,
+    seed: Option<u64>,
+    sampling: Option<String>,
+    opening: Option<f64>,
+    mask_seed: Option<u64>,
+    airy_diameter_px: Option<f64>,
+    airy: Option<bool>,
+    backend: &str,
+    interpolation: &str,
+) -> PyResult<PyOperator> {
+    let bands_nm = bands_nm.map(|b| crate::arrays::f64_list("bands_nm", b)).transpose()?;
+    let o = Options { bands_nm, planes, rays, seed, sampling, opening, mask_seed, airy_diameter_px, airy };
+    let (cfg, m) = configure(height, width, &o, mask)?;
+    let interp = match interpolation {
+        "nearest" => MappingInterpolation::Nearest,
+        "bilinear" => MappingInterpolation::Bilinear,
+        other => return Err(value_error(format!("interpolation `{other}`: use nearest or bilinear"))),
+    };
+    if kind != "mapping" && kind != "shift" {
+        return Err(value_error(format!("operator `{kind}`: use exact, mapping or shift")));
+    }
+    let tr = crate::system::tracer(backend)?;
+    let sys = Arc::clone(&system.inner);
+    let kind = kind.to_string();
+    run(py, move || -> diffcassi::Result<PyOperator> {
+        let bands = cfg.spectral.bands_nm.clone();
+        let r = Renderer::new(&sys, tr.as_ref(), cfg, m)?;
+        Ok(if kind == "mapping" {
+            let op = Arc::new(MappingOperator::from_renderer(&r, &bands, interp)?);
+            PyOperator { op: op.clone(), mapping: Some(op) }
+        } else {
+            PyOperator::new(Arc::new(ShiftOperator::from_renderer(&r, &bands)?))
+        })
+    })
+    .py()
+}
+
+/// Reconstruct a cube from `acquisition` (h, w) float32 through `operator` with GAP-TV or ADMM-TV
+/// (`diffcassi::recon::reconstruct`); `None` settings are the library's defaults. Returns (cube (H, W, B)
+/// float32, the record as JSON: settings, per-iteration residuals, seconds).
+#[pyfunction]
+#[pyo3(signature = (operator, acquisition, solver = "gap-tv", init = None, iterations = None, step = None, tv_weight = None,
+                    tv_iterations = None, tv_coupling = None, accelerated = None, admm_eta = None))]
+#[allow(clippy::too_many_arguments)]
+fn _reconstruct<'py>(
+    py: Python<'py>,
+    operator: &PyOperator,
+    acquisition: &Bound<'py, PyAny>,
+    solver: &str,
+    init: Option<&Bound<'py, PyAny>>,
+    iterations: Option<usize>,
+    step: Option<f32>,
+    tv_weight: Option<f32>,
+    tv_iterations: Option<usize>,
+    tv_coupling: Option<&str>,
+    accelerated: Option<bool>,
+    admm_eta: Option<f32>,
+) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, String)> {
+    let kind: SolverKind = solver.parse().py()?;
+    let mut cfg = SolverConfig::for_solver(kind);
+    cfg.iterations = iterations.unwrap_or(cfg.iterations);
+    cfg.step = step.unwrap_or(cfg.step);
+    cfg.tv_weight = tv_weight.unwrap_or(cfg.tv_weight);
+    cfg.tv_iterations = tv_iterations.unwrap_or(cfg.tv_iterations);
+    cfg.accelerated = accelerated.unwrap_or(cfg.accelerated);
+    cfg.admm_eta = admm_eta.unwrap_or(cfg.admm_eta);
+    if let Some(c) = tv_coupling {
+        cfg.tv_coupling = match c {
+            "vectorial" => TvCoupling::Vectorial,
+            "per_band" | "per-band" => TvCoupling::PerBand,
+            other => return Err(value_error(format!("tv_coupling `{other}`: use vectorial or per_band"))),
+        };
+    }
+    cfg.validate().py()?;
+    let i = operator.op.image_shape();
+    let c = operator.op.cube_shape();
+    let a = input::<f32>("acquisition", acquisition, "float32", 2, "(h, w)")?;
+    check_shape("acquisition", &a.shape, &[i.height, i.width])?;
+    check_finite("acquisition", a.slice(), &a.shape)?;
+    let init = match init {
+        Some(x) => {
+            let x = input::<f32>("init", x, "float32", 3, "(H, W, B)")?;
+            check_shape("init", &x.shape, &[c.height, c.width, c.bands])?;
+            check_finite("init", x.slice(), &x.shape)?;
+            Some(x.slice().to_vec())
+        }
+        None => None,
+    };
+    let op = &operator.op;
+    let y = a.slice();
+    let rec = run(py, || reconstruct(op.as_ref(), y, init.as_deref(), &cfg, &|_, _| {})).py()?;
+    let record = serde_json::to_string(&rec).map_err(|e| value_error(format!("internal: {e}")))?;
+    Ok((output(py, rec.cube, &[c.height, c.width, c.bands])?, record))
+}
+
+fn cube_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<(Vec<usize>, Vec<f32>)> {
+    let a = input::<f32>(name, obj, "float32", 3, "(H, W, B)")?;
+    check_finite(name, a.slice(), &a.shape)?;
+    Ok((a.shape.clone(), a.slice().to_vec()))
+}
+
+/// RMSE, PSNR (paper and MST conventions), SSIM and SAM of `estimate` against `truth` (both (H, W, B)
+/// float32), as JSON. With both wavelength lists, the truth is resampled to the estimate's (as `evaluate`).
+#[pyfunction]
+#[pyo3(signature = (truth, estimate, truth_wavelengths_nm = None, estimate_wavelengths_nm = None))]
+fn _metrics(
+    py: Python<'_>,
+    truth: &Bound<'_, PyAny>,
+    estimate: &Bound<'_, PyAny>,
+    truth_wavelengths_nm: Option<&Bound<'_, PyAny>>,
+    estimate_wavelengths_nm: Option<&Bound<'_, PyAny>>,
+) -> PyResult<String> {
+    let (ts, t) = cube_arg("truth", truth)?;
+    let (es, e) = cube_arg("estimate", estimate)?;
+    let value = match (truth_wavelengths_nm, estimate_wavelengths_nm) {
+        (Some(tw), Some(ew)) => {
+            let tw = crate::arrays::f64_list("truth_wavelengths_nm", tw)?;
+            let ew = crate::arrays::f64_list("estimate_wavelengths_nm", ew)?;
+            let tc = SpectralCube::new(ts[0], ts[1], tw, t, "truth").py()?;
+            let ec = SpectralCube::new(es[0], es[1], ew, e, "estimate").py()?;
+            serde_json::to_value(run(py, || metrics::evaluate(&tc, &ec)).py()?)
+        }
+        (None, None) => {
+            if ts != es {
+                return Err(value_error(format!("shape mismatch: truth {ts:?}, estimate {es:?}")));
+            }
+            let shape = CubeShape { height: ts[0], width: ts[1], bands: ts[2] };
+            serde_json::to_value(run(py, || metrics::metrics(&t, &e, shape)).py()?)
+        }
+        _ => return Err(value_error("give both truth_wavelengths_nm and estimate_wavelengths_nm, or neither")),
+    };
+    value.map(|v| v.to_string()).map_err(|e| value_error(format!("internal: {e}")))
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyOperator>()?;
+    m.add_function(wrap_pyfunction!(exact_operator, m)?)?;
+    m.add_function(wrap_pyfunction!(model_operator, m)?)?;
+    m.add_function(wrap_pyfunction!(_reconstruct, m)?)?;
+    m.add_function(wrap_pyfunction!(_metrics, m)?)?;
+    Ok(())
+}

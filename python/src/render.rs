@@ -1,0 +1,414 @@
+//! `render` and `Transport`: coded acquisitions from NumPy scene cubes.
+//!
+//! Every setting the caller leaves at `None` takes the CLI's default, read from the CLI's own argument
+//! definitions (`diffcassi::cli::render::RenderCommon`, parsed from an empty command line) and turned into
+//! a configuration by the CLI's own `config_from`, so `render(system, scene, wl)` and
+//! `diffcassi render --scene FILE --scene-size N` give the same acquisition bit for bit.
+use crate::arrays::{check_finite, f64_list, input, output, Input};
+use crate::errors::{value_error, IntoPy};
+use crate::pool::run;
+use crate::system::{tracer, PySystem};
+use clap::Parser;
+use diffcassi::cli::render::{config_from, NoiseArgs, RenderCommon};
+use diffcassi::recon::{CubeShape, ExactOperator, ImageShape, Operator};
+use diffcassi::render::{output as render_output, Mask, RenderConfig, Renderer};
+use diffcassi::scene::SpectralCube;
+use diffcassi::system::SequentialSystem;
+use diffcassi::tracer::Tracer;
+use numpy::PyArrayDyn;
+use pyo3::prelude::*;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// The CLI's render arguments with their defaults (an empty command line).
+#[derive(Parser)]
+struct CliDefaults {
+    #[command(flatten)]
+    common: RenderCommon,
+}
+
+/// Render settings from Python keywords; `None` = the CLI's default.
+#[derive(Default, Clone)]
+pub struct Options {
+    pub bands_nm: Option<Vec<f64>>,
+    pub planes: Option<usize>,
+    pub rays: Option<usize>,
+    pub seed: Option<u64>,
+    pub sampling: Option<String>,
+    pub opening: Option<f64>,
+    pub mask_seed: Option<u64>,
+    pub airy_diameter_px: Option<f64>,
+    pub airy: Option<bool>,
+}
+
+/// The render configuration and mask for a `height × width` scene (the CLI's `config_from`, then the
+/// caller's mask array if any).
+pub fn configure(height: usize, width: usize, o: &Options, mask: Option<&Bound<'_, PyAny>>) -> PyResult<(RenderConfig, Mask)> {
+    let mut c = CliDefaults::try_parse_from(["diffcassi"]).map_err(|e| value_error(format!("internal: CLI defaults: {e}")))?.common;
+    if height == 0 || width == 0 {
+        return Err(value_error(format!("scene size {height}×{width}: must be ≥ 1")));
+    }
+    c.scene_size = height;
+    if let Some(b) = &o.bands_nm {
+        if b.is_empty() {
+            return Err(value_error("bands_nm: empty"));
+        }
+        c.bands = b.iter().map(|v| format!("{v}")).collect::<Vec<_>>().join(",");
+    }
+    if let Some(p) = o.planes {
+        c.planes = p;
+    }
+    c.rays = o.rays.or(c.rays);
+    c.seed = o.seed.unwrap_or(c.seed);
+    if let Some(s) = &o.sampling {
+        c.sampling = s.clone();
+    }
+    c.opening = o.opening.unwrap_or(c.opening);
+    c.mask_seed = o.mask_seed.unwrap_or(c.mask_seed);
+    c.airy_diameter_px = o.airy_diameter_px.unwrap_or(c.airy_diameter_px);
+    if let Some(a) = o.airy {
+        c.no_airy = !a;
+    }
+    let (mut cfg, mut m) = config_from(&c).py()?;
+    cfg.scene_height = height;
+    cfg.scene_width = width;
+    if width != height {
+        m = Mask::random(height, width, c.opening, c.mask_seed).py()?;
+    }
+    if let Some(obj) = mask {
+        let a: Input<f32> = input("mask", obj, "float32", 2, "(H, W)")?;
+        if a.shape != [height, width] {
+            return Err(value_error(format!("mask: expected shape ({height}, {width}) (the scene's), got {:?}", a.shape)));
+        }
+        let v = a.slice();
+        if let Some(i) = v.iter().position(|x| !(0.0..=1.0).contains(x)) {
+            return Err(value_error(format!("mask: value {} at index ({}, {}) is not in [0, 1]", v[i], i / width, i % width)));
+        }
+        m = Mask { height, width, values: v.to_vec(), description: "caller-provided array".into() };
+    }
+    Ok((cfg, m))
+}
+
+/// A scene argument: (H, W, B) float32, C-contiguous, finite, B = the wavelengths' count.
+pub fn scene_cube(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>) -> PyResult<SpectralCube> {
+    let a: Input<f32> = input("scene", scene, "float32", 3, "(H, W, B)")?;
+    if a.shape[2] != wavelengths_nm.len() {
+        return Err(value_error(format!("scene: {} bands (shape {:?}) but {} wavelengths_nm", a.shape[2], a.shape, wavelengths_nm.len())));
+    }
+    check_finite("scene", a.slice(), &a.shape)?;
+    SpectralCube::new(a.shape[0], a.shape[1], wavelengths_nm, a.slice().to_vec(), "scene array").py()
+}
+
+fn scene_description(cube: &SpectralCube) -> serde_json::Value {
+    serde_json::json!({"source": "array", "native_height": cube.height, "native_width": cube.width, "native_wavelengths_nm": cube.wavelengths_nm})
+}
+
+/// Render `scene` (H, W, B float32 at `wavelengths_nm`) through `system`: (acquisition (h, w) float64,
+/// render.json's content as JSON text).
+#[pyfunction]
+#[pyo3(signature = (system, scene, wavelengths_nm, mask = None, bands_nm = None, planes = None, rays = None, seed = None,
+                    sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic",
+                    noise = None, full_well_e = None, electrons_per_unit = None, read_noise_e = None, adc_bits = None, noise_seed = None))]
+#[allow(clippy::too_many_arguments)]
+fn _render<'py>(
+    py: Python<'py>,
+    system: &PySystem,
+    scene: &Bound<'py, PyAny>,
+    wavelengths_nm: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+    bands_nm: Option<&Bound<'py, PyAny>>,
+    planes: Option<usize>,
+    rays: Option<usize>,
+    seed: Option<u64>,
+    sampling: Option<String>,
+    opening: Option<f64>,
+    mask_seed: Option<u64>,
+    airy_diameter_px: Option<f64>,
+    airy: Option<bool>,
+    backend: &str,
+    noise: Option<String>,
+    full_well_e: Option<f64>,
+    electrons_per_unit: Option<f64>,
+    read_noise_e: Option<f64>,
+    adc_bits: Option<u32>,
+    noise_seed: Option<u64>,
+) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, String)> {
+    let t0 = Instant::now();
+    // The CLI's own noise options and checks (`render --noise ...`).
+    let noise = NoiseArgs { noise, full_well_e, electrons_per_unit, read_noise_e, adc_bits, noise_seed }.config().py()?;
+    let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
+    let cube = scene_cube(scene, ws)?;
+    let bands_nm = bands_nm.map(|b| f64_list("bands_nm", b)).transpose()?;
+    let o = Options { bands_nm, planes, rays, seed, sampling, opening, mask_seed, airy_diameter_px, airy };
+    let (cfg, m) = configure(cube.height, cube.width, &o, mask)?;
+    let t = tracer(backend)?;
+    let sys = Arc::clone(&system.inner);
+    let threads = crate::pool::get_num_threads();
+    let (acq, info) = run(py, move || -> diffcassi::Result<_> {
+        let r = Renderer::new(&sys, t.as_ref(), cfg, m)?;
+        let mut acq = r.render(&cube, false, &|_| {})?;
+        let noise_json = match &noise {
+            Some(nc) => nc.to_json(&nc.apply(&mut acq.image)?),
+            None => serde_json::Value::Null,
+        };
+        let scale = render_output::preview_scale(&acq);
+        let mut info = render_output::sidecar(&r, &acq, &scene_description(&cube), scale, t0.elapsed().as_secs_f64(), threads);
+        info["noise"] = noise_json;
+        Ok((acq, info))
+    })
+    .py()?;
+    let (h, w) = (acq.detector.height, acq.detector.width);
+    Ok((output(py, acq.image, &[h, w])?, info.to_string()))
+}
+
+/// The exact operator together with the system and tracer it borrows, owned as one value.
+pub struct OwnedExact {
+    // Field order is drop order: `op` borrows the system and the tracer below and must go first.
+    pub op: ExactOperator<'static>,
+    _system: Arc<SequentialSystem>,
+    _tracer: Box<dyn Tracer>,
+}
+
+impl Operator for OwnedExact {
+    fn name(&self) -> &str {
+        self.op.name()
+    }
+    fn cube_shape(&self) -> CubeShape {
+        self.op.cube_shape()
+    }
+    fn image_shape(&self) -> ImageShape {
+        self.op.image_shape()
+    }
+    fn apply_into(&self, cube: &[f32], image: &mut [f32]) {
+        self.op.apply_into(cube, image)
+    }
+    fn adjoint_into(&self, image: &[f32], cube: &mut [f32]) {
+        self.op.adjoint_into(image, cube)
+    }
+}
+
+/// Trace the light transport of `system` with these settings once and keep it as the exact operator.
+pub fn owned_exact(py: Python<'_>, system: &Arc<SequentialSystem>, cfg: RenderConfig, mask: Mask, backend: &str) -> PyResult<OwnedExact> {
+    let tr = tracer(backend)?;
+    let system = Arc::clone(system);
+    // SAFETY: the system lives in an Arc and the tracer in a Box, both moved into the returned value and
+    // never replaced; their heap addresses do not move when the value does, and `op`, which borrows
+    // them, is declared first so it is dropped before them.
+    let sys_ref: &'static SequentialSystem = unsafe { &*Arc::as_ptr(&system) };
+    let tr_ref: &'static dyn Tracer = unsafe { &*(tr.as_ref() as *const dyn Tracer) };
+    let op = run(py, move || -> diffcassi::Result<_> {
+        let r = Renderer::new(sys_ref, tr_ref, cfg, mask)?;
+        let t = r.trace_all(&|_| {})?;
+        let bands = r.config.spectral.bands_nm.clone();
+        ExactOperator::from_traced(r, &bands, t)
+    })
+    .py()?;
+    Ok(OwnedExact { op, _system: system, _tracer: tr })
+}
+
+/// The dataset-mode light transport of one system, configuration and mask, traced once: `apply(scene)`
+/// renders a scene with it (bit-identical to `render` with the same settings), the fast path for
+/// on-the-fly training data; `adjoint(image)` is the exact operator's adjoint.
+#[pyclass(name = "Transport", module = "diffcassi", frozen)]
+pub struct PyTransport {
+    exact: Arc<OwnedExact>,
+    system: Arc<SequentialSystem>,
+}
+
+impl PyTransport {
+    fn renderer(&self) -> &Renderer<'static> {
+        self.exact.op.renderer()
+    }
+}
+
+#[pymethods]
+impl PyTransport {
+    #[new]
+    #[pyo3(signature = (system, height, width, mask = None, bands_nm = None, planes = None, rays = None, seed = None,
+                        sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic"))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        system: &PySystem,
+        height: usize,
+        width: usize,
+        mask: Option<&Bound<'_, PyAny>>,
+        bands_nm: Option<&Bound<'_, PyAny>>,
+        planes: Option<usize>,
+        rays: Option<usize>,
+        seed: Option<u64>,
+        sampling: Option<String>,
+        opening: Option<f64>,
+        mask_seed: Option<u64>,
+        airy_diameter_px: Option<f64>,
+        airy: Option<bool>,
+        backend: &str,
+    ) -> PyResult<Self> {
+        let bands_nm = bands_nm.map(|b| f64_list("bands_nm", b)).transpose()?;
+        let o = Options { bands_nm, planes, rays, seed, sampling, opening, mask_seed, airy_diameter_px, airy };
+        let (cfg, m) = configure(height, width, &o, mask)?;
+        let exact = owned_exact(py, &system.inner, cfg, m, backend)?;
+        Ok(PyTransport { exact: Arc::new(exact), system: Arc::clone(&system.inner) })
+    }
+
+    /// Render `scene` ((H, W, B) float32; bands at `wavelengths_nm`, default the transport's bands):
+    /// the acquisition (h, w) float64, bit-identical to `render` with the same settings.
+    #[pyo3(signature = (scene, wavelengths_nm = None))]
+    fn apply<'py>(&self, py: Python<'py>, scene: &Bound<'py, PyAny>, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let ws = match wavelengths_nm {
+            Some(w) => f64_list("wavelengths_nm", w)?,
+            None => self.renderer().config.spectral.bands_nm.clone(),
+        };
+        let cube = scene_cube(scene, ws)?;
+        let planes = self.exact.op.transport().ok_or_else(|| value_error("internal: transport not kept"))?;
+        let acq = run(py, || self.renderer().render_cached(&cube, planes, false, &|_| {})).py()?;
+        let (h, w) = (acq.detector.height, acq.detector.width);
+        output(py, acq.image, &[h, w])
+    }
+
+    /// Φᵀ image: `image` (h, w) float32 or float64 (the detector is small; converted to float32) → the
+    /// cube (H, W, B) float32 at the transport's bands (the exact operator's adjoint).
+    fn adjoint<'py>(&self, py: Python<'py>, image: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let (h, w) = self.detector_shape();
+        let img: Vec<f32> = match input::<f64>("image", image, "float64", 2, "(h, w)") {
+            Ok(a) => {
+                check_shape("image", &a.shape, &[h, w])?;
+                a.slice().iter().map(|&v| v as f32).collect()
+            }
+            Err(_) => {
+                let a = input::<f32>("image", image, "float32", 2, "(h, w)")?;
+                check_shape("image", &a.shape, &[h, w])?;
+                a.slice().to_vec()
+            }
+        };
+        check_finite("image", &img, &[h, w])?;
+        let c = self.exact.cube_shape();
+        let mut cube = vec![0.0f32; c.len()];
+        run(py, || self.exact.adjoint_into(&img, &mut cube));
+        output(py, cube, &[c.height, c.width, c.bands])
+    }
+
+    /// The exact operator Φ of this transport (float32 cube (H, W, B) → image (h, w)), sharing its trace.
+    #[getter]
+    fn operator(&self) -> crate::recon::PyOperator {
+        crate::recon::PyOperator::new(self.exact.clone())
+    }
+
+    /// (h, w) of the detector images.
+    #[getter]
+    fn detector_shape(&self) -> (usize, usize) {
+        (self.renderer().detector.height, self.renderer().detector.width)
+    }
+
+    /// (H, W) of the scenes.
+    #[getter]
+    fn scene_shape(&self) -> (usize, usize) {
+        (self.renderer().config.scene_height, self.renderer().config.scene_width)
+    }
+
+    /// Heap bytes of the traced transport.
+    #[getter]
+    fn nbytes(&self) -> usize {
+        self.exact.op.transport_bytes()
+    }
+
+    /// The render bands (nm).
+    #[getter]
+    fn bands_nm(&self) -> Vec<f64> {
+        self.renderer().config.spectral.bands_nm.clone()
+    }
+
+    /// The spectral planes (nm).
+    #[getter]
+    fn planes_nm(&self) -> Vec<f64> {
+        self.renderer().config.spectral.planes_nm.clone()
+    }
+
+    /// The mask (H, W) float32.
+    #[getter]
+    fn mask<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+        let m = &self.renderer().mask;
+        output(py, m.values.clone(), &[m.height, m.width])
+    }
+
+    /// The render configuration as JSON text.
+    fn _config_json(&self) -> String {
+        serde_json::to_string(&self.renderer().config).unwrap_or_default()
+    }
+
+    /// The detector as JSON text (width, height, pitch_mm, x_left_mm, y_top_mm; pixel (i, j)'s centre at
+    /// x = x_left_mm + (j + 0.5)·pitch, y = y_top_mm − (i + 0.5)·pitch).
+    fn _detector_json(&self) -> String {
+        serde_json::to_string(&self.renderer().detector).unwrap_or_default()
+    }
+
+    fn __repr__(&self) -> String {
+        let c = &self.renderer().config;
+        format!(
+            "Transport('{}', scene {}×{}, {} bands, {} planes, {} rays, detector {}×{}, {:.1} MB)",
+            self.system.name(),
+            c.scene_height,
+            c.scene_width,
+            c.spectral.bands_nm.len(),
+            c.spectral.planes(),
+            c.rays_per_pixel,
+            self.renderer().detector.height,
+            self.renderer().detector.width,
+            self.nbytes() as f64 / 1e6
+        )
+    }
+}
+
+pub fn check_shape(name: &str, actual: &[usize], expected: &[usize]) -> PyResult<()> {
+    if actual != expected {
+        return Err(value_error(format!("{name}: expected shape {expected:?}, got {actual:?}")));
+    }
+    Ok(())
+}
+
+/// The channels of an EXR file: {name: (H, W) float32} (to read the CLI's `acquisition.exr`, `cube.exr`).
+#[pyfunction]
+fn read_exr<'py>(py: Python<'py>, path: std::path::PathBuf) -> PyResult<Vec<(String, Bound<'py, PyArrayDyn<f32>>)>> {
+    let img = diffcassi::io::exr::read_exr(&path).map_err(|e| crate::errors::to_py(e.into()))?;
+    img.channels.into_iter().map(|c| Ok((c.name, output(py, c.data, &[img.height, img.width])?))).collect()
+}
+
+/// A scene file (KAIST-style `.exr`, `.npy` (H, W, B) with `<stem>_wavelengths_nm.npy`, or a CAVE-style
+/// folder of per-band PNGs) with the CLI's loaders: (cube (H, W, B) float32, wavelengths_nm).
+#[pyfunction]
+#[pyo3(signature = (path, wavelengths_nm = None))]
+fn load_scene<'py>(py: Python<'py>, path: std::path::PathBuf, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, Vec<f64>)> {
+    if !path.exists() {
+        return Err(crate::errors::file_error(format!("{}: no such file or folder", path.display())));
+    }
+    let ws = wavelengths_nm.map(|w| f64_list("wavelengths_nm", w)).transpose()?;
+    let cube = run(py, || diffcassi::scene::load_scene(&path, ws.as_deref())).py()?;
+    let (h, w, b) = (cube.height, cube.width, cube.bands());
+    Ok((output(py, cube.data, &[h, w, b])?, cube.wavelengths_nm))
+}
+
+/// The CLI's synthetic demo scene of `seed` ((H, W, B) float32 at `wavelengths_nm`, default the 31 bands
+/// 400–700 nm the CLI uses): (cube, wavelengths_nm).
+#[pyfunction]
+#[pyo3(signature = (height, width, seed = 0, wavelengths_nm = None))]
+fn synthetic_scene<'py>(py: Python<'py>, height: usize, width: usize, seed: u64, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, Vec<f64>)> {
+    let ws = match wavelengths_nm {
+        Some(w) => f64_list("wavelengths_nm", w)?,
+        None => diffcassi::scene::synthetic_wavelengths(),
+    };
+    if height == 0 || width == 0 || ws.is_empty() {
+        return Err(value_error(format!("synthetic_scene: {height}×{width}×{}: every size must be ≥ 1", ws.len())));
+    }
+    let cube = run(py, || diffcassi::scene::synthetic_scene(height, width, &ws, seed));
+    let b = cube.bands();
+    Ok((output(py, cube.data, &[height, width, b])?, cube.wavelengths_nm))
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(load_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(synthetic_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(_render, m)?)?;
+    m.add_function(wrap_pyfunction!(read_exr, m)?)?;
+    m.add_class::<PyTransport>()?;
+    Ok(())
+}

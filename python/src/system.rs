@@ -1,0 +1,407 @@
+//! `System` and the traces and analyses on it: each delegates to the Rust API unchanged, so NumPy results
+//! are the Rust results bit for bit.
+use crate::arrays::{check_finite, f64_list, input, output};
+use crate::errors::{file_error, value_error, IntoPy};
+use crate::pool::run;
+use diffcassi::analysis;
+use diffcassi::diff::ParamSet;
+use diffcassi::rays::RayBatch;
+use diffcassi::system::SequentialSystem;
+use diffcassi::tracer::{BackendConfig, Tracer, TracedBatch};
+use numpy::PyArrayDyn;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// An optical system (built from a preset or a spec file), immutable and shareable between threads.
+#[pyclass(name = "System", module = "diffcassi", frozen)]
+pub struct PySystem {
+    pub inner: Arc<SequentialSystem>,
+}
+
+/// The tracer of a backend name (`analytic`, `embree-user[:f64|:none]`, `embree-mesh[:SAG_UM][:f64|:none]`).
+pub fn tracer(name: &str) -> PyResult<Box<dyn Tracer>> {
+    let cfg: BackendConfig = name.parse().py()?;
+    cfg.build().py()
+}
+
+fn points2(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<[f64; 2]>> {
+    let a = input::<f64>(name, obj, "float64", 2, "(N, 2)")?;
+    if a.shape[1] != 2 {
+        return Err(value_error(format!("{name}: expected shape (N, 2), got {:?}", a.shape)));
+    }
+    check_finite(name, a.slice(), &a.shape)?;
+    Ok(a.slice().chunks_exact(2).map(|p| [p[0], p[1]]).collect())
+}
+
+fn pair(name: &str, v: &[f64]) -> PyResult<[f64; 2]> {
+    match v {
+        [x, y] if x.is_finite() && y.is_finite() => Ok([*x, *y]),
+        _ => Err(value_error(format!("{name}: expected two finite numbers (x, y), got {v:?}"))),
+    }
+}
+
+/// A ray batch from (N, 3) origins, (N, 3) directions and (N,) wavelengths (float64, C-contiguous).
+pub fn ray_batch(origins: &Bound<'_, PyAny>, directions: &Bound<'_, PyAny>, wavelengths_nm: &Bound<'_, PyAny>) -> PyResult<RayBatch> {
+    let o = input::<f64>("origins", origins, "float64", 2, "(N, 3)")?;
+    let d = input::<f64>("directions", directions, "float64", 2, "(N, 3)")?;
+    let w = input::<f64>("wavelengths_nm", wavelengths_nm, "float64", 1, "(N,)")?;
+    let n = o.shape[0];
+    if o.shape[1] != 3 || d.shape != [n, 3] || w.shape != [n] {
+        return Err(value_error(format!(
+            "rays: origins {:?}, directions {:?}, wavelengths_nm {:?}: expected (N, 3), (N, 3) and (N,) with the same N",
+            o.shape, d.shape, w.shape
+        )));
+    }
+    check_finite("wavelengths_nm", w.slice(), &w.shape)?;
+    let (os, ds) = (o.slice(), d.slice());
+    let column = |v: &[f64], k: usize| -> Vec<f64> { v.chunks_exact(3).map(|p| p[k]).collect() };
+    Ok(RayBatch {
+        origin_x: column(os, 0),
+        origin_y: column(os, 1),
+        origin_z: column(os, 2),
+        dir_x: column(ds, 0),
+        dir_y: column(ds, 1),
+        dir_z: column(ds, 2),
+        wavelength_nm: w.slice().to_vec(),
+    })
+}
+
+/// The rays of a batch as the tuple (origins (N, 3), directions (N, 3), wavelengths_nm (N,)).
+fn rays_out<'py>(py: Python<'py>, b: &RayBatch) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
+    let n = b.len();
+    let mut o = Vec::with_capacity(3 * n);
+    let mut d = Vec::with_capacity(3 * n);
+    for i in 0..n {
+        o.extend_from_slice(&[b.origin_x[i], b.origin_y[i], b.origin_z[i]]);
+        d.extend_from_slice(&[b.dir_x[i], b.dir_y[i], b.dir_z[i]]);
+    }
+    Ok((output(py, o, &[n, 3])?, output(py, d, &[n, 3])?, output(py, b.wavelength_nm.clone(), &[n])?))
+}
+
+/// A traced batch as a dict: positions (N, 3) mm and directions (N, 3) in the image-surface frame, status
+/// (N,) uint8 (0 = ok; `diffcassi.STATUS` names the codes), surface (N,) uint32 (where a ray stopped).
+pub fn traced_out<'py>(py: Python<'py>, t: TracedBatch) -> PyResult<Bound<'py, PyDict>> {
+    let n = t.len();
+    let interleave = |a: &[f64], b: &[f64], c: &[f64]| -> Vec<f64> {
+        let mut v = vec![0.0; 3 * n];
+        for (((o, x), y), z) in v.chunks_exact_mut(3).zip(a).zip(b).zip(c) {
+            o.copy_from_slice(&[*x, *y, *z]);
+        }
+        v
+    };
+    let p = interleave(&t.x, &t.y, &t.z);
+    let d = interleave(&t.dir_x, &t.dir_y, &t.dir_z);
+    let status: Vec<u8> = t.status.iter().map(|s| *s as u8).collect();
+    let dict = PyDict::new(py);
+    dict.set_item("positions", output(py, p, &[n, 3])?)?;
+    dict.set_item("directions", output(py, d, &[n, 3])?)?;
+    dict.set_item("status", output(py, status, &[n])?)?;
+    dict.set_item("surface", output(py, t.surface, &[n])?)?;
+    Ok(dict)
+}
+
+fn json(v: &impl serde::Serialize) -> PyResult<String> {
+    serde_json::to_string(v).map_err(|e| value_error(format!("internal: JSON encoding failed: {e}")))
+}
+
+impl PySystem {
+    fn wrap(s: SequentialSystem) -> Self {
+        PySystem { inner: Arc::new(s) }
+    }
+}
+
+#[pymethods]
+impl PySystem {
+    /// One of the presets: `sp`, `ap`, `msp`, `map` (case-insensitive).
+    #[staticmethod]
+    fn preset(py: Python<'_>, name: &str) -> PyResult<Self> {
+        let name = name.to_string();
+        run(py, move || SequentialSystem::build(&diffcassi::presets::spec(&name)?)).py().map(Self::wrap)
+    }
+
+    /// A spec file, by extension: `.toml`, `.json`, `.yml`/`.yaml` (the paper's format), `.csv` (Zemax).
+    #[staticmethod]
+    fn from_file(py: Python<'_>, path: std::path::PathBuf) -> PyResult<Self> {
+        if !path.is_file() {
+            return Err(file_error(format!("{}: no such file", path.display())));
+        }
+        run(py, move || SequentialSystem::build(&diffcassi::spec::load_spec_file(&path)?)).py().map(Self::wrap)
+    }
+
+    /// A TOML or JSON spec held in a string (`format`: `toml`, `json`).
+    #[staticmethod]
+    #[pyo3(signature = (text, format = "toml"))]
+    fn from_string(py: Python<'_>, text: &str, format: &str) -> PyResult<Self> {
+        let spec = match format {
+            "toml" => diffcassi::spec::from_toml(text, "<string>"),
+            "json" => diffcassi::spec::from_json(text, "<string>"),
+            other => return Err(value_error(format!("format `{other}`: use toml or json"))),
+        }
+        .py()?;
+        run(py, move || SequentialSystem::build(&spec)).py().map(Self::wrap)
+    }
+
+    #[getter]
+    fn name(&self) -> String {
+        self.inner.name().to_string()
+    }
+
+    #[getter]
+    fn description(&self) -> String {
+        self.inner.spec.description.clone()
+    }
+
+    /// The system's wavelengths (nm), primary first as in the spec.
+    #[getter]
+    fn wavelengths_nm(&self) -> Vec<f64> {
+        self.inner.spec.wavelengths_nm.clone()
+    }
+
+    #[getter]
+    fn primary_wavelength_nm(&self) -> f64 {
+        self.inner.primary_wavelength_nm()
+    }
+
+    /// The spec's field points (x, y) mm of object height.
+    #[getter]
+    fn fields_mm(&self) -> Vec<[f64; 2]> {
+        self.inner.spec.fields_mm.clone()
+    }
+
+    #[getter]
+    fn stop_index(&self) -> usize {
+        self.inner.stop_index
+    }
+
+    /// The resolved Lens Data Editor as JSON (one object per surface; `diffcassi.System.surfaces` parses it).
+    fn _surfaces_json(&self) -> PyResult<String> {
+        let rows: Vec<serde_json::Value> = self
+            .inner
+            .surfaces
+            .iter()
+            .zip(&self.inner.spec.surfaces)
+            .map(|(r, s)| {
+                let cell = |c: &Option<diffcassi::spec::Cell>| c.as_ref().map(|c| c.value);
+                serde_json::json!({
+                    "index": r.index,
+                    "kind": r.kind.label(),
+                    "comment": r.comment,
+                    "is_stop": r.is_stop,
+                    "material": s.material,
+                    "radius_mm": cell(&s.radius_mm),
+                    "thickness_mm": r.thickness_mm,
+                    "conic": cell(&s.conic),
+                    "semi_diameter_mm": r.semi_diameter_mm,
+                    "decenter_x_mm": cell(&s.decenter_x_mm),
+                    "decenter_y_mm": cell(&s.decenter_y_mm),
+                    "tilt_x_deg": cell(&s.tilt_x_deg),
+                    "tilt_y_deg": cell(&s.tilt_y_deg),
+                    "tilt_z_deg": cell(&s.tilt_z_deg),
+                    "vertex_global_mm": r.frame.origin.to_array(),
+                })
+            })
+            .collect();
+        json(&rows)
+    }
+
+    /// The spec as TOML (loads back with `System.from_string`).
+    fn to_toml(&self) -> PyResult<String> {
+        diffcassi::spec::to_toml(&self.inner.spec).py()
+    }
+
+    fn to_json(&self) -> PyResult<String> {
+        diffcassi::spec::to_json(&self.inner.spec).py()
+    }
+
+    fn __repr__(&self) -> String {
+        format!("System('{}', {} surfaces)", self.inner.name(), self.inner.surfaces.len())
+    }
+
+    /// The rays of one field through normalised pupil points: (origins (N, 3), directions (N, 3),
+    /// wavelengths_nm (N,)), float64, object frame. `pupil` is an (N, 2) float64 array or a pattern
+    /// (`chief`, `marginal`, `hexapolar:RINGS`, `grid:N`, `random:N:SEED`).
+    #[pyo3(signature = (field_mm, wavelength_nm, pupil = None))]
+    fn rays_for_field<'py>(
+        &self,
+        py: Python<'py>,
+        field_mm: Vec<f64>,
+        wavelength_nm: f64,
+        pupil: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
+        let pts = pupil_points(pupil)?;
+        let b = RayBatch::for_field(&self.inner, pair("field_mm", &field_mm)?, &pts, wavelength_nm).py()?;
+        rays_out(py, &b)
+    }
+
+    /// Chief rays of the (N, 2) float64 field points (mm) at one wavelength.
+    fn chief_rays<'py>(
+        &self,
+        py: Python<'py>,
+        fields_mm: &Bound<'py, PyAny>,
+        wavelength_nm: f64,
+    ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
+        let f = points2("fields_mm", fields_mm)?;
+        let b = RayBatch::chief_rays(&self.inner, &f, wavelength_nm).py()?;
+        rays_out(py, &b)
+    }
+
+    /// `n` seeded random rays per wavelength over the fields and the pupil (the benchmarks' workload).
+    fn seeded_rays<'py>(
+        &self,
+        py: Python<'py>,
+        rays_per_wavelength: usize,
+        wavelengths_nm: &Bound<'py, PyAny>,
+        seed: u64,
+    ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
+        let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
+        let b = RayBatch::seeded_workload(&self.inner, rays_per_wavelength, &ws, seed).py()?;
+        rays_out(py, &b)
+    }
+}
+
+fn pupil_points(pupil: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<[f64; 2]>> {
+    match pupil {
+        None => Ok(diffcassi::cli::parse_pupil("hexapolar:12").py()?.points()),
+        Some(p) => match p.extract::<String>() {
+            Ok(text) => Ok(diffcassi::cli::parse_pupil(&text).py()?.points()),
+            Err(_) => points2("pupil", p),
+        },
+    }
+}
+
+/// Trace rays through `system`: dict of positions (N, 3), directions (N, 3), status (N,) uint8, surface (N,).
+#[pyfunction]
+#[pyo3(signature = (system, origins, directions, wavelengths_nm, backend = "analytic"))]
+fn trace<'py>(py: Python<'py>, system: &PySystem, origins: &Bound<'py, PyAny>, directions: &Bound<'py, PyAny>, wavelengths_nm: &Bound<'py, PyAny>, backend: &str) -> PyResult<Bound<'py, PyDict>> {
+    let rays = ray_batch(origins, directions, wavelengths_nm)?;
+    let t = tracer(backend)?;
+    let sys = Arc::clone(&system.inner);
+    let out = run(py, move || t.trace(&sys, &rays)).py()?;
+    traced_out(py, out)
+}
+
+/// Seconds per `Tracer::trace` of the rays, `reps` times, timed inside Rust (the overhead benchmark's
+/// reference for `trace` called from Python).
+#[pyfunction]
+#[pyo3(signature = (system, origins, directions, wavelengths_nm, reps = 3, backend = "analytic"))]
+fn _time_rust_trace(py: Python<'_>, system: &PySystem, origins: &Bound<'_, PyAny>, directions: &Bound<'_, PyAny>, wavelengths_nm: &Bound<'_, PyAny>, reps: usize, backend: &str) -> PyResult<Vec<f64>> {
+    let rays = ray_batch(origins, directions, wavelengths_nm)?;
+    let t = tracer(backend)?;
+    let sys = Arc::clone(&system.inner);
+    run(py, move || {
+        let mut times = Vec::new();
+        for _ in 0..reps {
+            let t0 = Instant::now();
+            let out = t.trace(&sys, &rays)?;
+            times.push(t0.elapsed().as_secs_f64());
+            std::hint::black_box(out);
+        }
+        Ok(times)
+    })
+    .py()
+}
+
+/// Spot diagram of one field and wavelength (JSON; `diffcassi.spot` parses it).
+#[pyfunction]
+#[pyo3(signature = (system, field_mm, wavelength_nm, pupil = None, backend = "analytic"))]
+fn _spot(py: Python<'_>, system: &PySystem, field_mm: Vec<f64>, wavelength_nm: f64, pupil: Option<&Bound<'_, PyAny>>, backend: &str) -> PyResult<String> {
+    let pts = pupil_points(pupil)?;
+    let f = pair("field_mm", &field_mm)?;
+    let t = tracer(backend)?;
+    let sys = Arc::clone(&system.inner);
+    let s = run(py, move || analysis::spot_diagram(&sys, t.as_ref(), f, wavelength_nm, &pts)).py()?;
+    json(&s)
+}
+
+/// Zemax-style grid distortion (JSON).
+#[pyfunction]
+#[pyo3(signature = (system, wavelength_nm, grid = 13, half_width_mm = 2.5, backend = "analytic"))]
+fn _distortion(py: Python<'_>, system: &PySystem, wavelength_nm: f64, grid: usize, half_width_mm: f64, backend: &str) -> PyResult<String> {
+    let t = tracer(backend)?;
+    let sys = Arc::clone(&system.inner);
+    let g = run(py, move || analysis::grid_distortion(&sys, t.as_ref(), wavelength_nm, grid, half_width_mm)).py()?;
+    json(&g)
+}
+
+/// Chief-ray dispersion curve of one field (JSON).
+#[pyfunction]
+#[pyo3(signature = (system, field_mm, wavelengths_nm, backend = "analytic"))]
+fn _dispersion(py: Python<'_>, system: &PySystem, field_mm: Vec<f64>, wavelengths_nm: &Bound<'_, PyAny>, backend: &str) -> PyResult<String> {
+    let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
+    let f = pair("field_mm", &field_mm)?;
+    let t = tracer(backend)?;
+    let sys = Arc::clone(&system.inner);
+    let c = run(py, move || analysis::dispersion_curve(&sys, t.as_ref(), f, &ws)).py()?;
+    json(&c)
+}
+
+/// The chief-ray mapping cube: positions (H, W, L, 2) float64 detector mm and valid (H, W, L) bool.
+#[pyfunction]
+#[pyo3(signature = (system, height, width, wavelengths_nm, pitch_mm = 0.01, backend = "analytic"))]
+fn mapping<'py>(
+    py: Python<'py>,
+    system: &PySystem,
+    height: usize,
+    width: usize,
+    wavelengths_nm: &Bound<'py, PyAny>,
+    pitch_mm: f64,
+    backend: &str,
+) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<bool>>)> {
+    let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
+    let t = tracer(backend)?;
+    let sys = Arc::clone(&system.inner);
+    let l = ws.len();
+    let cube = run(py, move || analysis::mapping_cube(&sys, t.as_ref(), height, width, pitch_mm, &ws)).py()?;
+    let valid: Vec<bool> = cube.valid.iter().map(|&v| v == 1).collect();
+    Ok((output(py, cube.positions_mm, &[height, width, l, 2])?, output(py, valid, &[height, width, l])?))
+}
+
+/// Trace rays with their Jacobians with respect to the named free parameters (comma-separated or a list;
+/// the names `diffcassi calibrate --free` takes). Returns the traced dict plus `jacobian` (N, 6, K) float64
+/// (∂(x, y, z, dir_x, dir_y, dir_z)/∂θ_k, image frame), `parameters` (canonical names), `available` (N,)
+/// bool and `reasons` (why a ray's Jacobian is unavailable, "" otherwise).
+#[pyfunction]
+#[pyo3(signature = (system, parameters, origins, directions, wavelengths_nm, backend = "analytic"))]
+fn jacobian<'py>(
+    py: Python<'py>,
+    system: &PySystem,
+    parameters: &Bound<'py, PyAny>,
+    origins: &Bound<'py, PyAny>,
+    directions: &Bound<'py, PyAny>,
+    wavelengths_nm: &Bound<'py, PyAny>,
+    backend: &str,
+) -> PyResult<Bound<'py, PyDict>> {
+    let list = match parameters.extract::<String>() {
+        Ok(s) => s,
+        Err(_) => parameters.extract::<Vec<String>>().map_err(|_| value_error("parameters: expected a comma-separated string or a list of names"))?.join(","),
+    };
+    let rays = ray_batch(origins, directions, wavelengths_nm)?;
+    let config: BackendConfig = backend.parse().py()?;
+    let sys = Arc::clone(&system.inner);
+    let hj = run(py, move || ParamSet::for_system(&sys, &list)?.build()?.trace_with_backend(&config, &rays)).py()?;
+    let (n, k) = (hj.batch.len(), hj.batch.k());
+    let available: Vec<bool> = hj.unavailable.iter().map(Option::is_none).collect();
+    let reasons: Vec<String> = hj.unavailable.into_iter().map(Option::unwrap_or_default).collect();
+    let params = hj.batch.params;
+    let jac = hj.batch.jac;
+    let dict = traced_out(py, hj.batch.traced)?;
+    dict.set_item("jacobian", output(py, jac, &[n, 6, k])?)?;
+    dict.set_item("parameters", params)?;
+    dict.set_item("available", output(py, available, &[n])?)?;
+    dict.set_item("reasons", reasons)?;
+    Ok(dict)
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PySystem>()?;
+    m.add_function(wrap_pyfunction!(trace, m)?)?;
+    m.add_function(wrap_pyfunction!(_time_rust_trace, m)?)?;
+    m.add_function(wrap_pyfunction!(_spot, m)?)?;
+    m.add_function(wrap_pyfunction!(_distortion, m)?)?;
+    m.add_function(wrap_pyfunction!(_dispersion, m)?)?;
+    m.add_function(wrap_pyfunction!(mapping, m)?)?;
+    m.add_function(wrap_pyfunction!(jacobian, m)?)?;
+    Ok(())
+}
