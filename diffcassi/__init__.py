@@ -204,9 +204,9 @@ def shift_operator(system: System, height: int, width: int, mask: Optional[np.nd
 def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, solver: str = "gap-tv",
                 init: Optional[np.ndarray] = None, **settings: Any) -> Tuple[np.ndarray, Dict[str, Any]]:
     """Reconstruct a cube (H, W, B) float32 from ``acquisition`` ((h, w) float32; float64 is converted, the
-    image being small) with ``solver`` ``gap-tv`` (accelerated by default) or ``admm-tv``, as
+    image being small) with ``solver`` ``gap-tv`` (plain GAP by default; accelerated=True for the accelerated variant) or ``admm-tv``, as
     ``diffcassi reconstruct``. ``settings`` (default: the library's): iterations (100), step (1), tv_weight (0.1),
-    tv_iterations (5), tv_coupling (``vectorial`` | ``per_band``), accelerated (True), admm_eta (0.01).
+    tv_iterations (5), tv_coupling (``vectorial`` | ``per_band``), accelerated (False), admm_eta (0.01).
     Returns ``(cube, record)``; the record holds the settings, per-iteration residuals and seconds."""
     op = operator.operator if isinstance(operator, Transport) else operator
     acq = np.ascontiguousarray(acquisition, dtype=np.float32) if getattr(acquisition, "dtype", None) == np.float64 else acquisition
