@@ -265,3 +265,21 @@ fn study_takes_a_folder_of_photographs_and_cubes() {
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("chart.npy"), "{}", stderr(&o));
 }
+
+#[test]
+fn study_mask_file_is_centre_cropped_to_the_scene() {
+    let d = tempfile::tempdir().unwrap();
+    let m = d.path().join("mask.npy");
+    let values: Vec<f64> = (0..20 * 20).map(|q| ((q * 7 + q / 20) % 3 == 0) as u8 as f64).collect();
+    diffcassi::io::write_npy_f64(&m, &[20, 20], &values).unwrap();
+    let out = d.path().join("study");
+    let o = run(&["study", "--synthetic", "1", "--scene-size", "16", "--presets", "ap", "--operators", "shift", "--bands", "450:650:4", "--planes", "4", "--rays", "1", "--iterations", "1", "--mask", s(&m), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let used = diffcassi::render::Mask::load(&out.join("renders/ap/synthetic00/mask.png")).unwrap();
+    assert_eq!((used.height, used.width), (16, 16));
+    for r in 0..16 {
+        for c in 0..16 {
+            assert_eq!(used.values[r * 16 + c] as f64, values[(r + 2) * 20 + c + 2], "({r}, {c})");
+        }
+    }
+}
