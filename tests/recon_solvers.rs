@@ -69,22 +69,58 @@ fn gap_tv_and_admm_tv_recover_a_noiseless_scene_through_each_operator() {
         let y = op.apply(&truth).unwrap();
         let mean = truth.iter().sum::<f32>() / truth.len() as f32;
         let floor = psnr(&truth, &vec![mean; truth.len()]);
-        for kind in [SolverKind::GapTv, SolverKind::AdmmTv] {
-            // The documented defaults: 100 iterations, λ = 1, TV weight 0.1, 5 Chambolle iterations.
-            let cfg = SolverConfig::for_solver(kind);
+        for (kind, accelerated) in [(SolverKind::GapTv, false), (SolverKind::GapTv, true), (SolverKind::AdmmTv, false)] {
+            // The documented defaults (100 iterations, λ = 1, TV weight 0.1, 5 Chambolle iterations), GAP
+            // plain and accelerated.
+            let cfg = SolverConfig { accelerated, ..SolverConfig::for_solver(kind) };
             let rec = reconstruct(op.as_ref(), &y, None, &cfg, &|_, _| {}).unwrap();
             let p = psnr(&truth, &rec.cube);
-            println!("{} {}: PSNR {p:.2} dB (constant-mean estimate {floor:.2} dB), final residual {:.2e}, {:.2} s", op.name(), kind.name(), rec.final_residual, rec.seconds);
-            // Measured (AP, 32×32×6, mask opening 0.5, noiseless): GAP-TV 21.6–21.7 dB through every
-            // operator; ADMM-TV 21.3–21.6 dB through mapping/shift and 16.2 dB through exact (ADMM's
-            // un-accelerated step is slow where D over-estimates ΦΦᵀ: footprints + Airy). Half the pixels
-            // are masked in every band, so TV must inpaint them: ~22 dB is the level at this size.
-            let need = match (kind, op.name()) {
-                (SolverKind::AdmmTv, "exact") => 15.5,
-                _ => 21.0,
+            println!("{} {}{}: PSNR {p:.2} dB (constant-mean estimate {floor:.2} dB), final residual {:.2e}, {:.2} s", op.name(), kind.name(), if accelerated { " (accelerated)" } else { "" }, rec.final_residual, rec.seconds);
+            // Measured (AP, 32×32×6, mask opening 0.5, noiseless, 100 iterations): accelerated GAP-TV
+            // 21.6–21.7 dB through every operator; plain GAP-TV 20.0–20.5 dB through mapping/shift and
+            // 15.9 dB through exact; ADMM-TV 21.3–21.6 dB through mapping/shift and 16.2 dB through exact
+            // (the un-accelerated steps are slow where D over-estimates ΦΦᵀ: footprints + Airy spread a
+            // voxel over many pixels). Half the pixels are masked in every band, so TV must inpaint them:
+            // ~22 dB is the level at this size. Thresholds: measured − 0.5 to 0.9 dB.
+            let need = match (kind, accelerated, op.name()) {
+                (SolverKind::GapTv, true, _) => 21.0,
+                (SolverKind::GapTv, false, "exact") => 15.0,
+                (SolverKind::GapTv, false, _) => 19.5,
+                (SolverKind::AdmmTv, _, "exact") => 15.5,
+                (SolverKind::AdmmTv, _, _) => 20.8,
             };
             assert!(p >= need, "{} {}: PSNR {p:.2} dB < {need} dB", op.name(), kind.name());
             assert!(rec.residuals.iter().all(|r| r.is_finite()) && rec.final_residual < 0.1);
         }
     }
+}
+
+/// Bad input: a clear error naming the problem, never a panic.
+#[test]
+fn bad_solver_inputs_are_named_errors() {
+    use diffcassi::recon::{CubeShape, ImageShape};
+    let shape = CubeShape { height: 4, width: 4, bands: 2 };
+    let op = ShiftOperator::new(shape, ImageShape { height: 4, width: 6 }, &Mask::open(4, 4), 0, vec![0, 2], 1, 1).unwrap();
+    let y = vec![1.0f32; 24];
+    let err = |cfg: SolverConfig, y: &[f32], init: Option<&[f32]>| reconstruct(&op, y, init, &cfg, &|_, _| {}).unwrap_err().to_string();
+    assert!(err(SolverConfig { iterations: 0, ..SolverConfig::gap_tv() }, &y, None).contains("iterations"));
+    assert!(err(SolverConfig { step: 2.5, ..SolverConfig::admm_tv() }, &y, None).contains("step"));
+    assert!(err(SolverConfig { tv_weight: f32::NAN, ..SolverConfig::gap_tv() }, &y, None).contains("TV weight"));
+    assert!(err(SolverConfig::gap_tv(), &y[..20], None).contains("measurement has 20 values"));
+    let mut bad = y.clone();
+    bad[7] = f32::NAN;
+    assert!(err(SolverConfig::gap_tv(), &bad, None).contains("row 1, column 1"));
+    assert!(err(SolverConfig::gap_tv(), &y, Some(&[0.0; 5])).contains("initial cube has 5 values"));
+    let e = "lsqr".parse::<SolverKind>().unwrap_err().to_string();
+    assert!(e.contains("unknown solver `lsqr`"), "{e}");
+    assert_eq!("admm-tv".parse::<SolverKind>().unwrap(), SolverKind::AdmmTv);
+    // A mask whose size differs from the cube.
+    let e = ShiftOperator::new(shape, ImageShape { height: 4, width: 6 }, &Mask::open(5, 4), 0, vec![0, 2], 1, 1).unwrap_err().to_string();
+    assert!(e.contains("mask is 5×4"), "{e}");
+    // The serialised record the CLI writes.
+    let rec = reconstruct(&op, &y, None, &SolverConfig { iterations: 2, ..SolverConfig::gap_tv() }, &|_, _| {}).unwrap();
+    let json = serde_json::to_value(&rec).unwrap();
+    assert_eq!(json["config"]["solver"], "gap-tv");
+    assert_eq!(json["residuals"].as_array().unwrap().len(), 2);
+    assert!(json.get("cube").is_none());
 }

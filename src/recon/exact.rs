@@ -95,6 +95,24 @@ pub fn transport_support(t: &PlaneTransport) -> Rect {
 /// [`AiryKernel::convolve`] (zero terms skipped), so the result is bit-identical to it. Returns the
 /// rectangle of `out` written.
 pub fn convolve_support(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usize, height: usize, support: Rect) -> Rect {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        return unsafe { convolve_support_avx2(k, src, out, width, height, support) };
+    }
+    convolve_support_body(k, src, out, width, height, support)
+}
+
+/// [`convolve_support`] compiled for AVX2 (8-lane saxpys). Multiplies and adds stay separate (no FMA
+/// contraction), so every lane computes the same IEEE operations as the scalar/SSE2 build: bit-identical.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn convolve_support_avx2(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usize, height: usize, support: Rect) -> Rect {
+    convolve_support_body(k, src, out, width, height, support)
+}
+
+#[inline(always)]
+fn convolve_support_body(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usize, height: usize, support: Rect) -> Rect {
     if support.is_empty() {
         return support;
     }
@@ -139,6 +157,23 @@ pub fn convolve_support(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usi
 /// zero-padded convolution, evaluated only on `target`): the correlation with the kernel, terms outside the
 /// image dropped.
 pub fn correlate_support(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usize, height: usize, target: Rect) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        return unsafe { correlate_support_avx2(k, y, out, width, height, target) };
+    }
+    correlate_support_body(k, y, out, width, height, target)
+}
+
+/// [`correlate_support`] compiled for AVX2 (no FMA: bit-identical to the portable build).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn correlate_support_avx2(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usize, height: usize, target: Rect) {
+    correlate_support_body(k, y, out, width, height, target)
+}
+
+#[inline(always)]
+fn correlate_support_body(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usize, height: usize, target: Rect) {
     if target.is_empty() {
         return;
     }
@@ -174,6 +209,39 @@ pub fn correlate_support(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usiz
     }
 }
 
+/// T c: add Σ value(pixel)·footprint(pixel) to `image`, in footprint order — the same sums in the same order
+/// as [`PlaneTransport::apply`] (bit-identical), with the common 4-wide windows unrolled.
+pub fn transport_scatter(t: &PlaneTransport, values: &[f32], image: &mut [f32], detector_width: usize) {
+    for f in &t.footprints {
+        let v = values[f.pixel as usize];
+        if v == 0.0 {
+            continue;
+        }
+        let (w, h) = (f.w as usize, f.h as usize);
+        if w == 0 {
+            continue;
+        }
+        let ws = &t.weights[f.start as usize..f.start as usize + w * h];
+        let base = f.y0 as usize * detector_width + f.x0 as usize;
+        if w == 4 {
+            for (r, wr) in ws.chunks_exact(4).enumerate() {
+                let o = base + r * detector_width;
+                let row: &mut [f32; 4] = (&mut image[o..o + 4]).try_into().expect("4-wide window");
+                for c in 0..4 {
+                    row[c] += v * wr[c];
+                }
+            }
+        } else {
+            for (r, wr) in ws.chunks_exact(w).enumerate() {
+                let o = base + r * detector_width;
+                for (a, b) in image[o..o + w].iter_mut().zip(wr) {
+                    *a += v * *b;
+                }
+            }
+        }
+    }
+}
+
 /// Tᵀ z: each footprint's window of `z` weighted by the footprint's splat weights, written to
 /// `values[pixel]` (pixels without a footprint are left untouched).
 pub fn transport_gather(t: &PlaneTransport, z: &[f32], values: &mut [f32], detector_width: usize) {
@@ -201,14 +269,19 @@ pub struct ExactOperator<'a> {
     interp: Vec<(usize, usize, f32)>,
     /// Every plane's transport, or `None` when it did not fit the budget (re-traced on the fly).
     transport: Option<Vec<PlaneTransport>>,
+    /// Support of each kept plane (empty when streaming).
     supports: Vec<Rect>,
     transport_bytes: usize,
 }
 
 impl<'a> ExactOperator<'a> {
     /// Build Φ from a renderer (system, tracer, configuration, mask, seed) for cubes whose bands sit at
-    /// `bands_nm` (strictly increasing). Traces every plane once; keeps the transport when it fits
-    /// `memory_budget_bytes`.
+    /// `bands_nm` (strictly increasing). Traces the middle plane to estimate the transport's size (×K ×1.25);
+    /// when that fits `memory_budget_bytes`, traces and keeps every plane (and still streams if the real
+    /// size exceeds the budget); otherwise keeps nothing and traces planes at each apply/adjoint.
+    ///
+    /// The operator borrows the system and tracer through the renderer (`'a`); bindings that need an owned
+    /// operator can leak both (`Box::leak`) for `'static`.
     pub fn new(renderer: Renderer<'a>, bands_nm: &[f64], memory_budget_bytes: u64) -> Result<Self> {
         Self::with_progress(renderer, bands_nm, memory_budget_bytes, &|_| {})
     }
@@ -241,18 +314,13 @@ impl<'a> ExactOperator<'a> {
             if bytes as u64 <= memory_budget_bytes {
                 (Some(all), supports, bytes)
             } else {
-                (None, supports, 0)
+                (None, Vec::new(), 0)
             }
         } else {
-            let supports: Vec<Result<Rect>> = (0..planes)
-                .into_par_iter()
-                .map(|p| {
-                    let t = renderer.trace_plane(p)?;
-                    progress(t.stats.traced);
-                    Ok(transport_support(&t))
-                })
-                .collect();
-            (None, supports.into_iter().collect::<Result<Vec<_>>>()?, 0)
+            // Streaming: every plane is traced at each use (its support computed then). Trace each once
+            // now (in parallel, each dropped at once), so a plane that cannot be traced is an error here, not mid-solve.
+            (0..planes).into_par_iter().try_for_each(|p| renderer.trace_plane(p).map(|t| progress(t.stats.traced)))?;
+            (None, Vec::new(), 0)
         };
         Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, transport, supports, transport_bytes: bytes })
     }
@@ -275,11 +343,17 @@ impl<'a> ExactOperator<'a> {
         self.transport_bytes
     }
 
-    fn plane_transport(&self, p: usize) -> Cow<'_, PlaneTransport> {
+    /// Plane p's transport and its support (kept, or traced now).
+    fn plane_transport(&self, p: usize) -> (Cow<'_, PlaneTransport>, Rect) {
         match &self.transport {
-            Some(t) => Cow::Borrowed(&t[p]),
-            // Traced successfully at construction with the same inputs; tracing is deterministic.
-            None => Cow::Owned(self.renderer.trace_plane(p).expect("re-tracing a plane that traced at construction")),
+            Some(t) => (Cow::Borrowed(&t[p]), self.supports[p]),
+            None => {
+                // Every plane traced successfully at construction with the same inputs, and tracing is
+                // deterministic: this cannot fail.
+                let t = self.renderer.trace_plane(p).expect("re-tracing a plane of a validated renderer");
+                let r = transport_support(&t);
+                (Cow::Owned(t), r)
+            }
         }
     }
 
@@ -326,9 +400,8 @@ impl Operator for ExactOperator<'_> {
                         *v = ((1.0 - t) * *a + t * *b) * *m;
                     }
                     // 3: transport.
-                    let tr = self.plane_transport(p);
-                    let sup = self.supports[p];
-                    tr.apply(&values, &mut img, dw);
+                    let (tr, sup) = self.plane_transport(p);
+                    transport_scatter(&tr, &values, &mut img, dw);
                     // 4: Airy blur over the support; 5: weighted sum.
                     let (src, rect) = match &self.renderer.kernels[p] {
                         Some(kern) => {
@@ -386,8 +459,7 @@ impl Operator for ExactOperator<'_> {
             let mut z = vec![0.0f32; dw * dh];
             for (i, p) in range.enumerate() {
                 let g = &mut out[i * npix..(i + 1) * npix];
-                let tr = self.plane_transport(p);
-                let sup = self.supports[p];
+                let (tr, sup) = self.plane_transport(p);
                 match &self.renderer.kernels[p] {
                     Some(kern) => {
                         correlate_support(kern, image, &mut z, dw, dh, sup);

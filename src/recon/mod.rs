@@ -10,6 +10,40 @@
 //! [`shift::ShiftOperator`] (the field's simplified SD-CASSI model). Solvers: [`gap::gap_tv`] (GAP-TV,
 //! plain or accelerated) and [`admm::admm_tv`] (ADMM-TV), both through [`solver::reconstruct`] with a
 //! [`solver::SolverConfig`]; TV denoising by Chambolle's projection in [`tv`]. See docs/reconstruction.md.
+//!
+//! Public API (stable):
+//! - `ExactOperator::new(renderer: Renderer<'a>, bands_nm: &[f64], memory_budget_bytes: u64) -> Result<Self>`
+//!   (and `with_progress(.., progress: &(dyn Fn(u64) + Sync))`), `.renderer()`, `.bands_nm()`,
+//!   `.is_streaming()`, `.transport_bytes()`;
+//! - `MappingOperator::new(&MappingCube, &Detector, &Mask, MappingInterpolation) -> Result<Self>`,
+//!   `MappingOperator::from_renderer(&Renderer, bands_nm, MappingInterpolation)`,
+//!   `.initialisation(acquisition: &[f32]) -> Result<Vec<f32>>`; `mapping::nearest_pixel`;
+//! - `ShiftOperator::new(CubeShape, ImageShape, &Mask, row0, columns, sigma_x, sigma_y) -> Result<Self>`,
+//!   `ShiftOperator::from_renderer(&Renderer, bands_nm)`, `.shifts_px()`, `.placement()`;
+//! - `reconstruct(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, &SolverConfig,
+//!   progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction>`; `SolverConfig::{gap_tv, admm_tv,
+//!   for_solver, validate}`, `SolverKind: FromStr` (`gap-tv`, `admm-tv`); `Reconstruction` (serde).
+//!
+//! ```
+//! use diffcassi::prelude::*;
+//! use diffcassi::recon::{reconstruct, ExactOperator, Operator, SolverConfig};
+//! use diffcassi::render::{Mask, RenderConfig, Renderer, SpectralSampling};
+//! use diffcassi::scene::synthetic_scene;
+//! let system = SequentialSystem::build(&presets::spec("ap")?)?;
+//! let tracer = AnalyticTracer::default();
+//! let bands = vec![480.0, 520.0, 560.0];
+//! let mut cfg = RenderConfig::paper(12);
+//! cfg.spectral = SpectralSampling::new(bands.clone(), 2)?;
+//! cfg.rays_per_pixel = 4;
+//! let renderer = Renderer::new(&system, &tracer, cfg, Mask::random(12, 12, 0.5, 1)?)?;
+//! let truth = synthetic_scene(12, 12, &bands, 2);
+//! let y = renderer.render(&truth, false, &|_| {})?.image_f32();
+//! let phi = ExactOperator::new(renderer, &bands, 1 << 30)?; // same seed: the oracle
+//! let rec = reconstruct(&phi, &y, None, &SolverConfig { iterations: 20, ..SolverConfig::gap_tv() }, &|_, _| {})?;
+//! assert_eq!(rec.cube.len(), 12 * 12 * 3);
+//! assert!(rec.final_residual < rec.residuals[0]);
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
 pub mod admm;
 pub mod exact;
 pub mod gap;

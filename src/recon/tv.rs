@@ -78,46 +78,60 @@ pub fn tv_denoise(f: &[f32], u: &mut [f32], shape: CubeShape, weight: f32, itera
     for _ in 0..iterations {
         // p ← (p + τ g) / (1 + τ|g|), g = ∇(div p − f/w).
         let (div_r, f_r) = (&*div, f);
-        p1.par_chunks_mut(row).zip(p2.par_chunks_mut(row)).enumerate().for_each(|(r, (p1r, p2r))| {
-            let z = |rr: usize, k: usize| div_r[rr * row + k] - f_r[rr * row + k] * inv_w;
-            let mut g1 = vec![0.0f32; nb];
-            let mut g2 = vec![0.0f32; nb];
-            for c in 0..w {
-                for b in 0..nb {
-                    let k = c * nb + b;
-                    let z0 = z(r, k);
-                    g1[b] = if c + 1 < w { z(r, k + nb) - z0 } else { 0.0 };
-                    g2[b] = if r + 1 < h { z(r + 1, k) - z0 } else { 0.0 };
+        p1.par_chunks_mut(row).zip(p2.par_chunks_mut(row)).enumerate().for_each_init(
+            || (vec![0.0f32; row], vec![0.0f32; row], vec![0.0f32; row], vec![0.0f32; row]),
+            |(z0, z1, g1, g2), (r, (p1r, p2r))| {
+                // z = div p − f/w on rows r and r + 1, then the forward differences g = ∇z.
+                let (d0, f0) = (&div_r[r * row..(r + 1) * row], &f_r[r * row..(r + 1) * row]);
+                for ((z, d), f) in z0.iter_mut().zip(d0).zip(f0) {
+                    *z = *d - *f * inv_w;
+                }
+                for k in 0..row - nb {
+                    g1[k] = z0[k + nb] - z0[k];
+                }
+                g1[row - nb..].iter_mut().for_each(|g| *g = 0.0);
+                if r + 1 < h {
+                    let (d1, f1) = (&div_r[(r + 1) * row..(r + 2) * row], &f_r[(r + 1) * row..(r + 2) * row]);
+                    for ((z, d), f) in z1.iter_mut().zip(d1).zip(f1) {
+                        *z = *d - *f * inv_w;
+                    }
+                    for ((g, a), b) in g2.iter_mut().zip(z1.iter()).zip(z0.iter()) {
+                        *g = *a - *b;
+                    }
+                } else {
+                    g2.iter_mut().for_each(|g| *g = 0.0);
                 }
                 match coupling {
                     TvCoupling::Vectorial => {
-                        let norm = g1.iter().zip(&g2).map(|(a, b)| a * a + b * b).sum::<f32>().sqrt();
-                        let d = 1.0 / (1.0 + TAU * norm);
-                        for b in 0..nb {
-                            let k = c * nb + b;
-                            p1r[k] = (p1r[k] + TAU * g1[b]) * d;
-                            p2r[k] = (p2r[k] + TAU * g2[b]) * d;
+                        for c in 0..w {
+                            let sl = c * nb..(c + 1) * nb;
+                            let norm = g1[sl.clone()].iter().zip(&g2[sl.clone()]).map(|(a, b)| a * a + b * b).sum::<f32>().sqrt();
+                            let d = 1.0 / (1.0 + TAU * norm);
+                            for k in sl {
+                                p1r[k] = (p1r[k] + TAU * g1[k]) * d;
+                                p2r[k] = (p2r[k] + TAU * g2[k]) * d;
+                            }
                         }
                     }
                     TvCoupling::PerBand => {
-                        for b in 0..nb {
-                            let k = c * nb + b;
-                            let d = 1.0 / (1.0 + TAU * (g1[b] * g1[b] + g2[b] * g2[b]).sqrt());
-                            p1r[k] = (p1r[k] + TAU * g1[b]) * d;
-                            p2r[k] = (p2r[k] + TAU * g2[b]) * d;
+                        for k in 0..row {
+                            let d = 1.0 / (1.0 + TAU * (g1[k] * g1[k] + g2[k] * g2[k]).sqrt());
+                            p1r[k] = (p1r[k] + TAU * g1[k]) * d;
+                            p2r[k] = (p2r[k] + TAU * g2[k]) * d;
                         }
                     }
                 }
-            }
-        });
+            },
+        );
         // div p = (p₁[c] − p₁[c−1]) + (p₂[r] − p₂[r−1]), p outside the image = 0 (p on the last column/row
         // stays 0 because g is 0 there).
         let (p1r, p2r) = (&*p1, &*p2);
         div.par_chunks_mut(row).enumerate().for_each(|(r, dr)| {
+            let (a, b) = (&p1r[r * row..(r + 1) * row], &p2r[r * row..(r + 1) * row]);
             for k in 0..row {
-                let left = if k >= nb { p1r[r * row + k - nb] } else { 0.0 };
+                let left = if k >= nb { a[k - nb] } else { 0.0 };
                 let up = if r > 0 { p2r[(r - 1) * row + k] } else { 0.0 };
-                dr[k] = p1r[r * row + k] - left + p2r[r * row + k] - up;
+                dr[k] = a[k] - left + b[k] - up;
             }
         });
     }
