@@ -180,6 +180,10 @@ pub struct RenderDatasetArgs {
     /// Keep the traced light transport in memory up to this size (GB); beyond it, trace per scene.
     #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
     pub transport_memory_gb: f64,
+    /// Sensor noise; each scene's noise seed is `--noise-seed` + a hash of the scene's name (FNV-1a), so a
+    /// scene's noise does not depend on which other scenes are in the folder.
+    #[command(flatten)]
+    pub noise: NoiseArgs,
 }
 
 #[derive(Args, Debug)]
@@ -324,20 +328,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
     let mut acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
     pb.finish_and_clear();
     // Sensor noise on the acquisition (the per-band images of --cube stay clean).
-    let noise_json = match &noise {
-        Some(nc) => {
-            let report = nc.apply(&mut acq.image)?;
-            println!(
-                "sensor noise ({}): {:.4} e⁻ per unit, peak {:.0} e⁻{}",
-                a.noise.noise.as_deref().unwrap_or(""),
-                report.electrons_per_unit,
-                report.peak_electrons,
-                report.adc_gain_e_per_dn.map(|g| format!(", ADC {:.4} e⁻/DN, {} saturated pixels", g, report.saturated_pixels)).unwrap_or_default()
-            );
-            nc.to_json(&report)
-        }
-        None => serde_json::Value::Null,
-    };
+    let noise_json = apply_noise(noise.as_ref(), &mut acq, a.noise.noise.as_deref().unwrap_or(""), false)?;
     let json = write_all(&out, &renderer, &acq, &desc, t0, serde_json::json!({"noise": noise_json}), !a.common.no_mapping)?;
     println!(
         "{}: {}×{} scene, {} planes × {} rays: {} rays in {:.2} s ({:.2} M rays/s, {} threads), detector {}×{}, transmission {:.4}; total {:.2} s → {}",
@@ -359,8 +350,29 @@ pub fn render(a: RenderArgs) -> Result<()> {
     Ok(())
 }
 
+/// 64-bit FNV-1a hash of a scene name (the per-scene noise seed offset).
+fn name_hash(name: &str) -> u64 {
+    name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
+}
+
+/// Apply the sensor noise (if any) to an acquisition and describe it for render.json.
+fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::Acquisition, sources: &str, quiet: bool) -> Result<serde_json::Value> {
+    let Some(nc) = noise else { return Ok(serde_json::Value::Null) };
+    let report = nc.apply(&mut acq.image)?;
+    if !quiet {
+        println!(
+            "sensor noise ({sources}): {:.4} e⁻ per unit, peak {:.0} e⁻{}",
+            report.electrons_per_unit,
+            report.peak_electrons,
+            report.adc_gain_e_per_dn.map(|g| format!(", ADC {:.4} e⁻/DN, {} saturated pixels", g, report.saturated_pixels)).unwrap_or_default()
+        );
+    }
+    Ok(nc.to_json(&report))
+}
+
 pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     let t0 = Instant::now();
+    let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = config_from(&a.common)?;
     let scenes = dataset::find_scenes(&a.scenes)?;
@@ -406,7 +418,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
         let ts = Instant::now();
         pb_scenes.set_message(s.name.clone());
         let (scene, desc) = load_fitted(&s.path, &a.common)?;
-        let acq = match &cached {
+        let mut acq = match &cached {
             Some(t) => renderer.render_cached(&scene, t, a.common.cube, &|_| {})?,
             None => {
                 let pb = progress_bar(renderer.rays_per_render(), &s.name);
@@ -415,7 +427,9 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
                 acq
             }
         };
-        let extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64()});
+        let scene_noise = noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() });
+        let noise_json = apply_noise(scene_noise.as_ref(), &mut acq, "", true)?;
+        let extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json});
         write_all(&a.out.join(&s.name), &renderer, &acq, &desc, ts, extra, false)?;
         pb_scenes.println(format!("{}: {:.2} s", s.name, ts.elapsed().as_secs_f64()));
         pb_scenes.inc(1);
