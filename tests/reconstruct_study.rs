@@ -243,3 +243,43 @@ fn tiny_study_writes_tables_and_resumes() {
     assert!(String::from_utf8_lossy(&o.stdout).contains("12 cells computed, 0 already done"), "{}", String::from_utf8_lossy(&o.stdout));
     assert_eq!(mtimes(&out.join("renders")), renders_before);
 }
+
+#[test]
+fn study_takes_a_folder_of_photographs_and_cubes() {
+    let d = tempfile::tempdir().unwrap();
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let scenes = d.path().join("scenes");
+    std::fs::create_dir_all(&scenes).unwrap();
+    std::fs::copy(root.join("data/scenes/chelsea.png"), scenes.join("chelsea.png")).unwrap();
+    let o = run(&["make-scene", "--colour-checker", "--size", "32", "--bands", "450:650:8", "--out", s(&scenes.join("chart.npy"))]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(scenes.join("chart_rgb.png").is_file(), "the preview beside the cube is not a scene of its own");
+    let out = d.path().join("study");
+    let o = run(&["study", "--scenes", s(&scenes), "--scene-size", "16", "--presets", "ap", "--operators", "shift", "--bands", "450:650:8", "--planes", "8", "--rays", "2", "--iterations", "2", "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
+    let scenes_seen: Vec<&str> = csv.lines().skip(1).map(|l| l.split(',').next().unwrap()).collect();
+    assert_eq!(scenes_seen, ["chart", "chelsea"]);
+    // A wrong --scene-wavelengths count for the cube is an error naming the file.
+    let o = run(&["study", "--scenes", s(&scenes), "--scene-size", "16", "--presets", "ap", "--scene-wavelengths", "450:650:3", "--out", s(&d.path().join("s2"))]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("chart.npy"), "{}", stderr(&o));
+}
+
+#[test]
+fn study_mask_file_is_centre_cropped_to_the_scene() {
+    let d = tempfile::tempdir().unwrap();
+    let m = d.path().join("mask.npy");
+    let values: Vec<f64> = (0..20 * 20).map(|q| ((q * 7 + q / 20) % 3 == 0) as u8 as f64).collect();
+    diffcassi::io::write_npy_f64(&m, &[20, 20], &values).unwrap();
+    let out = d.path().join("study");
+    let o = run(&["study", "--synthetic", "1", "--scene-size", "16", "--presets", "ap", "--operators", "shift", "--bands", "450:650:4", "--planes", "4", "--rays", "1", "--iterations", "1", "--mask", s(&m), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let used = diffcassi::render::Mask::load(&out.join("renders/ap/synthetic00/mask.png")).unwrap();
+    assert_eq!((used.height, used.width), (16, 16));
+    for r in 0..16 {
+        for c in 0..16 {
+            assert_eq!(used.values[r * 16 + c] as f64, values[(r + 2) * 20 + c + 2], "({r}, {c})");
+        }
+    }
+}

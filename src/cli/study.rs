@@ -50,6 +50,10 @@ pub struct StudyArgs {
     /// Use N synthetic scenes (seeds 0..N) instead of --scenes.
     #[arg(long)]
     pub synthetic: Option<usize>,
+    /// Wavelengths (nm) of the scene files' bands (list or first:last:count), overriding what the files say
+    /// (e.g. KAIST EXRs whose channel names carry no wavelength). Not used for RGB photographs.
+    #[arg(long = "scene-wavelengths")]
+    pub scene_wavelengths: Option<String>,
     /// Scene side (pixels of 10 µm); scenes are brought to S×S by --fit.
     #[arg(long = "scene-size", default_value_t = 128)]
     pub scene_size: usize,
@@ -134,6 +138,7 @@ fn load_scenes(a: &StudyArgs, bands: &[f64]) -> Result<Vec<StudyScene>> {
                 "resize" => Fit::Resize,
                 other => return Err(Error::invalid(format!("--fit `{other}`: use crop or resize"))),
             };
+            let given = a.scene_wavelengths.as_deref().map(super::commands::parse_wavelengths).transpose()?;
             let found = crate::render::dataset::find_scenes(dir)?;
             if found.is_empty() {
                 return Err(Error::File { path: dir.display().to_string(), message: "no scenes (.png photographs, .exr, .npy, or folders of per-band .png)".into() });
@@ -142,7 +147,7 @@ fn load_scenes(a: &StudyArgs, bands: &[f64]) -> Result<Vec<StudyScene>> {
                 .into_iter()
                 .map(|s| {
                     // RGB photographs are uplifted directly at the render bands; cubes keep their own bands.
-                    let ws = crate::scene::natural::is_rgb_image(&s.path).then_some(bands);
+                    let ws = if crate::scene::natural::is_rgb_image(&s.path) { Some(bands) } else { given.as_deref() };
                     let raw = load_scene(&s.path, ws)?;
                     let cube = raw.fit(n, fit).map_err(|e| Error::File { path: s.path.display().to_string(), message: e.to_string() })?;
                     let source = json!({"source": s.path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "fit": fit});
@@ -328,11 +333,14 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let op_seed = operator_seed(a.seed, None)?;
     let budget = a.transport_memory_gb * 1e9;
     // Every setting that changes a number.
-    let config = json!({
+    let mut config = json!({
         "scene_size": a.scene_size, "fit": a.fit, "bands_nm": bands, "planes": a.planes, "rays": a.rays, "seed": a.seed,
         "operator_seed": op_seed, "mask": mask.description, "mask_open_pixels": mask.values.iter().filter(|&&v| v > 0.0).count(),
         "airy_diameter_px": a.airy_diameter_px, "iterations": a.iterations, "tv_weight": a.tv_weight, "tracer": tracer.name(),
     });
+    if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
+        o.insert("scene_wavelengths".into(), json!(w));
+    }
     // Renders depend on everything but the operator seed and the solver settings.
     let render_key = {
         let mut r = config.clone();

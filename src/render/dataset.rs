@@ -60,7 +60,9 @@ pub fn find_scenes(dir: &Path) -> Result<Vec<DatasetScene>> {
             match ext.as_deref() {
                 Some("exr") => true,
                 Some("npy") => !stem.ends_with("_wavelengths_nm") && !stem.ends_with("_wavelengths"),
-                Some("png") => true, // an RGB photograph, uplifted to spectra (crate::scene::natural)
+                // An RGB photograph, uplifted to spectra (crate::scene::natural) — but not the sRGB preview
+                // `<stem>_rgb.png` that `make-scene` writes beside a `<stem>.npy`/`.exr` cube.
+                Some("png") => !stem.strip_suffix("_rgb").is_some_and(|c| ["npy", "exr"].iter().any(|x| p.with_file_name(format!("{c}.{x}")).is_file())),
                 _ => false,
             }
         };
