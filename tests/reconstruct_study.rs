@@ -98,6 +98,7 @@ fn reconstruct_bad_input_is_a_clear_error_and_writes_nothing() {
     assert_fails_cleanly(&run(&["reconstruct", "--from", s(&r), "--operator", "magic", "--out", s(&out)]), &out, &["--operator", "magic"]);
     assert_fails_cleanly(&run(&["reconstruct", "--from", s(&r), "--solver", "twist", "--out", s(&out)]), &out, &["--solver", "twist"]);
     assert_fails_cleanly(&run(&["reconstruct", "--from", s(&r), "--operator-seed", "x", "--out", s(&out)]), &out, &["--operator-seed"]);
+    assert_fails_cleanly(&run(&["reconstruct", "--from", s(&r), "--solver", "admm-tv", "--accelerated", "--out", s(&out)]), &out, &["--accelerated", "gap-tv"]);
     // A mask whose size differs from the scene.
     let bad_mask = d.path().join("badmask");
     copy_dir(&r, &bad_mask);

@@ -46,6 +46,10 @@ pub struct ReconstructArgs {
     /// TV weight [default: the solver's].
     #[arg(long = "tv-weight")]
     pub tv_weight: Option<f64>,
+    /// GAP-TV: the accelerated variant (Liao/Yuan) instead of plain GAP. Better on noiseless data, but it fits
+    /// the Monte-Carlo mismatch of an operator traced with another seed (docs/reconstruction.md).
+    #[arg(long)]
+    pub accelerated: bool,
     /// Ray seed of the exact operator: a number, or `same` (the acquisition's: the oracle)
     /// [default: acquisition seed + 1].
     #[arg(long = "operator-seed")]
@@ -292,6 +296,8 @@ pub struct SolveSettings {
     pub solver: String,
     pub iterations: Option<usize>,
     pub tv_weight: Option<f64>,
+    /// GAP-TV's accelerated variant.
+    pub accelerated: bool,
 }
 
 /// The result of a solve: the cube (C order), the per-iteration relative data residual, the solver's
@@ -314,6 +320,12 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
     }
     if let Some(w) = s.tv_weight {
         cfg.tv_weight = w as f32;
+    }
+    if s.accelerated {
+        if kind != SolverKind::GapTv {
+            return Err(Error::invalid(format!("--accelerated applies to gap-tv only, not `{}`", s.solver)));
+        }
+        cfg.accelerated = true;
     }
     cfg.validate()?;
     Ok(cfg)
@@ -354,7 +366,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     if !(a.transport_memory_gb.is_finite() && a.transport_memory_gb >= 0.0) {
         return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0", a.transport_memory_gb)));
     }
-    let settings = SolveSettings { solver: a.solver.clone(), iterations: a.iterations, tv_weight: a.tv_weight };
+    let settings = SolveSettings { solver: a.solver.clone(), iterations: a.iterations, tv_weight: a.tv_weight, accelerated: a.accelerated };
     check_solver(&settings)?;
     let record = RenderRecord::load(&a.from)?;
     let seed = operator_seed(record.config.seed, a.operator_seed.as_deref())?;

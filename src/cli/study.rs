@@ -89,6 +89,9 @@ pub struct StudyArgs {
     /// TV weight [default: the solver's].
     #[arg(long = "tv-weight")]
     pub tv_weight: Option<f64>,
+    /// GAP-TV: the accelerated variant instead of plain GAP (applies to gap-tv only).
+    #[arg(long)]
+    pub accelerated: bool,
     /// Light-transport memory budget (GB) for the renders and the exact operator.
     #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
     pub transport_memory_gb: f64,
@@ -316,7 +319,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let operators = split_list(&a.operators, "operators")?.iter().map(|o| OperatorKind::parse(o)).collect::<Result<Vec<_>>>()?;
     let solvers = split_list(&a.solvers, "solvers")?;
     for s in &solvers {
-        check_solver(&SolveSettings { solver: s.clone(), iterations: a.iterations, tv_weight: a.tv_weight })?;
+        check_solver(&SolveSettings { solver: s.clone(), iterations: a.iterations, tv_weight: a.tv_weight, accelerated: a.accelerated && s == "gap-tv" })?;
     }
     if a.iterations == Some(0) {
         return Err(Error::invalid("--iterations must be ≥ 1"));
@@ -336,7 +339,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let mut config = json!({
         "scene_size": a.scene_size, "fit": a.fit, "bands_nm": bands, "planes": a.planes, "rays": a.rays, "seed": a.seed,
         "operator_seed": op_seed, "mask": mask.description, "mask_open_pixels": mask.values.iter().filter(|&&v| v > 0.0).count(),
-        "airy_diameter_px": a.airy_diameter_px, "iterations": a.iterations, "tv_weight": a.tv_weight, "tracer": tracer.name(),
+        "airy_diameter_px": a.airy_diameter_px, "iterations": a.iterations, "tv_weight": a.tv_weight, "accelerated": a.accelerated, "tracer": tracer.name(),
     });
     if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
         o.insert("scene_wavelengths".into(), json!(w));
@@ -345,7 +348,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let render_key = {
         let mut r = config.clone();
         if let Some(o) = r.as_object_mut() {
-            for k in ["operator_seed", "iterations", "tv_weight"] {
+            for k in ["operator_seed", "iterations", "tv_weight", "accelerated"] {
                 o.remove(k);
             }
         }
@@ -389,7 +392,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
             for (i, solver) in pending {
                 let scene = &scenes[i];
                 let rec = RenderRecord::load(&dirs[i])?;
-                let settings = SolveSettings { solver: solver.clone(), iterations: a.iterations, tv_weight: a.tv_weight };
+                let settings = SolveSettings { solver: solver.clone(), iterations: a.iterations, tv_weight: a.tv_weight, accelerated: a.accelerated && solver == "gap-tv" };
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, false)?;
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
