@@ -35,6 +35,10 @@ pub const MAX_PLANES: usize = 100_000;
 /// Airy disk diameter of a render, pixels (the paper: 2.5). The kernel has ~(2.7·d)² taps, convolved with
 /// every plane, so its cost grows as d².
 pub const MAX_AIRY_DIAMETER_PX: f64 = 100.0;
+/// Most iterations of an iterative command (`design --iterations`, `reconstruct --iterations`, solver TV
+/// iterations): 10⁵, far beyond every default (400 Adam steps, 100 GAP/ADMM iterations), so a mistyped count
+/// is refused at once instead of running for days.
+pub const MAX_ITERATIONS: usize = 100_000;
 /// Most worker threads (`--threads`); results do not depend on the count.
 pub const MAX_THREADS: usize = 1024;
 /// Radiance values of a scene must stay below this so that a pixel's sum over planes, rays and the Airy

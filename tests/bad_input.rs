@@ -328,6 +328,31 @@ mod cli_table {
             c("design amici --iterations -3", 2, "--iterations"),
             c("design amici --iterations 1 --system-out {out}.yaml", 1, "--system-out"),
             c("design amici --iterations 1 --report {out}.txt", 1, "--report"),
+            c("design amici --iterations 1000000000", 1, "--iterations 1000000000"),
+        ]),
+        ("reconstruct", &[
+            c("reconstruct --from {missing} --out {out}", 1, "not a render folder"),
+            c("reconstruct --from {missing} --operator magic --out {out}", 1, "magic"),
+        ]),
+        ("evaluate", &[
+            c("evaluate --truth {missing} --estimate {neg} --json {out}.json", 1, "does-not-exist"),
+            c("evaluate --truth {neg} --estimate {huge} --json {out}.json", 1, "no wavelength list"),
+        ]),
+        ("make-scene", &[
+            c("make-scene --rgb {missing} --out {out}.npy", 1, "does-not-exist"),
+            c("make-scene --synthetic 0 --size 0 --out {out}.npy", 1, "--size"),
+        ]),
+        ("study", &[
+            c("study --presets sp,xp --operators exact --synthetic 1 --scene-size 8 --out {out}", 1, "xp"),
+            c("study --presets sp --operators magic --synthetic 1 --scene-size 8 --out {out}", 1, "magic"),
+            c("study --presets sp --operators exact --synthetic 1 --scene-size 8 --iterations 1000000000 --out {out}", 1, "iterations"),
+        ]),
+        ("render-dataset", &[
+            c("render-dataset --scenes {missing} --preset sp --out {out}", 1, "does-not-exist"),
+            c("render-dataset --scenes {missing} --preset sp --out {out} --shard 4/4", 2, "--shard"),
+        ]),
+        ("dataset-status", &[
+            c("dataset-status {missing} --scenes {missing}", 1, "does-not-exist"),
         ]),
         ("calibrate", &[
             c("calibrate --from sp --observed msp --free bogus_param --setup small", 1, "bogus_param"),

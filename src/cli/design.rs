@@ -222,6 +222,9 @@ fn amici_cmd(a: AmiciArgs) -> Result<()> {
     if a.iterations == 0 {
         return Err(Error::invalid("--iterations 0: the continuous stage needs at least one Adam iteration"));
     }
+    if a.iterations > crate::limits::MAX_ITERATIONS {
+        return Err(Error::invalid(format!("--iterations {}: at most {} Adam iterations", a.iterations, crate::limits::MAX_ITERATIONS)));
+    }
     let opts = crate::design::AmiciOptions { seed: a.seed, iterations: a.iterations, final_thickness_weight: a.final_thickness_weight, ..Default::default() };
     let out = crate::design::design_amici(&catalog, &opts)?;
     out.print();

@@ -125,6 +125,13 @@ impl SolverConfig {
         if self.iterations == 0 {
             return Err(Error::invalid("solver iterations must be ≥ 1 (got 0)"));
         }
+        let max = crate::limits::MAX_ITERATIONS;
+        if self.iterations > max || self.tv_iterations > max {
+            return Err(Error::invalid(format!(
+                "solver iterations {} / TV iterations {}: at most {max} each (src/limits.rs)",
+                self.iterations, self.tv_iterations
+            )));
+        }
         if !(self.step.is_finite() && self.step > 0.0 && self.step <= 2.0) {
             return Err(Error::invalid(format!("solver step λ = {} must be in (0, 2]", self.step)));
         }
