@@ -5,5 +5,6 @@
 #   bash scripts/diffcassi.sh render --preset sp
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
-bash scripts/setup.sh
+# The CLI needs no Python: the venv (torch included) is for the test command and the Python package.
+DIFFCASSI_PYTHON="${DIFFCASSI_PYTHON:-skip}" bash scripts/setup.sh
 exec cargo run --quiet --release --bin diffcassi -- "$@"
