@@ -56,11 +56,19 @@ impl Tracer for AnalyticTracer {
     /// The one implementation: reads the borrowed columns in place.
     fn trace_slices(&self, system: &SequentialSystem, rays: RaySlices<'_>) -> Result<TracedBatch> {
         let table = index_table(system, rays.wavelength_nm())?;
-        if let Some(level) = self.kernel.resolve()? {
-            let mut out = self.trace_lanes(system, rays, &table, level);
-            out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
-            return Ok(out);
-        }
+        // Either kernel, then one classification of absurd landings (`out_of_range`) for both.
+        let mut out = match self.kernel.resolve()? {
+            Some(level) => self.trace_lanes(system, rays, &table, level),
+            None => self.trace_scalar(system, rays, &table),
+        };
+        out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
+        Ok(out)
+    }
+}
+
+impl AnalyticTracer {
+    /// [`Tracer::trace_slices`] with the scalar reference kernel, one ray at a time per chunk.
+    fn trace_scalar(&self, system: &SequentialSystem, rays: RaySlices<'_>, table: &HashMap<u64, Vec<f64>>) -> TracedBatch {
         let n = rays.len();
         let mut out = TracedBatch::zeroed(n);
         let chunk = self.chunk_size.max(1);
@@ -107,12 +115,9 @@ impl Tracer for AnalyticTracer {
                     }
                 }
             });
-        out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
-        Ok(out)
+        out
     }
-}
 
-impl AnalyticTracer {
     /// [`Tracer::trace_slices`] with the lane kernel: blocks of [`LANES`] rays, each lane with its own
     /// wavelength's index table; the same input checks and outputs as the scalar loop.
     fn trace_lanes(&self, system: &SequentialSystem, rays: RaySlices<'_>, table: &HashMap<u64, Vec<f64>>, level: SimdLevel) -> TracedBatch {
