@@ -18,9 +18,9 @@
 //! assert!(max_um < 1e-3);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
+use super::mapping::{direct_kernel, trace_chief_rays, trace_chief_rays_batched, Bands, Landing};
 use super::{mapping_cube, MappingCube};
 use crate::error::{Error, Result};
-use crate::rays::RayBatch;
 use crate::system::SequentialSystem;
 use crate::tracer::{RayStatus, Tracer};
 use rayon::prelude::*;
@@ -42,11 +42,13 @@ fn scene_xy_any(height: usize, width: usize, pitch_mm: f64, row: i64, col: i64) 
     [(col as f64 + 0.5 - width as f64 / 2.0) * pitch_mm, (height as f64 / 2.0 - row as f64 - 0.5) * pitch_mm]
 }
 
-/// Traced node positions at every wavelength: `[λ][node_row][node_col][xy]`.
+/// Traced node positions: `values` in C order `[node_row][node_col][λ][xy]` (the cube's own order, so a
+/// node row is one contiguous slice and interpolation runs over contiguous `λ × xy` runs).
 pub(crate) struct NodeGrid {
     pub stride: usize,
     pub rows: usize,
     pub cols: usize,
+    pub bands: usize,
     pub values: Vec<f64>,
 }
 
@@ -56,32 +58,72 @@ impl NodeGrid {
         nodes(height, stride) * nodes(width, stride)
     }
 
+    /// Trace every node at every wavelength: in parallel over node rows through the analytic kernel
+    /// (as [`mapping_cube`]), or batched through another tracer. The first node that does not arrive (in
+    /// wavelength, row, column order, whatever the thread count) is an error.
     pub(crate) fn trace(system: &SequentialSystem, tracer: &dyn Tracer, height: usize, width: usize, pitch_mm: f64, wavelengths_nm: &[f64], stride: usize) -> Result<Self> {
         let (rows, cols) = (nodes(height, stride), nodes(width, stride));
         let s = stride as i64;
-        let mut fields = Vec::with_capacity(rows * cols);
-        for i in 0..rows as i64 {
-            for j in 0..cols as i64 {
-                fields.push(scene_xy_any(height, width, pitch_mm, (i - 1) * s, (j - 1) * s));
+        let field = |i: usize, j: usize| scene_xy_any(height, width, pitch_mm, (i as i64 - 1) * s, (j as i64 - 1) * s);
+        let bands = Bands::new(system, wavelengths_nm)?;
+        let nl = bands.len();
+        let mut values = vec![0.0; rows * cols * nl * 2];
+        // Per node row: the first failed node as (band, column, status).
+        type Failure = Option<(usize, usize, RayStatus)>;
+        let keep = |first: &mut Failure, b: usize, j: usize, st: RayStatus| {
+            if first.map_or(true, |(fb, fj, _)| (b, j) < (fb, fj)) {
+                *first = Some((b, j, st));
             }
+        };
+        let failures: Vec<Failure> = match direct_kernel(tracer)? {
+            Some(kernel) => {
+                let results: Vec<Result<Failure>> = values
+                    .par_chunks_mut(cols * nl * 2)
+                    .enumerate()
+                    .map(|(i, row)| {
+                        let fields: Vec<[f64; 2]> = (0..cols).map(|j| field(i, j)).collect();
+                        let mut first: Failure = None;
+                        trace_chief_rays(system, kernel, &fields, &bands, |j, b, land: Landing| match land {
+                            Ok([x, y]) => {
+                                row[2 * (j * nl + b)] = x;
+                                row[2 * (j * nl + b) + 1] = y;
+                            }
+                            Err(st) => keep(&mut first, b, j, st),
+                        })?;
+                        Ok(first)
+                    })
+                    .collect();
+                let mut failures = Vec::with_capacity(rows);
+                for r in results {
+                    failures.push(r?);
+                }
+                failures
+            }
+            None => {
+                let fields: Vec<[f64; 2]> = (0..rows * cols).map(|k| field(k / cols, k % cols)).collect();
+                let mut failures: Vec<Failure> = vec![None; rows];
+                trace_chief_rays_batched(system, tracer, &fields, &bands, |k, b, land| match land {
+                    Ok([x, y]) => {
+                        values[2 * (k * nl + b)] = x;
+                        values[2 * (k * nl + b) + 1] = y;
+                    }
+                    Err(st) => keep(&mut failures[k / cols], b, k % cols, st),
+                })?;
+                failures
+            }
+        };
+        let first = failures.iter().enumerate().filter_map(|(i, f)| f.map(|(b, j, st)| (b, i, j, st))).min_by_key(|&(b, i, j, _)| (b, i, j));
+        if let Some((b, i, j, st)) = first {
+            let f = field(i, j);
+            return Err(Error::invalid(format!(
+                "interpolated mapping (stride {stride}): the chief ray of node ({}, {}) mm at {} nm does not arrive ({}); use the exact cube (stride 1)",
+                f[0],
+                f[1],
+                wavelengths_nm[b],
+                st.label()
+            )));
         }
-        let nl = wavelengths_nm.len();
-        let mut values = vec![0.0; nl * rows * cols * 2];
-        for (b, &w) in wavelengths_nm.iter().enumerate() {
-            let out = tracer.trace(system, &RayBatch::chief_rays(system, &fields, w)?)?;
-            if let Some(k) = out.status.iter().position(|s| *s != RayStatus::Ok) {
-                return Err(Error::invalid(format!(
-                    "interpolated mapping (stride {stride}): the chief ray of node ({}, {}) mm at {w} nm does not arrive ({}); use the exact cube (stride 1)",
-                    fields[k][0], fields[k][1], out.status[k].label()
-                )));
-            }
-            let base = b * rows * cols * 2;
-            for k in 0..rows * cols {
-                values[base + 2 * k] = out.x[k];
-                values[base + 2 * k + 1] = out.y[k];
-            }
-        }
-        Ok(NodeGrid { stride, rows, cols, values })
+        Ok(NodeGrid { stride, rows, cols, bands: nl, values })
     }
 
     /// Interval index and Catmull–Rom weights of pixel index `p` along an axis of `nodes_n` nodes.
@@ -92,16 +134,17 @@ impl NodeGrid {
         (i, catmull_rom(t)) // lattice nodes i .. i+3 ↔ scene nodes i−1 .. i+2
     }
 
-    /// Interpolated (x, y) mm of pixel (row, col) at band `b`.
+    /// Interpolated (x, y) mm of pixel (row, col) at band `b`: along the row first (on each of the four
+    /// node rows), then down the column — the arithmetic of [`NodeGrid::fill`], bit for bit.
     pub(crate) fn at(&self, row: usize, col: usize, b: usize) -> [f64; 2] {
         let (i, wr) = self.axis(row, self.rows);
         let (j, wc) = self.axis(col, self.cols);
-        let base = b * self.rows * self.cols * 2;
+        let nl = self.bands;
         let mut v = [0.0; 2];
         for (di, a) in wr.iter().enumerate() {
             let mut h = [0.0; 2];
             for (dj, c) in wc.iter().enumerate() {
-                let k = base + 2 * ((i + di) * self.cols + j + dj);
+                let k = 2 * (((i + di) * self.cols + j + dj) * nl + b);
                 h[0] += c * self.values[k];
                 h[1] += c * self.values[k + 1];
             }
@@ -110,12 +153,62 @@ impl NodeGrid {
         }
         v
     }
+
+    /// Node row `i` interpolated along the row to every pixel column: `out[col][λ][xy]`.
+    fn row_along(&self, i: usize, col_weights: &[(usize, [f64; 4])], out: &mut [f64]) {
+        let e = self.bands * 2;
+        let node_row = &self.values[i * self.cols * e..(i + 1) * self.cols * e];
+        for (o, &(j, w)) in out.chunks_exact_mut(e).zip(col_weights) {
+            let n = [&node_row[j * e..(j + 1) * e], &node_row[(j + 1) * e..(j + 2) * e], &node_row[(j + 2) * e..(j + 3) * e], &node_row[(j + 3) * e..(j + 4) * e]];
+            for (k, o) in o.iter_mut().enumerate() {
+                let mut h = 0.0;
+                h += w[0] * n[0][k];
+                h += w[1] * n[1][k];
+                h += w[2] * n[2][k];
+                h += w[3] * n[3][k];
+                *o = h;
+            }
+        }
+    }
+
+    /// The H×W cube `[row][col][λ][xy]` from the nodes, separably (Catmull–Rom is a tensor product):
+    /// each task takes a run of pixel rows that share a node interval, interpolates its four node rows
+    /// along the row to every column once, then each pixel row down the columns — contiguous loops over
+    /// `col × λ × xy`. Each value depends on its nodes only: no dependence on the thread count.
+    fn fill(&self, width: usize, positions_mm: &mut [f64]) {
+        let e = self.bands * 2;
+        let col_weights: Vec<(usize, [f64; 4])> = (0..width).map(|c| self.axis(c, self.cols)).collect();
+        positions_mm.par_chunks_mut(self.stride * width * e).enumerate().for_each(|(q, run)| {
+            let mut along = vec![0.0; 4 * width * e];
+            let mut interval = usize::MAX;
+            for (dr, out) in run.chunks_exact_mut(width * e).enumerate() {
+                let (i, wr) = self.axis(q * self.stride + dr, self.rows);
+                if i != interval {
+                    for (di, a) in along.chunks_exact_mut(width * e).enumerate() {
+                        self.row_along(i + di, &col_weights, a);
+                    }
+                    interval = i;
+                }
+                let (a0, rest) = along.split_at(width * e);
+                let (a1, rest) = rest.split_at(width * e);
+                let (a2, a3) = rest.split_at(width * e);
+                for (k, o) in out.iter_mut().enumerate() {
+                    let mut v = 0.0;
+                    v += wr[0] * a0[k];
+                    v += wr[1] * a1[k];
+                    v += wr[2] * a2[k];
+                    v += wr[3] * a3[k];
+                    *o = v;
+                }
+            }
+        });
+    }
 }
 
 /// The mapping cube of [`mapping_cube`] from chief rays traced on every `stride`-th pixel (and a ring of
 /// nodes outside), interpolated by separable cubic Catmull–Rom in between. `stride = 1` is the exact
-/// cube. Rows are filled in parallel; each value depends only on its nodes, so the result does not
-/// depend on the thread count.
+/// cube. Nodes are traced and the cube is filled in parallel; each value depends only on its nodes, so
+/// the result does not depend on the thread count.
 pub fn mapping_cube_interpolated(system: &SequentialSystem, tracer: &dyn Tracer, height: usize, width: usize, pixel_pitch_mm: f64, wavelengths_nm: &[f64], stride: usize) -> Result<MappingCube> {
     if stride == 0 {
         return Err(Error::invalid("mapping stride must be ≥ 1"));
@@ -126,16 +219,7 @@ pub fn mapping_cube_interpolated(system: &SequentialSystem, tracer: &dyn Tracer,
     let g = NodeGrid::trace(system, tracer, height, width, pixel_pitch_mm, wavelengths_nm, stride)?;
     let nl = wavelengths_nm.len();
     let mut positions_mm = vec![0.0; height * width * nl * 2];
-    positions_mm.par_chunks_mut(width * nl * 2).enumerate().for_each(|(r, row)| {
-        for c in 0..width {
-            for b in 0..nl {
-                let v = g.at(r, c, b);
-                let k = (c * nl + b) * 2;
-                row[k] = v[0];
-                row[k + 1] = v[1];
-            }
-        }
-    });
+    g.fill(width, &mut positions_mm);
     Ok(MappingCube { height, width, wavelength_nm: wavelengths_nm.to_vec(), pixel_pitch_mm, positions_mm, valid: vec![1; height * width * nl] })
 }
 

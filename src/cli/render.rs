@@ -191,10 +191,14 @@ pub struct BenchRenderArgs {
     /// first one also runs the all-open and dataset rows.
     #[arg(long, default_value = "simd,scalar")]
     pub kernels: String,
-    /// Parts to run (comma-separated): mapping (the chief-ray mapping cube), acquisition (per-scene render,
-    /// all-open render), dataset (transport once, then per scene).
+    /// Parts to run (comma-separated): mapping (the chief-ray mapping cube, exact and interpolated),
+    /// acquisition (per-scene render, all-open render), dataset (transport once, then per scene).
     #[arg(long, default_value = "mapping,acquisition,dataset")]
     pub parts: String,
+    /// Tolerance (µm) of the interpolated mapping cube: the largest stride whose error, measured by the
+    /// fidelity calibration (`--tolerance-um`), is within it.
+    #[arg(long = "mapping-tolerance-um", default_value_t = 1e-3)]
+    pub mapping_tolerance_um: f64,
 }
 
 /// A memory size in GB: finite and ≥ 0 (clap names the option in the error).
@@ -451,6 +455,45 @@ fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Rende
     Ok(())
 }
 
+/// The interpolated mapping cube beside the exact one: the stride the fidelity calibration picks for
+/// `tolerance_um` (its error measured at the check pixels), timed, and its error over every entry of the
+/// exact cube. A line lists every stride's full error, so the margin is visible.
+fn bench_interpolated_mapping(system: &crate::system::SequentialSystem, tracer: &AnalyticTracer, exact: &crate::analysis::MappingCube, tolerance_um: f64, row: &dyn Fn(&str, f64, u64), cpu0: &std::cell::Cell<Option<f64>>) -> Result<()> {
+    use crate::analysis::mapping_cube_interpolated;
+    use crate::fidelity::{calibrate_mapping, mapping_error, CacheOptions};
+    if !(tolerance_um.is_finite() && tolerance_um > 0.0) {
+        return Err(Error::invalid(format!("--mapping-tolerance-um {tolerance_um}: must be finite and > 0")));
+    }
+    let (h, w, ws, pitch) = (exact.height, exact.width, &exact.wavelength_nm, exact.pixel_pitch_mm);
+    let (cal, _) = calibrate_mapping(system, h, w, pitch, ws, &CacheOptions::none())?;
+    let ok = |s: &crate::fidelity::StrideModel| s.stride > 1 && s.error.is_some_and(|e| e.mismatches == 0 && e.max_um <= tolerance_um);
+    let mut full = Vec::new();
+    for s in cal.strides.iter().filter(|s| s.stride > 1) {
+        let e = match mapping_cube_interpolated(system, tracer, h, w, pitch, ws, s.stride) {
+            Ok(m) => {
+                let e = mapping_error(exact, &m);
+                if e.mismatches > 0 { format!("{} mismatches", e.mismatches) } else { format!("{:.2e} µm", e.max_um) }
+            }
+            Err(_) => "refused (a node does not arrive)".into(),
+        };
+        full.push(format!("stride {} {e} (check pixels {})", s.stride, s.error.map_or("n/a".into(), |e| format!("{:.2e}", e.max_um))));
+    }
+    let Some(pick) = cal.strides.iter().filter(|s| ok(s)).max_by_key(|s| s.stride) else {
+        println!("(interpolated mapping: no stride within {tolerance_um} µm; max error vs exact: {})", full.join("; "));
+        return Ok(());
+    };
+    cpu0.set(process_cpu_seconds());
+    let t = Instant::now();
+    let m = mapping_cube_interpolated(system, tracer, h, w, pitch, ws, pick.stride)?;
+    let secs = t.elapsed().as_secs_f64();
+    let e = mapping_error(exact, &m);
+    let rays = (crate::analysis::NodeGrid::count(h, w, pick.stride) * ws.len()) as u64;
+    let err = if e.mismatches > 0 { format!("{} entries mismatched", e.mismatches) } else { format!("max error vs exact {:.2e} µm", e.max_um) };
+    row(&format!("mapping cube {h}×{w}×{}, interpolated, stride {} (chosen for {tolerance_um} µm); {err}", ws.len(), pick.stride), secs, rays);
+    println!("(interpolated mapping, max error vs the exact cube over every entry: {})", full.join("; "));
+    Ok(())
+}
+
 /// CPU seconds (user + system) used by this process so far, from /proc/self/stat (Linux, USER_HZ = 100);
 /// `None` elsewhere. On a shared machine wall time alone hides how much of the cores the run was given.
 fn process_cpu_seconds() -> Option<f64> {
@@ -512,6 +555,9 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
         };
         row(&format!("mapping cube {n}×{n}×{}, {} kernel{diff}", cfg.spectral.planes(), k.name()), secs, rays);
         mapping_ref.get_or_insert(m);
+    }
+    if let Some(exact) = &mapping_ref {
+        bench_interpolated_mapping(&system, &tracer, exact, a.mapping_tolerance_um, &row, &cpu0)?;
     }
     let t = Instant::now();
     let renderer = Renderer::new(&system, &tracer, cfg.clone(), Mask::random(n, n, a.opening, 0)?)?;

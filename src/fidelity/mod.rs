@@ -27,5 +27,5 @@ pub mod workload;
 
 pub use measure::{backend_text, candidate_configs, describe, ErrorAccumulator, ErrorStats, Measured};
 pub use select::*;
-pub use tradeoff::{run_tradeoff, TradeoffOptions, TradeoffRow};
+pub use tradeoff::{mapping_error, run_tradeoff, TradeoffOptions, TradeoffRow};
 pub use workload::RaySetSpec;

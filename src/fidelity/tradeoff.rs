@@ -145,7 +145,9 @@ fn image_diff(reference: &[f64], candidate: &[f64]) -> (f64, f64) {
     (max / peak, (s2 / reference.len().max(1) as f64).sqrt() / peak)
 }
 
-fn mapping_error(reference: &MappingCube, candidate: &MappingCube) -> ErrorStats {
+/// Image-plane distance (µm) of every entry of `candidate` from `reference` (same shape); an entry valid in
+/// one cube only is a mismatch.
+pub fn mapping_error(reference: &MappingCube, candidate: &MappingCube) -> ErrorStats {
     let mut acc = ErrorAccumulator::default();
     for k in 0..reference.valid.len() {
         match (reference.valid[k] == 1, candidate.valid[k] == 1) {

@@ -53,6 +53,10 @@ impl Tracer for AnalyticTracer {
         self.trace_slices(system, rays.as_slices()?)
     }
 
+    fn as_analytic(&self) -> Option<&AnalyticTracer> {
+        Some(self)
+    }
+
     /// The one implementation: reads the borrowed columns in place.
     fn trace_slices(&self, system: &SequentialSystem, rays: RaySlices<'_>) -> Result<TracedBatch> {
         let table = index_table(system, rays.wavelength_nm())?;

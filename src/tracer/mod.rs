@@ -43,6 +43,11 @@ pub trait Tracer: Send + Sync {
     fn trace_slices(&self, system: &SequentialSystem, rays: RaySlices<'_>) -> Result<TracedBatch> {
         self.trace(system, &rays.to_batch())
     }
+    /// This backend as the analytic tracer, when it is one: callers with many rays of their own making
+    /// (the mapping cube, the renderer) then run its f64 kernel directly instead of building batches.
+    fn as_analytic(&self) -> Option<&AnalyticTracer> {
+        None
+    }
 }
 
 /// Outcome of one ray.
