@@ -256,6 +256,26 @@ mod tests {
         }
     }
 
+    /// Another tracer (the analytic one behind another name) takes the batched route: the same cube.
+    #[test]
+    fn batched_route_gives_the_same_cube() {
+        struct Batched(AnalyticTracer);
+        impl Tracer for Batched {
+            fn name(&self) -> String {
+                "batched-analytic".into()
+            }
+            fn trace(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<crate::tracer::TracedBatch> {
+                self.0.trace(system, rays)
+            }
+        }
+        let sys = SequentialSystem::build(&crate::presets::spec("sp").unwrap()).unwrap();
+        // 1 mm pixels: the corners are vignetted, so `valid` is exercised too.
+        let direct = mapping_cube(&sys, &AnalyticTracer::default(), 16, 16, 1.0, &[450.0, 650.0]).unwrap();
+        let batched = mapping_cube(&sys, &Batched(AnalyticTracer::default()), 16, 16, 1.0, &[450.0, 650.0]).unwrap();
+        assert!(direct.invalid_count() > 0);
+        assert_eq!((direct.positions_mm, direct.valid), (batched.positions_mm, batched.valid));
+    }
+
     #[test]
     fn non_finite_fields_are_an_error() {
         let sys = SequentialSystem::build(&crate::presets::spec("sp").unwrap()).unwrap();
