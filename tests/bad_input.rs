@@ -323,6 +323,8 @@ mod cli_table {
             c("bench-render --preset sp --scene-size 100000", 1, "--max-memory-gb"),
             c("bench-render --preset sp --planes 100000", 1, "--max-rays"),
             c("bench-render --preset sp --opening 7", 1, "--opening 7"),
+            c("bench-render --preset sp --mapping-tolerance-um -1", 1, "--mapping-tolerance-um -1"),
+            c("bench-render --preset sp --mapping-tolerance-um nan", 1, "--mapping-tolerance-um NaN"),
         ]),
         ("design", &[
             c("design amici --iterations -3", 2, "--iterations"),

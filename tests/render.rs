@@ -537,6 +537,21 @@ fn cli_render_dataset_matches_per_scene_renders_and_skips_complete_scenes() {
 /// `render --kernel scalar` (the reference kept for benchmarking) and the default SIMD kernel write the
 /// same acquisition up to f32 rounding, and render.json names the kernel and keeps its timing keys.
 #[test]
+fn cli_bench_render_mapping_rows() {
+    let o = run(&["bench-render", "--preset", "sp", "--scene-size", "48", "--planes", "3", "--parts", "mapping", "--kernels", "simd,scalar"]);
+    let t = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(o.status.success(), "{t}{}", String::from_utf8_lossy(&o.stderr));
+    assert!(t.contains("| mapping cube 48×48×3, simd-") && t.contains("scalar kernel; max |Δ| vs simd-") && t.contains("0.0e0 mm"), "{t}");
+    // The interpolated row: a stride, its error over every entry within the default 1e-3 µm, and CPU seconds.
+    let row = t.lines().find(|l| l.contains("interpolated, stride")).unwrap_or_else(|| panic!("{t}"));
+    let err: f64 = row.split("max error vs exact ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
+    assert!(err <= 1e-3, "{row}");
+    let cols: Vec<&str> = row.split('|').map(str::trim).collect();
+    assert!(cols[2].parse::<f64>().is_ok() && cols[3].parse::<f64>().is_ok(), "wall and CPU seconds: {row}");
+    assert!(t.contains("stride 2 ") && t.contains("stride 32 "), "{t}");
+}
+
+#[test]
 fn cli_render_kernel_switch() {
     let d = tmpdir();
     let mut images = Vec::new();

@@ -162,17 +162,22 @@ pub(crate) fn trace_chief_rays_batched(system: &SequentialSystem, tracer: &dyn T
     Ok(())
 }
 
-/// The kernel of `tracer` when it is the analytic tracer (traced directly), `None` otherwise (batched).
-pub(crate) fn direct_kernel(tracer: &dyn Tracer) -> Result<Option<Option<simd::SimdLevel>>> {
-    match tracer.as_analytic() {
-        Some(a) => Ok(Some(a.kernel.resolve()?)),
-        None => Ok(None),
-    }
+/// How a cube's chief rays are traced.
+pub(crate) enum Route<'a> {
+    /// The analytic tracer's f64 kernel, directly: a SIMD level, or `None` for the scalar kernel.
+    Direct(Option<simd::SimdLevel>),
+    /// Any other backend, through [`Tracer::trace`].
+    Batched(&'a dyn Tracer),
 }
 
-/// The first error in row order (so the message does not depend on the thread count).
-pub(crate) fn first_error(results: Vec<Result<()>>) -> Result<()> {
-    results.into_iter().collect()
+impl<'a> Route<'a> {
+    /// Direct for the analytic tracer (an error when its forced SIMD level is not on this CPU).
+    pub(crate) fn of(tracer: &'a dyn Tracer) -> Result<Self> {
+        Ok(match tracer.as_analytic() {
+            Some(a) => Route::Direct(a.kernel.resolve()?),
+            None => Route::Batched(tracer),
+        })
+    }
 }
 
 /// Trace the H×W×Nλ chief rays. With the analytic tracer: in parallel, one scene row per task, written in
@@ -188,8 +193,8 @@ pub fn mapping_cube(system: &SequentialSystem, tracer: &dyn Tracer, height: usiz
     let nl = bands.len();
     let mut positions_mm = vec![0.0; height * width * nl * 2];
     let mut valid = vec![0u8; height * width * nl];
-    match direct_kernel(tracer)? {
-        Some(kernel) => {
+    match Route::of(tracer)? {
+        Route::Direct(kernel) => {
             let results: Vec<Result<()>> = positions_mm
                 .par_chunks_mut(width * nl * 2)
                 .zip(valid.par_chunks_mut(width * nl))
@@ -206,9 +211,9 @@ pub fn mapping_cube(system: &SequentialSystem, tracer: &dyn Tracer, height: usiz
                     })
                 })
                 .collect();
-            first_error(results)?;
+            results.into_iter().collect::<Result<()>>()?; // the first error in row order, whatever the threads
         }
-        None => {
+        Route::Batched(tracer) => {
             let fields: Vec<[f64; 2]> = (0..height * width).map(|p| MappingCube::scene_xy(height, width, pixel_pitch_mm, p / width, p % width)).collect();
             trace_chief_rays_batched(system, tracer, &fields, &bands, |p, b, land| {
                 if let Ok([x, y]) = land {

@@ -18,7 +18,7 @@
 //! assert!(max_um < 1e-3);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
-use super::mapping::{direct_kernel, trace_chief_rays, trace_chief_rays_batched, Bands, Landing};
+use super::mapping::{trace_chief_rays, trace_chief_rays_batched, Bands, Landing, Route};
 use super::{mapping_cube, MappingCube};
 use crate::error::{Error, Result};
 use crate::system::SequentialSystem;
@@ -75,8 +75,8 @@ impl NodeGrid {
                 *first = Some((b, j, st));
             }
         };
-        let failures: Vec<Failure> = match direct_kernel(tracer)? {
-            Some(kernel) => {
+        let failures: Vec<Failure> = match Route::of(tracer)? {
+            Route::Direct(kernel) => {
                 let results: Vec<Result<Failure>> = values
                     .par_chunks_mut(cols * nl * 2)
                     .enumerate()
@@ -99,7 +99,7 @@ impl NodeGrid {
                 }
                 failures
             }
-            None => {
+            Route::Batched(tracer) => {
                 let fields: Vec<[f64; 2]> = (0..rows * cols).map(|k| field(k / cols, k % cols)).collect();
                 let mut failures: Vec<Failure> = vec![None; rows];
                 trace_chief_rays_batched(system, tracer, &fields, &bands, |k, b, land| match land {

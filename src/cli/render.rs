@@ -461,9 +461,6 @@ fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Rende
 fn bench_interpolated_mapping(system: &crate::system::SequentialSystem, tracer: &AnalyticTracer, exact: &crate::analysis::MappingCube, tolerance_um: f64, row: &dyn Fn(&str, f64, u64), cpu0: &std::cell::Cell<Option<f64>>) -> Result<()> {
     use crate::analysis::mapping_cube_interpolated;
     use crate::fidelity::{calibrate_mapping, mapping_error, CacheOptions};
-    if !(tolerance_um.is_finite() && tolerance_um > 0.0) {
-        return Err(Error::invalid(format!("--mapping-tolerance-um {tolerance_um}: must be finite and > 0")));
-    }
     let (h, w, ws, pitch) = (exact.height, exact.width, &exact.wavelength_nm, exact.pixel_pitch_mm);
     let (cal, _) = calibrate_mapping(system, h, w, pitch, ws, &CacheOptions::none())?;
     let ok = |s: &crate::fidelity::StrideModel| s.stride > 1 && s.error.is_some_and(|e| e.mismatches == 0 && e.max_um <= tolerance_um);
@@ -509,6 +506,9 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let n = a.scene_size;
     if n == 0 || a.planes == 0 || a.planes > crate::limits::MAX_PLANES || a.rays == 0 || !(a.opening.is_finite() && (0.0..=1.0).contains(&a.opening)) {
         return Err(Error::invalid(format!("--scene-size {n}, --planes {}, --rays {}, --opening {}: sizes must be ≥ 1 (planes ≤ {}), the opening in [0, 1]", a.planes, a.rays, a.opening, crate::limits::MAX_PLANES)));
+    }
+    if !(a.mapping_tolerance_um.is_finite() && a.mapping_tolerance_um > 0.0) {
+        return Err(Error::invalid(format!("--mapping-tolerance-um {}: must be finite and > 0", a.mapping_tolerance_um)));
     }
     crate::limits::check_memory(&format!("--scene-size {n} × --planes {}", a.planes), 2.0 * crate::limits::bytes_render(n, 31, 28, a.planes, false, Some(2.5)))?;
     // Acquisition, all-open acquisition, transport: three renders' rays.
