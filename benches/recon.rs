@@ -3,9 +3,11 @@
 //! operators, one GAP-TV iteration and a full 100-iteration GAP-TV reconstruction.
 //!
 //! `cargo bench --bench recon` (criterion for Φ, Φᵀ, TV; then a one-shot 100-iteration reconstruction whose
-//! per-iteration times give "one GAP-TV iteration"; a table is printed at the end). `DIFFCASSI_BENCH_SIZE`
-//! overrides the scene size (default 512), `DIFFCASSI_BENCH_RAYS` the rays per pixel (20) and
-//! `DIFFCASSI_BENCH_ITERATIONS` the iteration count (100). Under
+//! per-iteration times give "one GAP-TV iteration"; a table of wall and CPU seconds is printed at the end —
+//! on a shared machine the CPU seconds say how much of the 2 cores the run was given).
+//! `DIFFCASSI_BENCH_SIZE` overrides the scene size (default 512), `DIFFCASSI_BENCH_RAYS` the rays per pixel
+//! (20), `DIFFCASSI_BENCH_ITERATIONS` the iteration count (100); `DIFFCASSI_BENCH_CRITERION=0` skips the
+//! criterion runs (the table only). Under
 //! `cargo test --all-targets` (no `--bench` flag) it runs once at 32×32 with 3 iterations, to stay cheap.
 use criterion::Criterion;
 use diffcassi::analysis::linspace;
@@ -19,6 +21,14 @@ use std::time::Instant;
 
 fn env_usize(name: &str) -> Option<usize> {
     std::env::var(name).ok().and_then(|v| v.parse().ok())
+}
+
+/// CPU seconds (user + system) of this process, from /proc/self/stat (Linux; NaN elsewhere).
+fn cpu_seconds() -> f64 {
+    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
+    let f: Vec<&str> = s.rsplit(')').next().unwrap_or("").split_whitespace().collect();
+    let field = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
+    (field(11) + field(12)) / 100.0
 }
 
 fn main() {
@@ -37,9 +47,9 @@ fn main() {
     let shift = ShiftOperator::from_renderer(&renderer, &bands).unwrap();
     let mapping = MappingOperator::from_renderer(&renderer, &bands, MappingInterpolation::Bilinear).unwrap();
     let t_mapping = t.elapsed().as_secs_f64();
-    let t = Instant::now();
+    let (t, c) = (Instant::now(), cpu_seconds());
     let exact = ExactOperator::new(renderer, &bands, 8 << 30).unwrap();
-    let t_build = t.elapsed().as_secs_f64();
+    let (t_build, c_build) = (t.elapsed().as_secs_f64(), cpu_seconds() - c);
     let phi: &dyn Operator = &exact;
     let (cs, is) = (phi.cube_shape(), phi.image_shape());
     println!(
@@ -51,6 +61,8 @@ fn main() {
     let y = phi.apply(&truth).unwrap();
     let mut image = vec![0.0f32; is.len()];
     let mut cube = vec![0.0f32; cs.len()];
+    let mut scratch = TvScratch::default();
+    if std::env::var("DIFFCASSI_BENCH_CRITERION").as_deref() != Ok("0") {
     let mut c = Criterion::default().configure_from_args().sample_size(10);
     c.bench_function(&format!("recon/exact_apply_sp_{size}"), |b| b.iter(|| phi.apply_into(&truth, &mut image)));
     c.bench_function(&format!("recon/exact_adjoint_sp_{size}"), |b| b.iter(|| phi.adjoint_into(&y, &mut cube)));
@@ -58,34 +70,45 @@ fn main() {
     c.bench_function(&format!("recon/shift_adjoint_sp_{size}"), |b| b.iter(|| shift.adjoint_into(&y, &mut cube)));
     c.bench_function(&format!("recon/mapping_bilinear_apply_sp_{size}"), |b| b.iter(|| mapping.apply_into(&truth, &mut image)));
     c.bench_function(&format!("recon/mapping_bilinear_adjoint_sp_{size}"), |b| b.iter(|| mapping.adjoint_into(&y, &mut cube)));
-    let mut scratch = TvScratch::default();
     c.bench_function(&format!("recon/tv_chambolle5_vectorial_{size}"), |b| b.iter(|| tv_denoise(&truth, &mut cube, cs, 0.1, 5, TvCoupling::Vectorial, &mut scratch)));
     c.final_summary();
+    }
 
-    // One-shot timings for the table (median of 5 for the operators).
+    // One-shot timings for the table (median of 5 for the operators and the TV; wall and CPU seconds).
     let median = |f: &mut dyn FnMut()| {
-        let mut v: Vec<f64> = (0..5).map(|_| { let t = Instant::now(); f(); t.elapsed().as_secs_f64() }).collect();
-        v.sort_by(|a, b| a.total_cmp(b));
+        let mut v: Vec<(f64, f64)> = (0..5)
+            .map(|_| {
+                let (t, c) = (Instant::now(), cpu_seconds());
+                f();
+                (t.elapsed().as_secs_f64(), cpu_seconds() - c)
+            })
+            .collect();
+        v.sort_by(|a, b| a.0.total_cmp(&b.0));
         v[2]
     };
     let t_apply = median(&mut || phi.apply_into(&truth, &mut image));
     let t_adjoint = median(&mut || phi.adjoint_into(&y, &mut cube));
+    let mut denoised = vec![0.0f32; cs.len()];
+    let t_tv = median(&mut || tv_denoise(&truth, &mut denoised, cs, 0.1, 5, TvCoupling::Vectorial, &mut scratch));
     let stamps = Mutex::new(Vec::new());
     let config = SolverConfig { iterations, ..SolverConfig::gap_tv() };
-    let t = Instant::now();
-    let rec = reconstruct(phi, &y, None, &config, &|_, _| stamps.lock().unwrap().push(Instant::now())).unwrap();
-    let t_total = t.elapsed().as_secs_f64();
+    let (t, c) = (Instant::now(), cpu_seconds());
+    let rec = reconstruct(phi, &y, None, &config, &|_, _| stamps.lock().unwrap().push((Instant::now(), cpu_seconds()))).unwrap();
+    let (t_total, c_total) = (t.elapsed().as_secs_f64(), cpu_seconds() - c);
     let s = stamps.into_inner().unwrap();
-    let per_iter: Vec<f64> = s.windows(2).map(|w| (w[1] - w[0]).as_secs_f64()).collect();
+    let per_iter: Vec<f64> = s.windows(2).map(|w| (w[1].0 - w[0].0).as_secs_f64()).collect();
     let mean_iter = if per_iter.is_empty() { f64::NAN } else { per_iter.iter().sum::<f64>() / per_iter.len() as f64 };
+    let cpu_iter = if s.len() < 2 { f64::NAN } else { (s[s.len() - 1].1 - s[0].1) / (s.len() - 1) as f64 };
     let mse = truth.iter().zip(&rec.cube).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / truth.len() as f64;
     let peak = truth.iter().cloned().fold(0.0f32, f32::max) as f64;
-    println!("\n| SP {size}×{size}×28, 112 planes, {rays} rays, {} threads | seconds |", rayon::current_num_threads());
-    println!("|---|---|");
-    println!("| build exact operator (trace all planes) | {t_build:.2} |");
-    println!("| Φ (exact apply, median of 5) | {t_apply:.3} |");
-    println!("| Φᵀ (exact adjoint, median of 5) | {t_adjoint:.3} |");
-    println!("| one GAP-TV iteration (mean of {}) | {mean_iter:.3} |", per_iter.len());
-    println!("| GAP-TV, {iterations} iterations (incl. preconditioner) | {t_total:.2} |");
+    println!("\n| SP {size}×{size}×28, 112 planes, {rays} rays, {} threads | wall s | CPU s |", rayon::current_num_threads());
+    println!("|---|---|---|");
+    println!("| build exact operator (trace all planes; {:.2} GB kept) | {t_build:.2} | {c_build:.1} |", exact.transport_bytes() as f64 / 1e9);
+    println!("| Φ (exact apply, median of 5) | {:.3} | {:.2} |", t_apply.0, t_apply.1);
+    println!("| Φᵀ (exact adjoint, median of 5) | {:.3} | {:.2} |", t_adjoint.0, t_adjoint.1);
+    println!("| TV (5 Chambolle iterations, vectorial, median of 5) | {:.3} | {:.2} |", t_tv.0, t_tv.1);
+    println!("| one GAP-TV iteration (mean of {}) | {mean_iter:.3} | {cpu_iter:.2} |", per_iter.len());
+    println!("| GAP-TV, {iterations} iterations (incl. preconditioner) | {t_total:.2} | {c_total:.1} |");
+    println!("| build + GAP-TV, {iterations} iterations | {:.2} | {:.1} |", t_build + t_total, c_build + c_total);
     println!("\nGAP-TV: final residual {:.3e}, PSNR {:.2} dB vs the noiseless truth (oracle operator), {} cube-sized solver buffers", rec.final_residual, 10.0 * (peak * peak / mse).log10(), rec.cube_buffers);
 }

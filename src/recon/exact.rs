@@ -19,15 +19,18 @@
 //! assumed), g_p = T_pᵀ z_p gathers each footprint's window, then mask and plane weight, and the
 //! interpolation transpose scatters g_p into bands k_p (weight 1 − t_p) and k_p + 1 (weight t_p).
 //!
-//! Memory: the transport of all planes is kept when it fits `memory_budget_bytes` (the CLI's
+//! Memory: every plane's transport is kept, re-laid as four-wide pieces with the mask folded in
+//! ([`CompactPlane`], ≈ the footprints' own size), when it fits `memory_budget_bytes` (the CLI's
 //! `--transport-memory-gb`); otherwise nothing is kept and every apply/adjoint re-traces the planes on the
-//! fly (slow, identical numbers: tracing is deterministic). Parallelism: planes are split into
-//! [`PLANE_CHUNKS`] fixed chunks (independent of the thread count), each chunk summed in plane order in f64,
-//! the chunks reduced in chunk order; so results do not depend on the number of threads.
+//! fly (slow, identical numbers: tracing and the re-layout are deterministic). Parallelism: planes are
+//! split into [`PLANE_CHUNKS`] fixed chunks (independent of the thread count), each chunk summed in plane
+//! order in f64 (adjoint: per band, in f32), the chunks reduced in chunk order; so results do not depend
+//! on the number of threads.
 //!
-//! Speed: the Airy blur dominates (81 taps × 112 planes at the paper's settings). It runs row by row as
-//! saxpys over contiguous slices (vectorised), and only over each plane's support (the bounding box of its
-//! footprints, dilated by the kernel) — the exact same per-pixel sums as [`AiryKernel::convolve`].
+//! Speed: per plane, the interpolation between the two bands is fused into the scatter (and its transpose
+//! into the gather, which adds straight into the bands); the Airy blur runs register-blocked over the
+//! plane's support only ([`crate::render::convolve`], AVX-512/AVX2/portable, bit-identical across paths)
+//! and adds each output tile to the chunk's f64 image at once. Scratch buffers are kept between calls.
 //!
 //! ```
 //! use diffcassi::prelude::*;
@@ -48,216 +51,36 @@
 //! assert!(y.iter().zip(&reference.image).all(|(a, b)| (*a as f64 - b).abs() <= 1e-6 * peak));
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
-use super::layout::{from_band_major_into, to_band_major};
+use super::compact::CompactPlane;
+use super::layout::to_band_major_into;
 use super::operator::{CubeShape, ImageShape, Operator};
 use crate::error::Result;
-use crate::render::{AiryKernel, PlaneTransport, Renderer};
+use crate::render::convolve::{convolve, correlate, PaddedLayout, TILE};
+use crate::render::{PlaneTransport, Renderer};
 use crate::scene::SpectralCube;
 use rayon::prelude::*;
 use std::borrow::Cow;
+use std::sync::Mutex;
+
+pub use crate::render::convolve::Rect;
 
 /// Planes are processed in this many fixed chunks (their f64 partial images are reduced in chunk order).
 pub const PLANE_CHUNKS: usize = 8;
 
-/// A half-open pixel rectangle on the detector: rows `y0..y1`, columns `x0..x1`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct Rect {
-    pub y0: usize,
-    pub y1: usize,
-    pub x0: usize,
-    pub x1: usize,
-}
-
-impl Rect {
-    fn is_empty(&self) -> bool {
-        self.y0 >= self.y1 || self.x0 >= self.x1
-    }
-}
-
 /// Bounding box of a plane's footprint windows (empty when no ray arrived).
 pub fn transport_support(t: &PlaneTransport) -> Rect {
-    let mut r = Rect { y0: usize::MAX, y1: 0, x0: usize::MAX, x1: 0 };
-    for f in &t.footprints {
-        r.y0 = r.y0.min(f.y0 as usize);
-        r.x0 = r.x0.min(f.x0 as usize);
-        r.y1 = r.y1.max(f.y0 as usize + f.h as usize);
-        r.x1 = r.x1.max(f.x0 as usize + f.w as usize);
-    }
-    if r.is_empty() {
-        Rect { y0: 0, y1: 0, x0: 0, x1: 0 }
-    } else {
-        r
-    }
+    t.support()
 }
 
-/// out += A ∗ src on a `width × height` image whose non-zero values all lie in `support` (zero outside the
-/// image). Per output pixel the taps are summed in the kernel's row-major order, exactly as
-/// [`AiryKernel::convolve`] (zero terms skipped), so the result is bit-identical to it. Returns the
-/// rectangle of `out` written.
-pub fn convolve_support(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usize, height: usize, support: Rect) -> Rect {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked just above).
-        return unsafe { convolve_support_avx2(k, src, out, width, height, support) };
-    }
-    convolve_support_body(k, src, out, width, height, support)
-}
-
-/// [`convolve_support`] compiled for AVX2 (8-lane saxpys). Multiplies and adds stay separate (no FMA
-/// contraction), so every lane computes the same IEEE operations as the scalar/SSE2 build: bit-identical.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn convolve_support_avx2(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usize, height: usize, support: Rect) -> Rect {
-    convolve_support_body(k, src, out, width, height, support)
-}
-
-#[inline(always)]
-fn convolve_support_body(k: &AiryKernel, src: &[f32], out: &mut [f32], width: usize, height: usize, support: Rect) -> Rect {
-    if support.is_empty() {
-        return support;
-    }
-    let n = 2 * k.half + 1;
-    let h = k.half;
-    let oy0 = support.y0.saturating_sub(h);
-    let oy1 = (support.y1 + h).min(height);
-    let ox0 = support.x0.saturating_sub(h);
-    let ox1 = (support.x1 + h).min(width);
-    for y in oy0..oy1 {
-        let orow = &mut out[y * width..(y + 1) * width];
-        for ki in 0..n {
-            // out[y][x] += w · src[y − dy][x − dx], dy = ki − h
-            let sy = y as isize - ki as isize + h as isize;
-            if sy < support.y0 as isize || sy >= support.y1 as isize {
-                continue;
-            }
-            let srow = &src[sy as usize * width..(sy as usize + 1) * width];
-            for kj in 0..n {
-                let wgt = k.weights[ki * n + kj];
-                if wgt == 0.0 {
-                    continue;
-                }
-                let dx = kj as isize - h as isize;
-                let x0 = (support.x0 as isize + dx).max(0) as usize;
-                let x1 = (support.x1 as isize + dx).min(width as isize);
-                if x1 <= x0 as isize {
-                    continue;
-                }
-                let x1 = x1 as usize;
-                let s0 = (x0 as isize - dx) as usize;
-                for (a, b) in orow[x0..x1].iter_mut().zip(&srow[s0..s0 + (x1 - x0)]) {
-                    *a += wgt * *b;
-                }
-            }
-        }
-    }
-    Rect { y0: oy0, y1: oy1, x0: ox0, x1: ox1 }
-}
-
-/// out[s] += Σ_taps w(ki, kj)·y[s + (dy, dx)] for s in `target` (the transpose of [`convolve_support`]'s
-/// zero-padded convolution, evaluated only on `target`): the correlation with the kernel, terms outside the
-/// image dropped.
-pub fn correlate_support(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usize, height: usize, target: Rect) {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU supports AVX2 (checked just above).
-        return unsafe { correlate_support_avx2(k, y, out, width, height, target) };
-    }
-    correlate_support_body(k, y, out, width, height, target)
-}
-
-/// [`correlate_support`] compiled for AVX2 (no FMA: bit-identical to the portable build).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn correlate_support_avx2(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usize, height: usize, target: Rect) {
-    correlate_support_body(k, y, out, width, height, target)
-}
-
-#[inline(always)]
-fn correlate_support_body(k: &AiryKernel, y: &[f32], out: &mut [f32], width: usize, height: usize, target: Rect) {
-    if target.is_empty() {
-        return;
-    }
-    let n = 2 * k.half + 1;
-    let h = k.half as isize;
-    for sy in target.y0..target.y1 {
-        let orow = &mut out[sy * width..(sy + 1) * width];
-        for ki in 0..n {
-            let yy = sy as isize + ki as isize - h;
-            if yy < 0 || yy >= height as isize {
-                continue;
-            }
-            let yrow = &y[yy as usize * width..(yy as usize + 1) * width];
-            for kj in 0..n {
-                let wgt = k.weights[ki * n + kj];
-                if wgt == 0.0 {
-                    continue;
-                }
-                let dx = kj as isize - h;
-                // s + dx must lie in [0, width)
-                let x0 = (target.x0 as isize).max(-dx) as usize;
-                let x1 = (target.x1 as isize).min(width as isize - dx);
-                if x1 <= x0 as isize {
-                    continue;
-                }
-                let x1 = x1 as usize;
-                let s0 = (x0 as isize + dx) as usize;
-                for (a, b) in orow[x0..x1].iter_mut().zip(&yrow[s0..s0 + (x1 - x0)]) {
-                    *a += wgt * *b;
-                }
-            }
-        }
-    }
-}
-
-/// T c: add Σ value(pixel)·footprint(pixel) to `image`, in footprint order — the same sums in the same order
-/// as [`PlaneTransport::apply`] (bit-identical), with the common 4-wide windows unrolled.
-pub fn transport_scatter(t: &PlaneTransport, values: &[f32], image: &mut [f32], detector_width: usize) {
-    for f in &t.footprints {
-        let v = values[f.pixel as usize];
-        if v == 0.0 {
-            continue;
-        }
-        let (w, h) = (f.w as usize, f.h as usize);
-        if w == 0 {
-            continue;
-        }
-        let ws = &t.weights[f.start as usize..f.start as usize + w * h];
-        let base = f.y0 as usize * detector_width + f.x0 as usize;
-        if w == 4 {
-            for (r, wr) in ws.chunks_exact(4).enumerate() {
-                let o = base + r * detector_width;
-                let row: &mut [f32; 4] = (&mut image[o..o + 4]).try_into().expect("4-wide window");
-                for c in 0..4 {
-                    row[c] += v * wr[c];
-                }
-            }
-        } else {
-            for (r, wr) in ws.chunks_exact(w).enumerate() {
-                let o = base + r * detector_width;
-                for (a, b) in image[o..o + w].iter_mut().zip(wr) {
-                    *a += v * *b;
-                }
-            }
-        }
-    }
-}
-
-/// Tᵀ z: each footprint's window of `z` weighted by the footprint's splat weights, written to
-/// `values[pixel]` (pixels without a footprint are left untouched).
-pub fn transport_gather(t: &PlaneTransport, z: &[f32], values: &mut [f32], detector_width: usize) {
-    for f in &t.footprints {
-        let (w, h) = (f.w as usize, f.h as usize);
-        let mut s = f.start as usize;
-        let mut acc = 0.0f32;
-        for r in 0..h {
-            let o = (f.y0 as usize + r) * detector_width + f.x0 as usize;
-            for (a, b) in z[o..o + w].iter().zip(&t.weights[s..s + w]) {
-                acc += *a * *b;
-            }
-            s += w;
-        }
-        values[f.pixel as usize] = acc;
-    }
+/// Scratch buffers of one chunk (kept between calls).
+#[derive(Default)]
+struct Scratch {
+    /// A plane's image (apply) or its correlation z (adjoint), padded layout.
+    img: Vec<f32>,
+    /// The chunk's f64 partial image (apply), padded layout.
+    acc: Vec<f64>,
+    /// The chunk's partial bands (adjoint), band-major over the chunk's band range.
+    bands: Vec<f32>,
 }
 
 /// Per plane of `renderer`: (lower band, upper band, weight of the upper band) of the cube bands `bands_nm`
@@ -284,11 +107,16 @@ pub struct ExactOperator<'a> {
     /// Per plane: lower band k, upper band min(k + 1, B − 1), weight t of the upper band (f32, as
     /// [`SpectralCube::plane`] uses it).
     interp: Vec<(usize, usize, f32)>,
-    /// Every plane's transport, or `None` when it did not fit the budget (re-traced on the fly).
+    /// Every plane's transport re-laid for the operator, or `None` when it did not fit the budget
+    /// (re-traced on the fly).
+    compact: Option<Vec<CompactPlane>>,
+    /// The traced transport itself, kept only by [`ExactOperator::from_traced`] (dataset-mode renders).
     transport: Option<Vec<PlaneTransport>>,
-    /// Support of each kept plane (empty when streaming).
-    supports: Vec<Rect>,
+    /// Padded layout of the detector images.
+    layout: PaddedLayout,
     transport_bytes: usize,
+    scratch: Mutex<Vec<Scratch>>,
+    buffers: Mutex<Vec<Vec<f32>>>,
 }
 
 impl<'a> ExactOperator<'a> {
@@ -307,27 +135,33 @@ impl<'a> ExactOperator<'a> {
     /// [`Renderer::rays_per_render`]).
     pub fn with_progress(renderer: Renderer<'a>, bands_nm: &[f64], memory_budget_bytes: u64, progress: &(dyn Fn(u64) + Sync)) -> Result<Self> {
         let interp = interpolation_table(&renderer, bands_nm)?;
+        let layout = layout(&renderer);
         let planes = renderer.config.spectral.planes();
-        // Probe the memory with the middle plane, then trace all planes (in parallel) if they should fit.
-        let middle = renderer.trace_plane(planes / 2)?;
+        let mask = &renderer.mask.values;
+        // Probe the memory with the middle plane, then trace all planes (in parallel, each re-laid and its
+        // footprints dropped at once) if they should fit.
+        let middle = CompactPlane::new(&renderer.trace_plane(planes / 2)?, mask, &layout);
         let estimate = middle.bytes() as f64 * planes as f64 * 1.25;
         drop(middle);
-        let (transport, supports, bytes) = if estimate <= memory_budget_bytes as f64 {
-            let all = renderer.trace_all(progress)?;
-            let bytes: usize = all.iter().map(|t| t.bytes()).sum();
-            let supports = all.iter().map(transport_support).collect();
-            if bytes as u64 <= memory_budget_bytes {
-                (Some(all), supports, bytes)
-            } else {
-                (None, Vec::new(), 0)
-            }
+        let compact = if estimate <= memory_budget_bytes as f64 {
+            let all: Vec<CompactPlane> = (0..planes)
+                .into_par_iter()
+                .map(|p| {
+                    let t = renderer.trace_plane(p)?;
+                    progress(t.stats.traced);
+                    Ok(CompactPlane::new(&t, mask, &layout))
+                })
+                .collect::<Result<_>>()?;
+            let bytes: usize = all.iter().map(|c| c.bytes()).sum();
+            (bytes as u64 <= memory_budget_bytes).then_some(all)
         } else {
-            // Streaming: every plane is traced at each use (its support computed then). Trace each once
-            // now (in parallel, each dropped at once), so a plane that cannot be traced is an error here, not mid-solve.
+            // Streaming: every plane is traced at each use. Trace each once now (in parallel, each dropped
+            // at once), so a plane that cannot be traced is an error here, not mid-solve.
             (0..planes).into_par_iter().try_for_each(|p| renderer.trace_plane(p).map(|t| progress(t.stats.traced)))?;
-            (None, Vec::new(), 0)
+            None
         };
-        Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, transport, supports, transport_bytes: bytes })
+        let bytes = compact.as_ref().map_or(0, |c| c.iter().map(|p| p.bytes()).sum());
+        Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, compact, transport: None, layout, transport_bytes: bytes, scratch: Mutex::default(), buffers: Mutex::default() })
     }
 
     pub fn renderer(&self) -> &Renderer<'a> {
@@ -340,25 +174,45 @@ impl<'a> ExactOperator<'a> {
 
     /// `true` when the transport is re-traced at every apply/adjoint (it did not fit the budget).
     pub fn is_streaming(&self) -> bool {
-        self.transport.is_none()
+        self.compact.is_none()
     }
 
-    /// Heap bytes of the kept transport (0 when streaming).
+    /// Heap bytes of the kept transport (the operator's layout, plus the footprints when
+    /// [`ExactOperator::from_traced`] keeps them; 0 when streaming).
     pub fn transport_bytes(&self) -> usize {
         self.transport_bytes
     }
 
-    /// Plane p's transport and its support (kept, or traced now).
-    fn plane_transport(&self, p: usize) -> (Cow<'_, PlaneTransport>, Rect) {
-        match &self.transport {
-            Some(t) => (Cow::Borrowed(&t[p]), self.supports[p]),
+    /// Plane p's transport (kept, or traced and re-laid now).
+    fn plane(&self, p: usize) -> Cow<'_, CompactPlane> {
+        match &self.compact {
+            Some(c) => Cow::Borrowed(&c[p]),
             None => {
                 // Every plane traced successfully at construction with the same inputs, and tracing is
                 // deterministic: this cannot fail.
                 let t = self.renderer.trace_plane(p).expect("re-tracing a plane of a validated renderer");
-                let r = transport_support(&t);
-                (Cow::Owned(t), r)
+                Cow::Owned(CompactPlane::new(&t, &self.renderer.mask.values, &self.layout))
             }
+        }
+    }
+
+    fn take_scratch(&self) -> Scratch {
+        self.scratch.lock().map(|mut v| v.pop()).ok().flatten().unwrap_or_default()
+    }
+
+    fn put_scratch(&self, s: Vec<Scratch>) {
+        if let Ok(mut v) = self.scratch.lock() {
+            v.extend(s);
+        }
+    }
+
+    fn take_buffer(&self) -> Vec<f32> {
+        self.buffers.lock().map(|mut v| v.pop()).ok().flatten().unwrap_or_default()
+    }
+
+    fn put_buffer(&self, b: Vec<f32>) {
+        if let Ok(mut v) = self.buffers.lock() {
+            v.push(b);
         }
     }
 
@@ -384,117 +238,136 @@ impl Operator for ExactOperator<'_> {
     fn apply_into(&self, cube: &[f32], image: &mut [f32]) {
         let cs = self.cube_shape();
         let npix = cs.height * cs.width;
-        let det = self.renderer.detector;
-        let (dw, dh) = (det.width, det.height);
+        let lay = self.layout;
+        let dw = lay.width;
         let weight = self.renderer.config.spectral.plane_weight;
-        let mask = &self.renderer.mask.values;
-        let bm = to_band_major(cube, npix, cs.bands);
-        let partial: Vec<Vec<f64>> = self
+        let mut bm_buf = self.take_buffer();
+        bm_buf.resize(npix * cs.bands, 0.0);
+        to_band_major_into(cube, npix, cs.bands, &mut bm_buf);
+        let bm = &bm_buf;
+        let parts: Vec<Scratch> = self
             .chunks()
             .into_par_iter()
             .map(|range| {
-                let mut acc = vec![0.0f64; dw * dh];
-                let mut values = vec![0.0f32; npix];
-                let mut img = vec![0.0f32; dw * dh];
-                let mut blurred = vec![0.0f32; dw * dh];
+                let mut s = self.take_scratch();
+                s.img.clear();
+                s.img.resize(lay.len(), 0.0);
+                s.acc.clear();
+                s.acc.resize(lay.len(), 0.0);
+                let Scratch { img, acc, .. } = &mut s;
                 for p in range {
                     let (k, k1, t) = self.interp[p];
-                    // 1–2: the plane of the scene (SpectralCube::plane), masked, in the renderer's arithmetic.
-                    let (xa, xb) = (&bm[k * npix..(k + 1) * npix], &bm[k1 * npix..(k1 + 1) * npix]);
-                    for (((v, a), b), m) in values.iter_mut().zip(xa).zip(xb).zip(mask) {
-                        *v = ((1.0 - t) * *a + t * *b) * *m;
-                    }
-                    // 3: transport.
-                    let (tr, sup) = self.plane_transport(p);
-                    transport_scatter(&tr, &values, &mut img, dw);
-                    // 4: Airy blur over the support; 5: weighted sum.
-                    let (src, rect) = match &self.renderer.kernels[p] {
+                    // 1–3: the plane between bands k and k + 1, masked and transported.
+                    let plane = self.plane(p);
+                    plane.scatter(&bm[k * npix..(k + 1) * npix], &bm[k1 * npix..(k1 + 1) * npix], t, &lay, img);
+                    let sup = plane.support;
+                    // 4: Airy blur over the support; 5: weighted sum, tile by tile.
+                    match &self.renderer.kernels[p] {
                         Some(kern) => {
-                            let r = convolve_support(kern, &img, &mut blurred, dw, dh, sup);
-                            (&mut blurred, r)
+                            convolve(kern, img, &lay, sup, &mut |y, x, _valid, tile: &[f32; TILE]| {
+                                let o = lay.index(x, y);
+                                for (a, v) in acc[o..o + TILE].iter_mut().zip(tile) {
+                                    *a += weight * *v as f64;
+                                }
+                            });
                         }
-                        None => (&mut img, sup),
-                    };
-                    for y in rect.y0..rect.y1 {
-                        let o = y * dw;
-                        for (a, b) in acc[o + rect.x0..o + rect.x1].iter_mut().zip(&mut src[o + rect.x0..o + rect.x1]) {
-                            *a += weight * *b as f64;
-                            *b = 0.0;
+                        None => {
+                            for y in sup.y0..sup.y1 {
+                                let (o0, o1) = (lay.index(sup.x0.min(dw), y), lay.index(sup.x1.min(dw), y));
+                                for (a, v) in acc[o0..o1].iter_mut().zip(&img[o0..o1]) {
+                                    *a += weight * *v as f64;
+                                }
+                            }
                         }
                     }
-                    if self.renderer.kernels[p].is_some() {
-                        for y in sup.y0..sup.y1 {
-                            img[y * dw + sup.x0..y * dw + sup.x1].iter_mut().for_each(|v| *v = 0.0);
-                        }
-                    }
+                    lay.clear(img, sup);
                 }
-                acc
+                s
             })
             .collect();
         image.par_chunks_mut(dw.max(1)).enumerate().for_each(|(y, row)| {
             for (x, v) in row.iter_mut().enumerate() {
+                let o = lay.index(x, y);
                 let mut s = 0.0f64;
-                for part in &partial {
-                    s += part[y * dw + x];
+                for part in &parts {
+                    s += part.acc[o];
                 }
                 *v = s as f32;
             }
         });
+        self.put_scratch(parts);
+        self.put_buffer(bm_buf);
     }
 
     fn adjoint_into(&self, image: &[f32], cube: &mut [f32]) {
         let cs = self.cube_shape();
         let npix = cs.height * cs.width;
-        let det = self.renderer.detector;
-        let (dw, dh) = (det.width, det.height);
+        let nb = cs.bands;
+        let lay = self.layout;
         let weight = self.renderer.config.spectral.plane_weight as f32;
-        let mask = &self.renderer.mask.values;
-        let planes = self.interp.len();
-        // g_p = w · M ⊙ T_pᵀ A_pᵀ y, one scene-sized image per plane.
-        let mut gathered = vec![0.0f32; planes * npix];
+        let mut yp_buf = self.take_buffer();
+        lay.pad_image(image, &mut yp_buf);
+        let yp = &yp_buf;
         let chunks = self.chunks();
-        let mut slices: Vec<&mut [f32]> = Vec::with_capacity(chunks.len());
-        let mut rest = gathered.as_mut_slice();
-        for r in &chunks {
-            let (a, b) = rest.split_at_mut(r.len() * npix);
-            slices.push(a);
-            rest = b;
-        }
-        chunks.into_par_iter().zip(slices).for_each(|(range, out)| {
-            let mut z = vec![0.0f32; dw * dh];
-            for (i, p) in range.enumerate() {
-                let g = &mut out[i * npix..(i + 1) * npix];
-                let (tr, sup) = self.plane_transport(p);
-                match &self.renderer.kernels[p] {
-                    Some(kern) => {
-                        correlate_support(kern, image, &mut z, dw, dh, sup);
-                        transport_gather(&tr, &z, g, dw);
-                        for y in sup.y0..sup.y1 {
-                            z[y * dw + sup.x0..y * dw + sup.x1].iter_mut().for_each(|v| *v = 0.0);
+        // Bands each chunk's planes touch.
+        let band_range = |r: &std::ops::Range<usize>| {
+            let lo = self.interp[r.clone()].iter().map(|i| i.0).min().unwrap_or(0);
+            let hi = self.interp[r.clone()].iter().map(|i| i.1).max().unwrap_or(0);
+            (lo, hi + 1)
+        };
+        let ranges: Vec<(usize, usize)> = chunks.iter().map(band_range).collect();
+        let parts: Vec<Scratch> = chunks
+            .into_par_iter()
+            .zip(ranges.par_iter())
+            .map(|(range, &(b0, b1))| {
+                let mut s = self.take_scratch();
+                s.img.resize(lay.len(), 0.0);
+                s.bands.clear();
+                s.bands.resize((b1 - b0) * npix, 0.0);
+                let Scratch { img: z, bands, .. } = &mut s;
+                for p in range {
+                    let (k, k1, t) = self.interp[p];
+                    let (ca, cb) = ((1.0 - t) * weight, t * weight);
+                    let plane = self.plane(p);
+                    // z = A_pᵀ y over the plane's support (every value a piece reads), or y itself.
+                    let src: &[f32] = match &self.renderer.kernels[p] {
+                        Some(kern) => {
+                            correlate(kern, yp, &lay, plane.support, &mut |y, x, _valid, tile: &[f32; TILE]| {
+                                let o = lay.index(x, y);
+                                z[o..o + TILE].copy_from_slice(tile);
+                            });
+                            z
                         }
+                        None => yp,
+                    };
+                    // Tᵀ, mask, plane weight and the interpolation transpose, into bands k and k + 1.
+                    if k == k1 {
+                        plane.gather(src, &lay, ca, cb, &mut bands[(k - b0) * npix..(k - b0 + 1) * npix], None);
+                    } else {
+                        let (lo, hi) = bands.split_at_mut((k1 - b0) * npix);
+                        plane.gather(src, &lay, ca, cb, &mut lo[(k - b0) * npix..(k - b0 + 1) * npix], Some(&mut hi[..npix]));
                     }
-                    None => transport_gather(&tr, image, g, dw),
                 }
-                for (v, m) in g.iter_mut().zip(mask) {
-                    *v *= weight * *m;
-                }
-            }
-        });
-        // Interpolation transpose, band by band, planes in order.
-        let mut bm = vec![0.0f32; npix * cs.bands];
-        bm.par_chunks_mut(npix.max(1)).enumerate().for_each(|(b, band)| {
-            for (p, &(k, k1, t)) in self.interp.iter().enumerate() {
-                let g = &gathered[p * npix..(p + 1) * npix];
-                if k == b {
-                    let s = 1.0 - t;
-                    band.iter_mut().zip(g).for_each(|(a, v)| *a += s * *v);
-                }
-                if k1 == b {
-                    band.iter_mut().zip(g).for_each(|(a, v)| *a += t * *v);
+                s
+            })
+            .collect();
+        // Chunks in order, per band; written in the cube's [pixel][band] order.
+        let per_band: Vec<Vec<(usize, usize)>> = (0..nb).map(|b| ranges.iter().enumerate().filter(|(_, r)| r.0 <= b && b < r.1).map(|(c, r)| (c, (b - r.0) * npix)).collect()).collect();
+        const ROW: usize = 1024;
+        cube.par_chunks_mut(ROW * nb).enumerate().for_each(|(blk, out)| {
+            let q0 = blk * ROW;
+            for (i, px) in out.chunks_mut(nb).enumerate() {
+                for (b, v) in px.iter_mut().enumerate() {
+                    let mut s = 0.0f32;
+                    for &(c, o) in &per_band[b] {
+                        s += parts[c].bands[o + q0 + i];
+                    }
+                    *v = s;
                 }
             }
         });
-        from_band_major_into(&bm, npix, cs.bands, cube);
+        self.put_scratch(parts);
+        self.put_buffer(yp_buf);
     }
 }
 
@@ -508,13 +381,21 @@ impl<'a> ExactOperator<'a> {
             return Err(crate::error::Error::invalid(format!("exact operator: {} traced planes for a render of {}", transport.len(), renderer.config.spectral.planes())));
         }
         let interp = interpolation_table(&renderer, bands_nm)?;
-        let supports = transport.iter().map(transport_support).collect();
-        let bytes = transport.iter().map(|t| t.bytes()).sum();
-        Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, transport: Some(transport), supports, transport_bytes: bytes })
+        let layout = layout(&renderer);
+        let compact: Vec<CompactPlane> = transport.par_iter().map(|t| CompactPlane::new(t, &renderer.mask.values, &layout)).collect();
+        let bytes = transport.iter().map(|t| t.bytes()).sum::<usize>() + compact.iter().map(|c| c.bytes()).sum::<usize>();
+        Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, compact: Some(compact), transport: Some(transport), layout, transport_bytes: bytes, scratch: Mutex::default(), buffers: Mutex::default() })
     }
 
-    /// The kept transport, one entry per plane (`None` when streaming).
+    /// The traced transport, one entry per plane — kept only by [`ExactOperator::from_traced`] (`None`
+    /// otherwise: [`ExactOperator::new`] keeps only the operator's own layout of it).
     pub fn transport(&self) -> Option<&[PlaneTransport]> {
         self.transport.as_deref()
     }
+}
+
+/// The padded detector layout for `renderer`'s kernels.
+fn layout(renderer: &Renderer<'_>) -> PaddedLayout {
+    let half = renderer.kernels.iter().flatten().map(|k| k.half).max().unwrap_or(0);
+    PaddedLayout::new(renderer.detector.width, renderer.detector.height, half)
 }

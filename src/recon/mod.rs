@@ -45,6 +45,7 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 pub mod admm;
+pub mod compact;
 pub mod exact;
 pub mod gap;
 pub mod layout;

@@ -42,23 +42,44 @@ pub enum TvCoupling {
 /// Chambolle's step τ.
 pub const TAU: f32 = 0.25;
 
-/// The dual field (p₁, p₂) and its divergence: three cube-sized buffers, reused across calls.
+/// The dual field (p₁, p₂) and its next iterate: four cube-sized buffers, reused across calls.
 #[derive(Clone, Debug, Default)]
 pub struct TvScratch {
     p1: Vec<f32>,
     p2: Vec<f32>,
-    div: Vec<f32>,
+    q1: Vec<f32>,
+    q2: Vec<f32>,
 }
 
 impl TvScratch {
     /// Heap bytes held.
     pub fn bytes(&self) -> usize {
-        (self.p1.capacity() + self.p2.capacity() + self.div.capacity()) * 4
+        (self.p1.capacity() + self.p2.capacity() + self.q1.capacity() + self.q2.capacity()) * 4
+    }
+}
+
+/// Scene rows per parallel task of a Chambolle iteration (fixed, so results do not depend on the thread
+/// count; every value depends only on the previous iterate anyway).
+const ROWS_PER_TASK: usize = 8;
+
+/// div p on row r (`out`, `row` = W·B values): (p₁[c] − p₁[c−1]) + (p₂[r] − p₂[r−1]), p outside the
+/// image = 0 (p on the last column/row stays 0 because g is 0 there).
+#[inline(always)]
+fn divergence_row(p1: &[f32], p2: &[f32], r: usize, row: usize, nb: usize, out: &mut [f32]) {
+    let (a, b) = (&p1[r * row..(r + 1) * row], &p2[r * row..(r + 1) * row]);
+    for k in 0..row {
+        let left = if k >= nb { a[k - nb] } else { 0.0 };
+        let up = if r > 0 { p2[(r - 1) * row + k] } else { 0.0 };
+        out[k] = a[k] - left + b[k] - up;
     }
 }
 
 /// u ← TV-denoise(f) with weight `weight` and `iterations` Chambolle iterations from p = 0 (see the
 /// [module docs](self)). `weight` = 0 or `iterations` = 0 copies f.
+///
+/// Each iteration is one pass: for every row, div p (of the previous iterate) on that row and the next is
+/// recomputed from p on the fly, and the new p is written to a second buffer (swapped after the pass),
+/// so div p is never stored — the same arithmetic as storing it, with a third less memory traffic.
 pub fn tv_denoise(f: &[f32], u: &mut [f32], shape: CubeShape, weight: f32, iterations: usize, coupling: TvCoupling, scratch: &mut TvScratch) {
     let n = shape.len();
     assert_eq!(f.len(), n);
@@ -69,73 +90,80 @@ pub fn tv_denoise(f: &[f32], u: &mut [f32], shape: CubeShape, weight: f32, itera
     }
     let (h, w, nb) = (shape.height, shape.width, shape.bands);
     let row = w * nb;
-    for v in [&mut scratch.p1, &mut scratch.p2, &mut scratch.div] {
+    for v in [&mut scratch.p1, &mut scratch.p2, &mut scratch.q1, &mut scratch.q2] {
         v.clear();
         v.resize(n, 0.0);
     }
     let inv_w = 1.0 / weight;
-    let TvScratch { p1, p2, div } = scratch;
+    let TvScratch { p1, p2, q1, q2 } = scratch;
     for _ in 0..iterations {
-        // p ← (p + τ g) / (1 + τ|g|), g = ∇(div p − f/w).
-        let (div_r, f_r) = (&*div, f);
-        p1.par_chunks_mut(row).zip(p2.par_chunks_mut(row)).enumerate().for_each_init(
+        // q ← (p + τ g) / (1 + τ|g|), g = ∇(div p − f/w).
+        let (p1r, p2r, f_r) = (&*p1, &*p2, f);
+        q1.par_chunks_mut(row * ROWS_PER_TASK).zip(q2.par_chunks_mut(row * ROWS_PER_TASK)).enumerate().for_each_init(
             || (vec![0.0f32; row], vec![0.0f32; row], vec![0.0f32; row], vec![0.0f32; row]),
-            |(z0, z1, g1, g2), (r, (p1r, p2r))| {
-                // z = div p − f/w on rows r and r + 1, then the forward differences g = ∇z.
-                let (d0, f0) = (&div_r[r * row..(r + 1) * row], &f_r[r * row..(r + 1) * row]);
-                for ((z, d), f) in z0.iter_mut().zip(d0).zip(f0) {
-                    *z = *d - *f * inv_w;
-                }
-                for k in 0..row - nb {
-                    g1[k] = z0[k + nb] - z0[k];
-                }
-                g1[row - nb..].iter_mut().for_each(|g| *g = 0.0);
-                if r + 1 < h {
-                    let (d1, f1) = (&div_r[(r + 1) * row..(r + 2) * row], &f_r[(r + 1) * row..(r + 2) * row]);
-                    for ((z, d), f) in z1.iter_mut().zip(d1).zip(f1) {
-                        *z = *d - *f * inv_w;
+            |(z0, z1, g1, g2), (blk, (q1b, q2b))| {
+                let r0 = blk * ROWS_PER_TASK;
+                // z = div p − f/w on row r0, then carried from row to row.
+                let z_row = |r: usize, z: &mut [f32]| {
+                    divergence_row(p1r, p2r, r, row, nb, z);
+                    for (z, f) in z.iter_mut().zip(&f_r[r * row..(r + 1) * row]) {
+                        *z -= *f * inv_w;
                     }
-                    for ((g, a), b) in g2.iter_mut().zip(z1.iter()).zip(z0.iter()) {
-                        *g = *a - *b;
+                };
+                z_row(r0, z0);
+                for (i, (q1row, q2row)) in q1b.chunks_mut(row).zip(q2b.chunks_mut(row)).enumerate() {
+                    let r = r0 + i;
+                    for k in 0..row - nb {
+                        g1[k] = z0[k + nb] - z0[k];
                     }
-                } else {
-                    g2.iter_mut().for_each(|g| *g = 0.0);
-                }
-                match coupling {
-                    TvCoupling::Vectorial => {
-                        for c in 0..w {
-                            let sl = c * nb..(c + 1) * nb;
-                            let norm = g1[sl.clone()].iter().zip(&g2[sl.clone()]).map(|(a, b)| a * a + b * b).sum::<f32>().sqrt();
-                            let d = 1.0 / (1.0 + TAU * norm);
-                            for k in sl {
-                                p1r[k] = (p1r[k] + TAU * g1[k]) * d;
-                                p2r[k] = (p2r[k] + TAU * g2[k]) * d;
+                    g1[row - nb..].iter_mut().for_each(|g| *g = 0.0);
+                    if r + 1 < h {
+                        z_row(r + 1, z1);
+                        for ((g, a), b) in g2.iter_mut().zip(z1.iter()).zip(z0.iter()) {
+                            *g = *a - *b;
+                        }
+                    } else {
+                        g2.iter_mut().for_each(|g| *g = 0.0);
+                    }
+                    let (a, b) = (&p1r[r * row..(r + 1) * row], &p2r[r * row..(r + 1) * row]);
+                    match coupling {
+                        TvCoupling::Vectorial => {
+                            for c in 0..w {
+                                let sl = c * nb..(c + 1) * nb;
+                                let norm = g1[sl.clone()].iter().zip(&g2[sl.clone()]).map(|(a, b)| a * a + b * b).sum::<f32>().sqrt();
+                                let d = 1.0 / (1.0 + TAU * norm);
+                                for k in sl {
+                                    q1row[k] = (a[k] + TAU * g1[k]) * d;
+                                    q2row[k] = (b[k] + TAU * g2[k]) * d;
+                                }
+                            }
+                        }
+                        TvCoupling::PerBand => {
+                            for k in 0..row {
+                                let d = 1.0 / (1.0 + TAU * (g1[k] * g1[k] + g2[k] * g2[k]).sqrt());
+                                q1row[k] = (a[k] + TAU * g1[k]) * d;
+                                q2row[k] = (b[k] + TAU * g2[k]) * d;
                             }
                         }
                     }
-                    TvCoupling::PerBand => {
-                        for k in 0..row {
-                            let d = 1.0 / (1.0 + TAU * (g1[k] * g1[k] + g2[k] * g2[k]).sqrt());
-                            p1r[k] = (p1r[k] + TAU * g1[k]) * d;
-                            p2r[k] = (p2r[k] + TAU * g2[k]) * d;
-                        }
-                    }
+                    std::mem::swap(z0, z1);
                 }
             },
         );
-        // div p = (p₁[c] − p₁[c−1]) + (p₂[r] − p₂[r−1]), p outside the image = 0 (p on the last column/row
-        // stays 0 because g is 0 there).
-        let (p1r, p2r) = (&*p1, &*p2);
-        div.par_chunks_mut(row).enumerate().for_each(|(r, dr)| {
-            let (a, b) = (&p1r[r * row..(r + 1) * row], &p2r[r * row..(r + 1) * row]);
-            for k in 0..row {
-                let left = if k >= nb { a[k - nb] } else { 0.0 };
-                let up = if r > 0 { p2r[(r - 1) * row + k] } else { 0.0 };
-                dr[k] = a[k] - left + b[k] - up;
-            }
-        });
+        std::mem::swap(p1, q1);
+        std::mem::swap(p2, q2);
     }
-    u.par_iter_mut().zip(f.par_iter()).zip(div.par_iter()).for_each(|((u, f), d)| *u = *f - weight * *d);
+    // u = f − w·div p.
+    let (p1r, p2r) = (&*p1, &*p2);
+    u.par_chunks_mut(row).enumerate().for_each_init(
+        || vec![0.0f32; row],
+        |d, (r, ur)| {
+            divergence_row(p1r, p2r, r, row, nb, d);
+            for ((u, f), d) in ur.iter_mut().zip(&f[r * row..(r + 1) * row]).zip(d.iter()) {
+                *u = *f - weight * *d;
+            }
+        },
+    );
 }
 
 /// Isotropic total variation Σ_pixels |∇u| of a cube with the given coupling (for tests and reports).

@@ -2,8 +2,9 @@
 //! disk (first dark ring) has diameter 2r₀ = 2.5 detector pixels at 520 nm, scaled ∝ λ (the paper's
 //! "Rendering"). The kernel is integrated over each pixel (8×8 sub-samples), truncated at a dark ring
 //! (default the third, r = 2.655 r₀, which holds 93.8 % of the energy) and renormalised to sum 1, so the
-//! convolution conserves energy. Convolution is direct (a tap at a time over whole rows, which vectorises)
-//! and deterministic.
+//! convolution conserves energy. [`AiryKernel::convolve`] is direct (a tap at a time over whole rows, which
+//! vectorises) and deterministic; the renderer and the exact operator use its register-blocked equivalent
+//! over each plane's support ([`super::convolve`], bit-identical to it).
 //!
 //! ```
 //! use diffcassi::render::AiryKernel;

@@ -5,6 +5,7 @@
 //! the band images summed in band order afterwards; every ray's random numbers depend only on
 //! (seed, plane, pixel, sample). So the result is bit-identical for any thread count.
 use super::airy::AiryKernel;
+use super::convolve::{convolve, PaddedLayout, TILE};
 use super::detector::Detector;
 use super::mask::Mask;
 use super::sampling::{RaySampler, Sampling};
@@ -232,45 +233,70 @@ impl<'a> Renderer<'a> {
         let det = self.detector;
         let npix = det.pixels();
         let band_planes: Vec<Vec<usize>> = (0..nb).map(|b| (0..sp.planes()).filter(|&p| sp.plane_band[p] == b).collect()).collect();
+        // The scene band-major (a copy), so that each plane reads two contiguous bands.
+        let (npx, sb) = (scene.height * scene.width, scene.bands());
+        let mut band_major = vec![0.0f32; npx * sb];
+        band_major.par_chunks_mut(npx).enumerate().for_each(|(b, plane)| plane.iter_mut().enumerate().for_each(|(q, v)| *v = scene.data[q * sb + b]));
+        let lay = PaddedLayout::new(det.width, det.height, self.kernels.iter().flatten().map(|k| k.half).max().unwrap_or(0));
         let results: Vec<Result<(Vec<f32>, RayStats, [f64; 3])>> = band_planes
             .par_iter()
-            .map(|planes| {
-                let mut band = vec![0.0f64; npix];
-                let mut stats = RayStats::default();
-                let mut secs = [0.0f64; 3];
-                for &p in planes {
-                    let t = Instant::now();
-                    let owned;
-                    let tr = match cached {
-                        Some(c) => &c[p],
-                        None => {
-                            owned = self.trace_plane(p)?;
-                            &owned
+            .map_init(
+                // Per-worker buffers, reused from band to band (`img` is cleared after each plane).
+                || (vec![0.0f64; npix], vec![0.0f32; npx], vec![0.0f32; lay.len()]),
+                |(band, values, img), planes| {
+                    band.iter_mut().for_each(|v| *v = 0.0);
+                    let mut stats = RayStats::default();
+                    let mut secs = [0.0f64; 3];
+                    for &p in planes {
+                        let t = Instant::now();
+                        let owned;
+                        let tr = match cached {
+                            Some(c) => &c[p],
+                            None => {
+                                owned = self.trace_plane(p)?;
+                                &owned
+                            }
+                        };
+                        secs[0] += t.elapsed().as_secs_f64();
+                        stats.add(&tr.stats);
+                        let t = Instant::now();
+                        // The plane of the scene ([`SpectralCube::plane`]'s arithmetic), masked.
+                        let (k, tw) = scene.interpolation(sp.planes_nm[p]);
+                        let (xa, xb) = (&band_major[k * npx..(k + 1) * npx], &band_major[(k + 1).min(sb - 1) * npx..((k + 1).min(sb - 1) + 1) * npx]);
+                        let tw = tw as f32;
+                        for (((v, a), b), m) in values.iter_mut().zip(xa).zip(xb).zip(&self.mask.values) {
+                            *v = ((1.0 - tw) * *a + tw * *b) * *m;
                         }
-                    };
-                    secs[0] += t.elapsed().as_secs_f64();
-                    stats.add(&tr.stats);
-                    let t = Instant::now();
-                    let mut values = scene.plane(sp.planes_nm[p]);
-                    for (v, m) in values.iter_mut().zip(&self.mask.values) {
-                        *v *= *m;
+                        tr.apply_padded(values, img, &lay);
+                        let sup = tr.support();
+                        secs[1] += t.elapsed().as_secs_f64();
+                        let t = Instant::now();
+                        // Airy blur over the support, each output tile added to the band at once (the sums
+                        // of `AiryKernel::convolve`, bit for bit; outside the support the blurred plane is 0).
+                        let w = sp.plane_weight;
+                        match &self.kernels[p] {
+                            Some(k) => {
+                                convolve(k, img, &lay, sup, &mut |y, x, valid, tile: &[f32; TILE]| {
+                                    for (a, b) in band[y * det.width + x..y * det.width + x + valid].iter_mut().zip(tile) {
+                                        *a += w * *b as f64;
+                                    }
+                                });
+                            }
+                            None => {
+                                for y in sup.y0..sup.y1 {
+                                    for (a, b) in band[y * det.width + sup.x0..y * det.width + sup.x1].iter_mut().zip(&img[lay.index(sup.x0, y)..lay.index(sup.x1, y)]) {
+                                        *a += w * *b as f64;
+                                    }
+                                }
+                            }
+                        }
+                        lay.clear(img, sup);
+                        secs[2] += t.elapsed().as_secs_f64();
+                        progress(tr.stats.traced);
                     }
-                    let mut img = vec![0.0f32; npix];
-                    tr.apply(&values, &mut img, det.width);
-                    secs[1] += t.elapsed().as_secs_f64();
-                    let t = Instant::now();
-                    let img = match &self.kernels[p] {
-                        Some(k) => k.convolve(&img, det.width, det.height),
-                        None => img,
-                    };
-                    for (a, b) in band.iter_mut().zip(&img) {
-                        *a += sp.plane_weight * *b as f64;
-                    }
-                    secs[2] += t.elapsed().as_secs_f64();
-                    progress(tr.stats.traced);
-                }
-                Ok((band.iter().map(|&v| v as f32).collect(), stats, secs))
-            })
+                    Ok((band.iter().map(|&v| v as f32).collect(), stats, secs))
+                },
+            )
             .collect();
         let mut image = vec![0.0f64; npix];
         let mut stats = RayStats::default();

@@ -27,6 +27,7 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 pub mod airy;
+pub mod convolve;
 pub mod dataset;
 pub mod detector;
 pub mod engine;

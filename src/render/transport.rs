@@ -123,6 +123,42 @@ impl PlaneTransport {
         (s > 0.0).then(|| (sx / s, sy / s))
     }
 
+    /// Bounding box of the footprint windows (empty when no ray arrived).
+    pub fn support(&self) -> super::convolve::Rect {
+        let mut r = super::convolve::Rect::default();
+        for f in &self.footprints {
+            r = r.union(&super::convolve::Rect { y0: f.y0 as usize, y1: f.y0 as usize + f.h as usize, x0: f.x0 as usize, x1: f.x0 as usize + f.w as usize });
+        }
+        r
+    }
+
+    /// [`PlaneTransport::apply`] into an image of layout `lay` (the same sums in the same order:
+    /// bit-identical), with the common 3- and 4-wide window rows unrolled.
+    pub fn apply_padded(&self, values: &[f32], image: &mut [f32], lay: &super::convolve::PaddedLayout) {
+        assert_eq!(image.len(), lay.len());
+        for f in &self.footprints {
+            let v = values[f.pixel as usize];
+            if v == 0.0 {
+                continue;
+            }
+            let (w, h) = (f.w as usize, f.h as usize);
+            let ws = &self.weights[f.start as usize..f.start as usize + w * h];
+            let base = lay.index(f.x0 as usize, f.y0 as usize);
+            match w {
+                3 => rows::<3>(ws, v, image, base, lay.stride),
+                4 => rows::<4>(ws, v, image, base, lay.stride),
+                _ => {
+                    for (r, wr) in ws.chunks_exact(w.max(1)).enumerate() {
+                        let o = base + r * lay.stride;
+                        for (a, b) in image[o..o + w].iter_mut().zip(wr) {
+                            *a += v * *b;
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Add Σ value(pixel)·footprint(pixel) to `image` (detector-sized, row-major), in footprint order.
     pub fn apply(&self, values: &[f32], image: &mut [f32], detector_width: usize) {
         for f in &self.footprints {
@@ -139,6 +175,18 @@ impl PlaneTransport {
                 }
                 s += w;
             }
+        }
+    }
+}
+
+/// image[base + r·stride + c] += v·w[r][c] for the rows of a W-wide window.
+#[inline(always)]
+fn rows<const W: usize>(ws: &[f32], v: f32, image: &mut [f32], base: usize, stride: usize) {
+    for (r, wr) in ws.chunks_exact(W).enumerate() {
+        let o = base + r * stride;
+        let px: &mut [f32; W] = (&mut image[o..o + W]).try_into().expect("W-wide row");
+        for c in 0..W {
+            px[c] += v * wr[c];
         }
     }
 }
