@@ -513,6 +513,12 @@ impl<'a> ExactOperator<'a> {
         Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, transport: Some(transport), supports, transport_bytes: bytes })
     }
 
+    /// Per plane: (lower band k, upper band min(k + 1, B − 1), weight t of the upper band) of the
+    /// bands → planes interpolation (the sparse export reads it).
+    pub fn interpolation(&self) -> &[(usize, usize, f32)] {
+        &self.interp
+    }
+
     /// The kept transport, one entry per plane (`None` when streaming).
     pub fn transport(&self) -> Option<&[PlaneTransport]> {
         self.transport.as_deref()
