@@ -4,8 +4,9 @@
     .venv/bin/python examples/python/bench_overhead.py --size 128 --rays 4   # a quicker render part
 
 1. Trace throughput at N rays (SP, seeded workload over the system's wavelengths): `diffcassi.trace` called from
-   Python (NumPy (N, 3) arrays in, the dict of NumPy arrays out) against `Tracer::trace` timed inside Rust on the
-   same rays (`_native._time_rust_trace`). Best of `--reps`.
+   Python (NumPy (N, 3) arrays in, the dict of NumPy arrays out) against, timed inside Rust on the same rays
+   (`_native._time_rust_trace`), `Tracer::trace` on an owned `RayBatch` and the binding's own blocked path
+   without Python (so the last difference is the binding alone). Repetitions interleaved; best of `--reps`.
 2. Dataset mode: `Transport.apply` per size×size×28 scene from Python against the CLI's dataset mode
    (`diffcassi bench-render`, its "dataset: per scene" row: `Renderer::render_cached`, the call `render-dataset`
    makes per scene), same system, size, 112 planes, rays and mask opening 0.5.
@@ -48,14 +49,22 @@ def main():
     ws = sp.wavelengths_nm
     o, d, w = sp.seeded_rays(a.rays_total // len(ws), ws, 1)
     n = len(w)
-    t_py = best(lambda: diffcassi.trace(sp, o, d, w), a.reps)
-    t_rs = min(_native._time_rust_trace(sp, o, d, w, reps=a.reps))
+    # Interleaved repetitions (Rust, Rust blocked, Python, ...) so that a change of machine load hits all
+    # three alike; the best of each is reported.
+    t_rs, t_blk, t_py = [], [], []
+    for _ in range(a.reps):
+        t_rs += _native._time_rust_trace(sp, o, d, w, reps=1)
+        t_blk += _native._time_rust_trace(sp, o, d, w, reps=1, blocked=True)
+        t_py.append(best(lambda: diffcassi.trace(sp, o, d, w), 1))
+    t_rs, t_blk, t_py = min(t_rs), min(t_blk), min(t_py)
     print(f"threads: {diffcassi.get_num_threads()}")
     print("| what | seconds | M rays/s |")
     print("|---|---|---|")
-    print(f"| trace {n} rays, Rust (`Tracer::trace`) | {t_rs:.3f} | {n / t_rs / 1e6:.2f} |")
+    print(f"| trace {n} rays, Rust (`Tracer::trace` on a `RayBatch`) | {t_rs:.3f} | {n / t_rs / 1e6:.2f} |")
+    print(f"| trace {n} rays, Rust (the binding's blocked path, no Python) | {t_blk:.3f} | {n / t_blk / 1e6:.2f} |")
     print(f"| trace {n} rays, Python (`diffcassi.trace`, NumPy in/out) | {t_py:.3f} | {n / t_py / 1e6:.2f} |")
-    print(f"| Python overhead | {100 * (t_py / t_rs - 1):+.1f} % | |")
+    print(f"| Python vs `Tracer::trace` | {100 * (t_py / t_rs - 1):+.1f} % | |")
+    print(f"| Python vs the same path in Rust (binding overhead) | {100 * (t_py / t_blk - 1):+.1f} % | |")
     if not a.skip_render:
         s = a.size
         t = time.perf_counter()

@@ -366,14 +366,43 @@ fn trace_interleaved(t: &dyn Tracer, sys: &SequentialSystem, origins: &[f64], di
     results.into_iter().collect()
 }
 
-/// Seconds per `Tracer::trace` of the rays, `reps` times, timed inside Rust (the overhead benchmark's
-/// reference for `trace` called from Python).
+/// Seconds per trace of the rays, `reps` times, timed inside Rust (the overhead benchmark's references for
+/// `trace` called from Python): `Tracer::trace` on an owned `RayBatch` (the library's API), or with
+/// `blocked`, the very function `trace` runs (`trace_interleaved`) writing into Rust vectors — the
+/// difference to `trace` from Python is then the binding alone (argument checks, NumPy allocation, dict).
 #[pyfunction]
-#[pyo3(signature = (system, origins, directions, wavelengths_nm, reps = 3, backend = "analytic"))]
-fn _time_rust_trace(py: Python<'_>, system: &PySystem, origins: &Bound<'_, PyAny>, directions: &Bound<'_, PyAny>, wavelengths_nm: &Bound<'_, PyAny>, reps: usize, backend: &str) -> PyResult<Vec<f64>> {
-    let rays = ray_batch(origins, directions, wavelengths_nm)?;
+#[pyo3(signature = (system, origins, directions, wavelengths_nm, reps = 3, backend = "analytic", blocked = false))]
+#[allow(clippy::too_many_arguments)]
+fn _time_rust_trace(
+    py: Python<'_>,
+    system: &PySystem,
+    origins: &Bound<'_, PyAny>,
+    directions: &Bound<'_, PyAny>,
+    wavelengths_nm: &Bound<'_, PyAny>,
+    reps: usize,
+    backend: &str,
+    blocked: bool,
+) -> PyResult<Vec<f64>> {
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
+    if blocked {
+        let (o, d, w) = ray_arrays(origins, directions, wavelengths_nm)?;
+        let (os, ds, ws) = (o.slice(), d.slice(), w.slice());
+        let n = ws.len();
+        return run(py, move || {
+            let mut times = Vec::new();
+            for _ in 0..reps {
+                let t0 = Instant::now();
+                let (mut p, mut dd, mut st, mut sf) = (vec![0.0f64; 3 * n], vec![0.0f64; 3 * n], vec![0u8; n], vec![0u32; n]);
+                trace_interleaved(t.as_ref(), &sys, os, ds, ws, TraceOut { positions: &mut p, directions: &mut dd, status: &mut st, surface: &mut sf })?;
+                times.push(t0.elapsed().as_secs_f64());
+                std::hint::black_box((p, dd, st, sf));
+            }
+            Ok(times)
+        })
+        .py();
+    }
+    let rays = ray_batch(origins, directions, wavelengths_nm)?;
     run(py, move || {
         let mut times = Vec::new();
         for _ in 0..reps {
