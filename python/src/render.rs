@@ -22,12 +22,23 @@ use std::time::Instant;
 
 /// A scene argument: (H, W, B) float32, C-contiguous, finite, B = the wavelengths' count.
 pub fn scene_cube(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>) -> PyResult<SpectralCube> {
+    scene_cube_in(scene, wavelengths_nm, Vec::new())
+}
+
+/// [`scene_cube`] copying the scene into `buffer` (its capacity reused: a warm buffer saves the page
+/// faults of a fresh scene-sized allocation at every call). The finiteness scan is `SpectralCube::new`'s;
+/// only when it fails is the array scanned again for the message naming the argument and index.
+pub fn scene_cube_in(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>, mut buffer: Vec<f32>) -> PyResult<SpectralCube> {
     let a: Input<f32> = input("scene", scene, "float32", 3, "(H, W, B)")?;
     if a.shape[2] != wavelengths_nm.len() {
         return Err(value_error(format!("scene: {} bands (shape {:?}) but {} wavelengths_nm", a.shape[2], a.shape, wavelengths_nm.len())));
     }
-    check_finite("scene", a.slice(), &a.shape)?;
-    SpectralCube::new(a.shape[0], a.shape[1], wavelengths_nm, a.slice().to_vec(), "scene array").py()
+    buffer.clear();
+    buffer.extend_from_slice(a.slice());
+    SpectralCube::new(a.shape[0], a.shape[1], wavelengths_nm, buffer, "scene array").or_else(|e| {
+        check_finite("scene", a.slice(), &a.shape)?;
+        Err(crate::errors::to_py(e))
+    })
 }
 
 fn scene_description(cube: &SpectralCube) -> serde_json::Value {
@@ -145,6 +156,8 @@ pub fn owned_exact(py: Python<'_>, system: &Arc<SequentialSystem>, cfg: RenderCo
 pub struct PyTransport {
     exact: Arc<OwnedExact>,
     system: Arc<SequentialSystem>,
+    /// The last scene's buffer, reused by the next `apply` (see [`scene_cube_in`]).
+    scratch: std::sync::Mutex<Vec<f32>>,
 }
 
 impl PyTransport {
@@ -163,7 +176,7 @@ impl PyTransport {
         let (cfg, m) = configure(height, width, &s.options, mask)?;
         let backend = s.backend.as_str();
         let exact = owned_exact(py, &system.inner, cfg, m, backend)?;
-        Ok(PyTransport { exact: Arc::new(exact), system: Arc::clone(&system.inner) })
+        Ok(PyTransport { exact: Arc::new(exact), system: Arc::clone(&system.inner), scratch: Default::default() })
     }
 
     /// Render `scene` ((H, W, B) float32; bands at `wavelengths_nm`, default the transport's bands):
@@ -174,9 +187,12 @@ impl PyTransport {
             Some(w) => f64_list("wavelengths_nm", w)?,
             None => self.renderer().config.spectral.bands_nm.clone(),
         };
-        let cube = scene_cube(scene, ws)?;
+        let buffer = std::mem::take(&mut *self.scratch.lock().unwrap_or_else(|p| p.into_inner()));
+        let cube = scene_cube_in(scene, ws, buffer)?;
         let planes = self.exact.op.transport().ok_or_else(|| value_error("internal: transport not kept"))?;
-        let acq = run(py, || self.renderer().render_cached(&cube, planes, false, &|_| {})).py()?;
+        let acq = run(py, || self.renderer().render_cached(&cube, planes, false, &|_| {}));
+        *self.scratch.lock().unwrap_or_else(|p| p.into_inner()) = cube.data;
+        let acq = acq.py()?;
         let (h, w) = (acq.detector.height, acq.detector.width);
         output(py, acq.image, &[h, w])
     }
