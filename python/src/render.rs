@@ -197,6 +197,30 @@ impl PyTransport {
         output(py, acq.image, &[h, w])
     }
 
+    /// Seconds per `Renderer::render_cached` of `scene` (the call `apply` and the CLI's dataset mode make),
+    /// `reps` times, timed inside Rust on a scene converted once (the overhead benchmark's reference).
+    #[pyo3(signature = (scene, wavelengths_nm = None, reps = 1))]
+    fn _time_render_cached(&self, py: Python<'_>, scene: &Bound<'_, PyAny>, wavelengths_nm: Option<&Bound<'_, PyAny>>, reps: usize) -> PyResult<Vec<f64>> {
+        let ws = match wavelengths_nm {
+            Some(w) => f64_list("wavelengths_nm", w)?,
+            None => self.renderer().config.spectral.bands_nm.clone(),
+        };
+        let cube = scene_cube(scene, ws)?;
+        let planes = self.exact.op.transport().ok_or_else(|| value_error("internal: transport not kept"))?;
+        run(py, || {
+            (0..reps)
+                .map(|_| {
+                    let t0 = Instant::now();
+                    let acq = self.renderer().render_cached(&cube, planes, false, &|_| {})?;
+                    let dt = t0.elapsed().as_secs_f64();
+                    std::hint::black_box(acq);
+                    Ok(dt)
+                })
+                .collect::<diffcassi::Result<Vec<f64>>>()
+        })
+        .py()
+    }
+
     /// Φᵀ image: `image` (h, w) float32 or float64 (the detector is small; converted to float32) → the
     /// cube (H, W, B) float32 at the transport's bands (the exact operator's adjoint).
     fn adjoint<'py>(&self, py: Python<'py>, image: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
