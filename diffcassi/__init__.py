@@ -120,8 +120,9 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
                                       "read_noise_e, adc_bits, noise_seed: the CLI's --noise options)")
     elif noise is not None:
         raise DiffcassiValueError(f"noise: expected None, a string such as 'shot,read,adc' or a dict, got {type(noise).__name__}")
-    acq, info = _native._render(system, scene, wavelengths_nm, mask, bands_nm, planes, rays, seed, sampling, opening,
-                                mask_seed, airy_diameter_px, airy, _check_backend(backend), **nz)
+    acq, info = _native._render(system, scene, wavelengths_nm, mask, bands_nm=bands_nm, planes=planes, rays=rays, seed=seed,
+                                sampling=sampling, opening=opening, mask_seed=mask_seed, airy_diameter_px=airy_diameter_px,
+                                airy=airy, backend=_check_backend(backend), **nz)
     return acq, _json.loads(info)
 
 
@@ -134,37 +135,44 @@ def exact(system: System, height: int, width: int, mask: Optional[np.ndarray] = 
     return _native.exact_operator(system, height, width, mask, **settings)
 
 
-def _csr_arrays(op: Operator, max_columns: int = 200_000):
-    return op._csr(max_columns)
+def _budget(memory_gb: float) -> int:
+    if not (isinstance(memory_gb, (int, float)) and np.isfinite(memory_gb) and memory_gb >= 0):
+        raise DiffcassiValueError(f"memory_gb: expected a finite number ≥ 0, got {memory_gb!r}")
+    return int(memory_gb * 1e9)
 
 
-def _to_scipy(self: Operator, max_columns: int = 200_000):
+def _csr_arrays(op: Operator, memory_gb: float = 4.0):
+    return op._csr(_budget(memory_gb))
+
+
+def _to_scipy(self: Operator, memory_gb: float = 4.0):
     """Φ as a ``scipy.sparse.csr_matrix`` of shape (h·w, H·W·B), float32: rows are detector pixels
     (row-major), columns the cube's entries in C order [row][col][band] (so ``A @ cube.ravel()`` is
-    ``apply(cube).ravel()``). Assembled column by column from ``apply`` (exact; time ∝ columns, so for
-    small problems: more than ``max_columns`` columns raise ValueError). Needs SciPy."""
+    ``apply(cube).ravel()`` to float rounding). Built by the library from the operator's footprints, Airy
+    kernels and interpolation table; a ValueError names the size when assembling it would take more than
+    ``memory_gb`` GB. Needs SciPy."""
     try:
         import scipy.sparse
     except ImportError as e:  # pragma: no cover - depends on the environment
         raise ImportError("to_scipy needs SciPy: pip install scipy (or use save_npz, which needs only NumPy)") from e
-    indptr, indices, data, shape = _csr_arrays(self, max_columns)
+    indptr, indices, data, shape = _csr_arrays(self, memory_gb)
     return scipy.sparse.csr_matrix((data, indices, indptr), shape=shape)
 
 
-def _save_npz(self: Operator, path, max_columns: int = 200_000, compressed: bool = True) -> None:
+def _save_npz(self: Operator, path, memory_gb: float = 4.0, compressed: bool = True) -> None:
     """Write Φ in ``scipy.sparse.save_npz``'s own layout (keys indices, indptr, format=b"csr", shape, data),
     with NumPy only: ``scipy.sparse.load_npz(path)`` reads it without diffcassi installed."""
-    indptr, indices, data, shape = _csr_arrays(self, max_columns)
+    indptr, indices, data, shape = _csr_arrays(self, memory_gb)
     save = np.savez_compressed if compressed else np.savez
     save(path, indices=indices, indptr=indptr, format=np.array(b"csr"), shape=np.array(shape, dtype=np.int64), data=data)
 
 
 Operator.to_scipy = _to_scipy  # type: ignore[attr-defined]
 Operator.save_npz = _save_npz  # type: ignore[attr-defined]
-Operator.to_csr_arrays = lambda self, max_columns=200_000: _csr_arrays(self, max_columns)  # type: ignore[attr-defined]
-Operator.to_csr_arrays.__doc__ = "(indptr int64, indices int64, data float32, shape) of Φ (see to_scipy)."
-Transport.to_scipy = lambda self, max_columns=200_000: _to_scipy(self.operator, max_columns)  # type: ignore[attr-defined]
-Transport.save_npz = lambda self, path, max_columns=200_000: _save_npz(self.operator, path, max_columns)  # type: ignore[attr-defined]
+Operator.to_csr_arrays = lambda self, memory_gb=4.0: _csr_arrays(self, memory_gb)  # type: ignore[attr-defined]
+Operator.to_csr_arrays.__doc__ = "(indptr int64, indices int32, data float32, shape) of Φ (see to_scipy)."
+Transport.to_scipy = lambda self, memory_gb=4.0: _to_scipy(self.operator, memory_gb)  # type: ignore[attr-defined]
+Transport.save_npz = lambda self, path, memory_gb=4.0, compressed=True: _save_npz(self.operator, path, memory_gb, compressed)  # type: ignore[attr-defined]
 Transport.detector = property(lambda self: _json.loads(self._detector_json()),  # type: ignore[attr-defined]
                               doc="The detector: width, height, pitch_mm, x_left_mm, y_top_mm.")
 

@@ -83,11 +83,13 @@ class CassiOperator(nn.Module):
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def from_operator(cls, op: Union["diffcassi.Operator", "diffcassi.Transport"], max_columns: int = 200_000) -> "CassiOperator":
-        """From a diffcassi Operator (``diffcassi.exact(...)``, ``Transport.operator``) or a Transport."""
+    def from_operator(cls, op: Union["diffcassi.Operator", "diffcassi.Transport"], memory_gb: float = 4.0) -> "CassiOperator":
+        """From a diffcassi Operator (``diffcassi.exact(...)``, ``mapping_operator``, ``shift_operator``,
+        ``Transport.operator``) or a Transport: the library's CSR export (refused, with the size, above
+        ``memory_gb`` GB)."""
         if isinstance(op, diffcassi.Transport):
             op = op.operator
-        indptr, indices, data, shape = op.to_csr_arrays(max_columns)
+        indptr, indices, data, shape = op.to_csr_arrays(memory_gb)
         return cls(indptr, indices, data, shape, op.cube_shape, op.image_shape)
 
     @classmethod

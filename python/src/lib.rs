@@ -17,6 +17,7 @@ mod errors;
 mod pool;
 mod recon;
 mod render;
+mod settings;
 mod system;
 
 #[pymodule]

@@ -1,33 +1,35 @@
 //! Reconstruction from Python: operators (apply/adjoint/shapes, sparse export) and metrics.
 //!
 //! An `Operator` wraps any `diffcassi::recon::Operator` (float32 cube (H, W, B) ↔ image (h, w)). Its
-//! sparse matrix (`_csr`) is assembled column by column from `apply` on unit cubes, in parallel: exact for
-//! any operator, O(columns × apply) in time, so meant for the small problems a torch module or a SciPy
-//! check uses (a cap on the column count guards against a paper-size call).
+//! sparse matrix (`_csr`) is the library's CSR export (`diffcassi::recon::sparse`), built from the
+//! operator's footprints, kernels and interpolation table under a memory budget.
 use crate::arrays::{check_finite, input, output};
 use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
-use crate::render::{check_shape, configure, owned_exact, Options};
+use crate::render::{check_shape, owned_exact};
+use crate::settings::configure;
 use crate::system::PySystem;
-use diffcassi::recon::{metrics, reconstruct, CubeShape, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, TvCoupling};
+use diffcassi::recon::{metrics, reconstruct, CubeShape, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, SparseExport, TvCoupling};
 use diffcassi::render::Renderer;
 use diffcassi::scene::SpectralCube;
 use numpy::PyArrayDyn;
 use pyo3::prelude::*;
-use rayon::prelude::*;
+use pyo3::types::PyDict;
 use std::sync::Arc;
 
 /// A linear operator Φ: cube (H, W, B) float32 → detector image (h, w) float32, with its adjoint.
 #[pyclass(name = "Operator", module = "diffcassi", frozen)]
 pub struct PyOperator {
     op: Arc<dyn Operator>,
+    /// The same operator, for its CSR export.
+    sparse: Arc<dyn SparseExport>,
     /// The mapping operator's own type, for its initialisation I = A ∘ f.
     mapping: Option<Arc<MappingOperator>>,
 }
 
 impl PyOperator {
-    pub fn new(op: Arc<dyn Operator>) -> Self {
-        PyOperator { op, mapping: None }
+    pub fn new<T: SparseExport + 'static>(op: Arc<T>) -> Self {
+        PyOperator { op: op.clone(), sparse: op, mapping: None }
     }
 }
 
@@ -92,63 +94,26 @@ impl PyOperator {
         output(py, cube, &[c.height, c.width, c.bands])
     }
 
-    /// The matrix of Φ in CSR form: (indptr int64 (h·w + 1), indices int64, data float32, (h·w, H·W·B)).
-    /// Rows are detector pixels (row-major), columns cube entries in C order [row][col][band]. Assembled
-    /// from Φ applied to unit cubes; refuses more than `max_columns` columns.
-    #[pyo3(signature = (max_columns = 200_000))]
+    /// The matrix of Φ in CSR form: (indptr int64 (h·w + 1), indices int32, data float32, (h·w, H·W·B)).
+    /// Rows are detector pixels (row-major), columns cube entries in C order [row][col][band]. Built by
+    /// the library from the operator's parts (`diffcassi::recon::sparse`); a `ValueError` names the size
+    /// when assembling it would take more than `memory_budget_bytes`.
+    #[pyo3(signature = (memory_budget_bytes = 4_000_000_000))]
     fn _csr<'py>(
         &self,
         py: Python<'py>,
-        max_columns: usize,
-    ) -> PyResult<(Bound<'py, PyArrayDyn<i64>>, Bound<'py, PyArrayDyn<i64>>, Bound<'py, PyArrayDyn<f32>>, (usize, usize))> {
-        let (c, i) = (self.op.cube_shape(), self.op.image_shape());
-        let (rows, cols) = (i.len(), c.len());
-        if cols > max_columns {
-            return Err(value_error(format!(
-                "to_scipy/save_npz: the operator has {cols} columns ({}×{}×{}), more than max_columns = {max_columns} (the matrix is assembled column by column; use a smaller problem)",
-                c.height, c.width, c.bands
-            )));
+        memory_budget_bytes: u64,
+    ) -> PyResult<(Bound<'py, PyArrayDyn<i64>>, Bound<'py, PyArrayDyn<i32>>, Bound<'py, PyArrayDyn<f32>>, (usize, usize))> {
+        let sparse = &self.sparse;
+        let csr = run(py, || sparse.to_csr(memory_budget_bytes)).py()?;
+        if csr.cols > i32::MAX as usize {
+            return Err(value_error(format!("to_scipy/save_npz: {} columns exceed SciPy's int32 column indices", csr.cols)));
         }
-        let op = &self.op;
-        // Column j's nonzeros (row, value), in parallel over fixed blocks of columns.
-        let columns: Vec<Vec<(u32, f32)>> = run(py, || {
-            (0..cols)
-                .into_par_iter()
-                .map_init(
-                    || (vec![0.0f32; cols], vec![0.0f32; rows]),
-                    |(unit, img), j| {
-                        unit[j] = 1.0;
-                        img.iter_mut().for_each(|v| *v = 0.0);
-                        op.apply_into(unit, img);
-                        unit[j] = 0.0;
-                        img.iter().enumerate().filter(|(_, v)| **v != 0.0).map(|(r, v)| (r as u32, *v)).collect()
-                    },
-                )
-                .collect()
-        });
-        // Transpose the columns into CSR (rows in order, columns ascending within a row).
-        let mut counts = vec![0i64; rows + 1];
-        for col in &columns {
-            for (r, _) in col {
-                counts[*r as usize + 1] += 1;
-            }
-        }
-        for r in 0..rows {
-            counts[r + 1] += counts[r];
-        }
-        let nnz = counts[rows] as usize;
-        let mut next: Vec<i64> = counts[..rows].to_vec();
-        let mut indices = vec![0i64; nnz];
-        let mut data = vec![0.0f32; nnz];
-        for (j, col) in columns.iter().enumerate() {
-            for (r, v) in col {
-                let k = next[*r as usize] as usize;
-                indices[k] = j as i64;
-                data[k] = *v;
-                next[*r as usize] += 1;
-            }
-        }
-        Ok((output(py, counts, &[rows + 1])?, output(py, indices, &[nnz])?, output(py, data, &[nnz])?, (rows, cols)))
+        let (rows, cols, nnz) = (csr.rows, csr.cols, csr.nnz());
+        // Same-size element conversions: collected in place (no new allocation).
+        let indptr: Vec<i64> = csr.indptr.into_iter().map(|v| v as i64).collect();
+        let indices: Vec<i32> = csr.indices.into_iter().map(|v| v as i32).collect();
+        Ok((output(py, indptr, &[rows + 1])?, output(py, indices, &[nnz])?, output(py, csr.data, &[nnz])?, (rows, cols)))
     }
 
     fn __repr__(&self) -> String {
@@ -158,41 +123,20 @@ impl PyOperator {
 }
 
 /// The `exact` operator: the renderer's light transport as a linear map (same settings and defaults as
-/// `render`; cubes at the render bands `bands_nm`).
+/// `render`, the keywords of [`crate::settings`]; cubes at the render bands `bands_nm`).
 #[pyfunction]
-#[pyo3(signature = (system, height, width, mask = None, bands_nm = None, planes = None, rays = None, seed = None,
-                    sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic"))]
-#[allow(clippy::too_many_arguments)]
-fn exact_operator(
-    py: Python<'_>,
-    system: &PySystem,
-    height: usize,
-    width: usize,
-    mask: Option<&Bound<'_, PyAny>>,
-    bands_nm: Option<&Bound<'_, PyAny>>,
-    planes: Option<usize>,
-    rays: Option<usize>,
-    seed: Option<u64>,
-    sampling: Option<String>,
-    opening: Option<f64>,
-    mask_seed: Option<u64>,
-    airy_diameter_px: Option<f64>,
-    airy: Option<bool>,
-    backend: &str,
-) -> PyResult<PyOperator> {
-    let bands_nm = bands_nm.map(|b| crate::arrays::f64_list("bands_nm", b)).transpose()?;
-    let o = Options { bands_nm, planes, rays, seed, sampling, opening, mask_seed, airy_diameter_px, airy };
-    let (cfg, m) = configure(height, width, &o, mask)?;
-    Ok(PyOperator::new(Arc::new(owned_exact(py, &system.inner, cfg, m, backend)?)))
+#[pyo3(signature = (system, height, width, mask = None, **settings))]
+fn exact_operator(py: Python<'_>, system: &PySystem, height: usize, width: usize, mask: Option<&Bound<'_, PyAny>>, settings: Option<&Bound<'_, PyDict>>) -> PyResult<PyOperator> {
+    let s = crate::settings::settings(py, settings, &[])?;
+    let (cfg, m) = configure(height, width, &s.options, mask)?;
+    Ok(PyOperator::new(Arc::new(owned_exact(py, &system.inner, cfg, m, &s.backend)?)))
 }
 
-/// The `mapping` (interpolation `nearest` or `bilinear`) or `shift` operator of `system` with these render
-/// settings (the same detector and mask as `render`/`Transport` with them; cubes at `bands_nm`).
+/// The `mapping` (keyword `interpolation`: `nearest`, the default, or `bilinear`) or `shift` operator of
+/// `system` with these render settings (the same detector and mask as `render`/`Transport` with them;
+/// cubes at `bands_nm`).
 #[pyfunction]
-#[pyo3(signature = (kind, system, height, width, mask = None, bands_nm = None, planes = None, rays = None, seed = None,
-                    sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic",
-                    interpolation = "nearest"))]
-#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (kind, system, height, width, mask = None, **settings))]
 fn model_operator(
     py: Python<'_>,
     kind: &str,
@@ -200,22 +144,12 @@ fn model_operator(
     height: usize,
     width: usize,
     mask: Option<&Bound<'_, PyAny>>,
-    bands_nm: Option<&Bound<'_, PyAny>>,
-    planes: Option<usize>,
-    rays: Option<usize>,
-    seed: Option<u64>,
-    sampling: Option<String>,
-    opening: Option<f64>,
-    mask_seed: Option<u64>,
-    airy_diameter_px: Option<f64>,
-    airy: Option<bool>,
-    backend: &str,
-    interpolation: &str,
+    settings: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<PyOperator> {
-    let bands_nm = bands_nm.map(|b| crate::arrays::f64_list("bands_nm", b)).transpose()?;
-    let o = Options { bands_nm, planes, rays, seed, sampling, opening, mask_seed, airy_diameter_px, airy };
-    let (cfg, m) = configure(height, width, &o, mask)?;
-    let interp = match interpolation {
+    let s = crate::settings::settings(py, settings, &["interpolation"])?;
+    let (cfg, m) = configure(height, width, &s.options, mask)?;
+    let interpolation: Option<String> = crate::settings::extra(&s, "interpolation", "a string")?;
+    let interp = match interpolation.as_deref().unwrap_or("nearest") {
         "nearest" => MappingInterpolation::Nearest,
         "bilinear" => MappingInterpolation::Bilinear,
         other => return Err(value_error(format!("interpolation `{other}`: use nearest or bilinear"))),
@@ -223,7 +157,7 @@ fn model_operator(
     if kind != "mapping" && kind != "shift" {
         return Err(value_error(format!("operator `{kind}`: use exact, mapping or shift")));
     }
-    let tr = crate::system::tracer(backend)?;
+    let tr = crate::system::tracer(&s.backend)?;
     let sys = Arc::clone(&system.inner);
     let kind = kind.to_string();
     run(py, move || -> diffcassi::Result<PyOperator> {
@@ -231,7 +165,7 @@ fn model_operator(
         let r = Renderer::new(&sys, tr.as_ref(), cfg, m)?;
         Ok(if kind == "mapping" {
             let op = Arc::new(MappingOperator::from_renderer(&r, &bands, interp)?);
-            PyOperator { op: op.clone(), mapping: Some(op) }
+            PyOperator { op: op.clone(), sparse: op.clone(), mapping: Some(op) }
         } else {
             PyOperator::new(Arc::new(ShiftOperator::from_renderer(&r, &bands)?))
         })

@@ -1,17 +1,17 @@
 //! `render` and `Transport`: coded acquisitions from NumPy scene cubes.
 //!
-//! Every setting the caller leaves at `None` takes the CLI's default, read from the CLI's own argument
-//! definitions (`diffcassi::cli::render::RenderCommon`, parsed from an empty command line) and turned into
-//! a configuration by the CLI's own `config_from`, so `render(system, scene, wl)` and
+//! The settings keywords are parsed in one place ([`crate::settings`]): every setting the caller leaves at
+//! `None` takes the CLI's default, so `render(system, scene, wl)` and
 //! `diffcassi render --scene FILE --scene-size N` give the same acquisition bit for bit.
 use crate::arrays::{check_finite, f64_list, input, output, Input};
 use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
+use crate::settings::{configure, extra};
 use crate::system::{tracer, PySystem};
-use clap::Parser;
-use diffcassi::cli::render::{config_from, NoiseArgs, RenderCommon};
-use diffcassi::recon::{CubeShape, ExactOperator, ImageShape, Operator};
+use diffcassi::cli::render::NoiseArgs;
+use diffcassi::recon::{CsrMatrix, CubeShape, ExactOperator, ImageShape, Operator, SparseExport};
 use diffcassi::render::{output as render_output, Mask, RenderConfig, Renderer};
+use pyo3::types::PyDict;
 use diffcassi::scene::SpectralCube;
 use diffcassi::system::SequentialSystem;
 use diffcassi::tracer::Tracer;
@@ -20,83 +20,25 @@ use pyo3::prelude::*;
 use std::sync::Arc;
 use std::time::Instant;
 
-/// The CLI's render arguments with their defaults (an empty command line).
-#[derive(Parser)]
-struct CliDefaults {
-    #[command(flatten)]
-    common: RenderCommon,
-}
-
-/// Render settings from Python keywords; `None` = the CLI's default.
-#[derive(Default, Clone)]
-pub struct Options {
-    pub bands_nm: Option<Vec<f64>>,
-    pub planes: Option<usize>,
-    pub rays: Option<usize>,
-    pub seed: Option<u64>,
-    pub sampling: Option<String>,
-    pub opening: Option<f64>,
-    pub mask_seed: Option<u64>,
-    pub airy_diameter_px: Option<f64>,
-    pub airy: Option<bool>,
-}
-
-/// The render configuration and mask for a `height × width` scene (the CLI's `config_from`, then the
-/// caller's mask array if any).
-pub fn configure(height: usize, width: usize, o: &Options, mask: Option<&Bound<'_, PyAny>>) -> PyResult<(RenderConfig, Mask)> {
-    let mut c = CliDefaults::try_parse_from(["diffcassi"]).map_err(|e| value_error(format!("internal: CLI defaults: {e}")))?.common;
-    if height == 0 || width == 0 {
-        return Err(value_error(format!("scene size {height}×{width}: must be ≥ 1")));
-    }
-    c.scene_size = height;
-    if let Some(b) = &o.bands_nm {
-        if b.is_empty() {
-            return Err(value_error("bands_nm: empty"));
-        }
-        c.bands = b.iter().map(|v| format!("{v}")).collect::<Vec<_>>().join(",");
-    }
-    if let Some(p) = o.planes {
-        c.planes = p;
-    }
-    c.rays = o.rays.or(c.rays);
-    c.seed = o.seed.unwrap_or(c.seed);
-    if let Some(s) = &o.sampling {
-        c.sampling = s.clone();
-    }
-    c.opening = o.opening.unwrap_or(c.opening);
-    c.mask_seed = o.mask_seed.unwrap_or(c.mask_seed);
-    c.airy_diameter_px = o.airy_diameter_px.unwrap_or(c.airy_diameter_px);
-    if let Some(a) = o.airy {
-        c.no_airy = !a;
-    }
-    let (mut cfg, mut m) = config_from(&c).py()?;
-    cfg.scene_height = height;
-    cfg.scene_width = width;
-    if width != height {
-        m = Mask::random(height, width, c.opening, c.mask_seed).py()?;
-    }
-    if let Some(obj) = mask {
-        let a: Input<f32> = input("mask", obj, "float32", 2, "(H, W)")?;
-        if a.shape != [height, width] {
-            return Err(value_error(format!("mask: expected shape ({height}, {width}) (the scene's), got {:?}", a.shape)));
-        }
-        let v = a.slice();
-        if let Some(i) = v.iter().position(|x| !(0.0..=1.0).contains(x)) {
-            return Err(value_error(format!("mask: value {} at index ({}, {}) is not in [0, 1]", v[i], i / width, i % width)));
-        }
-        m = Mask { height, width, values: v.to_vec(), description: "caller-provided array".into() };
-    }
-    Ok((cfg, m))
-}
-
 /// A scene argument: (H, W, B) float32, C-contiguous, finite, B = the wavelengths' count.
 pub fn scene_cube(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>) -> PyResult<SpectralCube> {
+    scene_cube_in(scene, wavelengths_nm, Vec::new())
+}
+
+/// [`scene_cube`] copying the scene into `buffer` (its capacity reused: a warm buffer saves the page
+/// faults of a fresh scene-sized allocation at every call). The finiteness scan is `SpectralCube::new`'s;
+/// only when it fails is the array scanned again for the message naming the argument and index.
+pub fn scene_cube_in(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>, mut buffer: Vec<f32>) -> PyResult<SpectralCube> {
     let a: Input<f32> = input("scene", scene, "float32", 3, "(H, W, B)")?;
     if a.shape[2] != wavelengths_nm.len() {
         return Err(value_error(format!("scene: {} bands (shape {:?}) but {} wavelengths_nm", a.shape[2], a.shape, wavelengths_nm.len())));
     }
-    check_finite("scene", a.slice(), &a.shape)?;
-    SpectralCube::new(a.shape[0], a.shape[1], wavelengths_nm, a.slice().to_vec(), "scene array").py()
+    buffer.clear();
+    buffer.extend_from_slice(a.slice());
+    SpectralCube::new(a.shape[0], a.shape[1], wavelengths_nm, buffer, "scene array").or_else(|e| {
+        check_finite("scene", a.slice(), &a.shape)?;
+        Err(crate::errors::to_py(e))
+    })
 }
 
 fn scene_description(cube: &SpectralCube) -> serde_json::Value {
@@ -104,43 +46,35 @@ fn scene_description(cube: &SpectralCube) -> serde_json::Value {
 }
 
 /// Render `scene` (H, W, B float32 at `wavelengths_nm`) through `system`: (acquisition (h, w) float64,
-/// render.json's content as JSON text).
+/// render.json's content as JSON text). `settings`: the render keywords ([`crate::settings`]) and the CLI's
+/// noise options (`noise`, `full_well_e`, `electrons_per_unit`, `read_noise_e`, `adc_bits`, `noise_seed`).
 #[pyfunction]
-#[pyo3(signature = (system, scene, wavelengths_nm, mask = None, bands_nm = None, planes = None, rays = None, seed = None,
-                    sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic",
-                    noise = None, full_well_e = None, electrons_per_unit = None, read_noise_e = None, adc_bits = None, noise_seed = None))]
-#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (system, scene, wavelengths_nm, mask = None, **settings))]
 fn _render<'py>(
     py: Python<'py>,
     system: &PySystem,
     scene: &Bound<'py, PyAny>,
     wavelengths_nm: &Bound<'py, PyAny>,
     mask: Option<&Bound<'py, PyAny>>,
-    bands_nm: Option<&Bound<'py, PyAny>>,
-    planes: Option<usize>,
-    rays: Option<usize>,
-    seed: Option<u64>,
-    sampling: Option<String>,
-    opening: Option<f64>,
-    mask_seed: Option<u64>,
-    airy_diameter_px: Option<f64>,
-    airy: Option<bool>,
-    backend: &str,
-    noise: Option<String>,
-    full_well_e: Option<f64>,
-    electrons_per_unit: Option<f64>,
-    read_noise_e: Option<f64>,
-    adc_bits: Option<u32>,
-    noise_seed: Option<u64>,
+    settings: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, String)> {
     let t0 = Instant::now();
+    let s = crate::settings::settings(py, settings, &NOISE_KEYS)?;
     // The CLI's own noise options and checks (`render --noise ...`).
-    let noise = NoiseArgs { noise, full_well_e, electrons_per_unit, read_noise_e, adc_bits, noise_seed }.config().py()?;
+    let noise = NoiseArgs {
+        noise: extra(&s, "noise", "a string")?,
+        full_well_e: extra(&s, "full_well_e", "a number")?,
+        electrons_per_unit: extra(&s, "electrons_per_unit", "a number")?,
+        read_noise_e: extra(&s, "read_noise_e", "a number")?,
+        adc_bits: extra(&s, "adc_bits", "an integer ≥ 0")?,
+        noise_seed: extra(&s, "noise_seed", "an integer ≥ 0")?,
+    }
+    .config()
+    .py()?;
     let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
     let cube = scene_cube(scene, ws)?;
-    let bands_nm = bands_nm.map(|b| f64_list("bands_nm", b)).transpose()?;
-    let o = Options { bands_nm, planes, rays, seed, sampling, opening, mask_seed, airy_diameter_px, airy };
-    let (cfg, m) = configure(cube.height, cube.width, &o, mask)?;
+    let (cfg, m) = configure(cube.height, cube.width, &s.options, mask)?;
+    let backend = s.backend.as_str();
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
     let threads = crate::pool::get_num_threads();
@@ -160,6 +94,9 @@ fn _render<'py>(
     let (h, w) = (acq.detector.height, acq.detector.width);
     Ok((output(py, acq.image, &[h, w])?, info.to_string()))
 }
+
+/// The noise keywords of `render` (the CLI's `--noise` options).
+const NOISE_KEYS: [&str; 6] = ["noise", "full_well_e", "electrons_per_unit", "read_noise_e", "adc_bits", "noise_seed"];
 
 /// The exact operator together with the system and tracer it borrows, owned as one value.
 pub struct OwnedExact {
@@ -184,6 +121,12 @@ impl Operator for OwnedExact {
     }
     fn adjoint_into(&self, image: &[f32], cube: &mut [f32]) {
         self.op.adjoint_into(image, cube)
+    }
+}
+
+impl SparseExport for OwnedExact {
+    fn to_csr(&self, memory_budget_bytes: u64) -> diffcassi::Result<CsrMatrix> {
+        self.op.to_csr(memory_budget_bytes)
     }
 }
 
@@ -213,6 +156,8 @@ pub fn owned_exact(py: Python<'_>, system: &Arc<SequentialSystem>, cfg: RenderCo
 pub struct PyTransport {
     exact: Arc<OwnedExact>,
     system: Arc<SequentialSystem>,
+    /// The last scene's buffer, reused by the next `apply` (see [`scene_cube_in`]).
+    scratch: std::sync::Mutex<Vec<f32>>,
 }
 
 impl PyTransport {
@@ -223,32 +168,15 @@ impl PyTransport {
 
 #[pymethods]
 impl PyTransport {
+    /// `settings`: the render keywords ([`crate::settings`]); `None` = the CLI's default.
     #[new]
-    #[pyo3(signature = (system, height, width, mask = None, bands_nm = None, planes = None, rays = None, seed = None,
-                        sampling = None, opening = None, mask_seed = None, airy_diameter_px = None, airy = None, backend = "analytic"))]
-    #[allow(clippy::too_many_arguments)]
-    fn new(
-        py: Python<'_>,
-        system: &PySystem,
-        height: usize,
-        width: usize,
-        mask: Option<&Bound<'_, PyAny>>,
-        bands_nm: Option<&Bound<'_, PyAny>>,
-        planes: Option<usize>,
-        rays: Option<usize>,
-        seed: Option<u64>,
-        sampling: Option<String>,
-        opening: Option<f64>,
-        mask_seed: Option<u64>,
-        airy_diameter_px: Option<f64>,
-        airy: Option<bool>,
-        backend: &str,
-    ) -> PyResult<Self> {
-        let bands_nm = bands_nm.map(|b| f64_list("bands_nm", b)).transpose()?;
-        let o = Options { bands_nm, planes, rays, seed, sampling, opening, mask_seed, airy_diameter_px, airy };
-        let (cfg, m) = configure(height, width, &o, mask)?;
+    #[pyo3(signature = (system, height, width, mask = None, **settings))]
+    fn new(py: Python<'_>, system: &PySystem, height: usize, width: usize, mask: Option<&Bound<'_, PyAny>>, settings: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+        let s = crate::settings::settings(py, settings, &[])?;
+        let (cfg, m) = configure(height, width, &s.options, mask)?;
+        let backend = s.backend.as_str();
         let exact = owned_exact(py, &system.inner, cfg, m, backend)?;
-        Ok(PyTransport { exact: Arc::new(exact), system: Arc::clone(&system.inner) })
+        Ok(PyTransport { exact: Arc::new(exact), system: Arc::clone(&system.inner), scratch: Default::default() })
     }
 
     /// Render `scene` ((H, W, B) float32; bands at `wavelengths_nm`, default the transport's bands):
@@ -259,11 +187,38 @@ impl PyTransport {
             Some(w) => f64_list("wavelengths_nm", w)?,
             None => self.renderer().config.spectral.bands_nm.clone(),
         };
-        let cube = scene_cube(scene, ws)?;
+        let buffer = std::mem::take(&mut *self.scratch.lock().unwrap_or_else(|p| p.into_inner()));
+        let cube = scene_cube_in(scene, ws, buffer)?;
         let planes = self.exact.op.transport().ok_or_else(|| value_error("internal: transport not kept"))?;
-        let acq = run(py, || self.renderer().render_cached(&cube, planes, false, &|_| {})).py()?;
+        let acq = run(py, || self.renderer().render_cached(&cube, planes, false, &|_| {}));
+        *self.scratch.lock().unwrap_or_else(|p| p.into_inner()) = cube.data;
+        let acq = acq.py()?;
         let (h, w) = (acq.detector.height, acq.detector.width);
         output(py, acq.image, &[h, w])
+    }
+
+    /// Seconds per `Renderer::render_cached` of `scene` (the call `apply` and the CLI's dataset mode make),
+    /// `reps` times, timed inside Rust on a scene converted once (the overhead benchmark's reference).
+    #[pyo3(signature = (scene, wavelengths_nm = None, reps = 1))]
+    fn _time_render_cached(&self, py: Python<'_>, scene: &Bound<'_, PyAny>, wavelengths_nm: Option<&Bound<'_, PyAny>>, reps: usize) -> PyResult<Vec<f64>> {
+        let ws = match wavelengths_nm {
+            Some(w) => f64_list("wavelengths_nm", w)?,
+            None => self.renderer().config.spectral.bands_nm.clone(),
+        };
+        let cube = scene_cube(scene, ws)?;
+        let planes = self.exact.op.transport().ok_or_else(|| value_error("internal: transport not kept"))?;
+        run(py, || {
+            (0..reps)
+                .map(|_| {
+                    let t0 = Instant::now();
+                    let acq = self.renderer().render_cached(&cube, planes, false, &|_| {})?;
+                    let dt = t0.elapsed().as_secs_f64();
+                    std::hint::black_box(acq);
+                    Ok(dt)
+                })
+                .collect::<diffcassi::Result<Vec<f64>>>()
+        })
+        .py()
     }
 
     /// Φᵀ image: `image` (h, w) float32 or float64 (the detector is small; converted to float32) → the

@@ -1,14 +1,14 @@
 //! `System` and the traces and analyses on it: each delegates to the Rust API unchanged, so NumPy results
 //! are the Rust results bit for bit.
-use crate::arrays::{check_finite, f64_list, input, output};
+use crate::arrays::{check_finite, f64_list, input, output, Input};
 use crate::errors::{file_error, value_error, IntoPy};
 use crate::pool::run;
 use diffcassi::analysis;
 use diffcassi::diff::ParamSet;
 use diffcassi::rays::RayBatch;
 use diffcassi::system::SequentialSystem;
-use diffcassi::tracer::{BackendConfig, Tracer, TracedBatch};
-use numpy::PyArrayDyn;
+use diffcassi::tracer::{BackendConfig, RaySlices, Tracer, TracedBatch};
+use numpy::{PyArray1, PyArray2, PyArrayDyn, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::sync::Arc;
@@ -42,8 +42,9 @@ fn pair(name: &str, v: &[f64]) -> PyResult<[f64; 2]> {
     }
 }
 
-/// A ray batch from (N, 3) origins, (N, 3) directions and (N,) wavelengths (float64, C-contiguous).
-pub fn ray_batch(origins: &Bound<'_, PyAny>, directions: &Bound<'_, PyAny>, wavelengths_nm: &Bound<'_, PyAny>) -> PyResult<RayBatch> {
+/// The borrowed, checked ray arrays: (N, 3) origins, (N, 3) directions and (N,) wavelengths (float64,
+/// C-contiguous, the same N). Finiteness is not checked here (see [`ray_batch`]).
+pub fn ray_arrays<'py>(origins: &Bound<'py, PyAny>, directions: &Bound<'py, PyAny>, wavelengths_nm: &Bound<'py, PyAny>) -> PyResult<(Input<'py, f64>, Input<'py, f64>, Input<'py, f64>)> {
     let o = input::<f64>("origins", origins, "float64", 2, "(N, 3)")?;
     let d = input::<f64>("directions", directions, "float64", 2, "(N, 3)")?;
     let w = input::<f64>("wavelengths_nm", wavelengths_nm, "float64", 1, "(N,)")?;
@@ -54,6 +55,13 @@ pub fn ray_batch(origins: &Bound<'_, PyAny>, directions: &Bound<'_, PyAny>, wave
             o.shape, d.shape, w.shape
         )));
     }
+    Ok((o, d, w))
+}
+
+/// A ray batch (owned columns) from (N, 3) origins, (N, 3) directions and (N,) wavelengths (float64,
+/// C-contiguous), wavelengths checked finite.
+pub fn ray_batch(origins: &Bound<'_, PyAny>, directions: &Bound<'_, PyAny>, wavelengths_nm: &Bound<'_, PyAny>) -> PyResult<RayBatch> {
+    let (o, d, w) = ray_arrays(origins, directions, wavelengths_nm)?;
     check_finite("wavelengths_nm", w.slice(), &w.shape)?;
     let (os, ds) = (o.slice(), d.slice());
     let column = |v: &[f64], k: usize| -> Vec<f64> { v.chunks_exact(3).map(|p| p[k]).collect() };
@@ -275,21 +283,126 @@ fn pupil_points(pupil: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<[f64; 2]>> {
 #[pyfunction]
 #[pyo3(signature = (system, origins, directions, wavelengths_nm, backend = "analytic"))]
 fn trace<'py>(py: Python<'py>, system: &PySystem, origins: &Bound<'py, PyAny>, directions: &Bound<'py, PyAny>, wavelengths_nm: &Bound<'py, PyAny>, backend: &str) -> PyResult<Bound<'py, PyDict>> {
-    let rays = ray_batch(origins, directions, wavelengths_nm)?;
+    let (o, d, w) = ray_arrays(origins, directions, wavelengths_nm)?;
+    let n = w.shape[0];
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
-    let out = run(py, move || t.trace(&sys, &rays)).py()?;
-    traced_out(py, out)
+    // The outputs are allocated by NumPy (zeroed lazily by the OS: first touched by the threads that fill them).
+    let positions = PyArray2::<f64>::zeros(py, [n, 3], false);
+    let directions_out = PyArray2::<f64>::zeros(py, [n, 3], false);
+    let status = PyArray1::<u8>::zeros(py, n, false);
+    let surface = PyArray1::<u32>::zeros(py, n, false);
+    {
+        let (mut p, mut dd, mut st, mut sf) = (positions.readwrite(), directions_out.readwrite(), status.readwrite(), surface.readwrite());
+        let out = TraceOut {
+            positions: p.as_slice_mut().map_err(|e| value_error(format!("internal: {e}")))?,
+            directions: dd.as_slice_mut().map_err(|e| value_error(format!("internal: {e}")))?,
+            status: st.as_slice_mut().map_err(|e| value_error(format!("internal: {e}")))?,
+            surface: sf.as_slice_mut().map_err(|e| value_error(format!("internal: {e}")))?,
+        };
+        let (os, ds, ws) = (o.slice(), d.slice(), w.slice());
+        run(py, move || trace_interleaved(t.as_ref(), &sys, os, ds, ws, out)).py()?;
+    }
+    let dict = PyDict::new(py);
+    dict.set_item("positions", positions)?;
+    dict.set_item("directions", directions_out)?;
+    dict.set_item("status", status)?;
+    dict.set_item("surface", surface)?;
+    Ok(dict)
 }
 
-/// Seconds per `Tracer::trace` of the rays, `reps` times, timed inside Rust (the overhead benchmark's
-/// reference for `trace` called from Python).
+/// Where [`trace_interleaved`] writes: positions and directions (N, 3) row-major, status and surface (N,).
+struct TraceOut<'a> {
+    positions: &'a mut [f64],
+    directions: &'a mut [f64],
+    status: &'a mut [u8],
+    surface: &'a mut [u32],
+}
+
+/// Rays per block of [`trace_interleaved`] (fixed; results are per ray, so they do not depend on it).
+const TRACE_BLOCK: usize = 16 * 1024;
+
+/// Trace rays given as (N, 3) row-major origins and directions straight into (N, 3) outputs: blocks of
+/// [`TRACE_BLOCK`] rays, in parallel, each transposed into small column buffers (cache-resident),
+/// traced through [`Tracer::trace_slices`] and interleaved into its slice of the outputs — no N-sized
+/// temporary. Runs without the GIL. Errors (a wavelength outside a glass's range) are the first block's
+/// in block order, so the message does not depend on the thread count.
+fn trace_interleaved(t: &dyn Tracer, sys: &SequentialSystem, origins: &[f64], dirs: &[f64], wavelengths_nm: &[f64], out: TraceOut<'_>) -> diffcassi::Result<()> {
+    use rayon::prelude::*;
+    if let Some(i) = wavelengths_nm.iter().position(|v| !v.is_finite()) {
+        return Err(diffcassi::Error::invalid(format!("wavelengths_nm: value {} at index [{i}] is not finite", wavelengths_nm[i])));
+    }
+    let results: Vec<diffcassi::Result<()>> = out
+        .positions
+        .par_chunks_mut(3 * TRACE_BLOCK)
+        .zip(out.directions.par_chunks_mut(3 * TRACE_BLOCK))
+        .zip(out.status.par_chunks_mut(TRACE_BLOCK))
+        .zip(out.surface.par_chunks_mut(TRACE_BLOCK))
+        .enumerate()
+        .map_init(
+            || vec![Vec::<f64>::with_capacity(TRACE_BLOCK); 6],
+            |cols, (blk, (((pos, dir), st), sf))| {
+                let (a, m) = (blk * TRACE_BLOCK, st.len());
+                let (o, d) = (&origins[3 * a..3 * (a + m)], &dirs[3 * a..3 * (a + m)]);
+                for (k, c) in cols.iter_mut().enumerate() {
+                    let src = if k < 3 { o } else { d };
+                    c.clear();
+                    c.extend(src.chunks_exact(3).map(|p| p[k % 3]));
+                }
+                let rays = RaySlices::new(&cols[0], &cols[1], &cols[2], &cols[3], &cols[4], &cols[5], &wavelengths_nm[a..a + m])?;
+                let tb = t.trace_slices(sys, rays)?;
+                for (i, (p, dd)) in pos.chunks_exact_mut(3).zip(dir.chunks_exact_mut(3)).enumerate() {
+                    p.copy_from_slice(&[tb.x[i], tb.y[i], tb.z[i]]);
+                    dd.copy_from_slice(&[tb.dir_x[i], tb.dir_y[i], tb.dir_z[i]]);
+                }
+                for (s, v) in st.iter_mut().zip(&tb.status) {
+                    *s = *v as u8;
+                }
+                sf.copy_from_slice(&tb.surface);
+                Ok(())
+            },
+        )
+        .collect();
+    results.into_iter().collect()
+}
+
+/// Seconds per trace of the rays, `reps` times, timed inside Rust (the overhead benchmark's references for
+/// `trace` called from Python): `Tracer::trace` on an owned `RayBatch` (the library's API), or with
+/// `blocked`, the very function `trace` runs (`trace_interleaved`) writing into Rust vectors — the
+/// difference to `trace` from Python is then the binding alone (argument checks, NumPy allocation, dict).
 #[pyfunction]
-#[pyo3(signature = (system, origins, directions, wavelengths_nm, reps = 3, backend = "analytic"))]
-fn _time_rust_trace(py: Python<'_>, system: &PySystem, origins: &Bound<'_, PyAny>, directions: &Bound<'_, PyAny>, wavelengths_nm: &Bound<'_, PyAny>, reps: usize, backend: &str) -> PyResult<Vec<f64>> {
-    let rays = ray_batch(origins, directions, wavelengths_nm)?;
+#[pyo3(signature = (system, origins, directions, wavelengths_nm, reps = 3, backend = "analytic", blocked = false))]
+#[allow(clippy::too_many_arguments)]
+fn _time_rust_trace(
+    py: Python<'_>,
+    system: &PySystem,
+    origins: &Bound<'_, PyAny>,
+    directions: &Bound<'_, PyAny>,
+    wavelengths_nm: &Bound<'_, PyAny>,
+    reps: usize,
+    backend: &str,
+    blocked: bool,
+) -> PyResult<Vec<f64>> {
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
+    if blocked {
+        let (o, d, w) = ray_arrays(origins, directions, wavelengths_nm)?;
+        let (os, ds, ws) = (o.slice(), d.slice(), w.slice());
+        let n = ws.len();
+        return run(py, move || {
+            let mut times = Vec::new();
+            for _ in 0..reps {
+                let t0 = Instant::now();
+                let (mut p, mut dd, mut st, mut sf) = (vec![0.0f64; 3 * n], vec![0.0f64; 3 * n], vec![0u8; n], vec![0u32; n]);
+                trace_interleaved(t.as_ref(), &sys, os, ds, ws, TraceOut { positions: &mut p, directions: &mut dd, status: &mut st, surface: &mut sf })?;
+                times.push(t0.elapsed().as_secs_f64());
+                std::hint::black_box((p, dd, st, sf));
+            }
+            Ok(times)
+        })
+        .py();
+    }
+    let rays = ray_batch(origins, directions, wavelengths_nm)?;
     run(py, move || {
         let mut times = Vec::new();
         for _ in 0..reps {

@@ -14,9 +14,21 @@
 //! not fit in 65535 bytes, as NumPy does.
 //!
 //! Reader: [`read_npy_f64`] returns `(shape, data)` and accepts little-endian `'<f8'` and `'<f4'`
-//! (and the integer types written here, `'|u1'` and `'<u2'`), all converted to `f64`, in C order,
-//! from format versions 1.0, 2.0 and 3.0. Fortran-order arrays, big-endian data, other dtypes,
-//! truncated files and trailing bytes after the data are reported as [`IoError::Npy`].
+//! (and the integer types written here, `'|u1'` and `'<u2'`), all converted to `f64`, returned in C
+//! order (Fortran-order files are read too), from format versions 1.0, 2.0 and 3.0. Big-endian data,
+//! other dtypes, malformed headers, truncated files and trailing bytes after the data are reported as
+//! [`IoError::Npy`] naming the file and the problem.
+//!
+//! **What is the `ndarray-npy` crate's and what is ours.** The reader parses the header and checks and
+//! views the data with `ndarray-npy` (its zero-copy `view_npy`, which compares the data size with the
+//! buffer before allocating anything, so a header claiming 10¹² elements is an error, not an allocation),
+//! one element type after the other. Our own code is only: the magic/version/header-length prefix (so
+//! that a non-NPY file or a header running past the end is named as such), an 8-byte-aligned copy of the
+//! file (the view needs aligned data), blanking Python 2's `3L` long-integer suffix (its Python-3 literal
+//! parser rejects it), and turning its errors into this module's messages. The **writer stays our own**:
+//! `ndarray-npy` writes the header dict without NumPy's trailing `, ` (`{..., 'shape': (2, 3)}` instead
+//! of `{..., 'shape': (2, 3), }`), so its files would differ byte for byte from NumPy's and from the
+//! files this crate has always written (pinned by the golden tests below and by tests elsewhere).
 //!
 //! # Example
 //!
@@ -40,6 +52,10 @@
 
 use std::io::Write;
 use std::path::Path;
+
+use ndarray::ArrayViewD;
+use ndarray_npy::{ViewNpyError, ViewNpyExt};
+use py_literal::Value as PyValue;
 
 use super::{write_atomic_with, IoError};
 
@@ -186,7 +202,8 @@ fn npy_header(descr: &str, shape: &[usize]) -> Vec<u8> {
 
 /// Read a `.npy` file as `f64`, returning `(shape, data)` (data in C order).
 ///
-/// Accepts little-endian `'<f8'` and `'<f4'` (plus `'|u1'` and `'<u2'`), converting to `f64`.
+/// Accepts little-endian `'<f8'` and `'<f4'` (plus `'|u1'` and `'<u2'`), converting to `f64`, in C or
+/// Fortran order (returned in C order).
 pub fn read_npy_f64(path: impl AsRef<Path>) -> Result<(Vec<usize>, Vec<f64>), IoError> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| IoError::io(path, "cannot read", e))?;
@@ -196,221 +213,82 @@ pub fn read_npy_f64(path: impl AsRef<Path>) -> Result<(Vec<usize>, Vec<f64>), Io
     })
 }
 
-fn parse_npy_f64(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f64>), String> {
+/// Offset of the data: the header's declared end, checked to lie inside the file (the prefix is read
+/// here so that these two errors name the problem exactly; everything else is `ndarray-npy`'s).
+fn data_offset(bytes: &[u8]) -> Result<usize, String> {
     if bytes.len() < 10 || &bytes[..6] != MAGIC {
         return Err("missing the \\x93NUMPY magic string".to_string());
     }
-    let (major, minor) = (bytes[6], bytes[7]);
-    let (header_len, start): (usize, usize) = match major {
+    let (header_len, start): (usize, usize) = match bytes[6] {
         1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        2 | 3 => {
-            if bytes.len() < 12 {
-                return Err("file too short for a version 2/3 header".to_string());
-            }
-            let n = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize;
-            (n, 12)
-        }
-        _ => return Err(format!("unsupported format version {major}.{minor}")),
+        2 | 3 if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
+        2 | 3 => return Err("file too short for a version 2/3 header".to_string()),
+        major => return Err(format!("unsupported format version {major}.{}", bytes[7])),
     };
-    let data_start = start
+    start
         .checked_add(header_len)
         .filter(|&e| e <= bytes.len())
-        .ok_or_else(|| format!("header length {header_len} runs past the end of the file"))?;
-    let header = std::str::from_utf8(&bytes[start..data_start])
-        .map_err(|_| "header is not valid text".to_string())?;
-    let h = parse_header(header)?;
-
-    let (size, convert): (usize, fn(&[u8]) -> f64) = match h.descr.as_str() {
-        "<f8" => (8, |b| f64::from_le_bytes(b.try_into().unwrap())),
-        "<f4" => (4, |b| f32::from_le_bytes(b.try_into().unwrap()) as f64),
-        "|u1" | "<u1" => (1, |b| b[0] as f64),
-        "<u2" => (2, |b| u16::from_le_bytes(b.try_into().unwrap()) as f64),
-        d if d.starts_with('>') => {
-            return Err(format!(
-                "big-endian dtype '{d}' is not supported; save little-endian data ('<f8' or '<f4')"
-            ))
-        }
-        d => {
-            return Err(format!(
-                "dtype '{d}' is not supported; expected '<f8' or '<f4' (or '|u1', '<u2')"
-            ))
-        }
-    };
-    if h.fortran_order {
-        return Err(
-            "Fortran-order arrays are not supported (fortran_order: True); save a C-contiguous \
-             array, e.g. numpy.ascontiguousarray(a)"
-                .to_string(),
-        );
-    }
-    let count = h
-        .shape
-        .iter()
-        .try_fold(1usize, |acc, &d| acc.checked_mul(d))
-        .ok_or_else(|| format!("shape {:?} is too large", h.shape))?;
-    let need = count
-        .checked_mul(size)
-        .ok_or_else(|| format!("shape {:?} is too large", h.shape))?;
-    let have = bytes.len() - data_start;
-    if have < need {
-        return Err(format!(
-            "file is truncated: shape {:?} of '{}' needs {need} data bytes but only {have} are present",
-            h.shape, h.descr
-        ));
-    }
-    if have > need {
-        return Err(format!(
-            "{} unexpected trailing bytes after the {need} data bytes of shape {:?}",
-            have - need,
-            h.shape
-        ));
-    }
-    let data = bytes[data_start..]
-        .chunks_exact(size)
-        .map(convert)
-        .collect();
-    Ok((h.shape, data))
+        .ok_or_else(|| format!("header length {header_len} runs past the end of the file"))
 }
 
-struct Header {
-    descr: String,
-    fortran_order: bool,
-    shape: Vec<usize>,
-}
-
-/// Parse the Python dict literal of an NPY header (the subset NumPy writes).
-fn parse_header(text: &str) -> Result<Header, String> {
-    let mut p = Lexer {
-        s: text.as_bytes(),
-        i: 0,
-    };
-    let (mut descr, mut fortran, mut shape) = (None, None, None);
-    p.expect(b'{')?;
-    loop {
-        p.skip_ws();
-        if p.eat(b'}') {
-            break;
+/// The file's array through `ndarray-npy`'s zero-copy view (sizes are checked against the buffer before
+/// anything is allocated), one element type after the other, converted to `f64` in C order.
+fn parse_npy_f64(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f64>), String> {
+    let offset = data_offset(bytes)?;
+    // The view needs the data aligned for its element type: copy the file so that the data starts on an
+    // 8-byte boundary (NumPy pads headers to 64 bytes, but the buffer itself may sit anywhere).
+    let pad = (8 - offset % 8) % 8;
+    let mut words = vec![0u64; (pad + bytes.len()).div_ceil(8)];
+    // SAFETY: a u64 buffer viewed as bytes (u8 has no alignment or validity requirement).
+    let aligned: &mut [u8] = unsafe { std::slice::from_raw_parts_mut(words.as_mut_ptr() as *mut u8, words.len() * 8) };
+    aligned[pad..pad + bytes.len()].copy_from_slice(bytes);
+    // Python 2's NumPy wrote long dimensions as `3L`, which ndarray-npy's (Python 3) literal parser
+    // rejects: blank each such `L` (same length, so the data offset is unchanged).
+    let header = &mut aligned[pad..pad + offset];
+    for i in 1..header.len() {
+        if header[i] == b'L' && header[i - 1].is_ascii_digit() {
+            header[i] = b' ';
         }
-        let key = p.string()?;
-        p.expect(b':')?;
-        p.skip_ws();
-        match key.as_str() {
-            "descr" => {
-                if p.peek() == Some(b'[') {
-                    return Err("structured (record) dtypes are not supported".to_string());
-                }
-                descr = Some(p.string()?)
+    }
+    let buf = &aligned[pad..pad + bytes.len()];
+    fn convert<T: Copy + Into<f64>>(a: ArrayViewD<'_, T>) -> (Vec<usize>, Vec<f64>) {
+        // `iter` walks the logical (C) order whatever the memory order (Fortran files included).
+        (a.shape().to_vec(), a.iter().map(|v| (*v).into()).collect())
+    }
+    macro_rules! attempt {
+        ($t:ty) => {
+            match ArrayViewD::<$t>::view_npy(buf) {
+                Ok(a) => return Ok(convert(a)),
+                Err(ViewNpyError::WrongDescriptor(_)) => {}
+                Err(e) => return Err(describe(e)),
             }
-            "fortran_order" => fortran = Some(p.boolean()?),
-            "shape" => shape = Some(p.int_tuple()?),
-            other => return Err(format!("unexpected key '{other}' in header")),
-        }
-        p.skip_ws();
-        if !p.eat(b',') {
-            p.expect(b'}')?;
-            break;
-        }
-    }
-    let missing = |k: &str| format!("header has no '{k}' entry: {}", text.trim_end());
-    Ok(Header {
-        descr: descr.ok_or_else(|| missing("descr"))?,
-        fortran_order: fortran.ok_or_else(|| missing("fortran_order"))?,
-        shape: shape.ok_or_else(|| missing("shape"))?,
-    })
-}
-
-struct Lexer<'a> {
-    s: &'a [u8],
-    i: usize,
-}
-
-impl Lexer<'_> {
-    fn peek(&self) -> Option<u8> {
-        self.s.get(self.i).copied()
-    }
-    fn skip_ws(&mut self) {
-        while matches!(self.peek(), Some(b' ' | b'\t' | b'\n' | b'\r')) {
-            self.i += 1;
-        }
-    }
-    fn eat(&mut self, c: u8) -> bool {
-        self.skip_ws();
-        if self.peek() == Some(c) {
-            self.i += 1;
-            true
-        } else {
-            false
-        }
-    }
-    fn err(&self, what: &str) -> String {
-        let rest = String::from_utf8_lossy(&self.s[self.i.min(self.s.len())..]);
-        let rest: String = rest.chars().take(30).collect();
-        format!(
-            "malformed header: expected {what} at byte {} (near \"{rest}\")",
-            self.i
-        )
-    }
-    fn expect(&mut self, c: u8) -> Result<(), String> {
-        if self.eat(c) {
-            Ok(())
-        } else {
-            Err(self.err(&format!("'{}'", c as char)))
-        }
-    }
-    fn string(&mut self) -> Result<String, String> {
-        self.skip_ws();
-        let q = match self.peek() {
-            Some(q @ (b'\'' | b'"')) => q,
-            _ => return Err(self.err("a quoted string")),
         };
-        let start = self.i + 1;
-        let len = self.s[start..]
-            .iter()
-            .position(|&c| c == q)
-            .ok_or_else(|| self.err("a closing quote"))?;
-        self.i = start + len + 1;
-        Ok(String::from_utf8_lossy(&self.s[start..start + len]).into_owned())
     }
-    fn boolean(&mut self) -> Result<bool, String> {
-        self.skip_ws();
-        for (word, v) in [("True", true), ("False", false)] {
-            if self.s[self.i..].starts_with(word.as_bytes()) {
-                self.i += word.len();
-                return Ok(v);
-            }
-        }
-        Err(self.err("True or False"))
+    attempt!(f64);
+    attempt!(f32);
+    attempt!(u8);
+    match ArrayViewD::<u16>::view_npy(buf) {
+        Ok(a) => Ok(convert(a)),
+        Err(e) => Err(describe(e)),
     }
-    fn int_tuple(&mut self) -> Result<Vec<usize>, String> {
-        self.expect(b'(')?;
-        let mut dims = Vec::new();
-        loop {
-            self.skip_ws();
-            if self.eat(b')') {
-                return Ok(dims);
-            }
-            let start = self.i;
-            while matches!(self.peek(), Some(b'0'..=b'9')) {
-                self.i += 1;
-            }
-            if start == self.i {
-                return Err(self.err("a non-negative integer dimension"));
-            }
-            let digits = std::str::from_utf8(&self.s[start..self.i]).unwrap();
-            dims.push(
-                digits
-                    .parse()
-                    .map_err(|_| format!("dimension {digits} is too large"))?,
-            );
-            // Python 2 era files may write long integers as `3L`.
-            if self.peek() == Some(b'L') {
-                self.i += 1;
-            }
-            if !self.eat(b',') {
-                self.expect(b')')?;
-                return Ok(dims);
-            }
+}
+
+/// `ndarray-npy`'s error as this module's message.
+fn describe(e: ViewNpyError) -> String {
+    match e {
+        ViewNpyError::WrongDescriptor(PyValue::String(d)) if d.starts_with('>') => {
+            format!("big-endian dtype '{d}' is not supported; save little-endian data ('<f8' or '<f4')")
         }
+        ViewNpyError::NonNativeEndian => "big-endian data is not supported; save little-endian data ('<f8' or '<f4')".to_string(),
+        ViewNpyError::WrongDescriptor(PyValue::String(d)) => {
+            format!("dtype '{d}' is not supported; expected '<f8' or '<f4' (or '|u1', '<u2')")
+        }
+        ViewNpyError::WrongDescriptor(d) => format!("structured (record) dtypes are not supported (descr {d})"),
+        ViewNpyError::MissingBytes(n) => format!("file is truncated: {n} data bytes are missing for the header's shape and dtype"),
+        ViewNpyError::ExtraBytes(n) => format!("{n} unexpected trailing bytes after the data of the header's shape and dtype"),
+        ViewNpyError::LengthOverflow => "the header's shape is too large".to_string(),
+        ViewNpyError::ParseHeader(p) => format!("malformed header: {p}"),
+        other => format!("unreadable data: {other}"),
     }
 }
 
@@ -531,8 +409,15 @@ mod tests {
         assert!(write_npy_f64(&p, &[], &[]).is_err());
     }
 
-    /// Build a file with an arbitrary header (as other writers / numpy versions might).
+    /// Build a file with an arbitrary header (as other writers / numpy versions might), terminated by the
+    /// newline the format requires.
     fn raw(version: u8, dict: &str, data: &[u8]) -> Vec<u8> {
+        let nl = if dict.ends_with('\n') { "" } else { "\n" };
+        raw_exact(version, &format!("{dict}{nl}"), data)
+    }
+
+    /// [`raw`] without the newline.
+    fn raw_exact(version: u8, dict: &str, data: &[u8]) -> Vec<u8> {
         let mut v = MAGIC.to_vec();
         v.extend_from_slice(&[version, 0]);
         if version == 1 {
@@ -564,6 +449,15 @@ mod tests {
     }
 
     #[test]
+    fn reader_reads_fortran_order_as_c_order() {
+        // numpy.asfortranarray([[1, 2, 3], [4, 5, 6]]): memory order 1 4 2 5 3 6.
+        let data: Vec<u8> = [1.0f64, 4.0, 2.0, 5.0, 3.0, 6.0].iter().flat_map(|x| x.to_le_bytes()).collect();
+        let (shape, v) = parse_npy_f64(&raw(1, "{'descr': '<f8', 'fortran_order': True, 'shape': (2, 3), }", &data)).unwrap();
+        assert_eq!(shape, vec![2, 3]);
+        assert_eq!(v, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
+    }
+
+    #[test]
     fn reader_errors_are_clear() {
         let f8: Vec<u8> = [1.5f64, 2.5].iter().flat_map(|x| x.to_le_bytes()).collect();
         let cases: &[(Vec<u8>, &str)] = &[
@@ -585,12 +479,8 @@ mod tests {
                 "'<i8' is not supported",
             ),
             (
-                raw(
-                    1,
-                    "{'descr': '<f8', 'fortran_order': True, 'shape': (2,), }",
-                    &f8,
-                ),
-                "Fortran",
+                raw_exact(1, "{'descr': '<f8', 'fortran_order': False, 'shape': (2,), }", &f8),
+                "newline missing",
             ),
             (
                 raw(
@@ -618,7 +508,7 @@ mod tests {
             ),
             (
                 raw(1, "{'descr': '<f8', 'shape': (2,), }", &f8),
-                "no 'fortran_order'",
+                "missing key: fortran_order",
             ),
             (
                 raw(

@@ -387,6 +387,12 @@ impl<'a> ExactOperator<'a> {
         Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, compact: Some(compact), transport: Some(transport), layout, transport_bytes: bytes, scratch: Mutex::default(), buffers: Mutex::default() })
     }
 
+    /// Per plane: (lower band k, upper band min(k + 1, B − 1), weight t of the upper band) of the
+    /// bands → planes interpolation (the sparse export reads it).
+    pub fn interpolation(&self) -> &[(usize, usize, f32)] {
+        &self.interp
+    }
+
     /// The traced transport, one entry per plane — kept only by [`ExactOperator::from_traced`] (`None`
     /// otherwise: [`ExactOperator::new`] keeps only the operator's own layout of it).
     pub fn transport(&self) -> Option<&[PlaneTransport]> {

@@ -159,6 +159,18 @@ impl MappingOperator {
         Ok(cube)
     }
 
+    /// The mask, per scene pixel (row-major).
+    pub fn mask_values(&self) -> &[f32] {
+        &self.mask
+    }
+
+    /// Taps (detector pixel index, weight) of band b of scene pixel q (none when its chief ray does not
+    /// arrive), distinct pixels in increasing order; the mask is not included.
+    pub fn point_taps(&self, q: usize, b: usize, f: impl FnMut(usize, f32)) {
+        let npix = self.shape.height * self.shape.width;
+        self.taps(&self.points[b * npix + q], f)
+    }
+
     /// Taps (pixel index, weight) of one mapped point.
     #[inline]
     fn taps(&self, p: &Point, mut f: impl FnMut(usize, f32)) {

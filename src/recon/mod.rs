@@ -54,6 +54,7 @@ pub mod metrics;
 pub mod operator;
 pub mod shift;
 pub mod solver;
+pub mod sparse;
 pub mod tv;
 
 pub use exact::ExactOperator;
@@ -63,3 +64,4 @@ pub use solver::{reconstruct, Reconstruction, SolverConfig, SolverKind};
 pub use tv::TvCoupling;
 pub use operator::{CubeShape, ImageShape, Operator};
 pub use shift::ShiftOperator;
+pub use sparse::{CsrMatrix, SparseExport};

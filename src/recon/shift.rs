@@ -108,6 +108,23 @@ impl ShiftOperator {
         (&self.columns, self.row0, self.sigma_x, self.sigma_y)
     }
 
+    /// The mask, per scene pixel (row-major).
+    pub fn mask_values(&self) -> &[f32] {
+        &self.mask
+    }
+
+    /// Detector row of scene row r, if on the detector.
+    #[inline]
+    pub fn detector_row(&self, r: usize) -> Option<usize> {
+        self.det_row(r)
+    }
+
+    /// Detector column of scene column c in band b, if on the detector.
+    #[inline]
+    pub fn detector_column(&self, b: usize, c: usize) -> Option<usize> {
+        self.col(b, c)
+    }
+
     /// Detector row of scene row r, if on the detector.
     #[inline]
     fn det_row(&self, r: usize) -> Option<usize> {

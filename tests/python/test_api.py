@@ -122,6 +122,10 @@ def test_render_all_settings_and_transport_equal_render(system):
     t = diffcassi.Transport(system, 10, 10, seed=5, **SMALL)
     assert t.detector_shape == acq.shape and t.nbytes > 0
     assert np.array_equal(t.apply(cube), acq)
+    # apply reuses its scene buffer: a second scene, then the first again, are each still equal to render.
+    cube2 = random_cube(10, 10, 4, seed=2)
+    assert np.array_equal(t.apply(cube2), diffcassi.render(system, cube2, SMALL["bands_nm"], seed=5, **SMALL)[0])
+    assert np.array_equal(t.apply(cube), acq)
 
 
 def test_render_noise_is_seeded():
