@@ -172,12 +172,37 @@ struct Scratch {
     /// Object-space rays of the current row (direct-kernel path), structure of arrays; origins at z = 0.
     rays: RowRays,
     batch: RayBatch,
-    /// Landing (column, row) detector coordinates per ray of the current row, NaN when not arrived.
-    land_u: Vec<f64>,
-    land_v: Vec<f64>,
-    /// Per ray of one pixel: landing cell (column, row) and the fractions inside it.
-    cells: Vec<(i64, i64, f64, f64)>,
+    /// Where each ray of the current row landed.
+    land: Landings,
     window: Vec<f64>,
+}
+
+/// Landings of a row's rays on the detector, as bilinear-splat cells: the cell (column `j`, row `i`,
+/// i.e. `floor` of the continuous pixel coordinates) and the fractions (`fu`, `fv`) inside it; `j` is NaN
+/// for a ray that did not arrive.
+#[derive(Default)]
+struct Landings {
+    j: Vec<f64>,
+    i: Vec<f64>,
+    fu: Vec<f64>,
+    fv: Vec<f64>,
+}
+
+impl Landings {
+    fn clear(&mut self) {
+        for v in [&mut self.j, &mut self.i, &mut self.fu, &mut self.fv] {
+            v.clear();
+        }
+    }
+    /// Append a landing at continuous pixel coordinates (u, v) (NaN: none).
+    #[inline]
+    fn push(&mut self, (u, v): (f64, f64)) {
+        let (j, i) = (floor(u), floor(v));
+        self.j.push(j);
+        self.i.push(i);
+        self.fu.push(u - j);
+        self.fv.push(v - i);
+    }
 }
 
 /// A row's object-space rays, structure of arrays (origin (ox, oy, 0), direction d of any length).
@@ -236,16 +261,20 @@ impl super::vector::VectorLoop for RayLoop<'_> {
     }
 }
 
-/// `floor(x)` as an integer: by conversion when |x| < 2⁵² (where it is exact), libm's `floor` otherwise
-/// (the baseline x86-64 target has no rounding instruction, so `f64::floor` is a library call). The same
-/// value as `x.floor() as i64` for every x.
+/// `x.floor()`, bit for bit, in plain arithmetic (so it inlines and vectorises: the baseline x86-64 target
+/// has no rounding instruction and `f64::floor` is a libm call there). For |x| < 2⁵², |x| + 2⁵² − 2⁵² rounds
+/// |x| to an integer (round-to-nearest), which is then signed and stepped down if above x; larger |x|,
+/// infinities and NaN are their own floor. Signed zeros come out as libm's (floor(−0) = −0).
 #[inline(always)]
-fn floor_i64(x: f64) -> i64 {
-    if x.abs() < 4_503_599_627_370_496.0 {
-        let t = x as i64; // rounds toward zero
-        t - ((t as f64) > x) as i64
+fn floor(x: f64) -> f64 {
+    const TWO52: f64 = 4_503_599_627_370_496.0;
+    let a = x.abs();
+    let r = ((a + TWO52) - TWO52).copysign(x);
+    let r = if r > x { r - 1.0 } else { r };
+    if a < TWO52 {
+        r
     } else {
-        x.floor() as i64
+        x
     }
 }
 
@@ -343,8 +372,7 @@ impl PlaneContext<'_> {
             sc.pixels.extend(sc.open.iter().map(|&c| (row * w + c) as u64));
             self.sampler.fill_pixels(self.seed, plane as u64, &sc.pixels, &mut sc.samples);
             let count = sc.samples.len();
-            sc.land_u.clear();
-            sc.land_v.clear();
+            sc.land.clear();
             if self.direct_kernel {
                 sc.rays.resize(count);
                 match aim {
@@ -367,15 +395,11 @@ impl PlaneContext<'_> {
                 }
                 out.stats.traced += count as u64;
                 match self.simd {
-                    Some(level) => self.trace_row_lanes(level, &n, &sc.rays, count, &mut out.stats, &mut sc.land_u, &mut sc.land_v),
+                    Some(level) => self.trace_row_lanes(level, &n, &sc.rays, count, &mut out.stats, &mut sc.land),
                     None => {
                         let rays: Vec<(DVec3, DVec3)> = (0..count).map(|t| sc.rays.ray(t)).collect();
-                        let (stats, det, lu, lv) = (&mut out.stats, self.detector, &mut sc.land_u, &mut sc.land_v);
-                        trace_interleaved(&self.system.path, &n, &rays, |res| {
-                            let (u, v) = landing(det, stats, res);
-                            lu.push(u);
-                            lv.push(v);
-                        });
+                        let (stats, det, land) = (&mut out.stats, self.detector, &mut sc.land);
+                        trace_interleaved(&self.system.path, &n, &rays, |res| land.push(landing(det, stats, res)));
                     }
                 }
             } else {
@@ -388,14 +412,11 @@ impl PlaneContext<'_> {
                 for i in 0..t.len() {
                     out.stats.traced += 1;
                     out.stats.count(t.status[i]);
-                    let (u, v) = if t.status[i] == RayStatus::Ok { self.detector.to_pixel(t.x[i], t.y[i]) } else { (f64::NAN, f64::NAN) };
-                    sc.land_u.push(u);
-                    sc.land_v.push(v);
+                    sc.land.push(if t.status[i] == RayStatus::Ok { self.detector.to_pixel(t.x[i], t.y[i]) } else { (f64::NAN, f64::NAN) });
                 }
             }
             for (k, &col) in sc.open.iter().enumerate() {
-                let r = k * nr..(k + 1) * nr;
-                self.footprint((row * w + col) as u32, &sc.land_u[r.clone()], &sc.land_v[r], &mut sc.cells, &mut sc.window, &mut out);
+                self.footprint((row * w + col) as u32, &sc.land, k * nr..(k + 1) * nr, &mut sc.window, &mut out);
             }
         }
         Ok(out)
@@ -407,11 +428,13 @@ impl PlaneContext<'_> {
     }
 
     /// Trace the first `count` rays of `rays` with the lane kernel at `level`, [`LANES`](crate::tracer::simd::LANES)
-    /// at a time loaded straight from the arrays, and append their landings — `trace_rays`' numbers.
+    /// at a time loaded straight from the arrays, and append their landings: `trace_rays` and [`landing`]'s
+    /// numbers, computed for all lanes at once and selected.
     #[allow(clippy::too_many_arguments)]
-    fn trace_row_lanes(&self, level: crate::tracer::SimdLevel, n: &[f64], rays: &RowRays, count: usize, stats: &mut RayStats, land_u: &mut Vec<f64>, land_v: &mut Vec<f64>) {
+    fn trace_row_lanes(&self, level: crate::tracer::SimdLevel, n: &[f64], rays: &RowRays, count: usize, stats: &mut RayStats, land: &mut Landings) {
         use crate::tracer::simd::{Block, LANES};
         let tables = [n; LANES];
+        let det = self.detector;
         let mut start = 0;
         while start < count {
             let m = (count - start).min(LANES);
@@ -424,29 +447,50 @@ impl PlaneContext<'_> {
             b.d.z.0[..m].copy_from_slice(&rays.dz[r]);
             b.alive.0[..m].fill(true);
             crate::tracer::simd::trace_block_raw(level, &self.system.path, &tables, &mut b);
-            for k in 0..m {
-                let (u, v) = landing(self.detector, stats, b.result(k));
-                land_u.push(u);
-                land_v.push(v);
+            // Arrived and plausible (`landing`'s test), and the splat cell, for every lane.
+            let (mut ok, mut j, mut i, mut fu, mut fv) = ([false; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
+            let (mut arrived, mut out_of_range) = (0u64, 0u64);
+            for k in 0..LANES {
+                let (p, d) = ((b.p.x.0[k], b.p.y.0[k], b.p.z.0[k]), (b.d.x.0[k], b.d.y.0[k], b.d.z.0[k]));
+                let finite = p.0.is_finite() & p.1.is_finite() & p.2.is_finite() & d.0.is_finite() & d.1.is_finite() & d.2.is_finite();
+                let plausible = finite & (p.0.abs().max(p.1.abs().max(p.2.abs())) <= crate::limits::MAX_IMAGE_COORD_MM);
+                ok[k] = b.alive.0[k] & plausible;
+                let (u, v) = det.to_pixel(p.0, p.1);
+                let (u, v) = if ok[k] { (u, v) } else { (f64::NAN, f64::NAN) };
+                (j[k], i[k]) = (floor(u), floor(v));
+                (fu[k], fv[k]) = (u - j[k], v - i[k]);
+                let live = k < m;
+                arrived += (live & ok[k]) as u64;
+                out_of_range += (live & b.alive.0[k] & !ok[k]) as u64;
             }
+            stats.arrived += arrived;
+            stats.out_of_range += out_of_range;
+            for k in 0..m {
+                if let (false, Err((st, _))) = (b.alive.0[k], b.result(k)) {
+                    stats.count(st);
+                }
+            }
+            land.j.extend_from_slice(&j[..m]);
+            land.i.extend_from_slice(&i[..m]);
+            land.fu.extend_from_slice(&fu[..m]);
+            land.fv.extend_from_slice(&fv[..m]);
             start += m;
         }
     }
 
-    /// Bilinear splat of one pixel's landings (weight 1/N each) into a window; append it to `out`. Each
-    /// window cell sums its taps in ray order, in f64, then is scaled by 1/N and stored as f32.
-    fn footprint(&self, pixel: u32, land_u: &[f64], land_v: &[f64], cells: &mut Vec<(i64, i64, f64, f64)>, window: &mut Vec<f64>, out: &mut PlaneTransport) {
+    /// Bilinear splat of one pixel's landings (`rays` of `land`, weight 1/N each) into a window; append it
+    /// to `out`. Each window cell sums its taps in ray order, in f64, then is scaled by 1/N and stored as f32.
+    fn footprint(&self, pixel: u32, land: &Landings, rays: std::ops::Range<usize>, window: &mut Vec<f64>, out: &mut PlaneTransport) {
         let (dw, dh) = (self.detector.width as i64, self.detector.height as i64);
+        let (lj, li, lfu, lfv) = (&land.j[rays.clone()], &land.i[rays.clone()], &land.fu[rays.clone()], &land.fv[rays]);
         let (mut x0, mut x1, mut y0, mut y1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
-        cells.clear();
-        for (&u, &v) in land_u.iter().zip(land_v) {
-            if u.is_nan() {
+        let mut arrived = 0usize;
+        for (&j, &i) in lj.iter().zip(li) {
+            if j.is_nan() {
                 continue;
             }
-            let (j, i) = (floor_i64(u), floor_i64(v));
-            // `u - u.floor()`: the integer is exact as an f64 wherever the conversion path was taken.
-            let (fu, fv) = (u - if u.abs() < 4_503_599_627_370_496.0 { j as f64 } else { u.floor() }, v - if v.abs() < 4_503_599_627_370_496.0 { i as f64 } else { v.floor() });
-            cells.push((j, i, fu, fv));
+            let (j, i) = (j as i64, i as i64);
+            arrived += 1;
             x0 = x0.min(j);
             x1 = x1.max(j + 1);
             y0 = y0.min(i);
@@ -455,19 +499,20 @@ impl PlaneContext<'_> {
         if x0 > x1 {
             return; // no ray arrived
         }
-        let weight = 1.0 / land_u.len() as f64;
+        let weight = 1.0 / lj.len() as f64;
         // Clip the window to the detector; taps outside are lost.
         let (cx0, cx1, cy0, cy1) = (x0.max(0), x1.min(dw - 1), y0.max(0), y1.min(dh - 1));
         if cx0 > cx1 || cy0 > cy1 {
-            out.stats.off_detector += cells.len() as f64;
+            out.stats.off_detector += arrived as f64;
             return;
         }
         let (ww, wh) = ((cx1 - cx0 + 1) as usize, (cy1 - cy0 + 1) as usize);
         window.clear();
         window.resize(ww * wh, 0.0);
+        let cells = lj.iter().zip(li).zip(lfu.iter().zip(lfv)).filter(|((j, _), _)| !j.is_nan()).map(|((&j, &i), (&fu, &fv))| (j as i64, i as i64, fu, fv));
         if (cx0, cx1, cy0, cy1) == (x0, x1, y0, y1) {
             // Inside the detector: every tap lands in the window (j + 1 ≤ x1, i + 1 ≤ y1), nothing is lost.
-            for &(j, i, fu, fv) in cells.iter() {
+            for (j, i, fu, fv) in cells {
                 let o = (i - y0) as usize * ww + (j - x0) as usize;
                 let taps = &mut window[o..o + ww + 2];
                 let (wi0, wi1, wj0, wj1) = (1.0 - fv, fv, 1.0 - fu, fu);
@@ -478,7 +523,7 @@ impl PlaneContext<'_> {
             }
         } else {
             let mut lost = 0.0;
-            for &(j, i, fu, fv) in cells.iter() {
+            for (j, i, fu, fv) in cells {
                 for (di, wi) in [(0, 1.0 - fv), (1, fv)] {
                     for (dj, wj) in [(0, 1.0 - fu), (1, fu)] {
                         let (r, c) = (i + di, j + dj);
@@ -504,8 +549,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn integer_floor_is_libm_floor() {
-        let mut xs = vec![0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 1.5, -1.5, 1e-300, -1e-300, 2.0f64.powi(52), -(2.0f64.powi(52)), 2.0f64.powi(52) - 0.5, -(2.0f64.powi(52)) + 0.5, 1e19, -1e19, 1e300, -1e300, f64::INFINITY, f64::NEG_INFINITY, f64::NAN];
+    fn arithmetic_floor_is_libm_floor_bit_for_bit() {
+        let mut xs = vec![0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 1.5, -1.5, 2.5, -2.5, 1e-300, -1e-300, 5e-324, -5e-324, 2.0f64.powi(52), -(2.0f64.powi(52)), 2.0f64.powi(52) - 0.5, -(2.0f64.powi(52)) + 0.5, 2.0f64.powi(51) + 0.5, -(2.0f64.powi(51)) - 0.5, 1e19, -1e19, 1e300, -1e300, f64::MAX, f64::MIN, f64::INFINITY, f64::NEG_INFINITY];
         let mut x: f64 = 1e-3;
         while x < 1e7 {
             for y in [x, -x, x.next_up(), x.next_down(), -x.next_up(), (x.round()).next_down(), -(x.round()).next_down(), x.round()] {
@@ -517,7 +562,9 @@ mod tests {
             xs.push(i as f64 * 0.173);
         }
         for x in xs {
-            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+            assert_eq!(floor(x).to_bits(), x.floor().to_bits(), "{x}");
+            assert_eq!(floor(x) as i64, x.floor() as i64, "{x}");
         }
+        assert!(floor(f64::NAN).is_nan());
     }
 }
