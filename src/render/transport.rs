@@ -177,31 +177,77 @@ struct Scratch {
     window: Vec<f64>,
 }
 
-/// Landings of a row's rays on the detector, as bilinear-splat cells: the cell (column `j`, row `i`,
-/// i.e. `floor` of the continuous pixel coordinates) and the fractions (`fu`, `fv`) inside it; `j` is NaN
-/// for a ray that did not arrive.
+/// Landings of a row's rays on the detector, as bilinear-splat cells: whether the ray arrived, the cell
+/// (column `j`, row `i`: `floor` of the continuous pixel coordinates, as `f64::floor(..) as i64` gives it)
+/// and the fractions (`fu`, `fv`) inside it.
 #[derive(Default)]
 struct Landings {
-    j: Vec<f64>,
-    i: Vec<f64>,
+    arrived: Vec<bool>,
+    j: Vec<i64>,
+    i: Vec<i64>,
     fu: Vec<f64>,
     fv: Vec<f64>,
 }
 
 impl Landings {
     fn clear(&mut self) {
-        for v in [&mut self.j, &mut self.i, &mut self.fu, &mut self.fv] {
-            v.clear();
-        }
+        self.arrived.clear();
+        self.j.clear();
+        self.i.clear();
+        self.fu.clear();
+        self.fv.clear();
     }
     /// Append a landing at continuous pixel coordinates (u, v) (NaN: none).
     #[inline]
     fn push(&mut self, (u, v): (f64, f64)) {
         let (j, i) = (floor(u), floor(v));
-        self.j.push(j);
-        self.i.push(i);
+        self.arrived.push(!u.is_nan());
+        self.j.push(j as i64);
+        self.i.push(i as i64);
         self.fu.push(u - j);
         self.fv.push(v - i);
+    }
+}
+
+/// The landings of one traced block of lanes (the first `m` are rays): [`landing`]'s classification and
+/// detector coordinates and [`Landings::push`]'s cells, for all lanes at once (vectorised, dispatched).
+struct LandLoop<'a> {
+    b: &'a crate::tracer::simd::Block,
+    m: usize,
+    det: &'a Detector,
+    land: &'a mut Landings,
+    /// Arrived and out of range, counted over the `m` rays.
+    counts: &'a mut [u64; 2],
+}
+
+impl super::vector::VectorLoop for LandLoop<'_> {
+    #[inline(always)]
+    fn run(self) {
+        use crate::tracer::simd::LANES;
+        let b = self.b;
+        let (mut ok, mut j, mut i, mut fu, mut fv) = ([false; LANES], [0i64; LANES], [0i64; LANES], [0.0; LANES], [0.0; LANES]);
+        let (mut arrived, mut out_of_range) = (0u64, 0u64);
+        for k in 0..LANES {
+            let (p, d) = ((b.p.x.0[k], b.p.y.0[k], b.p.z.0[k]), (b.d.x.0[k], b.d.y.0[k], b.d.z.0[k]));
+            let finite = p.0.is_finite() & p.1.is_finite() & p.2.is_finite() & d.0.is_finite() & d.1.is_finite() & d.2.is_finite();
+            let plausible = finite & (p.0.abs().max(p.1.abs().max(p.2.abs())) <= crate::limits::MAX_IMAGE_COORD_MM);
+            ok[k] = b.alive.0[k] & plausible;
+            let (u, v) = self.det.to_pixel(p.0, p.1);
+            let (u, v) = if ok[k] { (u, v) } else { (f64::NAN, f64::NAN) };
+            let (fj, fi) = (floor(u), floor(v));
+            (j[k], i[k], fu[k], fv[k]) = (fj as i64, fi as i64, u - fj, v - fi);
+            let live = k < self.m;
+            arrived += (live & ok[k]) as u64;
+            out_of_range += (live & b.alive.0[k] & !ok[k]) as u64;
+        }
+        let (m, land) = (self.m, self.land);
+        land.arrived.extend_from_slice(&ok[..m]);
+        land.j.extend_from_slice(&j[..m]);
+        land.i.extend_from_slice(&i[..m]);
+        land.fu.extend_from_slice(&fu[..m]);
+        land.fv.extend_from_slice(&fv[..m]);
+        self.counts[0] += arrived;
+        self.counts[1] += out_of_range;
     }
 }
 
@@ -447,33 +493,15 @@ impl PlaneContext<'_> {
             b.d.z.0[..m].copy_from_slice(&rays.dz[r]);
             b.alive.0[..m].fill(true);
             crate::tracer::simd::trace_block_raw(level, &self.system.path, &tables, &mut b);
-            // Arrived and plausible (`landing`'s test), and the splat cell, for every lane.
-            let (mut ok, mut j, mut i, mut fu, mut fv) = ([false; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
-            let (mut arrived, mut out_of_range) = (0u64, 0u64);
-            for k in 0..LANES {
-                let (p, d) = ((b.p.x.0[k], b.p.y.0[k], b.p.z.0[k]), (b.d.x.0[k], b.d.y.0[k], b.d.z.0[k]));
-                let finite = p.0.is_finite() & p.1.is_finite() & p.2.is_finite() & d.0.is_finite() & d.1.is_finite() & d.2.is_finite();
-                let plausible = finite & (p.0.abs().max(p.1.abs().max(p.2.abs())) <= crate::limits::MAX_IMAGE_COORD_MM);
-                ok[k] = b.alive.0[k] & plausible;
-                let (u, v) = det.to_pixel(p.0, p.1);
-                let (u, v) = if ok[k] { (u, v) } else { (f64::NAN, f64::NAN) };
-                (j[k], i[k]) = (floor(u), floor(v));
-                (fu[k], fv[k]) = (u - j[k], v - i[k]);
-                let live = k < m;
-                arrived += (live & ok[k]) as u64;
-                out_of_range += (live & b.alive.0[k] & !ok[k]) as u64;
-            }
-            stats.arrived += arrived;
-            stats.out_of_range += out_of_range;
+            let mut counts = [0u64; 2];
+            super::vector::run_at(level, LandLoop { b: &b, m, det, land, counts: &mut counts });
+            stats.arrived += counts[0];
+            stats.out_of_range += counts[1];
             for k in 0..m {
                 if let (false, Err((st, _))) = (b.alive.0[k], b.result(k)) {
                     stats.count(st);
                 }
             }
-            land.j.extend_from_slice(&j[..m]);
-            land.i.extend_from_slice(&i[..m]);
-            land.fu.extend_from_slice(&fu[..m]);
-            land.fv.extend_from_slice(&fv[..m]);
             start += m;
         }
     }
@@ -482,14 +510,10 @@ impl PlaneContext<'_> {
     /// to `out`. Each window cell sums its taps in ray order, in f64, then is scaled by 1/N and stored as f32.
     fn footprint(&self, pixel: u32, land: &Landings, rays: std::ops::Range<usize>, window: &mut Vec<f64>, out: &mut PlaneTransport) {
         let (dw, dh) = (self.detector.width as i64, self.detector.height as i64);
-        let (lj, li, lfu, lfv) = (&land.j[rays.clone()], &land.i[rays.clone()], &land.fu[rays.clone()], &land.fv[rays]);
+        let (la, lj, li, lfu, lfv) = (&land.arrived[rays.clone()], &land.j[rays.clone()], &land.i[rays.clone()], &land.fu[rays.clone()], &land.fv[rays]);
         let (mut x0, mut x1, mut y0, mut y1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
         let mut arrived = 0usize;
-        for (&j, &i) in lj.iter().zip(li) {
-            if j.is_nan() {
-                continue;
-            }
-            let (j, i) = (j as i64, i as i64);
+        for ((&j, &i), _) in lj.iter().zip(li).zip(la).filter(|(_, &a)| a) {
             arrived += 1;
             x0 = x0.min(j);
             x1 = x1.max(j + 1);
@@ -509,7 +533,7 @@ impl PlaneContext<'_> {
         let (ww, wh) = ((cx1 - cx0 + 1) as usize, (cy1 - cy0 + 1) as usize);
         window.clear();
         window.resize(ww * wh, 0.0);
-        let cells = lj.iter().zip(li).zip(lfu.iter().zip(lfv)).filter(|((j, _), _)| !j.is_nan()).map(|((&j, &i), (&fu, &fv))| (j as i64, i as i64, fu, fv));
+        let cells = (0..la.len()).filter(|&t| la[t]).map(|t| (lj[t], li[t], lfu[t], lfv[t]));
         if (cx0, cx1, cy0, cy1) == (x0, x1, y0, y1) {
             // Inside the detector: every tap lands in the window (j + 1 ≤ x1, i + 1 ≤ y1), nothing is lost.
             for (j, i, fu, fv) in cells {
