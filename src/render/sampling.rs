@@ -53,6 +53,23 @@ fn pixel_key(seed: u64, plane: u64, pixel: u64) -> u64 {
     mix64(mix64(mix64(seed) ^ plane) ^ pixel)
 }
 
+/// ⌈2¹²⁸ / d⌉ for [`fast_mod`] (d ≥ 2).
+fn mod_magic(d: u64) -> u128 {
+    u128::MAX / d as u128 + 1
+}
+
+/// `x % d` (d ≥ 2, `c = mod_magic(d)`) without a division instruction: Lemire, Kaser & Kurz, "Faster
+/// remainder by direct computation" (2019), x mod d = ⌊((c·x) mod 2¹²⁸) · d / 2¹²⁸⌋ with c = ⌈2¹²⁸/d⌉,
+/// exact for every 64-bit x because 128 ≥ 64 + log₂ d. A few multiplications instead of a 64-bit `div`
+/// whose latency the Fisher–Yates shuffle waits on.
+#[inline(always)]
+fn fast_mod(x: u64, c: u128, d: u64) -> u64 {
+    let low = c.wrapping_mul(x as u128);
+    let hi = (low >> 64) * d as u128;
+    let lo = ((low as u64) as u128 * d as u128) >> 64;
+    ((hi + lo) >> 64) as u64
+}
+
 /// Uniform in [0, 1) from the top 53 bits.
 #[inline]
 fn unit(h: u64) -> f64 {
@@ -162,6 +179,8 @@ pub struct RaySampler {
     /// Cell (k mod a, k div a) of stratum k, as f64.
     cell_i: Vec<f64>,
     cell_j: Vec<f64>,
+    /// `mod_magic(k + 1)` for the shuffle's step k (entry 0 unused).
+    shuffle_magic: Vec<u128>,
     /// Instruction set of the vectorised sampling loop (every level gives the same numbers).
     level: crate::tracer::SimdLevel,
 }
@@ -176,7 +195,8 @@ impl RaySampler {
         let a = a.max(1);
         let cell_i = (0..rays).map(|k| (k % a) as f64).collect();
         let cell_j = (0..rays).map(|k| (k / a) as f64).collect();
-        RaySampler { rays, mode, grid: (a, rays / a), cell_i, cell_j, level: crate::tracer::SimdLevel::detect() }
+        let shuffle_magic = (0..rays as u64).map(|k| mod_magic((k + 1).max(2))).collect();
+        RaySampler { rays, mode, grid: (a, rays / a), cell_i, cell_j, shuffle_magic, level: crate::tracer::SimdLevel::detect() }
     }
 
     /// The same sampler with its vectorised loop compiled for `level` (for tests: the numbers are the same).
@@ -249,7 +269,7 @@ impl RaySampler {
                     let (ai, aj) = (&mut r.area_i[t0..t0 + n], &mut r.area_j[t0..t0 + n]);
                     let base = mix64(pk ^ u64::MAX);
                     for k in (1..n).rev() {
-                        let j = (mix64(base ^ k as u64) % (k as u64 + 1)) as usize;
+                        let j = fast_mod(mix64(base ^ k as u64), self.shuffle_magic[k], k as u64 + 1) as usize;
                         ai.swap(k, j);
                         aj.swap(k, j);
                     }
@@ -361,6 +381,18 @@ mod tests {
             let (h1, h3) = (mix64(pk ^ (2 * k as u64)), mix64(pk ^ (2 * k as u64 + 1)));
             let p = concentric_disk(unit(h1), unit(mix64(h1)));
             assert_eq!(*o, [p[0], p[1], unit(h3), unit(mix64(h3))]);
+        }
+    }
+
+    #[test]
+    fn fast_mod_is_the_remainder() {
+        let mut xs = vec![0u64, 1, 2, 3, u64::MAX, u64::MAX - 1, 1 << 63, (1 << 63) - 1, 1 << 32, (1 << 32) - 1];
+        xs.extend((0..2000u64).map(mix64));
+        for d in (2..=5000u64).chain([65535, 65536, 1 << 31, (1 << 32) - 1, 1 << 32, u64::MAX / 3, u64::MAX]) {
+            let c = mod_magic(d);
+            for &x in xs.iter().chain(&[d, d - 1, d + 1, d * 2, d.wrapping_mul(12345), u64::MAX - u64::MAX % d]) {
+                assert_eq!(fast_mod(x, c, d), x % d, "{x} mod {d}");
+            }
         }
     }
 
