@@ -226,7 +226,8 @@ impl super::vector::VectorLoop for LandLoop<'_> {
         use crate::tracer::simd::LANES;
         let b = self.b;
         let (mut ok, mut j, mut i, mut fu, mut fv) = ([false; LANES], [0i64; LANES], [0i64; LANES], [0.0; LANES], [0.0; LANES]);
-        let (mut arrived, mut out_of_range) = (0u64, 0u64);
+        let (mut fjs, mut fis) = ([0.0; LANES], [0.0; LANES]);
+        let (mut arrived, mut out_of_range, mut large) = (0u64, 0u64, false);
         for k in 0..LANES {
             let (p, d) = ((b.p.x.0[k], b.p.y.0[k], b.p.z.0[k]), (b.d.x.0[k], b.d.y.0[k], b.d.z.0[k]));
             let finite = p.0.is_finite() & p.1.is_finite() & p.2.is_finite() & d.0.is_finite() & d.1.is_finite() & d.2.is_finite();
@@ -235,10 +236,19 @@ impl super::vector::VectorLoop for LandLoop<'_> {
             let (u, v) = self.det.to_pixel(p.0, p.1);
             let (u, v) = if ok[k] { (u, v) } else { (f64::NAN, f64::NAN) };
             let (fj, fi) = (floor(u), floor(v));
-            (j[k], i[k], fu[k], fv[k]) = (fj as i64, fi as i64, u - fj, v - fi);
+            (fjs[k], fis[k], fu[k], fv[k]) = (fj, fi, u - fj, v - fi);
+            // The integer of an integral |x| < 2⁵¹ is in the low bits of x + 1.5·2⁵² (no conversion
+            // instruction, vectorises); larger values are converted below, as `as i64` does.
+            (j[k], i[k]) = (int_bits(fj), int_bits(fi));
+            large |= ok[k] & !(fj.abs() < TWO51 && fi.abs() < TWO51);
             let live = k < self.m;
             arrived += (live & ok[k]) as u64;
             out_of_range += (live & b.alive.0[k] & !ok[k]) as u64;
+        }
+        if large {
+            for k in 0..LANES {
+                (j[k], i[k]) = (fjs[k] as i64, fis[k] as i64);
+            }
         }
         let (m, land) = (self.m, self.land);
         land.arrived.extend_from_slice(&ok[..m]);
@@ -322,6 +332,17 @@ fn floor(x: f64) -> f64 {
     } else {
         x
     }
+}
+
+/// 2⁵¹: below it in magnitude, [`int_bits`] converts integral values.
+const TWO51: f64 = 2_251_799_813_685_248.0;
+
+/// `x as i64` for integral x with |x| < 2⁵¹ (other values give garbage): x + 1.5·2⁵² lies in [2⁵², 2⁵³),
+/// where the f64 spacing is 1, so the sum is exact and its mantissa bits are 2⁵¹ + x.
+#[inline(always)]
+fn int_bits(x: f64) -> i64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 · 2⁵²
+    (x + MAGIC).to_bits() as i64 - MAGIC.to_bits() as i64
 }
 
 /// Landing of one traced ray: detector (column, row), or NaN, counted in `stats` — the classification of
@@ -590,5 +611,15 @@ mod tests {
             assert_eq!(floor(x) as i64, x.floor() as i64, "{x}");
         }
         assert!(floor(f64::NAN).is_nan());
+    }
+
+    #[test]
+    fn int_bits_is_the_conversion_below_two_to_the_51() {
+        for x in [0.0, -0.0, 1.0, -1.0, 2.0, -3.0, 1e6, -1e6, 65535.0, -65536.0, TWO51 - 1.0, -(TWO51 - 1.0), 123456789012.0, -98765432109.0] {
+            assert_eq!(int_bits(x), x as i64, "{x}");
+        }
+        for k in -100_000i64..100_000 {
+            assert_eq!(int_bits(k as f64 * 37.0), k * 37);
+        }
     }
 }
