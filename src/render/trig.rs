@@ -28,6 +28,8 @@
 //! assert!((s - 0.5).abs() <= f64::EPSILON && (c - 0.75f64.sqrt()).abs() <= f64::EPSILON);
 //! assert_eq!(sin_cos(0.0), (0.0, 1.0));
 //! ```
+// The coefficients are written with fdlibm's 21 digits (their bits are checked in the tests).
+#![allow(clippy::excessive_precision)]
 use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
 
 /// π/2 − `FRAC_PI_2` (the part of π/2 the f64 constant drops), 0x3C91A626_33145C07.
