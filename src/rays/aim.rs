@@ -22,30 +22,63 @@ pub fn object_ray(system: &SequentialSystem, field_mm: [f64; 2], px: f64, py: f6
 /// Pupil-plane units per normalised pupil coordinate: the entrance-pupil radius, or 1 in telecentric object
 /// space (where the pupil is at infinity and (px, py) scale direction sines instead).
 fn pupil_scale(system: &SequentialSystem) -> f64 {
-    if system.pupil.is_telecentric() {
-        1.0
-    } else {
-        system.pupil.radius_mm
-    }
+    PupilAim::of(system).scale
 }
 
 /// Direction from `origin` through the point (u, v) of the paraxial entrance-pupil plane (or, for a
 /// telecentric object space, with direction sines (u, v)·sin θ / radius).
 fn direction_through_pupil(system: &SequentialSystem, origin: DVec3, u: f64, v: f64) -> DVec3 {
-    let pupil = &system.pupil;
-    if pupil.is_telecentric() {
-        let s = pupil.sin_marginal; // (u, v) are normalised pupil coordinates here (scale 1)
-        let (sx, sy) = (u * s, v * s);
-        let z = (1.0 - sx * sx - sy * sy).max(0.0).sqrt();
-        return DVec3::new(sx, sy, z);
+    let d = PupilAim::of(system).through(origin.x, origin.y, origin.z, u, v);
+    DVec3::new(d[0], d[1], d[2])
+}
+
+/// The entrance-pupil geometry [`object_ray`] aims through, copied out of the system so that a loop over
+/// many rays computes their directions with plain arithmetic (and vectorises): the renderer's lane path
+/// uses it and gets [`object_ray`]'s numbers bit for bit (one implementation, [`PupilAim::through`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PupilAim {
+    telecentric: bool,
+    /// Pupil-plane units per normalised pupil coordinate (the pupil radius, or 1 when telecentric).
+    pub scale: f64,
+    sin_marginal: f64,
+    magnification_sign: f64,
+    distance_mm: f64,
+}
+
+impl PupilAim {
+    pub fn of(system: &SequentialSystem) -> Self {
+        let p = &system.pupil;
+        let telecentric = p.is_telecentric();
+        PupilAim { telecentric, scale: if telecentric { 1.0 } else { p.radius_mm }, sin_marginal: p.sin_marginal, magnification_sign: p.magnification_sign, distance_mm: p.distance_mm }
     }
-    // Pupil coordinates are oriented as at the stop: the entrance-pupil point is the paraxial image of the
-    // stop point, so it carries the sign of the pupil magnification (SP: real inverted pupil, m_p < 0).
-    let m = pupil.magnification_sign;
-    let target = DVec3::new(m * u, m * v, pupil.distance_mm);
-    let w = target - origin;
-    // A pupil behind the object (distance < 0) is virtual: the ray travels away from it, toward +z.
-    (if pupil.distance_mm < 0.0 { -w } else { w }).normalize()
+
+    /// [`object_ray`]'s unit direction from the object point (x, y, 0) through normalised pupil point (px, py).
+    #[inline(always)]
+    pub fn direction(&self, x: f64, y: f64, px: f64, py: f64) -> [f64; 3] {
+        self.through(x, y, 0.0, px * self.scale, py * self.scale)
+    }
+
+    /// Direction from (ox, oy, oz) through pupil-plane point (u, v) (telecentric: direction sines (u, v)·sin θ).
+    #[inline(always)]
+    fn through(&self, ox: f64, oy: f64, oz: f64, u: f64, v: f64) -> [f64; 3] {
+        if self.telecentric {
+            let s = self.sin_marginal; // (u, v) are normalised pupil coordinates here (scale 1)
+            let (sx, sy) = (u * s, v * s);
+            let z = (1.0 - sx * sx - sy * sy).max(0.0).sqrt();
+            return [sx, sy, z];
+        }
+        // Pupil coordinates are oriented as at the stop: the entrance-pupil point is the paraxial image of
+        // the stop point, so it carries the sign of the pupil magnification (SP: real inverted pupil, m_p < 0).
+        let m = self.magnification_sign;
+        let (mut wx, mut wy, mut wz) = (m * u - ox, m * v - oy, self.distance_mm - oz);
+        // A pupil behind the object (distance < 0) is virtual: the ray travels away from it, toward +z.
+        if self.distance_mm < 0.0 {
+            (wx, wy, wz) = (-wx, -wy, -wz);
+        }
+        // glam's `normalize`: w · (1 / |w|), |w|² summed x, y, z in order.
+        let inv = 1.0 / (wx * wx + wy * wy + wz * wz).sqrt();
+        [wx * inv, wy * inv, wz * inv]
+    }
 }
 
 /// Where a ray from the object (object frame, `n` the indices at its wavelength) crosses the stop surface,
@@ -99,4 +132,39 @@ pub fn aimed_ray(system: &SequentialSystem, n: &[f64], field_mm: [f64; 2], px: f
         }
     }
     Err(fail("no convergence in 30 Newton steps"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `direction_through_pupil` as it was written with glam before [`PupilAim`] (the reference).
+    fn glam_direction(system: &SequentialSystem, origin: DVec3, u: f64, v: f64) -> DVec3 {
+        let pupil = &system.pupil;
+        if pupil.is_telecentric() {
+            let s = pupil.sin_marginal;
+            let (sx, sy) = (u * s, v * s);
+            return DVec3::new(sx, sy, (1.0 - sx * sx - sy * sy).max(0.0).sqrt());
+        }
+        let target = DVec3::new(pupil.magnification_sign * u, pupil.magnification_sign * v, pupil.distance_mm);
+        let w = target - origin;
+        (if pupil.distance_mm < 0.0 { -w } else { w }).normalize()
+    }
+
+    #[test]
+    fn pupil_aim_is_the_glam_direction_bit_for_bit() {
+        for name in crate::presets::NAMES {
+            let sys = SequentialSystem::build(&crate::presets::spec(name).unwrap()).unwrap();
+            let aim = PupilAim::of(&sys);
+            let r = if sys.pupil.is_telecentric() { 1.0 } else { sys.pupil.radius_mm };
+            for i in 0..400 {
+                let (x, y) = ((i % 20) as f64 * 0.37 - 3.1, (i / 20) as f64 * -0.29 + 2.3);
+                let (px, py) = (((i * 7) % 13) as f64 / 6.5 - 1.0, ((i * 5) % 11) as f64 / 5.5 - 1.0);
+                let want = glam_direction(&sys, DVec3::new(x, y, 0.0), px * r, py * r);
+                let got = aim.direction(x, y, px, py);
+                assert_eq!(got.map(f64::to_bits), want.to_array().map(f64::to_bits), "{name} {i}");
+                assert_eq!(object_ray(&sys, [x, y], px, py).1, want);
+            }
+        }
+    }
 }

@@ -37,6 +37,8 @@ pub mod output;
 pub mod sampling;
 pub mod spectral;
 pub mod transport;
+pub mod trig;
+pub(crate) mod vector;
 pub mod validate;
 
 pub use airy::AiryKernel;

@@ -11,10 +11,10 @@
 //! scene row. Each arrived ray deposits weight 1/N bilinearly at its landing point (detector pixel centres at
 //! integer coordinates); weights falling off the detector are lost and counted.
 use super::detector::Detector;
-use super::sampling::RaySampler;
+use super::sampling::{RaySampler, SampleRow};
 use crate::analysis::MappingCube;
 use crate::error::Result;
-use crate::rays::{aimed_ray, object_ray, RayBatch};
+use crate::rays::{aimed_ray, object_ray, PupilAim, RayBatch};
 use crate::spec::RayAiming;
 use crate::system::SequentialSystem;
 use crate::tracer::kernel::trace_step;
@@ -210,16 +210,207 @@ pub struct PlaneContext<'a> {
     pub seed: u64,
 }
 
-/// Scratch buffers reused across the pixels of a plane (no allocation per ray).
+/// Scratch buffers reused across the rows of a plane (no allocation per pixel or ray).
 #[derive(Default)]
 struct Scratch {
-    samples: Vec<[f64; 4]>,
-    window: Vec<f64>,
+    /// Open columns of the current row, and their pixel indices.
+    open: Vec<usize>,
+    pixels: Vec<u64>,
+    samples: SampleRow,
+    /// Object-space rays of the current row (direct-kernel path), structure of arrays; origins at z = 0.
+    rays: RowRays,
     batch: RayBatch,
-    /// Landing (column, row) detector coordinates per ray of the current row, NaN when not arrived.
-    land: Vec<(f64, f64)>,
-    /// Object-space rays of the current row (direct-kernel path).
-    rays: Vec<(DVec3, DVec3)>,
+    /// Where each ray of the current row landed.
+    land: Landings,
+    window: Vec<f64>,
+}
+
+/// Landings of a row's rays on the detector, as bilinear-splat cells: whether the ray arrived, the cell
+/// (column `j`, row `i`: `floor` of the continuous pixel coordinates, as `f64::floor(..) as i64` gives it)
+/// and the fractions (`fu`, `fv`) inside it.
+#[derive(Default)]
+struct Landings {
+    arrived: Vec<bool>,
+    j: Vec<i64>,
+    i: Vec<i64>,
+    fu: Vec<f64>,
+    fv: Vec<f64>,
+}
+
+impl Landings {
+    fn clear(&mut self) {
+        self.arrived.clear();
+        self.j.clear();
+        self.i.clear();
+        self.fu.clear();
+        self.fv.clear();
+    }
+    /// Append a landing at continuous pixel coordinates (u, v) (NaN: none).
+    #[inline]
+    fn push(&mut self, (u, v): (f64, f64)) {
+        let (j, i) = (floor(u), floor(v));
+        self.arrived.push(!u.is_nan());
+        self.j.push(j as i64);
+        self.i.push(i as i64);
+        self.fu.push(u - j);
+        self.fv.push(v - i);
+    }
+}
+
+/// The landings of one traced block of lanes (the first `m` are rays): [`landing`]'s classification and
+/// detector coordinates and [`Landings::push`]'s cells, for all lanes at once (vectorised, dispatched).
+struct LandLoop<'a> {
+    b: &'a crate::tracer::simd::Block,
+    m: usize,
+    det: &'a Detector,
+    land: &'a mut Landings,
+    /// Arrived and out of range, counted over the `m` rays.
+    counts: &'a mut [u64; 2],
+}
+
+impl super::vector::VectorLoop for LandLoop<'_> {
+    #[inline(always)]
+    fn run(self) {
+        use crate::tracer::simd::LANES;
+        let b = self.b;
+        let (mut ok, mut j, mut i, mut fu, mut fv) = ([false; LANES], [0i64; LANES], [0i64; LANES], [0.0; LANES], [0.0; LANES]);
+        let (mut fjs, mut fis) = ([0.0; LANES], [0.0; LANES]);
+        let (mut arrived, mut out_of_range, mut large) = (0u64, 0u64, false);
+        for k in 0..LANES {
+            let (p, d) = ((b.p.x.0[k], b.p.y.0[k], b.p.z.0[k]), (b.d.x.0[k], b.d.y.0[k], b.d.z.0[k]));
+            let finite = p.0.is_finite() & p.1.is_finite() & p.2.is_finite() & d.0.is_finite() & d.1.is_finite() & d.2.is_finite();
+            let plausible = finite & (p.0.abs().max(p.1.abs().max(p.2.abs())) <= crate::limits::MAX_IMAGE_COORD_MM);
+            ok[k] = b.alive.0[k] & plausible;
+            let (u, v) = self.det.to_pixel(p.0, p.1);
+            let (u, v) = if ok[k] { (u, v) } else { (f64::NAN, f64::NAN) };
+            let (fj, fi) = (floor(u), floor(v));
+            (fjs[k], fis[k], fu[k], fv[k]) = (fj, fi, u - fj, v - fi);
+            // The integer of an integral |x| < 2⁵¹ is in the low bits of x + 1.5·2⁵² (no conversion
+            // instruction, vectorises); larger values are converted below, as `as i64` does.
+            (j[k], i[k]) = (int_bits(fj), int_bits(fi));
+            large |= ok[k] & !(fj.abs() < TWO51 && fi.abs() < TWO51);
+            let live = k < self.m;
+            arrived += (live & ok[k]) as u64;
+            out_of_range += (live & b.alive.0[k] & !ok[k]) as u64;
+        }
+        if large {
+            for k in 0..LANES {
+                (j[k], i[k]) = (fjs[k] as i64, fis[k] as i64);
+            }
+        }
+        let (m, land) = (self.m, self.land);
+        land.arrived.extend_from_slice(&ok[..m]);
+        land.j.extend_from_slice(&j[..m]);
+        land.i.extend_from_slice(&i[..m]);
+        land.fu.extend_from_slice(&fu[..m]);
+        land.fv.extend_from_slice(&fv[..m]);
+        self.counts[0] += arrived;
+        self.counts[1] += out_of_range;
+    }
+}
+
+/// A row's object-space rays, structure of arrays (origin (ox, oy, 0), direction d of any length).
+#[derive(Default)]
+struct RowRays {
+    ox: Vec<f64>,
+    oy: Vec<f64>,
+    dx: Vec<f64>,
+    dy: Vec<f64>,
+    dz: Vec<f64>,
+}
+
+impl RowRays {
+    fn resize(&mut self, n: usize) {
+        for v in [&mut self.ox, &mut self.oy, &mut self.dx, &mut self.dy, &mut self.dz] {
+            v.resize(n, 0.0);
+        }
+    }
+    fn ray(&self, t: usize) -> (DVec3, DVec3) {
+        (DVec3::new(self.ox[t], self.oy[t], 0.0), DVec3::new(self.dx[t], self.dy[t], self.dz[t]))
+    }
+}
+
+/// The vectorised ray generation of a row (ray aiming off): [`PlaneContext::ray`]'s numbers, i.e.
+/// [`object_ray`] of the sample's field point — the field from the pixel centre and the sample's
+/// position, the direction from [`PupilAim`].
+struct RayLoop<'a> {
+    samples: &'a SampleRow,
+    /// Scene-pixel centre x (mm) per ray; y is the row's.
+    centre_x: &'a [f64],
+    centre_y: f64,
+    pitch_mm: f64,
+    aim: PupilAim,
+    out: &'a mut RowRays,
+}
+
+impl super::vector::VectorLoop for RayLoop<'_> {
+    #[inline(always)]
+    fn run(self) {
+        let s = self.samples;
+        let n = s.len();
+        let (px, py, sx, sy, cx) = (&s.px[..n], &s.py[..n], &s.sx[..n], &s.sy[..n], &self.centre_x[..n]);
+        let o = self.out;
+        let (ox, oy, dx, dy, dz) = (&mut o.ox[..n], &mut o.oy[..n], &mut o.dx[..n], &mut o.dy[..n], &mut o.dz[..n]);
+        let (cy, pitch, aim) = (self.centre_y, self.pitch_mm, self.aim);
+        for t in 0..n {
+            let fx = cx[t] + (sx[t] - 0.5) * pitch;
+            let fy = cy - (sy[t] - 0.5) * pitch;
+            let d = aim.direction(fx, fy, px[t], py[t]);
+            ox[t] = fx;
+            oy[t] = fy;
+            dx[t] = d[0];
+            dy[t] = d[1];
+            dz[t] = d[2];
+        }
+    }
+}
+
+/// `x.floor()`, bit for bit, in plain arithmetic (so it inlines and vectorises: the baseline x86-64 target
+/// has no rounding instruction and `f64::floor` is a libm call there). For |x| < 2⁵², |x| + 2⁵² − 2⁵² rounds
+/// |x| to an integer (round-to-nearest), which is then signed and stepped down if above x; larger |x|,
+/// infinities and NaN are their own floor. Signed zeros come out as libm's (floor(−0) = −0).
+#[inline(always)]
+fn floor(x: f64) -> f64 {
+    const TWO52: f64 = 4_503_599_627_370_496.0;
+    let a = x.abs();
+    let r = ((a + TWO52) - TWO52).copysign(x);
+    let r = if r > x { r - 1.0 } else { r };
+    if a < TWO52 {
+        r
+    } else {
+        x
+    }
+}
+
+/// 2⁵¹: below it in magnitude, [`int_bits`] converts integral values.
+const TWO51: f64 = 2_251_799_813_685_248.0;
+
+/// `x as i64` for integral x with |x| < 2⁵¹ (other values give garbage): x + 1.5·2⁵² lies in [2⁵², 2⁵³),
+/// where the f64 spacing is 1, so the sum is exact and its mantissa bits are 2⁵¹ + x.
+#[inline(always)]
+fn int_bits(x: f64) -> i64 {
+    const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 · 2⁵²
+    (x + MAGIC).to_bits() as i64 - MAGIC.to_bits() as i64
+}
+
+/// Landing of one traced ray: detector (column, row), or NaN, counted in `stats` — the classification of
+/// `TracedBatch::classify_out_of_range`: an absurd landing is counted, never splatted.
+#[inline]
+fn landing(det: &Detector, stats: &mut RayStats, res: std::result::Result<(DVec3, DVec3), (RayStatus, usize)>) -> (f64, f64) {
+    match res {
+        Ok((p, d)) if !(p.is_finite() && d.is_finite() && p.abs().max_element() <= crate::limits::MAX_IMAGE_COORD_MM) => {
+            stats.count(RayStatus::OutOfRange);
+            (f64::NAN, f64::NAN)
+        }
+        Ok((p, _)) => {
+            stats.count(RayStatus::Ok);
+            det.to_pixel(p.x, p.y)
+        }
+        Err((st, _)) => {
+            stats.count(st);
+            (f64::NAN, f64::NAN)
+        }
+    }
 }
 
 /// Rays traced side by side: the CPU overlaps their independent dependency chains (sqrt/division latency
@@ -282,55 +473,55 @@ impl PlaneContext<'_> {
         let n = self.system.indices(wavelength_nm)?;
         let nr = self.sampler.rays;
         let mut out = PlaneTransport::default();
-        let mut sc = Scratch { samples: vec![[0.0; 4]; nr], ..Default::default() };
+        let mut sc = Scratch::default();
         let (h, w) = (self.scene_height, self.scene_width);
-        let mut open: Vec<usize> = Vec::with_capacity(w);
+        let aim = (self.system.spec.ray_aiming == RayAiming::Off).then(|| PupilAim::of(self.system));
+        let mut centre_x: Vec<f64> = Vec::new();
         for row in 0..h {
-            open.clear();
-            open.extend((0..w).filter(|&c| self.mask[row * w + c] > 0.0));
-            if open.is_empty() {
+            sc.open.clear();
+            sc.open.extend((0..w).filter(|&c| self.mask[row * w + c] > 0.0));
+            if sc.open.is_empty() {
                 continue;
             }
+            sc.pixels.clear();
+            sc.pixels.extend(sc.open.iter().map(|&c| (row * w + c) as u64));
+            self.sampler.fill_pixels(self.seed, plane as u64, &sc.pixels, &mut sc.samples);
+            let count = sc.samples.len();
             sc.land.clear();
             if self.direct_kernel {
-                sc.rays.clear();
-                for &col in &open {
-                    let q = row * w + col;
-                    self.sampler.fill(self.seed, plane as u64, q as u64, &mut sc.samples);
-                    for s in &sc.samples {
-                        sc.rays.push(self.ray(&n, row, col, s)?);
+                sc.rays.resize(count);
+                match aim {
+                    Some(aim) => {
+                        centre_x.clear();
+                        for &col in &sc.open {
+                            let c = MappingCube::scene_xy(h, w, self.scene_pitch_mm, row, col);
+                            centre_x.resize(centre_x.len() + nr, c[0]);
+                        }
+                        let centre_y = MappingCube::scene_xy(h, w, self.scene_pitch_mm, row, 0)[1];
+                        super::vector::run_at(self.sampler_level(), RayLoop { samples: &sc.samples, centre_x: &centre_x, centre_y, pitch_mm: self.scene_pitch_mm, aim, out: &mut sc.rays });
+                    }
+                    None => {
+                        for (t, col) in sc.open.iter().flat_map(|&c| std::iter::repeat(c).take(nr)).enumerate() {
+                            let (o, d) = self.ray(&n, row, col, &sc.samples.get(t))?;
+                            (sc.rays.ox[t], sc.rays.oy[t], sc.rays.dx[t], sc.rays.dy[t], sc.rays.dz[t]) = (o.x, o.y, d.x, d.y, d.z);
+                            debug_assert_eq!(o.z, 0.0);
+                        }
                     }
                 }
-                out.stats.traced += sc.rays.len() as u64;
-                let (stats, det, land) = (&mut out.stats, self.detector, &mut sc.land);
-                let emit = |res: std::result::Result<(DVec3, DVec3), (RayStatus, usize)>| match res {
-                    // Same classification as `TracedBatch::classify_out_of_range`: an absurd landing is
-                    // counted, never splatted (its pixel index would overflow).
-                    Ok((p, d)) if !(p.is_finite() && d.is_finite() && p.abs().max_element() <= crate::limits::MAX_IMAGE_COORD_MM) => {
-                        stats.count(RayStatus::OutOfRange);
-                        land.push((f64::NAN, f64::NAN));
-                    }
-                    Ok((p, _)) => {
-                        stats.count(RayStatus::Ok);
-                        land.push(det.to_pixel(p.x, p.y));
-                    }
-                    Err((st, _)) => {
-                        stats.count(st);
-                        land.push((f64::NAN, f64::NAN));
-                    }
-                };
+                out.stats.traced += count as u64;
                 match self.simd {
-                    Some(level) => crate::tracer::simd::trace_rays(level, &self.system.path, &n, &sc.rays, emit),
-                    None => trace_interleaved(&self.system.path, &n, &sc.rays, emit),
+                    Some(level) => self.trace_row_lanes(level, &n, &sc.rays, count, &mut out.stats, &mut sc.land),
+                    None => {
+                        let rays: Vec<(DVec3, DVec3)> = (0..count).map(|t| sc.rays.ray(t)).collect();
+                        let (stats, det, land) = (&mut out.stats, self.detector, &mut sc.land);
+                        trace_interleaved(&self.system.path, &n, &rays, |res| land.push(landing(det, stats, res)));
+                    }
                 }
             } else {
-                sc.batch = RayBatch::with_capacity(open.len() * nr);
-                for &col in &open {
-                    self.sampler.fill(self.seed, plane as u64, (row * w + col) as u64, &mut sc.samples);
-                    for s in &sc.samples {
-                        let (o, d) = self.ray(&n, row, col, s)?;
-                        sc.batch.push(o, d, wavelength_nm);
-                    }
+                sc.batch = RayBatch::with_capacity(count);
+                for (t, col) in sc.open.iter().flat_map(|&c| std::iter::repeat(c).take(nr)).enumerate() {
+                    let (o, d) = self.ray(&n, row, col, &sc.samples.get(t))?;
+                    sc.batch.push(o, d, wavelength_nm);
                 }
                 let t = self.tracer.trace(self.system, &sc.batch)?;
                 for i in 0..t.len() {
@@ -339,23 +530,60 @@ impl PlaneContext<'_> {
                     sc.land.push(if t.status[i] == RayStatus::Ok { self.detector.to_pixel(t.x[i], t.y[i]) } else { (f64::NAN, f64::NAN) });
                 }
             }
-            for (k, &col) in open.iter().enumerate() {
-                let land = &sc.land[k * nr..(k + 1) * nr];
-                self.footprint((row * w + col) as u32, land, &mut sc.window, &mut out);
+            for (k, &col) in sc.open.iter().enumerate() {
+                self.footprint((row * w + col) as u32, &sc.land, k * nr..(k + 1) * nr, &mut sc.window, &mut out);
             }
         }
         Ok(out)
     }
 
-    /// Bilinear splat of one pixel's landings (weight 1/N each) into a window; append it to `out`.
-    fn footprint(&self, pixel: u32, land: &[(f64, f64)], window: &mut Vec<f64>, out: &mut PlaneTransport) {
-        let (dw, dh) = (self.detector.width as i64, self.detector.height as i64);
-        let (mut x0, mut x1, mut y0, mut y1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
-        for &(u, v) in land {
-            if u.is_nan() {
-                continue;
+    /// The instruction set of the render's vectorised loops (any level gives the same numbers).
+    fn sampler_level(&self) -> crate::tracer::SimdLevel {
+        self.simd.unwrap_or_else(crate::tracer::SimdLevel::detect)
+    }
+
+    /// Trace the first `count` rays of `rays` with the lane kernel at `level`, [`LANES`](crate::tracer::simd::LANES)
+    /// at a time loaded straight from the arrays, and append their landings: `trace_rays` and [`landing`]'s
+    /// numbers, computed for all lanes at once and selected.
+    #[allow(clippy::too_many_arguments)]
+    fn trace_row_lanes(&self, level: crate::tracer::SimdLevel, n: &[f64], rays: &RowRays, count: usize, stats: &mut RayStats, land: &mut Landings) {
+        use crate::tracer::simd::{Block, LANES};
+        let tables = [n; LANES];
+        let det = self.detector;
+        let mut start = 0;
+        while start < count {
+            let m = (count - start).min(LANES);
+            let r = start..start + m;
+            let mut b = Block::default();
+            b.p.x.0[..m].copy_from_slice(&rays.ox[r.clone()]);
+            b.p.y.0[..m].copy_from_slice(&rays.oy[r.clone()]);
+            b.d.x.0[..m].copy_from_slice(&rays.dx[r.clone()]);
+            b.d.y.0[..m].copy_from_slice(&rays.dy[r.clone()]);
+            b.d.z.0[..m].copy_from_slice(&rays.dz[r]);
+            b.alive.0[..m].fill(true);
+            crate::tracer::simd::trace_block_raw(level, &self.system.path, &tables, &mut b);
+            let mut counts = [0u64; 2];
+            super::vector::run_at(level, LandLoop { b: &b, m, det, land, counts: &mut counts });
+            stats.arrived += counts[0];
+            stats.out_of_range += counts[1];
+            for k in 0..m {
+                if let (false, Err((st, _))) = (b.alive.0[k], b.result(k)) {
+                    stats.count(st);
+                }
             }
-            let (j, i) = (u.floor() as i64, v.floor() as i64);
+            start += m;
+        }
+    }
+
+    /// Bilinear splat of one pixel's landings (`rays` of `land`, weight 1/N each) into a window; append it
+    /// to `out`. Each window cell sums its taps in ray order, in f64, then is scaled by 1/N and stored as f32.
+    fn footprint(&self, pixel: u32, land: &Landings, rays: std::ops::Range<usize>, window: &mut Vec<f64>, out: &mut PlaneTransport) {
+        let (dw, dh) = (self.detector.width as i64, self.detector.height as i64);
+        let (la, lj, li, lfu, lfv) = (&land.arrived[rays.clone()], &land.j[rays.clone()], &land.i[rays.clone()], &land.fu[rays.clone()], &land.fv[rays]);
+        let (mut x0, mut x1, mut y0, mut y1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
+        let mut arrived = 0usize;
+        for ((&j, &i), _) in lj.iter().zip(li).zip(la).filter(|(_, &a)| a) {
+            arrived += 1;
             x0 = x0.min(j);
             x1 = x1.max(j + 1);
             y0 = y0.min(i);
@@ -364,39 +592,82 @@ impl PlaneContext<'_> {
         if x0 > x1 {
             return; // no ray arrived
         }
-        let weight = 1.0 / land.len() as f64;
+        let weight = 1.0 / lj.len() as f64;
         // Clip the window to the detector; taps outside are lost.
         let (cx0, cx1, cy0, cy1) = (x0.max(0), x1.min(dw - 1), y0.max(0), y1.min(dh - 1));
         if cx0 > cx1 || cy0 > cy1 {
-            out.stats.off_detector += land.iter().filter(|l| !l.0.is_nan()).count() as f64;
+            out.stats.off_detector += arrived as f64;
             return;
         }
         let (ww, wh) = ((cx1 - cx0 + 1) as usize, (cy1 - cy0 + 1) as usize);
         window.clear();
         window.resize(ww * wh, 0.0);
-        let mut lost = 0.0;
-        for &(u, v) in land {
-            if u.is_nan() {
-                continue;
+        let cells = (0..la.len()).filter(|&t| la[t]).map(|t| (lj[t], li[t], lfu[t], lfv[t]));
+        if (cx0, cx1, cy0, cy1) == (x0, x1, y0, y1) {
+            // Inside the detector: every tap lands in the window (j + 1 ≤ x1, i + 1 ≤ y1), nothing is lost.
+            for (j, i, fu, fv) in cells {
+                let o = (i - y0) as usize * ww + (j - x0) as usize;
+                let taps = &mut window[o..o + ww + 2];
+                let (wi0, wi1, wj0, wj1) = (1.0 - fv, fv, 1.0 - fu, fu);
+                taps[0] += wi0 * wj0;
+                taps[1] += wi0 * wj1;
+                taps[ww] += wi1 * wj0;
+                taps[ww + 1] += wi1 * wj1;
             }
-            let (j, i) = (u.floor(), v.floor());
-            let (fu, fv) = (u - j, v - i);
-            let (j, i) = (j as i64, i as i64);
-            for (di, wi) in [(0, 1.0 - fv), (1, fv)] {
-                for (dj, wj) in [(0, 1.0 - fu), (1, fu)] {
-                    let (r, c) = (i + di, j + dj);
-                    let tap = wi * wj;
-                    if r < cy0 || r > cy1 || c < cx0 || c > cx1 {
-                        lost += tap;
-                    } else {
-                        window[(r - cy0) as usize * ww + (c - cx0) as usize] += tap;
+        } else {
+            let mut lost = 0.0;
+            for (j, i, fu, fv) in cells {
+                for (di, wi) in [(0, 1.0 - fv), (1, fv)] {
+                    for (dj, wj) in [(0, 1.0 - fu), (1, fu)] {
+                        let (r, c) = (i + di, j + dj);
+                        let tap = wi * wj;
+                        if r < cy0 || r > cy1 || c < cx0 || c > cx1 {
+                            lost += tap;
+                        } else {
+                            window[(r - cy0) as usize * ww + (c - cx0) as usize] += tap;
+                        }
                     }
                 }
             }
+            out.stats.off_detector += lost;
         }
-        out.stats.off_detector += lost;
         let start = out.weights.len() as u32;
         out.weights.extend(window.iter().map(|&t| (t * weight) as f32));
         out.footprints.push(Footprint { pixel, x0: cx0 as u16, y0: cy0 as u16, w: ww as u16, h: wh as u16, start });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn arithmetic_floor_is_libm_floor_bit_for_bit() {
+        let mut xs = vec![0.0, -0.0, 0.5, -0.5, 1.0, -1.0, 1.5, -1.5, 2.5, -2.5, 1e-300, -1e-300, 5e-324, -5e-324, 2.0f64.powi(52), -(2.0f64.powi(52)), 2.0f64.powi(52) - 0.5, -(2.0f64.powi(52)) + 0.5, 2.0f64.powi(51) + 0.5, -(2.0f64.powi(51)) - 0.5, 1e19, -1e19, 1e300, -1e300, f64::MAX, f64::MIN, f64::INFINITY, f64::NEG_INFINITY];
+        let mut x: f64 = 1e-3;
+        while x < 1e7 {
+            for y in [x, -x, x.next_up(), x.next_down(), -x.next_up(), (x.round()).next_down(), -(x.round()).next_down(), x.round()] {
+                xs.push(y);
+            }
+            x *= 1.37;
+        }
+        for i in -3000..3000 {
+            xs.push(i as f64 * 0.173);
+        }
+        for x in xs {
+            assert_eq!(floor(x).to_bits(), x.floor().to_bits(), "{x}");
+            assert_eq!(floor(x) as i64, x.floor() as i64, "{x}");
+        }
+        assert!(floor(f64::NAN).is_nan());
+    }
+
+    #[test]
+    fn int_bits_is_the_conversion_below_two_to_the_51() {
+        for x in [0.0, -0.0, 1.0, -1.0, 2.0, -3.0, 1e6, -1e6, 65535.0, -65536.0, TWO51 - 1.0, -(TWO51 - 1.0), 123456789012.0, -98765432109.0] {
+            assert_eq!(int_bits(x), x as i64, "{x}");
+        }
+        for k in -100_000i64..100_000 {
+            assert_eq!(int_bits(k as f64 * 37.0), k * 37);
+        }
     }
 }

@@ -216,7 +216,9 @@ pub(crate) fn trace_block_raw(level: SimdLevel, path: &[PathStep], n: &[&[f64]; 
 /// Trace `rays` (object frame, any length, directions of any non-zero length) at one wavelength (`n` the
 /// indices after each surface), [`LANES`] at a time, and report each outcome in order — the lane twin of
 /// `trace_interleaved` in the renderer: the same input checks (finite, non-zero direction divided by its
-/// length) and the same numbers as [`crate::tracer::kernel::trace_steps`].
+/// length) and the same numbers as [`crate::tracer::kernel::trace_steps`]. (The renderer loads its lanes from
+/// arrays directly; this stays as the tested reference.)
+#[cfg_attr(not(test), allow(dead_code))]
 pub(crate) fn trace_rays(level: SimdLevel, path: &[PathStep], n: &[f64], rays: &[(DVec3, DVec3)], mut emit: impl FnMut(std::result::Result<(DVec3, DVec3), (RayStatus, usize)>)) {
     let tables = [n; LANES];
     for chunk in rays.chunks(LANES) {
