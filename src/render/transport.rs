@@ -152,6 +152,8 @@ pub struct PlaneContext<'a> {
     /// On the direct path: the lane kernel at this level ([`crate::tracer::simd`]), or the scalar kernel
     /// 8 rays interleaved (`None`). Both give the same numbers.
     pub simd: Option<crate::tracer::SimdLevel>,
+    /// The lane kernel's float precision (f32 only with a SIMD level; checked by the renderer).
+    pub precision: crate::tracer::Precision,
     pub detector: &'a Detector,
     pub scene_height: usize,
     pub scene_width: usize,
@@ -272,7 +274,7 @@ impl PlaneContext<'_> {
                     }
                 };
                 match self.simd {
-                    Some(level) => crate::tracer::simd::trace_rays(level, &self.system.path, &n, &sc.rays, emit),
+                    Some(level) => crate::tracer::simd::trace_rays_at(self.precision, level, &self.system.path, &n, &sc.rays, emit),
                     None => trace_interleaved(&self.system.path, &n, &sc.rays, emit),
                 }
             } else {
