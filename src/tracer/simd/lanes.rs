@@ -40,6 +40,10 @@ pub trait Real: Copy + Default + PartialEq + PartialOrd + std::fmt::Debug + Send
     fn abs(self) -> Self;
     fn signum(self) -> Self;
     fn is_finite(self) -> bool;
+    /// `a` if `m` else `b`, as a bitwise blend of the values (exactly one of them, bit for bit). Written
+    /// on the bits so that LLVM emits a register blend: the plain `if m { a[k] } else { b[k] }` over
+    /// arrays became an address select and a gather (`vgatherqps`) in the f32 kernel.
+    fn blend(m: bool, a: Self, b: Self) -> Self;
     /// Tolerance of the conic vertex-branch test |z − sag| ≤ tol at a hit point of local height `z`
     /// reached at parameter `t`.
     fn branch_tol<const N: usize>(z: Lanes<Self, N>, t: Lanes<Self, N>) -> Lanes<Self, N>;
@@ -75,6 +79,11 @@ impl Real for f64 {
     #[inline(always)]
     fn is_finite(self) -> bool {
         f64::is_finite(self)
+    }
+    #[inline(always)]
+    fn blend(m: bool, a: f64, b: f64) -> f64 {
+        let mask = (m as u64).wrapping_neg();
+        f64::from_bits((a.to_bits() & mask) | (b.to_bits() & !mask))
     }
     /// The scalar kernel's 1e-9·(1 + |z|).
     #[inline(always)]
@@ -120,6 +129,11 @@ impl Real for f32 {
     #[inline(always)]
     fn is_finite(self) -> bool {
         f32::is_finite(self)
+    }
+    #[inline(always)]
+    fn blend(m: bool, a: f32, b: f32) -> f32 {
+        let mask = (m as u32).wrapping_neg();
+        f32::from_bits((a.to_bits() & mask) | (b.to_bits() & !mask))
     }
     /// ≈ 80 ε·(1 + |z| + |t|): the hit point's z carries the rounding of p_z + t·d_z, ~ε·|t|.
     #[inline(always)]
@@ -271,7 +285,7 @@ impl<T: Real, const N: usize> Lanes<T, N> {
     pub fn select(m: Mask<N>, a: Self, b: Self) -> Self {
         let mut r = [T::default(); N];
         for k in 0..N {
-            r[k] = if m.0[k] { a.0[k] } else { b.0[k] };
+            r[k] = T::blend(m.0[k], a.0[k], b.0[k]);
         }
         Lanes(r)
     }
