@@ -4,8 +4,9 @@
 //!
 //! ## Why this design
 //! All rays of a bundle follow the same surface sequence, so the kernel is written once over
-//! structure-of-arrays lane arrays ([`lanes::Lf`] = `[f64; 8]`, every operation an `#[inline(always)]`
-//! loop) and compiled three times by runtime dispatch: inside `#[target_feature(enable = "avx512f…")]`,
+//! structure-of-arrays lane arrays ([`lanes::Lanes`]`<T, N>`: [`lanes::Lf`] = 32 f64 for the exact kernel,
+//! 64 f32 for `--precision f32`; every operation an `#[inline(always)]` loop, one generic source for both
+//! precisions) and compiled three times by runtime dispatch: inside `#[target_feature(enable = "avx512f…")]`,
 //! `#[target_feature(enable = "avx2")]` and plain (SSE2) functions, chosen with
 //! `is_x86_feature_detected!`. LLVM vectorises the fixed-width loops into one zmm / two ymm / four xmm
 //! registers per lane array. We chose this over `std::arch` intrinsics (three hand-written copies of
