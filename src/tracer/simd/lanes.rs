@@ -394,7 +394,7 @@ mod tests {
     #[test]
     fn lane_ops_are_the_scalar_ops() {
         let vals = [1.0, -2.0, 0.5, f64::NAN, 3.0, -0.0, 1e300, 7.0];
-        let a = Lf(std::array::from_fn(|k| vals[k % 8]));
+        let a: Lf = Lanes(std::array::from_fn(|k| vals[k % 8]));
         let b = Lf::splat(3.0);
         let s = (a * b + a / b - 1.0).sqrt();
         for k in 0..LANES {
