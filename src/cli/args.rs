@@ -1,69 +1,8 @@
-use clap::{Args, Parser, Subcommand};
+//! Option groups shared by several commands ([`SystemArgs`], [`BackendArgs`]) and the arguments of the
+//! analysis commands of [`super::commands`]. The command tree itself ([`super::Command`]) lives in the
+//! parent module, so this file imports no command module.
+use clap::Args;
 use std::path::PathBuf;
-
-/// diffcassi — exact ray tracing of coded-aperture snapshot spectral imagers (CASSI), matching Zemax.
-///
-/// Systems come from a preset (sp, ap, msp, map: the reference paper's four systems, built from their
-/// Zemax prescriptions) or a spec file (.toml, .json, the paper's .yml, or a Zemax prescription .csv).
-/// Lengths are millimetres, wavelengths nanometres, angles degrees.
-#[derive(Parser, Debug)]
-#[command(name = "diffcassi", version, about, long_about = None, propagate_version = true)]
-pub struct Cli {
-    /// Worker threads (default: all cores). Results do not depend on it.
-    #[arg(long, global = true)]
-    pub threads: Option<usize>,
-    /// Memory budget (GB) checked before any large allocation; a command whose estimate exceeds it is
-    /// refused with the estimate [default: half of the physical memory, else 16 GB].
-    #[arg(long = "max-memory-gb", global = true)]
-    pub max_memory_gb: Option<f64>,
-    /// Most rays a command may trace (checked before tracing) [default: 2e10].
-    #[arg(long = "max-rays", global = true)]
-    pub max_rays: Option<f64>,
-    #[command(subcommand)]
-    pub command: Command,
-}
-
-#[derive(Subcommand, Debug)]
-pub enum Command {
-    /// Print the resolved system: surfaces (pickups and solves evaluated), pupil, media.
-    Info(InfoArgs),
-    /// Trace rays of one field and wavelength; write per-ray image positions and outcomes.
-    Trace(SpotArgs),
-    /// Spot diagrams (centroid, RMS and GEO radius) for fields × wavelengths; CSV/JSON/PNG.
-    Spot(SpotArgs),
-    /// Grid distortion like Zemax's listing: N×N chief rays, real vs predicted; CSV/JSON/PNG.
-    Distortion(DistortionArgs),
-    /// Spatio-spectral spreading: chief-ray position vs wavelength for one field; CSV/PNG.
-    Dispersion(DispersionArgs),
-    /// The scene→detector mapping cube f(x_s, y_s, λ) → (x_d, y_d) as NPY.
-    Mapping(MappingArgs),
-    /// Analyse a preset end to end (spots, distortion, dispersion) and write every table and plot to a folder.
-    Report(ReportArgs),
-    /// Throughput of the analytic tracer (rays/s) on SP-like workloads, printed as a table.
-    Bench(BenchArgs),
-    /// Write a system (preset or file) as a TOML or JSON spec.
-    ExportSpec(ExportArgs),
-    /// Render a coded acquisition of a hyperspectral scene (default: the synthetic demo scene).
-    Render(super::render::RenderArgs),
-    /// Render every scene of a folder (or one shard of it), tracing the system's light transport once.
-    RenderDataset(super::dataset::RenderDatasetArgs),
-    /// Which scenes of a render-dataset output are done, missing or corrupt (exit 1 unless all done).
-    DatasetStatus(super::dataset::DatasetStatusArgs),
-    /// Reconstruct the cube from a render folder's acquisition (operator exact/mapping/shift, solver GAP-TV/ADMM-TV).
-    Reconstruct(super::reconstruct::ReconstructArgs),
-    /// The paper's four-system study: render scenes through every system, reconstruct with every operator, evaluate.
-    Study(super::study::StudyArgs),
-    /// Write a test scene (RGB photograph uplifted to spectra, ColorChecker chart, synthetic) as NPY/EXR + sRGB preview.
-    MakeScene(super::make_scene::MakeSceneArgs),
-    /// Time the paper-scale acquisition and dataset mode, printed as a table.
-    BenchRender(super::render::BenchRenderArgs),
-    /// Quality metrics of an estimated cube against the truth: RMSE, PSNR (paper and MST), SSIM, SAM.
-    Evaluate(super::evaluate::EvaluateArgs),
-    /// Optical design by exact derivatives (`design amici`: the paper's double-Amici prism).
-    Design(super::design::DesignArgs),
-    /// Recover a misalignment (e.g. the prism tilt) from another system's spot centroids.
-    Calibrate(super::design::CalibrateArgs),
-}
 
 /// Which system to use.
 #[derive(Args, Debug, Clone)]
@@ -215,7 +154,7 @@ pub struct MappingArgs {
     pub f64: bool,
     /// Float precision of the chief-ray trace: f64 (exact, the default) or f32 (the SIMD lanes in f32;
     /// error against f64 measured by `bench tradeoff`, see docs/performance.md).
-    #[arg(long, value_name = "f64|f32", value_parser = super::render::parse_precision)]
+    #[arg(long, value_name = "f64|f32", value_parser = <crate::tracer::Precision as std::str::FromStr>::from_str)]
     pub precision: Option<crate::tracer::Precision>,
 }
 

@@ -1,161 +1,16 @@
 use super::args::*;
+use super::shared::*;
 use crate::analysis::{self, linspace, DistortionGrid, SpotDiagram};
 use crate::error::{Error, Result};
 use crate::io::{write_atomic, write_npy_f32, write_npy_f64, write_npy_u8, CsvValue, CsvWriter};
-use crate::materials::GlassCatalog;
 use crate::plot;
 use crate::rays::{PupilPattern, RayBatch};
-use crate::spec::{Driver, SurfaceKind, SystemSpec};
+use crate::spec::{Driver, SurfaceKind};
 use crate::system::SequentialSystem;
 use crate::tracer::{AnalyticTracer, RayStatus, Tracer};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-// ---------------------------------------------------------------- argument parsing
-
-/// The spec named by `--preset` or `--system`.
-pub fn load_spec(args: &SystemArgs) -> Result<SystemSpec> {
-    match (&args.preset, &args.system) {
-        (Some(p), None) => crate::presets::spec(p),
-        (None, Some(path)) => crate::spec::load_spec_file(path),
-        (None, None) => Err(Error::invalid("give a system: --preset sp|ap|msp|map or --system FILE")),
-        (Some(_), Some(_)) => Err(Error::invalid("give either --preset or --system, not both")),
-    }
-}
-
-/// Build the system named by the arguments, with any extra glass catalogues.
-pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
-    let spec = load_spec(args)?;
-    let mut catalog = GlassCatalog::builtin();
-    for path in spec.glass_catalogs.iter().map(PathBuf::from).chain(args.glass_catalogs.iter().cloned()) {
-        catalog.merge(GlassCatalog::from_agf_file(&path)?);
-    }
-    SequentialSystem::build_with_catalog(&spec, &catalog)
-}
-
-/// The tracer named by `--backend`, `--refine`, `--mesh-max-sag-um`, `--mesh-segments`.
-pub fn make_tracer(a: &BackendArgs) -> Result<Box<dyn Tracer>> {
-    let mut cfg: crate::tracer::BackendConfig = a.backend.as_deref().unwrap_or("analytic").parse()?;
-    if let Some(r) = &a.refine {
-        cfg.refine = r.parse()?;
-    }
-    if let Some(um) = a.mesh_max_sag_um {
-        cfg.mesh = crate::surfaces::MeshResolution::MaxSagErrorUm(um);
-    }
-    if let Some(n) = a.mesh_segments {
-        cfg.mesh = crate::surfaces::MeshResolution::Segments(n);
-    }
-    if cfg.backend == crate::tracer::Backend::AnalyticF32 {
-        return Err(Error::invalid("--backend analytic-f32: this command runs in f64 (its results are compared to Zemax); f32 is for render, render-dataset and mapping, with --precision f32"));
-    }
-    if cfg.backend == crate::tracer::Backend::Analytic && (a.mesh_max_sag_um.is_some() || a.mesh_segments.is_some() || a.refine.as_deref().is_some_and(|r| r != "f64")) {
-        return Err(Error::invalid("--refine, --mesh-max-sag-um and --mesh-segments apply to the Embree backends only (--backend embree-user|embree-mesh)"));
-    }
-    cfg.build()
-}
-
-/// `520`, `450,520,650` or `450:650:28` (first:last:count) → wavelengths in nm.
-pub fn parse_wavelengths(text: &str) -> Result<Vec<f64>> {
-    parse_wavelengths_for("--wavelength-nm", text)
-}
-
-/// [`parse_wavelengths`] for the option named `option` (errors name it).
-pub fn parse_wavelengths_for(option: &str, text: &str) -> Result<Vec<f64>> {
-    let bad = |why: &str| Error::invalid(format!("{option} `{text}`: {why} (use 520, 450,520,650 or 450:650:28)"));
-    let num = |s: &str| -> Result<f64> {
-        let v: f64 = s.trim().parse().map_err(|_| bad(&format!("`{s}` is not a number")))?;
-        let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
-        if !(v.is_finite() && (lo..=hi).contains(&v)) {
-            return Err(bad(&format!("{v} nm is outside {lo}–{hi} nm")));
-        }
-        Ok(v)
-    };
-    if text.contains(':') {
-        let parts: Vec<&str> = text.split(':').collect();
-        if parts.len() != 3 {
-            return Err(bad("a range needs first:last:count"));
-        }
-        let count: usize = parts[2].trim().parse().map_err(|_| bad("count is not a whole number"))?;
-        if count == 0 || count > crate::limits::MAX_WAVELENGTHS {
-            return Err(bad(&format!("count {count} must be in 1..={}", crate::limits::MAX_WAVELENGTHS)));
-        }
-        return Ok(linspace(num(parts[0])?, num(parts[1])?, count));
-    }
-    if text.split(',').count() > crate::limits::MAX_WAVELENGTHS {
-        return Err(bad(&format!("more than {} wavelengths", crate::limits::MAX_WAVELENGTHS)));
-    }
-    text.split(',').map(num).collect()
-}
-
-/// `X,Y` → field point (mm).
-pub fn parse_field(text: &str) -> Result<[f64; 2]> {
-    let bad = |why: String| Error::invalid(format!("--field-mm `{text}`: {why} (use X,Y in mm, e.g. 2.5,0)"));
-    let parts: Vec<&str> = text.split(',').collect();
-    if parts.len() != 2 {
-        return Err(bad("expected two numbers".into()));
-    }
-    let mut v = [0.0f64; 2];
-    for (k, p) in parts.iter().enumerate() {
-        v[k] = p.trim().parse().map_err(|_| bad(format!("`{p}` is not a number")))?;
-        if !(v[k].is_finite() && v[k].abs() <= crate::limits::MAX_LENGTH_MM) {
-            return Err(bad(format!("{} is outside ±{:e} mm", crate::limits::fmt_num(v[k]), crate::limits::MAX_LENGTH_MM)));
-        }
-    }
-    Ok(v)
-}
-
-/// `chief`, `marginal`, `hexapolar:R`, `grid:N`, `grid-step:S`, `random:N:SEED`.
-pub fn parse_pupil(text: &str) -> Result<PupilPattern> {
-    let bad = |why: &str| Error::invalid(format!("--pupil `{text}`: {why} (chief, marginal, hexapolar:RINGS, grid:N, grid-step:STEP, random:N:SEED)"));
-    let parts: Vec<&str> = text.split(':').collect();
-    let int = |k: usize| -> Result<usize> { parts.get(k).ok_or_else(|| bad("missing number"))?.parse().map_err(|_| bad("not a whole number")) };
-    let p = match parts[0] {
-        "chief" => PupilPattern::Chief,
-        "marginal" => PupilPattern::Marginal,
-        "hexapolar" => PupilPattern::Hexapolar { rings: int(1)?.max(0) },
-        "grid" => {
-            let n = int(1)?;
-            if n == 0 {
-                return Err(bad("grid:N needs N ≥ 1 (grid:1 is the chief ray)"));
-            }
-            PupilPattern::Grid { n }
-        }
-        "grid-step" => {
-            let step: f64 = parts.get(1).ok_or_else(|| bad("missing step"))?.parse().map_err(|_| bad("step is not a number"))?;
-            if !(step > 0.0 && step <= 1.0) {
-                return Err(bad("step must be in (0, 1]"));
-            }
-            PupilPattern::GridStep { step }
-        }
-        "random" => {
-            let n = int(1)?;
-            if n == 0 {
-                return Err(bad("random:N:SEED needs N ≥ 1"));
-            }
-            let seed: u64 = parts.get(2).ok_or_else(|| bad("missing seed"))?.parse().map_err(|_| bad("seed is not a whole number ≥ 0"))?;
-            PupilPattern::Random { n, seed }
-        }
-        _ => return Err(bad("unknown pattern")),
-    };
-    if parts.len() > match p { PupilPattern::Chief | PupilPattern::Marginal => 1, PupilPattern::Random { .. } => 3, _ => 2 } {
-        return Err(bad("too many `:` parts"));
-    }
-    let count = pupil_count(&p);
-    crate::limits::check_memory(&format!("--pupil {text} ({count:.3e} points)"), count * crate::limits::BYTES_PER_RAY)?;
-    Ok(p)
-}
-
-/// Upper bound on the number of points of a pupil pattern, computed without generating them.
-fn pupil_count(p: &PupilPattern) -> f64 {
-    match *p {
-        PupilPattern::Chief => 1.0,
-        PupilPattern::Marginal => 4.0,
-        PupilPattern::Hexapolar { rings } => 1.0 + 3.0 * rings as f64 * (rings as f64 + 1.0),
-        PupilPattern::Grid { n } => (n as f64).powi(2),
-        PupilPattern::GridStep { step } => (2.0 / step + 1.0).powi(2),
-        PupilPattern::Random { n, .. } => n as f64,
-    }
-}
 
 fn pupil_points(a: &SpotArgs) -> Result<Vec<[f64; 2]>> {
     match &a.pupil_csv {
@@ -756,19 +611,6 @@ pub(super) fn report(a: ReportArgs) -> Result<()> {
 
 // ---------------------------------------------------------------- bench
 
-/// CPU time (s) used so far by all threads of this process: the sum of /proc/self/task/*/schedstat's run
-/// times (ns resolution; Linux only, `None` elsewhere). Rays per CPU-second is rays/s per thread even on
-/// a machine shared with other jobs, where wall time hides how much of the cores a run was given. Threads
-/// that have exited are not counted, so take differences around work done by live threads (rayon's pool).
-pub(crate) fn cpu_seconds() -> Option<f64> {
-    let mut ns = 0u64;
-    for t in std::fs::read_dir("/proc/self/task").ok()?.flatten() {
-        // A thread may exit between the listing and the read: skip it.
-        let Ok(s) = std::fs::read_to_string(t.path().join("schedstat")) else { continue };
-        ns += s.split_whitespace().next().and_then(|v| v.parse::<u64>().ok()).unwrap_or(0);
-    }
-    Some(ns as f64 * 1e-9)
-}
 
 pub(super) fn bench(a: BenchArgs) -> Result<()> {
     if a.mode.as_deref() == Some("tradeoff") {

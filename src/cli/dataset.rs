@@ -12,7 +12,7 @@
 //! stdout of `render-dataset` is JSON Lines, one object per scene of the shard:
 //! `{"scene":"s03","status":"rendered","seconds":1.25,"output":"out/sp-dataset/s03"}` (`status` is
 //! `rendered`, `skipped` or `failed`; `failed` adds `"error"`). Progress and messages go to stderr.
-use super::commands::load_system;
+use super::shared::load_system;
 use super::render::{apply_noise, config_from, load_fitted, name_hash, parse_fit, progress_bar, render_tracer, scene_wavelengths, NoiseArgs, RenderCommon};
 use crate::error::{Error, Result};
 use crate::io::write_atomic;

@@ -10,7 +10,7 @@
 //! folders of per-band PNGs). When the wavelengths differ, the truth is resampled to the estimate's. Every
 //! check happens before anything is written: a shape mismatch, a non-finite value or a missing file exits 1
 //! with the reason and writes nothing.
-use super::commands::parse_wavelengths;
+use super::shared::parse_wavelengths;
 use crate::error::{Error, Result};
 use crate::io::write_atomic;
 use crate::recon::metrics::{evaluate as evaluate_cubes, Evaluation};

@@ -7,7 +7,7 @@
 //! diffcassi bench tradeoff --csv tradeoff.csv --png tradeoff.png [--quick]
 //! ```
 use super::args::{BackendArgs, BenchArgs};
-use super::commands::make_tracer;
+use super::shared::make_tracer;
 use crate::error::{Error, Result};
 use crate::fidelity::{self, CacheOptions};
 use crate::render::RenderConfig;

@@ -6,7 +6,7 @@
 //! diffcassi make-scene --rgb data/scenes/coffee.png --out out/coffee.npy          # + coffee_wavelengths_nm.npy, coffee_rgb.png
 //! diffcassi make-scene --colour-checker --size 256 --bands 450:650:28 --out out/chart.exr
 //! ```
-use super::commands::parse_wavelengths;
+use super::shared::parse_wavelengths;
 use crate::error::{Error, Result};
 use crate::scene::{colorimetry, natural, save_exr, save_npy, synthetic_scene, Fit};
 use clap::Args;

@@ -16,6 +16,7 @@
 //! ```
 mod args;
 mod commands;
+mod shared;
 mod dataset;
 pub mod render;
 mod design;
@@ -27,8 +28,72 @@ pub mod study;
 
 pub use args::*;
 /// Text forms shared with other front ends (the C++ API parses pupil patterns the same way).
-pub use commands::{parse_pupil, parse_wavelengths};
-use clap::{CommandFactory, FromArgMatches};
+pub use shared::{parse_pupil, parse_wavelengths};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
+
+/// diffcassi — exact ray tracing of coded-aperture snapshot spectral imagers (CASSI), matching Zemax.
+///
+/// Systems come from a preset (sp, ap, msp, map: the reference paper's four systems, built from their
+/// Zemax prescriptions) or a spec file (.toml, .json, the paper's .yml, or a Zemax prescription .csv).
+/// Lengths are millimetres, wavelengths nanometres, angles degrees.
+#[derive(Parser, Debug)]
+#[command(name = "diffcassi", version, about, long_about = None, propagate_version = true)]
+pub struct Cli {
+    /// Worker threads (default: all cores). Results do not depend on it.
+    #[arg(long, global = true)]
+    pub threads: Option<usize>,
+    /// Memory budget (GB) checked before any large allocation; a command whose estimate exceeds it is
+    /// refused with the estimate [default: half of the physical memory, else 16 GB].
+    #[arg(long = "max-memory-gb", global = true)]
+    pub max_memory_gb: Option<f64>,
+    /// Most rays a command may trace (checked before tracing) [default: 2e10].
+    #[arg(long = "max-rays", global = true)]
+    pub max_rays: Option<f64>,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Print the resolved system: surfaces (pickups and solves evaluated), pupil, media.
+    Info(InfoArgs),
+    /// Trace rays of one field and wavelength; write per-ray image positions and outcomes.
+    Trace(SpotArgs),
+    /// Spot diagrams (centroid, RMS and GEO radius) for fields × wavelengths; CSV/JSON/PNG.
+    Spot(SpotArgs),
+    /// Grid distortion like Zemax's listing: N×N chief rays, real vs predicted; CSV/JSON/PNG.
+    Distortion(DistortionArgs),
+    /// Spatio-spectral spreading: chief-ray position vs wavelength for one field; CSV/PNG.
+    Dispersion(DispersionArgs),
+    /// The scene→detector mapping cube f(x_s, y_s, λ) → (x_d, y_d) as NPY.
+    Mapping(MappingArgs),
+    /// Analyse a preset end to end (spots, distortion, dispersion) and write every table and plot to a folder.
+    Report(ReportArgs),
+    /// Throughput of the analytic tracer (rays/s) on SP-like workloads, printed as a table.
+    Bench(BenchArgs),
+    /// Write a system (preset or file) as a TOML or JSON spec.
+    ExportSpec(ExportArgs),
+    /// Render a coded acquisition of a hyperspectral scene (default: the synthetic demo scene).
+    Render(render::RenderArgs),
+    /// Render every scene of a folder (or one shard of it), tracing the system's light transport once.
+    RenderDataset(dataset::RenderDatasetArgs),
+    /// Which scenes of a render-dataset output are done, missing or corrupt (exit 1 unless all done).
+    DatasetStatus(dataset::DatasetStatusArgs),
+    /// Reconstruct the cube from a render folder's acquisition (operator exact/mapping/shift, solver GAP-TV/ADMM-TV).
+    Reconstruct(reconstruct::ReconstructArgs),
+    /// The paper's four-system study: render scenes through every system, reconstruct with every operator, evaluate.
+    Study(study::StudyArgs),
+    /// Write a test scene (RGB photograph uplifted to spectra, ColorChecker chart, synthetic) as NPY/EXR + sRGB preview.
+    MakeScene(make_scene::MakeSceneArgs),
+    /// Time the paper-scale acquisition and dataset mode, printed as a table.
+    BenchRender(render::BenchRenderArgs),
+    /// Quality metrics of an estimated cube against the truth: RMSE, PSNR (paper and MST), SSIM, SAM.
+    Evaluate(evaluate::EvaluateArgs),
+    /// Optical design by exact derivatives (`design amici`: the paper's double-Amici prism).
+    Design(design::DesignArgs),
+    /// Recover a misalignment (e.g. the prism tilt) from another system's spot centroids.
+    Calibrate(design::CalibrateArgs),
+}
 
 /// The command tree, with negative numbers accepted as option values everywhere (`--tilt -5`,
 /// `--tolerance-um -1` reach the option's own check, which names it, instead of clap's "unexpected argument").

@@ -232,7 +232,7 @@ pub fn operator_seed(acquisition_seed: u64, given: Option<&str>) -> Result<u64> 
 /// The tracer: `--backend` if given, else the one the render recorded (analytic when it cannot be parsed).
 pub fn record_tracer(record: &RenderRecord, backend: &BackendArgs) -> Result<Box<dyn Tracer>> {
     if backend.backend.is_some() || backend.refine.is_some() || backend.mesh_max_sag_um.is_some() || backend.mesh_segments.is_some() {
-        return super::commands::make_tracer(backend);
+        return super::shared::make_tracer(backend);
     }
     let cfg: crate::tracer::BackendConfig = record.tracer_name.parse().unwrap_or_else(|_| "analytic".parse().expect("analytic parses"));
     cfg.build()

@@ -8,7 +8,7 @@
 //! diffcassi bench-render --preset sp                              # the paper-scale timing table
 //! ```
 use super::args::{BackendArgs, SystemArgs};
-use super::commands::{load_system, parse_wavelengths, parse_wavelengths_for};
+use super::shared::{load_system, parse_wavelengths, parse_wavelengths_for};
 use crate::error::{Error, Result};
 use crate::render::{output, AiryConfig, Mask, NoiseConfig, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
@@ -77,14 +77,10 @@ pub struct RenderCommon {
     /// Float precision of the ray kernel: f64 (exact, the default) or f32 (the SIMD lanes in f32, twice as
     /// many; its error against f64 is measured by `bench tradeoff`, see docs/performance.md). With
     /// --tolerance-um, chosen.
-    #[arg(long, value_name = "f64|f32", value_parser = parse_precision)]
+    #[arg(long, value_name = "f64|f32", value_parser = <crate::tracer::Precision as std::str::FromStr>::from_str)]
     pub precision: Option<crate::tracer::Precision>,
 }
 
-/// `--precision`: f64 or f32 (a usage error otherwise).
-pub(super) fn parse_precision(s: &str) -> std::result::Result<crate::tracer::Precision, String> {
-    s.parse().map_err(|e: Error| e.to_string())
-}
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
@@ -476,15 +472,6 @@ fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Rende
     Ok(())
 }
 
-/// CPU seconds (user + system) used by this process so far, from /proc/self/stat (Linux, USER_HZ = 100);
-/// `None` elsewhere. On a shared machine wall time alone hides how much of the cores the run was given.
-fn process_cpu_seconds() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
-    let after = &s[s.rfind(')')? + 2..];
-    let f: Vec<&str> = after.split_whitespace().collect();
-    let (u, k): (f64, f64) = (f.get(11)?.parse().ok()?, f.get(12)?.parse().ok()?);
-    Some((u + k) / 100.0)
-}
 
 pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let system = crate::system::SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
@@ -527,9 +514,9 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     println!("render bench: {}, {n}×{n} scene, {} planes, {} rays per pixel per plane, mask opening {}, {threads} threads", system.name(), a.planes, a.rays, a.opening);
     println!("| what | wall s | CPU s | rays traced | M rays/s (wall) |");
     println!("|---|---|---|---|---|");
-    let cpu0 = std::cell::Cell::new(process_cpu_seconds());
+    let cpu0 = std::cell::Cell::new(super::shared::process_cpu_seconds());
     let row = |what: &str, secs: f64, rays: u64| {
-        let now = process_cpu_seconds();
+        let now = super::shared::process_cpu_seconds();
         let cpu = match (cpu0.get(), now) {
             (Some(a), Some(b)) => format!("{:.1}", b - a),
             _ => "n/a".into(),
@@ -574,7 +561,7 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     let bytes: usize = transport.iter().map(|p| p.bytes()).sum();
     row(&format!("dataset: trace the transport once ({:.2} GB)", bytes as f64 / 1e9), t.elapsed().as_secs_f64(), transport.iter().map(|p| p.stats.traced).sum());
     let mut per = Vec::new();
-    cpu0.set(process_cpu_seconds());
+    cpu0.set(super::shared::process_cpu_seconds());
     for s in 0..a.scenes.max(1) {
         let sc = synthetic_scene(n, n, &synthetic_wavelengths(), 100 + s as u64);
         let t = Instant::now();

@@ -141,7 +141,7 @@ fn load_scenes(a: &StudyArgs, bands: &[f64]) -> Result<Vec<StudyScene>> {
                 "resize" => Fit::Resize,
                 other => return Err(Error::invalid(format!("--fit `{other}`: use crop or resize"))),
             };
-            let given = a.scene_wavelengths.as_deref().map(super::commands::parse_wavelengths).transpose()?;
+            let given = a.scene_wavelengths.as_deref().map(super::shared::parse_wavelengths).transpose()?;
             let found = crate::render::dataset::find_scenes(dir)?;
             if found.is_empty() {
                 return Err(Error::File { path: dir.display().to_string(), message: "no scenes (.png photographs, .exr, .npy, or folders of per-band .png)".into() });
@@ -327,7 +327,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if a.scene_size == 0 {
         return Err(Error::invalid("--scene-size must be ≥ 1"));
     }
-    let bands = super::commands::parse_wavelengths(&a.bands)?;
+    let bands = super::shared::parse_wavelengths(&a.bands)?;
     let cfg = render_config(&a, &bands)?;
     let mask = study_mask(&a)?;
     let scenes = load_scenes(&a, &bands)?;
