@@ -12,10 +12,10 @@
 //!   measured at 261 check pixels (seeded random + corners + centre) at the shortest, middle and longest
 //!   wavelength against exactly traced chief rays, and whose cost is timed at the middle wavelength.
 //! * **render**: backends × rays per pixel N, including the f32 lane kernel (`analytic-f32`, rendered as
-//!   `--precision f32`; the only job that may choose it, see [`render_only`]). The render's error (µm) is defined as the error of where a
-//!   scene pixel's energy lands on the detector: the backend's position error plus the Monte-Carlo
-//!   standard error of the mean landing position of N rays, σ/√N, with σ the RMS radius of a pixel's ray
-//!   landings about their mean (pupil × pixel area; largest over a 3×3 grid of pixels at the shortest,
+//!   `--precision f32`; the only job that may choose it, see [`render_only`]). The render's error (µm) is
+//!   defined as the error of where a scene pixel's energy lands on the detector: the backend's position
+//!   error plus the Monte-Carlo standard error of the mean landing position of N rays, σ/√N, with σ the
+//!   RMS radius of a pixel's ray landings about their mean (pupil × pixel area; largest over a 3×3 grid of pixels at the shortest,
 //!   middle and longest plane, 1024 stratified rays each). σ/√N is the standard error of independent
 //!   sampling; the stratified sampler does at least about as well (Owen 1997: variance ≤ N/(N−1) × that
 //!   of independent sampling).
