@@ -23,6 +23,10 @@ pub struct PySystem {
 /// The tracer of a backend name (`analytic`, `embree-user[:f64|:none]`, `embree-mesh[:SAG_UM][:f64|:none]`).
 pub fn tracer(name: &str) -> PyResult<Box<dyn Tracer>> {
     let cfg: BackendConfig = name.parse().py()?;
+    if cfg.backend == diffcassi::tracer::Backend::AnalyticF32 {
+        // These entry points (trace, spot, distortion, mapping) are compared to Zemax: f64 only.
+        return Err(value_error(format!("backend `{name}`: the Python API traces in f64 (the f32 kernel is the renderer's --precision f32)")));
+    }
     cfg.build().py()
 }
 

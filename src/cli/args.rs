@@ -152,6 +152,10 @@ pub struct MappingArgs {
     /// Write float64 instead of float32.
     #[arg(long)]
     pub f64: bool,
+    /// Float precision of the chief-ray trace: f64 (exact, the default) or f32 (the SIMD lanes in f32;
+    /// error against f64 measured by `bench tradeoff`, see docs/performance.md).
+    #[arg(long, value_name = "f64|f32", value_parser = <crate::tracer::Precision as std::str::FromStr>::from_str)]
+    pub precision: Option<crate::tracer::Precision>,
 }
 
 #[derive(Args, Debug)]

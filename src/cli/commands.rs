@@ -511,7 +511,15 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
     crate::limits::check_memory(&what, crate::limits::bytes_mapping(a.height, a.width, ws.len()))?;
     crate::limits::check_rays(&what, a.height as f64 * a.width as f64 * ws.len() as f64)?;
     let system = load_system(&a.system)?;
-    let (tracer, stride) = super::fidelity::mapping_for(&a.backend, &system, a.height, a.width, a.pitch_mm, &ws)?;
+    let (tracer, stride) = match a.precision {
+        Some(crate::tracer::Precision::F32) => {
+            if a.backend.backend.is_some() || a.backend.tolerance_um.is_some() {
+                return Err(Error::invalid("--precision f32 traces with the analytic f32 kernel; it cannot be combined with --backend or --tolerance-um"));
+            }
+            (crate::tracer::Precision::F32.tracer(crate::tracer::Kernel::default())?, 1)
+        }
+        _ => super::fidelity::mapping_for(&a.backend, &system, a.height, a.width, a.pitch_mm, &ws)?,
+    };
     let t0 = Instant::now();
     let cube = analysis::mapping_cube_interpolated(&system, tracer.as_ref(), a.height, a.width, a.pitch_mm, &ws, stride)?;
     let secs = t0.elapsed().as_secs_f64();
@@ -650,6 +658,10 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
             for level in crate::tracer::SimdLevel::available() {
                 let k = crate::tracer::Kernel::Simd(Some(level));
                 tracers.push((format!("analytic-f64 {}", k.name()), false, Box::new(AnalyticTracer::with_kernel(k))));
+            }
+            // The f32 lane kernel (twice the lanes) at every level: its error column is against f64.
+            for level in crate::tracer::SimdLevel::available() {
+                tracers.push((format!("analytic-f32 simd-{}", level.name()), false, Box::new(crate::tracer::AnalyticF32Tracer::new(level))));
             }
         } else {
             let t = cfg.build()?;

@@ -157,7 +157,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     }
     let scene_names: Vec<String> = scenes.iter().map(|s| s.name.clone()).collect();
     let options = DatasetOptions { fit: parse_fit(&a.common.fit)?, scene_wavelengths_nm: scene_wavelengths(&a.common)?, cube: a.common.cube, mapping: !a.common.no_mapping };
-    let (tracer, rays) = render_tracer(&a.common, &system, &cfg, &mask)?;
+    let (tracer, rays) = render_tracer(&a.common, &system, &mut cfg, &mask)?;
     cfg.rays_per_pixel = rays;
     let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
     let mut configuration = dataset::configuration(&renderer, &options);

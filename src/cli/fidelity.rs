@@ -12,7 +12,7 @@ use crate::error::{Error, Result};
 use crate::fidelity::{self, CacheOptions};
 use crate::render::RenderConfig;
 use crate::system::SequentialSystem;
-use crate::tracer::Tracer;
+use crate::tracer::{Precision, Tracer};
 
 fn cache_options(a: &BackendArgs) -> CacheOptions {
     CacheOptions::resolve(a.calibration_cache.as_deref())
@@ -72,11 +72,16 @@ pub(super) fn mapping_for(a: &BackendArgs, system: &SequentialSystem, height: us
     Ok((choice.config.build()?, choice.stride))
 }
 
-/// The render's tracer and rays per pixel: explicit (`--rays`, default 20) or chosen by the tolerance.
-pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, system: &SequentialSystem, config: &RenderConfig, open_pixels: usize) -> Result<(Box<dyn Tracer>, usize)> {
-    let Some(t) = tolerance(a)? else { return Ok((make_tracer(a)?, rays.unwrap_or(20))) };
+/// The render's tracer, rays per pixel and precision: explicit (`--rays`, default 20; `--precision`,
+/// default f64) or chosen by the tolerance. A tolerance may choose the f32 lane kernel (`analytic-f32`):
+/// the render then runs the analytic tracer's direct path with `Precision::F32`.
+pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, precision: Option<Precision>, system: &SequentialSystem, config: &RenderConfig, open_pixels: usize) -> Result<(Box<dyn Tracer>, usize, Precision)> {
+    let Some(t) = tolerance(a)? else { return Ok((make_tracer(a)?, rays.unwrap_or(20), precision.unwrap_or_default())) };
     if let Some(n) = rays {
         return Err(Error::invalid(format!("--tolerance-um {t} chooses the rays per pixel itself; it cannot be combined with --rays {n}")));
+    }
+    if let Some(p) = precision {
+        return Err(Error::invalid(format!("--tolerance-um {t} chooses the precision itself; it cannot be combined with --precision {p}")));
     }
     let cache = cache_options(a);
     let (cal, prov) = fidelity::calibrate_backends(system, &config.spectral.planes_nm, &cache)?;
@@ -84,7 +89,10 @@ pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, system: &Sequenti
     let per_n = (open_pixels * config.spectral.planes()) as u64;
     let choice = fidelity::choose_render(&cal, &rc, t, per_n)?;
     println!("{} [backends: {prov}; σ: {prov2}]", choice.explanation);
-    Ok((choice.config.build()?, choice.rays_per_pixel))
+    if choice.config.backend == crate::tracer::Backend::AnalyticF32 {
+        return Ok((Box::new(crate::tracer::AnalyticTracer::default()), choice.rays_per_pixel, Precision::F32));
+    }
+    Ok((choice.config.build()?, choice.rays_per_pixel, Precision::F64))
 }
 
 /// `diffcassi bench tradeoff`.

@@ -74,7 +74,13 @@ pub struct RenderCommon {
     /// reference, for benchmarking), or simd-avx512 / simd-avx2 / simd-portable. Same numbers (≤ 1e-12 mm).
     #[arg(long, default_value = "simd")]
     pub kernel: String,
+    /// Float precision of the ray kernel: f64 (exact, the default) or f32 (the SIMD lanes in f32, twice as
+    /// many; its error against f64 is measured by `bench tradeoff`, see docs/performance.md). With
+    /// --tolerance-um, chosen.
+    #[arg(long, value_name = "f64|f32", value_parser = <crate::tracer::Precision as std::str::FromStr>::from_str)]
+    pub precision: Option<crate::tracer::Precision>,
 }
+
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
@@ -191,6 +197,10 @@ pub struct BenchRenderArgs {
     /// first one also runs the all-open and dataset rows.
     #[arg(long, default_value = "simd,scalar")]
     pub kernels: String,
+    /// Precisions timed on the acquisition and the mapping, side by side (comma-separated: f64, f32); f32
+    /// runs with the first SIMD kernel of --kernels and prints its largest difference from f64.
+    #[arg(long, default_value = "f64,f32")]
+    pub precisions: String,
     /// Parts to run (comma-separated): mapping (the chief-ray mapping cube, exact and interpolated),
     /// acquisition (per-scene render, all-open render), dataset (transport once, then per scene).
     #[arg(long, default_value = "mapping,acquisition,dataset")]
@@ -264,6 +274,10 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
     cfg.sampling = parse_sampling(&a.sampling)?;
     cfg.kernel = a.kernel.parse()?;
     cfg.kernel.resolve()?;
+    cfg.precision = a.precision.unwrap_or_default();
+    if cfg.precision == crate::tracer::Precision::F32 {
+        cfg.precision.level(cfg.kernel)?; // f32 has no scalar kernel
+    }
     cfg.airy = (!a.no_airy).then_some(AiryConfig { diameter_px: a.airy_diameter_px, ..AiryConfig::default() });
     let mask = match &a.mask {
         Some(p) => {
@@ -283,10 +297,13 @@ pub fn check_render_rays(n: usize, planes: usize, rays: usize) -> Result<()> {
     crate::limits::check_rays(&format!("--scene-size {n} × --planes {planes} × --rays {rays}"), (n as f64).powi(2) * planes as f64 * rays as f64)
 }
 
-/// The tracer and rays per pixel: as given, or chosen by `--tolerance-um`.
-pub(super) fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
+/// The tracer and rays per pixel: as given, or chosen by `--tolerance-um`; sets `cfg.precision` (given,
+/// or chosen by the tolerance).
+pub(super) fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &mut RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
     let open = mask.values.iter().filter(|&&v| v > 0.0).count();
-    super::fidelity::render_for(&a.backend, a.rays, system, cfg, open)
+    let (tracer, rays, precision) = super::fidelity::render_for(&a.backend, a.rays, a.precision, system, cfg, open)?;
+    cfg.precision = precision;
+    Ok((tracer, rays))
 }
 
 pub(super) fn scene_wavelengths(a: &RenderCommon) -> Result<Option<Vec<f64>>> {
@@ -373,7 +390,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
             (synthetic_scene(n, n, &synthetic_wavelengths(), seed), serde_json::json!({"source": "synthetic", "synthetic_seed": seed, "native_wavelengths_nm": synthetic_wavelengths()}))
         }
     };
-    let (tracer, rays) = render_tracer(&a.common, &system, &cfg, &mask)?;
+    let (tracer, rays) = render_tracer(&a.common, &system, &mut cfg, &mask)?;
     check_render_rays(n, cfg.spectral.planes(), rays)?;
     cfg.rays_per_pixel = rays;
     let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
@@ -427,23 +444,27 @@ pub(super) fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::
     Ok(nc.to_json(&report))
 }
 
-/// The acquisition rows of `bench-render`: `renderer` (the first kernel), then each further kernel on the
-/// same mask and scene (with the largest difference of its image), then the all-open mask.
-fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Renderer, kernels: &[crate::tracer::Kernel], scene: &SpectralCube, setup: f64, opening: f64, row: &dyn Fn(&str, f64, u64)) -> Result<()> {
-    let first = renderer.config.kernel;
+/// The acquisition rows of `bench-render`: `renderer` (the first kernel and precision), then each further
+/// (kernel, precision) variant on the same mask and scene (with the largest difference of its image from
+/// the first, absolute and relative to the image's peak), then the all-open mask.
+fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Renderer, variants: &[(crate::tracer::Kernel, crate::tracer::Precision)], scene: &SpectralCube, setup: f64, opening: f64, row: &dyn Fn(&str, f64, u64)) -> Result<()> {
+    let (first, first_p) = (renderer.config.kernel, renderer.config.precision);
     let t = Instant::now();
     let acq = renderer.render(scene, false, &|_| {})?;
-    row(&format!("acquisition, {} kernel (setup {setup:.2} s + render)", first.name()), t.elapsed().as_secs_f64() + setup, acq.stats.traced);
-    for &k in &kernels[1..] {
+    row(&format!("acquisition, {} kernel {first_p} (setup {setup:.2} s + render)", first.name()), t.elapsed().as_secs_f64() + setup, acq.stats.traced);
+    let peak = acq.image.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    for &(k, p) in &variants[1..] {
         let mut c = renderer.config.clone();
         c.kernel = k;
+        c.precision = p;
         let tr = AnalyticTracer::with_kernel(k);
         let t = Instant::now();
         let other = Renderer::new(system, &tr, c, renderer.mask.clone())?;
         let acq_k = other.render(scene, false, &|_| {})?;
         let secs = t.elapsed().as_secs_f64();
         let diff = acq_k.image.iter().zip(&acq.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-        row(&format!("acquisition, {} kernel (setup + render; max |Δ| vs {} {diff:.1e})", k.name(), first.name()), secs, acq_k.stats.traced);
+        let rel = if peak > 0.0 { diff / peak } else { 0.0 };
+        row(&format!("acquisition, {} kernel {p} (setup + render; max |Δ| vs {} {first_p} {diff:.1e}, {rel:.1e} of the peak)", k.name(), first.name()), secs, acq_k.stats.traced);
     }
     if opening < 1.0 {
         let (n, m) = (renderer.config.scene_height, renderer.config.scene_width);
@@ -511,8 +532,26 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     for k in &kernels {
         k.resolve()?;
     }
-    let Some(&first) = kernels.first() else { return Err(Error::invalid("--kernels: name at least one kernel")) };
+    if kernels.is_empty() {
+        return Err(Error::invalid("--kernels: name at least one kernel"));
+    }
+    let precisions: Vec<crate::tracer::Precision> = a.precisions.split(',').map(|p| p.trim().parse()).collect::<Result<_>>()?;
+    if precisions.is_empty() {
+        return Err(Error::invalid("--precisions: name at least one precision"));
+    }
+    // (kernel, precision) variants: every kernel in f64, then f32 with the first SIMD kernel.
+    let simd_kernel = kernels.iter().copied().find(|k| *k != crate::tracer::Kernel::Scalar);
+    let mut variants: Vec<(crate::tracer::Kernel, crate::tracer::Precision)> = Vec::new();
+    for &p in &precisions {
+        match p {
+            crate::tracer::Precision::F64 => variants.extend(kernels.iter().map(|&k| (k, p))),
+            crate::tracer::Precision::F32 => variants.push((simd_kernel.ok_or_else(|| Error::invalid("--precisions f32 needs a SIMD kernel in --kernels"))?, p)),
+        }
+    }
+    variants.dedup();
+    let (first, first_p) = variants[0];
     cfg.kernel = first;
+    cfg.precision = first_p;
     let tracer = AnalyticTracer::with_kernel(first);
     let threads = rayon::current_num_threads();
     println!("render bench: {}, {n}×{n} scene, {} planes, {} rays per pixel per plane, mask opening {}, {threads} threads", system.name(), a.planes, a.rays, a.opening);
@@ -534,17 +573,17 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     }
     // The chief-ray mapping cube (n × n × planes) through each kernel, side by side.
     let mut mapping_ref: Option<crate::analysis::MappingCube> = None;
-    for &k in kernels.iter().filter(|_| parts.contains(&"mapping")) {
-        let tr = AnalyticTracer::with_kernel(k);
+    for &(k, p) in variants.iter().filter(|_| parts.contains(&"mapping")) {
+        let tr = p.tracer(k)?;
         let t = Instant::now();
-        let m = crate::analysis::mapping_cube(&system, &tr, n, n, cfg.scene_pitch_mm, &cfg.spectral.planes_nm)?;
+        let m = crate::analysis::mapping_cube(&system, tr.as_ref(), n, n, cfg.scene_pitch_mm, &cfg.spectral.planes_nm)?;
         let secs = t.elapsed().as_secs_f64();
         let rays = (n * n * cfg.spectral.planes()) as u64;
         let diff = match &mapping_ref {
-            Some(r) => format!("; max |Δ| vs {} {:.1e} mm", first.name(), m.positions_mm.iter().zip(&r.positions_mm).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)),
+            Some(r) => format!("; max |Δ| vs {} {first_p} {:.1e} mm", first.name(), m.positions_mm.iter().zip(&r.positions_mm).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)),
             None => String::new(),
         };
-        row(&format!("mapping cube {n}×{n}×{}, {} kernel{diff}", cfg.spectral.planes(), k.name()), secs, rays);
+        row(&format!("mapping cube {n}×{n}×{}, {} kernel {p}{diff}", cfg.spectral.planes(), k.name()), secs, rays);
         mapping_ref.get_or_insert(m);
     }
     if let Some(exact) = &mapping_ref {
@@ -558,7 +597,7 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     }
     let scene = synthetic_scene(n, n, &synthetic_wavelengths(), 0);
     if parts.contains(&"acquisition") {
-        bench_acquisitions(&system, &renderer, &kernels, &scene, setup, a.opening, &row)?;
+        bench_acquisitions(&system, &renderer, &variants, &scene, setup, a.opening, &row)?;
     }
     if !parts.contains(&"dataset") {
         return Ok(());

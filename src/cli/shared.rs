@@ -50,6 +50,9 @@ pub fn make_tracer(a: &BackendArgs) -> Result<Box<dyn Tracer>> {
     if let Some(n) = a.mesh_segments {
         cfg.mesh = crate::surfaces::MeshResolution::Segments(n);
     }
+    if cfg.backend == crate::tracer::Backend::AnalyticF32 {
+        return Err(Error::invalid("--backend analytic-f32: this command runs in f64 (its results are compared to Zemax); f32 is for render, render-dataset and mapping, with --precision f32"));
+    }
     if cfg.backend == crate::tracer::Backend::Analytic && (a.mesh_max_sag_um.is_some() || a.mesh_segments.is_some() || a.refine.as_deref().is_some_and(|r| r != "f64")) {
         return Err(Error::invalid("--refine, --mesh-max-sag-um and --mesh-segments apply to the Embree backends only (--backend embree-user|embree-mesh)"));
     }

@@ -183,6 +183,7 @@ impl DiffSystem {
                     .collect();
                 Ok(HitJacobianBatch { batch, unavailable })
             }
+            crate::tracer::Backend::AnalyticF32 => Err(Error::invalid("Jacobians are f64 only: the f32 kernel (analytic-f32) is for rendering")),
             #[cfg(feature = "embree")]
             crate::tracer::Backend::EmbreeUser | crate::tracer::Backend::EmbreeMesh => {
                 use crate::tracer::embree::{EmbreeOptions, EmbreeTracer, Refinement};

@@ -83,6 +83,7 @@ impl ErrorAccumulator {
 pub fn describe(cfg: &BackendConfig) -> (String, String) {
     match cfg.backend {
         Backend::Analytic => ("analytic".into(), "f64".into()),
+        Backend::AnalyticF32 => ("analytic".into(), "f32".into()),
         Backend::EmbreeUser => ("embree-user".into(), format!("refine={}", refine_text(cfg))),
         Backend::EmbreeMesh => {
             let mesh = match cfg.mesh {
@@ -98,6 +99,7 @@ pub fn describe(cfg: &BackendConfig) -> (String, String) {
 pub fn backend_text(cfg: &BackendConfig) -> String {
     match cfg.backend {
         Backend::Analytic => "analytic".into(),
+        Backend::AnalyticF32 => "analytic-f32".into(),
         Backend::EmbreeUser => format!("embree-user:{}", refine_text(cfg)),
         Backend::EmbreeMesh => match cfg.mesh {
             crate::surfaces::MeshResolution::MaxSagErrorUm(um) => format!("embree-mesh:{um}:{}", refine_text(cfg)),
@@ -114,11 +116,12 @@ fn refine_text(cfg: &BackendConfig) -> &'static str {
 }
 
 /// The configurations compared by `bench tradeoff` and considered by `--tolerance-um`: the analytic f64
-/// tracer; Embree user geometry with and without f64 refinement; Embree meshes at the given chord-sag
-/// bounds (µm), with and without refinement. Embree ones only when this build has them.
+/// tracer; the analytic f32 lane kernel (chosen for renders only, see [`super::select`]); Embree user
+/// geometry with and without f64 refinement; Embree meshes at the given chord-sag bounds (µm), with and
+/// without refinement. Embree ones only when this build has them.
 pub fn candidate_configs(mesh_sag_um: &[f64]) -> Vec<BackendConfig> {
     use crate::tracer::Refine;
-    let mut v = vec![BackendConfig::default()];
+    let mut v = vec![BackendConfig::default(), BackendConfig { backend: Backend::AnalyticF32, ..Default::default() }];
     if BackendConfig::available(Backend::EmbreeUser) {
         for refine in [Refine::F64, Refine::None] {
             v.push(BackendConfig { backend: Backend::EmbreeUser, refine, ..Default::default() });
@@ -155,7 +158,7 @@ pub fn measure(system: &SequentialSystem, cfg: &BackendConfig, rays: &RayBatch, 
     let tracer = cfg.build()?;
     let t = Instant::now();
     tracer.trace(system, &first_ray(rays))?;
-    let setup_seconds = if cfg.backend == Backend::Analytic { 0.0 } else { t.elapsed().as_secs_f64() };
+    let setup_seconds = if matches!(cfg.backend, Backend::Analytic | Backend::AnalyticF32) { 0.0 } else { t.elapsed().as_secs_f64() };
     let (out, seconds) = time_best(tracer.as_ref(), system, rays, repeat)?;
     let error = ErrorStats::compare(reference, &out);
     Ok((Measured { backend: backend_text(cfg), error, rays_per_s: rays.len() as f64 / seconds, seconds, setup_seconds }, out))

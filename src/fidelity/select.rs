@@ -12,10 +12,11 @@
 //!   measured at 281 check pixels (seeded random, corners, centre, and each stride's corner cells) at the
 //!   shortest, middle and longest wavelength against exactly traced chief rays, and whose cost is timed at
 //!   the middle wavelength.
-//! * **render**: backends × rays per pixel N. The render's error (µm) is defined as the error of where a
-//!   scene pixel's energy lands on the detector: the backend's position error plus the Monte-Carlo
-//!   standard error of the mean landing position of N rays, σ/√N, with σ the RMS radius of a pixel's ray
-//!   landings about their mean (pupil × pixel area; largest over a 3×3 grid of pixels at the shortest,
+//! * **render**: backends × rays per pixel N, including the f32 lane kernel (`analytic-f32`, rendered as
+//!   `--precision f32`; the only job that may choose it, see [`render_only`]). The render's error (µm) is
+//!   defined as the error of where a scene pixel's energy lands on the detector: the backend's position
+//!   error plus the Monte-Carlo standard error of the mean landing position of N rays, σ/√N, with σ the
+//!   RMS radius of a pixel's ray landings about their mean (pupil × pixel area; largest over a 3×3 grid of pixels at the shortest,
 //!   middle and longest plane, 1024 stratified rays each). σ/√N is the standard error of independent
 //!   sampling; the stratified sampler does at least about as well (Owen 1997: variance ≤ N/(N−1) × that
 //!   of independent sampling).
@@ -199,7 +200,7 @@ pub fn choose_backend(cal: &BackendCalibration, tolerance_um: f64, job_rays: u64
     check_tolerance(tolerance_um)?;
     let cost = |m: &Measured| m.setup_seconds + job_rays as f64 / m.rays_per_s;
     let analytic = cal.candidates.iter().find(|m| m.backend == "analytic").ok_or_else(|| Error::invalid("calibration lacks the analytic reference"))?;
-    let items: Vec<(&Measured, f64, f64, bool)> = cal.candidates.iter().filter(|m| m.error.within(tolerance_um)).map(|m| (m, m.error.max_um, cost(m), m.backend == "analytic")).collect();
+    let items: Vec<(&Measured, f64, f64, bool)> = cal.candidates.iter().filter(|m| !render_only(m) && m.error.within(tolerance_um)).map(|m| (m, m.error.max_um, cost(m), m.backend == "analytic")).collect();
     let (m, err, secs) = pick(&items).ok_or_else(|| Error::invalid(format!("no configuration meets --tolerance-um {tolerance_um}")))?;
     let list: Vec<String> = cal
         .candidates
@@ -343,7 +344,7 @@ pub fn choose_mapping(backends: &BackendCalibration, mapping: &MappingCalibratio
     let exact_secs = exact.seconds_per_wavelength * nl;
     // (backend text, stride, error, cost, is_reference)
     let mut all: Vec<((String, usize), f64, f64, bool)> = Vec::new();
-    for m in &backends.candidates {
+    for m in backends.candidates.iter().filter(|m| !render_only(m)) {
         let cost = m.setup_seconds + exact_secs * analytic.rays_per_s / m.rays_per_s;
         all.push(((m.backend.clone(), 1), if m.error.mismatches > 0 { f64::INFINITY } else { m.error.max_um }, cost, m.backend == "analytic"));
     }
@@ -470,6 +471,13 @@ pub fn choose_render(backends: &BackendCalibration, render: &RenderCalibration, 
 /// Convenience for tests and callers: time one tracer on a ray set (best of `repeat`), rays/s.
 pub fn rays_per_second(tracer: &dyn Tracer, system: &SequentialSystem, rays: &RayBatch, repeat: usize) -> Result<f64> {
     Ok(rays.len() as f64 / time_best(tracer, system, rays, repeat)?.1)
+}
+
+/// Whether a candidate may only be chosen for renders: the f32 lane kernel (`analytic-f32`). Ray jobs
+/// (spot, distortion, dispersion: compared to Zemax) and the mapping stay f64 or the Embree backends; the
+/// f32 kernel's measured error is shown in their candidate lists but never chosen there.
+pub fn render_only(m: &Measured) -> bool {
+    m.backend == "analytic-f32"
 }
 
 /// Whether `cfg` is the exact reference.

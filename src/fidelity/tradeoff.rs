@@ -220,7 +220,7 @@ pub fn run_tradeoff(system: &SequentialSystem, opts: &TradeoffOptions, progress:
         let tracer = cfg.build()?;
         let t = Instant::now();
         tracer.trace(system, &super::measure::first_ray(&rays))?; // builds an Embree scene
-        let setup = if cfg.backend == Backend::Analytic { 0.0 } else { t.elapsed().as_secs_f64() };
+        let setup = if matches!(cfg.backend, Backend::Analytic | Backend::AnalyticF32) { 0.0 } else { t.elapsed().as_secs_f64() };
         // rays
         let (out, secs) = time_best(tracer.as_ref(), system, &rays, opts.repeat)?;
         emit(row("rays", describe(cfg), rays.len() as u64, rays.len() as u64, secs, ErrorStats::compare(&ray_ref, &out), setup, None), &mut rows);
@@ -229,7 +229,12 @@ pub fn run_tradeoff(system: &SequentialSystem, opts: &TradeoffOptions, progress:
         let (cube, secs) = best_of(opts.repeat, || mapping_cube(system, tracer.as_ref(), ms, ms, 0.01, &ws))?;
         mapping_rows.push(row("mapping", describe(cfg), n_map, n_map, secs, mapping_error(&map_ref, &cube), setup, None));
         // render (same rays as the analytic reference render)
-        let mut r = Renderer::new(system, tracer.as_ref(), rs.config.clone(), rs.mask.clone())?;
+        // (f32 renders through the analytic tracer's direct path in f32, as `render --precision f32` does.)
+        let (render_tracer, render_cfg) = match cfg.backend {
+            Backend::AnalyticF32 => (analytic.as_ref(), RenderConfig { precision: crate::tracer::Precision::F32, ..rs.config.clone() }),
+            _ => (tracer.as_ref(), rs.config.clone()),
+        };
+        let mut r = Renderer::new(system, render_tracer, render_cfg, rs.mask.clone())?;
         r.detector = ref_renderer.detector;
         let (acq, secs) = best_of(opts.repeat, || r.render(&rs.scene, false, &|_| {}))?;
         let transport = r.trace_all(&|_| {})?;

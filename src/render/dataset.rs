@@ -177,7 +177,7 @@ pub const CONFIGURATION_FORMAT: u32 = 1;
 pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
     let c = &renderer.config;
     let mask_bytes: Vec<u8> = renderer.mask.values.iter().flat_map(|v| v.to_le_bytes()).collect();
-    json!({
+    let mut v = json!({
         "format": CONFIGURATION_FORMAT,
         "system": renderer.system.name(),
         "system_spec": serde_json::to_value(&renderer.system.spec).unwrap_or(Value::Null),
@@ -199,7 +199,12 @@ pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
         "mask": {"height": renderer.mask.height, "width": renderer.mask.width, "description": renderer.mask.description, "values_f32le_crc32": crc32_hex(&mask_bytes)},
         "cube": options.cube,
         "mapping": options.mapping,
-    })
+    });
+    // f32 transport is another configuration; f64 datasets keep their recorded configuration unchanged.
+    if c.precision != crate::tracer::Precision::F64 {
+        v["precision"] = json!(c.precision);
+    }
+    v
 }
 
 /// Human-readable differences between a recorded and a requested configuration (empty when equal).

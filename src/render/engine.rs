@@ -54,6 +54,10 @@ pub struct RenderConfig {
     /// The f64 kernel of the direct (analytic-backend) path: SIMD lanes (default) or scalar (the
     /// reference, for benchmarks); both give the same numbers.
     pub kernel: crate::tracer::Kernel,
+    /// Float precision of the direct path's kernel: f64 (exact, the default) or f32 (the SIMD lanes in
+    /// f32, twice as many; its error is measured by `bench tradeoff`). f32 needs the SIMD kernel and the
+    /// analytic backend's direct path.
+    pub precision: crate::tracer::Precision,
 }
 
 impl RenderConfig {
@@ -72,6 +76,7 @@ impl RenderConfig {
             airy: Some(AiryConfig::default()),
             force_batched: false,
             kernel: crate::tracer::Kernel::default(),
+            precision: crate::tracer::Precision::F64,
         }
     }
 }
@@ -157,6 +162,12 @@ impl<'a> Renderer<'a> {
         }
         let sampler = RaySampler::new(config.rays_per_pixel, config.sampling);
         let simd = config.kernel.resolve()?;
+        if config.precision == crate::tracer::Precision::F32 {
+            config.precision.level(config.kernel)?;
+            if config.force_batched || tracer.name() != "analytic-f64" {
+                return Err(Error::invalid(format!("--precision f32 renders through the analytic backend's direct path (not {}{})", tracer.name(), if config.force_batched { ", batched" } else { "" })));
+            }
+        }
         Ok(Renderer { system, tracer, config, mask, detector, kernels, sampler, simd })
     }
 
@@ -166,6 +177,7 @@ impl<'a> Renderer<'a> {
             tracer: self.tracer,
             direct_kernel: !self.config.force_batched && self.tracer.name() == "analytic-f64",
             simd: self.simd,
+            precision: self.config.precision,
             detector: &self.detector,
             scene_height: self.config.scene_height,
             scene_width: self.config.scene_width,

@@ -53,7 +53,13 @@ pub fn write_images(dir: &Path, renderer: &Renderer, acq: &Acquisition) -> Resul
 pub fn write_mapping(dir: &Path, renderer: &Renderer) -> Result<()> {
     let c = &renderer.config;
     let ws = &c.spectral.bands_nm;
-    let cube = crate::analysis::mapping_cube(renderer.system, renderer.tracer, c.scene_height, c.scene_width, c.scene_pitch_mm, ws)?;
+    // The mapping is traced in the render's precision (f32 renders an f32 mapping).
+    let f32_tracer = match c.precision {
+        crate::tracer::Precision::F32 => Some(c.precision.tracer(c.kernel)?),
+        crate::tracer::Precision::F64 => None,
+    };
+    let tracer = f32_tracer.as_deref().unwrap_or(renderer.tracer);
+    let cube = crate::analysis::mapping_cube(renderer.system, tracer, c.scene_height, c.scene_width, c.scene_pitch_mm, ws)?;
     let shape = [c.scene_height, c.scene_width, ws.len(), 2];
     let v: Vec<f32> = cube.positions_mm.iter().map(|&x| x as f32).collect();
     crate::io::write_npy_f32(dir.join("mapping.npy"), &shape, &v)?;
@@ -72,6 +78,7 @@ pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value
         "system_spec": serde_json::to_value(&renderer.system.spec).unwrap_or(serde_json::Value::Null),
         "tracer": renderer.tracer.name(),
         "kernel": c.kernel.name(),
+        "precision": c.precision,
         "scene": scene,
         "scene_size": c.scene_height,
         "scene_height": c.scene_height,

@@ -200,6 +200,8 @@ pub struct PlaneContext<'a> {
     /// On the direct path: the lane kernel at this level ([`crate::tracer::simd`]), or the scalar kernel
     /// 8 rays interleaved (`None`). Both give the same numbers.
     pub simd: Option<crate::tracer::SimdLevel>,
+    /// The lane kernel's float precision (f32 only with a SIMD level; checked by the renderer).
+    pub precision: crate::tracer::Precision,
     pub detector: &'a Detector,
     pub scene_height: usize,
     pub scene_width: usize,
@@ -547,6 +549,9 @@ impl PlaneContext<'_> {
     /// numbers, computed for all lanes at once and selected.
     #[allow(clippy::too_many_arguments)]
     fn trace_row_lanes(&self, level: crate::tracer::SimdLevel, n: &[f64], rays: &RowRays, count: usize, stats: &mut RayStats, land: &mut Landings) {
+        if self.precision == crate::tracer::Precision::F32 {
+            return self.trace_row_lanes_f32(level, n, rays, count, stats, land);
+        }
         use crate::tracer::simd::{Block, LANES};
         let tables = [n; LANES];
         let det = self.detector;
@@ -569,6 +574,51 @@ impl PlaneContext<'_> {
             for k in 0..m {
                 if let (false, Err((st, _))) = (b.alive.0[k], b.result(k)) {
                     stats.count(st);
+                }
+            }
+            start += m;
+        }
+    }
+
+    /// [`Self::trace_row_lanes`] in f32 (`--precision f32`): [`LANES_F32`](crate::tracer::simd::LANES_F32)
+    /// rays per block loaded with `set_raw` (rounded to f32, checked and normalised as `trace_rays_f32`
+    /// does), traced in f32, then widened to f64 blocks of [`LANES`](crate::tracer::simd::LANES) and
+    /// classified by the same landing loop as the f64 path.
+    #[allow(clippy::too_many_arguments)]
+    fn trace_row_lanes_f32(&self, level: crate::tracer::SimdLevel, n: &[f64], rays: &RowRays, count: usize, stats: &mut RayStats, land: &mut Landings) {
+        use crate::tracer::simd::{Block, BlockF32, Real, LANES, LANES_F32};
+        let tables = [n; LANES_F32];
+        let det = self.detector;
+        let mut start = 0;
+        while start < count {
+            let m = (count - start).min(LANES_F32);
+            let mut b = BlockF32::default();
+            for k in 0..m {
+                let (o, d) = rays.ray(start + k);
+                b.set_raw(k, o, d);
+            }
+            crate::tracer::simd::trace_block_raw(level, &self.system.path, &tables, &mut b);
+            for half in 0..LANES_F32 / LANES {
+                let lo = half * LANES;
+                if lo >= m {
+                    break;
+                }
+                let mh = (m - lo).min(LANES);
+                let mut w = Block::default();
+                for k in 0..LANES {
+                    let s = lo + k;
+                    (w.p.x.0[k], w.p.y.0[k], w.p.z.0[k]) = (b.p.x.0[s].to_f64(), b.p.y.0[s].to_f64(), b.p.z.0[s].to_f64());
+                    (w.d.x.0[k], w.d.y.0[k], w.d.z.0[k]) = (b.d.x.0[s].to_f64(), b.d.y.0[s].to_f64(), b.d.z.0[s].to_f64());
+                    (w.alive.0[k], w.status[k], w.surface[k]) = (b.alive.0[s], b.status[s], b.surface[s]);
+                }
+                let mut counts = [0u64; 2];
+                super::vector::run_at(level, LandLoop { b: &w, m: mh, det, land, counts: &mut counts });
+                stats.arrived += counts[0];
+                stats.out_of_range += counts[1];
+                for k in 0..mh {
+                    if let (false, Err((st, _))) = (w.alive.0[k], w.result(k)) {
+                        stats.count(st);
+                    }
                 }
             }
             start += m;

@@ -1,5 +1,5 @@
 use super::kernel::{trace_steps, unit_direction};
-use super::simd::{self, Kernel, SimdLevel, LANES};
+use super::simd::{self, Kernel, LaneBlock, Real, SimdLevel, LANES, LANES_F32};
 use super::{RaySlices, RayStatus, TracedBatch, Tracer};
 use crate::error::Result;
 use crate::rays::RayBatch;
@@ -62,7 +62,7 @@ impl Tracer for AnalyticTracer {
         let table = index_table(system, rays.wavelength_nm())?;
         // Either kernel, then one classification of absurd landings (`out_of_range`) for both.
         let mut out = match self.kernel.resolve()? {
-            Some(level) => self.trace_lanes(system, rays, &table, level),
+            Some(level) => trace_lanes::<f64, LANES>(self.chunk_size, system, rays, &table, level),
             None => self.trace_scalar(system, rays, &table),
         };
         out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
@@ -121,73 +121,111 @@ impl AnalyticTracer {
             });
         out
     }
+}
 
-    /// [`Tracer::trace_slices`] with the lane kernel: blocks of [`LANES`] rays, each lane with its own
-    /// wavelength's index table; the same input checks and outputs as the scalar loop.
-    fn trace_lanes(&self, system: &SequentialSystem, rays: RaySlices<'_>, table: &HashMap<u64, Vec<f64>>, level: SimdLevel) -> TracedBatch {
-        let n = rays.len();
-        let mut out = TracedBatch::zeroed(n);
-        let chunk = self.chunk_size.max(1);
-        let path = &system.path;
-        out.x
-            .par_chunks_mut(chunk)
-            .zip(out.y.par_chunks_mut(chunk))
-            .zip(out.z.par_chunks_mut(chunk))
-            .zip(out.dir_x.par_chunks_mut(chunk))
-            .zip(out.dir_y.par_chunks_mut(chunk))
-            .zip(out.dir_z.par_chunks_mut(chunk))
-            .zip(out.status.par_chunks_mut(chunk))
-            .zip(out.surface.par_chunks_mut(chunk))
-            .enumerate()
-            .for_each(|(c, (((((((x, y), z), dx), dy), dz), st), sf))| {
-                let base = c * chunk;
-                let mut cached: (u64, Option<&Vec<f64>>) = (u64::MAX, None);
-                let first: &[f64] = table.values().next().map(|v| v.as_slice()).unwrap_or(&[]);
-                let mut start = 0;
-                while start < x.len() {
-                    let len = LANES.min(x.len() - start);
-                    let mut b = simd::Block::default();
-                    let mut tables: [&[f64]; LANES] = [first; LANES];
-                    for k in 0..len {
-                        let i = base + start + k;
-                        let w = rays.wavelength_nm[i].to_bits();
-                        if cached.0 != w || cached.1.is_none() {
-                            cached = (w, table.get(&w));
-                        }
-                        let idx = cached.1.expect("every batch wavelength is in the table");
-                        tables[k] = idx;
-                        let o = rays.origin(i);
-                        match unit_direction(rays.direction(i)).filter(|_| o.is_finite()) {
-                            Some(d) => b.set(k, o, d),
-                            None => b.set_invalid(k),
-                        }
+/// [`Tracer::trace_slices`] with the lane kernel of float type `T`: blocks of `N` rays, each lane with
+/// its own wavelength's index table; the same input checks and outputs as the scalar loop (f32 lanes also
+/// refuse origins beyond [`Real::MAX_INPUT_MM`] as invalid input).
+fn trace_lanes<T: Real, const N: usize>(chunk_size: usize, system: &SequentialSystem, rays: RaySlices<'_>, table: &HashMap<u64, Vec<f64>>, level: SimdLevel) -> TracedBatch {
+    let n = rays.len();
+    let mut out = TracedBatch::zeroed(n);
+    let chunk = chunk_size.max(1);
+    let path = &system.path;
+    out.x
+        .par_chunks_mut(chunk)
+        .zip(out.y.par_chunks_mut(chunk))
+        .zip(out.z.par_chunks_mut(chunk))
+        .zip(out.dir_x.par_chunks_mut(chunk))
+        .zip(out.dir_y.par_chunks_mut(chunk))
+        .zip(out.dir_z.par_chunks_mut(chunk))
+        .zip(out.status.par_chunks_mut(chunk))
+        .zip(out.surface.par_chunks_mut(chunk))
+        .enumerate()
+        .for_each(|(c, (((((((x, y), z), dx), dy), dz), st), sf))| {
+            let base = c * chunk;
+            let mut cached: (u64, Option<&Vec<f64>>) = (u64::MAX, None);
+            let first: &[f64] = table.values().next().map(|v| v.as_slice()).unwrap_or(&[]);
+            let mut start = 0;
+            while start < x.len() {
+                let len = N.min(x.len() - start);
+                let mut b = LaneBlock::<T, N>::default();
+                let mut tables: [&[f64]; N] = [first; N];
+                for k in 0..len {
+                    let i = base + start + k;
+                    let w = rays.wavelength_nm[i].to_bits();
+                    if cached.0 != w || cached.1.is_none() {
+                        cached = (w, table.get(&w));
                     }
-                    // Padding lanes share lane 0's table so that a one-wavelength block stays uniform.
-                    for k in len..LANES {
-                        tables[k] = tables[0];
+                    let idx = cached.1.expect("every batch wavelength is in the table");
+                    tables[k] = idx;
+                    let o = rays.origin(i);
+                    match unit_direction(rays.direction(i)).filter(|_| o.is_finite()) {
+                        Some(d) => b.set_checked(k, o, d),
+                        None => b.set_invalid(k),
                     }
-                    simd::trace_block(level, path, &tables, &mut b);
-                    for k in 0..len {
-                        let j = start + k;
-                        match b.result(k) {
-                            Ok((p, dir)) => {
-                                x[j] = p.x;
-                                y[j] = p.y;
-                                z[j] = p.z;
-                                dx[j] = dir.x;
-                                dy[j] = dir.y;
-                                dz[j] = dir.z;
-                            }
-                            Err((status, surface)) => {
-                                st[j] = status;
-                                sf[j] = surface as u32;
-                            }
-                        }
-                    }
-                    start += len;
                 }
-            });
-        out
+                // Padding lanes share lane 0's table so that a one-wavelength block stays uniform.
+                for k in len..N {
+                    tables[k] = tables[0];
+                }
+                simd::trace_block(level, path, &tables, &mut b);
+                for k in 0..len {
+                    let j = start + k;
+                    match b.result(k) {
+                        Ok((p, dir)) => {
+                            x[j] = p.x;
+                            y[j] = p.y;
+                            z[j] = p.z;
+                            dx[j] = dir.x;
+                            dy[j] = dir.y;
+                            dz[j] = dir.z;
+                        }
+                        Err((status, surface)) => {
+                            st[j] = status;
+                            sf[j] = surface as u32;
+                        }
+                    }
+                }
+                start += len;
+            }
+        });
+    out
+}
+
+
+/// The analytic tracer in f32 ([`crate::tracer::Precision::F32`]): the SIMD lane kernel with
+/// [`LANES_F32`] lanes of f32 (the same code as the f64 lanes, see [`simd::block`]); results are reported
+/// in f64 and classified like the f64 tracer's. For rendering and the mapping cube only: its error against
+/// f64 is measured by `bench tradeoff` (`docs/performance.md`, "f32 mode"); never for analyses compared to
+/// Zemax.
+#[derive(Clone, Debug)]
+pub struct AnalyticF32Tracer {
+    /// Rays per rayon task.
+    pub chunk_size: usize,
+    /// The instruction set (checked by [`AnalyticF32Tracer::new`] callers through `Kernel::resolve`).
+    pub level: SimdLevel,
+}
+
+impl AnalyticF32Tracer {
+    pub const fn new(level: SimdLevel) -> Self {
+        AnalyticF32Tracer { chunk_size: 4096, level }
+    }
+}
+
+impl Tracer for AnalyticF32Tracer {
+    fn name(&self) -> String {
+        "analytic-f32".into()
+    }
+
+    fn trace(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<TracedBatch> {
+        self.trace_slices(system, rays.as_slices()?)
+    }
+
+    fn trace_slices(&self, system: &SequentialSystem, rays: RaySlices<'_>) -> Result<TracedBatch> {
+        let table = index_table(system, rays.wavelength_nm())?;
+        let mut out = trace_lanes::<f32, LANES_F32>(self.chunk_size, system, rays, &table, self.level.check()?);
+        out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
+        Ok(out)
     }
 }
 

@@ -18,6 +18,9 @@ use crate::surfaces::MeshResolution;
 pub enum Backend {
     /// Exact f64 sequential tracer.
     Analytic,
+    /// The analytic tracer's SIMD lane kernel in f32 ([`crate::tracer::Precision::F32`]): a candidate of
+    /// `bench tradeoff` and of the render's `--tolerance-um` only; the commands compared to Zemax refuse it.
+    AnalyticF32,
     /// Embree, analytic user geometry.
     EmbreeUser,
     /// Embree, tessellated surfaces.
@@ -55,6 +58,7 @@ impl std::str::FromStr for BackendConfig {
         let parts: Vec<&str> = text.trim().split(':').collect();
         let backend = match parts[0] {
             "analytic" | "analytic-f64" => Backend::Analytic,
+            "analytic-f32" => Backend::AnalyticF32,
             "embree-user" => Backend::EmbreeUser,
             "embree-mesh" => Backend::EmbreeMesh,
             other => return Err(bad(&format!("unknown backend `{other}`"))),
@@ -69,7 +73,7 @@ impl std::str::FromStr for BackendConfig {
         }
         match rest {
             [] => {}
-            [r] if backend != Backend::Analytic => cfg.refine = r.parse()?,
+            [r] if !matches!(backend, Backend::Analytic | Backend::AnalyticF32) => cfg.refine = r.parse()?,
             _ => return Err(bad("unexpected options")),
         }
         Ok(cfg)
@@ -90,13 +94,14 @@ impl std::str::FromStr for Refine {
 impl BackendConfig {
     /// Whether this build can construct `backend` (the Embree ones need the `embree` feature).
     pub fn available(backend: Backend) -> bool {
-        backend == Backend::Analytic || cfg!(feature = "embree")
+        matches!(backend, Backend::Analytic | Backend::AnalyticF32) || cfg!(feature = "embree")
     }
 
     /// The tracer this configuration names.
     pub fn build(&self) -> Result<Box<dyn Tracer>> {
         match self.backend {
             Backend::Analytic => Ok(Box::new(AnalyticTracer::default())),
+            Backend::AnalyticF32 => crate::tracer::Precision::F32.tracer(crate::tracer::Kernel::default()),
             #[cfg(feature = "embree")]
             Backend::EmbreeUser | Backend::EmbreeMesh => {
                 use super::embree::{EmbreeOptions, EmbreeTracer, Refinement};

@@ -13,6 +13,7 @@ mod analytic;
 mod backend;
 pub mod hits;
 pub mod kernel;
+mod precision;
 #[cfg(feature = "embree")]
 pub mod embree;
 pub mod simd;
@@ -21,6 +22,7 @@ mod traced;
 
 pub use analytic::*;
 pub use backend::*;
+pub use precision::Precision;
 pub use simd::{Kernel, SimdLevel};
 pub use slices::*;
 pub use traced::*;

@@ -24,6 +24,10 @@ pub const NAMES: [&str; 3] = ["analytic", "embree-user", "embree-mesh"];
 pub fn tracer_for(system: &SequentialSystem, name: &str) -> Result<Arc<dyn Tracer>> {
     let _ = system;
     let cfg: BackendConfig = name.parse().map_err(|e: Error| Error::invalid(format!("{e}; backends: {}", NAMES.join(", "))))?;
+    if cfg.backend == diffcassi::tracer::Backend::AnalyticF32 {
+        // The bridge's entry points (trace, spot, distortion, mapping) are compared to Zemax: f64 only.
+        return Err(Error::invalid(format!("backend `{name}`: the C++ API traces in f64 (the f32 kernel is the renderer's --precision f32); backends: {}", NAMES.join(", "))));
+    }
     Ok(Arc::from(cfg.build()?))
 }
 

@@ -4,8 +4,9 @@
 //!
 //! ## Why this design
 //! All rays of a bundle follow the same surface sequence, so the kernel is written once over
-//! structure-of-arrays lane arrays ([`lanes::Lf`] = `[f64; 8]`, every operation an `#[inline(always)]`
-//! loop) and compiled three times by runtime dispatch: inside `#[target_feature(enable = "avx512f…")]`,
+//! structure-of-arrays lane arrays ([`lanes::Lanes`]`<T, N>`: [`lanes::Lf`] = 32 f64 for the exact kernel,
+//! 64 f32 for `--precision f32`; every operation an `#[inline(always)]` loop, one generic source for both
+//! precisions) and compiled three times by runtime dispatch: inside `#[target_feature(enable = "avx512f…")]`,
 //! `#[target_feature(enable = "avx2")]` and plain (SSE2) functions, chosen with
 //! `is_x86_feature_detected!`. LLVM vectorises the fixed-width loops into one zmm / two ymm / four xmm
 //! registers per lane array. We chose this over `std::arch` intrinsics (three hand-written copies of
@@ -34,8 +35,9 @@
 pub mod block;
 pub mod lanes;
 
-pub use block::Block;
-pub use lanes::LANES;
+pub use block::{Block, BlockF32, LaneBlock};
+pub use lanes::{Real, LANES, LANES_F32};
+pub use crate::tracer::precision::Precision;
 
 use crate::error::{Error, Result};
 use crate::system::PathStep;
@@ -163,9 +165,10 @@ impl std::str::FromStr for Kernel {
     }
 }
 
-/// `block::trace_block`, optionally preceded by `Block::normalize_inputs`, compiled for each level.
+/// `block::trace_block`, optionally preceded by `LaneBlock::normalize_inputs`, compiled for each level
+/// (generic over the precision: the f64 and the f32 blocks share this code).
 #[inline(always)]
-fn run(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
+fn run<T: Real, const N: usize>(path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, normalize: bool) {
     if normalize {
         b.normalize_inputs();
     }
@@ -174,22 +177,22 @@ fn run(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512dq,avx512vl")]
-unsafe fn run_avx512(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
+unsafe fn run_avx512<T: Real, const N: usize>(path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, normalize: bool) {
     run(path, n, b, normalize)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn run_avx2(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
+unsafe fn run_avx2<T: Real, const N: usize>(path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, normalize: bool) {
     run(path, n, b, normalize)
 }
 
-fn run_portable(path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
+fn run_portable<T: Real, const N: usize>(path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, normalize: bool) {
     run(path, n, b, normalize)
 }
 
 #[inline]
-fn dispatch(level: SimdLevel, path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block, normalize: bool) {
+fn dispatch<T: Real, const N: usize>(level: SimdLevel, path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, normalize: bool) {
     match level {
         // SAFETY: the target features are checked at run time on the same line.
         #[cfg(target_arch = "x86_64")]
@@ -203,13 +206,13 @@ fn dispatch(level: SimdLevel, path: &[PathStep], n: &[&[f64]; LANES], b: &mut Bl
 /// Trace the live lanes of `b` (unit directions) along `path` at `level` (see [`block::trace_block`]).
 /// A level this CPU cannot run falls back to `Portable` (callers check levels with [`SimdLevel::check`]).
 #[inline]
-pub(crate) fn trace_block(level: SimdLevel, path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block) {
+pub(crate) fn trace_block<T: Real, const N: usize>(level: SimdLevel, path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>) {
     dispatch(level, path, n, b, false)
 }
 
-/// [`trace_block`] for lanes loaded with [`Block::set_raw`]: normalise and check them first.
+/// [`trace_block`] for lanes loaded with [`LaneBlock::set_raw`]: normalise and check them first.
 #[inline]
-pub(crate) fn trace_block_raw(level: SimdLevel, path: &[PathStep], n: &[&[f64]; LANES], b: &mut Block) {
+pub(crate) fn trace_block_raw<T: Real, const N: usize>(level: SimdLevel, path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>) {
     dispatch(level, path, n, b, true)
 }
 
@@ -217,12 +220,33 @@ pub(crate) fn trace_block_raw(level: SimdLevel, path: &[PathStep], n: &[&[f64]; 
 /// indices after each surface), [`LANES`] at a time, and report each outcome in order — the lane twin of
 /// `trace_interleaved` in the renderer: the same input checks (finite, non-zero direction divided by its
 /// length) and the same numbers as [`crate::tracer::kernel::trace_steps`]. (The renderer loads its lanes from
-/// arrays directly; this stays as the tested reference.)
+/// arrays directly; these stay as the tested reference.)
 #[cfg_attr(not(test), allow(dead_code))]
-pub(crate) fn trace_rays(level: SimdLevel, path: &[PathStep], n: &[f64], rays: &[(DVec3, DVec3)], mut emit: impl FnMut(std::result::Result<(DVec3, DVec3), (RayStatus, usize)>)) {
-    let tables = [n; LANES];
-    for chunk in rays.chunks(LANES) {
-        let mut b = Block::default();
+pub(crate) fn trace_rays(level: SimdLevel, path: &[PathStep], n: &[f64], rays: &[(DVec3, DVec3)], emit: impl FnMut(std::result::Result<(DVec3, DVec3), (RayStatus, usize)>)) {
+    trace_rays_in::<f64, LANES>(level, path, n, rays, emit)
+}
+
+/// [`trace_rays`] in f32, [`LANES_F32`] rays at a time (the render's `--precision f32`): positions and
+/// directions rounded to f32 on entry, traced in f32, reported as f64. See the module docs of [`block`].
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn trace_rays_f32(level: SimdLevel, path: &[PathStep], n: &[f64], rays: &[(DVec3, DVec3)], emit: impl FnMut(std::result::Result<(DVec3, DVec3), (RayStatus, usize)>)) {
+    trace_rays_in::<f32, LANES_F32>(level, path, n, rays, emit)
+}
+
+/// [`trace_rays`] or [`trace_rays_f32`] by `precision`.
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) fn trace_rays_at(precision: Precision, level: SimdLevel, path: &[PathStep], n: &[f64], rays: &[(DVec3, DVec3)], emit: impl FnMut(std::result::Result<(DVec3, DVec3), (RayStatus, usize)>)) {
+    match precision {
+        Precision::F64 => trace_rays(level, path, n, rays, emit),
+        Precision::F32 => trace_rays_f32(level, path, n, rays, emit),
+    }
+}
+
+#[cfg_attr(not(test), allow(dead_code))]
+fn trace_rays_in<T: Real, const N: usize>(level: SimdLevel, path: &[PathStep], n: &[f64], rays: &[(DVec3, DVec3)], mut emit: impl FnMut(std::result::Result<(DVec3, DVec3), (RayStatus, usize)>)) {
+    let tables = [n; N];
+    for chunk in rays.chunks(N) {
+        let mut b = LaneBlock::<T, N>::default();
         for (k, &(o, dir)) in chunk.iter().enumerate() {
             b.set_raw(k, o, dir);
         }
