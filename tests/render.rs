@@ -534,14 +534,13 @@ fn cli_render_dataset_matches_per_scene_renders_and_skips_complete_scenes() {
     assert_eq!(String::from_utf8_lossy(&o.stdout).matches("\"status\":\"skipped\"").count(), 2);
 }
 
-/// `render --kernel scalar` (the reference kept for benchmarking) and the default SIMD kernel write the
-/// same acquisition up to f32 rounding, and render.json names the kernel and keeps its timing keys.
+/// `bench-render --parts mapping`: the kernels' exact cubes side by side, and the interpolated row.
 #[test]
 fn cli_bench_render_mapping_rows() {
     let o = run(&["bench-render", "--preset", "sp", "--scene-size", "48", "--planes", "3", "--parts", "mapping", "--kernels", "simd,scalar"]);
     let t = String::from_utf8_lossy(&o.stdout).to_string();
     assert!(o.status.success(), "{t}{}", String::from_utf8_lossy(&o.stderr));
-    assert!(t.contains("| mapping cube 48×48×3, simd-") && t.contains("scalar kernel; max |Δ| vs simd-") && t.contains("0.0e0 mm"), "{t}");
+    assert!(t.contains("| mapping cube 48×48×3, simd-") && t.contains("scalar kernel f64; max |Δ| vs simd-") && t.contains("0.0e0 mm"), "{t}");
     // The interpolated row: a stride, its error over every entry within the default 1e-3 µm, and CPU seconds.
     let row = t.lines().find(|l| l.contains("interpolated, stride")).unwrap_or_else(|| panic!("{t}"));
     let err: f64 = row.split("max error vs exact ").nth(1).unwrap().split(' ').next().unwrap().parse().unwrap();
@@ -551,6 +550,8 @@ fn cli_bench_render_mapping_rows() {
     assert!(t.contains("stride 2 ") && t.contains("stride 32 "), "{t}");
 }
 
+/// `render --kernel scalar` (the reference kept for benchmarking) and the default SIMD kernel write the
+/// same acquisition up to f32 rounding, and render.json names the kernel and keeps its timing keys.
 #[test]
 fn cli_render_kernel_switch() {
     let d = tmpdir();
