@@ -25,7 +25,8 @@ use crate::rays::{aimed_ray, RayBatch};
 use crate::spec::RayAiming;
 use crate::system::SequentialSystem;
 use crate::tracer::kernel::{trace_steps, unit_direction};
-use crate::tracer::simd::{self, Block, LANES};
+use crate::tracer::simd::{self, LaneBlock, Real, LANES, LANES_F32};
+use crate::tracer::Precision;
 use crate::tracer::{RayStatus, Tracer};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -103,7 +104,7 @@ fn landing(r: std::result::Result<(DVec3, DVec3), (RayStatus, usize)>) -> Landin
 /// kernel. Per ray the arithmetic is exactly [`crate::tracer::AnalyticTracer`]'s on
 /// [`RayBatch::chief_rays`] (the same aiming, input check [`unit_direction`] and kernel), so the landings are
 /// bit for bit the batched ones. Serial: callers run it in parallel on disjoint sets of fields.
-pub(crate) fn trace_chief_rays(system: &SequentialSystem, kernel: Option<simd::SimdLevel>, fields: &[[f64; 2]], bands: &Bands, mut store: impl FnMut(usize, usize, Landing)) -> Result<()> {
+pub(crate) fn trace_chief_rays(system: &SequentialSystem, kernel: Option<simd::SimdLevel>, precision: Precision, fields: &[[f64; 2]], bands: &Bands, mut store: impl FnMut(usize, usize, Landing)) -> Result<()> {
     for &f in fields {
         check_field(f)?;
     }
@@ -125,22 +126,10 @@ pub(crate) fn trace_chief_rays(system: &SequentialSystem, kernel: Option<simd::S
             make(n, &mut rays)?;
         }
         match kernel {
-            Some(level) => {
-                let tables = [n.as_slice(); LANES];
-                for (c, chunk) in rays.chunks(LANES).enumerate() {
-                    let mut block = Block::default();
-                    for (k, &(o, d)) in chunk.iter().enumerate() {
-                        match d {
-                            Some(d) => block.set(k, o, d),
-                            None => block.set_invalid(k),
-                        }
-                    }
-                    simd::trace_block(level, path, &tables, &mut block);
-                    for k in 0..chunk.len() {
-                        store(c * LANES + k, b, landing(block.result(k)));
-                    }
-                }
-            }
+            Some(level) => match precision {
+                Precision::F64 => trace_lanes::<f64, LANES>(level, path, n, &rays, b, &mut store),
+                Precision::F32 => trace_lanes::<f32, LANES_F32>(level, path, n, &rays, b, &mut store),
+            },
             None => {
                 for (i, &(o, d)) in rays.iter().enumerate() {
                     store(i, b, landing(d.map_or(Err((RayStatus::InvalidInput, 0)), |d| trace_steps(path, n, o, d))));
@@ -149,6 +138,27 @@ pub(crate) fn trace_chief_rays(system: &SequentialSystem, kernel: Option<simd::S
         }
     }
     Ok(())
+}
+
+/// One band of [`trace_chief_rays`] through the lane kernel in `T` ([`LANES`] f64 lanes: bit for bit the
+/// scalar kernel; [`LANES_F32`] f32 lanes: `--precision f32`, loaded and checked as
+/// [`crate::tracer::AnalyticF32Tracer`] loads them, so both mapping routes agree).
+fn trace_lanes<T: Real, const N: usize>(level: simd::SimdLevel, path: &[crate::system::PathStep], n: &[f64], rays: &[(DVec3, Option<DVec3>)], band: usize, store: &mut impl FnMut(usize, usize, Landing)) {
+    let tables = [n; N];
+    for (c, chunk) in rays.chunks(N).enumerate() {
+        let mut block = LaneBlock::<T, N>::default();
+        for (k, &(o, d)) in chunk.iter().enumerate() {
+            match d {
+                // f64 accepts every finite origin: `set_checked` is `set`.
+                Some(d) => block.set_checked(k, o, d),
+                None => block.set_invalid(k),
+            }
+        }
+        simd::trace_block(level, path, &tables, &mut block);
+        for k in 0..chunk.len() {
+            store(c * N + k, band, landing(block.result(k)));
+        }
+    }
 }
 
 /// The same outcomes as [`trace_chief_rays`] through any tracer: one batch of every field per band.
@@ -164,8 +174,9 @@ pub(crate) fn trace_chief_rays_batched(system: &SequentialSystem, tracer: &dyn T
 
 /// How a cube's chief rays are traced.
 pub(crate) enum Route<'a> {
-    /// The analytic tracer's f64 kernel, directly: a SIMD level, or `None` for the scalar kernel.
-    Direct(Option<simd::SimdLevel>),
+    /// The analytic tracer's kernel, directly: a SIMD level (or `None` for the scalar f64 kernel) and the
+    /// precision (f32 always with a SIMD level).
+    Direct(Option<simd::SimdLevel>, Precision),
     /// Any other backend, through [`Tracer::trace`].
     Batched(&'a dyn Tracer),
 }
@@ -173,8 +184,11 @@ pub(crate) enum Route<'a> {
 impl<'a> Route<'a> {
     /// Direct for the analytic tracer (an error when its forced SIMD level is not on this CPU).
     pub(crate) fn of(tracer: &'a dyn Tracer) -> Result<Self> {
+        if let Some(a) = tracer.as_analytic_f32() {
+            return Ok(Route::Direct(Some(a.level.check()?), Precision::F32));
+        }
         Ok(match tracer.as_analytic() {
-            Some(a) => Route::Direct(a.kernel.resolve()?),
+            Some(a) => Route::Direct(a.kernel.resolve()?, Precision::F64),
             None => Route::Batched(tracer),
         })
     }
@@ -194,14 +208,14 @@ pub fn mapping_cube(system: &SequentialSystem, tracer: &dyn Tracer, height: usiz
     let mut positions_mm = vec![0.0; height * width * nl * 2];
     let mut valid = vec![0u8; height * width * nl];
     match Route::of(tracer)? {
-        Route::Direct(kernel) => {
+        Route::Direct(kernel, precision) => {
             let results: Vec<Result<()>> = positions_mm
                 .par_chunks_mut(width * nl * 2)
                 .zip(valid.par_chunks_mut(width * nl))
                 .enumerate()
                 .map(|(r, (pos, ok))| {
                     let fields: Vec<[f64; 2]> = (0..width).map(|c| MappingCube::scene_xy(height, width, pixel_pitch_mm, r, c)).collect();
-                    trace_chief_rays(system, kernel, &fields, &bands, |c, b, land| {
+                    trace_chief_rays(system, kernel, precision, &fields, &bands, |c, b, land| {
                         if let Ok([x, y]) = land {
                             let k = c * nl + b;
                             pos[2 * k] = x;

@@ -76,14 +76,14 @@ impl NodeGrid {
             }
         };
         let failures: Vec<Failure> = match Route::of(tracer)? {
-            Route::Direct(kernel) => {
+            Route::Direct(kernel, precision) => {
                 let results: Vec<Result<Failure>> = values
                     .par_chunks_mut(cols * nl * 2)
                     .enumerate()
                     .map(|(i, row)| {
                         let fields: Vec<[f64; 2]> = (0..cols).map(|j| field(i, j)).collect();
                         let mut first: Failure = None;
-                        trace_chief_rays(system, kernel, &fields, &bands, |j, b, land: Landing| match land {
+                        trace_chief_rays(system, kernel, precision, &fields, &bands, |j, b, land: Landing| match land {
                             Ok([x, y]) => {
                                 row[2 * (j * nl + b)] = x;
                                 row[2 * (j * nl + b) + 1] = y;

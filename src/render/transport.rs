@@ -581,8 +581,8 @@ impl PlaneContext<'_> {
     }
 
     /// [`Self::trace_row_lanes`] in f32 (`--precision f32`): [`LANES_F32`](crate::tracer::simd::LANES_F32)
-    /// rays per block loaded with `set_raw` (rounded to f32, checked and normalised as `trace_rays_f32`
-    /// does), traced in f32, then widened to f64 blocks of [`LANES`](crate::tracer::simd::LANES) and
+    /// rays per block loaded with `set_raw` (rounded to f32, checked and normalised as
+    /// [`crate::tracer::AnalyticF32Tracer`] does), traced in f32, then widened to f64 blocks of [`LANES`](crate::tracer::simd::LANES) and
     /// classified by the same landing loop as the f64 path.
     #[allow(clippy::too_many_arguments)]
     fn trace_row_lanes_f32(&self, level: crate::tracer::SimdLevel, n: &[f64], rays: &RowRays, count: usize, stats: &mut RayStats, land: &mut Landings) {

@@ -221,6 +221,10 @@ impl Tracer for AnalyticF32Tracer {
         self.trace_slices(system, rays.as_slices()?)
     }
 
+    fn as_analytic_f32(&self) -> Option<&AnalyticF32Tracer> {
+        Some(self)
+    }
+
     fn trace_slices(&self, system: &SequentialSystem, rays: RaySlices<'_>) -> Result<TracedBatch> {
         let table = index_table(system, rays.wavelength_nm())?;
         let mut out = trace_lanes::<f32, LANES_F32>(self.chunk_size, system, rays, &table, self.level.check()?);

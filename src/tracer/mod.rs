@@ -50,6 +50,11 @@ pub trait Tracer: Send + Sync {
     fn as_analytic(&self) -> Option<&AnalyticTracer> {
         None
     }
+    /// This backend as the f32 analytic tracer, when it is one (the mapping cube then runs its f32 lane
+    /// kernel directly, as [`Tracer::as_analytic`] does for f64).
+    fn as_analytic_f32(&self) -> Option<&AnalyticF32Tracer> {
+        None
+    }
 }
 
 /// Outcome of one ray.

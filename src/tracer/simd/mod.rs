@@ -226,22 +226,6 @@ pub(crate) fn trace_rays(level: SimdLevel, path: &[PathStep], n: &[f64], rays: &
     trace_rays_in::<f64, LANES>(level, path, n, rays, emit)
 }
 
-/// [`trace_rays`] in f32, [`LANES_F32`] rays at a time (the render's `--precision f32`): positions and
-/// directions rounded to f32 on entry, traced in f32, reported as f64. See the module docs of [`block`].
-#[cfg_attr(not(test), allow(dead_code))]
-pub(crate) fn trace_rays_f32(level: SimdLevel, path: &[PathStep], n: &[f64], rays: &[(DVec3, DVec3)], emit: impl FnMut(std::result::Result<(DVec3, DVec3), (RayStatus, usize)>)) {
-    trace_rays_in::<f32, LANES_F32>(level, path, n, rays, emit)
-}
-
-/// [`trace_rays`] or [`trace_rays_f32`] by `precision`.
-#[cfg_attr(not(test), allow(dead_code))]
-pub(crate) fn trace_rays_at(precision: Precision, level: SimdLevel, path: &[PathStep], n: &[f64], rays: &[(DVec3, DVec3)], emit: impl FnMut(std::result::Result<(DVec3, DVec3), (RayStatus, usize)>)) {
-    match precision {
-        Precision::F64 => trace_rays(level, path, n, rays, emit),
-        Precision::F32 => trace_rays_f32(level, path, n, rays, emit),
-    }
-}
-
 #[cfg_attr(not(test), allow(dead_code))]
 fn trace_rays_in<T: Real, const N: usize>(level: SimdLevel, path: &[PathStep], n: &[f64], rays: &[(DVec3, DVec3)], mut emit: impl FnMut(std::result::Result<(DVec3, DVec3), (RayStatus, usize)>)) {
     let tables = [n; N];
