@@ -300,13 +300,7 @@ mod tests {
         [r * phi.cos(), r * phi.sin()]
     }
 
-    fn ulps(a: f64, b: f64) -> u64 {
-        if a == b {
-            return 0;
-        }
-        assert_eq!(a.is_sign_negative(), b.is_sign_negative(), "{a} vs {b}");
-        (a.to_bits() as i64 - b.to_bits() as i64).unsigned_abs()
-    }
+    use crate::render::trig::ulps;
 
     #[test]
     fn branch_free_disk_map_is_the_libm_map_to_two_ulp() {

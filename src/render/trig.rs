@@ -91,18 +91,20 @@ pub fn sin_cos(x: f64) -> (f64, f64) {
     (s, c)
 }
 
+/// Distance in units in the last place between two finite f64 of the same sign (0 when equal): the
+/// measure of the tests here and of the sampler's (`render::sampling`).
+#[cfg(test)]
+pub(crate) fn ulps(a: f64, b: f64) -> u64 {
+    if a == b {
+        return 0;
+    }
+    assert_eq!(a.is_sign_negative(), b.is_sign_negative(), "{a} vs {b}");
+    (a.to_bits() as i64 - b.to_bits() as i64).unsigned_abs()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Distance in units in the last place between two finite f64 of the same sign (0 when equal).
-    fn ulps(a: f64, b: f64) -> u64 {
-        if a == b {
-            return 0;
-        }
-        assert_eq!(a.is_sign_negative(), b.is_sign_negative(), "{a} vs {b}");
-        (a.to_bits() as i64 - b.to_bits() as i64).unsigned_abs()
-    }
 
     #[test]
     fn within_one_ulp_of_libm_over_a_dense_sweep() {
