@@ -165,9 +165,11 @@ fn calibration_cache_is_used_and_corrupt_entries_are_recomputed() {
     for e in std::fs::read_dir(dir.path()).unwrap() {
         let p = e.unwrap().path();
         let text = std::fs::read_to_string(&p).unwrap();
-        let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else { continue }; // the 521 nm entry is still garbage
-        let rate = v["payload"]["candidates"][0]["rays_per_s"].as_f64().unwrap().to_string();
-        std::fs::write(&p, text.replacen(&rate, "-1", 1)).unwrap();
+        let Ok(mut v) = serde_json::from_str::<serde_json::Value>(&text) else { continue }; // the 521 nm entry is still garbage
+        // Edit the parsed entry, not the text: the text of a re-printed float need not match the file's
+        // (serde_json's default parser may be an ulp off), and a missed replacement left the entry valid.
+        v["payload"]["candidates"][0]["rays_per_s"] = serde_json::json!(-1.0);
+        std::fs::write(&p, serde_json::to_string_pretty(&v).unwrap()).unwrap();
     }
     let (c, p5) = fidelity::calibrate_backends(&sys, &[520.0], &cache).unwrap();
     assert!(matches!(p5, Provenance::Measured { .. }));
