@@ -40,16 +40,8 @@ pub struct ReconstructArgs {
     /// Solver: gap-tv or admm-tv.
     #[arg(long, default_value = "gap-tv")]
     pub solver: String,
-    /// Iterations [default: the solver's].
-    #[arg(long)]
-    pub iterations: Option<usize>,
-    /// TV weight [default: the solver's].
-    #[arg(long = "tv-weight")]
-    pub tv_weight: Option<f64>,
-    /// GAP-TV: the accelerated variant (Liao/Yuan) instead of plain GAP. Better on noiseless data, but it fits
-    /// the Monte-Carlo mismatch of an operator traced with another seed (docs/reconstruction.md).
-    #[arg(long)]
-    pub accelerated: bool,
+    #[command(flatten)]
+    pub tuning: SolverTuning,
     /// Ray seed of the exact operator: a number, or `same` (the acquisition's: the oracle)
     /// [default: acquisition seed + 1].
     #[arg(long = "operator-seed")]
@@ -290,6 +282,28 @@ fn iteration_bar(n: u64, what: &str) -> ProgressBar {
     pb
 }
 
+/// The solver options `reconstruct` and `study` share (one definition, so their flags and help agree).
+#[derive(Args, Debug, Clone)]
+pub struct SolverTuning {
+    /// Iterations [default: the solver's].
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// TV weight [default: the solver's].
+    #[arg(long = "tv-weight")]
+    pub tv_weight: Option<f64>,
+    /// GAP-TV: the accelerated variant (Liao/Yuan) instead of plain GAP (gap-tv only). Better on noiseless
+    /// data, but it fits the Monte-Carlo mismatch of an operator traced with another seed (docs/reconstruction.md).
+    #[arg(long)]
+    pub accelerated: bool,
+}
+
+impl SolverTuning {
+    /// The settings of one solve with `solver`; `accelerated` as given (the caller decides whether it applies).
+    pub fn settings(&self, solver: &str, accelerated: bool) -> SolveSettings {
+        SolveSettings { solver: solver.to_string(), iterations: self.iterations, tv_weight: self.tv_weight, accelerated }
+    }
+}
+
 /// Settings of one reconstruction (everything but the operator).
 #[derive(Clone, Debug)]
 pub struct SolveSettings {
@@ -355,10 +369,10 @@ pub fn solve(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_progress: boo
 pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     let t0 = Instant::now();
     let kind = OperatorKind::parse(&a.operator)?;
-    if a.iterations == Some(0) {
+    if a.tuning.iterations == Some(0) {
         return Err(Error::invalid("--iterations must be ≥ 1"));
     }
-    if let Some(w) = a.tv_weight {
+    if let Some(w) = a.tuning.tv_weight {
         if !(w.is_finite() && w >= 0.0) {
             return Err(Error::invalid(format!("--tv-weight {w}: must be finite and ≥ 0")));
         }
@@ -366,7 +380,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     if !(a.transport_memory_gb.is_finite() && a.transport_memory_gb >= 0.0) {
         return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0", a.transport_memory_gb)));
     }
-    let settings = SolveSettings { solver: a.solver.clone(), iterations: a.iterations, tv_weight: a.tv_weight, accelerated: a.accelerated };
+    let settings = a.tuning.settings(&a.solver, a.tuning.accelerated);
     check_solver(&settings)?;
     let record = RenderRecord::load(&a.from)?;
     let seed = operator_seed(record.config.seed, a.operator_seed.as_deref())?;

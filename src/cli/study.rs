@@ -18,7 +18,7 @@
 //! that changes a number: bands, planes, rays, seeds, mask, Airy, scene size and fit, solver settings).
 //! The exact operator of a system is traced once (seed = acquisition seed + 1, as `reconstruct`'s default) and
 //! reused for all its scenes; so are the other operators.
-use super::reconstruct::{build_operator, check_solver, operator_seed, solve, write_reconstruction, OperatorKind, RenderRecord, SolveSettings};
+use super::reconstruct::{build_operator, check_solver, operator_seed, solve, write_reconstruction, OperatorKind, RenderRecord, SolverTuning};
 use crate::error::{Error, Result};
 use crate::recon::metrics::evaluate;
 use crate::recon::Operator;
@@ -83,15 +83,8 @@ pub struct StudyArgs {
     /// Airy disk diameter (pixels) at 520 nm.
     #[arg(long = "airy-diameter-px", default_value_t = 2.5)]
     pub airy_diameter_px: f64,
-    /// Solver iterations [default: the solver's].
-    #[arg(long)]
-    pub iterations: Option<usize>,
-    /// TV weight [default: the solver's].
-    #[arg(long = "tv-weight")]
-    pub tv_weight: Option<f64>,
-    /// GAP-TV: the accelerated variant instead of plain GAP (applies to gap-tv only).
-    #[arg(long)]
-    pub accelerated: bool,
+    #[command(flatten)]
+    pub tuning: SolverTuning,
     /// Light-transport memory budget (GB) for the renders and the exact operator.
     #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
     pub transport_memory_gb: f64,
@@ -319,9 +312,9 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let operators = split_list(&a.operators, "operators")?.iter().map(|o| OperatorKind::parse(o)).collect::<Result<Vec<_>>>()?;
     let solvers = split_list(&a.solvers, "solvers")?;
     for s in &solvers {
-        check_solver(&SolveSettings { solver: s.clone(), iterations: a.iterations, tv_weight: a.tv_weight, accelerated: a.accelerated && s == "gap-tv" })?;
+        check_solver(&a.tuning.settings(s, a.tuning.accelerated && s == "gap-tv"))?;
     }
-    if a.iterations == Some(0) {
+    if a.tuning.iterations == Some(0) {
         return Err(Error::invalid("--iterations must be ≥ 1"));
     }
     if a.scene_size == 0 {
@@ -339,7 +332,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let mut config = json!({
         "scene_size": a.scene_size, "fit": a.fit, "bands_nm": bands, "planes": a.planes, "rays": a.rays, "seed": a.seed,
         "operator_seed": op_seed, "mask": mask.description, "mask_open_pixels": mask.values.iter().filter(|&&v| v > 0.0).count(),
-        "airy_diameter_px": a.airy_diameter_px, "iterations": a.iterations, "tv_weight": a.tv_weight, "accelerated": a.accelerated, "tracer": tracer.name(),
+        "airy_diameter_px": a.airy_diameter_px, "iterations": a.tuning.iterations, "tv_weight": a.tuning.tv_weight, "accelerated": a.tuning.accelerated, "tracer": tracer.name(),
     });
     if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
         o.insert("scene_wavelengths".into(), json!(w));
@@ -392,7 +385,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
             for (i, solver) in pending {
                 let scene = &scenes[i];
                 let rec = RenderRecord::load(&dirs[i])?;
-                let settings = SolveSettings { solver: solver.clone(), iterations: a.iterations, tv_weight: a.tv_weight, accelerated: a.accelerated && solver == "gap-tv" };
+                let settings = a.tuning.settings(solver, a.tuning.accelerated && solver == "gap-tv");
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, false)?;
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
