@@ -35,6 +35,13 @@ pub const MAX_PLANES: usize = 100_000;
 /// Airy disk diameter of a render, pixels (the paper: 2.5). The kernel has ~(2.7·d)² taps, convolved with
 /// every plane, so its cost grows as d².
 pub const MAX_AIRY_DIAMETER_PX: f64 = 100.0;
+/// Largest first-zero radius of one plane's Airy kernel, px: the largest disk `render` accepts
+/// ([`MAX_AIRY_DIAMETER_PX`] at 520 nm) scaled ∝ λ to 4× its wavelength (2080 nm, beyond every built-in
+/// glass). The kernel has ~(5.3·r)² taps, each integrated over 8×8 sub-samples.
+pub const MAX_AIRY_RADIUS_PX: f64 = 2.0 * MAX_AIRY_DIAMETER_PX;
+/// Most images of one command's scene set (`study --synthetic N`, scenes found in a folder), before the
+/// memory budget: far beyond any study (the paper's has 10 scenes).
+pub const MAX_SCENES: usize = 1_000_000;
 /// Most iterations of an iterative command (`design --iterations`, `reconstruct --iterations`, solver TV
 /// iterations): 10⁵, far beyond every default (400 Adam steps, 100 GAP/ADMM iterations), so a mistyped count
 /// is refused at once instead of running for days.
@@ -243,6 +250,17 @@ pub fn bytes_render(n: usize, scene_bands: usize, bands: usize, planes: usize, c
     let images = detector * (8.0 + 4.0 * bands as f64 + if cube { 4.0 * bands as f64 } else { 0.0 });
     let taps = airy_diameter_px.map(|d| (2.0 * (1.33 * d * 1.3 + 1.5) + 1.0).powi(2)).unwrap_or(0.0);
     n2 * (8.0 * scene_bands as f64 + 16.0 * bands as f64 + 8.0) + images + planes as f64 * (taps * 12.0 + 64.0)
+}
+
+/// A spectral cube H×W×B held in memory (f32 values, 4 B), with its sRGB preview or a fitted copy beside
+/// it (another 4 B per value): 8 B per value.
+pub fn bytes_cube(height: usize, width: usize, bands: usize) -> f64 {
+    height as f64 * width as f64 * bands as f64 * 8.0
+}
+
+/// Decoding an H×W RGB(A) photograph: the decoded 8/16-bit pixels (≤ 8 B) and the f32 RGB copy (12 B).
+pub fn bytes_rgb_decode(height: usize, width: usize) -> f64 {
+    height as f64 * width as f64 * 20.0
 }
 
 // ------------------------------------------------------------------ JSON finiteness checker
@@ -461,5 +479,7 @@ mod tests {
         assert!(paper > 1e8 && paper < 2e9, "{paper}");
         assert!(bytes_render(512, 31, 28, 112, false, Some(1e6)) > 1e15);
         assert!(bytes_render(1_000_000, 31, 28, 112, false, Some(2.5)) > 1e14);
+        assert!(bytes_cube(100_000, 100_000, 28) > 1e12 && bytes_cube(256, 256, 28) < 2e7);
+        assert!(bytes_rgb_decode(20_000, 20_000) > 7e9);
     }
 }

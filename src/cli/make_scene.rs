@@ -45,6 +45,21 @@ pub fn make_scene(a: MakeSceneArgs) -> Result<()> {
     if !matches!(ext.as_deref(), Some("npy") | Some("exr")) {
         return Err(Error::File { path: a.out.display().to_string(), message: "--out must end in .npy or .exr".into() });
     }
+    // Limits before any allocation: the method's wavelength range (no silent extrapolation) and the memory
+    // of the cube (an RGB photograph's own size is checked from its PNG header before decoding).
+    let range = if a.rgb.is_some() {
+        Some(("the Smits RGB → spectrum uplift (--rgb)", natural::SMITS_RANGE_NM))
+    } else if a.colour_checker {
+        Some(("the measured ColorChecker reflectances (--colour-checker)", natural::COLORCHECKER_RANGE_NM))
+    } else {
+        None
+    };
+    if let Some((method, r)) = range {
+        natural::check_uplift_range(method, r, &ws).map_err(|e| Error::invalid(format!("--bands `{}`: {e}", a.bands)))?;
+    }
+    if let Some(n) = a.size.or((a.rgb.is_none()).then_some(256)) {
+        crate::limits::check_memory(&format!("--size {n} (× {} bands)", ws.len()), crate::limits::bytes_cube(n, n, ws.len()))?;
+    }
     let (cube, what) = match (&a.rgb, a.colour_checker, a.synthetic) {
         (Some(p), _, _) => {
             let c = natural::load_rgb_scene(p, Some(&ws))?;

@@ -103,16 +103,20 @@ fn ferr(path: &Path, m: impl Into<String>) -> Error {
     Error::File { path: path.display().to_string(), message: m.into() }
 }
 
-fn field<'a>(json: &'a Value, path: &Path, key: &str) -> Result<&'a Value> {
-    json.get(key).filter(|v| !v.is_null()).ok_or_else(|| ferr(path, format!("field `{key}` is missing")))
+/// Field `name` of `json` (`name` may be a dotted path for messages, `airy.rings`: its last part is the key).
+fn field<'a>(json: &'a Value, path: &Path, name: &str) -> Result<&'a Value> {
+    let key = name.rsplit('.').next().unwrap_or(name);
+    json.get(key).filter(|v| !v.is_null()).ok_or_else(|| ferr(path, format!("field `{name}` is missing")))
 }
 
-fn field_f64(json: &Value, path: &Path, key: &str) -> Result<f64> {
-    field(json, path, key)?.as_f64().filter(|v| v.is_finite()).ok_or_else(|| ferr(path, format!("field `{key}` is not a finite number")))
+fn field_f64(json: &Value, path: &Path, name: &str) -> Result<f64> {
+    let v = field(json, path, name)?;
+    v.as_f64().filter(|v| v.is_finite()).ok_or_else(|| ferr(path, format!("field `{name}` = {v} is not a finite number")))
 }
 
-fn field_usize(json: &Value, path: &Path, key: &str) -> Result<usize> {
-    field(json, path, key)?.as_u64().map(|v| v as usize).ok_or_else(|| ferr(path, format!("field `{key}` is not a non-negative integer")))
+fn field_usize(json: &Value, path: &Path, name: &str) -> Result<usize> {
+    let v = field(json, path, name)?;
+    v.as_u64().and_then(|x| usize::try_from(x).ok()).ok_or_else(|| ferr(path, format!("field `{name}` = {v} is not a non-negative integer")))
 }
 
 impl RenderRecord {
@@ -133,14 +137,63 @@ impl RenderRecord {
             catalog.merge(crate::materials::GlassCatalog::from_agf_file(Path::new(p))?);
         }
         let system = SequentialSystem::build_with_catalog(&spec, &catalog)?;
+        // Every field is checked against the limits `render` applies, naming the field and its value, and the
+        // memory is estimated, before anything is allocated (a tampered render.json cannot abort the process).
         let h = field_usize(&json, &jp, "scene_height")?;
         let w = field_usize(&json, &jp, "scene_width")?;
         if h == 0 || w == 0 {
             return Err(ferr(&jp, format!("scene size {h}×{w} is empty")));
         }
         let bands: Vec<f64> = serde_json::from_value(field(&json, &jp, "bands_nm")?.clone()).map_err(|e| ferr(&jp, format!("field `bands_nm`: {e}")))?;
+        let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
+        if bands.is_empty() || bands.len() > crate::limits::MAX_WAVELENGTHS {
+            return Err(ferr(&jp, format!("field `bands_nm` has {} bands: must be in 1..={}", bands.len(), crate::limits::MAX_WAVELENGTHS)));
+        }
+        if let Some((k, b)) = bands.iter().enumerate().find(|(_, b)| !(lo..=hi).contains(*b)) {
+            return Err(ferr(&jp, format!("field `bands_nm`: band {k} = {} nm is outside {lo}–{hi} nm", crate::limits::fmt_num(*b))));
+        }
         let planes = field_usize(&json, &jp, "planes")?;
-        let spectral = SpectralSampling::with_planes(bands, planes).map_err(|e| ferr(&jp, e.to_string()))?;
+        if planes == 0 || planes > crate::limits::MAX_PLANES {
+            return Err(ferr(&jp, format!("field `planes` = {planes}: must be in 1..={} (the limit of render --planes)", crate::limits::MAX_PLANES)));
+        }
+        let rays_per_pixel = field_usize(&json, &jp, "rays_per_pixel")?;
+        if rays_per_pixel == 0 {
+            return Err(ferr(&jp, "field `rays_per_pixel` = 0: must be ≥ 1"));
+        }
+        let airy = match json.get("airy") {
+            None | Some(Value::Null) => None,
+            Some(a) => {
+                let airy = AiryConfig { diameter_px: field_f64(a, &jp, "airy.diameter_px")?, reference_nm: field_f64(a, &jp, "airy.reference_nm")?, rings: field_usize(a, &jp, "airy.rings")? };
+                airy.validate().map_err(|e| ferr(&jp, format!("field {e}")))?;
+                Some(airy)
+            }
+        };
+        let scene_pitch_mm = field_f64(&json, &jp, "scene_pitch_mm")?;
+        let detector_pitch_mm = match json.get("detector_pitch_mm") {
+            None | Some(Value::Null) => scene_pitch_mm,
+            Some(_) => field_f64(&json, &jp, "detector_pitch_mm")?,
+        };
+        for (name, v) in [("scene_pitch_mm", scene_pitch_mm), ("detector_pitch_mm", detector_pitch_mm)] {
+            if !(v > 0.0 && v <= crate::limits::MAX_LENGTH_MM) {
+                return Err(ferr(&jp, format!("field `{name}` = {} mm: must be > 0 and ≤ {:e} mm", crate::limits::fmt_num(v), crate::limits::MAX_LENGTH_MM)));
+            }
+        }
+        let detector_extra_px = match json.get("detector_extra_px") {
+            None | Some(Value::Null) => 0,
+            Some(_) => field_usize(&json, &jp, "detector_extra_px")?,
+        };
+        if detector_extra_px > u16::MAX as usize {
+            return Err(ferr(&jp, format!("field `detector_extra_px` = {detector_extra_px}: must be ≤ {} (a detector side is at most 65535 pixels)", u16::MAX)));
+        }
+        let det = field(&json, &jp, "detector")?;
+        let (dh, dw) = (field_usize(det, &jp, "detector.height")?, field_usize(det, &jp, "detector.width")?);
+        if dh == 0 || dw == 0 || dh > u16::MAX as usize || dw > u16::MAX as usize {
+            return Err(ferr(&jp, format!("field `detector` is {dh}×{dw} pixels: each side must be in 1..=65535")));
+        }
+        let n = ((h as f64) * (w as f64)).sqrt().ceil() as usize;
+        let what = format!("scene_height × scene_width × planes ({h} × {w} × {planes}, {} bands)", bands.len());
+        crate::limits::check_memory(&what, crate::limits::bytes_render(n, bands.len(), bands.len(), planes, false, airy.map(|a| a.diameter_px)) + dh as f64 * dw as f64 * 8.0).map_err(|e| ferr(&jp, e.to_string()))?;
+        let spectral = SpectralSampling::with_planes(bands, planes).map_err(|e| ferr(&jp, format!("fields `bands_nm`/`planes`: {e}")))?;
         if let Some(recorded) = json.get("planes_nm").and_then(|v| serde_json::from_value::<Vec<f64>>(v.clone()).ok()) {
             if recorded.len() != spectral.planes() || recorded.iter().zip(&spectral.planes_nm).any(|(a, b)| (a - b).abs() > 1e-9) {
                 return Err(ferr(&jp, "field `planes_nm` does not match the planes rebuilt from `bands_nm` and `planes`"));
@@ -149,22 +202,15 @@ impl RenderRecord {
         let mut cfg = RenderConfig::paper(h);
         cfg.scene_height = h;
         cfg.scene_width = w;
-        cfg.scene_pitch_mm = field_f64(&json, &jp, "scene_pitch_mm")?;
-        cfg.detector_pitch_mm = json.get("detector_pitch_mm").and_then(Value::as_f64).unwrap_or(cfg.scene_pitch_mm);
-        cfg.detector_extra_px = json.get("detector_extra_px").and_then(Value::as_u64).unwrap_or(0) as usize;
+        cfg.scene_pitch_mm = scene_pitch_mm;
+        cfg.detector_pitch_mm = detector_pitch_mm;
+        cfg.detector_extra_px = detector_extra_px;
         cfg.force_batched = json.get("force_batched").and_then(Value::as_bool).unwrap_or(false);
         cfg.spectral = spectral;
-        cfg.rays_per_pixel = field_usize(&json, &jp, "rays_per_pixel")?;
+        cfg.rays_per_pixel = rays_per_pixel;
         cfg.seed = field(&json, &jp, "seed")?.as_u64().ok_or_else(|| ferr(&jp, "field `seed` is not a non-negative integer"))?;
         cfg.sampling = serde_json::from_value::<Sampling>(field(&json, &jp, "sampling")?.clone()).map_err(|e| ferr(&jp, format!("field `sampling`: {e}")))?;
-        cfg.airy = match json.get("airy") {
-            None | Some(Value::Null) => None,
-            Some(a) => Some(AiryConfig {
-                diameter_px: field_f64(a, &jp, "diameter_px")?,
-                reference_nm: field_f64(a, &jp, "reference_nm")?,
-                rings: field_usize(a, &jp, "rings")?,
-            }),
-        };
+        cfg.airy = airy;
         let mask_name = json.get("mask_file").and_then(Value::as_str).unwrap_or("mask.png");
         let mask_path = dir.join(mask_name);
         if !mask_path.is_file() {
@@ -186,8 +232,6 @@ impl RenderRecord {
         if let Some(i) = ch.data.iter().position(|v| !v.is_finite()) {
             return Err(ferr(&ap, format!("pixel {} (row {}, col {}) is {} (not finite)", i, i / img.width, i % img.width, ch.data[i])));
         }
-        let det = field(&json, &jp, "detector")?;
-        let (dh, dw) = (field_usize(det, &jp, "height")?, field_usize(det, &jp, "width")?);
         if (img.height, img.width) != (dh, dw) {
             return Err(ferr(&ap, format!("the acquisition is {}×{} but render.json's detector is {dh}×{dw}", img.height, img.width)));
         }
@@ -232,6 +276,12 @@ pub fn record_tracer(record: &RenderRecord, backend: &BackendArgs) -> Result<Box
 
 /// Build the operator `kind` for the record (exact: traced with `seed`, transport kept up to `budget_bytes`).
 pub fn build_operator<'a>(kind: OperatorKind, record: &'a RenderRecord, tracer: &'a dyn Tracer, seed: u64, budget_bytes: u64, progress: &(dyn Fn(u64) + Sync)) -> Result<Box<dyn Operator + 'a>> {
+    if kind == OperatorKind::Exact {
+        // The exact operator traces what the render traced: the same ray budget (`--max-rays`).
+        let c = &record.config;
+        let what = format!("scene_height × scene_width × planes × rays_per_pixel ({} × {} × {} × {})", c.scene_height, c.scene_width, c.spectral.planes(), c.rays_per_pixel);
+        crate::limits::check_rays(&what, c.scene_height as f64 * c.scene_width as f64 * c.spectral.planes() as f64 * c.rays_per_pixel as f64).map_err(|e| ferr(&record.dir.join("render.json"), e.to_string()))?;
+    }
     let renderer = record.renderer(tracer, seed)?;
     let bands = record.bands_nm().to_vec();
     Ok(match kind {
@@ -380,6 +430,18 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     if !(a.transport_memory_gb.is_finite() && a.transport_memory_gb >= 0.0) {
         return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0", a.transport_memory_gb)));
     }
+    if let Some(t) = a.backend.tolerance_um {
+        // Accepted by the shared backend options but never used here: refuse rather than ignore it.
+        return Err(Error::invalid(format!(
+            "--tolerance-um {t}: reconstruct does not choose a tracer by tolerance — the operator is rebuilt with the render's tracer (render.json `tracer`) or the one --backend names; the rays per pixel are the render's"
+        )));
+    }
+    if a.operator_seed.is_some() && kind != OperatorKind::Exact {
+        return Err(Error::invalid(format!("--operator-seed applies to the exact operator only (its traced rays), not `{}`", kind.name())));
+    }
+    if a.backend.calibration_cache.is_some() {
+        return Err(Error::invalid("--calibration-cache: only used with --tolerance-um, which reconstruct does not take"));
+    }
     let settings = a.tuning.settings(&a.solver, a.tuning.accelerated);
     check_solver(&settings)?;
     let record = RenderRecord::load(&a.from)?;
@@ -387,7 +449,8 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     let tracer = record_tracer(&record, &a.backend)?;
     let t_op = Instant::now();
     let op = {
-        let rays = (record.config.scene_height * record.config.scene_width * record.config.rays_per_pixel * record.config.spectral.planes()) as u64;
+        let c = &record.config;
+        let rays = (c.scene_height as f64 * c.scene_width as f64 * c.rays_per_pixel as f64 * c.spectral.planes() as f64) as u64;
         let pb = ProgressBar::new(if kind == OperatorKind::Exact { rays } else { 0 });
         pb.set_style(ProgressStyle::with_template("{msg} [{elapsed_precise}] {wide_bar} {human_pos}/{human_len} rays, ETA {eta}").unwrap_or_else(|_| ProgressStyle::default_bar()));
         pb.set_message(format!("operator {}", kind.name()));

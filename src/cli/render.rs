@@ -522,9 +522,15 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     if !(a.mapping_tolerance_um.is_finite() && a.mapping_tolerance_um > 0.0) {
         return Err(Error::invalid(format!("--mapping-tolerance-um {}: must be finite and > 0", a.mapping_tolerance_um)));
     }
-    crate::limits::check_memory(&format!("--scene-size {n} × --planes {}", a.planes), 2.0 * crate::limits::bytes_render(n, 31, 28, a.planes, false, Some(2.5)))?;
+    if a.scenes == 0 || a.scenes > crate::limits::MAX_SCENES {
+        return Err(Error::invalid(format!("--scenes {}: must be in 1..={}", a.scenes, crate::limits::MAX_SCENES)));
+    }
+    // Two renders' buffers and the chief-ray mapping cube (n × n × planes).
+    crate::limits::check_memory(&format!("--scene-size {n} × --planes {}", a.planes), 2.0 * crate::limits::bytes_render(n, 31, 28, a.planes, false, Some(2.5)) + crate::limits::bytes_mapping(n, n, a.planes))?;
     // Acquisition, all-open acquisition, transport: three renders' rays.
-    crate::limits::check_rays(&format!("--scene-size {n} × --planes {} × --rays {} (× 3 renders)", a.planes, a.rays), 3.0 * (n as f64).powi(2) * a.planes as f64 * a.rays as f64)?;
+    // Acquisition, all-open acquisition, transport: three renders' rays; each dataset scene applies the
+    // transport (a render's worth of footprints).
+    crate::limits::check_rays(&format!("--scene-size {n} × --planes {} × --rays {} (× 3 renders + --scenes {})", a.planes, a.rays, a.scenes), (3.0 + a.scenes as f64) * (n as f64).powi(2) * a.planes as f64 * a.rays as f64)?;
     let mut cfg = RenderConfig::paper(n);
     cfg.spectral = SpectralSampling::with_planes(crate::analysis::linspace(450.0, 650.0, 28), a.planes)?;
     cfg.rays_per_pixel = a.rays;
@@ -608,7 +614,7 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     row(&format!("dataset: trace the transport once ({:.2} GB)", bytes as f64 / 1e9), t.elapsed().as_secs_f64(), transport.iter().map(|p| p.stats.traced).sum());
     let mut per = Vec::new();
     cpu0.set(super::shared::process_cpu_seconds());
-    for s in 0..a.scenes.max(1) {
+    for s in 0..a.scenes {
         let sc = synthetic_scene(n, n, &synthetic_wavelengths(), 100 + s as u64);
         let t = Instant::now();
         let r = renderer.render_cached(&sc, &transport, false, &|_| {})?;

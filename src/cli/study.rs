@@ -139,6 +139,8 @@ fn load_scenes(a: &StudyArgs, bands: &[f64]) -> Result<Vec<StudyScene>> {
             if found.is_empty() {
                 return Err(Error::File { path: dir.display().to_string(), message: "no scenes (.png photographs, .exr, .npy, or folders of per-band .png)".into() });
             }
+            let nb = bands.len().max(given.as_ref().map_or(31, Vec::len));
+            crate::limits::check_memory(&format!("--scene-size {n} × {} scenes of {}", found.len(), dir.display()), found.len() as f64 * crate::limits::bytes_cube(n, n, nb))?;
             found
                 .into_iter()
                 .map(|s| {
@@ -177,14 +179,48 @@ fn study_mask(a: &StudyArgs) -> Result<Mask> {
     }
 }
 
-/// The render configuration of the study.
-fn render_config(a: &StudyArgs, bands: &[f64]) -> Result<RenderConfig> {
+/// The limits `render` applies (same messages), checked before any scene is loaded or generated: planes,
+/// Airy diameter, opening, the memory of the renders and of the study's scenes held together, and the ray
+/// budget of each render; `--fit`, `--transport-memory-gb` and `--accelerated` validated so none is ignored.
+fn check_limits(a: &StudyArgs, bands: &[f64], solvers: &[String]) -> Result<()> {
+    let n = a.scene_size;
+    super::render::parse_fit(&a.fit)?;
+    if a.planes == 0 || a.planes > crate::limits::MAX_PLANES {
+        return Err(Error::invalid(format!("--planes {}: must be in 1..={}", a.planes, crate::limits::MAX_PLANES)));
+    }
+    if !(a.airy_diameter_px.is_finite() && a.airy_diameter_px > 0.0 && a.airy_diameter_px <= crate::limits::MAX_AIRY_DIAMETER_PX) {
+        return Err(Error::invalid(format!("--airy-diameter-px {}: must be in (0, {}] pixels", a.airy_diameter_px, crate::limits::MAX_AIRY_DIAMETER_PX)));
+    }
+    if !(a.opening.is_finite() && (0.0..=1.0).contains(&a.opening)) {
+        return Err(Error::invalid(format!("--opening {}: the mask's opening ratio must be in [0, 1]", a.opening)));
+    }
+    if !(a.transport_memory_gb.is_finite() && a.transport_memory_gb >= 0.0) {
+        return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0 (0: never keep the transport)", a.transport_memory_gb)));
+    }
+    if a.tuning.accelerated && !solvers.iter().any(|s| s == "gap-tv") {
+        return Err(Error::invalid(format!("--accelerated applies to gap-tv only, and --solvers `{}` has no gap-tv", a.solvers)));
+    }
     if a.rays == 0 {
         return Err(Error::invalid("--rays must be ≥ 1"));
     }
-    if !(a.airy_diameter_px.is_finite() && a.airy_diameter_px > 0.0) {
-        return Err(Error::invalid(format!("--airy-diameter-px {}: must be finite and > 0", a.airy_diameter_px)));
+    if a.synthetic.is_some() && a.scene_wavelengths.is_some() {
+        return Err(Error::invalid("--scene-wavelengths applies to the files of --scenes, not to --synthetic scenes"));
     }
+    if let Some(k) = a.synthetic {
+        if k > crate::limits::MAX_SCENES {
+            return Err(Error::invalid(format!("--synthetic {k}: must be in 1..={}", crate::limits::MAX_SCENES)));
+        }
+    }
+    // Every scene's fitted cube is held for the whole study (its truth), beside one render.
+    let scene_bands = synthetic_wavelengths().len().max(bands.len());
+    let scenes = a.synthetic.unwrap_or(1);
+    let what = format!("--scene-size {n} × --planes {} (× {} bands, {scenes} scenes)", a.planes, bands.len());
+    crate::limits::check_memory(&what, crate::limits::bytes_render(n, scene_bands, bands.len(), a.planes, false, Some(a.airy_diameter_px)) + scenes as f64 * crate::limits::bytes_cube(n, n, scene_bands))?;
+    super::render::check_render_rays(n, a.planes, a.rays)
+}
+
+/// The render configuration of the study.
+fn render_config(a: &StudyArgs, bands: &[f64]) -> Result<RenderConfig> {
     let mut cfg = RenderConfig::paper(a.scene_size);
     cfg.spectral = SpectralSampling::with_planes(bands.to_vec(), a.planes)?;
     cfg.rays_per_pixel = a.rays;
@@ -193,19 +229,10 @@ fn render_config(a: &StudyArgs, bands: &[f64]) -> Result<RenderConfig> {
     Ok(cfg)
 }
 
-/// A canonical text of a configuration, floats at 10 significant digits: serde_json's default float parsing
-/// is not bit-exact on round trip, so configurations read back are compared through this key.
-fn config_key(v: &Value) -> String {
-    match v {
-        Value::Number(n) if n.is_f64() => format!("{:.9e}", n.as_f64().unwrap_or(f64::NAN)),
-        Value::Array(a) => format!("[{}]", a.iter().map(config_key).collect::<Vec<_>>().join(",")),
-        Value::Object(o) => format!("{{{}}}", o.iter().map(|(k, v)| format!("{k}:{}", config_key(v))).collect::<Vec<_>>().join(",")),
-        other => other.to_string(),
-    }
-}
-
+/// Whether a stored configuration equals this one: every number compared by value, bit-exactly (the records
+/// are written and read back exactly, serde_json's `float_roundtrip`).
 fn same_config(stored: Option<&Value>, config: &Value) -> bool {
-    stored.is_some_and(|s| config_key(s) == config_key(config))
+    stored.is_some_and(|s| crate::render::dataset::configuration_differences(s, config).is_empty())
 }
 
 fn read_json(path: &Path) -> Option<Value> {
@@ -321,6 +348,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
         return Err(Error::invalid("--scene-size must be ≥ 1"));
     }
     let bands = super::shared::parse_wavelengths(&a.bands)?;
+    check_limits(&a, &bands, &solvers)?;
     let cfg = render_config(&a, &bands)?;
     let mask = study_mask(&a)?;
     let scenes = load_scenes(&a, &bands)?;

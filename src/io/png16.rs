@@ -44,10 +44,23 @@ pub fn write_png_gray16(path: impl AsRef<Path>, width: usize, height: usize, dat
     write_atomic(path, bytes.get_ref())
 }
 
-/// Read a greyscale PNG (8 or 16 bit), values scaled to [0, 1].
+/// The (width, height) a PNG's header declares, read without decoding the pixels; refused when decoding it
+/// (`bytes_per_pixel` bytes per pixel, all copies together) would exceed the memory budget
+/// ([`crate::limits::check_memory`]), so a huge image is an error before anything is allocated.
+pub fn png_dimensions_within_budget(path: &Path, bytes: &[u8], bytes_per_pixel: f64) -> Result<(usize, usize), IoError> {
+    let reader = image::ImageReader::with_format(std::io::Cursor::new(bytes), image::ImageFormat::Png);
+    let (w, h) = reader.into_dimensions().map_err(|e| png_err(path, format!("not a readable PNG (truncated or malformed?): {e}")))?;
+    let what = format!("the {w}×{h} image");
+    crate::limits::check_memory(&what, w as f64 * h as f64 * bytes_per_pixel).map_err(|e| png_err(path, e.to_string()))?;
+    Ok((w as usize, h as usize))
+}
+
+/// Read a greyscale PNG (8 or 16 bit), values scaled to [0, 1]. The header is read first: an image too large
+/// for the memory budget is refused before it is decoded.
 pub fn read_png_gray(path: impl AsRef<Path>) -> Result<GrayImage, IoError> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| IoError::io(path, "cannot read", e))?;
+    png_dimensions_within_budget(path, &bytes, 8.0)?; // decoded ≤ 2 B (4 B as RGBA8) + f32 values 4 B
     let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
         .map_err(|e| png_err(path, format!("not a readable PNG (truncated or malformed?): {e}")))?;
     let (width, height) = (img.width() as usize, img.height() as usize);

@@ -8,10 +8,13 @@
 //!
 //! ```
 //! use diffcassi::render::AiryKernel;
-//! let k = AiryKernel::for_wavelength(520.0, 2.5, 520.0, 3);
+//! let k = AiryKernel::for_wavelength(520.0, 2.5, 520.0, 3).unwrap();
 //! assert!((k.weights.iter().map(|&w| w as f64).sum::<f64>() - 1.0).abs() < 1e-6);
 //! assert!((k.first_zero_radius_px - 1.25).abs() < 1e-12);
+//! // A reference wavelength of 0 nm (a tampered render.json) is an error, not a panic.
+//! assert!(AiryKernel::for_wavelength(520.0, 2.5, 0.0, 3).is_err());
 //! ```
+use crate::error::{Error, Result};
 
 /// Zeros of J₁ (dark rings of the Airy pattern in units of v).
 const J1_ZEROS: [f64; 5] = [3.831_705_970_207_512, 7.015_586_669_815_619, 10.173_468_135_062_722, 13.323_691_936_314_223, 16.470_630_050_877_634];
@@ -42,9 +45,17 @@ pub struct AiryKernel {
 }
 
 impl AiryKernel {
-    /// Kernel for first-zero radius `r0_px`, truncated at dark ring `rings` (1–5).
-    pub fn new(r0_px: f64, rings: usize) -> Self {
-        let rings = rings.clamp(1, J1_ZEROS.len());
+    /// Kernel for first-zero radius `r0_px` (finite, in (0, [`crate::limits::MAX_AIRY_RADIUS_PX`]]),
+    /// truncated at dark ring `rings` (1–5). Bad inputs are errors naming the value, never a panic or an
+    /// allocation failure.
+    pub fn new(r0_px: f64, rings: usize) -> Result<Self> {
+        let max_r0 = crate::limits::MAX_AIRY_RADIUS_PX;
+        if !(r0_px.is_finite() && r0_px > 0.0 && r0_px <= max_r0) {
+            return Err(Error::invalid(format!("Airy kernel: first-zero radius {} px must be finite and in (0, {max_r0}] px", crate::limits::fmt_num(r0_px))));
+        }
+        if !(1..=J1_ZEROS.len()).contains(&rings) {
+            return Err(Error::invalid(format!("Airy kernel: truncation ring {rings} must be in 1..={}", J1_ZEROS.len())));
+        }
         let rt = r0_px * J1_ZEROS[rings - 1] / J1_ZEROS[0];
         let half = (rt + 0.5).ceil() as usize;
         let n = 2 * half + 1;
@@ -67,11 +78,22 @@ impl AiryKernel {
             }
         }
         let total: f64 = w.iter().sum();
-        AiryKernel { first_zero_radius_px: r0_px, truncation_radius_px: rt, half, weights: w.iter().map(|v| (v / total) as f32).collect() }
+        Ok(AiryKernel { first_zero_radius_px: r0_px, truncation_radius_px: rt, half, weights: w.iter().map(|v| (v / total) as f32).collect() })
     }
 
-    /// The paper's kernel at `wavelength_nm`: disk diameter `diameter_px` at `reference_nm`, ∝ λ.
-    pub fn for_wavelength(wavelength_nm: f64, diameter_px: f64, reference_nm: f64, rings: usize) -> Self {
+    /// The paper's kernel at `wavelength_nm`: disk diameter `diameter_px` at `reference_nm`, ∝ λ. Both
+    /// wavelengths must lie in [`crate::limits::WAVELENGTH_RANGE_NM`] and the diameter in
+    /// (0, [`crate::limits::MAX_AIRY_DIAMETER_PX`]] ([`AiryConfig::validate`](super::AiryConfig::validate)).
+    pub fn for_wavelength(wavelength_nm: f64, diameter_px: f64, reference_nm: f64, rings: usize) -> Result<Self> {
+        let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
+        for (name, v) in [("wavelength", wavelength_nm), ("reference wavelength", reference_nm)] {
+            if !(v.is_finite() && (lo..=hi).contains(&v)) {
+                return Err(Error::invalid(format!("Airy kernel: {name} {} nm must be in {lo}–{hi} nm", crate::limits::fmt_num(v))));
+            }
+        }
+        if !(diameter_px.is_finite() && diameter_px > 0.0 && diameter_px <= crate::limits::MAX_AIRY_DIAMETER_PX) {
+            return Err(Error::invalid(format!("Airy kernel: disk diameter {} px must be in (0, {}] pixels", crate::limits::fmt_num(diameter_px), crate::limits::MAX_AIRY_DIAMETER_PX)));
+        }
         Self::new(0.5 * diameter_px * wavelength_nm / reference_nm, rings)
     }
 
@@ -134,7 +156,7 @@ mod tests {
 
     #[test]
     fn convolution_conserves_energy_and_is_centred() {
-        let k = AiryKernel::for_wavelength(650.0, 2.5, 520.0, 3);
+        let k = AiryKernel::for_wavelength(650.0, 2.5, 520.0, 3).unwrap();
         let (w, h) = (21, 17);
         let mut img = vec![0.0f32; w * h];
         img[8 * w + 10] = 2.0;
@@ -145,5 +167,24 @@ mod tests {
         let cy: f64 = out.iter().enumerate().map(|(i, &v)| (i / w) as f64 * v as f64).sum::<f64>() / total;
         assert!((cx - 10.0).abs() < 1e-5 && (cy - 8.0).abs() < 1e-5);
         assert!(out[8 * w + 10] > out[8 * w + 11]);
+    }
+
+    /// Bad kernel inputs are errors naming the value (a render.json with `airy.reference_nm: 0` panicked).
+    #[test]
+    fn bad_inputs_are_errors_not_panics() {
+        for (w, d, r, rings, needle) in [
+            (520.0, 2.5, 0.0, 3, "reference wavelength 0 nm"),
+            (520.0, 2.5, f64::NAN, 3, "reference wavelength NaN"),
+            (0.0, 2.5, 520.0, 3, "wavelength 0 nm"),
+            (520.0, 0.0, 520.0, 3, "diameter 0 px"),
+            (520.0, 1e6, 520.0, 3, "diameter 1e6 px"),
+            (520.0, 2.5, 520.0, 0, "ring 0"),
+            (520.0, 2.5, 520.0, 6, "ring 6"),
+        ] {
+            let e = AiryKernel::for_wavelength(w, d, r, rings).unwrap_err().to_string();
+            assert!(e.contains(needle), "{e}");
+        }
+        assert!(AiryKernel::new(1e9, 3).unwrap_err().to_string().contains("first-zero radius 1e9 px"));
+        assert!(AiryKernel::new(-1.0, 3).is_err() && AiryKernel::new(f64::INFINITY, 3).is_err());
     }
 }

@@ -15,7 +15,7 @@
 //! ```
 //! use diffcassi::render::AiryKernel;
 //! use diffcassi::render::convolve::{convolve, PaddedLayout, Rect, TILE};
-//! let k = AiryKernel::for_wavelength(520.0, 2.5, 520.0, 3);
+//! let k = AiryKernel::for_wavelength(520.0, 2.5, 520.0, 3).unwrap();
 //! let (w, h) = (20, 9);
 //! let lay = PaddedLayout::new(w, h, k.half);
 //! let mut src = vec![0.0f32; lay.len()];
@@ -342,7 +342,7 @@ mod tests {
     #[test]
     fn blocked_convolution_equals_airy_convolve_on_every_path() {
         for (lambda, seed) in [(450.0, 1), (650.0, 2)] {
-            let k = AiryKernel::for_wavelength(lambda, 2.5, 520.0, 3);
+            let k = AiryKernel::for_wavelength(lambda, 2.5, 520.0, 3).unwrap();
             for (w, h, sup) in cases() {
                 let dense = image(w, h, seed, sup);
                 let want = k.convolve(&dense, w, h);
@@ -365,7 +365,7 @@ mod tests {
     /// transpose of the convolution, and all paths agree bit for bit.
     #[test]
     fn correlation_is_the_exact_transpose() {
-        let k = AiryKernel::for_wavelength(600.0, 2.5, 520.0, 3);
+        let k = AiryKernel::for_wavelength(600.0, 2.5, 520.0, 3).unwrap();
         for (w, h, sup) in cases() {
             let x = image(w, h, 7, sup);
             let yv = image(w, h, 8, Rect { y0: 0, y1: h, x0: 0, x1: w });

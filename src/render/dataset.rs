@@ -207,11 +207,39 @@ pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
     v
 }
 
-/// Human-readable differences between a recorded and a requested configuration (empty when equal).
+/// Human-readable differences between a recorded and a requested configuration (empty when equal): one
+/// line per leaf that really differs, named by its path (`bands_nm[3]`, `system_spec.surfaces[2].radius`,
+/// `airy`), with both values. Numbers compare by value (`1` equals `1.0`; the records are written and read
+/// back bit-exactly, serde_json's `float_roundtrip`), so a mismatch is never an artefact of the JSON text.
 pub fn configuration_differences(recorded: &Value, requested: &Value) -> Vec<String> {
-    let (Some(r), Some(q)) = (recorded.as_object(), requested.as_object()) else {
-        return if recorded == requested { vec![] } else { vec!["the configuration is not a JSON object".into()] };
-    };
+    if !(recorded.is_object() && requested.is_object()) {
+        return if same_json(recorded, requested) { vec![] } else { vec!["the configuration is not a JSON object".into()] };
+    }
+    let mut out = Vec::new();
+    diff_json("", Some(recorded), Some(requested), &mut out);
+    const MAX_LINES: usize = 12;
+    if out.len() > MAX_LINES {
+        let more = out.len() - MAX_LINES;
+        out.truncate(MAX_LINES);
+        out.push(format!("… and {more} more"));
+    }
+    out
+}
+
+/// JSON equality with numbers compared by value (an integer and the float of the same value are equal).
+fn same_json(a: &Value, b: &Value) -> bool {
+    match (a, b) {
+        (Value::Number(x), Value::Number(y)) => match (x.as_i128(), y.as_i128()) {
+            (Some(i), Some(j)) => i == j,
+            _ => x.as_f64() == y.as_f64(),
+        },
+        (Value::Array(x), Value::Array(y)) => x.len() == y.len() && x.iter().zip(y).all(|(a, b)| same_json(a, b)),
+        (Value::Object(x), Value::Object(y)) => x.len() == y.len() && x.iter().all(|(k, v)| y.get(k).is_some_and(|w| same_json(v, w))),
+        _ => a == b,
+    }
+}
+
+fn diff_json(path: &str, r: Option<&Value>, q: Option<&Value>, out: &mut Vec<String>) {
     let short = |v: Option<&Value>| -> String {
         match v {
             None => "absent".into(),
@@ -225,10 +253,25 @@ pub fn configuration_differences(recorded: &Value, requested: &Value) -> Vec<Str
             }
         }
     };
-    let mut keys: Vec<&String> = r.keys().chain(q.keys()).collect();
-    keys.sort();
-    keys.dedup();
-    keys.into_iter().filter(|k| r.get(*k) != q.get(*k)).map(|k| format!("{k}: recorded {} ≠ requested {}", short(r.get(k)), short(q.get(k)))).collect()
+    match (r, q) {
+        (Some(Value::Object(a)), Some(Value::Object(b))) => {
+            let mut keys: Vec<&String> = a.keys().chain(b.keys()).collect();
+            keys.sort();
+            keys.dedup();
+            for k in keys {
+                let p = if path.is_empty() { k.clone() } else { format!("{path}.{k}") };
+                diff_json(&p, a.get(k), b.get(k), out);
+            }
+        }
+        (Some(Value::Array(a)), Some(Value::Array(b))) if a.len() == b.len() => {
+            for (i, (x, y)) in a.iter().zip(b).enumerate() {
+                diff_json(&format!("{path}[{i}]"), Some(x), Some(y), out);
+            }
+        }
+        (Some(Value::Array(a)), Some(Value::Array(b))) => out.push(format!("{path}: recorded {} elements ≠ requested {} ({} ≠ {})", a.len(), b.len(), short(r), short(q))),
+        (Some(a), Some(b)) if same_json(a, b) => {}
+        _ => out.push(format!("{path}: recorded {} ≠ requested {}", short(r), short(q))),
+    }
 }
 
 // ---------------------------------------------------------------- output records
@@ -778,7 +821,26 @@ mod tests {
         assert_eq!(d.len(), 3, "{d:?}");
         assert!(d[0].starts_with("cube: recorded absent"));
         assert!(d[1].contains("rays_per_pixel: recorded 20 ≠ requested 10"));
-        assert!(d[2].starts_with("system_spec") && d[2].contains('…'));
+        assert!(d[2].starts_with("system_spec.x: recorded") && d[2].contains('…'));
         assert!(configuration_differences(&a, &a).is_empty());
+    }
+
+    /// Only the leaves that really differ are listed, by path; equal numbers written differently (1, 1.0)
+    /// and equal arrays are not.
+    #[test]
+    fn configuration_differences_list_only_real_differences() {
+        let bands = [450.0, 464.81481481481484, 479.6296296296296];
+        let a = json!({"bands_nm": bands, "airy": {"diameter_px": 2.5, "rings": 3}, "seed": 1, "scale": 1.0, "spec": {"s": [{"r": 1.0}, {"r": 2.0}]}});
+        let b = json!({"bands_nm": bands, "airy": {"diameter_px": 2.5, "rings": 3}, "seed": 1, "scale": 1, "spec": {"s": [{"r": 1.0}, {"r": 2.5}]}});
+        assert_eq!(configuration_differences(&a, &b), vec!["spec.s[1].r: recorded 2.0 ≠ requested 2.5".to_string()]);
+        let mut c = b.clone();
+        c["bands_nm"][1] = json!(464.8148148148149); // one ulp off
+        let d = configuration_differences(&a, &c);
+        assert!(d.iter().any(|l| l.starts_with("bands_nm[1]: recorded 464.81481481481484 ≠ requested 464.8148148148149")), "{d:?}");
+        c["bands_nm"] = json!([450.0]);
+        assert!(configuration_differences(&a, &c).iter().any(|l| l.starts_with("bands_nm: recorded 3 elements ≠ requested 1")));
+        // A recorded configuration read back from its own text is identical.
+        let text = serde_json::to_string_pretty(&a).unwrap();
+        assert!(configuration_differences(&serde_json::from_str(&text).unwrap(), &a).is_empty());
     }
 }

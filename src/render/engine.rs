@@ -26,6 +26,24 @@ pub struct AiryConfig {
     pub rings: usize,
 }
 
+impl AiryConfig {
+    /// The ranges `render` accepts: diameter in (0, [`crate::limits::MAX_AIRY_DIAMETER_PX`]] px, reference
+    /// wavelength in [`crate::limits::WAVELENGTH_RANGE_NM`], truncation ring 1–5. The error names the field.
+    pub fn validate(&self) -> Result<()> {
+        let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
+        if !(self.diameter_px.is_finite() && self.diameter_px > 0.0 && self.diameter_px <= crate::limits::MAX_AIRY_DIAMETER_PX) {
+            return Err(Error::invalid(format!("airy.diameter_px = {}: must be in (0, {}] pixels", crate::limits::fmt_num(self.diameter_px), crate::limits::MAX_AIRY_DIAMETER_PX)));
+        }
+        if !(self.reference_nm.is_finite() && (lo..=hi).contains(&self.reference_nm)) {
+            return Err(Error::invalid(format!("airy.reference_nm = {}: must be in {lo}–{hi} nm", crate::limits::fmt_num(self.reference_nm))));
+        }
+        if !(1..=5).contains(&self.rings) {
+            return Err(Error::invalid(format!("airy.rings = {}: must be in 1..=5 (the dark ring the kernel is truncated at)", self.rings)));
+        }
+        Ok(())
+    }
+}
+
 impl Default for AiryConfig {
     fn default() -> Self {
         AiryConfig { diameter_px: 2.5, reference_nm: 520.0, rings: 3 }
@@ -61,6 +79,32 @@ pub struct RenderConfig {
 }
 
 impl RenderConfig {
+    /// The ranges `render` accepts, checked by [`Renderer::new`] before anything is allocated: scene size ≥ 1,
+    /// pitches finite, > 0 and ≤ [`crate::limits::MAX_LENGTH_MM`], planes in 1..=[`crate::limits::MAX_PLANES`],
+    /// rays ≥ 1, the Airy settings ([`AiryConfig::validate`]). The error names the field and its value.
+    pub fn validate(&self) -> Result<()> {
+        let (h, w) = (self.scene_height, self.scene_width);
+        if h == 0 || w == 0 {
+            return Err(Error::invalid(format!("scene size {h}×{w}: must be ≥ 1")));
+        }
+        for (name, v) in [("scene_pitch_mm", self.scene_pitch_mm), ("detector_pitch_mm", self.detector_pitch_mm)] {
+            if !(v.is_finite() && v > 0.0 && v <= crate::limits::MAX_LENGTH_MM) {
+                return Err(Error::invalid(format!("{name} = {} mm: must be finite, > 0 and ≤ {:e} mm", crate::limits::fmt_num(v), crate::limits::MAX_LENGTH_MM)));
+            }
+        }
+        let planes = self.spectral.planes();
+        if planes == 0 || planes > crate::limits::MAX_PLANES {
+            return Err(Error::invalid(format!("planes = {planes}: must be in 1..={}", crate::limits::MAX_PLANES)));
+        }
+        if self.rays_per_pixel == 0 {
+            return Err(Error::invalid("rays per pixel must be ≥ 1"));
+        }
+        if let Some(a) = &self.airy {
+            a.validate()?;
+        }
+        Ok(())
+    }
+
     /// The paper's acquisition: `size × size` scene at 10 µm, 28 bands × 4, 20 rays, Airy 2.5 px at 520 nm.
     pub fn paper(size: usize) -> Self {
         RenderConfig {
@@ -149,12 +193,13 @@ impl<'a> Renderer<'a> {
         for &w in &config.spectral.planes_nm {
             system.indices(w)?; // a plane outside a glass's range is an error now, not mid-render
         }
+        config.validate()?;
         let kernels: Vec<Option<AiryKernel>> = config
             .spectral
             .planes_nm
             .iter()
-            .map(|&l| config.airy.map(|a| AiryKernel::for_wavelength(l, a.diameter_px, a.reference_nm, a.rings)))
-            .collect();
+            .map(|&l| config.airy.map(|a| AiryKernel::for_wavelength(l, a.diameter_px, a.reference_nm, a.rings)).transpose())
+            .collect::<Result<_>>()?;
         let airy_r = kernels.iter().flatten().map(|k| k.truncation_radius_px).fold(0.0, f64::max);
         let detector = Detector::covering(system, tracer, h, w, config.scene_pitch_mm, &config.spectral.planes_nm, config.detector_pitch_mm, airy_r, config.detector_extra_px)?;
         if detector.width > u16::MAX as usize || detector.height > u16::MAX as usize {

@@ -75,7 +75,7 @@ pub fn slit_prediction(system: &SequentialSystem, tracer: &dyn Tracer, cfg: &Ren
         // Airy line-spread function: the 2-D kernel summed over its rows.
         match cfg.airy {
             Some(a) => {
-                let k = AiryKernel::for_wavelength(w, a.diameter_px, a.reference_nm, a.rings);
+                let k = AiryKernel::for_wavelength(w, a.diameter_px, a.reference_nm, a.rings)?;
                 let n = 2 * k.half + 1;
                 let lsf: Vec<f64> = (0..n).map(|j| (0..n).map(|i| k.weights[i * n + j] as f64).sum()).collect();
                 for (x, &v) in tent.iter().enumerate() {

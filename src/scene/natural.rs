@@ -185,9 +185,18 @@ pub fn is_rgb_image(path: &Path) -> bool {
 }
 
 /// Read an 8- or 16-bit PNG (RGB, RGBA — alpha ignored — or greyscale, replicated) as encoded sRGB in [0, 1].
+/// The header is read first: an image whose decoding would exceed the memory budget is refused before it is
+/// decoded ([`crate::limits::bytes_rgb_decode`]).
 pub fn load_rgb_png(path: &Path) -> Result<RgbImage> {
+    load_rgb_png_within(path, 0)
+}
+
+/// [`load_rgb_png`], refusing (before decoding) an image whose decoding plus a cube of `bands` bands at its
+/// size would exceed the memory budget.
+fn load_rgb_png_within(path: &Path, bands: usize) -> Result<RgbImage> {
     let ferr = |m: String| Error::File { path: path.display().to_string(), message: m };
     let bytes = std::fs::read(path).map_err(|e| ferr(format!("cannot read: {e}")))?;
+    crate::io::png16::png_dimensions_within_budget(path, &bytes, crate::limits::bytes_rgb_decode(1, 1) + crate::limits::bytes_cube(1, 1, bands))?;
     let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| ferr(format!("not a readable PNG: {e}")))?;
     let (width, height) = (img.width() as usize, img.height() as usize);
     if width == 0 || height == 0 {
@@ -197,11 +206,34 @@ pub fn load_rgb_png(path: &Path) -> Result<RgbImage> {
     Ok(RgbImage { height, width, srgb })
 }
 
-/// Uplift an RGB photograph to a reflectance cube at `wavelengths_nm` (Smits 1999; see the module docs).
+/// Wavelength range (nm) of the Smits RGB → spectrum uplift: its basis tables (pbrt-v3), beyond which the
+/// reflectances would be extrapolated (held constant).
+pub const SMITS_RANGE_NM: (f64, f64) = (380.0, 720.0);
+/// Wavelength range (nm) of the measured ColorChecker reflectances (Ohta 1997, 380–780 nm by 5 nm).
+pub const COLORCHECKER_RANGE_NM: (f64, f64) = (TABLE_START_NM, TABLE_START_NM + TABLE_STEP_NM * (TABLE_LEN - 1) as f64);
+
+/// Every wavelength inside `range` (nm), the tabulated range of `method`: outside it the reflectances would
+/// be extrapolated, a silently wrong spectrum. The error names the first band outside, the method and range.
+pub fn check_uplift_range(method: &str, range: (f64, f64), wavelengths_nm: &[f64]) -> Result<()> {
+    if let Some((k, w)) = wavelengths_nm.iter().enumerate().find(|(_, w)| !(range.0..=range.1).contains(*w)) {
+        return Err(Error::invalid(format!(
+            "band {k} = {} nm is outside the {}–{} nm range of {method} (its reflectances would be extrapolated); choose bands within it",
+            crate::limits::fmt_num(*w),
+            range.0,
+            range.1
+        )));
+    }
+    Ok(())
+}
+
+/// Uplift an RGB photograph to a reflectance cube at `wavelengths_nm` (Smits 1999; see the module docs),
+/// which must lie within [`SMITS_RANGE_NM`].
 pub fn rgb_scene(image: &RgbImage, wavelengths_nm: &[f64]) -> Result<SpectralCube> {
     if wavelengths_nm.is_empty() {
         return Err(Error::invalid("an RGB scene needs at least one wavelength"));
     }
+    check_uplift_range("the Smits RGB → spectrum uplift", SMITS_RANGE_NM, wavelengths_nm)?;
+    crate::limits::check_memory(&format!("the {}×{} photograph uplifted to {} bands", image.height, image.width, wavelengths_nm.len()), crate::limits::bytes_cube(image.height, image.width, wavelengths_nm.len()))?;
     let basis = SmitsBasis::new(wavelengths_nm);
     let nb = wavelengths_nm.len();
     let mut data = vec![0.0f32; image.height * image.width * nb];
@@ -218,7 +250,8 @@ pub fn rgb_scene(image: &RgbImage, wavelengths_nm: &[f64]) -> Result<SpectralCub
 pub fn load_rgb_scene(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<SpectralCube> {
     let default = crate::analysis::linspace(450.0, 650.0, 28);
     let ws = wavelengths_nm.unwrap_or(&default);
-    let img = load_rgb_png(path)?;
+    check_uplift_range("the Smits RGB → spectrum uplift", SMITS_RANGE_NM, ws).map_err(|e| Error::File { path: path.display().to_string(), message: e.to_string() })?;
+    let img = load_rgb_png_within(path, ws.len())?;
     rgb_scene(&img, ws).map_err(|e| Error::File { path: path.display().to_string(), message: e.to_string() })
 }
 
