@@ -232,6 +232,20 @@ impl RenderRecord {
         if let Some(i) = ch.data.iter().position(|v| !v.is_finite()) {
             return Err(ferr(&ap, format!("pixel {} (row {}, col {}) is {} (not finite)", i, i / img.width, i % img.width, ch.data[i])));
         }
+        // The solvers work in f32: an acquisition beyond the scene radiance limit would overflow their sums
+        // (and end as "a non-finite value"); refuse it up front, naming the pixel, the value and the limit.
+        if let Some(i) = ch.data.iter().position(|v| v.abs() as f64 > crate::limits::MAX_SCENE_VALUE) {
+            return Err(ferr(
+                &ap,
+                format!(
+                    "pixel (row {}, col {}) = {}: acquisition values must be within ±{:.3e} (f32 range / 10⁹, the scene radiance limit) so that the reconstruction's f32 sums cannot overflow; rescale the acquisition",
+                    i / img.width,
+                    i % img.width,
+                    crate::limits::fmt_num(ch.data[i] as f64),
+                    crate::limits::MAX_SCENE_VALUE
+                ),
+            ));
+        }
         if (img.height, img.width) != (dh, dw) {
             return Err(ferr(&ap, format!("the acquisition is {}×{} but render.json's detector is {dh}×{dw}", img.height, img.width)));
         }
@@ -406,7 +420,12 @@ pub fn solve(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_progress: boo
     })?;
     pb.finish_and_clear();
     if let Some(i) = rec.cube.iter().position(|v| !v.is_finite()) {
-        return Err(Error::invalid(format!("the solver produced a non-finite value at index {i}: not written")));
+        let peak = y.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        return Err(Error::invalid(format!(
+            "the solver produced a non-finite value at index {i} (the acquisition's largest |value| is {}; values beyond ±{:.3e} can overflow the f32 sums): not written",
+            crate::limits::fmt_num(peak as f64),
+            crate::limits::MAX_SCENE_VALUE
+        )));
     }
     let settings = serde_json::to_value(&rec.config).unwrap_or(Value::Null);
     let mut record = serde_json::to_value(&rec).unwrap_or(Value::Null);
