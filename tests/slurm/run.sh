@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The real Slurm test (issue 17; docs/slurm.md): a one-node Slurm cluster started here, a 4-task job array
-# over 12 small scenes through scripts/slurm/render-array.sbatch, one task killed in the middle of a scene,
+# over 12 small scenes (wavelengths from .npy files) through scripts/slurm/render-array.sbatch, one task killed in the middle of a scene,
 # a resubmission, and checks that
 #   - every scene was rendered exactly once (from the tasks' JSON Lines; the scene in flight when the task
 #     was killed is rendered by the resubmission),
@@ -156,22 +156,19 @@ done
 [[ "$(sinfo -h -o %T 2>/dev/null)" == idle ]] || fail "the node did not become idle: $(sinfo 2>&1 | tail -n 2)"
 echo "Slurm test: $(sinfo --version), one node up in a private network namespace ($T)"
 
-# --- 12 scenes of 16×16 pixels × 4 bands (uint8 NPY) and the render options.
+# --- 12 scenes of 16×16 pixels whose wavelengths come from .npy files (`make-scene` writes sNN.npy, its
+# sNN_wavelengths_nm.npy: 28 bands 450–650 nm, whose decimals such as 464.81481481481484 the best-effort
+# JSON float parser read back one ulp off, so later tasks refused the first tasks' dataset.json — issue 21),
+# rendered at the same 28 bands.
 mkdir -p "$T/scenes"
-npy_u8_scene() { # npy_u8_scene FILE: shape (16, 16, 4), random bytes
-    local dict="{'descr': '|u1', 'fortran_order': False, 'shape': (16, 16, 4), }"
-    {
-        printf '\x93NUMPY\x01\x00\x76\x00' # version 1.0, header length 118 (magic + header = 128 bytes)
-        printf '%s%*s\n' "$dict" $((128 - 10 - ${#dict} - 1)) ''
-        head -c 1024 /dev/urandom
-    } >"$1"
-}
 for i in $(seq -w 0 11); do
-    npy_u8_scene "$T/scenes/s$i.npy"
+    "$BIN" make-scene --synthetic "$((10#$i))" --size 16 --bands 450:650:28 --out "$T/scenes/s$i.npy" >/dev/null 2>"$T/make-scene.err" ||
+        fail "make-scene failed: $(tail -n 3 "$T/make-scene.err")"
+    [[ -f "$T/scenes/s${i}_wavelengths_nm.npy" ]] || fail "make-scene wrote no wavelength file for s$i"
 done
 SCENES=12
 SHARDS=4
-RENDER=(--scenes "$T/scenes" --preset sp --scene-size 16 --planes 4 --bands 450:650:4 --rays 2 --scene-wavelengths 450:650:4)
+RENDER=(--scenes "$T/scenes" --preset sp --scene-size 16 --planes 28 --bands 450:650:28 --rays 2)
 
 # --- The single-machine reference.
 "$BIN" render-dataset "${RENDER[@]}" --out "$T/ref" >"$T/ref.jsonl" 2>"$T/ref.err" || fail "reference render-dataset failed: $(tail -n 3 "$T/ref.err")"
