@@ -14,7 +14,13 @@ fn bin() -> Command {
 /// Run `args` in `cwd` with a 60 s limit; (exit code, stderr).
 fn run_in(cwd: &Path, args: &[String]) -> (Option<i32>, String) {
     let t = Instant::now();
-    let mut child = bin().args(args).current_dir(cwd).stdout(Stdio::null()).stderr(Stdio::piped()).spawn().unwrap();
+    let mut child = bin()
+        .args(args)
+        .current_dir(cwd)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
     let status = loop {
         if let Some(s) = child.try_wait().unwrap() {
             break Some(s);
@@ -58,34 +64,137 @@ struct Case {
 /// 20000×20000 PNG, `{rgb}` a small RGB photograph.
 const CASES: &[Case] = &[
     // make-scene: sizes by the memory budget, before allocating; the uplift methods' wavelength ranges.
-    Case { args: "make-scene --synthetic 1 --size 100000 --out {out}.npy", code: 1, says: &["--size 100000", "--max-memory-gb"] },
-    Case { args: "make-scene --colour-checker --size 100000 --out {out}.npy", code: 1, says: &["--size 100000", "--max-memory-gb"] },
-    Case { args: "make-scene --rgb {png} --size 16 --out {out}.npy", code: 1, says: &["20000×20000", "--max-memory-gb"] },
-    Case { args: "make-scene --rgb {rgb} --bands 100:5000:28 --size 8 --out {out}.npy", code: 1, says: &["--bands", "100 nm", "380–720 nm", "Smits"] },
-    Case { args: "make-scene --colour-checker --bands 300:700:5 --size 8 --out {out}.npy", code: 1, says: &["--bands", "300 nm", "380–780 nm", "ColorChecker"] },
+    Case {
+        args: "make-scene --synthetic 1 --size 100000 --out {out}.npy",
+        code: 1,
+        says: &["--size 100000", "--max-memory-gb"],
+    },
+    Case {
+        args: "make-scene --colour-checker --size 100000 --out {out}.npy",
+        code: 1,
+        says: &["--size 100000", "--max-memory-gb"],
+    },
+    Case {
+        args: "make-scene --rgb {png} --size 16 --out {out}.npy",
+        code: 1,
+        says: &["20000×20000", "--max-memory-gb"],
+    },
+    Case {
+        args: "make-scene --rgb {rgb} --bands 100:5000:28 --size 8 --out {out}.npy",
+        code: 1,
+        says: &["--bands", "100 nm", "380–720 nm", "Smits"],
+    },
+    Case {
+        args: "make-scene --colour-checker --bands 300:700:5 --size 8 --out {out}.npy",
+        code: 1,
+        says: &["--bands", "300 nm", "380–780 nm", "ColorChecker"],
+    },
     // study: render's limits with render's messages, before any scene is generated.
-    Case { args: "study --synthetic 1 --scene-size 100000 --out {out}", code: 1, says: &["--scene-size 100000", "--max-memory-gb"] },
-    Case { args: "study --synthetic 100000000 --scene-size 8 --out {out}", code: 1, says: &["--synthetic 100000000", "1..=1000000"] },
-    Case { args: "study --synthetic 100000 --scene-size 128 --out {out}", code: 1, says: &["100000 scenes", "--max-memory-gb"] },
-    Case { args: "study --synthetic 1 --scene-size 8 --airy-diameter-px 1000000 --out {out}", code: 1, says: &["--airy-diameter-px 1000000", "(0, 100]"] },
-    Case { args: "study --synthetic 1 --scene-size 8 --planes 10000000 --out {out}", code: 1, says: &["--planes 10000000", "1..=100000"] },
-    Case { args: "study --synthetic 1 --scene-size 512 --planes 100000 --rays 1000 --out {out}", code: 1, says: &["--rays 1000", "--max-rays"] },
+    Case {
+        args: "study --synthetic 1 --scene-size 100000 --out {out}",
+        code: 1,
+        says: &["--scene-size 100000", "--max-memory-gb"],
+    },
+    Case {
+        args: "study --synthetic 100000000 --scene-size 8 --out {out}",
+        code: 1,
+        says: &["--synthetic 100000000", "1..=1000000"],
+    },
+    Case {
+        args: "study --synthetic 100000 --scene-size 128 --out {out}",
+        code: 1,
+        says: &["100000 scenes", "--max-memory-gb"],
+    },
+    Case {
+        args: "study --synthetic 1 --scene-size 8 --airy-diameter-px 1000000 --out {out}",
+        code: 1,
+        says: &["--airy-diameter-px 1000000", "(0, 100]"],
+    },
+    Case {
+        args: "study --synthetic 1 --scene-size 8 --planes 10000000 --out {out}",
+        code: 1,
+        says: &["--planes 10000000", "1..=100000"],
+    },
+    Case {
+        args: "study --synthetic 1 --scene-size 512 --planes 100000 --rays 1000 --out {out}",
+        code: 1,
+        says: &["--rays 1000", "--max-rays"],
+    },
     // study: options accepted and ignored.
-    Case { args: "study --synthetic 1 --scene-size 8 --fit stretch --out {out}", code: 1, says: &["--fit `stretch`", "crop or resize"] },
-    Case { args: "study --synthetic 1 --scene-size 8 --transport-memory-gb nan --out {out}", code: 1, says: &["--transport-memory-gb NaN"] },
-    Case { args: "study --synthetic 1 --scene-size 8 --transport-memory-gb -1 --out {out}", code: 1, says: &["--transport-memory-gb -1"] },
-    Case { args: "study --synthetic 1 --scene-size 8 --transport-memory-gb inf --out {out}", code: 1, says: &["--transport-memory-gb inf"] },
-    Case { args: "study --synthetic 1 --scene-size 8 --solvers admm-tv --accelerated --out {out}", code: 1, says: &["--accelerated", "gap-tv", "admm-tv"] },
-    Case { args: "study --synthetic 1 --scene-size 8 --scene-wavelengths 450:650:4 --out {out}", code: 1, says: &["--scene-wavelengths", "--synthetic"] },
+    Case {
+        args: "study --synthetic 1 --scene-size 8 --fit stretch --out {out}",
+        code: 1,
+        says: &["--fit `stretch`", "crop or resize"],
+    },
+    Case {
+        args: "study --synthetic 1 --scene-size 8 --transport-memory-gb nan --out {out}",
+        code: 1,
+        says: &["--transport-memory-gb NaN"],
+    },
+    Case {
+        args: "study --synthetic 1 --scene-size 8 --transport-memory-gb -1 --out {out}",
+        code: 1,
+        says: &["--transport-memory-gb -1"],
+    },
+    Case {
+        args: "study --synthetic 1 --scene-size 8 --transport-memory-gb inf --out {out}",
+        code: 1,
+        says: &["--transport-memory-gb inf"],
+    },
+    Case {
+        args: "study --synthetic 1 --scene-size 8 --solvers admm-tv --accelerated --out {out}",
+        code: 1,
+        says: &["--accelerated", "gap-tv", "admm-tv"],
+    },
+    Case {
+        args: "study --synthetic 1 --scene-size 8 --scene-wavelengths 450:650:4 --out {out}",
+        code: 1,
+        says: &["--scene-wavelengths", "--synthetic"],
+    },
     // reconstruct: options accepted and ignored.
-    Case { args: "reconstruct --from {render} --tolerance-um 1 --out {out}", code: 1, says: &["--tolerance-um 1", "--backend"] },
-    Case { args: "reconstruct --from {render} --operator shift --operator-seed 3 --out {out}", code: 1, says: &["--operator-seed", "shift"] },
-    Case { args: "reconstruct --from {render} --solver admm-tv --accelerated --out {out}", code: 1, says: &["--accelerated", "gap-tv", "admm-tv"] },
-    Case { args: "reconstruct --from {render} --transport-memory-gb nan --out {out}", code: 1, says: &["--transport-memory-gb NaN"] },
-    Case { args: "--max-rays 100 reconstruct --from {render} --out {out}", code: 1, says: &["rays_per_pixel", "--max-rays"] },
+    Case {
+        args: "reconstruct --from {render} --tolerance-um 1 --out {out}",
+        code: 1,
+        says: &["--tolerance-um 1", "--backend"],
+    },
+    Case {
+        args: "reconstruct --from {render} --operator shift --operator-seed 3 --out {out}",
+        code: 1,
+        says: &["--operator-seed", "shift"],
+    },
+    Case {
+        args: "reconstruct --from {render} --solver admm-tv --accelerated --out {out}",
+        code: 1,
+        says: &["--accelerated", "gap-tv", "admm-tv"],
+    },
+    Case {
+        args: "reconstruct --from {render} --transport-memory-gb nan --out {out}",
+        code: 1,
+        says: &["--transport-memory-gb NaN"],
+    },
+    Case {
+        args: "--max-rays 100 reconstruct --from {render} --out {out}",
+        code: 1,
+        says: &["rays_per_pixel", "--max-rays"],
+    },
+    // render: an option of scene files accepted and ignored with the synthetic scene.
+    Case {
+        args:
+            "render --preset sp --scene-size 8 --planes 4 --scene-wavelengths 450:650:4 --out {out}",
+        code: 1,
+        says: &["--scene-wavelengths", "synthetic"],
+    },
     // bench-render: a count silently raised to 1.
-    Case { args: "bench-render --scene-size 8 --planes 4 --rays 1 --scenes 0", code: 1, says: &["--scenes 0"] },
-    Case { args: "bench-render --scene-size 8 --planes 4 --rays 1 --scenes 100000000", code: 1, says: &["--scenes 100000000"] },
+    Case {
+        args: "bench-render --scene-size 8 --planes 4 --rays 1 --scenes 0",
+        code: 1,
+        says: &["--scenes 0"],
+    },
+    Case {
+        args: "bench-render --scene-size 8 --planes 4 --rays 1 --scenes 100000000",
+        code: 1,
+        says: &["--scenes 100000000"],
+    },
 ];
 
 fn expand(text: &str, subst: &[(&str, String)]) -> Vec<String> {
@@ -108,23 +217,49 @@ fn bad_invocations_are_refused_before_any_work() {
     let render = tiny_render(fx.path());
     let png = huge_png();
     let rgb = fx.path().join("small_rgb.png");
-    image::RgbImage::from_fn(6, 5, |x, y| image::Rgb([(x * 40) as u8, (y * 50) as u8, 128])).save(&rgb).unwrap();
+    image::RgbImage::from_fn(6, 5, |x, y| {
+        image::Rgb([(x * 40) as u8, (y * 50) as u8, 128])
+    })
+    .save(&rgb)
+    .unwrap();
     let render_json = std::fs::read(render.join("render.json")).unwrap();
     let mut failures = Vec::new();
     for case in CASES {
         let dir = tempfile::tempdir().unwrap();
-        let subst = [("{out}", dir.path().join("result").display().to_string()), ("{render}", render.display().to_string()), ("{png}", png.display().to_string()), ("{rgb}", rgb.display().to_string())];
+        let subst = [
+            ("{out}", dir.path().join("result").display().to_string()),
+            ("{render}", render.display().to_string()),
+            ("{png}", png.display().to_string()),
+            ("{rgb}", rgb.display().to_string()),
+        ];
         let args = expand(case.args, &subst);
         let t = Instant::now();
         let (code, err) = run_in(dir.path(), &args);
-        let written: Vec<String> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        let written: Vec<String> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
         let missing: Vec<&&str> = case.says.iter().filter(|s| !err.contains(**s)).collect();
-        if code != Some(case.code) || !missing.is_empty() || !written.is_empty() || err.contains("panicked") {
+        if code != Some(case.code)
+            || !missing.is_empty()
+            || !written.is_empty()
+            || err.contains("panicked")
+        {
             failures.push(format!("`{}`: exit {code:?} (want {}), missing {missing:?}, wrote {written:?}, {:.1} s, stderr: {err}", case.args, case.code, t.elapsed().as_secs_f64()));
         }
     }
-    assert_eq!(std::fs::read(render.join("render.json")).unwrap(), render_json, "the input render folder was changed");
-    assert!(failures.is_empty(), "{} of {} cases failed:\n{}", failures.len(), CASES.len(), failures.join("\n"));
+    assert_eq!(
+        std::fs::read(render.join("render.json")).unwrap(),
+        render_json,
+        "the input render folder was changed"
+    );
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases failed:\n{}",
+        failures.len(),
+        CASES.len(),
+        failures.join("\n")
+    );
 }
 
 /// `reconstruct --from` a folder whose `render.json` was tampered: each invalid field is refused naming the
@@ -134,26 +269,87 @@ fn bad_invocations_are_refused_before_any_work() {
 fn tampered_render_json_names_the_field() {
     let fx = tempfile::tempdir().unwrap();
     let render = tiny_render(fx.path());
-    let original: serde_json::Value = serde_json::from_slice(&std::fs::read(render.join("render.json")).unwrap()).unwrap();
+    let original: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(render.join("render.json")).unwrap()).unwrap();
     type Edit = fn(&mut serde_json::Value);
     let cases: &[(&str, Edit, &[&str])] = &[
-        ("planes 1e9", |j| j["planes"] = 1_000_000_000u64.into(), &["field `planes` = 1000000000", "1..=100000"]),
-        ("rays 1e15", |j| j["rays_per_pixel"] = 1_000_000_000_000_000u64.into(), &["rays_per_pixel", "1000000000000000", "--max-rays"]),
-        ("rays 0", |j| j["rays_per_pixel"] = 0.into(), &["field `rays_per_pixel` = 0"]),
-        ("scene 1e6²", |j| {
-            j["scene_height"] = 1_000_000.into();
-            j["scene_width"] = 1_000_000.into();
-        }, &["scene_height × scene_width", "1000000 × 1000000", "--max-memory-gb"]),
-        ("airy reference 0", |j| j["airy"]["reference_nm"] = 0.0.into(), &["airy.reference_nm = 0", "100–20000 nm"]),
-        ("airy diameter 1e6", |j| j["airy"]["diameter_px"] = 1e6.into(), &["airy.diameter_px = 1000000", "(0, 100]"]),
-        ("airy rings 9", |j| j["airy"]["rings"] = 9.into(), &["airy.rings = 9"]),
-        ("airy rings -1", |j| j["airy"]["rings"] = (-1).into(), &["airy.rings` = -1"]),
-        ("pitch -1", |j| j["scene_pitch_mm"] = (-1.0).into(), &["field `scene_pitch_mm` = -1 mm"]),
-        ("detector pitch 1e300", |j| j["detector_pitch_mm"] = 1e300.into(), &["field `detector_pitch_mm` = 1e300 mm"]),
-        ("band 0 nm", |j| j["bands_nm"][0] = 0.0.into(), &["field `bands_nm`: band 0 = 0 nm", "100–20000 nm"]),
-        ("detector 1e9 rows", |j| j["detector"]["height"] = 1_000_000_000.into(), &["field `detector` is 1000000000×", "1..=65535"]),
-        ("detector margin 1e12", |j| j["detector_extra_px"] = 1_000_000_000_000u64.into(), &["field `detector_extra_px` = 1000000000000"]),
-        ("planes text", |j| j["planes"] = "many".into(), &["field `planes` = \"many\""]),
+        (
+            "planes 1e9",
+            |j| j["planes"] = 1_000_000_000u64.into(),
+            &["field `planes` = 1000000000", "1..=100000"],
+        ),
+        (
+            "rays 1e15",
+            |j| j["rays_per_pixel"] = 1_000_000_000_000_000u64.into(),
+            &["rays_per_pixel", "1000000000000000", "--max-rays"],
+        ),
+        (
+            "rays 0",
+            |j| j["rays_per_pixel"] = 0.into(),
+            &["field `rays_per_pixel` = 0"],
+        ),
+        (
+            "scene 1e6²",
+            |j| {
+                j["scene_height"] = 1_000_000.into();
+                j["scene_width"] = 1_000_000.into();
+            },
+            &[
+                "scene_height × scene_width",
+                "1000000 × 1000000",
+                "--max-memory-gb",
+            ],
+        ),
+        (
+            "airy reference 0",
+            |j| j["airy"]["reference_nm"] = 0.0.into(),
+            &["airy.reference_nm = 0", "100–20000 nm"],
+        ),
+        (
+            "airy diameter 1e6",
+            |j| j["airy"]["diameter_px"] = 1e6.into(),
+            &["airy.diameter_px = 1000000", "(0, 100]"],
+        ),
+        (
+            "airy rings 9",
+            |j| j["airy"]["rings"] = 9.into(),
+            &["airy.rings = 9"],
+        ),
+        (
+            "airy rings -1",
+            |j| j["airy"]["rings"] = (-1).into(),
+            &["airy.rings` = -1"],
+        ),
+        (
+            "pitch -1",
+            |j| j["scene_pitch_mm"] = (-1.0).into(),
+            &["field `scene_pitch_mm` = -1 mm"],
+        ),
+        (
+            "detector pitch 1e300",
+            |j| j["detector_pitch_mm"] = 1e300.into(),
+            &["field `detector_pitch_mm` = 1e300 mm"],
+        ),
+        (
+            "band 0 nm",
+            |j| j["bands_nm"][0] = 0.0.into(),
+            &["field `bands_nm`: band 0 = 0 nm", "100–20000 nm"],
+        ),
+        (
+            "detector 1e9 rows",
+            |j| j["detector"]["height"] = 1_000_000_000.into(),
+            &["field `detector` is 1000000000×", "1..=65535"],
+        ),
+        (
+            "detector margin 1e12",
+            |j| j["detector_extra_px"] = 1_000_000_000_000u64.into(),
+            &["field `detector_extra_px` = 1000000000000"],
+        ),
+        (
+            "planes text",
+            |j| j["planes"] = "many".into(),
+            &["field `planes` = \"many\""],
+        ),
     ];
     let mut failures = Vec::new();
     for (name, edit, says) in cases {
@@ -165,19 +361,56 @@ fn tampered_render_json_names_the_field() {
         }
         let mut j = original.clone();
         edit(&mut j);
-        std::fs::write(from.join("render.json"), serde_json::to_vec_pretty(&j).unwrap()).unwrap();
+        std::fs::write(
+            from.join("render.json"),
+            serde_json::to_vec_pretty(&j).unwrap(),
+        )
+        .unwrap();
         let out = dir.path().join("rec");
-        let args = vec!["reconstruct".into(), "--from".into(), from.display().to_string(), "--iterations".into(), "2".into(), "--out".into(), out.display().to_string()];
+        let args = vec![
+            "reconstruct".into(),
+            "--from".into(),
+            from.display().to_string(),
+            "--iterations".into(),
+            "2".into(),
+            "--out".into(),
+            out.display().to_string(),
+        ];
         let (code, err) = run_in(dir.path(), &args);
         let missing: Vec<&&str> = says.iter().filter(|s| !err.contains(**s)).collect();
-        if code != Some(1) || !missing.is_empty() || out.exists() || err.contains("panicked") || err.contains("does not match this diffcassi version") {
-            failures.push(format!("{name}: exit {code:?}, missing {missing:?}, wrote {}, stderr: {err}", out.exists()));
+        if code != Some(1)
+            || !missing.is_empty()
+            || out.exists()
+            || err.contains("panicked")
+            || err.contains("does not match this diffcassi version")
+        {
+            failures.push(format!(
+                "{name}: exit {code:?}, missing {missing:?}, wrote {}, stderr: {err}",
+                out.exists()
+            ));
         }
     }
-    assert!(failures.is_empty(), "{} of {} cases failed:\n{}", failures.len(), cases.len(), failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases failed:\n{}",
+        failures.len(),
+        cases.len(),
+        failures.join("\n")
+    );
     // The untouched folder still reconstructs (the checks refuse only what is invalid).
     let out = fx.path().join("rec");
-    let (code, err) = run_in(fx.path(), &["reconstruct".into(), "--from".into(), render.display().to_string(), "--iterations".into(), "2".into(), "--out".into(), out.display().to_string()]);
+    let (code, err) = run_in(
+        fx.path(),
+        &[
+            "reconstruct".into(),
+            "--from".into(),
+            render.display().to_string(),
+            "--iterations".into(),
+            "2".into(),
+            "--out".into(),
+            out.display().to_string(),
+        ],
+    );
     assert_eq!(code, Some(0), "{err}");
 }
 
@@ -202,13 +435,40 @@ fn huge_acquisition_is_refused_naming_the_limit() {
     // At the limit the reconstruction is finite and written…
     scaled(3.4e29);
     let ok = fx.path().join("rec-ok");
-    let (code, err) = run_in(fx.path(), &["reconstruct".into(), "--from".into(), render.display().to_string(), "--iterations".into(), "3".into(), "--out".into(), ok.display().to_string()]);
+    let (code, err) = run_in(
+        fx.path(),
+        &[
+            "reconstruct".into(),
+            "--from".into(),
+            render.display().to_string(),
+            "--iterations".into(),
+            "3".into(),
+            "--out".into(),
+            ok.display().to_string(),
+        ],
+    );
     assert_eq!(code, Some(0), "{err}");
     // …beyond it, refused before the operator is built.
     scaled(1e36);
     let out = fx.path().join("rec");
-    let (code, err) = run_in(fx.path(), &["reconstruct".into(), "--from".into(), render.display().to_string(), "--iterations".into(), "3".into(), "--out".into(), out.display().to_string()]);
+    let (code, err) = run_in(
+        fx.path(),
+        &[
+            "reconstruct".into(),
+            "--from".into(),
+            render.display().to_string(),
+            "--iterations".into(),
+            "3".into(),
+            "--out".into(),
+            out.display().to_string(),
+        ],
+    );
     assert_eq!(code, Some(1), "{err}");
-    assert!(err.contains("acquisition.exr") && err.contains("acquisition values must be within ±3.403e29") && err.contains("e30"), "{err}");
+    assert!(
+        err.contains("acquisition.exr")
+            && err.contains("acquisition values must be within ±3.403e29")
+            && err.contains("e30"),
+        "{err}"
+    );
     assert!(!err.contains("non-finite") && !out.exists(), "{err}");
 }

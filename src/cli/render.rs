@@ -378,6 +378,10 @@ pub(super) fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Ac
 
 pub fn render(a: RenderArgs) -> Result<()> {
     let t0 = Instant::now();
+    if a.scene.is_none() && a.common.scene_wavelengths.is_some() {
+        // Accepted and ignored before: the synthetic scene has its own 31 bands.
+        return Err(Error::invalid("--scene-wavelengths applies to a --scene file, not to the synthetic scene"));
+    }
     let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = config_from(&a.common)?;

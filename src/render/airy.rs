@@ -177,7 +177,7 @@ mod tests {
             (520.0, 2.5, f64::NAN, 3, "reference wavelength NaN"),
             (0.0, 2.5, 520.0, 3, "wavelength 0 nm"),
             (520.0, 0.0, 520.0, 3, "diameter 0 px"),
-            (520.0, 1e6, 520.0, 3, "diameter 1e6 px"),
+            (520.0, 1e6, 520.0, 3, "diameter 1000000 px"),
             (520.0, 2.5, 520.0, 0, "ring 0"),
             (520.0, 2.5, 520.0, 6, "ring 6"),
         ] {
