@@ -529,12 +529,12 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     if a.scenes == 0 || a.scenes > crate::limits::MAX_SCENES {
         return Err(Error::invalid(format!("--scenes {}: must be in 1..={}", a.scenes, crate::limits::MAX_SCENES)));
     }
-    // Two renders' buffers and the chief-ray mapping cube (n × n × planes).
-    crate::limits::check_memory(&format!("--scene-size {n} × --planes {}", a.planes), 2.0 * crate::limits::bytes_render(n, 31, 28, a.planes, false, Some(2.5)) + crate::limits::bytes_mapping(n, n, a.planes))?;
-    // Acquisition, all-open acquisition, transport: three renders' rays.
-    // Acquisition, all-open acquisition, transport: three renders' rays; each dataset scene applies the
-    // transport (a render's worth of footprints).
+    // Two renders' buffers, then the rays (acquisition, all-open acquisition, transport: three renders' rays;
+    // each dataset scene applies the transport, a render's worth of footprints), then the chief-ray mapping
+    // cube (n × n × planes).
+    crate::limits::check_memory(&format!("--scene-size {n} × --planes {}", a.planes), 2.0 * crate::limits::bytes_render(n, 31, 28, a.planes, false, Some(2.5)))?;
     crate::limits::check_rays(&format!("--scene-size {n} × --planes {} × --rays {} (× 3 renders + --scenes {})", a.planes, a.rays, a.scenes), (3.0 + a.scenes as f64) * (n as f64).powi(2) * a.planes as f64 * a.rays as f64)?;
+    crate::limits::check_memory(&format!("--scene-size {n} × --planes {} (renders and mapping cube)", a.planes), 2.0 * crate::limits::bytes_render(n, 31, 28, a.planes, false, Some(2.5)) + crate::limits::bytes_mapping(n, n, a.planes))?;
     let mut cfg = RenderConfig::paper(n);
     cfg.spectral = SpectralSampling::with_planes(crate::analysis::linspace(450.0, 650.0, 28), a.planes)?;
     cfg.rays_per_pixel = a.rays;
