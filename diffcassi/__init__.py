@@ -139,7 +139,7 @@ def _budget(memory_gb: float) -> int:
     if isinstance(memory_gb, bool) or not (isinstance(memory_gb, (int, float, np.integer, np.floating)) and np.isfinite(memory_gb) and memory_gb >= 0):
         raise DiffcassiValueError(f"memory_gb: expected a finite number ≥ 0, got {memory_gb!r}")
     # Bytes as an unsigned 64-bit count (a budget beyond 1.8e10 GB is no budget at all).
-    return int(min(float(memory_gb) * 1e9, 2.0 ** 64 - 1))
+    return min(int(float(memory_gb) * 1e9), 2 ** 64 - 1)
 
 
 def _number(name: str, v: Any) -> float:
