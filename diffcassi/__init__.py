@@ -65,7 +65,8 @@ def spot(system: System, field_mm: Sequence[float], wavelength_nm: float, pupil:
     ``pupil``, ``chief_mm``, ``stats`` (centroid_mm, rms_radius_um, geo_radius_um) and
     ``rms_radius_chief_um``. ``pupil``: a pattern (default ``hexapolar:12``, as the CLI) or (N, 2) float64
     normalised pupil points. Arrays are returned as NumPy float64."""
-    d = _json.loads(_native._spot(system, list(field_mm), float(wavelength_nm), pupil, _check_backend(backend)))
+    d = _json.loads(_native._spot(system, _pair("field_mm", field_mm), _number("wavelength_nm", wavelength_nm), pupil,
+                                  _check_backend(backend)))
     for k in ("x_mm", "y_mm", "pupil"):
         d[k] = np.asarray(d[k], dtype=np.float64)
     return d
@@ -76,7 +77,7 @@ def distortion(system: System, wavelength_nm: Optional[float] = None, grid: int 
     """Zemax-style grid distortion (``grid`` × ``grid`` chief rays over ±``half_width_mm``) at
     ``wavelength_nm`` (default: the primary): dict with ``reference_mm``, ``abcd``, ``max_distortion_pct`` and
     ``points`` (one dict per grid point, as the CLI's CSV)."""
-    w = system.primary_wavelength_nm if wavelength_nm is None else float(wavelength_nm)
+    w = system.primary_wavelength_nm if wavelength_nm is None else _number("wavelength_nm", wavelength_nm)
     return _json.loads(_native._distortion(system, w, grid, _number("half_width_mm", half_width_mm), _check_backend(backend)))
 
 
@@ -84,7 +85,7 @@ def dispersion(system: System, wavelengths_nm: Sequence[float] = tuple(np.linspa
                field_mm: Sequence[float] = (0.0, 0.0), backend: str = "analytic") -> Dict[str, Any]:
     """Chief-ray positions of one field over wavelength (the paper's spreading curve): dict with
     ``wavelength_nm``, ``x_mm``, ``y_mm`` (NumPy arrays) and ``spread_um``."""
-    d = _json.loads(_native._dispersion(system, list(field_mm), wavelengths_nm, _check_backend(backend)))
+    d = _json.loads(_native._dispersion(system, _pair("field_mm", field_mm), wavelengths_nm, _check_backend(backend)))
     for k in ("wavelength_nm", "x_mm", "y_mm"):
         d[k] = np.asarray(d[k], dtype=np.float64)
     return d
@@ -150,6 +151,17 @@ def _number(name: str, v: Any) -> float:
         return float(v)
     except OverflowError:
         raise DiffcassiValueError(f"{name}: {v!r} is beyond the float64 range") from None
+
+
+def _pair(name: str, v: Any) -> list:
+    """Two numbers (x, y), else a DiffcassiValueError naming the argument and value."""
+    try:
+        t = [float(u) for u in v]
+    except (TypeError, ValueError, OverflowError):
+        raise DiffcassiValueError(f"{name}: expected two numbers (x, y), got {type(v).__name__} {v!r}") from None
+    if len(t) != 2:
+        raise DiffcassiValueError(f"{name}: expected two numbers (x, y), got {len(t)}: {v!r}")
+    return t
 
 
 #: Integer settings of :func:`reconstruct` and their ranges (the CLI's: at most 10⁵ iterations).

@@ -65,6 +65,18 @@ def test_out_of_range_integers_name_the_argument(sp, name, call):
         call(sp)
 
 
+@pytest.mark.parametrize("name, call", [
+    ("wavelength_nm: expected a number, got str 'abc'", lambda sp: diffcassi.spot(sp, [0.0, 0.0], "abc")),
+    ("field_mm: expected two numbers", lambda sp: diffcassi.spot(sp, 3, 520.0)),
+    ("field_mm: expected two numbers .* got 3", lambda sp: diffcassi.dispersion(sp, field_mm=[0.0, 1.0, 2.0])),
+    ("wavelength_nm: expected a number", lambda sp: diffcassi.distortion(sp, wavelength_nm=[520.0])),
+    ("half_width_mm: expected a number", lambda sp: diffcassi.distortion(sp, half_width_mm="2.5")),
+])
+def test_python_wrappers_name_the_argument(sp, name, call):
+    with pytest.raises(diffcassi.DiffcassiValueError, match=name):
+        call(sp)
+
+
 def test_a_huge_memory_budget_is_no_overflow(sp):
     indptr, _, _, shape = diffcassi.exact(sp, 4, 4, **SMALL).to_csr_arrays(1e30)
     assert indptr.shape == (shape[0] + 1,)
