@@ -65,7 +65,8 @@ def spot(system: System, field_mm: Sequence[float], wavelength_nm: float, pupil:
     ``pupil``, ``chief_mm``, ``stats`` (centroid_mm, rms_radius_um, geo_radius_um) and
     ``rms_radius_chief_um``. ``pupil``: a pattern (default ``hexapolar:12``, as the CLI) or (N, 2) float64
     normalised pupil points. Arrays are returned as NumPy float64."""
-    d = _json.loads(_native._spot(system, list(field_mm), float(wavelength_nm), pupil, _check_backend(backend)))
+    d = _json.loads(_native._spot(system, _pair("field_mm", field_mm), _number("wavelength_nm", wavelength_nm), pupil,
+                                  _check_backend(backend)))
     for k in ("x_mm", "y_mm", "pupil"):
         d[k] = np.asarray(d[k], dtype=np.float64)
     return d
@@ -76,15 +77,15 @@ def distortion(system: System, wavelength_nm: Optional[float] = None, grid: int 
     """Zemax-style grid distortion (``grid`` × ``grid`` chief rays over ±``half_width_mm``) at
     ``wavelength_nm`` (default: the primary): dict with ``reference_mm``, ``abcd``, ``max_distortion_pct`` and
     ``points`` (one dict per grid point, as the CLI's CSV)."""
-    w = system.primary_wavelength_nm if wavelength_nm is None else float(wavelength_nm)
-    return _json.loads(_native._distortion(system, w, int(grid), float(half_width_mm), _check_backend(backend)))
+    w = system.primary_wavelength_nm if wavelength_nm is None else _number("wavelength_nm", wavelength_nm)
+    return _json.loads(_native._distortion(system, w, grid, _number("half_width_mm", half_width_mm), _check_backend(backend)))
 
 
 def dispersion(system: System, wavelengths_nm: Sequence[float] = tuple(np.linspace(450, 650, 28)),
                field_mm: Sequence[float] = (0.0, 0.0), backend: str = "analytic") -> Dict[str, Any]:
     """Chief-ray positions of one field over wavelength (the paper's spreading curve): dict with
     ``wavelength_nm``, ``x_mm``, ``y_mm`` (NumPy arrays) and ``spread_um``."""
-    d = _json.loads(_native._dispersion(system, list(field_mm), wavelengths_nm, _check_backend(backend)))
+    d = _json.loads(_native._dispersion(system, _pair("field_mm", field_mm), wavelengths_nm, _check_backend(backend)))
     for k in ("wavelength_nm", "x_mm", "y_mm"):
         d[k] = np.asarray(d[k], dtype=np.float64)
     return d
@@ -136,9 +137,35 @@ def exact(system: System, height: int, width: int, mask: Optional[np.ndarray] = 
 
 
 def _budget(memory_gb: float) -> int:
-    if not (isinstance(memory_gb, (int, float)) and np.isfinite(memory_gb) and memory_gb >= 0):
+    if isinstance(memory_gb, bool) or not (isinstance(memory_gb, (int, float, np.integer, np.floating)) and np.isfinite(memory_gb) and memory_gb >= 0):
         raise DiffcassiValueError(f"memory_gb: expected a finite number ≥ 0, got {memory_gb!r}")
-    return int(memory_gb * 1e9)
+    # Bytes as an unsigned 64-bit count (a budget beyond 1.8e10 GB is no budget at all).
+    return min(int(float(memory_gb) * 1e9), 2 ** 64 - 1)
+
+
+def _number(name: str, v: Any) -> float:
+    """A real number argument, else a DiffcassiValueError naming it (float('x') would not)."""
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise DiffcassiValueError(f"{name}: expected a number, got {type(v).__name__} {v!r}")
+    try:
+        return float(v)
+    except OverflowError:
+        raise DiffcassiValueError(f"{name}: {v!r} is beyond the float64 range") from None
+
+
+def _pair(name: str, v: Any) -> list:
+    """Two numbers (x, y), else a DiffcassiValueError naming the argument and value."""
+    try:
+        t = [float(u) for u in v]
+    except (TypeError, ValueError, OverflowError):
+        raise DiffcassiValueError(f"{name}: expected two numbers (x, y), got {type(v).__name__} {v!r}") from None
+    if len(t) != 2:
+        raise DiffcassiValueError(f"{name}: expected two numbers (x, y), got {len(t)}: {v!r}")
+    return t
+
+
+#: Integer settings of :func:`reconstruct` and their ranges (the CLI's: at most 10⁵ iterations).
+_SOLVER_INTS = {"iterations": (0, 100_000), "tv_iterations": (0, 100_000)}
 
 
 def _csr_arrays(op: Operator, memory_gb: float = 4.0):
@@ -217,6 +244,12 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     tv_iterations (5), tv_coupling (``vectorial`` | ``per_band``), accelerated (False), admm_eta (0.01).
     Returns ``(cube, record)``; the record holds the settings, per-iteration residuals and seconds."""
     op = operator.operator if isinstance(operator, Transport) else operator
+    if not isinstance(op, Operator):
+        raise DiffcassiValueError(f"operator: expected a diffcassi.Operator or Transport, got {type(operator).__name__}")
+    for k, (lo, hi) in _SOLVER_INTS.items():
+        v = settings.get(k)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi):
+            raise DiffcassiValueError(f"{k}: expected an integer in {lo}..={hi}, got {type(v).__name__} {v!r}")
     acq = np.ascontiguousarray(acquisition, dtype=np.float32) if getattr(acquisition, "dtype", None) == np.float64 else acquisition
     cube, record = _native._reconstruct(op, acq, solver, init, **settings)
     return cube, _json.loads(record)

@@ -15,7 +15,8 @@ Rays = Tuple[F64, F64, F64]
 Path = Union[str, PathLike]
 
 def set_num_threads(n: int) -> None:
-    """Threads of every following heavy call (0: rayon's default, all cores)."""
+    """Threads of every following heavy call: 1..=1024 (the CLI's --threads range), or 0 for rayon's default
+    (all cores); a fork child builds a fresh pool of the same size at its first heavy call."""
 
 def get_num_threads() -> int: ...
 
@@ -83,6 +84,10 @@ class Operator:
     def save_npz(self, path: Path, memory_gb: float = 4.0, compressed: bool = True) -> None:
         """scipy.sparse.save_npz's layout, written with NumPy only."""
     def to_csr_arrays(self, memory_gb: float = 4.0) -> Tuple[npt.NDArray[np.int64], npt.NDArray[np.int32], F32, Tuple[int, int]]: ...
+    def _apply_batch(self, cubes: F32, out: F32) -> None:
+        """Φ of cubes (N, H, W, B) written into out (N, h, w) in place (the matrix-free torch operator)."""
+    def _adjoint_batch(self, images: F32, out: F32) -> None:
+        """Φᵀ of images (N, h, w) written into out (N, H, W, B) in place."""
     def _csr(self, memory_budget_bytes: int = ...) -> Tuple[npt.NDArray[np.int64], npt.NDArray[np.int32], F32, Tuple[int, int]]: ...
 
 class Transport:

@@ -2,10 +2,14 @@
 
 - :class:`CassiOperator`: the exported forward operator Φ (a diffcassi :class:`~diffcassi.Operator`, a
   :class:`~diffcassi.Transport`, a SciPy CSR matrix or a ``save_npz`` file) as a ``torch.nn.Module`` on any
-  device and dtype: ``forward`` (B, bands, H, W) → (B, h, w), ``adjoint`` back, differentiable (the backward
-  of ``forward`` is the adjoint, the backward of ``adjoint`` is ``forward``). The exported matrix is the full
-  Φ (spectral interpolation, mask, light transport *and* the per-plane Airy blur), so no separate
-  convolution is needed.
+  device and floating dtype: ``forward`` (B, bands, H, W) → (B, h, w), ``adjoint`` back, differentiable (the
+  backward of ``forward`` is the adjoint, the backward of ``adjoint`` is ``forward``). The exported matrix is
+  the full Φ (spectral interpolation, mask, light transport *and* the per-plane Airy blur), so no separate
+  convolution is needed. The index arrays of a matrix from SciPy or a file are validated before any tensor
+  is built.
+- :class:`MatrixFreeCassiOperator` (``CassiOperator.from_operator(op, matrix_free=True)``): the same module
+  interface computed by the Rust operator itself on CPU tensors, in place (no matrix: the operator's own
+  memory; the CSR form is for GPUs).
 - :class:`CassiDataset`: scenes rendered on the fly through a :class:`~diffcassi.Transport` with the
   paper's augmentation (random crop, flips, 90° rotations) seeded per (seed, index, epoch); returns
   (acquisition, mask, truth, initialisation I = A ∘ f); works with ``DataLoader(num_workers > 0)``.
@@ -20,6 +24,7 @@ from __future__ import annotations
 
 import os
 import warnings
+import zipfile
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -32,7 +37,98 @@ except ImportError as _e:  # pragma: no cover - depends on the environment
 
 import diffcassi
 
-__all__ = ["CassiOperator", "CassiDataset"]
+__all__ = ["CassiOperator", "MatrixFreeCassiOperator", "CassiDataset"]
+
+_Error = diffcassi.DiffcassiValueError
+
+#: Dtypes computed in float32 and returned in their own dtype (half precision has no sparse kernels on
+#: the CPU, and the Rust operator is float32).
+_HALF = (torch.float16, torch.bfloat16)
+
+
+def _shape(name: str, value: Any, n: int) -> Tuple[int, ...]:
+    """``value`` as a tuple of ``n`` integers ≥ 1, else a DiffcassiValueError naming ``name`` and the value."""
+    try:
+        t = tuple(value)
+    except TypeError:
+        raise _Error(f"{name}: expected a tuple of {n} integers ≥ 1, got {type(value).__name__} {value!r}") from None
+    if len(t) != n or not all(isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= 1 for v in t):
+        raise _Error(f"{name}: expected a tuple of {n} integers ≥ 1, got {value!r}")
+    return tuple(int(v) for v in t)
+
+
+def _check_csr(indptr: Any, indices: Any, data: Any, shape: Any, cube_shape: Any, image_shape: Any,
+               source: str) -> Tuple[np.ndarray, np.ndarray, np.ndarray, Tuple[int, int], Tuple[int, int, int], Tuple[int, int]]:
+    """Validate a CSR matrix before any tensor is built from it (a column index out of range would make
+    ``torch.sparse.mm`` read out of bounds): dtypes, lengths, ``indptr`` starting at 0, non-decreasing and
+    ending at nnz, every column index in [0, cols), every value finite, the shape matching the cube and
+    image shapes. Errors name ``source``, the array, the first bad position and its value."""
+    cube = _shape("cube_shape", cube_shape, 3)
+    image = _shape("image_shape", image_shape, 2)
+    try:
+        sh = tuple(int(v) for v in np.asarray(shape).ravel())
+    except (TypeError, ValueError):
+        raise _Error(f"{source}: shape: expected 2 integers, got {shape!r}") from None
+    if len(sh) != 2 or min(sh) < 0:
+        raise _Error(f"{source}: shape: expected 2 integers ≥ 0, got {shape!r}")
+    rows, cols = sh
+    (H, W, B), (h, w) = cube, image
+    if rows != h * w or cols != H * W * B:
+        raise _Error(f"{source}: matrix shape {sh} does not match image_shape {image} (h·w = {h * w} rows) and "
+                     f"cube_shape {cube} (H·W·bands = {H * W * B} columns)")
+    arrays = {}
+    for name, a, kind in (("indptr", indptr, "i"), ("indices", indices, "i"), ("data", data, "f")):
+        a = np.asarray(a)
+        if a.ndim != 1:
+            raise _Error(f"{source}: {name}: expected a 1-D array, got shape {a.shape}")
+        if kind == "i" and a.dtype.kind not in "iu":
+            raise _Error(f"{source}: {name}: expected an integer dtype, got {a.dtype}")
+        if kind == "f" and a.dtype.kind != "f":
+            raise _Error(f"{source}: {name}: expected a floating-point dtype, got {a.dtype}")
+        arrays[name] = a
+    ip, ix, dv = arrays["indptr"], arrays["indices"], arrays["data"]
+    nnz = ix.size
+    if ip.size != rows + 1:
+        raise _Error(f"{source}: indptr: expected {rows + 1} entries (rows + 1), got {ip.size}")
+    if dv.size != nnz:
+        raise _Error(f"{source}: data: {dv.size} values but {nnz} indices")
+    if ip[0] != 0:
+        raise _Error(f"{source}: indptr[0] = {ip[0]}, expected 0")
+    if ip[-1] != nnz:
+        raise _Error(f"{source}: indptr[-1] = {ip[-1]}, expected nnz = {nnz} (the length of indices)")
+    steps = np.diff(ip.astype(np.int64))
+    if steps.size and steps.min() < 0:
+        k = int(np.argmax(steps < 0))
+        raise _Error(f"{source}: indptr is not non-decreasing: indptr[{k}] = {ip[k]} > indptr[{k + 1}] = {ip[k + 1]}")
+    if nnz:
+        lo, hi = ix.min(), ix.max()
+        if lo < 0 or hi >= cols:
+            k = int(np.argmax((ix < 0) | (ix >= cols)))
+            raise _Error(f"{source}: indices[{k}] = {ix[k]} is outside the {cols} columns [0, {cols})")
+        if not np.isfinite(dv).all():
+            k = int(np.argmax(~np.isfinite(dv)))
+            raise _Error(f"{source}: data[{k}] = {dv[k]} is not finite")
+    return ip.astype(np.int64), ix.astype(np.int64), dv.astype(np.float64), (rows, cols), cube, image
+
+
+def _float_input(name: str, t: Any, where: str) -> torch.Tensor:
+    """A floating-point tensor, else a TypeError naming the argument, its type and dtype."""
+    if not isinstance(t, torch.Tensor):
+        raise TypeError(f"{where}: {name}: expected a torch.Tensor, got {type(t).__name__}")
+    if not t.dtype.is_floating_point:
+        raise TypeError(f"{where}: {name}: expected a floating-point tensor (float16, bfloat16, float32, float64), got {t.dtype}")
+    return t
+
+
+def _batched(name: str, t: torch.Tensor, trailing: Tuple[int, ...], where: str) -> Tuple[torch.Tensor, bool]:
+    """(B, *trailing) or (*trailing) → (B, *trailing) and whether it was a single item."""
+    single = t.dim() == len(trailing)
+    if single:
+        t = t.unsqueeze(0)
+    if t.dim() != len(trailing) + 1 or tuple(t.shape[1:]) != trailing:
+        lead = ", ".join(str(v) for v in trailing)
+        raise _Error(f"{where}: {name}: expected shape (batch, {lead}) or ({lead}), got {tuple(t.shape)}")
+    return t, single
 
 
 class _SparseApply(torch.autograd.Function):
@@ -58,17 +154,13 @@ class CassiOperator(nn.Module):
     """
 
     def __init__(self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, shape: Tuple[int, int],
-                 cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int]):
+                 cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int], _source: str = "CassiOperator"):
         super().__init__()
-        rows, cols = int(shape[0]), int(shape[1])
-        (H, W, B), (h, w) = cube_shape, image_shape
-        if rows != h * w or cols != H * W * B:
-            raise ValueError(f"CassiOperator: matrix shape {shape} does not match image {image_shape} and cube {cube_shape}")
-        self.cube_shape = (int(H), int(W), int(B))
-        self.image_shape = (int(h), int(w))
-        crow = torch.as_tensor(np.asarray(indptr, dtype=np.int64))
-        col = torch.as_tensor(np.asarray(indices, dtype=np.int64))
-        val = torch.as_tensor(np.asarray(data, dtype=np.float64))
+        ip, ix, dv, (rows, cols), self.cube_shape, self.image_shape = _check_csr(indptr, indices, data, shape, cube_shape,
+                                                                                  image_shape, _source)
+        crow = torch.as_tensor(ip)
+        col = torch.as_tensor(ix)
+        val = torch.as_tensor(dv)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta"
             a = torch.sparse_csr_tensor(crow, col, val, size=(rows, cols))
@@ -83,34 +175,65 @@ class CassiOperator(nn.Module):
 
     # ------------------------------------------------------------------ constructors
     @classmethod
-    def from_operator(cls, op: Union["diffcassi.Operator", "diffcassi.Transport"], memory_gb: float = 4.0) -> "CassiOperator":
+    def from_operator(cls, op: Union["diffcassi.Operator", "diffcassi.Transport"], memory_gb: float = 4.0,
+                      matrix_free: bool = False) -> Union["CassiOperator", "MatrixFreeCassiOperator"]:
         """From a diffcassi Operator (``diffcassi.exact(...)``, ``mapping_operator``, ``shift_operator``,
         ``Transport.operator``) or a Transport: the library's CSR export (refused, with the size, above
-        ``memory_gb`` GB)."""
+        ``memory_gb`` GB) — or, with ``matrix_free=True``, a :class:`MatrixFreeCassiOperator` that calls the
+        Rust operator itself on CPU tensors (no matrix; ``memory_gb`` is not used)."""
         if isinstance(op, diffcassi.Transport):
             op = op.operator
+        if not isinstance(op, diffcassi.Operator):
+            raise TypeError(f"CassiOperator.from_operator: op: expected a diffcassi.Operator or diffcassi.Transport, got {type(op).__name__}")
+        if not isinstance(matrix_free, bool):
+            raise TypeError(f"CassiOperator.from_operator: matrix_free: expected True or False, got {matrix_free!r}")
+        if matrix_free:
+            return MatrixFreeCassiOperator(op)
         indptr, indices, data, shape = op.to_csr_arrays(memory_gb)
-        return cls(indptr, indices, data, shape, op.cube_shape, op.image_shape)
+        return cls(indptr, indices, data, shape, op.cube_shape, op.image_shape, _source=f"{op!r}")
 
     @classmethod
     def from_scipy(cls, matrix: Any, cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int]) -> "CassiOperator":
-        """From a SciPy sparse matrix (converted to CSR)."""
+        """From a SciPy sparse matrix (converted to CSR; indices, indptr, values and shape validated first)."""
+        if not hasattr(matrix, "tocsr"):
+            raise TypeError(f"CassiOperator.from_scipy: matrix: expected a scipy.sparse matrix, got {type(matrix).__name__}")
         m = matrix.tocsr()
-        return cls(m.indptr, m.indices, m.data, m.shape, cube_shape, image_shape)
+        return cls(m.indptr, m.indices, m.data, m.shape, cube_shape, image_shape, _source="from_scipy: matrix")
 
     @classmethod
     def from_npz(cls, path: Union[str, os.PathLike], cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int]) -> "CassiOperator":
-        """From a ``save_npz`` file (NumPy only; no SciPy needed)."""
-        with np.load(path) as z:
-            fmt = z["format"].item()
-            fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
-            if fmt != "csr":
-                raise ValueError(f"{path}: format {fmt!r}, expected 'csr'")
-            return cls(z["indptr"], z["indices"], z["data"], tuple(z["shape"]), cube_shape, image_shape)
+        """From a ``save_npz`` file (NumPy only; no SciPy needed). The file's arrays are validated (keys,
+        dtypes, indptr, column indices, values, shape) before any tensor is built: a damaged or tampered file
+        is a DiffcassiValueError naming the path and the bad entry (a missing or unreadable file: a
+        DiffcassiFileError)."""
+        name = os.fspath(path)
+        try:
+            z = np.load(name, allow_pickle=False)
+        except FileNotFoundError:
+            raise diffcassi.DiffcassiFileError(f"{name}: no such file") from None
+        except (OSError, ValueError, EOFError) as e:
+            raise diffcassi.DiffcassiFileError(f"{name}: not a readable .npz file ({e})") from None
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise _Error(f"{name}: a single .npy array, not a save_npz (.npz) archive")
+        with z:
+            missing = [k for k in ("format", "indptr", "indices", "data", "shape") if k not in z.files]
+            if missing:
+                raise _Error(f"{name}: missing {', '.join(missing)} (a scipy.sparse.save_npz CSR file has format, indptr, indices, data, shape)")
+            try:
+                fmt = z["format"].item()
+                arrays = {k: z[k] for k in ("indptr", "indices", "data", "shape")}
+            except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
+                raise diffcassi.DiffcassiFileError(f"{name}: damaged archive ({e})") from None
+        fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
+        if fmt != "csr":
+            raise _Error(f"{name}: format {fmt!r}, expected 'csr'")
+        return cls(arrays["indptr"], arrays["indices"], arrays["data"], arrays["shape"], cube_shape, image_shape, _source=name)
 
     # ------------------------------------------------------------------ application
     def _matrices(self, like: torch.Tensor):
         dt = like.dtype
+        if like.device.type != self.val.device.type:
+            raise _Error(f"CassiOperator: the input is on {like.device} but the operator on {self.val.device}; move one with .to(device)")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)
             return self._build(dt)
@@ -121,32 +244,120 @@ class CassiOperator(nn.Module):
         return a, at
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Φ x: x (B, bands, H, W) or (bands, H, W) → (B, h, w) or (h, w)."""
+        """Φ x: x (B, bands, H, W) or (bands, H, W) → (B, h, w) or (h, w). Any floating dtype: float32 and
+        float64 are computed in their own precision, float16 and bfloat16 in float32 and returned in their
+        own dtype."""
         H, W, B = self.cube_shape
-        single = x.dim() == 3
-        if single:
-            x = x.unsqueeze(0)
-        if x.dim() != 4 or tuple(x.shape[1:]) != (B, H, W):
-            raise ValueError(f"CassiOperator.forward: x: expected shape (batch, {B}, {H}, {W}), got {tuple(x.shape)}")
+        x, single = _batched("x", _float_input("x", x, "CassiOperator.forward"), (B, H, W), "CassiOperator.forward")
+        dtype = x.dtype
+        if dtype in _HALF:
+            x = x.to(torch.float32)
         a, at = self._matrices(x)
         cols = x.permute(0, 2, 3, 1).reshape(x.shape[0], H * W * B)
-        y = _SparseApply.apply(cols, a, at).reshape(x.shape[0], *self.image_shape)
+        y = _SparseApply.apply(cols, a, at).reshape(x.shape[0], *self.image_shape).to(dtype)
         return y[0] if single else y
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
-        """Φᵀ y: y (B, h, w) or (h, w) → (B, bands, H, W) or (bands, H, W)."""
+        """Φᵀ y: y (B, h, w) or (h, w) → (B, bands, H, W) or (bands, H, W) (dtypes as :meth:`forward`)."""
         H, W, B = self.cube_shape
-        single = y.dim() == 2
-        if single:
-            y = y.unsqueeze(0)
-        if y.dim() != 3 or tuple(y.shape[1:]) != self.image_shape:
-            raise ValueError(f"CassiOperator.adjoint: y: expected shape (batch, {self.image_shape[0]}, {self.image_shape[1]}), got {tuple(y.shape)}")
+        y, single = _batched("y", _float_input("y", y, "CassiOperator.adjoint"), self.image_shape, "CassiOperator.adjoint")
+        dtype = y.dtype
+        if dtype in _HALF:
+            y = y.to(torch.float32)
         a, at = self._matrices(y)
-        x = _SparseApply.apply(y.reshape(y.shape[0], -1), at, a).reshape(y.shape[0], H, W, B).permute(0, 3, 1, 2)
+        x = _SparseApply.apply(y.reshape(y.shape[0], -1), at, a).reshape(y.shape[0], H, W, B).permute(0, 3, 1, 2).to(dtype)
         return x[0] if single else x
 
     def extra_repr(self) -> str:
         return f"cube={self.cube_shape}, image={self.image_shape}, nnz={int(self.val.numel())}"
+
+
+# ---------------------------------------------------------------------- matrix-free
+def _rust_batch(op: "diffcassi.Operator", t: torch.Tensor, adjoint: bool) -> torch.Tensor:
+    """Φ of a cube batch t (N, bands, H, W) → (N, h, w), or Φᵀ of an image batch t (N, h, w) → (N, bands, H, W)
+    (a view of the operator's (N, H, W, bands) result), by the Rust operator on CPU float32 tensors: the
+    tensor's buffer is handed to Rust as a NumPy view (no copy when its memory already has the operator's
+    layout: a contiguous image batch, a channels-last cube; one NumPy re-layout otherwise — NumPy's
+    transpose copy is ~25× faster than torch's ``.contiguous()`` here) and the result is written into a
+    tensor preallocated for it; the GIL is released during the Rust call."""
+    H, W, B = op.cube_shape
+    h, w = op.image_shape
+    src = t.detach().numpy()  # shares the tensor's memory, with its strides
+    if adjoint:
+        out = torch.empty((src.shape[0], H, W, B), dtype=torch.float32)
+        op._adjoint_batch(np.ascontiguousarray(src), out.numpy())
+        return out.permute(0, 3, 1, 2)
+    out = torch.empty((src.shape[0], h, w), dtype=torch.float32)
+    op._apply_batch(np.ascontiguousarray(src.transpose(0, 2, 3, 1)), out.numpy())
+    return out
+
+
+class _RustApply(torch.autograd.Function):
+    """y = Φ x (``adjoint=False``: x (N, bands, H, W) → y (N, h, w)) or x = Φᵀ y (``adjoint=True``) by the
+    Rust operator; the backward of one is the other (itself a ``_RustApply``, so higher derivatives work)."""
+
+    @staticmethod
+    def forward(ctx, t, op, adjoint):  # type: ignore[override]
+        ctx.op, ctx.adjoint = op, adjoint
+        return _rust_batch(op, t, adjoint)
+
+    @staticmethod
+    def backward(ctx, g):  # type: ignore[override]
+        if not ctx.needs_input_grad[0]:
+            return None, None, None
+        return _RustApply.apply(g, ctx.op, not ctx.adjoint), None, None
+
+
+class MatrixFreeCassiOperator(nn.Module):
+    """Φ computed by the Rust operator itself (``CassiOperator.from_operator(op, matrix_free=True)``): the same
+    ``forward`` (B, bands, H, W) → (B, h, w) and ``adjoint`` (B, h, w) → (B, bands, H, W) as
+    :class:`CassiOperator`, differentiable the same way, with no matrix: the memory is the operator's own
+    (its traced transport), and the time the Rust ``apply``/``adjoint`` (the GIL released).
+
+    CPU only: a tensor on another device is a DiffcassiValueError (use the CSR :class:`CassiOperator` on
+    GPUs). The Rust operator is float32: float32 tensors are passed to it in place (a contiguous
+    (B, h, w) image as it is; a cube in the layout (B, bands, H, W) is re-laid to the operator's
+    (B, H, W, bands) — no copy when the tensor is a channels-last view, ``x = t.permute(0, 3, 1, 2)`` of a
+    contiguous (B, H, W, bands) ``t``, one copy otherwise), the result is written into a tensor allocated
+    once per call; float64, float16 and bfloat16 are cast to float32 and the result back to their dtype
+    (float32 precision either way).
+    """
+
+    def __init__(self, op: Union["diffcassi.Operator", "diffcassi.Transport"]):
+        super().__init__()
+        if isinstance(op, diffcassi.Transport):
+            op = op.operator
+        if not isinstance(op, diffcassi.Operator):
+            raise TypeError(f"MatrixFreeCassiOperator: op: expected a diffcassi.Operator or diffcassi.Transport, got {type(op).__name__}")
+        self.op = op
+        self.cube_shape = tuple(op.cube_shape)
+        self.image_shape = tuple(op.image_shape)
+
+    def _cpu32(self, name: str, t: torch.Tensor, where: str) -> Tuple[torch.Tensor, torch.dtype]:
+        if t.device.type != "cpu":
+            raise _Error(f"{where}: {name} is on {t.device}: the matrix-free operator runs the Rust operator on the CPU; "
+                         "move the tensor with .cpu(), or use the CSR form (CassiOperator.from_operator(op)) on GPUs")
+        return (t if t.dtype == torch.float32 else t.to(torch.float32)), t.dtype
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Φ x: x (B, bands, H, W) or (bands, H, W) → (B, h, w) or (h, w)."""
+        H, W, B = self.cube_shape
+        where = "MatrixFreeCassiOperator.forward"
+        x, single = _batched("x", _float_input("x", x, where), (B, H, W), where)
+        x, dtype = self._cpu32("x", x, where)
+        y = _RustApply.apply(x, self.op, False).to(dtype)
+        return y[0] if single else y
+
+    def adjoint(self, y: torch.Tensor) -> torch.Tensor:
+        """Φᵀ y: y (B, h, w) or (h, w) → (B, bands, H, W) or (bands, H, W)."""
+        where = "MatrixFreeCassiOperator.adjoint"
+        y, single = _batched("y", _float_input("y", y, where), self.image_shape, where)
+        y, dtype = self._cpu32("y", y, where)
+        x = _RustApply.apply(y, self.op, True).to(dtype)
+        return x[0] if single else x
+
+    def extra_repr(self) -> str:
+        return f"cube={self.cube_shape}, image={self.image_shape}, matrix-free ({self.op!r})"
 
 
 # ---------------------------------------------------------------------- dataset
@@ -160,6 +371,12 @@ def _resample(cube: np.ndarray, from_nm: Sequence[float], to_nm: Sequence[float]
     den = np.where(f[k1] > f[k], f[k1] - f[k], 1.0)
     wt = np.clip((t - f[k]) / den, 0.0, 1.0).astype(np.float32)
     return ((1 - wt) * cube[..., k] + wt * cube[..., k1]).astype(np.float32)
+
+
+def _int_arg(name: str, v: Any, lo: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+        raise _Error(f"CassiDataset: {name}: expected an integer ≥ {lo}, got {type(v).__name__} {v!r}")
+    return int(v)
 
 
 class CassiDataset(torch.utils.data.Dataset):
@@ -177,10 +394,14 @@ class CassiDataset(torch.utils.data.Dataset):
 
     def __init__(self, scenes: Union[str, os.PathLike, List[Any]], system: Union[str, "diffcassi.System"], size: int,
                  length: Optional[int] = None, seed: int = 0, epoch: int = 0, transport: Optional[Dict[str, Any]] = None):
+        if not isinstance(system, (str, diffcassi.System)):
+            raise TypeError(f"CassiDataset: system: expected a preset name or a diffcassi.System, got {type(system).__name__}")
         self.system_spec = system if isinstance(system, str) else system.to_toml()
         self.system_is_preset = isinstance(system, str)
-        self.size = int(size)
-        self.seed, self.epoch = int(seed), int(epoch)
+        self.size = _int_arg("size", size, 1)
+        self.seed, self.epoch = _int_arg("seed", seed, 0), _int_arg("epoch", epoch, 0)
+        if transport is not None and not isinstance(transport, dict):
+            raise TypeError(f"CassiDataset: transport: expected a dict of Transport keywords, got {type(transport).__name__}")
         self.transport_kwargs = dict(transport or {})
         if isinstance(scenes, (str, os.PathLike)):
             folder = os.fspath(scenes)
@@ -193,16 +414,33 @@ class CassiDataset(torch.utils.data.Dataset):
                 raise diffcassi.DiffcassiFileError(f"{folder}: no scenes (.exr, .npy, or folders of .png)")
             scenes = paths
         self.scenes: List[Tuple[np.ndarray, List[float]]] = []
-        for s in scenes:
+        if not isinstance(scenes, (list, tuple)):
+            raise TypeError(f"CassiDataset: scenes: expected a folder, a list of paths or a list of (cube, wavelengths_nm), got {type(scenes).__name__}")
+        if not scenes:
+            raise _Error("CassiDataset: scenes: the list is empty")
+        for i, s in enumerate(scenes):
             if isinstance(s, (str, os.PathLike)):
-                cube, wl = diffcassi.load_scene(os.fspath(s))
+                name = os.fspath(s)
+                cube, wl = diffcassi.load_scene(name)
             else:
+                name = f"scenes[{i}]"
+                if not (isinstance(s, (tuple, list)) and len(s) == 2):
+                    raise _Error(f"CassiDataset: {name}: expected a path or a (cube (H, W, B) float32, wavelengths_nm) pair, got {type(s).__name__}")
                 cube, wl = s
             cube = np.ascontiguousarray(cube, dtype=np.float32)
             if cube.ndim != 3 or cube.shape[0] < self.size or cube.shape[1] < self.size:
-                raise diffcassi.DiffcassiValueError(f"scene of shape {cube.shape}: expected (H, W, B) with H, W ≥ size = {self.size}")
-            self.scenes.append((cube, list(wl)))
-        self.length = len(self.scenes) if length is None else int(length)
+                raise _Error(f"CassiDataset: {name}: scene of shape {cube.shape}: expected (H, W, B) with H, W ≥ size = {self.size}")
+            w = np.asarray(wl, dtype=np.float64).ravel()
+            if w.size != cube.shape[2]:
+                raise _Error(f"CassiDataset: {name}: {cube.shape[2]} bands (shape {cube.shape}) but {w.size} wavelengths_nm; "
+                             "give one wavelength per band")
+            if not np.isfinite(w).all() or (w.size > 1 and not (np.diff(w) > 0).all()):
+                raise _Error(f"CassiDataset: {name}: wavelengths_nm {w.tolist()} must be finite and strictly increasing")
+            if not np.isfinite(cube).all():
+                k = np.unravel_index(int(np.argmax(~np.isfinite(cube))), cube.shape)
+                raise _Error(f"CassiDataset: {name}: value {cube[k]} at index {list(map(int, k))} is not finite")
+            self.scenes.append((cube, w.tolist()))
+        self.length = len(self.scenes) if length is None else _int_arg("length", length, 0)
         self._state: Optional[Dict[str, Any]] = None
         self._pool_pid: Optional[int] = None
         #: Threads of each DataLoader worker's pool.
@@ -215,7 +453,7 @@ class CassiDataset(torch.utils.data.Dataset):
 
     def set_epoch(self, epoch: int) -> None:
         """Choose the epoch (its augmentations differ from every other epoch's)."""
-        self.epoch = int(epoch)
+        self.epoch = _int_arg("epoch", epoch, 0)
 
     def _ready(self) -> Dict[str, Any]:
         if self._state is None:

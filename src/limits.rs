@@ -483,3 +483,27 @@ mod tests {
         assert!(bytes_rgb_decode(20_000, 20_000) > 7e9);
     }
 }
+
+// ------------------------------------------------------------------ rectangular renders (Python API)
+
+/// [`bytes_render`] for a `height × width` scene (the Python API renders rectangles; the CLI squares):
+/// the same terms with the pixel count `height · width`, so `bytes_render_hw(n, n, ..) == bytes_render(n, ..)`.
+pub fn bytes_render_hw(height: usize, width: usize, scene_bands: usize, bands: usize, planes: usize, cube: bool, airy_diameter_px: Option<f64>) -> f64 {
+    let pixels = height as f64 * width as f64;
+    let detector = 2.0 * pixels;
+    let images = detector * (8.0 + 4.0 * bands as f64 + if cube { 4.0 * bands as f64 } else { 0.0 });
+    let taps = airy_diameter_px.map(|d| (2.0 * (1.33 * d * 1.3 + 1.5) + 1.0).powi(2)).unwrap_or(0.0);
+    pixels * (8.0 * scene_bands as f64 + 16.0 * bands as f64 + 8.0) + images + planes as f64 * (taps * 12.0 + 64.0)
+}
+
+#[cfg(test)]
+mod tests_hw {
+    #[test]
+    fn rectangle_estimate_equals_the_square_one() {
+        for (n, airy) in [(1, None), (128, Some(2.5)), (512, Some(100.0))] {
+            assert_eq!(super::bytes_render_hw(n, n, 31, 28, 112, true, airy), super::bytes_render(n, 31, 28, 112, true, airy));
+        }
+        // A 1 × 10⁹ strip: 10⁹ pixels × ~940 bytes, as large as the 31 623² square of the same area.
+        assert!(super::bytes_render_hw(1, 1_000_000_000, 31, 28, 112, false, None) > 9e11);
+    }
+}

@@ -79,3 +79,53 @@ pub fn f64_list(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<f64>> {
     check_finite(name, &v, &[v.len()])?;
     Ok(v)
 }
+
+/// A short `repr` of a Python object for messages (at most ~60 characters: `2**1000` is not printed whole).
+pub fn short_repr(obj: &Bound<'_, PyAny>) -> String {
+    let ty = obj.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
+    let r = obj.repr().map(|r| r.to_string()).unwrap_or_default();
+    let r = if r.chars().count() > 60 { format!("{}… ({} characters)", r.chars().take(40).collect::<String>(), r.chars().count()) } else { r };
+    format!("{ty} {r}")
+}
+
+/// An integer argument in `lo..=hi` (anything `operator.index` accepts: Python and NumPy integers). A
+/// float, a string or an integer out of range (e.g. `2**70`, which PyO3 would report as a bare
+/// `OverflowError`) is a `DiffcassiValueError` naming the argument, its value and the range.
+pub fn uint_arg(name: &str, obj: &Bound<'_, PyAny>, lo: u64, hi: u64) -> PyResult<u64> {
+    let bad = || value_error(format!("{name}: expected an integer in {lo}..={hi}, got {}", short_repr(obj)));
+    if obj.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(bad());
+    }
+    let v: u64 = obj.extract().map_err(|_| bad())?;
+    if v < lo || v > hi {
+        return Err(bad());
+    }
+    Ok(v)
+}
+
+/// A size argument (`height`, `width`, a count): an integer in `1..=usize::MAX` (the memory and ray budgets
+/// bound it further, before anything is allocated).
+pub fn size_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<usize> {
+    Ok(uint_arg(name, obj, 1, usize::MAX as u64)? as usize)
+}
+
+/// A seed: any integer in `0..=2⁶⁴ − 1`.
+pub fn seed_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<u64> {
+    uint_arg(name, obj, 0, u64::MAX)
+}
+
+/// A caller-provided output array: float32, C-contiguous, writeable, exactly `shape`; borrowed for
+/// writing (rust-numpy refuses it while another borrow of the same memory is alive). The message names
+/// the argument.
+pub fn output_arg<'py>(name: &str, obj: &Bound<'py, PyAny>, shape: &[usize]) -> PyResult<numpy::PyReadwriteArrayDyn<'py, f32>> {
+    let a = obj
+        .downcast::<PyArrayDyn<f32>>()
+        .map_err(|_| value_error(format!("{name}: expected a float32 numpy.ndarray of shape {shape:?}, got {}", describe(obj))))?;
+    if a.shape() != shape {
+        return Err(value_error(format!("{name}: expected shape {shape:?}, got {:?}", a.shape())));
+    }
+    if !a.is_c_contiguous() {
+        return Err(value_error(format!("{name}: the float32 array of shape {shape:?} is not C-contiguous")));
+    }
+    a.try_readwrite().map_err(|e| value_error(format!("{name}: cannot borrow the array for writing (read-only, or the same memory as an input?): {e}")))
+}

@@ -22,6 +22,7 @@ mod system;
 
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    pool::init();
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("EMBREE", cfg!(feature = "embree"))?;
     m.add_function(wrap_pyfunction!(pool::set_num_threads, m)?)?;

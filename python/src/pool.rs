@@ -1,49 +1,117 @@
 //! The thread pool heavy calls run in, and the GIL release around them.
 //!
-//! `set_num_threads(n)` builds a rayon pool of `n` threads (0: back to rayon's global pool, sized by
-//! `RAYON_NUM_THREADS` or the core count). Results never depend on the thread count (the library's rule).
+//! `set_num_threads(n)` builds a rayon pool of `n` threads, `n` in 1..=[`diffcassi::limits::MAX_THREADS`]
+//! (the CLI's `--threads` range; 0: back to rayon's global pool, sized by `RAYON_NUM_THREADS` or the core
+//! count). Results never depend on the thread count (the library's rule).
+//!
+//! **fork.** A child made by `fork()` (a `multiprocessing` pool with the `fork` context, a forked
+//! DataLoader worker) inherits the parent's memory but none of its threads: a rayon pool the parent started
+//! — its own or rayon's global one — has no workers in the child, and the first parallel call would wait
+//! for them forever. Every heavy call therefore checks the process id ([`run`]): in a process other than
+//! the one that built the pool it builds a fresh pool of the same size (the parent's `set_num_threads`
+//! choice, else `RAYON_NUM_THREADS` or the core count) and forgets the stale one (its threads do not
+//! exist; dropping it would signal nobody). The check is one `getpid` per call.
+//!
+//! ```text
+//! diffcassi.set_num_threads(2)      # this process: a 2-thread pool
+//! multiprocessing.get_context("fork").Pool(2).map(work, items)   # each child: its own 2-thread pool
+//! ```
+use crate::arrays::uint_arg;
+use crate::errors::value_error;
 use pyo3::prelude::*;
 use std::sync::{Arc, RwLock};
 
-static POOL: RwLock<Option<Arc<rayon::ThreadPool>>> = RwLock::new(None);
-
-fn current() -> Option<Arc<rayon::ThreadPool>> {
-    POOL.read().unwrap_or_else(|p| p.into_inner()).clone()
+/// The pool of this process: the thread count asked for (0: rayon's default), the pool (`None`: rayon's
+/// global pool) and the process that built it.
+struct State {
+    requested: usize,
+    pool: Option<Arc<rayon::ThreadPool>>,
+    pid: u32,
 }
 
-/// Run `f` without the GIL, inside the chosen pool.
+static POOL: RwLock<Option<State>> = RwLock::new(None);
+
+/// Record the importing process (the one whose threads exist); called at module initialisation.
+pub fn init() {
+    let mut st = POOL.write().unwrap_or_else(|p| p.into_inner());
+    if st.is_none() {
+        *st = Some(State { requested: 0, pool: None, pid: std::process::id() });
+    }
+}
+
+/// rayon's default thread count: `RAYON_NUM_THREADS` when set to a positive integer, else the cores.
+fn default_threads() -> usize {
+    std::env::var("RAYON_NUM_THREADS")
+        .ok()
+        .and_then(|v| v.trim().parse::<usize>().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or_else(|| std::thread::available_parallelism().map(|c| c.get()).unwrap_or(1))
+}
+
+fn build(n: usize) -> PyResult<Arc<rayon::ThreadPool>> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(n)
+        .build()
+        .map(Arc::new)
+        .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(format!("set_num_threads({n}): cannot start the threads: {e}")))
+}
+
+/// The pool of this process (`None`: rayon's global pool), rebuilt first when this process is a fork
+/// child of the one that built it.
+fn current() -> PyResult<Option<Arc<rayon::ThreadPool>>> {
+    let pid = std::process::id();
+    {
+        let st = POOL.read().unwrap_or_else(|p| p.into_inner());
+        match &*st {
+            Some(s) if s.pid == pid => return Ok(s.pool.clone()),
+            None => return Ok(None),
+            Some(_) => {}
+        }
+    }
+    let mut st = POOL.write().unwrap_or_else(|p| p.into_inner());
+    let Some(s) = st.as_mut() else { return Ok(None) };
+    if s.pid != pid {
+        // A fork child: the pool's threads (and the global pool's, if the parent used it) are gone.
+        let n = if s.requested > 0 { s.requested } else { default_threads() };
+        let fresh = build(n)?;
+        if let Some(stale) = s.pool.replace(fresh) {
+            std::mem::forget(stale);
+        }
+        s.pid = pid;
+    }
+    Ok(s.pool.clone())
+}
+
+/// Run `f` without the GIL, inside the chosen pool (a fresh one in a fork child, see the module docs).
 pub fn run<T: Send>(py: Python<'_>, f: impl FnOnce() -> T + Send) -> T {
-    let pool = current();
+    // Building a pool can fail only when the OS refuses threads; rayon's global pool is the fallback
+    // (as before this check existed).
+    let pool = current().unwrap_or(None);
     py.allow_threads(move || match pool {
         Some(p) => p.install(f),
         None => f(),
     })
 }
 
-/// Use `n` threads for every following heavy call (0: rayon's default, all cores or `RAYON_NUM_THREADS`).
+/// Use `n` threads for every following heavy call: 1..=1024 (the CLI's `--threads` range), or 0 for
+/// rayon's default (all cores or `RAYON_NUM_THREADS`).
 #[pyfunction]
-pub fn set_num_threads(n: i64) -> PyResult<()> {
-    if n < 0 {
-        return Err(pyo3::exceptions::PyValueError::new_err(format!("set_num_threads: n = {n} must be ≥ 0 (0: all cores)")));
-    }
-    let pool = if n == 0 {
-        None
-    } else {
-        let p = rayon::ThreadPoolBuilder::new()
-            .num_threads(n as usize)
-            .build()
-            .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(format!("set_num_threads({n}): {e}")))?;
-        Some(Arc::new(p))
-    };
-    *POOL.write().unwrap_or_else(|p| p.into_inner()) = pool;
+pub fn set_num_threads(n: &Bound<'_, PyAny>) -> PyResult<()> {
+    let max = diffcassi::limits::MAX_THREADS;
+    let n = uint_arg("set_num_threads: n", n, 0, max as u64)
+        .map_err(|e| value_error(format!("{} (0: all cores; results do not depend on the thread count; the CLI's --threads takes 1..={max})", e.value(n.py()))))?
+        as usize;
+    let pool = if n == 0 { None } else { Some(build(n)?) };
+    let mut st = POOL.write().unwrap_or_else(|p| p.into_inner());
+    *st = Some(State { requested: n, pool, pid: std::process::id() });
     Ok(())
 }
 
 /// Threads the heavy calls use.
 #[pyfunction]
-pub fn get_num_threads() -> usize {
-    match current() {
+pub fn get_num_threads() -> PyResult<usize> {
+    Ok(match current()? {
         Some(p) => p.current_num_threads(),
         None => rayon::current_num_threads(),
-    }
+    })
 }

@@ -3,7 +3,7 @@
 //! An `Operator` wraps any `diffcassi::recon::Operator` (float32 cube (H, W, B) ↔ image (h, w)). Its
 //! sparse matrix (`_csr`) is the library's CSR export (`diffcassi::recon::sparse`), built from the
 //! operator's footprints, kernels and interpolation table under a memory budget.
-use crate::arrays::{check_finite, input, output};
+use crate::arrays::{check_finite, input, output, output_arg, size_arg};
 use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::render::{check_shape, owned_exact};
@@ -80,6 +80,48 @@ impl PyOperator {
         output(py, cube, &[c.height, c.width, c.bands])
     }
 
+    /// Φ of a batch, in place (the matrix-free torch operator, `diffcassi.torch`): `cubes` (N, H, W, B)
+    /// float32 C-contiguous is read where it lies, `out` (N, h, w) float32 C-contiguous is written where it
+    /// lies (every element overwritten); the GIL is released for the whole batch. A finite check of the
+    /// input (as `apply`'s) precedes the work.
+    fn _apply_batch(&self, py: Python<'_>, cubes: &Bound<'_, PyAny>, out: &Bound<'_, PyAny>) -> PyResult<()> {
+        let (c, i) = (self.op.cube_shape(), self.op.image_shape());
+        let x = input::<f32>("x", cubes, "float32", 4, "(N, H, W, B)")?;
+        let n = x.shape[0];
+        check_shape("x", &x.shape, &[n, c.height, c.width, c.bands])?;
+        let mut y = output_arg("out", out, &[n, i.height, i.width])?;
+        let ys = y.as_slice_mut().map_err(|e| value_error(format!("out: {e}")))?;
+        let xs = x.slice();
+        check_finite("x", xs, &x.shape)?;
+        let op = &self.op;
+        run(py, || {
+            for (xc, yc) in xs.chunks_exact(c.len().max(1)).zip(ys.chunks_exact_mut(i.len().max(1))) {
+                op.apply_into(xc, yc);
+            }
+        });
+        Ok(())
+    }
+
+    /// Φᵀ of a batch, in place: `images` (N, h, w) float32 read where it lies, `out` (N, H, W, B) float32
+    /// written where it lies; as [`Self::_apply_batch`].
+    fn _adjoint_batch(&self, py: Python<'_>, images: &Bound<'_, PyAny>, out: &Bound<'_, PyAny>) -> PyResult<()> {
+        let (c, i) = (self.op.cube_shape(), self.op.image_shape());
+        let y = input::<f32>("y", images, "float32", 3, "(N, h, w)")?;
+        let n = y.shape[0];
+        check_shape("y", &y.shape, &[n, i.height, i.width])?;
+        let mut x = output_arg("out", out, &[n, c.height, c.width, c.bands])?;
+        let xs = x.as_slice_mut().map_err(|e| value_error(format!("out: {e}")))?;
+        let ys = y.slice();
+        check_finite("y", ys, &y.shape)?;
+        let op = &self.op;
+        run(py, || {
+            for (yc, xc) in ys.chunks_exact(i.len().max(1)).zip(xs.chunks_exact_mut(c.len().max(1))) {
+                op.adjoint_into(yc, xc);
+            }
+        });
+        Ok(())
+    }
+
     /// The paper's initialisation I = A ∘ f of an acquisition (h, w) float32 (mapping operators only):
     /// each band's value at its nearest mapped detector pixel, (H, W, B) float32.
     fn initialisation<'py>(&self, py: Python<'py>, acquisition: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
@@ -126,7 +168,8 @@ impl PyOperator {
 /// `render`, the keywords of [`crate::settings`]; cubes at the render bands `bands_nm`).
 #[pyfunction]
 #[pyo3(signature = (system, height, width, mask = None, **settings))]
-fn exact_operator(py: Python<'_>, system: &PySystem, height: usize, width: usize, mask: Option<&Bound<'_, PyAny>>, settings: Option<&Bound<'_, PyDict>>) -> PyResult<PyOperator> {
+fn exact_operator(py: Python<'_>, system: &PySystem, height: &Bound<'_, PyAny>, width: &Bound<'_, PyAny>, mask: Option<&Bound<'_, PyAny>>, settings: Option<&Bound<'_, PyDict>>) -> PyResult<PyOperator> {
+    let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
     let s = crate::settings::settings(py, settings, &[])?;
     let (cfg, m) = configure(height, width, &s.options, mask)?;
     Ok(PyOperator::new(Arc::new(owned_exact(py, &system.inner, cfg, m, &s.backend)?)))
@@ -141,11 +184,12 @@ fn model_operator(
     py: Python<'_>,
     kind: &str,
     system: &PySystem,
-    height: usize,
-    width: usize,
+    height: &Bound<'_, PyAny>,
+    width: &Bound<'_, PyAny>,
     mask: Option<&Bound<'_, PyAny>>,
     settings: Option<&Bound<'_, PyDict>>,
 ) -> PyResult<PyOperator> {
+    let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
     let s = crate::settings::settings(py, settings, &["interpolation"])?;
     let (cfg, m) = configure(height, width, &s.options, mask)?;
     let interpolation: Option<String> = crate::settings::extra(&s, "interpolation", "a string")?;

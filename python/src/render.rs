@@ -3,7 +3,7 @@
 //! The settings keywords are parsed in one place ([`crate::settings`]): every setting the caller leaves at
 //! `None` takes the CLI's default, so `render(system, scene, wl)` and
 //! `diffcassi render --scene FILE --scene-size N` give the same acquisition bit for bit.
-use crate::arrays::{check_finite, f64_list, input, output, Input};
+use crate::arrays::{check_finite, f64_list, input, output, seed_arg, size_arg, Input};
 use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::settings::{configure, extra};
@@ -27,7 +27,9 @@ pub fn scene_cube(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>) -> PyResul
 
 /// [`scene_cube`] copying the scene into `buffer` (its capacity reused: a warm buffer saves the page
 /// faults of a fresh scene-sized allocation at every call). The finiteness scan is `SpectralCube::new`'s;
-/// only when it fails is the array scanned again for the message naming the argument and index.
+/// only when it fails is the array scanned again for the message naming the argument and index. Then the
+/// CLI's radiance limits (`diffcassi::cli::render::check_scene_values`: finite, ≥ 0, ≤
+/// [`diffcassi::limits::MAX_SCENE_VALUE`], so the acquisition cannot overflow), with the CLI's message.
 pub fn scene_cube_in(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>, mut buffer: Vec<f32>) -> PyResult<SpectralCube> {
     let a: Input<f32> = input("scene", scene, "float32", 3, "(H, W, B)")?;
     if a.shape[2] != wavelengths_nm.len() {
@@ -35,10 +37,12 @@ pub fn scene_cube_in(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>, mut buf
     }
     buffer.clear();
     buffer.extend_from_slice(a.slice());
-    SpectralCube::new(a.shape[0], a.shape[1], wavelengths_nm, buffer, "scene array").or_else(|e| {
+    let cube = SpectralCube::new(a.shape[0], a.shape[1], wavelengths_nm, buffer, "scene array").or_else(|e| {
         check_finite("scene", a.slice(), &a.shape)?;
         Err(crate::errors::to_py(e))
-    })
+    })?;
+    diffcassi::cli::render::check_scene_values(&cube).map_err(|m| value_error(format!("scene: {m}")))?;
+    Ok(cube)
 }
 
 fn scene_description(cube: &SpectralCube) -> serde_json::Value {
@@ -77,7 +81,7 @@ fn _render<'py>(
     let backend = s.backend.as_str();
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
-    let threads = crate::pool::get_num_threads();
+    let threads = crate::pool::get_num_threads()?;
     let (acq, info) = run(py, move || -> diffcassi::Result<_> {
         let r = Renderer::new(&sys, t.as_ref(), cfg, m)?;
         let mut acq = r.render(&cube, false, &|_| {})?;
@@ -130,6 +134,18 @@ impl SparseExport for OwnedExact {
     }
 }
 
+/// Refuse a transport that would not fit the memory budget, before tracing it: the middle plane is traced
+/// and measured (as the CLI's dataset mode and `ExactOperator::new` do), × planes × 1.25, × 2 for the
+/// footprints and the operator's compact copy that a Python `Transport` both keeps (2.48 GB against the
+/// CLI's 1.46 GB at 512×512, docs/python.md).
+fn check_transport_memory(r: &Renderer<'_>) -> diffcassi::Result<()> {
+    let planes = r.config.spectral.planes();
+    let probe = r.trace_plane(planes / 2)?.bytes() as f64;
+    let c = &r.config;
+    let what = format!("the light transport of a {}×{} scene × {} planes × {} rays", c.scene_height, c.scene_width, planes, c.rays_per_pixel);
+    diffcassi::limits::check_memory(&what, probe * planes as f64 * 1.25 * 2.0)
+}
+
 /// Trace the light transport of `system` with these settings once and keep it as the exact operator.
 pub fn owned_exact(py: Python<'_>, system: &Arc<SequentialSystem>, cfg: RenderConfig, mask: Mask, backend: &str) -> PyResult<OwnedExact> {
     let tr = tracer(backend)?;
@@ -141,6 +157,7 @@ pub fn owned_exact(py: Python<'_>, system: &Arc<SequentialSystem>, cfg: RenderCo
     let tr_ref: &'static dyn Tracer = unsafe { &*(tr.as_ref() as *const dyn Tracer) };
     let op = run(py, move || -> diffcassi::Result<_> {
         let r = Renderer::new(sys_ref, tr_ref, cfg, mask)?;
+        check_transport_memory(&r)?;
         let t = r.trace_all(&|_| {})?;
         let bands = r.config.spectral.bands_nm.clone();
         ExactOperator::from_traced(r, &bands, t)
@@ -171,7 +188,8 @@ impl PyTransport {
     /// `settings`: the render keywords ([`crate::settings`]); `None` = the CLI's default.
     #[new]
     #[pyo3(signature = (system, height, width, mask = None, **settings))]
-    fn new(py: Python<'_>, system: &PySystem, height: usize, width: usize, mask: Option<&Bound<'_, PyAny>>, settings: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+    fn new(py: Python<'_>, system: &PySystem, height: &Bound<'_, PyAny>, width: &Bound<'_, PyAny>, mask: Option<&Bound<'_, PyAny>>, settings: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
+        let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
         let s = crate::settings::settings(py, settings, &[])?;
         let (cfg, m) = configure(height, width, &s.options, mask)?;
         let backend = s.backend.as_str();
@@ -337,6 +355,7 @@ fn load_scene<'py>(py: Python<'py>, path: std::path::PathBuf, wavelengths_nm: Op
         return Err(crate::errors::file_error(format!("{}: no such file or folder", path.display())));
     }
     let ws = wavelengths_nm.map(|w| f64_list("wavelengths_nm", w)).transpose()?;
+    check_scene_file_memory(&path, ws.as_ref().map(Vec::len))?;
     let cube = run(py, || diffcassi::scene::load_scene(&path, ws.as_deref())).py()?;
     let (h, w, b) = (cube.height, cube.width, cube.bands());
     Ok((output(py, cube.data, &[h, w, b])?, cube.wavelengths_nm))
@@ -345,18 +364,67 @@ fn load_scene<'py>(py: Python<'py>, path: std::path::PathBuf, wavelengths_nm: Op
 /// The CLI's synthetic demo scene of `seed` ((H, W, B) float32 at `wavelengths_nm`, default the 31 bands
 /// 400–700 nm the CLI uses): (cube, wavelengths_nm).
 #[pyfunction]
-#[pyo3(signature = (height, width, seed = 0, wavelengths_nm = None))]
-fn synthetic_scene<'py>(py: Python<'py>, height: usize, width: usize, seed: u64, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, Vec<f64>)> {
+#[pyo3(signature = (height, width, seed = None, wavelengths_nm = None))]
+fn synthetic_scene<'py>(py: Python<'py>, height: &Bound<'py, PyAny>, width: &Bound<'py, PyAny>, seed: Option<&Bound<'py, PyAny>>, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, Vec<f64>)> {
+    let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
+    let seed = seed.map(|s| seed_arg("seed", s)).transpose()?.unwrap_or(0);
     let ws = match wavelengths_nm {
         Some(w) => f64_list("wavelengths_nm", w)?,
         None => diffcassi::scene::synthetic_wavelengths(),
     };
-    if height == 0 || width == 0 || ws.is_empty() {
-        return Err(value_error(format!("synthetic_scene: {height}×{width}×{}: every size must be ≥ 1", ws.len())));
+    if ws.is_empty() || ws.len() > diffcassi::limits::MAX_WAVELENGTHS {
+        return Err(value_error(format!("wavelengths_nm: {} values; give 1..={}", ws.len(), diffcassi::limits::MAX_WAVELENGTHS)));
     }
+    let (lo, hi) = diffcassi::limits::WAVELENGTH_RANGE_NM;
+    if let Some(w) = ws.iter().find(|w| !(lo..=hi).contains(*w)) {
+        return Err(value_error(format!("wavelengths_nm: {} nm is outside {lo}–{hi} nm", diffcassi::limits::fmt_num(*w))));
+    }
+    // The cube (4 bytes per entry), refused before it is allocated.
+    let what = format!("height × width × wavelengths_nm ({height} × {width} × {})", ws.len());
+    diffcassi::limits::check_memory(&what, 4.0 * height as f64 * width as f64 * ws.len() as f64).py()?;
     let cube = run(py, || diffcassi::scene::synthetic_scene(height, width, &ws, seed));
     let b = cube.bands();
     Ok((output(py, cube.data, &[height, width, b])?, cube.wavelengths_nm))
+}
+
+/// Refuse a scene file whose decoded cube would not fit the memory budget, from its header only: a `.png`
+/// photograph's IHDR size (uplifted to `bands` bands, default 28; f32 cube plus the decoded RGBA and the
+/// f64 working copy, ≈ 12 bytes per entry + 16 per pixel), a `.npy`'s file size (read whole, converted
+/// to f64 and to the f32 cube: ≈ 4 × the file), a PNG folder's first band × its band count. `.exr` files
+/// are checked by the library's reader itself.
+fn check_scene_file_memory(path: &std::path::Path, bands: Option<usize>) -> PyResult<()> {
+    use std::io::Read;
+    let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
+    let png_size = |p: &std::path::Path| -> Option<(f64, f64)> {
+        let mut head = [0u8; 24];
+        std::fs::File::open(p).ok()?.read_exact(&mut head).ok()?;
+        (&head[..8] == b"\x89PNG\r\n\x1a\n" && &head[12..16] == b"IHDR").then(|| {
+            let be = |b: &[u8]| u32::from_be_bytes([b[0], b[1], b[2], b[3]]) as f64;
+            (be(&head[16..20]), be(&head[20..24]))
+        })
+    };
+    let (bytes, what) = if path.is_dir() {
+        let mut pngs = std::fs::read_dir(path).map(|d| d.filter_map(|e| e.ok().map(|e| e.path())).filter(|p| p.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("png"))).collect::<Vec<_>>()).unwrap_or_default();
+        pngs.sort();
+        match pngs.first().and_then(|p| png_size(p)) {
+            Some((w, h)) => (w * h * pngs.len() as f64 * 12.0, format!("{} ({w}×{h} pixels × {} bands)", path.display(), pngs.len())),
+            None => return Ok(()),
+        }
+    } else if ext.as_deref() == Some("png") {
+        match png_size(path) {
+            Some((w, h)) => {
+                let b = bands.unwrap_or(28) as f64;
+                (w * h * (12.0 * b + 16.0), format!("{} ({w}×{h} pixels × {b} bands)", path.display()))
+            }
+            None => return Ok(()),
+        }
+    } else if ext.as_deref() == Some("npy") {
+        let len = std::fs::metadata(path).map(|m| m.len() as f64).unwrap_or(0.0);
+        (4.0 * len, format!("{} ({:.2} GB file)", path.display(), len / 1e9))
+    } else {
+        return Ok(());
+    };
+    diffcassi::limits::check_memory(&what, bytes).py()
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {

@@ -47,7 +47,10 @@ pub fn configure(height: usize, width: usize, o: &Options, mask: Option<&Bound<'
     if height == 0 || width == 0 {
         return Err(value_error(format!("scene size {height}×{width}: must be ≥ 1")));
     }
-    c.scene_size = height;
+    // The CLI's checks (sizes, planes, Airy, memory and rays of an n × n render) run in `config_from` on the
+    // smaller side; a rectangle's own pixel count is checked right after, before anything of its size is
+    // allocated.
+    c.scene_size = height.min(width);
     if let Some(b) = &o.bands_nm {
         if b.is_empty() {
             return Err(value_error("bands_nm: empty"));
@@ -69,6 +72,9 @@ pub fn configure(height: usize, width: usize, o: &Options, mask: Option<&Bound<'
         c.no_airy = !a;
     }
     let (mut cfg, mut m) = config_from(&c).py()?;
+    if width != height {
+        check_rectangle(height, width, &c, &cfg).py()?;
+    }
     cfg.scene_height = height;
     cfg.scene_width = width;
     if width != height {
@@ -88,6 +94,18 @@ pub fn configure(height: usize, width: usize, o: &Options, mask: Option<&Bound<'
     Ok((cfg, m))
 }
 
+/// The CLI's memory and ray budgets of a `height × width` render (`config_from` checks squares): the
+/// same estimate ([`diffcassi::limits::bytes_render_hw`]) and messages, naming the Python arguments.
+fn check_rectangle(height: usize, width: usize, c: &RenderCommon, cfg: &RenderConfig) -> diffcassi::Result<()> {
+    use diffcassi::limits;
+    let bands = cfg.spectral.bands_nm.len();
+    let planes = cfg.spectral.planes();
+    let airy = cfg.airy.as_ref().map(|a| a.diameter_px);
+    let what = format!("height × width {height}×{width} × planes {planes} (× {bands} bands)");
+    limits::check_memory(&what, limits::bytes_render_hw(height, width, bands.max(31), bands, planes, false, airy))?;
+    let rays = c.rays.unwrap_or(20);
+    limits::check_rays(&format!("height × width {height}×{width} × planes {planes} × rays {rays}"), height as f64 * width as f64 * planes as f64 * rays as f64)
+}
 
 /// The parsed keywords: the render options, the backend name, and the call's own extra keywords (those
 /// named in `extra`, still as Python objects, `None` values dropped).

@@ -1,6 +1,6 @@
 //! `System` and the traces and analyses on it: each delegates to the Rust API unchanged, so NumPy results
 //! are the Rust results bit for bit.
-use crate::arrays::{check_finite, f64_list, input, output, Input};
+use crate::arrays::{check_finite, f64_list, input, output, seed_arg, size_arg, Input};
 use crate::errors::{file_error, value_error, IntoPy};
 use crate::pool::run;
 use diffcassi::analysis;
@@ -263,11 +263,16 @@ impl PySystem {
     fn seeded_rays<'py>(
         &self,
         py: Python<'py>,
-        rays_per_wavelength: usize,
+        rays_per_wavelength: &Bound<'py, PyAny>,
         wavelengths_nm: &Bound<'py, PyAny>,
-        seed: u64,
+        seed: &Bound<'py, PyAny>,
     ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
+        let (rays_per_wavelength, seed) = (size_arg("rays_per_wavelength", rays_per_wavelength)?, seed_arg("seed", seed)?);
         let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
+        let what = format!("rays_per_wavelength × wavelengths_nm ({rays_per_wavelength} × {})", ws.len());
+        let n = rays_per_wavelength as f64 * ws.len() as f64;
+        diffcassi::limits::check_rays(&what, n).py()?;
+        diffcassi::limits::check_memory(&what, n * diffcassi::limits::BYTES_PER_RAY).py()?;
         let b = RayBatch::seeded_workload(&self.inner, rays_per_wavelength, &ws, seed).py()?;
         rays_out(py, &b)
     }
@@ -434,8 +439,16 @@ fn _spot(py: Python<'_>, system: &PySystem, field_mm: Vec<f64>, wavelength_nm: f
 
 /// Zemax-style grid distortion (JSON).
 #[pyfunction]
-#[pyo3(signature = (system, wavelength_nm, grid = 13, half_width_mm = 2.5, backend = "analytic"))]
-fn _distortion(py: Python<'_>, system: &PySystem, wavelength_nm: f64, grid: usize, half_width_mm: f64, backend: &str) -> PyResult<String> {
+#[pyo3(signature = (system, wavelength_nm, grid = None, half_width_mm = 2.5, backend = "analytic"))]
+fn _distortion(py: Python<'_>, system: &PySystem, wavelength_nm: f64, grid: Option<&Bound<'_, PyAny>>, half_width_mm: f64, backend: &str) -> PyResult<String> {
+    let grid = grid.map(|g| size_arg("grid", g)).transpose()?.unwrap_or(13);
+    // The CLI's checks (`diffcassi distortion`), naming the Python arguments.
+    if !(half_width_mm.is_finite() && half_width_mm > 0.0 && half_width_mm <= diffcassi::limits::MAX_LENGTH_MM) {
+        return Err(value_error(format!("half_width_mm {}: the half width must be in (0, {:e}] mm", diffcassi::limits::fmt_num(half_width_mm), diffcassi::limits::MAX_LENGTH_MM)));
+    }
+    let n = grid as f64 * grid as f64;
+    diffcassi::limits::check_rays(&format!("grid {grid}"), n).py()?;
+    diffcassi::limits::check_memory(&format!("grid {grid}"), n * 250.0).py()?;
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
     let g = run(py, move || analysis::grid_distortion(&sys, t.as_ref(), wavelength_nm, grid, half_width_mm)).py()?;
@@ -460,13 +473,24 @@ fn _dispersion(py: Python<'_>, system: &PySystem, field_mm: Vec<f64>, wavelength
 fn mapping<'py>(
     py: Python<'py>,
     system: &PySystem,
-    height: usize,
-    width: usize,
+    height: &Bound<'py, PyAny>,
+    width: &Bound<'py, PyAny>,
     wavelengths_nm: &Bound<'py, PyAny>,
     pitch_mm: f64,
     backend: &str,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<bool>>)> {
+    let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
     let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
+    // The CLI's checks and budgets (`diffcassi mapping`), before anything is allocated.
+    if ws.is_empty() || ws.len() > diffcassi::limits::MAX_WAVELENGTHS {
+        return Err(value_error(format!("wavelengths_nm: {} values; give 1..={}", ws.len(), diffcassi::limits::MAX_WAVELENGTHS)));
+    }
+    if !(pitch_mm.is_finite() && pitch_mm > 0.0 && pitch_mm <= diffcassi::limits::MAX_LENGTH_MM) {
+        return Err(value_error(format!("pitch_mm {}: must be in (0, {:e}] mm", diffcassi::limits::fmt_num(pitch_mm), diffcassi::limits::MAX_LENGTH_MM)));
+    }
+    let what = format!("height × width × wavelengths_nm ({height} × {width} × {})", ws.len());
+    diffcassi::limits::check_memory(&what, diffcassi::limits::bytes_mapping(height, width, ws.len())).py()?;
+    diffcassi::limits::check_rays(&what, height as f64 * width as f64 * ws.len() as f64).py()?;
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
     let l = ws.len();
