@@ -54,8 +54,8 @@ def test_reflectance_library_is_measured_and_plausible():
     rng = np.random.default_rng(0)
     s = np.stack([deadleaves.random_reflectance(rng, lib) for _ in range(200)])
     assert s.min() >= 0 and s.max() <= 1
-    # Smooth like reflectances: band-to-band steps are small next to the range.
-    assert np.abs(np.diff(s, axis=1)).max() < 0.2
+    # Smooth like the measured reflectances: the perturbation adds little to their steepest band-to-band step.
+    assert np.abs(np.diff(s, axis=1)).max() < 1.5 * np.abs(np.diff(lib, axis=1)).max()
 
 
 def test_train_and_validation_seeds_disjoint(train):
@@ -79,9 +79,12 @@ def test_training_sources_and_evaluation_scenes_disjoint():
     sets = {s["name"] for s in manifest["spectral_sets"]}
     assert sets == {s["name"] for s in deadleaves.SOURCES}
     assert not any(p.stem in n.lower() for p in scenes for n in sets)
-    # The generator reads no image at all: its source names no image format or the scenes folder.
-    src = (ROOT / "diffcassi/deadleaves.py").read_text()
-    assert "data/scenes" not in src and ".png" not in src and "imread" not in src
+    # The generator reads no file at all: its code (docstrings aside) opens nothing and loads no scene or image.
+    import ast
+    tree = ast.parse((ROOT / "diffcassi/deadleaves.py").read_text())
+    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)} | \
+        {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+    assert not names & {"open", "load_scene", "imread", "load", "loadtxt", "fromfile", "read_exr", "glob"}
 
 
 def test_committed_weights_load():
