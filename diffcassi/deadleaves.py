@@ -4,9 +4,9 @@ A dead-leaves image (Matheron; Lee, Mumford & Huang 2001) is a stack of occludin
 a power law (density ∝ r⁻³, scale invariant like natural images); networks trained on such synthetic images
 generalise to natural photographs (Achddou, Gousseau & Ladjal 2021, "Synthetic images as a regularity prior for image
 restoration neural networks"). Here every leaf is a disc, an ellipse or a convex polygon carrying a texture (flat,
-smooth gradient, fractal 1/f^β noise or stripes) that blends two *reflectance spectra*; the cube is lit by a
-smooth illuminant (a mixture of CIE D65 and A, or equal energy), optionally blurred (depth of field) and
-peak-normalised to [0, 1].
+smooth gradient, fractal 1/f^β noise or stripes) that blends two *reflectance spectra* taken from the cube's
+palette of 3–10 "materials" (each with its own brightness: shading); the cube is lit by a smooth illuminant (a
+mixture of CIE D65 and A, or equal energy), optionally blurred (depth of field) and peak-normalised to [0, 1].
 
 The spectra come only from measured reflectance sets shipped by the ``colour-science`` pip package (BSD-3; see
 :data:`SOURCES`): the ColorChecker (Ohta 1997, BabelColor average, ISO 17321-1), the PMC skin-tone patches, the
@@ -184,11 +184,11 @@ def _texture(rng: np.random.Generator, yy: np.ndarray, xx: np.ndarray, noise: np
 
 
 def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM, max_leaves: int = 600,
-                blur_probability: float = 0.3, illuminant_probability: float = 0.7) -> np.ndarray:
+                blur_probability: float = 0.5, illuminant_probability: float = 0.7) -> np.ndarray:
     """One hyperspectral dead-leaves cube (B, size, size), float32, peak-normalised (max exactly 1), a pure
     function of ``seed`` (an int ≥ 0). Leaves are painted front to back until the image is covered or
     ``max_leaves`` is reached (the rest is one background leaf); radii follow a power law (density ∝ r⁻³) between
-    1.5 px and 0.7·size."""
+    2 px and 0.7·size; blur (p = ``blur_probability``) is a Gaussian of 0.5–1.5 px."""
     if size < 4:
         raise ValueError(f"dead_leaves: size {size} too small (at least 4)")
     lib, ill, _ = _tables(tuple(float(b) for b in bands_nm))
@@ -197,7 +197,10 @@ def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM,
     cube = np.zeros((nb, size, size))
     covered = np.zeros((size, size), dtype=bool)
     noise = _fractal_noise(rng, size)
-    rmin, rmax, alpha = 1.5, 0.7 * size, 3.0
+    # A scene has a few materials: a palette of 3–10 reflectances that every leaf draws from (so a patch's
+    # spectra span a low-dimensional set, as in natural scenes), each leaf with its own brightness (shading).
+    palette = [random_reflectance(rng, lib) for _ in range(int(rng.integers(3, 11)))]
+    rmin, rmax, alpha = 2.0, 0.7 * size, 3.0
     a1, b1 = rmin ** (1 - alpha), rmax ** (1 - alpha)
     for _ in range(max_leaves):
         r = (a1 + rng.random() * (b1 - a1)) ** (1.0 / (1 - alpha))
@@ -210,8 +213,8 @@ def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM,
         m = _shape_mask(rng, yy, xx, cy, cx, r) & ~covered[y0:y1, x0:x1]
         if not m.any():  # hidden behind the leaves already painted
             continue
-        s1 = random_reflectance(rng, lib)
-        s2 = s1 * rng.uniform(0.2, 0.9) if rng.random() < 0.4 else random_reflectance(rng, lib)
+        s1 = palette[int(rng.integers(len(palette)))] * rng.uniform(0.3, 1.0)
+        s2 = s1 * rng.uniform(0.2, 0.9) if rng.random() < 0.6 else palette[int(rng.integers(len(palette)))] * rng.uniform(0.3, 1.0)
         t = _texture(rng, yy, xx, noise, r)
         tm = t[m]
         cube[:, y0:y1, x0:x1][:, m] = (1 - tm)[None, :] * s1[:, None] + tm[None, :] * s2[:, None]
@@ -219,13 +222,13 @@ def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM,
         if covered.all():
             break
     if not covered.all():
-        cube[:, ~covered] = random_reflectance(rng, lib)[:, None]
+        cube[:, ~covered] = palette[0][:, None]
     if rng.random() < illuminant_probability:  # a mixture of D65 and A, mean 1
         w = rng.random()
         cube *= ((1 - w) * ill[0] + w * ill[1])[:, None, None]
     if rng.random() < blur_probability:  # depth of field: a Gaussian blur of 0.5–2 px
         from scipy.ndimage import gaussian_filter
-        cube = gaussian_filter(cube, sigma=(0.0, *(2 * [rng.uniform(0.5, 2.0)])), mode="reflect")
+        cube = gaussian_filter(cube, sigma=(0.0, *(2 * [rng.uniform(0.5, 1.5)])), mode="reflect")
     peak = cube.max()
     if not peak > 0:  # all-black leaves only (vanishingly rare): a flat cube
         return np.full(cube.shape, 1.0, dtype=np.float32)
