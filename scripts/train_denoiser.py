@@ -135,6 +135,29 @@ def validate(net: SpectralUNet, clean, noisy) -> dict:
     return res
 
 
+def summary(log_path: pathlib.Path, every: int) -> int:
+    """Prints the validation curve of a training log as a Markdown table."""
+    try:
+        recs = [json.loads(line) for line in log_path.read_text().splitlines() if line.strip()]
+    except (OSError, json.JSONDecodeError) as e:
+        print(f"train_denoiser: error: {log_path}: {e}", file=sys.stderr)
+        return 1
+    vals = [r for r in recs if "val_psnr_db" in r]
+    if not vals or every < 1:
+        print(f"train_denoiser: error: {log_path} has no validation records (or EVERY < 1)", file=sys.stderr)
+        return 1
+    best = max(vals, key=lambda r: r["val_mean_db"])
+    keys = list(vals[0]["val_psnr_db"])
+    print("| step | minutes | lr | train L1 | " + " | ".join(f"σ = {k}" for k in keys) + " | mean |")
+    print("|---" * (5 + len(keys)) + "|")
+    for r in vals:
+        if r["step"] % every == 0 or r is best or r is vals[-1]:
+            l1 = "–" if r["train_l1"] is None else f"{r['train_l1']:.4f}"
+            print(f"| {r['step']}{' (best)' if r is best else ''} | {r['elapsed_s'] / 60:.1f} | {r['lr']:.2e} | {l1} | "
+                  + " | ".join(f"{r['val_psnr_db'][k]:.2f}" for k in keys) + f" | {r['val_mean_db']:.2f} |")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=str(ROOT / "src/recon/prior/weights"), help="output folder (default: %(default)s)")
@@ -151,7 +174,12 @@ def main(argv=None) -> int:
     ap.add_argument("--clip", type=float, default=1.0, help="gradient-norm clipping")
     ap.add_argument("--val-every", type=int, default=100, help="validate (and checkpoint) every N steps")
     ap.add_argument("--resume", default=None, help="a train-state.pt to continue from")
+    ap.add_argument("--summary", type=int, metavar="EVERY", default=None,
+                    help="print the validation curve of --out's train-log.jsonl (every EVERY steps, the best and the "
+                         "last) as a Markdown table, and exit")
     a = ap.parse_args(argv)
+    if a.summary is not None:
+        return summary(pathlib.Path(a.out) / "train-log.jsonl", a.summary)
     for name in ("steps", "threads", "patch", "width", "val_every", "warmup"):
         if getattr(a, name) < 1:
             ap.error(f"--{name.replace('_', '-')} must be at least 1 (got {getattr(a, name)})")

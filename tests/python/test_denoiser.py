@@ -105,7 +105,7 @@ def test_committed_weights_load():
     assert ((y - x) ** 2).mean() < ((noisy - x) ** 2).mean()
 
 
-def test_tiny_training_run_writes_valid_checkpoint_and_resumes_exactly(train, tmp_path):
+def test_tiny_training_run_writes_valid_checkpoint_and_resumes_exactly(train, tmp_path, capsys):
     common = ["--patch", "16", "--threads", "1", "--warmup", "1", "--val-every", "2"]
     a, b = tmp_path / "a", tmp_path / "b"
     assert train.main(common + ["--steps", "4", "--out", str(a)]) == 0
@@ -117,6 +117,11 @@ def test_tiny_training_run_writes_valid_checkpoint_and_resumes_exactly(train, tm
     assert all(set(r["val_psnr_db"]) == {"0.02", "0.05", "0.1"} for r in vals)
     assert all(np.isfinite(r["train_l1"]) for r in vals[1:])
     assert json.loads((a / "train-manifest.json").read_text())["image_files"] == []
+    capsys.readouterr()
+    assert train.main(["--out", str(a), "--summary", "2"]) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].startswith("| step |") and [t.split("|")[1].split()[0] for t in table[2:]] == ["0", "2", "4"]
+    assert train.main(["--out", str(tmp_path / "none"), "--summary", "2"]) == 1
     # Two steps, then a resume for two more: the same state as four steps at once.
     assert train.main(common + ["--steps", "2", "--out", str(b)]) == 0
     assert train.main(common + ["--steps", "4", "--out", str(b), "--resume", str(b / "train-state.pt")]) == 0
