@@ -31,7 +31,7 @@ about 1 and σ the standard deviation of the noise on that scale. State-dict key
 """
 from __future__ import annotations
 
-from typing import Dict
+from typing import Dict, Optional
 
 import torch
 from torch import nn
@@ -102,3 +102,63 @@ def denoise(net: SpectralUNet, x: torch.Tensor, sigma) -> torch.Tensor:
     """Denoises (N, B, H, W) of any size: pads to multiples of 4 by edge replication, runs ``net``, crops."""
     xp, (h, w) = pad_to_multiple(x)
     return net(xp, sigma)[..., :h, :w]
+
+
+# --- weights files (safetensors): the loader every consumer uses, with clear errors -----------------------------
+
+def save_weights(net: SpectralUNet, path, extra_metadata: Optional[Dict[str, str]] = None) -> None:
+    """Writes ``net``'s state dict to the safetensors file ``path`` with :meth:`SpectralUNet.metadata` (plus
+    ``extra_metadata``, strings), atomically (a temporary file renamed over ``path``: never a half-written file)."""
+    import os
+    from safetensors.torch import save_file
+    tensors = {k: v.detach().to(torch.float32).contiguous().clone() for k, v in net.state_dict().items()}
+    for k, v in tensors.items():
+        if not torch.isfinite(v).all():
+            raise ValueError(f"save_weights: tensor {k} has non-finite values; {path} not written")
+    meta = dict(net.metadata())
+    meta.update({str(k): str(v) for k, v in (extra_metadata or {}).items()})
+    tmp = f"{path}.tmp{os.getpid()}"
+    save_file(tensors, tmp, metadata=meta)
+    os.replace(tmp, path)
+
+
+def load_weights(path, bands: Optional[int] = None) -> SpectralUNet:
+    """Loads a ``spectral-unet-v1`` safetensors file into a new :class:`SpectralUNet` (eval mode). Raises
+    FileNotFoundError for a missing file and ValueError, naming the file and the problem, for a file that is not
+    safetensors, has another architecture, band count (when ``bands`` is given) or width, misses or has extra
+    tensors, has a tensor of the wrong shape, or holds NaN/inf."""
+    import os
+    from safetensors import safe_open
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"denoiser weights {path}: no such file")
+    try:
+        with safe_open(path, framework="pt") as f:
+            meta = f.metadata() or {}
+            tensors = {k: f.get_tensor(k) for k in f.keys()}
+    except Exception as e:  # safetensors raises its own error types for a bad header or truncated data
+        raise ValueError(f"denoiser weights {path}: not a valid safetensors file ({e})") from None
+    if meta.get("arch") != ARCH:
+        raise ValueError(f"denoiser weights {path}: metadata arch is {meta.get('arch')!r}, expected {ARCH!r}")
+    try:
+        b, w = int(meta["bands"]), int(meta["width"])
+    except (KeyError, ValueError):
+        raise ValueError(f"denoiser weights {path}: metadata bands/width missing or not integers "
+                         f"(bands={meta.get('bands')!r}, width={meta.get('width')!r})") from None
+    if b < 1 or w < 1:
+        raise ValueError(f"denoiser weights {path}: metadata bands={b}, width={w} must be positive")
+    if bands is not None and b != bands:
+        raise ValueError(f"denoiser weights {path}: the network is for {b} bands, the cube has {bands}")
+    net = SpectralUNet(bands=b, width=w)
+    want = net.state_dict()
+    missing, extra = sorted(set(want) - set(tensors)), sorted(set(tensors) - set(want))
+    if missing or extra:
+        raise ValueError(f"denoiser weights {path}: missing tensors {missing}, unexpected tensors {extra}")
+    for k, v in tensors.items():
+        if tuple(v.shape) != tuple(want[k].shape):
+            raise ValueError(f"denoiser weights {path}: tensor {k} has shape {tuple(v.shape)}, "
+                             f"expected {tuple(want[k].shape)} (bands={b}, width={w})")
+        if not torch.isfinite(v).all():
+            raise ValueError(f"denoiser weights {path}: tensor {k} has NaN or infinite values")
+    net.load_state_dict({k: v.to(torch.float32) for k, v in tensors.items()})
+    return net.eval()

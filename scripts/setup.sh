@@ -62,11 +62,13 @@ python_setup() {
         "$py" -m venv "$venv" || die "cannot create the Python venv $venv (python3-venv missing?)"
         echo "setup.sh: created the Python venv .venv/"
     fi
+    # module=pip-name where they differ. The learned denoiser (docs/reconstruction.md, src/recon/prior/MODEL.md)
+    # needs safetensors (its weights files) and colour-science (BSD-3: the measured reflectances of its training data).
     local want=(maturin numpy scipy pytest)
-    [[ "${DIFFCASSI_TORCH:-install}" == skip ]] || want+=(torch)
+    [[ "${DIFFCASSI_TORCH:-install}" == skip ]] || want+=(torch safetensors colour=colour-science)
     local missing_py=()
     for m in "${want[@]}"; do
-        "$venv/bin/python" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('$m') is None)" 2>/dev/null || missing_py+=("$m")
+        "$venv/bin/python" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('${m%%=*}') is None)" 2>/dev/null || missing_py+=("${m#*=}")
     done
     if ((${#missing_py[@]} > 0)); then
         "$venv/bin/pip" install -q "${missing_py[@]}" || die "pip install ${missing_py[*]} into .venv failed"

@@ -1,0 +1,293 @@
+#!/usr/bin/env python3
+"""Trains the learned hyperspectral denoiser (``diffcassi.denoiser.SpectralUNet``, arch spectral-unet-v1) on CPU
+with procedural dead-leaves cubes (``diffcassi.deadleaves``) generated on the fly from seeds.
+
+    .venv/bin/python scripts/train_denoiser.py --steps 6000 --minutes 80 --threads 2
+    .venv/bin/python scripts/train_denoiser.py --resume src/recon/prior/weights/train-state.pt --steps 6000
+
+Recipe (src/recon/prior/MODEL.md states the run's numbers):
+
+* data: at step s the batch holds the cubes of the train seeds of steps s-3…s (two new 64×64 cubes per step, each
+  seen in four consecutive steps under a different random flip/rotation and noise); train seeds are
+  ``TRAIN_SEED_BASE + 2·s + i`` (≥ 1 000 000), validation seeds ``0…VAL_COUNT-1``: disjoint by construction;
+* augmentation for the plug-and-play use (structured errors): random brightness (×U[0.5, 1], p = 0.5), random
+  per-band gains (×(1 + N(0, 0.05)) per band, p = 0.3), noise σ ~ U[0, 0.2] per sample (the σ channel), white
+  Gaussian or (p = 0.25) a mixture with spatially correlated Gaussian noise of the same total σ;
+* loss: L1 between the network's output and the clean cube; Adam (β = 0.9, 0.999), learning rate 1e-3 with a
+  linear warm-up (100 steps) and a cosine decay to 1e-5 over ``--steps``; gradient-norm clipping at 1.0;
+* validation every ``--val-every`` steps: mean PSNR (peak 1) on the fixed validation cubes at σ ∈ {0.02, 0.05, 0.1}
+  with fixed noise; the weights file holds the best validation mean so far;
+* outputs in ``--out``: ``spectral-unet-v1-<bands>.safetensors`` (best), ``train-log.jsonl`` (one JSON object
+  per validation, appended on resume), ``train-manifest.json`` (the data's sources and seed rules),
+  ``train-state.pt`` (the latest state for ``--resume``; not committed).
+
+Every random choice derives from ``--seed`` and the step, so a resumed run continues exactly as the uninterrupted
+one would; ``--minutes`` only caps the wall time of this invocation (the schedule depends on the step alone).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import pathlib
+import sys
+import time
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from diffcassi.deadleaves import BANDS_NM, dead_leaves, sources_manifest  # noqa: E402
+from diffcassi.denoiser import SpectralUNet, load_weights, save_weights  # noqa: E402
+
+#: Train seeds are TRAIN_SEED_BASE + 2·step + i; validation seeds are 0 … VAL_COUNT-1.
+TRAIN_SEED_BASE = 1_000_000
+NEW_PER_STEP = 2
+WINDOW = 4
+VAL_COUNT = 16
+VAL_SIGMAS = (0.02, 0.05, 0.1)
+VAL_NOISE_SEED = 424242
+SIGMA_MAX = 0.2
+
+
+def train_seeds(step: int) -> list:
+    """The dead-leaves seeds of the batch at ``step`` (the new seeds of steps max(0, s-3) … max(0, s-3)+3)."""
+    first = max(0, step - (WINDOW - 1))
+    return [TRAIN_SEED_BASE + NEW_PER_STEP * s + i for s in range(first, first + WINDOW) for i in range(NEW_PER_STEP)]
+
+
+def val_seeds() -> list:
+    return list(range(VAL_COUNT))
+
+
+def weights_name(bands: int) -> str:
+    return f"spectral-unet-v1-{bands}.safetensors"
+
+
+def lr_at(step: int, steps: int, lr: float, lr_min: float, warmup: int) -> float:
+    """Linear warm-up over ``warmup`` steps, then cosine decay from ``lr`` to ``lr_min`` at ``steps``."""
+    if step < warmup:
+        return lr * (step + 1) / warmup
+    p = min(1.0, (step - warmup) / max(1, steps - warmup))
+    return lr_min + 0.5 * (lr - lr_min) * (1 + math.cos(math.pi * p))
+
+
+def _blur(x: torch.Tensor) -> torch.Tensor:
+    """Separable 5-tap Gaussian (σ ≈ 1 px) over the spatial axes of (N, B, H, W), per band."""
+    k = torch.tensor([0.0545, 0.2442, 0.4026, 0.2442, 0.0545], dtype=x.dtype)
+    n, b, h, w = x.shape
+    y = x.reshape(n * b, 1, h, w)
+    y = F.conv2d(F.pad(y, (2, 2, 0, 0), mode="circular"), k.view(1, 1, 1, 5))
+    y = F.conv2d(F.pad(y, (0, 0, 2, 2), mode="circular"), k.view(1, 1, 5, 1))
+    return y.reshape(n, b, h, w)
+
+
+def make_batch(clean: torch.Tensor, g: torch.Generator):
+    """Augments clean cubes (N, B, H, W) and adds noise; returns (noisy, sigma (N,), target)."""
+    n, b = clean.shape[:2]
+    out = []
+    for i in range(n):
+        c = clean[i]
+        k = int(torch.randint(0, 4, (1,), generator=g))
+        c = torch.rot90(c, k, dims=(1, 2))
+        if torch.rand(1, generator=g) < 0.5:
+            c = torch.flip(c, dims=(2,))
+        out.append(c)
+    x = torch.stack(out)
+    bright = torch.where(torch.rand(n, generator=g) < 0.5, 0.5 + 0.5 * torch.rand(n, generator=g), torch.ones(n))
+    x = x * bright.view(n, 1, 1, 1)
+    gains = 1 + 0.05 * torch.randn(n, b, generator=g)
+    use = (torch.rand(n, generator=g) < 0.3).float().view(n, 1)
+    x = x * (use * gains + (1 - use)).clamp(min=0).view(n, b, 1, 1)
+    sigma = SIGMA_MAX * torch.rand(n, generator=g)
+    white = torch.randn(x.shape, generator=g)
+    corr = _blur(torch.randn(x.shape, generator=g))
+    corr = corr / corr.std(dim=(1, 2, 3), keepdim=True).clamp(min=1e-6)
+    rho = torch.where(torch.rand(n, generator=g) < 0.25, 0.3 + 0.4 * torch.rand(n, generator=g), torch.zeros(n))
+    noise = torch.sqrt(1 - rho).view(n, 1, 1, 1) * white + torch.sqrt(rho).view(n, 1, 1, 1) * corr
+    return x + sigma.view(n, 1, 1, 1) * noise, sigma, x
+
+
+def validation_set(size: int, bands_nm):
+    clean = torch.from_numpy(np.stack([dead_leaves(s, size, bands_nm) for s in val_seeds()]))
+    g = torch.Generator().manual_seed(VAL_NOISE_SEED)
+    noisy = {s: clean + s * torch.randn(clean.shape, generator=g) for s in VAL_SIGMAS}
+    return clean, noisy
+
+
+def psnr_db(x: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
+    """Per-cube PSNR (dB) for a peak of 1: 10·log10(1/MSE)."""
+    mse = ((x - ref) ** 2).flatten(1).mean(1)
+    return 10 * torch.log10(1.0 / mse)
+
+
+@torch.no_grad()
+def validate(net: SpectralUNet, clean, noisy) -> dict:
+    net.eval()
+    res = {}
+    for s, y in noisy.items():
+        res[f"{s:g}"] = float(psnr_db(net(y, s), clean).mean())
+    net.train()
+    return res
+
+
+def summary(log_path: pathlib.Path, every: int) -> int:
+    """Prints the validation curve of a training log as a Markdown table."""
+    try:
+        recs = [json.loads(line) for line in log_path.read_text().splitlines() if line.strip()]
+    except (OSError, json.JSONDecodeError) as e:
+        print(f"train_denoiser: error: {log_path}: {e}", file=sys.stderr)
+        return 1
+    vals = [r for r in recs if "val_psnr_db" in r]
+    if not vals or every < 1:
+        print(f"train_denoiser: error: {log_path} has no validation records (or EVERY < 1)", file=sys.stderr)
+        return 1
+    best = max(vals, key=lambda r: r["val_mean_db"])
+    keys = list(vals[0]["val_psnr_db"])
+    print("| step | minutes | lr | train L1 | " + " | ".join(f"σ = {k}" for k in keys) + " | mean |")
+    print("|---" * (5 + len(keys)) + "|")
+    for r in vals:
+        if r["step"] % every == 0 or r is best or r is vals[-1]:
+            l1 = "–" if r["train_l1"] is None else f"{r['train_l1']:.4f}"
+            print(f"| {r['step']}{' (best)' if r is best else ''} | {r['elapsed_s'] / 60:.1f} | {r['lr']:.2e} | {l1} | "
+                  + " | ".join(f"{r['val_psnr_db'][k]:.2f}" for k in keys) + f" | {r['val_mean_db']:.2f} |")
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default=str(ROOT / "src/recon/prior/weights"), help="output folder (default: %(default)s)")
+    ap.add_argument("--steps", type=int, default=6000, help="total optimiser steps; the learning-rate schedule spans them")
+    ap.add_argument("--minutes", type=float, default=None, help="wall-time cap of this invocation (stops early, state saved)")
+    ap.add_argument("--threads", type=int, default=2, help="torch intra-op threads")
+    ap.add_argument("--seed", type=int, default=0, help="torch seed of the initial weights and the augmentation")
+    ap.add_argument("--batch", type=int, default=NEW_PER_STEP * WINDOW, help="must be %(default)s (the data window)")
+    ap.add_argument("--patch", type=int, default=64, help="training cube size (pixels, multiple of 4)")
+    ap.add_argument("--width", type=int, default=32, help="network width C")
+    ap.add_argument("--lr", type=float, default=1e-3)
+    ap.add_argument("--lr-min", type=float, default=1e-5)
+    ap.add_argument("--warmup", type=int, default=100)
+    ap.add_argument("--clip", type=float, default=1.0, help="gradient-norm clipping")
+    ap.add_argument("--val-every", type=int, default=100, help="validate (and checkpoint) every N steps")
+    ap.add_argument("--resume", default=None, help="a train-state.pt to continue from")
+    ap.add_argument("--summary", type=int, metavar="EVERY", default=None,
+                    help="print the validation curve of --out's train-log.jsonl (every EVERY steps, the best and the "
+                         "last) as a Markdown table, and exit")
+    a = ap.parse_args(argv)
+    if a.summary is not None:
+        return summary(pathlib.Path(a.out) / "train-log.jsonl", a.summary)
+    for name in ("steps", "threads", "patch", "width", "val_every", "warmup"):
+        if getattr(a, name) < 1:
+            ap.error(f"--{name.replace('_', '-')} must be at least 1 (got {getattr(a, name)})")
+    if a.batch != NEW_PER_STEP * WINDOW:
+        ap.error(f"--batch must be {NEW_PER_STEP * WINDOW} (the data window), got {a.batch}")
+    if a.patch % 4:
+        ap.error(f"--patch must be a multiple of 4 (got {a.patch})")
+    if not (a.lr > 0 and a.lr_min >= 0 and a.clip > 0) or (a.minutes is not None and not a.minutes > 0):
+        ap.error("--lr, --clip and --minutes must be positive, --lr-min non-negative")
+
+    torch.set_num_threads(a.threads)
+    torch.manual_seed(a.seed)
+    np.random.seed(a.seed)
+    bands_nm = BANDS_NM
+    out = pathlib.Path(a.out)
+    out.mkdir(parents=True, exist_ok=True)
+    wpath, lpath, spath = out / weights_name(len(bands_nm)), out / "train-log.jsonl", out / "train-state.pt"
+
+    net = SpectralUNet(bands=len(bands_nm), width=a.width)
+    opt = torch.optim.Adam(net.parameters(), lr=a.lr)
+    step, best, elapsed0 = 0, -math.inf, 0.0
+    if a.resume:
+        if not os.path.isfile(a.resume):
+            print(f"train_denoiser: error: --resume {a.resume}: no such file", file=sys.stderr)
+            return 1
+        st = torch.load(a.resume, weights_only=False)
+        if st.get("width") != a.width or st.get("patch") != a.patch or st.get("seed") != a.seed:
+            print(f"train_denoiser: error: --resume {a.resume} was made with width={st.get('width')} "
+                  f"patch={st.get('patch')} seed={st.get('seed')}, this run asks for width={a.width} "
+                  f"patch={a.patch} seed={a.seed}", file=sys.stderr)
+            return 2
+        net.load_state_dict(st["model"])
+        opt.load_state_dict(st["optim"])
+        step, best, elapsed0 = st["step"], st["best"], st["elapsed_s"]
+    manifest = sources_manifest(bands_nm)
+    manifest.update({
+        "train_seeds": f"{TRAIN_SEED_BASE} + {NEW_PER_STEP}*step + i, i < {NEW_PER_STEP}",
+        "train_seed_min": TRAIN_SEED_BASE, "val_seeds": val_seeds(), "val_sigmas": list(VAL_SIGMAS),
+        "patch": a.patch, "evaluation_scenes_used": [],
+    })
+    (out / "train-manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
+
+    clean_val, noisy_val = validation_set(a.patch, bands_nm)
+    cache: dict = {}
+    t0 = time.time()
+    log = open(lpath, "a")
+    log.write(json.dumps({"event": "resume" if a.resume else "start", "step": step, "args": vars(a),
+                          "params": sum(p.numel() for p in net.parameters()), "torch": torch.__version__}) + "\n")
+    log.flush()
+    losses = []
+
+    def checkpoint(val: dict):
+        nonlocal best
+        mean = sum(val.values()) / len(val)
+        improved = mean > best
+        if improved:
+            best = mean
+            save_weights(net, wpath, {"training_step": str(step), "val_psnr_db": json.dumps(val)})
+        elapsed = elapsed0 + time.time() - t0
+        rec = {"step": step, "elapsed_s": round(elapsed, 1), "lr": opt.param_groups[0]["lr"],
+               "train_l1": (sum(losses) / len(losses)) if losses else None, "val_psnr_db": val,
+               "val_mean_db": mean, "best": improved}
+        log.write(json.dumps(rec) + "\n")
+        log.flush()
+        losses.clear()
+        tmp = f"{spath}.tmp"
+        torch.save({"model": net.state_dict(), "optim": opt.state_dict(), "step": step, "best": best,
+                    "elapsed_s": elapsed, "width": a.width, "patch": a.patch, "seed": a.seed}, tmp)
+        os.replace(tmp, spath)
+        print(f"step {step} val {val} mean {mean:.2f} dB{' (best)' if improved else ''} "
+              f"{elapsed / 60:.1f} min", flush=True)
+
+    if step == 0:
+        checkpoint(validate(net, clean_val, noisy_val))
+    net.train()
+    while step < a.steps:
+        if a.minutes is not None and time.time() - t0 > 60 * a.minutes:
+            break
+        seeds = train_seeds(step)
+        for s in seeds:
+            if s not in cache:
+                cache[s] = torch.from_numpy(dead_leaves(s, a.patch, bands_nm))
+        for s in [s for s in cache if s not in seeds]:
+            del cache[s]
+        g = torch.Generator().manual_seed(a.seed * 1_000_003 + step)
+        noisy, sigma, target = make_batch(torch.stack([cache[s] for s in seeds]), g)
+        for pg in opt.param_groups:
+            pg["lr"] = lr_at(step, a.steps, a.lr, a.lr_min, a.warmup)
+        loss = (net(noisy, sigma) - target).abs().mean()
+        if not torch.isfinite(loss):
+            print(f"train_denoiser: error: non-finite loss at step {step}; the weights file keeps the best so far",
+                  file=sys.stderr)
+            return 1
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), a.clip)
+        opt.step()
+        losses.append(loss.item())
+        step += 1
+        if step % a.val_every == 0 or step == a.steps:
+            checkpoint(validate(net, clean_val, noisy_val))
+    if step % a.val_every and step != a.steps:
+        checkpoint(validate(net, clean_val, noisy_val))
+    log.close()
+    load_weights(wpath, bands=len(bands_nm))  # the file written reads back
+    print(f"done at step {step}: best validation mean {best:.2f} dB in {wpath}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

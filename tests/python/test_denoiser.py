@@ -1,0 +1,193 @@
+"""The learned denoiser's data, training script and weights file (src/recon/prior/MODEL.md): the dead-leaves
+generator is deterministic and in range, train/validation seeds and training sources/evaluation scenes are
+disjoint, the committed weights load, a tiny training run writes a valid checkpoint and resumes exactly, and bad
+weights files give clear errors. Tiny sizes only (the suite stays fast)."""
+import importlib.util
+import json
+import pathlib
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch", reason="torch not installed (DIFFCASSI_TORCH=skip)")
+pytest.importorskip("safetensors", reason="safetensors not installed (scripts/setup.sh installs it with torch)")
+pytest.importorskip("colour", reason="colour-science not installed (scripts/setup.sh installs it with torch)")
+
+from diffcassi import deadleaves  # noqa: E402
+from diffcassi.denoiser import ARCH, SpectralUNet, denoise, load_weights, save_weights  # noqa: E402
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+WEIGHTS = ROOT / "src/recon/prior/weights"
+
+
+def _script(name):
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture(scope="module")
+def train():
+    return _script("train_denoiser")
+
+
+def test_dead_leaves_deterministic_and_in_range():
+    a = deadleaves.dead_leaves(11, size=24)
+    assert a.shape == (28, 24, 24) and a.dtype == np.float32
+    assert np.array_equal(a, deadleaves.dead_leaves(11, size=24))
+    assert not np.array_equal(a, deadleaves.dead_leaves(12, size=24))
+    assert np.isfinite(a).all() and a.min() >= 0.0 and a.max() == 1.0
+    # Textured, not flat: several distinct spectra and spatial structure.
+    assert np.unique(a[10]).size > 10
+    # A batch is the stack of the single cubes.
+    b = deadleaves.dead_leaves_batch([11, 12], size=24)
+    assert np.array_equal(b[0], a) and b.shape == (2, 28, 24, 24)
+
+
+def test_reflectance_library_is_measured_and_plausible():
+    lib, names = deadleaves.reflectance_library()
+    assert lib.shape[1] == 28 and lib.shape[0] == len(names) > 100
+    assert lib.min() >= 0 and lib.max() <= 1
+    assert set(names) == {s["name"] for s in deadleaves.SOURCES}
+    assert np.allclose(deadleaves.BANDS_NM, np.linspace(450, 650, 28))
+    rng = np.random.default_rng(0)
+    s = np.stack([deadleaves.random_reflectance(rng, lib) for _ in range(200)])
+    assert s.min() >= 0 and s.max() <= 1
+    # Smooth like the measured reflectances: the perturbation adds little to their steepest band-to-band step.
+    assert np.abs(np.diff(s, axis=1)).max() < 1.5 * np.abs(np.diff(lib, axis=1)).max()
+
+
+def test_train_and_validation_seeds_disjoint(train):
+    val = set(train.val_seeds())
+    steps = list(range(0, 200)) + list(range(10**5, 10**5 + 50)) + [10**7]
+    seen = set()
+    for s in steps:
+        seeds = train.train_seeds(s)
+        assert len(seeds) == train.NEW_PER_STEP * train.WINDOW
+        seen.update(seeds)
+    assert not seen & val
+    assert min(seen) >= train.TRAIN_SEED_BASE > max(val)
+
+
+def test_training_sources_and_evaluation_scenes_disjoint():
+    manifest = json.loads((WEIGHTS / "train-manifest.json").read_text())
+    scenes = sorted((ROOT / "data/scenes").glob("*.png"))
+    assert scenes, "the evaluation scenes are data/scenes/*.png"
+    used = {pathlib.Path(p).name for p in manifest["image_files"]} | set(manifest["evaluation_scenes_used"])
+    assert not used & {p.name for p in scenes} and not used & {p.stem for p in scenes}
+    sets = {s["name"] for s in manifest["spectral_sets"]}
+    assert sets == {s["name"] for s in deadleaves.SOURCES}
+    assert not any(p.stem in n.lower() for p in scenes for n in sets)
+    # The generator reads no file at all: its code (docstrings aside) opens nothing and loads no scene or image.
+    import ast
+    tree = ast.parse((ROOT / "diffcassi/deadleaves.py").read_text())
+    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)} | \
+        {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+    assert not names & {"open", "load_scene", "imread", "load", "loadtxt", "fromfile", "read_exr", "glob"}
+
+
+def test_committed_weights_load():
+    from safetensors import safe_open
+    path = WEIGHTS / "spectral-unet-v1-28.safetensors"
+    with safe_open(str(path), framework="pt") as f:
+        meta = f.metadata()
+    assert meta["arch"] == ARCH and meta["bands"] == "28" and meta["width"] == "32"
+    net = load_weights(path, bands=28)
+    assert (net.bands, net.width) == (28, 32)
+    assert all(torch.isfinite(p).all() for p in net.parameters())
+    x = torch.from_numpy(deadleaves.dead_leaves(3, size=20))[None]
+    noisy = x + 0.05 * torch.randn(x.shape, generator=torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        y = denoise(net, noisy, 0.05)
+    assert y.shape == x.shape and torch.isfinite(y).all()
+    # A trained network removes noise on data like its training data.
+    assert ((y - x) ** 2).mean() < ((noisy - x) ** 2).mean()
+
+
+def test_tiny_training_run_writes_valid_checkpoint_and_resumes_exactly(train, tmp_path, capsys):
+    common = ["--patch", "16", "--threads", "1", "--warmup", "1", "--val-every", "2"]
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert train.main(common + ["--steps", "4", "--out", str(a)]) == 0
+    net = load_weights(a / "spectral-unet-v1-28.safetensors", bands=28)
+    assert all(torch.isfinite(p).all() for p in net.parameters())
+    log = [json.loads(line) for line in (a / "train-log.jsonl").read_text().splitlines()]
+    vals = [r for r in log if "val_psnr_db" in r]
+    assert [r["step"] for r in vals] == [0, 2, 4]
+    assert all(set(r["val_psnr_db"]) == {"0.02", "0.05", "0.1"} for r in vals)
+    assert all(np.isfinite(r["train_l1"]) for r in vals[1:])
+    assert json.loads((a / "train-manifest.json").read_text())["image_files"] == []
+    capsys.readouterr()
+    assert train.main(["--out", str(a), "--summary", "2"]) == 0
+    table = capsys.readouterr().out.splitlines()
+    assert table[0].startswith("| step |") and [t.split("|")[1].split()[0] for t in table[2:]] == ["0", "2", "4"]
+    assert train.main(["--out", str(tmp_path / "none"), "--summary", "2"]) == 1
+    # Two steps, then a resume for two more: the same state as four steps at once.
+    assert train.main(common + ["--steps", "2", "--out", str(b)]) == 0
+    assert train.main(common + ["--steps", "4", "--out", str(b), "--resume", str(b / "train-state.pt")]) == 0
+    sa, sb = torch.load(a / "train-state.pt"), torch.load(b / "train-state.pt")
+    assert sa["step"] == sb["step"] == 4
+    for k in sa["model"]:
+        assert torch.equal(sa["model"][k], sb["model"][k]), k
+
+
+def test_training_script_rejects_bad_arguments(train, tmp_path):
+    with pytest.raises(SystemExit) as e:
+        train.main(["--patch", "18", "--out", str(tmp_path)])
+    assert e.value.code == 2
+    assert train.main(["--resume", str(tmp_path / "nope.pt"), "--out", str(tmp_path)]) == 1
+    assert not (tmp_path / "spectral-unet-v1-28.safetensors").exists()
+
+
+def test_bad_weights_files_give_clear_errors(tmp_path):
+    net = SpectralUNet(bands=4, width=4)
+    good = tmp_path / "good.safetensors"
+    save_weights(net, good)
+    assert load_weights(good).bands == 4
+    with pytest.raises(FileNotFoundError, match="missing.safetensors: no such file"):
+        load_weights(tmp_path / "missing.safetensors")
+    trunc = tmp_path / "trunc.safetensors"
+    trunc.write_bytes(good.read_bytes()[:100])
+    with pytest.raises(ValueError, match="trunc.safetensors: not a valid safetensors file"):
+        load_weights(trunc)
+    junk = tmp_path / "junk.safetensors"
+    junk.write_bytes(b"\xff" * 64)
+    with pytest.raises(ValueError, match="not a valid safetensors file"):
+        load_weights(junk)
+    with pytest.raises(ValueError, match="network is for 4 bands, the cube has 28"):
+        load_weights(good, bands=28)
+    from safetensors.torch import save_file
+    sd = {k: v.clone() for k, v in net.state_dict().items()}
+    other = tmp_path / "other.safetensors"
+    save_file(sd, other, metadata={"arch": "something-else", "bands": "4", "width": "4"})
+    with pytest.raises(ValueError, match="arch is 'something-else'"):
+        load_weights(other)
+    sd["tail.bias"][0] = float("nan")
+    nan = tmp_path / "nan.safetensors"
+    save_file(sd, nan, metadata=net.metadata())
+    with pytest.raises(ValueError, match="tail.bias has NaN"):
+        load_weights(nan)
+    with pytest.raises(ValueError, match="non-finite"):
+        bad = SpectralUNet(bands=4, width=4)
+        with torch.no_grad():
+            bad.tail.bias[0] = float("inf")
+        save_weights(bad, tmp_path / "never.safetensors")
+    assert not (tmp_path / "never.safetensors").exists()
+    wrong = tmp_path / "wrong.safetensors"
+    save_file({k: v for k, v in net.state_dict().items()}, wrong, metadata={**net.metadata(), "width": "8"})
+    with pytest.raises(ValueError, match="shape"):
+        load_weights(wrong)
+
+
+def test_numpy_tv_matches_its_definition():
+    ev = _script("eval_denoiser")
+    rng = np.random.default_rng(1)
+    clean = np.zeros((3, 16, 16), np.float32)
+    clean[:, :, 8:] = 1.0
+    noisy = clean + 0.1 * rng.standard_normal(clean.shape).astype(np.float32)
+    assert np.array_equal(ev.tv_denoise(noisy, 0.0, 10), noisy)
+    for vectorial in (True, False):
+        u = ev.tv_denoise(noisy, 0.1, 100, vectorial)
+        assert ev.psnr_db(u, clean) > ev.psnr_db(noisy, clean) + 5
+        # TV preserves the mean (div p sums to zero with the Neumann boundary).
+        assert abs(u.mean() - noisy.mean()) < 1e-5
