@@ -208,10 +208,6 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         }
         None => wavelengths_nm[0],
     };
-    let aperture = header
-        .aperture
-        .map(|a| a.1)
-        .ok_or_else(|| fail("no system aperture: an `ENPD` (entrance pupil diameter) or `OBNA` (object-space NA) record is needed".into()))?;
 
     // Glass catalogues.
     let mut catalog_paths = header.catalog_paths.clone();
@@ -258,6 +254,10 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
             list.join("\n")
         )));
     }
+    let aperture = header
+        .aperture
+        .map(|a| a.1)
+        .ok_or_else(|| fail("no system aperture: an `ENPD` (entrance pupil diameter) or `OBNA` (object-space NA) record is needed".into()))?;
     let name = if header.name.is_empty() {
         Path::new(source_name).file_stem().and_then(|s| s.to_str()).unwrap_or("imported").to_string()
     } else {
