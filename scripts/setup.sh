@@ -62,7 +62,7 @@ python_setup() {
         "$py" -m venv "$venv" || die "cannot create the Python venv $venv (python3-venv missing?)"
         echo "setup.sh: created the Python venv .venv/"
     fi
-    local want=(maturin numpy scipy pytest)
+    local want=(maturin numpy scipy pytest rayoptics) # rayoptics: the independent .zmx reader of tests/python/test_zmx.py
     [[ "${DIFFCASSI_TORCH:-install}" == skip ]] || want+=(torch)
     local missing_py=()
     for m in "${want[@]}"; do
