@@ -170,7 +170,7 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     }
 
     // Wavelengths (µm in the file, nm in the spec).
-    let mut waves: Vec<(f64, f64)> = if !header.wavm.is_empty() {
+    let waves: Vec<(f64, f64)> = if !header.wavm.is_empty() {
         let mut w = header.wavm.clone();
         w.sort_by_key(|x| x.0);
         let n = nw.unwrap_or(w.len());
@@ -189,8 +189,8 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     if waves.is_empty() {
         return Err(fail("no wavelength (`WAVM` or `WAVL` records)".into()));
     }
-    for (um, _) in &mut waves {
-        if !(*um > 0.0) {
+    for (um, _) in &waves {
+        if *um <= 0.0 {
             return Err(fail(format!("wavelength {um} µm: must be > 0")));
         }
     }

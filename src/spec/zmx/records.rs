@@ -20,7 +20,7 @@ impl std::fmt::Display for Unsupported {
 /// change the geometry or the media of the sequential trace, so skipping them leaves the system identical.
 pub const COSMETIC: &[&str] = &[
     "VERS", "PFIL", "LANG", "GFAC", "PUSH", "SDMA", "OMMA", "ROPD", "PICB", "POLS", "GLRS", "GSTD", "NSCD", "COFN",
-    "BLNK", "FIMP", "HIDE", "SLAB", "POPS", "MEMA", "COAT", "MOFF", "TOTR", "PWFN", "DMFS", "ISNA", "EFFL", "MAZH",
+    "BLNK", "FIMP", "HIDE", "MIRR", "SLAB", "POPS", "MEMA", "COAT", "MOFF", "DMFS",
     "FWGN", "FWGT", "WWGN", "WWGT",
 ];
 

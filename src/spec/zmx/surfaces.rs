@@ -111,11 +111,6 @@ impl SurfaceBlock {
             "CLAP" => self.clap = Some((finite(r, 0)?, finite(r, 1)?)),
             "SQAP" => self.sqap = Some((finite(r, 0)?, finite(r, 1)?)),
             "OBDC" => self.obdc = (finite(r, 0)?, finite(r, 1)?),
-            "MIRR" => {
-                if r.args.first().map(String::as_str) != Some("2") {
-                    // `MIRR 2 0` is the default (no mirror substrate drawn); others only change the drawing.
-                }
-            }
             "VCUR" => self.variables.push((r.line, "radius_mm".into())),
             "VDSZ" => self.variables.push((r.line, "thickness_mm".into())),
             "VCON" => self.variables.push((r.line, "conic".into())),
