@@ -56,7 +56,7 @@ pub fn save_spec_file(spec: &SystemSpec, path: impl AsRef<Path>) -> Result<()> {
             return Err(Error::File {
                 path: path.display().to_string(),
                 message: format!(
-                    "cannot write a spec as {}: the format follows the extension, use .toml, .json or .zmx (the paper's .yml and Zemax .csv are import-only)",
+                    "cannot write a spec as {}: the format follows the extension, use .toml or .json (or .zmx, a Zemax lens file; the paper's .yml and Zemax .csv are import-only)",
                     other.map(|e| format!(".{e}")).unwrap_or_else(|| "a file without extension".into())
                 ),
             })
