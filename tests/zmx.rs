@@ -215,8 +215,8 @@ fn bad_input_rows() {
     // Truncated: mid-record, mid-file (no final line break), before any surface, an empty SURF block.
     let cut = &good[..good.find("PARM 4 -19.68").unwrap() + 7];
     refused("trunc-record.zmx", format!("{cut}\n").as_bytes(), &[&format!("line {} `PARM`", line_of(cut, "PARM 4")), "argument 2 missing"]);
-    refused("trunc-eol.zmx", good[..good.len() - 5].as_bytes(), &["truncated"]);
-    refused("trunc-header.zmx", good[..good.find("SURF 0").unwrap()].as_bytes(), &["no `SURF` record"]);
+    refused("trunc-eol.zmx", &good.as_bytes()[..good.len() - 5], &["truncated"]);
+    refused("trunc-header.zmx", &good.as_bytes()[..good.find("SURF 0").unwrap()], &["no `SURF` record"]);
     let cut = &good[..good.find("SURF 5").unwrap() + 7];
     refused("trunc-surf.zmx", cut.as_bytes(), &["`SURF 5`", "truncated"]);
     // Unknown surface type.

@@ -30,15 +30,13 @@ pub(crate) fn preimage(target: f64, guess: f64, back: impl Fn(f64) -> f64) -> f6
     if back(guess) == target {
         return guess;
     }
-    let (mut up, mut down) = (guess, guess);
-    for _ in 0..64 {
-        up = up.next_up();
-        down = down.next_down();
-        if back(up) == target {
-            return up;
-        }
-        if back(down) == target {
-            return down;
+    // Neighbours in magnitude, k ulps away (bit patterns ± k; `next_up` needs Rust 1.86, above the MSRV).
+    let bits = guess.to_bits();
+    for k in 1..=64u64 {
+        for x in [f64::from_bits(bits.wrapping_add(k)), f64::from_bits(bits.wrapping_sub(k))] {
+            if x.is_finite() && back(x) == target {
+                return x;
+            }
         }
     }
     guess
