@@ -63,8 +63,9 @@ python_setup() {
         echo "setup.sh: created the Python venv .venv/"
     fi
     # module=pip-name where they differ. The learned denoiser (docs/reconstruction.md, src/recon/prior/MODEL.md)
-    # needs safetensors (its weights files) and colour-science (BSD-3: the measured reflectances of its training data).
-    local want=(maturin numpy scipy pytest)
+    # needs safetensors (its weights files) and colour-science (BSD-3: the measured reflectances of its training data);
+    # rayoptics is the independent .zmx reader of tests/python/test_zmx.py.
+    local want=(maturin numpy scipy pytest rayoptics)
     [[ "${DIFFCASSI_TORCH:-install}" == skip ]] || want+=(torch safetensors colour=colour-science)
     local missing_py=()
     for m in "${want[@]}"; do

@@ -10,7 +10,7 @@ pub struct SystemArgs {
     /// A preset: sp, ap, msp, map.
     #[arg(long, conflicts_with = "system")]
     pub preset: Option<String>,
-    /// A spec file: .toml, .json, .yml/.yaml (paper format) or .csv (Zemax prescription).
+    /// A spec file: .toml, .json, .yml/.yaml (paper format), .csv (Zemax prescription) or .zmx (Zemax lens file).
     #[arg(long)]
     pub system: Option<PathBuf>,
     /// Extra AGF glass catalogue(s) to load beside the built-in glasses.
@@ -205,7 +205,10 @@ pub struct BenchArgs {
 pub struct ExportArgs {
     #[command(flatten)]
     pub system: SystemArgs,
-    /// Output .toml or .json.
+    /// Output .toml, .json or .zmx (the format follows the extension).
     #[arg(long)]
     pub out: PathBuf,
+    /// The output format (toml, json, zmx); it must agree with --out's extension [default: the extension's].
+    #[arg(long, value_parser = ["toml", "json", "zmx"])]
+    pub format: Option<String>,
 }

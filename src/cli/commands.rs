@@ -205,6 +205,12 @@ pub(super) fn info(a: InfoArgs) -> Result<()> {
 }
 
 pub(super) fn export_spec(a: ExportArgs) -> Result<()> {
+    if let Some(fmt) = &a.format {
+        let ext = a.out.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
+        if ext != *fmt {
+            return Err(Error::invalid(format!("--format {fmt} but --out {} has the extension `.{ext}`: name the file *.{fmt}", a.out.display())));
+        }
+    }
     let system = load_system(&a.system)?;
     crate::spec::save_spec_file(&system.spec, &a.out)?;
     say_written(&a.out);

@@ -22,6 +22,7 @@ pub mod render;
 mod design;
 pub mod evaluate;
 mod fidelity;
+mod import_zmx;
 mod make_scene;
 pub mod reconstruct;
 pub mod study;
@@ -34,7 +35,7 @@ use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 /// diffcassi — exact ray tracing of coded-aperture snapshot spectral imagers (CASSI), matching Zemax.
 ///
 /// Systems come from a preset (sp, ap, msp, map: the reference paper's four systems, built from their
-/// Zemax prescriptions) or a spec file (.toml, .json, the paper's .yml, or a Zemax prescription .csv).
+/// Zemax prescriptions) or a spec file (.toml, .json, the paper's .yml, a Zemax prescription .csv or a Zemax .zmx).
 /// Lengths are millimetres, wavelengths nanometres, angles degrees.
 #[derive(Parser, Debug)]
 #[command(name = "diffcassi", version, about, long_about = None, propagate_version = true)]
@@ -93,6 +94,8 @@ pub enum Command {
     Design(design::DesignArgs),
     /// Recover a misalignment (e.g. the prism tilt) from another system's spot centroids.
     Calibrate(design::CalibrateArgs),
+    /// Convert a Zemax OpticStudio .zmx lens file to a spec (.toml/.json), refusing what is not modelled.
+    ImportZmx(import_zmx::ImportZmxArgs),
 }
 
 /// The command tree, with negative numbers accepted as option values everywhere (`--tilt -5`,
@@ -162,5 +165,6 @@ fn run(command: Command) -> crate::error::Result<()> {
         Command::Evaluate(a) => evaluate::evaluate(a),
         Command::Design(a) => design::design_cmd(a),
         Command::Calibrate(a) => design::calibrate_cmd(a),
+        Command::ImportZmx(a) => import_zmx::import_zmx(a),
     }
 }

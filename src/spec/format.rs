@@ -25,32 +25,38 @@ pub fn to_json(spec: &SystemSpec) -> Result<String> {
 }
 
 /// Load a spec by extension: `.toml`, `.json`, `.yml`/`.yaml` (the reference paper's format, imported),
-/// `.csv` (a Zemax prescription transcription, see [`super::zemax_csv`]).
+/// `.csv` (a Zemax prescription transcription, see [`super::zemax_csv`]), `.zmx` (a Zemax lens file, see
+/// [`super::zmx`]; anything it holds that diffcassi does not model is refused).
 pub fn load_spec_file(path: impl AsRef<Path>) -> Result<SystemSpec> {
     let path = path.as_ref();
     let name = path.display().to_string();
+    if path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("zmx")) {
+        return super::zmx::import_zmx_file(path, &super::zmx::ZmxOptions::default()).map(|i| i.spec);
+    }
     let text = std::fs::read_to_string(path).map_err(|e| Error::File { path: name.clone(), message: format!("cannot read: {e}") })?;
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("toml") => from_toml(&text, &name),
         Some("json") => from_json(&text, &name),
         Some("yml") | Some("yaml") => super::yaml::import_yaml(&text, &name),
         Some("csv") => super::zemax_csv::import_prescription(&text, &name, &super::zemax_csv::SystemData::paper_defaults()),
-        other => Err(Error::spec(&name, format!("unknown spec extension {:?}: use .toml, .json, .yml or .csv", other.unwrap_or("")))),
+        other => Err(Error::spec(&name, format!("unknown spec extension {:?}: use .toml, .json, .yml, .csv or .zmx", other.unwrap_or("")))),
     }
 }
 
-/// Write a spec as TOML or JSON, atomically; the format follows the extension (`.toml` or `.json`, any case)
+/// Write a spec as TOML, JSON or a Zemax `.zmx` lens file, atomically; the format follows the extension
+/// (`.toml`, `.json` or `.zmx`, any case)
 /// and any other extension is an error (nothing is written): a `.yaml`/`.csv` name would otherwise hold TOML.
 pub fn save_spec_file(spec: &SystemSpec, path: impl AsRef<Path>) -> Result<()> {
     let path = path.as_ref();
     let text = match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("json") => to_json(spec)?,
         Some("toml") => to_toml(spec)?,
+        Some("zmx") => super::zmx::to_zmx(spec)?,
         other => {
             return Err(Error::File {
                 path: path.display().to_string(),
                 message: format!(
-                    "cannot write a spec as {}: the format follows the extension, use .toml or .json (the paper's .yml and Zemax .csv are import-only)",
+                    "cannot write a spec as {}: the format follows the extension, use .toml or .json (or .zmx, a Zemax lens file; the paper's .yml and Zemax .csv are import-only)",
                     other.map(|e| format!(".{e}")).unwrap_or_else(|| "a file without extension".into())
                 ),
             })

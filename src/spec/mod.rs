@@ -4,7 +4,7 @@
 //! thickness, material, semi-diameter, conic, parameters), plus the system data (aperture, fields,
 //! wavelengths). Every numeric cell is a [`Cell`]: a value, optionally marked variable, a pickup from another
 //! surface, or a chief-ray solve. Specs are read and written as TOML or JSON ([`load_spec_file`]), imported
-//! from Zemax prescription CSV transcriptions ([`zemax_csv`]) or from the reference paper's YAML files
+//! from Zemax prescription CSV transcriptions ([`zemax_csv`]), Zemax `.zmx` lens files ([`zmx`], also written) or from the reference paper's YAML files
 //! ([`yaml`]). A spec is turned into a traceable [`crate::system::SequentialSystem`] by
 //! [`crate::system::SequentialSystem::build`].
 //!
@@ -20,6 +20,7 @@ mod surface;
 mod system_spec;
 pub mod yaml;
 pub mod zemax_csv;
+pub mod zmx;
 
 pub use cell::*;
 pub use format::*;

@@ -1,0 +1,56 @@
+//! `diffcassi import-zmx`: a Zemax OpticStudio `.zmx` lens file → our spec format (TOML or JSON).
+//!
+//! ```text
+//! diffcassi import-zmx design.zmx --out design.toml
+//! diffcassi import-zmx design.zmx --out design.toml --ignore-unsupported   # lists what it skipped
+//! ```
+//! Without `--ignore-unsupported` anything the file holds that diffcassi does not model is refused (exit 1,
+//! nothing written) with every such item listed by line and keyword (`docs/zemax-files.md`).
+use crate::error::Result;
+use crate::spec::zmx::{import_zmx_file, ZmxOptions};
+use clap::Args;
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct ImportZmxArgs {
+    /// The .zmx file (UTF-16 with byte-order mark, UTF-8 or ASCII).
+    pub input: PathBuf,
+    /// Output spec: .toml or .json (or .zmx, rewritten by diffcassi).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Skip what diffcassi does not model (vignetting factors, tolerance data, unknown keywords…) and list
+    /// every skipped item on stderr, instead of refusing the file.
+    #[arg(long = "ignore-unsupported")]
+    pub ignore_unsupported: bool,
+    /// Folder(s) searched first for the AGF catalogues the file names (`GCAT`); then the file's folder and
+    /// DIFFCASSI_GLASS_DIR.
+    #[arg(long = "glass-dir")]
+    pub glass_dirs: Vec<PathBuf>,
+}
+
+pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
+    let options = ZmxOptions { ignore_unsupported: a.ignore_unsupported, glass_dirs: a.glass_dirs.clone() };
+    let imported = import_zmx_file(&a.input, &options)?;
+    // Build it before writing: a file that imports but does not make a traceable system writes nothing.
+    let mut catalog = crate::materials::GlassCatalog::builtin();
+    for p in &imported.spec.glass_catalogs {
+        catalog.merge(crate::materials::GlassCatalog::from_agf_file(p)?);
+    }
+    crate::system::SequentialSystem::build_with_catalog(&imported.spec, &catalog)?;
+    crate::spec::save_spec_file(&imported.spec, &a.out)?;
+    if !imported.ignored.is_empty() {
+        eprintln!("warning: {}: {} item(s) ignored (--ignore-unsupported):", a.input.display(), imported.ignored.len());
+        for u in &imported.ignored {
+            eprintln!("  {u}");
+        }
+    }
+    println!(
+        "imported {} ({} surfaces, {} fields, {} wavelengths) → {}",
+        a.input.display(),
+        imported.spec.surfaces.len(),
+        imported.spec.fields_mm.len(),
+        imported.spec.wavelengths_nm.len(),
+        a.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,189 @@
+//! Writing a [`SystemSpec`] as a `.zmx` file (ASCII, as older OpticStudio versions and rayoptics read it).
+//!
+//! Every number is written with Rust's shortest round-trip formatting (`{:?}`), so it reads back
+//! bit-identical. Zemax stores curvatures and µm where diffcassi stores radii and nm: the curvature `c`
+//! (and the wavelength in µm) written is one for which the importer's `1/c` (`1000·λ`) gives back the
+//! spec's radius (nm) exactly — a neighbour of the correctly rounded value when that one does not
+//! round-trip. What Zemax has no record for is written as diffcassi records (`DCPK` pickups, `DCCR`
+//! chief-ray solves, `DCVR` variables, `DCAI` air index, `DCWP` wavelength policy, `DCGC` catalogue
+//! paths), which rayoptics skips.
+use super::surfaces::type_name;
+use crate::error::{Error, Result};
+use crate::spec::{Driver, SurfaceKind, SystemAperture, SystemSpec};
+use crate::surfaces::Aperture;
+use crate::materials::WavelengthPolicy;
+use std::fmt::Write as _;
+
+/// A float as written: shortest round-trip digits, `INFINITY` for +∞.
+fn f(v: f64) -> String {
+    if v == f64::INFINITY {
+        "INFINITY".into()
+    } else if v == f64::NEG_INFINITY {
+        "-INFINITY".into()
+    } else {
+        format!("{v:?}")
+    }
+}
+
+/// The float `x` near `guess` (within 64 ulps) with `back(x) == target`, else `guess`.
+pub(crate) fn preimage(target: f64, guess: f64, back: impl Fn(f64) -> f64) -> f64 {
+    if back(guess) == target {
+        return guess;
+    }
+    // Neighbours in magnitude, k ulps away (bit patterns ± k; `next_up` needs Rust 1.86, above the MSRV).
+    let bits = guess.to_bits();
+    for k in 1..=64u64 {
+        for x in [f64::from_bits(bits.wrapping_add(k)), f64::from_bits(bits.wrapping_sub(k))] {
+            if x.is_finite() && back(x) == target {
+                return x;
+            }
+        }
+    }
+    guess
+}
+
+/// The `.zmx` text of a spec. Errors name what cannot be written (a primary wavelength that is not one of
+/// the system wavelengths).
+pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
+    let fail = |m: String| Error::invalid(format!("cannot write `{}` as .zmx: {m}", spec.name));
+    let primary = spec
+        .wavelengths_nm
+        .iter()
+        .position(|w| *w == spec.primary_wavelength_nm)
+        .ok_or_else(|| fail(format!("primary wavelength {} nm is not one of the system wavelengths {:?}", spec.primary_wavelength_nm, spec.wavelengths_nm)))?;
+    if spec.name.contains(['\n', '\r']) || spec.description.contains(['\n', '\r']) {
+        return Err(fail("the name or description spans several lines (a .zmx NAME/NOTE is one line)".into()));
+    }
+    let mut o = String::new();
+    let w = &mut o;
+    let _ = writeln!(w, "MODE SEQ");
+    let _ = writeln!(w, "NAME {}", spec.name);
+    if !spec.description.is_empty() {
+        let _ = writeln!(w, "NOTE 0 {}", spec.description);
+    }
+    let _ = writeln!(w, "UNIT MM X W X CM MR CPMM");
+    match spec.aperture {
+        SystemAperture::EntrancePupilDiameter(d) => writeln!(w, "ENPD {}", f(d)),
+        SystemAperture::ObjectSpaceNa(na) => writeln!(w, "OBNA {} 0", f(na)),
+    }
+    .ok();
+    let _ = writeln!(w, "ENVD 20 1 0");
+    let mut gcat = vec!["SCHOTT".to_string()];
+    for p in &spec.glass_catalogs {
+        let stem = std::path::Path::new(p).file_stem().and_then(|s| s.to_str()).unwrap_or("").to_ascii_uppercase();
+        if !stem.is_empty() && !gcat.contains(&stem) {
+            gcat.push(stem);
+        }
+    }
+    let _ = writeln!(w, "GCAT {}", gcat.join(" "));
+    for p in &spec.glass_catalogs {
+        let _ = writeln!(w, "DCGC {p}");
+    }
+    if spec.air_index != 1.0 {
+        let _ = writeln!(w, "DCAI {}", f(spec.air_index));
+    }
+    if spec.wavelength_policy == WavelengthPolicy::AllowExtrapolation {
+        let _ = writeln!(w, "DCWP allow_extrapolation");
+    }
+    let aim = match spec.ray_aiming {
+        crate::spec::RayAiming::Off => 0,
+        crate::spec::RayAiming::Real => 2,
+    };
+    let _ = writeln!(w, "RAIM 0 {aim} 1 1 0 0 0 0 0");
+    let nf = spec.fields_mm.len();
+    let _ = writeln!(w, "FTYP 1 0 {nf} {} 0 0 0", spec.wavelengths_nm.len());
+    let row = |vals: Vec<String>| vals.join(" ");
+    let _ = writeln!(w, "XFLN {}", row(spec.fields_mm.iter().map(|p| f(p[0])).collect()));
+    let _ = writeln!(w, "YFLN {}", row(spec.fields_mm.iter().map(|p| f(p[1])).collect()));
+    let _ = writeln!(w, "FWGN {}", row(vec!["1".into(); nf]));
+    for k in ["VDXN", "VDYN", "VCXN", "VCYN", "VANN"] {
+        let _ = writeln!(w, "{k} {}", row(vec!["0".into(); nf]));
+    }
+    for (i, nm) in spec.wavelengths_nm.iter().enumerate() {
+        let um = preimage(*nm, nm / 1000.0, |u| u * 1000.0);
+        let _ = writeln!(w, "WAVM {} {} 1", i + 1, f(um));
+    }
+    let _ = writeln!(w, "PWAV {}", primary + 1);
+    for (i, s) in spec.surfaces.iter().enumerate() {
+        let _ = writeln!(w, "SURF {i}");
+        let _ = writeln!(w, "  TYPE {}", type_name(s.kind));
+        if s.stop {
+            let _ = writeln!(w, "  STOP");
+        }
+        if !s.comment.is_empty() {
+            if s.comment.contains(['\n', '\r']) {
+                return Err(fail(format!("surface {i} comment spans several lines")));
+            }
+            let _ = writeln!(w, "  COMM {}", s.comment);
+        }
+        let c = match &s.radius_mm {
+            Some(r) => preimage(r.value, 1.0 / r.value, |c| 1.0 / c),
+            None => 0.0,
+        };
+        let _ = writeln!(w, "  CURV {} 0 0 0 0 \"\"", f(c));
+        let _ = writeln!(w, "  DISZ {}", f(s.thickness_mm.value));
+        if let Some(m) = &s.material {
+            if m.chars().any(char::is_whitespace) || m.is_empty() {
+                return Err(fail(format!("surface {i} material `{m}`: a .zmx glass name has no spaces")));
+            }
+            let _ = writeln!(w, "  GLAS {m} 0 0 0 0 0 0 0 0 0 0");
+        }
+        if let Some(k) = &s.conic {
+            let _ = writeln!(w, "  CONI {}", f(k.value));
+        }
+        match s.kind {
+            SurfaceKind::EvenAsphere => {
+                for (k, a) in s.asphere_coefficients.iter().enumerate() {
+                    let _ = writeln!(w, "  PARM {} {}", k + 1, f(a.value));
+                }
+            }
+            SurfaceKind::Paraxial => {
+                if let Some(fl) = &s.focal_length_mm {
+                    let _ = writeln!(w, "  PARM 1 {}", f(fl.value));
+                }
+            }
+            SurfaceKind::CoordinateBreak => {
+                for (k, col) in ["decenter_x_mm", "decenter_y_mm", "tilt_x_deg", "tilt_y_deg", "tilt_z_deg"].iter().enumerate() {
+                    if let Some(cell) = s.cell(col) {
+                        let _ = writeln!(w, "  PARM {} {}", k + 1, f(cell.value));
+                    }
+                }
+                let _ = writeln!(w, "  PARM 6 {}", s.order);
+            }
+            SurfaceKind::Standard => {}
+        }
+        if let Some(sd) = s.semi_diameter_mm {
+            let _ = writeln!(w, "  DIAM {} 1 0 0 1 \"\"", f(sd));
+        }
+        match &s.aperture {
+            None | Some(Aperture::None) => {}
+            Some(Aperture::Circular { semi_diameter_mm, min_radius_mm, decenter_x_mm, decenter_y_mm }) => {
+                let _ = writeln!(w, "  CLAP {} {} 0", f(*min_radius_mm), f(*semi_diameter_mm));
+                let _ = writeln!(w, "  OBDC {} {}", f(*decenter_x_mm), f(*decenter_y_mm));
+            }
+            Some(Aperture::Rectangular { half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm }) => {
+                let _ = writeln!(w, "  SQAP {} {} 0", f(*half_width_x_mm), f(*half_width_y_mm));
+                let _ = writeln!(w, "  OBDC {} {}", f(*decenter_x_mm), f(*decenter_y_mm));
+            }
+        }
+        for col in s.present_columns() {
+            let cell = s.cell(&col).expect("present column");
+            if cell.variable {
+                let _ = writeln!(w, "  DCVR {col}");
+            }
+            match &cell.driver {
+                Driver::Fixed => {}
+                Driver::ChiefRay => {
+                    let _ = writeln!(w, "  DCCR {col}");
+                }
+                Driver::Pickup(p) => {
+                    let src = p.column.as_deref().map(|c| format!(" {c}")).unwrap_or_default();
+                    let _ = writeln!(w, "  DCPK {col} {} {} {}{src}", p.surface, f(p.scale), f(p.offset));
+                }
+            }
+        }
+    }
+    let _ = writeln!(w, "TOL TOFF 0 0 0 0 0 0 0 0");
+    let _ = writeln!(w, "MNUM 1 1");
+    Ok(o)
+}

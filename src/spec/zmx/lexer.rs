@@ -1,0 +1,164 @@
+//! Decoding and tokenising a `.zmx` file: the encodings OpticStudio writes and one record per line.
+//!
+//! OpticStudio writes `.zmx` as UTF-16 LE with a byte-order mark (current versions) or as ASCII / UTF-8
+//! (older versions, and files written by other tools). A record is a line: a keyword (`SURF`, `CURV`,
+//! `GLAS`…) followed by whitespace-separated arguments; an argument in double quotes may hold spaces.
+//! Anything else is refused with a message naming the problem: UTF-16 without a byte-order mark (the NUL
+//! bytes of every other byte give it away), a binary file (NUL bytes, or bytes that are not UTF-8), a file
+//! with no record at all.
+//!
+//! ```
+//! use diffcassi::spec::zmx::lexer::{decode, records};
+//! let mut bytes = vec![0xFF, 0xFE];
+//! for u in "SURF 0\r\n  DISZ 5\r\n".encode_utf16() { bytes.extend(u.to_le_bytes()); }
+//! let text = decode(&bytes, "a.zmx").unwrap();
+//! let recs = records(&text);
+//! assert_eq!(recs[1].keyword, "DISZ");
+//! assert_eq!(recs[1].args, vec!["5".to_string()]);
+//! assert_eq!(recs[1].line, 2);
+//! ```
+use crate::error::{Error, Result};
+
+/// One line of a `.zmx` file.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Record {
+    /// 1-based line number in the file.
+    pub line: usize,
+    /// The keyword (upper case as written, e.g. `CURV`).
+    pub keyword: String,
+    /// The arguments, quotes removed.
+    pub args: Vec<String>,
+    /// The text after the keyword, verbatim (for `NAME`, `NOTE`, `COMM`).
+    pub rest: String,
+}
+
+/// Decode the bytes of a `.zmx` file (UTF-16 LE/BE with BOM, UTF-8 with or without BOM, ASCII).
+pub fn decode(bytes: &[u8], source_name: &str) -> Result<String> {
+    let fail = |m: String| Error::spec(source_name, m);
+    if bytes.is_empty() {
+        return Err(fail("empty file: not a Zemax .zmx lens file".into()));
+    }
+    let utf16 = |be: bool, body: &[u8]| -> Result<String> {
+        if body.len() % 2 != 0 {
+            return Err(fail(format!("UTF-16 file with an odd number of bytes ({}): truncated", body.len() + 2)));
+        }
+        let units: Vec<u16> =
+            body.chunks_exact(2).map(|c| if be { u16::from_be_bytes([c[0], c[1]]) } else { u16::from_le_bytes([c[0], c[1]]) }).collect();
+        let text = String::from_utf16(&units).map_err(|_| fail("invalid UTF-16 (an unpaired surrogate): not a Zemax .zmx text file".into()))?;
+        check_text(&text, source_name)?;
+        Ok(text)
+    };
+    if let Some(body) = bytes.strip_prefix(&[0xFF, 0xFE]) {
+        return utf16(false, body);
+    }
+    if let Some(body) = bytes.strip_prefix(&[0xFE, 0xFF]) {
+        return utf16(true, body);
+    }
+    let body = bytes.strip_prefix(&[0xEF, 0xBB, 0xBF]).unwrap_or(bytes);
+    let head = &body[..body.len().min(512)];
+    let nul_odd = head.iter().skip(1).step_by(2).filter(|b| **b == 0).count();
+    let nul_even = head.iter().step_by(2).filter(|b| **b == 0).count();
+    if head.len() >= 8 && (nul_odd * 4 >= head.len() / 2 || nul_even * 4 >= head.len() / 2) && nul_odd.min(nul_even) == 0 {
+        return Err(fail(
+            "UTF-16 text without a byte-order mark (every other byte is NUL): OpticStudio writes UTF-16 with a BOM (FF FE); re-save the file from OpticStudio or convert it to UTF-8".into(),
+        ));
+    }
+    if let Some(pos) = body.iter().position(|b| *b == 0) {
+        return Err(fail(format!("binary file (a NUL byte at offset {pos}): not a Zemax .zmx text file (a .zos or .zmx archive is binary)")));
+    }
+    let text = std::str::from_utf8(body).map_err(|e| {
+        fail(format!("binary or non-UTF-8 file (invalid byte at offset {}): not a Zemax .zmx text file", e.valid_up_to()))
+    })?;
+    check_text(text, source_name)?;
+    Ok(text.to_string())
+}
+
+/// Control characters other than tab, CR, LF and form feed mark a binary file.
+fn check_text(text: &str, source_name: &str) -> Result<()> {
+    for (i, line) in text.lines().enumerate() {
+        if let Some(c) = line.chars().find(|c| c.is_control() && !matches!(c, '\t' | '\r' | '\x0c')) {
+            return Err(Error::spec(
+                source_name,
+                format!("line {}: control character U+{:04X}: a binary file, not a Zemax .zmx text file", i + 1, c as u32),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Split decoded text into records (blank lines skipped).
+pub fn records(text: &str) -> Vec<Record> {
+    let mut out = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let (keyword, rest) = match line.find(char::is_whitespace) {
+            Some(k) => (&line[..k], line[k..].trim()),
+            None => (line, ""),
+        };
+        out.push(Record { line: i + 1, keyword: keyword.to_string(), args: split_args(rest), rest: rest.to_string() });
+    }
+    out
+}
+
+/// Whitespace-separated arguments; `"a b"` is one argument (quotes removed).
+fn split_args(rest: &str) -> Vec<String> {
+    let mut args = Vec::new();
+    let mut cur = String::new();
+    let (mut quoted, mut any) = (false, false);
+    for c in rest.chars() {
+        match c {
+            '"' => {
+                quoted = !quoted;
+                any = true;
+            }
+            c if c.is_whitespace() && !quoted => {
+                if any {
+                    args.push(std::mem::take(&mut cur));
+                    any = false;
+                }
+            }
+            c => {
+                cur.push(c);
+                any = true;
+            }
+        }
+    }
+    if any {
+        args.push(cur);
+    }
+    args
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn encodings() {
+        let text = "VERS 1\nSURF 0\n";
+        assert_eq!(decode(text.as_bytes(), "a").unwrap(), text);
+        let mut le = vec![0xFF, 0xFE];
+        let mut be = vec![0xFE, 0xFF];
+        for u in text.encode_utf16() {
+            le.extend(u.to_le_bytes());
+            be.extend(u.to_be_bytes());
+        }
+        assert_eq!(decode(&le, "a").unwrap(), text);
+        assert_eq!(decode(&be, "a").unwrap(), text);
+        let no_bom: Vec<u8> = le[2..].to_vec();
+        assert!(decode(&no_bom, "a").unwrap_err().to_string().contains("without a byte-order mark"));
+        assert!(decode(&[1, 2, 0, 3, 200, 201, 7, 9, 0, 0, 4], "a").unwrap_err().to_string().contains("binary"));
+        assert!(decode(b"", "a").is_err());
+    }
+
+    #[test]
+    fn quoted_arguments() {
+        let r = records("  DIAM 7.5 1 0 0 1 \"\"\nCOMM a \"b c\"\n");
+        assert_eq!(r[0].args, vec!["7.5", "1", "0", "0", "1", ""]);
+        assert_eq!(r[1].args, vec!["a", "b c"]);
+        assert_eq!(r[1].rest, "a \"b c\"");
+    }
+}

@@ -1,0 +1,261 @@
+//! One surface of the Lens Data Editor in a `.zmx` file: the records between `SURF n` and the next `SURF`.
+//!
+//! `TYPE` (STANDARD, EVENASPH, PARAXIAL, COORDBRK), `CURV c` (mm⁻¹; the radius is 1/c, 0 = flat), `DISZ t`
+//! (mm, `INFINITY` allowed), `CONI k`, `PARM i v` (Even Asphere: αᵢ of r²ⁱ; Paraxial: 1 = focal length,
+//! 2 = OPD mode; Coordinate Break: 1–2 decenter x/y mm, 3–5 tilt x/y/z degrees, 6 order), `GLAS name …`,
+//! `STOP`, `DIAM sd …` (semi-diameter), `CLAP rmin rmax` / `SQAP hx hy` with `OBDC dx dy` (clipping
+//! apertures), `COMM text`; `VCUR`, `VDSZ`, `VCON`, `VPAR i` mark cells variable. Pickups and chief-ray
+//! solves are written by diffcassi as `DCPK column from_surface scale offset [source_column]` and
+//! `DCCR column`, `DCVR column` marks a variable cell: OpticStudio's own solve records are refused by name.
+use super::lexer::Record;
+use super::records::{finite, int, num, Unsupported, COSMETIC};
+use crate::spec::{Cell, Driver, Pickup, SurfaceKind, SurfaceSpec, COLUMNS};
+use crate::surfaces::Aperture;
+
+/// The records of one surface, as read.
+#[derive(Debug, Default)]
+pub(super) struct SurfaceBlock {
+    pub number: usize,
+    pub line: usize,
+    pub kind: Option<(usize, SurfaceKind)>,
+    pub stop: bool,
+    pub comment: String,
+    pub curv: Option<f64>,
+    pub disz: Option<(usize, f64)>,
+    pub glass: Option<(usize, String)>,
+    pub coni: Option<f64>,
+    pub parm: Vec<(usize, usize, f64)>,
+    pub diam: Option<f64>,
+    pub clap: Option<(f64, f64)>,
+    pub sqap: Option<(f64, f64)>,
+    pub obdc: (f64, f64),
+    /// (line, column, driver) for pickups / chief-ray solves; (column) for variables.
+    pub drivers: Vec<(usize, String, Driver)>,
+    pub variables: Vec<(usize, String)>,
+}
+
+fn surface_kind(name: &str) -> Option<SurfaceKind> {
+    match name {
+        "STANDARD" => Some(SurfaceKind::Standard),
+        "EVENASPH" => Some(SurfaceKind::EvenAsphere),
+        "PARAXIAL" => Some(SurfaceKind::Paraxial),
+        "COORDBRK" => Some(SurfaceKind::CoordinateBreak),
+        _ => None,
+    }
+}
+
+/// The `.zmx` type name of a surface kind.
+pub(super) fn type_name(kind: SurfaceKind) -> &'static str {
+    match kind {
+        SurfaceKind::Standard => "STANDARD",
+        SurfaceKind::EvenAsphere => "EVENASPH",
+        SurfaceKind::Paraxial => "PARAXIAL",
+        SurfaceKind::CoordinateBreak => "COORDBRK",
+    }
+}
+
+fn column(r: &Record, k: usize) -> Result<String, String> {
+    let c = r.args.get(k).ok_or_else(|| format!("line {} `{}`: column name missing", r.line, r.keyword))?;
+    if !COLUMNS.contains(&c.as_str()) {
+        return Err(format!("line {} `{}`: unknown column `{c}` (columns: {})", r.line, r.keyword, COLUMNS.join(", ")));
+    }
+    Ok(c.clone())
+}
+
+impl SurfaceBlock {
+    /// Read one record of the surface; everything not understood is reported in `unsupported`.
+    pub fn read(&mut self, r: &Record, unsupported: &mut Vec<Unsupported>) -> Result<(), String> {
+        let mut skip = |reason: String| unsupported.push(Unsupported { line: r.line, keyword: r.keyword.clone(), reason });
+        match r.keyword.as_str() {
+            "TYPE" => {
+                let t = r.args.first().cloned().unwrap_or_default();
+                match surface_kind(&t) {
+                    Some(k) => self.kind = Some((r.line, k)),
+                    None => {
+                        return Err(format!(
+                            "line {} `TYPE`: surface {} has type `{t}`, which diffcassi does not model (STANDARD, EVENASPH, PARAXIAL, COORDBRK)",
+                            r.line, self.number
+                        ))
+                    }
+                }
+            }
+            "STOP" => self.stop = true,
+            "COMM" => self.comment = r.rest.trim().trim_matches('"').to_string(),
+            "CURV" => {
+                self.curv = Some(finite(r, 0)?);
+                if r.args.len() > 1 && int(r, 1)? != 0 {
+                    skip(format!("curvature solve type {}: OpticStudio's solves are not modelled (write the solved value)", r.args[1]));
+                }
+            }
+            "DISZ" => self.disz = Some((r.line, num(r, 0)?)),
+            "GLAS" => {
+                let name = r.args.first().cloned().ok_or_else(|| format!("line {} `GLAS`: glass name missing", r.line))?;
+                match name.as_str() {
+                    "___BLANK" => skip("model glass (n_d, V_d): only catalogue glasses are modelled".into()),
+                    "MIRROR" => skip("mirror: reflection is not modelled".into()),
+                    _ if name.chars().all(|c| c.is_ascii_digit() || c == '.') => {
+                        skip(format!("glass code `{name}`: only catalogue glass names are modelled"))
+                    }
+                    _ => self.glass = Some((r.line, name)),
+                }
+            }
+            "CONI" => self.coni = Some(finite(r, 0)?),
+            "PARM" => {
+                let i = int(r, 0)?;
+                if !(1..=16).contains(&i) {
+                    return Err(format!("line {} `PARM`: parameter number {i} (1..16)", r.line));
+                }
+                self.parm.push((r.line, i as usize, finite(r, 1)?));
+            }
+            "DIAM" => self.diam = Some(finite(r, 0)?),
+            "CLAP" => self.clap = Some((finite(r, 0)?, finite(r, 1)?)),
+            "SQAP" => self.sqap = Some((finite(r, 0)?, finite(r, 1)?)),
+            "OBDC" => self.obdc = (finite(r, 0)?, finite(r, 1)?),
+            "VCUR" => self.variables.push((r.line, "radius_mm".into())),
+            "VDSZ" => self.variables.push((r.line, "thickness_mm".into())),
+            "VCON" => self.variables.push((r.line, "conic".into())),
+            "VPAR" => {
+                let i = int(r, 0)?;
+                self.variables.push((r.line, format!("#PARM{i}")))
+            }
+            "DCVR" => self.variables.push((r.line, column(r, 0)?)),
+            "DCCR" => self.drivers.push((r.line, column(r, 0)?, Driver::ChiefRay)),
+            "DCPK" => {
+                let col = column(r, 0)?;
+                let from = int(r, 1)?;
+                if from < 0 {
+                    return Err(format!("line {} `DCPK`: source surface {from}", r.line));
+                }
+                let source = if r.args.len() > 4 { Some(column(r, 4)?) } else { None };
+                let p = Pickup { surface: from as usize, scale: finite(r, 2)?, offset: finite(r, 3)?, column: source };
+                self.drivers.push((r.line, col, Driver::Pickup(p)));
+            }
+            k if COSMETIC.contains(&k) => {}
+            "PZUP" | "PPAR" | "CUPP" | "TPUP" | "TSOL" | "PSOL" | "SSOL" => {
+                skip("an OpticStudio pickup/solve record: not modelled (diffcassi reads its own DCPK/DCCR records; write the solved value)".into())
+            }
+            "SCBD" | "TILT" | "DECX" | "DECY" => skip("surface tilt/decenter: write it as Coordinate Break surfaces".into()),
+            "FLAP" => skip("floating aperture: not modelled (use a circular aperture, CLAP)".into()),
+            _ => skip(format!("surface {} keyword not modelled", self.number)),
+        }
+        Ok(())
+    }
+
+    /// Column name of parameter `i` on this surface type, if it maps to a spec column.
+    fn parm_column(kind: SurfaceKind, i: usize) -> Option<String> {
+        match kind {
+            SurfaceKind::EvenAsphere if (1..=8).contains(&i) => Some(format!("asphere_{i}")),
+            SurfaceKind::Paraxial if i == 1 => Some("focal_length_mm".into()),
+            SurfaceKind::CoordinateBreak if (1..=5).contains(&i) => Some(COLUMNS[3 + i].to_string()),
+            _ => None,
+        }
+    }
+
+    /// The spec surface; `unsupported` receives parameters that have no meaning here.
+    pub fn build(&self, unsupported: &mut Vec<Unsupported>) -> Result<SurfaceSpec, String> {
+        let kind = self.kind.map(|k| k.1).unwrap_or(SurfaceKind::Standard);
+        let mut s = SurfaceSpec::new(kind);
+        s.stop = self.stop;
+        s.comment = self.comment.clone();
+        let line = self.line;
+        if let Some(c) = self.curv {
+            if c != 0.0 {
+                if kind == SurfaceKind::CoordinateBreak || kind == SurfaceKind::Paraxial {
+                    unsupported.push(Unsupported { line, keyword: "CURV".into(), reason: format!("curvature {c} on a {} surface has no effect in OpticStudio either", kind.label()) });
+                } else {
+                    s.radius_mm = Some(Cell::fixed(1.0 / c));
+                }
+            }
+        }
+        if let Some((_, t)) = self.disz {
+            s.thickness_mm = Cell::fixed(t);
+        }
+        if let Some((gl, g)) = &self.glass {
+            if kind == SurfaceKind::CoordinateBreak {
+                return Err(format!("line {gl} `GLAS`: a Coordinate Break (surface {}) keeps the previous medium; it cannot have glass `{g}`", self.number));
+            }
+            s.material = Some(g.clone());
+        }
+        if let Some(k) = self.coni {
+            if kind == SurfaceKind::Standard || kind == SurfaceKind::EvenAsphere {
+                s.conic = Some(Cell::fixed(k));
+            } else if k != 0.0 {
+                unsupported.push(Unsupported { line, keyword: "CONI".into(), reason: format!("conic {k} on a {} surface", kind.label()) });
+            }
+        }
+        s.semi_diameter_mm = self.diam;
+        let (dx, dy) = self.obdc;
+        match (self.clap, self.sqap) {
+            (Some(_), Some(_)) => return Err(format!("surface {} (line {line}): both a circular (CLAP) and a rectangular (SQAP) aperture", self.number)),
+            (Some((rmin, rmax)), None) => {
+                s.aperture = Some(Aperture::Circular { semi_diameter_mm: rmax, min_radius_mm: rmin, decenter_x_mm: dx, decenter_y_mm: dy })
+            }
+            (None, Some((hx, hy))) => {
+                s.aperture = Some(Aperture::Rectangular { half_width_x_mm: hx, half_width_y_mm: hy, decenter_x_mm: dx, decenter_y_mm: dy })
+            }
+            (None, None) => {}
+        }
+        for &(pl, i, v) in &self.parm {
+            if kind == SurfaceKind::CoordinateBreak && i == 6 {
+                if v != 0.0 && v != 1.0 {
+                    return Err(format!("line {pl} `PARM`: Coordinate Break order {v} (0 or 1)"));
+                }
+                s.order = v as u8;
+                continue;
+            }
+            if kind == SurfaceKind::Paraxial && i == 2 {
+                continue; // OPD mode: changes OPD only, not the rays
+            }
+            match Self::parm_column(kind, i) {
+                Some(col) => {
+                    if let Some(k) = col.strip_prefix("asphere_") {
+                        let k: usize = k.parse().expect("asphere index");
+                        if s.asphere_coefficients.len() < k {
+                            s.asphere_coefficients.resize(k, Cell::fixed(0.0));
+                        }
+                        s.asphere_coefficients[k - 1] = Cell::fixed(v);
+                    } else {
+                        let slot = match col.as_str() {
+                            "focal_length_mm" => &mut s.focal_length_mm,
+                            "decenter_x_mm" => &mut s.decenter_x_mm,
+                            "decenter_y_mm" => &mut s.decenter_y_mm,
+                            "tilt_x_deg" => &mut s.tilt_x_deg,
+                            "tilt_y_deg" => &mut s.tilt_y_deg,
+                            _ => &mut s.tilt_z_deg,
+                        };
+                        *slot = Some(Cell::fixed(v));
+                    }
+                }
+                None if v == 0.0 => {}
+                None => unsupported.push(Unsupported {
+                    line: pl,
+                    keyword: "PARM".into(),
+                    reason: format!("parameter {i} = {v} has no meaning on a {} surface in diffcassi", kind.label()),
+                }),
+            }
+        }
+        for (vl, col) in &self.variables {
+            let col = match col.strip_prefix("#PARM") {
+                Some(i) => match Self::parm_column(kind, i.parse().unwrap_or(0)) {
+                    Some(c) => c,
+                    None => {
+                        unsupported.push(Unsupported { line: *vl, keyword: "VPAR".into(), reason: format!("variable parameter {i} of a {} surface", kind.label()) });
+                        continue;
+                    }
+                },
+                None => col.clone(),
+            };
+            match s.cell_mut(&col) {
+                Some(c) => c.variable = true,
+                None => return Err(format!("line {vl}: variable `{col}` but surface {} has no such cell", self.number)),
+            }
+        }
+        for (dl, col, driver) in &self.drivers {
+            match s.cell_mut(col) {
+                Some(c) => c.driver = driver.clone(),
+                None => return Err(format!("line {dl}: a pickup/solve on `{col}` but surface {} has no such cell (write its value first)", self.number)),
+            }
+        }
+        Ok(s)
+    }
+}
