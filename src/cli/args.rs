@@ -167,6 +167,10 @@ pub struct ReportArgs {
     /// Output folder.
     #[arg(long, default_value = "out")]
     pub out: PathBuf,
+    /// Accept an --out folder that holds other files (not a previous output of this command): the outputs
+    /// are moved in beside them, nothing else there is touched (docs/robustness.md, "Output policy").
+    #[arg(long)]
+    pub force: bool,
 }
 
 #[derive(Args, Debug)]

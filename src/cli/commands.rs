@@ -63,15 +63,13 @@ fn say_written(path: &Path) {
     eprintln!("wrote {}", final_name(path).display());
 }
 
-/// The destination a staging path stands for: `.diffcassi-stage-<pid>-<n>-NAME` → `NAME`, a folder
-/// component `.DIR.stage-<pid>-<n>` → `DIR`.
+/// The destination a staging path stands for: a component `.NAME.stage-<host>-<pid>-<start>-<n>[.ext]`
+/// (a staged file, or a staging folder) → `NAME` ([`crate::io::stale`]).
 fn final_name(path: &Path) -> PathBuf {
     path.components()
         .map(|c| {
             let s = c.as_os_str().to_string_lossy();
-            if let Some(rest) = s.strip_prefix(".diffcassi-stage-") {
-                rest.splitn(3, '-').nth(2).unwrap_or(&s).to_string()
-            } else if let (true, Some(k)) = (s.starts_with('.'), s.find(".stage-")) {
+            if let (true, Some(k)) = (s.starts_with('.'), s.find(".stage-").filter(|&k| k > 1)) {
                 s[1..k].to_string()
             } else {
                 s.into_owned()
@@ -561,9 +559,11 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
 // ---------------------------------------------------------------- report (tables and plots of a preset)
 
 pub(super) fn report(a: ReportArgs) -> Result<()> {
+    // The output policy before any work: --out new, empty or a previous report (or --force), never an input.
+    let rule = crate::io::policy::FolderRule { option: "--out", command: "report", marker: "report.json", force: a.force };
     let system = load_system(&a.system)?;
     // Everything is written into a staging folder beside --out and replaces it at the end (all or nothing).
-    let set = crate::io::OutputSet::folder(&a.out, "report.json")?;
+    let set = crate::io::OutputSet::folder(&a.out, &rule, &super::shared::system_inputs(&a.system))?;
     let out = &set.stage_dir().map(Path::to_path_buf).unwrap_or_else(|| a.out.clone());
     let name = system.name().to_string();
     let t0 = Instant::now();

@@ -18,7 +18,7 @@
 //! that changes a number: bands, planes, rays, seeds, mask, Airy, scene size and fit, solver settings).
 //! The exact operator of a system is traced once (seed = acquisition seed + 1, as `reconstruct`'s default) and
 //! reused for all its scenes; so are the other operators.
-use super::reconstruct::{build_operator, check_solver, operator_seed, solve, write_reconstruction, OperatorKind, RenderRecord, SolverTuning};
+use super::reconstruct::{build_operator, check_solver, operator_seed, reconstruction_rule, solve, write_reconstruction, OperatorKind, RenderRecord, SolverTuning};
 use crate::error::{Error, Result};
 use crate::recon::metrics::evaluate;
 use crate::recon::Operator;
@@ -399,7 +399,8 @@ pub fn study(a: StudyArgs) -> Result<()> {
                     "seconds_operator": seconds_operator, "seconds_solve": solved.seconds, "seconds": solved.seconds,
                 });
                 let rdir = a.out.join("recon").join(preset).join(&scene.name).join(format!("{}-{solver}", op_kind.name()));
-                write_reconstruction(&rdir, &estimate, &rjson, false)?;
+                let set = crate::io::OutputSet::folder(&rdir, &reconstruction_rule(false), &[])?;
+                write_reconstruction(set, &estimate, &rjson, false)?;
                 let cell = json!({
                     "config": config, "preset": preset, "system": system_label(preset), "scene": scene.name, "operator": op_kind.name(), "solver": solver,
                     "metrics": ev.metrics, "truth_resampled": ev.truth_resampled, "iterations": solved.residuals.len(), "final_residual": final_residual,
