@@ -6,7 +6,7 @@
 //! diffcassi study --synthetic 2 --scene-size 24 --presets ap,sp --planes 28 --rays 4 --iterations 5 --out out/tiny
 //! ```
 //!
-//! Layout of `--out`: `mask.png` (the mask every render uses), `renders/<preset>/<scene>/` (complete render
+//! Layout of `--out`: `study.json` (the marker of a study folder: command, version, configuration), `mask.png` (the mask every render uses), `renders/<preset>/<scene>/` (complete render
 //! folders, readable by `reconstruct --from`), `recon/<preset>/<scene>/<operator>-<solver>/` (`cube.npy`,
 //! `rgb.png`, `reconstruct.json`), `cells/<preset>/<scene>/<operator>-<solver>.json` (one finished cell:
 //! its configuration, metrics and seconds), and, rebuilt from every cell at the end, `study.csv` (one row per
@@ -88,9 +88,14 @@ pub struct StudyArgs {
     /// Light-transport memory budget (GB) for the renders and the exact operator.
     #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
     pub transport_memory_gb: f64,
-    /// Output folder.
+    /// Output folder: new, empty, or a previous study (it holds study.json; resumed); never --scenes, inside
+    /// it or containing it.
     #[arg(long)]
     pub out: PathBuf,
+    /// Accept an --out folder that holds other files (not a previous study): the study's files are written
+    /// beside them, nothing else there is touched (docs/robustness.md, "Output policy").
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Display names of the paper's systems.
@@ -304,6 +309,10 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
     (m, var.sqrt())
 }
 
+/// The file every study output folder holds (written first): the output policy recognises a previous study
+/// by it ([`crate::io::policy`]).
+pub const STUDY_MARKER: &str = "study.json";
+
 pub fn study(a: StudyArgs) -> Result<()> {
     let t0 = Instant::now();
     // ---- validate everything before any work ----
@@ -320,6 +329,10 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if a.scene_size == 0 {
         return Err(Error::invalid("--scene-size must be ≥ 1"));
     }
+    // The output policy before any work: --out new, empty, a previous study (or --force), never an input.
+    let mut inputs: Vec<(&str, &Path)> = a.scenes.iter().map(|p| ("--scenes", p.as_path())).collect();
+    inputs.extend(a.mask.as_deref().map(|p| ("--mask", p)));
+    crate::io::policy::check_out_folder(&a.out, &crate::io::policy::FolderRule { option: "--out", command: "study", marker: STUDY_MARKER, force: a.force }, &inputs)?;
     let bands = super::shared::parse_wavelengths(&a.bands)?;
     let cfg = render_config(&a, &bands)?;
     let mask = study_mask(&a)?;
@@ -348,6 +361,8 @@ pub fn study(a: StudyArgs) -> Result<()> {
         r
     };
     std::fs::create_dir_all(&a.out).map_err(|e| Error::File { path: a.out.display().to_string(), message: format!("cannot create: {e}") })?;
+    // The marker that makes --out recognisable as a study (resumed by the next run), written first.
+    write_json(&a.out.join(STUDY_MARKER), &json!({"command": "study", "version": env!("CARGO_PKG_VERSION"), "configuration": config}))?;
     mask.save_png(&a.out.join("mask.png"))?;
     println!(
         "study: {} scenes {}×{} × {} systems × {} operators × {} solvers = {} cells → {}",
