@@ -382,6 +382,13 @@ pub(super) fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Ac
 
 pub fn render(a: RenderArgs) -> Result<()> {
     let t0 = Instant::now();
+    // The output policy before any work: --out new, empty or a previous render (or --force), never an input.
+    let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
+    let mut inputs = super::shared::system_inputs(&a.common.system);
+    inputs.extend(a.scene.as_deref().map(|p| ("--scene", p)));
+    inputs.extend(a.common.mask.as_deref().map(|p| ("--mask", p)));
+    let rule = crate::io::policy::FolderRule { option: "--out", command: "render", marker: "render.json", force: a.force };
+    crate::io::policy::check_out_folder(&out, &rule, &inputs)?;
     let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = config_from(&a.common)?;
@@ -394,13 +401,6 @@ pub fn render(a: RenderArgs) -> Result<()> {
             (synthetic_scene(n, n, &synthetic_wavelengths(), seed), serde_json::json!({"source": "synthetic", "synthetic_seed": seed, "native_wavelengths_nm": synthetic_wavelengths()}))
         }
     };
-    // The output policy before any work: --out new, empty or a previous render (or --force), never an input.
-    let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
-    let mut inputs = super::shared::system_inputs(&a.common.system);
-    inputs.extend(a.scene.as_deref().map(|p| ("--scene", p)));
-    inputs.extend(a.common.mask.as_deref().map(|p| ("--mask", p)));
-    let rule = crate::io::policy::FolderRule { option: "--out", command: "render", marker: "render.json", force: a.force };
-    crate::io::policy::check_out_folder(&out, &rule, &inputs)?;
     let (tracer, rays) = render_tracer(&a.common, &system, &mut cfg, &mask)?;
     check_render_rays(n, cfg.spectral.planes(), rays)?;
     cfg.rays_per_pixel = rays;
