@@ -158,7 +158,12 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     let mut inputs = super::shared::system_inputs(&a.common.system);
     inputs.push(("--scenes", a.scenes.as_path()));
     inputs.extend(a.common.mask.as_deref().map(|p| ("--mask", p)));
-    crate::io::policy::check_out_folder(&a.out, &crate::io::policy::FolderRule { option: "--out", command: "render-dataset", marker: dataset::MANIFEST, force: a.force }, &inputs)?;
+    // A shard started beside others (or killed) before dataset.json exists leaves only the dataset's own
+    // files: the shared outputs, scene folders of this scene list, temporaries.
+    let listed: Vec<String> = dataset::find_scenes(&a.scenes).map(|v| v.into_iter().map(|s| s.name).collect()).unwrap_or_default();
+    let owned = |n: &str| n == dataset::MANIFEST || n == "mask.png" || (n.starts_with("mapping") && n.ends_with(".npy")) || listed.iter().any(|s| s == n) || (n.starts_with('.') && (n.contains(".partial-") || n.contains(".old-")));
+    let rule = crate::io::policy::FolderRule { option: "--out", command: "render-dataset", marker: dataset::MANIFEST, force: a.force };
+    crate::io::policy::check_out_folder_owned(&a.out, &rule, &inputs, &owned)?;
     let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = config_from(&a.common)?;

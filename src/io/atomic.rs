@@ -291,25 +291,62 @@ impl OutputSet {
     }
 }
 
+/// The hidden file listing the entries of a folder output set (one name a line), written with the set: a later
+/// run replaces the folder whole only when it holds nothing else, so files a user put beside the outputs
+/// (or the files of a `--force`d folder) are never deleted.
+pub const SET_LIST: &str = ".diffcassi-set";
+
+fn entry_names(dir: &Path) -> Result<Vec<String>, IoError> {
+    let mut v = Vec::new();
+    for e in fs::read_dir(dir).map_err(|e| IoError::io(dir, "cannot read the folder", e))? {
+        v.push(e.map_err(|e| IoError::io(dir, "cannot read the folder", e))?.file_name().to_string_lossy().into_owned());
+    }
+    v.sort();
+    Ok(v)
+}
+
 fn commit_folder(f: &FolderStage) -> Result<(), IoError> {
+    let new_names: Vec<String> = entry_names(&f.stage)?.into_iter().filter(|n| n != SET_LIST).collect();
+    write_atomic(f.stage.join(SET_LIST), new_names.iter().map(|n| format!("{n}\n")).collect::<String>().as_bytes())?;
     // Checked again: the folder may have changed while the command ran.
     let rule = FolderRule { option: &f.option, command: &f.command, marker: &f.marker, force: f.force };
-    if check_out_folder(&f.dest, &rule, &[])? != FolderState::Foreign {
+    let state = check_out_folder(&f.dest, &rule, &[])?;
+    // What of the destination is an earlier set's (its list; without one, an earlier version's set: all of it).
+    let old_list: Option<Vec<String>> = match state {
+        FolderState::Previous => fs::read_to_string(f.dest.join(SET_LIST)).ok().map(|t| t.lines().map(str::to_string).collect()),
+        _ => None,
+    };
+    let foreign: Vec<String> = match (state, &old_list) {
+        (FolderState::Foreign, _) => entry_names(&f.dest)?,
+        (FolderState::Previous, Some(list)) => entry_names(&f.dest)?.into_iter().filter(|n| n != SET_LIST && !list.contains(n) && !stale::is_temporary(n)).collect(),
+        _ => Vec::new(),
+    };
+    if foreign.is_empty() && state != FolderState::Foreign {
         return swap_into_place(&f.stage, &f.dest);
     }
-    // --force on a folder of other files: move the files in, the marker last; a folder of an output's name
-    // is never removed (refused before anything moves).
-    let mut names: Vec<std::ffi::OsString> = fs::read_dir(&f.stage).map_err(|e| IoError::io(&f.stage, "cannot read the staging folder", e))?.filter_map(|e| e.ok().map(|e| e.file_name())).collect();
-    for n in &names {
+    // Other files in the folder (--force, or files put beside an earlier set): move the outputs in, the marker
+    // and the list last; remove only the earlier set's own entries the new set lacks; a folder of an output's
+    // name that is not the earlier set's is never removed (refused before anything moves).
+    let ours = |n: &String| old_list.as_ref().is_some_and(|l| l.contains(n));
+    for n in &new_names {
         let to = f.dest.join(n);
-        if fs::symlink_metadata(&to).is_ok_and(|m| m.is_dir()) {
-            return Err(IoError::Refused { path: to, reason: "a folder of this output's name is in the --force'd output folder; nothing was moved (it is not removed): remove or rename it".into() });
+        if !ours(n) && fs::symlink_metadata(&to).is_ok_and(|m| m.is_dir()) {
+            return Err(IoError::Refused { path: to, reason: "a folder of this output's name is in the output folder and is not an earlier output's; nothing was moved (it is not removed): remove or rename it".into() });
         }
     }
-    names.sort_by_key(|n| (n.to_string_lossy() == f.marker, n.clone()));
-    for n in names {
-        let to = f.dest.join(&n);
-        fs::rename(f.stage.join(&n), &to).map_err(|e| IoError::io(&to, "cannot move the output into place", e))?;
+    let mut order = new_names.clone();
+    order.sort_by_key(|n| (*n == f.marker, n.clone()));
+    order.push(SET_LIST.to_string());
+    for n in &order {
+        let to = f.dest.join(n);
+        if ours(n) && fs::symlink_metadata(&to).is_ok_and(|m| m.is_dir()) {
+            remove_any(&to).map_err(|e| IoError::io(&to, "cannot replace an earlier output", e))?;
+        }
+        fs::rename(f.stage.join(n), &to).map_err(|e| IoError::io(&to, "cannot move the output into place", e))?;
+    }
+    for n in old_list.iter().flatten().filter(|n| !new_names.contains(n) && *n != SET_LIST) {
+        let p = f.dest.join(n);
+        remove_any(&p).map_err(|e| IoError::io(&p, "cannot remove an earlier output the new set does not have", e))?;
     }
     let _ = fs::remove_dir_all(&f.stage);
     Ok(())
@@ -454,8 +491,14 @@ mod tests {
         fs::write(set.stage_dir().unwrap().join("acquisition.exr"), "new").unwrap();
         fs::write(set.stage_dir().unwrap().join("render.json"), "new").unwrap();
         set.commit().unwrap();
-        assert_eq!(entries(&out), vec!["acquisition.exr", "render.json"]);
+        assert_eq!(entries(&out), vec![SET_LIST, "acquisition.exr", "render.json"]);
         assert_eq!(entries(tmp.path()), vec!["out"]);
+        // A file the user put beside the set survives the next run; the old set's files the new one lacks go.
+        fs::write(out.join("notes.txt"), "keep").unwrap();
+        let set = OutputSet::folder(&out, &rule, &[]).unwrap();
+        fs::write(set.stage_dir().unwrap().join("render.json"), "newer").unwrap();
+        set.commit().unwrap();
+        assert_eq!(entries(&out), vec![SET_LIST, "notes.txt", "render.json"]);
         // An unrelated folder is refused, untouched; with --force it keeps its other files.
         let other = tmp.path().join("mine");
         fs::create_dir(&other).unwrap();
@@ -468,12 +511,19 @@ mod tests {
         let set = OutputSet::folder(&other, &forced, &[]).unwrap();
         fs::write(set.stage_dir().unwrap().join("render.json"), "new").unwrap();
         set.commit().unwrap();
-        assert_eq!(entries(&other), vec!["notes.txt", "render.json", "sub"]);
-        // A folder of an output's name is never removed.
+        assert_eq!(entries(&other), vec![SET_LIST, "notes.txt", "render.json", "sub"]);
+        // Rerun without --force (the folder now holds render.json): the user's files still survive.
+        let set = OutputSet::folder(&other, &rule, &[]).unwrap();
+        fs::write(set.stage_dir().unwrap().join("render.json"), "again").unwrap();
+        fs::write(set.stage_dir().unwrap().join("extra.csv"), "x").unwrap();
+        set.commit().unwrap();
+        assert_eq!(entries(&other), vec![SET_LIST, "extra.csv", "notes.txt", "render.json", "sub"]);
+        assert_eq!(fs::read_to_string(other.join("notes.txt")).unwrap(), "keep");
+        // A folder of an output's name that is not an earlier output's is never removed.
         let set = OutputSet::folder(&other, &forced, &[]).unwrap();
         fs::write(set.stage_dir().unwrap().join("sub"), "file").unwrap();
         assert!(set.commit().unwrap_err().to_string().contains("sub"));
-        assert_eq!(entries(&other), vec!["notes.txt", "render.json", "sub"]);
+        assert_eq!(entries(&other), vec![SET_LIST, "extra.csv", "notes.txt", "render.json", "sub"]);
         assert_eq!(entries(tmp.path()), vec!["mine", "out"]);
     }
 

@@ -123,8 +123,16 @@ pub fn check_not_input(option: &str, out: &Path, inputs: &[(&str, &Path)], folde
     Ok(())
 }
 
-/// Check an output folder against the policy (see the module docs) before any work.
+/// Check an output folder against the policy (see the module docs) before any work. A folder holding only
+/// diffcassi temporaries (what a run killed before writing anything else left) counts as empty.
 pub fn check_out_folder(out: &Path, rule: &FolderRule, inputs: &[(&str, &Path)]) -> Result<FolderState, IoError> {
+    check_out_folder_owned(out, rule, inputs, &|_| false)
+}
+
+/// [`check_out_folder`] for a command that resumes into its folder and may be killed before its marker is
+/// written (`render-dataset`: shards start together, `dataset.json` is written after the mask): a folder
+/// whose every entry is one the command writes (`owned(file name)`) or a temporary is a previous output too.
+pub fn check_out_folder_owned(out: &Path, rule: &FolderRule, inputs: &[(&str, &Path)], owned: &dyn Fn(&str) -> bool) -> Result<FolderState, IoError> {
     if out.file_name().is_none() {
         return Err(refused(out, format!("{} must name a folder (a path ending in a name, not `..` or `/`)", rule.option)));
     }
@@ -143,11 +151,16 @@ pub fn check_out_folder(out: &Path, rule: &FolderRule, inputs: &[(&str, &Path)])
     if !meta.is_dir() {
         return Err(refused(out, format!("{} is a file, not a folder; nothing was written (a file is never replaced by an output folder, --force or not): remove it or choose another {}", rule.option, rule.option)));
     }
-    let mut entries = fs::read_dir(out).map_err(|e| IoError::io(out, "cannot read the output folder", e))?;
-    if entries.next().is_none() {
+    let names: Vec<String> = fs::read_dir(out)
+        .map_err(|e| IoError::io(out, "cannot read the output folder", e))?
+        .map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
+        .collect::<Result<_, _>>()
+        .map_err(|e| IoError::io(out, "cannot read the output folder", e))?;
+    let kept: Vec<&String> = names.iter().filter(|n| !super::stale::is_temporary(n)).collect();
+    if kept.is_empty() {
         return Ok(FolderState::Empty);
     }
-    if out.join(rule.marker).is_file() {
+    if out.join(rule.marker).is_file() || kept.iter().all(|n| owned(n)) {
         return Ok(FolderState::Previous);
     }
     if rule.force {
@@ -182,6 +195,11 @@ mod tests {
         assert_eq!(check_out_folder(&p("new/deeper"), &rule, &[]).unwrap(), FolderState::New);
         fs::create_dir(p("empty")).unwrap();
         assert_eq!(check_out_folder(&p("empty"), &rule, &[]).unwrap(), FolderState::Empty);
+        fs::write(p(&format!("empty/.render.json.stage-{}-0-1-2", super::super::stale::host_name())), "killed").unwrap();
+        assert_eq!(check_out_folder(&p("empty"), &rule, &[]).unwrap(), FolderState::Empty, "only a temporary");
+        fs::write(p("empty/mask.png"), "m").unwrap();
+        assert!(check_out_folder(&p("empty"), &rule, &[]).is_err());
+        assert_eq!(check_out_folder_owned(&p("empty"), &rule, &[], &|n| n == "mask.png").unwrap(), FolderState::Previous);
         fs::create_dir(p("prev")).unwrap();
         fs::write(p("prev/render.json"), "{}").unwrap();
         assert_eq!(check_out_folder(&p("prev"), &rule, &[]).unwrap(), FolderState::Previous);

@@ -160,6 +160,11 @@ pub fn temporary_of(entry: &str, name: &str) -> Option<Writer> {
     temporary_of(inner, name).map(|_| w)
 }
 
+/// Whether `entry` is a diffcassi temporary of any destination (`.NAME.stage-HOST-PID-START-N…`).
+pub fn is_temporary(entry: &str) -> bool {
+    entry.rfind(".stage-").filter(|&k| k > 1 && entry.starts_with('.')).is_some_and(|k| direct_temporary_of(entry, &entry[1..k]).is_some())
+}
+
 fn direct_temporary_of(entry: &str, name: &str) -> Option<Writer> {
     let rest = entry.strip_prefix('.')?.strip_prefix(name)?;
     if let Some(r) = rest.strip_prefix(".stage-") {
@@ -232,6 +237,8 @@ mod tests {
         let nested = temp_path(&Path::new("dir").join(&entry)).file_name().unwrap().to_string_lossy().into_owned();
         assert_eq!(temporary_of(&nested, "cube.npy").map(|w| w.pid), Some(std::process::id()));
         assert!(temporary_of(&nested, "cube").is_none());
+        assert!(is_temporary(&entry) && is_temporary(&nested) && is_temporary(".out.stage-h-1-2-3"));
+        assert!(!is_temporary("out.stage-h-1-2-3") && !is_temporary(".out.stage-x") && !is_temporary(".stage-h-1-2-3"));
         // Host names with dashes; earlier versions' names.
         assert_eq!(parse_tag("node-7-123-456"), Some(Writer { host: Some("node-7".into()), pid: 123, start: Some(456) }));
         assert_eq!(temporary_of(".out.stage-4242-0", "out").map(|w| w.pid), Some(4242));
