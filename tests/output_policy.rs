@@ -132,6 +132,11 @@ fn reconstruct_never_replaces_what_it_does_not_own() {
     assert_eq!(std::fs::read_to_string(mine.join("notes.txt")).unwrap(), "my notes");
     assert_eq!(std::fs::read(mine.join("sub/data.bin")).unwrap(), [1, 2, 3]);
     assert!(mine.join("reconstruct.json").is_file());
+    // The folder now holds reconstruct.json: a rerun without --force still keeps the user's files.
+    let o = rec(&mine, &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::read_to_string(mine.join("notes.txt")).unwrap(), "my notes");
+    assert_eq!(std::fs::read(mine.join("sub/data.bin")).unwrap(), [1, 2, 3]);
     assert!(temporaries(d.path()).is_empty(), "{:?}", temporaries(d.path()));
 }
 
@@ -271,6 +276,14 @@ fn dataset_status_without_scenes_fails() {
     assert!(o.status.success(), "{}", stderr(&o));
     let o = run(&["dataset-status", s(&ds), "--scenes", s(&empty)]);
     assert_refused(&o, &["no scenes"]);
+    // A shard killed (or a sibling started) before dataset.json exists left only the dataset's own files:
+    // accepted as the same command's output.
+    let early = d.path().join("early");
+    std::fs::create_dir_all(early.join(".s1.partial-elsewhere-1-2")).unwrap();
+    std::fs::copy(ds.join("mask.png"), early.join("mask.png")).unwrap();
+    let o = run(&["render-dataset", "--scenes", s(&scenes), "--preset", "ap", "--scene-size", "16", "--bands", "450:650:8", "--planes", "8", "--rays", "2", "--no-mapping", "--out", s(&early)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(early.join("s1/render.json").is_file() && !early.join(".s1.partial-elsewhere-1-2").exists());
     // A rerun into its own output is accepted by the policy (the dataset is complete: nothing to render).
     let o = run(&["render-dataset", "--scenes", s(&scenes), "--preset", "ap", "--scene-size", "16", "--bands", "450:650:8", "--planes", "8", "--rays", "2", "--no-mapping", "--out", s(&ds)]);
     assert!(!stderr(&o).contains("not a previous"), "{}", stderr(&o));
