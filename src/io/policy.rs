@@ -67,13 +67,20 @@ pub enum FolderState {
 }
 
 fn refused(path: &Path, reason: String) -> IoError {
-    IoError::Refused { path: path.to_path_buf(), reason }
+    IoError::Refused {
+        path: path.to_path_buf(),
+        reason,
+    }
 }
 
 /// `p` made absolute with symbolic links and `..` resolved: the longest existing ancestor is canonicalised,
 /// the rest appended as written (lexically normalised).
 pub fn resolved(p: &Path) -> PathBuf {
-    let abs = if p.is_absolute() { p.to_path_buf() } else { std::env::current_dir().unwrap_or_default().join(p) };
+    let abs = if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        std::env::current_dir().unwrap_or_default().join(p)
+    };
     let mut lexical = PathBuf::new();
     for c in abs.components() {
         match c {
@@ -105,7 +112,12 @@ pub fn resolved(p: &Path) -> PathBuf {
 }
 
 /// Refuse `out` when it is one of `inputs` (option, path), lies inside one, or (`folder`) contains one.
-pub fn check_not_input(option: &str, out: &Path, inputs: &[(&str, &Path)], folder: bool) -> Result<(), IoError> {
+pub fn check_not_input(
+    option: &str,
+    out: &Path,
+    inputs: &[(&str, &Path)],
+    folder: bool,
+) -> Result<(), IoError> {
     let o = resolved(out);
     for (opt, input) in inputs {
         let i = resolved(input);
@@ -118,30 +130,57 @@ pub fn check_not_input(option: &str, out: &Path, inputs: &[(&str, &Path)], folde
         } else {
             continue;
         };
-        return Err(refused(out, format!("{option} {relation} the input {opt} {}: writing there would destroy the input; nothing was written, choose another {option}", input.display())));
+        return Err(refused(
+            out,
+            format!(
+                "{option} {relation} the input {opt} {}: writing there would destroy the input; nothing was written, choose another {option}",
+                input.display()
+            ),
+        ));
     }
     Ok(())
 }
 
 /// Check an output folder against the policy (see the module docs) before any work. A folder holding only
 /// diffcassi temporaries (what a run killed before writing anything else left) counts as empty.
-pub fn check_out_folder(out: &Path, rule: &FolderRule, inputs: &[(&str, &Path)]) -> Result<FolderState, IoError> {
+pub fn check_out_folder(
+    out: &Path,
+    rule: &FolderRule,
+    inputs: &[(&str, &Path)],
+) -> Result<FolderState, IoError> {
     check_out_folder_owned(out, rule, inputs, &|_| false)
 }
 
 /// [`check_out_folder`] for a command that resumes into its folder and may be killed before its marker is
 /// written (`render-dataset`: shards start together, `dataset.json` is written after the mask): a folder
 /// whose every entry is one the command writes (`owned(file name)`) or a temporary is a previous output too.
-pub fn check_out_folder_owned(out: &Path, rule: &FolderRule, inputs: &[(&str, &Path)], owned: &dyn Fn(&str) -> bool) -> Result<FolderState, IoError> {
+pub fn check_out_folder_owned(
+    out: &Path,
+    rule: &FolderRule,
+    inputs: &[(&str, &Path)],
+    owned: &dyn Fn(&str) -> bool,
+) -> Result<FolderState, IoError> {
     if out.file_name().is_none() {
-        return Err(refused(out, format!("{} must name a folder (a path ending in a name, not `..` or `/`)", rule.option)));
+        return Err(refused(
+            out,
+            format!(
+                "{} must name a folder (a path ending in a name, not `..` or `/`)",
+                rule.option
+            ),
+        ));
     }
     check_not_input(rule.option, out, inputs, true)?;
     let meta = match fs::metadata(out) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
             // A dangling symbolic link is someone's: not ours to replace.
             if fs::symlink_metadata(out).is_ok() {
-                return Err(refused(out, format!("{} is a symbolic link to nothing; nothing was written, choose another {}", rule.option, rule.option)));
+                return Err(refused(
+                    out,
+                    format!(
+                        "{} is a symbolic link to nothing; nothing was written, choose another {}",
+                        rule.option, rule.option
+                    ),
+                ));
             }
             return Ok(FolderState::New);
         }
@@ -156,7 +195,10 @@ pub fn check_out_folder_owned(out: &Path, rule: &FolderRule, inputs: &[(&str, &P
         .map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
         .collect::<Result<_, _>>()
         .map_err(|e| IoError::io(out, "cannot read the output folder", e))?;
-    let kept: Vec<&String> = names.iter().filter(|n| !super::stale::is_temporary(n)).collect();
+    let kept: Vec<&String> = names
+        .iter()
+        .filter(|n| !super::stale::is_temporary(n))
+        .collect();
     if kept.is_empty() {
         return Ok(FolderState::Empty);
     }
@@ -178,7 +220,10 @@ pub fn check_out_folder_owned(out: &Path, rule: &FolderRule, inputs: &[(&str, &P
 /// Check an output file: not a folder, not one of the `inputs`.
 pub fn check_out_file(option: &str, out: &Path, inputs: &[(&str, &Path)]) -> Result<(), IoError> {
     if out.is_dir() {
-        return Err(refused(out, format!("{option} is a folder, not a file; nothing was written")));
+        return Err(refused(
+            out,
+            format!("{option} is a folder, not a file; nothing was written"),
+        ));
     }
     check_not_input(option, out, inputs, false)
 }
@@ -190,33 +235,88 @@ mod tests {
     #[test]
     fn states_and_refusals() {
         let tmp = tempfile::tempdir().unwrap();
-        let rule = FolderRule { option: "--out", command: "render", marker: "render.json", force: false };
+        let rule = FolderRule {
+            option: "--out",
+            command: "render",
+            marker: "render.json",
+            force: false,
+        };
         let p = |s: &str| tmp.path().join(s);
-        assert_eq!(check_out_folder(&p("new/deeper"), &rule, &[]).unwrap(), FolderState::New);
+        assert_eq!(
+            check_out_folder(&p("new/deeper"), &rule, &[]).unwrap(),
+            FolderState::New
+        );
         fs::create_dir(p("empty")).unwrap();
-        assert_eq!(check_out_folder(&p("empty"), &rule, &[]).unwrap(), FolderState::Empty);
-        fs::write(p(&format!("empty/.render.json.stage-{}-0-1-2", super::super::stale::host_name())), "killed").unwrap();
-        assert_eq!(check_out_folder(&p("empty"), &rule, &[]).unwrap(), FolderState::Empty, "only a temporary");
+        assert_eq!(
+            check_out_folder(&p("empty"), &rule, &[]).unwrap(),
+            FolderState::Empty
+        );
+        fs::write(
+            p(&format!(
+                "empty/.render.json.stage-{}-0-1-2",
+                super::super::stale::host_name()
+            )),
+            "killed",
+        )
+        .unwrap();
+        assert_eq!(
+            check_out_folder(&p("empty"), &rule, &[]).unwrap(),
+            FolderState::Empty,
+            "only a temporary"
+        );
         fs::write(p("empty/mask.png"), "m").unwrap();
         assert!(check_out_folder(&p("empty"), &rule, &[]).is_err());
-        assert_eq!(check_out_folder_owned(&p("empty"), &rule, &[], &|n| n == "mask.png").unwrap(), FolderState::Previous);
+        assert_eq!(
+            check_out_folder_owned(&p("empty"), &rule, &[], &|n| n == "mask.png").unwrap(),
+            FolderState::Previous
+        );
         fs::create_dir(p("prev")).unwrap();
         fs::write(p("prev/render.json"), "{}").unwrap();
-        assert_eq!(check_out_folder(&p("prev"), &rule, &[]).unwrap(), FolderState::Previous);
+        assert_eq!(
+            check_out_folder(&p("prev"), &rule, &[]).unwrap(),
+            FolderState::Previous
+        );
         fs::write(p("file"), "x").unwrap();
-        let e = check_out_folder(&p("file"), &FolderRule { force: true, ..rule }, &[]).unwrap_err().to_string();
+        let e = check_out_folder(
+            &p("file"),
+            &FolderRule {
+                force: true,
+                ..rule
+            },
+            &[],
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("is a file") && e.contains("file"), "{e}");
         // Overlaps, through `..` and a symbolic link.
-        let e = check_out_folder(&p("prev/../prev"), &rule, &[("--scene", &p("prev/scene.npy"))]).unwrap_err().to_string();
+        let e = check_out_folder(
+            &p("prev/../prev"),
+            &rule,
+            &[("--scene", &p("prev/scene.npy"))],
+        )
+        .unwrap_err()
+        .to_string();
         assert!(e.contains("contains the input --scene"), "{e}");
         std::os::unix::fs::symlink(p("prev"), p("link")).unwrap();
-        let e = check_out_folder(&p("link/x"), &rule, &[("--from", &p("prev"))]).unwrap_err().to_string();
+        let e = check_out_folder(&p("link/x"), &rule, &[("--from", &p("prev"))])
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("is inside the input --from"), "{e}");
         std::os::unix::fs::symlink(p("nowhere"), p("dangling")).unwrap();
         assert!(check_out_folder(&p("dangling"), &rule, &[]).is_err());
         assert!(check_out_folder(Path::new("/"), &rule, &[]).is_err());
         assert!(check_out_file("--json", &p("prev"), &[]).is_err());
-        assert!(check_out_file("--json", &p("prev/x.json"), &[("--truth", &p("prev/x.json"))]).is_err());
-        check_out_file("--json", &p("prev/y.json"), &[("--truth", &p("prev/x.json"))]).unwrap();
+        assert!(check_out_file(
+            "--json",
+            &p("prev/x.json"),
+            &[("--truth", &p("prev/x.json"))]
+        )
+        .is_err());
+        check_out_file(
+            "--json",
+            &p("prev/y.json"),
+            &[("--truth", &p("prev/x.json"))],
+        )
+        .unwrap();
     }
 }

@@ -66,7 +66,10 @@ fn start_time(pid: u32) -> std::io::Result<Option<u64>> {
     let stat = fs::read_to_string(format!("/proc/{pid}/stat"))?;
     // The command name (field 2) is in parentheses and may hold spaces: count fields after the last ')'.
     let after = stat.rsplit_once(')').map(|(_, r)| r).unwrap_or("");
-    Ok(after.split_whitespace().nth(19).and_then(|s| s.parse().ok()))
+    Ok(after
+        .split_whitespace()
+        .nth(19)
+        .and_then(|s| s.parse().ok()))
 }
 
 /// This process's identity in temporary names: `HOST-PID-START`.
@@ -89,10 +92,20 @@ pub fn next_counter() -> u64 {
 /// A new temporary path beside `dest`: `.NAME.stage-HOST-PID-START-N[.EXT]` (a bare file name stays
 /// relative to the working directory). Nothing is created.
 pub fn temp_path(dest: &Path) -> PathBuf {
-    let name = dest.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
-    let ext = dest.extension().map(|e| format!(".{}", e.to_string_lossy())).unwrap_or_default();
+    let name = dest
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
+    let ext = dest
+        .extension()
+        .map(|e| format!(".{}", e.to_string_lossy()))
+        .unwrap_or_default();
     let dir = dest.parent().map(Path::to_path_buf).unwrap_or_default();
-    dir.join(format!(".{name}.stage-{}-{}{ext}", writer_tag(), next_counter()))
+    dir.join(format!(
+        ".{name}.stage-{}-{}{ext}",
+        writer_tag(),
+        next_counter()
+    ))
 }
 
 /// Who wrote a temporary: host (`None`: not recorded, an earlier version's name), PID, start time.
@@ -126,7 +139,9 @@ impl Writer {
 
 /// `kill(pid, 0)`: the process exists (EPERM: it exists but is another user's).
 fn pid_exists(pid: u32) -> bool {
-    let Ok(p) = libc::pid_t::try_from(pid) else { return false };
+    let Ok(p) = libc::pid_t::try_from(pid) else {
+        return false;
+    };
     if p <= 0 {
         return false;
     }
@@ -138,13 +153,21 @@ fn pid_exists(pid: u32) -> bool {
 /// `HOST-PID-START` (the host may hold '-') or an earlier version's bare `PID`.
 pub fn parse_tag(tag: &str) -> Option<Writer> {
     if let Ok(pid) = tag.parse::<u32>() {
-        return Some(Writer { host: None, pid, start: None });
+        return Some(Writer {
+            host: None,
+            pid,
+            start: None,
+        });
     }
     let mut it = tag.rsplitn(3, '-');
     let start = it.next()?.parse::<u64>().ok()?;
     let pid = it.next()?.parse::<u32>().ok()?;
     let host = it.next().filter(|h| !h.is_empty())?;
-    Some(Writer { host: Some(host.to_string()), pid, start: Some(start) })
+    Some(Writer {
+        host: Some(host.to_string()),
+        pid,
+        start: Some(start),
+    })
 }
 
 /// If `entry` (a file name in the destination's folder) is a temporary of destination `name`, its writer.
@@ -154,7 +177,9 @@ pub fn temporary_of(entry: &str, name: &str) -> Option<Writer> {
     if let Some(w) = direct_temporary_of(entry, name) {
         return Some(w);
     }
-    let k = entry.rfind(".stage-").filter(|&k| k > 1 && entry.starts_with('.'))?;
+    let k = entry
+        .rfind(".stage-")
+        .filter(|&k| k > 1 && entry.starts_with('.'))?;
     let inner = &entry[1..k];
     let w = direct_temporary_of(entry, inner)?;
     temporary_of(inner, name).map(|_| w)
@@ -162,7 +187,10 @@ pub fn temporary_of(entry: &str, name: &str) -> Option<Writer> {
 
 /// Whether `entry` is a diffcassi temporary of any destination (`.NAME.stage-HOST-PID-START-N…`).
 pub fn is_temporary(entry: &str) -> bool {
-    entry.rfind(".stage-").filter(|&k| k > 1 && entry.starts_with('.')).is_some_and(|k| direct_temporary_of(entry, &entry[1..k]).is_some())
+    entry
+        .rfind(".stage-")
+        .filter(|&k| k > 1 && entry.starts_with('.'))
+        .is_some_and(|k| direct_temporary_of(entry, &entry[1..k]).is_some())
 }
 
 fn direct_temporary_of(entry: &str, name: &str) -> Option<Writer> {
@@ -171,7 +199,9 @@ fn direct_temporary_of(entry: &str, name: &str) -> Option<Writer> {
         // HOST-PID-START-N, then an optional .EXT and an optional .old (the aside name of a swap).
         let r = r.strip_suffix(".old").unwrap_or(r);
         let r = match Path::new(name).extension() {
-            Some(e) => r.strip_suffix(&format!(".{}", e.to_string_lossy())).unwrap_or(r),
+            Some(e) => r
+                .strip_suffix(&format!(".{}", e.to_string_lossy()))
+                .unwrap_or(r),
             None => r,
         };
         let (tag, n) = r.rsplit_once('-')?;
@@ -181,24 +211,36 @@ fn direct_temporary_of(entry: &str, name: &str) -> Option<Writer> {
     // Earlier versions: `.NAME.tmp-PID` / `.NAME.old-PID` (reconstruct), `.NAME.PID.N.tmp` (atomic writes).
     for p in [".tmp-", ".old-"] {
         if let Some(pid) = rest.strip_prefix(p).and_then(|s| s.parse::<u32>().ok()) {
-            return Some(Writer { host: None, pid, start: None });
+            return Some(Writer {
+                host: None,
+                pid,
+                start: None,
+            });
         }
     }
     let mid = rest.strip_prefix('.')?.strip_suffix(".tmp")?;
     let (pid, n) = mid.split_once('.')?;
     n.parse::<u64>().ok()?;
-    Some(Writer { host: None, pid: pid.parse().ok()?, start: None })
+    Some(Writer {
+        host: None,
+        pid: pid.parse().ok()?,
+        start: None,
+    })
 }
 
 /// Remove the temporaries of destination `dest` (files or folders beside it, named as above) whose writer
 /// is gone; returns how many were removed. Nothing else is touched.
 pub fn remove_stale(dest: &Path) -> Result<usize, IoError> {
-    let Some(name) = dest.file_name().map(|n| n.to_string_lossy().into_owned()) else { return Ok(0) };
+    let Some(name) = dest.file_name().map(|n| n.to_string_lossy().into_owned()) else {
+        return Ok(0);
+    };
     let dir = match dest.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let Ok(rd) = fs::read_dir(&dir) else { return Ok(0) };
+    let Ok(rd) = fs::read_dir(&dir) else {
+        return Ok(0);
+    };
     let mut n = 0;
     for e in rd.flatten() {
         let entry = e.file_name().to_string_lossy().into_owned();
@@ -232,34 +274,92 @@ mod tests {
         assert_eq!(w.pid, std::process::id());
         assert_eq!(w.host.as_deref(), Some(host_name()));
         assert!(!w.is_gone(), "this process is alive");
-        assert!(temporary_of(&entry, "cube.np").is_none() && temporary_of(&entry, "cube").is_none());
+        assert!(
+            temporary_of(&entry, "cube.np").is_none() && temporary_of(&entry, "cube").is_none()
+        );
         assert!(temporary_of(&format!("{entry}.old"), "cube.npy").is_some());
-        let nested = temp_path(&Path::new("dir").join(&entry)).file_name().unwrap().to_string_lossy().into_owned();
-        assert_eq!(temporary_of(&nested, "cube.npy").map(|w| w.pid), Some(std::process::id()));
+        let nested = temp_path(&Path::new("dir").join(&entry))
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
+        assert_eq!(
+            temporary_of(&nested, "cube.npy").map(|w| w.pid),
+            Some(std::process::id())
+        );
         assert!(temporary_of(&nested, "cube").is_none());
-        assert!(is_temporary(&entry) && is_temporary(&nested) && is_temporary(".out.stage-h-1-2-3"));
-        assert!(!is_temporary("out.stage-h-1-2-3") && !is_temporary(".out.stage-x") && !is_temporary(".stage-h-1-2-3"));
+        assert!(
+            is_temporary(&entry) && is_temporary(&nested) && is_temporary(".out.stage-h-1-2-3")
+        );
+        assert!(
+            !is_temporary("out.stage-h-1-2-3")
+                && !is_temporary(".out.stage-x")
+                && !is_temporary(".stage-h-1-2-3")
+        );
         // Host names with dashes; earlier versions' names.
-        assert_eq!(parse_tag("node-7-123-456"), Some(Writer { host: Some("node-7".into()), pid: 123, start: Some(456) }));
-        assert_eq!(temporary_of(".out.stage-4242-0", "out").map(|w| w.pid), Some(4242));
+        assert_eq!(
+            parse_tag("node-7-123-456"),
+            Some(Writer {
+                host: Some("node-7".into()),
+                pid: 123,
+                start: Some(456)
+            })
+        );
+        assert_eq!(
+            temporary_of(".out.stage-4242-0", "out").map(|w| w.pid),
+            Some(4242)
+        );
         assert_eq!(temporary_of(".rec.tmp-77", "rec").map(|w| w.pid), Some(77));
-        assert_eq!(temporary_of(".a.csv.77.3.tmp", "a.csv").map(|w| w.pid), Some(77));
-        for not in [".out.stage-x-0", "out.stage-1-2-3-4", ".out.stage-", ".outx.stage-h-1-2-3", ".out.tmp-", ".out.partial-h-1"] {
+        assert_eq!(
+            temporary_of(".a.csv.77.3.tmp", "a.csv").map(|w| w.pid),
+            Some(77)
+        );
+        for not in [
+            ".out.stage-x-0",
+            "out.stage-1-2-3-4",
+            ".out.stage-",
+            ".outx.stage-h-1-2-3",
+            ".out.tmp-",
+            ".out.partial-h-1",
+        ] {
             assert!(temporary_of(not, "out").is_none(), "{not}");
         }
     }
 
     #[test]
     fn liveness() {
-        let me = Writer { host: Some(host_name().into()), pid: std::process::id(), start: start_time(std::process::id()).unwrap() };
+        let me = Writer {
+            host: Some(host_name().into()),
+            pid: std::process::id(),
+            start: start_time(std::process::id()).unwrap(),
+        };
         assert!(!me.is_gone());
         // Our PID with another start time: a reused PID, so the recorded writer is gone.
-        assert!(Writer { start: me.start.map(|s| s + 1), ..me.clone() }.is_gone());
+        assert!(Writer {
+            start: me.start.map(|s| s + 1),
+            ..me.clone()
+        }
+        .is_gone());
         // Another host's writer is never judged.
-        assert!(!Writer { host: Some("elsewhere-node".into()), pid: 0, start: Some(1) }.is_gone());
+        assert!(!Writer {
+            host: Some("elsewhere-node".into()),
+            pid: 0,
+            start: Some(1)
+        }
+        .is_gone());
         // PID 0 / a huge PID never name a live user process here.
-        assert!(Writer { host: None, pid: 0, start: None }.is_gone());
-        assert!(Writer { host: None, pid: 4_000_000_000, start: None }.is_gone());
+        assert!(Writer {
+            host: None,
+            pid: 0,
+            start: None
+        }
+        .is_gone());
+        assert!(Writer {
+            host: None,
+            pid: 4_000_000_000,
+            start: None
+        }
+        .is_gone());
     }
 
     #[test]
@@ -268,7 +368,11 @@ mod tests {
         let dest = tmp.path().join("out");
         let h = host_name();
         let dead = format!(".out.stage-{h}-0-1-3");
-        let live = temp_path(&dest).file_name().unwrap().to_string_lossy().into_owned();
+        let live = temp_path(&dest)
+            .file_name()
+            .unwrap()
+            .to_string_lossy()
+            .into_owned();
         let other_host = ".out.stage-elsewhere-0-1-3".to_string();
         let other_dest = format!(".outer.stage-{h}-0-1-3");
         for d in [&dead, &live, &other_host, &other_dest] {
@@ -278,7 +382,10 @@ mod tests {
         fs::write(tmp.path().join(".out.0.0.tmp"), b"x").unwrap(); // an earlier version's, PID 0
         fs::write(tmp.path().join("notes.txt"), b"x").unwrap();
         assert_eq!(remove_stale(&dest).unwrap(), 2);
-        let mut left: Vec<String> = fs::read_dir(tmp.path()).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        let mut left: Vec<String> = fs::read_dir(tmp.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
         left.sort();
         let mut want = vec![live, other_host, other_dest, "notes.txt".to_string()];
         want.sort();

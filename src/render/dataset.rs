@@ -474,7 +474,7 @@ pub fn remove_leftovers(out: &Path, name: &str) -> Result<usize> {
     let Ok(rd) = std::fs::read_dir(out) else { return Ok(0) };
     for e in rd.flatten() {
         let Some(writer) = leftover_writer(&e.file_name().to_string_lossy(), name) else { continue };
-        let live_here = writer.is_some_and(|w| w.host.as_deref().is_none_or(|h| h == crate::io::stale::host_name()) && !w.is_gone());
+        let live_here = writer.is_some_and(|w| w.host.as_deref().map_or(true, |h| h == crate::io::stale::host_name()) && !w.is_gone());
         if live_here {
             continue;
         }
