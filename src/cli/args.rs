@@ -164,9 +164,13 @@ pub struct ReportArgs {
     pub system: SystemArgs,
     #[command(flatten)]
     pub backend: BackendArgs,
-    /// Output folder.
-    #[arg(long, default_value = "out")]
-    pub out: PathBuf,
+    /// Output folder (default out/report-<system>): new, empty, or a previous report (replaced whole).
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Accept an --out folder that holds other files (not a previous output of this command): the outputs
+    /// are moved in beside them, nothing else there is touched (docs/robustness.md, "Output policy").
+    #[arg(long)]
+    pub force: bool,
 }
 
 #[derive(Args, Debug)]

@@ -63,15 +63,13 @@ fn say_written(path: &Path) {
     eprintln!("wrote {}", final_name(path).display());
 }
 
-/// The destination a staging path stands for: `.diffcassi-stage-<pid>-<n>-NAME` → `NAME`, a folder
-/// component `.DIR.stage-<pid>-<n>` → `DIR`.
+/// The destination a staging path stands for: a component `.NAME.stage-<host>-<pid>-<start>-<n>[.ext]`
+/// (a staged file, or a staging folder) → `NAME` ([`crate::io::stale`]).
 fn final_name(path: &Path) -> PathBuf {
     path.components()
         .map(|c| {
             let s = c.as_os_str().to_string_lossy();
-            if let Some(rest) = s.strip_prefix(".diffcassi-stage-") {
-                rest.splitn(3, '-').nth(2).unwrap_or(&s).to_string()
-            } else if let (true, Some(k)) = (s.starts_with('.'), s.find(".stage-")) {
+            if let (true, Some(k)) = (s.starts_with('.'), s.find(".stage-").filter(|&k| k > 1)) {
                 s[1..k].to_string()
             } else {
                 s.into_owned()
@@ -80,8 +78,9 @@ fn final_name(path: &Path) -> PathBuf {
         .collect()
 }
 
-/// Check the format an output option names by its extension before anything is computed or written.
-fn check_extension(option: &str, path: &Option<PathBuf>, allowed: &[&str]) -> Result<()> {
+/// Check the format an output option names by its extension, and the output policy (not a folder, not one of
+/// the command's `inputs`: [`crate::io::policy::check_out_file`]), before anything is computed or written.
+fn check_extension(option: &str, path: &Option<PathBuf>, allowed: &[&str], inputs: &[(&str, &Path)]) -> Result<()> {
     if let Some(p) = path {
         let ext = p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
         if !allowed.contains(&ext.as_str()) {
@@ -90,6 +89,7 @@ fn check_extension(option: &str, path: &Option<PathBuf>, allowed: &[&str]) -> Re
         if p.is_dir() {
             return Err(Error::invalid(format!("{option} {}: is a directory", p.display())));
         }
+        crate::io::policy::check_out_file(option, p, inputs)?;
     }
     Ok(())
 }
@@ -211,6 +211,7 @@ pub(super) fn export_spec(a: ExportArgs) -> Result<()> {
             return Err(Error::invalid(format!("--format {fmt} but --out {} has the extension `.{ext}`: name the file *.{fmt}", a.out.display())));
         }
     }
+    crate::io::policy::check_out_file("--out", &a.out, &system_inputs(&a.system))?;
     let system = load_system(&a.system)?;
     crate::spec::save_spec_file(&system.spec, &a.out)?;
     say_written(&a.out);
@@ -362,9 +363,11 @@ fn write_spot_csv(path: &Path, system: &SequentialSystem, spots: &[SpotDiagram])
 
 /// `--csv`/`--json`/`--png` name files of their format (checked before any work).
 fn check_outputs(a: &SpotArgs) -> Result<()> {
-    check_extension("--csv", &a.csv, &["csv"])?;
-    check_extension("--json", &a.json, &["json"])?;
-    check_extension("--png", &a.png, &["png"])
+    let mut inputs = system_inputs(&a.system);
+    inputs.extend(a.pupil_csv.as_deref().map(|p| ("--pupil-csv", p)));
+    check_extension("--csv", &a.csv, &["csv"], &inputs)?;
+    check_extension("--json", &a.json, &["json"], &inputs)?;
+    check_extension("--png", &a.png, &["png"], &inputs)
 }
 
 pub(super) fn spot(a: SpotArgs) -> Result<()> {
@@ -436,9 +439,9 @@ fn distortion_plot(path: &Path, system: &SequentialSystem, g: &DistortionGrid, a
 }
 
 pub(super) fn distortion(a: DistortionArgs) -> Result<()> {
-    check_extension("--csv", &a.csv, &["csv"])?;
-    check_extension("--json", &a.json, &["json"])?;
-    check_extension("--png", &a.png, &["png"])?;
+    check_extension("--csv", &a.csv, &["csv"], &system_inputs(&a.system))?;
+    check_extension("--json", &a.json, &["json"], &system_inputs(&a.system))?;
+    check_extension("--png", &a.png, &["png"], &system_inputs(&a.system))?;
     if !(a.arrow_scale.is_finite() && a.arrow_scale > 0.0) {
         return Err(Error::invalid(format!("--arrow-scale {}: must be finite and > 0", a.arrow_scale)));
     }
@@ -476,8 +479,8 @@ pub(super) fn distortion(a: DistortionArgs) -> Result<()> {
 }
 
 pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
-    check_extension("--csv", &a.csv, &["csv"])?;
-    check_extension("--png", &a.png, &["png"])?;
+    check_extension("--csv", &a.csv, &["csv"], &system_inputs(&a.system))?;
+    check_extension("--png", &a.png, &["png"], &system_inputs(&a.system))?;
     let ws = parse_wavelengths_for("--wavelengths-nm", &a.wavelengths_nm)?;
     let field = parse_field(&a.field_mm)?;
     let system = load_system(&a.system)?;
@@ -505,7 +508,7 @@ pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
 }
 
 pub(super) fn mapping(a: MappingArgs) -> Result<()> {
-    check_extension("--npy", &Some(a.npy.clone()), &["npy"])?;
+    check_extension("--npy", &Some(a.npy.clone()), &["npy"], &system_inputs(&a.system))?;
     let ws = parse_wavelengths_for("--wavelengths-nm", &a.wavelengths_nm)?;
     if a.height == 0 || a.width == 0 {
         return Err(Error::invalid(format!("--height {} --width {}: both must be ≥ 1", a.height, a.width)));
@@ -567,10 +570,21 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
 // ---------------------------------------------------------------- report (tables and plots of a preset)
 
 pub(super) fn report(a: ReportArgs) -> Result<()> {
+    // The output policy before any work: --out new, empty or a previous report (or --force), never an input.
+    let rule = crate::io::policy::FolderRule { option: "--out", command: "report", marker: "report.json", force: a.force };
     let system = load_system(&a.system)?;
     // Everything is written into a staging folder beside --out and replaces it at the end (all or nothing).
-    let set = crate::io::OutputSet::folder(&a.out, "report.json")?;
-    let out = &set.stage_dir().map(Path::to_path_buf).unwrap_or_else(|| a.out.clone());
+    // Default out/report-<system> (like render's out/render-<system>), not a shared folder such as `out`.
+    let out_dir = a.out.clone().unwrap_or_else(|| {
+        let name = match (&a.system.preset, &a.system.system) {
+            (Some(p), _) => p.clone(),
+            (None, Some(f)) => f.file_stem().unwrap_or_default().to_string_lossy().into_owned(),
+            _ => "system".into(),
+        };
+        PathBuf::from("out").join(format!("report-{name}"))
+    });
+    let set = crate::io::OutputSet::folder(&out_dir, &rule, &super::shared::system_inputs(&a.system))?;
+    let out = &set.stage_dir().map(Path::to_path_buf).unwrap_or_else(|| out_dir.clone());
     let name = system.name().to_string();
     let t0 = Instant::now();
     write_atomic(out.join("system.txt"), lde_table(&system).as_bytes())?;
@@ -611,7 +625,7 @@ pub(super) fn report(a: ReportArgs) -> Result<()> {
         }),
     )?;
     set.commit()?;
-    println!("report of `{name}` written to {} in {:.2} s", a.out.display(), t0.elapsed().as_secs_f64());
+    println!("report of `{name}` written to {} in {:.2} s", out_dir.display(), t0.elapsed().as_secs_f64());
     Ok(())
 }
 

@@ -44,9 +44,15 @@ pub struct RenderDatasetArgs {
     /// Folder of scenes (.exr, .npy, PNG sub-folders).
     #[arg(long)]
     pub scenes: PathBuf,
-    /// Output folder: one sub-folder per scene, plus dataset.json, mask.png and the mapping cube.
+    /// Output folder: one sub-folder per scene, plus dataset.json, mask.png and the mapping cube. New, empty,
+    /// or a previous render-dataset output (it holds dataset.json; resumed); never --scenes, inside it or
+    /// containing it.
     #[arg(long)]
     pub out: PathBuf,
+    /// Accept an --out folder that holds other files (not a previous render-dataset output): the dataset is
+    /// written beside them, nothing else there is touched (docs/robustness.md, "Output policy").
+    #[arg(long)]
+    pub force: bool,
     /// Keep the traced light transport in memory up to this size (GB); beyond it, trace per scene.
     #[arg(long = "transport-memory-gb", default_value_t = 4.0, value_parser = super::render::positive_gb)]
     pub transport_memory_gb: f64,
@@ -148,6 +154,16 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
         return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0", a.transport_memory_gb)));
     }
     let delay = debug_delay()?;
+    // The output policy before any work: --out new, empty, a previous dataset (or --force), never an input.
+    let mut inputs = super::shared::system_inputs(&a.common.system);
+    inputs.push(("--scenes", a.scenes.as_path()));
+    inputs.extend(a.common.mask.as_deref().map(|p| ("--mask", p)));
+    // A shard started beside others (or killed) before dataset.json exists leaves only the dataset's own
+    // files: the shared outputs, scene folders of this scene list, temporaries.
+    let listed: Vec<String> = dataset::find_scenes(&a.scenes).map(|v| v.into_iter().map(|s| s.name).collect()).unwrap_or_default();
+    let owned = |n: &str| n == dataset::MANIFEST || n == "mask.png" || (n.starts_with("mapping") && n.ends_with(".npy")) || listed.iter().any(|s| s == n) || (n.starts_with('.') && (n.contains(".partial-") || n.contains(".old-")));
+    let rule = crate::io::policy::FolderRule { option: "--out", command: "render-dataset", marker: dataset::MANIFEST, force: a.force };
+    crate::io::policy::check_out_folder_owned(&a.out, &rule, &inputs, &owned)?;
     let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = config_from(&a.common)?;
@@ -308,6 +324,13 @@ pub fn dataset_status(a: DatasetStatusArgs) -> Result<()> {
         None => None,
     };
     let st = DatasetStatus::check(&a.dir, names, None)?;
+    if st.scenes.is_empty() {
+        let source = match &a.scenes {
+            Some(src) => format!("--scenes {} holds no scenes (.exr, .npy, or folders of .png)", src.display()),
+            None => format!("its {} lists no scenes", dataset::MANIFEST),
+        };
+        return Err(Error::File { path: a.dir.display().to_string(), message: format!("no scenes: {source}; nothing can be done or missing") });
+    }
     let (done, missing, corrupt) = st.counts();
     if a.json {
         let text = serde_json::to_string_pretty(&st.to_json()).map_err(|e| Error::invalid(format!("JSON encoding failed: {e}")))?;

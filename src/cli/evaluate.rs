@@ -87,6 +87,9 @@ pub fn evaluation_json(ev: &Evaluation, truth: &SpectralCube, truth_path: &Path,
 }
 
 pub fn evaluate(a: EvaluateArgs) -> Result<()> {
+    if let Some(out) = &a.json {
+        crate::io::policy::check_out_file("--json", out, &[("--truth", a.truth.as_path()), ("--estimate", a.estimate.as_path())])?;
+    }
     let truth = load("truth", &a.truth, a.truth_wavelengths.as_deref())?;
     let estimate = load("estimate", &a.estimate, a.estimate_wavelengths.as_deref())?;
     let ev = evaluate_cubes(&truth, &estimate).map_err(|e| Error::invalid(format!("{} vs {}: {e}", a.truth.display(), a.estimate.display())))?;

@@ -8,9 +8,22 @@
 //! ```
 use super::shared::parse_wavelengths;
 use crate::error::{Error, Result};
-use crate::scene::{colorimetry, natural, save_exr, save_npy, synthetic_scene, Fit};
+use crate::io::{write_npy_f32, write_npy_f64, OutputSet};
+use crate::scene::{colorimetry, natural, save_exr, synthetic_scene, Fit};
 use clap::Args;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+/// The files `make-scene --out OUT` writes, as (what, path): OUT, `<stem>_wavelengths_nm.npy` (NPY only; the
+/// name [`crate::scene::load_npy`] reads back) and the preview `<stem>_rgb.png`.
+fn scene_outputs(out: &Path, npy: bool) -> Vec<(&'static str, PathBuf)> {
+    let stem = out.file_stem().unwrap_or_default().to_string_lossy().into_owned();
+    let mut v = vec![("--out", out.to_path_buf())];
+    if npy {
+        v.push(("--out's wavelength list", out.with_file_name(format!("{stem}_wavelengths_nm.npy"))));
+    }
+    v.push(("--out's preview", out.with_file_name(format!("{stem}_rgb.png"))));
+    v
+}
 
 #[derive(Args, Debug)]
 pub struct MakeSceneArgs {
@@ -60,6 +73,12 @@ pub fn make_scene(a: MakeSceneArgs) -> Result<()> {
     if let Some(n) = a.size.or((a.rgb.is_none()).then_some(256)) {
         crate::limits::check_memory(&format!("--size {n} (× {} bands)", ws.len()), crate::limits::bytes_cube(n, n, ws.len()))?;
     }
+    // The output policy before any work: every file of the set is a file (replaced if present), never --rgb.
+    let outputs = scene_outputs(&a.out, ext.as_deref() == Some("npy"));
+    let inputs: Vec<(&str, &std::path::Path)> = a.rgb.iter().map(|p| ("--rgb", p.as_path())).collect();
+    for (option, p) in &outputs {
+        crate::io::policy::check_out_file(option, p, &inputs)?;
+    }
     let (cube, what) = match (&a.rgb, a.colour_checker, a.synthetic) {
         (Some(p), _, _) => {
             let c = natural::load_rgb_scene(p, Some(&ws))?;
@@ -76,16 +95,22 @@ pub fn make_scene(a: MakeSceneArgs) -> Result<()> {
         }
         (None, false, None) => return Err(Error::invalid("give one of --rgb FILE.png, --colour-checker, --synthetic SEED")),
     };
+    // All or nothing: cube, wavelength list and preview are staged beside their destinations and renamed
+    // into place only when all three are written.
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).map_err(|e| Error::File { path: dir.display().to_string(), message: format!("cannot create: {e}") })?;
     }
+    let mut set = OutputSet::files();
     match ext.as_deref() {
-        Some("exr") => save_exr(&cube, &a.out)?,
-        _ => save_npy(&cube, &a.out)?,
+        Some("exr") => save_exr(&cube, &set.stage(&a.out))?,
+        _ => {
+            write_npy_f32(set.stage(&a.out), &[cube.height, cube.width, cube.bands()], &cube.data)?;
+            write_npy_f64(set.stage(&outputs[1].1), &[cube.bands()], &cube.wavelengths_nm)?;
+        }
     }
-    let stem = a.out.file_stem().unwrap_or_default().to_string_lossy().into_owned();
-    let preview = a.out.with_file_name(format!("{stem}_rgb.png"));
-    colorimetry::save_srgb_png(&cube, 1.0, &preview)?;
+    let preview = outputs[outputs.len() - 1].1.clone();
+    colorimetry::save_srgb_png(&cube, 1.0, &set.stage(&preview))?;
+    set.commit()?;
     println!("{what}: {}×{}×{} cube ({:.1}–{:.1} nm) → {}, preview {}", cube.height, cube.width, cube.bands(), ws[0], ws[ws.len() - 1], a.out.display(), preview.display());
     Ok(())
 }

@@ -51,9 +51,14 @@ pub struct ReconstructArgs {
     pub transport_memory_gb: f64,
     #[command(flatten)]
     pub backend: BackendArgs,
-    /// Output folder.
+    /// Output folder: new, empty, or a previous reconstruction (replaced whole); never --from, inside it or
+    /// containing it.
     #[arg(long)]
     pub out: PathBuf,
+    /// Accept an --out folder that holds other files (not a previous reconstruction): the outputs are moved
+    /// in beside them, nothing else there is touched (docs/robustness.md, "Output policy").
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// The forward models `--operator` names.
@@ -305,38 +310,26 @@ pub fn build_operator<'a>(kind: OperatorKind, record: &'a RenderRecord, tracer: 
     })
 }
 
-/// Write a reconstruction folder atomically: everything goes into a temporary sibling folder, renamed to
-/// `out` when complete (a previous `out` is replaced only then). `exr`: also write `cube.exr`.
-pub fn write_reconstruction(out: &Path, cube: &SpectralCube, json: &Value, exr: bool) -> Result<()> {
-    let name = out.file_name().ok_or_else(|| ferr(out, "the output folder needs a name"))?.to_string_lossy().into_owned();
-    let parent = match out.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&parent).map_err(|e| ferr(&parent, format!("cannot create: {e}")))?;
-    let tmp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&tmp);
-    let result = (|| -> Result<()> {
-        std::fs::create_dir_all(&tmp).map_err(|e| ferr(&tmp, format!("cannot create: {e}")))?;
-        save_npy(cube, &tmp.join("cube.npy"))?;
-        if exr {
-            save_exr(cube, &tmp.join("cube.exr"))?;
-        }
-        colorimetry::save_srgb_png(cube, 1.0, &tmp.join("rgb.png"))?;
-        let text = serde_json::to_string_pretty(json).map_err(|e| Error::invalid(format!("JSON encoding failed: {e}")))?;
-        crate::io::write_atomic(tmp.join("reconstruct.json"), text.as_bytes())?;
-        let old = parent.join(format!(".{name}.old-{}", std::process::id()));
-        if out.exists() {
-            std::fs::rename(out, &old).map_err(|e| ferr(out, format!("cannot move the previous result aside: {e}")))?;
-        }
-        std::fs::rename(&tmp, out).map_err(|e| ferr(out, format!("cannot move the result into place: {e}")))?;
-        let _ = std::fs::remove_dir_all(&old);
-        Ok(())
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_dir_all(&tmp);
+/// The output policy of a reconstruction folder: new, empty, a previous reconstruction (it holds
+/// `reconstruct.json`) or, with `force`, a folder of other files ([`crate::io::policy`]).
+pub fn reconstruction_rule(force: bool) -> crate::io::policy::FolderRule<'static> {
+    crate::io::policy::FolderRule { option: "--out", command: "reconstruct", marker: "reconstruct.json", force }
+}
+
+/// Write a reconstruction folder all or nothing through `set` (an [`OutputSet::folder`](crate::io::OutputSet)
+/// made with [`reconstruction_rule`] before the work): everything goes into its staging folder, which replaces
+/// `out` when complete. `exr`: also write `cube.exr`.
+pub fn write_reconstruction(set: crate::io::OutputSet, cube: &SpectralCube, json: &Value, exr: bool) -> Result<()> {
+    let tmp = set.stage_dir().ok_or_else(|| Error::invalid("write_reconstruction needs a folder output set"))?.to_path_buf();
+    save_npy(cube, &tmp.join("cube.npy"))?;
+    if exr {
+        save_exr(cube, &tmp.join("cube.exr"))?;
     }
-    result
+    colorimetry::save_srgb_png(cube, 1.0, &tmp.join("rgb.png"))?;
+    let text = serde_json::to_string_pretty(json).map_err(|e| Error::invalid(format!("JSON encoding failed: {e}")))?;
+    crate::io::write_atomic(tmp.join("reconstruct.json"), text.as_bytes())?;
+    set.commit()?;
+    Ok(())
 }
 
 fn iteration_bar(n: u64, what: &str) -> ProgressBar {
@@ -463,7 +456,12 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     }
     let settings = a.tuning.settings(&a.solver, a.tuning.accelerated);
     check_solver(&settings)?;
+    // The output policy before any work: --out never --from, inside it or containing it.
+    let inputs = [("--from", a.from.as_path())];
+    crate::io::policy::check_out_folder(&a.out, &reconstruction_rule(a.force), &inputs)?;
     let record = RenderRecord::load(&a.from)?;
+    // The staging folder, filled and swapped in at the end (a killed run's is removed by the next).
+    let set = crate::io::OutputSet::folder(&a.out, &reconstruction_rule(a.force), &inputs)?;
     let seed = operator_seed(record.config.seed, a.operator_seed.as_deref())?;
     let tracer = record_tracer(&record, &a.backend)?;
     let t_op = Instant::now();
@@ -502,7 +500,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
         "seconds_solve": solved.seconds,
         "seconds": t0.elapsed().as_secs_f64(),
     });
-    write_reconstruction(&a.out, &cube, &json, true)?;
+    write_reconstruction(set, &cube, &json, true)?;
     println!(
         "{} / {} / {}: {}×{}×{} cube, {} iterations, final residual {:.4e}; operator {:.2} s, solve {:.2} s, total {:.2} s → {}",
         record.system.name(),

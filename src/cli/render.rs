@@ -95,6 +95,10 @@ pub struct RenderArgs {
     /// Output folder (default out/render-<system>).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Accept an --out folder that holds other files (not a previous output of this command): the outputs
+    /// are moved in beside them, nothing else there is touched (docs/robustness.md, "Output policy").
+    #[arg(long)]
+    pub force: bool,
     #[command(flatten)]
     pub noise: NoiseArgs,
 }
@@ -382,6 +386,13 @@ pub fn render(a: RenderArgs) -> Result<()> {
         // Accepted and ignored before: the synthetic scene has its own 31 bands.
         return Err(Error::invalid("--scene-wavelengths applies to a --scene file, not to the synthetic scene"));
     }
+    // The output policy before any work: --out new, empty or a previous render (or --force), never an input.
+    let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
+    let mut inputs = super::shared::system_inputs(&a.common.system);
+    inputs.extend(a.scene.as_deref().map(|p| ("--scene", p)));
+    inputs.extend(a.common.mask.as_deref().map(|p| ("--mask", p)));
+    let rule = crate::io::policy::FolderRule { option: "--out", command: "render", marker: "render.json", force: a.force };
+    crate::io::policy::check_out_folder(&out, &rule, &inputs)?;
     let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = config_from(&a.common)?;
@@ -397,15 +408,14 @@ pub fn render(a: RenderArgs) -> Result<()> {
     let (tracer, rays) = render_tracer(&a.common, &system, &mut cfg, &mask)?;
     check_render_rays(n, cfg.spectral.planes(), rays)?;
     cfg.rays_per_pixel = rays;
-    let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
     let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
+    // All or nothing: the files go to a staging folder beside --out, which replaces --out at the end.
+    let set = crate::io::OutputSet::folder(&out, &rule, &inputs)?;
     let pb = progress_bar(renderer.rays_per_render(), &format!("render {}", system.name()));
     let mut acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
     pb.finish_and_clear();
     // Sensor noise on the acquisition (the per-band images of --cube stay clean).
     let noise_json = apply_noise(noise.as_ref(), &mut acq, a.noise.noise.as_deref().unwrap_or(""), false)?;
-    // All or nothing: the files go to a staging folder beside --out, which replaces --out at the end.
-    let set = crate::io::OutputSet::folder(&out, "render.json")?;
     let json = write_all(set.stage_dir().unwrap_or(&out), &renderer, &acq, &desc, t0, serde_json::json!({"noise": noise_json}), !a.common.no_mapping)?;
     set.commit()?;
     println!(

@@ -29,6 +29,14 @@ pub fn load_spec(args: &SystemArgs) -> Result<SystemSpec> {
 }
 
 /// Build the system named by the arguments, with any extra glass catalogues.
+/// The input files of `--system` / `--glass-catalog`, as (option, path) for the output policy
+/// ([`crate::io::policy`]: an output never overwrites an input).
+pub fn system_inputs(args: &SystemArgs) -> Vec<(&'static str, &std::path::Path)> {
+    let mut v: Vec<(&'static str, &std::path::Path)> = args.system.iter().map(|p| ("--system", p.as_path())).collect();
+    v.extend(args.glass_catalogs.iter().map(|p| ("--glass-catalog", p.as_path())));
+    v
+}
+
 pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
     let spec = load_spec(args)?;
     let mut catalog = GlassCatalog::builtin();

@@ -6,7 +6,7 @@
 //! diffcassi study --synthetic 2 --scene-size 24 --presets ap,sp --planes 28 --rays 4 --iterations 5 --out out/tiny
 //! ```
 //!
-//! Layout of `--out`: `mask.png` (the mask every render uses), `renders/<preset>/<scene>/` (complete render
+//! Layout of `--out`: `study.json` (the marker of a study folder: command, version, configuration), `mask.png` (the mask every render uses), `renders/<preset>/<scene>/` (complete render
 //! folders, readable by `reconstruct --from`), `recon/<preset>/<scene>/<operator>-<solver>/` (`cube.npy`,
 //! `rgb.png`, `reconstruct.json`), `cells/<preset>/<scene>/<operator>-<solver>.json` (one finished cell:
 //! its configuration, metrics and seconds), and, rebuilt from every cell at the end, `study.csv` (one row per
@@ -18,7 +18,7 @@
 //! that changes a number: bands, planes, rays, seeds, mask, Airy, scene size and fit, solver settings).
 //! The exact operator of a system is traced once (seed = acquisition seed + 1, as `reconstruct`'s default) and
 //! reused for all its scenes; so are the other operators.
-use super::reconstruct::{build_operator, check_solver, operator_seed, solve, write_reconstruction, OperatorKind, RenderRecord, SolverTuning};
+use super::reconstruct::{build_operator, check_solver, operator_seed, reconstruction_rule, solve, write_reconstruction, OperatorKind, RenderRecord, SolverTuning};
 use crate::error::{Error, Result};
 use crate::recon::metrics::evaluate;
 use crate::recon::Operator;
@@ -88,9 +88,14 @@ pub struct StudyArgs {
     /// Light-transport memory budget (GB) for the renders and the exact operator.
     #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
     pub transport_memory_gb: f64,
-    /// Output folder.
+    /// Output folder: new, empty, or a previous study (it holds study.json; resumed); never --scenes, inside
+    /// it or containing it.
     #[arg(long)]
     pub out: PathBuf,
+    /// Accept an --out folder that holds other files (not a previous study): the study's files are written
+    /// beside them, nothing else there is touched (docs/robustness.md, "Output policy").
+    #[arg(long)]
+    pub force: bool,
 }
 
 /// Display names of the paper's systems.
@@ -331,6 +336,10 @@ fn mean_std(v: &[f64]) -> (f64, f64) {
     (m, var.sqrt())
 }
 
+/// The file every study output folder holds (written first): the output policy recognises a previous study
+/// by it ([`crate::io::policy`]).
+pub const STUDY_MARKER: &str = "study.json";
+
 pub fn study(a: StudyArgs) -> Result<()> {
     let t0 = Instant::now();
     // ---- validate everything before any work ----
@@ -347,6 +356,10 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if a.scene_size == 0 {
         return Err(Error::invalid("--scene-size must be ≥ 1"));
     }
+    // The output policy before any work: --out new, empty, a previous study (or --force), never an input.
+    let mut inputs: Vec<(&str, &Path)> = a.scenes.iter().map(|p| ("--scenes", p.as_path())).collect();
+    inputs.extend(a.mask.as_deref().map(|p| ("--mask", p)));
+    crate::io::policy::check_out_folder(&a.out, &crate::io::policy::FolderRule { option: "--out", command: "study", marker: STUDY_MARKER, force: a.force }, &inputs)?;
     let bands = super::shared::parse_wavelengths(&a.bands)?;
     check_limits(&a, &bands, &solvers)?;
     let cfg = render_config(&a, &bands)?;
@@ -376,6 +389,8 @@ pub fn study(a: StudyArgs) -> Result<()> {
         r
     };
     std::fs::create_dir_all(&a.out).map_err(|e| Error::File { path: a.out.display().to_string(), message: format!("cannot create: {e}") })?;
+    // The marker that makes --out recognisable as a study (resumed by the next run), written first.
+    write_json(&a.out.join(STUDY_MARKER), &json!({"command": "study", "version": env!("CARGO_PKG_VERSION"), "configuration": config}))?;
     mask.save_png(&a.out.join("mask.png"))?;
     println!(
         "study: {} scenes {}×{} × {} systems × {} operators × {} solvers = {} cells → {}",
@@ -427,7 +442,8 @@ pub fn study(a: StudyArgs) -> Result<()> {
                     "seconds_operator": seconds_operator, "seconds_solve": solved.seconds, "seconds": solved.seconds,
                 });
                 let rdir = a.out.join("recon").join(preset).join(&scene.name).join(format!("{}-{solver}", op_kind.name()));
-                write_reconstruction(&rdir, &estimate, &rjson, false)?;
+                let set = crate::io::OutputSet::folder(&rdir, &reconstruction_rule(false), &[])?;
+                write_reconstruction(set, &estimate, &rjson, false)?;
                 let cell = json!({
                     "config": config, "preset": preset, "system": system_label(preset), "scene": scene.name, "operator": op_kind.name(), "solver": solver,
                     "metrics": ev.metrics, "truth_resampled": ev.truth_resampled, "iterations": solved.residuals.len(), "final_residual": final_residual,

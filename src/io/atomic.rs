@@ -5,8 +5,9 @@
 //! and a failed write (error returned by the closure, full disk, ...) leaves the old file untouched
 //! and removes the temporary file. Missing parent directories are created.
 //!
-//! The temporary file is named `.<file name>.<pid>.<n>.tmp` and lives next to the destination
-//! (a rename is only atomic within one file system).
+//! The temporary file is named `.<file name>.stage-<host>-<pid>-<start>-<n>[.<ext>]` and lives next to the
+//! destination (a rename is only atomic within one file system); the ones a killed run left for the same
+//! destination are removed first ([`super::stale`]).
 //!
 //! # Example
 //!
@@ -33,9 +34,9 @@
 use std::fs::{self, File, OpenOptions};
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
-use super::IoError;
+use super::policy::{check_out_folder, FolderRule, FolderState};
+use super::{stale, IoError};
 
 /// Atomically replace (or create) `path` with `bytes`.
 pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<(), IoError> {
@@ -52,7 +53,7 @@ where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
     let path = path.as_ref();
-    let file_name = path.file_name().ok_or_else(|| {
+    path.file_name().ok_or_else(|| {
         IoError::io(
             path,
             "cannot write",
@@ -65,8 +66,9 @@ where
     };
     fs::create_dir_all(&dir).map_err(|e| IoError::io(&dir, "cannot create directory", e))?;
 
-    let (tmp_path, file) = create_temp(&dir, &file_name.to_string_lossy())
-        .map_err(|e| IoError::io(path, "cannot create temporary file", e))?;
+    // Housekeeping only: a temporary that cannot be removed does not stop the write.
+    let _ = stale::remove_stale(path);
+    let (tmp_path, file) = create_temp(path).map_err(|e| IoError::io(path, "cannot create temporary file", e))?;
     // From here on, remove the temporary file on any failure.
     let result = (|| -> Result<(), IoError> {
         let mut w = BufWriter::with_capacity(1 << 16, file);
@@ -85,13 +87,10 @@ where
     result
 }
 
-fn create_temp(dir: &Path, file_name: &str) -> std::io::Result<(PathBuf, File)> {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let pid = std::process::id();
+fn create_temp(dest: &Path) -> std::io::Result<(PathBuf, File)> {
     let mut last_err = None;
     for _ in 0..100 {
-        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-        let tmp = dir.join(format!(".{file_name}.{pid}.{n}.tmp"));
+        let tmp = stale::temp_path(dest);
         match OpenOptions::new().write(true).create_new(true).open(&tmp) {
             Ok(f) => return Ok((tmp, f)),
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => last_err = Some(e),
@@ -101,27 +100,122 @@ fn create_temp(dir: &Path, file_name: &str) -> std::io::Result<(PathBuf, File)> 
     Err(last_err.unwrap_or_else(|| std::io::Error::other("no free temporary file name")))
 }
 
+/// Environment variable of the tests only: `DIFFCASSI_TEST_PAUSE_AT=commit` (every file of an output set
+/// staged, nothing moved yet) or `=swap` (inside the swap of an output folder: after the exchange, before the
+/// old set is removed; in the two-rename fallback, between the renames) makes the process stop itself
+/// (SIGSTOP) there, so a test can SIGKILL it at that exact point (tests/output_policy.rs). Not for users.
+pub const TEST_PAUSE_ENV: &str = "DIFFCASSI_TEST_PAUSE_AT";
+
+/// Stop the process (SIGSTOP) when [`TEST_PAUSE_ENV`] names `point` (a test hook; see there).
+pub fn test_pause(point: &str) {
+    if std::env::var(TEST_PAUSE_ENV).is_ok_and(|v| v == point) {
+        eprintln!("{TEST_PAUSE_ENV}={point}: stopping for a test");
+        // SAFETY: raise() only sends a signal to this process; SIGSTOP cannot be caught.
+        unsafe {
+            libc::raise(libc::SIGSTOP);
+        }
+    }
+}
+
+/// Exchange two paths atomically (`renameat2(RENAME_EXCHANGE)`, Linux ≥ 3.15 on ext4, xfs, btrfs, tmpfs, …).
+/// `Ok(false)`: the file system or kernel does not support it (EINVAL, ENOSYS, ENOTSUP), nothing changed.
+fn exchange(a: &Path, b: &Path) -> std::io::Result<bool> {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::ffi::OsStrExt;
+        let c = |p: &Path| std::ffi::CString::new(p.as_os_str().as_bytes()).map_err(|_| std::io::Error::new(std::io::ErrorKind::InvalidInput, "path holds a NUL byte"));
+        let (ca, cb) = (c(a)?, c(b)?);
+        // SAFETY: two valid NUL-terminated paths relative to the working directory.
+        let r = unsafe { libc::renameat2(libc::AT_FDCWD, ca.as_ptr(), libc::AT_FDCWD, cb.as_ptr(), libc::RENAME_EXCHANGE) };
+        if r == 0 {
+            return Ok(true);
+        }
+        let e = std::io::Error::last_os_error();
+        match e.raw_os_error() {
+            Some(libc::EINVAL) | Some(libc::ENOSYS) | Some(libc::ENOTSUP) => Ok(false),
+            _ => Err(e),
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = (a, b);
+        Ok(false)
+    }
+}
+
+fn remove_any(p: &Path) -> std::io::Result<()> {
+    match fs::symlink_metadata(p) {
+        Ok(m) if m.is_dir() => fs::remove_dir_all(p),
+        Ok(_) => fs::remove_file(p),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(e),
+    }
+}
+
+/// Put the complete folder `stage` in place of `dest` (absent, or a previous set, replaced whole) so that
+/// `dest` names the old set or the new one at every instant: a rename when `dest` is absent, else
+/// `renameat2(RENAME_EXCHANGE)` and the old set (now under the stage's name) removed. Where the file system
+/// refuses the exchange, two renames (`dest` → `stage.old`, `stage` → `dest`): between them, for the
+/// microseconds of one rename, `dest` is absent (the old set is complete under `stage.old`, the new under
+/// `stage`; a rerun removes both once their writer is gone).
+pub fn swap_into_place(stage: &Path, dest: &Path) -> Result<(), IoError> {
+    // The staged entries must be on disk before a rename makes them visible.
+    if let Ok(f) = File::open(stage) {
+        let _ = f.sync_all();
+    }
+    let exists = fs::symlink_metadata(dest).is_ok();
+    if !exists {
+        fs::rename(stage, dest).map_err(|e| IoError::io(dest, "cannot move the new output set into place", e))?;
+    } else if exchange(stage, dest).map_err(|e| IoError::io(dest, "cannot exchange the new output set with the previous one", e))? {
+        test_pause("swap");
+        remove_any(stage).map_err(|e| IoError::io(stage, "cannot remove the previous output set (the new one is in place)", e))?;
+    } else {
+        let mut old = stage.as_os_str().to_os_string();
+        old.push(".old");
+        let old = PathBuf::from(old);
+        fs::rename(dest, &old).map_err(|e| IoError::io(dest, "cannot move the previous output set aside", e))?;
+        test_pause("swap");
+        if let Err(e) = fs::rename(stage, dest) {
+            let _ = fs::rename(&old, dest);
+            return Err(IoError::io(dest, "cannot move the new output set into place", e));
+        }
+        remove_any(&old).map_err(|e| IoError::io(&old, "cannot remove the previous output set (the new one is in place)", e))?;
+    }
+    if let Some(parent) = dest.parent().filter(|p| !p.as_os_str().is_empty()) {
+        if let Ok(f) = File::open(parent) {
+            let _ = f.sync_all();
+        }
+    }
+    Ok(())
+}
+
 /// All-or-nothing output of a command: every file is first written to a staging place and the whole set is
 /// moved into place by [`OutputSet::commit`] once everything succeeded. Dropping an uncommitted set removes
 /// what was staged, so a command that fails half-way leaves the previous outputs exactly as they were.
 ///
 /// Two forms:
-/// * [`OutputSet::files`]: loose files anywhere (`spot --csv a.csv --json b.json --png c.png`); each is staged
-///   beside its destination as `.diffcassi-stage-<pid>-<n>-<name>` (same file system, so the final renames are
-///   atomic; the extension is kept for writers that choose the format by it) and renamed at commit.
-/// * [`OutputSet::folder`]: a command's output folder (`report --out`, `render --out`): files are written into a
-///   sibling folder `.<name>.stage-<pid>-<n>`; at commit the staging folder replaces the destination with two
-///   renames when the destination is new, empty, or a previous output set of the command (it holds the
-///   command's `marker` file): a reader sees the old set or the new one, never a mix. A destination holding
-///   anything else (an unrelated folder such as `.`) is not swapped: the files are moved in one by one,
-///   `marker` last, and nothing else there is touched.
+/// * [`OutputSet::files`]: loose files anywhere (`spot --csv a.csv --json b.json --png c.png`, `make-scene`);
+///   each is staged beside its destination as `.NAME.stage-HOST-PID-START-N.EXT` (same file system, so the
+///   final renames are atomic; the extension is kept for writers that choose the format by it) and renamed at
+///   commit.
+/// * [`OutputSet::folder`]: a command's output folder (`report --out`, `render --out`, `reconstruct --out`),
+///   checked against the output policy ([`super::policy`]) when the set is created, before any work: new,
+///   empty, a previous output of the command (it holds the command's marker file), or with `--force` a folder
+///   of other files. Files are written into a sibling folder `.NAME.stage-HOST-PID-START-N`; at commit the
+///   staging folder replaces the destination whole ([`swap_into_place`]: the old or the new set is under the
+///   name at every instant); into a `--force`d folder of other files the outputs are moved one by one, the
+///   marker last, and nothing else there is touched.
+///
+/// Creating a set removes the temporaries that killed runs left for the same destination ([`super::stale`]).
 ///
 /// ```
-/// use diffcassi::io::OutputSet;
+/// use diffcassi::io::{policy::FolderRule, OutputSet};
 /// let dir = tempfile::tempdir().unwrap();
 /// let out = dir.path().join("report");
-/// let set = OutputSet::folder(&out, "report.json").unwrap();
+/// let rule = FolderRule { option: "--out", command: "report", marker: "report.json", force: false };
+/// let set = OutputSet::folder(&out, &rule, &[]).unwrap();
 /// std::fs::write(set.stage_dir().unwrap().join("a.csv"), "x\n").unwrap();
+/// std::fs::write(set.stage_dir().unwrap().join("report.json"), "{}").unwrap();
 /// assert!(!out.exists()); // nothing visible before the commit
 /// set.commit().unwrap();
 /// assert!(out.join("a.csv").is_file());
@@ -139,11 +233,9 @@ struct FolderStage {
     stage: PathBuf,
     dest: PathBuf,
     marker: String,
-}
-
-fn stage_counter() -> u64 {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    COUNTER.fetch_add(1, Ordering::Relaxed)
+    option: String,
+    command: String,
+    force: bool,
 }
 
 impl OutputSet {
@@ -152,21 +244,20 @@ impl OutputSet {
         OutputSet { staged: Vec::new(), folder: None, committed: false }
     }
 
-    /// A set replacing the folder `dest`; write into [`OutputSet::stage_dir`]. `marker` names the file every
-    /// output set of this command contains (e.g. `render.json`); it is moved last.
-    pub fn folder(dest: impl AsRef<Path>, marker: &str) -> Result<Self, IoError> {
+    /// A set replacing the folder `dest`, checked against the output policy and the command's `inputs`
+    /// (option, path) first ([`super::policy::check_out_folder`]); write into [`OutputSet::stage_dir`].
+    pub fn folder(dest: impl AsRef<Path>, rule: &FolderRule, inputs: &[(&str, &Path)]) -> Result<Self, IoError> {
         let dest = dest.as_ref().to_path_buf();
-        let name = dest.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "out".into());
+        check_out_folder(&dest, rule, inputs)?;
         let parent = dest.parent().map(Path::to_path_buf).unwrap_or_default();
-        if dest.exists() && !dest.is_dir() {
-            return Err(IoError::io(&dest, "cannot write an output folder", std::io::Error::new(std::io::ErrorKind::AlreadyExists, "a file of that name exists")));
-        }
         if !parent.as_os_str().is_empty() {
             fs::create_dir_all(&parent).map_err(|e| IoError::io(&parent, "cannot create directory", e))?;
         }
-        let stage = parent.join(format!(".{name}.stage-{}-{}", std::process::id(), stage_counter()));
+        stale::remove_stale(&dest)?;
+        let stage = stale::temp_path(&dest);
         fs::create_dir(&stage).map_err(|e| IoError::io(&stage, "cannot create staging folder", e))?;
-        Ok(OutputSet { staged: Vec::new(), folder: Some(FolderStage { stage, dest, marker: marker.to_string() }), committed: false })
+        let folder = FolderStage { stage, dest, marker: rule.marker.to_string(), option: rule.option.to_string(), command: rule.command.to_string(), force: rule.force };
+        Ok(OutputSet { staged: Vec::new(), folder: Some(folder), committed: false })
     }
 
     /// The staging folder of a [`OutputSet::folder`] set.
@@ -177,16 +268,16 @@ impl OutputSet {
     /// Where to write the file that will end up at `dest` (a loose file of a [`OutputSet::files`] set).
     pub fn stage(&mut self, dest: impl AsRef<Path>) -> PathBuf {
         let dest = dest.as_ref().to_path_buf();
-        let name = dest.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-        // Beside the destination (a bare file name stays relative to the working directory).
-        let dir = dest.parent().map(Path::to_path_buf).unwrap_or_default();
-        let tmp = dir.join(format!(".diffcassi-stage-{}-{}-{name}", std::process::id(), stage_counter()));
+        // Housekeeping: a killed run's staged copies of this destination.
+        let _ = stale::remove_stale(&dest);
+        let tmp = stale::temp_path(&dest);
         self.staged.push((tmp.clone(), dest));
         tmp
     }
 
     /// Move everything into place.
     pub fn commit(mut self) -> Result<(), IoError> {
+        test_pause("commit");
         for (tmp, dest) in &self.staged {
             if tmp.exists() {
                 fs::rename(tmp, dest).map_err(|e| IoError::io(dest, "cannot move the output into place", e))?;
@@ -200,38 +291,62 @@ impl OutputSet {
     }
 }
 
-fn commit_folder(f: &FolderStage) -> Result<(), IoError> {
-    let swappable = match fs::read_dir(&f.dest) {
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => true,
-        Err(e) => return Err(IoError::io(&f.dest, "cannot read the output folder", e)),
-        Ok(mut entries) => entries.next().is_none() || f.dest.join(&f.marker).is_file(),
-    };
-    if swappable {
-        let old = f.stage.with_file_name(format!("{}.old", f.stage.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()));
-        let had_old = f.dest.exists();
-        if had_old {
-            fs::rename(&f.dest, &old).map_err(|e| IoError::io(&f.dest, "cannot move the previous output set aside", e))?;
-        }
-        if let Err(e) = fs::rename(&f.stage, &f.dest) {
-            if had_old {
-                let _ = fs::rename(&old, &f.dest);
-            }
-            return Err(IoError::io(&f.dest, "cannot move the new output set into place", e));
-        }
-        if had_old {
-            let _ = fs::remove_dir_all(&old);
-        }
-        return Ok(());
+/// The hidden file listing the entries of a folder output set (one name a line), written with the set: a later
+/// run replaces the folder whole only when it holds nothing else, so files a user put beside the outputs
+/// (or the files of a `--force`d folder) are never deleted.
+pub const SET_LIST: &str = ".diffcassi-set";
+
+fn entry_names(dir: &Path) -> Result<Vec<String>, IoError> {
+    let mut v = Vec::new();
+    for e in fs::read_dir(dir).map_err(|e| IoError::io(dir, "cannot read the folder", e))? {
+        v.push(e.map_err(|e| IoError::io(dir, "cannot read the folder", e))?.file_name().to_string_lossy().into_owned());
     }
-    // An unrelated, non-empty folder: move the files in, the marker last.
-    let mut names: Vec<std::ffi::OsString> = fs::read_dir(&f.stage).map_err(|e| IoError::io(&f.stage, "cannot read the staging folder", e))?.filter_map(|e| e.ok().map(|e| e.file_name())).collect();
-    names.sort_by_key(|n| (n.to_string_lossy() == f.marker, n.clone()));
-    for n in names {
-        let to = f.dest.join(&n);
-        if to.is_dir() {
-            let _ = fs::remove_dir_all(&to);
+    v.sort();
+    Ok(v)
+}
+
+fn commit_folder(f: &FolderStage) -> Result<(), IoError> {
+    let new_names: Vec<String> = entry_names(&f.stage)?.into_iter().filter(|n| n != SET_LIST).collect();
+    write_atomic(f.stage.join(SET_LIST), new_names.iter().map(|n| format!("{n}\n")).collect::<String>().as_bytes())?;
+    // Checked again: the folder may have changed while the command ran.
+    let rule = FolderRule { option: &f.option, command: &f.command, marker: &f.marker, force: f.force };
+    let state = check_out_folder(&f.dest, &rule, &[])?;
+    // What of the destination is an earlier set's (its list; without one, an earlier version's set: all of it).
+    let old_list: Option<Vec<String>> = match state {
+        FolderState::Previous => fs::read_to_string(f.dest.join(SET_LIST)).ok().map(|t| t.lines().map(str::to_string).collect()),
+        _ => None,
+    };
+    let foreign: Vec<String> = match (state, &old_list) {
+        (FolderState::Foreign, _) => entry_names(&f.dest)?,
+        (FolderState::Previous, Some(list)) => entry_names(&f.dest)?.into_iter().filter(|n| n != SET_LIST && !list.contains(n) && !stale::is_temporary(n)).collect(),
+        _ => Vec::new(),
+    };
+    if foreign.is_empty() && state != FolderState::Foreign {
+        return swap_into_place(&f.stage, &f.dest);
+    }
+    // Other files in the folder (--force, or files put beside an earlier set): move the outputs in, the marker
+    // and the list last; remove only the earlier set's own entries the new set lacks; a folder of an output's
+    // name that is not the earlier set's is never removed (refused before anything moves).
+    let ours = |n: &String| old_list.as_ref().is_some_and(|l| l.contains(n));
+    for n in &new_names {
+        let to = f.dest.join(n);
+        if !ours(n) && fs::symlink_metadata(&to).is_ok_and(|m| m.is_dir()) {
+            return Err(IoError::Refused { path: to, reason: "a folder of this output's name is in the output folder and is not an earlier output's; nothing was moved (it is not removed): remove or rename it".into() });
         }
-        fs::rename(f.stage.join(&n), &to).map_err(|e| IoError::io(&to, "cannot move the output into place", e))?;
+    }
+    let mut order = new_names.clone();
+    order.sort_by_key(|n| (*n == f.marker, n.clone()));
+    order.push(SET_LIST.to_string());
+    for n in &order {
+        let to = f.dest.join(n);
+        if ours(n) && fs::symlink_metadata(&to).is_ok_and(|m| m.is_dir()) {
+            remove_any(&to).map_err(|e| IoError::io(&to, "cannot replace an earlier output", e))?;
+        }
+        fs::rename(f.stage.join(n), &to).map_err(|e| IoError::io(&to, "cannot move the output into place", e))?;
+    }
+    for n in old_list.iter().flatten().filter(|n| !new_names.contains(n) && *n != SET_LIST) {
+        let p = f.dest.join(n);
+        remove_any(&p).map_err(|e| IoError::io(&p, "cannot remove an earlier output the new set does not have", e))?;
     }
     let _ = fs::remove_dir_all(&f.stage);
     Ok(())
@@ -254,6 +369,7 @@ impl Drop for OutputSet {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::io::policy::FolderRule;
 
     fn entries(dir: &Path) -> Vec<String> {
         let mut v: Vec<String> = fs::read_dir(dir)
@@ -362,28 +478,83 @@ mod tests {
         fs::create_dir(&out).unwrap();
         fs::write(out.join("render.json"), "old").unwrap();
         fs::write(out.join("cube.exr"), "old cube").unwrap();
+        let rule = FolderRule { option: "--out", command: "render", marker: "render.json", force: false };
         // A failed run leaves the old set untouched and no staging folder.
         {
-            let set = OutputSet::folder(&out, "render.json").unwrap();
+            let set = OutputSet::folder(&out, &rule, &[]).unwrap();
             fs::write(set.stage_dir().unwrap().join("acquisition.exr"), "half").unwrap();
         }
         assert_eq!(entries(&out), vec!["cube.exr", "render.json"]);
         assert_eq!(entries(tmp.path()), vec!["out"]);
         // A successful one replaces the whole set (the old cube.exr is not part of it).
-        let set = OutputSet::folder(&out, "render.json").unwrap();
+        let set = OutputSet::folder(&out, &rule, &[]).unwrap();
         fs::write(set.stage_dir().unwrap().join("acquisition.exr"), "new").unwrap();
         fs::write(set.stage_dir().unwrap().join("render.json"), "new").unwrap();
         set.commit().unwrap();
-        assert_eq!(entries(&out), vec!["acquisition.exr", "render.json"]);
+        assert_eq!(entries(&out), vec![SET_LIST, "acquisition.exr", "render.json"]);
         assert_eq!(entries(tmp.path()), vec!["out"]);
-        // An unrelated folder keeps its other files.
+        // A file the user put beside the set survives the next run; the old set's files the new one lacks go.
+        fs::write(out.join("notes.txt"), "keep").unwrap();
+        let set = OutputSet::folder(&out, &rule, &[]).unwrap();
+        fs::write(set.stage_dir().unwrap().join("render.json"), "newer").unwrap();
+        set.commit().unwrap();
+        assert_eq!(entries(&out), vec![SET_LIST, "notes.txt", "render.json"]);
+        // An unrelated folder is refused, untouched; with --force it keeps its other files.
         let other = tmp.path().join("mine");
         fs::create_dir(&other).unwrap();
         fs::write(other.join("notes.txt"), "keep").unwrap();
-        let set = OutputSet::folder(&other, "render.json").unwrap();
+        fs::create_dir(other.join("sub")).unwrap();
+        let err = OutputSet::folder(&other, &rule, &[]).unwrap_err().to_string();
+        assert!(err.contains("--force") && err.contains("render.json"), "{err}");
+        assert_eq!(entries(tmp.path()), vec!["mine", "out"]);
+        let forced = FolderRule { force: true, ..rule };
+        let set = OutputSet::folder(&other, &forced, &[]).unwrap();
         fs::write(set.stage_dir().unwrap().join("render.json"), "new").unwrap();
         set.commit().unwrap();
-        assert_eq!(entries(&other), vec!["notes.txt", "render.json"]);
+        assert_eq!(entries(&other), vec![SET_LIST, "notes.txt", "render.json", "sub"]);
+        // Rerun without --force (the folder now holds render.json): the user's files still survive.
+        let set = OutputSet::folder(&other, &rule, &[]).unwrap();
+        fs::write(set.stage_dir().unwrap().join("render.json"), "again").unwrap();
+        fs::write(set.stage_dir().unwrap().join("extra.csv"), "x").unwrap();
+        set.commit().unwrap();
+        assert_eq!(entries(&other), vec![SET_LIST, "extra.csv", "notes.txt", "render.json", "sub"]);
+        assert_eq!(fs::read_to_string(other.join("notes.txt")).unwrap(), "keep");
+        // A folder of an output's name that is not an earlier output's is never removed.
+        let set = OutputSet::folder(&other, &forced, &[]).unwrap();
+        fs::write(set.stage_dir().unwrap().join("sub"), "file").unwrap();
+        assert!(set.commit().unwrap_err().to_string().contains("sub"));
+        assert_eq!(entries(&other), vec![SET_LIST, "extra.csv", "notes.txt", "render.json", "sub"]);
         assert_eq!(entries(tmp.path()), vec!["mine", "out"]);
+    }
+
+    #[test]
+    fn swap_exchanges_and_stale_stages_are_removed() {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("out");
+        let rule = FolderRule { option: "--out", command: "render", marker: "render.json", force: false };
+        // A stage of a killed writer (PID 0, this host) and one of a live writer (this process).
+        let dead = tmp.path().join(format!(".out.stage-{}-0-1-7", stale::host_name()));
+        fs::create_dir(&dead).unwrap();
+        let live = stale::temp_path(&out);
+        fs::create_dir(&live).unwrap();
+        let set = OutputSet::folder(&out, &rule, &[]).unwrap();
+        assert!(!dead.exists() && live.exists());
+        fs::write(set.stage_dir().unwrap().join("render.json"), "1").unwrap();
+        set.commit().unwrap();
+        fs::remove_dir(&live).unwrap();
+        for v in ["2", "3"] {
+            let set = OutputSet::folder(&out, &rule, &[]).unwrap();
+            fs::write(set.stage_dir().unwrap().join("render.json"), v).unwrap();
+            set.commit().unwrap();
+            assert_eq!(fs::read_to_string(out.join("render.json")).unwrap(), v);
+            assert_eq!(entries(tmp.path()), vec!["out"]);
+        }
+        // The exchange itself (ext4, tmpfs, xfs, btrfs support it).
+        let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+        fs::write(&a, "A").unwrap();
+        fs::write(&b, "B").unwrap();
+        if exchange(&a, &b).unwrap() {
+            assert_eq!((fs::read_to_string(&a).unwrap(), fs::read_to_string(&b).unwrap()), ("B".into(), "A".into()));
+        }
     }
 }

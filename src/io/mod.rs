@@ -6,6 +6,9 @@
 //!
 //! * [`atomic`]: [`write_atomic`] / [`write_atomic_with`] (temporary file in the same directory,
 //!   then rename; parent directories are created).
+//! * [`policy`]: what an output path may be (new, a previous output of the same command, never an input;
+//!   `--force`), checked before any work; [`stale`]: temporary names carrying their writer, and the removal
+//!   of those killed runs left; [`OutputSet`] stages multi-file outputs and swaps them in.
 //! * [`npy`]: [`write_npy_f64`], [`write_npy_f32`], [`write_npy_u8`], [`write_npy_u16`] and
 //!   [`read_npy_f64`] (NPY format, little-endian, C order).
 //! * [`csv`]: [`read_columns`] (pick numeric columns by header name) and [`CsvWriter`].
@@ -39,10 +42,12 @@ pub mod csv;
 pub mod exr;
 pub mod npy;
 pub mod png16;
+pub mod policy;
+pub mod stale;
 
 use std::path::{Path, PathBuf};
 
-pub use atomic::{write_atomic, write_atomic_with, OutputSet};
+pub use atomic::{swap_into_place, write_atomic, write_atomic_with, OutputSet};
 pub use csv::{parse_columns, read_columns, CsvValue, CsvWriter};
 pub use npy::{
     read_npy_f64, write_npy, write_npy_f32, write_npy_f64, write_npy_u16, write_npy_u8, NpyElement,
@@ -85,6 +90,10 @@ pub enum IoError {
     /// A malformed, truncated or unsupported PNG file (see [`png16`]).
     #[error("{}: {reason}", path.display())]
     Png { path: PathBuf, reason: String },
+
+    /// The output policy refused an output path ([`policy`]): nothing was written.
+    #[error("{}: {reason}", path.display())]
+    Refused { path: PathBuf, reason: String },
 
     /// The CSV file has no header line (it is empty or holds only comments and blank lines).
     #[error("{}: no header line (the file is empty or holds only '#' comments and blank lines)", path.display())]
@@ -195,6 +204,7 @@ impl IoError {
             | IoError::Npy { path, .. }
             | IoError::Exr { path, .. }
             | IoError::Png { path, .. }
+            | IoError::Refused { path, .. }
             | IoError::CsvNoHeader { path }
             | IoError::CsvMissingColumn { path, .. }
             | IoError::CsvDuplicateColumn { path, .. }

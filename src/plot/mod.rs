@@ -51,7 +51,6 @@ pub mod spot;
 
 use std::io::Read;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use plotters::coord::Shift;
 use plotters::prelude::*;
@@ -200,7 +199,7 @@ where
         .and_then(|e| e.to_str())
         .is_some_and(|e| e.eq_ignore_ascii_case("png"));
     let file_name = path.file_name().and_then(|n| n.to_str());
-    let (true, Some(file_name)) = (is_png, file_name) else {
+    let (true, Some(_)) = (is_png, file_name) else {
         return Err(PlotError::NotPng {
             path: path.to_path_buf(),
         });
@@ -215,12 +214,13 @@ where
         action: "cannot create directory",
         source,
     })?;
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let tmp = dir.join(format!(
-        ".{file_name}.{}.{}.tmp.png",
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
+    // `.NAME.stage-HOST-PID-START-N.png` (the encoder picks the format by the extension); a killed run's are
+    // removed first (crate::io::stale).
+    let _ = crate::io::stale::remove_stale(path);
+    let mut tmp = crate::io::stale::temp_path(path);
+    if !tmp.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+        tmp.as_mut_os_string().push(".png");
+    }
     let with_path = |e: PlotError| match e {
         PlotError::Draw { message, .. } => PlotError::Draw {
             path: path.to_path_buf(),
@@ -398,7 +398,7 @@ pub(crate) mod test_util {
         let dir = path.parent().unwrap();
         for e in std::fs::read_dir(dir).unwrap() {
             let name = e.unwrap().file_name().to_string_lossy().into_owned();
-            assert!(!name.contains(".tmp"), "leftover temporary file {name}");
+            assert!(!name.contains(".stage-"), "leftover temporary file {name}");
         }
     }
 }

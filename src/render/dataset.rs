@@ -15,8 +15,9 @@
 //!   the last run, beside the scene list and the shared outputs (mask, mapping cube).
 //! - [`check_scene`] / [`check_shared`]: done, missing, damaged (unreadable, truncated or altered outputs:
 //!   every output's size and CRC-32 is recorded when it is written) or rendered with another configuration.
-//! - [`commit_scene`]: a scene's outputs are written into a hidden sibling folder (`.NAME.partial-HOST-PID`)
-//!   and renamed into place at the end, so a killed task leaves either nothing or the complete set.
+//! - [`commit_scene`]: a scene's outputs are written into a hidden sibling folder
+//!   (`.NAME.partial-HOST-PID-START`) and swapped into place at the end, so a killed task leaves either the old
+//!   or the complete new set under the scene's name ([`crate::io::swap_into_place`]).
 //!
 //! ```
 //! use diffcassi::render::dataset::{Shard, DatasetScene};
@@ -455,20 +456,10 @@ pub fn read_manifest(out: &Path) -> Result<(Value, Vec<String>)> {
 
 // ---------------------------------------------------------------- all-or-nothing scene folders
 
-fn host_name() -> String {
-    // The short name (before any dot), so the temporary names keep a single `.` structure.
-    let name = std::fs::read_to_string("/proc/sys/kernel/hostname").unwrap_or_default();
-    let short = name.trim().split('.').next().unwrap_or("").to_string();
-    if short.is_empty() || short.contains('/') {
-        "host".into()
-    } else {
-        short
-    }
-}
-
-/// A fresh, empty temporary folder for scene `name` beside its final folder: `out/.NAME.partial-HOST-PID`.
+/// A fresh, empty temporary folder for scene `name` beside its final folder:
+/// `out/.NAME.partial-HOST-PID-START` (the writer's tag, [`crate::io::stale`]).
 pub fn partial_dir(out: &Path, name: &str) -> Result<PathBuf> {
-    let p = out.join(format!(".{name}.partial-{}-{}", host_name(), std::process::id()));
+    let p = out.join(format!(".{name}.partial-{}", crate::io::stale::writer_tag()));
     if p.exists() {
         std::fs::remove_dir_all(&p).map_err(|e| Error::File { path: p.display().to_string(), message: format!("cannot remove an old temporary folder: {e}") })?;
     }
@@ -476,16 +467,27 @@ pub fn partial_dir(out: &Path, name: &str) -> Result<PathBuf> {
     Ok(p)
 }
 
+/// The writer's tag of a scene's temporary (`.NAME.partial-TAG[.old]`, `.NAME.old-TAG`, or a
+/// [`crate::io::stale`] temporary `.NAME.stage-…`): `Some(None)` when it is one but the tag cannot be read.
+fn leftover_writer(file_name: &str, scene: &str) -> Option<Option<crate::io::stale::Writer>> {
+    if let Some(w) = crate::io::stale::temporary_of(file_name, scene) {
+        return Some(Some(w));
+    }
+    let rest = file_name.strip_prefix('.')?.strip_prefix(scene)?;
+    let tag = rest.strip_prefix(".partial-").or_else(|| rest.strip_prefix(".old-"))?;
+    Some(crate::io::stale::parse_tag(tag.strip_suffix(".old").unwrap_or(tag)))
+}
+
 fn is_leftover_of(file_name: &str, scene: Option<&str>) -> bool {
     let Some(rest) = file_name.strip_prefix('.') else { return false };
     match scene {
-        Some(s) => rest.strip_prefix(s).is_some_and(|r| r.starts_with(".partial-") || r.starts_with(".old-")),
-        None => rest.contains(".partial-") || rest.contains(".old-") || rest.ends_with(".tmp"),
+        Some(s) => leftover_writer(file_name, s).is_some(),
+        None => rest.contains(".partial-") || rest.contains(".old-") || rest.contains(".stage-") || rest.ends_with(".tmp"),
     }
 }
 
 /// Temporary folders and files under `out` (and one level below): what a killed or running task leaves
-/// (`.NAME.partial-*`, `.NAME.old-*`, `.FILE.PID.N.tmp`).
+/// (`.NAME.partial-*`, `.NAME.old-*`, `.FILE.stage-*`, an earlier version's `.FILE.PID.N.tmp`).
 pub fn leftovers(out: &Path) -> Vec<PathBuf> {
     let mut v = Vec::new();
     let list = |dir: &Path, v: &mut Vec<PathBuf>, deeper: bool| {
@@ -507,45 +509,31 @@ pub fn leftovers(out: &Path) -> Vec<PathBuf> {
     v
 }
 
-/// Remove what earlier (killed) tasks left for scene `name`. Only the shard owning the scene may call it.
+/// Remove what earlier (killed) tasks left for scene `name`. Only the shard owning the scene may call it: it
+/// removes the scene's temporaries of any host (a task of another node is a killed or resubmitted one of
+/// this shard) except those of a process still running on this host (a concurrent run, left alone).
 pub fn remove_leftovers(out: &Path, name: &str) -> Result<usize> {
     let mut n = 0;
     let Ok(rd) = std::fs::read_dir(out) else { return Ok(0) };
     for e in rd.flatten() {
-        if is_leftover_of(&e.file_name().to_string_lossy(), Some(name)) {
-            let p = e.path();
-            let r = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
-            r.map_err(|e| Error::File { path: p.display().to_string(), message: format!("cannot remove a leftover temporary: {e}") })?;
-            n += 1;
+        let Some(writer) = leftover_writer(&e.file_name().to_string_lossy(), name) else { continue };
+        let live_here = writer.is_some_and(|w| w.host.as_deref().map_or(true, |h| h == crate::io::stale::host_name()) && !w.is_gone());
+        if live_here {
+            continue;
         }
+        let p = e.path();
+        let r = if p.is_dir() { std::fs::remove_dir_all(&p) } else { std::fs::remove_file(&p) };
+        r.map_err(|e| Error::File { path: p.display().to_string(), message: format!("cannot remove a leftover temporary: {e}") })?;
+        n += 1;
     }
     Ok(n)
 }
 
-/// Move the complete temporary folder `partial` to `out/name`. An existing folder (another configuration,
-/// or damaged) is first renamed aside (`.NAME.old-HOST-PID`) and removed after: a reader sees the old set,
-/// briefly nothing, or the new set, never a mix.
+/// Move the complete temporary folder `partial` to `out/name`, replacing an existing folder (another
+/// configuration, or damaged) whole with [`crate::io::swap_into_place`]: `out/name` holds the old set or the
+/// new one at every instant (renameat2 exchange; see there for the fallback's window).
 pub fn commit_scene(partial: &Path, out: &Path, name: &str) -> Result<()> {
-    let dest = out.join(name);
-    let err = |p: &Path, what: &str, e: std::io::Error| Error::File { path: p.display().to_string(), message: format!("{what}: {e}") };
-    // The temporary folder's entries must be on disk before the rename makes them visible.
-    if let Ok(f) = std::fs::File::open(partial) {
-        let _ = f.sync_all();
-    }
-    let old = out.join(format!(".{name}.old-{}-{}", host_name(), std::process::id()));
-    let had_old = std::fs::symlink_metadata(&dest).is_ok();
-    if had_old {
-        std::fs::rename(&dest, &old).map_err(|e| err(&dest, "cannot move the previous output aside", e))?;
-    }
-    std::fs::rename(partial, &dest).map_err(|e| err(&dest, "cannot move the new output into place", e))?;
-    if let Ok(f) = std::fs::File::open(out) {
-        let _ = f.sync_all();
-    }
-    if had_old {
-        let r = if old.is_dir() { std::fs::remove_dir_all(&old) } else { std::fs::remove_file(&old) };
-        r.map_err(|e| err(&old, "cannot remove the previous output", e))?;
-    }
-    Ok(())
+    Ok(crate::io::swap_into_place(partial, &out.join(name))?)
 }
 
 // ---------------------------------------------------------------- dataset status
@@ -792,6 +780,12 @@ mod tests {
         std::fs::create_dir_all(out.join(".dd.partial-host-1")).unwrap();
         assert_eq!(remove_leftovers(out, "d").unwrap(), 1);
         assert_eq!(leftovers(out), vec![out.join(".dd.partial-host-1")]);
+        // A live writer's temporary on this host (this process) stays; a killed one's (PID 0) goes.
+        let live = partial_dir(out, "dd").unwrap();
+        let dead = out.join(format!(".dd.partial-{}-0-1", crate::io::stale::host_name()));
+        std::fs::create_dir_all(&dead).unwrap();
+        assert_eq!(remove_leftovers(out, "dd").unwrap(), 2);
+        assert!(live.exists() && !dead.exists());
     }
 
     #[test]

@@ -1,0 +1,322 @@
+//! The output policy: what a command's `--out` (or any other output path) may be, checked before any work.
+//!
+//! * An output **folder** (`render`, `report`, `reconstruct`, `study`, `render-dataset`) may be new, an empty
+//!   folder, or a previous output of the *same command* — recognised by its marker file (`render.json`,
+//!   `report.json`, `reconstruct.json`, `study.json`, `dataset.json`). Anything else — a file, a folder holding
+//!   other files — is refused with an error naming it, and nothing is touched, unless `--force`: then the
+//!   outputs are moved in *beside* the folder's files ([`FolderState::Foreign`]); a file of the same name as an
+//!   output is replaced, a folder of the same name as an output is refused, nothing else there is touched or
+//!   deleted.
+//! * An output is never an input of the same command, nor (for folders) inside one or containing one:
+//!   `reconstruct --out` equal to, inside or containing `--from` is refused, `--force` or not. Paths are
+//!   compared after resolving symbolic links and `..` (the part of the path that does not exist yet is
+//!   compared as written).
+//! * An output **file** may be new or an existing file (it is replaced atomically); never a folder, never an
+//!   input file.
+//!
+//! ```
+//! use diffcassi::io::policy::{check_out_folder, FolderRule, FolderState};
+//! let dir = tempfile::tempdir().unwrap();
+//! let from = dir.path().join("render");
+//! std::fs::create_dir(&from).unwrap();
+//! std::fs::write(from.join("render.json"), "{}").unwrap();
+//! let rule = FolderRule { option: "--out", command: "reconstruct", marker: "reconstruct.json", force: false };
+//! let inputs = [("--from", from.as_path())];
+//! assert_eq!(check_out_folder(&dir.path().join("rec"), &rule, &inputs).unwrap(), FolderState::New);
+//! // The input folder itself, or a folder inside it, is refused.
+//! assert!(check_out_folder(&from, &rule, &inputs).unwrap_err().to_string().contains("--from"));
+//! assert!(check_out_folder(&from.join("rec"), &rule, &inputs).is_err());
+//! // A folder holding someone else's files is refused without --force.
+//! let mine = dir.path().join("mine");
+//! std::fs::create_dir(&mine).unwrap();
+//! std::fs::write(mine.join("notes.txt"), "keep").unwrap();
+//! assert!(check_out_folder(&mine, &rule, &[]).unwrap_err().to_string().contains("--force"));
+//! let forced = FolderRule { force: true, ..rule };
+//! assert_eq!(check_out_folder(&mine, &forced, &[]).unwrap(), FolderState::Foreign);
+//! ```
+use std::fs;
+use std::path::{Component, Path, PathBuf};
+
+use super::IoError;
+
+/// How a command's output folder is recognised and whether `--force` was given.
+#[derive(Clone, Copy, Debug)]
+pub struct FolderRule<'a> {
+    /// The option that named the folder (`--out`).
+    pub option: &'a str,
+    /// The command (`reconstruct`).
+    pub command: &'a str,
+    /// The file every output of the command holds (`reconstruct.json`).
+    pub marker: &'a str,
+    /// `--force`: a non-empty folder that is not an output of the command is accepted (outputs moved in beside
+    /// its files).
+    pub force: bool,
+}
+
+/// What the output folder is, when the policy accepts it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FolderState {
+    /// Does not exist yet.
+    New,
+    /// An empty folder.
+    Empty,
+    /// A previous output of the same command (holds the marker): replaced whole.
+    Previous,
+    /// A non-empty folder of other files, accepted by `--force`: the outputs are moved in beside them.
+    Foreign,
+}
+
+fn refused(path: &Path, reason: String) -> IoError {
+    IoError::Refused {
+        path: path.to_path_buf(),
+        reason,
+    }
+}
+
+/// `p` made absolute with symbolic links and `..` resolved: the longest existing ancestor is canonicalised,
+/// the rest appended as written (lexically normalised).
+pub fn resolved(p: &Path) -> PathBuf {
+    let abs = if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        std::env::current_dir().unwrap_or_default().join(p)
+    };
+    let mut lexical = PathBuf::new();
+    for c in abs.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                lexical.pop();
+            }
+            other => lexical.push(other),
+        }
+    }
+    let mut rest = Vec::new();
+    let mut base = lexical.as_path();
+    loop {
+        if let Ok(c) = fs::canonicalize(base) {
+            let mut out = c;
+            for r in rest.iter().rev() {
+                out.push(r);
+            }
+            return out;
+        }
+        match (base.parent(), base.file_name()) {
+            (Some(parent), Some(name)) => {
+                rest.push(name.to_os_string());
+                base = parent;
+            }
+            _ => return lexical,
+        }
+    }
+}
+
+/// Refuse `out` when it is one of `inputs` (option, path), lies inside one, or (`folder`) contains one.
+pub fn check_not_input(
+    option: &str,
+    out: &Path,
+    inputs: &[(&str, &Path)],
+    folder: bool,
+) -> Result<(), IoError> {
+    let o = resolved(out);
+    for (opt, input) in inputs {
+        let i = resolved(input);
+        let relation = if o == i {
+            "is"
+        } else if o.starts_with(&i) {
+            "is inside"
+        } else if folder && i.starts_with(&o) {
+            "contains"
+        } else {
+            continue;
+        };
+        return Err(refused(
+            out,
+            format!(
+                "{option} {relation} the input {opt} {}: writing there would destroy the input; nothing was written, choose another {option}",
+                input.display()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Check an output folder against the policy (see the module docs) before any work. A folder holding only
+/// diffcassi temporaries (what a run killed before writing anything else left) counts as empty.
+pub fn check_out_folder(
+    out: &Path,
+    rule: &FolderRule,
+    inputs: &[(&str, &Path)],
+) -> Result<FolderState, IoError> {
+    check_out_folder_owned(out, rule, inputs, &|_| false)
+}
+
+/// [`check_out_folder`] for a command that resumes into its folder and may be killed before its marker is
+/// written (`render-dataset`: shards start together, `dataset.json` is written after the mask): a folder
+/// whose every entry is one the command writes (`owned(file name)`) or a temporary is a previous output too.
+pub fn check_out_folder_owned(
+    out: &Path,
+    rule: &FolderRule,
+    inputs: &[(&str, &Path)],
+    owned: &dyn Fn(&str) -> bool,
+) -> Result<FolderState, IoError> {
+    if out.file_name().is_none() {
+        return Err(refused(
+            out,
+            format!(
+                "{} must name a folder (a path ending in a name, not `..` or `/`)",
+                rule.option
+            ),
+        ));
+    }
+    check_not_input(rule.option, out, inputs, true)?;
+    let meta = match fs::metadata(out) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            // A dangling symbolic link is someone's: not ours to replace.
+            if fs::symlink_metadata(out).is_ok() {
+                return Err(refused(
+                    out,
+                    format!(
+                        "{} is a symbolic link to nothing; nothing was written, choose another {}",
+                        rule.option, rule.option
+                    ),
+                ));
+            }
+            return Ok(FolderState::New);
+        }
+        Err(e) => return Err(IoError::io(out, "cannot read the output folder", e)),
+        Ok(m) => m,
+    };
+    if !meta.is_dir() {
+        return Err(refused(out, format!("{} is a file, not a folder; nothing was written (a file is never replaced by an output folder, --force or not): remove it or choose another {}", rule.option, rule.option)));
+    }
+    let names: Vec<String> = fs::read_dir(out)
+        .map_err(|e| IoError::io(out, "cannot read the output folder", e))?
+        .map(|e| e.map(|e| e.file_name().to_string_lossy().into_owned()))
+        .collect::<Result<_, _>>()
+        .map_err(|e| IoError::io(out, "cannot read the output folder", e))?;
+    let kept: Vec<&String> = names
+        .iter()
+        .filter(|n| !super::stale::is_temporary(n))
+        .collect();
+    if kept.is_empty() {
+        return Ok(FolderState::Empty);
+    }
+    if out.join(rule.marker).is_file() || kept.iter().all(|n| owned(n)) {
+        return Ok(FolderState::Previous);
+    }
+    if rule.force {
+        return Ok(FolderState::Foreign);
+    }
+    Err(refused(
+        out,
+        format!(
+            "{} is a folder holding files that are not a previous `{}` output (it has no {}); nothing was written. Choose a new or empty folder, or pass --force to write the outputs beside those files (they are kept; a file of an output's name is replaced)",
+            rule.option, rule.command, rule.marker
+        ),
+    ))
+}
+
+/// Check an output file: not a folder, not one of the `inputs`.
+pub fn check_out_file(option: &str, out: &Path, inputs: &[(&str, &Path)]) -> Result<(), IoError> {
+    if out.is_dir() {
+        return Err(refused(
+            out,
+            format!("{option} is a folder, not a file; nothing was written"),
+        ));
+    }
+    check_not_input(option, out, inputs, false)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn states_and_refusals() {
+        let tmp = tempfile::tempdir().unwrap();
+        let rule = FolderRule {
+            option: "--out",
+            command: "render",
+            marker: "render.json",
+            force: false,
+        };
+        let p = |s: &str| tmp.path().join(s);
+        assert_eq!(
+            check_out_folder(&p("new/deeper"), &rule, &[]).unwrap(),
+            FolderState::New
+        );
+        fs::create_dir(p("empty")).unwrap();
+        assert_eq!(
+            check_out_folder(&p("empty"), &rule, &[]).unwrap(),
+            FolderState::Empty
+        );
+        fs::write(
+            p(&format!(
+                "empty/.render.json.stage-{}-0-1-2",
+                super::super::stale::host_name()
+            )),
+            "killed",
+        )
+        .unwrap();
+        assert_eq!(
+            check_out_folder(&p("empty"), &rule, &[]).unwrap(),
+            FolderState::Empty,
+            "only a temporary"
+        );
+        fs::write(p("empty/mask.png"), "m").unwrap();
+        assert!(check_out_folder(&p("empty"), &rule, &[]).is_err());
+        assert_eq!(
+            check_out_folder_owned(&p("empty"), &rule, &[], &|n| n == "mask.png").unwrap(),
+            FolderState::Previous
+        );
+        fs::create_dir(p("prev")).unwrap();
+        fs::write(p("prev/render.json"), "{}").unwrap();
+        assert_eq!(
+            check_out_folder(&p("prev"), &rule, &[]).unwrap(),
+            FolderState::Previous
+        );
+        fs::write(p("file"), "x").unwrap();
+        let e = check_out_folder(
+            &p("file"),
+            &FolderRule {
+                force: true,
+                ..rule
+            },
+            &[],
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("is a file") && e.contains("file"), "{e}");
+        // Overlaps, through `..` and a symbolic link.
+        let e = check_out_folder(
+            &p("prev/../prev"),
+            &rule,
+            &[("--scene", &p("prev/scene.npy"))],
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("contains the input --scene"), "{e}");
+        std::os::unix::fs::symlink(p("prev"), p("link")).unwrap();
+        let e = check_out_folder(&p("link/x"), &rule, &[("--from", &p("prev"))])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("is inside the input --from"), "{e}");
+        std::os::unix::fs::symlink(p("nowhere"), p("dangling")).unwrap();
+        assert!(check_out_folder(&p("dangling"), &rule, &[]).is_err());
+        assert!(check_out_folder(Path::new("/"), &rule, &[]).is_err());
+        assert!(check_out_file("--json", &p("prev"), &[]).is_err());
+        assert!(check_out_file(
+            "--json",
+            &p("prev/x.json"),
+            &[("--truth", &p("prev/x.json"))]
+        )
+        .is_err());
+        check_out_file(
+            "--json",
+            &p("prev/y.json"),
+            &[("--truth", &p("prev/x.json"))],
+        )
+        .unwrap();
+    }
+}
