@@ -136,6 +136,12 @@ fn import_zmx_command() {
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("--format zmx"), "{}", stderr(&o));
     assert!(!bad.exists());
+    // The output policy: `--out` the input .zmx itself is refused and the file is left byte for byte.
+    let before = std::fs::read(&zmx).unwrap();
+    let o = run(&["import-zmx", zmx.to_str().unwrap(), "--out", zmx.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--out"), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&zmx).unwrap(), before);
 }
 
 /// What is not modelled is refused, listing every item by line and keyword; with --ignore-unsupported the
