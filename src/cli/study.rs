@@ -41,7 +41,7 @@ pub struct StudyArgs {
     /// Operators, comma-separated: exact, mapping (bilinear), mapping-nearest, shift.
     #[arg(long, default_value = "exact,mapping,shift")]
     pub operators: String,
-    /// Solvers, comma-separated: gap-tv, admm-tv.
+    /// Solvers, comma-separated: gap-tv, admm-tv, pnp-gap, pnp-admm.
     #[arg(long, default_value = "gap-tv")]
     pub solvers: String,
     /// Folder of scenes: RGB .png photographs (uplifted to spectra), .npy/.exr cubes, CAVE-style PNG folders.
@@ -334,6 +334,17 @@ pub fn study(a: StudyArgs) -> Result<()> {
         "operator_seed": op_seed, "mask": mask.description, "mask_open_pixels": mask.values.iter().filter(|&&v| v > 0.0).count(),
         "airy_diameter_px": a.airy_diameter_px, "iterations": a.tuning.iterations, "tv_weight": a.tuning.tv_weight, "accelerated": a.tuning.accelerated, "tracer": tracer.name(),
     });
+    // PnP settings join the configuration only when a PnP solver runs (so TV-only studies stay resumable
+    // from folders written before PnP existed); the weights enter by content (CRC-32), not only by path.
+    if solvers.iter().any(|s| s.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp())) {
+        let crc = crate::recon::prior::network::weights_crc32(a.tuning.denoiser.as_deref())?;
+        if let Some(o) = config.as_object_mut() {
+            o.insert("pnp".into(), json!({"denoiser": a.tuning.denoiser.as_ref().map(|p| p.display().to_string()), "weights_crc32": crc, "sigma_max": a.tuning.sigma_max, "sigma_min": a.tuning.sigma_min}));
+        }
+    }
+    if let (Some(t), Some(o)) = (a.tuning.tolerance, config.as_object_mut()) {
+        o.insert("tolerance".into(), json!(t));
+    }
     if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
         o.insert("scene_wavelengths".into(), json!(w));
     }
@@ -341,7 +352,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let render_key = {
         let mut r = config.clone();
         if let Some(o) = r.as_object_mut() {
-            for k in ["operator_seed", "iterations", "tv_weight", "accelerated"] {
+            for k in ["operator_seed", "iterations", "tv_weight", "accelerated", "pnp", "tolerance"] {
                 o.remove(k);
             }
         }
