@@ -297,6 +297,16 @@ fn cell_from_json(v: &Value) -> Option<Cell> {
     })
 }
 
+/// The settings of one solver of the study: `--accelerated` applies to gap-tv only, the PnP options
+/// (`--denoiser`, `--sigma-max`, `--sigma-min`) to the PnP solvers only.
+fn cell_settings(a: &StudyArgs, solver: &str) -> super::reconstruct::SolveSettings {
+    let mut s = a.tuning.settings(solver, a.tuning.accelerated && solver == "gap-tv");
+    if !solver.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp()) {
+        (s.denoiser, s.sigma_max, s.sigma_min, s.tv_warmup) = (None, None, None, None);
+    }
+    s
+}
+
 fn mean_std(v: &[f64]) -> (f64, f64) {
     let n = v.len().max(1) as f64;
     let m = v.iter().sum::<f64>() / n;
@@ -312,7 +322,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let operators = split_list(&a.operators, "operators")?.iter().map(|o| OperatorKind::parse(o)).collect::<Result<Vec<_>>>()?;
     let solvers = split_list(&a.solvers, "solvers")?;
     for s in &solvers {
-        check_solver(&a.tuning.settings(s, a.tuning.accelerated && s == "gap-tv"))?;
+        check_solver(&cell_settings(&a, s))?;
     }
     if a.tuning.iterations == Some(0) {
         return Err(Error::invalid("--iterations must be ≥ 1"));
@@ -339,7 +349,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if solvers.iter().any(|s| s.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp())) {
         let crc = crate::recon::prior::network::weights_crc32(a.tuning.denoiser.as_deref())?;
         if let Some(o) = config.as_object_mut() {
-            o.insert("pnp".into(), json!({"denoiser": a.tuning.denoiser.as_ref().map(|p| p.display().to_string()), "weights_crc32": crc, "sigma_max": a.tuning.sigma_max, "sigma_min": a.tuning.sigma_min}));
+            o.insert("pnp".into(), json!({"denoiser": a.tuning.denoiser.as_ref().map(|p| p.display().to_string()), "weights_crc32": crc, "sigma_max": a.tuning.sigma_max, "sigma_min": a.tuning.sigma_min, "tv_warmup": a.tuning.tv_warmup}));
         }
     }
     if let (Some(t), Some(o)) = (a.tuning.tolerance, config.as_object_mut()) {
@@ -396,7 +406,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
             for (i, solver) in pending {
                 let scene = &scenes[i];
                 let rec = RenderRecord::load(&dirs[i])?;
-                let settings = a.tuning.settings(solver, a.tuning.accelerated && solver == "gap-tv");
+                let settings = cell_settings(&a, solver);
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, false)?;
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
