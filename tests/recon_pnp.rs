@@ -162,18 +162,20 @@ fn pnp_reduces_the_error_and_is_deterministic() {
     let err = |c: &[f32]| c.iter().zip(&truth).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>().sqrt();
     let e0 = err(&vec![0.0; truth.len()]);
     for kind in [SolverKind::PnpGap, SolverKind::PnpAdmm] {
-        let cfg = SolverConfig { iterations: 15, ..SolverConfig::for_solver(kind) };
+        let cfg = SolverConfig { iterations: 15, tv_warmup: 5, ..SolverConfig::for_solver(kind) };
         let solve = |threads: usize| rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| reconstruct(&op, &y, None, &cfg, &|_, _| {}).unwrap());
         let (a, b) = (solve(1), solve(2));
         assert!(a.cube.iter().zip(&b.cube).all(|(p, q)| p.to_bits() == q.to_bits()), "{kind:?}: 1 vs 2 threads differ");
-        let one = reconstruct(&op, &y, None, &SolverConfig { iterations: 1, tolerance: 0.0, ..cfg.clone() }, &|_, _| {}).unwrap();
+        let one = reconstruct(&op, &y, None, &SolverConfig { iterations: 1, tolerance: 0.0, tv_warmup: 0, ..cfg.clone() }, &|_, _| {}).unwrap();
         let (e, e1) = (err(&a.cube), err(&one.cube));
         println!("{kind:?}: error {e:.4} (start {e0:.4}, one iteration {e1:.4}), {} iterations, stopped by {}", a.iterations_run, a.stopped_by);
         assert!(a.cube.iter().all(|v| v.is_finite()));
         assert!(e < 0.8 * e0 && e < e1, "{kind:?}: {e} vs start {e0}, one iteration {e1}");
         assert_eq!(a.sigmas.len(), a.iterations_run);
-        assert_eq!(a.sigmas[0], cfg.sigma_max);
-        assert!(a.sigmas.windows(2).all(|w| w[1] < w[0]));
+        assert!(a.sigmas[..5].iter().all(|s| *s == 0.0), "TV warm-up iterations have no σ");
+        assert_eq!(a.sigmas[5], cfg.sigma_max);
+        assert!(a.sigmas[5..].windows(2).all(|w| w[1] < w[0]));
+        assert_eq!(a.denoiser["tv_warmup"]["iterations"], 5);
         assert_eq!(a.denoiser["name"], "spectral-unet-v1");
         assert_eq!(a.relative_changes.len(), a.iterations_run);
     }
@@ -200,6 +202,7 @@ fn bad_schedule_is_a_clear_error() {
         (SolverConfig { sigma_min: f32::NAN, ..SolverConfig::pnp_gap() }, "σ min"),
         (SolverConfig { sigma_min: 0.5, sigma_max: 0.1, ..SolverConfig::pnp_admm() }, "above σ max"),
         (SolverConfig { tolerance: f64::NAN, ..SolverConfig::pnp_gap() }, "tolerance"),
+        (SolverConfig { tv_warmup: 80, iterations: 80, ..SolverConfig::pnp_gap() }, "leaves none"),
     ] {
         let e = reconstruct(&op, &y, None, &cfg, &|_, _| {}).unwrap_err().to_string();
         assert!(e.contains(needle), "`{needle}` in: {e}");
@@ -300,7 +303,7 @@ fn cli_pnp_reconstruct_and_bad_input() {
     let render = d.path().join("render");
     tiny_render(&render);
     let out = d.path().join("rec");
-    let o = bin(&["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--iterations", "4", "--operator-rays", "2", "--out", s(&out)]);
+    let o = bin(&["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--iterations", "4", "--tv-warmup", "2", "--operator-rays", "2", "--out", s(&out)]);
     assert!(o.status.success(), "{}", stderr(&o));
     let j = read_json(&out.join("reconstruct.json"));
     assert_eq!(j["solver"], "pnp-gap");
@@ -311,7 +314,7 @@ fn cli_pnp_reconstruct_and_bad_input() {
     assert!(out.join("cube.npy").is_file());
     // --denoiser with the committed file gives the same cube as the embedded default.
     let out2 = d.path().join("rec2");
-    let o = bin(&["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--iterations", "4", "--operator-rays", "2", "--denoiser", s(&weights_path()), "--out", s(&out2)]);
+    let o = bin(&["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--iterations", "4", "--tv-warmup", "2", "--operator-rays", "2", "--denoiser", s(&weights_path()), "--out", s(&out2)]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(std::fs::read(out.join("cube.npy")).unwrap(), std::fs::read(out2.join("cube.npy")).unwrap());
 
@@ -342,7 +345,7 @@ fn cli_pnp_reconstruct_and_bad_input() {
     }
     // Weights for 28 bands against an 8-band acquisition.
     let o2 = d.path().join("never8");
-    let o = bin(&["reconstruct", "--from", s(&eight), "--solver", "pnp-gap", "--iterations", "2", "--out", s(&o2)]);
+    let o = bin(&["reconstruct", "--from", s(&eight), "--solver", "pnp-gap", "--iterations", "2", "--tv-warmup", "1", "--out", s(&o2)]);
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     assert!(stderr(&o).contains("trained for 28 bands, the cube has 8"), "{}", stderr(&o));
     assert!(!o2.exists());
@@ -353,7 +356,7 @@ fn cli_pnp_reconstruct_and_bad_input() {
 fn cli_study_rows_carry_the_solver_name() {
     let d = tempfile::tempdir().unwrap();
     let out = d.path().join("study");
-    let o = bin(&["study", "--synthetic", "1", "--scene-size", "16", "--presets", "sp", "--operators", "shift", "--solvers", "gap-tv,pnp-gap", "--planes", "28", "--rays", "1", "--iterations", "3", "--out", s(&out)]);
+    let o = bin(&["study", "--synthetic", "1", "--scene-size", "16", "--presets", "sp", "--operators", "shift", "--solvers", "gap-tv,pnp-gap", "--planes", "28", "--rays", "1", "--iterations", "3", "--tv-warmup", "1", "--out", s(&out)]);
     assert!(o.status.success(), "{}", stderr(&o));
     let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
     let rows: Vec<&str> = csv.lines().skip(1).collect();

@@ -179,7 +179,7 @@ fn model_operator(
 #[pyfunction]
 #[pyo3(signature = (operator, acquisition, solver = "gap-tv", init = None, iterations = None, step = None, tv_weight = None,
                     tv_iterations = None, tv_coupling = None, accelerated = None, admm_eta = None, sigma_max = None,
-                    sigma_min = None, tolerance = None, denoiser = None))]
+                    sigma_min = None, tolerance = None, denoiser = None, tv_warmup = None))]
 #[allow(clippy::too_many_arguments)]
 fn _reconstruct<'py>(
     py: Python<'py>,
@@ -198,6 +198,7 @@ fn _reconstruct<'py>(
     sigma_min: Option<f32>,
     tolerance: Option<f64>,
     denoiser: Option<String>,
+    tv_warmup: Option<usize>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, String)> {
     let kind: SolverKind = solver.parse().py()?;
     let mut cfg = SolverConfig::for_solver(kind);
@@ -210,6 +211,7 @@ fn _reconstruct<'py>(
     cfg.sigma_max = sigma_max.unwrap_or(cfg.sigma_max);
     cfg.sigma_min = sigma_min.unwrap_or(cfg.sigma_min);
     cfg.tolerance = tolerance.unwrap_or(cfg.tolerance);
+    cfg.tv_warmup = tv_warmup.unwrap_or(cfg.tv_warmup);
     if denoiser.is_some() {
         if !kind.is_pnp() {
             return Err(value_error(format!("denoiser: applies to pnp-gap and pnp-admm only, not `{solver}`")));

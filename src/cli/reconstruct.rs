@@ -309,6 +309,10 @@ pub struct SolverTuning {
     /// pnp-gap / pnp-admm: σ of the last denoising (geometric schedule), in (0, σ max] [default 0.01].
     #[arg(long = "sigma-min")]
     pub sigma_min: Option<f64>,
+    /// pnp-gap / pnp-admm: iterations denoised by TV before the network takes over (PnP-SCI's GAP-TV start)
+    /// [default 50]; must leave at least one of --iterations to the network.
+    #[arg(long = "tv-warmup")]
+    pub tv_warmup: Option<usize>,
     /// Stopping rule: stop when the relative change ‖θ_k − θ_{k−1}‖/‖θ_k‖ falls below this (0: run every
     /// iteration) [default: the solver's: 0 for TV, 1e-3 for PnP].
     #[arg(long)]
@@ -327,6 +331,7 @@ impl SolverTuning {
             sigma_max: self.sigma_max,
             sigma_min: self.sigma_min,
             tolerance: self.tolerance,
+            tv_warmup: self.tv_warmup,
         }
     }
 }
@@ -346,6 +351,8 @@ pub struct SolveSettings {
     pub sigma_min: Option<f64>,
     /// The stopping rule's relative-change tolerance.
     pub tolerance: Option<f64>,
+    /// PnP: TV warm-up iterations.
+    pub tv_warmup: Option<usize>,
 }
 
 /// The result of a solve: the cube (C order), the per-iteration relative data residual, the solver's
@@ -384,8 +391,11 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
             }
         }
     }
-    if !kind.is_pnp() && (s.denoiser.is_some() || s.sigma_max.is_some() || s.sigma_min.is_some()) {
-        return Err(Error::invalid(format!("--denoiser / --sigma-max / --sigma-min apply to pnp-gap and pnp-admm only, not `{}`", s.solver)));
+    if !kind.is_pnp() && (s.denoiser.is_some() || s.sigma_max.is_some() || s.sigma_min.is_some() || s.tv_warmup.is_some()) {
+        return Err(Error::invalid(format!("--denoiser / --sigma-max / --sigma-min / --tv-warmup apply to pnp-gap and pnp-admm only, not `{}`", s.solver)));
+    }
+    if let Some(n) = s.tv_warmup {
+        cfg.tv_warmup = n;
     }
     if let Some(v) = s.sigma_max {
         cfg.sigma_max = v as f32;

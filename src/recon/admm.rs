@@ -53,7 +53,7 @@ pub fn admm(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverC
     let mut tmp = vec![0.0f32; shape.len()];
     let mut phi_v = vec![0.0f32; y.len()];
     let mut e = vec![0.0f32; y.len()];
-    let mut prior = PriorStep::new(denoiser, config.solver.is_pnp());
+    let mut prior = PriorStep::new(denoiser, config);
     let mut stopping = Stopping::new(config.tolerance);
     let mut sigmas = Vec::new();
     let mut stopped_by = "iterations";
@@ -75,7 +75,7 @@ pub fn admm(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverC
         if config.solver.is_pnp() {
             sigmas.push(sigma);
         }
-        prior.apply(&tmp, &mut theta, shape, sigma)?;
+        prior.apply(k, &tmp, &mut theta, shape, sigma)?;
         b.par_iter_mut().zip(x.par_iter()).zip(theta.par_iter()).for_each(|((b, x), t)| *b -= *x - *t);
         progress(k, r);
         if stopping.stop(&theta) {

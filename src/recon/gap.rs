@@ -58,7 +58,7 @@ pub fn gap(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverCo
     let mut phi_theta = vec![0.0f32; y.len()];
     let mut y_acc = vec![0.0f32; y.len()];
     let mut e = vec![0.0f32; y.len()];
-    let mut prior = PriorStep::new(denoiser, config.solver.is_pnp());
+    let mut prior = PriorStep::new(denoiser, config);
     let mut stopping = Stopping::new(config.tolerance);
     let mut sigmas = Vec::new();
     let mut stopped_by = "iterations";
@@ -86,7 +86,7 @@ pub fn gap(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverCo
         if config.solver.is_pnp() {
             sigmas.push(sigma);
         }
-        prior.apply(&x, &mut theta, shape, sigma)?;
+        prior.apply(k, &x, &mut theta, shape, sigma)?;
         progress(k, r);
         if stopping.stop(&theta) {
             stopped_by = "tolerance";

@@ -128,6 +128,11 @@ pub struct SolverConfig {
     /// PnP only: the denoiser's weights file (safetensors); `None`: the embedded checkpoint.
     #[serde(default)]
     pub denoiser: Option<String>,
+    /// PnP only: the first `tv_warmup` iterations denoise with TV (`tv_weight`, `tv_iterations`,
+    /// `tv_coupling`) before the network takes over, as PnP-SCI starts from GAP-TV (Yuan et al. 2020): the
+    /// network, trained on Gaussian noise, does not fill the pixels the mask closes; TV does.
+    #[serde(default)]
+    pub tv_warmup: usize,
 }
 
 impl Default for SolverConfig {
@@ -153,6 +158,7 @@ impl SolverConfig {
             sigma_min: 0.0,
             tolerance: 0.0,
             denoiser: None,
+            tv_warmup: 0,
         }
     }
 
@@ -163,8 +169,7 @@ impl SolverConfig {
         SolverConfig {
             solver: SolverKind::PnpGap,
             iterations: PNP_ITERATIONS,
-            tv_weight: 0.0,
-            tv_iterations: 0,
+            tv_warmup: PNP_TV_WARMUP,
             sigma_max: PNP_SIGMA_MAX,
             sigma_min: PNP_SIGMA_MIN,
             tolerance: PNP_TOLERANCE,
@@ -192,10 +197,11 @@ impl SolverConfig {
         }
     }
 
-    /// σ of iteration k (1-based) of this configuration's schedule ([`sigma_schedule`]); 0 for TV solvers.
+    /// σ of iteration k (1-based) of this configuration's schedule ([`sigma_schedule`] over the iterations
+    /// after the TV warm-up); 0 for TV solvers and warm-up iterations.
     pub fn sigma_at(&self, k: usize) -> f32 {
-        if self.solver.is_pnp() {
-            sigma_schedule(self.sigma_max, self.sigma_min, self.iterations, k)
+        if self.solver.is_pnp() && k > self.tv_warmup {
+            sigma_schedule(self.sigma_max, self.sigma_min, self.iterations - self.tv_warmup, k - self.tv_warmup)
         } else {
             0.0
         }
@@ -236,6 +242,9 @@ impl SolverConfig {
             }
             if self.sigma_min > self.sigma_max {
                 return Err(Error::invalid(format!("noise schedule: σ min {} is above σ max {} (the schedule decreases)", self.sigma_min, self.sigma_max)));
+            }
+            if self.tv_warmup >= self.iterations {
+                return Err(Error::invalid(format!("TV warm-up of {} iterations leaves none of the {} iterations to the network", self.tv_warmup, self.iterations)));
             }
         }
         Ok(())
@@ -338,8 +347,10 @@ pub(crate) fn scale(y: &[f32]) -> f64 {
     }
 }
 
-/// PnP default: iterations (an upper bound; the tolerance usually ends the run before).
-pub const PNP_ITERATIONS: usize = 60;
+/// PnP default: iterations (an upper bound; the tolerance may end the run before), TV warm-up included.
+pub const PNP_ITERATIONS: usize = 80;
+/// PnP default: TV iterations before the network (GAP-TV's own settings).
+pub const PNP_TV_WARMUP: usize = 50;
 /// PnP default: σ of the first denoising, relative to the cube's peak.
 pub const PNP_SIGMA_MAX: f32 = 0.1;
 /// PnP default: σ of the last denoising, relative to the peak.
@@ -368,14 +379,25 @@ pub(crate) struct PriorStep<'d> {
     denoiser: &'d mut dyn Denoiser,
     normalise: bool,
     scaled: Vec<f32>,
+    /// PnP's TV warm-up: (iterations, the TV denoiser).
+    warmup: Option<(usize, TvDenoiser)>,
 }
 
 impl<'d> PriorStep<'d> {
-    pub(crate) fn new(denoiser: &'d mut dyn Denoiser, normalise: bool) -> Self {
-        PriorStep { denoiser, normalise, scaled: Vec::new() }
+    /// The prior step of `config`'s solver around `denoiser` (PnP: normalised, with the TV warm-up).
+    pub(crate) fn new(denoiser: &'d mut dyn Denoiser, config: &SolverConfig) -> Self {
+        let pnp = config.solver.is_pnp();
+        let warmup = (pnp && config.tv_warmup > 0).then(|| (config.tv_warmup, TvDenoiser::new(config.tv_weight, config.tv_iterations, config.tv_coupling)));
+        PriorStep { denoiser, normalise: pnp, scaled: Vec::new(), warmup }
     }
 
-    pub(crate) fn apply(&mut self, x: &[f32], out: &mut [f32], shape: CubeShape, sigma: f32) -> Result<()> {
+    /// θ ← D(x) at iteration k (1-based).
+    pub(crate) fn apply(&mut self, k: usize, x: &[f32], out: &mut [f32], shape: CubeShape, sigma: f32) -> Result<()> {
+        if let Some((n, tv)) = &mut self.warmup {
+            if k <= *n {
+                return tv.denoise(x, out, shape, 0.0);
+            }
+        }
         if !self.normalise {
             return self.denoiser.denoise(x, out, shape, sigma);
         }
@@ -390,11 +412,15 @@ impl<'d> PriorStep<'d> {
 
     /// Cube-sized buffers held (the scaled copy and the denoiser's).
     pub(crate) fn cube_buffers(&self) -> usize {
-        usize::from(self.normalise) + self.denoiser.cube_buffers()
+        usize::from(self.normalise) + self.denoiser.cube_buffers() + self.warmup.as_ref().map_or(0, |(_, tv)| tv.cube_buffers())
     }
 
     pub(crate) fn describe(&self) -> serde_json::Value {
-        self.denoiser.describe()
+        let mut d = self.denoiser.describe();
+        if let (Some((n, tv)), Some(o)) = (&self.warmup, d.as_object_mut()) {
+            o.insert("tv_warmup".into(), serde_json::json!({"iterations": n, "tv": tv.describe()}));
+        }
+        d
     }
 }
 
