@@ -78,7 +78,8 @@ pub fn admm(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverC
         prior.apply(k, &tmp, &mut theta, shape, sigma)?;
         b.par_iter_mut().zip(x.par_iter()).zip(theta.par_iter()).for_each(|((b, x), t)| *b -= *x - *t);
         progress(k, r);
-        if stopping.stop(&theta) {
+        // The rule applies once the network runs (PnP's TV warm-up always completes).
+        if stopping.stop(&theta) && k > config.tv_warmup {
             stopped_by = "tolerance";
             break;
         }

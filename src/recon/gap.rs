@@ -88,7 +88,8 @@ pub fn gap(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverCo
         }
         prior.apply(k, &x, &mut theta, shape, sigma)?;
         progress(k, r);
-        if stopping.stop(&theta) {
+        // The rule applies once the network runs (PnP's TV warm-up always completes).
+        if stopping.stop(&theta) && k > config.tv_warmup {
             stopped_by = "tolerance";
             break;
         }
