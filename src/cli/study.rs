@@ -349,7 +349,9 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if solvers.iter().any(|s| s.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp())) {
         let crc = crate::recon::prior::network::weights_crc32(a.tuning.denoiser.as_deref())?;
         if let Some(o) = config.as_object_mut() {
-            o.insert("pnp".into(), json!({"denoiser": a.tuning.denoiser.as_ref().map(|p| p.display().to_string()), "weights_crc32": crc, "sigma_max": a.tuning.sigma_max, "sigma_min": a.tuning.sigma_min, "tv_warmup": a.tuning.tv_warmup}));
+            o.insert("pnp".into(), json!({"denoiser": a.tuning.denoiser.as_ref().map(|p| p.display().to_string()), "weights_crc32": crc, "sigma_max": a.tuning.sigma_max, "sigma_min": a.tuning.sigma_min, "tv_warmup": a.tuning.tv_warmup,
+                // The library's PnP defaults too: a cell computed under other defaults is recomputed.
+                "defaults": crate::recon::SolverConfig::pnp_gap()}));
         }
     }
     if let (Some(t), Some(o)) = (a.tuning.tolerance, config.as_object_mut()) {
