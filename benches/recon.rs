@@ -1,6 +1,8 @@
 //! Reconstruction speed (issue 13): the exact operator Φ and its adjoint Φᵀ on SP at the paper's settings
 //! (512×512 scene, 28 bands × 4 = 112 planes, 20 rays, Airy blur), the TV denoiser, the shift and mapping
-//! operators, one GAP-TV iteration and a full 100-iteration GAP-TV reconstruction.
+//! operators, one GAP-TV iteration and a full 100-iteration GAP-TV reconstruction; then the learned denoiser
+//! (one call) and a PnP-GAP reconstruction with its defaults (`DIFFCASSI_BENCH_PNP_ITERATIONS` overrides the
+//! iteration bound).
 //!
 //! `cargo bench --bench recon` (criterion for Φ, Φᵀ, TV; then a one-shot 100-iteration reconstruction whose
 //! per-iteration times give "one GAP-TV iteration"; a table of wall and CPU seconds is printed at the end —
@@ -13,7 +15,7 @@ use criterion::Criterion;
 use diffcassi::analysis::linspace;
 use diffcassi::prelude::*;
 use diffcassi::recon::tv::{tv_denoise, TvScratch};
-use diffcassi::recon::{reconstruct, ExactOperator, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, TvCoupling};
+use diffcassi::recon::{reconstruct, Denoiser, ExactOperator, SpectralUNet, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, TvCoupling};
 use diffcassi::render::{Mask, RenderConfig, Renderer};
 use diffcassi::scene::synthetic_scene;
 use std::sync::Mutex;
@@ -111,4 +113,20 @@ fn main() {
     println!("| GAP-TV, {iterations} iterations (incl. preconditioner) | {t_total:.2} | {c_total:.1} |");
     println!("| build + GAP-TV, {iterations} iterations | {:.2} | {:.1} |", t_build + t_total, c_build + c_total);
     println!("\nGAP-TV: final residual {:.3e}, PSNR {:.2} dB vs the noiseless truth (oracle operator), {} cube-sized solver buffers", rec.final_residual, 10.0 * (peak * peak / mse).log10(), rec.cube_buffers);
+
+    // The learned prior (issue 22): one denoiser call and a full PnP-GAP with its defaults (the embedded
+    // weights, σ 0.1 → 0.01, at most 60 iterations, tolerance 1e-3) through the same exact operator.
+    let mut net = SpectralUNet::embedded().unwrap();
+    let t_net = median(&mut || net.denoise(&truth, &mut denoised, cs, 0.05).unwrap());
+    let pnp = SolverConfig { iterations: env_usize("DIFFCASSI_BENCH_PNP_ITERATIONS").unwrap_or(if bench_mode { SolverConfig::pnp_gap().iterations } else { 2 }), ..SolverConfig::pnp_gap() };
+    let (t, c) = (Instant::now(), cpu_seconds());
+    let prec = reconstruct(phi, &y, None, &pnp, &|_, _| {}).unwrap();
+    let (t_pnp, c_pnp) = (t.elapsed().as_secs_f64(), cpu_seconds() - c);
+    let pmse = truth.iter().zip(&prec.cube).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / truth.len() as f64;
+    println!("\n| SP {size}×{size}×28, learned prior, {} threads | wall s | CPU s |", rayon::current_num_threads());
+    println!("|---|---|---|");
+    println!("| denoiser (spectral-unet-v1, one call, median of 5) | {:.3} | {:.2} |", t_net.0, t_net.1);
+    println!("| PnP-GAP, {} of at most {} iterations (stopped by {}) | {t_pnp:.2} | {c_pnp:.1} |", prec.iterations_run, pnp.iterations, prec.stopped_by);
+    println!("| build + PnP-GAP | {:.2} | {:.1} |", t_build + t_pnp, c_build + c_pnp);
+    println!("\nPnP-GAP: final residual {:.3e}, PSNR {:.2} dB vs the noiseless truth (oracle operator, synthetic scene)", prec.final_residual, 10.0 * (peak * peak / pmse).log10());
 }

@@ -240,8 +240,10 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
                 init: Optional[np.ndarray] = None, **settings: Any) -> Tuple[np.ndarray, Dict[str, Any]]:
     """Reconstruct a cube (H, W, B) float32 from ``acquisition`` ((h, w) float32; float64 is converted, the
     image being small) with ``solver`` ``gap-tv`` (plain GAP by default; accelerated=True for the accelerated variant) or ``admm-tv``, as
-    ``diffcassi reconstruct``. ``settings`` (default: the library's): iterations (100), step (1), tv_weight (0.1),
-    tv_iterations (5), tv_coupling (``vectorial`` | ``per_band``), accelerated (False), admm_eta (0.01).
+    ``diffcassi reconstruct``, or ``pnp-gap`` / ``pnp-admm`` (plug-and-play with the learned denoiser). ``settings``
+    (default: the library's): iterations (100; PnP 60), step (1), tv_weight (0.1), tv_iterations (5), tv_coupling
+    (``vectorial`` | ``per_band``), accelerated (False), admm_eta (0.01), and for PnP sigma_max (0.1), sigma_min
+    (0.01), denoiser (a weights file; default the embedded one); tolerance (the stopping rule; 0 for TV, 1e-3 PnP).
     Returns ``(cube, record)``; the record holds the settings, per-iteration residuals and seconds."""
     op = operator.operator if isinstance(operator, Transport) else operator
     if not isinstance(op, Operator):
@@ -256,3 +258,14 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
 
 
 __all__ += ["mapping_operator", "shift_operator", "reconstruct"]
+
+
+def denoise(cube: np.ndarray, sigma: float, weights: Optional[str] = None) -> np.ndarray:
+    """The learned denoiser (``spectral-unet-v1``, the prior of ``pnp-gap``/``pnp-admm``; Rust inference) on
+    ``cube`` (H, W, B) float32 at noise level ``sigma`` (standard deviation on the cube's scale; trained on
+    cubes of peak ≈ 1). ``weights``: a safetensors file (default: the embedded checkpoint). Equal to
+    :class:`diffcassi.denoiser.SpectralUNet` within 1e-4 of the peak."""
+    return _native.denoise(cube, float(sigma), None if weights is None else str(weights))
+
+
+__all__ += ["denoise"]

@@ -9,7 +9,7 @@ use crate::pool::run;
 use crate::render::{check_shape, owned_exact};
 use crate::settings::configure;
 use crate::system::PySystem;
-use diffcassi::recon::{metrics, reconstruct, CubeShape, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, SparseExport, TvCoupling};
+use diffcassi::recon::{metrics, reconstruct, CubeShape, Denoiser, SpectralUNet, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, SparseExport, TvCoupling};
 use diffcassi::render::Renderer;
 use diffcassi::scene::SpectralCube;
 use numpy::PyArrayDyn;
@@ -222,7 +222,8 @@ fn model_operator(
 /// float32, the record as JSON: settings, per-iteration residuals, seconds).
 #[pyfunction]
 #[pyo3(signature = (operator, acquisition, solver = "gap-tv", init = None, iterations = None, step = None, tv_weight = None,
-                    tv_iterations = None, tv_coupling = None, accelerated = None, admm_eta = None))]
+                    tv_iterations = None, tv_coupling = None, accelerated = None, admm_eta = None, sigma_max = None,
+                    sigma_min = None, tolerance = None, denoiser = None, tv_warmup = None))]
 #[allow(clippy::too_many_arguments)]
 fn _reconstruct<'py>(
     py: Python<'py>,
@@ -237,6 +238,11 @@ fn _reconstruct<'py>(
     tv_coupling: Option<&str>,
     accelerated: Option<bool>,
     admm_eta: Option<f32>,
+    sigma_max: Option<f32>,
+    sigma_min: Option<f32>,
+    tolerance: Option<f64>,
+    denoiser: Option<String>,
+    tv_warmup: Option<usize>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, String)> {
     let kind: SolverKind = solver.parse().py()?;
     let mut cfg = SolverConfig::for_solver(kind);
@@ -246,6 +252,16 @@ fn _reconstruct<'py>(
     cfg.tv_iterations = tv_iterations.unwrap_or(cfg.tv_iterations);
     cfg.accelerated = accelerated.unwrap_or(cfg.accelerated);
     cfg.admm_eta = admm_eta.unwrap_or(cfg.admm_eta);
+    cfg.sigma_max = sigma_max.unwrap_or(cfg.sigma_max);
+    cfg.sigma_min = sigma_min.unwrap_or(cfg.sigma_min);
+    cfg.tolerance = tolerance.unwrap_or(cfg.tolerance);
+    cfg.tv_warmup = tv_warmup.unwrap_or(cfg.tv_warmup);
+    if denoiser.is_some() {
+        if !kind.is_pnp() {
+            return Err(value_error(format!("denoiser: applies to pnp-gap and pnp-admm only, not `{solver}`")));
+        }
+        cfg.denoiser = denoiser;
+    }
     if let Some(c) = tv_coupling {
         cfg.tv_coupling = match c {
             "vectorial" => TvCoupling::Vectorial,
@@ -273,6 +289,29 @@ fn _reconstruct<'py>(
     let rec = run(py, || reconstruct(op.as_ref(), y, init.as_deref(), &cfg, &|_, _| {})).py()?;
     let record = serde_json::to_string(&rec).map_err(|e| value_error(format!("internal: {e}")))?;
     Ok((output(py, rec.cube, &[c.height, c.width, c.bands])?, record))
+}
+
+/// The learned denoiser (`spectral-unet-v1`) on `cube` (H, W, B) float32 with noise level `sigma` (standard
+/// deviation on the cube's scale: the network was trained on cubes of peak ≈ 1); `weights`: a safetensors
+/// file (default: the embedded checkpoint). Returns the denoised cube (H, W, B) float32.
+#[pyfunction]
+#[pyo3(signature = (cube, sigma, weights = None))]
+fn denoise<'py>(py: Python<'py>, cube: &Bound<'py, PyAny>, sigma: f64, weights: Option<String>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+    if !(sigma.is_finite() && sigma >= 0.0) {
+        return Err(value_error(format!("sigma = {sigma}: must be finite and ≥ 0")));
+    }
+    let a = input::<f32>("cube", cube, "float32", 3, "(H, W, B)")?;
+    check_finite("cube", a.slice(), &a.shape)?;
+    let shape = CubeShape { height: a.shape[0], width: a.shape[1], bands: a.shape[2] };
+    let x = a.slice();
+    let out = run(py, || -> diffcassi::Result<Vec<f32>> {
+        let mut net = SpectralUNet::load(weights.as_deref().map(std::path::Path::new))?;
+        let mut out = vec![0.0f32; shape.len()];
+        net.denoise(x, &mut out, shape, sigma as f32)?;
+        Ok(out)
+    })
+    .py()?;
+    output(py, out, &[shape.height, shape.width, shape.bands])
 }
 
 fn cube_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<(Vec<usize>, Vec<f32>)> {
@@ -320,5 +359,6 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(model_operator, m)?)?;
     m.add_function(wrap_pyfunction!(_reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(_metrics, m)?)?;
+    m.add_function(wrap_pyfunction!(denoise, m)?)?;
     Ok(())
 }

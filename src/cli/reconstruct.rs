@@ -37,7 +37,7 @@ pub struct ReconstructArgs {
     /// mapping-nearest, shift (the field's simplified SD-CASSI model).
     #[arg(long, default_value = "exact")]
     pub operator: String,
-    /// Solver: gap-tv or admm-tv.
+    /// Solver: gap-tv, admm-tv, pnp-gap or pnp-admm (plug-and-play with the learned denoiser).
     #[arg(long, default_value = "gap-tv")]
     pub solver: String,
     #[command(flatten)]
@@ -46,6 +46,10 @@ pub struct ReconstructArgs {
     /// [default: acquisition seed + 1].
     #[arg(long = "operator-seed")]
     pub operator_seed: Option<String>,
+    /// Rays per scene pixel per plane of the exact operator [default: the acquisition's]. More rays than the
+    /// acquisition approach the expected transport (less Monte-Carlo mismatch, more memory and tracing).
+    #[arg(long = "operator-rays")]
+    pub operator_rays: Option<usize>,
     /// Keep the exact operator's light transport in memory up to this size (GB); beyond it, re-trace on the fly.
     #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
     pub transport_memory_gb: f64,
@@ -352,12 +356,40 @@ pub struct SolverTuning {
     /// data, but it fits the Monte-Carlo mismatch of an operator traced with another seed (docs/reconstruction.md).
     #[arg(long)]
     pub accelerated: bool,
+    /// pnp-gap / pnp-admm: the denoiser's weights (safetensors, arch spectral-unet-v1) [default: the
+    /// embedded checkpoint].
+    #[arg(long)]
+    pub denoiser: Option<PathBuf>,
+    /// pnp-gap / pnp-admm: σ of the first denoising, relative to the cube's peak, in (0, 1] [default 0.1].
+    #[arg(long = "sigma-max")]
+    pub sigma_max: Option<f64>,
+    /// pnp-gap / pnp-admm: σ of the last denoising (geometric schedule), in (0, σ max] [default 0.01].
+    #[arg(long = "sigma-min")]
+    pub sigma_min: Option<f64>,
+    /// pnp-gap / pnp-admm: iterations denoised by TV before the network takes over (PnP-SCI's GAP-TV start)
+    /// [default 50]; must leave at least one of --iterations to the network.
+    #[arg(long = "tv-warmup")]
+    pub tv_warmup: Option<usize>,
+    /// Stopping rule: stop when the relative change ‖θ_k − θ_{k−1}‖/‖θ_k‖ falls below this (0: run every
+    /// iteration) [default: the solver's: 0 for TV, 1e-3 for PnP].
+    #[arg(long)]
+    pub tolerance: Option<f64>,
 }
 
 impl SolverTuning {
     /// The settings of one solve with `solver`; `accelerated` as given (the caller decides whether it applies).
     pub fn settings(&self, solver: &str, accelerated: bool) -> SolveSettings {
-        SolveSettings { solver: solver.to_string(), iterations: self.iterations, tv_weight: self.tv_weight, accelerated }
+        SolveSettings {
+            solver: solver.to_string(),
+            iterations: self.iterations,
+            tv_weight: self.tv_weight,
+            accelerated,
+            denoiser: self.denoiser.clone(),
+            sigma_max: self.sigma_max,
+            sigma_min: self.sigma_min,
+            tolerance: self.tolerance,
+            tv_warmup: self.tv_warmup,
+        }
     }
 }
 
@@ -369,6 +401,15 @@ pub struct SolveSettings {
     pub tv_weight: Option<f64>,
     /// GAP-TV's accelerated variant.
     pub accelerated: bool,
+    /// PnP: the denoiser's weights file (`None`: embedded).
+    pub denoiser: Option<PathBuf>,
+    /// PnP: the σ schedule's ends (relative to the peak).
+    pub sigma_max: Option<f64>,
+    pub sigma_min: Option<f64>,
+    /// The stopping rule's relative-change tolerance.
+    pub tolerance: Option<f64>,
+    /// PnP: TV warm-up iterations.
+    pub tv_warmup: Option<usize>,
 }
 
 /// The result of a solve: the cube (C order), the per-iteration relative data residual, the solver's
@@ -379,12 +420,14 @@ pub struct Solved {
     pub residuals: Vec<f64>,
     pub final_residual: f64,
     pub settings: Value,
+    /// The stopping rule and what ended the run (`{"rule", "tolerance", "stopped_by", "relative_changes"}`).
+    pub stopping: Value,
     pub seconds: f64,
 }
 
 /// The solver configuration the settings describe (the solver's defaults, overridden by iterations / TV weight).
 pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
-    let kind: SolverKind = s.solver.parse().map_err(|_| Error::invalid(format!("--solver `{}`: use gap-tv or admm-tv", s.solver)))?;
+    let kind: SolverKind = s.solver.parse().map_err(|_| Error::invalid(format!("--solver `{}`: use {}", s.solver, crate::recon::solver::SOLVER_NAMES)))?;
     let mut cfg = SolverConfig::for_solver(kind);
     if let Some(n) = s.iterations {
         cfg.iterations = n;
@@ -398,6 +441,31 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
         }
         cfg.accelerated = true;
     }
+    for (flag, v) in [("--sigma-max", s.sigma_max), ("--sigma-min", s.sigma_min), ("--tolerance", s.tolerance)] {
+        if let Some(v) = v {
+            if !v.is_finite() || v < 0.0 {
+                return Err(Error::invalid(format!("{flag} {v}: must be finite and ≥ 0")));
+            }
+        }
+    }
+    if !kind.is_pnp() && (s.denoiser.is_some() || s.sigma_max.is_some() || s.sigma_min.is_some() || s.tv_warmup.is_some()) {
+        return Err(Error::invalid(format!("--denoiser / --sigma-max / --sigma-min / --tv-warmup apply to pnp-gap and pnp-admm only, not `{}`", s.solver)));
+    }
+    if let Some(n) = s.tv_warmup {
+        cfg.tv_warmup = n;
+    }
+    if let Some(v) = s.sigma_max {
+        cfg.sigma_max = v as f32;
+    }
+    if let Some(v) = s.sigma_min {
+        cfg.sigma_min = v as f32;
+    }
+    if let Some(v) = s.tolerance {
+        cfg.tolerance = v;
+    }
+    if let Some(p) = &s.denoiser {
+        cfg.denoiser = Some(p.display().to_string());
+    }
     cfg.validate()?;
     Ok(cfg)
 }
@@ -407,7 +475,8 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
 pub fn solve(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_progress: bool) -> Result<Solved> {
     let cfg = solver_config(s)?;
     let pb = if show_progress { iteration_bar(cfg.iterations as u64, &format!("{} / {}", op.name(), cfg.solver.name())) } else { ProgressBar::hidden() };
-    let rec = crate::recon::reconstruct(op, y, None, &cfg, &|_, r| {
+    let mut denoiser = crate::recon::solver::config_denoiser(&cfg)?;
+    let rec = crate::recon::reconstruct_with(op, y, None, &cfg, denoiser.as_mut(), &|_, r| {
         pb.set_message(format!("{} / {}: residual {r:.3e}", op.name(), cfg.solver.name()));
         pb.inc(1);
     })?;
@@ -425,7 +494,14 @@ pub fn solve(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_progress: boo
     if let Some(o) = record.as_object_mut() {
         o.remove("residuals");
     }
-    Ok(Solved { residuals: rec.residuals.clone(), final_residual: rec.final_residual, settings: serde_json::json!({"config": settings, "record": record}), seconds: rec.seconds, cube: rec.cube })
+    let stopping = serde_json::json!({
+        "rule": "relative change ‖θ_k − θ_{k−1}‖₂/‖θ_k‖₂ < tolerance (0: off), else the iteration count",
+        "tolerance": rec.config.tolerance,
+        "stopped_by": rec.stopped_by,
+        "iterations_run": rec.iterations_run,
+        "relative_changes": rec.relative_changes,
+    });
+    Ok(Solved { residuals: rec.residuals.clone(), final_residual: rec.final_residual, settings: serde_json::json!({"config": settings, "record": record}), stopping, seconds: rec.seconds, cube: rec.cube })
 }
 
 pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
@@ -459,7 +535,21 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     // The output policy before any work: --out never --from, inside it or containing it.
     let inputs = [("--from", a.from.as_path())];
     crate::io::policy::check_out_folder(&a.out, &reconstruction_rule(a.force), &inputs)?;
-    let record = RenderRecord::load(&a.from)?;
+    if let Some(n) = a.operator_rays {
+        if n == 0 {
+            return Err(Error::invalid("--operator-rays 0: must be ≥ 1"));
+        }
+        if kind != OperatorKind::Exact {
+            return Err(Error::invalid(format!("--operator-rays applies to the exact operator only, not `{}`", kind.name())));
+        }
+    }
+    let mut record = RenderRecord::load(&a.from)?;
+    let acquisition_rays = record.config.rays_per_pixel;
+    if let Some(n) = a.operator_rays {
+        // The operator is rebuilt from the record's configuration: only its ray count changes (the ray budget
+        // of `build_operator` applies to it).
+        record.config.rays_per_pixel = n;
+    }
     // The staging folder, filled and swapped in at the end (a killed run's is removed by the next).
     let set = crate::io::OutputSet::folder(&a.out, &reconstruction_rule(a.force), &inputs)?;
     let seed = operator_seed(record.config.seed, a.operator_seed.as_deref())?;
@@ -486,7 +576,9 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
         "operator": kind.name(),
         "operator_seed": seed,
         "acquisition_seed": record.config.seed,
-        "oracle": seed == record.config.seed,
+        "oracle": seed == record.config.seed && record.config.rays_per_pixel == acquisition_rays,
+        "operator_rays": record.config.rays_per_pixel,
+        "acquisition_rays": acquisition_rays,
         "tracer": tracer.name(),
         "solver": settings.solver,
         "solver_settings": solved.settings,
@@ -495,6 +587,8 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
         "residual": solved.residuals,
         "residual_definition": "per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂, v_k the point iteration k projects (GAP: θ_{k−1})",
         "final_residual": solved.final_residual,
+        "iterations_run": solved.residuals.len(),
+        "stopping": solved.stopping,
         "threads": rayon::current_num_threads(),
         "seconds_operator": seconds_operator,
         "seconds_solve": solved.seconds,
@@ -519,7 +613,11 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     Ok(())
 }
 
-/// Reject an unknown solver or bad solver settings before any work.
+/// Reject an unknown solver or bad solver settings before any work (PnP: the weights are loaded and checked).
 pub fn check_solver(s: &SolveSettings) -> Result<()> {
-    solver_config(s).map(|_| ())
+    let cfg = solver_config(s)?;
+    if cfg.solver.is_pnp() {
+        crate::recon::solver::config_denoiser(&cfg)?;
+    }
+    Ok(())
 }

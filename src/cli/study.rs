@@ -41,7 +41,7 @@ pub struct StudyArgs {
     /// Operators, comma-separated: exact, mapping (bilinear), mapping-nearest, shift.
     #[arg(long, default_value = "exact,mapping,shift")]
     pub operators: String,
-    /// Solvers, comma-separated: gap-tv, admm-tv.
+    /// Solvers, comma-separated: gap-tv, admm-tv, pnp-gap, pnp-admm.
     #[arg(long, default_value = "gap-tv")]
     pub solvers: String,
     /// Folder of scenes: RGB .png photographs (uplifted to spectra), .npy/.exr cubes, CAVE-style PNG folders.
@@ -329,6 +329,16 @@ fn cell_from_json(v: &Value) -> Option<Cell> {
     })
 }
 
+/// The settings of one solver of the study: `--accelerated` applies to gap-tv only, the PnP options
+/// (`--denoiser`, `--sigma-max`, `--sigma-min`) to the PnP solvers only.
+fn cell_settings(a: &StudyArgs, solver: &str) -> super::reconstruct::SolveSettings {
+    let mut s = a.tuning.settings(solver, a.tuning.accelerated && solver == "gap-tv");
+    if !solver.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp()) {
+        (s.denoiser, s.sigma_max, s.sigma_min, s.tv_warmup) = (None, None, None, None);
+    }
+    s
+}
+
 fn mean_std(v: &[f64]) -> (f64, f64) {
     let n = v.len().max(1) as f64;
     let m = v.iter().sum::<f64>() / n;
@@ -348,7 +358,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let operators = split_list(&a.operators, "operators")?.iter().map(|o| OperatorKind::parse(o)).collect::<Result<Vec<_>>>()?;
     let solvers = split_list(&a.solvers, "solvers")?;
     for s in &solvers {
-        check_solver(&a.tuning.settings(s, a.tuning.accelerated && s == "gap-tv"))?;
+        check_solver(&cell_settings(&a, s))?;
     }
     if a.tuning.iterations == Some(0) {
         return Err(Error::invalid("--iterations must be ≥ 1"));
@@ -375,6 +385,19 @@ pub fn study(a: StudyArgs) -> Result<()> {
         "operator_seed": op_seed, "mask": mask.description, "mask_open_pixels": mask.values.iter().filter(|&&v| v > 0.0).count(),
         "airy_diameter_px": a.airy_diameter_px, "iterations": a.tuning.iterations, "tv_weight": a.tuning.tv_weight, "accelerated": a.tuning.accelerated, "tracer": tracer.name(),
     });
+    // PnP settings join the configuration only when a PnP solver runs (so TV-only studies stay resumable
+    // from folders written before PnP existed); the weights enter by content (CRC-32), not only by path.
+    if solvers.iter().any(|s| s.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp())) {
+        let crc = crate::recon::prior::network::weights_crc32(a.tuning.denoiser.as_deref())?;
+        if let Some(o) = config.as_object_mut() {
+            o.insert("pnp".into(), json!({"denoiser": a.tuning.denoiser.as_ref().map(|p| p.display().to_string()), "weights_crc32": crc, "sigma_max": a.tuning.sigma_max, "sigma_min": a.tuning.sigma_min, "tv_warmup": a.tuning.tv_warmup,
+                // The library's PnP defaults too: a cell computed under other defaults is recomputed.
+                "defaults": crate::recon::SolverConfig::pnp_gap()}));
+        }
+    }
+    if let (Some(t), Some(o)) = (a.tuning.tolerance, config.as_object_mut()) {
+        o.insert("tolerance".into(), json!(t));
+    }
     if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
         o.insert("scene_wavelengths".into(), json!(w));
     }
@@ -382,7 +405,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let render_key = {
         let mut r = config.clone();
         if let Some(o) = r.as_object_mut() {
-            for k in ["operator_seed", "iterations", "tv_weight", "accelerated"] {
+            for k in ["operator_seed", "iterations", "tv_weight", "accelerated", "pnp", "tolerance"] {
                 o.remove(k);
             }
         }
@@ -428,7 +451,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
             for (i, solver) in pending {
                 let scene = &scenes[i];
                 let rec = RenderRecord::load(&dirs[i])?;
-                let settings = a.tuning.settings(solver, a.tuning.accelerated && solver == "gap-tv");
+                let settings = cell_settings(&a, solver);
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, false)?;
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;

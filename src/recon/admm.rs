@@ -5,7 +5,8 @@
 //!
 //! - v = θ_{k−1} + b_{k−1}
 //! - x_k = v + λ Φᵀ ((y − Φv) / (d + η)),  η = `admm_eta`·max d (entries with D⁻¹ = 0 stay 0)
-//! - θ_k = TV-denoise(x_k − b_{k−1})
+//! - θ_k = TV-denoise(x_k − b_{k−1}) — or, in [`admm`], any [`Denoiser`] D(x_k − b_{k−1}, σ_k) (PnP-ADMM,
+//!   `pnp-admm`: the learned network, σ schedule and peak normalisation as PnP-GAP's)
 //! - b_k = b_{k−1} − (x_k − θ_k)
 //!
 //! Cost per iteration: one Φ, one Φᵀ, one TV denoising. Memory: 8 cube-sized f32 buffers (θ, b, x, a
@@ -21,14 +22,21 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 use super::operator::Operator;
-use super::solver::{check_inputs, residual_norm, scale, Preconditioner, Reconstruction, SolverConfig};
-use super::tv::{tv_denoise, TvScratch};
+use super::prior::{tv::TvDenoiser, Denoiser};
+use super::solver::{check_inputs, residual_norm, scale, Preconditioner, PriorStep, Reconstruction, SolverConfig, Stopping};
 use crate::error::Result;
 use rayon::prelude::*;
 use std::time::Instant;
 
-/// Run ADMM-TV (see the [module docs](self)).
+/// Run ADMM-TV (see the [module docs](self)): [`admm`] with the TV denoiser of `config`.
 pub fn admm_tv(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
+    let mut tv = TvDenoiser::new(config.tv_weight, config.tv_iterations, config.tv_coupling);
+    admm(op, y, init, config, &mut tv, progress)
+}
+
+/// ADMM with any denoiser as the prior step θ_k = D(x_k − b_{k−1}, σ_k) (PnP kinds scale to peak 1 around D
+/// and take σ_k from the schedule). Stops early when the relative change falls under `config.tolerance`.
+pub fn admm(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, denoiser: &mut dyn Denoiser, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
     check_inputs(op, y, init, config)?;
     let t0 = Instant::now();
     let shape = op.cube_shape();
@@ -45,7 +53,10 @@ pub fn admm_tv(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &Solv
     let mut tmp = vec![0.0f32; shape.len()];
     let mut phi_v = vec![0.0f32; y.len()];
     let mut e = vec![0.0f32; y.len()];
-    let mut tv = TvScratch::default();
+    let mut prior = PriorStep::new(denoiser, config);
+    let mut stopping = Stopping::new(config.tolerance);
+    let mut sigmas = Vec::new();
+    let mut stopped_by = "iterations";
     let lambda = config.step;
     let (mut residuals, mut weighted) = (Vec::with_capacity(config.iterations), Vec::with_capacity(config.iterations));
     for k in 1..=config.iterations {
@@ -59,21 +70,37 @@ pub fn admm_tv(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &Solv
         op.adjoint_into(&e, &mut tmp);
         x.par_iter_mut().zip(tmp.par_iter()).for_each(|(x, g)| *x += lambda * *g);
         tmp.par_iter_mut().zip(x.par_iter()).zip(b.par_iter()).for_each(|((t, x), b)| *t = *x - *b);
-        tv_denoise(&tmp, &mut theta, shape, config.tv_weight, config.tv_iterations, config.tv_coupling, &mut tv);
+        stopping.remember(&theta);
+        let sigma = config.sigma_at(k);
+        if config.solver.is_pnp() {
+            sigmas.push(sigma);
+        }
+        prior.apply(k, &tmp, &mut theta, shape, sigma)?;
         b.par_iter_mut().zip(x.par_iter()).zip(theta.par_iter()).for_each(|((b, x), t)| *b -= *x - *t);
         progress(k, r);
+        // The rule applies once the network runs (PnP's TV warm-up always completes).
+        if stopping.stop(&theta) && k > config.tv_warmup {
+            stopped_by = "tolerance";
+            break;
+        }
     }
     op.apply_into(&theta, &mut phi_v);
     let final_residual = residual_norm(y, &phi_v) / ny;
+    let (cube_buffers, denoiser_record) = (4 + prior.cube_buffers() + stopping.cube_buffers(), prior.describe());
     Ok(Reconstruction {
         cube: theta,
         shape,
         operator: op.name().to_string(),
         config: config.clone(),
+        iterations_run: residuals.len(),
         residuals,
         weighted_residuals: weighted,
         final_residual,
-        cube_buffers: 4 + if config.tv_weight > 0.0 { 4 } else { 0 },
+        cube_buffers,
         seconds: t0.elapsed().as_secs_f64(),
+        stopped_by: stopped_by.to_string(),
+        relative_changes: stopping.changes,
+        sigmas,
+        denoiser: denoiser_record,
     })
 }

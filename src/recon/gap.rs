@@ -7,11 +7,15 @@
 //!
 //! - plain:        x_k = θ_{k−1} + λ Φᵀ D⁻¹ (y − Φθ_{k−1})
 //! - accelerated:  ỹ_k = ỹ_{k−1} + (y − Φθ_{k−1});  x_k = θ_{k−1} + λ Φᵀ D⁻¹ (ỹ_k − Φθ_{k−1})
-//! - θ_k = TV-denoise(x_k) (Chambolle, [`super::tv`]; skipped when the TV weight is 0).
+//! - θ_k = TV-denoise(x_k) (Chambolle, [`super::tv`]; skipped when the TV weight is 0) — or, in [`gap`],
+//!   any [`Denoiser`] D(x_k, σ_k): PnP-GAP (`pnp-gap`) plugs in the learned network with the decreasing σ
+//!   schedule of [`super::solver::sigma_schedule`], the cube scaled to peak 1 around D.
+//! - optional stop: ‖θ_k − θ_{k−1}‖₂ / ‖θ_k‖₂ < `tolerance` (the record says which rule ended the run).
 //!
 //! Cost per iteration: one Φ, one Φᵀ, one TV denoising. Memory: 6 cube-sized f32 buffers (θ, x, and the
 //! TV's p₁, p₂ and their next iterate) plus 3 image-sized ones (ỹ, Φθ, D⁻¹); at 512×512×28 that is 6 × 29.4 MB = 176 MB,
-//! the operator's own buffers apart.
+//! the operator's own buffers apart (+1 with a tolerance: θ_{k−1}; PnP: θ, x, the scaled copy and the
+//! network's activations instead of the TV's four).
 //!
 //! ```
 //! use diffcassi::recon::{gap::gap_tv, solver::SolverConfig, shift::ShiftOperator, CubeShape, ImageShape};
@@ -24,14 +28,23 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 use super::operator::Operator;
-use super::solver::{check_inputs, residual_norm, scale, Preconditioner, Reconstruction, SolverConfig};
-use super::tv::{tv_denoise, TvScratch};
+use super::prior::{tv::TvDenoiser, Denoiser};
+use super::solver::{check_inputs, residual_norm, scale, Preconditioner, PriorStep, Reconstruction, SolverConfig, Stopping};
 use crate::error::Result;
 use rayon::prelude::*;
 use std::time::Instant;
 
-/// Run GAP-TV (plain or accelerated per `config.accelerated`; see the [module docs](self)).
+/// Run GAP-TV (plain or accelerated per `config.accelerated`; see the [module docs](self)): [`gap`] with the
+/// TV denoiser of `config`.
 pub fn gap_tv(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
+    let mut tv = TvDenoiser::new(config.tv_weight, config.tv_iterations, config.tv_coupling);
+    gap(op, y, init, config, &mut tv, progress)
+}
+
+/// GAP with any denoiser as the prior step θ_k = D(x_k, σ_k) (plain or accelerated; PnP kinds scale x to
+/// peak 1 around D and take σ_k from the schedule, [`super::solver::sigma_schedule`]). Stops early when the
+/// relative change falls under `config.tolerance`.
+pub fn gap(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, denoiser: &mut dyn Denoiser, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
     check_inputs(op, y, init, config)?;
     let t0 = Instant::now();
     let shape = op.cube_shape();
@@ -45,7 +58,10 @@ pub fn gap_tv(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &Solve
     let mut phi_theta = vec![0.0f32; y.len()];
     let mut y_acc = vec![0.0f32; y.len()];
     let mut e = vec![0.0f32; y.len()];
-    let mut tv = TvScratch::default();
+    let mut prior = PriorStep::new(denoiser, config);
+    let mut stopping = Stopping::new(config.tolerance);
+    let mut sigmas = Vec::new();
+    let mut stopped_by = "iterations";
     let lambda = config.step;
     let (mut residuals, mut weighted) = (Vec::with_capacity(config.iterations), Vec::with_capacity(config.iterations));
     for k in 1..=config.iterations {
@@ -65,20 +81,36 @@ pub fn gap_tv(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &Solve
         }
         op.adjoint_into(&e, &mut x);
         x.par_iter_mut().zip(theta.par_iter()).for_each(|(x, t)| *x = *t + lambda * *x);
-        tv_denoise(&x, &mut theta, shape, config.tv_weight, config.tv_iterations, config.tv_coupling, &mut tv);
+        stopping.remember(&theta);
+        let sigma = config.sigma_at(k);
+        if config.solver.is_pnp() {
+            sigmas.push(sigma);
+        }
+        prior.apply(k, &x, &mut theta, shape, sigma)?;
         progress(k, r);
+        // The rule applies once the network runs (PnP's TV warm-up always completes).
+        if stopping.stop(&theta) && k > config.tv_warmup {
+            stopped_by = "tolerance";
+            break;
+        }
     }
     op.apply_into(&theta, &mut phi_theta);
     let final_residual = residual_norm(y, &phi_theta) / ny;
+    let (cube_buffers, denoiser_record) = (2 + prior.cube_buffers() + stopping.cube_buffers(), prior.describe());
     Ok(Reconstruction {
         cube: theta,
         shape,
         operator: op.name().to_string(),
         config: config.clone(),
+        iterations_run: residuals.len(),
         residuals,
         weighted_residuals: weighted,
         final_residual,
-        cube_buffers: 2 + if config.tv_weight > 0.0 { 4 } else { 0 },
+        cube_buffers,
         seconds: t0.elapsed().as_secs_f64(),
+        stopped_by: stopped_by.to_string(),
+        relative_changes: stopping.changes,
+        sigmas,
+        denoiser: denoiser_record,
     })
 }

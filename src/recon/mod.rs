@@ -9,7 +9,10 @@
 //! (the paper's chief-ray mapping, nearest or bilinear, and its initialisation I = A ∘ f),
 //! [`shift::ShiftOperator`] (the field's simplified SD-CASSI model). Solvers: [`gap::gap_tv`] (GAP-TV,
 //! plain or accelerated) and [`admm::admm_tv`] (ADMM-TV), both through [`solver::reconstruct`] with a
-//! [`solver::SolverConfig`]; TV denoising by Chambolle's projection in [`tv`]. See docs/reconstruction.md.
+//! [`solver::SolverConfig`]; TV denoising by Chambolle's projection in [`tv`]. Priors are denoisers
+//! ([`prior::Denoiser`]: TV, or the learned [`prior::network::SpectralUNet`]); the plug-and-play solvers
+//! `pnp-gap` / `pnp-admm` ([`gap::gap`], [`admm::admm`] with the network and a σ schedule) plug the learned
+//! one into the same data steps. See docs/reconstruction.md.
 //!
 //! Public API (stable):
 //! - `ExactOperator::new(renderer: Renderer<'a>, bands_nm: &[f64], memory_budget_bytes: u64) -> Result<Self>`
@@ -22,7 +25,9 @@
 //!   `ShiftOperator::from_renderer(&Renderer, bands_nm)`, `.shifts_px()`, `.placement()`;
 //! - `reconstruct(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, &SolverConfig,
 //!   progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction>`; `SolverConfig::{gap_tv, admm_tv,
-//!   for_solver, validate}`, `SolverKind: FromStr` (`gap-tv`, `admm-tv`); `Reconstruction` (serde).
+//!   for_solver, validate}`, `SolverKind: FromStr` (`gap-tv`, `admm-tv`, `pnp-gap`, `pnp-admm`);
+//!   `Reconstruction` (serde); `reconstruct_with(.., denoiser: &mut dyn Denoiser, ..)`;
+//!   `SpectralUNet::{embedded, from_file, load}`, `Denoiser::denoise(x, out, shape, sigma)`.
 //!
 //! ```
 //! use diffcassi::prelude::*;
@@ -52,6 +57,7 @@ pub mod layout;
 pub mod mapping;
 pub mod metrics;
 pub mod operator;
+pub mod prior;
 pub mod shift;
 pub mod solver;
 pub mod sparse;
@@ -60,7 +66,8 @@ pub mod tv;
 pub use exact::ExactOperator;
 pub use mapping::{MappingInterpolation, MappingOperator};
 pub use metrics::{evaluate, Evaluation, Metrics};
-pub use solver::{reconstruct, Reconstruction, SolverConfig, SolverKind};
+pub use prior::{network::SpectralUNet, tv::TvDenoiser, Denoiser};
+pub use solver::{reconstruct, reconstruct_with, Reconstruction, SolverConfig, SolverKind};
 pub use tv::TvCoupling;
 pub use operator::{CubeShape, ImageShape, Operator};
 pub use shift::ShiftOperator;

@@ -30,6 +30,7 @@
 //! ```
 use super::layout::dot;
 use super::operator::{CubeShape, Operator};
+use super::prior::{network::SpectralUNet, tv::TvDenoiser, Denoiser};
 use super::tv::TvCoupling;
 use crate::error::{Error, Result};
 use rayon::prelude::*;
@@ -46,6 +47,10 @@ pub enum SolverKind {
     GapTv,
     /// ADMM with TV (plug-and-play form of Yuan's DeSCI/PnP code).
     AdmmTv,
+    /// Plug-and-play GAP with the learned denoiser ([`super::prior::network`]) and a decreasing σ schedule.
+    PnpGap,
+    /// Plug-and-play ADMM with the learned denoiser.
+    PnpAdmm,
 }
 
 impl SolverKind {
@@ -53,9 +58,24 @@ impl SolverKind {
         match self {
             SolverKind::GapTv => "gap-tv",
             SolverKind::AdmmTv => "admm-tv",
+            SolverKind::PnpGap => "pnp-gap",
+            SolverKind::PnpAdmm => "pnp-admm",
         }
     }
+
+    /// Whether the prior is the learned denoiser (plug-and-play) rather than TV.
+    pub fn is_pnp(&self) -> bool {
+        matches!(self, SolverKind::PnpGap | SolverKind::PnpAdmm)
+    }
+
+    /// Whether the data step is GAP's (else ADMM's).
+    pub fn is_gap(&self) -> bool {
+        matches!(self, SolverKind::GapTv | SolverKind::PnpGap)
+    }
 }
+
+/// The names [`SolverKind`] parses, for messages.
+pub const SOLVER_NAMES: &str = "gap-tv, admm-tv, pnp-gap or pnp-admm";
 
 impl FromStr for SolverKind {
     type Err = Error;
@@ -63,7 +83,9 @@ impl FromStr for SolverKind {
         match s {
             "gap-tv" => Ok(SolverKind::GapTv),
             "admm-tv" => Ok(SolverKind::AdmmTv),
-            _ => Err(Error::invalid(format!("unknown solver `{s}` (expected gap-tv or admm-tv)"))),
+            "pnp-gap" => Ok(SolverKind::PnpGap),
+            "pnp-admm" => Ok(SolverKind::PnpAdmm),
+            _ => Err(Error::invalid(format!("unknown solver `{s}` (expected {SOLVER_NAMES})"))),
         }
     }
 }
@@ -92,6 +114,25 @@ pub struct SolverConfig {
     pub accelerated: bool,
     /// ADMM only: η added to d in the projection (y − Φv)/(d + η), relative to max d (default 0.01).
     pub admm_eta: f32,
+    /// PnP only: the noise level σ of the first denoising, relative to the cube's peak (the denoiser sees the
+    /// cube scaled to peak 1; see [`sigma_schedule`]).
+    #[serde(default)]
+    pub sigma_max: f32,
+    /// PnP only: the noise level σ of the last denoising, relative to the peak (σ decreases geometrically).
+    #[serde(default)]
+    pub sigma_min: f32,
+    /// Stopping rule: stop after iteration k when ‖θ_k − θ_{k−1}‖₂ / ‖θ_k‖₂ < tolerance (0: run all the
+    /// iterations). The record says which rule ended the run.
+    #[serde(default)]
+    pub tolerance: f64,
+    /// PnP only: the denoiser's weights file (safetensors); `None`: the embedded checkpoint.
+    #[serde(default)]
+    pub denoiser: Option<String>,
+    /// PnP only: the first `tv_warmup` iterations denoise with TV (`tv_weight`, `tv_iterations`,
+    /// `tv_coupling`) before the network takes over, as PnP-SCI starts from GAP-TV (Yuan et al. 2020): the
+    /// network, trained on Gaussian noise, does not fill the pixels the mask closes; TV does.
+    #[serde(default)]
+    pub tv_warmup: usize,
 }
 
 impl Default for SolverConfig {
@@ -104,7 +145,41 @@ impl SolverConfig {
     /// GAP-TV, plain (not accelerated): 100 iterations, λ = 1, TV weight 0.1, 5 Chambolle iterations,
     /// vectorial coupling.
     pub fn gap_tv() -> Self {
-        SolverConfig { solver: SolverKind::GapTv, iterations: 100, step: 1.0, tv_weight: 0.1, tv_iterations: 5, tv_coupling: TvCoupling::Vectorial, accelerated: false, admm_eta: 0.01 }
+        SolverConfig {
+            solver: SolverKind::GapTv,
+            iterations: 100,
+            step: 1.0,
+            tv_weight: 0.1,
+            tv_iterations: 5,
+            tv_coupling: TvCoupling::Vectorial,
+            accelerated: false,
+            admm_eta: 0.01,
+            sigma_max: 0.0,
+            sigma_min: 0.0,
+            tolerance: 0.0,
+            denoiser: None,
+            tv_warmup: 0,
+        }
+    }
+
+    /// PnP-GAP: plain GAP (λ = 1) with the embedded learned denoiser, σ from [`PNP_SIGMA_MAX`] down to
+    /// [`PNP_SIGMA_MIN`] over [`PNP_ITERATIONS`] iterations, stopping early at a relative change below
+    /// [`PNP_TOLERANCE`] (docs/reconstruction.md, "Plug-and-play", for the measurements behind them).
+    pub fn pnp_gap() -> Self {
+        SolverConfig {
+            solver: SolverKind::PnpGap,
+            iterations: PNP_ITERATIONS,
+            tv_warmup: PNP_TV_WARMUP,
+            sigma_max: PNP_SIGMA_MAX,
+            sigma_min: PNP_SIGMA_MIN,
+            tolerance: PNP_TOLERANCE,
+            ..Self::gap_tv()
+        }
+    }
+
+    /// PnP-ADMM: as [`SolverConfig::pnp_gap`] with ADMM's data step (η = 0.01·max d).
+    pub fn pnp_admm() -> Self {
+        SolverConfig { solver: SolverKind::PnpAdmm, ..Self::pnp_gap() }
     }
 
     /// ADMM-TV: as [`SolverConfig::gap_tv`] with η = 0.01·max d.
@@ -117,6 +192,18 @@ impl SolverConfig {
         match solver {
             SolverKind::GapTv => Self::gap_tv(),
             SolverKind::AdmmTv => Self::admm_tv(),
+            SolverKind::PnpGap => Self::pnp_gap(),
+            SolverKind::PnpAdmm => Self::pnp_admm(),
+        }
+    }
+
+    /// σ of iteration k (1-based) of this configuration's schedule ([`sigma_schedule`] over the iterations
+    /// after the TV warm-up); 0 for TV solvers and warm-up iterations.
+    pub fn sigma_at(&self, k: usize) -> f32 {
+        if self.solver.is_pnp() && k > self.tv_warmup {
+            sigma_schedule(self.sigma_max, self.sigma_min, self.iterations - self.tv_warmup, k - self.tv_warmup)
+        } else {
+            0.0
         }
     }
 
@@ -144,6 +231,22 @@ impl SolverConfig {
         if !(self.admm_eta.is_finite() && self.admm_eta >= 0.0) {
             return Err(Error::invalid(format!("ADMM η = {} must be finite and ≥ 0", self.admm_eta)));
         }
+        if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
+            return Err(Error::invalid(format!("stopping tolerance {} must be finite and ≥ 0", self.tolerance)));
+        }
+        if self.solver.is_pnp() {
+            for (name, v) in [("σ max (--sigma-max)", self.sigma_max), ("σ min (--sigma-min)", self.sigma_min)] {
+                if !(v.is_finite() && v > 0.0 && v <= 1.0) {
+                    return Err(Error::invalid(format!("noise schedule: {name} = {v} must be finite, > 0 and ≤ 1 (relative to the cube's peak)")));
+                }
+            }
+            if self.sigma_min > self.sigma_max {
+                return Err(Error::invalid(format!("noise schedule: σ min {} is above σ max {} (the schedule decreases)", self.sigma_min, self.sigma_max)));
+            }
+            if self.tv_warmup >= self.iterations {
+                return Err(Error::invalid(format!("TV warm-up of {} iterations leaves none of the {} iterations to the network", self.tv_warmup, self.iterations)));
+            }
+        }
         Ok(())
     }
 }
@@ -167,6 +270,16 @@ pub struct Reconstruction {
     /// Cube-sized f32 buffers the solver held (its own and the TV's; not the operator's).
     pub cube_buffers: usize,
     pub seconds: f64,
+    /// Iterations run (≤ `config.iterations`: the stopping rule may end the run early).
+    pub iterations_run: usize,
+    /// Which rule ended the run: `iterations` (all ran) or `tolerance` (relative change below it).
+    pub stopped_by: String,
+    /// Per iteration k: ‖θ_k − θ_{k−1}‖₂ / ‖θ_k‖₂ (the stopping rule's quantity).
+    pub relative_changes: Vec<f64>,
+    /// PnP: σ of each iteration (relative to the peak); empty for TV.
+    pub sigmas: Vec<f32>,
+    /// The prior: the denoiser's record (name, weights / TV settings).
+    pub denoiser: serde_json::Value,
 }
 
 /// d = ΦΦᵀ𝟙 and its guarded inverse (see the [module docs](self)).
@@ -234,12 +347,145 @@ pub(crate) fn scale(y: &[f32]) -> f64 {
     }
 }
 
+/// PnP default: iterations (an upper bound; the tolerance may end the run before), TV warm-up included.
+pub const PNP_ITERATIONS: usize = 80;
+/// PnP default: TV iterations before the network (GAP-TV's own settings).
+pub const PNP_TV_WARMUP: usize = 50;
+/// PnP default: σ of the first denoising, relative to the cube's peak.
+pub const PNP_SIGMA_MAX: f32 = 0.1;
+/// PnP default: σ of the last denoising, relative to the peak.
+pub const PNP_SIGMA_MIN: f32 = 0.01;
+/// PnP default: the relative-change tolerance of the stopping rule.
+pub const PNP_TOLERANCE: f64 = 1e-3;
+
+/// The noise-level schedule of the plug-and-play solvers: geometric from σ_max (iteration 1) to σ_min
+/// (iteration K), σ_k = σ_max·(σ_min/σ_max)^((k−1)/(K−1)) — the continuous form of PnP-SCI's decreasing
+/// σ stages (Yuan et al., CVPR 2020) and of DRUNet's log-spaced schedule (Zhang et al., TPAMI 2021): large σ
+/// first, while the iterate is far from the measurement's solution set, small σ last, so the prior neither
+/// freezes early errors nor keeps smoothing the converged cube. σ is relative to the cube's peak.
+pub fn sigma_schedule(sigma_max: f32, sigma_min: f32, iterations: usize, k: usize) -> f32 {
+    if iterations <= 1 {
+        return sigma_max;
+    }
+    let t = (k.clamp(1, iterations) - 1) as f64 / (iterations - 1) as f64;
+    (sigma_max as f64 * (sigma_min as f64 / sigma_max as f64).powf(t)) as f32
+}
+
+/// The prior step the solvers share: θ ← D(x, σ). For PnP (`normalise`) the cube is divided by its peak
+/// p = max x (1 when x ≤ 0 everywhere) before the denoiser and multiplied by p after, so the network sees the
+/// scale it was trained on (peak ≈ 1) and σ is relative to the peak; TV gets x as it is (bit for bit the
+/// direct call).
+pub(crate) struct PriorStep<'d> {
+    denoiser: &'d mut dyn Denoiser,
+    normalise: bool,
+    scaled: Vec<f32>,
+    /// PnP's TV warm-up: (iterations, the TV denoiser).
+    warmup: Option<(usize, TvDenoiser)>,
+}
+
+impl<'d> PriorStep<'d> {
+    /// The prior step of `config`'s solver around `denoiser` (PnP: normalised, with the TV warm-up).
+    pub(crate) fn new(denoiser: &'d mut dyn Denoiser, config: &SolverConfig) -> Self {
+        let pnp = config.solver.is_pnp();
+        let warmup = (pnp && config.tv_warmup > 0).then(|| (config.tv_warmup, TvDenoiser::new(config.tv_weight, config.tv_iterations, config.tv_coupling)));
+        PriorStep { denoiser, normalise: pnp, scaled: Vec::new(), warmup }
+    }
+
+    /// θ ← D(x) at iteration k (1-based).
+    pub(crate) fn apply(&mut self, k: usize, x: &[f32], out: &mut [f32], shape: CubeShape, sigma: f32) -> Result<()> {
+        if let Some((n, tv)) = &mut self.warmup {
+            if k <= *n {
+                return tv.denoise(x, out, shape, 0.0);
+            }
+        }
+        if !self.normalise {
+            return self.denoiser.denoise(x, out, shape, sigma);
+        }
+        let peak = x.par_iter().cloned().reduce(|| f32::MIN, f32::max);
+        let p = if peak.is_finite() && peak > 0.0 { peak } else { 1.0 };
+        self.scaled.resize(x.len(), 0.0);
+        self.scaled.par_iter_mut().zip(x.par_iter()).for_each(|(s, x)| *s = *x / p);
+        self.denoiser.denoise(&self.scaled, out, shape, sigma)?;
+        out.par_iter_mut().for_each(|v| *v *= p);
+        Ok(())
+    }
+
+    /// Cube-sized buffers held (the scaled copy and the denoiser's).
+    pub(crate) fn cube_buffers(&self) -> usize {
+        usize::from(self.normalise) + self.denoiser.cube_buffers() + self.warmup.as_ref().map_or(0, |(_, tv)| tv.cube_buffers())
+    }
+
+    pub(crate) fn describe(&self) -> serde_json::Value {
+        let mut d = self.denoiser.describe();
+        if let (Some((n, tv)), Some(o)) = (&self.warmup, d.as_object_mut()) {
+            o.insert("tv_warmup".into(), serde_json::json!({"iterations": n, "tv": tv.describe()}));
+        }
+        d
+    }
+}
+
+/// The stopping rule's bookkeeping: θ_{k−1} (kept only when the tolerance is on) and the relative changes.
+pub(crate) struct Stopping {
+    tolerance: f64,
+    previous: Vec<f32>,
+    pub(crate) changes: Vec<f64>,
+}
+
+impl Stopping {
+    pub(crate) fn new(tolerance: f64) -> Self {
+        Stopping { tolerance, previous: Vec::new(), changes: Vec::new() }
+    }
+
+    /// Before the prior step of an iteration: remember θ_{k−1}.
+    pub(crate) fn remember(&mut self, theta: &[f32]) {
+        if self.tolerance > 0.0 {
+            self.previous.clear();
+            self.previous.extend_from_slice(theta);
+        }
+    }
+
+    /// After it: record ‖θ_k − θ_{k−1}‖ / ‖θ_k‖ and say whether to stop.
+    pub(crate) fn stop(&mut self, theta: &[f32]) -> bool {
+        if self.tolerance <= 0.0 {
+            return false;
+        }
+        let d = theta.par_iter().zip(self.previous.par_iter()).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>().sqrt();
+        let n = dot(theta, theta).sqrt();
+        let c = if n > 0.0 { d / n } else if d > 0.0 { f64::INFINITY } else { 0.0 };
+        self.changes.push(c);
+        c < self.tolerance
+    }
+
+    pub(crate) fn cube_buffers(&self) -> usize {
+        usize::from(self.tolerance > 0.0)
+    }
+}
+
+/// The denoiser `config` names: TV with its weight/iterations/coupling for the TV solvers, the learned
+/// network (embedded weights, or `config.denoiser`'s file) for PnP.
+pub fn config_denoiser(config: &SolverConfig) -> Result<Box<dyn Denoiser>> {
+    if config.solver.is_pnp() {
+        Ok(Box::new(SpectralUNet::load(config.denoiser.as_deref().map(std::path::Path::new))?))
+    } else {
+        Ok(Box::new(TvDenoiser::new(config.tv_weight, config.tv_iterations, config.tv_coupling)))
+    }
+}
+
 /// Reconstruct the cube from measurement `y` with the configured solver. `init` is the starting cube
 /// (default 0, so the first GAP step is λΦᵀD⁻¹y); `progress(k, residual)` is called after each iteration k
-/// (1-based) with its relative residual.
+/// (1-based) with its relative residual. The prior is [`config_denoiser`]'s.
 pub fn reconstruct(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
-    match config.solver {
-        SolverKind::GapTv => super::gap::gap_tv(op, y, init, config, progress),
-        SolverKind::AdmmTv => super::admm::admm_tv(op, y, init, config, progress),
+    config.validate()?;
+    let mut denoiser = config_denoiser(config)?;
+    reconstruct_with(op, y, init, config, denoiser.as_mut(), progress)
+}
+
+/// [`reconstruct`] with any [`Denoiser`] as the prior (GAP's or ADMM's data step per `config.solver`; PnP
+/// kinds scale the cube to peak 1 around the denoiser and follow the σ schedule).
+pub fn reconstruct_with(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, denoiser: &mut dyn Denoiser, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
+    if config.solver.is_gap() {
+        super::gap::gap(op, y, init, config, denoiser, progress)
+    } else {
+        super::admm::admm(op, y, init, config, denoiser, progress)
     }
 }

@@ -41,11 +41,13 @@
 //!   `embree-user[:f64|:none]`, `embree-mesh[:SAG_UM][:f64|:none]`).
 
 pub mod backend;
+pub mod denoise;
 pub mod jacobian;
 pub mod render;
 mod results;
 mod system;
 
+pub use denoise::denoise;
 pub use jacobian::Jacobian;
 pub use render::default_render_options;
 pub use results::{Mapping, Rays, Spot, Traced};
@@ -190,6 +192,8 @@ pub mod ffi {
         fn version() -> String;
         /// `chief`, `marginal`, `hexapolar:R`, `grid:N`, `grid-step:S`, `random:N:SEED`.
         fn pupil_points(pattern: &str) -> Result<PupilPoints>;
+        /// The learned denoiser on a cube [row][col][band] f32 into `out` (same size); `weights` empty: embedded.
+        fn denoise(cube: &[f32], height: usize, width: usize, bands: usize, sigma: f64, weights: &str, out: &mut [f32]) -> Result<()>;
         /// `count` evenly spaced values from `first` to `last` (inclusive).
         fn linspace(first: f64, last: f64, count: usize) -> Vec<f64>;
         fn default_render_options() -> RenderOptions;

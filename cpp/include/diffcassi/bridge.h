@@ -1315,6 +1315,9 @@ private:
 // `chief`, `marginal`, `hexapolar:R`, `grid:N`, `grid-step:S`, `random:N:SEED`.
 ::diffcassi::ffi::PupilPoints pupil_points(::rust::Str pattern);
 
+// The learned denoiser on a cube [row][col][band] f32 into `out` (same size); `weights` empty: embedded.
+void denoise(::rust::Slice<float const> cube, ::std::size_t height, ::std::size_t width, ::std::size_t bands, double sigma, ::rust::Str weights, ::rust::Slice<float > out);
+
 // `count` evenly spaced values from `first` to `last` (inclusive).
 ::rust::Vec<double> linspace(double first, double last, ::std::size_t count) noexcept;
 

@@ -465,6 +465,19 @@ inline PupilPoints pupil_points(std::string_view pattern) {
   const auto p = detail::call([&] { return ffi::pupil_points(detail::str(pattern)); });
   return {std::vector<double>(p.px.begin(), p.px.end()), std::vector<double>(p.py.begin(), p.py.end())};
 }
+/// The learned denoiser (spectral-unet-v1, the prior of the pnp-gap / pnp-admm solvers) on a cube of
+/// height × width × bands floats, C order [row][col][band]; sigma: the noise standard deviation on the cube's
+/// scale (trained on cubes of peak ≈ 1); weights: a safetensors file, empty for the embedded checkpoint.
+/// Returns the denoised cube (same layout). Throws diffcassi::Error on a wrong size, band count or weights.
+inline std::vector<float> denoise(View<float> cube, std::size_t height, std::size_t width, std::size_t bands, double sigma,
+                                  std::string_view weights = {}) {
+  std::vector<float> out(cube.size());
+  detail::call([&] {
+    ffi::denoise(detail::slice(cube), height, width, bands, sigma, detail::str(weights), rust::Slice<float>(out.data(), out.size()));
+  });
+  return out;
+}
+
 inline std::vector<double> linspace(double first, double last, std::size_t count) {
   const auto v = ffi::linspace(first, last, count);
   return std::vector<double>(v.begin(), v.end());

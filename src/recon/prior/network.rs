@@ -1,0 +1,272 @@
+//! The learned prior: `SpectralUNet` (arch `spectral-unet-v1`), a small residual U-Net over all bands with a
+//! noise-level input channel (FFDNet: K. Zhang, W. Zuo, L. Zhang, "FFDNet: toward a fast and flexible
+//! solution for CNN-based image denoising", IEEE TIP 2018; DRUNet: K. Zhang et al., "Plug-and-play image
+//! restoration with deep denoiser prior", IEEE TPAMI 2021). Its graph is defined once, in PyTorch, by
+//! `diffcassi/denoiser.py` (layer by layer in its module docs); this file runs the same graph for the CLI,
+//! Python (`diffcassi.denoise`) and C++ (`diffcassi::denoise`), loading the same safetensors weights. Equal to
+//! PyTorch within 1e-4 of the peak (`tests/python/test_denoiser.py`).
+//!
+//! **Inference crate: candle** (`candle-core` 0.11, Hugging Face, MIT/Apache-2.0): pure Rust, maintained,
+//! CPU convolutions by tiled im2col + the `gemm` crate, nothing downloaded at build or run time (no C/C++
+//! library, no model hub access: the weights are bytes we hand it). The alternatives: `tract` (Sonos;
+//! ONNX/NNEF inference, also pure Rust) would need the graph exported to ONNX, a second weights format beside
+//! the safetensors the training writes; `burn` is a full training framework (autodiff, its own module
+//! system and record format) — more than running twelve fixed convolutions needs. Only `candle-core` is used
+//! (tensors, `conv2d`, `conv_transpose2d`, `relu`; `candle-nn` would only wrap these); the weights file is
+//! read by the `safetensors` crate candle itself depends on, so its metadata (arch, bands, width) and every
+//! tensor are checked before the network is built.
+//!
+//! **Determinism.** Every convolution is cut into fixed tiles of output pixels (candle's TILE_SIZE) and each
+//! output is one gemm dot product in a fixed order; threads (rayon, the caller's pool) only pick which tile
+//! they compute. The result is bit-identical for any thread count (tested: 1- vs 2-thread pools).
+//!
+//! **Weights.** [`SpectralUNet::embedded`] is the committed checkpoint
+//! (`src/recon/prior/weights/spectral-unet-v1-28.safetensors`, 28 bands, width 32; `include_bytes!`, so the
+//! CLI needs no path); [`SpectralUNet::from_file`] reads a user's. Both check the metadata (`arch` =
+//! `spectral-unet-v1`, `bands`, `width`), that every tensor the graph needs is there with its shape, in f32,
+//! with finite values, and that nothing else is: errors name the file and the tensor.
+//!
+//! **Input.** Cubes H×W×B `[row][col][band]` with B = the network's bands, scaled by the caller to a peak of
+//! about 1 (the training scale); σ the noise standard deviation on that scale. H and W need not be multiples
+//! of 4: the cube is padded at the bottom/right by edge replication and the output cropped, as `denoise()` in
+//! `diffcassi/denoiser.py` does.
+//!
+//! ```no_run
+//! use diffcassi::recon::prior::{network::SpectralUNet, Denoiser};
+//! use diffcassi::recon::CubeShape;
+//! let mut net = SpectralUNet::embedded()?;
+//! let shape = CubeShape { height: 32, width: 30, bands: 28 };
+//! let noisy = vec![0.5f32; shape.len()];
+//! let mut clean = vec![0.0f32; shape.len()];
+//! net.denoise(&noisy, &mut clean, shape, 0.05)?;
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+use super::Denoiser;
+use crate::error::{Error, Result};
+use crate::recon::operator::CubeShape;
+use candle_core::{Device, Tensor};
+use std::path::Path;
+
+/// The architecture name the weights' metadata must carry.
+pub const ARCH: &str = "spectral-unet-v1";
+
+/// Where the embedded weights come from (for error messages and records).
+pub const EMBEDDED_PATH: &str = "src/recon/prior/weights/spectral-unet-v1-28.safetensors";
+
+static EMBEDDED: &[u8] = include_bytes!("weights/spectral-unet-v1-28.safetensors");
+
+/// CRC-32 of the weights' bytes (the embedded file for `None`): identifies the checkpoint in records.
+pub fn weights_crc32(path: Option<&Path>) -> Result<u32> {
+    match path {
+        None => Ok(crc32fast::hash(EMBEDDED)),
+        Some(p) => std::fs::read(p).map(|b| crc32fast::hash(&b)).map_err(|e| ferr(&p.display().to_string(), format!("cannot read the denoiser weights: {e}"))),
+    }
+}
+
+/// One convolution's weight and bias.
+struct Layer {
+    weight: Tensor,
+    /// (1, C_out, 1, 1), ready to broadcast.
+    bias: Tensor,
+}
+
+/// The network: its layers, in the order of `diffcassi/denoiser.py`'s graph.
+pub struct SpectralUNet {
+    /// Bands the network was trained for.
+    pub bands: usize,
+    /// Width C (channels at full resolution).
+    pub width: usize,
+    /// Where the weights came from (file path, or the embedded file's repository path).
+    pub source: String,
+    /// CRC-32 of the weights file's bytes.
+    pub crc32: u32,
+    layers: Vec<Layer>,
+}
+
+/// (name, kind, C_in, C_out, kernel) of every layer; kind `t` = transposed convolution (weight C_in × C_out
+/// × k × k, PyTorch's layout), otherwise C_out × C_in × k × k.
+fn graph(bands: usize, c: usize) -> [(&'static str, bool, usize, usize, usize); 13] {
+    let c2 = 2 * c;
+    [
+        ("head", false, bands + 1, c, 3),
+        ("enc1", false, c, c, 3),
+        ("down1", false, c, c2, 2),
+        ("enc2a", false, c2, c2, 3),
+        ("enc2b", false, c2, c2, 3),
+        ("down2", false, c2, c2, 2),
+        ("mid_a", false, c2, c2, 3),
+        ("mid_b", false, c2, c2, 3),
+        ("up2", true, c2, c2, 2),
+        ("dec2", false, c2, c2, 3),
+        ("up1", true, c2, c, 2),
+        ("dec1", false, c, c, 3),
+        ("tail", false, c, bands, 3),
+    ]
+}
+
+fn ferr(source: &str, m: impl Into<String>) -> Error {
+    Error::File { path: source.to_string(), message: m.into() }
+}
+
+fn cerr(e: candle_core::Error) -> Error {
+    Error::invalid(format!("denoiser network (candle): {e}"))
+}
+
+impl SpectralUNet {
+    /// The committed checkpoint, embedded in the binary.
+    pub fn embedded() -> Result<Self> {
+        Self::from_bytes(EMBEDDED, &format!("{EMBEDDED_PATH} (embedded)"))
+    }
+
+    /// Weights from a safetensors file.
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let bytes = std::fs::read(path).map_err(|e| ferr(&path.display().to_string(), format!("cannot read the denoiser weights: {e}")))?;
+        Self::from_bytes(&bytes, &path.display().to_string())
+    }
+
+    /// The embedded weights (`None`) or a file's.
+    pub fn load(path: Option<&Path>) -> Result<Self> {
+        match path {
+            None => Self::embedded(),
+            Some(p) => Self::from_file(p),
+        }
+    }
+
+    /// Weights from the bytes of a safetensors file; `source` names it in errors.
+    pub fn from_bytes(bytes: &[u8], source: &str) -> Result<Self> {
+        let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| ferr(source, format!("not a valid safetensors file: {e}")))?;
+        let (_, meta) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| ferr(source, format!("not a valid safetensors file: {e}")))?;
+        let meta = meta.metadata().clone().unwrap_or_default();
+        let get = |k: &str| meta.get(k).ok_or_else(|| ferr(source, format!("metadata field `{k}` is missing (expected arch = {ARCH}, bands, width)")));
+        let arch = get("arch")?;
+        if arch != ARCH {
+            return Err(ferr(source, format!("metadata `arch` = `{arch}`: this inference implements `{ARCH}` only")));
+        }
+        let num = |k: &str| -> Result<usize> {
+            let v = get(k)?;
+            v.trim().parse::<usize>().ok().filter(|n| *n > 0 && *n <= 4096).ok_or_else(|| ferr(source, format!("metadata `{k}` = `{v}` is not a positive integer ≤ 4096")))
+        };
+        let (bands, width) = (num("bands")?, num("width")?);
+        let g = graph(bands, width);
+        let mut layers = Vec::with_capacity(g.len());
+        for (name, transposed, cin, cout, k) in g {
+            let wshape = if transposed { [cin, cout, k, k] } else { [cout, cin, k, k] };
+            let weight = Self::tensor(&st, source, &format!("{name}.weight"), &wshape)?;
+            let bias = Self::tensor(&st, source, &format!("{name}.bias"), &[cout])?.reshape((1, cout, 1, 1)).map_err(cerr)?;
+            layers.push(Layer { weight, bias });
+        }
+        let expected: std::collections::BTreeSet<String> = g.iter().flat_map(|l| [format!("{}.weight", l.0), format!("{}.bias", l.0)]).collect();
+        if let Some(extra) = st.names().into_iter().find(|n| !expected.contains(*n)) {
+            return Err(ferr(source, format!("tensor `{extra}` is not part of {ARCH} (expected {} tensors: head, enc1, …, tail .weight/.bias)", expected.len())));
+        }
+        Ok(SpectralUNet { bands, width, source: source.to_string(), crc32: crc32fast::hash(bytes), layers })
+    }
+
+    /// Tensor `name` of the file, checked: present, f32, of `shape`, finite.
+    fn tensor(st: &safetensors::SafeTensors, source: &str, name: &str, shape: &[usize]) -> Result<Tensor> {
+        let view = st.tensor(name).map_err(|_| ferr(source, format!("tensor `{name}` is missing ({ARCH} needs it, shape {shape:?})")))?;
+        if view.dtype() != safetensors::Dtype::F32 {
+            return Err(ferr(source, format!("tensor `{name}` is {:?}, expected F32", view.dtype())));
+        }
+        if view.shape() != shape {
+            return Err(ferr(source, format!("tensor `{name}` has shape {:?}, expected {shape:?} (weights for another band count or width?)", view.shape())));
+        }
+        let data: Vec<f32> = view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+            return Err(ferr(source, format!("tensor `{name}` value {i} is {} (not finite)", data[i])));
+        }
+        Tensor::from_vec(data, shape, &Device::Cpu).map_err(cerr)
+    }
+
+    fn conv(&self, i: usize, x: &Tensor, padding: usize, stride: usize, relu: bool) -> Result<Tensor> {
+        let l = &self.layers[i];
+        let y = x.conv2d(&l.weight, padding, stride, 1, 1).and_then(|y| y.broadcast_add(&l.bias)).map_err(cerr)?;
+        if relu {
+            y.relu().map_err(cerr)
+        } else {
+            Ok(y)
+        }
+    }
+
+    fn up(&self, i: usize, x: &Tensor, skip: &Tensor) -> Result<Tensor> {
+        let l = &self.layers[i];
+        x.conv_transpose2d(&l.weight, 0, 0, 2, 1).and_then(|y| y.broadcast_add(&l.bias)).and_then(|y| y + skip).map_err(cerr)
+    }
+
+    /// The graph on (1, bands + 1, H, W) (σ plane last), H and W multiples of 4: returns the predicted noise
+    /// `tail(z)` (1, bands, H, W).
+    fn noise(&self, x: &Tensor) -> Result<Tensor> {
+        let z = self.conv(0, x, 1, 1, true)?;
+        let e1 = self.conv(1, &z, 1, 1, true)?;
+        let z = self.conv(2, &e1, 0, 2, true)?;
+        let z = self.conv(3, &z, 1, 1, true)?;
+        let e2 = self.conv(4, &z, 1, 1, true)?;
+        let z = self.conv(5, &e2, 0, 2, true)?;
+        let z = self.conv(6, &z, 1, 1, true)?;
+        let z = self.conv(7, &z, 1, 1, true)?;
+        let z = self.up(8, &z, &e2)?;
+        let z = self.conv(9, &z, 1, 1, true)?;
+        let z = self.up(10, &z, &e1)?;
+        let z = self.conv(11, &z, 1, 1, true)?;
+        self.conv(12, &z, 1, 1, false)
+    }
+
+    /// Memory of one call (bytes, f32 activations at their peak, about): for budgeting and docs.
+    pub fn activation_bytes(&self, height: usize, width: usize) -> usize {
+        let (h, w) = (height.div_ceil(4) * 4, width.div_ceil(4) * 4);
+        // input + e1 + two full-resolution temporaries, e2 and two half-resolution ones, im2col tiles apart.
+        4 * h * w * (self.bands + 1 + 3 * self.width + 3 * 2 * self.width / 4)
+    }
+}
+
+impl Denoiser for SpectralUNet {
+    fn name(&self) -> String {
+        ARCH.into()
+    }
+
+    fn denoise(&mut self, x: &[f32], out: &mut [f32], shape: CubeShape, sigma: f32) -> Result<()> {
+        let (h, w, b) = (shape.height, shape.width, shape.bands);
+        if b != self.bands {
+            return Err(ferr(&self.source, format!("the denoiser was trained for {} bands, the cube has {b}", self.bands)));
+        }
+        if x.len() != shape.len() || out.len() != shape.len() || h == 0 || w == 0 {
+            return Err(Error::invalid(format!("denoiser: the cube has {} values (output {}), shape {h}×{w}×{b} needs {}", x.len(), out.len(), shape.len())));
+        }
+        if !sigma.is_finite() || sigma < 0.0 {
+            return Err(Error::invalid(format!("denoiser: the noise level σ = {sigma} must be finite and ≥ 0")));
+        }
+        // (1, B + 1, Hp, Wp), padded at the bottom/right by edge replication; the σ plane last.
+        let (hp, wp) = (h.div_ceil(4) * 4, w.div_ceil(4) * 4);
+        let plane = hp * wp;
+        let mut input = vec![0.0f32; (b + 1) * plane];
+        for r in 0..hp {
+            let rs = r.min(h - 1);
+            for c in 0..wp {
+                let src = &x[(rs * w + c.min(w - 1)) * b..][..b];
+                for (k, v) in src.iter().enumerate() {
+                    input[k * plane + r * wp + c] = *v;
+                }
+            }
+        }
+        input[b * plane..].iter_mut().for_each(|v| *v = sigma);
+        let t = Tensor::from_vec(input, (1, b + 1, hp, wp), &Device::Cpu).map_err(cerr)?;
+        let noise = self.noise(&t)?.flatten_all().and_then(|n| n.to_vec1::<f32>()).map_err(cerr)?;
+        // out = x − noise, cropped, back to [row][col][band].
+        for r in 0..h {
+            for c in 0..w {
+                let o = (r * w + c) * b;
+                for k in 0..b {
+                    out[o + k] = x[o + k] - noise[k * plane + r * wp + c];
+                }
+            }
+        }
+        if let Some(i) = out.iter().position(|v| !v.is_finite()) {
+            return Err(Error::invalid(format!("denoiser ({}): output value {i} is not finite (input out of the network's range?)", self.source)));
+        }
+        Ok(())
+    }
+
+    fn describe(&self) -> serde_json::Value {
+        serde_json::json!({ "name": ARCH, "weights": self.source, "weights_crc32": self.crc32, "bands": self.bands, "width": self.width })
+    }
+}
