@@ -432,37 +432,20 @@ fn huge_acquisition_is_refused_naming_the_limit() {
         }
         diffcassi::io::exr::write_exr(&acq, img.width, img.height, &channels).unwrap();
     };
+    // Three GAP-TV iterations of the render into `out`.
+    let reconstruct = |out: &std::path::Path| {
+        let args = ["reconstruct", "--from", &render.display().to_string(), "--iterations", "3", "--out", &out.display().to_string()].map(String::from);
+        run_in(fx.path(), &args)
+    };
     // At the limit the reconstruction is finite and written…
     scaled(3.4e29);
     let ok = fx.path().join("rec-ok");
-    let (code, err) = run_in(
-        fx.path(),
-        &[
-            "reconstruct".into(),
-            "--from".into(),
-            render.display().to_string(),
-            "--iterations".into(),
-            "3".into(),
-            "--out".into(),
-            ok.display().to_string(),
-        ],
-    );
+    let (code, err) = reconstruct(&ok);
     assert_eq!(code, Some(0), "{err}");
     // …beyond it, refused before the operator is built.
     scaled(1e36);
     let out = fx.path().join("rec");
-    let (code, err) = run_in(
-        fx.path(),
-        &[
-            "reconstruct".into(),
-            "--from".into(),
-            render.display().to_string(),
-            "--iterations".into(),
-            "3".into(),
-            "--out".into(),
-            out.display().to_string(),
-        ],
-    );
+    let (code, err) = reconstruct(&out);
     assert_eq!(code, Some(1), "{err}");
     assert!(
         err.contains("acquisition.exr")

@@ -504,25 +504,12 @@ fn dataset_status_without_scenes_fails() {
         s(&scenes.join("s1.npy")),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
+    // One dataset command, run into a given output folder.
+    let render_dataset = |out: &std::path::Path| {
+        run(&["render-dataset", "--scenes", s(&scenes), "--preset", "ap", "--scene-size", "16", "--bands", "450:650:8", "--planes", "8", "--rays", "2", "--no-mapping", "--out", s(out)])
+    };
     let ds = d.path().join("ds");
-    let o = run(&[
-        "render-dataset",
-        "--scenes",
-        s(&scenes),
-        "--preset",
-        "ap",
-        "--scene-size",
-        "16",
-        "--bands",
-        "450:650:8",
-        "--planes",
-        "8",
-        "--rays",
-        "2",
-        "--no-mapping",
-        "--out",
-        s(&ds),
-    ]);
+    let o = render_dataset(&ds);
     assert!(o.status.success(), "{}", stderr(&o));
     let o = run(&["dataset-status", s(&ds), "--scenes", s(&scenes)]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -533,46 +520,13 @@ fn dataset_status_without_scenes_fails() {
     let early = d.path().join("early");
     std::fs::create_dir_all(early.join(".s1.partial-elsewhere-1-2")).unwrap();
     std::fs::copy(ds.join("mask.png"), early.join("mask.png")).unwrap();
-    let o = run(&[
-        "render-dataset",
-        "--scenes",
-        s(&scenes),
-        "--preset",
-        "ap",
-        "--scene-size",
-        "16",
-        "--bands",
-        "450:650:8",
-        "--planes",
-        "8",
-        "--rays",
-        "2",
-        "--no-mapping",
-        "--out",
-        s(&early),
-    ]);
+    let o = render_dataset(&early);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(
         early.join("s1/render.json").is_file() && !early.join(".s1.partial-elsewhere-1-2").exists()
     );
     // A rerun into its own output is accepted by the policy (the dataset is complete: nothing to render).
-    let o = run(&[
-        "render-dataset",
-        "--scenes",
-        s(&scenes),
-        "--preset",
-        "ap",
-        "--scene-size",
-        "16",
-        "--bands",
-        "450:650:8",
-        "--planes",
-        "8",
-        "--rays",
-        "2",
-        "--no-mapping",
-        "--out",
-        s(&ds),
-    ]);
+    let o = render_dataset(&ds);
+    assert!(o.status.success(), "{}", stderr(&o));
     assert!(!stderr(&o).contains("not a previous"), "{}", stderr(&o));
 }
