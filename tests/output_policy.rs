@@ -530,3 +530,28 @@ fn dataset_status_without_scenes_fails() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(!stderr(&o).contains("not a previous"), "{}", stderr(&o));
 }
+
+/// `design`/`calibrate` write `--report` and `--system-out` as one staged set under the policy: never an input
+/// spec file, never a folder, not both the same file; a successful run writes both and leaves no temporary.
+#[test]
+fn design_and_calibrate_outputs_follow_the_policy() {
+    let d = tempfile::tempdir().unwrap();
+    let spec = d.path().join("sp.toml");
+    assert!(run(&["export-spec", "--preset", "sp", "--out", s(&spec)]).status.success());
+    let before = snapshot(d.path());
+    let cal = |extra: &[&str]| {
+        let mut args = vec!["calibrate", "--from", s(&spec), "--observed", "msp", "--free", "prism_tilt_x", "--setup", "small"];
+        args.extend_from_slice(extra);
+        run(&args)
+    };
+    assert_refused(&cal(&["--system-out", s(&spec)]), &["--system-out", "input"]);
+    let same = d.path().join("x.json");
+    assert_refused(&cal(&["--report", s(&same), "--system-out", s(&same)]), &["same file"]);
+    assert_refused(&run(&["design", "amici", "--iterations", "1", "--report", s(d.path())]), &["--report"]);
+    assert_eq!(snapshot(d.path()), before, "a refused design/calibrate touched its folder");
+    let (report, fitted) = (d.path().join("cal.json"), d.path().join("fitted.toml"));
+    let o = run(&["calibrate", "--from", "sp", "--observed", "msp", "--free", "prism_tilt_x", "--setup", "small", "--report", s(&report), "--system-out", s(&fitted)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(report.is_file() && fitted.is_file());
+    assert!(temporaries(d.path()).is_empty(), "{:?}", temporaries(d.path()));
+}

@@ -72,7 +72,14 @@ fn interpolated_mapping_meets_the_tolerance_it_was_chosen_for() {
     let ws = linspace(450.0, 650.0, 28);
     let (h, w) = (64, 48);
     let (cal, _) = fidelity::calibrate_backends(&sys, &ws, &CacheOptions::none()).unwrap();
-    let (map, _) = fidelity::calibrate_mapping(&sys, h, w, 0.01, &ws, &CacheOptions::none()).unwrap();
+    let (mut map, _) = fidelity::calibrate_mapping(&sys, h, w, 0.01, &ws, &CacheOptions::none()).unwrap();
+    // The choice weighs measured seconds, which a loaded machine scrambles (a stride-16 model timed slower than
+    // the exact one on a busy CI run): the costs are replaced by the work model — the traced chief rays, 1/s² of
+    // the exact cube's at stride s — so the test checks the selection and the error guarantee, not the load.
+    let exact_s = map.strides.iter().find(|m| m.stride == 1).unwrap().seconds_per_wavelength;
+    for m in map.strides.iter_mut() {
+        m.seconds_per_wavelength = exact_s / (m.stride * m.stride) as f64;
+    }
     let exact = analysis::mapping_cube(&sys, &AnalyticTracer::default(), h, w, 0.01, &ws).unwrap();
     let mut strides = Vec::new();
     for tol in [1.0, 0.01, 1e-4] {

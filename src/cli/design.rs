@@ -90,23 +90,41 @@ fn resolve_param(system: &str, name: &str) -> Result<Param> {
     }
 }
 
-fn write_json(path: &Path, value: &serde_json::Value) -> Result<()> {
-    crate::limits::check_json_finite(&path.display().to_string(), value)?;
-    let text = serde_json::to_string_pretty(value).map_err(|e| Error::invalid(format!("JSON: {e}")))?;
-    crate::io::write_atomic(path, text.as_bytes())?;
-    println!("wrote {}", path.display());
+/// Writes `--report` and `--system-out` as one set ([`crate::io::OutputSet`]): each is staged beside its
+/// destination (the extension kept: the spec format follows it) and both are moved into place only when both
+/// are written, so a failure leaves the previous pair as it was.
+fn write_outputs(report: Option<(&Path, &serde_json::Value)>, system_out: Option<(&Path, &SystemSpec)>) -> Result<()> {
+    let mut set = crate::io::OutputSet::files();
+    if let Some((path, value)) = report {
+        crate::limits::check_json_finite(&path.display().to_string(), value)?;
+        let text = serde_json::to_string_pretty(value).map_err(|e| Error::invalid(format!("JSON: {e}")))?;
+        crate::io::write_atomic(set.stage(path), text.as_bytes())?;
+    }
+    if let Some((path, spec)) = system_out {
+        // The format follows the extension (.toml/.json); any other is an error (never TOML in a .yaml).
+        crate::spec::save_spec_file(spec, &set.stage(path))?;
+    }
+    set.commit()?;
+    for p in report.map(|r| r.0).into_iter().chain(system_out.map(|s| s.0)) {
+        println!("wrote {}", p.display());
+    }
     Ok(())
 }
 
-pub(super) fn write_spec(path: &Path, spec: &SystemSpec) -> Result<()> {
-    // The format follows the extension (.toml/.json); any other is an error (never TOML in a .yaml).
-    crate::spec::save_spec_file(spec, path)?;
-    println!("wrote {}", path.display());
-    Ok(())
-}
-
-/// `--system-out` and `--report` name files of their format (checked before the optimisation runs).
-fn check_outputs(system_out: &Option<PathBuf>, report: &Option<PathBuf>) -> Result<()> {
+/// `--system-out` and `--report` name files of their format and follow the output policy (files, never a
+/// folder, never one of the command's `inputs`, not both the same file), checked before the optimisation runs.
+fn check_outputs(system_out: &Option<PathBuf>, report: &Option<PathBuf>, inputs: &[(&str, &Path)]) -> Result<()> {
+    if let Some(p) = system_out {
+        crate::io::policy::check_out_file("--system-out", p, inputs)?;
+    }
+    if let Some(p) = report {
+        crate::io::policy::check_out_file("--report", p, inputs)?;
+        if let Some(q) = system_out {
+            if crate::io::policy::resolved(p) == crate::io::policy::resolved(q) {
+                return Err(Error::invalid(format!("--report and --system-out are the same file {}", p.display())));
+            }
+        }
+    }
     if let Some(p) = system_out {
         let ext = p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
         if !matches!(ext.as_deref(), Some("toml") | Some("json")) {
@@ -122,7 +140,13 @@ fn check_outputs(system_out: &Option<PathBuf>, report: &Option<PathBuf>) -> Resu
 }
 
 pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
-    check_outputs(&a.system_out, &a.report)?;
+    // The spec files the two systems are read from (a preset name is no file).
+    let inputs: Vec<(&str, &Path)> = [("--from", a.from.as_str()), ("--observed", a.observed.as_str())]
+        .into_iter()
+        .filter(|(_, t)| Path::new(t).exists())
+        .map(|(o, t)| (o, Path::new(t)))
+        .collect();
+    check_outputs(&a.system_out, &a.report, &inputs)?;
     if !(a.noise_um.is_finite() && a.noise_um >= 0.0) {
         return Err(Error::invalid(format!("--noise-um {}: must be finite and ≥ 0", a.noise_um)));
     }
@@ -198,13 +222,11 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
         "noise_study": study,
         "setup": {"fields_mm": setup.fields_mm, "wavelengths_nm": setup.wavelengths_nm, "pupil_rays": setup.pupil.len()},
     });
-    if let Some(p) = &a.report {
-        write_json(p, &report)?;
-    }
-    if let Some(p) = &a.system_out {
-        write_spec(p, &set.with_values(&fit.x)?.spec)?;
-    }
-    Ok(())
+    let fitted = match &a.system_out {
+        Some(_) => Some(set.with_values(&fit.x)?.spec),
+        None => None,
+    };
+    write_outputs(a.report.as_deref().map(|p| (p, &report)), a.system_out.as_deref().zip(fitted.as_ref()))
 }
 
 pub(super) fn design_cmd(a: DesignArgs) -> Result<()> {
@@ -214,7 +236,8 @@ pub(super) fn design_cmd(a: DesignArgs) -> Result<()> {
 }
 
 fn amici_cmd(a: AmiciArgs) -> Result<()> {
-    check_outputs(&a.system_out, &a.report)?;
+    let inputs: Vec<(&str, &Path)> = a.glass_catalog.iter().map(|p| ("--glass-catalog", p.as_path())).collect();
+    check_outputs(&a.system_out, &a.report, &inputs)?;
     let catalog = crate::design::design_catalog(a.glass_catalog.as_deref())?;
     if !(a.final_thickness_weight.is_finite() && a.final_thickness_weight >= 0.0) {
         return Err(Error::invalid(format!("--final-thickness-weight {}: must be finite and ≥ 0", a.final_thickness_weight)));
@@ -228,11 +251,6 @@ fn amici_cmd(a: AmiciArgs) -> Result<()> {
     let opts = crate::design::AmiciOptions { seed: a.seed, iterations: a.iterations, final_thickness_weight: a.final_thickness_weight, ..Default::default() };
     let out = crate::design::design_amici(&catalog, &opts)?;
     out.print();
-    if let Some(p) = &a.report {
-        write_json(p, &serde_json::to_value(&out.report).map_err(|e| Error::invalid(format!("JSON: {e}")))?)?;
-    }
-    if let Some(p) = &a.system_out {
-        write_spec(p, &out.spec)?;
-    }
-    Ok(())
+    let report = serde_json::to_value(&out.report).map_err(|e| Error::invalid(format!("JSON: {e}")))?;
+    write_outputs(a.report.as_deref().map(|p| (p, &report)), a.system_out.as_deref().map(|p| (p, &out.spec)))
 }
