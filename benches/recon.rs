@@ -118,7 +118,10 @@ fn main() {
     // weights, σ 0.1 → 0.01, at most 60 iterations, tolerance 1e-3) through the same exact operator.
     let mut net = SpectralUNet::embedded().unwrap();
     let t_net = median(&mut || net.denoise(&truth, &mut denoised, cs, 0.05).unwrap());
-    let pnp = SolverConfig { iterations: env_usize("DIFFCASSI_BENCH_PNP_ITERATIONS").unwrap_or(if bench_mode { SolverConfig::pnp_gap().iterations } else { 2 }), ..SolverConfig::pnp_gap() };
+    // Test mode (`cargo test --benches`): 2 iterations, 1 of them the TV warm-up, so the network runs once.
+    let defaults = SolverConfig::pnp_gap();
+    let pnp_iterations = env_usize("DIFFCASSI_BENCH_PNP_ITERATIONS").unwrap_or(if bench_mode { defaults.iterations } else { 2 });
+    let pnp = SolverConfig { iterations: pnp_iterations, tv_warmup: defaults.tv_warmup.min(pnp_iterations.saturating_sub(1)), ..defaults };
     let (t, c) = (Instant::now(), cpu_seconds());
     let prec = reconstruct(phi, &y, None, &pnp, &|_, _| {}).unwrap();
     let (t_pnp, c_pnp) = (t.elapsed().as_secs_f64(), cpu_seconds() - c);
