@@ -52,6 +52,12 @@ fn temporaries(dir: &Path) -> Vec<String> {
         .collect()
 }
 
+/// A 16×16×8 synthetic scene cube at `out` (the datasets and studies of these tests render it).
+fn write_scene(out: &Path) {
+    let o = run(&["make-scene", "--synthetic", "1", "--size", "16", "--bands", "450:650:8", "--out", s(out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
 fn render_args<'a>(out: &'a Path, seed: &'a str) -> Vec<&'a str> {
     vec![
         "render",
@@ -217,18 +223,7 @@ fn folder_commands_refuse_unrelated_folders_and_inputs() {
     std::fs::write(mine.join("notes.txt"), "my notes").unwrap();
     let scenes = d.path().join("scenes");
     std::fs::create_dir_all(&scenes).unwrap();
-    let o = run(&[
-        "make-scene",
-        "--synthetic",
-        "1",
-        "--size",
-        "16",
-        "--bands",
-        "450:650:8",
-        "--out",
-        s(&scenes.join("s1.npy")),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    write_scene(&scenes.join("s1.npy"));
     let m = s(&mine);
     let sc = s(&scenes);
     let inside = scenes.join("out");
@@ -492,18 +487,7 @@ fn dataset_status_without_scenes_fails() {
     let empty = d.path().join("empty");
     std::fs::create_dir_all(&scenes).unwrap();
     std::fs::create_dir_all(&empty).unwrap();
-    let o = run(&[
-        "make-scene",
-        "--synthetic",
-        "1",
-        "--size",
-        "16",
-        "--bands",
-        "450:650:8",
-        "--out",
-        s(&scenes.join("s1.npy")),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    write_scene(&scenes.join("s1.npy"));
     // One dataset command, run into a given output folder.
     let render_dataset = |out: &std::path::Path| {
         run(&["render-dataset", "--scenes", s(&scenes), "--preset", "ap", "--scene-size", "16", "--bands", "450:650:8", "--planes", "8", "--rays", "2", "--no-mapping", "--out", s(out)])
