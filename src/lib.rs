@@ -28,6 +28,7 @@ pub mod geometry;
 pub mod io;
 pub mod limits;
 pub mod materials;
+pub mod mechanics;
 pub mod optim;
 pub mod plot;
 pub mod presets;

@@ -110,6 +110,7 @@ fn spec(name: &str, surfaces: Vec<SurfaceSpec>) -> SystemSpec {
         air_index: 1.0,
         glass_catalogs: vec![],
         surfaces,
+        mechanics: None,
     }
 }
 

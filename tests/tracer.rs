@@ -33,6 +33,7 @@ fn singlet(asphere: &[f64]) -> SystemSpec {
             SurfaceSpec::standard(Some(-60.0), 90.0, None),
             SurfaceSpec::standard(None, 0.0, None),
         ],
+        mechanics: None,
     }
 }
 

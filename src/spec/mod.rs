@@ -16,6 +16,7 @@
 //! ```
 mod cell;
 mod format;
+mod mechanics;
 mod surface;
 mod system_spec;
 pub mod yaml;
@@ -24,5 +25,6 @@ pub mod zmx;
 
 pub use cell::*;
 pub use format::*;
+pub use mechanics::*;
 pub use surface::*;
 pub use system_spec::*;

@@ -51,6 +51,9 @@ pub struct SystemSpec {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub glass_catalogs: Vec<String>,
     pub surfaces: Vec<SurfaceSpec>,
+    /// Mounts, housings and user meshes for non-sequential tracing (optional; see [`MechanicsSpec`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mechanics: Option<super::MechanicsSpec>,
 }
 
 fn default_air_index() -> f64 {
@@ -68,6 +71,9 @@ impl SystemSpec {
 
     /// Basic structural and numeric checks; `Err` carries "surface N field: message".
     pub fn validate(&self) -> Result<(), String> {
+        if let Some(m) = &self.mechanics {
+            m.validate()?;
+        }
         if self.surfaces.len() < 3 {
             return Err(format!(
                 "a system needs at least an object, one surface and an image surface (found {} surfaces)",

@@ -817,6 +817,7 @@ fn lower(model: &Model, name: &str, source_name: &str) -> R<(SystemSpec, Vec<(us
         air_index: PAPER_AIR_INDEX,
         glass_catalogs: Vec::new(),
         surfaces: seq.surfaces,
+        mechanics: None,
     };
     Ok((spec, seq.frames))
 }

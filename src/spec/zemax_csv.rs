@@ -244,6 +244,7 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
         air_index: 1.0,
         glass_catalogs: Vec::new(),
         surfaces,
+        mechanics: None,
     };
     spec.validate().map_err(|m| Error::spec(source_name, m))?;
     Ok(spec)

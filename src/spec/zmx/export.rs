@@ -51,6 +51,9 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
         .iter()
         .position(|w| *w == spec.primary_wavelength_nm)
         .ok_or_else(|| fail(format!("primary wavelength {} nm is not one of the system wavelengths {:?}", spec.primary_wavelength_nm, spec.wavelengths_nm)))?;
+    if spec.mechanics.is_some() {
+        return Err(fail("the [mechanics] section (mounts and meshes) has no sequential .zmx equivalent: export as .toml or .json".into()));
+    }
     if spec.name.contains(['\n', '\r']) || spec.description.contains(['\n', '\r']) {
         return Err(fail("the name or description spans several lines (a .zmx NAME/NOTE is one line)".into()));
     }

@@ -275,6 +275,7 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         air_index: header.air_index.unwrap_or(1.0),
         glass_catalogs: catalog_paths,
         surfaces,
+        mechanics: None,
     };
     spec.validate().map_err(&fail)?;
     Ok(ZmxImport { spec, ignored: unsupported })

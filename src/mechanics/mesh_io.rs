@@ -1,0 +1,309 @@
+//! Mesh import: STL (binary and ASCII) and Wavefront OBJ (`v` and `f` statements; polygons are
+//! fan-triangulated, so they must be convex; materials, normals, texture coordinates, groups and lines are
+//! ignored). Vertices of an STL (a triangle soup) are merged when bit-identical, so shared edges are
+//! found. The result is checked by [`TriMesh::validate`].
+//!
+//! Hand-written rather than `stl_io`/`tobj` (both on crates.io): neither reports the line of a malformed
+//! ASCII statement (`tobj` returns a bare `PositionParseError`), and the project's rule is that an error
+//! names the file *and* the line; the formats' subsets read here are a few dozen lines each.
+//!
+//! Limits are checked before allocating: the file size ([`MAX_MESH_FILE_BYTES`]) before reading it, a
+//! binary STL's triangle count against [`MAX_MESH_TRIANGLES`] and against the file's length before any
+//! triangle is read, and ASCII triangle counts as they grow.
+//!
+//! ```
+//! use diffcassi::mechanics::mesh_io::parse_mesh;
+//! let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
+//! let m = parse_mesh(obj, "tet.obj", true)?;
+//! assert_eq!(m.triangles.len(), 4);
+//! let e = parse_mesh(b"v 0 0 nan\n", "bad.obj", true).unwrap_err();
+//! assert!(e.to_string().contains("bad.obj: line 1"));
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+use super::TriMesh;
+use crate::error::{Error, Result};
+use glam::DVec3;
+use std::collections::HashMap;
+use std::path::Path;
+
+/// Most triangles an imported mesh may have.
+pub const MAX_MESH_TRIANGLES: usize = 5_000_000;
+/// Largest mesh file read, bytes (a binary STL of [`MAX_MESH_TRIANGLES`] is 250 MB).
+pub const MAX_MESH_FILE_BYTES: u64 = 1 << 30;
+
+/// Reads an STL or OBJ file (by extension: `.stl`, `.obj`, case-insensitive) and validates it
+/// (`closed`: every edge must belong to exactly two triangles).
+pub fn load_mesh(path: &Path, closed: bool) -> Result<TriMesh> {
+    let name = path.display().to_string();
+    let file_err = |message: String| Error::File { path: name.clone(), message };
+    let meta = std::fs::metadata(path).map_err(|e| file_err(format!("cannot read the mesh file: {e}")))?;
+    if !meta.is_file() {
+        return Err(file_err("not a regular file".into()));
+    }
+    if meta.len() > MAX_MESH_FILE_BYTES {
+        return Err(file_err(format!("{} bytes: larger than the {MAX_MESH_FILE_BYTES}-byte limit of a mesh file", meta.len())));
+    }
+    let bytes = std::fs::read(path).map_err(|e| file_err(format!("cannot read the mesh file: {e}")))?;
+    parse_mesh(&bytes, &name, closed)
+}
+
+/// Parses `bytes` as the format `name`'s extension says and validates the mesh.
+pub fn parse_mesh(bytes: &[u8], name: &str, closed: bool) -> Result<TriMesh> {
+    let ext = Path::new(name).extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let mesh = match ext.as_deref() {
+        Some("stl") => parse_stl(bytes, name)?,
+        Some("obj") => parse_obj(bytes, name)?,
+        other => {
+            return Err(Error::File { path: name.into(), message: format!("unknown mesh format {:?}: the extension must be .stl or .obj", other.unwrap_or("")) })
+        }
+    };
+    mesh.validate(name, closed)?;
+    Ok(mesh)
+}
+
+fn err(name: &str, message: String) -> Error {
+    Error::File { path: name.into(), message }
+}
+
+/// Merges bit-identical vertices of a triangle soup.
+struct Welder {
+    index: HashMap<[u64; 3], u32>,
+    mesh: TriMesh,
+}
+
+impl Welder {
+    fn new() -> Self {
+        Welder { index: HashMap::new(), mesh: TriMesh::default() }
+    }
+    fn vertex(&mut self, v: DVec3) -> u32 {
+        // +0.0 and −0.0 are the same point.
+        let key = [v.x + 0.0, v.y + 0.0, v.z + 0.0].map(f64::to_bits);
+        let next = self.mesh.vertices.len() as u32;
+        *self.index.entry(key).or_insert_with(|| {
+            self.mesh.vertices.push(v);
+            next
+        })
+    }
+    fn triangle(&mut self, v: [DVec3; 3], origin: String) {
+        let t = v.map(|p| self.vertex(p));
+        self.mesh.triangles.push(t);
+        self.mesh.origin.push(origin);
+    }
+}
+
+/// STL: binary when the file is exactly 84 + 50·N bytes for the N its header gives, else ASCII if it
+/// starts with `solid`, else a (truncated or corrupt) binary file.
+pub fn parse_stl(bytes: &[u8], name: &str) -> Result<TriMesh> {
+    let binary_size = (bytes.len() >= 84).then(|| 84 + 50 * u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as u64);
+    if binary_size != Some(bytes.len() as u64) && bytes.trim_ascii_start().starts_with(b"solid") {
+        return parse_stl_ascii(bytes, name);
+    }
+    if bytes.len() < 84 {
+        return Err(err(name, format!("truncated binary STL: {} bytes, fewer than the 84 of the header and triangle count", bytes.len())));
+    }
+    let n = u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as usize;
+    if n > MAX_MESH_TRIANGLES {
+        return Err(err(name, format!("binary STL header gives {n} triangles, more than the limit of {MAX_MESH_TRIANGLES}")));
+    }
+    if binary_size != Some(bytes.len() as u64) {
+        return Err(err(name, format!("truncated binary STL: the header gives {n} triangles = {} bytes, the file has {}", 84 + 50 * n, bytes.len())));
+    }
+    let mut w = Welder::new();
+    w.mesh.triangles.reserve(n);
+    let f = |b: &[u8], at: usize| f32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]]) as f64;
+    for k in 0..n {
+        let rec = &bytes[84 + 50 * k..84 + 50 * (k + 1)];
+        let mut v = [DVec3::ZERO; 3];
+        for (j, p) in v.iter_mut().enumerate() {
+            let at = 12 + 12 * j;
+            *p = DVec3::new(f(rec, at), f(rec, at + 4), f(rec, at + 8));
+            if !p.is_finite() {
+                return Err(err(name, format!("facet {k} vertex {j} = ({}, {}, {}) is not finite", p.x, p.y, p.z)));
+            }
+        }
+        w.triangle(v, format!("facet {k}"));
+    }
+    Ok(w.mesh)
+}
+
+fn parse_stl_ascii(bytes: &[u8], name: &str) -> Result<TriMesh> {
+    let text = std::str::from_utf8(bytes).map_err(|e| err(name, format!("ASCII STL is not valid UTF-8 (byte {})", e.valid_up_to())))?;
+    let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.split_whitespace().collect::<Vec<_>>())).filter(|(_, t)| !t.is_empty());
+    let mut last_line = 0;
+    let mut next = |what: &str| -> Result<(usize, Vec<&str>)> {
+        match lines.next() {
+            Some((n, t)) => {
+                last_line = n;
+                Ok((n, t))
+            }
+            None => Err(err(name, format!("truncated ASCII STL: the file ends after line {last_line}, expected `{what}`"))),
+        }
+    };
+    let (n0, first) = next("solid")?;
+    if first[0] != "solid" {
+        return Err(err(name, format!("line {n0}: expected `solid`, found `{}`", first.join(" "))));
+    }
+    let mut w = Welder::new();
+    loop {
+        let (n, t) = next("facet normal nx ny nz` or `endsolid")?;
+        match t[0] {
+            "endsolid" => break,
+            "facet" if t.len() == 5 && t[1] == "normal" => {}
+            _ => return Err(err(name, format!("line {n}: expected `facet normal nx ny nz` or `endsolid`, found `{}`", t.join(" ")))),
+        }
+        let facet_line = n;
+        let (n, t) = next("outer loop")?;
+        if t != ["outer", "loop"] {
+            return Err(err(name, format!("line {n}: expected `outer loop`, found `{}`", t.join(" "))));
+        }
+        let mut v = [DVec3::ZERO; 3];
+        for p in &mut v {
+            let (n, t) = next("vertex x y z")?;
+            if t.len() != 4 || t[0] != "vertex" {
+                return Err(err(name, format!("line {n}: expected `vertex x y z`, found `{}`", t.join(" "))));
+            }
+            let mut c = [0.0; 3];
+            for (j, s) in t[1..].iter().enumerate() {
+                c[j] = s.parse::<f64>().map_err(|_| err(name, format!("line {n}: vertex coordinate `{s}` is not a number")))?;
+                if !c[j].is_finite() {
+                    return Err(err(name, format!("line {n}: vertex coordinate `{s}` is not finite")));
+                }
+            }
+            *p = DVec3::from_array(c);
+        }
+        for what in [&["endloop"][..], &["endfacet"][..]] {
+            let (n, t) = next(what[0])?;
+            if t != what {
+                return Err(err(name, format!("line {n}: expected `{}`, found `{}`", what[0], t.join(" "))));
+            }
+        }
+        if w.mesh.triangles.len() >= MAX_MESH_TRIANGLES {
+            return Err(err(name, format!("line {facet_line}: more than the limit of {MAX_MESH_TRIANGLES} triangles")));
+        }
+        w.triangle(v, format!("line {facet_line}"));
+    }
+    Ok(w.mesh)
+}
+
+/// OBJ `v` (x y z [w], w ignored) and `f` (1-based or negative relative indices, `i`, `i/t`, `i//n`,
+/// `i/t/n`) statements; every other statement is ignored.
+pub fn parse_obj(bytes: &[u8], name: &str) -> Result<TriMesh> {
+    let text = std::str::from_utf8(bytes).map_err(|e| err(name, format!("OBJ is not valid UTF-8 (byte {})", e.valid_up_to())))?;
+    let mut mesh = TriMesh::default();
+    for (i, line) in text.lines().enumerate() {
+        let n = i + 1;
+        let line = line.split('#').next().unwrap_or("");
+        let t: Vec<&str> = line.split_whitespace().collect();
+        match t.first().copied() {
+            Some("v") => {
+                if t.len() < 4 || t.len() > 5 {
+                    return Err(err(name, format!("line {n}: expected `v x y z [w]`, found `{}`", t.join(" "))));
+                }
+                let mut c = [0.0; 3];
+                for (j, s) in t[1..4].iter().enumerate() {
+                    c[j] = s.parse::<f64>().map_err(|_| err(name, format!("line {n}: vertex coordinate `{s}` is not a number")))?;
+                    if !c[j].is_finite() {
+                        return Err(err(name, format!("line {n}: vertex coordinate `{s}` is not finite")));
+                    }
+                }
+                mesh.vertices.push(DVec3::from_array(c));
+            }
+            Some("f") => {
+                if t.len() < 4 {
+                    return Err(err(name, format!("line {n}: a face needs at least 3 vertices, found `{}`", t.join(" "))));
+                }
+                let count = mesh.vertices.len() as i64;
+                let mut idx = Vec::with_capacity(t.len() - 1);
+                for s in &t[1..] {
+                    let head = s.split('/').next().unwrap_or("");
+                    let k: i64 = head.parse().map_err(|_| err(name, format!("line {n}: face vertex `{s}` is not an index")))?;
+                    let abs = if k > 0 { k - 1 } else { count + k };
+                    if k == 0 || abs < 0 || abs >= count {
+                        return Err(err(name, format!("line {n}: face vertex index {k} out of range ({count} vertices defined so far)")));
+                    }
+                    idx.push(abs as u32);
+                }
+                if mesh.triangles.len() + idx.len() - 2 > MAX_MESH_TRIANGLES {
+                    return Err(err(name, format!("line {n}: more than the limit of {MAX_MESH_TRIANGLES} triangles")));
+                }
+                for j in 1..idx.len() - 1 {
+                    mesh.triangles.push([idx[0], idx[j], idx[j + 1]]);
+                    mesh.origin.push(format!("line {n}"));
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(mesh)
+}
+
+/// Binary STL bytes of `mesh` (f32 coordinates, zero normals and attribute words): the fixtures' writer.
+pub fn write_stl_binary(mesh: &TriMesh) -> Vec<u8> {
+    let mut out = vec![0u8; 80];
+    out.extend_from_slice(&(mesh.triangles.len() as u32).to_le_bytes());
+    for k in 0..mesh.triangles.len() {
+        out.extend_from_slice(&[0u8; 12]);
+        for v in mesh.corners(k) {
+            for c in v.to_array() {
+                out.extend_from_slice(&(c as f32).to_le_bytes());
+            }
+        }
+        out.extend_from_slice(&[0u8; 2]);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const TET_OBJ: &str = "# tetrahedron\nv 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nvn 0 0 1\nf 1//1 3//1 2//1\nf 1 2 4\nf -4 -1 -2\nf 2 3 4\n";
+
+    fn tet() -> TriMesh {
+        parse_obj(TET_OBJ.as_bytes(), "t.obj").unwrap()
+    }
+
+    #[test]
+    fn obj_quads_are_fan_triangulated_and_negative_indices_resolve() {
+        let m = tet();
+        assert_eq!(m.triangles[2], [0, 3, 2]);
+        m.validate("t.obj", true).unwrap();
+        let cube = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
+                    f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 2 3 7 6\nf 3 4 8 7\nf 4 1 5 8\n";
+        let m = parse_mesh(cube.as_bytes(), "cube.OBJ", true).unwrap();
+        assert_eq!(m.triangles.len(), 12);
+        assert_eq!(m.origin[11], "line 14");
+    }
+
+    #[test]
+    fn stl_binary_round_trip_and_truncation() {
+        let bytes = write_stl_binary(&tet());
+        let m = parse_mesh(&bytes, "t.stl", true).unwrap();
+        assert_eq!((m.vertices.len(), m.triangles.len()), (4, 4));
+        let e = parse_stl(&bytes[..bytes.len() - 7], "t.stl").unwrap_err().to_string();
+        assert!(e.contains("truncated binary STL") && e.contains("4 triangles"), "{e}");
+        let e = parse_stl(&bytes[..50], "t.stl").unwrap_err().to_string();
+        assert!(e.contains("fewer than the 84"), "{e}");
+        let mut huge = bytes.clone();
+        huge[80..84].copy_from_slice(&u32::MAX.to_le_bytes());
+        let e = parse_stl(&huge, "t.stl").unwrap_err().to_string();
+        assert!(e.contains("more than the limit"), "{e}");
+    }
+
+    #[test]
+    fn ascii_stl_errors_name_the_line() {
+        let good = "solid t\n facet normal 0 0 1\n  outer loop\n   vertex 0 0 0\n   vertex 1 0 0\n   vertex 0 1 0\n  endloop\n endfacet\nendsolid t\n";
+        let m = parse_stl(good.as_bytes(), "a.stl").unwrap();
+        assert_eq!(m.triangles.len(), 1);
+        let e = parse_stl(good.replace("vertex 1 0 0", "vertex 1 nan 0").as_bytes(), "a.stl").unwrap_err().to_string();
+        assert!(e.contains("a.stl: line 5") && e.contains("not finite"), "{e}");
+        let e = parse_stl(good.replace("endloop", "endloops").as_bytes(), "a.stl").unwrap_err().to_string();
+        assert!(e.contains("line 7: expected `endloop`"), "{e}");
+        let e = parse_stl(&good.as_bytes()[..60], "a.stl").unwrap_err().to_string();
+        assert!(e.contains("truncated ASCII STL"), "{e}");
+        let e = parse_mesh(b"v 0 0 0\nf 1 2 3\n", "x.obj", false).unwrap_err().to_string();
+        assert!(e.contains("line 2: face vertex index 2 out of range"), "{e}");
+        let e = parse_mesh(b"", "x.ply", false).unwrap_err().to_string();
+        assert!(e.contains("unknown mesh format"), "{e}");
+    }
+}
