@@ -176,11 +176,15 @@ pub struct ReportArgs {
 #[derive(Args, Debug)]
 pub struct BenchArgs {
     /// `tradeoff`: the speed/accuracy frontier of every backend and model (CSV, table, PNG) instead of the
-    /// rays/s table.
-    #[arg(value_parser = ["tradeoff"])]
+    /// rays/s table. `nonsequential`: sequential backends, mechanics queries brute force vs Embree, and the
+    /// crossover triangle count (docs/nonsequential.md).
+    #[arg(value_parser = ["tradeoff", "nonsequential"])]
     pub mode: Option<String>,
     #[arg(long, default_value = "sp")]
     pub preset: String,
+    /// `nonsequential`: a spec file instead of --preset (its `[mechanics]` meshes are added to every row (c)).
+    #[arg(long)]
+    pub system: Option<PathBuf>,
     /// Backends to compare, comma-separated: analytic, embree-user[:f64|:none],
     /// embree-mesh[:SAG_UM][:f64|:none] (defaults f64 refinement, 1 µm). (Not with `tradeoff`, which runs them all.)
     #[arg(long, default_value = "analytic")]
@@ -194,13 +198,13 @@ pub struct BenchArgs {
     /// Repetitions (the best is reported) [default: 3; `tradeoff`: 3, 2 with --quick].
     #[arg(long)]
     pub repeat: Option<usize>,
-    /// `tradeoff`: write the rows as CSV.
+    /// `tradeoff`, `nonsequential`: write the rows as CSV.
     #[arg(long)]
     pub csv: Option<PathBuf>,
     /// `tradeoff`: write the frontier plot (PNG).
     #[arg(long)]
     pub png: Option<PathBuf>,
-    /// `tradeoff`: small workloads (under a minute on 2 cores); without it, the README's sizes.
+    /// `tradeoff`, `nonsequential`: small workloads (under a minute on 2 cores); without it, the README's sizes.
     #[arg(long)]
     pub quick: bool,
 }

@@ -634,10 +634,19 @@ pub(super) fn report(a: ReportArgs) -> Result<()> {
 
 pub(super) fn bench(a: BenchArgs) -> Result<()> {
     if a.mode.as_deref() == Some("tradeoff") {
+        if a.system.is_some() {
+            return Err(Error::invalid("--system belongs to `diffcassi bench nonsequential` (`tradeoff` takes --preset)"));
+        }
         return super::fidelity::bench_tradeoff(&a);
     }
-    if a.csv.is_some() || a.png.is_some() || a.quick {
-        return Err(Error::invalid("--csv, --png and --quick belong to `diffcassi bench tradeoff`"));
+    if a.mode.as_deref() == Some("nonsequential") {
+        #[cfg(feature = "embree")]
+        return super::nonsequential::bench_nonsequential(&a);
+        #[cfg(not(feature = "embree"))]
+        return Err(Error::invalid("`bench nonsequential` needs the `embree` feature (this build has none)"));
+    }
+    if a.csv.is_some() || a.png.is_some() || a.quick || a.system.is_some() {
+        return Err(Error::invalid("--csv, --png, --quick and --system belong to `diffcassi bench tradeoff|nonsequential`"));
     }
     let repeat = a.repeat.unwrap_or(3);
     if a.rays == 0 || a.wavelengths == 0 || repeat == 0 {

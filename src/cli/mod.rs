@@ -24,6 +24,8 @@ pub mod evaluate;
 mod fidelity;
 mod import_zmx;
 mod make_scene;
+#[cfg(feature = "embree")]
+mod nonsequential;
 pub mod reconstruct;
 pub mod study;
 

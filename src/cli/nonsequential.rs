@@ -1,0 +1,197 @@
+//! `diffcassi bench nonsequential`: where each backend wins (issue 23's benchmark table).
+//!
+//! ```text
+//! diffcassi bench nonsequential [--preset sp | --system SPEC] [--rays N] [--repeat R] [--quick] [--csv OUT]
+//! ```
+//!
+//! Rows: **(a)** the system traced sequentially by the analytic SIMD kernel, Embree over analytic user
+//! geometry and Embree over meshes (f64 refinement), rays/s; **(b)** the system with ghosts K = 2 (the
+//! non-sequential walker's row, reported as not measured here); **(c)** mechanics queries (first hit of
+//! seeded random rays — origins uniform in the parts' bounding box, directions uniform on the sphere:
+//! what scattered stray light asks) at the generated mounts' three resolutions, brute force (every
+//! triangle in f64) against Embree (f32 BVH + f64 re-solve of the hit triangle), one thread each; and
+//! the **crossover**: the same on one lens tube from 8 to 256 segments, and the triangle count where
+//! Embree's time per query falls below brute force's (log–log interpolation). Every Embree hit is compared
+//! with brute force's (same part and point within 1e-6 mm) on the rays both ran.
+use super::args::BenchArgs;
+use super::shared::cpu_seconds;
+use crate::analysis::linspace;
+use crate::error::{Error, Result};
+use crate::geometry::Frame;
+use crate::mechanics::parts::ring_solid;
+use crate::mechanics::{Mechanics, MechanicsScene, Part, PartKind, SurfaceModel, TriMesh};
+use crate::rays::RayBatch;
+use crate::spec::{MechanicsResolution, MechanicsSpec};
+use crate::system::SequentialSystem;
+use crate::tracer::{AnalyticTracer, Tracer};
+use glam::DVec3;
+use rand::{Rng, SeedableRng};
+use std::fmt::Write as _;
+use std::time::Instant;
+
+/// Seeded random query rays in the bounding box of `m` (enlarged by 20 %).
+pub fn query_rays(m: &Mechanics, n: usize, seed: u64) -> Vec<(DVec3, DVec3)> {
+    let (lo, hi) = m.parts.iter().map(|p| p.mesh.bounds()).fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(a, b), (l, h)| (a.min(l), b.max(h)));
+    let (c, h) = (0.5 * (lo + hi), 0.6 * (hi - lo));
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    (0..n)
+        .map(|_| {
+            let o = c + h * DVec3::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0));
+            let z: f64 = rng.gen_range(-1.0..1.0);
+            let a: f64 = rng.gen_range(0.0..std::f64::consts::TAU);
+            let r = (1.0 - z * z).max(0.0).sqrt();
+            (o, DVec3::new(r * a.cos(), r * a.sin(), z))
+        })
+        .collect()
+}
+
+/// Seconds per query (best of `repeat`) and the hits, brute force then Embree.
+struct Timing {
+    brute_s: f64,
+    embree_s: f64,
+    checked: usize,
+    mismatches: usize,
+}
+
+fn time_queries(m: &Mechanics, rays: &[(DVec3, DVec3)], brute_rays: usize, repeat: usize) -> Result<Timing> {
+    let scene = MechanicsScene::new(m)?;
+    let sub = &rays[..brute_rays.min(rays.len())];
+    let (mut brute_s, mut embree_s) = (f64::INFINITY, f64::INFINITY);
+    let mut brute = Vec::new();
+    let mut emb = Vec::new();
+    for _ in 0..repeat {
+        let t = Instant::now();
+        brute = sub.iter().map(|(o, d)| m.intersect_brute(*o, *d, 0.0, f64::INFINITY)).collect();
+        brute_s = brute_s.min(t.elapsed().as_secs_f64() / sub.len() as f64);
+        let t = Instant::now();
+        emb = crate::tracer::embree::with_flush_denormals(|| rays.iter().map(|(o, d)| scene.intersect(*o, *d, 0.0, f64::INFINITY, u32::MAX)).collect::<Vec<_>>());
+        embree_s = embree_s.min(t.elapsed().as_secs_f64() / rays.len() as f64);
+    }
+    let mismatches = brute
+        .iter()
+        .zip(&emb)
+        .filter(|(b, e)| match (b, e) {
+            (None, None) => false,
+            (Some(b), Some(e)) => b.part != e.part || (b.point - e.point).length() > 1e-6,
+            _ => true,
+        })
+        .count();
+    Ok(Timing { brute_s, embree_s, checked: sub.len(), mismatches })
+}
+
+/// `diffcassi bench nonsequential`.
+pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
+    if a.png.is_some() {
+        return Err(Error::invalid("--png belongs to `diffcassi bench tradeoff`"));
+    }
+    let repeat = a.repeat.unwrap_or(if a.quick { 1 } else { 3 });
+    if repeat == 0 || a.rays == 0 || a.wavelengths == 0 {
+        return Err(Error::invalid("--rays, --wavelengths and --repeat must be ≥ 1"));
+    }
+    let (spec, base) = match &a.system {
+        Some(p) => (crate::spec::load_spec_file(p)?, p.parent().map(|d| d.to_path_buf()).unwrap_or_default()),
+        None => (crate::presets::spec(&a.preset)?, std::path::PathBuf::from(".")),
+    };
+    let system = SequentialSystem::build(&spec)?;
+    // User meshes of the spec are loaded (and checked) before anything is measured or written.
+    let user = Mechanics::build(&system, &MechanicsSpec { generate: false, ..spec.mechanics.clone().unwrap_or_default() }, &base).or_else(|e| {
+        if spec.mechanics.as_ref().map_or(true, |m| m.meshes.is_empty()) {
+            Ok(Mechanics::default())
+        } else {
+            Err(e)
+        }
+    })?;
+    let (rays_a, queries, brute_queries) = if a.quick { (2_000, 2_000, 200) } else { (a.rays, 100_000, 2_000) };
+    let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    let mut csv = String::from("row,case,backend,triangles,threads,seconds_per_ray,rays_per_second,vs\n");
+    let t0 = Instant::now();
+    println!("bench nonsequential: {}, {} mode, best of {repeat}", system.name(), if a.quick { "quick" } else { "full" });
+
+    // (a) Sequential system, every backend, all cores.
+    let ws = linspace(450.0, 650.0, a.wavelengths.min(4).max(1));
+    let batch = RayBatch::seeded_workload(&system, rays_a, &ws, 1000)?;
+    println!("\n(a) {} sequential: {} rays, {} threads", system.name(), batch.len(), cores);
+    println!("| backend | M rays/s | × analytic time | CPU-s per M rays |");
+    println!("|---|---|---|---|");
+    let tracers: Vec<Box<dyn Tracer>> = vec![
+        Box::new(AnalyticTracer::default()),
+        "embree-user".parse::<crate::tracer::BackendConfig>()?.build()?,
+        "embree-mesh".parse::<crate::tracer::BackendConfig>()?.build()?,
+    ];
+    let mut analytic_s = None;
+    for t in &tracers {
+        t.trace(&system, &batch)?; // scene construction and caches outside the timing
+        let (mut best, mut cpu) = (f64::INFINITY, f64::INFINITY);
+        for _ in 0..repeat {
+            let c = cpu_seconds();
+            let s = Instant::now();
+            std::hint::black_box(t.trace(&system, &batch)?);
+            best = best.min(s.elapsed().as_secs_f64());
+            if let (Some(c0), Some(c1)) = (c, cpu_seconds()) {
+                cpu = cpu.min(c1 - c0);
+            }
+        }
+        let base = *analytic_s.get_or_insert(best);
+        let n = batch.len() as f64;
+        println!("| {} | {:.2} | {:.1}× | {:.2} |", t.name(), n / best / 1e6, best / base, cpu / n * 1e6);
+        let _ = writeln!(csv, "a,{} sequential,{},,{cores},{:e},{:e},{:.3}", system.name(), t.name(), best / n, n / best, best / base);
+    }
+    println!("\n(b) {} with ghosts K = 2: not measured here (the non-sequential ghost walker's row)", system.name());
+    let _ = writeln!(csv, "b,{} ghosts K=2,,,,,,", system.name());
+
+    // (c) Mechanics at the three resolutions.
+    println!("\n(c) mechanics queries on {}: first hit of {queries} seeded random rays (brute force: {brute_queries}), 1 thread", system.name());
+    println!("| resolution | triangles | brute force µs/query | Embree µs/query | Embree speed-up | hits checked (mismatches) |");
+    println!("|---|---|---|---|---|---|");
+    for res in [MechanicsResolution::Coarse, MechanicsResolution::Medium, MechanicsResolution::Fine] {
+        let mspec = MechanicsSpec { generate: true, resolution: res, meshes: Vec::new(), ..Default::default() };
+        let mut m = Mechanics::build(&system, &mspec, &base)?;
+        m.parts.extend(user.parts.iter().cloned());
+        let rays = query_rays(&m, queries, 23);
+        let t = time_queries(&m, &rays, brute_queries, repeat)?;
+        let tri = m.triangle_count();
+        println!("| {res:?} | {tri} | {:.2} | {:.3} | {:.1}× | {} ({}) |", t.brute_s * 1e6, t.embree_s * 1e6, t.brute_s / t.embree_s, t.checked, t.mismatches);
+        let _ = writeln!(csv, "c,mechanics {res:?},brute-f64,{tri},1,{:e},{:e},", t.brute_s, 1.0 / t.brute_s);
+        let _ = writeln!(csv, "c,mechanics {res:?},embree-f64,{tri},1,{:e},{:e},{:.3}", t.embree_s, 1.0 / t.embree_s, t.brute_s / t.embree_s);
+    }
+
+    // Crossover: one lens tube, growing.
+    println!("\ncrossover: one lens tube (r 10 mm, 30 mm long), {} queries (brute force: {})", queries / 10, brute_queries);
+    println!("| segments | triangles | brute force µs/query | Embree µs/query | Embree speed-up |");
+    println!("|---|---|---|---|---|");
+    let mut curve: Vec<(f64, f64)> = Vec::new();
+    for seg in [4usize, 6, 8, 12, 16, 24, 32, 64, 128, 256] {
+        let circle = |r: f64| (0..seg).map(|k| (std::f64::consts::TAU * k as f64 / seg as f64).sin_cos()).map(|(s, c)| (r * c, r * s)).collect::<Vec<_>>();
+        let mesh: TriMesh = ring_solid(&Frame::IDENTITY, &circle(10.0), &circle(11.0), 0.0, 30.0, (seg / 4).max(1));
+        let m = Mechanics { parts: vec![Part { name: "tube".into(), kind: PartKind::LensTube, surface: SurfaceModel::Absorbing, mesh }] };
+        let rays = query_rays(&m, queries / 10, 29);
+        let t = time_queries(&m, &rays, brute_queries, repeat)?;
+        let tri = m.triangle_count();
+        println!("| {seg} | {tri} | {:.3} | {:.3} | {:.2}× |", t.brute_s * 1e6, t.embree_s * 1e6, t.brute_s / t.embree_s);
+        let _ = writeln!(csv, "crossover,tube {seg} segments,brute-f64,{tri},1,{:e},{:e},", t.brute_s, 1.0 / t.brute_s);
+        let _ = writeln!(csv, "crossover,tube {seg} segments,embree-f64,{tri},1,{:e},{:e},{:.3}", t.embree_s, 1.0 / t.embree_s, t.brute_s / t.embree_s);
+        if t.mismatches > 0 {
+            println!("  ({} of {} hits differ from brute force)", t.mismatches, t.checked);
+        }
+        curve.push((tri as f64, t.brute_s / t.embree_s));
+    }
+    match crossover(&curve) {
+        Some(n) => println!("crossover: Embree is faster than brute force from ≈ {n:.0} triangles on"),
+        None => println!("crossover: not inside the measured range ({:.0}–{:.0} triangles)", curve[0].0, curve[curve.len() - 1].0),
+    }
+    if let Some(path) = &a.csv {
+        crate::io::write_atomic(path, csv.as_bytes()).map_err(Error::from)?;
+        println!("wrote {}", path.display());
+    }
+    println!("bench nonsequential finished in {:.1} s", t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// The triangle count where the speed-up (brute / Embree) crosses 1, interpolated in log–log between the
+/// last measured point below 1 and the next (None if it never crosses).
+pub fn crossover(curve: &[(f64, f64)]) -> Option<f64> {
+    curve.windows(2).rev().find(|w| w[0].1 < 1.0 && w[1].1 >= 1.0).map(|w| {
+        let (x0, y0, x1, y1) = (w[0].0.ln(), w[0].1.ln(), w[1].0.ln(), w[1].1.ln());
+        (x0 + (x1 - x0) * (0.0 - y0) / (y1 - y0)).exp()
+    })
+}
