@@ -263,3 +263,29 @@ fn cli_export_round_trip_and_bad_mesh_writes_nothing() {
         assert!(!csv.exists());
     }
 }
+
+#[test]
+fn bench_nonsequential_quick_writes_every_row() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("ns.csv");
+    let st = std::process::Command::new(env!("CARGO_BIN_EXE_diffcassi")).args(["bench", "nonsequential", "--quick", "--csv"]).arg(&csv).output().unwrap();
+    let out = String::from_utf8_lossy(&st.stdout);
+    assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
+    assert!(out.contains("crossover:"), "{out}");
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let rows: Vec<Vec<&str>> = text.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.iter().filter(|r| r[0] == "a").count(), 3, "{text}");
+    assert_eq!(rows.iter().filter(|r| r[0] == "b").count(), 1, "{text}");
+    // Row (c): brute force and Embree at the three resolutions, triangle counts growing by decades.
+    let c: Vec<&Vec<&str>> = rows.iter().filter(|r| r[0] == "c").collect();
+    assert_eq!(c.len(), 6, "{text}");
+    let tri: Vec<usize> = c.iter().step_by(2).map(|r| r[3].parse().unwrap()).collect();
+    assert!(tri[0] < tri[1] && tri[1] < tri[2], "{tri:?}");
+    for r in rows.iter().filter(|r| r[0] != "b") {
+        let s: f64 = r[5].parse().unwrap();
+        assert!(s.is_finite() && s > 0.0, "{r:?}");
+    }
+    // Embree's answers matched brute force's on every checked ray.
+    assert!(out.lines().filter(|l| l.starts_with("| Coarse") || l.starts_with("| Medium") || l.starts_with("| Fine")).all(|l| l.ends_with("(0) |")), "{out}");
+    assert!(!out.contains("hits differ"), "{out}");
+}

@@ -10,7 +10,7 @@
 //! seeded random rays — origins uniform in the parts' bounding box, directions uniform on the sphere:
 //! what scattered stray light asks) at the generated mounts' three resolutions, brute force (every
 //! triangle in f64) against Embree (f32 BVH + f64 re-solve of the hit triangle), one thread each; and
-//! the **crossover**: the same on one lens tube from 8 to 256 segments, and the triangle count where
+//! the **crossover**: the same on a triangle, a square, a cube and one lens tube from 4 to 256 segments, and the triangle count where
 //! Embree's time per query falls below brute force's (log–log interpolation). Every Embree hit is compared
 //! with brute force's (same part and point within 1e-6 mm) on the rays both ran.
 use super::args::BenchArgs;
@@ -18,7 +18,7 @@ use super::shared::cpu_seconds;
 use crate::analysis::linspace;
 use crate::error::{Error, Result};
 use crate::geometry::Frame;
-use crate::mechanics::parts::ring_solid;
+use crate::mechanics::parts::{box_solid, ring_solid};
 use crate::mechanics::{Mechanics, MechanicsScene, Part, PartKind, SurfaceModel, TriMesh};
 use crate::rays::RayBatch;
 use crate::spec::{MechanicsResolution, MechanicsSpec};
@@ -155,21 +155,28 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
         let _ = writeln!(csv, "c,mechanics {res:?},embree-f64,{tri},1,{:e},{:e},{:.3}", t.embree_s, 1.0 / t.embree_s, t.brute_s / t.embree_s);
     }
 
-    // Crossover: one lens tube, growing.
-    println!("\ncrossover: one lens tube (r 10 mm, 30 mm long), {} queries (brute force: {})", queries / 10, brute_queries);
-    println!("| segments | triangles | brute force µs/query | Embree µs/query | Embree speed-up |");
+    // Crossover: one triangle, a square (2), a cube (12), then one lens tube, growing.
+    println!("\ncrossover: a triangle, a square, a cube (10 mm), then one lens tube (r 10 mm, 30 mm long); {} queries (brute force: {})", queries / 10, brute_queries);
+    println!("| mesh | triangles | brute force µs/query | Embree µs/query | Embree speed-up |");
     println!("|---|---|---|---|---|");
-    let mut curve: Vec<(f64, f64)> = Vec::new();
-    for seg in [4usize, 6, 8, 12, 16, 24, 32, 64, 128, 256] {
+    let mut meshes: Vec<(String, TriMesh)> = vec![
+        ("triangle".into(), TriMesh::new(vec![DVec3::ZERO, DVec3::new(10.0, 0.0, 0.0), DVec3::new(0.0, 10.0, 0.0)], vec![[0, 1, 2]])),
+        ("square".into(), TriMesh::new(vec![DVec3::ZERO, DVec3::new(10.0, 0.0, 0.0), DVec3::new(10.0, 10.0, 0.0), DVec3::new(0.0, 10.0, 0.0)], vec![[0, 1, 2], [0, 2, 3]])),
+        ("cube".into(), box_solid(&Frame::IDENTITY, DVec3::ZERO, DVec3::splat(10.0), 1)),
+    ];
+    for seg in [4usize, 8, 16, 32, 64, 128, 256] {
         let circle = |r: f64| (0..seg).map(|k| (std::f64::consts::TAU * k as f64 / seg as f64).sin_cos()).map(|(s, c)| (r * c, r * s)).collect::<Vec<_>>();
-        let mesh: TriMesh = ring_solid(&Frame::IDENTITY, &circle(10.0), &circle(11.0), 0.0, 30.0, (seg / 4).max(1));
-        let m = Mechanics { parts: vec![Part { name: "tube".into(), kind: PartKind::LensTube, surface: SurfaceModel::Absorbing, mesh }] };
+        meshes.push((format!("tube, {seg} segments"), ring_solid(&Frame::IDENTITY, &circle(10.0), &circle(11.0), 0.0, 30.0, (seg / 4).max(1))));
+    }
+    let mut curve: Vec<(f64, f64)> = Vec::new();
+    for (label, mesh) in meshes {
+        let m = Mechanics { parts: vec![Part { name: label.clone(), kind: PartKind::UserMesh, surface: SurfaceModel::Absorbing, mesh }] };
         let rays = query_rays(&m, queries / 10, 29);
         let t = time_queries(&m, &rays, brute_queries, repeat)?;
         let tri = m.triangle_count();
-        println!("| {seg} | {tri} | {:.3} | {:.3} | {:.2}× |", t.brute_s * 1e6, t.embree_s * 1e6, t.brute_s / t.embree_s);
-        let _ = writeln!(csv, "crossover,tube {seg} segments,brute-f64,{tri},1,{:e},{:e},", t.brute_s, 1.0 / t.brute_s);
-        let _ = writeln!(csv, "crossover,tube {seg} segments,embree-f64,{tri},1,{:e},{:e},{:.3}", t.embree_s, 1.0 / t.embree_s, t.brute_s / t.embree_s);
+        println!("| {label} | {tri} | {:.3} | {:.3} | {:.2}× |", t.brute_s * 1e6, t.embree_s * 1e6, t.brute_s / t.embree_s);
+        let _ = writeln!(csv, "crossover,{label},brute-f64,{tri},1,{:e},{:e},", t.brute_s, 1.0 / t.brute_s);
+        let _ = writeln!(csv, "crossover,{label},embree-f64,{tri},1,{:e},{:e},{:.3}", t.embree_s, 1.0 / t.embree_s, t.brute_s / t.embree_s);
         if t.mismatches > 0 {
             println!("  ({} of {} hits differ from brute force)", t.mismatches, t.checked);
         }
@@ -177,7 +184,8 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
     }
     match crossover(&curve) {
         Some(n) => println!("crossover: Embree is faster than brute force from ≈ {n:.0} triangles on"),
-        None => println!("crossover: not inside the measured range ({:.0}–{:.0} triangles)", curve[0].0, curve[curve.len() - 1].0),
+        None if curve[0].1 >= 1.0 => println!("crossover: Embree is already faster at {:.0} triangle(s), the smallest mesh measured", curve[0].0),
+        None => println!("crossover: Embree is not faster anywhere in the measured range ({:.0}–{:.0} triangles)", curve[0].0, curve[curve.len() - 1].0),
     }
     if let Some(path) = &a.csv {
         crate::io::write_atomic(path, csv.as_bytes()).map_err(Error::from)?;
