@@ -59,6 +59,10 @@ pub struct EmbreeOptions {
     pub refine: Refinement,
     /// Trace bundles of 16 consecutive rays with `rtcIntersect16` instead of one by one (`rtcIntersect1`).
     pub packets: bool,
+    /// With `packets`, pass `RTC_RAY_QUERY_FLAG_COHERENT` (Embree's frustum traversal for bundles of similar
+    /// rays). Off by default: it is slower on these workloads; results are the same either way (tested in
+    /// tests/embree_speed.rs; tests/embree_repro/ checks the flag against `rtcIntersect1` in C).
+    pub coherent: bool,
     /// Most surface interactions (refractions + reflections) per ray.
     pub max_bounces: u32,
     /// Rays per rayon task.
@@ -67,7 +71,7 @@ pub struct EmbreeOptions {
 
 impl Default for EmbreeOptions {
     fn default() -> Self {
-        EmbreeOptions { scene: SceneOptions::default(), refine: Refinement::F64, packets: true, max_bounces: 64, chunk_size: 1024 }
+        EmbreeOptions { scene: SceneOptions::default(), refine: Refinement::F64, packets: true, coherent: false, max_bounces: 64, chunk_size: 1024 }
     }
 }
 
@@ -265,11 +269,7 @@ impl EmbreeTracer {
                     if !valid.iter().any(|v| *v) {
                         break;
                     }
-                    // Incoherent packets: Embree 4.3.3's coherent (frustum) traversal, with
-                    // RTC_RAY_QUERY_FLAG_COHERENT, was measured to drop hits here (SP, on-axis hexapolar
-                    // bundle: 9 of 16 lanes missed the doublet's second surface, with user geometry and
-                    // meshes alike, also after splitting packets by direction octant), so it is not used.
-                    let hits = scene.scene.intersect16_with(&packet, &valid, false);
+                    let hits = scene.scene.intersect16_with(&packet, &valid, self.options.coherent);
                     for (k, w) in ws.iter_mut().enumerate() {
                         if valid[k] {
                             // Not recording: `logs` is empty and `get_mut` gives None.
