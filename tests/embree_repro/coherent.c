@@ -128,6 +128,48 @@ static int bundle(RTCScene s, int start_on_cap, int coherent) {
     return miss;
 }
 
+/* Variant G: one direction octant (all components > 0), but origins spread along the axis (some lanes in
+   front of cap 1, some between the caps, as a packet holds rays at different stages of a walk) and the
+   x/y direction components spread over two orders of magnitude. */
+static int spread(RTCScene s, int coherent) {
+    struct RTCRayHit16 rh __attribute__((aligned(64)));
+    int valid[16] __attribute__((aligned(64)));
+    memset(&rh, 0, sizeof rh);
+    for (int k = 0; k < 16; k++) {
+        float sx = (k % 4 == 0) ? 0.002f : 0.05f * (k % 4), sy = (k % 3 == 0) ? 0.001f : 0.04f * (k % 3);
+        float n = sqrtf(sx * sx + sy * sy + 1.0f);
+        rh.ray.dir_x[k] = sx / n; rh.ray.dir_y[k] = sy / n; rh.ray.dir_z[k] = 1.0f / n;
+        rh.ray.org_x[k] = -4.0f + 0.5f * k; rh.ray.org_y[k] = -3.0f + 0.3f * k;
+        rh.ray.org_z[k] = (k % 2) ? 13.0f : -1.0f;  /* odd lanes start between the caps */
+        rh.ray.tfar[k] = INFINITY;
+        rh.ray.mask[k] = (k % 2) ? ~1u : 0xffffffffu;
+        rh.hit.geomID[k] = rh.hit.primID[k] = rh.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+        valid[k] = -1;
+    }
+    struct RTCRayHit16 in = rh;
+    struct RTCIntersectArguments args;
+    rtcInitIntersectArguments(&args);
+    args.flags = coherent ? RTC_RAY_QUERY_FLAG_COHERENT : RTC_RAY_QUERY_FLAG_INCOHERENT;
+    rtcIntersect16(valid, s, &rh, &args);
+    int miss = 0;
+    for (int k = 0; k < 16; k++) {
+        struct RTCRayHit r1;
+        memset(&r1, 0, sizeof r1);
+        r1.ray.org_x = in.ray.org_x[k]; r1.ray.org_y = in.ray.org_y[k]; r1.ray.org_z = in.ray.org_z[k];
+        r1.ray.dir_x = in.ray.dir_x[k]; r1.ray.dir_y = in.ray.dir_y[k]; r1.ray.dir_z = in.ray.dir_z[k];
+        r1.ray.tnear = 0.0f; r1.ray.tfar = INFINITY; r1.ray.mask = in.ray.mask[k];
+        r1.hit.geomID = r1.hit.primID = r1.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+        rtcIntersect1(s, &r1, NULL);
+        if (r1.hit.geomID != rh.hit.geomID[k] || fabsf(r1.ray.tfar - rh.ray.tfar[k]) > 1e-4f) {
+            miss++;
+            printf("  G, %s: lane %d rtcIntersect16 geom %d t %g, rtcIntersect1 geom %d t %g\n", coherent ? "coherent" : "incoherent", k,
+                   (int)rh.hit.geomID[k], rh.ray.tfar[k], (int)r1.hit.geomID, r1.ray.tfar);
+        }
+    }
+    printf("%-28s %-10s: %d lane(s) differ from rtcIntersect1\n", "G spread origins, 1 octant", coherent ? "coherent" : "incoherent", miss);
+    return miss;
+}
+
 int main(void) {
     RTCDevice d = rtcNewDevice(NULL);
     RTCScene s = rtcNewScene(d);
@@ -176,6 +218,7 @@ int main(void) {
     rtcCommitScene(c);
     for (int start = 0; start < 2; start++)
         for (int coherent = 0; coherent < 2; coherent++) bad += bundle(c, start, coherent);
+    for (int coherent = 0; coherent < 2; coherent++) bad += spread(c, coherent);
     rtcReleaseScene(c);
     rtcReleaseDevice(d);
     return bad ? 1 : 0;

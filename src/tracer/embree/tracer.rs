@@ -60,8 +60,10 @@ pub struct EmbreeOptions {
     /// Trace bundles of 16 consecutive rays with `rtcIntersect16` instead of one by one (`rtcIntersect1`).
     pub packets: bool,
     /// With `packets`, pass `RTC_RAY_QUERY_FLAG_COHERENT` (Embree's frustum traversal for bundles of similar
-    /// rays). Off by default: it is slower on these workloads; results are the same either way (tested in
-    /// tests/embree_speed.rs; tests/embree_repro/ checks the flag against `rtcIntersect1` in C).
+    /// rays). Off by default and not to be used for results: with it, Embree 4.3.3 loses hits in this
+    /// tracer (SP: 235 of 2524 test rays change, AP: 37; user geometry and meshes alike), while a C check of
+    /// the same query patterns against `rtcIntersect1` finds none (tests/embree_repro/). Kept to reproduce
+    /// that (`cargo test --release --test embree_speed -- --ignored --nocapture`); docs/nonsequential.md.
     pub coherent: bool,
     /// Most surface interactions (refractions + reflections) per ray.
     pub max_bounces: u32,
@@ -269,6 +271,7 @@ impl EmbreeTracer {
                     if !valid.iter().any(|v| *v) {
                         break;
                     }
+                    // Incoherent unless asked: the coherent flag loses hits here (see `EmbreeOptions::coherent`).
                     let hits = scene.scene.intersect16_with(&packet, &valid, self.options.coherent);
                     for (k, w) in ws.iter_mut().enumerate() {
                         if valid[k] {
