@@ -7,6 +7,7 @@
 //! same results in this tracer (docs/nonsequential.md, "Embree's coherent flag"); the ignored survey below
 //! measures by how much:
 //! `cargo test --release --test embree_speed -- --ignored --nocapture`.
+#![cfg(feature = "embree")]
 use diffcassi::prelude::*;
 use diffcassi::surfaces::MeshResolution;
 use diffcassi::tracer::embree::{EmbreeOptions, EmbreeTracer, Refinement};

@@ -2,7 +2,9 @@
 //! f64 brute-force query against Embree's, a traced SP ray stopped by a mount, the spec section's
 //! round trip and the `bench nonsequential` bad-input path.
 use diffcassi::mechanics::mesh_io::load_mesh;
-use diffcassi::mechanics::{Mechanics, MechanicsScene, PartKind};
+#[cfg(feature = "embree")]
+use diffcassi::mechanics::MechanicsScene;
+use diffcassi::mechanics::{Mechanics, PartKind};
 use diffcassi::prelude::*;
 use diffcassi::spec::{MechanicsResolution, MechanicsSpec, MeshPartSpec, SurfaceModel};
 use diffcassi::tracer::hits::sequential_hits;
@@ -160,6 +162,7 @@ fn nominal_beam_clears_the_mounts_and_a_wide_ray_is_stopped_where_geometry_says(
     assert!((h.point.z - blo.z).abs() < 1e-9 && h.normal.z < -0.99, "{h:?} {blo:?}");
 }
 
+#[cfg(feature = "embree")] // MechanicsScene, `bench nonsequential`
 #[test]
 fn embree_agrees_with_brute_force() {
     let mut spec = MechanicsSpec { resolution: MechanicsResolution::Medium, ..Default::default() };
@@ -234,6 +237,7 @@ fn spec_section_round_trips_and_validates() {
     }
 }
 
+#[cfg(feature = "embree")] // MechanicsScene, `bench nonsequential`
 #[test]
 fn cli_export_round_trip_and_bad_mesh_writes_nothing() {
     let exe = env!("CARGO_BIN_EXE_diffcassi");
@@ -264,6 +268,7 @@ fn cli_export_round_trip_and_bad_mesh_writes_nothing() {
     }
 }
 
+#[cfg(feature = "embree")] // MechanicsScene, `bench nonsequential`
 #[test]
 fn bench_nonsequential_quick_writes_every_row() {
     let dir = tempfile::tempdir().unwrap();
