@@ -9,6 +9,7 @@ use diffcassi::prelude::*;
 use diffcassi::spec::{MechanicsResolution, MechanicsSpec, MeshPartSpec, SurfaceModel};
 use diffcassi::tracer::hits::sequential_hits;
 use glam::DVec3;
+#[cfg(feature = "embree")]
 use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
 
@@ -16,6 +17,7 @@ fn fixture(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/mesh").join(name)
 }
 
+#[cfg(feature = "embree")]
 fn fixtures_dir() -> PathBuf {
     fixture("")
 }
