@@ -398,6 +398,11 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if let (Some(t), Some(o)) = (a.tuning.tolerance, config.as_object_mut()) {
         o.insert("tolerance".into(), json!(t));
     }
+    if let Some(o) = config.as_object_mut() {
+        // The stopping rule: τ as given and the library's TV defaults (a cell computed under other defaults
+        // is recomputed).
+        o.insert("stopping".into(), json!({"discrepancy": a.tuning.discrepancy, "gap_tv": crate::recon::SolverConfig::gap_tv(), "admm_tv": crate::recon::SolverConfig::admm_tv(), "mc_mismatch_per_ray": super::reconstruct::MC_MISMATCH_PER_RAY}));
+    }
     if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
         o.insert("scene_wavelengths".into(), json!(w));
     }
@@ -405,7 +410,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let render_key = {
         let mut r = config.clone();
         if let Some(o) = r.as_object_mut() {
-            for k in ["operator_seed", "iterations", "tv_weight", "accelerated", "pnp", "tolerance"] {
+            for k in ["operator_seed", "iterations", "tv_weight", "accelerated", "pnp", "tolerance", "stopping"] {
                 o.remove(k);
             }
         }
@@ -451,7 +456,9 @@ pub fn study(a: StudyArgs) -> Result<()> {
             for (i, solver) in pending {
                 let scene = &scenes[i];
                 let rec = RenderRecord::load(&dirs[i])?;
-                let settings = cell_settings(&a, solver);
+                let mut settings = cell_settings(&a, solver);
+                let rays = rec.config.rays_per_pixel;
+                settings.noise = Some(super::reconstruct::noise_estimate(&rec, op_kind, op_seed, rays, rays));
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, false)?;
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
@@ -461,7 +468,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
                     "from": dirs[i].display().to_string(), "system": system.name(), "operator": op_kind.name(), "operator_seed": op_seed,
                     "acquisition_seed": a.seed, "oracle": op_seed == a.seed, "tracer": tracer.name(), "solver": solver, "solver_settings": solved.settings,
                     "shape": {"height": c.height, "width": c.width, "bands": c.bands}, "bands_nm": bands, "residual": solved.residuals,
-                    "residual_definition": "per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂, v_k the point iteration k projects (GAP: θ_{k−1})", "final_residual": final_residual, "threads": rayon::current_num_threads(),
+                    "residual_definition": "per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂, v_k the point iteration k projects (GAP: θ_{k−1})", "final_residual": final_residual, "stopping": solved.stopping, "threads": rayon::current_num_threads(),
                     "seconds_operator": seconds_operator, "seconds_solve": solved.seconds, "seconds": solved.seconds,
                 });
                 let rdir = a.out.join("recon").join(preset).join(&scene.name).join(format!("{}-{solver}", op_kind.name()));
@@ -469,7 +476,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 write_reconstruction(set, &estimate, &rjson, false)?;
                 let cell = json!({
                     "config": config, "preset": preset, "system": system_label(preset), "scene": scene.name, "operator": op_kind.name(), "solver": solver,
-                    "metrics": ev.metrics, "truth_resampled": ev.truth_resampled, "iterations": solved.residuals.len(), "final_residual": final_residual,
+                    "metrics": ev.metrics, "truth_resampled": ev.truth_resampled, "iterations": solved.residuals.len(), "stopped_by": solved.stopping.get("stopped_by"), "final_residual": final_residual,
                     "seconds_solve": solved.seconds, "seconds_operator": seconds_operator, "reconstruction": rdir.display().to_string(),
                 });
                 write_json(&cell_path(&scene.name, op_kind, solver), &cell)?;

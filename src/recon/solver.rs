@@ -125,6 +125,15 @@ pub struct SolverConfig {
     /// iterations). The record says which rule ended the run.
     #[serde(default)]
     pub tolerance: f64,
+    /// Discrepancy principle (Morozov): stop before iteration k's update when ‖y − Φθ_{k−1}‖₂ ≤
+    /// `discrepancy`·`noise_norm`, returning θ_{k−1} (τ ≥ 1 in theory; 0 turns the rule off). See [`Discrepancy`].
+    #[serde(default)]
+    pub discrepancy: f64,
+    /// The expected norm δ = E‖y − Φx_true‖₂ of the measurement's noise and operator mismatch, in acquisition
+    /// units (the CLI estimates it from render.json: sensor noise and the Monte-Carlo mismatch of the rays;
+    /// `noise_estimate` in reconstruct.json). 0: unknown, the discrepancy rule is off.
+    #[serde(default)]
+    pub noise_norm: f64,
     /// PnP only: the denoiser's weights file (safetensors); `None`: the embedded checkpoint.
     #[serde(default)]
     pub denoiser: Option<String>,
@@ -157,6 +166,8 @@ impl SolverConfig {
             sigma_max: 0.0,
             sigma_min: 0.0,
             tolerance: 0.0,
+            discrepancy: 0.0,
+            noise_norm: 0.0,
             denoiser: None,
             tv_warmup: 0,
         }
@@ -234,6 +245,11 @@ impl SolverConfig {
         if !(self.tolerance.is_finite() && self.tolerance >= 0.0) {
             return Err(Error::invalid(format!("stopping tolerance {} must be finite and ≥ 0", self.tolerance)));
         }
+        for (name, v) in [("discrepancy τ", self.discrepancy), ("noise norm δ", self.noise_norm)] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::invalid(format!("stopping rule: {name} = {v} must be finite and ≥ 0")));
+            }
+        }
         if self.solver.is_pnp() {
             for (name, v) in [("σ max (--sigma-max)", self.sigma_max), ("σ min (--sigma-min)", self.sigma_min)] {
                 if !(v.is_finite() && v > 0.0 && v <= 1.0) {
@@ -272,7 +288,8 @@ pub struct Reconstruction {
     pub seconds: f64,
     /// Iterations run (≤ `config.iterations`: the stopping rule may end the run early).
     pub iterations_run: usize,
-    /// Which rule ended the run: `iterations` (all ran) or `tolerance` (relative change below it).
+    /// Which rule ended the run: `iterations` (all ran), `tolerance` (relative change below it) or
+    /// `discrepancy` (‖y − Φθ‖₂ ≤ τ·δ: θ of the last completed iteration is returned).
     pub stopped_by: String,
     /// Per iteration k: ‖θ_k − θ_{k−1}‖₂ / ‖θ_k‖₂ (the stopping rule's quantity).
     pub relative_changes: Vec<f64>,
@@ -424,6 +441,39 @@ impl<'d> PriorStep<'d> {
     }
 }
 
+/// The discrepancy principle (Morozov 1966; for iterative regularisation, Engl, Hanke & Neubauer,
+/// "Regularization of Inverse Problems", 1996, §4.3 and §7): an iterative method applied to y = Φx + n
+/// fits the noise once ‖y − Φθ‖ falls below ‖n‖, so it stops at the first θ_{k−1} with
+/// ‖y − Φθ_{k−1}‖₂ ≤ τ·δ, δ = [`SolverConfig::noise_norm`] (the expected ‖n‖, here the sensor noise and the
+/// exact operator's Monte-Carlo mismatch), τ = [`SolverConfig::discrepancy`]. Needs no ground truth. The
+/// first iterate tested is θ₁ (at least one update runs) and, for PnP, the first network output (the TV
+/// warm-up always completes, as for the relative-change rule).
+pub struct Discrepancy {
+    threshold: f64,
+}
+
+impl Discrepancy {
+    pub fn new(config: &SolverConfig) -> Self {
+        Discrepancy { threshold: config.discrepancy * config.noise_norm }
+    }
+
+    /// Whether the rule is on (τ > 0 and δ > 0).
+    pub fn is_on(&self) -> bool {
+        self.threshold > 0.0
+    }
+
+    /// Whether iteration k (1-based) tests θ_{k−1}: k ≥ 2, and after PnP's warm-up.
+    pub fn applies(&self, k: usize, config: &SolverConfig) -> bool {
+        let warmup = if config.solver.is_pnp() { config.tv_warmup } else { 0 };
+        k > warmup + 1
+    }
+
+    /// At iteration k, with `residual` = ‖y − Φθ_{k−1}‖₂ (absolute): stop?
+    pub fn reached(&self, residual: f64, k: usize, config: &SolverConfig) -> bool {
+        self.is_on() && self.applies(k, config) && residual <= self.threshold
+    }
+}
+
 /// The stopping rule's bookkeeping: θ_{k−1} (kept only when the tolerance is on) and the relative changes.
 pub(crate) struct Stopping {
     tolerance: f64,
@@ -483,9 +533,23 @@ pub fn reconstruct(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &
 /// [`reconstruct`] with any [`Denoiser`] as the prior (GAP's or ADMM's data step per `config.solver`; PnP
 /// kinds scale the cube to peak 1 around the denoiser and follow the σ schedule).
 pub fn reconstruct_with(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, denoiser: &mut dyn Denoiser, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
+    reconstruct_observed(op, y, init, config, denoiser, progress, &mut |_, _| {})
+}
+
+/// [`reconstruct_with`], calling `observe(k, θ_k)` after each iteration's prior step (evaluation against a
+/// known truth, e.g. `reconstruct --truth`; nothing the observer computes reaches the solver).
+pub fn reconstruct_observed(
+    op: &dyn Operator,
+    y: &[f32],
+    init: Option<&[f32]>,
+    config: &SolverConfig,
+    denoiser: &mut dyn Denoiser,
+    progress: &(dyn Fn(usize, f64) + Sync),
+    observe: &mut dyn FnMut(usize, &[f32]),
+) -> Result<Reconstruction> {
     if config.solver.is_gap() {
-        super::gap::gap(op, y, init, config, denoiser, progress)
+        super::gap::gap_observed(op, y, init, config, denoiser, progress, observe)
     } else {
-        super::admm::admm(op, y, init, config, denoiser, progress)
+        super::admm::admm_observed(op, y, init, config, denoiser, progress, observe)
     }
 }
