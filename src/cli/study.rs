@@ -202,6 +202,9 @@ fn check_limits(a: &StudyArgs, bands: &[f64], solvers: &[String]) -> Result<()> 
     if !(a.transport_memory_gb.is_finite() && a.transport_memory_gb >= 0.0) {
         return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0 (0: never keep the transport)", a.transport_memory_gb)));
     }
+    if a.tuning.plain && !solvers.iter().any(|s| s == "gap-tv") {
+        return Err(Error::invalid(format!("--plain applies to gap-tv only, and --solvers `{}` has no gap-tv", a.solvers)));
+    }
     if a.tuning.accelerated && !solvers.iter().any(|s| s == "gap-tv") {
         return Err(Error::invalid(format!("--accelerated applies to gap-tv only, and --solvers `{}` has no gap-tv", a.solvers)));
     }
@@ -333,6 +336,7 @@ fn cell_from_json(v: &Value) -> Option<Cell> {
 /// (`--denoiser`, `--sigma-max`, `--sigma-min`) to the PnP solvers only.
 fn cell_settings(a: &StudyArgs, solver: &str) -> super::reconstruct::SolveSettings {
     let mut s = a.tuning.settings(solver, a.tuning.accelerated && solver == "gap-tv");
+    s.plain = a.tuning.plain && solver == "gap-tv";
     if !solver.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp()) {
         (s.denoiser, s.sigma_max, s.sigma_min, s.tv_warmup) = (None, None, None, None);
     }
@@ -383,7 +387,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let mut config = json!({
         "scene_size": a.scene_size, "fit": a.fit, "bands_nm": bands, "planes": a.planes, "rays": a.rays, "seed": a.seed,
         "operator_seed": op_seed, "mask": mask.description, "mask_open_pixels": mask.values.iter().filter(|&&v| v > 0.0).count(),
-        "airy_diameter_px": a.airy_diameter_px, "iterations": a.tuning.iterations, "tv_weight": a.tuning.tv_weight, "accelerated": a.tuning.accelerated, "tracer": tracer.name(),
+        "airy_diameter_px": a.airy_diameter_px, "iterations": a.tuning.iterations, "tv_weight": a.tuning.tv_weight, "accelerated": a.tuning.accelerated, "plain": a.tuning.plain, "tracer": tracer.name(),
     });
     // PnP settings join the configuration only when a PnP solver runs (so TV-only studies stay resumable
     // from folders written before PnP existed); the weights enter by content (CRC-32), not only by path.
@@ -410,7 +414,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let render_key = {
         let mut r = config.clone();
         if let Some(o) = r.as_object_mut() {
-            for k in ["operator_seed", "iterations", "tv_weight", "accelerated", "pnp", "tolerance", "stopping"] {
+            for k in ["operator_seed", "iterations", "tv_weight", "accelerated", "plain", "pnp", "tolerance", "stopping"] {
                 o.remove(k);
             }
         }
