@@ -14,7 +14,10 @@
 //! Monte-Carlo noise of the measurement); `--operator-seed same` gives the oracle. Outputs, all written into
 //! a temporary sibling folder that is renamed into place only when complete: `cube.npy` (H, W, B) float32 +
 //! `cube_wavelengths_nm.npy`, `cube.exr` (one channel per band), `rgb.png` (sRGB preview: CIE 1931 under
-//! D65, [`crate::scene::colorimetry`]) and `reconstruct.json` (settings, per-iteration residual, seconds).
+//! D65, [`crate::scene::colorimetry`]) and `reconstruct.json` (settings, per-iteration residual, seconds,
+//! `stopping`: the rule, the noise estimate δ of [`noise_estimate`], the cap, the iteration and the reason
+//! it stopped). `--truth CUBE` adds the PSNR of every iterate (evaluation only; docs/reconstruction.md,
+//! "Defaults and stopping").
 use super::args::BackendArgs;
 use crate::error::{Error, Result};
 use crate::recon::{ExactOperator, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind};
