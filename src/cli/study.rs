@@ -202,6 +202,9 @@ fn check_limits(a: &StudyArgs, bands: &[f64], solvers: &[String]) -> Result<()> 
     if !(a.transport_memory_gb.is_finite() && a.transport_memory_gb >= 0.0) {
         return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0 (0: never keep the transport)", a.transport_memory_gb)));
     }
+    if a.tuning.plain && !solvers.iter().any(|s| s == "gap-tv") {
+        return Err(Error::invalid(format!("--plain applies to gap-tv only, and --solvers `{}` has no gap-tv", a.solvers)));
+    }
     if a.tuning.accelerated && !solvers.iter().any(|s| s == "gap-tv") {
         return Err(Error::invalid(format!("--accelerated applies to gap-tv only, and --solvers `{}` has no gap-tv", a.solvers)));
     }
@@ -333,6 +336,7 @@ fn cell_from_json(v: &Value) -> Option<Cell> {
 /// (`--denoiser`, `--sigma-max`, `--sigma-min`) to the PnP solvers only.
 fn cell_settings(a: &StudyArgs, solver: &str) -> super::reconstruct::SolveSettings {
     let mut s = a.tuning.settings(solver, a.tuning.accelerated && solver == "gap-tv");
+    s.plain = a.tuning.plain && solver == "gap-tv";
     if !solver.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp()) {
         (s.denoiser, s.sigma_max, s.sigma_min, s.tv_warmup) = (None, None, None, None);
     }
@@ -383,7 +387,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let mut config = json!({
         "scene_size": a.scene_size, "fit": a.fit, "bands_nm": bands, "planes": a.planes, "rays": a.rays, "seed": a.seed,
         "operator_seed": op_seed, "mask": mask.description, "mask_open_pixels": mask.values.iter().filter(|&&v| v > 0.0).count(),
-        "airy_diameter_px": a.airy_diameter_px, "iterations": a.tuning.iterations, "tv_weight": a.tuning.tv_weight, "accelerated": a.tuning.accelerated, "tracer": tracer.name(),
+        "airy_diameter_px": a.airy_diameter_px, "iterations": a.tuning.iterations, "tv_weight": a.tuning.tv_weight, "accelerated": a.tuning.accelerated, "plain": a.tuning.plain, "tracer": tracer.name(),
     });
     // PnP settings join the configuration only when a PnP solver runs (so TV-only studies stay resumable
     // from folders written before PnP existed); the weights enter by content (CRC-32), not only by path.
@@ -398,6 +402,11 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if let (Some(t), Some(o)) = (a.tuning.tolerance, config.as_object_mut()) {
         o.insert("tolerance".into(), json!(t));
     }
+    if let Some(o) = config.as_object_mut() {
+        // The stopping rule: τ as given and the library's TV defaults (a cell computed under other defaults
+        // is recomputed).
+        o.insert("stopping".into(), json!({"discrepancy": a.tuning.discrepancy, "gap_tv": crate::recon::SolverConfig::gap_tv(), "admm_tv": crate::recon::SolverConfig::admm_tv(), "mc_mismatch_per_ray": super::reconstruct::MC_MISMATCH_PER_RAY}));
+    }
     if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
         o.insert("scene_wavelengths".into(), json!(w));
     }
@@ -405,7 +414,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let render_key = {
         let mut r = config.clone();
         if let Some(o) = r.as_object_mut() {
-            for k in ["operator_seed", "iterations", "tv_weight", "accelerated", "pnp", "tolerance"] {
+            for k in ["operator_seed", "iterations", "tv_weight", "accelerated", "plain", "pnp", "tolerance", "stopping"] {
                 o.remove(k);
             }
         }
@@ -451,7 +460,9 @@ pub fn study(a: StudyArgs) -> Result<()> {
             for (i, solver) in pending {
                 let scene = &scenes[i];
                 let rec = RenderRecord::load(&dirs[i])?;
-                let settings = cell_settings(&a, solver);
+                let mut settings = cell_settings(&a, solver);
+                let rays = rec.config.rays_per_pixel;
+                settings.noise = Some(super::reconstruct::noise_estimate(&rec, op_kind, op_seed, rays, rays));
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, false)?;
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
@@ -461,7 +472,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
                     "from": dirs[i].display().to_string(), "system": system.name(), "operator": op_kind.name(), "operator_seed": op_seed,
                     "acquisition_seed": a.seed, "oracle": op_seed == a.seed, "tracer": tracer.name(), "solver": solver, "solver_settings": solved.settings,
                     "shape": {"height": c.height, "width": c.width, "bands": c.bands}, "bands_nm": bands, "residual": solved.residuals,
-                    "residual_definition": "per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂, v_k the point iteration k projects (GAP: θ_{k−1})", "final_residual": final_residual, "threads": rayon::current_num_threads(),
+                    "residual_definition": "per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂, v_k the point iteration k projects (GAP: θ_{k−1})", "final_residual": final_residual, "stopping": solved.stopping, "threads": rayon::current_num_threads(),
                     "seconds_operator": seconds_operator, "seconds_solve": solved.seconds, "seconds": solved.seconds,
                 });
                 let rdir = a.out.join("recon").join(preset).join(&scene.name).join(format!("{}-{solver}", op_kind.name()));
@@ -469,7 +480,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 write_reconstruction(set, &estimate, &rjson, false)?;
                 let cell = json!({
                     "config": config, "preset": preset, "system": system_label(preset), "scene": scene.name, "operator": op_kind.name(), "solver": solver,
-                    "metrics": ev.metrics, "truth_resampled": ev.truth_resampled, "iterations": solved.residuals.len(), "final_residual": final_residual,
+                    "metrics": ev.metrics, "truth_resampled": ev.truth_resampled, "iterations": solved.residuals.len(), "stopped_by": solved.stopping.get("stopped_by"), "final_residual": final_residual,
                     "seconds_solve": solved.seconds, "seconds_operator": seconds_operator, "reconstruction": rdir.display().to_string(),
                 });
                 write_json(&cell_path(&scene.name, op_kind, solver), &cell)?;

@@ -8,6 +8,8 @@
 //! - θ_k = TV-denoise(x_k − b_{k−1}) — or, in [`admm`], any [`Denoiser`] D(x_k − b_{k−1}, σ_k) (PnP-ADMM,
 //!   `pnp-admm`: the learned network, σ schedule and peak normalisation as PnP-GAP's)
 //! - b_k = b_{k−1} − (x_k − θ_k)
+//! - optional stops as GAP's: the discrepancy principle on ‖y − Φθ_{k−1}‖₂ (one more Φ per iteration when
+//!   it is on) or the relative change.
 //!
 //! Cost per iteration: one Φ, one Φᵀ, one TV denoising. Memory: 8 cube-sized f32 buffers (θ, b, x, a
 //! temporary, and the TV's four) plus 3 image-sized ones; 235 MB at 512×512×28, the operator's apart.
@@ -23,7 +25,7 @@
 //! ```
 use super::operator::Operator;
 use super::prior::{tv::TvDenoiser, Denoiser};
-use super::solver::{check_inputs, residual_norm, scale, Preconditioner, PriorStep, Reconstruction, SolverConfig, Stopping};
+use super::solver::{check_inputs, residual_norm, scale, Discrepancy, Preconditioner, PriorStep, Reconstruction, SolverConfig, Stopping};
 use crate::error::Result;
 use rayon::prelude::*;
 use std::time::Instant;
@@ -37,6 +39,19 @@ pub fn admm_tv(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &Solv
 /// ADMM with any denoiser as the prior step θ_k = D(x_k − b_{k−1}, σ_k) (PnP kinds scale to peak 1 around D
 /// and take σ_k from the schedule). Stops early when the relative change falls under `config.tolerance`.
 pub fn admm(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, denoiser: &mut dyn Denoiser, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
+    admm_observed(op, y, init, config, denoiser, progress, &mut |_, _| {})
+}
+
+/// [`admm`], calling `observe(k, θ_k)` after each iteration's prior step (evaluation only).
+pub fn admm_observed(
+    op: &dyn Operator,
+    y: &[f32],
+    init: Option<&[f32]>,
+    config: &SolverConfig,
+    denoiser: &mut dyn Denoiser,
+    progress: &(dyn Fn(usize, f64) + Sync),
+    observe: &mut dyn FnMut(usize, &[f32]),
+) -> Result<Reconstruction> {
     check_inputs(op, y, init, config)?;
     let t0 = Instant::now();
     let shape = op.cube_shape();
@@ -57,9 +72,20 @@ pub fn admm(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverC
     let mut stopping = Stopping::new(config.tolerance);
     let mut sigmas = Vec::new();
     let mut stopped_by = "iterations";
+    let discrepancy = Discrepancy::new(config);
+    // ADMM projects v = θ + b, not θ: the discrepancy principle needs Φθ_{k−1} (one more Φ per iteration,
+    // only when the rule is on).
+    let mut phi_t = if discrepancy.is_on() { vec![0.0f32; y.len()] } else { Vec::new() };
     let lambda = config.step;
     let (mut residuals, mut weighted) = (Vec::with_capacity(config.iterations), Vec::with_capacity(config.iterations));
     for k in 1..=config.iterations {
+        if discrepancy.is_on() && discrepancy.applies(k, config) {
+            op.apply_into(&theta, &mut phi_t);
+            if discrepancy.reached(residual_norm(y, &phi_t), k, config) {
+                stopped_by = "discrepancy";
+                break;
+            }
+        }
         x.par_iter_mut().zip(theta.par_iter()).zip(b.par_iter()).for_each(|((v, t), b)| *v = *t + *b);
         op.apply_into(&x, &mut phi_v);
         e.par_iter_mut().zip(y.par_iter()).zip(phi_v.par_iter()).for_each(|((e, a), p)| *e = *a - *p);
@@ -76,6 +102,7 @@ pub fn admm(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverC
             sigmas.push(sigma);
         }
         prior.apply(k, &tmp, &mut theta, shape, sigma)?;
+        observe(k, &theta);
         b.par_iter_mut().zip(x.par_iter()).zip(theta.par_iter()).for_each(|((b, x), t)| *b -= *x - *t);
         progress(k, r);
         // The rule applies once the network runs (PnP's TV warm-up always completes).

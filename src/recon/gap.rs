@@ -10,7 +10,9 @@
 //! - θ_k = TV-denoise(x_k) (Chambolle, [`super::tv`]; skipped when the TV weight is 0) — or, in [`gap`],
 //!   any [`Denoiser`] D(x_k, σ_k): PnP-GAP (`pnp-gap`) plugs in the learned network with the decreasing σ
 //!   schedule of [`super::solver::sigma_schedule`], the cube scaled to peak 1 around D.
-//! - optional stop: ‖θ_k − θ_{k−1}‖₂ / ‖θ_k‖₂ < `tolerance` (the record says which rule ended the run).
+//! - optional stops: the discrepancy principle ‖y − Φθ_{k−1}‖₂ ≤ τ·δ (δ the expected norm of the
+//!   measurement's noise, [`super::solver::Discrepancy`]; θ_{k−1} is returned), or
+//!   ‖θ_k − θ_{k−1}‖₂ / ‖θ_k‖₂ < `tolerance` (the record says which rule ended the run).
 //!
 //! Cost per iteration: one Φ, one Φᵀ, one TV denoising. Memory: 6 cube-sized f32 buffers (θ, x, and the
 //! TV's p₁, p₂ and their next iterate) plus 3 image-sized ones (ỹ, Φθ, D⁻¹); at 512×512×28 that is 6 × 29.4 MB = 176 MB,
@@ -29,7 +31,7 @@
 //! ```
 use super::operator::Operator;
 use super::prior::{tv::TvDenoiser, Denoiser};
-use super::solver::{check_inputs, residual_norm, scale, Preconditioner, PriorStep, Reconstruction, SolverConfig, Stopping};
+use super::solver::{check_inputs, residual_norm, scale, Discrepancy, Preconditioner, PriorStep, Reconstruction, SolverConfig, Stopping};
 use crate::error::Result;
 use rayon::prelude::*;
 use std::time::Instant;
@@ -45,6 +47,20 @@ pub fn gap_tv(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &Solve
 /// peak 1 around D and take σ_k from the schedule, [`super::solver::sigma_schedule`]). Stops early when the
 /// relative change falls under `config.tolerance`.
 pub fn gap(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, denoiser: &mut dyn Denoiser, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
+    gap_observed(op, y, init, config, denoiser, progress, &mut |_, _| {})
+}
+
+/// [`gap`], calling `observe(k, θ_k)` after each iteration's prior step (evaluation against a known truth:
+/// `reconstruct --truth`; the solver never reads what the observer computes).
+pub fn gap_observed(
+    op: &dyn Operator,
+    y: &[f32],
+    init: Option<&[f32]>,
+    config: &SolverConfig,
+    denoiser: &mut dyn Denoiser,
+    progress: &(dyn Fn(usize, f64) + Sync),
+    observe: &mut dyn FnMut(usize, &[f32]),
+) -> Result<Reconstruction> {
     check_inputs(op, y, init, config)?;
     let t0 = Instant::now();
     let shape = op.cube_shape();
@@ -62,6 +78,7 @@ pub fn gap(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverCo
     let mut stopping = Stopping::new(config.tolerance);
     let mut sigmas = Vec::new();
     let mut stopped_by = "iterations";
+    let discrepancy = Discrepancy::new(config);
     let lambda = config.step;
     let (mut residuals, mut weighted) = (Vec::with_capacity(config.iterations), Vec::with_capacity(config.iterations));
     for k in 1..=config.iterations {
@@ -69,6 +86,11 @@ pub fn gap(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverCo
         // r = y − Φθ; e = D⁻¹ r (plain) or D⁻¹ (ỹ − Φθ) with ỹ += r (accelerated).
         e.par_iter_mut().zip(y.par_iter()).zip(phi_theta.par_iter()).for_each(|((e, a), b)| *e = *a - *b);
         let r = residual_norm(y, &phi_theta) / ny;
+        // Discrepancy principle on θ_{k−1} (after PnP's warm-up): the data are explained to the noise level.
+        if discrepancy.reached(r * ny, k, config) {
+            stopped_by = "discrepancy";
+            break;
+        }
         residuals.push(r);
         weighted.push(pre.weighted_norm(&e) / nyw);
         if config.accelerated {
@@ -87,6 +109,7 @@ pub fn gap(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverCo
             sigmas.push(sigma);
         }
         prior.apply(k, &x, &mut theta, shape, sigma)?;
+        observe(k, &theta);
         progress(k, r);
         // The rule applies once the network runs (PnP's TV warm-up always completes).
         if stopping.stop(&theta) && k > config.tv_warmup {
