@@ -7,6 +7,13 @@ restoration neural networks"). Here every leaf is a disc, an ellipse or a convex
 smooth gradient, fractal 1/f^β noise or stripes) that blends two *reflectance spectra* taken from the cube's
 palette of 3–10 "materials" (each with its own brightness: shading); the cube is lit by a smooth illuminant (a
 mixture of CIE D65 and A, or equal energy), optionally blurred (depth of field) and peak-normalised to [0, 1].
+Leaves are large and flat often enough for natural scenes' flat regions (the smallest radius is 2–8 px per cube,
+four leaves in ten are flat).
+
+A second kind, ``kind="rgb"``, paints the same geometry and textures with random *sRGB colours*, quantises them to
+8 bits and uplifts every pixel by Smits' RGB → spectrum method (:mod:`diffcassi.smits`, equal to the Rust uplift of
+``diffcassi.load_scene``): the spectra then lie on the same low-dimensional family as the evaluation scenes'
+(which are Smits uplifts of photographs), while no photograph is used.
 
 The spectra come only from measured reflectance sets shipped by the ``colour-science`` pip package (BSD-3; see
 :data:`SOURCES`): the ColorChecker (Ohta 1997, BabelColor average, ISO 17321-1), the PMC skin-tone patches, the
@@ -22,6 +29,8 @@ every machine::
     >>> cube = dead_leaves(seed=7, size=64)           # (28, 64, 64) float32, max 1
     >>> cube.shape, float(cube.max())
     ((28, 64, 64), 1.0)
+    >>> dead_leaves(seed=7, size=32, kind="rgb").shape  # uplifted sRGB leaves
+    (28, 32, 32)
 
 Wavelengths are in nm; the default bands are the project's 450–650 nm, 28 bands (``numpy.linspace(450, 650, 28)``).
 """
@@ -162,9 +171,17 @@ def _shape_mask(rng: np.random.Generator, yy: np.ndarray, xx: np.ndarray, cy: fl
     return inside
 
 
+#: Texture kinds and their probabilities: flat, smooth gradient, fractal noise, stripes. Flat leaves are the most
+#: common (natural scenes have large flat regions, where the first model failed; MODEL.md).
+TEXTURE_PROBABILITIES = (0.4, 0.2, 0.25, 0.15)
+
+#: The kinds of cube :func:`dead_leaves` makes: measured-spectra leaves, or sRGB leaves uplifted by Smits' method.
+KINDS = ("spectral", "rgb")
+
+
 def _texture(rng: np.random.Generator, yy: np.ndarray, xx: np.ndarray, noise: np.ndarray, r: float) -> np.ndarray:
     """A texture in [0, 1] on the given pixel coordinates: flat, gradient, fractal noise or stripes."""
-    kind = rng.choice(4, p=[0.25, 0.25, 0.3, 0.2])
+    kind = rng.choice(4, p=list(TEXTURE_PROBABILITIES))
     if kind == 0:
         return np.zeros(yy.shape)
     th = rng.uniform(0, 2 * np.pi)
@@ -183,24 +200,25 @@ def _texture(rng: np.random.Generator, yy: np.ndarray, xx: np.ndarray, noise: np
     return t
 
 
-def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM, max_leaves: int = 600,
-                blur_probability: float = 0.5, illuminant_probability: float = 0.7) -> np.ndarray:
-    """One hyperspectral dead-leaves cube (B, size, size), float32, peak-normalised (max exactly 1), a pure
-    function of ``seed`` (an int ≥ 0). Leaves are painted front to back until the image is covered or
-    ``max_leaves`` is reached (the rest is one background leaf); radii follow a power law (density ∝ r⁻³) between
-    2 px and 0.7·size; blur (p = ``blur_probability``) is a Gaussian of 0.5–1.5 px."""
-    if size < 4:
-        raise ValueError(f"dead_leaves: size {size} too small (at least 4)")
-    lib, ill, _ = _tables(tuple(float(b) for b in bands_nm))
-    rng = np.random.default_rng(int(seed))
-    nb = lib.shape[1]
-    cube = np.zeros((nb, size, size))
+def random_srgb(rng: np.random.Generator) -> np.ndarray:
+    """A random encoded sRGB colour (3,) in [0, 1]: uniform in the sRGB cube, then pulled towards its own grey by a
+    random saturation factor U[0, 1] with p = 0.5 (photographs hold many weakly saturated colours)."""
+    c = rng.uniform(0.0, 1.0, size=3)
+    if rng.random() < 0.5:
+        m = c.mean()
+        c = m + rng.uniform(0.0, 1.0) * (c - m)
+    return c
+
+
+def _paint_leaves(rng: np.random.Generator, size: int, palette: List[np.ndarray], max_leaves: int) -> np.ndarray:
+    """The dead-leaves geometry: (C, size, size) painted front to back with leaves whose colours (C-vectors, C =
+    bands or 3) come from ``palette``. Radii follow a power law (density ∝ r⁻³) between r_min and the cube's size,
+    r_min log-uniform in [2, 8] px per cube (larger leaves: larger flat regions)."""
+    nc = palette[0].shape[0]
+    cube = np.zeros((nc, size, size))
     covered = np.zeros((size, size), dtype=bool)
     noise = _fractal_noise(rng, size)
-    # A scene has a few materials: a palette of 3–10 reflectances that every leaf draws from (so a patch's
-    # spectra span a low-dimensional set, as in natural scenes), each leaf with its own brightness (shading).
-    palette = [random_reflectance(rng, lib) for _ in range(int(rng.integers(3, 11)))]
-    rmin, rmax, alpha = 2.0, 0.7 * size, 3.0
+    rmin, rmax, alpha = float(np.exp(rng.uniform(np.log(2.0), np.log(8.0)))), 1.0 * size, 3.0
     a1, b1 = rmin ** (1 - alpha), rmax ** (1 - alpha)
     for _ in range(max_leaves):
         r = (a1 + rng.random() * (b1 - a1)) ** (1.0 / (1 - alpha))
@@ -223,21 +241,55 @@ def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM,
             break
     if not covered.all():
         cube[:, ~covered] = palette[0][:, None]
-    if rng.random() < illuminant_probability:  # a mixture of D65 and A, mean 1
+    return cube
+
+
+def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM, max_leaves: int = 600,
+                blur_probability: float = 0.5, illuminant_probability: float = 0.7, kind: str = "spectral") -> np.ndarray:
+    """One hyperspectral dead-leaves cube (B, size, size), float32, peak-normalised (max exactly 1), a pure
+    function of ``seed`` (an int ≥ 0) and ``kind``. Leaves are painted front to back until the image is covered or
+    ``max_leaves`` is reached (the rest is one background leaf); blur (p = ``blur_probability``) is a Gaussian of
+    0.5–1.5 px.
+
+    ``kind = "spectral"``: the leaves' colours are reflectances from the measured library (a palette of 3–10 per
+    cube), the cube lit by a D65/A mixture (p = ``illuminant_probability``). ``kind = "rgb"``: the leaves are
+    painted in encoded sRGB (a palette of 3–10 :func:`random_srgb` colours), blurred, quantised to 8 bits like a
+    PNG and uplifted per pixel by Smits' method (:mod:`diffcassi.smits`, the uplift of the evaluation scenes): the
+    spectra then lie on the same family as those of uplifted photographs, without using any photograph."""
+    if size < 4:
+        raise ValueError(f"dead_leaves: size {size} too small (at least 4)")
+    if kind not in KINDS:
+        raise ValueError(f"dead_leaves: kind {kind!r} is not one of {KINDS}")
+    lib, ill, _ = _tables(tuple(float(b) for b in bands_nm))
+    rng = np.random.default_rng(int(seed))
+    # A scene has a few materials: a palette of 3–10 colours that every leaf draws from (so a patch's spectra
+    # span a low-dimensional set, as in natural scenes), each leaf with its own brightness (shading).
+    n_palette = int(rng.integers(3, 11))
+    if kind == "spectral":
+        palette = [random_reflectance(rng, lib) for _ in range(n_palette)]
+    else:
+        palette = [random_srgb(rng) for _ in range(n_palette)]
+    cube = _paint_leaves(rng, size, palette, max_leaves)
+    if kind == "spectral" and rng.random() < illuminant_probability:  # a mixture of D65 and A, mean 1
         w = rng.random()
         cube *= ((1 - w) * ill[0] + w * ill[1])[:, None, None]
-    if rng.random() < blur_probability:  # depth of field: a Gaussian blur of 0.5–2 px
+    if rng.random() < blur_probability:  # depth of field: a Gaussian blur of 0.5–1.5 px
         from scipy.ndimage import gaussian_filter
         cube = gaussian_filter(cube, sigma=(0.0, *(2 * [rng.uniform(0.5, 1.5)])), mode="reflect")
+    if kind == "rgb":
+        from .smits import srgb_to_reflectance
+        srgb = np.round(np.clip(cube, 0.0, 1.0) * 255.0) / 255.0  # an 8-bit PNG's values
+        cube = srgb_to_reflectance(srgb, bands_nm).astype(np.float64)
     peak = cube.max()
     if not peak > 0:  # all-black leaves only (vanishingly rare): a flat cube
         return np.full(cube.shape, 1.0, dtype=np.float32)
     return (cube / peak).astype(np.float32)
 
 
-def dead_leaves_batch(seeds: Sequence[int], size: int = 64, bands_nm: Sequence[float] = BANDS_NM) -> np.ndarray:
+def dead_leaves_batch(seeds: Sequence[int], size: int = 64, bands_nm: Sequence[float] = BANDS_NM,
+                      kind: str = "spectral") -> np.ndarray:
     """(N, B, size, size) float32: :func:`dead_leaves` for each seed."""
-    return np.stack([dead_leaves(int(s), size, bands_nm) for s in seeds])
+    return np.stack([dead_leaves(int(s), size, bands_nm, kind=kind) for s in seeds])
 
 
 def sources_manifest(bands_nm: Sequence[float] = BANDS_NM) -> Dict[str, object]:
@@ -246,4 +298,6 @@ def sources_manifest(bands_nm: Sequence[float] = BANDS_NM) -> Dict[str, object]:
     _, _, names = _tables(tuple(float(b) for b in bands_nm))
     sets = [dict(s, spectra=names.count(s["name"])) for s in SOURCES]
     return {"generator": "diffcassi.deadleaves", "spectral_sets": sets, "illuminants": ILLUMINANTS + ["equal energy"],
-            "image_files": [], "bands_nm": [float(b) for b in bands_nm]}
+            "rgb_leaves": {"colours": "random sRGB (diffcassi.deadleaves.random_srgb), 8-bit quantised",
+                           "uplift": "Smits 1999 with pbrt-v3 tables (diffcassi.smits, equal to src/scene/natural.rs)"},
+            "kinds": list(KINDS), "image_files": [], "bands_nm": [float(b) for b in bands_nm]}

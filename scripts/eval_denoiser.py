@@ -96,6 +96,9 @@ def main(argv=None) -> int:
     ap.add_argument("--tv-per-band", action="store_true", help="also try per-band TV (twice the TV time)")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json", default=None, help="write the results here")
+    ap.add_argument("--tv-from", default=None, metavar="JSON",
+                    help="reuse the TV rows of an earlier --json result (same scenes, size, TV settings; checked) "
+                         "instead of recomputing them: for evaluating many checkpoints")
     a = ap.parse_args(argv)
     if a.size < 0 or a.tv_iterations < 1 or a.threads < 1:
         ap.error("--size must be ≥ 0, --tv-iterations and --threads ≥ 1")
@@ -107,6 +110,21 @@ def main(argv=None) -> int:
         print(f"eval_denoiser: error: {e}", file=sys.stderr)
         return 1
     scenes = load_scenes(pathlib.Path(a.scenes), a.size)
+    tv_cache = None
+    if a.tv_from:
+        try:
+            tv_cache = json.loads(pathlib.Path(a.tv_from).read_text())
+            same = (tv_cache["scenes"] == list(scenes) and tv_cache["size"] == a.size
+                    and tv_cache["tv_iterations"] == a.tv_iterations and tv_cache["tv_weight_grid"] == list(TV_WEIGHTS)
+                    and tv_cache.get("noise_seed") == NOISE_SEED and set(tv_cache["sigmas"]) == {f"{s:g}" for s in SIGMAS}
+                    and tv_cache.get("tv_per_band", False) == a.tv_per_band)
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            print(f"eval_denoiser: error: --tv-from {a.tv_from}: {e}", file=sys.stderr)
+            return 1
+        if not same:
+            print(f"eval_denoiser: error: --tv-from {a.tv_from} was made with other scenes, size, noise or TV settings",
+                  file=sys.stderr)
+            return 1
     t0 = time.time()
     rows = {}
     for si, sigma in enumerate(SIGMAS):
@@ -120,7 +138,10 @@ def main(argv=None) -> int:
                         for n in scenes}
         r["net"], r["net_per_scene"] = float(np.mean(list(net_psnr.values()))), net_psnr
         best = None
-        for vectorial in ((True, False) if a.tv_per_band else (True,)):
+        if tv_cache is not None:
+            c = tv_cache["sigmas"][f"{sigma:g}"]
+            best = (c["tv"], c["tv_weight"], c["tv_coupling"], c["tv_per_scene"])
+        for vectorial in ((True, False) if a.tv_per_band and best is None else (True,) if best is None else ()):
             for w in TV_WEIGHTS:
                 per = {n: psnr_db(tv_denoise(noisy[n], w, a.tv_iterations, vectorial), scenes[n]) for n in scenes}
                 m = float(np.mean(list(per.values())))
@@ -132,7 +153,8 @@ def main(argv=None) -> int:
         print(f"σ={sigma:g}: noisy {r['noisy']:.2f} dB, TV {r['tv']:.2f} dB (w={r['tv_weight']}, {r['tv_coupling']}), "
               f"network {r['net']:.2f} dB, gain {r['gain_db']:+.2f} dB", flush=True)
     res = {"scenes": list(scenes), "size": a.size, "weights": a.weights, "tv_iterations": a.tv_iterations,
-           "tv_weight_grid": list(TV_WEIGHTS), "sigmas": rows, "elapsed_s": round(time.time() - t0, 1)}
+           "tv_weight_grid": list(TV_WEIGHTS), "noise_seed": NOISE_SEED, "tv_per_band": a.tv_per_band,
+           "tv_from": a.tv_from, "sigmas": rows, "elapsed_s": round(time.time() - t0, 1)}
     print("\n| σ | noisy | TV (tuned weight, coupling) | network | gain |\n|---|---|---|---|---|")
     for s, r in rows.items():
         print(f"| {s} | {r['noisy']:.2f} | {r['tv']:.2f} ({r['tv_weight']}, {r['tv_coupling']}) | {r['net']:.2f} "

@@ -7,16 +7,19 @@ with procedural dead-leaves cubes (``diffcassi.deadleaves``) generated on the fl
 
 Recipe (src/recon/prior/MODEL.md states the run's numbers):
 
-* data: at step s the batch holds the cubes of the train seeds of steps s-3…s (two new 64×64 cubes per step, each
+* data: at step s the batch holds the cubes of the train seeds of steps s-3…s (two new cubes per step, each
   seen in four consecutive steps under a different random flip/rotation and noise); train seeds are
-  ``TRAIN_SEED_BASE + 2·s + i`` (≥ 1 000 000), validation seeds ``0…VAL_COUNT-1``: disjoint by construction;
-* augmentation for the plug-and-play use (structured errors): random brightness (×U[0.5, 1], p = 0.5), random
+  ``TRAIN_SEED_BASE + 2·s + i`` (≥ 1 000 000): i = 0 measured-spectra leaves, i = 1 uplifted-sRGB leaves
+  (``dead_leaves(kind=...)``); validation seeds ``0…VAL_COUNT-1`` of both kinds: disjoint by construction;
+* ``--init`` starts from existing weights (fine-tuning; their SHA-256 goes into the manifest and the state);
+* augmentation for the plug-and-play use (structured errors) and dark scenes: random brightness (log-uniform
+  in [0.05, 1] with p = 0.3, U[0.5, 1] with p = 0.3, else 1; the noise stays on the peak-1 scale), random
   per-band gains (×(1 + N(0, 0.05)) per band, p = 0.3), noise σ ~ U[0, 0.2] per sample (the σ channel), white
   Gaussian or (p = 0.25) a mixture with spatially correlated Gaussian noise of the same total σ;
 * loss: L1 between the network's output and the clean cube; Adam (β = 0.9, 0.999), learning rate 1e-3 with a
   linear warm-up (100 steps) and a cosine decay to 1e-5 over ``--steps``; gradient-norm clipping at 1.0;
-* validation every ``--val-every`` steps: mean PSNR (peak 1) on the fixed validation cubes at σ ∈ {0.02, 0.05, 0.1}
-  with fixed noise; the weights file holds the best validation mean so far;
+* validation every ``--val-every`` steps: PSNR (peak 1) on the fixed validation cubes of both kinds at
+  σ ∈ {0.02, 0.05, 0.1} with fixed noise; the weights file holds the best mean over both sets so far;
 * outputs in ``--out``: ``spectral-unet-v1-<bands>.safetensors`` (best), ``train-log.jsonl`` (one JSON object
   per validation, appended on resume), ``train-manifest.json`` (the data's sources and seed rules),
   ``train-state.pt`` (the latest state for ``--resume``; not committed).
@@ -54,6 +57,12 @@ VAL_NOISE_SEED = 424242
 SIGMA_MAX = 0.2
 
 
+def seed_kind(seed: int) -> str:
+    """The kind of dead-leaves cube a train seed makes (``diffcassi.deadleaves.KINDS``): of the two new seeds of a
+    step, the first is measured-spectra leaves, the second uplifted sRGB leaves (a 50/50 mix)."""
+    return "rgb" if (seed - TRAIN_SEED_BASE) % 2 else "spectral"
+
+
 def train_seeds(step: int) -> list:
     """The dead-leaves seeds of the batch at ``step`` (the new seeds of steps max(0, s-3) … max(0, s-3)+3)."""
     first = max(0, step - (WINDOW - 1))
@@ -74,6 +83,15 @@ def lr_at(step: int, steps: int, lr: float, lr_min: float, warmup: int) -> float
         return lr * (step + 1) / warmup
     p = min(1.0, (step - warmup) / max(1, steps - warmup))
     return lr_min + 0.5 * (lr - lr_min) * (1 + math.cos(math.pi * p))
+
+
+def brightness(n: int, g: torch.Generator) -> torch.Tensor:
+    """Per-cube brightness factors (n,): log-uniform in [0.05, 1] with p = 0.3 (dark scenes: the noise, drawn on
+    the peak-1 scale, then dominates), U[0.5, 1] with p = 0.3, else 1 (plug-and-play iterates are not peak-1)."""
+    u = torch.rand(n, generator=g)
+    dark = torch.exp(math.log(0.05) * torch.rand(n, generator=g))
+    half = 0.5 + 0.5 * torch.rand(n, generator=g)
+    return torch.where(u < 0.3, dark, torch.where(u < 0.6, half, torch.ones(n)))
 
 
 def _blur(x: torch.Tensor) -> torch.Tensor:
@@ -98,8 +116,7 @@ def make_batch(clean: torch.Tensor, g: torch.Generator):
             c = torch.flip(c, dims=(2,))
         out.append(c)
     x = torch.stack(out)
-    bright = torch.where(torch.rand(n, generator=g) < 0.5, 0.5 + 0.5 * torch.rand(n, generator=g), torch.ones(n))
-    x = x * bright.view(n, 1, 1, 1)
+    x = x * brightness(n, g).view(n, 1, 1, 1)
     gains = 1 + 0.05 * torch.randn(n, b, generator=g)
     use = (torch.rand(n, generator=g) < 0.3).float().view(n, 1)
     x = x * (use * gains + (1 - use)).clamp(min=0).view(n, b, 1, 1)
@@ -112,9 +129,10 @@ def make_batch(clean: torch.Tensor, g: torch.Generator):
     return x + sigma.view(n, 1, 1, 1) * noise, sigma, x
 
 
-def validation_set(size: int, bands_nm):
-    clean = torch.from_numpy(np.stack([dead_leaves(s, size, bands_nm) for s in val_seeds()]))
-    g = torch.Generator().manual_seed(VAL_NOISE_SEED)
+def validation_set(size: int, bands_nm, kind: str = "spectral"):
+    """The fixed validation cubes of one kind (seeds :func:`val_seeds`) and their noisy versions per σ."""
+    clean = torch.from_numpy(np.stack([dead_leaves(s, size, bands_nm, kind=kind) for s in val_seeds()]))
+    g = torch.Generator().manual_seed(VAL_NOISE_SEED + (1 if kind == "rgb" else 0))
     noisy = {s: clean + s * torch.randn(clean.shape, generator=g) for s in VAL_SIGMAS}
     return clean, noisy
 
@@ -148,13 +166,16 @@ def summary(log_path: pathlib.Path, every: int) -> int:
         return 1
     best = max(vals, key=lambda r: r["val_mean_db"])
     keys = list(vals[0]["val_psnr_db"])
-    print("| step | minutes | lr | train L1 | " + " | ".join(f"σ = {k}" for k in keys) + " | mean |")
-    print("|---" * (5 + len(keys)) + "|")
+    rgb = "val_rgb_psnr_db" in vals[0]
+    cols = [f"σ = {k}" for k in keys] + ([f"RGB σ = {k}" for k in keys] if rgb else [])
+    print("| step | minutes | lr | train L1 | " + " | ".join(cols) + " | mean |")
+    print("|---" * (5 + len(cols)) + "|")
     for r in vals:
         if r["step"] % every == 0 or r is best or r is vals[-1]:
             l1 = "–" if r["train_l1"] is None else f"{r['train_l1']:.4f}"
+            v = [r["val_psnr_db"][k] for k in keys] + ([r["val_rgb_psnr_db"][k] for k in keys] if rgb else [])
             print(f"| {r['step']}{' (best)' if r is best else ''} | {r['elapsed_s'] / 60:.1f} | {r['lr']:.2e} | {l1} | "
-                  + " | ".join(f"{r['val_psnr_db'][k]:.2f}" for k in keys) + f" | {r['val_mean_db']:.2f} |")
+                  + " | ".join(f"{x:.2f}" for x in v) + f" | {r['val_mean_db']:.2f} |")
     return 0
 
 
@@ -174,6 +195,8 @@ def main(argv=None) -> int:
     ap.add_argument("--clip", type=float, default=1.0, help="gradient-norm clipping")
     ap.add_argument("--val-every", type=int, default=100, help="validate (and checkpoint) every N steps")
     ap.add_argument("--resume", default=None, help="a train-state.pt to continue from")
+    ap.add_argument("--init", default=None, help="start from these weights (a spectral-unet-v1 safetensors of the same "
+                    "width) instead of a random initialisation (its SHA-256 goes into the manifest)")
     ap.add_argument("--summary", type=int, metavar="EVERY", default=None,
                     help="print the validation curve of --out's train-log.jsonl (every EVERY steps, the best and the "
                          "last) as a Markdown table, and exit")
@@ -199,6 +222,20 @@ def main(argv=None) -> int:
     wpath, lpath, spath = out / weights_name(len(bands_nm)), out / "train-log.jsonl", out / "train-state.pt"
 
     net = SpectralUNet(bands=len(bands_nm), width=a.width)
+    init_sha = None
+    if a.init:
+        import hashlib
+        try:
+            init = load_weights(a.init, bands=len(bands_nm))
+        except (FileNotFoundError, ValueError) as e:
+            print(f"train_denoiser: error: --init: {e}", file=sys.stderr)
+            return 1
+        if init.width != a.width:
+            print(f"train_denoiser: error: --init {a.init} has width {init.width}, this run asks for --width {a.width}",
+                  file=sys.stderr)
+            return 2
+        net.load_state_dict(init.state_dict())
+        init_sha = hashlib.sha256(pathlib.Path(a.init).read_bytes()).hexdigest()
     opt = torch.optim.Adam(net.parameters(), lr=a.lr)
     step, best, elapsed0 = 0, -math.inf, 0.0
     if a.resume:
@@ -214,46 +251,59 @@ def main(argv=None) -> int:
         net.load_state_dict(st["model"])
         opt.load_state_dict(st["optim"])
         step, best, elapsed0 = st["step"], st["best"], st["elapsed_s"]
+        init_sha = st.get("init_weights_sha256", init_sha)
     manifest = sources_manifest(bands_nm)
     manifest.update({
-        "train_seeds": f"{TRAIN_SEED_BASE} + {NEW_PER_STEP}*step + i, i < {NEW_PER_STEP}",
+        "train_seeds": f"{TRAIN_SEED_BASE} + {NEW_PER_STEP}*step + i, i < {NEW_PER_STEP}; i = 0 spectral, 1 rgb",
+        "init_weights": "random (torch seed)" if init_sha is None else "a spectral-unet-v1 checkpoint (--init)",
+        "init_weights_sha256": init_sha,
         "train_seed_min": TRAIN_SEED_BASE, "val_seeds": val_seeds(), "val_sigmas": list(VAL_SIGMAS),
-        "patch": a.patch, "evaluation_scenes_used": [],
+        "val_kinds": ["spectral", "rgb"], "patch": a.patch, "evaluation_scenes_used": [],
     })
     (out / "train-manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
 
     clean_val, noisy_val = validation_set(a.patch, bands_nm)
+    clean_rgb, noisy_rgb = validation_set(a.patch, bands_nm, "rgb")
     cache: dict = {}
     t0 = time.time()
     log = open(lpath, "a")
     log.write(json.dumps({"event": "resume" if a.resume else "start", "step": step, "args": vars(a),
+                          "init_weights_sha256": init_sha,
                           "params": sum(p.numel() for p in net.parameters()), "torch": torch.__version__}) + "\n")
     log.flush()
     losses = []
 
-    def checkpoint(val: dict):
+    def val_all() -> tuple:
+        return validate(net, clean_val, noisy_val), validate(net, clean_rgb, noisy_rgb)
+
+    def checkpoint(vals: tuple):
         nonlocal best
-        mean = sum(val.values()) / len(val)
+        val, val_rgb = vals
+        # Selection: the mean over both validation sets (measured-spectra and uplifted-RGB dead leaves).
+        mean = (sum(val.values()) + sum(val_rgb.values())) / (len(val) + len(val_rgb))
         improved = mean > best
         if improved:
             best = mean
-            save_weights(net, wpath, {"training_step": str(step), "val_psnr_db": json.dumps(val)})
+            save_weights(net, wpath, {"training_step": str(step), "val_psnr_db": json.dumps(val),
+                                      "val_rgb_psnr_db": json.dumps(val_rgb)})
         elapsed = elapsed0 + time.time() - t0
         rec = {"step": step, "elapsed_s": round(elapsed, 1), "lr": opt.param_groups[0]["lr"],
                "train_l1": (sum(losses) / len(losses)) if losses else None, "val_psnr_db": val,
+               "val_rgb_psnr_db": val_rgb,
                "val_mean_db": mean, "best": improved}
         log.write(json.dumps(rec) + "\n")
         log.flush()
         losses.clear()
         tmp = f"{spath}.tmp"
         torch.save({"model": net.state_dict(), "optim": opt.state_dict(), "step": step, "best": best,
-                    "elapsed_s": elapsed, "width": a.width, "patch": a.patch, "seed": a.seed}, tmp)
+                    "elapsed_s": elapsed, "width": a.width, "patch": a.patch, "seed": a.seed,
+                    "init_weights_sha256": init_sha}, tmp)
         os.replace(tmp, spath)
-        print(f"step {step} val {val} mean {mean:.2f} dB{' (best)' if improved else ''} "
+        print(f"step {step} val {val} rgb {val_rgb} mean {mean:.2f} dB{' (best)' if improved else ''} "
               f"{elapsed / 60:.1f} min", flush=True)
 
     if step == 0:
-        checkpoint(validate(net, clean_val, noisy_val))
+        checkpoint(val_all())
     net.train()
     while step < a.steps:
         if a.minutes is not None and time.time() - t0 > 60 * a.minutes:
@@ -261,7 +311,7 @@ def main(argv=None) -> int:
         seeds = train_seeds(step)
         for s in seeds:
             if s not in cache:
-                cache[s] = torch.from_numpy(dead_leaves(s, a.patch, bands_nm))
+                cache[s] = torch.from_numpy(dead_leaves(s, a.patch, bands_nm, kind=seed_kind(s)))
         for s in [s for s in cache if s not in seeds]:
             del cache[s]
         g = torch.Generator().manual_seed(a.seed * 1_000_003 + step)
@@ -280,9 +330,9 @@ def main(argv=None) -> int:
         losses.append(loss.item())
         step += 1
         if step % a.val_every == 0 or step == a.steps:
-            checkpoint(validate(net, clean_val, noisy_val))
+            checkpoint(val_all())
     if step % a.val_every and step != a.steps:
-        checkpoint(validate(net, clean_val, noisy_val))
+        checkpoint(val_all())
     log.close()
     load_weights(wpath, bands=len(bands_nm))  # the file written reads back
     print(f"done at step {step}: best validation mean {best:.2f} dB in {wpath}")

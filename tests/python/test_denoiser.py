@@ -5,6 +5,8 @@ weights files give clear errors. Tiny sizes only (the suite stays fast)."""
 import importlib.util
 import json
 import pathlib
+import struct
+import zlib
 
 import numpy as np
 import pytest
@@ -45,6 +47,59 @@ def test_dead_leaves_deterministic_and_in_range():
     assert np.array_equal(b[0], a) and b.shape == (2, 28, 24, 24)
 
 
+def test_rgb_dead_leaves_deterministic_in_range_and_unlike_spectral():
+    a = deadleaves.dead_leaves(11, size=24, kind="rgb")
+    assert a.shape == (28, 24, 24) and a.dtype == np.float32
+    assert np.array_equal(a, deadleaves.dead_leaves(11, size=24, kind="rgb"))
+    assert not np.array_equal(a, deadleaves.dead_leaves(11, size=24))
+    assert np.isfinite(a).all() and a.min() >= 0.0 and a.max() == 1.0
+    assert np.unique(a[10]).size > 3
+    with pytest.raises(ValueError, match="kind 'hsv' is not one of"):
+        deadleaves.dead_leaves(1, size=8, kind="hsv")
+    # Every spectrum lies on Smits' family: the uplift's piecewise-linear map of an 8-bit sRGB colour, rescaled
+    # by the cube's peak. Smits' white is flat, so a grey leaf gives a flat spectrum; in general the spectra span
+    # at most the 7 basis spectra (rank ≤ 7 of 28 bands).
+    from diffcassi.smits import basis_at
+    spectra = np.concatenate([deadleaves.dead_leaves(s, size=24, kind="rgb").reshape(28, -1) for s in range(6)], 1)
+    basis = basis_at(deadleaves.BANDS_NM)
+    coef, *_ = np.linalg.lstsq(basis.T, spectra, rcond=None)
+    resid = spectra - basis.T @ coef
+    assert np.abs(resid).max() < 0.02  # clamping at 0 of the basis' small negative lobes only
+    # The measured-spectra leaves are not on that family.
+    spec = deadleaves.dead_leaves(3, size=24).reshape(28, -1)
+    coef, *_ = np.linalg.lstsq(basis.T, spec, rcond=None)
+    assert np.abs(spec - basis.T @ coef).max() > 0.02
+
+
+def _write_png(path, rgb8):
+    """A minimal 8-bit RGB PNG writer (zlib + struct; no imaging package needed)."""
+    h, w, _ = rgb8.shape
+    raw = b"".join(b"\x00" + rgb8[y].tobytes() for y in range(h))
+
+    def chunk(tag, data):
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
+                     + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
+
+
+def test_numpy_smits_uplift_equals_the_rust_uplift(tmp_path):
+    import diffcassi
+    from diffcassi.smits import srgb_to_reflectance
+    rng = np.random.default_rng(5)
+    img = rng.integers(0, 256, (20, 30, 3), dtype=np.uint8)
+    # Every branch of Smits' case analysis, ties, black, white and the sRGB curve's linear segment.
+    img[0, :9] = [[0, 0, 0], [255, 255, 255], [10, 10, 10], [200, 50, 50], [50, 200, 50], [50, 50, 200],
+                  [200, 200, 50], [50, 200, 200], [200, 50, 200]]
+    _write_png(tmp_path / "rgb.png", img)
+    for bands in (deadleaves.BANDS_NM, np.linspace(400, 700, 31)):
+        want, _ = diffcassi.load_scene(tmp_path / "rgb.png", list(bands))
+        got = srgb_to_reflectance(img.transpose(2, 0, 1) / 255.0, bands).transpose(1, 2, 0)
+        assert got.dtype == np.float32 and got.shape == np.asarray(want).shape
+        assert np.abs(got - np.asarray(want)).max() <= 1e-6
+    with pytest.raises(ValueError, match="outside the Smits uplift's range"):
+        srgb_to_reflectance(np.zeros((3, 1, 1)), [370.0, 500.0])
+
+
 def test_reflectance_library_is_measured_and_plausible():
     lib, names = deadleaves.reflectance_library()
     assert lib.shape[1] == 28 and lib.shape[0] == len(names) > 100
@@ -68,6 +123,17 @@ def test_train_and_validation_seeds_disjoint(train):
         seen.update(seeds)
     assert not seen & val
     assert min(seen) >= train.TRAIN_SEED_BASE > max(val)
+    # Half the training cubes are uplifted-RGB leaves, half measured-spectra leaves.
+    kinds = [train.seed_kind(s) for s in train.train_seeds(50)]
+    assert kinds.count("rgb") == kinds.count("spectral") == len(kinds) // 2
+
+
+def test_brightness_augmentation_reaches_dark_scenes(train):
+    b = train.brightness(4000, torch.Generator().manual_seed(0))
+    assert b.min() >= 0.05 - 1e-6 and b.max() <= 1.0
+    # the dark share: p = 0.3 times P(log-uniform [0.05, 1] < 0.5) = 0.3 · ln 10 / ln 20 ≈ 0.23
+    assert 0.2 < float((b < 0.5).float().mean()) < 0.27
+    assert float((b < 0.1).float().mean()) > 0.05 and float((b == 1).float().mean()) > 0.35
 
 
 def test_training_sources_and_evaluation_scenes_disjoint():
@@ -80,11 +146,13 @@ def test_training_sources_and_evaluation_scenes_disjoint():
     assert sets == {s["name"] for s in deadleaves.SOURCES}
     assert not any(p.stem in n.lower() for p in scenes for n in sets)
     # The generator reads no file at all: its code (docstrings aside) opens nothing and loads no scene or image.
+    assert set(manifest["kinds"]) == {"spectral", "rgb"}
     import ast
-    tree = ast.parse((ROOT / "diffcassi/deadleaves.py").read_text())
-    names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)} | \
-        {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
-    assert not names & {"open", "load_scene", "imread", "load", "loadtxt", "fromfile", "read_exr", "glob"}
+    for module in ("deadleaves", "smits"):  # the generator and the uplift it uses for RGB leaves
+        tree = ast.parse((ROOT / f"diffcassi/{module}.py").read_text())
+        names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)} | \
+            {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
+        assert not names & {"open", "load_scene", "imread", "load", "loadtxt", "fromfile", "read_exr", "glob"}, module
 
 
 def test_committed_weights_load():
@@ -114,7 +182,9 @@ def test_tiny_training_run_writes_valid_checkpoint_and_resumes_exactly(train, tm
     log = [json.loads(line) for line in (a / "train-log.jsonl").read_text().splitlines()]
     vals = [r for r in log if "val_psnr_db" in r]
     assert [r["step"] for r in vals] == [0, 2, 4]
-    assert all(set(r["val_psnr_db"]) == {"0.02", "0.05", "0.1"} for r in vals)
+    assert all(set(r["val_psnr_db"]) == set(r["val_rgb_psnr_db"]) == {"0.02", "0.05", "0.1"} for r in vals)
+    assert all(r["val_mean_db"] == pytest.approx(np.mean(list(r["val_psnr_db"].values())
+                                                         + list(r["val_rgb_psnr_db"].values()))) for r in vals)
     assert all(np.isfinite(r["train_l1"]) for r in vals[1:])
     assert json.loads((a / "train-manifest.json").read_text())["image_files"] == []
     capsys.readouterr()
@@ -129,6 +199,25 @@ def test_tiny_training_run_writes_valid_checkpoint_and_resumes_exactly(train, tm
     assert sa["step"] == sb["step"] == 4
     for k in sa["model"]:
         assert torch.equal(sa["model"][k], sb["model"][k]), k
+    # --init: the run starts from the given weights (its step-0 validation is theirs) and records their hash.
+    init = SpectralUNet(bands=28, width=32)
+    torch.manual_seed(7)
+    for p in init.parameters():
+        torch.nn.init.normal_(p, std=0.01)
+    save_weights(init, tmp_path / "init.safetensors")
+    c = tmp_path / "c"
+    assert train.main(common + ["--steps", "2", "--out", str(c), "--init", str(tmp_path / "init.safetensors")]) == 0
+    first = [json.loads(line) for line in (c / "train-log.jsonl").read_text().splitlines()][1]
+    clean, noisy = train.validation_set(16, deadleaves.BANDS_NM)
+    assert first["step"] == 0 and first["val_psnr_db"] == pytest.approx(train.validate(init, clean, noisy))
+    import hashlib
+    sha = hashlib.sha256((tmp_path / "init.safetensors").read_bytes()).hexdigest()
+    assert json.loads((c / "train-manifest.json").read_text())["init_weights_sha256"] == sha
+    small = SpectralUNet(bands=28, width=4)
+    save_weights(small, tmp_path / "small.safetensors")
+    assert train.main(common + ["--steps", "2", "--out", str(tmp_path / "d"), "--init",
+                                str(tmp_path / "small.safetensors")]) == 2
+    assert train.main(common + ["--steps", "2", "--out", str(tmp_path / "e"), "--init", str(tmp_path / "no.safetensors")]) == 1
 
 
 def test_training_script_rejects_bad_arguments(train, tmp_path):
