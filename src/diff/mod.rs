@@ -27,6 +27,7 @@
 //! assert!(j.d_position(0, 0).y.abs() > 1e-3);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
+pub mod adjoint;
 pub mod dispersion;
 pub mod dual;
 pub mod from_hits;

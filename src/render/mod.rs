@@ -31,6 +31,7 @@ pub mod convolve;
 pub mod dataset;
 pub mod detector;
 pub mod engine;
+pub mod gradient;
 pub mod mask;
 pub mod noise;
 pub mod output;
