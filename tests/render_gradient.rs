@@ -191,3 +191,155 @@ fn vjp_matches_same_sample_finite_differences_ap_and_map() {
     ];
     assert!(check_same_sample("map", ap_like("map", 6), &map) <= 1e-6);
 }
+
+/// The acquisition is linear in the scene and in the mask: L(x + δ) − L(x) = ∂L/∂x · δ exactly (up to
+/// rounding), and by homogeneity L = ∂L/∂x · x.
+#[test]
+fn scene_and_mask_gradients_are_exact() {
+    let r = renderer(sp_like("msp"), &["s4.tilt_x_deg"], config(5, 3, 2, 3));
+    let (scene, mask, g) = inputs(&r, 2);
+    let v = r.vjp(&scene, 2, &mask, &g).unwrap();
+    let l0 = loss(&r, &scene, &mask, &g);
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let close = |a: f64, b: f64, what: &str| {
+        let rel = (a - b).abs() / a.abs().max(b.abs());
+        println!("{what}: {a:+.15e} vs {b:+.15e} (rel {rel:.1e})");
+        assert!(rel < 1e-12, "{what}: {a} vs {b}");
+    };
+    close(l0, dot(&v.scene, &scene), "L vs ∂L/∂scene · scene");
+    close(l0, dot(&v.mask, &mask), "L vs ∂L/∂mask · mask");
+    let mut rng = Rng(5);
+    let ds: Vec<f64> = rng.vec(scene.len()).into_iter().map(|x| x - 0.5).collect();
+    let s2: Vec<f64> = scene.iter().zip(&ds).map(|(a, b)| a + b).collect();
+    close(loss(&r, &s2, &mask, &g) - l0, dot(&v.scene, &ds), "ΔL vs ∂L/∂scene · δ");
+    // Opening closed pixels too: their gradient is there although they carry no light.
+    let dm: Vec<f64> = rng.vec(mask.len());
+    let m2: Vec<f64> = mask.iter().zip(&dm).map(|(a, b)| a + b).collect();
+    close(loss(&r, &scene, &m2, &g) - l0, dot(&v.mask, &dm), "ΔL vs ∂L/∂mask · δ");
+    assert!(mask.iter().zip(&v.mask).any(|(m, gm)| *m == 0.0 && gm.abs() > 0.0), "closed pixels get a gradient");
+}
+
+/// Bit-identical for 1 and 2 threads.
+#[test]
+fn vjp_does_not_depend_on_the_thread_count() {
+    let r = renderer(sp_like("msp"), &["s4.tilt_x_deg", "s16.curvature", "glass_nd:N-BK7"], config(6, 4, 3, 11));
+    let (scene, mask, g) = inputs(&r, 3);
+    let run = |t: usize| {
+        rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap().install(|| (r.render(&scene, 2, &mask).unwrap(), r.vjp(&scene, 2, &mask, &g).unwrap()))
+    };
+    let (a, b) = (run(1), run(2));
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&a.0), bits(&b.0));
+    assert_eq!(bits(&a.1.params), bits(&b.1.params));
+    assert_eq!(bits(&a.1.mask), bits(&b.1.mask));
+    assert_eq!(bits(&a.1.scene), bits(&b.1.scene));
+}
+
+/// The gradient of the sampled image against central differences of a many-ray *expected* image at a
+/// step large enough that rays change status (vignetting, leaving the detector) between the two sides:
+/// the boundary terms the VJP leaves out are in the difference. Tilt and apex parameters on SP and mSP.
+#[test]
+fn vjp_matches_the_expected_image_within_two_percent() {
+    for (preset, pitch) in [("sp", 0.01), ("msp", 0.01), ("sp", 0.7), ("msp", 0.7)] {
+        // Apex angles of the SP prisms: the tilts of the breaks at the prism faces (s5, s7).
+        // (s5.tilt_y_deg acts as prism_tilt_y on these presets: left out.)
+        let free = ["prism_tilt_x", "prism_tilt_y", "s7.tilt_y_deg"];
+        let sys = diffcassi::system::SequentialSystem::build(&diffcassi::presets::spec(preset).unwrap()).unwrap();
+        let set = ParamSet::for_system(&sys, &free.join(",")).unwrap();
+        // Pitch 0.7 mm: the 8×8 scene spans ±2.8 mm, beyond SP's ±2.5 mm field: rays are vignetted.
+        let mut cfg = config(8, 3, 256, 1);
+        cfg.scene_pitch_mm = pitch;
+        let r = DiffRenderer::new(set, cfg, BANDS.to_vec()).unwrap();
+        let (scene, mask, _) = inputs(&r, 4);
+        // A smooth loss: the image weighted by a ramp across the detector (a first moment).
+        let (ih, iw) = r.image_shape();
+        let g: Vec<f64> = (0..2 * ih * iw).map(|i| ((i % (ih * iw)) / iw) as f64 / ih as f64 + 0.7 * (i % iw) as f64 / iw as f64).collect();
+        let v = r.vjp(&scene, 2, &mask, &g).unwrap();
+        let x0 = r.values().unwrap();
+        for k in 0..free.len() {
+            let h = 0.02; // degrees: landings move by several pixels' hundredths, rays cross status edges
+            let at = |d: f64, seed: u64| {
+                let mut x = x0.clone();
+                x[k] += d;
+                let mut rr = r.with_values(&x).unwrap();
+                rr.config.seed = seed;
+                loss(&rr, &scene, &mask, &g)
+            };
+            // Independent samples on each side: the difference of two expected images.
+            let fd = (at(h, 101) - at(-h, 202)) / (2.0 * h);
+            let fd_crn = (at(h, 1) - at(-h, 1)) / (2.0 * h);
+            let rel = (v.params[k] - fd_crn).abs() / fd_crn.abs();
+            println!("{preset} pitch {pitch} mm {:>14}: vjp {:+.6e}  expected-image fd (common samples) {:+.6e} rel {:.2e}; independent samples {:+.6e}", free[k], v.params[k], fd_crn, rel, fd);
+            assert!(rel <= 0.02, "{preset} {}: {rel}", free[k]);
+        }
+    }
+}
+
+/// ∂(mapping)/∂θ against central differences of the mapping cube.
+#[test]
+fn mapping_cube_jacobian_matches_finite_differences() {
+    let r = renderer(sp_like("msp"), &["s4.tilt_x_deg", "s16.curvature", "glass_nd:N-BK7"], config(4, 3, 1, 0));
+    let wl = [460.0, 640.0];
+    let (pos, jac, valid) = r.mapping_jacobian(&wl).unwrap();
+    assert!(valid.iter().all(|v| *v));
+    let x0 = r.values().unwrap();
+    let kk = x0.len();
+    let mut worst = 0.0f64;
+    for k in 0..kk {
+        let h = step_for(&r.set.free[k]) * x0[k].abs().max(1.0) * 100.0;
+        let at = |d: f64| {
+            let mut x = x0.clone();
+            x[k] += d;
+            r.with_values(&x).unwrap().mapping_jacobian(&wl).unwrap().0
+        };
+        let (a, b) = (at(h), at(-h));
+        let scale = (0..pos.len()).map(|i| jac[i * kk + k].abs()).fold(0.0, f64::max);
+        for i in 0..pos.len() {
+            let fd = (a[i] - b[i]) / (2.0 * h);
+            worst = worst.max((fd - jac[i * kk + k]).abs() / scale);
+        }
+    }
+    println!("mapping Jacobian: worst error {worst:.1e} of the column's largest entry");
+    assert!(worst < 1e-6);
+}
+
+#[test]
+fn bad_input_is_a_clear_error() {
+    let sys = diffcassi::system::SequentialSystem::build(&diffcassi::presets::spec("sp").unwrap()).unwrap();
+    let msg = |e: diffcassi::Error| e.to_string();
+    // Unknown parameter name.
+    let e = msg(ParamSet::for_system(&sys, "prism_tilt_q").unwrap_err());
+    assert!(e.contains("prism_tilt_q"), "{e}");
+    // Per-ray parameters are not parameters of the acquisition.
+    let set = ParamSet::for_system(&sys, "wavelength").unwrap();
+    let e = msg(DiffRenderer::new(set, config(4, 3, 1, 0), BANDS.to_vec()).unwrap_err());
+    assert!(e.contains("wavelength") && e.contains("per ray"), "{e}");
+    // A parameter with no effect on the detector: the image surface's thickness.
+    let last = sys.spec.surfaces.len() - 1;
+    let set = ParamSet::for_system(&sys, &format!("s{last}.thickness_mm")).unwrap();
+    let e = msg(DiffRenderer::new(set, config(4, 3, 1, 0), BANDS.to_vec()).unwrap_err());
+    assert!(e.contains("no effect on the detector") && e.contains(&format!("s{last}.thickness_mm")), "{e}");
+    let r = DiffRenderer::new(ParamSet::for_system(&sys, "prism_tilt_x").unwrap(), config(4, 3, 1, 0), BANDS.to_vec()).unwrap();
+    let (h, w) = r.image_shape();
+    let scene = vec![1.0; 3 * 16];
+    let mask = vec![1.0; 16];
+    // Non-finite upstream gradient.
+    let mut g = vec![0.0; h * w];
+    g[w + 2] = f64::NAN;
+    let e = msg(r.vjp(&scene, 1, &mask, &g).unwrap_err());
+    assert!(e.contains("upstream gradient") && e.contains("row 1, column 2") && e.contains("NaN"), "{e}");
+    // Wrong mask shape.
+    let e = msg(r.vjp(&scene, 1, &[1.0; 15], &vec![0.0; h * w]).unwrap_err());
+    assert!(e.contains("mask has 15 values") && e.contains("(4, 4)"), "{e}");
+    let e = msg(r.render(&scene, 1, &[1.0; 17]).unwrap_err());
+    assert!(e.contains("mask"), "{e}");
+    // Wrong gradient shape.
+    assert!(msg(r.vjp(&scene, 1, &mask, &[0.0; 3]).unwrap_err()).contains("upstream gradient has 3 values"));
+    // A tilt that makes every ray miss.
+    let e = msg(r.with_values(&[60.0]).and_then(|r| r.render(&scene, 1, &mask)).unwrap_err());
+    assert!(e.contains("no ray reaches the detector") || e.contains("chief-ray solve failed"), "{e}");
+    // A glass out of the catalogue's range.
+    let rg = DiffRenderer::new(ParamSet::for_system(&sys, "glass_nd:N-BK7").unwrap(), config(4, 3, 1, 0), BANDS.to_vec()).unwrap();
+    let e = msg(rg.with_values(&[2.5]).unwrap_err());
+    assert!(e.contains("glass_nd:N-BK7") && e.contains("range"), "{e}");
+}
