@@ -185,6 +185,12 @@ impl DiffRenderer {
         Ok(DiffRenderer { set, ds, plan, ..self.clone() })
     }
 
+    /// Linearisation columns per path step of the reverse pass (the per-ray cost; independent of the
+    /// number of parameters except through which figure coefficients and indices they move).
+    pub fn plan_columns(&self) -> usize {
+        self.plan.max_columns()
+    }
+
     /// Detector (height, width) in pixels.
     pub fn image_shape(&self) -> (usize, usize) {
         (self.detector.height, self.detector.width)
