@@ -139,10 +139,11 @@ def main(argv=None) -> Dict[str, object]:
     ap.add_argument("--planes", type=int, default=28)
     ap.add_argument("--steps", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--pool", type=int, default=64, help="training scenes (dead leaves), batches drawn from them")
     ap.add_argument("--out", default=None, help="write the trajectory, mask and PSNRs as JSON here")
     a = ap.parse_args(argv)
     if a.tiny:
-        a.size, a.iters, a.batch, a.rays, a.planes, a.steps = 8, 12, 2, 1, 7, 1
+        a.size, a.iters, a.batch, a.rays, a.planes, a.steps, a.pool = 8, 16, 2, 1, 7, 1, 2
     torch.manual_seed(a.seed)
     t0 = time.time()
     msp = diffcassi.System.preset("msp")
@@ -156,12 +157,14 @@ def main(argv=None) -> Dict[str, object]:
     opt = torch.optim.Adam([{"params": net.parameters(), "lr": 3e-3},
                             {"params": [renderer.mask_logits], "lr": 5e-2},
                             {"params": [renderer.theta], "lr": 0.1}])
-    history = []
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, a.iters)
+    pool = np.stack([dead_leaves(a.seed * 100000 + k, size=a.size, bands_nm=bands) for k in range(a.pool)])
+    rng = np.random.default_rng(a.seed)
+    history: List[Dict[str, float]] = []
     for it in range(a.iters):
         # Temperature schedule: 1 → 0.2 geometrically, pushing the mask towards binary.
         renderer.temperature = 1.0 * (0.2 ** (it / max(a.iters - 1, 1)))
-        x = torch.from_numpy(np.stack([dead_leaves(a.seed * 100000 + it * a.batch + b, size=a.size, bands_nm=bands)
-                                       for b in range(a.batch)]))
+        x = torch.from_numpy(pool[rng.choice(a.pool, size=a.batch, replace=False)])
         mask = renderer.mask()
         y = renderer(x)
         est = net(y, mask, T, _norm(T, mask))
@@ -169,10 +172,12 @@ def main(argv=None) -> Dict[str, object]:
         opt.zero_grad()
         loss.backward()
         opt.step()
-        history.append({"iter": it, "loss": float(loss), "tilt_deg": float(renderer.theta[0]),
+        sched.step()
+        history.append({"iter": it, "loss": float(loss), "tilt_deg": float(renderer.theta.detach()[0]),
                         "temperature": renderer.temperature})
         if it % max(a.iters // 10, 1) == 0 or it == a.iters - 1:
-            print(f"iter {it:4d}  loss {float(loss):.5f}  prism_tilt_x {float(renderer.theta[0]):+.4f}°", flush=True)
+            print(f"iter {it:4d}  loss {float(loss):.5f}  prism_tilt_x {history[-1]['tilt_deg']:+.4f}°  "
+                  f"{time.time() - t0:.0f} s", flush=True)
     after = evaluate(renderer, net, T, tests)
     result = {
         "size": a.size, "iters": a.iters, "batch": a.batch, "rays": a.rays, "planes": a.planes, "steps": a.steps,
