@@ -11,7 +11,6 @@ use diffcassi::materials::GlassCatalog;
 use diffcassi::prelude::*;
 use diffcassi::render::gradient::DiffRenderer;
 use diffcassi::render::{Mask, RenderConfig, Renderer, SpectralSampling};
-use diffcassi::scene::SpectralCube;
 use diffcassi::spec::Driver;
 
 /// The first `k` system parameters of SP the renderer accepts (fixed cells in surface order, then glasses),

@@ -140,6 +140,7 @@ def main(argv=None) -> Dict[str, object]:
     ap.add_argument("--steps", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--pool", type=int, default=64, help="training scenes (dead leaves), batches drawn from them")
+    ap.add_argument("--freeze-tilt", action="store_true", help="ablation: keep the tilt at 5° (mask and network only)")
     ap.add_argument("--out", default=None, help="write the trajectory, mask and PSNRs as JSON here")
     a = ap.parse_args(argv)
     if a.tiny:
@@ -156,7 +157,7 @@ def main(argv=None) -> Dict[str, object]:
     before = evaluate(renderer, net, T, tests)
     opt = torch.optim.Adam([{"params": net.parameters(), "lr": 3e-3},
                             {"params": [renderer.mask_logits], "lr": 5e-2},
-                            {"params": [renderer.theta], "lr": 0.1}])
+                            {"params": [renderer.theta], "lr": 0.0 if a.freeze_tilt else 0.1}])
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, a.iters)
     pool = np.stack([dead_leaves(a.seed * 100000 + k, size=a.size, bands_nm=bands) for k in range(a.pool)])
     rng = np.random.default_rng(a.seed)
@@ -173,10 +174,10 @@ def main(argv=None) -> Dict[str, object]:
         loss.backward()
         opt.step()
         sched.step()
-        history.append({"iter": it, "loss": float(loss), "tilt_deg": float(renderer.theta.detach()[0]),
+        history.append({"iter": it, "loss": loss.item(), "tilt_deg": float(renderer.theta.detach()[0]),
                         "temperature": renderer.temperature})
         if it % max(a.iters // 10, 1) == 0 or it == a.iters - 1:
-            print(f"iter {it:4d}  loss {float(loss):.5f}  prism_tilt_x {history[-1]['tilt_deg']:+.4f}°  "
+            print(f"iter {it:4d}  loss {loss.item():.5f}  prism_tilt_x {history[-1]['tilt_deg']:+.4f}°  "
                   f"{time.time() - t0:.0f} s", flush=True)
     after = evaluate(renderer, net, T, tests)
     result = {
