@@ -249,13 +249,13 @@ impl AdjointPlan {
         assert_eq!(grad.len(), kk);
         for (s, (tan, plan)) in ds.steps.iter().zip(&self.steps).enumerate() {
             let (g, h) = (&sums.rotation[s], sums.offset[s]);
-            for k in 0..kk {
+            for (k, out) in grad.iter_mut().enumerate() {
                 let r = &tan.rotation[k];
                 let mut v = r.x_axis.dot(g.x_axis) + r.y_axis.dot(g.y_axis) + r.z_axis.dot(g.z_axis) + tan.offset[k].dot(h);
                 for &f in &plan.shape_fields {
                     v += shape_field(&tan.shape[k], f) * sums.shape[s][f];
                 }
-                grad[k] += v;
+                *out += v;
             }
         }
         for (i, nb) in sums.index.iter().enumerate() {

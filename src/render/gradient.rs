@@ -111,7 +111,7 @@ impl DiffRenderer {
         if (config.scene_height * config.scene_width) as u64 > u32::MAX as u64 {
             return Err(Error::invalid(format!("scene size {}×{} is too large", config.scene_height, config.scene_width)));
         }
-        if scene_wavelengths_nm.is_empty() || scene_wavelengths_nm.iter().any(|w| !w.is_finite()) || scene_wavelengths_nm.windows(2).any(|p| !(p[1] > p[0])) {
+        if scene_wavelengths_nm.is_empty() || scene_wavelengths_nm.iter().any(|w| !w.is_finite()) || scene_wavelengths_nm.windows(2).any(|p| p[1] <= p[0]) {
             return Err(Error::invalid(format!("scene wavelengths {scene_wavelengths_nm:?}: need ≥ 1, finite and increasing (nm)")));
         }
         if set.free.is_empty() {
