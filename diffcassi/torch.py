@@ -499,3 +499,125 @@ class CassiDataset(torch.utils.data.Dataset):
         return (torch.from_numpy(acq), torch.from_numpy(st["mask"]),
                 torch.from_numpy(np.ascontiguousarray(truth.transpose(2, 0, 1))),
                 torch.from_numpy(np.ascontiguousarray(init.transpose(2, 0, 1))))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# End-to-end co-design (issue 24): the acquisition differentiable with respect to the optics, the mask and
+# the scene. Rust does the work (`diffcassi::render::gradient`, docs/codesign.md); this block only wraps it.
+# ---------------------------------------------------------------------------------------------------------
+
+__all__.append("CassiRenderer")
+
+
+class _RenderFn(torch.autograd.Function):
+    """acquisition = render(cube, mask; θ) with fixed Monte-Carlo samples; backward is the Rust VJP."""
+
+    @staticmethod
+    def forward(ctx, cube, mask, theta, module):  # type: ignore[override]
+        r = module._renderer(theta)
+        s = np.ascontiguousarray(cube.detach().cpu().numpy(), dtype=np.float64)
+        m = np.ascontiguousarray(mask.detach().cpu().numpy(), dtype=np.float64)
+        out = r.render(s, m)
+        ctx.r, ctx.s, ctx.m = r, s, m
+        ctx.dtypes = (cube.dtype, mask.dtype, theta.dtype)
+        return torch.from_numpy(out).to(cube.dtype)
+
+    @staticmethod
+    def backward(ctx, g):  # type: ignore[override]
+        gp, gm, gs = ctx.r.vjp(ctx.s, ctx.m, np.ascontiguousarray(g.detach().cpu().numpy(), dtype=np.float64))
+        dc, dm, dt = ctx.dtypes
+        return torch.from_numpy(gs).to(dc), torch.from_numpy(gm).to(dm), torch.from_numpy(gp).to(dt), None
+
+
+class CassiRenderer(nn.Module):
+    """The CASSI acquisition as a differentiable ``nn.Module`` for co-design.
+
+    ``CassiRenderer(system, H, W, free=["prism_tilt_x"], mask=None, rays=4, planes=28, seed=0)``:
+    ``forward(cube)`` maps scenes (N, B, H, W) (B = 28 bands 450–650 nm unless ``bands_nm`` says otherwise)
+    to acquisitions (N, h, w) in the cube's dtype (float32, or float64 for ``gradcheck``). Autograd gives
+    the gradients with respect to the cube, the mask and the free optical parameters.
+
+    Parameters (``.parameters()`` yields both):
+
+    - ``theta``: the free parameters' values in the spec's units (degrees, mm, …; names in ``.names``),
+      float64. A value out of its valid range (a glass outside the catalogue's (n_d, V_d) span, a tilt
+      with which no ray reaches the detector, a system that no longer builds) raises
+      ``diffcassi.DiffcassiValueError`` naming it — never NaN.
+    - ``mask_logits``: the learnable mask, continuous in [0, 1] as ``sigmoid(mask_logits / temperature)``.
+      Lower ``temperature`` during training (e.g. geometrically from 1 to 0.05) to push it towards binary;
+      ``straight_through=True`` renders the binarised mask (> 0.5) while the gradient is the sigmoid's
+      (straight-through estimator). ``binary_mask()`` is the mask to build.
+
+    The Monte-Carlo samples are fixed (``seed``): the gradient is that of the sampled acquisition, exact
+    where no ray changes status; the detector and the entrance-pupil aim are fixed at construction.
+    """
+
+    def __init__(self, system: "diffcassi.System", H: int, W: int, free: Sequence[str] = ("prism_tilt_x",),
+                 mask: Optional[np.ndarray] = None, rays: int = 4, planes: int = 28, seed: int = 0,
+                 bands_nm: Optional[Sequence[float]] = None, airy: bool = True, temperature: float = 1.0,
+                 straight_through: bool = False, mask_seed: int = 0):
+        super().__init__()
+        if isinstance(free, str):
+            free = [free]
+        self._base = diffcassi._native.DiffRenderer(system, int(H), int(W), [str(f) for f in free], rays=int(rays),
+                                                    planes=int(planes), seed=int(seed), bands_nm=bands_nm, airy=bool(airy))
+        self.names: List[str] = list(self._base.names())
+        self.bands_nm: List[float] = list(self._base.bands_nm())
+        self.image_shape: Tuple[int, int] = tuple(self._base.image_shape())
+        self.H, self.W = int(H), int(W)
+        if not (isinstance(temperature, (int, float)) and np.isfinite(temperature) and temperature > 0):
+            raise diffcassi.DiffcassiValueError(f"temperature = {temperature!r}: must be a finite number > 0")
+        self.temperature = float(temperature)
+        self.straight_through = bool(straight_through)
+        if mask is None:
+            mask = (np.random.default_rng(mask_seed).random((self.H, self.W)) < 0.5).astype(np.float64)
+        mask = np.asarray(mask, dtype=np.float64)
+        if mask.shape != (self.H, self.W):
+            raise diffcassi.DiffcassiValueError(f"mask: expected shape ({self.H}, {self.W}), got {mask.shape}")
+        if not np.all(np.isfinite(mask)) or mask.min() < 0 or mask.max() > 1:
+            raise diffcassi.DiffcassiValueError("mask: values must be finite and in [0, 1]")
+        # Logits of the mask clipped to [0.05, 0.95] (a binary mask starts at sigmoid(±2.94)).
+        m = np.clip(mask, 0.05, 0.95)
+        self.mask_logits = nn.Parameter(torch.from_numpy(self.temperature * np.log(m / (1 - m))).to(torch.float32))
+        self.theta = nn.Parameter(torch.tensor(self._base.values(), dtype=torch.float64))
+        self._cache: Tuple[Tuple[float, ...], Any] = (tuple(self._base.values()), self._base)
+
+    def _renderer(self, theta: torch.Tensor):
+        values = tuple(float(v) for v in theta.detach().cpu().reshape(-1))
+        if values != self._cache[0]:
+            bad = [f"{n} = {v}" for n, v in zip(self.names, values) if not np.isfinite(v)]
+            if bad:
+                raise diffcassi.DiffcassiValueError(f"free parameter {', '.join(bad)} is not finite")
+            self._cache = (values, self._base.with_values(list(values)))
+        return self._cache[1]
+
+    def mask(self) -> torch.Tensor:
+        """The continuous mask sigmoid(logits / temperature) in [0, 1], (H, W)."""
+        return torch.sigmoid(self.mask_logits / self.temperature)
+
+    def binary_mask(self) -> np.ndarray:
+        """The mask to build: the continuous mask thresholded at 0.5."""
+        return (self.mask().detach().cpu().numpy() > 0.5).astype(np.float32)
+
+    def render(self, cube: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """The acquisition of ``cube`` through an explicit ``mask`` (H, W) in [0, 1] (differentiable in both)."""
+        if cube.dim() != 4 or tuple(cube.shape[1:]) != (len(self.bands_nm), self.H, self.W):
+            raise diffcassi.DiffcassiValueError(f"cube: expected shape (N, {len(self.bands_nm)}, {self.H}, {self.W}), got {tuple(cube.shape)}")
+        if tuple(mask.shape) != (self.H, self.W):
+            raise diffcassi.DiffcassiValueError(f"mask: expected shape ({self.H}, {self.W}), got {tuple(mask.shape)}")
+        return _RenderFn.apply(cube, mask, self.theta, self)
+
+    def forward(self, cube: torch.Tensor) -> torch.Tensor:
+        m = self.mask()
+        if self.straight_through:
+            m = m + ((m > 0.5).to(m.dtype) - m).detach()
+        return self.render(cube, m.to(cube.dtype))
+
+    def mapping_jacobian(self, wavelengths_nm: Optional[Sequence[float]] = None):
+        """The chief-ray mapping cube at the current parameters and its Jacobian: (positions (H, W, L, 2) mm,
+        jacobian (H, W, L, 2, P), valid (H, W, L)); L defaults to the scene bands."""
+        wl = self.bands_nm if wavelengths_nm is None else [float(w) for w in wavelengths_nm]
+        return self._renderer(self.theta).mapping_jacobian(wl)
+
+    def extra_repr(self) -> str:
+        return f"free={self.names}, scene {self.H}×{self.W}, detector {self.image_shape[0]}×{self.image_shape[1]}"

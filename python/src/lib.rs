@@ -13,6 +13,7 @@
 use pyo3::prelude::*;
 
 mod arrays;
+mod codesign;
 mod errors;
 mod pool;
 mod recon;
@@ -30,5 +31,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     system::register(m)?;
     render::register(m)?;
     recon::register(m)?;
+    codesign::register(m)?;
     Ok(())
 }

@@ -11,6 +11,8 @@
 //!   derivatives.
 //! - [`kernel`]: the per-ray forward trace (frame changes, hits, vector Snell, ideal lens).
 //! - [`jacobian`]: [`DiffSystem::trace`] → [`JacobianBatch`] for a [`crate::rays::RayBatch`].
+//! - [`adjoint`]: reverse accumulation — ∂L/∂θ for every parameter at a per-ray cost independent of their
+//!   number (the differentiable acquisition, [`crate::render::gradient`]).
 //! - [`from_hits`]: [`DiffSystem::jacobian_from_hits`] — the same Jacobians at hits another backend found
 //!   (the Embree tracer's refined hits: `DiffSystem::trace_embree`), with a reason for every ray whose
 //!   recorded path is not the sequential one.
@@ -27,6 +29,7 @@
 //! assert!(j.d_position(0, 0).y.abs() > 1e-3);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
+pub mod adjoint;
 pub mod dispersion;
 pub mod dual;
 pub mod from_hits;

@@ -8,7 +8,8 @@
 //! the planes are summed ([`engine`]). Planes: B bands × F ([`spectral`]). The detector covers the
 //! dispersed footprint ([`detector`]). Dataset mode ([`dataset`]) traces the transport once and applies it
 //! to many scenes, bit-identically. Optional sensor noise ([`noise`]: shot, read, ADC) is applied to the
-//! finished acquisition.
+//! finished acquisition. [`gradient`]: the acquisition differentiable with respect to the optical
+//! parameters, the mask and the scene (co-design).
 //!
 //! ```
 //! use diffcassi::prelude::*;
@@ -31,6 +32,7 @@ pub mod convolve;
 pub mod dataset;
 pub mod detector;
 pub mod engine;
+pub mod gradient;
 pub mod mask;
 pub mod noise;
 pub mod output;

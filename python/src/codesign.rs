@@ -1,0 +1,133 @@
+//! `DiffRenderer`: the differentiable acquisition (`diffcassi::render::gradient`) for co-design — the
+//! acquisition of a batch of scenes and its vector–Jacobian product with respect to the free optical
+//! parameters, the mask and the scenes. Thin: arrays are borrowed (float64, C-contiguous), the GIL is
+//! released while Rust works, results are handed to NumPy without a copy. `diffcassi.torch.CassiRenderer`
+//! wraps it as an `nn.Module`.
+use crate::arrays::{f64_list, input, output};
+use crate::errors::{value_error, IntoPy};
+use crate::pool::run;
+use crate::system::PySystem;
+use diffcassi::diff::ParamSet;
+use diffcassi::render::gradient::DiffRenderer;
+use diffcassi::render::{AiryConfig, RenderConfig, SpectralSampling};
+use numpy::PyArrayDyn;
+use pyo3::prelude::*;
+
+#[pyclass(name = "DiffRenderer", module = "diffcassi", frozen)]
+pub struct PyDiffRenderer {
+    inner: DiffRenderer,
+}
+
+type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
+
+impl PyDiffRenderer {
+    /// (scene slice, N) of a (N, B, H, W) float64 array and the (H, W) mask.
+    fn batch(&self, scene: &[usize]) -> PyResult<usize> {
+        let (b, h, w) = (self.inner.scene_wavelengths_nm.len(), self.inner.config.scene_height, self.inner.config.scene_width);
+        if scene[1..] != [b, h, w] {
+            return Err(value_error(format!("scene: expected shape (N, {b}, {h}, {w}), got {scene:?}")));
+        }
+        Ok(scene[0])
+    }
+}
+
+#[pymethods]
+impl PyDiffRenderer {
+    /// `DiffRenderer(system, height, width, free, rays=4, planes=28, seed=0, bands_nm=None, airy=True)`:
+    /// `free` a list of parameter names (`calibrate --free` names, preset aliases such as `prism_tilt_x`),
+    /// scene bands `bands_nm` (default 28 bands 450–650 nm), `planes` spectral planes over them.
+    #[new]
+    #[pyo3(signature = (system, height, width, free, rays = 4, planes = 28, seed = 0, bands_nm = None, airy = true))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(py: Python<'_>, system: &PySystem, height: usize, width: usize, free: Vec<String>, rays: usize, planes: usize, seed: u64, bands_nm: Option<&Bound<'_, PyAny>>, airy: bool) -> PyResult<Self> {
+        let bands = match bands_nm {
+            Some(b) => f64_list("bands_nm", b)?,
+            None => diffcassi::analysis::linspace(450.0, 650.0, 28),
+        };
+        if free.is_empty() {
+            return Err(value_error("free: name ≥ 1 parameter (e.g. [\"prism_tilt_x\"])"));
+        }
+        let set = ParamSet::for_system(&system.inner, &free.join(",")).py()?;
+        let mut cfg = RenderConfig::paper(height.max(1));
+        (cfg.scene_height, cfg.scene_width) = (height, width);
+        cfg.spectral = SpectralSampling::with_planes(bands.clone(), planes).py()?;
+        cfg.rays_per_pixel = rays;
+        cfg.seed = seed;
+        cfg.airy = airy.then(AiryConfig::default);
+        let inner = run(py, move || DiffRenderer::new(set, cfg, bands)).py()?;
+        Ok(PyDiffRenderer { inner })
+    }
+
+    /// The free parameters' names.
+    fn names(&self) -> Vec<String> {
+        self.inner.names()
+    }
+
+    /// Their current values (spec units: mm, degrees, …).
+    fn values(&self) -> PyResult<Vec<f64>> {
+        self.inner.values().py()
+    }
+
+    /// The scene bands (nm).
+    fn bands_nm(&self) -> Vec<f64> {
+        self.inner.scene_wavelengths_nm.clone()
+    }
+
+    /// Detector (h, w).
+    fn image_shape(&self) -> (usize, usize) {
+        self.inner.image_shape()
+    }
+
+    /// The same renderer (detector, samples) with the free parameters set to `values`; an error names a
+    /// parameter out of its valid range (a glass outside the catalogue's range, a system that does not build).
+    fn with_values(&self, py: Python<'_>, values: &Bound<'_, PyAny>) -> PyResult<Self> {
+        let x = f64_list("values", values)?;
+        if x.len() != self.inner.set.free.len() {
+            return Err(value_error(format!("values: {} values for {} free parameters", x.len(), self.inner.set.free.len())));
+        }
+        let inner = run(py, || self.inner.with_values(&x)).py()?;
+        Ok(PyDiffRenderer { inner })
+    }
+
+    /// Acquisitions (N, h, w) float64 of `scene` (N, B, H, W) float64 through `mask` (H, W) float64.
+    fn render<'py>(&self, py: Python<'py>, scene: &Bound<'py, PyAny>, mask: &Bound<'py, PyAny>) -> PyResult<Arr<'py>> {
+        let s = input::<f64>("scene", scene, "float64", 4, "(N, B, H, W)")?;
+        let m = input::<f64>("mask", mask, "float64", 2, "(H, W)")?;
+        let n = self.batch(&s.shape)?;
+        let (ss, ms) = (s.slice(), m.slice());
+        let img = run(py, || self.inner.render(ss, n, ms)).py()?;
+        let (h, w) = self.inner.image_shape();
+        output(py, img, &[n, h, w])
+    }
+
+    /// The vector–Jacobian product for the upstream gradient `grad` (N, h, w) float64:
+    /// (∂L/∂θ (P,), ∂L/∂mask (H, W), ∂L/∂scene (N, B, H, W)).
+    fn vjp<'py>(&self, py: Python<'py>, scene: &Bound<'py, PyAny>, mask: &Bound<'py, PyAny>, grad: &Bound<'py, PyAny>) -> PyResult<(Arr<'py>, Arr<'py>, Arr<'py>)> {
+        let s = input::<f64>("scene", scene, "float64", 4, "(N, B, H, W)")?;
+        let m = input::<f64>("mask", mask, "float64", 2, "(H, W)")?;
+        let g = input::<f64>("grad", grad, "float64", 3, "(N, h, w)")?;
+        let n = self.batch(&s.shape)?;
+        let (ss, ms, gs) = (s.slice(), m.slice(), g.slice());
+        let v = run(py, || self.inner.vjp(ss, n, ms, gs)).py()?;
+        let (p, sh) = (v.params.len(), s.shape.clone());
+        Ok((output(py, v.params, &[p])?, output(py, v.mask, &[sh[2], sh[3]])?, output(py, v.scene, &sh)?))
+    }
+
+    /// The chief-ray mapping cube at `wavelengths_nm` and its Jacobian: (positions (H, W, L, 2) mm,
+    /// jacobian (H, W, L, 2, P), valid (H, W, L) bool).
+    fn mapping_jacobian<'py>(&self, py: Python<'py>, wavelengths_nm: &Bound<'py, PyAny>) -> PyResult<(Arr<'py>, Arr<'py>, Bound<'py, PyArrayDyn<bool>>)> {
+        let wl = f64_list("wavelengths_nm", wavelengths_nm)?;
+        let (pos, jac, valid) = run(py, || self.inner.mapping_jacobian(&wl)).py()?;
+        let (h, w, l, p) = (self.inner.config.scene_height, self.inner.config.scene_width, wl.len(), self.inner.set.free.len());
+        Ok((output(py, pos, &[h, w, l, 2])?, output(py, jac, &[h, w, l, 2, p])?, output(py, valid, &[h, w, l])?))
+    }
+
+    fn __repr__(&self) -> String {
+        let (h, w) = self.inner.image_shape();
+        format!("DiffRenderer(free={:?}, scene {}×{}, detector {h}×{w}, {} planes, {} rays)", self.inner.names(), self.inner.config.scene_height, self.inner.config.scene_width, self.inner.config.spectral.planes(), self.inner.config.rays_per_pixel)
+    }
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PyDiffRenderer>()
+}

@@ -1,0 +1,345 @@
+//! The differentiable acquisition (`render::gradient`): vector–Jacobian products against central finite
+//! differences of the same-sample acquisition for every parameter kind on SP, AP, mSP, mAP; against
+//! finite differences of a many-ray expected image (the boundary bias included); scene and mask gradients
+//! (the acquisition is linear in both); thread-count independence; the mapping cube's Jacobian; bad input.
+//!
+//! `cargo test --release --test render_gradient -- --nocapture` prints the measured errors.
+use diffcassi::diff::{Param, ParamSet};
+use diffcassi::materials::GlassCatalog;
+use diffcassi::render::gradient::DiffRenderer;
+use diffcassi::render::{RenderConfig, SpectralSampling};
+use diffcassi::spec::{Cell, SurfaceKind, SystemSpec};
+
+/// A small deterministic generator (xorshift) for scenes, masks and upstream gradients.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    fn vec(&mut self, n: usize) -> Vec<f64> {
+        (0..n).map(|_| self.next()).collect()
+    }
+}
+
+const BANDS: [f64; 3] = [450.0, 550.0, 650.0];
+
+fn config(size: usize, planes: usize, rays: usize, seed: u64) -> RenderConfig {
+    let mut cfg = RenderConfig::paper(size);
+    cfg.spectral = SpectralSampling::with_planes(BANDS.to_vec(), planes).unwrap();
+    cfg.rays_per_pixel = rays;
+    cfg.seed = seed;
+    cfg
+}
+
+fn renderer(spec: SystemSpec, free: &[&str], cfg: RenderConfig) -> DiffRenderer {
+    let params: Vec<Param> = free.iter().map(|t| Param::parse(t).unwrap()).collect();
+    let set = ParamSet::new(spec, GlassCatalog::builtin(), params).unwrap();
+    DiffRenderer::new(set, cfg, BANDS.to_vec()).unwrap()
+}
+
+/// Scene (N = 2), mask (some pixels closed, the others in (0, 1]) and an upstream gradient.
+fn inputs(r: &DiffRenderer, seed: u64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let mut rng = Rng(0x9E37_79B9_7F4A_7C15 ^ seed);
+    let hw = r.config.scene_height * r.config.scene_width;
+    let scene = rng.vec(2 * BANDS.len() * hw);
+    let mask: Vec<f64> = rng.vec(hw).into_iter().map(|v| if v < 0.25 { 0.0 } else { v }).collect();
+    let (h, w) = r.image_shape();
+    let g: Vec<f64> = rng.vec(2 * h * w).into_iter().map(|v| v - 0.5).collect();
+    (scene, mask, g)
+}
+
+fn loss(r: &DiffRenderer, scene: &[f64], mask: &[f64], g: &[f64]) -> f64 {
+    r.render(scene, 2, mask).unwrap().iter().zip(g).map(|(a, b)| a * b).sum()
+}
+
+/// A step that moves landings by ~1e-4 pixel (so that few rays cross a pixel edge or change status).
+fn step_for(p: &Param) -> f64 {
+    match p {
+        Param::Cell { column, .. } if column.ends_with("_deg") => 1e-6,
+        Param::Cell { column, .. } if column == "conic" => 1e-5,
+        Param::Cell { column, .. } if column.starts_with("asphere_") => 1e-9,
+        Param::Cell { .. } => 1e-6,
+        Param::Curvature { .. } => 1e-8,
+        Param::GlassNd(_) => 1e-7,
+        Param::GlassVd(_) => 1e-7,
+        _ => unreachable!(),
+    }
+}
+
+/// Central finite differences of the same-sample loss for every parameter, against the VJP; returns the
+/// largest relative error (|fd − vjp| / max(|vjp|, 1e-3 · max_k |vjp_k|)).
+fn check_same_sample(label: &str, spec: SystemSpec, free: &[&str]) -> f64 {
+    let r = renderer(spec, free, config(5, 3, 2, 7));
+    let (scene, mask, g) = inputs(&r, 1);
+    let v = r.vjp(&scene, 2, &mask, &g).unwrap();
+    let x0 = r.values().unwrap();
+    let scale = v.params.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    let mut worst = 0.0f64;
+    for k in 0..x0.len() {
+        let h = step_for(&r.set.free[k]) * x0[k].abs().max(1.0);
+        let at = |d: f64| {
+            let mut x = x0.clone();
+            x[k] += d;
+            loss(&r.with_values(&x).unwrap(), &scene, &mask, &g)
+        };
+        let fd = (at(h) - at(-h)) / (2.0 * h);
+        let err = (fd - v.params[k]).abs() / v.params[k].abs().max(1e-3 * scale);
+        println!("{label} {:>18}: vjp {:+.9e}  fd {:+.9e}  rel {:.1e}", r.set.free[k].name(), v.params[k], fd, err);
+        worst = worst.max(err);
+    }
+    println!("{label}: worst relative error {worst:.2e} over {} parameters", x0.len());
+    worst
+}
+
+/// SP/mSP with surface 16 an even asphere and break 9 of order 1 tilted (every parameter kind acts), as
+/// the Jacobian tests of `tests/derivatives.rs`.
+fn sp_like(name: &str) -> SystemSpec {
+    let mut spec = diffcassi::presets::spec(name).unwrap();
+    spec.surfaces[16].kind = SurfaceKind::EvenAsphere;
+    spec.surfaces[16].asphere_coefficients = vec![Cell::fixed(1e-5), Cell::fixed(-2e-7)];
+    spec.surfaces[16].conic = Some(Cell::fixed(0.0));
+    spec.surfaces[9].order = 1;
+    spec.surfaces[9].tilt_x_deg = Some(Cell::fixed(0.5));
+    spec.surfaces[9].decenter_y_mm = Some(Cell::fixed(0.1));
+    spec
+}
+
+/// AP/mAP with the prism's entrance face a weak even asphere.
+fn ap_like(name: &str, entrance: usize) -> SystemSpec {
+    let mut spec = diffcassi::presets::spec(name).unwrap();
+    let s = &mut spec.surfaces[entrance];
+    s.kind = SurfaceKind::EvenAsphere;
+    s.radius_mm = Some(Cell::fixed(200.0));
+    s.conic = Some(Cell::fixed(0.0));
+    s.asphere_coefficients = vec![Cell::fixed(1e-4), Cell::fixed(1e-6)];
+    spec
+}
+
+const SP_PARAMS: [&str; 22] = [
+    "s0.thickness_mm",
+    "s2.focal_length_mm",
+    "s3.tilt_y_deg",
+    "s4.tilt_x_deg",
+    "s4.tilt_y_deg",
+    "s4.tilt_z_deg",
+    "s4.decenter_x_mm",
+    "s5.tilt_y_deg",
+    "s6.thickness_mm",
+    "s7.tilt_y_deg",
+    "s9.tilt_x_deg",
+    "s9.decenter_y_mm",
+    "s15.thickness_mm",
+    "s16.curvature",
+    "s16.conic",
+    "s16.asphere_1",
+    "s16.asphere_2",
+    "s17.radius_mm",
+    "glass_nd:N-BK7",
+    "glass_vd:N-BK7",
+    "glass_nd:N-BAF10",
+    "glass_vd:SF10",
+];
+
+#[test]
+fn vjp_matches_same_sample_finite_differences_sp_and_msp() {
+    assert!(check_same_sample("sp", sp_like("sp"), &SP_PARAMS) <= 1e-6);
+    assert!(check_same_sample("msp", sp_like("msp"), &SP_PARAMS) <= 1e-6);
+}
+
+#[test]
+fn vjp_matches_same_sample_finite_differences_ap_and_map() {
+    let ap = [
+        "s0.thickness_mm",
+        "s1.focal_length_mm",
+        "s3.tilt_x_deg",
+        "s3.tilt_y_deg",
+        "s3.decenter_y_mm",
+        "s4.curvature",
+        "s4.conic",
+        "s4.asphere_1",
+        "s4.asphere_2",
+        "s4.thickness_mm",
+        "s5.tilt_y_deg",
+        "s7.tilt_y_deg",
+        "s7.thickness_mm",
+        "s13.curvature",
+        "glass_nd:N-SK2",
+        "glass_vd:N-SK2",
+        "glass_nd:N-SF10",
+        "glass_vd:N-SF10",
+    ];
+    assert!(check_same_sample("ap", ap_like("ap", 4), &ap) <= 1e-6);
+    let map = [
+        "s0.thickness_mm",
+        "s1.focal_length_mm",
+        "s4.tilt_x_deg",
+        "s5.tilt_y_deg",
+        "s6.curvature",
+        "s6.conic",
+        "s6.asphere_1",
+        "s6.asphere_2",
+        "s7.tilt_y_deg",
+        "s9.tilt_y_deg",
+        "s9.thickness_mm",
+        "s18.tilt_y_deg",
+        "s19.tilt_x_deg",
+        "glass_nd:N-SK2",
+        "glass_vd:N-SF10",
+    ];
+    assert!(check_same_sample("map", ap_like("map", 6), &map) <= 1e-6);
+}
+
+/// The acquisition is linear in the scene and in the mask: L(x + δ) − L(x) = ∂L/∂x · δ exactly (up to
+/// rounding), and by homogeneity L = ∂L/∂x · x.
+#[test]
+fn scene_and_mask_gradients_are_exact() {
+    let r = renderer(sp_like("msp"), &["s4.tilt_x_deg"], config(5, 3, 2, 3));
+    let (scene, mask, g) = inputs(&r, 2);
+    let v = r.vjp(&scene, 2, &mask, &g).unwrap();
+    let l0 = loss(&r, &scene, &mask, &g);
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let close = |a: f64, b: f64, what: &str| {
+        let rel = (a - b).abs() / a.abs().max(b.abs());
+        println!("{what}: {a:+.15e} vs {b:+.15e} (rel {rel:.1e})");
+        assert!(rel < 1e-12, "{what}: {a} vs {b}");
+    };
+    close(l0, dot(&v.scene, &scene), "L vs ∂L/∂scene · scene");
+    close(l0, dot(&v.mask, &mask), "L vs ∂L/∂mask · mask");
+    let mut rng = Rng(5);
+    let ds: Vec<f64> = rng.vec(scene.len()).into_iter().map(|x| x - 0.5).collect();
+    let s2: Vec<f64> = scene.iter().zip(&ds).map(|(a, b)| a + b).collect();
+    close(loss(&r, &s2, &mask, &g) - l0, dot(&v.scene, &ds), "ΔL vs ∂L/∂scene · δ");
+    // Opening closed pixels too: their gradient is there although they carry no light.
+    let dm: Vec<f64> = rng.vec(mask.len());
+    let m2: Vec<f64> = mask.iter().zip(&dm).map(|(a, b)| a + b).collect();
+    close(loss(&r, &scene, &m2, &g) - l0, dot(&v.mask, &dm), "ΔL vs ∂L/∂mask · δ");
+    assert!(mask.iter().zip(&v.mask).any(|(m, gm)| *m == 0.0 && gm.abs() > 0.0), "closed pixels get a gradient");
+}
+
+/// Bit-identical for 1 and 2 threads.
+#[test]
+fn vjp_does_not_depend_on_the_thread_count() {
+    let r = renderer(sp_like("msp"), &["s4.tilt_x_deg", "s16.curvature", "glass_nd:N-BK7"], config(6, 4, 3, 11));
+    let (scene, mask, g) = inputs(&r, 3);
+    let run = |t: usize| {
+        rayon::ThreadPoolBuilder::new().num_threads(t).build().unwrap().install(|| (r.render(&scene, 2, &mask).unwrap(), r.vjp(&scene, 2, &mask, &g).unwrap()))
+    };
+    let (a, b) = (run(1), run(2));
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&a.0), bits(&b.0));
+    assert_eq!(bits(&a.1.params), bits(&b.1.params));
+    assert_eq!(bits(&a.1.mask), bits(&b.1.mask));
+    assert_eq!(bits(&a.1.scene), bits(&b.1.scene));
+}
+
+/// The gradient of the sampled image against central differences of a many-ray *expected* image at a
+/// step large enough that rays change status (vignetting, leaving the detector) between the two sides:
+/// the boundary terms the VJP leaves out are in the difference. Tilt and apex parameters on SP and mSP.
+#[test]
+fn vjp_matches_the_expected_image_within_two_percent() {
+    for (preset, pitch) in [("sp", 0.01), ("msp", 0.01), ("sp", 0.7), ("msp", 0.7)] {
+        // Apex angles of the SP prisms: the tilts of the breaks at the prism faces (s5, s7).
+        // (s5.tilt_y_deg acts as prism_tilt_y on these presets: left out.)
+        let free = ["prism_tilt_x", "prism_tilt_y", "s7.tilt_y_deg"];
+        let sys = diffcassi::system::SequentialSystem::build(&diffcassi::presets::spec(preset).unwrap()).unwrap();
+        let set = ParamSet::for_system(&sys, &free.join(",")).unwrap();
+        // Pitch 0.7 mm: the 8×8 scene spans ±2.8 mm, beyond SP's ±2.5 mm field: rays are vignetted.
+        let mut cfg = config(8, 3, 256, 1);
+        cfg.scene_pitch_mm = pitch;
+        let r = DiffRenderer::new(set, cfg, BANDS.to_vec()).unwrap();
+        let (scene, mask, _) = inputs(&r, 4);
+        // A smooth loss: the image weighted by a ramp across the detector (a first moment).
+        let (ih, iw) = r.image_shape();
+        let g: Vec<f64> = (0..2 * ih * iw).map(|i| ((i % (ih * iw)) / iw) as f64 / ih as f64 + 0.7 * (i % iw) as f64 / iw as f64).collect();
+        let v = r.vjp(&scene, 2, &mask, &g).unwrap();
+        let x0 = r.values().unwrap();
+        for k in 0..free.len() {
+            let h = 0.02; // degrees: landings move by several pixels' hundredths, rays cross status edges
+            let at = |d: f64, seed: u64| {
+                let mut x = x0.clone();
+                x[k] += d;
+                let mut rr = r.with_values(&x).unwrap();
+                rr.config.seed = seed;
+                loss(&rr, &scene, &mask, &g)
+            };
+            // Independent samples on each side: the difference of two expected images.
+            let fd = (at(h, 101) - at(-h, 202)) / (2.0 * h);
+            let fd_crn = (at(h, 1) - at(-h, 1)) / (2.0 * h);
+            let rel = (v.params[k] - fd_crn).abs() / fd_crn.abs();
+            println!("{preset} pitch {pitch} mm {:>14}: vjp {:+.6e}  expected-image fd (common samples) {:+.6e} rel {:.2e}; independent samples {:+.6e}", free[k], v.params[k], fd_crn, rel, fd);
+            assert!(rel <= 0.02, "{preset} {}: {rel}", free[k]);
+        }
+    }
+}
+
+/// ∂(mapping)/∂θ against central differences of the mapping cube.
+#[test]
+fn mapping_cube_jacobian_matches_finite_differences() {
+    let r = renderer(sp_like("msp"), &["s4.tilt_x_deg", "s16.curvature", "glass_nd:N-BK7"], config(4, 3, 1, 0));
+    let wl = [460.0, 640.0];
+    let (pos, jac, valid) = r.mapping_jacobian(&wl).unwrap();
+    assert!(valid.iter().all(|v| *v));
+    let x0 = r.values().unwrap();
+    let kk = x0.len();
+    let mut worst = 0.0f64;
+    for k in 0..kk {
+        let h = step_for(&r.set.free[k]) * x0[k].abs().max(1.0) * 100.0;
+        let at = |d: f64| {
+            let mut x = x0.clone();
+            x[k] += d;
+            r.with_values(&x).unwrap().mapping_jacobian(&wl).unwrap().0
+        };
+        let (a, b) = (at(h), at(-h));
+        let scale = (0..pos.len()).map(|i| jac[i * kk + k].abs()).fold(0.0, f64::max);
+        for i in 0..pos.len() {
+            let fd = (a[i] - b[i]) / (2.0 * h);
+            worst = worst.max((fd - jac[i * kk + k]).abs() / scale);
+        }
+    }
+    println!("mapping Jacobian: worst error {worst:.1e} of the column's largest entry");
+    assert!(worst < 1e-6);
+}
+
+#[test]
+fn bad_input_is_a_clear_error() {
+    let sys = diffcassi::system::SequentialSystem::build(&diffcassi::presets::spec("sp").unwrap()).unwrap();
+    let msg = |e: diffcassi::Error| e.to_string();
+    // Unknown parameter name.
+    let e = msg(ParamSet::for_system(&sys, "prism_tilt_q").unwrap_err());
+    assert!(e.contains("prism_tilt_q"), "{e}");
+    // Per-ray parameters are not parameters of the acquisition.
+    let set = ParamSet::for_system(&sys, "wavelength").unwrap();
+    let e = msg(DiffRenderer::new(set, config(4, 3, 1, 0), BANDS.to_vec()).unwrap_err());
+    assert!(e.contains("wavelength") && e.contains("per ray"), "{e}");
+    // A parameter with no effect on the detector: the image surface's thickness.
+    let last = sys.spec.surfaces.len() - 1;
+    let set = ParamSet::for_system(&sys, &format!("s{last}.thickness_mm")).unwrap();
+    let e = msg(DiffRenderer::new(set, config(4, 3, 1, 0), BANDS.to_vec()).unwrap_err());
+    assert!(e.contains("no effect on the detector") && e.contains(&format!("s{last}.thickness_mm")), "{e}");
+    let r = DiffRenderer::new(ParamSet::for_system(&sys, "prism_tilt_x").unwrap(), config(4, 3, 1, 0), BANDS.to_vec()).unwrap();
+    let (h, w) = r.image_shape();
+    let scene = vec![1.0; 3 * 16];
+    let mask = vec![1.0; 16];
+    // Non-finite upstream gradient.
+    let mut g = vec![0.0; h * w];
+    g[w + 2] = f64::NAN;
+    let e = msg(r.vjp(&scene, 1, &mask, &g).unwrap_err());
+    assert!(e.contains("upstream gradient") && e.contains("row 1, column 2") && e.contains("NaN"), "{e}");
+    // Wrong mask shape.
+    let e = msg(r.vjp(&scene, 1, &[1.0; 15], &vec![0.0; h * w]).unwrap_err());
+    assert!(e.contains("mask has 15 values") && e.contains("(4, 4)"), "{e}");
+    let e = msg(r.render(&scene, 1, &[1.0; 17]).unwrap_err());
+    assert!(e.contains("mask"), "{e}");
+    // Wrong gradient shape.
+    assert!(msg(r.vjp(&scene, 1, &mask, &[0.0; 3]).unwrap_err()).contains("upstream gradient has 3 values"));
+    // A tilt that makes every ray miss.
+    let e = msg(r.with_values(&[60.0]).and_then(|r| r.render(&scene, 1, &mask)).unwrap_err());
+    assert!(e.contains("no ray reaches the detector") || e.contains("chief-ray solve failed"), "{e}");
+    // A glass out of the catalogue's range.
+    let rg = DiffRenderer::new(ParamSet::for_system(&sys, "glass_nd:N-BK7").unwrap(), config(4, 3, 1, 0), BANDS.to_vec()).unwrap();
+    let e = msg(rg.with_values(&[2.5]).unwrap_err());
+    assert!(e.contains("glass_nd:N-BK7") && e.contains("range"), "{e}");
+}
