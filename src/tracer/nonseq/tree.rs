@@ -341,7 +341,15 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
                                 },
                             };
                             node.p = obj.frame.point_to_global(p);
+                            let k_in = node.d;
                             node.d = obj.frame.dir_to_global(new_d).normalize();
+                            if paraxial_focal_mm.is_some() && model == FresnelModel::Polarized {
+                                // An ideal lens bends the ray without loss: the field turns with it (unit
+                                // s and p amplitudes in the plane of k and k′), staying transverse.
+                                let basis = sp_basis(k_in, node.d, node.d);
+                                let one = num_complex::Complex64::new(1.0, 0.0);
+                                node.e = node.e.map(|e| apply_prt(&e, basis, one, one));
+                            }
                             node.exclude = Some(object);
                             node.interactions += 1;
                             if node.interactions >= options.max_bounces {
