@@ -91,10 +91,15 @@ impl NextHit for EmbreeNextHit {
                                 x.z = 0.0;
                             }
                             if x.is_finite() && obj.apertures.iter().all(|(_, ap)| ap.contains(x.x, x.y)) {
-                                return match interface {
-                                    Some(k) if Some(*k) != q.exclude => Event::Optical { object: *k, t: hit.t as f64 },
-                                    _ => Event::Pass { point: obj.frame.point_to_global(x) },
-                                };
+                                match interface {
+                                    Some(k) if Some(*k) != q.exclude => return Event::Optical { object: *k, t: hit.t as f64 },
+                                    _ if t > q.tnear => return Event::Pass { point: obj.frame.point_to_global(x) },
+                                    // Passed already (the point is behind the start): query past the blade.
+                                    _ => {
+                                        tnear = hit.t + f32_ulps(q.p, 16.0) as f32;
+                                        continue;
+                                    }
+                                }
                             }
                         }
                     }

@@ -186,7 +186,10 @@ impl NextHit for BruteForce {
                             if x.is_finite() && o.apertures.iter().all(|(_, ap)| ap.contains(x.x, x.y)) {
                                 match interface {
                                     Some(i) if q.exclude != Some(*i) => {}
-                                    _ => best = (t, Event::Pass { point: o.frame.point_to_global(x) }),
+                                    // A pass moves the ray to the figure's point: only forward (a point
+                                    // behind the start was passed already; the blade is then ignored).
+                                    _ if te > q.tnear => best = (t, Event::Pass { point: o.frame.point_to_global(x) }),
+                                    _ => {}
                                 }
                                 continue;
                             }

@@ -213,6 +213,7 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
     let mut stack = vec![root];
     while let Some(mut node) = stack.pop() {
         let main = node.path.is_empty();
+        let mut passes = 0u32;
         // Walk this node until it ends; reflected children are pushed on the stack.
         let (status, surface) = loop {
             let q = Query { p: node.p, d: node.d, exclude: node.exclude, tnear: node.tnear, after_interaction: node.interactions > 0 && node.tnear == 0.0 };
@@ -240,6 +241,12 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
                 Event::Pass { point } => {
                     node.p = point;
                     node.tnear = f32_ulps(point, 16.0);
+                    // Passes count toward the bounce limit too: a walk always ends.
+                    passes += 1;
+                    if passes >= options.max_bounces {
+                        tree.ledger.truncated += power;
+                        break (RayStatus::BounceLimit, last);
+                    }
                     continue;
                 }
                 Event::Optical { object, t } => {
