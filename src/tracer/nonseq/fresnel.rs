@@ -24,7 +24,8 @@
 //! ```
 //! use diffcassi::tracer::nonseq::fresnel::amplitudes;
 //! let a = amplitudes(1.0, 1.5, 1.0);
-//! assert_eq!(a.reflectance_s(), ((1.0f64 - 1.5) / (1.0 + 1.5)).powi(2));
+//! let r = (1.0f64 - 1.5) / (1.0 + 1.5);
+//! assert_eq!(a.reflectance_s(), r * r); // exactly ((n₁ − n₂)/(n₁ + n₂))²
 //! let tir = amplitudes(1.5, 1.0, 0.5); // 60° inside glass: beyond the critical angle 41.8°
 //! assert!(tir.tir && (tir.rs.norm() - 1.0).abs() < 1e-15);
 //! ```
