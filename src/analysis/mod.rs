@@ -11,6 +11,7 @@
 //! ```
 mod dispersion;
 mod distortion;
+pub mod ghosts;
 mod mapping;
 mod mapping_interp;
 mod semi_diameter;

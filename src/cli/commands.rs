@@ -59,7 +59,7 @@ fn wavelengths_or_system(w: &Option<String>, system: &SequentialSystem) -> Resul
 }
 
 /// Print "wrote PATH", showing a file staged by an [`OutputSet`] under its final name.
-fn say_written(path: &Path) {
+pub(super) fn say_written(path: &Path) {
     eprintln!("wrote {}", final_name(path).display());
 }
 
@@ -80,7 +80,7 @@ fn final_name(path: &Path) -> PathBuf {
 
 /// Check the format an output option names by its extension, and the output policy (not a folder, not one of
 /// the command's `inputs`: [`crate::io::policy::check_out_file`]), before anything is computed or written.
-fn check_extension(option: &str, path: &Option<PathBuf>, allowed: &[&str], inputs: &[(&str, &Path)]) -> Result<()> {
+pub(super) fn check_extension(option: &str, path: &Option<PathBuf>, allowed: &[&str], inputs: &[(&str, &Path)]) -> Result<()> {
     if let Some(p) = path {
         let ext = p.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).unwrap_or_default();
         if !allowed.contains(&ext.as_str()) {
@@ -94,7 +94,7 @@ fn check_extension(option: &str, path: &Option<PathBuf>, allowed: &[&str], input
     Ok(())
 }
 
-fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
+pub(super) fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
     crate::limits::check_json_finite(&final_name(path).display().to_string(), value)?;
     let text = serde_json::to_string_pretty(value).map_err(|e| Error::invalid(format!("JSON encoding failed: {e}")))?;
     write_atomic(path, text.as_bytes())?;

@@ -13,6 +13,7 @@
 //! diffcassi evaluate --truth scene.npy --estimate cube.npy --json metrics.json
 //! diffcassi render-dataset --scenes scenes/ --preset sp --out out/ds --shard 0/4
 //! diffcassi dataset-status out/ds --scenes scenes/
+//! diffcassi ghosts --preset sp --order 2 --csv ghosts.csv --png ghosts.png
 //! ```
 mod args;
 mod commands;
@@ -22,6 +23,7 @@ pub mod render;
 mod design;
 pub mod evaluate;
 mod fidelity;
+mod ghosts;
 mod import_zmx;
 mod make_scene;
 #[cfg(feature = "embree")]
@@ -96,6 +98,8 @@ pub enum Command {
     Design(design::DesignArgs),
     /// Recover a misalignment (e.g. the prism tilt) from another system's spot centroids.
     Calibrate(design::CalibrateArgs),
+    /// Ghost images from Fresnel reflections: every ghost path, its energy, landing point, spot and defocus; CSV/JSON/PNG.
+    Ghosts(ghosts::GhostsArgs),
     /// Convert a Zemax OpticStudio .zmx lens file to a spec (.toml/.json), refusing what is not modelled.
     ImportZmx(import_zmx::ImportZmxArgs),
 }
@@ -168,5 +172,6 @@ fn run(command: Command) -> crate::error::Result<()> {
         Command::Design(a) => design::design_cmd(a),
         Command::Calibrate(a) => design::calibrate_cmd(a),
         Command::ImportZmx(a) => import_zmx::import_zmx(a),
+        Command::Ghosts(a) => ghosts::ghosts(a),
     }
 }

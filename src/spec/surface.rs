@@ -74,6 +74,34 @@ pub struct SurfaceSpec {
     /// Coordinate Break order flag: 0 = decenter then tilt X, Y, Z; 1 = tilt Z, Y, X then decenter.
     #[serde(default, skip_serializing_if = "is_zero_u8")]
     pub order: u8,
+    /// Optional coating, used by the non-sequential ghost analysis only (`ghosts`; the sequential trace
+    /// and the renderer's ghost-free operator ignore it). Absent: a bare surface (Fresnel).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub coating: Option<Coating>,
+}
+
+/// A surface coating (see `src/tracer/nonseq/coating.rs` for the physics).
+/// TOML: `coating = { reflectance = 0.005 }` or `coating = { mgf2_quarter_wave_nm = 550.0 }`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case", deny_unknown_fields)]
+pub enum Coating {
+    /// A given power reflectance in [0, 1] for both polarisations, every angle and wavelength.
+    Reflectance(f64),
+    /// One quarter-wave MgF₂ anti-reflection layer designed for this wavelength (nm) at normal incidence.
+    Mgf2QuarterWaveNm(f64),
+}
+
+impl Coating {
+    /// Errors name the field and the value.
+    pub fn validate(&self) -> Result<(), String> {
+        match *self {
+            Coating::Reflectance(r) if !(0.0..=1.0).contains(&r) => Err(format!("reflectance {r}: must be in [0, 1]")),
+            Coating::Mgf2QuarterWaveNm(w) if !(w.is_finite() && (200.0..=7000.0).contains(&w)) => {
+                Err(format!("mgf2_quarter_wave_nm {w}: must be in [200, 7000] nm (the range of the MgF₂ dispersion formula)"))
+            }
+            _ => Ok(()),
+        }
+    }
 }
 
 fn is_zero_u8(v: &u8) -> bool {
@@ -122,6 +150,7 @@ impl SurfaceSpec {
             tilt_y_deg: None,
             tilt_z_deg: None,
             order: 0,
+            coating: None,
         }
     }
 

@@ -139,6 +139,9 @@ impl SystemSpec {
             if let Some(ap) = &s.aperture {
                 ap.validate().map_err(|m| at("aperture", m))?;
             }
+            if let Some(c) = &s.coating {
+                c.validate().map_err(|m| at("coating", m))?;
+            }
             if s.asphere_coefficients.len() > 8 {
                 return Err(at("asphere_coefficients", format!("{} terms: at most 8 (r² … r¹⁶)", s.asphere_coefficients.len())));
             }

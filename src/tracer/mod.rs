@@ -13,6 +13,7 @@ mod analytic;
 mod backend;
 pub mod hits;
 pub mod kernel;
+pub mod nonseq;
 mod precision;
 #[cfg(feature = "embree")]
 pub mod embree;

@@ -3,11 +3,13 @@
 //! ([`Device`], [`Geometry`], [`Scene`] → [`CommittedScene`], [`with_flush_denormals`]), the scene of solids
 //! built from a sequential system ([`OpticalScene`]) and the non-sequential [`EmbreeTracer`] implementing
 //! [`Tracer`](super::Tracer).
+mod next_hit;
 mod scene;
 pub mod sys;
 mod tracer;
 mod wrapper;
 
+pub use next_hit::EmbreeNextHit;
 pub use scene::*;
 pub use tracer::*;
 pub use wrapper::*;

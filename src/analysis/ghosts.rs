@@ -1,0 +1,312 @@
+//! Ghost analysis: every ghost path of a system (its reflection sequence, e.g. `5R 3R`), from the ray
+//! trees of [`crate::tracer::nonseq`] walked through the brute-force f64 kernel.
+//!
+//! For each source — a point source at each of the system's fields, and a uniform extended source (an
+//! N×N grid of field points over the field box, equal power each) — and each wavelength (the system's,
+//! plus 520 nm), rays through a hexapolar pupil are split up to ghost order K. Per path:
+//! * `energy_fraction`: detector power of the path / detector power of the main image (no reflection);
+//! * `x_mm`, `y_mm`: power-weighted centroid on the detector (image surface frame); `rms_radius_mm`;
+//! * `defocus_mm`: where the path's bundle is smallest along the detector normal (least-squares: the
+//!   shift δ minimising Σ|x̃ᵢ + δ·ũᵢ|², x̃, ũ centroid-relative positions and direction tangents) minus the
+//!   same for the main image;
+//! * `peak_ratio`: the path's mean irradiance over its RMS disc, E/(π r²) with r ≥ [`MIN_RADIUS_MM`],
+//!   over the main image's — what a user compares with a sensor's dynamic range.
+//! "Averaged" rows average the energy fraction over the wavelengths (equal weight).
+//!
+//! ```
+//! use diffcassi::prelude::*;
+//! use diffcassi::analysis::ghosts::{ghost_analysis, GhostOptions};
+//! let sys = SequentialSystem::build(&presets::spec("sp")?)?;
+//! let r = ghost_analysis(&sys, &GhostOptions { rings: 2, extended_grid: 2, ..Default::default() })?;
+//! assert!(r.on_axis_520().iter().all(|p| p.energy_fraction > 0.0 && p.energy_fraction < 0.1));
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+use crate::error::{Error, Result};
+use crate::rays::{PupilPattern, RayBatch};
+use crate::system::SequentialSystem;
+use crate::tracer::nonseq::{path_label, trace_trees, BruteForce, FresnelModel, Ledger, RayTree, SolidsOptions, TreeOptions};
+use glam::DVec3;
+use serde::Serialize;
+use std::collections::BTreeMap;
+
+/// Smallest radius of the disc over which a path's irradiance is averaged (mm): about a pixel.
+pub const MIN_RADIUS_MM: f64 = 0.005;
+
+/// Ghost analysis options.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GhostOptions {
+    pub order: u32,
+    pub model: FresnelModel,
+    pub threshold: f64,
+    pub seed: u64,
+    /// Hexapolar pupil rings per field point.
+    pub rings: usize,
+    /// The extended source's field grid is N × N.
+    pub extended_grid: usize,
+}
+
+impl Default for GhostOptions {
+    fn default() -> Self {
+        GhostOptions { order: 2, model: FresnelModel::Polarized, threshold: 1e-7, seed: 0, rings: 6, extended_grid: 5 }
+    }
+}
+
+/// One ghost path of one source at one wavelength (`wavelength_nm` None: averaged over wavelengths).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GhostPath {
+    pub source: String,
+    pub wavelength_nm: Option<f64>,
+    pub path: String,
+    pub order: usize,
+    pub energy_fraction: f64,
+    pub x_mm: f64,
+    pub y_mm: f64,
+    pub rms_radius_mm: f64,
+    pub defocus_mm: f64,
+    pub peak_ratio: f64,
+}
+
+/// A detector power map (row-major, `n`×`n`, over [x0, x0 + n·pixel] × [y0, …]).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct GhostMap {
+    pub n: usize,
+    pub x0_mm: f64,
+    pub y0_mm: f64,
+    pub pixel_mm: f64,
+    pub power: Vec<f64>,
+}
+
+/// Everything `ghosts` reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct GhostReport {
+    pub system: String,
+    pub order: u32,
+    pub model: FresnelModel,
+    pub rays_traced: usize,
+    /// Every (source, wavelength) row, main image excluded, ranked by peak ratio within each.
+    pub paths: Vec<GhostPath>,
+    /// On-axis point source at 520 nm: energy fractions of the scalar model, per path (same order as
+    /// [`GhostReport::on_axis_520`]), and the largest relative error of the scalar against the polarised.
+    pub scalar_energy_fraction: Vec<f64>,
+    pub scalar_max_relative_error: f64,
+    /// The ledger summed over every tree.
+    pub ledger: Ledger,
+    pub map_point: GhostMap,
+    pub map_uniform: GhostMap,
+}
+
+impl GhostReport {
+    /// The rows of the on-axis point source at 520 nm (the CSV's rows).
+    pub fn on_axis_520(&self) -> Vec<&GhostPath> {
+        self.paths.iter().filter(|p| p.source == "point 0,0" && p.wavelength_nm == Some(520.0)).collect()
+    }
+}
+
+#[derive(Default)]
+struct Acc {
+    power: f64,
+    /// Σw·x, Σw·x², Σw·u (direction tangents), Σw·x·u, Σw·u² (2-D, summed over x and y).
+    sx: [f64; 2],
+    sxx: f64,
+    su: [f64; 2],
+    sxu: f64,
+    suu: f64,
+}
+
+impl Acc {
+    fn add(&mut self, p: DVec3, d: DVec3, w: f64) {
+        let u = [d.x / d.z, d.y / d.z];
+        self.power += w;
+        self.sx[0] += w * p.x;
+        self.sx[1] += w * p.y;
+        self.sxx += w * (p.x * p.x + p.y * p.y);
+        self.su[0] += w * u[0];
+        self.su[1] += w * u[1];
+        self.sxu += w * (p.x * u[0] + p.y * u[1]);
+        self.suu += w * (u[0] * u[0] + u[1] * u[1]);
+    }
+    fn centroid(&self) -> [f64; 2] {
+        [self.sx[0] / self.power, self.sx[1] / self.power]
+    }
+    fn rms(&self) -> f64 {
+        let c = self.centroid();
+        (self.sxx / self.power - c[0] * c[0] - c[1] * c[1]).max(0.0).sqrt()
+    }
+    /// δ minimising the RMS of x + δ·u (centred): −cov(x, u)/var(u).
+    fn focus_shift(&self) -> f64 {
+        let (c, m) = (self.centroid(), [self.su[0] / self.power, self.su[1] / self.power]);
+        let cov = self.sxu / self.power - c[0] * m[0] - c[1] * m[1];
+        let var = self.suu / self.power - m[0] * m[0] - m[1] * m[1];
+        if var > 1e-30 {
+            -cov / var
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Group the arrivals of `trees` by path.
+fn accumulate(trees: &[RayTree]) -> BTreeMap<Vec<u32>, Acc> {
+    let mut m: BTreeMap<Vec<u32>, Acc> = BTreeMap::new();
+    for t in trees {
+        for a in &t.arrivals {
+            if a.direction.z.abs() > 0.0 {
+                m.entry(a.path.clone()).or_default().add(a.point, a.direction, a.power);
+            }
+        }
+    }
+    m
+}
+
+/// Ghost rows of one (source, wavelength), ranked by peak ratio (main image excluded).
+fn rows(source: &str, wavelength_nm: Option<f64>, groups: &BTreeMap<Vec<u32>, Acc>) -> Result<Vec<GhostPath>> {
+    let main = groups.get(&Vec::new()).filter(|m| m.power > 0.0).ok_or_else(|| Error::invalid(format!("ghosts: no main-image ray of source {source} reached the detector")))?;
+    let irr = |a: &Acc| a.power / (std::f64::consts::PI * a.rms().max(MIN_RADIUS_MM).powi(2));
+    let mut v: Vec<GhostPath> = groups
+        .iter()
+        .filter(|(p, a)| !p.is_empty() && a.power > 0.0)
+        .map(|(p, a)| {
+            let c = a.centroid();
+            GhostPath {
+                source: source.to_string(),
+                wavelength_nm,
+                path: path_label(p),
+                order: p.len(),
+                energy_fraction: a.power / main.power,
+                x_mm: c[0],
+                y_mm: c[1],
+                rms_radius_mm: a.rms(),
+                defocus_mm: a.focus_shift() - main.focus_shift(),
+                peak_ratio: irr(a) / irr(main),
+            }
+        })
+        .collect();
+    v.sort_by(|a, b| b.peak_ratio.total_cmp(&a.peak_ratio).then_with(|| a.path.cmp(&b.path)));
+    Ok(v)
+}
+
+fn ghost_map(trees: &[RayTree], n: usize) -> GhostMap {
+    let pts: Vec<(DVec3, f64)> = trees.iter().flat_map(|t| t.arrivals.iter().map(|a| (a.point, a.power))).collect();
+    let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+    for (p, _) in &pts {
+        lo = [lo[0].min(p.x), lo[1].min(p.y)];
+        hi = [hi[0].max(p.x), hi[1].max(p.y)];
+    }
+    let side = ((hi[0] - lo[0]).max(hi[1] - lo[1]) * 1.05).max(0.1);
+    let (cx, cy) = (0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]));
+    let pixel = side / n as f64;
+    let (x0, y0) = (cx - 0.5 * side, cy - 0.5 * side);
+    let mut power = vec![0.0; n * n];
+    for (p, w) in pts {
+        let i = (((p.x - x0) / pixel) as usize).min(n - 1);
+        let j = (((p.y - y0) / pixel) as usize).min(n - 1);
+        power[j * n + i] += w;
+    }
+    GhostMap { n, x0_mm: x0, y0_mm: y0, pixel_mm: pixel, power }
+}
+
+/// Run the analysis (brute-force kernel). Errors: invalid options (ghost order above the maximum …), a
+/// source whose main image misses the detector.
+pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Result<GhostReport> {
+    let tree_opts = TreeOptions { order: options.order, model: options.model, threshold: options.threshold, seed: options.seed, ..Default::default() };
+    tree_opts.validate()?;
+    if options.model == FresnelModel::Off {
+        return Err(Error::invalid("ghosts: the Fresnel model must be scalar or polarized"));
+    }
+    if options.rings == 0 || options.rings > 64 || options.extended_grid == 0 || options.extended_grid > 64 {
+        return Err(Error::invalid(format!("ghosts: rings {} and extended grid {} must be in 1..=64", options.rings, options.extended_grid)));
+    }
+    let kernel = BruteForce::new(system, &SolidsOptions::default())?;
+    let pupil = PupilPattern::Hexapolar { rings: options.rings }.points();
+    let mut wavelengths = system.spec.wavelengths_nm.clone();
+    if !wavelengths.contains(&520.0) {
+        wavelengths.push(520.0);
+    }
+    let mut fields = system.spec.fields_mm.clone();
+    if !fields.contains(&[0.0, 0.0]) {
+        fields.insert(0, [0.0, 0.0]);
+    }
+    let mut ledger = Ledger::default();
+    let mut paths = Vec::new();
+    let mut rays_traced = 0usize;
+    let mut averaged: BTreeMap<(String, String), (f64, usize, GhostPath)> = BTreeMap::new();
+    let mut map_point = None;
+    let mut map_uniform = None;
+    let mut on_axis_trees: Option<RayBatch> = None;
+    // Extended source: N×N field points over the box of the fields' magnitudes.
+    let (fx, fy) = fields.iter().fold((0.0f64, 0.0f64), |(a, b), f| (a.max(f[0].abs()), b.max(f[1].abs())));
+    let g = options.extended_grid;
+    let grid: Vec<[f64; 2]> = (0..g * g)
+        .map(|k| {
+            let s = |i: usize| if g == 1 { 0.0 } else { -1.0 + 2.0 * i as f64 / (g - 1) as f64 };
+            [fx * s(k % g), fy * s(k / g)]
+        })
+        .collect();
+    for &w in &wavelengths {
+        let mut sources: Vec<(String, RayBatch)> = Vec::new();
+        for f in &fields {
+            sources.push((format!("point {},{}", f[0], f[1]), RayBatch::for_field(system, *f, &pupil, w)?));
+        }
+        let mut ext = RayBatch::default();
+        for f in &grid {
+            ext.extend(&RayBatch::for_field(system, *f, &pupil, w)?);
+        }
+        sources.push(("uniform".to_string(), ext));
+        for (name, rays) in sources {
+            let trees = trace_trees(&kernel, system, &rays, &tree_opts)?;
+            rays_traced += rays.len();
+            for t in &trees {
+                ledger.add(&t.ledger);
+            }
+            let groups = accumulate(&trees);
+            let r = rows(&name, Some(w), &groups)?;
+            for p in &r {
+                let e = averaged.entry((name.clone(), p.path.clone())).or_insert((0.0, 0, GhostPath { wavelength_nm: None, ..p.clone() }));
+                e.0 += p.energy_fraction;
+                e.1 += 1;
+            }
+            if w == 520.0 {
+                if name == "point 0,0" {
+                    map_point = Some(ghost_map(&trees, 256));
+                    on_axis_trees = Some(rays.clone());
+                } else if name == "uniform" {
+                    map_uniform = Some(ghost_map(&trees, 256));
+                }
+            }
+            paths.extend(r);
+        }
+    }
+    let nw = wavelengths.len() as f64;
+    for ((_, _), (sum, _, mut p)) in averaged {
+        p.energy_fraction = sum / nw;
+        paths.push(p);
+    }
+    // The scalar model on the on-axis source at 520 nm, against the polarised one.
+    let mut report = GhostReport {
+        system: system.name().to_string(),
+        order: options.order,
+        model: options.model,
+        rays_traced,
+        paths,
+        scalar_energy_fraction: Vec::new(),
+        scalar_max_relative_error: 0.0,
+        ledger,
+        map_point: map_point.ok_or_else(|| Error::invalid("ghosts: the system has no on-axis field (0, 0)"))?,
+        map_uniform: map_uniform.expect("the uniform source is traced at 520 nm"),
+    };
+    if let Some(rays) = on_axis_trees {
+        let scalar = TreeOptions { model: FresnelModel::Scalar, ..tree_opts };
+        let polar = TreeOptions { model: FresnelModel::Polarized, ..tree_opts };
+        let s = rows("point 0,0", Some(520.0), &accumulate(&trace_trees(&kernel, system, &rays, &scalar)?))?;
+        let p = rows("point 0,0", Some(520.0), &accumulate(&trace_trees(&kernel, system, &rays, &polar)?))?;
+        report.scalar_energy_fraction = report.on_axis_520().iter().map(|g| s.iter().find(|x| x.path == g.path).map(|x| x.energy_fraction).unwrap_or(0.0)).collect();
+        report.scalar_max_relative_error = p
+            .iter()
+            .map(|g| {
+                let sv = s.iter().find(|x| x.path == g.path).map(|x| x.energy_fraction).unwrap_or(0.0);
+                (sv - g.energy_fraction).abs() / g.energy_fraction
+            })
+            .fold(0.0, f64::max);
+    }
+    Ok(report)
+}

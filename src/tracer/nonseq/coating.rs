@@ -1,0 +1,122 @@
+//! Per-surface coatings and the interface coefficients the ray tree uses.
+//!
+//! * bare surface: the Fresnel amplitudes of [`super::fresnel`];
+//! * [`Coating::Reflectance`]`(R)`: a given power reflectance for both polarisations at every angle and
+//!   wavelength (amplitudes √R and √(1 − R), no phase); R = 1 under total internal reflection;
+//! * [`Coating::Mgf2QuarterWaveNm`]`(λ₀)`: one MgF₂ layer of optical thickness λ₀/4 at normal incidence
+//!   (physical thickness λ₀/(4 n_MgF₂(λ₀))), by the single-film (Airy) formula of Born & Wolf §1.6.4
+//!   (eq. (57)): r = (r₀₁ + r₁₂ e^{2iβ})/(1 + r₀₁ r₁₂ e^{2iβ}), β = (2π/λ) n₁ d cos θ₁, with the s or p
+//!   Fresnel amplitudes r₀₁, r₁₂ of the two boundaries at complex cosines where needed. The film and the
+//!   media are lossless, so the transmitted power is 1 − R; the phase of the transmitted amplitude
+//!   (a small s/p retardance) is not modelled.
+//!
+//! MgF₂ index: the ordinary ray of M. J. Dodge, "Refractive properties of magnesium fluoride",
+//! Appl. Opt. 23, 1980–1985 (1984), Sellmeier fit 0.2–7 µm:
+//! n² − 1 = 0.48755108 λ²/(λ² − 0.04338408²) + 0.39875031 λ²/(λ² − 0.09461442²) + 2.3120353 λ²/(λ² − 23.793604²), λ in µm.
+//!
+//! ```
+//! use diffcassi::spec::Coating;
+//! use diffcassi::tracer::nonseq::coating::{interface_coefficients, mgf2_index};
+//! assert!((mgf2_index(550.0) - 1.3777).abs() < 1e-3);
+//! let bare = interface_coefficients(None, 1.0, 1.5168, 1.0, 550.0);
+//! let ar = interface_coefficients(Some(&Coating::Mgf2QuarterWaveNm(550.0)), 1.0, 1.5168, 1.0, 550.0);
+//! assert!(ar.reflectance() < 0.015 && bare.reflectance() > 0.04);
+//! ```
+use super::fresnel::amplitudes;
+use crate::spec::Coating;
+use num_complex::Complex64 as C64;
+
+/// Refractive index of MgF₂ (ordinary ray, Dodge 1984) at `wavelength_nm`.
+pub fn mgf2_index(wavelength_nm: f64) -> f64 {
+    let l2 = (wavelength_nm * 1e-3).powi(2);
+    let term = |b: f64, c: f64| b * l2 / (l2 - c * c);
+    (1.0 + term(0.48755108, 0.04338408) + term(0.39875031, 0.09461442) + term(2.3120353, 23.793604)).sqrt()
+}
+
+/// Interface coefficients for the ray tree: complex reflected amplitudes and flux-normalised transmitted
+/// amplitudes (|t̃|² is the transmitted power fraction), for s and p.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Coefficients {
+    pub rs: C64,
+    pub rp: C64,
+    pub ts: C64,
+    pub tp: C64,
+    /// Total internal reflection (nothing transmitted).
+    pub tir: bool,
+}
+
+impl Coefficients {
+    /// The s/p-averaged power reflectance (the scalar model).
+    pub fn reflectance(&self) -> f64 {
+        0.5 * (self.rs.norm_sqr() + self.rp.norm_sqr())
+    }
+}
+
+/// The coefficients of an interface with `coating` (None: bare) for light from `n1` into `n2` at
+/// cos θᵢ = `cos_i`, wavelength `wavelength_nm`.
+pub fn interface_coefficients(coating: Option<&Coating>, n1: f64, n2: f64, cos_i: f64, wavelength_nm: f64) -> Coefficients {
+    let bare = amplitudes(n1, n2, cos_i);
+    let flux = |r: C64| C64::new((1.0 - r.norm_sqr()).max(0.0).sqrt(), 0.0);
+    match coating {
+        None => {
+            if bare.tir {
+                return Coefficients { rs: bare.rs, rp: bare.rp, ts: C64::new(0.0, 0.0), tp: C64::new(0.0, 0.0), tir: true };
+            }
+            let f = (bare.n2 * bare.cos_t / (bare.n1 * bare.cos_i)).sqrt();
+            Coefficients { rs: bare.rs, rp: bare.rp, ts: bare.ts * f, tp: bare.tp * f, tir: false }
+        }
+        Some(Coating::Reflectance(r)) => {
+            if bare.tir {
+                return Coefficients { rs: C64::new(1.0, 0.0), rp: C64::new(1.0, 0.0), ts: C64::new(0.0, 0.0), tp: C64::new(0.0, 0.0), tir: true };
+            }
+            let (a, t) = (C64::new(r.sqrt(), 0.0), C64::new((1.0 - r).sqrt(), 0.0));
+            Coefficients { rs: a, rp: a, ts: t, tp: t, tir: false }
+        }
+        Some(Coating::Mgf2QuarterWaveNm(design_nm)) => {
+            let nf = mgf2_index(wavelength_nm);
+            let thickness_nm = design_nm / (4.0 * mgf2_index(*design_nm));
+            let ci = bare.cos_i;
+            let s2 = 1.0 - ci * ci; // sin² θ₀
+            let cos_in = |n: f64| C64::new(1.0 - (n1 / n) * (n1 / n) * s2, 0.0).sqrt();
+            let (c0, c1, c2) = (C64::new(ci, 0.0), cos_in(nf), cos_in(n2));
+            let rs_ab = |na: f64, ca: C64, nb: f64, cb: C64| (ca * na - cb * nb) / (ca * na + cb * nb);
+            let rp_ab = |na: f64, ca: C64, nb: f64, cb: C64| (ca * nb - cb * na) / (ca * nb + cb * na);
+            let phase = (C64::i() * 2.0 * (2.0 * std::f64::consts::PI / wavelength_nm) * nf * thickness_nm * c1).exp();
+            let film = |r01: C64, r12: C64| (r01 + r12 * phase) / (C64::new(1.0, 0.0) + r01 * r12 * phase);
+            let rs = film(rs_ab(n1, c0, nf, c1), rs_ab(nf, c1, n2, c2));
+            let rp = film(rp_ab(n1, c0, nf, c1), rp_ab(nf, c1, n2, c2));
+            if bare.tir {
+                // Beyond the critical angle of n₁ → n₂ the film cannot transmit: |r| = 1 (up to rounding).
+                return Coefficients { rs: rs / rs.norm(), rp: rp / rp.norm(), ts: C64::new(0.0, 0.0), tp: C64::new(0.0, 0.0), tir: true };
+            }
+            Coefficients { rs, rp, ts: flux(rs), tp: flux(rp), tir: false }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quarter_wave_minimum_at_design() {
+        // At normal incidence and the design wavelength R = ((n₀n₂ − n₁²)/(n₀n₂ + n₁²))² (Born & Wolf §1.6.4).
+        let (n0, n2) = (1.0, 1.5168);
+        let nf = mgf2_index(550.0);
+        let c = interface_coefficients(Some(&Coating::Mgf2QuarterWaveNm(550.0)), n0, n2, 1.0, 550.0);
+        let expect = ((n0 * n2 - nf * nf) / (n0 * n2 + nf * nf)).powi(2);
+        assert!((c.reflectance() - expect).abs() < 1e-12, "{} {expect}", c.reflectance());
+        // Thinner film (zero thickness limit) is the bare surface: check the reverse direction is symmetric.
+        let back = interface_coefficients(Some(&Coating::Mgf2QuarterWaveNm(550.0)), n2, n0, 1.0, 550.0);
+        assert!((back.reflectance() - expect).abs() < 1e-12);
+        // Away from the design wavelength the reflectance rises.
+        let off = interface_coefficients(Some(&Coating::Mgf2QuarterWaveNm(550.0)), n0, n2, 1.0, 450.0);
+        assert!(off.reflectance() > c.reflectance());
+    }
+
+    #[test]
+    fn given_reflectance() {
+        let c = interface_coefficients(Some(&Coating::Reflectance(0.01)), 1.0, 1.5, 0.8, 500.0);
+        assert!((c.reflectance() - 0.01).abs() < 1e-15 && (c.ts.norm_sqr() - 0.99).abs() < 1e-15);
+    }
+}

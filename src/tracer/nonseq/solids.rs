@@ -1,0 +1,366 @@
+//! The non-sequential description of a sequential system as **solids**, independent of any ray-tracing
+//! kernel: the Embree scene ([`crate::tracer::embree::OpticalScene`]) and the brute-force tracer
+//! ([`super::BruteForce`]) are both built from it, object for object in the same order.
+//!
+//! Every optical surface of the sequential path becomes one object over its clear aperture that knows the
+//! media on both sides: the *front* (−normal side, where the sequential ray comes from) and the *back*.
+//! Around them:
+//! * **walls** (absorbers): wherever the medium after a surface is glass, the rims of that surface and of
+//!   the next are joined by a ruled side wall, closing the solid (prisms get their side/top/bottom faces,
+//!   lenses their rims);
+//! * **blades** (absorbers): an explicit aperture (Zemax's "(aper)") gets an annular (or rectangular-frame)
+//!   blade outside it in the surface's rim plane, like a stop blade or lens mount;
+//! * the **detector**: the image surface.
+//!
+//! Zero-thickness and dummy surfaces are resolved explicitly, never left to floating-point ties between
+//! coincident geometry: consecutive path surfaces with an identity transform between them and the same
+//! plane figure are **merged** into one interface with the front medium of the first and the back medium
+//! of the last; an interface whose two media are the same (and that is not an ideal lens) is **virtual** —
+//! no geometry, only its rim (for walls) and blades (for its explicit apertures).
+//!
+//! Surfaces without an explicit aperture get a *mechanical* clear aperture: the larger of Zemax's
+//! semi-diameter and the automatic semi-diameter of the system's fields mirrored to all four quadrants,
+//! plus [`SolidsOptions::mechanical_margin_mm`]; the detector gets [`SolidsOptions::detector_margin_mm`]
+//! on top. Absorbers are triangle bands in f64 (the Embree scene rounds them to f32).
+//!
+//! ```
+//! use diffcassi::prelude::*;
+//! use diffcassi::tracer::nonseq::{Solids, SolidsOptions};
+//! let sys = SequentialSystem::build(&presets::spec("sp")?)?;
+//! let solids = Solids::build(&sys, &SolidsOptions::default())?;
+//! assert!(solids.interfaces() >= 4);
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+use crate::analysis::automatic_semi_diameters;
+use crate::error::{Error, Result};
+use crate::geometry::Frame;
+use crate::surfaces::{Aperture, SurfacePatch, SurfaceShape};
+use crate::system::SequentialSystem;
+use glam::{DMat3, DVec3};
+
+/// Margins of the solids (mm).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolidsOptions {
+    /// Added to the larger of Zemax's and the automatic semi-diameter of surfaces without explicit
+    /// aperture (mm).
+    pub mechanical_margin_mm: f64,
+    /// Extra margin on the detector (mm).
+    pub detector_margin_mm: f64,
+    /// Radial width of the absorbing blade around an explicit aperture (mm).
+    pub blade_width_mm: f64,
+}
+
+impl Default for SolidsOptions {
+    fn default() -> Self {
+        SolidsOptions { mechanical_margin_mm: 1.0, detector_margin_mm: 25.0, blade_width_mm: 10.0 }
+    }
+}
+
+/// What an object does to a ray that reaches it.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Role {
+    /// Refracting (or ideal-lens) interface. `surfaces`: the merged sequential surfaces; media are indices
+    /// into [`SequentialSystem::indices`].
+    Interface { surfaces: Vec<usize>, front_medium: usize, back_medium: usize, paraxial_focal_mm: Option<f64> },
+    /// The image surface, with the media before and after it: the sequential tracer refracts at the image
+    /// surface like at any other, so the detector reports the same (refracted) direction.
+    Detector { surface: usize, front_medium: usize, back_medium: usize },
+    /// Absorbing blade outside an explicit aperture of `surface` (→ vignetted). `interface`: the object
+    /// index of the group's refracting geometry (`None` for a virtual group, e.g. a stop in air).
+    Blade { surface: usize, interface: Option<usize> },
+    /// Absorbing side wall of the solid that starts at `surface` (→ absorbed). `ends`: the object indices
+    /// of the refracting geometries whose rims the wall joins.
+    Wall { surface: usize, ends: Vec<usize> },
+}
+
+/// One object of the solids.
+#[derive(Clone, Debug)]
+pub struct Solid {
+    pub role: Role,
+    /// Local frame of the surface (global = frame · local).
+    pub frame: Frame,
+    /// Interfaces and the detector: the exact figure over its clear aperture. Blades: the group's figure
+    /// over its clear aperture (`None` if it cannot be bounded there). Walls: `None`.
+    pub patch: Option<SurfacePatch>,
+    /// Absorbers: the triangle band (global vertices, f64). Empty for interfaces.
+    pub vertices: Vec<DVec3>,
+    pub triangles: Vec<[u32; 3]>,
+    /// The explicit apertures (with their sequential surface) of the object's group, in its local frame.
+    pub apertures: Vec<(usize, Aperture)>,
+}
+
+impl Solid {
+    /// Interfaces and the detector (optical geometry), as opposed to absorbers.
+    pub fn is_optical(&self) -> bool {
+        matches!(self.role, Role::Interface { .. } | Role::Detector { .. })
+    }
+}
+
+/// The solids of a sequential system.
+#[derive(Clone, Debug)]
+pub struct Solids {
+    pub objects: Vec<Solid>,
+    /// Sequential index of the image surface.
+    pub image_surface: usize,
+}
+
+impl Solids {
+    /// Build the solids of `system`. Errors: negative margins, a virtual object (negative object
+    /// distance: non-sequential tracers follow rays forward only), a figure undefined over its aperture.
+    pub fn build(system: &SequentialSystem, options: &SolidsOptions) -> Result<Self> {
+        if !(options.mechanical_margin_mm.is_finite() && options.mechanical_margin_mm >= 0.0)
+            || !(options.detector_margin_mm.is_finite() && options.detector_margin_mm >= 0.0)
+            || !(options.blade_width_mm.is_finite() && options.blade_width_mm > 0.0)
+        {
+            return Err(Error::invalid(format!("non-sequential scene options {options:?}: margins must be finite and ≥ 0, blade width > 0")));
+        }
+        // A negative object distance puts the object after surface 1 (a virtual object, reached by
+        // propagating rays backwards as a sequential tracer may); a non-sequential tracer only follows rays
+        // forward, so every ray would silently miss. Refuse it with the reason instead.
+        let object_mm = system.surfaces[0].thickness_mm;
+        if object_mm < 0.0 {
+            return Err(Error::invalid(format!(
+                "system `{}`: surface 0 thickness {object_mm} mm < 0 is a virtual object; the non-sequential backends (Embree, brute force) trace rays forward only (use the analytic backend)",
+                system.name()
+            )));
+        }
+        let groups = group_surfaces(system, options)?;
+        let mut objects: Vec<Solid> = Vec::new();
+        let mut group_interface: Vec<Option<usize>> = Vec::with_capacity(groups.len());
+        let mut walls: Vec<(usize, usize)> = Vec::new();
+        for (gi, g) in groups.iter().enumerate() {
+            let mut interface_object = None;
+            if !g.virtual_ {
+                let patch = SurfacePatch::new(g.shape.clone(), g.clear.clone()).map_err(|e| Error::invalid(format!("surface {}: {e}", g.surfaces[0])))?;
+                let role = if g.is_image {
+                    Role::Detector { surface: g.surfaces[0], front_medium: g.front_medium, back_medium: g.back_medium }
+                } else {
+                    Role::Interface {
+                        surfaces: g.surfaces.clone(),
+                        front_medium: g.front_medium,
+                        back_medium: g.back_medium,
+                        paraxial_focal_mm: match g.shape {
+                            SurfaceShape::Paraxial { focal_length } => Some(focal_length),
+                            _ => None,
+                        },
+                    }
+                };
+                interface_object = Some(objects.len());
+                objects.push(Solid { role, frame: g.frame, patch: Some(patch), vertices: Vec::new(), triangles: Vec::new(), apertures: g.explicit.clone() });
+            }
+            group_interface.push(interface_object);
+            // Blades outside explicit apertures.
+            for (surface, ap) in &g.explicit {
+                let (vertices, triangles) = blade_mesh(g, ap, options.blade_width_mm);
+                let patch = SurfacePatch::new(g.shape.clone(), g.clear.clone()).ok();
+                let role = Role::Blade { surface: *surface, interface: interface_object };
+                objects.push(Solid { role, frame: g.frame, patch, vertices, triangles, apertures: g.explicit.clone() });
+            }
+            // Side walls of the solid between this group and the next, when the medium between is glass.
+            if let Some(next) = groups.get(gi + 1) {
+                if !system.surfaces[g.back_medium].medium_after.is_air() {
+                    let (vertices, triangles) = wall_mesh(g, next);
+                    walls.push((objects.len(), gi));
+                    objects.push(Solid { role: Role::Wall { surface: g.surfaces[0], ends: Vec::new() }, frame: g.frame, patch: None, vertices, triangles, apertures: Vec::new() });
+                }
+            }
+        }
+        for (object, gi) in walls {
+            if let Role::Wall { ends, .. } = &mut objects[object].role {
+                *ends = [group_interface[gi], group_interface.get(gi + 1).copied().flatten()].into_iter().flatten().collect();
+            }
+        }
+        Ok(Solids { objects, image_surface: system.surfaces.len() - 1 })
+    }
+
+    /// Number of optical objects (interfaces + detector).
+    pub fn interfaces(&self) -> usize {
+        self.objects.iter().filter(|o| o.is_optical()).count()
+    }
+
+    /// Triangles of the absorbers.
+    pub fn absorber_triangles(&self) -> usize {
+        self.objects.iter().map(|o| o.triangles.len()).sum()
+    }
+}
+
+/// Samples on a rim polygon (walls and blades).
+pub const RIM_SAMPLES: usize = 192;
+
+/// A group of merged sequential path steps.
+struct Group {
+    surfaces: Vec<usize>,
+    frame: Frame,
+    shape: SurfaceShape,
+    explicit: Vec<(usize, Aperture)>,
+    /// Clear aperture used for the geometry and the rim.
+    clear: Aperture,
+    front_medium: usize,
+    back_medium: usize,
+    virtual_: bool,
+    is_image: bool,
+}
+
+/// Is the step transform the identity (coincident frames)?
+fn is_identity(rotation: &DMat3, offset: DVec3) -> bool {
+    (*rotation - DMat3::IDENTITY).to_cols_array().iter().all(|v| v.abs() < 1e-12) && offset.abs().max_element() < 1e-12
+}
+
+/// Merge coincident path surfaces, decide virtual interfaces and clear apertures.
+fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<Vec<Group>> {
+    // Mechanical semi-diameters from the system's fields mirrored to all quadrants.
+    let mut mirrored = system.clone();
+    let mut fields = Vec::new();
+    for f in if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() } {
+        for (sx, sy) in [(1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)] {
+            let g = [sx * f[0], sy * f[1]];
+            if !fields.contains(&g) {
+                fields.push(g);
+            }
+        }
+    }
+    mirrored.spec.fields_mm = fields;
+    let auto = automatic_semi_diameters(&mirrored, 0.0, 32)?;
+    let sd_of = |surface: usize| -> f64 {
+        let zemax = system.surfaces[surface].semi_diameter_mm.unwrap_or(0.0);
+        let a = auto.iter().find(|(s, _)| *s == surface).map(|(_, v)| *v).unwrap_or(0.0);
+        zemax.max(a)
+    };
+    let last = system.path.len() - 1;
+    let mut groups: Vec<Group> = Vec::new();
+    for (k, step) in system.path.iter().enumerate() {
+        let s = step.surface;
+        let merge = k > 0
+            && k != last
+            && is_identity(&step.rotation, step.offset)
+            && groups.last().is_some_and(|g| !g.is_image && g.shape == step.shape && matches!(step.shape, SurfaceShape::Plane));
+        if merge {
+            let g = groups.last_mut().unwrap();
+            g.surfaces.push(s);
+            g.back_medium = s;
+            if step.aperture != Aperture::None {
+                g.explicit.push((s, step.aperture.clone()));
+            }
+            continue;
+        }
+        groups.push(Group {
+            surfaces: vec![s],
+            frame: system.surfaces[s].frame,
+            shape: step.shape.clone(),
+            explicit: if step.aperture != Aperture::None { vec![(s, step.aperture.clone())] } else { vec![] },
+            clear: Aperture::None,
+            front_medium: s - 1,
+            back_medium: s,
+            virtual_: false,
+            is_image: k == last,
+        });
+    }
+    for g in &mut groups {
+        let same_media = system.surfaces[g.front_medium].medium_after == system.surfaces[g.back_medium].medium_after;
+        g.virtual_ = !g.is_image && same_media && !matches!(g.shape, SurfaceShape::Paraxial { .. });
+        let mechanical = g.surfaces.iter().map(|&s| sd_of(s)).fold(0.0, f64::max) + options.mechanical_margin_mm
+            + if g.is_image { options.detector_margin_mm } else { 0.0 };
+        // Several explicit apertures on coincident surfaces: each gets its blade; the clear geometry uses
+        // the first (the blades of the others clip what it would let through).
+        g.clear = match g.explicit.first() {
+            Some((_, ap)) => ap.clone(),
+            None => Aperture::circular(mechanical),
+        };
+    }
+    Ok(groups)
+}
+
+/// Point on the boundary of `ap` at polar angle `a` about its centre (local x, y). On a rectangle, the
+/// sample angle nearest a corner (within half the rim's angular step) gives the corner itself, so the
+/// rim polygon is the rectangle exactly (without it the polygon cuts the corners, and rays through
+/// the aperture's corners met the side wall or the blade).
+fn rim_point(ap: &Aperture, a: f64) -> (f64, f64) {
+    let (c, s) = (a.cos(), a.sin());
+    match *ap {
+        Aperture::Circular { semi_diameter_mm: r, decenter_x_mm: dx, decenter_y_mm: dy, .. } => (dx + r * c, dy + r * s),
+        Aperture::Rectangular { half_width_x_mm: hx, half_width_y_mm: hy, decenter_x_mm: dx, decenter_y_mm: dy } => {
+            let half_step = std::f64::consts::PI / RIM_SAMPLES as f64;
+            for (sx, sy) in [(1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0)] {
+                let corner = f64::atan2(sy * hy, sx * hx);
+                let diff = (a - corner).rem_euclid(std::f64::consts::TAU);
+                if diff < half_step || std::f64::consts::TAU - diff <= half_step {
+                    return (dx + sx * hx, dy + sy * hy);
+                }
+            }
+            // Where the ray from the centre at angle a leaves the rectangle.
+            let k = (hx / c.abs().max(1e-300)).min(hy / s.abs().max(1e-300));
+            (dx + k * c, dy + k * s)
+        }
+        Aperture::None => (0.0, 0.0),
+    }
+}
+
+/// The rim of a group's clear aperture, on its figure, in global coordinates: the side walls start here.
+///
+/// A circular rim is drawn as the polygon *circumscribed* about the circle (vertices at r / cos(π/N),
+/// heights those of the circle's points): an inscribed polygon would cut up to r(1 − cos(π/N)) off the
+/// clear aperture, and rays entering there (inside the aperture) would meet the wall at once.
+fn rim(g: &Group) -> Vec<DVec3> {
+    let out = 1.0 / (std::f64::consts::PI / RIM_SAMPLES as f64).cos();
+    (0..RIM_SAMPLES)
+        .map(|i| {
+            let a = std::f64::consts::TAU * i as f64 / RIM_SAMPLES as f64;
+            let (x, y) = rim_point(&g.clear, a);
+            let z = g.shape.sag(x, y);
+            let (x, y) = match g.clear {
+                Aperture::Circular { decenter_x_mm: dx, decenter_y_mm: dy, .. } => (dx + (x - dx) * out, dy + (y - dy) * out),
+                _ => (x, y),
+            };
+            g.frame.point_to_global(DVec3::new(x, y, if z.is_finite() { z } else { 0.0 }))
+        })
+        .collect()
+}
+
+/// Triangles of the band between two closed polygons of `RIM_SAMPLES` vertices each, stored one after the
+/// other (vertex k of the first joined to vertex k of the second).
+fn band_triangles() -> Vec<[u32; 3]> {
+    let n = RIM_SAMPLES as u32;
+    (0..n).flat_map(|i| {
+        let j = (i + 1) % n;
+        [[i, j, n + j], [i, n + j, n + i]]
+    })
+    .collect()
+}
+
+/// Ruled side wall joining the rims of two consecutive groups.
+fn wall_mesh(a: &Group, b: &Group) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let vertices: Vec<DVec3> = rim(a).into_iter().chain(rim(b)).collect();
+    (vertices, band_triangles())
+}
+
+/// Flat absorbing blade outside `ap`, in the plane z = sag at the rim, `width` wide.
+fn blade_mesh(g: &Group, ap: &Aperture, width: f64) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let mut vertices = Vec::with_capacity(2 * RIM_SAMPLES);
+    let (inner, outer): (Vec<(f64, f64)>, Vec<(f64, f64)>) = (0..RIM_SAMPLES)
+        .map(|i| {
+            let a = std::f64::consts::TAU * i as f64 / RIM_SAMPLES as f64;
+            let (x, y) = rim_point(ap, a);
+            let (cx, cy) = rim_point(ap, a + std::f64::consts::PI); // opposite point: centre = midpoint
+            let (mx, my) = (0.5 * (x + cx), 0.5 * (y + cy));
+            let (ux, uy) = (x - mx, y - my);
+            let len = ux.hypot(uy).max(1e-300);
+            ((x, y), (x + width * ux / len, y + width * uy / len))
+        })
+        .unzip();
+    let z_of = |x: f64, y: f64| {
+        let z = g.shape.sag(x, y);
+        if z.is_finite() {
+            z
+        } else {
+            0.0
+        }
+    };
+    for &(x, y) in &inner {
+        vertices.push(g.frame.point_to_global(DVec3::new(x, y, z_of(x, y))));
+    }
+    for (k, &(x, y)) in outer.iter().enumerate() {
+        let (ix, iy) = inner[k];
+        vertices.push(g.frame.point_to_global(DVec3::new(x, y, z_of(ix, iy))));
+    }
+    (vertices, band_triangles())
+}
