@@ -4,6 +4,24 @@ use crate::system::SequentialSystem;
 use crate::tracer::kernel::trace_steps_recording;
 use glam::DVec3;
 
+/// [`automatic_semi_diameters`] (no margin, 32 edge samples) of the system's fields mirrored to all four
+/// quadrants: the *mechanical* clear radii a solid needs for a system whose fields cover one quadrant only
+/// (the non-sequential solids of `tracer::nonseq::solids` and the mounts of `mechanics::parts`).
+pub fn mirrored_semi_diameters(system: &SequentialSystem) -> Result<Vec<(usize, f64)>> {
+    let mut mirrored = system.clone();
+    let mut fields = Vec::new();
+    for f in if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() } {
+        for (sx, sy) in [(1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)] {
+            let g = [sx * f[0], sy * f[1]];
+            if !fields.contains(&g) {
+                fields.push(g);
+            }
+        }
+    }
+    mirrored.spec.fields_mm = fields;
+    automatic_semi_diameters(&mirrored, 0.0, 32)
+}
+
 /// Zemax's automatic semi-diameters: for every traced surface, the largest radial height at which the
 /// marginal rays (the pupil edge) of any field at any system wavelength cross it, plus `margin_mm` (Zemax's
 /// "Semi-Diameter Margin" system setting). The stop's is the edge of the first field at the primary

@@ -14,7 +14,7 @@
 //! The mesh resolution (`segments`, the polygon vertices around a tube) sets the triangle count and
 //! nothing else: the envelope is the same at every resolution.
 use super::{Part, PartKind, TriMesh};
-use crate::analysis::automatic_semi_diameters;
+use crate::analysis::mirrored_semi_diameters;
 use crate::error::{Error, Result};
 use crate::geometry::Frame;
 use crate::spec::SurfaceModel;
@@ -59,18 +59,7 @@ struct Element {
 
 /// The clear semi-diameter of every surface (index = surface), mm.
 fn clear_radii(system: &SequentialSystem) -> Result<Vec<f64>> {
-    let mut mirrored = system.clone();
-    let mut fields = Vec::new();
-    for f in if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() } {
-        for (sx, sy) in [(1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)] {
-            let g = [sx * f[0], sy * f[1]];
-            if !fields.contains(&g) {
-                fields.push(g);
-            }
-        }
-    }
-    mirrored.spec.fields_mm = fields;
-    let auto = automatic_semi_diameters(&mirrored, 0.0, 32)?;
+    let auto = mirrored_semi_diameters(system)?;
     Ok(system
         .surfaces
         .iter()

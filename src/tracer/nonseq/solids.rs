@@ -31,7 +31,7 @@
 //! assert!(solids.interfaces() >= 4);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
-use crate::analysis::automatic_semi_diameters;
+use crate::analysis::mirrored_semi_diameters;
 use crate::error::{Error, Result};
 use crate::geometry::Frame;
 use crate::surfaces::{Aperture, SurfacePatch, SurfaceShape};
@@ -209,18 +209,7 @@ fn is_identity(rotation: &DMat3, offset: DVec3) -> bool {
 /// Merge coincident path surfaces, decide virtual interfaces and clear apertures.
 fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<Vec<Group>> {
     // Mechanical semi-diameters from the system's fields mirrored to all quadrants.
-    let mut mirrored = system.clone();
-    let mut fields = Vec::new();
-    for f in if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() } {
-        for (sx, sy) in [(1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)] {
-            let g = [sx * f[0], sy * f[1]];
-            if !fields.contains(&g) {
-                fields.push(g);
-            }
-        }
-    }
-    mirrored.spec.fields_mm = fields;
-    let auto = automatic_semi_diameters(&mirrored, 0.0, 32)?;
+    let auto = mirrored_semi_diameters(system)?;
     let sd_of = |surface: usize| -> f64 {
         let zemax = system.surfaces[surface].semi_diameter_mm.unwrap_or(0.0);
         let a = auto.iter().find(|(s, _)| *s == surface).map(|(_, v)| *v).unwrap_or(0.0);
