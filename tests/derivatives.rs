@@ -3,11 +3,13 @@
 //!
 //! Criterion: |J − FD| ≤ 1e-6·|FD| or ≤ 1e-9 (mm, or direction units) absolute.
 //! `cargo test --release --test derivatives -- --nocapture` prints the worst agreement per parameter.
+mod common;
+use common::{ap_like, sp_like};
 use diffcassi::diff::hit::{hit_tangent, ShapeTangent};
 use diffcassi::diff::{HitJacobianBatch, JacobianBatch, Param, ParamSet};
 use diffcassi::materials::GlassCatalog;
 use diffcassi::prelude::*;
-use diffcassi::spec::{Cell, SurfaceKind};
+use diffcassi::spec::Cell;
 use diffcassi::surfaces::{intersect, SurfaceShape};
 use diffcassi::tracer::hits::{sequential_hits, HitKind, HitLog};
 #[cfg(feature = "embree")]
@@ -233,17 +235,6 @@ fn embree_backends() -> [(&'static str, EmbreeOptions); 2] {
 
 const RAY_PARAMS: [&str; 7] = ["wavelength", "ray.origin_x", "ray.origin_y", "ray.origin_z", "ray.dir_x", "ray.dir_y", "ray.dir_z"];
 
-/// SP/mSP with surface 16 made an even asphere and surface 9 an order-1 break, so every kind is present.
-fn sp_like(name: &str) -> SystemSpec {
-    let mut spec = presets::spec(name).unwrap();
-    spec.surfaces[16].kind = SurfaceKind::EvenAsphere;
-    spec.surfaces[16].asphere_coefficients = vec![Cell::fixed(1e-5), Cell::fixed(-2e-7)];
-    spec.surfaces[16].conic = Some(Cell::fixed(0.0));
-    spec.surfaces[9].order = 1;
-    spec.surfaces[9].tilt_x_deg = Some(Cell::fixed(0.5));
-    spec.surfaces[9].decenter_y_mm = Some(Cell::fixed(0.1));
-    spec
-}
 
 /// [`sp_like`] for the Embree backends: the break tilts the second half of the split prism (surface 10)
 /// against the first (surface 8), and with the two faces coincident the sequential model crosses
@@ -287,17 +278,6 @@ fn sp_params(extra: &[&'static str]) -> Vec<&'static str> {
     v
 }
 
-/// AP/mAP with the prism's entrance face made a weak even asphere (radius 200 mm), so curvature, conic and
-/// asphere terms act on a refracting surface.
-fn ap_like(name: &str, entrance: usize) -> SystemSpec {
-    let mut spec = presets::spec(name).unwrap();
-    let s = &mut spec.surfaces[entrance];
-    s.kind = SurfaceKind::EvenAsphere;
-    s.radius_mm = Some(Cell::fixed(200.0));
-    s.conic = Some(Cell::fixed(0.0));
-    s.asphere_coefficients = vec![Cell::fixed(1e-4), Cell::fixed(1e-6)];
-    spec
-}
 
 #[test]
 fn jacobians_match_finite_differences_sp() {

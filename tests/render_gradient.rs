@@ -4,11 +4,13 @@
 //! (the acquisition is linear in both); thread-count independence; the mapping cube's Jacobian; bad input.
 //!
 //! `cargo test --release --test render_gradient -- --nocapture` prints the measured errors.
+mod common;
+use common::{ap_like, sp_like};
 use diffcassi::diff::{Param, ParamSet};
 use diffcassi::materials::GlassCatalog;
 use diffcassi::render::gradient::DiffRenderer;
 use diffcassi::render::{RenderConfig, SpectralSampling};
-use diffcassi::spec::{Cell, SurfaceKind, SystemSpec};
+use diffcassi::spec::SystemSpec;
 
 /// A small deterministic generator (xorshift) for scenes, masks and upstream gradients.
 struct Rng(u64);
@@ -94,29 +96,7 @@ fn check_same_sample(label: &str, spec: SystemSpec, free: &[&str]) -> f64 {
     worst
 }
 
-/// SP/mSP with surface 16 an even asphere and break 9 of order 1 tilted (every parameter kind acts), as
-/// the Jacobian tests of `tests/derivatives.rs`.
-fn sp_like(name: &str) -> SystemSpec {
-    let mut spec = diffcassi::presets::spec(name).unwrap();
-    spec.surfaces[16].kind = SurfaceKind::EvenAsphere;
-    spec.surfaces[16].asphere_coefficients = vec![Cell::fixed(1e-5), Cell::fixed(-2e-7)];
-    spec.surfaces[16].conic = Some(Cell::fixed(0.0));
-    spec.surfaces[9].order = 1;
-    spec.surfaces[9].tilt_x_deg = Some(Cell::fixed(0.5));
-    spec.surfaces[9].decenter_y_mm = Some(Cell::fixed(0.1));
-    spec
-}
 
-/// AP/mAP with the prism's entrance face a weak even asphere.
-fn ap_like(name: &str, entrance: usize) -> SystemSpec {
-    let mut spec = diffcassi::presets::spec(name).unwrap();
-    let s = &mut spec.surfaces[entrance];
-    s.kind = SurfaceKind::EvenAsphere;
-    s.radius_mm = Some(Cell::fixed(200.0));
-    s.conic = Some(Cell::fixed(0.0));
-    s.asphere_coefficients = vec![Cell::fixed(1e-4), Cell::fixed(1e-6)];
-    spec
-}
 
 const SP_PARAMS: [&str; 22] = [
     "s0.thickness_mm",

@@ -80,3 +80,31 @@ pub fn zemax_rays(path: &std::path::Path) -> ([f64; 2], Vec<[f64; 4]>) {
 
 pub const SYSTEMS: [(&str, &str); 2] = [("sp", "SP_single_prism_aligned"), ("ap", "AP_amici_prism_aligned")];
 pub const WAVELENGTHS: [(usize, f64); 3] = [(1, 450.0), (2, 520.0), (3, 650.0)];
+
+/// SP/mSP with surface 16 made an even asphere and surface 9 an order-1 break (tilted and decentred), so every
+/// parameter kind acts (the Jacobian tests of `tests/derivatives.rs` and the acquisition gradients of
+/// `tests/render_gradient.rs`).
+pub fn sp_like(name: &str) -> diffcassi::spec::SystemSpec {
+    use diffcassi::spec::{Cell, SurfaceKind};
+    let mut spec = diffcassi::presets::spec(name).unwrap();
+    spec.surfaces[16].kind = SurfaceKind::EvenAsphere;
+    spec.surfaces[16].asphere_coefficients = vec![Cell::fixed(1e-5), Cell::fixed(-2e-7)];
+    spec.surfaces[16].conic = Some(Cell::fixed(0.0));
+    spec.surfaces[9].order = 1;
+    spec.surfaces[9].tilt_x_deg = Some(Cell::fixed(0.5));
+    spec.surfaces[9].decenter_y_mm = Some(Cell::fixed(0.1));
+    spec
+}
+
+/// AP/mAP with the prism's entrance face (surface `entrance`) made a weak even asphere (radius 200 mm), so
+/// curvature, conic and asphere terms act on a refracting surface.
+pub fn ap_like(name: &str, entrance: usize) -> diffcassi::spec::SystemSpec {
+    use diffcassi::spec::{Cell, SurfaceKind};
+    let mut spec = diffcassi::presets::spec(name).unwrap();
+    let s = &mut spec.surfaces[entrance];
+    s.kind = SurfaceKind::EvenAsphere;
+    s.radius_mm = Some(Cell::fixed(200.0));
+    s.conic = Some(Cell::fixed(0.0));
+    s.asphere_coefficients = vec![Cell::fixed(1e-4), Cell::fixed(1e-6)];
+    spec
+}
