@@ -235,7 +235,6 @@ fn embree_backends() -> [(&'static str, EmbreeOptions); 2] {
 
 const RAY_PARAMS: [&str; 7] = ["wavelength", "ray.origin_x", "ray.origin_y", "ray.origin_z", "ray.dir_x", "ray.dir_y", "ray.dir_z"];
 
-
 /// [`sp_like`] for the Embree backends: the break tilts the second half of the split prism (surface 10)
 /// against the first (surface 8), and with the two faces coincident the sequential model crosses
 /// surface 10 at negative distance for some rays, a path no physical (non-sequential) trace takes — the
@@ -248,36 +247,12 @@ fn sp_gap(name: &str) -> SystemSpec {
 }
 
 fn sp_params(extra: &[&'static str]) -> Vec<&'static str> {
-    let mut v = vec![
-        "s0.thickness_mm",
-        "s2.focal_length_mm",
-        "s3.tilt_y_deg",
-        "s4.tilt_x_deg",
-        "s4.tilt_y_deg",
-        "s4.tilt_z_deg",
-        "s4.decenter_x_mm",
-        "s5.tilt_y_deg",
-        "s6.thickness_mm",
-        "s7.tilt_y_deg",
-        "s9.tilt_x_deg",
-        "s9.decenter_y_mm",
-        "s15.thickness_mm",
-        "s16.curvature",
-        "s16.conic",
-        "s16.asphere_1",
-        "s16.asphere_2",
-        "s17.radius_mm",
-        "s18.thickness_mm",
-        "glass_nd:N-BK7",
-        "glass_vd:N-BK7",
-        "glass_nd:N-BAF10",
-        "glass_vd:SF10",
-    ];
+    let mut v = common::SP_LIKE_PARAMS.to_vec();
+    v.push("s18.thickness_mm");
     v.extend_from_slice(&RAY_PARAMS);
     v.extend_from_slice(extra);
     v
 }
-
 
 #[test]
 fn jacobians_match_finite_differences_sp() {

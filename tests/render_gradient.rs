@@ -96,37 +96,10 @@ fn check_same_sample(label: &str, spec: SystemSpec, free: &[&str]) -> f64 {
     worst
 }
 
-
-
-const SP_PARAMS: [&str; 22] = [
-    "s0.thickness_mm",
-    "s2.focal_length_mm",
-    "s3.tilt_y_deg",
-    "s4.tilt_x_deg",
-    "s4.tilt_y_deg",
-    "s4.tilt_z_deg",
-    "s4.decenter_x_mm",
-    "s5.tilt_y_deg",
-    "s6.thickness_mm",
-    "s7.tilt_y_deg",
-    "s9.tilt_x_deg",
-    "s9.decenter_y_mm",
-    "s15.thickness_mm",
-    "s16.curvature",
-    "s16.conic",
-    "s16.asphere_1",
-    "s16.asphere_2",
-    "s17.radius_mm",
-    "glass_nd:N-BK7",
-    "glass_vd:N-BK7",
-    "glass_nd:N-BAF10",
-    "glass_vd:SF10",
-];
-
 #[test]
 fn vjp_matches_same_sample_finite_differences_sp_and_msp() {
-    assert!(check_same_sample("sp", sp_like("sp"), &SP_PARAMS) <= 1e-6);
-    assert!(check_same_sample("msp", sp_like("msp"), &SP_PARAMS) <= 1e-6);
+    assert!(check_same_sample("sp", sp_like("sp"), &common::SP_LIKE_PARAMS) <= 1e-6);
+    assert!(check_same_sample("msp", sp_like("msp"), &common::SP_LIKE_PARAMS) <= 1e-6);
 }
 
 #[test]

@@ -108,3 +108,31 @@ pub fn ap_like(name: &str, entrance: usize) -> diffcassi::spec::SystemSpec {
     s.asphere_coefficients = vec![Cell::fixed(1e-4), Cell::fixed(1e-6)];
     spec
 }
+
+/// The optical parameters of [`sp_like`] every kind of which acts on the detector image: thicknesses,
+/// focal length, tilts, decentres, curvature, radius, conic, asphere terms, n_d and V_d (the image surface's
+/// thickness, which moves no ray, is added by the Jacobian tests only).
+pub const SP_LIKE_PARAMS: [&str; 22] = [
+    "s0.thickness_mm",
+    "s2.focal_length_mm",
+    "s3.tilt_y_deg",
+    "s4.tilt_x_deg",
+    "s4.tilt_y_deg",
+    "s4.tilt_z_deg",
+    "s4.decenter_x_mm",
+    "s5.tilt_y_deg",
+    "s6.thickness_mm",
+    "s7.tilt_y_deg",
+    "s9.tilt_x_deg",
+    "s9.decenter_y_mm",
+    "s15.thickness_mm",
+    "s16.curvature",
+    "s16.conic",
+    "s16.asphere_1",
+    "s16.asphere_2",
+    "s17.radius_mm",
+    "glass_nd:N-BK7",
+    "glass_vd:N-BK7",
+    "glass_nd:N-BAF10",
+    "glass_vd:SF10",
+];
