@@ -338,26 +338,7 @@ impl DiffRenderer {
             out.iter_mut().zip(src).for_each(|(o, s)| *o += wgt * s);
             return;
         };
-        let (w, h, half) = (self.detector.width as isize, self.detector.height as isize, k.half as isize);
-        let n = 2 * half + 1;
-        for y in 0..h {
-            for x in 0..w {
-                let mut acc = 0.0;
-                for ki in 0..n {
-                    let sy = y - (ki - half);
-                    if sy < 0 || sy >= h {
-                        continue;
-                    }
-                    for kj in 0..n {
-                        let sx = x - (kj - half);
-                        if sx >= 0 && sx < w {
-                            acc += k.w[(ki * n + kj) as usize] * src[(sy * w + sx) as usize];
-                        }
-                    }
-                }
-                out[(y * w + x) as usize] += wgt * acc;
-            }
-        }
+        self.kernel_pass(k, src, 1, |i, acc| out[i] += wgt * acc);
     }
 
     /// The adjoint of [`Self::blur`]: out = plane_weight · Kᵀ g.
@@ -367,24 +348,32 @@ impl DiffRenderer {
             out.iter_mut().zip(g).for_each(|(o, s)| *o = wgt * s);
             return;
         };
+        self.kernel_pass(k, g, -1, |i, acc| out[i] = wgt * acc);
+    }
+
+    /// For every detector pixel (x, y): Σ_{ki,kj} w[ki,kj] · img[y − dir·(ki − half), x − dir·(kj − half)] over
+    /// the taps inside the detector, handed to `emit(pixel, sum)`. `dir` = 1 is the convolution K ⊛ img,
+    /// `dir` = −1 its transpose (the correlation Kᵀ img); the f32 renderer's tiled paths are
+    /// `render::convolve`, this is the f64 reference the gradients need.
+    fn kernel_pass(&self, k: &Kernel64, img: &[f64], dir: isize, mut emit: impl FnMut(usize, f64)) {
         let (w, h, half) = (self.detector.width as isize, self.detector.height as isize, k.half as isize);
         let n = 2 * half + 1;
-        for sy in 0..h {
-            for sx in 0..w {
+        for y in 0..h {
+            for x in 0..w {
                 let mut acc = 0.0;
                 for ki in 0..n {
-                    let y = sy + (ki - half);
-                    if y < 0 || y >= h {
+                    let sy = y - dir * (ki - half);
+                    if sy < 0 || sy >= h {
                         continue;
                     }
                     for kj in 0..n {
-                        let x = sx + (kj - half);
-                        if x >= 0 && x < w {
-                            acc += k.w[(ki * n + kj) as usize] * g[(y * w + x) as usize];
+                        let sx = x - dir * (kj - half);
+                        if sx >= 0 && sx < w {
+                            acc += k.w[(ki * n + kj) as usize] * img[(sy * w + sx) as usize];
                         }
                     }
                 }
-                out[(sy * w + sx) as usize] = wgt * acc;
+                emit((y * w + x) as usize, acc);
             }
         }
     }
