@@ -621,3 +621,12 @@ class CassiRenderer(nn.Module):
 
     def extra_repr(self) -> str:
         return f"free={self.names}, scene {self.H}×{self.W}, detector {self.image_shape[0]}×{self.image_shape[1]}"
+
+
+# ---------------------------------------------------------------------------------------------------------
+# The unrolled network (issue 22 item 5): GAP stages with learned denoisers around the exact operator. Defined in
+# diffcassi/unrolled.py (graph, weights files); re-exported here beside the operator it wraps.
+# ---------------------------------------------------------------------------------------------------------
+from .unrolled import StageDenoiser, UnrolledGAP, load_unrolled, save_unrolled  # noqa: E402
+
+__all__ += ["UnrolledGAP", "StageDenoiser", "load_unrolled", "save_unrolled"]

@@ -1,56 +1,24 @@
-"""Train a tiny unrolled network (a few GAP steps, each followed by a small CNN denoiser) on acquisitions rendered
-on the fly by diffcassi — the shape of the reference paper's pipeline, on CPU in minutes.
+"""A toy run of the unrolled network (``diffcassi.torch.UnrolledGAP``: GAP stages with learned denoisers around the
+exact operator) — seconds to minutes on a CPU, a falling loss. The real training is ``scripts/train_unrolled.py``
+(diffcassi/weights/UNROLLED.md: the realistic setting at 128×128, the committed weights).
 
-    .venv/bin/python examples/python/train_unrolled.py            # 40 iterations, prints a falling loss
+    .venv/bin/python examples/python/train_unrolled.py            # 40 iterations
     .venv/bin/python examples/python/train_unrolled.py --iterations 200 --size 32
 
 Data: the CLI's synthetic scenes (48×48, 31 bands), cropped/flipped/rotated per (seed, index, epoch) by
-CassiDataset and rendered through the exact light transport (Transport) of the SP system; the network sees
-the acquisition, the mask and the paper's initialisation I = A ∘ f, and uses the exact operator Φ
-(CassiOperator, differentiable) in its GAP steps:
+CassiDataset and rendered through the exact light transport (Transport) of the SP system; the network sees the
+acquisition and uses the exact operator Φ of *another* Monte-Carlo seed (matrix-free, differentiable):
 
-    x₀ = Φᵀ(y ⊘ d),   x_{k+1} = D_k(x_k + Φᵀ((y − Φ x_k) ⊘ d)),   d = Φ Φᵀ 1 (the GAP preconditioner)
+    x₀ = Φᵀ(y ⊘ d),   x_k = s·D_k((x_{k−1} + λ_k Φᵀ((y − Φ x_{k−1}) ⊘ d)) / s),   d = Φ Φᵀ 𝟙,  s = mean(x₀)
 """
 import argparse
 import time
 
 import numpy as np
 import torch
-from torch import nn
 
 import diffcassi
 import diffcassi.torch as dt
-
-
-class Denoiser(nn.Module):
-    """A residual 3-layer CNN over the bands (input: the estimate and the initialisation I = A ∘ f)."""
-
-    def __init__(self, bands: int, width: int = 32):
-        super().__init__()
-        self.net = nn.Sequential(nn.Conv2d(2 * bands, width, 3, padding=1), nn.ReLU(),
-                                 nn.Conv2d(width, width, 3, padding=1), nn.ReLU(),
-                                 nn.Conv2d(width, bands, 3, padding=1))
-
-    def forward(self, x, init):
-        return x + self.net(torch.cat([x, init], dim=1))
-
-
-class UnrolledGap(nn.Module):
-    def __init__(self, phi: dt.CassiOperator, stages: int):
-        super().__init__()
-        self.phi = phi
-        bands = phi.cube_shape[2]
-        self.denoisers = nn.ModuleList(Denoiser(bands) for _ in range(stages))
-        with torch.no_grad():
-            d = phi(phi.adjoint(torch.ones(phi.image_shape)))
-        self.register_buffer("d", d.clamp_min(1e-6 * float(d.max())))
-
-    def forward(self, y, init):
-        x = self.phi.adjoint(y / self.d)
-        for den in self.denoisers:
-            x = x + self.phi.adjoint((y - self.phi(x)) / self.d)
-            x = den(x, init)
-        return x
 
 
 def main():
@@ -67,20 +35,19 @@ def main():
     t0 = time.time()
     bands = np.linspace(450, 650, a.bands)
     scenes = [diffcassi.synthetic_scene(48, 48, seed=s) for s in range(8)]
-    per_epoch = a.batch * 10
-    ds = dt.CassiDataset(scenes, "sp", a.size, length=per_epoch, seed=a.seed,
-                         transport=dict(bands_nm=bands, planes=2 * a.bands, rays=4))
-    phi = dt.CassiOperator.from_operator(ds.transport)
+    settings = dict(bands_nm=bands, planes=2 * a.bands, rays=4)
+    ds = dt.CassiDataset(scenes, "sp", a.size, length=a.batch * 10, seed=a.seed, transport=dict(settings, seed=0))
+    op = diffcassi.exact(diffcassi.System.preset("sp"), a.size, a.size, **settings, seed=1)  # not the acquisition's rays
+    phi = dt.CassiOperator.from_operator(op, matrix_free=True)
     print(f"{ds.transport}; operator {phi.extra_repr()}; set up in {time.time() - t0:.1f} s")
-    model = UnrolledGap(phi, a.stages)
+    model = dt.UnrolledGAP(phi, stages=a.stages, width=8)
     opt = torch.optim.Adam(model.parameters(), lr=2e-3)
     it, epoch, losses = 0, 0, []
     while it < a.iterations:
         ds.set_epoch(epoch)
         loader = torch.utils.data.DataLoader(ds, batch_size=a.batch, num_workers=a.workers, shuffle=False)
-        for acq, mask, truth, init in loader:
-            est = model(acq, init)
-            loss = nn.functional.mse_loss(est, truth)
+        for acq, _mask, truth, _init in loader:
+            loss = (model(acq) - truth).abs().mean()
             opt.zero_grad()
             loss.backward()
             opt.step()

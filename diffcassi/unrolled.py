@@ -1,0 +1,258 @@
+"""An unrolled network with the exact operator inside: K stages of GAP, each followed by a learned denoiser
+(issue 22 item 5; the reference paper's pipeline with the exact model Φ instead of the idealised shift).
+
+The data steps use Φ and Φᵀ of a :class:`diffcassi.torch.CassiOperator` — in training and on the CPU the
+matrix-free form (``CassiOperator.from_operator(op, matrix_free=True)``: the Rust operator itself, the renderer's
+light transport with the mask, the spectral interpolation and the Airy blur); on GPUs the CSR form. Nothing of the
+operator is learned: only the denoisers and one step size per stage.
+
+Graph (``stages`` = K, ``width`` = C; d = Φ Φᵀ 𝟙 the GAP preconditioner of ``src/recon/gap.rs``, entries
+≤ 1e-6·max d get D⁻¹ = 0 like the Rust solvers)::
+
+    x₀ = Φᵀ(y ⊘ d)                                            the GAP initialisation (no TV, no learning)
+    s  = mean(x₀)  per sample (1 where ≤ 0)                    the scale: the whole network is
+                                                              positively homogeneous, N(a·y) = a·N(y)
+    for k = 1 … K:
+        v_k = x_{k−1} + λ_k Φᵀ((y − Φ x_{k−1}) ⊘ d)           GAP data step, λ_k learned (starts at 1)
+        x_k = s · D_k(v_k / s)                                 stage denoiser, own weights per stage
+
+    D_k(v) = v + L_k v + U_k(v)
+        L_k: a linear 1×1 convolution bands → bands (no bias): the linear spectral path (MODEL.md's round-2
+             diagnosis: a ReLU-only residual graph must carry every signed per-band value through ReLUs and
+             fails to learn spectral structure);
+        U_k: a light residual U-Net, all convolutions with a bias, ReLU after each but the last:
+             head 3×3 (bands → C) → e1;  down 2×2/2 (C → 2C);  enc 3×3 (2C → 2C) → e2;  down 2×2/2 (2C → 2C);
+             mid 3×3 (2C → 2C);  up 2×2/2 transposed (2C → 2C) + e2;  dec2 3×3 (2C → 2C);
+             up 2×2/2 transposed (2C → C) + e1;  dec1 3×3 (C → C);  tail 3×3 (C → bands, no ReLU).
+        L_k and tail start at zero, so the untrained network is exactly plain GAP with an identity prior
+        (K iterations from x₀) — "GAP-TV-free defaults".
+
+The denoisers pad their input at the bottom and right by edge replication to multiples of 4 and crop back, so
+any scene size works (training and evaluation here: 128×128). Output: the cube estimate (N, bands, H, W).
+
+Weights: safetensors with the metadata ``arch`` = ``unrolled-gap-v1``, ``system``, ``stages``, ``bands``,
+``width``, ``height``/``width_px`` (the training scene size), ``bands_nm``, ``planes``, ``rays``, the seeds and the
+mask's SHA-256; :func:`load_unrolled` checks them against the operator it is given.
+
+>>> import diffcassi, diffcassi.torch as dt, torch
+>>> T = diffcassi.Transport(diffcassi.System.preset("sp"), 8, 8, bands_nm=[500, 540, 580], planes=6, rays=2)
+>>> phi = dt.CassiOperator.from_operator(T.operator, matrix_free=True)
+>>> net = dt.UnrolledGAP(phi, stages=2, width=4)
+>>> net(torch.rand(1, *phi.image_shape)).shape
+torch.Size([1, 3, 8, 8])
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from typing import Any, Dict, Optional
+
+import numpy as np
+import torch
+from torch import nn
+import torch.nn.functional as F
+
+import diffcassi
+from .denoiser import pad_to_multiple
+
+ARCH = "unrolled-gap-v1"
+
+__all__ = ["ARCH", "StageDenoiser", "UnrolledGAP", "save_unrolled", "load_unrolled", "mask_sha256"]
+
+_Error = diffcassi.DiffcassiValueError
+
+
+class StageDenoiser(nn.Module):
+    """One stage's denoiser D(v) = v + L v + U(v) (see the module docs): a linear 1×1 spectral path beside a light
+    two-level residual U-Net; both start at zero (D = identity)."""
+
+    def __init__(self, bands: int, width: int = 16):
+        super().__init__()
+        c, c2 = width, 2 * width
+        self.linear = nn.Conv2d(bands, bands, 1, bias=False)
+        self.head = nn.Conv2d(bands, c, 3, padding=1)
+        self.down1 = nn.Conv2d(c, c2, 2, stride=2)
+        self.enc2 = nn.Conv2d(c2, c2, 3, padding=1)
+        self.down2 = nn.Conv2d(c2, c2, 2, stride=2)
+        self.mid = nn.Conv2d(c2, c2, 3, padding=1)
+        self.up2 = nn.ConvTranspose2d(c2, c2, 2, stride=2)
+        self.dec2 = nn.Conv2d(c2, c2, 3, padding=1)
+        self.up1 = nn.ConvTranspose2d(c2, c, 2, stride=2)
+        self.dec1 = nn.Conv2d(c, c, 3, padding=1)
+        self.tail = nn.Conv2d(c, bands, 3, padding=1)
+        for m in (self.linear, self.tail):
+            nn.init.zeros_(m.weight)
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
+
+    def forward(self, v: torch.Tensor) -> torch.Tensor:
+        x, (h, w) = pad_to_multiple(v, 4)
+        e1 = F.relu(self.head(x))
+        z = F.relu(self.down1(e1))
+        e2 = F.relu(self.enc2(z))
+        z = F.relu(self.down2(e2))
+        z = F.relu(self.mid(z))
+        z = self.up2(z) + e2
+        z = F.relu(self.dec2(z))
+        z = self.up1(z) + e1
+        z = F.relu(self.dec1(z))
+        return v + self.linear(v) + self.tail(z)[..., :h, :w]
+
+
+def _int_at_least(name: str, v: Any, lo: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+        raise _Error(f"UnrolledGAP: {name}: expected an integer ≥ {lo}, got {type(v).__name__} {v!r}")
+    return int(v)
+
+
+class UnrolledGAP(nn.Module):
+    """K GAP stages with learned denoisers around a fixed operator ``phi`` (a :class:`~diffcassi.torch.CassiOperator`
+    or :class:`~diffcassi.torch.MatrixFreeCassiOperator`: anything with ``forward``, ``adjoint``, ``cube_shape``
+    (H, W, bands) and ``image_shape``). ``forward(y)``: acquisitions (N, h, w) or (h, w) → cubes
+    (N, bands, H, W) or (bands, H, W). The operator is not a parameter (it is not saved with the weights)."""
+
+    def __init__(self, phi: nn.Module, stages: int = 6, width: int = 16):
+        super().__init__()
+        for attr in ("forward", "adjoint", "cube_shape", "image_shape"):
+            if not hasattr(phi, attr):
+                raise TypeError(f"UnrolledGAP: phi: expected a diffcassi.torch.CassiOperator (or its matrix-free form), "
+                                f"got {type(phi).__name__} without `{attr}`")
+        self.stages = _int_at_least("stages", stages, 1)
+        self.width = _int_at_least("width", width, 1)
+        self.bands = int(phi.cube_shape[2])
+        self.phi = phi
+        self.denoisers = nn.ModuleList(StageDenoiser(self.bands, self.width) for _ in range(self.stages))
+        #: λ_k, the GAP step of each stage (1: the Rust solvers' default).
+        self.steps = nn.Parameter(torch.ones(self.stages))
+        with torch.no_grad():
+            d = phi(phi.adjoint(torch.ones(tuple(phi.image_shape), dtype=torch.float32)))
+            d = d.to(torch.float32)
+            if not bool(torch.isfinite(d).all()) or float(d.max()) <= 0:
+                raise _Error("UnrolledGAP: phi: Φ Φᵀ 𝟙 is not finite and positive anywhere (an operator that reaches no pixel)")
+            # Pixels no voxel reaches get D⁻¹ = 0 (as src/recon/gap.rs).
+            dinv = torch.where(d > 1e-6 * d.max(), 1.0 / d, torch.zeros_like(d))
+        self.register_buffer("dinv", dinv, persistent=False)
+
+    def _data_step(self, x: torch.Tensor, y: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
+        return x + lam * self.phi.adjoint((y - self.phi(x)) * self.dinv)
+
+    def initial(self, y: torch.Tensor) -> torch.Tensor:
+        """x₀ = Φᵀ(y ⊘ d) of acquisitions (N, h, w)."""
+        return self.phi.adjoint(y * self.dinv)
+
+    def forward(self, y: torch.Tensor) -> torch.Tensor:
+        if not isinstance(y, torch.Tensor) or not y.dtype.is_floating_point:
+            raise TypeError(f"UnrolledGAP.forward: y: expected a floating-point torch.Tensor, got {type(y).__name__}")
+        h, w = self.phi.image_shape
+        single = y.dim() == 2
+        if single:
+            y = y.unsqueeze(0)
+        if y.dim() != 3 or tuple(y.shape[1:]) != (h, w):
+            raise _Error(f"UnrolledGAP.forward: y: expected shape (batch, {h}, {w}) or ({h}, {w}), got {tuple(y.shape)}")
+        y = y.to(torch.float32)
+        x = self.initial(y)
+        s = x.detach().flatten(1).mean(1)
+        s = torch.where(s > 0, s, torch.ones_like(s)).view(-1, 1, 1, 1)
+        for k, den in enumerate(self.denoisers):
+            v = self._data_step(x, y, self.steps[k])
+            x = s * den(v / s)
+        return x[0] if single else x
+
+    def metadata(self) -> Dict[str, str]:
+        """The architecture part of the weights file's metadata."""
+        return {"arch": ARCH, "stages": str(self.stages), "bands": str(self.bands), "width": str(self.width)}
+
+    def extra_repr(self) -> str:
+        n = sum(p.numel() for p in self.parameters())
+        return f"stages={self.stages}, bands={self.bands}, width={self.width}, {n} parameters"
+
+
+def mask_sha256(mask: Any) -> str:
+    """SHA-256 of a mask as float32 C-order bytes (the weights file records the training mask's)."""
+    return hashlib.sha256(np.ascontiguousarray(mask, dtype=np.float32).tobytes()).hexdigest()
+
+
+def save_unrolled(net: UnrolledGAP, path: Any, metadata: Dict[str, Any]) -> None:
+    """Writes ``net``'s weights (the denoisers and the steps; not the operator) to the safetensors file ``path`` with
+    :meth:`UnrolledGAP.metadata` plus ``metadata`` (must name ``system``; values stored as strings, non-strings as
+    JSON), atomically (a temporary file renamed over ``path``); refuses non-finite weights (nothing written)."""
+    from safetensors.torch import save_file
+    path = os.fspath(path)
+    if "system" not in metadata:
+        raise _Error(f"save_unrolled: {path}: metadata must name the system the network was trained for")
+    tensors = {k: v.detach().to(torch.float32).contiguous().clone() for k, v in net.state_dict().items()
+               if not k.startswith("phi.")}
+    for k, v in tensors.items():
+        if not torch.isfinite(v).all():
+            raise _Error(f"save_unrolled: tensor {k} has non-finite values; {path} not written")
+    meta = net.metadata()
+    meta.update({str(k): v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()})
+    tmp = f"{path}.tmp{os.getpid()}"
+    try:
+        save_file(tensors, tmp, metadata=meta)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+
+
+def read_metadata(path: Any) -> Dict[str, str]:
+    """The metadata of an unrolled-network weights file (a DiffcassiFileError if missing, a DiffcassiValueError if it
+    is not safetensors or not ``unrolled-gap-v1``)."""
+    return _read(path)[0]
+
+
+def _read(path: Any):
+    from safetensors import safe_open
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise diffcassi.DiffcassiFileError(f"unrolled weights {path}: no such file")
+    try:
+        with safe_open(path, framework="pt") as f:
+            meta = f.metadata() or {}
+            tensors = {k: f.get_tensor(k) for k in f.keys()}
+    except Exception as e:  # safetensors raises its own error types for a bad header or truncated data
+        raise _Error(f"unrolled weights {path}: not a valid safetensors file ({e})") from None
+    if meta.get("arch") != ARCH:
+        raise _Error(f"unrolled weights {path}: metadata arch is {meta.get('arch')!r}, expected {ARCH!r}")
+    return meta, tensors
+
+
+def load_unrolled(path: Any, phi: nn.Module, system: Optional[str] = None, mask: Any = None) -> UnrolledGAP:
+    """Loads an ``unrolled-gap-v1`` safetensors file into a new :class:`UnrolledGAP` around ``phi`` (eval mode).
+
+    Checked, each failure a DiffcassiValueError naming the file and the problem (a missing file: a
+    DiffcassiFileError): the format and ``arch``; ``stages``, ``bands``, ``width`` integers ≥ 1; ``bands`` equal to
+    ``phi``'s band count; ``system`` (when given) equal to the system the weights were trained for; ``mask`` (when
+    given) equal to the training mask (SHA-256); every tensor present with its shape, finite, and no other."""
+    meta, tensors = _read(path)
+    path = os.fspath(path)
+    try:
+        stages, bands, width = int(meta["stages"]), int(meta["bands"]), int(meta["width"])
+    except (KeyError, ValueError):
+        raise _Error(f"unrolled weights {path}: metadata stages/bands/width missing or not integers "
+                     f"(stages={meta.get('stages')!r}, bands={meta.get('bands')!r}, width={meta.get('width')!r})") from None
+    if min(stages, bands, width) < 1:
+        raise _Error(f"unrolled weights {path}: metadata stages={stages}, bands={bands}, width={width} must be ≥ 1")
+    have = int(phi.cube_shape[2])
+    if bands != have:
+        raise _Error(f"unrolled weights {path}: the network is for {bands} bands, the operator has {have}")
+    if system is not None and meta.get("system") != system:
+        raise _Error(f"unrolled weights {path}: trained for system {meta.get('system')!r}, not {system!r}")
+    if mask is not None and meta.get("mask_sha256") not in (None, mask_sha256(mask)):
+        raise _Error(f"unrolled weights {path}: trained with another mask (SHA-256 {meta.get('mask_sha256')}, "
+                     f"this one {mask_sha256(mask)})")
+    net = UnrolledGAP(phi, stages=stages, width=width)
+    want = {k: v for k, v in net.state_dict().items() if not k.startswith("phi.")}
+    missing, extra = sorted(set(want) - set(tensors)), sorted(set(tensors) - set(want))
+    if missing or extra:
+        raise _Error(f"unrolled weights {path}: missing tensors {missing}, unexpected tensors {extra}")
+    for k, v in tensors.items():
+        if tuple(v.shape) != tuple(want[k].shape):
+            raise _Error(f"unrolled weights {path}: tensor {k} has shape {tuple(v.shape)}, expected "
+                         f"{tuple(want[k].shape)} (stages={stages}, bands={bands}, width={width})")
+        if not torch.isfinite(v).all():
+            raise _Error(f"unrolled weights {path}: tensor {k} has NaN or infinite values")
+    net.load_state_dict({k: v.to(torch.float32) for k, v in tensors.items()}, strict=False)
+    return net.eval()
