@@ -106,7 +106,7 @@ def test_three_training_steps_lower_the_loss(tiny):
     losses = []
     for _ in range(4):
         loss = (net(acq) - cubes).abs().mean()
-        losses.append(float(loss))
+        losses.append(float(loss.detach()))
         opt.zero_grad()
         loss.backward()
         opt.step()
