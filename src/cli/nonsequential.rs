@@ -246,11 +246,11 @@ fn bench_ghosts(system: &SequentialSystem, batch: &RayBatch, quick: bool, repeat
         trace_trees(k, system, rays, opts)
     }
     let brute = BruteForce::new(system, &SolidsOptions::default())?;
-    run("brute-f64 (non-sequential)", &|r| walk(&brute, system, r, &opts))?;
+    run("brute-f64", &|r| walk(&brute, system, r, &opts))?;
     let user = EmbreeNextHit::new(system, &SceneOptions::default())?;
-    run("embree-user,refine=f64", &|r| walk(&user, system, r, &opts))?;
+    run("embree-user (refine f64)", &|r| walk(&user, system, r, &opts))?;
     let meshes = EmbreeNextHit::new(system, &mesh)?;
-    run("embree-mesh(max-sag=1um),refine=f64", &|r| walk(&meshes, system, r, &opts))?;
+    run("embree-mesh 1um (refine f64)", &|r| walk(&meshes, system, r, &opts))?;
     Ok(())
 }
 
