@@ -93,6 +93,8 @@ fn bad_input_is_refused_before_anything_is_written() {
         (vec!["--ghosts".into(), "2".into(), "--coating".into(), "all=gold".into()], 2, "`gold`"),
         (vec!["--coating".into(), "all=R0.01".into()], 2, "--ghosts"),
         (vec!["--ghosts".into(), "2".into(), "--coating".into(), "99=R0.01".into()], 1, "surface 99"),
+        (vec!["--ghosts".into(), "2".into(), "--ghost-rays".into(), "9".into()], 1, "--ghost-rays 9"),
+        (vec!["--ghosts".into(), "2".into(), "--ghost-rays".into(), "0".into()], 2, "--ghost-rays"),
     ];
     for (k, (extra, code, needle)) in cases.iter().enumerate() {
         let out = tmp(&format!("bad-{k}"));

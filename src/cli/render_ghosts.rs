@@ -33,8 +33,8 @@ pub struct GhostArgs {
     /// index; VALUE `bare`, `R<reflectance>` e.g. R0.01, or `mgf2@<nm>` e.g. mgf2@550), applied in order.
     #[arg(long, requires = "ghosts", value_parser = <CoatingOverride as std::str::FromStr>::from_str)]
     pub coating: Option<CoatingOverride>,
-    /// With --ghosts: rays per scene pixel per plane whose ray trees are walked (an unbiased, stratified
-    /// subsample, weight 1/R each) [default: the render's rays per pixel: every rendered ray].
+    /// With --ghosts: rays per scene pixel per plane whose ray trees are walked, at most the render's (an
+    /// unbiased, stratified subsample, weight 1/R each) [default: the render's rays per pixel: every rendered ray].
     #[arg(long = "ghost-rays", requires = "ghosts", value_parser = clap::value_parser!(u32).range(1..))]
     pub ghost_rays: Option<u32>,
     /// With --ghosts: the non-sequential kernel: brute (every object in f64), embree-user or embree-mesh
@@ -76,6 +76,9 @@ impl GhostPass {
     pub fn prepare(a: &GhostArgs, sys_args: &SystemArgs, system: &SequentialSystem, rays_per_pixel: usize, seed: u64) -> Result<Option<Self>> {
         let Some(order) = a.ghosts else { return Ok(None) };
         let t0 = Instant::now();
+        if let Some(r) = a.ghost_rays.filter(|&r| r as usize > rays_per_pixel) {
+            return Err(Error::invalid(format!("--ghost-rays {r}: at most the render's {rays_per_pixel} rays per pixel (a subsample of the rendered rays)")));
+        }
         let mut config = GhostConfig::new(order, system, a.ghost_rays.map_or(rays_per_pixel, |r| r as usize));
         config.seed = seed;
         if let Some(o) = &a.coating {
