@@ -282,7 +282,21 @@ fn bench_nonsequential_quick_writes_every_row() {
     let text = std::fs::read_to_string(&csv).unwrap();
     let rows: Vec<Vec<&str>> = text.lines().skip(1).map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.iter().filter(|r| r[0] == "a").count(), 3, "{text}");
-    assert_eq!(rows.iter().filter(|r| r[0] == "b").count(), 1, "{text}");
+    // Row (b): ghosts K = 2, the analytic kernel n/a, then brute force and Embree's two representations,
+    // whose trees equal brute force's.
+    let b: Vec<&Vec<&str>> = rows.iter().filter(|r| r[0] == "b").collect();
+    assert_eq!(b.len(), 4, "{text}");
+    assert_eq!(b[0][7], "n/a", "{text}");
+    for r in &b[1..] {
+        let s: f64 = r[5].parse().unwrap();
+        assert!(s.is_finite() && s > 0.0, "{r:?}");
+    }
+    // Embree over user geometry walks the same trees as brute force (the mesh representation is reported,
+    // not asserted: it loses some paths through the cemented doublet face, docs/nonsequential.md).
+    let user: Vec<&str> = out.lines().filter(|l| l.starts_with("| embree-user (refine")).collect();
+    assert_eq!(user.len(), 1, "{out}");
+    assert!(user[0].ends_with("| 0 |"), "{out}");
+    assert_eq!(out.lines().filter(|l| l.starts_with("| embree-mesh 1um")).count(), 1, "{out}");
     // Row (c): brute force and Embree at the three resolutions, triangle counts growing by decades.
     let c: Vec<&Vec<&str>> = rows.iter().filter(|r| r[0] == "c").collect();
     assert_eq!(c.len(), 6, "{text}");

@@ -20,6 +20,7 @@ mod commands;
 mod shared;
 mod dataset;
 pub mod render;
+mod render_ghosts;
 mod design;
 pub mod evaluate;
 mod fidelity;

@@ -5,8 +5,9 @@
 //! ```
 //!
 //! Rows: **(a)** the system traced sequentially by the analytic SIMD kernel, Embree over analytic user
-//! geometry and Embree over meshes (f64 refinement), rays/s; **(b)** the system with ghosts K = 2 (the
-//! non-sequential walker's row, reported as not measured here); **(c)** mechanics queries (first hit of
+//! geometry and Embree over meshes (f64 refinement), rays/s; **(b)** the system with ghosts K = 2: ray trees
+//! per second through the brute-force kernel and Embree's two scene representations (the analytic kernel
+//! has no ghosts); **(c)** mechanics queries (first hit of
 //! seeded random rays — origins uniform in the parts' bounding box, directions uniform on the sphere:
 //! what scattered stray light asks) at the generated mounts' three resolutions, brute force (every
 //! triangle in f64) against Embree (f32 BVH + f64 re-solve of the hit triangle), one thread each; and
@@ -136,8 +137,8 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
         println!("| {} | {:.2} | {:.1}× | {:.2} |", t.name(), n / best / 1e6, best / base, cpu / n * 1e6);
         let _ = writeln!(csv, "a,{} sequential,{},,{cores},{:e},{:e},{:.3}", system.name(), t.name(), best / n, n / best, best / base);
     }
-    println!("\n(b) {} with ghosts K = 2: not measured here (the non-sequential ghost walker's row)", system.name());
-    let _ = writeln!(csv, "b,{} ghosts K=2,,,,,,", system.name());
+    // (b) Ghosts K = 2: each ray's tree (polarised Fresnel, roulette below 1e-7) through each kernel.
+    bench_ghosts(&system, &batch, a.quick, repeat, cores, &mut csv)?;
 
     // (c) Mechanics at the three resolutions.
     println!("\n(c) mechanics queries on {}: first hit of {queries} seeded random rays (brute force: {brute_queries}), 1 thread", system.name());
@@ -192,6 +193,64 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
         println!("wrote {}", path.display());
     }
     println!("bench nonsequential finished in {:.1} s", t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// Row (b): ray trees to ghost order 2 of the first `rays / 10` rays of (a)'s workload (the sequential
+/// analytic kernel has no ghosts: its row is the main image only, from (a)), brute force against Embree's
+/// two scene representations; the Embree trees are checked against brute force's (same paths, detector
+/// power within 1e-9 per tree).
+fn bench_ghosts(system: &SequentialSystem, batch: &RayBatch, quick: bool, repeat: usize, cores: usize, csv: &mut String) -> Result<()> {
+    use crate::tracer::embree::{EmbreeNextHit, SceneOptions, SurfaceRepresentation};
+    use crate::tracer::nonseq::{trace_trees, BruteForce, NextHit, RayTree, SolidsOptions, TreeOptions};
+    let n = if quick { batch.len().min(500) } else { (batch.len() / 10).max(1) };
+    let mut rays = RayBatch::with_capacity(n);
+    for i in 0..n {
+        rays.push(batch.origin(i), batch.direction(i), batch.wavelength_nm[i]);
+    }
+    let opts = TreeOptions { order: 2, ..TreeOptions::default() };
+    println!("\n(b) {} with ghosts K = 2 (polarised, roulette below 1e-7): {} ray trees, {} threads", system.name(), n, cores);
+    println!("| backend | M trees/s | × brute-force time | CPU-s per M trees | paths per tree | trees differing from brute force |");
+    println!("|---|---|---|---|---|---|");
+    println!("| analytic-f64 (sequential) | n/a: no ghosts (main image only, row (a)) | | | | |");
+    let _ = writeln!(csv, "b,{} ghosts K=2,analytic-f64,,{cores},,,n/a", system.name());
+    let mesh = SceneOptions { representation: SurfaceRepresentation::Mesh(crate::surfaces::MeshResolution::MaxSagErrorUm(1.0)), ..SceneOptions::default() };
+    let mut reference: Option<(Vec<RayTree>, f64)> = None;
+    let mut run = |name: &str, kernel: &dyn Fn(&RayBatch) -> Result<Vec<RayTree>>| -> Result<()> {
+        let (mut best, mut cpu, mut trees) = (f64::INFINITY, f64::INFINITY, Vec::new());
+        for _ in 0..repeat {
+            let c = cpu_seconds();
+            let s = Instant::now();
+            trees = kernel(&rays)?;
+            best = best.min(s.elapsed().as_secs_f64());
+            if let (Some(c0), Some(c1)) = (c, cpu_seconds()) {
+                cpu = cpu.min(c1 - c0);
+            }
+        }
+        let paths = trees.iter().map(|t| t.arrivals.len()).sum::<usize>() as f64 / n as f64;
+        let (base, differ) = match &reference {
+            None => (best, "(reference)".to_string()),
+            Some((r, b)) => {
+                let d = r.iter().zip(&trees).filter(|(a, b)| a.arrivals.iter().map(|x| &x.path).ne(b.arrivals.iter().map(|x| &x.path)) || (a.ledger.detector - b.ledger.detector).abs() > 1e-9).count();
+                (*b, d.to_string())
+            }
+        };
+        println!("| {name} | {:.4} | {:.2}× | {:.1} | {paths:.1} | {differ} |", n as f64 / best / 1e6, best / base, cpu / n as f64 * 1e6);
+        let _ = writeln!(csv, "b,{} ghosts K=2,{name},,{cores},{:e},{:e},{:.3}", system.name(), best / n as f64, n as f64 / best, best / base);
+        if reference.is_none() {
+            reference = Some((trees, best));
+        }
+        Ok(())
+    };
+    fn walk<H: NextHit>(k: &H, system: &SequentialSystem, rays: &RayBatch, opts: &TreeOptions) -> Result<Vec<RayTree>> {
+        trace_trees(k, system, rays, opts)
+    }
+    let brute = BruteForce::new(system, &SolidsOptions::default())?;
+    run("brute-f64", &|r| walk(&brute, system, r, &opts))?;
+    let user = EmbreeNextHit::new(system, &SceneOptions::default())?;
+    run("embree-user (refine f64)", &|r| walk(&user, system, r, &opts))?;
+    let meshes = EmbreeNextHit::new(system, &mesh)?;
+    run("embree-mesh 1um (refine f64)", &|r| walk(&meshes, system, r, &opts))?;
     Ok(())
 }
 

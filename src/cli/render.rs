@@ -101,6 +101,8 @@ pub struct RenderArgs {
     pub force: bool,
     #[command(flatten)]
     pub noise: NoiseArgs,
+    #[command(flatten)]
+    pub ghosts: super::render_ghosts::GhostArgs,
 }
 
 /// Sensor noise on the finished acquisition (off unless `--noise` is given); see `docs/noise.md`.
@@ -409,14 +411,25 @@ pub fn render(a: RenderArgs) -> Result<()> {
     check_render_rays(n, cfg.spectral.planes(), rays)?;
     cfg.rays_per_pixel = rays;
     let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
+    // The ghost pass's kernel (mechanics meshes loaded and checked) before anything is written.
+    let ghost_pass = super::render_ghosts::GhostPass::prepare(&a.ghosts, &a.common.system, &system, renderer.config.rays_per_pixel, renderer.config.seed)?;
     // All or nothing: the files go to a staging folder beside --out, which replaces --out at the end.
     let set = crate::io::OutputSet::folder(&out, &rule, &inputs)?;
     let pb = progress_bar(renderer.rays_per_render(), &format!("render {}", system.name()));
     let mut acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
     pb.finish_and_clear();
+    // Ghost and stray light (off by default): added to the acquisition before the sensor noise.
+    let ghosts_json = match &ghost_pass {
+        Some(pass) => pass.run(&renderer, &scene, &mut acq)?,
+        None => serde_json::Value::Null,
+    };
     // Sensor noise on the acquisition (the per-band images of --cube stay clean).
     let noise_json = apply_noise(noise.as_ref(), &mut acq, a.noise.noise.as_deref().unwrap_or(""), false)?;
-    let json = write_all(set.stage_dir().unwrap_or(&out), &renderer, &acq, &desc, t0, serde_json::json!({"noise": noise_json}), !a.common.no_mapping)?;
+    let mut extra = serde_json::json!({"noise": noise_json});
+    if !ghosts_json.is_null() {
+        extra["ghosts"] = ghosts_json;
+    }
+    let json = write_all(set.stage_dir().unwrap_or(&out), &renderer, &acq, &desc, t0, extra, !a.common.no_mapping)?;
     set.commit()?;
     println!(
         "{}: {}×{} scene, {} planes × {} rays: {} rays in {:.2} s ({:.2} M rays/s, {} threads), detector {}×{}, transmission {:.4}; total {:.2} s → {}",

@@ -91,3 +91,29 @@ impl MechanicsScene {
         Some(self.mechanics.hit(origin, dir, t, part, triangle))
     }
 }
+
+/// The non-sequential walk's extra geometry through Embree (f32 BVH, f64 re-solve of the hit triangle).
+/// The far end is widened by a few f32 ulps for Embree and the f64 distance is then held to (tmin, tmax];
+/// a triangle Embree finds at or before `tmin` in f64 (the one a scattered ray leaves, seen in f32) is
+/// stepped over and the query repeated past it.
+impl crate::tracer::nonseq::ExtraGeometry for MechanicsScene {
+    fn intersect(&self, origin: DVec3, dir: DVec3, tmin: f64, tmax: f64) -> Option<crate::tracer::nonseq::ExtraHit> {
+        let ulp = f64::from(f32::EPSILON) * origin.abs().max_element().max(1.0);
+        let far = tmax + 64.0 * ulp;
+        let mut near = tmin;
+        for _ in 0..4 {
+            let h = self.intersect(origin, dir, near, far, u32::MAX)?;
+            if h.t > tmin {
+                return (h.t <= tmax).then(|| self.mechanics.extra_hit(&h));
+            }
+            near = near.max(h.t) + 4.0 * ulp;
+        }
+        None
+    }
+    fn name(&self) -> &'static str {
+        "mechanics-embree"
+    }
+    fn scatter(&self, hit: &crate::tracer::nonseq::ExtraHit, incoming: DVec3, seed: u64, ray: u64, bounce: u64) -> Option<(DVec3, f64)> {
+        super::scatter::lambertian(hit.normal, incoming, hit.reflectance, seed, ray, bounce)
+    }
+}

@@ -158,6 +158,26 @@ impl Mechanics {
     }
 }
 
+/// The non-sequential walk's extra geometry, every triangle tested in f64 (the reference kernel).
+impl crate::tracer::nonseq::ExtraGeometry for Mechanics {
+    fn intersect(&self, origin: DVec3, dir: DVec3, tmin: f64, tmax: f64) -> Option<crate::tracer::nonseq::ExtraHit> {
+        self.intersect_brute(origin, dir, tmin, tmax).map(|h| self.extra_hit(&h))
+    }
+    fn name(&self) -> &'static str {
+        "mechanics-brute"
+    }
+    fn scatter(&self, hit: &crate::tracer::nonseq::ExtraHit, incoming: DVec3, seed: u64, ray: u64, bounce: u64) -> Option<(DVec3, f64)> {
+        scatter::lambertian(hit.normal, incoming, hit.reflectance, seed, ray, bounce)
+    }
+}
+
+impl Mechanics {
+    /// A [`MechHit`] as the walk's [`crate::tracer::nonseq::ExtraHit`] (with its part's reflectance).
+    pub fn extra_hit(&self, h: &MechHit) -> crate::tracer::nonseq::ExtraHit {
+        crate::tracer::nonseq::ExtraHit { t: h.t, normal: h.normal, reflectance: self.parts[h.part].surface.reflectance(), part: h.part }
+    }
+}
+
 /// `best` is empty or farther than `t` (equal distances keep the earlier triangle).
 trait Farther {
     fn is_none_or_farther(&self, t: f64) -> bool;

@@ -32,6 +32,7 @@ pub mod convolve;
 pub mod dataset;
 pub mod detector;
 pub mod engine;
+pub mod ghosts;
 pub mod gradient;
 pub mod mask;
 pub mod noise;

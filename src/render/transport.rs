@@ -460,7 +460,7 @@ pub(crate) fn trace_interleaved(path: &[crate::system::PathStep], n: &[f64], ray
 impl PlaneContext<'_> {
     /// Object-space ray of sample `s` = [px, py, sx, sy] of scene pixel (row, col).
     #[inline]
-    fn ray(&self, n: &[f64], row: usize, col: usize, s: &[f64; 4]) -> Result<(DVec3, DVec3)> {
+    pub(crate) fn ray(&self, n: &[f64], row: usize, col: usize, s: &[f64; 4]) -> Result<(DVec3, DVec3)> {
         let c = MappingCube::scene_xy(self.scene_height, self.scene_width, self.scene_pitch_mm, row, col);
         let field = [c[0] + (s[2] - 0.5) * self.scene_pitch_mm, c[1] - (s[3] - 0.5) * self.scene_pitch_mm];
         if self.system.spec.ray_aiming == RayAiming::Off {

@@ -21,26 +21,32 @@ use crate::error::Result;
 use crate::surfaces::SurfaceShape;
 use crate::system::SequentialSystem;
 use crate::tracer::nonseq::next_hit::f32_ulps;
-use crate::tracer::nonseq::{Event, NextHit, Query, Role, Solids};
+use crate::tracer::nonseq::{Event, ExtraGeometry, ExtraHit, NextHit, Query, Role, Solids};
+use glam::DVec3;
+use std::sync::Arc;
 
-/// The Embree kernel: the committed scene and the solids it was built from (same object order).
+/// The Embree kernel: the committed scene and the solids it was built from (same object order), and
+/// optional extra geometry (the mechanics as Embree triangle meshes: `crate::mechanics::MechanicsScene`, a
+/// second Embree scene queried up to the distance of the solids' answer).
 pub struct EmbreeNextHit {
     scene: OpticalScene,
     solids: Solids,
+    extra: Option<Arc<dyn ExtraGeometry>>,
 }
 
 impl EmbreeNextHit {
     pub fn new(system: &SequentialSystem, options: &SceneOptions) -> Result<Self> {
-        Ok(EmbreeNextHit { scene: OpticalScene::build(system, options)?, solids: Solids::build(system, &options.solids())? })
-    }
-}
-
-impl NextHit for EmbreeNextHit {
-    fn solids(&self) -> &Solids {
-        &self.solids
+        Ok(EmbreeNextHit { scene: OpticalScene::build(system, options)?, solids: Solids::build(system, &options.solids())?, extra: None })
     }
 
-    fn next_hit(&self, q: &Query) -> Event {
+    /// With extra geometry (mechanics) tested at every bounce, after the solids.
+    pub fn with_extra(mut self, extra: Arc<dyn ExtraGeometry>) -> Self {
+        self.extra = Some(extra);
+        self
+    }
+
+    /// The solids' answer and its approximate distance (∞ for a miss).
+    fn solids_hit(&self, q: &Query) -> (Event, f64) {
         let objects = &self.scene.objects;
         let exclude_mask = q.exclude.map(|k| objects[k].mask).unwrap_or(0);
         let mut tnear = q.tnear as f32;
@@ -51,12 +57,13 @@ impl NextHit for EmbreeNextHit {
             ray.tnear = tnear;
             let hit = self.scene.scene.intersect1(&ray);
             if !hit.is_hit() {
-                return Event::Miss;
+                return (Event::Miss, f64::INFINITY);
             }
             let id = hit.geom_id as usize;
+            let th = hit.t as f64;
             let obj = &objects[id];
             match &obj.role {
-                Role::Interface { .. } | Role::Detector { .. } => return Event::Optical { object: id, t: hit.t as f64 },
+                Role::Interface { .. } | Role::Detector { .. } => return (Event::Optical { object: id, t: th }, th),
                 Role::Wall { ends, .. } => {
                     let eps = f32_ulps(q.p, 16.0) as f32;
                     if q.after_interaction && hit.t < eps && !retried {
@@ -77,10 +84,10 @@ impl NextHit for EmbreeNextHit {
                         // Outside an explicit aperture the walk's aperture test vignettes it; inside the
                         // clear aperture the face is hit.
                         if face.apertures.iter().any(|(_, ap)| !ap.contains(x.x, x.y)) || patch.aperture.contains(x.x, x.y) {
-                            return Event::Optical { object: k, t };
+                            return (Event::Optical { object: k, t }, t);
                         }
                     }
-                    return Event::Absorber { object: id };
+                    return (Event::Absorber { object: id }, th);
                 }
                 Role::Blade { interface, .. } => {
                     if let Some(patch) = obj.patch.as_ref() {
@@ -92,8 +99,8 @@ impl NextHit for EmbreeNextHit {
                             }
                             if x.is_finite() && obj.apertures.iter().all(|(_, ap)| ap.contains(x.x, x.y)) {
                                 match interface {
-                                    Some(k) if Some(*k) != q.exclude => return Event::Optical { object: *k, t: hit.t as f64 },
-                                    _ if t > q.tnear => return Event::Pass { point: obj.frame.point_to_global(x) },
+                                    Some(k) if Some(*k) != q.exclude => return (Event::Optical { object: *k, t: th }, th),
+                                    _ if t > q.tnear => return (Event::Pass { point: obj.frame.point_to_global(x) }, th),
                                     // Passed already (the point is behind the start): query past the blade.
                                     _ => {
                                         tnear = hit.t + f32_ulps(q.p, 16.0) as f32;
@@ -103,9 +110,29 @@ impl NextHit for EmbreeNextHit {
                             }
                         }
                     }
-                    return Event::Absorber { object: id };
+                    return (Event::Absorber { object: id }, th);
                 }
             }
         }
+    }
+}
+
+impl NextHit for EmbreeNextHit {
+    fn solids(&self) -> &Solids {
+        &self.solids
+    }
+
+    fn scatter(&self, hit: &ExtraHit, incoming: DVec3, seed: u64, ray: u64, bounce: u64) -> Option<(DVec3, f64)> {
+        self.extra.as_ref()?.scatter(hit, incoming, seed, ray, bounce)
+    }
+
+    fn next_hit(&self, q: &Query) -> Event {
+        let (event, t) = self.solids_hit(q);
+        if let Some(extra) = &self.extra {
+            if let Some(h) = extra.intersect(q.p, q.d, q.tnear, t).filter(|h| h.t < t) {
+                return Event::Extra(h);
+            }
+        }
+        event
     }
 }

@@ -19,7 +19,7 @@
 //! assert!(brute.solids.absorber_triangles() > 0);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
-use super::next_hit::{f32_ulps, Event, ExtraGeometry, NextHit, Query};
+use super::next_hit::{f32_ulps, Event, ExtraGeometry, ExtraHit, NextHit, Query};
 use super::solids::{Role, Solids, SolidsOptions};
 use crate::error::Result;
 use crate::system::SequentialSystem;
@@ -73,7 +73,7 @@ impl BruteForce {
         BruteForce { solids, boxes, extra: None }
     }
 
-    /// With extra absorbing geometry tested at every bounce (the mechanics hook).
+    /// With extra geometry (mechanics) tested at every bounce, after the solids.
     pub fn with_extra(mut self, extra: Arc<dyn ExtraGeometry>) -> Self {
         self.extra = Some(extra);
         self
@@ -137,6 +137,10 @@ fn triangle_hit(p: DVec3, d: DVec3, v0: DVec3, v1: DVec3, v2: DVec3) -> Option<f
 impl NextHit for BruteForce {
     fn solids(&self) -> &Solids {
         &self.solids
+    }
+
+    fn scatter(&self, hit: &ExtraHit, incoming: DVec3, seed: u64, ray: u64, bounce: u64) -> Option<(DVec3, f64)> {
+        self.extra.as_ref()?.scatter(hit, incoming, seed, ray, bounce)
     }
 
     fn next_hit(&self, q: &Query) -> Event {
@@ -208,8 +212,8 @@ impl NextHit for BruteForce {
             }
         }
         if let Some(extra) = &self.extra {
-            if extra.intersect_brute(p, d, q.tnear, best.0).is_some_and(|t| t < best.0) {
-                return Event::Extra;
+            if let Some(h) = extra.intersect(p, d, q.tnear, best.0).filter(|h| h.t < best.0) {
+                return Event::Extra(h);
             }
         }
         best.1

@@ -94,9 +94,85 @@ pub fn interface_coefficients(coating: Option<&Coating>, n1: f64, n2: f64, cos_i
     }
 }
 
+/// A command-line override of the spec's per-surface coatings (`render --coating SPEC`): a comma list of
+/// `TARGET=VALUE`, applied left to right, where TARGET is `all` or a sequential surface index and VALUE is
+/// `bare` (no coating: Fresnel), `R<x>` (a given reflectance x ∈ [0, 1], e.g. `R0.01`) or `mgf2@<nm>` (a
+/// quarter-wave MgF₂ layer designed for that wavelength, in [200, 7000] nm). Example:
+/// `all=mgf2@550,16=R0.001`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CoatingOverride {
+    /// (surface index or `None` for all, the coating or `None` for bare), in order.
+    pub items: Vec<(Option<usize>, Option<Coating>)>,
+    /// The text it was parsed from (for reports).
+    pub text: String,
+}
+
+impl std::str::FromStr for CoatingOverride {
+    type Err = String;
+    /// Errors name the item and the value.
+    fn from_str(text: &str) -> Result<Self, String> {
+        let mut items = Vec::new();
+        for item in text.split(',').map(str::trim) {
+            let Some((target, value)) = item.split_once('=') else {
+                return Err(format!("`{item}`: expected TARGET=VALUE (TARGET all or a surface index; VALUE bare, R<reflectance> or mgf2@<nm>)"));
+            };
+            let target = match target.trim() {
+                "all" => None,
+                t => Some(t.parse::<usize>().map_err(|_| format!("`{item}`: the target `{t}` is neither `all` nor a surface index"))?),
+            };
+            let value = value.trim();
+            let coating = if value == "bare" {
+                None
+            } else if let Some(r) = value.strip_prefix('R').or_else(|| value.strip_prefix('r')) {
+                let r: f64 = r.parse().map_err(|_| format!("`{item}`: the reflectance `{r}` is not a number"))?;
+                Some(Coating::Reflectance(r))
+            } else if let Some(w) = value.strip_prefix("mgf2@") {
+                let w: f64 = w.trim_end_matches("nm").parse().map_err(|_| format!("`{item}`: the design wavelength `{w}` is not a number of nm"))?;
+                Some(Coating::Mgf2QuarterWaveNm(w))
+            } else {
+                return Err(format!("`{item}`: the coating `{value}` is not bare, R<reflectance> (e.g. R0.01) or mgf2@<nm> (e.g. mgf2@550)"));
+            };
+            if let Some(c) = &coating {
+                c.validate().map_err(|e| format!("`{item}`: {e}"))?;
+            }
+            items.push((target, coating));
+        }
+        Ok(CoatingOverride { items, text: text.to_string() })
+    }
+}
+
+impl CoatingOverride {
+    /// The coatings of `surfaces` (the spec's, one per sequential surface) with the override applied; a
+    /// surface index beyond the system is an error naming it.
+    pub fn apply(&self, surfaces: &[Option<Coating>]) -> crate::error::Result<Vec<Option<Coating>>> {
+        let mut out = surfaces.to_vec();
+        for (target, coating) in &self.items {
+            match target {
+                None => out.iter_mut().for_each(|c| *c = coating.clone()),
+                Some(k) if *k < out.len() => out[*k] = coating.clone(),
+                Some(k) => return Err(crate::error::Error::invalid(format!("--coating `{}`: surface {k} does not exist (the system has surfaces 0..={})", self.text, out.len().saturating_sub(1)))),
+            }
+        }
+        Ok(out)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn coating_override_syntax() {
+        let o: CoatingOverride = "all=mgf2@550, 2=R0.01,3=bare".parse().unwrap();
+        let c = o.apply(&[None, Some(Coating::Reflectance(0.5)), None, Some(Coating::Reflectance(0.2))]).unwrap();
+        assert_eq!(c, vec![Some(Coating::Mgf2QuarterWaveNm(550.0)), Some(Coating::Mgf2QuarterWaveNm(550.0)), Some(Coating::Reflectance(0.01)), None]);
+        for (bad, needle) in [("all=R1.5", "reflectance 1.5"), ("all=R-0.1", "reflectance -0.1"), ("all=Rx", "`x` is not a number"), ("x=R0", "target `x`"), ("all", "TARGET=VALUE"), ("all=gold", "`gold`"), ("all=mgf2@100", "mgf2_quarter_wave_nm 100")] {
+            let e = bad.parse::<CoatingOverride>().unwrap_err();
+            assert!(e.contains(needle), "{bad}: {e}");
+        }
+        let e = "7=R0".parse::<CoatingOverride>().unwrap().apply(&[None, None]).unwrap_err().to_string();
+        assert!(e.contains("surface 7"), "{e}");
+    }
 
     #[test]
     fn quarter_wave_minimum_at_design() {

@@ -31,6 +31,6 @@ pub mod tree;
 
 pub use brute::BruteForce;
 pub use fresnel::FresnelModel;
-pub use next_hit::{Event, ExtraGeometry, NextHit, Query};
+pub use next_hit::{Event, ExtraGeometry, ExtraHit, NextHit, Query};
 pub use solids::{Role, Solid, Solids, SolidsOptions};
 pub use tree::{path_label, trace_trees, walk_tree, Arrival, Ledger, RayTree, TreeOptions, MAX_GHOST_ORDER};

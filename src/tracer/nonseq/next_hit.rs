@@ -8,10 +8,12 @@
 //! tracer's f64 refinement does, so the two kernels give the same bits wherever they identify the same
 //! object.
 //!
-//! **Hook for extra geometry** (mechanics: mounts, baffles, imported meshes): [`ExtraGeometry`] is an
-//! absorbing set of triangles or any other shape answering `intersect_brute(origin, dir, tmin, tmax)`;
-//! a kernel built `with_extra` tests it at every bounce like the walls, and a hit there ends the ray as
-//! absorbed (a scattering surface would return its own event; not wired yet).
+//! **Extra geometry** (mechanics: mounts, baffles, imported meshes): [`ExtraGeometry`] is any set of
+//! surfaces answering `intersect(origin, dir, tmin, tmax)` with an [`ExtraHit`] (distance, normal,
+//! Lambertian reflectance); a kernel built `with_extra` tests it at every bounce after the solids, and the
+//! walk ([`super::tree`]) absorbs the ray there or scatters the fraction `reflectance` of it
+//! ([`crate::mechanics::scatter::lambertian`]). [`crate::mechanics::Mechanics`] answers in f64 over
+//! every triangle; `crate::mechanics::MechanicsScene` answers with Embree.
 //!
 //! ```
 //! use diffcassi::prelude::*;
@@ -45,8 +47,8 @@ pub enum Event {
     Optical { object: usize, t: f64 },
     /// A wall or blade that stops the ray (solid index).
     Absorber { object: usize },
-    /// Extra (mechanical) geometry that absorbs the ray.
-    Extra,
+    /// Extra (mechanical) geometry: absorbs the ray, or scatters part of it.
+    Extra(ExtraHit),
     /// The ray crosses a virtual (same-media) group's aperture plane inside its apertures at `point`
     /// (global): continue from there, past it.
     Pass { point: DVec3 },
@@ -60,12 +62,34 @@ pub trait NextHit: Sync {
     fn solids(&self) -> &Solids;
     /// What the ray of `q` meets next.
     fn next_hit(&self, q: &Query) -> Event;
+    /// The ray scattered at an [`Event::Extra`] hit (see [`ExtraGeometry::scatter`]); `None`: absorbed.
+    fn scatter(&self, _hit: &ExtraHit, _incoming: DVec3, _seed: u64, _ray: u64, _bounce: u64) -> Option<(DVec3, f64)> {
+        None
+    }
 }
 
-/// Extra absorbing geometry tested at every bounce (the mechanics hook).
+/// Where a ray meets extra geometry.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ExtraHit {
+    /// Distance along the (unit) query direction (mm).
+    pub t: f64,
+    /// Unit geometric normal (either orientation).
+    pub normal: DVec3,
+    /// Lambertian reflectance of the surface hit (0: an absorber).
+    pub reflectance: f64,
+    /// Which part (for reports).
+    pub part: usize,
+}
+
+/// Extra geometry tested at every bounce (the mechanics).
 pub trait ExtraGeometry: Sync + Send {
-    /// Smallest t in (tmin, tmax] where origin + t·dir (global, mm) meets the geometry.
-    fn intersect_brute(&self, origin: DVec3, dir: DVec3, tmin: f64, tmax: f64) -> Option<f64>;
+    /// The nearest hit with t in (tmin, tmax] of origin + t·dir (global, mm; `dir` unit).
+    fn intersect(&self, origin: DVec3, dir: DVec3, tmin: f64, tmax: f64) -> Option<ExtraHit>;
+    /// A short name for reports (`"mechanics-brute"`, `"mechanics-embree"`).
+    fn name(&self) -> &'static str;
+    /// The unit direction and energy weight of the ray scattered at `hit` for a ray arriving along
+    /// `incoming`, its random numbers keyed by (seed, ray, bounce) only; `None`: absorbed.
+    fn scatter(&self, hit: &ExtraHit, incoming: DVec3, seed: u64, ray: u64, bounce: u64) -> Option<(DVec3, f64)>;
 }
 
 /// A distance a few f32 ulps of the ray's coordinates long (the Embree tracer's tie and retry scale).

@@ -127,6 +127,8 @@ pub struct Arrival {
     pub direction: DVec3,
     /// Power (the launched ray has 1).
     pub power: f64,
+    /// Lambertian scatters off extra (mechanical) geometry on the path: > 0 is stray light.
+    pub scatters: u32,
 }
 
 /// The walked tree of one ray.
@@ -160,6 +162,7 @@ struct Node {
     exclude: Option<usize>,
     tnear: f64,
     interactions: u32,
+    scatters: u32,
 }
 
 impl Node {
@@ -208,8 +211,9 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
     };
     let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(options.seed, index));
     tree.ledger.launched = 1.0;
-    let root = Node { p: origin, d: d0, w: 1.0, e: unpolarized(d0, 1.0), path: Vec::new(), exclude: None, tnear: 0.0, interactions: 0 };
+    let root = Node { p: origin, d: d0, w: 1.0, e: unpolarized(d0, 1.0), path: Vec::new(), exclude: None, tnear: 0.0, interactions: 0, scatters: 0 };
     let objects = &kernel.solids().objects;
+    let mut scatter_count = 0u32;
     let mut stack = vec![root];
     while let Some(mut node) = stack.pop() {
         let main = node.path.is_empty();
@@ -226,9 +230,36 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
                     tree.ledger.escaped += power;
                     break (RayStatus::Missed, last);
                 }
-                Event::Extra => {
-                    tree.ledger.absorbed += power;
-                    break (RayStatus::Absorbed, last);
+                Event::Extra(hit) => {
+                    // Mechanics: the kernel's extra geometry scatters a fraction (a Lambertian lobe, keyed by
+                    // (seed, ray index, scatter count of the tree): thread-independent), the rest is absorbed.
+                    let p = node.p + node.d * hit.t;
+                    if main && node.scatters == 0 {
+                        // The order-0 path ends here as far as the main image is concerned.
+                        tree.main_status = Some(RayStatus::Absorbed);
+                        tree.main_surface = last;
+                    }
+                    let scattered = kernel.scatter(&hit, node.d, options.seed, index, u64::from(scatter_count));
+                    scatter_count += 1;
+                    let Some((d, rho)) = scattered.filter(|_| p.is_finite() && node.interactions + 1 < options.max_bounces) else {
+                        tree.ledger.absorbed += power;
+                        break (RayStatus::Absorbed, last);
+                    };
+                    tree.ledger.absorbed += (1.0 - rho) * power;
+                    match model {
+                        // Scattered light is unpolarised (depolarising diffuse surface).
+                        FresnelModel::Polarized => node.e = unpolarized(d, rho * power),
+                        _ => node.w = rho * power,
+                    }
+                    (node.p, node.d, node.exclude) = (p, d, None);
+                    node.tnear = f32_ulps(p, 16.0);
+                    node.interactions += 1;
+                    node.scatters += 1;
+                    let w = node.power(model);
+                    if !roulette(&mut node, w, options.threshold, model, &mut rng, &mut tree.ledger) {
+                        break (RayStatus::Absorbed, last);
+                    }
+                    continue;
                 }
                 Event::Absorber { object } => {
                     tree.ledger.absorbed += power;
@@ -278,7 +309,7 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
                             match if n1 != n2 { refract(dl, normal, n1, n2) } else { Some(dl) } {
                                 Some(out_d) => {
                                     tree.ledger.detector += power;
-                                    tree.arrivals.push(Arrival { path: node.path.clone(), point: p, direction: out_d, power });
+                                    tree.arrivals.push(Arrival { path: node.path.clone(), point: p, direction: out_d, power, scatters: node.scatters });
                                     break (RayStatus::Ok, u32::MAX);
                                 }
                                 None => {
@@ -369,7 +400,7 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
                 }
             }
         };
-        if main {
+        if main && tree.main_status.is_none() {
             tree.main_status = Some(status);
             tree.main_surface = surface;
         }
