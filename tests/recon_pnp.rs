@@ -173,12 +173,45 @@ fn pnp_reduces_the_error_and_is_deterministic() {
         assert!(e < 0.8 * e0 && e < e1, "{kind:?}: {e} vs start {e0}, one iteration {e1}");
         assert_eq!(a.sigmas.len(), a.iterations_run);
         assert!(a.sigmas[..5].iter().all(|s| *s == 0.0), "TV warm-up iterations have no σ");
-        assert_eq!(a.sigmas[5], cfg.sigma_max);
+        assert_eq!(a.sigmas[5] as f64, a.denoiser["tv_warmup"]["sigma_first"].as_f64().unwrap());
         assert!(a.sigmas[5..].windows(2).all(|w| w[1] < w[0]));
         assert_eq!(a.denoiser["tv_warmup"]["iterations"], 5);
         assert_eq!(a.denoiser["name"], "spectral-unet-v1");
         assert_eq!(a.relative_changes.len(), a.iterations_run);
     }
+}
+
+/// The documented noise-level schedule: after the TV phase, σ starts at the TV iterate's estimated error
+/// (clamped to [σ_min, σ_max]; σ_max with `sigma_auto` off), is positive, strictly decreasing and ends on the
+/// floor σ_min; the network runs at most `iterations − tv_warmup` times; a TV phase that meets GAP-TV's own
+/// discrepancy stop hands over early.
+#[test]
+fn pnp_schedule_starts_at_the_tv_error_and_decays_to_the_floor() {
+    let (op, _, y) = shift_problem(16, 16, BANDS);
+    for (kind, auto) in [(SolverKind::PnpGap, true), (SolverKind::PnpGap, false), (SolverKind::PnpAdmm, true)] {
+        let cfg = SolverConfig { iterations: 12, tv_warmup: 6, tolerance: 0.0, sigma_max: 0.15, sigma_min: 0.02, sigma_auto: auto, ..SolverConfig::for_solver(kind) };
+        let rec = reconstruct(&op, &y, None, &cfg, &|_, _| {}).unwrap();
+        assert_eq!(rec.iterations_run, 12, "{kind:?}");
+        let net = &rec.sigmas[6..];
+        assert_eq!(net.len(), 6);
+        let record = &rec.denoiser["tv_warmup"];
+        let est = record["tv_error_estimate"].as_f64().unwrap() as f32;
+        assert!(est > 0.0 && est.is_finite());
+        let want = if auto { (est * diffcassi::recon::solver::PNP_SIGMA_GAIN).clamp(0.02, 0.15) } else { 0.15 };
+        assert_eq!(net[0], want, "{kind:?} auto={auto}: σ_1 (estimate {est})");
+        assert!(net.iter().all(|s| *s > 0.0 && s.is_finite()), "{net:?}");
+        assert!(net.windows(2).all(|w| w[1] < w[0]), "not decreasing: {net:?}");
+        assert!((net[5] - 0.02).abs() < 1e-7 && net.iter().all(|s| *s >= 0.02 - 1e-7), "floor: {net:?}");
+        assert_eq!(record["iterations_run"], 6);
+    }
+    // A δ so large that the first TV iterate meets τ_TV·δ: the network takes over after one TV iteration and
+    // runs its N = 6 iterations (7 in all, under the cap of 12); the PnP rule (τ = 0) stays off.
+    let big = SolverConfig { iterations: 12, tv_warmup: 6, tolerance: 0.0, discrepancy: 0.0, noise_norm: 1e9, ..SolverConfig::pnp_gap() };
+    let rec = reconstruct(&op, &y, None, &big, &|_, _| {}).unwrap();
+    assert_eq!(rec.denoiser["tv_warmup"]["iterations_run"], 1);
+    assert_eq!(rec.iterations_run, 7);
+    assert_eq!(rec.stopped_by, "iterations");
+    assert!(rec.sigmas[0] == 0.0 && rec.sigmas[1..].iter().all(|s| *s > 0.0));
 }
 
 /// A tolerance ends the run early and says so.
