@@ -128,7 +128,7 @@ fn main() {
     let pmse = truth.iter().zip(&prec.cube).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / truth.len() as f64;
     println!("\n| SP {size}×{size}×28, learned prior, {} threads | wall s | CPU s |", rayon::current_num_threads());
     println!("|---|---|---|");
-    println!("| denoiser (spectral-unet-v1, one call, median of 5) | {:.3} | {:.2} |", t_net.0, t_net.1);
+    println!("| denoiser (spectral-unet-v2, one call, median of 5) | {:.3} | {:.2} |", t_net.0, t_net.1);
     println!("| PnP-GAP, {} of at most {} iterations (stopped by {}) | {t_pnp:.2} | {c_pnp:.1} |", prec.iterations_run, pnp.iterations, prec.stopped_by);
     println!("| build + PnP-GAP | {:.2} | {:.1} |", t_build + t_pnp, c_build + c_pnp);
     println!("\nPnP-GAP: final residual {:.3e}, PSNR {:.2} dB vs the noiseless truth (oracle operator, synthetic scene)", prec.final_residual, 10.0 * (peak * peak / pmse).log10());

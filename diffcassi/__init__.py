@@ -276,7 +276,7 @@ __all__ += ["mapping_operator", "shift_operator", "reconstruct", "monte_carlo_no
 
 
 def denoise(cube: np.ndarray, sigma: float, weights: Optional[str] = None) -> np.ndarray:
-    """The learned denoiser (``spectral-unet-v1``, the prior of ``pnp-gap``/``pnp-admm``; Rust inference) on
+    """The learned denoiser (``spectral-unet-v2``, the prior of ``pnp-gap``/``pnp-admm``; Rust inference) on
     ``cube`` (H, W, B) float32 at noise level ``sigma`` (standard deviation on the cube's scale; trained on
     cubes of peak ≈ 1). ``weights``: a safetensors file (default: the embedded checkpoint). Equal to
     :class:`diffcassi.denoiser.SpectralUNet` within 1e-4 of the peak."""

@@ -3,7 +3,7 @@
 //! naming the file and tensor); inference and PnP are bit-identical across thread counts; PnP reduces the
 //! error on a tiny problem; the CLI's `--solver pnp-gap`, `--operator-rays` and `study --solvers` rows; bad
 //! weights / band count / schedule → a clear error and nothing written. Tiny sizes throughout.
-use diffcassi::recon::prior::network::{SpectralUNet, EMBEDDED_PATH};
+use diffcassi::recon::prior::network::{SpectralUNet, ARCH, EMBEDDED_PATH};
 use diffcassi::recon::prior::Denoiser;
 use diffcassi::recon::solver::{reconstruct, sigma_schedule, Preconditioner, SolverConfig, SolverKind};
 use diffcassi::recon::tv::{tv_denoise, TvScratch};
@@ -176,7 +176,7 @@ fn pnp_reduces_the_error_and_is_deterministic() {
         assert_eq!(a.sigmas[5] as f64, a.denoiser["tv_warmup"]["sigma_first"].as_f64().unwrap());
         assert!(a.sigmas[5..].windows(2).all(|w| w[1] < w[0]));
         assert_eq!(a.denoiser["tv_warmup"]["iterations"], 5);
-        assert_eq!(a.denoiser["name"], "spectral-unet-v1");
+        assert_eq!(a.denoiser["name"], ARCH);
         assert_eq!(a.relative_changes.len(), a.iterations_run);
     }
 }
@@ -243,7 +243,7 @@ fn bad_schedule_is_a_clear_error() {
 }
 
 /// Re-serialise the committed weights with one change: `edit(name, shape, data)` may alter a tensor (or
-/// drop it: `None`), `meta` replaces the metadata.
+/// drop it: `None`), `meta` replaces the metadata (default: the committed file's).
 fn edited_weights(edit: impl Fn(&str, &mut Vec<usize>, &mut Vec<f32>) -> bool, meta: Option<Vec<(&str, &str)>>) -> Vec<u8> {
     let bytes = std::fs::read(weights_path()).unwrap();
     let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
@@ -256,8 +256,10 @@ fn edited_weights(edit: impl Fn(&str, &mut Vec<usize>, &mut Vec<f32>) -> bool, m
         }
     }
     let views: Vec<(String, safetensors::tensor::TensorView)> = owned.iter().map(|(n, s, d)| (n.clone(), safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), d).unwrap())).collect();
-    let meta = meta.unwrap_or(vec![("arch", "spectral-unet-v1"), ("bands", "28"), ("width", "32")]);
-    let meta: std::collections::HashMap<String, String> = meta.into_iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    let meta: std::collections::HashMap<String, String> = match meta {
+        Some(m) => m.into_iter().map(|(k, v)| (k.to_string(), v.to_string())).collect(),
+        None => safetensors::SafeTensors::read_metadata(&bytes).unwrap().1.metadata().clone().unwrap(),
+    };
     safetensors::serialize(views, Some(meta)).unwrap()
 }
 
@@ -272,8 +274,21 @@ fn bad_weights_are_clear_errors() {
     let cases: Vec<(&str, Vec<u8>, &str)> = vec![
         ("truncated", good[..good.len() / 2].to_vec(), "not a valid safetensors file"),
         ("garbage", b"not weights at all".to_vec(), "not a valid safetensors file"),
-        ("arch", edited_weights(|_, _, _| true, Some(vec![("arch", "resnet"), ("bands", "28"), ("width", "32")])), "arch"),
-        ("nobands", edited_weights(|_, _, _| true, Some(vec![("arch", "spectral-unet-v1"), ("width", "32")])), "`bands` is missing"),
+        ("arch", edited_weights(|_, _, _| true, Some(vec![("arch", "resnet"), ("bands", "28"), ("width", "32"), ("latent", "28")])), "`arch` = `resnet`"),
+        ("v1", edited_weights(|_, _, _| true, Some(vec![("arch", "spectral-unet-v1"), ("bands", "28"), ("width", "32")])), "from_v1"),
+        ("nobands", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("width", "32"), ("latent", "8")])), "`bands` is missing"),
+        ("nolatent", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "32")])), "`latent` is missing"),
+        ("biglatent", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "32"), ("latent", "29")])), "`latent` = 29 exceeds"),
+        ("badwidth", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "x"), ("latent", "8")])), "`width` = `x`"),
+        ("wrongbands", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "31"), ("width", "32"), ("latent", "8")])), "tensor `lat_enc.weight` has shape"),
+        ("bypass", edited_weights(|n, s, d| {
+            if n == "bypass.weight" {
+                s.clear();
+                s.push(1);
+                d.truncate(1);
+            }
+            true
+        }, None), "tensor `bypass.weight` has shape [1]"),
         ("missing", edited_weights(|n, _, _| n != "mid_a.weight", None), "tensor `mid_a.weight` is missing"),
         ("shape", edited_weights(|n, s, d| {
             if n == "dec2.bias" {
@@ -341,7 +356,7 @@ fn cli_pnp_reconstruct_and_bad_input() {
     let j = read_json(&out.join("reconstruct.json"));
     assert_eq!(j["solver"], "pnp-gap");
     assert_eq!((j["operator_rays"].as_u64(), j["acquisition_rays"].as_u64()), (Some(2), Some(1)));
-    assert_eq!(j["solver_settings"]["record"]["denoiser"]["name"], "spectral-unet-v1");
+    assert_eq!(j["solver_settings"]["record"]["denoiser"]["name"], ARCH);
     assert_eq!(j["solver_settings"]["record"]["sigmas"].as_array().unwrap().len(), j["iterations_run"].as_u64().unwrap() as usize);
     assert!(j["stopping"]["stopped_by"].is_string());
     assert!(out.join("cube.npy").is_file());

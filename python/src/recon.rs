@@ -303,7 +303,7 @@ fn _reconstruct<'py>(
     Ok((output(py, rec.cube, &[c.height, c.width, c.bands])?, record))
 }
 
-/// The learned denoiser (`spectral-unet-v1`) on `cube` (H, W, B) float32 with noise level `sigma` (standard
+/// The learned denoiser (`spectral-unet-v2`) on `cube` (H, W, B) float32 with noise level `sigma` (standard
 /// deviation on the cube's scale: the network was trained on cubes of peak ≈ 1); `weights`: a safetensors
 /// file (default: the embedded checkpoint). Returns the denoised cube (H, W, B) float32.
 #[pyfunction]

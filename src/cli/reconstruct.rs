@@ -366,7 +366,7 @@ pub struct SolverTuning {
     /// GAP-TV / PnP-GAP: plain GAP instead of the accelerated default (the former default).
     #[arg(long, conflicts_with = "accelerated")]
     pub plain: bool,
-    /// pnp-gap / pnp-admm: the denoiser's weights (safetensors, arch spectral-unet-v1) [default: the
+    /// pnp-gap / pnp-admm: the denoiser's weights (safetensors, arch spectral-unet-v2) [default: the
     /// embedded checkpoint].
     #[arg(long)]
     pub denoiser: Option<PathBuf>,
