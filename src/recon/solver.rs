@@ -194,7 +194,7 @@ impl SolverConfig {
             tolerance: PNP_TOLERANCE,
             discrepancy: PNP_DISCREPANCY,
             accelerated: PNP_ACCELERATED,
-            sigma_auto: true,
+            sigma_auto: false,
             ..Self::gap_tv()
         }
     }
@@ -404,9 +404,12 @@ pub const ADMM_TV_DISCREPANCY: f64 = 0.65;
 /// iterate has ‖y − Φθ‖ = 1.0–3.5 δ̂ on the natural scenes, so the rule does not end those runs; it ends longer
 /// ones once the network fits the data to the noise level.
 pub const PNP_DISCREPANCY: f64 = 1.0;
-/// PnP default: iterations at most, the TV phase's cap included (so at most
-/// `PNP_ITERATIONS − PNP_TV_WARMUP` network iterations).
-pub const PNP_ITERATIONS: usize = 340;
+/// PnP default: iterations at most, the TV phase's cap included: the cap plus [`PNP_NETWORK_ITERATIONS`].
+pub const PNP_ITERATIONS: usize = PNP_TV_WARMUP + PNP_NETWORK_ITERATIONS;
+/// PnP default: network iterations after the TV phase. Measured (docs/reconstruction.md, "Plug-and-play"):
+/// with today's weights the first network step from GAP-TV's stopped iterate gains, every later one loses
+/// (accelerated GAP then fits the operator's Monte-Carlo mismatch faster than the network regularises).
+pub const PNP_NETWORK_ITERATIONS: usize = 1;
 /// PnP default: the TV phase's cap (GAP-TV's own cap; the phase usually ends earlier, at GAP-TV's
 /// discrepancy stop [`PNP_TV_DISCREPANCY`]).
 pub const PNP_TV_WARMUP: usize = GAP_TV_ITERATIONS;
@@ -414,10 +417,12 @@ pub const PNP_TV_WARMUP: usize = GAP_TV_ITERATIONS;
 pub const PNP_TV_DISCREPANCY: f64 = GAP_TV_DISCREPANCY;
 /// PnP-GAP default: the accelerated GAP update in both phases (GAP-TV's default).
 pub const PNP_ACCELERATED: bool = true;
-/// PnP default: the ceiling of σ_1, relative to the cube's peak (and σ_1 itself with `sigma_auto` off).
+/// PnP default: σ_1, relative to the cube's peak (the ceiling of σ_1 with `sigma_auto`): the top of the
+/// network's training range (σ ~ U[0, 0.2]); GAP-TV's stopped iterate is ≈ 0.1–0.2 of the peak off the truth
+/// (RMSE), far above what TV removed in its last step (ê ≈ 0.01–0.017), so `sigma_auto` is off by default.
 pub const PNP_SIGMA_MAX: f32 = 0.2;
 /// PnP default: the floor σ_min the schedule decays to, relative to the peak.
-pub const PNP_SIGMA_MIN: f32 = 0.01;
+pub const PNP_SIGMA_MIN: f32 = 0.05;
 /// PnP: σ_1 = gain·ê (ê the TV iterate's estimated error, [`SolverConfig::sigma_auto`]).
 pub const PNP_SIGMA_GAIN: f32 = 1.0;
 /// PnP default: the relative-change tolerance of the stopping rule.
