@@ -115,7 +115,8 @@ fn main() {
     println!("\nGAP-TV: final residual {:.3e}, PSNR {:.2} dB vs the noiseless truth (oracle operator), {} cube-sized solver buffers", rec.final_residual, 10.0 * (peak * peak / mse).log10(), rec.cube_buffers);
 
     // The learned prior (issue 22): one denoiser call and a full PnP-GAP with its defaults (the embedded
-    // weights, σ 0.1 → 0.01, at most 60 iterations, tolerance 1e-3) through the same exact operator.
+    // weights; the TV phase, accelerated GAP-TV capped at 300 iterations — noiseless y and the oracle give no
+    // δ, so no discrepancy stop ends it early — then one network step at σ = 0.2) through the same exact operator.
     let mut net = SpectralUNet::embedded().unwrap();
     let t_net = median(&mut || net.denoise(&truth, &mut denoised, cs, 0.05).unwrap());
     // Test mode (`cargo test --benches`): 2 iterations, 1 of them the TV warm-up, so the network runs once.

@@ -360,6 +360,19 @@ fn cli_pnp_reconstruct_and_bad_input() {
     assert_eq!(j["solver_settings"]["record"]["sigmas"].as_array().unwrap().len(), j["iterations_run"].as_u64().unwrap() as usize);
     assert!(j["stopping"]["stopped_by"].is_string());
     assert!(out.join("cube.npy").is_file());
+    // The TV phase and the schedule are recorded; --sigma-auto starts σ at the TV iterate's estimate, clamped.
+    let tv = &j["solver_settings"]["record"]["denoiser"]["tv_warmup"];
+    assert_eq!((tv["iterations"].as_u64(), tv["sigma_auto"].as_bool()), (Some(2), Some(false)));
+    assert_eq!(j["stopping"]["tv_phase_iterations"], tv["iterations_run"]);
+    let auto = d.path().join("auto");
+    let o = bin(&["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--iterations", "4", "--tv-warmup", "2", "--sigma-auto", "--sigma-min", "0.001", "--plain", "--out", s(&auto)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let ja = read_json(&auto.join("reconstruct.json"));
+    let rec = &ja["solver_settings"]["record"];
+    assert_eq!((rec["config"]["sigma_auto"].as_bool(), rec["config"]["accelerated"].as_bool()), (Some(true), Some(false)));
+    let first = rec["denoiser"]["tv_warmup"]["sigma_first"].as_f64().unwrap();
+    let est = rec["denoiser"]["tv_warmup"]["tv_error_estimate"].as_f64().unwrap();
+    assert!((first - est.clamp(0.001, 0.2)).abs() < 1e-6, "σ_1 {first}, ê {est}");
     // --denoiser with the committed file gives the same cube as the embedded default.
     let out2 = d.path().join("rec2");
     let o = bin(&["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--iterations", "4", "--tv-warmup", "2", "--operator-rays", "2", "--denoiser", s(&weights_path()), "--out", s(&out2)]);
@@ -379,6 +392,8 @@ fn cli_pnp_reconstruct_and_bad_input() {
         (vec!["--solver", "pnp-admm", "--sigma-min", "NaN"], vec!["--sigma-min NaN"]),
         (vec!["--solver", "pnp-gap", "--sigma-min", "0.5", "--sigma-max", "0.2"], vec!["above σ max"]),
         (vec!["--solver", "gap-tv", "--sigma-max", "0.2"], vec!["pnp-gap and pnp-admm only"]),
+        (vec!["--solver", "admm-tv", "--sigma-auto"], vec!["pnp-gap and pnp-admm only"]),
+        (vec!["--solver", "pnp-admm", "--plain"], vec!["gap-tv and pnp-gap only"]),
         (vec!["--solver", "pnp-gap", "--operator", "shift", "--operator-rays", "4"], vec!["exact operator only"]),
     ];
     for (extra, needles) in cases {
