@@ -400,9 +400,9 @@ pub const GAP_TV_DISCREPANCY: f64 = 0.65;
 pub const ADMM_TV_ITERATIONS: usize = 100;
 /// ADMM-TV default: τ of the discrepancy rule (GAP-TV's value; not measured for ADMM).
 pub const ADMM_TV_DISCREPANCY: f64 = 0.65;
-/// PnP default: τ of the discrepancy rule, Morozov's τ = 1. Measured: with the defaults the network's last
-/// iterate has ‖y − Φθ‖ = 1.0–3.5 δ̂ on the natural scenes, so the rule does not end those runs; it ends longer
-/// ones once the network fits the data to the noise level.
+/// PnP default: τ of the network phase's discrepancy rule, Morozov's τ = 1: it ends a network phase of
+/// several steps at its first iterate that explains the data to the noise level (the TV phase hands over at
+/// ‖y − Φθ‖ ≤ 0.65 δ, so a network that keeps the fit stops after one step; the default runs one anyway).
 pub const PNP_DISCREPANCY: f64 = 1.0;
 /// PnP default: iterations at most, the TV phase's cap included: the cap plus [`PNP_NETWORK_ITERATIONS`].
 pub const PNP_ITERATIONS: usize = PNP_TV_WARMUP + PNP_NETWORK_ITERATIONS;
@@ -547,8 +547,7 @@ impl<'d> PriorStep<'d> {
 
     /// θ ← D(x) at iteration k (1-based). In the TV phase, also ê; at its cap, the switch.
     pub(crate) fn apply(&mut self, k: usize, x: &[f32], out: &mut [f32], shape: CubeShape) -> Result<()> {
-        if self.in_tv_phase() {
-            let (cap, tv) = self.warmup.as_mut().expect("a TV phase has a TV denoiser");
+        if let (None, Some((cap, tv))) = (self.switched_after, self.warmup.as_mut()) {
             let cap = *cap;
             tv.denoise(x, out, shape, 0.0)?;
             let peak = x.par_iter().cloned().reduce(|| f32::MIN, f32::max);
