@@ -115,7 +115,8 @@ fn main() {
     println!("\nGAP-TV: final residual {:.3e}, PSNR {:.2} dB vs the noiseless truth (oracle operator), {} cube-sized solver buffers", rec.final_residual, 10.0 * (peak * peak / mse).log10(), rec.cube_buffers);
 
     // The learned prior (issue 22): one denoiser call and a full PnP-GAP with its defaults (the embedded
-    // weights, σ 0.1 → 0.01, at most 60 iterations, tolerance 1e-3) through the same exact operator.
+    // weights; the TV phase, accelerated GAP-TV capped at 300 iterations — noiseless y and the oracle give no
+    // δ, so no discrepancy stop ends it early — then one network step at σ = 0.2) through the same exact operator.
     let mut net = SpectralUNet::embedded().unwrap();
     let t_net = median(&mut || net.denoise(&truth, &mut denoised, cs, 0.05).unwrap());
     // Test mode (`cargo test --benches`): 2 iterations, 1 of them the TV warm-up, so the network runs once.
@@ -128,7 +129,7 @@ fn main() {
     let pmse = truth.iter().zip(&prec.cube).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / truth.len() as f64;
     println!("\n| SP {size}×{size}×28, learned prior, {} threads | wall s | CPU s |", rayon::current_num_threads());
     println!("|---|---|---|");
-    println!("| denoiser (spectral-unet-v1, one call, median of 5) | {:.3} | {:.2} |", t_net.0, t_net.1);
+    println!("| denoiser (spectral-unet-v2, one call, median of 5) | {:.3} | {:.2} |", t_net.0, t_net.1);
     println!("| PnP-GAP, {} of at most {} iterations (stopped by {}) | {t_pnp:.2} | {c_pnp:.1} |", prec.iterations_run, pnp.iterations, prec.stopped_by);
     println!("| build + PnP-GAP | {:.2} | {:.1} |", t_build + t_pnp, c_build + c_pnp);
     println!("\nPnP-GAP: final residual {:.3e}, PSNR {:.2} dB vs the noiseless truth (oracle operator, synthetic scene)", prec.final_residual, 10.0 * (peak * peak / pmse).log10());

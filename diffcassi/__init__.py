@@ -239,12 +239,18 @@ def shift_operator(system: System, height: int, width: int, mask: Optional[np.nd
 def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, solver: str = "gap-tv",
                 init: Optional[np.ndarray] = None, **settings: Any) -> Tuple[np.ndarray, Dict[str, Any]]:
     """Reconstruct a cube (H, W, B) float32 from ``acquisition`` ((h, w) float32; float64 is converted, the
-    image being small) with ``solver`` ``gap-tv`` (plain GAP by default; accelerated=True for the accelerated variant) or ``admm-tv``, as
-    ``diffcassi reconstruct``, or ``pnp-gap`` / ``pnp-admm`` (plug-and-play with the learned denoiser). ``settings``
-    (default: the library's): iterations (100; PnP 60), step (1), tv_weight (0.1), tv_iterations (5), tv_coupling
-    (``vectorial`` | ``per_band``), accelerated (False), admm_eta (0.01), and for PnP sigma_max (0.1), sigma_min
-    (0.01), denoiser (a weights file; default the embedded one); tolerance (the stopping rule; 0 for TV, 1e-3 PnP).
-    Returns ``(cube, record)``; the record holds the settings, per-iteration residuals and seconds."""
+    image being small) with ``solver`` ``gap-tv`` (accelerated GAP by default) or ``admm-tv``, as
+    ``diffcassi reconstruct``, or ``pnp-gap`` / ``pnp-admm`` (plug-and-play with the learned denoiser: a TV
+    phase, then the network; docs/reconstruction.md). ``settings`` (default: the library's, as the CLI's):
+    iterations (the cap: 300 GAP-TV, 100 ADMM-TV, 301 PnP: the TV phase and one network step), step (1), tv_weight (0.1), tv_iterations (5),
+    tv_coupling (``vectorial`` | ``per_band``), accelerated (GAP-TV and PnP-GAP: True), admm_eta (0.01);
+    the stopping rules as the CLI's: discrepancy (τ; 0.65 TV, see the docs for PnP) with noise_norm (δ, the
+    expected ‖y − Φx_true‖₂ in acquisition units, e.g. :func:`monte_carlo_noise_norm`; 0 or absent: the rule is
+    off), tolerance (relative change; 0 for TV); for PnP tv_warmup (the TV phase's cap), sigma_max, sigma_min
+    (the σ schedule's ceiling and floor), sigma_auto (True: σ_1 from the TV iterate's estimated error),
+    denoiser (a weights file; default the embedded one).
+    Returns ``(cube, record)``; the record holds the settings, per-iteration residuals, seconds and
+    ``stopping`` (the rule, τ, δ, the cap, ``iterations_run``, ``stopped_by``), as ``reconstruct.json``."""
     op = operator.operator if isinstance(operator, Transport) else operator
     if not isinstance(op, Operator):
         raise DiffcassiValueError(f"operator: expected a diffcassi.Operator or Transport, got {type(operator).__name__}")
@@ -257,11 +263,20 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     return cube, _json.loads(record)
 
 
-__all__ += ["mapping_operator", "shift_operator", "reconstruct"]
+def monte_carlo_noise_norm(acquisition: np.ndarray, acquisition_rays: int, operator_rays: int, planes_per_band: float) -> float:
+    """δ for the discrepancy stop of :func:`reconstruct` (``noise_norm``), as the CLI estimates its Monte-Carlo
+    term: 0.062·((1/R_a + 1/R_o)/F)^½·‖y‖ for an exact operator traced with another seed (R_o rays per pixel per
+    plane) against an acquisition traced with R_a rays, F render planes per band (docs/reconstruction.md,
+    "Defaults and stopping"). Add the sensor noise yourself when the acquisition has any."""
+    acq = np.ascontiguousarray(acquisition, dtype=np.float32)
+    return float(_native.monte_carlo_noise_norm(acq, int(acquisition_rays), int(operator_rays), float(planes_per_band)))
+
+
+__all__ += ["mapping_operator", "shift_operator", "reconstruct", "monte_carlo_noise_norm"]
 
 
 def denoise(cube: np.ndarray, sigma: float, weights: Optional[str] = None) -> np.ndarray:
-    """The learned denoiser (``spectral-unet-v1``, the prior of ``pnp-gap``/``pnp-admm``; Rust inference) on
+    """The learned denoiser (``spectral-unet-v2``, the prior of ``pnp-gap``/``pnp-admm``; Rust inference) on
     ``cube`` (H, W, B) float32 at noise level ``sigma`` (standard deviation on the cube's scale; trained on
     cubes of peak ≈ 1). ``weights``: a safetensors file (default: the embedded checkpoint). Equal to
     :class:`diffcassi.denoiser.SpectralUNet` within 1e-4 of the peak."""

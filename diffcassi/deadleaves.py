@@ -179,9 +179,10 @@ TEXTURE_PROBABILITIES = (0.4, 0.2, 0.25, 0.15)
 KINDS = ("spectral", "rgb")
 
 
-def _texture(rng: np.random.Generator, yy: np.ndarray, xx: np.ndarray, noise: np.ndarray, r: float) -> np.ndarray:
+def _texture(rng: np.random.Generator, yy: np.ndarray, xx: np.ndarray, noise: np.ndarray, r: float,
+             probabilities: Sequence[float] = TEXTURE_PROBABILITIES) -> np.ndarray:
     """A texture in [0, 1] on the given pixel coordinates: flat, gradient, fractal noise or stripes."""
-    kind = rng.choice(4, p=list(TEXTURE_PROBABILITIES))
+    kind = rng.choice(4, p=list(probabilities))
     if kind == 0:
         return np.zeros(yy.shape)
     th = rng.uniform(0, 2 * np.pi)
@@ -210,15 +211,17 @@ def random_srgb(rng: np.random.Generator) -> np.ndarray:
     return c
 
 
-def _paint_leaves(rng: np.random.Generator, size: int, palette: List[np.ndarray], max_leaves: int) -> np.ndarray:
+def _paint_leaves(rng: np.random.Generator, size: int, palette: List[np.ndarray], max_leaves: int,
+                  rmin_px: Tuple[float, float] = (2.0, 8.0),
+                  textures: Sequence[float] = TEXTURE_PROBABILITIES) -> np.ndarray:
     """The dead-leaves geometry: (C, size, size) painted front to back with leaves whose colours (C-vectors, C =
     bands or 3) come from ``palette``. Radii follow a power law (density ∝ r⁻³) between r_min and the cube's size,
-    r_min log-uniform in [2, 8] px per cube (larger leaves: larger flat regions)."""
+    r_min log-uniform in ``rmin_px`` per cube (larger leaves: larger flat regions)."""
     nc = palette[0].shape[0]
     cube = np.zeros((nc, size, size))
     covered = np.zeros((size, size), dtype=bool)
     noise = _fractal_noise(rng, size)
-    rmin, rmax, alpha = float(np.exp(rng.uniform(np.log(2.0), np.log(8.0)))), 1.0 * size, 3.0
+    rmin, rmax, alpha = float(np.exp(rng.uniform(np.log(rmin_px[0]), np.log(rmin_px[1])))), 1.0 * size, 3.0
     a1, b1 = rmin ** (1 - alpha), rmax ** (1 - alpha)
     for _ in range(max_leaves):
         r = (a1 + rng.random() * (b1 - a1)) ** (1.0 / (1 - alpha))
@@ -233,7 +236,7 @@ def _paint_leaves(rng: np.random.Generator, size: int, palette: List[np.ndarray]
             continue
         s1 = palette[int(rng.integers(len(palette)))] * rng.uniform(0.3, 1.0)
         s2 = s1 * rng.uniform(0.2, 0.9) if rng.random() < 0.6 else palette[int(rng.integers(len(palette)))] * rng.uniform(0.3, 1.0)
-        t = _texture(rng, yy, xx, noise, r)
+        t = _texture(rng, yy, xx, noise, r, textures)
         tm = t[m]
         cube[:, y0:y1, x0:x1][:, m] = (1 - tm)[None, :] * s1[:, None] + tm[None, :] * s2[:, None]
         covered[y0:y1, x0:x1] |= m
@@ -245,7 +248,9 @@ def _paint_leaves(rng: np.random.Generator, size: int, palette: List[np.ndarray]
 
 
 def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM, max_leaves: int = 600,
-                blur_probability: float = 0.5, illuminant_probability: float = 0.7, kind: str = "spectral") -> np.ndarray:
+                blur_probability: float = 0.5, illuminant_probability: float = 0.7, kind: str = "spectral",
+                rmin_px: Tuple[float, float] = (2.0, 8.0),
+                textures: Sequence[float] = TEXTURE_PROBABILITIES) -> np.ndarray:
     """One hyperspectral dead-leaves cube (B, size, size), float32, peak-normalised (max exactly 1), a pure
     function of ``seed`` (an int ≥ 0) and ``kind``. Leaves are painted front to back until the image is covered or
     ``max_leaves`` is reached (the rest is one background leaf); blur (p = ``blur_probability``) is a Gaussian of
@@ -255,7 +260,11 @@ def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM,
     cube), the cube lit by a D65/A mixture (p = ``illuminant_probability``). ``kind = "rgb"``: the leaves are
     painted in encoded sRGB (a palette of 3–10 :func:`random_srgb` colours), blurred, quantised to 8 bits like a
     PNG and uplifted per pixel by Smits' method (:mod:`diffcassi.smits`, the uplift of the evaluation scenes): the
-    spectra then lie on the same family as those of uplifted photographs, without using any photograph."""
+    spectra then lie on the same family as those of uplifted photographs, without using any photograph.
+
+    ``rmin_px`` (px) is the range of the per-cube smallest leaf radius and ``textures`` the probabilities of flat,
+    gradient, fractal and stripes leaves (the defaults are the training data's; the selection set of
+    ``scripts/train_denoiser.py`` asks for larger, flatter leaves)."""
     if size < 4:
         raise ValueError(f"dead_leaves: size {size} too small (at least 4)")
     if kind not in KINDS:
@@ -269,7 +278,7 @@ def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM,
         palette = [random_reflectance(rng, lib) for _ in range(n_palette)]
     else:
         palette = [random_srgb(rng) for _ in range(n_palette)]
-    cube = _paint_leaves(rng, size, palette, max_leaves)
+    cube = _paint_leaves(rng, size, palette, max_leaves, rmin_px, textures)
     if kind == "spectral" and rng.random() < illuminant_probability:  # a mixture of D65 and A, mean 1
         w = rng.random()
         cube *= ((1 - w) * ill[0] + w * ill[1])[:, None, None]

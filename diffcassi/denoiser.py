@@ -1,17 +1,27 @@
 """The learned hyperspectral denoiser (the prior of the plug-and-play solvers): its PyTorch definition.
 
-``SpectralUNet`` is a small residual U-Net over all bands at once (spectral–spatial: every convolution mixes
-all bands), in the spirit of FFDNet/DRUNet: the noise level σ enters as a constant extra input channel, so one
-network serves every σ of a plug-and-play schedule. The Rust inference (``src/recon/prior/``) implements the same
-graph layer by layer and loads the same safetensors file; the two agree to 1e-4 of the peak (tested).
+``SpectralUNet`` (arch ``spectral-unet-v2``) is a small U-Net in the spirit of FFDNet/DRUNet (the noise level σ
+enters as a constant extra input channel, so one network serves every σ of a plug-and-play schedule) behind a
+*linear spectral path*: a learned 1×1 spectral encoder E (bands → K, the latent), the U-Net denoising the
+K-channel latent with its own residual, a learned 1×1 decoder D (K → bands) and a learned 1×1 bypass G
+(bands → bands), all three without bias or activation:
 
-Graph (C = ``width``, all convolutions 3×3 with zero padding 1 and a bias unless said otherwise, ReLU after each
-but the last; input height and width must be multiples of 4 — :func:`denoise` pads by edge replication):
+    z = E·x,    out = D·(z − U([z, σ])) + G·x.
+
+Natural spectra span few dimensions, so most of a white noise's 28 bands are removed by the linear maps alone
+(what a residual U-Net with ReLUs could not learn: src/recon/prior/MODEL.md, round 2's diagnosis); the U-Net
+only has to carry K signed latent noise values. The Rust inference (``src/recon/prior/network.rs``) implements
+the same graph and loads the same safetensors file; the two agree to 1e-4 of the peak (tested).
+
+Graph (C = ``width``, K = ``latent``, all convolutions 3×3 with zero padding 1 and a bias unless said otherwise,
+ReLU after each but the last; input height and width must be multiples of 4 — :func:`denoise` pads by edge
+replication):
 
 ====================  ===============================================  ===================
 name                  layer                                            resolution
 ====================  ===============================================  ===================
-``head``              conv3×3 (bands + 1 → C), ReLU                    full
+``lat_enc``           conv1×1 (bands → K), no bias: z = E·x            full
+``head``              conv3×3 (K + 1 → C) on [z, σ], ReLU              full
 ``enc1``              conv3×3 (C → C), ReLU                            full
 ``down1``             conv2×2 stride 2, no padding (C → 2C), ReLU       1/2
 ``enc2a``/``enc2b``   conv3×3 (2C → 2C), ReLU, twice                   1/2
@@ -21,13 +31,17 @@ name                  layer                                            resolutio
 ``dec2``              conv3×3 (2C → 2C), ReLU                          1/2
 ``up1``               transposed conv2×2 stride 2 (2C → C), + enc1     full
 ``dec1``              conv3×3 (C → C), ReLU                            full
-``tail``              conv3×3 (C → bands), no ReLU                     full
+``tail``              conv3×3 (C → K), no ReLU: the latent noise u     full
+``lat_dec``           conv1×1 (K → bands), no bias, on z − u           full
+``bypass``            conv1×1 (bands → bands), no bias, on x; added    full
 ====================  ===============================================  ===================
 
-Output = input − tail (the network predicts the noise). Inputs are cubes (N, bands, H, W) scaled to a peak of
-about 1 and σ the standard deviation of the noise on that scale. State-dict keys are ``<name>.weight`` and
-``<name>.bias``; the safetensors file's metadata records ``bands``, ``width`` and ``arch`` =
-``"spectral-unet-v1"``.
+Inputs are cubes (N, bands, H, W) scaled to a peak of about 1 and σ the standard deviation of the noise on that
+scale. State-dict keys are ``<name>.weight`` (and ``<name>.bias`` for the 3×3/2×2 layers); the safetensors file's
+metadata records ``arch`` = ``"spectral-unet-v2"``, ``bands``, ``width`` and ``latent``.
+
+The round-1/2 graph ``spectral-unet-v1`` (out = x − U([x, σ])) is v2 with K = bands, E = D = I and G = 0:
+:func:`from_v1` converts its weights (used to start v2's training from them).
 """
 from __future__ import annotations
 
@@ -37,18 +51,29 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-ARCH = "spectral-unet-v1"
+ARCH = "spectral-unet-v2"
+
+#: The layers of the U-Net part, in graph order: (name, kind); kind "c3" conv3×3, "d2" conv2×2 stride 2,
+#: "t2" transposed conv2×2 stride 2.
+UNET_LAYERS = (("head", "c3"), ("enc1", "c3"), ("down1", "d2"), ("enc2a", "c3"), ("enc2b", "c3"), ("down2", "d2"),
+               ("mid_a", "c3"), ("mid_b", "c3"), ("up2", "t2"), ("dec2", "c3"), ("up1", "t2"), ("dec1", "c3"),
+               ("tail", "c3"))
 
 
 class SpectralUNet(nn.Module):
     """See the module docs for the graph. ``forward(x, sigma)``: x (N, bands, H, W) with H, W multiples of 4,
-    sigma a float or a tensor (N,) of noise levels."""
+    sigma a float or a tensor (N,) of noise levels. ``latent`` K defaults to ``bands``. A new network starts with
+    E = D = I (the first K bands) and G = 0."""
 
-    def __init__(self, bands: int = 28, width: int = 32):
+    def __init__(self, bands: int = 28, width: int = 32, latent: Optional[int] = None):
         super().__init__()
-        self.bands, self.width = bands, width
+        k = bands if latent is None else latent
+        if not (bands >= 1 and width >= 1 and 1 <= k <= bands):
+            raise ValueError(f"SpectralUNet: bands={bands}, width={width}, latent={k} (need 1 ≤ latent ≤ bands)")
+        self.bands, self.width, self.latent = bands, width, k
         c, c2 = width, 2 * width
-        self.head = nn.Conv2d(bands + 1, c, 3, padding=1)
+        self.lat_enc = nn.Conv2d(bands, k, 1, bias=False)
+        self.head = nn.Conv2d(k + 1, c, 3, padding=1)
         self.enc1 = nn.Conv2d(c, c, 3, padding=1)
         self.down1 = nn.Conv2d(c, c2, 2, stride=2)
         self.enc2a = nn.Conv2d(c2, c2, 3, padding=1)
@@ -60,7 +85,14 @@ class SpectralUNet(nn.Module):
         self.dec2 = nn.Conv2d(c2, c2, 3, padding=1)
         self.up1 = nn.ConvTranspose2d(c2, c, 2, stride=2)
         self.dec1 = nn.Conv2d(c, c, 3, padding=1)
-        self.tail = nn.Conv2d(c, bands, 3, padding=1)
+        self.tail = nn.Conv2d(c, k, 3, padding=1)
+        self.lat_dec = nn.Conv2d(k, bands, 1, bias=False)
+        self.bypass = nn.Conv2d(bands, bands, 1, bias=False)
+        with torch.no_grad():
+            eye = torch.eye(bands)[:k]
+            self.lat_enc.weight.copy_(eye[:, :, None, None])
+            self.lat_dec.weight.copy_(eye.T[:, :, None, None])
+            self.bypass.weight.zero_()
 
     def forward(self, x: torch.Tensor, sigma) -> torch.Tensor:
         n, b, h, w = x.shape
@@ -69,7 +101,8 @@ class SpectralUNet(nn.Module):
         if h % 4 or w % 4:
             raise ValueError(f"SpectralUNet: height {h} and width {w} must be multiples of 4 (pad first)")
         s = torch.as_tensor(sigma, dtype=x.dtype, device=x.device).reshape(-1, 1, 1, 1).expand(n, 1, h, w)
-        z = F.relu(self.head(torch.cat([x, s], dim=1)))
+        lat = self.lat_enc(x)
+        z = F.relu(self.head(torch.cat([lat, s], dim=1)))
         e1 = F.relu(self.enc1(z))
         z = F.relu(self.down1(e1))
         z = F.relu(self.enc2a(z))
@@ -81,11 +114,42 @@ class SpectralUNet(nn.Module):
         z = F.relu(self.dec2(z))
         z = self.up1(z) + e1
         z = F.relu(self.dec1(z))
-        return x - self.tail(z)
+        return self.lat_dec(lat - self.tail(z)) + self.bypass(x)
 
     def metadata(self) -> Dict[str, str]:
         """The safetensors metadata of this network's weights file."""
-        return {"arch": ARCH, "bands": str(self.bands), "width": str(self.width)}
+        return {"arch": ARCH, "bands": str(self.bands), "width": str(self.width), "latent": str(self.latent)}
+
+
+def from_v1(tensors: Dict[str, torch.Tensor], basis: Optional[torch.Tensor] = None, full_latent: bool = False) -> SpectralUNet:
+    """A v2 network from the tensors of a ``spectral-unet-v1`` file (out = x − U([x, σ])). Without ``basis`` it is
+    the same function (K = bands, E = D = I, G = 0). With an orthonormal ``basis`` V (bands, k), P = V·Vᵀ:
+
+    * ``full_latent=False``: the latent is the span of V (K = k): E = Vᵀ, D = V, the U-Net's first layer reads the
+      latent through V (head_x·V) and its last writes it (Vᵀ·tail), so out = P·(Px − U₁([Px, σ]));
+    * ``full_latent=True``: K = bands, E = I, D = P, so out = P·(x − U₁([x, σ])) (v1's output projected).
+    """
+    bands = tensors["tail.weight"].shape[0]
+    width = tensors["enc1.weight"].shape[0]
+    v = torch.eye(bands) if basis is None else basis.to(torch.float32)
+    if v.ndim != 2 or v.shape[0] != bands:
+        raise ValueError(f"from_v1: basis of shape {tuple(v.shape)}, expected ({bands}, K)")
+    sd = {k: t.clone().to(torch.float32) for k, t in tensors.items()}
+    sd["bypass.weight"] = torch.zeros(bands, bands, 1, 1)
+    if full_latent:
+        net = SpectralUNet(bands=bands, width=width, latent=bands)
+        sd["lat_enc.weight"] = torch.eye(bands)[:, :, None, None]
+        sd["lat_dec.weight"] = (v @ v.T)[:, :, None, None]
+    else:
+        net = SpectralUNet(bands=bands, width=width, latent=v.shape[1])
+        hw = sd["head.weight"]  # (C, bands + 1, 3, 3): the x part through V, the σ channel kept
+        sd["head.weight"] = torch.cat([torch.einsum("cbij,bk->ckij", hw[:, :bands], v), hw[:, bands:]], dim=1)
+        sd["tail.weight"] = torch.einsum("bk,bcij->kcij", v, sd["tail.weight"])
+        sd["tail.bias"] = v.T @ sd["tail.bias"]
+        sd["lat_enc.weight"] = v.T.contiguous()[:, :, None, None]
+        sd["lat_dec.weight"] = v.contiguous()[:, :, None, None]
+    net.load_state_dict(sd)
+    return net
 
 
 def pad_to_multiple(x: torch.Tensor, m: int = 4):
@@ -123,9 +187,9 @@ def save_weights(net: SpectralUNet, path, extra_metadata: Optional[Dict[str, str
 
 
 def load_weights(path, bands: Optional[int] = None) -> SpectralUNet:
-    """Loads a ``spectral-unet-v1`` safetensors file into a new :class:`SpectralUNet` (eval mode). Raises
+    """Loads a ``spectral-unet-v2`` safetensors file into a new :class:`SpectralUNet` (eval mode). Raises
     FileNotFoundError for a missing file and ValueError, naming the file and the problem, for a file that is not
-    safetensors, has another architecture, band count (when ``bands`` is given) or width, misses or has extra
+    safetensors, has another architecture, band count (when ``bands`` is given), width or latent, misses or has extra
     tensors, has a tensor of the wrong shape, or holds NaN/inf."""
     import os
     from safetensors import safe_open
@@ -141,15 +205,17 @@ def load_weights(path, bands: Optional[int] = None) -> SpectralUNet:
     if meta.get("arch") != ARCH:
         raise ValueError(f"denoiser weights {path}: metadata arch is {meta.get('arch')!r}, expected {ARCH!r}")
     try:
-        b, w = int(meta["bands"]), int(meta["width"])
+        b, w, lat = int(meta["bands"]), int(meta["width"]), int(meta["latent"])
     except (KeyError, ValueError):
-        raise ValueError(f"denoiser weights {path}: metadata bands/width missing or not integers "
-                         f"(bands={meta.get('bands')!r}, width={meta.get('width')!r})") from None
-    if b < 1 or w < 1:
-        raise ValueError(f"denoiser weights {path}: metadata bands={b}, width={w} must be positive")
+        raise ValueError(f"denoiser weights {path}: metadata bands/width/latent missing or not integers "
+                         f"(bands={meta.get('bands')!r}, width={meta.get('width')!r}, "
+                         f"latent={meta.get('latent')!r})") from None
+    if b < 1 or w < 1 or not 1 <= lat <= b:
+        raise ValueError(f"denoiser weights {path}: metadata bands={b}, width={w} must be positive and "
+                         f"latent={lat} in 1…bands")
     if bands is not None and b != bands:
         raise ValueError(f"denoiser weights {path}: the network is for {b} bands, the cube has {bands}")
-    net = SpectralUNet(bands=b, width=w)
+    net = SpectralUNet(bands=b, width=w, latent=lat)
     want = net.state_dict()
     missing, extra = sorted(set(want) - set(tensors)), sorted(set(tensors) - set(want))
     if missing or extra:
@@ -157,7 +223,7 @@ def load_weights(path, bands: Optional[int] = None) -> SpectralUNet:
     for k, v in tensors.items():
         if tuple(v.shape) != tuple(want[k].shape):
             raise ValueError(f"denoiser weights {path}: tensor {k} has shape {tuple(v.shape)}, "
-                             f"expected {tuple(want[k].shape)} (bands={b}, width={w})")
+                             f"expected {tuple(want[k].shape)} (bands={b}, width={w}, latent={lat})")
         if not torch.isfinite(v).all():
             raise ValueError(f"denoiser weights {path}: tensor {k} has NaN or infinite values")
     net.load_state_dict({k: v.to(torch.float32) for k, v in tensors.items()})

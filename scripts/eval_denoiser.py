@@ -89,7 +89,7 @@ def load_scenes(folder: pathlib.Path, size: int):
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--weights", default=str(ROOT / "src/recon/prior/weights/spectral-unet-v1-28.safetensors"))
+    ap.add_argument("--weights", default=str(ROOT / "src/recon/prior/weights/spectral-unet-v2-28.safetensors"))
     ap.add_argument("--scenes", default=str(ROOT / "data/scenes"), help="folder of RGB photographs (*.png)")
     ap.add_argument("--size", type=int, default=128, help="centre crop (pixels); 0 = whole image (256)")
     ap.add_argument("--tv-iterations", type=int, default=100)

@@ -3,7 +3,7 @@
 //! naming the file and tensor); inference and PnP are bit-identical across thread counts; PnP reduces the
 //! error on a tiny problem; the CLI's `--solver pnp-gap`, `--operator-rays` and `study --solvers` rows; bad
 //! weights / band count / schedule → a clear error and nothing written. Tiny sizes throughout.
-use diffcassi::recon::prior::network::{SpectralUNet, EMBEDDED_PATH};
+use diffcassi::recon::prior::network::{SpectralUNet, ARCH, EMBEDDED_PATH};
 use diffcassi::recon::prior::Denoiser;
 use diffcassi::recon::solver::{reconstruct, sigma_schedule, Preconditioner, SolverConfig, SolverKind};
 use diffcassi::recon::tv::{tv_denoise, TvScratch};
@@ -173,12 +173,45 @@ fn pnp_reduces_the_error_and_is_deterministic() {
         assert!(e < 0.8 * e0 && e < e1, "{kind:?}: {e} vs start {e0}, one iteration {e1}");
         assert_eq!(a.sigmas.len(), a.iterations_run);
         assert!(a.sigmas[..5].iter().all(|s| *s == 0.0), "TV warm-up iterations have no σ");
-        assert_eq!(a.sigmas[5], cfg.sigma_max);
+        assert_eq!(a.sigmas[5] as f64, a.denoiser["tv_warmup"]["sigma_first"].as_f64().unwrap());
         assert!(a.sigmas[5..].windows(2).all(|w| w[1] < w[0]));
         assert_eq!(a.denoiser["tv_warmup"]["iterations"], 5);
-        assert_eq!(a.denoiser["name"], "spectral-unet-v1");
+        assert_eq!(a.denoiser["name"], ARCH);
         assert_eq!(a.relative_changes.len(), a.iterations_run);
     }
+}
+
+/// The documented noise-level schedule: after the TV phase, σ starts at the TV iterate's estimated error
+/// (clamped to [σ_min, σ_max]; σ_max with `sigma_auto` off), is positive, strictly decreasing and ends on the
+/// floor σ_min; the network runs at most `iterations − tv_warmup` times; a TV phase that meets GAP-TV's own
+/// discrepancy stop hands over early.
+#[test]
+fn pnp_schedule_starts_at_the_tv_error_and_decays_to_the_floor() {
+    let (op, _, y) = shift_problem(16, 16, BANDS);
+    for (kind, auto) in [(SolverKind::PnpGap, true), (SolverKind::PnpGap, false), (SolverKind::PnpAdmm, true)] {
+        let cfg = SolverConfig { iterations: 12, tv_warmup: 6, tolerance: 0.0, sigma_max: 0.15, sigma_min: 0.02, sigma_auto: auto, ..SolverConfig::for_solver(kind) };
+        let rec = reconstruct(&op, &y, None, &cfg, &|_, _| {}).unwrap();
+        assert_eq!(rec.iterations_run, 12, "{kind:?}");
+        let net = &rec.sigmas[6..];
+        assert_eq!(net.len(), 6);
+        let record = &rec.denoiser["tv_warmup"];
+        let est = record["tv_error_estimate"].as_f64().unwrap() as f32;
+        assert!(est > 0.0 && est.is_finite());
+        let want = if auto { (est * diffcassi::recon::solver::PNP_SIGMA_GAIN).clamp(0.02, 0.15) } else { 0.15 };
+        assert_eq!(net[0], want, "{kind:?} auto={auto}: σ_1 (estimate {est})");
+        assert!(net.iter().all(|s| *s > 0.0 && s.is_finite()), "{net:?}");
+        assert!(net.windows(2).all(|w| w[1] < w[0]), "not decreasing: {net:?}");
+        assert!((net[5] - 0.02).abs() < 1e-7 && net.iter().all(|s| *s >= 0.02 - 1e-7), "floor: {net:?}");
+        assert_eq!(record["iterations_run"], 6);
+    }
+    // A δ so large that the first TV iterate meets τ_TV·δ: the network takes over after one TV iteration and
+    // runs its N = 6 iterations (7 in all, under the cap of 12); the PnP rule (τ = 0) stays off.
+    let big = SolverConfig { iterations: 12, tv_warmup: 6, tolerance: 0.0, discrepancy: 0.0, noise_norm: 1e9, ..SolverConfig::pnp_gap() };
+    let rec = reconstruct(&op, &y, None, &big, &|_, _| {}).unwrap();
+    assert_eq!(rec.denoiser["tv_warmup"]["iterations_run"], 1);
+    assert_eq!(rec.iterations_run, 7);
+    assert_eq!(rec.stopped_by, "iterations");
+    assert!(rec.sigmas[0] == 0.0 && rec.sigmas[1..].iter().all(|s| *s > 0.0));
 }
 
 /// A tolerance ends the run early and says so.
@@ -210,7 +243,7 @@ fn bad_schedule_is_a_clear_error() {
 }
 
 /// Re-serialise the committed weights with one change: `edit(name, shape, data)` may alter a tensor (or
-/// drop it: `None`), `meta` replaces the metadata.
+/// drop it: `None`), `meta` replaces the metadata (default: the committed file's).
 fn edited_weights(edit: impl Fn(&str, &mut Vec<usize>, &mut Vec<f32>) -> bool, meta: Option<Vec<(&str, &str)>>) -> Vec<u8> {
     let bytes = std::fs::read(weights_path()).unwrap();
     let st = safetensors::SafeTensors::deserialize(&bytes).unwrap();
@@ -223,8 +256,10 @@ fn edited_weights(edit: impl Fn(&str, &mut Vec<usize>, &mut Vec<f32>) -> bool, m
         }
     }
     let views: Vec<(String, safetensors::tensor::TensorView)> = owned.iter().map(|(n, s, d)| (n.clone(), safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), d).unwrap())).collect();
-    let meta = meta.unwrap_or(vec![("arch", "spectral-unet-v1"), ("bands", "28"), ("width", "32")]);
-    let meta: std::collections::HashMap<String, String> = meta.into_iter().map(|(k, v)| (k.to_string(), v.to_string())).collect();
+    let meta: std::collections::HashMap<String, String> = match meta {
+        Some(m) => m.into_iter().map(|(k, v)| (k.to_string(), v.to_string())).collect(),
+        None => safetensors::SafeTensors::read_metadata(&bytes).unwrap().1.metadata().clone().unwrap(),
+    };
     safetensors::serialize(views, Some(meta)).unwrap()
 }
 
@@ -239,8 +274,21 @@ fn bad_weights_are_clear_errors() {
     let cases: Vec<(&str, Vec<u8>, &str)> = vec![
         ("truncated", good[..good.len() / 2].to_vec(), "not a valid safetensors file"),
         ("garbage", b"not weights at all".to_vec(), "not a valid safetensors file"),
-        ("arch", edited_weights(|_, _, _| true, Some(vec![("arch", "resnet"), ("bands", "28"), ("width", "32")])), "arch"),
-        ("nobands", edited_weights(|_, _, _| true, Some(vec![("arch", "spectral-unet-v1"), ("width", "32")])), "`bands` is missing"),
+        ("arch", edited_weights(|_, _, _| true, Some(vec![("arch", "resnet"), ("bands", "28"), ("width", "32"), ("latent", "28")])), "`arch` = `resnet`"),
+        ("v1", edited_weights(|_, _, _| true, Some(vec![("arch", "spectral-unet-v1"), ("bands", "28"), ("width", "32")])), "from_v1"),
+        ("nobands", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("width", "32"), ("latent", "8")])), "`bands` is missing"),
+        ("nolatent", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "32")])), "`latent` is missing"),
+        ("biglatent", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "32"), ("latent", "29")])), "`latent` = 29 exceeds"),
+        ("badwidth", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "x"), ("latent", "8")])), "`width` = `x`"),
+        ("wrongbands", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "31"), ("width", "32"), ("latent", "8")])), "tensor `lat_enc.weight` has shape"),
+        ("bypass", edited_weights(|n, s, d| {
+            if n == "bypass.weight" {
+                s.clear();
+                s.push(1);
+                d.truncate(1);
+            }
+            true
+        }, None), "tensor `bypass.weight` has shape [1]"),
         ("missing", edited_weights(|n, _, _| n != "mid_a.weight", None), "tensor `mid_a.weight` is missing"),
         ("shape", edited_weights(|n, s, d| {
             if n == "dec2.bias" {
@@ -308,10 +356,23 @@ fn cli_pnp_reconstruct_and_bad_input() {
     let j = read_json(&out.join("reconstruct.json"));
     assert_eq!(j["solver"], "pnp-gap");
     assert_eq!((j["operator_rays"].as_u64(), j["acquisition_rays"].as_u64()), (Some(2), Some(1)));
-    assert_eq!(j["solver_settings"]["record"]["denoiser"]["name"], "spectral-unet-v1");
+    assert_eq!(j["solver_settings"]["record"]["denoiser"]["name"], ARCH);
     assert_eq!(j["solver_settings"]["record"]["sigmas"].as_array().unwrap().len(), j["iterations_run"].as_u64().unwrap() as usize);
     assert!(j["stopping"]["stopped_by"].is_string());
     assert!(out.join("cube.npy").is_file());
+    // The TV phase and the schedule are recorded; --sigma-auto starts σ at the TV iterate's estimate, clamped.
+    let tv = &j["solver_settings"]["record"]["denoiser"]["tv_warmup"];
+    assert_eq!((tv["iterations"].as_u64(), tv["sigma_auto"].as_bool()), (Some(2), Some(false)));
+    assert_eq!(j["stopping"]["tv_phase_iterations"], tv["iterations_run"]);
+    let auto = d.path().join("auto");
+    let o = bin(&["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--iterations", "4", "--tv-warmup", "2", "--sigma-auto", "--sigma-min", "0.001", "--plain", "--out", s(&auto)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let ja = read_json(&auto.join("reconstruct.json"));
+    let rec = &ja["solver_settings"]["record"];
+    assert_eq!((rec["config"]["sigma_auto"].as_bool(), rec["config"]["accelerated"].as_bool()), (Some(true), Some(false)));
+    let first = rec["denoiser"]["tv_warmup"]["sigma_first"].as_f64().unwrap();
+    let est = rec["denoiser"]["tv_warmup"]["tv_error_estimate"].as_f64().unwrap();
+    assert!((first - est.clamp(0.001, 0.2)).abs() < 1e-6, "σ_1 {first}, ê {est}");
     // --denoiser with the committed file gives the same cube as the embedded default.
     let out2 = d.path().join("rec2");
     let o = bin(&["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--iterations", "4", "--tv-warmup", "2", "--operator-rays", "2", "--denoiser", s(&weights_path()), "--out", s(&out2)]);
@@ -331,6 +392,8 @@ fn cli_pnp_reconstruct_and_bad_input() {
         (vec!["--solver", "pnp-admm", "--sigma-min", "NaN"], vec!["--sigma-min NaN"]),
         (vec!["--solver", "pnp-gap", "--sigma-min", "0.5", "--sigma-max", "0.2"], vec!["above σ max"]),
         (vec!["--solver", "gap-tv", "--sigma-max", "0.2"], vec!["pnp-gap and pnp-admm only"]),
+        (vec!["--solver", "admm-tv", "--sigma-auto"], vec!["pnp-gap and pnp-admm only"]),
+        (vec!["--solver", "pnp-admm", "--plain"], vec!["gap-tv and pnp-gap only"]),
         (vec!["--solver", "pnp-gap", "--operator", "shift", "--operator-rays", "4"], vec!["exact operator only"]),
     ];
     for (extra, needles) in cases {

@@ -44,7 +44,7 @@ int main() {
   }
   CHECK(finite);
   CHECK(changed);
-  const auto again = diffcassi::denoise(cube, h, w, b, 0.05, DIFFCASSI_SOURCE_DIR "/../src/recon/prior/weights/spectral-unet-v1-28.safetensors");
+  const auto again = diffcassi::denoise(cube, h, w, b, 0.05, DIFFCASSI_SOURCE_DIR "/../src/recon/prior/weights/spectral-unet-v2-28.safetensors");
   for (std::size_t i = 0; i < a.size(); ++i) same = same && check::bits(a[i]) == check::bits(again[i]);
   CHECK(same);
 

@@ -223,7 +223,8 @@ fn model_operator(
 #[pyfunction]
 #[pyo3(signature = (operator, acquisition, solver = "gap-tv", init = None, iterations = None, step = None, tv_weight = None,
                     tv_iterations = None, tv_coupling = None, accelerated = None, admm_eta = None, sigma_max = None,
-                    sigma_min = None, tolerance = None, denoiser = None, tv_warmup = None))]
+                    sigma_min = None, tolerance = None, denoiser = None, tv_warmup = None, discrepancy = None,
+                    noise_norm = None, sigma_auto = None))]
 #[allow(clippy::too_many_arguments)]
 fn _reconstruct<'py>(
     py: Python<'py>,
@@ -243,6 +244,9 @@ fn _reconstruct<'py>(
     tolerance: Option<f64>,
     denoiser: Option<String>,
     tv_warmup: Option<usize>,
+    discrepancy: Option<f64>,
+    noise_norm: Option<f64>,
+    sigma_auto: Option<bool>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, String)> {
     let kind: SolverKind = solver.parse().py()?;
     let mut cfg = SolverConfig::for_solver(kind);
@@ -256,6 +260,9 @@ fn _reconstruct<'py>(
     cfg.sigma_min = sigma_min.unwrap_or(cfg.sigma_min);
     cfg.tolerance = tolerance.unwrap_or(cfg.tolerance);
     cfg.tv_warmup = tv_warmup.unwrap_or(cfg.tv_warmup);
+    cfg.discrepancy = discrepancy.unwrap_or(cfg.discrepancy);
+    cfg.noise_norm = noise_norm.unwrap_or(cfg.noise_norm);
+    cfg.sigma_auto = sigma_auto.unwrap_or(cfg.sigma_auto);
     if denoiser.is_some() {
         if !kind.is_pnp() {
             return Err(value_error(format!("denoiser: applies to pnp-gap and pnp-admm only, not `{solver}`")));
@@ -287,11 +294,16 @@ fn _reconstruct<'py>(
     let op = &operator.op;
     let y = a.slice();
     let rec = run(py, || reconstruct(op.as_ref(), y, init.as_deref(), &cfg, &|_, _| {})).py()?;
-    let record = serde_json::to_string(&rec).map_err(|e| value_error(format!("internal: {e}")))?;
+    // The CLI's record: the solver's, with `stopping` as in reconstruct.json (δ is the caller's `noise_norm`).
+    let mut record = serde_json::to_value(&rec).map_err(|e| value_error(format!("internal: {e}")))?;
+    if let Some(o) = record.as_object_mut() {
+        o.insert("stopping".into(), rec.stopping_record(y, None));
+    }
+    let record = serde_json::to_string(&record).map_err(|e| value_error(format!("internal: {e}")))?;
     Ok((output(py, rec.cube, &[c.height, c.width, c.bands])?, record))
 }
 
-/// The learned denoiser (`spectral-unet-v1`) on `cube` (H, W, B) float32 with noise level `sigma` (standard
+/// The learned denoiser (`spectral-unet-v2`) on `cube` (H, W, B) float32 with noise level `sigma` (standard
 /// deviation on the cube's scale: the network was trained on cubes of peak ≈ 1); `weights`: a safetensors
 /// file (default: the embedded checkpoint). Returns the denoised cube (H, W, B) float32.
 #[pyfunction]
@@ -353,7 +365,24 @@ fn _metrics(
     value.map(|v| v.to_string()).map_err(|e| value_error(format!("internal: {e}")))
 }
 
+/// δ_MC = 0.062·((1/R_a + 1/R_o)/F)^½·‖y‖ (`diffcassi::recon::solver::monte_carlo_noise_norm`, the CLI's
+/// Monte-Carlo term of δ): the expected ‖y − Φ_o x_true‖₂ of an exact operator traced with another seed.
+#[pyfunction]
+fn monte_carlo_noise_norm(acquisition: &Bound<'_, PyAny>, acquisition_rays: usize, operator_rays: usize, planes_per_band: f64) -> PyResult<f64> {
+    if acquisition_rays == 0 || operator_rays == 0 {
+        return Err(value_error(format!("acquisition_rays = {acquisition_rays}, operator_rays = {operator_rays}: must be ≥ 1")));
+    }
+    if !(planes_per_band.is_finite() && planes_per_band >= 1.0) {
+        return Err(value_error(format!("planes_per_band = {planes_per_band}: must be finite and ≥ 1")));
+    }
+    let a = input::<f32>("acquisition", acquisition, "float32", 2, "(h, w)")?;
+    check_finite("acquisition", a.slice(), &a.shape)?;
+    let n = a.slice().iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+    Ok(diffcassi::recon::solver::monte_carlo_noise_norm(n, acquisition_rays, operator_rays, planes_per_band))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(monte_carlo_noise_norm, m)?)?;
     m.add_class::<PyOperator>()?;
     m.add_function(wrap_pyfunction!(exact_operator, m)?)?;
     m.add_function(wrap_pyfunction!(model_operator, m)?)?;

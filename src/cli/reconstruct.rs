@@ -359,25 +359,32 @@ pub struct SolverTuning {
     /// TV weight [default: the solver's].
     #[arg(long = "tv-weight")]
     pub tv_weight: Option<f64>,
-    /// GAP-TV: the accelerated variant (Liao/Yuan) — gap-tv's default since the measured defaults
+    /// GAP-TV / PnP-GAP: the accelerated variant (Liao/Yuan) — their default since the measured defaults
     /// (docs/reconstruction.md, "Defaults and stopping"); kept so older commands keep working.
     #[arg(long)]
     pub accelerated: bool,
-    /// GAP-TV: plain GAP instead of the accelerated default (gap-tv only; the former default).
+    /// GAP-TV / PnP-GAP: plain GAP instead of the accelerated default (the former default).
     #[arg(long, conflicts_with = "accelerated")]
     pub plain: bool,
-    /// pnp-gap / pnp-admm: the denoiser's weights (safetensors, arch spectral-unet-v1) [default: the
+    /// pnp-gap / pnp-admm: the denoiser's weights (safetensors, arch spectral-unet-v2) [default: the
     /// embedded checkpoint].
     #[arg(long)]
     pub denoiser: Option<PathBuf>,
-    /// pnp-gap / pnp-admm: σ of the first denoising, relative to the cube's peak, in (0, 1] [default 0.1].
+    /// pnp-gap / pnp-admm: σ of the first network denoising (relative to the cube's peak, in (0, 1]); with
+    /// --sigma-auto the ceiling of σ_1 [default 0.2].
     #[arg(long = "sigma-max")]
     pub sigma_max: Option<f64>,
-    /// pnp-gap / pnp-admm: σ of the last denoising (geometric schedule), in (0, σ max] [default 0.01].
+    /// pnp-gap / pnp-admm: the floor σ of the last denoising (geometric schedule), in (0, σ max]
+    /// [default 0.05].
     #[arg(long = "sigma-min")]
     pub sigma_min: Option<f64>,
-    /// pnp-gap / pnp-admm: iterations denoised by TV before the network takes over (PnP-SCI's GAP-TV start)
-    /// [default 50]; must leave at least one of --iterations to the network.
+    /// pnp-gap / pnp-admm: start the σ schedule at the TV iterate's estimated error (what TV removed in its
+    /// last step, clamped to [σ min, σ max]) instead of σ max (measured: it underestimates the error ≈ 10×).
+    #[arg(long = "sigma-auto")]
+    pub sigma_auto: bool,
+    /// pnp-gap / pnp-admm: the TV phase's cap (GAP-TV / ADMM-TV iterations before the network; the phase
+    /// ends earlier at GAP-TV's own discrepancy stop) [default 300]; must leave at least one of
+    /// --iterations to the network.
     #[arg(long = "tv-warmup")]
     pub tv_warmup: Option<usize>,
     /// Stopping rule: stop when the relative change ‖θ_k − θ_{k−1}‖/‖θ_k‖ falls below this (0: run every
@@ -403,6 +410,7 @@ impl SolverTuning {
             denoiser: self.denoiser.clone(),
             sigma_max: self.sigma_max,
             sigma_min: self.sigma_min,
+            sigma_auto: self.sigma_auto,
             tolerance: self.tolerance,
             tv_warmup: self.tv_warmup,
             discrepancy: self.discrepancy,
@@ -426,6 +434,8 @@ pub struct SolveSettings {
     /// PnP: the σ schedule's ends (relative to the peak).
     pub sigma_max: Option<f64>,
     pub sigma_min: Option<f64>,
+    /// PnP: σ_1 from the TV iterate's estimated error instead of σ max.
+    pub sigma_auto: bool,
     /// The stopping rule's relative-change tolerance.
     pub tolerance: Option<f64>,
     /// PnP: TV warm-up iterations.
@@ -436,14 +446,7 @@ pub struct SolveSettings {
     pub noise: Option<NoiseEstimate>,
 }
 
-/// Monte-Carlo mismatch of the exact operator: ‖Φ_a x − Φ_o x‖₂ / ‖Φ_a x‖₂ ≈ `MC_MISMATCH_PER_RAY` ·
-/// ((1/R_a + 1/R_o)/F)^½ for an acquisition traced with R_a rays per pixel per plane, an operator traced
-/// with R_o rays and another seed (independent estimates of the same expected transport, each of variance
-/// ∝ 1/R) and F render planes per band (each band's image averages F independent planes). Measured on the
-/// six natural scenes at 128×128×28 (SP and mSP, F = 4, R_a = R_o = 20, Airy 2.5 px, the paper's mask) as
-/// ‖y − Φ_o x_true‖/‖y‖ = 0.0089–0.0107, mean 0.0097 (`reconstruct --truth` records it as
-/// `truth_residual`; docs/reconstruction.md, "Defaults and stopping").
-pub const MC_MISMATCH_PER_RAY: f64 = 0.062;
+pub use crate::recon::solver::MC_MISMATCH_PER_RAY;
 
 /// The expected norm δ of y − Φx_true and how it was estimated (recorded as `noise_estimate`).
 #[derive(Clone, Debug)]
@@ -481,7 +484,7 @@ pub fn noise_estimate(record: &RenderRecord, kind: OperatorKind, operator_seed: 
     let oracle = operator_seed == record.config.seed && operator_rays == acquisition_rays;
     let planes_per_band = record.config.spectral.planes() as f64 / record.bands_nm().len().max(1) as f64;
     let mc = if kind == OperatorKind::Exact && !oracle {
-        MC_MISMATCH_PER_RAY * ((1.0 / acquisition_rays.max(1) as f64 + 1.0 / operator_rays.max(1) as f64) / planes_per_band.max(1e-9)).sqrt() * y_norm
+        crate::recon::solver::monte_carlo_noise_norm(y_norm, acquisition_rays, operator_rays, planes_per_band)
     } else {
         0.0
     };
@@ -527,14 +530,14 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
         cfg.tv_weight = w as f32;
     }
     if s.accelerated {
-        if kind != SolverKind::GapTv {
-            return Err(Error::invalid(format!("--accelerated applies to gap-tv only, not `{}`", s.solver)));
+        if !kind.is_gap() {
+            return Err(Error::invalid(format!("--accelerated applies to gap-tv and pnp-gap only, not `{}`", s.solver)));
         }
         cfg.accelerated = true;
     }
     if s.plain {
-        if kind != SolverKind::GapTv {
-            return Err(Error::invalid(format!("--plain applies to gap-tv only, not `{}`", s.solver)));
+        if !kind.is_gap() {
+            return Err(Error::invalid(format!("--plain applies to gap-tv and pnp-gap only, not `{}`", s.solver)));
         }
         if s.accelerated {
             return Err(Error::invalid("--plain and --accelerated: choose one"));
@@ -548,8 +551,11 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
             }
         }
     }
-    if !kind.is_pnp() && (s.denoiser.is_some() || s.sigma_max.is_some() || s.sigma_min.is_some() || s.tv_warmup.is_some()) {
-        return Err(Error::invalid(format!("--denoiser / --sigma-max / --sigma-min / --tv-warmup apply to pnp-gap and pnp-admm only, not `{}`", s.solver)));
+    if !kind.is_pnp() && (s.denoiser.is_some() || s.sigma_max.is_some() || s.sigma_min.is_some() || s.tv_warmup.is_some() || s.sigma_auto) {
+        return Err(Error::invalid(format!("--denoiser / --sigma-max / --sigma-min / --sigma-auto / --tv-warmup apply to pnp-gap and pnp-admm only, not `{}`", s.solver)));
+    }
+    if s.sigma_auto {
+        cfg.sigma_auto = true;
     }
     if let Some(n) = s.tv_warmup {
         cfg.tv_warmup = n;
@@ -625,18 +631,7 @@ pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_prog
         o.remove("residuals");
     }
     let ny = y.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
-    let mut stopping = serde_json::json!({
-        "rule": "discrepancy principle ‖y − Φθ_{k−1}‖₂ ≤ τ·δ (θ_{k−1} returned; τ = 0 or δ = 0: off), or relative change ‖θ_k − θ_{k−1}‖₂/‖θ_k‖₂ < tolerance (0: off), else the iteration cap",
-        "tolerance": rec.config.tolerance,
-        "discrepancy_tau": rec.config.discrepancy,
-        "noise_norm": rec.config.noise_norm,
-        "discrepancy_threshold_relative": if ny > 0.0 { rec.config.discrepancy * rec.config.noise_norm / ny } else { 0.0 },
-        "noise_estimate": s.noise.as_ref().map(|n| n.record.clone()),
-        "iteration_cap": rec.config.iterations,
-        "stopped_by": rec.stopped_by,
-        "iterations_run": rec.iterations_run,
-        "relative_changes": rec.relative_changes,
-    });
+    let mut stopping = rec.stopping_record(y, s.noise.as_ref().map(|n| n.record.clone()));
     if let (Some(t), Some(o)) = (truth, stopping.as_object_mut()) {
         let mut phi_t = vec![0.0f32; y.len()];
         op.apply_into(t, &mut phi_t);

@@ -338,7 +338,7 @@ fn cell_settings(a: &StudyArgs, solver: &str) -> super::reconstruct::SolveSettin
     let mut s = a.tuning.settings(solver, a.tuning.accelerated && solver == "gap-tv");
     s.plain = a.tuning.plain && solver == "gap-tv";
     if !solver.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp()) {
-        (s.denoiser, s.sigma_max, s.sigma_min, s.tv_warmup) = (None, None, None, None);
+        (s.denoiser, s.sigma_max, s.sigma_min, s.tv_warmup, s.sigma_auto) = (None, None, None, None, false);
     }
     s
 }
@@ -394,7 +394,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if solvers.iter().any(|s| s.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp())) {
         let crc = crate::recon::prior::network::weights_crc32(a.tuning.denoiser.as_deref())?;
         if let Some(o) = config.as_object_mut() {
-            o.insert("pnp".into(), json!({"denoiser": a.tuning.denoiser.as_ref().map(|p| p.display().to_string()), "weights_crc32": crc, "sigma_max": a.tuning.sigma_max, "sigma_min": a.tuning.sigma_min, "tv_warmup": a.tuning.tv_warmup,
+            o.insert("pnp".into(), json!({"denoiser": a.tuning.denoiser.as_ref().map(|p| p.display().to_string()), "weights_crc32": crc, "sigma_max": a.tuning.sigma_max, "sigma_min": a.tuning.sigma_min, "sigma_auto": a.tuning.sigma_auto, "tv_warmup": a.tuning.tv_warmup,
                 // The library's PnP defaults too: a cell computed under other defaults is recomputed.
                 "defaults": crate::recon::SolverConfig::pnp_gap()}));
         }

@@ -75,13 +75,21 @@ pub fn admm_observed(
     let discrepancy = Discrepancy::new(config);
     // ADMM projects v = θ + b, not θ: the discrepancy principle needs Φθ_{k−1} (one more Φ per iteration,
     // only when the rule is on).
-    let mut phi_t = if discrepancy.is_on() { vec![0.0f32; y.len()] } else { Vec::new() };
+    let mut phi_t = if discrepancy.is_on() || (config.solver.is_pnp() && config.tv_warmup > 0 && config.noise_norm > 0.0) { vec![0.0f32; y.len()] } else { Vec::new() };
     let lambda = config.step;
     let (mut residuals, mut weighted) = (Vec::with_capacity(config.iterations), Vec::with_capacity(config.iterations));
     for k in 1..=config.iterations {
-        if discrepancy.is_on() && discrepancy.applies(k, config) {
+        if prior.done(k) {
+            break;
+        }
+        if (discrepancy.is_on() || (prior.in_tv_phase() && config.noise_norm > 0.0)) && k >= 2 {
             op.apply_into(&theta, &mut phi_t);
-            if discrepancy.reached(residual_norm(y, &phi_t), k, config) {
+            let rt = residual_norm(y, &phi_t);
+            // PnP's TV phase ends where the TV solver's own rule would stop it.
+            if prior.in_tv_phase() && Discrepancy::tv_phase_reached(config, rt, k) {
+                prior.switch(k - 1);
+            }
+            if discrepancy.reached(rt, k, prior.first_network_iteration()) {
                 stopped_by = "discrepancy";
                 break;
             }
@@ -97,16 +105,16 @@ pub fn admm_observed(
         x.par_iter_mut().zip(tmp.par_iter()).for_each(|(x, g)| *x += lambda * *g);
         tmp.par_iter_mut().zip(x.par_iter()).zip(b.par_iter()).for_each(|((t, x), b)| *t = *x - *b);
         stopping.remember(&theta);
-        let sigma = config.sigma_at(k);
+        let network = !prior.in_tv_phase();
         if config.solver.is_pnp() {
-            sigmas.push(sigma);
+            sigmas.push(prior.sigma(k));
         }
-        prior.apply(k, &tmp, &mut theta, shape, sigma)?;
+        prior.apply(k, &tmp, &mut theta, shape)?;
         observe(k, &theta);
         b.par_iter_mut().zip(x.par_iter()).zip(theta.par_iter()).for_each(|((b, x), t)| *b -= *x - *t);
         progress(k, r);
-        // The rule applies once the network runs (PnP's TV warm-up always completes).
-        if stopping.stop(&theta) && k > config.tv_warmup {
+        // The rule applies once the network runs (PnP's TV phase always completes).
+        if stopping.stop(&theta) && network {
             stopped_by = "tolerance";
             break;
         }

@@ -82,12 +82,20 @@ pub fn gap_observed(
     let lambda = config.step;
     let (mut residuals, mut weighted) = (Vec::with_capacity(config.iterations), Vec::with_capacity(config.iterations));
     for k in 1..=config.iterations {
+        if prior.done(k) {
+            break;
+        }
         op.apply_into(&theta, &mut phi_theta);
         // r = y − Φθ; e = D⁻¹ r (plain) or D⁻¹ (ỹ − Φθ) with ỹ += r (accelerated).
         e.par_iter_mut().zip(y.par_iter()).zip(phi_theta.par_iter()).for_each(|((e, a), b)| *e = *a - *b);
         let r = residual_norm(y, &phi_theta) / ny;
-        // Discrepancy principle on θ_{k−1} (after PnP's warm-up): the data are explained to the noise level.
-        if discrepancy.reached(r * ny, k, config) {
+        // PnP's TV phase ends where GAP-TV would stop: the network starts from GAP-TV's stopped iterate.
+        if prior.in_tv_phase() && Discrepancy::tv_phase_reached(config, r * ny, k) {
+            prior.switch(k - 1);
+        }
+        // Discrepancy principle on θ_{k−1} (from the network's first output on): the data are explained to
+        // the noise level.
+        if discrepancy.reached(r * ny, k, prior.first_network_iteration()) {
             stopped_by = "discrepancy";
             break;
         }
@@ -104,15 +112,15 @@ pub fn gap_observed(
         op.adjoint_into(&e, &mut x);
         x.par_iter_mut().zip(theta.par_iter()).for_each(|(x, t)| *x = *t + lambda * *x);
         stopping.remember(&theta);
-        let sigma = config.sigma_at(k);
+        let network = !prior.in_tv_phase();
         if config.solver.is_pnp() {
-            sigmas.push(sigma);
+            sigmas.push(prior.sigma(k));
         }
-        prior.apply(k, &x, &mut theta, shape, sigma)?;
+        prior.apply(k, &x, &mut theta, shape)?;
         observe(k, &theta);
         progress(k, r);
-        // The rule applies once the network runs (PnP's TV warm-up always completes).
-        if stopping.stop(&theta) && k > config.tv_warmup {
+        // The rule applies once the network runs (PnP's TV phase always completes).
+        if stopping.stop(&theta) && network {
             stopped_by = "tolerance";
             break;
         }

@@ -142,6 +142,11 @@ pub struct SolverConfig {
     /// network, trained on Gaussian noise, does not fill the pixels the mask closes; TV does.
     #[serde(default)]
     pub tv_warmup: usize,
+    /// PnP only: the σ of the first network denoising is the TV iterate's estimated error,
+    /// clamp([`PNP_SIGMA_GAIN`]·ê, σ_min, σ_max), ê = rms(x − TV(x))/max x of the last TV step (what TV
+    /// removed: the artefact level the network must remove); false: σ_max.
+    #[serde(default)]
+    pub sigma_auto: bool,
 }
 
 impl Default for SolverConfig {
@@ -172,6 +177,7 @@ impl SolverConfig {
             noise_norm: 0.0,
             denoiser: None,
             tv_warmup: 0,
+            sigma_auto: false,
         }
     }
 
@@ -187,14 +193,15 @@ impl SolverConfig {
             sigma_min: PNP_SIGMA_MIN,
             tolerance: PNP_TOLERANCE,
             discrepancy: PNP_DISCREPANCY,
-            accelerated: false,
+            accelerated: PNP_ACCELERATED,
+            sigma_auto: false,
             ..Self::gap_tv()
         }
     }
 
     /// PnP-ADMM: as [`SolverConfig::pnp_gap`] with ADMM's data step (η = 0.01·max d).
     pub fn pnp_admm() -> Self {
-        SolverConfig { solver: SolverKind::PnpAdmm, ..Self::pnp_gap() }
+        SolverConfig { solver: SolverKind::PnpAdmm, accelerated: false, ..Self::pnp_gap() }
     }
 
     /// ADMM-TV: [`ADMM_TV_ITERATIONS`] iterations at most, the discrepancy rule with τ = [`ADMM_TV_DISCREPANCY`],
@@ -210,16 +217,6 @@ impl SolverConfig {
             SolverKind::AdmmTv => Self::admm_tv(),
             SolverKind::PnpGap => Self::pnp_gap(),
             SolverKind::PnpAdmm => Self::pnp_admm(),
-        }
-    }
-
-    /// σ of iteration k (1-based) of this configuration's schedule ([`sigma_schedule`] over the iterations
-    /// after the TV warm-up); 0 for TV solvers and warm-up iterations.
-    pub fn sigma_at(&self, k: usize) -> f32 {
-        if self.solver.is_pnp() && k > self.tv_warmup {
-            sigma_schedule(self.sigma_max, self.sigma_min, self.iterations - self.tv_warmup, k - self.tv_warmup)
-        } else {
-            0.0
         }
     }
 
@@ -304,6 +301,29 @@ pub struct Reconstruction {
     pub denoiser: serde_json::Value,
 }
 
+impl Reconstruction {
+    /// The stopping record `reconstruct.json` (`stopping`) and the Python record share: the rules, τ, δ
+    /// (`noise_norm`, absolute) and τδ/‖y‖, how δ was estimated (`noise_estimate`: the caller's record,
+    /// e.g. the CLI's from render.json), the cap, the iterations run, which rule ended the run, the
+    /// relative changes and, for PnP, where the TV phase ended (`tv_phase_iterations`).
+    pub fn stopping_record(&self, y: &[f32], noise_estimate: Option<serde_json::Value>) -> serde_json::Value {
+        let ny = dot(y, y).sqrt();
+        serde_json::json!({
+            "rule": "discrepancy principle ‖y − Φθ_{k−1}‖₂ ≤ τ·δ (θ_{k−1} returned; τ = 0 or δ = 0: off), or relative change ‖θ_k − θ_{k−1}‖₂/‖θ_k‖₂ < tolerance (0: off), else the iteration cap",
+            "tolerance": self.config.tolerance,
+            "discrepancy_tau": self.config.discrepancy,
+            "noise_norm": self.config.noise_norm,
+            "discrepancy_threshold_relative": if ny > 0.0 { self.config.discrepancy * self.config.noise_norm / ny } else { 0.0 },
+            "noise_estimate": noise_estimate,
+            "iteration_cap": self.config.iterations,
+            "tv_phase_iterations": self.denoiser.get("tv_warmup").and_then(|w| w.get("iterations_run")).cloned(),
+            "stopped_by": self.stopped_by,
+            "iterations_run": self.iterations_run,
+            "relative_changes": self.relative_changes,
+        })
+    }
+}
+
 /// d = ΦΦᵀ𝟙 and its guarded inverse (see the [module docs](self)).
 pub struct Preconditioner {
     pub d: Vec<f32>,
@@ -380,20 +400,49 @@ pub const GAP_TV_DISCREPANCY: f64 = 0.65;
 pub const ADMM_TV_ITERATIONS: usize = 100;
 /// ADMM-TV default: τ of the discrepancy rule (GAP-TV's value; not measured for ADMM).
 pub const ADMM_TV_DISCREPANCY: f64 = 0.65;
-/// PnP default: τ of the discrepancy rule, Morozov's τ = 1. Measured: with the defaults the network's last
-/// iterate has ‖y − Φθ‖ = 1.0–3.5 δ̂ on the natural scenes, so the rule does not end those runs; it ends longer
-/// ones once the network fits the data to the noise level.
+/// PnP default: τ of the network phase's discrepancy rule, Morozov's τ = 1: it ends a network phase of
+/// several steps at its first iterate that explains the data to the noise level (the TV phase hands over at
+/// ‖y − Φθ‖ ≤ 0.65 δ, so a network that keeps the fit stops after one step; the default runs one anyway).
 pub const PNP_DISCREPANCY: f64 = 1.0;
-/// PnP default: iterations (an upper bound; the tolerance may end the run before), TV warm-up included.
-pub const PNP_ITERATIONS: usize = 80;
-/// PnP default: TV iterations before the network (GAP-TV's own settings).
-pub const PNP_TV_WARMUP: usize = 50;
-/// PnP default: σ of the first denoising, relative to the cube's peak.
-pub const PNP_SIGMA_MAX: f32 = 0.1;
-/// PnP default: σ of the last denoising, relative to the peak.
-pub const PNP_SIGMA_MIN: f32 = 0.01;
+/// PnP default: iterations at most, the TV phase's cap included: the cap plus [`PNP_NETWORK_ITERATIONS`].
+pub const PNP_ITERATIONS: usize = PNP_TV_WARMUP + PNP_NETWORK_ITERATIONS;
+/// PnP default: network iterations after the TV phase. Measured (docs/reconstruction.md, "Plug-and-play"):
+/// with today's weights the first network step from GAP-TV's stopped iterate gains, every later one loses
+/// (accelerated GAP then fits the operator's Monte-Carlo mismatch faster than the network regularises).
+pub const PNP_NETWORK_ITERATIONS: usize = 1;
+/// PnP default: the TV phase's cap (GAP-TV's own cap; the phase usually ends earlier, at GAP-TV's
+/// discrepancy stop [`PNP_TV_DISCREPANCY`]).
+pub const PNP_TV_WARMUP: usize = GAP_TV_ITERATIONS;
+/// PnP: τ of the TV phase's discrepancy stop (GAP-TV's default τ: the network starts from GAP-TV's result).
+pub const PNP_TV_DISCREPANCY: f64 = GAP_TV_DISCREPANCY;
+/// PnP-GAP default: the accelerated GAP update in both phases (GAP-TV's default).
+pub const PNP_ACCELERATED: bool = true;
+/// PnP default: σ_1, relative to the cube's peak (the ceiling of σ_1 with `sigma_auto`): the top of the
+/// network's training range (σ ~ U[0, 0.2]); GAP-TV's stopped iterate is ≈ 0.1–0.2 of the peak off the truth
+/// (RMSE), far above what TV removed in its last step (ê ≈ 0.01–0.017), so `sigma_auto` is off by default.
+pub const PNP_SIGMA_MAX: f32 = 0.2;
+/// PnP default: the floor σ_min the schedule decays to, relative to the peak.
+pub const PNP_SIGMA_MIN: f32 = 0.05;
+/// PnP: σ_1 = gain·ê (ê the TV iterate's estimated error, [`SolverConfig::sigma_auto`]).
+pub const PNP_SIGMA_GAIN: f32 = 1.0;
 /// PnP default: the relative-change tolerance of the stopping rule.
 pub const PNP_TOLERANCE: f64 = 1e-3;
+
+/// Monte-Carlo mismatch of the exact operator: ‖Φ_a x − Φ_o x‖₂ / ‖Φ_a x‖₂ ≈ `MC_MISMATCH_PER_RAY` ·
+/// ((1/R_a + 1/R_o)/F)^½ for an acquisition traced with R_a rays per pixel per plane, an operator traced
+/// with R_o rays and another seed (independent estimates of the same expected transport, each of variance
+/// ∝ 1/R) and F render planes per band (each band's image averages F independent planes). Measured on the
+/// six natural scenes at 128×128×28 (SP and mSP, F = 4, R_a = R_o = 20, Airy 2.5 px, the paper's mask) as
+/// ‖y − Φ_o x_true‖/‖y‖ = 0.0089–0.0107, mean 0.0097 (`reconstruct --truth` records it as
+/// `truth_residual`; docs/reconstruction.md, "Defaults and stopping").
+pub const MC_MISMATCH_PER_RAY: f64 = 0.062;
+
+/// δ_MC = [`MC_MISMATCH_PER_RAY`]·((1/R_a + 1/R_o)/F)^½·‖y‖: the expected ‖y − Φ_o x_true‖₂ of an exact
+/// operator traced with another seed (R_o rays per pixel per plane) against an acquisition traced with R_a
+/// rays, F render planes per band, `y_norm` = ‖y‖₂ (the CLI's Monte-Carlo term of δ; 0 rays count as 1).
+pub fn monte_carlo_noise_norm(y_norm: f64, acquisition_rays: usize, operator_rays: usize, planes_per_band: f64) -> f64 {
+    MC_MISMATCH_PER_RAY * ((1.0 / acquisition_rays.max(1) as f64 + 1.0 / operator_rays.max(1) as f64) / planes_per_band.max(1e-9)).sqrt() * y_norm
+}
 
 /// The noise-level schedule of the plug-and-play solvers: geometric from σ_max (iteration 1) to σ_min
 /// (iteration K), σ_k = σ_max·(σ_min/σ_max)^((k−1)/(K−1)) — the continuous form of PnP-SCI's decreasing
@@ -408,33 +457,108 @@ pub fn sigma_schedule(sigma_max: f32, sigma_min: f32, iterations: usize, k: usiz
     (sigma_max as f64 * (sigma_min as f64 / sigma_max as f64).powf(t)) as f32
 }
 
-/// The prior step the solvers share: θ ← D(x, σ). For PnP (`normalise`) the cube is divided by its peak
-/// p = max x (1 when x ≤ 0 everywhere) before the denoiser and multiplied by p after, so the network sees the
-/// scale it was trained on (peak ≈ 1) and σ is relative to the peak; TV gets x as it is (bit for bit the
-/// direct call).
+/// The prior step the solvers share: θ ← D(x, σ), and PnP's two phases. For PnP (`normalise`) the cube is
+/// divided by its peak p = max x (1 when x ≤ 0 everywhere) before the denoiser and multiplied by p after, so
+/// the network sees the scale it was trained on (peak ≈ 1) and σ is relative to the peak; TV gets x as it is
+/// (bit for bit the direct call).
+///
+/// **Phases (PnP).** The TV phase (GAP-TV / ADMM-TV's own step, at most `tv_warmup` iterations) ends at its
+/// cap or, earlier, when the caller finds ‖y − Φθ‖ ≤ [`PNP_TV_DISCREPANCY`]·δ (GAP-TV's own stop: the
+/// network starts from GAP-TV's stopped iterate). The network phase then runs at most
+/// `iterations − tv_warmup` iterations with σ_j = [`sigma_schedule`](σ_1, σ_min, N, j), σ_1 the
+/// [`NoiseStart`] of the configuration (the TV iterate's estimated error, or σ_max).
 pub(crate) struct PriorStep<'d> {
     denoiser: &'d mut dyn Denoiser,
     normalise: bool,
     scaled: Vec<f32>,
-    /// PnP's TV warm-up: (iterations, the TV denoiser).
+    /// PnP's TV phase: (its iteration cap, the TV denoiser).
     warmup: Option<(usize, TvDenoiser)>,
+    /// The last TV iteration (the network runs from the next one); `None` while the TV phase runs.
+    switched_after: Option<usize>,
+    /// Network iterations at most (N).
+    network_iterations: usize,
+    /// ê: rms(x_k − TV(x_k)) / max x_k of the last TV step (what TV removed: the iterate's artefact level).
+    tv_error: f32,
+    sigma_first: f32,
+    sigma_min: f32,
+    sigma_max: f32,
+    sigma_auto: bool,
 }
 
 impl<'d> PriorStep<'d> {
-    /// The prior step of `config`'s solver around `denoiser` (PnP: normalised, with the TV warm-up).
+    /// The prior step of `config`'s solver around `denoiser` (PnP: normalised, with the TV phase).
     pub(crate) fn new(denoiser: &'d mut dyn Denoiser, config: &SolverConfig) -> Self {
         let pnp = config.solver.is_pnp();
         let warmup = (pnp && config.tv_warmup > 0).then(|| (config.tv_warmup, TvDenoiser::new(config.tv_weight, config.tv_iterations, config.tv_coupling)));
-        PriorStep { denoiser, normalise: pnp, scaled: Vec::new(), warmup }
+        let mut s = PriorStep {
+            denoiser,
+            normalise: pnp,
+            scaled: Vec::new(),
+            switched_after: None,
+            network_iterations: if pnp { config.iterations - config.tv_warmup } else { config.iterations },
+            tv_error: f32::NAN,
+            sigma_first: config.sigma_max,
+            sigma_min: config.sigma_min,
+            sigma_max: config.sigma_max,
+            sigma_auto: config.sigma_auto,
+            warmup,
+        };
+        if s.warmup.is_none() {
+            s.switch(0);
+        }
+        s
     }
 
-    /// θ ← D(x) at iteration k (1-based).
-    pub(crate) fn apply(&mut self, k: usize, x: &[f32], out: &mut [f32], shape: CubeShape, sigma: f32) -> Result<()> {
-        if let Some((n, tv)) = &mut self.warmup {
-            if k <= *n {
-                return tv.denoise(x, out, shape, 0.0);
-            }
+    /// Whether iteration k still belongs to the TV phase.
+    pub(crate) fn in_tv_phase(&self) -> bool {
+        self.switched_after.is_none()
+    }
+
+    /// The first iteration of the network phase (1 for TV solvers), once known.
+    pub(crate) fn first_network_iteration(&self) -> Option<usize> {
+        self.switched_after.map(|k| k + 1)
+    }
+
+    /// Whether iteration k is past the run's cap (TV phase + N network iterations).
+    pub(crate) fn done(&self, k: usize) -> bool {
+        self.switched_after.is_some_and(|s| k > s + self.network_iterations)
+    }
+
+    /// End the TV phase after iteration `last_tv`: σ_1 from the TV iterate's error (auto) or σ_max.
+    pub(crate) fn switch(&mut self, last_tv: usize) {
+        if self.switched_after.is_some() {
+            return;
         }
+        self.switched_after = Some(last_tv);
+        self.sigma_first = if self.sigma_auto && self.tv_error.is_finite() && self.tv_error > 0.0 {
+            (PNP_SIGMA_GAIN * self.tv_error).clamp(self.sigma_min, self.sigma_max)
+        } else {
+            self.sigma_max
+        };
+    }
+
+    /// σ of iteration k (0 in the TV phase and for TV solvers).
+    pub(crate) fn sigma(&self, k: usize) -> f32 {
+        match self.switched_after {
+            Some(s) if self.normalise && k > s => sigma_schedule(self.sigma_first, self.sigma_min, self.network_iterations, k - s),
+            _ => 0.0,
+        }
+    }
+
+    /// θ ← D(x) at iteration k (1-based). In the TV phase, also ê; at its cap, the switch.
+    pub(crate) fn apply(&mut self, k: usize, x: &[f32], out: &mut [f32], shape: CubeShape) -> Result<()> {
+        if let (None, Some((cap, tv))) = (self.switched_after, self.warmup.as_mut()) {
+            let cap = *cap;
+            tv.denoise(x, out, shape, 0.0)?;
+            let peak = x.par_iter().cloned().reduce(|| f32::MIN, f32::max);
+            let ss = x.par_iter().zip(out.par_iter()).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>();
+            self.tv_error = if peak.is_finite() && peak > 0.0 { ((ss / x.len().max(1) as f64).sqrt() / peak as f64) as f32 } else { f32::NAN };
+            if k >= cap {
+                self.switch(k);
+            }
+            return Ok(());
+        }
+        let sigma = self.sigma(k);
         if !self.normalise {
             return self.denoiser.denoise(x, out, shape, sigma);
         }
@@ -455,7 +579,12 @@ impl<'d> PriorStep<'d> {
     pub(crate) fn describe(&self) -> serde_json::Value {
         let mut d = self.denoiser.describe();
         if let (Some((n, tv)), Some(o)) = (&self.warmup, d.as_object_mut()) {
-            o.insert("tv_warmup".into(), serde_json::json!({"iterations": n, "tv": tv.describe()}));
+            o.insert(
+                "tv_warmup".into(),
+                serde_json::json!({"iterations": n, "iterations_run": self.switched_after, "tv": tv.describe(),
+                    "tv_error_estimate": if self.tv_error.is_finite() { Some(self.tv_error) } else { None },
+                    "sigma_first": self.sigma_first, "sigma_auto": self.sigma_auto}),
+            );
         }
         d
     }
@@ -482,15 +611,21 @@ impl Discrepancy {
         self.threshold > 0.0
     }
 
-    /// Whether iteration k (1-based) tests θ_{k−1}: k ≥ 2, and after PnP's warm-up.
-    pub fn applies(&self, k: usize, config: &SolverConfig) -> bool {
-        let warmup = if config.solver.is_pnp() { config.tv_warmup } else { 0 };
-        k > warmup + 1
+    /// Whether iteration k (1-based) tests θ_{k−1}: θ_{k−1} is the output of the network phase's first
+    /// iteration or a later one (`first_network`: [`PriorStep`]'s; 1 for TV solvers, so k ≥ 2).
+    pub fn applies(&self, k: usize, first_network: Option<usize>) -> bool {
+        first_network.is_some_and(|f| k > f)
     }
 
     /// At iteration k, with `residual` = ‖y − Φθ_{k−1}‖₂ (absolute): stop?
-    pub fn reached(&self, residual: f64, k: usize, config: &SolverConfig) -> bool {
-        self.is_on() && self.applies(k, config) && residual <= self.threshold
+    pub fn reached(&self, residual: f64, k: usize, first_network: Option<usize>) -> bool {
+        self.is_on() && self.applies(k, first_network) && residual <= self.threshold
+    }
+
+    /// PnP's TV phase: does θ_{k−1} meet GAP-TV's own rule ‖y − Φθ‖ ≤ [`PNP_TV_DISCREPANCY`]·δ (k ≥ 2)?
+    pub fn tv_phase_reached(config: &SolverConfig, residual: f64, k: usize) -> bool {
+        let t = PNP_TV_DISCREPANCY * config.noise_norm;
+        k >= 2 && t > 0.0 && residual <= t
     }
 }
 

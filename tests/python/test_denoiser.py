@@ -16,7 +16,7 @@ pytest.importorskip("safetensors", reason="safetensors not installed (scripts/se
 pytest.importorskip("colour", reason="colour-science not installed (scripts/setup.sh installs it with torch)")
 
 from diffcassi import deadleaves  # noqa: E402
-from diffcassi.denoiser import ARCH, SpectralUNet, denoise, load_weights, save_weights  # noqa: E402
+from diffcassi.denoiser import ARCH, SpectralUNet, denoise, from_v1, load_weights, save_weights  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 WEIGHTS = ROOT / "src/recon/prior/weights"
@@ -123,6 +123,10 @@ def test_train_and_validation_seeds_disjoint(train):
         seen.update(seeds)
     assert not seen & val
     assert min(seen) >= train.TRAIN_SEED_BASE > max(val)
+    # The selection set is neither training nor validation data.
+    sel = set(train.sel_seeds())
+    assert len(sel) == train.SEL_COUNT and not sel & seen and not sel & val
+    assert max(sel) < train.TRAIN_SEED_BASE
     # Half the training cubes are uplifted-RGB leaves, half measured-spectra leaves.
     kinds = [train.seed_kind(s) for s in train.train_seeds(50)]
     assert kinds.count("rgb") == kinds.count("spectral") == len(kinds) // 2
@@ -157,12 +161,12 @@ def test_training_sources_and_evaluation_scenes_disjoint():
 
 def test_committed_weights_load():
     from safetensors import safe_open
-    path = WEIGHTS / "spectral-unet-v1-28.safetensors"
+    path = WEIGHTS / f"{ARCH}-28.safetensors"
     with safe_open(str(path), framework="pt") as f:
         meta = f.metadata()
-    assert meta["arch"] == ARCH and meta["bands"] == "28" and meta["width"] == "32"
+    assert meta["arch"] == ARCH == "spectral-unet-v2" and meta["bands"] == "28"
     net = load_weights(path, bands=28)
-    assert (net.bands, net.width) == (28, 32)
+    assert (net.bands, net.width, net.latent) == (28, int(meta["width"]), int(meta["latent"]))
     assert all(torch.isfinite(p).all() for p in net.parameters())
     x = torch.from_numpy(deadleaves.dead_leaves(3, size=20))[None]
     noisy = x + 0.05 * torch.randn(x.shape, generator=torch.Generator().manual_seed(0))
@@ -177,14 +181,19 @@ def test_tiny_training_run_writes_valid_checkpoint_and_resumes_exactly(train, tm
     common = ["--patch", "16", "--threads", "1", "--warmup", "1", "--val-every", "2"]
     a, b = tmp_path / "a", tmp_path / "b"
     assert train.main(common + ["--steps", "4", "--out", str(a)]) == 0
-    net = load_weights(a / "spectral-unet-v1-28.safetensors", bands=28)
+    net = load_weights(a / f"{ARCH}-28.safetensors", bands=28)
     assert all(torch.isfinite(p).all() for p in net.parameters())
     log = [json.loads(line) for line in (a / "train-log.jsonl").read_text().splitlines()]
     vals = [r for r in log if "val_psnr_db" in r]
     assert [r["step"] for r in vals] == [0, 2, 4]
-    assert all(set(r["val_psnr_db"]) == set(r["val_rgb_psnr_db"]) == {"0.02", "0.05", "0.1"} for r in vals)
-    assert all(r["val_mean_db"] == pytest.approx(np.mean(list(r["val_psnr_db"].values())
-                                                         + list(r["val_rgb_psnr_db"].values()))) for r in vals)
+    assert all(set(r["val_psnr_db"]) == set(r["val_rgb_psnr_db"]) == set(r["sel_psnr_db"]) == {"0.02", "0.05", "0.1"}
+               for r in vals)
+    # The selection score (what picks the weights file) is the selection set's mean over σ.
+    assert all(r["sel_score_db"] == pytest.approx(np.mean(list(r["sel_psnr_db"].values()))) for r in vals)
+    best = max(vals, key=lambda r: r["sel_score_db"])
+    from safetensors import safe_open
+    with safe_open(str(a / f"{ARCH}-28.safetensors"), framework="pt") as f:
+        assert f.metadata()["training_step"] == str(best["step"])
     assert all(np.isfinite(r["train_l1"]) for r in vals[1:])
     assert json.loads((a / "train-manifest.json").read_text())["image_files"] == []
     capsys.readouterr()
@@ -200,7 +209,7 @@ def test_tiny_training_run_writes_valid_checkpoint_and_resumes_exactly(train, tm
     for k in sa["model"]:
         assert torch.equal(sa["model"][k], sb["model"][k]), k
     # --init: the run starts from the given weights (its step-0 validation is theirs) and records their hash.
-    init = SpectralUNet(bands=28, width=32)
+    init = SpectralUNet(bands=28, width=32, latent=28)
     torch.manual_seed(7)
     for p in init.parameters():
         torch.nn.init.normal_(p, std=0.01)
@@ -217,6 +226,8 @@ def test_tiny_training_run_writes_valid_checkpoint_and_resumes_exactly(train, tm
     save_weights(small, tmp_path / "small.safetensors")
     assert train.main(common + ["--steps", "2", "--out", str(tmp_path / "d"), "--init",
                                 str(tmp_path / "small.safetensors")]) == 2
+    assert train.main(common + ["--steps", "2", "--out", str(tmp_path / "d"), "--latent", "6", "--init",
+                                str(tmp_path / "init.safetensors")]) == 2
     assert train.main(common + ["--steps", "2", "--out", str(tmp_path / "e"), "--init", str(tmp_path / "no.safetensors")]) == 1
 
 
@@ -225,7 +236,10 @@ def test_training_script_rejects_bad_arguments(train, tmp_path):
         train.main(["--patch", "18", "--out", str(tmp_path)])
     assert e.value.code == 2
     assert train.main(["--resume", str(tmp_path / "nope.pt"), "--out", str(tmp_path)]) == 1
-    assert not (tmp_path / "spectral-unet-v1-28.safetensors").exists()
+    with pytest.raises(SystemExit) as e:
+        train.main(["--latent", "29", "--out", str(tmp_path)])
+    assert e.value.code == 2
+    assert not (tmp_path / f"{ARCH}-28.safetensors").exists()
 
 
 def test_bad_weights_files_give_clear_errors(tmp_path):
@@ -248,7 +262,7 @@ def test_bad_weights_files_give_clear_errors(tmp_path):
     from safetensors.torch import save_file
     sd = {k: v.clone() for k, v in net.state_dict().items()}
     other = tmp_path / "other.safetensors"
-    save_file(sd, other, metadata={"arch": "something-else", "bands": "4", "width": "4"})
+    save_file(sd, other, metadata={"arch": "something-else", "bands": "4", "width": "4", "latent": "4"})
     with pytest.raises(ValueError, match="arch is 'something-else'"):
         load_weights(other)
     sd["tail.bias"][0] = float("nan")
@@ -266,6 +280,87 @@ def test_bad_weights_files_give_clear_errors(tmp_path):
     save_file({k: v for k, v in net.state_dict().items()}, wrong, metadata={**net.metadata(), "width": "8"})
     with pytest.raises(ValueError, match="shape"):
         load_weights(wrong)
+    save_file({k: v for k, v in net.state_dict().items()}, wrong, metadata={**net.metadata(), "latent": "2"})
+    with pytest.raises(ValueError, match=r"tensor \S+ has shape .*, expected .* \(bands=4, width=4, latent=2\)"):
+        load_weights(wrong)
+    for bad_latent in ("0", "5", "x"):
+        save_file({k: v for k, v in net.state_dict().items()}, wrong, metadata={**net.metadata(), "latent": bad_latent})
+        with pytest.raises(ValueError, match="latent"):
+            load_weights(wrong)
+
+
+def test_v1_conversion_is_the_same_function_and_the_projection_start():
+    """from_v1: a spectral-unet-v1 network (out = x − U([x, σ])) is v2 with E = D = I, G = 0; with a basis V the
+    start is v1 on the projected cube, projected (latent = span V) or v1's output projected (full latent)."""
+    torch.manual_seed(3)
+    v1 = SpectralUNet(bands=6, width=4, latent=6)  # a v1 net's tensors are v2's minus the linear path
+    for p in v1.parameters():
+        torch.nn.init.normal_(p, std=0.2)
+    tensors = {k: v for k, v in v1.state_dict().items() if not k.startswith(("lat_", "bypass"))}
+
+    def u1(x, s):  # v1's graph: x − U([x, σ]), through v2 with E = D = I, G = 0
+        ref = SpectralUNet(bands=6, width=4)
+        ref.load_state_dict({**ref.state_dict(), **tensors})
+        return ref(x, s)
+
+    x = torch.rand(2, 6, 8, 8)
+    q, _ = torch.linalg.qr(torch.randn(6, 3, generator=torch.Generator().manual_seed(1)))
+    proj = q @ q.T
+    pr = lambda t: torch.einsum("bc,nchw->nbhw", proj, t)  # noqa: E731
+    with torch.no_grad():
+        assert torch.equal(from_v1(tensors)(x, 0.1), u1(x, 0.1))
+        assert torch.allclose(from_v1(tensors, q)(x, 0.1), pr(u1(pr(x), 0.1)), atol=1e-5)
+        assert from_v1(tensors, q).latent == 3
+        assert torch.allclose(from_v1(tensors, q, full_latent=True)(x, 0.1), pr(u1(x, 0.1)), atol=1e-5)
+    with pytest.raises(ValueError, match="basis of shape"):
+        from_v1(tensors, torch.eye(5))
+
+
+def test_spectral_basis_spans_the_training_spectra(train, monkeypatch):
+    """The frozen linear path's basis: orthonormal, from training cubes only, holding the uplifted-sRGB family
+    exactly (rank 7) and most of the measured spectra (tiny sizes)."""
+    monkeypatch.setattr(train, "PCA_STEPS", 6)
+    monkeypatch.setattr(train, "PCA_SIZE", 16)
+    v = train.spectral_basis(10, deadleaves.BANDS_NM).double()
+    assert v.shape == (28, 10) and torch.allclose(v.T @ v, torch.eye(10, dtype=torch.float64), atol=1e-5)
+    proj = v @ v.T
+    rgb = torch.from_numpy(deadleaves.dead_leaves(5, 16, kind="rgb")).double().reshape(28, -1)  # a validation seed
+    assert ((rgb - proj @ rgb).norm() / rgb.norm()) < 1e-4
+    spec = torch.from_numpy(deadleaves.dead_leaves(5, 16, kind="spectral")).double().reshape(28, -1)
+    assert ((spec - proj @ spec).norm() / spec.norm()) < 0.05
+    v7 = train.spectral_basis(4, deadleaves.BANDS_NM)
+    assert v7.shape == (28, 4) and torch.allclose(v7.T @ v7, torch.eye(4), atol=1e-5)
+
+
+def test_init_from_a_v1_file(train, tmp_path):
+    """--init of a spectral-unet-v1 file (round 1-2's format): converted (E = D = I, G = 0 at latent = bands) and
+    trained; a v1 file of another width is refused."""
+    from safetensors.torch import save_file
+    v1 = SpectralUNet(bands=28, width=4)
+    tensors = {k: v.contiguous() for k, v in v1.state_dict().items() if not k.startswith(("lat_", "bypass"))}
+    save_file(tensors, tmp_path / "v1.safetensors", metadata={"arch": "spectral-unet-v1", "bands": "28", "width": "4"})
+    common = ["--patch", "16", "--threads", "1", "--warmup", "1", "--val-every", "1", "--steps", "1", "--width", "4"]
+    assert train.main(common + ["--out", str(tmp_path / "a"), "--init", str(tmp_path / "v1.safetensors"),
+                                "--freeze-spectral"]) == 0
+    manifest = json.loads((tmp_path / "a" / "train-manifest.json").read_text())
+    assert "spectral-unet-v1" in manifest["init_weights"] and manifest["freeze_spectral"] is True
+    net = load_weights(tmp_path / "a" / f"{ARCH}-28.safetensors")
+    assert torch.equal(net.lat_enc.weight[:, :, 0, 0], torch.eye(28))  # frozen: still the identity
+    assert train.main(common[:-2] + ["--width", "8", "--out", str(tmp_path / "b"), "--init",
+                                     str(tmp_path / "v1.safetensors")]) == 2
+
+
+def test_selection_set_has_dark_and_flat_cubes(train):
+    clean, noisy = train.selection_set(deadleaves.BANDS_NM)
+    assert clean.shape == (train.SEL_COUNT, 28, train.SEL_SIZE, train.SEL_SIZE) and set(noisy) == set(train.VAL_SIGMAS)
+    peaks = clean.flatten(1).max(1).values
+    assert torch.allclose(peaks[3::4], torch.full((train.SEL_COUNT // 4,), 0.15))  # the dark quarter
+    # Large flat leaves: a good share of the pixels equal their right-hand neighbour exactly (no blur there).
+    flat = (clean[..., 1:] == clean[..., :-1]).all(1).float().mean()
+    assert flat > 0.3, float(flat)
+    # Deterministic.
+    again, _ = train.selection_set(deadleaves.BANDS_NM)
+    assert torch.equal(clean, again)
 
 
 def test_numpy_tv_matches_its_definition():

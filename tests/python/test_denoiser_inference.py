@@ -11,13 +11,14 @@ from conftest import ROOT
 torch = pytest.importorskip("torch", reason="PyTorch not installed (DIFFCASSI_TORCH=skip)")
 st = pytest.importorskip("safetensors.torch", reason="safetensors not installed (scripts/setup.sh installs it)")
 
-WEIGHTS = ROOT / "src" / "recon" / "prior" / "weights" / "spectral-unet-v1-28.safetensors"
+WEIGHTS = ROOT / "src" / "recon" / "prior" / "weights" / "spectral-unet-v2-28.safetensors"
 
 
 def torch_net():
     from diffcassi.denoiser import SpectralUNet
     meta = __import__("safetensors").safe_open(str(WEIGHTS), "pt").metadata()
-    net = SpectralUNet(bands=int(meta["bands"]), width=int(meta["width"]))
+    assert meta["arch"] == "spectral-unet-v2"
+    net = SpectralUNet(bands=int(meta["bands"]), width=int(meta["width"]), latent=int(meta["latent"]))
     net.load_state_dict(st.load_file(str(WEIGHTS)))
     return net.eval()
 
@@ -42,6 +43,24 @@ def test_rust_inference_equals_pytorch(sigma):
     assert err <= 1e-4, err
     # The user-file path gives the same as the embedded weights.
     assert np.array_equal(diffcassi.denoise(cube, sigma, weights=str(WEIGHTS)), got)
+
+
+def test_rust_inference_of_another_latent_width_and_bypass(tmp_path):
+    """The whole v2 graph (latent K < bands, a non-zero bypass G, another width) from a user's file."""
+    from diffcassi.denoiser import SpectralUNet, denoise as torch_denoise, save_weights
+    torch.manual_seed(5)
+    net = SpectralUNet(bands=28, width=8, latent=6)
+    with torch.no_grad():
+        for p in (net.lat_enc.weight, net.lat_dec.weight, net.bypass.weight):
+            p.normal_(std=0.2)
+    path = tmp_path / "k6.safetensors"
+    save_weights(net, path)
+    cube = natural_cube(13, 18, 28, seed=2)
+    with torch.no_grad():
+        want = torch_denoise(net.eval(), torch.from_numpy(cube).permute(2, 0, 1)[None], 0.07)[0].permute(1, 2, 0).numpy()
+    got = diffcassi.denoise(cube, 0.07, weights=str(path))
+    assert np.abs(got - want).max() <= 1e-4 * np.abs(want).max()
+    assert np.abs(want - cube).max() > 0.01  # the comparison is not trivial
 
 
 def test_thread_count_does_not_change_the_result():

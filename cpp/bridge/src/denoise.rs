@@ -1,4 +1,4 @@
-//! The learned denoiser (`spectral-unet-v1`, the prior of the `pnp-gap`/`pnp-admm` solvers) for C++: a cube
+//! The learned denoiser (`spectral-unet-v2`, the prior of the `pnp-gap`/`pnp-admm` solvers) for C++: a cube
 //! (H×W×B f32, C order `[row][col][band]`) is read in place and the denoised cube written into the caller's
 //! buffer of the same size. `weights` empty: the checkpoint embedded in the library; otherwise a safetensors
 //! file. σ is the noise standard deviation on the cube's scale (the network was trained on cubes of peak ≈ 1).

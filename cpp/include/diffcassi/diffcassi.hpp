@@ -465,7 +465,7 @@ inline PupilPoints pupil_points(std::string_view pattern) {
   const auto p = detail::call([&] { return ffi::pupil_points(detail::str(pattern)); });
   return {std::vector<double>(p.px.begin(), p.px.end()), std::vector<double>(p.py.begin(), p.py.end())};
 }
-/// The learned denoiser (spectral-unet-v1, the prior of the pnp-gap / pnp-admm solvers) on a cube of
+/// The learned denoiser (spectral-unet-v2, the prior of the pnp-gap / pnp-admm solvers) on a cube of
 /// height × width × bands floats, C order [row][col][band]; sigma: the noise standard deviation on the cube's
 /// scale (trained on cubes of peak ≈ 1); weights: a safetensors file, empty for the embedded checkpoint.
 /// Returns the denoised cube (same layout). Throws diffcassi::Error on a wrong size, band count or weights.

@@ -6,7 +6,7 @@
 //!
 //! - [`tv::TvDenoiser`]: Chambolle's TV ([`crate::recon::tv`]), the prior of GAP-TV / ADMM-TV. Its strength is
 //!   its weight; it ignores σ (so GAP-TV through this trait is bit for bit GAP-TV);
-//! - [`network::SpectralUNet`]: the learned prior (arch `spectral-unet-v1`, `diffcassi/denoiser.py`), run on
+//! - [`network::SpectralUNet`]: the learned prior (arch `spectral-unet-v2`, `diffcassi/denoiser.py`), run on
 //!   candle's CPU tensors; its weights are embedded ([`network::SpectralUNet::embedded`]) or read from a
 //!   safetensors file.
 //!
@@ -33,7 +33,7 @@ use crate::error::Result;
 
 /// A denoiser: the prior of a plug-and-play solver.
 pub trait Denoiser: Send {
-    /// A short name for records (`tv`, `spectral-unet-v1`).
+    /// A short name for records (`tv`, `spectral-unet-v2`).
     fn name(&self) -> String;
     /// `out` ← denoise(`x`) for a cube of `shape` (`[row][col][band]`) with noise level `sigma` (standard
     /// deviation on the cube's scale; a denoiser with a fixed strength, such as TV, may ignore it). Both

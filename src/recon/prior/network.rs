@@ -1,19 +1,21 @@
-//! The learned prior: `SpectralUNet` (arch `spectral-unet-v1`), a small residual U-Net over all bands with a
-//! noise-level input channel (FFDNet: K. Zhang, W. Zuo, L. Zhang, "FFDNet: toward a fast and flexible
+//! The learned prior: `SpectralUNet` (arch `spectral-unet-v2`), a small U-Net with a noise-level input channel
+//! behind a linear spectral path (FFDNet: K. Zhang, W. Zuo, L. Zhang, "FFDNet: toward a fast and flexible
 //! solution for CNN-based image denoising", IEEE TIP 2018; DRUNet: K. Zhang et al., "Plug-and-play image
-//! restoration with deep denoiser prior", IEEE TPAMI 2021). Its graph is defined once, in PyTorch, by
+//! restoration with deep denoiser prior", IEEE TPAMI 2021): `z = E·x`, `out = D·(z − U([z, σ])) + G·x`, with
+//! E (bands → K), D (K → bands) and G (bands → bands) learned 1×1 convolutions without bias and U the U-Net
+//! on the K-channel latent (src/recon/prior/MODEL.md says why). Its graph is defined once, in PyTorch, by
 //! `diffcassi/denoiser.py` (layer by layer in its module docs); this file runs the same graph for the CLI,
 //! Python (`diffcassi.denoise`) and C++ (`diffcassi::denoise`), loading the same safetensors weights. Equal to
-//! PyTorch within 1e-4 of the peak (`tests/python/test_denoiser.py`).
+//! PyTorch within 1e-4 of the peak (`tests/python/test_denoiser_inference.py`).
 //!
 //! **Inference crate: candle** (`candle-core` 0.11, Hugging Face, MIT/Apache-2.0): pure Rust, maintained,
 //! CPU convolutions by tiled im2col + the `gemm` crate, nothing downloaded at build or run time (no C/C++
 //! library, no model hub access: the weights are bytes we hand it). The alternatives: `tract` (Sonos;
 //! ONNX/NNEF inference, also pure Rust) would need the graph exported to ONNX, a second weights format beside
 //! the safetensors the training writes; `burn` is a full training framework (autodiff, its own module
-//! system and record format) — more than running twelve fixed convolutions needs. Only `candle-core` is used
+//! system and record format) — more than running sixteen fixed convolutions needs. Only `candle-core` is used
 //! (tensors, `conv2d`, `conv_transpose2d`, `relu`; `candle-nn` would only wrap these); the weights file is
-//! read by the `safetensors` crate candle itself depends on, so its metadata (arch, bands, width) and every
+//! read by the `safetensors` crate candle itself depends on, so its metadata (arch, bands, width, latent) and every
 //! tensor are checked before the network is built.
 //!
 //! **Determinism.** Every convolution is cut into fixed tiles of output pixels (candle's TILE_SIZE) and each
@@ -21,10 +23,11 @@
 //! they compute. The result is bit-identical for any thread count (tested: 1- vs 2-thread pools).
 //!
 //! **Weights.** [`SpectralUNet::embedded`] is the committed checkpoint
-//! (`src/recon/prior/weights/spectral-unet-v1-28.safetensors`, 28 bands, width 32; `include_bytes!`, so the
-//! CLI needs no path); [`SpectralUNet::from_file`] reads a user's. Both check the metadata (`arch` =
-//! `spectral-unet-v1`, `bands`, `width`), that every tensor the graph needs is there with its shape, in f32,
-//! with finite values, and that nothing else is: errors name the file and the tensor.
+//! (`src/recon/prior/weights/spectral-unet-v2-28.safetensors`, 28 bands; `include_bytes!`, so the CLI needs
+//! no path); [`SpectralUNet::from_file`] reads a user's. Both check the metadata (`arch` = `spectral-unet-v2`,
+//! `bands`, `width`, `latent`), that every tensor the graph needs is there with its shape, in f32, with finite
+//! values, and that nothing else is: errors name the file and the field or tensor. (Round 1–2's
+//! `spectral-unet-v1` is v2 with K = bands, E = D = I, G = 0; `diffcassi.denoiser.from_v1` converts such a file.)
 //!
 //! **Input.** Cubes H×W×B `[row][col][band]` with B = the network's bands, scaled by the caller to a peak of
 //! about 1 (the training scale); σ the noise standard deviation on that scale. H and W need not be multiples
@@ -48,12 +51,12 @@ use candle_core::{Device, Tensor};
 use std::path::Path;
 
 /// The architecture name the weights' metadata must carry.
-pub const ARCH: &str = "spectral-unet-v1";
+pub const ARCH: &str = "spectral-unet-v2";
 
 /// Where the embedded weights come from (for error messages and records).
-pub const EMBEDDED_PATH: &str = "src/recon/prior/weights/spectral-unet-v1-28.safetensors";
+pub const EMBEDDED_PATH: &str = "src/recon/prior/weights/spectral-unet-v2-28.safetensors";
 
-static EMBEDDED: &[u8] = include_bytes!("weights/spectral-unet-v1-28.safetensors");
+static EMBEDDED: &[u8] = include_bytes!("weights/spectral-unet-v2-28.safetensors");
 
 /// CRC-32 of the weights' bytes (the embedded file for `None`): identifies the checkpoint in records.
 pub fn weights_crc32(path: Option<&Path>) -> Result<u32> {
@@ -66,8 +69,8 @@ pub fn weights_crc32(path: Option<&Path>) -> Result<u32> {
 /// One convolution's weight and bias.
 struct Layer {
     weight: Tensor,
-    /// (1, C_out, 1, 1), ready to broadcast.
-    bias: Tensor,
+    /// (1, C_out, 1, 1), ready to broadcast; `None` for the linear spectral maps (no bias).
+    bias: Option<Tensor>,
 }
 
 /// The network: its layers, in the order of `diffcassi/denoiser.py`'s graph.
@@ -76,6 +79,8 @@ pub struct SpectralUNet {
     pub bands: usize,
     /// Width C (channels at full resolution).
     pub width: usize,
+    /// Latent channels K of the linear spectral path (≤ bands).
+    pub latent: usize,
     /// Where the weights came from (file path, or the embedded file's repository path).
     pub source: String,
     /// CRC-32 of the weights file's bytes.
@@ -83,24 +88,28 @@ pub struct SpectralUNet {
     layers: Vec<Layer>,
 }
 
-/// (name, kind, C_in, C_out, kernel) of every layer; kind `t` = transposed convolution (weight C_in × C_out
-/// × k × k, PyTorch's layout), otherwise C_out × C_in × k × k.
-fn graph(bands: usize, c: usize) -> [(&'static str, bool, usize, usize, usize); 13] {
+/// (name, transposed, C_in, C_out, kernel, bias) of every layer, in `diffcassi/denoiser.py`'s order;
+/// transposed: weight C_in × C_out × k × k (PyTorch's layout), otherwise C_out × C_in × k × k. The 1×1
+/// spectral maps `lat_enc` (E), `lat_dec` (D) and `bypass` (G) have no bias.
+fn graph(bands: usize, c: usize, k: usize) -> [(&'static str, bool, usize, usize, usize, bool); 16] {
     let c2 = 2 * c;
     [
-        ("head", false, bands + 1, c, 3),
-        ("enc1", false, c, c, 3),
-        ("down1", false, c, c2, 2),
-        ("enc2a", false, c2, c2, 3),
-        ("enc2b", false, c2, c2, 3),
-        ("down2", false, c2, c2, 2),
-        ("mid_a", false, c2, c2, 3),
-        ("mid_b", false, c2, c2, 3),
-        ("up2", true, c2, c2, 2),
-        ("dec2", false, c2, c2, 3),
-        ("up1", true, c2, c, 2),
-        ("dec1", false, c, c, 3),
-        ("tail", false, c, bands, 3),
+        ("lat_enc", false, bands, k, 1, false),
+        ("head", false, k + 1, c, 3, true),
+        ("enc1", false, c, c, 3, true),
+        ("down1", false, c, c2, 2, true),
+        ("enc2a", false, c2, c2, 3, true),
+        ("enc2b", false, c2, c2, 3, true),
+        ("down2", false, c2, c2, 2, true),
+        ("mid_a", false, c2, c2, 3, true),
+        ("mid_b", false, c2, c2, 3, true),
+        ("up2", true, c2, c2, 2, true),
+        ("dec2", false, c2, c2, 3, true),
+        ("up1", true, c2, c, 2, true),
+        ("dec1", false, c, c, 3, true),
+        ("tail", false, c, k, 3, true),
+        ("lat_dec", false, k, bands, 1, false),
+        ("bypass", false, bands, bands, 1, false),
     ]
 }
 
@@ -137,29 +146,39 @@ impl SpectralUNet {
         let st = safetensors::SafeTensors::deserialize(bytes).map_err(|e| ferr(source, format!("not a valid safetensors file: {e}")))?;
         let (_, meta) = safetensors::SafeTensors::read_metadata(bytes).map_err(|e| ferr(source, format!("not a valid safetensors file: {e}")))?;
         let meta = meta.metadata().clone().unwrap_or_default();
-        let get = |k: &str| meta.get(k).ok_or_else(|| ferr(source, format!("metadata field `{k}` is missing (expected arch = {ARCH}, bands, width)")));
+        let get = |k: &str| meta.get(k).ok_or_else(|| ferr(source, format!("metadata field `{k}` is missing (expected arch = {ARCH}, bands, width, latent)")));
         let arch = get("arch")?;
         if arch != ARCH {
-            return Err(ferr(source, format!("metadata `arch` = `{arch}`: this inference implements `{ARCH}` only")));
+            let hint = if arch == "spectral-unet-v1" { " (a round-1/2 file: convert it with diffcassi.denoiser.from_v1)" } else { "" };
+            return Err(ferr(source, format!("metadata `arch` = `{arch}`: this inference implements `{ARCH}` only{hint}")));
         }
         let num = |k: &str| -> Result<usize> {
             let v = get(k)?;
             v.trim().parse::<usize>().ok().filter(|n| *n > 0 && *n <= 4096).ok_or_else(|| ferr(source, format!("metadata `{k}` = `{v}` is not a positive integer ≤ 4096")))
         };
-        let (bands, width) = (num("bands")?, num("width")?);
-        let g = graph(bands, width);
+        let (bands, width, latent) = (num("bands")?, num("width")?, num("latent")?);
+        if latent > bands {
+            return Err(ferr(source, format!("metadata `latent` = {latent} exceeds `bands` = {bands}")));
+        }
+        let g = graph(bands, width, latent);
         let mut layers = Vec::with_capacity(g.len());
-        for (name, transposed, cin, cout, k) in g {
+        let mut expected = std::collections::BTreeSet::new();
+        for (name, transposed, cin, cout, k, has_bias) in g {
             let wshape = if transposed { [cin, cout, k, k] } else { [cout, cin, k, k] };
             let weight = Self::tensor(&st, source, &format!("{name}.weight"), &wshape)?;
-            let bias = Self::tensor(&st, source, &format!("{name}.bias"), &[cout])?.reshape((1, cout, 1, 1)).map_err(cerr)?;
+            expected.insert(format!("{name}.weight"));
+            let bias = if has_bias {
+                expected.insert(format!("{name}.bias"));
+                Some(Self::tensor(&st, source, &format!("{name}.bias"), &[cout])?.reshape((1, cout, 1, 1)).map_err(cerr)?)
+            } else {
+                None
+            };
             layers.push(Layer { weight, bias });
         }
-        let expected: std::collections::BTreeSet<String> = g.iter().flat_map(|l| [format!("{}.weight", l.0), format!("{}.bias", l.0)]).collect();
         if let Some(extra) = st.names().into_iter().find(|n| !expected.contains(*n)) {
-            return Err(ferr(source, format!("tensor `{extra}` is not part of {ARCH} (expected {} tensors: head, enc1, …, tail .weight/.bias)", expected.len())));
+            return Err(ferr(source, format!("tensor `{extra}` is not part of {ARCH} (expected {} tensors: lat_enc, head, …, tail, lat_dec, bypass)", expected.len())));
         }
-        Ok(SpectralUNet { bands, width, source: source.to_string(), crc32: crc32fast::hash(bytes), layers })
+        Ok(SpectralUNet { bands, width, latent, source: source.to_string(), crc32: crc32fast::hash(bytes), layers })
     }
 
     /// Tensor `name` of the file, checked: present, f32, of `shape`, finite.
@@ -180,7 +199,11 @@ impl SpectralUNet {
 
     fn conv(&self, i: usize, x: &Tensor, padding: usize, stride: usize, relu: bool) -> Result<Tensor> {
         let l = &self.layers[i];
-        let y = x.conv2d(&l.weight, padding, stride, 1, 1).and_then(|y| y.broadcast_add(&l.bias)).map_err(cerr)?;
+        let y = x.conv2d(&l.weight, padding, stride, 1, 1).map_err(cerr)?;
+        let y = match &l.bias {
+            Some(b) => y.broadcast_add(b).map_err(cerr)?,
+            None => y,
+        };
         if relu {
             y.relu().map_err(cerr)
         } else {
@@ -190,32 +213,43 @@ impl SpectralUNet {
 
     fn up(&self, i: usize, x: &Tensor, skip: &Tensor) -> Result<Tensor> {
         let l = &self.layers[i];
-        x.conv_transpose2d(&l.weight, 0, 0, 2, 1).and_then(|y| y.broadcast_add(&l.bias)).and_then(|y| y + skip).map_err(cerr)
+        let y = x.conv_transpose2d(&l.weight, 0, 0, 2, 1).map_err(cerr)?;
+        let y = match &l.bias {
+            Some(b) => y.broadcast_add(b).map_err(cerr)?,
+            None => y,
+        };
+        (y + skip).map_err(cerr)
     }
 
-    /// The graph on (1, bands + 1, H, W) (σ plane last), H and W multiples of 4: returns the predicted noise
-    /// `tail(z)` (1, bands, H, W).
-    fn noise(&self, x: &Tensor) -> Result<Tensor> {
-        let z = self.conv(0, x, 1, 1, true)?;
-        let e1 = self.conv(1, &z, 1, 1, true)?;
-        let z = self.conv(2, &e1, 0, 2, true)?;
-        let z = self.conv(3, &z, 1, 1, true)?;
-        let e2 = self.conv(4, &z, 1, 1, true)?;
-        let z = self.conv(5, &e2, 0, 2, true)?;
-        let z = self.conv(6, &z, 1, 1, true)?;
+    /// The graph on x (1, bands, H, W) and the σ plane (1, 1, H, W), H and W multiples of 4: returns
+    /// `D·(z − U([z, σ])) + G·x` with `z = E·x` (1, bands, H, W).
+    fn forward(&self, x: &Tensor, sigma: &Tensor) -> Result<Tensor> {
+        let lat = self.conv(0, x, 0, 1, false)?;
+        let z = Tensor::cat(&[&lat, sigma], 1).map_err(cerr)?;
+        let z = self.conv(1, &z, 1, 1, true)?;
+        let e1 = self.conv(2, &z, 1, 1, true)?;
+        let z = self.conv(3, &e1, 0, 2, true)?;
+        let z = self.conv(4, &z, 1, 1, true)?;
+        let e2 = self.conv(5, &z, 1, 1, true)?;
+        let z = self.conv(6, &e2, 0, 2, true)?;
         let z = self.conv(7, &z, 1, 1, true)?;
-        let z = self.up(8, &z, &e2)?;
-        let z = self.conv(9, &z, 1, 1, true)?;
-        let z = self.up(10, &z, &e1)?;
-        let z = self.conv(11, &z, 1, 1, true)?;
-        self.conv(12, &z, 1, 1, false)
+        let z = self.conv(8, &z, 1, 1, true)?;
+        let z = self.up(9, &z, &e2)?;
+        let z = self.conv(10, &z, 1, 1, true)?;
+        let z = self.up(11, &z, &e1)?;
+        let z = self.conv(12, &z, 1, 1, true)?;
+        let u = self.conv(13, &z, 1, 1, false)?;
+        let clean = (lat - u).map_err(cerr)?;
+        let y = self.conv(14, &clean, 0, 1, false)?;
+        (y + self.conv(15, x, 0, 1, false)?).map_err(cerr)
     }
 
     /// Memory of one call (bytes, f32 activations at their peak, about): for budgeting and docs.
     pub fn activation_bytes(&self, height: usize, width: usize) -> usize {
         let (h, w) = (height.div_ceil(4) * 4, width.div_ceil(4) * 4);
-        // input + e1 + two full-resolution temporaries, e2 and two half-resolution ones, im2col tiles apart.
-        4 * h * w * (self.bands + 1 + 3 * self.width + 3 * 2 * self.width / 4)
+        // input and output, the latent, e1 + two full-resolution temporaries, e2 and two half-resolution ones,
+        // im2col tiles apart.
+        4 * h * w * (2 * self.bands + 2 * (self.latent + 1) + 3 * self.width + 3 * 2 * self.width / 4)
     }
 }
 
@@ -235,10 +269,10 @@ impl Denoiser for SpectralUNet {
         if !sigma.is_finite() || sigma < 0.0 {
             return Err(Error::invalid(format!("denoiser: the noise level σ = {sigma} must be finite and ≥ 0")));
         }
-        // (1, B + 1, Hp, Wp), padded at the bottom/right by edge replication; the σ plane last.
+        // (1, B, Hp, Wp), padded at the bottom/right by edge replication, and the σ plane.
         let (hp, wp) = (h.div_ceil(4) * 4, w.div_ceil(4) * 4);
         let plane = hp * wp;
-        let mut input = vec![0.0f32; (b + 1) * plane];
+        let mut input = vec![0.0f32; b * plane];
         for r in 0..hp {
             let rs = r.min(h - 1);
             for c in 0..wp {
@@ -248,15 +282,15 @@ impl Denoiser for SpectralUNet {
                 }
             }
         }
-        input[b * plane..].iter_mut().for_each(|v| *v = sigma);
-        let t = Tensor::from_vec(input, (1, b + 1, hp, wp), &Device::Cpu).map_err(cerr)?;
-        let noise = self.noise(&t)?.flatten_all().and_then(|n| n.to_vec1::<f32>()).map_err(cerr)?;
-        // out = x − noise, cropped, back to [row][col][band].
+        let t = Tensor::from_vec(input, (1, b, hp, wp), &Device::Cpu).map_err(cerr)?;
+        let s = Tensor::from_vec(vec![sigma; plane], (1, 1, hp, wp), &Device::Cpu).map_err(cerr)?;
+        let y = self.forward(&t, &s)?.flatten_all().and_then(|n| n.to_vec1::<f32>()).map_err(cerr)?;
+        // Cropped, back to [row][col][band].
         for r in 0..h {
             for c in 0..w {
                 let o = (r * w + c) * b;
                 for k in 0..b {
-                    out[o + k] = x[o + k] - noise[k * plane + r * wp + c];
+                    out[o + k] = y[k * plane + r * wp + c];
                 }
             }
         }
@@ -267,6 +301,6 @@ impl Denoiser for SpectralUNet {
     }
 
     fn describe(&self) -> serde_json::Value {
-        serde_json::json!({ "name": ARCH, "weights": self.source, "weights_crc32": self.crc32, "bands": self.bands, "width": self.width })
+        serde_json::json!({ "name": ARCH, "weights": self.source, "weights_crc32": self.crc32, "bands": self.bands, "width": self.width, "latent": self.latent })
     }
 }
