@@ -2,8 +2,9 @@
 """Trains the learned hyperspectral denoiser (``diffcassi.denoiser.SpectralUNet``, arch spectral-unet-v2) on CPU
 with procedural dead-leaves cubes (``diffcassi.deadleaves``) generated on the fly from seeds.
 
-    .venv/bin/python scripts/train_denoiser.py --steps 6000 --minutes 80 --threads 2
-    .venv/bin/python scripts/train_denoiser.py --resume src/recon/prior/weights/train-state.pt --steps 6000
+    .venv/bin/python scripts/train_denoiser.py --out OUT --init V1.safetensors --latent 12 --freeze-spectral \
+        --patch 48 --steps 2400 --threads 1 --lr 3e-4     # round 3 (MODEL.md gives the exact command)
+    .venv/bin/python scripts/train_denoiser.py --out OUT --resume OUT/train-state.pt ...the same arguments...
 
 Recipe (src/recon/prior/MODEL.md states the run's numbers):
 
@@ -13,16 +14,17 @@ Recipe (src/recon/prior/MODEL.md states the run's numbers):
   (``dead_leaves(kind=...)``); validation seeds ``0…VAL_COUNT-1`` of both kinds: disjoint by construction;
 * ``--init`` starts from existing weights (fine-tuning; their SHA-256 goes into the manifest and the state): a
   v2 file of the same width and latent, or a ``spectral-unet-v1`` file converted by ``denoiser.from_v1`` with the
-  linear path set to the projection on the first ``--latent`` principal components of training spectra
-  (:func:`spectral_basis`: uncentred PCA of the cubes of the first ``PCA_STEPS`` steps' train seeds);
+  linear path set to the projection on ``--latent`` principal directions of training spectra
+  (:func:`spectral_basis`, from the cubes of the first ``PCA_STEPS`` steps' train seeds); ``--freeze-spectral``
+  keeps E and D fixed there;
 * augmentation for the plug-and-play use (structured errors) and dark scenes: random brightness (log-uniform
   in [0.05, 1] with p = 0.3, U[0.5, 1] with p = 0.3, else 1; the noise stays on the peak-1 scale), random
   per-band gains (×(1 + N(0, 0.05)) per band, p = 0.3), noise σ ~ U[0, 0.2] per sample (the σ channel), white
   Gaussian or (p = 0.25) a mixture with spatially correlated Gaussian noise of the same total σ;
-* loss: L1 between the network's output and the clean cube; Adam (β = 0.9, 0.999), learning rate 1e-3 with a
-  linear warm-up (100 steps) and a cosine decay to 1e-5 over ``--steps``; gradient-norm clipping at 1.0;
+* loss: L1 between the network's output and the clean cube; Adam (β = 0.9, 0.999), learning rate ``--lr`` with a
+  linear warm-up (``--warmup`` steps) and a cosine decay to ``--lr-min`` over ``--steps``; gradient-norm clipping;
 * validation every ``--val-every`` steps: PSNR (peak 1) at σ ∈ {0.02, 0.05, 0.1} with fixed noise on the fixed
-  validation cubes of both kinds (``--val-patch`` pixels) and on the *selection set* (:func:`selection_set`:
+  validation cubes of both kinds (``--patch`` pixels) and on the *selection set* (:func:`selection_set`:
   uplifted-sRGB leaves — the spectral family of photographs — at 64×64 with large flat leaves and a fixed share
   of dark cubes, where round 2 failed); the weights file holds the best selection score so far: the mean over σ
   of the selection set's mean PSNR (round 2's six-number mean did not predict the natural scenes: MODEL.md);
