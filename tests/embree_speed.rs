@@ -1,6 +1,6 @@
 //! Embree packet modes (issue 23 item 5). The non-sequential tracer traces SP, AP and mSP (analytic user
 //! geometry and 1 µm meshes; hexapolar bundles of every field at three wavelengths plus a seeded workload)
-//! one ray at a time (`rtcIntersect1`) and in incoherent 16-wide packets refilled as rays finish
+//! one ray at a time (`rtcIntersect1`) and in incoherent 16-wide packets of consecutive rays
 //! (`rtcIntersect16`): the two must be bit-identical, whatever the thread count and chunk size. With f64
 //! refinement over user geometry both reuse the roots the callback solved on the exact ray.
 //!
@@ -48,7 +48,7 @@ fn incoherent_packets_equal_single_rays_bit_for_bit() {
     }
 }
 
-/// The packet path (refilled packets, exact-ray root reuse) gives the same bits — results and per-ray
+/// The packet path (with the exact-ray root reuse of user geometry) gives the same bits — results and per-ray
 /// details — on one thread and on two, for any chunk size, and equals the single-ray path.
 #[test]
 fn packets_do_not_depend_on_thread_count_or_chunking() {

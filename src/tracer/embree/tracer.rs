@@ -274,30 +274,34 @@ impl EmbreeTracer {
         // refinement reuses their roots (one surface solve per interaction).
         let exact = self.options.refine == Refinement::F64 && self.options.scene.representation == SurfaceRepresentation::User;
         if self.options.packets {
-            // Rays still walking, refilled into full packets every round: a finished ray leaves its lane to
-            // the next one (each lane's answer is independent of its packet: incoherent packets equal
-            // single rays bit for bit). Allocated once per chunk, not per ray.
-            let mut active: Vec<usize> = (0..walks.len()).filter(|&i| !walks[i].done).collect();
+            // Packets of 16 consecutive rays (similar rays: Embree's packet traversal shares their nodes),
+            // walked until all are done; finished lanes are left out of the queries. (Refilling packets with
+            // the next rays as lanes finish measured slower: 1 µm meshes +10 % CPU time on SP.)
             let mut lanes = ExactRays::<16>::default();
-            while !active.is_empty() {
-                for group in active.chunks(16) {
+            for (p, (ws, ns)) in walks.chunks_mut(16).zip(idx.chunks(16)).enumerate() {
+                loop {
                     let mut packet = [Ray::new([0.0; 3], [0.0, 0.0, 1.0]); 16];
                     let mut valid = [false; 16];
-                    for (k, &i) in group.iter().enumerate() {
-                        packet[k] = walks[i].ray();
-                        valid[k] = true;
-                        lanes.rays[k] = walks[i].exact();
+                    for (k, w) in ws.iter().enumerate() {
+                        if !w.done {
+                            packet[k] = w.ray();
+                            valid[k] = true;
+                            lanes.rays[k] = w.exact();
+                        }
+                    }
+                    if !valid.iter().any(|v| *v) {
+                        break;
                     }
                     // Incoherent unless asked: the coherent flag loses hits here (see `EmbreeOptions::coherent`).
                     let hits = scene.scene.intersect16_exact(&packet, &valid, self.options.coherent, exact.then_some(&lanes));
-                    for (k, &i) in group.iter().enumerate() {
-                        let w = &mut walks[i];
-                        w.solved = lanes.roots_for(k, hits[k].geom_id).map(|r| (hits[k].geom_id, r));
-                        // Not recording: `logs` is empty and `get_mut` gives None.
-                        self.interact(scene, idx[i], w, &hits[k], logs.get_mut(i));
+                    for (k, w) in ws.iter_mut().enumerate() {
+                        if valid[k] {
+                            w.solved = lanes.roots_for(k, hits[k].geom_id).map(|r| (hits[k].geom_id, r));
+                            // Not recording: `logs` is empty and `get_mut` gives None.
+                            self.interact(scene, ns[k], w, &hits[k], logs.get_mut(p * 16 + k));
+                        }
                     }
                 }
-                active.retain(|&i| !walks[i].done);
             }
         } else {
             let mut lane = ExactRays::<1>::default();
