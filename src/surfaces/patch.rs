@@ -113,11 +113,12 @@ impl SurfacePatch {
     /// approximate hit on this surface), without the aperture test; `None` if the line does not meet the
     /// figure near there.
     pub fn nearest_root(&self, p: DVec3, d: DVec3, t_guess: f64) -> Option<f64> {
-        if let Some(roots) = self.closed_form_roots(p, d) {
-            return Self::nearest_of(roots, t_guess);
-        }
         match &self.shape {
-            SurfaceShape::Plane | SurfaceShape::Paraxial { .. } | SurfaceShape::Conic { .. } => None, // closed form above
+            SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => plane_root(p, d),
+            SurfaceShape::Conic { curvature, conic } => {
+                let (t1, t2) = conic_roots(*curvature, *conic, p, d);
+                Self::nearest_of([t1, t2], t_guess)
+            }
             SurfaceShape::EvenAsphere { .. } => {
                 // Search a window around the guess that grows until it brackets a root.
                 let mut w = 1e-3 + 1e-6 * t_guess.abs();

@@ -276,7 +276,7 @@ impl EmbreeTracer {
         if self.options.packets {
             // Packets of 16 consecutive rays (similar rays: Embree's packet traversal shares their nodes),
             // walked until all are done; finished lanes are left out of the queries. (Refilling packets with
-            // the next rays as lanes finish measured slower: 1 µm meshes +10 % CPU time on SP.)
+            // the next rays as lanes finish measured slower on SP: docs/nonsequential.md, profile section.)
             let mut lanes = ExactRays::<16>::default();
             for (p, (ws, ns)) in walks.chunks_mut(16).zip(idx.chunks(16)).enumerate() {
                 loop {
@@ -286,7 +286,9 @@ impl EmbreeTracer {
                         if !w.done {
                             packet[k] = w.ray();
                             valid[k] = true;
-                            lanes.rays[k] = w.exact();
+                            if exact {
+                                lanes.rays[k] = w.exact();
+                            }
                         }
                     }
                     if !valid.iter().any(|v| *v) {
@@ -296,7 +298,9 @@ impl EmbreeTracer {
                     let hits = scene.scene.intersect16_exact(&packet, &valid, self.options.coherent, exact.then_some(&lanes));
                     for (k, w) in ws.iter_mut().enumerate() {
                         if valid[k] {
-                            w.solved = lanes.roots_for(k, hits[k].geom_id).map(|r| (hits[k].geom_id, r));
+                            if exact {
+                                w.solved = lanes.roots_for(k, hits[k].geom_id).map(|r| (hits[k].geom_id, r));
+                            }
                             // Not recording: `logs` is empty and `get_mut` gives None.
                             self.interact(scene, ns[k], w, &hits[k], logs.get_mut(p * 16 + k));
                         }
