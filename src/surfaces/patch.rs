@@ -117,7 +117,7 @@ impl SurfacePatch {
             SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => plane_root(p, d),
             SurfaceShape::Conic { curvature, conic } => {
                 let (t1, t2) = conic_roots(*curvature, *conic, p, d);
-                [t1, t2].into_iter().flatten().min_by(|a, b| (a - t_guess).abs().total_cmp(&(b - t_guess).abs()))
+                Self::nearest_of([t1, t2], t_guess)
             }
             SurfaceShape::EvenAsphere { .. } => {
                 // Search a window around the guess that grows until it brackets a root.
@@ -131,6 +131,30 @@ impl SurfacePatch {
                 None
             }
         }
+    }
+
+    /// Every root of the figure's equation along p + t·d (ascending; `None` where absent) when it has a
+    /// closed form — planes and paraxial planes (one root), conics (two, on the vertex branch) — and
+    /// `None` for even aspheres (found iteratively). Computed once, these serve both the first hit and
+    /// the nearest-root refinement ([`Self::nearest_of`]): the Embree user geometry solves a surface once
+    /// per interaction this way.
+    #[inline]
+    pub fn closed_form_roots(&self, p: DVec3, d: DVec3) -> Option<[Option<f64>; 2]> {
+        match &self.shape {
+            SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => Some([plane_root(p, d), None]),
+            SurfaceShape::Conic { curvature, conic } => {
+                let (t1, t2) = conic_roots(*curvature, *conic, p, d);
+                Some([t1, t2])
+            }
+            SurfaceShape::EvenAsphere { .. } => None,
+        }
+    }
+
+    /// The root nearest to `t_guess` among `roots` (from [`Self::closed_form_roots`]): what
+    /// [`Self::nearest_root`] returns for planes and conics, bit for bit.
+    #[inline]
+    pub fn nearest_of(roots: [Option<f64>; 2], t_guess: f64) -> Option<f64> {
+        roots.into_iter().flatten().min_by(|a, b| (a - t_guess).abs().total_cmp(&(b - t_guess).abs()))
     }
 
     /// The part of (tmin, tmax] inside the bounding cylinder r ≤ r_max and slab z_min ≤ z ≤ z_max.

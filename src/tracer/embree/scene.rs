@@ -29,7 +29,7 @@
 //!
 //! [`RayStatus::Absorbed`]: crate::tracer::RayStatus::Absorbed
 //! [`RayStatus::Vignetted`]: crate::tracer::RayStatus::Vignetted
-use super::wrapper::{CommittedScene, Device, Geometry, Scene, UserGeometry};
+use super::wrapper::{CommittedScene, Device, ExactAnswer, ExactRay, Geometry, Scene, UserGeometry};
 use crate::error::{Error, Result};
 use crate::geometry::Frame;
 use crate::surfaces::{tessellate, Aperture, MeshResolution, SurfacePatch};
@@ -132,6 +132,12 @@ fn embree_err(e: super::wrapper::EmbreeError) -> Error {
 }
 
 impl OpticalScene {
+    /// The committed Embree scene (geometry ID = solid index), for direct queries — e.g. comparing
+    /// Embree's query modes on the tracer's own scene (tests/embree_speed.rs).
+    pub fn committed(&self) -> &CommittedScene {
+        &self.scene
+    }
+
     /// Build the scene of `system`.
     pub fn build(system: &SequentialSystem, options: &SceneOptions) -> Result<Self> {
         if !(options.mechanical_margin_mm.is_finite() && options.mechanical_margin_mm >= 0.0)
@@ -238,5 +244,30 @@ impl UserGeometry for AnalyticSurface {
         let t = self.patch.first_hit(p, dl, tnear as f64 * len, tfar as f64 * len)?;
         let n = self.frame.dir_to_global(self.patch.shape.normal(p + dl * t));
         Some(((t / len) as f32, n.as_vec3().to_array()))
+    }
+
+    /// Solved once on the exact ray, in the same local frame and by the same code as the tracer's f64
+    /// refinement (`SurfacePatch::closed_form_roots`), which then reuses the roots. The reported distance
+    /// is that of the exact hit point projected on the f32 ray (what Embree compares with other hits);
+    /// the first root in (tnear, tfar] inside the aperture wins, as in [`SurfacePatch::first_hit`].
+    fn intersect_exact(&self, org: [f32; 3], dir: [f32; 3], tnear: f32, tfar: f32, exact: &ExactRay) -> ExactAnswer {
+        let p = self.frame.point_to_local(exact.org);
+        let d = self.frame.dir_to_local(exact.dir);
+        let Some(roots) = self.patch.closed_form_roots(p, d) else { return ExactAnswer::Unsupported };
+        let o32 = DVec3::new(org[0] as f64, org[1] as f64, org[2] as f64);
+        let d32 = DVec3::new(dir[0] as f64, dir[1] as f64, dir[2] as f64);
+        let dd = d32.dot(d32);
+        if !(dd > 0.0) {
+            return ExactAnswer::Miss;
+        }
+        for t in roots.into_iter().flatten() {
+            let q = p + d * t;
+            // Distance along Embree's f32 ray to the exact point (t of the exact ray up to f32 rounding).
+            let t32 = (exact.org + exact.dir * t - o32).dot(d32) / dd;
+            if t32 > tnear as f64 && t32 <= tfar as f64 && self.patch.aperture.contains(q.x, q.y) {
+                return ExactAnswer::Hit { t: t32 as f32, roots };
+            }
+        }
+        ExactAnswer::Miss
     }
 }

@@ -12,9 +12,9 @@ extern "C" {
 void diffcassi_rtcInitRayQueryContext(RTCRayQueryContext* context) { rtcInitRayQueryContext(context); }
 void diffcassi_rtcInitIntersectArguments(RTCIntersectArguments* args) { rtcInitIntersectArguments(args); }
 
-/* Lane i of the callback's packet: out = {org_x, org_y, org_z, dir_x, dir_y, dir_z, tnear, tfar}; returns
-   the ray's mask. */
-unsigned int diffcassi_user_ray(const RTCIntersectFunctionNArguments* args, unsigned int i, float* out) {
+/* Lane i of the callback's packet: out = {org_x, org_y, org_z, dir_x, dir_y, dir_z, tnear, tfar}, *id = the
+   ray's ID (which the tracer sets to the lane of its own packet); returns the ray's mask. */
+unsigned int diffcassi_user_ray(const RTCIntersectFunctionNArguments* args, unsigned int i, float* out, unsigned int* id) {
     RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, args->N);
     const unsigned int N = args->N;
     out[0] = RTCRayN_org_x(ray, N, i);
@@ -25,6 +25,7 @@ unsigned int diffcassi_user_ray(const RTCIntersectFunctionNArguments* args, unsi
     out[5] = RTCRayN_dir_z(ray, N, i);
     out[6] = RTCRayN_tnear(ray, N, i);
     out[7] = RTCRayN_tfar(ray, N, i);
+    *id = RTCRayN_id(ray, N, i);
     return RTCRayN_mask(ray, N, i);
 }
 

@@ -30,10 +30,10 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 use super::scene::{OpticalScene, Role, SceneObject, SceneOptions, SurfaceRepresentation};
-use super::wrapper::{with_flush_denormals, Hit, Ray};
+use super::wrapper::{with_flush_denormals, ExactRay, ExactRays, Hit, Ray};
 use crate::error::{Error, Result};
 use crate::rays::RayBatch;
-use crate::surfaces::MeshResolution;
+use crate::surfaces::{MeshResolution, SurfacePatch};
 use crate::system::SequentialSystem;
 use crate::tracer::analytic::index_table;
 use crate::tracer::hits::{HitKind, HitLog, HitRecord};
@@ -128,16 +128,21 @@ struct Walk {
     interactions: u16,
     reflections: u16,
     max_dev: f64,
+    /// Whether `max_dev` is measured (a sag evaluation per hit): only when the details are returned.
+    measure_dev: bool,
     first_reflection: u32,
     last_surface: u32,
     done: bool,
     status: RayStatus,
     out_p: DVec3,
     out_d: DVec3,
+    /// The roots the analytic user geometry of Embree's hit (its geometry ID) solved on this ray's exact
+    /// ray during the last query, reused by the f64 refinement instead of solving the surface again.
+    solved: Option<(u32, [Option<f64>; 2])>,
 }
 
 impl Walk {
-    fn new(o: DVec3, d: DVec3) -> Self {
+    fn new(o: DVec3, d: DVec3, measure_dev: bool) -> Self {
         let unit = unit_direction(d).filter(|_| o.is_finite());
         let valid = unit.is_some();
         Walk {
@@ -148,13 +153,18 @@ impl Walk {
             interactions: 0,
             reflections: 0,
             max_dev: 0.0,
+            measure_dev,
             first_reflection: u32::MAX,
             last_surface: 0,
             done: !valid,
             status: if valid { RayStatus::Ok } else { RayStatus::InvalidInput },
             out_p: DVec3::ZERO,
             out_d: DVec3::ZERO,
+            solved: None,
         }
+    }
+    fn exact(&self) -> ExactRay {
+        ExactRay { org: self.p, dir: self.d }
     }
     fn ray(&self) -> Ray {
         let mut r = Ray::new(self.p.as_vec3().to_array(), self.d.as_vec3().to_array());
@@ -190,7 +200,7 @@ impl EmbreeTracer {
 
     /// Trace with per-ray diagnostics.
     pub fn trace_detailed(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<(TracedBatch, TraceDetails)> {
-        self.trace_inner(system, rays, false).map(|(out, details, _)| (out, details))
+        self.trace_inner(system, rays, false, true).map(|(out, details, _)| (out, details))
     }
 
     /// Trace with per-ray diagnostics and the [`HitLog`] of every interaction: the interface hit (its
@@ -199,10 +209,12 @@ impl EmbreeTracer {
     /// totally reflected; the detector hit last. Recording is only done here: [`Self::trace_detailed`] and
     /// [`Tracer::trace`] record nothing. The traced values are the same bits either way.
     pub fn trace_with_hits(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<(TracedBatch, TraceDetails, HitLog)> {
-        self.trace_inner(system, rays, true).map(|(out, details, log)| (out, details, log.unwrap_or_default()))
+        self.trace_inner(system, rays, true, true).map(|(out, details, log)| (out, details, log.unwrap_or_default()))
     }
 
-    fn trace_inner(&self, system: &SequentialSystem, rays: &RayBatch, record: bool) -> Result<(TracedBatch, TraceDetails, Option<HitLog>)> {
+    /// With `details`, the per-ray hit deviation is measured (otherwise left 0: [`Tracer::trace`] drops
+    /// the details); the traced values are the same bits either way.
+    fn trace_inner(&self, system: &SequentialSystem, rays: &RayBatch, record: bool, details: bool) -> Result<(TracedBatch, TraceDetails, Option<HitLog>)> {
         if !rays.is_consistent() {
             return Err(Error::invalid("ray batch columns have different lengths"));
         }
@@ -217,7 +229,7 @@ impl EmbreeTracer {
             .into_par_iter()
             .map(|c| {
                 let range = c * chunk..((c + 1) * chunk).min(n);
-                with_flush_denormals(|| self.trace_range(&scene, &table, rays, range, record))
+                with_flush_denormals(|| self.trace_range(&scene, &table, rays, range, record, details))
             })
             .collect();
         let mut walks: Vec<Walk> = Vec::with_capacity(n);
@@ -253,11 +265,19 @@ impl EmbreeTracer {
         rays: &RayBatch,
         range: std::ops::Range<usize>,
         record: bool,
+        details: bool,
     ) -> (Vec<Walk>, Vec<Vec<HitRecord>>) {
-        let mut walks: Vec<Walk> = range.clone().map(|i| Walk::new(rays.origin(i), rays.direction(i))).collect();
+        let mut walks: Vec<Walk> = range.clone().map(|i| Walk::new(rays.origin(i), rays.direction(i), details)).collect();
         let mut logs: Vec<Vec<HitRecord>> = if record { vec![Vec::new(); walks.len()] } else { Vec::new() };
         let idx: Vec<&Vec<f64>> = range.map(|i| table.get(&rays.wavelength_nm[i].to_bits()).expect("every batch wavelength is in the table")).collect();
+        // With f64 refinement over analytic user geometry, the callbacks solve on the exact rays and the
+        // refinement reuses their roots (one surface solve per interaction).
+        let exact = self.options.refine == Refinement::F64 && self.options.scene.representation == SurfaceRepresentation::User;
         if self.options.packets {
+            // Packets of 16 consecutive rays (similar rays: Embree's packet traversal shares their nodes),
+            // walked until all are done; finished lanes are left out of the queries. (Refilling packets with
+            // the next rays as lanes finish measured slower on SP: docs/nonsequential.md, profile section.)
+            let mut lanes = ExactRays::<16>::default();
             for (p, (ws, ns)) in walks.chunks_mut(16).zip(idx.chunks(16)).enumerate() {
                 loop {
                     let mut packet = [Ray::new([0.0; 3], [0.0, 0.0, 1.0]); 16];
@@ -266,15 +286,21 @@ impl EmbreeTracer {
                         if !w.done {
                             packet[k] = w.ray();
                             valid[k] = true;
+                            if exact {
+                                lanes.rays[k] = w.exact();
+                            }
                         }
                     }
                     if !valid.iter().any(|v| *v) {
                         break;
                     }
                     // Incoherent unless asked: the coherent flag loses hits here (see `EmbreeOptions::coherent`).
-                    let hits = scene.scene.intersect16_with(&packet, &valid, self.options.coherent);
+                    let hits = scene.scene.intersect16_exact(&packet, &valid, self.options.coherent, exact.then_some(&lanes));
                     for (k, w) in ws.iter_mut().enumerate() {
                         if valid[k] {
+                            if exact {
+                                w.solved = lanes.roots_for(k, hits[k].geom_id).map(|r| (hits[k].geom_id, r));
+                            }
                             // Not recording: `logs` is empty and `get_mut` gives None.
                             self.interact(scene, ns[k], w, &hits[k], logs.get_mut(p * 16 + k));
                         }
@@ -282,9 +308,12 @@ impl EmbreeTracer {
                 }
             }
         } else {
+            let mut lane = ExactRays::<1>::default();
             for (i, (w, n)) in walks.iter_mut().zip(&idx).enumerate() {
                 while !w.done {
-                    let hit = scene.scene.intersect1(&w.ray());
+                    lane.rays[0] = w.exact();
+                    let hit = scene.scene.intersect1_exact(&w.ray(), exact.then_some(&lane));
+                    w.solved = lane.roots_for(0, hit.geom_id).map(|r| (hit.geom_id, r));
                     self.interact(scene, n, w, &hit, logs.get_mut(i));
                 }
             }
@@ -367,7 +396,7 @@ impl EmbreeTracer {
                 }
                 w.finish(RayStatus::Vignetted, *surface)
             }
-            Role::Detector { surface, front_medium, back_medium } => match self.locate(obj, w, hit) {
+            Role::Detector { surface, front_medium, back_medium } => match self.locate(scene, obj, w, hit) {
                 Some((p, normal)) => {
                     let d = obj.frame.dir_to_local(w.d);
                     // The sequential tracer refracts at the image surface too (glass before it, air after).
@@ -396,12 +425,12 @@ impl EmbreeTracer {
 
     /// The ray meets interface `obj` (located from `hit`): refract, deflect (ideal lens) or reflect (TIR).
     /// With `log`, the interaction is appended to it as a [`HitRecord`].
-    fn refract_at(&self, _scene: &OpticalScene, obj: &SceneObject, n: &[f64], w: &mut Walk, hit: &Hit, log: Option<&mut Vec<HitRecord>>) {
+    fn refract_at(&self, scene: &OpticalScene, obj: &SceneObject, n: &[f64], w: &mut Walk, hit: &Hit, log: Option<&mut Vec<HitRecord>>) {
         let Role::Interface { surfaces, front_medium, back_medium, paraxial_focal_mm } = &obj.role else {
             return w.finish(RayStatus::NoConvergence, w.last_surface as usize);
         };
         let surface = *surfaces.last().expect("an interface has surfaces");
-        let Some((p, normal)) = self.locate(obj, w, hit) else {
+        let Some((p, normal)) = self.locate(scene, obj, w, hit) else {
             w.finish(RayStatus::NoConvergence, surface);
             return;
         };
@@ -465,15 +494,20 @@ impl EmbreeTracer {
     }
 
     /// The hit point and unit normal (oriented toward local +z) in the object's local frame.
-    fn locate(&self, obj: &SceneObject, w: &mut Walk, hit: &Hit) -> Option<(DVec3, DVec3)> {
+    fn locate(&self, scene: &OpticalScene, obj: &SceneObject, w: &mut Walk, hit: &Hit) -> Option<(DVec3, DVec3)> {
         let patch = obj.patch.as_ref()?;
         let p0 = obj.frame.point_to_local(w.p);
         let d = obj.frame.dir_to_local(w.d);
         // Embree's t is measured from the f32-rounded origin along the f32 direction (|d₃₂| ≈ 1).
         let t_embree = hit.t as f64;
+        // The roots the user geometry already solved on this exact ray in this frame, if `obj` is it.
+        let solved = w.solved.take().filter(|(g, _)| scene.objects.get(*g as usize).is_some_and(|o| std::ptr::eq(o, obj))).map(|(_, r)| r);
         let (p, normal) = match self.options.refine {
             Refinement::F64 => {
-                let t = patch.nearest_root(p0, d, t_embree)?;
+                let t = match solved {
+                    Some(roots) => SurfacePatch::nearest_of(roots, t_embree)?,
+                    None => patch.nearest_root(p0, d, t_embree)?,
+                };
                 let mut p = p0 + d * t;
                 if matches!(patch.shape, crate::surfaces::SurfaceShape::Plane | crate::surfaces::SurfaceShape::Paraxial { .. }) {
                     p.z = 0.0; // exactly on the plane, as the sequential tracer puts it
@@ -500,9 +534,11 @@ impl EmbreeTracer {
         if !(p.is_finite() && normal.is_finite()) {
             return None;
         }
-        let sag = patch.shape.sag(p.x, p.y);
-        if sag.is_finite() {
-            w.max_dev = w.max_dev.max((p.z - sag).abs());
+        if w.measure_dev {
+            let sag = patch.shape.sag(p.x, p.y);
+            if sag.is_finite() {
+                w.max_dev = w.max_dev.max((p.z - sag).abs());
+            }
         }
         Some((p, normal))
     }
@@ -523,6 +559,6 @@ impl Tracer for EmbreeTracer {
     }
 
     fn trace(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<TracedBatch> {
-        self.trace_detailed(system, rays).map(|(out, _)| out)
+        self.trace_inner(system, rays, false, false).map(|(out, _, _)| out)
     }
 }

@@ -6,6 +6,12 @@
 //!   scene), so an uncommitted or modified-after-commit scene cannot be traced.
 //! * Rays with non-finite components, a zero direction or `tnear > tfar` are reported as misses without
 //!   being handed to Embree.
+//! * Every query passes Embree an extended ray-query context ([`QueryContext`]): with
+//!   [`CommittedScene::intersect16_exact`] / [`CommittedScene::intersect1_exact`] it carries the f64 rays
+//!   behind the f32 ones ([`ExactRays`], indexed by the Embree ray ID = lane), so an analytic user
+//!   geometry solves its surface once, on the exact ray, and leaves the roots for the caller's f64
+//!   refinement (Mitsuba 3's split: a cheap preliminary hit, then the exact surface interaction).
+use std::cell::Cell;
 use std::ffi::{CStr, CString};
 use std::sync::Arc;
 
@@ -173,6 +179,90 @@ pub trait UserGeometry: Send + Sync {
     /// The closest hit of the ray `org + t·dir` with `tnear <= t <= tfar` (t in units of `dir`): its `t`
     /// and a (not necessarily unit) geometric normal, or `None`.
     fn intersect(&self, org: [f32; 3], dir: [f32; 3], tnear: f32, tfar: f32) -> Option<(f32, [f32; 3])>;
+    /// The same query when the caller also gave the f64 ray behind the f32 one (`exact`, unit
+    /// direction, same start): solve on the exact ray, report the hit's `t` on the f32 ray, and return
+    /// the closed-form roots solved (in units of the exact ray) for the caller's refinement. The default,
+    /// [`ExactAnswer::Unsupported`], makes the callback fall back to [`Self::intersect`].
+    fn intersect_exact(&self, _org: [f32; 3], _dir: [f32; 3], _tnear: f32, _tfar: f32, _exact: &ExactRay) -> ExactAnswer {
+        ExactAnswer::Unsupported
+    }
+}
+
+/// The f64 ray behind lane `i` of an Embree query (global frame; `dir` unit; Embree's f32 ray is this
+/// one rounded).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ExactRay {
+    pub org: glam::DVec3,
+    pub dir: glam::DVec3,
+}
+
+/// What [`UserGeometry::intersect_exact`] found.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ExactAnswer {
+    /// This geometry cannot solve in closed form (e.g. an even asphere): use [`UserGeometry::intersect`].
+    Unsupported,
+    /// No hit in `[tnear, tfar]`.
+    Miss,
+    /// A hit at `t` on the f32 ray; `roots` are every root of the figure along the exact ray (ascending,
+    /// in units of the exact ray), the hit's among them.
+    Hit { t: f32, roots: [Option<f64>; 2] },
+}
+
+/// The roots a user geometry solved on lane `i`'s exact ray: those of the geometry that reported the
+/// lane's closest hit (`geom_id`; [`INVALID_GEOMETRY_ID`] if no user geometry did).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SolvedRoots {
+    pub geom_id: u32,
+    pub roots: [Option<f64>; 2],
+}
+
+impl SolvedRoots {
+    pub const NONE: SolvedRoots = SolvedRoots { geom_id: INVALID_GEOMETRY_ID, roots: [None, None] };
+}
+
+/// The exact rays of one query (lane `i` = Embree ray ID `i`) and, per lane, the roots solved on them.
+/// Queries run on the calling thread, so the callbacks write through `Cell`s.
+#[derive(Debug)]
+pub struct ExactRays<const K: usize> {
+    pub rays: [ExactRay; K],
+    pub solved: [Cell<SolvedRoots>; K],
+}
+
+impl<const K: usize> Default for ExactRays<K> {
+    fn default() -> Self {
+        ExactRays { rays: [ExactRay::default(); K], solved: std::array::from_fn(|_| Cell::new(SolvedRoots::NONE)) }
+    }
+}
+
+impl<const K: usize> ExactRays<K> {
+    /// The roots of lane `i`, if a user geometry left them for the closest hit on `geom_id`.
+    pub fn roots_for(&self, i: usize, geom_id: u32) -> Option<[Option<f64>; 2]> {
+        let s = self.solved[i].get();
+        (s.geom_id == geom_id && geom_id != INVALID_GEOMETRY_ID).then_some(s.roots)
+    }
+}
+
+/// Embree's ray-query context extended with the exact rays of the query (null: none). Embree hands the
+/// context pointer to every callback, so the extension reaches the user geometry (Embree's documented
+/// pattern for per-query user data).
+#[repr(C)]
+struct QueryContext {
+    base: sys::RTCRayQueryContext,
+    exact: *const ExactRay,
+    solved: *const Cell<SolvedRoots>,
+    lanes: u32,
+}
+
+impl QueryContext {
+    fn new<const K: usize>(exact: Option<&ExactRays<K>>) -> Self {
+        let mut base = sys::RTCRayQueryContext::default();
+        // SAFETY: initialises the struct exactly as the installed header's rtcInitRayQueryContext does.
+        unsafe { sys::diffcassi_rtcInitRayQueryContext(&mut base) };
+        match exact {
+            Some(e) => QueryContext { base, exact: e.rays.as_ptr(), solved: e.solved.as_ptr(), lanes: K as u32 },
+            None => QueryContext { base, exact: std::ptr::null(), solved: std::ptr::null(), lanes: 0 },
+        }
+    }
 }
 
 /// What `geometryUserPtr` points at: kept alive by every [`Geometry`] and [`Scene`] that uses it.
@@ -308,21 +398,41 @@ unsafe extern "C" fn user_intersect(args: *const sys::RTCIntersectFunctionNArgum
     // SAFETY: Embree passes valid arguments with `N` lanes; geometryUserPtr is our UserSlot.
     let a = &*args;
     let slot = &*(a.geometryUserPtr as *const UserSlot);
+    // Every query of this wrapper passes a QueryContext (see `CommittedScene::query_args`).
+    let ctx = &*(a.context as *const QueryContext);
     for i in 0..a.N {
         if *a.valid.add(i as usize) == 0 {
             continue;
         }
         let mut r = [0.0f32; 8];
-        let ray_mask = sys::diffcassi_user_ray(args, i, r.as_mut_ptr());
+        let mut id = 0u32;
+        let ray_mask = sys::diffcassi_user_ray(args, i, r.as_mut_ptr(), &mut id);
         if ray_mask & slot.mask == 0 {
             continue;
         }
+        let (org, dir) = ([r[0], r[1], r[2]], [r[3], r[4], r[5]]);
+        // The exact ray of this lane, when the caller gave them (the ray ID is the caller's lane).
+        let exact = (!ctx.exact.is_null() && id < ctx.lanes).then(|| (&*ctx.exact.add(id as usize), &*ctx.solved.add(id as usize)));
         let hit = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            slot.object.intersect([r[0], r[1], r[2]], [r[3], r[4], r[5]], r[6], r[7])
+            if let Some((e, _)) = exact {
+                match slot.object.intersect_exact(org, dir, r[6], r[7], e) {
+                    ExactAnswer::Hit { t, roots } => return Some((t, [0.0; 3], Some(roots))),
+                    ExactAnswer::Miss => return None,
+                    ExactAnswer::Unsupported => {}
+                }
+            }
+            slot.object.intersect(org, dir, r[6], r[7]).map(|(t, ng)| (t, ng, None))
         }));
-        if let Ok(Some((t, ng))) = hit {
+        if let Ok(Some((t, ng, roots))) = hit {
             if t >= r[6] && t <= r[7] {
                 sys::diffcassi_user_report_hit(args, i, t, ng[0], ng[1], ng[2]);
+                // The last report on a lane is its closest hit so far (Embree shrank tfar to it).
+                if let Some((_, cell)) = exact {
+                    cell.set(match roots {
+                        Some(roots) => SolvedRoots { geom_id: a.geomID, roots },
+                        None => SolvedRoots::NONE,
+                    });
+                }
             }
         }
     }
@@ -427,7 +537,9 @@ pub struct Hit {
     pub t: f32,
     pub geom_id: u32,
     pub prim_id: u32,
-    /// Unnormalised geometric normal (for triangles `(v1 - v0) × (v2 - v0)`... as Embree defines it).
+    /// Unnormalised geometric normal (for triangles `(v1 - v0) × (v2 - v0)`... as Embree defines it);
+    /// zero for a user geometry that answered an exact query ([`CommittedScene::intersect16_exact`]: the
+    /// caller's refinement computes the exact normal).
     pub ng: [f32; 3],
     pub u: f32,
     pub v: f32,
@@ -461,6 +573,15 @@ pub struct CommittedScene {
 impl CommittedScene {
     /// `rtcIntersect1`: the closest hit of `ray` in `[tnear, tfar]`.
     pub fn intersect1(&self, ray: &Ray) -> Hit {
+        self.intersect1_exact(ray, None)
+    }
+
+    /// [`Self::intersect1`] with the f64 ray behind `ray` (`exact.rays[0]`): analytic user geometries
+    /// solve on it and leave their roots in `exact.solved[0]` (see [`ExactRays`]).
+    pub fn intersect1_exact(&self, ray: &Ray, exact: Option<&ExactRays<1>>) -> Hit {
+        if let Some(e) = exact {
+            e.solved[0].set(SolvedRoots::NONE);
+        }
         if !ray.is_valid() {
             return Hit::MISS;
         }
@@ -477,8 +598,12 @@ impl CommittedScene {
         rh.hit.geomID = INVALID_GEOMETRY_ID;
         rh.hit.primID = INVALID_GEOMETRY_ID;
         rh.hit.instID = [INVALID_GEOMETRY_ID; 1];
+        rh.ray.id = 0;
+        let mut ctx = QueryContext::new(exact);
         let mut args = intersect_args();
-        // SAFETY: committed scene, properly aligned and initialised ray/hit and arguments.
+        args.context = &mut ctx.base;
+        // SAFETY: committed scene, properly aligned and initialised ray/hit and arguments; `ctx` (and the
+        // exact rays it points at) outlive the call.
         unsafe { sys::rtcIntersect1(self.handle.raw, &mut rh, &mut args) };
         if rh.hit.geomID == INVALID_GEOMETRY_ID {
             return Hit::MISS;
@@ -501,8 +626,19 @@ impl CommittedScene {
 
     /// [`Self::intersect16`] with the `RTC_RAY_QUERY_FLAG_COHERENT` hint when `coherent` (rays of one
     /// bundle: similar origins and directions).
-    #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
     pub fn intersect16_with(&self, rays: &[Ray; 16], valid: &[bool; 16], coherent: bool) -> [Hit; 16] {
+        self.intersect16_exact(rays, valid, coherent, None)
+    }
+
+    /// [`Self::intersect16_with`] with the f64 rays behind the lanes (`exact.rays[i]` for lane `i`):
+    /// analytic user geometries solve on them and leave their roots in `exact.solved[i]` (see
+    /// [`ExactRays`]); the f32 results are those of [`Self::intersect16_with`] up to the rounding of the
+    /// reported distance (solved on the exact ray instead of the rounded one).
+    #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
+    pub fn intersect16_exact(&self, rays: &[Ray; 16], valid: &[bool; 16], coherent: bool, exact: Option<&ExactRays<16>>) -> [Hit; 16] {
+        if let Some(e) = exact {
+            e.solved.iter().for_each(|c| c.set(SolvedRoots::NONE));
+        }
         let mut out = [Hit::MISS; 16];
         let mut mask = Valid16([0; 16]);
         // RTCRayHit16 is 64-byte aligned by its bindgen type (checked against C in sys.rs).
@@ -519,6 +655,7 @@ impl CommittedScene {
             rh.ray.tnear[i] = if mask.0[i] != 0 { r.tnear } else { 0.0 };
             rh.ray.tfar[i] = if mask.0[i] != 0 { r.tfar } else { -1.0 };
             rh.ray.mask[i] = r.mask;
+            rh.ray.id[i] = i as u32;
             rh.hit.geomID[i] = INVALID_GEOMETRY_ID;
             rh.hit.primID[i] = INVALID_GEOMETRY_ID;
             rh.hit.instID[0][i] = INVALID_GEOMETRY_ID;
@@ -527,11 +664,14 @@ impl CommittedScene {
             return out;
         }
         debug_assert_eq!((&rh as *const sys::RTCRayHit16 as usize) % 64, 0);
+        let mut ctx = QueryContext::new(exact);
         let mut args = intersect_args();
+        args.context = &mut ctx.base;
         if coherent {
             args.flags = sys::RTC_RAY_QUERY_FLAG_COHERENT;
         }
-        // SAFETY: committed scene; valid mask and ray/hit packet 64-byte aligned and initialised.
+        // SAFETY: committed scene; valid mask and ray/hit packet 64-byte aligned and initialised; `ctx`
+        // (and the exact rays it points at) outlive the call.
         unsafe { sys::rtcIntersect16(mask.0.as_ptr(), self.handle.raw, &mut rh, &mut args) };
         for i in 0..16 {
             if mask.0[i] != 0 && rh.hit.geomID[i] != INVALID_GEOMETRY_ID {
