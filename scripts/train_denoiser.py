@@ -55,6 +55,7 @@ sys.path.insert(0, str(ROOT))
 
 from diffcassi.deadleaves import BANDS_NM, dead_leaves, sources_manifest  # noqa: E402
 from diffcassi.denoiser import ARCH, SpectralUNet, from_v1, load_weights, save_weights  # noqa: E402
+from diffcassi._training import psnr_db, validation_records  # noqa: E402
 
 #: Train seeds are TRAIN_SEED_BASE + 2·step + i; validation seeds are 0 … VAL_COUNT-1.
 TRAIN_SEED_BASE = 1_000_000
@@ -189,12 +190,6 @@ def selection_set(bands_nm):
     return clean, noisy
 
 
-def psnr_db(x: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
-    """Per-cube PSNR (dB) for a peak of 1: 10·log10(1/MSE)."""
-    mse = ((x - ref) ** 2).flatten(1).mean(1)
-    return 10 * torch.log10(1.0 / mse)
-
-
 @torch.no_grad()
 def validate(net: SpectralUNet, clean, noisy) -> dict:
     net.eval()
@@ -207,14 +202,13 @@ def validate(net: SpectralUNet, clean, noisy) -> dict:
 
 def summary(log_path: pathlib.Path, every: int) -> int:
     """Prints the validation curve of a training log as a Markdown table."""
-    try:
-        recs = [json.loads(line) for line in log_path.read_text().splitlines() if line.strip()]
-    except (OSError, json.JSONDecodeError) as e:
-        print(f"train_denoiser: error: {log_path}: {e}", file=sys.stderr)
+    if every < 1:
+        print(f"train_denoiser: error: --summary EVERY must be ≥ 1, got {every}", file=sys.stderr)
         return 1
-    vals = [r for r in recs if "val_psnr_db" in r]
-    if not vals or every < 1:
-        print(f"train_denoiser: error: {log_path} has no validation records (or EVERY < 1)", file=sys.stderr)
+    try:
+        vals = validation_records(log_path, "train_denoiser")
+    except ValueError as e:
+        print(e, file=sys.stderr)
         return 1
     best = max(vals, key=lambda r: r["sel_score_db"])
     keys = list(vals[0]["val_psnr_db"])

@@ -53,6 +53,7 @@ import diffcassi  # noqa: E402
 import diffcassi.torch as dt  # noqa: E402
 from diffcassi.deadleaves import BANDS_NM, dead_leaves, sources_manifest  # noqa: E402
 from diffcassi.unrolled import UnrolledGAP, load_unrolled, mask_sha256, save_unrolled  # noqa: E402
+from diffcassi._training import psnr_db, validation_records  # noqa: E402
 
 #: Train seeds are TRAIN_SEED_BASE + batch·step + i; validation seeds 0 … VAL_COUNT−1 (of each kind).
 TRAIN_SEED_BASE = 3_000_000
@@ -127,21 +128,15 @@ def render_batch(transport, seeds, size: int, bands_nm=BANDS_NM, kinds=None):
     return torch.from_numpy(np.stack(acqs)), torch.from_numpy(np.stack(cubes))
 
 
-def psnr_db(x: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
-    """Per-cube PSNR (dB) for a peak of 1."""
-    return 10 * torch.log10(1.0 / ((x - ref) ** 2).flatten(1).mean(1))
-
-
 def summary(log_path: pathlib.Path, every: int) -> int:
     """Prints the validation curve of a training log as a Markdown table."""
-    try:
-        recs = [json.loads(line) for line in log_path.read_text().splitlines() if line.strip()]
-    except (OSError, json.JSONDecodeError) as e:
-        print(f"train_unrolled: error: {log_path}: {e}", file=sys.stderr)
+    if every < 1:
+        print(f"train_unrolled: error: --summary EVERY must be ≥ 1, got {every}", file=sys.stderr)
         return 1
-    vals = [r for r in recs if "val_psnr_db" in r]
-    if not vals or every < 1:
-        print(f"train_unrolled: error: {log_path} has no validation records (or EVERY < 1)", file=sys.stderr)
+    try:
+        vals = validation_records(log_path, "train_unrolled")
+    except ValueError as e:
+        print(e, file=sys.stderr)
         return 1
     print("| step | minutes | lr | train L1 | val spectral (dB) | val RGB (dB) | mean |")
     print("|---|---|---|---|---|---|---|")

@@ -1,5 +1,6 @@
 """Shared fixtures of the Python tests: the presets, a small render configuration, and the CLI binary
 (built by cargo into the repository's target/; `cargo build --release --bin diffcassi` is a no-op when fresh)."""
+import importlib.util
 import os
 import pathlib
 import subprocess
@@ -30,3 +31,11 @@ def system(request):
 
 def random_cube(h, w, b, seed=0):
     return np.random.default_rng(seed).random((h, w, b), dtype=np.float32)
+
+
+def load_script(name):
+    """The module of ``scripts/NAME.py`` (the training and evaluation scripts are not a package)."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

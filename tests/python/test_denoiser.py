@@ -2,7 +2,6 @@
 generator is deterministic and in range, train/validation seeds and training sources/evaluation scenes are
 disjoint, the committed weights load, a tiny training run writes a valid checkpoint and resumes exactly, and bad
 weights files give clear errors. Tiny sizes only (the suite stays fast)."""
-import importlib.util
 import json
 import pathlib
 import struct
@@ -18,20 +17,13 @@ pytest.importorskip("colour", reason="colour-science not installed (scripts/setu
 from diffcassi import deadleaves  # noqa: E402
 from diffcassi.denoiser import ARCH, SpectralUNet, denoise, from_v1, load_weights, save_weights  # noqa: E402
 
-ROOT = pathlib.Path(__file__).resolve().parents[2]
+from conftest import ROOT, load_script  # noqa: E402
 WEIGHTS = ROOT / "src/recon/prior/weights"
-
-
-def _script(name):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 @pytest.fixture(scope="module")
 def train():
-    return _script("train_denoiser")
+    return load_script("train_denoiser")
 
 
 def test_dead_leaves_deterministic_and_in_range():
@@ -364,7 +356,7 @@ def test_selection_set_has_dark_and_flat_cubes(train):
 
 
 def test_numpy_tv_matches_its_definition():
-    ev = _script("eval_denoiser")
+    ev = load_script("eval_denoiser")
     rng = np.random.default_rng(1)
     clean = np.zeros((3, 16, 16), np.float32)
     clean[:, :, 8:] = 1.0

@@ -3,9 +3,7 @@ GAP, gradients reach every stage, a few training steps lower the loss, the train
 never reads the evaluation scenes, the committed weights load and give finite output, and bad weights files give
 clear errors. Tiny sizes only (the suite stays fast)."""
 import builtins
-import importlib.util
 import json
-import pathlib
 
 import numpy as np
 import pytest
@@ -19,21 +17,14 @@ import diffcassi.torch as dt  # noqa: E402
 from diffcassi import deadleaves  # noqa: E402
 from diffcassi.unrolled import ARCH, UnrolledGAP, load_unrolled, mask_sha256, read_metadata, save_unrolled  # noqa: E402
 
-ROOT = pathlib.Path(__file__).resolve().parents[2]
+from conftest import ROOT, load_script  # noqa: E402
 WEIGHTS = ROOT / "diffcassi" / "weights"
 BANDS4 = [480.0, 520.0, 560.0, 600.0]
 
 
-def _script(name):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "scripts" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
 @pytest.fixture(scope="module")
 def train():
-    return _script("train_unrolled")
+    return load_script("train_unrolled")
 
 
 def _phi(system="sp", size=16, bands=BANDS4, seed=6):
