@@ -104,45 +104,8 @@ fn vjp_matches_same_sample_finite_differences_sp_and_msp() {
 
 #[test]
 fn vjp_matches_same_sample_finite_differences_ap_and_map() {
-    let ap = [
-        "s0.thickness_mm",
-        "s1.focal_length_mm",
-        "s3.tilt_x_deg",
-        "s3.tilt_y_deg",
-        "s3.decenter_y_mm",
-        "s4.curvature",
-        "s4.conic",
-        "s4.asphere_1",
-        "s4.asphere_2",
-        "s4.thickness_mm",
-        "s5.tilt_y_deg",
-        "s7.tilt_y_deg",
-        "s7.thickness_mm",
-        "s13.curvature",
-        "glass_nd:N-SK2",
-        "glass_vd:N-SK2",
-        "glass_nd:N-SF10",
-        "glass_vd:N-SF10",
-    ];
-    assert!(check_same_sample("ap", ap_like("ap", 4), &ap) <= 1e-6);
-    let map = [
-        "s0.thickness_mm",
-        "s1.focal_length_mm",
-        "s4.tilt_x_deg",
-        "s5.tilt_y_deg",
-        "s6.curvature",
-        "s6.conic",
-        "s6.asphere_1",
-        "s6.asphere_2",
-        "s7.tilt_y_deg",
-        "s9.tilt_y_deg",
-        "s9.thickness_mm",
-        "s18.tilt_y_deg",
-        "s19.tilt_x_deg",
-        "glass_nd:N-SK2",
-        "glass_vd:N-SF10",
-    ];
-    assert!(check_same_sample("map", ap_like("map", 6), &map) <= 1e-6);
+    assert!(check_same_sample("ap", ap_like("ap", 4), &common::AP_LIKE_PARAMS) <= 1e-6);
+    assert!(check_same_sample("map", ap_like("map", 6), &common::MAP_LIKE_PARAMS) <= 1e-6);
 }
 
 /// The acquisition is linear in the scene and in the mask: L(x + δ) − L(x) = ∂L/∂x · δ exactly (up to

@@ -136,3 +136,46 @@ pub const SP_LIKE_PARAMS: [&str; 22] = [
     "glass_nd:N-BAF10",
     "glass_vd:SF10",
 ];
+
+/// The optical parameters of [`ap_like`] (AP, entrance surface 4) of the acquisition-gradient test; the
+/// Jacobian tests add `s1.thickness_mm` and `s15.thickness_mm`, which that test does not use.
+pub const AP_LIKE_PARAMS: [&str; 18] = [
+    "s0.thickness_mm",
+    "s1.focal_length_mm",
+    "s3.tilt_x_deg",
+    "s3.tilt_y_deg",
+    "s3.decenter_y_mm",
+    "s4.curvature",
+    "s4.conic",
+    "s4.asphere_1",
+    "s4.asphere_2",
+    "s4.thickness_mm",
+    "s5.tilt_y_deg",
+    "s7.tilt_y_deg",
+    "s7.thickness_mm",
+    "s13.curvature",
+    "glass_nd:N-SK2",
+    "glass_vd:N-SK2",
+    "glass_nd:N-SF10",
+    "glass_vd:N-SF10",
+];
+
+/// The optical parameters of [`ap_like`] built from mAP (entrance surface 6) of the acquisition-gradient
+/// test; the Jacobian tests add `s20.thickness_mm`, which that test does not use.
+pub const MAP_LIKE_PARAMS: [&str; 15] = [
+    "s0.thickness_mm",
+    "s1.focal_length_mm",
+    "s4.tilt_x_deg",
+    "s5.tilt_y_deg",
+    "s6.curvature",
+    "s6.conic",
+    "s6.asphere_1",
+    "s6.asphere_2",
+    "s7.tilt_y_deg",
+    "s9.tilt_y_deg",
+    "s9.thickness_mm",
+    "s18.tilt_y_deg",
+    "s19.tilt_x_deg",
+    "glass_nd:N-SK2",
+    "glass_vd:N-SF10",
+];
