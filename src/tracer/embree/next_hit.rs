@@ -3,7 +3,9 @@
 //! f64 refinement makes them (`tracer.rs`): a blade hit whose exact point on the group's figure lies
 //! inside its apertures is the interface (or, for a virtual group, a pass); a wall hit within a few f32
 //! ulps of a surface just left is the shared rim (queried again past it); a face the wall joins met no
-//! later than the wall wins. The walk ([`crate::tracer::nonseq::tree`]) re-solves optical hits in f64.
+//! later than the wall wins; a mesh hit outside the surface's exact clear aperture (the mesh covers it
+//! with a margin, `scene::covering_mesh`) is passed. The walk ([`crate::tracer::nonseq::tree`]) re-solves
+//! optical hits in f64.
 //!
 //! ```no_run
 //! use diffcassi::prelude::*;
@@ -63,7 +65,23 @@ impl EmbreeNextHit {
             let th = hit.t as f64;
             let obj = &objects[id];
             match &obj.role {
-                Role::Interface { .. } | Role::Detector { .. } => return (Event::Optical { object: id, t: th }, th),
+                Role::Interface { .. } | Role::Detector { .. } => {
+                    // A mesh covers its clear aperture with a margin (`scene::covering_mesh`): a hit
+                    // whose exact point lies outside the aperture is not a hit of the patch (brute force
+                    // tests the same point); query again just past it.
+                    if let (Some(_), Some(patch)) = (&obj.mesh, obj.patch.as_ref()) {
+                        let (p0, d) = (obj.frame.point_to_local(q.p), obj.frame.dir_to_local(q.d));
+                        if let Some(t) = patch.nearest_root(p0, d, th) {
+                            let x = p0 + d * t;
+                            if !patch.aperture.contains(x.x, x.y) {
+                                // Strictly increasing: the walk ends (finitely many triangles).
+                                tnear = hit.t.next_up();
+                                continue;
+                            }
+                        }
+                    }
+                    return (Event::Optical { object: id, t: th }, th);
+                }
                 Role::Wall { ends, .. } => {
                     let eps = f32_ulps(q.p, 16.0) as f32;
                     if q.after_interaction && hit.t < eps && !retried {

@@ -332,6 +332,20 @@ impl EmbreeTracer {
             return;
         }
         let obj = &scene.objects[hit.geom_id as usize];
+        // A mesh covers its clear aperture with a margin (`scene::covering_mesh`): with f64 refinement, a
+        // hit whose exact point lies outside the aperture is not a hit of the surface (the user geometry
+        // never reports one); query again just past it. The root found is left for `locate`.
+        if let (Refinement::F64, Some(_), Some(patch), Role::Interface { .. } | Role::Detector { .. }) = (self.options.refine, &obj.mesh, obj.patch.as_ref(), &obj.role) {
+            let (p0, d) = (obj.frame.point_to_local(w.p), obj.frame.dir_to_local(w.d));
+            if let Some(t) = patch.nearest_root(p0, d, hit.t as f64) {
+                let x = p0 + d * t;
+                if !patch.aperture.contains(x.x, x.y) {
+                    w.tnear = hit.t.next_up();
+                    return;
+                }
+                w.solved = Some((hit.geom_id, [Some(t), None]));
+            }
+        }
         match &obj.role {
             Role::Wall { surface, ends } => {
                 // A ray refracted exactly at the rim of a solid's face starts on the side wall, which
