@@ -125,3 +125,100 @@ fn coherent_first_queries_survey() {
         }
     }
 }
+
+/// Not a pass/fail check: the coherent flag on the tracer's *restarted* queries — each ray's k-th query
+/// rebuilt from its hit records (origin: the exact point of interaction k − 1, direction: the one it
+/// left with, that interface masked out, tnear = 0), 16 consecutive rays per packet, the lanes of rays
+/// with fewer steps invalid — coherent `rtcIntersect16` against `rtcIntersect1`, counting lanes whose
+/// geometry or distance differs. Variants isolate the trigger: all masks set (nothing excluded), the
+/// origins moved 1 mm back along the ray (off the surface just left), and each differing lane queried
+/// alone in an otherwise invalid coherent packet. (docs/nonsequential.md, "Embree's coherent flag".)
+#[test]
+#[ignore]
+fn coherent_restarted_queries_survey() {
+    use diffcassi::tracer::nonseq::{Role, Solids, SolidsOptions};
+    for preset in ["sp", "ap"] {
+        let sys = SequentialSystem::build(&presets::spec(preset).unwrap()).unwrap();
+        let rays = bundle(&sys);
+        let solids = Solids::build(&sys, &SolidsOptions::default()).unwrap();
+        // The scene's mask bit of each optical object: its rank among the optical objects.
+        let mut bit_of = std::collections::HashMap::new();
+        for o in solids.objects.iter().filter(|o| o.is_optical()) {
+            let s = match &o.role {
+                Role::Interface { surfaces, .. } => surfaces[0],
+                Role::Detector { surface, .. } => *surface,
+                _ => unreachable!(),
+            };
+            let n = bit_of.len() as u32;
+            bit_of.insert(s as u32, 1u32 << n);
+        }
+        for base in modes() {
+            let tracer = EmbreeTracer::new(EmbreeOptions { packets: false, ..base });
+            let scene = tracer.scene_for(&sys).unwrap();
+            let (_, _, log) = tracer.trace_with_hits(&sys, &rays).unwrap();
+            // Query k ≥ 1 of ray i: (origin, direction, mask).
+            let query = |i: usize, k: usize| -> Option<Ray> {
+                let h = log.ray(i);
+                let (a, b) = (h.get(k - 1)?, h.get(k)?);
+                let fa = &sys.surfaces[a.first_surface as usize].frame;
+                let fb = &sys.surfaces[b.first_surface as usize].frame;
+                let (o, d) = (fa.point_to_global(a.point), fb.dir_to_global(b.direction).normalize());
+                let mut r = Ray::new(o.as_vec3().to_array(), d.as_vec3().to_array());
+                r.mask = !bit_of.get(&a.first_surface).copied().unwrap_or(0);
+                Some(r)
+            };
+            let steps = (0..rays.len()).map(|i| log.ray(i).len()).max().unwrap_or(0);
+            let same = |a: &diffcassi::tracer::embree::Hit, b: &diffcassi::tracer::embree::Hit| a.geom_id == b.geom_id && a.t == b.t;
+            let (mut lanes, mut differ, mut unmasked, mut moved, mut alone, mut shown) = (0usize, 0usize, 0usize, 0usize, 0usize, 0usize);
+            let (mut zeroed, mut tiny_packets, mut differ_packets, mut differ_tiny_packets) = (0usize, 0usize, 0usize, 0usize);
+            // A direction component so small that Embree clamps its reciprocal (|d| < 1e-18, `rcp_safe`).
+            let tiny = |r: &Ray| r.dir.iter().any(|c| *c != 0.0 && c.abs() < 1e-12);
+            for k in 1..steps {
+                for start in (0..rays.len()).step_by(16) {
+                    let q: Vec<Option<Ray>> = (0..16).map(|l| (start + l < rays.len()).then(|| query(start + l, k)).flatten()).collect();
+                    let valid: [bool; 16] = std::array::from_fn(|l| q[l].is_some());
+                    if !valid.iter().any(|v| *v) {
+                        continue;
+                    }
+                    let packet: [Ray; 16] = std::array::from_fn(|l| q[l].unwrap_or(Ray::new([0.0; 3], [0.0, 0.0, 1.0])));
+                    let variant = |f: &dyn Fn(&Ray) -> Ray| -> usize {
+                        let p: [Ray; 16] = std::array::from_fn(|l| f(&packet[l]));
+                        let hits = with_flush_denormals(|| scene.committed().intersect16_with(&p, &valid, true));
+                        (0..16).filter(|&l| valid[l] && !same(&hits[l], &with_flush_denormals(|| scene.committed().intersect1(&p[l])))).count()
+                    };
+                    let hits = with_flush_denormals(|| scene.committed().intersect16_with(&packet, &valid, true));
+                    lanes += valid.iter().filter(|v| **v).count();
+                    let has_tiny = (0..16).any(|l| valid[l] && tiny(&packet[l]));
+                    let d0 = (0..16).filter(|&l| valid[l] && !same(&hits[l], &with_flush_denormals(|| scene.committed().intersect1(&packet[l])))).count();
+                    tiny_packets += has_tiny as usize;
+                    differ_packets += (d0 > 0) as usize;
+                    differ_tiny_packets += (d0 > 0 && has_tiny) as usize;
+                    zeroed += variant(&|r| Ray { dir: r.dir.map(|c| if c.abs() < 1e-12 { 0.0 } else { c }), ..*r });
+                    for l in (0..16).filter(|&l| valid[l]) {
+                        let single = with_flush_denormals(|| scene.committed().intersect1(&packet[l]));
+                        if !same(&hits[l], &single) {
+                            differ += 1;
+                            let mut only = [false; 16];
+                            only[l] = true;
+                            let h1 = with_flush_denormals(|| scene.committed().intersect16_with(&packet, &only, true));
+                            alone += (!same(&h1[l], &single)) as usize;
+                            if shown < 3 {
+                                shown += 1;
+                                println!("  query {k} of ray {}: coherent {:?} vs single {:?}; ray {:?}", start + l, hits[l], single, packet[l]);
+                            }
+                        }
+                    }
+                    unmasked += variant(&|r| Ray { mask: u32::MAX, ..*r });
+                    moved += variant(&|r| {
+                        let o = [0, 1, 2].map(|c| r.org[c] - r.dir[c]);
+                        Ray { org: o, ..*r }
+                    });
+                }
+            }
+            println!(
+                "{preset} {:?}: restarted queries: coherent ≠ single on {differ} of {lanes} lanes ({alone} of them also alone in the packet); all masks set: {unmasked}; origins 1 mm back: {moved}; direction components below 1e-12 set to 0: {zeroed}. Packets with a differing lane: {differ_packets}, {differ_tiny_packets} of them holding a lane with a direction component 0 < |c| < 1e-12 (such packets: {tiny_packets})",
+                base.scene.representation
+            );
+        }
+    }
+}

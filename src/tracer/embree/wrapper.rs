@@ -649,9 +649,15 @@ impl CommittedScene {
             rh.ray.org_x[i] = r.org[0];
             rh.ray.org_y[i] = r.org[1];
             rh.ray.org_z[i] = r.org[2];
-            rh.ray.dir_x[i] = r.dir[0];
-            rh.ray.dir_y[i] = r.dir[1];
-            rh.ray.dir_z[i] = r.dir[2];
+            // Coherent traversal: a lane whose direction has a component 0 < |c| < 1e-12 (f64 rounding
+            // residue of a ray in a symmetry plane, e.g. 8.7e-19 after SP's ideal lens) makes Embree 4.3's
+            // per-octant frustum lose the hits of *other* lanes of its packet (docs/nonsequential.md,
+            // "Embree's coherent flag"); as exact zeros they do not. The change of direction is below
+            // 1e-12 rad, far under f32's resolution of the ray.
+            let dir = if coherent { r.dir.map(|c| if c.abs() < 1e-12 { 0.0 } else { c }) } else { r.dir };
+            rh.ray.dir_x[i] = dir[0];
+            rh.ray.dir_y[i] = dir[1];
+            rh.ray.dir_z[i] = dir[2];
             rh.ray.tnear[i] = if mask.0[i] != 0 { r.tnear } else { 0.0 };
             rh.ray.tfar[i] = if mask.0[i] != 0 { r.tfar } else { -1.0 };
             rh.ray.mask[i] = r.mask;
