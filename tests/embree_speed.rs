@@ -4,9 +4,10 @@
 //! (`rtcIntersect16`): the two must be bit-identical, whatever the thread count and chunk size. With f64
 //! refinement over user geometry both reuse the roots the callback solved on the exact ray.
 //!
-//! Embree's coherent flag (`EmbreeOptions::coherent`, `RTC_RAY_QUERY_FLAG_COHERENT`) does *not* give the
-//! same results in this tracer (docs/nonsequential.md, "Embree's coherent flag"); the ignored survey below
-//! measures by how much:
+//! Embree's coherent flag (`EmbreeOptions::coherent`, `RTC_RAY_QUERY_FLAG_COHERENT`) gives the same results
+//! too, since the wrapper zeroes direction components below 1e-12 in coherent queries (Embree 4.3.3 lost
+//! hits on packets holding such a lane: docs/nonsequential.md, "Embree's coherent flag"); the ignored
+//! surveys below query the tracer's own scenes lane by lane:
 //! `cargo test --release --test embree_speed -- --ignored --nocapture`.
 #![cfg(feature = "embree")]
 use diffcassi::prelude::*;
@@ -73,9 +74,13 @@ fn packets_do_not_depend_on_thread_count_or_chunking() {
 }
 
 /// Not a pass/fail check: how many rays the coherent flag changes (recorded in docs/nonsequential.md).
+/// Coherent packets (`RTC_RAY_QUERY_FLAG_COHERENT`) equal single rays bit for bit on SP and AP, user
+/// geometry and 1 µm meshes. Before the wrapper set direction components below 1e-12 to 0 in coherent
+/// queries, Embree 4.3.3 lost hits here (SP: 235 and 241 of 2 524 rays, AP: 37 and 40; one lane with a
+/// component like −8.7e-19 spoils the coherent traversal of the other lanes of its packet:
+/// tests/embree_repro/coherent.c, variant H).
 #[test]
-#[ignore]
-fn coherent_packets_survey() {
+fn coherent_packets_equal_single_rays() {
     for preset in ["sp", "ap"] {
         let sys = SequentialSystem::build(&presets::spec(preset).unwrap()).unwrap();
         let rays = bundle(&sys);
@@ -83,8 +88,7 @@ fn coherent_packets_survey() {
             let single = EmbreeTracer::new(EmbreeOptions { packets: false, ..base }).trace(&sys, &rays).unwrap();
             let coherent = EmbreeTracer::new(EmbreeOptions { packets: true, coherent: true, ..base }).trace(&sys, &rays).unwrap();
             let d = differing(&single, &coherent);
-            let lost = d.iter().filter(|&&i| single.status[i] == RayStatus::Ok && coherent.status[i] != RayStatus::Ok).count();
-            println!("{preset} {:?}: coherent packets differ from single rays on {} of {} rays ({lost} of them Ok → not Ok)", base.scene.representation, d.len(), rays.len());
+            assert!(d.is_empty(), "{preset} {:?}: coherent packets differ from single rays on {} of {} rays, e.g. ray {}", base.scene.representation, d.len(), rays.len(), d[0]);
         }
     }
 }

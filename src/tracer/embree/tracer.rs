@@ -60,10 +60,10 @@ pub struct EmbreeOptions {
     /// Trace bundles of 16 consecutive rays with `rtcIntersect16` instead of one by one (`rtcIntersect1`).
     pub packets: bool,
     /// With `packets`, pass `RTC_RAY_QUERY_FLAG_COHERENT` (Embree's frustum traversal for bundles of similar
-    /// rays). Off by default and not to be used for results: with it, Embree 4.3.3 loses hits in this
-    /// tracer (SP: 235 of 2524 test rays change, AP: 37; user geometry and meshes alike), while a C check of
-    /// the same query patterns against `rtcIntersect1` finds none (tests/embree_repro/). Kept to reproduce
-    /// that (`cargo test --release --test embree_speed -- --ignored --nocapture`); docs/nonsequential.md.
+    /// rays). Off by default. Embree 4.3.3 loses the hits of a coherent packet's lanes when another lane's
+    /// direction has a component 0 < |c| < 1e-12 (tests/embree_repro/coherent.c, variant H); the wrapper
+    /// sets such components to 0 in coherent queries, and coherent packets then equal single rays bit for
+    /// bit on SP and AP (tests/embree_speed.rs; docs/nonsequential.md, "Embree's coherent flag").
     pub coherent: bool,
     /// Most surface interactions (refractions + reflections) per ray.
     pub max_bounces: u32,
@@ -294,7 +294,7 @@ impl EmbreeTracer {
                     if !valid.iter().any(|v| *v) {
                         break;
                     }
-                    // Incoherent unless asked: the coherent flag loses hits here (see `EmbreeOptions::coherent`).
+                    // Incoherent unless asked (see `EmbreeOptions::coherent`).
                     let hits = scene.scene.intersect16_exact(&packet, &valid, self.options.coherent, exact.then_some(&lanes));
                     for (k, w) in ws.iter_mut().enumerate() {
                         if valid[k] {
