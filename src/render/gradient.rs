@@ -22,7 +22,13 @@
 //! gradient is that of the expected image away from those edges; the bias is measured in
 //! `docs/derivatives.md`.
 //!
-//! Deterministic: planes are processed in parallel, each in a fixed order, and reduced in plane order.
+//! Cost: rays of closed mask pixels (value exactly 0) carry no light, so their mask gradient needs only
+//! where they land — they are traced with the production renderer's SIMD lanes, with no θ-adjoint, as
+//! are all rays of [`DiffRenderer::render`]; rays of open pixels (any non-zero value of a continuous mask)
+//! are traced keeping their per-step states and swept backwards once ([`crate::diff::adjoint`]).
+//!
+//! Deterministic: planes are processed in parallel, each in a fixed order, and reduced in plane order
+//! (bit-identical for any thread count).
 //!
 //! ```
 //! use diffcassi::diff::ParamSet;
