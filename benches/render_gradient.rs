@@ -75,7 +75,7 @@ fn main() {
     grp.bench_function("forward_diff_f64", |b| b.iter(|| r1.render(&scene64, 1, &mask64).unwrap()));
     for k in [1usize, 10, 50] {
         let r = if k == 1 { r1.clone() } else { renderer(&cfg, k) };
-        println!("{k} parameters: {:?}; linearisation columns per step ≤ {}", r.names(), r.plan_columns());
+        println!("{k} parameters: {:?}", r.names());
         grp.bench_with_input(BenchmarkId::new("backward_vjp", k), &k, |b, _| b.iter(|| r.vjp(&scene64, 1, &mask64, &g).unwrap()));
     }
     grp.finish();

@@ -12,10 +12,13 @@
 //! one number per active figure coefficient and per index — summed over all rays into [`AdjointSums`].
 //! The contraction with the P parameter tangents happens **once per plane** ([`AdjointPlan::contract`]).
 //!
-//! The step Jacobian A (and the figure/index columns) come from the forward tangent kernel itself
-//! ([`super::kernel::interact_tangents`]) seeded with the six state directions plus one seed per active
-//! figure coefficient and index — a fixed number of columns per step (6 to ≈ 10 on the presets) whatever
-//! P is. So the values are those of the exact implicit-differentiation Jacobians, transposed.
+//! The transposes are written out by hand ([`AdjointPlan::backward`]): the forward pass keeps each step's
+//! state (ray before the frame change, incoming direction, hit point, normal, distance, indices), and one
+//! reverse sweep per ray maps (λ_q, λ_d′) through refraction (or the ideal lens), the implicit-function hit
+//! derivative ([`super::hit::SurfaceLocal::adjoint`]) and the frame change — the same linear maps as the
+//! forward tangent kernel ([`super::kernel::interact_tangents`]), transposed, at the cost of about one
+//! tangent column instead of 6 + (figure coefficients) + 2 (indices) columns per step. `tests/render_gradient.rs`
+//! checks it against the forward tangents ray by ray to 1e-12.
 //!
 //! Rays that change status (vignetted, missing the detector) under a change of θ contribute no boundary
 //! term: the gradient is that of the sampled image with the rays' statuses fixed.
@@ -32,7 +35,7 @@
 //! let mut tape = RayTape::default();
 //! let (p, _) = plan.trace(&ds, &n, DVec3::ZERO, DVec3::Z, &mut tape).unwrap();
 //! let mut sums = AdjointSums::new(&plan);
-//! plan.backward(&ds, &tape, [0.0, 1.0, 0.0, 0.0, 0.0, 0.0], &mut sums); // L = y of the landing
+//! plan.backward(&ds, &mut tape, [0.0, 1.0, 0.0, 0.0, 0.0, 0.0], &mut sums); // L = y of the landing
 //! let mut grad = vec![0.0];
 //! plan.contract(&ds, &sums, &dn, &mut grad);
 //! // The forward-mode Jacobian says the same.
@@ -42,10 +45,10 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 use super::hit::{ShapeTangent, SurfaceLocal};
-use super::kernel::{interact_tangents, StepTangent};
 use super::DiffSystem;
 use crate::error::{Error, Result};
-use crate::surfaces::{intersect, IntersectFailure};
+use crate::surfaces::{intersect, IntersectFailure, SurfaceShape};
+use crate::tracer::kernel::{paraxial_deflect, refract};
 use crate::tracer::RayStatus;
 use glam::{DMat3, DVec3};
 
@@ -72,16 +75,12 @@ fn shape_unit(f: usize) -> ShapeTangent {
     t
 }
 
-/// The seeds of one step's linearisation: columns 0..6 the state (δp, δd), then one per active figure
-/// coefficient, then (δn₁, δn₂) when an index of the step moves.
+/// What one step's reverse sweep accumulates: the figure coefficients some parameter moves, and whether
+/// an index of the step moves.
 #[derive(Clone, Debug)]
 struct StepPlan {
     shape_fields: Vec<usize>,
     index: bool,
-    seeds: StepTangent,
-    /// dn seeds, `surfaces × columns`.
-    dn: Vec<f64>,
-    columns: usize,
 }
 
 /// What the reverse pass needs of a system: which figure coefficients and indices move at each step.
@@ -91,17 +90,39 @@ pub struct AdjointPlan {
     surfaces: usize,
 }
 
-/// The forward pass of one ray: per step, the ray before the frame change and the step's linearisation.
+/// The forward state of one path step, kept for the reverse sweep.
+#[derive(Clone, Copy, Debug)]
+struct StepState {
+    /// p − o and d in the previous frame (before the frame change).
+    pr: DVec3,
+    d0: DVec3,
+    /// The incoming unit direction, the hit point, its unit normal (as [`intersect`] gives it) and the
+    /// distance from the frame-changed ray origin, in the step's frame.
+    d: DVec3,
+    q: DVec3,
+    normal: DVec3,
+    t: f64,
+    /// Indices before and after the surface.
+    n1: f64,
+    n2: f64,
+}
+
+/// One ray's sensitivities at one step (added to [`AdjointSums`] once the whole ray is known finite).
+#[derive(Clone, Copy, Debug)]
+struct StepSens {
+    rotation: DMat3,
+    offset: DVec3,
+    shape: [f64; SHAPE_FIELDS],
+    n1: f64,
+    n2: f64,
+}
+
+/// The forward pass of one ray (its per-step states) and scratch space for its reverse sweep; reused
+/// from ray to ray (no per-ray allocation once grown).
 #[derive(Clone, Debug, Default)]
 pub struct RayTape {
-    /// Per step: p − o (previous frame), d (previous frame).
-    pr: Vec<DVec3>,
-    d: Vec<DVec3>,
-    /// Per step, per column: (δp′, δd′) of the step's output.
-    lin: Vec<Vec<[f64; 6]>>,
-    steps: usize,
-    dp: Vec<DVec3>,
-    dd: Vec<DVec3>,
+    states: Vec<StepState>,
+    sens: Vec<StepSens>,
 }
 
 /// The adjoint sensitivities to the tangent data of every step, summed over rays (one spectral plane:
@@ -122,7 +143,7 @@ impl AdjointSums {
 }
 
 impl AdjointPlan {
-    /// The plan of `ds` for rays at `wavelengths_nm` (an index seed is added where any parameter moves an
+    /// The plan of `ds` for rays at `wavelengths_nm` (indices are accumulated where any parameter moves an
     /// index at one of them).
     pub fn new(ds: &DiffSystem, wavelengths_nm: &[f64]) -> Result<Self> {
         let kk = ds.k();
@@ -134,46 +155,26 @@ impl AdjointPlan {
                 *m |= dn[i * kk..(i + 1) * kk].iter().any(|v| *v != 0.0);
             }
         }
-        let mut steps = Vec::with_capacity(ds.steps.len());
-        for (step, tan) in ds.system.path.iter().zip(&ds.steps) {
-            let shape_fields: Vec<usize> = (0..SHAPE_FIELDS).filter(|&f| tan.shape.iter().any(|t| shape_field(t, f) != 0.0)).collect();
-            let s = step.surface;
-            let index = s >= 1 && (index_moves[s - 1] || index_moves[s]);
-            let columns = 6 + shape_fields.len() + if index { 2 } else { 0 };
-            let mut seeds = StepTangent::zero(columns);
-            for (c, &f) in shape_fields.iter().enumerate() {
-                seeds.shape[6 + c] = shape_unit(f);
-            }
-            let mut dn = vec![0.0; ns * columns];
-            if index {
-                let c = 6 + shape_fields.len();
-                dn[(s - 1) * columns + c] = 1.0;
-                dn[s * columns + c + 1] = 1.0;
-            }
-            steps.push(StepPlan { shape_fields, index, seeds, dn, columns });
-        }
+        let steps = ds
+            .system
+            .path
+            .iter()
+            .zip(&ds.steps)
+            .map(|(step, tan)| {
+                let shape_fields: Vec<usize> = (0..SHAPE_FIELDS).filter(|&f| tan.shape.iter().any(|t| shape_field(t, f) != 0.0)).collect();
+                let s = step.surface;
+                StepPlan { shape_fields, index: s >= 1 && (index_moves[s - 1] || index_moves[s]) }
+            })
+            .collect();
         Ok(AdjointPlan { steps, surfaces: ns })
     }
 
-    /// Largest number of linearisation columns of a step (the per-ray cost, independent of P).
-    pub fn max_columns(&self) -> usize {
-        self.steps.iter().map(|s| s.columns).max().unwrap_or(0)
-    }
-
-    /// Trace a ray (object frame, unit direction) through `ds` with indices `n`, recording the tape.
-    /// The values are those of [`crate::tracer::AnalyticTracer`] (same kernel arithmetic).
+    /// Trace a ray (object frame, unit direction) through `ds` with indices `n`, recording each step's
+    /// state. The values are bit-identical to [`crate::tracer::kernel::trace_steps`] (the same operations).
     pub fn trace(&self, ds: &DiffSystem, n: &[f64], mut p: DVec3, mut d: DVec3, tape: &mut RayTape) -> std::result::Result<(DVec3, DVec3), (RayStatus, usize)> {
-        let path = &ds.system.path;
-        if tape.lin.len() < path.len() {
-            tape.lin.resize(path.len(), Vec::new());
-            tape.pr.resize(path.len(), DVec3::ZERO);
-            tape.d.resize(path.len(), DVec3::ZERO);
-        }
-        tape.steps = 0;
-        for (s, (step, plan)) in path.iter().zip(&self.steps).enumerate() {
+        tape.states.clear();
+        for step in &ds.system.path {
             let pr = p - step.offset;
-            tape.pr[s] = pr;
-            tape.d[s] = d;
             let (p1, d1) = (step.rotation * pr, step.rotation * d);
             let hit = match intersect(&step.shape, p1, d1) {
                 Ok(h) => h,
@@ -183,61 +184,112 @@ impl AdjointPlan {
             if !step.aperture.contains(hit.point.x, hit.point.y) {
                 return Err((RayStatus::Vignetted, step.surface));
             }
-            let local = SurfaceLocal::at(&step.shape, hit.point);
-            let c = plan.columns;
-            tape.dp.clear();
-            tape.dd.clear();
-            tape.dp.resize(c, DVec3::ZERO);
-            tape.dd.resize(c, DVec3::ZERO);
-            for a in 0..3 {
-                tape.dp[a][a] = 1.0;
-                tape.dd[3 + a][a] = 1.0;
-            }
-            let d2 = interact_tangents(step, &plan.seeds, &local, hit.point, hit.normal, hit.t, d1, n, &plan.dn, &mut tape.dp, &mut tape.dd).map_err(|st| (st, step.surface))?;
-            let lin = &mut tape.lin[s];
-            lin.clear();
-            lin.extend(tape.dp.iter().zip(&tape.dd).map(|(a, b)| [a.x, a.y, a.z, b.x, b.y, b.z]));
+            let (n1, n2) = (n[step.surface - 1], n[step.surface]);
+            let d2 = match step.shape {
+                SurfaceShape::Paraxial { focal_length } => paraxial_deflect(hit.point, d1, focal_length, n1, n2),
+                _ if n1 != n2 => refract(d1, hit.normal, n1, n2).ok_or((RayStatus::TotalInternalReflection, step.surface))?,
+                _ => d1,
+            };
+            tape.states.push(StepState { pr, d0: d, d: d1, q: hit.point, normal: hit.normal, t: hit.t, n1, n2 });
             p = hit.point;
             d = d2;
-            tape.steps = s + 1;
         }
         Ok((p, d))
     }
 
-    /// Run a traced ray's tape backwards from λ = ∂L/∂(p, d) at the image (image frame) and add its
+    /// Run a traced ray backwards from λ = ∂L/∂(p, d) at the image (image frame) and add its
     /// sensitivities to `sums`. Returns false (adding nothing) when a sensitivity is not finite (a grazing
     /// hit).
-    pub fn backward(&self, ds: &DiffSystem, tape: &RayTape, lambda: [f64; 6], sums: &mut AdjointSums) -> bool {
+    ///
+    /// Per step, the transpose of the forward tangent ([`super::kernel::interact_tangents`]) written out
+    /// by hand, from the output adjoint (λ_q, λ_d′) to the adjoint μ of the step's input (δp, δd in the
+    /// step's frame), the figure partials and the indices:
+    /// - refraction d′ = μ d + (√κ − μ cos θᵢ) n̂: with a = λ_d′, β = a·n̂, γ = β(μ² cos θᵢ/√κ − μ),
+    ///   d̄ = μ a + γ n̂, n̂̄ = (√κ − μ cos θᵢ) a + γ d, μ̄ = a·d − β(μ(1 − cos²θᵢ)/√κ + cos θᵢ);
+    /// - ideal lens tan′ = μ tan − h/f, d′ = ±w/|w|: w̄ = (a − v(v·a))·(±1/|w|), then the quotient rule;
+    /// - the hit ([`SurfaceLocal::adjoint`]): δq and δn̂ back to the ray point δp + t δd and the figure;
+    /// - μ = n₁/n₂: n̄₁ = μ̄/n₂, n̄₂ = −μ μ̄/n₂.
+    pub fn backward(&self, ds: &DiffSystem, tape: &mut RayTape, lambda: [f64; 6], sums: &mut AdjointSums) -> bool {
         let path = &ds.system.path;
-        debug_assert_eq!(tape.steps, path.len());
-        // Check first (a grazing hit gives infinite columns), so that nothing partial is added.
-        if !tape.lin[..tape.steps].iter().all(|l| l.iter().all(|c| c.iter().all(|v| v.is_finite()))) {
+        debug_assert_eq!(tape.states.len(), path.len());
+        tape.sens.clear();
+        let (mut lq, mut ld) = (DVec3::new(lambda[0], lambda[1], lambda[2]), DVec3::new(lambda[3], lambda[4], lambda[5]));
+        let mut finite = true;
+        for s in (0..tape.states.len()).rev() {
+            let (st, step, plan) = (&tape.states[s], &path[s], &self.steps[s]);
+            let local = SurfaceLocal::at(&step.shape, st.q);
+            let (d, q) = (st.d, st.q);
+            let mu = st.n1 / st.n2;
+            let (mut q_bar, dd_bar, n_bar, mu_bar, f_bar);
+            q_bar = lq;
+            match step.shape {
+                SurfaceShape::Paraxial { focal_length: f } => {
+                    let tx = mu * d.x / d.z - q.x / f;
+                    let ty = mu * d.y / d.z - q.y / f;
+                    let w = DVec3::new(tx, ty, 1.0);
+                    let (wl, v) = (w.length(), w.normalize());
+                    let sign = if d.z < 0.0 { -1.0 } else { 1.0 };
+                    let w_bar = (ld - v * v.dot(ld)) * (sign / wl);
+                    let (txb, tyb) = (w_bar.x, w_bar.y);
+                    mu_bar = txb * d.x / d.z + tyb * d.y / d.z;
+                    dd_bar = DVec3::new(mu * txb / d.z, mu * tyb / d.z, -mu * (txb * d.x + tyb * d.y) / (d.z * d.z));
+                    q_bar.x -= txb / f;
+                    q_bar.y -= tyb / f;
+                    f_bar = (txb * q.x + tyb * q.y) / (f * f);
+                    n_bar = DVec3::ZERO;
+                }
+                _ => {
+                    let mut nrm = st.normal;
+                    let mut cos_i = d.dot(nrm);
+                    let mut sgn = 1.0;
+                    if cos_i < 0.0 {
+                        nrm = -nrm;
+                        cos_i = -cos_i;
+                        sgn = -1.0;
+                    }
+                    let kappa = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
+                    let sk = kappa.max(0.0).sqrt();
+                    let beta = ld.dot(nrm);
+                    let gamma = beta * (mu * mu * cos_i / sk - mu);
+                    mu_bar = ld.dot(d) - beta * (mu * (1.0 - cos_i * cos_i) / sk + cos_i);
+                    dd_bar = ld * mu + nrm * gamma;
+                    n_bar = (ld * (sk - mu * cos_i) + d * gamma) * sgn;
+                    f_bar = 0.0;
+                }
+            }
+            let (ray_bar, partials_bar) = local.adjoint(d, q_bar, n_bar);
+            // dray = δp + t δd.
+            let (mp, md) = (ray_bar, dd_bar + ray_bar * st.t);
+            let mut shape = [0.0; SHAPE_FIELDS];
+            for &f in &plan.shape_fields {
+                let (a, b, c) = local.param_partials(&shape_unit(f));
+                shape[f] = partials_bar[0] * a + partials_bar[1] * b + partials_bar[2] * c + if f == 10 { f_bar } else { 0.0 };
+            }
+            let (pr, d0) = (st.pr, st.d0);
+            // μ_p·(δR pr) + μ_d·(δR d) = δR : (μ_p prᵀ + μ_d dᵀ).
+            let rotation = DMat3::from_cols(mp * pr.x + md * d0.x, mp * pr.y + md * d0.y, mp * pr.z + md * d0.z);
+            let rt = step.rotation.transpose();
+            (lq, ld) = (rt * mp, rt * md);
+            let (n1, n2) = (mu_bar / st.n2, -mu * mu_bar / st.n2);
+            // −μ_p·(R δo) = (−Rᵀμ_p)·δo.
+            finite &= lq.is_finite() && ld.is_finite() && rotation.is_finite() && shape.iter().all(|v| v.is_finite()) && n1.is_finite() && n2.is_finite();
+            tape.sens.push(StepSens { rotation, offset: -lq, shape, n1, n2 });
+        }
+        if !finite {
             return false;
         }
-        let mut lam = lambda;
-        for s in (0..tape.steps).rev() {
-            let (plan, lin) = (&self.steps[s], &tape.lin[s]);
-            let dot = |col: &[f64; 6]| -> f64 { (0..6).map(|r| lam[r] * col[r]).sum() };
-            // μ: the adjoint of the step's input state in the step's frame (Aᵀλ, A the interaction).
-            let mu: [f64; 6] = std::array::from_fn(|a| dot(&lin[a]));
-            for (c, &f) in plan.shape_fields.iter().enumerate() {
-                sums.shape[s][f] += dot(&lin[6 + c]);
+        for (s, sens) in tape.sens.iter().rev().enumerate() {
+            let plan = &self.steps[s];
+            sums.rotation[s] += sens.rotation;
+            sums.offset[s] += sens.offset;
+            for &f in &plan.shape_fields {
+                sums.shape[s][f] += sens.shape[f];
             }
             if plan.index {
-                let c = 6 + plan.shape_fields.len();
                 let sf = path[s].surface;
-                sums.index[sf - 1] += dot(&lin[c]);
-                sums.index[sf] += dot(&lin[c + 1]);
+                sums.index[sf - 1] += sens.n1;
+                sums.index[sf] += sens.n2;
             }
-            let (mp, md) = (DVec3::new(mu[0], mu[1], mu[2]), DVec3::new(mu[3], mu[4], mu[5]));
-            let (pr, d) = (tape.pr[s], tape.d[s]);
-            // μ_p·(δR pr) + μ_d·(δR d) = δR : (μ_p prᵀ + μ_d dᵀ).
-            sums.rotation[s] += DMat3::from_cols(mp * pr.x + md * d.x, mp * pr.y + md * d.y, mp * pr.z + md * d.z);
-            let rt = path[s].rotation.transpose();
-            let (lp, ld) = (rt * mp, rt * md);
-            // −μ_p·(R δo) = (−Rᵀμ_p)·δo.
-            sums.offset[s] -= lp;
-            lam = [lp.x, lp.y, lp.z, ld.x, ld.y, ld.z];
         }
         true
     }

@@ -117,7 +117,7 @@ impl SurfaceLocal {
     }
 
     /// (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ) along a shape tangent.
-    fn param_partials(&self, t: &ShapeTangent) -> (f64, f64, f64) {
+    pub(crate) fn param_partials(&self, t: &ShapeTangent) -> (f64, f64, f64) {
         if !t.moves_figure() {
             return (0.0, 0.0, 0.0);
         }
@@ -158,6 +158,24 @@ impl SurfaceLocal {
         let dm = DVec3::new(-(hxx * dq.x + hxy * dq.y + dsx), -(hxy * dq.x + hyy * dq.y + dsy), 0.0);
         let dn = (dm - self.normal * self.normal.dot(dm)) / self.m_len;
         HitTangent { point: dq, t: dt, normal: dn }
+    }
+
+    /// The transpose of [`Self::tangent`] (reverse mode): for adjoints `q_bar` of δq and `n_bar` of δn,
+    /// the adjoint of `dray` and of the figure partials (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ), so that
+    /// q̄·δq + n̄·δn = draȳ·dray + Σ partialsB̄·partials for every (dray, dshape).
+    #[inline]
+    pub fn adjoint(&self, d: DVec3, q_bar: DVec3, n_bar: DVec3) -> (DVec3, [f64; 3]) {
+        // δn = P δm / |m| with P = I − n nᵀ symmetric; δm_z = 0.
+        let dm_bar = (n_bar - self.normal * self.normal.dot(n_bar)) / self.m_len;
+        let (x, y) = (self.x, self.y);
+        let hxx = 2.0 * self.f1 + 4.0 * self.f2 * x * x;
+        let hxy = 4.0 * self.f2 * x * y;
+        let hyy = 2.0 * self.f1 + 4.0 * self.f2 * y * y;
+        // δm_xy = −(H δq_xy + δs_xy): H symmetric.
+        let dq_bar = q_bar - DVec3::new(hxx * dm_bar.x + hxy * dm_bar.y, hxy * dm_bar.x + hyy * dm_bar.y, 0.0);
+        // δq = dray + d δt, δt = (δsag − m·dray)/(m·d).
+        let dt_bar = d.dot(dq_bar) / self.m.dot(d);
+        (dq_bar - self.m * dt_bar, [dt_bar, -dm_bar.x, -dm_bar.y])
     }
 }
 

@@ -22,7 +22,13 @@
 //! gradient is that of the expected image away from those edges; the bias is measured in
 //! `docs/derivatives.md`.
 //!
-//! Deterministic: planes are processed in parallel, each in a fixed order, and reduced in plane order.
+//! Cost: rays of closed mask pixels (value exactly 0) carry no light, so their mask gradient needs only
+//! where they land — they are traced with the production renderer's SIMD lanes, with no θ-adjoint, as
+//! are all rays of [`DiffRenderer::render`]; rays of open pixels (any non-zero value of a continuous mask)
+//! are traced keeping their per-step states and swept backwards once ([`crate::diff::adjoint`]).
+//!
+//! Deterministic: planes are processed in parallel, each in a fixed order, and reduced in plane order
+//! (bit-identical for any thread count).
 //!
 //! ```
 //! use diffcassi::diff::ParamSet;
@@ -77,6 +83,8 @@ pub struct DiffRenderer {
     kernels: Vec<Option<Kernel64>>,
     sampler: RaySampler,
     plan: AdjointPlan,
+    /// The production kernel's SIMD level (`config.kernel`; `None`: scalar) for the rays that need no adjoint.
+    simd: Option<crate::tracer::SimdLevel>,
     /// (n_d, V_d) ranges of the catalogue's glasses (obsolete ones left out): where a free glass may go.
     glass_ranges: [(f64, f64); 2],
 }
@@ -90,6 +98,22 @@ pub struct Vjp {
     pub mask: Vec<f64>,
     /// ∂L/∂scene, (N, B, H, W).
     pub scene: Vec<f64>,
+}
+
+/// One scene row's rays (reused buffers): pixel, origin (object plane, mm), unit direction.
+#[derive(Default)]
+struct RowRays {
+    pixel: Vec<usize>,
+    origin: Vec<DVec3>,
+    dir: Vec<DVec3>,
+}
+
+impl RowRays {
+    fn clear(&mut self) {
+        self.pixel.clear();
+        self.origin.clear();
+        self.dir.clear();
+    }
 }
 
 /// What one plane's backward pass returns.
@@ -142,12 +166,13 @@ impl DiffRenderer {
             }
         }
         let aim = PupilAim::of(&ds.system);
+        let simd = config.kernel.resolve()?;
         let sampler = RaySampler::new(config.rays_per_pixel, config.sampling);
         // The catalogue's span, or Schott's when the catalogue in use is the small built-in one.
         let map = crate::diff::glass_model::GlassMap::from_catalog(&set.catalog)?;
         let span = |v: &[f64], (lo, hi): (f64, f64)| (v.iter().cloned().fold(lo, f64::min), v.iter().cloned().fold(hi, f64::max));
         let glass_ranges = [span(&map.nd, SCHOTT_ND_SPAN), span(&map.vd, SCHOTT_VD_SPAN)];
-        Ok(DiffRenderer { set, ds, config, detector, scene_wavelengths_nm, aim, kernels, sampler, plan, glass_ranges })
+        Ok(DiffRenderer { set, ds, config, detector, scene_wavelengths_nm, aim, kernels, sampler, plan, simd, glass_ranges })
     }
 
     /// The free parameters' names.
@@ -183,12 +208,6 @@ impl DiffRenderer {
         }
         let plan = AdjointPlan::new(&ds, &self.config.spectral.planes_nm)?;
         Ok(DiffRenderer { set, ds, plan, ..self.clone() })
-    }
-
-    /// Linearisation columns per path step of the reverse pass (the per-ray cost; independent of the
-    /// number of parameters except through which figure coefficients and indices they move).
-    pub fn plan_columns(&self) -> usize {
-        self.plan.max_columns()
     }
 
     /// Detector (height, width) in pixels.
@@ -228,11 +247,13 @@ impl DiffRenderer {
         (k, (k + 1).min(ws.len() - 1), t)
     }
 
-    /// Visit every ray of plane `p` whose pixel passes `want`: `f(pixel, origin, unit direction)`.
-    fn for_rays(&self, p: usize, want: impl Fn(usize) -> bool, mut f: impl FnMut(usize, DVec3, DVec3)) {
+    /// Visit the rays of plane `p` whose pixel passes `want`, one scene row at a time: `f(rays)` with
+    /// each ray's pixel, origin and unit direction (buffers reused from row to row).
+    fn for_rows(&self, p: usize, want: impl Fn(usize) -> bool, mut f: impl FnMut(&RowRays)) {
         let (h, w, pitch, nr) = (self.config.scene_height, self.config.scene_width, self.config.scene_pitch_mm, self.sampler.rays);
         let mut samples = SampleRow::default();
         let mut pixels: Vec<u64> = Vec::with_capacity(w);
+        let mut rays = RowRays::default();
         for row in 0..h {
             pixels.clear();
             pixels.extend((0..w).map(|c| row * w + c).filter(|&q| want(q)).map(|q| q as u64));
@@ -240,6 +261,7 @@ impl DiffRenderer {
                 continue;
             }
             self.sampler.fill_pixels(self.config.seed, p as u64, &pixels, &mut samples);
+            rays.clear();
             for (k, &q) in pixels.iter().enumerate() {
                 let col = q as usize % w;
                 let c = MappingCube::scene_xy(h, w, pitch, row, col);
@@ -247,9 +269,37 @@ impl DiffRenderer {
                     let s = samples.get(t);
                     let (fx, fy) = (c[0] + (s[2] - 0.5) * pitch, c[1] - (s[3] - 0.5) * pitch);
                     let d = DVec3::from(self.aim.direction(fx, fy, s[0], s[1]));
-                    f(q as usize, DVec3::new(fx, fy, 0.0), d / d.length());
+                    rays.pixel.push(q as usize);
+                    rays.origin.push(DVec3::new(fx, fy, 0.0));
+                    rays.dir.push(d / d.length());
                 }
             }
+            f(&rays);
+        }
+    }
+
+    /// The landings ([`Self::landing`]) of the rays `which` of `rays` at indices `idx`, in order, into
+    /// `out`: traced with the production renderer's SIMD lanes ([`crate::tracer::simd`], bit-identical to
+    /// the scalar kernel) when `config.kernel` is SIMD, else with the scalar kernel.
+    fn land_all(&self, idx: &[f64], rays: &RowRays, which: &[usize], out: &mut Vec<Option<(f64, f64)>>) {
+        use crate::tracer::simd::{Block, LANES};
+        out.clear();
+        let path = &self.ds.system.path;
+        let Some(level) = self.simd else {
+            out.extend(which.iter().map(|&i| self.landing(trace_steps(path, idx, rays.origin[i], rays.dir[i]))));
+            return;
+        };
+        let tables = [idx; LANES];
+        for chunk in which.chunks(LANES) {
+            let mut b = Block::default();
+            for (k, &i) in chunk.iter().enumerate() {
+                let (o, d) = (rays.origin[i], rays.dir[i]);
+                (b.p.x.0[k], b.p.y.0[k], b.p.z.0[k]) = (o.x, o.y, o.z);
+                (b.d.x.0[k], b.d.y.0[k], b.d.z.0[k]) = (d.x, d.y, d.z);
+                b.alive.0[k] = true;
+            }
+            crate::tracer::simd::trace_block_raw(level, path, &tables, &mut b);
+            out.extend((0..chunk.len()).map(|k| self.landing(b.result(k))));
         }
     }
 
@@ -289,16 +339,24 @@ impl DiffRenderer {
                 let (k0, k1, tw) = self.interpolation(p);
                 let mut img = vec![0.0f64; n * npix];
                 let mut arrived = 0u64;
-                self.for_rays(
+                let (mut all, mut land, mut vals) = (Vec::new(), Vec::new(), vec![0.0; n]);
+                self.for_rows(
                     p,
                     |q| mask[q] != 0.0,
-                    |q, o, d| {
-                        let Some(uv) = self.landing(trace_steps(&self.ds.system.path, &idx, o, d)) else { return };
-                        arrived += 1;
-                        let vals: Vec<f64> = (0..n).map(|s| ((1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q]) * mask[q] / nr).collect();
-                        for (t, wt, _, _) in self.taps(uv) {
-                            for (s, v) in vals.iter().enumerate() {
-                                img[s * npix + t] += v * wt;
+                    |rays| {
+                        all.clear();
+                        all.extend(0..rays.pixel.len());
+                        self.land_all(&idx, rays, &all, &mut land);
+                        for (&q, uv) in rays.pixel.iter().zip(&land) {
+                            let Some(uv) = *uv else { continue };
+                            arrived += 1;
+                            for (s, v) in vals.iter_mut().enumerate() {
+                                *v = ((1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q]) * mask[q] / nr;
+                            }
+                            for (t, wt, _, _) in self.taps(uv) {
+                                for (s, v) in vals.iter().enumerate() {
+                                    img[s * npix + t] += v * wt;
+                                }
                             }
                         }
                     },
@@ -408,34 +466,60 @@ impl DiffRenderer {
                 let mut sums = AdjointSums::new(&self.plan);
                 let mut tape = RayTape::default();
                 let (mut tb, mut ub, mut vb) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-                self.for_rays(
+                let (mut closed, mut land) = (Vec::new(), Vec::new());
+                self.for_rows(
                     p,
                     |_| true,
-                    |q, o, d| {
-                        let open = mask[q] != 0.0;
-                        let traced = if open { self.plan.trace(&self.ds, &idx, o, d, &mut tape) } else { trace_steps(&self.ds.system.path, &idx, o, d) };
-                        let Some(uv) = self.landing(traced) else { return };
-                        out.arrived += 1;
-                        tb.iter_mut().chain(ub.iter_mut()).chain(vb.iter_mut()).for_each(|v| *v = 0.0);
-                        for (t, wt, du, dv) in self.taps(uv) {
+                    |rays| {
+                        // Closed pixels (mask exactly 0) carry no light: their rays need only where they land,
+                        // for the mask gradient (no θ-adjoint), so they go through the production lanes.
+                        closed.clear();
+                        closed.extend((0..rays.pixel.len()).filter(|&i| mask[rays.pixel[i]] == 0.0));
+                        self.land_all(&idx, rays, &closed, &mut land);
+                        for (&i, uv) in closed.iter().zip(&land) {
+                            let Some(uv) = *uv else { continue };
+                            let q = rays.pixel[i];
+                            out.arrived += 1;
+                            tb.iter_mut().for_each(|v| *v = 0.0);
+                            for (t, wt, _, _) in self.taps(uv) {
+                                for s in 0..n {
+                                    tb[s] += wt * gb[s * npix + t];
+                                }
+                            }
                             for s in 0..n {
-                                let gv = gb[s * npix + t];
-                                tb[s] += wt * gv;
-                                ub[s] += du * gv;
-                                vb[s] += dv * gv;
+                                let val = (1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q];
+                                out.mask[q] += val * tb[s] / nr;
                             }
                         }
-                        let (mut u_bar, mut v_bar) = (0.0, 0.0);
-                        for s in 0..n {
-                            let val = (1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q];
-                            out.mask[q] += val * tb[s] / nr;
-                            out.plane[s * hw + q] += mask[q] * tb[s] / nr;
-                            u_bar += val * mask[q] * ub[s] / nr;
-                            v_bar += val * mask[q] * vb[s] / nr;
-                        }
-                        if open && (u_bar != 0.0 || v_bar != 0.0) {
-                            // (u, v) = ((x − x_left)/pitch − ½, (y_top − y)/pitch − ½).
-                            self.plan.backward(&self.ds, &tape, [u_bar / pitch, -v_bar / pitch, 0.0, 0.0, 0.0, 0.0], &mut sums);
+                        // Open pixels (any non-zero mask value, a continuous mask's included): traced with
+                        // the per-step states kept, then swept backwards once.
+                        for (i, &q) in rays.pixel.iter().enumerate() {
+                            if mask[q] == 0.0 {
+                                continue;
+                            }
+                            let Some(uv) = self.landing(self.plan.trace(&self.ds, &idx, rays.origin[i], rays.dir[i], &mut tape)) else { continue };
+                            out.arrived += 1;
+                            tb.iter_mut().chain(ub.iter_mut()).chain(vb.iter_mut()).for_each(|v| *v = 0.0);
+                            for (t, wt, du, dv) in self.taps(uv) {
+                                for s in 0..n {
+                                    let gv = gb[s * npix + t];
+                                    tb[s] += wt * gv;
+                                    ub[s] += du * gv;
+                                    vb[s] += dv * gv;
+                                }
+                            }
+                            let (mut u_bar, mut v_bar) = (0.0, 0.0);
+                            for s in 0..n {
+                                let val = (1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q];
+                                out.mask[q] += val * tb[s] / nr;
+                                out.plane[s * hw + q] += mask[q] * tb[s] / nr;
+                                u_bar += val * mask[q] * ub[s] / nr;
+                                v_bar += val * mask[q] * vb[s] / nr;
+                            }
+                            if u_bar != 0.0 || v_bar != 0.0 {
+                                // (u, v) = ((x − x_left)/pitch − ½, (y_top − y)/pitch − ½).
+                                self.plan.backward(&self.ds, &mut tape, [u_bar / pitch, -v_bar / pitch, 0.0, 0.0, 0.0, 0.0], &mut sums);
+                            }
                         }
                     },
                 );
