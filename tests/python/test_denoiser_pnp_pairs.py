@@ -125,3 +125,13 @@ def test_bad_pairs_files_give_clear_errors(train, pairs_file, tmp_path, capsys):
         train.main(common[:-4] + ["--patch", "32", "--out", str(tmp_path / "o"), "--pairs", str(pairs_file)])
     assert e.value.code == 2
     assert not (tmp_path / "o" / f"{ARCH}-28.safetensors").exists()
+
+
+def test_round4_manifest_uses_no_image_and_no_evaluation_scene():
+    from conftest import ROOT
+    man = json.loads((ROOT / "src/recon/prior/weights/train-manifest-round4.json").read_text())
+    assert man["image_files"] == [] and man["evaluation_scenes_used"] == []
+    for key in ("artefact_pairs", "artefact_pairs_val"):
+        assert man[key]["manifest"]["image_files"] == [] and man[key]["manifest"]["evaluation_scenes_used"] == []
+    assert man["artefact_pairs"]["sha256"] != man["artefact_pairs_val"]["sha256"]
+    assert man["artefact_pairs"]["manifest"]["seed_base"] != man["artefact_pairs_val"]["manifest"]["seed_base"]
