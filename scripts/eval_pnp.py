@@ -7,7 +7,7 @@ natural scenes of ``data/scenes`` (``--scenes natural``: reported, never tuned o
     .venv/bin/python scripts/eval_pnp.py --scenes val --count 6 --weights W.safetensors --json out.json
     .venv/bin/python scripts/eval_pnp.py --scenes natural --weights W.safetensors --json out.json
 
-Setting (docs/study.md's): 128² scenes (natural: the 256² uplift's centre crop), 28 bands 450–650 nm, 112 planes,
+Setting (docs/study.md's): 128² scenes (natural: the 256² uplift area-averaged to 128², ``study``'s default fit), 28 bands 450–650 nm, 112 planes,
 20 rays per pixel per plane (acquisition seed 0), Airy 2.5 px, the paper's mask's centre crop; the exact
 operator traced with seed 1; δ from :func:`diffcassi.monte_carlo_noise_norm`. Per scene and preset: GAP-TV with
 its defaults; then the network schedules of ``--schedules`` — ``one:S`` = one network call at σ = S on the iterate
@@ -43,9 +43,12 @@ def scenes(which: str, count: int):
     if which == "natural":
         for png in sorted((ROOT / "data/scenes").glob("*.png")):
             cube, _ = diffcassi.load_scene(png, list(BANDS_NM))
-            h, w = cube.shape[:2]
-            y0, x0 = (h - SIZE) // 2, (w - SIZE) // 2
-            yield png.stem, np.ascontiguousarray(cube[y0:y0 + SIZE, x0:x0 + SIZE], dtype=np.float32)
+            h, w, b = cube.shape
+            if (h, w) != (2 * SIZE, 2 * SIZE):
+                raise SystemExit(f"eval_pnp: error: {png} is {h}×{w}, expected {2 * SIZE}² (the study's --fit resize by 2)")
+            # `study --fit resize` (its default): the area average, here of 2×2 blocks (256² → 128²).
+            cube = cube.astype(np.float64).reshape(SIZE, 2, SIZE, 2, b).mean(axis=(1, 3))
+            yield png.stem, np.ascontiguousarray(cube, dtype=np.float32)
     else:
         for i in range(count):
             seed = EVAL_VAL_SEED_BASE + i
@@ -69,6 +72,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mask", default=str(ROOT.parent.parent / "shared/reference/paper_mask_512.npy"))
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--cache", default=None, help="folder keeping each cell's GAP-TV PSNR and network input (they do "
+                    "not depend on the weights): one-call schedules of other weights then need no solve")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
     diffcassi.set_num_threads(a.threads)
@@ -87,14 +92,24 @@ def main(argv=None) -> int:
         for name, truth in scenes(a.scenes, a.count):
             for preset in a.presets.split(","):
                 system = diffcassi.System.preset(preset)
-                y, _ = diffcassi.render(system, truth, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=0)
-                y = np.ascontiguousarray(y, dtype=np.float32)
-                op = diffcassi.exact(system, SIZE, SIZE, mask, rays=RAYS, planes=PLANES, seed=1)
-                delta = diffcassi.monte_carlo_noise_norm(y, RAYS, RAYS, PLANES / len(BANDS_NM))
                 psnr = lambda c, t=truth: paper_psnr(t, c)
-                gt, rec = diffcassi.reconstruct(op, y, "gap-tv", noise_norm=delta)
-                row = {"scene": name, "preset": preset, "gap_tv": psnr(gt)}
-                x, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=ident, noise_norm=delta)
+                cached = None if a.cache is None else pathlib.Path(a.cache) / f"{name}-{preset}.npz"
+                need_op = any(x.startswith("pnp:") for x in scheds)
+                if cached is not None and cached.is_file() and not need_op:
+                    with np.load(cached) as z:
+                        x, gap_tv = z["iterate"], float(z["gap_tv"])
+                else:
+                    y, _ = diffcassi.render(system, truth, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=0)
+                    y = np.ascontiguousarray(y, dtype=np.float32)
+                    op = diffcassi.exact(system, SIZE, SIZE, mask, rays=RAYS, planes=PLANES, seed=1)
+                    delta = diffcassi.monte_carlo_noise_norm(y, RAYS, RAYS, PLANES / len(BANDS_NM))
+                    gt, _ = diffcassi.reconstruct(op, y, "gap-tv", noise_norm=delta)
+                    gap_tv = psnr(gt)
+                    x, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=ident, noise_norm=delta)
+                    if cached is not None:
+                        cached.parent.mkdir(parents=True, exist_ok=True)
+                        np.savez(cached, iterate=x, gap_tv=gap_tv)
+                row = {"scene": name, "preset": preset, "gap_tv": gap_tv}
                 p = float(x.max()) if x.max() > 0 else 1.0
                 xin = torch.from_numpy(np.ascontiguousarray(x.transpose(2, 0, 1) / p))[None]
                 row["iterate"] = psnr(x)
