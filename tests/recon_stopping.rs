@@ -230,7 +230,7 @@ fn dist(a: &[f32], b: &[f32]) -> f64 {
 /// Φ_o, twin Φ'), E[factor²·‖(Φ_o − Φ')x‖²] = E‖(Φ_a − Φ_o)x‖² — for equal ray counts (factor 1, any
 /// sampling) and for R_o = 4 R_a (factor ((1 + 4)/2)^½, independent sampling: variance ∝ 1/R). The means of
 /// the two over 12 triples agree within 20 % (each a sum over every pixel and plane), while a wrong factor
-/// (1 for the unequal case) is ≥ 2.5× off.
+/// (1 for the unequal case) is 2.5× off.
 #[test]
 fn spread_estimate_is_unbiased_against_the_monte_carlo_mismatch() {
     let (system, tracer) = sp();
@@ -252,7 +252,7 @@ fn spread_estimate_is_unbiased_against_the_monte_carlo_mismatch() {
         let ratio = est_sq / truth_sq;
         assert!((0.8..=1.25).contains(&ratio), "R_a {ra}, R_o {ro}: E[δ̂²]/E‖y − Φ_o x‖² = {ratio}");
         if ra != ro {
-            assert!(plain_sq / truth_sq < 0.4, "without the factor: {}", plain_sq / truth_sq);
+            assert!(plain_sq / truth_sq < 0.5, "without the factor: {}", plain_sq / truth_sq);
         }
     }
 }
@@ -261,7 +261,7 @@ fn spread_estimate_is_unbiased_against_the_monte_carlo_mismatch() {
 /// (seed 2) and its twin (seed 3) stops by the discrepancy rule at a θ with ‖y − Φθ‖ ≤ τ·δ̂ (δ̂ the last
 /// estimate), records every estimate (iterations 2, 2 + every, …), and δ̂ tracks the truth residual
 /// ‖y − Φ_o x‖ at each size (within a factor 2); the same run with the rule off goes to the cap, and is the
-/// same iterate up to the stop (the rule only stops). Deterministic: 1 and 2 threads give the same bits.
+/// same iterate up to the stop (the rule only stops). Deterministic: 1 and 2 threads give the same bits (iterates and every δ̂).
 #[test]
 fn spread_rule_stops_at_two_sizes_and_is_thread_independent() {
     let (system, tracer) = sp();

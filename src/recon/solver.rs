@@ -351,7 +351,8 @@ impl Preconditioner {
 
     /// ‖r‖_{D⁻¹} = (Σ r_i² / d_i)^½ over the kept pixels.
     pub fn weighted_norm(&self, r: &[f32]) -> f64 {
-        r.par_iter().zip(self.inverse.par_iter()).map(|(v, w)| (*v as f64) * (*v as f64) * *w as f64).sum::<f64>().sqrt()
+        let parts: Vec<f64> = r.par_chunks(REDUCE_CHUNK).zip(self.inverse.par_chunks(REDUCE_CHUNK)).map(|(r, w)| r.iter().zip(w).map(|(v, w)| (*v as f64) * (*v as f64) * *w as f64).sum::<f64>()).collect();
+        parts.iter().sum::<f64>().sqrt()
     }
 
     /// Largest d.
@@ -381,9 +382,14 @@ pub(crate) fn check_inputs(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, c
     Ok(())
 }
 
-/// ‖a − b‖₂ (f64).
+/// Fixed chunk length of the f64 reductions below: partial sums per chunk, added in chunk order, so the
+/// stopping rule's norms (and the δ̂ they are compared with) are bit-identical for any thread count.
+const REDUCE_CHUNK: usize = 1 << 16;
+
+/// ‖a − b‖₂ (f64; deterministic for any thread count).
 pub(crate) fn residual_norm(y: &[f32], phix: &[f32]) -> f64 {
-    y.par_iter().zip(phix.par_iter()).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>().sqrt()
+    let parts: Vec<f64> = y.par_chunks(REDUCE_CHUNK).zip(phix.par_chunks(REDUCE_CHUNK)).map(|(a, b)| a.iter().zip(b).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>()).collect();
+    parts.iter().sum::<f64>().sqrt()
 }
 
 /// ‖y‖₂, or 1 for a zero measurement (so relative residuals stay finite).
