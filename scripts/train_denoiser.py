@@ -32,6 +32,15 @@ Recipe (src/recon/prior/MODEL.md states the run's numbers):
   per validation, appended on resume), ``train-manifest.json`` (the data's sources and seed rules),
   ``train-state.pt`` (the latest state for ``--resume``; not committed).
 
+* ``--pairs FILE`` (round 4, issue 22's PnP fine-tuning): each step also takes ``--pair-batch`` *artefact pairs*
+  from FILE (``scripts/make_pnp_pairs.py``: the iterate ``pnp-gap`` gives the network — the GAP data step after
+  GAP-TV's phase — and the truth, both divided by the iterate's peak), a random ``--patch`` crop and flips (no
+  rotation: the dispersion stays along x), the σ input the pair's stage constant :data:`PAIR_SIGMA` (what PnP
+  passes; no truth needed at inference); ``--pairs-val FILE`` (validation scenes, other seeds) is scored every
+  validation: the mean PSNR of the network's output on the stop-stage pairs (= one-call PnP's PSNR on those
+  renders); with it, the weights file holds the best such score among checkpoints whose Gaussian selection score
+  is at most ``--sel-tolerance`` dB under the start's (the Gaussian benchmark must not regress);
+
 Every random choice derives from ``--seed`` and the step, so a resumed run continues exactly as the uninterrupted
 one would; ``--minutes`` only caps the wall time of this invocation (the schedule depends on the step alone).
 """
@@ -72,6 +81,12 @@ PCA_STEPS, PCA_SIZE = 100, 32
 #: and the brightness of cube i SEL_BRIGHTNESS[i % 4] (a quarter dark, a quarter dim).
 SEL_SEED_BASE, SEL_COUNT, SEL_SIZE = 1000, 16, 64
 SEL_RMIN_PX, SEL_TEXTURES, SEL_BRIGHTNESS = (4.0, 16.0), (0.6, 0.15, 0.15, 0.1), (1.0, 1.0, 0.5, 0.15)
+#: The σ input of an artefact pair, per stage of ``scripts/make_pnp_pairs.py`` (0 ``stop``: the iterate after
+#: GAP-TV's own stop, the default PnP's network call; 1 ``half``: an earlier iterate), relative to the iterate's
+#: peak: fixed per stage, so that ``pnp-gap`` can pass it without the truth (``PNP_SIGMA_MAX`` in
+#: ``src/recon/solver.rs`` is the stop stage's). Above the Gaussian range (σ ≤ 0.2), so the σ input also tells
+#: the network which kind of error it is given.
+PAIR_SIGMA = (0.3, 0.4)
 
 
 def seed_kind(seed: int) -> str:
@@ -167,6 +182,69 @@ def make_batch(clean: torch.Tensor, g: torch.Generator):
     rho = torch.where(torch.rand(n, generator=g) < 0.25, 0.3 + 0.4 * torch.rand(n, generator=g), torch.zeros(n))
     noise = torch.sqrt(1 - rho).view(n, 1, 1, 1) * white + torch.sqrt(rho).view(n, 1, 1, 1) * corr
     return x + sigma.view(n, 1, 1, 1) * noise, sigma, x
+
+
+def load_pairs(path) -> dict:
+    """The artefact pairs of ``scripts/make_pnp_pairs.py`` as torch tensors (clear errors for a missing or bad
+    file), with the file's SHA-256 and manifest."""
+    import hashlib
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"artefact pairs {path}: no such file")
+    try:
+        with np.load(path) as z:
+            d = {k: z[k] for k in ("inputs", "targets", "stage", "err", "preset")}
+            manifest = json.loads(str(z["manifest"]))
+    except (OSError, ValueError, KeyError) as e:
+        raise ValueError(f"artefact pairs {path}: not a make_pnp_pairs.py file ({e})") from None
+    x, t = d["inputs"], d["targets"]
+    if x.ndim != 4 or x.shape != t.shape or x.shape[1] != len(BANDS_NM) or not (np.isfinite(x).all() and np.isfinite(t).all()):
+        raise ValueError(f"artefact pairs {path}: inputs/targets must be finite (N, {len(BANDS_NM)}, H, W) of one shape, "
+                         f"got {x.shape} and {t.shape}")
+    if not np.isin(d["stage"], range(len(PAIR_SIGMA))).all():
+        raise ValueError(f"artefact pairs {path}: a stage outside 0..{len(PAIR_SIGMA) - 1}")
+    sigma = np.asarray(PAIR_SIGMA, dtype=np.float32)[d["stage"]]
+    return {"inputs": torch.from_numpy(x), "targets": torch.from_numpy(t), "sigma": torch.from_numpy(sigma),
+            "stage": torch.from_numpy(d["stage"]), "err": d["err"], "preset": d["preset"], "manifest": manifest,
+            "sha256": hashlib.sha256(path.read_bytes()).hexdigest(), "path": str(path)}
+
+
+def pair_batch(pairs: dict, n: int, patch: int, g: torch.Generator):
+    """n artefact pairs drawn with ``g``: a random patch² crop of each, flipped along y and/or x (p = 0.5 each);
+    returns (input, sigma (n,), target)."""
+    count, _, h, w = pairs["inputs"].shape
+    idx = torch.randint(0, count, (n,), generator=g)
+    xs, ts = [], []
+    for i in idx.tolist():
+        y0 = int(torch.randint(0, h - patch + 1, (1,), generator=g))
+        x0 = int(torch.randint(0, w - patch + 1, (1,), generator=g))
+        x = pairs["inputs"][i, :, y0:y0 + patch, x0:x0 + patch]
+        t = pairs["targets"][i, :, y0:y0 + patch, x0:x0 + patch]
+        for dim in (1, 2):
+            if torch.rand(1, generator=g) < 0.5:
+                x, t = torch.flip(x, dims=(dim,)), torch.flip(t, dims=(dim,))
+        xs.append(x)
+        ts.append(t)
+    return torch.stack(xs), pairs["sigma"][idx], torch.stack(ts)
+
+
+@torch.no_grad()
+def validate_pairs(net: SpectralUNet, pairs: dict) -> dict:
+    """Mean PSNR (dB, peak of the iterate) of the network's output against the truth on the pairs of each stage,
+    and of the input (the GAP-TV iterate itself) — the output's is one-call PnP's PSNR on those renders."""
+    from diffcassi.denoiser import denoise
+    net.eval()
+    res = {}
+    for si, name in enumerate(("stop", "half")[:len(PAIR_SIGMA)]):
+        sel = pairs["stage"] == si
+        if not bool(sel.any()):
+            continue
+        x, t = pairs["inputs"][sel], pairs["targets"][sel]
+        out = torch.cat([denoise(net, x[i:i + 8], pairs["sigma"][sel][i:i + 8]) for i in range(0, len(x), 8)])
+        res[name] = float(psnr_db(out, t).mean())
+        res[f"{name}_input"] = float(psnr_db(x, t).mean())
+    net.train()
+    return res
 
 
 def validation_set(size: int, bands_nm, kind: str = "spectral"):
@@ -284,6 +362,12 @@ def main(argv=None) -> int:
                     "SHA-256 goes into the manifest): a spectral-unet-v2 file of the same width and latent, or a "
                     "spectral-unet-v1 file of the same width (converted; the linear path starts as the projection "
                     "on the first --latent principal components of training spectra)")
+    ap.add_argument("--pairs", default=None, help="artefact pairs (scripts/make_pnp_pairs.py .npz) mixed into every step")
+    ap.add_argument("--pair-batch", type=int, default=4, help="artefact pairs per step with --pairs (default: %(default)s)")
+    ap.add_argument("--pairs-val", default=None, help="validation artefact pairs (other scenes); with them the "
+                    "weights file keeps the best stop-stage PSNR within --sel-tolerance of the start's selection score")
+    ap.add_argument("--sel-tolerance", type=float, default=0.2, help="dB the Gaussian selection score may lose against "
+                    "the step-0 score for a checkpoint to be kept under --pairs-val (default: %(default)s)")
     ap.add_argument("--summary", type=int, metavar="EVERY", default=None,
                     help="print the validation curve of --out's train-log.jsonl (every EVERY steps, the best and the "
                          "last) as a Markdown table, and exit")
@@ -299,9 +383,22 @@ def main(argv=None) -> int:
         ap.error(f"--patch must be a multiple of 4 (got {a.patch})")
     if a.latent > len(BANDS_NM):
         ap.error(f"--latent must be at most the {len(BANDS_NM)} bands (got {a.latent})")
+    if a.pair_batch < 1 or not a.sel_tolerance >= 0:
+        ap.error("--pair-batch must be at least 1 and --sel-tolerance non-negative")
     if not (a.lr > 0 and a.lr_min >= 0 and a.clip > 0) or (a.minutes is not None and not a.minutes > 0):
         ap.error("--lr, --clip and --minutes must be positive, --lr-min non-negative")
 
+    pairs, pairs_val = None, None
+    try:
+        if a.pairs:
+            pairs = load_pairs(a.pairs)
+            if min(pairs["inputs"].shape[2:]) < a.patch:
+                ap.error(f"--pairs {a.pairs}: its cubes ({tuple(pairs['inputs'].shape[2:])}) are smaller than --patch {a.patch}")
+        if a.pairs_val:
+            pairs_val = load_pairs(a.pairs_val)
+    except (FileNotFoundError, ValueError) as e:
+        print(f"train_denoiser: error: {e}", file=sys.stderr)
+        return 1
     torch.set_num_threads(a.threads)
     torch.manual_seed(a.seed)
     np.random.seed(a.seed)
@@ -329,21 +426,24 @@ def main(argv=None) -> int:
         net.lat_enc.weight.requires_grad_(False)
         net.lat_dec.weight.requires_grad_(False)
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=a.lr)
-    step, best, elapsed0 = 0, -math.inf, 0.0
+    step, best, elapsed0, sel0 = 0, -math.inf, 0.0, None
     if a.resume:
         if not os.path.isfile(a.resume):
             print(f"train_denoiser: error: --resume {a.resume}: no such file", file=sys.stderr)
             return 1
         st = torch.load(a.resume, weights_only=False)
-        made = (st.get("width"), st.get("latent"), st.get("patch"), st.get("seed"), st.get("freeze_spectral", False))
-        if made != (a.width, a.latent, a.patch, a.seed, a.freeze_spectral):
+        made = (st.get("width"), st.get("latent"), st.get("patch"), st.get("seed"), st.get("freeze_spectral", False),
+                st.get("pairs_sha256"), st.get("pair_batch"))
+        want = (a.width, a.latent, a.patch, a.seed, a.freeze_spectral, pairs and pairs["sha256"],
+                a.pair_batch if pairs else None)
+        if made != want:
             print(f"train_denoiser: error: --resume {a.resume} was made with (width, latent, patch, seed, "
-                  f"freeze-spectral) = {made}, this run asks for {(a.width, a.latent, a.patch, a.seed, a.freeze_spectral)}",
-                  file=sys.stderr)
+                  f"freeze-spectral, pairs SHA-256, pair-batch) = {made}, this run asks for {want}", file=sys.stderr)
             return 2
         net.load_state_dict(st["model"])
         opt.load_state_dict(st["optim"])
         step, best, elapsed0 = st["step"], st["best"], st["elapsed_s"]
+        sel0 = st.get("sel0")
         init_sha = st.get("init_weights_sha256", init_sha)
         init_kind = st.get("init_kind", init_kind)
     manifest = sources_manifest(bands_nm)
@@ -357,6 +457,16 @@ def main(argv=None) -> int:
                           "textures": list(SEL_TEXTURES), "brightness_cycle": list(SEL_BRIGHTNESS),
                           "score": "mean over sigma of the mean PSNR over the selection cubes"},
         "latent": a.latent, "freeze_spectral": a.freeze_spectral,
+        "artefact_pairs": None if pairs is None else {
+            "file": pairs["path"], "sha256": pairs["sha256"], "count": int(pairs["inputs"].shape[0]),
+            "per_step": a.pair_batch, "sigma_per_stage": dict(zip(("stop", "half"), PAIR_SIGMA)),
+            "mean_err_per_stage": {n: float(pairs["err"][pairs["stage"].numpy() == i].mean())
+                                   for i, n in enumerate(("stop", "half")) if (pairs["stage"].numpy() == i).any()},
+            "made_by": "scripts/make_pnp_pairs.py", "manifest": {k: v for k, v in pairs["manifest"].items() if k != "sources"}},
+        "artefact_pairs_val": None if pairs_val is None else {
+            "file": pairs_val["path"], "sha256": pairs_val["sha256"], "count": int(pairs_val["inputs"].shape[0]),
+            "manifest": {k: v for k, v in pairs_val["manifest"].items() if k != "sources"},
+            "rule": f"best stop-stage PSNR among checkpoints whose selection score >= step-0's - {a.sel_tolerance} dB"},
         "pca": {"components": a.pca or a.latent, "train_steps": PCA_STEPS, "size": PCA_SIZE}
         if init_kind and "principal" in init_kind else None,
     })
@@ -376,33 +486,42 @@ def main(argv=None) -> int:
 
     def val_all() -> tuple:
         return (validate(net, clean_val, noisy_val), validate(net, clean_rgb, noisy_rgb),
-                validate(net, clean_sel, noisy_sel))
+                validate(net, clean_sel, noisy_sel), None if pairs_val is None else validate_pairs(net, pairs_val))
 
     def checkpoint(vals: tuple):
-        nonlocal best
-        val, val_rgb, val_sel = vals
-        # Selection: the selection set's mean over σ (the two validation sets are logged, not used to select).
+        nonlocal best, sel0
+        val, val_rgb, val_sel, val_pairs = vals
+        # Selection: the selection set's mean over σ (the two validation sets are logged, not used to select);
+        # with --pairs-val, the stop-stage artefact PSNR among checkpoints that keep the selection score.
         mean = sum(val_sel.values()) / len(val_sel)
-        improved = mean > best
+        if sel0 is None:
+            sel0 = mean
+        score = mean if val_pairs is None else (val_pairs["stop"] if mean >= sel0 - a.sel_tolerance else -math.inf)
+        improved = score > best
         if improved:
-            best = mean
+            best = score
+            extra = {} if val_pairs is None else {"pnp_val_psnr_db": json.dumps(val_pairs),
+                                                  "pnp_sigma_per_stage": json.dumps(dict(zip(("stop", "half"), PAIR_SIGMA)))}
             save_weights(net, wpath, {"training_step": str(step), "val_psnr_db": json.dumps(val),
-                                      "val_rgb_psnr_db": json.dumps(val_rgb), "sel_psnr_db": json.dumps(val_sel)})
+                                      "val_rgb_psnr_db": json.dumps(val_rgb), "sel_psnr_db": json.dumps(val_sel), **extra})
         elapsed = elapsed0 + time.time() - t0
         rec = {"step": step, "elapsed_s": round(elapsed, 1), "lr": opt.param_groups[0]["lr"],
                "train_l1": (sum(losses) / len(losses)) if losses else None, "val_psnr_db": val,
                "val_rgb_psnr_db": val_rgb, "sel_psnr_db": val_sel,
                "sel_score_db": mean, "best": improved}
+        if val_pairs is not None:
+            rec["pnp_val_psnr_db"] = val_pairs
         log.write(json.dumps(rec) + "\n")
         log.flush()
         losses.clear()
         tmp = f"{spath}.tmp"
         torch.save({"model": net.state_dict(), "optim": opt.state_dict(), "step": step, "best": best,
                     "elapsed_s": elapsed, "width": a.width, "latent": a.latent, "patch": a.patch,
-                    "freeze_spectral": a.freeze_spectral,
+                    "freeze_spectral": a.freeze_spectral, "sel0": sel0,
+                    "pairs_sha256": pairs and pairs["sha256"], "pair_batch": a.pair_batch if pairs else None,
                     "seed": a.seed, "init_weights_sha256": init_sha, "init_kind": init_kind}, tmp)
         os.replace(tmp, spath)
-        print(f"step {step} val {val} rgb {val_rgb} selection {val_sel} score {mean:.2f} dB{' (best)' if improved else ''} "
+        print(f"step {step} val {val} rgb {val_rgb} selection {val_sel} score {mean:.2f} dB pnp {val_pairs}{' (best)' if improved else ''} "
               f"{elapsed / 60:.1f} min", flush=True)
 
     if step == 0:
@@ -419,6 +538,9 @@ def main(argv=None) -> int:
             del cache[s]
         g = torch.Generator().manual_seed(a.seed * 1_000_003 + step)
         noisy, sigma, target = make_batch(torch.stack([cache[s] for s in seeds]), g)
+        if pairs is not None:
+            px, ps, pt = pair_batch(pairs, a.pair_batch, a.patch, g)
+            noisy, sigma, target = torch.cat([noisy, px]), torch.cat([sigma, ps]), torch.cat([target, pt])
         for pg in opt.param_groups:
             pg["lr"] = lr_at(step, a.steps, a.lr, a.lr_min, a.warmup)
         loss = (net(noisy, sigma) - target).abs().mean()

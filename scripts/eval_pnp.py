@@ -1,0 +1,146 @@
+#!/usr/bin/env python3
+"""Measures plug-and-play schedules against GAP-TV in the realistic setting (issue 22), through the Python
+bindings, on validation renders of procedural scenes (``--scenes val``: dead-leaves cubes of seeds
+``EVAL_VAL_SEED_BASE + i``, disjoint from every training seed; what schedules are chosen on) or on the six
+natural scenes of ``data/scenes`` (``--scenes natural``: reported, never tuned on).
+
+    .venv/bin/python scripts/eval_pnp.py --scenes val --count 6 --weights W.safetensors --json out.json
+    .venv/bin/python scripts/eval_pnp.py --scenes natural --weights W.safetensors --json out.json
+
+Setting (docs/study.md's): 128² scenes (natural: the 256² uplift area-averaged to 128², ``study``'s default fit), 28 bands 450–650 nm, 112 planes,
+20 rays per pixel per plane (acquisition seed 0), Airy 2.5 px, the paper's mask's centre crop; the exact
+operator traced with seed 1; δ from :func:`diffcassi.monte_carlo_noise_norm`. Per scene and preset: GAP-TV with
+its defaults; then the network schedules of ``--schedules`` — ``one:S`` = one network call at σ = S on the iterate
+``pnp-gap`` hands it (GAP-TV's stop, then one data step: obtained once with an identity network, then denoised
+in PyTorch, equal to the Rust inference to 1e-4), ``pnp:N:S1:S2[:plain]`` = ``pnp-gap`` with N network
+iterations σ S1 → S2 (geometric), accelerated unless ``plain``, no early stop (``discrepancy`` 0, tolerance 0).
+PSNR is the paper's (``diffcassi.metrics``: one MSE over the cube, peak = the truth's max).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import tempfile
+import time
+
+import numpy as np
+import torch
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import diffcassi  # noqa: E402
+from diffcassi.deadleaves import BANDS_NM, dead_leaves  # noqa: E402
+from diffcassi.denoiser import denoise, load_weights  # noqa: E402
+
+EVAL_VAL_SEED_BASE = 7_000_000
+RAYS, PLANES, SIZE = 20, 112, 128
+
+
+def scenes(which: str, count: int):
+    if which == "natural":
+        for png in sorted((ROOT / "data/scenes").glob("*.png")):
+            cube, _ = diffcassi.load_scene(png, list(BANDS_NM))
+            h, w, b = cube.shape
+            if (h, w) != (2 * SIZE, 2 * SIZE):
+                raise SystemExit(f"eval_pnp: error: {png} is {h}×{w}, expected {2 * SIZE}² (the study's --fit resize by 2)")
+            # `study --fit resize` (its default): the area average, here of 2×2 blocks (256² → 128²).
+            cube = cube.astype(np.float64).reshape(SIZE, 2, SIZE, 2, b).mean(axis=(1, 3))
+            yield png.stem, np.ascontiguousarray(cube, dtype=np.float32)
+    else:
+        for i in range(count):
+            seed = EVAL_VAL_SEED_BASE + i
+            c = dead_leaves(seed, SIZE, BANDS_NM, kind="spectral" if i % 3 == 2 else "rgb")
+            yield f"val{seed}", np.ascontiguousarray(c.transpose(1, 2, 0))
+
+
+def paper_psnr(truth: np.ndarray, estimate: np.ndarray) -> float:
+    """The paper's PSNR (dB) of ``estimate`` against ``truth`` ((H, W, B) each), by :func:`diffcassi.metrics`."""
+    d = diffcassi.metrics(truth, np.ascontiguousarray(estimate, dtype=np.float32))
+    return float(d.get("metrics", d)["psnr_db"])
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", choices=("val", "natural"), default="val")
+    ap.add_argument("--count", type=int, default=6, help="validation scenes (--scenes val)")
+    ap.add_argument("--presets", default="sp,msp")
+    ap.add_argument("--weights", action="append", default=[], help="weights file(s) for the one-call schedules")
+    ap.add_argument("--schedules", default="one:0.2", help="comma-separated one:S and pnp:N:S1:S2[:plain]")
+    ap.add_argument("--mask", default=str(ROOT.parent.parent / "shared/reference/paper_mask_512.npy"))
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--json", default=None)
+    ap.add_argument("--cache", default=None, help="folder keeping each cell's GAP-TV PSNR and network input (they do "
+                    "not depend on the weights): one-call schedules of other weights then need no solve")
+    a = ap.parse_args(argv)
+    torch.set_num_threads(a.threads)
+    diffcassi.set_num_threads(a.threads)
+    paper = np.load(a.mask).astype(np.float32)
+    y0, x0 = (paper.shape[0] - SIZE) // 2, (paper.shape[1] - SIZE) // 2
+    mask = np.ascontiguousarray(paper[y0:y0 + SIZE, x0:x0 + SIZE])
+    weights = a.weights or [str(ROOT / "src/recon/prior/weights/spectral-unet-v2-28.safetensors")]
+    nets = {w: load_weights(w, bands=len(BANDS_NM)) for w in weights}
+    scheds = [s.strip() for s in a.schedules.split(",") if s.strip()]
+    rows = []
+    t0 = time.time()
+    from make_pnp_pairs import identity_weights  # noqa: E402 (scripts/ is on sys.path when run as a script)
+    with tempfile.TemporaryDirectory() as tmp:
+        ident = str(pathlib.Path(tmp) / "identity.safetensors")
+        identity_weights(pathlib.Path(ident), len(BANDS_NM))
+        for name, truth in scenes(a.scenes, a.count):
+            for preset in a.presets.split(","):
+                system = diffcassi.System.preset(preset)
+                psnr = lambda c, t=truth: paper_psnr(t, c)
+                cached = None if a.cache is None else pathlib.Path(a.cache) / f"{name}-{preset}.npz"
+                need_op = any(x.startswith("pnp:") for x in scheds)
+                if cached is not None and cached.is_file() and not need_op:
+                    with np.load(cached) as z:
+                        x, gap_tv = z["iterate"], float(z["gap_tv"])
+                else:
+                    y, _ = diffcassi.render(system, truth, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=0)
+                    y = np.ascontiguousarray(y, dtype=np.float32)
+                    op = diffcassi.exact(system, SIZE, SIZE, mask, rays=RAYS, planes=PLANES, seed=1)
+                    delta = diffcassi.monte_carlo_noise_norm(y, RAYS, RAYS, PLANES / len(BANDS_NM))
+                    gt, _ = diffcassi.reconstruct(op, y, "gap-tv", noise_norm=delta)
+                    gap_tv = psnr(gt)
+                    x, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=ident, noise_norm=delta)
+                    if cached is not None:
+                        cached.parent.mkdir(parents=True, exist_ok=True)
+                        np.savez(cached, iterate=x, gap_tv=gap_tv)
+                row = {"scene": name, "preset": preset, "gap_tv": gap_tv}
+                p = float(x.max()) if x.max() > 0 else 1.0
+                xin = torch.from_numpy(np.ascontiguousarray(x.transpose(2, 0, 1) / p))[None]
+                row["iterate"] = psnr(x)
+                for s in scheds:
+                    parts = s.split(":")
+                    if parts[0] == "one":
+                        for w, net in nets.items():
+                            with torch.no_grad():
+                                out = denoise(net, xin, float(parts[1]))[0].numpy().transpose(1, 2, 0) * p
+                            row[f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s] = psnr(out)
+                    elif parts[0] == "pnp":
+                        n, s1, s2 = int(parts[1]), float(parts[2]), float(parts[3])
+                        plain = len(parts) > 4 and parts[4] == "plain"
+                        for w in weights:
+                            c, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=w, noise_norm=delta, iterations=300 + n,
+                                                         sigma_max=s1, sigma_min=min(s1, s2), discrepancy=0.0,
+                                                         tolerance=0.0, accelerated=not plain)
+                            row[f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s] = psnr(c)
+                    else:
+                        ap.error(f"--schedules: unknown schedule {s!r}")
+                rows.append(row)
+                print(json.dumps({k: (round(v, 2) if isinstance(v, float) else v) for k, v in row.items()}), f"{time.time() - t0:.0f} s", flush=True)
+    keys = [k for k in rows[0] if k not in ("scene", "preset")]
+    summary = {pr: {k: float(np.mean([r[k] for r in rows if r["preset"] == pr])) for k in keys}
+               for pr in a.presets.split(",")}
+    print("mean:", json.dumps({pr: {k: round(v, 2) for k, v in d.items()} for pr, d in summary.items()}))
+    if a.json:
+        pathlib.Path(a.json).write_text(json.dumps({"rows": rows, "mean": summary, "args": vars(a),
+                                                    "wall_s": round(time.time() - t0, 1)}, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,171 @@
+#!/usr/bin/env python3
+"""Makes the *artefact pairs* of the PnP fine-tuning (issue 22): what the learned denoiser is given inside
+``pnp-gap`` — the GAP-TV iterate of a CASSI reconstruction — beside the truth, from procedural training scenes.
+
+    .venv/bin/python scripts/make_pnp_pairs.py --out target/pnp-pairs/train.npz --first 0 --count 96
+    .venv/bin/python scripts/make_pnp_pairs.py --out target/pnp-pairs/val.npz --split val --count 16
+
+For each scene (a :func:`diffcassi.deadleaves.dead_leaves` cube, ``--size``², 28 bands 450–650 nm; two in three
+uplifted-sRGB leaves, the evaluation scenes' spectral family, one in three measured-spectra leaves) and each
+preset of ``--presets`` (SP, mSP): the realistic setting of docs/study.md — 112 planes, 20 rays per pixel per
+plane (acquisition seed ``s``), Airy 2.5 px, a mask that is half the time a random crop of the paper's mask
+(``--mask``) and half the time a random binary mask (opening 0.5) — rendered by :func:`diffcassi.render`; the
+exact operator traced with another seed (``s + 1``, as ``reconstruct`` does), δ by
+:func:`diffcassi.monte_carlo_noise_norm`. Then ``pnp-gap`` with an **identity network** (a
+``spectral-unet-v2`` file whose output is its input: D = 0, G = I) returns exactly the iterate x the network
+would be given at its first call — the GAP data step after GAP-TV's phase — for a TV phase that ends at GAP-TV's
+own stop (stage ``stop``, the default PnP) or is capped at half of it (stage ``half``, an earlier iterate).
+A pair is (x/p, truth/p) with p = max x (the solver's normalisation), float32 (B, H, W), with its RMSE/peak
+``err`` (= ‖x − truth‖_rms / p, known here only: the network's σ input is the per-stage constant of
+``scripts/train_denoiser.py``, available at inference).
+
+Scene seeds: train ``PAIR_SEED_BASE + i`` (``--split train``), validation ``PAIR_VAL_SEED_BASE + i`` (``--split
+val``): disjoint from each other and from the Gaussian training, validation and selection seeds of
+``train_denoiser.py`` (tested); no evaluation scene or photograph is read. Deterministic (every seed fixed); one
+``.npz`` with ``inputs`` (N, B, H, W), ``targets``, ``peak``, ``err``, ``stage`` (0 stop, 1 half), ``preset``
+(0 SP, 1 mSP), ``scene_seed``, ``tv_iterations`` (K_TV), ``tv_error`` (ê) and a JSON ``manifest``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import diffcassi  # noqa: E402
+from diffcassi.deadleaves import BANDS_NM, dead_leaves, sources_manifest  # noqa: E402
+
+#: Scene seeds of the artefact pairs (train / validation); disjoint from train_denoiser.py's seeds (0–15,
+#: 1000–1015, ≥ 1 000 000 + 2·step with step < 500 000 in practice) — tested.
+PAIR_SEED_BASE = 5_000_000
+PAIR_VAL_SEED_BASE = 6_000_000
+PRESETS = ("sp", "msp")
+STAGES = ("stop", "half")
+RAYS, PLANES = 20, 112
+
+
+def scene_kind(i: int) -> str:
+    """Two in three uplifted-sRGB leaves (the evaluation scenes' spectral family), one in three measured spectra."""
+    return "spectral" if i % 3 == 2 else "rgb"
+
+
+def identity_weights(path: pathlib.Path, bands: int) -> None:
+    """A spectral-unet-v2 file whose network is the identity (D = 0, G = I): ``pnp-gap`` with it returns the
+    iterate the network is given (× p / p: exact to f32 rounding)."""
+    import torch
+    from diffcassi.denoiser import SpectralUNet, save_weights
+    net = SpectralUNet(bands=bands, width=32, latent=12)
+    with torch.no_grad():
+        net.lat_dec.weight.zero_()
+        net.bypass.weight.copy_(torch.eye(bands).view(bands, bands, 1, 1))
+    save_weights(net, path, {"note": "identity (make_pnp_pairs.py)"})
+
+
+def scene_mask(rng: np.random.Generator, paper: np.ndarray, size: int) -> tuple:
+    """A random crop of the paper's mask (p = 0.5) or a random binary mask of opening 0.5."""
+    if rng.random() < 0.5:
+        y0, x0 = (int(rng.integers(0, n - size + 1)) for n in paper.shape)
+        return np.ascontiguousarray(paper[y0:y0 + size, x0:x0 + size], dtype=np.float32), f"paper crop ({y0}, {x0})"
+    return (rng.random((size, size)) < 0.5).astype(np.float32), "random 0.5"
+
+
+def pairs_of_scene(seed: int, kind: str, size: int, paper: np.ndarray, ident: str, threads: int):
+    cube = dead_leaves(seed, size, BANDS_NM, kind=kind)  # (B, H, W), peak 1
+    scene = np.ascontiguousarray(cube.transpose(1, 2, 0))
+    rng = np.random.default_rng(seed)
+    mask, mask_desc = scene_mask(rng, paper, size)
+    out = []
+    for pi, preset in enumerate(PRESETS):
+        system = diffcassi.System.preset(preset)
+        acq_seed = 2 * seed
+        y, _ = diffcassi.render(system, scene, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=acq_seed)
+        op = diffcassi.exact(system, size, size, mask, rays=RAYS, planes=PLANES, seed=acq_seed + 1)
+        y32 = np.ascontiguousarray(y, dtype=np.float32)
+        delta = diffcassi.monte_carlo_noise_norm(y32, RAYS, RAYS, PLANES / len(BANDS_NM))
+        k_stop = None
+        for si, stage in enumerate(STAGES):
+            cap = 300 if stage == "stop" else max(1, k_stop // 2)
+            x, rec = diffcassi.reconstruct(op, y32, "pnp-gap", denoiser=ident, noise_norm=delta, tv_warmup=cap,
+                                           iterations=cap + 1, discrepancy=0.0, tolerance=0.0)
+            tw = rec["denoiser"]["tv_warmup"]  # the TV phase's record (docs/reconstruction.md)
+            k = int(tw["iterations_run"])
+            if stage == "stop":
+                k_stop = k
+            x = x.transpose(2, 0, 1)  # (B, H, W)
+            p = float(x.max()) if x.max() > 0 else 1.0
+            err = float(np.sqrt(np.mean((x - cube) ** 2)) / p)
+            out.append(dict(inputs=(x / p).astype(np.float32), targets=(cube / p).astype(np.float32), peak=p,
+                            err=err, stage=si, preset=pi, scene_seed=seed, tv_iterations=k,
+                            tv_error=float(tw.get("tv_error_estimate") or np.nan), mask=mask_desc, kind=kind))
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--out", required=True, help="the .npz to write (atomically)")
+    ap.add_argument("--split", choices=("train", "val"), default="train")
+    ap.add_argument("--first", type=int, default=0, help="first scene index")
+    ap.add_argument("--count", type=int, default=64, help="number of scenes (each gives 2 presets × 2 stages)")
+    ap.add_argument("--size", type=int, default=64, help="scene size (pixels, multiple of 4)")
+    ap.add_argument("--mask", default=str(ROOT.parent.parent / "shared/reference/paper_mask_512.npy"),
+                    help="the paper's mask (.npy), cropped at random places (default: %(default)s)")
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--minutes", type=float, default=None, help="stop after this wall time (writes what is done)")
+    a = ap.parse_args(argv)
+    if a.count < 1 or a.first < 0 or a.size < 16 or a.size % 4:
+        ap.error("--count ≥ 1, --first ≥ 0, --size ≥ 16 and a multiple of 4")
+    try:
+        paper = np.load(a.mask).astype(np.float32)
+    except (OSError, ValueError) as e:
+        print(f"make_pnp_pairs: error: --mask {a.mask}: {e}", file=sys.stderr)
+        return 1
+    if paper.ndim != 2 or min(paper.shape) < a.size:
+        print(f"make_pnp_pairs: error: --mask {a.mask}: shape {paper.shape} is not 2-D of at least {a.size}²",
+              file=sys.stderr)
+        return 1
+    diffcassi.set_num_threads(a.threads)
+    base = PAIR_SEED_BASE if a.split == "train" else PAIR_VAL_SEED_BASE
+    t0 = time.time()
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        ident = str(pathlib.Path(tmp) / "identity.safetensors")
+        identity_weights(pathlib.Path(ident), len(BANDS_NM))
+        for i in range(a.first, a.first + a.count):
+            if a.minutes is not None and time.time() - t0 > 60 * a.minutes:
+                break
+            rows += pairs_of_scene(base + i, scene_kind(i), a.size, paper, ident, a.threads)
+            last = rows[-4:]
+            print(f"scene {i} ({scene_kind(i)}): err " + " ".join(f"{r['err']:.3f}" for r in last)
+                  + f", K_TV {[r['tv_iterations'] for r in last]}, {time.time() - t0:.0f} s", flush=True)
+    if not rows:
+        print("make_pnp_pairs: error: no scene done within --minutes", file=sys.stderr)
+        return 1
+    arrays = {k: np.stack([r[k] for r in rows]) for k in ("inputs", "targets")}
+    arrays.update({k: np.array([r[k] for r in rows]) for k in ("peak", "err", "stage", "preset", "scene_seed",
+                                                                   "tv_iterations", "tv_error")})
+    manifest = {"split": a.split, "seed_base": base, "first": a.first, "scenes": len(rows) // 4, "size": a.size,
+                "presets": list(PRESETS), "stages": list(STAGES), "rays": RAYS, "planes": PLANES,
+                "acquisition_seed": "2*scene_seed", "operator_seed": "2*scene_seed + 1",
+                "mask": a.mask, "masks": [r["mask"] for r in rows[::4]], "kinds": [r["kind"] for r in rows[::4]],
+                "image_files": [], "evaluation_scenes_used": [], "wall_s": round(time.time() - t0, 1),
+                "sources": sources_manifest(BANDS_NM)}
+    out = pathlib.Path(a.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp.npz")
+    np.savez(tmp, manifest=np.array(json.dumps(manifest)), **arrays)
+    tmp.replace(out)
+    print(f"wrote {len(rows)} pairs of {len(rows) // 4} scenes to {out} in {time.time() - t0:.0f} s; "
+          f"err by stage: " + ", ".join(f"{s} {arrays['err'][arrays['stage'] == i].mean():.3f}"
+                                         for i, s in enumerate(STAGES)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

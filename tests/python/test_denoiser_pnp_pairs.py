@@ -1,0 +1,137 @@
+"""The PnP fine-tuning's artefact pairs (scripts/make_pnp_pairs.py) and their use by scripts/train_denoiser.py
+(src/recon/prior/MODEL.md, round 4): the identity network returns its input (so ``pnp-gap`` with it hands back
+the iterate the network is given), a tiny pairs file is consistent (inputs scaled to peak 1, ``err`` the RMSE
+against the target), the pair seeds are disjoint from every other seed of the denoiser's data, a training run
+with pairs resumes exactly and keeps the selection rule, and bad pair files give clear errors. Tiny sizes only."""
+import json
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch", reason="torch not installed (DIFFCASSI_TORCH=skip)")
+pytest.importorskip("safetensors", reason="safetensors not installed (scripts/setup.sh installs it with torch)")
+pytest.importorskip("colour", reason="colour-science not installed (scripts/setup.sh installs it with torch)")
+
+import diffcassi  # noqa: E402
+from diffcassi.denoiser import ARCH, denoise, load_weights  # noqa: E402
+
+from conftest import load_script  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def pairs_script():
+    return load_script("make_pnp_pairs")
+
+
+@pytest.fixture(scope="module")
+def train():
+    return load_script("train_denoiser")
+
+
+@pytest.fixture(scope="module")
+def pairs_file(pairs_script, tmp_path_factory):
+    out = tmp_path_factory.mktemp("pairs") / "pairs.npz"
+    assert pairs_script.main(["--out", str(out), "--count", "2", "--size", "16"]) == 0
+    return out
+
+
+def test_identity_network_returns_its_input(pairs_script, tmp_path):
+    path = tmp_path / "id.safetensors"
+    pairs_script.identity_weights(path, 28)
+    net = load_weights(path, bands=28)
+    x = torch.rand(1, 28, 10, 14)
+    assert torch.allclose(denoise(net, x, 0.3), x, atol=1e-6)
+    cube = np.random.default_rng(0).random((10, 14, 28)).astype(np.float32)
+    assert np.abs(diffcassi.denoise(cube, 0.3, weights=str(path)) - cube).max() < 1e-5
+
+
+def test_pairs_file_is_consistent(pairs_file, train):
+    with np.load(pairs_file) as z:
+        x, t, err, stage, preset, peak = (z[k] for k in ("inputs", "targets", "err", "stage", "preset", "peak"))
+        manifest = json.loads(str(z["manifest"]))
+    assert x.shape == t.shape == (8, 28, 16, 16) and x.dtype == np.float32
+    assert np.allclose(x.reshape(8, -1).max(1), 1.0)  # the solver's normalisation: the iterate's peak
+    assert np.allclose(err, np.sqrt(((x - t) ** 2).reshape(8, -1).mean(1)), rtol=1e-4)
+    assert 0 < err.min() and err.max() < 1 and (peak > 0).all()
+    assert list(stage) == [0, 1, 0, 1] * 2 and list(preset) == [0, 0, 1, 1] * 2
+    assert manifest["image_files"] == [] and manifest["evaluation_scenes_used"] == []
+    # The truth is the scene's dead-leaves cube (peak 1) over the iterate's peak.
+    from diffcassi.deadleaves import dead_leaves
+    seed = int(np.load(pairs_file)["scene_seed"][0])
+    assert np.allclose(t[0] * peak[0], dead_leaves(seed, 16, kind="rgb"), atol=1e-6)
+    loaded = train.load_pairs(pairs_file)
+    assert loaded["sigma"].tolist() == pytest.approx([train.PAIR_SIGMA[s] for s in stage])
+
+
+def test_pair_seeds_disjoint_from_the_other_denoiser_seeds(pairs_script, train):
+    ev = load_script("eval_pnp")
+    train_pairs = {pairs_script.PAIR_SEED_BASE + i for i in range(100_000)}
+    val_pairs = {pairs_script.PAIR_VAL_SEED_BASE + i for i in range(100_000)}
+    eval_val = {ev.EVAL_VAL_SEED_BASE + i for i in range(100_000)}
+    others = set(train.val_seeds()) | set(train.sel_seeds())
+    assert not train_pairs & val_pairs and not (train_pairs | val_pairs) & eval_val
+    assert not (train_pairs | val_pairs | eval_val) & others
+    # The Gaussian training seeds stay below the pair seeds for 1.9 M steps (round 3 ran 4 457).
+    assert max(train.train_seeds(1_900_000)) < pairs_script.PAIR_SEED_BASE
+
+
+def test_training_with_pairs_resumes_exactly_and_logs_the_pnp_score(train, pairs_file, tmp_path):
+    common = ["--patch", "16", "--threads", "1", "--warmup", "1", "--val-every", "2", "--width", "4", "--latent", "6",
+              "--pairs", str(pairs_file), "--pairs-val", str(pairs_file), "--pair-batch", "2"]
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert train.main(common + ["--steps", "4", "--out", str(a)]) == 0
+    assert train.main(common + ["--steps", "2", "--out", str(b)]) == 0
+    assert train.main(common + ["--steps", "4", "--out", str(b), "--resume", str(b / "train-state.pt")]) == 0
+    sa, sb = torch.load(a / "train-state.pt"), torch.load(b / "train-state.pt")
+    for k in sa["model"]:
+        assert torch.equal(sa["model"][k], sb["model"][k]), k
+    vals = [json.loads(line) for line in (a / "train-log.jsonl").read_text().splitlines()]
+    vals = [r for r in vals if "val_psnr_db" in r]
+    assert all({"stop", "stop_input", "half", "half_input"} <= set(r["pnp_val_psnr_db"]) for r in vals)
+    # The rule: the best stop-stage PSNR among checkpoints within --sel-tolerance of step 0's selection score.
+    ok = [r for r in vals if r["sel_score_db"] >= vals[0]["sel_score_db"] - 0.2]
+    best = max(ok, key=lambda r: r["pnp_val_psnr_db"]["stop"])
+    from safetensors import safe_open
+    with safe_open(str(a / f"{ARCH}-28.safetensors"), framework="pt") as f:
+        meta = f.metadata()
+    assert meta["training_step"] == str(best["step"]) and "pnp_val_psnr_db" in meta
+    man = json.loads((a / "train-manifest.json").read_text())
+    assert man["artefact_pairs"]["count"] == 8 and man["artefact_pairs"]["per_step"] == 2
+    # Another pairs file does not resume this state.
+    other = tmp_path / "other.npz"
+    with np.load(pairs_file) as z:
+        d = {k: z[k] for k in z.files}
+    d["targets"] = d["targets"] * 0.5
+    np.savez(other, **d)
+    bad = [x if x != str(pairs_file) else str(other) for x in common]
+    assert train.main(bad + ["--steps", "6", "--out", str(b), "--resume", str(b / "train-state.pt")]) == 2
+
+
+def test_bad_pairs_files_give_clear_errors(train, pairs_file, tmp_path, capsys):
+    common = ["--patch", "16", "--threads", "1", "--steps", "1", "--width", "4", "--latent", "6", "--out", str(tmp_path / "o")]
+    assert train.main(common + ["--pairs", str(tmp_path / "none.npz")]) == 1
+    assert "none.npz: no such file" in capsys.readouterr().err
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    assert train.main(common + ["--pairs", str(tmp_path / "junk.npz")]) == 1
+    assert "not a make_pnp_pairs.py file" in capsys.readouterr().err
+    with np.load(pairs_file) as z:
+        d = {k: z[k] for k in z.files}
+    d["inputs"] = d["inputs"].copy()
+    d["inputs"][0, 0, 0, 0] = np.nan
+    np.savez(tmp_path / "nan.npz", **d)
+    assert train.main(common + ["--pairs", str(tmp_path / "nan.npz")]) == 1
+    assert "must be finite" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as e:
+        train.main(common[:-4] + ["--patch", "32", "--out", str(tmp_path / "o"), "--pairs", str(pairs_file)])
+    assert e.value.code == 2
+    assert not (tmp_path / "o" / f"{ARCH}-28.safetensors").exists()
+
+
+def test_round4_manifest_uses_no_image_and_no_evaluation_scene():
+    from conftest import ROOT
+    man = json.loads((ROOT / "src/recon/prior/weights/train-manifest-round4.json").read_text())
+    assert man["image_files"] == [] and man["evaluation_scenes_used"] == []
+    for key in ("artefact_pairs", "artefact_pairs_val"):
+        assert man[key]["manifest"]["image_files"] == [] and man[key]["manifest"]["evaluation_scenes_used"] == []
+    assert man["artefact_pairs"]["sha256"] != man["artefact_pairs_val"]["sha256"]
+    assert man["artefact_pairs"]["manifest"]["seed_base"] != man["artefact_pairs_val"]["manifest"]["seed_base"]
