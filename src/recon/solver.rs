@@ -130,8 +130,9 @@ pub struct SolverConfig {
     #[serde(default)]
     pub discrepancy: f64,
     /// The expected norm δ = E‖y − Φx_true‖₂ of the measurement's noise and operator mismatch, in acquisition
-    /// units (the CLI estimates it from render.json: sensor noise and the Monte-Carlo mismatch of the rays;
-    /// `noise_estimate` in reconstruct.json). 0: unknown, the discrepancy rule is off.
+    /// units (the CLI: sensor noise from render.json, and the exact operator's Monte-Carlo mismatch estimated
+    /// during the run by [`MonteCarloSpread`], this field then being the sensor part; `noise_estimate` in
+    /// reconstruct.json). 0: unknown, the discrepancy rule is off (unless a [`MonteCarloSpread`] is given).
     #[serde(default)]
     pub noise_norm: f64,
     /// PnP only: the denoiser's weights file (safetensors); `None`: the embedded checkpoint.
@@ -447,7 +448,9 @@ pub const PNP_TOLERANCE: f64 = 1e-3;
 /// ∝ 1/R) and F render planes per band (each band's image averages F independent planes). Measured on the
 /// six natural scenes at 128×128×28 (SP and mSP, F = 4, R_a = R_o = 20, Airy 2.5 px, the paper's mask) as
 /// ‖y − Φ_o x_true‖/‖y‖ = 0.0089–0.0107, mean 0.0097 (`reconstruct --truth` records it as
-/// `truth_residual`; docs/reconstruction.md, "Defaults and stopping").
+/// `truth_residual`; docs/reconstruction.md, "Defaults and stopping"). A constant relative mismatch: it
+/// overestimates δ on smoother scenes (the same photographs at 256² and 512²), so the CLI's default estimates the
+/// term from the data ([`MonteCarloSpread`]) and keeps this model for `--noise-estimate model`.
 pub const MC_MISMATCH_PER_RAY: f64 = 0.062;
 
 /// δ_MC = [`MC_MISMATCH_PER_RAY`]·((1/R_a + 1/R_o)/F)^½·‖y‖: the expected ‖y − Φ_o x_true‖₂ of an exact
