@@ -11,7 +11,8 @@
 //!   any [`Denoiser`] D(x_k, σ_k): PnP-GAP (`pnp-gap`) plugs in the learned network with the decreasing σ
 //!   schedule of [`super::solver::sigma_schedule`], the cube scaled to peak 1 around D.
 //! - optional stops: the discrepancy principle ‖y − Φθ_{k−1}‖₂ ≤ τ·δ (δ the expected norm of the
-//!   measurement's noise, [`super::solver::Discrepancy`]; θ_{k−1} is returned), or
+//!   measurement's noise, [`super::solver::Discrepancy`]: fixed, or re-estimated from the data every few
+//!   iterations by [`gap_estimated`]'s [`MonteCarloSpread`]; θ_{k−1} is returned), or
 //!   ‖θ_k − θ_{k−1}‖₂ / ‖θ_k‖₂ < `tolerance` (the record says which rule ended the run).
 //!
 //! Cost per iteration: one Φ, one Φᵀ, one TV denoising. Memory: 6 cube-sized f32 buffers (θ, x, and the
