@@ -249,8 +249,13 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     off), tolerance (relative change; 0 for TV); for PnP tv_warmup (the TV phase's cap), sigma_max, sigma_min
     (the σ schedule's ceiling and floor), sigma_auto (True: σ_1 from the TV iterate's estimated error),
     denoiser (a weights file; default the embedded one).
+    δ from the data, as the CLI's default: ``noise_twin`` (an exact operator with the same settings and rays
+    as ``operator`` but another ``seed``) makes the rule re-estimate δ every 5 iterations as
+    (noise_norm² + (noise_factor·‖(Φ − Φ')θ‖)²)^½ at the iterate θ — noise_norm is then the sensor part (0 for
+    a noiseless acquisition), ``noise_factor`` = :func:`spread_noise_factor` (1 for equal ray counts).
     Returns ``(cube, record)``; the record holds the settings, per-iteration residuals, seconds and
-    ``stopping`` (the rule, τ, δ, the cap, ``iterations_run``, ``stopped_by``), as ``reconstruct.json``."""
+    ``stopping`` (the rule, τ, δ, the cap, ``iterations_run``, ``stopped_by``, ``noise_estimator``,
+    ``noise_norm_per_estimate``), as ``reconstruct.json``."""
     op = operator.operator if isinstance(operator, Transport) else operator
     if not isinstance(op, Operator):
         raise DiffcassiValueError(f"operator: expected a diffcassi.Operator or Transport, got {type(operator).__name__}")
@@ -259,6 +264,12 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi):
             raise DiffcassiValueError(f"{k}: expected an integer in {lo}..={hi}, got {type(v).__name__} {v!r}")
     acq = np.ascontiguousarray(acquisition, dtype=np.float32) if getattr(acquisition, "dtype", None) == np.float64 else acquisition
+    twin = settings.get("noise_twin")
+    if twin is not None:
+        twin = twin.operator if isinstance(twin, Transport) else twin
+        if not isinstance(twin, Operator):
+            raise DiffcassiValueError(f"noise_twin: expected a diffcassi.Operator or Transport, got {type(twin).__name__}")
+        settings["noise_twin"] = twin
     cube, record = _native._reconstruct(op, acq, solver, init, **settings)
     return cube, _json.loads(record)
 
@@ -267,12 +278,20 @@ def monte_carlo_noise_norm(acquisition: np.ndarray, acquisition_rays: int, opera
     """δ for the discrepancy stop of :func:`reconstruct` (``noise_norm``), as the CLI estimates its Monte-Carlo
     term: 0.062·((1/R_a + 1/R_o)/F)^½·‖y‖ for an exact operator traced with another seed (R_o rays per pixel per
     plane) against an acquisition traced with R_a rays, F render planes per band (docs/reconstruction.md,
-    "Defaults and stopping"). Add the sensor noise yourself when the acquisition has any."""
+    "Defaults and stopping"). Add the sensor noise yourself when the acquisition has any. The constant model
+    (the CLI's ``--noise-estimate model``); the default estimate is from the data (``noise_twin`` of
+    :func:`reconstruct`): the model overestimates δ on smoother, larger scenes."""
     acq = np.ascontiguousarray(acquisition, dtype=np.float32)
     return float(_native.monte_carlo_noise_norm(acq, int(acquisition_rays), int(operator_rays), float(planes_per_band)))
 
 
-__all__ += ["mapping_operator", "shift_operator", "reconstruct", "monte_carlo_noise_norm"]
+def spread_noise_factor(acquisition_rays: int, operator_rays: int) -> float:
+    """((1 + R_o/R_a)/2)^½: scales an exact operator's spread against its twin, ‖(Φ − Φ')θ‖, to the expected
+    ‖y − Φx_true‖ of an acquisition traced with R_a rays (``noise_factor`` of :func:`reconstruct`)."""
+    return float(_native.spread_noise_factor(int(acquisition_rays), int(operator_rays)))
+
+
+__all__ += ["mapping_operator", "shift_operator", "reconstruct", "monte_carlo_noise_norm", "spread_noise_factor"]
 
 
 def denoise(cube: np.ndarray, sigma: float, weights: Optional[str] = None) -> np.ndarray:

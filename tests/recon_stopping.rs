@@ -3,9 +3,11 @@
 //! says which rule ended the run; the CLI estimates δ from render.json (sensor noise, Monte-Carlo mismatch)
 //! and records the rule, the estimate, the iteration and the reason; bad τ → a clear error, nothing written.
 //! Tiny sizes throughout.
-use diffcassi::recon::solver::{reconstruct, SolverConfig};
-use diffcassi::recon::{CubeShape, ImageShape, Operator, ShiftOperator};
-use diffcassi::render::Mask;
+use diffcassi::prelude::*;
+use diffcassi::recon::solver::{config_denoiser, reconstruct, SolverConfig};
+use diffcassi::recon::{reconstruct_estimated, CubeShape, ExactOperator, ImageShape, MonteCarloSpread, Operator, ShiftOperator};
+use diffcassi::render::{Mask, RenderConfig, Renderer, Sampling, SpectralSampling};
+use diffcassi::scene::synthetic_scene;
 use std::path::Path;
 use std::process::{Command, Output};
 
@@ -150,6 +152,26 @@ fn cli_records_the_stopping_rule_and_its_noise_estimate() {
     let total = est["norm"].as_f64().unwrap();
     assert!((total.powi(2) - sensor.powi(2) - est["monte_carlo_norm"].as_f64().unwrap().powi(2)).abs() <= 1e-9 * total.powi(2));
     assert!((st["noise_norm"].as_f64().unwrap() - total).abs() <= 1e-12 * total);
+    // δ's Monte-Carlo term from the data by default (the operator's twin), the constant model on request.
+    assert_eq!(est["estimator"], "monte-carlo-spread", "{est}");
+    assert_eq!(st["noise_estimator"], "monte-carlo-spread");
+    let twin_seed = est["spread"]["twin_seed"].as_u64().unwrap();
+    assert!(twin_seed != j["operator_seed"].as_u64().unwrap() && twin_seed != j["acquisition_seed"].as_u64().unwrap());
+    let per = st["noise_norm_per_estimate"].as_array().unwrap();
+    assert!(!per.is_empty() && per[0][0] == 2, "{st}");
+    assert_eq!(per.last().unwrap()[1].as_f64().unwrap(), total);
+    let model = d.path().join("model");
+    let o = bin(&["reconstruct", "--from", s(&render), "--iterations", "3", "--noise-estimate", "model", "--out", s(&model)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let jm = read_json(&model.join("reconstruct.json"));
+    let em = &jm["stopping"]["noise_estimate"];
+    assert_eq!((em["estimator"].as_str(), jm["stopping"]["noise_estimator"].as_str()), (Some("model"), Some("fixed")));
+    assert!(em["monte_carlo_norm"].as_f64().unwrap() > 0.0 && em["monte_carlo_norm"] == em["monte_carlo_model_norm"]);
+    assert!(jm["stopping"]["noise_norm_per_estimate"].as_array().unwrap().is_empty());
+    let bad = d.path().join("badmodel");
+    let o = bin(&["reconstruct", "--from", s(&render), "--iterations", "3", "--noise-estimate", "guess", "--out", s(&bad)]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--noise-estimate") && !bad.exists(), "{}", stderr(&o));
     let read_e = rj["noise"]["read_noise_e"].as_f64().unwrap();
     assert!(sensor > read_e / k, "sensor δ {sensor} below one pixel's read noise");
     // The oracle (same seed, same rays): no Monte-Carlo term.
@@ -170,6 +192,8 @@ fn cli_records_the_stopping_rule_and_its_noise_estimate() {
     assert_eq!((jf["stopping"]["stopped_by"].as_str(), jf["stopping"]["iterations_run"].as_u64()), (Some("iterations"), Some(4)));
     assert_eq!(jf["stopping"]["psnr_per_iteration"].as_array().unwrap().len(), 4);
     assert!(jf["stopping"]["truth_residual"].as_f64().unwrap() >= 0.0);
+    // The estimator at the truth, beside the truth residual it estimates (noisy acquisition: both > 0).
+    assert!(jf["stopping"]["truth_spread_estimate"].as_f64().unwrap() > 0.0);
     // Bad τ: exit 1, nothing written.
     for bad in ["-1", "NaN"] {
         let o2 = d.path().join(format!("bad{bad}"));
@@ -177,5 +201,128 @@ fn cli_records_the_stopping_rule_and_its_noise_estimate() {
         assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
         assert!(stderr(&o).contains("--discrepancy"), "{}", stderr(&o));
         assert!(!o2.exists());
+    }
+}
+
+// ---- δ estimated from the data (issue 22): the exact operator's spread against its twin ----
+
+/// A tiny exact operator of SP: `size`² scene, 4 bands × 2 planes, `rays` rays per pixel per plane, `seed`.
+fn exact_op(system: &'static SequentialSystem, tracer: &'static AnalyticTracer, size: usize, rays: usize, seed: u64, sampling: Sampling) -> ExactOperator<'static> {
+    let mut cfg = RenderConfig::paper(size);
+    cfg.spectral = SpectralSampling::new(vec![480.0, 530.0, 580.0, 630.0], 2).unwrap();
+    cfg.rays_per_pixel = rays;
+    cfg.sampling = sampling;
+    cfg.seed = seed;
+    let r = Renderer::new(system, tracer, cfg, Mask::random(size, size, 0.5, 7).unwrap()).unwrap();
+    ExactOperator::new(r, &[480.0, 530.0, 580.0, 630.0], 1 << 30).unwrap()
+}
+
+/// SP and the analytic tracer, leaked once per test (the operators borrow them for `'static`).
+fn sp() -> (&'static SequentialSystem, &'static AnalyticTracer) {
+    (Box::leak(Box::new(SequentialSystem::build(&presets::spec("sp").unwrap()).unwrap())), Box::leak(Box::new(AnalyticTracer::default())))
+}
+
+fn dist(a: &[f32], b: &[f32]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| ((*x - *y) as f64).powi(2)).sum::<f64>().sqrt()
+}
+
+/// Unbiased against a known Monte-Carlo mismatch: over independent seed triples (acquisition Φ_a, operator
+/// Φ_o, twin Φ'), E[factor²·‖(Φ_o − Φ')x‖²] = E‖(Φ_a − Φ_o)x‖² — for equal ray counts (factor 1, any
+/// sampling) and for R_o = 4 R_a (factor ((1 + 4)/2)^½, independent sampling: variance ∝ 1/R). The means of
+/// the two over 12 triples agree within 20 % (each a sum over every pixel and plane), while a wrong factor
+/// (1 for the unequal case) is 2.5× off.
+#[test]
+fn spread_estimate_is_unbiased_against_the_monte_carlo_mismatch() {
+    let (system, tracer) = sp();
+    let x = synthetic_scene(12, 12, &[480.0, 530.0, 580.0, 630.0], 3).data;
+    for (ra, ro, sampling) in [(4, 4, Sampling::Stratified), (2, 8, Sampling::Independent)] {
+        let factor = MonteCarloSpread::factor_for(ra, ro);
+        let (mut truth_sq, mut est_sq, mut plain_sq) = (0.0, 0.0, 0.0);
+        for t in 0..12u64 {
+            let a = exact_op(system, tracer, 12, ra, 100 + 3 * t, sampling);
+            let o = exact_op(system, tracer, 12, ro, 101 + 3 * t, sampling);
+            let twin = exact_op(system, tracer, 12, ro, 102 + 3 * t, sampling);
+            let (ya, yo) = ((&a as &dyn Operator).apply(&x).unwrap(), (&o as &dyn Operator).apply(&x).unwrap());
+            truth_sq += dist(&ya, &yo).powi(2);
+            let spread = MonteCarloSpread { twin: &twin, factor, sensor_norm: 0.0, every: 1 };
+            let mc = spread.monte_carlo(&x, &yo, &mut Vec::new());
+            est_sq += mc * mc;
+            plain_sq += (mc / factor).powi(2);
+        }
+        let ratio = est_sq / truth_sq;
+        assert!((0.8..=1.25).contains(&ratio), "R_a {ra}, R_o {ro}: E[δ̂²]/E‖y − Φ_o x‖² = {ratio}");
+        if ra != ro {
+            assert!(plain_sq / truth_sq < 0.5, "without the factor: {}", plain_sq / truth_sq);
+        }
+    }
+}
+
+/// The data-driven rule at two tiny sizes: GAP-TV on a noiseless acquisition (seed 1) with the operator
+/// (seed 2) and its twin (seed 3) stops by the discrepancy rule at a θ with ‖y − Φθ‖ ≤ τ·δ̂ (δ̂ the last
+/// estimate), records every estimate (iterations 2, 2 + every, …), and δ̂ tracks the truth residual
+/// ‖y − Φ_o x‖ at each size (within a factor 2); the same run with the rule off goes to the cap, and is the
+/// same iterate up to the stop (the rule only stops). Deterministic: 1 and 2 threads give the same bits (iterates and every δ̂).
+#[test]
+fn spread_rule_stops_at_two_sizes_and_is_thread_independent() {
+    let (system, tracer) = sp();
+    for size in [12usize, 20] {
+        let x = synthetic_scene(size, size, &[480.0, 530.0, 580.0, 630.0], 5).data;
+        let a = exact_op(system, tracer, size, 4, 1, Sampling::Stratified);
+        let y = (&a as &dyn Operator).apply(&x).unwrap();
+        let o = exact_op(system, tracer, size, 4, 2, Sampling::Stratified);
+        let twin = exact_op(system, tracer, size, 4, 3, Sampling::Stratified);
+        let spread = MonteCarloSpread { twin: &twin, factor: 1.0, sensor_norm: 0.0, every: 3 };
+        let truth = dist(&y, &(&o as &dyn Operator).apply(&x).unwrap());
+        let cfg = SolverConfig { iterations: 150, tv_weight: 0.02, discrepancy: 1.0, noise_norm: 0.0, ..SolverConfig::gap_tv() };
+        let run = |cfg: &SolverConfig, threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let mut d = config_denoiser(cfg).unwrap();
+                reconstruct_estimated(&o, &y, None, cfg, d.as_mut(), &|_, _| {}, &mut |_, _| {}, Some(&spread)).unwrap()
+            })
+        };
+        let rec = run(&cfg, 2);
+        assert_eq!(rec.stopped_by, "discrepancy", "size {size}: {} iterations", rec.iterations_run);
+        let ks: Vec<usize> = rec.noise_estimates.iter().map(|(k, _)| *k).collect();
+        assert_eq!(ks, (0..ks.len()).map(|i| 2 + 3 * i).collect::<Vec<_>>());
+        let last = rec.noise_estimates.last().unwrap().1;
+        assert_eq!(rec.noise_norm, last);
+        let r = dist(&y, &(&o as &dyn Operator).apply(&rec.cube).unwrap());
+        assert!(r <= last * (1.0 + 1e-5), "size {size}: residual {r} above δ̂ {last}");
+        assert!(last > 0.5 * truth && last < 2.0 * truth, "size {size}: δ̂ {last}, truth residual {truth}");
+        let one = run(&cfg, 1);
+        assert_eq!(one.cube, rec.cube);
+        assert_eq!(one.noise_estimates, rec.noise_estimates);
+        // The rule off (τ = 0): the estimates are still recorded, the cap ends the run, same iterate at the stop.
+        let off = run(&SolverConfig { discrepancy: 0.0, ..cfg.clone() }, 2);
+        assert_eq!((off.stopped_by.as_str(), off.iterations_run), ("iterations", 150));
+        assert_eq!(off.noise_estimates[..ks.len()], rec.noise_estimates[..]);
+        let again = run(&SolverConfig { iterations: rec.iterations_run, discrepancy: 0.0, ..cfg.clone() }, 2);
+        assert_eq!(again.cube, rec.cube);
+        // ADMM takes the same estimator.
+        let admm = SolverConfig { iterations: 150, tv_weight: 0.02, discrepancy: 1.0, ..SolverConfig::admm_tv() };
+        let ra = run(&admm, 2);
+        assert!(!ra.noise_estimates.is_empty() && ra.noise_estimates[0].0 == 2);
+    }
+}
+
+/// Bad estimator settings are clear errors: a twin of another shape, a non-finite factor, period 0.
+#[test]
+fn bad_spread_settings_are_clear_errors() {
+    let (system, tracer) = sp();
+    let o = exact_op(system, tracer, 12, 2, 2, Sampling::Stratified);
+    let small = exact_op(system, tracer, 10, 2, 3, Sampling::Stratified);
+    let twin = exact_op(system, tracer, 12, 2, 3, Sampling::Stratified);
+    let y = vec![1.0f32; o.image_shape().len()];
+    let cfg = SolverConfig { iterations: 3, ..SolverConfig::gap_tv() };
+    for (spread, needle) in [
+        (MonteCarloSpread { twin: &small, factor: 1.0, sensor_norm: 0.0, every: 1 }, "other shapes"),
+        (MonteCarloSpread { twin: &twin, factor: f64::NAN, sensor_norm: 0.0, every: 1 }, "factor"),
+        (MonteCarloSpread { twin: &twin, factor: 1.0, sensor_norm: -1.0, every: 1 }, "sensor norm"),
+        (MonteCarloSpread { twin: &twin, factor: 1.0, sensor_norm: 0.0, every: 0 }, "period"),
+    ] {
+        let mut d = config_denoiser(&cfg).unwrap();
+        let e = reconstruct_estimated(&o, &y, None, &cfg, d.as_mut(), &|_, _| {}, &mut |_, _| {}, Some(&spread)).unwrap_err().to_string();
+        assert!(e.contains(needle), "{e}");
     }
 }

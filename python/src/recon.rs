@@ -9,7 +9,8 @@ use crate::pool::run;
 use crate::render::{check_shape, owned_exact};
 use crate::settings::configure;
 use crate::system::PySystem;
-use diffcassi::recon::{metrics, reconstruct, CubeShape, Denoiser, SpectralUNet, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, SparseExport, TvCoupling};
+use diffcassi::recon::solver::{config_denoiser, SPREAD_EVERY};
+use diffcassi::recon::{metrics, reconstruct_estimated, CubeShape, MonteCarloSpread, Denoiser, SpectralUNet, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, SparseExport, TvCoupling};
 use diffcassi::render::Renderer;
 use diffcassi::scene::SpectralCube;
 use numpy::PyArrayDyn;
@@ -224,7 +225,7 @@ fn model_operator(
 #[pyo3(signature = (operator, acquisition, solver = "gap-tv", init = None, iterations = None, step = None, tv_weight = None,
                     tv_iterations = None, tv_coupling = None, accelerated = None, admm_eta = None, sigma_max = None,
                     sigma_min = None, tolerance = None, denoiser = None, tv_warmup = None, discrepancy = None,
-                    noise_norm = None, sigma_auto = None))]
+                    noise_norm = None, sigma_auto = None, noise_twin = None, noise_factor = None))]
 #[allow(clippy::too_many_arguments)]
 fn _reconstruct<'py>(
     py: Python<'py>,
@@ -247,6 +248,8 @@ fn _reconstruct<'py>(
     discrepancy: Option<f64>,
     noise_norm: Option<f64>,
     sigma_auto: Option<bool>,
+    noise_twin: Option<PyRef<'py, PyOperator>>,
+    noise_factor: Option<f64>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, String)> {
     let kind: SolverKind = solver.parse().py()?;
     let mut cfg = SolverConfig::for_solver(kind);
@@ -291,9 +294,19 @@ fn _reconstruct<'py>(
         }
         None => None,
     };
+    if noise_factor.is_some() && noise_twin.is_none() {
+        return Err(value_error("noise_factor: applies with noise_twin only (the data-driven δ)"));
+    }
     let op = &operator.op;
     let y = a.slice();
-    let rec = run(py, || reconstruct(op.as_ref(), y, init.as_deref(), &cfg, &|_, _| {})).py()?;
+    // The data-driven δ: noise_norm is the fixed (sensor) part, the twin's spread the Monte-Carlo part.
+    let twin = noise_twin.as_ref().map(|t| t.op.clone());
+    let spread = twin.as_ref().map(|t| MonteCarloSpread { twin: t.as_ref(), factor: noise_factor.unwrap_or(1.0), sensor_norm: cfg.noise_norm, every: SPREAD_EVERY });
+    let rec = run(py, || -> diffcassi::Result<_> {
+        let mut denoiser = config_denoiser(&cfg)?;
+        reconstruct_estimated(op.as_ref(), y, init.as_deref(), &cfg, denoiser.as_mut(), &|_, _| {}, &mut |_, _| {}, spread.as_ref())
+    })
+    .py()?;
     // The CLI's record: the solver's, with `stopping` as in reconstruct.json (δ is the caller's `noise_norm`).
     let mut record = serde_json::to_value(&rec).map_err(|e| value_error(format!("internal: {e}")))?;
     if let Some(o) = record.as_object_mut() {
@@ -381,8 +394,19 @@ fn monte_carlo_noise_norm(acquisition: &Bound<'_, PyAny>, acquisition_rays: usiz
     Ok(diffcassi::recon::solver::monte_carlo_noise_norm(n, acquisition_rays, operator_rays, planes_per_band))
 }
 
+/// ((1 + R_o/R_a)/2)^½: the factor from an operator's spread against its twin to the expected truth
+/// residual (`diffcassi::recon::MonteCarloSpread::factor_for`; 1 for equal ray counts).
+#[pyfunction]
+fn spread_noise_factor(acquisition_rays: usize, operator_rays: usize) -> PyResult<f64> {
+    if acquisition_rays == 0 || operator_rays == 0 {
+        return Err(value_error(format!("acquisition_rays = {acquisition_rays}, operator_rays = {operator_rays}: must be ≥ 1")));
+    }
+    Ok(MonteCarloSpread::factor_for(acquisition_rays, operator_rays))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(monte_carlo_noise_norm, m)?)?;
+    m.add_function(wrap_pyfunction!(spread_noise_factor, m)?)?;
     m.add_class::<PyOperator>()?;
     m.add_function(wrap_pyfunction!(exact_operator, m)?)?;
     m.add_function(wrap_pyfunction!(model_operator, m)?)?;

@@ -396,6 +396,13 @@ pub struct SolverTuning {
     /// [default: the solver's, docs/reconstruction.md].
     #[arg(long)]
     pub discrepancy: Option<f64>,
+    /// How δ's Monte-Carlo term (exact operator, another seed) is estimated: `spread` — from the data, the
+    /// operator's spread against a twin traced with another seed, at the current iterate (twice the
+    /// operator's memory and tracing, one more Φ every 5 iterations); `model` — the constant relative
+    /// mismatch measured on 128² crops (cheaper; miscalibrated on smoother, larger scenes)
+    /// [docs/reconstruction.md, "Defaults and stopping"].
+    #[arg(long = "noise-estimate", default_value = "spread", value_parser = ["spread", "model"])]
+    pub noise_estimate: String,
 }
 
 impl SolverTuning {
@@ -415,6 +422,7 @@ impl SolverTuning {
             tv_warmup: self.tv_warmup,
             discrepancy: self.discrepancy,
             noise: None,
+            noise_model: if self.noise_estimate == "model" { NoiseModel::Model } else { NoiseModel::Spread },
         }
     }
 }
@@ -444,6 +452,36 @@ pub struct SolveSettings {
     pub discrepancy: Option<f64>,
     /// The measurement's expected noise norm δ ([`noise_estimate`]; `None`: unknown, the rule is off).
     pub noise: Option<NoiseEstimate>,
+    /// How the exact operator's Monte-Carlo term of δ is estimated (`--noise-estimate`).
+    pub noise_model: NoiseModel,
+}
+
+/// `--noise-estimate`: the exact operator's Monte-Carlo term of δ from the data (a twin operator's spread at
+/// the iterate, [`crate::recon::MonteCarloSpread`]) or from the constant model [`MC_MISMATCH_PER_RAY`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum NoiseModel {
+    Spread,
+    Model,
+}
+
+/// The twin operator's ray seed for the data-driven δ: the operator's + 1, skipping the acquisition's (the
+/// twin must be independent of both).
+pub fn twin_seed(acquisition_seed: u64, operator_seed: u64) -> u64 {
+    let s = operator_seed.wrapping_add(1);
+    if s == acquisition_seed {
+        s.wrapping_add(1)
+    } else {
+        s
+    }
+}
+
+/// The data-driven δ's plan (`--noise-estimate spread`): build the twin with `twin_seed`, scale its spread by
+/// `factor`, add `sensor_norm` in quadrature.
+#[derive(Clone, Debug)]
+pub struct SpreadPlan {
+    pub twin_seed: u64,
+    pub factor: f64,
+    pub sensor_norm: f64,
 }
 
 pub use crate::recon::solver::MC_MISMATCH_PER_RAY;
@@ -451,9 +489,11 @@ pub use crate::recon::solver::MC_MISMATCH_PER_RAY;
 /// The expected norm δ of y − Φx_true and how it was estimated (recorded as `noise_estimate`).
 #[derive(Clone, Debug)]
 pub struct NoiseEstimate {
-    /// δ in acquisition units.
+    /// δ in acquisition units (with a [`SpreadPlan`]: the start value, the sensor term, until the first estimate).
     pub norm: f64,
     pub record: Value,
+    /// `Some`: the Monte-Carlo term is estimated from the data during the solve.
+    pub spread: Option<SpreadPlan>,
 }
 
 /// Estimate δ = E‖y − Φx_true‖₂ from render.json, without the truth: (a) the sensor noise its `noise`
@@ -462,7 +502,11 @@ pub struct NoiseEstimate {
 /// mismatch [`MC_MISMATCH_PER_RAY`]·((1/R_a + 1/R_o)/F)^½·‖y‖ (0 for the oracle: same seed and rays). δ² is the
 /// sum. The `mapping` and `shift` operators' model error is systematic and not estimated: only (a) counts,
 /// so with a noiseless acquisition the rule is off for them.
-pub fn noise_estimate(record: &RenderRecord, kind: OperatorKind, operator_seed: u64, operator_rays: usize, acquisition_rays: usize) -> NoiseEstimate {
+///
+/// With [`NoiseModel::Spread`] (the default) the Monte-Carlo term is not taken from the constant model but
+/// estimated during the solve ([`crate::recon::MonteCarloSpread`]; the returned plan says how): δ starts at the
+/// sensor term and the record's `norm`/`monte_carlo_norm` become the last estimate's after the solve.
+pub fn noise_estimate(record: &RenderRecord, kind: OperatorKind, operator_seed: u64, operator_rays: usize, acquisition_rays: usize, model: NoiseModel) -> NoiseEstimate {
     let y = &record.acquisition;
     let y_norm = y.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
     let noise = record.json.get("noise").filter(|v| v.is_object());
@@ -483,27 +527,42 @@ pub fn noise_estimate(record: &RenderRecord, kind: OperatorKind, operator_seed: 
     }
     let oracle = operator_seed == record.config.seed && operator_rays == acquisition_rays;
     let planes_per_band = record.config.spectral.planes() as f64 / record.bands_nm().len().max(1) as f64;
-    let mc = if kind == OperatorKind::Exact && !oracle {
+    let mc_model = if kind == OperatorKind::Exact && !oracle {
         crate::recon::solver::monte_carlo_noise_norm(y_norm, acquisition_rays, operator_rays, planes_per_band)
     } else {
         0.0
     };
+    let spread = (model == NoiseModel::Spread && mc_model > 0.0).then(|| SpreadPlan {
+        twin_seed: twin_seed(record.config.seed, operator_seed),
+        factor: crate::recon::MonteCarloSpread::factor_for(acquisition_rays, operator_rays),
+        sensor_norm: sensor_sq.sqrt(),
+    });
+    let mc = if spread.is_some() { 0.0 } else { mc_model };
     let norm = (sensor_sq + mc * mc).sqrt();
-    NoiseEstimate {
-        norm,
-        record: serde_json::json!({
-            "norm": norm,
-            "relative": if y_norm > 0.0 { norm / y_norm } else { 0.0 },
-            "sensor_norm": sensor_sq.sqrt(),
-            "sensor_sources": sources,
-            "monte_carlo_norm": mc,
-            "monte_carlo_model": format!("{MC_MISMATCH_PER_RAY}·((1/R_acquisition + 1/R_operator)/F)^½·‖y‖ (F planes per band) for the exact operator with another seed or ray count, else 0"),
-            "planes_per_band": planes_per_band,
-            "acquisition_rays": acquisition_rays,
-            "operator_rays": operator_rays,
-            "definition": "δ ≈ E‖y − Φx_true‖₂ in acquisition units: sensor noise from render.json `noise` (shot y/K, read (σ/K)², ADC (g/K)²/12 per pixel) plus the exact operator's Monte-Carlo mismatch",
-        }),
+    let mut rec = serde_json::json!({
+        "norm": norm,
+        "relative": if y_norm > 0.0 { norm / y_norm } else { 0.0 },
+        "sensor_norm": sensor_sq.sqrt(),
+        "sensor_sources": sources,
+        "monte_carlo_norm": mc,
+        "estimator": if spread.is_some() { "monte-carlo-spread" } else { "model" },
+        "monte_carlo_model": format!("{MC_MISMATCH_PER_RAY}·((1/R_acquisition + 1/R_operator)/F)^½·‖y‖ (F planes per band) for the exact operator with another seed or ray count, else 0"),
+        "monte_carlo_model_norm": mc_model,
+        "planes_per_band": planes_per_band,
+        "acquisition_rays": acquisition_rays,
+        "operator_rays": operator_rays,
+        "definition": "δ ≈ E‖y − Φx_true‖₂ in acquisition units: sensor noise from render.json `noise` (shot y/K, read (σ/K)², ADC (g/K)²/12 per pixel) plus the exact operator's Monte-Carlo mismatch",
+    });
+    if let (Some(p), Some(o)) = (&spread, rec.as_object_mut()) {
+        o.insert(
+            "spread".into(),
+            serde_json::json!({
+                "twin_seed": p.twin_seed, "factor": p.factor, "every": crate::recon::solver::SPREAD_EVERY,
+                "definition": "δ_MC = factor·‖(Φ_o − Φ')θ‖₂ at the iterate θ, Φ' the operator's twin (same rays, seed twin_seed), factor = ((1 + R_operator/R_acquisition)/2)^½; re-estimated every `every` iterations from iteration 2; norm and monte_carlo_norm are the last estimate's",
+            }),
+        );
     }
+    NoiseEstimate { norm, record: rec, spread }
 }
 
 /// The result of a solve: the cube (C order), the per-iteration relative data residual, the solver's
@@ -587,20 +646,29 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
 
 /// Run the solver on `op` and the acquisition `y` (starting from 0), with an iteration progress bar when
 /// `show_progress`.
-pub fn solve(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_progress: bool) -> Result<Solved> {
-    solve_observed(op, y, s, show_progress, None)
+/// `twin`: the operator's twin for the data-driven δ (when `s.noise` has a [`SpreadPlan`]).
+pub fn solve(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_progress: bool, twin: Option<&dyn Operator>) -> Result<Solved> {
+    solve_observed(op, y, s, show_progress, None, twin)
 }
 
 /// [`solve`], and with a `truth` cube (same shape) the PSNR (paper convention) of every iterate θ_k,
 /// recorded as `psnr_per_iteration` beside ‖y − Φx_true‖₂/‖y‖₂ (`truth_residual`): evaluation only, for
 /// measuring defaults and stopping rules (the solver never sees it).
-pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_progress: bool, truth: Option<&[f32]>) -> Result<Solved> {
+/// With a [`SpreadPlan`] in `s.noise` and its `twin`, δ's Monte-Carlo term is re-estimated during the solve
+/// (and, with `truth`, the estimator at the truth is recorded as `truth_spread_estimate`).
+pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_progress: bool, truth: Option<&[f32]>, twin: Option<&dyn Operator>) -> Result<Solved> {
     let cfg = solver_config(s)?;
     let pb = if show_progress { iteration_bar(cfg.iterations as u64, &format!("{} / {}", op.name(), cfg.solver.name())) } else { ProgressBar::hidden() };
     let mut denoiser = crate::recon::solver::config_denoiser(&cfg)?;
     let shape = op.cube_shape();
     let mut psnrs: Vec<f64> = Vec::new();
-    let rec = crate::recon::reconstruct_observed(
+    let plan = s.noise.as_ref().and_then(|n| n.spread.clone());
+    let spread = match (&plan, twin) {
+        (Some(p), Some(t)) => Some(crate::recon::MonteCarloSpread { twin: t, factor: p.factor, sensor_norm: p.sensor_norm, every: crate::recon::solver::SPREAD_EVERY }),
+        (Some(_), None) => return Err(Error::invalid("internal: the data-driven noise estimate needs the operator's twin")),
+        _ => None,
+    };
+    let rec = crate::recon::reconstruct_estimated(
         op,
         y,
         None,
@@ -615,6 +683,7 @@ pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_prog
                 psnrs.push(crate::recon::metrics::psnr_db(t, theta, shape).unwrap_or(f64::NAN));
             }
         },
+        spread.as_ref(),
     )?;
     pb.finish_and_clear();
     if let Some(i) = rec.cube.iter().position(|v| !v.is_finite()) {
@@ -631,12 +700,26 @@ pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, show_prog
         o.remove("residuals");
     }
     let ny = y.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
-    let mut stopping = rec.stopping_record(y, s.noise.as_ref().map(|n| n.record.clone()));
+    let mut noise_record = s.noise.as_ref().map(|n| n.record.clone());
+    if let (Some(p), Some(o)) = (&plan, noise_record.as_mut().and_then(Value::as_object_mut)) {
+        // The data-driven δ: the record's norm and Monte-Carlo term are the last estimate's.
+        let mc = (rec.noise_norm.powi(2) - p.sensor_norm.powi(2)).max(0.0).sqrt();
+        o.insert("norm".into(), serde_json::json!(rec.noise_norm));
+        o.insert("relative".into(), serde_json::json!(if ny > 0.0 { rec.noise_norm / ny } else { 0.0 }));
+        o.insert("monte_carlo_norm".into(), serde_json::json!(mc));
+    }
+    let mut stopping = rec.stopping_record(y, noise_record);
     if let (Some(t), Some(o)) = (truth, stopping.as_object_mut()) {
         let mut phi_t = vec![0.0f32; y.len()];
         op.apply_into(t, &mut phi_t);
         let r = y.iter().zip(&phi_t).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>().sqrt();
         o.insert("truth_residual".into(), serde_json::json!(if ny > 0.0 { r / ny } else { 0.0 }));
+        if let Some(sp) = &spread {
+            // The estimator evaluated at the truth (what δ̂ at the iterate approximates), relative to ‖y‖.
+            let mut scratch = Vec::new();
+            let d = sp.estimate(t, &phi_t, &mut scratch);
+            o.insert("truth_spread_estimate".into(), serde_json::json!(if ny > 0.0 { d / ny } else { 0.0 }));
+        }
         o.insert("psnr_per_iteration".into(), serde_json::json!(psnrs));
     }
     Ok(Solved { residuals: rec.residuals.clone(), final_residual: rec.final_residual, settings: serde_json::json!({"config": settings, "record": record}), stopping, seconds: rec.seconds, cube: rec.cube })
@@ -722,10 +805,16 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
         pb.finish_and_clear();
         op
     };
-    let seconds_operator = t_op.elapsed().as_secs_f64();
     let mut settings = settings;
-    settings.noise = Some(noise_estimate(&record, kind, seed, record.config.rays_per_pixel, acquisition_rays));
-    let solved = solve_observed(op.as_ref(), &record.acquisition, &settings, true, truth.as_ref().map(|t| t.data.as_slice()))?;
+    let noise = noise_estimate(&record, kind, seed, record.config.rays_per_pixel, acquisition_rays, settings.noise_model);
+    // The data-driven δ: the operator's twin (same rays, another seed).
+    let twin = match &noise.spread {
+        Some(p) => Some(build_operator(kind, &record, tracer.as_ref(), p.twin_seed, (a.transport_memory_gb * 1e9) as u64, &|_| {})?),
+        None => None,
+    };
+    let seconds_operator = t_op.elapsed().as_secs_f64();
+    settings.noise = Some(noise);
+    let solved = solve_observed(op.as_ref(), &record.acquisition, &settings, true, truth.as_ref().map(|t| t.data.as_slice()), twin.as_deref())?;
     let c = op.cube_shape();
     let cube = SpectralCube::new(c.height, c.width, record.bands_nm().to_vec(), solved.cube, "reconstructed cube")?;
     let json = serde_json::json!({

@@ -405,7 +405,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if let Some(o) = config.as_object_mut() {
         // The stopping rule: τ as given and the library's TV defaults (a cell computed under other defaults
         // is recomputed).
-        o.insert("stopping".into(), json!({"discrepancy": a.tuning.discrepancy, "gap_tv": crate::recon::SolverConfig::gap_tv(), "admm_tv": crate::recon::SolverConfig::admm_tv(), "mc_mismatch_per_ray": super::reconstruct::MC_MISMATCH_PER_RAY}));
+        o.insert("stopping".into(), json!({"discrepancy": a.tuning.discrepancy, "gap_tv": crate::recon::SolverConfig::gap_tv(), "admm_tv": crate::recon::SolverConfig::admm_tv(), "mc_mismatch_per_ray": super::reconstruct::MC_MISMATCH_PER_RAY, "noise_estimate": a.tuning.noise_estimate, "spread_every": crate::recon::solver::SPREAD_EVERY}));
     }
     if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
         o.insert("scene_wavelengths".into(), json!(w));
@@ -455,6 +455,12 @@ pub fn study(a: StudyArgs) -> Result<()> {
             }
             let t_op = Instant::now();
             let op: Box<dyn Operator + '_> = build_operator(op_kind, &record, &tracer, op_seed, budget as u64, &|_| {})?;
+            // The data-driven δ (exact operator, `--noise-estimate spread`): the operator's twin.
+            let twin_plan = super::reconstruct::noise_estimate(&record, op_kind, op_seed, record.config.rays_per_pixel, record.config.rays_per_pixel, cell_settings(&a, &solvers[0]).noise_model).spread;
+            let twin: Option<Box<dyn Operator + '_>> = match &twin_plan {
+                Some(p) => Some(build_operator(op_kind, &record, &tracer, p.twin_seed, budget as u64, &|_| {})?),
+                None => None,
+            };
             let seconds_operator = t_op.elapsed().as_secs_f64();
             let pb = bar(pending.len() as u64, "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} cells, ETA {eta}", &format!("{} / {}", system_label(preset), op_kind.name()));
             for (i, solver) in pending {
@@ -462,8 +468,8 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 let rec = RenderRecord::load(&dirs[i])?;
                 let mut settings = cell_settings(&a, solver);
                 let rays = rec.config.rays_per_pixel;
-                settings.noise = Some(super::reconstruct::noise_estimate(&rec, op_kind, op_seed, rays, rays));
-                let solved = solve(op.as_ref(), &rec.acquisition, &settings, false)?;
+                settings.noise = Some(super::reconstruct::noise_estimate(&rec, op_kind, op_seed, rays, rays, settings.noise_model));
+                let solved = solve(op.as_ref(), &rec.acquisition, &settings, false, twin.as_deref())?;
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
                 let ev = evaluate(&scene.cube, &estimate)?;

@@ -25,7 +25,7 @@
 //! ```
 use super::operator::Operator;
 use super::prior::{tv::TvDenoiser, Denoiser};
-use super::solver::{check_inputs, residual_norm, scale, Discrepancy, Preconditioner, PriorStep, Reconstruction, SolverConfig, Stopping};
+use super::solver::{check_inputs, residual_norm, scale, Discrepancy, MonteCarloSpread, NoiseTrack, Preconditioner, PriorStep, Reconstruction, SolverConfig, Stopping};
 use crate::error::Result;
 use rayon::prelude::*;
 use std::time::Instant;
@@ -52,6 +52,22 @@ pub fn admm_observed(
     progress: &(dyn Fn(usize, f64) + Sync),
     observe: &mut dyn FnMut(usize, &[f32]),
 ) -> Result<Reconstruction> {
+    admm_estimated(op, y, init, config, denoiser, progress, observe, None)
+}
+
+/// [`admm_observed`] with δ re-estimated from the data every few iterations (`spread`,
+/// [`MonteCarloSpread`]); `None`: the fixed `config.noise_norm`.
+#[allow(clippy::too_many_arguments)]
+pub fn admm_estimated(
+    op: &dyn Operator,
+    y: &[f32],
+    init: Option<&[f32]>,
+    config: &SolverConfig,
+    denoiser: &mut dyn Denoiser,
+    progress: &(dyn Fn(usize, f64) + Sync),
+    observe: &mut dyn FnMut(usize, &[f32]),
+    spread: Option<&MonteCarloSpread<'_>>,
+) -> Result<Reconstruction> {
     check_inputs(op, y, init, config)?;
     let t0 = Instant::now();
     let shape = op.cube_shape();
@@ -72,21 +88,24 @@ pub fn admm_observed(
     let mut stopping = Stopping::new(config.tolerance);
     let mut sigmas = Vec::new();
     let mut stopped_by = "iterations";
-    let discrepancy = Discrepancy::new(config);
+    let mut noise = NoiseTrack::new(spread);
+    let mut discrepancy = if noise.is_tracked() { Discrepancy::tracked(config) } else { Discrepancy::new(config) };
     // ADMM projects v = θ + b, not θ: the discrepancy principle needs Φθ_{k−1} (one more Φ per iteration,
     // only when the rule is on).
-    let mut phi_t = if discrepancy.is_on() || (config.solver.is_pnp() && config.tv_warmup > 0 && config.noise_norm > 0.0) { vec![0.0f32; y.len()] } else { Vec::new() };
+    let pnp_tv = config.solver.is_pnp() && config.tv_warmup > 0 && (config.noise_norm > 0.0 || noise.is_tracked());
+    let mut phi_t = if discrepancy.is_on() || pnp_tv || noise.is_tracked() { vec![0.0f32; y.len()] } else { Vec::new() };
     let lambda = config.step;
     let (mut residuals, mut weighted) = (Vec::with_capacity(config.iterations), Vec::with_capacity(config.iterations));
     for k in 1..=config.iterations {
         if prior.done(k) {
             break;
         }
-        if (discrepancy.is_on() || (prior.in_tv_phase() && config.noise_norm > 0.0)) && k >= 2 {
+        if (discrepancy.is_on() || (prior.in_tv_phase() && pnp_tv) || noise.due(k)) && k >= 2 {
             op.apply_into(&theta, &mut phi_t);
             let rt = residual_norm(y, &phi_t);
+            noise.update(k, &theta, &phi_t, &mut discrepancy);
             // PnP's TV phase ends where the TV solver's own rule would stop it.
-            if prior.in_tv_phase() && Discrepancy::tv_phase_reached(config, rt, k) {
+            if prior.in_tv_phase() && discrepancy.tv_phase_reached(rt, k) {
                 prior.switch(k - 1);
             }
             if discrepancy.reached(rt, k, prior.first_network_iteration()) {
@@ -135,6 +154,8 @@ pub fn admm_observed(
         seconds: t0.elapsed().as_secs_f64(),
         stopped_by: stopped_by.to_string(),
         relative_changes: stopping.changes,
+        noise_norm: discrepancy.delta(),
+        noise_estimates: noise.history,
         sigmas,
         denoiser: denoiser_record,
     })

@@ -11,7 +11,8 @@
 //!   any [`Denoiser`] D(x_k, σ_k): PnP-GAP (`pnp-gap`) plugs in the learned network with the decreasing σ
 //!   schedule of [`super::solver::sigma_schedule`], the cube scaled to peak 1 around D.
 //! - optional stops: the discrepancy principle ‖y − Φθ_{k−1}‖₂ ≤ τ·δ (δ the expected norm of the
-//!   measurement's noise, [`super::solver::Discrepancy`]; θ_{k−1} is returned), or
+//!   measurement's noise, [`super::solver::Discrepancy`]: fixed, or re-estimated from the data every few
+//!   iterations by [`gap_estimated`]'s [`MonteCarloSpread`]; θ_{k−1} is returned), or
 //!   ‖θ_k − θ_{k−1}‖₂ / ‖θ_k‖₂ < `tolerance` (the record says which rule ended the run).
 //!
 //! Cost per iteration: one Φ, one Φᵀ, one TV denoising. Memory: 6 cube-sized f32 buffers (θ, x, and the
@@ -31,7 +32,7 @@
 //! ```
 use super::operator::Operator;
 use super::prior::{tv::TvDenoiser, Denoiser};
-use super::solver::{check_inputs, residual_norm, scale, Discrepancy, Preconditioner, PriorStep, Reconstruction, SolverConfig, Stopping};
+use super::solver::{check_inputs, residual_norm, scale, Discrepancy, MonteCarloSpread, NoiseTrack, Preconditioner, PriorStep, Reconstruction, SolverConfig, Stopping};
 use crate::error::Result;
 use rayon::prelude::*;
 use std::time::Instant;
@@ -61,6 +62,22 @@ pub fn gap_observed(
     progress: &(dyn Fn(usize, f64) + Sync),
     observe: &mut dyn FnMut(usize, &[f32]),
 ) -> Result<Reconstruction> {
+    gap_estimated(op, y, init, config, denoiser, progress, observe, None)
+}
+
+/// [`gap_observed`] with δ re-estimated from the data every few iterations (`spread`,
+/// [`MonteCarloSpread`]); `None`: the fixed `config.noise_norm`.
+#[allow(clippy::too_many_arguments)]
+pub fn gap_estimated(
+    op: &dyn Operator,
+    y: &[f32],
+    init: Option<&[f32]>,
+    config: &SolverConfig,
+    denoiser: &mut dyn Denoiser,
+    progress: &(dyn Fn(usize, f64) + Sync),
+    observe: &mut dyn FnMut(usize, &[f32]),
+    spread: Option<&MonteCarloSpread<'_>>,
+) -> Result<Reconstruction> {
     check_inputs(op, y, init, config)?;
     let t0 = Instant::now();
     let shape = op.cube_shape();
@@ -78,7 +95,8 @@ pub fn gap_observed(
     let mut stopping = Stopping::new(config.tolerance);
     let mut sigmas = Vec::new();
     let mut stopped_by = "iterations";
-    let discrepancy = Discrepancy::new(config);
+    let mut noise = NoiseTrack::new(spread);
+    let mut discrepancy = if noise.is_tracked() { Discrepancy::tracked(config) } else { Discrepancy::new(config) };
     let lambda = config.step;
     let (mut residuals, mut weighted) = (Vec::with_capacity(config.iterations), Vec::with_capacity(config.iterations));
     for k in 1..=config.iterations {
@@ -90,7 +108,9 @@ pub fn gap_observed(
         e.par_iter_mut().zip(y.par_iter()).zip(phi_theta.par_iter()).for_each(|((e, a), b)| *e = *a - *b);
         let r = residual_norm(y, &phi_theta) / ny;
         // PnP's TV phase ends where GAP-TV would stop: the network starts from GAP-TV's stopped iterate.
-        if prior.in_tv_phase() && Discrepancy::tv_phase_reached(config, r * ny, k) {
+        // δ re-estimated from the data at θ_{k−1} when due (MonteCarloSpread: one Φ'θ).
+        noise.update(k, &theta, &phi_theta, &mut discrepancy);
+        if prior.in_tv_phase() && discrepancy.tv_phase_reached(r * ny, k) {
             prior.switch(k - 1);
         }
         // Discrepancy principle on θ_{k−1} (from the network's first output on): the data are explained to
@@ -141,6 +161,8 @@ pub fn gap_observed(
         seconds: t0.elapsed().as_secs_f64(),
         stopped_by: stopped_by.to_string(),
         relative_changes: stopping.changes,
+        noise_norm: discrepancy.delta(),
+        noise_estimates: noise.history,
         sigmas,
         denoiser: denoiser_record,
     })

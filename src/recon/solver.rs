@@ -130,8 +130,9 @@ pub struct SolverConfig {
     #[serde(default)]
     pub discrepancy: f64,
     /// The expected norm δ = E‖y − Φx_true‖₂ of the measurement's noise and operator mismatch, in acquisition
-    /// units (the CLI estimates it from render.json: sensor noise and the Monte-Carlo mismatch of the rays;
-    /// `noise_estimate` in reconstruct.json). 0: unknown, the discrepancy rule is off.
+    /// units (the CLI: sensor noise from render.json, and the exact operator's Monte-Carlo mismatch estimated
+    /// during the run by [`MonteCarloSpread`], this field then being the sensor part; `noise_estimate` in
+    /// reconstruct.json). 0: unknown, the discrepancy rule is off (unless a [`MonteCarloSpread`] is given).
     #[serde(default)]
     pub noise_norm: f64,
     /// PnP only: the denoiser's weights file (safetensors); `None`: the embedded checkpoint.
@@ -297,6 +298,11 @@ pub struct Reconstruction {
     pub relative_changes: Vec<f64>,
     /// PnP: σ of each iteration (relative to the peak); empty for TV.
     pub sigmas: Vec<f32>,
+    /// The δ the discrepancy rule used last (`config.noise_norm`, or the last data-driven estimate).
+    pub noise_norm: f64,
+    /// Data-driven δ ([`MonteCarloSpread`]): (iteration k, δ̂ at θ_{k−1}) of every re-estimate; empty when δ
+    /// is fixed.
+    pub noise_estimates: Vec<(usize, f64)>,
     /// The prior: the denoiser's record (name, weights / TV settings).
     pub denoiser: serde_json::Value,
 }
@@ -312,8 +318,10 @@ impl Reconstruction {
             "rule": "discrepancy principle ‖y − Φθ_{k−1}‖₂ ≤ τ·δ (θ_{k−1} returned; τ = 0 or δ = 0: off), or relative change ‖θ_k − θ_{k−1}‖₂/‖θ_k‖₂ < tolerance (0: off), else the iteration cap",
             "tolerance": self.config.tolerance,
             "discrepancy_tau": self.config.discrepancy,
-            "noise_norm": self.config.noise_norm,
-            "discrepancy_threshold_relative": if ny > 0.0 { self.config.discrepancy * self.config.noise_norm / ny } else { 0.0 },
+            "noise_norm": self.noise_norm,
+            "discrepancy_threshold_relative": if ny > 0.0 { self.config.discrepancy * self.noise_norm / ny } else { 0.0 },
+            "noise_estimator": if self.noise_estimates.is_empty() { "fixed" } else { "monte-carlo-spread" },
+            "noise_norm_per_estimate": self.noise_estimates,
             "noise_estimate": noise_estimate,
             "iteration_cap": self.config.iterations,
             "tv_phase_iterations": self.denoiser.get("tv_warmup").and_then(|w| w.get("iterations_run")).cloned(),
@@ -344,7 +352,8 @@ impl Preconditioner {
 
     /// ‖r‖_{D⁻¹} = (Σ r_i² / d_i)^½ over the kept pixels.
     pub fn weighted_norm(&self, r: &[f32]) -> f64 {
-        r.par_iter().zip(self.inverse.par_iter()).map(|(v, w)| (*v as f64) * (*v as f64) * *w as f64).sum::<f64>().sqrt()
+        let parts: Vec<f64> = r.par_chunks(REDUCE_CHUNK).zip(self.inverse.par_chunks(REDUCE_CHUNK)).map(|(r, w)| r.iter().zip(w).map(|(v, w)| (*v as f64) * (*v as f64) * *w as f64).sum::<f64>()).collect();
+        parts.iter().sum::<f64>().sqrt()
     }
 
     /// Largest d.
@@ -374,9 +383,14 @@ pub(crate) fn check_inputs(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, c
     Ok(())
 }
 
-/// ‖a − b‖₂ (f64).
+/// Fixed chunk length of the f64 reductions below: partial sums per chunk, added in chunk order, so the
+/// stopping rule's norms (and the δ̂ they are compared with) are bit-identical for any thread count.
+const REDUCE_CHUNK: usize = 1 << 16;
+
+/// ‖a − b‖₂ (f64; deterministic for any thread count).
 pub(crate) fn residual_norm(y: &[f32], phix: &[f32]) -> f64 {
-    y.par_iter().zip(phix.par_iter()).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>().sqrt()
+    let parts: Vec<f64> = y.par_chunks(REDUCE_CHUNK).zip(phix.par_chunks(REDUCE_CHUNK)).map(|(a, b)| a.iter().zip(b).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>()).collect();
+    parts.iter().sum::<f64>().sqrt()
 }
 
 /// ‖y‖₂, or 1 for a zero measurement (so relative residuals stay finite).
@@ -434,7 +448,9 @@ pub const PNP_TOLERANCE: f64 = 1e-3;
 /// ∝ 1/R) and F render planes per band (each band's image averages F independent planes). Measured on the
 /// six natural scenes at 128×128×28 (SP and mSP, F = 4, R_a = R_o = 20, Airy 2.5 px, the paper's mask) as
 /// ‖y − Φ_o x_true‖/‖y‖ = 0.0089–0.0107, mean 0.0097 (`reconstruct --truth` records it as
-/// `truth_residual`; docs/reconstruction.md, "Defaults and stopping").
+/// `truth_residual`; docs/reconstruction.md, "Defaults and stopping"). A constant relative mismatch: it
+/// overestimates δ on smoother scenes (the same photographs at 256² and 512²), so the CLI's default estimates the
+/// term from the data ([`MonteCarloSpread`]) and keeps this model for `--noise-estimate model`.
 pub const MC_MISMATCH_PER_RAY: f64 = 0.062;
 
 /// δ_MC = [`MC_MISMATCH_PER_RAY`]·((1/R_a + 1/R_o)/F)^½·‖y‖: the expected ‖y − Φ_o x_true‖₂ of an exact
@@ -598,17 +614,37 @@ impl<'d> PriorStep<'d> {
 /// first iterate tested is θ₁ (at least one update runs) and, for PnP, the first network output (the TV
 /// warm-up always completes, as for the relative-change rule).
 pub struct Discrepancy {
-    threshold: f64,
+    tau: f64,
+    /// δ in use: the configuration's, or the latest data-driven estimate ([`MonteCarloSpread`]).
+    delta: f64,
+    /// Whether δ is re-estimated during the run (the rule is then on whenever τ > 0).
+    tracked: bool,
 }
 
 impl Discrepancy {
     pub fn new(config: &SolverConfig) -> Self {
-        Discrepancy { threshold: config.discrepancy * config.noise_norm }
+        Discrepancy { tau: config.discrepancy, delta: config.noise_norm, tracked: false }
     }
 
-    /// Whether the rule is on (τ > 0 and δ > 0).
+    /// The rule with δ re-estimated during the run (see [`MonteCarloSpread`]); `config.noise_norm` is the
+    /// starting value (the sensor term alone, say) until the first estimate.
+    pub fn tracked(config: &SolverConfig) -> Self {
+        Discrepancy { tracked: true, ..Self::new(config) }
+    }
+
+    /// Whether the rule is on (τ > 0 and δ > 0, or δ re-estimated).
     pub fn is_on(&self) -> bool {
-        self.threshold > 0.0
+        self.tau > 0.0 && (self.delta > 0.0 || self.tracked)
+    }
+
+    /// The δ in use.
+    pub fn delta(&self) -> f64 {
+        self.delta
+    }
+
+    /// Replace δ by a new estimate.
+    pub fn set_delta(&mut self, delta: f64) {
+        self.delta = delta;
     }
 
     /// Whether iteration k (1-based) tests θ_{k−1}: θ_{k−1} is the output of the network phase's first
@@ -619,13 +655,111 @@ impl Discrepancy {
 
     /// At iteration k, with `residual` = ‖y − Φθ_{k−1}‖₂ (absolute): stop?
     pub fn reached(&self, residual: f64, k: usize, first_network: Option<usize>) -> bool {
-        self.is_on() && self.applies(k, first_network) && residual <= self.threshold
+        let t = self.tau * self.delta;
+        self.is_on() && self.applies(k, first_network) && t > 0.0 && residual <= t
     }
 
     /// PnP's TV phase: does θ_{k−1} meet GAP-TV's own rule ‖y − Φθ‖ ≤ [`PNP_TV_DISCREPANCY`]·δ (k ≥ 2)?
-    pub fn tv_phase_reached(config: &SolverConfig, residual: f64, k: usize) -> bool {
-        let t = PNP_TV_DISCREPANCY * config.noise_norm;
+    pub fn tv_phase_reached(&self, residual: f64, k: usize) -> bool {
+        let t = PNP_TV_DISCREPANCY * self.delta;
         k >= 2 && t > 0.0 && residual <= t
+    }
+}
+
+/// **δ estimated from the data** (issue 22): the exact operator's Monte-Carlo spread at the current iterate.
+/// Φ_o (the operator, R_o rays per pixel per plane, seed s_o) and its *twin* Φ' (the same optics, planes and
+/// rays, another seed) are independent estimates of the expected transport Φ̄, as is the acquisition's own
+/// Φ_a (R_a rays). With V_R(x) = E‖(Φ_R − Φ̄)x‖² the Monte-Carlo variance of an R-ray operator,
+///
+/// - the truth residual of a noiseless acquisition: E‖y − Φ_o x‖² = E‖(Φ_a − Φ_o)x‖² = V_{R_a}(x) + V_{R_o}(x);
+/// - the twins' difference: E‖(Φ_o − Φ')x‖² = 2 V_{R_o}(x);
+///
+/// and, with V_R = V_1/R (independent rays; exact for any sampling when R_a = R_o),
+/// δ_MC² = ‖(Φ_o − Φ')θ‖² · (1 + R_o/R_a)/2, evaluated at the iterate θ ≈ x (no ground truth). Sensor noise
+/// adds in quadrature: δ̂² = δ_s² + δ_MC². The difference is a sum over every detector pixel and plane, so a
+/// single draw is close to its mean. Cost: the twin's memory and build (as much as the operator's), and one
+/// Φ'θ every [`MonteCarloSpread::every`] iterations (Φ_oθ is the solver's own).
+pub struct MonteCarloSpread<'o> {
+    /// Φ': the operator's twin (independent rays).
+    pub twin: &'o dyn Operator,
+    /// ((1 + R_o/R_a)/2)^½ (1 for equal ray counts).
+    pub factor: f64,
+    /// The sensor-noise term δ_s (0 for a noiseless acquisition).
+    pub sensor_norm: f64,
+    /// Re-estimate δ at iterations 2, 2 + every, 2 + 2·every, … (≥ 1).
+    pub every: usize,
+}
+
+/// Default period of [`MonteCarloSpread`]'s re-estimation (one extra Φ per this many iterations).
+pub const SPREAD_EVERY: usize = 5;
+
+impl MonteCarloSpread<'_> {
+    /// ((1 + R_o/R_a)/2)^½: the factor from the twins' spread to the expected truth residual.
+    pub fn factor_for(acquisition_rays: usize, operator_rays: usize) -> f64 {
+        ((1.0 + operator_rays.max(1) as f64 / acquisition_rays.max(1) as f64) / 2.0).sqrt()
+    }
+
+    /// Whether iteration k (1-based) re-estimates δ.
+    pub fn due(&self, k: usize) -> bool {
+        k >= 2 && (k - 2) % self.every.max(1) == 0
+    }
+
+    /// The Monte-Carlo term alone at `theta`: factor·‖Φ_oθ − Φ'θ‖₂ (`phi_theta` = Φ_oθ; `scratch` takes Φ'θ).
+    pub fn monte_carlo(&self, theta: &[f32], phi_theta: &[f32], scratch: &mut Vec<f32>) -> f64 {
+        scratch.resize(phi_theta.len(), 0.0);
+        self.twin.apply_into(theta, scratch);
+        self.factor * residual_norm(phi_theta, scratch)
+    }
+
+    /// δ̂ = (δ_s² + δ_MC²)^½ at `theta`.
+    pub fn estimate(&self, theta: &[f32], phi_theta: &[f32], scratch: &mut Vec<f32>) -> f64 {
+        let mc = self.monte_carlo(theta, phi_theta, scratch);
+        (self.sensor_norm * self.sensor_norm + mc * mc).sqrt()
+    }
+
+    /// Check the twin against the operator (same shapes) and the settings.
+    pub fn check(&self, op: &dyn Operator) -> Result<()> {
+        if self.twin.cube_shape() != op.cube_shape() || self.twin.image_shape() != op.image_shape() {
+            return Err(Error::invalid(format!("noise estimate: the twin operator `{}` has other shapes than the operator `{}`", self.twin.name(), op.name())));
+        }
+        if !(self.factor.is_finite() && self.factor > 0.0) || !(self.sensor_norm.is_finite() && self.sensor_norm >= 0.0) || self.every == 0 {
+            return Err(Error::invalid(format!(
+                "noise estimate: factor {} must be finite and > 0, sensor norm {} finite and ≥ 0, period {} ≥ 1",
+                self.factor, self.sensor_norm, self.every
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// The run's δ: fixed, or re-estimated by a [`MonteCarloSpread`] (with its history for the record).
+pub(crate) struct NoiseTrack<'o> {
+    spread: Option<&'o MonteCarloSpread<'o>>,
+    scratch: Vec<f32>,
+    pub(crate) history: Vec<(usize, f64)>,
+}
+
+impl<'o> NoiseTrack<'o> {
+    pub(crate) fn new(spread: Option<&'o MonteCarloSpread<'o>>) -> Self {
+        NoiseTrack { spread, scratch: Vec::new(), history: Vec::new() }
+    }
+
+    pub(crate) fn is_tracked(&self) -> bool {
+        self.spread.is_some()
+    }
+
+    /// Whether iteration k needs Φθ_{k−1} for a new estimate.
+    pub(crate) fn due(&self, k: usize) -> bool {
+        self.spread.is_some_and(|s| s.due(k))
+    }
+
+    /// At iteration k with θ_{k−1} and Φθ_{k−1}: re-estimate δ when due and hand it to the rule.
+    pub(crate) fn update(&mut self, k: usize, theta: &[f32], phi_theta: &[f32], rule: &mut Discrepancy) {
+        if let Some(s) = self.spread.filter(|s| s.due(k)) {
+            let d = s.estimate(theta, phi_theta, &mut self.scratch);
+            self.history.push((k, d));
+            rule.set_delta(d);
+        }
     }
 }
 
@@ -702,9 +836,28 @@ pub fn reconstruct_observed(
     progress: &(dyn Fn(usize, f64) + Sync),
     observe: &mut dyn FnMut(usize, &[f32]),
 ) -> Result<Reconstruction> {
+    reconstruct_estimated(op, y, init, config, denoiser, progress, observe, None)
+}
+
+/// [`reconstruct_observed`] with δ estimated from the data during the run ([`MonteCarloSpread`]: the exact
+/// operator's Monte-Carlo spread at the iterate) instead of the fixed `config.noise_norm` (its start value).
+#[allow(clippy::too_many_arguments)]
+pub fn reconstruct_estimated(
+    op: &dyn Operator,
+    y: &[f32],
+    init: Option<&[f32]>,
+    config: &SolverConfig,
+    denoiser: &mut dyn Denoiser,
+    progress: &(dyn Fn(usize, f64) + Sync),
+    observe: &mut dyn FnMut(usize, &[f32]),
+    spread: Option<&MonteCarloSpread<'_>>,
+) -> Result<Reconstruction> {
+    if let Some(s) = spread {
+        s.check(op)?;
+    }
     if config.solver.is_gap() {
-        super::gap::gap_observed(op, y, init, config, denoiser, progress, observe)
+        super::gap::gap_estimated(op, y, init, config, denoiser, progress, observe, spread)
     } else {
-        super::admm::admm_observed(op, y, init, config, denoiser, progress, observe)
+        super::admm::admm_estimated(op, y, init, config, denoiser, progress, observe, spread)
     }
 }

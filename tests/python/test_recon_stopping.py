@@ -61,3 +61,36 @@ def test_bad_stopping_settings_are_clear_errors():
 def test_monte_carlo_noise_norm_is_the_cli_model():
     y = np.full((4, 5), 2.0, np.float32)
     assert diffcassi.monte_carlo_noise_norm(y, 20, 20, 4.0) == pytest.approx(0.062 * np.sqrt((1 / 20 + 1 / 20) / 4) * np.sqrt(20 * 4.0))
+
+
+def test_spread_estimate_from_python_stops_and_records_it():
+    """δ from the data (the CLI's default): the exact operator's twin (another seed) re-estimates δ during
+    the run; the rule stops where ‖y − Φθ‖ ≤ τδ̂ and the record says so; bad twin settings → errors."""
+    sp = diffcassi.System.preset("sp")
+    small = dict(bands_nm=[480.0, 530.0, 580.0, 630.0], planes=8, rays=4)
+    x, _ = diffcassi.synthetic_scene(12, 12, seed=5, wavelengths_nm=small["bands_nm"])
+    y = diffcassi.exact(sp, 12, 12, seed=1, **small).apply(x)
+    op = diffcassi.exact(sp, 12, 12, seed=2, **small)
+    twin = diffcassi.exact(sp, 12, 12, seed=3, **small)
+    cube, rec = diffcassi.reconstruct(op, y, "gap-tv", iterations=150, tv_weight=0.02, discrepancy=1.0, noise_twin=twin,
+                                      noise_factor=diffcassi.spread_noise_factor(4, 4))
+    st = rec["stopping"]
+    assert st["noise_estimator"] == "monte-carlo-spread" and st["stopped_by"] == "discrepancy", st
+    per = st["noise_norm_per_estimate"]
+    assert per[0][0] == 2 and all(b[0] - a[0] == 5 for a, b in zip(per, per[1:]))
+    assert st["noise_norm"] == per[-1][1] > 0
+    r = np.linalg.norm((y - op.apply(cube)).astype(np.float64))
+    assert r <= per[-1][1] * (1 + 1e-5)
+    # δ̂ tracks the truth residual ‖y − Φ_o x‖ (noiseless y: the Monte-Carlo mismatch alone).
+    truth = np.linalg.norm((y - op.apply(x)).astype(np.float64))
+    assert 0.5 * truth < per[-1][1] < 2 * truth
+    assert diffcassi.spread_noise_factor(20, 20) == 1.0
+    assert diffcassi.spread_noise_factor(20, 60) == pytest.approx(np.sqrt(2.0))
+    with pytest.raises(diffcassi.DiffcassiValueError, match="noise_factor"):
+        diffcassi.reconstruct(op, y, "gap-tv", iterations=3, noise_factor=1.0)
+    with pytest.raises(diffcassi.DiffcassiError, match="other shapes"):
+        diffcassi.reconstruct(op, y, "gap-tv", iterations=3, noise_twin=diffcassi.exact(sp, 10, 10, seed=3, **small))
+    with pytest.raises(diffcassi.DiffcassiError, match="factor"):
+        diffcassi.reconstruct(op, y, "gap-tv", iterations=3, noise_twin=twin, noise_factor=float("nan"))
+    with pytest.raises(diffcassi.DiffcassiValueError, match="noise_twin"):
+        diffcassi.reconstruct(op, y, "gap-tv", iterations=3, noise_twin="twin")
