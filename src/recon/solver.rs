@@ -182,9 +182,10 @@ impl SolverConfig {
         }
     }
 
-    /// PnP-GAP: plain GAP (λ = 1) with the embedded learned denoiser, σ from [`PNP_SIGMA_MAX`] down to
-    /// [`PNP_SIGMA_MIN`] over [`PNP_ITERATIONS`] iterations, stopping early at a relative change below
-    /// [`PNP_TOLERANCE`] (docs/reconstruction.md, "Plug-and-play", for the measurements behind them).
+    /// PnP-GAP: accelerated GAP-TV to its discrepancy stop (at most [`PNP_TV_WARMUP`] iterations), then
+    /// [`PNP_NETWORK_ITERATIONS`] GAP step(s) with the embedded learned denoiser at σ = [`PNP_SIGMA_MAX`]
+    /// (longer network phases decay σ geometrically to [`PNP_SIGMA_MIN`]); docs/reconstruction.md,
+    /// "Plug-and-play", for the measurements behind these defaults.
     pub fn pnp_gap() -> Self {
         SolverConfig {
             solver: SolverKind::PnpGap,
@@ -432,7 +433,8 @@ pub const PNP_TV_DISCREPANCY: f64 = GAP_TV_DISCREPANCY;
 /// PnP-GAP default: the accelerated GAP update in both phases (GAP-TV's default).
 pub const PNP_ACCELERATED: bool = true;
 /// PnP default: σ_1, relative to the cube's peak (the ceiling of σ_1 with `sigma_auto`): the top of the
-/// network's training range (σ ~ U[0, 0.2]); GAP-TV's stopped iterate is ≈ 0.1–0.2 of the peak off the truth
+/// network's Gaussian training range (σ ~ U[0, 0.2]; round 4 also saw PnP's artefact pairs at σ 0.3/0.4,
+/// and 0.2 stayed the best single-call value on the natural scenes, MODEL.md); GAP-TV's stopped iterate is ≈ 0.1–0.2 of the peak off the truth
 /// (RMSE), far above what TV removed in its last step (ê ≈ 0.01–0.017), so `sigma_auto` is off by default.
 pub const PNP_SIGMA_MAX: f32 = 0.2;
 /// PnP default: the floor σ_min the schedule decays to, relative to the peak.
