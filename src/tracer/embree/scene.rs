@@ -32,7 +32,7 @@
 use super::wrapper::{CommittedScene, Device, ExactAnswer, ExactRay, Geometry, Scene, UserGeometry};
 use crate::error::{Error, Result};
 use crate::geometry::Frame;
-use crate::surfaces::{tessellate, Aperture, MeshResolution, SurfacePatch, TriangleMesh, MAX_SEGMENTS};
+use crate::surfaces::{tessellate_covering, Aperture, MeshResolution, SurfacePatch, TriangleMesh};
 use crate::system::SequentialSystem;
 use crate::tracer::nonseq::{Solid, Solids, SolidsOptions};
 use glam::DVec3;
@@ -211,46 +211,20 @@ impl OpticalScene {
     }
 }
 
-/// The mesh of an optical surface, made to **cover** its clear aperture. The tessellator's boundary is
-/// a polygon *inscribed* in a circular aperture (a hexagon for a plane, whose chord-sag error is 0 at one
-/// ring): rays through the band between polygon and circle — up to r(1 − cos 30°) = 13 % of the radius
-/// on SP's detector — missed the mesh while the exact patch (brute force, user geometry) is hit there.
-/// That lost the ghost paths `18R 17R` and `17R 16R` of SP on 13 % of the trees (they land far off axis,
-/// where the detector's hexagon cuts its circle). So the outer ring is moved onto the circumscribed
-/// polygon (vertices at r / cos(π/m), heights on the figure, like the solids' walls), and with a
-/// chord-sag tolerance the segment count is raised until the polygon overshoots the circle by at most
-/// that tolerance: r(1/cos(π/6n) − 1) ≤ tol. The mesh then covers the aperture with a margin ≤ tol;
-/// hits in that margin are refused on the exact figure (`EmbreeNextHit`, and the tracer's f64
-/// refinement), as the exact patch refuses them. Where the figure is undefined just outside the
-/// aperture (a conic at its domain's edge) the inscribed ring is kept. Rectangles are exact already.
+/// The mesh of an optical surface, made to **cover** its clear aperture
+/// ([`tessellate_covering`]). A mesh inscribed in a circular aperture (the hexagon of a plane, whose
+/// chord-sag error is 0 at one ring) lost rays through the band between polygon and circle — up to
+/// r(1 − cos 30°) = 13 % of the radius on SP's detector — where the exact patch (brute force, user
+/// geometry) is hit: the ghost paths `18R 17R` and `17R 16R` of SP on 13 % of the trees. So the boundary
+/// is the circumscribed polygon, with (at a chord-sag tolerance) enough segments that it overshoots the
+/// circle by at most that tolerance, and the interior as coarse as the chord-sag tolerance allows (a
+/// plane: a graded band of rings from a hexagon out to the boundary, ≈ 3 triangles per boundary segment
+/// instead of the 6n² of uniform rings). Hits in the overshoot margin are refused on the exact figure
+/// (`EmbreeNextHit`, and the tracer's f64 refinement), as the exact patch refuses them. Where the figure
+/// is undefined just outside the aperture (a conic at its domain's edge) the inscribed ring is kept.
+/// Rectangles are exact already.
 pub(crate) fn covering_mesh(patch: &SurfacePatch, res: MeshResolution) -> std::result::Result<TriangleMesh, String> {
-    use std::f64::consts::PI;
-    let mut m = tessellate(&patch.shape, &patch.aperture, res)?;
-    let Aperture::Circular { semi_diameter_mm: r, decenter_x_mm: cx, decenter_y_mm: cy, .. } = patch.aperture else { return Ok(m) };
-    if let MeshResolution::MaxSagErrorUm(tol_um) = res {
-        let half_step = (1.0 / (1.0 + tol_um * 1e-3 / r)).acos();
-        let n = (PI / half_step / 6.0).ceil();
-        if n.is_finite() && n as usize > m.segments {
-            m = tessellate(&patch.shape, &patch.aperture, MeshResolution::Segments((n as usize).min(MAX_SEGMENTS)))?;
-        }
-    }
-    // The outer ring: the last 6n vertices (rings of 6k points from the centre, or 6n each on an annulus).
-    let ring = 6 * m.segments;
-    let out = 1.0 / (PI / ring as f64).cos();
-    let start = m.vertices.len() - ring;
-    let moved: Option<Vec<[f64; 3]>> = m.vertices[start..]
-        .iter()
-        .map(|v| {
-            let (x, y) = (cx + (v[0] - cx) * out, cy + (v[1] - cy) * out);
-            let z = patch.shape.sag(x, y);
-            z.is_finite().then_some([x, y, z])
-        })
-        .collect();
-    if let Some(moved) = moved {
-        m.vertices[start..].copy_from_slice(&moved);
-        m.boundary_error_um = 1e3 * r * (out - 1.0);
-    }
-    Ok(m)
+    tessellate_covering(&patch.shape, &patch.aperture, res)
 }
 
 /// Analytic user geometry: the exact patch in its frame, solved in f64 from Embree's f32 ray.
