@@ -45,6 +45,7 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 use super::hit::{ShapeTangent, SurfaceLocal};
+use super::kernel::oriented_normal;
 use super::DiffSystem;
 use crate::error::{Error, Result};
 use crate::surfaces::{intersect, IntersectFailure, SurfaceShape};
@@ -239,14 +240,7 @@ impl AdjointPlan {
                     n_bar = DVec3::ZERO;
                 }
                 _ => {
-                    let mut nrm = st.normal;
-                    let mut cos_i = d.dot(nrm);
-                    let mut sgn = 1.0;
-                    if cos_i < 0.0 {
-                        nrm = -nrm;
-                        cos_i = -cos_i;
-                        sgn = -1.0;
-                    }
+                    let (nrm, cos_i, sgn) = oriented_normal(d, st.normal);
                     let kappa = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
                     let sk = kappa.max(0.0).sqrt();
                     let beta = ld.dot(nrm);

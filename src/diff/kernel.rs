@@ -31,10 +31,17 @@ impl StepTangent {
     }
 }
 
-/// Trace (p, d) along `path` like [`crate::tracer::kernel::trace_steps`], updating the tangents `dp`, `dd`
-/// (one per parameter; seeded by the caller). `n[i]` is the index after surface i and
-/// `dn[i * K + k]` its derivative with respect to parameter k.
-#[allow(clippy::too_many_arguments)]
+/// The surface normal turned to face along the direction `d` (as vector Snell's law in `refract` uses it):
+/// (n·sgn, |d·n|, sgn) with sgn = ±1. Shared by the forward tangents and the reverse sweep (`adjoint`).
+pub(crate) fn oriented_normal(d: DVec3, normal: DVec3) -> (DVec3, f64, f64) {
+    let cos_i = d.dot(normal);
+    if cos_i < 0.0 {
+        (-normal, -cos_i, -1.0)
+    } else {
+        (normal, cos_i, 1.0)
+    }
+}
+
 /// Into `step`'s frame (p ← R(p − o), d ← R d) with the tangents: dp ← R dp + dR (p − o) − R do,
 /// dd ← R dd + dR d for the parameters that move the frame.
 pub(crate) fn enter_frame(step: &PathStep, tan: &StepTangent, p: DVec3, d: DVec3, dp: &mut [DVec3], dd: &mut [DVec3]) -> (DVec3, DVec3) {
@@ -50,6 +57,10 @@ pub(crate) fn enter_frame(step: &PathStep, tan: &StepTangent, p: DVec3, d: DVec3
     (step.rotation * pr, step.rotation * d)
 }
 
+/// Trace (p, d) along `path` like [`crate::tracer::kernel::trace_steps`], updating the tangents `dp`, `dd`
+/// (one per parameter; seeded by the caller). `n[i]` is the index after surface i and
+/// `dn[i * K + k]` its derivative with respect to parameter k.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn trace_tangents(
     path: &[PathStep],
     tangents: &[StepTangent],
@@ -128,14 +139,7 @@ pub(crate) fn interact_tangents(
         }
         _ => {
             // Vector Snell's law with the normal oriented along d (as in `refract`).
-            let mut nrm = normal;
-            let mut cos_i = d.dot(nrm);
-            let mut sgn = 1.0;
-            if cos_i < 0.0 {
-                nrm = -nrm;
-                cos_i = -cos_i;
-                sgn = -1.0;
-            }
+            let (nrm, cos_i, sgn) = oriented_normal(d, normal);
             let kappa = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
             let d_out = if n1 != n2 {
                 match refract(d, normal, n1, n2) {

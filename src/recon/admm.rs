@@ -39,24 +39,11 @@ pub fn admm_tv(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &Solv
 /// ADMM with any denoiser as the prior step θ_k = D(x_k − b_{k−1}, σ_k) (PnP kinds scale to peak 1 around D
 /// and take σ_k from the schedule). Stops early when the relative change falls under `config.tolerance`.
 pub fn admm(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, denoiser: &mut dyn Denoiser, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
-    admm_observed(op, y, init, config, denoiser, progress, &mut |_, _| {})
+    admm_estimated(op, y, init, config, denoiser, progress, &mut |_, _| {}, None)
 }
 
-/// [`admm`], calling `observe(k, θ_k)` after each iteration's prior step (evaluation only).
-pub fn admm_observed(
-    op: &dyn Operator,
-    y: &[f32],
-    init: Option<&[f32]>,
-    config: &SolverConfig,
-    denoiser: &mut dyn Denoiser,
-    progress: &(dyn Fn(usize, f64) + Sync),
-    observe: &mut dyn FnMut(usize, &[f32]),
-) -> Result<Reconstruction> {
-    admm_estimated(op, y, init, config, denoiser, progress, observe, None)
-}
-
-/// [`admm_observed`] with δ re-estimated from the data every few iterations (`spread`,
-/// [`MonteCarloSpread`]); `None`: the fixed `config.noise_norm`.
+/// [`admm`] with an observer `observe(k, θ_k)` called after each prior step (evaluation only) and δ re-estimated from
+/// the data every few iterations (`spread`, [`MonteCarloSpread`]); `None`: the fixed `config.noise_norm`.
 #[allow(clippy::too_many_arguments)]
 pub fn admm_estimated(
     op: &dyn Operator,

@@ -48,25 +48,12 @@ pub fn gap_tv(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &Solve
 /// peak 1 around D and take σ_k from the schedule, [`super::solver::sigma_schedule`]). Stops early when the
 /// relative change falls under `config.tolerance`.
 pub fn gap(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, denoiser: &mut dyn Denoiser, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
-    gap_observed(op, y, init, config, denoiser, progress, &mut |_, _| {})
+    gap_estimated(op, y, init, config, denoiser, progress, &mut |_, _| {}, None)
 }
 
-/// [`gap`], calling `observe(k, θ_k)` after each iteration's prior step (evaluation against a known truth:
-/// `reconstruct --truth`; the solver never reads what the observer computes).
-pub fn gap_observed(
-    op: &dyn Operator,
-    y: &[f32],
-    init: Option<&[f32]>,
-    config: &SolverConfig,
-    denoiser: &mut dyn Denoiser,
-    progress: &(dyn Fn(usize, f64) + Sync),
-    observe: &mut dyn FnMut(usize, &[f32]),
-) -> Result<Reconstruction> {
-    gap_estimated(op, y, init, config, denoiser, progress, observe, None)
-}
-
-/// [`gap_observed`] with δ re-estimated from the data every few iterations (`spread`,
-/// [`MonteCarloSpread`]); `None`: the fixed `config.noise_norm`.
+/// [`gap`] with an observer `observe(k, θ_k)` called after each prior step (evaluation against a known truth,
+/// `reconstruct --truth`; the solver never reads what it computes) and δ re-estimated from the data every few
+/// iterations (`spread`, [`MonteCarloSpread`]); `None`: the fixed `config.noise_norm`.
 #[allow(clippy::too_many_arguments)]
 pub fn gap_estimated(
     op: &dyn Operator,

@@ -67,7 +67,7 @@ pub use exact::ExactOperator;
 pub use mapping::{MappingInterpolation, MappingOperator};
 pub use metrics::{evaluate, Evaluation, Metrics};
 pub use prior::{network::SpectralUNet, tv::TvDenoiser, Denoiser};
-pub use solver::{reconstruct, reconstruct_estimated, reconstruct_observed, reconstruct_with, MonteCarloSpread, Reconstruction, SolverConfig, SolverKind};
+pub use solver::{reconstruct, reconstruct_estimated, reconstruct_with, MonteCarloSpread, Reconstruction, SolverConfig, SolverKind};
 pub use tv::TvCoupling;
 pub use operator::{CubeShape, ImageShape, Operator};
 pub use shift::ShiftOperator;

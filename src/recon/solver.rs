@@ -824,25 +824,13 @@ pub fn reconstruct(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &
 /// [`reconstruct`] with any [`Denoiser`] as the prior (GAP's or ADMM's data step per `config.solver`; PnP
 /// kinds scale the cube to peak 1 around the denoiser and follow the σ schedule).
 pub fn reconstruct_with(op: &dyn Operator, y: &[f32], init: Option<&[f32]>, config: &SolverConfig, denoiser: &mut dyn Denoiser, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Reconstruction> {
-    reconstruct_observed(op, y, init, config, denoiser, progress, &mut |_, _| {})
+    reconstruct_estimated(op, y, init, config, denoiser, progress, &mut |_, _| {}, None)
 }
 
-/// [`reconstruct_with`], calling `observe(k, θ_k)` after each iteration's prior step (evaluation against a
-/// known truth, e.g. `reconstruct --truth`; nothing the observer computes reaches the solver).
-pub fn reconstruct_observed(
-    op: &dyn Operator,
-    y: &[f32],
-    init: Option<&[f32]>,
-    config: &SolverConfig,
-    denoiser: &mut dyn Denoiser,
-    progress: &(dyn Fn(usize, f64) + Sync),
-    observe: &mut dyn FnMut(usize, &[f32]),
-) -> Result<Reconstruction> {
-    reconstruct_estimated(op, y, init, config, denoiser, progress, observe, None)
-}
-
-/// [`reconstruct_observed`] with δ estimated from the data during the run ([`MonteCarloSpread`]: the exact
-/// operator's Monte-Carlo spread at the iterate) instead of the fixed `config.noise_norm` (its start value).
+/// [`reconstruct_with`] with an observer `observe(k, θ_k)` called after each prior step (evaluation against a known
+/// truth, e.g. `reconstruct --truth`; nothing it computes reaches the solver) and δ estimated from the data during
+/// the run ([`MonteCarloSpread`]: the exact operator's Monte-Carlo spread at the iterate) instead of the fixed
+/// `config.noise_norm` (its start value).
 #[allow(clippy::too_many_arguments)]
 pub fn reconstruct_estimated(
     op: &dyn Operator,
