@@ -292,13 +292,13 @@ impl DiffRenderer {
         let tables = [idx; LANES];
         for chunk in which.chunks(LANES) {
             let mut b = Block::default();
+            // The directions are unit already (`for_rows`) and go to the scalar kernel as they are: the
+            // lanes take them unchanged too (`trace_block_raw` would divide them by their length again,
+            // which moves the last bit of some rays away from the scalar kernel's).
             for (k, &i) in chunk.iter().enumerate() {
-                let (o, d) = (rays.origin[i], rays.dir[i]);
-                (b.p.x.0[k], b.p.y.0[k], b.p.z.0[k]) = (o.x, o.y, o.z);
-                (b.d.x.0[k], b.d.y.0[k], b.d.z.0[k]) = (d.x, d.y, d.z);
-                b.alive.0[k] = true;
+                b.set(k, rays.origin[i], rays.dir[i]);
             }
-            crate::tracer::simd::trace_block_raw(level, path, &tables, &mut b);
+            crate::tracer::simd::trace_block(level, path, &tables, &mut b);
             out.extend((0..chunk.len()).map(|k| self.landing(b.result(k))));
         }
     }

@@ -15,7 +15,10 @@
 //! exact IEEE f64. `+ − × ÷ √` are correctly rounded in every instruction set and Rust never contracts
 //! `a * b + c` into a fused multiply-add (AVX-512 implies FMA, but nothing here asks for `mul_add`), so
 //! each lane performs the scalar kernel's operations in the scalar kernel's order and its result is bit
-//! for bit the scalar one — the tests check ≤ 1e-12 mm and identical statuses (and, in fact, equality).
+//! for bit the scalar one — `tests/simd.rs` checks identical statuses and bits on every surface kind.
+//! Callers must give both kernels the same inputs: `trace_block_raw` divides each direction by its
+//! length, which moves the last bit of some already-unit directions; lanes of unit directions go through
+//! `trace_block` (loaded with [`LaneBlock::set`]).
 //! Branches of the scalar code (conic root choice, asphere start fallback, Newton's bracket/bisection,
 //! apertures, TIR) become per-lane masks and selects; the even-asphere Newton solve iterates until every
 //! lane has converged or failed, with the scalar rule per lane ([`block`]).
