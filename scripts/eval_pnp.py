@@ -69,7 +69,7 @@ def main(argv=None) -> int:
     ap.add_argument("--presets", default="sp,msp")
     ap.add_argument("--weights", action="append", default=[], help="weights file(s) for the one-call schedules")
     ap.add_argument("--schedules", default="one:0.2", help="comma-separated one:S and pnp:N:S1:S2[:plain]")
-    ap.add_argument("--mask", default=str(ROOT.parent.parent / "shared/reference/paper_mask_512.npy"))
+    ap.add_argument("--mask", default=str(ROOT.parent / "shared/reference/paper_mask_512.npy"))
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--json", default=None)
     ap.add_argument("--cache", default=None, help="folder keeping each cell's GAP-TV PSNR and network input (they do "

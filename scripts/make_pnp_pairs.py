@@ -114,7 +114,7 @@ def main(argv=None) -> int:
     ap.add_argument("--first", type=int, default=0, help="first scene index")
     ap.add_argument("--count", type=int, default=64, help="number of scenes (each gives 2 presets × 2 stages)")
     ap.add_argument("--size", type=int, default=64, help="scene size (pixels, multiple of 4)")
-    ap.add_argument("--mask", default=str(ROOT.parent.parent / "shared/reference/paper_mask_512.npy"),
+    ap.add_argument("--mask", default=str(ROOT.parent / "shared/reference/paper_mask_512.npy"),
                     help="the paper's mask (.npy), cropped at random places (default: %(default)s)")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--minutes", type=float, default=None, help="stop after this wall time (writes what is done)")
