@@ -21,9 +21,12 @@ def psnr_db(x, ref):
     return 10 * torch.log10(1.0 / mse)
 
 
-def validation_records(log_path: pathlib.Path, prog: str) -> List[dict]:
-    """The records of a JSONL training log that carry ``val_psnr_db``, in order. A file that cannot be read or
-    parsed, or that has no validation record, raises ``ValueError`` naming ``prog`` and the file."""
+def validation_records(log_path: pathlib.Path, prog: str, every: int = 1) -> List[dict]:
+    """The records of a JSONL training log that carry ``val_psnr_db``, in order (for a ``--summary EVERY``
+    table). ``every`` < 1, a file that cannot be read or parsed, or one without a validation record raises
+    ``ValueError`` naming ``prog`` and the problem."""
+    if every < 1:
+        raise ValueError(f"{prog}: error: --summary EVERY must be ≥ 1, got {every}")
     try:
         recs = [json.loads(line) for line in log_path.read_text().splitlines() if line.strip()]
     except (OSError, json.JSONDecodeError) as e:
