@@ -153,6 +153,55 @@ fn denoiser_is_bit_identical_for_any_thread_count() {
     assert_ne!(a, x, "the network changed nothing");
 }
 
+/// PnP's input scale is robust to outliers (issue 22: the mapping cells' ±290 voxels collapsed PnP): one
+/// voxel at 100× the peak no longer sets the scale, and the network's output away from it stays what it is
+/// without the outlier; dividing by the maximum (the former scale) ruins it. Without outliers the scale is
+/// the maximum, as before.
+#[test]
+fn one_outlier_voxel_no_longer_ruins_the_network_output() {
+    use diffcassi::recon::solver::{denoise_at_network_scale, NetworkScale};
+    let shape = CubeShape { height: 20, width: 20, bands: BANDS };
+    let clean = scene(shape.height, shape.width, BANDS);
+    let peak = clean.iter().cloned().fold(0.0f32, f32::max);
+    let mut scratch = Vec::new();
+    assert_eq!(NetworkScale::of(&clean, &mut scratch).scale, peak, "no outlier: the scale is the maximum");
+    let (r0, c0) = (4usize, 5usize);
+    let mut spiked = clean.clone();
+    spiked[(r0 * shape.width + c0) * BANDS + 10] = 100.0 * peak;
+    let mut net = SpectralUNet::embedded().unwrap();
+    let mut reference = vec![0.0f32; shape.len()];
+    let mut robust = vec![0.0f32; shape.len()];
+    denoise_at_network_scale(&mut net, &clean, &mut reference, shape, 0.1, &mut scratch).unwrap();
+    let s = denoise_at_network_scale(&mut net, &spiked, &mut robust, shape, 0.1, &mut scratch).unwrap();
+    assert!(s.scale <= 1.5 * peak && s.max == 100.0 * peak, "{s:?}");
+    // The former scale: the maximum.
+    let m = 100.0 * peak;
+    let scaled: Vec<f32> = spiked.iter().map(|v| v / m).collect();
+    let mut former = vec![0.0f32; shape.len()];
+    net.denoise(&scaled, &mut former, shape, 0.1).unwrap();
+    former.iter_mut().for_each(|v| *v *= m);
+    // Voxels more than 6 pixels from the outlier (the U-Net's receptive field spreads it locally).
+    let far = |out: &[f32]| {
+        let mut worst = 0.0f32;
+        for r in 0..shape.height {
+            for c in 0..shape.width {
+                if r.abs_diff(r0).max(c.abs_diff(c0)) > 6 {
+                    for b in 0..BANDS {
+                        let k = (r * shape.width + c) * BANDS + b;
+                        worst = worst.max((out[k] - reference[k]).abs());
+                    }
+                }
+            }
+        }
+        worst / peak
+    };
+    let (e_robust, e_former) = (far(&robust), far(&former));
+    println!("scale {s:?}; far from the outlier, max |D − D_clean| / peak: robust {e_robust:.4}, by the maximum {e_former:.4}");
+    assert!(robust.iter().all(|v| v.is_finite()));
+    assert!(e_robust <= 0.02, "robust scale: the outlier still changes the output far from it by {e_robust} of the peak");
+    assert!(e_former >= 0.1, "the former scale should have ruined the output (it changed it by only {e_former})");
+}
+
 /// PnP-GAP and PnP-ADMM on a tiny shift problem: the reconstruction is closer to the truth than the start
 /// (0) and than one data step, finite, bit-identical across thread counts, and the record carries the σ
 /// schedule and the stopping rule.

@@ -475,10 +475,61 @@ pub fn sigma_schedule(sigma_max: f32, sigma_min: f32, iterations: usize, k: usiz
     (sigma_max as f64 * (sigma_min as f64 / sigma_max as f64).powf(t)) as f32
 }
 
+/// PnP's input scale: the network sees x/p with p = min(max x, [`PNP_SCALE_GAIN`]·Q(x)), Q the
+/// [`PNP_SCALE_QUANTILE`] quantile of x (1 when p ≤ 0 or not finite). On natural-scene cubes the peak is
+/// 1.00–1.11 × Q (the six natural scenes at 128², `data/scenes`), so p = max x as before (bit for bit); a
+/// few outlier voxels (fewer than 1 − Q of them) cannot set the scale: with p = max x, one voxel at 100× the
+/// peak divided the rest of the cube by 100 and the network, trained at peak ≈ 1 with σ relative to it,
+/// smoothed the whole cube away (docs/reconstruction.md, "Plug-and-play").
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct NetworkScale {
+    /// p, the divisor.
+    pub scale: f32,
+    /// max x.
+    pub max: f32,
+    /// Q(x).
+    pub quantile: f32,
+}
+
+/// PnP input scale: the quantile of x the scale is bounded by (see [`NetworkScale`]).
+pub const PNP_SCALE_QUANTILE: f64 = 0.999;
+/// PnP input scale: p ≤ this gain × the [`PNP_SCALE_QUANTILE`] quantile (see [`NetworkScale`]).
+pub const PNP_SCALE_GAIN: f32 = 1.5;
+
+impl NetworkScale {
+    /// The scale of `x` (`scratch` takes a copy of x for the quantile's selection; deterministic).
+    pub fn of(x: &[f32], scratch: &mut Vec<f32>) -> NetworkScale {
+        let max = x.par_iter().cloned().reduce(|| f32::MIN, f32::max);
+        if x.is_empty() {
+            return NetworkScale { scale: 1.0, max, quantile: f32::NAN };
+        }
+        scratch.clear();
+        scratch.extend_from_slice(x);
+        let k = ((x.len() - 1) as f64 * PNP_SCALE_QUANTILE).round() as usize;
+        let (_, q, _) = scratch.select_nth_unstable_by(k, f32::total_cmp);
+        let quantile = *q;
+        let p = max.min(PNP_SCALE_GAIN * quantile);
+        NetworkScale { scale: if p.is_finite() && p > 0.0 { p } else { 1.0 }, max, quantile }
+    }
+}
+
+/// out ← p·D(x/p, σ) with p the [`NetworkScale`] of x: the plug-and-play solvers' call of a denoiser trained at
+/// peak ≈ 1 (σ relative to p). `scratch` holds the scaled copy. Returns the scale.
+pub fn denoise_at_network_scale(denoiser: &mut dyn Denoiser, x: &[f32], out: &mut [f32], shape: CubeShape, sigma: f32, scratch: &mut Vec<f32>) -> Result<NetworkScale> {
+    let s = NetworkScale::of(x, scratch);
+    let p = s.scale;
+    scratch.resize(x.len(), 0.0);
+    scratch.par_iter_mut().zip(x.par_iter()).for_each(|(s, x)| *s = *x / p);
+    denoiser.denoise(scratch, out, shape, sigma)?;
+    out.par_iter_mut().for_each(|v| *v *= p);
+    Ok(s)
+}
+
 /// The prior step the solvers share: θ ← D(x, σ), and PnP's two phases. For PnP (`normalise`) the cube is
-/// divided by its peak p = max x (1 when x ≤ 0 everywhere) before the denoiser and multiplied by p after, so
-/// the network sees the scale it was trained on (peak ≈ 1) and σ is relative to the peak; TV gets x as it is
-/// (bit for bit the direct call).
+/// divided by its scale p ([`NetworkScale`]: its peak, unless a few outliers exceed [`PNP_SCALE_GAIN`] times its
+/// [`PNP_SCALE_QUANTILE`] quantile) before the denoiser and multiplied by p after, so the network sees the
+/// scale it was trained on (peak ≈ 1) and σ is relative to p ([`denoise_at_network_scale`]); TV gets x as it
+/// is (bit for bit the direct call).
 ///
 /// **Phases (PnP).** The TV phase (GAP-TV / ADMM-TV's own step, at most `tv_warmup` iterations) ends at its
 /// cap or, earlier, when the caller finds ‖y − Φθ‖ ≤ [`PNP_TV_DISCREPANCY`]·δ (GAP-TV's own stop: the
@@ -501,6 +552,8 @@ pub(crate) struct PriorStep<'d> {
     sigma_min: f32,
     sigma_max: f32,
     sigma_auto: bool,
+    /// The network's input scale at the last network call (for the record).
+    last_scale: Option<NetworkScale>,
 }
 
 impl<'d> PriorStep<'d> {
@@ -520,6 +573,7 @@ impl<'d> PriorStep<'d> {
             sigma_max: config.sigma_max,
             sigma_auto: config.sigma_auto,
             warmup,
+            last_scale: None,
         };
         if s.warmup.is_none() {
             s.switch(0);
@@ -580,12 +634,8 @@ impl<'d> PriorStep<'d> {
         if !self.normalise {
             return self.denoiser.denoise(x, out, shape, sigma);
         }
-        let peak = x.par_iter().cloned().reduce(|| f32::MIN, f32::max);
-        let p = if peak.is_finite() && peak > 0.0 { peak } else { 1.0 };
-        self.scaled.resize(x.len(), 0.0);
-        self.scaled.par_iter_mut().zip(x.par_iter()).for_each(|(s, x)| *s = *x / p);
-        self.denoiser.denoise(&self.scaled, out, shape, sigma)?;
-        out.par_iter_mut().for_each(|v| *v *= p);
+        let scale = denoise_at_network_scale(self.denoiser, x, out, shape, sigma, &mut self.scaled)?;
+        self.last_scale = Some(scale);
         Ok(())
     }
 
@@ -596,6 +646,9 @@ impl<'d> PriorStep<'d> {
 
     pub(crate) fn describe(&self) -> serde_json::Value {
         let mut d = self.denoiser.describe();
+        if let (Some(scale), Some(o)) = (self.last_scale, d.as_object_mut()) {
+            o.insert("network_input_scale".into(), serde_json::json!({"scale": scale.scale, "max": scale.max, "quantile": scale.quantile, "quantile_level": PNP_SCALE_QUANTILE, "gain": PNP_SCALE_GAIN}));
+        }
         if let (Some((n, tv)), Some(o)) = (&self.warmup, d.as_object_mut()) {
             o.insert(
                 "tv_warmup".into(),
