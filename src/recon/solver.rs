@@ -475,12 +475,12 @@ pub fn sigma_schedule(sigma_max: f32, sigma_min: f32, iterations: usize, k: usiz
     (sigma_max as f64 * (sigma_min as f64 / sigma_max as f64).powf(t)) as f32
 }
 
-/// PnP's input scale: the network sees x/p with p = min(max x, [`PNP_SCALE_GAIN`]·Q(x)), Q the
-/// [`PNP_SCALE_QUANTILE`] quantile of x (1 when p ≤ 0 or not finite). On natural-scene cubes the peak is
-/// 1.00–1.11 × Q (the six natural scenes at 128², `data/scenes`), so p = max x as before (bit for bit); a
-/// few outlier voxels (fewer than 1 − Q of them) cannot set the scale: with p = max x, one voxel at 100× the
-/// peak divided the rest of the cube by 100 and the network, trained at peak ≈ 1 with σ relative to it,
-/// smoothed the whole cube away (docs/reconstruction.md, "Plug-and-play").
+/// PnP's input scale: the network sees x/p with p the largest inlier of x, p = max{x_i : x_i ≤
+/// [`PNP_SCALE_GAIN`]·Q(x)}, Q the [`PNP_SCALE_QUANTILE`] quantile of x (1 when p ≤ 0 or not finite). On
+/// natural-scene cubes the peak is 1.00–1.11 × Q (the six natural scenes at 128², `data/scenes`), so p =
+/// max x as before (bit for bit); outlier voxels (fewer than 1 − Q of them) cannot set the scale: with p =
+/// max x, one voxel at 100× the peak divided the rest of the cube by 100 and the network, trained at peak ≈ 1
+/// with σ relative to it, smoothed the whole cube away (docs/reconstruction.md, "Plug-and-play").
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct NetworkScale {
     /// p, the divisor.
@@ -493,7 +493,7 @@ pub struct NetworkScale {
 
 /// PnP input scale: the quantile of x the scale is bounded by (see [`NetworkScale`]).
 pub const PNP_SCALE_QUANTILE: f64 = 0.999;
-/// PnP input scale: p ≤ this gain × the [`PNP_SCALE_QUANTILE`] quantile (see [`NetworkScale`]).
+/// PnP input scale: values above this gain × the [`PNP_SCALE_QUANTILE`] quantile are outliers (see [`NetworkScale`]).
 pub const PNP_SCALE_GAIN: f32 = 1.5;
 
 impl NetworkScale {
@@ -506,9 +506,11 @@ impl NetworkScale {
         scratch.clear();
         scratch.extend_from_slice(x);
         let k = ((x.len() - 1) as f64 * PNP_SCALE_QUANTILE).round() as usize;
-        let (_, q, _) = scratch.select_nth_unstable_by(k, f32::total_cmp);
+        let (_, q, above) = scratch.select_nth_unstable_by(k, f32::total_cmp);
         let quantile = *q;
-        let p = max.min(PNP_SCALE_GAIN * quantile);
+        // The largest inlier: max x when no voxel exceeds the bound (bit for bit the former scale).
+        let bound = PNP_SCALE_GAIN * quantile;
+        let p = if max <= bound { max } else { above.iter().cloned().filter(|&v| v <= bound).fold(quantile, f32::max) };
         NetworkScale { scale: if p.is_finite() && p > 0.0 { p } else { 1.0 }, max, quantile }
     }
 }
@@ -526,7 +528,7 @@ pub fn denoise_at_network_scale(denoiser: &mut dyn Denoiser, x: &[f32], out: &mu
 }
 
 /// The prior step the solvers share: θ ← D(x, σ), and PnP's two phases. For PnP (`normalise`) the cube is
-/// divided by its scale p ([`NetworkScale`]: its peak, unless a few outliers exceed [`PNP_SCALE_GAIN`] times its
+/// divided by its scale p ([`NetworkScale`]: its peak, leaving out outliers above [`PNP_SCALE_GAIN`] times its
 /// [`PNP_SCALE_QUANTILE`] quantile) before the denoiser and multiplied by p after, so the network sees the
 /// scale it was trained on (peak ≈ 1) and σ is relative to p ([`denoise_at_network_scale`]); TV gets x as it
 /// is (bit for bit the direct call).
