@@ -160,7 +160,7 @@ fn denoiser_is_bit_identical_for_any_thread_count() {
 #[test]
 fn one_outlier_voxel_no_longer_ruins_the_network_output() {
     use diffcassi::recon::solver::{denoise_at_network_scale, NetworkScale};
-    let shape = CubeShape { height: 20, width: 20, bands: BANDS };
+    let shape = CubeShape { height: 40, width: 40, bands: BANDS };
     let clean = scene(shape.height, shape.width, BANDS);
     let peak = clean.iter().cloned().fold(0.0f32, f32::max);
     let mut scratch = Vec::new();
@@ -180,23 +180,27 @@ fn one_outlier_voxel_no_longer_ruins_the_network_output() {
     let mut former = vec![0.0f32; shape.len()];
     net.denoise(&scaled, &mut former, shape, 0.1).unwrap();
     former.iter_mut().for_each(|v| *v *= m);
-    // Voxels more than 6 pixels from the outlier (the U-Net's receptive field spreads it locally).
+    // Voxels more than 12 pixels from the outlier (the U-Net's receptive field spreads it locally): the
+    // largest and the mean change, relative to the peak.
     let far = |out: &[f32]| {
-        let mut worst = 0.0f32;
+        let (mut worst, mut sum, mut n) = (0.0f32, 0.0f64, 0usize);
         for r in 0..shape.height {
             for c in 0..shape.width {
-                if r.abs_diff(r0).max(c.abs_diff(c0)) > 6 {
+                if r.abs_diff(r0).max(c.abs_diff(c0)) > 12 {
                     for b in 0..BANDS {
                         let k = (r * shape.width + c) * BANDS + b;
-                        worst = worst.max((out[k] - reference[k]).abs());
+                        let d = (out[k] - reference[k]).abs();
+                        worst = worst.max(d);
+                        sum += d as f64;
+                        n += 1;
                     }
                 }
             }
         }
-        worst / peak
+        (worst / peak, (sum / n as f64) as f32 / peak)
     };
-    let (e_robust, e_former) = (far(&robust), far(&former));
-    println!("scale {s:?}; far from the outlier, max |D − D_clean| / peak: robust {e_robust:.4}, by the maximum {e_former:.4}");
+    let ((e_robust, m_robust), (e_former, m_former)) = (far(&robust), far(&former));
+    println!("scale {s:?}; far from the outlier, |D − D_clean| / peak: robust max {e_robust:.4} mean {m_robust:.5}, by the maximum max {e_former:.4} mean {m_former:.5}");
     assert!(robust.iter().all(|v| v.is_finite()));
     assert!(e_robust <= 0.02, "robust scale: the outlier still changes the output far from it by {e_robust} of the peak");
     assert!(e_former >= 0.1, "the former scale should have ruined the output (it changed it by only {e_former})");
