@@ -476,11 +476,13 @@ pub fn sigma_schedule(sigma_max: f32, sigma_min: f32, iterations: usize, k: usiz
 }
 
 /// PnP's input scale: the network sees x/p with p the largest inlier of x, p = max{x_i : x_i ≤
-/// [`PNP_SCALE_GAIN`]·Q(x)}, Q the [`PNP_SCALE_QUANTILE`] quantile of x (1 when p ≤ 0 or not finite). On
-/// natural-scene cubes the peak is 1.00–1.11 × Q (the six natural scenes at 128², `data/scenes`), so p =
-/// max x as before (bit for bit); outlier voxels (fewer than 1 − Q of them) cannot set the scale: with p =
-/// max x, one voxel at 100× the peak divided the rest of the cube by 100 and the network, trained at peak ≈ 1
-/// with σ relative to it, smoothed the whole cube away (docs/reconstruction.md, "Plug-and-play").
+/// [`PNP_SCALE_GAIN`]·Q(x)}, Q the [`PNP_SCALE_QUANTILE`] quantile of x (1 when p ≤ 0 or not finite). The
+/// natural-scene cubes themselves have their peak at 1.00–1.11 × Q (the six scenes at 128², `data/scenes`);
+/// the GAP iterate the network is handed has sparser spikes (max x = 1.5–3.9 × Q on the exact and shift cells
+/// of SP/mSP at 128²), which the bound now leaves out: measured there, PnP changes by +0.00 to +0.08 dB
+/// (docs/reconstruction.md, "Plug-and-play"). Outlier voxels (fewer than 1 − Q of them) cannot set the scale:
+/// with p = max x, one voxel at 100× the peak divided the rest of the cube by 100 and the network, trained at
+/// peak ≈ 1 with σ relative to it, smoothed the whole cube away.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct NetworkScale {
     /// p, the divisor.
@@ -508,7 +510,7 @@ impl NetworkScale {
         let k = ((x.len() - 1) as f64 * PNP_SCALE_QUANTILE).round() as usize;
         let (_, q, above) = scratch.select_nth_unstable_by(k, f32::total_cmp);
         let quantile = *q;
-        // The largest inlier: max x when no voxel exceeds the bound (bit for bit the former scale).
+        // The largest inlier: max x when no voxel exceeds the bound (then bit for bit the former scale).
         let bound = PNP_SCALE_GAIN * quantile;
         let p = if max <= bound { max } else { above.iter().cloned().filter(|&v| v <= bound).fold(quantile, f32::max) };
         NetworkScale { scale: if p.is_finite() && p > 0.0 { p } else { 1.0 }, max, quantile }
