@@ -247,11 +247,11 @@ fn lane_sweep_equals_the_scalar_sweep_ray_by_ray() {
             let plan = AdjointPlan::new(&ds, &[w]).unwrap();
             let (n, dn) = ds.index_tangents(w).unwrap();
             let mut tape = RayTape::default();
-            // 70 rays: two full blocks and a partial one; field ±1.6 mm and pupil ±1.3 (some vignetted or missed).
+            // 70 rays: two full blocks and a partial one; field ±6 mm and pupil ±4 (some vignetted or missed).
             let rays: Vec<(DVec3, DVec3)> = (0..70)
                 .map(|_| {
-                    let (fx, fy) = (3.2 * rng.next() - 1.6, 3.2 * rng.next() - 1.6);
-                    let d = DVec3::from(aim.direction(fx, fy, 2.6 * rng.next() - 1.3, 2.6 * rng.next() - 1.3)).normalize();
+                    let (fx, fy) = (12.0 * rng.next() - 6.0, 12.0 * rng.next() - 6.0);
+                    let d = DVec3::from(aim.direction(fx, fy, 8.0 * rng.next() - 4.0, 8.0 * rng.next() - 4.0)).normalize();
                     (DVec3::new(fx, fy, 0.0), d)
                 })
                 .collect();
@@ -304,7 +304,7 @@ fn lane_sweep_equals_the_scalar_sweep_ray_by_ray() {
             }
         }
         println!("{name}: lane sweep vs scalar sweep over {compared} ray sweeps ({stopped} stopped rays in the blocks), {} parameters: worst {worst:.1e}", ds.k());
-        assert!(compared >= 60 && stopped >= 5, "{name}: {compared} arrived, {stopped} stopped");
+        assert!(compared >= 60 && stopped >= 10, "{name}: {compared} arrived, {stopped} stopped");
         assert!(worst <= 1e-12, "{name}: {worst:e}");
     }
 }

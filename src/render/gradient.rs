@@ -25,10 +25,14 @@
 //! Cost: rays of closed mask pixels (value exactly 0) carry no light, so their mask gradient needs only
 //! where they land — they are traced with the production renderer's SIMD lanes, with no θ-adjoint, as
 //! are all rays of [`DiffRenderer::render`]; rays of open pixels (any non-zero value of a continuous mask)
-//! are traced keeping their per-step states and swept backwards once ([`crate::diff::adjoint`]).
+//! are traced keeping their per-step states and swept backwards once, a block of [`LANES`] rays at a
+//! time on the same SIMD lanes ([`crate::tracer::simd::record`], [`crate::diff::adjoint_lanes`]); with
+//! `config.kernel = Kernel::Scalar` every ray goes through the scalar kernel and the scalar sweep
+//! ([`crate::diff::adjoint`], the reference) instead.
 //!
-//! Deterministic: planes are processed in parallel, each in a fixed order, and reduced in plane order
-//! (bit-identical for any thread count).
+//! Deterministic: planes are processed in parallel, each in a fixed order (within a plane each lane of
+//! the reverse sweep sums its rays in order, and the lanes are summed in lane order at the plane's end),
+//! and reduced in plane order (bit-identical for any thread count and any SIMD level).
 //!
 //! ```
 //! use diffcassi::diff::ParamSet;
