@@ -15,7 +15,7 @@
 //! let mut tape = LaneTape::default();
 //! trace_block_recording(SimdLevel::detect(), &sys, &[n.as_slice(); LANES], &mut b, &mut tape);
 //! assert!(b.result(0).is_ok());
-//! X
+//! assert!(tape.steps.len() >= 3); // one state per path step
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 use super::block::{trace_block, Block, StepRecorder};
