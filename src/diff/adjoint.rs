@@ -19,6 +19,8 @@
 //! forward tangent kernel ([`super::kernel::interact_tangents`]), transposed, at the cost of about one
 //! tangent column instead of 6 + (figure coefficients) + 2 (indices) columns per step. `tests/render_gradient.rs`
 //! checks it against the forward tangents ray by ray to 1e-12.
+//! [`super::adjoint_lanes`] runs the same sweep on SIMD lanes (a block of rays at once); this scalar sweep is
+//! its reference and what `Kernel::Scalar` uses.
 //!
 //! Rays that change status (vignetted, missing the detector) under a change of θ contribute no boundary
 //! term: the gradient is that of the sampled image with the rays' statuses fixed.
