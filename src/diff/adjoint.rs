@@ -19,6 +19,8 @@
 //! forward tangent kernel ([`super::kernel::interact_tangents`]), transposed, at the cost of about one
 //! tangent column instead of 6 + (figure coefficients) + 2 (indices) columns per step. `tests/render_gradient.rs`
 //! checks it against the forward tangents ray by ray to 1e-12.
+//! [`super::adjoint_lanes`] runs the same sweep on SIMD lanes (a block of rays at once); this scalar sweep is
+//! its reference and what `Kernel::Scalar` uses.
 //!
 //! Rays that change status (vignetted, missing the detector) under a change of θ contribute no boundary
 //! term: the gradient is that of the sampled image with the rays' statuses fixed.
@@ -56,7 +58,7 @@ use glam::{DMat3, DVec3};
 /// Figure coefficients a [`ShapeTangent`] carries: curvature, conic, α₁..α₈, focal length.
 pub const SHAPE_FIELDS: usize = 11;
 
-fn shape_field(t: &ShapeTangent, f: usize) -> f64 {
+pub(crate) fn shape_field(t: &ShapeTangent, f: usize) -> f64 {
     match f {
         0 => t.curvature,
         1 => t.conic,
@@ -65,7 +67,7 @@ fn shape_field(t: &ShapeTangent, f: usize) -> f64 {
     }
 }
 
-fn shape_unit(f: usize) -> ShapeTangent {
+pub(crate) fn shape_unit(f: usize) -> ShapeTangent {
     let mut t = ShapeTangent::default();
     match f {
         0 => t.curvature = 1.0,
@@ -79,16 +81,16 @@ fn shape_unit(f: usize) -> ShapeTangent {
 /// What one step's reverse sweep accumulates: the figure coefficients some parameter moves, and whether
 /// an index of the step moves.
 #[derive(Clone, Debug)]
-struct StepPlan {
-    shape_fields: Vec<usize>,
-    index: bool,
+pub(crate) struct StepPlan {
+    pub(crate) shape_fields: Vec<usize>,
+    pub(crate) index: bool,
 }
 
 /// What the reverse pass needs of a system: which figure coefficients and indices move at each step.
 #[derive(Clone, Debug)]
 pub struct AdjointPlan {
-    steps: Vec<StepPlan>,
-    surfaces: usize,
+    pub(crate) steps: Vec<StepPlan>,
+    pub(crate) surfaces: usize,
 }
 
 /// The forward state of one path step, kept for the reverse sweep.
@@ -130,10 +132,10 @@ pub struct RayTape {
 /// the index part is per surface at that plane's wavelength).
 #[derive(Clone, Debug)]
 pub struct AdjointSums {
-    rotation: Vec<DMat3>,
-    offset: Vec<DVec3>,
-    shape: Vec<[f64; SHAPE_FIELDS]>,
-    index: Vec<f64>,
+    pub(crate) rotation: Vec<DMat3>,
+    pub(crate) offset: Vec<DVec3>,
+    pub(crate) shape: Vec<[f64; SHAPE_FIELDS]>,
+    pub(crate) index: Vec<f64>,
 }
 
 impl AdjointSums {

@@ -61,7 +61,7 @@ pub struct HitTangent {
 }
 
 /// (c, k, α) of a figure; a plane is c = k = 0 (so a free curvature of a flat surface works).
-fn figure(shape: &SurfaceShape) -> Option<(f64, f64, &[f64])> {
+pub(crate) fn figure(shape: &SurfaceShape) -> Option<(f64, f64, &[f64])> {
     match shape {
         SurfaceShape::Plane => Some((0.0, 0.0, &[])),
         SurfaceShape::Conic { curvature, conic } => Some((*curvature, *conic, &[])),

@@ -12,7 +12,8 @@
 //! - [`kernel`]: the per-ray forward trace (frame changes, hits, vector Snell, ideal lens).
 //! - [`jacobian`]: [`DiffSystem::trace`] → [`JacobianBatch`] for a [`crate::rays::RayBatch`].
 //! - [`adjoint`]: reverse accumulation — ∂L/∂θ for every parameter at a per-ray cost independent of their
-//!   number (the differentiable acquisition, [`crate::render::gradient`]).
+//!   number (the differentiable acquisition, [`crate::render::gradient`]); [`adjoint_lanes`]: the same
+//!   reverse sweep on the SIMD lanes of [`crate::tracer::simd`] (a block of rays at once).
 //! - [`from_hits`]: [`DiffSystem::jacobian_from_hits`] — the same Jacobians at hits another backend found
 //!   (the Embree tracer's refined hits: `DiffSystem::trace_embree`), with a reason for every ray whose
 //!   recorded path is not the sequential one.
@@ -30,6 +31,7 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 pub mod adjoint;
+pub mod adjoint_lanes;
 pub mod dispersion;
 pub mod dual;
 pub mod from_hits;

@@ -25,10 +25,14 @@
 //! Cost: rays of closed mask pixels (value exactly 0) carry no light, so their mask gradient needs only
 //! where they land — they are traced with the production renderer's SIMD lanes, with no θ-adjoint, as
 //! are all rays of [`DiffRenderer::render`]; rays of open pixels (any non-zero value of a continuous mask)
-//! are traced keeping their per-step states and swept backwards once ([`crate::diff::adjoint`]).
+//! are traced keeping their per-step states and swept backwards once, a block of [`LANES`] rays at a
+//! time on the same SIMD lanes ([`crate::tracer::simd::record`], [`crate::diff::adjoint_lanes`]); with
+//! `config.kernel = Kernel::Scalar` every ray goes through the scalar kernel and the scalar sweep
+//! ([`crate::diff::adjoint`], the reference) instead.
 //!
-//! Deterministic: planes are processed in parallel, each in a fixed order, and reduced in plane order
-//! (bit-identical for any thread count).
+//! Deterministic: planes are processed in parallel, each in a fixed order (within a plane each lane of
+//! the reverse sweep sums its rays in order, and the lanes are summed in lane order at the plane's end),
+//! and reduced in plane order (bit-identical for any thread count and any SIMD level).
 //!
 //! ```
 //! use diffcassi::diff::ParamSet;
@@ -54,6 +58,9 @@ use super::engine::RenderConfig;
 use super::sampling::{RaySampler, SampleRow};
 use crate::analysis::MappingCube;
 use crate::diff::adjoint::{not_a_system_parameter, AdjointPlan, AdjointSums, RayTape};
+use crate::diff::adjoint_lanes::LaneSums;
+use crate::tracer::simd::lanes::{Lf, Mask};
+use crate::tracer::simd::{trace_block_recording, Block, LaneTape, LANES};
 use crate::diff::{DiffSystem, ParamSet};
 use crate::error::{Error, Result};
 use crate::rays::PupilAim;
@@ -114,6 +121,19 @@ impl RowRays {
         self.origin.clear();
         self.dir.clear();
     }
+}
+
+/// One plane's inputs to the backward pass of its rays.
+struct PlaneInputs<'a> {
+    scene: &'a [f64],
+    mask: &'a [f64],
+    /// The upstream gradient through the blur's adjoint, (N, h, w).
+    gb: &'a [f64],
+    n: usize,
+    /// Scene bands and upper weight of the plane's wavelength.
+    k0: usize,
+    k1: usize,
+    tw: f64,
 }
 
 /// What one plane's backward pass returns.
@@ -436,6 +456,36 @@ impl DiffRenderer {
         }
     }
 
+    /// An arrived open-pixel ray of pixel `q` landing at `uv`: its bilinear taps contracted with the
+    /// blurred upstream gradient give its mask and scene gradients (added to `out`) and ∂L/∂(landing
+    /// x, y) in mm, returned (the λ its reverse sweep starts from).
+    fn open_ray(&self, pin: &PlaneInputs, q: usize, uv: (f64, f64), out: &mut PlaneGrad, bufs: &mut [Vec<f64>; 3]) -> (f64, f64) {
+        let (hw, nb, nr, npix) = (self.config.scene_height * self.config.scene_width, self.scene_wavelengths_nm.len(), self.sampler.rays as f64, self.detector.pixels());
+        let [tb, ub, vb] = bufs;
+        out.arrived += 1;
+        tb.iter_mut().chain(ub.iter_mut()).chain(vb.iter_mut()).for_each(|v| *v = 0.0);
+        for (t, wt, du, dv) in self.taps(uv) {
+            for s in 0..pin.n {
+                let gv = pin.gb[s * npix + t];
+                tb[s] += wt * gv;
+                ub[s] += du * gv;
+                vb[s] += dv * gv;
+            }
+        }
+        let (mut u_bar, mut v_bar) = (0.0, 0.0);
+        let m = pin.mask[q];
+        for s in 0..pin.n {
+            let val = (1.0 - pin.tw) * pin.scene[(s * nb + pin.k0) * hw + q] + pin.tw * pin.scene[(s * nb + pin.k1) * hw + q];
+            out.mask[q] += val * tb[s] / nr;
+            out.plane[s * hw + q] += m * tb[s] / nr;
+            u_bar += val * m * ub[s] / nr;
+            v_bar += val * m * vb[s] / nr;
+        }
+        // (u, v) = ((x − x_left)/pitch − ½, (y_top − y)/pitch − ½).
+        let pitch = self.detector.pitch_mm;
+        (u_bar / pitch, -v_bar / pitch)
+    }
+
     /// The vector–Jacobian product of [`Self::render`] at (scene, mask) for the upstream gradient `g`
     /// (N, h, w): ∂L/∂θ, ∂L/∂mask, ∂L/∂scene. Errors: wrong shapes, a non-finite g (naming the entry),
     /// no ray reaching the detector.
@@ -451,7 +501,6 @@ impl DiffRenderer {
         }
         let kk = self.ds.k();
         let (hw, nb, nr) = (self.config.scene_height * self.config.scene_width, self.scene_wavelengths_nm.len(), self.sampler.rays as f64);
-        let pitch = self.detector.pitch_mm;
         let planes: Vec<Result<PlaneGrad>> = (0..self.config.spectral.planes())
             .into_par_iter()
             .map(|p| {
@@ -464,9 +513,12 @@ impl DiffRenderer {
                 }
                 let mut out = PlaneGrad { params: vec![0.0; kk], mask: vec![0.0; hw], plane: vec![0.0; n * hw], arrived: 0 };
                 let mut sums = AdjointSums::new(&self.plan);
-                let mut tape = RayTape::default();
-                let (mut tb, mut ub, mut vb) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
-                let (mut closed, mut land) = (Vec::new(), Vec::new());
+                let (mut tape, mut ltape, mut lanes) = (RayTape::default(), LaneTape::default(), LaneSums::new(&self.plan));
+                let tables = [idx.as_slice(); LANES];
+                let pin = PlaneInputs { scene, mask, gb: &gb, n, k0, k1, tw };
+                let mut bufs = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
+                let mut tb = vec![0.0; n];
+                let (mut closed, mut open, mut land) = (Vec::new(), Vec::new(), Vec::new());
                 self.for_rows(
                     p,
                     |_| true,
@@ -492,37 +544,42 @@ impl DiffRenderer {
                             }
                         }
                         // Open pixels (any non-zero mask value, a continuous mask's included): traced with
-                        // the per-step states kept, then swept backwards once.
-                        for (i, &q) in rays.pixel.iter().enumerate() {
-                            if mask[q] == 0.0 {
-                                continue;
-                            }
-                            let Some(uv) = self.landing(self.plan.trace(&self.ds, &idx, rays.origin[i], rays.dir[i], &mut tape)) else { continue };
-                            out.arrived += 1;
-                            tb.iter_mut().chain(ub.iter_mut()).chain(vb.iter_mut()).for_each(|v| *v = 0.0);
-                            for (t, wt, du, dv) in self.taps(uv) {
-                                for s in 0..n {
-                                    let gv = gb[s * npix + t];
-                                    tb[s] += wt * gv;
-                                    ub[s] += du * gv;
-                                    vb[s] += dv * gv;
+                        // the per-step states kept, then swept backwards once — a block of rays at a time on
+                        // the SIMD lanes, or ray by ray with the scalar kernel (`Kernel::Scalar`).
+                        open.clear();
+                        open.extend((0..rays.pixel.len()).filter(|&i| mask[rays.pixel[i]] != 0.0));
+                        let Some(level) = self.simd else {
+                            for &i in &open {
+                                let Some(uv) = self.landing(self.plan.trace(&self.ds, &idx, rays.origin[i], rays.dir[i], &mut tape)) else { continue };
+                                let (lx, ly) = self.open_ray(&pin, rays.pixel[i], uv, &mut out, &mut bufs);
+                                if lx != 0.0 || ly != 0.0 {
+                                    self.plan.backward(&self.ds, &mut tape, [lx, ly, 0.0, 0.0, 0.0, 0.0], &mut sums);
                                 }
                             }
-                            let (mut u_bar, mut v_bar) = (0.0, 0.0);
-                            for s in 0..n {
-                                let val = (1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q];
-                                out.mask[q] += val * tb[s] / nr;
-                                out.plane[s * hw + q] += mask[q] * tb[s] / nr;
-                                u_bar += val * mask[q] * ub[s] / nr;
-                                v_bar += val * mask[q] * vb[s] / nr;
+                            return;
+                        };
+                        for chunk in open.chunks(LANES) {
+                            let mut b = Block::default();
+                            for (k, &i) in chunk.iter().enumerate() {
+                                b.set(k, rays.origin[i], rays.dir[i]);
                             }
-                            if u_bar != 0.0 || v_bar != 0.0 {
-                                // (u, v) = ((x − x_left)/pitch − ½, (y_top − y)/pitch − ½).
-                                self.plan.backward(&self.ds, &mut tape, [u_bar / pitch, -v_bar / pitch, 0.0, 0.0, 0.0, 0.0], &mut sums);
+                            trace_block_recording(level, &self.ds.system, &tables, &mut b, &mut ltape);
+                            let mut lambda = [Lf::splat(0.0); 6];
+                            let mut active = Mask::splat(false);
+                            for (k, &i) in chunk.iter().enumerate() {
+                                let Some(uv) = self.landing(b.result(k)) else { continue };
+                                let (lx, ly) = self.open_ray(&pin, rays.pixel[i], uv, &mut out, &mut bufs);
+                                if lx != 0.0 || ly != 0.0 {
+                                    (lambda[0].0[k], lambda[1].0[k], active.0[k]) = (lx, ly, true);
+                                }
+                            }
+                            if active.any() {
+                                self.plan.backward_lanes(level, &self.ds, &ltape, &idx, &lambda, active, &mut lanes);
                             }
                         }
                     },
                 );
+                lanes.add_to(&mut sums);
                 self.plan.contract(&self.ds, &sums, &dn, &mut out.params);
                 Ok(out)
             })

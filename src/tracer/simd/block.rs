@@ -153,7 +153,7 @@ fn status_from_code(code: u8) -> RayStatus {
 
 /// glam's `DMat3 * DVec3`: x_axis·v.x + y_axis·v.y + z_axis·v.z, in that order.
 #[inline(always)]
-fn rotate<T: Real, const N: usize>(m: &DMat3, v: V3<T, N>) -> V3<T, N> {
+pub(crate) fn rotate<T: Real, const N: usize>(m: &DMat3, v: V3<T, N>) -> V3<T, N> {
     let e = |c: f64| Lanes::<T, N>::of(c);
     V3 {
         x: e(m.x_axis.x) * v.x + e(m.y_axis.x) * v.y + e(m.z_axis.x) * v.z,
@@ -310,44 +310,61 @@ fn asphere_newton<T: Real, const N: usize>(c: f64, k: f64, coefficients: &[f64],
     (ok, nc, t)
 }
 
+/// What a step of [`trace_block`] hands its recorder: the lanes' state the adjoint sweep needs
+/// ([`super::record::LaneTape`]). The production trace passes `()`, which keeps nothing (and compiles to
+/// nothing: the arithmetic and its results are the same either way).
+pub(crate) trait StepRecorder<T, const N: usize> {
+    /// Step `s`: p − o and d before the frame change, d in the step's frame, the hit point, its unit
+    /// normal (as `intersect` gives it) and the distance t from the frame-changed origin.
+    #[allow(clippy::too_many_arguments)]
+    fn record(&mut self, s: usize, pr: &V3<T, N>, d0: &V3<T, N>, d: &V3<T, N>, q: &V3<T, N>, normal: &V3<T, N>, t: &Lanes<T, N>);
+}
+
+impl<T, const N: usize> StepRecorder<T, N> for () {
+    #[inline(always)]
+    fn record(&mut self, _: usize, _: &V3<T, N>, _: &V3<T, N>, _: &V3<T, N>, _: &V3<T, N>, _: &V3<T, N>, _: &Lanes<T, N>) {}
+}
+
 /// Trace the live lanes of `b` (object frame) along `path`; `n[k]` is lane k's table of indices after
-/// each surface. On return live lanes hold the last step's frame position and direction.
+/// each surface. On return live lanes hold the last step's frame position and direction. `rec` sees each
+/// step's state (`&mut ()` keeps nothing).
 #[inline(always)]
-pub(crate) fn trace_block<T: Real, const N: usize>(path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>) {
+pub(crate) fn trace_block<T: Real, const N: usize, R: StepRecorder<T, N>>(path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, rec: &mut R) {
     let uniform = n.iter().all(|t| std::ptr::eq(t.as_ptr(), n[0].as_ptr()) && t.len() == n[0].len());
-    for step in path {
+    for (s, step) in path.iter().enumerate() {
         if !b.alive.any() {
             return;
         }
-        trace_step(step, n, uniform, b);
+        trace_step(step, n, uniform, b, s, rec);
     }
 }
 
 /// One step of [`trace_block`]: frame change, intersection, aperture, refraction or ideal lens.
 #[inline(always)]
-fn trace_step<T: Real, const N: usize>(step: &PathStep, n: &[&[f64]; N], uniform: bool, b: &mut LaneBlock<T, N>) {
+fn trace_step<T: Real, const N: usize, R: StepRecorder<T, N>>(step: &PathStep, n: &[&[f64]; N], uniform: bool, b: &mut LaneBlock<T, N>, index: usize, rec: &mut R) {
     let o = step.offset;
     let q = V3 { x: b.p.x - T::of(o.x), y: b.p.y - T::of(o.y), z: b.p.z - T::of(o.z) };
     let p = rotate(&step.rotation, q);
     let d = rotate(&step.rotation, b.d);
     let s = step.surface;
     let z_axis = V3::splat(DVec3::Z);
-    let (hit, point, normal) = match &step.shape {
+    // (t is kept for a recorder only; the production trace drops it.)
+    let (hit, t, point, normal) = match &step.shape {
         SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => {
-            let (hit, _, point) = plane(p, d);
-            (hit, point, z_axis)
+            let (hit, t, point) = plane(p, d);
+            (hit, t, point, z_axis)
         }
         SurfaceShape::Conic { curvature, conic } => {
             let (c, k) = (*curvature, *conic);
             if c == 0.0 {
-                let (hit, _, point) = plane(p, d);
-                (hit, point, z_axis)
+                let (hit, t, point) = plane(p, d);
+                (hit, t, point, z_axis)
             } else {
                 let (hit, t) = conic_root(c, k, p, d, b.alive);
                 let point = p.along(d, t);
                 let ck = c * (1.0 + k);
                 let normal = V3 { x: Lanes::of(-c) * point.x, y: Lanes::of(-c) * point.y, z: Lanes::of(1.0) - Lanes::of(ck) * point.z }.normalize();
-                (hit, point, normal)
+                (hit, t, point, normal)
             }
         }
         SurfaceShape::EvenAsphere { curvature, conic, coefficients } => {
@@ -371,7 +388,7 @@ fn trace_step<T: Real, const N: usize>(step: &PathStep, n: &[&[f64]; N], uniform
             let two = Lanes::of(2.0);
             let normal = V3 { x: -(two * point.x * slope), y: -(two * point.y * slope), z: Lanes::of(1.0) }.normalize();
             b.kill(nc & !ok, RayStatus::NoConvergence, s);
-            (ok & normal.is_finite(), point, normal)
+            (ok & normal.is_finite(), t, point, normal)
         }
     };
     b.kill(!hit, RayStatus::Missed, s);
@@ -425,6 +442,7 @@ fn trace_step<T: Real, const N: usize>(step: &PathStep, n: &[&[f64]; N], uniform
             V3::select(differ, r, d)
         }
     };
+    rec.record(index, &q, &b.d, &d, &point, &normal, &t);
     b.p = point;
     b.d = d_new;
 }

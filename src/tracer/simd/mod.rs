@@ -37,9 +37,11 @@
 //! ```
 pub mod block;
 pub mod lanes;
+pub mod record;
 
 pub use block::{Block, BlockF32, LaneBlock};
 pub use lanes::{Real, LANES, LANES_F32};
+pub use record::{trace_block_recording, LaneTape, StepLanes};
 pub use crate::tracer::precision::Precision;
 
 use crate::error::{Error, Result};
@@ -168,42 +170,69 @@ impl std::str::FromStr for Kernel {
     }
 }
 
-/// `block::trace_block`, optionally preceded by `LaneBlock::normalize_inputs`, compiled for each level
-/// (generic over the precision: the f64 and the f32 blocks share this code).
-#[inline(always)]
-fn run<T: Real, const N: usize>(path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, normalize: bool) {
-    if normalize {
-        b.normalize_inputs();
-    }
-    block::trace_block(path, n, b)
+/// Lane code to run at a chosen [`SimdLevel`]: [`at_level`] calls [`LaneKernel::run`] inside a function
+/// compiled for that level's instruction set, so everything `run` inlines (the `#[inline(always)]` lane
+/// operations) becomes that level's vector code. The one place the level is dispatched: the production
+/// trace ([`trace_block`]), the recording trace ([`record::trace_block_recording`]) and the adjoint's lane
+/// sweep ([`crate::diff::adjoint_lanes`]) all go through it. `run` must be `#[inline(always)]`.
+pub trait LaneKernel {
+    type Output;
+    fn run(self) -> Self::Output;
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512dq,avx512vl")]
-unsafe fn run_avx512<T: Real, const N: usize>(path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, normalize: bool) {
-    run(path, n, b, normalize)
+unsafe fn on_avx512<K: LaneKernel>(k: K) -> K::Output {
+    k.run()
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn run_avx2<T: Real, const N: usize>(path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, normalize: bool) {
-    run(path, n, b, normalize)
+unsafe fn on_avx2<K: LaneKernel>(k: K) -> K::Output {
+    k.run()
 }
 
-fn run_portable<T: Real, const N: usize>(path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, normalize: bool) {
-    run(path, n, b, normalize)
+fn on_portable<K: LaneKernel>(k: K) -> K::Output {
+    k.run()
+}
+
+/// Run `k` compiled for `level`; a level this CPU cannot run falls back to `Portable` (callers check
+/// levels with [`SimdLevel::check`]).
+#[inline]
+pub fn at_level<K: LaneKernel>(level: SimdLevel, k: K) -> K::Output {
+    match level {
+        // SAFETY: the target features are checked at run time on the same line.
+        #[cfg(target_arch = "x86_64")]
+        SimdLevel::Avx512 if has_avx512() => unsafe { on_avx512(k) },
+        #[cfg(target_arch = "x86_64")]
+        SimdLevel::Avx2 if std::arch::is_x86_feature_detected!("avx2") => unsafe { on_avx2(k) },
+        _ => on_portable(k),
+    }
+}
+
+/// `block::trace_block`, optionally preceded by `LaneBlock::normalize_inputs` (generic over the
+/// precision: the f64 and the f32 blocks share this code).
+struct Run<'a, T, const N: usize> {
+    path: &'a [PathStep],
+    n: &'a [&'a [f64]; N],
+    b: &'a mut LaneBlock<T, N>,
+    normalize: bool,
+}
+
+impl<T: Real, const N: usize> LaneKernel for Run<'_, T, N> {
+    type Output = ();
+    #[inline(always)]
+    fn run(self) {
+        if self.normalize {
+            self.b.normalize_inputs();
+        }
+        block::trace_block(self.path, self.n, self.b, &mut ())
+    }
 }
 
 #[inline]
 fn dispatch<T: Real, const N: usize>(level: SimdLevel, path: &[PathStep], n: &[&[f64]; N], b: &mut LaneBlock<T, N>, normalize: bool) {
-    match level {
-        // SAFETY: the target features are checked at run time on the same line.
-        #[cfg(target_arch = "x86_64")]
-        SimdLevel::Avx512 if has_avx512() => unsafe { run_avx512(path, n, b, normalize) },
-        #[cfg(target_arch = "x86_64")]
-        SimdLevel::Avx2 if std::arch::is_x86_feature_detected!("avx2") => unsafe { run_avx2(path, n, b, normalize) },
-        _ => run_portable(path, n, b, normalize),
-    }
+    at_level(level, Run { path, n, b, normalize })
 }
 
 /// Trace the live lanes of `b` (unit directions) along `path` at `level` (see [`block::trace_block`]).
