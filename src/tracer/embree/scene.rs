@@ -27,6 +27,10 @@
 //! mirrored to all four quadrants at its wavelengths, plus [`SceneOptions::mechanical_margin_mm`]; the
 //! detector gets [`SceneOptions::detector_margin_mm`] on top.
 //!
+//! The analytic user geometry answers the lanes of a callback's packet together, with the SIMD kernel's
+//! lane code (`AnalyticSurface::intersect_exact_lanes`): each lane gets bit for bit what the scalar solve
+//! gives its ray (docs/nonsequential.md, "Packet-wide user geometry").
+//!
 //! [`RayStatus::Absorbed`]: crate::tracer::RayStatus::Absorbed
 //! [`RayStatus::Vignetted`]: crate::tracer::RayStatus::Vignetted
 use super::wrapper::{CommittedScene, Device, ExactAnswer, ExactRay, Geometry, Scene, UserGeometry, UserLanes, USER_LANES};
