@@ -366,6 +366,7 @@ impl UserGeometry for AnalyticSurface {
 
     /// Three or more lanes of a plane or conic are solved together ([`Self::solve_lanes`], the same bits
     /// as [`Self::intersect_exact`] lane by lane); fewer, or an even asphere, lane by lane.
+    #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
     fn intersect_exact_lanes(&self, lanes: &UserLanes, out: &mut [ExactAnswer; USER_LANES]) {
         let closed = matches!(self.patch.shape, SurfaceShape::Plane | SurfaceShape::Paraxial { .. } | SurfaceShape::Conic { .. });
         if lanes.count < LANE_SOLVE_MIN || !closed {

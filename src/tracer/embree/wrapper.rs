@@ -190,6 +190,7 @@ pub trait UserGeometry: Send + Sync {
     /// `out[k]`): an implementation may solve them together (SIMD lanes) but must give each lane the
     /// answer `intersect_exact` gives it, bit for bit, so packets and single rays agree. The default
     /// answers lane by lane.
+    #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
     fn intersect_exact_lanes(&self, lanes: &UserLanes, out: &mut [ExactAnswer; USER_LANES]) {
         for k in 0..lanes.count {
             out[k] = self.intersect_exact(lanes.org[k], lanes.dir[k], lanes.tnear[k], lanes.tfar[k], &lanes.exact[k]);
@@ -439,6 +440,7 @@ unsafe extern "C" fn user_bounds(args: *const sys::RTCBoundsFunctionArguments) {
 /// read in one shim call, answered together ([`UserGeometry::intersect_exact_lanes`] when the query
 /// carries the exact rays, else [`UserGeometry::intersect`] lane by lane), and a closer hit within
 /// [tnear, tfar] is committed through the shim.
+#[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
 unsafe extern "C" fn user_intersect(args: *const sys::RTCIntersectFunctionNArguments) {
     // SAFETY: Embree passes valid arguments with `N` lanes; geometryUserPtr is our UserSlot.
     let a = &*args;
