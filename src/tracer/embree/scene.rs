@@ -27,15 +27,23 @@
 //! mirrored to all four quadrants at its wavelengths, plus [`SceneOptions::mechanical_margin_mm`]; the
 //! detector gets [`SceneOptions::detector_margin_mm`] on top.
 //!
+//! The analytic user geometry answers the lanes of a callback's packet together, with the SIMD kernel's
+//! lane code (`AnalyticSurface::intersect_exact_lanes`): each lane gets bit for bit what the scalar solve
+//! gives its ray (docs/nonsequential.md, "Packet-wide user geometry").
+//!
 //! [`RayStatus::Absorbed`]: crate::tracer::RayStatus::Absorbed
 //! [`RayStatus::Vignetted`]: crate::tracer::RayStatus::Vignetted
-use super::wrapper::{CommittedScene, Device, ExactAnswer, ExactRay, Geometry, Scene, UserGeometry};
+use super::wrapper::{CommittedScene, Device, ExactAnswer, ExactRay, Geometry, Scene, UserGeometry, UserLanes, USER_LANES};
 use crate::error::{Error, Result};
 use crate::geometry::Frame;
 use crate::surfaces::{tessellate_covering, Aperture, MeshResolution, SurfacePatch, TriangleMesh};
 use crate::system::SequentialSystem;
 use crate::tracer::nonseq::{Solid, Solids, SolidsOptions};
-use glam::DVec3;
+use crate::tracer::simd::block::{conic_roots_both, rotate};
+use crate::tracer::simd::lanes::{Lanes, V3};
+use crate::tracer::simd::SimdLevel;
+use crate::surfaces::SurfaceShape;
+use glam::{DMat3, DVec3};
 use std::sync::Arc;
 
 /// How optical surfaces are represented in Embree.
@@ -178,7 +186,7 @@ impl OpticalScene {
                 };
                 match options.representation {
                     SurfaceRepresentation::User => {
-                        let user = Arc::new(AnalyticSurface { frame, patch: patch.clone() });
+                        let user = Arc::new(AnalyticSurface::new(frame, patch.clone()));
                         (Geometry::user(&device, user, mask).map_err(embree_err)?, None, mask)
                     }
                     SurfaceRepresentation::Mesh(res) => {
@@ -230,7 +238,90 @@ pub(crate) fn covering_mesh(patch: &SurfacePatch, res: MeshResolution) -> std::r
 /// Analytic user geometry: the exact patch in its frame, solved in f64 from Embree's f32 ray.
 struct AnalyticSurface {
     frame: Frame,
+    /// `frame.rotation` transposed: what [`Frame::point_to_local`] and [`Frame::dir_to_local`] apply.
+    to_local: DMat3,
     patch: SurfacePatch,
+    /// The instruction set of the packet solve: the SIMD kernel's choice ([`SimdLevel::detect`]), once.
+    level: SimdLevel,
+}
+
+/// Below this many lanes a callback's lanes are solved one by one (the same bits): a 16-lane pass costs
+/// more than one or two scalar solves.
+const LANE_SOLVE_MIN: usize = 3;
+
+impl AnalyticSurface {
+    fn new(frame: Frame, patch: SurfacePatch) -> Self {
+        let to_local = frame.rotation.transpose();
+        AnalyticSurface { frame, to_local, patch, level: SimdLevel::detect() }
+    }
+
+    /// The hit of the exact ray (local `p`, `d`; `roots` of the figure along it) reported to Embree: the
+    /// first root in (tnear, tfar] inside the aperture, as a distance along Embree's f32 ray.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn answer(&self, p: DVec3, d: DVec3, roots: [Option<f64>; 2], org: [f32; 3], dir: [f32; 3], tnear: f32, tfar: f32, exact: &ExactRay) -> ExactAnswer {
+        let o32 = DVec3::new(org[0] as f64, org[1] as f64, org[2] as f64);
+        let d32 = DVec3::new(dir[0] as f64, dir[1] as f64, dir[2] as f64);
+        let dd = d32.dot(d32);
+        if !(dd > 0.0) {
+            return ExactAnswer::Miss;
+        }
+        for t in roots.into_iter().flatten() {
+            let q = p + d * t;
+            // Distance along Embree's f32 ray to the exact point (t of the exact ray up to f32 rounding).
+            let t32 = (exact.org + exact.dir * t - o32).dot(d32) / dd;
+            if t32 > tnear as f64 && t32 <= tfar as f64 && self.patch.aperture.contains(q.x, q.y) {
+                return ExactAnswer::Hit { t: t32 as f32, roots };
+            }
+        }
+        ExactAnswer::Miss
+    }
+
+    /// The exact rays of `lanes` in the local frame and the figure's roots along them, all lanes at once
+    /// with the SIMD kernel's lane code (`rotate`, `conic_roots_both`: glam's and `conic_roots`'
+    /// operations in their order, so every lane equals [`SurfacePatch::closed_form_roots`] on
+    /// [`Frame::point_to_local`]'s ray bit for bit). Planes and conics only.
+    #[inline(always)]
+    fn solve_lanes(&self, lanes: &UserLanes, local: &mut [(DVec3, DVec3); USER_LANES], roots: &mut [[Option<f64>; 2]; USER_LANES]) {
+        type L = Lanes<f64, USER_LANES>;
+        let n = lanes.count;
+        let (mut o, mut d) = (V3 { x: L::of(0.0), y: L::of(0.0), z: L::of(0.0) }, V3 { x: L::of(0.0), y: L::of(0.0), z: L::of(0.0) });
+        for k in 0..USER_LANES {
+            // Lanes past `count` repeat the last ray (computed, not used).
+            let e = &lanes.exact[k.min(n - 1)];
+            let v = e.org - self.frame.origin;
+            (o.x.0[k], o.y.0[k], o.z.0[k]) = (v.x, v.y, v.z);
+            (d.x.0[k], d.y.0[k], d.z.0[k]) = (e.dir.x, e.dir.y, e.dir.z);
+        }
+        let p = rotate(&self.to_local, o);
+        let d = rotate(&self.to_local, d);
+        let (ok1, t1, ok2, t2) = match self.patch.shape {
+            SurfaceShape::Conic { curvature, conic } if curvature != 0.0 => conic_roots_both(curvature, conic, p, d),
+            // `plane_root`: −p_z / d_z where d_z ≠ 0 and finite.
+            _ => {
+                let t = -p.z / d.z;
+                (d.z.ne(L::of(0.0)) & t.is_finite(), t, crate::tracer::simd::lanes::Mask::splat(false), t)
+            }
+        };
+        for k in 0..n {
+            local[k] = (DVec3::new(p.x.0[k], p.y.0[k], p.z.0[k]), DVec3::new(d.x.0[k], d.y.0[k], d.z.0[k]));
+            roots[k] = [ok1.0[k].then_some(t1.0[k]), ok2.0[k].then_some(t2.0[k])];
+        }
+    }
+}
+
+/// [`AnalyticSurface::solve_lanes`] compiled for AVX-512 (one zmm register per 8 lanes), as the SIMD kernel.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx512vl")]
+unsafe fn solve_lanes_avx512(s: &AnalyticSurface, lanes: &UserLanes, local: &mut [(DVec3, DVec3); USER_LANES], roots: &mut [[Option<f64>; 2]; USER_LANES]) {
+    s.solve_lanes(lanes, local, roots)
+}
+
+/// [`AnalyticSurface::solve_lanes`] compiled for AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn solve_lanes_avx2(s: &AnalyticSurface, lanes: &UserLanes, local: &mut [(DVec3, DVec3); USER_LANES], roots: &mut [[Option<f64>; 2]; USER_LANES]) {
+    s.solve_lanes(lanes, local, roots)
 }
 
 impl UserGeometry for AnalyticSurface {
@@ -270,20 +361,101 @@ impl UserGeometry for AnalyticSurface {
         let p = self.frame.point_to_local(exact.org);
         let d = self.frame.dir_to_local(exact.dir);
         let Some(roots) = self.patch.closed_form_roots(p, d) else { return ExactAnswer::Unsupported };
-        let o32 = DVec3::new(org[0] as f64, org[1] as f64, org[2] as f64);
-        let d32 = DVec3::new(dir[0] as f64, dir[1] as f64, dir[2] as f64);
-        let dd = d32.dot(d32);
-        if !(dd > 0.0) {
-            return ExactAnswer::Miss;
+        self.answer(p, d, roots, org, dir, tnear, tfar, exact)
+    }
+
+    /// Three or more lanes of a plane or conic are solved together ([`Self::solve_lanes`], the same bits
+    /// as [`Self::intersect_exact`] lane by lane); fewer, or an even asphere, lane by lane.
+    #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
+    fn intersect_exact_lanes(&self, lanes: &UserLanes, out: &mut [ExactAnswer; USER_LANES]) {
+        let closed = matches!(self.patch.shape, SurfaceShape::Plane | SurfaceShape::Paraxial { .. } | SurfaceShape::Conic { .. });
+        if lanes.count < LANE_SOLVE_MIN || !closed {
+            for k in 0..lanes.count {
+                out[k] = self.intersect_exact(lanes.org[k], lanes.dir[k], lanes.tnear[k], lanes.tfar[k], &lanes.exact[k]);
+            }
+            return;
         }
-        for t in roots.into_iter().flatten() {
-            let q = p + d * t;
-            // Distance along Embree's f32 ray to the exact point (t of the exact ray up to f32 rounding).
-            let t32 = (exact.org + exact.dir * t - o32).dot(d32) / dd;
-            if t32 > tnear as f64 && t32 <= tfar as f64 && self.patch.aperture.contains(q.x, q.y) {
-                return ExactAnswer::Hit { t: t32 as f32, roots };
+        let mut local = [(DVec3::ZERO, DVec3::ZERO); USER_LANES];
+        let mut roots = [[None; 2]; USER_LANES];
+        match self.level {
+            // SAFETY: `level` is what `SimdLevel::detect` found this CPU runs.
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx512 => unsafe { solve_lanes_avx512(self, lanes, &mut local, &mut roots) },
+            #[cfg(target_arch = "x86_64")]
+            SimdLevel::Avx2 => unsafe { solve_lanes_avx2(self, lanes, &mut local, &mut roots) },
+            _ => self.solve_lanes(lanes, &mut local, &mut roots),
+        }
+        for k in 0..lanes.count {
+            let (p, d) = local[k];
+            out[k] = self.answer(p, d, roots[k], lanes.org[k], lanes.dir[k], lanes.tnear[k], lanes.tfar[k], &lanes.exact[k]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::rotation_xyz;
+    use rand::{Rng, SeedableRng};
+
+    /// The packet solve of a callback's lanes (`intersect_exact_lanes`, 3–16 lanes through the SIMD lane
+    /// code at every instruction set this CPU runs) gives each lane exactly what the scalar solve
+    /// (`intersect_exact`) gives it — hit or miss, reported distance and both roots, bit for bit — on
+    /// planes, paraxial planes and conics of every kind (sphere, paraboloid along its axis: the linear
+    /// case; hyperboloid, oblate ellipsoid; curvature 0), tilted frames, seeded rays from both sides,
+    /// parallel to the plane and grazing.
+    #[test]
+    fn lane_solve_equals_scalar_solve_bit_for_bit() {
+        let shapes = [
+            SurfaceShape::Plane,
+            SurfaceShape::Paraxial { focal_length: 50.0 },
+            SurfaceShape::Conic { curvature: 1.0 / 30.0, conic: 0.0 },
+            SurfaceShape::Conic { curvature: -1.0 / 50.0, conic: -1.0 },
+            SurfaceShape::Conic { curvature: 1.0 / 40.0, conic: -2.5 },
+            SurfaceShape::Conic { curvature: 1.0 / 25.0, conic: 0.6 },
+            SurfaceShape::Conic { curvature: 0.0, conic: 0.0 },
+        ];
+        let frame = Frame::new(DVec3::new(1.5, -2.0, 40.0), rotation_xyz(0.3, -0.5, 0.1));
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(23);
+        let (mut lanes_solved, mut hits) = (0usize, 0usize);
+        for shape in shapes {
+            let patch = SurfacePatch::new(shape.clone(), Aperture::circular(10.0)).unwrap();
+            let mut surface = AnalyticSurface::new(frame, patch);
+            for level in SimdLevel::available() {
+                surface.level = level;
+                for batch in 0..60 {
+                    let mut q = UserLanes::EMPTY;
+                    q.count = 1 + batch % USER_LANES;
+                    for k in 0..q.count {
+                        let local_o = DVec3::new(rng.gen_range(-12.0..12.0), rng.gen_range(-12.0..12.0), rng.gen_range(-20.0..20.0));
+                        let mut local_d = match (batch + k) % 5 {
+                            0 => DVec3::Z,                                                   // along the axis
+                            1 => DVec3::new(rng.gen_range(-1.0..1.0), rng.gen_range(-1.0..1.0), 0.0), // parallel
+                            _ => DVec3::new(rng.gen_range(-0.5..0.5), rng.gen_range(-0.5..0.5), if rng.gen_bool(0.8) { 1.0 } else { -1.0 }),
+                        };
+                        local_d = local_d.normalize();
+                        let e = ExactRay { org: frame.point_to_global(local_o), dir: frame.dir_to_global(local_d).normalize() };
+                        q.exact[k] = e;
+                        q.org[k] = e.org.as_vec3().to_array();
+                        q.dir[k] = e.dir.as_vec3().to_array();
+                        q.tnear[k] = if k % 7 == 3 { 5.0 } else { 0.0 };
+                        q.tfar[k] = if k % 5 == 4 { 15.0 } else { f32::INFINITY };
+                    }
+                    let mut out = [ExactAnswer::Unsupported; USER_LANES];
+                    surface.intersect_exact_lanes(&q, &mut out);
+                    for k in 0..q.count {
+                        let scalar = surface.intersect_exact(q.org[k], q.dir[k], q.tnear[k], q.tfar[k], &q.exact[k]);
+                        assert_eq!(format!("{:?}", out[k]), format!("{scalar:?}"), "{shape:?} {level:?} batch {batch} lane {k}");
+                        if let (ExactAnswer::Hit { t: a, roots: ra }, ExactAnswer::Hit { t: b, roots: rb }) = (out[k], scalar) {
+                            assert_eq!(a.to_bits(), b.to_bits());
+                            assert_eq!(ra.map(|r| r.map(f64::to_bits)), rb.map(|r| r.map(f64::to_bits)));
+                            hits += 1;
+                        }
+                        lanes_solved += (q.count >= LANE_SOLVE_MIN) as usize;
+                    }
+                }
             }
         }
-        ExactAnswer::Miss
+        assert!(lanes_solved > 1000 && hits > 200, "{lanes_solved} lanes through the packet solve, {hits} hits");
     }
 }

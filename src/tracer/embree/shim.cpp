@@ -4,7 +4,8 @@
      side runs exactly the installed headers' initialisation;
    - user-geometry callbacks receive ray packets of runtime width N (RTCRayHitN), whose accessors
      (RTCRayN_org_x, RTCHitN_instID, ...) exist only as C++ inline functions: the two functions below use
-     them, so the Rust callback never hard-codes the packet layout. */
+     them (one call reads all the lanes a callback concerns, one commits a hit), so the Rust callback never
+     hard-codes the packet layout. */
 #include <embree4/rtcore.h>
 
 extern "C" {
@@ -12,21 +13,30 @@ extern "C" {
 void diffcassi_rtcInitRayQueryContext(RTCRayQueryContext* context) { rtcInitRayQueryContext(context); }
 void diffcassi_rtcInitIntersectArguments(RTCIntersectArguments* args) { rtcInitIntersectArguments(args); }
 
-/* Lane i of the callback's packet: out = {org_x, org_y, org_z, dir_x, dir_y, dir_z, tnear, tfar}, *id = the
-   ray's ID (which the tracer sets to the lane of its own packet); returns the ray's mask. */
-unsigned int diffcassi_user_ray(const RTCIntersectFunctionNArguments* args, unsigned int i, float* out, unsigned int* id) {
+/* The lanes [start, start + 16) ∩ [0, N) of the callback's packet that are valid and whose ray mask shares a
+   bit with geom_mask, compacted (one call per callback instead of one per lane): lane[k] = the packet lane,
+   org/dir[3k..3k+3], tnear/tfar[k], id[k] = the ray ID (the tracer's own lane). Returns the count. */
+unsigned int diffcassi_user_rays16(const RTCIntersectFunctionNArguments* args, unsigned int start, unsigned int geom_mask,
+                                   unsigned int* lane, float* org, float* dir, float* tnear, float* tfar, unsigned int* id) {
     RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, args->N);
     const unsigned int N = args->N;
-    out[0] = RTCRayN_org_x(ray, N, i);
-    out[1] = RTCRayN_org_y(ray, N, i);
-    out[2] = RTCRayN_org_z(ray, N, i);
-    out[3] = RTCRayN_dir_x(ray, N, i);
-    out[4] = RTCRayN_dir_y(ray, N, i);
-    out[5] = RTCRayN_dir_z(ray, N, i);
-    out[6] = RTCRayN_tnear(ray, N, i);
-    out[7] = RTCRayN_tfar(ray, N, i);
-    *id = RTCRayN_id(ray, N, i);
-    return RTCRayN_mask(ray, N, i);
+    const unsigned int end = N < start + 16 ? N : start + 16;
+    unsigned int k = 0;
+    for (unsigned int i = start; i < end; i++) {
+        if (args->valid[i] == 0 || (RTCRayN_mask(ray, N, i) & geom_mask) == 0) continue;
+        lane[k] = i;
+        org[3 * k] = RTCRayN_org_x(ray, N, i);
+        org[3 * k + 1] = RTCRayN_org_y(ray, N, i);
+        org[3 * k + 2] = RTCRayN_org_z(ray, N, i);
+        dir[3 * k] = RTCRayN_dir_x(ray, N, i);
+        dir[3 * k + 1] = RTCRayN_dir_y(ray, N, i);
+        dir[3 * k + 2] = RTCRayN_dir_z(ray, N, i);
+        tnear[k] = RTCRayN_tnear(ray, N, i);
+        tfar[k] = RTCRayN_tfar(ray, N, i);
+        id[k] = RTCRayN_id(ray, N, i);
+        k++;
+    }
+    return k;
 }
 
 /* Record a hit at distance t on lane i (no filter functions are used, so the hit is committed directly):

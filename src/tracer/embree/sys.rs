@@ -19,9 +19,20 @@ extern "C" {
     pub fn diffcassi_rtcInitRayQueryContext(context: *mut RTCRayQueryContext);
     /// `rtcInitIntersectArguments` (static inline in the header), exported by src/tracer/embree/shim.cpp.
     pub fn diffcassi_rtcInitIntersectArguments(args: *mut RTCIntersectArguments);
-    /// Lane `i` of a user-geometry callback's packet into `out` = org xyz, dir xyz, tnear, tfar, and its
-    /// ray ID into `id`; returns the ray mask (shim.cpp, using the header's RTCRayN accessors).
-    pub fn diffcassi_user_ray(args: *const RTCIntersectFunctionNArguments, i: u32, out: *mut f32, id: *mut u32) -> u32;
+    /// The valid lanes `[start, start + 16)` of a user-geometry callback's packet whose ray mask shares a bit
+    /// with `geom_mask`, compacted: packet lane, origin, direction, tnear, tfar and ray ID per lane (each
+    /// array 16 lanes, `org`/`dir` 48 floats); returns how many (shim.cpp).
+    pub fn diffcassi_user_rays16(
+        args: *const RTCIntersectFunctionNArguments,
+        start: u32,
+        geom_mask: u32,
+        lane: *mut u32,
+        org: *mut f32,
+        dir: *mut f32,
+        tnear: *mut f32,
+        tfar: *mut f32,
+        id: *mut u32,
+    ) -> u32;
     /// Commit a hit at `t` with geometric normal `ng` on lane `i` (shim.cpp).
     pub fn diffcassi_user_report_hit(args: *const RTCIntersectFunctionNArguments, i: u32, t: f32, ng_x: f32, ng_y: f32, ng_z: f32);
 }

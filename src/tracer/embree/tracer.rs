@@ -411,8 +411,7 @@ impl EmbreeTracer {
                 w.finish(RayStatus::Vignetted, *surface)
             }
             Role::Detector { surface, front_medium, back_medium } => match self.locate(scene, obj, w, hit) {
-                Some((p, normal)) => {
-                    let d = obj.frame.dir_to_local(w.d);
+                Some((p, normal, d)) => {
                     // The sequential tracer refracts at the image surface too (glass before it, air after).
                     let (n1, n2) = (n[*front_medium], n[*back_medium]);
                     let out = if n1 != n2 { refract(d, normal, n1, n2) } else { Some(d) };
@@ -444,7 +443,7 @@ impl EmbreeTracer {
             return w.finish(RayStatus::NoConvergence, w.last_surface as usize);
         };
         let surface = *surfaces.last().expect("an interface has surfaces");
-        let Some((p, normal)) = self.locate(scene, obj, w, hit) else {
+        let Some((p, normal, d)) = self.locate(scene, obj, w, hit) else {
             w.finish(RayStatus::NoConvergence, surface);
             return;
         };
@@ -456,7 +455,6 @@ impl EmbreeTracer {
                 return;
             }
         }
-        let d = obj.frame.dir_to_local(w.d);
         // The normal points to the back side (+z): a ray with d·n > 0 goes front → back.
         let forward = d.dot(normal) > 0.0;
         let (m1, m2) = if forward { (*front_medium, *back_medium) } else { (*back_medium, *front_medium) };
@@ -507,8 +505,9 @@ impl EmbreeTracer {
         p.is_finite().then_some(p)
     }
 
-    /// The hit point and unit normal (oriented toward local +z) in the object's local frame.
-    fn locate(&self, scene: &OpticalScene, obj: &SceneObject, w: &mut Walk, hit: &Hit) -> Option<(DVec3, DVec3)> {
+    /// The hit point, the unit normal (oriented toward local +z) and the ray's direction, in the object's
+    /// local frame.
+    fn locate(&self, scene: &OpticalScene, obj: &SceneObject, w: &mut Walk, hit: &Hit) -> Option<(DVec3, DVec3, DVec3)> {
         let patch = obj.patch.as_ref()?;
         let p0 = obj.frame.point_to_local(w.p);
         let d = obj.frame.dir_to_local(w.d);
@@ -554,7 +553,7 @@ impl EmbreeTracer {
                 w.max_dev = w.max_dev.max((p.z - sag).abs());
             }
         }
-        Some((p, normal))
+        Some((p, normal, d))
     }
 }
 

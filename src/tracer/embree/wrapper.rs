@@ -186,6 +186,50 @@ pub trait UserGeometry: Send + Sync {
     fn intersect_exact(&self, _org: [f32; 3], _dir: [f32; 3], _tnear: f32, _tfar: f32, _exact: &ExactRay) -> ExactAnswer {
         ExactAnswer::Unsupported
     }
+    /// [`Self::intersect_exact`] for the `lanes.count` lanes of one callback at once (answer `k` into
+    /// `out[k]`): an implementation may solve them together (SIMD lanes) but must give each lane the
+    /// answer `intersect_exact` gives it, bit for bit, so packets and single rays agree. The default
+    /// answers lane by lane.
+    #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
+    fn intersect_exact_lanes(&self, lanes: &UserLanes, out: &mut [ExactAnswer; USER_LANES]) {
+        for k in 0..lanes.count {
+            out[k] = self.intersect_exact(lanes.org[k], lanes.dir[k], lanes.tnear[k], lanes.tfar[k], &lanes.exact[k]);
+        }
+    }
+}
+
+/// Most lanes a user-geometry callback hands over at once (Embree's widest packet, `rtcIntersect16`).
+pub const USER_LANES: usize = 16;
+
+/// The lanes of one user-geometry callback that concern the geometry — valid, and a ray mask sharing a
+/// bit with the geometry's — compacted: entry `k` is packet lane `lane[k]`, for `k < count`. Read from
+/// Embree's packet in one call (shim.cpp `diffcassi_user_rays16`) instead of one call per lane.
+#[derive(Clone, Debug)]
+pub struct UserLanes {
+    pub count: usize,
+    pub lane: [u32; USER_LANES],
+    pub org: [[f32; 3]; USER_LANES],
+    pub dir: [[f32; 3]; USER_LANES],
+    pub tnear: [f32; USER_LANES],
+    pub tfar: [f32; USER_LANES],
+    /// The ray ID: the caller's lane, which indexes its [`ExactRays`].
+    pub id: [u32; USER_LANES],
+    /// The exact ray behind each lane (filled when the query carries them).
+    pub exact: [ExactRay; USER_LANES],
+}
+
+impl UserLanes {
+    /// No lanes (the arrays zeroed).
+    pub const EMPTY: UserLanes = UserLanes {
+        count: 0,
+        lane: [0; USER_LANES],
+        org: [[0.0; 3]; USER_LANES],
+        dir: [[0.0; 3]; USER_LANES],
+        tnear: [0.0; USER_LANES],
+        tfar: [0.0; USER_LANES],
+        id: [0; USER_LANES],
+        exact: [ExactRay { org: glam::DVec3::ZERO, dir: glam::DVec3::ZERO }; USER_LANES],
+    };
 }
 
 /// The f64 ray behind lane `i` of an Embree query (global frame; `dir` unit; Embree's f32 ray is this
@@ -392,46 +436,67 @@ unsafe extern "C" fn user_bounds(args: *const sys::RTCBoundsFunctionArguments) {
     b.upper_z = hi[2];
 }
 
-/// Embree's intersect callback for [`Geometry::user`]: every valid lane whose mask matches the geometry's
-/// is intersected analytically; a closer hit within [tnear, tfar] is committed through the shim.
+/// Embree's intersect callback for [`Geometry::user`]: the valid lanes whose mask matches the geometry's are
+/// read in one shim call, answered together ([`UserGeometry::intersect_exact_lanes`] when the query
+/// carries the exact rays, else [`UserGeometry::intersect`] lane by lane), and a closer hit within
+/// [tnear, tfar] is committed through the shim.
+#[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
 unsafe extern "C" fn user_intersect(args: *const sys::RTCIntersectFunctionNArguments) {
     // SAFETY: Embree passes valid arguments with `N` lanes; geometryUserPtr is our UserSlot.
     let a = &*args;
     let slot = &*(a.geometryUserPtr as *const UserSlot);
     // Every query of this wrapper passes a QueryContext (see `CommittedScene::query_args`).
     let ctx = &*(a.context as *const QueryContext);
-    for i in 0..a.N {
-        if *a.valid.add(i as usize) == 0 {
+    let mut q = UserLanes::EMPTY;
+    let mut start = 0u32;
+    while start < a.N {
+        let n = sys::diffcassi_user_rays16(
+            args,
+            start,
+            slot.mask,
+            q.lane.as_mut_ptr(),
+            q.org.as_mut_ptr() as *mut f32,
+            q.dir.as_mut_ptr() as *mut f32,
+            q.tnear.as_mut_ptr(),
+            q.tfar.as_mut_ptr(),
+            q.id.as_mut_ptr(),
+        ) as usize;
+        start += USER_LANES as u32;
+        if n == 0 {
             continue;
         }
-        let mut r = [0.0f32; 8];
-        let mut id = 0u32;
-        let ray_mask = sys::diffcassi_user_ray(args, i, r.as_mut_ptr(), &mut id);
-        if ray_mask & slot.mask == 0 {
-            continue;
-        }
-        let (org, dir) = ([r[0], r[1], r[2]], [r[3], r[4], r[5]]);
-        // The exact ray of this lane, when the caller gave them (the ray ID is the caller's lane).
-        let exact = (!ctx.exact.is_null() && id < ctx.lanes).then(|| (&*ctx.exact.add(id as usize), &*ctx.solved.add(id as usize)));
-        let hit = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            if let Some((e, _)) = exact {
-                match slot.object.intersect_exact(org, dir, r[6], r[7], e) {
-                    ExactAnswer::Hit { t, roots } => return Some((t, [0.0; 3], Some(roots))),
-                    ExactAnswer::Miss => return None,
-                    ExactAnswer::Unsupported => {}
-                }
+        q.count = n;
+        // The exact rays of these lanes, when the caller gave them (the ray ID is the caller's lane).
+        let exact = !ctx.exact.is_null() && q.id[..n].iter().all(|&id| id < ctx.lanes);
+        let mut answers = [ExactAnswer::Unsupported; USER_LANES];
+        if exact {
+            for k in 0..n {
+                q.exact[k] = *ctx.exact.add(q.id[k] as usize);
             }
-            slot.object.intersect(org, dir, r[6], r[7]).map(|(t, ng)| (t, ng, None))
-        }));
-        if let Ok(Some((t, ng, roots))) = hit {
-            if t >= r[6] && t <= r[7] {
-                sys::diffcassi_user_report_hit(args, i, t, ng[0], ng[1], ng[2]);
-                // The last report on a lane is its closest hit so far (Embree shrank tfar to it).
-                if let Some((_, cell)) = exact {
-                    cell.set(match roots {
-                        Some(roots) => SolvedRoots { geom_id: a.geomID, roots },
-                        None => SolvedRoots::NONE,
-                    });
+            if std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| slot.object.intersect_exact_lanes(&q, &mut answers))).is_err() {
+                answers = [ExactAnswer::Miss; USER_LANES];
+            }
+        }
+        for k in 0..n {
+            let (tnear, tfar) = (q.tnear[k], q.tfar[k]);
+            let hit = match answers[k] {
+                ExactAnswer::Hit { t, roots } => Some((t, [0.0; 3], Some(roots))),
+                ExactAnswer::Miss => None,
+                ExactAnswer::Unsupported => std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| slot.object.intersect(q.org[k], q.dir[k], tnear, tfar)))
+                    .ok()
+                    .flatten()
+                    .map(|(t, ng)| (t, ng, None)),
+            };
+            if let Some((t, ng, roots)) = hit {
+                if t >= tnear && t <= tfar {
+                    sys::diffcassi_user_report_hit(args, q.lane[k], t, ng[0], ng[1], ng[2]);
+                    // The last report on a lane is its closest hit so far (Embree shrank tfar to it).
+                    if exact {
+                        (*ctx.solved.add(q.id[k] as usize)).set(match roots {
+                            Some(roots) => SolvedRoots { geom_id: a.geomID, roots },
+                            None => SolvedRoots::NONE,
+                        });
+                    }
                 }
             }
         }
@@ -637,7 +702,9 @@ impl CommittedScene {
     #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
     pub fn intersect16_exact(&self, rays: &[Ray; 16], valid: &[bool; 16], coherent: bool, exact: Option<&ExactRays<16>>) -> [Hit; 16] {
         if let Some(e) = exact {
-            e.solved.iter().for_each(|c| c.set(SolvedRoots::NONE));
+            // Only the geometry IDs: a lane's roots are read only under a matching ID.
+            // SAFETY: `Cell::as_ptr` of a cell this thread owns; no reference into it exists.
+            e.solved.iter().for_each(|c| unsafe { (*c.as_ptr()).geom_id = INVALID_GEOMETRY_ID });
         }
         let mut out = [Hit::MISS; 16];
         let mut mask = Valid16([0; 16]);

@@ -203,6 +203,39 @@ fn conic_root<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>,
     (ok & (on1 | on2), Lanes::select(on1, t1, t2))
 }
 
+/// Both roots of the conic c(x²+y²+(1+k)z²) − 2z = 0 along the lines p + t·d that lie on its vertex branch,
+/// ascending — `SurfacePatch::closed_form_roots` (patch.rs `conic_roots`, Numerical Recipes §5.6) per lane,
+/// the same operations in the same order, so each lane's roots are the scalar ones bit for bit (the
+/// Embree user geometry solves a packet's lanes at once with it): (first found, first, second found,
+/// second). Unlike [`conic_root`] (the sequential kernel's vertex-branch root), the second root is kept.
+#[inline(always)]
+pub(crate) fn conic_roots_both<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>) -> (Mask<N>, Lanes<T, N>, Mask<N>, Lanes<T, N>) {
+    let kk = 1.0 + k;
+    let (cl, kl) = (Lanes::<T, N>::of(c), Lanes::<T, N>::of(kk));
+    let zero = Lanes::of(0.0);
+    let a = cl * (d.x * d.x + d.y * d.y + kl * d.z * d.z);
+    let b = cl * (p.x * d.x + p.y * d.y + kl * p.z * d.z) - d.z;
+    let cc = cl * (p.x * p.x + p.y * p.y + kl * p.z * p.z) - Lanes::of(2.0) * p.z;
+    // a = 0: linear, 2 b t + cc = 0.
+    let linear = a.eq(zero);
+    let t_lin = -cc / (Lanes::of(2.0) * b);
+    let lin_ok = linear & b.ne(zero) & t_lin.is_finite() & on_vertex_branch(p.along(d, t_lin), t_lin, c, kk);
+    let disc = b * b - a * cc;
+    let quad = !linear & disc.ge(zero);
+    let sign = Lanes::select(b.ge(zero), Lanes::of(1.0), Lanes::of(-1.0));
+    let q = -(b + sign * disc.sqrt());
+    let q0 = q.eq(zero);
+    let (r1, r2) = (Lanes::select(q0, zero, cc / q), Lanes::select(q0, zero, q / a));
+    let ordered = r1.le(r2);
+    let (lo, hi) = (Lanes::select(ordered, r1, r2), Lanes::select(ordered, r2, r1));
+    let lo_ok = quad & lo.is_finite() & on_vertex_branch(p.along(d, lo), lo, c, kk);
+    let hi_ok = quad & hi.is_finite() & on_vertex_branch(p.along(d, hi), hi, c, kk);
+    // (None, h) → (h, None).
+    let first = Lanes::select(linear, t_lin, Lanes::select(lo_ok, lo, hi));
+    let first_ok = (linear & lin_ok) | (lo_ok | hi_ok);
+    (first_ok, first, lo_ok & hi_ok, hi)
+}
+
 /// The even asphere's sag and gradient terms at parameter `t` along the lines: (f, f′) of the scalar
 /// Newton solve, f = z − sag(x, y), f′ = d_z − ∂z/∂x d_x − ∂z/∂y d_y.
 #[inline(always)]
