@@ -209,6 +209,7 @@ fn conic_root<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>,
 /// Embree user geometry solves a packet's lanes at once with it): (first found, first, second found,
 /// second). Unlike [`conic_root`] (the sequential kernel's vertex-branch root), the second root is kept.
 #[inline(always)]
+#[cfg_attr(not(feature = "embree"), allow(dead_code))] // only the Embree user geometry calls it
 pub(crate) fn conic_roots_both<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>) -> (Mask<N>, Lanes<T, N>, Mask<N>, Lanes<T, N>) {
     let kk = 1.0 + k;
     let (cl, kl) = (Lanes::<T, N>::of(c), Lanes::<T, N>::of(kk));
