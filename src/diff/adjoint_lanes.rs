@@ -147,14 +147,31 @@ struct LocalLanes {
     m: L3,
     m_len: Lf,
     normal: L3,
+    /// f′ = f″ = 0 (see [`LocalLanes::at`]): |m| = 1 and a zero Hessian.
+    flat: bool,
 }
 
 impl LocalLanes {
     /// `SurfaceLocal::at` lane by lane.
+    ///
+    /// A flat figure (a plane, a paraxial lens, a conic of zero curvature without asphere terms: f′ = f″ = 0)
+    /// takes a short path: s = 1, m = (−2·0·x, −2·0·y, 1), |m| = 1 and n = m exactly, the bits the general
+    /// path gives at any finite hit point (the square roots and divisions of 1 are exact), without its
+    /// two square roots and three divisions per lane. Lanes whose hit is not finite may differ; they are
+    /// never active (a lane that arrived hit every surface at a finite point).
     #[inline(always)]
     fn at(shape: &SurfaceShape, q: &L3) -> LocalLanes {
         let (x, y) = (q.x, q.y);
         let r2 = x * x + y * y;
+        let flat = match figure(shape) {
+            None => true,
+            Some((c, _, alpha)) => c == 0.0 && alpha.iter().all(|a| *a == 0.0),
+        };
+        if flat {
+            let (c, k) = figure(shape).map_or((0.0, 0.0), |(c, k, _)| (c, k));
+            let m = v3(-2.0 * ZERO * x, -2.0 * ZERO * y, Lf::splat(1.0));
+            return LocalLanes { f1: ZERO, f2: ZERO, x, y, r2, c, k, s: Lf::splat(1.0), m, m_len: Lf::splat(1.0), normal: m, flat };
+        }
         let (mut f1, mut f2, mut c, mut k, mut s) = (ZERO, ZERO, 0.0, 0.0, Lf::splat(1.0));
         if let Some((cc, kk, alpha)) = figure(shape) {
             c = cc;
@@ -177,14 +194,13 @@ impl LocalLanes {
         let m = v3(-2.0 * f1 * x, -2.0 * f1 * y, Lf::splat(1.0));
         let m_len = m.dot(m).sqrt();
         let normal = v3(m.x / m_len, m.y / m_len, m.z / m_len);
-        LocalLanes { f1, f2, x, y, r2, c, k, s, m, m_len, normal }
+        LocalLanes { f1, f2, x, y, r2, c, k, s, m, m_len, normal, flat }
     }
 
     /// `SurfaceLocal::param_partials` lane by lane.
     #[inline(always)]
     fn param_partials(&self, t: &ShapeTangent) -> (Lf, Lf, Lf) {
-        // (`ShapeTangent::moves_figure`.)
-        if t.curvature == 0.0 && t.conic == 0.0 && t.asphere.iter().all(|a| *a == 0.0) {
+        if !t.moves_figure() {
             return (ZERO, ZERO, ZERO);
         }
         let (c, k, s, r2) = (self.c, self.k, self.s, self.r2);
@@ -209,6 +225,13 @@ impl LocalLanes {
     #[inline(always)]
     fn adjoint(&self, d: &L3, q_bar: L3, n_bar: L3) -> (L3, [Lf; 3]) {
         let nn = self.normal.dot(n_bar);
+        if self.flat {
+            // |m| = 1 (exact division) and H = 0: the general formulas' values on finite lanes (a zero's
+            // sign aside); a lane with a non-finite n̄ is dropped by the sweep's finiteness check either way.
+            let dm_bar = v3(n_bar.x - self.normal.x * nn, n_bar.y - self.normal.y * nn, n_bar.z - self.normal.z * nn);
+            let dt_bar = d.dot(q_bar) / self.m.dot(*d);
+            return (v3(q_bar.x - self.m.x * dt_bar, q_bar.y - self.m.y * dt_bar, q_bar.z - self.m.z * dt_bar), [dt_bar, -dm_bar.x, -dm_bar.y]);
+        }
         let dm_bar = v3((n_bar.x - self.normal.x * nn) / self.m_len, (n_bar.y - self.normal.y * nn) / self.m_len, (n_bar.z - self.normal.z * nn) / self.m_len);
         let (x, y) = (self.x, self.y);
         let hxx = 2.0 * self.f1 + 4.0 * self.f2 * x * x;

@@ -44,7 +44,8 @@ impl ShapeTangent {
     pub fn is_zero(&self) -> bool {
         self.curvature == 0.0 && self.conic == 0.0 && self.focal_length == 0.0 && self.asphere.iter().all(|a| *a == 0.0)
     }
-    fn moves_figure(&self) -> bool {
+    /// Whether the tangent moves the sag (curvature, conic or an asphere term; not a paraxial focal length).
+    pub(crate) fn moves_figure(&self) -> bool {
         self.curvature != 0.0 || self.conic != 0.0 || self.asphere.iter().any(|a| *a != 0.0)
     }
 }
