@@ -179,17 +179,25 @@ fn on_vertex_branch<T: Real, const N: usize>(point: V3<T, N>, t: Lanes<T, N>, c:
     !domain.lt(Lanes::of(0.0)) & (point.z - sag).abs().le(T::branch_tol(point.z, t))
 }
 
+/// The quadratic a t² + 2 b t + cc = 0 of the conic c(x²+y²+kk·z²) − 2z = 0 (kk = 1 + k) along the lines
+/// p + t·d, in the scalar `conic_roots`' operation order: (a, b, cc).
+#[inline(always)]
+fn conic_quadratic<T: Real, const N: usize>(c: f64, kk: f64, p: V3<T, N>, d: V3<T, N>) -> (Lanes<T, N>, Lanes<T, N>, Lanes<T, N>) {
+    let (cl, kl) = (Lanes::<T, N>::of(c), Lanes::<T, N>::of(kk));
+    let a = cl * (d.x * d.x + d.y * d.y + kl * d.z * d.z);
+    let b = cl * (p.x * d.x + p.y * d.y + kl * p.z * d.z) - d.z;
+    let cc = cl * (p.x * p.x + p.y * p.y + kl * p.z * p.z) - Lanes::of(2.0) * p.z;
+    (a, b, cc)
+}
+
 /// The conic's vertex-branch root (`conic_root` of the scalar code, the stable form
 /// q = −(b + sgn b·√disc), t = c/q or q/a) for the lanes of `live`: (found, t). The second root is
 /// computed only when a live lane needs it (as the scalar code does per ray).
 #[inline(always)]
 fn conic_root<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>, live: Mask<N>) -> (Mask<N>, Lanes<T, N>) {
     let kk = 1.0 + k;
-    let (cl, kl) = (Lanes::<T, N>::of(c), Lanes::<T, N>::of(kk));
     let zero = Lanes::of(0.0);
-    let a = cl * (d.x * d.x + d.y * d.y + kl * d.z * d.z);
-    let b = cl * (p.x * d.x + p.y * d.y + kl * p.z * d.z) - d.z;
-    let cc = cl * (p.x * p.x + p.y * p.y + kl * p.z * p.z) - Lanes::of(2.0) * p.z;
+    let (a, b, cc) = conic_quadratic(c, kk, p, d);
     let disc = b * b - a * cc;
     let q = -(b + b.signum() * disc.sqrt());
     let ok = disc.ge(zero) & q.ne(zero);
@@ -212,11 +220,8 @@ fn conic_root<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>,
 #[cfg_attr(not(feature = "embree"), allow(dead_code))] // only the Embree user geometry calls it
 pub(crate) fn conic_roots_both<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>) -> (Mask<N>, Lanes<T, N>, Mask<N>, Lanes<T, N>) {
     let kk = 1.0 + k;
-    let (cl, kl) = (Lanes::<T, N>::of(c), Lanes::<T, N>::of(kk));
     let zero = Lanes::of(0.0);
-    let a = cl * (d.x * d.x + d.y * d.y + kl * d.z * d.z);
-    let b = cl * (p.x * d.x + p.y * d.y + kl * p.z * d.z) - d.z;
-    let cc = cl * (p.x * p.x + p.y * p.y + kl * p.z * p.z) - Lanes::of(2.0) * p.z;
+    let (a, b, cc) = conic_quadratic(c, kk, p, d);
     // a = 0: linear, 2 b t + cc = 0.
     let linear = a.eq(zero);
     let t_lin = -cc / (Lanes::of(2.0) * b);
