@@ -15,7 +15,10 @@ exact operator traced with another seed (``s + 1``, as ``reconstruct`` does), δ
 ``spectral-unet-v2`` file whose output is its input: D = 0, G = I) returns exactly the iterate x the network
 would be given at its first call — the GAP data step after GAP-TV's phase — for a TV phase that ends at GAP-TV's
 own stop (stage ``stop``, the default PnP) or is capped at half of it (stage ``half``, an earlier iterate).
-A pair is (x/p, truth/p) with p = max x (the solver's normalisation), float32 (B, H, W), with its RMSE/peak
+A pair is (x/p, truth/p) with p = max x (the solver's normalisation when the committed round-4 weights were
+trained on these pairs; the solver now leaves out outliers above 1.5 × the 0.999 quantile,
+``recon::solver::NetworkScale``, which lowers p on spiky iterates — +0.00 to +0.08 dB on PnP, docs/study.md),
+float32 (B, H, W), with its RMSE/peak
 ``err`` (= ‖x − truth‖_rms / p, known here only: the network's σ input is the per-stage constant of
 ``scripts/train_denoiser.py``, available at inference).
 

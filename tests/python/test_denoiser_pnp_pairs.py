@@ -50,7 +50,7 @@ def test_pairs_file_is_consistent(pairs_file, train):
         x, t, err, stage, preset, peak = (z[k] for k in ("inputs", "targets", "err", "stage", "preset", "peak"))
         manifest = json.loads(str(z["manifest"]))
     assert x.shape == t.shape == (8, 28, 16, 16) and x.dtype == np.float32
-    assert np.allclose(x.reshape(8, -1).max(1), 1.0)  # the solver's normalisation: the iterate's peak
+    assert np.allclose(x.reshape(8, -1).max(1), 1.0)  # the pairs' normalisation: the iterate's peak
     assert np.allclose(err, np.sqrt(((x - t) ** 2).reshape(8, -1).mean(1)), rtol=1e-4)
     assert 0 < err.min() and err.max() < 1 and (peak > 0).all()
     assert list(stage) == [0, 1, 0, 1] * 2 and list(preset) == [0, 0, 1, 1] * 2
