@@ -41,7 +41,7 @@ use crate::system::SequentialSystem;
 use crate::tracer::nonseq::{Solid, Solids, SolidsOptions};
 use crate::tracer::simd::block::{conic_roots_both, rotate};
 use crate::tracer::simd::lanes::{Lanes, V3};
-use crate::tracer::simd::SimdLevel;
+use crate::tracer::simd::{at_level, LaneKernel, SimdLevel};
 use crate::surfaces::SurfaceShape;
 use glam::{DMat3, DVec3};
 use std::sync::Arc;
@@ -310,18 +310,21 @@ impl AnalyticSurface {
     }
 }
 
-/// [`AnalyticSurface::solve_lanes`] compiled for AVX-512 (one zmm register per 8 lanes), as the SIMD kernel.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512dq,avx512vl")]
-unsafe fn solve_lanes_avx512(s: &AnalyticSurface, lanes: &UserLanes, local: &mut [(DVec3, DVec3); USER_LANES], roots: &mut [[Option<f64>; 2]; USER_LANES]) {
-    s.solve_lanes(lanes, local, roots)
+/// [`AnalyticSurface::solve_lanes`] as lane code for the SIMD kernel's one level dispatch
+/// ([`at_level`]: compiled for AVX-512, AVX2 or portable, as the sequential kernel).
+struct SolveLanes<'a> {
+    surface: &'a AnalyticSurface,
+    lanes: &'a UserLanes,
+    local: &'a mut [(DVec3, DVec3); USER_LANES],
+    roots: &'a mut [[Option<f64>; 2]; USER_LANES],
 }
 
-/// [`AnalyticSurface::solve_lanes`] compiled for AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn solve_lanes_avx2(s: &AnalyticSurface, lanes: &UserLanes, local: &mut [(DVec3, DVec3); USER_LANES], roots: &mut [[Option<f64>; 2]; USER_LANES]) {
-    s.solve_lanes(lanes, local, roots)
+impl LaneKernel for SolveLanes<'_> {
+    type Output = ();
+    #[inline(always)]
+    fn run(self) {
+        self.surface.solve_lanes(self.lanes, self.local, self.roots)
+    }
 }
 
 impl UserGeometry for AnalyticSurface {
@@ -377,14 +380,7 @@ impl UserGeometry for AnalyticSurface {
         }
         let mut local = [(DVec3::ZERO, DVec3::ZERO); USER_LANES];
         let mut roots = [[None; 2]; USER_LANES];
-        match self.level {
-            // SAFETY: `level` is what `SimdLevel::detect` found this CPU runs.
-            #[cfg(target_arch = "x86_64")]
-            SimdLevel::Avx512 => unsafe { solve_lanes_avx512(self, lanes, &mut local, &mut roots) },
-            #[cfg(target_arch = "x86_64")]
-            SimdLevel::Avx2 => unsafe { solve_lanes_avx2(self, lanes, &mut local, &mut roots) },
-            _ => self.solve_lanes(lanes, &mut local, &mut roots),
-        }
+        at_level(self.level, SolveLanes { surface: self, lanes, local: &mut local, roots: &mut roots });
         for k in 0..lanes.count {
             let (p, d) = local[k];
             out[k] = self.answer(p, d, roots[k], lanes.org[k], lanes.dir[k], lanes.tnear[k], lanes.tfar[k], &lanes.exact[k]);

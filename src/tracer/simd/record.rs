@@ -47,12 +47,9 @@ pub struct LaneTape {
 impl StepRecorder<f64, LANES> for LaneTape {
     #[inline(always)]
     fn record(&mut self, s: usize, pr: &L3, d0: &L3, d: &L3, q: &L3, normal: &L3, t: &Lf) {
-        let st = StepLanes { pr: *pr, d0: *d0, d: *d, q: *q, normal: *normal, t: *t };
-        if s < self.steps.len() {
-            self.steps[s] = st;
-        } else {
-            self.steps.push(st);
-        }
+        // `Recording` empties the tape before each trace and steps arrive in order: step s is pushed at s.
+        debug_assert_eq!(s, self.steps.len());
+        self.steps.push(StepLanes { pr: *pr, d0: *d0, d: *d, q: *q, normal: *normal, t: *t });
     }
 }
 
@@ -67,7 +64,7 @@ impl LaneKernel for Recording<'_> {
     type Output = ();
     #[inline(always)]
     fn run(self) {
-        self.tape.steps.truncate(0);
+        self.tape.steps.clear();
         trace_block(self.path, self.n, self.b, self.tape)
     }
 }
