@@ -243,75 +243,6 @@ struct AnalyticSurface {
     patch: SurfacePatch,
     /// The instruction set of the packet solve: the SIMD kernel's choice ([`SimdLevel::detect`]), once.
     level: SimdLevel,
-    /// The global boxes of the patch's tiles ([`tile_boxes`]): one Embree primitive each.
-    tiles: Vec<([f32; 3], [f32; 3])>,
-}
-
-/// Tiles per side of the grid over a patch's local aperture box ([`tile_boxes`]).
-const TILES_PER_SIDE: usize = 4;
-
-/// The patch as `TILES_PER_SIDE`² tiles of its local aperture box (tiles wholly outside a circular
-/// aperture left out), each bounded by its own global box: the box of a tilted face (a prism face at
-/// 30°, the tilted detector) holds much empty space that overlaps its neighbours' boxes, and a ray
-/// crossing it costs a callback; the tiles' boxes follow the face (docs/nonsequential.md, "Tighter
-/// user-geometry bounds"). Each tile's local z range is the sag over the radii the tile spans — a
-/// conic's sag is monotonic in r (its slope c·r/√(1 − (1+k)c²r²) has the sign of c), a plane's is 0 —
-/// and the whole patch's z range for an even asphere. Every tile answers for the whole patch (the
-/// callback does not depend on the primitive), so tiling changes which callbacks run, not the answers.
-fn tile_boxes(frame: &Frame, patch: &SurfacePatch) -> Vec<([f32; 3], [f32; 3])> {
-    let (lo, hi) = patch.local_bounds();
-    // The aperture's centre and radius (circular), and the largest radius of the patch.
-    let (centre, radius) = match patch.aperture {
-        Aperture::Circular { semi_diameter_mm, decenter_x_mm, decenter_y_mm, .. } => ((decenter_x_mm, decenter_y_mm), Some(semi_diameter_mm)),
-        _ => ((0.0, 0.0), None),
-    };
-    let r_max = [lo.x.abs(), hi.x.abs()].iter().fold(0.0f64, |m, x| m.max(*x)).hypot(lo.y.abs().max(hi.y.abs()));
-    let r_max = match radius {
-        Some(r) => r_max.min(r + centre.0.hypot(centre.1)),
-        None => r_max,
-    };
-    let n = std::env::var("DIFFCASSI_TILES").ok().and_then(|v| v.parse().ok()).unwrap_or(TILES_PER_SIDE); // TEMP
-    let mut out = Vec::with_capacity(n * n);
-    for i in 0..n {
-        for j in 0..n {
-            let (x0, x1) = (lo.x + (hi.x - lo.x) * i as f64 / n as f64, if i + 1 == n { hi.x } else { lo.x + (hi.x - lo.x) * (i + 1) as f64 / n as f64 });
-            let (y0, y1) = (lo.y + (hi.y - lo.y) * j as f64 / n as f64, if j + 1 == n { hi.y } else { lo.y + (hi.y - lo.y) * (j + 1) as f64 / n as f64 });
-            // Nearest point of the tile to a point (cx, cy) (the point itself if inside).
-            let nearest = |cx: f64, cy: f64| (cx.clamp(x0, x1) - cx).hypot(cy.clamp(y0, y1) - cy);
-            if let Some(r) = radius {
-                if nearest(centre.0, centre.1) > r {
-                    continue; // wholly outside the circle
-                }
-            }
-            let (z0, z1) = match patch.shape {
-                SurfaceShape::Plane | SurfaceShape::Paraxial { .. } | SurfaceShape::Conic { .. } => {
-                    let r_lo = nearest(0.0, 0.0).min(r_max);
-                    let r_hi = [(x0, y0), (x0, y1), (x1, y0), (x1, y1)].iter().fold(0.0f64, |m, (x, y)| m.max(x.hypot(*y))).min(r_max);
-                    let (a, b) = (patch.shape.sag(r_lo, 0.0), patch.shape.sag(r_hi, 0.0));
-                    let pad = 1e-6 + 1e-3 * (a - b).abs();
-                    (a.min(b) - pad, a.max(b) + pad)
-                }
-                _ => (lo.z, hi.z),
-            };
-            out.push(global_box(frame, DVec3::new(x0, y0, z0), DVec3::new(x1, y1, z1)));
-        }
-    }
-    out
-}
-
-/// The global axis-aligned box of the local box `lo..hi` in `frame`, rounded outward to f32 (one
-/// ulp-scale pad is plenty: 1e-6 relative + 1e-6 mm).
-fn global_box(frame: &Frame, lo: DVec3, hi: DVec3) -> ([f32; 3], [f32; 3]) {
-    let mut glo = DVec3::splat(f64::INFINITY);
-    let mut ghi = DVec3::splat(f64::NEG_INFINITY);
-    for i in 0..8 {
-        let c = DVec3::new(if i & 1 == 0 { lo.x } else { hi.x }, if i & 2 == 0 { lo.y } else { hi.y }, if i & 4 == 0 { lo.z } else { hi.z });
-        let g = frame.point_to_global(c);
-        glo = glo.min(g);
-        ghi = ghi.max(g);
-    }
-    let pad = (ghi - glo).abs().max_element() * 1e-6 + 1e-6 + glo.abs().max(ghi.abs()).max_element() * 1e-6;
-    ((glo - pad).as_vec3().to_array(), (ghi + pad).as_vec3().to_array())
 }
 
 /// Below this many lanes a callback's lanes are solved one by one (the same bits): a 16-lane pass costs
@@ -321,8 +252,7 @@ const LANE_SOLVE_MIN: usize = 3;
 impl AnalyticSurface {
     fn new(frame: Frame, patch: SurfacePatch) -> Self {
         let to_local = frame.rotation.transpose();
-        let tiles = tile_boxes(&frame, &patch);
-        AnalyticSurface { frame, to_local, patch, level: SimdLevel::detect(), tiles }
+        AnalyticSurface { frame, to_local, patch, level: SimdLevel::detect() }
     }
 
     /// The hit of the exact ray (local `p`, `d`; `roots` of the figure along it) reported to Embree: the
@@ -398,12 +328,19 @@ impl LaneKernel for SolveLanes<'_> {
 }
 
 impl UserGeometry for AnalyticSurface {
-    fn primitive_count(&self) -> u32 {
-        self.tiles.len() as u32
-    }
-
-    fn bounds(&self, prim: u32) -> ([f32; 3], [f32; 3]) {
-        self.tiles[prim as usize]
+    fn bounds(&self) -> ([f32; 3], [f32; 3]) {
+        let (lo, hi) = self.patch.local_bounds();
+        let mut glo = DVec3::splat(f64::INFINITY);
+        let mut ghi = DVec3::splat(f64::NEG_INFINITY);
+        for i in 0..8 {
+            let c = DVec3::new(if i & 1 == 0 { lo.x } else { hi.x }, if i & 2 == 0 { lo.y } else { hi.y }, if i & 4 == 0 { lo.z } else { hi.z });
+            let g = self.frame.point_to_global(c);
+            glo = glo.min(g);
+            ghi = ghi.max(g);
+        }
+        // Outward rounding to f32 (one ulp-scale pad is plenty: 1e-6 relative + 1e-6 mm).
+        let pad = (ghi - glo).abs().max_element() * 1e-6 + 1e-6 + glo.abs().max(ghi.abs()).max_element() * 1e-6;
+        ((glo - pad).as_vec3().to_array(), (ghi + pad).as_vec3().to_array())
     }
 
     fn intersect(&self, org: [f32; 3], dir: [f32; 3], tnear: f32, tfar: f32) -> Option<(f32, [f32; 3])> {
@@ -456,53 +393,6 @@ mod tests {
     use super::*;
     use crate::geometry::rotation_xyz;
     use rand::{Rng, SeedableRng};
-
-    /// The tiles' boxes cover the patch — every sampled point of it, on planes and conics of both signs,
-    /// circular (decentred) and rectangular apertures, in a tilted frame, lies in at least one tile's box
-    /// — and on a face tilted by 30° (an SP prism face) they hold a third or less of the volume of the
-    /// one box around the whole patch (what a single primitive had).
-    #[test]
-    fn tiles_cover_the_patch_and_follow_a_tilted_face() {
-        let frame = Frame::new(DVec3::new(1.5, -2.0, 40.0), rotation_xyz(0.3, -0.5, 0.1));
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let apertures = [
-            Aperture::circular(10.0),
-            Aperture::Circular { semi_diameter_mm: 6.0, min_radius_mm: 0.0, decenter_x_mm: 2.0, decenter_y_mm: -1.0 },
-            Aperture::Rectangular { half_width_x_mm: 8.0, half_width_y_mm: 3.0, decenter_x_mm: 1.0, decenter_y_mm: 0.5 },
-        ];
-        let shapes = [
-            SurfaceShape::Plane,
-            SurfaceShape::Conic { curvature: 1.0 / 30.0, conic: 0.0 },
-            SurfaceShape::Conic { curvature: -1.0 / 22.0, conic: -0.5 },
-            SurfaceShape::Conic { curvature: 1.0 / 40.0, conic: -2.5 },
-        ];
-        let inside = |b: &([f32; 3], [f32; 3]), g: DVec3| (0..3).all(|a| b.0[a] as f64 <= g[a] && g[a] <= b.1[a] as f64);
-        for shape in &shapes {
-            for ap in &apertures {
-                let patch = SurfacePatch::new(shape.clone(), ap.clone()).unwrap();
-                let tiles = tile_boxes(&frame, &patch);
-                assert!(!tiles.is_empty() && tiles.len() <= TILES_PER_SIDE * TILES_PER_SIDE);
-                let (lo, hi) = patch.local_bounds();
-                let mut checked = 0;
-                while checked < 4000 {
-                    let (x, y) = (rng.gen_range(lo.x..=hi.x), rng.gen_range(lo.y..=hi.y));
-                    if !patch.aperture.contains(x, y) {
-                        continue;
-                    }
-                    let g = frame.point_to_global(DVec3::new(x, y, shape.sag(x, y)));
-                    assert!(tiles.iter().any(|b| inside(b, g)), "{shape:?} {ap:?}: ({x}, {y}) in no tile");
-                    checked += 1;
-                }
-            }
-        }
-        let volume = |b: &([f32; 3], [f32; 3])| (0..3).map(|a| (b.1[a] - b.0[a]) as f64).product::<f64>();
-        let tilted = Frame::new(DVec3::new(0.0, 0.0, 50.0), rotation_xyz(0.0, 30f64.to_radians(), 0.0));
-        let patch = SurfacePatch::new(SurfaceShape::Plane, Aperture::circular(13.0)).unwrap();
-        let (lo, hi) = patch.local_bounds();
-        let whole = volume(&global_box(&tilted, lo, hi));
-        let tiled: f64 = tile_boxes(&tilted, &patch).iter().map(volume).sum();
-        assert!(tiled < whole / 3.0, "tiles {tiled} mm³ against one box {whole} mm³");
-    }
 
     /// The packet solve of a callback's lanes (`intersect_exact_lanes`, 3–16 lanes through the SIMD lane
     /// code at every instruction set this CPU runs) gives each lane exactly what the scalar solve

@@ -13,21 +13,17 @@ extern "C" {
 void diffcassi_rtcInitRayQueryContext(RTCRayQueryContext* context) { rtcInitRayQueryContext(context); }
 void diffcassi_rtcInitIntersectArguments(RTCIntersectArguments* args) { rtcInitIntersectArguments(args); }
 
-/* The lanes [start, start + 16) ∩ [0, N) of the callback's packet that are valid, whose ray mask shares a
-   bit with geom_mask and whose closest hit so far is not already this geometry's, compacted (one call per
-   callback instead of one per lane): lane[k] = the packet lane, org/dir[3k..3k+3], tnear/tfar[k], id[k] =
-   the ray ID (the tracer's own lane). Returns the count. A geometry of several primitives answers for the
-   whole surface from each: a lane it has already answered would get the same hit again (the first root
-   in (tnear, tfar], tfar now that root), so it is skipped. */
+/* The lanes [start, start + 16) ∩ [0, N) of the callback's packet that are valid and whose ray mask shares a
+   bit with geom_mask, compacted (one call per callback instead of one per lane): lane[k] = the packet lane,
+   org/dir[3k..3k+3], tnear/tfar[k], id[k] = the ray ID (the tracer's own lane). Returns the count. */
 unsigned int diffcassi_user_rays16(const RTCIntersectFunctionNArguments* args, unsigned int start, unsigned int geom_mask,
                                    unsigned int* lane, float* org, float* dir, float* tnear, float* tfar, unsigned int* id) {
     RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, args->N);
-    RTCHitN* hit = RTCRayHitN_HitN(args->rayhit, args->N);
     const unsigned int N = args->N;
     const unsigned int end = N < start + 16 ? N : start + 16;
     unsigned int k = 0;
     for (unsigned int i = start; i < end; i++) {
-        if (args->valid[i] == 0 || (RTCRayN_mask(ray, N, i) & geom_mask) == 0 || RTCHitN_geomID(hit, N, i) == args->geomID) continue;
+        if (args->valid[i] == 0 || (RTCRayN_mask(ray, N, i) & geom_mask) == 0) continue;
         lane[k] = i;
         org[3 * k] = RTCRayN_org_x(ray, N, i);
         org[3 * k + 1] = RTCRayN_org_y(ray, N, i);

@@ -20,9 +20,8 @@ extern "C" {
     /// `rtcInitIntersectArguments` (static inline in the header), exported by src/tracer/embree/shim.cpp.
     pub fn diffcassi_rtcInitIntersectArguments(args: *mut RTCIntersectArguments);
     /// The valid lanes `[start, start + 16)` of a user-geometry callback's packet whose ray mask shares a bit
-    /// with `geom_mask` and whose closest hit so far is not already this geometry's, compacted: packet
-    /// lane, origin, direction, tnear, tfar and ray ID per lane (each array 16 lanes, `org`/`dir` 48
-    /// floats); returns how many (shim.cpp).
+    /// with `geom_mask`, compacted: packet lane, origin, direction, tnear, tfar and ray ID per lane (each
+    /// array 16 lanes, `org`/`dir` 48 floats); returns how many (shim.cpp).
     pub fn diffcassi_user_rays16(
         args: *const RTCIntersectFunctionNArguments,
         start: u32,

@@ -171,18 +171,11 @@ impl Device {
     }
 }
 
-/// An analytic surface for Embree's user geometry (`RTC_GEOMETRY_TYPE_USER`): the callbacks Embree calls
-/// during BVH build (`bounds`) and traversal (`intersect`). The surface may be bounded by several
-/// primitives (tighter boxes than one, e.g. for a tilted face); every primitive's callback answers for
-/// the whole surface, so a ray gets the same answer whichever of its boxes Embree enters.
+/// An analytic surface for Embree's user geometry (`RTC_GEOMETRY_TYPE_USER`, one primitive): the
+/// callbacks Embree calls during BVH build (`bounds`) and traversal (`intersect`).
 pub trait UserGeometry: Send + Sync {
-    /// How many primitives (boxes) bound the surface: at least 1 (the default).
-    fn primitive_count(&self) -> u32 {
-        1
-    }
-    /// Conservative axis-aligned bounds (lower, upper) of primitive `prim` (< [`Self::primitive_count`]),
-    /// scene coordinates; together they cover the surface.
-    fn bounds(&self, prim: u32) -> ([f32; 3], [f32; 3]);
+    /// Conservative axis-aligned bounds (lower, upper) of the primitive, scene coordinates.
+    fn bounds(&self) -> ([f32; 3], [f32; 3]);
     /// The closest hit of the ray `org + t·dir` with `tnear <= t <= tfar` (t in units of `dir`): its `t`
     /// and a (not necessarily unit) geometric normal, or `None`.
     fn intersect(&self, org: [f32; 3], dir: [f32; 3], tnear: f32, tfar: f32) -> Option<(f32, [f32; 3])>;
@@ -381,20 +374,13 @@ impl Geometry {
         Ok(geom)
     }
 
-    /// An analytic user geometry (its [`UserGeometry::primitive_count`] primitives) whose bounds and
-    /// intersections come from `object`, committed with geometry mask `mask` (a ray hits it only if
-    /// `ray.mask & mask != 0`).
+    /// An analytic user geometry (one primitive) whose bounds and intersections come from `object`,
+    /// committed with geometry mask `mask` (a ray hits it only if `ray.mask & mask != 0`).
     pub fn user(device: &Device, object: Arc<dyn UserGeometry>, mask: u32) -> Result<Self, EmbreeError> {
         const CTX: &str = "creating a user geometry";
-        let count = object.primitive_count();
-        if count == 0 {
-            return Err(EmbreeError::invalid(CTX, "a user geometry needs at least one primitive"));
-        }
-        for prim in 0..count {
-            let (lo, hi) = object.bounds(prim);
-            if !(lo.iter().chain(&hi).all(|c| c.is_finite()) && lo.iter().zip(&hi).all(|(l, h)| l <= h)) {
-                return Err(EmbreeError::invalid(CTX, format!("bounds of primitive {prim} {lo:?}..{hi:?} are not finite and ordered")));
-            }
+        let (lo, hi) = object.bounds();
+        if !(lo.iter().chain(&hi).all(|c| c.is_finite()) && lo.iter().zip(&hi).all(|(l, h)| l <= h)) {
+            return Err(EmbreeError::invalid(CTX, format!("bounds {lo:?}..{hi:?} are not finite and ordered")));
         }
         // SAFETY: live device; owned by `geom` from here on.
         let raw = unsafe { sys::rtcNewGeometry(device.raw(), sys::RTC_GEOMETRY_TYPE_USER) };
@@ -407,7 +393,7 @@ impl Geometry {
         // SAFETY: the user pointer stays valid while any Geometry/Scene holding `slot` lives, and Embree
         // only calls back while a scene using this geometry is alive.
         unsafe {
-            sys::rtcSetGeometryUserPrimitiveCount(raw, count);
+            sys::rtcSetGeometryUserPrimitiveCount(raw, 1);
             sys::rtcSetGeometryUserData(raw, Arc::as_ptr(&slot) as *mut std::ffi::c_void);
             sys::rtcSetGeometryBoundsFunction(raw, Some(user_bounds), std::ptr::null_mut());
             sys::rtcSetGeometryIntersectFunction(raw, Some(user_intersect));
@@ -439,7 +425,7 @@ unsafe extern "C" fn user_bounds(args: *const sys::RTCBoundsFunctionArguments) {
     // SAFETY: Embree passes valid arguments; geometryUserPtr is the UserSlot set in Geometry::user.
     let a = &*args;
     let slot = &*(a.geometryUserPtr as *const UserSlot);
-    let (lo, hi) = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| slot.object.bounds(a.primID)))
+    let (lo, hi) = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| slot.object.bounds()))
         .unwrap_or(([0.0; 3], [0.0; 3]));
     let b = &mut *a.bounds_o;
     b.lower_x = lo[0];
