@@ -15,7 +15,7 @@
 //! The transposes are written out by hand ([`AdjointPlan::backward`]): the forward pass keeps each step's
 //! state (ray before the frame change, incoming direction, hit point, normal, distance, indices), and one
 //! reverse sweep per ray maps (λ_q, λ_d′) through refraction (or the ideal lens), the implicit-function hit
-//! derivative ([`super::hit::SurfaceLocal::adjoint`]) and the frame change — the same linear maps as the
+//! derivative ([`super::hit::SweepLocal::adjoint`]) and the frame change — the same linear maps as the
 //! forward tangent kernel ([`super::kernel::interact_tangents`]), transposed, at the cost of about one
 //! tangent column instead of 6 + (figure coefficients) + 2 (indices) columns per step. `tests/render_gradient.rs`
 //! checks it against the forward tangents ray by ray to 1e-12.
@@ -46,7 +46,7 @@
 //! # let _ = p;
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
-use super::hit::{ShapeTangent, SurfaceLocal};
+use super::hit::{ShapeTangent, SweepLocal};
 use super::kernel::oriented_normal;
 use super::DiffSystem;
 use crate::error::{Error, Result};
@@ -84,6 +84,13 @@ pub(crate) fn shape_unit(f: usize) -> ShapeTangent {
 pub(crate) struct StepPlan {
     pub(crate) shape_fields: Vec<usize>,
     pub(crate) index: bool,
+    /// Some parameter's rotation (δR) or offset (δo) tangent at the step is not zero: the sweep computes
+    /// and sums the step's frame sensitivities only where one is (elsewhere they would be contracted with
+    /// zeros).
+    pub(crate) rotation: bool,
+    pub(crate) offset: bool,
+    /// A parameter moves the step's paraxial focal length (field 10 is in `shape_fields`).
+    pub(crate) focal: bool,
 }
 
 /// What the reverse pass needs of a system: which figure coefficients and indices move at each step.
@@ -166,7 +173,10 @@ impl AdjointPlan {
             .map(|(step, tan)| {
                 let shape_fields: Vec<usize> = (0..SHAPE_FIELDS).filter(|&f| tan.shape.iter().any(|t| shape_field(t, f) != 0.0)).collect();
                 let s = step.surface;
-                StepPlan { shape_fields, index: s >= 1 && (index_moves[s - 1] || index_moves[s]) }
+                let focal = shape_fields.contains(&10);
+                let rotation = tan.rotation.iter().any(|r| *r != DMat3::ZERO);
+                let offset = tan.offset.iter().any(|o| *o != DVec3::ZERO);
+                StepPlan { shape_fields, index: s >= 1 && (index_moves[s - 1] || index_moves[s]), rotation, offset, focal }
             })
             .collect();
         Ok(AdjointPlan { steps, surfaces: ns })
@@ -210,7 +220,8 @@ impl AdjointPlan {
     /// - refraction d′ = μ d + (√κ − μ cos θᵢ) n̂: with a = λ_d′, β = a·n̂, γ = β(μ² cos θᵢ/√κ − μ),
     ///   d̄ = μ a + γ n̂, n̂̄ = (√κ − μ cos θᵢ) a + γ d, μ̄ = a·d − β(μ(1 − cos²θᵢ)/√κ + cos θᵢ);
     /// - ideal lens tan′ = μ tan − h/f, d′ = ±w/|w|: w̄ = (a − v(v·a))·(±1/|w|), then the quotient rule;
-    /// - the hit ([`SurfaceLocal::adjoint`]): δq and δn̂ back to the ray point δp + t δd and the figure;
+    /// - the hit ([`SweepLocal::adjoint`], from the traced hit point and normal): δq and δn̂ back to the
+    ///   ray point δp + t δd and the figure;
     /// - μ = n₁/n₂: n̄₁ = μ̄/n₂, n̄₂ = −μ μ̄/n₂.
     pub fn backward(&self, ds: &DiffSystem, tape: &mut RayTape, lambda: [f64; 6], sums: &mut AdjointSums) -> bool {
         let path = &ds.system.path;
@@ -220,37 +231,57 @@ impl AdjointPlan {
         let mut finite = true;
         for s in (0..tape.states.len()).rev() {
             let (st, step, plan) = (&tape.states[s], &path[s], &self.steps[s]);
-            let local = SurfaceLocal::at(&step.shape, st.q);
+            let local = SweepLocal::at(&step.shape, st.q, st.normal);
             let (d, q) = (st.d, st.q);
             let mu = st.n1 / st.n2;
-            let (mut q_bar, dd_bar, n_bar, mu_bar, f_bar);
-            q_bar = lq;
+            let mut q_bar = lq;
+            let (dd_bar, n_bar);
+            // μ̄ and f̄ only where a parameter moves an index or the focal length.
+            let (mut mu_bar, mut f_bar) = (0.0, 0.0);
             match step.shape {
                 SurfaceShape::Paraxial { focal_length: f } => {
-                    let tx = mu * d.x / d.z - q.x / f;
-                    let ty = mu * d.y / d.z - q.y / f;
+                    // tan = (d_x, d_y)/d_z, tan′ = μ tan − q/f, w = (tan′, 1), d′ = ±w/|w|.
+                    let inv_dz = 1.0 / d.z;
+                    let (ux, uy) = (d.x * inv_dz, d.y * inv_dz);
+                    let inv_f = 1.0 / f;
+                    let tx = mu * ux - q.x * inv_f;
+                    let ty = mu * uy - q.y * inv_f;
                     let w = DVec3::new(tx, ty, 1.0);
-                    let (wl, v) = (w.length(), w.normalize());
-                    let sign = if d.z < 0.0 { -1.0 } else { 1.0 };
-                    let w_bar = (ld - v * v.dot(ld)) * (sign / wl);
-                    let (txb, tyb) = (w_bar.x, w_bar.y);
-                    mu_bar = txb * d.x / d.z + tyb * d.y / d.z;
-                    dd_bar = DVec3::new(mu * txb / d.z, mu * tyb / d.z, -mu * (txb * d.x + tyb * d.y) / (d.z * d.z));
-                    q_bar.x -= txb / f;
-                    q_bar.y -= tyb / f;
-                    f_bar = (txb * q.x + tyb * q.y) / (f * f);
+                    let wl = w.length();
+                    let inv_wl = 1.0 / wl;
+                    let v = w * inv_wl;
+                    let k = if d.z < 0.0 { -inv_wl } else { inv_wl };
+                    let vl = v.dot(ld);
+                    let (txb, tyb) = ((ld.x - v.x * vl) * k, (ld.y - v.y * vl) * k);
+                    if plan.index {
+                        mu_bar = txb * ux + tyb * uy;
+                    }
+                    let (mx, my) = (mu * txb * inv_dz, mu * tyb * inv_dz);
+                    dd_bar = DVec3::new(mx, my, -(mx * ux + my * uy));
+                    q_bar.x -= txb * inv_f;
+                    q_bar.y -= tyb * inv_f;
+                    if plan.focal {
+                        f_bar = (txb * q.x + tyb * q.y) * (inv_f * inv_f);
+                    }
+                    n_bar = DVec3::ZERO;
+                }
+                // No index change and none moving: the trace keeps d (the identity).
+                _ if st.n1 == st.n2 && !plan.index => {
+                    dd_bar = ld;
                     n_bar = DVec3::ZERO;
                 }
                 _ => {
                     let (nrm, cos_i, sgn) = oriented_normal(d, st.normal);
                     let kappa = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
                     let sk = kappa.max(0.0).sqrt();
+                    let inv_sk = 1.0 / sk;
                     let beta = ld.dot(nrm);
-                    let gamma = beta * (mu * mu * cos_i / sk - mu);
-                    mu_bar = ld.dot(d) - beta * (mu * (1.0 - cos_i * cos_i) / sk + cos_i);
+                    let gamma = beta * (mu * mu * cos_i * inv_sk - mu);
+                    if plan.index {
+                        mu_bar = ld.dot(d) - beta * (mu * (1.0 - cos_i * cos_i) * inv_sk + cos_i);
+                    }
                     dd_bar = ld * mu + nrm * gamma;
                     n_bar = (ld * (sk - mu * cos_i) + d * gamma) * sgn;
-                    f_bar = 0.0;
                 }
             }
             let (ray_bar, partials_bar) = local.adjoint(d, q_bar, n_bar);
@@ -263,10 +294,10 @@ impl AdjointPlan {
             }
             let (pr, d0) = (st.pr, st.d0);
             // μ_p·(δR pr) + μ_d·(δR d) = δR : (μ_p prᵀ + μ_d dᵀ).
-            let rotation = DMat3::from_cols(mp * pr.x + md * d0.x, mp * pr.y + md * d0.y, mp * pr.z + md * d0.z);
+            let rotation = if plan.rotation { DMat3::from_cols(mp * pr.x + md * d0.x, mp * pr.y + md * d0.y, mp * pr.z + md * d0.z) } else { DMat3::ZERO };
             let rt = step.rotation.transpose();
             (lq, ld) = (rt * mp, rt * md);
-            let (n1, n2) = (mu_bar / st.n2, -mu * mu_bar / st.n2);
+            let (n1, n2) = if plan.index { (mu_bar / st.n2, -mu * mu_bar / st.n2) } else { (0.0, 0.0) };
             // −μ_p·(R δo) = (−Rᵀμ_p)·δo.
             finite &= lq.is_finite() && ld.is_finite() && rotation.is_finite() && shape.iter().all(|v| v.is_finite()) && n1.is_finite() && n2.is_finite();
             tape.sens.push(StepSens { rotation, offset: -lq, shape, n1, n2 });
@@ -276,8 +307,12 @@ impl AdjointPlan {
         }
         for (s, sens) in tape.sens.iter().rev().enumerate() {
             let plan = &self.steps[s];
-            sums.rotation[s] += sens.rotation;
-            sums.offset[s] += sens.offset;
+            if plan.rotation {
+                sums.rotation[s] += sens.rotation;
+            }
+            if plan.offset {
+                sums.offset[s] += sens.offset;
+            }
             for &f in &plan.shape_fields {
                 sums.shape[s][f] += sens.shape[f];
             }

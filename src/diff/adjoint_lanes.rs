@@ -134,7 +134,8 @@ fn powi(mut a: Lf, mut n: i32) -> Lf {
     }
 }
 
-/// [`super::hit::SurfaceLocal`] per lane: the sag's local first- and second-order data at the hit points.
+/// [`super::hit::SweepLocal`] per lane: the sag's local data at the traced hit points, from the hit point
+/// and the unit normal the recording trace kept (see there: 1/|m| = n̂_z; a conic's s = 1 − c(1+k)z).
 struct LocalLanes {
     f1: Lf,
     f2: Lf,
@@ -144,38 +145,28 @@ struct LocalLanes {
     c: f64,
     k: f64,
     s: Lf,
-    m: L3,
-    m_len: Lf,
     normal: L3,
-    /// f′ = f″ = 0 (see [`LocalLanes::at`]): |m| = 1 and a zero Hessian.
+    /// f′ = f″ = 0 (a plane, a paraxial lens, a conic of zero curvature without asphere terms): H = 0.
     flat: bool,
 }
 
 impl LocalLanes {
-    /// `SurfaceLocal::at` lane by lane.
-    ///
-    /// A flat figure (a plane, a paraxial lens, a conic of zero curvature without asphere terms: f′ = f″ = 0)
-    /// takes a short path: s = 1, m = (−2·0·x, −2·0·y, 1), |m| = 1 and n = m exactly, the bits the general
-    /// path gives at any finite hit point (the square roots and divisions of 1 are exact), without its
-    /// two square roots and three divisions per lane. Lanes whose hit is not finite may differ; they are
-    /// never active (a lane that arrived hit every surface at a finite point).
+    /// `SweepLocal::at` lane by lane (the same operations; lanes whose hit is not finite hold garbage and
+    /// are never active).
     #[inline(always)]
-    fn at(shape: &SurfaceShape, q: &L3) -> LocalLanes {
+    fn at(shape: &SurfaceShape, q: &L3, normal: &L3) -> LocalLanes {
         let (x, y) = (q.x, q.y);
         let r2 = x * x + y * y;
-        let flat = match figure(shape) {
-            None => true,
-            Some((c, _, alpha)) => c == 0.0 && alpha.iter().all(|a| *a == 0.0),
-        };
-        if flat {
-            let (c, k) = figure(shape).map_or((0.0, 0.0), |(c, k, _)| (c, k));
-            let m = v3(-2.0 * ZERO * x, -2.0 * ZERO * y, Lf::splat(1.0));
-            return LocalLanes { f1: ZERO, f2: ZERO, x, y, r2, c, k, s: Lf::splat(1.0), m, m_len: Lf::splat(1.0), normal: m, flat };
-        }
-        let (mut f1, mut f2, mut c, mut k, mut s) = (ZERO, ZERO, 0.0, 0.0, Lf::splat(1.0));
-        if let Some((cc, kk, alpha)) = figure(shape) {
-            c = cc;
-            k = kk;
+        let (c, k, alpha) = figure(shape).unwrap_or((0.0, 0.0, &[][..]));
+        let (mut f1, mut f2, mut s) = (ZERO, ZERO, Lf::splat(1.0));
+        let flat = c == 0.0 && alpha.iter().all(|a| *a == 0.0);
+        if !flat && alpha.is_empty() {
+            // The trace's normal ∝ (−c x, −c y, 1 − c(1+k) z): its z is s on the vertex branch.
+            s = 1.0 - c * (1.0 + k) * q.z;
+            let inv_s = 1.0 / s;
+            f1 = 0.5 * c * inv_s;
+            f2 = 0.25 * (1.0 + k) * c * c * c * inv_s * inv_s * inv_s;
+        } else if !flat {
             let arg = 1.0 - (1.0 + k) * c * c * r2;
             // f64::max(arg, 0): 0 where arg < 0 or NaN.
             s = Lf::select(arg.ge(ZERO), arg, ZERO).sqrt();
@@ -191,13 +182,10 @@ impl LocalLanes {
                 }
             }
         }
-        let m = v3(-2.0 * f1 * x, -2.0 * f1 * y, Lf::splat(1.0));
-        let m_len = m.dot(m).sqrt();
-        let normal = v3(m.x / m_len, m.y / m_len, m.z / m_len);
-        LocalLanes { f1, f2, x, y, r2, c, k, s, m, m_len, normal, flat }
+        LocalLanes { f1, f2, x, y, r2, c, k, s, normal: *normal, flat }
     }
 
-    /// `SurfaceLocal::param_partials` lane by lane.
+    /// `figure_partials` lane by lane.
     #[inline(always)]
     fn param_partials(&self, t: &ShapeTangent) -> (Lf, Lf, Lf) {
         if !t.moves_figure() {
@@ -221,25 +209,24 @@ impl LocalLanes {
         (df, 2.0 * df1 * self.x, 2.0 * df1 * self.y)
     }
 
-    /// `SurfaceLocal::adjoint` lane by lane: (ray adjoint, figure-partials adjoint).
+    /// `SweepLocal::adjoint` lane by lane: (ray adjoint, figure-partials adjoint).
     #[inline(always)]
     fn adjoint(&self, d: &L3, q_bar: L3, n_bar: L3) -> (L3, [Lf; 3]) {
-        let nn = self.normal.dot(n_bar);
-        if self.flat {
-            // |m| = 1 (exact division) and H = 0: the general formulas' values on finite lanes (a zero's
-            // sign aside); a lane with a non-finite n̄ is dropped by the sweep's finiteness check either way.
-            let dm_bar = v3(n_bar.x - self.normal.x * nn, n_bar.y - self.normal.y * nn, n_bar.z - self.normal.z * nn);
-            let dt_bar = d.dot(q_bar) / self.m.dot(*d);
-            return (v3(q_bar.x - self.m.x * dt_bar, q_bar.y - self.m.y * dt_bar, q_bar.z - self.m.z * dt_bar), [dt_bar, -dm_bar.x, -dm_bar.y]);
-        }
-        let dm_bar = v3((n_bar.x - self.normal.x * nn) / self.m_len, (n_bar.y - self.normal.y * nn) / self.m_len, (n_bar.z - self.normal.z * nn) / self.m_len);
-        let (x, y) = (self.x, self.y);
-        let hxx = 2.0 * self.f1 + 4.0 * self.f2 * x * x;
-        let hxy = 4.0 * self.f2 * x * y;
-        let hyy = 2.0 * self.f1 + 4.0 * self.f2 * y * y;
-        let dq_bar = v3(q_bar.x - (hxx * dm_bar.x + hxy * dm_bar.y), q_bar.y - (hxy * dm_bar.x + hyy * dm_bar.y), q_bar.z - 0.0);
-        let dt_bar = d.dot(dq_bar) / self.m.dot(*d);
-        (v3(dq_bar.x - self.m.x * dt_bar, dq_bar.y - self.m.y * dt_bar, dq_bar.z - self.m.z * dt_bar), [dt_bar, -dm_bar.x, -dm_bar.y])
+        let n = self.normal;
+        let w = n.z;
+        let nn = n.dot(n_bar);
+        let dm_bar = v3((n_bar.x - n.x * nn) * w, (n_bar.y - n.y * nn) * w, (n_bar.z - n.z * nn) * w);
+        let dq_bar = if self.flat {
+            q_bar
+        } else {
+            let (x, y) = (self.x, self.y);
+            let hxx = 2.0 * self.f1 + 4.0 * self.f2 * x * x;
+            let hxy = 4.0 * self.f2 * x * y;
+            let hyy = 2.0 * self.f1 + 4.0 * self.f2 * y * y;
+            v3(q_bar.x - (hxx * dm_bar.x + hxy * dm_bar.y), q_bar.y - (hxy * dm_bar.x + hyy * dm_bar.y), q_bar.z - 0.0)
+        };
+        let r = d.dot(dq_bar) / n.dot(*d);
+        (v3(dq_bar.x - n.x * r, dq_bar.y - n.y * r, dq_bar.z - n.z * r), [r * w, -dm_bar.x, -dm_bar.y])
     }
 }
 
@@ -275,27 +262,43 @@ impl LaneKernel for Sweep<'_> {
         let mut finite = active;
         for s in (0..tape.steps.len()).rev() {
             let (st, step, sp) = (&tape.steps[s], &path[s], &plan.steps[s]);
-            let local = LocalLanes::at(&step.shape, &st.q);
+            let local = LocalLanes::at(&step.shape, &st.q, &st.normal);
             let (d, q) = (st.d, st.q);
             let (n1, n2) = (n[step.surface - 1], n[step.surface]);
             let mu = n1 / n2;
             let mut q_bar = lq;
-            let (dd_bar, n_bar, mu_bar, f_bar);
+            let (dd_bar, n_bar);
+            // μ̄ and f̄ only where a parameter moves an index or the focal length.
+            let (mut mu_bar, mut f_bar) = (ZERO, ZERO);
             match step.shape {
                 SurfaceShape::Paraxial { focal_length: f } => {
-                    let tx = mu * d.x / d.z - q.x / f;
-                    let ty = mu * d.y / d.z - q.y / f;
+                    let inv_dz = 1.0 / d.z;
+                    let (ux, uy) = (d.x * inv_dz, d.y * inv_dz);
+                    let inv_f = 1.0 / f;
+                    let tx = mu * ux - q.x * inv_f;
+                    let ty = mu * uy - q.y * inv_f;
                     let w = v3(tx, ty, Lf::splat(1.0));
-                    let (wl, v) = (w.dot(w).sqrt(), w.normalize());
-                    let sign = Lf::select(d.z.lt(ZERO), Lf::splat(-1.0), Lf::splat(1.0));
+                    let wl = w.dot(w).sqrt();
+                    let inv_wl = 1.0 / wl;
+                    let v = w.scale(inv_wl);
+                    let k = Lf::select(d.z.lt(ZERO), -inv_wl, inv_wl);
                     let vl = v.dot(ld);
-                    let k = sign / wl;
                     let (txb, tyb) = ((ld.x - v.x * vl) * k, (ld.y - v.y * vl) * k);
-                    mu_bar = txb * d.x / d.z + tyb * d.y / d.z;
-                    dd_bar = v3(mu * txb / d.z, mu * tyb / d.z, -mu * (txb * d.x + tyb * d.y) / (d.z * d.z));
-                    q_bar.x = q_bar.x - txb / f;
-                    q_bar.y = q_bar.y - tyb / f;
-                    f_bar = (txb * q.x + tyb * q.y) / (f * f);
+                    if sp.index {
+                        mu_bar = txb * ux + tyb * uy;
+                    }
+                    let (mx, my) = (mu * txb * inv_dz, mu * tyb * inv_dz);
+                    dd_bar = v3(mx, my, -(mx * ux + my * uy));
+                    q_bar.x = q_bar.x - txb * inv_f;
+                    q_bar.y = q_bar.y - tyb * inv_f;
+                    if sp.focal {
+                        f_bar = (txb * q.x + tyb * q.y) * (inv_f * inv_f);
+                    }
+                    n_bar = v3(ZERO, ZERO, ZERO);
+                }
+                // No index change and none moving: the trace keeps d (the identity).
+                _ if n1 == n2 && !sp.index => {
+                    dd_bar = ld;
                     n_bar = v3(ZERO, ZERO, ZERO);
                 }
                 _ => {
@@ -307,13 +310,15 @@ impl LaneKernel for Sweep<'_> {
                     let sgn = Lf::select(flip, Lf::splat(-1.0), Lf::splat(1.0));
                     let kappa = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
                     let sk = Lf::select(kappa.ge(ZERO), kappa, ZERO).sqrt();
+                    let inv_sk = 1.0 / sk;
                     let beta = ld.dot(nrm);
-                    let gamma = beta * (mu * mu * cos_i / sk - mu);
-                    mu_bar = ld.dot(d) - beta * (mu * (1.0 - cos_i * cos_i) / sk + cos_i);
+                    let gamma = beta * (mu * mu * cos_i * inv_sk - mu);
+                    if sp.index {
+                        mu_bar = ld.dot(d) - beta * (mu * (1.0 - cos_i * cos_i) * inv_sk + cos_i);
+                    }
                     dd_bar = v3(ld.x * mu + nrm.x * gamma, ld.y * mu + nrm.y * gamma, ld.z * mu + nrm.z * gamma);
                     let a = sk - mu * cos_i;
                     n_bar = v3((ld.x * a + d.x * gamma) * sgn, (ld.y * a + d.y * gamma) * sgn, (ld.z * a + d.z * gamma) * sgn);
-                    f_bar = ZERO;
                 }
             }
             let (ray_bar, pb) = local.adjoint(&d, q_bar, n_bar);
@@ -326,34 +331,45 @@ impl LaneKernel for Sweep<'_> {
                 finite = finite & v.is_finite();
                 sens.shape[f] = v;
             }
-            // δR : (μ_p prᵀ + μ_d d0ᵀ), by columns.
-            let (pr, d0) = (st.pr, st.d0);
-            let (pc, dc) = ([pr.x, pr.y, pr.z], [d0.x, d0.y, d0.z]);
-            for c in 0..3 {
-                let col = v3(mp.x * pc[c] + md.x * dc[c], mp.y * pc[c] + md.y * dc[c], mp.z * pc[c] + md.z * dc[c]);
-                finite = finite & col.is_finite();
-                sens.rotation[3 * c] = col.x;
-                sens.rotation[3 * c + 1] = col.y;
-                sens.rotation[3 * c + 2] = col.z;
+            if sp.rotation {
+                // δR : (μ_p prᵀ + μ_d d0ᵀ), by columns.
+                let (pr, d0) = (st.pr, st.d0);
+                let (pc, dc) = ([pr.x, pr.y, pr.z], [d0.x, d0.y, d0.z]);
+                for c in 0..3 {
+                    let col = v3(mp.x * pc[c] + md.x * dc[c], mp.y * pc[c] + md.y * dc[c], mp.z * pc[c] + md.z * dc[c]);
+                    finite = finite & col.is_finite();
+                    sens.rotation[3 * c] = col.x;
+                    sens.rotation[3 * c + 1] = col.y;
+                    sens.rotation[3 * c + 2] = col.z;
+                }
             }
             let rt = step.rotation.transpose();
             (lq, ld) = (rotate(&rt, mp), rotate(&rt, md));
-            sens.n1 = mu_bar / n2;
-            sens.n2 = -mu * mu_bar / n2;
+            if sp.index {
+                sens.n1 = mu_bar / n2;
+                sens.n2 = -mu * mu_bar / n2;
+                finite = finite & sens.n1.is_finite() & sens.n2.is_finite();
+            }
             // −μ_p·(R δo) = (−Rᵀμ_p)·δo.
-            sens.offset = [-lq.x, -lq.y, -lq.z];
-            finite = finite & lq.is_finite() & ld.is_finite() & sens.n1.is_finite() & sens.n2.is_finite();
+            if sp.offset {
+                sens.offset = [-lq.x, -lq.y, -lq.z];
+            }
+            finite = finite & lq.is_finite() & ld.is_finite();
         }
         // Add the finite active lanes (a selected 0 elsewhere: the other lanes' sums keep their bits).
         let add = |acc: &mut Lf, v: &Lf| *acc = *acc + Lf::select(finite, *v, ZERO);
         for s in 0..tape.steps.len() {
             let (sens, sp) = (&sums.sens[s], &plan.steps[s]);
             let (rot, off, shape) = (&mut sums.rotation[s], &mut sums.offset[s], &mut sums.shape[s]);
-            for i in 0..9 {
-                add(&mut rot[i], &sens.rotation[i]);
+            if sp.rotation {
+                for i in 0..9 {
+                    add(&mut rot[i], &sens.rotation[i]);
+                }
             }
-            for i in 0..3 {
-                add(&mut off[i], &sens.offset[i]);
+            if sp.offset {
+                for i in 0..3 {
+                    add(&mut off[i], &sens.offset[i]);
+                }
             }
             for &f in &sp.shape_fields {
                 add(&mut shape[f], &sens.shape[f]);

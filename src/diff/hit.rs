@@ -119,28 +119,7 @@ impl SurfaceLocal {
 
     /// (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ) along a shape tangent.
     pub(crate) fn param_partials(&self, t: &ShapeTangent) -> (f64, f64, f64) {
-        if !t.moves_figure() {
-            return (0.0, 0.0, 0.0);
-        }
-        let (c, k, s, r2) = (self.c, self.k, self.s, self.r2);
-        // Conic sag f = c r2/(1+s), s = √(1 − (1+k)c²r2):
-        // f_c = r2/(1+s) + (1+k)c²r2²/(s(1+s)²),  f_k = c³r2²/(2s(1+s)²),
-        // f′_c = 1/(2s) + (1+k)c²r2/(2s³),          f′_k = c³r2/(4s³).
-        let one_s = 1.0 + s;
-        let f_c = r2 / one_s + (1.0 + k) * c * c * r2 * r2 / (s * one_s * one_s);
-        let f_k = c * c * c * r2 * r2 / (2.0 * s * one_s * one_s);
-        let f1_c = 1.0 / (2.0 * s) + (1.0 + k) * c * c * r2 / (2.0 * s * s * s);
-        let f1_k = c * c * c * r2 / (4.0 * s * s * s);
-        let mut df = t.curvature * f_c + t.conic * f_k;
-        let mut df1 = t.curvature * f1_c + t.conic * f1_k;
-        for (j, a) in t.asphere.iter().enumerate() {
-            if *a != 0.0 {
-                let i = (j + 1) as f64;
-                df += a * r2.powi(j as i32 + 1);
-                df1 += a * i * r2.powi(j as i32);
-            }
-        }
-        (df, 2.0 * df1 * self.x, 2.0 * df1 * self.y)
+        figure_partials(self.c, self.k, self.s, self.r2, self.x, self.y, t)
     }
 
     /// The hit tangent for a ray through the hit with unit direction `d`, where `dray` = δp + t·δd is the
@@ -160,23 +139,124 @@ impl SurfaceLocal {
         let dn = (dm - self.normal * self.normal.dot(dm)) / self.m_len;
         HitTangent { point: dq, t: dt, normal: dn }
     }
+}
 
-    /// The transpose of [`Self::tangent`] (reverse mode): for adjoints `q_bar` of δq and `n_bar` of δn,
-    /// the adjoint of `dray` and of the figure partials (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ), so that
+/// (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ) along a shape tangent at a point (x, y), r2 = x² + y², of the figure
+/// (c, k, α) with s = √(1 − (1+k)c²r2) (the conic part; the α terms enter through the tangent's asphere).
+#[inline]
+pub(crate) fn figure_partials(c: f64, k: f64, s: f64, r2: f64, x: f64, y: f64, t: &ShapeTangent) -> (f64, f64, f64) {
+    if !t.moves_figure() {
+        return (0.0, 0.0, 0.0);
+    }
+    // Conic sag f = c r2/(1+s), s = √(1 − (1+k)c²r2):
+    // f_c = r2/(1+s) + (1+k)c²r2²/(s(1+s)²),  f_k = c³r2²/(2s(1+s)²),
+    // f′_c = 1/(2s) + (1+k)c²r2/(2s³),          f′_k = c³r2/(4s³).
+    let one_s = 1.0 + s;
+    let f_c = r2 / one_s + (1.0 + k) * c * c * r2 * r2 / (s * one_s * one_s);
+    let f_k = c * c * c * r2 * r2 / (2.0 * s * one_s * one_s);
+    let f1_c = 1.0 / (2.0 * s) + (1.0 + k) * c * c * r2 / (2.0 * s * s * s);
+    let f1_k = c * c * c * r2 / (4.0 * s * s * s);
+    let mut df = t.curvature * f_c + t.conic * f_k;
+    let mut df1 = t.curvature * f1_c + t.conic * f1_k;
+    for (j, a) in t.asphere.iter().enumerate() {
+        if *a != 0.0 {
+            let i = (j + 1) as f64;
+            df += a * r2.powi(j as i32 + 1);
+            df1 += a * i * r2.powi(j as i32);
+        }
+    }
+    (df, 2.0 * df1 * x, 2.0 * df1 * y)
+}
+
+/// The sag's local data at a **traced** hit, for the reverse sweep ([`super::adjoint`], and lane by lane
+/// [`super::adjoint_lanes`]): built from the hit point and the unit normal the trace computed there
+/// (`intersect`'s, recorded on the tape), so that the sweep does not recompute the normal and |m|:
+/// m = (−sx, −sy, 1) gives 1/|m| = n̂_z and m = n̂/n̂_z. The Hessian H = 2f′ I + 4f″ (x, y)(x, y)ᵀ needs f′, f″:
+/// - a flat figure (a plane, a paraxial lens, a conic of zero curvature without asphere terms) has
+///   f′ = f″ = 0 and H = 0;
+/// - a conic (c ≠ 0, no asphere terms): on its vertex branch 1 − c(1+k)z = s = √(1 − (1+k)c²r²)
+///   (z = c r²/(1+s)), the trace's unnormalised normal's z, so s costs a multiply and f′ = c/(2s),
+///   f″ = (1+k)c³/(4s³) one division (1/s) — no square root;
+/// - an even asphere: f′, f″ from the sag's series as [`SurfaceLocal::at`] (s by its square root).
+///
+/// The values equal [`SurfaceLocal`]'s to rounding (the same quantities, computed from the trace's
+/// normal and the conic identity instead of the square roots), and the lane sweep repeats these
+/// operations exactly: the two sweeps give the same bits.
+#[derive(Clone, Copy, Debug)]
+pub struct SweepLocal {
+    f1: f64,
+    f2: f64,
+    x: f64,
+    y: f64,
+    r2: f64,
+    c: f64,
+    k: f64,
+    s: f64,
+    normal: DVec3,
+    flat: bool,
+}
+
+impl SweepLocal {
+    /// Local data of `shape` at the traced hit `q` with the trace's unit normal `normal`.
+    #[inline]
+    pub fn at(shape: &SurfaceShape, q: DVec3, normal: DVec3) -> SweepLocal {
+        let (x, y) = (q.x, q.y);
+        let r2 = x * x + y * y;
+        let (c, k, alpha) = figure(shape).unwrap_or((0.0, 0.0, &[][..]));
+        let (mut f1, mut f2, mut s) = (0.0, 0.0, 1.0);
+        let flat = c == 0.0 && alpha.iter().all(|a| *a == 0.0);
+        if !flat && alpha.is_empty() {
+            // The trace's normal ∝ (−c x, −c y, 1 − c(1+k) z): its z is s on the vertex branch.
+            s = 1.0 - c * (1.0 + k) * q.z;
+            let inv_s = 1.0 / s;
+            f1 = 0.5 * c * inv_s;
+            f2 = 0.25 * (1.0 + k) * c * c * c * inv_s * inv_s * inv_s;
+        } else if !flat {
+            s = (1.0 - (1.0 + k) * c * c * r2).max(0.0).sqrt();
+            if c != 0.0 {
+                f1 = c / (2.0 * s);
+                f2 = (1.0 + k) * c * c * c / (4.0 * s * s * s);
+            }
+            for (j, a) in alpha.iter().enumerate() {
+                let i = (j + 1) as f64;
+                f1 += i * a * r2.powi(j as i32);
+                if j >= 1 {
+                    f2 += i * (i - 1.0) * a * r2.powi(j as i32 - 1);
+                }
+            }
+        }
+        SweepLocal { f1, f2, x, y, r2, c, k, s, normal, flat }
+    }
+
+    /// (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ) along a shape tangent ([`figure_partials`]).
+    #[inline]
+    pub fn param_partials(&self, t: &ShapeTangent) -> (f64, f64, f64) {
+        figure_partials(self.c, self.k, self.s, self.r2, self.x, self.y, t)
+    }
+
+    /// The transpose of [`SurfaceLocal::tangent`] (reverse mode): for adjoints `q_bar` of δq and `n_bar`
+    /// of δn, the adjoint of `dray` and of the figure partials (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ), so that
     /// q̄·δq + n̄·δn = draȳ·dray + Σ partialsB̄·partials for every (dray, dshape).
     #[inline]
     pub fn adjoint(&self, d: DVec3, q_bar: DVec3, n_bar: DVec3) -> (DVec3, [f64; 3]) {
-        // δn = P δm / |m| with P = I − n nᵀ symmetric; δm_z = 0.
-        let dm_bar = (n_bar - self.normal * self.normal.dot(n_bar)) / self.m_len;
-        let (x, y) = (self.x, self.y);
-        let hxx = 2.0 * self.f1 + 4.0 * self.f2 * x * x;
-        let hxy = 4.0 * self.f2 * x * y;
-        let hyy = 2.0 * self.f1 + 4.0 * self.f2 * y * y;
-        // δm_xy = −(H δq_xy + δs_xy): H symmetric.
-        let dq_bar = q_bar - DVec3::new(hxx * dm_bar.x + hxy * dm_bar.y, hxy * dm_bar.x + hyy * dm_bar.y, 0.0);
-        // δq = dray + d δt, δt = (δsag − m·dray)/(m·d).
-        let dt_bar = d.dot(dq_bar) / self.m.dot(d);
-        (dq_bar - self.m * dt_bar, [dt_bar, -dm_bar.x, -dm_bar.y])
+        let n = self.normal;
+        // δn = P δm / |m| with P = I − n nᵀ symmetric, 1/|m| = n_z; δm_z = 0.
+        let w = n.z;
+        let dm_bar = (n_bar - n * n.dot(n_bar)) * w;
+        // δm_xy = −(H δq_xy + δs_xy): H symmetric (zero on a flat figure).
+        let dq_bar = if self.flat {
+            q_bar
+        } else {
+            let (x, y) = (self.x, self.y);
+            let hxx = 2.0 * self.f1 + 4.0 * self.f2 * x * x;
+            let hxy = 4.0 * self.f2 * x * y;
+            let hyy = 2.0 * self.f1 + 4.0 * self.f2 * y * y;
+            q_bar - DVec3::new(hxx * dm_bar.x + hxy * dm_bar.y, hxy * dm_bar.x + hyy * dm_bar.y, 0.0)
+        };
+        // δq = dray + d δt, δt = (δsag − m·dray)/(m·d), m = n/n_z: with r = (d·q̄′)/(n·d), δt̄ = r n_z
+        // and dray gets −m δt̄ = −n r.
+        let r = d.dot(dq_bar) / n.dot(d);
+        (dq_bar - n * r, [r * w, -dm_bar.x, -dm_bar.y])
     }
 }
 
