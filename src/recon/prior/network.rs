@@ -109,8 +109,8 @@ pub struct SpectralUNet {
 pub const DIHEDRAL: [(u8, bool); 8] = [(0, false), (0, true), (1, false), (1, true), (2, false), (2, true), (3, false), (3, true)];
 
 /// Source (row, col) in an `h`×`w` image of output pixel (r, c) of `torch.rot90(·, k)` followed (if `flip`)
-/// by a width reversal; the output is `w`×`h` for odd k. Applying it with the inverse transform's (`k' = 4−k`,
-/// the flip first) maps back: see [`SpectralUNet::denoise`].
+/// by a width reversal; the output is `w`×`h` for odd k. The same map serves both ways: the forward transform
+/// gathers from the source pixel, the back-transform adds the output at (r, c) to it.
 fn dihedral_src(k: u8, flip: bool, h: usize, w: usize, r: usize, c: usize) -> (usize, usize) {
     let ow = if k % 2 == 1 { h } else { w };
     let c = if flip { ow - 1 - c } else { c };
