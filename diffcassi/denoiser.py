@@ -173,11 +173,12 @@ def _run_padded(net: SpectralUNet, x: torch.Tensor, sigma) -> torch.Tensor:
 DIHEDRAL = tuple((k, f) for k in range(4) for f in (False, True))
 
 
-def denoise(net: SpectralUNet, x: torch.Tensor, sigma, neutral: bool = True, ensemble: bool = False) -> torch.Tensor:
+def denoise(net: SpectralUNet, x: torch.Tensor, sigma, neutral: bool = False, ensemble: bool = False) -> torch.Tensor:
     """Denoises (N, B, H, W) of any size (peak about 1, σ on that scale): the inference every consumer uses; the
     Rust twin (``src/recon/prior/network.rs``) does the same steps.
 
-    * ``neutral`` (default; round 5, src/recon/prior/MODEL.md): **mean-colour neutralisation**. The network
+    * ``neutral`` (round 5, src/recon/prior/MODEL.md; off by default like the Rust twin's, so that PnP's
+      iterates are denoised as round 4 trained on them): **mean-colour neutralisation**. The network
       sees the cube with its mean spectrum replaced by a flat (grey) one of the same mean level,
       x − m + ḡ (m_b the band's spatial mean over the cube, ḡ the mean of m over the bands), and the output gets
       m − ḡ back. Constants commute with an additive noise, so the noise is unchanged; only the cube's overall

@@ -318,10 +318,10 @@ fn _reconstruct<'py>(
 
 /// The learned denoiser (`spectral-unet-v2`) on `cube` (H, W, B) float32 with noise level `sigma` (standard
 /// deviation on the cube's scale: the network was trained on cubes of peak ≈ 1); `weights`: a safetensors
-/// file (default: the embedded checkpoint); `neutral`: mean-colour neutralisation (default on), `ensemble`: the
+/// file (default: the embedded checkpoint); `neutral`: mean-colour neutralisation (default off), `ensemble`: the
 /// geometric self-ensemble (8× the time), as `diffcassi.denoiser.denoise`. Returns the denoised cube (H, W, B) float32.
 #[pyfunction]
-#[pyo3(signature = (cube, sigma, weights = None, neutral = true, ensemble = false))]
+#[pyo3(signature = (cube, sigma, weights = None, neutral = false, ensemble = false))]
 fn denoise<'py>(py: Python<'py>, cube: &Bound<'py, PyAny>, sigma: f64, weights: Option<String>, neutral: bool, ensemble: bool) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
     if !(sigma.is_finite() && sigma >= 0.0) {
         return Err(value_error(format!("sigma = {sigma}: must be finite and ≥ 0")));

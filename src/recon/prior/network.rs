@@ -34,11 +34,14 @@
 //! of 4: the cube is padded at the bottom/right by edge replication and the output cropped, as `denoise()` in
 //! `diffcassi/denoiser.py` does.
 //!
-//! **Mean-colour neutralisation** ([`SpectralUNet::neutral`], on by default; round 5 of MODEL.md): the graph
-//! sees `x − m + ḡ` (m the cube's per-band spatial mean, ḡ its mean over the bands) and `m − ḡ` is added back.
+//! **Mean-colour neutralisation** ([`SpectralUNet::neutral`]; round 5 of MODEL.md): the graph sees
+//! `x − m + ḡ` (m the cube's per-band spatial mean, ḡ its mean over the bands) and `m − ḡ` is added back.
 //! The committed network shifts a saturated cube's mean colour (retina's orange: a constant cube of its mean
 //! spectrum comes back with a per-band bias of 0.015 RMS at σ 0.05); neutralised, the colour it sees is grey,
 //! where its training colours are dense (the Gaussian benchmark: retina +4.5 dB at σ 0.02, mean +0.9 dB).
+//! Off by default: on PnP's iterates (round 4 fine-tuned the weights on them un-neutralised) one-call PnP
+//! lost 0.03 dB with it, and the mean follows an outlier voxel (a voxel at 100× the peak moved the output
+//! 12 px away by 0.056 of the peak, `tests/recon_pnp.rs`'s bound is 0.02).
 //! **Self-ensemble** ([`SpectralUNet::self_ensemble`], off by default: 8× the time): the mean over the eight
 //! flips/rotations ([`DIHEDRAL`]) of the denoised transformed cube, +0.6–0.7 dB on the benchmark.
 //!
@@ -93,9 +96,9 @@ pub struct SpectralUNet {
     pub source: String,
     /// CRC-32 of the weights file's bytes.
     pub crc32: u32,
-    /// Mean-colour neutralisation (default on; round 5, MODEL.md): the graph sees `x − m + ḡ` (m the cube's
-    /// per-band spatial mean, ḡ the mean of m over the bands) and the output gets `m − ḡ` back, as
-    /// `denoise(…, neutral=True)` in `diffcassi/denoiser.py`.
+    /// Mean-colour neutralisation (default off, so PnP is unchanged; round 5, MODEL.md): the graph sees
+    /// `x − m + ḡ` (m the cube's per-band spatial mean, ḡ the mean of m over the bands) and the output gets
+    /// `m − ḡ` back, as `denoise(…, neutral=True)` in `diffcassi/denoiser.py`.
     pub neutral: bool,
     /// Geometric self-ensemble (default off: 8× the time): the mean over the eight dihedral transforms
     /// (quarter turns × a width flip, in [`DIHEDRAL`]'s order), as `denoise(…, ensemble=True)`.
@@ -213,7 +216,7 @@ impl SpectralUNet {
         if let Some(extra) = st.names().into_iter().find(|n| !expected.contains(*n)) {
             return Err(ferr(source, format!("tensor `{extra}` is not part of {ARCH} (expected {} tensors: lat_enc, head, …, tail, lat_dec, bypass)", expected.len())));
         }
-        Ok(SpectralUNet { bands, width, latent, source: source.to_string(), crc32: crc32fast::hash(bytes), neutral: true, self_ensemble: false, layers })
+        Ok(SpectralUNet { bands, width, latent, source: source.to_string(), crc32: crc32fast::hash(bytes), neutral: false, self_ensemble: false, layers })
     }
 
     /// Tensor `name` of the file, checked: present, f32, of `shape`, finite.
