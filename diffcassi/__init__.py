@@ -294,12 +294,15 @@ def spread_noise_factor(acquisition_rays: int, operator_rays: int) -> float:
 __all__ += ["mapping_operator", "shift_operator", "reconstruct", "monte_carlo_noise_norm", "spread_noise_factor"]
 
 
-def denoise(cube: np.ndarray, sigma: float, weights: Optional[str] = None) -> np.ndarray:
+def denoise(cube: np.ndarray, sigma: float, weights: Optional[str] = None, neutral: bool = False,
+            ensemble: bool = False) -> np.ndarray:
     """The learned denoiser (``spectral-unet-v2``, the prior of ``pnp-gap``/``pnp-admm``; Rust inference) on
     ``cube`` (H, W, B) float32 at noise level ``sigma`` (standard deviation on the cube's scale; trained on
     cubes of peak ≈ 1). ``weights``: a safetensors file (default: the embedded checkpoint). Equal to
-    :class:`diffcassi.denoiser.SpectralUNet` within 1e-4 of the peak."""
-    return _native.denoise(cube, float(sigma), None if weights is None else str(weights))
+    :class:`diffcassi.denoiser.SpectralUNet` within 1e-4 of the peak. ``neutral`` (mean-colour
+    neutralisation, default off) and ``ensemble`` (the geometric self-ensemble, 8× the time) as in
+    :func:`diffcassi.denoiser.denoise`."""
+    return _native.denoise(cube, float(sigma), None if weights is None else str(weights), bool(neutral), bool(ensemble))
 
 
 __all__ += ["denoise"]

@@ -162,10 +162,52 @@ def pad_to_multiple(x: torch.Tensor, m: int = 4):
     return x, (h, w)
 
 
-def denoise(net: SpectralUNet, x: torch.Tensor, sigma) -> torch.Tensor:
-    """Denoises (N, B, H, W) of any size: pads to multiples of 4 by edge replication, runs ``net``, crops."""
+def _run_padded(net: SpectralUNet, x: torch.Tensor, sigma) -> torch.Tensor:
+    """``net`` on (N, B, H, W) of any size: pads to multiples of 4 by edge replication, runs, crops."""
     xp, (h, w) = pad_to_multiple(x)
     return net(xp, sigma)[..., :h, :w]
+
+
+#: The eight dihedral transforms of the self-ensemble, in the order both inferences average them: (k, flip) =
+#: ``rot90`` by k quarter turns over (H, W), then (if flip) a reversal of the width axis.
+DIHEDRAL = tuple((k, f) for k in range(4) for f in (False, True))
+
+
+def denoise(net: SpectralUNet, x: torch.Tensor, sigma, neutral: bool = False, ensemble: bool = False) -> torch.Tensor:
+    """Denoises (N, B, H, W) of any size (peak about 1, σ on that scale): the inference every consumer uses; the
+    Rust twin (``src/recon/prior/network.rs``) does the same steps.
+
+    * ``neutral`` (round 5, src/recon/prior/MODEL.md; off by default like the Rust twin's, so that PnP's
+      iterates are denoised as round 4 trained on them): **mean-colour neutralisation**. The network
+      sees the cube with its mean spectrum replaced by a flat (grey) one of the same mean level,
+      x − m + ḡ (m_b the band's spatial mean over the cube, ḡ the mean of m over the bands), and the output gets
+      m − ḡ back. Constants commute with an additive noise, so the noise is unchanged; only the cube's overall
+      colour moves to where the training data's colours are dense. Measured: the network distorts a saturated
+      cube's mean colour (retina's orange: a constant cube of its mean spectrum comes back at 35.9 dB at σ 0.05,
+      a per-band bias of 0.016), and neutralised it loses that bias (retina 34.53 → 40.00 dB at σ 0.05).
+    * ``ensemble``: the geometric self-ensemble — the mean of the eight dihedral transforms (:data:`DIHEDRAL`)
+      of the input, each denoised and transformed back (B. Lim et al., "Enhanced deep residual networks for
+      single image super-resolution", CVPRW 2017; K. Zhang et al., DRUNet, TPAMI 2021); 8× the time.
+
+    Pads to multiples of 4 by edge replication, runs ``net``, crops (per transform)."""
+    if neutral:
+        m = x.mean(dim=(2, 3), keepdim=True)
+        g = m.mean(dim=1, keepdim=True)
+        shift = m - g
+        x = x - shift
+    if ensemble:
+        acc = None
+        for k, f in DIHEDRAL:
+            t = torch.rot90(x, k, dims=(2, 3))
+            t = torch.flip(t, dims=(3,)) if f else t
+            o = _run_padded(net, t, sigma)
+            o = torch.flip(o, dims=(3,)) if f else o
+            o = torch.rot90(o, -k, dims=(2, 3))
+            acc = o if acc is None else acc + o
+        out = acc / len(DIHEDRAL)
+    else:
+        out = _run_padded(net, x, sigma)
+    return out + shift if neutral else out
 
 
 # --- weights files (safetensors): the loader every consumer uses, with clear errors -----------------------------

@@ -6,13 +6,17 @@ project's Smits uplift (``diffcassi.load_scene``, the same as ``diffcassi make-s
 the training data (``diffcassi.deadleaves``) contains none of them. Each cube gets white Gaussian noise of
 σ ∈ {0.02, 0.05, 0.1} (fixed seeds) and is denoised by
 
-* the network (``diffcassi.denoiser.load_weights`` + ``denoise``, σ given), and
+* the network (``diffcassi.denoiser.load_weights`` + ``denoise``, σ given; mean-colour neutralisation on unless
+  ``--no-neutral``, the geometric self-ensemble with ``--ensemble``), and
 * Chambolle's TV denoiser, a NumPy transcription of ``src/recon/tv.rs`` (that Rust function is not exposed to
   Python): isotropic, vectorial coupling (the project's default; ``--tv-per-band`` also tries per-band TV and
   reports the better), τ = 1/4, ``--tv-iterations`` steps from p = 0; its weight is tuned per σ on a grid for the
   best mean PSNR over these very scenes (an oracle choice, favourable to TV).
 
-PSNR is 10·log10(1/MSE) over the whole cube (peak 1), averaged over the scenes.
+PSNR is 10·log10(1/MSE) over the whole cube (peak 1), averaged over the scenes. ``--diagnose`` adds, per scene,
+the measurements of round 5 (src/recon/prior/MODEL.md): the E/D projection's own PSNR on the clean cube, the
+network on a *constant* cube of the scene's mean spectrum (PSNR and the per-band bias's RMS: a denoiser should
+return a constant unchanged) and on the clean cube, and the mean error per band (RMS over bands) of the output.
 
     .venv/bin/python scripts/eval_denoiser.py --json /tmp/eval.json
 """
@@ -69,6 +73,20 @@ def psnr_db(x: np.ndarray, ref: np.ndarray) -> float:
     return float(10 * np.log10(1.0 / np.mean((x.astype(np.float64) - ref) ** 2)))
 
 
+def diagnose(net, run, clean: np.ndarray, out: np.ndarray) -> dict:
+    """Round 5's per-scene measurements (module docs): ``run(cube)`` is the inference under test at this σ."""
+    c = clean.astype(np.float64)
+    e = net.lat_enc.weight.detach().double().numpy()[:, :, 0, 0]  # (K, B)
+    d = net.lat_dec.weight.detach().double().numpy()[:, :, 0, 0]  # (B, K)
+    proj = np.einsum("bk,kc,chw->bhw", d, e, c)
+    const = np.broadcast_to(c.mean(axis=(1, 2), keepdims=True), c.shape)
+    with torch.no_grad():
+        oc, oz = run(const).astype(np.float64), run(c).astype(np.float64)
+    band_rms = lambda err: float(np.sqrt(np.mean(err.mean(axis=(1, 2)) ** 2)))
+    return {"projection_db": psnr_db(proj, c), "constant_db": psnr_db(oc, const), "constant_band_bias": band_rms(oc - const),
+            "clean_in_db": psnr_db(oz, c), "band_bias": band_rms(out.astype(np.float64) - c)}
+
+
 def load_scenes(folder: pathlib.Path, size: int):
     import diffcassi
     from diffcassi.deadleaves import BANDS_NM
@@ -95,6 +113,9 @@ def main(argv=None) -> int:
     ap.add_argument("--tv-iterations", type=int, default=100)
     ap.add_argument("--tv-per-band", action="store_true", help="also try per-band TV (twice the TV time)")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--no-neutral", action="store_true", help="no mean-colour neutralisation (rounds 1–4's inference)")
+    ap.add_argument("--ensemble", action="store_true", help="the geometric self-ensemble (8 dihedral transforms, 8× time)")
+    ap.add_argument("--diagnose", action="store_true", help="per-scene diagnostics (projection, constant-cube bias)")
     ap.add_argument("--json", default=None, help="write the results here")
     ap.add_argument("--tv-from", default=None, metavar="JSON",
                     help="reuse the TV rows of an earlier --json result (same scenes, size, TV settings; checked) "
@@ -133,10 +154,14 @@ def main(argv=None) -> int:
             rng = np.random.default_rng([NOISE_SEED, si, k])
             noisy[name] = (c + sigma * rng.standard_normal(c.shape)).astype(np.float32)
         r = {"noisy": float(np.mean([psnr_db(noisy[n], scenes[n]) for n in scenes]))}
+        run = lambda c, s=sigma: denoise(net, torch.from_numpy(np.ascontiguousarray(c, dtype=np.float32))[None], s,
+                                         neutral=not a.no_neutral, ensemble=a.ensemble)[0].numpy()
         with torch.no_grad():
-            net_psnr = {n: psnr_db(denoise(net, torch.from_numpy(noisy[n])[None], sigma)[0].numpy(), scenes[n])
-                        for n in scenes}
+            outs = {n: run(noisy[n]) for n in scenes}
+        net_psnr = {n: psnr_db(outs[n], scenes[n]) for n in scenes}
         r["net"], r["net_per_scene"] = float(np.mean(list(net_psnr.values()))), net_psnr
+        if a.diagnose:
+            r["diagnose"] = {n: diagnose(net, run, scenes[n], outs[n]) for n in scenes}
         best = None
         if tv_cache is not None:
             c = tv_cache["sigmas"][f"{sigma:g}"]
@@ -152,7 +177,11 @@ def main(argv=None) -> int:
         rows[f"{sigma:g}"] = r
         print(f"σ={sigma:g}: noisy {r['noisy']:.2f} dB, TV {r['tv']:.2f} dB (w={r['tv_weight']}, {r['tv_coupling']}), "
               f"network {r['net']:.2f} dB, gain {r['gain_db']:+.2f} dB", flush=True)
-    res = {"scenes": list(scenes), "size": a.size, "weights": a.weights, "tv_iterations": a.tv_iterations,
+        print("  per scene, network / TV: " + ", ".join(f"{n} {net_psnr[n]:.2f} / {r['tv_per_scene'][n]:.2f}" for n in scenes))
+        for n, d in r.get("diagnose", {}).items():
+            print(f"  {n}: " + ", ".join(f"{k} {v:.4g}" for k, v in d.items()))
+    res = {"scenes": list(scenes), "size": a.size, "weights": a.weights, "neutral": not a.no_neutral,
+           "ensemble": a.ensemble, "tv_iterations": a.tv_iterations,
            "tv_weight_grid": list(TV_WEIGHTS), "noise_seed": NOISE_SEED, "tv_per_band": a.tv_per_band,
            "tv_from": a.tv_from, "sigmas": rows, "elapsed_s": round(time.time() - t0, 1)}
     print("\n| σ | noisy | TV (tuned weight, coupling) | network | gain |\n|---|---|---|---|---|")

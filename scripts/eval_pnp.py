@@ -12,7 +12,8 @@ Setting (docs/study.md's): 128² scenes (natural: the 256² uplift area-averaged
 operator traced with seed 1; δ from :func:`diffcassi.monte_carlo_noise_norm`. Per scene and preset: GAP-TV with
 its defaults; then the network schedules of ``--schedules`` — ``one:S`` = one network call at σ = S on the iterate
 ``pnp-gap`` hands it (GAP-TV's stop, then one data step: obtained once with an identity network, then denoised
-in PyTorch, equal to the Rust inference to 1e-4), ``pnp:N:S1:S2[:plain]`` = ``pnp-gap`` with N network
+in PyTorch, equal to the Rust inference to 1e-4; mean-colour neutralisation with ``--neutral``, the
+self-ensemble with ``--ensemble``: ``diffcassi.denoiser.denoise``), ``pnp:N:S1:S2[:plain]`` = ``pnp-gap`` with N network
 iterations σ S1 → S2 (geometric), accelerated unless ``plain``, no early stop (``discrepancy`` 0, tolerance 0).
 PSNR is the paper's (``diffcassi.metrics``: one MSE over the cube, peak = the truth's max).
 """
@@ -70,6 +71,9 @@ def main(argv=None) -> int:
     ap.add_argument("--weights", action="append", default=[], help="weights file(s) for the one-call schedules")
     ap.add_argument("--schedules", default="one:0.2", help="comma-separated one:S and pnp:N:S1:S2[:plain]")
     ap.add_argument("--mask", default=str(ROOT.parent / "shared/reference/paper_mask_512.npy"))
+    ap.add_argument("--neutral", action="store_true", help="one-call rows with the mean-colour neutralisation (off by "
+                    "default, as in the PnP solvers; `pnp:` rows run the Rust solvers, never neutralised)")
+    ap.add_argument("--ensemble", action="store_true", help="one-call rows with the geometric self-ensemble (8× time)")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--json", default=None)
     ap.add_argument("--cache", default=None, help="folder keeping each cell's GAP-TV PSNR and network input (they do "
@@ -118,7 +122,8 @@ def main(argv=None) -> int:
                     if parts[0] == "one":
                         for w, net in nets.items():
                             with torch.no_grad():
-                                out = denoise(net, xin, float(parts[1]))[0].numpy().transpose(1, 2, 0) * p
+                                out = denoise(net, xin, float(parts[1]), neutral=a.neutral,
+                                              ensemble=a.ensemble)[0].numpy().transpose(1, 2, 0) * p
                             row[f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s] = psnr(out)
                     elif parts[0] == "pnp":
                         n, s1, s2 = int(parts[1]), float(parts[2]), float(parts[3])

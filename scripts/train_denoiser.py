@@ -231,7 +231,8 @@ def pair_batch(pairs: dict, n: int, patch: int, g: torch.Generator):
 @torch.no_grad()
 def validate_pairs(net: SpectralUNet, pairs: dict) -> dict:
     """Mean PSNR (dB, peak of the iterate) of the network's output against the truth on the pairs of each stage,
-    and of the input (the GAP-TV iterate itself) — the output's is one-call PnP's PSNR on those renders."""
+    and of the input (the GAP-TV iterate itself) — the output's is one-call PnP's PSNR on those renders. The
+    network as trained (``neutral=False``: training never neutralises the mean colour; round 4's log reproduces)."""
     from diffcassi.denoiser import denoise
     net.eval()
     res = {}
@@ -240,7 +241,7 @@ def validate_pairs(net: SpectralUNet, pairs: dict) -> dict:
         if not bool(sel.any()):
             continue
         x, t = pairs["inputs"][sel], pairs["targets"][sel]
-        out = torch.cat([denoise(net, x[i:i + 8], pairs["sigma"][sel][i:i + 8]) for i in range(0, len(x), 8)])
+        out = torch.cat([denoise(net, x[i:i + 8], pairs["sigma"][sel][i:i + 8], neutral=False) for i in range(0, len(x), 8)])
         res[name] = float(psnr_db(out, t).mean())
         res[f"{name}_input"] = float(psnr_db(x, t).mean())
     net.train()

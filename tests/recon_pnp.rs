@@ -153,6 +153,58 @@ fn denoiser_is_bit_identical_for_any_thread_count() {
     assert_ne!(a, x, "the network changed nothing");
 }
 
+/// Round 5 (MODEL.md): the mean-colour neutralisation makes the denoiser commute with a change of the mean
+/// colour (x + c, Σ_b c_b = 0 ↦ out + c; the network alone does not), and the self-ensemble commutes with the
+/// dihedral transforms (a transposed input, 22×17 — padding and H/W swapped — gives the transposed output)
+/// and differs from one pass; both bit-identical for 1 and 2 threads.
+#[test]
+fn neutralisation_and_self_ensemble_are_equivariant() {
+    let shape = CubeShape { height: 22, width: 17, bands: BANDS };
+    let x = scene(shape.height, shape.width, BANDS);
+    let c: Vec<f32> = (0..BANDS).map(|b| 0.08 * ((b as f32) * 0.7).sin()).collect();
+    let mean_c = c.iter().sum::<f32>() / BANDS as f32;
+    let xc: Vec<f32> = x.iter().enumerate().map(|(i, v)| v + c[i % BANDS] - mean_c).collect();
+    let run = |net: &mut SpectralUNet, x: &[f32], shape: CubeShape| {
+        let mut out = vec![0.0f32; shape.len()];
+        net.denoise(x, &mut out, shape, 0.05).unwrap();
+        out
+    };
+    let mut net = SpectralUNet::embedded().unwrap();
+    assert!(!net.neutral && !net.self_ensemble, "defaults: rounds 1–4's inference (PnP unchanged)");
+    net.neutral = true;
+    let (a, b) = (run(&mut net, &x, shape), run(&mut net, &xc, shape));
+    let worst = a.iter().zip(&b).enumerate().map(|(i, (p, q))| (q - p - (c[i % BANDS] - mean_c)).abs()).fold(0.0f32, f32::max);
+    assert!(worst < 1e-5, "neutralised: colour shift not carried through ({worst})");
+    net.neutral = false;
+    let (ra, rb) = (run(&mut net, &x, shape), run(&mut net, &xc, shape));
+    let worst_raw = ra.iter().zip(&rb).enumerate().map(|(i, (p, q))| (q - p - (c[i % BANDS] - mean_c)).abs()).fold(0.0f32, f32::max);
+    assert!(worst_raw > 1e-3, "the network alone should not commute ({worst_raw})");
+    // Self-ensemble: transpose = a quarter turn and a flip, one of the eight transforms.
+    let mut net = SpectralUNet::embedded().unwrap();
+    net.self_ensemble = true;
+    let tshape = CubeShape { height: shape.width, width: shape.height, bands: BANDS };
+    let transpose = |v: &[f32], h: usize, w: usize| {
+        let mut t = vec![0.0f32; v.len()];
+        for r in 0..h {
+            for col in 0..w {
+                t[(col * h + r) * BANDS..][..BANDS].copy_from_slice(&v[(r * w + col) * BANDS..][..BANDS]);
+            }
+        }
+        t
+    };
+    let e = run(&mut net, &x, shape);
+    let et = run(&mut net, &transpose(&x, shape.height, shape.width), tshape);
+    let worst_t = transpose(&e, shape.height, shape.width).iter().zip(&et).map(|(p, q)| (p - q).abs()).fold(0.0f32, f32::max);
+    assert!(worst_t < 1e-5, "self-ensemble not transpose-equivariant ({worst_t})");
+    assert!(e.iter().zip(&a).any(|(p, q)| (p - q).abs() > 1e-3), "the self-ensemble equals one pass");
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+    let e2 = pool.install(|| run(&mut net, &x, shape));
+    let pool1 = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let e1 = pool1.install(|| run(&mut net, &x, shape));
+    assert!(e1.iter().zip(&e2).all(|(p, q)| p.to_bits() == q.to_bits()), "1 vs 2 threads differ");
+    assert_eq!(net.describe()["self_ensemble"], true);
+}
+
 /// PnP's input scale is robust to outliers (issue 22: the mapping cells' ±290 voxels collapsed PnP): one
 /// voxel at 100× the peak no longer sets the scale, and the network's output away from it stays what it is
 /// without the outlier; dividing by the maximum (the former scale) ruins it. Without outliers the scale is

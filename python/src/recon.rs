@@ -318,10 +318,11 @@ fn _reconstruct<'py>(
 
 /// The learned denoiser (`spectral-unet-v2`) on `cube` (H, W, B) float32 with noise level `sigma` (standard
 /// deviation on the cube's scale: the network was trained on cubes of peak ≈ 1); `weights`: a safetensors
-/// file (default: the embedded checkpoint). Returns the denoised cube (H, W, B) float32.
+/// file (default: the embedded checkpoint); `neutral`: mean-colour neutralisation (default off), `ensemble`: the
+/// geometric self-ensemble (8× the time), as `diffcassi.denoiser.denoise`. Returns the denoised cube (H, W, B) float32.
 #[pyfunction]
-#[pyo3(signature = (cube, sigma, weights = None))]
-fn denoise<'py>(py: Python<'py>, cube: &Bound<'py, PyAny>, sigma: f64, weights: Option<String>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+#[pyo3(signature = (cube, sigma, weights = None, neutral = false, ensemble = false))]
+fn denoise<'py>(py: Python<'py>, cube: &Bound<'py, PyAny>, sigma: f64, weights: Option<String>, neutral: bool, ensemble: bool) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
     if !(sigma.is_finite() && sigma >= 0.0) {
         return Err(value_error(format!("sigma = {sigma}: must be finite and ≥ 0")));
     }
@@ -331,6 +332,8 @@ fn denoise<'py>(py: Python<'py>, cube: &Bound<'py, PyAny>, sigma: f64, weights: 
     let x = a.slice();
     let out = run(py, || -> diffcassi::Result<Vec<f32>> {
         let mut net = SpectralUNet::load(weights.as_deref().map(std::path::Path::new))?;
+        net.neutral = neutral;
+        net.self_ensemble = ensemble;
         let mut out = vec![0.0f32; shape.len()];
         net.denoise(x, &mut out, shape, sigma as f32)?;
         Ok(out)

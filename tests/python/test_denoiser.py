@@ -367,3 +367,56 @@ def test_numpy_tv_matches_its_definition():
         assert ev.psnr_db(u, clean) > ev.psnr_db(noisy, clean) + 5
         # TV preserves the mean (div p sums to zero with the Neumann boundary).
         assert abs(u.mean() - noisy.mean()) < 1e-5
+
+
+def _orange_constant(size=24):
+    """A constant cube of a saturated orange (retina's mean colour, sRGB ≈ (0.97, 0.45, 0.2)) uplifted by Smits'
+    method: the case of round 5's diagnosis (src/recon/prior/MODEL.md)."""
+    from diffcassi.smits import srgb_to_reflectance
+    spec = srgb_to_reflectance(np.array([0.97, 0.45, 0.2]).reshape(3, 1, 1), deadleaves.BANDS_NM)[:, 0, 0]
+    return torch.from_numpy(np.ascontiguousarray(
+        np.broadcast_to((spec / spec.max())[:, None, None], (len(spec), size, size)), dtype=np.float32))[None]
+
+
+def test_neutralisation_keeps_a_saturated_constant_cube():
+    """Round 5: the committed network shifts a saturated cube's mean colour (a per-band bias); with the mean
+    colour neutralised (``neutral=True``) a constant cube comes back nearly unchanged."""
+    net = load_weights(WEIGHTS / f"{ARCH}-28.safetensors", bands=28)
+    x = _orange_constant()
+    with torch.no_grad():
+        raw = denoise(net, x, 0.05, neutral=False)
+        neu = denoise(net, x, 0.05, neutral=True)
+    bias = lambda y: float(((y - x).mean(dim=(2, 3)) ** 2).mean().sqrt())
+    assert bias(raw) > 0.008, bias(raw)  # the failure the neutralisation removes (0.016 measured on retina)
+    assert bias(neu) < 0.4 * bias(raw), (bias(neu), bias(raw))
+
+
+def test_neutralised_denoiser_commutes_with_a_colour_shift():
+    """x ↦ x + c with Σ_b c_b = 0 (a change of the mean colour, not of the mean level) shifts the output by c."""
+    net = load_weights(WEIGHTS / f"{ARCH}-28.safetensors", bands=28)
+    g = torch.Generator().manual_seed(3)
+    x = torch.from_numpy(deadleaves.dead_leaves(4, size=20))[None] + 0.05 * torch.randn(1, 28, 20, 20, generator=g)
+    c = 0.1 * torch.randn(1, 28, 1, 1, generator=g)
+    c = c - c.mean()
+    with torch.no_grad():
+        a, b = denoise(net, x, 0.05, neutral=True), denoise(net, x + c, 0.05, neutral=True)
+        raw_a, raw_b = denoise(net, x, 0.05), denoise(net, x + c, 0.05)  # the default: not neutralised
+    assert (b - a - c).abs().max() < 1e-5
+    assert (raw_b - raw_a - c).abs().max() > 1e-3  # the network alone does not (the test can fail)
+
+
+def test_self_ensemble_is_dihedrally_equivariant_and_differs_from_one_pass():
+    """The self-ensemble averages the eight flips/rotations: its output of a transformed input is the
+    transformed output (any size: 10×14 needs padding and swaps H and W under a quarter turn)."""
+    net = load_weights(WEIGHTS / f"{ARCH}-28.safetensors", bands=28)
+    x = torch.from_numpy(deadleaves.dead_leaves(5, size=20))[None, :, :10, :14].contiguous()
+    x = x + 0.05 * torch.randn(x.shape, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        e = denoise(net, x, 0.05, ensemble=True)
+        one = denoise(net, x, 0.05)
+        e_rot = denoise(net, torch.rot90(x, 1, dims=(2, 3)), 0.05, ensemble=True)
+        e_flip = denoise(net, torch.flip(x, dims=(2,)), 0.05, ensemble=True)
+    assert e.shape == x.shape
+    assert (e_rot - torch.rot90(e, 1, dims=(2, 3))).abs().max() < 1e-5
+    assert (e_flip - torch.flip(e, dims=(2,))).abs().max() < 1e-5
+    assert (e - one).abs().max() > 1e-3

@@ -34,6 +34,17 @@
 //! of 4: the cube is padded at the bottom/right by edge replication and the output cropped, as `denoise()` in
 //! `diffcassi/denoiser.py` does.
 //!
+//! **Mean-colour neutralisation** ([`SpectralUNet::neutral`]; round 5 of MODEL.md): the graph sees
+//! `x − m + ḡ` (m the cube's per-band spatial mean, ḡ its mean over the bands) and `m − ḡ` is added back.
+//! The committed network shifts a saturated cube's mean colour (retina's orange: a constant cube of its mean
+//! spectrum comes back with a per-band bias of 0.015 RMS at σ 0.05); neutralised, the colour it sees is grey,
+//! where its training colours are dense (the Gaussian benchmark: retina +4.5 dB at σ 0.02, mean +0.9 dB).
+//! Off by default: on PnP's iterates (round 4 fine-tuned the weights on them un-neutralised) one-call PnP
+//! lost 0.03 dB with it, and the mean follows an outlier voxel (a voxel at 100× the peak moved the output
+//! 12 px away by 0.056 of the peak, `tests/recon_pnp.rs`'s bound is 0.02).
+//! **Self-ensemble** ([`SpectralUNet::self_ensemble`], off by default: 8× the time): the mean over the eight
+//! flips/rotations ([`DIHEDRAL`]) of the denoised transformed cube, +0.6–0.7 dB on the benchmark.
+//!
 //! ```no_run
 //! use diffcassi::recon::prior::{network::SpectralUNet, Denoiser};
 //! use diffcassi::recon::CubeShape;
@@ -85,7 +96,34 @@ pub struct SpectralUNet {
     pub source: String,
     /// CRC-32 of the weights file's bytes.
     pub crc32: u32,
+    /// Mean-colour neutralisation (default off, so PnP is unchanged; round 5, MODEL.md): the graph sees
+    /// `x − m + ḡ` (m the cube's per-band spatial mean, ḡ the mean of m over the bands) and the output gets
+    /// `m − ḡ` back, as `denoise(…, neutral=True)` in `diffcassi/denoiser.py`.
+    pub neutral: bool,
+    /// Geometric self-ensemble (default off: 8× the time): the mean over the eight dihedral transforms
+    /// (quarter turns × a width flip, in [`DIHEDRAL`]'s order), as `denoise(…, ensemble=True)`.
+    pub self_ensemble: bool,
     layers: Vec<Layer>,
+}
+
+/// The self-ensemble's transforms, in the order both inferences sum them: (quarter turns k, flip) = a rotation
+/// by k·90° as `torch.rot90(x, k, dims=(H, W))` (k = 1 maps out\[r\]\[c\] = in\[c\]\[W−1−r\]), then a reversal
+/// of the width axis if flip.
+pub const DIHEDRAL: [(u8, bool); 8] = [(0, false), (0, true), (1, false), (1, true), (2, false), (2, true), (3, false), (3, true)];
+
+/// Source (row, col) in an `h`×`w` image of output pixel (r, c) of `torch.rot90(·, k)` followed (if `flip`)
+/// by a width reversal; the output is `w`×`h` for odd k. The same map serves both ways: the forward transform
+/// gathers from the source pixel, the back-transform adds the output at (r, c) to it.
+fn dihedral_src(k: u8, flip: bool, h: usize, w: usize, r: usize, c: usize) -> (usize, usize) {
+    let ow = if k % 2 == 1 { h } else { w };
+    let c = if flip { ow - 1 - c } else { c };
+    // torch.rot90(x, 1, dims=(H, W)): out[r][c] = in[c][W−1−r]; k = 2: in[H−1−r][W−1−c]; k = 3: in[H−1−c][r].
+    match k % 4 {
+        0 => (r, c),
+        1 => (c, w - 1 - r),
+        2 => (h - 1 - r, w - 1 - c),
+        _ => (h - 1 - c, r),
+    }
 }
 
 /// (name, transposed, C_in, C_out, kernel, bias) of every layer, in `diffcassi/denoiser.py`'s order;
@@ -178,7 +216,7 @@ impl SpectralUNet {
         if let Some(extra) = st.names().into_iter().find(|n| !expected.contains(*n)) {
             return Err(ferr(source, format!("tensor `{extra}` is not part of {ARCH} (expected {} tensors: lat_enc, head, …, tail, lat_dec, bypass)", expected.len())));
         }
-        Ok(SpectralUNet { bands, width, latent, source: source.to_string(), crc32: crc32fast::hash(bytes), layers })
+        Ok(SpectralUNet { bands, width, latent, source: source.to_string(), crc32: crc32fast::hash(bytes), neutral: false, self_ensemble: false, layers })
     }
 
     /// Tensor `name` of the file, checked: present, f32, of `shape`, finite.
@@ -269,6 +307,72 @@ impl Denoiser for SpectralUNet {
         if !sigma.is_finite() || sigma < 0.0 {
             return Err(Error::invalid(format!("denoiser: the noise level σ = {sigma} must be finite and ≥ 0")));
         }
+        // Mean-colour neutralisation: shift_b = m_b − ḡ (f64 sums; PyTorch's f32 mean agrees to ~1e-7).
+        let shift: Vec<f32> = if self.neutral {
+            let mut m = vec![0.0f64; b];
+            for px in x.chunks_exact(b) {
+                for (a, v) in m.iter_mut().zip(px) {
+                    *a += *v as f64;
+                }
+            }
+            let n = (h * w) as f64;
+            let g = m.iter().sum::<f64>() / (n * b as f64);
+            m.iter().map(|a| (a / n - g) as f32).collect()
+        } else {
+            vec![0.0; b]
+        };
+        let xs: Vec<f32> = x.chunks_exact(b).flat_map(|px| px.iter().zip(&shift).map(|(v, s)| v - s)).collect();
+        if !self.self_ensemble {
+            self.run(&xs, out, h, w, sigma)?;
+        } else {
+            // Σ over the transforms of T⁻¹(net(T x)), then / 8 (the order of DIHEDRAL, as PyTorch sums it).
+            let mut acc = vec![0.0f32; shape.len()];
+            let mut t = vec![0.0f32; shape.len()];
+            let mut o = vec![0.0f32; shape.len()];
+            for (k, flip) in DIHEDRAL {
+                let (th, tw) = if k % 2 == 1 { (w, h) } else { (h, w) };
+                for r in 0..th {
+                    for c in 0..tw {
+                        let (sr, sc) = dihedral_src(k, flip, h, w, r, c);
+                        t[(r * tw + c) * b..][..b].copy_from_slice(&xs[(sr * w + sc) * b..][..b]);
+                    }
+                }
+                self.run(&t, &mut o, th, tw, sigma)?;
+                // Back: output pixel (r, c) of the transformed image came from (sr, sc) of the original.
+                for r in 0..th {
+                    for c in 0..tw {
+                        let (sr, sc) = dihedral_src(k, flip, h, w, r, c);
+                        for (a, v) in acc[(sr * w + sc) * b..][..b].iter_mut().zip(&o[(r * tw + c) * b..][..b]) {
+                            *a += *v;
+                        }
+                    }
+                }
+            }
+            for (d, a) in out.iter_mut().zip(&acc) {
+                *d = a / DIHEDRAL.len() as f32;
+            }
+        }
+        for px in out.chunks_exact_mut(b) {
+            for (v, s) in px.iter_mut().zip(&shift) {
+                *v += s;
+            }
+        }
+        if let Some(i) = out.iter().position(|v| !v.is_finite()) {
+            return Err(Error::invalid(format!("denoiser ({}): output value {i} is not finite (input out of the network's range?)", self.source)));
+        }
+        Ok(())
+    }
+
+    fn describe(&self) -> serde_json::Value {
+        serde_json::json!({ "name": ARCH, "weights": self.source, "weights_crc32": self.crc32, "bands": self.bands, "width": self.width, "latent": self.latent, "neutral_mean_colour": self.neutral, "self_ensemble": self.self_ensemble })
+    }
+}
+
+impl SpectralUNet {
+    /// The graph on one h×w cube `[row][col][band]` (already neutralised), padded to multiples of 4 by edge
+    /// replication and cropped back into `out`.
+    fn run(&self, x: &[f32], out: &mut [f32], h: usize, w: usize, sigma: f32) -> Result<()> {
+        let b = self.bands;
         // (1, B, Hp, Wp), padded at the bottom/right by edge replication, and the σ plane.
         let (hp, wp) = (h.div_ceil(4) * 4, w.div_ceil(4) * 4);
         let plane = hp * wp;
@@ -294,13 +398,6 @@ impl Denoiser for SpectralUNet {
                 }
             }
         }
-        if let Some(i) = out.iter().position(|v| !v.is_finite()) {
-            return Err(Error::invalid(format!("denoiser ({}): output value {i} is not finite (input out of the network's range?)", self.source)));
-        }
         Ok(())
-    }
-
-    fn describe(&self) -> serde_json::Value {
-        serde_json::json!({ "name": ARCH, "weights": self.source, "weights_crc32": self.crc32, "bands": self.bands, "width": self.width, "latent": self.latent })
     }
 }
