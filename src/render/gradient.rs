@@ -431,29 +431,14 @@ impl DiffRenderer {
 
     /// For every detector pixel (x, y): Σ_{ki,kj} w[ki,kj] · img[y − dir·(ki − half), x − dir·(kj − half)] over
     /// the taps inside the detector, handed to `emit(pixel, sum)`. `dir` = 1 is the convolution K ⊛ img,
-    /// `dir` = −1 its transpose (the correlation Kᵀ img); the f32 renderer's tiled paths are
-    /// `render::convolve`, this is the f64 reference the gradients need.
+    /// `dir` = −1 its transpose (the correlation Kᵀ img); in f64, tiled with no bounds test per tap
+    /// ([`super::convolve::kernel_pass_f64`], the same sums as the plain double loop bit for bit).
     fn kernel_pass(&self, k: &Kernel64, img: &[f64], dir: isize, mut emit: impl FnMut(usize, f64)) {
-        let (w, h, half) = (self.detector.width as isize, self.detector.height as isize, k.half as isize);
-        let n = 2 * half + 1;
-        for y in 0..h {
-            for x in 0..w {
-                let mut acc = 0.0;
-                for ki in 0..n {
-                    let sy = y - dir * (ki - half);
-                    if sy < 0 || sy >= h {
-                        continue;
-                    }
-                    for kj in 0..n {
-                        let sx = x - dir * (kj - half);
-                        if sx >= 0 && sx < w {
-                            acc += k.w[(ki * n + kj) as usize] * img[(sy * w + sx) as usize];
-                        }
-                    }
-                }
-                emit((y * w + x) as usize, acc);
+        super::convolve::kernel_pass_f64(&k.w, k.half, img, self.detector.width, self.detector.height, dir, &mut |i, sums: &[f64]| {
+            for (j, &acc) in sums.iter().enumerate() {
+                emit(i + j, acc);
             }
-        }
+        });
     }
 
     /// An arrived open-pixel ray of pixel `q` landing at `uv`: its bilinear taps contracted with the
