@@ -334,7 +334,10 @@ pub const TILE_F64: usize = 32;
 /// img[2 * w + 2] = 1.0;
 /// let mut out = vec![0.0; w * h];
 /// kernel_pass_f64(&k, 1, &img, w, h, 1, &mut |i, s: &[f64]| out[i..i + s.len()].copy_from_slice(s));
-/// assert_eq!((out[2 * w + 2], out[3 * w + 2], out[2 * w + 3]), (0.5, 0.25, 0.25));
+/// // K ⊛ δ at (2, 2): tap (ki, kj) lands at (2 − (kj − 1), 2 − (ki − 1)).
+/// assert_eq!((out[2 * w + 2], out[w + 2], out[2 * w + 1]), (0.5, 0.25, 0.25));
+/// kernel_pass_f64(&k, 1, &img, w, h, -1, &mut |i, s: &[f64]| out[i..i + s.len()].copy_from_slice(s));
+/// assert_eq!((out[2 * w + 2], out[3 * w + 2], out[2 * w + 3]), (0.5, 0.25, 0.25)); // its transpose
 /// ```
 pub fn kernel_pass_f64<F: FnMut(usize, &[f64])>(weights: &[f64], half: usize, img: &[f64], width: usize, height: usize, dir: isize, emit: &mut F) {
     kernel_pass_f64_with(BlurPath::detect(), weights, half, img, width, height, dir, emit)
