@@ -524,9 +524,16 @@ class _RenderFn(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g):  # type: ignore[override]
-        gp, gm, gs = ctx.r.vjp(ctx.s, ctx.m, np.ascontiguousarray(g.detach().cpu().numpy(), dtype=np.float64))
+        # Only the gradients autograd asks for are computed (a frozen mask, cube or θ does not pay: no reverse
+        # sweep without θ, the closed mask pixels' rays not traced without the mask); the others are None.
+        want_cube, want_mask, want_theta = ctx.needs_input_grad[:3]
+        if not (want_cube or want_mask or want_theta):
+            return None, None, None, None
+        gp, gm, gs = ctx.r.vjp(ctx.s, ctx.m, np.ascontiguousarray(g.detach().cpu().numpy(), dtype=np.float64),
+                               params=want_theta, mask_grad=want_mask, scene_grad=want_cube)
         dc, dm, dt = ctx.dtypes
-        return torch.from_numpy(gs).to(dc), torch.from_numpy(gm).to(dm), torch.from_numpy(gp).to(dt), None
+        conv = lambda a, dtype: None if a is None else torch.from_numpy(a).to(dtype)  # noqa: E731
+        return conv(gs, dc), conv(gm, dm), conv(gp, dt), None
 
 
 class CassiRenderer(nn.Module):
@@ -550,6 +557,12 @@ class CassiRenderer(nn.Module):
 
     The Monte-Carlo samples are fixed (``seed``): the gradient is that of the sampled acquisition, exact
     where no ray changes status; the detector and the entrance-pupil aim are fixed at construction.
+
+    Only the gradients autograd needs are computed (``ctx.needs_input_grad``): freeze the mask
+    (``r.mask_logits.requires_grad_(False)``) and the rays of closed mask pixels (value exactly 0, e.g.
+    with ``straight_through=True``) are not traced; freeze ``theta`` and no ray is swept backwards; a cube
+    that does not require grad gets no scene gradient. The gradients computed are bit-identical to those of
+    the backward that computes all three.
     """
 
     def __init__(self, system: "diffcassi.System", H: int, W: int, free: Sequence[str] = ("prism_tilt_x",),

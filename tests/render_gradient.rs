@@ -532,3 +532,79 @@ fn sweep_hit_adjoint_is_the_transpose_of_the_hit_tangent() {
         assert!((lhs - rhs).abs() <= 1e-13 * lhs.abs().max(1.0), "{s:?}: {lhs} vs {rhs}");
     }
 }
+
+/// `vjp_wanted` (torch's `needs_input_grad`): for every combination of wanted gradients, on the SIMD lanes
+/// and the scalar kernel, with closed and open (continuous) mask pixels and N = 2, the wanted gradients
+/// are bit-identical to those of `vjp` (all three) and the others come back empty; wanting nothing
+/// computes nothing.
+#[test]
+fn wanted_gradients_are_bit_identical_to_the_full_vjp() {
+    use diffcassi::render::gradient::Wanted;
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    for kernel in [diffcassi::tracer::Kernel::default(), diffcassi::tracer::Kernel::Scalar] {
+        let mut cfg = config(6, 3, 3, 5);
+        cfg.kernel = kernel;
+        let r = renderer(sp_like("msp"), &["s4.tilt_x_deg", "s16.curvature", "glass_nd:N-BK7"], cfg);
+        let (scene, mask, g) = inputs(&r, 9);
+        assert!(mask.contains(&0.0) && mask.iter().any(|m| *m > 0.0 && *m < 1.0));
+        let all = r.vjp(&scene, 2, &mask, &g).unwrap();
+        assert!(all.mask.iter().zip(&mask).any(|(gm, m)| *m == 0.0 && *gm != 0.0), "closed pixels have a mask gradient");
+        for code in 0..8u8 {
+            let wanted = Wanted { params: code & 1 != 0, mask: code & 2 != 0, scene: code & 4 != 0 };
+            let v = r.vjp_wanted(&scene, 2, &mask, &g, wanted).unwrap();
+            let pick = |on: bool, full: &[f64]| if on { bits(full) } else { Vec::new() };
+            assert_eq!(bits(&v.params), pick(wanted.params, &all.params), "{kernel:?} {wanted:?}: parameters");
+            assert_eq!(bits(&v.mask), pick(wanted.mask, &all.mask), "{kernel:?} {wanted:?}: mask");
+            assert_eq!(bits(&v.scene), pick(wanted.scene, &all.scene), "{kernel:?} {wanted:?}: scene");
+        }
+        // The default is everything.
+        assert_eq!(Wanted::default(), Wanted::ALL);
+        // Bad input is still refused when only some gradients are wanted.
+        let only = Wanted { params: true, mask: false, scene: false };
+        let e = r.vjp_wanted(&scene, 2, &mask, &[0.0; 3], only).unwrap_err().to_string();
+        assert!(e.contains("upstream gradient has 3 values"), "{e}");
+    }
+}
+
+/// The differentiable renderer's tiled f64 blur and its transpose (`render::convolve::kernel_pass_f64`)
+/// equal the plain double loop over the in-image taps bit for bit, on every SIMD path: odd sizes, widths
+/// below and above a tile, Airy kernels with zero taps, values of both signs.
+#[test]
+fn tiled_f64_blur_equals_the_plain_double_loop() {
+    use diffcassi::render::convolve::{kernel_pass_f64_with, BlurPath};
+    use diffcassi::render::AiryKernel;
+    let mut rng = Rng(31);
+    for lambda in [450.0, 650.0] {
+        let k = AiryKernel::for_wavelength(lambda, 2.5, 520.0, 3).unwrap();
+        let wts: Vec<f64> = k.weights.iter().map(|&v| v as f64).collect();
+        assert!(wts.contains(&0.0), "the kernel has zero taps");
+        let (half, n) = (k.half as isize, 2 * k.half as isize + 1);
+        for (w, h) in [(37usize, 23usize), (70, 9), (5, 3), (1, 1), (33, 2)] {
+            let img: Vec<f64> = rng.vec(w * h).into_iter().map(|v| v - 0.3).collect();
+            for dir in [1isize, -1] {
+                let mut want = vec![0.0f64; w * h];
+                for y in 0..h as isize {
+                    for x in 0..w as isize {
+                        let mut acc = 0.0;
+                        for ki in 0..n {
+                            let sy = y - dir * (ki - half);
+                            for kj in 0..n {
+                                let sx = x - dir * (kj - half);
+                                if sy >= 0 && sy < h as isize && sx >= 0 && sx < w as isize {
+                                    acc += wts[(ki * n + kj) as usize] * img[(sy * w as isize + sx) as usize];
+                                }
+                            }
+                        }
+                        want[(y * w as isize + x) as usize] = acc;
+                    }
+                }
+                for path in BlurPath::available() {
+                    let mut got = vec![f64::NAN; w * h];
+                    kernel_pass_f64_with(path, &wts, k.half, &img, w, h, dir, &mut |i, s: &[f64]| got[i..i + s.len()].copy_from_slice(s));
+                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&got), bits(&want), "{path:?} {w}×{h} dir {dir} λ {lambda}");
+                }
+            }
+        }
+    }
+}

@@ -8,7 +8,7 @@ use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::system::PySystem;
 use diffcassi::diff::ParamSet;
-use diffcassi::render::gradient::DiffRenderer;
+use diffcassi::render::gradient::{DiffRenderer, Wanted};
 use diffcassi::render::{AiryConfig, RenderConfig, SpectralSampling};
 use numpy::PyArrayDyn;
 use pyo3::prelude::*;
@@ -101,16 +101,25 @@ impl PyDiffRenderer {
     }
 
     /// The vector–Jacobian product for the upstream gradient `grad` (N, h, w) float64:
-    /// (∂L/∂θ (P,), ∂L/∂mask (H, W), ∂L/∂scene (N, B, H, W)).
-    fn vjp<'py>(&self, py: Python<'py>, scene: &Bound<'py, PyAny>, mask: &Bound<'py, PyAny>, grad: &Bound<'py, PyAny>) -> PyResult<(Arr<'py>, Arr<'py>, Arr<'py>)> {
+    /// (∂L/∂θ (P,), ∂L/∂mask (H, W), ∂L/∂scene (N, B, H, W)). `params`, `mask`, `scene` say which are
+    /// wanted (torch's `needs_input_grad`); one not wanted is `None` and its work is skipped (no reverse
+    /// sweep without `params`, the closed mask pixels' rays not traced without `mask`); the others are
+    /// bit-identical to those of the call that wants all three.
+    #[pyo3(signature = (scene, mask, grad, params = true, mask_grad = true, scene_grad = true))]
+    #[allow(clippy::too_many_arguments)]
+    fn vjp<'py>(&self, py: Python<'py>, scene: &Bound<'py, PyAny>, mask: &Bound<'py, PyAny>, grad: &Bound<'py, PyAny>, params: bool, mask_grad: bool, scene_grad: bool) -> PyResult<(Option<Arr<'py>>, Option<Arr<'py>>, Option<Arr<'py>>)> {
         let s = input::<f64>("scene", scene, "float64", 4, "(N, B, H, W)")?;
         let m = input::<f64>("mask", mask, "float64", 2, "(H, W)")?;
         let g = input::<f64>("grad", grad, "float64", 3, "(N, h, w)")?;
         let n = self.batch(&s.shape)?;
         let (ss, ms, gs) = (s.slice(), m.slice(), g.slice());
-        let v = run(py, || self.inner.vjp(ss, n, ms, gs)).py()?;
+        let wanted = Wanted { params, mask: mask_grad, scene: scene_grad };
+        let v = run(py, || self.inner.vjp_wanted(ss, n, ms, gs, wanted)).py()?;
         let (p, sh) = (v.params.len(), s.shape.clone());
-        Ok((output(py, v.params, &[p])?, output(py, v.mask, &[sh[2], sh[3]])?, output(py, v.scene, &sh)?))
+        let gp = if params { Some(output(py, v.params, &[p])?) } else { None };
+        let gm = if mask_grad { Some(output(py, v.mask, &[sh[2], sh[3]])?) } else { None };
+        let gsc = if scene_grad { Some(output(py, v.scene, &sh)?) } else { None };
+        Ok((gp, gm, gsc))
     }
 
     /// The chief-ray mapping cube at `wavelengths_nm` and its Jacobian: (positions (H, W, L, 2) mm,

@@ -310,6 +310,111 @@ fn correlate_body<F: FnMut(usize, usize, usize, &[f32; TILE])>(k: &AiryKernel, y
     }
 }
 
+/// Output pixels of one f64 tile of [`kernel_pass_f64`] (4 AVX-512 / 8 AVX2 vectors).
+pub const TILE_F64: usize = 32;
+
+/// The f64 blur of the differentiable renderer ([`super::gradient`]) and its adjoint, on a dense
+/// row-major `width × height` image: for every pixel (x, y) the sum
+/// Σ_{ki, kj} w[ki, kj] · img[y − dir·(ki − half), x − dir·(kj − half)] over the taps that fall inside the
+/// image, kernel rows outer and columns inner, each product rounded before its addition; `dir = 1` is the
+/// convolution K ⊛ img, `dir = −1` its transpose (the correlation Kᵀ img). `emit(i, sums)` receives the
+/// sums of the pixels i .. i + sums.len() of one row (a tile of at most [`TILE_F64`]).
+///
+/// Tiled as [`convolve`]: the image is copied into a zero-margined buffer ([`PaddedLayout`]) so that a
+/// tile is accumulated in registers with no bounds test per tap; kernel rows outside the image and zero
+/// taps are skipped. Every sum is bit-identical to the plain double loop over the in-image taps: the terms
+/// this adds or skips beyond those are products with a zero, ±0, added to a sum that starts at +0 and is
+/// never −0 (finite inputs), which leaves it unchanged; the other terms come in the same order.
+///
+/// ```
+/// use diffcassi::render::convolve::kernel_pass_f64;
+/// let (w, h) = (5, 4);
+/// let k = [0.0, 0.25, 0.0, 0.25, 0.5, 0.0, 0.0, 0.0, 0.0]; // half = 1
+/// let mut img = vec![0.0; w * h];
+/// img[2 * w + 2] = 1.0;
+/// let mut out = vec![0.0; w * h];
+/// kernel_pass_f64(&k, 1, &img, w, h, 1, &mut |i, s: &[f64]| out[i..i + s.len()].copy_from_slice(s));
+/// // K ⊛ δ at (2, 2): tap (ki, kj) lands at (2 − (kj − 1), 2 − (ki − 1)).
+/// assert_eq!((out[2 * w + 2], out[w + 2], out[2 * w + 1]), (0.5, 0.25, 0.25));
+/// kernel_pass_f64(&k, 1, &img, w, h, -1, &mut |i, s: &[f64]| out[i..i + s.len()].copy_from_slice(s));
+/// assert_eq!((out[2 * w + 2], out[3 * w + 2], out[2 * w + 3]), (0.5, 0.25, 0.25)); // its transpose
+/// ```
+pub fn kernel_pass_f64<F: FnMut(usize, &[f64])>(weights: &[f64], half: usize, img: &[f64], width: usize, height: usize, dir: isize, emit: &mut F) {
+    kernel_pass_f64_with(BlurPath::detect(), weights, half, img, width, height, dir, emit)
+}
+
+/// [`kernel_pass_f64`] on a given path (falls back to the portable one if the CPU lacks it).
+#[allow(clippy::too_many_arguments)]
+pub fn kernel_pass_f64_with<F: FnMut(usize, &[f64])>(path: BlurPath, weights: &[f64], half: usize, img: &[f64], width: usize, height: usize, dir: isize, emit: &mut F) {
+    let n = 2 * half + 1;
+    assert_eq!(weights.len(), n * n, "kernel of half-width {half} needs {} weights", n * n);
+    assert_eq!(img.len(), width * height, "image buffer does not match {width}×{height}");
+    assert!(dir == 1 || dir == -1, "dir must be ±1");
+    if width == 0 || height == 0 {
+        return;
+    }
+    let lay = PaddedLayout::new(width, height, half);
+    let mut src = vec![0.0f64; lay.len()];
+    for (y, row) in img.chunks_exact(width).enumerate() {
+        let o = lay.index(0, y);
+        src[o..o + width].copy_from_slice(row);
+    }
+    #[cfg(target_arch = "x86_64")]
+    match path {
+        // SAFETY: the CPU supports the feature (checked in each arm).
+        BlurPath::Avx512 if std::arch::is_x86_feature_detected!("avx512f") => return unsafe { pass_f64_avx512(weights, half, &src, &lay, dir, emit) },
+        BlurPath::Avx2 if std::arch::is_x86_feature_detected!("avx2") => return unsafe { pass_f64_avx2(weights, half, &src, &lay, dir, emit) },
+        _ => {}
+    }
+    let _ = path;
+    pass_f64_body(weights, half, &src, &lay, dir, emit)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn pass_f64_avx512<F: FnMut(usize, &[f64])>(weights: &[f64], half: usize, src: &[f64], lay: &PaddedLayout, dir: isize, emit: &mut F) {
+    pass_f64_body(weights, half, src, lay, dir, emit)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn pass_f64_avx2<F: FnMut(usize, &[f64])>(weights: &[f64], half: usize, src: &[f64], lay: &PaddedLayout, dir: isize, emit: &mut F) {
+    pass_f64_body(weights, half, src, lay, dir, emit)
+}
+
+#[inline(always)]
+fn pass_f64_body<F: FnMut(usize, &[f64])>(weights: &[f64], half: usize, src: &[f64], lay: &PaddedLayout, dir: isize, emit: &mut F) {
+    let (h, n, width, height) = (half as isize, 2 * half + 1, lay.width, lay.height as isize);
+    for y in 0..lay.height {
+        let mut x = 0;
+        while x < width {
+            let mut acc = [0.0f64; TILE_F64];
+            for ki in 0..n {
+                // Source row y − dir·(ki − half); columns x + l − dir·(kj − half) for the tile's pixel l.
+                let sy = y as isize - dir * (ki as isize - h);
+                if sy < 0 || sy >= height {
+                    continue;
+                }
+                let base = lay.index(x, sy as usize) - half;
+                let row = &src[base..base + TILE_F64 + 2 * half];
+                for (kj, &w) in weights[ki * n..(ki + 1) * n].iter().enumerate() {
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let off = if dir == 1 { 2 * half - kj } else { kj };
+                    let s: &[f64; TILE_F64] = row[off..off + TILE_F64].try_into().expect("a tile of source values");
+                    for l in 0..TILE_F64 {
+                        acc[l] += w * s[l];
+                    }
+                }
+            }
+            let valid = TILE_F64.min(width - x);
+            emit(y * width + x, &acc[..valid]);
+            x += TILE_F64;
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -28,7 +28,10 @@
 //! are traced keeping their per-step states and swept backwards once, a block of [`LANES`] rays at a
 //! time on the same SIMD lanes ([`crate::tracer::simd::record`], [`crate::diff::adjoint_lanes`]); with
 //! `config.kernel = Kernel::Scalar` every ray goes through the scalar kernel and the scalar sweep
-//! ([`crate::diff::adjoint`], the reference) instead.
+//! ([`crate::diff::adjoint`], the reference) instead. [`DiffRenderer::vjp_wanted`] computes only the
+//! gradients a [`Wanted`] names (torch's `needs_input_grad`): without ∂L/∂θ no ray is swept backwards,
+//! without ∂L/∂mask the closed pixels' rays are not traced; the gradients it does compute are bit for bit
+//! those of [`DiffRenderer::vjp`]. The blur's adjoint is tiled in f64 ([`super::convolve::kernel_pass_f64`]).
 //!
 //! Deterministic: planes are processed in parallel, each in a fixed order (within a plane each lane of
 //! the reverse sweep sums its rays in order, and the lanes are summed in lane order at the plane's end),
@@ -99,11 +102,11 @@ pub struct DiffRenderer {
 /// The gradients of a scalar loss given its gradient g with respect to the acquisition.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Vjp {
-    /// ∂L/∂θ, one per free parameter (per spec unit: mm, degrees, …).
+    /// ∂L/∂θ, one per free parameter (per spec unit: mm, degrees, …); empty when not [`Wanted`].
     pub params: Vec<f64>,
-    /// ∂L/∂mask, (H, W) row-major.
+    /// ∂L/∂mask, (H, W) row-major; empty when not wanted.
     pub mask: Vec<f64>,
-    /// ∂L/∂scene, (N, B, H, W).
+    /// ∂L/∂scene, (N, B, H, W); empty when not wanted.
     pub scene: Vec<f64>,
 }
 
@@ -134,6 +137,71 @@ struct PlaneInputs<'a> {
     k0: usize,
     k1: usize,
     tw: f64,
+    /// Rays per pixel; detector pixels; scene pixels; scene bands.
+    nr: f64,
+    npix: usize,
+    hw: usize,
+    nb: usize,
+    wanted: Wanted,
+}
+
+/// The bilinear taps of one landing ([`DiffRenderer::taps4`]).
+struct Taps {
+    index: [usize; 4],
+    wt: [f64; 4],
+    du: [f64; 4],
+    dv: [f64; 4],
+    count: usize,
+}
+
+/// The values of the scene pixel whose rays are being processed (a pixel's rays come one after another):
+/// per image s, val[s] = the plane's (unmasked) scene value and vm[s] = val[s]·m, m the mask value.
+struct PixelVals {
+    q: usize,
+    m: f64,
+    val: Vec<f64>,
+    vm: Vec<f64>,
+}
+
+impl PixelVals {
+    fn new(n: usize) -> Self {
+        PixelVals { q: usize::MAX, m: 0.0, val: vec![0.0; n], vm: vec![0.0; n] }
+    }
+
+    /// Make these pixel `q`'s values ([`crate::scene::SpectralCube::interpolation`]'s arithmetic).
+    #[inline]
+    fn at(&mut self, pin: &PlaneInputs, q: usize) {
+        if self.q == q {
+            return;
+        }
+        self.q = q;
+        self.m = pin.mask[q];
+        for s in 0..pin.n {
+            let val = (1.0 - pin.tw) * pin.scene[(s * pin.nb + pin.k0) * pin.hw + q] + pin.tw * pin.scene[(s * pin.nb + pin.k1) * pin.hw + q];
+            self.val[s] = val;
+            self.vm[s] = val * self.m;
+        }
+    }
+}
+
+/// Which gradients [`DiffRenderer::vjp_wanted`] computes (as torch's `needs_input_grad`): the optical
+/// parameters' ∂L/∂θ, the mask's ∂L/∂mask, the scene's ∂L/∂scene. [`Wanted::ALL`] is the default.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Wanted {
+    pub params: bool,
+    pub mask: bool,
+    pub scene: bool,
+}
+
+impl Wanted {
+    /// Every gradient.
+    pub const ALL: Wanted = Wanted { params: true, mask: true, scene: true };
+}
+
+impl Default for Wanted {
+    fn default() -> Self {
+        Wanted::ALL
+    }
 }
 
 /// What one plane's backward pass returns.
@@ -330,21 +398,6 @@ impl DiffRenderer {
         (p.is_finite() && d.is_finite() && p.abs().max_element() <= crate::limits::MAX_IMAGE_COORD_MM).then(|| self.detector.to_pixel(p.x, p.y))
     }
 
-    /// The bilinear taps of a landing: (detector index, weight, ∂weight/∂u, ∂weight/∂v), taps off the
-    /// detector dropped (as the renderer loses them).
-    fn taps(&self, (u, v): (f64, f64)) -> impl Iterator<Item = (usize, f64, f64, f64)> {
-        let (dw, dh) = (self.detector.width as i64, self.detector.height as i64);
-        let (j, i) = (u.floor(), v.floor());
-        let (fu, fv) = (u - j, v - i);
-        let (j, i) = (j as i64, i as i64);
-        [(0, 0, (1.0 - fu) * (1.0 - fv), -(1.0 - fv), -(1.0 - fu)), (0, 1, fu * (1.0 - fv), 1.0 - fv, -fu), (1, 0, (1.0 - fu) * fv, -fv, 1.0 - fu), (1, 1, fu * fv, fv, fu)]
-            .into_iter()
-            .filter_map(move |(di, dj, wt, du, dv)| {
-                let (r, c) = (i + di, j + dj);
-                (r >= 0 && r < dh && c >= 0 && c < dw).then(|| ((r * dw + c) as usize, wt, du, dv))
-            })
-    }
-
     /// Render the acquisitions of `n` scenes (scene (N, B, H, W) row-major, mask (H, W)): (N, h, w),
     /// row-major. Errors: wrong shapes, non-finite values, no ray reaching the detector.
     pub fn render(&self, scene: &[f64], n: usize, mask: &[f64]) -> Result<Vec<f64>> {
@@ -373,9 +426,10 @@ impl DiffRenderer {
                             for (s, v) in vals.iter_mut().enumerate() {
                                 *v = ((1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q]) * mask[q] / nr;
                             }
-                            for (t, wt, _, _) in self.taps(uv) {
+                            let t = self.taps4(uv);
+                            for k in 0..t.count {
                                 for (s, v) in vals.iter().enumerate() {
-                                    img[s * npix + t] += v * wt;
+                                    img[s * npix + t.index[k]] += v * t.wt[k];
                                 }
                             }
                         }
@@ -431,55 +485,69 @@ impl DiffRenderer {
 
     /// For every detector pixel (x, y): Σ_{ki,kj} w[ki,kj] · img[y − dir·(ki − half), x − dir·(kj − half)] over
     /// the taps inside the detector, handed to `emit(pixel, sum)`. `dir` = 1 is the convolution K ⊛ img,
-    /// `dir` = −1 its transpose (the correlation Kᵀ img); the f32 renderer's tiled paths are
-    /// `render::convolve`, this is the f64 reference the gradients need.
+    /// `dir` = −1 its transpose (the correlation Kᵀ img); in f64, tiled with no bounds test per tap
+    /// ([`super::convolve::kernel_pass_f64`], the same sums as the plain double loop bit for bit).
     fn kernel_pass(&self, k: &Kernel64, img: &[f64], dir: isize, mut emit: impl FnMut(usize, f64)) {
-        let (w, h, half) = (self.detector.width as isize, self.detector.height as isize, k.half as isize);
-        let n = 2 * half + 1;
-        for y in 0..h {
-            for x in 0..w {
-                let mut acc = 0.0;
-                for ki in 0..n {
-                    let sy = y - dir * (ki - half);
-                    if sy < 0 || sy >= h {
-                        continue;
-                    }
-                    for kj in 0..n {
-                        let sx = x - dir * (kj - half);
-                        if sx >= 0 && sx < w {
-                            acc += k.w[(ki * n + kj) as usize] * img[(sy * w + sx) as usize];
-                        }
-                    }
-                }
-                emit((y * w + x) as usize, acc);
+        super::convolve::kernel_pass_f64(&k.w, k.half, img, self.detector.width, self.detector.height, dir, &mut |i, sums: &[f64]| {
+            for (j, &acc) in sums.iter().enumerate() {
+                emit(i + j, acc);
             }
-        }
+        });
     }
 
-    /// An arrived open-pixel ray of pixel `q` landing at `uv`: its bilinear taps contracted with the
-    /// blurred upstream gradient give its mask and scene gradients (added to `out`) and ∂L/∂(landing
-    /// x, y) in mm, returned (the λ its reverse sweep starts from).
-    fn open_ray(&self, pin: &PlaneInputs, q: usize, uv: (f64, f64), out: &mut PlaneGrad, bufs: &mut [Vec<f64>; 3]) -> (f64, f64) {
-        let (hw, nb, nr, npix) = (self.config.scene_height * self.config.scene_width, self.scene_wavelengths_nm.len(), self.sampler.rays as f64, self.detector.pixels());
-        let [tb, ub, vb] = bufs;
-        out.arrived += 1;
-        tb.iter_mut().chain(ub.iter_mut()).chain(vb.iter_mut()).for_each(|v| *v = 0.0);
-        for (t, wt, du, dv) in self.taps(uv) {
-            for s in 0..pin.n {
-                let gv = pin.gb[s * npix + t];
-                tb[s] += wt * gv;
-                ub[s] += du * gv;
-                vb[s] += dv * gv;
+    /// The bilinear taps of a landing: detector index, weight, ∂weight/∂u, ∂weight/∂v of the first `count`
+    /// of the four taps (those on the detector, in order; taps off the detector dropped, as the renderer
+    /// loses them).
+    #[inline]
+    fn taps4(&self, (u, v): (f64, f64)) -> Taps {
+        let (dw, dh) = (self.detector.width as i64, self.detector.height as i64);
+        let (j, i) = (u.floor(), v.floor());
+        let (fu, fv) = (u - j, v - i);
+        let (j, i) = (j as i64, i as i64);
+        let all = [(0, 0, (1.0 - fu) * (1.0 - fv), -(1.0 - fv), -(1.0 - fu)), (0, 1, fu * (1.0 - fv), 1.0 - fv, -fu), (1, 0, (1.0 - fu) * fv, -fv, 1.0 - fu), (1, 1, fu * fv, fv, fu)];
+        let mut t = Taps { index: [0; 4], wt: [0.0; 4], du: [0.0; 4], dv: [0.0; 4], count: 0 };
+        for (di, dj, wt, du, dv) in all {
+            let (r, c) = (i + di, j + dj);
+            if r >= 0 && r < dh && c >= 0 && c < dw {
+                let k = t.count;
+                (t.index[k], t.wt[k], t.du[k], t.dv[k]) = ((r * dw + c) as usize, wt, du, dv);
+                t.count += 1;
             }
         }
+        t
+    }
+
+    /// An arrived ray of pixel `px.q` landing at `uv`: its bilinear taps contracted with the blurred
+    /// upstream gradient give its mask gradient (added to `out.mask` when wanted), its scene gradient
+    /// (`scene`: added to `out.plane`; closed pixels have none) and, with `lambda`, ∂L/∂(landing x, y) in
+    /// mm, returned (the λ its reverse sweep starts from; else (0, 0)). Sample by sample, the terms are
+    /// those of the ray-by-ray loop and go into each pixel's sums in the same order (ray, then sample).
+    #[inline]
+    fn ray_grad(&self, pin: &PlaneInputs, px: &PixelVals, uv: (f64, f64), out: &mut PlaneGrad, scene: bool, lambda: bool) -> (f64, f64) {
+        let t = self.taps4(uv);
+        let (q, nr, npix, hw) = (px.q, pin.nr, pin.npix, pin.hw);
         let (mut u_bar, mut v_bar) = (0.0, 0.0);
-        let m = pin.mask[q];
         for s in 0..pin.n {
-            let val = (1.0 - pin.tw) * pin.scene[(s * nb + pin.k0) * hw + q] + pin.tw * pin.scene[(s * nb + pin.k1) * hw + q];
-            out.mask[q] += val * tb[s] / nr;
-            out.plane[s * hw + q] += m * tb[s] / nr;
-            u_bar += val * m * ub[s] / nr;
-            v_bar += val * m * vb[s] / nr;
+            let g = &pin.gb[s * npix..(s + 1) * npix];
+            let (mut tb, mut ub, mut vb) = (0.0, 0.0, 0.0);
+            for k in 0..t.count {
+                let gv = g[t.index[k]];
+                tb += t.wt[k] * gv;
+                if lambda {
+                    ub += t.du[k] * gv;
+                    vb += t.dv[k] * gv;
+                }
+            }
+            if pin.wanted.mask {
+                out.mask[q] += px.val[s] * tb / nr;
+            }
+            if scene {
+                out.plane[s * hw + q] += px.m * tb / nr;
+            }
+            if lambda {
+                u_bar += px.vm[s] * ub / nr;
+                v_bar += px.vm[s] * vb / nr;
+            }
         }
         // (u, v) = ((x − x_left)/pitch − ½, (y_top − y)/pitch − ½).
         let pitch = self.detector.pitch_mm;
@@ -487,9 +555,18 @@ impl DiffRenderer {
     }
 
     /// The vector–Jacobian product of [`Self::render`] at (scene, mask) for the upstream gradient `g`
-    /// (N, h, w): ∂L/∂θ, ∂L/∂mask, ∂L/∂scene. Errors: wrong shapes, a non-finite g (naming the entry),
-    /// no ray reaching the detector.
+    /// (N, h, w): ∂L/∂θ, ∂L/∂mask, ∂L/∂scene (all three: [`Self::vjp_wanted`] with [`Wanted::ALL`]).
+    /// Errors: wrong shapes, a non-finite g (naming the entry), no ray reaching the detector.
     pub fn vjp(&self, scene: &[f64], n: usize, mask: &[f64], g: &[f64]) -> Result<Vjp> {
+        self.vjp_wanted(scene, n, mask, g, Wanted::ALL)
+    }
+
+    /// [`Self::vjp`] computing only the gradients `wanted` says (torch's `needs_input_grad`); the others
+    /// come back empty. Each wanted gradient is bit-identical to [`Self::vjp`]'s. Skipped with them: without
+    /// the parameters' gradient, the recording trace and reverse sweep (open-pixel rays go through the
+    /// production lanes for their landings only); without the mask's, the rays of closed mask pixels
+    /// (value exactly 0), whose only use is the mask gradient, are not traced.
+    pub fn vjp_wanted(&self, scene: &[f64], n: usize, mask: &[f64], g: &[f64], wanted: Wanted) -> Result<Vjp> {
         self.check_inputs(scene, n, mask)?;
         let npix = self.detector.pixels();
         let (h, w) = self.image_shape();
@@ -499,59 +576,68 @@ impl DiffRenderer {
         if let Some(i) = g.iter().position(|v| !v.is_finite()) {
             return Err(Error::invalid(format!("upstream gradient entry {i} (image {}, row {}, column {}) is {} (must be finite)", i / npix, (i % npix) / w, i % w, g[i])));
         }
-        let kk = self.ds.k();
+        let kk = if wanted.params { self.ds.k() } else { 0 };
         let (hw, nb, nr) = (self.config.scene_height * self.config.scene_width, self.scene_wavelengths_nm.len(), self.sampler.rays as f64);
+        let empty = |on: bool, len: usize| if on { vec![0.0; len] } else { Vec::new() };
+        if !(wanted.params || wanted.mask || wanted.scene) {
+            return Ok(Vjp { params: Vec::new(), mask: Vec::new(), scene: Vec::new() });
+        }
         let planes: Vec<Result<PlaneGrad>> = (0..self.config.spectral.planes())
             .into_par_iter()
             .map(|p| {
                 let l = self.config.spectral.planes_nm[p];
-                let (idx, dn) = self.ds.index_tangents(l)?;
+                let (idx, dn) = if wanted.params { self.ds.index_tangents(l)? } else { (self.ds.system.indices(l)?, Vec::new()) };
                 let (k0, k1, tw) = self.interpolation(p);
                 let mut gb = vec![0.0f64; n * npix];
                 for s in 0..n {
                     self.blur_adjoint(p, &g[s * npix..(s + 1) * npix], &mut gb[s * npix..(s + 1) * npix]);
                 }
-                let mut out = PlaneGrad { params: vec![0.0; kk], mask: vec![0.0; hw], plane: vec![0.0; n * hw], arrived: 0 };
+                let mut out = PlaneGrad { params: vec![0.0; kk], mask: empty(wanted.mask, hw), plane: empty(wanted.scene, n * hw), arrived: 0 };
                 let mut sums = AdjointSums::new(&self.plan);
                 let (mut tape, mut ltape, mut lanes) = (RayTape::default(), LaneTape::default(), LaneSums::new(&self.plan));
                 let tables = [idx.as_slice(); LANES];
-                let pin = PlaneInputs { scene, mask, gb: &gb, n, k0, k1, tw };
-                let mut bufs = [vec![0.0; n], vec![0.0; n], vec![0.0; n]];
-                let mut tb = vec![0.0; n];
+                let pin = PlaneInputs { scene, mask, gb: &gb, n, k0, k1, tw, nr, npix, hw, nb, wanted };
+                let mut px = PixelVals::new(n);
                 let (mut closed, mut open, mut land) = (Vec::new(), Vec::new(), Vec::new());
                 self.for_rows(
                     p,
-                    |_| true,
+                    // Without the mask gradient, closed pixels' rays have no use.
+                    |q| wanted.mask || mask[q] != 0.0,
                     |rays| {
                         // Closed pixels (mask exactly 0) carry no light: their rays need only where they land,
                         // for the mask gradient (no θ-adjoint), so they go through the production lanes.
-                        closed.clear();
-                        closed.extend((0..rays.pixel.len()).filter(|&i| mask[rays.pixel[i]] == 0.0));
-                        self.land_all(&idx, rays, &closed, &mut land);
-                        for (&i, uv) in closed.iter().zip(&land) {
-                            let Some(uv) = *uv else { continue };
-                            let q = rays.pixel[i];
-                            out.arrived += 1;
-                            tb.iter_mut().for_each(|v| *v = 0.0);
-                            for (t, wt, _, _) in self.taps(uv) {
-                                for s in 0..n {
-                                    tb[s] += wt * gb[s * npix + t];
-                                }
-                            }
-                            for s in 0..n {
-                                let val = (1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q];
-                                out.mask[q] += val * tb[s] / nr;
+                        if wanted.mask {
+                            closed.clear();
+                            closed.extend((0..rays.pixel.len()).filter(|&i| mask[rays.pixel[i]] == 0.0));
+                            self.land_all(&idx, rays, &closed, &mut land);
+                            for (&i, uv) in closed.iter().zip(&land) {
+                                let Some(uv) = *uv else { continue };
+                                px.at(&pin, rays.pixel[i]);
+                                self.ray_grad(&pin, &px, uv, &mut out, false, false);
                             }
                         }
-                        // Open pixels (any non-zero mask value, a continuous mask's included): traced with
-                        // the per-step states kept, then swept backwards once — a block of rays at a time on
-                        // the SIMD lanes, or ray by ray with the scalar kernel (`Kernel::Scalar`).
+                        // Open pixels (any non-zero mask value, a continuous mask's included).
                         open.clear();
                         open.extend((0..rays.pixel.len()).filter(|&i| mask[rays.pixel[i]] != 0.0));
+                        if !wanted.params {
+                            // No θ-adjoint: where the rays land is all the mask and scene gradients need.
+                            self.land_all(&idx, rays, &open, &mut land);
+                            for (&i, uv) in open.iter().zip(&land) {
+                                let Some(uv) = *uv else { continue };
+                                out.arrived += 1;
+                                px.at(&pin, rays.pixel[i]);
+                                self.ray_grad(&pin, &px, uv, &mut out, wanted.scene, false);
+                            }
+                            return;
+                        }
+                        // Traced with the per-step states kept, then swept backwards once — a block of
+                        // rays at a time on the SIMD lanes, or ray by ray with the scalar kernel.
                         let Some(level) = self.simd else {
                             for &i in &open {
                                 let Some(uv) = self.landing(self.plan.trace(&self.ds, &idx, rays.origin[i], rays.dir[i], &mut tape)) else { continue };
-                                let (lx, ly) = self.open_ray(&pin, rays.pixel[i], uv, &mut out, &mut bufs);
+                                out.arrived += 1;
+                                px.at(&pin, rays.pixel[i]);
+                                let (lx, ly) = self.ray_grad(&pin, &px, uv, &mut out, wanted.scene, true);
                                 if lx != 0.0 || ly != 0.0 {
                                     self.plan.backward(&self.ds, &mut tape, [lx, ly, 0.0, 0.0, 0.0, 0.0], &mut sums);
                                 }
@@ -568,7 +654,9 @@ impl DiffRenderer {
                             let mut active = Mask::splat(false);
                             for (k, &i) in chunk.iter().enumerate() {
                                 let Some(uv) = self.landing(b.result(k)) else { continue };
-                                let (lx, ly) = self.open_ray(&pin, rays.pixel[i], uv, &mut out, &mut bufs);
+                                out.arrived += 1;
+                                px.at(&pin, rays.pixel[i]);
+                                let (lx, ly) = self.ray_grad(&pin, &px, uv, &mut out, wanted.scene, true);
                                 if lx != 0.0 || ly != 0.0 {
                                     (lambda[0].0[k], lambda[1].0[k], active.0[k]) = (lx, ly, true);
                                 }
@@ -579,24 +667,28 @@ impl DiffRenderer {
                         }
                     },
                 );
-                lanes.add_to(&mut sums);
-                self.plan.contract(&self.ds, &sums, &dn, &mut out.params);
+                if wanted.params {
+                    lanes.add_to(&mut sums);
+                    self.plan.contract(&self.ds, &sums, &dn, &mut out.params);
+                }
                 Ok(out)
             })
             .collect();
-        let mut v = Vjp { params: vec![0.0; kk], mask: vec![0.0; hw], scene: vec![0.0; n * nb * hw] };
+        let mut v = Vjp { params: vec![0.0; kk], mask: empty(wanted.mask, hw), scene: empty(wanted.scene, n * nb * hw) };
         let mut arrived = 0;
         for (p, r) in planes.into_iter().enumerate() {
             let pg = r?;
             arrived += pg.arrived;
             v.params.iter_mut().zip(&pg.params).for_each(|(a, b)| *a += b);
             v.mask.iter_mut().zip(&pg.mask).for_each(|(a, b)| *a += b);
-            let (k0, k1, tw) = self.interpolation(p);
-            for s in 0..n {
-                for q in 0..hw {
-                    let gq = pg.plane[s * hw + q];
-                    v.scene[(s * nb + k0) * hw + q] += (1.0 - tw) * gq;
-                    v.scene[(s * nb + k1) * hw + q] += tw * gq;
+            if wanted.scene {
+                let (k0, k1, tw) = self.interpolation(p);
+                for s in 0..n {
+                    for q in 0..hw {
+                        let gq = pg.plane[s * hw + q];
+                        v.scene[(s * nb + k0) * hw + q] += (1.0 - tw) * gq;
+                        v.scene[(s * nb + k1) * hw + q] += tw * gq;
+                    }
                 }
             }
         }

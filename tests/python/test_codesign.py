@@ -105,3 +105,41 @@ def test_codesign_example_loss_decreases():
     assert np.isfinite(losses).all()
     assert np.mean(losses[-3:]) < np.mean(losses[:3]), losses
     assert len(res["psnr_after"]) == 6
+
+
+def test_only_the_gradients_autograd_needs_are_computed_bit_identical():
+    """A frozen mask, cube or θ is not differentiated (``ctx.needs_input_grad``); the gradients that are
+    computed equal those of the backward that computes all three, bit for bit (straight-through mask: half
+    the pixels closed, whose rays are then not traced)."""
+    r = dt.CassiRenderer(diffcassi.System.preset("msp"), 5, 5, free=["prism_tilt_x", "glass_nd:N-BK7"], rays=2,
+                         planes=3, seed=2, bands_nm=BANDS, straight_through=True, mask_seed=3)
+    cube0 = torch.rand(2, 3, 5, 5, generator=torch.Generator().manual_seed(1), dtype=torch.float64)
+
+    def grads(mask_on, theta_on, cube_on):
+        r.zero_grad(set_to_none=True)
+        r.mask_logits.requires_grad_(mask_on)
+        r.theta.requires_grad_(theta_on)
+        cube = cube0.clone().requires_grad_(cube_on)
+        (r(cube) ** 2).sum().backward()
+        return r.mask_logits.grad, r.theta.grad, cube.grad
+
+    full = grads(True, True, True)
+    assert all(g is not None for g in full)
+    assert (r.binary_mask() == 0).any() and (r.binary_mask() == 1).any()
+    for on in [(False, True, False), (True, False, False), (False, False, True), (True, True, False), (False, True, True)]:
+        got = grads(*on)
+        for want, g, f in zip(on, got, full):
+            if want:
+                assert g is not None and torch.equal(g, f), on
+            else:
+                assert g is None, on
+    # The native call: a gradient not wanted is None.
+    base = r._renderer(r.theta)
+    s = np.ascontiguousarray(cube0.numpy())
+    m = np.ascontiguousarray(r.mask().detach().double().numpy())
+    g = np.ones((2,) + tuple(r.image_shape))
+    gp, gm, gs = base.vjp(s, m, g, params=True, mask_grad=False, scene_grad=False)
+    assert gm is None and gs is None and gp.shape == (2,)
+    assert np.array_equal(gp, base.vjp(s, m, g)[0])
+    r.mask_logits.requires_grad_(True)
+    r.theta.requires_grad_(True)
