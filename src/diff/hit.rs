@@ -96,21 +96,8 @@ impl SurfaceLocal {
         let r2 = x * x + y * y;
         let (mut f1, mut f2, mut c, mut k, mut s) = (0.0, 0.0, 0.0, 0.0, 1.0);
         if let Some((cc, kk, alpha)) = figure(shape) {
-            c = cc;
-            k = kk;
-            s = (1.0 - (1.0 + k) * c * c * r2).max(0.0).sqrt();
-            if c != 0.0 {
-                f1 = c / (2.0 * s);
-                f2 = (1.0 + k) * c * c * c / (4.0 * s * s * s);
-            }
-            // Σ αᵢ r^(2i): P′ = Σ i αᵢ r2^(i−1), P″ = Σ i(i−1) αᵢ r2^(i−2).
-            for (j, a) in alpha.iter().enumerate() {
-                let i = (j + 1) as f64;
-                f1 += i * a * r2.powi(j as i32);
-                if j >= 1 {
-                    f2 += i * (i - 1.0) * a * r2.powi(j as i32 - 1);
-                }
-            }
+            (c, k) = (cc, kk);
+            (f1, f2, s) = sag_derivatives(c, k, alpha, r2);
         }
         let m = DVec3::new(-2.0 * f1 * x, -2.0 * f1 * y, 1.0);
         let m_len = m.length();
@@ -139,6 +126,27 @@ impl SurfaceLocal {
         let dn = (dm - self.normal * self.normal.dot(dm)) / self.m_len;
         HitTangent { point: dq, t: dt, normal: dn }
     }
+}
+
+/// The radial derivatives of the sag f(r2) of the figure (c, k, α) at r2 = x² + y², with s = √(1 − (1+k)c²r2):
+/// (f′ = df/d(r2), f″ = d²f/d(r2)², s) — the conic's c/(2s), (1+k)c³/(4s³) plus the even asphere's
+/// Σ αᵢ r^(2i): P′ = Σ i αᵢ r2^(i−1), P″ = Σ i(i−1) αᵢ r2^(i−2).
+#[inline]
+fn sag_derivatives(c: f64, k: f64, alpha: &[f64], r2: f64) -> (f64, f64, f64) {
+    let (mut f1, mut f2) = (0.0, 0.0);
+    let s = (1.0 - (1.0 + k) * c * c * r2).max(0.0).sqrt();
+    if c != 0.0 {
+        f1 = c / (2.0 * s);
+        f2 = (1.0 + k) * c * c * c / (4.0 * s * s * s);
+    }
+    for (j, a) in alpha.iter().enumerate() {
+        let i = (j + 1) as f64;
+        f1 += i * a * r2.powi(j as i32);
+        if j >= 1 {
+            f2 += i * (i - 1.0) * a * r2.powi(j as i32 - 1);
+        }
+    }
+    (f1, f2, s)
 }
 
 /// (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ) along a shape tangent at a point (x, y), r2 = x² + y², of the figure
@@ -212,18 +220,7 @@ impl SweepLocal {
             f1 = 0.5 * c * inv_s;
             f2 = 0.25 * (1.0 + k) * c * c * c * inv_s * inv_s * inv_s;
         } else if !flat {
-            s = (1.0 - (1.0 + k) * c * c * r2).max(0.0).sqrt();
-            if c != 0.0 {
-                f1 = c / (2.0 * s);
-                f2 = (1.0 + k) * c * c * c / (4.0 * s * s * s);
-            }
-            for (j, a) in alpha.iter().enumerate() {
-                let i = (j + 1) as f64;
-                f1 += i * a * r2.powi(j as i32);
-                if j >= 1 {
-                    f2 += i * (i - 1.0) * a * r2.powi(j as i32 - 1);
-                }
-            }
+            (f1, f2, s) = sag_derivatives(c, k, alpha, r2);
         }
         SweepLocal { f1, f2, x, y, r2, c, k, s, normal, flat }
     }
