@@ -101,9 +101,9 @@ impl PyDiffRenderer {
     }
 
     /// The vector–Jacobian product for the upstream gradient `grad` (N, h, w) float64:
-    /// (∂L/∂θ (P,), ∂L/∂mask (H, W), ∂L/∂scene (N, B, H, W)). `params`, `mask`, `scene` say which are
+    /// (∂L/∂θ (P,), ∂L/∂mask (H, W), ∂L/∂scene (N, B, H, W)). `params`, `mask_grad`, `scene_grad` say which are
     /// wanted (torch's `needs_input_grad`); one not wanted is `None` and its work is skipped (no reverse
-    /// sweep without `params`, the closed mask pixels' rays not traced without `mask`); the others are
+    /// sweep without `params`, the closed mask pixels' rays not traced without `mask_grad`); the others are
     /// bit-identical to those of the call that wants all three.
     #[pyo3(signature = (scene, mask, grad, params = true, mask_grad = true, scene_grad = true))]
     #[allow(clippy::too_many_arguments)]
