@@ -71,9 +71,10 @@ pub(crate) fn figure(shape: &SurfaceShape) -> Option<(f64, f64, &[f64])> {
     }
 }
 
-/// Sag as f(r²): the local first- and second-order data needed at a hit.
+/// The sag f(r²) at a hit point (x, y), r2 = x² + y²: f′, f″ and the figure (c, k, s = √(1 − (1+k)c²r2))
+/// that [`SurfaceLocal`] (forward tangents) and [`SweepLocal`] (the reverse sweep) share.
 #[derive(Clone, Copy, Debug)]
-pub struct SurfaceLocal {
+struct SagLocal {
     /// f′(r²), f″(r²) (sag = f(r²)).
     f1: f64,
     f2: f64,
@@ -83,6 +84,27 @@ pub struct SurfaceLocal {
     c: f64,
     k: f64,
     s: f64,
+}
+
+impl SagLocal {
+    /// (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ) along a shape tangent ([`figure_partials`]).
+    #[inline]
+    fn partials(&self, t: &ShapeTangent) -> (f64, f64, f64) {
+        figure_partials(self.c, self.k, self.s, self.r2, self.x, self.y, t)
+    }
+
+    /// The sag's Hessian H = 2f′ I + 4f″ (x, y)(x, y)ᵀ as (H_xx, H_xy, H_yy).
+    #[inline]
+    fn hessian(&self) -> (f64, f64, f64) {
+        let (x, y) = (self.x, self.y);
+        (2.0 * self.f1 + 4.0 * self.f2 * x * x, 4.0 * self.f2 * x * y, 2.0 * self.f1 + 4.0 * self.f2 * y * y)
+    }
+}
+
+/// Sag as f(r²): the local first- and second-order data needed at a hit.
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceLocal {
+    sag: SagLocal,
     /// m = (−sx, −sy, 1) and |m|.
     pub m: DVec3,
     pub m_len: f64,
@@ -101,12 +123,12 @@ impl SurfaceLocal {
         }
         let m = DVec3::new(-2.0 * f1 * x, -2.0 * f1 * y, 1.0);
         let m_len = m.length();
-        SurfaceLocal { f1, f2, x, y, r2, c, k, s, m, m_len, normal: m / m_len }
+        SurfaceLocal { sag: SagLocal { f1, f2, x, y, r2, c, k, s }, m, m_len, normal: m / m_len }
     }
 
     /// (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ) along a shape tangent.
     pub(crate) fn param_partials(&self, t: &ShapeTangent) -> (f64, f64, f64) {
-        figure_partials(self.c, self.k, self.s, self.r2, self.x, self.y, t)
+        self.sag.partials(t)
     }
 
     /// The hit tangent for a ray through the hit with unit direction `d`, where `dray` = δp + t·δd is the
@@ -117,11 +139,7 @@ impl SurfaceLocal {
         // ∇F = m (F = z − sag); ∂F/∂θ = −∂sag/∂θ.
         let dt = -(-dsag + self.m.dot(dray)) / self.m.dot(d);
         let dq = dray + d * dt;
-        // Hessian of the sag: H = 2f′ I + 4f″ (x, y)(x, y)ᵀ.
-        let (x, y) = (self.x, self.y);
-        let hxx = 2.0 * self.f1 + 4.0 * self.f2 * x * x;
-        let hxy = 4.0 * self.f2 * x * y;
-        let hyy = 2.0 * self.f1 + 4.0 * self.f2 * y * y;
+        let (hxx, hxy, hyy) = self.sag.hessian();
         let dm = DVec3::new(-(hxx * dq.x + hxy * dq.y + dsx), -(hxy * dq.x + hyy * dq.y + dsy), 0.0);
         let dn = (dm - self.normal * self.normal.dot(dm)) / self.m_len;
         HitTangent { point: dq, t: dt, normal: dn }
@@ -192,14 +210,7 @@ pub(crate) fn figure_partials(c: f64, k: f64, s: f64, r2: f64, x: f64, y: f64, t
 /// operations exactly: the two sweeps give the same bits.
 #[derive(Clone, Copy, Debug)]
 pub struct SweepLocal {
-    f1: f64,
-    f2: f64,
-    x: f64,
-    y: f64,
-    r2: f64,
-    c: f64,
-    k: f64,
-    s: f64,
+    sag: SagLocal,
     normal: DVec3,
     flat: bool,
 }
@@ -222,13 +233,13 @@ impl SweepLocal {
         } else if !flat {
             (f1, f2, s) = sag_derivatives(c, k, alpha, r2);
         }
-        SweepLocal { f1, f2, x, y, r2, c, k, s, normal, flat }
+        SweepLocal { sag: SagLocal { f1, f2, x, y, r2, c, k, s }, normal, flat }
     }
 
     /// (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ) along a shape tangent ([`figure_partials`]).
     #[inline]
     pub fn param_partials(&self, t: &ShapeTangent) -> (f64, f64, f64) {
-        figure_partials(self.c, self.k, self.s, self.r2, self.x, self.y, t)
+        self.sag.partials(t)
     }
 
     /// The transpose of [`SurfaceLocal::tangent`] (reverse mode): for adjoints `q_bar` of δq and `n_bar`
@@ -244,10 +255,7 @@ impl SweepLocal {
         let dq_bar = if self.flat {
             q_bar
         } else {
-            let (x, y) = (self.x, self.y);
-            let hxx = 2.0 * self.f1 + 4.0 * self.f2 * x * x;
-            let hxy = 4.0 * self.f2 * x * y;
-            let hyy = 2.0 * self.f1 + 4.0 * self.f2 * y * y;
+            let (hxx, hxy, hyy) = self.sag.hessian();
             q_bar - DVec3::new(hxx * dm_bar.x + hxy * dm_bar.y, hxy * dm_bar.x + hyy * dm_bar.y, 0.0)
         };
         // δq = dray + d δt, δt = (δsag − m·dray)/(m·d), m = n/n_z: with r = (d·q̄′)/(n·d), δt̄ = r n_z
