@@ -12,7 +12,7 @@
 #![cfg(feature = "embree")]
 use diffcassi::prelude::*;
 use diffcassi::surfaces::MeshResolution;
-use diffcassi::tracer::embree::{with_flush_denormals, EmbreeOptions, EmbreeTracer, Ray, Refinement};
+use diffcassi::tracer::embree::{with_flush_denormals, EmbreeOptions, EmbreeTracer, FloorCallbacks, FloorScenes, Ray, Refinement, SceneOptions};
 
 fn bundle(sys: &SequentialSystem) -> RayBatch {
     let pupil = PupilPattern::Hexapolar { rings: 6 }.points();
@@ -97,6 +97,38 @@ fn coherent_packets_equal_single_rays() {
 /// consecutive rays per packet, all masks set, tnear = 0), lane by lane against `rtcIntersect1`, on the
 /// tracer's own scenes. Separates "the flag loses hits on fresh bundles" from "it loses them on rays
 /// restarted inside the scene" (docs/nonsequential.md, "Embree's coherent flag").
+/// The floor benchmark (`bench nonsequential --floor`, docs/nonsequential.md "Fourth pass"): recording the
+/// walk's packet queries changes no result bit, and replaying them — the same packets, through oracle
+/// callbacks that report the recorded hit and through the real callbacks — gives every lane its recorded
+/// answer (geometry and f32 distance, bit for bit) on SP and AP; a perturbed recorded ray is caught.
+#[test]
+fn floor_replay_reproduces_the_walks_queries() {
+    for preset in ["sp", "ap"] {
+        let sys = SequentialSystem::build(&presets::spec(preset).unwrap()).unwrap();
+        let rays = bundle(&sys);
+        let tracer = EmbreeTracer::new(EmbreeOptions::user(Refinement::F64));
+        let (traced, mut log) = tracer.record_queries(&sys, &rays).unwrap();
+        assert_eq!(traced, tracer.trace(&sys, &rays).unwrap(), "{preset}: recording changed the trace");
+        assert_eq!(log.steps.len(), rays.len());
+        let lanes = log.lane_queries();
+        // Every ray that reaches the detector crosses every interface: one query each at least.
+        let ok = traced.status.iter().filter(|s| **s == RayStatus::Ok).count();
+        assert!(ok > rays.len() / 2 && lanes > 5 * ok, "{preset}: {ok} rays ok, {lanes} lane queries");
+        let floor = FloorScenes::new(&sys, &SceneOptions::default()).unwrap();
+        let packets = log.packets();
+        for callbacks in [FloorCallbacks::NoQuery, FloorCallbacks::Oracle, FloorCallbacks::Exact] {
+            let r = floor.replay(&packets, callbacks);
+            assert_eq!(r.lane_queries, lanes, "{preset} {callbacks:?}");
+            assert_eq!(r.differing, 0, "{preset} {callbacks:?}: lanes answered differently from the record");
+            assert!(r.packet_queries * 16 >= lanes && r.packet_queries < lanes, "{preset} {callbacks:?}: {r:?}");
+        }
+        // A recorded ray started 0.5 mm further along: the real callbacks' distance differs.
+        let step = log.steps.iter_mut().flat_map(|s| s.iter_mut()).find(|q| q.geom_id != u32::MAX && q.tnear == 0.0).unwrap();
+        step.exact.org += step.exact.dir * 0.5;
+        assert!(floor.replay(&log.packets(), FloorCallbacks::Exact).differing >= 1, "{preset}: a perturbed replay went unnoticed");
+    }
+}
+
 #[test]
 #[ignore]
 fn coherent_first_queries_survey() {

@@ -207,6 +207,11 @@ pub struct BenchArgs {
     /// `tradeoff`, `nonsequential`: small workloads (under a minute on 2 cores); without it, the README's sizes.
     #[arg(long)]
     pub quick: bool,
+    /// `nonsequential`: row (a), then the floor of Embree as the sequential tracer (the walk's own packet
+    /// queries replayed with oracle or real callbacks, docs/nonsequential.md "Fourth pass") instead of
+    /// rows (b), (c) and the crossover.
+    #[arg(long)]
+    pub floor: bool,
 }
 
 #[derive(Args, Debug)]

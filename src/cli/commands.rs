@@ -637,6 +637,9 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
         if a.system.is_some() {
             return Err(Error::invalid("--system belongs to `diffcassi bench nonsequential` (`tradeoff` takes --preset)"));
         }
+        if a.floor {
+            return Err(Error::invalid("--floor belongs to `diffcassi bench nonsequential`"));
+        }
         return super::fidelity::bench_tradeoff(&a);
     }
     if a.mode.as_deref() == Some("nonsequential") {
@@ -644,6 +647,9 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
         return super::nonsequential::bench_nonsequential(&a);
         #[cfg(not(feature = "embree"))]
         return Err(Error::invalid("`bench nonsequential` needs the `embree` feature (this build has none)"));
+    }
+    if a.floor {
+        return Err(Error::invalid("--floor belongs to `diffcassi bench nonsequential`"));
     }
     if a.csv.is_some() || a.png.is_some() || a.quick || a.system.is_some() {
         return Err(Error::invalid("--csv, --png, --quick and --system belong to `diffcassi bench tradeoff|nonsequential`"));

@@ -1,7 +1,7 @@
 //! `diffcassi bench nonsequential`: where each backend wins (issue 23's benchmark table).
 //!
 //! ```text
-//! diffcassi bench nonsequential [--preset sp | --system SPEC] [--rays N] [--repeat R] [--quick] [--csv OUT]
+//! diffcassi bench nonsequential [--preset sp | --system SPEC] [--rays N] [--repeat R] [--quick] [--floor] [--csv OUT]
 //! ```
 //!
 //! Rows: **(a)** the system traced sequentially by the analytic SIMD kernel, Embree over analytic user
@@ -13,7 +13,9 @@
 //! triangle in f64) against Embree (f32 BVH + f64 re-solve of the hit triangle), one thread each; and
 //! the **crossover**: the same on a triangle, a square, a cube and one lens tube from 4 to 256 segments, and the triangle count where
 //! Embree's time per query falls below brute force's (log–log interpolation). Every Embree hit is compared
-//! with brute force's (same part and point within 1e-6 mm) on the rays both ran.
+//! with brute force's (same part and point within 1e-6 mm) on the rays both ran. With `--floor`, row (a)
+//! and then the floor of Embree as the sequential tracer (its own packet queries replayed with oracle
+//! callbacks, with the real ones, and the full walk, beside the analytic kernel: `bench_floor`).
 use super::args::BenchArgs;
 use super::shared::cpu_seconds;
 use crate::analysis::linspace;
@@ -137,6 +139,15 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
         println!("| {} | {:.2} | {:.1}× | {:.2} |", t.name(), n / best / 1e6, best / base, cpu / n * 1e6);
         let _ = writeln!(csv, "a,{} sequential,{},,{cores},{:e},{:e},{:.3}", system.name(), t.name(), best / n, n / best, best / base);
     }
+    if a.floor {
+        bench_floor(&system, &batch, repeat, cores, &mut csv)?;
+        if let Some(path) = &a.csv {
+            crate::io::write_atomic(path, csv.as_bytes()).map_err(Error::from)?;
+            println!("wrote {}", path.display());
+        }
+        println!("bench nonsequential --floor finished in {:.1} s", t0.elapsed().as_secs_f64());
+        return Ok(());
+    }
     // (b) Ghosts K = 2: each ray's tree (polarised Fresnel, roulette below 1e-7) through each kernel.
     bench_ghosts(&system, &batch, a.quick, repeat, cores, &mut csv)?;
 
@@ -193,6 +204,100 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
         println!("wrote {}", path.display());
     }
     println!("bench nonsequential finished in {:.1} s", t0.elapsed().as_secs_f64());
+    Ok(())
+}
+
+/// `--floor`: how fast can Embree trace the sequential system at best (docs/nonsequential.md, "Fourth
+/// pass"). Embree over analytic user geometry traces (a)'s batch once recording every packet query of its
+/// walk; the queries are then replayed, the same packets, by a walk that only advances each lane to its
+/// recorded next query, through (i) oracle callbacks that report the recorded hit (no surface solve:
+/// Embree's traversal and dispatch, the floor) and (ii) the real callbacks; (iii) is the full tracer, and
+/// (0) the replay without any query (its own packet building, part of (i) and (ii)).
+/// The rows are measured interleaved (each repeat runs them all in turn), best of `repeat`, beside the
+/// analytic SIMD kernel.
+fn bench_floor(system: &SequentialSystem, batch: &RayBatch, repeat: usize, cores: usize, csv: &mut String) -> Result<()> {
+    use crate::tracer::embree::{EmbreeOptions, EmbreeTracer, FloorCallbacks, FloorScenes, Refinement, SceneOptions};
+    let n = batch.len();
+    // A recorded query is 64 B, and ≈ 1.5 kB per packet query once laid out by packets; SP's rays make 7
+    // queries each: ≈ 1.1 kB per ray (4 kB allowed).
+    crate::limits::check_memory(&format!("--floor: the recorded queries of {n} rays"), n as f64 * 4096.0)?;
+    let tracer = EmbreeTracer::new(EmbreeOptions::user(Refinement::F64));
+    let analytic = AnalyticTracer::default();
+    let (recorded, log) = tracer.record_queries(system, batch)?;
+    let plain = tracer.trace(system, batch)?;
+    if recorded != plain {
+        return Err(Error::invalid("--floor: the trace that records its queries differs from the plain trace (a bug)"));
+    }
+    let floor = FloorScenes::new(system, &SceneOptions::default())?;
+    let lanes = log.lane_queries();
+    let log = log.packets();
+    let packets = floor.replay(&log, FloorCallbacks::NoQuery).packet_queries;
+    let rows: [(&str, &str, &str); 5] = [
+        ("analytic-f64", "SIMD kernel (surface order known)", "-"),
+        ("(0) replay only", "replay: read the recorded packets", "none: no Embree query"),
+        ("(i) floor", "replay: advance to the recorded next query", "oracle: report the recorded hit, no solve"),
+        ("(ii)", "replay: advance to the recorded next query", "real: f64 lane solve + answer"),
+        ("(iii) today", "full walk (embree-user,refine=f64)", "real"),
+    ];
+    let run = |row: usize| -> Result<usize> {
+        Ok(match row {
+            0 => {
+                std::hint::black_box(analytic.trace(system, batch)?);
+                0
+            }
+            1 => floor.replay(&log, FloorCallbacks::NoQuery).differing,
+            2 => floor.replay(&log, FloorCallbacks::Oracle).differing,
+            3 => floor.replay(&log, FloorCallbacks::Exact).differing,
+            _ => {
+                std::hint::black_box(tracer.trace(system, batch)?);
+                0
+            }
+        })
+    };
+    let (mut wall, mut cpu, mut differing) = ([f64::INFINITY; 5], [f64::INFINITY; 5], [0usize; 5]);
+    for row in 0..5 {
+        run(row)?; // warm-up: scenes, caches
+    }
+    for _ in 0..repeat {
+        for row in 0..5 {
+            let c = cpu_seconds();
+            let s = Instant::now();
+            differing[row] = differing[row].max(run(row)?);
+            wall[row] = wall[row].min(s.elapsed().as_secs_f64());
+            if let (Some(c0), Some(c1)) = (c, cpu_seconds()) {
+                cpu[row] = cpu[row].min(c1 - c0);
+            }
+        }
+    }
+    println!(
+        "\nfloor of Embree as the sequential tracer on {}: {n} rays, the walk's {lanes} lane queries in {packets} rtcIntersect16 packets ({:.1} per ray) replayed; {cores} threads, rows interleaved, best of {repeat}",
+        system.name(),
+        lanes as f64 / n as f64
+    );
+    println!("| row | walk | callbacks | M rays/s | CPU-s per M rays | × analytic CPU time | lanes differing from the walk's record |");
+    println!("|---|---|---|---|---|---|---|");
+    let per_m = |x: f64| x / n as f64 * 1e6;
+    for (row, (name, walk, callbacks)) in rows.iter().enumerate() {
+        let check = if row == 2 || row == 3 { differing[row].to_string() } else { "-".into() };
+        println!("| {name} | {walk} | {callbacks} | {:.2} | {:.3} | {:.1}× | {check} |", n as f64 / wall[row] / 1e6, per_m(cpu[row]), cpu[row] / cpu[0]);
+        let backend = ["analytic-f64", "embree-user-floor-no-query", "embree-user-floor-oracle", "embree-user-floor-replay", "embree-user,refine=f64"][row];
+        let _ = writeln!(csv, "floor,{} sequential,{backend},,{cores},{:e},{:e},{:.3}", system.name(), wall[row] / n as f64, n as f64 / wall[row], cpu[row] / cpu[0]);
+    }
+    println!(
+        "shares (CPU-s per M rays): the floor (i) {:.3}, of which reading the recorded packets (0) {:.3} and Embree's traversal + dispatch (i) − (0) {:.3}; the callbacks' surface solve (ii) − (i) {:.3}; our walk (iii) − (ii) {:.3}; 5× the analytic kernel is {:.3}",
+        per_m(cpu[2]),
+        per_m(cpu[1]),
+        per_m(cpu[2] - cpu[1]),
+        per_m(cpu[3] - cpu[2]),
+        per_m(cpu[4] - cpu[3]),
+        5.0 * per_m(cpu[0])
+    );
+    if cpu[2] >= 5.0 * cpu[0] {
+        println!("the floor (i) alone is {:.1}× the analytic kernel: within 5× is out of reach for Embree as the sequential tracer on this workload", cpu[2] / cpu[0]);
+    }
+    if differing[2] + differing[3] > 0 {
+        return Err(Error::invalid(format!("--floor: the replays answered {} and {} lanes differently from the walk's record (a bug)", differing[2], differing[3])));
+    }
     Ok(())
 }
 

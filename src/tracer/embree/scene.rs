@@ -148,6 +148,20 @@ impl OpticalScene {
 
     /// Build the scene of `system`.
     pub fn build(system: &SequentialSystem, options: &SceneOptions) -> Result<Self> {
+        Self::build_with(system, options, false)
+    }
+
+    /// The same scene (same geometries, bounds, masks and order) with the analytic user geometries'
+    /// callbacks replaced by the oracle ([`Geometry::user_oracle`]), for the floor benchmark
+    /// (`super::floor`): it may only be queried with [`CommittedScene::intersect16_oracle`].
+    pub(crate) fn build_oracle(system: &SequentialSystem, options: &SceneOptions) -> Result<Self> {
+        if options.representation != SurfaceRepresentation::User {
+            return Err(Error::invalid("the oracle scene replaces analytic user geometry: it needs SurfaceRepresentation::User"));
+        }
+        Self::build_with(system, options, true)
+    }
+
+    fn build_with(system: &SequentialSystem, options: &SceneOptions, oracle: bool) -> Result<Self> {
         if !(options.mechanical_margin_mm.is_finite() && options.mechanical_margin_mm >= 0.0)
             || !(options.detector_margin_mm.is_finite() && options.detector_margin_mm >= 0.0)
             || !(options.blade_width_mm.is_finite() && options.blade_width_mm > 0.0)
@@ -187,7 +201,8 @@ impl OpticalScene {
                 match options.representation {
                     SurfaceRepresentation::User => {
                         let user = Arc::new(AnalyticSurface::new(frame, patch.clone()));
-                        (Geometry::user(&device, user, mask).map_err(embree_err)?, None, mask)
+                        let geom = if oracle { Geometry::user_oracle(&device, user, mask) } else { Geometry::user(&device, user, mask) };
+                        (geom.map_err(embree_err)?, None, mask)
                     }
                     SurfaceRepresentation::Mesh(res) => {
                         let m = covering_mesh(patch, res).map_err(|e| Error::invalid(format!("surface {surface}: {e}")))?;

@@ -5,7 +5,8 @@
    - user-geometry callbacks receive ray packets of runtime width N (RTCRayHitN), whose accessors
      (RTCRayN_org_x, RTCHitN_instID, ...) exist only as C++ inline functions: the two functions below use
      them (one call reads all the lanes a callback concerns, one commits a hit), so the Rust callback never
-     hard-codes the packet layout. */
+     hard-codes the packet layout;
+   - the floor benchmark's oracle callback (end of file), which reports recorded hits and solves nothing. */
 #include <embree4/rtcore.h>
 
 extern "C" {
@@ -58,6 +59,32 @@ void diffcassi_user_report_hit(const RTCIntersectFunctionNArguments* args, unsig
 #if defined(RTC_GEOMETRY_INSTANCE_ARRAY)
         RTCHitN_instPrimID(hit, N, i, l) = args->context->instPrimID[l];
 #endif
+    }
+}
+
+/* The oracle of the floor benchmark (docs/nonsequential.md, "Fourth pass"): Embree's query context extended
+   with, per ray ID (the caller's lane), the geometry the lane is to hit and its distance, as the tracer's
+   walk recorded them (OracleContext in wrapper.rs, same layout). The callback solves nothing: on every
+   valid lane whose answer is this geometry, within [tnear, tfar], it commits that hit. The ray masks need no
+   test: a lane's recorded geometry is never the one its mask excludes. */
+struct DiffcassiOracleContext {
+    RTCRayQueryContext base;
+    const unsigned int* geom_id;
+    const float* t;
+};
+
+void diffcassi_oracle_intersect(const RTCIntersectFunctionNArguments* args) {
+    const DiffcassiOracleContext* ctx = (const DiffcassiOracleContext*)args->context;
+    if (ctx->geom_id == 0 || ctx->t == 0) return;
+    const unsigned int N = args->N;
+    RTCRayN* ray = RTCRayHitN_RayN(args->rayhit, N);
+    for (unsigned int i = 0; i < N; i++) {
+        if (args->valid[i] == 0) continue;
+        const unsigned int id = RTCRayN_id(ray, N, i);
+        if (id >= 16 || ctx->geom_id[id] != args->geomID) continue;
+        const float t = ctx->t[id];
+        if (t < RTCRayN_tnear(ray, N, i) || t > RTCRayN_tfar(ray, N, i)) continue;
+        diffcassi_user_report_hit(args, i, t, 0.0f, 0.0f, 0.0f);
     }
 }
 

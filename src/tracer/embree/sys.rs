@@ -35,6 +35,9 @@ extern "C" {
     ) -> u32;
     /// Commit a hit at `t` with geometric normal `ng` on lane `i` (shim.cpp).
     pub fn diffcassi_user_report_hit(args: *const RTCIntersectFunctionNArguments, i: u32, t: f32, ng_x: f32, ng_y: f32, ng_z: f32);
+    /// The oracle user geometry's intersect callback (shim.cpp): reports on each valid lane the hit the
+    /// query's oracle context names for this geometry, solving nothing (`CommittedScene::intersect16_oracle`).
+    pub fn diffcassi_oracle_intersect(args: *const RTCIntersectFunctionNArguments);
 }
 
 use core::mem::{align_of, offset_of, size_of};

@@ -29,6 +29,7 @@
 //! assert!((out.x[1] - exact.x[1]).abs() < 1e-6);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
+use super::floor::{QueryLog, QueryStep};
 use super::scene::{OpticalScene, Role, SceneObject, SceneOptions, SurfaceRepresentation};
 use super::wrapper::{with_flush_denormals, ExactRay, ExactRays, Hit, Ray};
 use crate::error::{Error, Result};
@@ -200,7 +201,7 @@ impl EmbreeTracer {
 
     /// Trace with per-ray diagnostics.
     pub fn trace_detailed(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<(TracedBatch, TraceDetails)> {
-        self.trace_inner(system, rays, false, true).map(|(out, details, _)| (out, details))
+        self.trace_inner(system, rays, false, true, false).map(|(out, details, _, _)| (out, details))
     }
 
     /// Trace with per-ray diagnostics and the [`HitLog`] of every interaction: the interface hit (its
@@ -209,12 +210,26 @@ impl EmbreeTracer {
     /// totally reflected; the detector hit last. Recording is only done here: [`Self::trace_detailed`] and
     /// [`Tracer::trace`] record nothing. The traced values are the same bits either way.
     pub fn trace_with_hits(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<(TracedBatch, TraceDetails, HitLog)> {
-        self.trace_inner(system, rays, true, true).map(|(out, details, log)| (out, details, log.unwrap_or_default()))
+        self.trace_inner(system, rays, true, true, false).map(|(out, details, log, _)| (out, details, log.unwrap_or_default()))
+    }
+
+    /// Trace and record every packet query of the walk, per ray: the ray as queried (exact ray, tnear,
+    /// mask) and Embree's answer (geometry, f32 distance) — what the floor benchmark replays
+    /// ([`super::floor`]). Packets only (the default); the traced values are the same bits as
+    /// [`Tracer::trace`]'s.
+    pub fn record_queries(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<(TracedBatch, QueryLog)> {
+        if !self.options.packets {
+            return Err(Error::invalid("recording the walk's queries needs packets (EmbreeOptions::packets)"));
+        }
+        let (out, _, _, steps) = self.trace_inner(system, rays, false, false, true)?;
+        Ok((out, QueryLog { steps: steps.unwrap_or_default(), chunk_size: self.options.chunk_size.max(16) }))
     }
 
     /// With `details`, the per-ray hit deviation is measured (otherwise left 0: [`Tracer::trace`] drops
-    /// the details); the traced values are the same bits either way.
-    fn trace_inner(&self, system: &SequentialSystem, rays: &RayBatch, record: bool, details: bool) -> Result<(TracedBatch, TraceDetails, Option<HitLog>)> {
+    /// the details); the traced values are the same bits either way. With `queries`, every packet query
+    /// of each ray is returned too ([`Self::record_queries`]).
+    #[allow(clippy::type_complexity)]
+    fn trace_inner(&self, system: &SequentialSystem, rays: &RayBatch, record: bool, details: bool, queries: bool) -> Result<(TracedBatch, TraceDetails, Option<HitLog>, Option<Vec<Vec<QueryStep>>>)> {
         if !rays.is_consistent() {
             return Err(Error::invalid("ray batch columns have different lengths"));
         }
@@ -225,18 +240,20 @@ impl EmbreeTracer {
         let scene = self.scene_for(system)?;
         let n = rays.len();
         let chunk = self.options.chunk_size.max(16);
-        let parts: Vec<(Vec<Walk>, Vec<Vec<HitRecord>>)> = (0..n.div_ceil(chunk))
+        let parts: Vec<(Vec<Walk>, Vec<Vec<HitRecord>>, Vec<Vec<QueryStep>>)> = (0..n.div_ceil(chunk))
             .into_par_iter()
             .map(|c| {
                 let range = c * chunk..((c + 1) * chunk).min(n);
-                with_flush_denormals(|| self.trace_range(&scene, &table, rays, range, record, details))
+                with_flush_denormals(|| self.trace_range(&scene, &table, rays, range, record, details, queries))
             })
             .collect();
         let mut walks: Vec<Walk> = Vec::with_capacity(n);
         let mut logs: Vec<Vec<HitRecord>> = Vec::with_capacity(if record { n } else { 0 });
-        for (w, l) in parts {
+        let mut steps: Vec<Vec<QueryStep>> = Vec::with_capacity(if queries { n } else { 0 });
+        for (w, l, q) in parts {
             walks.extend(w);
             logs.extend(l);
+            steps.extend(q);
         }
         let mut out = TracedBatch::zeroed(n);
         let mut details = TraceDetails { reflections: vec![0; n], interactions: vec![0; n], max_hit_deviation_mm: vec![0.0; n], first_reflection_surface: vec![u32::MAX; n] };
@@ -254,10 +271,12 @@ impl EmbreeTracer {
             }
         }
         out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
-        Ok((out, details, record.then(|| HitLog::from_rays(logs))))
+        Ok((out, details, record.then(|| HitLog::from_rays(logs)), queries.then_some(steps)))
     }
 
-    /// Walk the rays of `range`; with `record`, also one hit list per ray (empty vector otherwise).
+    /// Walk the rays of `range`; with `record`, also one hit list per ray, with `queries` (packets
+    /// only) one list of its queries per ray (empty vectors otherwise).
+    #[allow(clippy::too_many_arguments)]
     fn trace_range(
         &self,
         scene: &OpticalScene,
@@ -266,9 +285,11 @@ impl EmbreeTracer {
         range: std::ops::Range<usize>,
         record: bool,
         details: bool,
-    ) -> (Vec<Walk>, Vec<Vec<HitRecord>>) {
+        queries: bool,
+    ) -> (Vec<Walk>, Vec<Vec<HitRecord>>, Vec<Vec<QueryStep>>) {
         let mut walks: Vec<Walk> = range.clone().map(|i| Walk::new(rays.origin(i), rays.direction(i), details)).collect();
         let mut logs: Vec<Vec<HitRecord>> = if record { vec![Vec::new(); walks.len()] } else { Vec::new() };
+        let mut steps: Vec<Vec<QueryStep>> = if queries && self.options.packets { vec![Vec::new(); walks.len()] } else { Vec::new() };
         let idx: Vec<&Vec<f64>> = range.map(|i| table.get(&rays.wavelength_nm[i].to_bits()).expect("every batch wavelength is in the table")).collect();
         // With f64 refinement over analytic user geometry, the callbacks solve on the exact rays and the
         // refinement reuses their roots (one surface solve per interaction).
@@ -296,6 +317,11 @@ impl EmbreeTracer {
                     }
                     // Incoherent unless asked (see `EmbreeOptions::coherent`).
                     let hits = scene.scene.intersect16_exact(&packet, &valid, self.options.coherent, exact.then_some(&lanes));
+                    if queries {
+                        for (k, w) in ws.iter().enumerate().filter(|(k, _)| valid[*k]) {
+                            steps[p * 16 + k].push(QueryStep { exact: w.exact(), tnear: packet[k].tnear, mask: packet[k].mask, geom_id: hits[k].geom_id, t: hits[k].t });
+                        }
+                    }
                     for (k, w) in ws.iter_mut().enumerate() {
                         if valid[k] {
                             if exact {
@@ -318,7 +344,7 @@ impl EmbreeTracer {
                 }
             }
         }
-        (walks, logs)
+        (walks, logs, steps)
     }
 
     /// Apply what the geometry Embree found does to the ray.
@@ -572,6 +598,6 @@ impl Tracer for EmbreeTracer {
     }
 
     fn trace(&self, system: &SequentialSystem, rays: &RayBatch) -> Result<TracedBatch> {
-        self.trace_inner(system, rays, false, false).map(|(out, _, _)| out)
+        self.trace_inner(system, rays, false, false, false).map(|(out, _, _, _)| out)
     }
 }

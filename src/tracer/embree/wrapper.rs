@@ -309,6 +309,39 @@ impl QueryContext {
     }
 }
 
+/// The answers an oracle user geometry ([`Geometry::user_oracle`]) reports, per lane of a 16-wide query
+/// (lane `i` = Embree ray ID `i`): the geometry that lane is to hit and the distance along its f32 ray
+/// (`INVALID_GEOMETRY_ID`: no user geometry; a triangle geometry or a miss).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct OracleAnswers {
+    pub geom_id: [u32; 16],
+    pub t: [f32; 16],
+}
+
+impl Default for OracleAnswers {
+    fn default() -> Self {
+        OracleAnswers { geom_id: [INVALID_GEOMETRY_ID; 16], t: [f32::INFINITY; 16] }
+    }
+}
+
+/// Embree's ray-query context extended with the oracle's answers; the same layout as
+/// `DiffcassiOracleContext` in shim.cpp, which reads it in `diffcassi_oracle_intersect`.
+#[repr(C)]
+struct OracleContext {
+    base: sys::RTCRayQueryContext,
+    geom_id: *const u32,
+    t: *const f32,
+}
+
+impl OracleContext {
+    fn new(answers: &OracleAnswers) -> Self {
+        let mut base = sys::RTCRayQueryContext::default();
+        // SAFETY: initialises the struct exactly as the installed header's rtcInitRayQueryContext does.
+        unsafe { sys::diffcassi_rtcInitRayQueryContext(&mut base) };
+        OracleContext { base, geom_id: answers.geom_id.as_ptr(), t: answers.t.as_ptr() }
+    }
+}
+
 /// What `geometryUserPtr` points at: kept alive by every [`Geometry`] and [`Scene`] that uses it.
 struct UserSlot {
     object: Arc<dyn UserGeometry>,
@@ -401,6 +434,23 @@ impl Geometry {
             sys::rtcCommitGeometry(raw);
         }
         device.check(CTX)?;
+        Ok(geom)
+    }
+
+    /// The user geometry of [`Self::user`] (same bounds from `object`, same mask) whose intersect callback
+    /// is the shim's oracle (`diffcassi_oracle_intersect`): it solves nothing and reports the hits the
+    /// query's [`OracleAnswers`] name ([`CommittedScene::intersect16_oracle`]). Crate-private: only that
+    /// query may be run on a scene holding one, and it only on such scenes (each callback reads its own
+    /// extension of the query context).
+    pub(crate) fn user_oracle(device: &Device, object: Arc<dyn UserGeometry>, mask: u32) -> Result<Self, EmbreeError> {
+        let geom = Self::user(device, object, mask)?;
+        // SAFETY: live geometry we own, not attached yet; the oracle callback only reads its arguments and
+        // the OracleContext every `intersect16_oracle` passes.
+        unsafe {
+            sys::rtcSetGeometryIntersectFunction(geom.raw, Some(sys::diffcassi_oracle_intersect));
+            sys::rtcCommitGeometry(geom.raw);
+        }
+        geom.device.check("creating an oracle user geometry")?;
         Ok(geom)
     }
 
@@ -706,6 +756,24 @@ impl CommittedScene {
             // SAFETY: `Cell::as_ptr` of a cell this thread owns; no reference into it exists.
             e.solved.iter().for_each(|c| unsafe { (*c.as_ptr()).geom_id = INVALID_GEOMETRY_ID });
         }
+        let mut ctx = QueryContext::new(exact);
+        self.intersect16_in(rays, valid, coherent, &mut ctx.base)
+    }
+
+    /// `rtcIntersect16` (incoherent) over a scene whose user geometries were made with
+    /// [`Geometry::user_oracle`]: their callback reports, on lane `i`, the hit `answers` gives it (geometry
+    /// `answers.geom_id[i]` at `answers.t[i]`) without solving anything. Triangle geometries are
+    /// intersected by Embree as usual. What a query costs with no surface solve: Embree's traversal and
+    /// callback dispatch (the floor of docs/nonsequential.md, "Fourth pass").
+    pub(crate) fn intersect16_oracle(&self, rays: &[Ray; 16], valid: &[bool; 16], answers: &OracleAnswers) -> [Hit; 16] {
+        let mut ctx = OracleContext::new(answers);
+        self.intersect16_in(rays, valid, false, &mut ctx.base)
+    }
+
+    /// The packet query under the ray-query context `ctx` (the base of an extended context that outlives
+    /// the call).
+    #[allow(clippy::needless_range_loop)] // lanes of several parallel arrays
+    fn intersect16_in(&self, rays: &[Ray; 16], valid: &[bool; 16], coherent: bool, ctx: &mut sys::RTCRayQueryContext) -> [Hit; 16] {
         let mut out = [Hit::MISS; 16];
         let mut mask = Valid16([0; 16]);
         // RTCRayHit16 is 64-byte aligned by its bindgen type (checked against C in sys.rs).
@@ -737,14 +805,13 @@ impl CommittedScene {
             return out;
         }
         debug_assert_eq!((&rh as *const sys::RTCRayHit16 as usize) % 64, 0);
-        let mut ctx = QueryContext::new(exact);
         let mut args = intersect_args();
-        args.context = &mut ctx.base;
+        args.context = ctx;
         if coherent {
             args.flags = sys::RTC_RAY_QUERY_FLAG_COHERENT;
         }
         // SAFETY: committed scene; valid mask and ray/hit packet 64-byte aligned and initialised; `ctx`
-        // (and the exact rays it points at) outlive the call.
+        // (and the exact rays or oracle answers it points at) outlive the call.
         unsafe { sys::rtcIntersect16(mask.0.as_ptr(), self.handle.raw, &mut rh, &mut args) };
         for i in 0..16 {
             if mask.0[i] != 0 && rh.hit.geomID[i] != INVALID_GEOMETRY_ID {
