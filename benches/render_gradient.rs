@@ -1,7 +1,12 @@
 //! Cost of the acquisition's vector–Jacobian product (`render::gradient`): the production forward render
 //! (`Renderer`, SIMD), the differentiable renderer's own f64 forward (`DiffRenderer::render`), and its
 //! backward (`DiffRenderer::vjp`) for 1, 10 and 50 free parameters, and the backward that wants only the
-//! parameters' gradient (`vjp_wanted`: `backward_vjp_params_only/1, /10, /50`), on SP.
+//! parameters' gradient (`vjp_wanted`: `backward_vjp_params_only/1, /10, /50`), on SP, with a binary mask
+//! of opening 0.5 (the forward skips its closed pixels; the full backward traces them for the mask
+//! gradient). The `…_continuous_mask` rows repeat the production forward, the full backward and the
+//! params-only backward at 10 parameters with a **continuous** mask as `diffcassi.torch.CassiRenderer`
+//! trains it: the same binary mask clipped to [0.05, 0.95] (no pixel exactly 0, so every pixel's rays are
+//! traced by the forward too, and every ray is swept backwards).
 //!
 //! `cargo bench --bench render_gradient` (size from `DIFFCASSI_BENCH_SIZE`, default 128: SP 128×128, 112
 //! planes, 20 rays, mask opening 0.5; `DIFFCASSI_BENCH_PLANES`, `DIFFCASSI_BENCH_RAYS` override). In
@@ -65,9 +70,14 @@ fn main() {
     let hw = size * size;
     let scene64: Vec<f64> = (0..bands * hw).map(|i| scene.data[(i % hw) * bands + i / hw] as f64).collect();
     let mask64: Vec<f64> = mask.values.iter().map(|&v| v as f64).collect();
+    // CassiRenderer's start from a given mask: clipped to [0.05, 0.95] (sigmoid of ±2.94 logits).
+    let mut cont = mask.clone();
+    cont.values.iter_mut().for_each(|v| *v = v.clamp(0.05, 0.95));
+    let cont64: Vec<f64> = cont.values.iter().map(|&v| v as f64).collect();
     let sys = SequentialSystem::build(&presets::spec("sp").unwrap()).unwrap();
     let tracer = AnalyticTracer::default();
     let production = Renderer::new(&sys, &tracer, cfg.clone(), mask.clone()).unwrap();
+    let production_cont = Renderer::new(&sys, &tracer, cfg.clone(), cont).unwrap();
     let r1 = renderer(&cfg, 1);
     let g: Vec<f64> = (0..r1.detector.pixels()).map(|i| ((i * 7919) % 101) as f64 / 101.0 - 0.5).collect();
     let mut c = Criterion::default().sample_size(10).configure_from_args();
@@ -81,6 +91,12 @@ fn main() {
         // Only ∂L/∂θ wanted (a fixed mask and scene): the closed pixels' rays are not traced.
         let only = Wanted { params: true, mask: false, scene: false };
         grp.bench_with_input(BenchmarkId::new("backward_vjp_params_only", k), &k, |b, _| b.iter(|| r.vjp_wanted(&scene64, 1, &mask64, &g, only).unwrap()));
+        if k == 10 {
+            // The continuous mask (every pixel open): forward, full backward, params-only backward.
+            grp.bench_function("forward_renderer_continuous_mask", |b| b.iter(|| production_cont.render(&scene, false, &|_| {}).unwrap()));
+            grp.bench_with_input(BenchmarkId::new("backward_vjp_continuous_mask", k), &k, |b, _| b.iter(|| r.vjp(&scene64, 1, &cont64, &g).unwrap()));
+            grp.bench_with_input(BenchmarkId::new("backward_vjp_params_only_continuous_mask", k), &k, |b, _| b.iter(|| r.vjp_wanted(&scene64, 1, &cont64, &g, only).unwrap()));
+        }
     }
     grp.finish();
     c.final_summary();

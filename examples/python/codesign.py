@@ -52,7 +52,9 @@ def _apply(r, t: torch.Tensor, adjoint: bool) -> torch.Tensor:
     else:
         n = t.shape[0]
         zero = np.zeros((n, len(r.bands), H, W))
-        out = r.inner.vjp(zero, ones, np.ascontiguousarray(t.detach().numpy(), dtype=np.float64))[2]
+        # Only the scene's gradient is Tᵀ: no parameter or mask gradient (no reverse sweep, no mask sums).
+        out = r.inner.vjp(zero, ones, np.ascontiguousarray(t.detach().numpy(), dtype=np.float64),
+                          params=False, mask_grad=False)[2]
     return torch.from_numpy(out).to(t.dtype)
 
 

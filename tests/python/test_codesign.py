@@ -97,14 +97,37 @@ def test_mapping_jacobian_shapes():
 
 
 def test_codesign_example_loss_decreases():
-    spec = importlib.util.spec_from_file_location("codesign", ROOT / "examples" / "python" / "codesign.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    res = mod.main(["--tiny"])
+    res = _example_module().main(["--tiny"])
     losses = [h["loss"] for h in res["history"]]
     assert np.isfinite(losses).all()
     assert np.mean(losses[-3:]) < np.mean(losses[:3]), losses
     assert len(res["psnr_after"]) == 6
+
+
+def _example_module():
+    spec = importlib.util.spec_from_file_location("codesign", ROOT / "examples" / "python" / "codesign.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_codesign_example_adjoint_is_the_full_vjps_scene_gradient_bit_for_bit():
+    """The example's decoder computes Tᵀ with ``vjp(..., params=False, mask_grad=False)`` (no reverse sweep, no
+    mask sums): the same array, bit for bit, as the scene gradient of the full ``vjp``; and it is T's adjoint."""
+    mod = _example_module()
+    r = dt.CassiRenderer(diffcassi.System.preset("msp"), 5, 5, free=["prism_tilt_x"], rays=2, planes=3, seed=4,
+                         bands_nm=BANDS)
+    T = mod.Transport(r, [0.0])
+    g = torch.rand((2,) + tuple(r.image_shape), generator=torch.Generator().manual_seed(5), dtype=torch.float64)
+    got = T.T(g).numpy()
+    ones = np.ones((5, 5))
+    full = T.inner.vjp(np.zeros((2, 3, 5, 5)), ones, np.ascontiguousarray(g.numpy()))
+    assert full[0] is not None and full[1] is not None and np.abs(full[2]).max() > 0
+    assert got.shape == (2, 3, 5, 5) and np.array_equal(got, full[2])
+    # ⟨T x, g⟩ = ⟨x, Tᵀ g⟩.
+    x = torch.rand(2, 3, 5, 5, generator=torch.Generator().manual_seed(6), dtype=torch.float64)
+    lhs, rhs = float((T(x) * g).sum()), float((x * T.T(g)).sum())
+    assert abs(lhs - rhs) <= 1e-12 * abs(lhs), (lhs, rhs)
 
 
 def test_only_the_gradients_autograd_needs_are_computed_bit_identical():
