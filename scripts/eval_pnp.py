@@ -14,7 +14,10 @@ its defaults; then the network schedules of ``--schedules`` — ``one:S`` = one 
 ``pnp-gap`` hands it (GAP-TV's stop, then one data step: obtained once with an identity network, then denoised
 in PyTorch, equal to the Rust inference to 1e-4; mean-colour neutralisation with ``--neutral``, the
 self-ensemble with ``--ensemble``: ``diffcassi.denoiser.denoise``), ``pnp:N:S1:S2[:plain]`` = ``pnp-gap`` with N network
-iterations σ S1 → S2 (geometric), accelerated unless ``plain``, no early stop (``discrepancy`` 0, tolerance 0).
+iterations σ S1 → S2 (geometric), accelerated unless ``plain``, no early stop (``discrepancy`` 0, tolerance 0);
+``roll:N:S1:S2`` = the same accelerated schedule rolled out in NumPy/PyTorch from the cell's GAP-TV result and
+network input (``make_pnp_pairs.gap_rollout``, equal to ``pnp-gap`` to f32 and the inferences' 1e-4; with
+``--cache`` only the operator is rebuilt: no TV phase per schedule and weights).
 PSNR is the paper's (``diffcassi.metrics``: one MSE over the cube, peak = the truth's max).
 """
 from __future__ import annotations
@@ -89,7 +92,7 @@ def main(argv=None) -> int:
     scheds = [s.strip() for s in a.schedules.split(",") if s.strip()]
     rows = []
     t0 = time.time()
-    from make_pnp_pairs import identity_weights  # noqa: E402 (scripts/ is on sys.path when run as a script)
+    from make_pnp_pairs import gap_rollout, identity_weights, sigma_schedule  # noqa: E402 (scripts/ is on sys.path)
     with tempfile.TemporaryDirectory() as tmp:
         ident = str(pathlib.Path(tmp) / "identity.safetensors")
         identity_weights(pathlib.Path(ident), len(BANDS_NM))
@@ -99,9 +102,19 @@ def main(argv=None) -> int:
                 psnr = lambda c, t=truth: paper_psnr(t, c)
                 cached = None if a.cache is None else pathlib.Path(a.cache) / f"{name}-{preset}.npz"
                 need_op = any(x.startswith("pnp:") for x in scheds)
-                if cached is not None and cached.is_file() and not need_op:
+                need_roll = any(x.startswith("roll:") for x in scheds)
+                has_cache = cached is not None and cached.is_file()
+                if has_cache and need_roll:
+                    with np.load(cached) as z:
+                        has_cache = "gap_tv_cube" in z.files
+                if has_cache and not need_op:
                     with np.load(cached) as z:
                         x, gap_tv = z["iterate"], float(z["gap_tv"])
+                        gt = z["gap_tv_cube"] if "gap_tv_cube" in z.files else None
+                    if need_roll:
+                        y, _ = diffcassi.render(system, truth, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=0)
+                        y = np.ascontiguousarray(y, dtype=np.float32)
+                        op = diffcassi.exact(system, SIZE, SIZE, mask, rays=RAYS, planes=PLANES, seed=1)
                 else:
                     y, _ = diffcassi.render(system, truth, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=0)
                     y = np.ascontiguousarray(y, dtype=np.float32)
@@ -112,7 +125,7 @@ def main(argv=None) -> int:
                     x, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=ident, noise_norm=delta)
                     if cached is not None:
                         cached.parent.mkdir(parents=True, exist_ok=True)
-                        np.savez(cached, iterate=x, gap_tv=gap_tv)
+                        np.savez(cached, iterate=x, gap_tv=gap_tv, gap_tv_cube=gt)
                 row = {"scene": name, "preset": preset, "gap_tv": gap_tv}
                 p = float(x.max()) if x.max() > 0 else 1.0
                 xin = torch.from_numpy(np.ascontiguousarray(x.transpose(2, 0, 1) / p))[None]
@@ -132,6 +145,11 @@ def main(argv=None) -> int:
                             c, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=w, noise_norm=delta, iterations=300 + n,
                                                          sigma_max=s1, sigma_min=min(s1, s2), discrepancy=0.0,
                                                          tolerance=0.0, accelerated=not plain)
+                            row[f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s] = psnr(c)
+                    elif parts[0] == "roll":
+                        n, s1, s2 = int(parts[1]), float(parts[2]), float(parts[3])
+                        for w, net in nets.items():
+                            _, c = gap_rollout(op, y, gt, x, net, sigma_schedule(s1, s2, n))
                             row[f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s] = psnr(c)
                     else:
                         ap.error(f"--schedules: unknown schedule {s!r}")
