@@ -92,7 +92,7 @@ def main(argv=None) -> int:
     scheds = [s.strip() for s in a.schedules.split(",") if s.strip()]
     rows = []
     t0 = time.time()
-    from make_pnp_pairs import gap_rollout, identity_weights, sigma_schedule  # noqa: E402 (scripts/ is on sys.path)
+    from make_pnp_pairs import TV_CAP, gap_rollout, identity_weights, sigma_schedule  # noqa: E402 (scripts/ on sys.path)
     with tempfile.TemporaryDirectory() as tmp:
         ident = str(pathlib.Path(tmp) / "identity.safetensors")
         identity_weights(pathlib.Path(ident), len(BANDS_NM))
@@ -122,7 +122,10 @@ def main(argv=None) -> int:
                     delta = diffcassi.monte_carlo_noise_norm(y, RAYS, RAYS, PLANES / len(BANDS_NM))
                     gt, _ = diffcassi.reconstruct(op, y, "gap-tv", noise_norm=delta)
                     gap_tv = psnr(gt)
-                    x, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=ident, noise_norm=delta)
+                    # The network's first input: the TV phase and one identity call (explicit: the default
+                    # network phase has 20 calls since round 6).
+                    x, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=ident, noise_norm=delta, tv_warmup=TV_CAP,
+                                                 iterations=TV_CAP + 1)
                     if cached is not None:
                         cached.parent.mkdir(parents=True, exist_ok=True)
                         np.savez(cached, iterate=x, gap_tv=gap_tv, gap_tv_cube=gt)

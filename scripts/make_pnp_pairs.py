@@ -52,6 +52,9 @@ PAIR_VAL_SEED_BASE = 6_000_000
 PRESETS = ("sp", "msp")
 STAGES = ("stop", "half")
 RAYS, PLANES = 20, 112
+#: The TV phase's cap (``PNP_TV_WARMUP`` of ``recon::solver``): the identity run is the TV phase plus one call
+#: (explicit: ``pnp-gap``'s default network phase has 20 calls since round 6).
+TV_CAP = 300
 
 
 def _sha256(path: str) -> str:
@@ -186,7 +189,7 @@ def schedule_pairs_of_scene(seed: int, kind: str, size: int, paper: np.ndarray, 
         delta = diffcassi.monte_carlo_noise_norm(y32, RAYS, RAYS, PLANES / len(BANDS_NM))
         theta0, _ = diffcassi.reconstruct(op, y32, "gap-tv", noise_norm=delta)
         x1, rec = diffcassi.reconstruct(op, y32, "pnp-gap", denoiser=ident, noise_norm=delta, discrepancy=0.0,
-                                        tolerance=0.0)
+                                        tolerance=0.0, tv_warmup=TV_CAP, iterations=TV_CAP + 1)
         k_tv = int(rec["denoiser"]["tv_warmup"]["iterations_run"])
         inputs, _ = gap_rollout(op, y32, theta0, x1, net, sigmas)
         for si, x in enumerate(inputs):
@@ -216,12 +219,13 @@ def check_rollout(weights: str, sigmas, size: int = 32) -> float:
     with tempfile.TemporaryDirectory() as tmp:
         ident = str(pathlib.Path(tmp) / "identity.safetensors")
         identity_weights(pathlib.Path(ident), len(BANDS_NM))
-        x1, rec = diffcassi.reconstruct(op, y32, "pnp-gap", denoiser=ident, noise_norm=delta, discrepancy=0.0, tolerance=0.0)
+        x1, _ = diffcassi.reconstruct(op, y32, "pnp-gap", denoiser=ident, noise_norm=delta, discrepancy=0.0, tolerance=0.0,
+                                        tv_warmup=TV_CAP, iterations=TV_CAP + 1)
     n = len(sigmas)
-    k_tv = int(rec["denoiser"]["tv_warmup"]["iterations_run"])
     _, theta = gap_rollout(op, y32, theta0, x1, load_weights(weights, bands=len(BANDS_NM)), sigmas)
     ref, _ = diffcassi.reconstruct(op, y32, "pnp-gap", denoiser=weights, noise_norm=delta, discrepancy=0.0,
-                                   tolerance=0.0, iterations=k_tv + n, sigma_max=sigmas[0], sigma_min=sigmas[-1])
+                                   tolerance=0.0, tv_warmup=TV_CAP, iterations=TV_CAP + n, sigma_max=sigmas[0],
+                                   sigma_min=sigmas[-1])
     return float(np.abs(theta - ref).max() / ref.max())
 
 
