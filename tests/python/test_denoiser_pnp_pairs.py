@@ -218,3 +218,23 @@ def test_round6_manifest_uses_no_image_and_no_evaluation_scene():
     assert man["artefact_pairs"]["sha256"] != man["artefact_pairs_val"]["sha256"]
     assert man["artefact_pairs"]["manifest"]["seed_base"] != man["artefact_pairs_val"]["manifest"]["seed_base"]
     assert man["artefact_pairs"]["stage_net"] is True
+
+
+def test_eval_pnp_metrics_and_sam_diagnosis_match_the_project_metrics():
+    """Round 7: eval_pnp's PSNR/SSIM/SAM are ``diffcassi.metrics``'s, and ``--diagnose``'s per-pixel angles are
+    the same SAM split by truth brightness (equal quartiles here: the mean of the four is the SAM); clipping at 0
+    changes SAM only where the estimate is negative, and the share of negatives is counted."""
+    ev = load_script("eval_pnp")
+    rng = np.random.default_rng(7)
+    truth = rng.random((16, 16, 28)).astype(np.float32)
+    est = (truth + 0.2 * rng.standard_normal(truth.shape)).astype(np.float32)
+    m = ev.project_metrics(truth, est)
+    ref = diffcassi.metrics(truth, est)
+    assert (m["psnr"], m["ssim"], m["sam"]) == (ref["psnr_db"], ref["ssim"], ref["sam_deg"])
+    d = ev.sam_diagnosis(truth, est)
+    assert np.mean([d[f"sam_q{i}"] for i in range(1, 5)]) == pytest.approx(ref["sam_deg"], abs=1e-9)
+    assert d["sam_q1"] > d["sam_q4"]  # the same absolute noise is a larger angle on dark spectra
+    assert d["neg"] == pytest.approx(float((est < 0).mean())) and d["neg"] > 0
+    assert d["sam_clip0"] != pytest.approx(ref["sam_deg"], abs=1e-6)
+    pos = np.abs(est)
+    assert ev.sam_diagnosis(truth, pos)["sam_clip0"] == pytest.approx(diffcassi.metrics(truth, pos)["sam_deg"], abs=1e-9)
