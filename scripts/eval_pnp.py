@@ -165,7 +165,7 @@ def main(argv=None) -> int:
                     gt, _ = diffcassi.reconstruct(op, y, "gap-tv", noise_norm=delta)
                     gap_tv = psnr(gt)
                     # The network's first input: the TV phase and one identity call (explicit: the default
-                    # network phase has 20 calls since round 6).
+                    # network phase has several calls since round 6).
                     x, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=ident, noise_norm=delta, tv_warmup=TV_CAP,
                                                  iterations=TV_CAP + 1)
                     if cached is not None:

@@ -53,7 +53,7 @@ PRESETS = ("sp", "msp")
 STAGES = ("stop", "half")
 RAYS, PLANES = 20, 112
 #: The TV phase's cap (``PNP_TV_WARMUP`` of ``recon::solver``): the identity run is the TV phase plus one call
-#: (explicit: ``pnp-gap``'s default network phase has 20 calls since round 6).
+#: (explicit: ``pnp-gap``'s default network phase has several calls since round 6: 20, then 5 in round 7).
 TV_CAP = 300
 
 

@@ -185,7 +185,7 @@ impl SolverConfig {
     /// PnP-GAP: accelerated GAP-TV to its discrepancy stop (at most [`PNP_TV_WARMUP`] iterations), then
     /// [`PNP_NETWORK_ITERATIONS`] accelerated GAP steps with the embedded learned denoiser, σ decaying
     /// geometrically from [`PNP_SIGMA_MAX`] to [`PNP_SIGMA_MIN`], no early stop in the network phase;
-    /// docs/reconstruction.md, "Plug-and-play", and MODEL.md round 6 for the measurements behind these defaults.
+    /// docs/reconstruction.md, "Plug-and-play", and MODEL.md rounds 6–7 for the measurements behind these defaults.
     pub fn pnp_gap() -> Self {
         SolverConfig {
             solver: SolverKind::PnpGap,
