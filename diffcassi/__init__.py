@@ -242,7 +242,7 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     image being small) with ``solver`` ``gap-tv`` (accelerated GAP by default) or ``admm-tv``, as
     ``diffcassi reconstruct``, or ``pnp-gap`` / ``pnp-admm`` (plug-and-play with the learned denoiser: a TV
     phase, then the network; docs/reconstruction.md). ``settings`` (default: the library's, as the CLI's):
-    iterations (the cap: 300 GAP-TV, 100 ADMM-TV, 301 PnP: the TV phase and one network step), step (1), tv_weight (0.1), tv_iterations (5),
+    iterations (the cap: 300 GAP-TV, 100 ADMM-TV, 305 PnP: the TV phase and 5 network steps), step (1), tv_weight (0.1), tv_iterations (5),
     tv_coupling (``vectorial`` | ``per_band``), accelerated (GAP-TV and PnP-GAP: True), admm_eta (0.01);
     the stopping rules as the CLI's: discrepancy (τ; 0.65 TV, see the docs for PnP) with noise_norm (δ, the
     expected ‖y − Φx_true‖₂ in acquisition units, e.g. :func:`monte_carlo_noise_norm`; 0 or absent: the rule is

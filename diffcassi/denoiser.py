@@ -53,6 +53,11 @@ import torch.nn.functional as F
 
 ARCH = "spectral-unet-v2"
 
+#: What a weights file was trained for (metadata ``stage``; absent = ``gaussian``): a Gaussian denoiser, or
+#: (round 6 of src/recon/prior/MODEL.md) a plug-and-play stage network trained on the iterates of ``pnp-gap``'s
+#: multi-call schedule (σ its per-call value). :func:`load_weights` sets ``net.stage``.
+STAGES = ("gaussian", "pnp")
+
 #: The layers of the U-Net part, in graph order: (name, kind); kind "c3" conv3×3, "d2" conv2×2 stride 2,
 #: "t2" transposed conv2×2 stride 2.
 UNET_LAYERS = (("head", "c3"), ("enc1", "c3"), ("down1", "d2"), ("enc2a", "c3"), ("enc2b", "c3"), ("down2", "d2"),
@@ -268,5 +273,9 @@ def load_weights(path, bands: Optional[int] = None) -> SpectralUNet:
                              f"expected {tuple(want[k].shape)} (bands={b}, width={w}, latent={lat})")
         if not torch.isfinite(v).all():
             raise ValueError(f"denoiser weights {path}: tensor {k} has NaN or infinite values")
+    stage = meta.get("stage", "gaussian")
+    if stage not in STAGES:
+        raise ValueError(f"denoiser weights {path}: metadata stage is {stage!r}, expected one of {STAGES}")
     net.load_state_dict({k: v.to(torch.float32) for k, v in tensors.items()})
+    net.stage = stage
     return net.eval()

@@ -14,8 +14,16 @@ its defaults; then the network schedules of ``--schedules`` — ``one:S`` = one 
 ``pnp-gap`` hands it (GAP-TV's stop, then one data step: obtained once with an identity network, then denoised
 in PyTorch, equal to the Rust inference to 1e-4; mean-colour neutralisation with ``--neutral``, the
 self-ensemble with ``--ensemble``: ``diffcassi.denoiser.denoise``), ``pnp:N:S1:S2[:plain]`` = ``pnp-gap`` with N network
-iterations σ S1 → S2 (geometric), accelerated unless ``plain``, no early stop (``discrepancy`` 0, tolerance 0).
-PSNR is the paper's (``diffcassi.metrics``: one MSE over the cube, peak = the truth's max).
+iterations σ S1 → S2 (geometric), accelerated unless ``plain``, no early stop (``discrepancy`` 0, tolerance 0);
+``roll:N:S1:S2`` = the same accelerated schedule rolled out in NumPy/PyTorch from the cell's GAP-TV result and
+network input (``make_pnp_pairs.gap_rollout``, equal to ``pnp-gap`` to f32 and the inferences' 1e-4; with
+``--cache`` only the operator is rebuilt: no TV phase per schedule and weights).
+PSNR is the paper's (``diffcassi.metrics``: one MSE over the cube, peak = the truth's max); each cell also
+records SSIM (``KEY|ssim``, per band on the [0, 1]-clamped estimate) and SAM in degrees (``KEY|sam``, the
+estimate as is), as ``diffcassi evaluate``. ``--diagnose`` adds, per ``roll:`` schedule, where SAM comes from:
+the mean per-pixel angle over the truth-brightness quartiles (``|sam_q1``..``|sam_q4``, q1 darkest, brightness
+= the truth's spectral norm), SAM of the estimate clipped at 0 (``|sam_clip0``), and the share of negative
+values (``|neg``).
 """
 from __future__ import annotations
 
@@ -57,10 +65,39 @@ def scenes(which: str, count: int):
             yield f"val{seed}", np.ascontiguousarray(c.transpose(1, 2, 0))
 
 
+def project_metrics(truth: np.ndarray, estimate: np.ndarray) -> dict:
+    """The project's metrics of ``estimate`` against ``truth`` ((H, W, B) each), by :func:`diffcassi.metrics`:
+    the paper's PSNR (dB), SSIM, SAM (degrees)."""
+    d = diffcassi.metrics(truth, np.ascontiguousarray(estimate, dtype=np.float32))
+    d = d.get("metrics", d)
+    return {"psnr": float(d["psnr_db"]), "ssim": float(d["ssim"]), "sam": float(d["sam_deg"])}
+
+
 def paper_psnr(truth: np.ndarray, estimate: np.ndarray) -> float:
     """The paper's PSNR (dB) of ``estimate`` against ``truth`` ((H, W, B) each), by :func:`diffcassi.metrics`."""
-    d = diffcassi.metrics(truth, np.ascontiguousarray(estimate, dtype=np.float32))
-    return float(d.get("metrics", d)["psnr_db"])
+    return project_metrics(truth, estimate)["psnr"]
+
+
+def sam_diagnosis(truth: np.ndarray, estimate: np.ndarray) -> dict:
+    """Where the mean spectral angle comes from (degrees): the per-pixel angle (as ``recon::metrics``'s SAM)
+    averaged over the quartiles of the truth's spectral norm (q1 darkest), SAM of the estimate clipped at 0,
+    and the share of negative estimate values."""
+    t = truth.reshape(-1, truth.shape[-1]).astype(np.float64)
+    e = estimate.reshape(-1, estimate.shape[-1]).astype(np.float64)
+
+    def angles(e):
+        nt, ne = np.linalg.norm(t, axis=1), np.linalg.norm(e, axis=1)
+        c = np.einsum("ij,ij->i", t, e) / np.maximum(nt * ne, 1e-300)
+        a = np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))
+        return np.where((nt == 0) & (ne == 0), 0.0, np.where((nt == 0) | (ne == 0), 90.0, a))
+
+    a, nt = angles(e), np.linalg.norm(t, axis=1)
+    q = np.quantile(nt, [0.25, 0.5, 0.75])
+    bins = np.digitize(nt, q)
+    out = {f"sam_q{i + 1}": float(a[bins == i].mean()) for i in range(4)}
+    out["sam_clip0"] = float(angles(np.maximum(e, 0.0)).mean())
+    out["neg"] = float((e < 0).mean())
+    return out
 
 
 def main(argv=None) -> int:
@@ -74,6 +111,8 @@ def main(argv=None) -> int:
     ap.add_argument("--neutral", action="store_true", help="one-call rows with the mean-colour neutralisation (off by "
                     "default, as in the PnP solvers; `pnp:` rows run the Rust solvers, never neutralised)")
     ap.add_argument("--ensemble", action="store_true", help="one-call rows with the geometric self-ensemble (8× time)")
+    ap.add_argument("--diagnose", action="store_true", help="per roll: schedule, SAM by truth-brightness quartile, "
+                    "SAM of the estimate clipped at 0 and the share of negative values")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--json", default=None)
     ap.add_argument("--cache", default=None, help="folder keeping each cell's GAP-TV PSNR and network input (they do "
@@ -89,7 +128,7 @@ def main(argv=None) -> int:
     scheds = [s.strip() for s in a.schedules.split(",") if s.strip()]
     rows = []
     t0 = time.time()
-    from make_pnp_pairs import identity_weights  # noqa: E402 (scripts/ is on sys.path when run as a script)
+    from make_pnp_pairs import TV_CAP, gap_rollout, identity_weights, sigma_schedule  # noqa: E402 (scripts/ on sys.path)
     with tempfile.TemporaryDirectory() as tmp:
         ident = str(pathlib.Path(tmp) / "identity.safetensors")
         identity_weights(pathlib.Path(ident), len(BANDS_NM))
@@ -97,11 +136,27 @@ def main(argv=None) -> int:
             for preset in a.presets.split(","):
                 system = diffcassi.System.preset(preset)
                 psnr = lambda c, t=truth: paper_psnr(t, c)
+
+                def record(key, c, diagnose=False):
+                    m = project_metrics(truth, c)
+                    row[key], row[f"{key}|ssim"], row[f"{key}|sam"] = m["psnr"], m["ssim"], m["sam"]
+                    if diagnose:
+                        row.update({f"{key}|{k}": v for k, v in sam_diagnosis(truth, c).items()})
                 cached = None if a.cache is None else pathlib.Path(a.cache) / f"{name}-{preset}.npz"
                 need_op = any(x.startswith("pnp:") for x in scheds)
-                if cached is not None and cached.is_file() and not need_op:
+                need_roll = any(x.startswith("roll:") for x in scheds)
+                has_cache = cached is not None and cached.is_file()
+                if has_cache and need_roll:
+                    with np.load(cached) as z:
+                        has_cache = "gap_tv_cube" in z.files
+                if has_cache and not need_op:
                     with np.load(cached) as z:
                         x, gap_tv = z["iterate"], float(z["gap_tv"])
+                        gt = z["gap_tv_cube"] if "gap_tv_cube" in z.files else None
+                    if need_roll:
+                        y, _ = diffcassi.render(system, truth, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=0)
+                        y = np.ascontiguousarray(y, dtype=np.float32)
+                        op = diffcassi.exact(system, SIZE, SIZE, mask, rays=RAYS, planes=PLANES, seed=1)
                 else:
                     y, _ = diffcassi.render(system, truth, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=0)
                     y = np.ascontiguousarray(y, dtype=np.float32)
@@ -109,14 +164,21 @@ def main(argv=None) -> int:
                     delta = diffcassi.monte_carlo_noise_norm(y, RAYS, RAYS, PLANES / len(BANDS_NM))
                     gt, _ = diffcassi.reconstruct(op, y, "gap-tv", noise_norm=delta)
                     gap_tv = psnr(gt)
-                    x, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=ident, noise_norm=delta)
+                    # The network's first input: the TV phase and one identity call (explicit: the default
+                    # network phase has several calls since round 6).
+                    x, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=ident, noise_norm=delta, tv_warmup=TV_CAP,
+                                                 iterations=TV_CAP + 1)
                     if cached is not None:
                         cached.parent.mkdir(parents=True, exist_ok=True)
-                        np.savez(cached, iterate=x, gap_tv=gap_tv)
-                row = {"scene": name, "preset": preset, "gap_tv": gap_tv}
+                        np.savez(cached, iterate=x, gap_tv=gap_tv, gap_tv_cube=gt)
+                row = {"scene": name, "preset": preset}
+                if gt is not None:
+                    record("gap_tv", gt, a.diagnose)
+                else:
+                    row["gap_tv"] = gap_tv
                 p = float(x.max()) if x.max() > 0 else 1.0
                 xin = torch.from_numpy(np.ascontiguousarray(x.transpose(2, 0, 1) / p))[None]
-                row["iterate"] = psnr(x)
+                record("iterate", x)
                 for s in scheds:
                     parts = s.split(":")
                     if parts[0] == "one":
@@ -124,7 +186,7 @@ def main(argv=None) -> int:
                             with torch.no_grad():
                                 out = denoise(net, xin, float(parts[1]), neutral=a.neutral,
                                               ensemble=a.ensemble)[0].numpy().transpose(1, 2, 0) * p
-                            row[f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s] = psnr(out)
+                            record(f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s, out)
                     elif parts[0] == "pnp":
                         n, s1, s2 = int(parts[1]), float(parts[2]), float(parts[3])
                         plain = len(parts) > 4 and parts[4] == "plain"
@@ -132,15 +194,20 @@ def main(argv=None) -> int:
                             c, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=w, noise_norm=delta, iterations=300 + n,
                                                          sigma_max=s1, sigma_min=min(s1, s2), discrepancy=0.0,
                                                          tolerance=0.0, accelerated=not plain)
-                            row[f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s] = psnr(c)
+                            record(f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s, c)
+                    elif parts[0] == "roll":
+                        n, s1, s2 = int(parts[1]), float(parts[2]), float(parts[3])
+                        for w, net in nets.items():
+                            _, c = gap_rollout(op, y, gt, x, net, sigma_schedule(s1, s2, n))
+                            record(f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s, c, a.diagnose)
                     else:
                         ap.error(f"--schedules: unknown schedule {s!r}")
                 rows.append(row)
-                print(json.dumps({k: (round(v, 2) if isinstance(v, float) else v) for k, v in row.items()}), f"{time.time() - t0:.0f} s", flush=True)
-    keys = [k for k in rows[0] if k not in ("scene", "preset")]
+                print(json.dumps({k: (round(v, 3 if "|" in k else 2) if isinstance(v, float) else v) for k, v in row.items()}), f"{time.time() - t0:.0f} s", flush=True)
+    keys = [k for k in rows[0] if k not in ("scene", "preset") and all(k in r for r in rows)]
     summary = {pr: {k: float(np.mean([r[k] for r in rows if r["preset"] == pr])) for k in keys}
                for pr in a.presets.split(",")}
-    print("mean:", json.dumps({pr: {k: round(v, 2) for k, v in d.items()} for pr, d in summary.items()}))
+    print("mean:", json.dumps({pr: {k: round(v, 3 if "|" in k else 2) for k, v in d.items()} for pr, d in summary.items()}))
     if a.json:
         pathlib.Path(a.json).write_text(json.dumps({"rows": rows, "mean": summary, "args": vars(a),
                                                     "wall_s": round(time.time() - t0, 1)}, indent=1) + "\n")

@@ -87,6 +87,8 @@ SEL_RMIN_PX, SEL_TEXTURES, SEL_BRIGHTNESS = (4.0, 16.0), (0.6, 0.15, 0.15, 0.1),
 #: ``src/recon/solver.rs`` is the stop stage's). Above the Gaussian range (σ ≤ 0.2), so the σ input also tells
 #: the network which kind of error it is given.
 PAIR_SIGMA = (0.3, 0.4)
+#: The stages of round 4's pair files (round 6's files name theirs in the manifest: ``call1`` …).
+STAGE_NAMES = ("stop", "half")
 
 
 def seed_kind(seed: int) -> str:
@@ -194,6 +196,7 @@ def load_pairs(path) -> dict:
     try:
         with np.load(path) as z:
             d = {k: z[k] for k in ("inputs", "targets", "stage", "err", "preset")}
+            file_sigma = z["sigma"] if "sigma" in z.files else None
             manifest = json.loads(str(z["manifest"]))
     except (OSError, ValueError, KeyError) as e:
         raise ValueError(f"artefact pairs {path}: not a make_pnp_pairs.py file ({e})") from None
@@ -201,10 +204,20 @@ def load_pairs(path) -> dict:
     if x.ndim != 4 or x.shape != t.shape or x.shape[1] != len(BANDS_NM) or not (np.isfinite(x).all() and np.isfinite(t).all()):
         raise ValueError(f"artefact pairs {path}: inputs/targets must be finite (N, {len(BANDS_NM)}, H, W) of one shape, "
                          f"got {x.shape} and {t.shape}")
-    if not np.isin(d["stage"], range(len(PAIR_SIGMA))).all():
-        raise ValueError(f"artefact pairs {path}: a stage outside 0..{len(PAIR_SIGMA) - 1}")
-    sigma = np.asarray(PAIR_SIGMA, dtype=np.float32)[d["stage"]]
-    return {"inputs": torch.from_numpy(x), "targets": torch.from_numpy(t), "sigma": torch.from_numpy(sigma),
+    if file_sigma is not None:
+        # Round 6 (``make_pnp_pairs.py --schedule``): one stage per network call, σ the schedule's.
+        names = list(manifest.get("stages") or [])
+        sigma = np.asarray(file_sigma, dtype=np.float32)
+        if sigma.shape != d["stage"].shape or not (np.isfinite(sigma).all() and (sigma > 0).all()):
+            raise ValueError(f"artefact pairs {path}: `sigma` must be finite and > 0, one per pair")
+    else:
+        names = list(STAGE_NAMES[:len(PAIR_SIGMA)])
+        sigma = None
+    if not names or not np.isin(d["stage"], range(len(names))).all():
+        raise ValueError(f"artefact pairs {path}: a stage outside 0..{len(names) - 1}")
+    if sigma is None:
+        sigma = np.asarray(PAIR_SIGMA, dtype=np.float32)[d["stage"]]
+    return {"stage_names": names, "inputs": torch.from_numpy(x), "targets": torch.from_numpy(t), "sigma": torch.from_numpy(sigma),
             "stage": torch.from_numpy(d["stage"]), "err": d["err"], "preset": d["preset"], "manifest": manifest,
             "sha256": hashlib.sha256(path.read_bytes()).hexdigest(), "path": str(path)}
 
@@ -236,7 +249,7 @@ def validate_pairs(net: SpectralUNet, pairs: dict) -> dict:
     from diffcassi.denoiser import denoise
     net.eval()
     res = {}
-    for si, name in enumerate(("stop", "half")[:len(PAIR_SIGMA)]):
+    for si, name in enumerate(pairs["stage_names"]):
         sel = pairs["stage"] == si
         if not bool(sel.any()):
             continue
@@ -364,6 +377,9 @@ def main(argv=None) -> int:
     ap.add_argument("--pair-batch", type=int, default=4, help="artefact pairs per step with --pairs (default: %(default)s)")
     ap.add_argument("--pairs-val", default=None, help="validation artefact pairs (other scenes); with them the "
                     "weights file keeps the best stop-stage PSNR within --sel-tolerance of the start's selection score")
+    ap.add_argument("--stage-net", action="store_true", help="round 6: a PnP-stage network trained on --pairs only "
+                    "(no Gaussian cubes); the weights file keeps the best mean over stages of --pairs-val's output PSNR, "
+                    "its metadata says stage = pnp")
     ap.add_argument("--sel-tolerance", type=float, default=0.2, help="dB the Gaussian selection score may lose against "
                     "the step-0 score for a checkpoint to be kept under --pairs-val (default: %(default)s)")
     ap.add_argument("--summary", type=int, metavar="EVERY", default=None,
@@ -383,6 +399,8 @@ def main(argv=None) -> int:
         ap.error(f"--latent must be at most the {len(BANDS_NM)} bands (got {a.latent})")
     if a.pair_batch < 1 or not a.sel_tolerance >= 0:
         ap.error("--pair-batch must be at least 1 and --sel-tolerance non-negative")
+    if a.stage_net and not (a.pairs and a.pairs_val):
+        ap.error("--stage-net needs --pairs and --pairs-val")
     if not (a.lr > 0 and a.lr_min >= 0 and a.clip > 0) or (a.minutes is not None and not a.minutes > 0):
         ap.error("--lr, --clip and --minutes must be positive, --lr-min non-negative")
 
@@ -457,14 +475,17 @@ def main(argv=None) -> int:
         "latent": a.latent, "freeze_spectral": a.freeze_spectral,
         "artefact_pairs": None if pairs is None else {
             "file": pairs["path"], "sha256": pairs["sha256"], "count": int(pairs["inputs"].shape[0]),
-            "per_step": a.pair_batch, "sigma_per_stage": dict(zip(("stop", "half"), PAIR_SIGMA)),
+            "per_step": a.pair_batch, "stage_net": a.stage_net,
+            "sigma_per_stage": {n: float(pairs["sigma"][pairs["stage"] == i][0]) for i, n in enumerate(pairs["stage_names"])
+                                if bool((pairs["stage"] == i).any())},
             "mean_err_per_stage": {n: float(pairs["err"][pairs["stage"].numpy() == i].mean())
-                                   for i, n in enumerate(("stop", "half")) if (pairs["stage"].numpy() == i).any()},
+                                   for i, n in enumerate(pairs["stage_names"]) if (pairs["stage"].numpy() == i).any()},
             "made_by": "scripts/make_pnp_pairs.py", "manifest": {k: v for k, v in pairs["manifest"].items() if k != "sources"}},
         "artefact_pairs_val": None if pairs_val is None else {
             "file": pairs_val["path"], "sha256": pairs_val["sha256"], "count": int(pairs_val["inputs"].shape[0]),
             "manifest": {k: v for k, v in pairs_val["manifest"].items() if k != "sources"},
-            "rule": f"best stop-stage PSNR among checkpoints whose selection score >= step-0's - {a.sel_tolerance} dB"},
+            "rule": "best mean over stages of the output PSNR (stage network: no Gaussian constraint)" if a.stage_net else
+            f"best stop-stage PSNR among checkpoints whose selection score >= step-0's - {a.sel_tolerance} dB"},
         "pca": {"components": a.pca or a.latent, "train_steps": PCA_STEPS, "size": PCA_SIZE}
         if init_kind and "principal" in init_kind else None,
     })
@@ -494,12 +515,20 @@ def main(argv=None) -> int:
         mean = sum(val_sel.values()) / len(val_sel)
         if sel0 is None:
             sel0 = mean
-        score = mean if val_pairs is None else (val_pairs["stop"] if mean >= sel0 - a.sel_tolerance else -math.inf)
+        if a.stage_net:
+            score = sum(val_pairs[n] for n in pairs_val["stage_names"]) / len(pairs_val["stage_names"])
+        else:
+            score = mean if val_pairs is None else (val_pairs["stop"] if mean >= sel0 - a.sel_tolerance else -math.inf)
         improved = score > best
         if improved:
             best = score
             extra = {} if val_pairs is None else {"pnp_val_psnr_db": json.dumps(val_pairs),
-                                                  "pnp_sigma_per_stage": json.dumps(dict(zip(("stop", "half"), PAIR_SIGMA)))}
+                                                  "pnp_sigma_per_stage": json.dumps(
+                (manifest["artefact_pairs"] or {}).get("sigma_per_stage") if a.stage_net
+                else dict(zip(STAGE_NAMES, PAIR_SIGMA)))}
+            if a.stage_net:
+                extra["stage"] = "pnp"
+                extra["pnp_schedule"] = json.dumps(pairs["manifest"].get("schedule"))
             save_weights(net, wpath, {"training_step": str(step), "val_psnr_db": json.dumps(val),
                                       "val_rgb_psnr_db": json.dumps(val_rgb), "sel_psnr_db": json.dumps(val_sel), **extra})
         elapsed = elapsed0 + time.time() - t0
@@ -528,6 +557,25 @@ def main(argv=None) -> int:
     while step < a.steps:
         if a.minutes is not None and time.time() - t0 > 60 * a.minutes:
             break
+        g = torch.Generator().manual_seed(a.seed * 1_000_003 + step)
+        if a.stage_net:
+            noisy, sigma, target = pair_batch(pairs, a.pair_batch, a.patch, g)
+            for pg in opt.param_groups:
+                pg["lr"] = lr_at(step, a.steps, a.lr, a.lr_min, a.warmup)
+            loss = (net(noisy, sigma) - target).abs().mean()
+            if not torch.isfinite(loss):
+                print(f"train_denoiser: error: non-finite loss at step {step}; the weights file keeps the best so far",
+                      file=sys.stderr)
+                return 1
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(net.parameters(), a.clip)
+            opt.step()
+            losses.append(loss.item())
+            step += 1
+            if step % a.val_every == 0 or step == a.steps:
+                checkpoint(val_all())
+            continue
         seeds = train_seeds(step)
         for s in seeds:
             if s not in cache:

@@ -388,7 +388,7 @@ pub struct SolverTuning {
     #[arg(long = "tv-warmup")]
     pub tv_warmup: Option<usize>,
     /// Stopping rule: stop when the relative change ‖θ_k − θ_{k−1}‖/‖θ_k‖ falls below this (0: run every
-    /// iteration) [default: the solver's: 0 for TV, 1e-3 for PnP].
+    /// iteration) [default: the solver's: 0 (TV and PnP)].
     #[arg(long)]
     pub tolerance: Option<f64>,
     /// Stopping rule (discrepancy principle): stop once ‖y − Φθ‖₂ ≤ τ·δ, δ the noise norm estimated from

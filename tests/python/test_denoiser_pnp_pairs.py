@@ -135,3 +135,106 @@ def test_round4_manifest_uses_no_image_and_no_evaluation_scene():
         assert man[key]["manifest"]["image_files"] == [] and man[key]["manifest"]["evaluation_scenes_used"] == []
     assert man["artefact_pairs"]["sha256"] != man["artefact_pairs_val"]["sha256"]
     assert man["artefact_pairs"]["manifest"]["seed_base"] != man["artefact_pairs_val"]["manifest"]["seed_base"]
+
+
+# ---- round 6: pairs from a multi-call schedule, the PnP-stage network ----
+
+def test_schedule_rollout_equals_the_rust_pnp_gap(pairs_script):
+    """The NumPy/PyTorch rollout of ``pnp-gap``'s network phase (what the round-6 pairs and ``eval_pnp.py roll:``
+    use) equals the Rust solver with the same network and σ schedule, 2 calls, to 1e-4 of the peak."""
+    weights = str(pairs_script.ROOT / "src/recon/prior/weights/spectral-unet-v2-28.safetensors")
+    assert pairs_script.check_rollout(weights, pairs_script.sigma_schedule(0.3, 0.1, 2), size=16) < 1e-4
+
+
+def test_network_scale_is_the_solvers():
+    """``network_scale`` = ``recon::solver::NetworkScale``: the maximum without outliers, the largest inlier
+    (≤ 1.5 × the 0.999 quantile) with one."""
+    ps = load_script("make_pnp_pairs")
+    x = np.linspace(0.0, 1.0, 5000, dtype=np.float32)
+    assert ps.network_scale(x) == pytest.approx(1.0)
+    x[7] = 100.0
+    assert ps.network_scale(x) == pytest.approx(1.0)
+    assert ps.network_scale(np.zeros(10, np.float32)) == 1.0
+    assert ps.sigma_schedule(0.3, 0.1, 3) == pytest.approx([0.3, 0.3 * (1 / 3) ** 0.5, 0.1])
+
+
+@pytest.fixture(scope="module")
+def schedule_pairs(pairs_script, tmp_path_factory):
+    out = tmp_path_factory.mktemp("pairs6") / "pairs.npz"
+    assert pairs_script.main(["--out", str(out), "--count", "1", "--size", "16", "--schedule", "2:0.3:0.1"]) == 0
+    return out
+
+
+def test_schedule_pairs_file_is_consistent(schedule_pairs, train, pairs_script):
+    with np.load(schedule_pairs) as z:
+        x, t, err, stage, preset, sigma = (z[k] for k in ("inputs", "targets", "err", "stage", "preset", "sigma"))
+        manifest = json.loads(str(z["manifest"]))
+    assert x.shape == t.shape == (4, 28, 16, 16)
+    assert list(stage) == [0, 1, 0, 1] and list(preset) == [0, 0, 1, 1]
+    assert sigma.tolist() == pytest.approx([0.3, 0.1] * 2)
+    assert np.allclose(err, np.sqrt(((x - t) ** 2).reshape(4, -1).mean(1)), rtol=1e-4)
+    assert manifest["stages"] == ["call1", "call2"] and manifest["schedule"]["calls"] == 2
+    assert manifest["image_files"] == [] and manifest["evaluation_scenes_used"] == []
+    assert manifest["seed_base"] == pairs_script.PAIR_SEED_BASE
+    loaded = train.load_pairs(schedule_pairs)
+    assert loaded["stage_names"] == ["call1", "call2"] and loaded["sigma"].tolist() == pytest.approx(sigma.tolist())
+
+
+def test_stage_net_training_writes_a_pnp_stage_file(train, schedule_pairs, tmp_path, capsys):
+    out = tmp_path / "s"
+    args = ["--patch", "16", "--threads", "1", "--warmup", "1", "--val-every", "2", "--width", "4", "--latent", "6",
+            "--pairs", str(schedule_pairs), "--pairs-val", str(schedule_pairs), "--pair-batch", "2", "--stage-net",
+            "--steps", "4", "--out", str(out)]
+    assert train.main(args) == 0
+    w = out / f"{ARCH}-28.safetensors"
+    net = load_weights(w, bands=28)
+    assert net.stage == "pnp"
+    vals = [json.loads(line) for line in (out / "train-log.jsonl").read_text().splitlines()]
+    vals = [r for r in vals if "pnp_val_psnr_db" in r]
+    assert all({"call1", "call2", "call1_input", "call2_input"} <= set(r["pnp_val_psnr_db"]) for r in vals)
+    # The rule: the best mean over the calls.
+    best = max(vals, key=lambda r: (r["pnp_val_psnr_db"]["call1"] + r["pnp_val_psnr_db"]["call2"]) / 2)
+    from safetensors import safe_open
+    with safe_open(str(w), framework="pt") as f:
+        meta = f.metadata()
+    assert meta["stage"] == "pnp" and meta["training_step"] == str(best["step"])
+    assert json.loads(meta["pnp_schedule"])["calls"] == 2
+    # A Gaussian denoiser's loader (Rust) refuses it; the PnP solvers take it.
+    cube = np.random.default_rng(0).random((8, 8, 28)).astype(np.float32)
+    with pytest.raises(diffcassi.DiffcassiError, match="stage"):
+        diffcassi.denoise(cube, 0.1, weights=str(w))
+    # --stage-net without validation pairs is a usage error.
+    with pytest.raises(SystemExit) as e:
+        train.main([a for a in args if a not in ("--pairs-val", str(schedule_pairs))] + ["--pairs", str(schedule_pairs)])
+    assert e.value.code == 2
+
+
+def test_round6_manifest_uses_no_image_and_no_evaluation_scene():
+    from conftest import ROOT
+    man = json.loads((ROOT / "src/recon/prior/weights/train-manifest-round6.json").read_text())
+    assert man["image_files"] == [] and man["evaluation_scenes_used"] == []
+    for key in ("artefact_pairs", "artefact_pairs_val"):
+        assert man[key]["manifest"]["image_files"] == [] and man[key]["manifest"]["evaluation_scenes_used"] == []
+    assert man["artefact_pairs"]["sha256"] != man["artefact_pairs_val"]["sha256"]
+    assert man["artefact_pairs"]["manifest"]["seed_base"] != man["artefact_pairs_val"]["manifest"]["seed_base"]
+    assert man["artefact_pairs"]["stage_net"] is True
+
+
+def test_eval_pnp_metrics_and_sam_diagnosis_match_the_project_metrics():
+    """Round 7: eval_pnp's PSNR/SSIM/SAM are ``diffcassi.metrics``'s, and ``--diagnose``'s per-pixel angles are
+    the same SAM split by truth brightness (equal quartiles here: the mean of the four is the SAM); clipping at 0
+    changes SAM only where the estimate is negative, and the share of negatives is counted."""
+    ev = load_script("eval_pnp")
+    rng = np.random.default_rng(7)
+    truth = rng.random((16, 16, 28)).astype(np.float32)
+    est = (truth + 0.2 * rng.standard_normal(truth.shape)).astype(np.float32)
+    m = ev.project_metrics(truth, est)
+    ref = diffcassi.metrics(truth, est)
+    assert (m["psnr"], m["ssim"], m["sam"]) == (ref["psnr_db"], ref["ssim"], ref["sam_deg"])
+    d = ev.sam_diagnosis(truth, est)
+    assert np.mean([d[f"sam_q{i}"] for i in range(1, 5)]) == pytest.approx(ref["sam_deg"], abs=1e-9)
+    assert d["sam_q1"] > d["sam_q4"]  # the same absolute noise is a larger angle on dark spectra
+    assert d["neg"] == pytest.approx(float((est < 0).mean())) and d["neg"] > 0
+    assert d["sam_clip0"] != pytest.approx(ref["sam_deg"], abs=1e-6)
+    pos = np.abs(est)
+    assert ev.sam_diagnosis(truth, pos)["sam_clip0"] == pytest.approx(diffcassi.metrics(truth, pos)["sam_deg"], abs=1e-9)

@@ -26,7 +26,12 @@
 //! (`src/recon/prior/weights/spectral-unet-v2-28.safetensors`, 28 bands; `include_bytes!`, so the CLI needs
 //! no path); [`SpectralUNet::from_file`] reads a user's. Both check the metadata (`arch` = `spectral-unet-v2`,
 //! `bands`, `width`, `latent`), that every tensor the graph needs is there with its shape, in f32, with finite
-//! values, and that nothing else is: errors name the file and the field or tensor. (Round 1–2's
+//! values, and that nothing else is: errors name the file and the field or tensor. The
+//! metadata `stage` tells a Gaussian denoiser (absent or `gaussian`: the embedded file, `denoise`, the Gaussian
+//! benchmark) from a **PnP-stage network** (`pnp`: `scripts/train_denoiser.py --stage-net`, trained only on the
+//! iterates of `pnp-gap`'s own schedule, MODEL.md round 6). [`SpectralUNet::load`] (a Gaussian denoiser: the
+//! CLI/Python/C++ `denoise`) refuses a PnP-stage file; the PnP solvers ([`SpectralUNet::load_pnp`]) take either
+//! and record its `stage`; any other value is refused. (Round 1–2's
 //! `spectral-unet-v1` is v2 with K = bands, E = D = I, G = 0; `diffcassi.denoiser.from_v1` converts such a file.)
 //!
 //! **Input.** Cubes H×W×B `[row][col][band]` with B = the network's bands, scaled by the caller to a peak of
@@ -69,6 +74,27 @@ pub const EMBEDDED_PATH: &str = "src/recon/prior/weights/spectral-unet-v2-28.saf
 
 static EMBEDDED: &[u8] = include_bytes!("weights/spectral-unet-v2-28.safetensors");
 
+/// What a weights file was trained for (metadata `stage`; absent = `gaussian`, rounds 1–5's files and the
+/// embedded one). `pnp`: a plug-and-play stage network (`scripts/train_denoiser.py --stage-net`, round 6 of
+/// MODEL.md: the same graph trained only on the iterates of `pnp-gap`'s multi-call schedule); none is embedded
+/// (round 6's did not pay on validation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Stage {
+    /// A Gaussian denoiser (σ the noise's standard deviation): `denoise`, the Gaussian benchmark.
+    Gaussian,
+    /// A plug-and-play stage network (σ the schedule's per-call value; trained on PnP's iterates).
+    Pnp,
+}
+
+impl Stage {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Stage::Gaussian => "gaussian",
+            Stage::Pnp => "pnp",
+        }
+    }
+}
+
 /// CRC-32 of the weights' bytes (the embedded file for `None`): identifies the checkpoint in records.
 pub fn weights_crc32(path: Option<&Path>) -> Result<u32> {
     match path {
@@ -96,6 +122,8 @@ pub struct SpectralUNet {
     pub source: String,
     /// CRC-32 of the weights file's bytes.
     pub crc32: u32,
+    /// What the weights were trained for (metadata `stage`).
+    pub stage: Stage,
     /// Mean-colour neutralisation (default off, so PnP is unchanged; round 5, MODEL.md): the graph sees
     /// `x − m + ḡ` (m the cube's per-band spatial mean, ḡ the mean of m over the bands) and the output gets
     /// `m − ḡ` back, as `denoise(…, neutral=True)` in `diffcassi/denoiser.py`.
@@ -160,9 +188,18 @@ fn cerr(e: candle_core::Error) -> Error {
 }
 
 impl SpectralUNet {
-    /// The committed checkpoint, embedded in the binary.
+    /// The committed checkpoint (a Gaussian denoiser), embedded in the binary.
     pub fn embedded() -> Result<Self> {
         Self::from_bytes(EMBEDDED, &format!("{EMBEDDED_PATH} (embedded)"))
+    }
+
+    /// The PnP solvers' network: the embedded weights (`None`) or a file's, of either stage — a Gaussian
+    /// denoiser (the default) or a PnP-stage network (`stage` = `pnp`); the record says which (`stage`).
+    pub fn load_pnp(path: Option<&Path>) -> Result<Self> {
+        match path {
+            None => Self::embedded(),
+            Some(p) => Self::from_file(p),
+        }
     }
 
     /// Weights from a safetensors file.
@@ -171,12 +208,17 @@ impl SpectralUNet {
         Self::from_bytes(&bytes, &path.display().to_string())
     }
 
-    /// The embedded weights (`None`) or a file's.
+    /// A Gaussian denoiser: the embedded weights (`None`) or a file's; a PnP-stage file (metadata `stage` =
+    /// `pnp`: trained on PnP's iterates with the schedule's σ, not on Gaussian noise) is refused.
     pub fn load(path: Option<&Path>) -> Result<Self> {
-        match path {
-            None => Self::embedded(),
-            Some(p) => Self::from_file(p),
+        let net = match path {
+            None => Self::embedded()?,
+            Some(p) => Self::from_file(p)?,
+        };
+        if net.stage == Stage::Pnp {
+            return Err(ferr(&net.source, "metadata `stage` = `pnp`: a plug-and-play stage network (trained on PnP's iterates), not a Gaussian denoiser; use it with --solver pnp-gap/pnp-admm, or give Gaussian weights"));
         }
+        Ok(net)
     }
 
     /// Weights from the bytes of a safetensors file; `source` names it in errors.
@@ -195,6 +237,11 @@ impl SpectralUNet {
             v.trim().parse::<usize>().ok().filter(|n| *n > 0 && *n <= 4096).ok_or_else(|| ferr(source, format!("metadata `{k}` = `{v}` is not a positive integer ≤ 4096")))
         };
         let (bands, width, latent) = (num("bands")?, num("width")?, num("latent")?);
+        let stage = match meta.get("stage").map(|s| s.as_str()) {
+            None | Some("gaussian") => Stage::Gaussian,
+            Some("pnp") => Stage::Pnp,
+            Some(other) => return Err(ferr(source, format!("metadata `stage` = `{other}`: expected `gaussian` (or absent) or `pnp`"))),
+        };
         if latent > bands {
             return Err(ferr(source, format!("metadata `latent` = {latent} exceeds `bands` = {bands}")));
         }
@@ -216,7 +263,7 @@ impl SpectralUNet {
         if let Some(extra) = st.names().into_iter().find(|n| !expected.contains(*n)) {
             return Err(ferr(source, format!("tensor `{extra}` is not part of {ARCH} (expected {} tensors: lat_enc, head, …, tail, lat_dec, bypass)", expected.len())));
         }
-        Ok(SpectralUNet { bands, width, latent, source: source.to_string(), crc32: crc32fast::hash(bytes), neutral: false, self_ensemble: false, layers })
+        Ok(SpectralUNet { bands, width, latent, source: source.to_string(), crc32: crc32fast::hash(bytes), stage, neutral: false, self_ensemble: false, layers })
     }
 
     /// Tensor `name` of the file, checked: present, f32, of `shape`, finite.
@@ -364,7 +411,7 @@ impl Denoiser for SpectralUNet {
     }
 
     fn describe(&self) -> serde_json::Value {
-        serde_json::json!({ "name": ARCH, "weights": self.source, "weights_crc32": self.crc32, "bands": self.bands, "width": self.width, "latent": self.latent, "neutral_mean_colour": self.neutral, "self_ensemble": self.self_ensemble })
+        serde_json::json!({ "name": ARCH, "weights": self.source, "weights_crc32": self.crc32, "stage": self.stage.name(), "bands": self.bands, "width": self.width, "latent": self.latent, "neutral_mean_colour": self.neutral, "self_ensemble": self.self_ensemble })
     }
 }
 
