@@ -140,6 +140,18 @@ def gap_rollout(op, y: np.ndarray, theta0: np.ndarray, x1: np.ndarray, net, sigm
     return inputs, theta
 
 
+def acquire(preset: str, seed: int, scene: np.ndarray, mask: np.ndarray, size: int):
+    """The realistic-setting acquisition of ``scene`` (H, W, B) through ``preset`` (Monte-Carlo seed 2·seed), the
+    exact operator of seed 2·seed + 1, and δ from the Monte-Carlo model: (op, y float32, δ)."""
+    system = diffcassi.System.preset(preset)
+    acq_seed = 2 * seed
+    y, _ = diffcassi.render(system, scene, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=acq_seed)
+    op = diffcassi.exact(system, size, size, mask, rays=RAYS, planes=PLANES, seed=acq_seed + 1)
+    y32 = np.ascontiguousarray(y, dtype=np.float32)
+    delta = diffcassi.monte_carlo_noise_norm(y32, RAYS, RAYS, PLANES / len(BANDS_NM))
+    return op, y32, delta
+
+
 def pairs_of_scene(seed: int, kind: str, size: int, paper: np.ndarray, ident: str, threads: int):
     cube = dead_leaves(seed, size, BANDS_NM, kind=kind)  # (B, H, W), peak 1
     scene = np.ascontiguousarray(cube.transpose(1, 2, 0))
@@ -147,12 +159,7 @@ def pairs_of_scene(seed: int, kind: str, size: int, paper: np.ndarray, ident: st
     mask, mask_desc = scene_mask(rng, paper, size)
     out = []
     for pi, preset in enumerate(PRESETS):
-        system = diffcassi.System.preset(preset)
-        acq_seed = 2 * seed
-        y, _ = diffcassi.render(system, scene, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=acq_seed)
-        op = diffcassi.exact(system, size, size, mask, rays=RAYS, planes=PLANES, seed=acq_seed + 1)
-        y32 = np.ascontiguousarray(y, dtype=np.float32)
-        delta = diffcassi.monte_carlo_noise_norm(y32, RAYS, RAYS, PLANES / len(BANDS_NM))
+        op, y32, delta = acquire(preset, seed, scene, mask, size)
         k_stop = None
         for si, stage in enumerate(STAGES):
             cap = 300 if stage == "stop" else max(1, k_stop // 2)
@@ -181,12 +188,7 @@ def schedule_pairs_of_scene(seed: int, kind: str, size: int, paper: np.ndarray, 
     mask, mask_desc = scene_mask(rng, paper, size)
     out = []
     for pi, preset in enumerate(PRESETS):
-        system = diffcassi.System.preset(preset)
-        acq_seed = 2 * seed
-        y, _ = diffcassi.render(system, scene, list(BANDS_NM), mask, rays=RAYS, planes=PLANES, seed=acq_seed)
-        op = diffcassi.exact(system, size, size, mask, rays=RAYS, planes=PLANES, seed=acq_seed + 1)
-        y32 = np.ascontiguousarray(y, dtype=np.float32)
-        delta = diffcassi.monte_carlo_noise_norm(y32, RAYS, RAYS, PLANES / len(BANDS_NM))
+        op, y32, delta = acquire(preset, seed, scene, mask, size)
         theta0, _ = diffcassi.reconstruct(op, y32, "gap-tv", noise_norm=delta)
         x1, rec = diffcassi.reconstruct(op, y32, "pnp-gap", denoiser=ident, noise_norm=delta, discrepancy=0.0,
                                         tolerance=0.0, tv_warmup=TV_CAP, iterations=TV_CAP + 1)

@@ -554,27 +554,36 @@ def main(argv=None) -> int:
     if step == 0:
         checkpoint(val_all())
     net.train()
+
+    def optimise(noisy, sigma, target) -> bool:
+        """One L1 Adam step at the schedule's learning rate, then the step count and the validation; False
+        (with the error printed) on a non-finite loss."""
+        nonlocal step
+        for pg in opt.param_groups:
+            pg["lr"] = lr_at(step, a.steps, a.lr, a.lr_min, a.warmup)
+        loss = (net(noisy, sigma) - target).abs().mean()
+        if not torch.isfinite(loss):
+            print(f"train_denoiser: error: non-finite loss at step {step}; the weights file keeps the best so far",
+                  file=sys.stderr)
+            return False
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), a.clip)
+        opt.step()
+        losses.append(loss.item())
+        step += 1
+        if step % a.val_every == 0 or step == a.steps:
+            checkpoint(val_all())
+        return True
+
     while step < a.steps:
         if a.minutes is not None and time.time() - t0 > 60 * a.minutes:
             break
         g = torch.Generator().manual_seed(a.seed * 1_000_003 + step)
         if a.stage_net:
             noisy, sigma, target = pair_batch(pairs, a.pair_batch, a.patch, g)
-            for pg in opt.param_groups:
-                pg["lr"] = lr_at(step, a.steps, a.lr, a.lr_min, a.warmup)
-            loss = (net(noisy, sigma) - target).abs().mean()
-            if not torch.isfinite(loss):
-                print(f"train_denoiser: error: non-finite loss at step {step}; the weights file keeps the best so far",
-                      file=sys.stderr)
+            if not optimise(noisy, sigma, target):
                 return 1
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(net.parameters(), a.clip)
-            opt.step()
-            losses.append(loss.item())
-            step += 1
-            if step % a.val_every == 0 or step == a.steps:
-                checkpoint(val_all())
             continue
         seeds = train_seeds(step)
         for s in seeds:
@@ -587,21 +596,8 @@ def main(argv=None) -> int:
         if pairs is not None:
             px, ps, pt = pair_batch(pairs, a.pair_batch, a.patch, g)
             noisy, sigma, target = torch.cat([noisy, px]), torch.cat([sigma, ps]), torch.cat([target, pt])
-        for pg in opt.param_groups:
-            pg["lr"] = lr_at(step, a.steps, a.lr, a.lr_min, a.warmup)
-        loss = (net(noisy, sigma) - target).abs().mean()
-        if not torch.isfinite(loss):
-            print(f"train_denoiser: error: non-finite loss at step {step}; the weights file keeps the best so far",
-                  file=sys.stderr)
+        if not optimise(noisy, sigma, target):
             return 1
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), a.clip)
-        opt.step()
-        losses.append(loss.item())
-        step += 1
-        if step % a.val_every == 0 or step == a.steps:
-            checkpoint(val_all())
     if step % a.val_every and step != a.steps:
         checkpoint(val_all())
     log.close()
