@@ -876,7 +876,8 @@ impl Stopping {
 }
 
 /// The denoiser `config` names: TV with its weight/iterations/coupling for the TV solvers, the learned
-/// network for PnP (the embedded PnP-stage weights, or `config.denoiser`'s file: [`SpectralUNet::load_pnp`]).
+/// network for PnP (the embedded Gaussian weights, or `config.denoiser`'s file of either stage:
+/// [`SpectralUNet::load_pnp`]).
 pub fn config_denoiser(config: &SolverConfig) -> Result<Box<dyn Denoiser>> {
     if config.solver.is_pnp() {
         Ok(Box::new(SpectralUNet::load_pnp(config.denoiser.as_deref().map(std::path::Path::new))?))
