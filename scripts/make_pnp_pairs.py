@@ -140,6 +140,15 @@ def gap_rollout(op, y: np.ndarray, theta0: np.ndarray, x1: np.ndarray, net, sigm
     return inputs, theta
 
 
+def training_scene(seed: int, kind: str, size: int, paper: np.ndarray):
+    """The dead-leaves cube of ``seed`` ((B, H, W), peak 1), the same as a scene (H, W, B), and its mask (drawn
+    with ``seed``'s generator) with the mask's description."""
+    cube = dead_leaves(seed, size, BANDS_NM, kind=kind)
+    scene = np.ascontiguousarray(cube.transpose(1, 2, 0))
+    mask, mask_desc = scene_mask(np.random.default_rng(seed), paper, size)
+    return cube, scene, mask, mask_desc
+
+
 def acquire(preset: str, seed: int, scene: np.ndarray, mask: np.ndarray, size: int):
     """The realistic-setting acquisition of ``scene`` (H, W, B) through ``preset`` (Monte-Carlo seed 2·seed), the
     exact operator of seed 2·seed + 1, and δ from the Monte-Carlo model: (op, y float32, δ)."""
@@ -153,10 +162,7 @@ def acquire(preset: str, seed: int, scene: np.ndarray, mask: np.ndarray, size: i
 
 
 def pairs_of_scene(seed: int, kind: str, size: int, paper: np.ndarray, ident: str, threads: int):
-    cube = dead_leaves(seed, size, BANDS_NM, kind=kind)  # (B, H, W), peak 1
-    scene = np.ascontiguousarray(cube.transpose(1, 2, 0))
-    rng = np.random.default_rng(seed)
-    mask, mask_desc = scene_mask(rng, paper, size)
+    cube, scene, mask, mask_desc = training_scene(seed, kind, size, paper)
     out = []
     for pi, preset in enumerate(PRESETS):
         op, y32, delta = acquire(preset, seed, scene, mask, size)
@@ -182,10 +188,7 @@ def schedule_pairs_of_scene(seed: int, kind: str, size: int, paper: np.ndarray, 
     """Round 6 (``--schedule``): the inputs of every network call of a multi-call ``pnp-gap`` schedule run with
     ``net`` (DAgger-like: the calls before call k are the current stage network's), one pair per call and preset;
     ``sigma`` the schedule's σ_k, ``stage`` = k − 1, the scale p the solver's (:func:`network_scale`)."""
-    cube = dead_leaves(seed, size, BANDS_NM, kind=kind)  # (B, H, W), peak 1
-    scene = np.ascontiguousarray(cube.transpose(1, 2, 0))
-    rng = np.random.default_rng(seed)
-    mask, mask_desc = scene_mask(rng, paper, size)
+    cube, scene, mask, mask_desc = training_scene(seed, kind, size, paper)
     out = []
     for pi, preset in enumerate(PRESETS):
         op, y32, delta = acquire(preset, seed, scene, mask, size)
