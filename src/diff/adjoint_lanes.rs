@@ -260,7 +260,8 @@ impl LaneKernel for Sweep<'_> {
         let Sweep { plan, path, tape, n, lambda, active, sums } = self;
         let (mut lq, mut ld) = (v3(lambda[0], lambda[1], lambda[2]), v3(lambda[3], lambda[4], lambda[5]));
         let mut finite = active;
-        for s in (0..tape.steps.len()).rev() {
+        // Down to the earliest step a parameter moves (`AdjointPlan::first_step`): nothing is summed before it.
+        for s in (plan.first..tape.steps.len()).rev() {
             let (st, step, sp) = (&tape.steps[s], &path[s], &plan.steps[s]);
             let local = LocalLanes::at(&step.shape, &st.q, &st.normal);
             let (d, q) = (st.d, st.q);
@@ -358,7 +359,7 @@ impl LaneKernel for Sweep<'_> {
         }
         // Add the finite active lanes (a selected 0 elsewhere: the other lanes' sums keep their bits).
         let add = |acc: &mut Lf, v: &Lf| *acc = *acc + Lf::select(finite, *v, ZERO);
-        for s in 0..tape.steps.len() {
+        for s in plan.first..tape.steps.len() {
             let (sens, sp) = (&sums.sens[s], &plan.steps[s]);
             let (rot, off, shape) = (&mut sums.rotation[s], &mut sums.offset[s], &mut sums.shape[s]);
             if sp.rotation {
