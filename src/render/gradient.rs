@@ -205,32 +205,35 @@ impl super::vector::VectorLoop for RayGen<'_> {
     }
 }
 
-/// One traced block's landings contracted with the blurred upstream gradient, lane by lane
-/// ([`TapLoop`]): whether the lane's ray arrived, and per image s the sums over its bilinear taps on the
-/// detector of weight·g (`tb`) and, when λ is wanted, ∂weight/∂u·g (`ub`) and ∂weight/∂v·g (`vb`).
+/// One traced block's share of the gradients, lane by lane ([`TapLoop`]): whether the lane's ray
+/// arrived, per image s the terms its ray adds to its pixel's mask sum (`mask`) and scene sum (`plane`),
+/// and, when λ is wanted, ∂L/∂(landing x, y) in mm (`lx`, `ly`) and whether it is not zero (`active`).
 struct BlockTaps {
     ok: [bool; LANES],
-    tb: Vec<[f64; LANES]>,
-    ub: Vec<[f64; LANES]>,
-    vb: Vec<[f64; LANES]>,
+    mask: Vec<[f64; LANES]>,
+    plane: Vec<[f64; LANES]>,
+    lx: [f64; LANES],
+    ly: [f64; LANES],
+    active: [bool; LANES],
 }
 
 impl BlockTaps {
     fn new(n: usize) -> Self {
-        BlockTaps { ok: [false; LANES], tb: vec![[0.0; LANES]; n], ub: vec![[0.0; LANES]; n], vb: vec![[0.0; LANES]; n] }
+        BlockTaps { ok: [false; LANES], mask: vec![[0.0; LANES]; n], plane: vec![[0.0; LANES]; n], lx: [0.0; LANES], ly: [0.0; LANES], active: [false; LANES] }
     }
 }
 
-/// [`DiffRenderer::landing`] and [`DiffRenderer::ray_grad`]'s tap sums for all lanes of a block at once
-/// (vectorised, dispatched with [`super::vector::run_at`]): the same operations per lane — the four taps
-/// in the same order, a tap off the detector adding an exact +0 in place of being skipped (a sum that
-/// starts at +0 never becomes −0, so x + 0 = x bit for bit) — so each lane's sums are `ray_grad`'s.
+/// [`DiffRenderer::landing`] and [`DiffRenderer::ray_grad`] for all lanes of a block at once (vectorised,
+/// dispatched with [`super::vector::run_at`]): the same operations per lane — [`PixelVals::at`]'s values
+/// of the lane's pixel, the four taps in `taps4`'s order (a tap off the detector adds an exact +0 in
+/// place of being skipped: a sum that starts at +0 never becomes −0, so x + 0 = x bit for bit), each
+/// term divided by N as `ray_grad` does — so each lane's terms and λ are `ray_grad`'s bit for bit.
 struct TapLoop<'a> {
     b: &'a Block,
     det: &'a Detector,
-    /// The blurred upstream gradient, (N, h, w).
-    gb: &'a [f64],
-    n: usize,
+    /// Each lane's scene pixel (lanes past the block's rays: any pixel, they are not alive).
+    pixel: [usize; LANES],
+    pin: &'a PlaneInputs<'a>,
     lambda: bool,
     out: &'a mut BlockTaps,
 }
@@ -238,7 +241,7 @@ struct TapLoop<'a> {
 impl super::vector::VectorLoop for TapLoop<'_> {
     #[inline(always)]
     fn run(self) {
-        let (b, det, out) = (self.b, self.det, self.out);
+        let (b, det, pin, out) = (self.b, self.det, self.pin, self.out);
         let (dwf, dhf) = (det.width as f64, det.height as f64);
         let npix = det.width * det.height;
         // Per lane: arrived and plausible ([`DiffRenderer::landing`]), the cell (floor of the continuous
@@ -269,13 +272,19 @@ impl super::vector::VectorLoop for TapLoop<'_> {
             let base = r0 * dwf + c0;
             for (t, (dr, dc)) in [(0, 0), (0, 1), (1, 0), (1, 1)].into_iter().enumerate() {
                 on[t][k] = rows[dr] & cols[dc];
+                // A tap on the detector: an integer in [0, h·w) (< 2⁵¹), read from the low bits of
+                // x + 1.5·2⁵² (exact there; no conversion instruction, so it vectorises).
                 let at = base + (dr as f64) * dwf + dc as f64;
-                idx[t][k] = if on[t][k] { at as usize } else { 0 };
+                let bits = ((at + INT_MAGIC).to_bits() as i64 - INT_MAGIC.to_bits() as i64) as usize;
+                idx[t][k] = if on[t][k] { bits } else { 0 };
             }
         }
-        for s in 0..self.n {
-            let g = &self.gb[s * npix..(s + 1) * npix];
-            let (tb, ub, vb) = (&mut out.tb[s], &mut out.ub[s], &mut out.vb[s]);
+        let (nr, hw, nb, tw) = (pin.nr, pin.hw, pin.nb, pin.tw);
+        let (mut u_bar, mut v_bar) = ([0.0; LANES], [0.0; LANES]);
+        for s in 0..pin.n {
+            let g = &pin.gb[s * npix..(s + 1) * npix];
+            let (s0, s1) = (&pin.scene[(s * nb + pin.k0) * hw..(s * nb + pin.k0 + 1) * hw], &pin.scene[(s * nb + pin.k1) * hw..(s * nb + pin.k1 + 1) * hw]);
+            let (mask_t, plane_t) = (&mut out.mask[s], &mut out.plane[s]);
             for k in 0..LANES {
                 let (mut st, mut su, mut sv) = (0.0, 0.0, 0.0);
                 for t in 0..4 {
@@ -287,12 +296,37 @@ impl super::vector::VectorLoop for TapLoop<'_> {
                         sv += dv[t][k] * gv;
                     }
                 }
-                (tb[k], ub[k], vb[k]) = (st, su, sv);
+                // `PixelVals::at` and `ray_grad`'s terms.
+                let q = self.pixel[k].min(hw - 1);
+                let m = pin.mask[q];
+                let val = (1.0 - tw) * s0[q] + tw * s1[q];
+                mask_t[k] = val * st / nr;
+                plane_t[k] = m * st / nr;
+                if self.lambda {
+                    let vm = val * m;
+                    u_bar[k] += vm * su / nr;
+                    v_bar[k] += vm * sv / nr;
+                }
+            }
+        }
+        if self.lambda {
+            // (u, v) = ((x − x_left)/pitch − ½, (y_top − y)/pitch − ½), as `ray_grad`.
+            let pitch = det.pitch_mm;
+            for k in 0..LANES {
+                let (lx, ly) = (u_bar[k] / pitch, -v_bar[k] / pitch);
+                let act = ok[k] & ((lx != 0.0) | (ly != 0.0));
+                out.lx[k] = if act { lx } else { 0.0 };
+                out.ly[k] = if act { ly } else { 0.0 };
+                out.active[k] = act;
             }
         }
         out.ok = ok;
     }
 }
+
+/// 1.5·2⁵²: for an integral x with |x| < 2⁵¹, x + `INT_MAGIC` is exact and its bits minus `INT_MAGIC`'s
+/// are x (as `render::transport`'s landing loop converts its cells).
+const INT_MAGIC: f64 = 6_755_399_441_055_744.0;
 
 /// One plane's inputs to the backward pass of its rays.
 struct PlaneInputs<'a> {
@@ -597,48 +631,40 @@ impl DiffRenderer {
             let m = (rays.len() - start).min(LANES);
             let mut b = rays.block(start, m);
             crate::tracer::simd::trace_block(level, path, &tables, &mut b);
-            let arrived = self.block_grads(level, &b, &rays.pixel[start..start + m], pin, px, out, scene, None, taps);
+            let arrived = self.block_grads(level, &b, &rays.pixel[start..start + m], pin, out, scene, None, taps);
             out.arrived += if count { arrived } else { 0 };
         }
     }
 
     /// A traced block's share of the gradients, the first `pixel.len()` lanes being rays of those pixels:
-    /// the lanes' landings and tap sums as lane operations ([`TapLoop`]), then ray by ray in lane order
-    /// [`Self::ray_grad`]'s additions to the mask sums (when wanted) and with `scene` to the scene sums;
-    /// with `lambda`, each arrived lane's ∂L/∂(landing x, y) in mm into `lambda` (lanes 0 and 1 of the
-    /// λ arrays) and the lanes whose λ is not zero into `active`. Returns the number of arrived rays.
+    /// the lanes' landings, tap sums and terms as lane operations ([`TapLoop`]), then ray by ray in lane
+    /// order [`Self::ray_grad`]'s additions to the mask sums (when wanted) and with `scene` to the scene
+    /// sums (the same terms in the same order); with `lambda`, each arrived lane's ∂L/∂(landing x, y) in
+    /// mm into `lambda` (λ's first two arrays) and the lanes whose λ is not zero into `active`. Returns
+    /// the number of arrived rays.
     #[allow(clippy::too_many_arguments)]
-    fn block_grads(&self, level: crate::tracer::SimdLevel, b: &Block, pixel: &[usize], pin: &PlaneInputs, px: &mut PixelVals, out: &mut PlaneGrad, scene: bool, mut lambda: Option<(&mut [Lf; 6], &mut Lm)>, taps: &mut BlockTaps) -> u64 {
-        super::vector::run_at(level, TapLoop { b, det: &self.detector, gb: pin.gb, n: pin.n, lambda: lambda.is_some(), out: taps });
-        let (nr, hw, pitch) = (pin.nr, pin.hw, self.detector.pitch_mm);
+    fn block_grads(&self, level: crate::tracer::SimdLevel, b: &Block, pixel: &[usize], pin: &PlaneInputs, out: &mut PlaneGrad, scene: bool, lambda: Option<(&mut [Lf; 6], &mut Lm)>, taps: &mut BlockTaps) -> u64 {
+        let mut lanes = [0usize; LANES];
+        lanes[..pixel.len()].copy_from_slice(pixel);
+        super::vector::run_at(level, TapLoop { b, det: &self.detector, pixel: lanes, pin, lambda: lambda.is_some(), out: taps });
+        let hw = pin.hw;
         let mut arrived = 0;
         for (k, &q) in pixel.iter().enumerate() {
             if !taps.ok[k] {
                 continue;
             }
             arrived += 1;
-            px.at(pin, q);
-            let (mut u_bar, mut v_bar) = (0.0, 0.0);
             for s in 0..pin.n {
-                let tb = taps.tb[s][k];
                 if pin.wanted.mask {
-                    out.mask[q] += px.val[s] * tb / nr;
+                    out.mask[q] += taps.mask[s][k];
                 }
                 if scene {
-                    out.plane[s * hw + q] += px.m * tb / nr;
-                }
-                if lambda.is_some() {
-                    u_bar += px.vm[s] * taps.ub[s][k] / nr;
-                    v_bar += px.vm[s] * taps.vb[s][k] / nr;
+                    out.plane[s * hw + q] += taps.plane[s][k];
                 }
             }
-            if let Some((lam, active)) = lambda.as_mut() {
-                // (u, v) = ((x − x_left)/pitch − ½, (y_top − y)/pitch − ½), as `ray_grad`.
-                let (lx, ly) = (u_bar / pitch, -v_bar / pitch);
-                if lx != 0.0 || ly != 0.0 {
-                    (lam[0].0[k], lam[1].0[k], active.0[k]) = (lx, ly, true);
-                }
-            }
+        }
+        if let Some((lam, active)) = lambda {
+            (lam[0].0, lam[1].0, active.0) = (taps.lx, taps.ly, taps.active);
         }
         arrived
     }
@@ -881,7 +907,7 @@ impl DiffRenderer {
                         trace_block_recording(level, &self.ds.system, &tables, &mut b, &mut ltape);
                         let mut lambda = [Lf::splat(0.0); 6];
                         let mut active = Mask::splat(false);
-                        out.arrived += self.block_grads(level, &b, &open.pixel[start..start + m], &pin, &mut px, &mut out, wanted.scene, Some((&mut lambda, &mut active)), &mut taps);
+                        out.arrived += self.block_grads(level, &b, &open.pixel[start..start + m], &pin, &mut out, wanted.scene, Some((&mut lambda, &mut active)), &mut taps);
                         if active.any() {
                             self.plan.backward_lanes(level, &self.ds, &ltape, &idx, &lambda, active, &mut lanes);
                         }
