@@ -608,3 +608,33 @@ fn tiled_f64_blur_equals_the_plain_double_loop() {
         }
     }
 }
+
+/// The reverse sweeps stop at the earliest path step a free parameter moves
+/// (`AdjointPlan::first_step`): before it λ is only carried back and nothing is summed. The prism tilt
+/// alone (mSP's s4.tilt_x_deg: the sweep stops at the prism's first face) gets bit for bit the gradient it gets beside the
+/// object distance, which moves the first step and makes the sweep go through the whole path — on the
+/// SIMD lanes and with the scalar kernel.
+#[test]
+fn sweep_stopping_at_the_first_moved_step_changes_no_bit() {
+    use diffcassi::diff::adjoint::AdjointPlan;
+    use diffcassi::render::gradient::Wanted;
+    for kernel in [diffcassi::tracer::Kernel::default(), diffcassi::tracer::Kernel::Scalar] {
+        let mut cfg = config(6, 3, 3, 13);
+        cfg.kernel = kernel;
+        let short = renderer(sp_like("msp"), &["s4.tilt_x_deg"], cfg.clone());
+        let long = renderer(sp_like("msp"), &["s0.thickness_mm", "s4.tilt_x_deg"], cfg);
+        let first = |r: &DiffRenderer| AdjointPlan::new(&r.ds, &r.config.spectral.planes_nm).unwrap().first_step();
+        println!("{kernel:?}: the sweep stops at path step {} (prism tilt) and {} (with the object distance)", first(&short), first(&long));
+        assert!(first(&short) >= 2, "the prism tilt moves nothing before the prism");
+        assert_eq!(first(&long), 0);
+        let (scene, mask, g) = inputs(&short, 5);
+        for wanted in [Wanted::ALL, Wanted { params: true, mask: false, scene: false }] {
+            let a = short.vjp_wanted(&scene, 2, &mask, &g, wanted).unwrap();
+            let b = long.vjp_wanted(&scene, 2, &mask, &g, wanted).unwrap();
+            assert!(a.params[0] != 0.0);
+            assert_eq!(a.params[0].to_bits(), b.params[1].to_bits(), "{kernel:?}: {} vs {}", a.params[0], b.params[1]);
+            assert_eq!(a.mask, b.mask);
+            assert_eq!(a.scene, b.scene);
+        }
+    }
+}

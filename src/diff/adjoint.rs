@@ -98,6 +98,9 @@ pub(crate) struct StepPlan {
 pub struct AdjointPlan {
     pub(crate) steps: Vec<StepPlan>,
     pub(crate) surfaces: usize,
+    /// The earliest path step any parameter moves (a frame, a figure, an index): the reverse sweep stops
+    /// there, since the steps before it only carry λ on and add nothing ([`AdjointPlan::first_step`]).
+    pub(crate) first: usize,
 }
 
 /// The forward state of one path step, kept for the reverse sweep.
@@ -165,7 +168,7 @@ impl AdjointPlan {
                 *m |= dn[i * kk..(i + 1) * kk].iter().any(|v| *v != 0.0);
             }
         }
-        let steps = ds
+        let steps: Vec<StepPlan> = ds
             .system
             .path
             .iter()
@@ -179,7 +182,19 @@ impl AdjointPlan {
                 StepPlan { shape_fields, index: s >= 1 && (index_moves[s - 1] || index_moves[s]), rotation, offset, focal }
             })
             .collect();
-        Ok(AdjointPlan { steps, surfaces: ns })
+        let first = steps.iter().position(|p| p.rotation || p.offset || p.index || !p.shape_fields.is_empty()).unwrap_or(steps.len());
+        Ok(AdjointPlan { steps, surfaces: ns, first })
+    }
+
+    /// The earliest path step (index into the system's path) at which some free parameter moves a
+    /// frame, a figure or an index. The reverse sweeps ([`Self::backward`], `backward_lanes`) stop
+    /// there: before it the adjoint λ is only carried back through the trace, and no sensitivity is
+    /// accumulated, so those steps change no sum (the kept steps' sums are the same, in the same
+    /// order). One difference from sweeping the whole path: a ray whose adjoint becomes non-finite only
+    /// in the skipped steps (a grazing hit there) now adds its (finite) sensitivities instead of being
+    /// dropped. The path length when no step is moved.
+    pub fn first_step(&self) -> usize {
+        self.first
     }
 
     /// Trace a ray (object frame, unit direction) through `ds` with indices `n`, recording each step's
@@ -229,7 +244,8 @@ impl AdjointPlan {
         tape.sens.clear();
         let (mut lq, mut ld) = (DVec3::new(lambda[0], lambda[1], lambda[2]), DVec3::new(lambda[3], lambda[4], lambda[5]));
         let mut finite = true;
-        for s in (0..tape.states.len()).rev() {
+        // Down to the earliest step a parameter moves ([`Self::first_step`]): nothing is summed before it.
+        for s in (self.first.min(tape.states.len())..tape.states.len()).rev() {
             let (st, step, plan) = (&tape.states[s], &path[s], &self.steps[s]);
             let local = SweepLocal::at(&step.shape, st.q, st.normal);
             let (d, q) = (st.d, st.q);
@@ -305,7 +321,10 @@ impl AdjointPlan {
         if !finite {
             return false;
         }
-        for (s, sens) in tape.sens.iter().rev().enumerate() {
+        // `tape.sens` holds the swept steps, last first.
+        let first = tape.states.len() - tape.sens.len();
+        for (i, sens) in tape.sens.iter().rev().enumerate() {
+            let s = first + i;
             let plan = &self.steps[s];
             if plan.rotation {
                 sums.rotation[s] += sens.rotation;

@@ -113,6 +113,17 @@ impl LaneSums {
     }
 }
 
+/// `acc += v` on the lanes whose `keep` is all ones, `+= 0` on those whose `keep` is 0 (`Lf::select(m, v,
+/// 0)`'s bits: v's bits ANDed with the mask).
+#[inline(always)]
+fn add_kept(acc: &mut Lf, v: &Lf, keep: &[u64; LANES]) {
+    let mut kept = ZERO;
+    for k in 0..LANES {
+        kept.0[k] = f64::from_bits(v.0[k].to_bits() & keep[k]);
+    }
+    *acc = *acc + kept;
+}
+
 #[inline(always)]
 fn v3(x: Lf, y: Lf, z: Lf) -> L3 {
     L3 { x, y, z }
@@ -260,7 +271,8 @@ impl LaneKernel for Sweep<'_> {
         let Sweep { plan, path, tape, n, lambda, active, sums } = self;
         let (mut lq, mut ld) = (v3(lambda[0], lambda[1], lambda[2]), v3(lambda[3], lambda[4], lambda[5]));
         let mut finite = active;
-        for s in (0..tape.steps.len()).rev() {
+        // Down to the earliest step a parameter moves (`AdjointPlan::first_step`): nothing is summed before it.
+        for s in (plan.first..tape.steps.len()).rev() {
             let (st, step, sp) = (&tape.steps[s], &path[s], &plan.steps[s]);
             let local = LocalLanes::at(&step.shape, &st.q, &st.normal);
             let (d, q) = (st.d, st.q);
@@ -304,10 +316,10 @@ impl LaneKernel for Sweep<'_> {
                 _ => {
                     // oriented_normal: the normal against the incoming direction's side.
                     let cos0 = d.dot(st.normal);
-                    let flip = cos0.lt(ZERO);
-                    let nrm = L3::select(flip, st.normal.neg(), st.normal);
-                    let cos_i = Lf::select(flip, -cos0, cos0);
-                    let sgn = Lf::select(flip, Lf::splat(-1.0), Lf::splat(1.0));
+                    // (n̂, cos θᵢ) or (−n̂, −cos0): multiplied by sgn = ±1, which is the negation bit for bit.
+                    let sgn = Lf::select(cos0.lt(ZERO), Lf::splat(-1.0), Lf::splat(1.0));
+                    let nrm = st.normal.scale(sgn);
+                    let cos_i = cos0 * sgn;
                     let kappa = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
                     let sk = Lf::select(kappa.ge(ZERO), kappa, ZERO).sqrt();
                     let inv_sk = 1.0 / sk;
@@ -356,28 +368,30 @@ impl LaneKernel for Sweep<'_> {
             }
             finite = finite & lq.is_finite() & ld.is_finite();
         }
-        // Add the finite active lanes (a selected 0 elsewhere: the other lanes' sums keep their bits).
-        let add = |acc: &mut Lf, v: &Lf| *acc = *acc + Lf::select(finite, *v, ZERO);
-        for s in 0..tape.steps.len() {
+        // Add the finite active lanes (+0 elsewhere: the other lanes' sums keep their bits). The value
+        // added is `Lf::select(finite, v, 0)` bit for bit — v's bits ANDed with all ones or all zeros —
+        // with the lane mask widened once per block instead of once per sum.
+        let keep: [u64; LANES] = std::array::from_fn(|k| (finite.0[k] as u64).wrapping_neg());
+        for s in plan.first..tape.steps.len() {
             let (sens, sp) = (&sums.sens[s], &plan.steps[s]);
             let (rot, off, shape) = (&mut sums.rotation[s], &mut sums.offset[s], &mut sums.shape[s]);
             if sp.rotation {
                 for i in 0..9 {
-                    add(&mut rot[i], &sens.rotation[i]);
+                    add_kept(&mut rot[i], &sens.rotation[i], &keep);
                 }
             }
             if sp.offset {
                 for i in 0..3 {
-                    add(&mut off[i], &sens.offset[i]);
+                    add_kept(&mut off[i], &sens.offset[i], &keep);
                 }
             }
             for &f in &sp.shape_fields {
-                add(&mut shape[f], &sens.shape[f]);
+                add_kept(&mut shape[f], &sens.shape[f], &keep);
             }
             if sp.index {
                 let sf = path[s].surface;
-                add(&mut sums.index[sf - 1], &sens.n1);
-                add(&mut sums.index[sf], &sens.n2);
+                add_kept(&mut sums.index[sf - 1], &sens.n1, &keep);
+                add_kept(&mut sums.index[sf], &sens.n2, &keep);
             }
         }
         finite

@@ -28,7 +28,12 @@
 //! are traced keeping their per-step states and swept backwards once, a block of [`LANES`] rays at a
 //! time on the same SIMD lanes ([`crate::tracer::simd::record`], [`crate::diff::adjoint_lanes`]); with
 //! `config.kernel = Kernel::Scalar` every ray goes through the scalar kernel and the scalar sweep
-//! ([`crate::diff::adjoint`], the reference) instead. [`DiffRenderer::vjp_wanted`] computes only the
+//! ([`crate::diff::adjoint`], the reference) instead. On the lanes, the per-ray work around the trace is
+//! done for a block at once: the rays are generated into arrays ([`RayGen`], vectorised) and loaded into
+//! the lanes, and the landing test, the bilinear taps and their sums with the blurred upstream gradient
+//! are lane operations ([`TapLoop`]); only the additions to each pixel's mask and scene sums stay ray by
+//! ray, in ray order (the same sums, bit for bit, as the scalar path's `ray_grad`).
+//! [`DiffRenderer::vjp_wanted`] computes only the
 //! gradients a [`Wanted`] names (torch's `needs_input_grad`): without ∂L/∂θ no ray is swept backwards,
 //! without ∂L/∂mask the closed pixels' rays are not traced; the gradients it does compute are bit for bit
 //! those of [`DiffRenderer::vjp`]. The blur's adjoint is tiled in f64 ([`super::convolve::kernel_pass_f64`]).
@@ -62,7 +67,7 @@ use super::sampling::{RaySampler, SampleRow};
 use crate::analysis::MappingCube;
 use crate::diff::adjoint::{not_a_system_parameter, AdjointPlan, AdjointSums, RayTape};
 use crate::diff::adjoint_lanes::LaneSums;
-use crate::tracer::simd::lanes::{Lf, Mask};
+use crate::tracer::simd::lanes::{Lf, Lm, Mask};
 use crate::tracer::simd::{trace_block_recording, Block, LaneTape, LANES};
 use crate::diff::{DiffSystem, ParamSet};
 use crate::error::{Error, Result};
@@ -110,21 +115,218 @@ pub struct Vjp {
     pub scene: Vec<f64>,
 }
 
-/// One scene row's rays (reused buffers): pixel, origin (object plane, mm), unit direction.
+/// Rays of some pixels of one scene row (reused buffers), a structure of arrays: each ray's pixel, its
+/// origin (ox, oy, 0) in the object plane (mm) and its unit direction; a pixel's rays one after another.
 #[derive(Default)]
 struct RowRays {
     pixel: Vec<usize>,
-    origin: Vec<DVec3>,
-    dir: Vec<DVec3>,
+    ox: Vec<f64>,
+    oy: Vec<f64>,
+    dx: Vec<f64>,
+    dy: Vec<f64>,
+    dz: Vec<f64>,
+    /// Scratch: each ray's scene-pixel centre x (mm).
+    centre_x: Vec<f64>,
 }
 
 impl RowRays {
-    fn clear(&mut self) {
-        self.pixel.clear();
-        self.origin.clear();
-        self.dir.clear();
+    fn len(&self) -> usize {
+        self.pixel.len()
+    }
+
+    fn origin(&self, i: usize) -> DVec3 {
+        DVec3::new(self.ox[i], self.oy[i], 0.0)
+    }
+
+    fn dir(&self, i: usize) -> DVec3 {
+        DVec3::new(self.dx[i], self.dy[i], self.dz[i])
+    }
+
+    /// Rays `start .. start + m` (m ≤ [`LANES`]) in the lanes of a block, alive: [`Block::set`]'s values
+    /// (the directions are unit already and go in unchanged, as to the scalar kernel).
+    fn block(&self, start: usize, m: usize) -> Block {
+        let mut b = Block::default();
+        let r = start..start + m;
+        b.p.x.0[..m].copy_from_slice(&self.ox[r.clone()]);
+        b.p.y.0[..m].copy_from_slice(&self.oy[r.clone()]);
+        b.d.x.0[..m].copy_from_slice(&self.dx[r.clone()]);
+        b.d.y.0[..m].copy_from_slice(&self.dy[r.clone()]);
+        b.d.z.0[..m].copy_from_slice(&self.dz[r]);
+        b.alive.0[..m].fill(true);
+        b
     }
 }
+
+/// Which rays of a scene pixel a pass wants ([`DiffRenderer::for_rows`]).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Class {
+    /// None of them.
+    Skip,
+    /// A closed mask pixel's (value exactly 0): traced for their landings only.
+    Closed,
+    /// An open pixel's (any non-zero mask value).
+    Open,
+}
+
+/// The vectorised ray generation of a row: for each sample, the field point (pixel centre and the
+/// sample's position in the pixel) and the direction of [`PupilAim::direction`] divided by its length —
+/// the numbers of `DVec3::from(aim.direction(..))` / its `length()`, lane by lane (only `+ − × ÷ √`:
+/// the same bits at every SIMD level).
+struct RayGen<'a> {
+    samples: &'a SampleRow,
+    centre_y: f64,
+    pitch_mm: f64,
+    aim: PupilAim,
+    out: &'a mut RowRays,
+}
+
+impl super::vector::VectorLoop for RayGen<'_> {
+    #[inline(always)]
+    fn run(self) {
+        let s = self.samples;
+        let n = s.len();
+        let (px, py, sx, sy) = (&s.px[..n], &s.py[..n], &s.sx[..n], &s.sy[..n]);
+        let o = self.out;
+        let cx = &o.centre_x[..n];
+        let (ox, oy, dx, dy, dz) = (&mut o.ox[..n], &mut o.oy[..n], &mut o.dx[..n], &mut o.dy[..n], &mut o.dz[..n]);
+        let (cy, pitch, aim) = (self.centre_y, self.pitch_mm, self.aim);
+        for t in 0..n {
+            let fx = cx[t] + (sx[t] - 0.5) * pitch;
+            let fy = cy - (sy[t] - 0.5) * pitch;
+            let d = aim.direction(fx, fy, px[t], py[t]);
+            // glam's `length`: (x·x + y·y + z·z).sqrt(), and `/ len` per component.
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            ox[t] = fx;
+            oy[t] = fy;
+            dx[t] = d[0] / len;
+            dy[t] = d[1] / len;
+            dz[t] = d[2] / len;
+        }
+    }
+}
+
+/// One traced block's share of the gradients, lane by lane ([`TapLoop`]): whether the lane's ray
+/// arrived, per image s the terms its ray adds to its pixel's mask sum (`mask`) and scene sum (`plane`),
+/// and, when λ is wanted, ∂L/∂(landing x, y) in mm (`lx`, `ly`) and whether it is not zero (`active`).
+struct BlockTaps {
+    ok: [bool; LANES],
+    mask: Vec<[f64; LANES]>,
+    plane: Vec<[f64; LANES]>,
+    lx: [f64; LANES],
+    ly: [f64; LANES],
+    active: [bool; LANES],
+}
+
+impl BlockTaps {
+    fn new(n: usize) -> Self {
+        BlockTaps { ok: [false; LANES], mask: vec![[0.0; LANES]; n], plane: vec![[0.0; LANES]; n], lx: [0.0; LANES], ly: [0.0; LANES], active: [false; LANES] }
+    }
+}
+
+/// [`DiffRenderer::landing`] and [`DiffRenderer::ray_grad`] for all lanes of a block at once (vectorised,
+/// dispatched with [`super::vector::run_at`]): the same operations per lane — [`PixelVals::at`]'s values
+/// of the lane's pixel, the four taps in `taps4`'s order (a tap off the detector adds an exact +0 in
+/// place of being skipped: a sum that starts at +0 never becomes −0, so x + 0 = x bit for bit), each
+/// term divided by N as `ray_grad` does — so each lane's terms and λ are `ray_grad`'s bit for bit.
+struct TapLoop<'a> {
+    b: &'a Block,
+    det: &'a Detector,
+    /// Each lane's scene pixel (lanes past the block's rays: any pixel, they are not alive).
+    pixel: [usize; LANES],
+    pin: &'a PlaneInputs<'a>,
+    lambda: bool,
+    out: &'a mut BlockTaps,
+}
+
+impl super::vector::VectorLoop for TapLoop<'_> {
+    #[inline(always)]
+    fn run(self) {
+        let (b, det, pin, out) = (self.b, self.det, self.pin, self.out);
+        let (dwf, dhf) = (det.width as f64, det.height as f64);
+        let npix = det.width * det.height;
+        // Per lane: arrived and plausible ([`DiffRenderer::landing`]), the cell (floor of the continuous
+        // pixel coordinates, kept in f64: integers there, exactly) and the fractions inside it.
+        let (mut ok, mut fj, mut fi, mut fu, mut fv) = ([false; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES], [0.0; LANES]);
+        for k in 0..LANES {
+            let (x, y, z) = (b.p.x.0[k], b.p.y.0[k], b.p.z.0[k]);
+            let finite = x.is_finite() & y.is_finite() & z.is_finite() & b.d.x.0[k].is_finite() & b.d.y.0[k].is_finite() & b.d.z.0[k].is_finite();
+            ok[k] = b.alive.0[k] & finite & (x.abs().max(y.abs().max(z.abs())) <= crate::limits::MAX_IMAGE_COORD_MM);
+            let (u, v) = det.to_pixel(x, y);
+            let (j, i) = (u.floor(), v.floor());
+            (fj[k], fi[k], fu[k], fv[k]) = (j, i, u - j, v - i);
+        }
+        // The four taps (i, j), (i, j + 1), (i + 1, j), (i + 1, j + 1) — `taps4`'s order and arithmetic —
+        // on the detector or not, and their detector index (0 when off).
+        let mut on = [[false; LANES]; 4];
+        let mut idx = [[0usize; LANES]; 4];
+        let (mut wt, mut du, mut dv) = ([[0.0; LANES]; 4], [[0.0; LANES]; 4], [[0.0; LANES]; 4]);
+        for k in 0..LANES {
+            let (fu, fv) = (fu[k], fv[k]);
+            (wt[0][k], du[0][k], dv[0][k]) = ((1.0 - fu) * (1.0 - fv), -(1.0 - fv), -(1.0 - fu));
+            (wt[1][k], du[1][k], dv[1][k]) = (fu * (1.0 - fv), 1.0 - fv, -fu);
+            (wt[2][k], du[2][k], dv[2][k]) = ((1.0 - fu) * fv, -fv, 1.0 - fu);
+            (wt[3][k], du[3][k], dv[3][k]) = (fu * fv, fv, fu);
+            let (r0, c0) = (fi[k], fj[k]);
+            let rows = [ok[k] & (r0 >= 0.0) & (r0 < dhf), ok[k] & (r0 + 1.0 >= 0.0) & (r0 + 1.0 < dhf)];
+            let cols = [(c0 >= 0.0) & (c0 < dwf), (c0 + 1.0 >= 0.0) & (c0 + 1.0 < dwf)];
+            let base = r0 * dwf + c0;
+            for (t, (dr, dc)) in [(0, 0), (0, 1), (1, 0), (1, 1)].into_iter().enumerate() {
+                on[t][k] = rows[dr] & cols[dc];
+                // A tap on the detector: an integer in [0, h·w) (< 2⁵¹), read from the low bits of
+                // x + 1.5·2⁵² (exact there; no conversion instruction, so it vectorises).
+                let at = base + (dr as f64) * dwf + dc as f64;
+                let bits = ((at + INT_MAGIC).to_bits() as i64 - INT_MAGIC.to_bits() as i64) as usize;
+                idx[t][k] = if on[t][k] { bits } else { 0 };
+            }
+        }
+        let (nr, hw, nb, tw) = (pin.nr, pin.hw, pin.nb, pin.tw);
+        let (mut u_bar, mut v_bar) = ([0.0; LANES], [0.0; LANES]);
+        for s in 0..pin.n {
+            let g = &pin.gb[s * npix..(s + 1) * npix];
+            let (s0, s1) = (&pin.scene[(s * nb + pin.k0) * hw..(s * nb + pin.k0 + 1) * hw], &pin.scene[(s * nb + pin.k1) * hw..(s * nb + pin.k1 + 1) * hw]);
+            let (mask_t, plane_t) = (&mut out.mask[s], &mut out.plane[s]);
+            for k in 0..LANES {
+                let (mut st, mut su, mut sv) = (0.0, 0.0, 0.0);
+                for t in 0..4 {
+                    // A tap off the detector adds w·0 = ±0 to a sum that is never −0: no bit changes.
+                    let gv = if on[t][k] { g[idx[t][k].min(npix - 1)] } else { 0.0 };
+                    st += wt[t][k] * gv;
+                    if self.lambda {
+                        su += du[t][k] * gv;
+                        sv += dv[t][k] * gv;
+                    }
+                }
+                // `PixelVals::at` and `ray_grad`'s terms.
+                let q = self.pixel[k].min(hw - 1);
+                let m = pin.mask[q];
+                let val = (1.0 - tw) * s0[q] + tw * s1[q];
+                mask_t[k] = val * st / nr;
+                plane_t[k] = m * st / nr;
+                if self.lambda {
+                    let vm = val * m;
+                    u_bar[k] += vm * su / nr;
+                    v_bar[k] += vm * sv / nr;
+                }
+            }
+        }
+        if self.lambda {
+            // (u, v) = ((x − x_left)/pitch − ½, (y_top − y)/pitch − ½), as `ray_grad`.
+            let pitch = det.pitch_mm;
+            for k in 0..LANES {
+                let (lx, ly) = (u_bar[k] / pitch, -v_bar[k] / pitch);
+                let act = ok[k] & ((lx != 0.0) | (ly != 0.0));
+                out.lx[k] = if act { lx } else { 0.0 };
+                out.ly[k] = if act { ly } else { 0.0 };
+                out.active[k] = act;
+            }
+        }
+        out.ok = ok;
+    }
+}
+
+/// 1.5·2⁵²: for an integral x with |x| < 2⁵¹, x + `INT_MAGIC` is exact and its bits minus `INT_MAGIC`'s
+/// are x (as `render::transport`'s landing loop converts its cells).
+const INT_MAGIC: f64 = 6_755_399_441_055_744.0;
 
 /// One plane's inputs to the backward pass of its rays.
 struct PlaneInputs<'a> {
@@ -335,60 +537,136 @@ impl DiffRenderer {
         (k, (k + 1).min(ws.len() - 1), t)
     }
 
-    /// Visit the rays of plane `p` whose pixel passes `want`, one scene row at a time: `f(rays)` with
-    /// each ray's pixel, origin and unit direction (buffers reused from row to row).
-    fn for_rows(&self, p: usize, want: impl Fn(usize) -> bool, mut f: impl FnMut(&RowRays)) {
-        let (h, w, pitch, nr) = (self.config.scene_height, self.config.scene_width, self.config.scene_pitch_mm, self.sampler.rays);
+    /// Visit the rays of plane `p`, one scene row at a time: `f(closed, open)` with the rays of the row's
+    /// pixels that `class` says are [`Class::Closed`] and [`Class::Open`] (each ray's pixel, origin and
+    /// unit direction, pixels in order; buffers reused from row to row). A pixel's rays are the same
+    /// whichever set it is in (the samples depend on the seed, plane and pixel only).
+    fn for_rows(&self, p: usize, class: impl Fn(usize) -> Class, mut f: impl FnMut(&RowRays, &RowRays)) {
+        let w = self.config.scene_width;
         let mut samples = SampleRow::default();
-        let mut pixels: Vec<u64> = Vec::with_capacity(w);
-        let mut rays = RowRays::default();
-        for row in 0..h {
-            pixels.clear();
-            pixels.extend((0..w).map(|c| row * w + c).filter(|&q| want(q)).map(|q| q as u64));
-            if pixels.is_empty() {
-                continue;
-            }
-            self.sampler.fill_pixels(self.config.seed, p as u64, &pixels, &mut samples);
-            rays.clear();
-            for (k, &q) in pixels.iter().enumerate() {
-                let col = q as usize % w;
-                let c = MappingCube::scene_xy(h, w, pitch, row, col);
-                for t in k * nr..(k + 1) * nr {
-                    let s = samples.get(t);
-                    let (fx, fy) = (c[0] + (s[2] - 0.5) * pitch, c[1] - (s[3] - 0.5) * pitch);
-                    let d = DVec3::from(self.aim.direction(fx, fy, s[0], s[1]));
-                    rays.pixel.push(q as usize);
-                    rays.origin.push(DVec3::new(fx, fy, 0.0));
-                    rays.dir.push(d / d.length());
+        let (mut closed_px, mut open_px): (Vec<u64>, Vec<u64>) = (Vec::with_capacity(w), Vec::with_capacity(w));
+        let (mut closed, mut open) = (RowRays::default(), RowRays::default());
+        for row in 0..self.config.scene_height {
+            closed_px.clear();
+            open_px.clear();
+            for q in row * w..(row + 1) * w {
+                match class(q) {
+                    Class::Skip => {}
+                    Class::Closed => closed_px.push(q as u64),
+                    Class::Open => open_px.push(q as u64),
                 }
             }
-            f(&rays);
+            if closed_px.is_empty() && open_px.is_empty() {
+                continue;
+            }
+            self.row_rays(p, row, &closed_px, &mut samples, &mut closed);
+            self.row_rays(p, row, &open_px, &mut samples, &mut open);
+            f(&closed, &open);
         }
     }
 
-    /// The landings ([`Self::landing`]) of the rays `which` of `rays` at indices `idx`, in order, into
-    /// `out`: traced with the production renderer's SIMD lanes ([`crate::tracer::simd`], bit-identical to
-    /// the scalar kernel) when `config.kernel` is SIMD, else with the scalar kernel.
-    fn land_all(&self, idx: &[f64], rays: &RowRays, which: &[usize], out: &mut Vec<Option<(f64, f64)>>) {
-        use crate::tracer::simd::{Block, LANES};
+    /// The rays of plane `p` of `pixels` (all in scene row `row`) into `out`: the [`RaySampler`]'s
+    /// samples, the field point and the unit direction ([`RayGen`]).
+    fn row_rays(&self, p: usize, row: usize, pixels: &[u64], samples: &mut SampleRow, out: &mut RowRays) {
+        let (h, w, pitch, nr) = (self.config.scene_height, self.config.scene_width, self.config.scene_pitch_mm, self.sampler.rays);
+        out.pixel.clear();
+        out.centre_x.clear();
+        if pixels.is_empty() {
+            return;
+        }
+        self.sampler.fill_pixels(self.config.seed, p as u64, pixels, samples);
+        for &q in pixels {
+            let c = MappingCube::scene_xy(h, w, pitch, row, q as usize % w);
+            out.pixel.extend(std::iter::repeat(q as usize).take(nr));
+            out.centre_x.extend(std::iter::repeat(c[0]).take(nr));
+        }
+        let n = samples.len();
+        debug_assert_eq!(n, out.pixel.len());
+        for v in [&mut out.ox, &mut out.oy, &mut out.dx, &mut out.dy, &mut out.dz] {
+            v.resize(n, 0.0);
+        }
+        let centre_y = MappingCube::scene_xy(h, w, pitch, row, 0)[1];
+        let level = self.simd.unwrap_or_else(crate::tracer::SimdLevel::detect);
+        super::vector::run_at(level, RayGen { samples, centre_y, pitch_mm: pitch, aim: self.aim, out });
+    }
+
+    /// The landings ([`Self::landing`]) of all rays of `rays` at indices `idx`, in order, into `out`:
+    /// traced with the production renderer's SIMD lanes ([`crate::tracer::simd`], bit-identical to the
+    /// scalar kernel) when `config.kernel` is SIMD, else with the scalar kernel.
+    fn land_all(&self, idx: &[f64], rays: &RowRays, out: &mut Vec<Option<(f64, f64)>>) {
         out.clear();
         let path = &self.ds.system.path;
         let Some(level) = self.simd else {
-            out.extend(which.iter().map(|&i| self.landing(trace_steps(path, idx, rays.origin[i], rays.dir[i]))));
+            out.extend((0..rays.len()).map(|i| self.landing(trace_steps(path, idx, rays.origin(i), rays.dir(i)))));
             return;
         };
         let tables = [idx; LANES];
-        for chunk in which.chunks(LANES) {
-            let mut b = Block::default();
-            // The directions are unit already (`for_rows`) and go to the scalar kernel as they are: the
-            // lanes take them unchanged too (`trace_block_raw` would divide them by their length again,
-            // which moves the last bit of some rays away from the scalar kernel's).
-            for (k, &i) in chunk.iter().enumerate() {
-                b.set(k, rays.origin[i], rays.dir[i]);
-            }
+        for start in (0..rays.len()).step_by(LANES) {
+            let m = (rays.len() - start).min(LANES);
+            let mut b = rays.block(start, m);
             crate::tracer::simd::trace_block(level, path, &tables, &mut b);
-            out.extend((0..chunk.len()).map(|k| self.landing(b.result(k))));
+            out.extend((0..m).map(|k| self.landing(b.result(k))));
         }
+    }
+
+    /// The rays of `rays` that need no θ-adjoint (closed pixels', or every ray when ∂L/∂θ is not wanted):
+    /// traced for their landings only, each arrived ray's mask gradient (and with `scene` its scene
+    /// gradient) added to `out` ([`Self::ray_grad`]'s sums); `count`: count the arrived rays. On the
+    /// production renderer's SIMD lanes a block at a time with the taps as lane operations
+    /// ([`Self::block_grads`]), else ray by ray with the scalar kernel.
+    #[allow(clippy::too_many_arguments)]
+    fn landing_grads(&self, idx: &[f64], rays: &RowRays, pin: &PlaneInputs, px: &mut PixelVals, out: &mut PlaneGrad, scene: bool, count: bool, taps: &mut BlockTaps) {
+        let path = &self.ds.system.path;
+        let Some(level) = self.simd else {
+            for i in 0..rays.len() {
+                let Some(uv) = self.landing(trace_steps(path, idx, rays.origin(i), rays.dir(i))) else { continue };
+                out.arrived += count as u64;
+                px.at(pin, rays.pixel[i]);
+                self.ray_grad(pin, px, uv, out, scene, false);
+            }
+            return;
+        };
+        let tables = [idx; LANES];
+        for start in (0..rays.len()).step_by(LANES) {
+            let m = (rays.len() - start).min(LANES);
+            let mut b = rays.block(start, m);
+            crate::tracer::simd::trace_block(level, path, &tables, &mut b);
+            let arrived = self.block_grads(level, &b, &rays.pixel[start..start + m], pin, out, scene, None, taps);
+            out.arrived += if count { arrived } else { 0 };
+        }
+    }
+
+    /// A traced block's share of the gradients, the first `pixel.len()` lanes being rays of those pixels:
+    /// the lanes' landings, tap sums and terms as lane operations ([`TapLoop`]), then ray by ray in lane
+    /// order [`Self::ray_grad`]'s additions to the mask sums (when wanted) and with `scene` to the scene
+    /// sums (the same terms in the same order); with `lambda`, each arrived lane's ∂L/∂(landing x, y) in
+    /// mm into `lambda` (λ's first two arrays) and the lanes whose λ is not zero into `active`. Returns
+    /// the number of arrived rays.
+    #[allow(clippy::too_many_arguments)]
+    fn block_grads(&self, level: crate::tracer::SimdLevel, b: &Block, pixel: &[usize], pin: &PlaneInputs, out: &mut PlaneGrad, scene: bool, lambda: Option<(&mut [Lf; 6], &mut Lm)>, taps: &mut BlockTaps) -> u64 {
+        let mut lanes = [0usize; LANES];
+        lanes[..pixel.len()].copy_from_slice(pixel);
+        super::vector::run_at(level, TapLoop { b, det: &self.detector, pixel: lanes, pin, lambda: lambda.is_some(), out: taps });
+        let hw = pin.hw;
+        let mut arrived = 0;
+        for (k, &q) in pixel.iter().enumerate() {
+            if !taps.ok[k] {
+                continue;
+            }
+            arrived += 1;
+            for s in 0..pin.n {
+                if pin.wanted.mask {
+                    out.mask[q] += taps.mask[s][k];
+                }
+                if scene {
+                    out.plane[s * hw + q] += taps.plane[s][k];
+                }
+            }
+        }
+        if let Some((lam, active)) = lambda {
+            (lam[0].0, lam[1].0, active.0) = (taps.lx, taps.ly, taps.active);
+        }
+        arrived
     }
 
     /// Continuous detector pixel coordinates of an arrived ray, `None` when it did not arrive (or at an
@@ -412,14 +690,12 @@ impl DiffRenderer {
                 let (k0, k1, tw) = self.interpolation(p);
                 let mut img = vec![0.0f64; n * npix];
                 let mut arrived = 0u64;
-                let (mut all, mut land, mut vals) = (Vec::new(), Vec::new(), vec![0.0; n]);
+                let (mut land, mut vals) = (Vec::new(), vec![0.0; n]);
                 self.for_rows(
                     p,
-                    |q| mask[q] != 0.0,
-                    |rays| {
-                        all.clear();
-                        all.extend(0..rays.pixel.len());
-                        self.land_all(&idx, rays, &all, &mut land);
+                    |q| if mask[q] != 0.0 { Class::Open } else { Class::Skip },
+                    |_, rays| {
+                        self.land_all(&idx, rays, &mut land);
                         for (&q, uv) in rays.pixel.iter().zip(&land) {
                             let Some(uv) = *uv else { continue };
                             arrived += 1;
@@ -598,75 +874,45 @@ impl DiffRenderer {
                 let tables = [idx.as_slice(); LANES];
                 let pin = PlaneInputs { scene, mask, gb: &gb, n, k0, k1, tw, nr, npix, hw, nb, wanted };
                 let mut px = PixelVals::new(n);
-                let (mut closed, mut open, mut land) = (Vec::new(), Vec::new(), Vec::new());
-                self.for_rows(
-                    p,
-                    // Without the mask gradient, closed pixels' rays have no use.
-                    |q| wanted.mask || mask[q] != 0.0,
-                    |rays| {
-                        // Closed pixels (mask exactly 0) carry no light: their rays need only where they land,
-                        // for the mask gradient (no θ-adjoint), so they go through the production lanes.
-                        if wanted.mask {
-                            closed.clear();
-                            closed.extend((0..rays.pixel.len()).filter(|&i| mask[rays.pixel[i]] == 0.0));
-                            self.land_all(&idx, rays, &closed, &mut land);
-                            for (&i, uv) in closed.iter().zip(&land) {
-                                let Some(uv) = *uv else { continue };
-                                px.at(&pin, rays.pixel[i]);
-                                self.ray_grad(&pin, &px, uv, &mut out, false, false);
+                let mut taps = BlockTaps::new(n);
+                // Without the mask gradient, closed pixels' rays have no use.
+                let class = |q: usize| if mask[q] != 0.0 { Class::Open } else if wanted.mask { Class::Closed } else { Class::Skip };
+                self.for_rows(p, class, |closed, open| {
+                    // Closed pixels (mask exactly 0) carry no light: their rays need only where they land,
+                    // for the mask gradient (no θ-adjoint), so they go through the production lanes.
+                    self.landing_grads(&idx, closed, &pin, &mut px, &mut out, false, false, &mut taps);
+                    // Open pixels (any non-zero mask value, a continuous mask's included).
+                    if !wanted.params {
+                        // No θ-adjoint: where the rays land is all the mask and scene gradients need.
+                        self.landing_grads(&idx, open, &pin, &mut px, &mut out, wanted.scene, true, &mut taps);
+                        return;
+                    }
+                    // Traced with the per-step states kept, then swept backwards once — a block of
+                    // rays at a time on the SIMD lanes, or ray by ray with the scalar kernel.
+                    let Some(level) = self.simd else {
+                        for i in 0..open.len() {
+                            let Some(uv) = self.landing(self.plan.trace(&self.ds, &idx, open.origin(i), open.dir(i), &mut tape)) else { continue };
+                            out.arrived += 1;
+                            px.at(&pin, open.pixel[i]);
+                            let (lx, ly) = self.ray_grad(&pin, &px, uv, &mut out, wanted.scene, true);
+                            if lx != 0.0 || ly != 0.0 {
+                                self.plan.backward(&self.ds, &mut tape, [lx, ly, 0.0, 0.0, 0.0, 0.0], &mut sums);
                             }
                         }
-                        // Open pixels (any non-zero mask value, a continuous mask's included).
-                        open.clear();
-                        open.extend((0..rays.pixel.len()).filter(|&i| mask[rays.pixel[i]] != 0.0));
-                        if !wanted.params {
-                            // No θ-adjoint: where the rays land is all the mask and scene gradients need.
-                            self.land_all(&idx, rays, &open, &mut land);
-                            for (&i, uv) in open.iter().zip(&land) {
-                                let Some(uv) = *uv else { continue };
-                                out.arrived += 1;
-                                px.at(&pin, rays.pixel[i]);
-                                self.ray_grad(&pin, &px, uv, &mut out, wanted.scene, false);
-                            }
-                            return;
+                        return;
+                    };
+                    for start in (0..open.len()).step_by(LANES) {
+                        let m = (open.len() - start).min(LANES);
+                        let mut b = open.block(start, m);
+                        trace_block_recording(level, &self.ds.system, &tables, &mut b, &mut ltape);
+                        let mut lambda = [Lf::splat(0.0); 6];
+                        let mut active = Mask::splat(false);
+                        out.arrived += self.block_grads(level, &b, &open.pixel[start..start + m], &pin, &mut out, wanted.scene, Some((&mut lambda, &mut active)), &mut taps);
+                        if active.any() {
+                            self.plan.backward_lanes(level, &self.ds, &ltape, &idx, &lambda, active, &mut lanes);
                         }
-                        // Traced with the per-step states kept, then swept backwards once — a block of
-                        // rays at a time on the SIMD lanes, or ray by ray with the scalar kernel.
-                        let Some(level) = self.simd else {
-                            for &i in &open {
-                                let Some(uv) = self.landing(self.plan.trace(&self.ds, &idx, rays.origin[i], rays.dir[i], &mut tape)) else { continue };
-                                out.arrived += 1;
-                                px.at(&pin, rays.pixel[i]);
-                                let (lx, ly) = self.ray_grad(&pin, &px, uv, &mut out, wanted.scene, true);
-                                if lx != 0.0 || ly != 0.0 {
-                                    self.plan.backward(&self.ds, &mut tape, [lx, ly, 0.0, 0.0, 0.0, 0.0], &mut sums);
-                                }
-                            }
-                            return;
-                        };
-                        for chunk in open.chunks(LANES) {
-                            let mut b = Block::default();
-                            for (k, &i) in chunk.iter().enumerate() {
-                                b.set(k, rays.origin[i], rays.dir[i]);
-                            }
-                            trace_block_recording(level, &self.ds.system, &tables, &mut b, &mut ltape);
-                            let mut lambda = [Lf::splat(0.0); 6];
-                            let mut active = Mask::splat(false);
-                            for (k, &i) in chunk.iter().enumerate() {
-                                let Some(uv) = self.landing(b.result(k)) else { continue };
-                                out.arrived += 1;
-                                px.at(&pin, rays.pixel[i]);
-                                let (lx, ly) = self.ray_grad(&pin, &px, uv, &mut out, wanted.scene, true);
-                                if lx != 0.0 || ly != 0.0 {
-                                    (lambda[0].0[k], lambda[1].0[k], active.0[k]) = (lx, ly, true);
-                                }
-                            }
-                            if active.any() {
-                                self.plan.backward_lanes(level, &self.ds, &ltape, &idx, &lambda, active, &mut lanes);
-                            }
-                        }
-                    },
-                );
+                    }
+                });
                 if wanted.params {
                     lanes.add_to(&mut sums);
                     self.plan.contract(&self.ds, &sums, &dn, &mut out.params);
