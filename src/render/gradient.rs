@@ -183,25 +183,8 @@ struct RayGen<'a> {
 impl super::vector::VectorLoop for RayGen<'_> {
     #[inline(always)]
     fn run(self) {
-        let s = self.samples;
-        let n = s.len();
-        let (px, py, sx, sy) = (&s.px[..n], &s.py[..n], &s.sx[..n], &s.sy[..n]);
         let o = self.out;
-        let cx = &o.centre_x[..n];
-        let (ox, oy, dx, dy, dz) = (&mut o.ox[..n], &mut o.oy[..n], &mut o.dx[..n], &mut o.dy[..n], &mut o.dz[..n]);
-        let (cy, pitch, aim) = (self.centre_y, self.pitch_mm, self.aim);
-        for t in 0..n {
-            let fx = cx[t] + (sx[t] - 0.5) * pitch;
-            let fy = cy - (sy[t] - 0.5) * pitch;
-            let d = aim.direction(fx, fy, px[t], py[t]);
-            // glam's `length`: (x·x + y·y + z·z).sqrt(), and `/ len` per component.
-            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            ox[t] = fx;
-            oy[t] = fy;
-            dx[t] = d[0] / len;
-            dy[t] = d[1] / len;
-            dz[t] = d[2] / len;
-        }
+        super::sampling::object_rays::<true>(self.samples, &o.centre_x, self.centre_y, self.pitch_mm, self.aim, &mut o.ox, &mut o.oy, &mut o.dx, &mut o.dy, &mut o.dz);
     }
 }
 

@@ -279,6 +279,49 @@ impl RaySampler {
     }
 }
 
+
+/// The object-space rays of a row's samples, as a structure of arrays (shared by the production renderer's
+/// `RayLoop` and the differentiable renderer's `RayGen`): the field point — the scene-pixel centre
+/// (`centre_x[t]`, `centre_y`, mm) moved by the sample's position in the pixel of `pitch_mm` — into `ox`, `oy`,
+/// and the direction of [`PupilAim::direction`] into `dx`, `dy`, `dz`, divided by its length when `UNIT`
+/// (glam's `length`, (x·x + y·y + z·z)^½, and `/ len` per component). Only `+ − × ÷ √`, so the same bits at
+/// every SIMD level; `#[inline(always)]` so that it vectorises inside the caller's `VectorLoop::run`.
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+pub(super) fn object_rays<const UNIT: bool>(
+    s: &SampleRow,
+    centre_x: &[f64],
+    centre_y: f64,
+    pitch_mm: f64,
+    aim: crate::rays::PupilAim,
+    ox: &mut [f64],
+    oy: &mut [f64],
+    dx: &mut [f64],
+    dy: &mut [f64],
+    dz: &mut [f64],
+) {
+    let n = s.len();
+    let (px, py, sx, sy, cx) = (&s.px[..n], &s.py[..n], &s.sx[..n], &s.sy[..n], &centre_x[..n]);
+    let (ox, oy, dx, dy, dz) = (&mut ox[..n], &mut oy[..n], &mut dx[..n], &mut dy[..n], &mut dz[..n]);
+    for t in 0..n {
+        let fx = cx[t] + (sx[t] - 0.5) * pitch_mm;
+        let fy = centre_y - (sy[t] - 0.5) * pitch_mm;
+        let d = aim.direction(fx, fy, px[t], py[t]);
+        ox[t] = fx;
+        oy[t] = fy;
+        if UNIT {
+            let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+            dx[t] = d[0] / len;
+            dy[t] = d[1] / len;
+            dz[t] = d[2] / len;
+        } else {
+            dx[t] = d[0];
+            dy[t] = d[1];
+            dz[t] = d[2];
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -348,22 +348,8 @@ struct RayLoop<'a> {
 impl super::vector::VectorLoop for RayLoop<'_> {
     #[inline(always)]
     fn run(self) {
-        let s = self.samples;
-        let n = s.len();
-        let (px, py, sx, sy, cx) = (&s.px[..n], &s.py[..n], &s.sx[..n], &s.sy[..n], &self.centre_x[..n]);
         let o = self.out;
-        let (ox, oy, dx, dy, dz) = (&mut o.ox[..n], &mut o.oy[..n], &mut o.dx[..n], &mut o.dy[..n], &mut o.dz[..n]);
-        let (cy, pitch, aim) = (self.centre_y, self.pitch_mm, self.aim);
-        for t in 0..n {
-            let fx = cx[t] + (sx[t] - 0.5) * pitch;
-            let fy = cy - (sy[t] - 0.5) * pitch;
-            let d = aim.direction(fx, fy, px[t], py[t]);
-            ox[t] = fx;
-            oy[t] = fy;
-            dx[t] = d[0];
-            dy[t] = d[1];
-            dz[t] = d[2];
-        }
+        super::sampling::object_rays::<false>(self.samples, self.centre_x, self.centre_y, self.pitch_mm, self.aim, &mut o.ox, &mut o.oy, &mut o.dx, &mut o.dy, &mut o.dz);
     }
 }
 
