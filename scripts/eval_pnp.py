@@ -147,7 +147,10 @@ def main(argv=None) -> int:
                     row[key], row[f"{key}|ssim"], row[f"{key}|sam"] = m["psnr"], m["ssim"], m["sam"]
                     if diagnose:
                         row.update({f"{key}|{k}": v for k, v in sam_diagnosis(truth, c).items()})
-                cached = None if a.cache is None else pathlib.Path(a.cache) / f"{name}-{preset}.npz"
+                # A cell's cache names its operator seed unless it is the realistic default (older caches keep their names):
+                # a cache of one operator is never read for another.
+                op_tag = "" if a.operator_seed == OPERATOR_SEED else f"-op{a.operator_seed}"
+                cached = None if a.cache is None else pathlib.Path(a.cache) / f"{name}-{preset}{op_tag}.npz"
                 need_op = any(x.startswith("pnp:") for x in scheds)
                 need_roll = any(x.startswith("roll:") for x in scheds)
                 has_cache = cached is not None and cached.is_file()
