@@ -1,17 +1,45 @@
 """Helpers shared by the training scripts (``scripts/train_denoiser.py``, ``scripts/train_unrolled.py``): the
-per-cube PSNR they validate with, and reading back the validation records of their JSONL training logs.
+learning-rate schedule and the L1 optimisation step they both take, the per-cube PSNR they validate with, and
+reading back the validation records of their JSONL training logs.
 
 Example::
 
-    from diffcassi._training import psnr_db, validation_records
+    from diffcassi._training import l1_step, lr_at, psnr_db, validation_records
+    loss = l1_step(opt, net.parameters(), lr_at(step, steps, 3e-4, 1e-5, 100), 1.0, net(x), target)  # None: not finite
     p = psnr_db(output, clean)                         # (N,) dB, peak 1
     recs = validation_records(pathlib.Path("out/train-log.jsonl"), "train_denoiser")
 """
 from __future__ import annotations
 
 import json
+import math
 import pathlib
-from typing import List
+from typing import List, Optional
+
+
+def lr_at(step: int, steps: int, lr: float, lr_min: float, warmup: int) -> float:
+    """Linear warm-up over ``warmup`` steps, then cosine decay from ``lr`` to ``lr_min`` at ``steps``."""
+    if step < warmup:
+        return lr * (step + 1) / warmup
+    p = min(1.0, (step - warmup) / max(1, steps - warmup))
+    return lr_min + 0.5 * (lr - lr_min) * (1 + math.cos(math.pi * p))
+
+
+def l1_step(opt, params, lr: float, clip: float, prediction, target) -> Optional[float]:
+    """One optimisation step on the L1 loss mean|prediction − target|: every parameter group's learning rate set
+    to ``lr``, then backward, gradient-norm clipping of ``params`` to ``clip`` and ``opt.step()``. Returns the
+    loss's value, or None — nothing updated — when it is not finite (the caller says so and stops)."""
+    import torch
+    for pg in opt.param_groups:
+        pg["lr"] = lr
+    loss = (prediction - target).abs().mean()
+    if not torch.isfinite(loss):
+        return None
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(params, clip)
+    opt.step()
+    return loss.item()
 
 
 def psnr_db(x, ref):

@@ -64,7 +64,7 @@ sys.path.insert(0, str(ROOT))
 
 from diffcassi.deadleaves import BANDS_NM, dead_leaves, sources_manifest  # noqa: E402
 from diffcassi.denoiser import ARCH, SpectralUNet, from_v1, load_weights, save_weights  # noqa: E402
-from diffcassi._training import psnr_db, validation_records  # noqa: E402
+from diffcassi._training import l1_step, lr_at, psnr_db, validation_records  # noqa: E402
 
 #: Train seeds are TRAIN_SEED_BASE + 2·step + i; validation seeds are 0 … VAL_COUNT-1.
 TRAIN_SEED_BASE = 1_000_000
@@ -132,14 +132,6 @@ def spectral_basis(k: int, bands_nm) -> torch.Tensor:
 
 def weights_name(bands: int) -> str:
     return f"{ARCH}-{bands}.safetensors"
-
-
-def lr_at(step: int, steps: int, lr: float, lr_min: float, warmup: int) -> float:
-    """Linear warm-up over ``warmup`` steps, then cosine decay from ``lr`` to ``lr_min`` at ``steps``."""
-    if step < warmup:
-        return lr * (step + 1) / warmup
-    p = min(1.0, (step - warmup) / max(1, steps - warmup))
-    return lr_min + 0.5 * (lr - lr_min) * (1 + math.cos(math.pi * p))
 
 
 def brightness(n: int, g: torch.Generator) -> torch.Tensor:
@@ -559,18 +551,12 @@ def main(argv=None) -> int:
         """One L1 Adam step at the schedule's learning rate, then the step count and the validation; False
         (with the error printed) on a non-finite loss."""
         nonlocal step
-        for pg in opt.param_groups:
-            pg["lr"] = lr_at(step, a.steps, a.lr, a.lr_min, a.warmup)
-        loss = (net(noisy, sigma) - target).abs().mean()
-        if not torch.isfinite(loss):
+        loss = l1_step(opt, net.parameters(), lr_at(step, a.steps, a.lr, a.lr_min, a.warmup), a.clip, net(noisy, sigma), target)
+        if loss is None:
             print(f"train_denoiser: error: non-finite loss at step {step}; the weights file keeps the best so far",
                   file=sys.stderr)
             return False
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), a.clip)
-        opt.step()
-        losses.append(loss.item())
+        losses.append(loss)
         step += 1
         if step % a.val_every == 0 or step == a.steps:
             checkpoint(val_all())

@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import pathlib
 import sys
@@ -53,7 +52,7 @@ import diffcassi  # noqa: E402
 import diffcassi.torch as dt  # noqa: E402
 from diffcassi.deadleaves import BANDS_NM, dead_leaves, sources_manifest  # noqa: E402
 from diffcassi.unrolled import UnrolledGAP, load_unrolled, mask_sha256, save_unrolled  # noqa: E402
-from diffcassi._training import psnr_db, validation_records  # noqa: E402
+from diffcassi._training import l1_step, lr_at, psnr_db, validation_records  # noqa: E402
 
 #: Train seeds are TRAIN_SEED_BASE + batch·step + i; validation seeds 0 … VAL_COUNT−1 (of each kind).
 TRAIN_SEED_BASE = 3_000_000
@@ -78,14 +77,6 @@ def val_seeds() -> list:
 def names(system: str) -> dict:
     return {"weights": f"unrolled-gap-v1-{system}.safetensors", "log": f"unrolled-{system}-log.jsonl",
             "manifest": f"unrolled-{system}-manifest.json", "state": f"unrolled-{system}-state.pt"}
-
-
-def lr_at(step: int, steps: int, lr: float, lr_min: float, warmup: int) -> float:
-    """Linear warm-up over ``warmup`` steps, then cosine decay from ``lr`` to ``lr_min`` at ``steps``."""
-    if step < warmup:
-        return lr * (step + 1) / warmup
-    p = min(1.0, (step - warmup) / max(1, steps - warmup))
-    return lr_min + 0.5 * (lr - lr_min) * (1 + math.cos(math.pi * p))
 
 
 def load_mask(path, size: int) -> np.ndarray:
@@ -272,17 +263,11 @@ def main(argv=None) -> int:
         if (a.minutes is not None and time.time() - t0 > 60 * a.minutes) or (a.stop_at is not None and step >= a.stop_at):
             break
         acq, cube = render_batch(transport, train_seeds(step, a.batch), a.size, bands_nm)
-        for pg in opt.param_groups:
-            pg["lr"] = lr_at(step, a.steps, a.lr, a.lr_min, a.warmup)
-        loss = (net(acq) - cube).abs().mean()
-        if not torch.isfinite(loss):
+        loss = l1_step(opt, net.parameters(), lr_at(step, a.steps, a.lr, a.lr_min, a.warmup), a.clip, net(acq), cube)
+        if loss is None:
             print(f"train_unrolled: error: non-finite loss at step {step}; the state keeps step {step}", file=sys.stderr)
             return 1
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), a.clip)
-        opt.step()
-        losses.append(loss.item())
+        losses.append(loss)
         step += 1
         if step % a.val_every == 0 or step == a.steps:
             checkpoint()
