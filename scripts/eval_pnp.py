@@ -123,6 +123,8 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", default=None, help="folder keeping each cell's GAP-TV PSNR and network input (they do "
                     "not depend on the weights): one-call schedules of other weights then need no solve")
     a = ap.parse_args(argv)
+    if a.operator_seed < 0:
+        ap.error(f"--operator-seed: expected an integer ≥ 0, got {a.operator_seed}")
     torch.set_num_threads(a.threads)
     diffcassi.set_num_threads(a.threads)
     paper = np.load(a.mask).astype(np.float32)

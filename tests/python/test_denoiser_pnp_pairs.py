@@ -258,3 +258,12 @@ def test_eval_pnp_oracle_operator_reproduces_the_acquisition():
         rel[seed] = np.linalg.norm(op.apply(truth) - y) / np.linalg.norm(y)
     assert rel[ev.ACQUISITION_SEED] < 1e-5, rel
     assert rel[ev.OPERATOR_SEED] > 1e-3, rel
+
+
+def test_eval_pnp_refuses_a_negative_operator_seed(capsys):
+    """``--operator-seed`` below 0 is a usage error (exit 2, the option named) before anything is rendered."""
+    ev = load_script("eval_pnp")
+    with pytest.raises(SystemExit) as e:
+        ev.main(["--operator-seed", "-1"])
+    assert e.value.code == 2
+    assert "--operator-seed" in capsys.readouterr().err
