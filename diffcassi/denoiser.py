@@ -222,7 +222,7 @@ def save_weights(net: SpectralUNet, path, extra_metadata: Optional[Dict[str, str
     ``extra_metadata``, strings), atomically (a temporary file renamed over ``path``: never a half-written file)."""
     import os
     from safetensors.torch import save_file
-    tensors = {k: v.detach().to(torch.float32).contiguous().clone() for k, v in net.state_dict().items()}
+    tensors = {k: v.detach().to("cpu", torch.float32).contiguous().clone() for k, v in net.state_dict().items()}
     for k, v in tensors.items():
         if not torch.isfinite(v).all():
             raise ValueError(f"save_weights: tensor {k} has non-finite values; {path} not written")

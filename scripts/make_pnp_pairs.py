@@ -161,13 +161,14 @@ def acquire(preset: str, seed: int, scene: np.ndarray, mask: np.ndarray, size: i
     return op, y32, delta
 
 
-def pairs_of_scene(seed: int, kind: str, size: int, paper: np.ndarray, ident: str, threads: int):
+def pairs_of_scene(seed: int, kind: str, size: int, paper: np.ndarray, ident: str, threads: int,
+                   stages=STAGES):
     cube, scene, mask, mask_desc = training_scene(seed, kind, size, paper)
     out = []
     for pi, preset in enumerate(PRESETS):
         op, y32, delta = acquire(preset, seed, scene, mask, size)
         k_stop = None
-        for si, stage in enumerate(STAGES):
+        for si, stage in enumerate(stages):
             cap = 300 if stage == "stop" else max(1, k_stop // 2)
             x, rec = diffcassi.reconstruct(op, y32, "pnp-gap", denoiser=ident, noise_norm=delta, tv_warmup=cap,
                                            iterations=cap + 1, discrepancy=0.0, tolerance=0.0)
@@ -249,6 +250,10 @@ def main(argv=None) -> int:
                     "pnp-gap schedule of N calls, σ S1 → S2 (geometric), the calls run with --weights")
     ap.add_argument("--weights", default=str(ROOT / "src/recon/prior/weights/spectral-unet-v2-28.safetensors"),
                     help="with --schedule: the network the schedule's calls run (default: %(default)s)")
+    ap.add_argument("--stop-only", action="store_true", help="only the stop stage (the default PnP's first network "
+                    "input; half the solver runs of each scene)")
+    ap.add_argument("--float16", action="store_true", help="store inputs and targets as float16 (half the file; "
+                    "train_denoiser.py reads them back as float32)")
     ap.add_argument("--check", action="store_true", help="with --schedule: compare the rollout with the Rust pnp-gap "
                     "on a 32² scene (max |difference| / peak) and exit")
     a = ap.parse_args(argv)
@@ -281,7 +286,8 @@ def main(argv=None) -> int:
     base = PAIR_SEED_BASE if a.split == "train" else PAIR_VAL_SEED_BASE
     t0 = time.time()
     rows = []
-    per_scene = len(PRESETS) * (len(STAGES) if sigmas is None else len(sigmas))
+    run_stages = STAGES[:1] if a.stop_only else STAGES
+    per_scene = len(PRESETS) * (len(run_stages) if sigmas is None else len(sigmas))
     if sigmas is not None:
         import torch
         from diffcassi.denoiser import load_weights
@@ -295,7 +301,7 @@ def main(argv=None) -> int:
             if a.minutes is not None and time.time() - t0 > 60 * a.minutes:
                 break
             if sigmas is None:
-                rows += pairs_of_scene(base + i, scene_kind(i), a.size, paper, ident, a.threads)
+                rows += pairs_of_scene(base + i, scene_kind(i), a.size, paper, ident, a.threads, run_stages)
             else:
                 rows += schedule_pairs_of_scene(base + i, scene_kind(i), a.size, paper, ident, net, sigmas)
             last = rows[-per_scene:]
@@ -304,10 +310,10 @@ def main(argv=None) -> int:
     if not rows:
         print("make_pnp_pairs: error: no scene done within --minutes", file=sys.stderr)
         return 1
-    arrays = {k: np.stack([r[k] for r in rows]) for k in ("inputs", "targets")}
+    arrays = {k: np.stack([r[k] for r in rows]).astype(np.float16 if a.float16 else np.float32) for k in ("inputs", "targets")}
     arrays.update({k: np.array([r[k] for r in rows]) for k in ("peak", "err", "stage", "preset", "scene_seed",
                                                                    "tv_iterations", "tv_error")})
-    stages = list(STAGES)
+    stages = list(run_stages)
     if sigmas is not None:
         arrays["sigma"] = np.array([r["sigma"] for r in rows], dtype=np.float32)
         stages = [f"call{k + 1}" for k in range(len(sigmas))]

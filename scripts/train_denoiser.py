@@ -62,6 +62,26 @@ import torch.nn.functional as F
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+
+def _package_without_extension() -> None:
+    """The training needs only the package's pure-Python modules (``deadleaves``, ``denoiser``, ``_training``).
+    On a machine where the Rust extension is not built (a GPU machine without a Rust toolchain, a wheel for another
+    Python), register the package without running its ``__init__`` (which imports the extension)."""
+    try:
+        import diffcassi  # noqa: F401
+    except ImportError as e:
+        if "_native" not in str(e):
+            raise
+        import types
+        pkg = types.ModuleType("diffcassi")
+        pkg.__path__ = [str(ROOT / "diffcassi")]
+        sys.modules["diffcassi"] = pkg
+        print("train_denoiser: the diffcassi extension is not built here; using its pure-Python modules",
+              file=sys.stderr)
+
+
+_package_without_extension()
+
 from diffcassi.deadleaves import BANDS_NM, dead_leaves, sources_manifest  # noqa: E402
 from diffcassi.denoiser import ARCH, SpectralUNet, from_v1, load_weights, save_weights  # noqa: E402
 from diffcassi._training import l1_step, lr_at, psnr_db, validation_records  # noqa: E402
@@ -92,15 +112,52 @@ STAGE_NAMES = ("stop", "half")
 
 
 def seed_kind(seed: int) -> str:
-    """The kind of dead-leaves cube a train seed makes (``diffcassi.deadleaves.KINDS``): of the two new seeds of a
-    step, the first is measured-spectra leaves, the second uplifted sRGB leaves (a 50/50 mix)."""
+    """The kind of dead-leaves cube a train seed makes (``diffcassi.deadleaves.KINDS``): of the new seeds of a
+    step, even ones are measured-spectra leaves, odd ones uplifted sRGB leaves (a 50/50 mix)."""
     return "rgb" if (seed - TRAIN_SEED_BASE) % 2 else "spectral"
 
 
-def train_seeds(step: int) -> list:
-    """The dead-leaves seeds of the batch at ``step`` (the new seeds of steps max(0, s-3) … max(0, s-3)+3)."""
+def train_seeds(step: int, new: int = NEW_PER_STEP) -> list:
+    """The dead-leaves seeds of the batch at ``step`` (the ``new`` new seeds of each of the steps max(0, s-3) …
+    max(0, s-3)+3; ``--new-per-step``, 2 by default)."""
     first = max(0, step - (WINDOW - 1))
-    return [TRAIN_SEED_BASE + NEW_PER_STEP * s + i for s in range(first, first + WINDOW) for i in range(NEW_PER_STEP)]
+    return [TRAIN_SEED_BASE + new * s + i for s in range(first, first + WINDOW) for i in range(new)]
+
+
+class CubeSource:
+    """The training cubes of the coming steps, by seed: made in this process (``workers`` = 0) or by a pool of
+    ``workers`` processes ``ahead`` steps in advance (the same cubes: each is a function of its seed alone)."""
+
+    def __init__(self, size: int, new: int, workers: int, ahead: int = 48):
+        self.size, self.new, self.ahead = size, new, ahead
+        self.cache: dict = {}
+        self.pending: dict = {}
+        self.pool = None
+        if workers > 0:
+            import multiprocessing
+            # fork before any CUDA call (the pool is made before the network moves to the device)
+            self.pool = multiprocessing.get_context("fork").Pool(workers)
+
+    def batch(self, step: int) -> torch.Tensor:
+        seeds = train_seeds(step, self.new)
+        if self.pool is not None:
+            last = max(seeds) + self.new * self.ahead
+            for s in range(max(seeds) + 1 - self.new * WINDOW, last + 1):
+                if s not in self.cache and s not in self.pending:
+                    # (dead_leaves itself is the job: a module function pickles by name from any caller)
+                    self.pending[s] = self.pool.apply_async(dead_leaves, (s, self.size), {"kind": seed_kind(s)})
+        for s in seeds:
+            if s not in self.cache:
+                job = self.pending.pop(s, None)
+                self.cache[s] = torch.from_numpy(job.get() if job is not None else
+                                                 dead_leaves(s, self.size, BANDS_NM, kind=seed_kind(s)))
+        for s in [s for s in self.cache if s not in seeds]:
+            del self.cache[s]
+        return torch.stack([self.cache[s] for s in seeds])
+
+    def close(self):
+        if self.pool is not None:
+            self.pool.terminate()
 
 
 def val_seeds() -> list:
@@ -137,15 +194,16 @@ def weights_name(bands: int) -> str:
 def brightness(n: int, g: torch.Generator) -> torch.Tensor:
     """Per-cube brightness factors (n,): log-uniform in [0.05, 1] with p = 0.3 (dark scenes: the noise, drawn on
     the peak-1 scale, then dominates), U[0.5, 1] with p = 0.3, else 1 (plug-and-play iterates are not peak-1)."""
-    u = torch.rand(n, generator=g)
-    dark = torch.exp(math.log(0.05) * torch.rand(n, generator=g))
-    half = 0.5 + 0.5 * torch.rand(n, generator=g)
-    return torch.where(u < 0.3, dark, torch.where(u < 0.6, half, torch.ones(n)))
+    dev = g.device
+    u = torch.rand(n, generator=g, device=dev)
+    dark = torch.exp(math.log(0.05) * torch.rand(n, generator=g, device=dev))
+    half = 0.5 + 0.5 * torch.rand(n, generator=g, device=dev)
+    return torch.where(u < 0.3, dark, torch.where(u < 0.6, half, torch.ones(n, device=dev)))
 
 
 def _blur(x: torch.Tensor) -> torch.Tensor:
     """Separable 5-tap Gaussian (σ ≈ 1 px) over the spatial axes of (N, B, H, W), per band."""
-    k = torch.tensor([0.0545, 0.2442, 0.4026, 0.2442, 0.0545], dtype=x.dtype)
+    k = torch.tensor([0.0545, 0.2442, 0.4026, 0.2442, 0.0545], dtype=x.dtype, device=x.device)
     n, b, h, w = x.shape
     y = x.reshape(n * b, 1, h, w)
     y = F.conv2d(F.pad(y, (2, 2, 0, 0), mode="circular"), k.view(1, 1, 1, 5))
@@ -154,26 +212,29 @@ def _blur(x: torch.Tensor) -> torch.Tensor:
 
 
 def make_batch(clean: torch.Tensor, g: torch.Generator):
-    """Augments clean cubes (N, B, H, W) and adds noise; returns (noisy, sigma (N,), target)."""
+    """Augments clean cubes (N, B, H, W) and adds noise; returns (noisy, sigma (N,), target). The random draws
+    come from ``g`` on its device (``clean`` must be there too)."""
     n, b = clean.shape[:2]
+    dev = g.device
     out = []
     for i in range(n):
         c = clean[i]
-        k = int(torch.randint(0, 4, (1,), generator=g))
+        k = int(torch.randint(0, 4, (1,), generator=g, device=dev))
         c = torch.rot90(c, k, dims=(1, 2))
-        if torch.rand(1, generator=g) < 0.5:
+        if torch.rand(1, generator=g, device=dev) < 0.5:
             c = torch.flip(c, dims=(2,))
         out.append(c)
     x = torch.stack(out)
     x = x * brightness(n, g).view(n, 1, 1, 1)
-    gains = 1 + 0.05 * torch.randn(n, b, generator=g)
-    use = (torch.rand(n, generator=g) < 0.3).float().view(n, 1)
+    gains = 1 + 0.05 * torch.randn(n, b, generator=g, device=dev)
+    use = (torch.rand(n, generator=g, device=dev) < 0.3).float().view(n, 1)
     x = x * (use * gains + (1 - use)).clamp(min=0).view(n, b, 1, 1)
-    sigma = SIGMA_MAX * torch.rand(n, generator=g)
-    white = torch.randn(x.shape, generator=g)
-    corr = _blur(torch.randn(x.shape, generator=g))
+    sigma = SIGMA_MAX * torch.rand(n, generator=g, device=dev)
+    white = torch.randn(x.shape, generator=g, device=dev)
+    corr = _blur(torch.randn(x.shape, generator=g, device=dev))
     corr = corr / corr.std(dim=(1, 2, 3), keepdim=True).clamp(min=1e-6)
-    rho = torch.where(torch.rand(n, generator=g) < 0.25, 0.3 + 0.4 * torch.rand(n, generator=g), torch.zeros(n))
+    rho = torch.where(torch.rand(n, generator=g, device=dev) < 0.25, 0.3 + 0.4 * torch.rand(n, generator=g, device=dev),
+                      torch.zeros(n, device=dev))
     noise = torch.sqrt(1 - rho).view(n, 1, 1, 1) * white + torch.sqrt(rho).view(n, 1, 1, 1) * corr
     return x + sigma.view(n, 1, 1, 1) * noise, sigma, x
 
@@ -203,12 +264,16 @@ def load_pairs(path) -> dict:
         if sigma.shape != d["stage"].shape or not (np.isfinite(sigma).all() and (sigma > 0).all()):
             raise ValueError(f"artefact pairs {path}: `sigma` must be finite and > 0, one per pair")
     else:
-        names = list(STAGE_NAMES[:len(PAIR_SIGMA)])
+        names = list(manifest.get("stages") or STAGE_NAMES[:len(PAIR_SIGMA)])  # (``--stop-only`` files: stop alone)
+        if not set(names) <= set(STAGE_NAMES):
+            raise ValueError(f"artefact pairs {path}: unknown stages {names} (expected some of {list(STAGE_NAMES)})")
         sigma = None
     if not names or not np.isin(d["stage"], range(len(names))).all():
         raise ValueError(f"artefact pairs {path}: a stage outside 0..{len(names) - 1}")
     if sigma is None:
-        sigma = np.asarray(PAIR_SIGMA, dtype=np.float32)[d["stage"]]
+        sigma = np.asarray([PAIR_SIGMA[STAGE_NAMES.index(n)] for n in names], dtype=np.float32)[d["stage"]]
+    # float32 in memory (``make_pnp_pairs.py --float16`` files store half precision)
+    x, t = x.astype(np.float32, copy=False), t.astype(np.float32, copy=False)
     return {"stage_names": names, "inputs": torch.from_numpy(x), "targets": torch.from_numpy(t), "sigma": torch.from_numpy(sigma),
             "stage": torch.from_numpy(d["stage"]), "err": d["err"], "preset": d["preset"], "manifest": manifest,
             "sha256": hashlib.sha256(path.read_bytes()).hexdigest(), "path": str(path)}
@@ -346,7 +411,18 @@ def main(argv=None) -> int:
     ap.add_argument("--minutes", type=float, default=None, help="wall-time cap of this invocation (stops early, state saved)")
     ap.add_argument("--threads", type=int, default=2, help="torch intra-op threads")
     ap.add_argument("--seed", type=int, default=0, help="torch seed of the initial weights and the augmentation")
-    ap.add_argument("--batch", type=int, default=NEW_PER_STEP * WINDOW, help="must be %(default)s (the data window)")
+    ap.add_argument("--new-per-step", type=int, default=NEW_PER_STEP, help="new dead-leaves cubes per step (even; "
+                    "each is seen in %d consecutive steps, so the batch is %d times this; default: %%(default)s)" % (WINDOW, WINDOW))
+    ap.add_argument("--batch", type=int, default=None, help="if given, must be %d × --new-per-step (the data window)" % WINDOW)
+    ap.add_argument("--device", default="cpu", help="torch device of the training (cpu, cuda; default: %(default)s)")
+    ap.add_argument("--workers", type=int, default=0, help="processes that make the training cubes ahead (0: this "
+                    "process; the same cubes either way)")
+    ap.add_argument("--init-spectral", default=None, help="a spectral-unet-v2 file of any width whose linear spectral "
+                    "path (E, D, G) this network starts from (its U-Net starts at random); latent must match")
+    ap.add_argument("--sel-floor", type=float, default=None, help="with --pairs-val: the absolute selection score (dB) a "
+                    "checkpoint must keep, instead of step 0's minus --sel-tolerance (for a network trained from scratch)")
+    ap.add_argument("--keep-every", type=int, default=None, help="also keep the weights of every N-th step as "
+                    "ckpt-STEP.safetensors (to choose among them elsewhere)")
     ap.add_argument("--patch", type=int, default=64, help="training cube size (pixels, multiple of 4)")
     ap.add_argument("--width", type=int, default=32, help="network width C")
     ap.add_argument("--latent", type=int, default=28, help="latent channels K of the linear spectral path (≤ bands)")
@@ -380,11 +456,22 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.summary is not None:
         return summary(pathlib.Path(a.out) / "train-log.jsonl", a.summary)
-    for name in ("steps", "threads", "patch", "width", "latent", "val_every", "warmup"):
+    for name in ("steps", "threads", "patch", "width", "latent", "val_every", "warmup", "new_per_step"):
         if getattr(a, name) < 1:
             ap.error(f"--{name.replace('_', '-')} must be at least 1 (got {getattr(a, name)})")
-    if a.batch != NEW_PER_STEP * WINDOW:
-        ap.error(f"--batch must be {NEW_PER_STEP * WINDOW} (the data window), got {a.batch}")
+    if a.new_per_step % 2:
+        ap.error(f"--new-per-step must be even (half measured-spectra, half uplifted-sRGB cubes), got {a.new_per_step}")
+    if a.batch is not None and a.batch != a.new_per_step * WINDOW:
+        ap.error(f"--batch must be {a.new_per_step * WINDOW} (the data window), got {a.batch}")
+    if a.workers < 0 or (a.keep_every is not None and a.keep_every < 1):
+        ap.error("--workers must be non-negative and --keep-every at least 1")
+    try:
+        dev = torch.device(a.device)
+        torch.empty(1, device=dev) if dev.type != "cuda" else None
+    except (RuntimeError, ValueError) as e:
+        ap.error(f"--device {a.device!r}: {e}")
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        ap.error(f"--device {a.device!r}: CUDA is not available here")
     if a.patch % 4:
         ap.error(f"--patch must be a multiple of 4 (got {a.patch})")
     if a.latent > len(BANDS_NM):
@@ -417,6 +504,25 @@ def main(argv=None) -> int:
 
     net = SpectralUNet(bands=len(bands_nm), width=a.width, latent=a.latent)
     init_sha, init_kind = None, None
+    if a.init_spectral:
+        import hashlib
+        if a.init or a.resume:
+            print("train_denoiser: error: --init-spectral is for a new network (not with --init or --resume)", file=sys.stderr)
+            return 2
+        try:
+            src = load_weights(a.init_spectral, bands=len(bands_nm))
+        except (FileNotFoundError, ValueError) as e:
+            print(f"train_denoiser: error: --init-spectral: {e}", file=sys.stderr)
+            return 1
+        if src.latent != a.latent:
+            print(f"train_denoiser: error: --init-spectral {a.init_spectral} has latent {src.latent}, this run asks for "
+                  f"--latent {a.latent}", file=sys.stderr)
+            return 2
+        with torch.no_grad():
+            for name in ("lat_enc", "lat_dec", "bypass"):
+                getattr(net, name).weight.copy_(getattr(src, name).weight)
+        init_sha = hashlib.sha256(pathlib.Path(a.init_spectral).read_bytes()).hexdigest()
+        init_kind = "random U-Net; E, D and G (the linear spectral path) of a spectral-unet-v2 file (--init-spectral)"
     if a.init:
         import hashlib
         try:
@@ -433,30 +539,36 @@ def main(argv=None) -> int:
     if a.freeze_spectral:
         net.lat_enc.weight.requires_grad_(False)
         net.lat_dec.weight.requires_grad_(False)
-    opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=a.lr)
     step, best, elapsed0, sel0 = 0, -math.inf, 0.0, None
+    st = None
     if a.resume:
         if not os.path.isfile(a.resume):
             print(f"train_denoiser: error: --resume {a.resume}: no such file", file=sys.stderr)
             return 1
-        st = torch.load(a.resume, weights_only=False)
+        st = torch.load(a.resume, weights_only=False, map_location="cpu")
         made = (st.get("width"), st.get("latent"), st.get("patch"), st.get("seed"), st.get("freeze_spectral", False),
-                st.get("pairs_sha256"), st.get("pair_batch"))
+                st.get("pairs_sha256"), st.get("pair_batch"), st.get("new_per_step", NEW_PER_STEP))
         want = (a.width, a.latent, a.patch, a.seed, a.freeze_spectral, pairs and pairs["sha256"],
-                a.pair_batch if pairs else None)
+                a.pair_batch if pairs else None, a.new_per_step)
         if made != want:
             print(f"train_denoiser: error: --resume {a.resume} was made with (width, latent, patch, seed, "
-                  f"freeze-spectral, pairs SHA-256, pair-batch) = {made}, this run asks for {want}", file=sys.stderr)
+                  f"freeze-spectral, pairs SHA-256, pair-batch, new-per-step) = {made}, this run asks for {want}",
+                  file=sys.stderr)
             return 2
+    source = None if a.stage_net else CubeSource(a.patch, a.new_per_step, a.workers)  # forks before any CUDA call
+    net.to(dev)
+    opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=a.lr)
+    if st is not None:
         net.load_state_dict(st["model"])
-        opt.load_state_dict(st["optim"])
+        opt.load_state_dict(st["optim"])  # (moves the moments to the parameters' device)
         step, best, elapsed0 = st["step"], st["best"], st["elapsed_s"]
         sel0 = st.get("sel0")
         init_sha = st.get("init_weights_sha256", init_sha)
         init_kind = st.get("init_kind", init_kind)
     manifest = sources_manifest(bands_nm)
     manifest.update({
-        "train_seeds": f"{TRAIN_SEED_BASE} + {NEW_PER_STEP}*step + i, i < {NEW_PER_STEP}; i = 0 spectral, 1 rgb",
+        "train_seeds": f"{TRAIN_SEED_BASE} + {a.new_per_step}*step + i, i < {a.new_per_step}; even i spectral, odd i rgb",
+        "device": str(dev),
         "init_weights": "random (torch seed)" if init_sha is None else init_kind,
         "init_weights_sha256": init_sha,
         "train_seed_min": TRAIN_SEED_BASE, "val_seeds": val_seeds(), "val_sigmas": list(VAL_SIGMAS),
@@ -477,16 +589,19 @@ def main(argv=None) -> int:
             "file": pairs_val["path"], "sha256": pairs_val["sha256"], "count": int(pairs_val["inputs"].shape[0]),
             "manifest": {k: v for k, v in pairs_val["manifest"].items() if k != "sources"},
             "rule": "best mean over stages of the output PSNR (stage network: no Gaussian constraint)" if a.stage_net else
-            f"best stop-stage PSNR among checkpoints whose selection score >= step-0's - {a.sel_tolerance} dB"},
+            (f"best stop-stage PSNR among checkpoints whose selection score >= {a.sel_floor} dB" if a.sel_floor is not None
+             else f"best stop-stage PSNR among checkpoints whose selection score >= step-0's - {a.sel_tolerance} dB")},
         "pca": {"components": a.pca or a.latent, "train_steps": PCA_STEPS, "size": PCA_SIZE}
         if init_kind and "principal" in init_kind else None,
     })
     (out / "train-manifest.json").write_text(json.dumps(manifest, indent=1) + "\n")
 
-    clean_val, noisy_val = validation_set(a.patch, bands_nm)
-    clean_rgb, noisy_rgb = validation_set(a.patch, bands_nm, "rgb")
-    clean_sel, noisy_sel = selection_set(bands_nm)
-    cache: dict = {}
+    to_dev = lambda c, n: (c.to(dev), {k: v.to(dev) for k, v in n.items()})
+    clean_val, noisy_val = to_dev(*validation_set(a.patch, bands_nm))
+    clean_rgb, noisy_rgb = to_dev(*validation_set(a.patch, bands_nm, "rgb"))
+    clean_sel, noisy_sel = to_dev(*selection_set(bands_nm))
+    if pairs_val is not None:
+        pairs_val.update({k: pairs_val[k].to(dev) for k in ("inputs", "targets", "sigma")})
     t0 = time.time()
     log = open(lpath, "a")
     log.write(json.dumps({"event": "resume" if a.resume else "start", "step": step, "args": vars(a),
@@ -510,7 +625,8 @@ def main(argv=None) -> int:
         if a.stage_net:
             score = sum(val_pairs[n] for n in pairs_val["stage_names"]) / len(pairs_val["stage_names"])
         else:
-            score = mean if val_pairs is None else (val_pairs["stop"] if mean >= sel0 - a.sel_tolerance else -math.inf)
+            floor = sel0 - a.sel_tolerance if a.sel_floor is None else a.sel_floor
+            score = mean if val_pairs is None else (val_pairs["stop"] if mean >= floor else -math.inf)
         improved = score > best
         if improved:
             best = score
@@ -523,6 +639,9 @@ def main(argv=None) -> int:
                 extra["pnp_schedule"] = json.dumps(pairs["manifest"].get("schedule"))
             save_weights(net, wpath, {"training_step": str(step), "val_psnr_db": json.dumps(val),
                                       "val_rgb_psnr_db": json.dumps(val_rgb), "sel_psnr_db": json.dumps(val_sel), **extra})
+        if a.keep_every is not None and step % a.keep_every == 0:
+            save_weights(net, out / f"ckpt-{step}.safetensors", {"training_step": str(step), "sel_psnr_db": json.dumps(val_sel),
+                                                                  **({} if val_pairs is None else {"pnp_val_psnr_db": json.dumps(val_pairs)})})
         elapsed = elapsed0 + time.time() - t0
         rec = {"step": step, "elapsed_s": round(elapsed, 1), "lr": opt.param_groups[0]["lr"],
                "train_l1": (sum(losses) / len(losses)) if losses else None, "val_psnr_db": val,
@@ -538,6 +657,7 @@ def main(argv=None) -> int:
                     "elapsed_s": elapsed, "width": a.width, "latent": a.latent, "patch": a.patch,
                     "freeze_spectral": a.freeze_spectral, "sel0": sel0,
                     "pairs_sha256": pairs and pairs["sha256"], "pair_batch": a.pair_batch if pairs else None,
+                    "new_per_step": a.new_per_step,
                     "seed": a.seed, "init_weights_sha256": init_sha, "init_kind": init_kind}, tmp)
         os.replace(tmp, spath)
         print(f"step {step} val {val} rgb {val_rgb} selection {val_sel} score {mean:.2f} dB pnp {val_pairs}{' (best)' if improved else ''} "
@@ -555,6 +675,8 @@ def main(argv=None) -> int:
         if loss is None:
             print(f"train_denoiser: error: non-finite loss at step {step}; the weights file keeps the best so far",
                   file=sys.stderr)
+            if source is not None:
+                source.close()
             return False
         losses.append(loss)
         step += 1
@@ -567,26 +689,32 @@ def main(argv=None) -> int:
             break
         g = torch.Generator().manual_seed(a.seed * 1_000_003 + step)
         if a.stage_net:
-            noisy, sigma, target = pair_batch(pairs, a.pair_batch, a.patch, g)
+            noisy, sigma, target = (t.to(dev) for t in pair_batch(pairs, a.pair_batch, a.patch, g))
             if not optimise(noisy, sigma, target):
                 return 1
             continue
-        seeds = train_seeds(step)
-        for s in seeds:
-            if s not in cache:
-                cache[s] = torch.from_numpy(dead_leaves(s, a.patch, bands_nm, kind=seed_kind(s)))
-        for s in [s for s in cache if s not in seeds]:
-            del cache[s]
+        clean = source.batch(step)
         g = torch.Generator().manual_seed(a.seed * 1_000_003 + step)
-        noisy, sigma, target = make_batch(torch.stack([cache[s] for s in seeds]), g)
+        # on CPU one generator draws the augmentation and then the pairs (as before); on another device the
+        # augmentation's draws come from a generator there with the same seed
+        gd = g if dev.type == "cpu" else torch.Generator(device=dev).manual_seed(a.seed * 1_000_003 + step)
+        noisy, sigma, target = make_batch(clean.to(dev), gd)
         if pairs is not None:
-            px, ps, pt = pair_batch(pairs, a.pair_batch, a.patch, g)
+            px, ps, pt = (t.to(dev) for t in pair_batch(pairs, a.pair_batch, a.patch, g))
             noisy, sigma, target = torch.cat([noisy, px]), torch.cat([sigma, ps]), torch.cat([target, pt])
         if not optimise(noisy, sigma, target):
             return 1
     if step % a.val_every and step != a.steps:
         checkpoint(val_all())
+    if a.keep_every is not None and not (out / f"ckpt-{step}.safetensors").exists():
+        save_weights(net, out / f"ckpt-{step}.safetensors", {"training_step": str(step)})  # the last step's, too
     log.close()
+    if source is not None:
+        source.close()
+    if best == -math.inf:
+        print(f"train_denoiser: error: no checkpoint met the selection rule ({manifest['artefact_pairs_val']['rule']}); "
+              f"no weights file written", file=sys.stderr)
+        return 1
     load_weights(wpath, bands=len(bands_nm))  # the file written reads back
     print(f"done at step {step}: best validation mean {best:.2f} dB in {wpath}")
     return 0

@@ -420,3 +420,70 @@ def test_self_ensemble_is_dihedrally_equivariant_and_differs_from_one_pass():
     assert (e_rot - torch.rot90(e, 1, dims=(2, 3))).abs().max() < 1e-5
     assert (e_flip - torch.flip(e, dims=(2,))).abs().max() < 1e-5
     assert (e - one).abs().max() > 1e-3
+
+
+# ---- session 15: the options of the GPU training (more cubes per step, worker processes, a wider network) ----
+
+def test_more_cubes_per_step_keeps_seeds_disjoint_and_kinds_balanced(train):
+    val, sel = set(train.val_seeds()), set(train.sel_seeds())
+    seen = set()
+    for s in list(range(0, 100)) + list(range(10**4, 10**4 + 20)):
+        seeds = train.train_seeds(s, 16)
+        assert len(seeds) == 16 * train.WINDOW and len(set(seeds)) == len(seeds)
+        seen.update(seeds)
+    assert not seen & val and not seen & sel and min(seen) >= train.TRAIN_SEED_BASE
+    # consecutive steps share WINDOW - 1 steps' new cubes, and every seed is new exactly once
+    assert set(train.train_seeds(10, 16)) - set(train.train_seeds(9, 16)) == {train.TRAIN_SEED_BASE + 16 * 10 + i for i in range(16)}
+    kinds = [train.seed_kind(s) for s in train.train_seeds(50, 16)]
+    assert kinds.count("rgb") == kinds.count("spectral")
+    assert train.train_seeds(7) == train.train_seeds(7, train.NEW_PER_STEP)  # the default is round 3's data
+
+
+def test_worker_processes_give_the_same_training(train, tmp_path):
+    common = ["--patch", "16", "--threads", "1", "--warmup", "1", "--val-every", "3", "--steps", "3", "--width", "8",
+              "--new-per-step", "4"]
+    assert train.main(common + ["--out", str(tmp_path / "w0")]) == 0
+    assert train.main(common + ["--out", str(tmp_path / "w2"), "--workers", "2", "--keep-every", "3"]) == 0
+    a, b = torch.load(tmp_path / "w0" / "train-state.pt"), torch.load(tmp_path / "w2" / "train-state.pt")
+    assert a["step"] == b["step"] == 3 and a["new_per_step"] == 4
+    for k in a["model"]:
+        assert torch.equal(a["model"][k], b["model"][k]), k
+    assert sorted(p.name for p in (tmp_path / "w2").glob("ckpt-*.safetensors")) == ["ckpt-0.safetensors", "ckpt-3.safetensors"]
+    ck = load_weights(tmp_path / "w2" / "ckpt-3.safetensors", bands=28)
+    assert all(torch.equal(ck.state_dict()[k], b["model"][k]) for k in b["model"])
+    # a resume with another cube count is refused
+    assert train.main(common[:-1] + ["2", "--out", str(tmp_path / "w0"), "--steps", "6",
+                                     "--resume", str(tmp_path / "w0" / "train-state.pt")]) == 2
+
+
+def test_init_spectral_takes_the_linear_path_of_another_width(train, tmp_path):
+    src = SpectralUNet(bands=28, width=4, latent=6)
+    torch.manual_seed(3)
+    for p in src.parameters():
+        torch.nn.init.normal_(p, std=0.1)
+    save_weights(src, tmp_path / "src.safetensors")
+    common = ["--patch", "16", "--threads", "1", "--warmup", "1", "--val-every", "2", "--steps", "2", "--width", "8",
+              "--latent", "6", "--freeze-spectral"]
+    out = tmp_path / "o"
+    assert train.main(common + ["--out", str(out), "--init-spectral", str(tmp_path / "src.safetensors")]) == 0
+    st = torch.load(out / "train-state.pt")["model"]
+    assert torch.equal(st["lat_enc.weight"], src.lat_enc.weight.detach())  # frozen: unchanged by the steps
+    assert torch.equal(st["lat_dec.weight"], src.lat_dec.weight.detach())
+    man = json.loads((out / "train-manifest.json").read_text())
+    assert "--init-spectral" in man["init_weights"] and len(man["init_weights_sha256"]) == 64
+    # another latent, or with --init: refused, nothing written
+    other = [("5" if c == "6" else c) for c in common]  # --latent 5
+    assert train.main(other + ["--out", str(tmp_path / "x"), "--init-spectral", str(tmp_path / "src.safetensors")]) == 2
+    assert train.main(common + ["--out", str(tmp_path / "y"), "--init-spectral", str(tmp_path / "src.safetensors"),
+                                "--init", str(tmp_path / "src.safetensors")]) == 2
+    assert train.main(common + ["--out", str(tmp_path / "z"), "--init-spectral", str(tmp_path / "none.safetensors")]) == 1
+    assert not any((tmp_path / d / f"{ARCH}-28.safetensors").exists() for d in ("x", "y", "z"))
+
+
+@pytest.mark.parametrize("bad", [["--new-per-step", "3"], ["--new-per-step", "0"], ["--new-per-step", "4", "--batch", "8"],
+                                 ["--device", "bogus"], ["--workers", "-1"], ["--keep-every", "0"]])
+def test_training_gpu_options_reject_bad_values(train, tmp_path, bad):
+    with pytest.raises(SystemExit) as e:
+        train.main(bad + ["--out", str(tmp_path)])
+    assert e.value.code == 2
+    assert not (tmp_path / f"{ARCH}-28.safetensors").exists()

@@ -267,3 +267,34 @@ def test_eval_pnp_refuses_a_negative_operator_seed(capsys):
         ev.main(["--operator-seed", "-1"])
     assert e.value.code == 2
     assert "--operator-seed" in capsys.readouterr().err
+
+
+# ---- session 15: half-size stop-only pairs, the GPU training's options ----
+
+def test_stop_only_float16_pairs_load_as_float32(pairs_script, train, tmp_path):
+    out = tmp_path / "half.npz"
+    assert pairs_script.main(["--out", str(out), "--count", "1", "--size", "16", "--stop-only", "--float16"]) == 0
+    with np.load(out) as z:
+        assert z["inputs"].dtype == z["targets"].dtype == np.float16 and z["inputs"].shape == (2, 28, 16, 16)
+        assert list(z["stage"]) == [0, 0] and list(z["preset"]) == [0, 1]
+        assert json.loads(str(z["manifest"]))["stages"] == ["stop"]
+        x16 = z["inputs"]
+    loaded = train.load_pairs(out)
+    assert loaded["inputs"].dtype == torch.float32 and np.array_equal(loaded["inputs"].numpy(), x16.astype(np.float32))
+    assert loaded["stage_names"] == ["stop"] and loaded["sigma"].tolist() == pytest.approx([train.PAIR_SIGMA[0]] * 2)
+
+
+def test_sel_floor_no_checkpoint_passing_is_an_error_and_writes_no_weights(train, pairs_file, tmp_path, capsys):
+    out = tmp_path / "floor"
+    common = ["--patch", "16", "--threads", "1", "--warmup", "1", "--val-every", "2", "--steps", "2", "--width", "8",
+              "--pairs", str(pairs_file), "--pairs-val", str(pairs_file), "--pair-batch", "2"]
+    assert train.main(common + ["--out", str(out), "--sel-floor", "99"]) == 1
+    assert "no checkpoint met the selection rule" in capsys.readouterr().err
+    assert not (out / f"{ARCH}-28.safetensors").exists()
+    # A reachable floor: the file holds the best stop-stage score among the checkpoints over it.
+    assert train.main(common + ["--out", str(tmp_path / "ok"), "--sel-floor", "0"]) == 0
+    log = [json.loads(line) for line in (tmp_path / "ok" / "train-log.jsonl").read_text().splitlines()][1:]
+    best = max(log, key=lambda r: r["pnp_val_psnr_db"]["stop"])
+    from safetensors import safe_open
+    with safe_open(str(tmp_path / "ok" / f"{ARCH}-28.safetensors"), framework="pt") as f:
+        assert f.metadata()["training_step"] == str(best["step"])
