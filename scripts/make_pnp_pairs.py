@@ -252,8 +252,8 @@ def main(argv=None) -> int:
                     help="with --schedule: the network the schedule's calls run (default: %(default)s)")
     ap.add_argument("--stop-only", action="store_true", help="only the stop stage (the default PnP's first network "
                     "input; half the solver runs of each scene)")
-    ap.add_argument("--float16", action="store_true", help="store inputs and targets as float16 (half the file; "
-                    "train_denoiser.py reads them back as float32)")
+    ap.add_argument("--float16", action="store_true", help="store inputs and targets as float16, deflate-compressed "
+                    "(≈ 0.3 MB a 64² pair instead of 0.9: what travels to a GPU machine; train_denoiser.py reads float32)")
     ap.add_argument("--check", action="store_true", help="with --schedule: compare the rollout with the Rust pnp-gap "
                     "on a 32² scene (max |difference| / peak) and exit")
     a = ap.parse_args(argv)
@@ -329,7 +329,7 @@ def main(argv=None) -> int:
     out = pathlib.Path(a.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".tmp.npz")
-    np.savez(tmp, manifest=np.array(json.dumps(manifest)), **arrays)
+    (np.savez_compressed if a.float16 else np.savez)(tmp, manifest=np.array(json.dumps(manifest)), **arrays)
     tmp.replace(out)
     print(f"wrote {len(rows)} pairs of {len(rows) // per_scene} scenes to {out} in {time.time() - t0:.0f} s; "
           f"err by stage: " + ", ".join(f"{s} {arrays['err'][arrays['stage'] == i].mean():.3f}"

@@ -13,6 +13,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 const BANDS: usize = 28;
+/// The embedded network's width (round 9: 64; MODEL.md), as a number and as its metadata string.
+const WIDTH: usize = 64;
+const W: &str = "64";
 
 /// A smooth two-region cube of `bands` bands, peak ≈ 0.9.
 fn scene(h: usize, w: usize, bands: usize) -> Vec<f32> {
@@ -127,7 +130,7 @@ fn weights_path() -> PathBuf {
 #[test]
 fn embedded_weights_are_the_committed_file() {
     let net = SpectralUNet::embedded().unwrap();
-    assert_eq!((net.bands, net.width), (BANDS, 32));
+    assert_eq!((net.bands, net.width), (BANDS, WIDTH));
     let from_file = SpectralUNet::from_file(&weights_path()).unwrap();
     assert_eq!(from_file.crc32, net.crc32);
 }
@@ -161,9 +164,9 @@ fn denoiser_is_bit_identical_for_any_thread_count() {
 fn pnp_stage_weights_are_told_apart_from_gaussian_ones() {
     let d = tempfile::tempdir().unwrap();
     let pnp_path = d.path().join("stage.safetensors");
-    std::fs::write(&pnp_path, edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "32"), ("latent", "12"), ("stage", "pnp")]))).unwrap();
+    std::fs::write(&pnp_path, edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", W), ("latent", "12"), ("stage", "pnp")]))).unwrap();
     let net = SpectralUNet::load_pnp(Some(&pnp_path)).unwrap();
-    assert_eq!((net.stage, net.bands, net.width, net.latent), (Stage::Pnp, BANDS, 32, 12));
+    assert_eq!((net.stage, net.bands, net.width, net.latent), (Stage::Pnp, BANDS, WIDTH, 12));
     assert_eq!(net.describe()["stage"], "pnp");
     let e = SpectralUNet::load(Some(&pnp_path)).err().expect("a PnP-stage file refused as a Gaussian denoiser").to_string();
     assert!(e.contains("stage.safetensors") && e.contains("`stage` = `pnp`"), "{e}");
@@ -172,7 +175,7 @@ fn pnp_stage_weights_are_told_apart_from_gaussian_ones() {
     assert_eq!(g.crc32, SpectralUNet::embedded().unwrap().crc32);
     assert_eq!(SpectralUNet::load(None).unwrap().stage, Stage::Gaussian);
     let p = d.path().join("odd.safetensors");
-    std::fs::write(&p, edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "32"), ("latent", "12"), ("stage", "unrolled")]))).unwrap();
+    std::fs::write(&p, edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", W), ("latent", "12"), ("stage", "unrolled")]))).unwrap();
     let e = SpectralUNet::from_file(&p).err().expect("unknown stage refused").to_string();
     assert!(e.contains("odd.safetensors") && e.contains("`stage` = `unrolled`"), "{e}");
 }
@@ -404,13 +407,13 @@ fn bad_weights_are_clear_errors() {
     let cases: Vec<(&str, Vec<u8>, &str)> = vec![
         ("truncated", good[..good.len() / 2].to_vec(), "not a valid safetensors file"),
         ("garbage", b"not weights at all".to_vec(), "not a valid safetensors file"),
-        ("arch", edited_weights(|_, _, _| true, Some(vec![("arch", "resnet"), ("bands", "28"), ("width", "32"), ("latent", "28")])), "`arch` = `resnet`"),
-        ("v1", edited_weights(|_, _, _| true, Some(vec![("arch", "spectral-unet-v1"), ("bands", "28"), ("width", "32")])), "from_v1"),
-        ("nobands", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("width", "32"), ("latent", "8")])), "`bands` is missing"),
-        ("nolatent", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "32")])), "`latent` is missing"),
-        ("biglatent", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "32"), ("latent", "29")])), "`latent` = 29 exceeds"),
+        ("arch", edited_weights(|_, _, _| true, Some(vec![("arch", "resnet"), ("bands", "28"), ("width", W), ("latent", "28")])), "`arch` = `resnet`"),
+        ("v1", edited_weights(|_, _, _| true, Some(vec![("arch", "spectral-unet-v1"), ("bands", "28"), ("width", W)])), "from_v1"),
+        ("nobands", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("width", W), ("latent", "8")])), "`bands` is missing"),
+        ("nolatent", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", W)])), "`latent` is missing"),
+        ("biglatent", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", W), ("latent", "29")])), "`latent` = 29 exceeds"),
         ("badwidth", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "28"), ("width", "x"), ("latent", "8")])), "`width` = `x`"),
-        ("wrongbands", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "31"), ("width", "32"), ("latent", "8")])), "tensor `lat_enc.weight` has shape"),
+        ("wrongbands", edited_weights(|_, _, _| true, Some(vec![("arch", ARCH), ("bands", "31"), ("width", W), ("latent", "8")])), "tensor `lat_enc.weight` has shape"),
         ("bypass", edited_weights(|n, s, d| {
             if n == "bypass.weight" {
                 s.clear();

@@ -427,8 +427,10 @@ pub const PNP_ITERATIONS: usize = PNP_TV_WARMUP + PNP_NETWORK_ITERATIONS;
 /// the most PSNR whose SAM is no worse than one call's (SP and mSP). With the round-4 weights one call gains
 /// +0.49 / +0.46 dB over GAP-TV (SP / mSP, SAM 9.01° / 9.08°), 5 calls +0.85 / +0.80 (SAM 9.00° / 9.04°),
 /// 20 calls +1.51 / +1.41 dB but SAM 11.39° / 11.58° (the later calls' data steps bend the spectra of dark
-/// and mid-bright pixels, round 7). (Rounds 1–3's weights lost with every call after the first.) Cost: one
-/// network call each (≈ 0.7 CPU-s at 256², 2.9 at 512²).
+/// and mid-bright pixels, round 7). (Rounds 1–3's weights lost with every call after the first.) Round 9's wider
+/// weights (width 64, MODEL.md) keep the schedule: 5 calls gain +0.24 dB more than round 4's on the validation
+/// renders, 12 calls less. Cost: one network call each (round 9: ≈ 1.6 CPU-s at 256², 7.2 at 512²; round 4's
+/// 0.75 and 2.8).
 pub const PNP_NETWORK_ITERATIONS: usize = 5;
 /// PnP default: the TV phase's cap (GAP-TV's own cap; the phase usually ends earlier, at GAP-TV's
 /// discrepancy stop [`PNP_TV_DISCREPANCY`]).
