@@ -151,9 +151,11 @@ def test_training_sources_and_evaluation_scenes_disjoint():
         assert not names & {"open", "load_scene", "imread", "load", "loadtxt", "fromfile", "read_exr", "glob"}, module
 
 
-def test_committed_weights_load():
+@pytest.mark.parametrize("name", [f"{ARCH}-28.safetensors", f"{ARCH}-28-round4-cpu.safetensors"])
+def test_committed_weights_load(name):
+    # the embedded file (round 9, GPU-trained) and round 4's CPU-trained one (`--denoiser`; MODEL.md)
     from safetensors import safe_open
-    path = WEIGHTS / f"{ARCH}-28.safetensors"
+    path = WEIGHTS / name
     with safe_open(str(path), framework="pt") as f:
         meta = f.metadata()
     assert meta["arch"] == ARCH == "spectral-unet-v2" and meta["bands"] == "28"
