@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Trains the learned hyperspectral denoiser (``diffcassi.denoiser.SpectralUNet``, arch spectral-unet-v2) on CPU
-with procedural dead-leaves cubes (``diffcassi.deadleaves``) generated on the fly from seeds.
+or a GPU with procedural dead-leaves cubes (``diffcassi.deadleaves``) generated on the fly from seeds.
 
     .venv/bin/python scripts/train_denoiser.py --out OUT --init V1.safetensors --latent 12 --freeze-spectral \
         --patch 48 --steps 2400 --threads 1 --lr 3e-4     # round 3 (MODEL.md gives the exact command)
@@ -40,6 +40,13 @@ Recipe (src/recon/prior/MODEL.md states the run's numbers):
   validation: the mean PSNR of the network's output on the stop-stage pairs (= one-call PnP's PSNR on those
   renders); with it, the weights file holds the best such score among checkpoints whose Gaussian selection score
   is at most ``--sel-tolerance`` dB under the start's (the Gaussian benchmark must not regress);
+
+* on a GPU (round 9, MODEL.md): ``--device cuda`` (the augmentation's draws from a generator on the device, seeded
+  alike), ``--workers N`` processes making the coming steps' cubes (the same cubes as one process makes),
+  ``--new-per-step`` cubes per step (the batch is 4× that), ``--init-spectral`` (a new network of any width that
+  starts from another file's E, D and G), ``--sel-floor`` (an absolute Gaussian floor for the pair rule) and
+  ``--keep-every`` (checkpoints to choose among elsewhere). The script needs only the package's pure-Python
+  modules, so it runs where the Rust extension is not built.
 
 Every random choice derives from ``--seed`` and the step, so a resumed run continues exactly as the uninterrupted
 one would; ``--minutes`` only caps the wall time of this invocation (the schedule depends on the step alone).
