@@ -255,10 +255,10 @@ impl super::vector::VectorLoop for TapLoop<'_> {
             let base = r0 * dwf + c0;
             for (t, (dr, dc)) in [(0, 0), (0, 1), (1, 0), (1, 1)].into_iter().enumerate() {
                 on[t][k] = rows[dr] & cols[dc];
-                // A tap on the detector: an integer in [0, h·w) (< 2⁵¹), read from the low bits of
-                // x + 1.5·2⁵² (exact there; no conversion instruction, so it vectorises).
+                // A tap on the detector: an integer in [0, h·w) (< 2⁵¹), converted without a conversion
+                // instruction (so it vectorises) by the landing loop's `int_bits`.
                 let at = base + (dr as f64) * dwf + dc as f64;
-                let bits = ((at + INT_MAGIC).to_bits() as i64 - INT_MAGIC.to_bits() as i64) as usize;
+                let bits = super::transport::int_bits(at) as usize;
                 idx[t][k] = if on[t][k] { bits } else { 0 };
             }
         }
@@ -306,10 +306,6 @@ impl super::vector::VectorLoop for TapLoop<'_> {
         out.ok = ok;
     }
 }
-
-/// 1.5·2⁵²: for an integral x with |x| < 2⁵¹, x + `INT_MAGIC` is exact and its bits minus `INT_MAGIC`'s
-/// are x (as `render::transport`'s landing loop converts its cells).
-const INT_MAGIC: f64 = 6_755_399_441_055_744.0;
 
 /// One plane's inputs to the backward pass of its rays.
 struct PlaneInputs<'a> {

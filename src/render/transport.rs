@@ -376,7 +376,7 @@ const TWO51: f64 = 2_251_799_813_685_248.0;
 /// `x as i64` for integral x with |x| < 2⁵¹ (other values give garbage): x + 1.5·2⁵² lies in [2⁵², 2⁵³),
 /// where the f64 spacing is 1, so the sum is exact and its mantissa bits are 2⁵¹ + x.
 #[inline(always)]
-fn int_bits(x: f64) -> i64 {
+pub(super) fn int_bits(x: f64) -> i64 {
     const MAGIC: f64 = 6_755_399_441_055_744.0; // 1.5 · 2⁵²
     (x + MAGIC).to_bits() as i64 - MAGIC.to_bits() as i64
 }
