@@ -25,30 +25,16 @@ sys.path.insert(0, str(ROOT / "scripts"))
 
 import diffcassi  # noqa: E402
 from diffcassi.deadleaves import BANDS_NM  # noqa: E402
+from eval_denoiser import tv_denoise  # noqa: E402
 from eval_pnp import ACQUISITION_SEED, OPERATOR_SEED, PLANES, RAYS, SIZE, project_metrics, scenes  # noqa: E402
 
-TV_WEIGHT, TV_ITERATIONS, TAU, ITERATIONS = 0.1, 5, 0.25, 300
+TV_WEIGHT, TV_ITERATIONS, ITERATIONS = 0.1, 5, 300
 
 
 def tv_vectorial(f: np.ndarray) -> np.ndarray:
-    """Chambolle's vectorial TV of an (H, W, B) cube (``recon::tv``'s algorithm, from p = 0)."""
-    p1, p2 = np.zeros_like(f), np.zeros_like(f)
-
-    def div(a, b):
-        d = a.copy()
-        d[:, 1:] -= a[:, :-1]
-        d += b
-        d[1:] -= b[:-1]
-        return d
-
-    for _ in range(TV_ITERATIONS):
-        z = div(p1, p2) - f / TV_WEIGHT
-        g1, g2 = np.zeros_like(f), np.zeros_like(f)
-        g1[:, :-1] = z[:, 1:] - z[:, :-1]
-        g2[:-1] = z[1:] - z[:-1]
-        d = 1 / (1 + TAU * np.sqrt((g1 * g1 + g2 * g2).sum(-1, keepdims=True)))
-        p1, p2 = (p1 + TAU * g1) * d, (p2 + TAU * g2) * d
-    return f - TV_WEIGHT * div(p1, p2)
+    """Chambolle's vectorial TV of an (H, W, B) cube (``recon::tv``'s algorithm, from p = 0): eval_denoiser's
+    NumPy transcription on the (B, H, W) layout."""
+    return tv_denoise(f.transpose(2, 0, 1), TV_WEIGHT, TV_ITERATIONS).transpose(1, 2, 0)
 
 
 def gap_tv(op, y: np.ndarray, shape, projection=None) -> np.ndarray:
