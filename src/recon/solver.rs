@@ -429,8 +429,8 @@ pub const PNP_ITERATIONS: usize = PNP_TV_WARMUP + PNP_NETWORK_ITERATIONS;
 /// 20 calls +1.51 / +1.41 dB but SAM 11.39° / 11.58° (the later calls' data steps bend the spectra of dark
 /// and mid-bright pixels, round 7). (Rounds 1–3's weights lost with every call after the first.) Round 9's wider
 /// weights (width 64, MODEL.md) keep the schedule: 5 calls gain +0.24 dB more than round 4's on the validation
-/// renders, 12 calls less. Cost: one network call each (round 9: ≈ 1.6 CPU-s at 256², 7.2 at 512²; round 4's
-/// 0.75 and 2.8).
+/// renders, 12 calls less. Cost: one network call each (round 9: 1.4 CPU-s at 256², 6.9 at 512², `cargo bench
+/// --bench recon`; the width-32 network 0.7 at 256²).
 pub const PNP_NETWORK_ITERATIONS: usize = 5;
 /// PnP default: the TV phase's cap (GAP-TV's own cap; the phase usually ends earlier, at GAP-TV's
 /// discrepancy stop [`PNP_TV_DISCREPANCY`]).
