@@ -15,7 +15,7 @@
 //! let mut tape = LaneTape::default();
 //! trace_block_recording(SimdLevel::detect(), &sys, &[n.as_slice(); LANES], &mut b, &mut tape);
 //! assert!(b.result(0).is_ok());
-//! assert!(tape.steps.len() >= 3); // one state per path step
+//! assert!(tape.steps().len() >= 3); // one state per path step
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 use super::block::{trace_block, Block, StepRecorder};
@@ -38,18 +38,45 @@ pub struct StepLanes {
 }
 
 /// The per-step states of one block's trace (reused from block to block: no allocation once grown).
-/// After a trace, `steps` holds the steps traced (all of the path when any lane arrived).
+/// After a trace, [`LaneTape::steps`] holds the steps traced (all of the path when any lane arrived).
 #[derive(Clone, Debug, Default)]
 pub struct LaneTape {
-    pub steps: Vec<StepLanes>,
+    /// Storage for the longest trace so far; the first `len` are this trace's.
+    states: Vec<StepLanes>,
+    len: usize,
+}
+
+impl LaneTape {
+    /// The states of the steps traced, in path order.
+    #[inline]
+    pub fn steps(&self) -> &[StepLanes] {
+        &self.states[..self.len]
+    }
+}
+
+#[inline(always)]
+fn store3(dst: &mut L3, v: &L3) {
+    (dst.x, dst.y, dst.z) = (v.x, v.y, v.z);
 }
 
 impl StepRecorder<f64, LANES> for LaneTape {
     #[inline(always)]
     fn record(&mut self, s: usize, pr: &L3, d0: &L3, d: &L3, q: &L3, normal: &L3, t: &Lf) {
-        // `Recording` empties the tape before each trace and steps arrive in order: step s is pushed at s.
-        debug_assert_eq!(s, self.steps.len());
-        self.steps.push(StepLanes { pr: *pr, d0: *d0, d: *d, q: *q, normal: *normal, t: *t });
+        // `Recording` empties the tape before each trace and steps arrive in order: step s is kept at s,
+        // in place (no state built and copied: each lane array is stored from where the trace has it).
+        debug_assert_eq!(s, self.len);
+        if s == self.states.len() {
+            let z = L3 { x: Lf::splat(0.0), y: Lf::splat(0.0), z: Lf::splat(0.0) };
+            self.states.push(StepLanes { pr: z, d0: z, d: z, q: z, normal: z, t: Lf::splat(0.0) });
+        }
+        let st = &mut self.states[s];
+        store3(&mut st.pr, pr);
+        store3(&mut st.d0, d0);
+        store3(&mut st.d, d);
+        store3(&mut st.q, q);
+        store3(&mut st.normal, normal);
+        st.t = *t;
+        self.len = s + 1;
     }
 }
 
@@ -64,7 +91,7 @@ impl LaneKernel for Recording<'_> {
     type Output = ();
     #[inline(always)]
     fn run(self) {
-        self.tape.steps.clear();
+        self.tape.len = 0;
         trace_block(self.path, self.n, self.b, self.tape)
     }
 }
