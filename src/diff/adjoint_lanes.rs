@@ -135,8 +135,9 @@ fn add_kept(acc: &mut Lf, v: &Lf, keep: &[u64; LANES]) {
 /// registers, and the 32-lane body spilled about a fifth of its instructions). The sweep runs the step
 /// loop outside and the [`CHUNKS`] chunks of a block inside it, so each step's constants are set up once a
 /// block; every lane sees the same operations in the same order either way (the same bits). Measured on
-/// SP's full backward (docs/codesign.md, session 16): 8 lanes a pass ≈ 3 % faster than 32 with the mask
-/// checks and ≈ 8 % with the arithmetic ones ([`check`]); 16 lanes as fast as 8, 4 lanes slower.
+/// SP's full backward (docs/codesign.md, session 16): against the 32-lane sweep with lane-mask checks, 8
+/// lanes a pass ≈ 3 % faster with those checks and ≈ 8 % with the arithmetic ones ([`check`]); 16 lanes
+/// as fast as 8; 4 lanes, and 32 with the arithmetic checks, slower.
 const CHUNK: usize = 8;
 const CHUNKS: usize = LANES / CHUNK;
 type Cf = Lanes<f64, CHUNK>;
@@ -353,7 +354,7 @@ struct StepConsts {
 
 /// One step of the reverse sweep for chunk `c` of a block: (λ_q, λ_d) of the step's outgoing ray → those
 /// of its incoming ray in the previous frame, the step's sensitivities stored in chunk `c` of `sens`, and
-/// the chunk's lanes still finite.
+/// the chunk's running finiteness check `chk` ([`check`]) with this step's values added.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn sweep_step(st: &StepLanes, step: &PathStep, sp: &StepPlan, fig: &Figure, k: &StepConsts, c: usize, lq: C3, ld: C3, mut chk: Cf, sens: &mut StepSensLanes) -> (C3, C3, Cf) {
