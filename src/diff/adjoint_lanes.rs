@@ -12,7 +12,7 @@
 //! and AP with vignetted and missed rays in the blocks. A lane adds nothing when one of its
 //! sensitivities is not finite (a grazing hit), as the scalar sweep.
 //!
-//! The step body runs on [`CHUNK`] lanes at a time (one AVX-512 register per value), the chunks of a
+//! The step body runs on 8 lanes at a time (one AVX-512 register per value), the chunks of a
 //! block inside the loop over steps, and tests finiteness arithmetically (a running Σ (v − v) per lane
 //! instead of a lane mask ANDed per value, whose repacking put a long dependent chain through every step):
 //! the same operations on every lane, so the same bits as sweeping all [`LANES`] lanes at once.
