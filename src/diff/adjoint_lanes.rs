@@ -471,7 +471,7 @@ impl LaneKernel for Sweep<'_> {
     #[inline(always)]
     fn run(self) -> Lm {
         let Sweep { plan, path, tape, n, lambda, active, sums } = self;
-        // Each chunk's adjoint (λ_q, λ_d) and finite mask, carried from step to step.
+        // Each chunk's adjoint (λ_q, λ_d), carried from step to step.
         let mut lq: [C3; CHUNKS] = std::array::from_fn(|c| v3(part(&lambda[0], c), part(&lambda[1], c), part(&lambda[2], c)));
         let mut ld: [C3; CHUNKS] = std::array::from_fn(|c| v3(part(&lambda[3], c), part(&lambda[4], c), part(&lambda[5], c)));
         // Each chunk's finiteness check: Σ (v − v) over every value checked, +0 while all are finite, NaN
