@@ -147,6 +147,14 @@ impl RowRays {
     fn block(&self, start: usize, m: usize) -> Block {
         let mut b = Block::default();
         let r = start..start + m;
+        if m == LANES {
+            // A full block (all but a row's last): copies of a fixed size, inlined (a copy of `m` values
+            // is a call to `memmove`, five per block).
+            let full = |v: &[f64]| -> [f64; LANES] { v[r.clone()].try_into().expect("LANES values") };
+            (b.p.x.0, b.p.y.0, b.d.x.0, b.d.y.0, b.d.z.0) = (full(&self.ox), full(&self.oy), full(&self.dx), full(&self.dy), full(&self.dz));
+            b.alive.0 = [true; LANES];
+            return b;
+        }
         b.p.x.0[..m].copy_from_slice(&self.ox[r.clone()]);
         b.p.y.0[..m].copy_from_slice(&self.oy[r.clone()]);
         b.d.x.0[..m].copy_from_slice(&self.dx[r.clone()]);
@@ -647,7 +655,10 @@ impl DiffRenderer {
     #[allow(clippy::too_many_arguments)]
     fn block_grads(&self, level: crate::tracer::SimdLevel, b: &Block, pixel: &[usize], pin: &PlaneInputs, out: &mut PlaneGrad, scene: bool, lambda: Option<(&mut [Lf; 6], &mut Lm)>, taps: &mut BlockTaps) -> u64 {
         let mut lanes = [0usize; LANES];
-        lanes[..pixel.len()].copy_from_slice(pixel);
+        match <&[usize; LANES]>::try_from(pixel) {
+            Ok(full) => lanes = *full,
+            Err(_) => lanes[..pixel.len()].copy_from_slice(pixel),
+        }
         super::vector::run_at(level, TapLoop { b, det: &self.detector, pixel: lanes, pin, lambda: lambda.is_some(), out: taps });
         let hw = pin.hw;
         let mut arrived = 0;
