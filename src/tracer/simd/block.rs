@@ -124,8 +124,9 @@ impl<T: Real, const N: usize> LaneBlock<T, N> {
         }
     }
     /// Stop the live lanes of `m` with `status` at `surface`. Rays rarely stop, so the lanes' stop codes
-    /// are written only when some live lane of `m` does (one test of the mask): the selects of the codes
-    /// on every call took ≈ 10 % of the production render (SP, 128², session 17).
+    /// are written only when some live lane of `m` does (one test of the mask): with the selects of the
+    /// codes on every call the kernel traced ≈ 20 % fewer rays/s (SP and AP, docs/performance.md,
+    /// "Session 17").
     #[inline(always)]
     fn kill(&mut self, m: Mask<N>, status: RayStatus, surface: usize) {
         let stop = self.alive & m;
