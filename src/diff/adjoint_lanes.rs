@@ -148,6 +148,7 @@ const CZERO: Cf = Lanes([0.0; CHUNK]);
 /// from the first one that is not (v − v is NaN for ±∞ and NaN): the decision of testing each value, as
 /// the scalar sweep does, with one subtraction and one addition and no lane-mask reduction.
 #[inline(always)]
+#[allow(clippy::eq_op)] // v − v on purpose: +0 for a finite v, NaN for ±∞ and NaN.
 fn check(acc: &mut Cf, v: Cf) {
     *acc = *acc + (v - v);
 }
@@ -155,6 +156,7 @@ fn check(acc: &mut Cf, v: Cf) {
 /// [`check`] of a vector's three values, summed as a tree (the checks of a step are off the sweep's
 /// critical path only while their chain is short).
 #[inline(always)]
+#[allow(clippy::eq_op)] // v − v on purpose, as in `check`.
 fn check3(acc: &mut Cf, v: C3) {
     *acc = *acc + (((v.x - v.x) + (v.y - v.y)) + (v.z - v.z));
 }
@@ -356,7 +358,7 @@ struct StepConsts {
 /// of its incoming ray in the previous frame, the step's sensitivities stored in chunk `c` of `sens`, and
 /// the chunk's running finiteness check `chk` ([`check`]) with this step's values added.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
+#[allow(clippy::too_many_arguments, clippy::eq_op)] // eq_op: the v − v of `check`, written out for μ̄'s two values.
 fn sweep_step(st: &StepLanes, step: &PathStep, sp: &StepPlan, fig: &Figure, k: &StepConsts, c: usize, lq: C3, ld: C3, mut chk: Cf, sens: &mut StepSensLanes) -> (C3, C3, Cf) {
     let (d, q, normal) = (part3(&st.d, c), part3(&st.q, c), part3(&st.normal, c));
     let local = LocalLanes::at(fig, &q, &normal);
