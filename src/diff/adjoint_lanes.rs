@@ -181,14 +181,14 @@ fn put(dst: &mut Lf, c: usize, v: Cf) {
 }
 
 #[inline(always)]
-fn v3<const N: usize>(x: Lanes<f64, N>, y: Lanes<f64, N>, z: Lanes<f64, N>) -> V3<f64, N> {
+fn v3(x: Cf, y: Cf, z: Cf) -> C3 {
     V3 { x, y, z }
 }
 
 /// `x^n` (n ≥ 0) by compiler-rt's `__powidf2` (square and multiply), the operations of `f64::powi`.
 #[inline(always)]
-fn powi<const N: usize>(mut a: Lanes<f64, N>, mut n: i32) -> Lanes<f64, N> {
-    let mut r = Lanes::splat(1.0);
+fn powi(mut a: Cf, mut n: i32) -> Cf {
+    let mut r = Cf::splat(1.0);
     loop {
         if n & 1 != 0 {
             r = r * a;
@@ -221,29 +221,28 @@ impl<'a> Figure<'a> {
 
 /// [`super::hit::SweepLocal`] per lane: the sag's local data at the traced hit points, from the hit point
 /// and the unit normal the recording trace kept (see there: 1/|m| = n̂_z; a conic's s = 1 − c(1+k)z).
-struct LocalLanes<const N: usize> {
-    f1: Lanes<f64, N>,
-    f2: Lanes<f64, N>,
-    x: Lanes<f64, N>,
-    y: Lanes<f64, N>,
-    r2: Lanes<f64, N>,
+struct LocalLanes {
+    f1: Cf,
+    f2: Cf,
+    x: Cf,
+    y: Cf,
+    r2: Cf,
     c: f64,
     k: f64,
-    s: Lanes<f64, N>,
-    normal: V3<f64, N>,
+    s: Cf,
+    normal: C3,
     flat: bool,
 }
 
-impl<const N: usize> LocalLanes<N> {
+impl LocalLanes {
     /// `SweepLocal::at` lane by lane (the same operations; lanes whose hit is not finite hold garbage and
     /// are never active).
     #[inline(always)]
-    fn at(fig: &Figure, q: &V3<f64, N>, normal: &V3<f64, N>) -> Self {
-        let zero = Lanes::splat(0.0);
+    fn at(fig: &Figure, q: &C3, normal: &C3) -> Self {
         let (x, y) = (q.x, q.y);
         let r2 = x * x + y * y;
         let (c, k, alpha, flat) = (fig.c, fig.k, fig.alpha, fig.flat);
-        let (mut f1, mut f2, mut s) = (zero, zero, Lanes::splat(1.0));
+        let (mut f1, mut f2, mut s) = (CZERO, CZERO, Cf::splat(1.0));
         if !flat && alpha.is_empty() {
             // The trace's normal ∝ (−c x, −c y, 1 − c(1+k) z): its z is s on the vertex branch.
             s = 1.0 - c * (1.0 + k) * q.z;
@@ -253,7 +252,7 @@ impl<const N: usize> LocalLanes<N> {
         } else if !flat {
             let arg = 1.0 - (1.0 + k) * c * c * r2;
             // f64::max(arg, 0): 0 where arg < 0 or NaN.
-            s = Lanes::select(arg.ge(zero), arg, zero).sqrt();
+            s = Cf::select(arg.ge(CZERO), arg, CZERO).sqrt();
             if c != 0.0 {
                 f1 = c / (2.0 * s);
                 f2 = (1.0 + k) * c * c * c / (4.0 * s * s * s);
@@ -271,10 +270,9 @@ impl<const N: usize> LocalLanes<N> {
 
     /// `figure_partials` lane by lane.
     #[inline(always)]
-    fn param_partials(&self, t: &ShapeTangent) -> (Lanes<f64, N>, Lanes<f64, N>, Lanes<f64, N>) {
+    fn param_partials(&self, t: &ShapeTangent) -> (Cf, Cf, Cf) {
         if !t.moves_figure() {
-            let zero = Lanes::splat(0.0);
-            return (zero, zero, zero);
+            return (CZERO, CZERO, CZERO);
         }
         let (c, k, s, r2) = (self.c, self.k, self.s, self.r2);
         let one_s = 1.0 + s;
@@ -298,15 +296,14 @@ impl<const N: usize> LocalLanes<N> {
     /// (a flat figure no parameter moves: the normal's adjoint reaches nothing) n̄ is taken as zero and
     /// the last two figure-partials adjoints are zero.
     #[inline(always)]
-    fn adjoint(&self, d: &V3<f64, N>, q_bar: V3<f64, N>, n_bar: V3<f64, N>, normal_bar: bool) -> (V3<f64, N>, [Lanes<f64, N>; 3]) {
+    fn adjoint(&self, d: &C3, q_bar: C3, n_bar: C3, normal_bar: bool) -> (C3, [Cf; 3]) {
         let n = self.normal;
         let w = n.z;
-        let zero = Lanes::splat(0.0);
         let dm_bar = if normal_bar {
             let nn = n.dot(n_bar);
             v3((n_bar.x - n.x * nn) * w, (n_bar.y - n.y * nn) * w, (n_bar.z - n.z * nn) * w)
         } else {
-            v3(zero, zero, zero)
+            v3(CZERO, CZERO, CZERO)
         };
         let dq_bar = if self.flat {
             q_bar
