@@ -1,9 +1,10 @@
 //! Cost of the acquisition's vector–Jacobian product (`render::gradient`): the production forward render
 //! (`Renderer`, SIMD), the differentiable renderer's own f64 forward (`DiffRenderer::render`), and its
-//! backward (`DiffRenderer::vjp`) for 1, 10 and 50 free parameters, and the backward that wants only the
-//! parameters' gradient (`vjp_wanted`: `backward_vjp_params_only/1, /10, /50`), on SP, with a binary mask
-//! of opening 0.5 (the forward skips its closed pixels; the full backward traces them for the mask
-//! gradient). The `…_continuous_mask` rows repeat the production forward, the full backward and the
+//! backward (`DiffRenderer::vjp`) for 1, 10 and 50 free parameters, the backward that wants only the
+//! parameters' gradient (`vjp_wanted`: `backward_vjp_params_only/1, /10, /50`) and the one that wants only
+//! the mask's and the scene's (`backward_vjp_mask_scene`: no ray swept backwards), on SP, with a binary
+//! mask of opening 0.5 (the forward skips its closed pixels; a backward that gives the mask's gradient
+//! traces them). The `…_continuous_mask` rows repeat the production forward, the full backward and the
 //! params-only backward at 10 parameters with a **continuous** mask as `diffcassi.torch.CassiRenderer`
 //! trains it: the same binary mask clipped to [0.05, 0.95] (no pixel exactly 0, so every pixel's rays are
 //! traced by the forward too, and every ray is swept backwards).
@@ -84,6 +85,11 @@ fn main() {
     let mut grp = c.benchmark_group(format!("render_gradient_sp_{size}x{size}_{planes}planes_{rays}rays"));
     grp.bench_function("forward_renderer", |b| b.iter(|| production.render(&scene, false, &|_| {}).unwrap()));
     grp.bench_function("forward_diff_f64", |b| b.iter(|| r1.render(&scene64, 1, &mask64).unwrap()));
+    // ∂L/∂mask and ∂L/∂scene without ∂L/∂θ (no ray recorded or swept backwards): what any backward that
+    // gives the mask's gradient costs at least — every ray is traced, the closed pixels' that the forward
+    // skips included.
+    let mask_scene = Wanted { params: false, mask: true, scene: true };
+    grp.bench_function("backward_vjp_mask_scene", |b| b.iter(|| r1.vjp_wanted(&scene64, 1, &mask64, &g, mask_scene).unwrap()));
     for k in [1usize, 10, 50] {
         let r = if k == 1 { r1.clone() } else { renderer(&cfg, k) };
         println!("{k} parameters: {:?}", r.names());
