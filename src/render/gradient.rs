@@ -147,20 +147,13 @@ impl RowRays {
     fn block(&self, start: usize, m: usize) -> Block {
         let mut b = Block::default();
         let r = start..start + m;
-        if m == LANES {
-            // A full block (all but a row's last): copies of a fixed size, inlined (a copy of `m` values
-            // is a call to `memmove`, five per block).
-            let full = |v: &[f64]| -> [f64; LANES] { v[r.clone()].try_into().expect("LANES values") };
-            (b.p.x.0, b.p.y.0, b.d.x.0, b.d.y.0, b.d.z.0) = (full(&self.ox), full(&self.oy), full(&self.dx), full(&self.dy), full(&self.dz));
-            b.alive.0 = [true; LANES];
-            return b;
+        // One loop over the lanes for all five arrays, full blocks and a row's last alike (five
+        // `copy_from_slice` of `m` values are five calls to `memmove`).
+        let (ox, oy, dx, dy, dz) = (&self.ox[r.clone()], &self.oy[r.clone()], &self.dx[r.clone()], &self.dy[r.clone()], &self.dz[r]);
+        for k in 0..m {
+            (b.p.x.0[k], b.p.y.0[k], b.d.x.0[k], b.d.y.0[k], b.d.z.0[k]) = (ox[k], oy[k], dx[k], dy[k], dz[k]);
+            b.alive.0[k] = true;
         }
-        b.p.x.0[..m].copy_from_slice(&self.ox[r.clone()]);
-        b.p.y.0[..m].copy_from_slice(&self.oy[r.clone()]);
-        b.d.x.0[..m].copy_from_slice(&self.dx[r.clone()]);
-        b.d.y.0[..m].copy_from_slice(&self.dy[r.clone()]);
-        b.d.z.0[..m].copy_from_slice(&self.dz[r]);
-        b.alive.0[..m].fill(true);
         b
     }
 }
@@ -655,10 +648,7 @@ impl DiffRenderer {
     #[allow(clippy::too_many_arguments)]
     fn block_grads(&self, level: crate::tracer::SimdLevel, b: &Block, pixel: &[usize], pin: &PlaneInputs, out: &mut PlaneGrad, scene: bool, lambda: Option<(&mut [Lf; 6], &mut Lm)>, taps: &mut BlockTaps) -> u64 {
         let mut lanes = [0usize; LANES];
-        match <&[usize; LANES]>::try_from(pixel) {
-            Ok(full) => lanes = *full,
-            Err(_) => lanes[..pixel.len()].copy_from_slice(pixel),
-        }
+        lanes[..pixel.len()].copy_from_slice(pixel);
         super::vector::run_at(level, TapLoop { b, det: &self.detector, pixel: lanes, pin, lambda: lambda.is_some(), out: taps });
         let hw = pin.hw;
         let mut arrived = 0;
