@@ -283,14 +283,7 @@ const BUILTIN: [BuiltinGlass; 6] = [
         melt: None,
         comment: "step 0.5 available",
         ed: [7.100000, 8.300000, 2.510000, -0.000900, 0.0],
-        cd: [
-            1.039612120E+00,
-            6.000698670E-03,
-            2.317923440E-01,
-            2.001791440E-02,
-            1.010469450E+00,
-            1.035606530E+02,
-        ],
+        cd: super::dispersion::N_BK7_SELLMEIER1,
         td: [
             1.860000E-06,
             1.310000E-08,

@@ -54,6 +54,10 @@ pub const F_LINE_NM: f64 = 486.1327;
 /// Hydrogen C line (nm), used for the Abbe number vd = (nd − 1)/(nF − nC).
 pub const C_LINE_NM: f64 = 656.2725;
 
+/// N-BK7's Sellmeier 1 coefficients K1 L1 K2 L2 K3 L3 (L in µm²), from SCHOTT.AGF: the built-in catalogue's
+/// N-BK7 ([`super::GlassCatalog::builtin`]) and the reference glass of the materials tests.
+pub const N_BK7_SELLMEIER1: [f64; 6] = [1.039612120E+00, 6.000698670E-03, 2.317923440E-01, 2.001791440E-02, 1.010469450E+00, 1.035606530E+02];
+
 /// A Zemax AGF dispersion formula with its coefficients, in `CD` record order.
 ///
 /// See the [module documentation](self) for the formulas.
@@ -98,6 +102,22 @@ fn take<const N: usize>(c: &[f64]) -> [f64; N] {
     let mut out = [0.0; N];
     out.copy_from_slice(&c[..N]);
     out
+}
+
+/// λ⁻², λ⁻⁴, …, λ⁻¹² from λ² (the power series of the Schott and Extended formulas; each power computed as
+/// the formulas always have: λ⁻⁶ = λ⁻⁴λ⁻², λ⁻⁸ = λ⁻⁴λ⁻⁴, λ⁻¹⁰ = λ⁻⁸λ⁻², λ⁻¹² = λ⁻⁸λ⁻⁴).
+#[inline]
+fn inverse_powers(l2: f64) -> [f64; 6] {
+    let i2 = 1.0 / l2;
+    let i4 = i2 * i2;
+    let i8 = i4 * i4;
+    [i2, i4, i4 * i2, i8, i8 * i2, i8 * i4]
+}
+
+/// a₀ + a₁p₁ + a₂p₂ + … summed left to right (as the formulas are written out), `powers` = p₁, p₂, ….
+#[inline]
+fn series(a: &[f64], powers: &[f64]) -> f64 {
+    a[1..].iter().zip(powers).fold(a[0], |s, (c, p)| s + c * p)
 }
 
 /// Σ Kᵢλ²/(λ² − Lᵢ) over `(K, L)` pairs.
@@ -246,11 +266,8 @@ impl DispersionFormula {
         let l2 = w * w;
         match self {
             Self::Schott(a) => {
-                let i2 = 1.0 / l2;
-                let i4 = i2 * i2;
-                let i6 = i4 * i2;
-                let i8 = i4 * i4;
-                (a[0] + a[1] * l2 + a[2] * i2 + a[3] * i4 + a[4] * i6 + a[5] * i8).sqrt()
+                let [i2, i4, i6, i8, ..] = inverse_powers(l2);
+                series(a, &[l2, i2, i4, i6, i8]).sqrt()
             }
             Self::Sellmeier1(c) => (1.0 + sellmeier_sum(l2, c)).sqrt(),
             Self::Herzberger(c) => {
@@ -270,58 +287,18 @@ impl DispersionFormula {
                 (c[0] + c[1] * l2 / (l2 - c[2]) + c[3] * l2 / (l2 - c[4])).sqrt()
             }
             Self::Extended(a) => {
-                let i2 = 1.0 / l2;
-                let i4 = i2 * i2;
-                let i6 = i4 * i2;
-                let i8 = i4 * i4;
-                let i10 = i8 * i2;
-                let i12 = i8 * i4;
-                (a[0]
-                    + a[1] * l2
-                    + a[2] * i2
-                    + a[3] * i4
-                    + a[4] * i6
-                    + a[5] * i8
-                    + a[6] * i10
-                    + a[7] * i12)
-                    .sqrt()
+                let [i2, i4, i6, i8, i10, i12] = inverse_powers(l2);
+                series(a, &[l2, i2, i4, i6, i8, i10, i12]).sqrt()
             }
             Self::Sellmeier5(c) => (1.0 + sellmeier_sum(l2, c)).sqrt(),
             Self::Extended2(a) => {
-                let i2 = 1.0 / l2;
-                let i4 = i2 * i2;
-                let i6 = i4 * i2;
-                let i8 = i4 * i4;
+                let [i2, i4, i6, i8, ..] = inverse_powers(l2);
                 let l4 = l2 * l2;
-                let l6 = l4 * l2;
-                (a[0]
-                    + a[1] * l2
-                    + a[2] * i2
-                    + a[3] * i4
-                    + a[4] * i6
-                    + a[5] * i8
-                    + a[6] * l4
-                    + a[7] * l6)
-                    .sqrt()
+                series(a, &[l2, i2, i4, i6, i8, l4, l4 * l2]).sqrt()
             }
             Self::Extended3(a) => {
-                let i2 = 1.0 / l2;
-                let i4 = i2 * i2;
-                let i6 = i4 * i2;
-                let i8 = i4 * i4;
-                let i10 = i8 * i2;
-                let i12 = i8 * i4;
-                let l4 = l2 * l2;
-                (a[0]
-                    + a[1] * l2
-                    + a[2] * l4
-                    + a[3] * i2
-                    + a[4] * i4
-                    + a[5] * i6
-                    + a[6] * i8
-                    + a[7] * i10
-                    + a[8] * i12)
-                    .sqrt()
+                let [i2, i4, i6, i8, i10, i12] = inverse_powers(l2);
+                series(a, &[l2, l2 * l2, i2, i4, i6, i8, i10, i12]).sqrt()
             }
         }
     }
@@ -331,14 +308,7 @@ impl DispersionFormula {
 mod tests {
     use super::*;
 
-    const BK7: [f64; 6] = [
-        1.039612120E+00,
-        6.000698670E-03,
-        2.317923440E-01,
-        2.001791440E-02,
-        1.010469450E+00,
-        1.035606530E+02,
-    ];
+    const BK7: [f64; 6] = N_BK7_SELLMEIER1;
 
     #[test]
     fn sellmeier1_n_bk7_d_line() {

@@ -278,14 +278,7 @@ mod tests {
     fn bk7() -> Glass {
         Glass::new(
             "N-BK7",
-            DispersionFormula::Sellmeier1([
-                1.039612120E+00,
-                6.000698670E-03,
-                2.317923440E-01,
-                2.001791440E-02,
-                1.010469450E+00,
-                1.035606530E+02,
-            ]),
+            DispersionFormula::Sellmeier1(crate::materials::dispersion::N_BK7_SELLMEIER1),
             1.5168,
             64.17,
             0.3 * 1000.0,
