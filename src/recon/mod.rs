@@ -7,12 +7,14 @@
 //!
 //! Operators: [`exact::ExactOperator`] (the renderer's own light transport), [`mapping::MappingOperator`]
 //! (the paper's chief-ray mapping, nearest or bilinear, and its initialisation I = A ∘ f),
-//! [`shift::ShiftOperator`] (the field's simplified SD-CASSI model). Solvers: [`gap::gap_tv`] (GAP-TV,
-//! plain or accelerated) and [`admm::admm_tv`] (ADMM-TV), both through [`solver::reconstruct`] with a
-//! [`solver::SolverConfig`]; TV denoising by Chambolle's projection in [`tv`]. Priors are denoisers
+//! [`shift::ShiftOperator`] (the field's simplified SD-CASSI model). Solvers: [`gap::gap`] (GAP-TV,
+//! plain or accelerated) and [`admm::admm`] (ADMM-TV), both through the dispatcher [`solver::reconstruct`]
+//! with a [`solver::SolverConfig`]; TV denoising by Chambolle's projection in [`tv`]. Priors are denoisers
 //! ([`prior::Denoiser`]: TV, or the learned [`prior::network::SpectralUNet`]); the plug-and-play solvers
-//! `pnp-gap` / `pnp-admm` ([`gap::gap`], [`admm::admm`] with the network and a σ schedule) plug the learned
-//! one into the same data steps. See docs/reconstruction.md.
+//! `pnp-gap` / `pnp-admm` (the same [`gap::gap`], [`admm::admm`] with the network and a σ schedule) plug the
+//! learned one into the same data steps. What the solvers share (settings, record, stopping rules, prior
+//! step, preconditioner) is in [`solve`], below them: imports in src/recon form no circle
+//! (`scripts/check_import_cycles.py`). See docs/reconstruction.md.
 //!
 //! Public API (stable):
 //! - `ExactOperator::new(renderer: Renderer<'a>, bands_nm: &[f64], memory_budget_bytes: u64) -> Result<Self>`
@@ -59,6 +61,7 @@ pub mod metrics;
 pub mod operator;
 pub mod prior;
 pub mod shift;
+pub mod solve;
 pub mod solver;
 pub mod sparse;
 pub mod tv;
