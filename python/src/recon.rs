@@ -9,8 +9,9 @@ use crate::pool::run;
 use crate::render::{check_shape, owned_exact};
 use crate::settings::configure;
 use crate::system::PySystem;
-use diffcassi::recon::solver::{config_denoiser, SPREAD_EVERY};
-use diffcassi::recon::{metrics, reconstruct_estimated, CubeShape, MonteCarloSpread, Denoiser, SpectralUNet, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, SparseExport, TvCoupling};
+use diffcassi::recon::pipeline::run_solver;
+use diffcassi::recon::solver::SPREAD_EVERY;
+use diffcassi::recon::{metrics, CubeShape, MonteCarloSpread, Denoiser, SpectralUNet, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, SparseExport, TvCoupling};
 use diffcassi::render::Renderer;
 use diffcassi::scene::SpectralCube;
 use numpy::PyArrayDyn;
@@ -218,8 +219,8 @@ fn model_operator(
     .py()
 }
 
-/// Reconstruct a cube from `acquisition` (h, w) float32 through `operator` with GAP-TV or ADMM-TV
-/// (`diffcassi::recon::reconstruct`); `None` settings are the library's defaults. Returns (cube (H, W, B)
+/// Reconstruct a cube from `acquisition` (h, w) float32 through `operator` with GAP-TV, ADMM-TV or PnP
+/// (`diffcassi::recon::pipeline::run_solver`, the solve of `diffcassi reconstruct`); `None` settings are the library's defaults. Returns (cube (H, W, B)
 /// float32, the record as JSON: settings, per-iteration residuals, seconds).
 #[pyfunction]
 #[pyo3(signature = (operator, acquisition, solver = "gap-tv", init = None, iterations = None, step = None, tv_weight = None,
@@ -302,11 +303,8 @@ fn _reconstruct<'py>(
     // The data-driven δ: noise_norm is the fixed (sensor) part, the twin's spread the Monte-Carlo part.
     let twin = noise_twin.as_ref().map(|t| t.op.clone());
     let spread = twin.as_ref().map(|t| MonteCarloSpread { twin: t.as_ref(), factor: noise_factor.unwrap_or(1.0), sensor_norm: cfg.noise_norm, every: SPREAD_EVERY });
-    let rec = run(py, || -> diffcassi::Result<_> {
-        let mut denoiser = config_denoiser(&cfg)?;
-        reconstruct_estimated(op.as_ref(), y, init.as_deref(), &cfg, denoiser.as_mut(), &|_, _| {}, &mut |_, _| {}, spread.as_ref())
-    })
-    .py()?;
+    // The library's solve (`recon::pipeline::run_solver`, as `reconstruct` and `study` run it).
+    let (rec, _) = run(py, || run_solver(op.as_ref(), y, init.as_deref(), &cfg, spread.as_ref(), None, &|_, _| {})).py()?;
     // The CLI's record: the solver's, with `stopping` as in reconstruct.json (δ is the caller's `noise_norm`).
     let mut record = serde_json::to_value(&rec).map_err(|e| value_error(format!("internal: {e}")))?;
     if let Some(o) = record.as_object_mut() {

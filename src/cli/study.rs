@@ -18,7 +18,8 @@
 //! that changes a number: bands, planes, rays, seeds, mask, Airy, scene size and fit, solver settings).
 //! The exact operator of a system is traced once (seed = acquisition seed + 1, as `reconstruct`'s default) and
 //! reused for all its scenes; so are the other operators.
-use super::reconstruct::{build_operator, check_solver, operator_seed, reconstruction_rule, solve, write_reconstruction, OperatorKind, RenderRecord, SolverTuning};
+use super::reconstruct::{reconstruction_rule, write_reconstruction, SolverTuning};
+use crate::recon::pipeline::{build_operator, check_solver, noise_estimate, operator_seed, solve, OperatorKind, RenderRecord, SolveSettings, MC_MISMATCH_PER_RAY, RESIDUAL_DEFINITION};
 use crate::error::{Error, Result};
 use crate::recon::metrics::evaluate;
 use crate::recon::Operator;
@@ -334,7 +335,7 @@ fn cell_from_json(v: &Value) -> Option<Cell> {
 
 /// The settings of one solver of the study: `--accelerated` applies to gap-tv only, the PnP options
 /// (`--denoiser`, `--sigma-max`, `--sigma-min`) to the PnP solvers only.
-fn cell_settings(a: &StudyArgs, solver: &str) -> super::reconstruct::SolveSettings {
+fn cell_settings(a: &StudyArgs, solver: &str) -> SolveSettings {
     let mut s = a.tuning.settings(solver, a.tuning.accelerated && solver == "gap-tv");
     s.plain = a.tuning.plain && solver == "gap-tv";
     if !solver.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp()) {
@@ -405,7 +406,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if let Some(o) = config.as_object_mut() {
         // The stopping rule: τ as given and the library's TV defaults (a cell computed under other defaults
         // is recomputed).
-        o.insert("stopping".into(), json!({"discrepancy": a.tuning.discrepancy, "gap_tv": crate::recon::SolverConfig::gap_tv(), "admm_tv": crate::recon::SolverConfig::admm_tv(), "mc_mismatch_per_ray": super::reconstruct::MC_MISMATCH_PER_RAY, "noise_estimate": a.tuning.noise_estimate, "spread_every": crate::recon::solver::SPREAD_EVERY}));
+        o.insert("stopping".into(), json!({"discrepancy": a.tuning.discrepancy, "gap_tv": crate::recon::SolverConfig::gap_tv(), "admm_tv": crate::recon::SolverConfig::admm_tv(), "mc_mismatch_per_ray": MC_MISMATCH_PER_RAY, "noise_estimate": a.tuning.noise_estimate, "spread_every": crate::recon::solver::SPREAD_EVERY}));
     }
     if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
         o.insert("scene_wavelengths".into(), json!(w));
@@ -456,7 +457,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
             let t_op = Instant::now();
             let op: Box<dyn Operator + '_> = build_operator(op_kind, &record, &tracer, op_seed, budget as u64, &|_| {})?;
             // The data-driven δ (exact operator, `--noise-estimate spread`): the operator's twin.
-            let twin_plan = super::reconstruct::noise_estimate(&record, op_kind, op_seed, record.config.rays_per_pixel, record.config.rays_per_pixel, cell_settings(&a, &solvers[0]).noise_model).spread;
+            let twin_plan = noise_estimate(&record, op_kind, op_seed, record.config.rays_per_pixel, record.config.rays_per_pixel, cell_settings(&a, &solvers[0]).noise_model).spread;
             let twin: Option<Box<dyn Operator + '_>> = match &twin_plan {
                 Some(p) => Some(build_operator(op_kind, &record, &tracer, p.twin_seed, budget as u64, &|_| {})?),
                 None => None,
@@ -468,8 +469,8 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 let rec = RenderRecord::load(&dirs[i])?;
                 let mut settings = cell_settings(&a, solver);
                 let rays = rec.config.rays_per_pixel;
-                settings.noise = Some(super::reconstruct::noise_estimate(&rec, op_kind, op_seed, rays, rays, settings.noise_model));
-                let solved = solve(op.as_ref(), &rec.acquisition, &settings, false, twin.as_deref())?;
+                settings.noise = Some(noise_estimate(&rec, op_kind, op_seed, rays, rays, settings.noise_model));
+                let solved = solve(op.as_ref(), &rec.acquisition, &settings, &|_, _| {}, twin.as_deref())?;
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
                 let ev = evaluate(&scene.cube, &estimate)?;
@@ -478,7 +479,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
                     "from": dirs[i].display().to_string(), "system": system.name(), "operator": op_kind.name(), "operator_seed": op_seed,
                     "acquisition_seed": a.seed, "oracle": op_seed == a.seed, "tracer": tracer.name(), "solver": solver, "solver_settings": solved.settings,
                     "shape": {"height": c.height, "width": c.width, "bands": c.bands}, "bands_nm": bands, "residual": solved.residuals,
-                    "residual_definition": "per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂, v_k the point iteration k projects (GAP: θ_{k−1})", "final_residual": final_residual, "stopping": solved.stopping, "threads": rayon::current_num_threads(),
+                    "residual_definition": RESIDUAL_DEFINITION, "final_residual": final_residual, "stopping": solved.stopping, "threads": rayon::current_num_threads(),
                     "seconds_operator": seconds_operator, "seconds_solve": solved.seconds, "seconds": solved.seconds,
                 });
                 let rdir = a.out.join("recon").join(preset).join(&scene.name).join(format!("{}-{solver}", op_kind.name()));

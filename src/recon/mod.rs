@@ -14,7 +14,8 @@
 //! `pnp-gap` / `pnp-admm` (the same [`gap::gap`], [`admm::admm`] with the network and a σ schedule) plug the
 //! learned one into the same data steps. What the solvers share (settings, record, stopping rules, prior
 //! step, preconditioner) is in [`solve`], below them: imports in src/recon form no circle
-//! (`scripts/check_import_cycles.py`). See docs/reconstruction.md.
+//! (`scripts/check_import_cycles.py`). The command-line pipeline (render record → operator → noise estimate
+//! → solver settings → solve → record) is [`pipeline`]. See docs/reconstruction.md.
 //!
 //! Public API (stable):
 //! - `ExactOperator::new(renderer: Renderer<'a>, bands_nm: &[f64], memory_budget_bytes: u64) -> Result<Self>`
@@ -59,6 +60,7 @@ pub mod layout;
 pub mod mapping;
 pub mod metrics;
 pub mod operator;
+pub mod pipeline;
 pub mod prior;
 pub mod shift;
 pub mod solve;

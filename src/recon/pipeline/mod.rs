@@ -1,0 +1,221 @@
+//! The reconstruction pipeline of `diffcassi reconstruct` and `study`: a render folder read back
+//! ([`RenderRecord`]) → the operator rebuilt from it ([`build_operator`], with the exact operator's seed,
+//! [`operator_seed`]) → the noise estimate δ ([`noise_estimate`]) → the solver settings ([`SolveSettings`] →
+//! [`SolverConfig`](crate::recon::SolverConfig), [`solver_config`]) → the solve with its stopping rule
+//! ([`solve_observed`], [`run_solver`]) → the record (`reconstruct.json`, [`Reconstructed::record`]).
+//! [`reconstruct`] runs it end to end for one render folder; `study` uses the pieces (one operator per system
+//! and operator kind, reused for every scene); the Python `reconstruct` calls [`run_solver`]. The command line
+//! keeps only argument parsing, the output policy and writing, and printing (src/cli/reconstruct.rs).
+//!
+//! ```no_run
+//! use diffcassi::recon::pipeline::{self, OperatorKind, Request, RenderRecord, SolveSettings};
+//! let record = RenderRecord::load(std::path::Path::new("out/sp-coffee"))?;
+//! let tracer = record.tracer()?;
+//! let request = Request::new(OperatorKind::Exact, SolveSettings::new("gap-tv"));
+//! request.validate()?;
+//! let done = pipeline::reconstruct(record, &request, tracer.as_ref(), None, &pipeline::Silent)?;
+//! println!("{} iterations, residual {:.3e}", done.iterations_run, done.final_residual);
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+pub mod noise;
+pub mod operators;
+pub mod record;
+pub mod settings;
+pub mod solve;
+
+pub use noise::{noise_estimate, twin_seed, NoiseEstimate, NoiseModel, SpreadPlan, MC_MISMATCH_PER_RAY};
+pub use operators::{build_operator, operator_seed, OperatorKind};
+pub use record::RenderRecord;
+pub use settings::{check_solver, solver_config, SolveSettings};
+pub use solve::{run_solver, solve, solve_observed, Solved};
+
+use crate::error::{Error, Result};
+use crate::scene::SpectralCube;
+use crate::tracer::Tracer;
+use serde_json::Value;
+use std::path::Path;
+use std::time::Instant;
+
+/// What [`reconstruct`] does with a render record: the operator, its seed and rays, the transport memory
+/// budget and the solver settings (`reconstruct`'s options).
+#[derive(Clone, Debug)]
+pub struct Request {
+    pub operator: OperatorKind,
+    /// The exact operator's ray seed: a number or `same` (`None`: acquisition seed + 1, [`operator_seed`]).
+    pub operator_seed: Option<String>,
+    /// The exact operator's rays per scene pixel per plane (`None`: the acquisition's).
+    pub operator_rays: Option<usize>,
+    /// Keep the exact operator's transport in memory up to this size (GB); beyond it, re-trace on the fly.
+    pub transport_memory_gb: f64,
+    pub settings: SolveSettings,
+}
+
+impl Request {
+    /// `operator` with `settings`, the default seed and rays, and a 4 GB transport budget.
+    pub fn new(operator: OperatorKind, settings: SolveSettings) -> Self {
+        Request { operator, operator_seed: None, operator_rays: None, transport_memory_gb: 4.0, settings }
+    }
+
+    /// Check everything that needs no render record, naming the option and its value: iterations, TV weight,
+    /// transport budget, the seed and rays (exact operator only), the solver settings (PnP: the weights are
+    /// loaded and checked).
+    pub fn validate(&self) -> Result<()> {
+        let s = &self.settings;
+        if s.iterations == Some(0) {
+            return Err(Error::invalid("--iterations must be ≥ 1"));
+        }
+        if let Some(w) = s.tv_weight {
+            if !(w.is_finite() && w >= 0.0) {
+                return Err(Error::invalid(format!("--tv-weight {w}: must be finite and ≥ 0")));
+            }
+        }
+        if !(self.transport_memory_gb.is_finite() && self.transport_memory_gb >= 0.0) {
+            return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0", self.transport_memory_gb)));
+        }
+        if self.operator_seed.is_some() && self.operator != OperatorKind::Exact {
+            return Err(Error::invalid(format!("--operator-seed applies to the exact operator only (its traced rays), not `{}`", self.operator.name())));
+        }
+        check_solver(s)?;
+        if let Some(n) = self.operator_rays {
+            if n == 0 {
+                return Err(Error::invalid("--operator-rays 0: must be ≥ 1"));
+            }
+            if self.operator != OperatorKind::Exact {
+                return Err(Error::invalid(format!("--operator-rays applies to the exact operator only, not `{}`", self.operator.name())));
+            }
+        }
+        Ok(())
+    }
+
+    fn budget_bytes(&self) -> u64 {
+        (self.transport_memory_gb * 1e9) as u64
+    }
+}
+
+/// What the pipeline reports while it works (the command line draws progress bars; [`Silent`] nothing).
+pub trait Progress: Sync {
+    /// The operator `name` is being built; `rays` to trace (0 when it traces none).
+    fn operator_started(&self, _name: &str, _rays: u64) {}
+    /// `n` more rays traced.
+    fn rays(&self, _n: u64) {}
+    fn operator_done(&self) {}
+    /// The solve starts: `label` (operator / solver), at most `iterations`.
+    fn solve_started(&self, _label: &str, _iterations: usize) {}
+    /// Iteration k done with relative residual `residual`.
+    fn iteration(&self, _label: &str, _k: usize, _residual: f64) {}
+    fn solve_done(&self) {}
+}
+
+/// No progress reports.
+pub struct Silent;
+
+impl Progress for Silent {}
+
+/// A finished reconstruction: the cube and its record.
+pub struct Reconstructed {
+    pub cube: SpectralCube,
+    /// `reconstruct.json`: settings, per-iteration residual, the stopping record, seconds of the operator and
+    /// the solve (the caller adds `seconds`, its own wall time).
+    pub record: Value,
+    pub system: String,
+    pub iterations_run: usize,
+    pub final_residual: f64,
+    pub seconds_operator: f64,
+    pub seconds_solve: f64,
+}
+
+/// `--truth`: the true cube (.npy with its wavelengths file, as `evaluate --truth`), checked against the
+/// record's scene (size and bands).
+pub fn load_truth(record: &RenderRecord, path: &Path) -> Result<SpectralCube> {
+    let t = crate::scene::load_scene(path, None).map_err(|e| Error::invalid(format!("--truth {}: {e}", path.display())))?;
+    if t.height != record.config.scene_height || t.width != record.config.scene_width || t.bands() != record.bands_nm().len() {
+        return Err(Error::invalid(format!(
+            "--truth {}: {}×{}×{} cube, the render's scene is {}×{}×{}",
+            path.display(),
+            t.height,
+            t.width,
+            t.bands(),
+            record.config.scene_height,
+            record.config.scene_width,
+            record.bands_nm().len()
+        )));
+    }
+    Ok(t)
+}
+
+/// The whole pipeline for one render record (checked by [`Request::validate`] first): the operator with its
+/// seed ([`operator_seed`]) and rays, δ ([`noise_estimate`]) with the operator's twin when it is estimated from
+/// the data, the solve ([`solve_observed`]; `truth`: evaluation only) and the record. `tracer`: the render's
+/// ([`RenderRecord::tracer`]) or another.
+pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tracer, truth: Option<&SpectralCube>, progress: &dyn Progress) -> Result<Reconstructed> {
+    let kind = request.operator;
+    let acquisition_rays = record.config.rays_per_pixel;
+    if let Some(n) = request.operator_rays {
+        // The operator is rebuilt from the record's configuration: only its ray count changes (the ray budget
+        // of `build_operator` applies to it).
+        record.config.rays_per_pixel = n;
+    }
+    let record = record;
+    let seed = operator_seed(record.config.seed, request.operator_seed.as_deref())?;
+    let t_op = Instant::now();
+    let op = {
+        let c = &record.config;
+        let rays = (c.scene_height as f64 * c.scene_width as f64 * c.rays_per_pixel as f64 * c.spectral.planes() as f64) as u64;
+        progress.operator_started(kind.name(), if kind == OperatorKind::Exact { rays } else { 0 });
+        let op = build_operator(kind, &record, tracer, seed, request.budget_bytes(), &|k| progress.rays(k))?;
+        progress.operator_done();
+        op
+    };
+    let mut settings = request.settings.clone();
+    let noise = noise_estimate(&record, kind, seed, record.config.rays_per_pixel, acquisition_rays, settings.noise_model);
+    // The data-driven δ: the operator's twin (same rays, another seed).
+    let twin = match &noise.spread {
+        Some(p) => Some(build_operator(kind, &record, tracer, p.twin_seed, request.budget_bytes(), &|_| {})?),
+        None => None,
+    };
+    let seconds_operator = t_op.elapsed().as_secs_f64();
+    settings.noise = Some(noise);
+    let cfg = solver_config(&settings)?;
+    let label = format!("{} / {}", op.name(), cfg.solver.name());
+    progress.solve_started(&label, cfg.iterations);
+    let solved = solve_observed(op.as_ref(), &record.acquisition, &settings, &|k, r| progress.iteration(&label, k, r), truth.map(|t| t.data.as_slice()), twin.as_deref())?;
+    progress.solve_done();
+    let c = op.cube_shape();
+    let cube = SpectralCube::new(c.height, c.width, record.bands_nm().to_vec(), solved.cube, "reconstructed cube")?;
+    let json = serde_json::json!({
+        "version": env!("CARGO_PKG_VERSION"),
+        "from": record.dir.display().to_string(),
+        "system": record.system.name(),
+        "operator": kind.name(),
+        "operator_seed": seed,
+        "acquisition_seed": record.config.seed,
+        "oracle": seed == record.config.seed && record.config.rays_per_pixel == acquisition_rays,
+        "operator_rays": record.config.rays_per_pixel,
+        "acquisition_rays": acquisition_rays,
+        "tracer": tracer.name(),
+        "solver": settings.solver,
+        "solver_settings": solved.settings,
+        "shape": {"height": c.height, "width": c.width, "bands": c.bands},
+        "bands_nm": record.bands_nm(),
+        "residual": solved.residuals,
+        "residual_definition": RESIDUAL_DEFINITION,
+        "final_residual": solved.final_residual,
+        "iterations_run": solved.residuals.len(),
+        "stopping": solved.stopping,
+        "threads": rayon::current_num_threads(),
+        "seconds_operator": seconds_operator,
+        "seconds_solve": solved.seconds,
+    });
+    Ok(Reconstructed {
+        cube,
+        record: json,
+        system: record.system.name().to_string(),
+        iterations_run: solved.residuals.len(),
+        final_residual: solved.final_residual,
+        seconds_operator,
+        seconds_solve: solved.seconds,
+    })
+}
+
+/// What `residual` in a reconstruction record means.
+pub const RESIDUAL_DEFINITION: &str = "per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂, v_k the point iteration k projects (GAP: θ_{k−1})";

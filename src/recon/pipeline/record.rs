@@ -1,0 +1,202 @@
+//! [`RenderRecord`]: a render folder read back — the system (`render.json`'s `system_spec`), the render
+//! configuration (scene size and pitch, bands, planes, rays, sampling, Airy blur, detector pitch), the mask
+//! (`mask.png`, the file the render wrote) and the acquisition (`acquisition.exr`) — every field checked
+//! against the limits `render` applies before anything is allocated.
+use crate::error::{Error, Result};
+use crate::render::{AiryConfig, Mask, RenderConfig, Renderer, Sampling, SpectralSampling};
+use crate::system::SequentialSystem;
+use crate::tracer::Tracer;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+
+/// A render folder read back: what `render` wrote, checked for consistency.
+pub struct RenderRecord {
+    pub dir: PathBuf,
+    pub json: Value,
+    pub system: SequentialSystem,
+    pub config: RenderConfig,
+    pub mask: Mask,
+    /// The acquisition (detector image, row-major f32).
+    pub acquisition: Vec<f32>,
+    pub detector_height: usize,
+    pub detector_width: usize,
+    /// The tracer `render` used (render.json `tracer`).
+    pub tracer_name: String,
+}
+
+pub(crate) fn ferr(path: &Path, m: impl Into<String>) -> Error {
+    Error::File { path: path.display().to_string(), message: m.into() }
+}
+
+/// Field `name` of `json` (`name` may be a dotted path for messages, `airy.rings`: its last part is the key).
+fn field<'a>(json: &'a Value, path: &Path, name: &str) -> Result<&'a Value> {
+    let key = name.rsplit('.').next().unwrap_or(name);
+    json.get(key).filter(|v| !v.is_null()).ok_or_else(|| ferr(path, format!("field `{name}` is missing")))
+}
+
+fn field_f64(json: &Value, path: &Path, name: &str) -> Result<f64> {
+    let v = field(json, path, name)?;
+    v.as_f64().filter(|v| v.is_finite()).ok_or_else(|| ferr(path, format!("field `{name}` = {v} is not a finite number")))
+}
+
+fn field_usize(json: &Value, path: &Path, name: &str) -> Result<usize> {
+    let v = field(json, path, name)?;
+    v.as_u64().and_then(|x| usize::try_from(x).ok()).ok_or_else(|| ferr(path, format!("field `{name}` = {v} is not a non-negative integer")))
+}
+
+impl RenderRecord {
+    /// Read `dir/render.json`, `dir/mask.png` and `dir/acquisition.exr` and rebuild the system and configuration.
+    pub fn load(dir: &Path) -> Result<Self> {
+        if !dir.is_dir() {
+            return Err(ferr(dir, "not a render folder (no such folder)"));
+        }
+        let jp = dir.join("render.json");
+        if !jp.is_file() {
+            return Err(ferr(&jp, "missing: not a (complete) render folder — run `diffcassi render --out` first"));
+        }
+        let text = std::fs::read_to_string(&jp).map_err(|e| ferr(&jp, format!("cannot read: {e}")))?;
+        let json: Value = serde_json::from_str(&text).map_err(|e| ferr(&jp, format!("not valid JSON: {e}")))?;
+        let spec: crate::spec::SystemSpec = serde_json::from_value(field(&json, &jp, "system_spec")?.clone()).map_err(|e| ferr(&jp, format!("field `system_spec`: {e}")))?;
+        let mut catalog = crate::materials::GlassCatalog::builtin();
+        for p in &spec.glass_catalogs {
+            catalog.merge(crate::materials::GlassCatalog::from_agf_file(Path::new(p))?);
+        }
+        let system = SequentialSystem::build_with_catalog(&spec, &catalog)?;
+        // Every field is checked against the limits `render` applies, naming the field and its value, and the
+        // memory is estimated, before anything is allocated (a tampered render.json cannot abort the process).
+        let h = field_usize(&json, &jp, "scene_height")?;
+        let w = field_usize(&json, &jp, "scene_width")?;
+        if h == 0 || w == 0 {
+            return Err(ferr(&jp, format!("scene size {h}×{w} is empty")));
+        }
+        let bands: Vec<f64> = serde_json::from_value(field(&json, &jp, "bands_nm")?.clone()).map_err(|e| ferr(&jp, format!("field `bands_nm`: {e}")))?;
+        let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
+        if bands.is_empty() || bands.len() > crate::limits::MAX_WAVELENGTHS {
+            return Err(ferr(&jp, format!("field `bands_nm` has {} bands: must be in 1..={}", bands.len(), crate::limits::MAX_WAVELENGTHS)));
+        }
+        if let Some((k, b)) = bands.iter().enumerate().find(|(_, b)| !(lo..=hi).contains(*b)) {
+            return Err(ferr(&jp, format!("field `bands_nm`: band {k} = {} nm is outside {lo}–{hi} nm", crate::limits::fmt_num(*b))));
+        }
+        let planes = field_usize(&json, &jp, "planes")?;
+        if planes == 0 || planes > crate::limits::MAX_PLANES {
+            return Err(ferr(&jp, format!("field `planes` = {planes}: must be in 1..={} (the limit of render --planes)", crate::limits::MAX_PLANES)));
+        }
+        let rays_per_pixel = field_usize(&json, &jp, "rays_per_pixel")?;
+        if rays_per_pixel == 0 {
+            return Err(ferr(&jp, "field `rays_per_pixel` = 0: must be ≥ 1"));
+        }
+        let airy = match json.get("airy") {
+            None | Some(Value::Null) => None,
+            Some(a) => {
+                let airy = AiryConfig { diameter_px: field_f64(a, &jp, "airy.diameter_px")?, reference_nm: field_f64(a, &jp, "airy.reference_nm")?, rings: field_usize(a, &jp, "airy.rings")? };
+                airy.validate().map_err(|e| ferr(&jp, format!("field {e}")))?;
+                Some(airy)
+            }
+        };
+        let scene_pitch_mm = field_f64(&json, &jp, "scene_pitch_mm")?;
+        let detector_pitch_mm = match json.get("detector_pitch_mm") {
+            None | Some(Value::Null) => scene_pitch_mm,
+            Some(_) => field_f64(&json, &jp, "detector_pitch_mm")?,
+        };
+        for (name, v) in [("scene_pitch_mm", scene_pitch_mm), ("detector_pitch_mm", detector_pitch_mm)] {
+            if !(v > 0.0 && v <= crate::limits::MAX_LENGTH_MM) {
+                return Err(ferr(&jp, format!("field `{name}` = {} mm: must be > 0 and ≤ {:e} mm", crate::limits::fmt_num(v), crate::limits::MAX_LENGTH_MM)));
+            }
+        }
+        let detector_extra_px = match json.get("detector_extra_px") {
+            None | Some(Value::Null) => 0,
+            Some(_) => field_usize(&json, &jp, "detector_extra_px")?,
+        };
+        if detector_extra_px > u16::MAX as usize {
+            return Err(ferr(&jp, format!("field `detector_extra_px` = {detector_extra_px}: must be ≤ {} (a detector side is at most 65535 pixels)", u16::MAX)));
+        }
+        let det = field(&json, &jp, "detector")?;
+        let (dh, dw) = (field_usize(det, &jp, "detector.height")?, field_usize(det, &jp, "detector.width")?);
+        if dh == 0 || dw == 0 || dh > u16::MAX as usize || dw > u16::MAX as usize {
+            return Err(ferr(&jp, format!("field `detector` is {dh}×{dw} pixels: each side must be in 1..=65535")));
+        }
+        let n = ((h as f64) * (w as f64)).sqrt().ceil() as usize;
+        let what = format!("scene_height × scene_width × planes ({h} × {w} × {planes}, {} bands)", bands.len());
+        crate::limits::check_memory(&what, crate::limits::bytes_render(n, bands.len(), bands.len(), planes, false, airy.map(|a| a.diameter_px)) + dh as f64 * dw as f64 * 8.0).map_err(|e| ferr(&jp, e.to_string()))?;
+        let spectral = SpectralSampling::with_planes(bands, planes).map_err(|e| ferr(&jp, format!("fields `bands_nm`/`planes`: {e}")))?;
+        if let Some(recorded) = json.get("planes_nm").and_then(|v| serde_json::from_value::<Vec<f64>>(v.clone()).ok()) {
+            if recorded.len() != spectral.planes() || recorded.iter().zip(&spectral.planes_nm).any(|(a, b)| (a - b).abs() > 1e-9) {
+                return Err(ferr(&jp, "field `planes_nm` does not match the planes rebuilt from `bands_nm` and `planes`"));
+            }
+        }
+        let mut cfg = RenderConfig::paper(h);
+        cfg.scene_height = h;
+        cfg.scene_width = w;
+        cfg.scene_pitch_mm = scene_pitch_mm;
+        cfg.detector_pitch_mm = detector_pitch_mm;
+        cfg.detector_extra_px = detector_extra_px;
+        cfg.force_batched = json.get("force_batched").and_then(Value::as_bool).unwrap_or(false);
+        cfg.spectral = spectral;
+        cfg.rays_per_pixel = rays_per_pixel;
+        cfg.seed = field(&json, &jp, "seed")?.as_u64().ok_or_else(|| ferr(&jp, "field `seed` is not a non-negative integer"))?;
+        cfg.sampling = serde_json::from_value::<Sampling>(field(&json, &jp, "sampling")?.clone()).map_err(|e| ferr(&jp, format!("field `sampling`: {e}")))?;
+        cfg.airy = airy;
+        let mask_name = json.get("mask_file").and_then(Value::as_str).unwrap_or("mask.png");
+        let mask_path = dir.join(mask_name);
+        if !mask_path.is_file() {
+            return Err(ferr(&mask_path, "missing: the render folder's mask is needed to rebuild the operator"));
+        }
+        let mut mask = Mask::load(&mask_path)?;
+        if (mask.height, mask.width) != (h, w) {
+            return Err(ferr(&mask_path, format!("the mask is {}×{} but the scene (render.json) is {h}×{w}", mask.height, mask.width)));
+        }
+        if let Some(d) = json.get("mask").and_then(Value::as_str) {
+            mask.description = d.to_string();
+        }
+        let ap = dir.join("acquisition.exr");
+        if !ap.is_file() {
+            return Err(ferr(&ap, "missing: the render folder has no acquisition"));
+        }
+        let img = crate::io::exr::read_exr(&ap)?;
+        let ch = img.channels.iter().find(|c| c.name == "Y").or(img.channels.first()).ok_or_else(|| ferr(&ap, "no channel"))?;
+        if let Some(i) = ch.data.iter().position(|v| !v.is_finite()) {
+            return Err(ferr(&ap, format!("pixel {} (row {}, col {}) is {} (not finite)", i, i / img.width, i % img.width, ch.data[i])));
+        }
+        // The solvers work in f32: an acquisition beyond the scene radiance limit would overflow their sums
+        // (and end as "a non-finite value"); refuse it up front, naming the pixel, the value and the limit.
+        if let Some(i) = ch.data.iter().position(|v| v.abs() as f64 > crate::limits::MAX_SCENE_VALUE) {
+            return Err(ferr(
+                &ap,
+                format!(
+                    "pixel (row {}, col {}) = {}: acquisition values must be within ±{:.3e} (f32 range / 10⁹, the scene radiance limit) so that the reconstruction's f32 sums cannot overflow; rescale the acquisition",
+                    i / img.width,
+                    i % img.width,
+                    crate::limits::fmt_num(ch.data[i] as f64),
+                    crate::limits::MAX_SCENE_VALUE
+                ),
+            ));
+        }
+        if (img.height, img.width) != (dh, dw) {
+            return Err(ferr(&ap, format!("the acquisition is {}×{} but render.json's detector is {dh}×{dw}", img.height, img.width)));
+        }
+        let tracer_name = json.get("tracer").and_then(Value::as_str).unwrap_or("analytic-f64").to_string();
+        Ok(RenderRecord { dir: dir.to_path_buf(), acquisition: ch.data.clone(), json, system, config: cfg, mask, detector_height: dh, detector_width: dw, tracer_name })
+    }
+
+    /// The bands the cube is reconstructed at (the render's bands).
+    pub fn bands_nm(&self) -> &[f64] {
+        &self.config.spectral.bands_nm
+    }
+
+    /// The tracer the render recorded (render.json `tracer`; analytic when it cannot be parsed).
+    pub fn tracer(&self) -> Result<Box<dyn Tracer>> {
+        let cfg: crate::tracer::BackendConfig = self.tracer_name.parse().unwrap_or_else(|_| "analytic".parse().expect("analytic parses"));
+        cfg.build()
+    }
+
+    /// A renderer with the recorded configuration and `seed`, checked to have the recorded detector.
+    pub fn renderer<'a>(&'a self, tracer: &'a dyn Tracer, seed: u64) -> Result<Renderer<'a>> {
+        let mut cfg = self.config.clone();
+        cfg.seed = seed;
+        let r = Renderer::new(&self.system, tracer, cfg, self.mask.clone())?;
+        if (r.detector.height, r.detector.width) != (self.detector_height, self.detector_width) {
+            return Err(ferr(&self.dir.join("render.json"), format!("the rebuilt detector is {}×{} but the render's is {}×{}: the folder does not match this diffcassi version or tracer", r.detector.height, r.detector.width, self.detector_height, self.detector_width)));
+        }
+        Ok(r)
+    }
+}

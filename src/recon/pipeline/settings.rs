@@ -1,0 +1,133 @@
+//! The settings of one reconstruction ([`SolveSettings`]: solver, iterations, TV weight, PnP schedule,
+//! stopping rule, noise estimate) and the [`SolverConfig`] they resolve to ([`solver_config`], checked
+//! before any work by [`check_solver`]).
+use super::noise::{NoiseEstimate, NoiseModel};
+use crate::error::{Error, Result};
+use crate::recon::{SolverConfig, SolverKind};
+use std::path::PathBuf;
+
+/// Settings of one reconstruction (everything but the operator).
+#[derive(Clone, Debug)]
+pub struct SolveSettings {
+    pub solver: String,
+    pub iterations: Option<usize>,
+    pub tv_weight: Option<f64>,
+    /// GAP-TV's accelerated variant (asked for explicitly; it is gap-tv's default anyway).
+    pub accelerated: bool,
+    /// GAP-TV: plain GAP instead of the accelerated default.
+    pub plain: bool,
+    /// PnP: the denoiser's weights file (`None`: embedded).
+    pub denoiser: Option<PathBuf>,
+    /// PnP: the σ schedule's ends (relative to the peak).
+    pub sigma_max: Option<f64>,
+    pub sigma_min: Option<f64>,
+    /// PnP: σ_1 from the TV iterate's estimated error instead of σ max.
+    pub sigma_auto: bool,
+    /// The stopping rule's relative-change tolerance.
+    pub tolerance: Option<f64>,
+    /// PnP: TV warm-up iterations.
+    pub tv_warmup: Option<usize>,
+    /// The discrepancy principle's τ (`None`: the solver's default).
+    pub discrepancy: Option<f64>,
+    /// The measurement's expected noise norm δ ([`noise_estimate`]; `None`: unknown, the rule is off).
+    pub noise: Option<NoiseEstimate>,
+    /// How the exact operator's Monte-Carlo term of δ is estimated (`--noise-estimate`).
+    pub noise_model: NoiseModel,
+}
+
+impl SolveSettings {
+    /// `solver` with every other setting at its default (the solver's own; δ unknown; `--noise-estimate spread`).
+    pub fn new(solver: &str) -> Self {
+        SolveSettings {
+            solver: solver.to_string(),
+            iterations: None,
+            tv_weight: None,
+            accelerated: false,
+            plain: false,
+            denoiser: None,
+            sigma_max: None,
+            sigma_min: None,
+            sigma_auto: false,
+            tolerance: None,
+            tv_warmup: None,
+            discrepancy: None,
+            noise: None,
+            noise_model: NoiseModel::Spread,
+        }
+    }
+}
+
+/// The solver configuration the settings describe (the solver's defaults, overridden by iterations / TV weight).
+pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
+    let kind: SolverKind = s.solver.parse().map_err(|_| Error::invalid(format!("--solver `{}`: use {}", s.solver, crate::recon::solver::SOLVER_NAMES)))?;
+    let mut cfg = SolverConfig::for_solver(kind);
+    if let Some(n) = s.iterations {
+        cfg.iterations = n;
+    }
+    if let Some(w) = s.tv_weight {
+        cfg.tv_weight = w as f32;
+    }
+    if s.accelerated {
+        if !kind.is_gap() {
+            return Err(Error::invalid(format!("--accelerated applies to gap-tv and pnp-gap only, not `{}`", s.solver)));
+        }
+        cfg.accelerated = true;
+    }
+    if s.plain {
+        if !kind.is_gap() {
+            return Err(Error::invalid(format!("--plain applies to gap-tv and pnp-gap only, not `{}`", s.solver)));
+        }
+        if s.accelerated {
+            return Err(Error::invalid("--plain and --accelerated: choose one"));
+        }
+        cfg.accelerated = false;
+    }
+    for (flag, v) in [("--sigma-max", s.sigma_max), ("--sigma-min", s.sigma_min), ("--tolerance", s.tolerance)] {
+        if let Some(v) = v {
+            if !v.is_finite() || v < 0.0 {
+                return Err(Error::invalid(format!("{flag} {v}: must be finite and ≥ 0")));
+            }
+        }
+    }
+    if !kind.is_pnp() && (s.denoiser.is_some() || s.sigma_max.is_some() || s.sigma_min.is_some() || s.tv_warmup.is_some() || s.sigma_auto) {
+        return Err(Error::invalid(format!("--denoiser / --sigma-max / --sigma-min / --sigma-auto / --tv-warmup apply to pnp-gap and pnp-admm only, not `{}`", s.solver)));
+    }
+    if s.sigma_auto {
+        cfg.sigma_auto = true;
+    }
+    if let Some(n) = s.tv_warmup {
+        cfg.tv_warmup = n;
+    }
+    if let Some(v) = s.sigma_max {
+        cfg.sigma_max = v as f32;
+    }
+    if let Some(v) = s.sigma_min {
+        cfg.sigma_min = v as f32;
+    }
+    if let Some(v) = s.tolerance {
+        cfg.tolerance = v;
+    }
+    if let Some(v) = s.discrepancy {
+        if !v.is_finite() || v < 0.0 {
+            return Err(Error::invalid(format!("--discrepancy {v}: must be finite and ≥ 0")));
+        }
+        cfg.discrepancy = v;
+    }
+    if let Some(n) = &s.noise {
+        cfg.noise_norm = n.norm;
+    }
+    if let Some(p) = &s.denoiser {
+        cfg.denoiser = Some(p.display().to_string());
+    }
+    cfg.validate()?;
+    Ok(cfg)
+}
+
+/// Reject an unknown solver or bad solver settings before any work (PnP: the weights are loaded and checked).
+pub fn check_solver(s: &SolveSettings) -> Result<()> {
+    let cfg = solver_config(s)?;
+    if cfg.solver.is_pnp() {
+        crate::recon::solver::config_denoiser(&cfg)?;
+    }
+    Ok(())
+}

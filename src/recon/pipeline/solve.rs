@@ -1,0 +1,114 @@
+//! The solve of a reconstruction: [`run_solver`] (the configured solver with its denoiser, an optional
+//! data-driven δ and an optional truth observer; the Python `reconstruct` calls it too) and [`solve`] /
+//! [`solve_observed`] (settings → configuration → solve → the record `reconstruct` and `study` write: the
+//! resolved settings, the residuals, the stopping record with the noise estimate).
+use super::settings::{solver_config, SolveSettings};
+use crate::error::{Error, Result};
+use crate::recon::{MonteCarloSpread, Operator, Reconstruction, SolverConfig};
+use serde_json::Value;
+
+/// The result of a solve: the cube (C order), the per-iteration relative data residual, the solver's
+/// resolved settings and record (JSON) and seconds.
+pub struct Solved {
+    pub cube: Vec<f32>,
+    /// Per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂ ([`crate::recon::Reconstruction::residuals`]).
+    pub residuals: Vec<f64>,
+    pub final_residual: f64,
+    pub settings: Value,
+    /// The stopping rule and what ended the run (`{"rule", "tolerance", "stopped_by", "relative_changes"}`).
+    pub stopping: Value,
+    pub seconds: f64,
+}
+
+/// Run the solver on `op` and the acquisition `y` (starting from 0); `progress(k, residual)` after each
+/// iteration k ([`crate::recon::reconstruct`]'s).
+/// `twin`: the operator's twin for the data-driven δ (when `s.noise` has a [`SpreadPlan`](super::SpreadPlan)).
+pub fn solve(op: &dyn Operator, y: &[f32], s: &SolveSettings, progress: &(dyn Fn(usize, f64) + Sync), twin: Option<&dyn Operator>) -> Result<Solved> {
+    solve_observed(op, y, s, progress, None, twin)
+}
+
+/// The solver `cfg` names on `op` and `y` from `init` (0 when `None`), with its denoiser
+/// ([`crate::recon::solver::config_denoiser`]), δ re-estimated from the data when `spread` is given, and with a
+/// `truth` cube (same shape) the PSNR (paper convention) of every iterate θ_k (the second value; empty
+/// without a truth). `progress(k, residual)` after each iteration.
+pub fn run_solver(
+    op: &dyn Operator,
+    y: &[f32],
+    init: Option<&[f32]>,
+    cfg: &SolverConfig,
+    spread: Option<&MonteCarloSpread<'_>>,
+    truth: Option<&[f32]>,
+    progress: &(dyn Fn(usize, f64) + Sync),
+) -> Result<(Reconstruction, Vec<f64>)> {
+    let mut denoiser = crate::recon::solver::config_denoiser(cfg)?;
+    let shape = op.cube_shape();
+    let mut psnrs: Vec<f64> = Vec::new();
+    let rec = crate::recon::reconstruct_estimated(
+        op,
+        y,
+        init,
+        cfg,
+        denoiser.as_mut(),
+        progress,
+        &mut |_, theta| {
+            if let Some(t) = truth {
+                psnrs.push(crate::recon::metrics::psnr_db(t, theta, shape).unwrap_or(f64::NAN));
+            }
+        },
+        spread,
+    )?;
+    Ok((rec, psnrs))
+}
+
+/// [`solve`], and with a `truth` cube (same shape) the PSNR (paper convention) of every iterate θ_k,
+/// recorded as `psnr_per_iteration` beside ‖y − Φx_true‖₂/‖y‖₂ (`truth_residual`): evaluation only, for
+/// measuring defaults and stopping rules (the solver never sees it).
+/// With a [`SpreadPlan`](super::SpreadPlan) in `s.noise` and its `twin`, δ's Monte-Carlo term is re-estimated during the solve
+/// (and, with `truth`, the estimator at the truth is recorded as `truth_spread_estimate`).
+pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, progress: &(dyn Fn(usize, f64) + Sync), truth: Option<&[f32]>, twin: Option<&dyn Operator>) -> Result<Solved> {
+    let cfg = solver_config(s)?;
+    let plan = s.noise.as_ref().and_then(|n| n.spread.clone());
+    let spread = match (&plan, twin) {
+        (Some(p), Some(t)) => Some(MonteCarloSpread { twin: t, factor: p.factor, sensor_norm: p.sensor_norm, every: crate::recon::solver::SPREAD_EVERY }),
+        (Some(_), None) => return Err(Error::invalid("internal: the data-driven noise estimate needs the operator's twin")),
+        _ => None,
+    };
+    let (rec, psnrs) = run_solver(op, y, None, &cfg, spread.as_ref(), truth, progress)?;
+    if let Some(i) = rec.cube.iter().position(|v| !v.is_finite()) {
+        let peak = y.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        return Err(Error::invalid(format!(
+            "the solver produced a non-finite value at index {i} (the acquisition's largest |value| is {}; values beyond ±{:.3e} can overflow the f32 sums): not written",
+            crate::limits::fmt_num(peak as f64),
+            crate::limits::MAX_SCENE_VALUE
+        )));
+    }
+    let settings = serde_json::to_value(&rec.config).unwrap_or(Value::Null);
+    let mut record = serde_json::to_value(&rec).unwrap_or(Value::Null);
+    if let Some(o) = record.as_object_mut() {
+        o.remove("residuals");
+    }
+    let ny = y.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+    let mut noise_record = s.noise.as_ref().map(|n| n.record.clone());
+    if let (Some(p), Some(o)) = (&plan, noise_record.as_mut().and_then(Value::as_object_mut)) {
+        // The data-driven δ: the record's norm and Monte-Carlo term are the last estimate's.
+        let mc = (rec.noise_norm.powi(2) - p.sensor_norm.powi(2)).max(0.0).sqrt();
+        o.insert("norm".into(), serde_json::json!(rec.noise_norm));
+        o.insert("relative".into(), serde_json::json!(if ny > 0.0 { rec.noise_norm / ny } else { 0.0 }));
+        o.insert("monte_carlo_norm".into(), serde_json::json!(mc));
+    }
+    let mut stopping = rec.stopping_record(y, noise_record);
+    if let (Some(t), Some(o)) = (truth, stopping.as_object_mut()) {
+        let mut phi_t = vec![0.0f32; y.len()];
+        op.apply_into(t, &mut phi_t);
+        let r = y.iter().zip(&phi_t).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>().sqrt();
+        o.insert("truth_residual".into(), serde_json::json!(if ny > 0.0 { r / ny } else { 0.0 }));
+        if let Some(sp) = &spread {
+            // The estimator evaluated at the truth (what δ̂ at the iterate approximates), relative to ‖y‖.
+            let mut scratch = Vec::new();
+            let d = sp.estimate(t, &phi_t, &mut scratch);
+            o.insert("truth_spread_estimate".into(), serde_json::json!(if ny > 0.0 { d / ny } else { 0.0 }));
+        }
+        o.insert("psnr_per_iteration".into(), serde_json::json!(psnrs));
+    }
+    Ok(Solved { residuals: rec.residuals.clone(), final_residual: rec.final_residual, settings: serde_json::json!({"config": settings, "record": record}), stopping, seconds: rec.seconds, cube: rec.cube })
+}
