@@ -158,8 +158,11 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
         return Err(Error::invalid("--calibration-cache: only used with --tolerance-um, which reconstruct does not take"));
     }
     request.validate()?;
-    // The output policy before any work: --out never --from, inside it or containing it.
-    let inputs = [("--from", a.from.as_path())];
+    // The output policy before any work: --out never an input (--from, --denoiser, --truth), inside one or
+    // containing one.
+    let mut inputs = vec![("--from", a.from.as_path())];
+    inputs.extend(a.tuning.denoiser.as_deref().map(|p| ("--denoiser", p)));
+    inputs.extend(a.truth.as_deref().map(|p| ("--truth", p)));
     crate::io::policy::check_out_folder(&a.out, &reconstruction_rule(a.force), &inputs)?;
     let record = RenderRecord::load(&a.from)?;
     let truth = a.truth.as_deref().map(|p| pipeline::load_truth(&record, p)).transpose()?;

@@ -374,6 +374,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     // The output policy before any work: --out new, empty, a previous study (or --force), never an input.
     let mut inputs: Vec<(&str, &Path)> = a.scenes.iter().map(|p| ("--scenes", p.as_path())).collect();
     inputs.extend(a.mask.as_deref().map(|p| ("--mask", p)));
+    inputs.extend(a.tuning.denoiser.as_deref().map(|p| ("--denoiser", p)));
     crate::io::policy::check_out_folder(&a.out, &crate::io::policy::FolderRule { option: "--out", command: "study", marker: STUDY_MARKER, force: a.force }, &inputs)?;
     let bands = super::shared::parse_wavelengths(&a.bands)?;
     check_limits(&a, &bands, &solvers)?;

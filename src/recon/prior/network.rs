@@ -99,7 +99,7 @@ impl Stage {
 pub fn weights_crc32(path: Option<&Path>) -> Result<u32> {
     match path {
         None => Ok(crc32fast::hash(EMBEDDED)),
-        Some(p) => std::fs::read(p).map(|b| crc32fast::hash(&b)).map_err(|e| ferr(&p.display().to_string(), format!("cannot read the denoiser weights: {e}"))),
+        Some(p) => read_weights(p).map(|b| crc32fast::hash(&b)),
     }
 }
 
@@ -183,6 +183,36 @@ fn ferr(source: &str, m: impl Into<String>) -> Error {
     Error::File { path: source.to_string(), message: m.into() }
 }
 
+/// The largest weights file read: 1 GiB (a width-1024 network of this architecture; the embedded width-64 one
+/// is 4 MB).
+pub const MAX_WEIGHTS_BYTES: u64 = 1 << 30;
+
+/// The bytes of a weights file, which must be a regular file (not a folder, nor a FIFO, socket or device:
+/// `/dev/zero` would be read until memory runs out, a FIFO would block) of at most [`MAX_WEIGHTS_BYTES`];
+/// checked before it is opened.
+fn read_weights(path: &Path) -> Result<Vec<u8>> {
+    use std::io::Read;
+    let name = path.display().to_string();
+    let cannot = |e: std::io::Error| ferr(&name, format!("cannot read the denoiser weights: {e}"));
+    let meta = std::fs::metadata(path).map_err(cannot)?;
+    if meta.is_dir() {
+        return Err(ferr(&name, "is a folder: the denoiser weights must be a safetensors file"));
+    }
+    if !meta.is_file() {
+        return Err(ferr(&name, "is not a regular file (a FIFO, socket or device such as /dev/zero): the denoiser weights must be a safetensors file"));
+    }
+    let too_big = |n: u64| ferr(&name, format!("{n} bytes: larger than the {MAX_WEIGHTS_BYTES} bytes (1 GiB) a denoiser weights file may have"));
+    if meta.len() > MAX_WEIGHTS_BYTES {
+        return Err(too_big(meta.len()));
+    }
+    let mut bytes = Vec::with_capacity(meta.len() as usize);
+    std::fs::File::open(path).and_then(|f| f.take(MAX_WEIGHTS_BYTES + 1).read_to_end(&mut bytes)).map_err(cannot)?;
+    if bytes.len() as u64 > MAX_WEIGHTS_BYTES {
+        return Err(too_big(bytes.len() as u64));
+    }
+    Ok(bytes)
+}
+
 fn cerr(e: candle_core::Error) -> Error {
     Error::invalid(format!("denoiser network (candle): {e}"))
 }
@@ -204,7 +234,7 @@ impl SpectralUNet {
 
     /// Weights from a safetensors file.
     pub fn from_file(path: &Path) -> Result<Self> {
-        let bytes = std::fs::read(path).map_err(|e| ferr(&path.display().to_string(), format!("cannot read the denoiser weights: {e}")))?;
+        let bytes = read_weights(path)?;
         Self::from_bytes(&bytes, &path.display().to_string())
     }
 
