@@ -81,7 +81,7 @@ pub struct SolverConfig {
     /// ADMM only: η added to d in the projection (y − Φv)/(d + η), relative to max d (default 0.01).
     pub admm_eta: f32,
     /// PnP only: the noise level σ of the first denoising, relative to the cube's peak (the denoiser sees the
-    /// cube scaled to peak 1; see [`sigma_schedule`]).
+    /// cube scaled to peak 1; see [`sigma_schedule`](super::prior_step::sigma_schedule)).
     #[serde(default)]
     pub sigma_max: f32,
     /// PnP only: the noise level σ of the last denoising, relative to the peak (σ decreases geometrically).
@@ -92,13 +92,13 @@ pub struct SolverConfig {
     #[serde(default)]
     pub tolerance: f64,
     /// Discrepancy principle (Morozov): stop before iteration k's update when ‖y − Φθ_{k−1}‖₂ ≤
-    /// `discrepancy`·`noise_norm`, returning θ_{k−1} (τ ≥ 1 in theory; 0 turns the rule off). See [`Discrepancy`].
+    /// `discrepancy`·`noise_norm`, returning θ_{k−1} (τ ≥ 1 in theory; 0 turns the rule off). See [`Discrepancy`](super::stopping::Discrepancy).
     #[serde(default)]
     pub discrepancy: f64,
     /// The expected norm δ = E‖y − Φx_true‖₂ of the measurement's noise and operator mismatch, in acquisition
     /// units (the CLI: sensor noise from render.json, and the exact operator's Monte-Carlo mismatch estimated
-    /// during the run by [`MonteCarloSpread`], this field then being the sensor part; `noise_estimate` in
-    /// reconstruct.json). 0: unknown, the discrepancy rule is off (unless a [`MonteCarloSpread`] is given).
+    /// during the run by [`MonteCarloSpread`](super::noise::MonteCarloSpread), this field then being the sensor part; `noise_estimate` in
+    /// reconstruct.json). 0: unknown, the discrepancy rule is off (unless a [`MonteCarloSpread`](super::noise::MonteCarloSpread) is given).
     #[serde(default)]
     pub noise_norm: f64,
     /// PnP only: the denoiser's weights file (safetensors); `None`: the embedded checkpoint.

@@ -81,10 +81,10 @@ pub fn denoise_at_network_scale(denoiser: &mut dyn Denoiser, x: &[f32], out: &mu
 /// is (bit for bit the direct call).
 ///
 /// **Phases (PnP).** The TV phase (GAP-TV / ADMM-TV's own step, at most `tv_warmup` iterations) ends at its
-/// cap or, earlier, when the caller finds ‖y − Φθ‖ ≤ [`PNP_TV_DISCREPANCY`]·δ (GAP-TV's own stop: the
+/// cap or, earlier, when the caller finds ‖y − Φθ‖ ≤ [`PNP_TV_DISCREPANCY`](super::config::PNP_TV_DISCREPANCY)·δ (GAP-TV's own stop: the
 /// network starts from GAP-TV's stopped iterate). The network phase then runs at most
 /// `iterations − tv_warmup` iterations with σ_j = [`sigma_schedule`](σ_1, σ_min, N, j), σ_1 the
-/// [`NoiseStart`] of the configuration (the TV iterate's estimated error, or σ_max).
+/// configuration's (`sigma_auto`: the TV iterate's estimated error, else σ_max).
 pub(crate) struct PriorStep<'d> {
     denoiser: &'d mut dyn Denoiser,
     normalise: bool,

@@ -4,7 +4,7 @@ use super::config::SolverConfig;
 use crate::recon::layout::dot;
 use crate::recon::operator::CubeShape;
 
-/// The result of [`reconstruct`]: the cube and a record the CLI serialises (the cube is written apart).
+/// The result of [`reconstruct`](crate::recon::solver::reconstruct): the cube and a record the CLI serialises (the cube is written apart).
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct Reconstruction {
     /// H×W×B, `[row][col][band]`.
@@ -34,7 +34,7 @@ pub struct Reconstruction {
     pub sigmas: Vec<f32>,
     /// The δ the discrepancy rule used last (`config.noise_norm`, or the last data-driven estimate).
     pub noise_norm: f64,
-    /// Data-driven δ ([`MonteCarloSpread`]): (iteration k, δ̂ at θ_{k−1}) of every re-estimate; empty when δ
+    /// Data-driven δ ([`MonteCarloSpread`](super::noise::MonteCarloSpread)): (iteration k, δ̂ at θ_{k−1}) of every re-estimate; empty when δ
     /// is fixed.
     pub noise_estimates: Vec<(usize, f64)>,
     /// The prior: the denoiser's record (name, weights / TV settings).

@@ -12,7 +12,7 @@ use rayon::prelude::*;
 /// warm-up always completes, as for the relative-change rule).
 pub struct Discrepancy {
     tau: f64,
-    /// δ in use: the configuration's, or the latest data-driven estimate ([`MonteCarloSpread`]).
+    /// δ in use: the configuration's, or the latest data-driven estimate ([`MonteCarloSpread`](super::noise::MonteCarloSpread)).
     delta: f64,
     /// Whether δ is re-estimated during the run (the rule is then on whenever τ > 0).
     tracked: bool,
@@ -23,7 +23,7 @@ impl Discrepancy {
         Discrepancy { tau: config.discrepancy, delta: config.noise_norm, tracked: false }
     }
 
-    /// The rule with δ re-estimated during the run (see [`MonteCarloSpread`]); `config.noise_norm` is the
+    /// The rule with δ re-estimated during the run (see [`MonteCarloSpread`](super::noise::MonteCarloSpread)); `config.noise_norm` is the
     /// starting value (the sensor term alone, say) until the first estimate.
     pub fn tracked(config: &SolverConfig) -> Self {
         Discrepancy { tracked: true, ..Self::new(config) }
@@ -45,7 +45,7 @@ impl Discrepancy {
     }
 
     /// Whether iteration k (1-based) tests θ_{k−1}: θ_{k−1} is the output of the network phase's first
-    /// iteration or a later one (`first_network`: [`PriorStep`]'s; 1 for TV solvers, so k ≥ 2).
+    /// iteration or a later one (`first_network`: [`PriorStep`](super::prior_step::PriorStep)'s; 1 for TV solvers, so k ≥ 2).
     pub fn applies(&self, k: usize, first_network: Option<usize>) -> bool {
         first_network.is_some_and(|f| k > f)
     }
