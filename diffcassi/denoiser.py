@@ -233,16 +233,42 @@ def save_weights(net: SpectralUNet, path, extra_metadata: Optional[Dict[str, str
     os.replace(tmp, path)
 
 
+#: The largest weights file read: 1 GiB (as the Rust loader, ``recon::prior::network::MAX_WEIGHTS_BYTES``).
+MAX_WEIGHTS_BYTES = 1 << 30
+
+
+def check_weights_file(path: str, what: str, missing: type) -> None:
+    """Refuses, before opening it, a weights ``path`` that is not a regular file of at most
+    :data:`MAX_WEIGHTS_BYTES`: ``missing`` (an exception class) for a missing file or a folder, naming which, and
+    for a FIFO, socket or device (``/dev/zero`` would be read until memory runs out, a FIFO would block) or a
+    larger file. ``what`` names the file in the message (``denoiser weights``)."""
+    import os
+    import stat
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise missing(f"{what} {path}: no such file") from None
+    except OSError as e:
+        raise missing(f"{what} {path}: cannot read ({e.strerror})") from None
+    if stat.S_ISDIR(st.st_mode):
+        raise missing(f"{what} {path}: is a folder, not a weights file (safetensors)")
+    if not stat.S_ISREG(st.st_mode):
+        raise missing(f"{what} {path}: is not a regular file (a FIFO, socket or device such as /dev/zero)")
+    if st.st_size > MAX_WEIGHTS_BYTES:
+        raise missing(f"{what} {path}: {st.st_size} bytes, larger than the {MAX_WEIGHTS_BYTES} bytes (1 GiB) a "
+                      "weights file may have")
+
+
 def load_weights(path, bands: Optional[int] = None) -> SpectralUNet:
     """Loads a ``spectral-unet-v2`` safetensors file into a new :class:`SpectralUNet` (eval mode). Raises
-    FileNotFoundError for a missing file and ValueError, naming the file and the problem, for a file that is not
+    FileNotFoundError for a missing file, a folder, a FIFO or device, or a file over 1 GiB
+    (:func:`check_weights_file`), and ValueError, naming the file and the problem, for a file that is not
     safetensors, has another architecture, band count (when ``bands`` is given), width or latent, misses or has extra
     tensors, has a tensor of the wrong shape, or holds NaN/inf."""
     import os
     from safetensors import safe_open
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"denoiser weights {path}: no such file")
+    check_weights_file(path, "denoiser weights", FileNotFoundError)
     try:
         with safe_open(path, framework="pt") as f:
             meta = f.metadata() or {}

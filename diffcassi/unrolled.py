@@ -54,7 +54,7 @@ from torch import nn
 import torch.nn.functional as F
 
 import diffcassi
-from .denoiser import pad_to_multiple
+from .denoiser import check_weights_file, pad_to_multiple
 
 ARCH = "unrolled-gap-v1"
 
@@ -206,8 +206,7 @@ def read_metadata(path: Any) -> Dict[str, str]:
 def _read(path: Any):
     from safetensors import safe_open
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise diffcassi.DiffcassiFileError(f"unrolled weights {path}: no such file")
+    check_weights_file(path, "unrolled weights", diffcassi.DiffcassiFileError)
     try:
         with safe_open(path, framework="pt") as f:
             meta = f.metadata() or {}
@@ -222,10 +221,14 @@ def _read(path: Any):
 def load_unrolled(path: Any, phi: nn.Module, system: Optional[str] = None, mask: Any = None) -> UnrolledGAP:
     """Loads an ``unrolled-gap-v1`` safetensors file into a new :class:`UnrolledGAP` around ``phi`` (eval mode).
 
-    Checked, each failure a DiffcassiValueError naming the file and the problem (a missing file: a
-    DiffcassiFileError): the format and ``arch``; ``stages``, ``bands``, ``width`` integers ≥ 1; ``bands`` equal to
+    Checked, each failure a DiffcassiValueError naming the file and the problem (a missing file, a folder, a FIFO or
+    device, a file over 1 GiB: a DiffcassiFileError; ``phi`` not an operator module: a TypeError naming it): the format and ``arch``; ``stages``, ``bands``, ``width`` integers ≥ 1; ``bands`` equal to
     ``phi``'s band count; ``system`` (when given) equal to the system the weights were trained for; ``mask`` (when
     given) equal to the training mask (SHA-256); every tensor present with its shape, finite, and no other."""
+    if not hasattr(phi, "cube_shape"):
+        # Checked before the file is read (phi=None raised AttributeError after it, issue 39).
+        raise TypeError(f"load_unrolled: phi: expected a diffcassi.torch.CassiOperator (or its matrix-free form), "
+                        f"got {type(phi).__name__} without `cube_shape`")
     meta, tensors = _read(path)
     path = os.fspath(path)
     try:
