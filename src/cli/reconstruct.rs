@@ -66,8 +66,8 @@ pub struct ReconstructArgs {
     pub truth: Option<PathBuf>,
     #[command(flatten)]
     pub backend: BackendArgs,
-    /// Output folder: new, empty, or a previous reconstruction (replaced whole); never --from, inside it or
-    /// containing it.
+    /// Output folder: new, empty, or a previous reconstruction (replaced whole); never an input (--from, --denoiser,
+    /// --truth), inside one or containing one.
     #[arg(long)]
     pub out: PathBuf,
     /// Accept an --out folder that holds other files (not a previous reconstruction): the outputs are moved

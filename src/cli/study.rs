@@ -89,8 +89,8 @@ pub struct StudyArgs {
     /// Light-transport memory budget (GB) for the renders and the exact operator.
     #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
     pub transport_memory_gb: f64,
-    /// Output folder: new, empty, or a previous study (it holds study.json; resumed); never --scenes, inside
-    /// it or containing it.
+    /// Output folder: new, empty, or a previous study (it holds study.json; resumed); never an input (--scenes, --mask,
+    /// --denoiser), inside one or containing one.
     #[arg(long)]
     pub out: PathBuf,
     /// Accept an --out folder that holds other files (not a previous study): the study's files are written
