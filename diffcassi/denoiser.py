@@ -241,6 +241,8 @@ def load_weights(path, bands: Optional[int] = None) -> SpectralUNet:
     import os
     from safetensors import safe_open
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise IsADirectoryError(f"denoiser weights {path}: is a directory, not a weights file")
     if not os.path.isfile(path):
         raise FileNotFoundError(f"denoiser weights {path}: no such file")
     try:

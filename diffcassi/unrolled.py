@@ -206,6 +206,8 @@ def read_metadata(path: Any) -> Dict[str, str]:
 def _read(path: Any):
     from safetensors import safe_open
     path = os.fspath(path)
+    if os.path.isdir(path):
+        raise diffcassi.DiffcassiFileError(f"unrolled weights {path}: is a directory, not a weights file")
     if not os.path.isfile(path):
         raise diffcassi.DiffcassiFileError(f"unrolled weights {path}: no such file")
     try:
@@ -225,7 +227,12 @@ def load_unrolled(path: Any, phi: nn.Module, system: Optional[str] = None, mask:
     Checked, each failure a DiffcassiValueError naming the file and the problem (a missing file: a
     DiffcassiFileError): the format and ``arch``; ``stages``, ``bands``, ``width`` integers ≥ 1; ``bands`` equal to
     ``phi``'s band count; ``system`` (when given) equal to the system the weights were trained for; ``mask`` (when
-    given) equal to the training mask (SHA-256); every tensor present with its shape, finite, and no other."""
+    given) equal to the training mask (SHA-256); every tensor present with its shape, finite, and no other.
+    ``phi`` must be an operator module (a TypeError otherwise)."""
+    for attr in ("forward", "adjoint", "cube_shape", "image_shape"):
+        if not hasattr(phi, attr):
+            raise TypeError(f"load_unrolled: phi: expected a diffcassi.torch.CassiOperator (or its matrix-free form), "
+                            f"got {type(phi).__name__} without `{attr}`")
     meta, tensors = _read(path)
     path = os.fspath(path)
     try:
