@@ -15,14 +15,15 @@ True
 from __future__ import annotations
 
 import json as _json
+import os
 from typing import Any, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 from . import _native
 from ._errors import DiffcassiError, DiffcassiFileError, DiffcassiValueError
-from ._native import (Operator, System, Transport, get_num_threads, jacobian, load_scene, mapping, read_exr,
-                      set_num_threads, synthetic_scene, trace)
+from ._native import (Operator, System, Transport, get_limits, get_num_threads, jacobian, load_scene, mapping, read_exr,
+                      set_limits, set_num_threads, synthetic_scene, trace)
 
 __version__: str = _native.__version__
 #: Whether the Embree backends (``embree-user``, ``embree-mesh``) were compiled in.
@@ -34,7 +35,7 @@ STATUS = {0: "ok", 1: "missed", 2: "vignetted", 3: "total internal reflection", 
 
 __all__ = [
     "System", "Transport", "Operator", "exact", "metrics", "load_scene", "synthetic_scene", "trace", "spot", "distortion", "dispersion", "mapping", "jacobian", "render",
-    "read_exr", "set_num_threads", "get_num_threads", "surfaces", "DiffcassiError", "DiffcassiValueError",
+    "read_exr", "set_num_threads", "get_num_threads", "set_limits", "get_limits", "surfaces", "DiffcassiError", "DiffcassiValueError",
     "DiffcassiFileError", "STATUS", "EMBREE", "__version__",
 ]
 
@@ -95,7 +96,7 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
            bands_nm: Optional[Sequence[float]] = None, planes: Optional[int] = None, rays: Optional[int] = None,
            seed: Optional[int] = None, sampling: Optional[str] = None, opening: Optional[float] = None,
            mask_seed: Optional[int] = None, airy_diameter_px: Optional[float] = None, airy: Optional[bool] = None,
-           backend: str = "analytic", noise: Optional[dict] = None) -> Tuple[np.ndarray, Dict[str, Any]]:
+           backend: str = "analytic", noise: Optional[dict] = None, device: Optional[str] = None) -> Tuple[np.ndarray, Dict[str, Any]]:
     """Render the coded acquisition of ``scene`` through ``system``.
 
     ``scene``: (H, W, B) float32, C-contiguous, finite, its bands at ``wavelengths_nm`` (B values).
@@ -106,6 +107,8 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
     bit. ``noise``: sensor noise as the CLI's ``--noise`` options: ``"shot,read,adc"`` or a dict
     ``{"noise": "shot,read", "full_well_e": 20000, "read_noise_e": 2, "adc_bits": 12, "noise_seed": 0,
     "electrons_per_unit": ...}`` (``None``: a clean acquisition, the default); ``info["noise"]`` reports it.
+    ``device``: ``"cpu"`` (the default and, in this build, the only device; ``"cuda"`` is refused).
+    The memory and ray budgets are the CLI's defaults unless :func:`set_limits` changed them.
 
     Returns ``(acquisition, info)``: the detector image (h, w) float64 and a dict with ``render.json``'s
     keys (``acquisition_total``, ``detector``, ``bands_nm``, ``planes_nm``, ``rays_traced``, ...).
@@ -123,7 +126,7 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
         raise DiffcassiValueError(f"noise: expected None, a string such as 'shot,read,adc' or a dict, got {type(noise).__name__}")
     acq, info = _native._render(system, scene, wavelengths_nm, mask, bands_nm=bands_nm, planes=planes, rays=rays, seed=seed,
                                 sampling=sampling, opening=opening, mask_seed=mask_seed, airy_diameter_px=airy_diameter_px,
-                                airy=airy, backend=_check_backend(backend), **nz)
+                                airy=airy, backend=_check_backend(backend), device=device, **nz)
     return acq, _json.loads(info)
 
 
@@ -270,6 +273,7 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
         if not isinstance(twin, Operator):
             raise DiffcassiValueError(f"noise_twin: expected a diffcassi.Operator or Transport, got {type(twin).__name__}")
         settings["noise_twin"] = twin
+    _weights_file("denoiser", settings.get("denoiser"))
     cube, record = _native._reconstruct(op, acq, solver, init, **settings)
     return cube, _json.loads(record)
 
@@ -302,7 +306,14 @@ def denoise(cube: np.ndarray, sigma: float, weights: Optional[str] = None, neutr
     :class:`diffcassi.denoiser.SpectralUNet` within 1e-4 of the peak. ``neutral`` (mean-colour
     neutralisation, default off) and ``ensemble`` (the geometric self-ensemble, 8× the time) as in
     :func:`diffcassi.denoiser.denoise`."""
+    _weights_file("weights", weights)
     return _native.denoise(cube, float(sigma), None if weights is None else str(weights), bool(neutral), bool(ensemble))
+
+
+def _weights_file(name: str, path: Any) -> None:
+    """A weights path that is a directory: a DiffcassiFileError saying so (not "no such file")."""
+    if isinstance(path, (str, os.PathLike)) and os.path.isdir(path):
+        raise DiffcassiFileError(f"{name} {os.fspath(path)}: is a directory, not a weights file")
 
 
 __all__ += ["denoise"]

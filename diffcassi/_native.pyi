@@ -20,6 +20,13 @@ def set_num_threads(n: int) -> None:
 
 def get_num_threads() -> int: ...
 
+def set_limits(max_memory_gb: Optional[float] = None, max_rays: Optional[float] = None) -> None:
+    """The memory budget (GB, > 0) and ray budget (≥ 1) of every following call, the CLI's --max-memory-gb and
+    --max-rays (None: the default, half of the physical memory and 2e10 rays); refusals name these keywords."""
+
+def get_limits() -> Dict[str, Any]:
+    """{"max_memory_gb": float, "max_rays": float, "memory_source": str}."""
+
 class System:
     """An optical system (preset or spec file), immutable."""
 

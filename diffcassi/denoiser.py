@@ -251,7 +251,8 @@ def check_weights_file(path: str, what: str, missing: type) -> None:
     except OSError as e:
         raise missing(f"{what} {path}: cannot read ({e.strerror})") from None
     if stat.S_ISDIR(st.st_mode):
-        raise missing(f"{what} {path}: is a folder, not a weights file (safetensors)")
+        kind = IsADirectoryError if missing is FileNotFoundError else missing
+        raise kind(f"{what} {path}: is a directory, not a weights file (safetensors)")
     if not stat.S_ISREG(st.st_mode):
         raise missing(f"{what} {path}: is not a regular file (a FIFO, socket or device such as /dev/zero)")
     if st.st_size > MAX_WEIGHTS_BYTES:

@@ -509,18 +509,34 @@ class CassiDataset(torch.utils.data.Dataset):
 __all__.append("CassiRenderer")
 
 
+def _f64(t: torch.Tensor) -> np.ndarray:
+    """A tensor of any floating dtype (bfloat16 included) as a C-contiguous float64 array."""
+    return np.ascontiguousarray(t.detach().to(device="cpu", dtype=torch.float64).numpy())
+
+
+def _narrow(a: np.ndarray, dtype: torch.dtype, what: str) -> torch.Tensor:
+    """A float64 result as a tensor of ``dtype``, refused (never inf) when its values exceed the dtype's range."""
+    t = torch.from_numpy(a)
+    if dtype != torch.float64 and a.size:
+        peak, top = float(np.abs(a).max()), float(torch.finfo(dtype).max)
+        if peak > top:
+            raise _Error(f"CassiRenderer: the {what} reaches {peak:.6g}, beyond {dtype}'s range (largest {top:.6g}); "
+                         "pass a float32 or float64 cube, or scale the cube down")
+    return t.to(dtype)
+
+
 class _RenderFn(torch.autograd.Function):
-    """acquisition = render(cube, mask; θ) with fixed Monte-Carlo samples; backward is the Rust VJP."""
+    """acquisition = render(cube, mask; θ) with fixed Monte-Carlo samples; backward is the Rust VJP. Computed
+    in float64 whatever the inputs' floating dtypes; results are range-checked before they are cast back."""
 
     @staticmethod
     def forward(ctx, cube, mask, theta, module):  # type: ignore[override]
         r = module._renderer(theta)
-        s = np.ascontiguousarray(cube.detach().cpu().numpy(), dtype=np.float64)
-        m = np.ascontiguousarray(mask.detach().cpu().numpy(), dtype=np.float64)
+        s, m = _f64(cube), _f64(mask)
         out = r.render(s, m)
         ctx.r, ctx.s, ctx.m = r, s, m
         ctx.dtypes = (cube.dtype, mask.dtype, theta.dtype)
-        return torch.from_numpy(out).to(cube.dtype)
+        return _narrow(out, cube.dtype, "acquisition")
 
     @staticmethod
     def backward(ctx, g):  # type: ignore[override]
@@ -529,11 +545,48 @@ class _RenderFn(torch.autograd.Function):
         want_cube, want_mask, want_theta = ctx.needs_input_grad[:3]
         if not (want_cube or want_mask or want_theta):
             return None, None, None, None
-        gp, gm, gs = ctx.r.vjp(ctx.s, ctx.m, np.ascontiguousarray(g.detach().cpu().numpy(), dtype=np.float64),
-                               params=want_theta, mask_grad=want_mask, scene_grad=want_cube)
+        gp, gm, gs = ctx.r.vjp(ctx.s, ctx.m, _f64(g), params=want_theta, mask_grad=want_mask, scene_grad=want_cube)
         dc, dm, dt = ctx.dtypes
-        conv = lambda a, dtype: None if a is None else torch.from_numpy(a).to(dtype)  # noqa: E731
-        return conv(gs, dc), conv(gm, dm), conv(gp, dt), None
+        conv = lambda a, dtype, what: None if a is None else _narrow(a, dtype, what)  # noqa: E731
+        return conv(gs, dc, "cube gradient"), conv(gm, dm, "mask gradient"), conv(gp, dt, "θ gradient"), None
+
+
+_U64 = 2 ** 64 - 1
+
+
+def _count(where: str, name: str, v: Any, lo: int) -> int:
+    """An integer in lo..=2⁶⁴−1 (not a bool; not a float: 1.7 is refused, not truncated), else a
+    DiffcassiValueError naming the argument and the value."""
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= _U64:
+        raise _Error(f"{where}: {name}: expected an integer ≥ {lo}, got {type(v).__name__} {v!r}")
+    return int(v)
+
+
+def _free_names(free: Any) -> List[str]:
+    """``free``: a parameter name or a list/tuple of non-empty names."""
+    if isinstance(free, str):
+        free = [free]
+    if not isinstance(free, (list, tuple)) or not all(isinstance(f, str) for f in free):
+        raise TypeError(f"CassiRenderer: free: expected a parameter name or a list of names (e.g. ['prism_tilt_x']), "
+                        f"got {type(free).__name__} {free!r}")
+    empty = [i for i, f in enumerate(free) if not f.strip()]
+    if empty:
+        raise _Error(f"CassiRenderer: free: name {empty[0]} is empty (got {list(free)!r})")
+    return list(free)
+
+
+def _mask_array(mask: Any, H: int, W: int, mask_seed: int) -> np.ndarray:
+    """The initial mask: ``None`` (random binary from ``mask_seed``) or an (H, W) array/tensor of real values in [0, 1]."""
+    if mask is None:
+        return (np.random.default_rng(mask_seed).random((H, W)) < 0.5).astype(np.float64)
+    if isinstance(mask, torch.Tensor):
+        mask = mask.detach().cpu().numpy() if mask.dtype != torch.bfloat16 else mask.detach().float().cpu().numpy()
+    if not isinstance(mask, (np.ndarray, list, tuple)):
+        raise TypeError(f"CassiRenderer: mask: expected None or an ({H}, {W}) array of values in [0, 1], got {type(mask).__name__} {mask!r}")
+    a = np.asarray(mask)
+    if not (a.dtype == np.bool_ or np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        raise TypeError(f"CassiRenderer: mask: expected real values in [0, 1], got dtype {a.dtype}")
+    return a.astype(np.float64)
 
 
 class CassiRenderer(nn.Module):
@@ -570,21 +623,28 @@ class CassiRenderer(nn.Module):
                  bands_nm: Optional[Sequence[float]] = None, airy: bool = True, temperature: float = 1.0,
                  straight_through: bool = False, mask_seed: int = 0):
         super().__init__()
-        if isinstance(free, str):
-            free = [free]
-        self._base = diffcassi._native.DiffRenderer(system, int(H), int(W), [str(f) for f in free], rays=int(rays),
-                                                    planes=int(planes), seed=int(seed), bands_nm=bands_nm, airy=bool(airy))
+        w = "CassiRenderer"
+        if not isinstance(system, diffcassi.System):
+            raise TypeError(f"{w}: system: expected a diffcassi.System, got {type(system).__name__}")
+        H, W = _count(w, "H", H, 1), _count(w, "W", W, 1)
+        rays, planes = _count(w, "rays", rays, 1), _count(w, "planes", planes, 1)
+        seed, mask_seed = _count(w, "seed", seed, 0), _count(w, "mask_seed", mask_seed, 0)
+        for name, v in (("airy", airy), ("straight_through", straight_through)):
+            if not isinstance(v, (bool, np.bool_)):
+                raise TypeError(f"{w}: {name}: expected True or False, got {type(v).__name__} {v!r}")
+        if isinstance(temperature, bool) or not (isinstance(temperature, (int, float, np.integer, np.floating))
+                                                 and np.isfinite(temperature) and temperature > 0):
+            raise diffcassi.DiffcassiValueError(f"temperature = {temperature!r}: must be a finite number > 0")
+        names = _free_names(free)
+        mask = _mask_array(mask, H, W, mask_seed)
+        self._base = diffcassi._native.DiffRenderer(system, H, W, names, rays=rays, planes=planes, seed=seed,
+                                                    bands_nm=bands_nm, airy=bool(airy))
         self.names: List[str] = list(self._base.names())
         self.bands_nm: List[float] = list(self._base.bands_nm())
         self.image_shape: Tuple[int, int] = tuple(self._base.image_shape())
-        self.H, self.W = int(H), int(W)
-        if not (isinstance(temperature, (int, float)) and np.isfinite(temperature) and temperature > 0):
-            raise diffcassi.DiffcassiValueError(f"temperature = {temperature!r}: must be a finite number > 0")
+        self.H, self.W = H, W
         self.temperature = float(temperature)
         self.straight_through = bool(straight_through)
-        if mask is None:
-            mask = (np.random.default_rng(mask_seed).random((self.H, self.W)) < 0.5).astype(np.float64)
-        mask = np.asarray(mask, dtype=np.float64)
         if mask.shape != (self.H, self.W):
             raise diffcassi.DiffcassiValueError(f"mask: expected shape ({self.H}, {self.W}), got {mask.shape}")
         if not np.all(np.isfinite(mask)) or mask.min() < 0 or mask.max() > 1:
@@ -601,7 +661,14 @@ class CassiRenderer(nn.Module):
             bad = [f"{n} = {v}" for n, v in zip(self.names, values) if not np.isfinite(v)]
             if bad:
                 raise diffcassi.DiffcassiValueError(f"free parameter {', '.join(bad)} is not finite")
-            self._cache = (values, self._base.with_values(list(values)))
+            try:
+                r = self._base.with_values(list(values))
+            except diffcassi.DiffcassiValueError as e:
+                if any(n in str(e) for n in self.names):
+                    raise
+                given = ", ".join(f"{n} = {v}" for n, v in zip(self.names, values))
+                raise diffcassi.DiffcassiValueError(f"free parameter {given}: {e}") from None
+            self._cache = (values, r)
         return self._cache[1]
 
     def mask(self) -> torch.Tensor:
@@ -613,14 +680,25 @@ class CassiRenderer(nn.Module):
         return (self.mask().detach().cpu().numpy() > 0.5).astype(np.float32)
 
     def render(self, cube: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-        """The acquisition of ``cube`` through an explicit ``mask`` (H, W) in [0, 1] (differentiable in both)."""
+        """The acquisition of ``cube`` through an explicit ``mask`` (H, W) in [0, 1] (differentiable in both).
+        ``cube``: a floating-point tensor (float16, bfloat16, float32, float64; another dtype is a TypeError
+        naming it), computed in float64; the acquisition is returned in the cube's dtype, refused if it exceeds
+        that dtype's range. Radiances must be ≤ 3.4·10²⁹ in magnitude, as ``diffcassi render`` requires."""
+        where = "CassiRenderer.render"
+        _float_input("cube", cube, where)
+        _float_input("mask", mask, where)
         if cube.dim() != 4 or tuple(cube.shape[1:]) != (len(self.bands_nm), self.H, self.W):
             raise diffcassi.DiffcassiValueError(f"cube: expected shape (N, {len(self.bands_nm)}, {self.H}, {self.W}), got {tuple(cube.shape)}")
         if tuple(mask.shape) != (self.H, self.W):
             raise diffcassi.DiffcassiValueError(f"mask: expected shape ({self.H}, {self.W}), got {tuple(mask.shape)}")
+        m = mask.detach()
+        if not bool(torch.isfinite(m).all()) or float(m.min()) < 0 or float(m.max()) > 1:
+            raise diffcassi.DiffcassiValueError(f"{where}: mask: values must be finite and in [0, 1], got min {float(m.min())}, "
+                                                f"max {float(m.max())}")
         return _RenderFn.apply(cube, mask, self.theta, self)
 
     def forward(self, cube: torch.Tensor) -> torch.Tensor:
+        _float_input("cube", cube, "CassiRenderer.forward")
         m = self.mask()
         if self.straight_through:
             m = m + ((m > 0.5).to(m.dtype) - m).detach()

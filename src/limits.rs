@@ -2,8 +2,10 @@
 //! put into a system, the sizes and counts a command accepts, and each command's resource budget — memory
 //! estimated *before* allocating and traced rays — with the refusal naming the option and the estimate.
 //!
-//! The budget is process-wide, set once by the command line (`--max-memory-gb`, `--max-rays`); library users
-//! get the defaults ([`Budget::default_for_machine`]) unless they call [`set_budget`].
+//! The budget is process-wide, set by the command line (`--max-memory-gb`, `--max-rays`) or a binding
+//! (Python's `diffcassi.set_limits(max_memory_gb=…, max_rays=…)`, whose messages name those keywords:
+//! [`set_budget_named`], [`BudgetNames`]); library users get the defaults ([`Budget::default_for_machine`])
+//! unless they call [`set_budget`].
 //!
 //! ```
 //! use diffcassi::limits;
@@ -14,7 +16,7 @@
 //! assert!(limits::check_plausible_length("thickness_mm", 1e308).is_err());
 //! ```
 use crate::error::{Error, Result};
-use std::sync::OnceLock;
+use std::sync::RwLock;
 
 // ------------------------------------------------------------------ value ranges (resolved systems, rays)
 
@@ -61,6 +63,40 @@ pub struct Budget {
     /// Where the memory budget comes from (for messages).
     pub memory_source: String,
     pub rays: f64,
+    /// How users set the budgets, for messages.
+    pub names: BudgetNames,
+}
+
+/// How the users of a front end set the budgets, for messages: the option (or keyword) of each, how a value
+/// is written after it (`--max-memory-gb 2`: " ", `max_memory_gb=2`: "="), and the call that sets them
+/// (empty for the command line).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BudgetNames {
+    pub memory: String,
+    pub rays: String,
+    pub separator: String,
+    pub setter: String,
+}
+
+impl BudgetNames {
+    /// The command line's: `--max-memory-gb`, `--max-rays`.
+    pub fn cli() -> Self {
+        BudgetNames { memory: "--max-memory-gb".into(), rays: "--max-rays".into(), separator: " ".into(), setter: String::new() }
+    }
+
+    /// `name` as a message shows how to raise it: `--max-rays`, `max_rays (diffcassi.set_limits)`.
+    fn raise(&self, name: &str) -> String {
+        if self.setter.is_empty() {
+            name.to_string()
+        } else {
+            format!("{name} ({})", self.setter)
+        }
+    }
+
+    /// `name` with the value `v`: `--max-memory-gb 2`, `max_memory_gb=2`.
+    fn with_value(&self, name: &str, v: f64) -> String {
+        format!("{name}{}{v}", self.separator)
+    }
 }
 
 /// Default ray budget: 2·10¹⁰ rays, 34 paper-scale acquisitions (512² × 112 planes × 20 rays = 5.9·10⁸).
@@ -75,7 +111,7 @@ impl Budget {
             Some(b) => (b / 2.0, format!("default: half of the {:.1} GB of physical memory", b / 1e9)),
             None => (FALLBACK_MEMORY_BYTES, "default: 16 GB".to_string()),
         };
-        Budget { memory_bytes, memory_source, rays: DEFAULT_MAX_RAYS }
+        Budget { memory_bytes, memory_source, rays: DEFAULT_MAX_RAYS, names: BudgetNames::cli() }
     }
 }
 
@@ -87,32 +123,43 @@ pub fn physical_memory_bytes() -> Option<f64> {
     Some(kb * 1024.0)
 }
 
-static BUDGET: OnceLock<Budget> = OnceLock::new();
+static BUDGET: RwLock<Option<Budget>> = RwLock::new(None);
 
 /// Set the process-wide budget from `--max-memory-gb` / `--max-rays` (each `None`: the default). Values
-/// must be finite and > 0. Only the first call takes effect.
+/// must be finite and > 0 (rays ≥ 1).
 pub fn set_budget(max_memory_gb: Option<f64>, max_rays: Option<f64>) -> Result<()> {
+    set_budget_named(max_memory_gb, max_rays, BudgetNames::cli())
+}
+
+/// [`set_budget`] for a front end whose users set the budgets by `names` (its messages name them); replaces
+/// the current budget. A refused value leaves the budget as it was.
+pub fn set_budget_named(max_memory_gb: Option<f64>, max_rays: Option<f64>, names: BudgetNames) -> Result<()> {
     let mut b = Budget::default_for_machine();
     if let Some(gb) = max_memory_gb {
         if !(gb.is_finite() && gb > 0.0) {
-            return Err(Error::invalid(format!("--max-memory-gb {gb}: must be a finite number of GB > 0")));
+            return Err(Error::invalid(format!("{}: must be a finite number of GB > 0", names.with_value(&names.memory, gb))));
         }
         b.memory_bytes = gb * 1e9;
-        b.memory_source = format!("--max-memory-gb {gb}");
+        b.memory_source = names.with_value(&names.memory, gb);
     }
     if let Some(r) = max_rays {
         if !(r.is_finite() && r >= 1.0) {
-            return Err(Error::invalid(format!("--max-rays {r}: must be a finite count ≥ 1")));
+            return Err(Error::invalid(format!("{}: must be a finite count ≥ 1", names.with_value(&names.rays, r))));
         }
         b.rays = r;
     }
-    let _ = BUDGET.set(b);
+    b.names = names;
+    *BUDGET.write().unwrap_or_else(|p| p.into_inner()) = Some(b);
     Ok(())
 }
 
-/// The process-wide budget.
-pub fn budget() -> &'static Budget {
-    BUDGET.get_or_init(Budget::default_for_machine)
+/// The process-wide budget (a copy).
+pub fn budget() -> Budget {
+    if let Some(b) = BUDGET.read().unwrap_or_else(|p| p.into_inner()).as_ref() {
+        return b.clone();
+    }
+    let mut guard = BUDGET.write().unwrap_or_else(|p| p.into_inner());
+    guard.get_or_insert_with(Budget::default_for_machine).clone()
 }
 
 /// Refuse `bytes` over the memory budget, naming the options that set the size (`what`).
@@ -120,10 +167,11 @@ pub fn check_memory(what: &str, bytes: f64) -> Result<()> {
     let b = budget();
     if !(bytes <= b.memory_bytes) {
         return Err(Error::invalid(format!(
-            "{what}: needs an estimated {} of memory, over the budget of {} ({}); reduce {what} or raise --max-memory-gb",
+            "{what}: needs an estimated {} of memory, over the budget of {} ({}); reduce {what} or raise {}",
             gb(bytes),
             gb(b.memory_bytes),
-            b.memory_source
+            b.memory_source,
+            b.names.raise(&b.names.memory)
         )));
     }
     Ok(())
@@ -134,8 +182,10 @@ pub fn check_rays(what: &str, rays: f64) -> Result<()> {
     let b = budget();
     if !(rays <= b.rays) {
         return Err(Error::invalid(format!(
-            "{what}: {rays:.3e} rays to trace, over the budget of {:.3e} (--max-rays; default {DEFAULT_MAX_RAYS:.0e}, 34 paper-scale acquisitions); reduce {what} or raise --max-rays",
-            b.rays
+            "{what}: {rays:.3e} rays to trace, over the budget of {:.3e} ({}; default {DEFAULT_MAX_RAYS:.0e}, 34 paper-scale acquisitions); reduce {what} or raise {}",
+            b.rays,
+            b.names.rays,
+            b.names.raise(&b.names.rays)
         )));
     }
     Ok(())

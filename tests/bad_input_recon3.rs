@@ -69,7 +69,7 @@ fn denoiser_weights_must_be_a_bounded_regular_file() {
     let cases: [(PathBuf, &[&str]); 4] = [
         (PathBuf::from("/dev/zero"), &["/dev/zero", "not a regular file"]),
         (fifo.clone(), &["weights.fifo", "not a regular file"]),
-        (folder.clone(), &["weights-folder", "is a folder"]),
+        (folder.clone(), &["weights-folder", "is a directory"]),
         (big.clone(), &["big.safetensors", "1073741825 bytes", "1 GiB"]),
     ];
     let mut failures = Vec::new();

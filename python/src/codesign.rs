@@ -21,14 +21,37 @@ pub struct PyDiffRenderer {
 type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
 
 impl PyDiffRenderer {
-    /// (scene slice, N) of a (N, B, H, W) float64 array and the (H, W) mask.
-    fn batch(&self, scene: &[usize]) -> PyResult<usize> {
+    /// N of a (N, B, H, W) scene array, its radiances within the CLI's limit and its rays within the ray
+    /// budget.
+    fn batch(&self, scene: &[usize], values: &[f64]) -> PyResult<usize> {
         let (b, h, w) = (self.inner.scene_wavelengths_nm.len(), self.inner.config.scene_height, self.inner.config.scene_width);
         if scene[1..] != [b, h, w] {
             return Err(value_error(format!("scene: expected shape (N, {b}, {h}, {w}), got {scene:?}")));
         }
-        Ok(scene[0])
+        let max = diffcassi::limits::MAX_SCENE_VALUE;
+        if let Some(i) = values.iter().position(|v| v.abs() > max) {
+            let idx = [i / (b * h * w), i / (h * w) % b, i / w % h, i % w];
+            return Err(value_error(format!("scene: value {} at index {idx:?}: radiances must be ≤ {max:.3e} in magnitude (f32 range / 10⁹, as `diffcassi render` requires, so the acquisition cannot overflow)", diffcassi::limits::fmt_num(values[i]))));
+        }
+        let (n, planes, rays) = (scene[0], self.inner.config.spectral.planes(), self.inner.config.rays_per_pixel);
+        let what = format!("N × H × W × planes × rays ({n} × {h} × {w} × {planes} × {rays})");
+        diffcassi::limits::check_rays(&what, n as f64 * h as f64 * w as f64 * planes as f64 * rays as f64).py()?;
+        Ok(n)
     }
+}
+
+/// The ray and memory budgets of a renderer, before anything of its size is allocated: one scene's rays
+/// (H × W × planes × rays), the buffers of an H × W render and the sampler's tables (24 bytes per ray of a
+/// pixel).
+fn check_budget(height: usize, width: usize, bands: usize, planes: usize, rays: usize, airy: bool) -> PyResult<()> {
+    use diffcassi::limits;
+    if planes == 0 || planes > limits::MAX_PLANES {
+        return Err(value_error(format!("planes {planes}: must be in 1..={}", limits::MAX_PLANES)));
+    }
+    let what = format!("H × W × planes × rays ({height} × {width} × {planes} × {rays})");
+    limits::check_rays(&what, height as f64 * width as f64 * planes as f64 * rays as f64).py()?;
+    let bytes = limits::bytes_render_hw(height, width, bands, bands, planes, false, airy.then_some(2.5)) + 24.0 * rays as f64;
+    limits::check_memory(&what, bytes).py()
 }
 
 #[pymethods]
@@ -47,6 +70,7 @@ impl PyDiffRenderer {
         if free.is_empty() {
             return Err(value_error("free: name ≥ 1 parameter (e.g. [\"prism_tilt_x\"])"));
         }
+        check_budget(height, width, bands.len(), planes, rays, airy)?;
         let set = ParamSet::for_system(&system.inner, &free.join(",")).py()?;
         let mut cfg = RenderConfig::paper(height.max(1));
         (cfg.scene_height, cfg.scene_width) = (height, width);
@@ -93,7 +117,7 @@ impl PyDiffRenderer {
     fn render<'py>(&self, py: Python<'py>, scene: &Bound<'py, PyAny>, mask: &Bound<'py, PyAny>) -> PyResult<Arr<'py>> {
         let s = input::<f64>("scene", scene, "float64", 4, "(N, B, H, W)")?;
         let m = input::<f64>("mask", mask, "float64", 2, "(H, W)")?;
-        let n = self.batch(&s.shape)?;
+        let n = self.batch(&s.shape, s.slice())?;
         let (ss, ms) = (s.slice(), m.slice());
         let img = run(py, || self.inner.render(ss, n, ms)).py()?;
         let (h, w) = self.inner.image_shape();
@@ -111,7 +135,7 @@ impl PyDiffRenderer {
         let s = input::<f64>("scene", scene, "float64", 4, "(N, B, H, W)")?;
         let m = input::<f64>("mask", mask, "float64", 2, "(H, W)")?;
         let g = input::<f64>("grad", grad, "float64", 3, "(N, h, w)")?;
-        let n = self.batch(&s.shape)?;
+        let n = self.batch(&s.shape, s.slice())?;
         let (ss, ms, gs) = (s.slice(), m.slice(), g.slice());
         let wanted = Wanted { params, mask: mask_grad, scene: scene_grad };
         let v = run(py, || self.inner.vjp_wanted(ss, n, ms, gs, wanted)).py()?;

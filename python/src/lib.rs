@@ -15,6 +15,7 @@ use pyo3::prelude::*;
 mod arrays;
 mod codesign;
 mod errors;
+mod limits;
 mod pool;
 mod recon;
 mod render;
@@ -24,10 +25,13 @@ mod system;
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     pool::init();
+    limits::init()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("EMBREE", cfg!(feature = "embree"))?;
     m.add_function(wrap_pyfunction!(pool::set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(pool::get_num_threads, m)?)?;
+    m.add_function(wrap_pyfunction!(limits::set_limits, m)?)?;
+    m.add_function(wrap_pyfunction!(limits::get_limits, m)?)?;
     system::register(m)?;
     render::register(m)?;
     recon::register(m)?;

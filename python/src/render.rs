@@ -1,14 +1,14 @@
 //! `render` and `Transport`: coded acquisitions from NumPy scene cubes.
 //!
 //! The settings keywords are parsed in one place ([`crate::settings`]): every setting the caller leaves at
-//! `None` takes the CLI's default, so `render(system, scene, wl)` and
+//! `None` takes the library's default (the CLI's too), so `render(system, scene, wl)` and
 //! `diffcassi render --scene FILE --scene-size N` give the same acquisition bit for bit.
 use crate::arrays::{check_finite, f64_list, input, output, seed_arg, size_arg, Input};
 use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::settings::{configure, extra};
 use crate::system::{tracer, PySystem};
-use diffcassi::cli::render::NoiseArgs;
+use diffcassi::render::NoiseSettings;
 use diffcassi::recon::{CsrMatrix, CubeShape, ExactOperator, ImageShape, Operator, SparseExport};
 use diffcassi::render::{output as render_output, Mask, RenderConfig, Renderer};
 use pyo3::types::PyDict;
@@ -28,8 +28,8 @@ pub fn scene_cube(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>) -> PyResul
 /// [`scene_cube`] copying the scene into `buffer` (its capacity reused: a warm buffer saves the page
 /// faults of a fresh scene-sized allocation at every call). The finiteness scan is `SpectralCube::new`'s;
 /// only when it fails is the array scanned again for the message naming the argument and index. Then the
-/// CLI's radiance limits (`diffcassi::cli::render::check_scene_values`: finite, ≥ 0, ≤
-/// [`diffcassi::limits::MAX_SCENE_VALUE`], so the acquisition cannot overflow), with the CLI's message.
+/// library's radiance limits (`diffcassi::render::settings::check_scene_values`, the CLI's too: finite, ≥ 0,
+/// ≤ [`diffcassi::limits::MAX_SCENE_VALUE`], so the acquisition cannot overflow), with the CLI's message.
 pub fn scene_cube_in(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>, mut buffer: Vec<f32>) -> PyResult<SpectralCube> {
     let a: Input<f32> = input("scene", scene, "float32", 3, "(H, W, B)")?;
     if a.shape[2] != wavelengths_nm.len() {
@@ -41,7 +41,7 @@ pub fn scene_cube_in(scene: &Bound<'_, PyAny>, wavelengths_nm: Vec<f64>, mut buf
         check_finite("scene", a.slice(), &a.shape)?;
         Err(crate::errors::to_py(e))
     })?;
-    diffcassi::cli::render::check_scene_values(&cube).map_err(|m| value_error(format!("scene: {m}")))?;
+    diffcassi::render::settings::check_scene_values(&cube).map_err(|m| value_error(format!("scene: {m}")))?;
     Ok(cube)
 }
 
@@ -64,8 +64,8 @@ fn _render<'py>(
 ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, String)> {
     let t0 = Instant::now();
     let s = crate::settings::settings(py, settings, &NOISE_KEYS)?;
-    // The CLI's own noise options and checks (`render --noise ...`).
-    let noise = NoiseArgs {
+    // The library's noise settings and checks (the CLI's `render --noise ...`).
+    let noise = NoiseSettings {
         noise: extra(&s, "noise", "a string")?,
         full_well_e: extra(&s, "full_well_e", "a number")?,
         electrons_per_unit: extra(&s, "electrons_per_unit", "a number")?,

@@ -1,32 +1,23 @@
 //! Render settings from Python keywords, parsed in one place for every call that takes them (`render`,
 //! `Transport`, `exact`, `mapping_operator`, `shift_operator`): the keywords arrive as `**settings`, each
 //! is checked here (type and name; a `ValueError` names a wrong one and lists the valid ones), and every
-//! setting left out or `None` takes the CLI's default, read from the CLI's own argument definitions
-//! (`diffcassi::cli::render::RenderCommon`, parsed from an empty command line) and turned into a
-//! configuration by the CLI's own `config_from`.
+//! setting left out or `None` takes the library's default ([`diffcassi::render::RenderSettings::default`],
+//! the CLI's too), checked and turned into a configuration by the library
+//! ([`diffcassi::render::RenderSettings::config_hw`]).
 //!
 //! ```text
 //! diffcassi.Transport(sp, 32, 32, rays=4, airy=False)   # -> Settings { options: rays 4, airy false, .. }
 //! ```
 use crate::arrays::{f64_list, input, Input};
 use crate::errors::{value_error, IntoPy};
-use clap::Parser;
-use diffcassi::cli::render::{config_from, RenderCommon};
-use diffcassi::render::{Mask, RenderConfig};
+use diffcassi::render::{Device, Mask, MaskSource, RenderConfig, RenderSettings, Sampling};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 /// The render keywords every settings-taking call accepts (besides `mask`, which is positional).
-pub const RENDER_KEYS: [&str; 10] = ["bands_nm", "planes", "rays", "seed", "sampling", "opening", "mask_seed", "airy_diameter_px", "airy", "backend"];
+pub const RENDER_KEYS: [&str; 11] = ["bands_nm", "planes", "rays", "seed", "sampling", "opening", "mask_seed", "airy_diameter_px", "airy", "backend", "device"];
 
-/// The CLI's render arguments with their defaults (an empty command line).
-#[derive(Parser)]
-struct CliDefaults {
-    #[command(flatten)]
-    common: RenderCommon,
-}
-
-/// Render settings from Python keywords; `None` = the CLI's default.
+/// Render settings from Python keywords; `None` = the library's default.
 #[derive(Default, Clone)]
 pub struct Options {
     pub bands_nm: Option<Vec<f64>>,
@@ -38,48 +29,62 @@ pub struct Options {
     pub mask_seed: Option<u64>,
     pub airy_diameter_px: Option<f64>,
     pub airy: Option<bool>,
+    pub device: Option<String>,
 }
 
-/// The render configuration and mask for a `height × width` scene (the CLI's `config_from`, then the
-/// caller's mask array if any).
-pub fn configure(height: usize, width: usize, o: &Options, mask: Option<&Bound<'_, PyAny>>) -> PyResult<(RenderConfig, Mask)> {
-    let mut c = CliDefaults::try_parse_from(["diffcassi"]).map_err(|e| value_error(format!("internal: CLI defaults: {e}")))?.common;
-    if height == 0 || width == 0 {
-        return Err(value_error(format!("scene size {height}×{width}: must be ≥ 1")));
-    }
-    // The CLI's checks (sizes, planes, Airy, memory and rays of an n × n render) run in `config_from` on the
-    // smaller side; a rectangle's own pixel count is checked right after, before anything of its size is
-    // allocated.
-    c.scene_size = height.min(width);
-    if let Some(b) = &o.bands_nm {
-        if b.is_empty() {
-            return Err(value_error("bands_nm: empty"));
+impl Options {
+    /// The library's settings: its defaults, overridden by the keywords given.
+    fn settings(&self) -> PyResult<RenderSettings> {
+        let mut s = RenderSettings::default();
+        if let Some(b) = &self.bands_nm {
+            if b.is_empty() {
+                return Err(value_error("bands_nm: empty"));
+            }
+            s.bands_nm = b.clone();
         }
-        c.bands = b.iter().map(|v| format!("{v}")).collect::<Vec<_>>().join(",");
+        if let Some(p) = self.planes {
+            s.planes = p;
+        }
+        s.rays = self.rays;
+        s.seed = self.seed.unwrap_or(s.seed);
+        if let Some(name) = &self.sampling {
+            s.sampling = match name.as_str() {
+                "stratified" => Sampling::Stratified,
+                "independent" => Sampling::Independent,
+                _ => return Err(value_error(format!("--sampling `{name}`: use stratified or independent"))),
+            };
+        }
+        if let MaskSource::Random { opening, seed } = &mut s.mask {
+            *opening = self.opening.unwrap_or(*opening);
+            *seed = self.mask_seed.unwrap_or(*seed);
+        }
+        if self.airy == Some(false) && self.airy_diameter_px.is_some() {
+            return Err(value_error("airy=False with airy_diameter_px: give one or the other (airy_diameter_px sets the blur that airy=False turns off)"));
+        }
+        if let Some(d) = self.airy_diameter_px {
+            s.airy_diameter_px = Some(d);
+        }
+        if self.airy == Some(false) {
+            s.airy_diameter_px = None;
+        }
+        if let Some(d) = &self.device {
+            s.device = d.parse::<Device>().map_err(|_| value_error(format!("device `{d}`: use \"cpu\" (or \"cuda\", once a CUDA backend is built)")))?;
+            if s.device == Device::Cuda {
+                return Err(value_error("device \"cuda\": no CUDA backend in this build (use device=\"cpu\")"));
+            }
+        }
+        Ok(s)
     }
-    if let Some(p) = o.planes {
-        c.planes = p;
+}
+
+/// The render configuration and mask for a `height × width` scene (the library's checks and budgets,
+/// then the caller's mask array if any).
+pub fn configure(height: usize, width: usize, o: &Options, mask: Option<&Bound<'_, PyAny>>) -> PyResult<(RenderConfig, Mask)> {
+    let s = o.settings()?;
+    if mask.is_some() && (o.opening.is_some() || o.mask_seed.is_some()) {
+        return Err(value_error("mask with opening or mask_seed: those set the random mask, which a given mask replaces; give one or the other"));
     }
-    c.rays = o.rays.or(c.rays);
-    c.seed = o.seed.unwrap_or(c.seed);
-    if let Some(s) = &o.sampling {
-        c.sampling = s.clone();
-    }
-    c.opening = o.opening.unwrap_or(c.opening);
-    c.mask_seed = o.mask_seed.unwrap_or(c.mask_seed);
-    c.airy_diameter_px = o.airy_diameter_px.unwrap_or(c.airy_diameter_px);
-    if let Some(a) = o.airy {
-        c.no_airy = !a;
-    }
-    let (mut cfg, mut m) = config_from(&c).py()?;
-    if width != height {
-        check_rectangle(height, width, &c, &cfg).py()?;
-    }
-    cfg.scene_height = height;
-    cfg.scene_width = width;
-    if width != height {
-        m = Mask::random(height, width, c.opening, c.mask_seed).py()?;
-    }
+    let (cfg, mut m) = s.config_hw(height, width).py()?;
     if let Some(obj) = mask {
         let a: Input<f32> = input("mask", obj, "float32", 2, "(H, W)")?;
         if a.shape != [height, width] {
@@ -92,19 +97,6 @@ pub fn configure(height: usize, width: usize, o: &Options, mask: Option<&Bound<'
         m = Mask { height, width, values: v.to_vec(), description: "caller-provided array".into() };
     }
     Ok((cfg, m))
-}
-
-/// The CLI's memory and ray budgets of a `height × width` render (`config_from` checks squares): the
-/// same estimate ([`diffcassi::limits::bytes_render_hw`]) and messages, naming the Python arguments.
-fn check_rectangle(height: usize, width: usize, c: &RenderCommon, cfg: &RenderConfig) -> diffcassi::Result<()> {
-    use diffcassi::limits;
-    let bands = cfg.spectral.bands_nm.len();
-    let planes = cfg.spectral.planes();
-    let airy = cfg.airy.as_ref().map(|a| a.diameter_px);
-    let what = format!("height × width {height}×{width} × planes {planes} (× {bands} bands)");
-    limits::check_memory(&what, limits::bytes_render_hw(height, width, bands.max(31), bands, planes, false, airy))?;
-    let rays = c.rays.unwrap_or(20);
-    limits::check_rays(&format!("height × width {height}×{width} × planes {planes} × rays {rays}"), height as f64 * width as f64 * planes as f64 * rays as f64)
 }
 
 /// The parsed keywords: the render options, the backend name, and the call's own extra keywords (those
@@ -143,6 +135,7 @@ pub fn settings<'py>(py: Python<'py>, kwargs: Option<&Bound<'py, PyDict>>, extra
             "mask_seed" => o.mask_seed = Some(get(&key, &v, "an integer ≥ 0")?),
             "airy_diameter_px" => o.airy_diameter_px = Some(get(&key, &v, "a number")?),
             "airy" => o.airy = Some(get(&key, &v, "True or False")?),
+            "device" => o.device = Some(get(&key, &v, "\"cpu\"")?),
             "backend" => s.backend = get(&key, &v, "a backend name")?,
             other if extra.contains(&other) => s.extra.set_item(other, v)?,
             other => {

@@ -136,6 +136,9 @@ impl PySystem {
     /// A spec file, by extension: `.toml`, `.json`, `.yml`/`.yaml` (the paper's format), `.csv` (Zemax).
     #[staticmethod]
     fn from_file(py: Python<'_>, path: std::path::PathBuf) -> PyResult<Self> {
+        if path.is_dir() {
+            return Err(file_error(format!("{}: is a directory, not a system file", path.display())));
+        }
         if !path.is_file() {
             return Err(file_error(format!("{}: no such file", path.display())));
         }
@@ -280,9 +283,9 @@ impl PySystem {
 
 fn pupil_points(pupil: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<[f64; 2]>> {
     match pupil {
-        None => Ok(diffcassi::cli::parse_pupil("hexapolar:12").py()?.points()),
+        None => Ok("hexapolar:12".parse::<diffcassi::rays::PupilPattern>().py()?.points()),
         Some(p) => match p.extract::<String>() {
-            Ok(text) => Ok(diffcassi::cli::parse_pupil(&text).py()?.points()),
+            Ok(text) => Ok(text.parse::<diffcassi::rays::PupilPattern>().py()?.points()),
             Err(_) => points2("pupil", p),
         },
     }

@@ -33,7 +33,8 @@ pub mod reconstruct;
 pub mod study;
 
 pub use args::*;
-/// Text forms shared with other front ends (the C++ API parses pupil patterns the same way).
+/// Text forms of the command line (the bindings parse pupil patterns with the library's
+/// [`crate::rays::PupilPattern::parse_for`], which `parse_pupil` calls).
 pub use shared::{parse_pupil, parse_wavelengths};
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 

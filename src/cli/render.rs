@@ -10,15 +10,18 @@
 use super::args::{BackendArgs, SystemArgs};
 use super::shared::{load_system, parse_wavelengths, parse_wavelengths_for};
 use crate::error::{Error, Result};
-use crate::render::{output, AiryConfig, Mask, NoiseConfig, RenderConfig, Renderer, Sampling, SpectralSampling};
+use crate::render::settings::{MaskSource, NoiseSettings, RenderSettings};
+use crate::render::{output, Mask, NoiseConfig, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
+pub use crate::render::settings::{check_render_rays, check_scene_values};
 use crate::tracer::AnalyticTracer;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// Settings shared by `render` and `render-dataset`.
+/// Settings shared by `render` and `render-dataset`: the command-line form of the library's
+/// [`RenderSettings`] (defaults, limits and checks live there; [`RenderCommon::settings`] converts).
 #[derive(Args, Debug, Clone)]
 pub struct RenderCommon {
     #[command(flatten)]
@@ -46,14 +49,14 @@ pub struct RenderCommon {
     /// Mask file (greyscale PNG or (H, W) NPY); default a random binary mask.
     #[arg(long)]
     pub mask: Option<PathBuf>,
-    /// Opening ratio of the random mask.
-    #[arg(long, default_value_t = 0.5)]
+    /// Opening ratio of the random mask (not with --mask).
+    #[arg(long, default_value_t = 0.5, conflicts_with = "mask")]
     pub opening: f64,
-    /// Seed of the random mask.
-    #[arg(long = "mask-seed", default_value_t = 0)]
+    /// Seed of the random mask (not with --mask).
+    #[arg(long = "mask-seed", default_value_t = 0, conflicts_with = "mask")]
     pub mask_seed: u64,
-    /// Airy disk diameter (pixels) at 520 nm, ∝ λ.
-    #[arg(long = "airy-diameter-px", default_value_t = 2.5)]
+    /// Airy disk diameter (pixels) at 520 nm, ∝ λ (not with --no-airy).
+    #[arg(long = "airy-diameter-px", default_value_t = 2.5, conflicts_with = "no_airy")]
     pub airy_diameter_px: f64,
     /// No diffraction blur.
     #[arg(long = "no-airy")]
@@ -79,6 +82,35 @@ pub struct RenderCommon {
     /// --tolerance-um, chosen.
     #[arg(long, value_name = "f64|f32", value_parser = <crate::tracer::Precision as std::str::FromStr>::from_str)]
     pub precision: Option<crate::tracer::Precision>,
+    /// Where to render: cpu (the only device of this build; cuda is refused until a CUDA backend lands).
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda")]
+    pub device: String,
+}
+
+impl RenderCommon {
+    /// The library's render settings these options describe (the text forms parsed; the values checked
+    /// by [`RenderSettings::config`]).
+    pub fn settings(&self) -> Result<RenderSettings> {
+        Ok(RenderSettings {
+            scene_size: self.scene_size,
+            bands_nm: parse_wavelengths_for("--bands", &self.bands)?,
+            planes: self.planes,
+            rays: self.rays,
+            seed: self.seed,
+            sampling: parse_sampling(&self.sampling)?,
+            mask: match &self.mask {
+                Some(p) => MaskSource::File(p.clone()),
+                None => MaskSource::Random { opening: self.opening, seed: self.mask_seed },
+            },
+            airy_diameter_px: (!self.no_airy).then_some(self.airy_diameter_px),
+            scene_wavelengths_nm: self.scene_wavelengths.as_deref().map(|t| parse_wavelengths_for("--scene-wavelengths", t)).transpose()?,
+            fit: parse_fit(&self.fit)?,
+            cube: self.cube,
+            kernel: self.kernel.parse()?,
+            precision: self.precision,
+            device: self.device.parse()?,
+        })
+    }
 }
 
 
@@ -131,55 +163,21 @@ pub struct NoiseArgs {
 }
 
 impl NoiseArgs {
-    /// The noise the options describe (`None`: off). Options of a source that is not selected are errors.
+    /// The library's noise settings these options describe.
+    pub fn settings(&self) -> NoiseSettings {
+        NoiseSettings {
+            noise: self.noise.clone(),
+            full_well_e: self.full_well_e,
+            electrons_per_unit: self.electrons_per_unit,
+            read_noise_e: self.read_noise_e,
+            adc_bits: self.adc_bits,
+            noise_seed: self.noise_seed,
+        }
+    }
+
+    /// The noise the options describe (`None`: off); see [`NoiseSettings::config`].
     pub fn config(&self) -> Result<Option<NoiseConfig>> {
-        let list = self.noise.as_deref().unwrap_or("none").trim();
-        let mut cfg = NoiseConfig::default();
-        let (mut read, mut adc) = (false, false);
-        if list != "none" {
-            for item in list.split(',').map(str::trim) {
-                match item {
-                    "shot" => cfg.shot = true,
-                    "read" => read = true,
-                    "adc" => adc = true,
-                    _ => return Err(Error::invalid(format!("--noise `{item}`: use a comma list of shot, read, adc (or none)"))),
-                }
-            }
-        }
-        let on = cfg.shot || read || adc;
-        let given = [
-            ("--full-well-e", self.full_well_e.is_some()),
-            ("--electrons-per-unit", self.electrons_per_unit.is_some()),
-            ("--noise-seed", self.noise_seed.is_some()),
-        ];
-        if let Some((name, _)) = given.iter().find(|g| g.1 && !on) {
-            return Err(Error::invalid(format!("{name} needs --noise (shot, read and/or adc)")));
-        }
-        if self.read_noise_e.is_some() && !read {
-            return Err(Error::invalid("--read-noise-e needs `read` in --noise"));
-        }
-        if self.adc_bits.is_some() && !adc {
-            return Err(Error::invalid("--adc-bits needs `adc` in --noise"));
-        }
-        if !on {
-            return Ok(None);
-        }
-        if let Some(f) = self.full_well_e {
-            cfg.full_well_e = f;
-        }
-        cfg.electrons_per_unit = self.electrons_per_unit;
-        if read {
-            cfg.read_noise_e = self.read_noise_e.unwrap_or(2.0);
-            if cfg.read_noise_e == 0.0 {
-                return Err(Error::invalid("--read-noise-e 0 with `read` in --noise: drop `read` instead"));
-            }
-        }
-        if adc {
-            cfg.adc_bits = Some(self.adc_bits.unwrap_or(12));
-        }
-        cfg.seed = self.noise_seed.unwrap_or(0);
-        cfg.validate().map_err(|e| Error::invalid(format!("--noise: {e}")))?;
-        Ok(Some(cfg))
+        self.settings().config()
     }
 }
 
@@ -243,64 +241,9 @@ pub(super) fn parse_fit(s: &str) -> Result<Fit> {
     }
 }
 
-/// The render settings and mask the arguments describe.
+/// The render settings and mask the arguments describe ([`RenderSettings::config`]).
 pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
-    let n = a.scene_size;
-    if n == 0 {
-        return Err(Error::invalid("--scene-size must be ≥ 1"));
-    }
-    let bands = parse_wavelengths_for("--bands", &a.bands)?;
-    if a.planes == 0 || a.planes > crate::limits::MAX_PLANES {
-        return Err(Error::invalid(format!("--planes {}: must be in 1..={}", a.planes, crate::limits::MAX_PLANES)));
-    }
-    if !(a.airy_diameter_px.is_finite() && a.airy_diameter_px > 0.0 && a.airy_diameter_px <= crate::limits::MAX_AIRY_DIAMETER_PX) {
-        return Err(Error::invalid(format!("--airy-diameter-px {}: must be in (0, {}] pixels", a.airy_diameter_px, crate::limits::MAX_AIRY_DIAMETER_PX)));
-    }
-    if a.rays == Some(0) {
-        return Err(Error::invalid("--rays must be ≥ 1"));
-    }
-    if !(a.opening.is_finite() && (0.0..=1.0).contains(&a.opening)) {
-        return Err(Error::invalid(format!("--opening {}: the mask's opening ratio must be in [0, 1]", a.opening)));
-    }
-    parse_fit(&a.fit)?;
-    parse_sampling(&a.sampling)?;
-    let scene_bands = match &a.scene_wavelengths {
-        Some(t) => parse_wavelengths_for("--scene-wavelengths", t)?.len(),
-        None => bands.len().max(31),
-    };
-    let what = format!("--scene-size {n} × --planes {} (× {} bands)", a.planes, bands.len());
-    crate::limits::check_memory(&what, crate::limits::bytes_render(n, scene_bands, bands.len(), a.planes, a.cube, (!a.no_airy).then_some(a.airy_diameter_px)))?;
-    // The ray budget with the given (or default) rays per pixel; a --tolerance-um choice is checked again.
-    check_render_rays(n, a.planes, a.rays.unwrap_or(20))?;
-    let spectral = SpectralSampling::with_planes(bands, a.planes)?;
-    let mut cfg = RenderConfig::paper(n);
-    cfg.spectral = spectral;
-    cfg.rays_per_pixel = a.rays.unwrap_or(20);
-    cfg.seed = a.seed;
-    cfg.sampling = parse_sampling(&a.sampling)?;
-    cfg.kernel = a.kernel.parse()?;
-    cfg.kernel.resolve()?;
-    cfg.precision = a.precision.unwrap_or_default();
-    if cfg.precision == crate::tracer::Precision::F32 {
-        cfg.precision.level(cfg.kernel)?; // f32 has no scalar kernel
-    }
-    cfg.airy = (!a.no_airy).then_some(AiryConfig { diameter_px: a.airy_diameter_px, ..AiryConfig::default() });
-    let mask = match &a.mask {
-        Some(p) => {
-            let m = Mask::load(p)?;
-            if m.height != n || m.width != n {
-                return Err(Error::File { path: p.display().to_string(), message: format!("the mask is {}×{} but --scene-size is {n}", m.height, m.width) });
-            }
-            m
-        }
-        None => Mask::random(n, n, a.opening, a.mask_seed)?,
-    };
-    Ok((cfg, mask))
-}
-
-/// Rays of a render: N² pixels × planes × rays per pixel, within the ray budget.
-pub fn check_render_rays(n: usize, planes: usize, rays: usize) -> Result<()> {
-    crate::limits::check_rays(&format!("--scene-size {n} × --planes {planes} × --rays {rays}"), (n as f64).powi(2) * planes as f64 * rays as f64)
+    a.settings()?.config()
 }
 
 /// The tracer and rays per pixel: as given, or chosen by `--tolerance-um`; sets `cfg.precision` (given,
@@ -325,24 +268,6 @@ pub(super) fn load_fitted(path: &Path, a: &RenderCommon) -> Result<(SpectralCube
     check_scene_values(&cube).map_err(|m| Error::File { path: path.display().to_string(), message: m })?;
     let desc = serde_json::json!({"source": path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "native_wavelengths_nm": raw.wavelengths_nm, "fit": fit});
     Ok((cube, desc))
-}
-
-/// Scene radiances must be finite, ≥ 0 and below [`crate::limits::MAX_SCENE_VALUE`] (so that sums over
-/// planes, rays and the Airy kernel cannot overflow the f32 images).
-pub fn check_scene_values(cube: &SpectralCube) -> std::result::Result<(), String> {
-    for (i, &v) in cube.data.iter().enumerate() {
-        let v = v as f64;
-        if !v.is_finite() || v < 0.0 || v > crate::limits::MAX_SCENE_VALUE {
-            let (b, px) = (i % cube.wavelengths_nm.len().max(1), i / cube.wavelengths_nm.len().max(1));
-            return Err(format!(
-                "scene value {v} at pixel ({}, {}), band {b}: radiances must be finite, ≥ 0 and ≤ {:.3e} (f32 range / 10⁹, so the acquisition cannot overflow)",
-                px / cube.width.max(1),
-                px % cube.width.max(1),
-                crate::limits::MAX_SCENE_VALUE
-            ));
-        }
-    }
-    Ok(())
 }
 
 pub(super) fn progress_bar(total: u64, what: &str) -> ProgressBar {

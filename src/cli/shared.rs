@@ -117,57 +117,10 @@ pub fn parse_field(text: &str) -> Result<[f64; 2]> {
     Ok(v)
 }
 
-/// `chief`, `marginal`, `hexapolar:R`, `grid:N`, `grid-step:S`, `random:N:SEED`.
+/// `chief`, `marginal`, `hexapolar:R`, `grid:N`, `grid-step:S`, `random:N:SEED` ([`PupilPattern::parse_for`],
+/// naming `--pupil`).
 pub fn parse_pupil(text: &str) -> Result<PupilPattern> {
-    let bad = |why: &str| Error::invalid(format!("--pupil `{text}`: {why} (chief, marginal, hexapolar:RINGS, grid:N, grid-step:STEP, random:N:SEED)"));
-    let parts: Vec<&str> = text.split(':').collect();
-    let int = |k: usize| -> Result<usize> { parts.get(k).ok_or_else(|| bad("missing number"))?.parse().map_err(|_| bad("not a whole number")) };
-    let p = match parts[0] {
-        "chief" => PupilPattern::Chief,
-        "marginal" => PupilPattern::Marginal,
-        "hexapolar" => PupilPattern::Hexapolar { rings: int(1)?.max(0) },
-        "grid" => {
-            let n = int(1)?;
-            if n == 0 {
-                return Err(bad("grid:N needs N ≥ 1 (grid:1 is the chief ray)"));
-            }
-            PupilPattern::Grid { n }
-        }
-        "grid-step" => {
-            let step: f64 = parts.get(1).ok_or_else(|| bad("missing step"))?.parse().map_err(|_| bad("step is not a number"))?;
-            if !(step > 0.0 && step <= 1.0) {
-                return Err(bad("step must be in (0, 1]"));
-            }
-            PupilPattern::GridStep { step }
-        }
-        "random" => {
-            let n = int(1)?;
-            if n == 0 {
-                return Err(bad("random:N:SEED needs N ≥ 1"));
-            }
-            let seed: u64 = parts.get(2).ok_or_else(|| bad("missing seed"))?.parse().map_err(|_| bad("seed is not a whole number ≥ 0"))?;
-            PupilPattern::Random { n, seed }
-        }
-        _ => return Err(bad("unknown pattern")),
-    };
-    if parts.len() > match p { PupilPattern::Chief | PupilPattern::Marginal => 1, PupilPattern::Random { .. } => 3, _ => 2 } {
-        return Err(bad("too many `:` parts"));
-    }
-    let count = pupil_count(&p);
-    crate::limits::check_memory(&format!("--pupil {text} ({count:.3e} points)"), count * crate::limits::BYTES_PER_RAY)?;
-    Ok(p)
-}
-
-/// Upper bound on the number of points of a pupil pattern, computed without generating them.
-fn pupil_count(p: &PupilPattern) -> f64 {
-    match *p {
-        PupilPattern::Chief => 1.0,
-        PupilPattern::Marginal => 4.0,
-        PupilPattern::Hexapolar { rings } => 1.0 + 3.0 * rings as f64 * (rings as f64 + 1.0),
-        PupilPattern::Grid { n } => (n as f64).powi(2),
-        PupilPattern::GridStep { step } => (2.0 / step + 1.0).powi(2),
-        PupilPattern::Random { n, .. } => n as f64,
-    }
+    PupilPattern::parse_for("--pupil", text)
 }
 
 // ---------------------------------------------------------------- timing

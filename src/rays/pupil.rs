@@ -1,3 +1,6 @@
+//! Normalised pupil sampling patterns and their text form (`chief`, `hexapolar:12`, …: [`PupilPattern::parse_for`],
+//! `str::parse`), shared by the command line and the bindings.
+use crate::error::{Error, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -79,6 +82,71 @@ impl PupilPattern {
     }
 }
 
+impl PupilPattern {
+    /// `chief`, `marginal`, `hexapolar:R`, `grid:N`, `grid-step:S`, `random:N:SEED`; errors name `option`
+    /// (the command line's `--pupil`, a binding's keyword) and the text. The pattern's point count is
+    /// checked against the memory budget before any point is generated.
+    pub fn parse_for(option: &str, text: &str) -> Result<PupilPattern> {
+        let bad = |why: &str| Error::invalid(format!("{option} `{text}`: {why} (chief, marginal, hexapolar:RINGS, grid:N, grid-step:STEP, random:N:SEED)"));
+        let parts: Vec<&str> = text.split(':').collect();
+        let int = |k: usize| -> Result<usize> { parts.get(k).ok_or_else(|| bad("missing number"))?.parse().map_err(|_| bad("not a whole number")) };
+        let p = match parts[0] {
+            "chief" => PupilPattern::Chief,
+            "marginal" => PupilPattern::Marginal,
+            "hexapolar" => PupilPattern::Hexapolar { rings: int(1)? },
+            "grid" => {
+                let n = int(1)?;
+                if n == 0 {
+                    return Err(bad("grid:N needs N ≥ 1 (grid:1 is the chief ray)"));
+                }
+                PupilPattern::Grid { n }
+            }
+            "grid-step" => {
+                let step: f64 = parts.get(1).ok_or_else(|| bad("missing step"))?.parse().map_err(|_| bad("step is not a number"))?;
+                if !(step > 0.0 && step <= 1.0) {
+                    return Err(bad("step must be in (0, 1]"));
+                }
+                PupilPattern::GridStep { step }
+            }
+            "random" => {
+                let n = int(1)?;
+                if n == 0 {
+                    return Err(bad("random:N:SEED needs N ≥ 1"));
+                }
+                let seed: u64 = parts.get(2).ok_or_else(|| bad("missing seed"))?.parse().map_err(|_| bad("seed is not a whole number ≥ 0"))?;
+                PupilPattern::Random { n, seed }
+            }
+            _ => return Err(bad("unknown pattern")),
+        };
+        if parts.len() > match p { PupilPattern::Chief | PupilPattern::Marginal => 1, PupilPattern::Random { .. } => 3, _ => 2 } {
+            return Err(bad("too many `:` parts"));
+        }
+        let count = p.count_bound();
+        crate::limits::check_memory(&format!("{option} {text} ({count:.3e} points)"), count * crate::limits::BYTES_PER_RAY)?;
+        Ok(p)
+    }
+
+    /// Upper bound on the number of points, computed without generating them.
+    pub fn count_bound(&self) -> f64 {
+        match *self {
+            PupilPattern::Chief => 1.0,
+            PupilPattern::Marginal => 4.0,
+            PupilPattern::Hexapolar { rings } => 1.0 + 3.0 * rings as f64 * (rings as f64 + 1.0),
+            PupilPattern::Grid { n } => (n as f64).powi(2),
+            PupilPattern::GridStep { step } => (2.0 / step + 1.0).powi(2),
+            PupilPattern::Random { n, .. } => n as f64,
+        }
+    }
+}
+
+impl std::str::FromStr for PupilPattern {
+    type Err = Error;
+    /// [`PupilPattern::parse_for`] naming the argument `pupil`.
+    fn from_str(text: &str) -> Result<Self> {
+        PupilPattern::parse_for("pupil", text)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -90,5 +158,13 @@ mod tests {
         let a = PupilPattern::Random { n: 100, seed: 7 }.points();
         assert_eq!(a, PupilPattern::Random { n: 100, seed: 7 }.points());
         assert!(a.iter().all(|p| p[0] * p[0] + p[1] * p[1] <= 1.0));
+    }
+
+    #[test]
+    fn text_forms() {
+        assert_eq!("hexapolar:12".parse::<PupilPattern>().unwrap(), PupilPattern::Hexapolar { rings: 12 });
+        assert_eq!("random:5:9".parse::<PupilPattern>().unwrap(), PupilPattern::Random { n: 5, seed: 9 });
+        assert!("grid:0".parse::<PupilPattern>().unwrap_err().to_string().starts_with("pupil `grid:0`: grid:N needs N"));
+        assert!(PupilPattern::parse_for("--pupil", "chief:2").unwrap_err().to_string().contains("--pupil `chief:2`: too many"));
     }
 }

@@ -8,7 +8,8 @@
 //! the planes are summed ([`engine`]). Planes: B bands × F ([`spectral`]). The detector covers the
 //! dispersed footprint ([`detector`]). Dataset mode ([`dataset`]) traces the transport once and applies it
 //! to many scenes, bit-identically. Optional sensor noise ([`noise`]: shot, read, ADC) is applied to the
-//! finished acquisition. [`gradient`]: the acquisition differentiable with respect to the optical
+//! finished acquisition. [`settings`]: what a render takes, its defaults and checks, for every front end.
+//! [`gradient`]: the acquisition differentiable with respect to the optical
 //! parameters, the mask and the scene (co-design).
 //!
 //! ```
@@ -38,6 +39,7 @@ pub mod mask;
 pub mod noise;
 pub mod output;
 pub mod sampling;
+pub mod settings;
 pub mod spectral;
 pub mod transport;
 pub mod trig;
@@ -50,5 +52,6 @@ pub use engine::*;
 pub use mask::Mask;
 pub use noise::{NoiseConfig, NoiseReport};
 pub use sampling::{RaySampler, Sampling};
+pub use settings::{Device, MaskSource, NoiseSettings, RenderSettings};
 pub use spectral::SpectralSampling;
 pub use transport::{Footprint, PlaneTransport, RayStats};

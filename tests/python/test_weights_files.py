@@ -25,7 +25,7 @@ def bad_files(tmp_path):
     big = tmp_path / "big.safetensors"
     with open(big, "wb") as f:
         f.truncate((1 << 30) + 1)
-    return [(str(folder), "is a folder"), (str(fifo), "not a regular file"), ("/dev/zero", "not a regular file"),
+    return [(str(folder), "is a directory"), (str(fifo), "not a regular file"), ("/dev/zero", "not a regular file"),
             (str(big), "1073741825 bytes")]
 
 
@@ -43,7 +43,8 @@ def test_torch_loaders_refuse_non_regular_weights(bad_files):
     from diffcassi.denoiser import load_weights
     from diffcassi.unrolled import read_metadata
     for path, says in bad_files:
-        with pytest.raises(FileNotFoundError, match=says):
+        # A folder is an IsADirectoryError, the others FileNotFoundError: both OSErrors naming the file.
+        with pytest.raises((FileNotFoundError, IsADirectoryError), match=says):
             load_weights(path)
         with pytest.raises(diffcassi.DiffcassiFileError, match=says):
             read_metadata(path)

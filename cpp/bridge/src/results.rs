@@ -175,7 +175,7 @@ pub(crate) fn version() -> String {
 }
 
 pub(crate) fn pupil_points(pattern: &str) -> Result<PupilPoints> {
-    let pts = diffcassi::cli::parse_pupil(pattern)?.points();
+    let pts = pattern.parse::<diffcassi::rays::PupilPattern>()?.points();
     Ok(PupilPoints { px: pts.iter().map(|p| p[0]).collect(), py: pts.iter().map(|p| p[1]).collect() })
 }
 

@@ -196,7 +196,7 @@ fn read_weights(path: &Path) -> Result<Vec<u8>> {
     let cannot = |e: std::io::Error| ferr(&name, format!("cannot read the denoiser weights: {e}"));
     let meta = std::fs::metadata(path).map_err(cannot)?;
     if meta.is_dir() {
-        return Err(ferr(&name, "is a folder: the denoiser weights must be a safetensors file"));
+        return Err(ferr(&name, "is a directory, not a weights file: the denoiser weights must be a safetensors file"));
     }
     if !meta.is_file() {
         return Err(ferr(&name, "is not a regular file (a FIFO, socket or device such as /dev/zero): the denoiser weights must be a safetensors file"));

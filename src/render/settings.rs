@@ -1,0 +1,391 @@
+//! Render settings in one place: what a render, a dataset render or a traced operator takes (scene size,
+//! bands, planes, rays, sampling, mask, Airy blur, scene fit, kernel, precision, device, sensor noise), its
+//! defaults (the paper's), its limits and its validation. Front ends fill a [`RenderSettings`] (starting
+//! from [`RenderSettings::default`]) and call [`RenderSettings::config`]: the command line converts its
+//! options into it (`render`, `render-dataset`), the Python bindings their keywords. Messages name each
+//! setting by its command-line spelling (`--planes 0: …`); the Python keywords have the same names.
+//!
+//! ```
+//! use diffcassi::render::settings::{Device, RenderSettings};
+//! let mut s = RenderSettings { scene_size: 16, planes: 8, rays: Some(2), ..RenderSettings::default() };
+//! let (cfg, mask) = s.config()?;
+//! assert_eq!((cfg.scene_height, cfg.spectral.planes(), mask.width), (16, 8, 16));
+//! s.device = Device::Cuda;
+//! assert!(s.config().unwrap_err().to_string().contains("no CUDA backend in this build"));
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+use super::{AiryConfig, Mask, NoiseConfig, RenderConfig, Sampling, SpectralSampling};
+use crate::error::{Error, Result};
+use crate::scene::{Fit, SpectralCube};
+use crate::tracer::{Kernel, Precision};
+use std::path::PathBuf;
+
+/// Rays per scene pixel per plane when none are given (and no fidelity tolerance chooses them).
+pub const DEFAULT_RAYS: usize = 20;
+
+/// Where a render runs. Only the CPU exists in this build; `Cuda` is the place of the GPU backend and is
+/// refused by [`Device::check`] until it lands.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Device {
+    #[default]
+    Cpu,
+    Cuda,
+}
+
+impl Device {
+    /// `Ok` for a device this build can render on.
+    pub fn check(self) -> Result<()> {
+        match self {
+            Device::Cpu => Ok(()),
+            Device::Cuda => Err(Error::invalid("--device cuda: no CUDA backend in this build (use --device cpu)")),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Device::Cpu => "cpu",
+            Device::Cuda => "cuda",
+        }
+    }
+}
+
+impl std::str::FromStr for Device {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.trim() {
+            "cpu" => Ok(Device::Cpu),
+            "cuda" => Ok(Device::Cuda),
+            _ => Err(Error::invalid(format!("--device `{s}`: use cpu (or cuda, once a CUDA backend is built)"))),
+        }
+    }
+}
+
+impl std::fmt::Display for Device {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// The mask of a render: a random binary mask or a file (greyscale PNG or (H, W) NPY). One or the other,
+/// so a front end cannot give both a file and a random mask's opening.
+#[derive(Clone, Debug, PartialEq)]
+pub enum MaskSource {
+    /// Binary, each pixel open with probability `opening` ∈ [0, 1], from the stream seeded with `seed`.
+    Random { opening: f64, seed: u64 },
+    File(PathBuf),
+}
+
+/// Everything a render takes besides the system, the tracer and the scene. See the module docs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderSettings {
+    /// Scene side N (pixels of 10 µm on the object plane); scenes are brought to N×N by [`Self::fit`].
+    pub scene_size: usize,
+    /// Render bands (nm).
+    pub bands_nm: Vec<f64>,
+    /// Spectral planes over the bands' range (112 = 28 bands × 4, the paper's).
+    pub planes: usize,
+    /// Rays per scene pixel per plane; `None`: [`DEFAULT_RAYS`] (or chosen by a fidelity tolerance).
+    pub rays: Option<usize>,
+    /// Seed of the rays' random numbers.
+    pub seed: u64,
+    pub sampling: Sampling,
+    pub mask: MaskSource,
+    /// Airy disk diameter (pixels) at 520 nm, ∝ λ; `None`: no diffraction blur.
+    pub airy_diameter_px: Option<f64>,
+    /// Wavelengths (nm) of a scene file's bands, overriding what the file says.
+    pub scene_wavelengths_nm: Option<Vec<f64>>,
+    /// How scene files are brought to N×N.
+    pub fit: Fit,
+    /// Also keep the detector image of each band.
+    pub cube: bool,
+    /// f64 ray kernel of the analytic backend.
+    pub kernel: Kernel,
+    /// Float precision of the ray kernel; `None`: f64 (or chosen by a fidelity tolerance).
+    pub precision: Option<Precision>,
+    pub device: Device,
+}
+
+impl Default for RenderSettings {
+    /// The paper's render: 512², 28 bands 450–650 nm, 112 planes, 20 rays, seed 0, stratified, a random
+    /// mask of opening 0.5 (seed 0), Airy disk 2.5 px, centre crop, SIMD kernel, f64, on the CPU.
+    fn default() -> Self {
+        RenderSettings {
+            scene_size: 512,
+            bands_nm: crate::analysis::linspace(450.0, 650.0, 28),
+            planes: 112,
+            rays: None,
+            seed: 0,
+            sampling: Sampling::Stratified,
+            mask: MaskSource::Random { opening: 0.5, seed: 0 },
+            airy_diameter_px: Some(2.5),
+            scene_wavelengths_nm: None,
+            fit: Fit::Crop,
+            cube: false,
+            kernel: Kernel::default(),
+            precision: None,
+            device: Device::Cpu,
+        }
+    }
+}
+
+impl RenderSettings {
+    /// The render configuration and mask of an N×N render (N = [`Self::scene_size`]), every setting and
+    /// the memory and ray budgets ([`crate::limits`]) checked before anything scene-sized is allocated.
+    pub fn config(&self) -> Result<(RenderConfig, Mask)> {
+        let n = self.scene_size;
+        let cfg = self.checked(n)?;
+        let mask = self.make_mask(n, n)?;
+        Ok((cfg, mask))
+    }
+
+    /// [`Self::config`] for a `height × width` scene ([`Self::scene_size`] is not used): the checks of an
+    /// N×N render with N the shorter side, then the rectangle's own memory and ray budgets.
+    pub fn config_hw(&self, height: usize, width: usize) -> Result<(RenderConfig, Mask)> {
+        if height == 0 || width == 0 {
+            return Err(Error::invalid(format!("scene size {height}×{width}: must be ≥ 1")));
+        }
+        let mut cfg = self.checked(height.min(width))?;
+        if width != height {
+            self.check_rectangle(height, width, &cfg)?;
+        }
+        cfg.scene_height = height;
+        cfg.scene_width = width;
+        let mask = self.make_mask(height, width)?;
+        Ok((cfg, mask))
+    }
+
+    /// The rays per pixel given, or the default.
+    pub fn rays_or_default(&self) -> usize {
+        self.rays.unwrap_or(DEFAULT_RAYS)
+    }
+
+    /// Every check and the configuration of an `n × n` render (no mask).
+    fn checked(&self, n: usize) -> Result<RenderConfig> {
+        self.device.check()?;
+        if n == 0 {
+            return Err(Error::invalid("--scene-size must be ≥ 1"));
+        }
+        check_wavelengths("--bands", &self.bands_nm)?;
+        if self.planes == 0 || self.planes > crate::limits::MAX_PLANES {
+            return Err(Error::invalid(format!("--planes {}: must be in 1..={}", self.planes, crate::limits::MAX_PLANES)));
+        }
+        if let Some(d) = self.airy_diameter_px {
+            if !(d.is_finite() && d > 0.0 && d <= crate::limits::MAX_AIRY_DIAMETER_PX) {
+                return Err(Error::invalid(format!("--airy-diameter-px {d}: must be in (0, {}] pixels", crate::limits::MAX_AIRY_DIAMETER_PX)));
+            }
+        }
+        if self.rays == Some(0) {
+            return Err(Error::invalid("--rays must be ≥ 1"));
+        }
+        if let MaskSource::Random { opening, .. } = self.mask {
+            if !(opening.is_finite() && (0.0..=1.0).contains(&opening)) {
+                return Err(Error::invalid(format!("--opening {opening}: the mask's opening ratio must be in [0, 1]")));
+            }
+        }
+        let bands = self.bands_nm.len();
+        let scene_bands = match &self.scene_wavelengths_nm {
+            Some(ws) => {
+                check_wavelengths("--scene-wavelengths", ws)?;
+                ws.len()
+            }
+            None => bands.max(31),
+        };
+        let what = format!("--scene-size {n} × --planes {} (× {bands} bands)", self.planes);
+        crate::limits::check_memory(&what, crate::limits::bytes_render(n, scene_bands, bands, self.planes, self.cube, self.airy_diameter_px))?;
+        // The ray budget with the given (or default) rays per pixel; a tolerance's choice is checked again.
+        check_render_rays(n, self.planes, self.rays_or_default())?;
+        let spectral = SpectralSampling::with_planes(self.bands_nm.clone(), self.planes)?;
+        let mut cfg = RenderConfig::paper(n);
+        cfg.spectral = spectral;
+        cfg.rays_per_pixel = self.rays_or_default();
+        cfg.seed = self.seed;
+        cfg.sampling = self.sampling;
+        cfg.kernel = self.kernel;
+        cfg.kernel.resolve()?;
+        cfg.precision = self.precision.unwrap_or_default();
+        if cfg.precision == Precision::F32 {
+            cfg.precision.level(cfg.kernel)?; // f32 has no scalar kernel
+        }
+        cfg.airy = self.airy_diameter_px.map(|d| AiryConfig { diameter_px: d, ..AiryConfig::default() });
+        Ok(cfg)
+    }
+
+    /// The memory and ray budgets of a `height × width` render ([`Self::checked`] checks squares): the
+    /// same estimate ([`crate::limits::bytes_render_hw`]), naming the height and width.
+    fn check_rectangle(&self, height: usize, width: usize, cfg: &RenderConfig) -> Result<()> {
+        use crate::limits;
+        let bands = cfg.spectral.bands_nm.len();
+        let planes = cfg.spectral.planes();
+        let airy = cfg.airy.as_ref().map(|a| a.diameter_px);
+        let what = format!("height × width {height}×{width} × planes {planes} (× {bands} bands)");
+        limits::check_memory(&what, limits::bytes_render_hw(height, width, bands.max(31), bands, planes, false, airy))?;
+        let rays = self.rays_or_default();
+        limits::check_rays(&format!("height × width {height}×{width} × planes {planes} × rays {rays}"), height as f64 * width as f64 * planes as f64 * rays as f64)
+    }
+
+    fn make_mask(&self, height: usize, width: usize) -> Result<Mask> {
+        match &self.mask {
+            MaskSource::Random { opening, seed } => Mask::random(height, width, *opening, *seed),
+            MaskSource::File(p) => {
+                let m = Mask::load(p)?;
+                if m.height != height || m.width != width {
+                    let want = if height == width { format!("--scene-size is {height}") } else { format!("the scene is {height}×{width}") };
+                    return Err(Error::File { path: p.display().to_string(), message: format!("the mask is {}×{} but {want}", m.height, m.width) });
+                }
+                Ok(m)
+            }
+        }
+    }
+}
+
+/// Wavelengths of a setting (`option`): 1..=[`crate::limits::MAX_WAVELENGTHS`] values, each finite and in
+/// [`crate::limits::WAVELENGTH_RANGE_NM`].
+pub fn check_wavelengths(option: &str, ws: &[f64]) -> Result<()> {
+    if ws.is_empty() || ws.len() > crate::limits::MAX_WAVELENGTHS {
+        return Err(Error::invalid(format!("{option}: {} wavelengths; give 1..={}", ws.len(), crate::limits::MAX_WAVELENGTHS)));
+    }
+    let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
+    if let Some(w) = ws.iter().find(|w| !(w.is_finite() && (lo..=hi).contains(*w))) {
+        return Err(Error::invalid(format!("{option}: {} nm is outside {lo}–{hi} nm", crate::limits::fmt_num(*w))));
+    }
+    Ok(())
+}
+
+/// Rays of a render: N² pixels × planes × rays per pixel, within the ray budget.
+pub fn check_render_rays(n: usize, planes: usize, rays: usize) -> Result<()> {
+    crate::limits::check_rays(&format!("--scene-size {n} × --planes {planes} × --rays {rays}"), (n as f64).powi(2) * planes as f64 * rays as f64)
+}
+
+/// Scene radiances must be finite, ≥ 0 and below [`crate::limits::MAX_SCENE_VALUE`] (so that sums over
+/// planes, rays and the Airy kernel cannot overflow the f32 images). `Err` holds the reason, naming the
+/// pixel and band.
+pub fn check_scene_values(cube: &SpectralCube) -> std::result::Result<(), String> {
+    for (i, &v) in cube.data.iter().enumerate() {
+        let v = v as f64;
+        if !v.is_finite() || v < 0.0 || v > crate::limits::MAX_SCENE_VALUE {
+            let (b, px) = (i % cube.wavelengths_nm.len().max(1), i / cube.wavelengths_nm.len().max(1));
+            return Err(format!(
+                "scene value {v} at pixel ({}, {}), band {b}: radiances must be finite, ≥ 0 and ≤ {:.3e} (f32 range / 10⁹, so the acquisition cannot overflow)",
+                px / cube.width.max(1),
+                px % cube.width.max(1),
+                crate::limits::MAX_SCENE_VALUE
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Sensor noise settings (all `None`: off); see `docs/noise.md`. [`NoiseSettings::config`] turns them into
+/// a [`NoiseConfig`], refusing the options of a source that is not selected.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NoiseSettings {
+    /// Sources, a comma list of shot, read, adc; `none` or `None`: no noise.
+    pub noise: Option<String>,
+    /// Full-well capacity (electrons) [default 20000].
+    pub full_well_e: Option<f64>,
+    /// Photo-electrons per acquisition unit (instead of mapping the peak to the full well).
+    pub electrons_per_unit: Option<f64>,
+    /// Read noise σ (electrons) [default with `read`: 2].
+    pub read_noise_e: Option<f64>,
+    /// ADC bit depth [default with `adc`: 12].
+    pub adc_bits: Option<u32>,
+    /// Seed of the noise's random numbers [default 0].
+    pub noise_seed: Option<u64>,
+}
+
+impl NoiseSettings {
+    /// The noise the settings describe (`None`: off). Options of a source that is not selected are errors.
+    pub fn config(&self) -> Result<Option<NoiseConfig>> {
+        let list = self.noise.as_deref().unwrap_or("none").trim();
+        let mut cfg = NoiseConfig::default();
+        let (mut read, mut adc) = (false, false);
+        if list != "none" {
+            for item in list.split(',').map(str::trim) {
+                match item {
+                    "shot" => cfg.shot = true,
+                    "read" => read = true,
+                    "adc" => adc = true,
+                    _ => return Err(Error::invalid(format!("--noise `{item}`: use a comma list of shot, read, adc (or none)"))),
+                }
+            }
+        }
+        let on = cfg.shot || read || adc;
+        let given = [
+            ("--full-well-e", self.full_well_e.is_some()),
+            ("--electrons-per-unit", self.electrons_per_unit.is_some()),
+            ("--noise-seed", self.noise_seed.is_some()),
+        ];
+        if let Some((name, _)) = given.iter().find(|g| g.1 && !on) {
+            return Err(Error::invalid(format!("{name} needs --noise (shot, read and/or adc)")));
+        }
+        if self.read_noise_e.is_some() && !read {
+            return Err(Error::invalid("--read-noise-e needs `read` in --noise"));
+        }
+        if self.adc_bits.is_some() && !adc {
+            return Err(Error::invalid("--adc-bits needs `adc` in --noise"));
+        }
+        if !on {
+            return Ok(None);
+        }
+        if let Some(f) = self.full_well_e {
+            cfg.full_well_e = f;
+        }
+        cfg.electrons_per_unit = self.electrons_per_unit;
+        if read {
+            cfg.read_noise_e = self.read_noise_e.unwrap_or(2.0);
+            if cfg.read_noise_e == 0.0 {
+                return Err(Error::invalid("--read-noise-e 0 with `read` in --noise: drop `read` instead"));
+            }
+        }
+        if adc {
+            cfg.adc_bits = Some(self.adc_bits.unwrap_or(12));
+        }
+        cfg.seed = self.noise_seed.unwrap_or(0);
+        cfg.validate().map_err(|e| Error::invalid(format!("--noise: {e}")))?;
+        Ok(Some(cfg))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_the_papers() {
+        let s = RenderSettings::default();
+        assert_eq!((s.scene_size, s.bands_nm.len(), s.planes, s.rays_or_default()), (512, 28, 112, 20));
+        assert_eq!(s.airy_diameter_px, Some(2.5));
+        assert_eq!(s.mask, MaskSource::Random { opening: 0.5, seed: 0 });
+    }
+
+    #[test]
+    fn device_cuda_is_refused_and_unknown_names_are_errors() {
+        let s = RenderSettings { scene_size: 4, planes: 2, device: Device::Cuda, ..RenderSettings::default() };
+        assert!(s.config().unwrap_err().to_string().contains("no CUDA backend in this build"));
+        assert_eq!("cpu".parse::<Device>().unwrap(), Device::Cpu);
+        assert!("tpu".parse::<Device>().unwrap_err().to_string().contains("--device `tpu`"));
+    }
+
+    #[test]
+    fn bad_values_name_the_setting() {
+        let base = RenderSettings { scene_size: 4, planes: 2, ..RenderSettings::default() };
+        let err = |s: RenderSettings| s.config().unwrap_err().to_string();
+        assert!(err(RenderSettings { planes: 0, ..base.clone() }).contains("--planes 0"));
+        assert!(err(RenderSettings { rays: Some(0), ..base.clone() }).contains("--rays"));
+        assert!(err(RenderSettings { airy_diameter_px: Some(-1.0), ..base.clone() }).contains("--airy-diameter-px -1"));
+        assert!(err(RenderSettings { bands_nm: vec![500.0, 1e9], ..base.clone() }).contains("--bands: 1e9 nm is outside"));
+        assert!(err(RenderSettings { mask: MaskSource::Random { opening: 2.0, seed: 0 }, ..base.clone() }).contains("--opening 2"));
+        assert!(base.config_hw(0, 3).unwrap_err().to_string().contains("scene size 0×3"));
+        let (cfg, m) = base.config_hw(3, 5).unwrap();
+        assert_eq!((cfg.scene_height, cfg.scene_width, m.height, m.width), (3, 5, 3, 5));
+    }
+
+    #[test]
+    fn noise_options_need_their_source() {
+        let n = NoiseSettings { adc_bits: Some(10), ..NoiseSettings::default() };
+        assert!(n.config().unwrap_err().to_string().contains("--adc-bits needs `adc`"));
+        assert_eq!(NoiseSettings::default().config().unwrap(), None);
+        let n = NoiseSettings { noise: Some("shot,read".into()), ..NoiseSettings::default() };
+        assert_eq!(n.config().unwrap().unwrap().read_noise_e, 2.0);
+    }
+}
