@@ -23,6 +23,8 @@ use std::sync::RwLock;
 /// Largest plausible |length| of a resolved system (thickness, decenter), mm:
 /// 1 km. A bench-top CASSI is ~0.3 m long; anything beyond is a typo or an overflowing pickup.
 pub const MAX_LENGTH_MM: f64 = 1e6;
+/// Largest plausible |curvature| of a surface, mm⁻¹ (`.zmx` `CURV`): a radius of at least 1 nm.
+pub const MAX_CURVATURE_PER_MM: f64 = 1e6;
 /// Largest plausible |tilt| of a coordinate break, degrees (one full turn).
 pub const MAX_TILT_DEG: f64 = 360.0;
 /// Largest plausible |coordinate| of a traced ray on the image surface, mm; a ray landing farther (or at a
@@ -48,6 +50,14 @@ pub const MAX_SCENES: usize = 1_000_000;
 /// iterations): 10⁵, far beyond every default (400 Adam steps, 100 GAP/ADMM iterations), so a mistyped count
 /// is refused at once instead of running for days.
 pub const MAX_ITERATIONS: usize = 100_000;
+/// Most timing repetitions of a benchmark (`bench --repeat`, best of N): far beyond any useful count (the
+/// default is 3), so a mistyped `--repeat 1000000000` is refused at once instead of running until killed.
+pub const MAX_REPEAT: usize = 1000;
+/// Largest text input read whole (spec files `.toml`/`.json`/`.yml`/`.csv`/`.zmx`, AGF catalogues, CSV
+/// tables such as `--pupil-csv`, wavelength lists, `render.json`): 64 MiB, far beyond any real one (a Zemax
+/// lens file is a few kB, the Schott catalogue 1 MB). Binary inputs (NPY, EXR, PNG) are bounded by the
+/// memory budget instead, meshes by [`crate::mechanics::mesh_io::MAX_MESH_FILE_BYTES`].
+pub const MAX_TEXT_FILE_BYTES: u64 = 64 << 20;
 /// Most worker threads (`--threads`); results do not depend on the count.
 pub const MAX_THREADS: usize = 1024;
 /// Radiance values of a scene must stay below this so that a pixel's sum over planes, rays and the Airy
@@ -201,6 +211,14 @@ fn gb(bytes: f64) -> String {
     }
 }
 
+/// A count option in `1..=max`: `Err` names the option, its value and the range.
+pub fn check_count(option: &str, value: usize, max: usize) -> Result<usize> {
+    if value == 0 || value > max {
+        return Err(Error::invalid(format!("{option} {value}: must be in 1..={max}")));
+    }
+    Ok(value)
+}
+
 /// `--threads`: 1..=[`MAX_THREADS`].
 pub fn check_threads(n: usize) -> Result<usize> {
     let cores = std::thread::available_parallelism().map(|c| c.get()).unwrap_or(1);
@@ -298,8 +316,22 @@ pub fn bytes_render(n: usize, scene_bands: usize, bands: usize, planes: usize, c
     let n2 = n as f64 * n as f64;
     let detector = 2.0 * n2;
     let images = detector * (8.0 + 4.0 * bands as f64 + if cube { 4.0 * bands as f64 } else { 0.0 });
+    bytes_render_scene(n2, scene_bands, bands, planes, airy_diameter_px) + images
+}
+
+/// The scene-sized part of [`bytes_render`] for `pixels` scene pixels: scene cube, mapping cube and mask,
+/// and the Airy kernels.
+pub fn bytes_render_scene(pixels: f64, scene_bands: usize, bands: usize, planes: usize, airy_diameter_px: Option<f64>) -> f64 {
     let taps = airy_diameter_px.map(|d| (2.0 * (1.33 * d * 1.3 + 1.5) + 1.0).powi(2)).unwrap_or(0.0);
-    n2 * (8.0 * scene_bands as f64 + 16.0 * bands as f64 + 8.0) + images + planes as f64 * (taps * 12.0 + 64.0)
+    pixels * (8.0 * scene_bands as f64 + 16.0 * bands as f64 + 8.0) + planes as f64 * (taps * 12.0 + 64.0)
+}
+
+/// The buffers of a render the size of its **detector** (known only once the dispersed footprint is traced,
+/// [`crate::render::Renderer::new`]; [`bytes_render`] assumes 2N² pixels): the acquisition's f64 sum and
+/// its f32 copy written out (16 B), every band's f32 image, held until they are summed (4 B × bands), and
+/// per worker thread an f64 band sum and a padded f32 plane (12 B × threads).
+pub fn bytes_detector(pixels: f64, bands: usize, threads: usize) -> f64 {
+    pixels * (16.0 + 4.0 * bands as f64 + 12.0 * threads as f64)
 }
 
 /// A spectral cube H×W×B held in memory (f32 values, 4 B), with its sRGB preview or a fitted copy beside

@@ -205,6 +205,58 @@ fn ghost_map(trees: &[RayTree], n: usize) -> GhostMap {
     GhostMap { n, x0_mm: x0, y0_mm: y0, pixel_mm: pixel, power }
 }
 
+/// Bytes one detector arrival of a ray tree holds (its reflection list, point, direction, power), with the
+/// tree's share of the per-path accumulation.
+pub const BYTES_PER_ARRIVAL: f64 = 160.0;
+
+/// What [`ghost_analysis`] will trace and hold, estimated before the analysis runs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GhostEstimate {
+    /// Ray trees walked: wavelengths × (point sources + N² extended-grid points) × pupil rays, plus the
+    /// on-axis source twice more (the scalar-model comparison).
+    pub trees: f64,
+    /// Trees of the largest source (the extended one), held at once.
+    pub largest_source: f64,
+    /// Detector paths per tree, measured on a pilot (see [`ghost_estimate`]).
+    pub paths_per_tree: f64,
+    /// Rays traced: every tree's walk and each of its detector paths, trees × (1 + paths per tree).
+    pub rays: f64,
+    /// Peak memory: the largest source's rays and their trees' detector paths.
+    pub bytes: f64,
+}
+
+/// Estimate a ghost analysis before running it (the CLI checks it against `--max-rays`/`--max-memory-gb`).
+/// The trees are counted from the options; the paths a tree keeps depend on the system, the order and the
+/// roulette threshold (from 1 to thousands), so they are measured on a pilot: 19 pupil rays (2 hexapolar
+/// rings) at 520 nm from the on-axis field and the four corners of the extended source, walked with the
+/// analysis' own options (milliseconds).
+pub fn ghost_estimate(system: &SequentialSystem, options: &GhostOptions) -> Result<GhostEstimate> {
+    let tree_opts = TreeOptions { order: options.order, model: options.model, threshold: options.threshold, seed: options.seed, ..Default::default() };
+    tree_opts.validate()?;
+    let r = options.rings as f64;
+    let pupil = 1.0 + 3.0 * r * (r + 1.0);
+    let wavelengths = system.spec.wavelengths_nm.len() + usize::from(!system.spec.wavelengths_nm.contains(&520.0));
+    let fields = system.spec.fields_mm.len() + usize::from(!system.spec.fields_mm.contains(&[0.0, 0.0]));
+    let grid = (options.extended_grid as f64).powi(2);
+    let largest_source = grid.max(1.0) * pupil;
+    let trees = wavelengths as f64 * (fields as f64 + grid) * pupil + 2.0 * pupil;
+    // The pilot.
+    let kernel = BruteForce::new(system, &SolidsOptions::default())?;
+    let (fx, fy) = system.spec.fields_mm.iter().fold((0.0f64, 0.0f64), |(a, b), f| (a.max(f[0].abs()), b.max(f[1].abs())));
+    let sample = PupilPattern::Hexapolar { rings: 2 }.points();
+    let mut rays = RayBatch::default();
+    for f in [[0.0, 0.0], [fx, fy], [-fx, fy], [fx, -fy], [-fx, -fy]] {
+        if let Ok(b) = RayBatch::for_field(system, f, &sample, 520.0) {
+            rays.extend(&b);
+        }
+    }
+    let pilot = trace_trees(&kernel, system, &rays, &tree_opts)?;
+    let paths_per_tree = pilot.iter().map(|t| t.arrivals.len()).sum::<usize>() as f64 / pilot.len().max(1) as f64;
+    let rays = trees * (1.0 + paths_per_tree);
+    let bytes = largest_source * (crate::limits::BYTES_PER_RAY + paths_per_tree * BYTES_PER_ARRIVAL);
+    Ok(GhostEstimate { trees, largest_source, paths_per_tree, rays, bytes })
+}
+
 /// Run the analysis (brute-force kernel). Errors: invalid options (ghost order above the maximum …), a
 /// source whose main image misses the detector.
 pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Result<GhostReport> {

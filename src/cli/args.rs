@@ -186,16 +186,19 @@ pub struct BenchArgs {
     #[arg(long)]
     pub system: Option<PathBuf>,
     /// Backends to compare, comma-separated: analytic, embree-user[:f64|:none],
-    /// embree-mesh[:SAG_UM][:f64|:none] (defaults f64 refinement, 1 µm). (Not with `tradeoff`, which runs them all.)
-    #[arg(long, default_value = "analytic")]
-    pub backends: String,
-    /// Rays per wavelength (not with `tradeoff`).
-    #[arg(long, default_value_t = 100_000)]
-    pub rays: usize,
-    /// Number of wavelengths (450–650 nm).
-    #[arg(long, default_value_t = 28)]
-    pub wavelengths: usize,
-    /// Repetitions (the best is reported) [default: 3; `tradeoff`: 3, 2 with --quick].
+    /// embree-mesh[:SAG_UM][:f64|:none] (defaults f64 refinement, 1 µm) [default: analytic]. (Plain `bench`
+    /// only: `tradeoff` and `nonsequential` run every backend and refuse it.)
+    #[arg(long)]
+    pub backends: Option<String>,
+    /// Rays per wavelength [default: 100000]; `nonsequential`: row (a)'s rays per wavelength (not with
+    /// --quick, which sets its own sizes); not with `tradeoff`.
+    #[arg(long)]
+    pub rays: Option<usize>,
+    /// Number of wavelengths (450–650 nm), 1..=100000 [default: 28; `nonsequential`: 4].
+    #[arg(long)]
+    pub wavelengths: Option<usize>,
+    /// Repetitions (the best is reported), 1..=1000 [default: 3; `tradeoff`: 3, 2 with --quick;
+    /// `nonsequential`: 3, 1 with --quick].
     #[arg(long)]
     pub repeat: Option<usize>,
     /// `tradeoff`, `nonsequential`: write the rows as CSV.

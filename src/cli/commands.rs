@@ -58,9 +58,30 @@ fn wavelengths_or_system(w: &Option<String>, system: &SequentialSystem) -> Resul
     }
 }
 
-/// Print "wrote PATH", showing a file staged by an [`OutputSet`] under its final name.
+/// Outputs staged but not yet moved into place: announced by [`commit`] once the whole set is in place.
+static STAGED_WRITTEN: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+/// Print "wrote PATH". A file staged by an [`crate::io::OutputSet`] (a staging name, or inside a staging
+/// folder) is announced under its final name only when [`commit`] has moved the set into place: a later
+/// failure (another output of the set that cannot be written) must not leave a "wrote" line behind.
 pub(super) fn say_written(path: &Path) {
-    eprintln!("wrote {}", final_name(path).display());
+    let name = final_name(path);
+    if name.as_path() != path {
+        STAGED_WRITTEN.lock().unwrap_or_else(|e| e.into_inner()).push(name);
+    } else {
+        eprintln!("wrote {}", name.display());
+    }
+}
+
+/// Commit an output set, then announce the files [`say_written`] deferred (none when the commit fails).
+pub(super) fn commit(set: crate::io::OutputSet) -> Result<()> {
+    let result = set.commit();
+    let written = std::mem::take(&mut *STAGED_WRITTEN.lock().unwrap_or_else(|e| e.into_inner()));
+    result?;
+    for p in written {
+        eprintln!("wrote {}", p.display());
+    }
+    Ok(())
 }
 
 /// The destination a staging path stands for: a component `.NAME.stage-<host>-<pid>-<start>-<n>[.ext]`
@@ -259,7 +280,7 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
             .collect();
         write_json(&set.stage(path), &serde_json::json!({"system": system.name(), "field_mm": fs[0], "wavelength_nm": ws[0], "rays": rays}))?;
     }
-    set.commit()?;
+    commit(set)?;
     Ok(())
 }
 
@@ -390,7 +411,7 @@ pub(super) fn spot(a: SpotArgs) -> Result<()> {
     if let Some(path) = &a.png {
         spot_plot(&set.stage(path), &format!("{} spot diagram", system.name()), &spots, &fs)?;
     }
-    set.commit()?;
+    commit(set)?;
     Ok(())
 }
 
@@ -474,7 +495,7 @@ pub(super) fn distortion(a: DistortionArgs) -> Result<()> {
     if let Some(p) = &a.png {
         distortion_plot(&set.stage(p), &system, &g, a.arrow_scale)?;
     }
-    set.commit()?;
+    commit(set)?;
     Ok(())
 }
 
@@ -503,7 +524,7 @@ pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
         plot::dispersion_curve(p, &format!("{} spatio-spectral spreading ({:.1} µm)", system.name(), c.spread_um), &c.wavelength_nm, &c.x_mm, &c.y_mm)?;
         say_written(p);
     }
-    set.commit()?;
+    commit(set)?;
     Ok(())
 }
 
@@ -560,7 +581,7 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
     write_npy_u8(&set.stage(&valid), &shape[..3], &cube.valid)?;
     let wl = a.npy.with_file_name(format!("{stem}_wavelengths_nm.npy"));
     write_npy_f64(&set.stage(&wl), &[ws.len()], &ws)?;
-    set.commit()?;
+    commit(set)?;
     for p in [&a.npy, &valid, &wl] {
         say_written(p);
     }
@@ -624,13 +645,27 @@ pub(super) fn report(a: ReportArgs) -> Result<()> {
             "seconds": t0.elapsed().as_secs_f64(),
         }),
     )?;
-    set.commit()?;
+    commit(set)?;
     println!("report of `{name}` written to {} in {:.2} s", out_dir.display(), t0.elapsed().as_secs_f64());
     Ok(())
 }
 
 // ---------------------------------------------------------------- bench
 
+
+/// `--repeat`, `--rays`, `--wavelengths` of a `bench` mode, each in its range (`--repeat` 1..=[`MAX_REPEAT`],
+/// `--rays` ≥ 1, `--wavelengths` 1..=[`MAX_WAVELENGTHS`]) or the mode's default.
+///
+/// [`MAX_REPEAT`]: crate::limits::MAX_REPEAT
+/// [`MAX_WAVELENGTHS`]: crate::limits::MAX_WAVELENGTHS
+pub(super) fn bench_counts(a: &BenchArgs, repeat: usize, rays: usize, wavelengths: usize) -> Result<(usize, usize, usize)> {
+    use crate::limits::{check_count, MAX_REPEAT, MAX_WAVELENGTHS};
+    Ok((
+        check_count("--repeat", a.repeat.unwrap_or(repeat), MAX_REPEAT)?,
+        check_count("--rays", a.rays.unwrap_or(rays), usize::MAX)?,
+        check_count("--wavelengths", a.wavelengths.unwrap_or(wavelengths), MAX_WAVELENGTHS)?,
+    ))
+}
 
 pub(super) fn bench(a: BenchArgs) -> Result<()> {
     if a.mode.as_deref() == Some("tradeoff") {
@@ -639,6 +674,12 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
         }
         if a.floor {
             return Err(Error::invalid("--floor belongs to `diffcassi bench nonsequential`"));
+        }
+        if let Some(b) = &a.backends {
+            return Err(Error::invalid(format!("--backends {b}: `bench tradeoff` measures every backend and model itself; --backends belongs to plain `diffcassi bench`")));
+        }
+        if let Some(r) = a.rays {
+            return Err(Error::invalid(format!("--rays {r}: `bench tradeoff` sets its own workload sizes (--quick for the small ones); --rays belongs to plain `diffcassi bench` and `bench nonsequential`")));
         }
         return super::fidelity::bench_tradeoff(&a);
     }
@@ -654,25 +695,24 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
     if a.csv.is_some() || a.png.is_some() || a.quick || a.system.is_some() {
         return Err(Error::invalid("--csv, --png, --quick and --system belong to `diffcassi bench tradeoff|nonsequential`"));
     }
-    let repeat = a.repeat.unwrap_or(3);
-    if a.rays == 0 || a.wavelengths == 0 || repeat == 0 {
-        return Err(Error::invalid("--rays, --wavelengths and --repeat must be ≥ 1"));
-    }
-    let what = format!("--rays {} × --wavelengths {}", a.rays, a.wavelengths);
-    let n = a.rays as f64 * a.wavelengths as f64;
+    let (repeat, rays, wavelengths) = bench_counts(&a, 3, 100_000, 28)?;
+    let backends = a.backends.as_deref().unwrap_or("analytic");
+    // Every backend named is parsed (an unknown one refused) before the estimate.
+    let configs: Vec<crate::tracer::BackendConfig> = backends.split(',').map(str::parse).collect::<Result<_>>()?;
+    let what = format!("--rays {rays} × --wavelengths {wavelengths}");
+    let n = rays as f64 * wavelengths as f64;
     crate::limits::check_memory(&what, 2.0 * n * crate::limits::BYTES_PER_RAY)?;
-    crate::limits::check_rays(&format!("{what} × --repeat {repeat} × backends × thread counts"), n * (repeat as f64 + 1.0) * 2.0 * a.backends.split(',').count() as f64)?;
+    crate::limits::check_rays(&format!("{what} × --repeat {repeat} × backends × thread counts"), n * (repeat as f64 + 1.0) * 2.0 * configs.len() as f64)?;
     let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
-    let ws = linspace(450.0, 650.0, a.wavelengths.max(1));
-    let batch = RayBatch::seeded_workload(&system, a.rays, &ws, 1000)?;
-    let configs: Vec<crate::tracer::BackendConfig> = a.backends.split(',').map(str::parse).collect::<Result<_>>()?;
+    let ws = linspace(450.0, 650.0, wavelengths);
+    let batch = RayBatch::seeded_workload(&system, rays, &ws, 1000)?;
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
     let reference = AnalyticTracer::with_kernel(crate::tracer::Kernel::Scalar).trace(&system, &batch)?;
     println!(
         "preset {}, {} rays ({} per wavelength × {} wavelengths, seeded pupil samples over the system's fields), {} sequential surfaces per ray, best of {}",
         system.name(),
         batch.len(),
-        a.rays,
+        rays,
         ws.len(),
         system.surfaces_per_ray(),
         repeat

@@ -7,6 +7,7 @@
 //! diffcassi bench tradeoff --csv tradeoff.csv --png tradeoff.png [--quick]
 //! ```
 use super::args::{BackendArgs, BenchArgs};
+use super::commands::{bench_counts, check_extension, commit, say_written};
 use super::shared::make_tracer;
 use crate::error::{Error, Result};
 use crate::fidelity::{self, CacheOptions};
@@ -97,12 +98,18 @@ pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, precision: Option
 
 /// `diffcassi bench tradeoff`.
 pub(super) fn bench_tradeoff(a: &BenchArgs) -> Result<()> {
-    let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
+    // Outputs first (a file of its format, never a folder), then the counts and the budgets, before any work.
+    check_extension("--csv", &a.csv, &["csv"], &[])?;
+    check_extension("--png", &a.png, &["png"], &[])?;
     let mut opts = fidelity::TradeoffOptions::new(a.quick);
-    if let Some(r) = a.repeat {
-        opts.repeat = r.max(1);
-    }
-    opts.wavelengths = a.wavelengths.max(1);
+    let (repeat, _, wavelengths) = bench_counts(a, opts.repeat, 1, opts.wavelengths)?;
+    opts.repeat = repeat;
+    opts.wavelengths = wavelengths;
+    let (bytes, rays) = opts.estimate();
+    let what = format!("bench tradeoff{} × --wavelengths {wavelengths} × --repeat {repeat}", if a.quick { " --quick" } else { "" });
+    crate::limits::check_memory(&what, bytes)?;
+    crate::limits::check_rays(&what, rays)?;
+    let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let t0 = std::time::Instant::now();
     println!(
         "bench tradeoff: {}, {} wavelengths 450–650 nm, {} mode, {} threads, best of {}",
@@ -116,14 +123,19 @@ pub(super) fn bench_tradeoff(a: &BenchArgs) -> Result<()> {
         eprintln!("  {:8} {:12} {:42} max {:.2e} µm, {:.3} M items/s", r.workload, r.backend, r.options, r.error.max_um, r.items_per_s / 1e6)
     })?;
     print!("{}", fidelity::tradeoff::markdown(&rows));
+    // One staged set: both files are written beside their destinations, then moved in together.
+    let mut set = crate::io::OutputSet::files();
     if let Some(p) = &a.csv {
-        fidelity::tradeoff::write_csv(p, &system, &opts, &rows)?;
-        eprintln!("wrote {}", p.display());
+        let staged = set.stage(p);
+        fidelity::tradeoff::write_csv(&staged, &system, &opts, &rows)?;
+        say_written(&staged);
     }
     if let Some(p) = &a.png {
-        fidelity::tradeoff::plot(p, &system, &rows)?;
-        eprintln!("wrote {}", p.display());
+        let staged = set.stage(p);
+        fidelity::tradeoff::plot(&staged, &system, &rows)?;
+        say_written(&staged);
     }
+    commit(set)?;
     println!("bench tradeoff finished in {:.1} s", t0.elapsed().as_secs_f64());
     Ok(())
 }

@@ -4,9 +4,9 @@
 //! diffcassi ghosts --preset sp --order 2 --csv ghosts.csv --json ghosts.json --png ghosts.png
 //! ```
 use super::args::SystemArgs;
-use super::commands::{check_extension, say_written, write_json};
+use super::commands::{check_extension, commit, say_written, write_json};
 use super::shared::{load_system, system_inputs};
-use crate::analysis::ghosts::{ghost_analysis, GhostMap, GhostOptions, GhostReport};
+use crate::analysis::ghosts::{ghost_analysis, ghost_estimate, GhostMap, GhostOptions, GhostReport};
 use crate::error::{Error, Result};
 use crate::io::{CsvValue, CsvWriter};
 use crate::tracer::nonseq::{FresnelModel, MAX_GHOST_ORDER};
@@ -23,16 +23,16 @@ pub struct GhostsArgs {
     /// Interface model: polarized (two incoherent states, polarisation ray tracing) or scalar (s/p-averaged reflectance).
     #[arg(long, default_value = "polarized", value_parser = ["polarized", "scalar"])]
     pub model: String,
-    /// Relative power below which Russian roulette plays.
-    #[arg(long, default_value_t = 1e-7)]
+    /// Relative power below which Russian roulette plays, in [0, 1).
+    #[arg(long, default_value_t = 1e-7, allow_hyphen_values = true)]
     pub threshold: f64,
     /// Seed of the roulette streams.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Hexapolar pupil rings per field point.
+    /// Hexapolar pupil rings per field point (1..=64).
     #[arg(long, default_value_t = 6)]
     pub rings: usize,
-    /// The uniform extended source is an N×N grid of field points.
+    /// The uniform extended source is an N×N grid of field points (1..=64).
     #[arg(long = "extended-grid", default_value_t = 5)]
     pub extended_grid: usize,
     /// Ghost paths of the on-axis point source at 520 nm (path, energy_fraction, x_mm, y_mm, …).
@@ -54,9 +54,23 @@ pub(super) fn ghosts(a: GhostsArgs) -> Result<()> {
     check_extension("--csv", &a.csv, &["csv"], &inputs)?;
     check_extension("--json", &a.json, &["json"], &inputs)?;
     check_extension("--png", &a.png, &["png"], &inputs)?;
+    if !(a.threshold.is_finite() && (0.0..1.0).contains(&a.threshold)) {
+        return Err(Error::invalid(format!("--threshold {}: the roulette threshold must be in [0, 1)", crate::limits::fmt_num(a.threshold))));
+    }
+    for (option, v) in [("--rings", a.rings), ("--extended-grid", a.extended_grid)] {
+        crate::limits::check_count(option, v, 64)?;
+    }
     let system = load_system(&a.system)?;
     let model = if a.model == "scalar" { FresnelModel::Scalar } else { FresnelModel::Polarized };
     let options = GhostOptions { order: a.order, model, threshold: a.threshold, seed: a.seed, rings: a.rings, extended_grid: a.extended_grid };
+    // The budgets before the analysis: trees from the options, paths per tree from a pilot.
+    let e = ghost_estimate(&system, &options)?;
+    let what = format!(
+        "--order {} × --rings {} × --extended-grid {} ({:.3e} ray trees, {:.1} detector paths each)",
+        a.order, a.rings, a.extended_grid, e.trees, e.paths_per_tree
+    );
+    crate::limits::check_rays(&what, e.rays)?;
+    crate::limits::check_memory(&what, e.bytes)?;
     let t0 = std::time::Instant::now();
     let report = ghost_analysis(&system, &options)?;
     let rows = report.on_axis_520();
@@ -89,7 +103,7 @@ pub(super) fn ghosts(a: GhostsArgs) -> Result<()> {
     if let Some(path) = &a.png {
         write_png(&set.stage(path), &report)?;
     }
-    set.commit()?;
+    commit(set)?;
     Ok(())
 }
 

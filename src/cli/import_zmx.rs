@@ -6,7 +6,7 @@
 //! ```
 //! Without `--ignore-unsupported` anything the file holds that diffcassi does not model is refused (exit 1,
 //! nothing written) with every such item listed by line and keyword (`docs/zemax-files.md`).
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::spec::zmx::{import_zmx_file, ZmxOptions};
 use clap::Args;
 use std::path::PathBuf;
@@ -32,6 +32,15 @@ pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
     // The output policy (docs/robustness.md): a file, never a folder, never the .zmx it reads (a spec written
     // beside the catalogues of a --glass-dir is fine: they are only read).
     crate::io::policy::check_out_file("--out", &a.out, &[("the input .zmx", a.input.as_path())])?;
+    // A --glass-dir that is missing or a file would be searched in vain (and the GCAT catalogues reported
+    // missing, or found elsewhere): refused, naming it.
+    for d in &a.glass_dirs {
+        match std::fs::metadata(d) {
+            Ok(m) if m.is_dir() => {}
+            Ok(_) => return Err(Error::invalid(format!("--glass-dir {}: is a file, not a folder (give the folder holding the .AGF catalogues)", d.display()))),
+            Err(e) => return Err(Error::invalid(format!("--glass-dir {}: no such folder ({e})", d.display()))),
+        }
+    }
     let options = ZmxOptions { ignore_unsupported: a.ignore_unsupported, glass_dirs: a.glass_dirs.clone() };
     let imported = import_zmx_file(&a.input, &options)?;
     // Build it before writing: a file that imports but does not make a traceable system writes nothing.

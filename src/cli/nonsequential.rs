@@ -29,7 +29,7 @@ use crate::system::SequentialSystem;
 use crate::tracer::{AnalyticTracer, Tracer};
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
-use std::fmt::Write as _;
+use crate::io::{CsvValue, CsvWriter};
 use std::time::Instant;
 
 /// Seeded random query rays in the bounding box of `m` (enlarged by 20 %).
@@ -87,14 +87,24 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
     if a.png.is_some() {
         return Err(Error::invalid("--png belongs to `diffcassi bench tradeoff`"));
     }
-    let repeat = a.repeat.unwrap_or(if a.quick { 1 } else { 3 });
-    if repeat == 0 || a.rays == 0 || a.wavelengths == 0 {
-        return Err(Error::invalid("--rays, --wavelengths and --repeat must be ≥ 1"));
+    if let Some(b) = &a.backends {
+        return Err(Error::invalid(format!(
+            "--backends {b}: `bench nonsequential` measures its own rows (the analytic kernel, Embree over user geometry and meshes, brute force); --backends belongs to plain `diffcassi bench`"
+        )));
     }
+    if let (true, Some(r)) = (a.quick, a.rays) {
+        return Err(Error::invalid(format!("--quick sets the workload itself (2000 rays per wavelength); it cannot be combined with --rays {r} (drop one or the other)")));
+    }
+    let (repeat, rays, wavelengths) = super::commands::bench_counts(a, if a.quick { 1 } else { 3 }, 100_000, 4)?;
     let (spec, base) = match &a.system {
         Some(p) => (crate::spec::load_spec_file(p)?, p.parent().map(|d| d.to_path_buf()).unwrap_or_default()),
         None => (crate::presets::spec(&a.preset)?, std::path::PathBuf::from(".")),
     };
+    // The output policy before any work: --csv is a .csv file, never the spec (nor a mesh it names).
+    let meshes: Vec<std::path::PathBuf> = spec.mechanics.iter().flat_map(|m| &m.meshes).map(|m| base.join(&m.path)).collect();
+    let mut inputs: Vec<(&str, &std::path::Path)> = a.system.iter().map(|p| ("--system", p.as_path())).collect();
+    inputs.extend(meshes.iter().map(|p| ("a mesh of --system", p.as_path())));
+    super::commands::check_extension("--csv", &a.csv, &["csv"], &inputs)?;
     let system = SequentialSystem::build(&spec)?;
     // User meshes of the spec are loaded (and checked) before anything is measured or written.
     let user = Mechanics::build(&system, &MechanicsSpec { generate: false, ..spec.mechanics.clone().unwrap_or_default() }, &base).or_else(|e| {
@@ -104,14 +114,15 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
             Err(e)
         }
     })?;
-    let (rays_a, queries, brute_queries) = if a.quick { (2_000, 2_000, 200) } else { (a.rays, 100_000, 2_000) };
+    let (rays_a, queries, brute_queries) = if a.quick { (2_000, 2_000, 200) } else { (rays, 100_000, 2_000) };
+    check_budget(&system, a, rays_a, wavelengths, repeat, queries, brute_queries)?;
     let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
-    let mut csv = String::from("row,case,backend,triangles,threads,seconds_per_ray,rays_per_second,vs\n");
+    let mut csv = CsvWriter::new(a.csv.as_deref().unwrap_or(std::path::Path::new("bench.csv")), &CSV_COLUMNS)?;
     let t0 = Instant::now();
     println!("bench nonsequential: {}, {} mode, best of {repeat}", system.name(), if a.quick { "quick" } else { "full" });
 
     // (a) Sequential system, every backend, all cores.
-    let ws = linspace(450.0, 650.0, a.wavelengths.min(4).max(1));
+    let ws = linspace(450.0, 650.0, wavelengths);
     let batch = RayBatch::seeded_workload(&system, rays_a, &ws, 1000)?;
     println!("\n(a) {} sequential: {} rays, {} threads", system.name(), batch.len(), cores);
     println!("| backend | M rays/s | × analytic time | CPU-s per M rays |");
@@ -137,14 +148,11 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
         let base = *analytic_s.get_or_insert(best);
         let n = batch.len() as f64;
         println!("| {} | {:.2} | {:.1}× | {:.2} |", t.name(), n / best / 1e6, best / base, cpu / n * 1e6);
-        let _ = writeln!(csv, "a,{} sequential,{},,{cores},{:e},{:e},{:.3}", system.name(), t.name(), best / n, n / best, best / base);
+        row(&mut csv, "a", &format!("{} sequential", system.name()), &t.name(), None, cores, Some((best / n, n / best)), Some(best / base))?;
     }
     if a.floor {
         bench_floor(&system, &batch, repeat, cores, &mut csv)?;
-        if let Some(path) = &a.csv {
-            crate::io::write_atomic(path, csv.as_bytes()).map_err(Error::from)?;
-            println!("wrote {}", path.display());
-        }
+        write_csv(a, csv)?;
         println!("bench nonsequential --floor finished in {:.1} s", t0.elapsed().as_secs_f64());
         return Ok(());
     }
@@ -163,8 +171,8 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
         let t = time_queries(&m, &rays, brute_queries, repeat)?;
         let tri = m.triangle_count();
         println!("| {res:?} | {tri} | {:.2} | {:.3} | {:.1}× | {} ({}) |", t.brute_s * 1e6, t.embree_s * 1e6, t.brute_s / t.embree_s, t.checked, t.mismatches);
-        let _ = writeln!(csv, "c,mechanics {res:?},brute-f64,{tri},1,{:e},{:e},", t.brute_s, 1.0 / t.brute_s);
-        let _ = writeln!(csv, "c,mechanics {res:?},embree-f64,{tri},1,{:e},{:e},{:.3}", t.embree_s, 1.0 / t.embree_s, t.brute_s / t.embree_s);
+        row(&mut csv, "c", &format!("mechanics {res:?}"), "brute-f64", Some(tri), 1, Some((t.brute_s, 1.0 / t.brute_s)), None)?;
+        row(&mut csv, "c", &format!("mechanics {res:?}"), "embree-f64", Some(tri), 1, Some((t.embree_s, 1.0 / t.embree_s)), Some(t.brute_s / t.embree_s))?;
     }
 
     // Crossover: one triangle, a square (2), a cube (12), then one lens tube, growing.
@@ -187,8 +195,8 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
         let t = time_queries(&m, &rays, brute_queries, repeat)?;
         let tri = m.triangle_count();
         println!("| {label} | {tri} | {:.3} | {:.3} | {:.2}× |", t.brute_s * 1e6, t.embree_s * 1e6, t.brute_s / t.embree_s);
-        let _ = writeln!(csv, "crossover,{label},brute-f64,{tri},1,{:e},{:e},", t.brute_s, 1.0 / t.brute_s);
-        let _ = writeln!(csv, "crossover,{label},embree-f64,{tri},1,{:e},{:e},{:.3}", t.embree_s, 1.0 / t.embree_s, t.brute_s / t.embree_s);
+        row(&mut csv, "crossover", &label, "brute-f64", Some(tri), 1, Some((t.brute_s, 1.0 / t.brute_s)), None)?;
+        row(&mut csv, "crossover", &label, "embree-f64", Some(tri), 1, Some((t.embree_s, 1.0 / t.embree_s)), Some(t.brute_s / t.embree_s))?;
         if t.mismatches > 0 {
             println!("  ({} of {} hits differ from brute force)", t.mismatches, t.checked);
         }
@@ -199,10 +207,7 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
         None if curve[0].1 >= 1.0 => println!("crossover: Embree is already faster at {:.0} triangle(s), the smallest mesh measured", curve[0].0),
         None => println!("crossover: Embree is not faster anywhere in the measured range ({:.0}–{:.0} triangles)", curve[0].0, curve[curve.len() - 1].0),
     }
-    if let Some(path) = &a.csv {
-        crate::io::write_atomic(path, csv.as_bytes()).map_err(Error::from)?;
-        println!("wrote {}", path.display());
-    }
+    write_csv(a, csv)?;
     println!("bench nonsequential finished in {:.1} s", t0.elapsed().as_secs_f64());
     Ok(())
 }
@@ -215,7 +220,7 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
 /// (0) the replay without any query (its own packet building, part of (i) and (ii)).
 /// The rows are measured interleaved (each repeat runs them all in turn), best of `repeat`, beside the
 /// analytic SIMD kernel.
-fn bench_floor(system: &SequentialSystem, batch: &RayBatch, repeat: usize, cores: usize, csv: &mut String) -> Result<()> {
+fn bench_floor(system: &SequentialSystem, batch: &RayBatch, repeat: usize, cores: usize, csv: &mut CsvWriter) -> Result<()> {
     use crate::tracer::embree::{EmbreeOptions, EmbreeTracer, FloorCallbacks, FloorScenes, Refinement, SceneOptions};
     let n = batch.len();
     // A recorded query is 64 B, and ≈ 1.5 kB per packet query once laid out by packets; SP's rays make 7
@@ -281,7 +286,7 @@ fn bench_floor(system: &SequentialSystem, batch: &RayBatch, repeat: usize, cores
         let check = if row == 2 || row == 3 { differing[row].to_string() } else { "-".into() };
         println!("| {name} | {walk} | {callbacks} | {:.2} | {:.3} | {:.1}× | {check} |", n as f64 / wall[row] / 1e6, per_m(cpu[row]), cpu[row] / cpu[0]);
         let backend = ["analytic-f64", "embree-user-floor-no-query", "embree-user-floor-oracle", "embree-user-floor-replay", "embree-user,refine=f64"][row];
-        let _ = writeln!(csv, "floor,{} sequential,{backend},,{cores},{:e},{:e},{:.3}", system.name(), wall[row] / n as f64, n as f64 / wall[row], cpu[row] / cpu[0]);
+        self::row(csv, "floor", &format!("{} sequential", system.name()), backend, None, cores, Some((wall[row] / n as f64, n as f64 / wall[row])), Some(cpu[row] / cpu[0]))?;
     }
     println!(
         "shares (CPU-s per M rays): the floor (i) {:.3}, of which reading the recorded packets (0) {:.3} and Embree's traversal + dispatch (i) − (0) {:.3}; the callbacks' surface solve (ii) − (i) {:.3}; our walk (iii) − (ii) {:.3}; 5× the analytic kernel is {:.3}",
@@ -305,7 +310,7 @@ fn bench_floor(system: &SequentialSystem, batch: &RayBatch, repeat: usize, cores
 /// analytic kernel has no ghosts: its row is the main image only, from (a)), brute force against Embree's
 /// two scene representations; the Embree trees are checked against brute force's (same paths, detector
 /// power within 1e-9 per tree).
-fn bench_ghosts(system: &SequentialSystem, batch: &RayBatch, quick: bool, repeat: usize, cores: usize, csv: &mut String) -> Result<()> {
+fn bench_ghosts(system: &SequentialSystem, batch: &RayBatch, quick: bool, repeat: usize, cores: usize, csv: &mut CsvWriter) -> Result<()> {
     use crate::tracer::embree::{EmbreeNextHit, SceneOptions, SurfaceRepresentation};
     use crate::tracer::nonseq::{trace_trees, BruteForce, NextHit, RayTree, SolidsOptions, TreeOptions};
     let n = if quick { batch.len().min(500) } else { (batch.len() / 10).max(1) };
@@ -318,7 +323,7 @@ fn bench_ghosts(system: &SequentialSystem, batch: &RayBatch, quick: bool, repeat
     println!("| backend | M trees/s | × brute-force time | CPU-s per M trees | paths per tree | trees differing from brute force |");
     println!("|---|---|---|---|---|---|");
     println!("| analytic-f64 (sequential) | n/a: no ghosts (main image only, row (a)) | | | | |");
-    let _ = writeln!(csv, "b,{} ghosts K=2,analytic-f64,,{cores},,,n/a", system.name());
+    csv.row(&[CsvValue::Str("b"), CsvValue::Str(&format!("{} ghosts K=2", system.name())), CsvValue::Str("analytic-f64"), CsvValue::Str(""), CsvValue::from(cores), CsvValue::Str(""), CsvValue::Str(""), CsvValue::Str("n/a")])?;
     let mesh = SceneOptions { representation: SurfaceRepresentation::Mesh(crate::surfaces::MeshResolution::MaxSagErrorUm(1.0)), ..SceneOptions::default() };
     let mut reference: Option<(Vec<RayTree>, f64)> = None;
     let mut run = |name: &str, kernel: &dyn Fn(&RayBatch) -> Result<Vec<RayTree>>| -> Result<()> {
@@ -341,7 +346,7 @@ fn bench_ghosts(system: &SequentialSystem, batch: &RayBatch, quick: bool, repeat
             }
         };
         println!("| {name} | {:.4} | {:.2}× | {:.1} | {paths:.1} | {differ} |", n as f64 / best / 1e6, best / base, cpu / n as f64 * 1e6);
-        let _ = writeln!(csv, "b,{} ghosts K=2,{name},,{cores},{:e},{:e},{:.3}", system.name(), best / n as f64, n as f64 / best, best / base);
+        row(csv, "b", &format!("{} ghosts K=2", system.name()), name, None, cores, Some((best / n as f64, n as f64 / best)), Some(best / base))?;
         if reference.is_none() {
             reference = Some((trees, best));
         }
@@ -357,6 +362,53 @@ fn bench_ghosts(system: &SequentialSystem, batch: &RayBatch, quick: bool, repeat
     let meshes = EmbreeNextHit::new(system, &mesh)?;
     run("embree-mesh 1um (refine f64)", &|r| walk(&meshes, system, r, &opts))?;
     Ok(())
+}
+
+/// The columns of `--csv` (one row per table line; `vs`: the speed-up or time ratio its table prints).
+const CSV_COLUMNS: [&str; 8] = ["row", "case", "backend", "triangles", "threads", "seconds_per_ray", "rays_per_second", "vs"];
+
+/// One CSV row through the project's writer (fields holding commas, such as `embree-user,refine=f64` or
+/// `tube, 4 segments`, are quoted); `None` leaves a cell empty.
+#[allow(clippy::too_many_arguments)]
+fn row(csv: &mut CsvWriter, table: &str, case: &str, backend: &str, triangles: Option<usize>, threads: usize, timing: Option<(f64, f64)>, vs: Option<f64>) -> Result<()> {
+    let empty = CsvValue::Str("");
+    let (s, r) = timing.map_or((empty, empty), |(s, r)| (CsvValue::F64(s), CsvValue::F64(r)));
+    csv.row(&[CsvValue::Str(table), CsvValue::Str(case), CsvValue::Str(backend), triangles.map_or(empty, CsvValue::from), CsvValue::from(threads), s, r, vs.map_or(empty, CsvValue::F64)])?;
+    Ok(())
+}
+
+/// `--csv` (the writer was made on its path), written atomically, then announced.
+fn write_csv(a: &BenchArgs, csv: CsvWriter) -> Result<()> {
+    if let Some(path) = &a.csv {
+        csv.finish()?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// The budgets, before anything is traced: every ray (a)–(c) and the crossover trace, and the largest
+/// buffers (row (a)'s batch and its traced copy, row (b)'s trees, the query rays).
+fn check_budget(system: &SequentialSystem, a: &BenchArgs, rays_a: usize, wavelengths: usize, repeat: usize, queries: usize, brute_queries: usize) -> Result<()> {
+    use crate::limits::{check_memory, check_rays, BYTES_PER_RAY};
+    let batch = rays_a as f64 * wavelengths as f64;
+    let r = repeat as f64;
+    let what = if a.quick { format!("--quick × --wavelengths {wavelengths} × --repeat {repeat}") } else { format!("--rays {rays_a} × --wavelengths {wavelengths} × --repeat {repeat}") };
+    let (traced, bytes) = if a.floor {
+        // Row (a) (3 tracers) and the floor's 5 rows, each warmed up once; the recorded queries (4 kB a ray).
+        (batch * (3.0 * (r + 1.0) + 5.0 * (r + 1.0) + 2.0), batch * (2.0 * BYTES_PER_RAY + 4096.0))
+    } else {
+        let trees = if a.quick { batch.min(500.0) } else { (batch / 10.0).floor().max(1.0) };
+        // Row (b)'s detector paths per tree, from the ghost analysis' pilot at K = 2.
+        let pilot = crate::analysis::ghosts::GhostOptions { order: 2, rings: 1, extended_grid: 1, ..Default::default() };
+        let paths = 1.0 + crate::analysis::ghosts::ghost_estimate(system, &pilot)?.paths_per_tree;
+        let traced_a = batch * 3.0 * (r + 1.0);
+        let traced_b = trees * paths * 3.0 * r;
+        let traced_c = 3.0 * (queries + brute_queries) as f64 * r + 10.0 * (queries / 10 + brute_queries) as f64 * r;
+        let bytes = batch * 2.0 * BYTES_PER_RAY + 2.0 * trees * paths * crate::analysis::ghosts::BYTES_PER_ARRIVAL + queries as f64 * 96.0;
+        (traced_a + traced_b + traced_c, bytes)
+    };
+    check_memory(&what, bytes)?;
+    check_rays(&what, traced)
 }
 
 /// The triangle count where the speed-up (brute / Embree) crosses 1, interpolated in log–log between the

@@ -31,7 +31,7 @@ pub struct GhostArgs {
     pub mechanics: bool,
     /// With --ghosts: override the spec's coatings, a comma list of TARGET=VALUE (TARGET `all` or a surface
     /// index; VALUE `bare`, `R<reflectance>` e.g. R0.01, or `mgf2@<nm>` e.g. mgf2@550), applied in order.
-    #[arg(long, requires = "ghosts", value_parser = <CoatingOverride as std::str::FromStr>::from_str)]
+    #[arg(long, requires = "ghosts", allow_hyphen_values = true, value_parser = <CoatingOverride as std::str::FromStr>::from_str)]
     pub coating: Option<CoatingOverride>,
     /// With --ghosts: rays per scene pixel per plane whose ray trees are walked, at most the render's (an
     /// unbiased, stratified subsample, weight 1/R each) [default: the render's rays per pixel: every rendered ray].
@@ -82,7 +82,7 @@ impl GhostPass {
         let mut config = GhostConfig::new(order, system, a.ghost_rays.map_or(rays_per_pixel, |r| r as usize));
         config.seed = seed;
         if let Some(o) = &a.coating {
-            config.coatings = o.apply(&config.coatings)?;
+            config.coatings = o.apply(&config.coatings, &|k| system.spec.not_an_interface(k))?;
         }
         config.validate(system)?;
         let extra: Option<(Arc<dyn ExtraGeometry>, String, usize)> = if a.mechanics { Some(mechanics(sys_args, system, a.ghost_backend.as_deref())?) } else { None };

@@ -518,16 +518,35 @@ pub fn study(a: StudyArgs) -> Result<()> {
 }
 
 fn write_tables(a: &StudyArgs, presets: &[String], operators: &[OperatorKind], solvers: &[String], scenes: &[StudyScene], cells: &[Cell], seconds: f64) -> Result<()> {
-    // study.csv
-    let mut csv = String::from("scene,system,preset,operator,solver,psnr_db,psnr_band_db,ssim,sam_rad,sam_deg,rmse,iterations,final_residual,seconds_solve,seconds_operator\n");
+    // study.csv, through the project's CSV writer (a scene name holding a comma is quoted); the numbers keep
+    // their fixed formats, so the file is byte for byte what it was.
+    let mut csv = crate::io::CsvWriter::new(
+        a.out.join("study.csv"),
+        &["scene", "system", "preset", "operator", "solver", "psnr_db", "psnr_band_db", "ssim", "sam_rad", "sam_deg", "rmse", "iterations", "final_residual", "seconds_solve", "seconds_operator"],
+    )?;
     for c in cells {
         let m = &c.metrics;
-        csv.push_str(&format!(
-            "{},{},{},{},{},{:.6},{:.6},{:.6},{:.6},{:.6},{:.6},{},{:.6e},{:.3},{:.3}\n",
-            c.scene, system_label(&c.preset), c.preset, c.operator, c.solver, m["psnr_db"], m["psnr_band_db"], m["ssim"], m["sam_rad"], m["sam_deg"], m["rmse"], c.iterations, c.residual, c.seconds_solve, c.seconds_operator
-        ));
+        let fixed = |v: f64| format!("{v:.6}");
+        let cols = [
+            c.scene.clone(),
+            system_label(&c.preset),
+            c.preset.clone(),
+            c.operator.clone(),
+            c.solver.clone(),
+            fixed(m["psnr_db"]),
+            fixed(m["psnr_band_db"]),
+            fixed(m["ssim"]),
+            fixed(m["sam_rad"]),
+            fixed(m["sam_deg"]),
+            fixed(m["rmse"]),
+            c.iterations.to_string(),
+            format!("{:.6e}", c.residual),
+            format!("{:.3}", c.seconds_solve),
+            format!("{:.3}", c.seconds_operator),
+        ];
+        csv.row(&cols.iter().map(|s| crate::io::CsvValue::Str(s)).collect::<Vec<_>>())?;
     }
-    crate::io::write_atomic(a.out.join("study.csv"), csv.as_bytes())?;
+    csv.finish()?;
     let pick = |preset: &str, op: &str, solver: &str, key: &str| -> Vec<f64> { cells.iter().filter(|c| c.preset == preset && c.operator == op && c.solver == solver).map(|c| c.metrics[key]).collect() };
     let labels: Vec<String> = presets.iter().map(|p| system_label(p)).collect();
     let mut md = String::new();

@@ -73,6 +73,30 @@ impl TradeoffOptions {
     fn strides(&self) -> Vec<usize> {
         if self.quick { vec![2, 4, 8] } else { vec![2, 4, 8, 16] }
     }
+
+    /// (peak bytes, rays traced) of [`run_tradeoff`] with these options, estimated before anything runs:
+    /// per backend configuration, (repeat + 1) × (the ray set, the mapping cube, a render), the references,
+    /// the high-ray reference render and the rays-per-pixel ladder; memory for the ray set and its traces, two
+    /// mapping cubes and the renders (scene, detector images and the traced transports of every plane).
+    pub fn estimate(&self) -> (f64, f64) {
+        let wl = self.wavelengths as f64;
+        let r = self.repeat as f64 + 1.0;
+        let configs = super::measure::candidate_configs(&self.mesh_sag_um()).len() as f64;
+        let rays = 13.0 * self.pupil_rays() as f64 * wl;
+        let (ms, rs) = (self.mapping_size(), self.render_size());
+        let mapping = (ms * ms) as f64 * wl;
+        let pixel_planes = (rs * rs) as f64 * wl;
+        let ladder: usize = self.ladder().iter().sum();
+        let traced = configs * r * (rays + mapping + 2.0 * pixel_planes * self.render_rays() as f64)
+            + 2.0 * r * mapping * self.strides().len() as f64
+            + pixel_planes * (3.0 * self.render_reference_rays() as f64 + 2.0 * r * ladder as f64)
+            + rays + mapping;
+        let bytes = 3.0 * rays * crate::limits::BYTES_PER_RAY
+            + 2.0 * crate::limits::bytes_mapping(ms, ms, self.wavelengths)
+            + 3.0 * crate::limits::bytes_render_hw(rs, rs, 31, self.wavelengths, self.wavelengths, false, Some(2.5))
+            + 3.0 * pixel_planes * 256.0;
+        (bytes, traced)
+    }
 }
 
 /// One row of the trade-off table.

@@ -62,7 +62,7 @@ use super::{write_atomic, IoError};
 /// per data row. See the [module documentation](self) for the accepted syntax.
 pub fn read_columns(path: impl AsRef<Path>, names: &[&str]) -> Result<Vec<Vec<f64>>, IoError> {
     let path = path.as_ref();
-    let text = std::fs::read_to_string(path).map_err(|e| IoError::io(path, "cannot read", e))?;
+    let text = super::input::read_input_text(path, crate::limits::MAX_TEXT_FILE_BYTES)?;
     parse_columns(path, &text, names)
 }
 

@@ -88,7 +88,7 @@ fn check_declared_size(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
 /// Read the first layer of an EXR file, every channel as `f32`.
 pub fn read_exr(path: impl AsRef<Path>) -> Result<ExrImage, IoError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, "cannot read", e))?;
+    let bytes = super::input::read_input(path, super::input::binary_limit())?;
     check_declared_size(path, &bytes)?;
     let image = read()
         .no_deep_data()

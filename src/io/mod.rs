@@ -12,6 +12,8 @@
 //! * [`npy`]: [`write_npy_f64`], [`write_npy_f32`], [`write_npy_u8`], [`write_npy_u16`] and
 //!   [`read_npy_f64`] (NPY format, little-endian, C order).
 //! * [`csv`]: [`read_columns`] (pick numeric columns by header name) and [`CsvWriter`].
+//! * [`input`]: [`input::read_input`], every input file read whole: a regular file (never a FIFO, device or
+//!   folder) of bounded size, through a bounded reader.
 //!
 //! # Example
 //!
@@ -40,6 +42,7 @@
 pub mod atomic;
 pub mod csv;
 pub mod exr;
+pub mod input;
 pub mod npy;
 pub mod png16;
 pub mod policy;
@@ -90,6 +93,10 @@ pub enum IoError {
     /// A malformed, truncated or unsupported PNG file (see [`png16`]).
     #[error("{}: {reason}", path.display())]
     Png { path: PathBuf, reason: String },
+
+    /// An input that is not a regular file of bounded size ([`input`]): nothing was read.
+    #[error("{}: {reason}", path.display())]
+    Input { path: PathBuf, reason: String },
 
     /// The output policy refused an output path ([`policy`]): nothing was written.
     #[error("{}: {reason}", path.display())]
@@ -205,6 +212,7 @@ impl IoError {
             | IoError::Exr { path, .. }
             | IoError::Png { path, .. }
             | IoError::Refused { path, .. }
+            | IoError::Input { path, .. }
             | IoError::CsvNoHeader { path }
             | IoError::CsvMissingColumn { path, .. }
             | IoError::CsvDuplicateColumn { path, .. }

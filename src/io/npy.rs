@@ -206,7 +206,7 @@ fn npy_header(descr: &str, shape: &[usize]) -> Vec<u8> {
 /// Fortran order (returned in C order).
 pub fn read_npy_f64(path: impl AsRef<Path>) -> Result<(Vec<usize>, Vec<f64>), IoError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, "cannot read", e))?;
+    let bytes = super::input::read_input(path, super::input::binary_limit())?;
     parse_npy_f64(&bytes).map_err(|reason| IoError::Npy {
         path: path.to_path_buf(),
         reason,

@@ -59,7 +59,7 @@ pub fn png_dimensions_within_budget(path: &Path, bytes: &[u8], bytes_per_pixel: 
 /// for the memory budget is refused before it is decoded.
 pub fn read_png_gray(path: impl AsRef<Path>) -> Result<GrayImage, IoError> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, "cannot read", e))?;
+    let bytes = super::input::read_input(path, super::input::binary_limit())?;
     png_dimensions_within_budget(path, &bytes, 8.0)?; // decoded ≤ 2 B (4 B as RGBA8) + f32 values 4 B
     let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
         .map_err(|e| png_err(path, format!("not a readable PNG (truncated or malformed?): {e}")))?;

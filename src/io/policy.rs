@@ -217,7 +217,10 @@ pub fn check_out_folder_owned(
     ))
 }
 
-/// Check an output file: not a folder, not one of the `inputs`.
+/// Check an output file: not a folder, not one of the `inputs`, and its folder can be written: the nearest
+/// existing ancestor is a folder (not a file: `ro/g.json` where `ro` is a file) that this process may write
+/// into (missing folders below it are created at the commit). A multi-file output set checks every file
+/// this way before any work, so a set is never half announced and then refused.
 pub fn check_out_file(option: &str, out: &Path, inputs: &[(&str, &Path)]) -> Result<(), IoError> {
     if out.is_dir() {
         return Err(refused(
@@ -225,7 +228,46 @@ pub fn check_out_file(option: &str, out: &Path, inputs: &[(&str, &Path)]) -> Res
             format!("{option} is a folder, not a file; nothing was written"),
         ));
     }
-    check_not_input(option, out, inputs, false)
+    check_not_input(option, out, inputs, false)?;
+    check_writable_parent(option, out)
+}
+
+/// The nearest existing ancestor of `out` must be a folder this process may create entries in.
+fn check_writable_parent(option: &str, out: &Path) -> Result<(), IoError> {
+    use std::os::unix::ffi::OsStrExt;
+    let mut dir = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    loop {
+        match fs::metadata(&dir) {
+            Ok(m) if m.is_dir() => break,
+            Ok(_) => {
+                return Err(refused(
+                    out,
+                    format!("{option}: {} is a file, not a folder, so the output cannot be written there; nothing was written", dir.display()),
+                ))
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => match dir.parent() {
+                Some(p) if !p.as_os_str().is_empty() => dir = p.to_path_buf(),
+                _ => {
+                    dir = PathBuf::from(".");
+                    break;
+                }
+            },
+            Err(e) => return Err(IoError::io(&dir, "cannot reach the output's folder", e)),
+        }
+    }
+    let c = std::ffi::CString::new(dir.as_os_str().as_bytes()).map_err(|_| refused(out, format!("{option}: the path holds a NUL byte")))?;
+    // SAFETY: `c` is a valid NUL-terminated path; access(2) only reads it.
+    if unsafe { libc::access(c.as_ptr(), libc::W_OK | libc::X_OK) } != 0 {
+        let e = std::io::Error::last_os_error();
+        return Err(refused(
+            out,
+            format!("{option}: the folder {} cannot be written ({e}); nothing was written, choose another {option}", dir.display()),
+        ));
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -78,9 +78,13 @@ impl GlassCatalog {
     pub fn from_agf_file(path: impl AsRef<Path>) -> Result<Self, MaterialError> {
         let path = path.as_ref();
         let shown = path.display().to_string();
-        let bytes = std::fs::read(path).map_err(|e| MaterialError::Io {
+        let bytes = crate::io::input::read_input(path, crate::limits::MAX_TEXT_FILE_BYTES).map_err(|e| MaterialError::Io {
             path: shown.clone(),
-            message: e.to_string(),
+            message: match e {
+                crate::io::IoError::Io { source, .. } => source.to_string(),
+                crate::io::IoError::Input { reason, .. } => reason,
+                other => other.to_string(),
+            },
         })?;
         Self::from_agf_bytes(&bytes, &shown)
     }

@@ -12,8 +12,14 @@
 //! ```
 use crate::error::{Error, Result};
 use crate::geometry::rotation_xyz;
+use crate::limits::fmt_num;
 use glam::DVec3;
 use std::collections::HashMap;
+
+/// Largest |coordinate| of a mesh vertex, in its file's units before `scale` or in mm after: 10¹⁵ (squared
+/// lengths and cross products stay far from f64's overflow; a placed part must also lie within
+/// ±[`crate::limits::MAX_LENGTH_MM`], checked with its `scale`).
+pub const MAX_COORDINATE: f64 = 1e15;
 
 /// An indexed triangle mesh, vertices in mm.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -90,6 +96,14 @@ impl TriMesh {
         for (i, v) in self.vertices.iter().enumerate() {
             if !v.is_finite() {
                 return Err(Error::File { path: name.into(), message: format!("vertex {i} = ({}, {}, {}) is not finite", v.x, v.y, v.z) });
+            }
+            // Beyond this the areas (squared lengths) the checks and the tracers compute overflow.
+            if v.abs().max_element() > MAX_COORDINATE {
+                let c = [v.x, v.y, v.z].into_iter().fold(0.0f64, |a, c| if c.abs() > a.abs() { c } else { a });
+                return Err(Error::File {
+                    path: name.into(),
+                    message: format!("vertex {i} = ({}, {}, {}): coordinate {} is beyond ±{MAX_COORDINATE:e} (the geometry would overflow); check the file's units and `scale`", fmt_num(v.x), fmt_num(v.y), fmt_num(v.z), fmt_num(c)),
+                });
             }
         }
         let (lo, hi) = self.bounds();

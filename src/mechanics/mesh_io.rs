@@ -36,14 +36,12 @@ pub const MAX_MESH_FILE_BYTES: u64 = 1 << 30;
 pub fn load_mesh(path: &Path, closed: bool) -> Result<TriMesh> {
     let name = path.display().to_string();
     let file_err = |message: String| Error::File { path: name.clone(), message };
-    let meta = std::fs::metadata(path).map_err(|e| file_err(format!("cannot read the mesh file: {e}")))?;
-    if !meta.is_file() {
-        return Err(file_err("not a regular file".into()));
-    }
-    if meta.len() > MAX_MESH_FILE_BYTES {
-        return Err(file_err(format!("{} bytes: larger than the {MAX_MESH_FILE_BYTES}-byte limit of a mesh file", meta.len())));
-    }
-    let bytes = std::fs::read(path).map_err(|e| file_err(format!("cannot read the mesh file: {e}")))?;
+    // A regular file (never a FIFO or device) within MAX_MESH_FILE_BYTES, checked before reading.
+    let bytes = crate::io::input::read_input(path, MAX_MESH_FILE_BYTES).map_err(|e| match e {
+        crate::io::IoError::Io { source, .. } => file_err(format!("cannot read the mesh file: {source}")),
+        crate::io::IoError::Input { reason, .. } => file_err(format!("mesh file {reason}")),
+        other => other.into(),
+    })?;
     parse_mesh(&bytes, &name, closed)
 }
 
@@ -98,6 +96,14 @@ pub fn parse_stl(bytes: &[u8], name: &str) -> Result<TriMesh> {
     if binary_size != Some(bytes.len() as u64) && bytes.trim_ascii_start().starts_with(b"solid") {
         return parse_stl_ascii(bytes, name);
     }
+    if binary_size != Some(bytes.len() as u64) && looks_like_text(bytes) {
+        let first = String::from_utf8_lossy(bytes.trim_ascii_start().split(|&b| b == b'\n').next().unwrap_or_default());
+        let first: String = first.trim_end().chars().take(40).collect();
+        return Err(err(
+            name,
+            format!("text that is not an ASCII STL (an ASCII STL starts with `solid`; this file starts with `{first}`){}", if is_obj_text(bytes) { ": it looks like an OBJ file, name it .obj" } else { "" }),
+        ));
+    }
     if bytes.len() < 84 {
         return Err(err(name, format!("truncated binary STL: {} bytes, fewer than the 84 of the header and triangle count", bytes.len())));
     }
@@ -106,7 +112,15 @@ pub fn parse_stl(bytes: &[u8], name: &str) -> Result<TriMesh> {
         return Err(err(name, format!("binary STL header gives {n} triangles, more than the limit of {MAX_MESH_TRIANGLES}")));
     }
     if binary_size != Some(bytes.len() as u64) {
-        return Err(err(name, format!("truncated binary STL: the header gives {n} triangles = {} bytes, the file has {}", 84 + 50 * n, bytes.len())));
+        let want = 84 + 50 * n;
+        return Err(err(
+            name,
+            if bytes.len() > want {
+                format!("binary STL longer than its header says: the header gives {n} triangles = {want} bytes, the file has {} ({} bytes after the last triangle; a wrong triangle count or trailing data)", bytes.len(), bytes.len() - want)
+            } else {
+                format!("truncated binary STL: the header gives {n} triangles = {want} bytes, the file has {}", bytes.len())
+            },
+        ));
     }
     let mut w = Welder::new();
     w.mesh.triangles.reserve(n);
@@ -124,6 +138,21 @@ pub fn parse_stl(bytes: &[u8], name: &str) -> Result<TriMesh> {
         w.triangle(v, format!("facet {k}"));
     }
     Ok(w.mesh)
+}
+
+/// The first 512 bytes are printable ASCII or whitespace (a binary STL's float data almost never is).
+fn looks_like_text(bytes: &[u8]) -> bool {
+    !bytes.is_empty() && bytes.iter().take(512).all(|&b| b.is_ascii_graphic() || b.is_ascii_whitespace())
+}
+
+/// Text whose statements start like an OBJ file's (`v`, `vn`, `vt`, `f`, `o`, `g`, `#`, `mtllib`, …).
+fn is_obj_text(bytes: &[u8]) -> bool {
+    String::from_utf8_lossy(&bytes[..bytes.len().min(4096)])
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .take(8)
+        .any(|l| ["v ", "vn ", "vt ", "f ", "o ", "g ", "mtllib ", "usemtl "].iter().any(|k| l.starts_with(k)))
 }
 
 fn parse_stl_ascii(bytes: &[u8], name: &str) -> Result<TriMesh> {

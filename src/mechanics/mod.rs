@@ -40,6 +40,7 @@ pub use mesh::*;
 pub use parts::GenerateOptions;
 
 use crate::error::{Error, Result};
+use crate::limits::fmt_num;
 pub use crate::spec::SurfaceModel;
 use crate::spec::{MechanicsSpec, MeshPartSpec};
 use crate::system::SequentialSystem;
@@ -111,7 +112,20 @@ impl Mechanics {
     /// A user mesh loaded, validated and placed.
     pub fn user_part(m: &MeshPartSpec, base_dir: &Path) -> Result<Part> {
         let path = base_dir.join(&m.path);
-        let mesh = mesh_io::load_mesh(&path, m.closed)?.placed(m.translate_mm, m.rotate_deg, m.scale);
+        let file = mesh_io::load_mesh(&path, m.closed)?;
+        // The placed part within ±MAX_LENGTH_MM, naming the vertex as the file has it and the scale.
+        let mesh = file.placed(m.translate_mm, m.rotate_deg, m.scale);
+        let lim = crate::limits::MAX_LENGTH_MM;
+        if let Some((i, v)) = mesh.vertices.iter().enumerate().find(|(_, v)| !(v.is_finite() && v.abs().max_element() <= lim)) {
+            let f = file.vertices[i];
+            return Err(Error::File {
+                path: path.display().to_string(),
+                message: format!(
+                    "vertex {i} = ({}, {}, {}) × scale {} (+ translate_mm) lands at ({}, {}, {}) mm, outside the plausible range ±{lim:e} mm; check `scale` (file units → mm)",
+                    fmt_num(f.x), fmt_num(f.y), fmt_num(f.z), fmt_num(m.scale), fmt_num(v.x), fmt_num(v.y), fmt_num(v.z)
+                ),
+            });
+        }
         // Placement cannot make a valid mesh invalid except by overflow: check again.
         mesh.validate(&path.display().to_string(), m.closed)?;
         Ok(Part { name: m.path.clone(), kind: PartKind::UserMesh, surface: m.surface, mesh })

@@ -205,6 +205,15 @@ impl<'a> Renderer<'a> {
         if detector.width > u16::MAX as usize || detector.height > u16::MAX as usize {
             return Err(Error::invalid(format!("detector {}×{} exceeds 65535 pixels per side", detector.width, detector.height)));
         }
+        // The detector's size is known only now (a system that spreads the scene widely needs a large one):
+        // its buffers, with the scene-sized ones, within the memory budget before any is allocated.
+        let bands = config.spectral.bands_nm.len();
+        let threads = rayon::current_num_threads();
+        let scene_side = crate::limits::bytes_render_scene((h * w) as f64, 0, bands, config.spectral.planes(), config.airy.map(|a| a.diameter_px));
+        crate::limits::check_memory(
+            &format!("the {}×{} detector (the dispersed footprint of the {h}×{w} scene; {bands} bands, {threads} threads)", detector.width, detector.height),
+            scene_side + crate::limits::bytes_detector(detector.pixels() as f64, bands, threads),
+        )?;
         let sampler = RaySampler::new(config.rays_per_pixel, config.sampling);
         let simd = config.kernel.resolve()?;
         if config.precision == crate::tracer::Precision::F32 {

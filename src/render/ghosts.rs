@@ -95,6 +95,9 @@ impl GhostConfig {
         for (k, c) in self.coatings.iter().enumerate() {
             if let Some(c) = c {
                 c.validate().map_err(|e| Error::invalid(format!("coating of surface {k}: {e}")))?;
+                if let Some(what) = system.spec.not_an_interface(k) {
+                    return Err(Error::invalid(format!("coating of surface {k}: surface {k} is {what}, not a refracting interface: a coating there would do nothing")));
+                }
             }
         }
         self.tree_options().validate()

@@ -110,7 +110,7 @@ pub fn load_png_stack(dir: &Path, wavelengths_nm: Option<&[f64]>) -> Result<Spec
     let ws: Vec<f64> = if let Some(w) = check_override(dir, wavelengths_nm, files.len())? {
         w
     } else if let Some(list) = ["wavelengths.txt", "wavelengths_nm.txt"].iter().map(|n| dir.join(n)).find(|p| p.exists()) {
-        let text = std::fs::read_to_string(&list).map_err(|e| file_err(&list, format!("cannot read: {e}")))?;
+        let text = crate::io::input::read_input_text(&list, crate::limits::MAX_TEXT_FILE_BYTES)?;
         let w: Vec<f64> = text
             .split(|c: char| c.is_whitespace() || c == ',')
             .filter(|s| !s.is_empty())

@@ -195,7 +195,7 @@ pub fn load_rgb_png(path: &Path) -> Result<RgbImage> {
 /// size would exceed the memory budget.
 fn load_rgb_png_within(path: &Path, bands: usize) -> Result<RgbImage> {
     let ferr = |m: String| Error::File { path: path.display().to_string(), message: m };
-    let bytes = std::fs::read(path).map_err(|e| ferr(format!("cannot read: {e}")))?;
+    let bytes = crate::io::input::read_input(path, crate::io::input::binary_limit())?;
     crate::io::png16::png_dimensions_within_budget(path, &bytes, crate::limits::bytes_rgb_decode(1, 1) + crate::limits::bytes_cube(1, 1, bands))?;
     let img = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| ferr(format!("not a readable PNG: {e}")))?;
     let (width, height) = (img.width() as usize, img.height() as usize);

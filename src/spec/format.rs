@@ -33,7 +33,7 @@ pub fn load_spec_file(path: impl AsRef<Path>) -> Result<SystemSpec> {
     if path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("zmx")) {
         return super::zmx::import_zmx_file(path, &super::zmx::ZmxOptions::default()).map(|i| i.spec);
     }
-    let text = std::fs::read_to_string(path).map_err(|e| Error::File { path: name.clone(), message: format!("cannot read: {e}") })?;
+    let text = crate::io::input::read_input_text(path, crate::limits::MAX_TEXT_FILE_BYTES)?;
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
         Some("toml") => from_toml(&text, &name),
         Some("json") => from_json(&text, &name),

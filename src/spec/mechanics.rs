@@ -18,9 +18,11 @@
 //! ```
 use serde::{Deserialize, Serialize};
 
-/// What a mechanical surface does to a ray that reaches it.
+/// What a mechanical surface does to a ray that reaches it. Read from `{ model = "absorbing" }` or
+/// `{ model = "lambertian", reflectance = 0.3 }`: any other key, and a `reflectance` on an absorber (which
+/// would be ignored), is an error naming it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "model", rename_all = "snake_case", deny_unknown_fields)]
+#[serde(tag = "model", rename_all = "snake_case", try_from = "SurfaceModelRepr")]
 pub enum SurfaceModel {
     /// Absorbs every ray (a black mount).
     #[default]
@@ -28,6 +30,28 @@ pub enum SurfaceModel {
     /// Scatters a fraction `reflectance` ∈ [0, 1] of the energy into a cosine (Lambertian) lobe about the
     /// normal on the side the ray came from; the rest is absorbed.
     Lambertian { reflectance: f64 },
+}
+
+/// The table a [`SurfaceModel`] is read from (serde's tagged enums let a unit variant ignore unknown keys,
+/// so the model is read as a plain table and checked).
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SurfaceModelRepr {
+    model: String,
+    reflectance: Option<f64>,
+}
+
+impl TryFrom<SurfaceModelRepr> for SurfaceModel {
+    type Error = String;
+    fn try_from(r: SurfaceModelRepr) -> Result<Self, String> {
+        match (r.model.as_str(), r.reflectance) {
+            ("absorbing", None) => Ok(SurfaceModel::Absorbing),
+            ("absorbing", Some(x)) => Err(format!("surface model `absorbing` takes no `reflectance` (got {x}: it would be ignored, an absorber reflects nothing); use model = \"lambertian\" for a scattering surface")),
+            ("lambertian", Some(x)) => Ok(SurfaceModel::Lambertian { reflectance: x }),
+            ("lambertian", None) => Err("surface model `lambertian` needs `reflectance` (in [0, 1])".to_string()),
+            (m, _) => Err(format!("unknown surface model `{m}`: expected `absorbing` or `lambertian`")),
+        }
+    }
 }
 
 impl SurfaceModel {
@@ -144,8 +168,11 @@ impl MechanicsSpec {
             if m.path.trim().is_empty() {
                 return Err(format!("{at}.path: empty"));
             }
-            if !(m.scale.is_finite() && m.scale != 0.0 && m.scale.abs() <= 1e6) {
-                return Err(format!("{at}.scale = {}: must be finite, non-zero and |scale| ≤ 1e6", m.scale));
+            if !(m.scale.is_finite() && (1e-6..=1e6).contains(&m.scale.abs())) {
+                return Err(format!(
+                    "{at}.scale = {}: must be finite with 1e-6 ≤ |scale| ≤ 1e6 (file units → mm: 1e-6 for a file in nm, 1e6 for one in km)",
+                    crate::limits::fmt_num(m.scale)
+                ));
             }
             for (k, v) in m.translate_mm.iter().enumerate() {
                 if !(v.is_finite() && v.abs() <= crate::limits::MAX_LENGTH_MM) {

@@ -64,6 +64,23 @@ fn is_default_air_index(v: &f64) -> bool {
 }
 
 impl SystemSpec {
+    /// Why surface `i` cannot carry a coating, or `None` when it can: coatings act on the Fresnel reflection
+    /// of a refracting interface, which the object surface, the image surface (the detector only absorbs),
+    /// a Coordinate Break (no surface) and a paraxial lens (an ideal, lossless thin lens) do not have.
+    pub fn not_an_interface(&self, i: usize) -> Option<&'static str> {
+        if i == 0 {
+            Some("the object surface")
+        } else if i + 1 == self.surfaces.len() {
+            Some("the image surface (the detector)")
+        } else {
+            match self.surfaces.get(i).map(|s| s.kind) {
+                Some(SurfaceKind::CoordinateBreak) => Some("a Coordinate Break"),
+                Some(SurfaceKind::Paraxial) => Some("a paraxial (ideal thin) lens"),
+                _ => None,
+            }
+        }
+    }
+
     /// Index of the stop surface: the one flagged `stop`, else surface 1 (Zemax's default).
     pub fn stop_index(&self) -> usize {
         self.surfaces.iter().position(|s| s.stop).unwrap_or(1)
@@ -141,6 +158,9 @@ impl SystemSpec {
             }
             if let Some(c) = &s.coating {
                 c.validate().map_err(|m| at("coating", m))?;
+                if let Some(what) = self.not_an_interface(i) {
+                    return Err(at("coating", format!("surface {i} is {what}, not a refracting interface: a coating there would do nothing; remove it")));
+                }
             }
             if s.asphere_coefficients.len() > 8 {
                 return Err(at("asphere_coefficients", format!("{} terms: at most 8 (r² … r¹⁶)", s.asphere_coefficients.len())));

@@ -54,6 +54,9 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
     if spec.mechanics.is_some() {
         return Err(fail("the [mechanics] section (mounts and meshes) has no sequential .zmx equivalent: export as .toml or .json".into()));
     }
+    if let Some((i, _)) = spec.surfaces.iter().enumerate().find(|(_, s)| s.coating.is_some()) {
+        return Err(fail(format!("surface {i} has a coating, which the .zmx export cannot write (it would be dropped): export as .toml or .json")));
+    }
     if spec.name.contains(['\n', '\r']) || spec.description.contains(['\n', '\r']) {
         return Err(fail("the name or description spans several lines (a .zmx NAME/NOTE is one line)".into()));
     }

@@ -53,7 +53,8 @@ pub struct ZmxImport {
 pub fn import_zmx_file(path: impl AsRef<Path>, options: &ZmxOptions) -> Result<ZmxImport> {
     let path = path.as_ref();
     let name = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|e| Error::File { path: name.clone(), message: format!("cannot read: {e}") })?;
+    // A regular file of bounded size (a FIFO or /dev/zero is refused at once, docs/robustness.md).
+    let bytes = crate::io::input::read_input(path, crate::limits::MAX_TEXT_FILE_BYTES)?;
     import_zmx(&bytes, &name, Some(path), options)
 }
 

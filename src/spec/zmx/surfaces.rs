@@ -82,12 +82,31 @@ impl SurfaceBlock {
             "STOP" => self.stop = true,
             "COMM" => self.comment = r.rest.trim().trim_matches('"').to_string(),
             "CURV" => {
-                self.curv = Some(finite(r, 0)?);
+                let c = finite(r, 0)?;
+                if c.abs() > crate::limits::MAX_CURVATURE_PER_MM {
+                    return Err(format!(
+                        "line {} `CURV`: curvature {} mm⁻¹ (radius {} mm) is outside the plausible range ±{:e} mm⁻¹ (|radius| ≥ {:e} mm)",
+                        r.line,
+                        crate::limits::fmt_num(c),
+                        crate::limits::fmt_num(1.0 / c),
+                        crate::limits::MAX_CURVATURE_PER_MM,
+                        1.0 / crate::limits::MAX_CURVATURE_PER_MM
+                    ));
+                }
+                self.curv = Some(c);
                 if r.args.len() > 1 && int(r, 1)? != 0 {
                     skip(format!("curvature solve type {}: OpticStudio's solves are not modelled (write the solved value)", r.args[1]));
                 }
             }
-            "DISZ" => self.disz = Some((r.line, num(r, 0)?)),
+            "DISZ" => {
+                let t = num(r, 0)?;
+                // INFINITY is the object at infinity (refused later with its own message); a finite thickness
+                // must be a plausible length.
+                if t.is_finite() {
+                    crate::limits::check_plausible_length("thickness", t).map_err(|m| format!("line {} `DISZ`: {m}", r.line))?;
+                }
+                self.disz = Some((r.line, t))
+            }
             "GLAS" => {
                 let name = r.args.first().cloned().ok_or_else(|| format!("line {} `GLAS`: glass name missing", r.line))?;
                 match name.as_str() {

@@ -45,8 +45,14 @@ impl Header {
             "NAME" => self.name = r.rest.trim().trim_matches('"').to_string(),
             "NOTE" => self.note = r.rest.split_once(char::is_whitespace).map(|x| x.1).unwrap_or("").trim().to_string(),
             "MODE" => {
+                // Never skipped (not even with --ignore-unsupported): a non-sequential file read as a
+                // sequential one would be a different system.
                 if r.args.first().map(String::as_str) != Some("SEQ") {
-                    skip(format!("mode `{}`: only sequential (SEQ) systems are modelled; non-sequential components are not", r.rest));
+                    return Err(format!(
+                        "line {} `MODE {}`: only sequential (MODE SEQ) files can be imported; a non-sequential file is never read as a sequential system (--ignore-unsupported does not apply)",
+                        r.line,
+                        r.rest.trim()
+                    ));
                 }
             }
             "UNIT" => {

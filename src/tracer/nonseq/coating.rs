@@ -124,10 +124,12 @@ impl std::str::FromStr for CoatingOverride {
             let coating = if value == "bare" {
                 None
             } else if let Some(r) = value.strip_prefix('R').or_else(|| value.strip_prefix('r')) {
-                let r: f64 = r.parse().map_err(|_| format!("`{item}`: the reflectance `{r}` is not a number"))?;
+                let r: f64 = r.parse().map_err(|_| format!("`{item}`: the reflectance `{r}` is not a number (a fraction in [0, 1], written without a space or suffix: R0.01)"))?;
                 Some(Coating::Reflectance(r))
             } else if let Some(w) = value.strip_prefix("mgf2@") {
-                let w: f64 = w.trim_end_matches("nm").parse().map_err(|_| format!("`{item}`: the design wavelength `{w}` is not a number of nm"))?;
+                // One rule for every value: a plain number, its unit implied (reflectance: a fraction; design
+                // wavelength: nm), no unit suffix and no space inside (`mgf2@550nm` and `R 0.01` alike refused).
+                let w: f64 = w.parse().map_err(|_| format!("`{item}`: the design wavelength `{w}` is not a number of nm (written without a space or unit suffix: mgf2@550)"))?;
                 Some(Coating::Mgf2QuarterWaveNm(w))
             } else {
                 return Err(format!("`{item}`: the coating `{value}` is not bare, R<reflectance> (e.g. R0.01) or mgf2@<nm> (e.g. mgf2@550)"));
@@ -142,14 +144,21 @@ impl std::str::FromStr for CoatingOverride {
 }
 
 impl CoatingOverride {
-    /// The coatings of `surfaces` (the spec's, one per sequential surface) with the override applied; a
-    /// surface index beyond the system is an error naming it.
-    pub fn apply(&self, surfaces: &[Option<Coating>]) -> crate::error::Result<Vec<Option<Coating>>> {
+    /// The coatings of `surfaces` (the spec's, one per sequential surface) with the override applied.
+    /// `not_an_interface(k)` says why surface k cannot carry a coating
+    /// ([`crate::spec::SystemSpec::not_an_interface`]): `all` coats every other surface; a surface index
+    /// beyond the system, or naming such a surface, is an error naming it.
+    pub fn apply(&self, surfaces: &[Option<Coating>], not_an_interface: &dyn Fn(usize) -> Option<&'static str>) -> crate::error::Result<Vec<Option<Coating>>> {
         let mut out = surfaces.to_vec();
         for (target, coating) in &self.items {
             match target {
-                None => out.iter_mut().for_each(|c| *c = coating.clone()),
-                Some(k) if *k < out.len() => out[*k] = coating.clone(),
+                None => out.iter_mut().enumerate().filter(|(k, _)| not_an_interface(*k).is_none()).for_each(|(_, c)| *c = coating.clone()),
+                Some(k) if *k < out.len() => {
+                    if let (Some(what), Some(_)) = (not_an_interface(*k), coating) {
+                        return Err(crate::error::Error::invalid(format!("--coating `{}`: surface {k} is {what}, not a refracting interface: a coating there would do nothing", self.text)));
+                    }
+                    out[*k] = coating.clone()
+                }
                 Some(k) => return Err(crate::error::Error::invalid(format!("--coating `{}`: surface {k} does not exist (the system has surfaces 0..={})", self.text, out.len().saturating_sub(1)))),
             }
         }
@@ -164,13 +173,19 @@ mod tests {
     #[test]
     fn coating_override_syntax() {
         let o: CoatingOverride = "all=mgf2@550, 2=R0.01,3=bare".parse().unwrap();
-        let c = o.apply(&[None, Some(Coating::Reflectance(0.5)), None, Some(Coating::Reflectance(0.2))]).unwrap();
+        let c = o.apply(&[None, Some(Coating::Reflectance(0.5)), None, Some(Coating::Reflectance(0.2))], &|_| None).unwrap();
         assert_eq!(c, vec![Some(Coating::Mgf2QuarterWaveNm(550.0)), Some(Coating::Mgf2QuarterWaveNm(550.0)), Some(Coating::Reflectance(0.01)), None]);
-        for (bad, needle) in [("all=R1.5", "reflectance 1.5"), ("all=R-0.1", "reflectance -0.1"), ("all=Rx", "`x` is not a number"), ("x=R0", "target `x`"), ("all", "TARGET=VALUE"), ("all=gold", "`gold`"), ("all=mgf2@100", "mgf2_quarter_wave_nm 100")] {
+        // `all` skips surfaces that are not interfaces; naming one is an error.
+        let object = |k: usize| (k == 0).then_some("the object surface");
+        let c = "all=R0.01".parse::<CoatingOverride>().unwrap().apply(&[None, None], &object).unwrap();
+        assert_eq!(c, vec![None, Some(Coating::Reflectance(0.01))]);
+        let e = "0=R0.01".parse::<CoatingOverride>().unwrap().apply(&[None, None], &object).unwrap_err().to_string();
+        assert!(e.contains("surface 0 is the object surface"), "{e}");
+        for (bad, needle) in [("all=R1.5", "reflectance 1.5"), ("all=R-0.1", "reflectance -0.1"), ("all=Rx", "`x` is not a number"), ("x=R0", "target `x`"), ("all", "TARGET=VALUE"), ("all=gold", "`gold`"), ("all=mgf2@100", "mgf2_quarter_wave_nm 100"), ("16=mgf2@550nm", "`550nm` is not a number of nm"), ("16=R 0.01", "` 0.01` is not a number")] {
             let e = bad.parse::<CoatingOverride>().unwrap_err();
             assert!(e.contains(needle), "{bad}: {e}");
         }
-        let e = "7=R0".parse::<CoatingOverride>().unwrap().apply(&[None, None]).unwrap_err().to_string();
+        let e = "7=R0".parse::<CoatingOverride>().unwrap().apply(&[None, None], &|_| None).unwrap_err().to_string();
         assert!(e.contains("surface 7"), "{e}");
     }
 
