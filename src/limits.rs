@@ -574,8 +574,7 @@ pub fn bytes_render_hw(height: usize, width: usize, scene_bands: usize, bands: u
     let pixels = height as f64 * width as f64;
     let detector = 2.0 * pixels;
     let images = detector * (8.0 + 4.0 * bands as f64 + if cube { 4.0 * bands as f64 } else { 0.0 });
-    let taps = airy_diameter_px.map(|d| (2.0 * (1.33 * d * 1.3 + 1.5) + 1.0).powi(2)).unwrap_or(0.0);
-    pixels * (8.0 * scene_bands as f64 + 16.0 * bands as f64 + 8.0) + images + planes as f64 * (taps * 12.0 + 64.0)
+    bytes_render_scene(pixels, scene_bands, bands, planes, airy_diameter_px) + images
 }
 
 #[cfg(test)]

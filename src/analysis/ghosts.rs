@@ -208,6 +208,11 @@ fn ghost_map(trees: &[RayTree], n: usize) -> GhostMap {
 /// Bytes one detector arrival of a ray tree holds (its reflection list, point, direction, power), with the
 /// tree's share of the per-path accumulation.
 pub const BYTES_PER_ARRIVAL: f64 = 160.0;
+/// Bytes one ray tree of the source being traced holds besides its arrivals: the source's ray (56 B), the tree
+/// and its ledger (88 B), allocator and grouping overhead. Measured: AP, order 4, 2.0 paths per tree, rings 16 and
+/// 32 with an extended grid of 16 (2.1·10⁵ and 8.1·10⁵ trees in the largest source) peaked at 147 MB and 506 MB
+/// resident, 600–620 B per tree; this constant and [`BYTES_PER_ARRIVAL`] give 620 B.
+pub const BYTES_PER_TREE: f64 = 300.0;
 
 /// What [`ghost_analysis`] will trace and hold, estimated before the analysis runs.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -221,7 +226,8 @@ pub struct GhostEstimate {
     pub paths_per_tree: f64,
     /// Rays traced: every tree's walk and each of its detector paths, trees × (1 + paths per tree).
     pub rays: f64,
-    /// Peak memory: the largest source's rays and their trees' detector paths.
+    /// Peak memory: the largest source's rays, trees and detector paths ([`BYTES_PER_TREE`],
+    /// [`BYTES_PER_ARRIVAL`]).
     pub bytes: f64,
 }
 
@@ -253,7 +259,7 @@ pub fn ghost_estimate(system: &SequentialSystem, options: &GhostOptions) -> Resu
     let pilot = trace_trees(&kernel, system, &rays, &tree_opts)?;
     let paths_per_tree = pilot.iter().map(|t| t.arrivals.len()).sum::<usize>() as f64 / pilot.len().max(1) as f64;
     let rays = trees * (1.0 + paths_per_tree);
-    let bytes = largest_source * (crate::limits::BYTES_PER_RAY + paths_per_tree * BYTES_PER_ARRIVAL);
+    let bytes = largest_source * (BYTES_PER_TREE + paths_per_tree * BYTES_PER_ARRIVAL);
     Ok(GhostEstimate { trees, largest_source, paths_per_tree, rays, bytes })
 }
 
