@@ -40,6 +40,7 @@ pub mod output;
 pub mod sampling;
 pub mod spectral;
 pub mod transport;
+pub mod twin;
 pub mod trig;
 pub(crate) mod vector;
 pub mod validate;
