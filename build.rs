@@ -9,8 +9,29 @@
 //! Without the feature this script does nothing.
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
+    gpu_twin();
     #[cfg(feature = "embree")]
     embree::build();
+}
+
+/// The host build of the GPU kernels (src/gpu/kernels, docs/gpu.md): the same C headers the device PTX is
+/// compiled from, built as C99 without floating-point contraction so that the CPU twin computes what the
+/// device computes, and linked into the library (src/gpu/twin.rs calls it; the tests compare it with the
+/// Rust kernels).
+fn gpu_twin() {
+    for f in ["dc_common.h", "dc_trace.h", "dc_sample.h", "dc_render.h", "host.c"] {
+        println!("cargo:rerun-if-changed=src/gpu/kernels/{f}");
+    }
+    cc::Build::new()
+        .file("src/gpu/kernels/host.c")
+        .include("src/gpu/kernels")
+        .std("c99")
+        .opt_level(2)
+        .flag_if_supported("-ffp-contract=off")
+        .flag_if_supported("-fno-fast-math")
+        .warnings(true)
+        .extra_warnings(true)
+        .compile("diffcassi_gpu_twin");
 }
 
 #[cfg(feature = "embree")]

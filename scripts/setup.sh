@@ -75,6 +75,22 @@ python_setup() {
         "$venv/bin/pip" install -q "${missing_py[@]}" || die "pip install ${missing_py[*]} into .venv failed"
         echo "setup.sh: installed into .venv: ${missing_py[*]}"
     fi
+    # The GPU kernels' device build (docs/gpu.md, scripts/gpu/build_ptx.py): NVRTC comes with torch
+    # (nvidia-cuda-nvrtc); ptxas, which assembles the PTX so that compile errors, registers and spills show
+    # without a GPU, from nvidia-cuda-nvcc at NVRTC's own version (no GPU or driver is needed for either).
+    [[ "${DIFFCASSI_TORCH:-install}" == skip ]] && return 0
+    local nvrtc_version nvcc_version
+    nvrtc_version=$("$venv/bin/python" -c "import importlib.metadata as m; print(m.version('nvidia-cuda-nvrtc'))" 2>/dev/null) || nvrtc_version=""
+    if [[ -z "$nvrtc_version" ]]; then
+        "$venv/bin/pip" install -q "nvidia-cuda-nvrtc==13.2.86" || die "pip install nvidia-cuda-nvrtc into .venv failed"
+        nvrtc_version=13.2.86
+        echo "setup.sh: installed into .venv: nvidia-cuda-nvrtc $nvrtc_version"
+    fi
+    nvcc_version=$("$venv/bin/python" -c "import importlib.metadata as m; print(m.version('nvidia-cuda-nvcc'))" 2>/dev/null) || nvcc_version=""
+    if [[ "$nvcc_version" != "$nvrtc_version" ]]; then
+        "$venv/bin/pip" install -q --no-deps "nvidia-cuda-nvcc==$nvrtc_version" || die "pip install nvidia-cuda-nvcc==$nvrtc_version into .venv failed"
+        echo "setup.sh: installed into .venv: nvidia-cuda-nvcc $nvrtc_version (ptxas)"
+    fi
 }
 
 die() {

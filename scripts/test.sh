@@ -14,6 +14,15 @@ fi
 cargo test --release --all-targets
 cargo test --release --doc
 
+# The GPU kernels' device build (docs/gpu.md): NVRTC compiles src/gpu/kernels to PTX, ptxas assembles it for
+# sm_90 and prints registers and spills; fails if the committed src/gpu/kernels/trace.ptx is stale. No GPU needed
+# (prints SKIP without the NVRTC/ptxas wheels, i.e. with DIFFCASSI_TORCH=skip).
+if [[ -x .venv/bin/python ]]; then
+    .venv/bin/python scripts/gpu/build_ptx.py
+else
+    echo "SKIP build_ptx: no .venv (DIFFCASSI_PYTHON=skip)"
+fi
+
 # The real Slurm test (docs/slurm.md): a one-node Slurm cluster in a private network namespace renders a job
 # array, one task killed and resubmitted; prints SKIP (exit 0) where it cannot run (not root, no namespaces).
 bash tests/slurm/run.sh

@@ -25,6 +25,7 @@ pub mod diff;
 pub mod error;
 pub mod fidelity;
 pub mod geometry;
+pub mod gpu;
 pub mod io;
 pub mod limits;
 pub mod materials;

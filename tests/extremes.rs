@@ -191,6 +191,15 @@ fn analytic(sys: &SequentialSystem, rays: &RayBatch) -> Run {
         let simd = AnalyticTracer::with_kernel(Kernel::Simd(Some(level))).trace(sys, rays).unwrap();
         assert_simd_agrees(level, &simd, &out);
     }
+    // The GPU kernels' CPU twin (src/gpu/kernels): the same statuses, surfaces and bits as the scalar kernel.
+    let twin = diffcassi::gpu::TwinTracer::default().trace(sys, rays).unwrap();
+    assert_eq!(twin.status, out.status, "gpu twin: statuses");
+    assert_eq!(twin.surface, out.surface, "gpu twin: stopping surfaces");
+    for i in 0..out.len() {
+        for (a, b) in [(twin.x[i], out.x[i]), (twin.y[i], out.y[i]), (twin.z[i], out.z[i]), (twin.dir_x[i], out.dir_x[i]), (twin.dir_y[i], out.dir_y[i]), (twin.dir_z[i], out.dir_z[i])] {
+            assert!(a.to_bits() == b.to_bits() || (a - b).abs() <= 1e-12, "gpu twin ray {i}: {a} vs {b}");
+        }
+    }
     let class = (0..out.len()).map(|i| class_of(out.status[i], out.surface[i], u32::MAX)).collect();
     Run { label: "analytic", exact: true, mesh: false, out, class }
 }

@@ -52,6 +52,12 @@ impl PupilAim {
         PupilAim { telecentric, scale: if telecentric { 1.0 } else { p.radius_mm }, sin_marginal: p.sin_marginal, magnification_sign: p.magnification_sign, distance_mm: p.distance_mm }
     }
 
+    /// The aim's constants for the GPU kernels (`dc_aim` of src/gpu/kernels/dc_sample.h): telecentric,
+    /// scale, sin of the marginal angle, pupil magnification sign, pupil distance (mm).
+    pub(crate) fn parts(&self) -> (bool, f64, f64, f64, f64) {
+        (self.telecentric, self.scale, self.sin_marginal, self.magnification_sign, self.distance_mm)
+    }
+
     /// [`object_ray`]'s unit direction from the object point (x, y, 0) through normalised pupil point (px, py).
     #[inline(always)]
     pub fn direction(&self, x: f64, y: f64, px: f64, py: f64) -> [f64; 3] {

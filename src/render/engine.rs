@@ -225,6 +225,12 @@ impl<'a> Renderer<'a> {
         Ok(Renderer { system, tracer, config, mask, detector, kernels, sampler, simd })
     }
 
+    /// Everything fixed while tracing a plane of this render (for other plane tracers, e.g. the GPU
+    /// kernels' twin [`super::twin::trace_plane`]).
+    pub fn plane_context(&self) -> PlaneContext<'_> {
+        self.context()
+    }
+
     fn context(&self) -> PlaneContext<'_> {
         PlaneContext {
             system: self.system,

@@ -42,6 +42,7 @@ pub mod sampling;
 pub mod settings;
 pub mod spectral;
 pub mod transport;
+pub mod twin;
 pub mod trig;
 pub(crate) mod vector;
 pub mod validate;

@@ -199,6 +199,12 @@ impl RaySampler {
         RaySampler { rays, mode, grid: (a, rays / a), cell_i, cell_j, shuffle_magic, level: crate::tracer::SimdLevel::detect() }
     }
 
+    /// The strata grid a × b (a·b = rays; a the largest divisor of N not above √N): the GPU kernels' sampler
+    /// (src/gpu/kernels/dc_sample.h) takes it as it is.
+    pub(crate) fn grid(&self) -> (usize, usize) {
+        self.grid
+    }
+
     /// The same sampler with its vectorised loop compiled for `level` (for tests: the numbers are the same).
     pub fn with_level(mut self, level: crate::tracer::SimdLevel) -> Self {
         self.level = level;

@@ -70,7 +70,7 @@ impl RayStats {
         self.out_of_range += o.out_of_range;
         self.off_detector += o.off_detector;
     }
-    fn count(&mut self, s: RayStatus) {
+    pub(crate) fn count(&mut self, s: RayStatus) {
         match s {
             RayStatus::Ok => self.arrived += 1,
             RayStatus::Missed => self.missed += 1,

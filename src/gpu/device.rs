@@ -1,0 +1,136 @@
+//! Finding a CUDA device: the driver library is opened at run time (nothing CUDA is needed to build or to run
+//! on the CPU), and every failure is one message that says what is missing — no driver library, a driver
+//! that fails to initialise, no device — never a panic (a plain `dlopen`, then `cuInit` and
+//! `cuDeviceGetCount`; cudarc's `CudaContext::new` panics when libcuda.so is absent, so the probe comes first).
+use std::ffi::{c_char, c_int, c_void, CStr};
+
+/// What the probe found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CudaInfo {
+    /// Devices the driver reports.
+    pub devices: usize,
+    /// The first device's name (`cuDeviceGetName`).
+    pub name: String,
+    /// The driver's CUDA version, e.g. 13020 for 13.2 (`cuDriverGetVersion`).
+    pub driver_version: i32,
+}
+
+/// Why no CUDA device can be used; the message names what is missing. Callers put the option or argument
+/// in front (`--device cuda: …`, `device="cuda": …`) and what to use instead after it.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum DeviceError {
+    #[error("no NVIDIA driver on this machine (libcuda.so.1 could not be loaded: {0})")]
+    NoDriver(String),
+    #[error("the NVIDIA driver is installed but {0}")]
+    Driver(String),
+    #[error("the NVIDIA driver reports no CUDA device")]
+    NoDevice,
+    #[error("a CUDA device was found ({0}) but this build cannot launch kernels on it yet: the device launcher is not built (docs/gpu.md, \"Status\")")]
+    NoLauncher(String),
+}
+
+/// The driver library's file names, most specific first.
+const DRIVER_NAMES: [&str; 2] = ["libcuda.so.1", "libcuda.so"];
+
+fn dlerror_text() -> String {
+    // SAFETY: dlerror returns a thread-local C string or null.
+    unsafe {
+        let e = libc::dlerror();
+        if e.is_null() {
+            "unknown error".into()
+        } else {
+            CStr::from_ptr(e).to_string_lossy().into_owned()
+        }
+    }
+}
+
+/// Probe the CUDA driver: library, initialisation, device count, the first device's name and the driver
+/// version. Environment `DIFFCASSI_CUDA_DRIVER` names another driver library (tests use a missing path).
+pub fn probe() -> Result<CudaInfo, DeviceError> {
+    let names: Vec<String> = match std::env::var("DIFFCASSI_CUDA_DRIVER") {
+        Ok(p) if !p.is_empty() => vec![p],
+        _ => DRIVER_NAMES.iter().map(|s| s.to_string()).collect(),
+    };
+    let mut handle: *mut c_void = std::ptr::null_mut();
+    let mut why = String::new();
+    for name in &names {
+        let c = std::ffi::CString::new(name.as_str()).map_err(|_| DeviceError::NoDriver(format!("bad library name {name:?}")))?;
+        // SAFETY: dlopen with a valid C string; the handle is checked for null.
+        handle = unsafe { libc::dlopen(c.as_ptr(), libc::RTLD_NOW | libc::RTLD_LOCAL) };
+        if !handle.is_null() {
+            break;
+        }
+        why = dlerror_text();
+    }
+    if handle.is_null() {
+        return Err(DeviceError::NoDriver(why));
+    }
+    let sym = |name: &CStr| -> Result<*mut c_void, DeviceError> {
+        // SAFETY: dlsym on a live handle with a valid C string.
+        let p = unsafe { libc::dlsym(handle, name.as_ptr()) };
+        if p.is_null() {
+            Err(DeviceError::Driver(format!("its library lacks {}", name.to_string_lossy())))
+        } else {
+            Ok(p)
+        }
+    };
+    type Init = unsafe extern "C" fn(u32) -> c_int;
+    type Count = unsafe extern "C" fn(*mut c_int) -> c_int;
+    type Get = unsafe extern "C" fn(*mut c_int, c_int) -> c_int;
+    type Name = unsafe extern "C" fn(*mut c_char, c_int, c_int) -> c_int;
+    type Version = unsafe extern "C" fn(*mut c_int) -> c_int;
+    // SAFETY: the symbols are the CUDA driver API's, with these C signatures (cuda.h).
+    unsafe {
+        let init: Init = std::mem::transmute(sym(c"cuInit")?);
+        let count: Count = std::mem::transmute(sym(c"cuDeviceGetCount")?);
+        let get: Get = std::mem::transmute(sym(c"cuDeviceGet")?);
+        let name: Name = std::mem::transmute(sym(c"cuDeviceGetName")?);
+        let version: Version = std::mem::transmute(sym(c"cuDriverGetVersion")?);
+        let rc = init(0);
+        if rc != 0 {
+            return Err(DeviceError::Driver(format!("cuInit failed with CUDA error {rc}")));
+        }
+        let mut n: c_int = 0;
+        if count(&mut n) != 0 || n <= 0 {
+            return Err(DeviceError::NoDevice);
+        }
+        let mut dev: c_int = 0;
+        let mut buf = [0 as c_char; 256];
+        let dev_name = if get(&mut dev, 0) == 0 && name(buf.as_mut_ptr(), buf.len() as c_int, dev) == 0 {
+            CStr::from_ptr(buf.as_ptr()).to_string_lossy().into_owned()
+        } else {
+            "unknown device".into()
+        };
+        let mut v: c_int = 0;
+        version(&mut v);
+        Ok(CudaInfo { devices: n as usize, name: dev_name, driver_version: v })
+    }
+}
+
+/// What `--device cuda` gets today: the probe's error, or — where a device exists — that the launcher is not
+/// built yet. Never `Ok` in this build: callers fail before writing anything.
+pub fn require_cuda() -> Result<CudaInfo, DeviceError> {
+    let info = probe()?;
+    Err(DeviceError::NoLauncher(format!("{} × {}, driver {}.{}", info.devices, info.name, info.driver_version / 1000, (info.driver_version % 1000) / 10)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_missing_driver_is_one_clear_error() {
+        // Not via the environment (tests run in parallel): the same path the probe takes with a bad name.
+        let c = std::ffi::CString::new("/nonexistent/libcuda.so.1").unwrap();
+        let h = unsafe { libc::dlopen(c.as_ptr(), libc::RTLD_NOW) };
+        assert!(h.is_null());
+        let e = DeviceError::NoDriver(dlerror_text());
+        let msg = e.to_string();
+        assert!(msg.contains("no NVIDIA driver") && msg.contains("/nonexistent/libcuda.so.1"), "{msg}");
+    }
+
+    #[test]
+    fn require_cuda_never_succeeds_in_this_build() {
+        assert!(require_cuda().is_err());
+    }
+}

@@ -1,0 +1,37 @@
+/* diffcassi GPU kernels, host build: the CPU twin of device.cu, from the same headers.
+ *
+ * Compiled by build.rs with the `cc` crate (C99, -O2, -ffp-contract=off) into the library, and called from
+ * src/gpu/twin.rs over ranges of rays (rayon chunks). The tests compare it with the Rust kernels; what
+ * passes here is what the device runs.
+ */
+#include "dc_render.h"
+
+/* Trace rays [begin, end) of the batch: the body of the device kernel dc_trace_kernel, one ray a turn. */
+void dc_trace_batch_host(const dc_batch *b, dc_u64 begin, dc_u64 end) {
+    for (dc_u64 i = begin; i < end && i < b->n_rays; ++i) dc_trace_batch_ray(b, i);
+}
+
+/* Landings of rays [begin, end) of a plane launch: the body of dc_landing_kernel. */
+void dc_landing_host(const dc_landing_batch *b, dc_u64 begin, dc_u64 end) {
+    dc_u64 n = b->n_pixels * (dc_u64)b->sampler.rays;
+    for (dc_u64 t = begin; t < end && t < n; ++t) dc_landing_ray(b, t);
+}
+
+/* sizeof of the shared structs, so that the Rust side can check its repr(C) layouts. */
+dc_u64 dc_sizeof_step(void) { return (dc_u64)sizeof(dc_step); }
+dc_u64 dc_sizeof_batch(void) { return (dc_u64)sizeof(dc_batch); }
+dc_u64 dc_sizeof_landing_batch(void) { return (dc_u64)sizeof(dc_landing_batch); }
+
+/* Footprint windows of open pixels [begin, end): pass 1 of dc_footprint_*_kernel. Pixel q's rays are
+ * u/v[q·n .. q·n + n]. */
+void dc_footprint_size_host(const double *u, const double *v, dc_u32 n, dc_i64 det_w, dc_i64 det_h, dc_window *wins, dc_u64 begin, dc_u64 end) {
+    for (dc_u64 q = begin; q < end; ++q) dc_footprint_size(u + q * n, v + q * n, n, det_w, det_h, &wins[q]);
+}
+
+/* Pass 2: the windows' taps; offsets[q] is where pixel q's cells start in scratch and weights. */
+void dc_footprint_fill_host(const double *u, const double *v, dc_u32 n, dc_window *wins, const dc_u64 *offsets, double *scratch, float *weights, dc_u64 begin, dc_u64 end) {
+    for (dc_u64 q = begin; q < end; ++q)
+        if (wins[q].w > 0) dc_footprint_fill(u + q * n, v + q * n, n, &wins[q], scratch + offsets[q], weights + offsets[q]);
+}
+
+dc_u64 dc_sizeof_window(void) { return (dc_u64)sizeof(dc_window); }

@@ -1,0 +1,208 @@
+//! The traced system and a ray batch as the kernels read them: `repr(C)` twins of `dc_step` and `dc_batch`
+//! in `src/gpu/kernels/dc_trace.h` (their sizes are checked against the C compiler's at run time by the
+//! tests), built from a [`SequentialSystem`]'s path and its per-wavelength index tables.
+use crate::error::{Error, Result};
+use crate::surfaces::{Aperture, SurfaceShape};
+use crate::system::SequentialSystem;
+
+/// Shape codes (`DC_SHAPE_*`).
+const SHAPE_PLANE: u32 = 0;
+const SHAPE_CONIC: u32 = 1;
+const SHAPE_ASPHERE: u32 = 2;
+const SHAPE_PARAXIAL: u32 = 3;
+/// Aperture codes (`DC_APERTURE_*`).
+const APERTURE_NONE: u32 = 0;
+const APERTURE_CIRCULAR: u32 = 1;
+const APERTURE_RECTANGULAR: u32 = 2;
+/// `DC_MAX_COEF`: even-asphere terms r² … r¹⁶.
+pub(crate) const MAX_COEF: usize = 8;
+
+/// One surface of the path (`dc_step`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Step {
+    /// Rotation into the local frame, by columns (glam's `DMat3::to_cols_array`).
+    pub rotation: [f64; 9],
+    /// The local frame's origin in the previous frame, mm.
+    pub offset: [f64; 3],
+    pub curvature: f64,
+    pub conic: f64,
+    pub focal_length: f64,
+    pub aperture: [f64; 4],
+    pub coef: [f64; MAX_COEF],
+    pub shape: u32,
+    pub aperture_kind: u32,
+    pub surface: u32,
+    pub n_coef: u32,
+}
+
+/// A batch in structure-of-arrays form (`dc_batch`): borrowed pointers, valid for one call.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Batch {
+    pub path: *const Step,
+    pub tables: *const f64,
+    pub table_of_ray: *const u32,
+    pub ox: *const f64,
+    pub oy: *const f64,
+    pub oz: *const f64,
+    pub dx: *const f64,
+    pub dy: *const f64,
+    pub dz: *const f64,
+    pub x: *mut f64,
+    pub y: *mut f64,
+    pub z: *mut f64,
+    pub ux: *mut f64,
+    pub uy: *mut f64,
+    pub uz: *mut f64,
+    pub status: *mut u8,
+    pub surface: *mut u32,
+    pub n_rays: u64,
+    pub n_steps: u32,
+    pub n_surfaces: u32,
+}
+
+/// The system's traced path as kernel steps.
+pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
+    system
+        .path
+        .iter()
+        .map(|s| {
+            let mut step = Step { rotation: s.rotation.to_cols_array(), offset: s.offset.to_array(), surface: s.surface as u32, ..Step::default() };
+            match &s.shape {
+                SurfaceShape::Plane => step.shape = SHAPE_PLANE,
+                SurfaceShape::Conic { curvature, conic } => {
+                    step.shape = SHAPE_CONIC;
+                    step.curvature = *curvature;
+                    step.conic = *conic;
+                }
+                SurfaceShape::EvenAsphere { curvature, conic, coefficients } => {
+                    if coefficients.len() > MAX_COEF {
+                        return Err(Error::invalid(format!(
+                            "surface {}: {} even-asphere terms; the GPU kernels take at most {MAX_COEF}",
+                            s.surface,
+                            coefficients.len()
+                        )));
+                    }
+                    step.shape = SHAPE_ASPHERE;
+                    step.curvature = *curvature;
+                    step.conic = *conic;
+                    step.coef[..coefficients.len()].copy_from_slice(coefficients);
+                    step.n_coef = coefficients.len() as u32;
+                }
+                SurfaceShape::Paraxial { focal_length } => {
+                    step.shape = SHAPE_PARAXIAL;
+                    step.focal_length = *focal_length;
+                }
+            }
+            match s.aperture {
+                Aperture::None => step.aperture_kind = APERTURE_NONE,
+                Aperture::Circular { semi_diameter_mm, min_radius_mm, decenter_x_mm, decenter_y_mm } => {
+                    step.aperture_kind = APERTURE_CIRCULAR;
+                    step.aperture = [semi_diameter_mm, min_radius_mm, decenter_x_mm, decenter_y_mm];
+                }
+                Aperture::Rectangular { half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm } => {
+                    step.aperture_kind = APERTURE_RECTANGULAR;
+                    step.aperture = [half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm];
+                }
+            }
+            Ok(step)
+        })
+        .collect()
+}
+
+/// Index tables: one row of `n_surfaces` refractive indices (the index after each surface) per distinct
+/// wavelength, in first-seen order, and each ray's row.
+pub(crate) struct IndexTables {
+    pub tables: Vec<f64>,
+    pub table_of_ray: Vec<u32>,
+    pub n_surfaces: usize,
+}
+
+pub(crate) fn index_tables(system: &SequentialSystem, wavelengths_nm: &[f64]) -> Result<IndexTables> {
+    let n_surfaces = system.surfaces.len();
+    let mut rows: std::collections::HashMap<u64, u32> = std::collections::HashMap::new();
+    let mut tables = Vec::new();
+    let mut table_of_ray = Vec::with_capacity(wavelengths_nm.len());
+    for &w in wavelengths_nm {
+        let row = match rows.get(&w.to_bits()) {
+            Some(&r) => r,
+            None => {
+                let n = system.indices(w)?;
+                debug_assert_eq!(n.len(), n_surfaces);
+                let r = rows.len() as u32;
+                tables.extend_from_slice(&n);
+                rows.insert(w.to_bits(), r);
+                r
+            }
+        };
+        table_of_ray.push(row);
+    }
+    Ok(IndexTables { tables, table_of_ray, n_surfaces })
+}
+
+/// The sampler's constants (`dc_sampler`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Sampler {
+    pub seed: u64,
+    pub rays: u32,
+    pub mode: u32,
+    pub grid_a: u32,
+    pub grid_b: u32,
+}
+
+/// The paraxial pupil aim (`dc_aim`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Aim {
+    pub scale: f64,
+    pub sin_marginal: f64,
+    pub magnification_sign: f64,
+    pub distance_mm: f64,
+    pub telecentric: u32,
+    pub pad: u32,
+}
+
+/// Scene and detector geometry (`dc_scene`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Scene {
+    pub scene_pitch_mm: f64,
+    pub detector_x_left_mm: f64,
+    pub detector_y_top_mm: f64,
+    pub detector_pitch_mm: f64,
+    pub scene_height: u32,
+    pub scene_width: u32,
+}
+
+/// One plane's landing launch (`dc_landing_batch`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct LandingBatch {
+    pub path: *const Step,
+    pub n: *const f64,
+    pub pixels: *const u32,
+    pub u: *mut f64,
+    pub v: *mut f64,
+    pub status: *mut u8,
+    pub sampler: Sampler,
+    pub aim: Aim,
+    pub scene: Scene,
+    pub plane: u64,
+    pub n_pixels: u64,
+    pub max_coord_mm: f64,
+    pub n_steps: u32,
+    pub pad: u32,
+}
+
+/// One open pixel's footprint window (`dc_window`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Window {
+    pub x0: i64,
+    pub y0: i64,
+    pub w: u32,
+    pub h: u32,
+    pub off_detector: f64,
+}

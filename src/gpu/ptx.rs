@@ -1,0 +1,37 @@
+//! The device build of the kernels, embedded: `src/gpu/kernels/trace.ptx`, compiled from the same headers as
+//! the CPU twin by `scripts/gpu/build_ptx.py` (NVRTC, `compute_90`, `--fmad=false`) and committed, so that a
+//! build needs no CUDA. The test command rebuilds it and fails when the committed copy is stale (its first
+//! lines name the SHA-256 of the sources it came from, checked here against the sources compiled into the
+//! twin).
+
+/// PTX of `dc_trace_kernel` (one thread a ray over a `dc_batch`) and `dc_landing_kernel` (one thread a
+/// renderer ray over a `dc_landing_batch`).
+pub const TRACE_PTX: &str = include_str!("kernels/trace.ptx");
+
+/// The kernel sources, embedded too: a driver older than the PTX's ISA version can JIT them with the
+/// machine's own NVRTC (docs/gpu.md).
+pub const SOURCES: [(&str, &str); 5] = [
+    ("dc_common.h", include_str!("kernels/dc_common.h")),
+    ("dc_trace.h", include_str!("kernels/dc_trace.h")),
+    ("dc_sample.h", include_str!("kernels/dc_sample.h")),
+    ("dc_render.h", include_str!("kernels/dc_render.h")),
+    ("device.cu", include_str!("kernels/device.cu")),
+];
+
+/// The `source-sha256` line of the embedded PTX.
+pub fn ptx_source_hash() -> Option<&'static str> {
+    TRACE_PTX.lines().find_map(|l| l.strip_prefix("// source-sha256: ")).map(str::trim)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn embedded_ptx_holds_the_kernel_entry() {
+        for entry in ["dc_trace_kernel", "dc_landing_kernel"] {
+            assert!(TRACE_PTX.contains(&format!(".visible .entry {entry}")), "no {entry} entry in trace.ptx");
+        }
+        assert_eq!(ptx_source_hash().map(str::len), Some(64));
+    }
+}

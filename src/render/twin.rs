@@ -1,0 +1,139 @@
+//! The renderer's plane transport through the GPU kernels, run on the host (their CPU twin): where each ray
+//! lands (`dc_landing_kernel`), then each open pixel's footprint (`dc_footprint_size_kernel`, a prefix sum,
+//! `dc_footprint_fill_kernel`). The code the device runs, tested where there is no GPU: it must give
+//! [`PlaneContext::trace_plane`]'s footprints, weights and counts bit for bit (tests/gpu_twin.rs), hence the
+//! same acquisition. Ray aiming `real` and the f32 kernel are not on the device yet (errors).
+use super::detector::Detector;
+use super::sampling::{RaySampler, Sampling};
+use super::transport::{Footprint, PlaneContext, PlaneTransport};
+use crate::error::{Error, Result};
+use crate::gpu::ffi::{dc_footprint_fill_host, dc_footprint_size_host, dc_landing_host, layouts_match, status_of};
+use crate::gpu::pack::{self, Aim, LandingBatch, Sampler, Scene, Window};
+use crate::rays::PupilAim;
+use crate::spec::RayAiming;
+use crate::system::SequentialSystem;
+use crate::tracer::RayStatus;
+use rayon::prelude::*;
+
+/// Where the renderer's rays of one plane land: ray `k` of `pixels[q]` at index `q·N + k`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PlaneLandings {
+    /// Detector column and row, continuous (pixel centres at integers; NaN where the ray did not arrive).
+    pub u: Vec<f64>,
+    pub v: Vec<f64>,
+    pub status: Vec<RayStatus>,
+}
+
+/// The scene a plane launch samples: `height × width` pixels of `pitch_mm`, imaged onto `detector`.
+#[derive(Clone, Copy, Debug)]
+pub struct SceneGeometry<'a> {
+    pub height: usize,
+    pub width: usize,
+    pub pitch_mm: f64,
+    pub detector: &'a Detector,
+}
+
+/// The device's landing kernel (`dc_landing_kernel`) run on the host: for each open scene pixel of
+/// `pixels` (row-major indices) the `sampler.rays` rays of (`seed`, `plane`) — sampled, aimed through the
+/// paraxial entrance pupil, traced at `wavelength_nm` — and where they land. The numbers the renderer
+/// (`render::transport`) computes before its splat; ray aiming `real` is not on the device yet (an error).
+#[allow(clippy::too_many_arguments)]
+pub fn plane_landings(system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wavelength_nm: f64, pixels: &[u32]) -> Result<PlaneLandings> {
+    if !layouts_match() {
+        return Err(Error::invalid("internal: the GPU kernels' C structs and their Rust twins differ in size (src/gpu/pack.rs)"));
+    }
+    if system.spec.ray_aiming == RayAiming::Real {
+        return Err(Error::invalid("the GPU kernels aim rays through the paraxial entrance pupil only: ray_aiming = \"real\" is not on the device yet (docs/gpu.md)"));
+    }
+    let too_big = |what: &str, v: usize| Error::invalid(format!("GPU landing kernel: {what} = {v} exceeds u32"));
+    let (h, w) = (u32::try_from(scene.height).map_err(|_| too_big("scene height", scene.height))?, u32::try_from(scene.width).map_err(|_| too_big("scene width", scene.width))?);
+    let rays = u32::try_from(sampler.rays).map_err(|_| too_big("rays", sampler.rays))?;
+    if let Some(&p) = pixels.iter().find(|&&p| p as u64 >= h as u64 * w as u64) {
+        return Err(Error::invalid(format!("GPU landing kernel: pixel index {p} outside the {h}×{w} scene")));
+    }
+    let steps = pack::steps(system)?;
+    let n = system.indices(wavelength_nm)?;
+    let (a, b) = sampler.grid();
+    let (telecentric, scale, sin_marginal, magnification_sign, distance_mm) = PupilAim::of(system).parts();
+    let total = pixels.len() * sampler.rays;
+    let (mut u, mut v, mut status) = (vec![0.0; total], vec![0.0; total], vec![0u8; total]);
+    let sampler_c = Sampler { seed, rays, mode: if sampler.mode == Sampling::Independent { 1 } else { 0 }, grid_a: a as u32, grid_b: b as u32 };
+    let aim = Aim { scale, sin_marginal, magnification_sign, distance_mm, telecentric: telecentric as u32, pad: 0 };
+    let scene_c = Scene {
+        scene_pitch_mm: scene.pitch_mm,
+        detector_x_left_mm: scene.detector.x_left_mm,
+        detector_y_top_mm: scene.detector.y_top_mm,
+        detector_pitch_mm: scene.detector.pitch_mm,
+        scene_height: h,
+        scene_width: w,
+    };
+    // Whole pixels per task, so that each task's outputs are its own slices.
+    let chunk = sampler.rays.max(1) * 64;
+    u.par_chunks_mut(chunk).zip(v.par_chunks_mut(chunk)).zip(status.par_chunks_mut(chunk)).enumerate().for_each(|(c, ((uc, vc), sc))| {
+        let begin = c * chunk;
+        // The kernel indexes outputs by global ray index: shift the output pointers back by `begin` so that
+        // rays [begin, begin + len) land in this task's slices.
+        let batch = LandingBatch {
+            path: steps.as_ptr(),
+            n: n.as_ptr(),
+            pixels: pixels.as_ptr(),
+            u: uc.as_mut_ptr().wrapping_sub(begin),
+            v: vc.as_mut_ptr().wrapping_sub(begin),
+            status: sc.as_mut_ptr().wrapping_sub(begin),
+            sampler: sampler_c,
+            aim,
+            scene: scene_c,
+            plane,
+            n_pixels: pixels.len() as u64,
+            max_coord_mm: crate::limits::MAX_IMAGE_COORD_MM,
+            n_steps: steps.len() as u32,
+            pad: 0,
+        };
+        // SAFETY: rays [begin, begin + uc.len()) read `pixels[t / N]` (in bounds: t < pixels.len()·N),
+        // the path, the index row and the constants, and write u/v/status at t, which the shifted pointers
+        // map into this task's own slices; layouts were checked above.
+        unsafe { dc_landing_host(&batch, begin as u64, (begin + uc.len()) as u64) };
+    });
+    Ok(PlaneLandings { u, v, status: status.into_iter().map(status_of).collect() })
+}
+
+
+/// [`PlaneContext::trace_plane`] through the GPU kernels' host twin: the same [`PlaneTransport`], bit for bit.
+pub fn trace_plane(ctx: &PlaneContext<'_>, plane: usize, wavelength_nm: f64) -> Result<PlaneTransport> {
+    if ctx.precision != crate::tracer::Precision::F64 {
+        return Err(Error::invalid("the GPU kernels render in f64 only so far (--precision f32 is not on the device yet)"));
+    }
+    let (h, w) = (ctx.scene_height, ctx.scene_width);
+    let pixels: Vec<u32> = (0..h * w).filter(|&q| ctx.mask[q] > 0.0).map(|q| q as u32).collect();
+    let scene = SceneGeometry { height: h, width: w, pitch_mm: ctx.scene_pitch_mm, detector: ctx.detector };
+    let land = plane_landings(ctx.system, scene, ctx.sampler, ctx.seed, plane as u64, wavelength_nm, &pixels)?;
+    let mut out = PlaneTransport::default();
+    out.stats.traced = land.status.len() as u64;
+    for &s in &land.status {
+        out.stats.count(s);
+    }
+    let n = ctx.sampler.rays;
+    let np = pixels.len();
+    let (dw, dh) = (ctx.detector.width as i64, ctx.detector.height as i64);
+    let mut wins = vec![Window::default(); np];
+    // SAFETY: u/v hold np·n landings; wins has np entries; the layouts were checked by plane_landings.
+    unsafe { dc_footprint_size_host(land.u.as_ptr(), land.v.as_ptr(), n as u32, dw, dh, wins.as_mut_ptr(), 0, np as u64) };
+    let mut offsets = vec![0u64; np];
+    let mut total = 0u64;
+    for (o, win) in offsets.iter_mut().zip(&wins) {
+        *o = total;
+        total += win.w as u64 * win.h as u64;
+    }
+    let mut scratch = vec![0.0f64; total as usize];
+    let mut weights = vec![0.0f32; total as usize];
+    // SAFETY: offsets[q] + w·h ≤ total for every window; scratch and weights have `total` cells.
+    unsafe { dc_footprint_fill_host(land.u.as_ptr(), land.v.as_ptr(), n as u32, wins.as_mut_ptr(), offsets.as_ptr(), scratch.as_mut_ptr(), weights.as_mut_ptr(), 0, np as u64) };
+    for (q, win) in wins.iter().enumerate() {
+        out.stats.off_detector += win.off_detector;
+        if win.w > 0 {
+            out.footprints.push(Footprint { pixel: pixels[q], x0: win.x0 as u16, y0: win.y0 as u16, w: win.w as u16, h: win.h as u16, start: offsets[q] as u32 });
+        }
+    }
+    out.weights = weights;
+    Ok(out)
+}

@@ -1,0 +1,218 @@
+//! The GPU kernels' CPU twin (src/gpu/kernels, compiled for the host) against the Rust kernels: the trace
+//! kernel equals the scalar reference kernel ray for ray on the four presets over full pupils and fields
+//! (the extremes suite, tests/extremes.rs, checks it on grazing, TIR, vignetted, missing and NaN/inf rays),
+//! and the landing kernel (sampling, aiming, trace, detector coordinates) equals the renderer's own steps
+//! composed in Rust. Bit for bit: the twin is compiled without contraction and evaluates the same
+//! expressions in the same order (the acceptance bound is 1e-12 mm; these tests hold the twin to 0).
+use diffcassi::analysis::MappingCube;
+use diffcassi::gpu::TwinTracer;
+use diffcassi::render::twin::{plane_landings, SceneGeometry};
+use diffcassi::presets;
+use diffcassi::rays::{PupilAim, PupilPattern, RayBatch};
+use diffcassi::render::{Detector, RaySampler, Sampling};
+use diffcassi::system::SequentialSystem;
+use diffcassi::tracer::{AnalyticTracer, Kernel, RayStatus, Tracer};
+use glam::DVec3;
+
+const PRESETS: [&str; 4] = ["sp", "ap", "msp", "map"];
+
+fn system(name: &str) -> SequentialSystem {
+    SequentialSystem::build(&presets::spec(name).unwrap()).unwrap()
+}
+
+fn scalar() -> AnalyticTracer {
+    AnalyticTracer::with_kernel(Kernel::Scalar)
+}
+
+/// Full pupils (hexapolar, 6 rings, and far past the rim so that some rays miss a surface or reflect
+/// totally) over a 7 × 7 field grid reaching past the scene (±3.2 mm) plus two far fields (±40 mm), at
+/// three wavelengths.
+fn full_batch(sys: &SequentialSystem) -> RayBatch {
+    let mut pupil = PupilPattern::Hexapolar { rings: 6 }.points();
+    pupil.extend([[1.3, 0.0], [0.0, -1.3], [0.95, 0.95], [6.0, 0.0], [0.0, -6.0], [4.0, 4.0]]);
+    let mut fields: Vec<[f64; 2]> = (0..49).map(|k| [-3.2 + (k / 7) as f64 * 6.4 / 6.0, -3.2 + (k % 7) as f64 * 6.4 / 6.0]).collect();
+    fields.extend([[40.0, 0.0], [0.0, -40.0]]);
+    let mut batch = RayBatch::with_capacity(0);
+    for w in [450.0, 520.0, 650.0] {
+        for field in &fields {
+            for p in &pupil {
+                let (o, d) = diffcassi::rays::object_ray(sys, *field, p[0], p[1]);
+                batch.push(o, d, w);
+            }
+        }
+    }
+    batch
+}
+
+#[test]
+fn trace_kernel_twin_equals_the_scalar_kernel_on_the_presets() {
+    for name in PRESETS {
+        let sys = system(name);
+        let rays = full_batch(&sys);
+        let twin = TwinTracer::default().trace(&sys, &rays).unwrap();
+        let rust = scalar().trace(&sys, &rays).unwrap();
+        assert_eq!(twin.status, rust.status, "{name}: statuses");
+        assert_eq!(twin.surface, rust.surface, "{name}: stopping surfaces");
+        let mut worst = 0.0f64;
+        for i in 0..rust.len() {
+            for (a, b) in [(twin.x[i], rust.x[i]), (twin.y[i], rust.y[i]), (twin.z[i], rust.z[i])] {
+                worst = worst.max((a - b).abs());
+            }
+            for (a, b) in [(twin.x[i], rust.x[i]), (twin.y[i], rust.y[i]), (twin.z[i], rust.z[i]), (twin.dir_x[i], rust.dir_x[i]), (twin.dir_y[i], rust.dir_y[i]), (twin.dir_z[i], rust.dir_z[i])] {
+                assert_eq!(a.to_bits(), b.to_bits(), "{name} ray {i}: {a} vs {b}");
+            }
+        }
+        assert!(worst <= 1e-12, "{name}: {worst:e} mm");
+        let ok = rust.status.iter().filter(|&&s| s == RayStatus::Ok).count();
+        assert!(ok > rust.len() / 3 && ok < rust.len(), "{name}: {ok} ok of {}: the batch must exercise arrivals and stops", rust.len());
+    }
+}
+
+#[test]
+fn trace_kernel_twin_classifies_invalid_inputs_like_the_scalar_kernel() {
+    let sys = system("sp");
+    let mut rays = RayBatch::with_capacity(0);
+    let nan = f64::NAN;
+    let inf = f64::INFINITY;
+    for (o, d) in [
+        (DVec3::new(nan, 0.0, 0.0), DVec3::Z),
+        (DVec3::ZERO, DVec3::new(0.0, inf, 1.0)),
+        (DVec3::ZERO, DVec3::ZERO),
+        (DVec3::ZERO, DVec3::new(0.0, 0.0, 1e-310)),
+        (DVec3::ZERO, DVec3::new(1e-3, 0.0, 1e300)),
+        (DVec3::new(1e300, 0.0, 0.0), DVec3::Z),
+        (DVec3::ZERO, DVec3::X),
+        (DVec3::ZERO, -DVec3::Z),
+    ] {
+        rays.push(o, d, 520.0);
+    }
+    let twin = TwinTracer::default().trace(&sys, &rays).unwrap();
+    let rust = scalar().trace(&sys, &rays).unwrap();
+    assert_eq!(twin.status, rust.status);
+    assert_eq!(twin.surface, rust.surface);
+    assert_eq!(twin.status[0], RayStatus::InvalidInput);
+    assert_eq!(twin.status[2], RayStatus::InvalidInput);
+    for i in 0..rust.len() {
+        assert_eq!(twin.x[i].to_bits(), rust.x[i].to_bits(), "ray {i}");
+        assert!(twin.x[i].is_finite() && twin.y[i].is_finite(), "ray {i}: no NaN leaves the twin");
+    }
+}
+
+/// The renderer's steps for one plane, composed from the library's Rust pieces: the sampler, the pixel
+/// centre, the aim, the scalar trace, the detector coordinates.
+fn rust_landings(sys: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wl: f64, pixels: &[u32]) -> (Vec<f64>, Vec<f64>, Vec<RayStatus>) {
+    let aim = PupilAim::of(sys);
+    let mut batch = RayBatch::with_capacity(0);
+    let mut s = vec![[0.0; 4]; sampler.rays];
+    for &q in pixels {
+        sampler.fill(seed, plane, q as u64, &mut s);
+        let (row, col) = (q as usize / scene.width, q as usize % scene.width);
+        let c = MappingCube::scene_xy(scene.height, scene.width, scene.pitch_mm, row, col);
+        for smp in &s {
+            let fx = c[0] + (smp[2] - 0.5) * scene.pitch_mm;
+            let fy = c[1] - (smp[3] - 0.5) * scene.pitch_mm;
+            let d = aim.direction(fx, fy, smp[0], smp[1]);
+            batch.push(DVec3::new(fx, fy, 0.0), DVec3::from(d), wl);
+        }
+    }
+    let t = scalar().trace(sys, &batch).unwrap();
+    let (mut u, mut v) = (Vec::new(), Vec::new());
+    for i in 0..t.len() {
+        let (a, b) = if t.status[i] == RayStatus::Ok { scene.detector.to_pixel(t.x[i], t.y[i]) } else { (f64::NAN, f64::NAN) };
+        u.push(a);
+        v.push(b);
+    }
+    (u, v, t.status)
+}
+
+#[test]
+fn landing_kernel_twin_equals_the_renderers_steps() {
+    let detector = Detector { width: 700, height: 700, pitch_mm: 0.01, x_left_mm: -3.5, y_top_mm: 3.5 };
+    for name in PRESETS {
+        let sys = system(name);
+        // 12 × 16 pixels of 0.4 mm: the scene reaches ±3.2 mm, past SP's field, so some rays vignette.
+        let scene = SceneGeometry { height: 12, width: 16, pitch_mm: 0.4, detector: &detector };
+        let pixels: Vec<u32> = (0..(12 * 16) as u32).filter(|q| q % 3 != 1).collect();
+        for (rays, mode, seed, plane, wl) in [(20, Sampling::Stratified, 0u64, 0u64, 450.0), (7, Sampling::Stratified, 99, 57, 555.5), (1, Sampling::Stratified, 3, 111, 650.0), (5, Sampling::Independent, 12345, 3, 520.0)] {
+            let sampler = RaySampler::new(rays, mode);
+            let twin = plane_landings(&sys, scene, &sampler, seed, plane, wl, &pixels).unwrap();
+            let (u, v, status) = rust_landings(&sys, scene, &sampler, seed, plane, wl, &pixels);
+            assert_eq!(twin.status, status, "{name} {rays} {mode:?}: statuses");
+            for i in 0..u.len() {
+                assert_eq!(twin.u[i].to_bits(), u[i].to_bits(), "{name} {rays} {mode:?} ray {i}: u {} vs {}", twin.u[i], u[i]);
+                assert_eq!(twin.v[i].to_bits(), v[i].to_bits(), "{name} {rays} {mode:?} ray {i}: v");
+            }
+            assert!(status.iter().any(|&s| s == RayStatus::Ok), "{name}: some rays must arrive");
+        }
+    }
+}
+
+#[test]
+fn landing_kernel_refuses_pixels_outside_the_scene() {
+    let detector = Detector { width: 10, height: 10, pitch_mm: 0.01, x_left_mm: -0.05, y_top_mm: 0.05 };
+    let sys = system("sp");
+    let scene = SceneGeometry { height: 4, width: 4, pitch_mm: 0.01, detector: &detector };
+    let e = plane_landings(&sys, scene, &RaySampler::new(4, Sampling::Stratified), 0, 0, 520.0, &[3, 16]).unwrap_err().to_string();
+    assert!(e.contains("pixel index 16") && e.contains("4×4"), "{e}");
+}
+
+/// A small acquisition's light transport through the host twin of the landing and footprint kernels equals
+/// the CPU renderer's, plane by plane: the same footprints, f32 weights and ray counts, hence the same
+/// acquisition (the rest of the render — applying footprints, the Airy blur, the band sums — is shared).
+#[test]
+fn plane_transport_through_the_twin_equals_the_cpu_renderer() {
+    use diffcassi::render::{Mask, RenderConfig, Renderer};
+    for name in ["sp", "msp"] {
+        let sys = system(name);
+        let tracer = AnalyticTracer::default();
+        let (h, w) = (12, 16);
+        let mut config = RenderConfig::paper(w);
+        config.scene_height = h;
+        config.scene_pitch_mm = 0.2; // ±1.6 mm: the scene spans most of the field
+        config.rays_per_pixel = 6;
+        config.spectral = diffcassi::render::SpectralSampling::new(vec![450.0, 520.0, 650.0], 2).unwrap();
+        let mask = Mask::random(h, w, 0.5, 7).unwrap();
+        let r = Renderer::new(&sys, &tracer, config, mask).unwrap();
+        let ctx = r.plane_context();
+        let mut footprints = 0;
+        for (p, &wl) in r.config.spectral.planes_nm.iter().enumerate() {
+            let cpu = r.trace_plane(p).unwrap();
+            let twin = diffcassi::render::twin::trace_plane(&ctx, p, wl).unwrap();
+            assert_eq!(twin.footprints, cpu.footprints, "{name} plane {p}: footprints");
+            assert_eq!(twin.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), cpu.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{name} plane {p}: weights");
+            assert_eq!(twin.stats, cpu.stats, "{name} plane {p}: ray counts");
+            footprints += cpu.footprints.len();
+        }
+        assert!(footprints > 0);
+    }
+}
+
+/// The same through a detector that sees only part of the image (windows clipped at its edges, footprints
+/// wholly off it): the twin loses the same weight as the CPU, tap for tap.
+#[test]
+fn plane_transport_through_the_twin_clips_like_the_cpu_renderer() {
+    use diffcassi::render::transport::PlaneContext;
+    use diffcassi::render::{Mask, RenderConfig, Renderer};
+    let sys = system("sp");
+    let tracer = AnalyticTracer::default();
+    let mut config = RenderConfig::paper(16);
+    config.scene_pitch_mm = 0.2;
+    config.rays_per_pixel = 5;
+    config.spectral = diffcassi::render::SpectralSampling::new(vec![450.0, 650.0], 1).unwrap();
+    let r = Renderer::new(&sys, &tracer, config, Mask::random(16, 16, 0.7, 3).unwrap()).unwrap();
+    let full = r.detector;
+    // The left 40 % of the detector's columns and its top half, moved so that windows straddle both edges.
+    let cropped = Detector { width: full.width * 2 / 5, height: full.height / 2, ..full };
+    let base = r.plane_context();
+    let ctx = PlaneContext { detector: &cropped, ..base };
+    let mut lost = 0.0;
+    for (p, &wl) in r.config.spectral.planes_nm.iter().enumerate() {
+        let cpu = ctx.trace_plane(p, wl).unwrap();
+        let twin = diffcassi::render::twin::trace_plane(&ctx, p, wl).unwrap();
+        assert_eq!(twin.footprints, cpu.footprints, "plane {p}: footprints");
+        assert_eq!(twin.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), cpu.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "plane {p}: weights");
+        assert_eq!(twin.stats, cpu.stats, "plane {p}: ray counts and lost weight");
+        lost += cpu.stats.off_detector;
+    }
+    assert!(lost > 0.0, "the cropped detector must lose some weight");
+}
