@@ -69,8 +69,8 @@ impl Options {
         }
         if let Some(d) = &self.device {
             s.device = d.parse::<Device>().map_err(|_| value_error(format!("device `{d}`: use \"cpu\" (or \"cuda\", once a CUDA backend is built)")))?;
-            if s.device == Device::Cuda {
-                return Err(value_error("device \"cuda\": no CUDA backend in this build (use device=\"cpu\")"));
+            if let Some(why) = s.device.unavailable() {
+                return Err(value_error(format!("device \"{d}\": {why} (use device=\"cpu\")")));
             }
         }
         Ok(s)

@@ -11,7 +11,7 @@
 //! let (cfg, mask) = s.config()?;
 //! assert_eq!((cfg.scene_height, cfg.spectral.planes(), mask.width), (16, 8, 16));
 //! s.device = Device::Cuda;
-//! assert!(s.config().unwrap_err().to_string().contains("no CUDA backend in this build"));
+//! assert!(s.config().unwrap_err().to_string().contains("--device cuda: ")); // no launcher (or driver) here
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 use super::{AiryConfig, Mask, NoiseConfig, RenderConfig, Sampling, SpectralSampling};
@@ -23,8 +23,9 @@ use std::path::PathBuf;
 /// Rays per scene pixel per plane when none are given (and no fidelity tolerance chooses them).
 pub const DEFAULT_RAYS: usize = 20;
 
-/// Where a render runs. Only the CPU exists in this build; `Cuda` is the place of the GPU backend and is
-/// refused by [`Device::check`] until it lands.
+/// Where a render runs, chosen in one place for every front end. `Cuda` is the GPU backend (docs/gpu.md): its
+/// kernels are built and tested through their CPU twin, but until the device launcher lands [`Device::check`]
+/// refuses it with what the driver probe ([`crate::gpu::require_cuda`]) found missing.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Device {
     #[default]
@@ -33,11 +34,20 @@ pub enum Device {
 }
 
 impl Device {
-    /// `Ok` for a device this build can render on.
-    pub fn check(self) -> Result<()> {
+    /// Why this build cannot render on the device (`None`: it can): for `Cuda`, what is missing — the NVIDIA
+    /// driver, a device, or the launcher ([`crate::gpu::require_cuda`]).
+    pub fn unavailable(self) -> Option<String> {
         match self {
-            Device::Cpu => Ok(()),
-            Device::Cuda => Err(Error::invalid("--device cuda: no CUDA backend in this build (use --device cpu)")),
+            Device::Cpu => None,
+            Device::Cuda => crate::gpu::require_cuda().err().map(|e| e.to_string()),
+        }
+    }
+
+    /// `Ok` for a device this build can render on; otherwise an error naming `--device` and what is missing.
+    pub fn check(self) -> Result<()> {
+        match self.unavailable() {
+            None => Ok(()),
+            Some(why) => Err(Error::invalid(format!("--device {self}: {why}; use --device cpu"))),
         }
     }
 
@@ -361,7 +371,9 @@ mod tests {
     #[test]
     fn device_cuda_is_refused_and_unknown_names_are_errors() {
         let s = RenderSettings { scene_size: 4, planes: 2, device: Device::Cuda, ..RenderSettings::default() };
-        assert!(s.config().unwrap_err().to_string().contains("no CUDA backend in this build"));
+        let e = s.config().unwrap_err().to_string();
+        assert!(e.starts_with("--device cuda: ") && e.ends_with("use --device cpu"), "{e}");
+        assert!(e.contains("no NVIDIA driver") || e.contains("cannot launch kernels"), "{e}");
         assert_eq!("cpu".parse::<Device>().unwrap(), Device::Cpu);
         assert!("tpu".parse::<Device>().unwrap_err().to_string().contains("--device `tpu`"));
     }

@@ -216,7 +216,7 @@ def test_device_cpu_only(sp):
     a, _ = diffcassi.render(sp, cube, WL, **SMALL)
     b, _ = diffcassi.render(sp, cube, WL, device="cpu", **SMALL)
     assert np.array_equal(a, b)
-    with pytest.raises(diffcassi.DiffcassiValueError, match="no CUDA backend in this build"):
+    with pytest.raises(diffcassi.DiffcassiValueError, match='device "cuda": (no NVIDIA driver|.*cannot launch kernels).*use device="cpu"'):
         diffcassi.render(sp, cube, WL, device="cuda", **SMALL)
     with pytest.raises(diffcassi.DiffcassiValueError, match="device `tpu`"):
         diffcassi.Transport(sp, 8, 8, device="tpu", **SMALL)
