@@ -24,5 +24,5 @@ pub(crate) mod pack;
 pub mod ptx;
 mod twin;
 
-pub use device::{probe, CudaInfo, DeviceError};
+pub use device::{probe, require_cuda, CudaInfo, DeviceError};
 pub use twin::TwinTracer;
