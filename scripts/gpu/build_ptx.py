@@ -46,36 +46,34 @@ def site_dirs():
     return [d for d in dirs if os.path.isdir(d)]
 
 
-def find_nvrtc():
-    if os.environ.get("DIFFCASSI_NVRTC"):
-        return os.environ["DIFFCASSI_NVRTC"]
+def find_tool(env, subpath, name_re, fallbacks, usable):
+    """A CUDA tool: $env if set, else the newest match of nvidia/*/<subpath> in the venv's site-packages (the
+    PyPI wheels put them there), else the first usable fallback (a system CUDA)."""
+    if os.environ.get(env):
+        return os.environ[env]
     for d in site_dirs():
-        found = sorted(glob.glob(os.path.join(d, "nvidia", "*", "lib", "libnvrtc.so.*"))
-                       + glob.glob(os.path.join(d, "nvidia", "cuda_nvrtc", "lib", "libnvrtc.so.*")))
-        found = [f for f in found if re.search(r"libnvrtc\.so\.\d+$", f)]
+        found = sorted(f for f in glob.glob(os.path.join(d, "nvidia", "*", subpath)) if re.search(name_re, f))
         if found:
             return found[-1]
-    for cand in ["libnvrtc.so", "/usr/local/cuda/lib64/libnvrtc.so"]:
-        try:
-            ctypes.CDLL(cand)
-            return cand
-        except OSError:
-            pass
-    return None
+    return next((c for c in fallbacks if usable(c)), None)
+
+
+def loadable(lib):
+    try:
+        ctypes.CDLL(lib)
+        return True
+    except OSError:
+        return False
+
+
+def find_nvrtc():
+    return find_tool("DIFFCASSI_NVRTC", os.path.join("lib", "libnvrtc.so.*"), r"libnvrtc\.so\.\d+$",
+                     ["libnvrtc.so", "/usr/local/cuda/lib64/libnvrtc.so"], loadable)
 
 
 def find_ptxas():
-    if os.environ.get("DIFFCASSI_PTXAS"):
-        return os.environ["DIFFCASSI_PTXAS"]
-    for d in site_dirs():
-        found = sorted(glob.glob(os.path.join(d, "nvidia", "*", "bin", "ptxas"))
-                       + glob.glob(os.path.join(d, "nvidia", "cuda_nvcc", "bin", "ptxas")))
-        if found:
-            return found[-1]
-    for cand in ["/usr/local/cuda/bin/ptxas"]:
-        if os.access(cand, os.X_OK):
-            return cand
-    return None
+    return find_tool("DIFFCASSI_PTXAS", os.path.join("bin", "ptxas"), r"ptxas$", ["/usr/local/cuda/bin/ptxas"],
+                     lambda c: os.access(c, os.X_OK))
 
 
 def nvrtc_compile(lib_path):
