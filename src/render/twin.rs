@@ -71,15 +71,13 @@ pub fn plane_landings(system: &SequentialSystem, scene: SceneGeometry<'_>, sampl
     let chunk = sampler.rays.max(1) * 64;
     u.par_chunks_mut(chunk).zip(v.par_chunks_mut(chunk)).zip(status.par_chunks_mut(chunk)).enumerate().for_each(|(c, ((uc, vc), sc))| {
         let begin = c * chunk;
-        // The kernel indexes outputs by global ray index: shift the output pointers back by `begin` so that
-        // rays [begin, begin + len) land in this task's slices.
         let batch = LandingBatch {
             path: steps.as_ptr(),
             n: n.as_ptr(),
             pixels: pixels.as_ptr(),
-            u: uc.as_mut_ptr().wrapping_sub(begin),
-            v: vc.as_mut_ptr().wrapping_sub(begin),
-            status: sc.as_mut_ptr().wrapping_sub(begin),
+            u: uc.as_mut_ptr(),
+            v: vc.as_mut_ptr(),
+            status: sc.as_mut_ptr(),
             sampler: sampler_c,
             aim,
             scene: scene_c,
@@ -90,8 +88,8 @@ pub fn plane_landings(system: &SequentialSystem, scene: SceneGeometry<'_>, sampl
             pad: 0,
         };
         // SAFETY: rays [begin, begin + uc.len()) read `pixels[t / N]` (in bounds: t < pixels.len()·N),
-        // the path, the index row and the constants, and write u/v/status at t, which the shifted pointers
-        // map into this task's own slices; layouts were checked above.
+        // the path, the index row and the constants, and write u/v/status at t − begin: this task's own
+        // slices (dc_landing_host); layouts were checked above.
         unsafe { dc_landing_host(&batch, begin as u64, (begin + uc.len()) as u64) };
     });
     Ok(PlaneLandings { u, v, status: status.into_iter().map(status_of).collect() })

@@ -30,7 +30,9 @@ typedef struct {
     dc_u32 pad;
 } dc_landing_batch;
 
-DC_FN void dc_landing_ray(const dc_landing_batch *b, dc_u64 t) {
+/* Ray t of the launch, its outputs written at index `slot` of u, v and status (the device: slot = t; the host
+ * twin: t − the first ray of its chunk, so that each chunk writes its own arrays). */
+DC_FN void dc_landing_ray(const dc_landing_batch *b, dc_u64 t, dc_u64 slot) {
     dc_u64 q = t / b->sampler.rays;
     dc_u32 k = (dc_u32)(t % b->sampler.rays);
     dc_u32 pixel = b->pixels[q];
@@ -49,9 +51,9 @@ DC_FN void dc_landing_ray(const dc_landing_batch *b, dc_u64 t) {
         else
             st = DC_OUT_OF_RANGE;
     }
-    b->u[t] = u;
-    b->v[t] = v;
-    b->status[t] = (unsigned char)st;
+    b->u[slot] = u;
+    b->v[slot] = v;
+    b->status[slot] = (unsigned char)st;
 }
 
 /* ---- Footprints: one open pixel's bilinear splat (render::transport::PlaneContext::footprint) ----------------

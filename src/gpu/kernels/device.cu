@@ -13,7 +13,7 @@ extern "C" __global__ void dc_trace_kernel(dc_batch b) {
 
 extern "C" __global__ void dc_landing_kernel(dc_landing_batch b) {
     dc_u64 t = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
-    if (t < b.n_pixels * (dc_u64)b.sampler.rays) dc_landing_ray(&b, t);
+    if (t < b.n_pixels * (dc_u64)b.sampler.rays) dc_landing_ray(&b, t, t);
 }
 
 extern "C" __global__ void dc_footprint_size_kernel(const double *u, const double *v, dc_u32 n, dc_i64 det_w, dc_i64 det_h, dc_window *wins, dc_u64 n_pixels) {

@@ -11,10 +11,11 @@ void dc_trace_batch_host(const dc_batch *b, dc_u64 begin, dc_u64 end) {
     for (dc_u64 i = begin; i < end && i < b->n_rays; ++i) dc_trace_batch_ray(b, i);
 }
 
-/* Landings of rays [begin, end) of a plane launch: the body of dc_landing_kernel. */
+/* Landings of rays [begin, end) of a plane launch: the body of dc_landing_kernel. Here b->u, b->v and
+ * b->status point at the chunk's own outputs: ray t is written at t − begin. */
 void dc_landing_host(const dc_landing_batch *b, dc_u64 begin, dc_u64 end) {
     dc_u64 n = b->n_pixels * (dc_u64)b->sampler.rays;
-    for (dc_u64 t = begin; t < end && t < n; ++t) dc_landing_ray(b, t);
+    for (dc_u64 t = begin; t < end && t < n; ++t) dc_landing_ray(b, t, t - begin);
 }
 
 /* sizeof of the shared structs, so that the Rust side can check its repr(C) layouts. */
