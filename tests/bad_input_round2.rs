@@ -3,6 +3,8 @@
 //! tampered `render.json`) and `bench-render`; options that were accepted and ignored are refused; unclear
 //! errors name the option or field and its value. Each case runs the real binary: exit code, a message
 //! naming the option/field/value, nothing written, no panic, done within 60 s. Tiny sizes throughout.
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -21,17 +23,7 @@ fn run_in(cwd: &Path, args: &[String]) -> (Option<i32>, String) {
         .stderr(Stdio::piped())
         .spawn()
         .unwrap();
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break Some(s);
-        }
-        if t.elapsed() >= Duration::from_secs(60) {
-            let _ = child.kill();
-            let _ = child.wait();
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = common::wait_with_limit(&mut child, t, Duration::from_secs(60));
     let mut err = String::new();
     use std::io::Read;
     let _ = child.stderr.take().unwrap().read_to_string(&mut err);

@@ -4,6 +4,8 @@
 //! budget counting the detector; inputs that are not regular files (a FIFO, `/dev/zero`, a folder);
 //! coatings, `.zmx` files, meshes and negative numbers. Each CLI case runs the real binary: exit code, a
 //! message naming the option/field/value, nothing written, no panic, done within 60 s. Tiny sizes throughout.
+mod common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -24,17 +26,7 @@ fn run_in(cwd: &Path, args: &[String]) -> (Option<i32>, String, f64) {
         let _ = out.read_to_string(&mut s);
         s
     });
-    let status = loop {
-        if let Some(s) = child.try_wait().unwrap() {
-            break Some(s);
-        }
-        if t.elapsed() >= Duration::from_secs(60) {
-            let _ = child.kill();
-            let _ = child.wait();
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
+    let status = common::wait_with_limit(&mut child, t, Duration::from_secs(60));
     let mut e = String::new();
     use std::io::Read;
     let _ = err.read_to_string(&mut e);

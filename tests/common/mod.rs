@@ -1,4 +1,5 @@
-//! Shared helpers for the integration tests: locating `../shared/reference` and reading Zemax exports.
+//! Shared helpers for the integration tests: locating `../shared/reference`, reading Zemax exports, and
+//! waiting for a CLI child process under a time limit.
 #![allow(dead_code)]
 use std::path::PathBuf;
 
@@ -179,3 +180,18 @@ pub const MAP_LIKE_PARAMS: [&str; 15] = [
     "glass_nd:N-SK2",
     "glass_vd:N-SF10",
 ];
+
+/// Wait for `child` at most `limit`, polling every 20 ms; kill it past the limit (`None`: it was killed).
+pub fn wait_with_limit(child: &mut std::process::Child, start: std::time::Instant, limit: std::time::Duration) -> Option<std::process::ExitStatus> {
+    loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            return Some(s);
+        }
+        if start.elapsed() >= limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            return None;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+}
