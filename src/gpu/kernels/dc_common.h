@@ -17,10 +17,6 @@
 typedef unsigned int dc_u32;
 typedef unsigned long long dc_u64;
 typedef long long dc_i64;
-#define DC_SQRT(x) sqrt(x)
-#define DC_FABS(x) fabs(x)
-#define DC_COPYSIGN(x, y) copysign(x, y)
-#define DC_ISFINITE(x) isfinite(x)
 #define DC_NAN __longlong_as_double(0x7ff8000000000000LL)
 #else
 #include <math.h>
@@ -30,12 +26,15 @@ typedef long long dc_i64;
 typedef uint32_t dc_u32;
 typedef uint64_t dc_u64;
 typedef int64_t dc_i64;
+#define DC_NAN ((double)NAN)
+#endif
+
+/* The math both builds take from their own library under the same names (CUDA's device functions, C99's
+ * <math.h>): correctly rounded sqrt, and exact fabs, copysign, isfinite. */
 #define DC_SQRT(x) sqrt(x)
 #define DC_FABS(x) fabs(x)
 #define DC_COPYSIGN(x, y) copysign(x, y)
 #define DC_ISFINITE(x) isfinite(x)
-#define DC_NAN ((double)NAN)
-#endif
 
 #define DC_EPSILON 2.220446049250313080847263336181640625e-16 /* f64::EPSILON */
 
