@@ -34,7 +34,7 @@ STATUS = {0: "ok", 1: "missed", 2: "vignetted", 3: "total internal reflection", 
           5: "invalid input", 6: "absorbed", 7: "bounce limit"}
 
 __all__ = [
-    "System", "Transport", "Operator", "exact", "metrics", "load_scene", "synthetic_scene", "trace", "spot", "distortion", "dispersion", "mapping", "jacobian", "render",
+    "System", "Transport", "Operator", "exact", "metrics", "load_scene", "synthetic_scene", "trace", "spot", "distortion", "dispersion", "mapping", "jacobian", "render", "gpu_check",
     "read_exr", "set_num_threads", "get_num_threads", "set_limits", "get_limits", "surfaces", "DiffcassiError", "DiffcassiValueError",
     "DiffcassiFileError", "STATUS", "EMBREE", "__version__",
 ]
@@ -107,7 +107,9 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
     bit. ``noise``: sensor noise as the CLI's ``--noise`` options: ``"shot,read,adc"`` or a dict
     ``{"noise": "shot,read", "full_well_e": 20000, "read_noise_e": 2, "adc_bits": 12, "noise_seed": 0,
     "electrons_per_unit": ...}`` (``None``: a clean acquisition, the default); ``info["noise"]`` reports it.
-    ``device``: ``"cpu"`` (the default and, in this build, the only device; ``"cuda"`` is refused).
+    ``device``: ``"cpu"`` (the default), ``"cuda"`` (the GPU kernels on the first CUDA device, f64; refused with
+    what is missing where there is none; ``info["device"]`` names the GPU, the driver and the accumulation) or
+    ``"cpu-twin"`` (the GPU kernels run on the CPU: the device's bits, slowly). docs/gpu.md.
     The memory and ray budgets are the CLI's defaults unless :func:`set_limits` changed them.
 
     Returns ``(acquisition, info)``: the detector image (h, w) float64 and a dict with ``render.json``'s
@@ -128,6 +130,16 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
                                 sampling=sampling, opening=opening, mask_seed=mask_seed, airy_diameter_px=airy_diameter_px,
                                 airy=airy, backend=_check_backend(backend), device=device, **nz)
     return acq, _json.loads(info)
+
+
+def gpu_check(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], twin: bool = True,
+              **settings: Any) -> Dict[str, Any]:
+    """The GPU's figures on one render of ``scene`` (the keywords of :func:`render`): the acquisition on the
+    CUDA device twice (time; ``runs_bit_identical``), on the CPU (``cpu_max_rel_diff``: the largest difference
+    relative to the CPU's peak), through the host twin (``twin_bit_identical``) when ``twin``, and the middle
+    plane's rays landed on both (``landing_max_diff_mm``, ``landing_status_mismatches``). Needs a CUDA device."""
+    _check_backend(settings.get("backend", "analytic"))
+    return _json.loads(_native._gpu_check(system, scene, wavelengths_nm, twin, **settings))
 
 
 def exact(system: System, height: int, width: int, mask: Optional[np.ndarray] = None, **settings: Any) -> Operator:

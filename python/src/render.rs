@@ -78,13 +78,15 @@ fn _render<'py>(
     let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
     let cube = scene_cube(scene, ws)?;
     let (cfg, m) = configure(cube.height, cube.width, &s.options, mask)?;
+    let device = s.options.settings()?.device;
     let backend = s.backend.as_str();
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
     let threads = crate::pool::get_num_threads()?;
     let (acq, info) = run(py, move || -> diffcassi::Result<_> {
         let r = Renderer::new(&sys, t.as_ref(), cfg, m)?;
-        let mut acq = r.render(&cube, false, &|_| {})?;
+        // device="cuda": the GPU kernels (render::device), recorded in render.json's `device`.
+        let (mut acq, record) = diffcassi::render::device::render_for(device, &r, &cube, false, &|_| {})?;
         let noise_json = match &noise {
             Some(nc) => nc.to_json(&nc.apply(&mut acq.image)?),
             None => serde_json::Value::Null,
@@ -92,11 +94,42 @@ fn _render<'py>(
         let scale = render_output::preview_scale(&acq);
         let mut info = render_output::sidecar(&r, &acq, &scene_description(&cube), scale, t0.elapsed().as_secs_f64(), threads);
         info["noise"] = noise_json;
+        info["device"] = diffcassi::render::device::record_json(&r, record.as_ref());
         Ok((acq, info))
     })
     .py()?;
     let (h, w) = (acq.detector.height, acq.detector.width);
     Ok((output(py, acq.image, &[h, w])?, info.to_string()))
+}
+
+/// The GPU's figures on one render (`diffcassi.gpu_check`): `render` on the CUDA device twice, on the CPU,
+/// through the host twin (`twin`), and the middle plane's landings on both ([`diffcassi::render::device::check`]),
+/// as JSON text. Needs a CUDA device (an error naming what is missing otherwise).
+#[pyfunction]
+#[pyo3(signature = (system, scene, wavelengths_nm, twin = true, **settings))]
+fn _gpu_check<'py>(py: Python<'py>, system: &PySystem, scene: &Bound<'py, PyAny>, wavelengths_nm: &Bound<'py, PyAny>, twin: bool, settings: Option<&Bound<'py, PyDict>>) -> PyResult<String> {
+    let s = crate::settings::settings(py, settings, &[])?;
+    let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
+    let cube = scene_cube(scene, ws)?;
+    let (cfg, m) = configure(cube.height, cube.width, &s.options, None)?;
+    if let Some(why) = diffcassi::render::Device::Cuda.unavailable() {
+        return Err(value_error(format!("gpu_check: no CUDA device to check: {why}")));
+    }
+    let t = tracer(s.backend.as_str())?;
+    let sys = Arc::clone(&system.inner);
+    let report = run(py, move || -> diffcassi::Result<_> {
+        let r = Renderer::new(&sys, t.as_ref(), cfg, m)?;
+        diffcassi::render::device::check(&r, &cube, twin)
+    })
+    .py()?;
+    serde_json::to_string(&report).map_err(|e| value_error(format!("gpu_check: {e}")))
+}
+
+/// The GPU kernels as one CUDA source (`diffcassi::gpu::ptx::amalgamated_source`): for `nvcc -ptx` on a GPU
+/// machine whose driver refuses the embedded PTX (scripts/gpu_check.sh; the launcher reads `DIFFCASSI_PTX`).
+#[pyfunction]
+fn _gpu_kernel_source() -> String {
+    diffcassi::gpu::ptx::amalgamated_source()
 }
 
 /// The noise keywords of `render` (the CLI's `--noise` options).
@@ -431,6 +464,8 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(load_scene, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic_scene, m)?)?;
     m.add_function(wrap_pyfunction!(_render, m)?)?;
+    m.add_function(wrap_pyfunction!(_gpu_check, m)?)?;
+    m.add_function(wrap_pyfunction!(_gpu_kernel_source, m)?)?;
     m.add_function(wrap_pyfunction!(read_exr, m)?)?;
     m.add_class::<PyTransport>()?;
     Ok(())

@@ -68,7 +68,7 @@ impl Options {
             s.airy_diameter_px = None;
         }
         if let Some(d) = &self.device {
-            s.device = d.parse::<Device>().map_err(|_| value_error(format!("device `{d}`: use \"cpu\" (or \"cuda\", once a CUDA backend is built)")))?;
+            s.device = d.parse::<Device>().map_err(|_| value_error(format!("device `{d}`: use \"cpu\" or \"cuda\"")))?;
             if let Some(why) = s.device.unavailable() {
                 return Err(value_error(format!("device \"{d}\": {why} (use device=\"cpu\")")));
             }

@@ -26,7 +26,7 @@ import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 KERNELS = os.path.join(ROOT, "src", "gpu", "kernels")
-SOURCES = ["dc_common.h", "dc_trace.h", "dc_sample.h", "dc_render.h", "device.cu"]
+SOURCES = ["dc_common.h", "dc_trace.h", "dc_sample.h", "dc_render.h", "dc_accum.h", "device.cu"]
 PTX = os.path.join(KERNELS, "trace.ptx")
 ARCH = "compute_90"
 OPTIONS = [f"--gpu-architecture={ARCH}", "--fmad=false", "-default-device"]

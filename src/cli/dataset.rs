@@ -236,13 +236,16 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
         return Ok(());
     }
 
-    // Trace the transport once (if it fits the budget), then apply it to every scene.
+    // On the CPU: trace the transport once (if it fits the budget), then apply it to every scene. On a GPU
+    // every scene is traced on the device (its kernels trace and accumulate in one pass; docs/gpu.md).
+    let device: crate::render::Device = a.common.device.parse()?;
+    let on_cpu = device == crate::render::Device::Cpu;
     let planes = renderer.config.spectral.planes();
     let t_trace = Instant::now();
-    let probe = renderer.trace_plane(planes / 2)?;
+    let probe = if on_cpu { renderer.trace_plane(planes / 2)? } else { PlaneTransport::default() };
     let estimate = probe.bytes() as f64 * planes as f64 * 1.25;
     let budget = a.transport_memory_gb * 1e9;
-    let cached: Option<Vec<PlaneTransport>> = if todo.len() > 1 && estimate <= budget {
+    let cached: Option<Vec<PlaneTransport>> = if on_cpu && todo.len() > 1 && estimate <= budget {
         let pb = progress_bar(renderer.rays_per_render(), "tracing the light transport");
         let t = renderer.trace_all(&|k| pb.inc(k))?;
         pb.finish_and_clear();
@@ -250,7 +253,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
         eprintln!("light transport traced in {:.2} s ({:.2} GB), reused for {} scenes", t_trace.elapsed().as_secs_f64(), bytes as f64 / 1e9, todo.len());
         Some(t)
     } else {
-        if todo.len() > 1 {
+        if on_cpu && todo.len() > 1 {
             eprintln!("light transport would need ~{:.2} GB > {:.2} GB: tracing each scene", estimate / 1e9, a.transport_memory_gb);
         }
         None
@@ -269,19 +272,19 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
             // This shard owns the scene: what a killed task left for it is garbage.
             dataset::remove_leftovers(&a.out, &s.name)?;
             let (scene, desc) = load_fitted(&s.path, &a.common)?;
-            let mut acq = match &cached {
-                Some(t) => renderer.render_cached(&scene, t, a.common.cube, &|_| {})?,
+            let (mut acq, device_record) = match &cached {
+                Some(t) => (renderer.render_cached(&scene, t, a.common.cube, &|_| {})?, None),
                 None => {
                     let pb = progress_bar(renderer.rays_per_render(), &s.name);
-                    let acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
+                    let out = crate::render::device::render_for(device, &renderer, &scene, a.common.cube, &|k| pb.inc(k))?;
                     pb.finish_and_clear();
-                    acq
+                    out
                 }
             };
             let scene_noise = noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() });
             let noise_json = apply_noise(scene_noise.as_ref(), &mut acq, "", true)?;
             let partial = dataset::partial_dir(&a.out, &s.name)?;
-            let extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json});
+            let extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref())});
             let written = write_scene(&partial, &renderer, &acq, &desc, &configuration, extra, ts.elapsed().as_secs_f64()).and_then(|()| {
                 if let Some(d) = delay {
                     std::thread::sleep(d);

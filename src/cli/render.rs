@@ -82,8 +82,9 @@ pub struct RenderCommon {
     /// --tolerance-um, chosen.
     #[arg(long, value_name = "f64|f32", value_parser = <crate::tracer::Precision as std::str::FromStr>::from_str)]
     pub precision: Option<crate::tracer::Precision>,
-    /// Where to render: cpu (the only device of this build; cuda is refused until a CUDA backend lands).
-    #[arg(long, default_value = "cpu", value_name = "cpu|cuda")]
+    /// Where to render: cpu, or cuda (the first CUDA device: the GPU kernels, f64; docs/gpu.md), or cpu-twin
+    /// (the GPU kernels run on the CPU, slowly: the device's bits where there is no GPU).
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda|cpu-twin")]
     pub device: String,
 }
 
@@ -213,6 +214,10 @@ pub struct BenchRenderArgs {
     /// fidelity calibration (`--tolerance-um`), is within it.
     #[arg(long = "mapping-tolerance-um", default_value_t = 1e-3)]
     pub mapping_tolerance_um: f64,
+    /// cuda: also render the acquisition on the first CUDA device (the GPU kernels, f64), twice, beside the
+    /// CPU's rows: its time, whether the two runs are bit-identical, its largest difference from the CPU.
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda")]
+    pub device: String,
 }
 
 /// A memory size in GB: finite and ≥ 0 (clap names the option in the error).
@@ -341,7 +346,8 @@ pub fn render(a: RenderArgs) -> Result<()> {
     // All or nothing: the files go to a staging folder beside --out, which replaces --out at the end.
     let set = crate::io::OutputSet::folder(&out, &rule, &inputs)?;
     let pb = progress_bar(renderer.rays_per_render(), &format!("render {}", system.name()));
-    let mut acq = renderer.render(&scene, a.common.cube, &|k| pb.inc(k))?;
+    let device: crate::render::Device = a.common.device.parse()?;
+    let (mut acq, device_record) = crate::render::device::render_for(device, &renderer, &scene, a.common.cube, &|k| pb.inc(k))?;
     pb.finish_and_clear();
     // Ghost and stray light (off by default): added to the acquisition before the sensor noise.
     let ghosts_json = match &ghost_pass {
@@ -350,7 +356,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
     };
     // Sensor noise on the acquisition (the per-band images of --cube stay clean).
     let noise_json = apply_noise(noise.as_ref(), &mut acq, a.noise.noise.as_deref().unwrap_or(""), false)?;
-    let mut extra = serde_json::json!({"noise": noise_json});
+    let mut extra = serde_json::json!({"noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref())});
     if !ghosts_json.is_null() {
         extra["ghosts"] = ghosts_json;
     }
@@ -399,12 +405,16 @@ pub(super) fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::
 /// The acquisition rows of `bench-render`: `renderer` (the first kernel and precision), then each further
 /// (kernel, precision) variant on the same mask and scene (with the largest difference of its image from
 /// the first, absolute and relative to the image's peak), then the all-open mask.
-fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Renderer, variants: &[(crate::tracer::Kernel, crate::tracer::Precision)], scene: &SpectralCube, setup: f64, opening: f64, row: &dyn Fn(&str, f64, u64)) -> Result<()> {
+#[allow(clippy::too_many_arguments)]
+fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Renderer, variants: &[(crate::tracer::Kernel, crate::tracer::Precision)], scene: &SpectralCube, setup: f64, opening: f64, device: crate::render::Device, row: &dyn Fn(&str, f64, u64)) -> Result<()> {
     let (first, first_p) = (renderer.config.kernel, renderer.config.precision);
     let t = Instant::now();
     let acq = renderer.render(scene, false, &|_| {})?;
     row(&format!("acquisition, {} kernel {first_p} (setup {setup:.2} s + render)", first.name()), t.elapsed().as_secs_f64() + setup, acq.stats.traced);
     let peak = acq.image.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    if device == crate::render::Device::Cuda {
+        bench_gpu(renderer, scene, &acq, row)?;
+    }
     for &(k, p) in &variants[1..] {
         let mut c = renderer.config.clone();
         c.kernel = k;
@@ -424,6 +434,27 @@ fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Rende
         let t = Instant::now();
         let acq = open.render(scene, false, &|_| {})?;
         row(&format!("acquisition, all-open mask (every ray), {} kernel", first.name()), t.elapsed().as_secs_f64(), acq.stats.traced);
+    }
+    Ok(())
+}
+
+/// The acquisition on the CUDA device, twice (the second run is timed; both must have the same bits), against
+/// the CPU's acquisition `cpu` of the same seed.
+fn bench_gpu(renderer: &Renderer, scene: &SpectralCube, cpu: &crate::render::Acquisition, row: &dyn Fn(&str, f64, u64)) -> Result<()> {
+    use crate::render::device::{render_on, Executor};
+    let (a, _) = render_on(renderer, scene, false, Executor::Cuda)?;
+    let t = Instant::now();
+    let (b, rec) = render_on(renderer, scene, false, Executor::Cuda)?;
+    let wall = t.elapsed().as_secs_f64();
+    let same = a.image.iter().zip(&b.image).all(|(x, y)| x.to_bits() == y.to_bits()) && a.stats == b.stats;
+    let peak = cpu.image.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let diff = b.image.iter().zip(&cpu.image).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    let kernels_s = rec.kernels_ms.unwrap_or(0.0) / 1e3;
+    row(&format!("acquisition, GPU {} f64, kernels only (CUDA events)", rec.gpu.clone().unwrap_or_default()), kernels_s, b.stats.traced);
+    row(&format!("acquisition, GPU f64 with plan, uploads and copy back (max |Δ| vs CPU {:.1e} of the peak; two runs bit-identical: {})", if peak > 0.0 { diff / peak } else { 0.0 }, if same { "yes" } else { "NO" }), wall, b.stats.traced);
+    println!("(GPU: {}, driver {}, {}; {})", rec.gpu.unwrap_or_default(), rec.driver.unwrap_or_default(), rec.ptx.unwrap_or_default(), rec.accumulation);
+    if !same {
+        return Err(Error::invalid("bench-render --device cuda: two GPU runs of the same render differ (the accumulation must be deterministic)"));
     }
     Ok(())
 }
@@ -466,6 +497,11 @@ fn bench_interpolated_mapping(system: &crate::system::SequentialSystem, tracer: 
 
 
 pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
+    let device: crate::render::Device = a.device.parse()?;
+    if device == crate::render::Device::CpuTwin {
+        return Err(Error::invalid("bench-render --device cpu-twin: use cpu or cuda (the twin is for checking a GPU's results, `render --device cpu-twin`)"));
+    }
+    device.check()?;
     let system = crate::system::SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let n = a.scene_size;
     if n == 0 || a.planes == 0 || a.planes > crate::limits::MAX_PLANES || a.rays == 0 || !(a.opening.is_finite() && (0.0..=1.0).contains(&a.opening)) {
@@ -555,7 +591,7 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
     }
     let scene = synthetic_scene(n, n, &synthetic_wavelengths(), 0);
     if parts.contains(&"acquisition") {
-        bench_acquisitions(&system, &renderer, &variants, &scene, setup, a.opening, &row)?;
+        bench_acquisitions(&system, &renderer, &variants, &scene, setup, a.opening, device, &row)?;
     }
     if !parts.contains(&"dataset") {
         return Ok(());

@@ -1,7 +1,7 @@
 //! The host twin's entry points (`src/gpu/kernels/host.c`, built by `build.rs`): their declarations, the
 //! check that the Rust `repr(C)` structs of [`super::pack`] have the C compiler's sizes, and the kernels'
 //! status codes as [`RayStatus`].
-use super::pack::{Batch, LandingBatch, Step, Window};
+use super::pack::{AiryBatch, Batch, DepositBatch, LandingBatch, Step, Window};
 use crate::tracer::RayStatus;
 
 extern "C" {
@@ -13,6 +13,11 @@ extern "C" {
     fn dc_sizeof_batch() -> u64;
     pub(crate) fn dc_landing_host(batch: *const LandingBatch, begin: u64, end: u64);
     fn dc_sizeof_landing_batch() -> u64;
+    pub(crate) fn dc_deposit_host(batch: *const DepositBatch, begin: u64, end: u64, counts: *mut u64);
+    pub(crate) fn dc_airy_host(batch: *const AiryBatch, begin: u64, end: u64);
+    pub(crate) fn dc_finish_host(band: *const f64, n_bands: u32, npix: u64, image: *mut f64, bands_f32: *mut f32, begin: u64, end: u64);
+    fn dc_sizeof_deposit_batch() -> u64;
+    fn dc_sizeof_airy_batch() -> u64;
 }
 
 /// Whether the Rust `repr(C)` structs have the C compiler's sizes (a layout mismatch would be undefined
@@ -24,6 +29,8 @@ pub(crate) fn layouts_match() -> bool {
             && dc_sizeof_batch() as usize == std::mem::size_of::<Batch>()
             && dc_sizeof_landing_batch() as usize == std::mem::size_of::<LandingBatch>()
             && dc_sizeof_window() as usize == std::mem::size_of::<Window>()
+            && dc_sizeof_deposit_batch() as usize == std::mem::size_of::<DepositBatch>()
+            && dc_sizeof_airy_batch() as usize == std::mem::size_of::<AiryBatch>()
     }
 }
 

@@ -18,9 +18,11 @@
 //! assert_eq!(twin.x, rust.x); // the C kernel computes the Rust kernel's bits
 //! assert_eq!(twin.status, rust.status);
 //! ```
+pub mod cuda;
 pub mod device;
 pub(crate) mod ffi;
 pub(crate) mod pack;
+pub mod plan;
 pub mod ptx;
 mod twin;
 

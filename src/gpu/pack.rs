@@ -206,3 +206,34 @@ pub(crate) struct Window {
     pub h: u32,
     pub off_detector: f64,
 }
+
+/// One plane's deposit launch (`dc_deposit_batch`, src/gpu/kernels/dc_accum.h).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct DepositBatch {
+    pub land: LandingBatch,
+    pub cube: *const f32,
+    pub mask: *const f32,
+    pub image: *mut u64,
+    pub fixed_scale: f64,
+    pub det_w: i64,
+    pub det_h: i64,
+    pub bands: u32,
+    pub k0: u32,
+    pub k1: u32,
+    pub tw: f32,
+}
+
+/// One plane's Airy gather into its band (`dc_airy_batch`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct AiryBatch {
+    pub image: *const u64,
+    pub band: *mut f64,
+    pub taps: *const f32,
+    pub det_w: i64,
+    pub det_h: i64,
+    pub half: i64,
+    pub unit: f64,
+    pub weight: f64,
+}

@@ -10,13 +10,42 @@ pub const TRACE_PTX: &str = include_str!("kernels/trace.ptx");
 
 /// The kernel sources, embedded too: a driver older than the PTX's ISA version can JIT them with the
 /// machine's own NVRTC (docs/gpu.md).
-pub const SOURCES: [(&str, &str); 5] = [
+pub const SOURCES: [(&str, &str); 6] = [
     ("dc_common.h", include_str!("kernels/dc_common.h")),
     ("dc_trace.h", include_str!("kernels/dc_trace.h")),
     ("dc_sample.h", include_str!("kernels/dc_sample.h")),
     ("dc_render.h", include_str!("kernels/dc_render.h")),
+    ("dc_accum.h", include_str!("kernels/dc_accum.h")),
     ("device.cu", include_str!("kernels/device.cu")),
 ];
+
+/// `device.cu` with every `#include "…"` of the kernel headers replaced by the header's text (each once:
+/// they are include-guarded): one translation unit for a compiler that takes no header list (the launcher's
+/// NVRTC fallback, or `nvcc -ptx -arch=compute_90 --fmad=false` on a GPU machine; docs/gpu.md).
+pub fn amalgamated_source() -> String {
+    fn expand(name: &str, seen: &mut Vec<String>, out: &mut String) {
+        if seen.iter().any(|s| s == name) {
+            return;
+        }
+        seen.push(name.to_string());
+        let Some((_, text)) = SOURCES.iter().find(|(n, _)| *n == name) else {
+            out.push_str(&format!("#error \"missing kernel source {name}\"\n"));
+            return;
+        };
+        for line in text.lines() {
+            match line.trim().strip_prefix("#include \"").and_then(|r| r.strip_suffix('"')) {
+                Some(inc) => expand(inc, seen, out),
+                None => {
+                    out.push_str(line);
+                    out.push('\n');
+                }
+            }
+        }
+    }
+    let mut out = String::new();
+    expand("device.cu", &mut Vec::new(), &mut out);
+    out
+}
 
 /// The `source-sha256` line of the embedded PTX.
 pub fn ptx_source_hash() -> Option<&'static str> {
@@ -33,5 +62,17 @@ mod tests {
             assert!(TRACE_PTX.contains(&format!(".visible .entry {entry}")), "no {entry} entry in trace.ptx");
         }
         assert_eq!(ptx_source_hash().map(str::len), Some(64));
+    }
+
+    #[test]
+    fn the_amalgamated_source_holds_every_kernel_and_no_local_include() {
+        let src = amalgamated_source();
+        assert!(!src.contains("#include \"dc_") && !src.contains("#error"), "an include was not expanded");
+        for k in ["dc_trace_kernel", "dc_landing_kernel", "dc_deposit_kernel", "dc_airy_kernel", "dc_finish_kernel"] {
+            assert!(src.contains(&format!("void {k}(")), "{k} missing");
+            assert!(TRACE_PTX.contains(&format!(".visible .entry {k}")), "no {k} entry in trace.ptx");
+        }
+        // Each header once: its guard appears in one #ifndef.
+        assert_eq!(src.matches("#ifndef DC_COMMON_H").count(), 1);
     }
 }

@@ -273,7 +273,7 @@ impl<'a> Renderer<'a> {
     }
 
     /// Check the scene fits the render (size; values are finite by construction).
-    fn check_scene(&self, scene: &SpectralCube) -> Result<()> {
+    pub(crate) fn check_scene(&self, scene: &SpectralCube) -> Result<()> {
         if scene.height != self.config.scene_height || scene.width != self.config.scene_width {
             return Err(Error::invalid(format!(
                 "the scene is {}×{} but the render expects {}×{} (fit it first)",

@@ -32,6 +32,7 @@ pub mod airy;
 pub mod convolve;
 pub mod dataset;
 pub mod detector;
+pub mod device;
 pub mod engine;
 pub mod ghosts;
 pub mod gradient;

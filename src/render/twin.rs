@@ -42,31 +42,16 @@ pub fn plane_landings(system: &SequentialSystem, scene: SceneGeometry<'_>, sampl
     if !layouts_match() {
         return Err(Error::invalid("internal: the GPU kernels' C structs and their Rust twins differ in size (src/gpu/pack.rs)"));
     }
-    if system.spec.ray_aiming == RayAiming::Real {
-        return Err(Error::invalid("the GPU kernels aim rays through the paraxial entrance pupil only: ray_aiming = \"real\" is not on the device yet (docs/gpu.md)"));
-    }
-    let too_big = |what: &str, v: usize| Error::invalid(format!("GPU landing kernel: {what} = {v} exceeds u32"));
-    let (h, w) = (u32::try_from(scene.height).map_err(|_| too_big("scene height", scene.height))?, u32::try_from(scene.width).map_err(|_| too_big("scene width", scene.width))?);
-    let rays = u32::try_from(sampler.rays).map_err(|_| too_big("rays", sampler.rays))?;
+    let (sampler_c, aim, scene_c) = launch_constants(system, scene, sampler, seed)?;
+    let h = scene_c.scene_height;
+    let w = scene_c.scene_width;
     if let Some(&p) = pixels.iter().find(|&&p| p as u64 >= h as u64 * w as u64) {
         return Err(Error::invalid(format!("GPU landing kernel: pixel index {p} outside the {h}×{w} scene")));
     }
     let steps = pack::steps(system)?;
     let n = system.indices(wavelength_nm)?;
-    let (a, b) = sampler.grid();
-    let (telecentric, scale, sin_marginal, magnification_sign, distance_mm) = PupilAim::of(system).parts();
     let total = pixels.len() * sampler.rays;
     let (mut u, mut v, mut status) = (vec![0.0; total], vec![0.0; total], vec![0u8; total]);
-    let sampler_c = Sampler { seed, rays, mode: if sampler.mode == Sampling::Independent { 1 } else { 0 }, grid_a: a as u32, grid_b: b as u32 };
-    let aim = Aim { scale, sin_marginal, magnification_sign, distance_mm, telecentric: telecentric as u32, pad: 0 };
-    let scene_c = Scene {
-        scene_pitch_mm: scene.pitch_mm,
-        detector_x_left_mm: scene.detector.x_left_mm,
-        detector_y_top_mm: scene.detector.y_top_mm,
-        detector_pitch_mm: scene.detector.pitch_mm,
-        scene_height: h,
-        scene_width: w,
-    };
     // Whole pixels per task, so that each task's outputs are its own slices.
     let chunk = sampler.rays.max(1) * 64;
     u.par_chunks_mut(chunk).zip(v.par_chunks_mut(chunk)).zip(status.par_chunks_mut(chunk)).enumerate().for_each(|(c, ((uc, vc), sc))| {
@@ -95,6 +80,30 @@ pub fn plane_landings(system: &SequentialSystem, scene: SceneGeometry<'_>, sampl
     Ok(PlaneLandings { u, v, status: status.into_iter().map(status_of).collect() })
 }
 
+
+/// The constants of a plane launch (`dc_sampler`, `dc_aim`, `dc_scene`): the sampler's, the paraxial pupil
+/// aim's and the scene and detector geometry. Ray aiming `real` is not on the device yet (an error).
+pub(crate) fn launch_constants(system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64) -> Result<(Sampler, Aim, Scene)> {
+    if system.spec.ray_aiming == RayAiming::Real {
+        return Err(Error::invalid("the GPU kernels aim rays through the paraxial entrance pupil only: ray_aiming = \"real\" is not on the device yet (docs/gpu.md)"));
+    }
+    let too_big = |what: &str, v: usize| Error::invalid(format!("GPU kernels: {what} = {v} exceeds u32"));
+    let (h, w) = (u32::try_from(scene.height).map_err(|_| too_big("scene height", scene.height))?, u32::try_from(scene.width).map_err(|_| too_big("scene width", scene.width))?);
+    let rays = u32::try_from(sampler.rays).map_err(|_| too_big("rays", sampler.rays))?;
+    let (a, b) = sampler.grid();
+    let (telecentric, scale, sin_marginal, magnification_sign, distance_mm) = PupilAim::of(system).parts();
+    let sampler_c = Sampler { seed, rays, mode: if sampler.mode == Sampling::Independent { 1 } else { 0 }, grid_a: a as u32, grid_b: b as u32 };
+    let aim = Aim { scale, sin_marginal, magnification_sign, distance_mm, telecentric: telecentric as u32, pad: 0 };
+    let scene_c = Scene {
+        scene_pitch_mm: scene.pitch_mm,
+        detector_x_left_mm: scene.detector.x_left_mm,
+        detector_y_top_mm: scene.detector.y_top_mm,
+        detector_pitch_mm: scene.detector.pitch_mm,
+        scene_height: h,
+        scene_width: w,
+    };
+    Ok((sampler_c, aim, scene_c))
+}
 
 /// [`PlaneContext::trace_plane`] through the GPU kernels' host twin: the same [`PlaneTransport`], bit for bit.
 pub fn trace_plane(ctx: &PlaneContext<'_>, plane: usize, wavelength_nm: f64) -> Result<PlaneTransport> {

@@ -30,9 +30,8 @@ typedef struct {
     dc_u32 pad;
 } dc_landing_batch;
 
-/* Ray t of the launch, its outputs written at index `slot` of u, v and status (the device: slot = t; the host
- * twin: t − the first ray of its chunk, so that each chunk writes its own arrays). */
-DC_FN void dc_landing_ray(const dc_landing_batch *b, dc_u64 t, dc_u64 slot) {
+/* Ray t of the launch: its status, and where it lands (*u, *v; NaN when it does not arrive). */
+DC_FN dc_u32 dc_land(const dc_landing_batch *b, dc_u64 t, double *u_out, double *v_out) {
     dc_u64 q = t / b->sampler.rays;
     dc_u32 k = (dc_u32)(t % b->sampler.rays);
     dc_u32 pixel = b->pixels[q];
@@ -51,6 +50,16 @@ DC_FN void dc_landing_ray(const dc_landing_batch *b, dc_u64 t, dc_u64 slot) {
         else
             st = DC_OUT_OF_RANGE;
     }
+    *u_out = u;
+    *v_out = v;
+    return st;
+}
+
+/* Ray t of the launch, its outputs written at index `slot` of u, v and status (the device: slot = t; the host
+ * twin: t − the first ray of its chunk, so that each chunk writes its own arrays). */
+DC_FN void dc_landing_ray(const dc_landing_batch *b, dc_u64 t, dc_u64 slot) {
+    double u, v;
+    dc_u32 st = dc_land(b, t, &u, &v);
     b->u[slot] = u;
     b->v[slot] = v;
     b->status[slot] = (unsigned char)st;

@@ -4,7 +4,7 @@
  * the host twin) and assembled by ptxas for sm_90 in the test command; the PTX is committed beside this
  * file (trace.ptx) and embedded in the library. One thread a ray.
  */
-#include "dc_render.h"
+#include "dc_accum.h"
 
 extern "C" __global__ void dc_trace_kernel(dc_batch b) {
     dc_u64 i = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
@@ -24,4 +24,34 @@ extern "C" __global__ void dc_footprint_size_kernel(const double *u, const doubl
 extern "C" __global__ void dc_footprint_fill_kernel(const double *u, const double *v, dc_u32 n, dc_window *wins, const dc_u64 *offsets, double *scratch, float *weights, dc_u64 n_pixels) {
     dc_u64 q = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
     if (q < n_pixels && wins[q].w > 0) dc_footprint_fill(u + q * n, v + q * n, n, &wins[q], scratch + offsets[q], weights + offsets[q]);
+}
+
+/* One thread a ray of the plane: its taps added to the plane image (fixed-point atomics, dc_accum.h); its
+ * status and off-detector weight counted per block in shared memory, then once per block into counts[0..9]
+ * (statuses) and counts[9] (weight off the detector): integers, so the totals do not depend on the order. */
+extern "C" __global__ void dc_deposit_kernel(dc_deposit_batch b, dc_u64 n_rays, dc_u64 *counts) {
+    __shared__ unsigned long long block_counts[DC_STATUS_SLOTS + 1];
+    if (threadIdx.x <= DC_STATUS_SLOTS) block_counts[threadIdx.x] = 0;
+    __syncthreads();
+    dc_u64 t = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
+    if (t < n_rays) {
+        dc_u64 lost;
+        dc_u32 st = dc_deposit_ray(&b, t, &lost);
+        atomicAdd(&block_counts[st < DC_STATUS_SLOTS ? st : 5u], 1ull);
+        if (lost) atomicAdd(&block_counts[DC_STATUS_SLOTS], (unsigned long long)lost);
+    }
+    __syncthreads();
+    if (threadIdx.x <= DC_STATUS_SLOTS && block_counts[threadIdx.x]) atomicAdd((unsigned long long *)&counts[threadIdx.x], block_counts[threadIdx.x]);
+}
+
+/* One thread a detector pixel: the plane's Airy gather added to its band. */
+extern "C" __global__ void dc_airy_kernel(dc_airy_batch b, dc_u64 npix) {
+    dc_u64 pix = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
+    if (pix < npix) dc_airy_pixel(&b, pix);
+}
+
+/* One thread a detector pixel: the bands rounded to f32 and summed in band order. */
+extern "C" __global__ void dc_finish_kernel(const double *band, dc_u32 n_bands, dc_u64 npix, double *image, float *bands_f32) {
+    dc_u64 pix = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
+    if (pix < npix) dc_finish_pixel(band, n_bands, npix, image, bands_f32, pix);
 }

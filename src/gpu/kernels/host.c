@@ -4,7 +4,7 @@
  * src/gpu/twin.rs over ranges of rays (rayon chunks). The tests compare it with the Rust kernels; what
  * passes here is what the device runs.
  */
-#include "dc_render.h"
+#include "dc_accum.h"
 
 /* Trace rays [begin, end) of the batch: the body of the device kernel dc_trace_kernel, one ray a turn. */
 void dc_trace_batch_host(const dc_batch *b, dc_u64 begin, dc_u64 end) {
@@ -36,3 +36,27 @@ void dc_footprint_fill_host(const double *u, const double *v, dc_u32 n, dc_windo
 }
 
 dc_u64 dc_sizeof_window(void) { return (dc_u64)sizeof(dc_window); }
+
+/* Rays [begin, end) of a plane: the body of dc_deposit_kernel, into this worker's own plane image; counts[0..9]
+ * by status, counts[9] the fixed-point weight off the detector. */
+void dc_deposit_host(const dc_deposit_batch *b, dc_u64 begin, dc_u64 end, dc_u64 *counts) {
+    for (dc_u64 t = begin; t < end; ++t) {
+        dc_u64 lost;
+        dc_u32 st = dc_deposit_ray(b, t, &lost);
+        counts[st < DC_STATUS_SLOTS ? st : 5u] += 1;
+        counts[DC_STATUS_SLOTS] += lost;
+    }
+}
+
+/* Detector pixels [begin, end): the body of dc_airy_kernel. */
+void dc_airy_host(const dc_airy_batch *b, dc_u64 begin, dc_u64 end) {
+    for (dc_u64 pix = begin; pix < end; ++pix) dc_airy_pixel(b, pix);
+}
+
+/* Detector pixels [begin, end): the body of dc_finish_kernel. */
+void dc_finish_host(const double *band, dc_u32 n_bands, dc_u64 npix, double *image, float *bands_f32, dc_u64 begin, dc_u64 end) {
+    for (dc_u64 pix = begin; pix < end; ++pix) dc_finish_pixel(band, n_bands, npix, image, bands_f32, pix);
+}
+
+dc_u64 dc_sizeof_deposit_batch(void) { return (dc_u64)sizeof(dc_deposit_batch); }
+dc_u64 dc_sizeof_airy_batch(void) { return (dc_u64)sizeof(dc_airy_batch); }

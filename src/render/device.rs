@@ -1,0 +1,292 @@
+//! Rendering on a device: a [`Renderer`]'s acquisition computed by the GPU kernels — on a CUDA device
+//! ([`Device::Cuda`]), or on the host through their CPU twin ([`Executor::Twin`], what the tests run).
+//! The renderer and its settings are the CPU's (same detector, planes, Airy kernels, sampler, seed); what
+//! differs is the arithmetic of the accumulation: each ray's bilinear taps are added to the plane image as
+//! 64-bit fixed-point integers (deterministic on any scheduling; error ≤ 2⁻⁶³ · rays-per-plane · max value
+//! a deposit, docs/gpu.md), the Airy blur and the band sums are f64 — where the CPU renderer rounds its
+//! footprint weights, plane images and blur to f32. So the device's acquisition equals the CPU's to the CPU's
+//! f32 rounding (tests/gpu_render.rs measures it), and the twin's bit for bit.
+//!
+//! ```
+//! use diffcassi::{presets, render::{device::{render_on, Executor}, Mask, RenderConfig, Renderer, SpectralSampling},
+//!                 scene::SpectralCube, system::SequentialSystem, tracer::AnalyticTracer};
+//! let sys = SequentialSystem::build(&presets::spec("sp").unwrap())?;
+//! let mut cfg = RenderConfig::paper(16);
+//! cfg.spectral = SpectralSampling::new(vec![500.0, 600.0], 1)?;
+//! cfg.rays_per_pixel = 2;
+//! let tracer = AnalyticTracer::default();
+//! let r = Renderer::new(&sys, &tracer, cfg, Mask::random(16, 16, 0.5, 1)?)?;
+//! let scene = SpectralCube::new(16, 16, vec![500.0, 600.0], vec![1.0; 16 * 16 * 2], "scene")?;
+//! let (twin, _) = render_on(&r, &scene, false, Executor::Twin)?;
+//! let cpu = r.render(&scene, false, &|_| {})?;
+//! let peak = cpu.image.iter().cloned().fold(0.0, f64::max);
+//! assert!(twin.image.iter().zip(&cpu.image).all(|(a, b)| (a - b).abs() <= 1e-5 * peak));
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+use super::engine::{Acquisition, Renderer, Timings};
+use super::settings::Device;
+use super::transport::RayStats;
+use super::twin::{launch_constants, SceneGeometry};
+use crate::error::{Error, Result};
+use crate::gpu::plan::{fixed_scale, PlanOutput, PlanePlan, RenderPlan, LOST_ONE, STATUS_SLOTS};
+use crate::gpu::{cuda, pack};
+use crate::scene::SpectralCube;
+use crate::tracer::Precision;
+
+/// Where the kernels of a device render run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Executor {
+    /// On the host: the kernels' CPU twin (the same source compiled for the CPU).
+    Twin,
+    /// On the first CUDA device.
+    Cuda,
+}
+
+/// What a device render records beside its acquisition (`render.json`'s `device`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct DeviceRecord {
+    /// `cuda` or `cpu-twin`.
+    pub device: String,
+    /// The GPU's name and the driver's CUDA version (CUDA only).
+    pub gpu: Option<String>,
+    pub driver: Option<String>,
+    /// The ray kernel's precision (`f64`).
+    pub precision: String,
+    /// How the acquisition is accumulated (fixed point, its scale 2^S).
+    pub accumulation: String,
+    /// Device time of the kernels and the wall clock of the render with its transfers, ms (CUDA only).
+    pub kernels_ms: Option<f64>,
+    pub total_ms: Option<f64>,
+    /// Where the PTX came from (CUDA only).
+    pub ptx: Option<String>,
+}
+
+/// The plan of `r`'s acquisition of `scene`: every array the kernels read. Errors for what the kernels do not
+/// model yet (ray aiming `real`, f32, another backend than the analytic one), naming the setting.
+pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPlan<'a>> {
+    r.check_scene(scene)?;
+    if r.config.precision != Precision::F64 {
+        return Err(Error::invalid("--device cuda: the GPU kernels render in f64 only so far (use --precision f64, or --device cpu for f32)"));
+    }
+    if r.config.force_batched {
+        return Err(Error::invalid("--device cuda traces with the GPU's own kernels, not through the batched tracer path (force_batched)"));
+    }
+    if r.tracer.name() != "analytic-f64" {
+        return Err(Error::invalid(format!("--device cuda traces with the GPU's own analytic kernels: --backend {} is not available on it (use --backend analytic)", r.tracer.name())));
+    }
+    let ctx = r.plane_context();
+    let (h, w) = (r.config.scene_height, r.config.scene_width);
+    let geometry = SceneGeometry { height: h, width: w, pitch_mm: r.config.scene_pitch_mm, detector: &r.detector };
+    let (sampler, aim, scene_c) = launch_constants(r.system, geometry, ctx.sampler, ctx.seed)?;
+    let steps = pack::steps(r.system)?;
+    let sp = &r.config.spectral;
+    let mut indices = Vec::new();
+    let mut n_surfaces = 0;
+    for &l in &sp.planes_nm {
+        let n = r.system.indices(l)?;
+        n_surfaces = n.len();
+        indices.extend_from_slice(&n);
+    }
+    let pixels: Vec<u32> = (0..h * w).filter(|&q| r.mask.values[q] > 0.0).map(|q| q as u32).collect();
+    let sb = scene.bands();
+    let mut planes = Vec::with_capacity(sp.planes());
+    let mut kernels = Vec::with_capacity(sp.planes());
+    for p in 0..sp.planes() {
+        let (k, tw) = scene.interpolation(sp.planes_nm[p]);
+        planes.push(PlanePlan { plane: p as u64, k0: k as u32, k1: (k + 1).min(sb - 1) as u32, tw: tw as f32, band: sp.plane_band[p] as u32, weight: sp.plane_weight, kernel: p });
+        kernels.push(match &r.kernels[p] {
+            Some(a) => (a.half, a.weights.clone()),
+            None => (0, vec![1.0f32]),
+        });
+    }
+    // The largest |value| a ray can carry: max|scene| · max|mask| (the interpolation does not exceed it but
+    // for f32 rounding, which fixed_scale's factor 2 covers).
+    let max_scene = scene.data.iter().fold(0.0f64, |m, v| m.max((*v as f64).abs()));
+    let max_mask = r.mask.values.iter().fold(0.0f64, |m, v| m.max((*v as f64).abs()));
+    let rays = pixels.len() as u64 * sampler.rays as u64;
+    let scale = fixed_scale(max_scene * max_mask, rays).unwrap_or(1.0);
+    let unit = (1.0 / sampler.rays as f64) / scale;
+    Ok(RenderPlan {
+        steps,
+        indices,
+        n_surfaces,
+        pixels,
+        sampler,
+        aim,
+        scene: scene_c,
+        max_coord_mm: crate::limits::MAX_IMAGE_COORD_MM,
+        cube: &scene.data,
+        cube_bands: sb as u32,
+        mask: &r.mask.values,
+        planes,
+        kernels,
+        det_w: r.detector.width,
+        det_h: r.detector.height,
+        bands: sp.bands_nm.len(),
+        fixed_scale: scale,
+        unit,
+    })
+}
+
+/// The statistics of a run: ray counts by status, the off-detector weight.
+fn stats(out: &PlanOutput, traced: u64) -> RayStats {
+    let c = &out.counts;
+    debug_assert_eq!(c.len(), STATUS_SLOTS + 1);
+    RayStats {
+        traced,
+        arrived: c[0],
+        missed: c[1],
+        vignetted: c[2],
+        tir: c[3],
+        no_convergence: c[4],
+        invalid_input: c[5],
+        absorbed: c[6],
+        bounce_limit: c[7],
+        out_of_range: c[8],
+        off_detector: c[STATUS_SLOTS] as f64 / LOST_ONE,
+    }
+}
+
+/// Render `scene` with `r`'s settings through the GPU kernels, on `executor`.
+pub fn render_on(r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, executor: Executor) -> Result<(Acquisition, DeviceRecord)> {
+    let t0 = std::time::Instant::now();
+    let plan = plan(r, scene)?;
+    let traced = plan.rays_per_plane() * plan.planes.len() as u64;
+    let accumulation = format!("64-bit fixed point, 2^{} units per value, f64 blur and band sums", plan.fixed_scale.log2());
+    let (out, record) = match executor {
+        Executor::Twin => {
+            let out = plan.run_twin(keep_bands)?;
+            (out, DeviceRecord { device: "cpu-twin".into(), gpu: None, driver: None, precision: "f64".into(), accumulation, kernels_ms: None, total_ms: None, ptx: None })
+        }
+        Executor::Cuda => {
+            let (info, ptx) = cuda::device_info()?;
+            let (out, times) = cuda::render(&plan, keep_bands)?;
+            let record = DeviceRecord {
+                device: "cuda".into(),
+                gpu: Some(info.name.clone()),
+                driver: Some(format!("{}.{}", info.driver_version / 1000, (info.driver_version % 1000) / 10)),
+                precision: "f64".into(),
+                accumulation,
+                kernels_ms: Some(times.kernels_ms),
+                total_ms: Some(times.total_ms),
+                ptx: Some(ptx),
+            };
+            (out, record)
+        }
+    };
+    if let Some(bad) = out.image.iter().position(|v| !v.is_finite()) {
+        return Err(Error::invalid(format!("internal: the device render produced a non-finite value at detector pixel {bad}")));
+    }
+    let npix = plan.detector_pixels();
+    let bands = out.bands.as_ref().map(|b| b.chunks(npix.max(1)).map(|c| c.to_vec()).collect());
+    let timings = Timings { wall_seconds: t0.elapsed().as_secs_f64(), ..Timings::default() };
+    Ok((Acquisition { detector: r.detector, image: out.image.clone(), bands, stats: stats(&out, traced), timings }, record))
+}
+
+/// Render on the device a setting names: the CPU renderer for [`Device::Cpu`] (no record), the GPU kernels on
+/// the first CUDA device for [`Device::Cuda`], on the host for [`Device::CpuTwin`].
+pub fn render_for(device: Device, r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, progress: &(dyn Fn(u64) + Sync)) -> Result<(Acquisition, Option<DeviceRecord>)> {
+    match device {
+        Device::Cpu => Ok((r.render(scene, keep_bands, progress)?, None)),
+        Device::Cuda | Device::CpuTwin => {
+            let (acq, rec) = render_on(r, scene, keep_bands, if device == Device::Cuda { Executor::Cuda } else { Executor::Twin })?;
+            progress(acq.stats.traced);
+            Ok((acq, Some(rec)))
+        }
+    }
+}
+
+/// `render.json`'s `device` entry: the record of a device render, or the CPU's (`device`, `precision`).
+pub fn record_json(r: &Renderer<'_>, record: Option<&DeviceRecord>) -> serde_json::Value {
+    match record {
+        Some(rec) => serde_json::to_value(rec).unwrap_or(serde_json::Value::Null),
+        None => serde_json::json!({"device": "cpu", "precision": r.config.precision.name(), "accumulation": "f32 footprints and plane images, f64 band sums"}),
+    }
+}
+
+/// The GPU's figures against the CPU, on one render (issue 41's GPU acceptance; `diffcassi.gpu_check` and
+/// `scripts/gpu_check.sh` print them).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct DeviceCheck {
+    pub gpu: String,
+    pub driver: String,
+    pub ptx: String,
+    pub accumulation: String,
+    /// Rays of one render.
+    pub rays: u64,
+    /// The second of two GPU runs: its kernels (CUDA events), and its wall clock with plan, uploads and copy.
+    pub gpu_kernels_ms: f64,
+    pub gpu_total_ms: f64,
+    /// The CPU renderer's wall clock on this machine (f64, its default kernel).
+    pub cpu_seconds: f64,
+    /// Two GPU runs have the same bits (image and counts).
+    pub runs_bit_identical: bool,
+    /// The GPU's acquisition has the host twin's bits (`None`: the twin was not run); the twin's wall clock.
+    pub twin_bit_identical: Option<bool>,
+    pub twin_seconds: Option<f64>,
+    /// max |GPU − CPU renderer| / the CPU's peak (the CPU's f32 splat rounding).
+    pub cpu_max_rel_diff: f64,
+    /// The middle plane's rays landed on the device and on the host: how many, the largest difference (mm),
+    /// and how many statuses differ.
+    pub landing_rays: u64,
+    pub landing_max_diff_mm: f64,
+    pub landing_status_mismatches: u64,
+}
+
+/// Render `scene` with `r` on the CUDA device twice, on the CPU, and (if `twin`) through the host twin, and
+/// land the middle plane's rays on both: the figures of [`DeviceCheck`].
+pub fn check(r: &Renderer<'_>, scene: &SpectralCube, twin: bool) -> Result<DeviceCheck> {
+    let (a, _) = render_on(r, scene, false, Executor::Cuda)?;
+    let t = std::time::Instant::now();
+    let (b, rec) = render_on(r, scene, false, Executor::Cuda)?;
+    let gpu_total_ms = t.elapsed().as_secs_f64() * 1e3;
+    let bits = |x: &Acquisition, y: &Acquisition| x.image.iter().zip(&y.image).all(|(p, q)| p.to_bits() == q.to_bits()) && x.stats == y.stats;
+    let runs_bit_identical = bits(&a, &b);
+    let t = std::time::Instant::now();
+    let cpu = r.render(scene, false, &|_| {})?;
+    let cpu_seconds = t.elapsed().as_secs_f64();
+    let peak = cpu.image.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let rel = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max) / if peak > 0.0 { peak } else { 1.0 };
+    let cpu_max_rel_diff = rel(&b.image, &cpu.image);
+    let (twin_bit_identical, twin_seconds) = if twin {
+        let t = std::time::Instant::now();
+        let (tw, _) = render_on(r, scene, false, Executor::Twin)?;
+        (Some(bits(&tw, &b)), Some(t.elapsed().as_secs_f64()))
+    } else {
+        (None, None)
+    };
+    // The middle plane's landings: device and host kernels.
+    let p = r.config.spectral.planes() / 2;
+    let pl = plan(r, scene)?;
+    let (du, dv, ds) = cuda::landings(&pl, p)?;
+    let ctx = r.plane_context();
+    let geo = SceneGeometry { height: r.config.scene_height, width: r.config.scene_width, pitch_mm: r.config.scene_pitch_mm, detector: &r.detector };
+    let host = super::twin::plane_landings(r.system, geo, ctx.sampler, ctx.seed, p as u64, r.config.spectral.planes_nm[p], &pl.pixels)?;
+    let pitch = r.detector.pitch_mm;
+    let mut worst = 0.0f64;
+    let mut mismatches = 0u64;
+    for i in 0..du.len() {
+        if crate::gpu::ffi::status_of(ds[i]) != host.status[i] || du[i].is_nan() != host.u[i].is_nan() {
+            mismatches += 1;
+        } else if !du[i].is_nan() {
+            worst = worst.max((du[i] - host.u[i]).abs() * pitch).max((dv[i] - host.v[i]).abs() * pitch);
+        }
+    }
+    Ok(DeviceCheck {
+        gpu: rec.gpu.unwrap_or_default(),
+        driver: rec.driver.unwrap_or_default(),
+        ptx: rec.ptx.unwrap_or_default(),
+        accumulation: rec.accumulation,
+        rays: b.stats.traced,
+        gpu_kernels_ms: rec.kernels_ms.unwrap_or(f64::NAN),
+        gpu_total_ms,
+        cpu_seconds,
+        runs_bit_identical,
+        twin_bit_identical,
+        twin_seconds,
+        cpu_max_rel_diff,
+        landing_rays: du.len() as u64,
+        landing_max_diff_mm: worst,
+        landing_status_mismatches: mismatches,
+    })
+}

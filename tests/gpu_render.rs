@@ -1,0 +1,217 @@
+//! The GPU render (issue 41, item 1's accumulation): a whole acquisition through the device's kernels, run on
+//! the host (their CPU twin, `render::device::Executor::Twin`). It must equal
+//! - an f64 reference computed here from the landing kernel's rays (render::twin::plane_landings, itself the
+//!   CPU renderer's landings bit for bit, tests/gpu_twin.rs) within 1e-9 of the peak — the accumulation's
+//!   fixed-point rounding is ≈ 1e-13 of the peak;
+//! - the CPU renderer within the CPU's own f32 rounding (its footprint weights, plane images and Airy blur
+//!   are f32; measured here, bound below);
+//! - itself bit for bit on any thread count (integer accumulation: the device's atomics give these bits).
+use diffcassi::presets;
+use diffcassi::render::device::{plan, render_for, render_on, Executor};
+use diffcassi::render::twin::{plane_landings, SceneGeometry};
+use diffcassi::render::{Device, Mask, RenderConfig, Renderer, SpectralSampling};
+use diffcassi::scene::SpectralCube;
+use diffcassi::system::SequentialSystem;
+use diffcassi::tracer::{AnalyticTracer, Precision};
+
+fn system(name: &str) -> SequentialSystem {
+    SequentialSystem::build(&presets::spec(name).unwrap()).unwrap()
+}
+
+const H: usize = 20;
+const W: usize = 24;
+
+fn config(airy: bool) -> RenderConfig {
+    let mut c = RenderConfig::paper(W);
+    c.scene_height = H;
+    c.scene_pitch_mm = 0.15; // the scene spans much of the field
+    c.rays_per_pixel = 5;
+    c.seed = 11;
+    c.spectral = SpectralSampling::new(vec![450.0, 520.0, 580.0, 650.0], 2).unwrap();
+    if !airy {
+        c.airy = None;
+    }
+    c
+}
+
+/// A scene with structure in space and wavelength (values in [0.05, 1.05]), 5 bands over 440–660 nm.
+fn scene() -> SpectralCube {
+    let ws = vec![440.0, 495.0, 550.0, 605.0, 660.0];
+    let mut data = Vec::with_capacity(H * W * ws.len());
+    for r in 0..H {
+        for c in 0..W {
+            for b in 0..ws.len() {
+                let v = 0.55 + 0.5 * ((r as f64 * 0.7 + b as f64 * 1.3).sin() * (c as f64 * 0.45 - b as f64 * 0.4).cos());
+                data.push(v as f32);
+            }
+        }
+    }
+    SpectralCube::new(H, W, ws, data, "test scene").unwrap()
+}
+
+fn peak(v: &[f64]) -> f64 {
+    v.iter().fold(0.0f64, |m, x| m.max(x.abs()))
+}
+
+/// The acquisition in f64 from the landing kernel's rays: Σ value·tap/N per plane, the plane's Airy kernel
+/// (AiryKernel's taps, zero outside), × w into its band, the bands summed — the device's model with no
+/// fixed point.
+fn f64_reference(r: &Renderer<'_>, scene: &SpectralCube) -> Vec<f64> {
+    let ctx = r.plane_context();
+    let det = r.detector;
+    let (dw, dh) = (det.width, det.height);
+    let sp = &r.config.spectral;
+    let pixels: Vec<u32> = (0..H * W).filter(|&q| r.mask.values[q] > 0.0).map(|q| q as u32).collect();
+    let n = r.config.rays_per_pixel;
+    let sb = scene.bands();
+    let mut bands = vec![vec![0.0f64; dw * dh]; sp.bands_nm.len()];
+    for p in 0..sp.planes() {
+        let geo = SceneGeometry { height: H, width: W, pitch_mm: r.config.scene_pitch_mm, detector: &det };
+        let land = plane_landings(r.system, geo, ctx.sampler, ctx.seed, p as u64, sp.planes_nm[p], &pixels).unwrap();
+        let (k, tw) = scene.interpolation(sp.planes_nm[p]);
+        let k1 = (k + 1).min(sb - 1);
+        let tw = tw as f32;
+        let mut img = vec![0.0f64; dw * dh];
+        for (i, &q) in pixels.iter().enumerate() {
+            let q = q as usize;
+            let value = ((1.0 - tw) * scene.data[q * sb + k] + tw * scene.data[q * sb + k1]) * r.mask.values[q];
+            for t in i * n..(i + 1) * n {
+                let (u, v) = (land.u[t], land.v[t]);
+                if u.is_nan() {
+                    continue;
+                }
+                let (fj, fi) = (u.floor(), v.floor());
+                let (fu, fv) = (u - fj, v - fi);
+                for (di, wi) in [(0i64, 1.0 - fv), (1, fv)] {
+                    for (dj, wj) in [(0i64, 1.0 - fu), (1, fu)] {
+                        let (row, col) = (fi as i64 + di, fj as i64 + dj);
+                        if row >= 0 && col >= 0 && (row as usize) < dh && (col as usize) < dw {
+                            img[row as usize * dw + col as usize] += value as f64 * wi * wj / n as f64;
+                        }
+                    }
+                }
+            }
+        }
+        let band = &mut bands[sp.plane_band[p]];
+        match &r.kernels[p] {
+            None => band.iter_mut().zip(&img).for_each(|(b, v)| *b += sp.plane_weight * v),
+            Some(a) => {
+                let (h, m) = (a.half as i64, 2 * a.half + 1);
+                for y in 0..dh as i64 {
+                    for x in 0..dw as i64 {
+                        let mut acc = 0.0;
+                        for ki in 0..m as i64 {
+                            for kj in 0..m as i64 {
+                                let (sy, sx) = (y - (ki - h), x - (kj - h));
+                                if sy >= 0 && sx >= 0 && sy < dh as i64 && sx < dw as i64 {
+                                    acc += a.weights[(ki * m as i64 + kj) as usize] as f64 * img[(sy * dw as i64 + sx) as usize];
+                                }
+                            }
+                        }
+                        band[(y * dw as i64 + x) as usize] += sp.plane_weight * acc;
+                    }
+                }
+            }
+        }
+    }
+    (0..dw * dh).map(|i| bands.iter().map(|b| b[i]).sum()).collect()
+}
+
+#[test]
+fn the_twin_render_equals_the_f64_model_within_1e9_of_the_peak() {
+    let scene = scene();
+    for name in ["sp", "msp"] {
+        for airy in [true, false] {
+            let sys = system(name);
+            let tracer = AnalyticTracer::default();
+            let r = Renderer::new(&sys, &tracer, config(airy), Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
+            let (acq, rec) = render_on(&r, &scene, false, Executor::Twin).unwrap();
+            assert_eq!(rec.device, "cpu-twin");
+            let reference = f64_reference(&r, &scene);
+            let pk = peak(&reference);
+            assert!(pk > 1e-3, "{name}: an empty acquisition ({pk})");
+            let worst = acq.image.iter().zip(&reference).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            eprintln!("{name} airy={airy}: |twin − f64 model| = {:.2e} of the peak", worst / pk);
+            assert!(worst <= 1e-9 * pk, "{name} airy={airy}: |twin − f64 model| = {worst:e} of a peak {pk}");
+        }
+    }
+}
+
+#[test]
+fn the_twin_render_equals_the_cpu_render_to_its_f32_rounding() {
+    let scene = scene();
+    for name in ["sp", "msp"] {
+        let sys = system(name);
+        let tracer = AnalyticTracer::default();
+        let r = Renderer::new(&sys, &tracer, config(true), Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
+        let (twin, _) = render_on(&r, &scene, true, Executor::Twin).unwrap();
+        let cpu = r.render(&scene, true, &|_| {}).unwrap();
+        let pk = peak(&cpu.image);
+        let worst = twin.image.iter().zip(&cpu.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        // The CPU rounds each footprint weight, plane image and blurred tile to f32 (2⁻²⁴ ≈ 6e-8 relative each,
+        // over ~10 chained sums per pixel and 8 planes): measured 1.25e-7 of the peak; 1e-6 bounds it.
+        eprintln!("{name}: |twin − cpu| = {:.2e} of the peak", worst / pk);
+        assert!(worst <= 1e-6 * pk, "{name}: |twin − cpu| = {worst:e} of a peak {pk}");
+        assert!(worst > 0.0, "{name}: the f64 accumulation should differ from the f32 one somewhere");
+        // Ray counts are integers and identical; the off-detector weight is the same sum in another rounding.
+        let (a, b) = (twin.stats, cpu.stats);
+        assert_eq!((a.traced, a.arrived, a.missed, a.vignetted, a.tir, a.no_convergence, a.invalid_input, a.out_of_range), (b.traced, b.arrived, b.missed, b.vignetted, b.tir, b.no_convergence, b.invalid_input, b.out_of_range), "{name}");
+        assert!((a.off_detector - b.off_detector).abs() <= 1e-6 * (a.traced as f64), "{name}: off-detector {} vs {}", a.off_detector, b.off_detector);
+        // The band images are kept, and the acquisition is their sum (in f64, before their f32 rounding).
+        let bands = twin.bands.as_ref().unwrap();
+        assert_eq!(bands.len(), 4);
+        for (i, v) in twin.image.iter().enumerate() {
+            let s: f64 = bands.iter().map(|b| b[i] as f64).sum();
+            assert!((s - v).abs() <= 1e-6 * pk, "{name}: pixel {i}: Σ bands {s} vs {v}");
+        }
+    }
+}
+
+#[test]
+fn the_twin_render_has_the_same_bits_on_any_thread_count() {
+    let scene = scene();
+    let sys = system("msp");
+    let tracer = AnalyticTracer::default();
+    let r = Renderer::new(&sys, &tracer, config(true), Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| render_on(&r, &scene, true, Executor::Twin).unwrap().0)
+    };
+    let (a, b) = (run(1), run(3));
+    assert!(a.image.iter().zip(&b.image).all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert_eq!(a.bands, b.bands);
+    assert_eq!(a.stats, b.stats);
+}
+
+#[test]
+fn a_black_scene_renders_black_and_bad_settings_are_named() {
+    let sys = system("sp");
+    let tracer = AnalyticTracer::default();
+    let r = Renderer::new(&sys, &tracer, config(true), Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
+    let black = SpectralCube::new(H, W, vec![450.0, 650.0], vec![0.0; H * W * 2], "black").unwrap();
+    let (acq, _) = render_on(&r, &black, false, Executor::Twin).unwrap();
+    assert!(acq.image.iter().all(|&v| v == 0.0));
+    assert!(acq.stats.arrived > 0);
+    // f32 is not on the device yet: named, before anything runs.
+    let mut c = config(true);
+    c.precision = Precision::F32;
+    let r32 = Renderer::new(&sys, &tracer, c, Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
+    let e = plan(&r32, &scene()).err().expect("f32 refused").to_string();
+    assert!(e.contains("f64 only"), "{e}");
+    // The batched tracer path is named.
+    let mut c = config(true);
+    c.force_batched = true;
+    let rb = Renderer::new(&sys, &tracer, c, Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
+    let e = plan(&rb, &scene()).err().expect("batched refused").to_string();
+    assert!(e.contains("batched"), "{e}");
+    // Another backend than the analytic one is named.
+    let twin = diffcassi::gpu::TwinTracer::default();
+    let rt = Renderer::new(&sys, &twin, config(true), Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
+    let e = plan(&rt, &scene()).err().expect("another backend refused").to_string();
+    assert!(e.contains("--backend gpu-twin-f64"), "{e}");
+    // Without a CUDA driver (CI), --device cuda is one clear error.
+    if diffcassi::gpu::probe().is_err() {
+        let e = render_for(Device::Cuda, &r, &scene(), false, &|_| {}).err().expect("no CUDA here").to_string();
+        assert!(e.contains("NVIDIA driver") || e.contains("CUDA"), "{e}");
+    }
+}
