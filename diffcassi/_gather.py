@@ -71,9 +71,15 @@ class GatherTable(nn.Module):
         where = torch.full((rows,), 0, dtype=torch.int64, device=device)
         self._buckets: List[Tuple[str, str, int]] = []
         offset, stored = 0, 0
-        present = torch.unique(widths[counts > 0]).tolist() if rows else []
-        for i, w in enumerate(int(v) for v in present):
-            rs = torch.nonzero((widths == w) & (counts > 0)).squeeze(1)
+        # Rows grouped by width (a stable sort: increasing row index within a bucket), rows without entries last.
+        key = torch.where(counts > 0, widths, torch.full_like(widths, 1 << 62))
+        key_sorted, by_width = torch.sort(key, stable=True)
+        present, sizes = torch.unique_consecutive(key_sorted, return_counts=True)
+        bounds = [0] + torch.cumsum(sizes, 0).tolist()
+        for i, w in enumerate(int(v) for v in present.tolist()):
+            if w == 1 << 62:
+                break
+            rs = by_width[bounds[i]:bounds[i + 1]]
             r = int(rs.numel())
             start, cnt = indptr[rs], counts[rs]
             j = torch.arange(w, device=device, dtype=torch.int64)
@@ -141,7 +147,7 @@ class GatherTable(nn.Module):
             for s in range(0, r, step):
                 c, v = cols[s:s + step], vals[s:s + step]
                 g = torch.index_select(x, 1, c.reshape(-1)).view(n, c.shape[0], w)
-                parts.append((g * v).sum(-1))
+                parts.append(g.mul_(v).sum(-1))  # g is a fresh gather: multiplied in place
         parts.append(x.new_zeros(n, 1))
         return torch.index_select(torch.cat(parts, 1), 1, self.where)
 

@@ -186,6 +186,8 @@ class _DeviceChecked(nn.Module):
         try:
             probe = fn(torch.empty(0, device=self.device))
         except Exception as e:
+            if any(k in str(e).lower() for k in ("cuda", "nvidia")):
+                _device("cuda", where)  # the clear message when torch has no CUDA device (e.g. a parent module's .to)
             raise _Error(f"{where}: cannot move the operator there: {e}") from None
         dev = _device(probe.device, where)
         self._moving_to(dev)
@@ -415,8 +417,12 @@ class MatrixFreeCassiOperator(_DeviceChecked):
         if device.type == "cpu":
             self.phi_table = self.adjoint_table = None
             return
-        if self.phi_table is not None:
-            return  # already on a CUDA device: nn.Module._apply moves the buffers
+        if self.phi_table is None:  # else already on a CUDA device: nn.Module._apply moves the buffers
+            self._build_table(device)
+
+    def _build_table(self, device: torch.device) -> None:
+        """The library's table of the operator as gather tables on ``device`` (the CUDA path; the tests call it
+        with the CPU to run that path's code there)."""
         H, W, B = self.cube_shape
         budget = f"memory_gb = {self.memory_gb:g} (CassiOperator.from_operator(op, matrix_free=True, memory_gb=...))"
         try:
@@ -439,7 +445,7 @@ class MatrixFreeCassiOperator(_DeviceChecked):
                              f"the Rust operator on the CPU; move the operator with .to({str(t.device)!r}) (its table is "
                              "then kept on that device) or the tensor with .cpu()")
             raise _Error(f"{where}: {name} is on {t.device} but the operator on {dev}; move one with .to(device)")
-        if dev.type == "cpu":
+        if self.phi_table is None:  # the Rust operator: float32
             return (t if t.dtype == torch.float32 else t.to(torch.float32)), t.dtype
         return (t.to(torch.float32) if t.dtype in _HALF else t), t.dtype
 

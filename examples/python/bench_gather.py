@@ -35,7 +35,11 @@ def main():
     ap.add_argument("--planes", type=int, default=112)
     ap.add_argument("--reps", type=int, default=7)
     ap.add_argument("--memory-gb", type=float, default=8.0)
+    ap.add_argument("--threads", type=int, default=0, help="torch and Rust threads (0: the defaults)")
     a = ap.parse_args()
+    if a.threads:
+        torch.set_num_threads(a.threads)
+        diffcassi.set_num_threads(a.threads)
     n = a.size
     t_tr, T = timed(lambda: diffcassi.Transport(diffcassi.System.preset("sp"), n, n, planes=a.planes, rays=a.rays))
     op = T.operator
