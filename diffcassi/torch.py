@@ -6,10 +6,12 @@
   backward of ``forward`` is the adjoint, the backward of ``adjoint`` is ``forward``). The exported matrix is
   the full Φ (spectral interpolation, mask, light transport *and* the per-plane Airy blur), so no separate
   convolution is needed. The index arrays of a matrix from SciPy or a file are validated before any tensor
-  is built.
+  is built. Applied by deterministic gathers (:mod:`diffcassi._gather`: the same code on CPU and CUDA tensors,
+  identical bits from run to run); ``device=`` or ``.to(device)`` ('cpu', 'cuda', 'cuda:N').
 - :class:`MatrixFreeCassiOperator` (``CassiOperator.from_operator(op, matrix_free=True)``): the same module
   interface computed by the Rust operator itself on CPU tensors, in place (no matrix: the operator's own
-  memory; the CSR form is for GPUs).
+  memory); on a CUDA device, the table the library builds once, kept on the device (docs/python.md, "PyTorch
+  on CUDA").
 - :class:`CassiDataset`: scenes rendered on the fly through a :class:`~diffcassi.Transport` with the
   paper's augmentation (random crop, flips, 90° rotations) seeded per (seed, index, epoch); returns
   (acquisition, mask, truth, initialisation I = A ∘ f); works with ``DataLoader(num_workers > 0)``.

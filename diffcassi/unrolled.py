@@ -3,8 +3,10 @@
 
 The data steps use Φ and Φᵀ of a :class:`diffcassi.torch.CassiOperator` — in training and on the CPU the
 matrix-free form (``CassiOperator.from_operator(op, matrix_free=True)``: the Rust operator itself, the renderer's
-light transport with the mask, the spectral interpolation and the Airy blur); on GPUs the CSR form. Nothing of the
-operator is learned: only the denoisers and one step size per stage.
+light transport with the mask, the spectral interpolation and the Airy blur); on a GPU the same operator moved with
+``.to("cuda")`` (its table kept on the device). The network is made on the operator's device and follows it (and
+its own dtype: ``.to(torch.float64)``). Nothing of the operator is learned: only the denoisers and one step size
+per stage.
 
 Graph (``stages`` = K, ``width`` = C; d = Φ Φᵀ 𝟙 the GAP preconditioner of ``src/recon/gap.rs``, entries
 ≤ 1e-6·max d get D⁻¹ = 0 like the Rust solvers)::
