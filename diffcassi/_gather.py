@@ -31,6 +31,8 @@ from torch import nn
 #: Elements of one gathered block (batch × rows × width): larger buckets are applied in row slices so the
 #: temporary stays ≤ 2²⁴ elements (64 MiB in float32).
 _BLOCK = 1 << 24
+#: On CUDA: 2²⁶ (256 MiB in float32), fewer launches.
+_BLOCK_CUDA = 1 << 26
 
 
 def ladder_widths(counts: torch.Tensor) -> torch.Tensor:
@@ -75,7 +77,9 @@ class GatherTable(nn.Module):
         key = torch.where(counts > 0, widths, torch.full_like(widths, 1 << 62))
         key_sorted, by_width = torch.sort(key, stable=True)
         present, sizes = torch.unique_consecutive(key_sorted, return_counts=True)
-        bounds = [0] + torch.cumsum(sizes, 0).tolist()
+        bounds = [0]
+        for v in sizes.tolist():
+            bounds.append(bounds[-1] + int(v))
         for i, w in enumerate(int(v) for v in present.tolist()):
             if w == 1 << 62:
                 break
@@ -107,15 +111,15 @@ class GatherTable(nn.Module):
         indices = torch.as_tensor(indices).to(device=device, dtype=torch.int64)
         values = torch.as_tensor(values).to(device=device)
         counts = indptr[1:] - indptr[:-1]
-        order = torch.sort(indices, stable=True).indices
+        sorted_cols, order = torch.sort(indices, stable=True)
         row_of = torch.repeat_interleave(torch.arange(rows, device=device, dtype=torch.int64), counts)
         t_indices = row_of[order]
         del row_of
         t_values = values[order]
         del order
-        t_counts = torch.bincount(indices, minlength=cols)
-        t_indptr = torch.zeros(cols + 1, dtype=torch.int64, device=device)
-        t_indptr[1:] = torch.cumsum(t_counts, 0)
+        # Aᵀ's row pointers by binary search in the sorted columns (not bincount/cumsum: torch does not guarantee
+        # those deterministic on CUDA, and refuses them under torch.use_deterministic_algorithms(True)).
+        t_indptr = torch.searchsorted(sorted_cols, torch.arange(cols + 1, device=device, dtype=torch.int64))
         return cls(t_indptr, t_indices, t_values, (cols, rows), device)
 
     @property
@@ -143,7 +147,7 @@ class GatherTable(nn.Module):
             if vals.dtype != x.dtype:
                 vals = vals.to(x.dtype)
             r = cols.shape[0]
-            step = max(1, _BLOCK // max(1, w * n))
+            step = max(1, (_BLOCK_CUDA if x.is_cuda else _BLOCK) // max(1, w * n))
             for s in range(0, r, step):
                 c, v = cols[s:s + step], vals[s:s + step]
                 g = torch.index_select(x, 1, c.reshape(-1)).view(n, c.shape[0], w)

@@ -74,7 +74,7 @@ def test_gather_equals_the_exported_matrix_and_rust(phi, csr, transport):
         assert float((a[b] - r).abs().max()) <= 1e-6 * float(r.abs().max())
 
 
-def test_adjoint_identity_and_bit_identical_runs(phi):
+def test_adjoint_identity_and_bit_identical_runs(phi, csr):
     g = torch.Generator().manual_seed(2)
     x = torch.rand(2, 4, 8, 10, generator=g)
     y = torch.rand(2, *phi.image_shape, generator=g)
@@ -82,6 +82,17 @@ def test_adjoint_identity_and_bit_identical_runs(phi):
     rhs = float((x.double() * phi.adjoint(y).double()).sum())
     assert abs(lhs - rhs) <= 1e-6 * abs(lhs)
     assert torch.equal(phi(x), phi(x)) and torch.equal(phi.adjoint(y), phi.adjoint(y))
+    # Built and applied under torch's deterministic-algorithms mode (no op it refuses; the GPU check does the same
+    # on CUDA, where the refused set is larger), with the same bits.
+    ip, ix, dv, shape = csr
+    torch.use_deterministic_algorithms(True)
+    try:
+        a, at = _gather.pair_from_csr(torch.from_numpy(ip), torch.from_numpy(ix), torch.from_numpy(dv), shape,
+                                      torch.device("cpu"), band_major=(80, 4))
+        assert torch.equal(a.matmul(x.reshape(2, -1)), phi(x).reshape(2, -1))
+        assert torch.equal(at.matmul(y.reshape(2, -1)), phi.adjoint(y).reshape(2, -1))
+    finally:
+        torch.use_deterministic_algorithms(False)
     # Batched and unbatched layouts agree (the same rows reduced; float32 rounding at most).
     assert phi(x).shape == (2, *phi.image_shape) and phi(x[1]).shape == phi.image_shape
     assert torch.allclose(phi(x)[1], phi(x[1]), rtol=1e-6, atol=0)
