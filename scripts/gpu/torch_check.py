@@ -190,8 +190,8 @@ def main():
     t0 = time.perf_counter()
     for part in (operator_checks, renderer_checks, unrolled_checks):
         # The operator's table is built and applied with torch's deterministic-algorithms mode on: an op torch
-        # does not guarantee deterministic on this device raises there (the U-Net of the training step is not
-        # checked so: its replication padding has no deterministic CUDA backward).
+        # does not guarantee deterministic on this device raises there. Not the training step: the U-Net's
+        # determinism is not what is checked here, and cuBLAS-backed ops would need CUBLAS_WORKSPACE_CONFIG.
         torch.use_deterministic_algorithms(part is operator_checks)
         try:
             part(a, dev)
