@@ -25,7 +25,6 @@ True
 from __future__ import annotations
 
 import os
-import warnings
 import zipfile
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
