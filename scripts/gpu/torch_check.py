@@ -41,6 +41,7 @@ ROWS = []
 
 def row(check, value, bound, ok):
     ROWS.append((check, value, bound, "PASS" if ok else "FAIL"))
+    print(f"  {ROWS[-1][3]}  {check}: {value} (bound {bound})", flush=True)  # as it goes: survives a time limit
 
 
 def sync(dev):
