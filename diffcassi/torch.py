@@ -6,10 +6,12 @@
   backward of ``forward`` is the adjoint, the backward of ``adjoint`` is ``forward``). The exported matrix is
   the full Φ (spectral interpolation, mask, light transport *and* the per-plane Airy blur), so no separate
   convolution is needed. The index arrays of a matrix from SciPy or a file are validated before any tensor
-  is built.
+  is built. Applied by deterministic gathers (:mod:`diffcassi._gather`: the same code on CPU and CUDA tensors,
+  identical bits from run to run); ``device=`` or ``.to(device)`` ('cpu', 'cuda', 'cuda:N').
 - :class:`MatrixFreeCassiOperator` (``CassiOperator.from_operator(op, matrix_free=True)``): the same module
   interface computed by the Rust operator itself on CPU tensors, in place (no matrix: the operator's own
-  memory; the CSR form is for GPUs).
+  memory); on a CUDA device, the table the library builds once, kept on the device (docs/python.md, "PyTorch
+  on CUDA").
 - :class:`CassiDataset`: scenes rendered on the fly through a :class:`~diffcassi.Transport` with the
   paper's augmentation (random crop, flips, 90° rotations) seeded per (seed, index, epoch); returns
   (acquisition, mask, truth, initialisation I = A ∘ f); works with ``DataLoader(num_workers > 0)``.
@@ -23,7 +25,6 @@ True
 from __future__ import annotations
 
 import os
-import warnings
 import zipfile
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
@@ -36,6 +37,7 @@ except ImportError as _e:  # pragma: no cover - depends on the environment
     raise ImportError("diffcassi.torch needs PyTorch: pip install torch") from _e
 
 import diffcassi
+from . import _gather
 
 __all__ = ["CassiOperator", "MatrixFreeCassiOperator", "CassiDataset"]
 
@@ -108,7 +110,9 @@ def _check_csr(indptr: Any, indices: Any, data: Any, shape: Any, cube_shape: Any
         if not np.isfinite(dv).all():
             k = int(np.argmax(~np.isfinite(dv)))
             raise _Error(f"{source}: data[{k}] = {dv[k]} is not finite")
-    return ip.astype(np.int64), ix.astype(np.int64), dv.astype(np.float64), (rows, cols), cube, image
+    # float32 values (the library's export) are kept as they are; any other floating dtype as float64.
+    dv = dv if dv.dtype == np.float32 else dv.astype(np.float64)
+    return ip.astype(np.int64), ix.astype(np.int64), dv, (rows, cols), cube, image
 
 
 def _float_input(name: str, t: Any, where: str) -> torch.Tensor:
@@ -131,77 +135,143 @@ def _batched(name: str, t: torch.Tensor, trailing: Tuple[int, ...], where: str) 
     return t, single
 
 
-class _SparseApply(torch.autograd.Function):
-    """y = A x for a batch of columns x (N, n) with A sparse CSR; backward gives Aᵀ g."""
+def _device(value: Any, where: str) -> torch.device:
+    """``value`` as the device an operator can run on: 'cpu', or 'cuda'/'cuda:N' when torch has that CUDA
+    device; anything else (e.g. 'meta', which holds no data to apply) a DiffcassiValueError naming it and,
+    for CUDA, what is missing."""
+    try:
+        d = torch.device(value)
+    except (RuntimeError, TypeError, ValueError):
+        raise _Error(f"{where}: device: expected 'cpu', 'cuda' or 'cuda:N', got {type(value).__name__} {value!r}") from None
+    if d.type == "cpu":
+        return torch.device("cpu")
+    if d.type != "cuda":
+        raise _Error(f"{where}: device {str(d)!r}: the operator runs on 'cpu' or 'cuda' (its table is applied by "
+                     f"gathers on a device that holds data; {d.type!r} is not one)")
+    if not torch.cuda.is_available():
+        build = f"CUDA {torch.version.cuda}" if torch.version.cuda else "none: a CPU-only build"
+        raise _Error(f"{where}: device {str(d)!r}: no CUDA device is available to torch (torch {torch.__version__}, "
+                     f"CUDA build: {build}; torch.cuda.is_available() is False); use device='cpu'")
+    n = torch.cuda.device_count()
+    idx = torch.cuda.current_device() if d.index is None else d.index
+    if not 0 <= idx < n:
+        raise _Error(f"{where}: device {str(d)!r}: torch sees {n} CUDA device(s) (cuda:0 … cuda:{n - 1})")
+    return torch.device("cuda", idx)
 
-    @staticmethod
-    def forward(ctx, x, a, at):  # type: ignore[override]
-        ctx.a, ctx.at = a, at
-        return torch.sparse.mm(a, x.t()).t()
 
-    @staticmethod
-    def backward(ctx, g):  # type: ignore[override]
-        gx = torch.sparse.mm(ctx.at, g.t().contiguous()).t() if ctx.needs_input_grad[0] else None
-        return gx, None, None
+class _DeviceChecked(nn.Module):
+    """``.to()``, ``.cuda()``, ``.cpu()``, ``.half()`` … of an operator module: the target device is checked
+    first (a DiffcassiValueError for 'meta', a CUDA device torch does not have, …), then :meth:`_moving_to`
+    runs (the matrix-free operator builds or drops its device table there), then the tensors move."""
+
+    @property
+    def device(self) -> torch.device:  # pragma: no cover - overridden
+        return torch.device("cpu")
+
+    def to(self, *args, **kwargs):
+        try:
+            device = torch._C._nn._parse_to(*args, **kwargs)[0]
+        except Exception:  # torch's own error follows from nn.Module.to
+            device = None
+        if device is not None:
+            _device(device, f"{type(self).__name__}.to")
+        return super().to(*args, **kwargs)
+
+    def cuda(self, device: Any = None):
+        _device(torch.device("cuda") if device is None else torch.device("cuda", device) if isinstance(device, int) else device,
+                f"{type(self).__name__}.cuda")
+        return super().cuda(device)
+
+    def _apply(self, fn, recurse=True):
+        where = f"{type(self).__name__}.to"
+        try:
+            probe = fn(torch.empty(0, device=self.device))
+        except Exception as e:
+            if any(k in str(e).lower() for k in ("cuda", "nvidia")):
+                _device("cuda", where)  # the clear message when torch has no CUDA device (e.g. a parent module's .to)
+            raise _Error(f"{where}: cannot move the operator there: {e}") from None
+        dev = _device(probe.device, where)
+        self._moving_to(dev)
+        return super()._apply(fn, recurse)
+
+    def _moving_to(self, device: torch.device) -> None:
+        pass
 
 
-class CassiOperator(nn.Module):
-    """Φ as torch sparse CSR tensors (registered buffers: follow ``.to(device)``; values are cast to the input's
-    dtype at each call).
+def _check_same_device(name: str, t: torch.Tensor, device: torch.device, where: str) -> None:
+    if t.device != device:
+        raise _Error(f"{where}: {name} is on {t.device} but the operator on {device}; move one with .to(device)")
+
+
+class CassiOperator(_DeviceChecked):
+    """Φ as a table applied by deterministic gathers (:mod:`diffcassi._gather`), on the CPU or a CUDA device.
+
+    Built from CSR arrays (validated first); Φ and Φᵀ are kept as row-bucketed tables (buffers: they follow
+    ``.to(device)``, or ``device=`` at construction; a 'meta' device or a CUDA device torch lacks is a
+    DiffcassiValueError). Each output element is one reduction in a fixed order — no scatter, no atomics — so
+    two runs give identical bits on a GPU as on the CPU. Values are kept in the matrix's precision (float32
+    from the library's export) and cast to the input's dtype at each call (``.to(dtype)`` does not round them).
 
     Shapes: ``cube_shape`` = (H, W, bands), ``image_shape`` = (h, w). ``forward(x)``: x (B, bands, H, W) or
     (bands, H, W) (the layout MST/DAUHST code uses) → (B, h, w) or (h, w). ``adjoint(y)``: the reverse.
     """
 
     def __init__(self, indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, shape: Tuple[int, int],
-                 cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int], _source: str = "CassiOperator"):
+                 cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int], _source: str = "CassiOperator",
+                 device: Any = "cpu"):
         super().__init__()
+        dev = _device(device, "CassiOperator")
         ip, ix, dv, (rows, cols), self.cube_shape, self.image_shape = _check_csr(indptr, indices, data, shape, cube_shape,
                                                                                   image_shape, _source)
-        crow = torch.as_tensor(ip)
-        col = torch.as_tensor(ix)
-        val = torch.as_tensor(dv)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)  # "sparse CSR support is in beta"
-            a = torch.sparse_csr_tensor(crow, col, val, size=(rows, cols))
-            at = a.t().to_sparse_csr()
-        self.register_buffer("crow", crow)
-        self.register_buffer("col", col)
-        self.register_buffer("val", val)
-        self.register_buffer("crow_t", at.crow_indices())
-        self.register_buffer("col_t", at.col_indices())
-        self.register_buffer("val_t", at.values())
-        self._size = (rows, cols)
+        H, W, B = self.cube_shape
+        self.phi_table, self.adjoint_table = _gather.pair_from_csr(torch.from_numpy(ip), torch.from_numpy(ix),
+                                                                   torch.from_numpy(dv), (rows, cols), dev,
+                                                                   band_major=(H * W, B))
+
+    @property
+    def device(self) -> torch.device:
+        """The device of the tables (inputs must be on it)."""
+        return self.phi_table.where.device
+
+    @property
+    def nnz(self) -> int:
+        """Non-zeros of Φ."""
+        return self.phi_table.nnz
 
     # ------------------------------------------------------------------ constructors
     @classmethod
     def from_operator(cls, op: Union["diffcassi.Operator", "diffcassi.Transport"], memory_gb: float = 4.0,
-                      matrix_free: bool = False) -> Union["CassiOperator", "MatrixFreeCassiOperator"]:
+                      matrix_free: bool = False, device: Any = "cpu") -> Union["CassiOperator", "MatrixFreeCassiOperator"]:
         """From a diffcassi Operator (``diffcassi.exact(...)``, ``mapping_operator``, ``shift_operator``,
         ``Transport.operator``) or a Transport: the library's CSR export (refused, with the size, above
         ``memory_gb`` GB) — or, with ``matrix_free=True``, a :class:`MatrixFreeCassiOperator` that calls the
-        Rust operator itself on CPU tensors (no matrix; ``memory_gb`` is not used)."""
+        Rust operator itself on CPU tensors (no matrix) and, on a CUDA device, keeps the table the library
+        builds once on the device (refused above ``memory_gb`` GB). ``device``: where the module lives
+        ('cpu', 'cuda', 'cuda:N'; also ``.to(device)`` later)."""
         if isinstance(op, diffcassi.Transport):
             op = op.operator
         if not isinstance(op, diffcassi.Operator):
             raise TypeError(f"CassiOperator.from_operator: op: expected a diffcassi.Operator or diffcassi.Transport, got {type(op).__name__}")
         if not isinstance(matrix_free, bool):
             raise TypeError(f"CassiOperator.from_operator: matrix_free: expected True or False, got {matrix_free!r}")
+        dev = _device(device, "CassiOperator.from_operator")
         if matrix_free:
-            return MatrixFreeCassiOperator(op)
+            return MatrixFreeCassiOperator(op, memory_gb=memory_gb, device=dev)
         indptr, indices, data, shape = op.to_csr_arrays(memory_gb)
-        return cls(indptr, indices, data, shape, op.cube_shape, op.image_shape, _source=f"{op!r}")
+        return cls(indptr, indices, data, shape, op.cube_shape, op.image_shape, _source=f"{op!r}", device=dev)
 
     @classmethod
-    def from_scipy(cls, matrix: Any, cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int]) -> "CassiOperator":
+    def from_scipy(cls, matrix: Any, cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int],
+                   device: Any = "cpu") -> "CassiOperator":
         """From a SciPy sparse matrix (converted to CSR; indices, indptr, values and shape validated first)."""
         if not hasattr(matrix, "tocsr"):
             raise TypeError(f"CassiOperator.from_scipy: matrix: expected a scipy.sparse matrix, got {type(matrix).__name__}")
         m = matrix.tocsr()
-        return cls(m.indptr, m.indices, m.data, m.shape, cube_shape, image_shape, _source="from_scipy: matrix")
+        return cls(m.indptr, m.indices, m.data, m.shape, cube_shape, image_shape, _source="from_scipy: matrix", device=device)
 
     @classmethod
-    def from_npz(cls, path: Union[str, os.PathLike], cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int]) -> "CassiOperator":
+    def from_npz(cls, path: Union[str, os.PathLike], cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int],
+                 device: Any = "cpu") -> "CassiOperator":
         """From a ``save_npz`` file (NumPy only; no SciPy needed). The file's arrays are validated (keys,
         dtypes, indptr, column indices, values, shape) before any tensor is built: a damaged or tampered file
         is a DiffcassiValueError naming the path and the bad entry (a missing or unreadable file: a
@@ -227,49 +297,40 @@ class CassiOperator(nn.Module):
         fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
         if fmt != "csr":
             raise _Error(f"{name}: format {fmt!r}, expected 'csr'")
-        return cls(arrays["indptr"], arrays["indices"], arrays["data"], arrays["shape"], cube_shape, image_shape, _source=name)
+        return cls(arrays["indptr"], arrays["indices"], arrays["data"], arrays["shape"], cube_shape, image_shape,
+                   _source=name, device=device)
 
     # ------------------------------------------------------------------ application
-    def _matrices(self, like: torch.Tensor):
-        dt = like.dtype
-        if like.device.type != self.val.device.type:
-            raise _Error(f"CassiOperator: the input is on {like.device} but the operator on {self.val.device}; move one with .to(device)")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", UserWarning)
-            return self._build(dt)
-
-    def _build(self, dt):
-        a = torch.sparse_csr_tensor(self.crow, self.col, self.val.to(dt), size=self._size)
-        at = torch.sparse_csr_tensor(self.crow_t, self.col_t, self.val_t.to(dt), size=(self._size[1], self._size[0]))
-        return a, at
-
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Φ x: x (B, bands, H, W) or (bands, H, W) → (B, h, w) or (h, w). Any floating dtype: float32 and
         float64 are computed in their own precision, float16 and bfloat16 in float32 and returned in their
         own dtype."""
         H, W, B = self.cube_shape
-        x, single = _batched("x", _float_input("x", x, "CassiOperator.forward"), (B, H, W), "CassiOperator.forward")
+        where = "CassiOperator.forward"
+        x, single = _batched("x", _float_input("x", x, where), (B, H, W), where)
+        _check_same_device("x", x, self.device, where)
         dtype = x.dtype
         if dtype in _HALF:
             x = x.to(torch.float32)
-        a, at = self._matrices(x)
-        cols = x.permute(0, 2, 3, 1).reshape(x.shape[0], H * W * B)
-        y = _SparseApply.apply(cols, a, at).reshape(x.shape[0], *self.image_shape).to(dtype)
+        y = _gather.gather_apply(x.reshape(x.shape[0], B * H * W), self.phi_table, self.adjoint_table)
+        y = y.reshape(x.shape[0], *self.image_shape).to(dtype)
         return y[0] if single else y
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         """Φᵀ y: y (B, h, w) or (h, w) → (B, bands, H, W) or (bands, H, W) (dtypes as :meth:`forward`)."""
         H, W, B = self.cube_shape
-        y, single = _batched("y", _float_input("y", y, "CassiOperator.adjoint"), self.image_shape, "CassiOperator.adjoint")
+        where = "CassiOperator.adjoint"
+        y, single = _batched("y", _float_input("y", y, where), self.image_shape, where)
+        _check_same_device("y", y, self.device, where)
         dtype = y.dtype
         if dtype in _HALF:
             y = y.to(torch.float32)
-        a, at = self._matrices(y)
-        x = _SparseApply.apply(y.reshape(y.shape[0], -1), at, a).reshape(y.shape[0], H, W, B).permute(0, 3, 1, 2).to(dtype)
+        x = _gather.gather_apply(y.reshape(y.shape[0], -1), self.adjoint_table, self.phi_table)
+        x = x.reshape(y.shape[0], B, H, W).to(dtype)
         return x[0] if single else x
 
     def extra_repr(self) -> str:
-        return f"cube={self.cube_shape}, image={self.image_shape}, nnz={int(self.val.numel())}"
+        return f"cube={self.cube_shape}, image={self.image_shape}, nnz={self.nnz}, device={self.device}"
 
 
 # ---------------------------------------------------------------------- matrix-free
@@ -308,56 +369,118 @@ class _RustApply(torch.autograd.Function):
         return _RustApply.apply(g, ctx.op, not ctx.adjoint), None, None
 
 
-class MatrixFreeCassiOperator(nn.Module):
+class MatrixFreeCassiOperator(_DeviceChecked):
     """Φ computed by the Rust operator itself (``CassiOperator.from_operator(op, matrix_free=True)``): the same
     ``forward`` (B, bands, H, W) → (B, h, w) and ``adjoint`` (B, h, w) → (B, bands, H, W) as
-    :class:`CassiOperator`, differentiable the same way, with no matrix: the memory is the operator's own
-    (its traced transport), and the time the Rust ``apply``/``adjoint`` (the GIL released).
+    :class:`CassiOperator`, differentiable the same way, with no matrix on the CPU: the memory is the
+    operator's own (its traced transport), and the time the Rust ``apply``/``adjoint`` (the GIL released).
 
-    CPU only: a tensor on another device is a DiffcassiValueError (use the CSR :class:`CassiOperator` on
-    GPUs). The Rust operator is float32: float32 tensors are passed to it in place (a contiguous
-    (B, h, w) image as it is; a cube in the layout (B, bands, H, W) is re-laid to the operator's
-    (B, H, W, bands) — no copy when the tensor is a channels-last view, ``x = t.permute(0, 3, 1, 2)`` of a
-    contiguous (B, H, W, bands) ``t``, one copy otherwise), the result is written into a tensor allocated
-    once per call; float64, float16 and bfloat16 are cast to float32 and the result back to their dtype
-    (float32 precision either way).
+    **On a CUDA device** (``.to("cuda")``, ``.cuda()`` or ``device="cuda"``) "matrix-free" means: the
+    operator's table, built once by the library (its CSR export) and kept on the device as the row-bucketed
+    gather tables of :class:`CassiOperator` (Φ and Φᵀ; ≈ 8 bytes per stored entry each, padding ≤ 1.25, so
+    ≤ 20 bytes per non-zero in all), applied there by deterministic gathers — no host copy of the cube or
+    the image. The table is refused, naming its size, above ``memory_gb`` (the budget of
+    :meth:`CassiOperator.from_operator`, default 4 GB; the library's export checks its own assembly, 20 bytes
+    per non-zero, against the same budget). Moving back to the CPU drops it (the Rust operator again).
+
+    On the CPU: float32 tensors are passed to Rust in place (a contiguous (B, h, w) image as it is; a cube
+    in the layout (B, bands, H, W) is re-laid to the operator's (B, H, W, bands) — no copy when the tensor
+    is a channels-last view, ``x = t.permute(0, 3, 1, 2)`` of a contiguous (B, H, W, bands) ``t``, one copy
+    otherwise), the result is written into a tensor allocated once per call; float64, float16 and bfloat16
+    are cast to float32 and the result back to their dtype (float32 precision either way). On CUDA: dtypes
+    as :class:`CassiOperator` (float64 computed in float64 with the float32 table).
     """
 
-    def __init__(self, op: Union["diffcassi.Operator", "diffcassi.Transport"]):
+    def __init__(self, op: Union["diffcassi.Operator", "diffcassi.Transport"], memory_gb: float = 4.0,
+                 device: Any = "cpu"):
         super().__init__()
         if isinstance(op, diffcassi.Transport):
             op = op.operator
         if not isinstance(op, diffcassi.Operator):
             raise TypeError(f"MatrixFreeCassiOperator: op: expected a diffcassi.Operator or diffcassi.Transport, got {type(op).__name__}")
+        diffcassi._budget(memory_gb)  # a DiffcassiValueError naming memory_gb when it is not a number ≥ 0
+        self.memory_gb = float(memory_gb)
         self.op = op
         self.cube_shape = tuple(op.cube_shape)
         self.image_shape = tuple(op.image_shape)
+        self.phi_table: Optional[_gather.GatherTable] = None
+        self.adjoint_table: Optional[_gather.GatherTable] = None
+        dev = _device(device, "MatrixFreeCassiOperator")
+        if dev.type == "cuda":
+            self._moving_to(dev)
 
-    def _cpu32(self, name: str, t: torch.Tensor, where: str) -> Tuple[torch.Tensor, torch.dtype]:
-        if t.device.type != "cpu":
-            raise _Error(f"{where}: {name} is on {t.device}: the matrix-free operator runs the Rust operator on the CPU; "
-                         "move the tensor with .cpu(), or use the CSR form (CassiOperator.from_operator(op)) on GPUs")
-        return (t if t.dtype == torch.float32 else t.to(torch.float32)), t.dtype
+    @property
+    def device(self) -> torch.device:
+        """The CPU (the Rust operator), or the CUDA device holding the table."""
+        return torch.device("cpu") if self.phi_table is None else self.phi_table.where.device
+
+    def _moving_to(self, device: torch.device) -> None:
+        if device.type == "cpu":
+            self.phi_table = self.adjoint_table = None
+            return
+        if self.phi_table is None:  # else already on a CUDA device: nn.Module._apply moves the buffers
+            self._build_table(device)
+
+    def _build_table(self, device: torch.device) -> None:
+        """The library's table of the operator as gather tables on ``device`` (the CUDA path; the tests call it
+        with the CPU to run that path's code there)."""
+        H, W, B = self.cube_shape
+        budget = f"memory_gb = {self.memory_gb:g} (CassiOperator.from_operator(op, matrix_free=True, memory_gb=...))"
+        try:
+            indptr, indices, data, shape = self.op.to_csr_arrays(self.memory_gb)
+        except diffcassi.DiffcassiValueError as e:
+            raise _Error(f"MatrixFreeCassiOperator on {device}: the operator's table does not fit {budget}: {e}") from None
+        need = (_gather.GatherTable.estimate_bytes(indices.size, shape[0])
+                + _gather.GatherTable.estimate_bytes(indices.size, shape[1]))
+        if need > self.memory_gb * 1e9:
+            raise _Error(f"MatrixFreeCassiOperator on {device}: the device table of {indices.size:,} non-zeros needs up to "
+                         f"{need / 1e9:.3g} GB (Φ and Φᵀ, ≤ 20 bytes per non-zero), above {budget}")
+        self.phi_table, self.adjoint_table = _gather.pair_from_csr(
+            torch.from_numpy(indptr), torch.from_numpy(indices), torch.from_numpy(data), shape, device, band_major=(H * W, B))
+
+    def _prepare(self, name: str, t: torch.Tensor, where: str) -> Tuple[torch.Tensor, torch.dtype]:
+        dev = self.device
+        if t.device != dev:
+            if dev.type == "cpu":
+                raise _Error(f"{where}: {name} is on {t.device}: the matrix-free operator is on the CPU, where it runs "
+                             f"the Rust operator on the CPU; move the operator with .to({str(t.device)!r}) (its table is "
+                             "then kept on that device) or the tensor with .cpu()")
+            raise _Error(f"{where}: {name} is on {t.device} but the operator on {dev}; move one with .to(device)")
+        if self.phi_table is None:  # the Rust operator: float32
+            return (t if t.dtype == torch.float32 else t.to(torch.float32)), t.dtype
+        return (t.to(torch.float32) if t.dtype in _HALF else t), t.dtype
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Φ x: x (B, bands, H, W) or (bands, H, W) → (B, h, w) or (h, w)."""
         H, W, B = self.cube_shape
         where = "MatrixFreeCassiOperator.forward"
         x, single = _batched("x", _float_input("x", x, where), (B, H, W), where)
-        x, dtype = self._cpu32("x", x, where)
-        y = _RustApply.apply(x, self.op, False).to(dtype)
+        x, dtype = self._prepare("x", x, where)
+        if self.phi_table is None:
+            y = _RustApply.apply(x, self.op, False)
+        else:
+            y = _gather.gather_apply(x.reshape(x.shape[0], B * H * W), self.phi_table, self.adjoint_table)
+            y = y.reshape(x.shape[0], *self.image_shape)
+        y = y.to(dtype)
         return y[0] if single else y
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
         """Φᵀ y: y (B, h, w) or (h, w) → (B, bands, H, W) or (bands, H, W)."""
+        H, W, B = self.cube_shape
         where = "MatrixFreeCassiOperator.adjoint"
         y, single = _batched("y", _float_input("y", y, where), self.image_shape, where)
-        y, dtype = self._cpu32("y", y, where)
-        x = _RustApply.apply(y, self.op, True).to(dtype)
+        y, dtype = self._prepare("y", y, where)
+        if self.phi_table is None:
+            x = _RustApply.apply(y, self.op, True)
+        else:
+            x = _gather.gather_apply(y.reshape(y.shape[0], -1), self.adjoint_table, self.phi_table)
+            x = x.reshape(y.shape[0], B, H, W)
+        x = x.to(dtype)
         return x[0] if single else x
 
     def extra_repr(self) -> str:
-        return f"cube={self.cube_shape}, image={self.image_shape}, matrix-free ({self.op!r})"
+        where = "Rust on the CPU" if self.phi_table is None else f"table on {self.device}"
+        return f"cube={self.cube_shape}, image={self.image_shape}, matrix-free ({self.op!r}; {where})"
 
 
 # ---------------------------------------------------------------------- dataset
@@ -551,6 +674,46 @@ class _RenderFn(torch.autograd.Function):
         return conv(gs, dc, "cube gradient"), conv(gm, dm, "mask gradient"), conv(gp, dt, "θ gradient"), None
 
 
+#: The radiance limit of ``diffcassi render`` (f32 range / 10⁹), checked on the device path too.
+_MAX_RADIANCE = float(np.finfo(np.float32).max) / 1e9
+
+
+class _TableRenderFn(torch.autograd.Function):
+    """acquisition = T (mask ⊙ cube) with T the renderer's linear map at the current θ (all mask pixels
+    open), applied by the gather tables on the cube's device. Backward: the cube and mask gradients on the
+    device (Tᵀ g, then ⊙ mask or summed ⊙ cube over batch and bands); θ's by the Rust VJP on the host (the
+    cube, mask and upstream gradient are copied there for it — only when θ requires grad)."""
+
+    @staticmethod
+    def forward(ctx, cube, mask, theta, module, renderer, tables):  # type: ignore[override]
+        a, at = tables
+        n = cube.shape[0]
+        work = torch.float32 if cube.dtype in _HALF else cube.dtype
+        xm = cube.to(work) * mask.to(work)
+        y = _gather.gather_apply(xm.reshape(n, -1), a, at).reshape(n, *module.image_shape)
+        ctx.save_for_backward(cube, mask)
+        ctx.r, ctx.tables, ctx.work, ctx.theta_meta = renderer, tables, work, (theta.dtype, theta.device)
+        return y.to(cube.dtype)
+
+    @staticmethod
+    def backward(ctx, g):  # type: ignore[override]
+        want_cube, want_mask, want_theta = ctx.needs_input_grad[:3]
+        cube, mask = ctx.saved_tensors
+        a, at = ctx.tables
+        gc = gm = gt = None
+        if want_cube or want_mask:
+            u = at.matmul(g.to(ctx.work).reshape(g.shape[0], -1)).reshape(cube.shape)
+            if want_cube:
+                gc = (u * mask.to(ctx.work)).to(cube.dtype)
+            if want_mask:
+                gm = (u * cube.to(ctx.work)).sum((0, 1)).to(mask.dtype)
+        if want_theta:
+            gp, _, _ = ctx.r.vjp(_f64(cube), _f64(mask), _f64(g), params=True, mask_grad=False, scene_grad=False)
+            dtype, device = ctx.theta_meta
+            gt = torch.from_numpy(gp).to(device=device, dtype=dtype)
+        return gc, gm, gt, None, None, None
+
+
 _U64 = 2 ** 64 - 1
 
 
@@ -621,9 +784,15 @@ class CassiRenderer(nn.Module):
     def __init__(self, system: "diffcassi.System", H: int, W: int, free: Sequence[str] = ("prism_tilt_x",),
                  mask: Optional[np.ndarray] = None, rays: int = 4, planes: int = 28, seed: int = 0,
                  bands_nm: Optional[Sequence[float]] = None, airy: bool = True, temperature: float = 1.0,
-                 straight_through: bool = False, mask_seed: int = 0):
+                 straight_through: bool = False, mask_seed: int = 0, memory_gb: float = 4.0):
         super().__init__()
         w = "CassiRenderer"
+        diffcassi._budget(memory_gb)  # a DiffcassiValueError naming memory_gb when it is not a number ≥ 0
+        #: The budget (GB) of the device table of a CUDA cube's render (see :meth:`forward`).
+        self.memory_gb = float(memory_gb)
+        #: Render CPU cubes through the table too (the CUDA path's code on the CPU; for tests and checks).
+        self.table_on_cpu = False
+        self._tables: Tuple[Any, ...] = ()
         if not isinstance(system, diffcassi.System):
             raise TypeError(f"{w}: system: expected a diffcassi.System, got {type(system).__name__}")
         H, W = _count(w, "H", H, 1), _count(w, "W", W, 1)
@@ -695,9 +864,77 @@ class CassiRenderer(nn.Module):
         if not bool(torch.isfinite(m).all()) or float(m.min()) < 0 or float(m.max()) > 1:
             raise diffcassi.DiffcassiValueError(f"{where}: mask: values must be finite and in [0, 1], got min {float(m.min())}, "
                                                 f"max {float(m.max())}")
+        if cube.device != mask.device or cube.device != self.theta.device:
+            raise diffcassi.DiffcassiValueError(f"{where}: cube is on {cube.device}, mask on {mask.device}, the module's θ on "
+                                                f"{self.theta.device}: move them to one device (module.to(device))")
+        if cube.device.type == "cuda" or self.table_on_cpu:
+            return self._render_table(cube, mask)
         return _RenderFn.apply(cube, mask, self.theta, self)
 
+    def table(self, device: Any = "cpu") -> Tuple["_gather.GatherTable", "_gather.GatherTable"]:
+        """The gather tables (T, Tᵀ) of the linear map mask ⊙ cube → acquisition at the current θ on
+        ``device``: built by the library (``DiffRenderer._csr``: the exact operator of a renderer with this
+        renderer's system, settings, seed and detector, every mask pixel open) and cached until θ or the
+        device changes. Refused above ``memory_gb``, and when θ moves the entrance pupil (the differentiable
+        renderer keeps its construction-time aim; no table matches its render then)."""
+        dev = _device(device, "CassiRenderer.table")
+        r = self._renderer(self.theta)
+        key = (self._cache[0], dev)
+        if self._tables and self._tables[0] == key:
+            return self._tables[1]
+        self._tables = ()  # the old table is freed before the new one is built
+        try:
+            ip, ix, dv, shape = r._csr(diffcassi._budget(self.memory_gb))
+        except diffcassi.DiffcassiValueError as e:
+            raise diffcassi.DiffcassiValueError(f"CassiRenderer on {dev} (table budget memory_gb = {self.memory_gb:g}): {e}") from None
+        if ix.size == 0:
+            given = ", ".join(f"{n} = {v}" for n, v in zip(self.names, self._cache[0]))
+            raise diffcassi.DiffcassiValueError(f"no ray reaches the detector at these parameter values ({given})")
+        tables = _gather.pair_from_csr(torch.from_numpy(ip), torch.from_numpy(ix), torch.from_numpy(dv), shape, dev,
+                                       band_major=(self.H * self.W, len(self.bands_nm)))
+        self._tables = (key, tables)
+        return tables
+
+    def _render_table(self, cube: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """The device path of :meth:`render` (see :meth:`forward`)."""
+        if cube.shape[0] == 0:
+            raise diffcassi.DiffcassiValueError("CassiRenderer.render: cube: the batch is empty (N = 0)")
+        c = cube.detach()
+        if bool((~torch.isfinite(c)).any() | (c.abs().amax() > _MAX_RADIANCE)):
+            raise diffcassi.DiffcassiValueError(f"CassiRenderer.render: cube: values must be finite and ≤ {_MAX_RADIANCE:.3e} in "
+                                                "magnitude (f32 range / 10⁹, as `diffcassi render` requires)")
+        tables = self.table(cube.device)
+        y = _TableRenderFn.apply(cube, mask, self.theta, self, self._cache[1], tables)
+        if cube.dtype in _HALF and not bool(torch.isfinite(y.detach()).all()):
+            raise _Error(f"CassiRenderer: the acquisition exceeds {cube.dtype}'s range (largest "
+                         f"{float(torch.finfo(cube.dtype).max):.6g}); pass a float32 or float64 cube, or scale the cube down")
+        return y
+
+    def to(self, *args, **kwargs):
+        try:
+            device = torch._C._nn._parse_to(*args, **kwargs)[0]
+        except Exception:  # torch's own error follows from nn.Module.to
+            device = None
+        if device is not None:
+            _device(device, "CassiRenderer.to")
+        return super().to(*args, **kwargs)
+
+    def cuda(self, device: Any = None):
+        _device(torch.device("cuda") if device is None else torch.device("cuda", device) if isinstance(device, int) else device,
+                "CassiRenderer.cuda")
+        return super().cuda(device)
+
     def forward(self, cube: torch.Tensor) -> torch.Tensor:
+        """The acquisition (N, h, w) of ``cube`` (N, bands, H, W) through the module's mask.
+
+        **Where it runs.** A CPU cube: the Rust renderer in float64 (as :meth:`render`). A CUDA cube: the
+        transport depends only on θ, not on the cube, so the host traces it once per θ (:meth:`table`, cached)
+        and the acquisition is the table applied to mask ⊙ cube on the device by deterministic gathers, in the
+        cube's precision (float16/bfloat16 in float32) — the cube and the acquisition never leave the device;
+        the same as the CPU render to float32 rounding (the table is stored in float32). Its backward: the
+        cube and mask gradients on the device (Tᵀ g); θ's gradient by the Rust VJP on the CPU, which copies
+        the cube, the mask and the upstream gradient to the host (only when θ requires grad: freeze θ with
+        ``r.theta.requires_grad_(False)`` to keep a training step on the device)."""
         _float_input("cube", cube, "CassiRenderer.forward")
         m = self.mask()
         if self.straight_through:

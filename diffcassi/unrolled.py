@@ -3,8 +3,10 @@
 
 The data steps use Φ and Φᵀ of a :class:`diffcassi.torch.CassiOperator` — in training and on the CPU the
 matrix-free form (``CassiOperator.from_operator(op, matrix_free=True)``: the Rust operator itself, the renderer's
-light transport with the mask, the spectral interpolation and the Airy blur); on GPUs the CSR form. Nothing of the
-operator is learned: only the denoisers and one step size per stage.
+light transport with the mask, the spectral interpolation and the Airy blur); on a GPU the same operator moved with
+``.to("cuda")`` (its table kept on the device). The network is made on the operator's device and follows it (and
+its own dtype: ``.to(torch.float64)``). Nothing of the operator is learned: only the denoisers and one step size
+per stage.
 
 Graph (``stages`` = K, ``width`` = C; d = Φ Φᵀ 𝟙 the GAP preconditioner of ``src/recon/gap.rs``, entries
 ≤ 1e-6·max d get D⁻¹ = 0 like the Rust solvers)::
@@ -100,6 +102,17 @@ class StageDenoiser(nn.Module):
         return v + self.linear(v) + self.tail(z)[..., :h, :w]
 
 
+def operator_device(phi: nn.Module) -> torch.device:
+    """The device an operator module computes on: its ``device`` attribute (the diffcassi operators'), else that of
+    its first parameter or buffer, else the CPU."""
+    dev = getattr(phi, "device", None)
+    if isinstance(dev, torch.device):
+        return dev
+    for t in list(phi.parameters()) + list(phi.buffers()):
+        return t.device
+    return torch.device("cpu")
+
+
 def _int_at_least(name: str, v: Any, lo: int) -> int:
     if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
         raise _Error(f"UnrolledGAP: {name}: expected an integer ≥ {lo}, got {type(v).__name__} {v!r}")
@@ -122,17 +135,24 @@ class UnrolledGAP(nn.Module):
         self.width = _int_at_least("width", width, 1)
         self.bands = int(phi.cube_shape[2])
         self.phi = phi
-        self.denoisers = nn.ModuleList(StageDenoiser(self.bands, self.width) for _ in range(self.stages))
+        # Everything is made on the operator's device (a CUDA operator: the whole network there).
+        dev = operator_device(phi)
+        self.denoisers = nn.ModuleList(StageDenoiser(self.bands, self.width) for _ in range(self.stages)).to(dev)
         #: λ_k, the GAP step of each stage (1: the Rust solvers' default).
-        self.steps = nn.Parameter(torch.ones(self.stages))
+        self.steps = nn.Parameter(torch.ones(self.stages, device=dev))
         with torch.no_grad():
-            d = phi(phi.adjoint(torch.ones(tuple(phi.image_shape), dtype=torch.float32)))
+            d = phi(phi.adjoint(torch.ones(tuple(phi.image_shape), dtype=torch.float32, device=dev)))
             d = d.to(torch.float32)
             if not bool(torch.isfinite(d).all()) or float(d.max()) <= 0:
                 raise _Error("UnrolledGAP: phi: Φ Φᵀ 𝟙 is not finite and positive anywhere (an operator that reaches no pixel)")
             # Pixels no voxel reaches get D⁻¹ = 0 (as src/recon/gap.rs).
             dinv = torch.where(d > 1e-6 * d.max(), 1.0 / d, torch.zeros_like(d))
         self.register_buffer("dinv", dinv, persistent=False)
+
+    @property
+    def device(self) -> torch.device:
+        """The device of the network's parameters (the operator's; ``.to(device)`` moves both)."""
+        return self.steps.device
 
     def _data_step(self, x: torch.Tensor, y: torch.Tensor, lam: torch.Tensor) -> torch.Tensor:
         return x + lam * self.phi.adjoint((y - self.phi(x)) * self.dinv)
@@ -150,7 +170,10 @@ class UnrolledGAP(nn.Module):
             y = y.unsqueeze(0)
         if y.dim() != 3 or tuple(y.shape[1:]) != (h, w):
             raise _Error(f"UnrolledGAP.forward: y: expected shape (batch, {h}, {w}) or ({h}, {w}), got {tuple(y.shape)}")
-        y = y.to(torch.float32)
+        if y.device != self.steps.device:
+            raise _Error(f"UnrolledGAP.forward: y is on {y.device} but the network on {self.steps.device}; "
+                         "move one with .to(device)")
+        y = y.to(self.steps.dtype)  # the network's dtype (float32 unless .to(dtype) changed it)
         x = self.initial(y)
         s = x.detach().flatten(1).mean(1)
         s = torch.where(s > 0, s, torch.ones_like(s)).view(-1, 1, 1, 1)

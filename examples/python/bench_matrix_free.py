@@ -123,7 +123,7 @@ def main():
         rss_csr = status_kb("VmRSS")
         f_csr = min(timed(lambda: csr(x)) for _ in range(2))
         a_csr = min(timed(lambda: csr.adjoint(y)) for _ in range(2))
-        print(f"| CSR form: build · nnz | {csr_build:.2f} s · {int(csr.val.numel()):,} | | |")
+        print(f"| CSR form: build · nnz | {csr_build:.2f} s · {csr.nnz:,} | | |")
         print(f"| CSR form: RSS added (Φ and Φᵀ kept) · peak RSS | +{gb(rss_csr - rss_before):.2f} GB · {gb(status_kb('VmHWM')):.2f} GB | | |")
         print(f"| CSR form forward · adjoint (float32, best of 2) | {f_csr:.4f} · {a_csr:.4f} | | "
               f"{f_csr / best['rust_fwd']:.1f}× · {a_csr / best['rust_adj']:.1f}× |")

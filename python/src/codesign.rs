@@ -8,6 +8,7 @@ use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::system::PySystem;
 use diffcassi::diff::ParamSet;
+use diffcassi::rays::PupilAim;
 use diffcassi::render::gradient::{DiffRenderer, Wanted};
 use diffcassi::render::{AiryConfig, RenderConfig, SpectralSampling};
 use numpy::PyArrayDyn;
@@ -16,6 +17,9 @@ use pyo3::prelude::*;
 #[pyclass(name = "DiffRenderer", module = "diffcassi", frozen)]
 pub struct PyDiffRenderer {
     inner: DiffRenderer,
+    /// The entrance-pupil aim at construction (the renderer keeps it fixed; [`Self::_csr`] needs the
+    /// current system's to equal it).
+    aim: PupilAim,
 }
 
 type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
@@ -79,7 +83,8 @@ impl PyDiffRenderer {
         cfg.seed = seed;
         cfg.airy = airy.then(AiryConfig::default);
         let inner = run(py, move || DiffRenderer::new(set, cfg, bands)).py()?;
-        Ok(PyDiffRenderer { inner })
+        let aim = PupilAim::of(&inner.ds.system);
+        Ok(PyDiffRenderer { inner, aim })
     }
 
     /// The free parameters' names.
@@ -110,7 +115,7 @@ impl PyDiffRenderer {
             return Err(value_error(format!("values: {} values for {} free parameters", x.len(), self.inner.set.free.len())));
         }
         let inner = run(py, || self.inner.with_values(&x)).py()?;
-        Ok(PyDiffRenderer { inner })
+        Ok(PyDiffRenderer { inner, aim: self.aim })
     }
 
     /// Acquisitions (N, h, w) float64 of `scene` (N, B, H, W) float64 through `mask` (H, W) float64.
@@ -144,6 +149,45 @@ impl PyDiffRenderer {
         let gm = if mask_grad { Some(output(py, v.mask, &[sh[2], sh[3]])?) } else { None };
         let gsc = if scene_grad { Some(output(py, v.scene, &sh)?) } else { None };
         Ok((gp, gm, gsc))
+    }
+
+    /// The linear map scene → acquisition at the current parameters with every mask pixel open, as the
+    /// library's CSR export (`diffcassi::recon::sparse`, the exact operator of a renderer with this
+    /// renderer's system, settings, seed and detector): (indptr int64 (h·w + 1), indices int32, data
+    /// float32, (h·w, H·W·B)); columns in C order [row][col][band]. The acquisition through a mask m is
+    /// this matrix applied to m ⊙ scene (the renderer is linear in the mask per pixel); it equals
+    /// [`Self::render`] to f32 rounding (footprints, Airy kernels and interpolation weights stored in f32).
+    /// Refused when the current parameters move the entrance pupil (the differentiable renderer keeps its
+    /// construction-time aim, a fresh trace would not), and, naming the size, when assembling would take
+    /// more than `memory_budget_bytes` (also the budget of the traced transport).
+    fn _csr<'py>(
+        &self,
+        py: Python<'py>,
+        memory_budget_bytes: u64,
+    ) -> PyResult<(Bound<'py, PyArrayDyn<i64>>, Bound<'py, PyArrayDyn<i32>>, Bound<'py, PyArrayDyn<f32>>, (usize, usize))> {
+        use diffcassi::recon::{ExactOperator, SparseExport};
+        use diffcassi::render::{Mask, Renderer};
+        let d = &self.inner;
+        if PupilAim::of(&d.ds.system) != self.aim {
+            let vals: Vec<String> = d.names().iter().zip(d.values().unwrap_or_default()).map(|(n, v)| format!("{n} = {v}")).collect();
+            return Err(value_error(format!("the free parameters ({}) move the entrance pupil, which the differentiable renderer keeps at its construction-time aim: no operator table matches its render", vals.join(", "))));
+        }
+        let (h, w) = (d.config.scene_height, d.config.scene_width);
+        let csr = run(py, || -> diffcassi::Result<_> {
+            let tracer = diffcassi::tracer::AnalyticTracer::default();
+            let mut r = Renderer::new(&d.ds.system, &tracer, d.config.clone(), Mask::open(h, w))?;
+            r.detector = d.detector;
+            let op = ExactOperator::new(r, &d.scene_wavelengths_nm, memory_budget_bytes)?;
+            op.to_csr(memory_budget_bytes)
+        })
+        .py()?;
+        if csr.cols > i32::MAX as usize {
+            return Err(value_error(format!("CassiRenderer: {} columns exceed int32 column indices", csr.cols)));
+        }
+        let (rows, cols, nnz) = (csr.rows, csr.cols, csr.nnz());
+        let indptr: Vec<i64> = csr.indptr.into_iter().map(|v| v as i64).collect();
+        let indices: Vec<i32> = csr.indices.into_iter().map(|v| v as i32).collect();
+        Ok((output(py, indptr, &[rows + 1])?, output(py, indices, &[nnz])?, output(py, csr.data, &[nnz])?, (rows, cols)))
     }
 
     /// The chief-ray mapping cube at `wavelengths_nm` and its Jacobian: (positions (H, W, L, 2) mm,
