@@ -181,6 +181,7 @@ def main():
     ap.add_argument("--unrolled-size", type=int, default=128)
     ap.add_argument("--renderer-size", type=int, default=64)
     ap.add_argument("--threads", type=int, default=0, help="CPU threads of torch and the library (0: their defaults)")
+    ap.add_argument("--out", default=None, help="folder for torch_check.json (the rows)")
     a = ap.parse_args()
     if a.threads:
         torch.set_num_threads(a.threads)
@@ -214,6 +215,12 @@ def main():
     for r in ROWS:
         print("| " + " | ".join(str(v) for v in r) + " |")
     failed = [r for r in ROWS if r[3] == "FAIL"]
+    if a.out:
+        import json
+        import os
+        os.makedirs(a.out, exist_ok=True)
+        with open(os.path.join(a.out, "torch_check.json"), "w") as f:
+            json.dump({"device": name, "torch": torch.__version__, "rows": [dict(zip(("check", "value", "bound", "result"), map(str, r))) for r in ROWS]}, f, indent=1)
     print(f"\n{len(ROWS) - len(failed)}/{len(ROWS)} checks passed in {time.perf_counter() - t0:.1f} s"
           + ("; all checks passed" if not failed else f"; FAILED: {', '.join(r[0] for r in failed)}"))
     return 1 if failed else 0
