@@ -174,6 +174,7 @@ fn exact_operator(py: Python<'_>, system: &PySystem, height: &Bound<'_, PyAny>, 
     let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
     let s = crate::settings::settings(py, settings, &[])?;
     let (cfg, m) = configure(height, width, &s.options, mask)?;
+    crate::settings::host_only(&s.options, "exact")?;
     Ok(PyOperator::new(Arc::new(owned_exact(py, &system.inner, cfg, m, &s.backend)?)))
 }
 
@@ -194,6 +195,7 @@ fn model_operator(
     let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
     let s = crate::settings::settings(py, settings, &["interpolation"])?;
     let (cfg, m) = configure(height, width, &s.options, mask)?;
+    crate::settings::host_only(&s.options, &format!("{kind}_operator"))?;
     let interpolation: Option<String> = crate::settings::extra(&s, "interpolation", "a string")?;
     let interp = match interpolation.as_deref().unwrap_or("nearest") {
         "nearest" => MappingInterpolation::Nearest,

@@ -225,6 +225,7 @@ impl PyTransport {
         let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
         let s = crate::settings::settings(py, settings, &[])?;
         let (cfg, m) = configure(height, width, &s.options, mask)?;
+        crate::settings::host_only(&s.options, "Transport")?;
         let backend = s.backend.as_str();
         let exact = owned_exact(py, &system.inner, cfg, m, backend)?;
         Ok(PyTransport { exact: Arc::new(exact), system: Arc::clone(&system.inner), scratch: Default::default() })

@@ -155,3 +155,14 @@ pub fn extra<'py, T: FromPyObject<'py>>(s: &Settings<'py>, name: &str, what: &st
         None => Ok(None),
     }
 }
+
+/// Refuse a `device` other than `"cpu"` where the call computes on the host (`exact`, the model operators,
+/// `Transport`): never silently ignored. Their torch modules move to a GPU (`.to("cuda")`, docs/gpu.md).
+pub fn host_only(o: &Options, what: &str) -> PyResult<()> {
+    match o.device.as_deref() {
+        None | Some("cpu") => Ok(()),
+        Some(d) => Err(value_error(format!(
+            "{what}: device=\"{d}\": {what} computes on the CPU (device=\"cpu\"); to apply the operator on a GPU, move its torch module: diffcassi.torch.CassiOperator.from_operator(op, matrix_free=True).to(\"cuda\")"
+        ))),
+    }
+}

@@ -211,13 +211,35 @@ def test_a_directory_is_reported_as_a_directory(sp, tmp_path):
 
 
 # ------------------------------------------------------------------ render settings (issue 40)
-def test_device_cpu_only(sp):
+def _has_cuda_driver() -> bool:
+    """Whether the CUDA driver library loads here (the library's probe opens the same file)."""
+    import ctypes
+    try:
+        ctypes.CDLL("libcuda.so.1")
+        return True
+    except OSError:
+        return False
+
+
+def test_device_cpu_twin_and_cuda_without_a_gpu(sp):
     cube = random_cube(8, 8, 4)
-    a, _ = diffcassi.render(sp, cube, WL, **SMALL)
+    a, info = diffcassi.render(sp, cube, WL, **SMALL)
     b, _ = diffcassi.render(sp, cube, WL, device="cpu", **SMALL)
     assert np.array_equal(a, b)
-    with pytest.raises(diffcassi.DiffcassiValueError, match='device "cuda": (no NVIDIA driver|.*cannot launch kernels).*use device="cpu"'):
-        diffcassi.render(sp, cube, WL, device="cuda", **SMALL)
+    assert info["device"]["device"] == "cpu"
+    # The GPU kernels on the CPU: the CPU's acquisition to its f32 rounding, recorded as such.
+    t, tinfo = diffcassi.render(sp, cube, WL, device="cpu-twin", **SMALL)
+    assert tinfo["device"]["device"] == "cpu-twin" and tinfo["device"]["precision"] == "f64"
+    assert np.abs(t - a).max() <= 1e-6 * np.abs(a).max()
+    # Host-only calls never ignore a device: they say where the GPU path is.
+    for call in (lambda: diffcassi.Transport(sp, 8, 8, device="cpu-twin", **SMALL), lambda: diffcassi.exact(sp, 8, 8, device="cpu-twin", **SMALL)):
+        with pytest.raises(diffcassi.DiffcassiValueError, match=r'(Transport|exact): device="cpu-twin": .*computes on the CPU.*\.to\("cuda"\)'):
+            call()
+    if not _has_cuda_driver():
+        with pytest.raises(diffcassi.DiffcassiValueError, match='device "cuda": (no NVIDIA driver|no CUDA device|the NVIDIA driver is installed but).*use device="cpu"'):
+            diffcassi.render(sp, cube, WL, device="cuda", **SMALL)
+        with pytest.raises(diffcassi.DiffcassiValueError, match="gpu_check: no CUDA device"):
+            diffcassi.gpu_check(sp, cube, WL, **SMALL)
     with pytest.raises(diffcassi.DiffcassiValueError, match="device `tpu`"):
         diffcassi.Transport(sp, 8, 8, device="tpu", **SMALL)
 
