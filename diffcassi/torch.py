@@ -159,14 +159,9 @@ def _device(value: Any, where: str) -> torch.device:
     return torch.device("cuda", idx)
 
 
-class _DeviceChecked(nn.Module):
-    """``.to()``, ``.cuda()``, ``.cpu()``, ``.half()`` … of an operator module: the target device is checked
-    first (a DiffcassiValueError for 'meta', a CUDA device torch does not have, …), then :meth:`_moving_to`
-    runs (the matrix-free operator builds or drops its device table there), then the tensors move."""
-
-    @property
-    def device(self) -> torch.device:  # pragma: no cover - overridden
-        return torch.device("cpu")
+class _TargetChecked(nn.Module):
+    """``.to(device)`` and ``.cuda()`` check the target device first (a DiffcassiValueError for 'meta', a CUDA
+    device torch does not have, …), naming the module and the call."""
 
     def to(self, *args, **kwargs):
         try:
@@ -181,6 +176,16 @@ class _DeviceChecked(nn.Module):
         _device(torch.device("cuda") if device is None else torch.device("cuda", device) if isinstance(device, int) else device,
                 f"{type(self).__name__}.cuda")
         return super().cuda(device)
+
+
+class _DeviceChecked(_TargetChecked):
+    """``.to()``, ``.cuda()``, ``.cpu()``, ``.half()`` … of an operator module: the target device is checked
+    first, then :meth:`_moving_to` runs (the matrix-free operator builds or drops its device table there), then
+    the tensors move."""
+
+    @property
+    def device(self) -> torch.device:  # pragma: no cover - overridden
+        return torch.device("cpu")
 
     def _apply(self, fn, recurse=True):
         where = f"{type(self).__name__}.to"
@@ -752,7 +757,7 @@ def _mask_array(mask: Any, H: int, W: int, mask_seed: int) -> np.ndarray:
     return a.astype(np.float64)
 
 
-class CassiRenderer(nn.Module):
+class CassiRenderer(_TargetChecked):
     """The CASSI acquisition as a differentiable ``nn.Module`` for co-design.
 
     ``CassiRenderer(system, H, W, free=["prism_tilt_x"], mask=None, rays=4, planes=28, seed=0)``:
@@ -910,19 +915,6 @@ class CassiRenderer(nn.Module):
                          f"{float(torch.finfo(cube.dtype).max):.6g}); pass a float32 or float64 cube, or scale the cube down")
         return y
 
-    def to(self, *args, **kwargs):
-        try:
-            device = torch._C._nn._parse_to(*args, **kwargs)[0]
-        except Exception:  # torch's own error follows from nn.Module.to
-            device = None
-        if device is not None:
-            _device(device, "CassiRenderer.to")
-        return super().to(*args, **kwargs)
-
-    def cuda(self, device: Any = None):
-        _device(torch.device("cuda") if device is None else torch.device("cuda", device) if isinstance(device, int) else device,
-                "CassiRenderer.cuda")
-        return super().cuda(device)
 
     def forward(self, cube: torch.Tensor) -> torch.Tensor:
         """The acquisition (N, h, w) of ``cube`` (N, bands, H, W) through the module's mask.

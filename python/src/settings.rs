@@ -34,7 +34,7 @@ pub struct Options {
 
 impl Options {
     /// The library's settings: its defaults, overridden by the keywords given.
-    fn settings(&self) -> PyResult<RenderSettings> {
+    pub fn settings(&self) -> PyResult<RenderSettings> {
         let mut s = RenderSettings::default();
         if let Some(b) = &self.bands_nm {
             if b.is_empty() {
