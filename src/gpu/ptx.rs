@@ -4,15 +4,18 @@
 //! lines name the SHA-256 of the sources it came from, checked here against the sources compiled into the
 //! twin).
 
-/// PTX of `dc_trace_kernel` (one thread a ray over a `dc_batch`) and `dc_landing_kernel` (one thread a
-/// renderer ray over a `dc_landing_batch`).
+/// PTX of `dc_trace_kernel` / `dc_trace_f32_kernel` (one thread a ray over a `dc_batch`, f64 / f32),
+/// `dc_landing_kernel` / `dc_landing_f32_kernel` (one thread a renderer ray over a `dc_landing_batch`) and the
+/// footprint kernels.
 pub const TRACE_PTX: &str = include_str!("kernels/trace.ptx");
 
 /// The kernel sources, embedded too: a driver older than the PTX's ISA version can JIT them with the
 /// machine's own NVRTC (docs/gpu.md).
-pub const SOURCES: [(&str, &str); 5] = [
+pub const SOURCES: [(&str, &str); 7] = [
     ("dc_common.h", include_str!("kernels/dc_common.h")),
+    ("dc_vec_tmpl.h", include_str!("kernels/dc_vec_tmpl.h")),
     ("dc_trace.h", include_str!("kernels/dc_trace.h")),
+    ("dc_trace_tmpl.h", include_str!("kernels/dc_trace_tmpl.h")),
     ("dc_sample.h", include_str!("kernels/dc_sample.h")),
     ("dc_render.h", include_str!("kernels/dc_render.h")),
     ("device.cu", include_str!("kernels/device.cu")),
@@ -29,7 +32,7 @@ mod tests {
 
     #[test]
     fn embedded_ptx_holds_the_kernel_entry() {
-        for entry in ["dc_trace_kernel", "dc_landing_kernel"] {
+        for entry in ["dc_trace_kernel", "dc_trace_f32_kernel", "dc_landing_kernel", "dc_landing_f32_kernel"] {
             assert!(TRACE_PTX.contains(&format!(".visible .entry {entry}")), "no {entry} entry in trace.ptx");
         }
         assert_eq!(ptx_source_hash().map(str::len), Some(64));
