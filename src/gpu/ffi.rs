@@ -19,6 +19,7 @@ extern "C" {
 pub(crate) const TRACE_F64: u32 = 0;
 pub(crate) const TRACE_F32: u32 = 1;
 /// The landing kernel's f32 input rule (the renderer's `set_raw` + `normalize_inputs`), for the tests.
+#[cfg_attr(not(test), allow(dead_code))]
 pub(crate) const TRACE_F32_RAW: u32 = 2;
 
 /// Whether the Rust `repr(C)` structs have the C compiler's sizes (a layout mismatch would be undefined
