@@ -19,7 +19,7 @@ fn main() {
 /// device computes, and linked into the library (src/gpu/twin.rs calls it; the tests compare it with the
 /// Rust kernels).
 fn gpu_twin() {
-    for f in ["dc_common.h", "dc_trace.h", "dc_sample.h", "dc_render.h", "dc_accum.h", "host.c"] {
+    for f in ["dc_common.h", "dc_vec_tmpl.h", "dc_trace.h", "dc_trace_tmpl.h", "dc_sample.h", "dc_render.h", "dc_accum.h", "host.c"] {
         println!("cargo:rerun-if-changed=src/gpu/kernels/{f}");
     }
     cc::Build::new()

@@ -96,7 +96,8 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
            bands_nm: Optional[Sequence[float]] = None, planes: Optional[int] = None, rays: Optional[int] = None,
            seed: Optional[int] = None, sampling: Optional[str] = None, opening: Optional[float] = None,
            mask_seed: Optional[int] = None, airy_diameter_px: Optional[float] = None, airy: Optional[bool] = None,
-           backend: str = "analytic", noise: Optional[dict] = None, device: Optional[str] = None) -> Tuple[np.ndarray, Dict[str, Any]]:
+           backend: str = "analytic", noise: Optional[dict] = None, device: Optional[str] = None,
+           precision: Optional[str] = None) -> Tuple[np.ndarray, Dict[str, Any]]:
     """Render the coded acquisition of ``scene`` through ``system``.
 
     ``scene``: (H, W, B) float32, C-contiguous, finite, its bands at ``wavelengths_nm`` (B values).
@@ -109,7 +110,8 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
     "electrons_per_unit": ...}`` (``None``: a clean acquisition, the default); ``info["noise"]`` reports it.
     ``device``: ``"cpu"`` (the default), ``"cuda"`` (the GPU kernels on the first CUDA device, f64; refused with
     what is missing where there is none; ``info["device"]`` names the GPU, the driver and the accumulation) or
-    ``"cpu-twin"`` (the GPU kernels run on the CPU: the device's bits, slowly). docs/gpu.md.
+    ``"cpu-twin"`` (the GPU kernels run on the CPU: the device's bits, slowly). docs/gpu.md. ``precision``:
+    ``"f64"`` (the default) or ``"f32"`` (the ray kernel in f32, as ``--precision``; on any device).
     The memory and ray budgets are the CLI's defaults unless :func:`set_limits` changed them.
 
     Returns ``(acquisition, info)``: the detector image (h, w) float64 and a dict with ``render.json``'s
@@ -128,7 +130,7 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
         raise DiffcassiValueError(f"noise: expected None, a string such as 'shot,read,adc' or a dict, got {type(noise).__name__}")
     acq, info = _native._render(system, scene, wavelengths_nm, mask, bands_nm=bands_nm, planes=planes, rays=rays, seed=seed,
                                 sampling=sampling, opening=opening, mask_seed=mask_seed, airy_diameter_px=airy_diameter_px,
-                                airy=airy, backend=_check_backend(backend), device=device, **nz)
+                                airy=airy, backend=_check_backend(backend), device=device, precision=precision, **nz)
     return acq, _json.loads(info)
 
 

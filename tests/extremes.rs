@@ -200,6 +200,17 @@ fn analytic(sys: &SequentialSystem, rays: &RayBatch) -> Run {
             assert!(a.to_bits() == b.to_bits() || (a - b).abs() <= 1e-12, "gpu twin ray {i}: {a} vs {b}");
         }
     }
+    // The f32 trace kernel's twin: the f32 lane kernel's statuses, surfaces and bits (its own rounding,
+    // classified as the Rust f32 tracer classifies these rays).
+    let twin32 = diffcassi::gpu::TwinTracer::f32().trace(sys, rays).unwrap();
+    let rust32 = diffcassi::tracer::AnalyticF32Tracer::new(SimdLevel::detect()).trace(sys, rays).unwrap();
+    assert_eq!(twin32.status, rust32.status, "gpu twin f32: statuses");
+    assert_eq!(twin32.surface, rust32.surface, "gpu twin f32: stopping surfaces");
+    for i in 0..out.len() {
+        for (a, b) in [(twin32.x[i], rust32.x[i]), (twin32.y[i], rust32.y[i]), (twin32.z[i], rust32.z[i]), (twin32.dir_x[i], rust32.dir_x[i]), (twin32.dir_y[i], rust32.dir_y[i]), (twin32.dir_z[i], rust32.dir_z[i])] {
+            assert_eq!(a.to_bits(), b.to_bits(), "gpu twin f32 ray {i}: {a} vs {b}");
+        }
+    }
     let class = (0..out.len()).map(|i| class_of(out.status[i], out.surface[i], u32::MAX)).collect();
     Run { label: "analytic", exact: true, mesh: false, out, class }
 }

@@ -8,7 +8,7 @@
 //! - itself bit for bit on any thread count (integer accumulation: the device's atomics give these bits).
 use diffcassi::presets;
 use diffcassi::render::device::{plan, render_for, render_on, Executor};
-use diffcassi::render::twin::{plane_landings, SceneGeometry};
+use diffcassi::render::twin::{plane_landings_in, SceneGeometry};
 use diffcassi::render::{Device, Mask, RenderConfig, Renderer, SpectralSampling};
 use diffcassi::scene::SpectralCube;
 use diffcassi::system::SequentialSystem;
@@ -22,7 +22,12 @@ const H: usize = 20;
 const W: usize = 24;
 
 fn config(airy: bool) -> RenderConfig {
+    config_in(airy, Precision::F64)
+}
+
+fn config_in(airy: bool, precision: Precision) -> RenderConfig {
     let mut c = RenderConfig::paper(W);
+    c.precision = precision;
     c.scene_height = H;
     c.scene_pitch_mm = 0.15; // the scene spans much of the field
     c.rays_per_pixel = 5;
@@ -67,7 +72,7 @@ fn f64_reference(r: &Renderer<'_>, scene: &SpectralCube) -> Vec<f64> {
     let mut bands = vec![vec![0.0f64; dw * dh]; sp.bands_nm.len()];
     for p in 0..sp.planes() {
         let geo = SceneGeometry { height: H, width: W, pitch_mm: r.config.scene_pitch_mm, detector: &det };
-        let land = plane_landings(r.system, geo, ctx.sampler, ctx.seed, p as u64, sp.planes_nm[p], &pixels).unwrap();
+        let land = plane_landings_in(r.config.precision, r.system, geo, ctx.sampler, ctx.seed, p as u64, sp.planes_nm[p], &pixels).unwrap();
         let (k, tw) = scene.interpolation(sp.planes_nm[p]);
         let k1 = (k + 1).min(sb - 1);
         let tw = tw as f32;
@@ -120,19 +125,19 @@ fn f64_reference(r: &Renderer<'_>, scene: &SpectralCube) -> Vec<f64> {
 #[test]
 fn the_twin_render_equals_the_f64_model_within_1e9_of_the_peak() {
     let scene = scene();
-    for name in ["sp", "msp"] {
-        for airy in [true, false] {
+    for (name, airy, precision) in [("sp", true, Precision::F64), ("sp", false, Precision::F64), ("msp", true, Precision::F64), ("msp", false, Precision::F64), ("sp", true, Precision::F32), ("msp", true, Precision::F32)] {
+        {
             let sys = system(name);
             let tracer = AnalyticTracer::default();
-            let r = Renderer::new(&sys, &tracer, config(airy), Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
+            let r = Renderer::new(&sys, &tracer, config_in(airy, precision), Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
             let (acq, rec) = render_on(&r, &scene, false, Executor::Twin).unwrap();
-            assert_eq!(rec.device, "cpu-twin");
+            assert_eq!((rec.device.as_str(), rec.precision.as_str()), ("cpu-twin", precision.name()));
             let reference = f64_reference(&r, &scene);
             let pk = peak(&reference);
             assert!(pk > 1e-3, "{name}: an empty acquisition ({pk})");
             let worst = acq.image.iter().zip(&reference).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-            eprintln!("{name} airy={airy}: |twin − f64 model| = {:.2e} of the peak", worst / pk);
-            assert!(worst <= 1e-9 * pk, "{name} airy={airy}: |twin − f64 model| = {worst:e} of a peak {pk}");
+            eprintln!("{name} airy={airy} {precision}: |twin − f64 model| = {:.2e} of the peak", worst / pk);
+            assert!(worst <= 1e-9 * pk, "{name} airy={airy} {precision}: |twin − f64 model| = {worst:e} of a peak {pk}");
         }
     }
 }
@@ -140,17 +145,18 @@ fn the_twin_render_equals_the_f64_model_within_1e9_of_the_peak() {
 #[test]
 fn the_twin_render_equals_the_cpu_render_to_its_f32_rounding() {
     let scene = scene();
-    for name in ["sp", "msp"] {
+    // f32: the same rays (the f32 landing kernel is the renderer's f32 lanes bit for bit, tests/gpu_twin.rs).
+    for (name, precision) in [("sp", Precision::F64), ("msp", Precision::F64), ("sp", Precision::F32)] {
         let sys = system(name);
         let tracer = AnalyticTracer::default();
-        let r = Renderer::new(&sys, &tracer, config(true), Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
+        let r = Renderer::new(&sys, &tracer, config_in(true, precision), Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
         let (twin, _) = render_on(&r, &scene, true, Executor::Twin).unwrap();
         let cpu = r.render(&scene, true, &|_| {}).unwrap();
         let pk = peak(&cpu.image);
         let worst = twin.image.iter().zip(&cpu.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
         // The CPU rounds each footprint weight, plane image and blurred tile to f32 (2⁻²⁴ ≈ 6e-8 relative each,
         // over ~10 chained sums per pixel and 8 planes): measured 1.25e-7 of the peak; 1e-6 bounds it.
-        eprintln!("{name}: |twin − cpu| = {:.2e} of the peak", worst / pk);
+        eprintln!("{name} {precision}: |twin − cpu| = {:.2e} of the peak", worst / pk);
         assert!(worst <= 1e-6 * pk, "{name}: |twin − cpu| = {worst:e} of a peak {pk}");
         assert!(worst > 0.0, "{name}: the f64 accumulation should differ from the f32 one somewhere");
         // Ray counts are integers and identical; the off-detector weight is the same sum in another rounding.
@@ -192,12 +198,6 @@ fn a_black_scene_renders_black_and_bad_settings_are_named() {
     let (acq, _) = render_on(&r, &black, false, Executor::Twin).unwrap();
     assert!(acq.image.iter().all(|&v| v == 0.0));
     assert!(acq.stats.arrived > 0);
-    // f32 is not on the device yet: named, before anything runs.
-    let mut c = config(true);
-    c.precision = Precision::F32;
-    let r32 = Renderer::new(&sys, &tracer, c, Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
-    let e = plan(&r32, &scene()).err().expect("f32 refused").to_string();
-    assert!(e.contains("f64 only"), "{e}");
     // The batched tracer path is named.
     let mut c = config(true);
     c.force_batched = true;

@@ -3,7 +3,9 @@
 //! (the extremes suite, tests/extremes.rs, checks it on grazing, TIR, vignetted, missing and NaN/inf rays),
 //! and the landing kernel (sampling, aiming, trace, detector coordinates) equals the renderer's own steps
 //! composed in Rust. Bit for bit: the twin is compiled without contraction and evaluates the same
-//! expressions in the same order (the acceptance bound is 1e-12 mm; these tests hold the twin to 0).
+//! expressions in the same order (the acceptance bound is 1e-12 mm; these tests hold the twin to 0). The f32
+//! kernels are held to the Rust f32 paths the same way: the f32 trace to the f32 lane kernel
+//! (`AnalyticF32Tracer`, every SIMD level), the f32 plane transport to the renderer's `--precision f32`.
 use diffcassi::analysis::MappingCube;
 use diffcassi::gpu::TwinTracer;
 use diffcassi::render::twin::{plane_landings, SceneGeometry};
@@ -11,7 +13,7 @@ use diffcassi::presets;
 use diffcassi::rays::{PupilAim, PupilPattern, RayBatch};
 use diffcassi::render::{Detector, RaySampler, Sampling};
 use diffcassi::system::SequentialSystem;
-use diffcassi::tracer::{AnalyticTracer, Kernel, RayStatus, Tracer};
+use diffcassi::tracer::{AnalyticF32Tracer, AnalyticTracer, Kernel, Precision, RayStatus, SimdLevel, TracedBatch, Tracer};
 use glam::DVec3;
 
 const PRESETS: [&str; 4] = ["sp", "ap", "msp", "map"];
@@ -98,6 +100,76 @@ fn trace_kernel_twin_classifies_invalid_inputs_like_the_scalar_kernel() {
     }
 }
 
+/// Statuses, stopping surfaces and every output bit of `twin` equal to `rust`'s.
+fn assert_bits(label: &str, twin: &TracedBatch, rust: &TracedBatch) {
+    assert_eq!(twin.status, rust.status, "{label}: statuses");
+    assert_eq!(twin.surface, rust.surface, "{label}: stopping surfaces");
+    for i in 0..rust.len() {
+        for (a, b) in [(twin.x[i], rust.x[i]), (twin.y[i], rust.y[i]), (twin.z[i], rust.z[i]), (twin.dir_x[i], rust.dir_x[i]), (twin.dir_y[i], rust.dir_y[i]), (twin.dir_z[i], rust.dir_z[i])] {
+            assert_eq!(a.to_bits(), b.to_bits(), "{label} ray {i}: {a} vs {b}");
+        }
+    }
+}
+
+/// The f32 trace kernel (`dc_trace_f32_kernel`) equals the f32 lane kernel, which gives the same bits on every
+/// SIMD level (tests/f32.rs), on the same full pupils, fields and wavelengths: the same algorithm, the f32
+/// operations in the same order, the system constants rounded from the same f64 values.
+#[test]
+fn f32_trace_kernel_twin_equals_the_f32_lane_kernel_on_the_presets() {
+    for name in PRESETS {
+        let sys = system(name);
+        let rays = full_batch(&sys);
+        let twin = TwinTracer::f32().trace(&sys, &rays).unwrap();
+        assert_eq!(TwinTracer::f32().name(), "gpu-twin-f32");
+        for level in SimdLevel::available() {
+            let rust = AnalyticF32Tracer::new(level).trace(&sys, &rays).unwrap();
+            assert_bits(&format!("{name} f32 {}", level.name()), &twin, &rust);
+        }
+        let ok = twin.status.iter().filter(|&&s| s == RayStatus::Ok).count();
+        assert!(ok > rays.len() / 3 && ok < rays.len(), "{name}: {ok} ok of {}: the batch must exercise arrivals and stops", rays.len());
+        // Not the f64 kernel: f32 landings differ from f64 ones (by ≤ 0.05 µm, tests/f32.rs).
+        let f64_ = TwinTracer::default().trace(&sys, &rays).unwrap();
+        let differ = (0..rays.len()).filter(|&i| twin.status[i] == RayStatus::Ok && twin.x[i] != f64_.x[i]).count();
+        assert!(differ > ok / 2, "{name}: only {differ} of {ok} f32 landings differ from f64");
+    }
+}
+
+/// Unreliable inputs through the f32 trace kernel: classified as the f32 lane kernel classifies them (the f64
+/// checks and normalisation, then origins beyond 1 m refused), never a NaN out.
+#[test]
+fn f32_trace_kernel_twin_classifies_invalid_inputs_like_the_f32_lane_kernel() {
+    let sys = system("sp");
+    let mut rays = RayBatch::with_capacity(0);
+    let (nan, inf) = (f64::NAN, f64::INFINITY);
+    for (o, d) in [
+        (DVec3::new(nan, 0.0, 0.0), DVec3::Z),
+        (DVec3::ZERO, DVec3::new(0.0, inf, 1.0)),
+        (DVec3::ZERO, DVec3::ZERO),
+        (DVec3::ZERO, DVec3::new(0.0, 0.0, 1e-310)),
+        (DVec3::ZERO, DVec3::new(1e-3, 0.0, 1e300)),
+        (DVec3::ZERO, DVec3::new(1e-40, 1e-41, 1e-39)),
+        (DVec3::new(1e300, 0.0, 0.0), DVec3::Z),
+        (DVec3::new(0.0, -1000.0, 0.0), DVec3::Z),
+        (DVec3::new(0.0, -1000.0001, 0.0), DVec3::Z),
+        (DVec3::new(0.1, 0.2, 0.0), DVec3::new(1e-8, -2e-8, 1.0)),
+        (DVec3::ZERO, DVec3::X),
+        (DVec3::ZERO, -DVec3::Z),
+    ] {
+        rays.push(o, d, 520.0);
+    }
+    let twin = TwinTracer::f32().trace(&sys, &rays).unwrap();
+    let rust = AnalyticF32Tracer::new(SimdLevel::detect()).trace(&sys, &rays).unwrap();
+    assert_bits("sp f32 invalid inputs", &twin, &rust);
+    for i in [0, 2, 6, 8] {
+        assert_eq!(twin.status[i], RayStatus::InvalidInput, "ray {i}");
+    }
+    assert_ne!(twin.status[7], RayStatus::InvalidInput, "an origin at exactly 1 m is accepted");
+    assert_eq!(twin.status[9], RayStatus::Ok);
+    for i in 0..rust.len() {
+        assert!(twin.x[i].is_finite() && twin.y[i].is_finite(), "ray {i}: no NaN leaves the twin");
+    }
+}
+
 /// The renderer's steps for one plane, composed from the library's Rust pieces: the sampler, the pixel
 /// centre, the aim, the scalar trace, the detector coordinates.
 fn rust_landings(sys: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wl: f64, pixels: &[u32]) -> (Vec<f64>, Vec<f64>, Vec<RayStatus>) {
@@ -166,24 +238,33 @@ fn plane_transport_through_the_twin_equals_the_cpu_renderer() {
         let sys = system(name);
         let tracer = AnalyticTracer::default();
         let (h, w) = (12, 16);
-        let mut config = RenderConfig::paper(w);
-        config.scene_height = h;
-        config.scene_pitch_mm = 0.2; // ±1.6 mm: the scene spans most of the field
-        config.rays_per_pixel = 6;
-        config.spectral = diffcassi::render::SpectralSampling::new(vec![450.0, 520.0, 650.0], 2).unwrap();
-        let mask = Mask::random(h, w, 0.5, 7).unwrap();
-        let r = Renderer::new(&sys, &tracer, config, mask).unwrap();
-        let ctx = r.plane_context();
-        let mut footprints = 0;
-        for (p, &wl) in r.config.spectral.planes_nm.iter().enumerate() {
-            let cpu = r.trace_plane(p).unwrap();
-            let twin = diffcassi::render::twin::trace_plane(&ctx, p, wl).unwrap();
-            assert_eq!(twin.footprints, cpu.footprints, "{name} plane {p}: footprints");
-            assert_eq!(twin.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), cpu.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{name} plane {p}: weights");
-            assert_eq!(twin.stats, cpu.stats, "{name} plane {p}: ray counts");
-            footprints += cpu.footprints.len();
+        let mut weights_by_precision = Vec::new();
+        for precision in [Precision::F64, Precision::F32] {
+            let mut config = RenderConfig::paper(w);
+            config.scene_height = h;
+            config.scene_pitch_mm = 0.2; // ±1.6 mm: the scene spans most of the field
+            config.rays_per_pixel = 6;
+            config.spectral = diffcassi::render::SpectralSampling::new(vec![450.0, 520.0, 650.0], 2).unwrap();
+            config.precision = precision;
+            let mask = Mask::random(h, w, 0.5, 7).unwrap();
+            let r = Renderer::new(&sys, &tracer, config, mask).unwrap();
+            let ctx = r.plane_context();
+            let mut footprints = 0;
+            let mut weights = Vec::new();
+            for (p, &wl) in r.config.spectral.planes_nm.iter().enumerate() {
+                let cpu = r.trace_plane(p).unwrap();
+                let twin = diffcassi::render::twin::trace_plane(&ctx, p, wl).unwrap();
+                assert_eq!(twin.footprints, cpu.footprints, "{name} {precision} plane {p}: footprints");
+                assert_eq!(twin.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), cpu.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{name} {precision} plane {p}: weights");
+                assert_eq!(twin.stats, cpu.stats, "{name} {precision} plane {p}: ray counts");
+                footprints += cpu.footprints.len();
+                weights.extend(cpu.weights);
+            }
+            assert!(footprints > 0);
+            weights_by_precision.push(weights);
         }
-        assert!(footprints > 0);
+        // The f32 render is not the f64 one (so the f32 comparison above is not the f64 one again).
+        assert_ne!(weights_by_precision[0], weights_by_precision[1], "{name}: f32 and f64 transports are identical");
     }
 }
 
@@ -204,15 +285,17 @@ fn plane_transport_through_the_twin_clips_like_the_cpu_renderer() {
     // The left 40 % of the detector's columns and its top half, moved so that windows straddle both edges.
     let cropped = Detector { width: full.width * 2 / 5, height: full.height / 2, ..full };
     let base = r.plane_context();
-    let ctx = PlaneContext { detector: &cropped, ..base };
-    let mut lost = 0.0;
-    for (p, &wl) in r.config.spectral.planes_nm.iter().enumerate() {
-        let cpu = ctx.trace_plane(p, wl).unwrap();
-        let twin = diffcassi::render::twin::trace_plane(&ctx, p, wl).unwrap();
-        assert_eq!(twin.footprints, cpu.footprints, "plane {p}: footprints");
-        assert_eq!(twin.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), cpu.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "plane {p}: weights");
-        assert_eq!(twin.stats, cpu.stats, "plane {p}: ray counts and lost weight");
-        lost += cpu.stats.off_detector;
+    for precision in [Precision::F64, Precision::F32] {
+        let ctx = PlaneContext { detector: &cropped, precision, ..base };
+        let mut lost = 0.0;
+        for (p, &wl) in r.config.spectral.planes_nm.iter().enumerate() {
+            let cpu = ctx.trace_plane(p, wl).unwrap();
+            let twin = diffcassi::render::twin::trace_plane(&ctx, p, wl).unwrap();
+            assert_eq!(twin.footprints, cpu.footprints, "{precision} plane {p}: footprints");
+            assert_eq!(twin.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), cpu.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{precision} plane {p}: weights");
+            assert_eq!(twin.stats, cpu.stats, "{precision} plane {p}: ray counts and lost weight");
+            lost += cpu.stats.off_detector;
+        }
+        assert!(lost > 0.0, "{precision}: the cropped detector must lose some weight");
     }
-    assert!(lost > 0.0, "the cropped detector must lose some weight");
 }

@@ -15,7 +15,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 /// The render keywords every settings-taking call accepts (besides `mask`, which is positional).
-pub const RENDER_KEYS: [&str; 11] = ["bands_nm", "planes", "rays", "seed", "sampling", "opening", "mask_seed", "airy_diameter_px", "airy", "backend", "device"];
+pub const RENDER_KEYS: [&str; 12] = ["bands_nm", "planes", "rays", "seed", "sampling", "opening", "mask_seed", "airy_diameter_px", "airy", "backend", "device", "precision"];
 
 /// Render settings from Python keywords; `None` = the library's default.
 #[derive(Default, Clone)]
@@ -30,6 +30,8 @@ pub struct Options {
     pub airy_diameter_px: Option<f64>,
     pub airy: Option<bool>,
     pub device: Option<String>,
+    /// `"f64"` (the default) or `"f32"` (the ray kernel's precision, as `--precision`).
+    pub precision: Option<String>,
 }
 
 impl Options {
@@ -66,6 +68,9 @@ impl Options {
         }
         if self.airy == Some(false) {
             s.airy_diameter_px = None;
+        }
+        if let Some(p) = &self.precision {
+            s.precision = Some(p.parse().map_err(|_| value_error(format!("precision `{p}`: use \"f64\" or \"f32\"")))?);
         }
         if let Some(d) = &self.device {
             s.device = d.parse::<Device>().map_err(|_| value_error(format!("device `{d}`: use \"cpu\" or \"cuda\"")))?;
@@ -136,6 +141,7 @@ pub fn settings<'py>(py: Python<'py>, kwargs: Option<&Bound<'py, PyDict>>, extra
             "airy_diameter_px" => o.airy_diameter_px = Some(get(&key, &v, "a number")?),
             "airy" => o.airy = Some(get(&key, &v, "True or False")?),
             "device" => o.device = Some(get(&key, &v, "\"cpu\"")?),
+            "precision" => o.precision = Some(get(&key, &v, "\"f64\" or \"f32\"")?),
             "backend" => s.backend = get(&key, &v, "a backend name")?,
             other if extra.contains(&other) => s.extra.set_item(other, v)?,
             other => {

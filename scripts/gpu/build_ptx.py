@@ -11,7 +11,8 @@ real one, so compile errors, register counts and spills show on any machine.
 
 The committed PTX starts with a comment naming the SHA-256 of the kernel sources it was built from; the
 library embeds it (src/gpu/ptx.rs), so a build needs no CUDA at all. Options: --fmad=false (no
-contraction: the device computes the same bits as the host twin), compute_90 (H100/H200; the driver
+contraction: the device computes the same bits as the host twin), --prec-sqrt=true --prec-div=true --ftz=false
+(NVRTC's defaults, stated: the f32 kernels need IEEE sqrtf and division and subnormals), compute_90 (H100/H200; the driver
 JIT-compiles it for any later architecture).
 """
 import argparse
@@ -26,10 +27,10 @@ import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 KERNELS = os.path.join(ROOT, "src", "gpu", "kernels")
-SOURCES = ["dc_common.h", "dc_trace.h", "dc_sample.h", "dc_render.h", "dc_accum.h", "device.cu"]
+SOURCES = ["dc_common.h", "dc_vec_tmpl.h", "dc_trace.h", "dc_trace_tmpl.h", "dc_sample.h", "dc_render.h", "dc_accum.h", "device.cu"]
 PTX = os.path.join(KERNELS, "trace.ptx")
 ARCH = "compute_90"
-OPTIONS = [f"--gpu-architecture={ARCH}", "--fmad=false", "-default-device"]
+OPTIONS = [f"--gpu-architecture={ARCH}", "--fmad=false", "--prec-sqrt=true", "--prec-div=true", "--ftz=false", "-default-device"]
 
 
 def source_hash():

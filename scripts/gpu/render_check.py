@@ -7,7 +7,8 @@ opening 0.5) rendered on the CUDA device twice, on the CPU, and through the GPU 
   - two GPU runs bit-identical, and the GPU equal to the host twin bit for bit (integer accumulation);
   - the middle plane's rays land on the device where the host kernels land them (≤ 1e-12 mm, same statuses);
   - the GPU within the CPU renderer's own f32 rounding of it (≤ 2e-6 of the peak, tests/gpu_render.rs).
-The time (kernels, and with uploads) is reported against the goal of 0.1 s; f32 is not on the device yet.
+The same in f32 (the renderer's f32 trace; within 1e-4 of the CPU's f32 render, landings identical). The
+time (kernels, and with uploads) is reported against the goal of 0.1 s.
 
     python scripts/gpu/render_check.py [--size 512] [--planes 112] [--rays 20] [--no-twin] [--out DIR]
 """
@@ -34,6 +35,9 @@ def main() -> int:
     t = time.time()
     r = diffcassi.gpu_check(system, cube, wl, twin=not a.no_twin, planes=a.planes, rays=a.rays, opening=0.5)
     r["check_seconds"] = time.time() - t
+    # f32: the renderer's f32 trace on the device, against the CPU's f32 render (the twin is not rerun).
+    r32 = diffcassi.gpu_check(system, cube, wl, twin=False, planes=a.planes, rays=a.rays, opening=0.5, precision="f32")
+    r["f32"] = r32
     r["workload"] = f"{a.preset}, {a.size}x{a.size}, {a.planes} planes, {a.rays} rays, opening 0.5"
     rays = r["rays"]
     k_s, t_s = r["gpu_kernels_ms"] / 1e3, r["gpu_total_ms"] / 1e3
@@ -44,7 +48,12 @@ def main() -> int:
         ("GPU f64, kernels", f"{k_s:.4f} s, {rays / k_s / 1e9:.2f} G rays/s", "goal ≤ 0.1 s"),
         ("GPU f64, with plan, uploads, copy", f"{t_s:.4f} s", ""),
         ("CPU f64 (this machine's cores)", f"{r['cpu_seconds']:.3f} s ({r['cpu_seconds'] / k_s:.0f}× the GPU kernels)", ""),
-        ("GPU f32", "not on the device yet", ""),
+        ("GPU f32, kernels", f"{r32['gpu_kernels_ms'] / 1e3:.4f} s, {rays / (r32['gpu_kernels_ms'] / 1e3) / 1e9:.2f} G rays/s", ""),
+        ("CPU f32", f"{r32['cpu_seconds']:.3f} s", ""),
+        ("f32: two GPU runs bit-identical", str(r32["runs_bit_identical"]), "must be True"),
+        ("f32: max |GPU − CPU| / CPU peak", f"{r32['cpu_max_rel_diff']:.2e}", "≤ 1e-4"),
+        ("f32 landings: rays, max |Δ| mm, status mismatches",
+         f"{r32['landing_rays']}, {r32['landing_max_diff_mm']:.2e}, {r32['landing_status_mismatches']}", "0 mm, 0"),
         ("two GPU runs bit-identical", str(r["runs_bit_identical"]), "must be True"),
         ("GPU = host twin, bit for bit", str(r["twin_bit_identical"]), "must be True (None: not run)"),
         ("host twin wall clock", "" if r["twin_seconds"] is None else f"{r['twin_seconds']:.1f} s", ""),
@@ -66,6 +75,12 @@ def main() -> int:
         failed.append("device landings differ from the host's")
     if not r["cpu_max_rel_diff"] <= 2e-6:
         failed.append("the GPU is farther from the CPU than the CPU's f32 rounding")
+    if not r32["runs_bit_identical"]:
+        failed.append("two GPU f32 runs differ")
+    if not r32["cpu_max_rel_diff"] <= 1e-4:
+        failed.append("the GPU f32 render is farther than 1e-4 of the peak from the CPU's f32 render")
+    if r32["landing_status_mismatches"] != 0 or not r32["landing_max_diff_mm"] <= 0.0:
+        failed.append("f32 device landings differ from the host's")
     r["failed"] = failed
     if a.out:
         os.makedirs(a.out, exist_ok=True)

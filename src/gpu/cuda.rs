@@ -22,6 +22,7 @@ use std::sync::OnceLock;
 struct Launcher {
     ctx: sys::CUcontext,
     landing: sys::CUfunction,
+    landing_f32: sys::CUfunction,
     deposit: sys::CUfunction,
     airy: sys::CUfunction,
     finish: sys::CUfunction,
@@ -115,7 +116,7 @@ fn start() -> std::result::Result<Launcher, String> {
             ));
         };
         let f = |name: &str| cu::module::get_function(module, CString::new(name).expect("kernel name")).map_err(|e| cuda_err(&format!("cuModuleGetFunction({name})"), e));
-        Ok(Launcher { ctx, landing: f("dc_landing_kernel")?, deposit: f("dc_deposit_kernel")?, airy: f("dc_airy_kernel")?, finish: f("dc_finish_kernel")?, info, source })
+        Ok(Launcher { ctx, landing: f("dc_landing_kernel")?, landing_f32: f("dc_landing_f32_kernel")?, deposit: f("dc_deposit_kernel")?, airy: f("dc_airy_kernel")?, finish: f("dc_finish_kernel")?, info, source })
     }
 }
 
@@ -271,7 +272,7 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
     Ok((PlanOutput { image, bands, counts }, DeviceTimes { kernels_ms, total_ms: t0.elapsed().as_secs_f64() * 1e3 }))
 }
 
-/// Where plane `p`'s rays land on the device (`dc_landing_kernel`): detector column and row (NaN: none) and
+/// Where plane `p`'s rays land on the device (`dc_landing_kernel`, or `dc_landing_f32_kernel` for an f32 plan): detector column and row (NaN: none) and
 /// the status code of ray `q·N + k`, as `render::twin::plane_landings` computes them on the host.
 pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, Vec<u8>)> {
     let l = launcher()?;
@@ -289,7 +290,7 @@ pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, 
     b.u = d_u.ptr as *mut f64;
     b.v = d_v.ptr as *mut f64;
     b.status = d_s.ptr as *mut u8;
-    launch(l.landing, n as u64, &mut [arg(&b)])?;
+    launch(if plan.f32 { l.landing_f32 } else { l.landing }, n as u64, &mut [arg(&b)])?;
     cu::ctx::synchronize().map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("the landing kernel", e))))?;
     Ok((d_u.read(n)?, d_v.read(n)?, d_s.read(n)?))
 }

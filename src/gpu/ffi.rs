@@ -8,10 +8,10 @@ extern "C" {
     pub(crate) fn dc_footprint_size_host(u: *const f64, v: *const f64, n: u32, det_w: i64, det_h: i64, wins: *mut Window, begin: u64, end: u64);
     pub(crate) fn dc_footprint_fill_host(u: *const f64, v: *const f64, n: u32, wins: *mut Window, offsets: *const u64, scratch: *mut f64, weights: *mut f32, begin: u64, end: u64);
     fn dc_sizeof_window() -> u64;
-    pub(crate) fn dc_trace_batch_host(batch: *const Batch, begin: u64, end: u64);
+    pub(crate) fn dc_trace_batch_host(batch: *const Batch, begin: u64, end: u64, mode: u32);
     fn dc_sizeof_step() -> u64;
     fn dc_sizeof_batch() -> u64;
-    pub(crate) fn dc_landing_host(batch: *const LandingBatch, begin: u64, end: u64);
+    pub(crate) fn dc_landing_host(batch: *const LandingBatch, begin: u64, end: u64, f32: i32);
     fn dc_sizeof_landing_batch() -> u64;
     pub(crate) fn dc_deposit_host(batch: *const DepositBatch, begin: u64, end: u64, counts: *mut u64);
     pub(crate) fn dc_airy_host(batch: *const AiryBatch, begin: u64, end: u64);
@@ -19,6 +19,13 @@ extern "C" {
     fn dc_sizeof_deposit_batch() -> u64;
     fn dc_sizeof_airy_batch() -> u64;
 }
+
+/// `DC_TRACE_*` of dc_trace.h: which trace `dc_trace_batch_host` runs.
+pub(crate) const TRACE_F64: u32 = 0;
+pub(crate) const TRACE_F32: u32 = 1;
+/// The landing kernel's f32 input rule (the renderer's `set_raw` + `normalize_inputs`), for the tests.
+#[cfg_attr(not(test), allow(dead_code))]
+pub(crate) const TRACE_F32_RAW: u32 = 2;
 
 /// Whether the Rust `repr(C)` structs have the C compiler's sizes (a layout mismatch would be undefined
 /// behaviour, so every trace checks it first; it costs two calls).

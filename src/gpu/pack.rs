@@ -222,6 +222,8 @@ pub(crate) struct DepositBatch {
     pub k0: u32,
     pub k1: u32,
     pub tw: f32,
+    /// 1: the renderer's f32 trace, 0: f64.
+    pub f32: u32,
 }
 
 /// One plane's Airy gather into its band (`dc_airy_batch`).

@@ -58,6 +58,8 @@ pub struct RenderPlan<'a> {
     /// 2^S, and the value of one fixed-point unit 2^−S · (1/N).
     pub(crate) fixed_scale: f64,
     pub(crate) unit: f64,
+    /// Trace in f32 (the renderer's `--precision f32` numbers) instead of f64.
+    pub(crate) f32: bool,
 }
 
 /// What a run of the plan gives.
@@ -131,6 +133,7 @@ impl<'a> RenderPlan<'a> {
             k0: pl.k0,
             k1: pl.k1,
             tw: pl.tw,
+            f32: self.f32 as u32,
         }
     }
 

@@ -50,7 +50,7 @@ pub struct DeviceRecord {
     /// The GPU's name and the driver's CUDA version (CUDA only).
     pub gpu: Option<String>,
     pub driver: Option<String>,
-    /// The ray kernel's precision (`f64`).
+    /// The ray kernel's precision (`f64`, or `f32`: the renderer's f32 trace).
     pub precision: String,
     /// How the acquisition is accumulated (fixed point, its scale 2^S).
     pub accumulation: String,
@@ -61,13 +61,11 @@ pub struct DeviceRecord {
     pub ptx: Option<String>,
 }
 
-/// The plan of `r`'s acquisition of `scene`: every array the kernels read. Errors for what the kernels do not
-/// model yet (ray aiming `real`, f32, another backend than the analytic one), naming the setting.
+/// The plan of `r`'s acquisition of `scene`: every array the kernels read, traced in the renderer's precision
+/// (f64, or the f32 trace of `--precision f32`). Errors for what the kernels do not model yet (ray aiming
+/// `real`, another backend than the analytic one), naming the setting.
 pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPlan<'a>> {
     r.check_scene(scene)?;
-    if r.config.precision != Precision::F64 {
-        return Err(Error::invalid("--device cuda: the GPU kernels render in f64 only so far (use --precision f64, or --device cpu for f32)"));
-    }
     if r.config.force_batched {
         return Err(Error::invalid("--device cuda traces with the GPU's own kernels, not through the batched tracer path (force_batched)"));
     }
@@ -125,6 +123,7 @@ pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPl
         bands: sp.bands_nm.len(),
         fixed_scale: scale,
         unit,
+        f32: r.config.precision == Precision::F32,
     })
 }
 
@@ -156,7 +155,7 @@ pub fn render_on(r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, execu
     let (out, record) = match executor {
         Executor::Twin => {
             let out = plan.run_twin(keep_bands)?;
-            (out, DeviceRecord { device: "cpu-twin".into(), gpu: None, driver: None, precision: "f64".into(), accumulation, kernels_ms: None, total_ms: None, ptx: None })
+            (out, DeviceRecord { device: "cpu-twin".into(), gpu: None, driver: None, precision: r.config.precision.name().into(), accumulation, kernels_ms: None, total_ms: None, ptx: None })
         }
         Executor::Cuda => {
             let (info, ptx) = cuda::device_info()?;
@@ -165,7 +164,7 @@ pub fn render_on(r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, execu
                 device: "cuda".into(),
                 gpu: Some(info.name.clone()),
                 driver: Some(format!("{}.{}", info.driver_version / 1000, (info.driver_version % 1000) / 10)),
-                precision: "f64".into(),
+                precision: r.config.precision.name().into(),
                 accumulation,
                 kernels_ms: Some(times.kernels_ms),
                 total_ms: Some(times.total_ms),
@@ -261,7 +260,7 @@ pub fn check(r: &Renderer<'_>, scene: &SpectralCube, twin: bool) -> Result<Devic
     let (du, dv, ds) = cuda::landings(&pl, p)?;
     let ctx = r.plane_context();
     let geo = SceneGeometry { height: r.config.scene_height, width: r.config.scene_width, pitch_mm: r.config.scene_pitch_mm, detector: &r.detector };
-    let host = super::twin::plane_landings(r.system, geo, ctx.sampler, ctx.seed, p as u64, r.config.spectral.planes_nm[p], &pl.pixels)?;
+    let host = super::twin::plane_landings_in(r.config.precision, r.system, geo, ctx.sampler, ctx.seed, p as u64, r.config.spectral.planes_nm[p], &pl.pixels)?;
     let pitch = r.detector.pitch_mm;
     let mut worst = 0.0f64;
     let mut mismatches = 0u64;

@@ -2,7 +2,8 @@
 //! lands (`dc_landing_kernel`), then each open pixel's footprint (`dc_footprint_size_kernel`, a prefix sum,
 //! `dc_footprint_fill_kernel`). The code the device runs, tested where there is no GPU: it must give
 //! [`PlaneContext::trace_plane`]'s footprints, weights and counts bit for bit (tests/gpu_twin.rs), hence the
-//! same acquisition. Ray aiming `real` and the f32 kernel are not on the device yet (errors).
+//! same acquisition, in f64 and in f32 (`--precision f32`: `dc_landing_f32_kernel`). Ray aiming `real` is not
+//! on the device yet (an error).
 use super::detector::Detector;
 use super::sampling::{RaySampler, Sampling};
 use super::transport::{Footprint, PlaneContext, PlaneTransport};
@@ -12,7 +13,7 @@ use crate::gpu::pack::{self, Aim, LandingBatch, Sampler, Scene, Window};
 use crate::rays::PupilAim;
 use crate::spec::RayAiming;
 use crate::system::SequentialSystem;
-use crate::tracer::RayStatus;
+use crate::tracer::{Precision, RayStatus};
 use rayon::prelude::*;
 
 /// Where the renderer's rays of one plane land: ray `k` of `pixels[q]` at index `q·N + k`.
@@ -39,6 +40,13 @@ pub struct SceneGeometry<'a> {
 /// (`render::transport`) computes before its splat; ray aiming `real` is not on the device yet (an error).
 #[allow(clippy::too_many_arguments)]
 pub fn plane_landings(system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wavelength_nm: f64, pixels: &[u32]) -> Result<PlaneLandings> {
+    plane_landings_in(Precision::F64, system, scene, sampler, seed, plane, wavelength_nm, pixels)
+}
+
+/// [`plane_landings`] traced in `precision`: f64 (`dc_landing_kernel`, the scalar kernel's numbers) or f32
+/// (`dc_landing_f32_kernel`, the renderer's `--precision f32` numbers: `trace_row_lanes_f32`).
+#[allow(clippy::too_many_arguments)]
+pub fn plane_landings_in(precision: Precision, system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wavelength_nm: f64, pixels: &[u32]) -> Result<PlaneLandings> {
     if !layouts_match() {
         return Err(Error::invalid("internal: the GPU kernels' C structs and their Rust twins differ in size (src/gpu/pack.rs)"));
     }
@@ -75,7 +83,7 @@ pub fn plane_landings(system: &SequentialSystem, scene: SceneGeometry<'_>, sampl
         // SAFETY: rays [begin, begin + uc.len()) read `pixels[t / N]` (in bounds: t < pixels.len()·N),
         // the path, the index row and the constants, and write u/v/status at t − begin: this task's own
         // slices (dc_landing_host); layouts were checked above.
-        unsafe { dc_landing_host(&batch, begin as u64, (begin + uc.len()) as u64) };
+        unsafe { dc_landing_host(&batch, begin as u64, (begin + uc.len()) as u64, (precision == Precision::F32) as i32) };
     });
     Ok(PlaneLandings { u, v, status: status.into_iter().map(status_of).collect() })
 }
@@ -105,15 +113,13 @@ pub(crate) fn launch_constants(system: &SequentialSystem, scene: SceneGeometry<'
     Ok((sampler_c, aim, scene_c))
 }
 
-/// [`PlaneContext::trace_plane`] through the GPU kernels' host twin: the same [`PlaneTransport`], bit for bit.
+/// [`PlaneContext::trace_plane`] through the GPU kernels' host twin, in the context's precision: the same
+/// [`PlaneTransport`], bit for bit.
 pub fn trace_plane(ctx: &PlaneContext<'_>, plane: usize, wavelength_nm: f64) -> Result<PlaneTransport> {
-    if ctx.precision != crate::tracer::Precision::F64 {
-        return Err(Error::invalid("the GPU kernels render in f64 only so far (--precision f32 is not on the device yet)"));
-    }
     let (h, w) = (ctx.scene_height, ctx.scene_width);
     let pixels: Vec<u32> = (0..h * w).filter(|&q| ctx.mask[q] > 0.0).map(|q| q as u32).collect();
     let scene = SceneGeometry { height: h, width: w, pitch_mm: ctx.scene_pitch_mm, detector: ctx.detector };
-    let land = plane_landings(ctx.system, scene, ctx.sampler, ctx.seed, plane as u64, wavelength_nm, &pixels)?;
+    let land = plane_landings_in(ctx.precision, ctx.system, scene, ctx.sampler, ctx.seed, plane as u64, wavelength_nm, &pixels)?;
     let mut out = PlaneTransport::default();
     out.stats.traced = land.status.len() as u64;
     for &s in &land.status {
@@ -143,4 +149,82 @@ pub fn trace_plane(ctx: &PlaneContext<'_>, plane: usize, wavelength_nm: f64) -> 
     }
     out.weights = weights;
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::analysis::MappingCube;
+    use crate::tracer::simd::{trace_block_raw, BlockF32, LANES_F32};
+    use crate::tracer::SimdLevel;
+    use glam::DVec3;
+
+    /// The f32 landing kernel (`dc_landing_f32_kernel`) equals the renderer's f32 steps ray for ray, bit for
+    /// bit — the sample, the aimed object ray, `set_raw` and the f32 lane trace (every SIMD level), the
+    /// widened landing's checks and detector coordinates (`trace_row_lanes_f32` + `LandLoop`) — so that no
+    /// landing difference hides under the f32 rounding of the footprint weights (tests/gpu_twin.rs compares
+    /// those).
+    #[test]
+    fn f32_landing_kernel_equals_the_renderers_f32_steps() {
+        let detector = Detector { width: 700, height: 700, pitch_mm: 0.01, x_left_mm: -3.5, y_top_mm: 3.5 };
+        for name in ["sp", "ap", "msp", "map"] {
+            let sys = SequentialSystem::build(&crate::presets::spec(name).unwrap()).unwrap();
+            let pixels: Vec<u32> = (0..(12 * 16) as u32).filter(|q| q % 3 != 1).collect();
+            let (mut counts, mut differ) = (std::collections::BTreeMap::new(), 0);
+            // Scenes of ±3.2 mm (inside the field), ±12 mm (past the field stops: vignetted rays) and ±1.2 m
+            // (origins beyond f32's 1 m: invalid inputs in f32).
+            for (rays, mode, seed, plane, wl, pitch_mm) in [(20, Sampling::Stratified, 0u64, 0u64, 450.0, 0.4), (7, Sampling::Stratified, 99, 57, 555.5, 1.5), (5, Sampling::Independent, 12345, 3, 650.0, 150.0)] {
+                let scene = SceneGeometry { height: 12, width: 16, pitch_mm, detector: &detector };
+                let sampler = RaySampler::new(rays, mode);
+                let twin = plane_landings_in(Precision::F32, &sys, scene, &sampler, seed, plane, wl, &pixels).unwrap();
+                let f64_ = plane_landings(&sys, scene, &sampler, seed, plane, wl, &pixels).unwrap();
+                // The renderer's rays, then its f32 lanes.
+                let aim = PupilAim::of(&sys);
+                let mut object = Vec::new();
+                let mut s = vec![[0.0; 4]; rays];
+                for &q in &pixels {
+                    sampler.fill(seed, plane, q as u64, &mut s);
+                    let (row, col) = (q as usize / scene.width, q as usize % scene.width);
+                    let c = MappingCube::scene_xy(scene.height, scene.width, scene.pitch_mm, row, col);
+                    for smp in &s {
+                        let (fx, fy) = (c[0] + (smp[2] - 0.5) * scene.pitch_mm, c[1] - (smp[3] - 0.5) * scene.pitch_mm);
+                        object.push((DVec3::new(fx, fy, 0.0), DVec3::from(aim.direction(fx, fy, smp[0], smp[1]))));
+                    }
+                }
+                let n = sys.indices(wl).unwrap();
+                let tables = [n.as_slice(); LANES_F32];
+                for level in SimdLevel::available() {
+                    for start in (0..object.len()).step_by(LANES_F32) {
+                        let m = (object.len() - start).min(LANES_F32);
+                        let mut b = BlockF32::default();
+                        for k in 0..m {
+                            b.set_raw(k, object[start + k].0, object[start + k].1);
+                        }
+                        trace_block_raw(level, &sys.path, &tables, &mut b);
+                        for k in 0..m {
+                            let t = start + k;
+                            let (want, (u, v)) = match b.result(k) {
+                                Ok((p, d)) if p.is_finite() && d.is_finite() && p.abs().max_element() <= crate::limits::MAX_IMAGE_COORD_MM => (RayStatus::Ok, detector.to_pixel(p.x, p.y)),
+                                Ok(_) => (RayStatus::OutOfRange, (f64::NAN, f64::NAN)),
+                                Err((st, _)) => (st, (f64::NAN, f64::NAN)),
+                            };
+                            let label = format!("{name} {rays} {mode:?} {} ray {t}", level.name());
+                            assert_eq!(twin.status[t], want, "{label}");
+                            assert_eq!((twin.u[t].to_bits(), twin.v[t].to_bits()), (u.to_bits(), v.to_bits()), "{label}: ({}, {}) vs ({u}, {v})", twin.u[t], twin.v[t]);
+                        }
+                    }
+                }
+                for &st in &twin.status {
+                    *counts.entry(format!("{st:?}")).or_insert(0usize) += 1;
+                }
+                differ += (0..twin.u.len()).filter(|&t| twin.status[t] == RayStatus::Ok && twin.u[t] != f64_.u[t]).count();
+            }
+            assert!(differ > 0, "{name}: f32 landings must differ from f64");
+            eprintln!("{name}: {counts:?}");
+            for st in [RayStatus::Ok, RayStatus::InvalidInput] {
+                assert!(counts.contains_key(&format!("{st:?}")), "{name}: no {st:?} ray among {counts:?}");
+            }
+            assert!(counts.len() >= 3, "{name}: the rays must also stop on the way: {counts:?}");
+        }
+    }
 }

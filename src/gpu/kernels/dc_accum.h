@@ -45,6 +45,7 @@ typedef struct {
     dc_u32 bands;          /* the cube's bands */
     dc_u32 k0, k1;         /* the two bands the plane interpolates (SpectralCube::interpolation) */
     float tw;              /* weight of k1 */
+    dc_u32 f32;            /* 1: the renderer's f32 trace (dc_land), 0: f64 */
 } dc_deposit_batch;
 
 /* round(x) to the nearest integer, halves up: the same bits on both builds. */
@@ -61,7 +62,7 @@ DC_FN float dc_plane_value(const dc_deposit_batch *b, dc_u32 pixel) {
  * taps that fall off the detector (0 when it does not arrive). */
 DC_FN dc_u32 dc_deposit_ray(const dc_deposit_batch *b, dc_u64 t, dc_u64 *lost) {
     double u, v;
-    dc_u32 st = dc_land(&b->land, t, &u, &v);
+    dc_u32 st = dc_land(&b->land, t, &u, &v, (int)b->f32);
     *lost = 0;
     if (st != DC_OK) return st;
     float value = dc_plane_value(b, b->land.pixels[t / b->land.sampler.rays]);

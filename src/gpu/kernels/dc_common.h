@@ -30,36 +30,66 @@ typedef int64_t dc_i64;
 #endif
 
 /* The math both builds take from their own library under the same names (CUDA's device functions, C99's
- * <math.h>): correctly rounded sqrt, and exact fabs, copysign, isfinite. */
+ * <math.h>): correctly rounded sqrt, and exact fabs, copysign, isfinite (f64; the f32 twins below). Under
+ * NVRTC sqrtf and division are IEEE (--prec-sqrt=true --prec-div=true) and subnormals kept (--ftz=false). */
 #define DC_SQRT(x) sqrt(x)
 #define DC_FABS(x) fabs(x)
 #define DC_COPYSIGN(x, y) copysign(x, y)
 #define DC_ISFINITE(x) isfinite(x)
 
 #define DC_EPSILON 2.220446049250313080847263336181640625e-16 /* f64::EPSILON */
+#define DC_EPSILON_F32 1.1920928955078125e-7f                 /* f32::EPSILON */
 
-/* Three-vectors in f64, with the arithmetic of glam's DVec3 (component-wise, left to right). */
-typedef struct {
-    double x, y, z;
-} dc_v3;
+/* ---- One source for two precisions -------------------------------------------------------------------
+ *
+ * The vector arithmetic (dc_vec_tmpl.h) and the sequential trace (dc_trace_tmpl.h) are written once over a
+ * real type and included twice: with the tag DC_P = f64 (names unchanged: dc_v3, dc_trace_step, ...) and
+ * DC_P = f32 (names suffixed _f32: dc_v3_f32, dc_trace_step_f32, ...). A template names its type DC_REAL,
+ * its functions DC_T(name), rounds every system constant with DC_R (computed in f64 first, then rounded
+ * once, as tracer::simd::block does with `Lanes::of`; the identity in f64) and takes the precision's math
+ * and tolerances from the tables below (DC_RSQRT, DC_BRANCH_TOL, ...). */
+#define DC_CAT2(a, b) a##b
+#define DC_CAT(a, b) DC_CAT2(a, b)
+typedef double dc_real_f64;
+typedef float dc_real_f32;
+#define DC_REAL DC_CAT(dc_real_, DC_P)
+#define DC_T(name) DC_CAT(name, DC_SFX)
+#define DC_V3 DC_T(dc_v3)
+#define DC_R(x) ((DC_REAL)(x))
+#define DC_RSQRT DC_CAT(DC_SQRT_, DC_P)
+#define DC_RFABS DC_CAT(DC_FABS_, DC_P)
+#define DC_RCOPYSIGN DC_CAT(DC_COPYSIGN_, DC_P)
+#define DC_RNAN DC_CAT(DC_NAN_, DC_P)
+#define DC_BRANCH_TOL DC_CAT(DC_BRANCH_TOL_, DC_P)
+#define DC_NEWTON_WIDTH DC_CAT(DC_NEWTON_WIDTH_, DC_P)
+#define DC_NEWTON_STEP_TOL DC_CAT(DC_NEWTON_STEP_TOL_, DC_P)
+#define DC_NEWTON_RESIDUAL_TOL DC_CAT(DC_NEWTON_RESIDUAL_TOL_, DC_P)
+#define DC_NEWTON_FINAL_TOL DC_CAT(DC_NEWTON_FINAL_TOL_, DC_P)
 
-DC_FN dc_v3 dc_v3_make(double x, double y, double z) {
-    dc_v3 r;
-    r.x = x;
-    r.y = y;
-    r.z = z;
-    return r;
-}
-DC_FN dc_v3 dc_add(dc_v3 a, dc_v3 b) { return dc_v3_make(a.x + b.x, a.y + b.y, a.z + b.z); }
-DC_FN dc_v3 dc_sub(dc_v3 a, dc_v3 b) { return dc_v3_make(a.x - b.x, a.y - b.y, a.z - b.z); }
-DC_FN dc_v3 dc_scale(dc_v3 a, double s) { return dc_v3_make(a.x * s, a.y * s, a.z * s); }
-DC_FN dc_v3 dc_neg(dc_v3 a) { return dc_v3_make(-a.x, -a.y, -a.z); }
-DC_FN dc_v3 dc_div(dc_v3 a, double s) { return dc_v3_make(a.x / s, a.y / s, a.z / s); }
-/* glam: (x·x) + (y·y) + (z·z), left to right. */
-DC_FN double dc_dot(dc_v3 a, dc_v3 b) { return (a.x * b.x) + (a.y * b.y) + (a.z * b.z); }
-DC_FN int dc_v3_finite(dc_v3 a) { return DC_ISFINITE(a.x) && DC_ISFINITE(a.y) && DC_ISFINITE(a.z); }
-/* glam's normalize: v · (1 / √(v·v)). */
-DC_FN dc_v3 dc_normalize(dc_v3 a) { return dc_scale(a, 1.0 / DC_SQRT(dc_dot(a, a))); }
+#define DC_SQRT_f64(x) sqrt(x)
+#define DC_SQRT_f32(x) sqrtf(x)
+#define DC_FABS_f64(x) fabs(x)
+#define DC_FABS_f32(x) fabsf(x)
+#define DC_COPYSIGN_f64(x, y) copysign(x, y)
+#define DC_COPYSIGN_f32(x, y) copysignf(x, y)
+#define DC_NAN_f64 DC_NAN
+#define DC_NAN_f32 ((float)DC_NAN)
+/* The trace's tolerances, f64 (the scalar kernel's) and f32 (tracer::simd::lanes, `impl Real for f32`:
+ * scaled to f32's rounding, docs/performance.md "f32 mode"), each in the Rust operation order:
+ * the conic vertex-branch test |z − sag| ≤ tol at a hit of local height z reached at parameter t, */
+#define DC_BRANCH_TOL_f64(z, t) (1e-9 * (1.0 + fabs(z)))
+#define DC_BRANCH_TOL_f32(z, t) (1e-5f * ((1.0f + fabsf(z)) + fabsf(t)))
+/* the even-asphere Newton's bracket width (× (1 + |t|)), step test |t′ − t| ≤ tol, residual test |f| < tol
+ * after a small step, and the residual test once the 100 iterations are spent. */
+#define DC_NEWTON_WIDTH_f64 (4.0 * DC_EPSILON)
+#define DC_NEWTON_WIDTH_f32 (4.0f * DC_EPSILON_F32)
+#define DC_NEWTON_STEP_TOL_f64(t) (1e-15 * (1.0 + fabs(t)))
+#define DC_NEWTON_STEP_TOL_f32(t) ((8.0f * DC_EPSILON_F32) * (1.0f + fabsf(t)))
+#define DC_NEWTON_RESIDUAL_TOL_f64(t) 1e-9
+#define DC_NEWTON_RESIDUAL_TOL_f32(t) (1e-5f * (1.0f + fabsf(t)))
+#define DC_NEWTON_FINAL_TOL_f64(t) 1e-12
+#define DC_NEWTON_FINAL_TOL_f32(t) (1e-6f * (1.0f + fabsf(t)))
+
 /* Rust's f64::max: the other operand when one is NaN. */
 DC_FN double dc_max(double a, double b) { return (a != a) ? b : ((b != b) ? a : (a > b ? a : b)); }
 
@@ -68,11 +98,16 @@ typedef struct {
     double c[9]; /* c[0..3] = x_axis, c[3..6] = y_axis, c[6..9] = z_axis */
 } dc_m3;
 
-DC_FN dc_v3 dc_m3_mul(const dc_m3 *m, dc_v3 v) {
-    dc_v3 r = dc_v3_make(m->c[0] * v.x, m->c[1] * v.x, m->c[2] * v.x);
-    r = dc_add(r, dc_v3_make(m->c[3] * v.y, m->c[4] * v.y, m->c[5] * v.y));
-    r = dc_add(r, dc_v3_make(m->c[6] * v.z, m->c[7] * v.z, m->c[8] * v.z));
-    return r;
-}
+/* The vector arithmetic in f64 (dc_v3, dc_add, ...) and in f32 (dc_v3_f32, dc_add_f32, ...). */
+#define DC_P f64
+#define DC_SFX
+#include "dc_vec_tmpl.h"
+#undef DC_P
+#undef DC_SFX
+#define DC_P f32
+#define DC_SFX _f32
+#include "dc_vec_tmpl.h"
+#undef DC_P
+#undef DC_SFX
 
 #endif /* DC_COMMON_H */

@@ -30,8 +30,10 @@ typedef struct {
     dc_u32 pad;
 } dc_landing_batch;
 
-/* Ray t of the launch: its status, and where it lands (*u, *v; NaN when it does not arrive). */
-DC_FN dc_u32 dc_land(const dc_landing_batch *b, dc_u64 t, double *u_out, double *v_out) {
+/* Ray t of the launch: its status, and where it lands (*u, *v; NaN when it does not arrive). `f32`: the
+ * renderer's f32 trace (dc_trace_ray_raw_f32, as render::transport::trace_row_lanes_f32), its results widened
+ * to f64 and landed like the f64 ones. */
+DC_FN dc_u32 dc_land(const dc_landing_batch *b, dc_u64 t, double *u_out, double *v_out, int f32) {
     dc_u64 q = t / b->sampler.rays;
     dc_u32 k = (dc_u32)(t % b->sampler.rays);
     dc_u32 pixel = b->pixels[q];
@@ -41,7 +43,7 @@ DC_FN dc_u32 dc_land(const dc_landing_batch *b, dc_u64 t, double *u_out, double 
     dc_u32 surface;
     dc_sample_ray(&b->sampler, b->plane, pixel, k, s);
     dc_object_ray(&b->scene, &b->aim, row, col, s, &o, &d);
-    dc_u32 st = dc_trace_ray(b->path, b->n_steps, b->n, &o, &d, &surface);
+    dc_u32 st = f32 ? dc_trace_ray_raw_f32(b->path, b->n_steps, b->n, &o, &d, &surface) : dc_trace_ray(b->path, b->n_steps, b->n, &o, &d, &surface);
     double u = DC_NAN, v = DC_NAN;
     if (st == DC_OK) {
         double m = dc_max(DC_FABS(o.x), dc_max(DC_FABS(o.y), DC_FABS(o.z)));
@@ -56,10 +58,10 @@ DC_FN dc_u32 dc_land(const dc_landing_batch *b, dc_u64 t, double *u_out, double 
 }
 
 /* Ray t of the launch, its outputs written at index `slot` of u, v and status (the device: slot = t; the host
- * twin: t − the first ray of its chunk, so that each chunk writes its own arrays). */
-DC_FN void dc_landing_ray(const dc_landing_batch *b, dc_u64 t, dc_u64 slot) {
+ * twin: t − the first ray of its chunk, so that each chunk writes its own arrays); `f32` as dc_land's. */
+DC_FN void dc_landing_ray(const dc_landing_batch *b, dc_u64 t, dc_u64 slot, int f32) {
     double u, v;
-    dc_u32 st = dc_land(b, t, &u, &v);
+    dc_u32 st = dc_land(b, t, &u, &v, f32);
     b->u[slot] = u;
     b->v[slot] = v;
     b->status[slot] = (unsigned char)st;

@@ -1,11 +1,14 @@
-/* diffcassi GPU kernels: the sequential f64 ray trace, one ray per call.
+/* diffcassi GPU kernels: the sequential ray trace in f64 and in f32, one ray per call.
  *
  * The per-ray physics of src/tracer/kernel.rs and src/surfaces/intersect.rs, expression for expression:
  * frame change p' = M(p − o), d' = M d; the exact intersection with a plane, a conic (the vertex-branch
  * root, Numerical Recipes §5.6) or an even asphere (guarded Newton from the conic's root, then the vertex
  * plane's); the clear aperture; vector Snell's law or the ideal (Paraxial) lens. A ray that stops is
  * classified (missed, vignetted, TIR, no convergence, invalid input) with the surface where it stopped;
- * nothing here returns a NaN position. The status codes are those of `tracer::RayStatus`.
+ * nothing here returns a NaN position. The status codes are those of `tracer::RayStatus`. The trace itself is
+ * written once, in dc_trace_tmpl.h, and instantiated here in f64 (dc_trace_path: the scalar kernel's bits) and
+ * in f32 (dc_trace_path_f32: the f32 lane kernel's bits, tracer::simd::block); each precision has its own
+ * input rule (below).
  *
  * Host build: src/gpu/kernels/host.c (the CPU twin). Device build: src/gpu/kernels/device.cu (PTX).
  */
@@ -49,258 +52,17 @@ typedef struct {
     dc_u32 n_coef;      /* how many of coef are used */
 } dc_step;
 
-/* The vertex plane z = 0: t = −p_z/d_z. Returns 0 on success. */
-DC_FN int dc_intersect_plane(dc_v3 p, dc_v3 d, double *t_out, dc_v3 *point) {
-    if (d.z == 0.0) return 0;
-    double t = -p.z / d.z;
-    dc_v3 q = dc_v3_make(p.x + t * d.x, p.y + t * d.y, 0.0);
-    if (!dc_v3_finite(q)) return 0;
-    *t_out = t;
-    *point = q;
-    return 1;
-}
-
-/* Whether `q` lies on the vertex branch of c(x²+y²+kk·z²) − 2z = 0 (where the sag formula holds). */
-DC_FN int dc_on_conic_vertex_branch(dc_v3 q, double c, double kk) {
-    double r2 = q.x * q.x + q.y * q.y;
-    double domain = 1.0 - kk * c * c * r2;
-    if (domain < 0.0) return 0;
-    double sag = c * r2 / (1.0 + DC_SQRT(domain));
-    return DC_FABS(q.z - sag) <= 1e-9 * (1.0 + DC_FABS(q.z));
-}
-
-DC_FN int dc_on_branch_at(dc_v3 p, dc_v3 d, double t, double c, double kk) {
-    return DC_ISFINITE(t) && dc_on_conic_vertex_branch(dc_add(p, dc_scale(d, t)), c, kk);
-}
-
-/* Vertex-branch root of the conic along p + t d (the cancellation-free pair t₁ = C/q, t₂ = q/A). */
-DC_FN int dc_conic_root(double c, double k, dc_v3 p, dc_v3 d, double *t_out) {
-    double kk = 1.0 + k;
-    double a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
-    double b = c * (p.x * d.x + p.y * d.y + kk * p.z * d.z) - d.z;
-    double cc = c * (p.x * p.x + p.y * p.y + kk * p.z * p.z) - 2.0 * p.z;
-    double disc = b * b - a * cc;
-    if (!(disc >= 0.0)) return 0;
-    /* Rust's signum: ±1 by the sign bit (b is not NaN here: disc would be NaN). */
-    double q = -(b + DC_COPYSIGN(1.0, b) * DC_SQRT(disc));
-    if (q == 0.0) return 0;
-    double t1 = cc / q;
-    if (dc_on_branch_at(p, d, t1, c, kk)) {
-        *t_out = t1;
-        return 1;
-    }
-    double t2 = q / a;
-    if (a != 0.0 && dc_on_branch_at(p, d, t2, c, kk)) {
-        *t_out = t2;
-        return 1;
-    }
-    return 0;
-}
-
-/* The conic sag c r² / (1 + √(1 − (1+k) c² r²)); NaN outside the domain (as surfaces::conic_sag). */
-DC_FN double dc_conic_sag(double c, double k, double r2) {
-    double disc = 1.0 - (1.0 + k) * c * c * r2;
-    if (disc < 0.0) return DC_NAN;
-    return c * r2 / (1.0 + DC_SQRT(disc));
-}
-
-DC_FN double dc_conic_dsag_dr2(double c, double k, double r2) {
-    double disc = 1.0 - (1.0 + k) * c * c * r2;
-    if (disc <= 0.0) return DC_NAN;
-    return c / (2.0 * DC_SQRT(disc));
-}
-
-/* Σ aᵢ r^{2i} and its derivative with respect to r², by Horner from the highest term. */
-DC_FN void dc_asphere_poly(const dc_step *s, double r2, double *value, double *deriv) {
-    double v = 0.0, dv = 0.0;
-    for (int i = (int)s->n_coef - 1; i >= 0; --i) {
-        double power = (double)(i + 1);
-        double a = s->coef[i];
-        v = (v + a) * r2;
-        dv = dv * r2 + power * a;
-    }
-    *value = v;
-    *deriv = dv;
-}
-
-DC_FN double dc_sag(const dc_step *s, double x, double y) {
-    double r2 = x * x + y * y;
-    double v, dv;
-    switch (s->shape) {
-    case DC_SHAPE_CONIC: return dc_conic_sag(s->curvature, s->conic, r2);
-    case DC_SHAPE_ASPHERE:
-        dc_asphere_poly(s, r2, &v, &dv);
-        return dc_conic_sag(s->curvature, s->conic, r2) + v;
-    default: return 0.0;
-    }
-}
-
-DC_FN void dc_sag_gradient(const dc_step *s, double x, double y, double *gx, double *gy) {
-    double r2 = x * x + y * y;
-    double dz_dr2 = 0.0, v, dv;
-    switch (s->shape) {
-    case DC_SHAPE_CONIC: dz_dr2 = dc_conic_dsag_dr2(s->curvature, s->conic, r2); break;
-    case DC_SHAPE_ASPHERE:
-        dc_asphere_poly(s, r2, &v, &dv);
-        dz_dr2 = dc_conic_dsag_dr2(s->curvature, s->conic, r2) + dv;
-        break;
-    default: break;
-    }
-    *gx = 2.0 * x * dz_dr2;
-    *gy = 2.0 * y * dz_dr2;
-}
-
-DC_FN dc_v3 dc_normal(const dc_step *s, dc_v3 q) {
-    double c = s->curvature, k = s->conic, gx, gy;
-    switch (s->shape) {
-    case DC_SHAPE_CONIC: return dc_normalize(dc_v3_make(-c * q.x, -c * q.y, 1.0 - c * (1.0 + k) * q.z));
-    case DC_SHAPE_ASPHERE:
-        dc_sag_gradient(s, q.x, q.y, &gx, &gy);
-        return dc_normalize(dc_v3_make(-gx, -gy, 1.0));
-    default: return dc_v3_make(0.0, 0.0, 1.0);
-    }
-}
-
-/* f(t) = z(t) − sag(x(t), y(t)) and f′(t). */
-DC_FN void dc_asphere_eval(const dc_step *s, dc_v3 p, dc_v3 d, double t, double *f, double *fp) {
-    dc_v3 q = dc_add(p, dc_scale(d, t));
-    double gx, gy;
-    *f = q.z - dc_sag(s, q.x, q.y);
-    dc_sag_gradient(s, q.x, q.y, &gx, &gy);
-    *fp = d.z - gx * d.x - gy * d.y;
-}
-
-/* Newton on f(t), guarded by a bracket once a sign change is seen (surfaces::intersect::asphere_newton).
- * Returns DC_OK with *t_out, DC_MISSED or DC_NO_CONVERGENCE. */
-DC_FN dc_u32 dc_asphere_newton(const dc_step *s, dc_v3 p, dc_v3 d, double t0, double *t_out) {
-    double t = t0, lo = 0.0, hi = 0.0, f, fp;
-    int has_lo = 0, has_hi = 0;
-    for (int it = 0; it < 100; ++it) {
-        dc_asphere_eval(s, p, d, t, &f, &fp);
-        if (!DC_ISFINITE(f)) {
-            if (has_lo && has_hi) {
-                t = 0.5 * (lo + hi);
-                continue;
-            }
-            return DC_MISSED;
-        }
-        if (f == 0.0) {
-            *t_out = t;
-            return DC_OK;
-        }
-        if (f < 0.0) {
-            lo = t;
-            has_lo = 1;
-        } else {
-            hi = t;
-            has_hi = 1;
-        }
-        double next = t - f / fp;
-        if (has_lo && has_hi) {
-            double mn = lo < hi ? lo : hi, mx = lo < hi ? hi : lo;
-            if (!(next > mn && next < mx)) next = 0.5 * (lo + hi);
-            if ((mx - mn) <= 4.0 * DC_EPSILON * (1.0 + DC_FABS(t))) {
-                *t_out = next;
-                return DC_OK;
-            }
-        } else if (!DC_ISFINITE(next)) {
-            return DC_NO_CONVERGENCE;
-        }
-        if (DC_FABS(next - t) <= 1e-15 * (1.0 + DC_FABS(t))) {
-            double fn, fpn;
-            dc_asphere_eval(s, p, d, next, &fn, &fpn);
-            if (DC_ISFINITE(fn) && DC_FABS(fn) < 1e-9) {
-                *t_out = next;
-                return DC_OK;
-            }
-            return DC_NO_CONVERGENCE;
-        }
-        t = next;
-    }
-    dc_asphere_eval(s, p, d, t, &f, &fp);
-    if (DC_ISFINITE(f) && DC_FABS(f) < 1e-12) {
-        *t_out = t;
-        return DC_OK;
-    }
-    return DC_NO_CONVERGENCE;
-}
-
-/* The surface's intersection: DC_OK with the hit point and unit normal (toward local +z), or a failure. */
-DC_FN dc_u32 dc_intersect(const dc_step *s, dc_v3 p, dc_v3 d, dc_v3 *point, dc_v3 *normal) {
-    double t;
-    switch (s->shape) {
-    case DC_SHAPE_CONIC:
-        if (s->curvature != 0.0) {
-            if (!dc_conic_root(s->curvature, s->conic, p, d, &t)) return DC_MISSED;
-            *point = dc_add(p, dc_scale(d, t));
-            *normal = dc_normal(s, *point);
-            return DC_OK;
-        }
-        /* fallthrough - a flat conic is the plane */
-    case DC_SHAPE_PLANE:
-    case DC_SHAPE_PARAXIAL:
-        if (!dc_intersect_plane(p, d, &t, point)) return DC_MISSED;
-        *normal = dc_v3_make(0.0, 0.0, 1.0);
-        return DC_OK;
-    case DC_SHAPE_ASPHERE: {
-        /* Starts: the base conic's root, then the vertex plane's (see intersect.rs). */
-        double starts[2];
-        int ok[2];
-        dc_v3 q;
-        ok[0] = s->curvature != 0.0 && dc_conic_root(s->curvature, s->conic, p, d, &starts[0]);
-        ok[1] = dc_intersect_plane(p, d, &starts[1], &q);
-        dc_u32 result = DC_MISSED;
-        for (int k = 0; k < 2; ++k) {
-            if (!ok[k]) continue;
-            result = dc_asphere_newton(s, p, d, starts[k], &t);
-            if (result == DC_OK) break;
-        }
-        if (result != DC_OK) return result;
-        *point = dc_add(p, dc_scale(d, t));
-        *normal = dc_normal(s, *point);
-        if (!dc_v3_finite(*normal)) return DC_MISSED;
-        return DC_OK;
-    }
-    default: return DC_MISSED;
-    }
-}
-
-DC_FN int dc_aperture_contains(const dc_step *s, double x, double y) {
-    const double *a = s->aperture;
-    switch (s->aperture_kind) {
-    case DC_APERTURE_CIRCULAR: {
-        double u = x - a[2], v = y - a[3];
-        double r2 = u * u + v * v;
-        return r2 <= a[0] * a[0] && r2 >= a[1] * a[1];
-    }
-    case DC_APERTURE_RECTANGULAR: return DC_FABS(x - a[2]) <= a[0] && DC_FABS(y - a[3]) <= a[1];
-    default: return 1;
-    }
-}
-
-/* Vector Snell's law (tracer::kernel::refract); 0 on total internal reflection. */
-DC_FN int dc_refract(dc_v3 d, dc_v3 normal, double n1, double n2, dc_v3 *out) {
-    dc_v3 nrm = normal;
-    double cos_i = dc_dot(d, nrm);
-    if (cos_i < 0.0) {
-        nrm = dc_neg(nrm);
-        cos_i = -cos_i;
-    }
-    double mu = n1 / n2;
-    double k = 1.0 - mu * mu * (1.0 - cos_i * cos_i);
-    if (k < 0.0) return 0;
-    *out = dc_add(dc_scale(d, mu), dc_scale(nrm, DC_SQRT(k) - mu * cos_i));
-    return 1;
-}
-
-/* Zemax's Paraxial surface: tan′ = (n₁/n₂)·tan − h/f (tracer::kernel::paraxial_deflect). */
-DC_FN dc_v3 dc_paraxial_deflect(dc_v3 p, dc_v3 d, double f, double n1, double n2) {
-    double mu = n1 / n2;
-    double tx = mu * d.x / d.z - p.x / f;
-    double ty = mu * d.y / d.z - p.y / f;
-    dc_v3 v = dc_normalize(dc_v3_make(tx, ty, 1.0));
-    return d.z < 0.0 ? dc_neg(v) : v;
-}
+/* The trace in f64 (dc_intersect, dc_trace_step, dc_trace_path, ...) and in f32 (the same names + _f32). */
+#define DC_P f64
+#define DC_SFX
+#include "dc_trace_tmpl.h"
+#undef DC_P
+#undef DC_SFX
+#define DC_P f32
+#define DC_SFX _f32
+#include "dc_trace_tmpl.h"
+#undef DC_P
+#undef DC_SFX
 
 /* The unit vector along a finite, non-zero direction (tracer::kernel::unit_direction); 0 if invalid. */
 DC_FN int dc_unit_direction(dc_v3 d, dc_v3 *out) {
@@ -317,31 +79,9 @@ DC_FN int dc_unit_direction(dc_v3 d, dc_v3 *out) {
     return 1;
 }
 
-/* One step (tracer::kernel::trace_step): into the frame, intersect, clip, refract. `n` holds the index
- * after each surface. Returns DC_OK or the status at which the ray stopped. */
-DC_FN dc_u32 dc_trace_step(const dc_step *s, const double *n, dc_v3 *p, dc_v3 *d) {
-    dc_v3 off = dc_v3_make(s->offset[0], s->offset[1], s->offset[2]);
-    dc_v3 lp = dc_m3_mul(&s->rotation, dc_sub(*p, off));
-    dc_v3 ld = dc_m3_mul(&s->rotation, *d);
-    dc_v3 q, normal;
-    dc_u32 st = dc_intersect(s, lp, ld, &q, &normal);
-    if (st != DC_OK) return st;
-    if (!dc_aperture_contains(s, q.x, q.y)) return DC_VIGNETTED;
-    double n1 = n[s->surface - 1], n2 = n[s->surface];
-    if (s->shape == DC_SHAPE_PARAXIAL) {
-        ld = dc_paraxial_deflect(q, ld, s->focal_length, n1, n2);
-    } else if (n1 != n2) {
-        dc_v3 r;
-        if (!dc_refract(ld, normal, n1, n2, &r)) return DC_TIR;
-        ld = r;
-    }
-    *p = q;
-    *d = ld;
-    return DC_OK;
-}
-
-/* A whole ray: validate the input, then every step. On DC_OK, (p, d) are on the last surface in its
- * frame and *surface is DC_NO_SURFACE; otherwise *surface is where the ray stopped (0 for invalid input). */
+/* A whole ray in f64: validate the input (finite origin, unit_direction), then every step. On DC_OK, (p, d)
+ * are on the last surface in its frame and *surface is DC_NO_SURFACE; otherwise *surface is where the ray
+ * stopped (0 for invalid input). */
 DC_FN dc_u32 dc_trace_ray(const dc_step *path, dc_u32 n_steps, const double *n, dc_v3 *p, dc_v3 *d, dc_u32 *surface) {
     dc_v3 u;
     if (!dc_unit_direction(*d, &u) || !dc_v3_finite(*p)) {
@@ -349,15 +89,62 @@ DC_FN dc_u32 dc_trace_ray(const dc_step *path, dc_u32 n_steps, const double *n, 
         return DC_INVALID_INPUT;
     }
     *d = u;
-    for (dc_u32 i = 0; i < n_steps; ++i) {
-        dc_u32 st = dc_trace_step(&path[i], n, p, d);
-        if (st != DC_OK) {
-            *surface = path[i].surface;
-            return st;
-        }
+    return dc_trace_path(path, n_steps, n, p, d, surface);
+}
+
+/* ---- f32 inputs: the two rules of the Rust f32 paths (tracer::simd::block::LaneBlock) -------------------- */
+
+/* The largest origin coordinate an f32 ray accepts (`Real::MAX_INPUT_MM` for f32, 1 m: the origin rounds
+ * by ≤ 3e-5 mm); beyond it, or NaN-free but unbounded, the ray is an invalid input. */
+#define DC_F32_MAX_INPUT_MM 1e3
+
+/* LaneBlock::set_checked: p and a unit d (f64) rounded to f32, or 0 (invalid) when max|p| > 1 mm·1e3 (glam's
+ * max_element, NaN-ignoring as Rust's max). */
+DC_FN int dc_set_checked_f32(dc_v3 p, dc_v3 d, dc_v3_f32 *pf, dc_v3_f32 *df) {
+    if (!(dc_max(DC_FABS(p.x), dc_max(DC_FABS(p.y), DC_FABS(p.z))) <= DC_F32_MAX_INPUT_MM)) return 0;
+    *pf = dc_v3_make_f32((float)p.x, (float)p.y, (float)p.z);
+    *df = dc_v3_make_f32((float)d.x, (float)d.y, (float)d.z);
+    return 1;
+}
+
+/* The f32 tracer's rule (tracer::AnalyticF32Tracer): the f64 check and unit_direction, then set_checked, then
+ * the f32 trace. Outputs are the f32 results widened to f64. */
+DC_FN dc_u32 dc_trace_ray_f32(const dc_step *path, dc_u32 n_steps, const double *n, dc_v3 *p, dc_v3 *d, dc_u32 *surface) {
+    dc_v3 u;
+    dc_v3_f32 pf, df;
+    if (!dc_unit_direction(*d, &u) || !dc_v3_finite(*p) || !dc_set_checked_f32(*p, u, &pf, &df)) {
+        *surface = 0;
+        return DC_INVALID_INPUT;
     }
-    *surface = DC_NO_SURFACE;
-    return DC_OK;
+    dc_u32 st = dc_trace_path_f32(path, n_steps, n, &pf, &df, surface);
+    *p = dc_v3_make(pf.x, pf.y, pf.z);
+    *d = dc_v3_make(df.x, df.y, df.z);
+    return st;
+}
+
+/* The f32 renderer's rule (render::transport::trace_row_lanes_f32: LaneBlock::set_raw, then normalize_inputs):
+ * a direction whose largest component lies outside [1e-15, 1e15] is first divided by it (in f64), the origin
+ * is checked and both are rounded to f32 (set_checked), then the ray is checked (finite p and d, |d| > 0) and
+ * d divided by its length, in f32. */
+DC_FN dc_u32 dc_trace_ray_raw_f32(const dc_step *path, dc_u32 n_steps, const double *n, dc_v3 *p, dc_v3 *d, dc_u32 *surface) {
+    dc_v3 dd = *d;
+    dc_v3_f32 pf, df;
+    double m = dc_max(DC_FABS(dd.x), dc_max(DC_FABS(dd.y), DC_FABS(dd.z)));
+    if (!(m >= 1e-15 && m <= 1e15)) dd = dc_div(dd, m);
+    int ok = dc_set_checked_f32(*p, dd, &pf, &df);
+    if (ok) {
+        float len = sqrtf(dc_dot_f32(df, df));
+        ok = dc_v3_finite_f32(pf) && dc_v3_finite_f32(df) && len > 0.0f;
+        df = dc_div_f32(df, len);
+    }
+    if (!ok) {
+        *surface = 0;
+        return DC_INVALID_INPUT;
+    }
+    dc_u32 st = dc_trace_path_f32(path, n_steps, n, &pf, &df, surface);
+    *p = dc_v3_make(pf.x, pf.y, pf.z);
+    *d = dc_v3_make(df.x, df.y, df.z);
+    return st;
 }
 
 /* A batch of rays in structure-of-arrays form, the layout of `gpu::pack::Batch` (repr(C)). Ray i uses the
@@ -375,12 +162,26 @@ typedef struct {
     dc_u32 n_surfaces;
 } dc_batch;
 
-DC_FN void dc_trace_batch_ray(const dc_batch *b, dc_u64 i) {
+/* Which trace a launch runs: f64 (the scalar kernel), f32 with the f32 tracer's input rule, or f32 with the
+ * renderer's (dc_trace_ray, dc_trace_ray_f32, dc_trace_ray_raw_f32). */
+#define DC_TRACE_F64 0u
+#define DC_TRACE_F32 1u
+#define DC_TRACE_F32_RAW 2u
+
+DC_FN dc_u32 dc_trace_ray_as(dc_u32 mode, const dc_step *path, dc_u32 n_steps, const double *n, dc_v3 *p, dc_v3 *d, dc_u32 *surface) {
+    switch (mode) {
+    case DC_TRACE_F32: return dc_trace_ray_f32(path, n_steps, n, p, d, surface);
+    case DC_TRACE_F32_RAW: return dc_trace_ray_raw_f32(path, n_steps, n, p, d, surface);
+    default: return dc_trace_ray(path, n_steps, n, p, d, surface);
+    }
+}
+
+DC_FN void dc_trace_batch_ray(const dc_batch *b, dc_u64 i, dc_u32 mode) {
     dc_v3 p = dc_v3_make(b->ox[i], b->oy[i], b->oz[i]);
     dc_v3 d = dc_v3_make(b->dx[i], b->dy[i], b->dz[i]);
     dc_u32 surface = 0;
     const double *n = b->tables + (dc_u64)b->table_of_ray[i] * b->n_surfaces;
-    dc_u32 st = dc_trace_ray(b->path, b->n_steps, n, &p, &d, &surface);
+    dc_u32 st = dc_trace_ray_as(mode, b->path, b->n_steps, n, &p, &d, &surface);
     if (st != DC_OK) {
         p = dc_v3_make(0.0, 0.0, 0.0);
         d = p;

@@ -8,12 +8,24 @@
 
 extern "C" __global__ void dc_trace_kernel(dc_batch b) {
     dc_u64 i = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
-    if (i < b.n_rays) dc_trace_batch_ray(&b, i);
+    if (i < b.n_rays) dc_trace_batch_ray(&b, i, DC_TRACE_F64);
+}
+
+/* The f32 trace (tracer::AnalyticF32Tracer's numbers), f64 in and out. */
+extern "C" __global__ void dc_trace_f32_kernel(dc_batch b) {
+    dc_u64 i = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
+    if (i < b.n_rays) dc_trace_batch_ray(&b, i, DC_TRACE_F32);
 }
 
 extern "C" __global__ void dc_landing_kernel(dc_landing_batch b) {
     dc_u64 t = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
-    if (t < b.n_pixels * (dc_u64)b.sampler.rays) dc_landing_ray(&b, t, t);
+    if (t < b.n_pixels * (dc_u64)b.sampler.rays) dc_landing_ray(&b, t, t, 0);
+}
+
+/* The renderer's --precision f32 landings (render::transport::trace_row_lanes_f32). */
+extern "C" __global__ void dc_landing_f32_kernel(dc_landing_batch b) {
+    dc_u64 t = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
+    if (t < b.n_pixels * (dc_u64)b.sampler.rays) dc_landing_ray(&b, t, t, 1);
 }
 
 extern "C" __global__ void dc_footprint_size_kernel(const double *u, const double *v, dc_u32 n, dc_i64 det_w, dc_i64 det_h, dc_window *wins, dc_u64 n_pixels) {

@@ -6,16 +6,19 @@
  */
 #include "dc_accum.h"
 
-/* Trace rays [begin, end) of the batch: the body of the device kernel dc_trace_kernel, one ray a turn. */
-void dc_trace_batch_host(const dc_batch *b, dc_u64 begin, dc_u64 end) {
-    for (dc_u64 i = begin; i < end && i < b->n_rays; ++i) dc_trace_batch_ray(b, i);
+/* Trace rays [begin, end) of the batch: the body of the device kernels dc_trace_kernel (mode DC_TRACE_F64) and
+ * dc_trace_f32_kernel (DC_TRACE_F32), one ray a turn; DC_TRACE_F32_RAW is the landing kernel's f32 input rule,
+ * here so that the tests can give it constructed rays. */
+void dc_trace_batch_host(const dc_batch *b, dc_u64 begin, dc_u64 end, dc_u32 mode) {
+    for (dc_u64 i = begin; i < end && i < b->n_rays; ++i) dc_trace_batch_ray(b, i, mode);
 }
 
-/* Landings of rays [begin, end) of a plane launch: the body of dc_landing_kernel. Here b->u, b->v and
- * b->status point at the chunk's own outputs: ray t is written at t − begin. */
-void dc_landing_host(const dc_landing_batch *b, dc_u64 begin, dc_u64 end) {
+/* Landings of rays [begin, end) of a plane launch: the body of dc_landing_kernel (f32 = 0) and
+ * dc_landing_f32_kernel (f32 = 1). Here b->u, b->v and b->status point at the chunk's own outputs: ray t is
+ * written at t − begin. */
+void dc_landing_host(const dc_landing_batch *b, dc_u64 begin, dc_u64 end, int f32) {
     dc_u64 n = b->n_pixels * (dc_u64)b->sampler.rays;
-    for (dc_u64 t = begin; t < end && t < n; ++t) dc_landing_ray(b, t, t - begin);
+    for (dc_u64 t = begin; t < end && t < n; ++t) dc_landing_ray(b, t, t - begin, f32);
 }
 
 /* sizeof of the shared structs, so that the Rust side can check its repr(C) layouts. */
