@@ -21,9 +21,9 @@
 # The zig build is a cross build (`--target x86_64-unknown-linux-gnu`), so cargo keeps it in
 # $CARGO_TARGET_DIR/x86_64-unknown-linux-gnu/release, apart from the native build that `cargo test` and
 # `maturin develop` (scripts/test.sh) use in $CARGO_TARGET_DIR/release: neither invalidates the other, but none of
-# the test build is reused (another linker and C compiler). The first run compiles everything (41 min on the 2-core
-# dev machine with three other builds running; about a `cargo build --release` on an idle one), later runs only
-# what changed. zig's wrappers are named after the maturin that made them: a maturin from another venv rebuilds
+# the test build is reused (another linker and C compiler). The first run compiles everything (26–41 min on the
+# 2-core dev machine with other builds running; about a `cargo build --release` on an idle one), later runs only
+# what changed (36 s after a change in python/src). zig's wrappers are named after the maturin that made them: a maturin from another venv rebuilds
 # everything once, so this script always uses .venv's.
 #
 # Usage: bash scripts/build_wheel.sh [--out DIR]   (default dist/; older diffcassi wheels in DIR are removed)
