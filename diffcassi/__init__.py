@@ -23,7 +23,7 @@ import numpy as np
 from . import _native
 from ._errors import DiffcassiError, DiffcassiFileError, DiffcassiValueError
 from ._native import (Operator, System, Transport, get_limits, get_num_threads, jacobian, load_scene, mapping, read_exr,
-                      set_limits, set_num_threads, synthetic_scene, trace)
+                      set_limits, set_num_threads, synthetic_scene, trace, uplift_srgb)
 
 __version__: str = _native.__version__
 #: Whether the Embree backends (``embree-user``, ``embree-mesh``) were compiled in.
@@ -34,7 +34,7 @@ STATUS = {0: "ok", 1: "missed", 2: "vignetted", 3: "total internal reflection", 
           5: "invalid input", 6: "absorbed", 7: "bounce limit"}
 
 __all__ = [
-    "System", "Transport", "Operator", "exact", "metrics", "load_scene", "synthetic_scene", "trace", "spot", "distortion", "dispersion", "mapping", "jacobian", "render", "gpu_check",
+    "System", "Transport", "Operator", "exact", "metrics", "load_scene", "synthetic_scene", "uplift_srgb", "trace", "spot", "distortion", "dispersion", "mapping", "jacobian", "render", "gpu_check",
     "read_exr", "set_num_threads", "get_num_threads", "set_limits", "get_limits", "surfaces", "DiffcassiError", "DiffcassiValueError",
     "DiffcassiFileError", "STATUS", "EMBREE", "__version__",
 ]

@@ -11,9 +11,11 @@ Leaves are large and flat often enough for natural scenes' flat regions (the sma
 four leaves in ten are flat).
 
 A second kind, ``kind="rgb"``, paints the same geometry and textures with random *sRGB colours*, quantises them to
-8 bits and uplifts every pixel by Smits' RGB → spectrum method (:mod:`diffcassi.smits`, equal to the Rust uplift of
-``diffcassi.load_scene``): the spectra then lie on the same low-dimensional family as the evaluation scenes'
-(which are Smits uplifts of photographs), while no photograph is used.
+8 bits and uplifts every pixel by Smits' RGB → spectrum method (:func:`diffcassi.uplift_srgb`, the library's uplift,
+the one ``diffcassi.load_scene`` applies to a photograph): the spectra then lie on the same low-dimensional family as
+the evaluation scenes' (which are Smits uplifts of photographs), while no photograph is used. (Until the wheel made
+the extension installable everywhere, a NumPy transcription, ``diffcassi/smits.py``, did the uplift here; the
+library's gives bit-identical cubes, measured: src/recon/prior/MODEL.md, "Training data".)
 
 The spectra come only from measured reflectance sets shipped by the ``colour-science`` pip package (BSD-3; see
 :data:`SOURCES`): the ColorChecker (Ohta 1997, BabelColor average, ISO 17321-1), the PMC skin-tone patches, the
@@ -259,7 +261,7 @@ def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM,
     ``kind = "spectral"``: the leaves' colours are reflectances from the measured library (a palette of 3–10 per
     cube), the cube lit by a D65/A mixture (p = ``illuminant_probability``). ``kind = "rgb"``: the leaves are
     painted in encoded sRGB (a palette of 3–10 :func:`random_srgb` colours), blurred, quantised to 8 bits like a
-    PNG and uplifted per pixel by Smits' method (:mod:`diffcassi.smits`, the uplift of the evaluation scenes): the
+    PNG and uplifted per pixel by Smits' method (:func:`diffcassi.uplift_srgb`, the uplift of the evaluation scenes): the
     spectra then lie on the same family as those of uplifted photographs, without using any photograph.
 
     ``rmin_px`` (px) is the range of the per-cube smallest leaf radius and ``textures`` the probabilities of flat,
@@ -286,9 +288,10 @@ def dead_leaves(seed: int, size: int = 64, bands_nm: Sequence[float] = BANDS_NM,
         from scipy.ndimage import gaussian_filter
         cube = gaussian_filter(cube, sigma=(0.0, *(2 * [rng.uniform(0.5, 1.5)])), mode="reflect")
     if kind == "rgb":
-        from .smits import srgb_to_reflectance
+        from ._native import uplift_srgb
         srgb = np.round(np.clip(cube, 0.0, 1.0) * 255.0) / 255.0  # an 8-bit PNG's values
-        cube = srgb_to_reflectance(srgb, bands_nm).astype(np.float64)
+        srgb = np.ascontiguousarray(srgb.transpose(1, 2, 0), dtype=np.float32)  # (H, W, 3), as a PNG's values / 255
+        cube = uplift_srgb(srgb, [float(b) for b in bands_nm]).transpose(2, 0, 1).astype(np.float64)
     peak = cube.max()
     if not peak > 0:  # all-black leaves only (vanishingly rare): a flat cube
         return np.full(cube.shape, 1.0, dtype=np.float32)
@@ -308,5 +311,5 @@ def sources_manifest(bands_nm: Sequence[float] = BANDS_NM) -> Dict[str, object]:
     sets = [dict(s, spectra=names.count(s["name"])) for s in SOURCES]
     return {"generator": "diffcassi.deadleaves", "spectral_sets": sets, "illuminants": ILLUMINANTS + ["equal energy"],
             "rgb_leaves": {"colours": "random sRGB (diffcassi.deadleaves.random_srgb), 8-bit quantised",
-                           "uplift": "Smits 1999 with pbrt-v3 tables (diffcassi.smits, equal to src/scene/natural.rs)"},
+                           "uplift": "Smits 1999 with pbrt-v3 tables (diffcassi.uplift_srgb = src/scene/natural.rs)"},
             "kinds": list(KINDS), "image_files": [], "bands_nm": [float(b) for b in bands_nm]}

@@ -50,7 +50,7 @@ TRIXIE_SOURCES=/etc/apt/sources.list.d/diffcassi-trixie.sources
 TRIXIE_PREFERENCES=/etc/apt/preferences.d/diffcassi-trixie
 
 # --- Python package (docs/python.md) -------------------------------------------------------
-# A venv under the repository (.venv/) with maturin, numpy, scipy, pytest and PyTorch (PyPI's default wheel;
+# A venv under the repository (.venv/) with maturin, ziglang, numpy, scipy, pytest and PyTorch (PyPI's default wheel;
 # DIFFCASSI_TORCH=skip leaves torch out and the torch tests then SKIP with the reason); DIFFCASSI_PYTHON=skip
 # skips the whole venv. Silent when everything is there.
 REPO_ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
@@ -64,8 +64,9 @@ python_setup() {
     fi
     # module=pip-name where they differ. The learned denoiser (docs/reconstruction.md, src/recon/prior/MODEL.md)
     # needs safetensors (its weights files) and colour-science (BSD-3: the measured reflectances of its training data);
-    # rayoptics is the independent .zmx reader of tests/python/test_zmx.py.
-    local want=(maturin numpy scipy pytest rayoptics)
+    # rayoptics is the independent .zmx reader of tests/python/test_zmx.py. ziglang: the linker of the portable
+    # wheel (scripts/build_wheel.sh: `maturin --zig`, glibc 2.28 symbols; maturin supports zig < 0.13).
+    local want=(maturin numpy scipy pytest rayoptics "ziglang=ziglang<0.13")
     [[ "${DIFFCASSI_TORCH:-install}" == skip ]] || want+=(torch safetensors colour=colour-science)
     local missing_py=()
     for m in "${want[@]}"; do

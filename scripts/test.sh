@@ -54,4 +54,7 @@ if [[ "${DIFFCASSI_PYTHON:-install}" != skip ]]; then
     VIRTUAL_ENV="$PWD/.venv" PATH="$PWD/.venv/bin:$PATH" .venv/bin/maturin develop --release --quiet
     .venv/bin/python -m pytest -q tests/python
     echo "test.sh: Python package built and tested in $((SECONDS - py_start)) s"
+    # The installable wheel (docs/python.md, "Installing the wheel"): scripts/build_wheel.sh → dist/, installed
+    # with `pip install --no-deps` into a fresh venv; its quickstart must equal the one of the package above.
+    bash tests/wheel/run.sh
 fi

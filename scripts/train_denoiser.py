@@ -45,8 +45,9 @@ Recipe (src/recon/prior/MODEL.md states the run's numbers):
   alike), ``--workers N`` processes making the coming steps' cubes (the same cubes as one process makes),
   ``--new-per-step`` cubes per step (the batch is 4× that), ``--init-spectral`` (a new network of any width that
   starts from another file's E, D and G), ``--sel-floor`` (an absolute Gaussian floor for the pair rule) and
-  ``--keep-every`` (checkpoints to choose among elsewhere). The script needs only the package's pure-Python
-  modules, so it runs where the Rust extension is not built.
+  ``--keep-every`` (checkpoints to choose among elsewhere). The script needs the ``diffcassi`` package with its
+  extension (the RGB leaves' uplift is the library's); on a machine without Rust install the wheel
+  (``bash scripts/build_wheel.sh`` here, then ``pip install --no-deps dist/diffcassi-*.whl`` there).
 
 Every random choice derives from ``--seed`` and the step, so a resumed run continues exactly as the uninterrupted
 one would; ``--minutes`` only caps the wall time of this invocation (the schedule depends on the step alone).
@@ -69,25 +70,6 @@ import torch.nn.functional as F
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-
-def _package_without_extension() -> None:
-    """The training needs only the package's pure-Python modules (``deadleaves``, ``denoiser``, ``_training``).
-    On a machine where the Rust extension is not built (a GPU machine without a Rust toolchain, a wheel for another
-    Python), register the package without running its ``__init__`` (which imports the extension)."""
-    try:
-        import diffcassi  # noqa: F401
-    except ImportError as e:
-        if "_native" not in str(e):
-            raise
-        import types
-        pkg = types.ModuleType("diffcassi")
-        pkg.__path__ = [str(ROOT / "diffcassi")]
-        sys.modules["diffcassi"] = pkg
-        print("train_denoiser: the diffcassi extension is not built here; using its pure-Python modules",
-              file=sys.stderr)
-
-
-_package_without_extension()
 
 from diffcassi.deadleaves import BANDS_NM, dead_leaves, sources_manifest  # noqa: E402
 from diffcassi.denoiser import ARCH, SpectralUNet, from_v1, load_weights, save_weights  # noqa: E402

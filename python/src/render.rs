@@ -395,6 +395,37 @@ fn load_scene<'py>(py: Python<'py>, path: std::path::PathBuf, wavelengths_nm: Op
     Ok((output(py, cube.data, &[h, w, b])?, cube.wavelengths_nm))
 }
 
+/// Smits' RGB → reflectance uplift of an encoded sRGB image ((H, W, 3) float32 in [0, 1], e.g. an 8-bit PNG's
+/// values / 255): the library's `scene::natural::rgb_scene`, the uplift `load_scene` applies to a `.png`
+/// photograph (so `uplift_srgb(png / 255) == load_scene(png)` bit for bit). Values are linearised through the
+/// library's 16-bit table (exact for 8- and 16-bit sources). Returns (H, W, B) float32 reflectances in
+/// [0, 1] at `wavelengths_nm` (default 28 bands 450–650 nm, which must lie in 380–720 nm). Single-threaded.
+#[pyfunction]
+#[pyo3(signature = (srgb, wavelengths_nm = None))]
+fn uplift_srgb<'py>(py: Python<'py>, srgb: &Bound<'py, PyAny>, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
+    let ws = match wavelengths_nm {
+        Some(w) => f64_list("wavelengths_nm", w)?,
+        None => diffcassi::analysis::linspace(450.0, 650.0, 28),
+    };
+    if ws.is_empty() || ws.len() > diffcassi::limits::MAX_WAVELENGTHS {
+        return Err(value_error(format!("wavelengths_nm: {} values; give 1..={}", ws.len(), diffcassi::limits::MAX_WAVELENGTHS)));
+    }
+    let a: Input<f32> = input("srgb", srgb, "float32", 3, "(H, W, 3)")?;
+    let (h, w, c) = (a.shape[0], a.shape[1], a.shape[2]);
+    if c != 3 || h == 0 || w == 0 {
+        return Err(value_error(format!("srgb: expected shape (H, W, 3) with H, W ≥ 1, got {:?}", a.shape)));
+    }
+    let values = a.slice();
+    check_finite("srgb", values, &a.shape)?;
+    if let Some(i) = values.iter().position(|v| !(0.0..=1.0).contains(v)) {
+        let idx = [i / (3 * w), (i / 3) % w, i % 3];
+        return Err(value_error(format!("srgb: value {} at index {idx:?} is outside [0, 1] (encoded sRGB; clip it first)", values[i])));
+    }
+    let image = diffcassi::scene::natural::RgbImage { height: h, width: w, srgb: values.to_vec() };
+    let cube = run(py, || diffcassi::scene::natural::rgb_scene(&image, &ws)).py()?;
+    output(py, cube.data, &[h, w, ws.len()])
+}
+
 /// The CLI's synthetic demo scene of `seed` ((H, W, B) float32 at `wavelengths_nm`, default the 31 bands
 /// 400–700 nm the CLI uses): (cube, wavelengths_nm).
 #[pyfunction]
@@ -464,6 +495,7 @@ fn check_scene_file_memory(path: &std::path::Path, bands: Option<usize>) -> PyRe
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(load_scene, m)?)?;
     m.add_function(wrap_pyfunction!(synthetic_scene, m)?)?;
+    m.add_function(wrap_pyfunction!(uplift_srgb, m)?)?;
     m.add_function(wrap_pyfunction!(_render, m)?)?;
     m.add_function(wrap_pyfunction!(_gpu_check, m)?)?;
     m.add_function(wrap_pyfunction!(_gpu_kernel_source, m)?)?;

@@ -4,8 +4,6 @@ disjoint, the committed weights load, a tiny training run writes a valid checkpo
 weights files give clear errors. Tiny sizes only (the suite stays fast)."""
 import json
 import pathlib
-import struct
-import zlib
 
 import numpy as np
 import pytest
@@ -51,9 +49,11 @@ def test_rgb_dead_leaves_deterministic_in_range_and_unlike_spectral():
     # Every spectrum lies on Smits' family: the uplift's piecewise-linear map of an 8-bit sRGB colour, rescaled
     # by the cube's peak. Smits' white is flat, so a grey leaf gives a flat spectrum; in general the spectra span
     # at most the 7 basis spectra (rank ≤ 7 of 28 bands).
-    from diffcassi.smits import basis_at
+    import diffcassi
     spectra = np.concatenate([deadleaves.dead_leaves(s, size=24, kind="rgb").reshape(28, -1) for s in range(6)], 1)
-    basis = basis_at(deadleaves.BANDS_NM)
+    # The 7 basis spectra (× 0.94, clamped to [0, 1]): the uplifts of white, cyan, magenta, yellow, red, green, blue.
+    corners = np.array([[[1, 1, 1], [0, 1, 1], [1, 0, 1], [1, 1, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]], np.float32)
+    basis = diffcassi.uplift_srgb(corners, list(deadleaves.BANDS_NM))[0]  # (7, 28)
     coef, *_ = np.linalg.lstsq(basis.T, spectra, rcond=None)
     resid = spectra - basis.T @ coef
     assert np.abs(resid).max() < 0.02  # clamping at 0 of the basis' small negative lobes only
@@ -61,35 +61,6 @@ def test_rgb_dead_leaves_deterministic_in_range_and_unlike_spectral():
     spec = deadleaves.dead_leaves(3, size=24).reshape(28, -1)
     coef, *_ = np.linalg.lstsq(basis.T, spec, rcond=None)
     assert np.abs(spec - basis.T @ coef).max() > 0.02
-
-
-def _write_png(path, rgb8):
-    """A minimal 8-bit RGB PNG writer (zlib + struct; no imaging package needed)."""
-    h, w, _ = rgb8.shape
-    raw = b"".join(b"\x00" + rgb8[y].tobytes() for y in range(h))
-
-    def chunk(tag, data):
-        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data) & 0xFFFFFFFF)
-    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0))
-                     + chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b""))
-
-
-def test_numpy_smits_uplift_equals_the_rust_uplift(tmp_path):
-    import diffcassi
-    from diffcassi.smits import srgb_to_reflectance
-    rng = np.random.default_rng(5)
-    img = rng.integers(0, 256, (20, 30, 3), dtype=np.uint8)
-    # Every branch of Smits' case analysis, ties, black, white and the sRGB curve's linear segment.
-    img[0, :9] = [[0, 0, 0], [255, 255, 255], [10, 10, 10], [200, 50, 50], [50, 200, 50], [50, 50, 200],
-                  [200, 200, 50], [50, 200, 200], [200, 50, 200]]
-    _write_png(tmp_path / "rgb.png", img)
-    for bands in (deadleaves.BANDS_NM, np.linspace(400, 700, 31)):
-        want, _ = diffcassi.load_scene(tmp_path / "rgb.png", list(bands))
-        got = srgb_to_reflectance(img.transpose(2, 0, 1) / 255.0, bands).transpose(1, 2, 0)
-        assert got.dtype == np.float32 and got.shape == np.asarray(want).shape
-        assert np.abs(got - np.asarray(want)).max() <= 1e-6
-    with pytest.raises(ValueError, match="outside the Smits uplift's range"):
-        srgb_to_reflectance(np.zeros((3, 1, 1)), [370.0, 500.0])
 
 
 def test_reflectance_library_is_measured_and_plausible():
@@ -144,7 +115,7 @@ def test_training_sources_and_evaluation_scenes_disjoint():
     # The generator reads no file at all: its code (docstrings aside) opens nothing and loads no scene or image.
     assert set(manifest["kinds"]) == {"spectral", "rgb"}
     import ast
-    for module in ("deadleaves", "smits"):  # the generator and the uplift it uses for RGB leaves
+    for module in ("deadleaves",):  # the generator (its RGB leaves' uplift is the library's, diffcassi.uplift_srgb)
         tree = ast.parse((ROOT / f"diffcassi/{module}.py").read_text())
         names = {n.id for n in ast.walk(tree) if isinstance(n, ast.Name)} | \
             {n.attr for n in ast.walk(tree) if isinstance(n, ast.Attribute)}
@@ -374,8 +345,8 @@ def test_numpy_tv_matches_its_definition():
 def _orange_constant(size=24):
     """A constant cube of a saturated orange (retina's mean colour, sRGB ≈ (0.97, 0.45, 0.2)) uplifted by Smits'
     method: the case of round 5's diagnosis (src/recon/prior/MODEL.md)."""
-    from diffcassi.smits import srgb_to_reflectance
-    spec = srgb_to_reflectance(np.array([0.97, 0.45, 0.2]).reshape(3, 1, 1), deadleaves.BANDS_NM)[:, 0, 0]
+    import diffcassi
+    spec = diffcassi.uplift_srgb(np.array([[[0.97, 0.45, 0.2]]], np.float32), list(deadleaves.BANDS_NM))[0, 0]
     return torch.from_numpy(np.ascontiguousarray(
         np.broadcast_to((spec / spec.max())[:, None, None], (len(spec), size, size)), dtype=np.float32))[None]
 
