@@ -77,12 +77,29 @@ def find_ptxas():
                      lambda c: os.access(c, os.X_OK))
 
 
-def nvrtc_compile(lib_path):
+def amalgamated():
+    """device.cu with every `#include "…"` replaced by the file's text where it stands (the guarded headers skip
+    themselves, the templates expand per include): what gpu::ptx::amalgamated_source gives the launcher's
+    NVRTC fallback and the GPU check's `nvcc -ptx`."""
+    def expand(name, depth):
+        if depth > 16:
+            sys.exit("build_ptx: kernel includes nested too deep")
+        out = []
+        with open(os.path.join(KERNELS, name)) as f:
+            for line in f.read().splitlines():
+                m = re.fullmatch(r'\s*#include "([^"]+)"\s*', line)
+                out.extend(expand(m.group(1), depth + 1) if m else [line])
+        return out
+    return ("\n".join(expand("device.cu", 0)) + "\n").encode()
+
+
+def nvrtc_compile(lib_path, src=None):
     lib = ctypes.CDLL(lib_path)
     major, minor = ctypes.c_int(), ctypes.c_int()
     lib.nvrtcVersion(ctypes.byref(major), ctypes.byref(minor))
-    with open(os.path.join(KERNELS, "device.cu"), "rb") as f:
-        src = f.read()
+    if src is None:
+        with open(os.path.join(KERNELS, "device.cu"), "rb") as f:
+            src = f.read()
     prog = ctypes.c_void_p()
     err = lib.nvrtcCreateProgram(ctypes.byref(prog), ctypes.c_char_p(src), b"device.cu", 0, None, None)
     if err != 0:
@@ -135,6 +152,11 @@ def main():
         return 0
     digest = source_hash()
     ptx, version = nvrtc_compile(nvrtc)
+    # The one-file form the launcher falls back to (a driver older than this NVRTC) must give the same PTX.
+    one_file, _ = nvrtc_compile(nvrtc, amalgamated())
+    if one_file != ptx:
+        sys.exit("build_ptx: the amalgamated kernel source (the launcher's fallback) compiles to another PTX than device.cu")
+    print("build_ptx: the amalgamated kernel source (the launcher's NVRTC/nvcc fallback) compiles to the same PTX")
     text = header(digest, version) + ptx
     with tempfile.TemporaryDirectory() as tmp:
         path = os.path.join(tmp, "trace.ptx")
