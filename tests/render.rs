@@ -584,12 +584,11 @@ fn cli_render_bad_input_is_a_clear_error() {
         (vec!["render", "--preset", "sp", "--sampling", "sobol"], "sobol"),
         (vec!["render", "--preset", "sp", "--kernel", "vector"], "vector"),
         (vec!["render", "--preset", "nope"], "nope"),
-        (vec!["render-dataset", "--preset", "sp", "--scenes", "/nonexistent", "--out", "/tmp/x"], "/nonexistent"),
+        (vec!["render-dataset", "--preset", "sp", "--scenes", "/nonexistent"], "/nonexistent"),
     ];
     for (mut args, needle) in cases {
-        if args[0] == "render" {
-            args.extend(["--out", out.to_str().unwrap()]);
-        }
+        // A fresh --out in the test's own folder (never a shared path such as /tmp/x, which may hold files).
+        args.extend(["--out", out.to_str().unwrap()]);
         let o = run(&args);
         assert_eq!(o.status.code(), Some(1), "{args:?}");
         let e = String::from_utf8_lossy(&o.stderr);
