@@ -446,12 +446,10 @@ fn bench_gpu(renderer: &Renderer, scene: &SpectralCube, cpu: &crate::render::Acq
     let t = Instant::now();
     let (b, rec) = render_on(renderer, scene, false, Executor::Cuda)?;
     let wall = t.elapsed().as_secs_f64();
-    let same = a.image.iter().zip(&b.image).all(|(x, y)| x.to_bits() == y.to_bits()) && a.stats == b.stats;
-    let peak = cpu.image.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let diff = b.image.iter().zip(&cpu.image).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    let same = a.same_bits(&b);
     let kernels_s = rec.kernels_ms.unwrap_or(0.0) / 1e3;
     row(&format!("acquisition, GPU {} f64, kernels only (CUDA events)", rec.gpu.clone().unwrap_or_default()), kernels_s, b.stats.traced);
-    row(&format!("acquisition, GPU f64 with plan, uploads and copy back (max |Δ| vs CPU {:.1e} of the peak; two runs bit-identical: {})", if peak > 0.0 { diff / peak } else { 0.0 }, if same { "yes" } else { "NO" }), wall, b.stats.traced);
+    row(&format!("acquisition, GPU f64 with plan, uploads and copy back (max |Δ| vs CPU {:.1e} of the peak; two runs bit-identical: {})", b.max_diff_of_peak(cpu), if same { "yes" } else { "NO" }), wall, b.stats.traced);
     println!("(GPU: {}, driver {}, {}; {})", rec.gpu.unwrap_or_default(), rec.driver.unwrap_or_default(), rec.ptx.unwrap_or_default(), rec.accumulation);
     if !same {
         return Err(Error::invalid("bench-render --device cuda: two GPU runs of the same render differ (the accumulation must be deterministic)"));

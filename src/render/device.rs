@@ -177,9 +177,10 @@ pub fn render_on(r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, execu
         return Err(Error::invalid(format!("internal: the device render produced a non-finite value at detector pixel {bad}")));
     }
     let npix = plan.detector_pixels();
-    let bands = out.bands.as_ref().map(|b| b.chunks(npix.max(1)).map(|c| c.to_vec()).collect());
+    let stats = stats(&out, traced);
+    let bands = out.bands.map(|b| b.chunks(npix.max(1)).map(|c| c.to_vec()).collect());
     let timings = Timings { wall_seconds: t0.elapsed().as_secs_f64(), ..Timings::default() };
-    Ok((Acquisition { detector: r.detector, image: out.image.clone(), bands, stats: stats(&out, traced), timings }, record))
+    Ok((Acquisition { detector: r.detector, image: out.image, bands, stats, timings }, record))
 }
 
 /// Render on the device a setting names: the CPU renderer for [`Device::Cpu`] (no record), the GPU kernels on
@@ -239,18 +240,15 @@ pub fn check(r: &Renderer<'_>, scene: &SpectralCube, twin: bool) -> Result<Devic
     let t = std::time::Instant::now();
     let (b, rec) = render_on(r, scene, false, Executor::Cuda)?;
     let gpu_total_ms = t.elapsed().as_secs_f64() * 1e3;
-    let bits = |x: &Acquisition, y: &Acquisition| x.image.iter().zip(&y.image).all(|(p, q)| p.to_bits() == q.to_bits()) && x.stats == y.stats;
-    let runs_bit_identical = bits(&a, &b);
+    let runs_bit_identical = a.same_bits(&b);
     let t = std::time::Instant::now();
     let cpu = r.render(scene, false, &|_| {})?;
     let cpu_seconds = t.elapsed().as_secs_f64();
-    let peak = cpu.image.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    let rel = |x: &[f64], y: &[f64]| x.iter().zip(y).map(|(p, q)| (p - q).abs()).fold(0.0, f64::max) / if peak > 0.0 { peak } else { 1.0 };
-    let cpu_max_rel_diff = rel(&b.image, &cpu.image);
+    let cpu_max_rel_diff = b.max_diff_of_peak(&cpu);
     let (twin_bit_identical, twin_seconds) = if twin {
         let t = std::time::Instant::now();
         let (tw, _) = render_on(r, scene, false, Executor::Twin)?;
-        (Some(bits(&tw, &b)), Some(t.elapsed().as_secs_f64()))
+        (Some(tw.same_bits(&b)), Some(t.elapsed().as_secs_f64()))
     } else {
         (None, None)
     };

@@ -170,6 +170,17 @@ impl Acquisition {
     pub fn image_f32(&self) -> Vec<f32> {
         self.image.iter().map(|&v| v as f32).collect()
     }
+    /// Whether `other` has this acquisition's bits: every image value and every ray count.
+    pub fn same_bits(&self, other: &Acquisition) -> bool {
+        self.image.len() == other.image.len() && self.image.iter().zip(&other.image).all(|(a, b)| a.to_bits() == b.to_bits()) && self.stats == other.stats
+    }
+    /// max |self − reference| over the image, as a fraction of the reference's peak |value| (the absolute
+    /// difference when the reference is black).
+    pub fn max_diff_of_peak(&self, reference: &Acquisition) -> f64 {
+        let peak = reference.image.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let diff = self.image.iter().zip(&reference.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        if peak > 0.0 { diff / peak } else { diff }
+    }
 }
 
 impl<'a> Renderer<'a> {
