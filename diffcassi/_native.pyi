@@ -64,8 +64,9 @@ def trace(system: System, origins: F64, directions: F64, wavelengths_nm: F64, ba
     """{positions (N, 3) mm, directions (N, 3), status (N,) uint8 (0 = ok), surface (N,) uint32}, image frame."""
 
 def mapping(system: System, height: int, width: int, wavelengths_nm: Sequence[float], pitch_mm: float = 0.01,
-            backend: str = "analytic") -> Tuple[F64, npt.NDArray[np.bool_]]:
-    """Chief-ray mapping cube: positions (H, W, L, 2) detector mm, valid (H, W, L)."""
+            backend: str = "analytic", device: str = "cpu", precision: str = "f64") -> Tuple[F64, npt.NDArray[np.bool_]]:
+    """Chief-ray mapping cube: positions (H, W, L, 2) detector mm, valid (H, W, L). device "cuda" (or
+    "cpu-twin") traces with the GPU kernels, precision "f32" with the f32 kernel."""
 
 def jacobian(system: System, parameters: Union[str, Sequence[str]], origins: F64, directions: F64, wavelengths_nm: F64,
              backend: str = "analytic") -> Dict[str, Any]:

@@ -471,8 +471,12 @@ fn _dispersion(py: Python<'_>, system: &PySystem, field_mm: Vec<f64>, wavelength
 }
 
 /// The chief-ray mapping cube: positions (H, W, L, 2) float64 detector mm and valid (H, W, L) bool.
+/// `device` "cuda" traces the chief rays with the GPU trace kernels (`mapping --device cuda`), "cpu-twin" with
+/// the same kernels on the CPU; `precision` "f32" with the f32 kernels. A device other than the CPU takes
+/// the default backend only.
 #[pyfunction]
-#[pyo3(signature = (system, height, width, wavelengths_nm, pitch_mm = 0.01, backend = "analytic"))]
+#[pyo3(signature = (system, height, width, wavelengths_nm, pitch_mm = 0.01, backend = "analytic", device = "cpu", precision = "f64"))]
+#[allow(clippy::too_many_arguments)]
 fn mapping<'py>(
     py: Python<'py>,
     system: &PySystem,
@@ -481,7 +485,14 @@ fn mapping<'py>(
     wavelengths_nm: &Bound<'py, PyAny>,
     pitch_mm: f64,
     backend: &str,
+    device: &str,
+    precision: &str,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<bool>>)> {
+    let dev = device.parse::<diffcassi::render::Device>().map_err(|_| value_error(format!("device `{device}`: use \"cpu\", \"cuda\" or \"cpu-twin\"")))?;
+    let prec = precision.parse::<diffcassi::tracer::Precision>().map_err(|_| value_error(format!("precision `{precision}`: use \"f64\" or \"f32\"")))?;
+    if (dev != diffcassi::render::Device::Cpu || prec != diffcassi::tracer::Precision::F64) && backend != "analytic" {
+        return Err(value_error(format!("device=\"{device}\", precision=\"{precision}\": the GPU kernels and the f32 kernel trace on their own; backend=\"{backend}\" cannot be combined with them")));
+    }
     let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
     let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
     // The CLI's checks and budgets (`diffcassi mapping`), before anything is allocated.
@@ -494,7 +505,11 @@ fn mapping<'py>(
     let what = format!("height × width × wavelengths_nm ({height} × {width} × {})", ws.len());
     diffcassi::limits::check_memory(&what, diffcassi::limits::bytes_mapping(height, width, ws.len())).py()?;
     diffcassi::limits::check_rays(&what, height as f64 * width as f64 * ws.len() as f64).py()?;
-    let t = tracer(backend)?;
+    let t = if dev == diffcassi::render::Device::Cpu && prec == diffcassi::tracer::Precision::F64 {
+        tracer(backend)?
+    } else {
+        dev.tracer(prec).map_err(|e| value_error(format!("device=\"{device}\": {e}")))?
+    };
     let sys = Arc::clone(&system.inner);
     let l = ws.len();
     let cube = run(py, move || analysis::mapping_cube(&sys, t.as_ref(), height, width, pitch_mm, &ws)).py()?;

@@ -8,6 +8,7 @@ opening 0.5) rendered on the CUDA device twice, on the CPU, and through the GPU 
   - the middle plane's rays land on the device where the host kernels land them (≤ 1e-12 mm, same statuses);
   - the GPU within the CPU renderer's own f32 rounding of it (≤ 2e-6 of the peak, tests/gpu_render.rs).
 The same in f32 (the renderer's f32 trace; within 1e-4 of the CPU's f32 render, landings identical). The
+chief-ray mapping cube (`mapping --device cuda`) in f64 and f32 must equal the CPU's bit for bit. The
 time (kernels, and with uploads) is reported against the goal of 0.1 s.
 
     python scripts/gpu/render_check.py [--size 512] [--planes 112] [--rays 20] [--no-twin] [--out DIR]
@@ -39,6 +40,22 @@ def main() -> int:
     r32 = diffcassi.gpu_check(system, cube, wl, twin=False, planes=a.planes, rays=a.rays, opening=0.5, precision="f32")
     r["f32"] = r32
     r["workload"] = f"{a.preset}, {a.size}x{a.size}, {a.planes} planes, {a.rays} rays, opening 0.5"
+    # mapping --device cuda: the chief-ray cube (size² pixels × 28 bands) by the device's trace kernel, against
+    # the CPU's (bit for bit: the kernel is the twin's, which equals the scalar kernel in f64 and the f32 lane
+    # kernel in f32; tests/gpu_twin.rs).
+    import numpy as np
+    bands = list(np.linspace(450.0, 650.0, 28))
+    r["mapping"] = {}
+    for prec in ("f64", "f32"):
+        t = time.time()
+        cpu, cpu_ok = diffcassi.mapping(system, a.size, a.size, bands, precision=prec)
+        cpu_s = time.time() - t
+        diffcassi.mapping(system, 8, 8, bands, device="cuda", precision=prec)  # the launcher started, untimed
+        t = time.time()
+        gpu, gpu_ok = diffcassi.mapping(system, a.size, a.size, bands, device="cuda", precision=prec)
+        gpu_s = time.time() - t
+        same = bool(np.array_equal(cpu_ok, gpu_ok) and np.array_equal(cpu.view(np.uint64), gpu.view(np.uint64)))
+        r["mapping"][prec] = {"cpu_seconds": cpu_s, "gpu_seconds": gpu_s, "bit_identical": same, "entries": int(cpu_ok.size)}
     rays = r["rays"]
     k_s, t_s = r["gpu_kernels_ms"] / 1e3, r["gpu_total_ms"] / 1e3
     rows = [
@@ -62,6 +79,10 @@ def main() -> int:
          f"{r['landing_rays']}, {r['landing_max_diff_mm']:.2e}, {r['landing_status_mismatches']}", "≤ 1e-12 mm, 0"),
         ("accumulation", r["accumulation"], ""),
     ]
+    for prec, m in r["mapping"].items():
+        rows.append((f"mapping {prec} ({m['entries']} chief rays): GPU (with uploads) / CPU",
+                     f"{m['gpu_seconds']:.3f} s / {m['cpu_seconds']:.3f} s", ""))
+        rows.append((f"mapping {prec}: GPU = CPU bit for bit", str(m["bit_identical"]), "must be True"))
     print("| render check | value | bound |")
     print("|---|---|---|")
     for w, v, b in rows:
@@ -81,6 +102,9 @@ def main() -> int:
         failed.append("the GPU f32 render is farther than 1e-4 of the peak from the CPU's f32 render")
     if r32["landing_status_mismatches"] != 0 or not r32["landing_max_diff_mm"] <= 0.0:
         failed.append("f32 device landings differ from the host's")
+    for prec, m in r["mapping"].items():
+        if not m["bit_identical"]:
+            failed.append(f"the {prec} mapping cube on the GPU differs from the CPU's")
     r["failed"] = failed
     if a.out:
         os.makedirs(a.out, exist_ok=True)

@@ -540,8 +540,15 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
     let what = format!("--height × --width × --wavelengths-nm ({} × {} × {})", a.height, a.width, ws.len());
     crate::limits::check_memory(&what, crate::limits::bytes_mapping(a.height, a.width, ws.len()))?;
     crate::limits::check_rays(&what, a.height as f64 * a.width as f64 * ws.len() as f64)?;
+    let device: crate::render::Device = a.device.parse()?;
     let system = load_system(&a.system)?;
     let (tracer, stride) = match a.precision {
+        _ if device != crate::render::Device::Cpu => {
+            if a.backend.backend.is_some() || a.backend.tolerance_um.is_some() {
+                return Err(Error::invalid(format!("--device {device} traces with the GPU kernels; it cannot be combined with --backend or --tolerance-um")));
+            }
+            (device.tracer(a.precision.unwrap_or_default())?, 1)
+        }
         Some(crate::tracer::Precision::F32) => {
             if a.backend.backend.is_some() || a.backend.tolerance_um.is_some() {
                 return Err(Error::invalid("--precision f32 traces with the analytic f32 kernel; it cannot be combined with --backend or --tolerance-um"));

@@ -10,10 +10,12 @@
 //! `nvcc -ptx` from [`super::ptx::amalgamated_source`]); then the machine's own NVRTC on the embedded
 //! sources. Every failure is an error naming each attempt, never a panic: the driver is probed first
 //! ([`super::probe`]) because cudarc panics when a library is absent.
-use super::pack::Step;
+use super::pack::{self, Batch, Step};
 use super::plan::{PlanOutput, RenderPlan, BLOCK, STATUS_SLOTS};
 use super::{probe, CudaInfo};
 use crate::error::{Error, Result};
+use crate::system::SequentialSystem;
+use crate::tracer::{RaySlices, TracedBatch};
 use cudarc::driver::{result as cu, sys};
 use std::ffi::{c_void, CString};
 use std::sync::OnceLock;
@@ -21,6 +23,8 @@ use std::sync::OnceLock;
 /// The loaded module and its kernels, on the first device's primary context.
 struct Launcher {
     ctx: sys::CUcontext,
+    trace: sys::CUfunction,
+    trace_f32: sys::CUfunction,
     landing: sys::CUfunction,
     landing_f32: sys::CUfunction,
     deposit: sys::CUfunction,
@@ -116,7 +120,7 @@ fn start() -> std::result::Result<Launcher, String> {
             ));
         };
         let f = |name: &str| cu::module::get_function(module, CString::new(name).expect("kernel name")).map_err(|e| cuda_err(&format!("cuModuleGetFunction({name})"), e));
-        Ok(Launcher { ctx, landing: f("dc_landing_kernel")?, landing_f32: f("dc_landing_f32_kernel")?, deposit: f("dc_deposit_kernel")?, airy: f("dc_airy_kernel")?, finish: f("dc_finish_kernel")?, info, source })
+        Ok(Launcher { ctx, trace: f("dc_trace_kernel")?, trace_f32: f("dc_trace_f32_kernel")?, landing: f("dc_landing_kernel")?, landing_f32: f("dc_landing_f32_kernel")?, deposit: f("dc_deposit_kernel")?, airy: f("dc_airy_kernel")?, finish: f("dc_finish_kernel")?, info, source })
     }
 }
 
@@ -293,4 +297,65 @@ pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, 
     launch(if plan.f32 { l.landing_f32 } else { l.landing }, n as u64, &mut [arg(&b)])?;
     cu::ctx::synchronize().map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("the landing kernel", e))))?;
     Ok((d_u.read(n)?, d_v.read(n)?, d_s.read(n)?))
+}
+
+/// Trace `rays` through `system` on the device, one thread a ray: `dc_trace_kernel`, or `dc_trace_f32_kernel`
+/// when `f32`, the kernels [`super::TwinTracer`] runs on the host, hence its numbers ray for ray (the
+/// [`super::CudaTracer`] behind `mapping --device cuda`).
+pub fn trace(system: &SequentialSystem, rays: RaySlices<'_>, f32: bool) -> Result<TracedBatch> {
+    let l = launcher()?;
+    // SAFETY: the context was retained by the launcher.
+    unsafe { cu::ctx::set_current(l.ctx) }.map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("cuCtxSetCurrent", e))))?;
+    let steps = pack::steps(system)?;
+    let tables = pack::index_tables(system, rays.wavelength_nm())?;
+    let n = rays.len();
+    // Inputs: six f64 columns and a table row per ray; outputs: six f64 columns, a status byte, a surface.
+    let bytes = std::mem::size_of_val(steps.as_slice()) + tables.tables.len() * 8 + n * (6 * 8 + 4) + n * (6 * 8 + 1 + 4);
+    let (free, _) = cu::mem_get_info().map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("cuMemGetInfo", e))))?;
+    if bytes > free {
+        return Err(Error::invalid(format!("CUDA: tracing {n} rays needs {:.2} GB on the device, {:.2} GB are free", bytes as f64 / 1e9, free as f64 / 1e9)));
+    }
+    let d_steps = DeviceBuffer::from(&steps)?;
+    let d_tables = DeviceBuffer::from(&tables.tables)?;
+    let d_tor = DeviceBuffer::from(&tables.table_of_ray)?;
+    let inputs = [rays.origin_x, rays.origin_y, rays.origin_z, rays.dir_x, rays.dir_y, rays.dir_z];
+    let d_in = inputs.iter().map(|c| DeviceBuffer::from(c)).collect::<Result<Vec<_>>>()?;
+    let d_out = (0..6).map(|_| DeviceBuffer::zeroed(n * 8)).collect::<Result<Vec<_>>>()?;
+    let d_status = DeviceBuffer::zeroed(n)?;
+    let d_surface = DeviceBuffer::zeroed(n * 4)?;
+    let b = Batch {
+        path: d_steps.ptr as *const Step,
+        tables: d_tables.ptr as *const f64,
+        table_of_ray: d_tor.ptr as *const u32,
+        ox: d_in[0].ptr as *const f64,
+        oy: d_in[1].ptr as *const f64,
+        oz: d_in[2].ptr as *const f64,
+        dx: d_in[3].ptr as *const f64,
+        dy: d_in[4].ptr as *const f64,
+        dz: d_in[5].ptr as *const f64,
+        x: d_out[0].ptr as *mut f64,
+        y: d_out[1].ptr as *mut f64,
+        z: d_out[2].ptr as *mut f64,
+        ux: d_out[3].ptr as *mut f64,
+        uy: d_out[4].ptr as *mut f64,
+        uz: d_out[5].ptr as *mut f64,
+        status: d_status.ptr as *mut u8,
+        surface: d_surface.ptr as *mut u32,
+        n_rays: n as u64,
+        n_steps: steps.len() as u32,
+        n_surfaces: tables.n_surfaces as u32,
+    };
+    launch(if f32 { l.trace_f32 } else { l.trace }, n as u64, &mut [arg(&b)])?;
+    cu::ctx::synchronize().map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("the trace kernel", e))))?;
+    let mut out = TracedBatch::zeroed(n);
+    out.x = d_out[0].read(n)?;
+    out.y = d_out[1].read(n)?;
+    out.z = d_out[2].read(n)?;
+    out.dir_x = d_out[3].read(n)?;
+    out.dir_y = d_out[4].read(n)?;
+    out.dir_z = d_out[5].read(n)?;
+    out.surface = d_surface.read(n)?;
+    out.status = d_status.read::<u8>(n)?.into_iter().map(super::ffi::status_of).collect();
+    out.classify_out_of_range(system.surfaces.len().saturating_sub(1) as u32);
+    Ok(out)
 }

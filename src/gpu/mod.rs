@@ -19,6 +19,7 @@
 //! assert_eq!(twin.status, rust.status);
 //! ```
 pub mod cuda;
+mod cuda_tracer;
 pub mod device;
 pub(crate) mod ffi;
 pub(crate) mod pack;
@@ -26,5 +27,6 @@ pub mod plan;
 pub mod ptx;
 mod twin;
 
+pub use cuda_tracer::CudaTracer;
 pub use device::{probe, require_cuda, CudaInfo, DeviceError};
 pub use twin::TwinTracer;

@@ -55,6 +55,21 @@ impl Device {
         }
     }
 
+    /// The tracer of a command's own batches of rays (the chief-ray cube of `mapping`) on this device, in
+    /// `precision`: the analytic tracer on the CPU, the GPU kernels' host twin on `CpuTwin`, and on `Cuda`
+    /// the same kernels launched on the device ([`crate::gpu::CudaTracer`]; an error naming what is missing,
+    /// via [`Device::check`], where there is none).
+    pub fn tracer(self, precision: Precision) -> Result<Box<dyn crate::tracer::Tracer>> {
+        match self {
+            Device::Cpu => precision.tracer(Kernel::default()),
+            Device::CpuTwin => Ok(Box::new(crate::gpu::TwinTracer { precision, ..Default::default() })),
+            Device::Cuda => {
+                self.check()?;
+                Ok(Box::new(crate::gpu::CudaTracer { precision }))
+            }
+        }
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             Device::Cpu => "cpu",

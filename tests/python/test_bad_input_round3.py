@@ -244,6 +244,25 @@ def test_device_cpu_twin_and_cuda_without_a_gpu(sp):
         diffcassi.Transport(sp, 8, 8, device="tpu", **SMALL)
 
 
+def test_mapping_on_the_gpu_kernels(sp):
+    """mapping(device="cpu-twin"): the GPU trace kernels on the CPU give the CPU's cube bit for bit (f64) and
+    the f32 lane kernel's (f32); "cuda" without a GPU, an unknown device and a backend beside a device are
+    refused by name."""
+    ws = [450.0, 550.0, 650.0]
+    for precision in ("f64", "f32"):
+        a, va = diffcassi.mapping(sp, 6, 7, ws, pitch_mm=3.0, precision=precision)
+        b, vb = diffcassi.mapping(sp, 6, 7, ws, pitch_mm=3.0, device="cpu-twin", precision=precision)
+        assert va.any() and not va.all()  # the outer pixels' chief rays do not arrive
+        assert np.array_equal(va, vb) and np.array_equal(a.view(np.uint64), b.view(np.uint64)), precision
+    if not _has_cuda_driver():
+        with pytest.raises(diffcassi.DiffcassiValueError, match='device="cuda": .*(NVIDIA driver|CUDA device)'):
+            diffcassi.mapping(sp, 4, 4, ws, device="cuda")
+    with pytest.raises(diffcassi.DiffcassiValueError, match="device `tpu`"):
+        diffcassi.mapping(sp, 4, 4, ws, device="tpu")
+    with pytest.raises(diffcassi.DiffcassiValueError, match='backend="embree-user" cannot be combined'):
+        diffcassi.mapping(sp, 4, 4, ws, device="cpu-twin", backend="embree-user")
+
+
 def test_conflicting_render_keywords_are_refused(sp):
     cube = random_cube(8, 8, 4)
     with pytest.raises(diffcassi.DiffcassiValueError, match="airy=False with airy_diameter_px"):
