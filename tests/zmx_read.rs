@@ -184,7 +184,8 @@ fn skipped_records_are_listed_and_unmodelled_ones_refused() {
 /// The acceptance file: rayoptics' US 5,331,467 (a catadioptric camera lens; `GCAT SCHOTT HIKARI OHARA
 /// SUMITA_AUG2011`) read as it is, with no user catalogue: every glass resolves to a built-in catalogue and
 /// its index at the d line equals the vendor's printed n_d (the `nd` of the vendor's Zemax catalogue, as the
-/// refractiveindex.info page records it in PROPERTIES) to half a unit of its last printed decimal. The object
+/// refractiveindex.info page records it in PROPERTIES) to half a unit of its last printed decimal (OHARA,
+/// HIKARI, SCHOTT; SUMITA's to one unit). The object
 /// at infinity and the two mirrors of the file come with the other items of issue 42; its tracing is tested
 /// there.
 #[test]
@@ -215,7 +216,10 @@ fn ohara_hikari_sumita_lens_file_resolves_with_builtin_catalogues() {
             c.merge(GlassCatalog::from_entry(e).unwrap());
         }
         let n = c.get(name).unwrap().refractive_index(D_LINE_NM).unwrap();
-        let tol = 0.5 * 10f64.powi(-decimals(printed));
+        // Half a unit of the last printed decimal; SUMITA's formulas are up to one unit off their own printed
+        // n_d (K-SFLD6: 1.8051889 for 1.80518), as the vendor publishes them.
+        let units = if cat == "SUMITA" { 1.0 } else { 0.5 };
+        let tol = units * 10f64.powi(-decimals(printed));
         assert!((n - o.nd).abs() <= tol, "{name}: n_d {n} vs printed {printed}");
         if cat != "SCHOTT" {
             assert_eq!(o.entry, format!("builtin:{cat}"), "{name}");
