@@ -105,7 +105,7 @@ mod tests {
         let c = catalog("SCHOTT").unwrap().unwrap();
         let b = GlassCatalog::builtin();
         for g in b.iter() {
-            assert_eq!(**c.get(&g.name).unwrap(), **g);
+            assert_eq!(*c.get(&g.name).unwrap(), **g);
         }
         assert!(c.contains("N-LAK22"));
     }
