@@ -221,8 +221,62 @@ pub(super) fn info(a: InfoArgs) -> Result<()> {
         println!("{}", crate::spec::to_json(&system.spec)?);
     } else {
         print!("{}", lde_table(&system));
+        print!("{}", glass_table(&system, &a.system)?);
+        if let Some(path) = a.system.system.as_ref().filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"))) {
+            let imported = crate::spec::zmx::import_zmx_file(path, &crate::spec::zmx::ZmxOptions::default())?;
+            print!("{}", zmx_report(path, &imported));
+        }
     }
     Ok(())
+}
+
+/// Where each glass comes from: catalogue, formula, n_d, the catalogue entry and the source.
+fn glass_table(system: &SequentialSystem, args: &super::args::SystemArgs) -> Result<String> {
+    use std::fmt::Write as _;
+    let extra: Vec<String> = args.glass_catalogs.iter().map(|p| p.display().to_string()).collect();
+    let origins = crate::spec::zmx::glass_origins(&system.spec, &extra)?;
+    let mut s = String::new();
+    if origins.is_empty() {
+        return Ok(s);
+    }
+    let _ = writeln!(s, "\nglasses (surface, glass, catalogue, formula, catalogue n_d, from, source):");
+    for o in &origins {
+        let _ = writeln!(s, "{:>3} {:<14} {:<8} {:<22} {:<10} {}  {}", o.surface, o.name, o.catalog, o.formula, o.nd, o.entry, o.source);
+    }
+    Ok(s)
+}
+
+/// What `info` adds for a `.zmx` file: its encoding, catalogue notes and the records skipped as carrying no optics.
+fn zmx_report(path: &Path, imported: &crate::spec::zmx::ZmxImport) -> String {
+    use std::fmt::Write as _;
+    let mut s = String::new();
+    let _ = writeln!(s, "\n{}: {}", path.display(), imported.encoding.label());
+    for n in &imported.notes {
+        let _ = writeln!(s, "note: {n}");
+    }
+    let _ = writeln!(s, "{}", skipped_list(&imported.skipped));
+    s
+}
+
+/// The skipped records grouped by keyword: `  VERS ×1 (line 2): file and editor settings`.
+pub(super) fn skipped_list(skipped: &[crate::spec::zmx::Unsupported]) -> String {
+    use std::fmt::Write as _;
+    let mut s = format!("skipped, no optics ({} records):", skipped.len());
+    let mut groups: Vec<(&str, &str, Vec<usize>)> = Vec::new();
+    for u in skipped {
+        match groups.iter_mut().find(|g| g.0 == u.keyword && g.1 == u.reason) {
+            Some(g) => g.2.push(u.line),
+            None => groups.push((&u.keyword, &u.reason, vec![u.line])),
+        }
+    }
+    for (k, reason, lines) in groups {
+        let mut shown: Vec<String> = lines.iter().take(6).map(|l| l.to_string()).collect();
+        if lines.len() > 6 {
+            shown.push("…".into());
+        }
+        let _ = write!(s, "\n  {k} ×{} (line {}): {reason}", lines.len(), shown.join(", "));
+    }
+    s
 }
 
 pub(super) fn export_spec(a: ExportArgs) -> Result<()> {

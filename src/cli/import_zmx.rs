@@ -13,7 +13,7 @@ use std::path::PathBuf;
 
 #[derive(Args, Debug)]
 pub struct ImportZmxArgs {
-    /// The .zmx file (UTF-16 with byte-order mark, UTF-8 or ASCII).
+    /// The .zmx file (UTF-16 with byte-order mark, UTF-8 with or without BOM, ASCII or ANSI Windows-1252).
     pub input: PathBuf,
     /// Output spec: .toml or .json (or .zmx, rewritten by diffcassi).
     #[arg(long)]
@@ -46,7 +46,7 @@ pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
     // Build it before writing: a file that imports but does not make a traceable system writes nothing.
     let mut catalog = crate::materials::GlassCatalog::builtin();
     for p in &imported.spec.glass_catalogs {
-        catalog.merge(crate::materials::GlassCatalog::from_agf_file(p)?);
+        catalog.merge(crate::materials::GlassCatalog::from_entry(p)?);
     }
     crate::system::SequentialSystem::build_with_catalog(&imported.spec, &catalog)?;
     crate::spec::save_spec_file(&imported.spec, &a.out)?;
@@ -55,6 +55,15 @@ pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
         for u in &imported.ignored {
             eprintln!("  {u}");
         }
+    }
+    for n in &imported.notes {
+        println!("note: {n}");
+    }
+    for o in &imported.glasses {
+        println!("glass `{}` (line {}, surface {}): {} {}, n_d {}, from {}", o.name, o.line, o.surface, o.catalog, o.formula, o.nd, o.entry);
+    }
+    if !imported.skipped.is_empty() {
+        println!("{}", super::commands::skipped_list(&imported.skipped));
     }
     println!(
         "imported {} ({} surfaces, {} fields, {} wavelengths) → {}",

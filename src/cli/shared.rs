@@ -41,7 +41,7 @@ pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
     let spec = load_spec(args)?;
     let mut catalog = GlassCatalog::builtin();
     for path in spec.glass_catalogs.iter().map(PathBuf::from).chain(args.glass_catalogs.iter().cloned()) {
-        catalog.merge(GlassCatalog::from_agf_file(&path)?);
+        catalog.merge(GlassCatalog::from_entry(&path)?);
     }
     SequentialSystem::build_with_catalog(&spec, &catalog)
 }

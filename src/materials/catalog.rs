@@ -89,6 +89,28 @@ impl GlassCatalog {
         Self::from_agf_bytes(&bytes, &shown)
     }
 
+    /// One entry of a spec's `glass_catalogs`: `builtin:NAME` is a built-in vendor catalogue
+    /// ([`super::builtin_catalogs`]), anything else the path of an AGF file ([`from_agf_file`](Self::from_agf_file)).
+    ///
+    /// # Errors
+    /// [`MaterialError::Io`] naming the entry for an unknown built-in name (listing the built-in ones) or an
+    /// unreadable file; parse errors as for a file.
+    pub fn from_entry(entry: impl AsRef<Path>) -> Result<Self, MaterialError> {
+        let entry = entry.as_ref();
+        match entry.to_str().and_then(super::builtin_catalogs::entry_name) {
+            Some(name) => super::builtin_catalogs::catalog(name).unwrap_or_else(|| {
+                Err(MaterialError::Io {
+                    path: entry.display().to_string(),
+                    message: format!(
+                        "no built-in glass catalogue `{name}` (built in: {})",
+                        super::builtin_catalogs::names().collect::<Vec<_>>().join(", ")
+                    ),
+                })
+            }),
+            None => Self::from_agf_file(entry),
+        }
+    }
+
     /// Parses AGF text; `source_name` is used in error messages and (file stem) as the
     /// catalogue name.
     pub fn from_agf_str(text: &str, source_name: &str) -> Result<Self, MaterialError> {

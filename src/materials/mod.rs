@@ -8,6 +8,8 @@
 //! * [`glass`] holds one catalogue entry ([`Glass`]) with its valid wavelength range,
 //! * [`catalog`] stores glasses by case-insensitive name ([`GlassCatalog`]), including a
 //!   small built-in table so the binary works without any catalogue file,
+//! * [`builtin_catalogs`] embeds the SCHOTT, OHARA, HOYA, CDGM, SUMITA and HIKARI optical glasses
+//!   (converted from the refractiveindex.info database, CC0), loaded by name (`builtin:OHARA`),
 //! * [`medium`] is what a surface of the ray tracer refracts into ([`Medium`]).
 //!
 //! All public wavelengths are in **nanometres** (`wavelength_nm`); the conversion to the
@@ -39,6 +41,7 @@
 //! ```
 
 pub mod agf;
+pub mod builtin_catalogs;
 pub mod catalog;
 pub mod dispersion;
 pub mod glass;

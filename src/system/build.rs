@@ -16,7 +16,7 @@ impl SequentialSystem {
     pub fn build(spec: &SystemSpec) -> Result<Self> {
         let mut catalog = GlassCatalog::builtin();
         for path in &spec.glass_catalogs {
-            catalog.merge(GlassCatalog::from_agf_file(path)?);
+            catalog.merge(GlassCatalog::from_entry(path)?);
         }
         Self::build_with_catalog(spec, &catalog)
     }

@@ -59,7 +59,7 @@ impl RenderRecord {
         let spec: crate::spec::SystemSpec = serde_json::from_value(field(&json, &jp, "system_spec")?.clone()).map_err(|e| ferr(&jp, format!("field `system_spec`: {e}")))?;
         let mut catalog = crate::materials::GlassCatalog::builtin();
         for p in &spec.glass_catalogs {
-            catalog.merge(crate::materials::GlassCatalog::from_agf_file(Path::new(p))?);
+            catalog.merge(crate::materials::GlassCatalog::from_entry(Path::new(p))?);
         }
         let system = SequentialSystem::build_with_catalog(&spec, &catalog)?;
         // Every field is checked against the limits `render` applies, naming the field and its value, and the

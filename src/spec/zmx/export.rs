@@ -76,7 +76,11 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
     let _ = writeln!(w, "ENVD 20 1 0");
     let mut gcat = vec!["SCHOTT".to_string()];
     for p in &spec.glass_catalogs {
-        let stem = std::path::Path::new(p).file_stem().and_then(|s| s.to_str()).unwrap_or("").to_ascii_uppercase();
+        // `builtin:OHARA` (a built-in catalogue) is OHARA in OpticStudio's list; a file is its stem.
+        let stem = match crate::materials::builtin_catalogs::entry_name(p) {
+            Some(n) => n.to_ascii_uppercase(),
+            None => std::path::Path::new(p).file_stem().and_then(|s| s.to_str()).unwrap_or("").to_ascii_uppercase(),
+        };
         if !stem.is_empty() && !gcat.contains(&stem) {
             gcat.push(stem);
         }

@@ -1,12 +1,18 @@
 //! The glass catalogues a `.zmx` file names (`GCAT SCHOTT OHARA …`) and the check that every `GLAS` of
 //! the file is found in them.
 //!
-//! A catalogue `NAME` is looked up as `NAME.AGF` (any case) in the `.zmx` file's folder and in the folders
-//! of the `DIFFCASSI_GLASS_DIR` environment variable (separated like `PATH`) or of the caller's list;
-//! every catalogue found is recorded in the spec's `glass_catalogs`. The built-in SCHOTT subset (N-BK7,
-//! N-SK2, N-SF10, N-BAF10, SF10, SK10) is always there. A glass found nowhere is an error naming its line,
-//! and which catalogues were missing.
-use crate::materials::GlassCatalog;
+//! A catalogue `NAME` is looked up as `NAME.AGF` (any case) in the caller's folders, the `.zmx` file's
+//! folder and the folders of the `DIFFCASSI_GLASS_DIR` environment variable (separated like `PATH`); every
+//! catalogue found is recorded in the spec's `glass_catalogs`. The built-in SCHOTT subset (N-BK7, N-SK2,
+//! N-SF10, N-BAF10, SF10, SK10) is always there. A glass found in neither is looked up in the built-in
+//! vendor catalogues ([`crate::materials::builtin_catalogs`]: SCHOTT, OHARA, HOYA, CDGM, SUMITA, HIKARI)
+//! that stand in for the `GCAT` names not found as files (`SUMITA_AUG2011` → SUMITA, said in a note), the
+//! first in `GCAT` order that holds it; the catalogues so used are recorded as `builtin:NAME` entries, before
+//! the files (a user's file wins over a built-in copy), so the built system resolves every glass the way it
+//! was resolved here (checked). A glass found nowhere is an error naming its line, surface and name, and
+//! which catalogues were missing.
+use crate::materials::{builtin_catalogs, Glass, GlassCatalog};
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 /// Find `NAME.AGF` (case-insensitive file name) in the folders.
@@ -36,11 +42,206 @@ pub(super) fn search_dirs(source: Option<&Path>, extra: &[PathBuf]) -> Vec<PathB
     dirs
 }
 
-/// Load the built-ins plus the catalogue files.
-pub(super) fn load(paths: &[String]) -> Result<GlassCatalog, String> {
-    let mut catalog = GlassCatalog::builtin();
-    for p in paths {
-        catalog.merge(GlassCatalog::from_agf_file(p).map_err(|e| format!("glass catalogue {p}: {e}"))?);
+/// Where one glass of a file (or spec) comes from.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GlassOrigin {
+    /// Line of the `GLAS` record (0 when not from a `.zmx` file).
+    pub line: usize,
+    /// Surface number.
+    pub surface: usize,
+    /// The glass name as written.
+    pub name: String,
+    /// The catalogue the glass belongs to (`OHARA`).
+    pub catalog: String,
+    /// The `glass_catalogs` entry it was taken from (`builtin:OHARA`, a file path), or `built-in SCHOTT subset`.
+    pub entry: String,
+    /// Its dispersion formula (`Schott (AGF 1)`).
+    pub formula: String,
+    /// The catalogue's n_d.
+    pub nd: f64,
+    /// For a built-in vendor glass: the database page and vendor catalogue it was converted from, and the
+    /// database commit; for a file: the file.
+    pub source: String,
+}
+
+/// The label of glasses that come from [`GlassCatalog::builtin`].
+pub const SUBSET: &str = "built-in SCHOTT subset";
+
+/// The catalogue name an entry stands for: `builtin:OHARA` → OHARA, `/x/ohara.agf` → OHARA.
+fn entry_catalog_name(entry: &str) -> String {
+    match builtin_catalogs::entry_name(entry) {
+        Some(n) => n.to_ascii_uppercase(),
+        None => Path::new(entry).file_stem().and_then(|s| s.to_str()).unwrap_or("").to_ascii_uppercase(),
     }
-    Ok(catalog)
+}
+
+/// Loaded entries, each once.
+#[derive(Default)]
+pub(super) struct Loaded(HashMap<String, GlassCatalog>);
+
+impl Loaded {
+    fn get(&mut self, entry: &str) -> Result<&GlassCatalog, String> {
+        if !self.0.contains_key(entry) {
+            let c = GlassCatalog::from_entry(entry).map_err(|e| format!("glass catalogue {entry}: {e}"))?;
+            self.0.insert(entry.to_string(), c);
+        }
+        Ok(&self.0[entry])
+    }
+
+    /// The built-in subset plus the entries, merged as the system build merges them (later wins).
+    fn merged(&mut self, entries: &[String]) -> Result<GlassCatalog, String> {
+        let mut c = GlassCatalog::builtin();
+        for e in entries {
+            c.merge(self.get(e)?.clone());
+        }
+        Ok(c)
+    }
+}
+
+/// The origin of glass `name` in the catalogue built from `entries` (the last entry holding the same glass).
+pub fn origin(entries: &[String], name: &str, line: usize, surface: usize) -> Result<Option<GlassOrigin>, String> {
+    let mut loaded = Loaded::default();
+    origin_in(&mut loaded, entries, name, line, surface)
+}
+
+fn origin_in(loaded: &mut Loaded, entries: &[String], name: &str, line: usize, surface: usize) -> Result<Option<GlassOrigin>, String> {
+    let merged = loaded.merged(entries)?;
+    let Some(g) = merged.find(name).cloned() else { return Ok(None) };
+    let mut entry = SUBSET.to_string();
+    for e in entries.iter().rev() {
+        if loaded.get(e)?.find(name).is_some_and(|h| **h == *g) {
+            entry = e.clone();
+            break;
+        }
+    }
+    let source = if builtin_catalogs::entry_name(&entry).is_some() && !g.info.comment.is_empty() {
+        format!("{} ({})", g.info.comment, builtin_catalogs::SOURCE)
+    } else if entry == SUBSET {
+        "typed in from SCHOTT.AGF (December 2024)".to_string()
+    } else {
+        entry.clone()
+    };
+    Ok(Some(GlassOrigin { line, surface, name: name.to_string(), catalog: g.catalog.clone(), entry, formula: formula_label(&g), nd: g.nd, source }))
+}
+
+fn formula_label(g: &Glass) -> String {
+    format!("{} (AGF {})", g.formula.name(), g.formula.agf_number())
+}
+
+/// The catalogues of a file and where each of its glasses comes from.
+pub(super) struct Resolution {
+    /// The spec's `glass_catalogs`.
+    pub entries: Vec<String>,
+    pub glasses: Vec<GlassOrigin>,
+    pub notes: Vec<String>,
+}
+
+/// Resolve the glasses `uses` = (line, surface, name) of a file with `GCAT` names `gcat` (and its line) and
+/// diffcassi's own `DCGC` entries; errors name the line, surface and glass.
+pub(super) fn resolve(
+    gcat: Option<&(usize, Vec<String>)>,
+    dcgc: &[String],
+    uses: &[(usize, usize, String)],
+    dirs: &[PathBuf],
+) -> Result<Resolution, String> {
+    let mut loaded = Loaded::default();
+    let mut files: Vec<String> = dcgc.to_vec();
+    let mut missing: Vec<String> = Vec::new();
+    // (GCAT name, built-in catalogue) for the names found as no file, in GCAT order.
+    let mut stand_ins: Vec<(String, &'static str)> = Vec::new();
+    for n in gcat.map(|g| g.1.as_slice()).unwrap_or(&[]) {
+        if files.iter().any(|p| entry_catalog_name(p).eq_ignore_ascii_case(n)) {
+            continue;
+        }
+        match find_catalog(n, dirs) {
+            Some(p) => files.push(p.display().to_string()),
+            None => match builtin_catalogs::standing_in_for(n) {
+                Some(b) => stand_ins.push((n.clone(), b)),
+                None => missing.push(n.clone()),
+            },
+        }
+    }
+    let base = loaded.merged(&files)?;
+    // Glasses in no file nor the subset: the first stand-in (GCAT order) that holds them.
+    let mut used: Vec<usize> = Vec::new();
+    for (line, surface, name) in uses {
+        if base.contains(name) {
+            continue;
+        }
+        let mut found = false;
+        for (k, (_, b)) in stand_ins.iter().enumerate() {
+            if loaded.get(&format!("{}{b}", builtin_catalogs::ENTRY_PREFIX))?.contains(name) {
+                if !used.contains(&k) {
+                    used.push(k);
+                }
+                found = true;
+                break;
+            }
+        }
+        if !found {
+            let gl = gcat.map(|g| format!(" (`GCAT` line {})", g.0)).unwrap_or_default();
+            let loaded_list: String = files.iter().map(|p| format!(", {p}")).collect();
+            let builtins: Vec<String> = stand_ins.iter().map(|s| format!("built-in {}", s.1)).collect();
+            let looked = if builtins.is_empty() { String::new() } else { format!(", {}", builtins.join(", ")) };
+            let why = if missing.is_empty() {
+                "no catalogue of the file holds it".to_string()
+            } else {
+                format!(
+                    "the file's catalogue(s) {} were not found{gl} and are not built in (built in: {}): put {} in {} or set DIFFCASSI_GLASS_DIR",
+                    missing.join(", "),
+                    builtin_catalogs::names().collect::<Vec<_>>().join(", "),
+                    missing.iter().map(|m| format!("{m}.AGF")).collect::<Vec<_>>().join(", "),
+                    dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(", ")
+                )
+            };
+            return Err(format!(
+                "line {line} `GLAS`: glass `{name}` of surface {surface} is in none of the loaded catalogues ({SUBSET}{loaded_list}{looked}): {why}"
+            ));
+        }
+    }
+    used.sort_unstable();
+    // Built-ins first (the first in GCAT order last, so it wins among them), then the files.
+    let mut builtin_entries: Vec<String> = used.iter().rev().map(|&k| format!("{}{}", builtin_catalogs::ENTRY_PREFIX, stand_ins[k].1)).collect();
+    let chosen = |loaded: &mut Loaded, entries: &[String]| -> Result<Vec<Option<Glass>>, String> {
+        let m = loaded.merged(entries)?;
+        Ok(uses.iter().map(|u| m.find(&u.2).map(|g| (**g).clone())).collect())
+    };
+    let want: Vec<Option<Glass>> = {
+        let w = chosen(&mut loaded, &files)?;
+        let mut full: Vec<String> = builtin_entries.clone();
+        full.extend(files.iter().cloned());
+        let f = chosen(&mut loaded, &full)?;
+        // A glass the subset or a file resolved keeps that glass; the others take the built-in's.
+        w.into_iter().zip(f).map(|(a, b)| a.or(b)).collect()
+    };
+    let mut entries: Vec<String> = builtin_entries.iter().cloned().chain(files.iter().cloned()).collect();
+    if !builtin_entries.is_empty() && chosen(&mut loaded, &entries)? != want {
+        // A built-in shadows a glass of the subset (HIKARI's SF10 over SCHOTT's): the built-in SCHOTT (the
+        // subset over the converted SCHOTT glasses) on top of the built-ins puts it back.
+        builtin_entries.retain(|e| !entry_catalog_name(e).eq_ignore_ascii_case("SCHOTT"));
+        builtin_entries.push(format!("{}SCHOTT", builtin_catalogs::ENTRY_PREFIX));
+        entries = builtin_entries.iter().cloned().chain(files.iter().cloned()).collect();
+    }
+    let got = chosen(&mut loaded, &entries)?;
+    if got != want {
+        let k = got.iter().zip(&want).position(|(a, b)| a != b).unwrap_or(0);
+        return Err(format!(
+            "line {} `GLAS`: glass `{}` of surface {} is in more than one of the file's catalogues with different data ({}), and the spec's catalogue list cannot keep OpticStudio's choice: give it in one catalogue file only",
+            uses[k].0, uses[k].2, uses[k].1, entries.join(", ")
+        ));
+    }
+    let mut notes = Vec::new();
+    for &k in &used {
+        let (n, b) = &stand_ins[k];
+        if !n.eq_ignore_ascii_case(b) {
+            notes.push(format!("`GCAT {n}`: no {n}.AGF found; the built-in {b} catalogue stands in for it"));
+        }
+    }
+    let mut glasses = Vec::new();
+    for (line, surface, name) in uses {
+        if let Some(o) = origin_in(&mut loaded, &entries, name, *line, *surface)? {
+            glasses.push(o);
+        }
+    }
+    Ok(Resolution { entries, glasses, notes })
 }

@@ -1,11 +1,15 @@
 //! Decoding and tokenising a `.zmx` file: the encodings OpticStudio writes and one record per line.
 //!
-//! OpticStudio writes `.zmx` as UTF-16 LE with a byte-order mark (current versions) or as ASCII / UTF-8
-//! (older versions, and files written by other tools). A record is a line: a keyword (`SURF`, `CURV`,
-//! `GLAS`…) followed by whitespace-separated arguments; an argument in double quotes may hold spaces.
-//! Anything else is refused with a message naming the problem: UTF-16 without a byte-order mark (the NUL
-//! bytes of every other byte give it away), a binary file (NUL bytes, or bytes that are not UTF-8), a file
-//! with no record at all.
+//! OpticStudio writes `.zmx` as UTF-16 LE with a byte-order mark (current versions), as ANSI text in the
+//! Windows code page (older versions: Windows-1252 in western locales) or as ASCII; other tools write UTF-8.
+//! [`decode`] reads, in this order: UTF-16 LE or BE with a byte-order mark; UTF-8 with or without its BOM
+//! (`EF BB BF`); and any other text, whose bytes are not valid UTF-8, as Windows-1252 (so `°`, `µ`, `é` of
+//! an ANSI `NOTE` or `COMM` come out as written; [`TextEncoding`] says which one was used). A record is a
+//! line: a keyword (`SURF`, `CURV`, `GLAS`…) followed by whitespace-separated arguments; an argument in
+//! double quotes may hold spaces. Refused, with a message naming the problem: UTF-16 without a byte-order
+//! mark (the NUL bytes of every other byte give it away), a binary file (a NUL byte anywhere, or control
+//! characters other than tab, CR, LF and form feed — in Windows-1252 also the five undefined bytes
+//! 0x81, 0x8D, 0x8F, 0x90, 0x9D), a file with no record at all.
 //!
 //! ```
 //! use diffcassi::spec::zmx::lexer::{decode, records};
@@ -30,10 +34,43 @@ pub struct Record {
     pub args: Vec<String>,
     /// The text after the keyword, verbatim (for `NAME`, `NOTE`, `COMM`).
     pub rest: String,
+    /// The line starts with whitespace (OpticStudio indents the records of a surface, not the others).
+    pub indented: bool,
 }
 
-/// Decode the bytes of a `.zmx` file (UTF-16 LE/BE with BOM, UTF-8 with or without BOM, ASCII).
+/// The text encoding a `.zmx` file was read in (see [`decode_with_encoding`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum TextEncoding {
+    Utf16Le,
+    Utf16Be,
+    /// UTF-8 with its byte-order mark.
+    Utf8Bom,
+    /// UTF-8 without a byte-order mark (ASCII included).
+    Utf8,
+    /// Not valid UTF-8, no byte-order mark: ANSI text read as Windows-1252.
+    Windows1252,
+}
+
+impl TextEncoding {
+    /// How `info` names it.
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Utf16Le => "UTF-16 LE with byte-order mark",
+            Self::Utf16Be => "UTF-16 BE with byte-order mark",
+            Self::Utf8Bom => "UTF-8 with byte-order mark",
+            Self::Utf8 => "UTF-8 / ASCII",
+            Self::Windows1252 => "ANSI (Windows-1252)",
+        }
+    }
+}
+
+/// Decode the bytes of a `.zmx` file (UTF-16 LE/BE with BOM, UTF-8 with or without BOM, Windows-1252).
 pub fn decode(bytes: &[u8], source_name: &str) -> Result<String> {
+    decode_with_encoding(bytes, source_name).map(|d| d.0)
+}
+
+/// [`decode`], also saying which encoding was read.
+pub fn decode_with_encoding(bytes: &[u8], source_name: &str) -> Result<(String, TextEncoding)> {
     let fail = |m: String| Error::spec(source_name, m);
     if bytes.is_empty() {
         return Err(fail("empty file: not a Zemax .zmx lens file".into()));
@@ -49,12 +86,15 @@ pub fn decode(bytes: &[u8], source_name: &str) -> Result<String> {
         Ok(text)
     };
     if let Some(body) = bytes.strip_prefix(&[0xFF, 0xFE]) {
-        return utf16(false, body);
+        return Ok((utf16(false, body)?, TextEncoding::Utf16Le));
     }
     if let Some(body) = bytes.strip_prefix(&[0xFE, 0xFF]) {
-        return utf16(true, body);
+        return Ok((utf16(true, body)?, TextEncoding::Utf16Be));
     }
-    let body = bytes.strip_prefix(&[0xEF, 0xBB, 0xBF]).unwrap_or(bytes);
+    let (body, bom) = match bytes.strip_prefix(&[0xEF, 0xBB, 0xBF]) {
+        Some(b) => (b, true),
+        None => (bytes, false),
+    };
     let head = &body[..body.len().min(512)];
     let nul_odd = head.iter().skip(1).step_by(2).filter(|b| **b == 0).count();
     let nul_even = head.iter().step_by(2).filter(|b| **b == 0).count();
@@ -66,11 +106,17 @@ pub fn decode(bytes: &[u8], source_name: &str) -> Result<String> {
     if let Some(pos) = body.iter().position(|b| *b == 0) {
         return Err(fail(format!("binary file (a NUL byte at offset {pos}): not a Zemax .zmx text file (a .zos or .zmx archive is binary)")));
     }
-    let text = std::str::from_utf8(body).map_err(|e| {
-        fail(format!("binary or non-UTF-8 file (invalid byte at offset {}): not a Zemax .zmx text file", e.valid_up_to()))
-    })?;
-    check_text(text, source_name)?;
-    Ok(text.to_string())
+    let (text, enc) = match std::str::from_utf8(body) {
+        Ok(t) => (t.to_string(), if bom { TextEncoding::Utf8Bom } else { TextEncoding::Utf8 }),
+        Err(e) if bom => {
+            return Err(fail(format!("a UTF-8 byte-order mark but invalid UTF-8 at offset {}: not a Zemax .zmx text file", e.valid_up_to() + 3)))
+        }
+        // ANSI text: every byte is a character of Windows-1252 (encoding_rs maps its five undefined bytes to
+        // C1 controls, which check_text refuses as binary).
+        Err(_) => (encoding_rs::WINDOWS_1252.decode_without_bom_handling(body).0.into_owned(), TextEncoding::Windows1252),
+    };
+    check_text(&text, source_name)?;
+    Ok((text, enc))
 }
 
 /// Control characters other than tab, CR, LF and form feed mark a binary file.
@@ -98,7 +144,8 @@ pub fn records(text: &str) -> Vec<Record> {
             Some(k) => (&line[..k], line[k..].trim()),
             None => (line, ""),
         };
-        out.push(Record { line: i + 1, keyword: keyword.to_string(), args: split_args(rest), rest: rest.to_string() });
+        let indented = raw.starts_with(char::is_whitespace);
+        out.push(Record { line: i + 1, keyword: keyword.to_string(), args: split_args(rest), rest: rest.to_string(), indented });
     }
     out
 }
@@ -152,6 +199,15 @@ mod tests {
         assert!(decode(&no_bom, "a").unwrap_err().to_string().contains("without a byte-order mark"));
         assert!(decode(&[1, 2, 0, 3, 200, 201, 7, 9, 0, 0, 4], "a").unwrap_err().to_string().contains("binary"));
         assert!(decode(b"", "a").is_err());
+        // UTF-8 with BOM; ANSI (Windows-1252): 0xB0 °, 0xB5 µ, 0xE9 é, 0x80 €.
+        let (t, e) = decode_with_encoding(b"\xEF\xBB\xBFNOTE 0 \xC2\xB5m\n", "a").unwrap();
+        assert_eq!((t.as_str(), e), ("NOTE 0 µm\n", TextEncoding::Utf8Bom));
+        let (t, e) = decode_with_encoding(b"NOTE 0 20\xB0 \xB5m caf\xE9 \x80\r\n", "a").unwrap();
+        assert_eq!((t.as_str(), e), ("NOTE 0 20° µm café €\r\n", TextEncoding::Windows1252));
+        // A UTF-8 BOM before invalid UTF-8, an undefined Windows-1252 byte, control bytes: refused.
+        assert!(decode(b"\xEF\xBB\xBFNOTE \xB5\n", "a").unwrap_err().to_string().contains("invalid UTF-8"));
+        assert!(decode(b"NOTE \x81 \xB5\n", "a").unwrap_err().to_string().contains("binary"));
+        assert!(decode(b"NOTE \x01\xB5\n", "a").unwrap_err().to_string().contains("binary"));
     }
 
     #[test]

@@ -23,6 +23,8 @@ mod surfaces;
 mod system_data;
 
 pub use export::to_zmx;
+pub use glass::{GlassOrigin, SUBSET as GLASS_SUBSET};
+pub use lexer::TextEncoding;
 pub use records::Unsupported;
 
 use crate::error::{Error, Result};
@@ -47,6 +49,63 @@ pub struct ZmxOptions {
 pub struct ZmxImport {
     pub spec: SystemSpec,
     pub ignored: Vec<Unsupported>,
+    /// Records that carry no optics (editor, display, tolerancing, merit-function rows), skipped: the system is
+    /// the same with or without them. Listed by `diffcassi info --system FILE.zmx` and `import-zmx`.
+    pub skipped: Vec<Unsupported>,
+    /// The text encoding the file was read in.
+    pub encoding: lexer::TextEncoding,
+    /// Where each glass of the file was found (catalogue, file or built-in, formula).
+    pub glasses: Vec<glass::GlassOrigin>,
+    /// Remarks on the catalogues (a built-in catalogue standing in for a `GCAT` name with a date suffix).
+    pub notes: Vec<String>,
+}
+
+/// Where each glass of a spec comes from, as the system build resolves it (the built-in subset, then the
+/// spec's `glass_catalogs` and `extra` entries, later ones winning): one row per surface with a glass.
+pub fn glass_origins(spec: &SystemSpec, extra: &[String]) -> Result<Vec<GlassOrigin>> {
+    let entries: Vec<String> = spec.glass_catalogs.iter().chain(extra).cloned().collect();
+    let mut out = Vec::new();
+    for (i, s) in spec.surfaces.iter().enumerate() {
+        let Some(m) = &s.material else { continue };
+        if m.eq_ignore_ascii_case("air") || s.kind == crate::spec::SurfaceKind::CoordinateBreak {
+            continue;
+        }
+        if let Some(o) = glass::origin(&entries, m, 0, i).map_err(|e| Error::spec(&spec.name, e))? {
+            out.push(o);
+        }
+    }
+    Ok(out)
+}
+
+/// The glasses of a `.zmx` file and where each is found (the catalogue step of [`import_zmx`] alone: the
+/// file is decoded and its `GCAT`, `DCGC`, `SURF` and `GLAS` records read, nothing else), with the
+/// catalogue notes. Mirrors, model glasses and glass codes are not catalogue glasses and are left out. A
+/// glass found in no catalogue is an error naming its line, surface and name.
+pub fn zmx_glasses(bytes: &[u8], source_name: &str, source_path: Option<&Path>, options: &ZmxOptions) -> Result<(Vec<GlassOrigin>, Vec<String>)> {
+    let fail = |m: String| Error::spec(source_name, m);
+    let (text, _) = lexer::decode_with_encoding(bytes, source_name)?;
+    let mut gcat: Option<(usize, Vec<String>)> = None;
+    let mut dcgc: Vec<String> = Vec::new();
+    let mut uses: Vec<(usize, usize, String)> = Vec::new();
+    let mut surface: Option<usize> = None;
+    for r in lexer::records(&text) {
+        match r.keyword.as_str() {
+            "GCAT" => gcat = Some((r.line, r.args.clone())),
+            "DCGC" => dcgc.push(r.rest.trim().trim_matches('"').to_string()),
+            "SURF" => surface = Some(records::int(&r, 0).map_err(&fail)?.max(0) as usize),
+            "GLAS" => {
+                let name = r.args.first().cloned().unwrap_or_default();
+                let catalogue_glass = !(name.is_empty() || name == "MIRROR" || name == "___BLANK" || name.chars().all(|c| c.is_ascii_digit() || c == '.'));
+                if let (Some(n), true) = (surface, catalogue_glass) {
+                    uses.push((r.line, n, name));
+                }
+            }
+            _ => {}
+        }
+    }
+    let dirs = glass::search_dirs(source_path, &options.glass_dirs);
+    let res = glass::resolve(gcat.as_ref(), &dcgc, &uses, &dirs).map_err(&fail)?;
+    Ok((res.glasses, res.notes))
 }
 
 /// Import a `.zmx` file from disk (see [`import_zmx`]).
@@ -62,16 +121,14 @@ pub fn import_zmx_file(path: impl AsRef<Path>, options: &ZmxOptions) -> Result<Z
 /// are looked for first). Errors name the file, the line and the keyword.
 pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, options: &ZmxOptions) -> Result<ZmxImport> {
     let fail = |m: String| Error::spec(source_name, m);
-    let text = lexer::decode(bytes, source_name)?;
-    if !text.ends_with('\n') {
-        let last = text.lines().count();
-        return Err(fail(format!(
-            "line {last}: the file does not end with a line break: truncated (OpticStudio ends every record with one)"
-        )));
-    }
+    let (text, encoding) = lexer::decode_with_encoding(bytes, source_name)?;
+    // A last record without a line break is read (rayoptics and OpticStudio open such files), once it is
+    // known to be whole (checked below, after the records are read).
+    let final_break = text.ends_with('\n');
     let recs = lexer::records(&text);
     let mut header = Header::default();
     let mut unsupported: Vec<Unsupported> = Vec::new();
+    let mut skipped: Vec<Unsupported> = Vec::new();
     let mut blocks: Vec<(SurfaceBlock, usize)> = Vec::new(); // (block, number of records)
     for r in &recs {
         if r.keyword == "SURF" {
@@ -80,6 +137,24 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
                 return Err(fail(format!("line {} `SURF`: surface {n} out of order (expected {})", r.line, blocks.len())));
             }
             blocks.push((SurfaceBlock { number: n as usize, line: r.line, ..Default::default() }, 0));
+            continue;
+        }
+        // Records without optics, wherever they are: skipped and listed.
+        let kw = r.keyword.as_str();
+        let no_optics = if records::COSMETIC.contains(&kw) {
+            Some(records::cosmetic_reason(kw).to_string())
+        } else if kw == "TOL" && r.args.first().map(String::as_str) != Some("TOFF") {
+            Some(format!("tolerance operand `{}` (tolerancing data, not the nominal system)", r.args.first().cloned().unwrap_or_default()))
+        } else if records::is_merit_row(r, !blocks.is_empty(), records::SURFACE_KEYWORDS.contains(&kw)) {
+            Some("merit-function operand (an optimisation target)".to_string())
+        } else {
+            None
+        };
+        if let Some(reason) = no_optics {
+            skipped.push(Unsupported { line: r.line, keyword: r.keyword.clone(), reason });
+            if let Some((_, count)) = blocks.last_mut() {
+                *count += 1;
+            }
             continue;
         }
         if header.read(r, &mut unsupported).map_err(&fail)? {
@@ -99,6 +174,31 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
                     "line {}: `{}` is not a .zmx record (a record is a 4-letter upper-case keyword and its arguments): not a Zemax lens file",
                     r.line, r.keyword
                 )))
+            }
+        }
+    }
+    if !final_break {
+        // The last line has no line break: its record must be whole. Cut in the middle means: a keyword the
+        // reader does not know (`MNU`), an unclosed quote, or fewer arguments than the keyword needs (what its
+        // reader needs — a missing one is refused above — or, for keywords without optics, what OpticStudio
+        // writes: `MNUM 1 1`). A number cut between two digits reads as a shorter number and cannot be told.
+        if let Some(last) = recs.last() {
+            let cut = |why: String| {
+                fail(format!(
+                    "line {} `{}`: the file ends without a line break in a record cut in the middle ({why}): truncated",
+                    last.line, last.keyword
+                ))
+            };
+            if last.rest.matches('"').count() % 2 == 1 {
+                return Err(cut("an unclosed quote".into()));
+            }
+            if unsupported.iter().any(|u| u.line == last.line && u.reason.ends_with("keyword not modelled")) {
+                return Err(cut("not a keyword of a .zmx file".into()));
+            }
+            if let Some(n) = records::written_arity(&last.keyword) {
+                if last.args.len() < n {
+                    return Err(cut(format!("{} of the {n} arguments OpticStudio writes", last.args.len())));
+                }
             }
         }
     }
@@ -210,42 +310,11 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         None => wavelengths_nm[0],
     };
 
-    // Glass catalogues.
-    let mut catalog_paths = header.catalog_paths.clone();
-    let mut missing: Vec<String> = Vec::new();
+    // Glass catalogues: files, the built-in subset, built-in vendor catalogues standing in for missing files.
     let dirs = glass::search_dirs(source_path, &options.glass_dirs);
-    if let Some((_, names)) = &header.gcat {
-        for n in names {
-            let covered = catalog_paths.iter().any(|p| Path::new(p).file_stem().and_then(|s| s.to_str()).is_some_and(|s| s.eq_ignore_ascii_case(n)));
-            if covered {
-                continue;
-            }
-            match glass::find_catalog(n, &dirs) {
-                Some(p) => catalog_paths.push(p.display().to_string()),
-                None => missing.push(n.clone()),
-            }
-        }
-    }
-    let catalog = glass::load(&catalog_paths).map_err(&fail)?;
-    for (b, _) in &blocks {
-        if let Some((line, g)) = &b.glass {
-            if !catalog.contains(g) {
-                let gcat = header.gcat.as_ref().map(|g| format!(" (`GCAT` line {})", g.0)).unwrap_or_default();
-                let why = if missing.is_empty() {
-                    "no catalogue of the file holds it".to_string()
-                } else {
-                    format!(
-                        "the file's catalogue(s) {} were not found{gcat}: put {} in {} or set DIFFCASSI_GLASS_DIR",
-                        missing.join(", "),
-                        missing.iter().map(|m| format!("{m}.AGF")).collect::<Vec<_>>().join(", "),
-                        dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(", ")
-                    )
-                };
-                return Err(fail(format!("line {line} `GLAS`: glass `{g}` of surface {} is in none of the loaded catalogues (built-in SCHOTT subset{}): {why}", b.number,
-                    catalog_paths.iter().map(|p| format!(", {p}")).collect::<String>())));
-            }
-        }
-    }
+    let uses: Vec<(usize, usize, String)> = blocks.iter().filter_map(|(b, _)| b.glass.as_ref().map(|(l, g)| (*l, b.number, g.clone()))).collect();
+    let resolution = glass::resolve(header.gcat.as_ref(), &header.catalog_paths, &uses, &dirs).map_err(&fail)?;
+    let catalog_paths = resolution.entries.clone();
 
     if !unsupported.is_empty() && !options.ignore_unsupported {
         let list: Vec<String> = unsupported.iter().map(|u| format!("  {u}")).collect();
@@ -279,5 +348,5 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         mechanics: None,
     };
     spec.validate().map_err(&fail)?;
-    Ok(ZmxImport { spec, ignored: unsupported })
+    Ok(ZmxImport { spec, ignored: unsupported, skipped, encoding, glasses: resolution.glasses, notes: resolution.notes })
 }

@@ -16,13 +16,67 @@ impl std::fmt::Display for Unsupported {
     }
 }
 
-/// Keywords that hold display, file, coating, mechanical or optimisation-bookkeeping settings: they do not
-/// change the geometry or the media of the sequential trace, so skipping them leaves the system identical.
+/// Keywords that hold display, editor, file, coating, mechanical or optimisation-bookkeeping settings: they do
+/// not change the geometry or the media of the sequential trace, so skipping them leaves the system identical.
+/// Each one met is listed ([`super::ZmxImport::skipped`], `diffcassi info`, `import-zmx`).
 pub const COSMETIC: &[&str] = &[
     "VERS", "PFIL", "LANG", "GFAC", "PUSH", "SDMA", "OMMA", "ROPD", "PICB", "POLS", "GLRS", "GSTD", "NSCD", "COFN",
     "BLNK", "FIMP", "HIDE", "MIRR", "SLAB", "POPS", "MEMA", "COAT", "MOFF", "DMFS",
-    "FWGN", "FWGT", "WWGN", "WWGT",
+    "FWGN", "FWGT", "WWGN", "WWGT", "AUTH",
 ];
+
+/// What a skipped keyword is, for the listing.
+pub fn cosmetic_reason(keyword: &str) -> &'static str {
+    match keyword {
+        "VERS" | "PFIL" | "LANG" | "AUTH" => "file and editor settings",
+        "GFAC" | "GLRS" | "GSTD" => "glass substitution and catalogue display settings",
+        "PUSH" | "SDMA" | "OMMA" | "ROPD" | "PICB" | "POLS" | "NSCD" | "FIMP" => "system options with no effect on the sequential ray trace",
+        "COFN" | "COAT" => "coating file / coating (diffcassi's sequential trace has no coatings from .zmx)",
+        "BLNK" => "blank merit-function row",
+        "HIDE" | "SLAB" | "POPS" | "MIRR" => "display settings of the surface (hide, label, physical optics, mirror drawing)",
+        "MEMA" => "mechanical semi-diameter (drawing only)",
+        "MOFF" => "unused multi-configuration operand row",
+        "DMFS" => "default merit function settings",
+        "FWGN" | "FWGT" | "WWGN" | "WWGT" => "field / wavelength weights (optimisation only)",
+        _ => "no optics",
+    }
+}
+
+/// A merit-function operand row (`REAY 13 2 0 1 0 0 22.54 0 0 0`): OpticStudio writes the Merit Function
+/// Editor after the surfaces, one unindented record per row, a 4-character operand name and exactly ten
+/// numbers. Optimisation targets, no optics: skipped and listed. `known_surface_keyword` excludes the keywords
+/// a surface block may hold.
+pub fn is_merit_row(r: &Record, after_surfaces: bool, known_surface_keyword: bool) -> bool {
+    after_surfaces
+        && !r.indented
+        && !known_surface_keyword
+        && r.keyword.len() == 4
+        && r.keyword.chars().all(|c| c.is_ascii_uppercase() || c.is_ascii_digit())
+        && r.args.len() == 10
+        && r.args.iter().all(|a| a.parse::<f64>().is_ok())
+}
+
+/// Keywords a surface block holds (read, refused or skipped by [`super::surfaces`]): never taken for a merit row.
+pub const SURFACE_KEYWORDS: &[&str] = &[
+    "TYPE", "STOP", "COMM", "CURV", "DISZ", "GLAS", "CONI", "PARM", "XDAT", "DIAM", "CLAP", "SQAP", "ELAP", "OBSC", "OBDC", "FLAP",
+    "VCUR", "VDSZ", "VCON", "VPAR", "DCVR", "DCCR", "DCPK", "PZUP", "PPAR", "CUPP", "TPUP", "TSOL", "PSOL", "SSOL", "SCBD", "TILT",
+    "DECX", "DECY", "MAZH",
+];
+
+/// The number of arguments OpticStudio writes for keywords that carry no optics and often end a file (`MNUM 1 1`,
+/// `MOFF 0 1 "" 0 0 0 1 1 0 0.0 "" 0`). A last record without a line break that has fewer is a record cut in
+/// the middle. Keywords read for their values need what their reader needs (a missing argument is refused
+/// anyway).
+pub fn written_arity(keyword: &str) -> Option<usize> {
+    match keyword {
+        "MNUM" => Some(2),
+        "MOFF" => Some(12),
+        "POPS" => Some(16),
+        "MEMA" | "DIAM" => Some(6),
+        "TOL" => Some(8),
+        _ => None,
+    }
+}
 
 /// A record's numeric argument `k` (0-based), or a message naming the line, keyword and text.
 pub fn num(r: &Record, k: usize) -> Result<f64, String> {

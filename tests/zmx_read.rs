@@ -1,0 +1,329 @@
+//! Tolerant reading of `.zmx` files and the built-in vendor glass catalogues (issue 42, items 4 and 5):
+//! every encoding OpticStudio writes, a last record without a line break (and a record cut in the middle,
+//! refused), records without optics skipped and listed by `info`, unmodelled keywords refused by line, keyword
+//! and surface, and public lens files whose OHARA / HOYA / HIKARI / SUMITA glasses resolve without a user
+//! catalogue to indices equal to the vendor's printed n_d.
+use diffcassi::materials::{builtin_catalogs, GlassCatalog, D_LINE_NM};
+use diffcassi::prelude::*;
+use diffcassi::spec::zmx::{import_zmx, import_zmx_file, to_zmx, zmx_glasses, TextEncoding, ZmxOptions};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_diffcassi")).args(args).output().expect("the binary runs")
+}
+
+fn text(o: &Output) -> String {
+    format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
+}
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/zmx").join(name)
+}
+
+fn sp_zmx() -> String {
+    to_zmx(&diffcassi::presets::spec("sp").unwrap()).unwrap()
+}
+
+fn import(bytes: &[u8]) -> diffcassi::Result<diffcassi::spec::zmx::ZmxImport> {
+    import_zmx(bytes, "t.zmx", None, &ZmxOptions::default())
+}
+
+/// Decimal places of a printed number (`1.592701` → 6, `1.90138E+00` → 5).
+fn decimals(printed: &str) -> i32 {
+    let mantissa = printed.split(['E', 'e']).next().unwrap();
+    mantissa.split('.').nth(1).map(|d| d.len() as i32).unwrap_or(0)
+}
+
+/// UTF-16 BE and LE with BOM, UTF-8 with BOM, ANSI (Windows-1252) with `°`, `µ`, `é` in the NAME and NOTE:
+/// each reads to the spec the UTF-8 file gives (the NAME/NOTE text decoded as written).
+#[test]
+fn every_encoding_reads_to_the_same_spec() {
+    let good = sp_zmx();
+    let reference = import(good.as_bytes()).unwrap();
+    assert_eq!(reference.encoding, TextEncoding::Utf8);
+    let crlf = good.replace('\n', "\r\n");
+    let mut be = vec![0xFE, 0xFF];
+    let mut le = vec![0xFF, 0xFE];
+    for u in crlf.encode_utf16() {
+        be.extend(u.to_be_bytes());
+        le.extend(u.to_le_bytes());
+    }
+    let b = import(&be).unwrap();
+    assert_eq!((b.encoding, &b.spec), (TextEncoding::Utf16Be, &reference.spec));
+    let l = import(&le).unwrap();
+    assert_eq!((l.encoding, &l.spec), (TextEncoding::Utf16Le, &reference.spec));
+    let mut bom = vec![0xEF, 0xBB, 0xBF];
+    bom.extend(good.as_bytes());
+    let u = import(&bom).unwrap();
+    assert_eq!((u.encoding, &u.spec), (TextEncoding::Utf8Bom, &reference.spec));
+
+    // ANSI: the bytes 0xB0 (°), 0xB5 (µ), 0xE9 (é) are not valid UTF-8.
+    let mut latin = String::new();
+    for line in crlf.split_inclusive('\n') {
+        if line.starts_with("NAME") {
+            latin.push_str("NAME Café CASSI\r\n");
+        } else if line.starts_with("NOTE") {
+            latin.push_str("NOTE 0 20°C, 450µm, 60° prism\r\n");
+        } else {
+            latin.push_str(line);
+        }
+    }
+    // Windows-1252 agrees with Latin-1 on every character used here.
+    assert!(latin.chars().all(|c| (c as u32) < 0x80 || (0xA0..0x100).contains(&(c as u32))));
+    let ansi: Vec<u8> = latin.chars().map(|c| c as u32 as u8).collect();
+    assert!(std::str::from_utf8(&ansi).is_err());
+    let a = import(&ansi).unwrap();
+    assert_eq!(a.encoding, TextEncoding::Windows1252);
+    assert_eq!(a.spec.name, "Café CASSI");
+    assert_eq!(a.spec.description, "20°C, 450µm, 60° prism");
+    let mut expect = reference.spec.clone();
+    expect.name = "Café CASSI".into();
+    expect.description = "20°C, 450µm, 60° prism".into();
+    assert_eq!(a.spec, expect);
+
+    // Still refused: a NUL byte (binary), an undefined Windows-1252 byte, UTF-16 without BOM.
+    let mut nul = ansi.clone();
+    nul[10] = 0;
+    assert!(import(&nul).unwrap_err().to_string().contains("binary"));
+    let mut undefined = ansi.clone();
+    let k = undefined.iter().position(|&c| c == 0xB0).unwrap();
+    undefined[k] = 0x81;
+    assert!(import(&undefined).unwrap_err().to_string().contains("binary"));
+    assert!(import(&le[2..]).unwrap_err().to_string().contains("byte-order mark"));
+}
+
+/// A last record without a line break is read; a record cut in the middle is refused: a keyword cut short,
+/// an unclosed quote, fewer arguments than the keyword needs (its reader's, or OpticStudio's count for
+/// records without optics).
+#[test]
+fn final_line_break_and_records_cut_in_the_middle() {
+    let good = sp_zmx();
+    let reference = import(good.as_bytes()).unwrap().spec;
+    assert!(good.ends_with("MNUM 1 1\n"));
+    // No final line break (LF and CRLF files): the same spec.
+    assert_eq!(import(good.trim_end().as_bytes()).unwrap().spec, reference);
+    let crlf = good.replace('\n', "\r\n");
+    assert_eq!(import(crlf.trim_end().as_bytes()).unwrap().spec, reference);
+    // A complete last record of a surface, without line break.
+    let upto_image = &good[..good.find("TOL TOFF").unwrap()];
+    assert_eq!(import(upto_image.trim_end().as_bytes()).unwrap().spec, reference);
+
+    let cut = |t: &str, needles: &[&str]| {
+        let e = import(t.as_bytes()).unwrap_err().to_string();
+        for n in needles {
+            assert!(e.contains(n), "`{n}` not in: {e}");
+        }
+        assert!(e.contains("truncated"), "{e}");
+    };
+    let n = good.lines().count();
+    // `MNUM 1` (OpticStudio writes `MNUM 1 1`), `MNU` (a keyword cut short), `MNUM` (no argument).
+    cut(&good[..good.len() - 3], &[&format!("line {n} `MNUM`"), "1 of the 2 arguments"]);
+    cut(&good[..good.len() - 6], &[&format!("line {n} `MNU`"), "not a keyword"]);
+    cut(&good[..good.len() - 5], &[&format!("line {n} `MNUM`"), "argument 1 missing"]);
+    // `TOL TOFF 0 0` (8 arguments written), a `MOFF` row cut inside its quotes.
+    let tol = &good[..good.find("TOL TOFF").unwrap() + "TOL TOFF 0 0".len()];
+    cut(tol, &["`TOL`", "3 of the 8 arguments"]);
+    let moff = format!("{good}MOFF   0   1 \"ab");
+    cut(&moff, &["`MOFF`", "unclosed quote"]);
+    let moff = format!("{good}MOFF   0   1 \"\" 0 0");
+    cut(&moff, &["`MOFF`", "5 of the 12 arguments"]);
+    // A surface record cut: `DISZ` with no value, `PARM 4` without its value.
+    let disz = &good[..good.rfind("DISZ").unwrap() + 4];
+    cut(disz, &["`DISZ`", "argument 1 missing"]);
+    // The same cuts with a final line break are refused by the readers as before (not taken as whole).
+    let e = import(format!("{}\n", &good[..good.len() - 6]).as_bytes()).unwrap_err().to_string();
+    assert!(e.contains("MNU"), "{e}");
+}
+
+/// Records that carry no optics (editor, display, tolerancing, merit-function rows) are skipped and listed
+/// by `info --system FILE.zmx` and `import-zmx`; an unmodelled keyword with optics is refused naming the
+/// line, the keyword and the surface.
+#[test]
+fn skipped_records_are_listed_and_unmodelled_ones_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = sp_zmx();
+    let mut t = format!("VERS 160608 48 100027\nAUTH someone\nPFIL 0 0 0\nLANG 0\n{}", good.replace("SURF 2\n", "SURF 2\n  HIDE 0 0 0 0 0 0 0 0 0 0\n  SLAB 3\n  POPS 0 0 0 0 0 0 0 0 1 1 1 1 0 0 0 0\n"));
+    t = t.replace("TOL TOFF 0 0 0 0 0 0 0 0\n", "BLNK \nREAY 13 2 0 1 0 0 2.254E+1 0 0 0\nEFLY 2 13 0 0 0 0 4.94E+1 9.9E+1 0 0\nTOL TTHI 1 2 -0.1 0.1 0 0 0 0\nTOL TOFF 0 0 0 0 0 0 0 0\n");
+    let imp = import(t.as_bytes()).unwrap();
+    assert_eq!(imp.spec, import(good.as_bytes()).unwrap().spec, "skipping them leaves the system identical");
+    let kws: Vec<&str> = imp.skipped.iter().map(|u| u.keyword.as_str()).collect();
+    for k in ["VERS", "AUTH", "PFIL", "LANG", "HIDE", "SLAB", "POPS", "BLNK", "REAY", "EFLY", "TOL"] {
+        assert!(kws.contains(&k), "{k} not in {kws:?}");
+    }
+    assert!(imp.ignored.is_empty());
+    let path = dir.path().join("sp-extra.zmx");
+    std::fs::write(&path, &t).unwrap();
+    let o = run(&["info", "--system", path.to_str().unwrap()]);
+    let out = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{out}");
+    assert!(out.contains("UTF-8 / ASCII"), "{out}");
+    assert!(out.contains(&format!("skipped, no optics ({} records)", imp.skipped.len())), "{out}");
+    for needle in ["VERS ×1 (line 1)", "REAY ×1", "merit-function operand", "TOL ×1", "tolerance operand `TTHI`", "HIDE ×1", "N-BK7", "SCHOTT", "Sellmeier 1 (AGF 2)"] {
+        assert!(out.contains(needle), "`{needle}` not in:\n{out}");
+    }
+    let toml = dir.path().join("o.toml");
+    let o = run(&["import-zmx", path.to_str().unwrap(), "--out", toml.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(text(&o).contains("skipped, no optics") && text(&o).contains("REAY"), "{}", text(&o));
+
+    // An unmodelled keyword that carries optics: refused naming its line, keyword and surface; with
+    // --ignore-unsupported listed, never skipped silently.
+    let bad = good.replacen("SURF 2\n", "SURF 2\n  OBSC 0 2.5 0\n", 1);
+    let line = bad.lines().position(|l| l.contains("OBSC")).unwrap() + 1;
+    let e = import(bad.as_bytes()).unwrap_err().to_string();
+    assert!(e.contains(&format!("line {line} `OBSC`: surface 2 keyword not modelled")), "{e}");
+    let loose = import_zmx(bad.as_bytes(), "t.zmx", None, &ZmxOptions { ignore_unsupported: true, ..Default::default() }).unwrap();
+    assert_eq!(loose.ignored.len(), 1);
+    assert!(loose.skipped.iter().all(|u| u.keyword != "OBSC"));
+    // A merit-like row inside a surface block (indented) is not a merit row: refused.
+    let bad = good.replacen("SURF 2\n", "SURF 2\n  REAY 13 2 0 1 0 0 2.254E+1 0 0 0\n", 1);
+    assert!(import(bad.as_bytes()).unwrap_err().to_string().contains("`REAY`: surface 2 keyword not modelled"));
+}
+
+/// The acceptance file: rayoptics' US 5,331,467 (a catadioptric camera lens; `GCAT SCHOTT HIKARI OHARA
+/// SUMITA_AUG2011`) read as it is, with no user catalogue: every glass resolves to a built-in catalogue and
+/// its index at the d line equals the vendor's printed n_d (the `nd` of the vendor's Zemax catalogue, as the
+/// refractiveindex.info page records it in PROPERTIES) to half a unit of its last printed decimal (OHARA,
+/// HIKARI, SCHOTT; SUMITA's to one unit). The object
+/// at infinity and the two mirrors of the file come with the other items of issue 42; its tracing is tested
+/// there.
+#[test]
+fn ohara_hikari_sumita_lens_file_resolves_with_builtin_catalogues() {
+    let path = fixture("US05331467-1.zmx");
+    let bytes = std::fs::read(&path).unwrap();
+    let (glasses, notes) = zmx_glasses(&bytes, "US05331467-1.zmx", Some(&path), &ZmxOptions::default()).unwrap();
+    // (glass, catalogue, n_d as printed in the vendor's catalogue)
+    let expect = [
+        ("N-BK7", "SCHOTT", "1.5168"),
+        ("J-LAK02", "HIKARI", "1.670000"),
+        ("S-FTM16", "OHARA", "1.592701"),
+        ("E-LAFH3", "HIKARI", "1.795041"),
+        ("K-SSK1", "SUMITA", "1.61720"),
+        ("S-LAL10", "OHARA", "1.719995"),
+        ("K-FK5", "SUMITA", "1.48749"),
+        ("K-SFLD6", "SUMITA", "1.80518"),
+    ];
+    let names: std::collections::BTreeSet<&str> = glasses.iter().map(|g| g.name.as_str()).collect();
+    assert_eq!(names, expect.iter().map(|e| e.0).collect());
+    let entries: Vec<String> = glasses.iter().map(|g| g.entry.clone()).filter(|e| e.starts_with("builtin:")).collect();
+    for (name, cat, printed) in expect {
+        let o = glasses.iter().find(|g| g.name == name).unwrap();
+        assert_eq!(o.catalog, cat, "{name}");
+        assert_eq!(o.nd, printed.parse::<f64>().unwrap(), "{name}: the catalogue's n_d is the printed one, bit for bit");
+        let mut c = GlassCatalog::builtin();
+        for e in &entries {
+            c.merge(GlassCatalog::from_entry(e).unwrap());
+        }
+        let n = c.get(name).unwrap().refractive_index(D_LINE_NM).unwrap();
+        // Half a unit of the last printed decimal; SUMITA's formulas are up to one unit off their own printed
+        // n_d (K-SFLD6: 1.8051889 for 1.80518), as the vendor publishes them.
+        let units = if cat == "SUMITA" { 1.0 } else { 0.5 };
+        let tol = units * 10f64.powi(-decimals(printed));
+        assert!((n - o.nd).abs() <= tol, "{name}: n_d {n} vs printed {printed}");
+        if cat != "SCHOTT" {
+            assert_eq!(o.entry, format!("builtin:{cat}"), "{name}");
+            assert!(o.source.contains(&format!("specs/{}/optical/{name}.yml", cat.to_ascii_lowercase())) && o.source.contains("CC0"), "{}", o.source);
+        } else {
+            assert_eq!(o.entry, diffcassi::spec::zmx::GLASS_SUBSET);
+        }
+    }
+    assert_eq!(notes.len(), 1, "{notes:?}");
+    assert!(notes[0].contains("SUMITA_AUG2011") && notes[0].contains("built-in SUMITA"), "{notes:?}");
+}
+
+/// rayoptics' US 8,427,765 (`GCAT SCHOTT HIKARI RPO HOYA`): its HOYA and HIKARI glasses resolve to the
+/// built-ins at their printed n_d, and its RPO mould glass `L-TIM28_MOLD` (RPO is not built in) is refused by
+/// name, line and surface, naming the missing catalogue.
+#[test]
+fn hoya_glasses_resolve_and_a_glass_in_no_catalogue_is_refused_by_name() {
+    let path = fixture("US08427765-1.ZMX");
+    let bytes = std::fs::read(&path).unwrap();
+    let e = zmx_glasses(&bytes, "US08427765-1.ZMX", Some(&path), &ZmxOptions::default()).unwrap_err().to_string();
+    let line = String::from_utf8_lossy(&bytes).lines().position(|l| l.contains("GLAS L-TIM28_MOLD")).unwrap() + 1;
+    for n in [format!("line {line} `GLAS`"), "`L-TIM28_MOLD` of surface 3".into(), "RPO.AGF".into(), "built-in HOYA".into()] {
+        assert!(e.contains(&n), "`{n}` not in: {e}");
+    }
+    // The same file with that glass replaced by OHARA's L-TIM28 (a user's edit): every glass resolves.
+    let fixed = String::from_utf8_lossy(&bytes).replace("L-TIM28_MOLD", "L-TIM28").replace("GCAT SCHOTT HIKARI RPO HOYA", "GCAT SCHOTT HIKARI OHARA HOYA");
+    let (glasses, notes) = zmx_glasses(fixed.as_bytes(), "x.zmx", None, &ZmxOptions::default()).unwrap();
+    assert!(notes.is_empty());
+    for (name, cat, printed) in [("J-LAK14", "HIKARI", "1.696800"), ("L-TIM28", "OHARA", "1.689479"), ("SF11", "SCHOTT", "1.78472"), ("TAF3", "HOYA", "1.80420"), ("TAFD30", "HOYA", "1.88300")] {
+        let o = glasses.iter().find(|g| g.name == name).unwrap_or_else(|| panic!("{name}: {glasses:?}"));
+        assert_eq!((o.catalog.as_str(), o.nd), (cat, printed.parse::<f64>().unwrap()), "{name}");
+        let g = GlassCatalog::from_entry(&o.entry).unwrap().get(name).unwrap();
+        let n = g.refractive_index(D_LINE_NM).unwrap();
+        assert!((n - o.nd).abs() <= 0.5 * 10f64.powi(-decimals(printed)), "{name}: {n} vs {printed}");
+    }
+    // SF11 is in SCHOTT (first in GCAT) and HIKARI: SCHOTT's, as OpticStudio picks the first catalogue.
+    assert_eq!(glasses.iter().find(|g| g.name == "SF11").unwrap().entry, "builtin:SCHOTT");
+}
+
+/// A finite-conjugate system with OHARA and HOYA glasses (SP with its prism in S-BSL7 and a lens in TAF3)
+/// opens, builds and traces with no user catalogue; its spec names `builtin:OHARA`/`builtin:HOYA`, exports
+/// back to `.zmx` and reads back identical; `info` shows each glass's catalogue, formula and source.
+#[test]
+fn vendor_glasses_open_build_and_round_trip() {
+    let good = sp_zmx();
+    let t = good.replace("GCAT SCHOTT", "GCAT SCHOTT OHARA HOYA").replace("GLAS N-BK7 ", "GLAS S-BSL7 ").replacen("GLAS SF10 ", "GLAS TAF3 ", 1);
+    assert!(t.contains("S-BSL7") && t.contains("TAF3"), "the SP export names N-BK7 and SF10");
+    let imp = import(t.as_bytes()).unwrap();
+    assert_eq!(imp.spec.glass_catalogs, vec!["builtin:HOYA".to_string(), "builtin:OHARA".to_string()]);
+    let sys = SequentialSystem::build(&imp.spec).unwrap();
+    let nd = sys.indices(D_LINE_NM).unwrap();
+    let s_bsl7 = imp.spec.surfaces.iter().position(|s| s.material.as_deref() == Some("S-BSL7")).unwrap();
+    assert!((nd[s_bsl7] - 1.516330).abs() <= 0.5e-6, "{}", nd[s_bsl7]);
+    let back = import(to_zmx(&imp.spec).unwrap().as_bytes()).unwrap();
+    assert_eq!(back.spec, imp.spec);
+    assert!(to_zmx(&imp.spec).unwrap().contains("GCAT SCHOTT HOYA OHARA\n"));
+
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("sp-vendor.zmx");
+    std::fs::write(&path, &t).unwrap();
+    let o = run(&["info", "--system", path.to_str().unwrap()]);
+    let out = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{out}");
+    for needle in ["S-BSL7", "OHARA", "Sellmeier 1 (AGF 2)", "builtin:OHARA", "specs/ohara/optical/S-BSL7.yml; OHARA Zemax catalog 2017-11-30", "TAF3", "HOYA", "Schott (AGF 1)", "commit ff11b58"] {
+        assert!(out.contains(needle), "`{needle}` not in:\n{out}");
+    }
+    // Through the TOML spec too (the entries are kept).
+    let toml = dir.path().join("sp.toml");
+    let o = run(&["import-zmx", path.to_str().unwrap(), "--out", toml.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(text(&o).contains("glass `S-BSL7`") && text(&o).contains("from builtin:OHARA"), "{}", text(&o));
+    assert_eq!(diffcassi::spec::load_spec_file(&toml).unwrap(), imp.spec);
+    let o = run(&["info", "--system", toml.to_str().unwrap()]);
+    assert!(text(&o).contains("builtin:HOYA"), "{}", text(&o));
+    // A file's glass missing from every catalogue, built-in ones included: refused by name.
+    let e = import(t.replacen("GLAS TAF3 ", "GLAS TAF99 ", 1).as_bytes()).unwrap_err().to_string();
+    assert!(e.contains("`TAF99`") && e.contains("`GLAS`") && e.contains("built-in HOYA"), "{e}");
+    // A user's AGF of the same name wins over the built-in copy.
+    let agf = dir.path().join("OHARA.agf");
+    std::fs::write(&agf, "NM S-BSL7 2 517642 1.5168 64.17 0 1\nCD 1.03961212 6.00069867E-03 2.31792344E-01 2.00179144E-02 1.01046945 103.560653\nLD 0.3 2.5\n").unwrap();
+    let user = import_zmx_file(&path, &ZmxOptions::default()).unwrap();
+    assert_eq!(user.spec.glass_catalogs, vec!["builtin:HOYA".to_string(), agf.display().to_string()]);
+    assert_eq!(user.glasses.iter().find(|g| g.name == "S-BSL7").unwrap().entry, agf.display().to_string());
+}
+
+/// Every glass of the built-in OHARA, HIKARI and CDGM catalogues gives its printed n_d (6 decimals) to half a
+/// unit of the last decimal, HOYA's (5 decimals) to one unit (FDS18 and FDS18-W: 5.5e-6). SUMITA's formulas
+/// are further from their printed n_d for 44 of 176 glasses (up to 3.8e-5, mostly moulding grades): not
+/// asserted here, documented in docs/zemax-files.md.
+#[test]
+fn builtin_vendor_catalogues_reproduce_their_printed_nd() {
+    for (cat, units) in [("OHARA", 0.5), ("HIKARI", 0.5), ("CDGM", 0.5), ("HOYA", 1.0)] {
+        let c = builtin_catalogs::catalog(cat).unwrap().unwrap();
+        let agf = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("data/glass/{cat}.agf"))).unwrap();
+        let mut n = 0;
+        for line in agf.lines().filter(|l| l.starts_with("NM ")) {
+            let f: Vec<&str> = line.split_whitespace().collect();
+            let g = c.get(f[1]).unwrap();
+            assert_eq!(g.nd, f[4].parse::<f64>().unwrap());
+            let tol = units * 10f64.powi(-decimals(f[4]));
+            let d = (g.refractive_index_unchecked(D_LINE_NM) - g.nd).abs();
+            assert!(d <= tol * (1.0 + 1e-9), "{cat} {}: |n_d − {}| = {d:e} > {tol:e}", f[1], f[4]);
+            n += 1;
+        }
+        assert_eq!(n, c.len());
+    }
+}
