@@ -106,6 +106,8 @@ fn spec(name: &str, surfaces: Vec<SurfaceSpec>) -> SystemSpec {
         wavelengths_nm: vec![587.6],
         primary_wavelength_nm: 587.6,
         fields_mm: vec![[0.0, 0.0]],
+        field_type: Default::default(),
+        fields_deg: Vec::new(),
         wavelength_policy: Default::default(),
         air_index: 1.0,
         glass_catalogs: vec![],

@@ -23,6 +23,8 @@ fn singlet(asphere: &[f64]) -> SystemSpec {
         wavelengths_nm: vec![486.1, 587.6, 656.3],
         primary_wavelength_nm: 587.6,
         fields_mm: vec![[0.0, 0.0], [0.0, 3.0]],
+        field_type: Default::default(),
+        fields_deg: Vec::new(),
         wavelength_policy: Default::default(),
         air_index: 1.0,
         glass_catalogs: vec![],

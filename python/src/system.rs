@@ -179,10 +179,46 @@ impl PySystem {
         self.inner.primary_wavelength_nm()
     }
 
-    /// The spec's field points (x, y) mm of object height.
+    /// The spec's field points (x, y) mm of object height (or image height, by `field_type`).
     #[getter]
     fn fields_mm(&self) -> Vec<[f64; 2]> {
         self.inner.spec.fields_mm.clone()
+    }
+
+    /// The spec's field angles (x, y) in degrees (`field_type` "angle"; empty otherwise).
+    #[getter]
+    fn fields_deg(&self) -> Vec<[f64; 2]> {
+        self.inner.spec.fields_deg.clone()
+    }
+
+    /// The spec's field type: "object_height", "angle", "paraxial_image_height" or "real_image_height".
+    #[getter]
+    fn field_type(&self) -> String {
+        serde_json::to_value(self.inner.spec.field_type).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
+    }
+
+    /// Whether the object is at infinity (fields are angles; rays start on surface 1's vertex plane).
+    #[getter]
+    fn object_at_infinity(&self) -> bool {
+        self.inner.object_at_infinity()
+    }
+
+    /// First-order data at the primary wavelength as a dict: efl_mm, bfl_mm, enp_from_surface1_mm,
+    /// enp_diameter_mm, exp_from_last_surface_mm, exp_from_image_mm, chief_image_height_per_field.
+    fn first_order(&self) -> std::collections::BTreeMap<String, f64> {
+        let f = &self.inner.first_order;
+        [
+            ("efl_mm", f.efl_mm),
+            ("bfl_mm", f.bfl_mm),
+            ("enp_from_surface1_mm", f.enp_from_surface1_mm),
+            ("enp_diameter_mm", f.enp_diameter_mm),
+            ("exp_from_last_surface_mm", f.exp_from_last_surface_mm),
+            ("exp_from_image_mm", f.exp_from_image_mm),
+            ("chief_image_height_per_field", f.chief_image_height_per_field),
+        ]
+        .into_iter()
+        .map(|(k, v)| (k.to_string(), v))
+        .collect()
     }
 
     #[getter]
@@ -237,16 +273,24 @@ impl PySystem {
     /// The rays of one field through normalised pupil points: (origins (N, 3), directions (N, 3),
     /// wavelengths_nm (N,)), float64, object frame. `pupil` is an (N, 2) float64 array or a pattern
     /// (`chief`, `marginal`, `hexapolar:RINGS`, `grid:N`, `random:N:SEED`).
-    #[pyo3(signature = (field_mm, wavelength_nm, pupil = None))]
+    /// For an object at infinity give `field_deg` (angles, degrees) instead of `field_mm`.
+    #[pyo3(signature = (field_mm, wavelength_nm, pupil = None, field_deg = None))]
     fn rays_for_field<'py>(
         &self,
         py: Python<'py>,
-        field_mm: Vec<f64>,
+        field_mm: Option<Vec<f64>>,
         wavelength_nm: f64,
         pupil: Option<&Bound<'py, PyAny>>,
+        field_deg: Option<Vec<f64>>,
     ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
+        use diffcassi::system::FieldUnit;
         let pts = pupil_points(pupil)?;
-        let b = RayBatch::for_field(&self.inner, pair("field_mm", &field_mm)?, &pts, wavelength_nm).py()?;
+        let field = match (field_mm, field_deg) {
+            (Some(f), None) => self.inner.field_point(pair("field_mm", &f)?, FieldUnit::Mm, "field_mm").py()?,
+            (None, Some(f)) => self.inner.field_point(pair("field_deg", &f)?, FieldUnit::Deg, "field_deg").py()?,
+            _ => return Err(crate::errors::value_error("give exactly one of field_mm (finite objects) and field_deg (objects at infinity)")),
+        };
+        let b = RayBatch::for_field(&self.inner, field, &pts, wavelength_nm).py()?;
         rays_out(py, &b)
     }
 

@@ -9,8 +9,14 @@ pub struct DistortionPoint {
     /// Grid indices (−N/2..N/2): `i` along x (outer loop, as Zemax lists), `j` along y.
     pub i: i32,
     pub j: i32,
+    /// Grid coordinates: object heights in mm, or for an object at infinity tan θx, tan θy (the grid of
+    /// a flat distant object; the angles are in `x_field_deg`, `y_field_deg`).
     pub x_field_mm: f64,
     pub y_field_mm: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub x_field_deg: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub y_field_deg: Option<f64>,
     /// Real chief-ray position, absolute (Zemax's real + ref).
     pub real_x_mm: f64,
     pub real_y_mm: f64,
@@ -41,6 +47,28 @@ pub struct DistortionGrid {
 /// computed by central differences over ±1e-4 of the half width: for a system with coordinate breaks this
 /// is what Zemax's "Predicted coordinate ABCD matrix" reports (e.g. A = −1.003 for SP).
 pub fn grid_distortion(system: &SequentialSystem, tracer: &dyn Tracer, wavelength_nm: f64, n: usize, half_width_mm: f64) -> Result<DistortionGrid> {
+    if system.object_at_infinity() {
+        return Err(Error::invalid(format!("system `{}` has its object at infinity: its distortion grid is given in degrees (grid_distortion_angle, --half-width-deg)", system.name())));
+    }
+    grid_core(system, tracer, wavelength_nm, n, half_width_mm, false)
+}
+
+/// [`grid_distortion`] for an object at infinity: the grid is uniform in (tan θx, tan θy) over
+/// ±tan(`half_width_deg`) — a flat, distant object, as Zemax's grid for angle fields — and the predicted
+/// positions are linear in tan θ (the f·tan θ mapping of a distortion-free lens).
+pub fn grid_distortion_angle(system: &SequentialSystem, tracer: &dyn Tracer, wavelength_nm: f64, n: usize, half_width_deg: f64) -> Result<DistortionGrid> {
+    if !system.object_at_infinity() {
+        return Err(Error::invalid(format!("system `{}` has a finite object: its distortion grid is given in mm (--half-width-mm)", system.name())));
+    }
+    if !(half_width_deg.is_finite() && half_width_deg > 0.0 && half_width_deg < 90.0) {
+        return Err(Error::invalid(format!("distortion half width {half_width_deg}°: must be in (0, 90) degrees")));
+    }
+    grid_core(system, tracer, wavelength_nm, n, half_width_deg.to_radians().tan(), true)
+}
+
+/// The grid over ±`half_width` of grid coordinates: object heights (mm), or tan θ at infinity (`tan`).
+fn grid_core(system: &SequentialSystem, tracer: &dyn Tracer, wavelength_nm: f64, n: usize, half_width_mm: f64, tan: bool) -> Result<DistortionGrid> {
+    let to_fields = |g: &[[f64; 2]]| -> Vec<[f64; 2]> { if tan { g.iter().map(|p| [p[0].atan(), p[1].atan()]).collect() } else { g.to_vec() } };
     if n < 1 {
         return Err(Error::invalid("distortion grid size must be at least 1"));
     }
@@ -49,7 +77,7 @@ pub fn grid_distortion(system: &SequentialSystem, tracer: &dyn Tracer, wavelengt
     }
     let h = 1e-4 * half_width_mm;
     let probes = [[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]];
-    let pr = tracer.trace(system, &RayBatch::chief_rays(system, &probes, wavelength_nm)?)?;
+    let pr = tracer.trace(system, &RayBatch::chief_rays(system, &to_fields(&probes), wavelength_nm)?)?;
     if pr.status.iter().any(|s| *s != RayStatus::Ok) {
         return Err(Error::invalid(format!("the near-axis chief rays do not reach the image at {wavelength_nm} nm")));
     }
@@ -70,7 +98,7 @@ pub fn grid_distortion(system: &SequentialSystem, tracer: &dyn Tracer, wavelengt
             idx.push((ii - half, jj - half));
         }
     }
-    let out = tracer.trace(system, &RayBatch::chief_rays(system, &fields, wavelength_nm)?)?;
+    let out = tracer.trace(system, &RayBatch::chief_rays(system, &to_fields(&fields), wavelength_nm)?)?;
     let mut points = Vec::with_capacity(fields.len());
     let mut max_distortion_pct: f64 = 0.0;
     for (k, f) in fields.iter().enumerate() {
@@ -92,6 +120,8 @@ pub fn grid_distortion(system: &SequentialSystem, tracer: &dyn Tracer, wavelengt
             j: idx[k].1,
             x_field_mm: f[0],
             y_field_mm: f[1],
+            x_field_deg: tan.then(|| f[0].atan().to_degrees()),
+            y_field_deg: tan.then(|| f[1].atan().to_degrees()),
             real_x_mm: if ok { out.x[k] } else { 0.0 },
             real_y_mm: if ok { out.y[k] } else { 0.0 },
             pred_x_mm: reference_mm[0] + px,

@@ -242,13 +242,13 @@ pub fn ghost_estimate(system: &SequentialSystem, options: &GhostOptions) -> Resu
     let r = options.rings as f64;
     let pupil = 1.0 + 3.0 * r * (r + 1.0);
     let wavelengths = system.spec.wavelengths_nm.len() + usize::from(!system.spec.wavelengths_nm.contains(&520.0));
-    let fields = system.spec.fields_mm.len() + usize::from(!system.spec.fields_mm.contains(&[0.0, 0.0]));
+    let fields = system.fields.len() + usize::from(!system.fields.contains(&[0.0, 0.0]));
     let grid = (options.extended_grid as f64).powi(2);
     let largest_source = grid.max(1.0) * pupil;
     let trees = wavelengths as f64 * (fields as f64 + grid) * pupil + 2.0 * pupil;
     // The pilot.
     let kernel = BruteForce::new(system, &SolidsOptions::default())?;
-    let (fx, fy) = system.spec.fields_mm.iter().fold((0.0f64, 0.0f64), |(a, b), f| (a.max(f[0].abs()), b.max(f[1].abs())));
+    let (fx, fy) = system.fields.iter().fold((0.0f64, 0.0f64), |(a, b), f| (a.max(f[0].abs()), b.max(f[1].abs())));
     let sample = PupilPattern::Hexapolar { rings: 2 }.points();
     let mut rays = RayBatch::default();
     for f in [[0.0, 0.0], [fx, fy], [-fx, fy], [fx, -fy], [-fx, -fy]] {
@@ -280,7 +280,7 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
     if !wavelengths.contains(&520.0) {
         wavelengths.push(520.0);
     }
-    let mut fields = system.spec.fields_mm.clone();
+    let mut fields = system.fields.clone();
     if !fields.contains(&[0.0, 0.0]) {
         fields.insert(0, [0.0, 0.0]);
     }

@@ -10,7 +10,7 @@ use glam::DVec3;
 pub fn mirrored_semi_diameters(system: &SequentialSystem) -> Result<Vec<(usize, f64)>> {
     let mut mirrored = system.clone();
     let mut fields = Vec::new();
-    for f in if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() } {
+    for f in system.fields_or_axis() {
         for (sx, sy) in [(1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)] {
             let g = [sx * f[0], sy * f[1]];
             if !fields.contains(&g) {
@@ -18,7 +18,7 @@ pub fn mirrored_semi_diameters(system: &SequentialSystem) -> Result<Vec<(usize, 
             }
         }
     }
-    mirrored.spec.fields_mm = fields;
+    mirrored.fields = fields;
     automatic_semi_diameters(&mirrored, 0.0, 32)
 }
 
@@ -36,7 +36,7 @@ pub fn automatic_semi_diameters(system: &SequentialSystem, margin_mm: f64, edge_
     }
     let steps: Vec<usize> = system.surfaces.iter().skip(1).filter(|s| s.shape.is_some()).map(|s| s.index).collect();
     let mut best = vec![0.0f64; steps.len()];
-    let fields = if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() };
+    let fields = system.fields_or_axis();
     let mut hits: Vec<DVec3> = Vec::new();
     let stop_step = steps.iter().position(|&s| s == system.stop_index);
     for (fi, field) in fields.iter().enumerate() {

@@ -65,9 +65,13 @@ pub struct SpotArgs {
     /// Wavelength(s) in nm: `520`, `450,520,650`, or `450:650:28` (first:last:count). Default: the system's.
     #[arg(long = "wavelength-nm", alias = "wavelengths-nm")]
     pub wavelength_nm: Option<String>,
-    /// Field point(s) as object height `X,Y` mm; repeat for several. Default: the system's fields.
+    /// Field point(s) as object height `X,Y` mm (finite objects); repeat for several. Default: the system's fields.
     #[arg(long = "field-mm", allow_hyphen_values = true)]
     pub field_mm: Vec<String>,
+    /// Field point(s) as field angles `X,Y` in degrees (objects at infinity; chief-ray direction
+    /// (tan X, tan Y, 1)); repeat for several.
+    #[arg(long = "field-deg", allow_hyphen_values = true, conflicts_with = "field_mm")]
+    pub field_deg: Vec<String>,
     /// Pupil sampling: chief, marginal, hexapolar:RINGS, grid:N, grid-step:STEP, random:N:SEED.
     #[arg(long, default_value = "hexapolar:12", conflicts_with = "pupil_csv")]
     pub pupil: String,
@@ -97,9 +101,13 @@ pub struct DistortionArgs {
     /// Grid points per side (odd numbers include the axis, like Zemax).
     #[arg(long, default_value_t = 13)]
     pub grid: usize,
-    /// Half width of the square object field (mm).
+    /// Half width of the square object field (mm; finite objects).
     #[arg(long = "half-width-mm", default_value_t = 2.5)]
     pub half_width_mm: f64,
+    /// Half width of the square field in degrees, for an object at infinity (the grid is uniform in tan θ,
+    /// a flat distant object). Default: the system's largest field angle.
+    #[arg(long = "half-width-deg")]
+    pub half_width_deg: Option<f64>,
     #[arg(long)]
     pub csv: Option<PathBuf>,
     #[arg(long)]
@@ -118,8 +126,11 @@ pub struct DispersionArgs {
     #[command(flatten)]
     pub backend: BackendArgs,
     /// Field point `X,Y` mm (default: the axis).
-    #[arg(long = "field-mm", default_value = "0,0", allow_hyphen_values = true)]
-    pub field_mm: String,
+    #[arg(long = "field-mm", allow_hyphen_values = true)]
+    pub field_mm: Option<String>,
+    /// Field angles `X,Y` in degrees, for an object at infinity (default: the axis).
+    #[arg(long = "field-deg", allow_hyphen_values = true, conflicts_with = "field_mm")]
+    pub field_deg: Option<String>,
     /// Wavelengths: list or first:last:count (default: the paper's 28 bands, 450:650:28).
     #[arg(long = "wavelengths-nm", alias = "wavelength-nm", default_value = "450:650:28")]
     pub wavelengths_nm: String,
@@ -142,6 +153,10 @@ pub struct MappingArgs {
     /// Scene pixel pitch on the object plane (mm).
     #[arg(long = "pitch-mm", default_value_t = 0.01)]
     pub pitch_mm: f64,
+    /// For an object at infinity: the scene's full angular extent across its width (degrees, (0, 180));
+    /// pixels are uniform in field angle.
+    #[arg(long = "scene-fov-deg", allow_hyphen_values = true)]
+    pub scene_fov_deg: Option<f64>,
     /// Wavelengths: list or first:last:count.
     #[arg(long = "wavelengths-nm", default_value = "450:650:28")]
     pub wavelengths_nm: String,

@@ -41,14 +41,22 @@ fn check_spot_budget(pupil: usize, fields: usize, wavelengths: usize) -> Result<
     crate::limits::check_memory(&what, n * crate::limits::BYTES_PER_RAY)
 }
 
-fn fields(a: &[String], system: &SequentialSystem) -> Result<Vec<[f64; 2]>> {
-    if a.is_empty() {
-        if system.spec.fields_mm.is_empty() {
-            return Err(Error::invalid("the system defines no fields: give --field-mm X,Y"));
+/// The fields of `--field-mm`/`--field-deg` as object-space field points (mm, or rad at infinity), or the
+/// system's.
+fn fields(a: &SpotArgs, system: &SequentialSystem) -> Result<Vec<[f64; 2]>> {
+    match parse_fields_for(system, &a.field_mm, &a.field_deg)? {
+        Some(f) => Ok(f),
+        None if system.fields.is_empty() => {
+            Err(Error::invalid(format!("the system defines no fields: give {}", if system.object_at_infinity() { "--field-deg X,Y" } else { "--field-mm X,Y" })))
         }
-        return Ok(system.spec.fields_mm.clone());
+        None => Ok(system.fields.clone()),
     }
-    a.iter().map(|f| parse_field(f)).collect()
+}
+
+/// A field point as printed: "(x, y) mm" for a finite object, "(θx, θy) deg" at infinity.
+fn field_text(system: &SequentialSystem, f: [f64; 2]) -> String {
+    let (v, unit) = system.field_display(f);
+    format!("({}, {}) {unit}", v[0], v[1])
 }
 
 fn wavelengths_or_system(w: &Option<String>, system: &SequentialSystem) -> Result<Vec<f64>> {
@@ -152,17 +160,44 @@ pub fn lde_table(system: &SequentialSystem) -> String {
         spec.aperture, spec.ray_aiming, spec.primary_wavelength_nm, spec.wavelengths_nm, spec.fields_mm
     );
     let p = &system.pupil;
-    let where_ = if p.is_telecentric() {
-        "at infinity (telecentric object space)".to_string()
+    if system.object_at_infinity() {
+        let fo = &system.first_order;
+        let shown: Vec<String> = system.fields.iter().map(|f| field_text(system, *f)).collect();
+        let _ = writeln!(s, "object at infinity; fields ({}, as given: {:?}) as angles: {}", spec.field_type.label(), spec.field_values(), shown.join(", "));
+        let _ = writeln!(
+            s,
+            "paraxial entrance pupil {:.6} mm after surface 1, diameter {:.6} mm{}; stop surface {} (paraxial stop radius {:.6} mm)",
+            p.distance_mm,
+            2.0 * p.radius_mm,
+            if p.magnification_sign < 0.0 { ", an inverted image of the stop" } else { "" },
+            system.stop_index,
+            p.stop_radius_mm
+        );
+        let _ = writeln!(
+            s,
+            "first order (primary wavelength): EFL {:.6} mm, BFL {:.6} mm, exit pupil {:.6} mm from the last surface ({:.6} mm from the image), F/# {:.6}",
+            fo.efl_mm,
+            fo.bfl_mm,
+            fo.exp_from_last_surface_mm,
+            fo.exp_from_image_mm,
+            fo.efl_mm.abs() / fo.enp_diameter_mm
+        );
+    }
+    let where_ = if system.object_at_infinity() {
+        None
+    } else if p.is_telecentric() {
+        Some("at infinity (telecentric object space)".to_string())
     } else {
-        format!(
+        Some(format!(
             "{:.4} mm from the object, radius {:.4} mm{}",
             p.distance_mm,
             p.radius_mm,
             if p.magnification_sign < 0.0 { ", an inverted image of the stop" } else { "" }
-        )
+        ))
     };
-    let _ = writeln!(s, "paraxial entrance pupil {where_}; stop surface {} (paraxial stop radius {:.4} mm)", system.stop_index, p.stop_radius_mm);
+    if let Some(where_) = where_ {
+        let _ = writeln!(s, "paraxial entrance pupil {where_}; stop surface {} (paraxial stop radius {:.4} mm)", system.stop_index, p.stop_radius_mm);
+    }
     let n = system.indices(spec.primary_wavelength_nm).unwrap_or_default();
     let _ = writeln!(s, "{:>3} {:<18} {:<14} {:>12} {:>12} {:<8} {:>9} {:>8} {:>9}  parameters (flags: V variable, Pn pickup, C chief-ray solve)", "#", "type", "comment", "radius", "thickness", "material", "n@primary", "semi-dia", "aperture");
     for (i, surf) in spec.surfaces.iter().enumerate() {
@@ -298,10 +333,10 @@ pub(super) fn export_spec(a: ExportArgs) -> Result<()> {
 pub(super) fn trace(a: SpotArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
-    let fs = fields(&a.field_mm, &system)?;
+    let fs = fields(&a, &system)?;
     if ws.len() != 1 || fs.len() != 1 {
         return Err(Error::invalid(format!(
-            "trace takes one --wavelength-nm and one --field-mm (got {} wavelengths, {} fields); use `spot` for several",
+            "trace takes one --wavelength-nm and one --field-mm (--field-deg at infinity) (got {} wavelengths, {} fields); use `spot` for several",
             ws.len(),
             fs.len()
         )));
@@ -313,12 +348,12 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, rays.len() as u64)?;
     let out = tracer.trace(&system, &rays)?;
     let ok = out.ok_count();
-    println!("traced {} rays of field ({}, {}) mm at {} nm: {} ok, {} failed", out.len(), fs[0][0], fs[0][1], ws[0], ok, out.len() - ok);
+    println!("traced {} rays of field {} at {} nm: {} ok, {} failed", out.len(), field_text(&system, fs[0]), ws[0], ok, out.len() - ok);
     let mut set = crate::io::OutputSet::files();
     if let Some(path) = &a.csv {
         let path = &set.stage(path);
         let mut w = CsvWriter::new(path, &["px", "py", "x_mm", "y_mm", "dir_x", "dir_y", "dir_z", "status", "stop_surface"])?;
-        w.comment(&format!("system {}; field ({}, {}) mm; wavelength {} nm; image-surface frame", system.name(), fs[0][0], fs[0][1], ws[0]));
+        w.comment(&format!("system {}; field {}; wavelength {} nm; image-surface frame", system.name(), field_text(&system, fs[0]), ws[0]));
         for i in 0..out.len() {
             let okr = out.status[i] == RayStatus::Ok;
             let num = |v: f64| if okr { CsvValue::F64(v) } else { CsvValue::Str("") };
@@ -332,15 +367,17 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
         let rays: Vec<serde_json::Value> = (0..out.len())
             .map(|i| serde_json::json!({"px": pupil[i][0], "py": pupil[i][1], "x_mm": out.x[i], "y_mm": out.y[i], "status": out.status[i].label()}))
             .collect();
-        write_json(&set.stage(path), &serde_json::json!({"system": system.name(), "field_mm": fs[0], "wavelength_nm": ws[0], "rays": rays}))?;
+        let field_key = if system.object_at_infinity() { "field_deg" } else { "field_mm" };
+        write_json(&set.stage(path), &serde_json::json!({"system": system.name(), field_key: system.field_display(fs[0]).0, "wavelength_nm": ws[0], "rays": rays}))?;
     }
     commit(set)?;
     Ok(())
 }
 
-fn spot_summary(s: &SpotDiagram) -> serde_json::Value {
+fn spot_summary(system: &SequentialSystem, s: &SpotDiagram) -> serde_json::Value {
+    let (field, unit) = system.field_display(s.field_mm);
     serde_json::json!({
-        "field_mm": s.field_mm,
+        if unit == "deg" { "field_deg" } else { "field_mm" }: field,
         "wavelength_nm": s.wavelength_nm,
         "rays": s.rays,
         "rays_ok": s.stats.map(|t| t.count).unwrap_or(0),
@@ -352,14 +389,18 @@ fn spot_summary(s: &SpotDiagram) -> serde_json::Value {
     })
 }
 
-fn print_spot_table(spots: &[SpotDiagram]) {
-    println!("{:>16} {:>9} {:>11} {:>24} {:>10} {:>10} {:>10}", "field (mm)", "λ (nm)", "rays ok", "centroid (mm)", "RMS (µm)", "GEO (µm)", "RMS/chief");
+fn print_spot_table(system: &SequentialSystem, spots: &[SpotDiagram]) {
+    let unit = system.field_display([0.0, 0.0]).1;
+    println!("{:>16} {:>9} {:>11} {:>24} {:>10} {:>10} {:>10}", format!("field ({unit})"), "λ (nm)", "rays ok", "centroid (mm)", "RMS (µm)", "GEO (µm)", "RMS/chief");
     for s in spots {
         let ok = s.stats.map(|t| t.count).unwrap_or(0);
         let (c, r, g) = s.stats.map(|t| (format!("({:.6}, {:.6})", t.centroid_mm[0], t.centroid_mm[1]), format!("{:.3}", t.rms_radius_um), format!("{:.3}", t.geo_radius_um))).unwrap_or_default();
         println!(
             "{:>16} {:>9} {:>11} {:>24} {:>10} {:>10} {:>10}",
-            format!("({}, {})", s.field_mm[0], s.field_mm[1]),
+            {
+                let f = system.field_display(s.field_mm).0;
+                format!("({}, {})", f[0], f[1])
+            },
             s.wavelength_nm,
             format!("{ok}/{}", s.rays),
             c,
@@ -372,7 +413,7 @@ fn print_spot_table(spots: &[SpotDiagram]) {
 
 /// One panel per (field, wavelength), each centred on its own centroid: in a dispersive system the
 /// wavelengths of one field land hundreds of µm apart, so sharing a panel would hide every spot's shape.
-fn spot_plot(path: &Path, title: &str, spots: &[SpotDiagram], fields: &[[f64; 2]]) -> Result<()> {
+fn spot_plot(path: &Path, system: &SequentialSystem, title: &str, spots: &[SpotDiagram], fields: &[[f64; 2]]) -> Result<()> {
     let panels: Vec<plot::SpotPanel> = spots
         .iter()
         .filter_map(|s| {
@@ -382,7 +423,7 @@ fn spot_plot(path: &Path, title: &str, spots: &[SpotDiagram], fields: &[[f64; 2]
             }
             let k = fields.iter().position(|f| *f == s.field_mm).map(|k| format!("F{} ", k + 1)).unwrap_or_default();
             Some(plot::SpotPanel {
-                label: format!("{k}({}, {}) mm · {} nm", s.field_mm[0], s.field_mm[1], s.wavelength_nm),
+                label: format!("{k}{} · {} nm", field_text(system, s.field_mm), s.wavelength_nm),
                 series: vec![plot::SpotSeries {
                     label: format!("{} nm", s.wavelength_nm),
                     x_um: ok.iter().map(|&i| s.x_mm[i] * 1e3).collect(),
@@ -416,7 +457,11 @@ fn write_spot_csv(path: &Path, system: &SequentialSystem, spots: &[SpotDiagram])
     let several = spots.len() > 1;
     let mut header = vec!["px", "py", "x_mm", "y_mm", "status"];
     if several {
-        header.extend(["field_x_mm", "field_y_mm", "wavelength_nm"]);
+        if system.object_at_infinity() {
+            header.extend(["field_x_deg", "field_y_deg", "wavelength_nm"]);
+        } else {
+            header.extend(["field_x_mm", "field_y_mm", "wavelength_nm"]);
+        }
     }
     let mut w = CsvWriter::new(path, &header)?;
     w.comment(&format!("system {}; image positions in the image surface's frame (mm); failed rays have empty positions", system.name()));
@@ -426,7 +471,8 @@ fn write_spot_csv(path: &Path, system: &SequentialSystem, spots: &[SpotDiagram])
             let num = |v: f64| if ok { CsvValue::F64(v) } else { CsvValue::Str("") };
             let mut row = vec![CsvValue::F64(s.pupil[i][0]), CsvValue::F64(s.pupil[i][1]), num(s.x_mm[i]), num(s.y_mm[i]), CsvValue::Str(s.status[i].label())];
             if several {
-                row.extend([CsvValue::F64(s.field_mm[0]), CsvValue::F64(s.field_mm[1]), CsvValue::F64(s.wavelength_nm)]);
+                let f = system.field_display(s.field_mm).0;
+                row.extend([CsvValue::F64(f[0]), CsvValue::F64(f[1]), CsvValue::F64(s.wavelength_nm)]);
             }
             w.row(&row)?;
         }
@@ -449,21 +495,21 @@ pub(super) fn spot(a: SpotArgs) -> Result<()> {
     check_outputs(&a)?;
     let system = load_system(&a.system)?;
     let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
-    let fs = fields(&a.field_mm, &system)?;
+    let fs = fields(&a, &system)?;
     let pupil = pupil_points(&a)?;
     check_spot_budget(pupil.len(), fs.len(), ws.len())?;
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, ((pupil.len() + 1) * fs.len() * ws.len()) as u64)?;
     let spots = compute_spots(&system, tracer.as_ref(), &fs, &ws, &pupil, a.csv.is_some() || a.png.is_some())?;
-    print_spot_table(&spots);
+    print_spot_table(&system, &spots);
     let mut set = crate::io::OutputSet::files();
     if let Some(path) = &a.csv {
         write_spot_csv(&set.stage(path), &system, &spots)?;
     }
     if let Some(path) = &a.json {
-        write_json(&set.stage(path), &serde_json::json!({"system": system.name(), "spots": spots.iter().map(spot_summary).collect::<Vec<_>>()}))?;
+        write_json(&set.stage(path), &serde_json::json!({"system": system.name(), "spots": spots.iter().map(|s| spot_summary(&system, s)).collect::<Vec<_>>()}))?;
     }
     if let Some(path) = &a.png {
-        spot_plot(&set.stage(path), &format!("{} spot diagram", system.name()), &spots, &fs)?;
+        spot_plot(&set.stage(path), &system, &format!("{} spot diagram", system.name()), &spots, &fs)?;
     }
     commit(set)?;
     Ok(())
@@ -472,10 +518,12 @@ pub(super) fn spot(a: SpotArgs) -> Result<()> {
 // ---------------------------------------------------------------- distortion / dispersion / mapping
 
 fn write_distortion_csv(path: &Path, system: &SequentialSystem, g: &DistortionGrid) -> Result<()> {
-    let mut w = CsvWriter::new(
-        path,
-        &["i", "j", "x_field_mm", "y_field_mm", "r_field_mm", "pred_x_mm", "pred_y_mm", "real_x_mm", "real_y_mm", "distortion_pct", "status"],
-    )?;
+    let header: &[&str] = if system.object_at_infinity() {
+        &["i", "j", "x_field_tan", "y_field_tan", "r_field_tan", "pred_x_mm", "pred_y_mm", "real_x_mm", "real_y_mm", "distortion_pct", "status"]
+    } else {
+        &["i", "j", "x_field_mm", "y_field_mm", "r_field_mm", "pred_x_mm", "pred_y_mm", "real_x_mm", "real_y_mm", "distortion_pct", "status"]
+    };
+    let mut w = CsvWriter::new(path, header)?;
     w.comment(&format!("system {}; wavelength {} nm; positions absolute in the image surface's frame (mm)", system.name(), g.wavelength_nm));
     w.comment(&format!("reference (on-axis chief ray) Xref_mm={} Yref_mm={}", g.reference_mm[0], g.reference_mm[1]));
     w.comment(&format!("predicted = ref + ABCD·field, A={} B={} C={} D={}; max distortion {}%", g.abcd[0], g.abcd[1], g.abcd[2], g.abcd[3], g.max_distortion_pct));
@@ -532,12 +580,32 @@ pub(super) fn distortion(a: DistortionArgs) -> Result<()> {
     let system = load_system(&a.system)?;
     let w = a.wavelength_nm.unwrap_or(system.primary_wavelength_nm());
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &[w], (a.grid * a.grid + 5) as u64)?;
-    let g = analysis::grid_distortion(&system, tracer.as_ref(), w, a.grid, a.half_width_mm)?;
+    let g = if system.object_at_infinity() {
+        let deg = match a.half_width_deg {
+            Some(d) => d,
+            None => {
+                let m = system.fields.iter().map(|f| f[0].abs().max(f[1].abs())).fold(0.0, f64::max).to_degrees();
+                if m > 0.0 {
+                    m
+                } else {
+                    return Err(Error::invalid(format!("system `{}` has its object at infinity and no off-axis field: give the grid's half width in degrees (--half-width-deg D)", system.name())));
+                }
+            }
+        };
+        analysis::grid_distortion_angle(&system, tracer.as_ref(), w, a.grid, deg)?
+    } else {
+        if a.half_width_deg.is_some() {
+            return Err(Error::invalid(format!("--half-width-deg: system `{}` has a finite object; give the grid's half width in mm (--half-width-mm)", system.name())));
+        }
+        analysis::grid_distortion(&system, tracer.as_ref(), w, a.grid, a.half_width_mm)?
+    };
     let failed = g.points.iter().filter(|p| p.status != RayStatus::Ok).count();
     let max_disp_um = g.points.iter().filter(|p| p.status == RayStatus::Ok).map(|p| 1e3 * (p.real_x_mm - p.pred_x_mm).hypot(p.real_y_mm - p.pred_y_mm)).fold(0.0, f64::max);
     println!(
-        "{}: {}×{} grid at {w} nm over ±{} mm: reference ({:.6}, {:.6}) mm, ABCD [{:.5}, {:.5}, {:.5}, {:.5}], max distortion {:.4} % ({max_disp_um:.2} µm), {failed} rays failed",
-        system.name(), a.grid, a.grid, a.half_width_mm, g.reference_mm[0], g.reference_mm[1], g.abcd[0], g.abcd[1], g.abcd[2], g.abcd[3], g.max_distortion_pct
+        "{}: {}×{} grid at {w} nm over ±{}: reference ({:.6}, {:.6}) mm, ABCD [{:.5}, {:.5}, {:.5}, {:.5}], max distortion {:.4} % ({max_disp_um:.2} µm), {failed} rays failed",
+        system.name(), a.grid, a.grid,
+        if system.object_at_infinity() { format!("{}° (tan θ grid)", g.points.last().and_then(|p| p.y_field_deg).unwrap_or(0.0)) } else { format!("{} mm", a.half_width_mm) },
+        g.reference_mm[0], g.reference_mm[1], g.abcd[0], g.abcd[1], g.abcd[2], g.abcd[3], g.max_distortion_pct
     );
     let mut set = crate::io::OutputSet::files();
     if let Some(p) = &a.csv {
@@ -557,16 +625,16 @@ pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
     check_extension("--csv", &a.csv, &["csv"], &system_inputs(&a.system))?;
     check_extension("--png", &a.png, &["png"], &system_inputs(&a.system))?;
     let ws = parse_wavelengths_for("--wavelengths-nm", &a.wavelengths_nm)?;
-    let field = parse_field(&a.field_mm)?;
     let system = load_system(&a.system)?;
+    let field = parse_fields_for(&system, a.field_mm.as_slice(), a.field_deg.as_slice())?.map(|f| f[0]).unwrap_or([0.0, 0.0]);
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, ws.len() as u64)?;
     let c = analysis::dispersion_curve(&system, tracer.as_ref(), field, &ws)?;
-    println!("{}: field ({}, {}) mm, {}–{} nm: spatio-spectral spreading {:.2} µm ({:.1} px of 10 µm)", system.name(), field[0], field[1], ws[0], ws[ws.len() - 1], c.spread_um, c.spread_um / 10.0);
+    println!("{}: field {}, {}–{} nm: spatio-spectral spreading {:.2} µm ({:.1} px of 10 µm)", system.name(), field_text(&system, field), ws[0], ws[ws.len() - 1], c.spread_um, c.spread_um / 10.0);
     let mut set = crate::io::OutputSet::files();
     if let Some(p) = &a.csv {
         let p = &set.stage(p);
         let mut w = CsvWriter::new(p, &["wavelength_nm", "x_mm", "y_mm"])?;
-        w.comment(&format!("system {}; chief ray of field ({}, {}) mm; spread {} um", system.name(), field[0], field[1], c.spread_um));
+        w.comment(&format!("system {}; chief ray of field {}; spread {} um", system.name(), field_text(&system, field), c.spread_um));
         for k in 0..ws.len() {
             w.row_f64(&[ws[k], c.x_mm[k], c.y_mm[k]])?;
         }
@@ -596,6 +664,11 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
     crate::limits::check_rays(&what, a.height as f64 * a.width as f64 * ws.len() as f64)?;
     let device: crate::render::Device = a.device.parse()?;
     let system = load_system(&a.system)?;
+    // The scene pitch in the system's field unit: mm on a finite object plane, the pixel's angle (rad) at infinity.
+    let mut cfg = crate::render::RenderConfig::paper(1);
+    (cfg.scene_width, cfg.scene_pitch_mm, cfg.scene_fov_deg) = (a.width, a.pitch_mm, a.scene_fov_deg);
+    let pitch = crate::render::scene_pitch_for(&system, &cfg)?;
+    let a = MappingArgs { pitch_mm: pitch, ..a };
     let (tracer, stride) = match a.precision {
         _ if device != crate::render::Device::Cpu => {
             if a.backend.backend.is_some() || a.backend.tolerance_um.is_some() {
@@ -671,7 +744,7 @@ pub(super) fn report(a: ReportArgs) -> Result<()> {
     let t0 = Instant::now();
     write_atomic(out.join("system.txt"), lde_table(&system).as_bytes())?;
     crate::spec::save_spec_file(&system.spec, out.join("system.toml"))?;
-    let fs = system.spec.fields_mm.clone();
+    let fs = system.fields.clone();
     let ws = system.spec.wavelengths_nm.clone();
     let pupil = PupilPattern::Hexapolar { rings: 16 }.points();
     let bands = linspace(450.0, 650.0, 28);
@@ -681,12 +754,17 @@ pub(super) fn report(a: ReportArgs) -> Result<()> {
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &all_wavelengths, job_rays)?;
     let tracer = tracer.as_ref();
     let spots = compute_spots(&system, tracer, &fs, &ws, &pupil, true)?;
-    print_spot_table(&spots);
+    print_spot_table(&system, &spots);
     write_spot_csv(&out.join("spots.csv"), &system, &spots)?;
-    spot_plot(&out.join("spots.png"), &format!("{name} spot diagrams (hexapolar, 16 rings)"), &spots, &fs)?;
+    spot_plot(&out.join("spots.png"), &system, &format!("{name} spot diagrams (hexapolar, 16 rings)"), &spots, &fs)?;
     let mut grids = Vec::new();
     for &w in &ws {
-        let g = analysis::grid_distortion(&system, tracer, w, 13, 2.5)?;
+        let g = if system.object_at_infinity() {
+            let deg = system.fields.iter().map(|f| f[0].abs().max(f[1].abs())).fold(0.0, f64::max).to_degrees();
+            analysis::grid_distortion_angle(&system, tracer, w, 13, if deg > 0.0 { deg } else { 1.0 })?
+        } else {
+            analysis::grid_distortion(&system, tracer, w, 13, 2.5)?
+        };
         write_distortion_csv(&out.join(format!("distortion_{}nm.csv", w)), &system, &g)?;
         distortion_plot(&out.join(format!("distortion_{}nm.png", w)), &system, &g, 10.0)?;
         println!("distortion at {w} nm: max {:.4} %", g.max_distortion_pct);
@@ -700,7 +778,7 @@ pub(super) fn report(a: ReportArgs) -> Result<()> {
         &out.join("report.json"),
         &serde_json::json!({
             "system": name, "version": env!("CARGO_PKG_VERSION"),
-            "spots": spots.iter().map(spot_summary).collect::<Vec<_>>(),
+            "spots": spots.iter().map(|s| spot_summary(&system, s)).collect::<Vec<_>>(),
             "distortion": grids,
             "dispersion": {"wavelength_nm": c.wavelength_nm, "x_mm": c.x_mm, "y_mm": c.y_mm, "spread_um": c.spread_um},
             "seconds": t0.elapsed().as_secs_f64(),

@@ -31,6 +31,10 @@ pub struct RenderCommon {
     /// Scene side N (pixels of 10 µm on the object plane): scenes are cropped/resized to N×N.
     #[arg(long = "scene-size", default_value_t = 512)]
     pub scene_size: usize,
+    /// For a system whose object is at infinity: the scene's full angular extent across its width
+    /// (degrees, in (0, 180)); pixels are sampled uniformly in field angle. Refused for finite objects.
+    #[arg(long = "scene-fov-deg", allow_hyphen_values = true)]
+    pub scene_fov_deg: Option<f64>,
     /// Bands: list or first:last:count (nm).
     #[arg(long, default_value = "450:650:28")]
     pub bands: String,
@@ -110,6 +114,7 @@ impl RenderCommon {
             kernel: self.kernel.parse()?,
             precision: self.precision,
             device: self.device.parse()?,
+            scene_fov_deg: self.scene_fov_deg,
         })
     }
 }

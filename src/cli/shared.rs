@@ -100,6 +100,37 @@ pub fn parse_wavelengths_for(option: &str, text: &str) -> Result<Vec<f64>> {
     text.split(',').map(num).collect()
 }
 
+/// `X,Y` → field angles (degrees) of `--field-deg`: each finite and within (−90, 90).
+pub fn parse_field_deg(text: &str) -> Result<[f64; 2]> {
+    let bad = |why: String| Error::invalid(format!("--field-deg `{text}`: {why} (use X,Y in degrees, e.g. 0,10)"));
+    let parts: Vec<&str> = text.split(',').collect();
+    if parts.len() != 2 {
+        return Err(bad("expected two numbers".into()));
+    }
+    let mut v = [0.0f64; 2];
+    for (k, p) in parts.iter().enumerate() {
+        v[k] = p.trim().parse().map_err(|_| bad(format!("`{p}` is not a number")))?;
+        if !(v[k].is_finite() && v[k].abs() < 90.0) {
+            return Err(bad(format!("{} is not an angle within (-90, 90) degrees", crate::limits::fmt_num(v[k]))));
+        }
+    }
+    Ok(v)
+}
+
+/// The field points of `--field-mm` / `--field-deg` for `system`: mm for a finite object, degrees for an
+/// object at infinity (the wrong one is an error naming the right one); none given → `None`.
+pub fn parse_fields_for(system: &crate::system::SequentialSystem, mm: &[String], deg: &[String]) -> Result<Option<Vec<[f64; 2]>>> {
+    use crate::system::FieldUnit;
+    let mut out = Vec::new();
+    for t in mm {
+        out.push(system.field_point(parse_field(t)?, FieldUnit::Mm, "--field-mm")?);
+    }
+    for t in deg {
+        out.push(system.field_point(parse_field_deg(t)?, FieldUnit::Deg, "--field-deg")?);
+    }
+    Ok(if out.is_empty() { None } else { Some(out) })
+}
+
 /// `X,Y` → field point (mm).
 pub fn parse_field(text: &str) -> Result<[f64; 2]> {
     let bad = |why: String| Error::invalid(format!("--field-mm `{text}`: {why} (use X,Y in mm, e.g. 2.5,0)"));

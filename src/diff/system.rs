@@ -405,7 +405,10 @@ impl DiffSystem {
                 "surface {i}: derivatives of chief-ray solves under real ray aiming are not implemented (set ray_aiming = \"off\" or fix the solve)"
             )));
         }
-        let field = sys.spec.fields_mm.first().copied().unwrap_or([0.0, 0.0]);
+        if sys.object_at_infinity() {
+            return Err(Error::invalid(format!("surface {i}: derivatives of chief-ray solves for an object at infinity are not implemented")));
+        }
+        let field = sys.fields.first().copied().unwrap_or([0.0, 0.0]);
         let origin = DVec3::new(field[0], field[1], 0.0);
         let pd = pupil_distance.cloned().unwrap_or_else(|| Dn::constant(sys.pupil.distance_mm, kk));
         let dir: V3 = if !pd.v.is_finite() {

@@ -68,11 +68,7 @@ impl RaySetSpec {
         }
         let fields: Vec<[f64; 2]> = match self.random_fields {
             None => {
-                if system.spec.fields_mm.is_empty() {
-                    vec![[0.0, 0.0]]
-                } else {
-                    system.spec.fields_mm.clone()
-                }
+                system.fields_or_axis()
             }
             Some(k) => {
                 let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(self.seed);
@@ -93,8 +89,8 @@ impl RaySetSpec {
     }
 }
 
-/// Half width (mm) of the square object field the system's fields span (largest |x| or |y|); 0 when the
+/// Half width (mm, or rad for an object at infinity) of the square object field the system's fields span (largest |x| or |y|); 0 when the
 /// system has no off-axis field.
 pub fn field_half_width_mm(system: &SequentialSystem) -> f64 {
-    system.spec.fields_mm.iter().map(|f| f[0].abs().max(f[1].abs())).fold(0.0, f64::max)
+    system.fields.iter().map(|f| f[0].abs().max(f[1].abs())).fold(0.0, f64::max)
 }

@@ -13,7 +13,17 @@ use glam::DVec3;
 /// behind the object the ray leaves the object *away* from the pupil point). Verified against Zemax: the
 /// on-axis SP spot export (real inverted pupil 633 mm behind the object) matches ray for ray to 0.13 µm. In telecentric object space
 /// (pupil at infinity), (px, py) scale the direction sines by sin θ_marginal around +z.
+///
+/// Object at infinity (`system.object_at_infinity()`): `field_mm` holds the field angles (θx, θy) in
+/// radians; every ray of the field has the direction (tan θx, tan θy, 1) normalised (OpticStudio's angle
+/// convention) and passes through the entrance-pupil point; it starts where it crosses the object frame's
+/// z = 0 plane, the plane of surface 1's vertex.
 pub fn object_ray(system: &SequentialSystem, field_mm: [f64; 2], px: f64, py: f64) -> (DVec3, DVec3) {
+    let aim = PupilAim::of(system);
+    if aim.at_infinity {
+        let r = aim.scale;
+        return aim.parallel_ray(field_mm, px * r, py * r);
+    }
     let origin = DVec3::new(field_mm[0], field_mm[1], 0.0);
     let r = pupil_scale(system);
     (origin, direction_through_pupil(system, origin, px * r, py * r))
@@ -38,6 +48,8 @@ fn direction_through_pupil(system: &SequentialSystem, origin: DVec3, u: f64, v: 
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PupilAim {
     telecentric: bool,
+    /// The object is at infinity: fields are angles (rad) and rays of a field are parallel.
+    pub at_infinity: bool,
     /// Pupil-plane units per normalised pupil coordinate (the pupil radius, or 1 when telecentric).
     pub scale: f64,
     sin_marginal: f64,
@@ -49,7 +61,26 @@ impl PupilAim {
     pub fn of(system: &SequentialSystem) -> Self {
         let p = &system.pupil;
         let telecentric = p.is_telecentric();
-        PupilAim { telecentric, scale: if telecentric { 1.0 } else { p.radius_mm }, sin_marginal: p.sin_marginal, magnification_sign: p.magnification_sign, distance_mm: p.distance_mm }
+        PupilAim {
+            telecentric,
+            at_infinity: p.object_at_infinity,
+            scale: if telecentric { 1.0 } else { p.radius_mm },
+            sin_marginal: p.sin_marginal,
+            magnification_sign: p.magnification_sign,
+            distance_mm: p.distance_mm,
+        }
+    }
+
+    /// Object at infinity: the ray of field angles `theta` (rad) through the entrance-pupil plane point
+    /// (u, v) (mm, oriented like the stop), as (origin on the z = 0 plane, unit direction ∝ (tan θx, tan θy, 1)).
+    #[inline]
+    pub fn parallel_ray(&self, theta: [f64; 2], u: f64, v: f64) -> (DVec3, DVec3) {
+        let (tx, ty) = (theta[0].tan(), theta[1].tan());
+        let m = self.magnification_sign;
+        let z = self.distance_mm;
+        let origin = DVec3::new(m * u - tx * z, m * v - ty * z, 0.0);
+        let inv = 1.0 / (tx * tx + ty * ty + 1.0).sqrt();
+        (origin, DVec3::new(tx * inv, ty * inv, inv))
     }
 
     /// The aim's constants for the GPU kernels (`dc_aim` of src/gpu/kernels/dc_sample.h): telecentric,
@@ -108,18 +139,25 @@ pub fn aimed_ray(system: &SequentialSystem, n: &[f64], field_mm: [f64; 2], px: f
         return Ok(object_ray(system, field_mm, px, py));
     }
     let origin = DVec3::new(field_mm[0], field_mm[1], 0.0);
+    let aim = PupilAim::of(system);
+    // The ray through pupil-plane point (u, v): from the object point (finite), or parallel (at infinity).
+    let ray = |u: f64, v: f64| if aim.at_infinity { aim.parallel_ray(field_mm, u, v) } else { (origin, direction_through_pupil(system, origin, u, v)) };
     let r_ep = pupil_scale(system);
     let (mut u, mut v) = (px * r_ep, py * r_ep);
     let r_stop = system.pupil.stop_radius_mm;
     let (tx, ty) = (px * r_stop, py * r_stop);
-    let fail = |why: &str| Error::invalid(format!("ray aiming failed for field ({}, {}) mm, pupil ({px}, {py}): {why}", field_mm[0], field_mm[1]));
-    let eval = |u: f64, v: f64| stop_crossing(system, n, origin, direction_through_pupil(system, origin, u, v));
+    let (shown, unit) = system.field_display(field_mm);
+    let fail = |why: &str| Error::invalid(format!("ray aiming failed for field ({}, {}) {unit}, pupil ({px}, {py}): {why}", shown[0], shown[1]));
+    let eval = |u: f64, v: f64| {
+        let (o, d) = ray(u, v);
+        stop_crossing(system, n, o, d)
+    };
     let h = 1e-7 * r_ep.max(1.0);
     for _ in 0..30 {
         let (x, y) = eval(u, v).ok_or_else(|| fail("the ray does not reach the stop"))?;
         let (ex, ey) = (x - tx, y - ty);
         if ex.abs() < 1e-13 * (1.0 + r_stop) && ey.abs() < 1e-13 * (1.0 + r_stop) {
-            return Ok((origin, direction_through_pupil(system, origin, u, v)));
+            return Ok(ray(u, v));
         }
         let (xu, yu) = eval(u + h, v).ok_or_else(|| fail("the ray does not reach the stop"))?;
         let (xv, yv) = eval(u, v + h).ok_or_else(|| fail("the ray does not reach the stop"))?;
@@ -134,7 +172,7 @@ pub fn aimed_ray(system: &SequentialSystem, n: &[f64], field_mm: [f64; 2], px: f
         u -= du;
         v -= dv;
         if du.abs() < 1e-14 * (1.0 + r_ep) && dv.abs() < 1e-14 * (1.0 + r_ep) {
-            return Ok((origin, direction_through_pupil(system, origin, u, v)));
+            return Ok(ray(u, v));
         }
     }
     Err(fail("no convergence in 30 Newton steps"))

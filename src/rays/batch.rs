@@ -99,7 +99,7 @@ impl RayBatch {
     /// system's fields (the axis if it has none), pupil points uniform in the disk from a ChaCha8 stream
     /// seeded with `seed + wavelength index`, aimed as the system says.
     pub fn seeded_workload(system: &SequentialSystem, rays_per_wavelength: usize, wavelengths_nm: &[f64], seed: u64) -> Result<Self> {
-        let fields = if system.spec.fields_mm.is_empty() { vec![[0.0, 0.0]] } else { system.spec.fields_mm.clone() };
+        let fields = system.fields_or_axis();
         let mut batch = RayBatch::with_capacity(rays_per_wavelength * wavelengths_nm.len());
         for (k, &w) in wavelengths_nm.iter().enumerate() {
             let n = system.indices(w)?;

@@ -185,7 +185,7 @@ pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
         "tracer": renderer.tracer.name(),
         "scene_height": c.scene_height,
         "scene_width": c.scene_width,
-        "scene_pitch_mm": c.scene_pitch_mm,
+        "scene_pitch_mm": if c.scene_fov_deg.is_some() { Value::Null } else { json!(c.scene_pitch_mm) },
         "detector_pitch_mm": c.detector_pitch_mm,
         "detector_extra_px": c.detector_extra_px,
         "fit": options.fit,
@@ -204,6 +204,10 @@ pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
     // f32 transport is another configuration; f64 datasets keep their recorded configuration unchanged.
     if c.precision != crate::tracer::Precision::F64 {
         v["precision"] = json!(c.precision);
+    }
+    // An object at infinity: the scene's angular extent replaces the pitch in mm.
+    if let Some(f) = c.scene_fov_deg {
+        v["scene_fov_deg"] = json!(f);
     }
     v
 }

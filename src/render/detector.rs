@@ -93,7 +93,10 @@ impl Detector {
                 }
             }
         }
-        let margin_mm = spot_mm + 0.75 * scene_pitch_mm + (airy_radius_px + 1.0 + extra_px as f64) * pitch_mm;
+        // A scene pixel's size on the detector: its pitch (mm, ~unit magnification) or, for an object at
+        // infinity, its angle (rad) × |EFL|.
+        let scene_px_mm = if system.object_at_infinity() { scene_pitch_mm * system.first_order.efl_mm.abs() } else { scene_pitch_mm };
+        let margin_mm = spot_mm + 0.75 * scene_px_mm + (airy_radius_px + 1.0 + extra_px as f64) * pitch_mm;
         let x_left_mm = ((xmin - margin_mm) / pitch_mm).floor() * pitch_mm;
         let x_right = ((xmax + margin_mm) / pitch_mm).ceil() * pitch_mm;
         let y_bottom = ((ymin - margin_mm) / pitch_mm).floor() * pitch_mm;

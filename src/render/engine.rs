@@ -56,8 +56,13 @@ pub struct RenderConfig {
     /// Scene pixels (height, width) on the object plane.
     pub scene_height: usize,
     pub scene_width: usize,
-    /// Scene pixel pitch on the object plane (mm).
+    /// Scene pixel pitch on the object plane (mm). For an object at infinity the renderer sets it from
+    /// `scene_fov_deg` to the pixel's angle in radians (the field unit of such a system).
     pub scene_pitch_mm: f64,
+    /// An object at infinity: the scene's full angular extent across its width (degrees); pixels are
+    /// sampled uniformly in field angle. `None` for a finite object (the scene lies on the object plane).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scene_fov_deg: Option<f64>,
     pub detector_pitch_mm: f64,
     /// Extra detector margin (pixels) beyond the computed footprint.
     pub detector_extra_px: usize,
@@ -111,6 +116,7 @@ impl RenderConfig {
             scene_height: size,
             scene_width: size,
             scene_pitch_mm: 0.01,
+            scene_fov_deg: None,
             detector_pitch_mm: 0.01,
             detector_extra_px: 0,
             spectral: SpectralSampling::paper(),
@@ -198,6 +204,8 @@ impl<'a> Renderer<'a> {
         if config.rays_per_pixel == 0 {
             return Err(Error::invalid("rays per pixel must be ≥ 1"));
         }
+        let mut config = config;
+        config.scene_pitch_mm = scene_pitch_for(system, &config)?;
         if !(config.scene_pitch_mm.is_finite() && config.scene_pitch_mm > 0.0) {
             return Err(Error::invalid(format!("scene pitch {} mm must be finite and > 0", config.scene_pitch_mm)));
         }
@@ -400,5 +408,37 @@ impl<'a> Renderer<'a> {
         }
         timings.wall_seconds = t0.elapsed().as_secs_f64();
         Ok(Acquisition { detector: det, image, bands: keep_bands.then_some(bands), stats, timings })
+    }
+}
+
+/// Check `--scene-fov-deg` (the full angle across the scene's width, degrees): finite and in (0, 180).
+pub fn check_scene_fov_deg(fov: f64) -> Result<()> {
+    if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
+        return Err(Error::invalid(format!("--scene-fov-deg {}: the scene's angular extent must be finite and in (0, 180) degrees", crate::limits::fmt_num(fov))));
+    }
+    Ok(())
+}
+
+/// The scene pitch in the system's field unit: the config's (mm) for a finite object; for an object at
+/// infinity the angle of one pixel, `scene_fov_deg` (across the width) / width, in radians — the scene is
+/// sampled uniformly in field angle. Errors: a system at infinity without `scene_fov_deg` (naming the
+/// flag), `scene_fov_deg` on a finite system, an angle out of (0, 180).
+pub fn scene_pitch_for(system: &SequentialSystem, config: &RenderConfig) -> Result<f64> {
+    match (system.object_at_infinity(), config.scene_fov_deg) {
+        (false, None) => Ok(config.scene_pitch_mm),
+        (false, Some(f)) => Err(Error::invalid(format!(
+            "--scene-fov-deg {}: system `{}` has a finite object, where the scene lies on the object plane at {} mm per pixel; --scene-fov-deg is for objects at infinity",
+            crate::limits::fmt_num(f),
+            system.name(),
+            config.scene_pitch_mm
+        ))),
+        (true, None) => Err(Error::invalid(format!(
+            "system `{}` has its object at infinity: give the scene's angular extent, --scene-fov-deg D (the full angle across its width, degrees)",
+            system.name()
+        ))),
+        (true, Some(f)) => {
+            check_scene_fov_deg(f)?;
+            Ok(f.to_radians() / config.scene_width as f64)
+        }
     }
 }

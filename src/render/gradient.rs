@@ -443,6 +443,9 @@ impl DiffRenderer {
         if ds.system.spec.ray_aiming != RayAiming::Off {
             return Err(Error::invalid("the differentiable renderer aims rays at the paraxial entrance pupil: set ray_aiming = \"off\""));
         }
+        if ds.system.object_at_infinity() {
+            return Err(Error::invalid("the differentiable renderer starts rays from object points on a finite object plane: an object at infinity is not supported there yet"));
+        }
         let planes = &config.spectral.planes_nm;
         for &w in planes {
             ds.system.indices(w)?;

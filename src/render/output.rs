@@ -72,7 +72,7 @@ pub fn write_mapping(dir: &Path, renderer: &Renderer) -> Result<()> {
 pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value, preview_scale: f64, seconds_total: f64, threads: usize) -> serde_json::Value {
     let c = &renderer.config;
     let traced = acq.stats.traced;
-    serde_json::json!({
+    let mut v = serde_json::json!({
         "version": env!("CARGO_PKG_VERSION"),
         "system": renderer.system.name(),
         "system_spec": serde_json::to_value(&renderer.system.spec).unwrap_or(serde_json::Value::Null),
@@ -83,7 +83,7 @@ pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value
         "scene_size": c.scene_height,
         "scene_height": c.scene_height,
         "scene_width": c.scene_width,
-        "scene_pitch_mm": c.scene_pitch_mm,
+        "scene_pitch_mm": if c.scene_fov_deg.is_some() { serde_json::Value::Null } else { serde_json::json!(c.scene_pitch_mm) },
         "detector_pitch_mm": c.detector_pitch_mm,
         "detector_extra_px": c.detector_extra_px,
         "force_batched": c.force_batched,
@@ -113,7 +113,14 @@ pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value
         "seconds_render": acq.timings.wall_seconds,
         "timings": acq.timings,
         "rays_per_second": if acq.timings.wall_seconds > 0.0 { traced as f64 / acq.timings.wall_seconds } else { 0.0 },
-    })
+    });
+    // An object at infinity: the scene's angular extent (what `reconstruct` rebuilds the renderer from) and
+    // the pixel's angle; there is no scene pitch in mm.
+    if let Some(f) = c.scene_fov_deg {
+        v["scene_fov_deg"] = serde_json::json!(f);
+        v["scene_pitch_rad"] = serde_json::json!(c.scene_pitch_mm);
+    }
+    v
 }
 
 /// Write `render.json` (last: its presence marks the folder complete).

@@ -134,6 +134,9 @@ pub struct RenderSettings {
     /// Float precision of the ray kernel; `None`: f64 (or chosen by a fidelity tolerance).
     pub precision: Option<Precision>,
     pub device: Device,
+    /// An object at infinity: the scene's full angular extent across its width (degrees, `--scene-fov-deg`);
+    /// `None` for a finite object. The renderer checks it against the system ([`super::scene_pitch_for`]).
+    pub scene_fov_deg: Option<f64>,
 }
 
 impl Default for RenderSettings {
@@ -155,6 +158,7 @@ impl Default for RenderSettings {
             kernel: Kernel::default(),
             precision: None,
             device: Device::Cpu,
+            scene_fov_deg: None,
         }
     }
 }
@@ -238,6 +242,10 @@ impl RenderSettings {
             cfg.precision.level(cfg.kernel)?; // f32 has no scalar kernel
         }
         cfg.airy = self.airy_diameter_px.map(|d| AiryConfig { diameter_px: d, ..AiryConfig::default() });
+        if let Some(f) = self.scene_fov_deg {
+            super::check_scene_fov_deg(f)?;
+        }
+        cfg.scene_fov_deg = self.scene_fov_deg;
         Ok(cfg)
     }
 

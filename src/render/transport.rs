@@ -463,7 +463,9 @@ impl PlaneContext<'_> {
         let mut out = PlaneTransport::default();
         let mut sc = Scratch::default();
         let (h, w) = (self.scene_height, self.scene_width);
-        let aim = (self.system.spec.ray_aiming == RayAiming::Off).then(|| PupilAim::of(self.system));
+        // The lane loop aims from object points on a finite object plane; an object at infinity (parallel rays
+        // of field angles) takes `object_ray` per sample.
+        let aim = (self.system.spec.ray_aiming == RayAiming::Off && !self.system.object_at_infinity()).then(|| PupilAim::of(self.system));
         let mut centre_x: Vec<f64> = Vec::new();
         for row in 0..h {
             sc.open.clear();

@@ -92,6 +92,9 @@ pub fn plane_landings_in(precision: Precision, system: &SequentialSystem, scene:
 /// The constants of a plane launch (`dc_sampler`, `dc_aim`, `dc_scene`): the sampler's, the paraxial pupil
 /// aim's and the scene and detector geometry. Ray aiming `real` is not on the device yet (an error).
 pub(crate) fn launch_constants(system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64) -> Result<(Sampler, Aim, Scene)> {
+    if system.object_at_infinity() {
+        return Err(Error::invalid("the GPU kernels start rays from object points on a finite object plane: an object at infinity is not on the device yet (render with --device cpu)"));
+    }
     if system.spec.ray_aiming == RayAiming::Real {
         return Err(Error::invalid("the GPU kernels aim rays through the paraxial entrance pupil only: ray_aiming = \"real\" is not on the device yet (docs/gpu.md)"));
     }

@@ -98,6 +98,16 @@ impl<'de> Deserialize<'de> for Cell {
             fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<Cell, E> {
                 Ok(Cell::fixed(v as f64))
             }
+            /// An infinite distance (the object at infinity) is written `"infinity"`: JSON has no number for
+            /// it (serde_json would write `null`); TOML's own `inf` is read too (through `visit_f64`).
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> Result<Cell, E> {
+                let t = v.trim().trim_start_matches('+');
+                if t.eq_ignore_ascii_case("infinity") || t.eq_ignore_ascii_case("inf") {
+                    Ok(Cell::fixed(f64::INFINITY))
+                } else {
+                    Err(E::custom(format!("`{v}` is not a number; a cell is {CELL_FORMS}, or \"infinity\" (the object at infinity)")))
+                }
+            }
             fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<Cell, A::Error> {
                 let t = CellTable::deserialize(serde::de::value::MapAccessDeserializer::new(map))?;
                 Ok(Cell::from(CellRepr::Table(t)))
@@ -111,6 +121,8 @@ impl<'de> Deserialize<'de> for Cell {
 #[serde(untagged)]
 enum CellRepr {
     Value(f64),
+    /// `"infinity"`: a fixed +∞ (an object at infinity), which JSON cannot hold as a number.
+    Infinity(&'static str),
     Table(CellTable),
 }
 
@@ -137,6 +149,7 @@ impl From<CellRepr> for Cell {
     fn from(r: CellRepr) -> Self {
         match r {
             CellRepr::Value(v) => Cell::fixed(v),
+            CellRepr::Infinity(_) => Cell::fixed(f64::INFINITY),
             CellRepr::Table(t) => {
                 let driver = match (t.pickup, t.solve) {
                     (Some(p), _) => Driver::Pickup(p),
@@ -152,6 +165,7 @@ impl From<CellRepr> for Cell {
 impl From<Cell> for CellRepr {
     fn from(c: Cell) -> Self {
         match c.driver {
+            Driver::Fixed if !c.variable && c.value == f64::INFINITY => CellRepr::Infinity("infinity"),
             Driver::Fixed if !c.variable => CellRepr::Value(c.value),
             Driver::Fixed => CellRepr::Table(CellTable { value: c.value, variable: true, pickup: None, solve: None }),
             Driver::Pickup(p) => CellRepr::Table(CellTable { value: c.value, variable: c.variable, pickup: Some(p), solve: None }),

@@ -6,10 +6,60 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", content = "value", rename_all = "snake_case")]
 pub enum SystemAperture {
-    /// n·sin θ of the marginal ray in object space.
+    /// n·sin θ of the marginal ray in object space (finite objects only).
     ObjectSpaceNa(f64),
     /// Entrance pupil diameter (mm).
     EntrancePupilDiameter(f64),
+    /// Image-space F/# (Zemax `FNUM`): the paraxial effective focal length (infinite conjugates, primary
+    /// wavelength) over the entrance pupil diameter, so the pupil diameter is |EFL| / F#.
+    ImageSpaceFNumber(f64),
+    /// Float by stop size (Zemax `FLOA`): the stop surface's semi-diameter is the paraxial stop radius.
+    FloatByStopSize,
+}
+
+/// What the field values of a spec are (Zemax "System Explorer → Fields → Type", `FTYP`).
+///
+/// At the boundary the values are mm (`fields_mm`: object or image heights) or degrees (`fields_deg`:
+/// angles); inside, a built system holds every field as an object-space field point
+/// ([`crate::system::SequentialSystem::fields`]): an object height in mm for a finite object, the angles
+/// (θx, θy) in radians for an object at infinity.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum FieldType {
+    /// Object heights (x, y), mm (`FTYP 1`); finite objects only.
+    #[default]
+    ObjectHeight,
+    /// Field angles (θx, θy), degrees (`FTYP 0`): the chief ray's direction in object space is
+    /// (tan θx, tan θy, 1) normalised (OpticStudio's definition), through the paraxial entrance pupil centre.
+    Angle,
+    /// Paraxial image heights (x, y), mm (`FTYP 2`): the object field whose paraxial chief ray lands there.
+    ParaxialImageHeight,
+    /// Real image heights (x, y), mm (`FTYP 3`): the object field whose real chief ray (primary wavelength)
+    /// lands there on the image surface.
+    RealImageHeight,
+}
+
+impl FieldType {
+    pub fn is_object_height(&self) -> bool {
+        *self == FieldType::ObjectHeight
+    }
+    /// The `.zmx` `FTYP` number.
+    pub fn zmx_code(&self) -> i64 {
+        match self {
+            FieldType::Angle => 0,
+            FieldType::ObjectHeight => 1,
+            FieldType::ParaxialImageHeight => 2,
+            FieldType::RealImageHeight => 3,
+        }
+    }
+    pub fn label(&self) -> &'static str {
+        match self {
+            FieldType::Angle => "angle",
+            FieldType::ObjectHeight => "object height",
+            FieldType::ParaxialImageHeight => "paraxial image height",
+            FieldType::RealImageHeight => "real image height",
+        }
+    }
 }
 
 /// How rays are aimed at the pupil (Zemax "Ray Aiming").
@@ -37,8 +87,15 @@ pub struct SystemSpec {
     pub wavelengths_nm: Vec<f64>,
     /// Primary wavelength (nm): chief-ray solves and paraxial data use it.
     pub primary_wavelength_nm: f64,
-    /// Object heights (x, y) of the field points, mm.
+    /// Field points (x, y), mm: object heights, or image heights when `field_type` says so (empty for angles).
+    #[serde(default)]
     pub fields_mm: Vec<[f64; 2]>,
+    /// What the field values are (default: object heights in `fields_mm`).
+    #[serde(default, skip_serializing_if = "FieldType::is_object_height")]
+    pub field_type: FieldType,
+    /// Field angles (θx, θy), degrees, when `field_type` is `angle` (empty otherwise).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub fields_deg: Vec<[f64; 2]>,
     /// Whether wavelengths outside a glass's catalogue range are an error (default) or extrapolated.
     #[serde(default)]
     pub wavelength_policy: WavelengthPolicy,
@@ -81,6 +138,20 @@ impl SystemSpec {
         }
     }
 
+    /// Whether the object is at infinity (object thickness +∞, Zemax `DISZ INFINITY` on surface 0).
+    pub fn object_at_infinity(&self) -> bool {
+        self.surfaces.first().is_some_and(|s| s.thickness_mm.value == f64::INFINITY)
+    }
+
+    /// The field values as given, in the unit of `field_type` (mm or degrees).
+    pub fn field_values(&self) -> &[[f64; 2]] {
+        if self.field_type == FieldType::Angle {
+            &self.fields_deg
+        } else {
+            &self.fields_mm
+        }
+    }
+
     /// Index of the stop surface: the one flagged `stop`, else surface 1 (Zemax's default).
     pub fn stop_index(&self) -> usize {
         self.surfaces.iter().position(|s| s.stop).unwrap_or(1)
@@ -116,6 +187,43 @@ impl SystemSpec {
                 return Err(format!("fields_mm[{i}] = {:?}: not finite", f));
             }
         }
+        for (i, f) in self.fields_deg.iter().enumerate() {
+            if !(f[0].is_finite() && f[1].is_finite() && f[0].abs() < 90.0 && f[1].abs() < 90.0) {
+                return Err(format!("fields_deg[{i}] = {:?}: field angles must be finite and within (-90, 90) degrees", f));
+            }
+        }
+        let infinite = self.object_at_infinity();
+        match self.field_type {
+            FieldType::Angle if !self.fields_mm.is_empty() => {
+                return Err(format!("field_type angle takes its values from fields_deg, but fields_mm holds {} point(s): move them to fields_deg (degrees)", self.fields_mm.len()))
+            }
+            FieldType::ObjectHeight | FieldType::ParaxialImageHeight | FieldType::RealImageHeight if !self.fields_deg.is_empty() => {
+                return Err(format!("fields_deg is given but field_type is {} (mm in fields_mm): set field_type = \"angle\"", self.field_type.label()))
+            }
+            FieldType::ObjectHeight if infinite && self.fields_mm.iter().any(|f| *f != [0.0, 0.0]) => {
+                return Err("fields_mm: object heights are meaningless for an object at infinity (surface 0 thickness_mm = infinity): give field angles (field_type = \"angle\", fields_deg) or image heights".into())
+            }
+            _ => {}
+        }
+        match self.aperture {
+            SystemAperture::ObjectSpaceNa(_) if infinite => {
+                return Err("aperture object_space_na: an object at infinity has no object-space NA; use entrance_pupil_diameter, image_space_f_number or float_by_stop_size".into())
+            }
+            SystemAperture::ImageSpaceFNumber(f) if !(f.is_finite() && f > 0.0) => return Err(format!("aperture image_space_f_number = {f}: must be finite and > 0")),
+            SystemAperture::FloatByStopSize => {
+                let stop = self.stop_index();
+                match self.surfaces.get(stop).and_then(|s| s.semi_diameter_mm) {
+                    Some(sd) if sd.is_finite() && sd > 0.0 => {}
+                    other => {
+                        return Err(format!(
+                            "aperture float_by_stop_size: the stop (surface {stop}) needs a semi_diameter_mm > 0, its size (found {})",
+                            other.map(|v| v.to_string()).unwrap_or_else(|| "none".into())
+                        ))
+                    }
+                }
+            }
+            _ => {}
+        }
         match self.aperture {
             SystemAperture::ObjectSpaceNa(na) if !(na.is_finite() && na > 0.0 && na < 1.0) => {
                 return Err(format!("aperture object_space_na = {na}: must be in (0, 1)"))
@@ -145,8 +253,11 @@ impl SystemSpec {
             if s.kind == SurfaceKind::CoordinateBreak && s.order > 1 {
                 return Err(at("order", format!("{}: must be 0 or 1", s.order)));
             }
-            if i == 0 && s.thickness_mm.value.is_infinite() {
-                return Err(at("thickness_mm", "infinite object distance is not supported (finite conjugates)".into()));
+            if i == 0 && s.thickness_mm.value == f64::NEG_INFINITY {
+                return Err(at("thickness_mm", "-infinity: an object at infinity is +infinity".into()));
+            }
+            if i == 0 && infinite && s.thickness_mm.driver != super::Driver::Fixed {
+                return Err(at("thickness_mm", "an infinite object distance must be a fixed value (no pickup or solve)".into()));
             }
             if let Some(sd) = s.semi_diameter_mm {
                 if !(sd.is_finite() && sd >= 0.0) {
@@ -174,7 +285,7 @@ impl SystemSpec {
                     return Err(at(&col, format!("not a column of a {} surface (allowed: {})", s.kind.label(), allowed.join(", "))));
                 }
                 let cell: &Cell = s.cell(&col).expect("present");
-                if !cell.value.is_finite() {
+                if !cell.value.is_finite() && !(i == 0 && col == "thickness_mm" && cell.value == f64::INFINITY) {
                     return Err(at(&col, format!("{} is not finite", cell.value)));
                 }
                 if let super::Driver::Pickup(p) = &cell.driver {

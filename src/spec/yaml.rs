@@ -813,6 +813,8 @@ fn lower(model: &Model, name: &str, source_name: &str) -> R<(SystemSpec, Vec<(us
         wavelengths_nm: model.wavelengths.clone(),
         primary_wavelength_nm: 520.0,
         fields_mm: vec![[0.0, 0.0], [2.5, 0.0], [0.0, 2.5], [2.5, 2.5]],
+        field_type: Default::default(),
+        fields_deg: Vec::new(),
         wavelength_policy: WavelengthPolicy::default(),
         air_index: PAPER_AIR_INDEX,
         glass_catalogs: Vec::new(),

@@ -240,6 +240,8 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
         wavelengths_nm: data.wavelengths_nm.clone(),
         primary_wavelength_nm: data.primary_wavelength_nm,
         fields_mm: data.fields_mm.clone(),
+        field_type: Default::default(),
+        fields_deg: Vec::new(),
         wavelength_policy: WavelengthPolicy::Strict,
         air_index: 1.0,
         glass_catalogs: Vec::new(),

@@ -1,5 +1,5 @@
 //! spec → [`SequentialSystem`]: media, pickups, paraxial pupil, frames and chief-ray solves.
-use super::paraxial::{entrance_pupil, ParaxialSurface};
+use super::paraxial::{entrance_pupil, first_order, ParaxialSurface};
 use super::{PathStep, ResolvedSurface, SequentialSystem, StopProbe};
 use crate::error::{Error, Result};
 use crate::geometry::{coordinate_break_frame, BreakOrder, Frame};
@@ -57,7 +57,7 @@ impl SequentialSystem {
         for i in 0..n {
             for col in spec.surfaces[i].present_columns() {
                 let v = resolve_cell(spec, i, &col, 0).map_err(|m| sys_err(i, &col, m))?;
-                if let Some(v) = v {
+                if let Some(v) = v.filter(|v| !(i == 0 && col == "thickness_mm" && *v == f64::INFINITY)) {
                     crate::limits::check_resolved_cell(&col, v).map_err(|m| sys_err(i, &col, resolved_message(spec, i, &col, m)))?;
                 }
                 values[i].insert(col, v);
@@ -74,6 +74,7 @@ impl SequentialSystem {
             n_primary.push(super::medium_index(m, spec, primary)?);
         }
         let stop_index = spec.stop_index();
+        let at_infinity = spec.object_at_infinity();
         let mut parax = Vec::with_capacity(n);
         for (i, s) in spec.surfaces.iter().enumerate() {
             let r = value(&values, i, "radius_mm");
@@ -82,11 +83,15 @@ impl SequentialSystem {
                 kind: s.kind,
                 curvature: r.map(|r| 1.0 / r).unwrap_or(0.0) + 2.0 * alpha1,
                 focal_length_mm: value(&values, i, "focal_length_mm").unwrap_or(f64::INFINITY),
-                thickness_mm: value(&values, i, "thickness_mm").ok_or_else(|| sys_err(i, "thickness_mm", "unresolved".into()))?,
+                // An object at infinity is traced from the plane of surface 1's vertex (the object frame).
+                thickness_mm: if i == 0 && at_infinity { 0.0 } else { value(&values, i, "thickness_mm").ok_or_else(|| sys_err(i, "thickness_mm", "unresolved".into()))? },
                 n_after: n_primary[i],
             });
         }
-        let pupil = entrance_pupil(&parax, stop_index, spec.aperture).map_err(|m| sys_err(stop_index, "stop", m))?;
+        let pupil = entrance_pupil(&parax, stop_index, spec.aperture, spec.surfaces[stop_index].semi_diameter_mm, at_infinity)
+            .map_err(|m| sys_err(stop_index, "stop", m))?;
+        let first_order = first_order(&parax, stop_index, &pupil);
+        let mut fields = super::fields::object_fields(spec, &pupil, &first_order).map_err(|m| Error::spec(&spec.name, m))?;
 
         // Pass 2: frames, solving chief-ray cells in surface order.
         let mut resolved_spec = spec.clone();
@@ -121,11 +126,16 @@ impl SequentialSystem {
                         surfaces: surfaces.clone(),
                         stop_index,
                         pupil,
+                        first_order,
+                        fields: fields.clone(),
                         path: path.clone(),
                         // Before the stop is placed there is nothing to aim at: steps > path.len() says so.
                         stop_probe: stop_probe.clone().unwrap_or_else(|| StopProbe { steps: usize::MAX, probe: path_step(&Frame::IDENTITY, &Frame::IDENTITY, 0, SurfaceShape::Plane, Aperture::None) }),
                     };
-                    let field = spec.fields_mm.first().copied().unwrap_or([0.0, 0.0]);
+                    if spec.field_type == crate::spec::FieldType::RealImageHeight {
+                        return Err(sys_err(i, solved[0], "a chief-ray solve needs the object field before the system is built; real image height fields are found by tracing the built system: use another field type".into()));
+                    }
+                    let field = fields.first().copied().unwrap_or([0.0, 0.0]);
                     let (p_local, d_local) = chief_ray_at(&partial, &last_step_frame, &surface_frame, field, &n_primary)
                         .map_err(|m| sys_err(i, solved[0], format!("chief-ray solve failed: {m}")))?;
                     let order = if s.order == 0 { BreakOrder::DecenterThenTilt } else { BreakOrder::TiltThenDecenter };
@@ -170,7 +180,7 @@ impl SequentialSystem {
             let thickness = value(&values, i, "thickness_mm").unwrap_or(0.0);
             // Write resolved values back into the spec's cells (late pickups and solves checked here).
             for col in resolved_spec.surfaces[i].present_columns() {
-                if let Some(v) = value(&values, i, &col) {
+                if let Some(v) = value(&values, i, &col).filter(|v| !(i == 0 && col == "thickness_mm" && *v == f64::INFINITY)) {
                     crate::limits::check_resolved_cell(&col, v).map_err(|m| sys_err(i, &col, resolved_message(spec, i, &col, m)))?;
                 }
                 if let (Some(cell), Some(v)) = (resolved_spec.surfaces[i].cell_mut(&col), value(&values, i, &col)) {
@@ -201,10 +211,16 @@ impl SequentialSystem {
                 }
             }
             surfaces.push(surface);
-            current = next.advanced(thickness);
+            // An object at infinity: surface 1 sits on the object frame's z = 0 plane, where rays start.
+            current = next.advanced(if i == 0 && at_infinity { 0.0 } else { thickness });
         }
         let stop_probe = stop_probe.expect("validated: the stop is a surface of the system");
-        Ok(SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, path, stop_probe })
+        let mut system = SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, first_order, fields: Vec::new(), path, stop_probe };
+        if spec.field_type == crate::spec::FieldType::RealImageHeight {
+            fields = super::fields::real_image_height_fields(&system, &fields).map_err(|m| Error::spec(&spec.name, m))?;
+        }
+        system.fields = fields;
+        Ok(system)
     }
 }
 

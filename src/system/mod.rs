@@ -9,6 +9,7 @@
 //! assert!((sys.spec.surfaces[15].decenter_x_mm.as_ref().unwrap().value - 2.408).abs() < 5e-4);
 //! ```
 mod build;
+mod fields;
 mod paraxial;
 mod surface;
 
@@ -17,6 +18,15 @@ pub use surface::*;
 
 use crate::error::{Error, Result};
 use crate::spec::SystemSpec;
+
+/// The unit of a field point given at the boundary ([`SequentialSystem::field_point`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FieldUnit {
+    /// Object height, mm (finite objects).
+    Mm,
+    /// Field angles, degrees (objects at infinity).
+    Deg,
+}
 
 /// A sequential system ready to trace.
 #[derive(Clone, Debug)]
@@ -27,6 +37,12 @@ pub struct SequentialSystem {
     pub stop_index: usize,
     /// Paraxial entrance pupil at the primary wavelength.
     pub pupil: EntrancePupil,
+    /// First-order data (EFL, BFL, pupil positions) at the primary wavelength.
+    pub first_order: FirstOrder,
+    /// The spec's fields as object-space field points ([`crate::spec::FieldType`] resolved): object heights
+    /// (x, y) in mm for a finite object, field angles (θx, θy) in radians for an object at infinity. Every
+    /// ray-generating function (`rays::object_ray`, `aimed_ray`, `RayBatch::for_field`) takes such points.
+    pub fields: Vec<[f64; 2]>,
     /// The refracting surfaces after the object, in order, with frame-to-frame transforms.
     pub(crate) path: Vec<PathStep>,
     /// How to reach the stop for ray aiming: the first `steps` path steps, then `probe` (intersection only).
@@ -63,6 +79,52 @@ impl SequentialSystem {
     /// The image surface (last).
     pub fn image(&self) -> &ResolvedSurface {
         self.surfaces.last().expect("a built system has surfaces")
+    }
+
+    /// Whether the object is at infinity (field points are angles in radians, rays of a field are parallel).
+    pub fn object_at_infinity(&self) -> bool {
+        self.pupil.object_at_infinity
+    }
+
+    /// The field points to use when none is given: the system's, or the axis when it defines none.
+    pub fn fields_or_axis(&self) -> Vec<[f64; 2]> {
+        if self.fields.is_empty() {
+            vec![[0.0, 0.0]]
+        } else {
+            self.fields.clone()
+        }
+    }
+
+    /// A field point given at the boundary — an object height in mm (`unit` "mm") or field angles in
+    /// degrees (`unit` "deg") — as this system's object-space field point, or an error saying which unit the
+    /// system takes: mm for a finite object, degrees for an object at infinity (`option` names the input).
+    pub fn field_point(&self, value: [f64; 2], unit: FieldUnit, option: &str) -> Result<[f64; 2]> {
+        match (unit, self.object_at_infinity()) {
+            (FieldUnit::Mm, false) => Ok(value),
+            (FieldUnit::Deg, true) => {
+                if !(value[0].is_finite() && value[1].is_finite() && value[0].abs() < 90.0 && value[1].abs() < 90.0) {
+                    return Err(Error::invalid(format!("{option} ({}, {}): field angles must be finite and within (-90, 90) degrees", value[0], value[1])));
+                }
+                Ok([value[0].to_radians(), value[1].to_radians()])
+            }
+            (FieldUnit::Mm, true) => Err(Error::invalid(format!(
+                "{option} ({}, {}): system `{}` has its object at infinity, where a field is an angle: give field angles in degrees (--field-deg X,Y)",
+                value[0], value[1], self.name()
+            ))),
+            (FieldUnit::Deg, false) => Err(Error::invalid(format!(
+                "{option} ({}, {}): system `{}` has a finite object, where a field is an object height: give it in mm (--field-mm X,Y)",
+                value[0], value[1], self.name()
+            ))),
+        }
+    }
+
+    /// A field point as shown at the boundary: (value, unit) — mm for a finite object, degrees at infinity.
+    pub fn field_display(&self, field: [f64; 2]) -> ([f64; 2], &'static str) {
+        if self.object_at_infinity() {
+            ([field[0].to_degrees(), field[1].to_degrees()], "deg")
+        } else {
+            (field, "mm")
+        }
     }
 
     pub fn primary_wavelength_nm(&self) -> f64 {

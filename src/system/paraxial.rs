@@ -1,5 +1,10 @@
-//! Paraxial (first-order) data: the y–nu trace used to locate the entrance pupil, as Zemax does it.
+//! Paraxial (first-order) data: the y–nu trace used to locate the entrance pupil, as Zemax does it, and
+//! the first-order data of [`FirstOrder`] (EFL, BFL, pupil positions).
 //! Coordinate Breaks are ignored by paraxial tracing (only their thickness counts), as in OpticStudio.
+//!
+//! An object at infinity (object thickness +∞) is traced from the plane of surface 1's vertex: the
+//! object surface's frame is placed there (`system/build.rs`), so the pupil distance is measured from
+//! surface 1 and the object thickness counts as 0 in the y–nu trace.
 use crate::spec::{SurfaceKind, SystemAperture};
 
 /// The paraxial entrance pupil at the primary wavelength.
@@ -17,6 +22,30 @@ pub struct EntrancePupil {
     /// Sign of the pupil magnification m_p = 1/A (entrance pupil height / stop height): −1 when the
     /// entrance pupil is an inverted image of the stop.
     pub magnification_sign: f64,
+    /// The object is at infinity: rays of one field are parallel, `distance_mm` is measured from the plane
+    /// of surface 1's vertex (the object frame's z = 0, where rays start), and `sin_marginal` is 0.
+    pub object_at_infinity: bool,
+}
+
+/// First-order (paraxial) data at the primary wavelength, in the conventions of OpticStudio's and
+/// rayoptics' first-order reports (`parax/firstorder.py`).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct FirstOrder {
+    /// Effective focal length −1/u′ of a ray parallel to the axis at unit height (image space), mm.
+    pub efl_mm: f64,
+    /// Back focal length: from the last surface before the image to the paraxial rear focal point, mm.
+    pub bfl_mm: f64,
+    /// Entrance pupil position from surface 1's vertex (positive: after it), mm.
+    pub enp_from_surface1_mm: f64,
+    /// Entrance pupil diameter, mm.
+    pub enp_diameter_mm: f64,
+    /// Exit pupil position from the last surface before the image (positive: after it), mm.
+    pub exp_from_last_surface_mm: f64,
+    /// Exit pupil position from the image surface, mm.
+    pub exp_from_image_mm: f64,
+    /// Paraxial image height per unit field of the chief ray: per mm of object height (finite object) or per
+    /// unit tan θ (object at infinity), mm.
+    pub chief_image_height_per_field: f64,
 }
 
 impl EntrancePupil {
@@ -26,6 +55,7 @@ impl EntrancePupil {
 }
 
 /// Inputs of a paraxial trace per surface.
+#[derive(Clone, Copy)]
 pub(crate) struct ParaxialSurface {
     pub kind: SurfaceKind,
     /// Curvature of the paraxial figure (c + 2α₁ for even aspheres), mm⁻¹.
@@ -33,6 +63,16 @@ pub(crate) struct ParaxialSurface {
     pub focal_length_mm: f64,
     pub thickness_mm: f64,
     pub n_after: f64,
+}
+
+/// Paraxial power of surface `i` (the index before it is `surfaces[i - 1].n_after`).
+fn power(surfaces: &[ParaxialSurface], i: usize) -> f64 {
+    let (prev, s) = (&surfaces[i - 1], &surfaces[i]);
+    match s.kind {
+        SurfaceKind::Standard | SurfaceKind::EvenAsphere => s.curvature * (s.n_after - prev.n_after),
+        SurfaceKind::Paraxial => s.n_after / s.focal_length_mm,
+        SurfaceKind::CoordinateBreak => 0.0,
+    }
 }
 
 /// Height at the stop of the paraxial ray leaving the object plane with height `y0` and reduced angle
@@ -45,18 +85,78 @@ fn height_at_stop(surfaces: &[ParaxialSurface], stop: usize, y0: f64, nu0: f64) 
         if i == stop {
             break;
         }
-        let s = &surfaces[i];
-        let power = match s.kind {
-            SurfaceKind::Standard | SurfaceKind::EvenAsphere => s.curvature * (s.n_after - prev.n_after),
-            SurfaceKind::Paraxial => s.n_after / s.focal_length_mm,
-            SurfaceKind::CoordinateBreak => 0.0,
-        };
-        nu -= y * power;
+        nu -= y * power(surfaces, i);
     }
     y
 }
 
-pub(crate) fn entrance_pupil(surfaces: &[ParaxialSurface], stop: usize, aperture: SystemAperture) -> Result<EntrancePupil, String> {
+/// (y, nu) just after surface `to` (refracted) of the ray with (y, nu) just after surface `from`.
+fn trace_after(surfaces: &[ParaxialSurface], from: usize, to: usize, y0: f64, nu0: f64) -> (f64, f64) {
+    let (mut y, mut nu) = (y0, nu0);
+    for i in from + 1..=to {
+        let prev = &surfaces[i - 1];
+        y += prev.thickness_mm * nu / prev.n_after;
+        nu -= y * power(surfaces, i);
+    }
+    (y, nu)
+}
+
+/// The paraxial effective focal length (mm): −n′/nu′ of the ray parallel to the axis at unit height,
+/// after the last surface before the image. Independent of the object distance.
+pub(crate) fn effective_focal_length(surfaces: &[ParaxialSurface]) -> f64 {
+    let last = surfaces.len() - 2;
+    let (_, nu) = trace_after(surfaces, 0, last, 1.0, 0.0);
+    -surfaces[last].n_after / nu
+}
+
+/// First-order data of a system whose entrance pupil is `pupil` (the object thickness as in the trace:
+/// 0 for an object at infinity).
+pub(crate) fn first_order(surfaces: &[ParaxialSurface], stop: usize, pupil: &EntrancePupil) -> FirstOrder {
+    let last = surfaces.len() - 2;
+    let nk = surfaces[last].n_after;
+    // From surface 1 on, the object gap does not count: a parallel ray at unit height.
+    let mut from1: Vec<ParaxialSurface> = surfaces.to_vec();
+    from1[0].thickness_mm = 0.0;
+    let (y, nu) = trace_after(&from1, 0, last, 1.0, 0.0);
+    let efl_mm = -nk / nu;
+    let bfl_mm = -y * nk / nu;
+    // Chief ray: through the stop centre with a unit reduced angle there.
+    let (yc, nuc) = trace_after(surfaces, stop, last, 0.0, 1.0);
+    let exp_from_last_surface_mm = -yc * nk / nuc;
+    let t_image = surfaces[last].thickness_mm;
+    let enp_from_surface1_mm = if pupil.object_at_infinity { pupil.distance_mm } else { pupil.distance_mm - surfaces[0].thickness_mm };
+    // Chief-ray image height per unit field (object height, or tan θ at infinity).
+    let n0 = surfaces[0].n_after;
+    let (y0, nu0) = if pupil.object_at_infinity {
+        (-pupil.distance_mm, n0)
+    } else if pupil.is_telecentric() {
+        (1.0, 0.0)
+    } else {
+        (1.0, -n0 / pupil.distance_mm)
+    };
+    let (yi, nui) = trace_after(surfaces, 0, last, y0, nu0);
+    let chief_image_height_per_field = yi + t_image * nui / nk;
+    FirstOrder {
+        efl_mm,
+        bfl_mm,
+        enp_from_surface1_mm,
+        enp_diameter_mm: 2.0 * pupil.radius_mm,
+        exp_from_last_surface_mm,
+        exp_from_image_mm: exp_from_last_surface_mm - t_image,
+        chief_image_height_per_field,
+    }
+}
+
+/// The entrance pupil for the system aperture. `stop_semi_diameter_mm` is the stop surface's semi-diameter
+/// (used by [`SystemAperture::FloatByStopSize`]); `object_at_infinity` says that `surfaces[0]`'s thickness is
+/// the 0 of the start plane at surface 1 and the object is at infinity.
+pub(crate) fn entrance_pupil(
+    surfaces: &[ParaxialSurface],
+    stop: usize,
+    aperture: SystemAperture,
+    stop_semi_diameter_mm: Option<f64>,
+    object_at_infinity: bool,
+) -> Result<EntrancePupil, String> {
     let n0 = surfaces[0].n_after;
     // y_stop = A·y0 + B·nu0
     let a = height_at_stop(surfaces, stop, 1.0, 0.0);
@@ -64,12 +164,56 @@ pub(crate) fn entrance_pupil(surfaces: &[ParaxialSurface], stop: usize, aperture
     if !(a.is_finite() && b.is_finite()) {
         return Err("paraxial trace to the stop is not finite".into());
     }
-    if b == 0.0 {
+    // At infinity B = 0 only says that the pupil is on surface 1's plane (the stop is surface 1 or imaged there).
+    if b == 0.0 && !object_at_infinity {
         return Err("the stop is conjugate to the object (paraxial B = 0): no entrance pupil".into());
     }
     // The chief ray (through the stop centre) from height y0 has nu0 = −A y0 / B; it crosses the axis
     // at z = −y0 n0 / nu0 = n0 B / A from the object plane.
     let distance_mm = if a.abs() < 1e-14 * b.abs() { f64::INFINITY } else { n0 * b / a };
+    let magnification_sign = if a < 0.0 { -1.0 } else { 1.0 };
+    // The image-space F/# and the stop size give the pupil diameter (or the stop radius) first.
+    let aperture = match aperture {
+        SystemAperture::ImageSpaceFNumber(fno) => {
+            let efl = effective_focal_length(surfaces);
+            if !(efl.is_finite() && efl != 0.0) {
+                return Err(format!("image-space F/# {fno}: the system has no finite paraxial focal length (afocal), so the F/# defines no pupil"));
+            }
+            SystemAperture::EntrancePupilDiameter(efl.abs() / fno)
+        }
+        other => other,
+    };
+    if object_at_infinity {
+        if !distance_mm.is_finite() {
+            return Err("the entrance pupil is at infinity while the object is at infinity (the stop is at the front focal point): no finite pupil to fill".into());
+        }
+        // A ray parallel to the axis at height h on the pupil plane meets the stop at A·h.
+        let (radius_mm, stop_radius_mm) = match aperture {
+            SystemAperture::EntrancePupilDiameter(d) => (0.5 * d, (0.5 * d * a).abs()),
+            SystemAperture::FloatByStopSize => {
+                let r = stop_semi_diameter_mm.ok_or("float by stop size: the stop has no semi-diameter")?;
+                if a == 0.0 {
+                    return Err("float by stop size: the stop is at a focus of the front group (paraxial A = 0)".into());
+                }
+                ((r / a).abs(), r)
+            }
+            SystemAperture::ObjectSpaceNa(_) => return Err("an object at infinity has no object-space NA".into()),
+            SystemAperture::ImageSpaceFNumber(_) => unreachable!("converted above"),
+        };
+        if !(radius_mm.is_finite() && radius_mm > 0.0) {
+            return Err(format!("entrance pupil radius {radius_mm} mm: must be finite and > 0"));
+        }
+        return Ok(EntrancePupil { distance_mm, radius_mm, sin_marginal: 0.0, stop_radius_mm, magnification_sign, object_at_infinity: true });
+    }
+    let aperture = match aperture {
+        SystemAperture::FloatByStopSize => {
+            let r = stop_semi_diameter_mm.ok_or("float by stop size: the stop has no semi-diameter")?;
+            // Paraxial marginal ray from the axial object point to the stop edge: n0·tan θ = r / |B|.
+            let tan = r / (b * n0).abs();
+            SystemAperture::ObjectSpaceNa(n0 * tan / (1.0 + tan * tan).sqrt())
+        }
+        other => other,
+    };
     let (radius_mm, sin_marginal) = match aperture {
         SystemAperture::ObjectSpaceNa(na) => {
             let s = na / n0;
@@ -86,10 +230,10 @@ pub(crate) fn entrance_pupil(surfaces: &[ParaxialSurface], stop: usize, aperture
             let tan = 0.5 * d / distance_mm.abs();
             (0.5 * d, tan / (1.0 + tan * tan).sqrt())
         }
+        SystemAperture::ImageSpaceFNumber(_) | SystemAperture::FloatByStopSize => unreachable!("converted above"),
     };
     // Paraxial marginal ray: from the axial object point through the pupil edge.
     let tan_m = sin_marginal / (1.0 - sin_marginal * sin_marginal).sqrt();
     let stop_radius_mm = (b * n0 * tan_m).abs();
-    let magnification_sign = if a < 0.0 { -1.0 } else { 1.0 };
-    Ok(EntrancePupil { distance_mm, radius_mm, sin_marginal, stop_radius_mm, magnification_sign })
+    Ok(EntrancePupil { distance_mm, radius_mm, sin_marginal, stop_radius_mm, magnification_sign, object_at_infinity: false })
 }

@@ -93,7 +93,20 @@ impl RenderRecord {
                 Some(airy)
             }
         };
-        let scene_pitch_mm = field_f64(&json, &jp, "scene_pitch_mm")?;
+        // An object at infinity records its angular extent (`scene_fov_deg`) instead of a pitch in mm; the
+        // renderer turns it back into the pixel angle (the placeholder pitch below is replaced).
+        let scene_fov_deg = match json.get("scene_fov_deg") {
+            None | Some(Value::Null) => None,
+            Some(_) => {
+                let f = field_f64(&json, &jp, "scene_fov_deg")?;
+                crate::render::check_scene_fov_deg(f).map_err(|e| ferr(&jp, format!("field `scene_fov_deg`: {e}")))?;
+                Some(f)
+            }
+        };
+        let scene_pitch_mm = match scene_fov_deg {
+            Some(_) => 0.01,
+            None => field_f64(&json, &jp, "scene_pitch_mm")?,
+        };
         let detector_pitch_mm = match json.get("detector_pitch_mm") {
             None | Some(Value::Null) => scene_pitch_mm,
             Some(_) => field_f64(&json, &jp, "detector_pitch_mm")?,
@@ -128,6 +141,7 @@ impl RenderRecord {
         cfg.scene_height = h;
         cfg.scene_width = w;
         cfg.scene_pitch_mm = scene_pitch_mm;
+        cfg.scene_fov_deg = scene_fov_deg;
         cfg.detector_pitch_mm = detector_pitch_mm;
         cfg.detector_extra_px = detector_extra_px;
         cfg.force_batched = json.get("force_batched").and_then(Value::as_bool).unwrap_or(false);

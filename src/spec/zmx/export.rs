@@ -71,6 +71,8 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
     match spec.aperture {
         SystemAperture::EntrancePupilDiameter(d) => writeln!(w, "ENPD {}", f(d)),
         SystemAperture::ObjectSpaceNa(na) => writeln!(w, "OBNA {} 0", f(na)),
+        SystemAperture::ImageSpaceFNumber(fno) => writeln!(w, "FNUM {} 0", f(fno)),
+        SystemAperture::FloatByStopSize => writeln!(w, "FLOA"),
     }
     .ok();
     let _ = writeln!(w, "ENVD 20 1 0");
@@ -100,11 +102,13 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
         crate::spec::RayAiming::Real => 2,
     };
     let _ = writeln!(w, "RAIM 0 {aim} 1 1 0 0 0 0 0");
-    let nf = spec.fields_mm.len();
-    let _ = writeln!(w, "FTYP 1 0 {nf} {} 0 0 0", spec.wavelengths_nm.len());
+    // Field values: degrees for angles (FTYP 0), mm for heights (FTYP 1–3).
+    let fields = spec.field_values();
+    let nf = fields.len();
+    let _ = writeln!(w, "FTYP {} 0 {nf} {} 0 0 0", spec.field_type.zmx_code(), spec.wavelengths_nm.len());
     let row = |vals: Vec<String>| vals.join(" ");
-    let _ = writeln!(w, "XFLN {}", row(spec.fields_mm.iter().map(|p| f(p[0])).collect()));
-    let _ = writeln!(w, "YFLN {}", row(spec.fields_mm.iter().map(|p| f(p[1])).collect()));
+    let _ = writeln!(w, "XFLN {}", row(fields.iter().map(|p| f(p[0])).collect()));
+    let _ = writeln!(w, "YFLN {}", row(fields.iter().map(|p| f(p[1])).collect()));
     let _ = writeln!(w, "FWGN {}", row(vec!["1".into(); nf]));
     for k in ["VDXN", "VDYN", "VCXN", "VCYN", "VANN"] {
         let _ = writeln!(w, "{k} {}", row(vec!["0".into(); nf]));

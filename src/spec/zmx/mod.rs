@@ -29,7 +29,7 @@ pub use records::Unsupported;
 
 use crate::error::{Error, Result};
 use crate::materials::WavelengthPolicy;
-use crate::spec::SystemSpec;
+use crate::spec::{FieldType, SystemSpec};
 use std::path::{Path, PathBuf};
 use surfaces::SurfaceBlock;
 use system_data::Header;
@@ -216,10 +216,8 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         surfaces.push(b.build(&mut unsupported).map_err(&fail)?);
     }
     if let Some((line, t)) = blocks[0].0.disz {
-        if t.is_infinite() {
-            return Err(fail(format!(
-                "line {line} `DISZ`: the object is at infinity; diffcassi traces finite conjugates only (object heights in mm): give the object a finite distance"
-            )));
+        if t == f64::NEG_INFINITY {
+            return Err(fail(format!("line {line} `DISZ`: object distance -INFINITY (an object at infinity is `DISZ INFINITY`)")));
         }
     }
     for (b, _) in &blocks {
@@ -230,7 +228,7 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         }
     }
 
-    // Fields: object heights (FTYP type 1); on-axis angle fields (all 0) are the same single field.
+    // Fields: FTYP 0 angles (degrees), 1 object heights, 2 paraxial and 3 real image heights (mm).
     let (ftype, nf, nw) = match header.ftyp {
         Some((_, t, nf, nw)) => (Some(t), Some(nf), Some(nw)),
         None => (None, None, None),
@@ -246,24 +244,43 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         }
     }
     let ftyp_line = header.ftyp.map(|f| f.0).unwrap_or(0);
-    match ftype {
-        Some(1) => {}
-        _ if fields.iter().all(|p| p[0] == 0.0 && p[1] == 0.0) => {}
-        Some(t) => unsupported.push(Unsupported {
-            line: ftyp_line,
-            keyword: "FTYP".into(),
-            reason: format!("field type {t} ({}): diffcassi's fields are object heights (type 1)", match t {
-                0 => "angle",
-                2 => "paraxial image height",
-                3 => "real image height",
-                _ => "unknown",
-            }),
-        }),
+    let at_infinity = blocks[0].0.disz.is_some_and(|(_, t)| t == f64::INFINITY);
+    let field_type = match ftype {
+        Some(0) => FieldType::Angle,
+        Some(1) => FieldType::ObjectHeight,
+        Some(2) => FieldType::ParaxialImageHeight,
+        Some(3) => FieldType::RealImageHeight,
+        // On-axis fields are the same single field whatever their type.
+        _ if fields.iter().all(|p| p[0] == 0.0 && p[1] == 0.0) => {
+            if at_infinity {
+                FieldType::Angle
+            } else {
+                FieldType::ObjectHeight
+            }
+        }
+        Some(t) => {
+            unsupported.push(Unsupported {
+                line: ftyp_line,
+                keyword: "FTYP".into(),
+                reason: format!("field type {t} (theodolite angles or another type): diffcassi reads angles (0), object heights (1), paraxial (2) and real (3) image heights"),
+            });
+            if at_infinity {
+                FieldType::Angle
+            } else {
+                FieldType::ObjectHeight
+            }
+        }
         None => return Err(fail("fields given without `FTYP`: their type (angle or height) is unknown".into())),
-    }
+    };
     if fields.is_empty() {
         fields.push([0.0, 0.0]);
     }
+    if at_infinity && field_type == FieldType::ObjectHeight && fields.iter().any(|p| *p != [0.0, 0.0]) {
+        return Err(fail(format!(
+            "line {ftyp_line} `FTYP`: object heights (type 1) with the object at infinity (`DISZ INFINITY` on surface 0): an object at infinity takes field angles (type 0) or image heights"
+        )));
+    }
+    let (fields_mm, fields_deg) = if field_type == FieldType::Angle { (Vec::new(), fields) } else { (fields, Vec::new()) };
     for (line, k, vals) in &header.vignetting {
         if vals.iter().take(nf).any(|v| *v != 0.0) {
             unsupported.push(Unsupported { line: *line, keyword: k.clone(), reason: "vignetting factors are not modelled (they change the ray sampling)".into() });
@@ -327,7 +344,7 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     let aperture = header
         .aperture
         .map(|a| a.1)
-        .ok_or_else(|| fail("no system aperture: an `ENPD` (entrance pupil diameter) or `OBNA` (object-space NA) record is needed".into()))?;
+        .ok_or_else(|| fail("no system aperture: an `ENPD` (entrance pupil diameter), `FNUM` (image-space F/#), `OBNA` (object-space NA) or `FLOA` (float by stop size) record is needed".into()))?;
     let name = if header.name.is_empty() {
         Path::new(source_name).file_stem().and_then(|s| s.to_str()).unwrap_or("imported").to_string()
     } else {
@@ -340,7 +357,9 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         ray_aiming: header.ray_aiming,
         wavelengths_nm,
         primary_wavelength_nm: primary,
-        fields_mm: fields,
+        fields_mm,
+        field_type,
+        fields_deg,
         wavelength_policy: if header.allow_extrapolation { WavelengthPolicy::AllowExtrapolation } else { WavelengthPolicy::Strict },
         air_index: header.air_index.unwrap_or(1.0),
         glass_catalogs: catalog_paths,

@@ -2,8 +2,9 @@
 //! ray aiming, fields, wavelengths, environment, glass catalogues.
 //!
 //! Read as OpticStudio writes them (see `docs/zemax-files.md`): `ENPD d` (entrance pupil diameter, mm),
-//! `OBNA na` (object-space NA), `RAIM a m …` (m = 0 off, 2 real), `FTYP type ? nfields nwaves …` with
-//! `XFLN`/`YFLN` (object heights, mm, for type 1), `WAVM i λ_µm weight` (or the older `WAVL`/`WWGT`),
+//! `OBNA na` (object-space NA), `FNUM f …` (image-space F/#), `FLOA` (float by stop size),
+//! `RAIM a m …` (m = 0 off, 2 real), `FTYP type ? nfields nwaves …` with `XFLN`/`YFLN` (type 0: angles in
+//! degrees; 1: object heights, 2: paraxial and 3: real image heights, mm), `WAVM i λ_µm weight` (or the older `WAVL`/`WWGT`),
 //! `PWAV i`, `GCAT names…`, `ENVD T P …`, `UNIT MM …`, `MODE SEQ`.
 use super::lexer::Record;
 use super::records::{finite, int, num_or, Unsupported};
@@ -62,9 +63,11 @@ impl Header {
             }
             "ENPD" => self.aperture = Some((r.line, SystemAperture::EntrancePupilDiameter(finite(r, 0)?))),
             "OBNA" => self.aperture = Some((r.line, SystemAperture::ObjectSpaceNa(finite(r, 0)?))),
-            "FNUM" | "FLOA" | "OBSA" | "PUPD" => {
-                skip("system aperture type not modelled (diffcassi takes the entrance pupil diameter ENPD or the object-space NA OBNA)".into())
-            }
+            "FNUM" => self.aperture = Some((r.line, SystemAperture::ImageSpaceFNumber(finite(r, 0)?))),
+            "FLOA" => self.aperture = Some((r.line, SystemAperture::FloatByStopSize)),
+            "OBSA" | "PUPD" => skip(
+                "system aperture type not modelled (diffcassi takes the entrance pupil diameter ENPD, the image-space F/# FNUM, the object-space NA OBNA or float by stop size FLOA)".into(),
+            ),
             "RAIM" => {
                 let (a, m) = (int(r, 0)?, int(r, 1)?);
                 match (a, m) {

@@ -118,6 +118,12 @@ impl Solids {
         // propagating rays backwards as a sequential tracer may); a non-sequential tracer only follows rays
         // forward, so every ray would silently miss. Refuse it with the reason instead.
         let object_mm = system.surfaces[0].thickness_mm;
+        if system.object_at_infinity() {
+            return Err(Error::invalid(format!(
+                "system `{}`: the object is at infinity; the non-sequential backends (Embree, brute force) are not set up for it (rays start on surface 1's vertex plane, which a curved first surface may lie behind): use the analytic backend",
+                system.name()
+            )));
+        }
         if object_mm < 0.0 {
             return Err(Error::invalid(format!(
                 "system `{}`: surface 0 thickness {object_mm} mm < 0 is a virtual object; the non-sequential backends (Embree, brute force) trace rays forward only (use the analytic backend)",
