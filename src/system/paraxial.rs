@@ -47,7 +47,8 @@ fn height_at_stop(surfaces: &[ParaxialSurface], stop: usize, y0: f64, nu0: f64) 
         }
         let s = &surfaces[i];
         let power = match s.kind {
-            SurfaceKind::Standard | SurfaceKind::EvenAsphere => s.curvature * (s.n_after - prev.n_after),
+            // A grating's substrate refracts paraxially; its constant deflection is no power (like a break).
+            SurfaceKind::Standard | SurfaceKind::EvenAsphere | SurfaceKind::Toroidal | SurfaceKind::DiffractionGrating => s.curvature * (s.n_after - prev.n_after),
             SurfaceKind::Paraxial => s.n_after / s.focal_length_mm,
             SurfaceKind::CoordinateBreak => 0.0,
         };
