@@ -526,3 +526,35 @@ fn gsp_grating_is_computed_from_sp_span_and_disperses_alike() {
     // The GPU plan and the reverse-mode renderer gradient refuse it by name.
     assert!(gsp.special_surface().unwrap().contains("diffraction grating"));
 }
+
+fn cli(args: &[&str]) -> String {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_diffcassi")).args(args).output().unwrap();
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "diffcassi {}: {text}", args.join(" "));
+    text
+}
+
+#[test]
+fn gsp_renders_reconstructs_and_joins_the_study() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |s: &str| dir.path().join(s).display().to_string();
+    cli(&["render", "--preset", "gsp", "--scene-size", "64", "--out", &p("r")]);
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.path().join("r/render.json")).unwrap()).unwrap();
+    assert!(json.to_string().contains("gsp"));
+    let exr = std::fs::metadata(dir.path().join("r/acquisition.exr")).unwrap();
+    assert!(exr.len() > 1000);
+    let t = cli(&["reconstruct", "--from", &p("r"), "--operator", "exact", "--solver", "gap-tv", "--iterations", "5", "--out", &p("gap")]);
+    assert!(t.contains("gsp / exact / gap-tv"), "{t}");
+    let t = cli(&["reconstruct", "--from", &p("r"), "--operator", "exact", "--solver", "pnp-gap", "--iterations", "6", "--tv-warmup", "3", "--out", &p("pnp")]);
+    assert!(t.contains("gsp / exact / pnp-gap"), "{t}");
+    for solver in ["gap", "pnp"] {
+        assert!(dir.path().join(solver).join("cube.npy").is_file(), "{solver}: no cube.npy");
+    }
+    cli(&["study", "--presets", "sp,gsp", "--operators", "exact", "--solvers", "gap-tv", "--synthetic", "1", "--scene-size", "32", "--iterations", "5", "--out", &p("study")]);
+    let md = std::fs::read_to_string(dir.path().join("study/study.md")).unwrap();
+    assert!(md.contains("gSP") && md.contains("SP"), "{md}");
+    // The GPU plan refuses a grating system by name (no device needed to see it).
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_diffcassi")).args(["render", "--preset", "gsp", "--scene-size", "16", "--device", "cpu-twin", "--out", &p("twin")]).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && text.contains("diffraction grating"), "{text}");
+}
