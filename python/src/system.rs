@@ -126,7 +126,7 @@ impl PySystem {
 
 #[pymethods]
 impl PySystem {
-    /// One of the presets: `sp`, `ap`, `msp`, `map` (case-insensitive).
+    /// One of the presets: `sp`, `ap`, `msp`, `map`, `gsp` (case-insensitive).
     #[staticmethod]
     fn preset(py: Python<'_>, name: &str) -> PyResult<Self> {
         let name = name.to_string();

@@ -222,10 +222,22 @@ pub fn lde_table(system: &SequentialSystem) -> String {
                 if let Some(k) = &surf.conic {
                     t += &format!("conic {}", cell_text(Some(k)));
                 }
-                for (k, a) in surf.asphere_coefficients.iter().enumerate() {
-                    t += &format!(" a{} {:e}", 2 * (k + 1), a.value);
+                if surf.kind == SurfaceKind::Toroidal {
+                    t += &format!(" rotation radius {}", surf.rotation_radius_mm.as_ref().map(|c| cell_text(Some(c))).unwrap_or_else(|| "inf (cylinder)".into()));
                 }
-                t
+                for (k, a) in surf.asphere_coefficients.iter().enumerate() {
+                    let var = if surf.kind == SurfaceKind::Toroidal { "y" } else { "a" };
+                    t += &format!(" {var}{} {:e}", 2 * (k + 1), a.value);
+                }
+                if surf.kind == SurfaceKind::DiffractionGrating {
+                    t += &format!(
+                        " lines/µm {} order {} efficiency {}",
+                        cell_text(surf.grating_lines_per_um.as_ref()),
+                        cell_text(surf.grating_order.as_ref()),
+                        surf.grating_efficiency.unwrap_or(1.0)
+                    );
+                }
+                t.trim().to_string()
             }
         };
         let _ = writeln!(

@@ -106,6 +106,7 @@ pub fn system_label(preset: &str) -> String {
         "sp" => "SP".into(),
         "map" => "mAP".into(),
         "msp" => "mSP".into(),
+        "gsp" => "gSP".into(),
         other => other.to_string(),
     }
 }

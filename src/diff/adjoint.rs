@@ -160,6 +160,14 @@ impl AdjointPlan {
     /// index at one of them).
     pub fn new(ds: &DiffSystem, wavelengths_nm: &[f64]) -> Result<Self> {
         let kk = ds.k();
+        // The reverse sweep transposes refraction and the ideal lens only (the forward tangents, diff::kernel,
+        // also cover mirrors and gratings).
+        if let Some(what) = ds.system.special_surface() {
+            return Err(crate::error::Error::invalid(format!(
+                "system `{}`: {what}; the reverse-mode gradient of the acquisition (render::gradient) is implemented for refracting surfaces only (forward-mode Jacobians, DiffSystem::trace, cover it)",
+                ds.system.name()
+            )));
+        }
         let ns = ds.system.indices(ds.system.spec.primary_wavelength_nm)?.len();
         let mut index_moves = vec![false; ns];
         for &w in wavelengths_nm {

@@ -67,7 +67,7 @@ pub(crate) fn figure(shape: &SurfaceShape) -> Option<(f64, f64, &[f64])> {
         SurfaceShape::Plane => Some((0.0, 0.0, &[])),
         SurfaceShape::Conic { curvature, conic } => Some((*curvature, *conic, &[])),
         SurfaceShape::EvenAsphere { curvature, conic, coefficients } => Some((*curvature, *conic, coefficients.as_slice())),
-        SurfaceShape::Paraxial { .. } => None,
+        SurfaceShape::Paraxial { .. } | SurfaceShape::Toroidal { .. } => None,
     }
 }
 
@@ -105,6 +105,9 @@ impl SagLocal {
 #[derive(Clone, Copy, Debug)]
 pub struct SurfaceLocal {
     sag: SagLocal,
+    /// The Hessian (H_xx, H_xy, H_yy) of a figure that is not a function of r² (a Toroidal surface,
+    /// [`crate::surfaces::toroidal`]); `None` for the rotationally symmetric figures.
+    general_hessian: Option<(f64, f64, f64)>,
     /// m = (−sx, −sy, 1) and |m|.
     pub m: DVec3,
     pub m_len: f64,
@@ -115,6 +118,15 @@ impl SurfaceLocal {
     /// Local data of `shape` at the hit point `q`.
     pub fn at(shape: &SurfaceShape, q: DVec3) -> SurfaceLocal {
         let (x, y) = (q.x, q.y);
+        if let SurfaceShape::Toroidal { curvature, conic, coefficients, rotation_curvature } = shape {
+            // Its figure parameters are not free parameters (diff::param refuses them): only the hit's
+            // motion along the surface (gradient and Hessian) enters.
+            let t = crate::surfaces::toroidal::toroid_local(*curvature, *conic, coefficients, *rotation_curvature, x, y);
+            let m = DVec3::new(-t.grad.0, -t.grad.1, 1.0);
+            let m_len = m.length();
+            let sag = SagLocal { f1: 0.0, f2: 0.0, x, y, r2: x * x + y * y, c: 0.0, k: 0.0, s: 1.0 };
+            return SurfaceLocal { sag, general_hessian: Some(t.hessian), m, m_len, normal: m / m_len };
+        }
         let r2 = x * x + y * y;
         let (mut f1, mut f2, mut c, mut k, mut s) = (0.0, 0.0, 0.0, 0.0, 1.0);
         if let Some((cc, kk, alpha)) = figure(shape) {
@@ -123,7 +135,7 @@ impl SurfaceLocal {
         }
         let m = DVec3::new(-2.0 * f1 * x, -2.0 * f1 * y, 1.0);
         let m_len = m.length();
-        SurfaceLocal { sag: SagLocal { f1, f2, x, y, r2, c, k, s }, m, m_len, normal: m / m_len }
+        SurfaceLocal { sag: SagLocal { f1, f2, x, y, r2, c, k, s }, general_hessian: None, m, m_len, normal: m / m_len }
     }
 
     /// (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ) along a shape tangent.
@@ -139,7 +151,7 @@ impl SurfaceLocal {
         // ∇F = m (F = z − sag); ∂F/∂θ = −∂sag/∂θ.
         let dt = -(-dsag + self.m.dot(dray)) / self.m.dot(d);
         let dq = dray + d * dt;
-        let (hxx, hxy, hyy) = self.sag.hessian();
+        let (hxx, hxy, hyy) = self.general_hessian.unwrap_or_else(|| self.sag.hessian());
         let dm = DVec3::new(-(hxx * dq.x + hxy * dq.y + dsx), -(hxy * dq.x + hyy * dq.y + dsy), 0.0);
         let dn = (dm - self.normal * self.normal.dot(dm)) / self.m_len;
         HitTangent { point: dq, t: dt, normal: dn }

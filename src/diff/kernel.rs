@@ -7,11 +7,15 @@
 //! d′ = μ d + (√κ − μ cos θᵢ) n̂, κ = 1 − μ²(1 − cos²θᵢ), μ = n₁/n₂:
 //! δd′ = δμ d + μ δd + (δ√κ − δμ cos θᵢ − μ δcos θᵢ) n̂ + (√κ − μ cos θᵢ) δn̂,
 //! δcos θᵢ = δd·n̂ + d·δn̂, δκ = −2μ δμ (1 − cos²θᵢ) + 2μ² cos θᵢ δcos θᵢ — or of the ideal lens
-//! tan′ = μ tan − h/f (Zemax Paraxial surface).
+//! tan′ = μ tan − h/f (Zemax Paraxial surface); of a mirror d′ = d − 2(d·n̂)n̂:
+//! δd′ = δd − 2((δd·n̂ + d·δn̂) n̂ + (d·n̂) δn̂); or of a grating order ([`crate::surfaces::grating`]):
+//! v = n₁d − s g K, v_t = v − (v·ν)ν, a = ±√(n₂² − |v_t|²), d′ = (v_t + a ν)/n₂ with ν the normal along d,
+//! K = normalise(ŷ − n̂_y n̂) and g = mλT, each of them differentiated (δK from δn̂, δg = mTδλ).
 use super::hit::{ShapeTangent, SurfaceLocal};
 use crate::surfaces::{intersect, IntersectFailure, SurfaceShape};
-use crate::system::PathStep;
-use crate::tracer::kernel::{paraxial_deflect, refract};
+use crate::surfaces::grating::diffract;
+use crate::system::{Interaction, PathStep};
+use crate::tracer::kernel::{paraxial_deflect, reflect, refract, GRAZING_COS};
 use crate::tracer::RayStatus;
 use glam::{DMat3, DVec3};
 
@@ -115,6 +119,53 @@ pub(crate) fn interact_tangents(
     let mu = n1 / n2;
     let dn1 = &dn[(step.surface - 1) * kk..step.surface * kk];
     let dn2 = &dn[step.surface * kk..(step.surface + 1) * kk];
+    match step.interaction {
+        Interaction::Refract => {}
+        Interaction::Reflect => {
+            let c = d.dot(normal);
+            if c.abs() <= GRAZING_COS {
+                return Err(RayStatus::Missed);
+            }
+            let d_out = reflect(d, normal);
+            for k in 0..kk {
+                let ht = local.tangent(d, dp[k] + dd[k] * t, &tan.shape[k]);
+                let dc = dd[k].dot(normal) + d.dot(ht.normal);
+                dd[k] = dd[k] - (normal * dc + ht.normal * c) * 2.0;
+                dp[k] = ht.point;
+            }
+            return Ok(d_out);
+        }
+        Interaction::Grating { grating, reflective, wavelength_slot } => {
+            if reflective && d.dot(normal).abs() <= GRAZING_COS {
+                return Err(RayStatus::Missed);
+            }
+            let g = grating.kick(n[wavelength_slot]);
+            let d_out = diffract(d, normal, n1, n2, g, reflective).ok_or(RayStatus::Evanescent)?;
+            let dl = &dn[wavelength_slot * kk..(wavelength_slot + 1) * kk];
+            let (nrm, _, sgn) = oriented_normal(d, normal);
+            let (kv, inv_len) = crate::surfaces::grating::across_lines(normal);
+            let s = if reflective { -1.0 } else { 1.0 };
+            let v = d * n1 - kv * (s * g);
+            let vn = v.dot(nrm);
+            let vt = v - nrm * vn;
+            let a = (d_out * n2 - vt).dot(nrm); // ±√(n₂² − |v_t|²), as `diffract` chose it
+            for k in 0..kk {
+                let ht = local.tangent(d, dp[k] + dd[k] * t, &tan.shape[k]);
+                let dnrm = ht.normal * sgn;
+                let dk_raw = -(normal * ht.normal.y + ht.normal * normal.y);
+                let dkv = (dk_raw - kv * kv.dot(dk_raw)) * inv_len;
+                let dg = grating.kick(dl[k]);
+                let dv = d * dn1[k] + dd[k] * n1 - (kv * dg + dkv * g) * s;
+                let dvn = dv.dot(nrm) + v.dot(dnrm);
+                let dvt = dv - nrm * dvn - dnrm * vn;
+                let dq = 2.0 * n2 * dn2[k] - 2.0 * vt.dot(dvt);
+                let da = dq / (2.0 * a);
+                dd[k] = (dvt + nrm * da + dnrm * a) / n2 - d_out * (dn2[k] / n2);
+                dp[k] = ht.point;
+            }
+            return Ok(d_out);
+        }
+    }
     match step.shape {
         SurfaceShape::Paraxial { focal_length: f } => {
             let d_out = paraxial_deflect(q, d, f, n1, n2);

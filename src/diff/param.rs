@@ -158,13 +158,20 @@ impl ParamSet {
                     Driver::Pickup(ref pk) => return Err(bad(format!("the cell is a pickup from surface {}: free its source instead", pk.surface))),
                     Driver::ChiefRay => return Err(bad("the cell is a chief-ray solve: it is determined by the system".into())),
                 }
+                let figure_column = matches!(column.as_str(), "radius_mm" | "conic" | "rotation_radius_mm") || column.starts_with("asphere_");
+                if s.kind == SurfaceKind::Toroidal && figure_column {
+                    return Err(bad(format!("`{column}` of a Toroidal surface: the derivatives of its figure are not implemented (its placement and the rays through it are)")));
+                }
+                if matches!(column.as_str(), "grating_lines_per_um" | "grating_order") {
+                    return Err(bad(format!("`{column}`: the grating's line density and order are not free parameters (the substrate, its placement and the wavelength are)")));
+                }
                 if column == "radius_mm" && self.free.contains(&Param::Curvature { surface: *surface }) {
                     return Err(bad("the surface's curvature is already free".into()));
                 }
             }
             Param::Curvature { surface } => {
                 let s = self.spec.surfaces.get(*surface).ok_or_else(|| bad(format!("no surface {surface} (the system has {n})")))?;
-                if !matches!(s.kind, SurfaceKind::Standard | SurfaceKind::EvenAsphere) {
+                if !matches!(s.kind, SurfaceKind::Standard | SurfaceKind::EvenAsphere | SurfaceKind::DiffractionGrating) {
                     return Err(bad(format!("a {} surface has no curvature", s.kind.label())));
                 }
                 if let Some(c) = &s.radius_mm {

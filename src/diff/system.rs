@@ -338,6 +338,15 @@ impl DiffSystem {
                 };
             }
         }
+        // A system with gratings carries the wavelength itself after the indices (SequentialSystem::indices).
+        if n.len() > self.system.surfaces.len() && with_wavelength {
+            let slot = self.system.surfaces.len();
+            for (k, p) in self.params.iter().enumerate() {
+                if *p == Param::Wavelength {
+                    dn[slot * kk + k] = 1.0;
+                }
+            }
+        }
         Ok((n, dn))
     }
 
@@ -354,17 +363,24 @@ impl DiffSystem {
                 _ => Dn::constant(value(i, col), kk),
             }
         };
-        let nd = |i: usize| Dn::new(n[i], dn[i * kk..(i + 1) * kk].to_vec());
+        // OpticStudio's signed paraxial indices (as the build's pupil): each mirror flips the sign after it.
+        let signs: Vec<f64> = spec.surfaces.iter().scan(1.0, |sg, s| {
+            if s.is_mirror() {
+                *sg = -*sg;
+            }
+            Some(*sg)
+        }).collect();
+        let nd = |i: usize| Dn::new(n[i], dn[i * kk..(i + 1) * kk].to_vec()).scale(signs[i]);
         let power = |i: usize| -> Dn {
             let s = &spec.surfaces[i];
             match s.kind {
-                SurfaceKind::Standard | SurfaceKind::EvenAsphere => {
+                SurfaceKind::Standard | SurfaceKind::EvenAsphere | SurfaceKind::DiffractionGrating | SurfaceKind::Toroidal => {
                     let c = match self.params.iter().position(|p| *p == Param::Curvature { surface: i }) {
                         Some(k) => Dn::seed(s.radius_mm.as_ref().map(|r| 1.0 / r.value).unwrap_or(0.0), kk, k),
                         None if s.radius_mm.is_some() => dual(i, "radius_mm").recip(),
                         None => Dn::constant(0.0, kk),
                     };
-                    let c = if s.kind == SurfaceKind::EvenAsphere && !s.asphere_coefficients.is_empty() { &c + &dual(i, "asphere_1").scale(2.0) } else { c };
+                    let c = if matches!(s.kind, SurfaceKind::EvenAsphere | SurfaceKind::Toroidal) && !s.asphere_coefficients.is_empty() { &c + &dual(i, "asphere_1").scale(2.0) } else { c };
                     &c * &(&nd(i) - &nd(i - 1))
                 }
                 SurfaceKind::Paraxial => &nd(i) / &dual(i, "focal_length_mm"),

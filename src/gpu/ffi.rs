@@ -51,6 +51,7 @@ pub(crate) fn status_of(code: u8) -> RayStatus {
         4 => RayStatus::NoConvergence,
         5 => RayStatus::InvalidInput,
         8 => RayStatus::OutOfRange,
+        9 => RayStatus::Evanescent,
         _ => RayStatus::InvalidInput,
     }
 }

@@ -68,6 +68,14 @@ pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
         .path
         .iter()
         .map(|s| {
+            // The kernels (dc_trace_tmpl.h, the C twin of tracer::kernel) refract only: a system with a
+            // mirror, a grating or a Toroidal surface is refused here, before any device work.
+            if s.interaction != crate::system::Interaction::Refract || matches!(s.shape, SurfaceShape::Toroidal { .. }) {
+                let what = system.special_surface().unwrap_or_else(|| format!("surface {} is not a refracting surface", s.surface));
+                return Err(Error::invalid(format!(
+                    "the GPU kernels trace refracting surfaces only, and {what}: use --device cpu (the analytic tracer) for this system"
+                )));
+            }
             let mut step = Step { rotation: s.rotation.to_cols_array(), offset: s.offset.to_array(), surface: s.surface as u32, ..Step::default() };
             match &s.shape {
                 SurfaceShape::Plane => step.shape = SHAPE_PLANE,
@@ -94,6 +102,7 @@ pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
                     step.shape = SHAPE_PARAXIAL;
                     step.focal_length = *focal_length;
                 }
+                SurfaceShape::Toroidal { .. } => unreachable!("refused above"),
             }
             match s.aperture {
                 Aperture::None => step.aperture_kind = APERTURE_NONE,

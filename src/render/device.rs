@@ -142,6 +142,7 @@ fn stats(out: &PlanOutput, traced: u64) -> RayStats {
         absorbed: c[6],
         bounce_limit: c[7],
         out_of_range: c[8],
+        evanescent: 0, // systems with gratings are refused by the GPU plan (gpu::pack::steps)
         off_detector: c[STATUS_SLOTS] as f64 / LOST_ONE,
     }
 }

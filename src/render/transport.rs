@@ -35,6 +35,10 @@ pub struct Footprint {
     pub start: u32,
 }
 
+fn is_zero_u64(v: &u64) -> bool {
+    *v == 0
+}
+
 /// Ray counts of a plane (or a whole render).
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RayStats {
@@ -52,6 +56,9 @@ pub struct RayStats {
     pub bounce_limit: u64,
     /// Arrived at a non-finite or implausible position ([`RayStatus::OutOfRange`]).
     pub out_of_range: u64,
+    /// A grating order that does not propagate ([`RayStatus::Evanescent`]); written only when non-zero.
+    #[serde(skip_serializing_if = "is_zero_u64")]
+    pub evanescent: u64,
     /// Splat weight (in rays) that fell off the detector.
     pub off_detector: f64,
 }
@@ -68,6 +75,7 @@ impl RayStats {
         self.absorbed += o.absorbed;
         self.bounce_limit += o.bounce_limit;
         self.out_of_range += o.out_of_range;
+        self.evanescent += o.evanescent;
         self.off_detector += o.off_detector;
     }
     pub(crate) fn count(&mut self, s: RayStatus) {
@@ -81,6 +89,7 @@ impl RayStats {
             RayStatus::Absorbed => self.absorbed += 1,
             RayStatus::BounceLimit => self.bounce_limit += 1,
             RayStatus::OutOfRange => self.out_of_range += 1,
+            RayStatus::Evanescent => self.evanescent += 1,
         }
     }
     /// Fraction of the traced rays that reached the detector.

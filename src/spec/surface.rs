@@ -14,6 +14,12 @@ pub enum SurfaceKind {
     Paraxial,
     /// Coordinate Break: decenter x/y, tilt x/y/z, order; keeps the medium before it.
     CoordinateBreak,
+    /// OpticStudio's Toroidal: a curve in the YZ plane (radius, conic, even terms α₁y² … α₈y¹⁶) rotated about
+    /// an axis parallel to y at the distance `rotation_radius_mm` (absent: a cylinder). `src/surfaces/toroidal.rs`.
+    Toroidal,
+    /// OpticStudio's Diffraction Grating: a Standard surface (radius, conic) ruled with lines parallel to the
+    /// local x axis, `grating_lines_per_um`, traced in `grating_order`. `src/surfaces/grating.rs`.
+    DiffractionGrating,
 }
 
 impl SurfaceKind {
@@ -23,6 +29,8 @@ impl SurfaceKind {
             SurfaceKind::EvenAsphere => "Even Asphere",
             SurfaceKind::Paraxial => "Paraxial",
             SurfaceKind::CoordinateBreak => "Coordinate Break",
+            SurfaceKind::Toroidal => "Toroidal",
+            SurfaceKind::DiffractionGrating => "Diffraction Grating",
         }
     }
 }
@@ -44,7 +52,8 @@ pub struct SurfaceSpec {
     /// Distance to the next surface along the local z after this surface (after a break's own transform).
     #[serde(default)]
     pub thickness_mm: Cell,
-    /// Glass name after this surface; absent means air. Not allowed on Coordinate Breaks.
+    /// Glass name after this surface; absent means air; `MIRROR` (any case) makes the surface a reflector
+    /// (OpticStudio's `GLAS MIRROR`: the medium after it is the medium before it). Not allowed on Coordinate Breaks.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub material: Option<String>,
     /// Informative semi-diameter (does not clip; see `aperture`).
@@ -61,6 +70,19 @@ pub struct SurfaceSpec {
     /// Paraxial surface focal length (mm).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub focal_length_mm: Option<Cell>,
+    /// Toroidal: radius of rotation (mm, the X radius); absent = infinite (a cylinder).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotation_radius_mm: Option<Cell>,
+    /// Diffraction Grating: lines per µm (along the local y axis; the lines are parallel to x).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grating_lines_per_um: Option<Cell>,
+    /// Diffraction Grating: the diffraction order traced (an integer).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grating_order: Option<Cell>,
+    /// Diffraction Grating: the scalar efficiency of the traced order, in [0, 1] (absent: 1). It scales the
+    /// power a ray carries (rendering), never its path.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub grating_efficiency: Option<f64>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub decenter_x_mm: Option<Cell>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -127,7 +149,13 @@ pub const COLUMNS: &[&str] = &[
     "asphere_6",
     "asphere_7",
     "asphere_8",
+    "rotation_radius_mm",
+    "grating_lines_per_um",
+    "grating_order",
 ];
+
+/// The columns after the asphere terms in [`COLUMNS`] (Toroidal and Diffraction Grating parameters).
+const EXTRA_COLUMNS: [&str; 3] = ["rotation_radius_mm", "grating_lines_per_um", "grating_order"];
 
 impl SurfaceSpec {
     /// A bare surface of the given kind with every optional column empty.
@@ -144,6 +172,10 @@ impl SurfaceSpec {
             conic: None,
             asphere_coefficients: Vec::new(),
             focal_length_mm: None,
+            rotation_radius_mm: None,
+            grating_lines_per_um: None,
+            grating_order: None,
+            grating_efficiency: None,
             decenter_x_mm: None,
             decenter_y_mm: None,
             tilt_x_deg: None,
@@ -193,6 +225,9 @@ impl SurfaceSpec {
             "tilt_x_deg" => self.tilt_x_deg.as_ref(),
             "tilt_y_deg" => self.tilt_y_deg.as_ref(),
             "tilt_z_deg" => self.tilt_z_deg.as_ref(),
+            "rotation_radius_mm" => self.rotation_radius_mm.as_ref(),
+            "grating_lines_per_um" => self.grating_lines_per_um.as_ref(),
+            "grating_order" => self.grating_order.as_ref(),
             c if c.starts_with("asphere_") => {
                 c[8..].parse::<usize>().ok().filter(|i| *i >= 1).and_then(|i| self.asphere_coefficients.get(i - 1))
             }
@@ -212,6 +247,9 @@ impl SurfaceSpec {
             "tilt_x_deg" => self.tilt_x_deg.as_mut(),
             "tilt_y_deg" => self.tilt_y_deg.as_mut(),
             "tilt_z_deg" => self.tilt_z_deg.as_mut(),
+            "rotation_radius_mm" => self.rotation_radius_mm.as_mut(),
+            "grating_lines_per_um" => self.grating_lines_per_um.as_mut(),
+            "grating_order" => self.grating_order.as_mut(),
             c if c.starts_with("asphere_") => match c[8..].parse::<usize>() {
                 Ok(i) if i >= 1 => self.asphere_coefficients.get_mut(i - 1),
                 _ => None,
@@ -223,6 +261,7 @@ impl SurfaceSpec {
     /// The columns present on this surface, in LDE order.
     pub fn present_columns(&self) -> Vec<String> {
         let mut cols: Vec<String> = COLUMNS[..9].iter().filter(|c| self.cell(c).is_some()).map(|c| c.to_string()).collect();
+        cols.extend(EXTRA_COLUMNS.iter().filter(|c| self.cell(c).is_some()).map(|c| c.to_string()));
         cols.extend((1..=self.asphere_coefficients.len()).map(|i| format!("asphere_{i}")));
         cols
     }
@@ -236,6 +275,38 @@ impl SurfaceSpec {
             SurfaceKind::CoordinateBreak => {
                 &["thickness_mm", "decenter_x_mm", "decenter_y_mm", "tilt_x_deg", "tilt_y_deg", "tilt_z_deg"]
             }
+            SurfaceKind::Toroidal => &["radius_mm", "thickness_mm", "conic", "rotation_radius_mm"],
+            SurfaceKind::DiffractionGrating => &["radius_mm", "thickness_mm", "conic", "grating_lines_per_um", "grating_order"],
         }
+    }
+
+    /// Whether this surface reflects (`material = "MIRROR"`, OpticStudio's `GLAS MIRROR`).
+    pub fn is_mirror(&self) -> bool {
+        self.material.as_deref().map(is_mirror_material).unwrap_or(false)
+    }
+}
+
+/// Whether a material name is OpticStudio's `MIRROR` (any case).
+pub fn is_mirror_material(name: &str) -> bool {
+    name.eq_ignore_ascii_case("MIRROR")
+}
+
+impl SurfaceSpec {
+    /// A Toroidal surface (lengths mm): the YZ curve's radius (None = flat in y), the radius of rotation
+    /// (None = a cylinder).
+    pub fn toroidal(radius_mm: Option<f64>, rotation_radius_mm: Option<f64>, thickness_mm: f64, material: Option<&str>) -> Self {
+        let mut s = SurfaceSpec::standard(radius_mm, thickness_mm, material);
+        s.kind = SurfaceKind::Toroidal;
+        s.rotation_radius_mm = rotation_radius_mm.map(Cell::fixed);
+        s
+    }
+
+    /// A Diffraction Grating on a Standard substrate (radius None = a plane).
+    pub fn grating(radius_mm: Option<f64>, lines_per_um: f64, order: i32, thickness_mm: f64, material: Option<&str>) -> Self {
+        let mut s = SurfaceSpec::standard(radius_mm, thickness_mm, material);
+        s.kind = SurfaceKind::DiffractionGrating;
+        s.grating_lines_per_um = Some(Cell::fixed(lines_per_um));
+        s.grating_order = Some(Cell::fixed(order as f64));
+        s
     }
 }

@@ -276,8 +276,19 @@ impl SystemSpec {
             if s.asphere_coefficients.len() > 8 {
                 return Err(at("asphere_coefficients", format!("{} terms: at most 8 (r² … r¹⁶)", s.asphere_coefficients.len())));
             }
-            if !s.asphere_coefficients.is_empty() && s.kind != SurfaceKind::EvenAsphere {
-                return Err(at("asphere_coefficients", "only allowed on even_asphere surfaces".into()));
+            if !s.asphere_coefficients.is_empty() && !matches!(s.kind, SurfaceKind::EvenAsphere | SurfaceKind::Toroidal) {
+                return Err(at("asphere_coefficients", "only allowed on even_asphere and toroidal surfaces".into()));
+            }
+            if s.is_mirror() {
+                if i == 0 || i == last {
+                    return Err(at("material", "MIRROR: the object and image surfaces cannot be mirrors".into()));
+                }
+                if s.kind == SurfaceKind::Paraxial {
+                    return Err(at("material", "MIRROR on a Paraxial surface is not modelled (use a Standard mirror)".into()));
+                }
+            }
+            if s.grating_efficiency.is_some() && s.kind != SurfaceKind::DiffractionGrating {
+                return Err(at("grating_efficiency", "only allowed on diffraction_grating surfaces".into()));
             }
             let allowed = s.allowed_columns();
             for col in s.present_columns() {
@@ -316,6 +327,34 @@ impl SystemSpec {
                     Some(c) if c.value == 0.0 => return Err(at("focal_length_mm", "0 is not a lens".into())),
                     _ => {}
                 },
+                SurfaceKind::Toroidal => {
+                    if let Some(r) = &s.rotation_radius_mm {
+                        if r.value == 0.0 {
+                            return Err(at("rotation_radius_mm", "0: leave it out for a cylinder (an infinite radius of rotation)".into()));
+                        }
+                    }
+                }
+                SurfaceKind::DiffractionGrating => {
+                    match &s.grating_lines_per_um {
+                        None => return Err(at("grating_lines_per_um", "missing".into())),
+                        Some(c) if !(c.value > 0.0) => {
+                            return Err(at("grating_lines_per_um", format!("{}: must be finite and > 0 lines per µm", c.value)))
+                        }
+                        _ => {}
+                    }
+                    match &s.grating_order {
+                        None => return Err(at("grating_order", "missing".into())),
+                        Some(c) if c.value.fract() != 0.0 || c.value.abs() > 1e6 => {
+                            return Err(at("grating_order", format!("{}: a diffraction order is an integer", c.value)))
+                        }
+                        _ => {}
+                    }
+                    if let Some(e) = s.grating_efficiency {
+                        if !(0.0..=1.0).contains(&e) {
+                            return Err(at("grating_efficiency", format!("{e}: must be in [0, 1]")));
+                        }
+                    }
+                }
                 _ => {}
             }
             if let Some(r) = &s.radius_mm {

@@ -210,7 +210,7 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
                     }
                 }
             }
-            SurfaceKind::Standard => {}
+            SurfaceKind::Standard | SurfaceKind::Toroidal | SurfaceKind::DiffractionGrating => {}
         }
         surfaces.push(s);
     }

@@ -56,6 +56,27 @@ pub fn intersect(shape: &SurfaceShape, p: DVec3, d: DVec3) -> Result<Hit, Inters
             }
             Ok(Hit { t, point, normal })
         }
+        SurfaceShape::Toroidal { curvature, conic, .. } => {
+            // Starts: the vertex plane's root (the toroid is smooth through its vertex), then the root of the
+            // YZ curve's rotationally symmetric conic (closer for steep surfaces).
+            let plane = intersect_plane(p, d).map(|h| h.t);
+            let conic_start = if *curvature == 0.0 { Err(IntersectFailure::Missed) } else { conic_root(*curvature, *conic, p, d) };
+            let mut result = Err(IntersectFailure::Missed);
+            for t0 in [plane, conic_start] {
+                let Ok(t0) = t0 else { continue };
+                result = asphere_newton(shape, p, d, t0);
+                if result.is_ok() {
+                    break;
+                }
+            }
+            let t = result?;
+            let point = p + d * t;
+            let normal = shape.normal(point);
+            if !normal.is_finite() {
+                return Err(IntersectFailure::Missed);
+            }
+            Ok(Hit { t, point, normal })
+        }
     }
 }
 

@@ -1,4 +1,5 @@
-//! Optical surface shapes in their local frame: exact f64 sag, normal and ray intersection, and apertures.
+//! Optical surface shapes in their local frame: exact f64 sag, normal and ray intersection, and apertures;
+//! the Toroidal figure (`toroidal`) and the diffraction grating's vector grating equation (`grating`).
 //!
 //! The vertex is at the local origin, the optical axis is +z, and a surface is the set z = sag(x, y).
 //! Intersections follow the convention of a sequential tracer: the ray is a full line (negative distances
@@ -12,10 +13,12 @@
 //! assert!((hit.point.z - sphere.sag(1.0, 0.0)).abs() < 1e-15);
 //! ```
 mod aperture;
+pub mod grating;
 mod intersect;
 mod patch;
 mod shape;
 mod tessellate;
+pub mod toroidal;
 pub use aperture::*;
 pub use intersect::*;
 pub use patch::*;

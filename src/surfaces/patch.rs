@@ -102,7 +102,7 @@ impl SurfacePatch {
                 let (t1, t2) = conic_roots(*curvature, *conic, p, d);
                 [t1, t2].into_iter().flatten().find(|&t| inside(t))
             }
-            SurfaceShape::EvenAsphere { .. } => {
+            SurfaceShape::EvenAsphere { .. } | SurfaceShape::Toroidal { .. } => {
                 let (a, b) = self.clip(p, d, tmin, tmax)?;
                 self.asphere_first_root(p, d, a, b).filter(|&t| inside(t))
             }
@@ -119,7 +119,7 @@ impl SurfacePatch {
                 let (t1, t2) = conic_roots(*curvature, *conic, p, d);
                 Self::nearest_of([t1, t2], t_guess)
             }
-            SurfaceShape::EvenAsphere { .. } => {
+            SurfaceShape::EvenAsphere { .. } | SurfaceShape::Toroidal { .. } => {
                 // Search a window around the guess that grows until it brackets a root.
                 let mut w = 1e-3 + 1e-6 * t_guess.abs();
                 for _ in 0..12 {
@@ -146,7 +146,7 @@ impl SurfacePatch {
                 let (t1, t2) = conic_roots(*curvature, *conic, p, d);
                 Some([t1, t2])
             }
-            SurfaceShape::EvenAsphere { .. } => None,
+            SurfaceShape::EvenAsphere { .. } | SurfaceShape::Toroidal { .. } => None,
         }
     }
 

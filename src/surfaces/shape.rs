@@ -12,6 +12,9 @@ pub enum SurfaceShape {
     /// Zemax "Paraxial": an ideal thin lens in the plane z = 0 of focal length f (mm). It maps direction
     /// tangents as tan′ = tan − h / f (in air), which images every object plane perfectly.
     Paraxial { focal_length: f64 },
+    /// Zemax "Toroidal" ([`super::toroidal`]): the YZ curve (curvature, conic, Σᵢ αᵢ y^(2i)) rotated about
+    /// an axis parallel to y at the radius of rotation 1/`rotation_curvature` (0: a cylinder).
+    Toroidal { curvature: f64, conic: f64, coefficients: Vec<f64>, rotation_curvature: f64 },
 }
 
 impl SurfaceShape {
@@ -24,6 +27,9 @@ impl SurfaceShape {
             SurfaceShape::EvenAsphere { curvature, conic, coefficients } => {
                 conic_sag(*curvature, *conic, r2) + asphere_poly(coefficients, r2).0
             }
+            SurfaceShape::Toroidal { curvature, conic, coefficients, rotation_curvature } => {
+                super::toroidal::toroid_local(*curvature, *conic, coefficients, *rotation_curvature, x, y).sag
+            }
         }
     }
 
@@ -35,7 +41,7 @@ impl SurfaceShape {
                 // ∇F for F = c(x²+y²+(1+k)z²) − 2z, negated to point along +z.
                 DVec3::new(-c * p.x, -c * p.y, 1.0 - c * (1.0 + k) * p.z).normalize()
             }
-            SurfaceShape::EvenAsphere { .. } => {
+            SurfaceShape::EvenAsphere { .. } | SurfaceShape::Toroidal { .. } => {
                 let (dzdx, dzdy) = self.sag_gradient(p.x, p.y);
                 DVec3::new(-dzdx, -dzdy, 1.0).normalize()
             }
@@ -44,6 +50,9 @@ impl SurfaceShape {
 
     /// (∂z/∂x, ∂z/∂y) of the sag.
     pub fn sag_gradient(&self, x: f64, y: f64) -> (f64, f64) {
+        if let SurfaceShape::Toroidal { curvature, conic, coefficients, rotation_curvature } = self {
+            return super::toroidal::toroid_local(*curvature, *conic, coefficients, *rotation_curvature, x, y).grad;
+        }
         let r2 = x * x + y * y;
         let dz_dr2 = match self {
             SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => 0.0,
@@ -51,6 +60,7 @@ impl SurfaceShape {
             SurfaceShape::EvenAsphere { curvature, conic, coefficients } => {
                 conic_dsag_dr2(*curvature, *conic, r2) + asphere_poly(coefficients, r2).1
             }
+            SurfaceShape::Toroidal { .. } => unreachable!("handled above"),
         };
         (2.0 * x * dz_dr2, 2.0 * y * dz_dr2)
     }

@@ -1,6 +1,7 @@
 //! spec → [`SequentialSystem`]: media, pickups, paraxial pupil, frames and chief-ray solves.
 use super::paraxial::{entrance_pupil, first_order, ParaxialSurface};
-use super::{PathStep, ResolvedSurface, SequentialSystem, StopProbe};
+use super::{Interaction, PathStep, ResolvedSurface, SequentialSystem, StopProbe};
+use crate::surfaces::grating::Grating;
 use crate::error::{Error, Result};
 use crate::geometry::{coordinate_break_frame, BreakOrder, Frame};
 use crate::materials::{GlassCatalog, Medium};
@@ -37,6 +38,8 @@ impl SequentialSystem {
         for (i, s) in spec.surfaces.iter().enumerate() {
             let m = match (&s.material, s.kind) {
                 (_, SurfaceKind::CoordinateBreak) => media[i - 1].clone(),
+                // A mirror keeps the medium before it (OpticStudio: the index after a mirror is the index before it).
+                (Some(name), _) if crate::spec::is_mirror_material(name) => media[i - 1].clone(),
                 (None, _) => Medium::Air,
                 (Some(name), _) if name.eq_ignore_ascii_case("air") => Medium::Air,
                 (Some(name), _) => Medium::Glass(catalog.get(name).map_err(|e| sys_err(i, "material", e.to_string()))?),
@@ -73,19 +76,35 @@ impl SequentialSystem {
         for m in &media {
             n_primary.push(super::medium_index(m, spec, primary)?);
         }
+        // The paraxial trace uses OpticStudio's signed indices: each mirror flips the sign of the index after
+        // it (n′ = −n), so that a mirror's power is c(n′ − n) = −2nc and a negative thickness after it
+        // advances the ray (t/n′ > 0).
+        let mut n_paraxial = Vec::with_capacity(n);
+        let mut sign = 1.0;
+        for (i, s) in spec.surfaces.iter().enumerate() {
+            if s.is_mirror() {
+                sign = -sign;
+            }
+            n_paraxial.push(sign * n_primary[i]);
+        }
+        // The tables the kernel reads: a grating reads the wavelength after the per-surface indices.
+        let has_grating = spec.surfaces.iter().any(|s| s.kind == SurfaceKind::DiffractionGrating);
+        if has_grating {
+            n_primary.push(primary);
+        }
         let stop_index = spec.stop_index();
         let at_infinity = spec.object_at_infinity();
         let mut parax = Vec::with_capacity(n);
         for (i, s) in spec.surfaces.iter().enumerate() {
             let r = value(&values, i, "radius_mm");
-            let alpha1 = if s.kind == SurfaceKind::EvenAsphere { value(&values, i, "asphere_1").unwrap_or(0.0) } else { 0.0 };
+            let alpha1 = if matches!(s.kind, SurfaceKind::EvenAsphere | SurfaceKind::Toroidal) { value(&values, i, "asphere_1").unwrap_or(0.0) } else { 0.0 };
             parax.push(ParaxialSurface {
                 kind: s.kind,
                 curvature: r.map(|r| 1.0 / r).unwrap_or(0.0) + 2.0 * alpha1,
                 focal_length_mm: value(&values, i, "focal_length_mm").unwrap_or(f64::INFINITY),
                 // An object at infinity is traced from the plane of surface 1's vertex (the object frame).
                 thickness_mm: if i == 0 && at_infinity { 0.0 } else { value(&values, i, "thickness_mm").ok_or_else(|| sys_err(i, "thickness_mm", "unresolved".into()))? },
-                n_after: n_primary[i],
+                n_after: n_paraxial[i],
             });
         }
         let pupil = entrance_pupil(&parax, stop_index, spec.aperture, spec.surfaces[stop_index].semi_diameter_mm, at_infinity)
@@ -130,7 +149,7 @@ impl SequentialSystem {
                         fields: fields.clone(),
                         path: path.clone(),
                         // Before the stop is placed there is nothing to aim at: steps > path.len() says so.
-                        stop_probe: stop_probe.clone().unwrap_or_else(|| StopProbe { steps: usize::MAX, probe: path_step(&Frame::IDENTITY, &Frame::IDENTITY, 0, SurfaceShape::Plane, Aperture::None) }),
+                        stop_probe: stop_probe.clone().unwrap_or_else(|| StopProbe { steps: usize::MAX, probe: path_step(&Frame::IDENTITY, &Frame::IDENTITY, 0, SurfaceShape::Plane, Aperture::None, Interaction::Refract) }),
                     };
                     if spec.field_type == crate::spec::FieldType::RealImageHeight {
                         return Err(sys_err(i, solved[0], "a chief-ray solve needs the object field before the system is built; real image height fields are found by tracing the built system: use another field type".into()));
@@ -173,6 +192,12 @@ impl SequentialSystem {
                         conic,
                         coefficients: (1..=s.asphere_coefficients.len()).map(|k| value(&values, i, &format!("asphere_{k}")).unwrap_or(0.0)).collect(),
                     },
+                    SurfaceKind::Toroidal => SurfaceShape::Toroidal {
+                        curvature,
+                        conic,
+                        coefficients: (1..=s.asphere_coefficients.len()).map(|k| value(&values, i, &format!("asphere_{k}")).unwrap_or(0.0)).collect(),
+                        rotation_curvature: value(&values, i, "rotation_radius_mm").map(|r| 1.0 / r).unwrap_or(0.0),
+                    },
                     _ if curvature == 0.0 => SurfaceShape::Plane,
                     _ => SurfaceShape::Conic { curvature, conic },
                 });
@@ -198,15 +223,27 @@ impl SequentialSystem {
                 medium_after: media[i].clone(),
                 thickness_mm: thickness,
                 semi_diameter_mm: s.semi_diameter_mm,
+                interaction: match s.kind {
+                    SurfaceKind::DiffractionGrating => Interaction::Grating {
+                        grating: Grating {
+                            lines_per_um: value(&values, i, "grating_lines_per_um").unwrap_or(f64::NAN),
+                            order: value(&values, i, "grating_order").unwrap_or(0.0),
+                        },
+                        reflective: s.is_mirror(),
+                        wavelength_slot: n,
+                    },
+                    _ if s.is_mirror() => Interaction::Reflect,
+                    _ => Interaction::Refract,
+                },
             };
             if i == stop_index {
                 // The stop's own figure (a plane for a Coordinate Break stop), reached after the steps so far.
                 let probe_shape = shape.clone().unwrap_or(SurfaceShape::Plane);
-                stop_probe = Some(StopProbe { steps: path.len(), probe: path_step(&last_step_frame, &surface_frame, i, probe_shape, Aperture::None) });
+                stop_probe = Some(StopProbe { steps: path.len(), probe: path_step(&last_step_frame, &surface_frame, i, probe_shape, Aperture::None, Interaction::Refract) });
             }
             if i > 0 {
                 if let Some(shape) = shape {
-                    path.push(path_step(&last_step_frame, &surface_frame, i, shape, surface.aperture.clone()));
+                    path.push(path_step(&last_step_frame, &surface_frame, i, shape, surface.aperture.clone(), surface.interaction));
                     last_step_frame = surface_frame;
                 }
             }
@@ -225,11 +262,11 @@ impl SequentialSystem {
 }
 
 /// The step from frame `from` into surface `surface` placed at `to`.
-fn path_step(from: &Frame, to: &Frame, surface: usize, shape: SurfaceShape, aperture: Aperture) -> PathStep {
+fn path_step(from: &Frame, to: &Frame, surface: usize, shape: SurfaceShape, aperture: Aperture, interaction: Interaction) -> PathStep {
     // p_to = R_toᵀ R_from (p_from − o), o = the new vertex in `from` coordinates.
     let offset = from.point_to_local(to.origin);
     let rotation = to.rotation.transpose() * from.rotation;
-    PathStep { surface, rotation, offset, shape, aperture }
+    PathStep { surface, rotation, offset, shape, aperture, interaction }
 }
 
 /// The message of an implausible resolved value, saying where it came from (a pickup, a solve, or as given).

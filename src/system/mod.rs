@@ -68,12 +68,37 @@ impl SequentialSystem {
     }
 
     /// Refractive index after each surface at `wavelength_nm` (index 0: object space), honouring the
-    /// spec's wavelength policy (out-of-range is an error unless extrapolation is allowed).
+    /// spec's wavelength policy (out-of-range is an error unless extrapolation is allowed). A system with a
+    /// diffraction grating appends one entry, the wavelength itself (nm), which the grating steps read
+    /// ([`Interaction::Grating`]'s `wavelength_slot`); without gratings the table is exactly one index per surface.
     pub fn indices(&self, wavelength_nm: f64) -> Result<Vec<f64>> {
         if !(wavelength_nm.is_finite() && wavelength_nm > 0.0) {
             return Err(Error::invalid(format!("wavelength {wavelength_nm} nm: must be finite and > 0")));
         }
-        self.surfaces.iter().map(|s| medium_index(&s.medium_after, &self.spec, wavelength_nm)).collect()
+        let mut n: Vec<f64> = self.surfaces.iter().map(|s| medium_index(&s.medium_after, &self.spec, wavelength_nm)).collect::<Result<_>>()?;
+        if self.has_grating() {
+            n.push(wavelength_nm);
+        }
+        Ok(n)
+    }
+
+    /// Whether a surface of the system is a diffraction grating.
+    pub fn has_grating(&self) -> bool {
+        self.surfaces.iter().any(|s| matches!(s.interaction, Interaction::Grating { .. }))
+    }
+
+    /// Whether the system holds a surface the lane kernels, the GPU kernels or the reverse-mode sweep do
+    /// not model (a mirror, a grating or a Toroidal surface): `None`, or what it is and where.
+    pub fn special_surface(&self) -> Option<String> {
+        self.surfaces.iter().find_map(|s| {
+            let what = match (s.interaction, &s.shape) {
+                (Interaction::Reflect, _) => "a mirror",
+                (Interaction::Grating { .. }, _) => "a diffraction grating",
+                (_, Some(crate::surfaces::SurfaceShape::Toroidal { .. })) => "a Toroidal surface",
+                _ => return None,
+            };
+            Some(format!("surface {} is {what}", s.index))
+        })
     }
 
     /// The image surface (last).

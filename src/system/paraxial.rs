@@ -69,7 +69,8 @@ pub(crate) struct ParaxialSurface {
 fn power(surfaces: &[ParaxialSurface], i: usize) -> f64 {
     let (prev, s) = (&surfaces[i - 1], &surfaces[i]);
     match s.kind {
-        SurfaceKind::Standard | SurfaceKind::EvenAsphere => s.curvature * (s.n_after - prev.n_after),
+        // A grating's substrate refracts paraxially; its constant deflection is no power (like a break).
+        SurfaceKind::Standard | SurfaceKind::EvenAsphere | SurfaceKind::Toroidal | SurfaceKind::DiffractionGrating => s.curvature * (s.n_after - prev.n_after),
         SurfaceKind::Paraxial => s.n_after / s.focal_length_mm,
         SurfaceKind::CoordinateBreak => 0.0,
     }

@@ -1,8 +1,15 @@
 //! The f64 per-ray kernel shared by every analytic trace: frame change, exact intersection, aperture,
-//! refraction (vector Snell's law) or ideal-lens deflection.
+//! refraction (vector Snell's law) or ideal-lens deflection, reflection at a mirror (d′ = d − 2(d·n̂)n̂), or
+//! diffraction into a grating order ([`crate::surfaces::grating`]).
+//!
+//! Mirrors follow OpticStudio's sequential convention: the surface's frame is not flipped; after a mirror the
+//! ray travels toward local −z, so the next surface lies at a negative thickness, and radii keep their sign
+//! in the global sense (rayoptics' `interact_mode = 'reflect'` likewise). A ray meeting a mirror at grazing
+//! incidence (|d·n̂| ≤ 1e-12) is reported `missed`: it touches the surface without a defined reflection.
 use super::RayStatus;
+use crate::surfaces::grating::diffract;
 use crate::surfaces::{intersect, IntersectFailure, SurfaceShape};
-use crate::system::PathStep;
+use crate::system::{Interaction, PathStep};
 use glam::DVec3;
 
 /// Refract unit `d` at unit normal `normal` from index `n1` into `n2` (vector Snell's law,
@@ -23,6 +30,15 @@ pub fn refract(d: DVec3, normal: DVec3, n1: f64, n2: f64) -> Option<DVec3> {
     }
     Some(mu * d + (k.sqrt() - mu * cos_i) * nrm)
 }
+
+/// Reflect unit `d` at unit normal `normal` (either orientation): d′ = d − 2(d·n̂)n̂.
+#[inline]
+pub fn reflect(d: DVec3, normal: DVec3) -> DVec3 {
+    d - normal * (2.0 * d.dot(normal))
+}
+
+/// Below this |cos θᵢ| a mirror or grating hit is grazing and the ray is reported `missed`.
+pub const GRAZING_COS: f64 = 1e-12;
 
 /// The unit vector along a ray direction given with any finite, non-zero length, or `None` for a
 /// non-finite or zero direction (an invalid input ray).
@@ -102,6 +118,24 @@ pub(crate) fn trace_step(step: &PathStep, n: &[f64], p: DVec3, d: DVec3) -> Resu
         return Err((RayStatus::Vignetted, step.surface));
     }
     let (n1, n2) = (n[step.surface - 1], n[step.surface]);
+    match step.interaction {
+        Interaction::Refract => {}
+        Interaction::Reflect => {
+            if d.dot(hit.normal).abs() <= GRAZING_COS {
+                return Err((RayStatus::Missed, step.surface));
+            }
+            return Ok((p, reflect(d, hit.normal)));
+        }
+        Interaction::Grating { grating, reflective, wavelength_slot } => {
+            if reflective && d.dot(hit.normal).abs() <= GRAZING_COS {
+                return Err((RayStatus::Missed, step.surface));
+            }
+            return match diffract(d, hit.normal, n1, n2, grating.kick(n[wavelength_slot]), reflective) {
+                Some(r) => Ok((p, r)),
+                None => Err((RayStatus::Evanescent, step.surface)),
+            };
+        }
+    }
     match step.shape {
         SurfaceShape::Paraxial { focal_length } => d = paraxial_deflect(p, d, focal_length, n1, n2),
         _ if n1 != n2 => match refract(d, hit.normal, n1, n2) {

@@ -80,6 +80,9 @@ pub enum RayStatus {
     /// Arrived, but at a non-finite or implausible position (|x| or |y| beyond
     /// [`crate::limits::MAX_IMAGE_COORD_MM`]) or direction: an overflow, never reported as `ok`.
     OutOfRange = 8,
+    /// A diffraction grating's order does not propagate after the surface (|n₁ d_t − mλT ŷ_t| > n₂, the
+    /// grating equation's evanescent case) — the grating's "TIR" (`src/surfaces/grating.rs`).
+    Evanescent = 9,
 }
 
 impl RayStatus {
@@ -94,6 +97,7 @@ impl RayStatus {
             RayStatus::Absorbed => "absorbed",
             RayStatus::BounceLimit => "bounce_limit",
             RayStatus::OutOfRange => "out_of_range",
+            RayStatus::Evanescent => "evanescent",
         }
     }
 }

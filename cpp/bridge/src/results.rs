@@ -163,7 +163,7 @@ impl Mapping {
 }
 
 pub(crate) fn preset_names() -> Vec<String> {
-    diffcassi::presets::NAMES.iter().map(|s| s.to_string()).collect()
+    diffcassi::presets::ALL_NAMES.iter().map(|s| s.to_string()).collect()
 }
 
 pub(crate) fn backend_names() -> Vec<String> {

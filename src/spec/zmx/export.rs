@@ -164,6 +164,24 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
                 }
                 let _ = writeln!(w, "  PARM 6 {}", s.order);
             }
+            SurfaceKind::Toroidal => {
+                // PARM 1: radius of rotation (0 = infinite), 2…9: y² … y¹⁶ terms; no Zernike terms.
+                let _ = writeln!(w, "  PARM 1 {}", f(s.rotation_radius_mm.as_ref().map(|c| c.value).unwrap_or(0.0)));
+                for (k, a) in s.asphere_coefficients.iter().enumerate() {
+                    let _ = writeln!(w, "  PARM {} {}", k + 2, f(a.value));
+                }
+                let _ = writeln!(w, "  XDAT 1 0");
+            }
+            SurfaceKind::DiffractionGrating => {
+                for (k, col) in ["grating_lines_per_um", "grating_order"].iter().enumerate() {
+                    if let Some(cell) = s.cell(col) {
+                        let _ = writeln!(w, "  PARM {} {}", k + 1, f(cell.value));
+                    }
+                }
+                if let Some(e) = s.grating_efficiency {
+                    let _ = writeln!(w, "  DCGE {}", f(e));
+                }
+            }
             SurfaceKind::Standard => {}
         }
         if let Some(sd) = s.semi_diameter_mm {

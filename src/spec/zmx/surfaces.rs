@@ -1,8 +1,13 @@
 //! One surface of the Lens Data Editor in a `.zmx` file: the records between `SURF n` and the next `SURF`.
 //!
-//! `TYPE` (STANDARD, EVENASPH, PARAXIAL, COORDBRK), `CURV c` (mm⁻¹; the radius is 1/c, 0 = flat), `DISZ t`
+//! `TYPE` (STANDARD, EVENASPH, PARAXIAL, COORDBRK, TOROIDAL, DGRATING), `CURV c` (mm⁻¹; the radius is 1/c, 0 = flat), `DISZ t`
 //! (mm, `INFINITY` allowed), `CONI k`, `PARM i v` (Even Asphere: αᵢ of r²ⁱ; Paraxial: 1 = focal length,
-//! 2 = OPD mode; Coordinate Break: 1–2 decenter x/y mm, 3–5 tilt x/y/z degrees, 6 order), `GLAS name …`,
+//! 2 = OPD mode; Coordinate Break: 1–2 decenter x/y mm, 3–5 tilt x/y/z degrees, 6 order; Toroidal: 1 = radius
+//! of rotation mm (0 = infinite, a cylinder), 2–9 = αᵢ of y²ⁱ (rayoptics' `zmxread` reads the same slots;
+//! OpticStudio also writes `PARM 0 0` and `XDAT 1 0` / `XDAT 2 r`, "no Zernike terms" and their unused
+//! normalisation radius, accepted; Zernike terms are refused); Diffraction Grating: 1 = lines per µm,
+//! 2 = order), `GLAS name …` (`GLAS MIRROR`: a reflecting surface), `DCGE e` (diffcassi's own record: the
+//! grating order's efficiency),
 //! `STOP`, `DIAM sd …` (semi-diameter), `CLAP rmin rmax` / `SQAP hx hy` with `OBDC dx dy` (clipping
 //! apertures), `COMM text`; `VCUR`, `VDSZ`, `VCON`, `VPAR i` mark cells variable. Pickups and chief-ray
 //! solves are written by diffcassi as `DCPK column from_surface scale offset [source_column]` and
@@ -23,6 +28,12 @@ pub(super) struct SurfaceBlock {
     pub curv: Option<f64>,
     pub disz: Option<(usize, f64)>,
     pub glass: Option<(usize, String)>,
+    /// `GLAS MIRROR` (line).
+    pub mirror: Option<usize>,
+    /// `XDAT i v` (line, i, v): extra data; only a Toroidal's "no Zernike terms" is meaningful.
+    pub xdat: Vec<(usize, i64, f64)>,
+    /// `DCGE e`: the grating efficiency (line, value).
+    pub efficiency: Option<(usize, f64)>,
     pub coni: Option<f64>,
     pub parm: Vec<(usize, usize, f64)>,
     pub diam: Option<f64>,
@@ -40,6 +51,8 @@ fn surface_kind(name: &str) -> Option<SurfaceKind> {
         "EVENASPH" => Some(SurfaceKind::EvenAsphere),
         "PARAXIAL" => Some(SurfaceKind::Paraxial),
         "COORDBRK" => Some(SurfaceKind::CoordinateBreak),
+        "TOROIDAL" => Some(SurfaceKind::Toroidal),
+        "DGRATING" => Some(SurfaceKind::DiffractionGrating),
         _ => None,
     }
 }
@@ -51,6 +64,8 @@ pub(super) fn type_name(kind: SurfaceKind) -> &'static str {
         SurfaceKind::EvenAsphere => "EVENASPH",
         SurfaceKind::Paraxial => "PARAXIAL",
         SurfaceKind::CoordinateBreak => "COORDBRK",
+        SurfaceKind::Toroidal => "TOROIDAL",
+        SurfaceKind::DiffractionGrating => "DGRATING",
     }
 }
 
@@ -73,7 +88,7 @@ impl SurfaceBlock {
                     Some(k) => self.kind = Some((r.line, k)),
                     None => {
                         return Err(format!(
-                            "line {} `TYPE`: surface {} has type `{t}`, which diffcassi does not model (STANDARD, EVENASPH, PARAXIAL, COORDBRK)",
+                            "line {} `TYPE`: surface {} has type `{t}`, which diffcassi does not model (STANDARD, EVENASPH, PARAXIAL, COORDBRK, TOROIDAL, DGRATING)",
                             r.line, self.number
                         ))
                     }
@@ -111,7 +126,7 @@ impl SurfaceBlock {
                 let name = r.args.first().cloned().ok_or_else(|| format!("line {} `GLAS`: glass name missing", r.line))?;
                 match name.as_str() {
                     "___BLANK" => skip("model glass (n_d, V_d): only catalogue glasses are modelled".into()),
-                    "MIRROR" => skip("mirror: reflection is not modelled".into()),
+                    "MIRROR" => self.mirror = Some(r.line),
                     _ if name.chars().all(|c| c.is_ascii_digit() || c == '.') => {
                         skip(format!("glass code `{name}`: only catalogue glass names are modelled"))
                     }
@@ -121,11 +136,13 @@ impl SurfaceBlock {
             "CONI" => self.coni = Some(finite(r, 0)?),
             "PARM" => {
                 let i = int(r, 0)?;
-                if !(1..=16).contains(&i) {
-                    return Err(format!("line {} `PARM`: parameter number {i} (1..16)", r.line));
+                if !(0..=16).contains(&i) {
+                    return Err(format!("line {} `PARM`: parameter number {i} (0..16)", r.line));
                 }
                 self.parm.push((r.line, i as usize, finite(r, 1)?));
             }
+            "XDAT" => self.xdat.push((r.line, int(r, 0)?, finite(r, 1)?)),
+            "DCGE" => self.efficiency = Some((r.line, finite(r, 0)?)),
             "DIAM" => self.diam = Some(finite(r, 0)?),
             "CLAP" => self.clap = Some((finite(r, 0)?, finite(r, 1)?)),
             "SQAP" => self.sqap = Some((finite(r, 0)?, finite(r, 1)?)),
@@ -166,6 +183,10 @@ impl SurfaceBlock {
             SurfaceKind::EvenAsphere if (1..=8).contains(&i) => Some(format!("asphere_{i}")),
             SurfaceKind::Paraxial if i == 1 => Some("focal_length_mm".into()),
             SurfaceKind::CoordinateBreak if (1..=5).contains(&i) => Some(COLUMNS[3 + i].to_string()),
+            SurfaceKind::Toroidal if i == 1 => Some("rotation_radius_mm".into()),
+            SurfaceKind::Toroidal if (2..=9).contains(&i) => Some(format!("asphere_{}", i - 1)),
+            SurfaceKind::DiffractionGrating if i == 1 => Some("grating_lines_per_um".into()),
+            SurfaceKind::DiffractionGrating if i == 2 => Some("grating_order".into()),
             _ => None,
         }
     }
@@ -195,8 +216,29 @@ impl SurfaceBlock {
             }
             s.material = Some(g.clone());
         }
+        if let Some(ml) = self.mirror {
+            if kind == SurfaceKind::CoordinateBreak {
+                return Err(format!("line {ml} `GLAS`: a Coordinate Break (surface {}) keeps the previous medium; it cannot be a MIRROR", self.number));
+            }
+            s.material = Some("MIRROR".into());
+        }
+        for &(xl, i, v) in &self.xdat {
+            match (kind, i) {
+                (SurfaceKind::Toroidal, 1) if v == 0.0 => {}
+                (SurfaceKind::Toroidal, 2) if self.xdat.iter().all(|x| x.1 != 1 || x.2 == 0.0) => {} // normalisation radius of no terms
+                (SurfaceKind::Toroidal, 1) => unsupported.push(Unsupported { line: xl, keyword: "XDAT".into(), reason: format!("{v} Zernike terms on a Toroidal surface: not modelled") }),
+                _ if v == 0.0 => {}
+                _ => unsupported.push(Unsupported { line: xl, keyword: "XDAT".into(), reason: format!("extra data {i} = {v} on a {} surface: not modelled", kind.label()) }),
+            }
+        }
+        if let Some((el, e)) = self.efficiency {
+            if kind != SurfaceKind::DiffractionGrating {
+                return Err(format!("line {el} `DCGE`: a grating efficiency on surface {}, which is not a Diffraction Grating", self.number));
+            }
+            s.grating_efficiency = Some(e);
+        }
         if let Some(k) = self.coni {
-            if kind == SurfaceKind::Standard || kind == SurfaceKind::EvenAsphere {
+            if matches!(kind, SurfaceKind::Standard | SurfaceKind::EvenAsphere | SurfaceKind::Toroidal | SurfaceKind::DiffractionGrating) {
                 s.conic = Some(Cell::fixed(k));
             } else if k != 0.0 {
                 unsupported.push(Unsupported { line, keyword: "CONI".into(), reason: format!("conic {k} on a {} surface", kind.label()) });
@@ -225,6 +267,9 @@ impl SurfaceBlock {
             if kind == SurfaceKind::Paraxial && i == 2 {
                 continue; // OPD mode: changes OPD only, not the rays
             }
+            if kind == SurfaceKind::Toroidal && i == 1 && v == 0.0 {
+                continue; // radius of rotation 0: infinite (a cylinder), the spec's absent value
+            }
             match Self::parm_column(kind, i) {
                 Some(col) => {
                     if let Some(k) = col.strip_prefix("asphere_") {
@@ -236,6 +281,9 @@ impl SurfaceBlock {
                     } else {
                         let slot = match col.as_str() {
                             "focal_length_mm" => &mut s.focal_length_mm,
+                            "rotation_radius_mm" => &mut s.rotation_radius_mm,
+                            "grating_lines_per_um" => &mut s.grating_lines_per_um,
+                            "grating_order" => &mut s.grating_order,
                             "decenter_x_mm" => &mut s.decenter_x_mm,
                             "decenter_y_mm" => &mut s.decenter_y_mm,
                             "tilt_x_deg" => &mut s.tilt_x_deg,

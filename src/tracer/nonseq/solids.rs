@@ -117,6 +117,14 @@ impl Solids {
         // A negative object distance puts the object after surface 1 (a virtual object, reached by
         // propagating rays backwards as a sequential tracer may); a non-sequential tracer only follows rays
         // forward, so every ray would silently miss. Refuse it with the reason instead.
+        // Mirrors, gratings and Toroidal surfaces have no solids here yet: refuse them rather than let a mirror
+        // become a "virtual" face (the same medium on both sides) that rays would silently pass through.
+        if let Some(what) = system.special_surface() {
+            return Err(Error::invalid(format!(
+                "system `{}`: {what}; the non-sequential backends (Embree, brute force, ghosts) model refracting surfaces only (use the analytic backend)",
+                system.name()
+            )));
+        }
         let object_mm = system.surfaces[0].thickness_mm;
         if system.object_at_infinity() {
             return Err(Error::invalid(format!(

@@ -20,8 +20,8 @@
 // Index loops over 0..N are the idiom LLVM vectorises into whole registers; keep them explicit.
 #![allow(clippy::needless_range_loop)]
 use super::lanes::{Lanes, Mask, Real, V3, LANES, LANES_F32};
-use crate::surfaces::{Aperture, SurfaceShape};
-use crate::system::PathStep;
+use crate::surfaces::{Aperture, IntersectFailure, SurfaceShape};
+use crate::system::{Interaction, PathStep};
 use crate::tracer::RayStatus;
 use glam::{DMat3, DVec3};
 
@@ -158,6 +158,7 @@ fn status_from_code(code: u8) -> RayStatus {
         c if c == RayStatus::InvalidInput as u8 => RayStatus::InvalidInput,
         c if c == RayStatus::Absorbed as u8 => RayStatus::Absorbed,
         c if c == RayStatus::BounceLimit as u8 => RayStatus::BounceLimit,
+        c if c == RayStatus::Evanescent as u8 => RayStatus::Evanescent,
         _ => RayStatus::Ok,
     }
 }
@@ -360,6 +361,48 @@ fn asphere_newton<T: Real, const N: usize>(c: f64, k: f64, coefficients: &[f64],
     (ok, nc, t)
 }
 
+/// A mirror's reflection or a grating's diffraction, lane by lane with the scalar kernel's functions
+/// (`tracer::kernel::reflect`, `surfaces::grating::diffract`) and its classification (grazing → `missed`,
+/// evanescent order → `evanescent`): the same bits as the scalar kernel in f64.
+#[inline(never)]
+fn special_interaction<T: Real, const N: usize>(step: &PathStep, n: &[&[f64]; N], b: &mut LaneBlock<T, N>, d: V3<T, N>, normal: V3<T, N>, s: usize) -> V3<T, N> {
+    use crate::tracer::kernel::{reflect, GRAZING_COS};
+    let mut out = d;
+    let (mut grazing, mut evanescent) = ([false; N], [false; N]);
+    for k in 0..N {
+        if !b.alive.0[k] {
+            continue;
+        }
+        let dk = DVec3::new(d.x.0[k].to_f64(), d.y.0[k].to_f64(), d.z.0[k].to_f64());
+        let nk = DVec3::new(normal.x.0[k].to_f64(), normal.y.0[k].to_f64(), normal.z.0[k].to_f64());
+        let r = match step.interaction {
+            Interaction::Refract => Some(dk),
+            Interaction::Reflect => {
+                if dk.dot(nk).abs() <= GRAZING_COS {
+                    grazing[k] = true;
+                    continue;
+                }
+                Some(reflect(dk, nk))
+            }
+            Interaction::Grating { grating, reflective, wavelength_slot } => {
+                if reflective && dk.dot(nk).abs() <= GRAZING_COS {
+                    grazing[k] = true;
+                    continue;
+                }
+                let (n1, n2) = (n[k][s - 1], n[k][s]);
+                crate::surfaces::grating::diffract(dk, nk, n1, n2, grating.kick(n[k][wavelength_slot]), reflective)
+            }
+        };
+        match r {
+            Some(v) => (out.x.0[k], out.y.0[k], out.z.0[k]) = (T::of(v.x), T::of(v.y), T::of(v.z)),
+            None => evanescent[k] = true,
+        }
+    }
+    b.kill(Mask(grazing), RayStatus::Missed, s);
+    b.kill(Mask(evanescent), RayStatus::Evanescent, s);
+    out
+}
+
 /// What a step of [`trace_block`] hands its recorder: the lanes' state the adjoint sweep needs
 /// ([`super::record::LaneTape`]). The production trace passes `()`, which keeps nothing (and compiles to
 /// nothing: the arithmetic and its results are the same either way).
@@ -440,6 +483,32 @@ fn trace_step<T: Real, const N: usize, R: StepRecorder<T, N>>(step: &PathStep, n
             b.kill(nc & !ok, RayStatus::NoConvergence, s);
             (ok & normal.is_finite(), t, point, normal)
         }
+        SurfaceShape::Toroidal { .. } => {
+            // Lane by lane with the scalar intersection (`surfaces::intersect`: guarded Newton on the
+            // toroid's sag), so f64 lanes give the scalar kernel's bits; the surface is rare enough that
+            // a vectorised toroid solve would not pay.
+            let (mut t, mut point, mut normal) = (Lanes::of(0.0), V3::splat(DVec3::ZERO), z_axis);
+            let (mut ok, mut nc) = ([false; N], [false; N]);
+            for k in 0..N {
+                if !b.alive.0[k] {
+                    continue;
+                }
+                let pk = DVec3::new(p.x.0[k].to_f64(), p.y.0[k].to_f64(), p.z.0[k].to_f64());
+                let dk = DVec3::new(d.x.0[k].to_f64(), d.y.0[k].to_f64(), d.z.0[k].to_f64());
+                match crate::surfaces::intersect(&step.shape, pk, dk) {
+                    Ok(h) => {
+                        ok[k] = true;
+                        t.0[k] = T::of(h.t);
+                        (point.x.0[k], point.y.0[k], point.z.0[k]) = (T::of(h.point.x), T::of(h.point.y), T::of(h.point.z));
+                        (normal.x.0[k], normal.y.0[k], normal.z.0[k]) = (T::of(h.normal.x), T::of(h.normal.y), T::of(h.normal.z));
+                    }
+                    Err(IntersectFailure::NoConvergence) => nc[k] = true,
+                    Err(IntersectFailure::Missed) => {}
+                }
+            }
+            b.kill(Mask(nc), RayStatus::NoConvergence, s);
+            (Mask(ok), t, point, normal)
+        }
     };
     b.kill(!hit, RayStatus::Missed, s);
     let inside = match step.aperture {
@@ -468,7 +537,10 @@ fn trace_step<T: Real, const N: usize, R: StepRecorder<T, N>>(step: &PathStep, n
         }
         (Mask(differ), Lanes(mu))
     };
-    let d_new = match step.shape {
+    let d_new = if step.interaction != Interaction::Refract {
+        special_interaction(step, n, b, d, normal, s)
+    } else {
+        match step.shape {
         SurfaceShape::Paraxial { focal_length } => {
             // Ideal thin lens (kernel::paraxial_deflect): tan′ = (n₁/n₂)·tan − h/f.
             let f = T::of(focal_length);
@@ -490,6 +562,7 @@ fn trace_step<T: Real, const N: usize, R: StepRecorder<T, N>>(step: &PathStep, n
             let g = k.sqrt() - mu * cos_i;
             let r = V3 { x: mu * d.x + g * nrm.x, y: mu * d.y + g * nrm.y, z: mu * d.z + g * nrm.z };
             V3::select(differ, r, d)
+        }
         }
     };
     rec.record(index, &q, &b.d, &d, &point, &normal, &t);
