@@ -20,6 +20,8 @@ fn system(name: &str, surfaces: Vec<SurfaceSpec>, na: f64) -> SystemSpec {
         wavelengths_nm: vec![450.0, 520.0, 650.0],
         primary_wavelength_nm: 520.0,
         fields_mm: vec![[0.0, 0.0], [0.0, 1.0], [1.0, 0.5]],
+        field_type: Default::default(),
+        fields_deg: vec![],
         wavelength_policy: Default::default(),
         air_index: 1.0,
         glass_catalogs: vec![],
