@@ -143,12 +143,12 @@ fn final_line_break_and_records_cut_in_the_middle() {
 fn skipped_records_are_listed_and_unmodelled_ones_refused() {
     let dir = tempfile::tempdir().unwrap();
     let good = sp_zmx();
-    let mut t = format!("VERS 160608 48 100027\nAUTH someone\nPFIL 0 0 0\nLANG 0\n{}", good.replace("SURF 2\n", "SURF 2\n  HIDE 0 0 0 0 0 0 0 0 0 0\n  SLAB 3\n  POPS 0 0 0 0 0 0 0 0 1 1 1 1 0 0 0 0\n"));
+    let mut t = format!("VERS 160608 48 100027\nDBDT 0 55278 5.224E+01 2.200E+01\nAUTH someone\nPFIL 0 0 0\nLANG 0\n{}", good.replace("SURF 2\n", "SURF 2\n  HIDE 0 0 0 0 0 0 0 0 0 0\n  SLAB 3\n  POPS 0 0 0 0 0 0 0 0 1 1 1 1 0 0 0 0\n"));
     t = t.replace("TOL TOFF 0 0 0 0 0 0 0 0\n", "BLNK \nREAY 13 2 0 1 0 0 2.254E+1 0 0 0\nEFLY 2 13 0 0 0 0 4.94E+1 9.9E+1 0 0\nTOL TTHI 1 2 -0.1 0.1 0 0 0 0\nTOL TOFF 0 0 0 0 0 0 0 0\n");
     let imp = import(t.as_bytes()).unwrap();
     assert_eq!(imp.spec, import(good.as_bytes()).unwrap().spec, "skipping them leaves the system identical");
     let kws: Vec<&str> = imp.skipped.iter().map(|u| u.keyword.as_str()).collect();
-    for k in ["VERS", "AUTH", "PFIL", "LANG", "HIDE", "SLAB", "POPS", "BLNK", "REAY", "EFLY", "TOL"] {
+    for k in ["VERS", "DBDT", "AUTH", "PFIL", "LANG", "HIDE", "SLAB", "POPS", "BLNK", "REAY", "EFLY", "TOL"] {
         assert!(kws.contains(&k), "{k} not in {kws:?}");
     }
     assert!(imp.ignored.is_empty());

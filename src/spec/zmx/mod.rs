@@ -95,7 +95,7 @@ pub fn zmx_glasses(bytes: &[u8], source_name: &str, source_path: Option<&Path>, 
             "SURF" => surface = Some(records::int(&r, 0).map_err(&fail)?.max(0) as usize),
             "GLAS" => {
                 let name = r.args.first().cloned().unwrap_or_default();
-                let catalogue_glass = !(name.is_empty() || name == "MIRROR" || name == "___BLANK" || name.chars().all(|c| c.is_ascii_digit() || c == '.'));
+                let catalogue_glass = !(name.is_empty() || name.eq_ignore_ascii_case("MIRROR") || name == "___BLANK" || name.chars().all(|c| c.is_ascii_digit() || c == '.'));
                 if let (Some(n), true) = (surface, catalogue_glass) {
                     uses.push((r.line, n, name));
                 }
@@ -329,7 +329,12 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
 
     // Glass catalogues: files, the built-in subset, built-in vendor catalogues standing in for missing files.
     let dirs = glass::search_dirs(source_path, &options.glass_dirs);
-    let uses: Vec<(usize, usize, String)> = blocks.iter().filter_map(|(b, _)| b.glass.as_ref().map(|(l, g)| (*l, b.number, g.clone()))).collect();
+    // Catalogue glasses only: a mirror is no glass of any catalogue.
+    let uses: Vec<(usize, usize, String)> = blocks
+        .iter()
+        .filter_map(|(b, _)| b.glass.as_ref().map(|(l, g)| (*l, b.number, g.clone())))
+        .filter(|u| !u.2.eq_ignore_ascii_case("MIRROR"))
+        .collect();
     let resolution = glass::resolve(header.gcat.as_ref(), &header.catalog_paths, &uses, &dirs).map_err(&fail)?;
     let catalog_paths = resolution.entries.clone();
 

@@ -22,13 +22,14 @@ impl std::fmt::Display for Unsupported {
 pub const COSMETIC: &[&str] = &[
     "VERS", "PFIL", "LANG", "GFAC", "PUSH", "SDMA", "OMMA", "ROPD", "PICB", "POLS", "GLRS", "GSTD", "NSCD", "COFN",
     "BLNK", "FIMP", "HIDE", "MIRR", "SLAB", "POPS", "MEMA", "COAT", "MOFF", "DMFS",
-    "FWGN", "FWGT", "WWGN", "WWGT", "AUTH",
+    "FWGN", "FWGT", "WWGN", "WWGT", "AUTH", "DBDT",
 ];
 
 /// What a skipped keyword is, for the listing.
 pub fn cosmetic_reason(keyword: &str) -> &'static str {
     match keyword {
         "VERS" | "PFIL" | "LANG" | "AUTH" => "file and editor settings",
+        "DBDT" => "stock-lens catalogue data (vendor part number, nominal values); the surfaces hold the lens",
         "GFAC" | "GLRS" | "GSTD" => "glass substitution and catalogue display settings",
         "PUSH" | "SDMA" | "OMMA" | "ROPD" | "PICB" | "POLS" | "NSCD" | "FIMP" => "system options with no effect on the sequential ray trace",
         "COFN" | "COAT" => "coating file / coating (diffcassi's sequential trace has no coatings from .zmx)",
