@@ -302,3 +302,100 @@ fn bad_inputs_are_clear_errors() {
     let e = import_zmx(bad.as_bytes(), "x.zmx", None, &ZmxOptions::default()).unwrap_err().to_string();
     assert!(e.contains("-INFINITY"), "{e}");
 }
+
+// ---------------------------------------------------------------- the command line
+
+fn bin() -> std::process::Command {
+    std::process::Command::new(env!("CARGO_BIN_EXE_diffcassi"))
+}
+
+/// A folder of this test process (under the system temp dir, named by the pid: no fixed shared path).
+fn tmp(name: &str) -> std::path::PathBuf {
+    let dir = std::env::temp_dir().join(format!("diffcassi-infinity-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir.join(name)
+}
+
+/// The thick singlet at infinity (F/4, fields 0°, 2°, 3°) written as `.zmx`.
+fn singlet_zmx() -> std::path::PathBuf {
+    let mut spec = thick_lens(50.0, -80.0, 6.0, SystemAperture::ImageSpaceFNumber(4.0));
+    spec.fields_deg = vec![[0.0, 0.0], [0.0, 2.0], [0.0, 3.0]];
+    spec.wavelengths_nm = vec![450.0, 550.0, 650.0];
+    spec.primary_wavelength_nm = 550.0;
+    let bfl = SequentialSystem::build(&spec).unwrap().first_order.bfl_mm;
+    spec.surfaces[2].thickness_mm = Cell::fixed(bfl);
+    let path = tmp("singlet.zmx");
+    diffcassi::spec::save_spec_file(&spec, &path).unwrap();
+    path
+}
+
+#[test]
+fn cli_trace_field_deg_and_its_errors() {
+    let zmx = singlet_zmx();
+    let csv = tmp("rays.csv");
+    let o = bin().args(["trace", "--system", zmx.to_str().unwrap(), "--wavelength-nm", "550", "--field-deg", "0,2", "--pupil", "grid:5", "--csv", csv.to_str().unwrap()]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let mut lines = text.lines().filter(|l| !l.starts_with('#'));
+    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let (xi, yi) = (head.iter().position(|h| *h == "x_mm").unwrap(), head.iter().position(|h| *h == "y_mm").unwrap());
+    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').enumerate().filter(|(k, _)| *k == xi || *k == yi).map(|(_, v)| v.parse().unwrap()).collect()).collect();
+    assert_eq!(rows.len(), 13); // grid:5 keeps the points inside the unit circle
+    // The 2° field lands near EFL·tan 2° (the singlet at its paraxial focus).
+    let efl = SequentialSystem::build(&diffcassi::spec::load_spec_file(&zmx).unwrap()).unwrap().first_order.efl_mm;
+    let mean_y = rows.iter().map(|r| r[1]).sum::<f64>() / rows.len() as f64;
+    assert!((mean_y - efl * 2f64.to_radians().tan()).abs() < 0.05, "{mean_y}");
+    assert!(rows.iter().all(|r| r[0].is_finite() && r[1].is_finite()));
+    // The wrong unit, and a bad angle, name the right flag.
+    let o = bin().args(["trace", "--system", zmx.to_str().unwrap(), "--wavelength-nm", "550", "--field-mm", "0,2"]).output().unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--field-deg"), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = bin().args(["trace", "--preset", "sp", "--wavelength-nm", "550", "--field-deg", "0,2"]).output().unwrap();
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--field-mm"), "{}", String::from_utf8_lossy(&o.stderr));
+    for bad in ["0,90", "0,nan", "1"] {
+        let o = bin().args(["trace", "--system", zmx.to_str().unwrap(), "--wavelength-nm", "550", "--field-deg", bad]).output().unwrap();
+        assert_eq!(o.status.code(), Some(1), "{bad}");
+        assert!(String::from_utf8_lossy(&o.stderr).contains("--field-deg"), "{bad}: {}", String::from_utf8_lossy(&o.stderr));
+    }
+    // info prints the first-order data; distortion and spot run at infinity.
+    let o = bin().args(["info", "--system", zmx.to_str().unwrap()]).output().unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("object at infinity") && out.contains("EFL"), "{out}");
+    let o = bin().args(["distortion", "--system", zmx.to_str().unwrap(), "--grid", "5", "--csv", tmp("grid.csv").to_str().unwrap()]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(std::fs::read_to_string(tmp("grid.csv")).unwrap().contains("x_field_tan"));
+    let o = bin().args(["spot", "--system", zmx.to_str().unwrap(), "--pupil", "hexapolar:3", "--json", tmp("spots.json").to_str().unwrap()]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(std::fs::read_to_string(tmp("spots.json")).unwrap().contains("field_deg"));
+}
+
+#[test]
+fn cli_render_scene_fov_deg_and_its_errors() {
+    let zmx = singlet_zmx();
+    let z = zmx.to_str().unwrap();
+    let small = ["--scene-size", "8", "--planes", "2", "--rays", "2", "--bands", "500,600", "--no-mapping"];
+    let render = |extra: &[&str], out: &str| bin().args(["render", "--system", z]).args(small).args(extra).args(["--out", tmp(out).to_str().unwrap()]).output().unwrap();
+    let o = render(&[], "none");
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--scene-fov-deg"), "{}", String::from_utf8_lossy(&o.stderr));
+    for bad in ["0", "180", "200", "-5", "nan", "inf"] {
+        let o = render(&["--scene-fov-deg", bad], "bad");
+        assert_ne!(o.status.code(), Some(0), "{bad}");
+        assert!(String::from_utf8_lossy(&o.stderr).contains("--scene-fov-deg"), "{bad}: {}", String::from_utf8_lossy(&o.stderr));
+        assert!(!tmp("bad").join("render.json").exists());
+    }
+    let o = bin().args(["render", "--preset", "sp"]).args(small).args(["--scene-fov-deg", "10", "--out", tmp("sp").to_str().unwrap()]).output().unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("finite object"), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = render(&["--scene-fov-deg", "6"], "ok");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(tmp("ok").join("render.json")).unwrap()).unwrap();
+    assert_eq!(json["scene_fov_deg"], 6.0);
+    assert!((json["scene_pitch_rad"].as_f64().unwrap() - 6f64.to_radians() / 8.0).abs() < 1e-18);
+    assert!(json["scene_pitch_mm"].is_null());
+    assert!(json["ray_stats"]["arrived"].as_u64().unwrap() > 0, "{}", json["ray_stats"]);
+    assert!(json["acquisition_total"].as_f64().unwrap().is_finite() && json["acquisition_total"].as_f64().unwrap() > 0.0);
+    // reconstruct rebuilds the renderer from the recorded angular extent.
+    let o = bin().args(["reconstruct", "--from", tmp("ok").to_str().unwrap(), "--operator", "exact", "--solver", "gap-tv", "--iterations", "2", "--out", tmp("recon").to_str().unwrap()]).output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

@@ -276,8 +276,9 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         fields.push([0.0, 0.0]);
     }
     if at_infinity && field_type == FieldType::ObjectHeight && fields.iter().any(|p| *p != [0.0, 0.0]) {
+        let disz_line = blocks[0].0.disz.map(|d| d.0).unwrap_or(0);
         return Err(fail(format!(
-            "line {ftyp_line} `FTYP`: object heights (type 1) with the object at infinity (`DISZ INFINITY` on surface 0): an object at infinity takes field angles (type 0) or image heights"
+            "line {ftyp_line} `FTYP`: object heights (type 1) with the object at infinity (line {disz_line} `DISZ` INFINITY on surface 0): an object at infinity takes field angles (type 0) or image heights"
         )));
     }
     let (fields_mm, fields_deg) = if field_type == FieldType::Angle { (Vec::new(), fields) } else { (fields, Vec::new()) };
