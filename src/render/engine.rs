@@ -275,7 +275,15 @@ impl<'a> Renderer<'a> {
 
     /// Trace one plane's light transport.
     pub fn trace_plane(&self, plane: usize) -> Result<PlaneTransport> {
-        self.context().trace_plane(plane, self.config.spectral.planes_nm[plane])
+        let mut t = self.context().trace_plane(plane, self.config.spectral.planes_nm[plane])?;
+        // A diffraction grating passes the fraction `grating_efficiency` of the power into its traced order
+        // (a scalar per order, default 1): every footprint's weight, hence the acquisition and the exact
+        // operator alike. Systems without gratings (efficiency 1) are untouched, bit for bit.
+        let e = self.system.grating_efficiency();
+        if e != 1.0 {
+            t.weights.iter_mut().for_each(|w| *w = (*w as f64 * e) as f32);
+        }
+        Ok(t)
     }
 
     /// Trace every plane (in parallel; the result does not depend on the thread count). `progress` is

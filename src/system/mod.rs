@@ -82,6 +82,12 @@ impl SequentialSystem {
         Ok(n)
     }
 
+    /// The product of the efficiencies of the system's grating orders (`grating_efficiency`, default 1): the
+    /// fraction of the power its traced path carries. 1 without gratings.
+    pub fn grating_efficiency(&self) -> f64 {
+        self.spec.surfaces.iter().filter(|s| s.kind == crate::spec::SurfaceKind::DiffractionGrating).map(|s| s.grating_efficiency.unwrap_or(1.0)).product()
+    }
+
     /// Whether a surface of the system is a diffraction grating.
     pub fn has_grating(&self) -> bool {
         self.surfaces.iter().any(|s| matches!(s.interaction, Interaction::Grating { .. }))
