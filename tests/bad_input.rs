@@ -81,8 +81,9 @@ fn malformed_toml() {
 
 #[test]
 fn unknown_surface_type() {
-    let text = spec::to_toml(&sp()).unwrap().replacen("type = \"paraxial\"", "type = \"toroidal\"", 1);
-    assert_mentions(&toml_err(&text), &["user.toml", "toroidal", "paraxial"]);
+    // (toroidal, once the example here, is modelled since issue 42; a biconic is not.)
+    let text = spec::to_toml(&sp()).unwrap().replacen("type = \"paraxial\"", "type = \"biconic\"", 1);
+    assert_mentions(&toml_err(&text), &["user.toml", "biconic", "paraxial"]);
 }
 
 #[test]
