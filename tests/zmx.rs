@@ -225,9 +225,9 @@ fn bad_input_rows() {
     refused("trunc-header.zmx", &good.as_bytes()[..good.find("SURF 0").unwrap()], &["no `SURF` record"]);
     let cut = &good[..good.find("SURF 5").unwrap() + 7];
     refused("trunc-surf.zmx", cut.as_bytes(), &["`SURF 5`", "truncated"]);
-    // Unknown surface type.
-    let t = good.replacen("TYPE PARAXIAL", "TYPE TOROIDAL", 1);
-    refused("type.zmx", t.as_bytes(), &[&format!("line {} `TYPE`", line_of(&t, "TOROIDAL")), "TOROIDAL"]);
+    // Unknown (not modelled) surface type: OpticStudio's Binary 2 (TOROIDAL and DGRATING are read since issue 42).
+    let t = good.replacen("TYPE PARAXIAL", "TYPE BINARY_2", 1);
+    refused("type.zmx", t.as_bytes(), &[&format!("line {} `TYPE`", line_of(&t, "BINARY_2")), "BINARY_2"]);
     // Missing glass catalogue.
     let t = good.replace("GCAT SCHOTT", "GCAT NOSUCHCAT").replace("GLAS N-BK7", "GLAS XYZ-9");
     refused("catalog.zmx", t.as_bytes(), &[&format!("line {} `GLAS`", line_of(&t, "GLAS XYZ-9")), "NOSUCHCAT.AGF", "XYZ-9"]);
