@@ -102,7 +102,15 @@ pub fn parse_wavelengths_for(option: &str, text: &str) -> Result<Vec<f64>> {
 
 /// `X,Y` → field angles (degrees) of `--field-deg`: each finite and within (−90, 90).
 pub fn parse_field_deg(text: &str) -> Result<[f64; 2]> {
-    let bad = |why: String| Error::invalid(format!("--field-deg `{text}`: {why} (use X,Y in degrees, e.g. 0,10)"));
+    parse_pair("--field-deg", text, "X,Y in degrees, e.g. 0,10", |v| {
+        (!(v.is_finite() && v.abs() < 90.0)).then(|| format!("{} is not an angle within (-90, 90) degrees", crate::limits::fmt_num(v)))
+    })
+}
+
+/// `X,Y` of `flag`: two numbers, each accepted by `check` (`Some(why)` refuses it); errors name the flag,
+/// the text and how to write it (`usage`).
+fn parse_pair(flag: &str, text: &str, usage: &str, check: impl Fn(f64) -> Option<String>) -> Result<[f64; 2]> {
+    let bad = |why: String| Error::invalid(format!("{flag} `{text}`: {why} (use {usage})"));
     let parts: Vec<&str> = text.split(',').collect();
     if parts.len() != 2 {
         return Err(bad("expected two numbers".into()));
@@ -110,8 +118,8 @@ pub fn parse_field_deg(text: &str) -> Result<[f64; 2]> {
     let mut v = [0.0f64; 2];
     for (k, p) in parts.iter().enumerate() {
         v[k] = p.trim().parse().map_err(|_| bad(format!("`{p}` is not a number")))?;
-        if !(v[k].is_finite() && v[k].abs() < 90.0) {
-            return Err(bad(format!("{} is not an angle within (-90, 90) degrees", crate::limits::fmt_num(v[k]))));
+        if let Some(why) = check(v[k]) {
+            return Err(bad(why));
         }
     }
     Ok(v)
@@ -133,19 +141,9 @@ pub fn parse_fields_for(system: &crate::system::SequentialSystem, mm: &[String],
 
 /// `X,Y` → field point (mm).
 pub fn parse_field(text: &str) -> Result<[f64; 2]> {
-    let bad = |why: String| Error::invalid(format!("--field-mm `{text}`: {why} (use X,Y in mm, e.g. 2.5,0)"));
-    let parts: Vec<&str> = text.split(',').collect();
-    if parts.len() != 2 {
-        return Err(bad("expected two numbers".into()));
-    }
-    let mut v = [0.0f64; 2];
-    for (k, p) in parts.iter().enumerate() {
-        v[k] = p.trim().parse().map_err(|_| bad(format!("`{p}` is not a number")))?;
-        if !(v[k].is_finite() && v[k].abs() <= crate::limits::MAX_LENGTH_MM) {
-            return Err(bad(format!("{} is outside ±{:e} mm", crate::limits::fmt_num(v[k]), crate::limits::MAX_LENGTH_MM)));
-        }
-    }
-    Ok(v)
+    parse_pair("--field-mm", text, "X,Y in mm, e.g. 2.5,0", |v| {
+        (!(v.is_finite() && v.abs() <= crate::limits::MAX_LENGTH_MM)).then(|| format!("{} is outside ±{:e} mm", crate::limits::fmt_num(v), crate::limits::MAX_LENGTH_MM))
+    })
 }
 
 /// `chief`, `marginal`, `hexapolar:R`, `grid:N`, `grid-step:S`, `random:N:SEED` ([`PupilPattern::parse_for`],

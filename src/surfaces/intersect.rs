@@ -40,44 +40,37 @@ pub fn intersect(shape: &SurfaceShape, p: DVec3, d: DVec3) -> Result<Hit, Inters
             // — and Newton from there leaves the domain; the plane root is then the better start.
             let plane = intersect_plane(p, d).map(|h| h.t);
             let conic_start = if *curvature == 0.0 { Err(IntersectFailure::Missed) } else { conic_root(*curvature, *conic, p, d) };
-            let mut result = Err(IntersectFailure::Missed);
-            for t0 in [conic_start, plane] {
-                let Ok(t0) = t0 else { continue };
-                result = asphere_newton(shape, p, d, t0);
-                if result.is_ok() {
-                    break;
-                }
-            }
-            let t = result?;
-            let point = p + d * t;
-            let normal = shape.normal(point);
-            if !normal.is_finite() {
-                return Err(IntersectFailure::Missed);
-            }
-            Ok(Hit { t, point, normal })
+            newton_hit(shape, p, d, [conic_start, plane])
         }
         SurfaceShape::Toroidal { curvature, conic, .. } => {
             // Starts: the vertex plane's root (the toroid is smooth through its vertex), then the root of the
             // YZ curve's rotationally symmetric conic (closer for steep surfaces).
             let plane = intersect_plane(p, d).map(|h| h.t);
             let conic_start = if *curvature == 0.0 { Err(IntersectFailure::Missed) } else { conic_root(*curvature, *conic, p, d) };
-            let mut result = Err(IntersectFailure::Missed);
-            for t0 in [plane, conic_start] {
-                let Ok(t0) = t0 else { continue };
-                result = asphere_newton(shape, p, d, t0);
-                if result.is_ok() {
-                    break;
-                }
-            }
-            let t = result?;
-            let point = p + d * t;
-            let normal = shape.normal(point);
-            if !normal.is_finite() {
-                return Err(IntersectFailure::Missed);
-            }
-            Ok(Hit { t, point, normal })
+            newton_hit(shape, p, d, [plane, conic_start])
         }
     }
+}
+
+/// The guarded Newton solve of an even asphere or a toroid from the first of `starts` that converges (a
+/// failed start is skipped), and the hit with its normal (`Missed` where the normal is not finite).
+#[inline(always)]
+fn newton_hit(shape: &SurfaceShape, p: DVec3, d: DVec3, starts: [Result<f64, IntersectFailure>; 2]) -> Result<Hit, IntersectFailure> {
+    let mut result = Err(IntersectFailure::Missed);
+    for t0 in starts {
+        let Ok(t0) = t0 else { continue };
+        result = asphere_newton(shape, p, d, t0);
+        if result.is_ok() {
+            break;
+        }
+    }
+    let t = result?;
+    let point = p + d * t;
+    let normal = shape.normal(point);
+    if !normal.is_finite() {
+        return Err(IntersectFailure::Missed);
+    }
+    Ok(Hit { t, point, normal })
 }
 
 #[inline]
