@@ -30,11 +30,12 @@ import pytest
 import diffcassi
 
 rayoptics = pytest.importorskip("rayoptics", reason="rayoptics (scripts/setup.sh installs it) is the independent reader")
-from rayoptics.optical.opticalmodel import OpticalModel  # noqa: E402
 from rayoptics.raytr.raytrace import trace as ro_trace  # noqa: E402
-import opticalglass as og  # noqa: E402
 from rayoptics.zemax import zmxread  # noqa: E402
 from opticalglass import glassfactory  # noqa: E402
+# The file decoding and rayoptics' sequential-model reader of test_zmx.py (its element model, used for drawing,
+# has no grammar for fold-mirror layouts built from Coordinate Breaks either).
+from test_zmx import decode, ro_open  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 FIXTURES = ROOT / "tests" / "fixtures" / "zmx"
@@ -45,11 +46,6 @@ SKIPPABLE = {
     "PPAR",  # parameter pickups whose values the file holds (checked below)
     "HYPR", "SSID", "LUID", "EERA", "AUTH", "IWDP", "NOTE", "REAX",  # bookkeeping, display, merit operands
 }
-
-
-def decode(path):
-    raw = path.read_bytes()
-    return raw.decode("utf-16") if raw[:2] in (b"\xff\xfe", b"\xfe\xff") else raw.decode("utf-8")
 
 
 def finite_copy(path, out_dir):
@@ -86,20 +82,6 @@ def finite_copy(path, out_dir):
     copy = out_dir / path.name
     copy.write_text(text)
     return copy
-
-
-def ro_open(path):
-    """rayoptics' reader updating the sequential model only (its element model, used for drawing, has no grammar
-    for fold-mirror layouts built from Coordinate Breaks; test_zmx.py does the same for the prism presets)."""
-    zmxread._cmd_not_handled = og.util.Counter()
-    zmxread._track_contents = og.util.Counter()
-    om = OpticalModel(do_init=False)
-    zmxread._glass_handler = zmxread.ZmxGlassHandler(path)
-    for i, line in enumerate(decode(path).splitlines()):
-        zmxread.process_line(om, line, i + 1)
-    zmxread.post_process_input(om, path)
-    om["seq_model"].update_model()
-    return om
 
 
 def ro_read(path, first_order):
