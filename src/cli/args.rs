@@ -7,7 +7,7 @@ use std::path::PathBuf;
 /// Which system to use.
 #[derive(Args, Debug, Clone)]
 pub struct SystemArgs {
-    /// A preset: sp, ap, msp, map (the paper's four systems), gsp (SP with a plane transmission grating).
+    /// A preset: sp, ap, msp, map (the paper's four systems), gsp (SP with a plane transmission grating), ddsp, mddsp (dual-disperser CASSI: SP's arm onto a coded mask, then mirrored onto the detector).
     #[arg(long, conflicts_with = "system")]
     pub preset: Option<String>,
     /// A spec file: .toml, .json, .yml/.yaml (paper format), .csv (Zemax prescription) or .zmx (Zemax lens file).

@@ -41,7 +41,8 @@ use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 /// diffcassi — exact ray tracing of coded-aperture snapshot spectral imagers (CASSI), matching Zemax.
 ///
 /// Systems come from a preset (sp, ap, msp, map: the reference paper's four systems, built from their
-/// Zemax prescriptions; gsp: SP with its prism replaced by a grating, docs/study.md "gsp") or a spec file (.toml, .json, the paper's .yml, a Zemax prescription .csv or a Zemax .zmx).
+/// Zemax prescriptions; gsp: SP with its prism replaced by a grating, docs/study.md "gsp"; ddsp, mddsp: dual-disperser
+/// CASSI, the coded mask a surface inside the system, docs/study.md "Dual-disperser CASSI") or a spec file (.toml, .json, the paper's .yml, a Zemax prescription .csv or a Zemax .zmx).
 /// Lengths are millimetres, wavelengths nanometres, angles degrees.
 #[derive(Parser, Debug)]
 #[command(name = "diffcassi", version, about, long_about = None, propagate_version = true)]

@@ -64,6 +64,13 @@ pub(crate) struct Batch {
 
 /// The system's traced path as kernel steps.
 pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
+    if let Some(m) = system.coded_mask {
+        return Err(Error::invalid(format!(
+            "system `{}` holds its coded mask on surface {} (dual-disperser CASSI): the GPU kernels weight rays by a mask on the object plane only; use --device cpu",
+            system.name(),
+            m.surface
+        )));
+    }
     system
         .path
         .iter()

@@ -137,7 +137,7 @@ impl<'a> ExactOperator<'a> {
         let interp = interpolation_table(&renderer, bands_nm)?;
         let layout = layout(&renderer);
         let planes = renderer.config.spectral.planes();
-        let mask = &renderer.mask.values;
+        let mask = renderer.object_mask();
         // Probe the memory with the middle plane, then trace all planes (in parallel, each re-laid and its
         // footprints dropped at once) if they should fit.
         let middle = CompactPlane::new(&renderer.trace_plane(planes / 2)?, mask, &layout);
@@ -191,7 +191,7 @@ impl<'a> ExactOperator<'a> {
                 // Every plane traced successfully at construction with the same inputs, and tracing is
                 // deterministic: this cannot fail.
                 let t = self.renderer.trace_plane(p).expect("re-tracing a plane of a validated renderer");
-                Cow::Owned(CompactPlane::new(&t, &self.renderer.mask.values, &self.layout))
+                Cow::Owned(CompactPlane::new(&t, self.renderer.object_mask(), &self.layout))
             }
         }
     }
@@ -382,7 +382,7 @@ impl<'a> ExactOperator<'a> {
         }
         let interp = interpolation_table(&renderer, bands_nm)?;
         let layout = layout(&renderer);
-        let compact: Vec<CompactPlane> = transport.par_iter().map(|t| CompactPlane::new(t, &renderer.mask.values, &layout)).collect();
+        let compact: Vec<CompactPlane> = transport.par_iter().map(|t| CompactPlane::new(t, renderer.object_mask(), &layout)).collect();
         let bytes = transport.iter().map(|t| t.bytes()).sum::<usize>() + compact.iter().map(|c| c.bytes()).sum::<usize>();
         Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, compact: Some(compact), transport: Some(transport), layout, transport_bytes: bytes, scratch: Mutex::default(), buffers: Mutex::default() })
     }

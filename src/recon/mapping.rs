@@ -112,6 +112,8 @@ pub struct MappingOperator {
     shape: CubeShape,
     image: ImageShape,
     interpolation: MappingInterpolation,
+    /// The mask per scene pixel (H·W), or for a dual-disperser system the mask each pixel sees per band,
+    /// band-major (B·H·W, the layout of `points`): where the pixel's chief ray crosses the coded-mask surface.
     mask: Vec<f32>,
     /// Band-major `[band][pixel]` mapped points.
     points: Vec<Point>,
@@ -158,10 +160,10 @@ impl MappingOperator {
     /// The bilinear support: coverage c_i = Σ_q,b M(q)·w_i(q, b) over every tap (sequential f64 sums in
     /// band/pixel order: deterministic), kept where c_i ≥ [`SUPPORT_FRACTION`]·mean(c_i > 0).
     fn support(&self) -> Vec<bool> {
-        let npix = self.shape.height * self.shape.width;
         let mut cover = vec![0.0f64; self.image.len()];
         for (k, p) in self.points.iter().enumerate() {
-            let m = self.mask[k % npix.max(1)] as f64;
+            // (k = b·npix + q: the pixel's mask, or the band's for a dual-disperser system.)
+            let m = self.mask[k % self.mask.len().max(1)] as f64;
             if m != 0.0 {
                 self.raw_taps(p, |i, w| cover[i] += m * w as f64);
             }
@@ -182,7 +184,38 @@ impl MappingOperator {
         super::layout::check_bands(bands_nm)?;
         let c = &renderer.config;
         let mapping = mapping_cube(renderer.system, renderer.tracer, c.scene_height, c.scene_width, c.scene_pitch_mm, bands_nm)?;
-        Self::new(&mapping, &renderer.detector, &renderer.mask, interpolation)
+        let mut op = Self::new(&mapping, &renderer.detector, &renderer.mask, interpolation)?;
+        if let Some(ms) = renderer.system.coded_mask {
+            // Dual-disperser: each pixel's chief ray, band by band, reads the mask where it crosses its surface.
+            let (h, w, npix) = (c.scene_height, c.scene_width, c.scene_height * c.scene_width);
+            let mask = &renderer.mask;
+            let mut per_band = vec![0.0f32; npix * bands_nm.len()];
+            per_band.par_chunks_mut(npix.max(1)).zip(bands_nm.par_iter()).try_for_each(|(band, &l)| -> Result<()> {
+                for (q, m) in band.iter_mut().enumerate() {
+                    let field = MappingCube::scene_xy(h, w, c.scene_pitch_mm, q / w, q % w);
+                    if let Some((x, y)) = renderer.system.point_on_mask(field, [0.0, 0.0], l)? {
+                        *m = ms.transmission(&mask.values, mask.height, mask.width, x, y) as f32;
+                    }
+                }
+                Ok(())
+            })?;
+            op.mask = per_band;
+            if interpolation == MappingInterpolation::Bilinear {
+                op.supported = op.support();
+            }
+        }
+        Ok(op)
+    }
+
+    /// The mask scene pixel `q` sees in band `b` (the mask at `q` for single-disperser systems).
+    #[inline]
+    pub fn mask_at(&self, q: usize, b: usize) -> f32 {
+        let npix = self.shape.height * self.shape.width;
+        if self.mask.len() == npix {
+            self.mask[q]
+        } else {
+            self.mask[b * npix + q]
+        }
     }
 
     pub fn interpolation(&self) -> MappingInterpolation {
@@ -209,7 +242,8 @@ impl MappingOperator {
         Ok(cube)
     }
 
-    /// The mask, per scene pixel (row-major).
+    /// The mask, per scene pixel (row-major); for a dual-disperser system per band and pixel, band-major
+    /// ([`Self::mask_at`]).
     pub fn mask_values(&self) -> &[f32] {
         &self.mask
     }
@@ -284,7 +318,8 @@ impl Operator for MappingOperator {
                 let mut acc = vec![0.0f32; self.image.len()];
                 for b in range {
                     let (xs, ps) = (&bm[b * npix..(b + 1) * npix], &self.points[b * npix..(b + 1) * npix]);
-                    for ((x, p), m) in xs.iter().zip(ps).zip(&self.mask) {
+                    let ms = if self.mask.len() == npix { &self.mask[..] } else { &self.mask[b * npix..(b + 1) * npix] };
+                    for ((x, p), m) in xs.iter().zip(ps).zip(ms) {
                         let v = *x * *m;
                         if v != 0.0 {
                             self.taps(p, |k, w| acc[k] += w * v);
@@ -303,8 +338,8 @@ impl Operator for MappingOperator {
     fn adjoint_into(&self, image: &[f32], cube: &mut [f32]) {
         let (npix, nb) = (self.shape.height * self.shape.width, self.shape.bands);
         cube.par_chunks_mut(nb).enumerate().for_each(|(q, px)| {
-            let m = self.mask[q];
             for (b, v) in px.iter_mut().enumerate() {
+                let m = self.mask_at(q, b);
                 let mut s = 0.0f32;
                 if m != 0.0 {
                     self.taps(&self.points[b * npix + q], |k, w| s += w * image[k]);

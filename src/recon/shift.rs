@@ -14,6 +14,13 @@
 //! to a rendered acquisition. The dispersion s(b) = c_b − c_0 ([`ShiftOperator::shifts_px`]). Taps off the
 //! detector are dropped. The adjoint gathers the same pixels.
 //!
+//! **Dual-disperser systems** (a coded-mask surface inside the system, [`crate::system::MaskSurface`]): the
+//! DD-CASSI shift model — the identity spatial registration (every band at the middle band's placement, no
+//! dispersion on the detector) with a per-band shift of the mask: y(r₀ + σ_y·r, c₀ + σ_x·c) += M_b(r, c)·x(r, c, b)
+//! with M_b(r, c) = M(m_r + τ_y·r, m_b + τ_x·c) (0 outside the mask), where m_b, m_r and τ = ±1 come from the
+//! centre field's chief ray on the mask surface at band b (and one scene pixel either side at the middle band)
+//! in the mask's continuous pixel coordinates, rounded to whole mask pixels ([`ShiftOperator::mask_shifts_px`]).
+//!
 //! ```
 //! use diffcassi::recon::{shift::ShiftOperator, CubeShape, ImageShape, Operator};
 //! use diffcassi::render::Mask;
@@ -41,6 +48,11 @@ pub struct ShiftOperator {
     columns: Vec<i64>,
     sigma_x: i64,
     sigma_y: i64,
+    /// Dual-disperser systems: the mask each scene pixel sees in each band, M_b(r, c), pixel-major
+    /// (`[q·bands + b]`, the cube's layout); `None` for single-disperser (the mask `mask` per pixel).
+    band_mask: Option<Vec<f32>>,
+    /// Dual-disperser systems: the per-band mask column shift m_b − m_0 (mask pixels).
+    mask_shifts: Vec<i64>,
 }
 
 impl ShiftOperator {
@@ -59,7 +71,69 @@ impl ShiftOperator {
         if sigma_x.abs() != 1 || sigma_y.abs() != 1 {
             return Err(Error::invalid(format!("shift operator: orientation ({sigma_x}, {sigma_y}) must be ±1")));
         }
-        Ok(ShiftOperator { shape, image, mask: mask.values.clone(), row0, columns, sigma_x, sigma_y })
+        Ok(ShiftOperator { shape, image, mask: mask.values.clone(), row0, columns, sigma_x, sigma_y, band_mask: None, mask_shifts: Vec::new() })
+    }
+
+    /// The DD-CASSI shift model of a renderer whose system holds a coded-mask surface (see the
+    /// [module docs](self)).
+    fn dual_disperser(renderer: &Renderer<'_>, bands_nm: &[f64], row0: i64, col0: i64, sigma: (i64, i64)) -> Result<Self> {
+        let sys = renderer.system;
+        let ms = sys.coded_mask.expect("called for a system with a coded-mask surface");
+        let c = &renderer.config;
+        let mask = &renderer.mask;
+        let (mh, mw) = (mask.height, mask.width);
+        let on_mask = |field: [f64; 2], w: f64| -> Result<(f64, f64)> {
+            let (x, y) = sys.point_on_mask(field, [0.0, 0.0], w)?.ok_or_else(|| {
+                Error::invalid(format!("shift operator: the chief ray of field ({:.4}, {:.4}) at {w} nm does not reach the coded-mask surface {}", field[0], field[1], ms.surface))
+            })?;
+            // Continuous mask pixel coordinates with pixel centres at integers (column, row).
+            Ok((x / ms.pitch_mm + mw as f64 * 0.5 - 0.5, mh as f64 * 0.5 - y / ms.pitch_mm - 0.5))
+        };
+        let mid = bands_nm[bands_nm.len() / 2];
+        let d = c.scene_pitch_mm;
+        let (px, nx, py, ny, o) = (on_mask([d, 0.0], mid)?, on_mask([-d, 0.0], mid)?, on_mask([0.0, d], mid)?, on_mask([0.0, -d], mid)?, on_mask([0.0, 0.0], mid)?);
+        let tau_x = if px.0 - nx.0 >= 0.0 { 1 } else { -1 };
+        let tau_y = if ny.1 - py.1 >= 0.0 { 1 } else { -1 };
+        let (h, w, nb) = (c.scene_height, c.scene_width, bands_nm.len());
+        let (rc, cc) = ((h as f64 - 1.0) / 2.0, (w as f64 - 1.0) / 2.0);
+        let m_r = (o.1 - tau_y as f64 * rc).round() as i64;
+        let mut m_b = Vec::with_capacity(nb);
+        for &l in bands_nm {
+            m_b.push((on_mask([0.0, 0.0], l)?.0 - tau_x as f64 * cc).round() as i64);
+        }
+        let mut band_mask = vec![0.0f32; h * w * nb];
+        for r in 0..h {
+            let mr = m_r + tau_y * r as i64;
+            for cix in 0..w {
+                for (b, &mb) in m_b.iter().enumerate() {
+                    let mc = mb + tau_x * cix as i64;
+                    if mr >= 0 && mc >= 0 && (mr as usize) < mh && (mc as usize) < mw {
+                        band_mask[(r * w + cix) * nb + b] = mask.values[mr as usize * mw + mc as usize];
+                    }
+                }
+            }
+        }
+        let shape = CubeShape { height: h, width: w, bands: nb };
+        let image = ImageShape { height: renderer.detector.height, width: renderer.detector.width };
+        let mut op = Self::new(shape, image, &Mask::open(h, w), row0, vec![col0; nb], sigma.0, sigma.1)?;
+        op.mask_shifts = m_b.iter().map(|m| m - m_b[0]).collect();
+        op.band_mask = Some(band_mask);
+        Ok(op)
+    }
+
+    /// Dual-disperser systems: the per-band shift of the mask seen by the scene, m_b − m_0 (mask pixels);
+    /// empty for single-disperser systems.
+    pub fn mask_shifts_px(&self) -> &[i64] {
+        &self.mask_shifts
+    }
+
+    /// The mask scene pixel `q` sees in band `b` (the mask at `q` for single-disperser systems).
+    #[inline]
+    pub fn mask_at(&self, q: usize, b: usize) -> f32 {
+        match &self.band_mask {
+            Some(m) => m[q * self.shape.bands + b],
+            None => self.mask[q],
+        }
     }
 
     /// The model of the renderer's system at `bands_nm`, on the renderer's detector and mask (see the
@@ -93,6 +167,11 @@ impl ShiftOperator {
             let p = trace(&[[0.0, 0.0]], w)?;
             columns.push((p[0].0 - sigma_x as f64 * cc).round() as i64);
         }
+        if renderer.system.coded_mask.is_some() {
+            // Identity registration: every band where the middle band lands.
+            let col0 = (o[4].0 - sigma_x as f64 * cc).round() as i64;
+            return Self::dual_disperser(renderer, bands_nm, row0, col0, (sigma_x, sigma_y));
+        }
         let shape = CubeShape { height: c.scene_height, width: c.scene_width, bands: bands_nm.len() };
         let image = ImageShape { height: det.height, width: det.width };
         Self::new(shape, image, &renderer.mask, row0, columns, sigma_x, sigma_y)
@@ -108,7 +187,8 @@ impl ShiftOperator {
         (&self.columns, self.row0, self.sigma_x, self.sigma_y)
     }
 
-    /// The mask, per scene pixel (row-major).
+    /// The mask, per scene pixel (row-major); for a dual-disperser system, the mask on its surface seen by
+    /// each pixel depends on the band: [`Self::mask_at`].
     pub fn mask_values(&self) -> &[f32] {
         &self.mask
     }
@@ -169,7 +249,7 @@ impl Operator for ShiftOperator {
                 for c in 0..w {
                     if let Some(j) = self.col(b, c) {
                         let q = r * w + c;
-                        row[j] += self.mask[q] * cube[q * nb + b];
+                        row[j] += self.mask_at(q, b) * cube[q * nb + b];
                     }
                 }
             }
@@ -181,8 +261,8 @@ impl Operator for ShiftOperator {
         cube.par_chunks_mut(w * nb).enumerate().for_each(|(r, row)| {
             let det = self.det_row(r);
             for c in 0..w {
-                let m = self.mask[r * w + c];
                 for b in 0..nb {
+                    let m = self.mask_at(r * w + c, b);
                     row[c * nb + b] = match (det, self.col(b, c)) {
                         (Some(i), Some(j)) => m * image[i * dw + j],
                         _ => 0.0,

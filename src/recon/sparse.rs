@@ -206,15 +206,15 @@ impl SparseExport for ShiftOperator {
     fn to_csr(&self, memory_budget_bytes: u64) -> Result<CsrMatrix> {
         let (cs, is) = (self.cube_shape(), self.image_shape());
         let npix = cs.height * cs.width;
-        let mask = self.mask_values();
         assemble(self.name(), is.len(), npix, cs.bands, (npix * cs.bands) as u64, memory_budget_bytes, |q, emit| {
             let (r, c) = (q / cs.width, q % cs.width);
-            let m = mask[q];
-            if m == 0.0 {
-                return;
-            }
             if let Some(i) = self.detector_row(r) {
                 for b in 0..cs.bands {
+                    // The mask the pixel sees in this band (per band for a dual-disperser system).
+                    let m = self.mask_at(q, b);
+                    if m == 0.0 {
+                        continue;
+                    }
                     if let Some(j) = self.detector_column(b, c) {
                         emit(b, (i * is.width + j) as u32, m);
                     }
@@ -232,13 +232,13 @@ impl SparseExport for MappingOperator {
             super::MappingInterpolation::Nearest => 1,
             super::MappingInterpolation::Bilinear => 4,
         };
-        let mask = self.mask_values();
         assemble(self.name(), is.len(), npix, cs.bands, (npix * cs.bands * taps) as u64, memory_budget_bytes, |q, emit| {
-            let m = mask[q];
-            if m == 0.0 {
-                return;
-            }
             for b in 0..cs.bands {
+                // The mask the pixel sees in this band (per band for a dual-disperser system).
+                let m = self.mask_at(q, b);
+                if m == 0.0 {
+                    continue;
+                }
                 // Taps of one point are distinct pixels in increasing order.
                 self.point_taps(q, b, |k, w| emit(b, k as u32, w * m));
             }
@@ -269,7 +269,7 @@ impl SparseExport for ExactOperator<'_> {
         let r = self.renderer();
         let (dw, dh) = (is.width, is.height);
         let weight = r.config.spectral.plane_weight;
-        let mask = &r.mask.values;
+        let mask = r.object_mask();
         // The transport: kept, or traced now (a streaming operator keeps none).
         let planes: Cow<'_, [PlaneTransport]> = match self.transport() {
             Some(t) => Cow::Borrowed(t),

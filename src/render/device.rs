@@ -143,6 +143,7 @@ fn stats(out: &PlanOutput, traced: u64) -> RayStats {
         bounce_limit: c[7],
         out_of_range: c[8],
         evanescent: 0, // systems with gratings are refused by the GPU plan (gpu::pack::steps)
+        masked: 0,     // and systems with a coded-mask surface too
         off_detector: c[STATUS_SLOTS] as f64 / LOST_ONE,
     }
 }

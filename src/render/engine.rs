@@ -10,7 +10,7 @@ use super::detector::Detector;
 use super::mask::Mask;
 use super::sampling::{RaySampler, Sampling};
 use super::spectral::SpectralSampling;
-use super::transport::{PlaneContext, PlaneTransport, RayStats};
+use super::transport::{PlaneContext, PlaneTransport, RayStats, SurfaceMask};
 use crate::error::{Error, Result};
 use crate::scene::SpectralCube;
 use crate::system::SequentialSystem;
@@ -136,7 +136,12 @@ pub struct Renderer<'a> {
     pub system: &'a SequentialSystem,
     pub tracer: &'a dyn Tracer,
     pub config: RenderConfig,
+    /// The coded mask: on the object plane (one transmission per scene pixel, single-disperser CASSI) or, when
+    /// the system holds a coded-mask surface ([`SequentialSystem::coded_mask`]), on that surface (dual-disperser).
     pub mask: Mask,
+    /// The transmission per scene pixel on the object plane: the mask's values, or all 1 when the mask is a
+    /// surface inside the system (`Some` only then).
+    object_mask: Option<Vec<f32>>,
     pub detector: Detector,
     pub kernels: Vec<Option<AiryKernel>>,
     sampler: RaySampler,
@@ -241,7 +246,34 @@ impl<'a> Renderer<'a> {
                 return Err(Error::invalid(format!("--precision f32 renders through the analytic backend's direct path (not {}{})", tracer.name(), if config.force_batched { ", batched" } else { "" })));
             }
         }
-        Ok(Renderer { system, tracer, config, mask, detector, kernels, sampler, simd })
+        let object_mask = system.coded_mask.map(|_| vec![1.0f32; h * w]);
+        if let Some(m) = system.coded_mask {
+            if config.force_batched || tracer.name() != "analytic-f64" {
+                return Err(Error::invalid(format!(
+                    "system `{}` holds its coded mask on surface {} (dual-disperser CASSI): it renders through the analytic backend's direct path only (not {}{})",
+                    system.name(),
+                    m.surface,
+                    tracer.name(),
+                    if config.force_batched { ", batched" } else { "" }
+                )));
+            }
+            if config.precision == crate::tracer::Precision::F32 {
+                return Err(Error::invalid(format!("system `{}` holds its coded mask on surface {}: --precision f32 does not model a mask surface yet; render in f64", system.name(), m.surface)));
+            }
+            check_mask_in_beam(system, &mask, m, config.scene_pitch_mm, h, w)?;
+        }
+        Ok(Renderer { system, tracer, config, mask, object_mask, detector, kernels, sampler, simd })
+    }
+
+    /// The transmission per scene pixel on the object plane: the mask for single-disperser CASSI; all 1 when
+    /// the mask is a surface of the system (its transmission then weights each ray where it crosses that surface).
+    pub fn object_mask(&self) -> &[f32] {
+        self.object_mask.as_deref().unwrap_or(&self.mask.values)
+    }
+
+    /// The coded mask on a surface of the system, as the plane tracer reads it (`None` for single-disperser CASSI).
+    pub fn surface_mask(&self) -> Option<SurfaceMask<'_>> {
+        self.system.coded_mask.map(|surface| SurfaceMask { surface, values: &self.mask.values, height: self.mask.height, width: self.mask.width })
     }
 
     /// Everything fixed while tracing a plane of this render (for other plane tracers, e.g. the GPU
@@ -261,7 +293,8 @@ impl<'a> Renderer<'a> {
             scene_height: self.config.scene_height,
             scene_width: self.config.scene_width,
             scene_pitch_mm: self.config.scene_pitch_mm,
-            mask: &self.mask.values,
+            mask: self.object_mask(),
+            surface_mask: self.surface_mask(),
             sampler: &self.sampler,
             seed: self.config.seed,
         }
@@ -269,7 +302,7 @@ impl<'a> Renderer<'a> {
 
     /// Rays traced per render (open pixels × rays × planes).
     pub fn rays_per_render(&self) -> u64 {
-        let open = self.mask.values.iter().filter(|&&v| v > 0.0).count() as u64;
+        let open = self.object_mask().iter().filter(|&&v| v > 0.0).count() as u64;
         open * self.config.rays_per_pixel as u64 * self.config.spectral.planes() as u64
     }
 
@@ -363,7 +396,7 @@ impl<'a> Renderer<'a> {
                         let (k, tw) = scene.interpolation(sp.planes_nm[p]);
                         let (xa, xb) = (&band_major[k * npx..(k + 1) * npx], &band_major[(k + 1).min(sb - 1) * npx..((k + 1).min(sb - 1) + 1) * npx]);
                         let tw = tw as f32;
-                        for (((v, a), b), m) in values.iter_mut().zip(xa).zip(xb).zip(&self.mask.values) {
+                        for (((v, a), b), m) in values.iter_mut().zip(xa).zip(xb).zip(self.object_mask()) {
                             *v = ((1.0 - tw) * *a + tw * *b) * *m;
                         }
                         tr.apply_padded(values, img, &lay);
@@ -417,6 +450,46 @@ impl<'a> Renderer<'a> {
         timings.wall_seconds = t0.elapsed().as_secs_f64();
         Ok(Acquisition { detector: det, image, bands: keep_bands.then_some(bands), stats, timings })
     }
+}
+
+/// A coded-mask surface must see the beam: the chief rays of the scene's corners and centre at the primary
+/// wavelength must cross it, and the scene's image there must overlap the mask's pixels. Otherwise every ray
+/// would be blocked (a black acquisition), which is an error naming the surface, not a result.
+fn check_mask_in_beam(system: &SequentialSystem, mask: &Mask, m: crate::system::MaskSurface, pitch_mm: f64, h: usize, w: usize) -> Result<()> {
+    let n = system.indices(system.primary_wavelength_nm())?;
+    let arm1 = &system.path[..=m.step];
+    let (hx, hy) = (0.5 * w as f64 * pitch_mm, 0.5 * h as f64 * pitch_mm);
+    let (mx, my) = (0.5 * mask.width as f64 * m.pitch_mm, 0.5 * mask.height as f64 * m.pitch_mm);
+    let mut inside = false;
+    let mut crossed = 0;
+    for field in [[0.0, 0.0], [-hx, -hy], [hx, -hy], [-hx, hy], [hx, hy]] {
+        // (The scene pitch is in the system's field unit: mm, or radians for an object at infinity.)
+        let (o, d) = crate::rays::object_ray(system, field, 0.0, 0.0);
+        let len = d.length();
+        if let Ok((p, _)) = crate::tracer::kernel::trace_steps(arm1, &n, o, d / len) {
+            crossed += 1;
+            inside |= p.x.abs() <= mx && p.y.abs() <= my;
+        }
+    }
+    if crossed == 0 {
+        return Err(Error::invalid(format!(
+            "system `{}`: no chief ray of the scene reaches the coded-mask surface {} at {} nm (the mask is outside the beam)",
+            system.name(),
+            m.surface,
+            system.primary_wavelength_nm()
+        )));
+    }
+    if !inside {
+        return Err(Error::invalid(format!(
+            "system `{}`: the scene's image on the coded-mask surface {} misses the {}×{} mask of pitch {} µm (the mask is outside the beam: check its position, tilt and pitch)",
+            system.name(),
+            m.surface,
+            mask.height,
+            mask.width,
+            crate::limits::fmt_num(m.pitch_mm * 1e3)
+        )));
+    }
+    Ok(())
 }
 
 /// Check `--scene-fov-deg` (the full angle across the scene's width, degrees): finite and in (0, 180).

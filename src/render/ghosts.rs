@@ -217,6 +217,13 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
     let sp = &c.spectral;
     let det = renderer.detector;
     let npix = det.pixels();
+    if let Some(m) = system.coded_mask {
+        return Err(Error::invalid(format!(
+            "system `{}` holds its coded mask on surface {} (dual-disperser CASSI): the ghost and stray-light render does not model a mask surface yet",
+            system.name(),
+            m.surface
+        )));
+    }
     let sampler = RaySampler::new(cfg.rays_per_pixel, c.sampling);
     let ctx = PlaneContext {
         system,
@@ -229,6 +236,7 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
         scene_width: c.scene_width,
         scene_pitch_mm: c.scene_pitch_mm,
         mask: &renderer.mask.values,
+        surface_mask: None,
         sampler: &sampler,
         seed: c.seed,
     };

@@ -443,6 +443,13 @@ impl DiffRenderer {
         if ds.system.spec.ray_aiming != RayAiming::Off {
             return Err(Error::invalid("the differentiable renderer aims rays at the paraxial entrance pupil: set ray_aiming = \"off\""));
         }
+        if let Some(m) = ds.system.coded_mask {
+            return Err(Error::invalid(format!(
+                "system `{}` holds its coded mask on surface {} (dual-disperser CASSI): the differentiable renderer weights rays by a mask on the object plane only; its gradient through a mask surface is not built yet",
+                ds.system.name(),
+                m.surface
+            )));
+        }
         if ds.system.object_at_infinity() {
             return Err(Error::invalid("the differentiable renderer starts rays from object points on a finite object plane: an object at infinity is not supported there yet"));
         }

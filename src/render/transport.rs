@@ -16,9 +16,8 @@ use crate::analysis::MappingCube;
 use crate::error::Result;
 use crate::rays::{aimed_ray, object_ray, PupilAim, RayBatch};
 use crate::spec::RayAiming;
-use crate::system::SequentialSystem;
+use crate::system::{MaskSurface, SequentialSystem};
 use crate::tracer::kernel::trace_step;
-#[allow(unused_imports)]
 use crate::tracer::kernel::trace_steps;
 use crate::tracer::{RayStatus, Tracer};
 use glam::DVec3;
@@ -59,7 +58,11 @@ pub struct RayStats {
     /// A grating order that does not propagate ([`RayStatus::Evanescent`]); written only when non-zero.
     #[serde(skip_serializing_if = "is_zero_u64")]
     pub evanescent: u64,
-    /// Splat weight (in rays) that fell off the detector.
+    /// Arrived, but blocked by the coded-mask surface (transmission 0 where the ray crossed it; dual-disperser
+    /// systems only); not counted in `arrived`. Written only when non-zero.
+    #[serde(skip_serializing_if = "is_zero_u64")]
+    pub masked: u64,
+    /// Splat weight (in rays; behind a coded-mask surface, in rays times its transmission) that fell off the detector.
     pub off_detector: f64,
 }
 
@@ -76,6 +79,7 @@ impl RayStats {
         self.bounce_limit += o.bounce_limit;
         self.out_of_range += o.out_of_range;
         self.evanescent += o.evanescent;
+        self.masked += o.masked;
         self.off_detector += o.off_detector;
     }
     pub(crate) fn count(&mut self, s: RayStatus) {
@@ -215,10 +219,29 @@ pub struct PlaneContext<'a> {
     pub scene_height: usize,
     pub scene_width: usize,
     pub scene_pitch_mm: f64,
-    /// Mask transmission per scene pixel; pixels at 0 are not traced.
+    /// Mask transmission per scene pixel; pixels at 0 are not traced (all 1 when the mask is a surface).
     pub mask: &'a [f32],
+    /// The coded mask on a surface inside the system (dual-disperser CASSI), or `None`.
+    pub surface_mask: Option<SurfaceMask<'a>>,
     pub sampler: &'a RaySampler,
     pub seed: u64,
+}
+
+/// The coded mask on a surface of the system: where it is ([`MaskSurface`]) and its pattern (`height`×`width`,
+/// row-major). Each ray is weighted by the transmission where it crosses the surface ([`MaskSurface::transmission`]).
+#[derive(Clone, Copy, Debug)]
+pub struct SurfaceMask<'a> {
+    pub surface: MaskSurface,
+    pub values: &'a [f32],
+    pub height: usize,
+    pub width: usize,
+}
+
+impl SurfaceMask<'_> {
+    #[inline]
+    fn weight(&self, x: f64, y: f64) -> f64 {
+        self.surface.transmission(self.values, self.height, self.width, x, y)
+    }
 }
 
 /// Scratch buffers reused across the rows of a plane (no allocation per pixel or ray).
@@ -242,6 +265,8 @@ struct Scratch {
 #[derive(Default)]
 struct Landings {
     arrived: Vec<bool>,
+    /// Per ray, the coded-mask surface's transmission where the ray crossed it (empty without a mask surface).
+    weight: Vec<f64>,
     j: Vec<i64>,
     i: Vec<i64>,
     fu: Vec<f64>,
@@ -251,6 +276,7 @@ struct Landings {
 impl Landings {
     fn clear(&mut self) {
         self.arrived.clear();
+        self.weight.clear();
         self.j.clear();
         self.i.clear();
         self.fu.clear();
@@ -452,6 +478,26 @@ pub(crate) fn trace_interleaved(path: &[crate::system::PathStep], n: &[f64], ray
     }
 }
 
+/// [`trace_interleaved`] through a coded-mask surface, one ray at a time: the same input checks and per-ray
+/// arithmetic, the path split after the mask's step; `emit` gets each outcome and the mask's transmission
+/// where the ray crossed it (0 for a ray that stopped before it).
+pub(crate) fn trace_through_mask(path: &[crate::system::PathStep], n: &[f64], mask: &SurfaceMask<'_>, rays: &[(DVec3, DVec3)], mut emit: impl FnMut(std::result::Result<(DVec3, DVec3), (RayStatus, usize)>, f64)) {
+    let (arm1, arm2) = path.split_at(mask.surface.step + 1);
+    for &(o, dir) in rays {
+        let len = dir.length();
+        let mut weight = 0.0;
+        let res = if o.is_finite() && dir.is_finite() && len > 0.0 {
+            trace_steps(arm1, n, o, dir / len).and_then(|(p, d)| {
+                weight = mask.weight(p.x, p.y);
+                trace_steps(arm2, n, p, d)
+            })
+        } else {
+            Err((RayStatus::InvalidInput, 0))
+        };
+        emit(res, weight);
+    }
+}
+
 impl PlaneContext<'_> {
     /// Object-space ray of sample `s` = [px, py, sx, sy] of scene pixel (row, col).
     #[inline]
@@ -468,6 +514,19 @@ impl PlaneContext<'_> {
     /// Trace plane `plane` at `wavelength_nm` and build its footprints.
     pub fn trace_plane(&self, plane: usize, wavelength_nm: f64) -> Result<PlaneTransport> {
         let n = self.system.indices(wavelength_nm)?;
+        if self.surface_mask.is_some() {
+            if !self.direct_kernel {
+                return Err(crate::error::Error::invalid(format!(
+                    "system `{}` holds its coded mask on a surface (dual-disperser CASSI): it renders through the analytic backend's direct path only (not {}{})",
+                    self.system.name(),
+                    self.tracer.name(),
+                    if self.tracer.name() == "analytic-f64" { ", batched" } else { "" }
+                )));
+            }
+            if self.precision == crate::tracer::Precision::F32 {
+                return Err(crate::error::Error::invalid(format!("system `{}` holds its coded mask on a surface: --precision f32 does not model it yet; render in f64", self.system.name())));
+            }
+        }
         let nr = self.sampler.rays;
         let mut out = PlaneTransport::default();
         let mut sc = Scratch::default();
@@ -513,7 +572,24 @@ impl PlaneContext<'_> {
                     None => {
                         let rays: Vec<(DVec3, DVec3)> = (0..count).map(|t| sc.rays.ray(t)).collect();
                         let (stats, det, land) = (&mut out.stats, self.detector, &mut sc.land);
-                        trace_interleaved(&self.system.path, &n, &rays, |res| land.push(landing(det, stats, res)));
+                        match self.surface_mask {
+                            None => trace_interleaved(&self.system.path, &n, &rays, |res| land.push(landing(det, stats, res))),
+                            Some(sm) => trace_through_mask(&self.system.path, &n, &sm, &rays, |res, w| {
+                                land.weight.push(w);
+                                land.push(landing(det, stats, res));
+                            }),
+                        }
+                    }
+                }
+                if self.surface_mask.is_some() {
+                    // A ray the mask blocks (transmission 0) deposits nothing: counted apart, not as arrived.
+                    let land = &mut sc.land;
+                    for t in 0..count {
+                        if land.arrived[t] && land.weight[t] == 0.0 {
+                            land.arrived[t] = false;
+                            out.stats.arrived -= 1;
+                            out.stats.masked += 1;
+                        }
                     }
                 }
             } else {
@@ -563,7 +639,19 @@ impl PlaneContext<'_> {
             b.d.y.0[..m].copy_from_slice(&rays.dy[r.clone()]);
             b.d.z.0[..m].copy_from_slice(&rays.dz[r]);
             b.alive.0[..m].fill(true);
-            crate::tracer::simd::trace_block_raw(level, &self.system.path, &tables, &mut b);
+            match self.surface_mask {
+                None => crate::tracer::simd::trace_block_raw(level, &self.system.path, &tables, &mut b),
+                Some(sm) => {
+                    // To the mask surface, read its transmission where each ray crosses it (the lanes'
+                    // positions are in its local frame there), then on to the detector.
+                    let (arm1, arm2) = self.system.path.split_at(sm.surface.step + 1);
+                    crate::tracer::simd::trace_block_raw(level, arm1, &tables, &mut b);
+                    for k in 0..m {
+                        land.weight.push(if b.alive.0[k] { sm.weight(b.p.x.0[k], b.p.y.0[k]) } else { 0.0 });
+                    }
+                    crate::tracer::simd::trace_block(level, arm2, &tables, &mut b);
+                }
+            }
             let mut counts = [0u64; 2];
             super::vector::run_at(level, LandLoop { b: &b, m, det, land, counts: &mut counts });
             stats.arrived += counts[0];
@@ -626,6 +714,9 @@ impl PlaneContext<'_> {
     /// to `out`. Each window cell sums its taps in ray order, in f64, then is scaled by 1/N and stored as f32.
     fn footprint(&self, pixel: u32, land: &Landings, rays: std::ops::Range<usize>, window: &mut Vec<f64>, out: &mut PlaneTransport) {
         let (dw, dh) = (self.detector.width as i64, self.detector.height as i64);
+        // Each ray's weight: the coded-mask surface's transmission where it crossed it (1 without one; x·1 = x
+        // exactly, so the single-disperser footprints keep their bits).
+        let lw = (!land.weight.is_empty()).then(|| &land.weight[rays.clone()]);
         let (la, lj, li, lfu, lfv) = (&land.arrived[rays.clone()], &land.j[rays.clone()], &land.i[rays.clone()], &land.fu[rays.clone()], &land.fv[rays]);
         let (mut x0, mut x1, mut y0, mut y1) = (i64::MAX, i64::MIN, i64::MAX, i64::MIN);
         let mut arrived = 0usize;
@@ -643,31 +734,34 @@ impl PlaneContext<'_> {
         // Clip the window to the detector; taps outside are lost.
         let (cx0, cx1, cy0, cy1) = (x0.max(0), x1.min(dw - 1), y0.max(0), y1.min(dh - 1));
         if cx0 > cx1 || cy0 > cy1 {
-            out.stats.off_detector += arrived as f64;
+            out.stats.off_detector += match lw {
+                None => arrived as f64,
+                Some(w) => (0..la.len()).filter(|&t| la[t]).map(|t| w[t]).sum(),
+            };
             return;
         }
         let (ww, wh) = ((cx1 - cx0 + 1) as usize, (cy1 - cy0 + 1) as usize);
         window.clear();
         window.resize(ww * wh, 0.0);
-        let cells = (0..la.len()).filter(|&t| la[t]).map(|t| (lj[t], li[t], lfu[t], lfv[t]));
+        let cells = (0..la.len()).filter(|&t| la[t]).map(|t| (lj[t], li[t], lfu[t], lfv[t], lw.map_or(1.0, |w| w[t])));
         if (cx0, cx1, cy0, cy1) == (x0, x1, y0, y1) {
             // Inside the detector: every tap lands in the window (j + 1 ≤ x1, i + 1 ≤ y1), nothing is lost.
-            for (j, i, fu, fv) in cells {
+            for (j, i, fu, fv, w) in cells {
                 let o = (i - y0) as usize * ww + (j - x0) as usize;
                 let taps = &mut window[o..o + ww + 2];
                 let (wi0, wi1, wj0, wj1) = (1.0 - fv, fv, 1.0 - fu, fu);
-                taps[0] += wi0 * wj0;
-                taps[1] += wi0 * wj1;
-                taps[ww] += wi1 * wj0;
-                taps[ww + 1] += wi1 * wj1;
+                taps[0] += wi0 * wj0 * w;
+                taps[1] += wi0 * wj1 * w;
+                taps[ww] += wi1 * wj0 * w;
+                taps[ww + 1] += wi1 * wj1 * w;
             }
         } else {
             let mut lost = 0.0;
-            for (j, i, fu, fv) in cells {
+            for (j, i, fu, fv, w) in cells {
                 for (di, wi) in [(0, 1.0 - fv), (1, fv)] {
                     for (dj, wj) in [(0, 1.0 - fu), (1, fu)] {
                         let (r, c) = (i + di, j + dj);
-                        let tap = wi * wj;
+                        let tap = wi * wj * w;
                         if r < cy0 || r > cy1 || c < cx0 || c > cx1 {
                             lost += tap;
                         } else {

@@ -15,6 +15,7 @@
 //! assert_eq!(spec, back);
 //! ```
 mod cell;
+mod coded_mask;
 mod format;
 mod mechanics;
 mod surface;
@@ -24,6 +25,7 @@ pub mod zemax_csv;
 pub mod zmx;
 
 pub use cell::*;
+pub use coded_mask::*;
 pub use format::*;
 pub use mechanics::*;
 pub use surface::*;

@@ -100,6 +100,10 @@ pub struct SurfaceSpec {
     /// and the renderer's ghost-free operator ignore it). Absent: a bare surface (Fresnel).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub coating: Option<Coating>,
+    /// A coded mask on this surface (dual-disperser CASSI; `super::coded_mask`): rays crossing it are weighted
+    /// by the render's mask there. At most one per system, on a flat Standard surface in air.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub coded_mask: Option<super::CodedMaskSpec>,
 }
 
 /// A surface coating (see `src/tracer/nonseq/coating.rs` for the physics).
@@ -183,6 +187,7 @@ impl SurfaceSpec {
             tilt_z_deg: None,
             order: 0,
             coating: None,
+            coded_mask: None,
         }
     }
 

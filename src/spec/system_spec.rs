@@ -273,6 +273,22 @@ impl SystemSpec {
                     return Err(at("coating", format!("surface {i} is {what}, not a refracting interface: a coating there would do nothing; remove it")));
                 }
             }
+            if let Some(m) = &s.coded_mask {
+                m.validate().map_err(|e| at("coded_mask", e))?;
+                if let Some(j) = self.surfaces[..i].iter().position(|t| t.coded_mask.is_some()) {
+                    return Err(at("coded_mask", format!("surface {j} already holds the coded mask: a system has at most one coded-mask surface")));
+                }
+                if i == 0 || i == last {
+                    return Err(at("coded_mask", "the object and image surfaces cannot hold the coded mask (a mask on the object plane is single-disperser CASSI: remove coded_mask)".into()));
+                }
+                let flat = s.radius_mm.as_ref().map(|r| !r.value.is_finite() || r.value == 0.0).unwrap_or(true);
+                if s.kind != SurfaceKind::Standard || !flat || s.conic.as_ref().is_some_and(|c| c.value != 0.0) {
+                    return Err(at("coded_mask", "the coded mask must be a flat Standard surface (no radius, no conic)".into()));
+                }
+                if s.is_mirror() || s.material.as_deref().is_some_and(|m| !m.eq_ignore_ascii_case("air")) {
+                    return Err(at("coded_mask", format!("material {:?}: the coded mask is a thin plate in air (no refraction at it)", s.material.as_deref().unwrap_or(""))));
+                }
+            }
             if s.asphere_coefficients.len() > 8 {
                 return Err(at("asphere_coefficients", format!("{} terms: at most 8 (r² … r¹⁶)", s.asphere_coefficients.len())));
             }

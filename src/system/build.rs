@@ -119,6 +119,7 @@ impl SequentialSystem {
         let mut current = Frame::IDENTITY; // frame at the vertex of the surface being placed
         let mut last_step_frame = Frame::IDENTITY; // frame of the previous traced surface (object = identity)
         let mut stop_probe: Option<StopProbe> = None;
+        let mut coded_mask: Option<super::MaskSurface> = None;
         for i in 0..n {
             let s = &spec.surfaces[i];
             let surface_frame = current;
@@ -149,6 +150,7 @@ impl SequentialSystem {
                         fields: fields.clone(),
                         path: path.clone(),
                         // Before the stop is placed there is nothing to aim at: steps > path.len() says so.
+                        coded_mask: None,
                         stop_probe: stop_probe.clone().unwrap_or_else(|| StopProbe { steps: usize::MAX, probe: path_step(&Frame::IDENTITY, &Frame::IDENTITY, 0, SurfaceShape::Plane, Aperture::None, Interaction::Refract) }),
                     };
                     if spec.field_type == crate::spec::FieldType::RealImageHeight {
@@ -241,6 +243,12 @@ impl SequentialSystem {
                 let probe_shape = shape.clone().unwrap_or(SurfaceShape::Plane);
                 stop_probe = Some(StopProbe { steps: path.len(), probe: path_step(&last_step_frame, &surface_frame, i, probe_shape, Aperture::None, Interaction::Refract) });
             }
+            if let Some(m) = &s.coded_mask {
+                if !media[i - 1].is_air() {
+                    return Err(sys_err(i, "coded_mask", "the coded mask must sit in air: the medium before it is a glass".into()));
+                }
+                coded_mask = Some(super::MaskSurface { surface: i, step: path.len(), pitch_mm: m.pitch_mm(), sampling: m.sampling });
+            }
             if i > 0 {
                 if let Some(shape) = shape {
                     path.push(path_step(&last_step_frame, &surface_frame, i, shape, surface.aperture.clone(), surface.interaction));
@@ -252,7 +260,7 @@ impl SequentialSystem {
             current = next.advanced(if i == 0 && at_infinity { 0.0 } else { thickness });
         }
         let stop_probe = stop_probe.expect("validated: the stop is a surface of the system");
-        let mut system = SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, first_order, fields: Vec::new(), path, stop_probe };
+        let mut system = SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, first_order, fields: Vec::new(), path, stop_probe, coded_mask };
         if spec.field_type == crate::spec::FieldType::RealImageHeight {
             fields = super::fields::real_image_height_fields(&system, &fields).map_err(|m| Error::spec(&spec.name, m))?;
         }

@@ -9,10 +9,12 @@
 //! assert!((sys.spec.surfaces[15].decenter_x_mm.as_ref().unwrap().value - 2.408).abs() < 5e-4);
 //! ```
 mod build;
+mod coded_mask;
 mod fields;
 mod paraxial;
 mod surface;
 
+pub use coded_mask::MaskSurface;
 pub use paraxial::*;
 pub use surface::*;
 
@@ -47,6 +49,9 @@ pub struct SequentialSystem {
     pub(crate) path: Vec<PathStep>,
     /// How to reach the stop for ray aiming: the first `steps` path steps, then `probe` (intersection only).
     pub(crate) stop_probe: StopProbe,
+    /// The coded-mask surface, when the mask sits inside the system (dual-disperser CASSI); `None`: the mask
+    /// is on the object plane (single-disperser CASSI).
+    pub coded_mask: Option<MaskSurface>,
 }
 
 /// Where the stop sits relative to the traced path (used by ray aiming).

@@ -124,11 +124,18 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
         if s.stop {
             let _ = writeln!(w, "  STOP");
         }
-        if !s.comment.is_empty() {
-            if s.comment.contains(['\n', '\r']) {
+        // A coded-mask surface has no OpticStudio equivalent: it is written as the plain surface it is (a flat
+        // Standard in air), its mask said in the comment's tag (OpticStudio reads a plain surface; diffcassi's
+        // importer reads the tag back, src/spec/zmx/surfaces.rs).
+        let comment = match &s.coded_mask {
+            Some(m) => m.tagged_comment(&s.comment),
+            None => s.comment.clone(),
+        };
+        if !comment.is_empty() {
+            if comment.contains(['\n', '\r']) {
                 return Err(fail(format!("surface {i} comment spans several lines")));
             }
-            let _ = writeln!(w, "  COMM {}", s.comment);
+            let _ = writeln!(w, "  COMM {}", comment);
         }
         let c = match &s.radius_mm {
             Some(r) => preimage(r.value, 1.0 / r.value, |c| 1.0 / c),

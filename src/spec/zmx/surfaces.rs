@@ -197,6 +197,11 @@ impl SurfaceBlock {
         let mut s = SurfaceSpec::new(kind);
         s.stop = self.stop;
         s.comment = self.comment.clone();
+        // diffcassi's own export tags a coded-mask surface in its comment (spec::CodedMaskSpec::comment_tag).
+        if let Some((mask, rest)) = crate::spec::CodedMaskSpec::from_comment(&self.comment) {
+            s.coded_mask = Some(mask);
+            s.comment = rest;
+        }
         let line = self.line;
         if let Some(c) = self.curv {
             if c != 0.0 {

@@ -1,5 +1,6 @@
-//! The four reference systems of Paillet et al. as Zemax designed them: SP, AP, mSP, mAP; and `gsp`, SP with
-//! its prism replaced by a plane transmission grating of the same 450–650 nm dispersion span (below).
+//! The four reference systems of Paillet et al. as Zemax designed them: SP, AP, mSP, mAP; `gsp`, SP with
+//! its prism replaced by a plane transmission grating of the same 450–650 nm dispersion span (below); and the
+//! dual-disperser `ddsp`, `mddsp` ([`dual_disperser`]).
 //!
 //! Each preset is built from its Zemax Lens Data Editor transcription (`data/presets/*.prescription.csv`,
 //! copied from `shared/reference/zemax`, embedded in the binary) plus the system data the screenshots do
@@ -12,6 +13,10 @@
 //! let spec = diffcassi::presets::spec("msp").unwrap();
 //! assert_eq!(spec.surfaces.len(), 20);
 //! ```
+pub mod dual_disperser;
+
+pub use dual_disperser::{dd_spec, DD_MASK_PITCH_UM};
+
 use crate::error::{Error, Result};
 use crate::spec::zemax_csv::{import_prescription, PickupSource, SystemData};
 use crate::spec::SystemSpec;
@@ -19,8 +24,8 @@ use crate::spec::SystemSpec;
 /// The paper's four presets (the ones with Zemax reference data).
 pub const NAMES: [&str; 4] = ["sp", "ap", "msp", "map"];
 
-/// Every preset name: the paper's four and the grating CASSI `gsp`.
-pub const ALL_NAMES: [&str; 5] = ["sp", "ap", "msp", "map", "gsp"];
+/// Every preset name: the paper's four, the grating CASSI `gsp` and the dual-disperser `ddsp`, `mddsp`.
+pub const ALL_NAMES: [&str; 7] = ["sp", "ap", "msp", "map", "gsp", "ddsp", "mddsp"];
 
 /// `gsp`'s grating: lines per µm (see [`gsp_spec`] for how it was chosen).
 pub const GSP_LINES_PER_UM: f64 = GSP_T;
@@ -43,28 +48,28 @@ const PRESETS: [Preset; 4] = [
     Preset {
         name: "sp",
         title: "SP: single N-BK7 60° prism, paraxial objective, AC254-050-A doublet",
-        csv: include_str!("../data/presets/SP_single_prism_aligned.prescription.csv"),
+        csv: include_str!("../../data/presets/SP_single_prism_aligned.prescription.csv"),
         file: "SP_single_prism_aligned.prescription.csv",
         pickups: SP_PICKUPS,
     },
     Preset {
         name: "ap",
         title: "AP: double-Amici prism (N-SK2 / N-SF10 / N-SK2), paraxial 2f–2f relay",
-        csv: include_str!("../data/presets/AP_amici_prism_aligned.prescription.csv"),
+        csv: include_str!("../../data/presets/AP_amici_prism_aligned.prescription.csv"),
         file: "AP_amici_prism_aligned.prescription.csv",
         pickups: AP_PICKUPS,
     },
     Preset {
         name: "msp",
         title: "mSP: SP with the prism tilted 5° about x",
-        csv: include_str!("../data/presets/mSP_single_prism_misaligned.prescription.csv"),
+        csv: include_str!("../../data/presets/mSP_single_prism_misaligned.prescription.csv"),
         file: "mSP_single_prism_misaligned.prescription.csv",
         pickups: SP_PICKUPS,
     },
     Preset {
         name: "map",
         title: "mAP: AP with the prism tilted 5° about x",
-        csv: include_str!("../data/presets/mAP_amici_prism_misaligned.prescription.csv"),
+        csv: include_str!("../../data/presets/mAP_amici_prism_misaligned.prescription.csv"),
         file: "mAP_amici_prism_misaligned.prescription.csv",
         pickups: MAP_PICKUPS,
     },
@@ -73,8 +78,11 @@ const PRESETS: [Preset; 4] = [
 /// The spec of a preset (`sp`, `ap`, `msp`, `map`, `gsp`; case-insensitive).
 pub fn spec(name: &str) -> Result<SystemSpec> {
     let key = name.to_ascii_lowercase();
-    if key == "gsp" {
-        return gsp_spec();
+    match key.as_str() {
+        "gsp" => return gsp_spec(),
+        "ddsp" => return dual_disperser::dd_spec(false),
+        "mddsp" => return dual_disperser::dd_spec(true),
+        _ => {}
     }
     let p = PRESETS
         .iter()

@@ -1,0 +1,291 @@
+//! Dual-disperser CASSI (issue 44): the coded mask as a surface inside the system, the `ddsp`/`mddsp`
+//! presets, rendering through the mask surface, the exact operator and its adjoint, the DD shift and mapping
+//! models, and bad input.
+use diffcassi::prelude::*;
+use diffcassi::rays::RayBatch;
+use diffcassi::recon::exact::ExactOperator;
+use diffcassi::recon::layout::{dot, norm};
+use diffcassi::recon::mapping::MappingOperator;
+use diffcassi::recon::shift::ShiftOperator;
+use diffcassi::recon::sparse::SparseExport;
+use diffcassi::recon::{MappingInterpolation, Operator};
+use diffcassi::render::{Mask, RenderConfig, Renderer, SpectralSampling};
+use diffcassi::scene::{synthetic_scene, SpectralCube};
+use diffcassi::spec::{Cell, CodedMaskSpec, MaskSampling, SurfaceSpec};
+use rand::{Rng, SeedableRng};
+
+fn system(name: &str) -> SequentialSystem {
+    SequentialSystem::build(&presets::spec(name).unwrap()).unwrap()
+}
+
+/// Detector positions (mm) of the chief rays of `fields` at `wavelength_nm` (all must arrive).
+fn chief_on_detector(sys: &SequentialSystem, fields: &[[f64; 2]], wavelength_nm: f64) -> Vec<[f64; 2]> {
+    let out = AnalyticTracer::default().trace(sys, &RayBatch::chief_rays(sys, fields, wavelength_nm).unwrap()).unwrap();
+    (0..fields.len())
+        .map(|k| {
+            assert_eq!(out.status[k], RayStatus::Ok, "{}: field {:?} at {wavelength_nm} nm", sys.name(), fields[k]);
+            [out.x[k], out.y[k]]
+        })
+        .collect()
+}
+
+#[test]
+fn presets_hold_one_mask_surface_and_the_sd_presets_none() {
+    for name in presets::NAMES.iter().chain(&["gsp"]) {
+        assert!(system(name).coded_mask.is_none(), "{name}");
+    }
+    for name in ["ddsp", "mddsp"] {
+        let s = system(name);
+        let m = s.coded_mask.expect("a mask surface");
+        assert_eq!((m.surface, m.pitch_mm, m.sampling), (19, 0.01, MaskSampling::Nearest), "{name}");
+        assert_eq!(s.surfaces.len(), 39);
+    }
+    // The spec formats carry the mask surface (TOML round trip), and the .zmx export writes it as a plain
+    // surface with a comment.
+    let spec = presets::spec("ddsp").unwrap();
+    let text = toml::to_string(&spec).unwrap();
+    assert!(text.contains("coded_mask"), "{text}");
+    let back: diffcassi::spec::SystemSpec = toml::from_str(&text).unwrap();
+    assert_eq!(back.surfaces[19].coded_mask, spec.surfaces[19].coded_mask);
+    let zmx = diffcassi::spec::zmx::to_zmx(&spec).unwrap();
+    assert!(zmx.contains("COMM coded mask (SP's image plane) [CODED MASK pitch 10 um, nearest sampling]"), "the .zmx comment");
+    // ... which the importer reads back: the same system.
+    let read = diffcassi::spec::zmx::import_zmx(zmx.as_bytes(), "ddsp.zmx", None, &Default::default()).unwrap().spec;
+    assert_eq!(read.surfaces[19].coded_mask, spec.surfaces[19].coded_mask);
+    assert_eq!(read.surfaces[19].comment, spec.surfaces[19].comment);
+}
+
+/// `ddsp` images the scene onto the detector registered: at 520 nm every field within 1 pixel (10 µm) of the
+/// unit-magnification placement; the residual dispersion across 450–650 nm stays under a pixel over the field
+/// for `ddsp` and is larger for `mddsp` (its second prism is tilted).
+#[test]
+fn ddsp_is_registered_at_520_nm_and_its_residual_dispersion_is_reported() {
+    let half = 0.32; // a 64×64 scene of 10 µm pixels
+    let fields: Vec<[f64; 2]> = (0..5).flat_map(|i| (0..5).map(move |j| [-half + 0.16 * j as f64, -half + 0.16 * i as f64])).collect();
+    let mut worst_residual = [0.0f64; 2];
+    for (k, name) in ["ddsp", "mddsp"].iter().enumerate() {
+        let sys = system(name);
+        let at520 = chief_on_detector(&sys, &fields, 520.0);
+        let centre = chief_on_detector(&sys, &[[0.0, 0.0]], 520.0)[0];
+        // The orientation from the fields ±x, ±y.
+        let sx = (at520[4][0] - at520[0][0]).signum();
+        let sy = (at520[20][1] - at520[0][1]).signum();
+        let mut worst = 0.0f64;
+        for (f, p) in fields.iter().zip(&at520) {
+            let e = ((p[0] - centre[0] - sx * f[0]).powi(2) + (p[1] - centre[1] - sy * f[1]).powi(2)).sqrt();
+            worst = worst.max(e);
+        }
+        println!("{name}: orientation ({sx}, {sy}); registration error at 520 nm over the field: max {:.3} µm", worst * 1e3);
+        if *name == "ddsp" {
+            assert!(worst < 0.010, "{name}: registration error {worst} mm ≥ 1 px");
+        }
+        for l in [450.0, 475.0, 500.0, 550.0, 600.0, 650.0] {
+            let at = chief_on_detector(&sys, &fields, l);
+            let r = at.iter().zip(&at520).map(|(a, b)| ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)).sqrt()).fold(0.0, f64::max);
+            println!("{name}: residual dispersion {l} nm vs 520 nm: max {:.2} µm over the field", r * 1e3);
+            worst_residual[k] = worst_residual[k].max(r);
+        }
+    }
+    assert!(worst_residual[0] < 0.010, "ddsp's residual dispersion {} mm ≥ 1 px", worst_residual[0]);
+    assert!(worst_residual[1] > 2.0 * worst_residual[0], "mddsp's tilted second prism leaves more residual dispersion: {worst_residual:?}");
+}
+
+/// A one-column mask and a flat scene: in band b the detector sees the scene column whose first-arm image at
+/// λ_b falls on the open mask column (the mask sheared by the band's dispersion), registered — each band's
+/// centroid column is checked against that prediction from the chief rays.
+#[test]
+fn one_column_mask_is_sheared_by_each_bands_dispersion() {
+    let size = 48;
+    let sys = system("ddsp");
+    let bands = vec![500.0, 510.0, 520.0, 530.0, 540.0];
+    let mut cfg = RenderConfig::paper(size);
+    cfg.spectral = SpectralSampling::new(bands.clone(), 1).unwrap();
+    cfg.rays_per_pixel = 16;
+    cfg.airy = None;
+    let col = 24;
+    let tracer = AnalyticTracer::default();
+    let renderer = Renderer::new(&sys, &tracer, cfg, Mask::slit(size, size, col)).unwrap();
+    let scene = SpectralCube::uniform(size, size, bands.clone(), 1.0);
+    let acq = renderer.render(&scene, true, &|_| {}).unwrap();
+    let det = renderer.detector;
+    let ms = sys.coded_mask.unwrap();
+    let mut predicted = Vec::new();
+    for (b, &l) in bands.iter().enumerate() {
+        let img = &acq.bands.as_ref().unwrap()[b];
+        let (mut s, mut sc) = (0.0f64, 0.0f64);
+        for (k, v) in img.iter().enumerate() {
+            s += *v as f64;
+            sc += *v as f64 * (k % det.width) as f64;
+        }
+        assert!(s > 0.0, "band {l} nm: no light through the slit");
+        let measured = sc / s;
+        // The scene x whose chief ray at λ crosses the mask at the open column's centre (bisection: the
+        // first arm maps x monotonically).
+        let target = (col as f64 + 0.5 - size as f64 * 0.5) * ms.pitch_mm;
+        let xm = |x: f64| sys.point_on_mask([x, 0.0], [0.0, 0.0], l).unwrap().unwrap().0;
+        let (mut lo, mut hi) = (-0.3, 0.3);
+        let rising = xm(hi) > xm(lo);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if (xm(mid) < target) == rising {
+                lo = mid
+            } else {
+                hi = mid
+            }
+        }
+        let x = 0.5 * (lo + hi);
+        let p = chief_on_detector(&sys, &[[x, 0.0]], l)[0];
+        let expect = det.to_pixel(p[0], p[1]).0;
+        println!("band {l} nm: scene x {:.4} mm on the open mask column; detector column predicted {expect:.3}, measured {measured:.3}", x);
+        assert!((measured - expect).abs() < 0.5, "band {l} nm: centroid column {measured} vs predicted {expect}");
+        predicted.push(expect);
+    }
+    assert!((predicted[0] - predicted[4]).abs() > 5.0, "the mask is sheared across the bands: {predicted:?}");
+}
+
+fn random(n: usize, seed: u64) -> Vec<f32> {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    (0..n).map(|_| rng.gen_range(-1.0f32..1.0)).collect()
+}
+
+/// The exact operator equals the renderer for `ddsp`, its adjoint passes the dot-product test (f32 sums:
+/// 1e-6), and the same operator written out as a sparse matrix passes it in f64 within 1e-9; the DD shift
+/// and mapping models are adjoint too.
+#[test]
+fn exact_operator_equals_the_renderer_and_is_adjoint_for_ddsp() {
+    let size = 20;
+    let bands = vec![480.0, 520.0, 560.0, 600.0];
+    let sys = system("mddsp");
+    let tracer = AnalyticTracer::default();
+    let mut cfg = RenderConfig::paper(size);
+    cfg.spectral = SpectralSampling::new(bands.clone(), 2).unwrap();
+    cfg.rays_per_pixel = 4;
+    cfg.seed = 3;
+    let mask = Mask::random(size, size, 0.5, 7).unwrap();
+    let renderer = Renderer::new(&sys, &tracer, cfg.clone(), mask.clone()).unwrap();
+    let scene = synthetic_scene(size, size, &bands, 5);
+    let reference = renderer.render(&scene, false, &|_| {}).unwrap();
+    assert!(reference.stats.masked > 0 && reference.stats.arrived > 0, "{:?}", reference.stats);
+    let op = ExactOperator::new(renderer, &bands, 1 << 32).unwrap();
+    let y = (&op as &dyn Operator).apply(&scene.data).unwrap();
+    let peak = reference.image.iter().cloned().fold(0.0, f64::max);
+    let worst = y.iter().zip(&reference.image).map(|(a, b)| (*a as f64 - b).abs()).fold(0.0, f64::max);
+    assert!(peak > 0.05 && worst <= 1e-6 * peak, "exact ≠ render: {worst} (peak {peak})");
+    let x = random((&op as &dyn Operator).cube_shape().len(), 1);
+    let yv = random((&op as &dyn Operator).image_shape().len(), 2);
+    let check = |o: &dyn Operator, tol: f64| {
+        let (a, b) = (dot(&o.apply(&x).unwrap(), &yv), dot(&x, &o.adjoint(&yv).unwrap()));
+        let rel = (a - b).abs() / (norm(&o.apply(&x).unwrap()) * norm(&yv));
+        println!("{}: adjoint gap {rel:.2e}", o.name());
+        assert!(rel <= tol, "{}: {rel}", o.name());
+    };
+    check(&op, 1e-6);
+    // In f64 on the operator's own matrix (its entries are the operator's f32 weights).
+    let csr = op.to_csr(1 << 32).unwrap();
+    let ax = csr.matvec(&x).unwrap();
+    let scale_a = ax.iter().map(|v| v.abs()).fold(0.0f32, f32::max);
+    let phix = (&op as &dyn Operator).apply(&x).unwrap();
+    assert!(ax.iter().zip(&phix).all(|(a, b)| (a - b).abs() <= 1e-5 * scale_a), "the sparse matrix is the operator");
+    let mut lhs = 0.0f64;
+    for r in 0..csr.rows {
+        let (s, e) = (csr.indptr[r] as usize, csr.indptr[r + 1] as usize);
+        let row: f64 = csr.indices[s..e].iter().zip(&csr.data[s..e]).map(|(c, v)| *v as f64 * x[*c as usize] as f64).sum();
+        lhs += row * yv[r] as f64;
+    }
+    let mut aty = vec![0.0f64; csr.cols];
+    for r in 0..csr.rows {
+        for k in csr.indptr[r] as usize..csr.indptr[r + 1] as usize {
+            aty[csr.indices[k] as usize] += csr.data[k] as f64 * yv[r] as f64;
+        }
+    }
+    let rhs: f64 = aty.iter().zip(&x).map(|(a, b)| a * *b as f64).sum();
+    let rel = (lhs - rhs).abs() / lhs.abs().max(1e-300);
+    println!("exact (f64, sparse): ⟨Φx, y⟩ = {lhs:.12e}, ⟨x, Φᵀy⟩ = {rhs:.12e}, relative {rel:.2e}");
+    assert!(rel <= 1e-9);
+    let renderer = Renderer::new(&sys, &tracer, cfg, mask).unwrap();
+    let shift = ShiftOperator::from_renderer(&renderer, &bands).unwrap();
+    check(&shift, 1e-6);
+    let mapping = MappingOperator::from_renderer(&renderer, &bands, MappingInterpolation::Bilinear).unwrap();
+    check(&mapping, 1e-6);
+}
+
+/// The DD shift model registers every band at one placement and shifts the mask by each band's dispersion
+/// on the mask surface (whole mask pixels, growing with the wavelength gap).
+#[test]
+fn dd_shift_model_shifts_the_mask_not_the_image() {
+    let size = 32;
+    let sys = system("ddsp");
+    let tracer = AnalyticTracer::default();
+    let bands = vec![460.0, 520.0, 600.0];
+    let mut cfg = RenderConfig::paper(size);
+    cfg.spectral = SpectralSampling::new(bands.clone(), 1).unwrap();
+    let renderer = Renderer::new(&sys, &tracer, cfg, Mask::random(size, size, 0.5, 1).unwrap()).unwrap();
+    let op = ShiftOperator::from_renderer(&renderer, &bands).unwrap();
+    let (cols, _, _, _) = op.placement();
+    assert!(cols.iter().all(|c| *c == cols[0]), "identity registration: {cols:?}");
+    let s = op.mask_shifts_px();
+    println!("ddsp mask shifts (mask pixels) at {bands:?}: {s:?}");
+    assert_eq!(s[0], 0);
+    assert!(s[1].abs() >= 5 && s[2].abs() > s[1].abs() && s[1].signum() == s[2].signum(), "{s:?}");
+    // The SD shift model has no mask shifts.
+    let sp = system("sp");
+    let r2 = Renderer::new(&sp, &tracer, renderer.config.clone(), Mask::random(size, size, 0.5, 1).unwrap()).unwrap();
+    assert!(ShiftOperator::from_renderer(&r2, &bands).unwrap().mask_shifts_px().is_empty());
+}
+
+fn build_err(spec: &diffcassi::spec::SystemSpec) -> String {
+    SequentialSystem::build(spec).err().expect("refused").to_string()
+}
+
+#[test]
+fn bad_mask_surfaces_are_refused_clearly() {
+    let base = presets::spec("ddsp").unwrap();
+    // Two mask surfaces.
+    let mut two = base.clone();
+    two.surfaces[1].coded_mask = Some(CodedMaskSpec { pitch_um: 10.0, sampling: MaskSampling::Nearest });
+    let e = build_err(&two);
+    assert!(e.contains("surface 19") && e.contains("coded_mask") && e.contains("at most one"), "{e}");
+    // Pitch 0, NaN, negative.
+    for (p, shown) in [(0.0, "pitch_um 0"), (f64::NAN, "pitch_um NaN"), (-5.0, "pitch_um -5")] {
+        let mut s = base.clone();
+        s.surfaces[19].coded_mask = Some(CodedMaskSpec { pitch_um: p, sampling: MaskSampling::Nearest });
+        let e = build_err(&s);
+        assert!(e.contains("surface 19") && e.contains(shown), "{p}: {e}");
+    }
+    // On a curved surface, in glass, on the image.
+    let mut s = base.clone();
+    s.surfaces[16].coded_mask = s.surfaces[19].coded_mask.take();
+    assert!(build_err(&s).contains("flat Standard"), "{}", build_err(&s));
+    let mut s = base.clone();
+    let last = s.surfaces.len() - 1;
+    s.surfaces[last].coded_mask = s.surfaces[19].coded_mask.take();
+    assert!(build_err(&s).contains("image surfaces cannot hold the coded mask"));
+    let mut s = base.clone();
+    s.surfaces[7].coded_mask = s.surfaces[19].coded_mask.take(); // a break (prism region)
+    assert!(build_err(&s).contains("flat Standard"));
+    let mut s = base.clone();
+    s.surfaces[10].coded_mask = s.surfaces[19].coded_mask.take(); // the prism's second face: N-BK7 after it
+    let e = build_err(&s);
+    assert!(e.contains("thin plate in air") || e.contains("sit in air"), "{e}");
+    // A mask surface outside the beam: decentred 30 mm by a break before it (and back after).
+    let mut s = base.clone();
+    s.surfaces.insert(19, SurfaceSpec::coordinate_break(30.0, 0.0, 0.0, 0.0, 0.0, 0.0));
+    s.surfaces.insert(21, SurfaceSpec::coordinate_break(-30.0, 0.0, 0.0, 0.0, 0.0, 0.0));
+    let sys = SequentialSystem::build(&s).unwrap();
+    let tracer = AnalyticTracer::default();
+    let mut cfg = RenderConfig::paper(16);
+    cfg.spectral = SpectralSampling::new(vec![500.0, 540.0], 1).unwrap();
+    let e = Renderer::new(&sys, &tracer, cfg.clone(), Mask::random(16, 16, 0.5, 1).unwrap()).err().expect("refused").to_string();
+    assert!(e.contains("outside the beam") && e.contains("surface 20"), "{e}");
+    // Settings the mask surface does not support yet are refused, not silently wrong.
+    let dd = system("ddsp");
+    let mut f32cfg = cfg.clone();
+    f32cfg.precision = diffcassi::tracer::Precision::F32;
+    let e = Renderer::new(&dd, &tracer, f32cfg, Mask::random(16, 16, 0.5, 1).unwrap()).err().expect("refused").to_string();
+    assert!(e.contains("f32") && e.contains("surface 19"), "{e}");
+    let mut batched = cfg;
+    batched.force_batched = true;
+    let e = Renderer::new(&dd, &tracer, batched, Mask::random(16, 16, 0.5, 1).unwrap()).err().expect("refused").to_string();
+    assert!(e.contains("direct path"), "{e}");
+    let _ = Cell::fixed(0.0);
+}
