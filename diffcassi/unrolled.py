@@ -268,7 +268,7 @@ class SpectralSpatialUNet(nn.Module):
     4 (edge replication) and crops back: any size. Attention heads: 1, 2, 4 at the three levels (head dimension C,
     MST's rule)."""
 
-    def __init__(self, bands: int, width: int = 28):
+    def __init__(self, bands: int, width: int = 24):
         super().__init__()
         c = width
         heads = lambda ch: ch // c  # noqa: E731
@@ -347,7 +347,7 @@ class UnrolledDAUHST(nn.Module):
 
     arch = ARCH_V2
 
-    def __init__(self, phi: nn.Module, stages: int = 3, width: int = 28):
+    def __init__(self, phi: nn.Module, stages: int = 3, width: int = 24):
         super().__init__()
         for attr in ("forward", "adjoint", "cube_shape", "image_shape"):
             if not hasattr(phi, attr):

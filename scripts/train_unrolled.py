@@ -91,7 +91,7 @@ CHECKPOINT_FORMAT = "diffcassi-unrolled-checkpoint-1"
 #: setting given on the command line from one to take from the checkpoint.
 DEFAULTS = {"size": 128, "steps": 400, "batch": 2, "seed": 0, "lr": 1e-3, "lr_min": 2e-5, "warmup": 20, "clip": 1.0,
             "planes": PLANES, "rays": RAYS, "acquisition_seed": 1000, "operator_seed": 1, "bands": 28}
-ARCH_DEFAULTS = {ARCH: {"stages": 6, "width": 16}, ARCH_V2: {"stages": 3, "width": 28}}
+ARCH_DEFAULTS = {ARCH: {"stages": 6, "width": 16}, ARCH_V2: {"stages": 3, "width": 24}}
 #: The v2 default wall-time budget of one invocation (s): a ≤ 9-minute GPU call, the wheel's install included.
 TIME_BUDGET_V2_S = 450.0
 
@@ -273,7 +273,7 @@ def main(argv=None) -> int:
     ap.add_argument("--size", type=int, default=None, help="scene side (pixels; default 128)")
     ap.add_argument("--bands", type=int, default=None, help="bands 450–650 nm (default 28)")
     ap.add_argument("--stages", type=int, default=None, help="stages (default 6 for v1, 3 for v2)")
-    ap.add_argument("--width", type=int, default=None, help="network width C (default 16 for v1, 28 for v2)")
+    ap.add_argument("--width", type=int, default=None, help="network width C (default 16 for v1, 24 for v2)")
     ap.add_argument("--steps", type=int, default=None, help="total optimiser steps; the learning-rate schedule spans them (default 400)")
     ap.add_argument("--minutes", type=float, default=None, help="wall-time cap of this invocation (stops early, state saved)")
     ap.add_argument("--time-budget-s", type=float, default=None, help="wall-time budget of this invocation, set-up and "
