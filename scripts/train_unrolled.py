@@ -40,8 +40,9 @@ to measured spectra; crops, flips, exposure), each acquisition with its own sens
 (:func:`diffcassi.training_data.noisy`, seeded by the cube's seed); validation seeds ``0 … VAL_COUNT_V2−1``; the
 files are ``unrolled-dauhst-v2-<system>.safetensors``, ``…-log.jsonl``, ``…-manifest.json`` and
 ``…-checkpoint.pt``. The manifest lists **every run** that made the weights (start and end time UTC, device,
-steps from → to, the data seeds used), carried from checkpoint to checkpoint, so that several short GPU runs
-continue one training. ``--workers N`` makes the cubes in N processes (the GPU machine's cores).
+steps from → to: the data seeds follow from the steps), carried from checkpoint to checkpoint, so that several
+short GPU runs continue one training. ``--workers N`` makes the cubes and renders their acquisitions in N processes
+(the GPU machine's cores; the same batches as without workers, tested).
 
 Short runs: ``--time-budget-s`` (v2 default 450 s, a ≤ 9-minute GPU call with the wheel's install) stops the
 loop before the budget would be passed (measured step and validation times), validates, saves the checkpoint and
@@ -181,19 +182,28 @@ def render_v2(transport, seeds, cubes: np.ndarray):
     return torch.from_numpy(np.stack(acqs)), torch.from_numpy(np.ascontiguousarray(cubes))
 
 
-class StepCubes(torch.utils.data.Dataset):
-    """Item k: the v2 cubes of step ``first + k`` (for a DataLoader with worker processes; pure functions of the
-    seeds, so any worker makes the same cubes)."""
+class StepData(torch.utils.data.Dataset):
+    """Item k: the v2 training batch of step ``first + k`` — (step, seeds, acquisitions with their sensor noise,
+    cubes) — for a DataLoader with worker processes. Each worker traces its own copy of the acquisition transport
+    (the same settings and seed: the same light transport bit for bit) on one thread; the cubes and the noise are
+    pure functions of the seeds, so any worker makes the same batch as the main process would."""
 
-    def __init__(self, first: int, last: int, batch: int, size: int, bands_nm):
+    def __init__(self, first: int, last: int, batch: int, size: int, bands_nm, transport_args: dict):
         self.first, self.n, self.batch, self.size, self.bands_nm = first, max(0, last - first), batch, size, list(bands_nm)
+        self.transport_args = transport_args
+        self._transport = None
 
     def __len__(self) -> int:
         return self.n
 
     def __getitem__(self, k: int):
+        if self._transport is None:  # once per worker process
+            diffcassi.set_num_threads(1)
+            t = dict(self.transport_args)
+            self._transport = diffcassi.Transport(diffcassi.System.preset(t.pop("system")), self.size, self.size, **t)
         seeds = train_seeds(self.first + k, self.batch, ARCH_V2)
-        return self.first + k, seeds, make_cubes_v2(seeds, self.size, self.bands_nm)
+        acq, cube = render_v2(self._transport, seeds, make_cubes_v2(seeds, self.size, self.bands_nm))
+        return self.first + k, seeds, acq, cube
 
 
 def summary(log_path: pathlib.Path, every: int) -> int:
@@ -497,6 +507,8 @@ def main(argv=None) -> int:
         log.flush()
         losses.clear()
         run["steps_to"], run["end_utc"] = step, utc_now()
+        run["train_seeds"] = ([train_seeds(step0, conf["batch"], arch)[0], train_seeds(step - 1, conf["batch"], arch)[-1]]
+                              if step > step0 else [])
         state = {"format": CHECKPOINT_FORMAT, "model": {k: v.detach().cpu() for k, v in net.state_dict().items()
                                                          if not k.startswith("phi.")},
                  "optim": _to_cpu(opt.state_dict()), "step": step, "elapsed_s": elapsed, "config": config,
@@ -516,7 +528,8 @@ def main(argv=None) -> int:
     stop_reason = "steps done"
     loader = None
     if arch == ARCH_V2 and a.workers > 0 and step < conf["steps"]:
-        loader = iter(torch.utils.data.DataLoader(StepCubes(step, conf["steps"], conf["batch"], size, bands_nm),
+        targs = dict(system=system, seed=conf["acquisition_seed"], **setting(mask, conf["planes"], conf["rays"], bands_nm))
+        loader = iter(torch.utils.data.DataLoader(StepData(step, conf["steps"], conf["batch"], size, bands_nm, targs),
                                                   batch_size=None, shuffle=False, num_workers=a.workers,
                                                   prefetch_factor=4, persistent_workers=False))
     step_s = None
@@ -535,12 +548,11 @@ def main(argv=None) -> int:
         ts = time.time()
         if arch == ARCH_V2:
             if loader is not None:
-                k, seeds, cubes = next(loader)
+                k, seeds, acq, cube = next(loader)
                 assert k == step, (k, step)
             else:
                 seeds = train_seeds(step, conf["batch"], arch)
-                cubes = make_cubes_v2(seeds, size, bands_nm)
-            acq, cube = render_v2(transport, seeds, np.asarray(cubes))
+                acq, cube = render_v2(transport, seeds, make_cubes_v2(seeds, size, bands_nm))
         else:
             acq, cube = render_batch(transport, train_seeds(step, conf["batch"]), size, bands_nm)
         acq, cube = acq.to(device, non_blocking=True), cube.to(device, non_blocking=True)

@@ -260,10 +260,19 @@ def test_resume_continues_the_steps_and_appends_a_run(runs):
     man = json.loads((b / NM["man"]).read_text())
     assert man["steps"] == 4 and [(r["steps_from"], r["steps_to"]) for r in man["runs"]] == [(0, 2), (2, 4)]
     assert man["runs"][1]["resumed_from"] == NM["ck"]
+    assert [r["train_seeds"] for r in man["runs"]] == [[5_000_000, 5_000_003], [5_000_004, 5_000_007]]
     sa, sb = torch.load(a / NM["ck"]), torch.load(b / NM["ck"])
     assert sa["step"] == sb["step"] == 4
     for k in sa["model"]:
         assert torch.equal(sa["model"][k], sb["model"][k]), k  # the same weights as the straight run, bit for bit
+
+
+def test_worker_processes_make_the_same_batches(train, runs, tmp_path):
+    a, _, _ = runs
+    w = tmp_path / "w"
+    assert train.main(COMMON + ["--out", str(w), "--workers", "2"]) == 0
+    sa, sw = torch.load(a / NM["ck"]), torch.load(w / NM["ck"])
+    assert sw["step"] == 4 and all(torch.equal(sa["model"][k], sw["model"][k]) for k in sa["model"])
 
 
 def test_bad_resumes_are_refused_and_write_nothing(train, runs, tmp_path, capsys):
