@@ -34,7 +34,7 @@ sample uses ``default_rng([NOISE_SALT, seed])``. The scikit-image files are read
 ``skimage/data`` folder (no download: a missing file is an error naming it). Sources and licences:
 :func:`manifest` (written to the training manifest) and ``diffcassi/weights/UNROLLED.md``.
 
->>> from diffcassi.training_data import sample
+>>> from diffcassi.training_data import KINDS, sample
 >>> cube, info = sample(11, size=32)            # (28, 32, 32) float32
 >>> cube.shape, info["kind"] in KINDS
 ((28, 32, 32), True)
