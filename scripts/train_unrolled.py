@@ -49,7 +49,9 @@ loop before the budget would be passed (measured step and validation times), val
 the weights and exits 0. ``--resume CHECKPOINT`` continues from a checkpoint (model, optimiser, step, RNG state,
 the training mask and the runs so far); settings not given on the command line are the checkpoint's, and one given
 with another value — or a checkpoint of another architecture, system or band count, or a file that is truncated or
-not a checkpoint — is refused with a clear error (exit 2; a missing file: 1) **before anything is written**.
+not a checkpoint — is refused with a clear error (exit 2; a missing file: 1) **before anything is written**; so is a
+fresh v2 run into a folder that already holds a checkpoint (it would overwrite another training). On CUDA the
+convolutions and matrix products use TF32 and cuDNN's autotuning (speed; resumes there are not bit for bit).
 
 Every random choice derives from the seeds and the step: ``--resume`` continues exactly as the uninterrupted run
 (tested); ``--minutes``/``--time-budget-s`` only cap one invocation's wall time (the schedule depends on the step
@@ -401,6 +403,12 @@ def main(argv=None) -> int:
                   "written", file=sys.stderr)
             return 2
 
+    existing = out / names(system, arch)["state"]
+    if arch == ARCH_V2 and ck is None and existing.exists():
+        print(f"{prog}: error: --out {out} already holds the checkpoint {existing.name} of another training: --resume "
+              "it, or choose another folder; nothing written", file=sys.stderr)
+        return 2
+
     torch.set_num_threads(a.threads)
     diffcassi.set_num_threads(a.threads)
     torch.manual_seed(conf["seed"])
@@ -415,7 +423,10 @@ def main(argv=None) -> int:
         print(f"{prog}: error: --resume {a.resume} was made with other settings (saved, asked): {diff}; nothing written",
               file=sys.stderr)
         return 2
-    if device.type == "cuda":
+    if device.type == "cuda":  # TF32 convolutions and matrix products, autotuned: speed over bit-exact resumes there
+        torch.backends.cudnn.benchmark = True
+        torch.backends.cudnn.allow_tf32 = True
+        torch.backends.cuda.matmul.allow_tf32 = True
         phi = phi.to(device)
     setup_s = time.time() - t_setup
     net = make_unrolled(arch, phi, conf["stages"], conf["width"])
@@ -443,7 +454,8 @@ def main(argv=None) -> int:
            "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
            "threads": a.threads, "workers": a.workers, "steps_from": step0, "steps_to": step0,
            "resumed_from": os.path.basename(a.resume) if a.resume else None, "time_budget_s": budget,
-           "torch": torch.__version__, "diffcassi": getattr(diffcassi, "__version__", None)}
+           "torch": torch.__version__, "diffcassi": getattr(diffcassi, "__version__", None),
+           "tf32": device.type == "cuda"}
 
     def write_manifest() -> None:
         if arch == ARCH_V2:

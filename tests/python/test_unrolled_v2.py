@@ -307,6 +307,11 @@ def test_bad_resumes_are_refused_and_write_nothing(train, runs, tmp_path, capsys
     assert "other settings" in capsys.readouterr().err and not out.exists()
     assert train.main(["--resume", str(tmp_path / "none.pt"), "--out", str(out)]) == 1
     assert not out.exists()
+    # A fresh run into a folder that holds a checkpoint would overwrite another training: refused, untouched.
+    before = {p.name: p.read_bytes() for p in a.iterdir()}
+    assert train.main(COMMON + ["--out", str(a)]) == 2
+    assert "already holds the checkpoint" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in a.iterdir()} == before
     with pytest.raises(FileNotFoundError, match="no such file"):
         train.read_checkpoint(tmp_path / "none.pt")
 
