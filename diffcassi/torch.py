@@ -947,6 +947,8 @@ class CassiRenderer(_TargetChecked):
 # The unrolled network (issue 22 item 5): GAP stages with learned denoisers around the exact operator. Defined in
 # diffcassi/unrolled.py (graph, weights files); re-exported here beside the operator it wraps.
 # ---------------------------------------------------------------------------------------------------------
-from .unrolled import StageDenoiser, UnrolledGAP, load_unrolled, save_unrolled  # noqa: E402
+from .unrolled import (StageDenoiser, UnrolledDAUHST, UnrolledGAP, load_unrolled, save_unrolled,  # noqa: E402
+                       SpectralSpatialUNet, DegradationEstimator)
 
-__all__ += ["UnrolledGAP", "StageDenoiser", "load_unrolled", "save_unrolled"]
+__all__ += ["UnrolledGAP", "StageDenoiser", "UnrolledDAUHST", "SpectralSpatialUNet", "DegradationEstimator",
+            "load_unrolled", "save_unrolled"]

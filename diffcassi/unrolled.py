@@ -47,8 +47,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
-from typing import Any, Dict, Optional
+from typing import Any, Dict, Optional, Tuple
 
 import numpy as np
 import torch
@@ -59,8 +60,11 @@ import diffcassi
 from .denoiser import check_weights_file, pad_to_multiple
 
 ARCH = "unrolled-gap-v1"
+#: The second architecture (issue 43): DAUHST/PADUT-like stages, see :class:`UnrolledDAUHST`.
+ARCH_V2 = "unrolled-dauhst-v2"
 
-__all__ = ["ARCH", "StageDenoiser", "UnrolledGAP", "save_unrolled", "load_unrolled", "mask_sha256"]
+__all__ = ["ARCH", "ARCH_V2", "ARCHS", "StageDenoiser", "UnrolledGAP", "UnrolledDAUHST", "SpectralSpatialUNet",
+           "DegradationEstimator", "save_unrolled", "load_unrolled", "mask_sha256", "system_sha256", "read_metadata"]
 
 _Error = diffcassi.DiffcassiValueError
 
@@ -191,19 +195,251 @@ class UnrolledGAP(nn.Module):
         return f"stages={self.stages}, bands={self.bands}, width={self.width}, {n} parameters"
 
 
+# ---------------------------------------------------------------------------------------------------------------
+# unrolled-dauhst-v2 (issue 43): DAUHST/PADUT-like stages around the same exact operator.
+
+def _gap_dinv(phi: nn.Module, dev: torch.device, who: str) -> torch.Tensor:
+    """D⁻¹ of GAP's preconditioner d = Φ Φᵀ 𝟙 (entries ≤ 1e-6·max d: 0, as src/recon/gap.rs), float32 on ``dev``."""
+    with torch.no_grad():
+        d = phi(phi.adjoint(torch.ones(tuple(phi.image_shape), dtype=torch.float32, device=dev))).to(torch.float32)
+        if not bool(torch.isfinite(d).all()) or float(d.max()) <= 0:
+            raise _Error(f"{who}: phi: Φ Φᵀ 𝟙 is not finite and positive anywhere (an operator that reaches no pixel)")
+        return torch.where(d > 1e-6 * d.max(), 1.0 / d, torch.zeros_like(d))
+
+
+class LayerNorm2d(nn.Module):
+    """Layer normalisation over the channels of every pixel (N, C, H, W), with a learned affine map."""
+
+    def __init__(self, c: int):
+        super().__init__()
+        self.weight = nn.Parameter(torch.ones(c))
+        self.bias = nn.Parameter(torch.zeros(c))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return F.layer_norm(x.permute(0, 2, 3, 1), (x.shape[1],), self.weight, self.bias, 1e-6).permute(0, 3, 1, 2)
+
+
+class SpectralAttention(nn.Module):
+    """Spectral-wise multi-head self-attention (MST's S-MSA): the tokens are the channels, so the attention map is
+    C/heads × C/heads per head whatever the image size (cost linear in H·W). Queries and keys are L2-normalised over
+    the pixels, with a learned temperature per head; a depth-wise 3×3 convolution of the values adds position."""
+
+    def __init__(self, c: int, heads: int):
+        super().__init__()
+        self.heads = heads
+        self.qkv = nn.Conv2d(c, 3 * c, 1, bias=False)
+        self.temperature = nn.Parameter(torch.ones(heads, 1, 1))
+        self.proj = nn.Conv2d(c, c, 1)
+        self.pos = nn.Conv2d(c, c, 3, padding=1, groups=c)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        n, c, h, w = x.shape
+        q, k, v = self.qkv(x).chunk(3, dim=1)
+        split = lambda t: t.reshape(n, self.heads, c // self.heads, h * w)  # noqa: E731
+        q, k, vv = F.normalize(split(q), dim=-1), F.normalize(split(k), dim=-1), split(v)
+        attn = torch.softmax((q @ k.transpose(-2, -1)) * self.temperature, dim=-1)
+        out = (attn @ vv).reshape(n, c, h, w)
+        return self.proj(out) + self.pos(v)
+
+
+class SpectralSpatialBlock(nn.Module):
+    """x + S-MSA(LN x), then + FFN(LN x): 1×1 (C → 2C), GELU, depth-wise 3×3, GELU, 1×1 (2C → C)."""
+
+    def __init__(self, c: int, heads: int):
+        super().__init__()
+        self.n1, self.attn = LayerNorm2d(c), SpectralAttention(c, heads)
+        self.n2 = LayerNorm2d(c)
+        self.ffn = nn.Sequential(nn.Conv2d(c, 2 * c, 1), nn.GELU(), nn.Conv2d(2 * c, 2 * c, 3, padding=1, groups=2 * c),
+                                 nn.GELU(), nn.Conv2d(2 * c, c, 1))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = x + self.attn(self.n1(x))
+        return x + self.ffn(self.n2(x))
+
+
+class SpectralSpatialUNet(nn.Module):
+    """One stage's prior P(v, σ) = v + L v + U([v, σ]): L a linear 1×1 spectral convolution (bands → bands, no
+    bias), U a three-level U-Net of :class:`SpectralSpatialBlock` (widths C, 2C, 4C), the noise level σ entering as a constant input channel (DAUHST's conditioning). Embedding
+    3×3 (bands + 1 → C); level 1 block; 4×4/2 down (C → 2C); level 2 block; 4×4/2 down (2C → 4C); two bottleneck
+    blocks; 2×2/2 transposed up (4C → 2C), concatenation with level 2, 1×1 fuse (4C → 2C), block; the same to C;
+    3×3 out (C → bands). L and the out convolution start at zero: P = identity until trained. Pads to multiples of
+    4 (edge replication) and crops back: any size. Attention heads: 1, 2, 4 at the three levels (head dimension C,
+    MST's rule)."""
+
+    def __init__(self, bands: int, width: int = 24):
+        super().__init__()
+        c = width
+        heads = lambda ch: ch // c  # noqa: E731
+        self.linear = nn.Conv2d(bands, bands, 1, bias=False)
+        self.embed = nn.Conv2d(bands + 1, c, 3, padding=1)
+        self.enc1 = SpectralSpatialBlock(c, heads(c))
+        self.down1 = nn.Conv2d(c, 2 * c, 4, stride=2, padding=1)
+        self.enc2 = SpectralSpatialBlock(2 * c, heads(2 * c))
+        self.down2 = nn.Conv2d(2 * c, 4 * c, 4, stride=2, padding=1)
+        self.mid = nn.Sequential(SpectralSpatialBlock(4 * c, heads(4 * c)), SpectralSpatialBlock(4 * c, heads(4 * c)))
+        self.up2 = nn.ConvTranspose2d(4 * c, 2 * c, 2, stride=2)
+        self.fuse2 = nn.Conv2d(4 * c, 2 * c, 1)
+        self.dec2 = SpectralSpatialBlock(2 * c, heads(2 * c))
+        self.up1 = nn.ConvTranspose2d(2 * c, c, 2, stride=2)
+        self.fuse1 = nn.Conv2d(2 * c, c, 1)
+        self.dec1 = SpectralSpatialBlock(c, heads(c))
+        self.out = nn.Conv2d(c, bands, 3, padding=1)
+        for m in (self.linear, self.out):
+            nn.init.zeros_(m.weight)
+            if m.bias is not None:
+                nn.init.zeros_(m.bias)
+
+    def forward(self, v: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+        x, (h, w) = pad_to_multiple(v, 4)
+        s = sigma.view(-1, 1, 1, 1).to(x.dtype).expand(x.shape[0], 1, x.shape[2], x.shape[3])
+        e1 = self.enc1(self.embed(torch.cat([x, s], 1)))
+        e2 = self.enc2(self.down1(e1))
+        z = self.mid(self.down2(e2))
+        z = self.dec2(self.fuse2(torch.cat([self.up2(z), e2], 1)))
+        z = self.dec1(self.fuse1(torch.cat([self.up1(z), e1], 1)))
+        return v + self.linear(v) + self.out(z)[..., :h, :w]
+
+
+#: softplus⁻¹(1): the step estimate's initial bias (μ = 1, GAP's step).
+_SOFTPLUS_INV_1 = math.log(math.e - 1.0)
+#: The noise-level estimate's initial value (σ on the cube's scale, the scale s = mean(x₀)).
+SIGMA_INIT = 0.05
+
+
+class DegradationEstimator(nn.Module):
+    """DAUHST's degradation estimate for one stage: a small CNN on [x/s, r/s] (the iterate and the back-projected
+    residual r = Φᵀ((y − Φx) ⊘ d), 2·bands channels): 3×3/2 (→ 32), ReLU, 3×3/2 (32 → 32), ReLU, global mean, 1×1
+    (32 → 32), ReLU, 1×1 (32 → 2) → (μ, σ) = softplus(·). The last layer starts at weights 0 and biases giving μ = 1
+    (GAP's step) and σ = :data:`SIGMA_INIT`. Scale-free (inputs divided by s) and size-free (global mean)."""
+
+    def __init__(self, bands: int, hidden: int = 32):
+        super().__init__()
+        self.conv = nn.Sequential(nn.Conv2d(2 * bands, hidden, 3, stride=2, padding=1), nn.ReLU(),
+                                  nn.Conv2d(hidden, hidden, 3, stride=2, padding=1), nn.ReLU())
+        self.mlp = nn.Sequential(nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 2))
+        nn.init.zeros_(self.mlp[2].weight)
+        with torch.no_grad():
+            self.mlp[2].bias.copy_(torch.tensor([_SOFTPLUS_INV_1, math.log(math.expm1(SIGMA_INIT))]))
+
+    def forward(self, x: torch.Tensor, r: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+        z = self.conv(torch.cat([x, r], 1)).mean(dim=(2, 3))
+        mu, sigma = F.softplus(self.mlp(z)).unbind(1)
+        return mu, sigma
+
+
+class UnrolledDAUHST(nn.Module):
+    """``unrolled-dauhst-v2``: K stages of a learned-step GAP data step and a noise-conditioned spectral–spatial
+    prior around a fixed operator ``phi`` (as :class:`UnrolledGAP`: anything with ``forward``, ``adjoint``,
+    ``cube_shape``, ``image_shape``; the operator is not a parameter and not saved). Graph (d = Φ Φᵀ 𝟙)::
+
+        x₀ = Φᵀ(y ⊘ d);  s = mean(x₀) per sample (1 where ≤ 0)         N(a·y) = a·N(y) exactly
+        for k = 1 … K:
+            r_k = Φᵀ((y − Φ x_{k−1}) ⊘ d)                                 exact Φ and Φᵀ in every stage
+            (μ_k, σ_k) = E_k(x_{k−1}/s, r_k/s)                            DegradationEstimator (own weights)
+            v_k = x_{k−1} + μ_k r_k                                       GAP data step, learned per sample
+            x_k = s · P_k(v_k/s, σ_k)                                     SpectralSpatialUNet (own weights)
+
+    Untrained (zero L, out and estimator outputs μ = 1) it is exactly K plain GAP steps. ``forward(y)``:
+    (N, h, w) or (h, w) → (N, bands, H, W) or (bands, H, W). ``forward(y, return_estimates=True)`` also returns
+    the per-stage (μ, σ), shape (K, N) each."""
+
+    arch = ARCH_V2
+
+    def __init__(self, phi: nn.Module, stages: int = 3, width: int = 24):
+        super().__init__()
+        for attr in ("forward", "adjoint", "cube_shape", "image_shape"):
+            if not hasattr(phi, attr):
+                raise TypeError(f"UnrolledDAUHST: phi: expected a diffcassi.torch.CassiOperator (or its matrix-free "
+                                f"form), got {type(phi).__name__} without `{attr}`")
+        self.stages = _int_at_least("stages", stages, 1)
+        self.width = _int_at_least("width", width, 1)
+        self.bands = int(phi.cube_shape[2])
+        self.phi = phi
+        dev = operator_device(phi)
+        self.estimators = nn.ModuleList(DegradationEstimator(self.bands) for _ in range(self.stages)).to(dev)
+        self.priors = nn.ModuleList(SpectralSpatialUNet(self.bands, self.width) for _ in range(self.stages)).to(dev)
+        self.register_buffer("dinv", _gap_dinv(phi, dev, "UnrolledDAUHST"), persistent=False)
+
+    @property
+    def device(self) -> torch.device:
+        return self.priors[0].linear.weight.device
+
+    def forward(self, y: torch.Tensor, return_estimates: bool = False):
+        if not isinstance(y, torch.Tensor) or not y.dtype.is_floating_point:
+            raise TypeError(f"UnrolledDAUHST.forward: y: expected a floating-point torch.Tensor, got {type(y).__name__}")
+        h, w = self.phi.image_shape
+        single = y.dim() == 2
+        if single:
+            y = y.unsqueeze(0)
+        if y.dim() != 3 or tuple(y.shape[1:]) != (h, w):
+            raise _Error(f"UnrolledDAUHST.forward: y: expected shape (batch, {h}, {w}) or ({h}, {w}), got {tuple(y.shape)}")
+        pdev, pdt = self.device, self.priors[0].linear.weight.dtype
+        if y.device != pdev:
+            raise _Error(f"UnrolledDAUHST.forward: y is on {y.device} but the network on {pdev}; move one with .to(device)")
+        y = y.to(pdt)
+        x = self.phi.adjoint(y * self.dinv)
+        s = x.detach().flatten(1).mean(1)
+        s = torch.where(s > 0, s, torch.ones_like(s)).view(-1, 1, 1, 1)
+        mus, sigmas = [], []
+        for est, prior in zip(self.estimators, self.priors):
+            r = self.phi.adjoint((y - self.phi(x)) * self.dinv)
+            mu, sigma = est(x / s, r / s)
+            v = x + mu.view(-1, 1, 1, 1) * r
+            x = s * prior(v / s, sigma)
+            mus.append(mu)
+            sigmas.append(sigma)
+        out = x[0] if single else x
+        if return_estimates:
+            return out, (torch.stack(mus), torch.stack(sigmas))
+        return out
+
+    def metadata(self) -> Dict[str, str]:
+        return {"arch": ARCH_V2, "stages": str(self.stages), "bands": str(self.bands), "width": str(self.width)}
+
+    def extra_repr(self) -> str:
+        n = sum(p.numel() for p in self.parameters())
+        return f"stages={self.stages}, bands={self.bands}, width={self.width}, {n} parameters"
+
+
+UnrolledGAP.arch = ARCH
+#: Architecture tag → network class (the weights files' ``arch``).
+ARCHS = {ARCH: UnrolledGAP, ARCH_V2: UnrolledDAUHST}
+
+
+def make_unrolled(arch: str, phi: nn.Module, stages: int, width: int) -> nn.Module:
+    """A new network of architecture ``arch`` (a key of :data:`ARCHS`) around ``phi``."""
+    if arch not in ARCHS:
+        raise _Error(f"unrolled network: arch {arch!r} is not one of {sorted(ARCHS)}")
+    return ARCHS[arch](phi, stages=stages, width=width)
+
+
+def count_parameters(net: nn.Module) -> int:
+    """The learned parameters of a network (the operator has none)."""
+    return sum(p.numel() for p in net.parameters())
+
+
 def mask_sha256(mask: Any) -> str:
     """SHA-256 of a mask as float32 C-order bytes (the weights file records the training mask's)."""
     return hashlib.sha256(np.ascontiguousarray(mask, dtype=np.float32).tobytes()).hexdigest()
 
 
-def save_unrolled(net: UnrolledGAP, path: Any, metadata: Dict[str, Any]) -> None:
-    """Writes ``net``'s weights (the denoisers and the steps; not the operator) to the safetensors file ``path`` with
-    :meth:`UnrolledGAP.metadata` plus ``metadata`` (must name ``system``; values stored as strings, non-strings as
-    JSON), atomically (a temporary file renamed over ``path``); refuses non-finite weights (nothing written)."""
+def system_sha256(system: Any) -> str:
+    """SHA-256 of a :class:`diffcassi.System`'s JSON (its full prescription): the weights record the training
+    system's, so a system renamed or edited is told apart from the preset."""
+    return hashlib.sha256(system.to_json().encode()).hexdigest()
+
+
+def save_unrolled(net: nn.Module, path: Any, metadata: Dict[str, Any]) -> None:
+    """Writes ``net``'s weights (:class:`UnrolledGAP` or :class:`UnrolledDAUHST`; not the operator) to the
+    safetensors file ``path`` with the network's ``metadata()`` plus ``metadata`` (must name ``system``; a v2
+    network also ``mask_sha256``; values stored as strings, non-strings as JSON), atomically (a temporary file
+    renamed over ``path``); refuses non-finite weights (nothing written)."""
     from safetensors.torch import save_file
     path = os.fspath(path)
     if "system" not in metadata:
         raise _Error(f"save_unrolled: {path}: metadata must name the system the network was trained for")
+    if isinstance(net, UnrolledDAUHST) and "mask_sha256" not in metadata:
+        raise _Error(f"save_unrolled: {path}: metadata must record the training mask's mask_sha256 ({ARCH_V2})")
     tensors = {k: v.detach().to(torch.float32).contiguous().clone() for k, v in net.state_dict().items()
                if not k.startswith("phi.")}
     for k, v in tensors.items():
@@ -222,7 +458,7 @@ def save_unrolled(net: UnrolledGAP, path: Any, metadata: Dict[str, Any]) -> None
 
 def read_metadata(path: Any) -> Dict[str, str]:
     """The metadata of an unrolled-network weights file (a DiffcassiFileError if missing, a DiffcassiValueError if it
-    is not safetensors or not ``unrolled-gap-v1``)."""
+    is not safetensors or not one of :data:`ARCHS`)."""
     return _read(path)[0]
 
 
@@ -236,24 +472,31 @@ def _read(path: Any):
             tensors = {k: f.get_tensor(k) for k in f.keys()}
     except Exception as e:  # safetensors raises its own error types for a bad header or truncated data
         raise _Error(f"unrolled weights {path}: not a valid safetensors file ({e})") from None
-    if meta.get("arch") != ARCH:
-        raise _Error(f"unrolled weights {path}: metadata arch is {meta.get('arch')!r}, expected {ARCH!r}")
+    if meta.get("arch") not in ARCHS:
+        raise _Error(f"unrolled weights {path}: metadata arch is {meta.get('arch')!r}, expected one of {sorted(ARCHS)}")
     return meta, tensors
 
 
-def load_unrolled(path: Any, phi: nn.Module, system: Optional[str] = None, mask: Any = None) -> UnrolledGAP:
-    """Loads an ``unrolled-gap-v1`` safetensors file into a new :class:`UnrolledGAP` around ``phi`` (eval mode).
+def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = None) -> nn.Module:
+    """Loads an unrolled-network safetensors file (``unrolled-gap-v1`` → :class:`UnrolledGAP`,
+    ``unrolled-dauhst-v2`` → :class:`UnrolledDAUHST`) into a new network around ``phi`` (eval mode).
 
     Checked, each failure a DiffcassiValueError naming the file and the problem (a missing file, a folder, a FIFO or
-    device, a file over 1 GiB: a DiffcassiFileError; ``phi`` not an operator module: a TypeError naming it): the format and ``arch``; ``stages``, ``bands``, ``width`` integers ≥ 1; ``bands`` equal to
-    ``phi``'s band count; ``system`` (when given) equal to the system the weights were trained for; ``mask`` (when
-    given) equal to the training mask (SHA-256); every tensor present with its shape, finite, and no other."""
+    device, a file over 1 GiB: a DiffcassiFileError; ``phi`` not an operator module: a TypeError naming it): the
+    format and ``arch``; ``stages``, ``bands``, ``width`` integers ≥ 1; ``bands`` equal to ``phi``'s band count;
+    ``system`` equal to the system the weights were trained for — a preset name, or a :class:`diffcassi.System`
+    (then its name *and* prescription, :func:`system_sha256`, where the file records it); ``mask`` (when given)
+    equal to the training mask (SHA-256); every tensor present with its shape, finite, and no other.
+
+    For ``unrolled-dauhst-v2`` the system is **required** and a mismatch is **refused** (an error, not a warning):
+    a network trained for one system is never run on another system's acquisition."""
     if not hasattr(phi, "cube_shape"):
         # Checked before the file is read (phi=None raised AttributeError after it, issue 39).
         raise TypeError(f"load_unrolled: phi: expected a diffcassi.torch.CassiOperator (or its matrix-free form), "
                         f"got {type(phi).__name__} without `cube_shape`")
     meta, tensors = _read(path)
     path = os.fspath(path)
+    arch = meta["arch"]
     try:
         stages, bands, width = int(meta["stages"]), int(meta["bands"]), int(meta["width"])
     except (KeyError, ValueError):
@@ -264,12 +507,22 @@ def load_unrolled(path: Any, phi: nn.Module, system: Optional[str] = None, mask:
     have = int(phi.cube_shape[2])
     if bands != have:
         raise _Error(f"unrolled weights {path}: the network is for {bands} bands, the operator has {have}")
-    if system is not None and meta.get("system") != system:
-        raise _Error(f"unrolled weights {path}: trained for system {meta.get('system')!r}, not {system!r}")
+    if system is None and arch == ARCH_V2:
+        raise _Error(f"unrolled weights {path}: name the system of the acquisition (system='sp', … or a "
+                     f"diffcassi.System): a {ARCH_V2} network is refused for any system but {meta.get('system')!r}")
+    if system is not None:
+        name = system if isinstance(system, str) else getattr(system, "name", None)
+        if not isinstance(name, str):
+            raise TypeError(f"load_unrolled: system: expected a preset name or a diffcassi.System, got {type(system).__name__}")
+        if meta.get("system") != name:
+            raise _Error(f"unrolled weights {path}: trained for system {meta.get('system')!r}, not {name!r} (refused)")
+        if not isinstance(system, str) and "system_sha256" in meta and meta["system_sha256"] != system_sha256(system):
+            raise _Error(f"unrolled weights {path}: trained for another prescription of system {name!r} "
+                         f"(system SHA-256 {meta['system_sha256']}, this one {system_sha256(system)}; refused)")
     if mask is not None and meta.get("mask_sha256") not in (None, mask_sha256(mask)):
         raise _Error(f"unrolled weights {path}: trained with another mask (SHA-256 {meta.get('mask_sha256')}, "
                      f"this one {mask_sha256(mask)})")
-    net = UnrolledGAP(phi, stages=stages, width=width)
+    net = make_unrolled(arch, phi, stages, width)
     want = {k: v for k, v in net.state_dict().items() if not k.startswith("phi.")}
     missing, extra = sorted(set(want) - set(tensors)), sorted(set(tensors) - set(want))
     if missing or extra:
@@ -280,5 +533,6 @@ def load_unrolled(path: Any, phi: nn.Module, system: Optional[str] = None, mask:
                          f"{tuple(want[k].shape)} (stages={stages}, bands={bands}, width={width})")
         if not torch.isfinite(v).all():
             raise _Error(f"unrolled weights {path}: tensor {k} has NaN or infinite values")
-    net.load_state_dict({k: v.to(torch.float32) for k, v in tensors.items()}, strict=False)
+    dev = net.device
+    net.load_state_dict({k: v.to(device=dev, dtype=torch.float32) for k, v in tensors.items()}, strict=False)
     return net.eval()

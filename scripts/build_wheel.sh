@@ -69,7 +69,8 @@ z = zipfile.ZipFile(whl)
 names = set(z.namelist())
 need = ["diffcassi/__init__.py", "diffcassi/_native.abi3.so", "diffcassi/_native.pyi", "diffcassi/py.typed",
         "diffcassi/torch.py", "diffcassi/unrolled.py", "diffcassi/denoiser.py", "diffcassi/deadleaves.py",
-        "diffcassi/_training.py", "diffcassi/_errors.py", "diffcassi/weights/unrolled-gap-v1-sp.safetensors",
+        "diffcassi/_training.py", "diffcassi/_errors.py", "diffcassi/training_data.py",
+        "diffcassi/weights/unrolled-gap-v1-sp.safetensors",
         "diffcassi/weights/unrolled-gap-v1-msp.safetensors"]
 missing = [n for n in need if n not in names]
 stray = sorted(n for n in names if not (n.startswith("diffcassi/") or n.startswith("diffcassi-")) or "__pycache__" in n)

@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 
 import diffcassi  # noqa: E402
 import diffcassi.torch as dt  # noqa: E402
-from diffcassi.unrolled import UnrolledGAP, load_unrolled  # noqa: E402
+from diffcassi.unrolled import ARCH, ARCHS, load_unrolled, make_unrolled  # noqa: E402
 
 sys.path.insert(0, str(ROOT / "scripts"))
 from train_unrolled import BANDS_NM, load_mask, names, setting  # noqa: E402
@@ -68,7 +68,9 @@ def main(argv=None) -> int:
     ap.add_argument("--systems", default="sp,msp")
     ap.add_argument("--scenes", default=str(ROOT / "data" / "scenes"))
     ap.add_argument("--size", type=int, default=128)
-    ap.add_argument("--weights", default=str(WEIGHTS), help="folder of unrolled-gap-v1-<system>.safetensors")
+    ap.add_argument("--weights", default=str(WEIGHTS), help="folder of unrolled-gap-v1-<system>.safetensors (or "
+                    "unrolled-dauhst-v2-<system>.safetensors with --arch unrolled-dauhst-v2: a GPU run's --out)")
+    ap.add_argument("--arch", default=ARCH, choices=sorted(ARCHS), help="the network's architecture (its file name)")
     ap.add_argument("--cli", default=str(ROOT / "target" / "release" / "diffcassi"))
     ap.add_argument("--threads", type=int, default=1, help="torch and Rust threads of the network's run")
     ap.add_argument("--no-study", action="store_true", help="do not run the study (read OUT/study as it is)")
@@ -108,9 +110,10 @@ def main(argv=None) -> int:
         acq_transport = diffcassi.Transport(sysm, a.size, a.size, seed=acq_seed, **kw)
         phi = dt.CassiOperator.from_operator(diffcassi.exact(sysm, a.size, a.size, seed=acq_seed + 1, **kw), matrix_free=True)
         t_op = time.time() - t0
-        net = load_unrolled(pathlib.Path(a.weights) / names(system)["weights"], phi, system=system, mask=acq_transport.mask)
+        net = load_unrolled(pathlib.Path(a.weights) / names(system, a.arch)["weights"], phi, system=system,
+                            mask=acq_transport.mask)
         # The same graph untrained (zero linear paths and tails): K plain GAP steps from Φᵀ(y ⊘ d), no prior.
-        plain = UnrolledGAP(phi, stages=net.stages, width=net.width).eval()
+        plain = make_unrolled(a.arch, phi, net.stages, net.width).eval()
         res = results[system] = {"operator_seconds": round(t_op, 1), "scenes": {}}
         for png in scenes:
             name = png.stem

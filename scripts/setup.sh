@@ -64,10 +64,11 @@ python_setup() {
     fi
     # module=pip-name where they differ. The learned denoiser (docs/reconstruction.md, src/recon/prior/MODEL.md)
     # needs safetensors (its weights files) and colour-science (BSD-3: the measured reflectances of its training data);
-    # rayoptics is the independent .zmx reader of tests/python/test_zmx.py. ziglang: the linker of the portable
+    # the unrolled network's v2 training data (diffcassi/training_data.py) also lifts textures from the sample images
+    # shipped inside the scikit-image wheel (brick, grass, … only; nothing downloaded); rayoptics is the independent .zmx reader of tests/python/test_zmx.py. ziglang: the linker of the portable
     # wheel (scripts/build_wheel.sh: `maturin --zig`, glibc 2.28 symbols; maturin supports zig < 0.13).
     local want=(maturin numpy scipy pytest rayoptics "ziglang=ziglang<0.13")
-    [[ "${DIFFCASSI_TORCH:-install}" == skip ]] || want+=(torch safetensors colour=colour-science)
+    [[ "${DIFFCASSI_TORCH:-install}" == skip ]] || want+=(torch safetensors colour=colour-science skimage=scikit-image)
     local missing_py=()
     for m in "${want[@]}"; do
         "$venv/bin/python" -c "import importlib.util, sys; sys.exit(importlib.util.find_spec('${m%%=*}') is None)" 2>/dev/null || missing_py+=("${m#*=}")

@@ -1,13 +1,17 @@
 #!/usr/bin/env python3
-"""Trains the unrolled network (``diffcassi.torch.UnrolledGAP``, arch unrolled-gap-v1: GAP stages with learned
-denoisers around the exact operator) for one system, on CPU, on acquisitions rendered on the fly.
+"""Trains an unrolled network around the exact operator for one system, on acquisitions rendered on the fly:
+``unrolled-gap-v1`` (``diffcassi.torch.UnrolledGAP``, the default ``--arch``) or ``unrolled-dauhst-v2``
+(``diffcassi.torch.UnrolledDAUHST``, issue 43), on the CPU or a CUDA device, in short resumable runs.
 
     nice -n 10 .venv/bin/python scripts/train_unrolled.py --system sp --mask ../shared/reference/paper_mask_512.npy \\
         --out out/unrolled-sp --steps 400 --minutes 25 --threads 1
     .venv/bin/python scripts/train_unrolled.py --system sp ... --resume out/unrolled-sp/unrolled-sp-state.pt
     .venv/bin/python scripts/train_unrolled.py --out out/unrolled-sp --system sp --summary 50   # the curve
+    # v2, one ≤ 9-minute GPU run continuing the committed initial checkpoint (scripts/gpu/train_run.sh):
+    python scripts/train_unrolled.py --arch unrolled-dauhst-v2 --system sp --device cuda --workers 14 \\
+        --resume diffcassi/weights/unrolled-dauhst-v2-sp-init.pt --out $OUT --time-budget-s 450
 
-Recipe (diffcassi/weights/UNROLLED.md states the run's numbers):
+Recipe of ``unrolled-gap-v1`` (diffcassi/weights/UNROLLED.md states the run's numbers):
 
 * scenes: procedural dead-leaves cubes only (``diffcassi.deadleaves``, both kinds: measured-spectra and
   uplifted-sRGB leaves), ``--size``² × 28 bands (450–650 nm), peak 1; at step s the batch holds the cubes of
@@ -18,7 +22,7 @@ Recipe (diffcassi/weights/UNROLLED.md states the run's numbers):
   for bit) in the realistic setting of docs/study.md — 112 planes, 20 rays per pixel per plane, stratified, Airy
   2.5 px at 520 nm, the mask ``--mask`` centre-cropped to the scene (the study's rule; default a random mask of
   opening 0.5, seed 0) — traced with ``--acquisition-seed`` (1000: neither the evaluation's acquisition seed 0 nor
-  the operator's);
+  the operator's); no sensor noise;
 * operator: the exact operator traced with ``--operator-seed`` (1: the evaluation's ``reconstruct`` default,
   acquisition seed + 1), in its matrix-free torch form; its Monte-Carlo rays differ from the acquisition's (the
   realistic setting, no oracle);
@@ -30,12 +34,33 @@ Recipe (diffcassi/weights/UNROLLED.md states the run's numbers):
   appended on resume), ``unrolled-<system>-manifest.json`` (data sources and seed rules) and
   ``unrolled-<system>-state.pt`` (the resume state; not committed).
 
+``unrolled-dauhst-v2`` differs in the data and the bookkeeping: the cubes are :func:`diffcassi.training_data.sample`
+of seeds ``TRAIN_SEED_BASE_V2 + batch·s + i`` (measured-spectra and current dead leaves, scikit-image textures lifted
+to measured spectra; crops, flips, exposure), each acquisition with its own sensor noise
+(:func:`diffcassi.training_data.noisy`, seeded by the cube's seed); validation seeds ``0 … VAL_COUNT_V2−1``; the
+files are ``unrolled-dauhst-v2-<system>.safetensors``, ``…-log.jsonl``, ``…-manifest.json`` and
+``…-checkpoint.pt``. The manifest lists **every run** that made the weights (start and end time UTC, device,
+steps from → to: the data seeds follow from the steps), carried from checkpoint to checkpoint, so that several
+short GPU runs continue one training. ``--workers N`` makes the cubes and renders their acquisitions in N processes
+(the GPU machine's cores; the same batches as without workers, tested).
+
+Short runs: ``--time-budget-s`` (v2 default 450 s, a ≤ 9-minute GPU call with the wheel's install) stops the
+loop before the budget would be passed (measured step and validation times), validates, saves the checkpoint and
+the weights and exits 0. ``--resume CHECKPOINT`` continues from a checkpoint (model, optimiser, step, RNG state,
+the training mask and the runs so far); settings not given on the command line are the checkpoint's, and one given
+with another value — or a checkpoint of another architecture, system or band count, or a file that is truncated or
+not a checkpoint — is refused with a clear error (exit 2; a missing file: 1) **before anything is written**; so is a
+fresh v2 run into a folder that already holds a checkpoint (it would overwrite another training). On CUDA the
+convolutions and matrix products use TF32 and cuDNN's autotuning (speed; resumes there are not bit for bit).
+
 Every random choice derives from the seeds and the step: ``--resume`` continues exactly as the uninterrupted run
-(tested); ``--minutes`` only caps one invocation's wall time (the schedule depends on the step alone).
+(tested); ``--minutes``/``--time-budget-s`` only cap one invocation's wall time (the schedule depends on the step
+alone).
 """
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import os
 import pathlib
@@ -51,14 +76,31 @@ sys.path.insert(0, str(ROOT))
 import diffcassi  # noqa: E402
 import diffcassi.torch as dt  # noqa: E402
 from diffcassi.deadleaves import BANDS_NM, dead_leaves, sources_manifest  # noqa: E402
-from diffcassi.unrolled import UnrolledGAP, load_unrolled, mask_sha256, save_unrolled  # noqa: E402
+from diffcassi.unrolled import (ARCH, ARCH_V2, ARCHS, count_parameters, load_unrolled, make_unrolled,  # noqa: E402
+                                mask_sha256, save_unrolled, system_sha256)
 from diffcassi._training import l1_step, lr_at, psnr_db, validation_records  # noqa: E402
 
 #: Train seeds are TRAIN_SEED_BASE + batch·step + i; validation seeds 0 … VAL_COUNT−1 (of each kind).
 TRAIN_SEED_BASE = 3_000_000
 VAL_COUNT = 4
+#: v2: train seeds TRAIN_SEED_BASE_V2 + batch·step + i of diffcassi.training_data.sample; validation 0 … VAL_COUNT_V2−1.
+TRAIN_SEED_BASE_V2 = 5_000_000
+VAL_COUNT_V2 = 8
 #: The realistic setting of docs/study.md.
 PLANES, RAYS = 112, 20
+#: The checkpoint format tag (a checkpoint without it is refused).
+CHECKPOINT_FORMAT = "diffcassi-unrolled-checkpoint-1"
+#: Defaults of the settings that make a training (its config); None in argparse so that a resume can tell a
+#: setting given on the command line from one to take from the checkpoint.
+DEFAULTS = {"size": 128, "steps": 400, "batch": 2, "seed": 0, "lr": 1e-3, "lr_min": 2e-5, "warmup": 20, "clip": 1.0,
+            "planes": PLANES, "rays": RAYS, "acquisition_seed": 1000, "operator_seed": 1, "bands": 28}
+ARCH_DEFAULTS = {ARCH: {"stages": 6, "width": 16}, ARCH_V2: {"stages": 3, "width": 24}}
+#: The v2 default wall-time budget of one invocation (s): a ≤ 9-minute GPU call, the wheel's install included.
+TIME_BUDGET_V2_S = 450.0
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be resumed (names the file and the problem)."""
 
 
 def seed_kind(seed: int) -> str:
@@ -66,17 +108,27 @@ def seed_kind(seed: int) -> str:
     return "rgb" if (seed - TRAIN_SEED_BASE) % 2 else "spectral"
 
 
-def train_seeds(step: int, batch: int) -> list:
-    return [TRAIN_SEED_BASE + batch * step + i for i in range(batch)]
+def train_seeds(step: int, batch: int, arch: str = ARCH) -> list:
+    base = TRAIN_SEED_BASE_V2 if arch == ARCH_V2 else TRAIN_SEED_BASE
+    return [base + batch * step + i for i in range(batch)]
 
 
-def val_seeds() -> list:
-    return list(range(VAL_COUNT))
+def val_seeds(arch: str = ARCH) -> list:
+    return list(range(VAL_COUNT_V2 if arch == ARCH_V2 else VAL_COUNT))
 
 
-def names(system: str) -> dict:
+def names(system: str, arch: str = ARCH) -> dict:
+    if arch == ARCH_V2:
+        b = f"{ARCH_V2}-{system}"
+        return {"weights": f"{b}.safetensors", "log": f"{b}-log.jsonl", "manifest": f"{b}-manifest.json",
+                "state": f"{b}-checkpoint.pt"}
     return {"weights": f"unrolled-gap-v1-{system}.safetensors", "log": f"unrolled-{system}-log.jsonl",
             "manifest": f"unrolled-{system}-manifest.json", "state": f"unrolled-{system}-state.pt"}
+
+
+def bands_nm_of(n: int) -> list:
+    """The project's band grid 450–650 nm with ``n`` bands (28: the CLI's 450:650:28)."""
+    return [float(b) for b in (BANDS_NM if n == 28 else np.linspace(450.0, 650.0, n))]
 
 
 def load_mask(path, size: int) -> np.ndarray:
@@ -119,6 +171,43 @@ def render_batch(transport, seeds, size: int, bands_nm=BANDS_NM, kinds=None):
     return torch.from_numpy(np.stack(acqs)), torch.from_numpy(np.stack(cubes))
 
 
+def make_cubes_v2(seeds, size: int, bands_nm) -> np.ndarray:
+    """(N, bands, size, size) float32: :func:`diffcassi.training_data.sample` of each seed."""
+    from diffcassi.training_data import sample
+    return np.stack([sample(int(s), size, bands_nm)[0] for s in seeds])
+
+
+def render_v2(transport, seeds, cubes: np.ndarray):
+    """(acquisitions (N, h, w) with each sample's sensor noise, cubes) float32 tensors (CPU)."""
+    from diffcassi.training_data import noisy
+    acqs = [noisy(transport.apply(np.ascontiguousarray(c.transpose(1, 2, 0))), int(s))[0] for s, c in zip(seeds, cubes)]
+    return torch.from_numpy(np.stack(acqs)), torch.from_numpy(np.ascontiguousarray(cubes))
+
+
+class StepData(torch.utils.data.Dataset):
+    """Item k: the v2 training batch of step ``first + k`` — (step, seeds, acquisitions with their sensor noise,
+    cubes) — for a DataLoader with worker processes. Each worker traces its own copy of the acquisition transport
+    (the same settings and seed: the same light transport bit for bit) on one thread; the cubes and the noise are
+    pure functions of the seeds, so any worker makes the same batch as the main process would."""
+
+    def __init__(self, first: int, last: int, batch: int, size: int, bands_nm, transport_args: dict):
+        self.first, self.n, self.batch, self.size, self.bands_nm = first, max(0, last - first), batch, size, list(bands_nm)
+        self.transport_args = transport_args
+        self._transport = None
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, k: int):
+        if self._transport is None:  # once per worker process
+            diffcassi.set_num_threads(1)
+            t = dict(self.transport_args)
+            self._transport = diffcassi.Transport(diffcassi.System.preset(t.pop("system")), self.size, self.size, **t)
+        seeds = train_seeds(self.first + k, self.batch, ARCH_V2)
+        acq, cube = render_v2(self._transport, seeds, make_cubes_v2(seeds, self.size, self.bands_nm))
+        return self.first + k, seeds, acq, cube
+
+
 def summary(log_path: pathlib.Path, every: int) -> int:
     """Prints the validation curve of a training log as a Markdown table."""
     try:
@@ -126,163 +215,403 @@ def summary(log_path: pathlib.Path, every: int) -> int:
     except ValueError as e:
         print(e, file=sys.stderr)
         return 1
-    print("| step | minutes | lr | train L1 | val spectral (dB) | val RGB (dB) | mean |")
-    print("|---|---|---|---|---|---|---|")
+    keys = list(vals[0]["val_psnr_db"])
+    print("| step | minutes | lr | train L1 | " + " | ".join(f"val {k} (dB)" for k in keys) + " | mean |")
+    print("|---|---|---|---|" + "---|" * len(keys) + "---|")
     for r in vals:
         if r["step"] % every == 0 or r is vals[-1]:
             l1 = "–" if r["train_l1"] is None else f"{r['train_l1']:.4f}"
-            print(f"| {r['step']} | {r['elapsed_s'] / 60:.1f} | {r['lr']:.2e} | {l1} | {r['val_psnr_db']['spectral']:.2f} | "
-                  f"{r['val_psnr_db']['rgb']:.2f} | {r['val_mean_db']:.2f} |")
+            cells = " | ".join(f"{r['val_psnr_db'].get(k, float('nan')):.2f}" for k in keys)
+            print(f"| {r['step']} | {r['elapsed_s'] / 60:.1f} | {r['lr']:.2e} | {l1} | {cells} | {r['val_mean_db']:.2f} |")
     return 0
+
+
+def read_checkpoint(path, arch=None, system=None, bands=None) -> dict:
+    """A training checkpoint, checked before anything is built or written: a regular file that torch reads
+    (``weights_only``: tensors, numbers, strings and lists only), the format tag, and — when given — the
+    architecture, system and band count it was made for. Each failure a :class:`CheckpointError` naming the file
+    and the problem (a missing file: FileNotFoundError)."""
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        raise FileNotFoundError(f"--resume {path}: no such file")
+    if not os.path.isfile(path):
+        raise CheckpointError(f"--resume {path}: not a regular file")
+    try:
+        ck = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as e:  # a truncated zip, a pickle of other objects, not a torch file at all
+        raise CheckpointError(f"--resume {path}: not a readable checkpoint (truncated, or not written by "
+                              f"train_unrolled.py): {type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
+    if not isinstance(ck, dict) or "config" not in ck or "model" not in ck or "step" not in ck:
+        raise CheckpointError(f"--resume {path}: not a train_unrolled.py checkpoint (no config, model or step)")
+    cfg = ck["config"]
+    if isinstance(cfg, str):
+        try:
+            cfg = json.loads(cfg)
+        except json.JSONDecodeError as e:
+            raise CheckpointError(f"--resume {path}: its config is not JSON ({e})") from None
+    if not isinstance(cfg, dict):
+        raise CheckpointError(f"--resume {path}: its config is not a mapping")
+    ck["config"] = cfg
+    have = cfg.get("arch", ARCH)
+    if have not in ARCHS:
+        raise CheckpointError(f"--resume {path}: checkpoint of unknown architecture {have!r}")
+    if arch is not None and have != arch:
+        raise CheckpointError(f"--resume {path}: checkpoint of architecture {have!r}, not --arch {arch!r}")
+    if system is not None and cfg.get("system") != system:
+        raise CheckpointError(f"--resume {path}: checkpoint trained for system {cfg.get('system')!r}, not --system {system!r}")
+    if bands is not None and cfg.get("bands", 28) != bands:
+        raise CheckpointError(f"--resume {path}: checkpoint for {cfg.get('bands', 28)} bands, not --bands {bands}")
+    if not isinstance(ck["step"], int) or ck["step"] < 0:
+        raise CheckpointError(f"--resume {path}: step {ck['step']!r} is not an integer ≥ 0")
+    for k, v in ck["model"].items():
+        if not isinstance(v, torch.Tensor) or not torch.isfinite(v).all():
+            raise CheckpointError(f"--resume {path}: model tensor {k} is missing or not finite")
+    return ck
+
+
+def utc_now() -> str:
+    return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
 def main(argv=None) -> int:
+    t_start = time.time()
+    start_utc = utc_now()
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--system", required=True, help="preset: sp, msp, ap, map")
+    ap.add_argument("--system", default=None, help="preset: sp, msp, ap, map (required unless --resume names it)")
+    ap.add_argument("--arch", default=None, choices=sorted(ARCHS), help=f"network (default {ARCH}, or the checkpoint's)")
     ap.add_argument("--out", required=True, help="output folder")
-    ap.add_argument("--mask", default=None, help="mask file ((H, W) NPY), centre-cropped to --size (default: random, seed 0)")
-    ap.add_argument("--size", type=int, default=128, help="scene side (pixels)")
-    ap.add_argument("--stages", type=int, default=6)
-    ap.add_argument("--width", type=int, default=16, help="U-Net width C of each stage's denoiser")
-    ap.add_argument("--steps", type=int, default=400, help="total optimiser steps; the learning-rate schedule spans them")
+    ap.add_argument("--mask", default=None, help="mask file ((H, W) NPY), centre-cropped to --size (default: the "
+                    "checkpoint's on --resume, else random, seed 0)")
+    ap.add_argument("--size", type=int, default=None, help="scene side (pixels; default 128)")
+    ap.add_argument("--bands", type=int, default=None, help="bands 450–650 nm (default 28)")
+    ap.add_argument("--stages", type=int, default=None, help="stages (default 6 for v1, 3 for v2)")
+    ap.add_argument("--width", type=int, default=None, help="network width C (default 16 for v1, 24 for v2)")
+    ap.add_argument("--steps", type=int, default=None, help="total optimiser steps; the learning-rate schedule spans them (default 400)")
     ap.add_argument("--minutes", type=float, default=None, help="wall-time cap of this invocation (stops early, state saved)")
+    ap.add_argument("--time-budget-s", type=float, default=None, help="wall-time budget of this invocation, set-up and "
+                    f"final save included: stop in time, save, exit 0 (v2 default {TIME_BUDGET_V2_S:g})")
     ap.add_argument("--stop-at", type=int, default=None, help="stop this invocation at this step (state saved; the "
                     "schedule still spans --steps)")
-    ap.add_argument("--batch", type=int, default=2, help="cubes per step (half measured-spectra, half RGB leaves)")
+    ap.add_argument("--batch", type=int, default=None, help="cubes per step (default 2)")
     ap.add_argument("--threads", type=int, default=1, help="torch and Rust threads")
-    ap.add_argument("--seed", type=int, default=0, help="torch seed of the initial weights")
-    ap.add_argument("--lr", type=float, default=1e-3)
-    ap.add_argument("--lr-min", type=float, default=2e-5)
-    ap.add_argument("--warmup", type=int, default=20)
-    ap.add_argument("--clip", type=float, default=1.0, help="gradient-norm clipping")
+    ap.add_argument("--workers", type=int, default=0, help="v2: processes making the training cubes (0: in this one)")
+    ap.add_argument("--device", default="cpu", help="cpu or cuda[:N]: where the network and its operator run")
+    ap.add_argument("--seed", type=int, default=None, help="torch seed of the initial weights (default 0)")
+    ap.add_argument("--lr", type=float, default=None)
+    ap.add_argument("--lr-min", type=float, default=None)
+    ap.add_argument("--warmup", type=int, default=None)
+    ap.add_argument("--clip", type=float, default=None, help="gradient-norm clipping (default 1)")
     ap.add_argument("--val-every", type=int, default=25, help="validate (and save the state) every N steps")
-    ap.add_argument("--planes", type=int, default=PLANES)
-    ap.add_argument("--rays", type=int, default=RAYS)
-    ap.add_argument("--acquisition-seed", type=int, default=1000, help="Monte-Carlo seed of the training renders")
-    ap.add_argument("--operator-seed", type=int, default=1, help="Monte-Carlo seed of the operator (default 1: "
+    ap.add_argument("--planes", type=int, default=None)
+    ap.add_argument("--rays", type=int, default=None)
+    ap.add_argument("--acquisition-seed", type=int, default=None, help="Monte-Carlo seed of the training renders (default 1000)")
+    ap.add_argument("--operator-seed", type=int, default=None, help="Monte-Carlo seed of the operator (default 1: "
                     "reconstruct's default for acquisitions of seed 0)")
-    ap.add_argument("--resume", default=None, help="a state file (unrolled-<system>-state.pt) to continue from")
+    ap.add_argument("--resume", default=None, help="a checkpoint (…-state.pt, …-checkpoint.pt) to continue from")
     ap.add_argument("--summary", type=int, metavar="EVERY", default=None,
                     help="print the validation curve of --out's log as a Markdown table, and exit")
     a = ap.parse_args(argv)
-    if a.system not in ("sp", "msp", "ap", "map"):
+    prog = "train_unrolled"
+    if a.system is not None and a.system not in ("sp", "msp", "ap", "map"):
         ap.error(f"--system {a.system!r}: expected one of sp, msp, ap, map")
-    nm = names(a.system)
     out = pathlib.Path(a.out)
     if a.summary is not None:
-        return summary(out / nm["log"], a.summary)
-    for name in ("size", "stages", "width", "steps", "batch", "threads", "val_every", "warmup", "planes", "rays"):
+        if a.system is None:
+            ap.error("--summary needs --system")
+        return summary(out / names(a.system, a.arch or ARCH)["log"], a.summary)
+
+    # The checkpoint first (cheap, writes nothing): its architecture, system and band count, then its settings.
+    ck = None
+    if a.resume:
+        try:
+            ck = read_checkpoint(a.resume, a.arch, a.system, a.bands)
+        except FileNotFoundError as e:
+            print(f"{prog}: error: {e}", file=sys.stderr)
+            return 1
+        except CheckpointError as e:
+            print(f"{prog}: error: {e}; nothing written", file=sys.stderr)
+            return 2
+    base = dict(ck["config"]) if ck else {}
+    arch = a.arch or base.get("arch", ARCH)
+    system = a.system or base.get("system")
+    if system is None:
+        ap.error("--system is required (or --resume a checkpoint that names it)")
+    given = {k: getattr(a, k) for k in list(DEFAULTS) + ["stages", "width"] if getattr(a, k) is not None}
+    conf = dict(DEFAULTS, **ARCH_DEFAULTS[arch])
+    conf.update({k: v for k, v in base.items() if k in conf})
+    conf.update(given)
+    for name in ("size", "stages", "width", "steps", "batch", "warmup", "planes", "rays", "bands"):
+        if conf[name] < 1:
+            ap.error(f"--{name.replace('_', '-')} must be at least 1 (got {conf[name]})")
+    for name in ("threads", "val_every"):
         if getattr(a, name) < 1:
             ap.error(f"--{name.replace('_', '-')} must be at least 1 (got {getattr(a, name)})")
-    if a.size < 8:
-        ap.error(f"--size must be at least 8 (got {a.size})")
-    if not (a.lr > 0 and a.lr_min >= 0 and a.clip > 0) or (a.minutes is not None and not a.minutes > 0):
-        ap.error("--lr, --clip and --minutes must be positive, --lr-min non-negative")
-    if a.acquisition_seed == a.operator_seed:
+    if a.workers < 0:
+        ap.error(f"--workers must be ≥ 0 (got {a.workers})")
+    if conf["size"] < 8:
+        ap.error(f"--size must be at least 8 (got {conf['size']})")
+    if not (conf["lr"] > 0 and conf["lr_min"] >= 0 and conf["clip"] > 0) or (a.minutes is not None and not a.minutes > 0) \
+            or (a.time_budget_s is not None and not a.time_budget_s > 0):
+        ap.error("--lr, --clip, --minutes and --time-budget-s must be positive, --lr-min non-negative")
+    if conf["acquisition_seed"] == conf["operator_seed"]:
         ap.error("--acquisition-seed and --operator-seed must differ (the realistic setting: no oracle)")
+    budget = a.time_budget_s if a.time_budget_s is not None else (TIME_BUDGET_V2_S if arch == ARCH_V2 else None)
+    try:
+        device = torch.device(a.device)
+    except RuntimeError:
+        print(f"{prog}: error: --device {a.device!r}: expected cpu or cuda[:N]; nothing written", file=sys.stderr)
+        return 2
+    if device.type not in ("cpu", "cuda") or (device.type == "cuda" and not torch.cuda.is_available()):
+        print(f"{prog}: error: --device {a.device}: {'no CUDA device here' if device.type == 'cuda' else 'expected cpu or cuda[:N]'}"
+              "; nothing written", file=sys.stderr)
+        return 2
+
+    size, bands_nm = conf["size"], bands_nm_of(conf["bands"])
+    try:  # no --mask: the checkpoint's, else the library's random mask (opening 0.5, seed 0), render's default
+        if a.mask:
+            mask = load_mask(a.mask, size)
+        elif ck is not None and isinstance(ck.get("mask"), torch.Tensor):
+            mask = np.ascontiguousarray(ck["mask"].numpy(), dtype=np.float32)
+        else:
+            mask = None
+    except (OSError, ValueError) as e:
+        print(f"{prog}: error: --mask: {e}", file=sys.stderr)
+        return 1
+    if mask is not None and mask.shape != (size, size):
+        print(f"{prog}: error: the mask is {mask.shape[0]}×{mask.shape[1]}, the scene {size}×{size}; nothing written",
+              file=sys.stderr)
+        return 2
+    config = {"system": system, "size": size, "stages": conf["stages"], "width": conf["width"], "steps": conf["steps"],
+              "batch": conf["batch"], "seed": conf["seed"], "lr": conf["lr"], "lr_min": conf["lr_min"],
+              "warmup": conf["warmup"], "clip": conf["clip"], "planes": conf["planes"], "rays": conf["rays"],
+              "acquisition_seed": conf["acquisition_seed"], "operator_seed": conf["operator_seed"]}
+    if arch == ARCH_V2 or conf["bands"] != 28:
+        config["bands"] = conf["bands"]
+    if arch == ARCH_V2:
+        config = dict({"arch": arch}, **config, system_sha256=system_sha256(diffcassi.System.preset(system)))
+    if ck is not None and mask is not None and base.get("mask_sha256") not in (None, mask_sha256(mask)) and a.mask:
+        print(f"{prog}: error: --resume {a.resume} was trained with another mask (SHA-256 {base.get('mask_sha256')}, "
+              f"--mask {a.mask}: {mask_sha256(mask)}); nothing written", file=sys.stderr)
+        return 2
+
+    if ck is not None:  # every setting but the mask's hash (that of the library's default mask needs the trace)
+        saved = ck["config"]
+        diff = {k: (saved.get(k), config.get(k)) for k in sorted(set(saved) | set(config))
+                if k != "mask_sha256" and saved.get(k) != config.get(k)}
+        if diff:
+            print(f"{prog}: error: --resume {a.resume} was made with other settings (saved, asked): {diff}; nothing "
+                  "written", file=sys.stderr)
+            return 2
+
+    existing = out / names(system, arch)["state"]
+    if arch == ARCH_V2 and ck is None and existing.exists():
+        print(f"{prog}: error: --out {out} already holds the checkpoint {existing.name} of another training: --resume "
+              "it, or choose another folder; nothing written", file=sys.stderr)
+        return 2
 
     torch.set_num_threads(a.threads)
     diffcassi.set_num_threads(a.threads)
-    torch.manual_seed(a.seed)
-    bands_nm = BANDS_NM
-    try:  # no --mask: the library's random mask (opening 0.5, seed 0), render's default
-        mask = load_mask(a.mask, a.size) if a.mask else None
-    except (OSError, ValueError) as e:
-        print(f"train_unrolled: error: --mask: {e}", file=sys.stderr)
-        return 1
+    torch.manual_seed(conf["seed"])
     t_setup = time.time()
-    transport, phi = build_operators(a.system, a.size, mask, a.planes, a.rays, a.acquisition_seed, a.operator_seed,
-                                     bands_nm)
+    transport, phi = build_operators(system, size, mask, conf["planes"], conf["rays"], conf["acquisition_seed"],
+                                     conf["operator_seed"], bands_nm)
     mask = transport.mask
-    setup_s = time.time() - t_setup
-    net = UnrolledGAP(phi, stages=a.stages, width=a.width)
-    opt = torch.optim.Adam(net.parameters(), lr=a.lr)
-    out.mkdir(parents=True, exist_ok=True)
-    wpath, lpath, spath = out / nm["weights"], out / nm["log"], out / nm["state"]
-    config = {k: getattr(a, k) for k in ("system", "size", "stages", "width", "steps", "batch", "seed", "lr", "lr_min",
-                                         "warmup", "clip", "planes", "rays", "acquisition_seed", "operator_seed")}
     config["mask_sha256"] = mask_sha256(mask)
-    step, elapsed0 = 0, 0.0
-    if a.resume:
-        if not os.path.isfile(a.resume):
-            print(f"train_unrolled: error: --resume {a.resume}: no such file", file=sys.stderr)
-            return 1
-        st = torch.load(a.resume, weights_only=False)
-        if st.get("config") != config:
-            diff = {k: (st.get("config", {}).get(k), v) for k, v in config.items() if st.get("config", {}).get(k) != v}
-            print(f"train_unrolled: error: --resume {a.resume} was made with other settings (saved, asked): {diff}",
-                  file=sys.stderr)
+    if ck is not None and ck["config"] != config:
+        saved = ck["config"]
+        diff = {k: (saved.get(k), config.get(k)) for k in sorted(set(saved) | set(config)) if saved.get(k) != config.get(k)}
+        print(f"{prog}: error: --resume {a.resume} was made with other settings (saved, asked): {diff}; nothing written",
+              file=sys.stderr)
+        return 2
+    if device.type == "cuda":  # TF32 convolutions and matrix products, autotuned: speed over bit-exact resumes there
+        torch.backends.cudnn.benchmark = True
+        torch.backends.cudnn.allow_tf32 = True
+        torch.backends.cuda.matmul.allow_tf32 = True
+        phi = phi.to(device)
+    setup_s = time.time() - t_setup
+    net = make_unrolled(arch, phi, conf["stages"], conf["width"])
+    opt = torch.optim.Adam(net.parameters(), lr=conf["lr"])
+    step, elapsed0, runs = 0, 0.0, []
+    if ck is not None:
+        try:
+            net.load_state_dict(ck["model"], strict=False)
+            opt.load_state_dict(ck["optim"])
+        except (RuntimeError, KeyError, ValueError) as e:
+            print(f"{prog}: error: --resume {a.resume}: its model or optimiser does not fit this network ({e}); "
+                  "nothing written", file=sys.stderr)
             return 2
-        net.load_state_dict(st["model"], strict=False)
-        opt.load_state_dict(st["optim"])
-        step, elapsed0 = st["step"], st["elapsed_s"]
-    manifest = sources_manifest(bands_nm)
-    manifest.update({
-        "train_seeds": f"{TRAIN_SEED_BASE} + batch*step + i; i even spectral, odd rgb", "train_seed_min": TRAIN_SEED_BASE,
-        "val_seeds": val_seeds(), "val_kinds": ["spectral", "rgb"], "evaluation_scenes_used": [], "config": config,
-        "operator": repr(phi.op), "acquisition_transport": repr(transport),
-    })
-    (out / nm["manifest"]).write_text(json.dumps(manifest, indent=1) + "\n")
+        step, elapsed0 = ck["step"], float(ck.get("elapsed_s", 0.0))
+        runs = json.loads(ck["runs"]) if isinstance(ck.get("runs"), str) else []
+        if isinstance(ck.get("torch_rng"), torch.Tensor):
+            torch.set_rng_state(ck["torch_rng"])
+    step0 = step
 
-    val_acq, val_cube = render_batch(transport, val_seeds() * 2, a.size, bands_nm, ["spectral"] * VAL_COUNT + ["rgb"] * VAL_COUNT)
+    # Outputs from here on.
+    nm = names(system, arch)
+    out.mkdir(parents=True, exist_ok=True)
+    wpath, lpath, spath, mpath = out / nm["weights"], out / nm["log"], out / nm["state"], out / nm["manifest"]
+    run = {"start_utc": start_utc, "end_utc": None, "device": str(device),
+           "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
+           "threads": a.threads, "workers": a.workers, "steps_from": step0, "steps_to": step0,
+           "resumed_from": os.path.basename(a.resume) if a.resume else None, "time_budget_s": budget,
+           "torch": torch.__version__, "diffcassi": getattr(diffcassi, "__version__", None),
+           "tf32": device.type == "cuda"}
+
+    def write_manifest() -> None:
+        if arch == ARCH_V2:
+            from diffcassi.training_data import manifest as data_manifest
+            man = data_manifest(bands_nm)
+            man.update({"train_seeds": f"{TRAIN_SEED_BASE_V2} + batch*step + i (diffcassi.training_data.sample; noise: "
+                                       "diffcassi.training_data.noisy of the same seed)",
+                        "train_seed_min": TRAIN_SEED_BASE_V2, "val_seeds": val_seeds(arch)})
+        else:
+            man = sources_manifest(bands_nm)
+            man.update({"train_seeds": f"{TRAIN_SEED_BASE} + batch*step + i; i even spectral, odd rgb",
+                        "train_seed_min": TRAIN_SEED_BASE, "val_seeds": val_seeds(arch), "val_kinds": ["spectral", "rgb"]})
+        man.update({"evaluation_scenes_used": [], "arch": arch, "config": config, "operator": repr(phi.op),
+                    "acquisition_transport": repr(transport), "parameters": count_parameters(net)})
+        if arch == ARCH_V2:
+            man["runs"] = runs + [run]
+            man["steps"] = step
+        tmp = f"{mpath}.tmp"
+        pathlib.Path(tmp).write_text(json.dumps(man, indent=1) + "\n")
+        os.replace(tmp, mpath)
+
+    write_manifest()
+    if arch == ARCH_V2:
+        vs = val_seeds(arch)
+        val_acq, val_cube = render_v2(transport, vs, make_cubes_v2(vs, size, bands_nm))
+        val_groups = {"clean": [i for i, s in enumerate(vs) if not _noise_on(s)],
+                      "noisy": [i for i, s in enumerate(vs) if _noise_on(s)]}
+    else:
+        val_acq, val_cube = render_batch(transport, val_seeds() * 2, size, bands_nm, ["spectral"] * VAL_COUNT + ["rgb"] * VAL_COUNT)
+        val_groups = {"spectral": list(range(VAL_COUNT)), "rgb": list(range(VAL_COUNT, 2 * VAL_COUNT))}
+    val_acq, val_cube = val_acq.to(device), val_cube.to(device)
     log = open(lpath, "a")
     log.write(json.dumps({"event": "resume" if a.resume else "start", "step": step, "args": vars(a), "config": config,
-                          "setup_s": round(setup_s, 1), "params": sum(p.numel() for p in net.parameters()),
-                          "torch": torch.__version__, "threads": a.threads}) + "\n")
+                          "setup_s": round(setup_s, 1), "params": count_parameters(net), "device": str(device),
+                          "torch": torch.__version__, "threads": a.threads, "utc": start_utc}) + "\n")
     log.flush()
     t0 = time.time()
     losses: list = []
+    timing = {"val_s": 0.0, "save_s": 0.0}
 
     @torch.no_grad()
     def validate() -> dict:
+        tv = time.time()
         net.eval()
-        p = psnr_db(torch.cat([net(val_acq[i:i + 2]) for i in range(0, len(val_acq), 2)]), val_cube)
+        chunk = 2 if device.type == "cpu" else 8
+        p = psnr_db(torch.cat([net(val_acq[i:i + chunk]) for i in range(0, len(val_acq), chunk)]), val_cube)
         net.train()
-        return {"spectral": float(p[:VAL_COUNT].mean()), "rgb": float(p[VAL_COUNT:].mean())}
+        timing["val_s"] = time.time() - tv
+        return {k: float(p[idx].mean()) for k, idx in val_groups.items() if idx}
 
     def checkpoint():
         val = validate()
+        ts = time.time()
         elapsed = elapsed0 + time.time() - t0
         rec = {"step": step, "elapsed_s": round(elapsed, 1), "lr": opt.param_groups[0]["lr"],
                "train_l1": (sum(losses) / len(losses)) if losses else None, "val_psnr_db": val,
-               "val_mean_db": (val["spectral"] + val["rgb"]) / 2,
-               "steps_lambda": [round(float(v), 4) for v in net.steps.detach()]}
+               "val_mean_db": float(np.mean(list(val.values())))}
+        if arch == ARCH:
+            rec["steps_lambda"] = [round(float(v), 4) for v in net.steps.detach()]
         log.write(json.dumps(rec) + "\n")
         log.flush()
         losses.clear()
+        run["steps_to"], run["end_utc"] = step, utc_now()
+        run["train_seeds"] = ([train_seeds(step0, conf["batch"], arch)[0], train_seeds(step - 1, conf["batch"], arch)[-1]]
+                              if step > step0 else [])
+        state = {"format": CHECKPOINT_FORMAT, "model": {k: v.detach().cpu() for k, v in net.state_dict().items()
+                                                         if not k.startswith("phi.")},
+                 "optim": _to_cpu(opt.state_dict()), "step": step, "elapsed_s": elapsed, "config": config,
+                 "torch_rng": torch.get_rng_state(), "mask": torch.from_numpy(np.ascontiguousarray(mask)),
+                 "runs": json.dumps(runs + [run])}
         tmp = f"{spath}.tmp"
-        torch.save({"model": {k: v for k, v in net.state_dict().items() if not k.startswith("phi.")},
-                    "optim": opt.state_dict(), "step": step, "elapsed_s": elapsed, "config": config}, tmp)
+        torch.save(state, tmp)
         os.replace(tmp, spath)
+        if arch == ARCH_V2:
+            write_manifest()
+        timing["save_s"] = time.time() - ts
         print(f"step {step} val {val} {elapsed / 60:.1f} min", flush=True)
 
-    if step == 0:
+    if step == 0 or step == step0 and arch == ARCH_V2:
         checkpoint()
     net.train()
-    while step < a.steps:
-        if (a.minutes is not None and time.time() - t0 > 60 * a.minutes) or (a.stop_at is not None and step >= a.stop_at):
+    stop_reason = "steps done"
+    loader = None
+    if arch == ARCH_V2 and a.workers > 0 and step < conf["steps"]:
+        targs = dict(system=system, seed=conf["acquisition_seed"], **setting(mask, conf["planes"], conf["rays"], bands_nm))
+        loader = iter(torch.utils.data.DataLoader(StepData(step, conf["steps"], conf["batch"], size, bands_nm, targs),
+                                                  batch_size=None, shuffle=False, num_workers=a.workers,
+                                                  prefetch_factor=4, persistent_workers=False))
+    step_s = None
+    while step < conf["steps"]:
+        now = time.time()
+        if a.minutes is not None and now - t0 > 60 * a.minutes:
+            stop_reason = "minutes"
             break
-        acq, cube = render_batch(transport, train_seeds(step, a.batch), a.size, bands_nm)
-        loss = l1_step(opt, net.parameters(), lr_at(step, a.steps, a.lr, a.lr_min, a.warmup), a.clip, net(acq), cube)
+        if a.stop_at is not None and step >= a.stop_at:
+            stop_reason = "stop-at"
+            break
+        if budget is not None and step_s is not None and \
+                now - t_start + step_s + 1.5 * (timing["val_s"] + timing["save_s"]) + 5.0 > budget:
+            stop_reason = "time budget"
+            break
+        ts = time.time()
+        if arch == ARCH_V2:
+            if loader is not None:
+                k, seeds, acq, cube = next(loader)
+                assert k == step, (k, step)
+            else:
+                seeds = train_seeds(step, conf["batch"], arch)
+                acq, cube = render_v2(transport, seeds, make_cubes_v2(seeds, size, bands_nm))
+        else:
+            acq, cube = render_batch(transport, train_seeds(step, conf["batch"]), size, bands_nm)
+        acq, cube = acq.to(device, non_blocking=True), cube.to(device, non_blocking=True)
+        loss = l1_step(opt, net.parameters(), lr_at(step, conf["steps"], conf["lr"], conf["lr_min"], conf["warmup"]),
+                       conf["clip"], net(acq), cube)
         if loss is None:
-            print(f"train_unrolled: error: non-finite loss at step {step}; the state keeps step {step}", file=sys.stderr)
+            print(f"{prog}: error: non-finite loss at step {step}; the state keeps step {step - step % a.val_every}",
+                  file=sys.stderr)
             return 1
         losses.append(loss)
         step += 1
-        if step % a.val_every == 0 or step == a.steps:
+        dt_s = time.time() - ts
+        step_s = dt_s if step_s is None else max(dt_s, 0.8 * step_s + 0.2 * dt_s)
+        if step % a.val_every == 0 or step == conf["steps"]:
             checkpoint()
-    if step % a.val_every and step != a.steps:
+    if step != run["steps_to"]:
         checkpoint()
+    log.write(json.dumps({"event": "stop", "step": step, "reason": stop_reason, "utc": utc_now(),
+                          "wall_s": round(time.time() - t_start, 1)}) + "\n")
     log.close()
-    if step < a.steps:  # the weights below are then those of this step, before the end of the schedule
-        print(f"stopped at step {step} of {a.steps}: continue with --resume {spath}")
-    meta = dict(config, bands_nm=[float(b) for b in bands_nm], height=a.size, width_px=a.size, training_step=step,
+    if step < conf["steps"]:  # the weights below are then those of this step, before the end of the schedule
+        print(f"stopped at step {step} of {conf['steps']} ({stop_reason}): continue with --resume {spath}")
+    meta = dict(config, bands_nm=bands_nm, height=size, width_px=size, training_step=step,
                 trained_minutes=round((elapsed0 + time.time() - t0) / 60, 1), airy_diameter_px=2.5, sampling="stratified")
     meta.pop("width", None)
+    if arch == ARCH_V2:
+        meta["runs"] = len(runs) + 1
     save_unrolled(net, wpath, meta)
-    load_unrolled(wpath, phi, system=a.system, mask=mask)  # the file written reads back
-    print(f"done at step {step}: {wpath}")
+    load_unrolled(wpath, phi, system=system, mask=mask)  # the file written reads back
+    print(f"done at step {step}: {wpath} ({time.time() - t_start:.0f} s)")
     return 0
+
+
+def _noise_on(seed: int) -> bool:
+    from diffcassi.training_data import draw_noise
+    return draw_noise(seed) is not None
+
+
+def _to_cpu(obj):
+    """An optimiser state with every tensor on the CPU (a checkpoint from a GPU run resumes anywhere)."""
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().cpu()
+    if isinstance(obj, dict):
+        return {k: _to_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_to_cpu(v) for v in obj)
+    return obj
 
 
 if __name__ == "__main__":
