@@ -73,7 +73,8 @@ need = ["diffcassi/__init__.py", "diffcassi/_native.abi3.so", "diffcassi/_native
         "diffcassi/weights/unrolled-gap-v1-sp.safetensors",
         "diffcassi/weights/unrolled-gap-v1-msp.safetensors"]
 missing = [n for n in need if n not in names]
-stray = sorted(n for n in names if not (n.startswith("diffcassi/") or n.startswith("diffcassi-")) or "__pycache__" in n)
+stray = sorted(n for n in names if not (n.startswith("diffcassi/") or n.startswith("diffcassi-")) or "__pycache__" in n
+               or n.endswith(".pt"))  # training checkpoints stay in the repository (pyproject.toml exclude)
 if missing or stray:
     sys.exit(f"build_wheel.sh: {whl}: missing {missing}, unexpected {stray}")
 z.extract("diffcassi/_native.abi3.so", tmp)
