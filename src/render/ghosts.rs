@@ -80,6 +80,13 @@ impl GhostConfig {
 
     /// Errors name the setting and its value.
     pub fn validate(&self, system: &SequentialSystem) -> Result<()> {
+        if let Some(m) = system.coded_mask {
+            return Err(Error::invalid(format!(
+                "system `{}` holds its coded mask on surface {} (dual-disperser CASSI): the ghost and stray-light render does not model a mask surface yet",
+                system.name(),
+                m.surface
+            )));
+        }
         if !(1..=MAX_GHOST_ORDER).contains(&self.order) {
             return Err(Error::invalid(format!("ghost order {}: must be in 1..={MAX_GHOST_ORDER} (trees grow as interfaces^order)", self.order)));
         }
@@ -217,13 +224,6 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
     let sp = &c.spectral;
     let det = renderer.detector;
     let npix = det.pixels();
-    if let Some(m) = system.coded_mask {
-        return Err(Error::invalid(format!(
-            "system `{}` holds its coded mask on surface {} (dual-disperser CASSI): the ghost and stray-light render does not model a mask surface yet",
-            system.name(),
-            m.surface
-        )));
-    }
     let sampler = RaySampler::new(cfg.rays_per_pixel, c.sampling);
     let ctx = PlaneContext {
         system,
