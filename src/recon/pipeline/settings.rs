@@ -33,6 +33,11 @@ pub struct SolveSettings {
     pub noise: Option<NoiseEstimate>,
     /// How the exact operator's Monte-Carlo term of δ is estimated (`--noise-estimate`).
     pub noise_model: NoiseModel,
+    /// `unrolled`: the network's weights file (`None`: the committed weights of the render's system).
+    pub weights: Option<PathBuf>,
+    /// `unrolled`: the network loaded and checked against the render record ([`super::unrolled::prepare`]);
+    /// the solve needs it.
+    pub unrolled: Option<std::sync::Arc<super::unrolled::PreparedUnrolled>>,
 }
 
 impl SolveSettings {
@@ -53,13 +58,18 @@ impl SolveSettings {
             discrepancy: None,
             noise: None,
             noise_model: NoiseModel::Spread,
+            weights: None,
+            unrolled: None,
         }
     }
 }
 
 /// The solver configuration the settings describe (the solver's defaults, overridden by iterations / TV weight).
 pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
-    let kind: SolverKind = s.solver.parse().map_err(|_| Error::invalid(format!("--solver `{}`: use {}", s.solver, crate::recon::solver::SOLVER_NAMES)))?;
+    if super::unrolled::is_unrolled(&s.solver) {
+        return Err(Error::invalid("internal: --solver unrolled has no iterative solver configuration (recon::pipeline::unrolled)"));
+    }
+    let kind: SolverKind = s.solver.parse().map_err(|_| Error::invalid(format!("--solver `{}`: use {}, or unrolled", s.solver, crate::recon::solver::SOLVER_NAMES)))?;
     let mut cfg = SolverConfig::for_solver(kind);
     if let Some(n) = s.iterations {
         cfg.iterations = n;
@@ -123,8 +133,15 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
     Ok(cfg)
 }
 
-/// Reject an unknown solver or bad solver settings before any work (PnP: the weights are loaded and checked).
+/// Reject an unknown solver or bad solver settings before any work (PnP: the weights are loaded and checked;
+/// unrolled: [`super::unrolled::check_settings`]).
 pub fn check_solver(s: &SolveSettings) -> Result<()> {
+    if super::unrolled::is_unrolled(&s.solver) {
+        return super::unrolled::check_settings(s);
+    }
+    if s.weights.is_some() {
+        return Err(Error::invalid(format!("--weights applies to --solver unrolled only (the unrolled network's weights), not `{}`; the PnP solvers' network is --denoiser", s.solver)));
+    }
     let cfg = solver_config(s)?;
     if cfg.solver.is_pnp() {
         crate::recon::solver::config_denoiser(&cfg)?;
