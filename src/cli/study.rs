@@ -379,7 +379,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     // The unrolled network: weights for every system (its own committed file, or the --weights file's system).
     if solvers.iter().any(|s| is_unrolled(s)) {
         for spec in &specs {
-            crate::recon::pipeline::unrolled::check_system(&cell_settings(&a, "unrolled"), &spec.name)?;
+            crate::recon::pipeline::unrolled::check_system(a.tuning.weights.as_deref(), &spec.name)?;
         }
     }
     if a.tuning.iterations == Some(0) {
@@ -486,7 +486,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
             }
             // The unrolled network, checked against this system's renders (they share system, bands and mask).
             let unrolled = if pending.iter().any(|(_, v)| is_unrolled(v)) {
-                let p = std::sync::Arc::new(crate::recon::pipeline::unrolled::prepare(&cell_settings(&a, "unrolled"), &record)?);
+                let p = std::sync::Arc::new(crate::recon::pipeline::unrolled::prepare(a.tuning.weights.as_deref(), &record)?);
                 for w in &p.check.warnings {
                     eprintln!("warning: {}: {w}", system_label(preset));
                 }

@@ -134,10 +134,10 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
 }
 
 /// Reject an unknown solver or bad solver settings before any work (PnP: the weights are loaded and checked;
-/// unrolled: [`super::unrolled::check_settings`]).
+/// unrolled: its options and `--weights` file).
 pub fn check_solver(s: &SolveSettings) -> Result<()> {
     if super::unrolled::is_unrolled(&s.solver) {
-        return super::unrolled::check_settings(s);
+        return check_unrolled_settings(s);
     }
     if s.weights.is_some() {
         return Err(Error::invalid(format!("--weights applies to --solver unrolled only (the unrolled network's weights), not `{}`; the PnP solvers' network is --denoiser", s.solver)));
@@ -147,4 +147,32 @@ pub fn check_solver(s: &SolveSettings) -> Result<()> {
         crate::recon::solver::config_denoiser(&cfg)?;
     }
     Ok(())
+}
+
+/// The settings `unrolled` takes, checked before any work: the iterative solvers' options are refused (the
+/// network has a fixed number of stages, its weights' `stages`), and a `--weights` file is read and checked
+/// (format, architecture, tensors).
+fn check_unrolled_settings(s: &SolveSettings) -> Result<()> {
+    let mut given: Vec<&str> = Vec::new();
+    for (flag, on) in [
+        ("--iterations", s.iterations.is_some()),
+        ("--tv-weight", s.tv_weight.is_some()),
+        ("--accelerated", s.accelerated),
+        ("--plain", s.plain),
+        ("--denoiser", s.denoiser.is_some()),
+        ("--sigma-max", s.sigma_max.is_some()),
+        ("--sigma-min", s.sigma_min.is_some()),
+        ("--sigma-auto", s.sigma_auto),
+        ("--tolerance", s.tolerance.is_some()),
+        ("--tv-warmup", s.tv_warmup.is_some()),
+        ("--discrepancy", s.discrepancy.is_some()),
+    ] {
+        if on {
+            given.push(flag);
+        }
+    }
+    if !given.is_empty() {
+        return Err(Error::invalid(format!("{}: not options of --solver unrolled (a fixed number of stages, the weights' `stages`; no iterations, prior or stopping rule to set)", given.join(", "))));
+    }
+    super::unrolled::check_weights_file(s.weights.as_deref())
 }

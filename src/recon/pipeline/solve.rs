@@ -70,7 +70,8 @@ pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, progress:
     if super::unrolled::is_unrolled(&s.solver) {
         // The unrolled network (no iterations, no δ): prepared from the render record by the caller.
         let p = s.unrolled.as_deref().ok_or_else(|| Error::invalid("internal: --solver unrolled needs its network prepared against the render record (recon::pipeline::unrolled::prepare)"))?;
-        return super::unrolled::solve_unrolled(op, y, p, truth, progress);
+        let u = super::unrolled::solve_unrolled(op, y, p, truth, progress)?;
+        return Ok(Solved { cube: u.cube, residuals: u.residuals, final_residual: u.final_residual, settings: u.settings, stopping: u.stopping, seconds: u.seconds });
     }
     let cfg = solver_config(s)?;
     let plan = s.noise.as_ref().and_then(|n| n.spread.clone());

@@ -5,11 +5,11 @@
 //! solve ([`solve_unrolled`], returning the same [`Solved`] record as the iterative solvers, so `reconstruct`
 //! and `study` write it the same way).
 use super::record::RenderRecord;
-use super::settings::SolveSettings;
-use super::solve::Solved;
 use crate::error::{Error, Result};
 use crate::recon::prior::unrolled::{CheckReport, Target, UnrolledNetwork};
 use crate::recon::Operator;
+use serde_json::Value;
+use std::path::Path;
 
 /// The solver name.
 pub const SOLVER: &str = "unrolled";
@@ -31,32 +31,9 @@ impl std::fmt::Debug for PreparedUnrolled {
     }
 }
 
-/// The settings `unrolled` takes, checked before any work: the iterative solvers' options are refused (the
-/// network has a fixed number of stages, its weights' `stages`), and a `--weights` file is read and checked
-/// (format, architecture, tensors).
-pub fn check_settings(s: &SolveSettings) -> Result<()> {
-    let mut given: Vec<&str> = Vec::new();
-    for (flag, on) in [
-        ("--iterations", s.iterations.is_some()),
-        ("--tv-weight", s.tv_weight.is_some()),
-        ("--accelerated", s.accelerated),
-        ("--plain", s.plain),
-        ("--denoiser", s.denoiser.is_some()),
-        ("--sigma-max", s.sigma_max.is_some()),
-        ("--sigma-min", s.sigma_min.is_some()),
-        ("--sigma-auto", s.sigma_auto),
-        ("--tolerance", s.tolerance.is_some()),
-        ("--tv-warmup", s.tv_warmup.is_some()),
-        ("--discrepancy", s.discrepancy.is_some()),
-    ] {
-        if on {
-            given.push(flag);
-        }
-    }
-    if !given.is_empty() {
-        return Err(Error::invalid(format!("{}: not options of --solver unrolled (a fixed number of stages, the weights' `stages`; no iterations, prior or stopping rule to set)", given.join(", "))));
-    }
-    if let Some(p) = &s.weights {
+/// A `--weights` file read and checked (format, architecture, tensors) before any work; `None` passes.
+pub fn check_weights_file(weights: Option<&Path>) -> Result<()> {
+    if let Some(p) = weights {
         UnrolledNetwork::from_file(p)?;
     }
     Ok(())
@@ -64,8 +41,8 @@ pub fn check_settings(s: &SolveSettings) -> Result<()> {
 
 /// Refuse, before any work, weights that cannot serve the system named `system` (a `--weights` file
 /// trained for another system, or no committed weights for it).
-pub fn check_system(s: &SolveSettings, system: &str) -> Result<()> {
-    let net = UnrolledNetwork::load(s.weights.as_deref(), system)?;
+pub fn check_system(weights: Option<&Path>, system: &str) -> Result<()> {
+    let net = UnrolledNetwork::load(weights, system)?;
     if net.meta.system != system {
         return Err(Error::File {
             path: net.source.clone(),
@@ -75,12 +52,12 @@ pub fn check_system(s: &SolveSettings, system: &str) -> Result<()> {
     Ok(())
 }
 
-/// The network for `record`: `s.weights` or the committed weights of the record's system, checked against
+/// The network for `record`: the `weights` file or the committed weights of the record's system, checked against
 /// the record (its system, bands, mask, planes, operator rays — after any `--operator-rays` — and Airy
 /// diameter).
-pub fn prepare(s: &SolveSettings, record: &RenderRecord) -> Result<PreparedUnrolled> {
+pub fn prepare(weights: Option<&Path>, record: &RenderRecord) -> Result<PreparedUnrolled> {
     let system = record.system.name();
-    let net = UnrolledNetwork::load(s.weights.as_deref(), system)?;
+    let net = UnrolledNetwork::load(weights, system)?;
     let c = &record.config;
     let check = net.check(&Target {
         system,
@@ -95,11 +72,24 @@ pub fn prepare(s: &SolveSettings, record: &RenderRecord) -> Result<PreparedUnrol
     Ok(PreparedUnrolled { net, check })
 }
 
+/// The result of [`solve_unrolled`] (the pipeline's `Solved` is made from it).
+pub struct UnrolledSolve {
+    pub cube: Vec<f32>,
+    /// Per stage k: ‖y − Φx_{k−1}‖₂/‖y‖₂.
+    pub residuals: Vec<f64>,
+    pub final_residual: f64,
+    /// The network, its scale and the checks against the record.
+    pub settings: Value,
+    /// A fixed number of stages (and, with a truth, the PSNR of every stage).
+    pub stopping: Value,
+    pub seconds: f64,
+}
+
 /// The unrolled network on `op` and `y` as a pipeline solve: the cube, the per-stage residuals, the record
 /// (`settings`: the network and the checks; `stopping`: a fixed number of stages) and, with a `truth` cube,
 /// the PSNR of every stage's output (`stopping.psnr_per_iteration`) and ‖y − Φx_true‖/‖y‖. `progress(k,
 /// residual)` after stage k.
-pub fn solve_unrolled(op: &dyn Operator, y: &[f32], p: &PreparedUnrolled, truth: Option<&[f32]>, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Solved> {
+pub fn solve_unrolled(op: &dyn Operator, y: &[f32], p: &PreparedUnrolled, truth: Option<&[f32]>, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<UnrolledSolve> {
     let shape = op.cube_shape();
     let mut psnrs: Vec<f64> = Vec::new();
     let out = crate::recon::unrolled::unrolled(op, y, &p.net, &mut |k, x, r| {
@@ -118,5 +108,5 @@ pub fn solve_unrolled(op: &dyn Operator, y: &[f32], p: &PreparedUnrolled, truth:
         o.insert("psnr_per_iteration".into(), serde_json::json!(psnrs));
     }
     let settings = serde_json::json!({"network": p.net.describe(), "scale": out.scale, "checks": p.check.record});
-    Ok(Solved { cube: out.cube, residuals: out.residuals, final_residual: out.final_residual, settings, stopping, seconds: out.seconds })
+    Ok(UnrolledSolve { cube: out.cube, residuals: out.residuals, final_residual: out.final_residual, settings, stopping, seconds: out.seconds })
 }
