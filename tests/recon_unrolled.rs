@@ -181,7 +181,7 @@ fn cli_unrolled_committed_weights_and_record() {
     assert_eq!(j["solver_settings"]["checks"]["mask_sha256"]["match"], false);
     assert_eq!(j["warnings"].as_array().unwrap().len(), 3, "{}", j["warnings"]);
     assert!(out.join("cube.npy").is_file() && out.join("rgb.png").is_file());
-    let (shape, cube) = diffcassi::io::read_npy_f64(&out.join("cube.npy")).unwrap();
+    let (shape, cube) = diffcassi::io::read_npy_f64(out.join("cube.npy")).unwrap();
     assert_eq!(shape, vec![16, 16, 28]);
     assert!(cube.iter().all(|v| v.is_finite()));
     // The same with the file given explicitly (the embedded copy is the file) and a truth: the same cube.
@@ -194,7 +194,7 @@ fn cli_unrolled_committed_weights_and_record() {
     let j2 = read_json(&out2.join("reconstruct.json"));
     assert_eq!(j2["weights_crc32"], j["weights_crc32"]);
     assert_eq!(j2["stopping"]["psnr_per_iteration"].as_array().unwrap().len(), 6);
-    assert_eq!(diffcassi::io::read_npy_f64(&out2.join("cube.npy")).unwrap().1, cube);
+    assert_eq!(diffcassi::io::read_npy_f64(out2.join("cube.npy")).unwrap().1, cube);
 }
 
 /// A render whose mask is the one the weights record (same SHA-256) and whose planes and rays match: no
