@@ -183,7 +183,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     }
     write_reconstruction(set, &done.cube, &json, true)?;
     println!(
-        "{} / {} / {}: {}×{}×{} cube, {} iterations, final residual {:.4e}; operator {:.2} s, solve {:.2} s, total {:.2} s → {}",
+        "{} / {} / {}: {}×{}×{} cube, {} {}, final residual {:.4e}; operator {:.2} s, solve {:.2} s, total {:.2} s → {}",
         done.system,
         kind.name(),
         request.settings.solver,
@@ -191,6 +191,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
         done.cube.width,
         done.cube.bands(),
         done.iterations_run,
+        if pipeline::is_unrolled(&request.settings.solver) { "stages" } else { "iterations" },
         done.final_residual,
         done.seconds_operator,
         done.seconds_solve,
