@@ -179,6 +179,7 @@ fn cli_unrolled_committed_weights_and_record() {
     assert_eq!(j["iterations_run"], 6);
     assert_eq!(j["stopping"]["stopped_by"], "stages");
     assert_eq!(j["solver_settings"]["checks"]["mask_sha256"]["match"], false);
+    assert_eq!(j["solver_settings"]["checks"]["operator_seed"], json!({"weights": 1, "operator": 1, "weights_acquisition_seed": 1000}));
     assert_eq!(j["warnings"].as_array().unwrap().len(), 3, "{}", j["warnings"]);
     assert!(out.join("cube.npy").is_file() && out.join("rgb.png").is_file());
     let (shape, cube) = diffcassi::io::read_npy_f64(out.join("cube.npy")).unwrap();

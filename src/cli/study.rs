@@ -486,7 +486,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
             }
             // The unrolled network, checked against this system's renders (they share system, bands and mask).
             let unrolled = if pending.iter().any(|(_, v)| is_unrolled(v)) {
-                let p = std::sync::Arc::new(crate::recon::pipeline::unrolled::prepare(a.tuning.weights.as_deref(), &record)?);
+                let p = std::sync::Arc::new(crate::recon::pipeline::unrolled::prepare(a.tuning.weights.as_deref(), &record, op_seed)?);
                 for w in &p.check.warnings {
                     eprintln!("warning: {}: {w}", system_label(preset));
                 }

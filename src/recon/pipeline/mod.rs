@@ -164,7 +164,7 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
     let mut settings = request.settings.clone();
     // The unrolled network: chosen and checked against the record before the operator is built.
     let unrolled_net = if is_unrolled(&settings.solver) {
-        let p = std::sync::Arc::new(unrolled::prepare(settings.weights.as_deref(), &record)?);
+        let p = std::sync::Arc::new(unrolled::prepare(settings.weights.as_deref(), &record, seed)?);
         for w in &p.check.warnings {
             progress.warning(w);
         }

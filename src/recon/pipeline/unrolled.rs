@@ -54,8 +54,8 @@ pub fn check_system(weights: Option<&Path>, system: &str) -> Result<()> {
 
 /// The network for `record`: the `weights` file or the committed weights of the record's system, checked against
 /// the record (its system, bands, mask, planes, operator rays — after any `--operator-rays` — and Airy
-/// diameter).
-pub fn prepare(weights: Option<&Path>, record: &RenderRecord) -> Result<PreparedUnrolled> {
+/// diameter; `operator_seed` is recorded).
+pub fn prepare(weights: Option<&Path>, record: &RenderRecord, operator_seed: u64) -> Result<PreparedUnrolled> {
     let system = record.system.name();
     let net = UnrolledNetwork::load(weights, system)?;
     let c = &record.config;
@@ -68,6 +68,7 @@ pub fn prepare(weights: Option<&Path>, record: &RenderRecord) -> Result<Prepared
         planes: c.spectral.planes(),
         rays: c.rays_per_pixel,
         airy_diameter_px: c.airy.map(|a| a.diameter_px),
+        operator_seed: Some(operator_seed),
     })?;
     Ok(PreparedUnrolled { net, check })
 }

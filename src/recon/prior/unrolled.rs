@@ -127,6 +127,9 @@ pub struct Target<'a> {
     /// The operator's rays per scene pixel per plane.
     pub rays: usize,
     pub airy_diameter_px: Option<f64>,
+    /// The operator's ray seed (recorded beside the training's `operator_seed`; any seed is accepted: the
+    /// Monte-Carlo rays of an operator never match an acquisition's).
+    pub operator_seed: Option<u64>,
 }
 
 /// The result of [`UnrolledNetwork::check`]: what was compared (JSON, for `reconstruct.json`) and the
@@ -296,6 +299,7 @@ impl UnrolledNetwork {
             "planes": {"weights": m.planes, "operator": t.planes},
             "rays": {"weights": m.rays, "operator": t.rays},
             "airy_diameter_px": {"weights": m.airy_diameter_px, "operator": t.airy_diameter_px},
+            "operator_seed": {"weights": m.operator_seed, "operator": t.operator_seed, "weights_acquisition_seed": m.acquisition_seed},
             "warnings": warnings,
         });
         Ok(CheckReport { record, warnings })
