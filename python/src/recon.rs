@@ -342,6 +342,37 @@ fn denoise<'py>(py: Python<'py>, cube: &Bound<'py, PyAny>, sigma: f64, weights: 
     output(py, out, &[shape.height, shape.width, shape.bands])
 }
 
+/// The unrolled network (`unrolled-gap-v1`, `diffcassi::recon::unrolled`: the Rust inference of
+/// `reconstruct --solver unrolled`) on `acquisition` (h, w) float32 through `operator`. `weights`: a
+/// safetensors file, or `None` for the committed weights of `system` (`sp`, `msp`); with both, the file must
+/// be trained for `system`. Returns (cube (H, W, B) float32, record JSON: the network, the scale, the
+/// per-stage residuals, seconds). For tests and comparisons with `diffcassi.unrolled.UnrolledGAP`.
+#[pyfunction]
+#[pyo3(signature = (operator, acquisition, weights = None, system = None))]
+fn _unrolled<'py>(py: Python<'py>, operator: &PyOperator, acquisition: &Bound<'py, PyAny>, weights: Option<String>, system: Option<String>) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, String)> {
+    use diffcassi::recon::prior::unrolled::UnrolledNetwork;
+    let net = match (&weights, &system) {
+        (Some(p), _) => UnrolledNetwork::from_file(std::path::Path::new(p)).py()?,
+        (None, Some(s)) => UnrolledNetwork::committed(s).py()?,
+        (None, None) => return Err(value_error("give weights (a safetensors file) or system (for the committed weights)")),
+    };
+    if let Some(s) = &system {
+        if &net.meta.system != s {
+            return Err(value_error(format!("{}: metadata `system` = `{}`: trained for system `{}`, not `{s}` — refused", net.source, net.meta.system, net.meta.system)));
+        }
+    }
+    let i = operator.op.image_shape();
+    let c = operator.op.cube_shape();
+    let a = input::<f32>("acquisition", acquisition, "float32", 2, "(h, w)")?;
+    check_shape("acquisition", &a.shape, &[i.height, i.width])?;
+    check_finite("acquisition", a.slice(), &a.shape)?;
+    let y = a.slice();
+    let op = &operator.op;
+    let out = run(py, || diffcassi::recon::unrolled::unrolled(op.as_ref(), y, &net, &mut |_, _, _| {})).py()?;
+    let record = serde_json::json!({"network": net.describe(), "scale": out.scale, "residuals": out.residuals, "final_residual": out.final_residual, "seconds": out.seconds});
+    Ok((output(py, out.cube, &[c.height, c.width, c.bands])?, record.to_string()))
+}
+
 fn cube_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<(Vec<usize>, Vec<f32>)> {
     let a = input::<f32>(name, obj, "float32", 3, "(H, W, B)")?;
     check_finite(name, a.slice(), &a.shape)?;
@@ -416,5 +447,6 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(_reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(_metrics, m)?)?;
     m.add_function(wrap_pyfunction!(denoise, m)?)?;
+    m.add_function(wrap_pyfunction!(_unrolled, m)?)?;
     Ok(())
 }

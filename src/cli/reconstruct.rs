@@ -5,6 +5,7 @@
 //! diffcassi reconstruct --from out/sp-coffee --operator exact --solver gap-tv --iterations 100 --out out/sp-coffee-rec
 //! diffcassi reconstruct --from out/sp-coffee --operator shift --out out/sp-coffee-shift     # the field's simplified model
 //! diffcassi reconstruct --from out/sp-coffee --operator exact --operator-seed same --out out/oracle
+//! diffcassi reconstruct --from out/sp-coffee --solver unrolled --out out/sp-coffee-unrolled  # committed SP weights
 //! ```
 //!
 //! Everything comes from the render folder: the system (`render.json`'s `system_spec`), the render
@@ -44,7 +45,9 @@ pub struct ReconstructArgs {
     /// mapping-nearest, shift (the field's simplified SD-CASSI model).
     #[arg(long, default_value = "exact")]
     pub operator: String,
-    /// Solver: gap-tv, admm-tv, pnp-gap or pnp-admm (plug-and-play with the learned denoiser).
+    /// Solver: gap-tv, admm-tv, pnp-gap or pnp-admm (plug-and-play with the learned denoiser), or unrolled
+    /// (the unrolled network unrolled-gap-v1: K GAP stages with learned denoisers, a fixed cost; --weights,
+    /// default: the committed weights of the render's system, sp or msp).
     #[arg(long, default_value = "gap-tv")]
     pub solver: String,
     #[command(flatten)]
@@ -67,7 +70,7 @@ pub struct ReconstructArgs {
     #[command(flatten)]
     pub backend: BackendArgs,
     /// Output folder: new, empty, or a previous reconstruction (replaced whole); never an input (--from, --denoiser,
-    /// --truth), inside one or containing one.
+    /// --weights, --truth), inside one or containing one.
     #[arg(long)]
     pub out: PathBuf,
     /// Accept an --out folder that holds other files (not a previous reconstruction): the outputs are moved
@@ -136,6 +139,9 @@ impl pipeline::Progress for Bars {
     fn solve_done(&self) {
         self.clear();
     }
+    fn warning(&self, message: &str) {
+        eprintln!("warning: {message}");
+    }
 }
 
 pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
@@ -162,6 +168,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     // containing one.
     let mut inputs = vec![("--from", a.from.as_path())];
     inputs.extend(a.tuning.denoiser.as_deref().map(|p| ("--denoiser", p)));
+    inputs.extend(a.tuning.weights.as_deref().map(|p| ("--weights", p)));
     inputs.extend(a.truth.as_deref().map(|p| ("--truth", p)));
     crate::io::policy::check_out_folder(&a.out, &reconstruction_rule(a.force), &inputs)?;
     let record = RenderRecord::load(&a.from)?;
@@ -176,7 +183,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     }
     write_reconstruction(set, &done.cube, &json, true)?;
     println!(
-        "{} / {} / {}: {}×{}×{} cube, {} iterations, final residual {:.4e}; operator {:.2} s, solve {:.2} s, total {:.2} s → {}",
+        "{} / {} / {}: {}×{}×{} cube, {} {}, final residual {:.4e}; operator {:.2} s, solve {:.2} s, total {:.2} s → {}",
         done.system,
         kind.name(),
         request.settings.solver,
@@ -184,6 +191,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
         done.cube.width,
         done.cube.bands(),
         done.iterations_run,
+        if pipeline::is_unrolled(&request.settings.solver) { "stages" } else { "iterations" },
         done.final_residual,
         done.seconds_operator,
         done.seconds_solve,
@@ -242,6 +250,12 @@ pub struct SolverTuning {
     /// embedded checkpoint].
     #[arg(long)]
     pub denoiser: Option<PathBuf>,
+    /// unrolled: the network's weights (safetensors, arch unrolled-gap-v1, scripts/train_unrolled.py)
+    /// [default: the committed diffcassi/weights/unrolled-gap-v1-SYSTEM.safetensors of the render's system,
+    /// embedded]. Refused: another system, band count or wavelengths; warned: another mask, planes, rays or
+    /// Airy diameter (docs/reconstruction.md, "Unrolled network in Rust").
+    #[arg(long)]
+    pub weights: Option<PathBuf>,
     /// pnp-gap / pnp-admm: σ of the first network denoising (relative to the cube's peak, in (0, 1]); with
     /// --sigma-auto the ceiling of σ_1 [default 0.2].
     #[arg(long = "sigma-max")]
@@ -295,6 +309,8 @@ impl SolverTuning {
             discrepancy: self.discrepancy,
             noise: None,
             noise_model: if self.noise_estimate == "model" { NoiseModel::Model } else { NoiseModel::Spread },
+            weights: self.weights.clone(),
+            unrolled: None,
         }
     }
 }

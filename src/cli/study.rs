@@ -19,7 +19,7 @@
 //! The exact operator of a system is traced once (seed = acquisition seed + 1, as `reconstruct`'s default) and
 //! reused for all its scenes; so are the other operators.
 use super::reconstruct::{reconstruction_rule, write_reconstruction, SolverTuning};
-use crate::recon::pipeline::{build_operator, check_solver, noise_estimate, operator_seed, solve, OperatorKind, RenderRecord, SolveSettings, MC_MISMATCH_PER_RAY, RESIDUAL_DEFINITION};
+use crate::recon::pipeline::{build_operator, check_solver, is_unrolled, noise_estimate, operator_seed, solve, OperatorKind, RenderRecord, SolveSettings, MC_MISMATCH_PER_RAY, RESIDUAL_DEFINITION};
 use crate::error::{Error, Result};
 use crate::recon::metrics::evaluate;
 use crate::recon::Operator;
@@ -42,7 +42,8 @@ pub struct StudyArgs {
     /// Operators, comma-separated: exact, mapping (bilinear), mapping-nearest, shift.
     #[arg(long, default_value = "exact,mapping,shift")]
     pub operators: String,
-    /// Solvers, comma-separated: gap-tv, admm-tv, pnp-gap, pnp-admm.
+    /// Solvers, comma-separated: gap-tv, admm-tv, pnp-gap, pnp-admm, unrolled (the unrolled network: the
+    /// committed weights of each system, sp and msp, or --weights for one system).
     #[arg(long, default_value = "gap-tv")]
     pub solvers: String,
     /// Folder of scenes: RGB .png photographs (uplifted to spectra), .npy/.exr cubes, CAVE-style PNG folders.
@@ -342,6 +343,12 @@ fn cell_settings(a: &StudyArgs, solver: &str) -> SolveSettings {
     if !solver.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp()) {
         (s.denoiser, s.sigma_max, s.sigma_min, s.tv_warmup, s.sigma_auto) = (None, None, None, None, false);
     }
+    if is_unrolled(solver) {
+        // The iterative solvers' options apply to them only.
+        (s.iterations, s.tv_weight, s.tolerance, s.discrepancy, s.accelerated, s.plain) = (None, None, None, None, false, false);
+    } else {
+        s.weights = None;
+    }
     s
 }
 
@@ -366,6 +373,15 @@ pub fn study(a: StudyArgs) -> Result<()> {
     for s in &solvers {
         check_solver(&cell_settings(&a, s))?;
     }
+    if a.tuning.weights.is_some() && !solvers.iter().any(|s| is_unrolled(s)) {
+        return Err(Error::invalid(format!("--weights applies to the unrolled solver only, and --solvers `{}` has none", a.solvers)));
+    }
+    // The unrolled network: weights for every system (its own committed file, or the --weights file's system).
+    if solvers.iter().any(|s| is_unrolled(s)) {
+        for spec in &specs {
+            crate::recon::pipeline::unrolled::check_system(a.tuning.weights.as_deref(), &spec.name)?;
+        }
+    }
     if a.tuning.iterations == Some(0) {
         return Err(Error::invalid("--iterations must be ≥ 1"));
     }
@@ -376,6 +392,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let mut inputs: Vec<(&str, &Path)> = a.scenes.iter().map(|p| ("--scenes", p.as_path())).collect();
     inputs.extend(a.mask.as_deref().map(|p| ("--mask", p)));
     inputs.extend(a.tuning.denoiser.as_deref().map(|p| ("--denoiser", p)));
+    inputs.extend(a.tuning.weights.as_deref().map(|p| ("--weights", p)));
     crate::io::policy::check_out_folder(&a.out, &crate::io::policy::FolderRule { option: "--out", command: "study", marker: STUDY_MARKER, force: a.force }, &inputs)?;
     let bands = super::shared::parse_wavelengths(&a.bands)?;
     check_limits(&a, &bands, &solvers)?;
@@ -402,6 +419,17 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 "defaults": crate::recon::SolverConfig::pnp_gap()}));
         }
     }
+    // The unrolled network's weights by content (CRC-32 per system), only when it runs.
+    if solvers.iter().any(|s| is_unrolled(s)) {
+        let mut crcs = serde_json::Map::new();
+        for spec in &specs {
+            let net = crate::recon::prior::unrolled::UnrolledNetwork::load(a.tuning.weights.as_deref(), &spec.name)?;
+            crcs.insert(spec.name.clone(), json!(net.crc32));
+        }
+        if let Some(o) = config.as_object_mut() {
+            o.insert("unrolled".into(), json!({"weights": a.tuning.weights.as_ref().map(|p| p.display().to_string()), "weights_crc32": crcs}));
+        }
+    }
     if let (Some(t), Some(o)) = (a.tuning.tolerance, config.as_object_mut()) {
         o.insert("tolerance".into(), json!(t));
     }
@@ -417,7 +445,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let render_key = {
         let mut r = config.clone();
         if let Some(o) = r.as_object_mut() {
-            for k in ["operator_seed", "iterations", "tv_weight", "accelerated", "plain", "pnp", "tolerance", "stopping"] {
+            for k in ["operator_seed", "iterations", "tv_weight", "accelerated", "plain", "pnp", "unrolled", "tolerance", "stopping"] {
                 o.remove(k);
             }
         }
@@ -456,13 +484,24 @@ pub fn study(a: StudyArgs) -> Result<()> {
             if pending.is_empty() {
                 continue;
             }
+            // The unrolled network, checked against this system's renders (they share system, bands and mask).
+            let unrolled = if pending.iter().any(|(_, v)| is_unrolled(v)) {
+                let p = std::sync::Arc::new(crate::recon::pipeline::unrolled::prepare(a.tuning.weights.as_deref(), &record, op_seed)?);
+                for w in &p.check.warnings {
+                    eprintln!("warning: {}: {w}", system_label(preset));
+                }
+                Some(p)
+            } else {
+                None
+            };
             let t_op = Instant::now();
             let op: Box<dyn Operator + '_> = build_operator(op_kind, &record, &tracer, op_seed, budget as u64, &|_| {})?;
-            // The data-driven δ (exact operator, `--noise-estimate spread`): the operator's twin.
+            // The data-driven δ (exact operator, `--noise-estimate spread`): the operator's twin (not for the
+            // unrolled network, which has no δ).
             let twin_plan = noise_estimate(&record, op_kind, op_seed, record.config.rays_per_pixel, record.config.rays_per_pixel, cell_settings(&a, &solvers[0]).noise_model).spread;
             let twin: Option<Box<dyn Operator + '_>> = match &twin_plan {
-                Some(p) => Some(build_operator(op_kind, &record, &tracer, p.twin_seed, budget as u64, &|_| {})?),
-                None => None,
+                Some(p) if pending.iter().any(|(_, v)| !is_unrolled(v)) => Some(build_operator(op_kind, &record, &tracer, p.twin_seed, budget as u64, &|_| {})?),
+                _ => None,
             };
             let seconds_operator = t_op.elapsed().as_secs_f64();
             let pb = bar(pending.len() as u64, "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} cells, ETA {eta}", &format!("{} / {}", system_label(preset), op_kind.name()));
@@ -470,6 +509,9 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 let scene = &scenes[i];
                 let rec = RenderRecord::load(&dirs[i])?;
                 let mut settings = cell_settings(&a, solver);
+                if is_unrolled(solver) {
+                    settings.unrolled = unrolled.clone();
+                }
                 let rays = rec.config.rays_per_pixel;
                 settings.noise = Some(noise_estimate(&rec, op_kind, op_seed, rays, rays, settings.noise_model));
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, &|_, _| {}, twin.as_deref())?;

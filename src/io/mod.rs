@@ -46,6 +46,7 @@ pub mod input;
 pub mod npy;
 pub mod png16;
 pub mod policy;
+pub mod sha256;
 pub mod stale;
 
 use std::path::{Path, PathBuf};

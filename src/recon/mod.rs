@@ -12,7 +12,9 @@
 //! with a [`solver::SolverConfig`]; TV denoising by Chambolle's projection in [`tv`]. Priors are denoisers
 //! ([`prior::Denoiser`]: TV, or the learned [`prior::network::SpectralUNet`]); the plug-and-play solvers
 //! `pnp-gap` / `pnp-admm` (the same [`gap::gap`], [`admm::admm`] with the network and a σ schedule) plug the
-//! learned one into the same data steps. What the solvers share (settings, record, stopping rules, prior
+//! learned one into the same data steps. The unrolled network ([`unrolled::unrolled`], arch `unrolled-gap-v1`:
+//! K GAP stages with learned steps and per-stage denoisers, [`prior::unrolled::UnrolledNetwork`], trained in
+//! PyTorch by `scripts/train_unrolled.py`) is a fixed-cost forward pass through the same operator. What the solvers share (settings, record, stopping rules, prior
 //! step, preconditioner) is in [`solve`], below them: imports in src/recon form no circle
 //! (`scripts/check_import_cycles.py`). The command-line pipeline (render record → operator → noise estimate
 //! → solver settings → solve → record) is [`pipeline`]. See docs/reconstruction.md.
@@ -67,6 +69,7 @@ pub mod solve;
 pub mod solver;
 pub mod sparse;
 pub mod tv;
+pub mod unrolled;
 
 pub use exact::ExactOperator;
 pub use mapping::{MappingInterpolation, MappingOperator};

@@ -22,12 +22,14 @@ pub mod operators;
 pub mod record;
 pub mod settings;
 pub mod solve;
+pub mod unrolled;
 
 pub use noise::{noise_estimate, twin_seed, NoiseEstimate, NoiseModel, SpreadPlan, MC_MISMATCH_PER_RAY};
 pub use operators::{build_operator, operator_seed, OperatorKind};
 pub use record::RenderRecord;
 pub use settings::{check_solver, solver_config, SolveSettings};
 pub use solve::{run_solver, solve, solve_observed, Solved};
+pub use unrolled::{is_unrolled, PreparedUnrolled};
 
 use crate::error::{Error, Result};
 use crate::scene::SpectralCube;
@@ -104,6 +106,8 @@ pub trait Progress: Sync {
     /// Iteration k done with relative residual `residual`.
     fn iteration(&self, _label: &str, _k: usize, _residual: f64) {}
     fn solve_done(&self) {}
+    /// A warning for the user (e.g. unrolled weights trained with another mask); also in the record.
+    fn warning(&self, _message: &str) {}
 }
 
 /// No progress reports.
@@ -157,6 +161,18 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
     }
     let record = record;
     let seed = operator_seed(record.config.seed, request.operator_seed.as_deref())?;
+    let mut settings = request.settings.clone();
+    // The unrolled network: chosen and checked against the record before the operator is built.
+    let unrolled_net = if is_unrolled(&settings.solver) {
+        let p = std::sync::Arc::new(unrolled::prepare(settings.weights.as_deref(), &record, seed)?);
+        for w in &p.check.warnings {
+            progress.warning(w);
+        }
+        settings.unrolled = Some(p.clone());
+        Some(p)
+    } else {
+        None
+    };
     let t_op = Instant::now();
     let op = {
         let c = &record.config;
@@ -166,23 +182,28 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
         progress.operator_done();
         op
     };
-    let mut settings = request.settings.clone();
     let noise = noise_estimate(&record, kind, seed, record.config.rays_per_pixel, acquisition_rays, settings.noise_model);
-    // The data-driven δ: the operator's twin (same rays, another seed).
-    let twin = match &noise.spread {
-        Some(p) => Some(build_operator(kind, &record, tracer, p.twin_seed, request.budget_bytes(), &|_| {})?),
-        None => None,
+    // The data-driven δ: the operator's twin (same rays, another seed); the unrolled network has no δ.
+    let twin = match (&noise.spread, &unrolled_net) {
+        (Some(p), None) => Some(build_operator(kind, &record, tracer, p.twin_seed, request.budget_bytes(), &|_| {})?),
+        _ => None,
     };
     let seconds_operator = t_op.elapsed().as_secs_f64();
-    settings.noise = Some(noise);
-    let cfg = solver_config(&settings)?;
-    let label = format!("{} / {}", op.name(), cfg.solver.name());
-    progress.solve_started(&label, cfg.iterations);
+    let (solver_name, cap) = match &unrolled_net {
+        Some(p) => (unrolled::SOLVER, p.net.stages()),
+        None => {
+            settings.noise = Some(noise);
+            let cfg = solver_config(&settings)?;
+            (cfg.solver.name(), cfg.iterations)
+        }
+    };
+    let label = format!("{} / {}", op.name(), solver_name);
+    progress.solve_started(&label, cap);
     let solved = solve_observed(op.as_ref(), &record.acquisition, &settings, &|k, r| progress.iteration(&label, k, r), truth.map(|t| t.data.as_slice()), twin.as_deref())?;
     progress.solve_done();
     let c = op.cube_shape();
     let cube = SpectralCube::new(c.height, c.width, record.bands_nm().to_vec(), solved.cube, "reconstructed cube")?;
-    let json = serde_json::json!({
+    let mut json = serde_json::json!({
         "version": env!("CARGO_PKG_VERSION"),
         "from": record.dir.display().to_string(),
         "system": record.system.name(),
@@ -206,6 +227,12 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
         "seconds_operator": seconds_operator,
         "seconds_solve": solved.seconds,
     });
+    if let (Some(p), Some(o)) = (&unrolled_net, json.as_object_mut()) {
+        // The interface other checks read: the weights and their CRC-32 at the top level.
+        o.insert("weights".into(), serde_json::json!(p.net.source));
+        o.insert("weights_crc32".into(), serde_json::json!(p.net.crc32));
+        o.insert("warnings".into(), serde_json::json!(p.check.warnings));
+    }
     Ok(Reconstructed {
         cube,
         record: json,

@@ -33,6 +33,11 @@ pub struct SolveSettings {
     pub noise: Option<NoiseEstimate>,
     /// How the exact operator's Monte-Carlo term of δ is estimated (`--noise-estimate`).
     pub noise_model: NoiseModel,
+    /// `unrolled`: the network's weights file (`None`: the committed weights of the render's system).
+    pub weights: Option<PathBuf>,
+    /// `unrolled`: the network loaded and checked against the render record ([`super::unrolled::prepare`]);
+    /// the solve needs it.
+    pub unrolled: Option<std::sync::Arc<super::unrolled::PreparedUnrolled>>,
 }
 
 impl SolveSettings {
@@ -53,13 +58,18 @@ impl SolveSettings {
             discrepancy: None,
             noise: None,
             noise_model: NoiseModel::Spread,
+            weights: None,
+            unrolled: None,
         }
     }
 }
 
 /// The solver configuration the settings describe (the solver's defaults, overridden by iterations / TV weight).
 pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
-    let kind: SolverKind = s.solver.parse().map_err(|_| Error::invalid(format!("--solver `{}`: use {}", s.solver, crate::recon::solver::SOLVER_NAMES)))?;
+    if super::unrolled::is_unrolled(&s.solver) {
+        return Err(Error::invalid("internal: --solver unrolled has no iterative solver configuration (recon::pipeline::unrolled)"));
+    }
+    let kind: SolverKind = s.solver.parse().map_err(|_| Error::invalid(format!("--solver `{}`: use {}, or unrolled", s.solver, crate::recon::solver::SOLVER_NAMES)))?;
     let mut cfg = SolverConfig::for_solver(kind);
     if let Some(n) = s.iterations {
         cfg.iterations = n;
@@ -123,11 +133,46 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
     Ok(cfg)
 }
 
-/// Reject an unknown solver or bad solver settings before any work (PnP: the weights are loaded and checked).
+/// Reject an unknown solver or bad solver settings before any work (PnP: the weights are loaded and checked;
+/// unrolled: its options and `--weights` file).
 pub fn check_solver(s: &SolveSettings) -> Result<()> {
+    if super::unrolled::is_unrolled(&s.solver) {
+        return check_unrolled_settings(s);
+    }
+    if s.weights.is_some() {
+        return Err(Error::invalid(format!("--weights applies to --solver unrolled only (the unrolled network's weights), not `{}`; the PnP solvers' network is --denoiser", s.solver)));
+    }
     let cfg = solver_config(s)?;
     if cfg.solver.is_pnp() {
         crate::recon::solver::config_denoiser(&cfg)?;
     }
     Ok(())
+}
+
+/// The settings `unrolled` takes, checked before any work: the iterative solvers' options are refused (the
+/// network has a fixed number of stages, its weights' `stages`), and a `--weights` file is read and checked
+/// (format, architecture, tensors).
+fn check_unrolled_settings(s: &SolveSettings) -> Result<()> {
+    let mut given: Vec<&str> = Vec::new();
+    for (flag, on) in [
+        ("--iterations", s.iterations.is_some()),
+        ("--tv-weight", s.tv_weight.is_some()),
+        ("--accelerated", s.accelerated),
+        ("--plain", s.plain),
+        ("--denoiser", s.denoiser.is_some()),
+        ("--sigma-max", s.sigma_max.is_some()),
+        ("--sigma-min", s.sigma_min.is_some()),
+        ("--sigma-auto", s.sigma_auto),
+        ("--tolerance", s.tolerance.is_some()),
+        ("--tv-warmup", s.tv_warmup.is_some()),
+        ("--discrepancy", s.discrepancy.is_some()),
+    ] {
+        if on {
+            given.push(flag);
+        }
+    }
+    if !given.is_empty() {
+        return Err(Error::invalid(format!("{}: not options of --solver unrolled (a fixed number of stages, the weights' `stages`; no iterations, prior or stopping rule to set)", given.join(", "))));
+    }
+    super::unrolled::check_weights_file(s.weights.as_deref())
 }

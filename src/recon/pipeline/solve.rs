@@ -65,7 +65,14 @@ pub fn run_solver(
 /// measuring defaults and stopping rules (the solver never sees it).
 /// With a [`SpreadPlan`](super::SpreadPlan) in `s.noise` and its `twin`, δ's Monte-Carlo term is re-estimated during the solve
 /// (and, with `truth`, the estimator at the truth is recorded as `truth_spread_estimate`).
+/// `unrolled` ([`super::unrolled::solve_unrolled`]): `s.unrolled` must hold the prepared network; no δ, no twin.
 pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, progress: &(dyn Fn(usize, f64) + Sync), truth: Option<&[f32]>, twin: Option<&dyn Operator>) -> Result<Solved> {
+    if super::unrolled::is_unrolled(&s.solver) {
+        // The unrolled network (no iterations, no δ): prepared from the render record by the caller.
+        let p = s.unrolled.as_deref().ok_or_else(|| Error::invalid("internal: --solver unrolled needs its network prepared against the render record (recon::pipeline::unrolled::prepare)"))?;
+        let u = super::unrolled::solve_unrolled(op, y, p, truth, progress)?;
+        return Ok(Solved { cube: u.cube, residuals: u.residuals, final_residual: u.final_residual, settings: u.settings, stopping: u.stopping, seconds: u.seconds });
+    }
     let cfg = solver_config(s)?;
     let plan = s.noise.as_ref().and_then(|n| n.spread.clone());
     let spread = match (&plan, twin) {

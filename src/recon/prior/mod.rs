@@ -26,6 +26,7 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 pub mod network;
+pub mod unrolled;
 pub mod tv;
 
 use super::operator::CubeShape;

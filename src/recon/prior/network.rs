@@ -103,11 +103,38 @@ pub fn weights_crc32(path: Option<&Path>) -> Result<u32> {
     }
 }
 
-/// One convolution's weight and bias.
-struct Layer {
-    weight: Tensor,
+/// One convolution's weight and bias (also the layers of the unrolled network's stage denoisers,
+/// [`super::unrolled`]).
+pub(super) struct Layer {
+    pub(super) weight: Tensor,
     /// (1, C_out, 1, 1), ready to broadcast; `None` for the linear spectral maps (no bias).
-    bias: Option<Tensor>,
+    pub(super) bias: Option<Tensor>,
+}
+
+impl Layer {
+    /// The convolution (PyTorch's `Conv2d` with this `padding` and `stride`), its bias, then a ReLU if `relu`.
+    pub(super) fn conv(&self, x: &Tensor, padding: usize, stride: usize, relu: bool) -> Result<Tensor> {
+        let y = x.conv2d(&self.weight, padding, stride, 1, 1).map_err(cerr)?;
+        let y = match &self.bias {
+            Some(b) => y.broadcast_add(b).map_err(cerr)?,
+            None => y,
+        };
+        if relu {
+            y.relu().map_err(cerr)
+        } else {
+            Ok(y)
+        }
+    }
+
+    /// The 2×2 stride-2 transposed convolution and its bias, plus the skip connection.
+    pub(super) fn up(&self, x: &Tensor, skip: &Tensor) -> Result<Tensor> {
+        let y = x.conv_transpose2d(&self.weight, 0, 0, 2, 1).map_err(cerr)?;
+        let y = match &self.bias {
+            Some(b) => y.broadcast_add(b).map_err(cerr)?,
+            None => y,
+        };
+        (y + skip).map_err(cerr)
+    }
 }
 
 /// The network: its layers, in the order of `diffcassi/denoiser.py`'s graph.
@@ -179,7 +206,7 @@ fn graph(bands: usize, c: usize, k: usize) -> [(&'static str, bool, usize, usize
     ]
 }
 
-fn ferr(source: &str, m: impl Into<String>) -> Error {
+pub(super) fn ferr(source: &str, m: impl Into<String>) -> Error {
     Error::File { path: source.to_string(), message: m.into() }
 }
 
@@ -191,17 +218,22 @@ pub const MAX_WEIGHTS_BYTES: u64 = 1 << 30;
 /// `/dev/zero` would be read until memory runs out, a FIFO would block) of at most [`MAX_WEIGHTS_BYTES`];
 /// checked before it is opened.
 fn read_weights(path: &Path) -> Result<Vec<u8>> {
+    read_weights_as(path, "denoiser weights")
+}
+
+/// [`read_weights`] for the weights of `what` (named in the messages: `denoiser weights`, `unrolled weights`).
+pub(super) fn read_weights_as(path: &Path, what: &str) -> Result<Vec<u8>> {
     use std::io::Read;
     let name = path.display().to_string();
-    let cannot = |e: std::io::Error| ferr(&name, format!("cannot read the denoiser weights: {e}"));
+    let cannot = |e: std::io::Error| ferr(&name, format!("cannot read the {what}: {e}"));
     let meta = std::fs::metadata(path).map_err(cannot)?;
     if meta.is_dir() {
-        return Err(ferr(&name, "is a directory, not a weights file: the denoiser weights must be a safetensors file"));
+        return Err(ferr(&name, format!("is a directory, not a weights file: the {what} must be a safetensors file")));
     }
     if !meta.is_file() {
-        return Err(ferr(&name, "is not a regular file (a FIFO, socket or device such as /dev/zero): the denoiser weights must be a safetensors file"));
+        return Err(ferr(&name, format!("is not a regular file (a FIFO, socket or device such as /dev/zero): the {what} must be a safetensors file")));
     }
-    let too_big = |n: u64| ferr(&name, format!("{n} bytes: larger than the {MAX_WEIGHTS_BYTES} bytes (1 GiB) a denoiser weights file may have"));
+    let too_big = |n: u64| ferr(&name, format!("{n} bytes: larger than the {MAX_WEIGHTS_BYTES} bytes (1 GiB) a {what} file may have"));
     if meta.len() > MAX_WEIGHTS_BYTES {
         return Err(too_big(meta.len()));
     }
@@ -213,8 +245,25 @@ fn read_weights(path: &Path) -> Result<Vec<u8>> {
     Ok(bytes)
 }
 
-fn cerr(e: candle_core::Error) -> Error {
+pub(super) fn cerr(e: candle_core::Error) -> Error {
     Error::invalid(format!("denoiser network (candle): {e}"))
+}
+
+/// Tensor `name` of a safetensors file, checked: present, f32, of `shape`, finite; errors name the file
+/// (`source`), the tensor and `arch` (the architecture that needs it).
+pub(super) fn load_tensor(st: &safetensors::SafeTensors, source: &str, name: &str, shape: &[usize], arch: &str) -> Result<Tensor> {
+    let view = st.tensor(name).map_err(|_| ferr(source, format!("tensor `{name}` is missing ({arch} needs it, shape {shape:?})")))?;
+    if view.dtype() != safetensors::Dtype::F32 {
+        return Err(ferr(source, format!("tensor `{name}` is {:?}, expected F32", view.dtype())));
+    }
+    if view.shape() != shape {
+        return Err(ferr(source, format!("tensor `{name}` has shape {:?}, expected {shape:?} (weights for another band count or width?)", view.shape())));
+    }
+    let data: Vec<f32> = view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    if let Some(i) = data.iter().position(|v| !v.is_finite()) {
+        return Err(ferr(source, format!("tensor `{name}` value {i} is {} (not finite)", data[i])));
+    }
+    Tensor::from_vec(data, shape, &Device::Cpu).map_err(cerr)
 }
 
 impl SpectralUNet {
@@ -298,42 +347,15 @@ impl SpectralUNet {
 
     /// Tensor `name` of the file, checked: present, f32, of `shape`, finite.
     fn tensor(st: &safetensors::SafeTensors, source: &str, name: &str, shape: &[usize]) -> Result<Tensor> {
-        let view = st.tensor(name).map_err(|_| ferr(source, format!("tensor `{name}` is missing ({ARCH} needs it, shape {shape:?})")))?;
-        if view.dtype() != safetensors::Dtype::F32 {
-            return Err(ferr(source, format!("tensor `{name}` is {:?}, expected F32", view.dtype())));
-        }
-        if view.shape() != shape {
-            return Err(ferr(source, format!("tensor `{name}` has shape {:?}, expected {shape:?} (weights for another band count or width?)", view.shape())));
-        }
-        let data: Vec<f32> = view.data().chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
-        if let Some(i) = data.iter().position(|v| !v.is_finite()) {
-            return Err(ferr(source, format!("tensor `{name}` value {i} is {} (not finite)", data[i])));
-        }
-        Tensor::from_vec(data, shape, &Device::Cpu).map_err(cerr)
+        load_tensor(st, source, name, shape, ARCH)
     }
 
     fn conv(&self, i: usize, x: &Tensor, padding: usize, stride: usize, relu: bool) -> Result<Tensor> {
-        let l = &self.layers[i];
-        let y = x.conv2d(&l.weight, padding, stride, 1, 1).map_err(cerr)?;
-        let y = match &l.bias {
-            Some(b) => y.broadcast_add(b).map_err(cerr)?,
-            None => y,
-        };
-        if relu {
-            y.relu().map_err(cerr)
-        } else {
-            Ok(y)
-        }
+        self.layers[i].conv(x, padding, stride, relu)
     }
 
     fn up(&self, i: usize, x: &Tensor, skip: &Tensor) -> Result<Tensor> {
-        let l = &self.layers[i];
-        let y = x.conv_transpose2d(&l.weight, 0, 0, 2, 1).map_err(cerr)?;
-        let y = match &l.bias {
-            Some(b) => y.broadcast_add(b).map_err(cerr)?,
-            None => y,
-        };
-        (y + skip).map_err(cerr)
+        self.layers[i].up(x, skip)
     }
 
     /// The graph on x (1, bands, H, W) and the σ plane (1, 1, H, W), H and W multiples of 4: returns

@@ -1,0 +1,113 @@
+//! `--solver unrolled` in the pipeline: the unrolled network's weights chosen (`--weights FILE`, or the
+//! committed weights of the render's system) and checked against the render record before any operator is
+//! built ([`prepare`]: system, band count and wavelengths refused when they differ; mask, planes, rays and
+//! Airy diameter warned about), then the forward pass ([`crate::recon::unrolled::unrolled`]) as the pipeline's
+//! solve ([`solve_unrolled`], returning the same [`Solved`] record as the iterative solvers, so `reconstruct`
+//! and `study` write it the same way).
+use super::record::RenderRecord;
+use crate::error::{Error, Result};
+use crate::recon::prior::unrolled::{CheckReport, Target, UnrolledNetwork};
+use crate::recon::Operator;
+use serde_json::Value;
+use std::path::Path;
+
+/// The solver name.
+pub const SOLVER: &str = "unrolled";
+
+/// Whether `solver` names the unrolled network.
+pub fn is_unrolled(solver: &str) -> bool {
+    solver.trim() == SOLVER
+}
+
+/// A network loaded and checked against a render record ([`prepare`]).
+pub struct PreparedUnrolled {
+    pub net: UnrolledNetwork,
+    pub check: CheckReport,
+}
+
+impl std::fmt::Debug for PreparedUnrolled {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "PreparedUnrolled({:?}, {} warnings)", self.net, self.check.warnings.len())
+    }
+}
+
+/// A `--weights` file read and checked (format, architecture, tensors) before any work; `None` passes.
+pub fn check_weights_file(weights: Option<&Path>) -> Result<()> {
+    if let Some(p) = weights {
+        UnrolledNetwork::from_file(p)?;
+    }
+    Ok(())
+}
+
+/// Refuse, before any work, weights that cannot serve the system named `system` (a `--weights` file
+/// trained for another system, or no committed weights for it).
+pub fn check_system(weights: Option<&Path>, system: &str) -> Result<()> {
+    let net = UnrolledNetwork::load(weights, system)?;
+    if net.meta.system != system {
+        return Err(Error::File {
+            path: net.source.clone(),
+            message: format!("metadata `system` = `{}`: the network was trained for system `{}`, the acquisition is from `{system}` — refused (give weights trained for `{system}`)", net.meta.system, net.meta.system),
+        });
+    }
+    Ok(())
+}
+
+/// The network for `record`: the `weights` file or the committed weights of the record's system, checked against
+/// the record (its system, bands, mask, planes, operator rays — after any `--operator-rays` — and Airy
+/// diameter; `operator_seed` is recorded).
+pub fn prepare(weights: Option<&Path>, record: &RenderRecord, operator_seed: u64) -> Result<PreparedUnrolled> {
+    let system = record.system.name();
+    let net = UnrolledNetwork::load(weights, system)?;
+    let c = &record.config;
+    let check = net.check(&Target {
+        system,
+        bands_nm: record.bands_nm(),
+        mask: &record.mask.values,
+        mask_height: record.mask.height,
+        mask_width: record.mask.width,
+        planes: c.spectral.planes(),
+        rays: c.rays_per_pixel,
+        airy_diameter_px: c.airy.map(|a| a.diameter_px),
+        operator_seed: Some(operator_seed),
+    })?;
+    Ok(PreparedUnrolled { net, check })
+}
+
+/// The result of [`solve_unrolled`] (the pipeline's `Solved` is made from it).
+pub struct UnrolledSolve {
+    pub cube: Vec<f32>,
+    /// Per stage k: ‖y − Φx_{k−1}‖₂/‖y‖₂.
+    pub residuals: Vec<f64>,
+    pub final_residual: f64,
+    /// The network, its scale and the checks against the record.
+    pub settings: Value,
+    /// A fixed number of stages (and, with a truth, the PSNR of every stage).
+    pub stopping: Value,
+    pub seconds: f64,
+}
+
+/// The unrolled network on `op` and `y` as a pipeline solve: the cube, the per-stage residuals, the record
+/// (`settings`: the network and the checks; `stopping`: a fixed number of stages) and, with a `truth` cube,
+/// the PSNR of every stage's output (`stopping.psnr_per_iteration`) and ‖y − Φx_true‖/‖y‖. `progress(k,
+/// residual)` after stage k.
+pub fn solve_unrolled(op: &dyn Operator, y: &[f32], p: &PreparedUnrolled, truth: Option<&[f32]>, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<UnrolledSolve> {
+    let shape = op.cube_shape();
+    let mut psnrs: Vec<f64> = Vec::new();
+    let out = crate::recon::unrolled::unrolled(op, y, &p.net, &mut |k, x, r| {
+        if let Some(t) = truth {
+            psnrs.push(crate::recon::metrics::psnr_db(t, x, shape).unwrap_or(f64::NAN));
+        }
+        progress(k, r);
+    })?;
+    let mut stopping = serde_json::json!({"rule": "none (a fixed number of stages)", "stopped_by": "stages", "stages": p.net.stages()});
+    if let (Some(t), Some(o)) = (truth, stopping.as_object_mut()) {
+        let mut phi_t = vec![0.0f32; y.len()];
+        op.apply_into(t, &mut phi_t);
+        let ny = y.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+        let r = y.iter().zip(&phi_t).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>().sqrt();
+        o.insert("truth_residual".into(), serde_json::json!(if ny > 0.0 { r / ny } else { 0.0 }));
+        o.insert("psnr_per_iteration".into(), serde_json::json!(psnrs));
+    }
+    let settings = serde_json::json!({"network": p.net.describe(), "scale": out.scale, "checks": p.check.record});
+    Ok(UnrolledSolve { cube: out.cube, residuals: out.residuals, final_residual: out.final_residual, settings, stopping, seconds: out.seconds })
+}
