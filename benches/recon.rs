@@ -21,17 +21,9 @@ use diffcassi::scene::synthetic_scene;
 use std::sync::Mutex;
 use std::time::Instant;
 
-fn env_usize(name: &str) -> Option<usize> {
-    std::env::var(name).ok().and_then(|v| v.parse().ok())
-}
-
-/// CPU seconds (user + system) of this process, from /proc/self/stat (Linux; NaN elsewhere).
-fn cpu_seconds() -> f64 {
-    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
-    let f: Vec<&str> = s.rsplit(')').next().unwrap_or("").split_whitespace().collect();
-    let field = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
-    (field(11) + field(12)) / 100.0
-}
+#[path = "common/mod.rs"]
+mod common;
+use common::{env_usize, cpu_seconds};
 
 fn main() {
     let bench_mode = std::env::args().any(|a| a == "--bench");

@@ -17,22 +17,9 @@ use diffcassi::render::{Mask, RenderConfig, Renderer};
 use diffcassi::scene::synthetic_scene;
 use std::time::Instant;
 
-fn env_usize(name: &str) -> Option<usize> {
-    std::env::var(name).ok().and_then(|v| v.parse().ok())
-}
-
-/// CPU seconds (user + system) of this process, from /proc/self/stat (Linux; NaN elsewhere).
-fn cpu_seconds() -> f64 {
-    let Ok(s) = std::fs::read_to_string("/proc/self/stat") else { return f64::NAN };
-    let f: Vec<&str> = s.rsplit(')').next().unwrap_or("").split_whitespace().collect();
-    let field = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
-    (field(11) + field(12)) / 100.0
-}
-
-/// The load average over the last minute (Linux; NaN elsewhere).
-fn load_average() -> f64 {
-    std::fs::read_to_string("/proc/loadavg").ok().and_then(|s| s.split_whitespace().next().and_then(|v| v.parse().ok())).unwrap_or(f64::NAN)
-}
+#[path = "common/mod.rs"]
+mod common;
+use common::{env_usize, cpu_seconds, load_average};
 
 fn main() {
     let bench_mode = std::env::args().any(|a| a == "--bench");

@@ -473,18 +473,8 @@ impl SpectralUNet {
     fn run(&self, x: &[f32], out: &mut [f32], h: usize, w: usize, sigma: f32) -> Result<()> {
         let b = self.bands;
         // (1, B, Hp, Wp), padded at the bottom/right by edge replication, and the σ plane.
-        let (hp, wp) = (h.div_ceil(4) * 4, w.div_ceil(4) * 4);
+        let (input, hp, wp) = padded_band_planes(x, h, w, b);
         let plane = hp * wp;
-        let mut input = vec![0.0f32; b * plane];
-        for r in 0..hp {
-            let rs = r.min(h - 1);
-            for c in 0..wp {
-                let src = &x[(rs * w + c.min(w - 1)) * b..][..b];
-                for (k, v) in src.iter().enumerate() {
-                    input[k * plane + r * wp + c] = *v;
-                }
-            }
-        }
         let t = Tensor::from_vec(input, (1, b, hp, wp), &Device::Cpu).map_err(cerr)?;
         let s = Tensor::from_vec(vec![sigma; plane], (1, 1, hp, wp), &Device::Cpu).map_err(cerr)?;
         let y = self.forward(&t, &s)?.flatten_all().and_then(|n| n.to_vec1::<f32>()).map_err(cerr)?;
@@ -500,3 +490,22 @@ impl SpectralUNet {
         Ok(())
     }
 }
+
+/// A `h × w × b` cube ([row][col][band]) as `b` band planes (band-major, the (1, B, Hp, Wp) tensor layout) of
+/// `hp × wp`, the sides rounded up to multiples of 4 and padded at the bottom and right by edge replication
+/// (what the U-Nets' two 2× downsamplings need). Returns the planes, hp and wp.
+pub(crate) fn padded_band_planes(x: &[f32], h: usize, w: usize, b: usize) -> (Vec<f32>, usize, usize) {
+    let (hp, wp) = (h.div_ceil(4) * 4, w.div_ceil(4) * 4);
+    let plane = hp * wp;
+    let mut input = vec![0.0f32; b * plane];
+    for r in 0..hp {
+        let rs = r.min(h - 1);
+        for c in 0..wp {
+            for (k, v) in x[(rs * w + c.min(w - 1)) * b..][..b].iter().enumerate() {
+                input[k * plane + r * wp + c] = *v;
+            }
+        }
+    }
+    (input, hp, wp)
+}
+

@@ -322,18 +322,9 @@ impl UnrolledNetwork {
             return Err(Error::invalid(format!("unrolled stage {k}: a {h}×{w}×{b} cube needs {} values (got {} in, {} out; {} stages)", h * w * b, v.len(), out.len(), self.stages.len())));
         }
         let l = &self.stages[k];
-        let (hp, wp) = (h.div_ceil(4) * 4, w.div_ceil(4) * 4);
-        let plane = hp * wp;
         // (1, B, Hp, Wp), padded at the bottom/right by edge replication.
-        let mut input = vec![0.0f32; b * plane];
-        for r in 0..hp {
-            let rs = r.min(h - 1);
-            for c in 0..wp {
-                for (j, x) in v[(rs * w + c.min(w - 1)) * b..][..b].iter().enumerate() {
-                    input[j * plane + r * wp + c] = *x;
-                }
-            }
-        }
+        let (input, hp, wp) = super::network::padded_band_planes(v, h, w, b);
+        let plane = hp * wp;
         let x = Tensor::from_vec(input, (1, b, hp, wp), &Device::Cpu).map_err(cerr)?;
         let lin = l[LINEAR].conv(&x, 0, 1, false)?;
         let e1 = l[1].conv(&x, 1, 1, true)?;
