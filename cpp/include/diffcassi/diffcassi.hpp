@@ -319,7 +319,7 @@ struct SceneView {
 /// A loaded optical system. Immutable and thread-safe (see the top of this header).
 class System {
  public:
-  /// One of the presets "sp", "ap", "msp", "map", "gsp" (case-insensitive).
+  /// One of the presets "sp", "ap", "msp", "map", "gsp", "ddsp", "mddsp" (case-insensitive).
   static System preset(std::string_view name) {
     return System(detail::call([&] { return ffi::load_preset(detail::str(name)); }));
   }
