@@ -318,7 +318,12 @@ fn cli_renders_ddsp_and_reconstructs_with_every_solver() {
     for solver in ["gap-tv", "admm-tv", "pnp-gap", "pnp-admm"] {
         for op in ["exact", "mapping", "shift"] {
             let out = tmp.join(format!("rec-{solver}-{op}"));
-            run_ok(&["reconstruct", "--from", render.to_str().unwrap(), "--operator", op, "--solver", solver, "--iterations", "3", "--out", out.to_str().unwrap()]);
+            let mut args = vec!["reconstruct", "--from", render.to_str().unwrap(), "--operator", op, "--solver", solver, "--iterations", "4"];
+            if solver.starts_with("pnp") {
+                args.extend_from_slice(&["--tv-warmup", "2"]);
+            }
+            args.extend_from_slice(&["--out", out.to_str().unwrap()]);
+            run_ok(&args);
             assert!(out.join("cube.npy").is_file() && out.join("reconstruct.json").is_file(), "{solver} {op}");
         }
     }
