@@ -327,6 +327,10 @@ fn cli_renders_ddsp_and_reconstructs_with_every_solver() {
             assert!(out.join("cube.npy").is_file() && out.join("reconstruct.json").is_file(), "{solver} {op}");
         }
     }
+    // --tolerance-um chooses among what a mask surface supports (the analytic f64 path).
+    let tol = tmp.join("tol");
+    let text = run_ok(&["render", "--preset", "ddsp", "--scene-size", "8", "--planes", "4", "--tolerance-um", "2", "--calibration-cache", tmp.join("cache").to_str().unwrap(), "--out", tol.to_str().unwrap()]);
+    assert!(text.contains("→ --backend analytic --rays"), "{text}");
     let scenes = tmp.join("scenes");
     std::fs::create_dir_all(&scenes).unwrap();
     std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/data/scenes/chelsea.png"), scenes.join("chelsea.png")).unwrap();

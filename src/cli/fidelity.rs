@@ -85,7 +85,12 @@ pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, precision: Option
         return Err(Error::invalid(format!("--tolerance-um {t} chooses the precision itself; it cannot be combined with --precision {p}")));
     }
     let cache = cache_options(a);
-    let (cal, prov) = fidelity::calibrate_backends(system, &config.spectral.planes_nm, &cache)?;
+    let (mut cal, prov) = fidelity::calibrate_backends(system, &config.spectral.planes_nm, &cache)?;
+    if system.coded_mask.is_some() {
+        // A coded-mask surface renders through the analytic backend's f64 direct path only (render::Renderer::new):
+        // the other candidates stay measured but cannot be chosen.
+        cal.candidates.retain(|m| m.backend == "analytic");
+    }
     let (rc, prov2) = fidelity::calibrate_render(system, config, &cache)?;
     let per_n = (open_pixels * config.spectral.planes()) as u64;
     let choice = fidelity::choose_render(&cal, &rc, t, per_n)?;

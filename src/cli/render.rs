@@ -259,7 +259,8 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
 /// The tracer and rays per pixel: as given, or chosen by `--tolerance-um`; sets `cfg.precision` (given,
 /// or chosen by the tolerance).
 pub(super) fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &mut RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
-    let open = mask.values.iter().filter(|&&v| v > 0.0).count();
+    // Traced pixels: the open ones, or every pixel when the mask is a surface inside the system.
+    let open = if system.coded_mask.is_some() { mask.values.len() } else { mask.values.iter().filter(|&&v| v > 0.0).count() };
     let (tracer, rays, precision) = super::fidelity::render_for(&a.backend, a.rays, a.precision, system, cfg, open)?;
     cfg.precision = precision;
     Ok((tracer, rays))
