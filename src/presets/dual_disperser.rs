@@ -9,7 +9,7 @@
 //! detector where SP's object plane is mirrored. Mirroring (M = diag(1, 1, −1) about the mask's vertex) a
 //! surface whose vertex frame is G gives the right-handed frame M·G·M′ (M′ = diag(1, 1, −1) in local
 //! coordinates; its +z is the direction of travel away from the mask), in which the surface's local points are
-//! (x, y, −z): **radii, conics kept, asphere terms and radii change sign, apertures and x, y are kept**. The
+//! (x, y, −z): **radii and asphere terms change sign; conics, apertures and x, y are kept**. The
 //! frame steps follow from G_{i+1} = G_i·C_i·T_z(t_i) (C_i the Coordinate Break of surface i):
 //! H_i = H_{i+1}·T_z(t_i)·(M′ C_i⁻¹ M′), so the mirrored surface i comes at the thickness t_i after mirrored
 //! surface i + 1, carries the thickness t_{i−1}, and the medium after old surface i − 1; a Coordinate Break
@@ -52,12 +52,11 @@ pub fn dd_spec(misaligned: bool) -> Result<SystemSpec> {
     }
     let last = sp.surfaces.len() - 1; // SP's image surface: the mask
     let mut surfaces: Vec<SurfaceSpec> = sp.surfaces[..last].to_vec();
+    // Its thickness is SP's last gap (surface 18 → image): the mirrored doublet sits there.
     let mut mask = SurfaceSpec::standard(None, resolved.surfaces[last - 1].thickness_mm.value, None);
     mask.comment = "coded mask (SP's image plane)".into();
     mask.semi_diameter_mm = resolved.surfaces[last].semi_diameter_mm;
     mask.coded_mask = Some(CodedMaskSpec { pitch_um: DD_MASK_PITCH_UM, sampling: MaskSampling::Nearest });
-    // The mask surface's thickness is SP's last gap (surface 18 → image): the mirrored doublet sits there.
-    mask.thickness_mm = Cell::fixed(resolved.surfaces[last - 1].thickness_mm.value);
     surfaces.push(mask);
     surfaces.extend(mirrored_arm(&second.surfaces[..last]));
     let mut image = SurfaceSpec::standard(None, 0.0, None);
