@@ -23,7 +23,7 @@ use std::time::Instant;
 
 #[path = "common/mod.rs"]
 mod common;
-use common::{env_usize, cpu_seconds};
+use common::{env_usize, cpu_seconds, median_timing};
 
 fn main() {
     let bench_mode = std::env::args().any(|a| a == "--bench");
@@ -69,17 +69,7 @@ fn main() {
     }
 
     // One-shot timings for the table (median of 5 for the operators and the TV; wall and CPU seconds).
-    let median = |f: &mut dyn FnMut()| {
-        let mut v: Vec<(f64, f64)> = (0..5)
-            .map(|_| {
-                let (t, c) = (Instant::now(), cpu_seconds());
-                f();
-                (t.elapsed().as_secs_f64(), cpu_seconds() - c)
-            })
-            .collect();
-        v.sort_by(|a, b| a.0.total_cmp(&b.0));
-        v[2]
-    };
+    let median = |f: &mut dyn FnMut()| median_timing(5, f);
     let t_apply = median(&mut || phi.apply_into(&truth, &mut image));
     let t_adjoint = median(&mut || phi.adjoint_into(&y, &mut cube));
     let mut denoised = vec![0.0f32; cs.len()];

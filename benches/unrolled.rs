@@ -19,7 +19,7 @@ use std::time::Instant;
 
 #[path = "common/mod.rs"]
 mod common;
-use common::{env_usize, cpu_seconds, load_average};
+use common::{env_usize, cpu_seconds, median_timing, load_average};
 
 fn main() {
     let bench_mode = std::env::args().any(|a| a == "--bench");
@@ -40,17 +40,7 @@ fn main() {
     let truth = synthetic_scene(size, size, &bands, 3).data;
     let y = phi.apply(&truth).unwrap();
     let net = UnrolledNetwork::committed("sp").unwrap();
-    let median = |f: &mut dyn FnMut()| {
-        let mut v: Vec<(f64, f64)> = (0..3)
-            .map(|_| {
-                let (t, c) = (Instant::now(), cpu_seconds());
-                f();
-                (t.elapsed().as_secs_f64(), cpu_seconds() - c)
-            })
-            .collect();
-        v.sort_by(|a, b| a.0.total_cmp(&b.0));
-        v[1]
-    };
+    let median = |f: &mut dyn FnMut()| median_timing(3, f);
     let mut image = vec![0.0f32; is.len()];
     let mut cube = vec![0.0f32; cs.len()];
     let t_apply = median(&mut || phi.apply_into(&truth, &mut image));

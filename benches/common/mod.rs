@@ -19,3 +19,16 @@ pub fn cpu_seconds() -> f64 {
 pub fn load_average() -> f64 {
     std::fs::read_to_string("/proc/loadavg").ok().and_then(|s| s.split_whitespace().next().and_then(|v| v.parse().ok())).unwrap_or(f64::NAN)
 }
+
+/// Run `f` `reps` times (odd) and return the (wall, CPU) seconds of the median run by wall time.
+pub fn median_timing(reps: usize, f: &mut dyn FnMut()) -> (f64, f64) {
+    let mut v: Vec<(f64, f64)> = (0..reps)
+        .map(|_| {
+            let (t, c) = (std::time::Instant::now(), cpu_seconds());
+            f();
+            (t.elapsed().as_secs_f64(), cpu_seconds() - c)
+        })
+        .collect();
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    v[reps / 2]
+}

@@ -22,13 +22,15 @@ pub mod operators;
 pub mod record;
 pub mod settings;
 pub mod solve;
+pub mod solved;
 pub mod unrolled;
 
 pub use noise::{noise_estimate, twin_seed, NoiseEstimate, NoiseModel, SpreadPlan, MC_MISMATCH_PER_RAY};
 pub use operators::{build_operator, operator_seed, OperatorKind};
 pub use record::RenderRecord;
 pub use settings::{check_solver, solver_config, SolveSettings};
-pub use solve::{run_solver, solve, solve_observed, Solved};
+pub use solve::{run_solver, solve, solve_observed};
+pub use solved::Solved;
 pub use unrolled::{is_unrolled, PreparedUnrolled};
 
 use crate::error::{Error, Result};

@@ -3,22 +3,10 @@
 //! [`solve_observed`] (settings → configuration → solve → the record `reconstruct` and `study` write: the
 //! resolved settings, the residuals, the stopping record with the noise estimate).
 use super::settings::{solver_config, SolveSettings};
+use super::solved::{truth_residual, Solved};
 use crate::error::{Error, Result};
 use crate::recon::{MonteCarloSpread, Operator, Reconstruction, SolverConfig};
 use serde_json::Value;
-
-/// The result of a solve: the cube (C order), the per-iteration relative data residual, the solver's
-/// resolved settings and record (JSON) and seconds.
-pub struct Solved {
-    pub cube: Vec<f32>,
-    /// Per iteration k: ‖y − Φv_k‖₂ / ‖y‖₂ ([`crate::recon::Reconstruction::residuals`]).
-    pub residuals: Vec<f64>,
-    pub final_residual: f64,
-    pub settings: Value,
-    /// The stopping rule and what ended the run (`{"rule", "tolerance", "stopped_by", "relative_changes"}`).
-    pub stopping: Value,
-    pub seconds: f64,
-}
 
 /// Run the solver on `op` and the acquisition `y` (starting from 0); `progress(k, residual)` after each
 /// iteration k ([`crate::recon::reconstruct`]'s).
@@ -70,8 +58,7 @@ pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, progress:
     if super::unrolled::is_unrolled(&s.solver) {
         // The unrolled network (no iterations, no δ): prepared from the render record by the caller.
         let p = s.unrolled.as_deref().ok_or_else(|| Error::invalid("internal: --solver unrolled needs its network prepared against the render record (recon::pipeline::unrolled::prepare)"))?;
-        let u = super::unrolled::solve_unrolled(op, y, p, truth, progress)?;
-        return Ok(Solved { cube: u.cube, residuals: u.residuals, final_residual: u.final_residual, settings: u.settings, stopping: u.stopping, seconds: u.seconds });
+        return super::unrolled::solve_unrolled(op, y, p, truth, progress);
     }
     let cfg = solver_config(s)?;
     let plan = s.noise.as_ref().and_then(|n| n.spread.clone());
@@ -105,10 +92,8 @@ pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, progress:
     }
     let mut stopping = rec.stopping_record(y, noise_record);
     if let (Some(t), Some(o)) = (truth, stopping.as_object_mut()) {
-        let mut phi_t = vec![0.0f32; y.len()];
-        op.apply_into(t, &mut phi_t);
-        let r = y.iter().zip(&phi_t).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>().sqrt();
-        o.insert("truth_residual".into(), serde_json::json!(if ny > 0.0 { r / ny } else { 0.0 }));
+        let (phi_t, rel) = truth_residual(op, y, t);
+        o.insert("truth_residual".into(), serde_json::json!(rel));
         if let Some(sp) = &spread {
             // The estimator evaluated at the truth (what δ̂ at the iterate approximates), relative to ‖y‖.
             let mut scratch = Vec::new();

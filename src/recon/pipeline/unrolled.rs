@@ -5,10 +5,10 @@
 //! solve ([`solve_unrolled`], returning the same [`Solved`] record as the iterative solvers, so `reconstruct`
 //! and `study` write it the same way).
 use super::record::RenderRecord;
+use super::solved::Solved;
 use crate::error::{Error, Result};
 use crate::recon::prior::unrolled::{CheckReport, Target, UnrolledNetwork};
 use crate::recon::Operator;
-use serde_json::Value;
 use std::path::Path;
 
 /// The solver name.
@@ -73,24 +73,11 @@ pub fn prepare(weights: Option<&Path>, record: &RenderRecord, operator_seed: u64
     Ok(PreparedUnrolled { net, check })
 }
 
-/// The result of [`solve_unrolled`] (the pipeline's `Solved` is made from it).
-pub struct UnrolledSolve {
-    pub cube: Vec<f32>,
-    /// Per stage k: ‖y − Φx_{k−1}‖₂/‖y‖₂.
-    pub residuals: Vec<f64>,
-    pub final_residual: f64,
-    /// The network, its scale and the checks against the record.
-    pub settings: Value,
-    /// A fixed number of stages (and, with a truth, the PSNR of every stage).
-    pub stopping: Value,
-    pub seconds: f64,
-}
-
 /// The unrolled network on `op` and `y` as a pipeline solve: the cube, the per-stage residuals, the record
 /// (`settings`: the network and the checks; `stopping`: a fixed number of stages) and, with a `truth` cube,
 /// the PSNR of every stage's output (`stopping.psnr_per_iteration`) and ‖y − Φx_true‖/‖y‖. `progress(k,
 /// residual)` after stage k.
-pub fn solve_unrolled(op: &dyn Operator, y: &[f32], p: &PreparedUnrolled, truth: Option<&[f32]>, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<UnrolledSolve> {
+pub fn solve_unrolled(op: &dyn Operator, y: &[f32], p: &PreparedUnrolled, truth: Option<&[f32]>, progress: &(dyn Fn(usize, f64) + Sync)) -> Result<Solved> {
     let shape = op.cube_shape();
     let mut psnrs: Vec<f64> = Vec::new();
     let out = crate::recon::unrolled::unrolled(op, y, &p.net, &mut |k, x, r| {
@@ -101,13 +88,9 @@ pub fn solve_unrolled(op: &dyn Operator, y: &[f32], p: &PreparedUnrolled, truth:
     })?;
     let mut stopping = serde_json::json!({"rule": "none (a fixed number of stages)", "stopped_by": "stages", "stages": p.net.stages()});
     if let (Some(t), Some(o)) = (truth, stopping.as_object_mut()) {
-        let mut phi_t = vec![0.0f32; y.len()];
-        op.apply_into(t, &mut phi_t);
-        let ny = y.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
-        let r = y.iter().zip(&phi_t).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>().sqrt();
-        o.insert("truth_residual".into(), serde_json::json!(if ny > 0.0 { r / ny } else { 0.0 }));
+        o.insert("truth_residual".into(), serde_json::json!(super::solved::truth_residual(op, y, t).1));
         o.insert("psnr_per_iteration".into(), serde_json::json!(psnrs));
     }
     let settings = serde_json::json!({"network": p.net.describe(), "scale": out.scale, "checks": p.check.record});
-    Ok(UnrolledSolve { cube: out.cube, residuals: out.residuals, final_residual: out.final_residual, settings, stopping, seconds: out.seconds })
+    Ok(Solved { cube: out.cube, residuals: out.residuals, final_residual: out.final_residual, settings, stopping, seconds: out.seconds })
 }
