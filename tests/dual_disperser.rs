@@ -348,3 +348,215 @@ fn cli_renders_ddsp_and_reconstructs_with_every_solver() {
     }
     let _ = std::fs::remove_dir_all(&tmp);
 }
+
+/// `ddsp` with its mask sampled `sampling`, a differentiable renderer of a `size`² scene at bands around
+/// 520 nm (so that the dispersed image stays on the mask) with free parameters `free`.
+fn dd_diff_renderer(sampling: MaskSampling, free: &[&str], size: usize, seed: u64) -> diffcassi::render::gradient::DiffRenderer {
+    use diffcassi::diff::{Param, ParamSet};
+    let mut spec = presets::spec("ddsp").unwrap();
+    spec.surfaces[19].coded_mask.as_mut().unwrap().sampling = sampling;
+    let params: Vec<Param> = free.iter().map(|t| Param::parse(t).unwrap()).collect();
+    let set = ParamSet::new(spec, diffcassi::materials::GlassCatalog::builtin(), params).unwrap();
+    let mut cfg = RenderConfig::paper(size);
+    cfg.spectral = SpectralSampling::new(DD_BANDS.to_vec(), 1).unwrap();
+    cfg.rays_per_pixel = 2;
+    cfg.seed = seed;
+    diffcassi::render::gradient::DiffRenderer::new(set, cfg, DD_BANDS.to_vec()).unwrap()
+}
+
+const DD_BANDS: [f64; 3] = [516.0, 520.0, 524.0];
+
+/// A scene (N = 2), a mask with closed pixels and values in (0, 1], and an upstream gradient, from `seed`.
+fn dd_inputs(r: &diffcassi::render::gradient::DiffRenderer, seed: u64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let hw = r.config.scene_height * r.config.scene_width;
+    let scene: Vec<f64> = (0..2 * DD_BANDS.len() * hw).map(|_| rng.gen_range(0.0..1.0)).collect();
+    let mask: Vec<f64> = (0..hw).map(|_| rng.gen_range(0.0..1.0)).map(|v: f64| if v < 0.3 { 0.0 } else { v }).collect();
+    let (h, w) = r.image_shape();
+    let g: Vec<f64> = (0..2 * h * w).map(|_| rng.gen_range(-0.5..0.5)).collect();
+    (scene, mask, g)
+}
+
+/// `ddsp` cut after its mask surface (the mask surface made the image, its mask removed): where a ray crosses
+/// the mask, as a system whose forward-mode Jacobians ([`DiffSystem::trace`]) give the crossing point's
+/// derivatives.
+fn ddsp_to_the_mask() -> diffcassi::spec::SystemSpec {
+    let mut spec = presets::spec("ddsp").unwrap();
+    spec.surfaces.truncate(20);
+    spec.surfaces[19].coded_mask = None;
+    spec
+}
+
+/// Object-space rays of `ddsp` (fields × pupil points × DD_BANDS), unit directions, from the paraxial
+/// entrance-pupil aim the differentiable renderer uses.
+fn dd_rays(sys: &SequentialSystem) -> RayBatch {
+    let aim = diffcassi::rays::PupilAim::of(sys);
+    let mut rays = RayBatch::with_capacity(64);
+    for f in [[0.0, 0.0], [0.03, -0.02], [-0.035, 0.025]] {
+        for pu in [[0.0, 0.0], [0.5, 0.3], [-0.4, -0.6]] {
+            for l in DD_BANDS {
+                let d = glam::DVec3::from(aim.direction(f[0], f[1], pu[0], pu[1]));
+                rays.push(glam::DVec3::new(f[0], f[1], 0.0), d / d.length(), l);
+            }
+        }
+    }
+    rays
+}
+
+/// Steps for central differences that move landings on the detector and crossings on the mask by ~1e-5 of a
+/// 10 µm pixel at most (forward-mode Jacobians of chief and marginal rays), so that few rays cross a kink of
+/// the bilinear splat or mask (their derivatives jump there; a whole ray's status change is rarer still).
+fn dd_fd_steps(free: &[&str]) -> Vec<f64> {
+    use diffcassi::diff::{Param, ParamSet};
+    let cat = diffcassi::materials::GlassCatalog::builtin();
+    let full = presets::spec("ddsp").unwrap();
+    let rays = dd_rays(&SequentialSystem::build(&full).unwrap());
+    free.iter()
+        .map(|name| {
+            let mut motion = 0.0f64;
+            for spec in [full.clone(), ddsp_to_the_mask()] {
+                // A parameter of a surface past the mask does not move the crossing.
+                let Ok(set) = ParamSet::new(spec, cat.clone(), vec![Param::parse(name).unwrap()]) else { continue };
+                let j = set.build().unwrap().trace(&rays).unwrap();
+                for i in (0..rays.len()).filter(|&i| j.usable(i)) {
+                    let d = j.d_position(i, 0);
+                    motion = motion.max(d.x.abs()).max(d.y.abs());
+                }
+            }
+            assert!(motion > 0.0, "{name} moves nothing");
+            1e-7 / motion
+        })
+        .collect()
+}
+
+/// The seeded reverse sweep gives the derivatives of where a ray crosses the mask surface: with λ = 0 at the
+/// detector and ∂L/∂(crossing) = eₓ or e_y at the mask's step, the contracted sums equal the forward-mode
+/// Jacobian of the same ray traced to the mask (a system cut there) — for parameters of the first arm, of
+/// the mask's distance, and of glasses on both sides — to 1e-10 of each column's largest entry.
+#[test]
+fn seeded_sweep_gives_the_crossing_points_forward_tangents() {
+    use diffcassi::diff::adjoint::{AdjointPlan, AdjointSums, RayTape};
+    use diffcassi::diff::{Param, ParamSet};
+    let free = ["s5.tilt_y_deg", "s15.thickness_mm", "s16.curvature", "s17.radius_mm", "s18.thickness_mm", "glass_nd:N-BK7", "glass_vd:SF10"];
+    let params: Vec<Param> = free.iter().map(|t| Param::parse(t).unwrap()).collect();
+    let cat = diffcassi::materials::GlassCatalog::builtin();
+    let full = ParamSet::new(presets::spec("ddsp").unwrap(), cat.clone(), params.clone()).unwrap().build().unwrap();
+    let half = ParamSet::new(ddsp_to_the_mask(), cat, params).unwrap().build().unwrap();
+    let step = full.system.coded_mask.unwrap().step;
+    let rays = dd_rays(&full.system);
+    let j = half.trace(&rays).unwrap();
+    let kk = free.len();
+    // (sweep, forward) per ray coordinate and parameter.
+    let mut pairs: Vec<(Vec<f64>, Vec<f64>)> = Vec::new();
+    for &l in &DD_BANDS {
+        let plan = AdjointPlan::new(&full, &[l]).unwrap();
+        let (n, dn) = full.index_tangents(l).unwrap();
+        let mut tape = RayTape::default();
+        for i in (0..rays.len()).filter(|&i| rays.wavelength_nm[i] == l && j.usable(i)) {
+            plan.trace(&full, &n, rays.origin(i), rays.direction(i), &mut tape).unwrap();
+            let q = tape.point(step).unwrap();
+            assert!((q.x - j.traced.x[i]).abs() < 1e-12 && (q.y - j.traced.y[i]).abs() < 1e-12, "ray {i}: the same crossing");
+            for c in 0..2 {
+                let mut sums = AdjointSums::new(&plan);
+                let e = if c == 0 { glam::DVec3::X } else { glam::DVec3::Y };
+                assert!(plan.backward_seeded(&full, &mut tape, [0.0; 6], Some((step, e)), &mut sums));
+                let mut grad = vec![0.0; kk];
+                plan.contract(&full, &sums, &dn, &mut grad);
+                let fwd: Vec<f64> = (0..kk).map(|k| if c == 0 { j.d_position(i, k).x } else { j.d_position(i, k).y }).collect();
+                pairs.push((grad, fwd));
+            }
+        }
+    }
+    let checked = pairs.len();
+    let mut worst = 0.0f64;
+    for k in 0..kk {
+        let scale = pairs.iter().fold(0.0f64, |a, (_, f)| a.max(f[k].abs()));
+        assert!(scale > 0.0, "{} moves no crossing", free[k]);
+        let e = pairs.iter().fold(0.0f64, |a, (g, f)| a.max((g[k] - f[k]).abs())) / scale;
+        println!("{:>18}: largest |∂crossing/∂θ| {scale:.3e}, sweep − forward ≤ {e:.1e} of it", free[k]);
+        worst = worst.max(e);
+    }
+    println!("seeded sweep vs forward tangents of the crossing point: worst {worst:.2e} of the column's largest entry ({checked} ray coordinates)");
+    assert!(checked >= 40 && worst <= 1e-10, "{checked} checked, worst {worst:.2e}");
+}
+
+/// The implicit derivatives of rays that cross the mask surface (issue 44, item 3): ∂L/∂θ of the
+/// same-sample acquisition against central finite differences for parameters before the mask (they move the
+/// crossing point, read by the bilinear mask, and the landing), at it (its distance from the lens) and
+/// after it (the landing only); ∂L/∂mask and ∂L/∂scene exact (the acquisition is linear in both).
+#[test]
+fn gradients_through_the_mask_surface_match_finite_differences() {
+    let free = ["s5.tilt_y_deg", "s16.curvature", "s18.thickness_mm", "s20.radius_mm", "s25.tilt_y_deg", "glass_nd:N-BK7", "glass_nd:SF10"];
+    let r = dd_diff_renderer(MaskSampling::Bilinear, &free, 8, 11);
+    let steps = dd_fd_steps(&free);
+    let (scene, mask, g) = dd_inputs(&r, 4);
+    let loss = |r: &diffcassi::render::gradient::DiffRenderer, scene: &[f64], mask: &[f64]| -> f64 { r.render(scene, 2, mask).unwrap().iter().zip(&g).map(|(a, b)| a * b).sum() };
+    let v = r.vjp(&scene, 2, &mask, &g).unwrap();
+    let x0 = r.values().unwrap();
+    let scale = v.params.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    let mut worst = 0.0f64;
+    for k in 0..x0.len() {
+        let h = steps[k];
+        let at = |d: f64| {
+            let mut x = x0.clone();
+            x[k] += d;
+            loss(&r.with_values(&x).unwrap(), &scene, &mask)
+        };
+        let fd = (at(h) - at(-h)) / (2.0 * h);
+        let err = (fd - v.params[k]).abs() / v.params[k].abs().max(1e-3 * scale);
+        println!("ddsp bilinear {:>18}: step {h:.1e}  vjp {:+.9e}  fd {:+.9e}  rel {err:.1e}", free[k], v.params[k], fd);
+        worst = worst.max(err);
+    }
+    println!("ddsp bilinear: worst relative error {worst:.2e} over {} parameters", x0.len());
+    assert!(worst <= 1e-6, "worst relative error {worst:.2e}");
+    // Linear in the mask and the scene.
+    let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+    let l0 = loss(&r, &scene, &mask);
+    let close = |a: f64, b: f64, what: &str| {
+        let rel = (a - b).abs() / a.abs().max(b.abs());
+        println!("{what}: {a:+.15e} vs {b:+.15e} (rel {rel:.1e})");
+        assert!(rel < 1e-12, "{what}: {a} vs {b}");
+    };
+    close(l0, dot(&v.mask, &mask), "L vs ∂L/∂mask · mask");
+    close(l0, dot(&v.scene, &scene), "L vs ∂L/∂scene · scene");
+    let dm: Vec<f64> = (0..mask.len()).map(|i| ((i * 37 % 11) as f64) / 11.0).collect();
+    let m2: Vec<f64> = mask.iter().zip(&dm).map(|(a, b)| a + b).collect();
+    close(loss(&r, &scene, &m2) - l0, dot(&v.mask, &dm), "ΔL vs ∂L/∂mask · δ");
+    assert!(mask.iter().zip(&v.mask).any(|(m, gm)| *m == 0.0 && gm.abs() > 0.0), "closed mask pixels get a gradient");
+}
+
+/// With `nearest` sampling the transmission is piecewise constant (no crossing-point term): parameters after
+/// the mask, which do not move the crossing, match finite differences as with `bilinear`; and the gradients
+/// asked for alone are those of the full product, bit for bit.
+#[test]
+fn nearest_sampling_gradients_and_wanted_subsets() {
+    use diffcassi::render::gradient::Wanted;
+    let free = ["s20.radius_mm", "s25.tilt_y_deg", "s36.focal_length_mm"];
+    let r = dd_diff_renderer(MaskSampling::Nearest, &free, 8, 2);
+    let steps = dd_fd_steps(&free);
+    let (scene, mask, g) = dd_inputs(&r, 9);
+    let v = r.vjp(&scene, 2, &mask, &g).unwrap();
+    let x0 = r.values().unwrap();
+    let scale = v.params.iter().fold(0.0f64, |a, b| a.max(b.abs()));
+    for k in 0..x0.len() {
+        let h = steps[k];
+        let at = |d: f64| {
+            let mut x = x0.clone();
+            x[k] += d;
+            r.with_values(&x).unwrap().render(&scene, 2, &mask).unwrap().iter().zip(&g).map(|(a, b)| a * b).sum::<f64>()
+        };
+        let fd = (at(h) - at(-h)) / (2.0 * h);
+        let err = (fd - v.params[k]).abs() / v.params[k].abs().max(1e-3 * scale);
+        println!("ddsp nearest {:>18}: vjp {:+.9e}  fd {:+.9e}  rel {err:.1e}", r.set.free[k].name(), v.params[k], fd);
+        assert!(v.params[k] != 0.0 && err <= 1e-6, "{}: {err}", r.set.free[k].name());
+    }
+    for w in [Wanted { params: true, mask: false, scene: false }, Wanted { params: false, mask: true, scene: true }] {
+        let part = r.vjp_wanted(&scene, 2, &mask, &g, w).unwrap();
+        assert_eq!((part.params.is_empty(), part.mask.is_empty(), part.scene.is_empty()), (!w.params, !w.mask, !w.scene));
+        if w.params {
+            assert_eq!(part.params, v.params);
+        } else {
+            assert_eq!((part.mask, part.scene), (v.mask.clone(), v.scene.clone()));
+        }
+    }
+}

@@ -148,6 +148,14 @@ pub struct AdjointSums {
     pub(crate) index: Vec<f64>,
 }
 
+impl RayTape {
+    /// The hit point of path step `step` in that step's frame (the ray's position after the step), if the
+    /// last [`AdjointPlan::trace`] got that far.
+    pub fn point(&self, step: usize) -> Option<DVec3> {
+        self.states.get(step).map(|s| s.q)
+    }
+}
+
 impl AdjointSums {
     pub fn new(plan: &AdjointPlan) -> Self {
         let s = plan.steps.len();
@@ -247,6 +255,16 @@ impl AdjointPlan {
     ///   ray point δp + t δd and the figure;
     /// - μ = n₁/n₂: n̄₁ = μ̄/n₂, n̄₂ = −μ μ̄/n₂.
     pub fn backward(&self, ds: &DiffSystem, tape: &mut RayTape, lambda: [f64; 6], sums: &mut AdjointSums) -> bool {
+        self.backward_seeded(ds, tape, lambda, None, sums)
+    }
+
+    /// [`Self::backward`] for a loss that also depends on where the ray crossed an intermediate step: `seed`
+    /// = (step, ∂L/∂q) adds the gradient with respect to that step's hit point q (in the step's frame, as
+    /// [`RayTape::point`] gives it) to the adjoint as the sweep passes the step — a coded-mask surface's
+    /// transmission read at the crossing (dual-disperser CASSI, [`crate::render::gradient`]). A step before
+    /// [`Self::first_step`] is never reached: no parameter moves the crossing there, so it adds nothing.
+    /// With `seed = None` the sums are [`Self::backward`]'s bit for bit.
+    pub fn backward_seeded(&self, ds: &DiffSystem, tape: &mut RayTape, lambda: [f64; 6], seed: Option<(usize, DVec3)>, sums: &mut AdjointSums) -> bool {
         let path = &ds.system.path;
         debug_assert_eq!(tape.states.len(), path.len());
         tape.sens.clear();
@@ -255,6 +273,11 @@ impl AdjointPlan {
         // Down to the earliest step a parameter moves ([`Self::first_step`]): nothing is summed before it.
         for s in (self.first.min(tape.states.len())..tape.states.len()).rev() {
             let (st, step, plan) = (&tape.states[s], &path[s], &self.steps[s]);
+            if let Some((at, g)) = seed {
+                if at == s {
+                    lq += g;
+                }
+            }
             let local = SweepLocal::at(&step.shape, st.q, st.normal);
             let (d, q) = (st.d, st.q);
             let mu = st.n1 / st.n2;

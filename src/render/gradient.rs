@@ -38,6 +38,12 @@
 //! without ∂L/∂mask the closed pixels' rays are not traced; the gradients it does compute are bit for bit
 //! those of [`DiffRenderer::vjp`]. The blur's adjoint is tiled in f64 ([`super::convolve::kernel_pass_f64`]).
 //!
+//! **A coded mask on a surface** (dual-disperser CASSI, [`crate::system::MaskSurface`]): the mask (H, W) is
+//! read where each ray crosses that surface, by its taps ([`crate::system::MaskSurface::taps`]); every
+//! scene pixel's rays are traced, ray by ray on the scalar kernel and sweep, and the reverse sweep adds the
+//! crossing point's ∂L/∂(x, y) at the mask's step ([`AdjointPlan::backward_seeded`]); `docs/codesign.md`
+//! ("Dual-disperser CASSI") has the terms.
+//!
 //! Deterministic: planes are processed in parallel, each in a fixed order (within a plane each lane of
 //! the reverse sweep sums its rays in order, and the lanes are summed in lane order at the plane's end),
 //! and reduced in plane order (bit-identical for any thread count and any SIMD level).
@@ -73,6 +79,7 @@ use crate::diff::{DiffSystem, ParamSet};
 use crate::error::{Error, Result};
 use crate::rays::PupilAim;
 use crate::spec::RayAiming;
+use crate::system::MaskSurface;
 use crate::tracer::kernel::trace_steps;
 use glam::DVec3;
 use rayon::prelude::*;
@@ -443,13 +450,6 @@ impl DiffRenderer {
         if ds.system.spec.ray_aiming != RayAiming::Off {
             return Err(Error::invalid("the differentiable renderer aims rays at the paraxial entrance pupil: set ray_aiming = \"off\""));
         }
-        if let Some(m) = ds.system.coded_mask {
-            return Err(Error::invalid(format!(
-                "system `{}` holds its coded mask on surface {} (dual-disperser CASSI): the differentiable renderer weights rays by a mask on the object plane only; its gradient through a mask surface is not built yet",
-                ds.system.name(),
-                m.surface
-            )));
-        }
         if ds.system.object_at_infinity() {
             return Err(Error::invalid("the differentiable renderer starts rays from object points on a finite object plane: an object at infinity is not supported there yet"));
         }
@@ -682,6 +682,102 @@ impl DiffRenderer {
         arrived
     }
 
+    /// Rays of `rays` through a system whose coded mask is on surface `ms` (dual-disperser CASSI): each
+    /// one's landing ([`Self::landing`]) into `land` and the mask's transmission where it crossed the
+    /// surface ([`MaskSurface::transmission`] of the (H, W) `mask`, as the production renderer reads it; 0
+    /// for a ray that stopped before it) into `weight`. The path is traced in two parts split after the
+    /// mask's step, by the scalar kernel: the same operations as one trace, so the same landings.
+    fn land_through_mask(&self, ms: MaskSurface, idx: &[f64], mask: &[f64], rays: &RowRays, land: &mut Vec<Option<(f64, f64)>>, weight: &mut Vec<f64>) {
+        let (h, w) = (self.config.scene_height, self.config.scene_width);
+        let (arm1, arm2) = self.ds.system.path.split_at(ms.step + 1);
+        land.clear();
+        weight.clear();
+        for i in 0..rays.len() {
+            let (res, t) = match trace_steps(arm1, idx, rays.origin(i), rays.dir(i)) {
+                Ok((pm, dm)) => (trace_steps(arm2, idx, pm, dm), ms.transmission(mask, h, w, pm.x, pm.y)),
+                Err(e) => (Err(e), 0.0),
+            };
+            land.push(self.landing(res));
+            weight.push(t);
+        }
+    }
+
+    /// The gradients of the rays of `rays` through a system whose coded mask is on surface `ms`
+    /// (dual-disperser CASSI), ray by ray with the scalar kernel. A ray of scene value v_s (image s),
+    /// crossing the surface where the mask's taps ([`MaskSurface::taps`]) read T = Σ_t w_t·m_t, splats
+    /// v_s·T/N at its landing. With t̄_s its taps' sum with the blurred upstream gradient and
+    /// Ā = Σ_s v_s·t̄_s/N (= ∂L/∂T):
+    /// - ∂L/∂m_t += w_t·Ā, for every ray (a ray through a closed pixel has a mask gradient too);
+    /// - ∂L/∂scene_s += T·t̄_s/N;
+    /// - ∂L/∂θ: the sweep starts from the landing's λ (as [`Self::ray_grad`], with v_s·T in place of
+    ///   v_s·m) and adds ∂L/∂(crossing x, y) = Ā·Σ_t (∂w_t/∂x, ∂w_t/∂y)·m_t at the mask's step
+    ///   ([`AdjointPlan::backward_seeded`]) — zero for `nearest` sampling, whose transmission is piecewise
+    ///   constant (its jumps are boundary terms, left out as for rays that change status).
+    #[allow(clippy::too_many_arguments)]
+    fn grads_through_mask(&self, ms: MaskSurface, idx: &[f64], rays: &RowRays, pin: &PlaneInputs, out: &mut PlaneGrad, tape: &mut RayTape, sums: &mut AdjointSums) {
+        let (h, w) = (self.config.scene_height, self.config.scene_width);
+        let (arm1, arm2) = self.ds.system.path.split_at(ms.step + 1);
+        let (nr, npix, hw, nb) = (pin.nr, pin.npix, pin.hw, pin.nb);
+        let params = pin.wanted.params;
+        for i in 0..rays.len() {
+            let (o, d) = (rays.origin(i), rays.dir(i));
+            // With ∂L/∂θ wanted, one recording trace (the same operations as the split trace, so the
+            // same crossing and landing); else the two arms.
+            let (res, crossing) = if params {
+                let r = self.plan.trace(&self.ds, idx, o, d, tape);
+                (r, tape.point(ms.step))
+            } else {
+                match trace_steps(arm1, idx, o, d) {
+                    Ok((pm, dm)) => (trace_steps(arm2, idx, pm, dm), Some(pm)),
+                    Err(e) => (Err(e), None),
+                }
+            };
+            let (Some(uv), Some(pm)) = (self.landing(res), crossing) else { continue };
+            out.arrived += 1;
+            let q = rays.pixel[i];
+            let t = ms.transmission(pin.mask, h, w, pm.x, pm.y);
+            let det = self.taps4(uv);
+            let (mut a_bar, mut u_bar, mut v_bar) = (0.0, 0.0, 0.0);
+            for s in 0..pin.n {
+                let g = &pin.gb[s * npix..(s + 1) * npix];
+                let (mut tb, mut ub, mut vb) = (0.0, 0.0, 0.0);
+                for k in 0..det.count {
+                    let gv = g[det.index[k]];
+                    tb += det.wt[k] * gv;
+                    ub += det.du[k] * gv;
+                    vb += det.dv[k] * gv;
+                }
+                let val = (1.0 - pin.tw) * pin.scene[(s * nb + pin.k0) * hw + q] + pin.tw * pin.scene[(s * nb + pin.k1) * hw + q];
+                if pin.wanted.scene {
+                    out.plane[s * hw + q] += t * tb / nr;
+                }
+                a_bar += val * tb / nr;
+                u_bar += val * t * ub / nr;
+                v_bar += val * t * vb / nr;
+            }
+            let mt = ms.taps(h, w, pm.x, pm.y);
+            if pin.wanted.mask {
+                for k in 0..mt.count {
+                    out.mask[mt.index[k]] += mt.weight[k] * a_bar;
+                }
+            }
+            if params {
+                // (u, v) = ((x − x_left)/pitch − ½, (y_top − y)/pitch − ½).
+                let pitch = self.detector.pitch_mm;
+                let (lx, ly) = (u_bar / pitch, -v_bar / pitch);
+                let (mut gx, mut gy) = (0.0, 0.0);
+                for k in 0..mt.count {
+                    gx += mt.d_dx[k] * pin.mask[mt.index[k]];
+                    gy += mt.d_dy[k] * pin.mask[mt.index[k]];
+                }
+                let seed = DVec3::new(a_bar * gx, a_bar * gy, 0.0);
+                if lx != 0.0 || ly != 0.0 || seed != DVec3::ZERO {
+                    self.plan.backward_seeded(&self.ds, tape, [lx, ly, 0.0, 0.0, 0.0, 0.0], Some((ms.step, seed)), sums);
+                }
+            }
+        }
+    }
+
     /// Continuous detector pixel coordinates of an arrived ray, `None` when it did not arrive (or at an
     /// implausible position, as the renderer's landing test).
     fn landing(&self, r: std::result::Result<(DVec3, DVec3), (crate::tracer::RayStatus, usize)>) -> Option<(f64, f64)> {
@@ -704,26 +800,48 @@ impl DiffRenderer {
                 let mut img = vec![0.0f64; n * npix];
                 let mut arrived = 0u64;
                 let (mut land, mut vals) = (Vec::new(), vec![0.0; n]);
-                self.for_rows(
-                    p,
-                    |q| if mask[q] != 0.0 { Class::Open } else { Class::Skip },
-                    |_, rays| {
-                        self.land_all(&idx, rays, &mut land);
-                        for (&q, uv) in rays.pixel.iter().zip(&land) {
+                if let Some(ms) = self.ds.system.coded_mask {
+                    // The mask on a surface (dual-disperser): every scene pixel's rays, each weighted by the
+                    // transmission where it crosses the surface.
+                    let mut weights = Vec::new();
+                    self.for_rows(p, |_| Class::Open, |_, rays| {
+                        self.land_through_mask(ms, &idx, mask, rays, &mut land, &mut weights);
+                        for ((&q, uv), &t) in rays.pixel.iter().zip(&land).zip(&weights) {
                             let Some(uv) = *uv else { continue };
                             arrived += 1;
                             for (s, v) in vals.iter_mut().enumerate() {
-                                *v = ((1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q]) * mask[q] / nr;
+                                *v = ((1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q]) * t / nr;
                             }
-                            let t = self.taps4(uv);
-                            for k in 0..t.count {
+                            let tp = self.taps4(uv);
+                            for k in 0..tp.count {
                                 for (s, v) in vals.iter().enumerate() {
-                                    img[s * npix + t.index[k]] += v * t.wt[k];
+                                    img[s * npix + tp.index[k]] += v * tp.wt[k];
                                 }
                             }
                         }
-                    },
-                );
+                    });
+                } else {
+                    self.for_rows(
+                        p,
+                        |q| if mask[q] != 0.0 { Class::Open } else { Class::Skip },
+                        |_, rays| {
+                            self.land_all(&idx, rays, &mut land);
+                            for (&q, uv) in rays.pixel.iter().zip(&land) {
+                                let Some(uv) = *uv else { continue };
+                                arrived += 1;
+                                for (s, v) in vals.iter_mut().enumerate() {
+                                    *v = ((1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q]) * mask[q] / nr;
+                                }
+                                let t = self.taps4(uv);
+                                for k in 0..t.count {
+                                    for (s, v) in vals.iter().enumerate() {
+                                        img[s * npix + t.index[k]] += v * t.wt[k];
+                                    }
+                                }
+                            }
+                        },
+                    );
+                }
                 let mut out = vec![0.0f64; n * npix];
                 for s in 0..n {
                     self.blur(p, &img[s * npix..(s + 1) * npix], &mut out[s * npix..(s + 1) * npix]);
@@ -888,6 +1006,14 @@ impl DiffRenderer {
                 let pin = PlaneInputs { scene, mask, gb: &gb, n, k0, k1, tw, nr, npix, hw, nb, wanted };
                 let mut px = PixelVals::new(n);
                 let mut taps = BlockTaps::new(n);
+                if let Some(ms) = self.ds.system.coded_mask {
+                    // The mask on a surface (dual-disperser): ray by ray on the scalar kernel and sweep.
+                    self.for_rows(p, |_| Class::Open, |_, rays| self.grads_through_mask(ms, &idx, rays, &pin, &mut out, &mut tape, &mut sums));
+                    if wanted.params {
+                        self.plan.contract(&self.ds, &sums, &dn, &mut out.params);
+                    }
+                    return Ok(out);
+                }
                 // Without the mask gradient, closed pixels' rays have no use.
                 let class = |q: usize| if mask[q] != 0.0 { Class::Open } else if wanted.mask { Class::Closed } else { Class::Skip };
                 self.for_rows(p, class, |closed, open| {

@@ -14,7 +14,7 @@ mod fields;
 mod paraxial;
 mod surface;
 
-pub use coded_mask::MaskSurface;
+pub use coded_mask::{MaskSurface, MaskTaps};
 pub use paraxial::*;
 pub use surface::*;
 
