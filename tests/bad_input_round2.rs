@@ -3,7 +3,7 @@
 //! tampered `render.json`) and `bench-render`; options that were accepted and ignored are refused; unclear
 //! errors name the option or field and its value. Each case runs the real binary: exit code, a message
 //! naming the option/field/value, nothing written, no panic, done within 60 s. Tiny sizes throughout.
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

@@ -4,7 +4,7 @@
 //! budget counting the detector; inputs that are not regular files (a FIFO, `/dev/zero`, a folder);
 //! coatings, `.zmx` files, meshes and negative numbers. Each CLI case runs the real binary: exit code, a
 //! message naming the option/field/value, nothing written, no panic, done within 60 s. Tiny sizes throughout.
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};

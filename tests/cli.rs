@@ -1,5 +1,5 @@
 //! The command line: the interfaces other checks rely on, outputs, and errors (non-zero exit, clear text).
-mod common;
+use crate::common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 

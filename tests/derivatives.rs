@@ -2,8 +2,8 @@
 //! parameter kind on all four presets; plus the degenerate cases and the hit-tangent building block.
 //!
 //! Criterion: |J − FD| ≤ 1e-6·|FD| or ≤ 1e-9 (mm, or direction units) absolute.
-//! `cargo test --release --test derivatives -- --nocapture` prints the worst agreement per parameter.
-mod common;
+//! `cargo test --release --test integration derivatives:: -- --nocapture` prints the worst agreement per parameter.
+use crate::common;
 use common::{ap_like, sp_like};
 use diffcassi::diff::hit::{hit_tangent, ShapeTangent};
 use diffcassi::diff::{HitJacobianBatch, JacobianBatch, Param, ParamSet};

@@ -1,5 +1,5 @@
 //! Optimisers, calibration and the double-Amici design: acceptance numbers and degenerate cases.
-//! `cargo test --release --test design -- --nocapture` prints the measured numbers.
+//! `cargo test --release --test integration design:: -- --nocapture` prints the measured numbers.
 use diffcassi::calibration::{add_noise, calibrate, observe, CalibrationSetup};
 use diffcassi::design::amici::AmiciLoss;
 use diffcassi::design::{design_amici, design_catalog, AmiciOptions};

@@ -8,7 +8,7 @@
 //! too, since the wrapper zeroes direction components below 1e-12 in coherent queries (Embree 4.3.3 lost
 //! hits on packets holding such a lane: docs/nonsequential.md, "Embree's coherent flag"); the ignored
 //! surveys below query the tracer's own scenes lane by lane:
-//! `cargo test --release --test embree_speed -- --ignored --nocapture`.
+//! `cargo test --release --test integration embree_speed:: -- --ignored --nocapture`.
 #![cfg(feature = "embree")]
 use diffcassi::prelude::*;
 use diffcassi::surfaces::MeshResolution;

@@ -19,7 +19,7 @@
 //! invalid input. The Embree tracer *follows* total internal reflection; its first reflection's surface
 //! (`TraceDetails::first_reflection_surface`) is where the sequential tracer stops the ray with `tir`.
 //!
-//! Run: `cargo test --release --test extremes -- --nocapture` (prints the measured errors).
+//! Run: `cargo test --release --test integration extremes:: -- --nocapture` (prints the measured errors).
 use diffcassi::prelude::*;
 use diffcassi::spec::{Cell, RayAiming, SurfaceKind, SurfaceSpec, SystemAperture};
 use diffcassi::surfaces::{Aperture, SurfaceShape};

@@ -6,7 +6,7 @@
 //! the corpus once fixed). An allocation abort would kill the test binary (also a failure).
 //!
 //! Budget: `DIFFCASSI_FUZZ_SECONDS` seconds per parser (default 2; 8 parsers, 2 at a time on 2 cores ≈ 8 s).
-//! Longer run (docs/robustness.md): `DIFFCASSI_FUZZ_SECONDS=60 cargo test --release --test fuzz -- --nocapture`.
+//! Longer run (docs/robustness.md): `DIFFCASSI_FUZZ_SECONDS=60 cargo test --release --test integration fuzz:: -- --nocapture`.
 //! `DIFFCASSI_FUZZ_SEED` changes the random stream (default 1).
 use std::panic::{catch_unwind, AssertUnwindSafe};
 use std::path::{Path, PathBuf};

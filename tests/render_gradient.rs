@@ -3,8 +3,8 @@
 //! finite differences of a many-ray expected image (the boundary bias included); scene and mask gradients
 //! (the acquisition is linear in both); thread-count independence; the mapping cube's Jacobian; bad input.
 //!
-//! `cargo test --release --test render_gradient -- --nocapture` prints the measured errors.
-mod common;
+//! `cargo test --release --test integration render_gradient:: -- --nocapture` prints the measured errors.
+use crate::common;
 use common::{ap_like, sp_like};
 use diffcassi::diff::{Param, ParamSet};
 use diffcassi::materials::GlassCatalog;

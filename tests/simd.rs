@@ -5,7 +5,7 @@
 //! dispatch level this CPU has. Agreement is bit for bit: identical statuses and stopping surfaces and
 //! identical bits of every position and direction component (the extremes suite checks ≤ 1e-12 mm on its
 //! constructed rays through its `analytic` helper).
-mod common;
+use crate::common;
 use diffcassi::prelude::*;
 use diffcassi::spec::{Cell, SurfaceKind};
 use diffcassi::tracer::{Kernel, SimdLevel};

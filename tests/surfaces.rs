@@ -2,7 +2,7 @@
 //! closed-form results, classified bad cases, the spec formats both ways, the lane kernels against the
 //! scalar one, and Jacobians against central differences.
 //!
-//! `cargo test --release --test surfaces -- --nocapture` prints the worst Jacobian agreement per parameter.
+//! `cargo test --release --test integration surfaces:: -- --nocapture` prints the worst Jacobian agreement per parameter.
 use diffcassi::diff::{Param, ParamSet};
 use diffcassi::materials::GlassCatalog;
 use diffcassi::prelude::*;

@@ -1,6 +1,6 @@
 //! The external referee: diffcassi against Zemax OpticStudio's own exports for SP and AP
 //! (`../shared/reference/zemax`). Prints the accuracy table quoted in docs/accuracy.md.
-mod common;
+use crate::common;
 use diffcassi::analysis::{grid_distortion, spot_diagram, spot_stats};
 use diffcassi::prelude::*;
 

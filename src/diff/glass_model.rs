@@ -15,7 +15,7 @@
 //! its n_d and V_d (i.e. n_d, n_F − n_C). [`model_deviation`] measures the largest |n_Cauchy − n_Sellmeier|
 //! over 450–650 nm: 2e-5 (N-SK2, SK10), 9e-5 (N-BK7), 2e-4 (N-BAF10), 1.3e-3 (N-SF10, SF10: a two-term
 //! Cauchy cannot follow a dense flint's blue end). Reproduce with
-//! `cargo test --release --test derivatives -- --nocapture glass_model`.
+//! `cargo test --release --test integration derivatives:: -- --nocapture glass_model`.
 //!
 //! ```
 //! use diffcassi::diff::glass_model::CauchyGlass;

@@ -1,0 +1,65 @@
+//! The integration tests, one test binary: each former `tests/<name>.rs` is a module here (one compile and
+//! link of the library's dependants instead of 54: the test build was the largest stage of the test command).
+//! A file keeps its own tests, helpers and documentation; `tests/common` holds what several share.
+//!
+//! Run one file's tests by its module path: `cargo test --release --test integration render_gradient::`
+//! (`-- --nocapture` prints their measured figures); all of them: `cargo test --release --test integration`.
+//! Tests of different files run in parallel in one process, so a test's scratch files live under a
+//! per-file, per-process name (or a `tempfile` directory).
+#[macro_use]
+mod common;
+
+mod bad_input;
+mod bad_input_recon3;
+mod bad_input_render_options;
+mod bad_input_round2;
+mod bad_input_round3;
+mod cli;
+mod csv_outputs;
+mod dataset;
+mod derivatives;
+mod design;
+mod dual_disperser;
+mod embree;
+mod embree_speed;
+mod evaluate;
+mod extremes;
+mod f32;
+mod fuzz;
+mod ghosts_cli;
+mod ghosts_mechanics;
+mod ghosts_mesh;
+mod gpu_render;
+mod gpu_twin;
+mod infinity;
+mod materials;
+mod mechanics;
+mod metrics;
+mod noise;
+mod nonseq;
+mod output_policy;
+mod presets;
+mod recon_exact_vs_shift;
+mod recon_import_graph;
+mod recon_mapping;
+mod recon_operators;
+mod recon_pnp;
+mod recon_solvers;
+mod recon_sparse;
+mod recon_stopping;
+mod recon_unrolled;
+mod reconstruct_study;
+mod records_exact;
+mod render;
+mod render_ghosts;
+mod render_gradient;
+mod robust_importers;
+mod robustness;
+mod simd;
+mod surfaces;
+mod tracer;
+mod tradeoff;
+mod yaml_import;
+mod zemax_reference;
+mod zmx;
+mod zmx_read;
