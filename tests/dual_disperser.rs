@@ -560,3 +560,16 @@ fn nearest_sampling_gradients_and_wanted_subsets() {
         }
     }
 }
+
+/// The library's render choice for a tolerance (what `--tolerance-um` prints) offers a system with a mask
+/// surface only what its renderer runs: the analytic backend in f64.
+#[test]
+fn tolerance_choice_for_a_mask_surface_is_the_analytic_f64_path() {
+    let sys = system("ddsp");
+    let mut cfg = RenderConfig::paper(8);
+    cfg.spectral = SpectralSampling::new(DD_BANDS.to_vec(), 1).unwrap();
+    let (choice, prov) = diffcassi::fidelity::choose_render_for(&sys, &cfg, 2.0, 64, &diffcassi::fidelity::CacheOptions::none()).unwrap();
+    println!("{} [{prov}]", choice.explanation);
+    assert_eq!((choice.config.backend, choice.precision()), (diffcassi::tracer::Backend::Analytic, diffcassi::tracer::Precision::F64));
+    assert!(choice.tracer().is_ok() && choice.rays_per_pixel >= 1 && choice.error_um <= 2.0);
+}

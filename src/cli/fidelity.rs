@@ -74,8 +74,7 @@ pub(super) fn mapping_for(a: &BackendArgs, system: &SequentialSystem, height: us
 }
 
 /// The render's tracer, rays per pixel and precision: explicit (`--rays`, default 20; `--precision`,
-/// default f64) or chosen by the tolerance. A tolerance may choose the f32 lane kernel (`analytic-f32`):
-/// the render then runs the analytic tracer's direct path with `Precision::F32`.
+/// default f64) or chosen by the tolerance ([`fidelity::choose_render_for`], the library's choice).
 pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, precision: Option<Precision>, system: &SequentialSystem, config: &RenderConfig, open_pixels: usize) -> Result<(Box<dyn Tracer>, usize, Precision)> {
     let Some(t) = tolerance(a)? else { return Ok((make_tracer(a)?, rays.unwrap_or(20), precision.unwrap_or_default())) };
     if let Some(n) = rays {
@@ -84,21 +83,9 @@ pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, precision: Option
     if let Some(p) = precision {
         return Err(Error::invalid(format!("--tolerance-um {t} chooses the precision itself; it cannot be combined with --precision {p}")));
     }
-    let cache = cache_options(a);
-    let (mut cal, prov) = fidelity::calibrate_backends(system, &config.spectral.planes_nm, &cache)?;
-    if system.coded_mask.is_some() {
-        // A coded-mask surface renders through the analytic backend's f64 direct path only (render::Renderer::new):
-        // the other candidates stay measured but cannot be chosen.
-        cal.candidates.retain(|m| m.backend == "analytic");
-    }
-    let (rc, prov2) = fidelity::calibrate_render(system, config, &cache)?;
-    let per_n = (open_pixels * config.spectral.planes()) as u64;
-    let choice = fidelity::choose_render(&cal, &rc, t, per_n)?;
-    println!("{} [backends: {prov}; σ: {prov2}]", choice.explanation);
-    if choice.config.backend == crate::tracer::Backend::AnalyticF32 {
-        return Ok((Box::new(crate::tracer::AnalyticTracer::default()), choice.rays_per_pixel, Precision::F32));
-    }
-    Ok((choice.config.build()?, choice.rays_per_pixel, Precision::F64))
+    let (choice, prov) = fidelity::choose_render_for(system, config, t, open_pixels, &cache_options(a))?;
+    println!("{} [{prov}]", choice.explanation);
+    Ok((choice.tracer()?, choice.rays_per_pixel, choice.precision()))
 }
 
 /// `diffcassi bench tradeoff`.

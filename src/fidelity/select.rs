@@ -34,7 +34,7 @@ use crate::rays::{aimed_ray, object_ray, RayBatch};
 use crate::render::{RaySampler, RenderConfig};
 use crate::spec::RayAiming;
 use crate::system::SequentialSystem;
-use crate::tracer::{AnalyticTracer, Backend, BackendConfig, RayStatus, Tracer};
+use crate::tracer::{AnalyticTracer, Backend, BackendConfig, Precision, RayStatus, Tracer};
 use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -466,6 +466,45 @@ pub fn choose_render(backends: &BackendCalibration, render: &RenderCalibration, 
         if notes.is_empty() { String::new() } else { format!("; {}", notes.join("; ")) }
     );
     Ok(RenderChoice { config: backend.parse()?, rays_per_pixel: n, error_um: err, explanation })
+}
+
+impl RenderChoice {
+    /// The render's precision: f32 when the choice is the f32 lane kernel (`analytic-f32`), which the
+    /// renderer runs as the analytic tracer's direct path in f32 ([`crate::render::Renderer`]).
+    pub fn precision(&self) -> Precision {
+        if self.config.backend == Backend::AnalyticF32 {
+            Precision::F32
+        } else {
+            Precision::F64
+        }
+    }
+
+    /// The tracer to give the renderer: the analytic tracer for `analytic-f32` (its direct path runs in f32
+    /// with [`Self::precision`]), else the chosen backend.
+    pub fn tracer(&self) -> Result<Box<dyn Tracer>> {
+        if self.config.backend == Backend::AnalyticF32 {
+            return Ok(Box::new(AnalyticTracer::default()));
+        }
+        self.config.build()
+    }
+}
+
+/// The render fidelity `--tolerance-um` chooses for a render of `system` with `config` over `open_pixels`
+/// open scene pixels: the backends calibrated at the render's planes, σ of the render, then
+/// [`choose_render`] among the candidates this system's render can use — for a system with a coded-mask
+/// surface (dual-disperser CASSI), the analytic f64 direct path only (the renderer refuses the others; they
+/// stay measured, in the calibration, but are not offered). Returns the choice and where the calibrations
+/// came from (measured or cached), for the explanation a front end prints.
+pub fn choose_render_for(system: &SequentialSystem, config: &RenderConfig, tolerance_um: f64, open_pixels: usize, cache: &CacheOptions) -> Result<(RenderChoice, String)> {
+    check_tolerance(tolerance_um)?;
+    let (mut cal, prov) = calibrate_backends(system, &config.spectral.planes_nm, cache)?;
+    if system.coded_mask.is_some() {
+        cal.candidates.retain(|m| m.backend == "analytic");
+    }
+    let (rc, prov2) = calibrate_render(system, config, cache)?;
+    let per_n = (open_pixels * config.spectral.planes()) as u64;
+    let choice = choose_render(&cal, &rc, tolerance_um, per_n)?;
+    Ok((choice, format!("backends: {prov}; σ: {prov2}")))
 }
 
 /// Convenience for tests and callers: time one tracer on a ray set (best of `repeat`), rays/s.
