@@ -182,7 +182,7 @@ def _pair(name: str, v: Any) -> list:
 
 
 #: Integer settings of :func:`reconstruct` and their ranges (the CLI's: at most 10⁵ iterations).
-_SOLVER_INTS = {"iterations": (0, 100_000), "tv_iterations": (0, 100_000)}
+_SOLVER_INTS = {"iterations": (0, 100_000), "tv_iterations": (0, 100_000), "equivariant_seed": (0, 2**64 - 1)}
 
 
 def _csr_arrays(op: Operator, memory_gb: float = 4.0):
@@ -265,7 +265,9 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     expected ‖y − Φx_true‖₂ in acquisition units, e.g. :func:`monte_carlo_noise_norm`; 0 or absent: the rule is
     off), tolerance (relative change; 0 for TV); for PnP tv_warmup (the TV phase's cap), sigma_max, sigma_min
     (the σ schedule's ceiling and floor), sigma_auto (True: σ_1 from the TV iterate's estimated error),
-    denoiser (a weights file; default the embedded one).
+    denoiser (a weights file; default the embedded one), equivariant (True: each network call denoises a
+    randomly flipped/rotated iterate and turns it back; default the library's, ``--equivariant`` of the CLI),
+    equivariant_seed (the transforms' seed, an integer ≥ 0; default 0).
     δ from the data, as the CLI's default: ``noise_twin`` (an exact operator with the same settings and rays
     as ``operator`` but another ``seed``) makes the rule re-estimate δ every 5 iterations as
     (noise_norm² + (noise_factor·‖(Φ − Φ')θ‖)²)^½ at the iterate θ — noise_norm is then the sensor part (0 for
@@ -280,6 +282,9 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
         v = settings.get(k)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi):
             raise DiffcassiValueError(f"{k}: expected an integer in {lo}..={hi}, got {type(v).__name__} {v!r}")
+    eq = settings.get("equivariant")
+    if eq is not None and not isinstance(eq, (bool, np.bool_)):
+        raise DiffcassiValueError(f"equivariant: expected True or False, got {type(eq).__name__} {eq!r}")
     acq = np.ascontiguousarray(acquisition, dtype=np.float32) if getattr(acquisition, "dtype", None) == np.float64 else acquisition
     twin = settings.get("noise_twin")
     if twin is not None:

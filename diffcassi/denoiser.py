@@ -176,6 +176,37 @@ def _run_padded(net: SpectralUNet, x: torch.Tensor, sigma) -> torch.Tensor:
 #: The eight dihedral transforms of the self-ensemble, in the order both inferences average them: (k, flip) =
 #: ``rot90`` by k quarter turns over (H, W), then (if flip) a reversal of the width axis.
 DIHEDRAL = tuple((k, f) for k in range(4) for f in (False, True))
+#: The four elements of :data:`DIHEDRAL` that keep H × W (no quarter turn or a half turn, each without and
+#: with the width flip): what equivariant PnP draws among for a non-square cube.
+DIHEDRAL_FLIPS = ((0, False), (0, True), (2, False), (2, True))
+_M64 = (1 << 64) - 1
+
+
+def _mix64(z: int) -> int:
+    """SplitMix64's finaliser (``render::sampling::mix64``)."""
+    z = (z + 0x9E3779B97F4A7C15) & _M64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _M64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _M64
+    return z ^ (z >> 31)
+
+
+def dihedral_draw(seed: int, call: int, square: bool = True):
+    """The transform (quarter turns k, width flip) equivariant PnP applies at network call ``call`` (1-based) of
+    stream ``seed``: the twin of ``recon::prior::dihedral::Dihedral::draw`` (uniform over :data:`DIHEDRAL` for a
+    square cube, over :data:`DIHEDRAL_FLIPS` otherwise; counter-based)."""
+    z = _mix64(_mix64(seed & _M64) ^ (call & _M64))
+    return DIHEDRAL[z >> 61] if square else DIHEDRAL_FLIPS[z >> 62]
+
+
+def transformed_denoise(net: SpectralUNet, x: torch.Tensor, sigma, transform) -> torch.Tensor:
+    """g⁻¹·denoise(g·x) for ``transform`` g = (quarter turns k, width flip) on (N, B, H, W): one call of
+    equivariant PnP (``recon::solve::prior_step::denoise_at_network_scale_transformed``)."""
+    k, f = transform
+    t = torch.rot90(x, k, dims=(2, 3))
+    t = torch.flip(t, dims=(3,)) if f else t
+    o = denoise(net, t, sigma)
+    o = torch.flip(o, dims=(3,)) if f else o
+    return torch.rot90(o, -k, dims=(2, 3))
 
 
 def denoise(net: SpectralUNet, x: torch.Tensor, sigma, neutral: bool = False, ensemble: bool = False) -> torch.Tensor:

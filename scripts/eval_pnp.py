@@ -15,8 +15,12 @@ its defaults; then the network schedules of ``--schedules`` — ``one:S`` = one 
 in PyTorch, equal to the Rust inference to 1e-4; mean-colour neutralisation with ``--neutral``, the
 self-ensemble with ``--ensemble``: ``diffcassi.denoiser.denoise``), ``pnp:N:S1:S2[:plain]`` = ``pnp-gap`` with N network
 iterations σ S1 → S2 (geometric), accelerated unless ``plain``, no early stop (``discrepancy`` 0, tolerance 0);
-``roll:N:S1:S2`` = the same accelerated schedule rolled out in NumPy/PyTorch from the cell's GAP-TV result and
-network input (``make_pnp_pairs.gap_rollout``, equal to ``pnp-gap`` to f32 and the inferences' 1e-4; with
+``pnp:...:eq[=SEED]`` = the same with equivariant PnP on (``equivariant=True``, seed SEED, default 0) and
+``pnp:...:noeq`` with it off (the library's default otherwise);
+``roll:N:S1:S2[:eq=SEED|:flips=SEED]`` = the same accelerated schedule rolled out in NumPy/PyTorch from the cell's GAP-TV result and
+network input (``make_pnp_pairs.gap_rollout``, equal to ``pnp-gap`` to f32 and the inferences' 1e-4; ``eq=SEED``:
+equivariant, the transforms of ``diffcassi.denoiser.dihedral_draw`` as the Rust solver draws them; ``flips=SEED``:
+the four flips only, also for square cubes; with
 ``--cache`` only the operator is rebuilt: no TV phase per schedule and weights).
 PSNR is the paper's (``diffcassi.metrics``: one MSE over the cube, peak = the truth's max); each cell also
 records SSIM (``KEY|ssim``, per band on the [0, 1]-clamped estimate) and SAM in degrees (``KEY|sam``, the
@@ -42,7 +46,7 @@ sys.path.insert(0, str(ROOT))
 
 import diffcassi  # noqa: E402
 from diffcassi.deadleaves import BANDS_NM, dead_leaves  # noqa: E402
-from diffcassi.denoiser import denoise, load_weights  # noqa: E402
+from diffcassi.denoiser import denoise, dihedral_draw, load_weights  # noqa: E402
 
 EVAL_VAL_SEED_BASE = 7_000_000
 RAYS, PLANES, SIZE = 20, 112, 128
@@ -178,9 +182,11 @@ def main(argv=None) -> int:
                     gap_tv = psnr(gt)
                     # The network's first input: the TV phase and one identity call (explicit: the default
                     # network phase has several calls since round 6).
-                    x, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=ident, noise_norm=delta, tv_warmup=TV_CAP,
-                                                 iterations=TV_CAP + 1)
-                    if cached is not None:
+                    # (Not needed, and not run, when every schedule is a `pnp:` solve.)
+                    x = None if all(sc.startswith("pnp:") for sc in scheds) else diffcassi.reconstruct(
+                        op, y, "pnp-gap", denoiser=ident, noise_norm=delta, tv_warmup=TV_CAP, iterations=TV_CAP + 1,
+                        equivariant=False)[0]
+                    if cached is not None and x is not None:
                         cached.parent.mkdir(parents=True, exist_ok=True)
                         np.savez(cached, iterate=x, gap_tv=gap_tv, gap_tv_cube=gt)
                 row = {"scene": name, "preset": preset}
@@ -188,9 +194,10 @@ def main(argv=None) -> int:
                     record("gap_tv", gt, a.diagnose)
                 else:
                     row["gap_tv"] = gap_tv
-                p = float(x.max()) if x.max() > 0 else 1.0
-                xin = torch.from_numpy(np.ascontiguousarray(x.transpose(2, 0, 1) / p))[None]
-                record("iterate", x)
+                if x is not None:
+                    p = float(x.max()) if x.max() > 0 else 1.0
+                    xin = torch.from_numpy(np.ascontiguousarray(x.transpose(2, 0, 1) / p))[None]
+                    record("iterate", x)
                 for s in scheds:
                     parts = s.split(":")
                     if parts[0] == "one":
@@ -201,16 +208,31 @@ def main(argv=None) -> int:
                             record(f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s, out)
                     elif parts[0] == "pnp":
                         n, s1, s2 = int(parts[1]), float(parts[2]), float(parts[3])
-                        plain = len(parts) > 4 and parts[4] == "plain"
+                        plain = "plain" in parts[4:]
+                        eq = {}
+                        for opt in parts[4:]:
+                            if opt.startswith("eq"):
+                                eq = {"equivariant": True, "equivariant_seed": int(opt[3:] or 0)}
+                            elif opt == "noeq":
+                                eq = {"equivariant": False}
+                            elif opt != "plain":
+                                ap.error(f"--schedules {s!r}: unknown option {opt!r} (plain, eq[=SEED], noeq)")
                         for w in weights:
                             c, _ = diffcassi.reconstruct(op, y, "pnp-gap", denoiser=w, noise_norm=delta, iterations=300 + n,
                                                          sigma_max=s1, sigma_min=min(s1, s2), discrepancy=0.0,
-                                                         tolerance=0.0, accelerated=not plain)
+                                                         tolerance=0.0, accelerated=not plain, **eq)
                             record(f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s, c)
                     elif parts[0] == "roll":
                         n, s1, s2 = int(parts[1]), float(parts[2]), float(parts[3])
+                        tr = None
+                        for opt in parts[4:]:
+                            kind, _, seed = opt.partition("=")
+                            if kind not in ("eq", "flips"):
+                                ap.error(f"--schedules {s!r}: unknown option {opt!r} (eq=SEED, flips=SEED)")
+                            square = kind == "eq" and truth.shape[0] == truth.shape[1]
+                            tr = [dihedral_draw(int(seed or 0), j + 1, square) for j in range(n)]
                         for w, net in nets.items():
-                            _, c = gap_rollout(op, y, gt, x, net, sigma_schedule(s1, s2, n))
+                            _, c = gap_rollout(op, y, gt, x, net, sigma_schedule(s1, s2, n), transforms=tr)
                             record(f"{s}@{pathlib.Path(w).name}" if len(nets) > 1 else s, c, a.diagnose)
                     else:
                         ap.error(f"--schedules: unknown schedule {s!r}")

@@ -107,16 +107,18 @@ def sigma_schedule(s1: float, s2: float, n: int) -> list:
             for j in range(n)]
 
 
-def gap_rollout(op, y: np.ndarray, theta0: np.ndarray, x1: np.ndarray, net, sigmas, accelerated: bool = True):
+def gap_rollout(op, y: np.ndarray, theta0: np.ndarray, x1: np.ndarray, net, sigmas, accelerated: bool = True,
+                transforms=None):
     """The network phase of ``pnp-gap`` in NumPy/PyTorch, from GAP-TV's stopped iterate θ₀ (= ``gap-tv``'s result,
     (H, W, B)) and the first network input x₁ (= ``pnp-gap`` with the identity network): θ_k = p·N(x_k/p, σ_k)
     (p :func:`network_scale`), then GAP's data step with D = diag(ΦΦᵀ𝟙) (guard 1e-6·max d, λ = 1). Accelerated:
     x_{k+1} = θ_k + h_{k+1} − ΦᵀD⁻¹Φθ_k with h = ΦᵀD⁻¹ỹ, h_{k+1} = h_k + ΦᵀD⁻¹(y − Φθ_k) and h₁ recovered from
     x₁ = θ₀ + h₁ − ΦᵀD⁻¹Φθ₀ (exact up to f32 rounding); plain: x_{k+1} = θ_k + ΦᵀD⁻¹(y − Φθ_k). Returns the
     inputs [x₁, …, x_n] of the n = len(sigmas) calls and the output θ_n (equal to the Rust solver's to f32 and
-    the two inferences' 1e-4: checked by ``--check``)."""
+    the two inferences' 1e-4: checked by ``--check``). ``transforms``: equivariant PnP, one (quarter turns,
+    flip) per call (``diffcassi.denoiser.dihedral_draw``), θ_k = p·g⁻¹N(g·x_k/p, σ_k)."""
     import torch
-    from diffcassi.denoiser import denoise
+    from diffcassi.denoiser import denoise, transformed_denoise
     d = op.apply(op.adjoint(np.ones(op.image_shape, np.float32)))
     dinv = np.where(d > np.float32(1e-6) * d.max(), np.float32(1.0) / np.maximum(d, np.float32(1e-30)), 0).astype(np.float32)
     ptd = lambda r: op.adjoint(np.ascontiguousarray(r * dinv, dtype=np.float32))  # ΦᵀD⁻¹ r
@@ -128,7 +130,8 @@ def gap_rollout(op, y: np.ndarray, theta0: np.ndarray, x1: np.ndarray, net, sigm
         p = network_scale(x)
         with torch.no_grad():
             t = torch.from_numpy(np.ascontiguousarray(x.transpose(2, 0, 1) / np.float32(p)))[None]
-            theta = np.ascontiguousarray(denoise(net, t, float(s))[0].numpy().transpose(1, 2, 0) * np.float32(p))
+            o = denoise(net, t, float(s)) if transforms is None else transformed_denoise(net, t, float(s), transforms[j])
+            theta = np.ascontiguousarray(o[0].numpy().transpose(1, 2, 0) * np.float32(p))
         if j + 1 == len(sigmas):
             break
         phit = op.apply(theta)
@@ -209,10 +212,11 @@ def schedule_pairs_of_scene(seed: int, kind: str, size: int, paper: np.ndarray, 
     return out
 
 
-def check_rollout(weights: str, sigmas, size: int = 32) -> float:
+def check_rollout(weights: str, sigmas, size: int = 32, equivariant_seed=None) -> float:
     """Max |θ_rollout − θ_Rust| / peak of :func:`gap_rollout` against ``pnp-gap`` with the same network and
-    schedule (no early stop), on a small dead-leaves scene through SP."""
-    from diffcassi.denoiser import load_weights
+    schedule (no early stop), on a small dead-leaves scene through SP; equivariant PnP with ``equivariant_seed``
+    (the rollout draws the transforms with ``diffcassi.denoiser.dihedral_draw``), else off in both."""
+    from diffcassi.denoiser import dihedral_draw, load_weights
     cube = dead_leaves(PAIR_VAL_SEED_BASE + 999, size, BANDS_NM, kind="rgb")
     scene = np.ascontiguousarray(cube.transpose(1, 2, 0))
     mask = (np.random.default_rng(0).random((size, size)) < 0.5).astype(np.float32)
@@ -226,12 +230,14 @@ def check_rollout(weights: str, sigmas, size: int = 32) -> float:
         ident = str(pathlib.Path(tmp) / "identity.safetensors")
         identity_weights(pathlib.Path(ident), len(BANDS_NM))
         x1, _ = diffcassi.reconstruct(op, y32, "pnp-gap", denoiser=ident, noise_norm=delta, discrepancy=0.0, tolerance=0.0,
-                                        tv_warmup=TV_CAP, iterations=TV_CAP + 1)
+                                        tv_warmup=TV_CAP, iterations=TV_CAP + 1, equivariant=False)
     n = len(sigmas)
-    _, theta = gap_rollout(op, y32, theta0, x1, load_weights(weights, bands=len(BANDS_NM)), sigmas)
+    eq = equivariant_seed is not None
+    tr = [dihedral_draw(equivariant_seed, j + 1, square=True) for j in range(n)] if eq else None
+    _, theta = gap_rollout(op, y32, theta0, x1, load_weights(weights, bands=len(BANDS_NM)), sigmas, transforms=tr)
     ref, _ = diffcassi.reconstruct(op, y32, "pnp-gap", denoiser=weights, noise_norm=delta, discrepancy=0.0,
                                    tolerance=0.0, tv_warmup=TV_CAP, iterations=TV_CAP + n, sigma_max=sigmas[0],
-                                   sigma_min=sigmas[-1])
+                                   sigma_min=sigmas[-1], equivariant=eq, equivariant_seed=equivariant_seed or 0)
     return float(np.abs(theta - ref).max() / ref.max())
 
 

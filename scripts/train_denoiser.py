@@ -268,9 +268,11 @@ def load_pairs(path) -> dict:
             "sha256": hashlib.sha256(path.read_bytes()).hexdigest(), "path": str(path)}
 
 
-def pair_batch(pairs: dict, n: int, patch: int, g: torch.Generator):
-    """n artefact pairs drawn with ``g``: a random patch² crop of each, flipped along y and/or x (p = 0.5 each);
-    returns (input, sigma (n,), target)."""
+def pair_batch(pairs: dict, n: int, patch: int, g: torch.Generator, rotate: bool = False):
+    """n artefact pairs drawn with ``g``: a random patch² crop of each, flipped along y and/or x (p = 0.5 each)
+    and, with ``rotate`` (``--pair-rotate``: the whole dihedral group, for equivariant PnP, whose calls see the
+    iterate turned by quarter turns), turned by k·90°, k uniform in 0..4 (drawn after the flips; without it the
+    draws are as before); returns (input, sigma (n,), target)."""
     count, _, h, w = pairs["inputs"].shape
     idx = torch.randint(0, count, (n,), generator=g)
     xs, ts = [], []
@@ -282,6 +284,9 @@ def pair_batch(pairs: dict, n: int, patch: int, g: torch.Generator):
         for dim in (1, 2):
             if torch.rand(1, generator=g) < 0.5:
                 x, t = torch.flip(x, dims=(dim,)), torch.flip(t, dims=(dim,))
+        if rotate:
+            k = int(torch.randint(0, 4, (1,), generator=g))
+            x, t = torch.rot90(x, k, dims=(1, 2)), torch.rot90(t, k, dims=(1, 2))
         xs.append(x)
         ts.append(t)
     return torch.stack(xs), pairs["sigma"][idx], torch.stack(ts)
@@ -432,6 +437,8 @@ def main(argv=None) -> int:
                     "on the first --latent principal components of training spectra)")
     ap.add_argument("--pairs", default=None, help="artefact pairs (scripts/make_pnp_pairs.py .npz) mixed into every step")
     ap.add_argument("--pair-batch", type=int, default=4, help="artefact pairs per step with --pairs (default: %(default)s)")
+    ap.add_argument("--pair-rotate", action="store_true", help="artefact pairs also turned by random quarter turns "
+                    "(the dihedral group; default: flips only, the dispersion staying along x)")
     ap.add_argument("--pairs-val", default=None, help="validation artefact pairs (other scenes); with them the "
                     "weights file keeps the best stop-stage PSNR within --sel-tolerance of the start's selection score")
     ap.add_argument("--stage-net", action="store_true", help="round 6: a PnP-stage network trained on --pairs only "
@@ -569,6 +576,7 @@ def main(argv=None) -> int:
         "artefact_pairs": None if pairs is None else {
             "file": pairs["path"], "sha256": pairs["sha256"], "count": int(pairs["inputs"].shape[0]),
             "per_step": a.pair_batch, "stage_net": a.stage_net,
+            "augmentation": "random crop, flips, quarter turns" if a.pair_rotate else "random crop, flips",
             "sigma_per_stage": {n: float(pairs["sigma"][pairs["stage"] == i][0]) for i, n in enumerate(pairs["stage_names"])
                                 if bool((pairs["stage"] == i).any())},
             "mean_err_per_stage": {n: float(pairs["err"][pairs["stage"].numpy() == i].mean())
@@ -678,7 +686,7 @@ def main(argv=None) -> int:
             break
         g = torch.Generator().manual_seed(a.seed * 1_000_003 + step)
         if a.stage_net:
-            noisy, sigma, target = (t.to(dev) for t in pair_batch(pairs, a.pair_batch, a.patch, g))
+            noisy, sigma, target = (t.to(dev) for t in pair_batch(pairs, a.pair_batch, a.patch, g, a.pair_rotate))
             if not optimise(noisy, sigma, target):
                 return 1
             continue
@@ -689,7 +697,7 @@ def main(argv=None) -> int:
         gd = g if dev.type == "cpu" else torch.Generator(device=dev).manual_seed(a.seed * 1_000_003 + step)
         noisy, sigma, target = make_batch(clean.to(dev), gd)
         if pairs is not None:
-            px, ps, pt = (t.to(dev) for t in pair_batch(pairs, a.pair_batch, a.patch, g))
+            px, ps, pt = (t.to(dev) for t in pair_batch(pairs, a.pair_batch, a.patch, g, a.pair_rotate))
             noisy, sigma, target = torch.cat([noisy, px]), torch.cat([sigma, ps]), torch.cat([target, pt])
         if not optimise(noisy, sigma, target):
             return 1

@@ -347,6 +347,96 @@ fn pnp_schedule_starts_at_the_tv_error_and_decays_to_the_floor() {
     assert!(rec.sigmas[0] == 0.0 && rec.sigmas[1..].iter().all(|s| *s > 0.0));
 }
 
+/// Equivariant PnP (`equivariant`): the j-th network call uses g = `Dihedral::draw(seed, j, square)` — the
+/// record lists them; the same seed gives the same cube bit for bit for 1 and 2 threads, another seed or the
+/// plain solver another cube; a non-square cube draws flips only.
+#[test]
+fn equivariant_pnp_is_seeded_deterministic_and_recorded() {
+    use diffcassi::recon::prior::dihedral::Dihedral;
+    let (op, _, y) = shift_problem(16, 16, BANDS);
+    let cfg = SolverConfig { iterations: 11, tv_warmup: 5, equivariant: true, equivariant_seed: 3, ..SolverConfig::pnp_gap() };
+    let solve = |cfg: &SolverConfig, threads: usize| rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| reconstruct(&op, &y, None, cfg, &|_, _| {}).unwrap());
+    let (a, b) = (solve(&cfg, 1), solve(&cfg, 2));
+    assert!(a.cube.iter().zip(&b.cube).all(|(p, q)| p.to_bits() == q.to_bits()), "1 vs 2 threads differ");
+    let eq = &a.denoiser["equivariant"];
+    assert_eq!((eq["on"].as_bool(), eq["seed"].as_u64()), (Some(true), Some(3)));
+    let drawn: Vec<String> = (1..=6u64).map(|j| Dihedral::draw(3, j, true).name()).collect();
+    let recorded: Vec<String> = eq["transforms"].as_array().unwrap().iter().map(|v| v.as_str().unwrap().to_string()).collect();
+    assert_eq!(recorded, drawn);
+    assert!(drawn.iter().any(|n| n != "r0"), "the test needs a non-identity draw: {drawn:?}");
+    let plain = solve(&SolverConfig { equivariant: false, ..cfg.clone() }, 2);
+    assert_eq!(plain.denoiser["equivariant"]["on"], false);
+    assert!(plain.cube != a.cube, "equivariant PnP gave the plain cube");
+    let other = solve(&SolverConfig { equivariant_seed: 4, ..cfg.clone() }, 2);
+    assert!((1..=6u64).any(|j| Dihedral::draw(4, j, true) != Dihedral::draw(3, j, true)));
+    assert!(other.cube != a.cube, "another seed gave the same cube");
+    // Non-square: the four flips only (a quarter turn would swap H and W).
+    let (op2, _, y2) = shift_problem(12, 16, BANDS);
+    let r = reconstruct(&op2, &y2, None, &cfg, &|_, _| {}).unwrap();
+    let names: Vec<&str> = r.denoiser["equivariant"]["transforms"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+    assert_eq!(names, (1..=6u64).map(|j| Dihedral::draw(3, j, false).name()).collect::<Vec<_>>());
+    assert!(names.iter().all(|n| n.starts_with("r0") || n.starts_with("r2")), "{names:?}");
+    // Only PnP takes it.
+    let e = reconstruct(&op, &y, None, &SolverConfig { equivariant: true, ..SolverConfig::gap_tv() }, &|_, _| {}).unwrap_err().to_string();
+    assert!(e.contains("equivariant") && e.contains("gap-tv"), "{e}");
+}
+
+/// The transformed call is exactly g⁻¹·D(g·x): with a pointwise denoiser (equivariant by construction) it is
+/// bit for bit the plain call for all eight g; with a position-dependent one it equals the transform, the
+/// denoiser and the inverse applied by hand.
+#[test]
+fn the_transformed_denoiser_call_inverts_exactly() {
+    use diffcassi::recon::prior::dihedral::Dihedral;
+    use diffcassi::recon::solver::{denoise_at_network_scale, denoise_at_network_scale_transformed};
+    struct Pointwise;
+    impl Denoiser for Pointwise {
+        fn name(&self) -> String {
+            "pointwise".into()
+        }
+        fn denoise(&mut self, x: &[f32], out: &mut [f32], _: CubeShape, sigma: f32) -> diffcassi::Result<()> {
+            out.iter_mut().zip(x).for_each(|(o, v)| *o = v * (1.0 - sigma) + 0.01);
+            Ok(())
+        }
+    }
+    /// Adds the row index: not equivariant.
+    struct Rows;
+    impl Denoiser for Rows {
+        fn name(&self) -> String {
+            "rows".into()
+        }
+        fn denoise(&mut self, x: &[f32], out: &mut [f32], shape: CubeShape, _: f32) -> diffcassi::Result<()> {
+            for (i, (o, v)) in out.iter_mut().zip(x).enumerate() {
+                *o = v + (i / (shape.width * shape.bands)) as f32;
+            }
+            Ok(())
+        }
+    }
+    let shape = CubeShape { height: 6, width: 6, bands: 3 };
+    let x: Vec<f32> = scene(6, 6, 3).iter().enumerate().map(|(i, v)| v + (i % 7) as f32 * 0.013).collect();
+    let (mut s1, mut s2, mut t) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut plain, mut rows_plain) = (vec![0.0; x.len()], vec![0.0; x.len()]);
+    denoise_at_network_scale(&mut Pointwise, &x, &mut plain, shape, 0.1, &mut s1).unwrap();
+    denoise_at_network_scale(&mut Rows, &x, &mut rows_plain, shape, 0.1, &mut s1).unwrap();
+    for g in Dihedral::ALL {
+        let mut out = vec![0.0; x.len()];
+        denoise_at_network_scale_transformed(&mut Pointwise, &x, &mut out, shape, 0.1, &mut s2, Some(g), &mut t).unwrap();
+        assert!(out.iter().zip(&plain).all(|(a, b)| a.to_bits() == b.to_bits()), "{}", g.name());
+        // By hand with the position-dependent denoiser: p·g⁻¹(D(g·(x/p))).
+        let mut got = vec![0.0; x.len()];
+        let sc = denoise_at_network_scale_transformed(&mut Rows, &x, &mut got, shape, 0.1, &mut s2, Some(g), &mut t).unwrap();
+        let scaled: Vec<f32> = x.iter().map(|v| v / sc.scale).collect();
+        let (mut gx, mut d, mut back) = (vec![0.0; x.len()], vec![0.0; x.len()], vec![0.0; x.len()]);
+        let gs = g.apply(&scaled, shape, &mut gx);
+        Rows.denoise(&gx, &mut d, gs, 0.1).unwrap();
+        g.invert(&d, shape, &mut back);
+        let want: Vec<f32> = back.iter().map(|v| v * sc.scale).collect();
+        assert!(got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()), "{}", g.name());
+        if g != Dihedral::IDENTITY && g != (Dihedral { quarter_turns: 0, flip: true }) {
+            assert!(got != rows_plain, "{}: the position-dependent denoiser did not notice the transform", g.name());
+        }
+    }
+}
+
 /// A tolerance ends the run early and says so.
 #[test]
 fn the_stopping_rule_ends_the_run_early() {
@@ -517,6 +607,25 @@ fn cli_pnp_reconstruct_and_bad_input() {
     let o = bin(&["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--iterations", "4", "--tv-warmup", "2", "--operator-rays", "2", "--denoiser", s(&weights_path()), "--out", s(&out2)]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(std::fs::read(out.join("cube.npy")).unwrap(), std::fs::read(out2.join("cube.npy")).unwrap());
+    // --equivariant --equivariant-seed: recorded in the configuration and the denoiser's record (one transform
+    // per network call); --no-equivariant: off.
+    for (flags, on) in [(vec!["--equivariant", "--equivariant-seed", "5"], true), (vec!["--no-equivariant"], false)] {
+        let o3 = d.path().join(if on { "eq" } else { "noeq" });
+        let mut args = vec!["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--iterations", "4", "--tv-warmup", "2", "--out", s(&o3)];
+        args.extend(flags.iter());
+        let o = bin(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let je = read_json(&o3.join("reconstruct.json"));
+        let rec = &je["solver_settings"]["record"];
+        assert_eq!(rec["config"]["equivariant"].as_bool(), Some(on), "{flags:?}");
+        assert_eq!(rec["denoiser"]["equivariant"]["on"].as_bool(), Some(on), "{flags:?}");
+        if on {
+            assert_eq!(rec["config"]["equivariant_seed"].as_u64(), Some(5));
+            assert_eq!(rec["denoiser"]["equivariant"]["transforms"].as_array().unwrap().len(), 2);
+        }
+    }
+    let o = bin(&["reconstruct", "--from", s(&render), "--solver", "pnp-gap", "--equivariant", "--no-equivariant", "--out", s(&d.path().join("never-eq"))]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
 
     let bad = d.path().join("bad.safetensors");
     std::fs::write(&bad, b"\x08\x00\x00\x00\x00\x00\x00\x00{}garbage").unwrap();
@@ -532,6 +641,8 @@ fn cli_pnp_reconstruct_and_bad_input() {
         (vec!["--solver", "pnp-gap", "--sigma-min", "0.5", "--sigma-max", "0.2"], vec!["above σ max"]),
         (vec!["--solver", "gap-tv", "--sigma-max", "0.2"], vec!["pnp-gap and pnp-admm only"]),
         (vec!["--solver", "admm-tv", "--sigma-auto"], vec!["pnp-gap and pnp-admm only"]),
+        (vec!["--solver", "gap-tv", "--equivariant"], vec!["--equivariant", "pnp-gap and pnp-admm only"]),
+        (vec!["--solver", "unrolled", "--equivariant-seed", "2"], vec!["--equivariant-seed", "not options of --solver unrolled"]),
         (vec!["--solver", "pnp-admm", "--plain"], vec!["gap-tv and pnp-gap only"]),
         (vec!["--solver", "pnp-gap", "--operator", "shift", "--operator-rays", "4"], vec!["exact operator only"]),
     ];

@@ -228,7 +228,8 @@ fn model_operator(
 #[pyo3(signature = (operator, acquisition, solver = "gap-tv", init = None, iterations = None, step = None, tv_weight = None,
                     tv_iterations = None, tv_coupling = None, accelerated = None, admm_eta = None, sigma_max = None,
                     sigma_min = None, tolerance = None, denoiser = None, tv_warmup = None, discrepancy = None,
-                    noise_norm = None, sigma_auto = None, noise_twin = None, noise_factor = None))]
+                    noise_norm = None, sigma_auto = None, noise_twin = None, noise_factor = None, equivariant = None,
+                    equivariant_seed = None))]
 #[allow(clippy::too_many_arguments)]
 fn _reconstruct<'py>(
     py: Python<'py>,
@@ -253,6 +254,8 @@ fn _reconstruct<'py>(
     sigma_auto: Option<bool>,
     noise_twin: Option<PyRef<'py, PyOperator>>,
     noise_factor: Option<f64>,
+    equivariant: Option<bool>,
+    equivariant_seed: Option<u64>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, String)> {
     let kind: SolverKind = solver.parse().py()?;
     let mut cfg = SolverConfig::for_solver(kind);
@@ -269,6 +272,11 @@ fn _reconstruct<'py>(
     cfg.discrepancy = discrepancy.unwrap_or(cfg.discrepancy);
     cfg.noise_norm = noise_norm.unwrap_or(cfg.noise_norm);
     cfg.sigma_auto = sigma_auto.unwrap_or(cfg.sigma_auto);
+    if (equivariant.is_some() || equivariant_seed.is_some()) && !kind.is_pnp() {
+        return Err(value_error(format!("equivariant / equivariant_seed: apply to pnp-gap and pnp-admm only, not `{solver}`")));
+    }
+    cfg.equivariant = equivariant.unwrap_or(cfg.equivariant);
+    cfg.equivariant_seed = equivariant_seed.unwrap_or(cfg.equivariant_seed);
     if denoiser.is_some() {
         if !kind.is_pnp() {
             return Err(value_error(format!("denoiser: applies to pnp-gap and pnp-admm only, not `{solver}`")));

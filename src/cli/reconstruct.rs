@@ -268,6 +268,18 @@ pub struct SolverTuning {
     /// last step, clamped to [σ min, σ max]) instead of σ max (measured: it underestimates the error ≈ 10×).
     #[arg(long = "sigma-auto")]
     pub sigma_auto: bool,
+    /// pnp-gap / pnp-admm: equivariant PnP — every network call denoises a randomly flipped or rotated
+    /// iterate and turns the result back (the 8 flips/quarter turns of a square cube, the 4 flips otherwise;
+    /// drawn from --equivariant-seed and the call's number) [default: the library's, docs/reconstruction.md,
+    /// "Equivariant PnP"].
+    #[arg(long, conflicts_with = "no_equivariant")]
+    pub equivariant: bool,
+    /// pnp-gap / pnp-admm: no random flips/rotations around the network (today's PnP before equivariance).
+    #[arg(long = "no-equivariant")]
+    pub no_equivariant: bool,
+    /// pnp-gap / pnp-admm: the seed of the equivariant transforms' stream [default 0].
+    #[arg(long = "equivariant-seed")]
+    pub equivariant_seed: Option<u64>,
     /// pnp-gap / pnp-admm: the TV phase's cap (GAP-TV / ADMM-TV iterations before the network; the phase
     /// ends earlier at GAP-TV's own discrepancy stop) [default 300]; must leave at least one of
     /// --iterations to the network.
@@ -304,6 +316,12 @@ impl SolverTuning {
             sigma_max: self.sigma_max,
             sigma_min: self.sigma_min,
             sigma_auto: self.sigma_auto,
+            equivariant: match (self.equivariant, self.no_equivariant) {
+                (true, _) => Some(true),
+                (_, true) => Some(false),
+                _ => None,
+            },
+            equivariant_seed: self.equivariant_seed,
             tolerance: self.tolerance,
             tv_warmup: self.tv_warmup,
             discrepancy: self.discrepancy,

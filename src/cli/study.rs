@@ -341,7 +341,7 @@ fn cell_settings(a: &StudyArgs, solver: &str) -> SolveSettings {
     let mut s = a.tuning.settings(solver, a.tuning.accelerated && solver == "gap-tv");
     s.plain = a.tuning.plain && solver == "gap-tv";
     if !solver.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp()) {
-        (s.denoiser, s.sigma_max, s.sigma_min, s.tv_warmup, s.sigma_auto) = (None, None, None, None, false);
+        (s.denoiser, s.sigma_max, s.sigma_min, s.tv_warmup, s.sigma_auto, s.equivariant, s.equivariant_seed) = (None, None, None, None, false, None, None);
     }
     if is_unrolled(solver) {
         // The iterative solvers' options apply to them only.
@@ -415,6 +415,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
         let crc = crate::recon::prior::network::weights_crc32(a.tuning.denoiser.as_deref())?;
         if let Some(o) = config.as_object_mut() {
             o.insert("pnp".into(), json!({"denoiser": a.tuning.denoiser.as_ref().map(|p| p.display().to_string()), "weights_crc32": crc, "sigma_max": a.tuning.sigma_max, "sigma_min": a.tuning.sigma_min, "sigma_auto": a.tuning.sigma_auto, "tv_warmup": a.tuning.tv_warmup,
+                "equivariant": if a.tuning.equivariant { Some(true) } else if a.tuning.no_equivariant { Some(false) } else { None }, "equivariant_seed": a.tuning.equivariant_seed,
                 // The library's PnP defaults too: a cell computed under other defaults is recomputed.
                 "defaults": crate::recon::SolverConfig::pnp_gap()}));
         }

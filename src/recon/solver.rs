@@ -25,12 +25,12 @@ use super::solve::run::Problem;
 use crate::error::Result;
 
 pub use super::solve::config::{
-    SolverConfig, SolverKind, ADMM_TV_DISCREPANCY, ADMM_TV_ITERATIONS, GAP_TV_DISCREPANCY, GAP_TV_ITERATIONS, PNP_ACCELERATED, PNP_DISCREPANCY, PNP_ITERATIONS, PNP_NETWORK_ITERATIONS, PNP_SIGMA_GAIN,
+    SolverConfig, SolverKind, ADMM_TV_DISCREPANCY, ADMM_TV_ITERATIONS, GAP_TV_DISCREPANCY, GAP_TV_ITERATIONS, PNP_ACCELERATED, PNP_DISCREPANCY, PNP_EQUIVARIANT, PNP_ITERATIONS, PNP_NETWORK_ITERATIONS, PNP_SIGMA_GAIN,
     PNP_SIGMA_MAX, PNP_SIGMA_MIN, PNP_TOLERANCE, PNP_TV_DISCREPANCY, PNP_TV_WARMUP, SOLVER_NAMES,
 };
 pub use super::solve::data_term::{Preconditioner, D_GUARD};
 pub use super::solve::noise::{monte_carlo_noise_norm, MonteCarloSpread, MC_MISMATCH_PER_RAY, SPREAD_EVERY};
-pub use super::solve::prior_step::{denoise_at_network_scale, sigma_schedule, NetworkScale, PNP_SCALE_GAIN, PNP_SCALE_QUANTILE};
+pub use super::solve::prior_step::{denoise_at_network_scale, denoise_at_network_scale_transformed, sigma_schedule, NetworkScale, PNP_SCALE_GAIN, PNP_SCALE_QUANTILE};
 pub use super::solve::record::Reconstruction;
 pub use super::solve::stopping::Discrepancy;
 

@@ -113,3 +113,35 @@ def test_pnp_solvers_from_python():
         assert record["config"]["solver"] == solver and len(record["sigmas"]) == record["iterations_run"]
     with pytest.raises(diffcassi.DiffcassiError, match="σ min"):
         diffcassi.reconstruct(op, acq, "pnp-gap", sigma_min=-1.0)
+
+
+def test_equivariant_pnp_from_python():
+    """``equivariant=True``: the record lists one transform per network call, those of
+    ``diffcassi.denoiser.dihedral_draw`` (the Rust stream's twin); the same seed gives the same cube, another
+    seed or ``equivariant=False`` another; bad values are clear errors naming the keyword."""
+    from diffcassi.denoiser import DIHEDRAL, dihedral_draw
+    sp = diffcassi.System.preset("sp")
+    settings = dict(bands_nm=list(np.linspace(450, 650, 28)), planes=28, rays=1)
+    truth = natural_cube(16, 16, 28, seed=5)
+    op = diffcassi.shift_operator(sp, 16, 16, **settings)
+    acq = op.apply(truth)
+    run = lambda **kw: diffcassi.reconstruct(op, acq, "pnp-gap", iterations=5, tv_warmup=1, **kw)
+    a, ra = run(equivariant=True, equivariant_seed=11)
+    b, _ = run(equivariant=True, equivariant_seed=11)
+    assert np.array_equal(a, b)
+    names = ["r%d%s" % (k, "+flip" if f else "") for k, f in (dihedral_draw(11, j, True) for j in range(1, 5))]
+    eq = ra["denoiser"]["equivariant"]
+    assert eq["on"] and eq["seed"] == 11 and eq["transforms"] == names
+    assert ra["config"]["equivariant"] is True
+    assert sorted(set(dihedral_draw(5, j, True) for j in range(200))) == sorted(DIHEDRAL)
+    off, roff = run(equivariant=False)
+    assert roff["denoiser"]["equivariant"] == {"on": False}
+    assert not np.array_equal(a, off)
+    other, _ = run(equivariant=True, equivariant_seed=12)
+    assert not np.array_equal(a, other)
+    with pytest.raises(diffcassi.DiffcassiError, match="equivariant_seed"):
+        run(equivariant=True, equivariant_seed=-1)
+    with pytest.raises(diffcassi.DiffcassiError, match="equivariant"):
+        run(equivariant=1)
+    with pytest.raises(diffcassi.DiffcassiError, match="pnp-gap and pnp-admm only"):
+        diffcassi.reconstruct(op, acq, "gap-tv", equivariant=True)

@@ -23,6 +23,10 @@ pub struct SolveSettings {
     pub sigma_min: Option<f64>,
     /// PnP: σ_1 from the TV iterate's estimated error instead of σ max.
     pub sigma_auto: bool,
+    /// PnP: equivariant PnP on / off (`None`: the default, [`crate::recon::solver::PNP_EQUIVARIANT`]).
+    pub equivariant: Option<bool>,
+    /// PnP: the seed of equivariant PnP's transforms (`None`: 0).
+    pub equivariant_seed: Option<u64>,
     /// The stopping rule's relative-change tolerance.
     pub tolerance: Option<f64>,
     /// PnP: TV warm-up iterations.
@@ -53,6 +57,8 @@ impl SolveSettings {
             sigma_max: None,
             sigma_min: None,
             sigma_auto: false,
+            equivariant: None,
+            equivariant_seed: None,
             tolerance: None,
             tv_warmup: None,
             discrepancy: None,
@@ -99,8 +105,17 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
             }
         }
     }
-    if !kind.is_pnp() && (s.denoiser.is_some() || s.sigma_max.is_some() || s.sigma_min.is_some() || s.tv_warmup.is_some() || s.sigma_auto) {
-        return Err(Error::invalid(format!("--denoiser / --sigma-max / --sigma-min / --sigma-auto / --tv-warmup apply to pnp-gap and pnp-admm only, not `{}`", s.solver)));
+    if !kind.is_pnp() && (s.denoiser.is_some() || s.sigma_max.is_some() || s.sigma_min.is_some() || s.tv_warmup.is_some() || s.sigma_auto || s.equivariant.is_some() || s.equivariant_seed.is_some()) {
+        return Err(Error::invalid(format!(
+            "--denoiser / --sigma-max / --sigma-min / --sigma-auto / --tv-warmup / --equivariant / --no-equivariant / --equivariant-seed apply to pnp-gap and pnp-admm only, not `{}`",
+            s.solver
+        )));
+    }
+    if let Some(on) = s.equivariant {
+        cfg.equivariant = on;
+    }
+    if let Some(seed) = s.equivariant_seed {
+        cfg.equivariant_seed = seed;
     }
     if s.sigma_auto {
         cfg.sigma_auto = true;
@@ -163,6 +178,8 @@ fn check_unrolled_settings(s: &SolveSettings) -> Result<()> {
         ("--sigma-max", s.sigma_max.is_some()),
         ("--sigma-min", s.sigma_min.is_some()),
         ("--sigma-auto", s.sigma_auto),
+        ("--equivariant / --no-equivariant", s.equivariant.is_some()),
+        ("--equivariant-seed", s.equivariant_seed.is_some()),
         ("--tolerance", s.tolerance.is_some()),
         ("--tv-warmup", s.tv_warmup.is_some()),
         ("--discrepancy", s.discrepancy.is_some()),

@@ -25,6 +25,7 @@
 //! assert!(spread(&out) < spread(&noisy));
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
+pub mod dihedral;
 pub mod network;
 pub mod unrolled;
 pub mod tv;

@@ -60,6 +60,7 @@
 //! net.denoise(&noisy, &mut clean, shape, 0.05)?;
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
+use super::dihedral::Dihedral;
 use super::Denoiser;
 use crate::error::{Error, Result};
 use crate::recon::operator::CubeShape;
@@ -166,19 +167,10 @@ pub struct SpectralUNet {
 /// of the width axis if flip.
 pub const DIHEDRAL: [(u8, bool); 8] = [(0, false), (0, true), (1, false), (1, true), (2, false), (2, true), (3, false), (3, true)];
 
-/// Source (row, col) in an `h`×`w` image of output pixel (r, c) of `torch.rot90(·, k)` followed (if `flip`)
-/// by a width reversal; the output is `w`×`h` for odd k. The same map serves both ways: the forward transform
-/// gathers from the source pixel, the back-transform adds the output at (r, c) to it.
+/// Source (row, col) in an `h`×`w` image of output pixel (r, c) of the transform (k, flip): the map of
+/// [`Dihedral::source`], which both the self-ensemble and equivariant PnP use.
 fn dihedral_src(k: u8, flip: bool, h: usize, w: usize, r: usize, c: usize) -> (usize, usize) {
-    let ow = if k % 2 == 1 { h } else { w };
-    let c = if flip { ow - 1 - c } else { c };
-    // torch.rot90(x, 1, dims=(H, W)): out[r][c] = in[c][W−1−r]; k = 2: in[H−1−r][W−1−c]; k = 3: in[H−1−c][r].
-    match k % 4 {
-        0 => (r, c),
-        1 => (c, w - 1 - r),
-        2 => (h - 1 - r, w - 1 - c),
-        _ => (h - 1 - c, r),
-    }
+    Dihedral { quarter_turns: k, flip }.source(h, w, r, c)
 }
 
 /// (name, transposed, C_in, C_out, kernel, bias) of every layer, in `diffcassi/denoiser.py`'s order;

@@ -4,7 +4,7 @@
 use super::config::{SolverConfig, PNP_SIGMA_GAIN};
 use crate::error::Result;
 use crate::recon::operator::CubeShape;
-use crate::recon::prior::{tv::TvDenoiser, Denoiser};
+use crate::recon::prior::{dihedral::Dihedral, tv::TvDenoiser, Denoiser};
 use rayon::prelude::*;
 
 /// The noise-level schedule of the plug-and-play solvers: geometric from σ_max (iteration 1) to σ_min
@@ -65,11 +65,37 @@ impl NetworkScale {
 /// out ← p·D(x/p, σ) with p the [`NetworkScale`] of x: the plug-and-play solvers' call of a denoiser trained at
 /// peak ≈ 1 (σ relative to p). `scratch` holds the scaled copy. Returns the scale.
 pub fn denoise_at_network_scale(denoiser: &mut dyn Denoiser, x: &[f32], out: &mut [f32], shape: CubeShape, sigma: f32, scratch: &mut Vec<f32>) -> Result<NetworkScale> {
+    denoise_at_network_scale_transformed(denoiser, x, out, shape, sigma, scratch, None, &mut Vec::new())
+}
+
+/// As [`denoise_at_network_scale`], the call of equivariant PnP when `transform` is given: out ←
+/// p·g⁻¹ D(g·x/p, σ) (`transformed` holds g·x/p and the denoiser's output; p does not depend on g, a
+/// permutation of the voxels). With `None` bit for bit [`denoise_at_network_scale`].
+#[allow(clippy::too_many_arguments)]
+pub fn denoise_at_network_scale_transformed(
+    denoiser: &mut dyn Denoiser,
+    x: &[f32],
+    out: &mut [f32],
+    shape: CubeShape,
+    sigma: f32,
+    scratch: &mut Vec<f32>,
+    transform: Option<Dihedral>,
+    transformed: &mut Vec<f32>,
+) -> Result<NetworkScale> {
     let s = NetworkScale::of(x, scratch);
     let p = s.scale;
     scratch.resize(x.len(), 0.0);
     scratch.par_iter_mut().zip(x.par_iter()).for_each(|(s, x)| *s = *x / p);
-    denoiser.denoise(scratch, out, shape, sigma)?;
+    match transform {
+        None => denoiser.denoise(scratch, out, shape, sigma)?,
+        Some(g) => {
+            // scratch = x/p → transformed = g·(x/p) → scratch = D(transformed) → out = g⁻¹·scratch.
+            transformed.resize(x.len(), 0.0);
+            let gshape = g.apply(scratch, shape, transformed);
+            denoiser.denoise(transformed, scratch, gshape, sigma)?;
+            g.invert(scratch, shape, out);
+        }
+    }
     out.par_iter_mut().for_each(|v| *v *= p);
     Ok(s)
 }
@@ -103,6 +129,12 @@ pub(crate) struct PriorStep<'d> {
     sigma_auto: bool,
     /// The network's input scale at the last network call (for the record).
     last_scale: Option<NetworkScale>,
+    /// Equivariant PnP: the seed of the transforms' stream (`None`: off).
+    equivariant_seed: Option<u64>,
+    /// Equivariant PnP: the transformed cube (cube-sized once used).
+    transformed: Vec<f32>,
+    /// Equivariant PnP: the transform of every network call so far, in order (for the record).
+    transforms: Vec<Dihedral>,
 }
 
 impl<'d> PriorStep<'d> {
@@ -123,6 +155,9 @@ impl<'d> PriorStep<'d> {
             sigma_auto: config.sigma_auto,
             warmup,
             last_scale: None,
+            equivariant_seed: (pnp && config.equivariant).then_some(config.equivariant_seed),
+            transformed: Vec::new(),
+            transforms: Vec::new(),
         };
         if s.warmup.is_none() {
             s.switch(0);
@@ -183,14 +218,23 @@ impl<'d> PriorStep<'d> {
         if !self.normalise {
             return self.denoiser.denoise(x, out, shape, sigma);
         }
-        let scale = denoise_at_network_scale(self.denoiser, x, out, shape, sigma, &mut self.scaled)?;
+        // Equivariant PnP: the j-th network call (j = k − K_TV) draws g from (seed, j).
+        let transform = match (self.equivariant_seed, self.switched_after) {
+            (Some(seed), Some(s)) => {
+                let g = Dihedral::draw(seed, (k - s) as u64, shape.height == shape.width);
+                self.transforms.push(g);
+                Some(g)
+            }
+            _ => None,
+        };
+        let scale = denoise_at_network_scale_transformed(self.denoiser, x, out, shape, sigma, &mut self.scaled, transform, &mut self.transformed)?;
         self.last_scale = Some(scale);
         Ok(())
     }
 
     /// Cube-sized buffers held (the scaled copy and the denoiser's).
     pub(crate) fn cube_buffers(&self) -> usize {
-        usize::from(self.normalise) + self.denoiser.cube_buffers() + self.warmup.as_ref().map_or(0, |(_, tv)| tv.cube_buffers())
+        usize::from(self.normalise) + usize::from(self.equivariant_seed.is_some()) + self.denoiser.cube_buffers() + self.warmup.as_ref().map_or(0, |(_, tv)| tv.cube_buffers())
     }
 
     pub(crate) fn describe(&self) -> serde_json::Value {
@@ -204,6 +248,14 @@ impl<'d> PriorStep<'d> {
             let calls = self.network_iterations;
             let sigmas: Vec<f32> = (1..=calls).map(|j| sigma_schedule(self.sigma_first, self.sigma_min, calls, j)).collect();
             o.insert("schedule".into(), serde_json::json!({"network_calls_max": calls, "sigma_first": self.sigma_first, "sigma_min": self.sigma_min, "sigmas": sigmas, "rule": "σ_j = σ_1·(σ_min/σ_1)^((j−1)/(N−1)), j = 1…N"}));
+            o.insert(
+                "equivariant".into(),
+                match self.equivariant_seed {
+                    Some(seed) => serde_json::json!({"on": true, "seed": seed, "transforms": self.transforms.iter().map(|g| g.name()).collect::<Vec<_>>(),
+                        "rule": "θ = g⁻¹·D(g·x, σ), g = Dihedral::draw(seed, j, square) at network call j: the 8 flips/quarter turns of a square cube, the 4 flips otherwise"}),
+                    None => serde_json::json!({"on": false}),
+                },
+            );
             o.insert("embedded_weights_crc32".into(), serde_json::json!(crate::recon::prior::network::weights_crc32(None).ok()));
         }
         if let (Some((n, tv)), Some(o)) = (&self.warmup, d.as_object_mut()) {
