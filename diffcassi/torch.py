@@ -784,6 +784,10 @@ class CassiRenderer(_TargetChecked):
     with ``straight_through=True``) are not traced; freeze ``theta`` and no ray is swept backwards; a cube
     that does not require grad gets no scene gradient. The gradients computed are bit-identical to those of
     the backward that computes all three.
+
+    A system with a coded-mask surface (dual-disperser CASSI, presets ``ddsp``/``mddsp``) reads the mask where
+    each ray crosses that surface: every scene pixel's rays are traced, and ∂/∂theta includes the crossing
+    point's term for ``bilinear`` mask sampling (docs/codesign.md, "Dual-disperser CASSI").
     """
 
     def __init__(self, system: "diffcassi.System", H: int, W: int, free: Sequence[str] = ("prism_tilt_x",),

@@ -799,49 +799,38 @@ impl DiffRenderer {
                 let (k0, k1, tw) = self.interpolation(p);
                 let mut img = vec![0.0f64; n * npix];
                 let mut arrived = 0u64;
-                let (mut land, mut vals) = (Vec::new(), vec![0.0; n]);
-                if let Some(ms) = self.ds.system.coded_mask {
-                    // The mask on a surface (dual-disperser): every scene pixel's rays, each weighted by the
-                    // transmission where it crosses the surface.
-                    let mut weights = Vec::new();
-                    self.for_rows(p, |_| Class::Open, |_, rays| {
-                        self.land_through_mask(ms, &idx, mask, rays, &mut land, &mut weights);
-                        for ((&q, uv), &t) in rays.pixel.iter().zip(&land).zip(&weights) {
+                // Each ray's weight: its scene pixel's mask value (the mask on the object plane), or with a
+                // coded-mask surface (dual-disperser) the transmission where it crosses that surface, every
+                // scene pixel's rays being traced.
+                let surface = self.ds.system.coded_mask;
+                let (mut land, mut weights, mut vals) = (Vec::new(), Vec::new(), vec![0.0; n]);
+                self.for_rows(
+                    p,
+                    |q| if surface.is_some() || mask[q] != 0.0 { Class::Open } else { Class::Skip },
+                    |_, rays| {
+                        match surface {
+                            Some(ms) => self.land_through_mask(ms, &idx, mask, rays, &mut land, &mut weights),
+                            None => {
+                                self.land_all(&idx, rays, &mut land);
+                                weights.clear();
+                                weights.extend(rays.pixel.iter().map(|&q| mask[q]));
+                            }
+                        }
+                        for ((&q, uv), &wgt) in rays.pixel.iter().zip(&land).zip(&weights) {
                             let Some(uv) = *uv else { continue };
                             arrived += 1;
                             for (s, v) in vals.iter_mut().enumerate() {
-                                *v = ((1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q]) * t / nr;
+                                *v = ((1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q]) * wgt / nr;
                             }
-                            let tp = self.taps4(uv);
-                            for k in 0..tp.count {
+                            let t = self.taps4(uv);
+                            for k in 0..t.count {
                                 for (s, v) in vals.iter().enumerate() {
-                                    img[s * npix + tp.index[k]] += v * tp.wt[k];
+                                    img[s * npix + t.index[k]] += v * t.wt[k];
                                 }
                             }
                         }
-                    });
-                } else {
-                    self.for_rows(
-                        p,
-                        |q| if mask[q] != 0.0 { Class::Open } else { Class::Skip },
-                        |_, rays| {
-                            self.land_all(&idx, rays, &mut land);
-                            for (&q, uv) in rays.pixel.iter().zip(&land) {
-                                let Some(uv) = *uv else { continue };
-                                arrived += 1;
-                                for (s, v) in vals.iter_mut().enumerate() {
-                                    *v = ((1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q]) * mask[q] / nr;
-                                }
-                                let t = self.taps4(uv);
-                                for k in 0..t.count {
-                                    for (s, v) in vals.iter().enumerate() {
-                                        img[s * npix + t.index[k]] += v * t.wt[k];
-                                    }
-                                }
-                            }
-                        },
-                    );
-                }
+                    },
+                );
                 let mut out = vec![0.0f64; n * npix];
                 for s in 0..n {
                     self.blur(p, &img[s * npix..(s + 1) * npix], &mut out[s * npix..(s + 1) * npix]);
