@@ -97,7 +97,7 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
            seed: Optional[int] = None, sampling: Optional[str] = None, opening: Optional[float] = None,
            mask_seed: Optional[int] = None, airy_diameter_px: Optional[float] = None, airy: Optional[bool] = None,
            backend: str = "analytic", noise: Optional[dict] = None, device: Optional[str] = None,
-           precision: Optional[str] = None) -> Tuple[np.ndarray, Dict[str, Any]]:
+           precision: Optional[str] = None, scene_fov_deg: Optional[float] = None) -> Tuple[np.ndarray, Dict[str, Any]]:
     """Render the coded acquisition of ``scene`` through ``system``.
 
     ``scene``: (H, W, B) float32, C-contiguous, finite, its bands at ``wavelengths_nm`` (B values).
@@ -112,6 +112,11 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
     what is missing where there is none; ``info["device"]`` names the GPU, the driver and the accumulation) or
     ``"cpu-twin"`` (the GPU kernels run on the CPU: the device's bits, slowly). docs/gpu.md. ``precision``:
     ``"f64"`` (the default) or ``"f32"`` (the ray kernel in f32, as ``--precision``; on any device).
+    ``scene_fov_deg``: for a system whose object is at infinity (``System.object_at_infinity``), the scene's
+    full angular extent across its width in degrees, in (0, 180) (the CLI's ``--scene-fov-deg``): pixels are
+    uniform in field angle, and ``info["scene_fov_deg"]`` records it. Required at infinity, refused for a
+    finite object (whose scene lies on the object plane at 10 µm per pixel). The operators (:func:`exact`,
+    :func:`mapping_operator`, :func:`shift_operator`) and :class:`Transport` take it too.
     The memory and ray budgets are the CLI's defaults unless :func:`set_limits` changed them.
 
     Returns ``(acquisition, info)``: the detector image (h, w) float64 and a dict with ``render.json``'s
@@ -130,7 +135,8 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
         raise DiffcassiValueError(f"noise: expected None, a string such as 'shot,read,adc' or a dict, got {type(noise).__name__}")
     acq, info = _native._render(system, scene, wavelengths_nm, mask, bands_nm=bands_nm, planes=planes, rays=rays, seed=seed,
                                 sampling=sampling, opening=opening, mask_seed=mask_seed, airy_diameter_px=airy_diameter_px,
-                                airy=airy, backend=_check_backend(backend), device=device, precision=precision, **nz)
+                                airy=airy, backend=_check_backend(backend), device=device, precision=precision,
+                                scene_fov_deg=scene_fov_deg, **nz)
     return acq, _json.loads(info)
 
 

@@ -395,6 +395,24 @@ fn cli_render_scene_fov_deg_and_its_errors() {
     assert!(json["scene_pitch_mm"].is_null());
     assert!(json["ray_stats"]["arrived"].as_u64().unwrap() > 0, "{}", json["ray_stats"]);
     assert!(json["acquisition_total"].as_f64().unwrap().is_finite() && json["acquisition_total"].as_f64().unwrap() > 0.0);
+    // --tolerance-um at infinity: the Monte-Carlo spread σ is measured over pixels of the angular pitch (the
+    // render's own sampling, not the finite-object placeholder pitch), and the candidates the Embree backends
+    // cannot trace (an object at infinity) are left out instead of failing the choice.
+    let tol = |fov: &str, out: &str| bin().args(["render", "--system", z, "--scene-size", "8", "--planes", "2", "--bands", "500,600", "--no-mapping", "--tolerance-um", "3", "--scene-fov-deg", fov, "--out", tmp(out).to_str().unwrap()]).arg("--calibration-cache").arg(tmp(&format!("{out}-cache"))).output().unwrap();
+    let sigma = |text: &str| -> f64 { text.split("σ = ").nth(1).and_then(|t| t.split(" µm").next()).and_then(|v| v.parse().ok()).unwrap_or_else(|| panic!("no σ in: {text}")) };
+    let o = tol("0.5", "tol-narrow");
+    let out = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{out}");
+    assert!(out.contains("fidelity: tolerance 3 µm → --backend analytic --rays ") && out.contains("left out"), "{out}");
+    let rays = serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(tmp("tol-narrow").join("render.json")).unwrap()).unwrap()["rays_per_pixel"].as_u64().unwrap();
+    let (s_narrow, n) = (sigma(&out), rays as f64);
+    assert!(s_narrow / n.sqrt() <= 3.0 && s_narrow / (n - 1.0).sqrt() > 3.0 - 1e-9, "σ {s_narrow}, N {n}: the fewest rays within 3 µm");
+    // 24× wider pixels (12° over 8 pixels) spread their landings more: refused as needing too many rays, naming σ.
+    let o = tol("12", "tol-wide");
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("--tolerance-um 3") && sigma(&err) > 4.0 * s_narrow, "{err}");
+    assert!(!tmp("tol-wide").join("render.json").exists());
     // reconstruct rebuilds the renderer from the recorded angular extent.
     let o = bin().args(["reconstruct", "--from", tmp("ok").to_str().unwrap(), "--operator", "exact", "--solver", "gap-tv", "--iterations", "2", "--out", tmp("recon").to_str().unwrap()]).output().unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));

@@ -127,7 +127,7 @@ fn final_line_break_and_records_cut_in_the_middle() {
     let moff = format!("{good}MOFF   0   1 \"ab");
     cut(&moff, &["`MOFF`", "unclosed quote"]);
     let moff = format!("{good}MOFF   0   1 \"\" 0 0");
-    cut(&moff, &["`MOFF`", "5 of the 12 arguments"]);
+    cut(&moff, &["`MOFF`", "5 of the 11 arguments"]);
     // A surface record cut: `DISZ` with no value, `PARM 4` without its value.
     let disz = &good[..good.rfind("DISZ").unwrap() + 4];
     cut(disz, &["`DISZ`", "argument 1 missing"]);
@@ -326,4 +326,58 @@ fn builtin_vendor_catalogues_reproduce_their_printed_nd() {
         }
         assert_eq!(n, c.len());
     }
+}
+
+/// OpticStudio's solves and pickups (`CURV c 4 …`, `PZUP`, `PPAR`, `MAZH`: the file holds each solved value)
+/// are read as the values the file holds and listed; a floating aperture `FLAP rmin rmax` is the circular
+/// aperture of those radii (exported as `CLAP`, read back identical); `HYPR 0` (off) is skipped, `HYPR 1`
+/// refused; surface and lens identifiers are bookkeeping. Public files that held only these now open as they
+/// are, without `--ignore-unsupported`.
+#[test]
+fn solves_pickups_and_floating_apertures_read_as_the_file_holds_them() {
+    let good = sp_zmx();
+    let reference = import(good.as_bytes()).unwrap().spec;
+    let solved = good.replacen("SURF 2\n", "SURF 2\n  SSID 3\n  PZUP 6.0 1 0 0\n  MAZH 0 7.0E-1\n  PPAR 3 3 1.0 0.0 0\n", 1).replacen("NAME", "HYPR 0\nLUID 6\nNAME", 1);
+    let imp = import(solved.as_bytes()).unwrap();
+    assert_eq!(imp.spec, reference, "the values the file holds are the system");
+    assert!(imp.ignored.is_empty());
+    for k in ["PZUP", "MAZH", "PPAR"] {
+        let u = imp.skipped.iter().find(|u| u.keyword == k).unwrap_or_else(|| panic!("{k} not listed: {:?}", imp.skipped));
+        assert!(u.reason.contains("the value the file holds") && u.reason.contains("not re-run"), "{u}");
+        let line = solved.lines().position(|l| l.trim_start().starts_with(k)).unwrap() + 1;
+        assert_eq!(u.line, line, "{k}");
+    }
+    for k in ["HYPR", "LUID", "SSID"] {
+        assert!(imp.skipped.iter().any(|u| u.keyword == k), "{k} not listed: {:?}", imp.skipped);
+    }
+    let on = solved.replacen("HYPR 0", "HYPR 1", 1);
+    let e = import(on.as_bytes()).unwrap_err().to_string();
+    assert!(e.contains("`HYPR`") && e.contains("not modelled"), "{e}");
+
+    // A floating aperture on surface 2: its circular aperture, exported as CLAP and read back identical.
+    let flap = good.replacen("SURF 2\n", "SURF 2\n  FLAP 0 2.5 0\n", 1);
+    let imp = import(flap.as_bytes()).unwrap();
+    assert_eq!(imp.spec.surfaces[2].aperture, Some(diffcassi::surfaces::Aperture::circular(2.5)));
+    let back = import(to_zmx(&imp.spec).unwrap().as_bytes()).unwrap();
+    assert_eq!(back.spec, imp.spec);
+    for bad in ["FLAP 0 0 0", "FLAP 3 2 0", "FLAP 0 nan 0", "FLAP -1 2 0"] {
+        let t = good.replacen("SURF 2\n", &format!("SURF 2\n  {bad}\n"), 1);
+        let line = t.lines().position(|l| l.contains("FLAP")).unwrap() + 1;
+        let e = import(t.as_bytes()).unwrap_err().to_string();
+        assert!(e.contains(&format!("line {line} `FLAP`")), "{bad}: {e}");
+    }
+
+    // Public files (tests/fixtures/zmx) that held only these records open as they are: the Thorlabs cylinder
+    // lens (its last record, an 11-argument `MOFF`, has no line break), optiland's fold mirrors (`HYPR 0`,
+    // parameter pickups) and rayoptics' Cassegrain.
+    for name in ["cylinder_thorlabs_LJ1598L1.zmx", "fold_mirrors_optiland.zmx", "cassegrain_mirrors_HoO_V2C18Ex03.zmx"] {
+        let imp = import_zmx_file(fixture(name), &ZmxOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(imp.ignored.is_empty(), "{name}");
+        assert!(imp.spec.object_at_infinity(), "{name}");
+        SequentialSystem::build(&imp.spec).unwrap_or_else(|e| panic!("{name}: {e}"));
+    }
+    // The double Gauss now opens but for its vignetting factors (not modelled: they change OpticStudio's pupil
+    // sampling): its floating apertures, pickups and solves are read.
+    let e = import_zmx_file(fixture("double_gauss_US583336.zmx"), &ZmxOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("3 item(s)") && e.contains("`VDYN`") && !e.contains("FLAP") && !e.contains("PZUP") && !e.contains("MAZH"), "{e}");
 }

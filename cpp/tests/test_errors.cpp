@@ -10,6 +10,10 @@
 
 #include "check.hpp"
 
+#ifndef DIFFCASSI_SOURCE_DIR
+#define DIFFCASSI_SOURCE_DIR "."
+#endif
+
 namespace {
 
 // Run f, expect a diffcassi::Error whose message contains every fragment.
@@ -127,6 +131,36 @@ int main() {
     // After the errors the same buffer renders.
     const auto info = sys.render_into(view, {}, o, out.data(), out.size());
     CHECK(info.rays_traced > 0 && info.rays_arrived == info.rays_traced);
+  }
+
+  // Objects at infinity (issue 42): the scene's angular extent, `scene_fov_deg`, is required there, checked,
+  // and refused on a finite object. A public design at infinity opened as it is (rayoptics' Cassegrain).
+  {
+    const auto telescope = System::from_file(DIFFCASSI_SOURCE_DIR "/../tests/fixtures/zmx/cassegrain_mirrors_HoO_V2C18Ex03.zmx");
+    auto o = diffcassi::default_render_options();
+    o.planes = 2;
+    o.rays_per_pixel = 2;
+    const std::vector<double> wl{500.0, 600.0};
+    std::vector<float> scene(4 * 4 * 2, 1.0f);
+    const diffcassi::SceneView view{4, 4, wl, scene};
+    expect_error("no angular extent at infinity", [&] { telescope.render_detector(4, 4, wl, o); }, {"object at infinity", "scene_fov_deg"});
+    for (const double bad : {180.0, -5.0, std::nan(""), HUGE_VAL}) {
+      auto b = o;
+      b.scene_fov_deg = bad;
+      expect_error("bad angular extent", [&] { telescope.render_detector(4, 4, wl, b); }, {"scene-fov-deg", "(0, 180)"});
+    }
+    auto at_inf = o;
+    at_inf.scene_fov_deg = 0.2;
+    expect_error("angular extent on a finite object", [&] { sys.render_detector(4, 4, wl, at_inf); }, {"finite object"});
+    const auto d = telescope.render_detector(4, 4, wl, at_inf);
+    std::vector<double> out(d.detector_height * d.detector_width, -1.0);
+    const auto info = telescope.render_into(view, {}, at_inf, out.data(), out.size());
+    double total = 0.0;
+    for (const double v : out) {
+      CHECK(std::isfinite(v) && v >= 0.0);
+      total += v;
+    }
+    CHECK(info.rays_arrived > 0 && total > 0.0);
   }
 
   // Errors are ordinary C++ exceptions, catchable as std::exception too.

@@ -15,7 +15,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 /// The render keywords every settings-taking call accepts (besides `mask`, which is positional).
-pub const RENDER_KEYS: [&str; 12] = ["bands_nm", "planes", "rays", "seed", "sampling", "opening", "mask_seed", "airy_diameter_px", "airy", "backend", "device", "precision"];
+pub const RENDER_KEYS: [&str; 13] = ["bands_nm", "planes", "rays", "seed", "sampling", "opening", "mask_seed", "airy_diameter_px", "airy", "backend", "device", "precision", "scene_fov_deg"];
 
 /// Render settings from Python keywords; `None` = the library's default.
 #[derive(Default, Clone)]
@@ -32,6 +32,8 @@ pub struct Options {
     pub device: Option<String>,
     /// `"f64"` (the default) or `"f32"` (the ray kernel's precision, as `--precision`).
     pub precision: Option<String>,
+    /// An object at infinity: the scene's full angular extent across its width (degrees, `--scene-fov-deg`).
+    pub scene_fov_deg: Option<f64>,
 }
 
 impl Options {
@@ -72,6 +74,9 @@ impl Options {
         if let Some(p) = &self.precision {
             s.precision = Some(p.parse().map_err(|_| value_error(format!("precision `{p}`: use \"f64\" or \"f32\"")))?);
         }
+        // Checked by the library against the system when the renderer is built (`render::scene_pitch_for`:
+        // refused on a finite object, required at infinity, in (0, 180) degrees).
+        s.scene_fov_deg = self.scene_fov_deg;
         if let Some(d) = &self.device {
             s.device = d.parse::<Device>().map_err(|_| value_error(format!("device `{d}`: use \"cpu\" or \"cuda\"")))?;
             if let Some(why) = s.device.unavailable() {
@@ -142,6 +147,7 @@ pub fn settings<'py>(py: Python<'py>, kwargs: Option<&Bound<'py, PyDict>>, extra
             "airy" => o.airy = Some(get(&key, &v, "True or False")?),
             "device" => o.device = Some(get(&key, &v, "\"cpu\"")?),
             "precision" => o.precision = Some(get(&key, &v, "\"f64\" or \"f32\"")?),
+            "scene_fov_deg" => o.scene_fov_deg = Some(get(&key, &v, "a number (degrees)")?),
             "backend" => s.backend = get(&key, &v, "a backend name")?,
             other if extra.contains(&other) => s.extra.set_item(other, v)?,
             other => {

@@ -179,14 +179,28 @@ def test_public_designs_agree_with_rayoptics(cli, tmp_path, design):
                 ro_starts.append(np.array([x, y - dist * t, 0.0]))
     origins, dirs = np.array(origins), np.array(dirs)
     got = diffcassi.trace(ours, origins, dirs, np.full(len(origins), wl))
-    assert (got["status"] == 0).all()
-    scale = max(1.0, float(np.abs(got["positions"][:, :2]).max()))
-    worst = 0.0
+    # Every ray arrives, but where a floating aperture (FLAP, read as the circular aperture of the file's
+    # semi-diameter) clips it: rayoptics does not model FLAP and traces such a ray on, so there the check is
+    # that rayoptics' ray crosses that surface outside the aperture's radius (the same physics, from both).
+    ok = got["status"] == 0
+    assert set(np.unique(got["status"])) <= {0, next(c for c, n in diffcassi.STATUS.items() if n == "vignetted")}, got["status"]
+    assert ok.sum() >= 0.6 * len(origins), ok.sum()
+    scale = max(1.0, float(np.abs(got["positions"][ok, :2]).max()))
+    worst, clipped = 0.0, 0
     for k in range(len(origins)):
         ray, _, _ = ro_trace(sm, ro_starts[k], dirs[k], wl)
+        if not ok[k]:
+            s = int(got["surface"][k])
+            ap = tomllib.loads(toml.read_text())["surfaces"][s]["aperture"]
+            assert ap["type"] == "circular", (k, s, ap)
+            r = math.hypot(ray[s][0][0], ray[s][0][1])
+            assert r > ap["semi_diameter_mm"] * (1 + 1e-9), (k, s, r, ap)
+            clipped += 1
+            continue
         x, y = ray[-1][0][0], ray[-1][0][1]
         worst = max(worst, abs(got["positions"][k, 0] - x) / scale, abs(got["positions"][k, 1] - y) / scale)
-    print(f"{design}: {len(origins)} real rays, max landing difference {worst:.2e} relative (scale {scale:.3f} mm)")
+    print(f"{design}: {len(origins)} real rays ({clipped} clipped by floating apertures, outside them in rayoptics too), "
+          f"max landing difference {worst:.2e} relative (scale {scale:.3f} mm)")
     assert worst <= 1e-6
 
     # (2) The command line's own rays: `trace --field-deg 0,θ --pupil grid:5` against rayoptics' rays of the

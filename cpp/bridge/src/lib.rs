@@ -142,6 +142,9 @@ pub mod ffi {
         /// Random binary mask used when no mask values are given.
         mask_opening: f64,
         mask_seed: u64,
+        /// An object at infinity: the scene's full angular extent across its width (degrees, in (0, 180);
+        /// pixels uniform in field angle; `scene_pitch_mm` unused). 0 for a finite object (the default).
+        scene_fov_deg: f64,
     }
 
     /// The detector of a render (and, after a render, its ray counts).

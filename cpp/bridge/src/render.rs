@@ -6,7 +6,8 @@
 //! The options map onto `diffcassi::render::RenderConfig::paper(H)` with: scene H×W at
 //! `scene_pitch_mm`, bands = the scene's wavelengths, `SpectralSampling::with_planes(bands, planes)`
 //! (`planes` 0: 4 per band, the paper's), `rays_per_pixel`, stratified sampling, `seed`, detector pitch
-//! `detector_pitch_mm`, Airy blur of `airy_diameter_px` at 520 nm when `airy`. The image is
+//! `detector_pitch_mm`, Airy blur of `airy_diameter_px` at 520 nm when `airy`; for an object at infinity,
+//! `scene_fov_deg` (the scene's angular extent across its width; 0 for a finite object). The image is
 //! `Renderer::render(..).image` of the Rust API, bit for bit.
 //!
 //! ```
@@ -43,6 +44,7 @@ pub fn default_render_options() -> RenderOptions {
         airy_diameter_px: 2.5,
         mask_opening: 0.5,
         mask_seed: 0,
+        scene_fov_deg: 0.0,
     }
 }
 
@@ -74,6 +76,12 @@ pub fn render_config(height: usize, width: usize, wavelengths_nm: &[f64], o: &Re
     cfg.sampling = Sampling::Stratified;
     cfg.seed = o.seed;
     cfg.airy = o.airy.then_some(AiryConfig { diameter_px: o.airy_diameter_px, ..AiryConfig::default() });
+    // 0 = a finite object; any other value (NaN included) is the angular extent, which the renderer checks
+    // against the system (`render::scene_pitch_for`: in (0, 180) degrees, and only for an object at infinity).
+    if o.scene_fov_deg != 0.0 {
+        diffcassi::render::check_scene_fov_deg(o.scene_fov_deg)?;
+        cfg.scene_fov_deg = Some(o.scene_fov_deg);
+    }
     Ok(cfg)
 }
 

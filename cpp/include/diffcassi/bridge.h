@@ -1079,6 +1079,9 @@ struct RenderOptions final {
   // Random binary mask used when no mask values are given.
   double mask_opening CXX_DEFAULT_VALUE(0);
   ::std::uint64_t mask_seed CXX_DEFAULT_VALUE(0);
+  // An object at infinity: the scene's full angular extent across its width (degrees, in (0, 180);
+  // pixels uniform in field angle; `scene_pitch_mm` unused). 0 for a finite object (the default).
+  double scene_fov_deg CXX_DEFAULT_VALUE(0);
 
   using IsRelocatable = ::std::true_type;
 };

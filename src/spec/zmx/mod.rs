@@ -145,6 +145,9 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
             Some(records::cosmetic_reason(kw).to_string())
         } else if kw == "TOL" && r.args.first().map(String::as_str) != Some("TOFF") {
             Some(format!("tolerance operand `{}` (tolerancing data, not the nominal system)", r.args.first().cloned().unwrap_or_default()))
+        } else if kw == "HYPR" && r.args.iter().all(|a| a == "0") {
+            // OpticStudio's hyper-hemispheric option, off (its default): nothing changes. On, it is refused.
+            Some("the hyper-hemispheric option, off (OpticStudio's default)".to_string())
         } else if records::is_merit_row(r, !blocks.is_empty(), records::SURFACE_KEYWORDS.contains(&kw)) {
             Some("merit-function operand (an optimisation target)".to_string())
         } else {
@@ -211,6 +214,11 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     if blocks.len() < 3 {
         return Err(fail(format!("{} surfaces: a system needs an object, a surface and an image (truncated?)", blocks.len())));
     }
+    // Solves and pickups read as their saved values: listed with the records that carry no optics.
+    for (b, _) in &blocks {
+        skipped.extend(b.frozen.iter().cloned());
+    }
+    skipped.sort_by_key(|u| u.line);
     let mut surfaces = Vec::with_capacity(blocks.len());
     for (b, _) in &blocks {
         surfaces.push(b.build(&mut unsupported).map_err(&fail)?);

@@ -22,7 +22,7 @@ impl std::fmt::Display for Unsupported {
 pub const COSMETIC: &[&str] = &[
     "VERS", "PFIL", "LANG", "GFAC", "PUSH", "SDMA", "OMMA", "ROPD", "PICB", "POLS", "GLRS", "GSTD", "NSCD", "COFN",
     "BLNK", "FIMP", "HIDE", "MIRR", "SLAB", "POPS", "MEMA", "COAT", "MOFF", "DMFS",
-    "FWGN", "FWGT", "WWGN", "WWGT", "AUTH", "DBDT",
+    "FWGN", "FWGT", "WWGN", "WWGT", "AUTH", "DBDT", "SSID", "LUID",
 ];
 
 /// What a skipped keyword is, for the listing.
@@ -38,6 +38,7 @@ pub fn cosmetic_reason(keyword: &str) -> &'static str {
         "MEMA" => "mechanical semi-diameter (drawing only)",
         "MOFF" => "unused multi-configuration operand row",
         "DMFS" => "default merit function settings",
+        "SSID" | "LUID" => "OpticStudio's surface / lens identifier (bookkeeping)",
         "FWGN" | "FWGT" | "WWGN" | "WWGT" => "field / wavelength weights (optimisation only)",
         _ => "no optics",
     }
@@ -65,13 +66,13 @@ pub const SURFACE_KEYWORDS: &[&str] = &[
 ];
 
 /// The number of arguments OpticStudio writes for keywords that carry no optics and often end a file (`MNUM 1 1`,
-/// `MOFF 0 1 "" 0 0 0 1 1 0 0.0 "" 0`). A last record without a line break that has fewer is a record cut in
+/// `MOFF 0 1 "" 0 0 0 1 1 0 0.0 ""`, which newer versions follow with one more `0`: 11 is the least). A last record without a line break that has fewer is a record cut in
 /// the middle. Keywords read for their values need what their reader needs (a missing argument is refused
 /// anyway).
 pub fn written_arity(keyword: &str) -> Option<usize> {
     match keyword {
         "MNUM" => Some(2),
-        "MOFF" => Some(12),
+        "MOFF" => Some(11),
         "POPS" => Some(16),
         "MEMA" | "DIAM" => Some(6),
         "TOL" => Some(8),

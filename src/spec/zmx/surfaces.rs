@@ -11,11 +11,16 @@
 //! `STOP`, `DIAM sd …` (semi-diameter), `CLAP rmin rmax` / `SQAP hx hy` with `OBDC dx dy` (clipping
 //! apertures), `COMM text`; `VCUR`, `VDSZ`, `VCON`, `VPAR i` mark cells variable. Pickups and chief-ray
 //! solves are written by diffcassi as `DCPK column from_surface scale offset [source_column]` and
-//! `DCCR column`, `DCVR column` marks a variable cell: OpticStudio's own solve records are refused by name.
+//! `DCCR column`, `DCVR column` marks a variable cell. OpticStudio's own solve and pickup records (`CURV c 4`,
+//! `PZUP`, `PPAR`, `MAZH`, …) are read as the solved values the file holds, and listed.
+//! `FLAP rmin rmax` (a floating aperture) is read as the circular aperture of those radii.
 use super::lexer::Record;
 use super::records::{finite, int, num, Unsupported, COSMETIC};
 use crate::spec::{Cell, Driver, Pickup, SurfaceKind, SurfaceSpec, COLUMNS};
 use crate::surfaces::Aperture;
+
+/// Why an OpticStudio solve or pickup record is read as the value the file holds.
+const FROZEN: &str = "OpticStudio solve/pickup: the value the file holds (solved when it was saved) is read; the solve is not re-run when a parameter changes";
 
 /// The records of one surface, as read.
 #[derive(Debug, Default)]
@@ -38,11 +43,17 @@ pub(super) struct SurfaceBlock {
     pub parm: Vec<(usize, usize, f64)>,
     pub diam: Option<f64>,
     pub clap: Option<(f64, f64)>,
+    /// `FLAP rmin rmax …`: OpticStudio's floating aperture, a circular aperture whose radius is the
+    /// semi-diameter the file holds (read as `CLAP` with those radii).
+    pub flap: Option<(f64, f64)>,
     pub sqap: Option<(f64, f64)>,
     pub obdc: (f64, f64),
     /// (line, column, driver) for pickups / chief-ray solves; (column) for variables.
     pub drivers: Vec<(usize, String, Driver)>,
     pub variables: Vec<(usize, String)>,
+    /// OpticStudio solves and pickups whose solved values the file holds (`CURV c 4 …`, `PZUP`, `PPAR`,
+    /// `MAZH`, …): the values are read as they are and the records listed ([`super::ZmxImport::skipped`]).
+    pub frozen: Vec<Unsupported>,
 }
 
 fn surface_kind(name: &str) -> Option<SurfaceKind> {
@@ -110,7 +121,7 @@ impl SurfaceBlock {
                 }
                 self.curv = Some(c);
                 if r.args.len() > 1 && int(r, 1)? != 0 {
-                    skip(format!("curvature solve type {}: OpticStudio's solves are not modelled (write the solved value)", r.args[1]));
+                    self.frozen.push(Unsupported { line: r.line, keyword: r.keyword.clone(), reason: format!("curvature solve type {}: {FROZEN}", r.args[1]) });
                 }
             }
             "DISZ" => {
@@ -167,11 +178,23 @@ impl SurfaceBlock {
                 self.drivers.push((r.line, col, Driver::Pickup(p)));
             }
             k if COSMETIC.contains(&k) => {}
-            "PZUP" | "PPAR" | "CUPP" | "TPUP" | "TSOL" | "PSOL" | "SSOL" => {
-                skip("an OpticStudio pickup/solve record: not modelled (diffcassi reads its own DCPK/DCCR records; write the solved value)".into())
+            // OpticStudio's pickups and solves: `PZUP` (thickness pickup), `PPAR` (parameter pickup), `CUPP`
+            // (curvature pickup), `TPUP`, `TSOL`, `PSOL`, `SSOL`, and `MAZH` (the thickness solve "marginal ray
+            // height", height and pupil zone: the focusing solve of the last thickness). The file holds each
+            // solved value (`DISZ`, `CURV`, `PARM` write the current values), so the saved system is read as it is.
+            "PZUP" | "PPAR" | "CUPP" | "TPUP" | "TSOL" | "PSOL" | "SSOL" | "MAZH" => {
+                self.frozen.push(Unsupported { line: r.line, keyword: r.keyword.clone(), reason: FROZEN.into() })
             }
             "SCBD" | "TILT" | "DECX" | "DECY" => skip("surface tilt/decenter: write it as Coordinate Break surfaces".into()),
-            "FLAP" => skip("floating aperture: not modelled (use a circular aperture, CLAP)".into()),
+            // `FLAP rmin rmax 0`: a floating aperture, the circular aperture that follows the surface's
+            // semi-diameter (OpticStudio, "Aperture type: floating aperture"); the file holds that radius.
+            "FLAP" => {
+                let (rmin, rmax) = (finite(r, 0)?, finite(r, 1)?);
+                if !(rmin >= 0.0 && rmax > rmin) {
+                    return Err(format!("line {} `FLAP`: floating aperture radii {} to {} mm of surface {} (need 0 ≤ min < max)", r.line, crate::limits::fmt_num(rmin), crate::limits::fmt_num(rmax), self.number));
+                }
+                self.flap = Some((rmin, rmax))
+            }
             _ => skip(format!("surface {} keyword not modelled", self.number)),
         }
         Ok(())
@@ -251,7 +274,8 @@ impl SurfaceBlock {
         }
         s.semi_diameter_mm = self.diam;
         let (dx, dy) = self.obdc;
-        match (self.clap, self.sqap) {
+        // A floating aperture is the circular aperture of its radii (a `CLAP` record, if any, wins).
+        match (self.clap.or(self.flap), self.sqap) {
             (Some(_), Some(_)) => return Err(format!("surface {} (line {line}): both a circular (CLAP) and a rectangular (SQAP) aperture", self.number)),
             (Some((rmin, rmax)), None) => {
                 s.aperture = Some(Aperture::Circular { semi_diameter_mm: rmax, min_radius_mm: rmin, decenter_x_mm: dx, decenter_y_mm: dy })

@@ -1,0 +1,80 @@
+"""Objects at infinity from Python (issue 42): ``scene_fov_deg`` on ``render``, the operators and ``Transport``.
+
+The system is a public design at infinity opened as it is (tests/fixtures/zmx/cassegrain_mirrors_HoO_V2C18Ex03.zmx:
+rayoptics' Cassegrain telescope, F/4, EFL 80 mm, two mirrors). A scene at infinity is given by its angular extent across its width;
+the renderer samples it uniformly in field angle (docs/rendering.md), as the CLI's ``--scene-fov-deg`` does.
+"""
+import json
+import pathlib
+import subprocess
+
+import numpy as np
+import pytest
+
+import diffcassi
+from conftest import random_cube
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+DESIGN = ROOT / "tests" / "fixtures" / "zmx" / "cassegrain_mirrors_HoO_V2C18Ex03.zmx"
+SMALL = dict(bands_nm=[500.0, 600.0], planes=4, rays=2)
+
+
+@pytest.fixture(scope="module")
+def telescope():
+    sys = diffcassi.System.from_file(DESIGN)
+    assert sys.object_at_infinity
+    return sys
+
+
+def test_render_at_infinity_equals_the_cli_bit_for_bit(cli, telescope, tmp_path):
+    n, fov = 8, 0.2
+    wl = [500.0, 600.0]
+    cube = random_cube(n, n, len(wl), seed=4)
+    np.save(tmp_path / "scene.npy", cube)
+    np.save(tmp_path / "scene_wavelengths_nm.npy", np.asarray(wl, dtype=np.float64))
+    subprocess.run([cli, "render", "--system", str(DESIGN), "--scene", str(tmp_path / "scene.npy"), "--scene-size", str(n),
+                    "--bands", "500,600", "--planes", "4", "--rays", "2", "--scene-fov-deg", repr(fov),
+                    "--out", str(tmp_path / "out"), "--no-mapping"], check=True, capture_output=True)
+    info_cli = json.loads((tmp_path / "out" / "render.json").read_text())
+    acq, info = diffcassi.render(telescope, cube, wl, scene_fov_deg=fov, **SMALL)
+    assert info["scene_fov_deg"] == fov == info_cli["scene_fov_deg"]
+    assert info["scene_pitch_rad"] == info_cli["scene_pitch_rad"] == pytest.approx(np.radians(fov) / n, rel=1e-15)
+    assert info["acquisition_total"] == info_cli["acquisition_total"] > 0
+    exr = dict(diffcassi.read_exr(tmp_path / "out" / "acquisition.exr"))["Y"]
+    assert np.array_equal(acq.astype(np.float32), exr)
+    assert np.isfinite(acq).all() and info["ray_stats"]["arrived"] > 0
+
+
+def test_operators_and_transport_at_infinity_equal_render(telescope):
+    n, fov = 8, 0.2
+    cube = random_cube(n, n, 2, seed=5)
+    acq, _ = diffcassi.render(telescope, cube, SMALL["bands_nm"], scene_fov_deg=fov, **SMALL)
+    # The exact operator is the renderer's transport: applied to the same cube, the same image.
+    op = diffcassi.exact(telescope, n, n, scene_fov_deg=fov, **SMALL)
+    y = op.apply(cube)
+    assert y.shape == acq.shape
+    np.testing.assert_allclose(y, acq, rtol=1e-5, atol=1e-6 * float(acq.max()))
+    t = diffcassi.Transport(telescope, n, n, scene_fov_deg=fov, **SMALL)
+    assert np.array_equal(t.apply(cube), acq)
+    # The model operators take the angular extent too and map onto the same detector.
+    for make in (diffcassi.mapping_operator, diffcassi.shift_operator):
+        m = make(telescope, n, n, scene_fov_deg=fov, **SMALL)
+        ym = m.apply(cube)
+        assert ym.shape == acq.shape and np.isfinite(ym).all() and ym.sum() > 0
+
+
+@pytest.mark.parametrize("fov", [None, 0.0, 180.0, -5.0, float("nan"), float("inf")])
+def test_bad_or_missing_angular_extent_is_a_clear_error(telescope, fov):
+    cube = random_cube(4, 4, 2)
+    with pytest.raises(ValueError, match="scene-fov-deg|scene_fov_deg"):
+        diffcassi.render(telescope, cube, SMALL["bands_nm"], scene_fov_deg=fov, **SMALL)
+    with pytest.raises(ValueError, match="scene-fov-deg|scene_fov_deg"):
+        diffcassi.exact(telescope, 4, 4, scene_fov_deg=fov, **SMALL)
+
+
+def test_angular_extent_on_a_finite_object_is_refused():
+    cube = random_cube(4, 4, 2)
+    with pytest.raises(ValueError, match="finite object"):
+        diffcassi.render(diffcassi.System.preset("sp"), cube, SMALL["bands_nm"], scene_fov_deg=10.0, **SMALL)
+    with pytest.raises(ValueError, match="scene_fov_deg: expected a number"):
+        diffcassi.render(diffcassi.System.preset("sp"), cube, SMALL["bands_nm"], scene_fov_deg="wide", **SMALL)
