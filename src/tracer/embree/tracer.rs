@@ -483,7 +483,7 @@ impl EmbreeTracer {
         }
         // Grazing incidence: the ray touches the mirror without a defined reflection (the sequential
         // kernel's classification, `missed`), never a NaN direction.
-        if !(d.dot(normal).abs() > GRAZING_COS) {
+        if d.dot(normal).abs().is_nan() || d.dot(normal).abs() <= GRAZING_COS {
             w.finish(RayStatus::Missed, surface);
             return;
         }

@@ -407,7 +407,7 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
                         Role::Mirror { .. } => {
                             // A perfect reflector: one reflected ray with the whole power (no Fresnel
                             // split, no transmitted child, not a ghost); grazing → missed, never NaN.
-                            if !(dl.dot(normal).abs() > GRAZING_COS) {
+                            if dl.dot(normal).abs().is_nan() || dl.dot(normal).abs() <= GRAZING_COS {
                                 tree.ledger.escaped += power;
                                 break (RayStatus::Missed, surface);
                             }
