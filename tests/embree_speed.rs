@@ -182,7 +182,7 @@ fn coherent_restarted_queries_survey() {
         for o in solids.objects.iter().filter(|o| o.is_optical()) {
             let s = match &o.role {
                 Role::Interface { surfaces, .. } => surfaces[0],
-                Role::Detector { surface, .. } => *surface,
+                Role::Mirror { surface, .. } | Role::Detector { surface, .. } => *surface,
                 _ => unreachable!(),
             };
             let n = bit_of.len() as u32;

@@ -123,7 +123,8 @@ fn is_default_air_index(v: &f64) -> bool {
 impl SystemSpec {
     /// Why surface `i` cannot carry a coating, or `None` when it can: coatings act on the Fresnel reflection
     /// of a refracting interface, which the object surface, the image surface (the detector only absorbs),
-    /// a Coordinate Break (no surface) and a paraxial lens (an ideal, lossless thin lens) do not have.
+    /// a Coordinate Break (no surface), a paraxial lens (an ideal, lossless thin lens) and a mirror (a perfect
+    /// reflector in the non-sequential backends: reflectivity 1, nothing transmitted) do not have.
     pub fn not_an_interface(&self, i: usize) -> Option<&'static str> {
         if i == 0 {
             Some("the object surface")
@@ -131,6 +132,8 @@ impl SystemSpec {
             Some("the image surface (the detector)")
         } else {
             match self.surfaces.get(i).map(|s| s.kind) {
+                // A perfect reflector (reflectivity 1, nothing transmitted): there is no Fresnel split to weight.
+                Some(kind) if kind != SurfaceKind::CoordinateBreak && self.surfaces[i].is_mirror() => Some("a mirror (a perfect reflector)"),
                 Some(SurfaceKind::CoordinateBreak) => Some("a Coordinate Break"),
                 Some(SurfaceKind::Paraxial) => Some("a paraxial (ideal thin) lens"),
                 _ => None,

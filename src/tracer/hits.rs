@@ -26,7 +26,7 @@ use super::{RayStatus, TracedBatch};
 use crate::error::{Error, Result};
 use crate::rays::RayBatch;
 use crate::surfaces::SurfaceShape;
-use crate::system::SequentialSystem;
+use crate::system::{Interaction, SequentialSystem};
 use glam::DVec3;
 use rayon::prelude::*;
 
@@ -39,6 +39,9 @@ pub enum HitKind {
     Deflection,
     /// Total internal reflection (non-sequential backends follow it; the sequential model stops there).
     Reflection,
+    /// Specular reflection at a mirror (`GLAS MIRROR`): the sequential path's own step, recorded with the
+    /// media the sequential model gives it (before: the surface before; after: the mirror's, the same medium).
+    Mirror,
     /// The image surface: the ray is done.
     Detector,
 }
@@ -128,6 +131,7 @@ pub fn sequential_hits(system: &SequentialSystem, rays: &RayBatch) -> Result<(Tr
                             let kind = match step.shape {
                                 _ if k == last => HitKind::Detector,
                                 SurfaceShape::Paraxial { .. } => HitKind::Deflection,
+                                _ if step.interaction == Interaction::Reflect => HitKind::Mirror,
                                 _ => HitKind::Refraction,
                             };
                             records.push(HitRecord { first_surface: s, last_surface: s, point: q, direction: din, medium_in: s - 1, medium_out: s, kind });

@@ -65,7 +65,7 @@ impl EmbreeNextHit {
             let th = hit.t as f64;
             let obj = &objects[id];
             match &obj.role {
-                Role::Interface { .. } | Role::Detector { .. } => {
+                Role::Interface { .. } | Role::Mirror { .. } | Role::Detector { .. } => {
                     // A mesh covers its clear aperture with a margin (`scene::covering_mesh`): a hit
                     // whose exact point lies outside the aperture is not a hit of the patch (brute force
                     // tests the same point); query again just past it.

@@ -189,13 +189,13 @@ impl OpticalScene {
         let mut absorbers = 0usize;
         for solid in solids.objects {
             let Solid { role, frame, patch, vertices, triangles, apertures } = solid;
-            let (geom, mesh, mask) = if matches!(role, Role::Interface { .. } | Role::Detector { .. }) {
+            let (geom, mesh, mask) = if matches!(role, Role::Interface { .. } | Role::Mirror { .. } | Role::Detector { .. }) {
                 let patch = patch.as_ref().expect("an optical solid has its patch");
                 let mask = 1u32 << next_bit;
                 next_bit += 1;
                 let surface = match &role {
                     Role::Interface { surfaces, .. } => surfaces[0],
-                    Role::Detector { surface, .. } => *surface,
+                    Role::Mirror { surface, .. } | Role::Detector { surface, .. } => *surface,
                     _ => unreachable!(),
                 };
                 match options.representation {

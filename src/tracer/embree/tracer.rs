@@ -5,7 +5,9 @@
 //! identified surface with [`Refinement::F64`], or taken from Embree's f32 distance with
 //! [`Refinement::None`] (mesh normals interpolated from the exact vertex normals, user-geometry normals
 //! from the callback). Refraction is vector Snell's law with the media on the two sides of the
-//! interface; total internal reflection is *followed* (the ray reflects and goes on) until the detector,
+//! interface; a mirror face reflects specularly (d′ = d − 2(d·n̂)n̂ at the exact normal, the ray's weight
+//! unchanged: reflectivity 1, nothing transmitted; a grazing hit, |d·n̂| ≤ [`GRAZING_COS`], is `missed` as in
+//! the sequential kernel); total internal reflection is *followed* (the ray reflects and goes on) until the detector,
 //! an absorber (side wall → [`RayStatus::Absorbed`], aperture blade → [`RayStatus::Vignetted`]), a miss,
 //! or [`EmbreeOptions::max_bounces`] interactions ([`RayStatus::BounceLimit`]).
 //!
@@ -38,7 +40,7 @@ use crate::surfaces::{MeshResolution, SurfacePatch};
 use crate::system::SequentialSystem;
 use crate::tracer::analytic::index_table;
 use crate::tracer::hits::{HitKind, HitLog, HitRecord};
-use crate::tracer::kernel::{paraxial_deflect, refract, unit_direction};
+use crate::tracer::kernel::{paraxial_deflect, reflect, refract, unit_direction, GRAZING_COS};
 use crate::tracer::{RayStatus, TracedBatch, Tracer};
 use glam::DVec3;
 use rayon::prelude::*;
@@ -361,7 +363,7 @@ impl EmbreeTracer {
         // A mesh covers its clear aperture with a margin (`scene::covering_mesh`): with f64 refinement, a
         // hit whose exact point lies outside the aperture is not a hit of the surface (the user geometry
         // never reports one); query again just past it. The root found is left for `locate`.
-        if let (Refinement::F64, Some(_), Some(patch), Role::Interface { .. } | Role::Detector { .. }) = (self.options.refine, &obj.mesh, obj.patch.as_ref(), &obj.role) {
+        if let (Refinement::F64, Some(_), Some(patch), Role::Interface { .. } | Role::Mirror { .. } | Role::Detector { .. }) = (self.options.refine, &obj.mesh, obj.patch.as_ref(), &obj.role) {
             let (p0, d) = (obj.frame.point_to_local(w.p), obj.frame.dir_to_local(w.d));
             if let Some(t) = patch.nearest_root(p0, d, hit.t as f64) {
                 let x = p0 + d * t;
@@ -458,13 +460,55 @@ impl EmbreeTracer {
                 }
                 None => w.finish(RayStatus::NoConvergence, *surface),
             },
-            Role::Interface { .. } => self.refract_at(scene, obj, n, w, hit, log),
+            Role::Interface { .. } | Role::Mirror { .. } => self.refract_at(scene, obj, n, w, hit, log),
         }
     }
 
-    /// The ray meets interface `obj` (located from `hit`): refract, deflect (ideal lens) or reflect (TIR).
-    /// With `log`, the interaction is appended to it as a [`HitRecord`].
+    /// The ray meets mirror `obj` (sequential surface `surface`, in medium `medium`): specular reflection
+    /// d′ = d − 2(d·n̂)n̂ at the exact normal, the weight unchanged (a perfect reflector: no Fresnel split, no
+    /// transmitted ray; mirror reflections are not counted in [`TraceDetails::reflections`], which counts the
+    /// total internal reflections the sequential tracer would stop at). Logged as [`HitKind::Mirror`] with
+    /// the media the sequential log gives a mirror step (before: `medium`, after: `surface`, the same medium).
+    #[allow(clippy::too_many_arguments)]
+    fn reflect_at(&self, scene: &OpticalScene, obj: &SceneObject, surface: usize, medium: usize, w: &mut Walk, hit: &Hit, log: Option<&mut Vec<HitRecord>>) {
+        let Some((p, normal, d)) = self.locate(scene, obj, w, hit) else {
+            w.finish(RayStatus::NoConvergence, surface);
+            return;
+        };
+        if self.options.refine == Refinement::F64 {
+            if let Some((s, _)) = obj.apertures.iter().find(|(_, ap)| !ap.contains(p.x, p.y)) {
+                w.finish(RayStatus::Vignetted, *s);
+                return;
+            }
+        }
+        // Grazing incidence: the ray touches the mirror without a defined reflection (the sequential
+        // kernel's classification, `missed`), never a NaN direction.
+        if d.dot(normal).abs().is_nan() || d.dot(normal).abs() <= GRAZING_COS {
+            w.finish(RayStatus::Missed, surface);
+            return;
+        }
+        let new_d = reflect(d, normal);
+        if let Some(log) = log {
+            let s = surface as u32;
+            log.push(HitRecord { first_surface: s, last_surface: s, point: p, direction: d, medium_in: medium as u32, medium_out: s, kind: HitKind::Mirror });
+        }
+        w.p = obj.frame.point_to_global(p);
+        w.d = obj.frame.dir_to_global(new_d).normalize();
+        w.exclude = obj.mask;
+        w.last_surface = surface as u32;
+        w.interactions = w.interactions.saturating_add(1);
+        if w.interactions as u32 >= self.options.max_bounces {
+            w.finish(RayStatus::BounceLimit, surface);
+        }
+    }
+
+    /// The ray meets interface `obj` (located from `hit`): refract, deflect (ideal lens) or reflect (TIR);
+    /// a mirror face reflects ([`Self::reflect_at`]). With `log`, the interaction is appended to it as a
+    /// [`HitRecord`].
     fn refract_at(&self, scene: &OpticalScene, obj: &SceneObject, n: &[f64], w: &mut Walk, hit: &Hit, log: Option<&mut Vec<HitRecord>>) {
+        if let Role::Mirror { surface, medium } = &obj.role {
+            return self.reflect_at(scene, obj, *surface, *medium, w, hit, log);
+        }
         let Role::Interface { surfaces, front_medium, back_medium, paraxial_focal_mm } = &obj.role else {
             return w.finish(RayStatus::NoConvergence, w.last_surface as usize);
         };

@@ -4,6 +4,12 @@
 //!
 //! Every optical surface of the sequential path becomes one object over its clear aperture that knows the
 //! media on both sides: the *front* (−normal side, where the sequential ray comes from) and the *back*.
+//! A mirror (`GLAS MIRROR`, [`Interaction::Reflect`]) becomes a **mirror face** ([`Role::Mirror`]): a
+//! perfect reflector over its clear aperture, with the one medium it sits in (the sequential medium after a
+//! mirror is the medium before it). It is never merged with coincident surfaces nor made virtual, and both
+//! of its sides reflect (a zero-thickness reflector: nothing is transmitted through it). The figure and the
+//! frame are the sequential surface's own: after a mirror the next surface lies at a negative thickness
+//! (OpticStudio's convention), which the resolved frames already hold, so nothing is flipped here.
 //! Around them:
 //! * **walls** (absorbers): wherever the medium after a surface is glass, the rims of that surface and of
 //!   the next are joined by a ruled side wall, closing the solid (prisms get their side/top/bottom faces,
@@ -35,7 +41,7 @@ use crate::analysis::mirrored_semi_diameters;
 use crate::error::{Error, Result};
 use crate::geometry::Frame;
 use crate::surfaces::{Aperture, SurfacePatch, SurfaceShape};
-use crate::system::SequentialSystem;
+use crate::system::{Interaction, SequentialSystem};
 use glam::{DMat3, DVec3};
 
 /// Margins of the solids (mm).
@@ -62,6 +68,10 @@ pub enum Role {
     /// Refracting (or ideal-lens) interface. `surfaces`: the merged sequential surfaces; media are indices
     /// into [`SequentialSystem::indices`].
     Interface { surfaces: Vec<usize>, front_medium: usize, back_medium: usize, paraxial_focal_mm: Option<f64> },
+    /// A mirror (`GLAS MIRROR` on sequential surface `surface`): specular reflection d′ = d − 2(d·n̂)n̂ with
+    /// reflectivity 1 on either side, no transmitted part. `medium`: the medium it sits in (index into
+    /// [`SequentialSystem::indices`]: the medium before the mirror, which is also the one after it).
+    Mirror { surface: usize, medium: usize },
     /// The image surface, with the media before and after it: the sequential tracer refracts at the image
     /// surface like at any other, so the detector reports the same (refracted) direction.
     Detector { surface: usize, front_medium: usize, back_medium: usize },
@@ -92,7 +102,7 @@ pub struct Solid {
 impl Solid {
     /// Interfaces and the detector (optical geometry), as opposed to absorbers.
     pub fn is_optical(&self) -> bool {
-        matches!(self.role, Role::Interface { .. } | Role::Detector { .. })
+        matches!(self.role, Role::Interface { .. } | Role::Mirror { .. } | Role::Detector { .. })
     }
 }
 
@@ -106,7 +116,8 @@ pub struct Solids {
 
 impl Solids {
     /// Build the solids of `system`. Errors: negative margins, a virtual object (negative object
-    /// distance: non-sequential tracers follow rays forward only), a figure undefined over its aperture.
+    /// distance: non-sequential tracers follow rays forward only), an object at infinity, a diffraction
+    /// grating or a Toroidal surface (not modelled here), a figure undefined over its aperture.
     pub fn build(system: &SequentialSystem, options: &SolidsOptions) -> Result<Self> {
         if !(options.mechanical_margin_mm.is_finite() && options.mechanical_margin_mm >= 0.0)
             || !(options.detector_margin_mm.is_finite() && options.detector_margin_mm >= 0.0)
@@ -117,11 +128,12 @@ impl Solids {
         // A negative object distance puts the object after surface 1 (a virtual object, reached by
         // propagating rays backwards as a sequential tracer may); a non-sequential tracer only follows rays
         // forward, so every ray would silently miss. Refuse it with the reason instead.
-        // Mirrors, gratings and Toroidal surfaces have no solids here yet: refuse them rather than let a mirror
-        // become a "virtual" face (the same medium on both sides) that rays would silently pass through.
-        if let Some(what) = system.special_surface() {
+        // Gratings and Toroidal surfaces have no solids here yet: refuse them rather than let a grating
+        // become a plain refracting face (no diffraction) that rays would silently pass. Mirrors are modelled
+        // (mirror faces, `Role::Mirror`).
+        if let Some(what) = unmodelled_surface(system) {
             return Err(Error::invalid(format!(
-                "system `{}`: {what}; the non-sequential backends (Embree, brute force, ghosts) model refracting surfaces only (use the analytic backend)",
+                "system `{}`: {what}; the non-sequential backends (Embree, brute force, ghosts) model refracting surfaces and mirrors only (use the analytic backend)",
                 system.name()
             )));
         }
@@ -148,6 +160,8 @@ impl Solids {
                 let patch = SurfacePatch::new(g.shape.clone(), g.clear.clone()).map_err(|e| Error::invalid(format!("surface {}: {e}", g.surfaces[0])))?;
                 let role = if g.is_image {
                     Role::Detector { surface: g.surfaces[0], front_medium: g.front_medium, back_medium: g.back_medium }
+                } else if g.mirror {
+                    Role::Mirror { surface: g.surfaces[0], medium: g.front_medium }
                 } else {
                     Role::Interface {
                         surfaces: g.surfaces.clone(),
@@ -198,6 +212,20 @@ impl Solids {
     }
 }
 
+/// The first surface of `system` the solids do not model — a diffraction grating (reflective or not) or a
+/// Toroidal surface — as "surface i is …", or `None`. Mirrors are modelled.
+fn unmodelled_surface(system: &SequentialSystem) -> Option<String> {
+    system.surfaces.iter().find_map(|s| {
+        let what = match (s.interaction, &s.shape) {
+            (Interaction::Grating { reflective: true, .. }, _) => "a reflective diffraction grating",
+            (Interaction::Grating { .. }, _) => "a diffraction grating",
+            (_, Some(SurfaceShape::Toroidal { .. })) => "a Toroidal surface",
+            _ => return None,
+        };
+        Some(format!("surface {} is {what}", s.index))
+    })
+}
+
 /// Samples on a rim polygon (walls and blades).
 pub const RIM_SAMPLES: usize = 192;
 
@@ -213,6 +241,8 @@ struct Group {
     back_medium: usize,
     virtual_: bool,
     is_image: bool,
+    /// A mirror ([`Interaction::Reflect`]): one surface, never merged, never virtual.
+    mirror: bool,
 }
 
 /// Is the step transform the identity (coincident frames)?
@@ -233,10 +263,14 @@ fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<
     let mut groups: Vec<Group> = Vec::new();
     for (k, step) in system.path.iter().enumerate() {
         let s = step.surface;
+        let mirror = step.interaction == Interaction::Reflect;
+        // A mirror is never merged with a coincident plane (nor one into it): a merged group would have to
+        // both reflect and refract.
         let merge = k > 0
             && k != last
+            && !mirror
             && is_identity(&step.rotation, step.offset)
-            && groups.last().is_some_and(|g| !g.is_image && g.shape == step.shape && matches!(step.shape, SurfaceShape::Plane));
+            && groups.last().is_some_and(|g| !g.is_image && !g.mirror && g.shape == step.shape && matches!(step.shape, SurfaceShape::Plane));
         if merge {
             let g = groups.last_mut().unwrap();
             g.surfaces.push(s);
@@ -256,11 +290,13 @@ fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<
             back_medium: s,
             virtual_: false,
             is_image: k == last,
+            mirror,
         });
     }
     for g in &mut groups {
         let same_media = system.surfaces[g.front_medium].medium_after == system.surfaces[g.back_medium].medium_after;
-        g.virtual_ = !g.is_image && same_media && !matches!(g.shape, SurfaceShape::Paraxial { .. });
+        // A mirror has the same medium on both sides yet is real geometry: it reflects.
+        g.virtual_ = !g.is_image && !g.mirror && same_media && !matches!(g.shape, SurfaceShape::Paraxial { .. });
         let mechanical = g.surfaces.iter().map(|&s| sd_of(s)).fold(0.0, f64::max) + options.mechanical_margin_mm
             + if g.is_image { options.detector_margin_mm } else { 0.0 };
         // Several explicit apertures on coincident surfaces: each gets its blade; the clear geometry uses

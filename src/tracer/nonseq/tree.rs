@@ -9,6 +9,15 @@
 //!   non-sequential trace with f64 refinement, bit for bit.
 //! * Total internal reflection is followed as a whole (it is not a ghost and does not count toward K).
 //!   Ideal (paraxial) lenses and the detector do not reflect; the detector absorbs what reaches it.
+//! * A **mirror** face ([`Role::Mirror`], `GLAS MIRROR`) does not split: it is a perfect conductor
+//!   (reflectivity 1 on either side) and the ray goes on as one reflected ray, d′ = d − 2(d·n̂)n̂, with its
+//!   whole power; it is not a ghost (the path label and the order K are unchanged). In the polarised model
+//!   the field is reflected with r_s = −1, r_p = +1 — the n₂ → ∞ limit of the Fresnel amplitudes in
+//!   [`super::fresnel`]'s convention (r_p = −r_s at normal incidence), so that at normal incidence E′ = −E,
+//!   the tangential field of a perfect conductor vanishing at its surface. Coatings on a mirror are refused
+//!   by the spec ([`crate::spec::SystemSpec::not_an_interface`]) and skipped by `--coating all=…`; none is
+//!   read here. A grazing hit (|d·n̂| ≤ [`GRAZING_COS`]) ends the path as `missed` (its power escapes), as
+//!   in the sequential kernel.
 //! * A reflected child beyond order K is not followed: its power is booked as `truncated`.
 //! * **Russian roulette** (unbiased): a child whose power w is below `threshold`·w₀ (w₀ the launched
 //!   power) survives with probability q = w/(threshold·w₀) and is then given power w/q (its fields scaled
@@ -37,7 +46,7 @@ use crate::error::{Error, Result};
 use crate::rays::RayBatch;
 use crate::spec::Coating;
 use crate::system::SequentialSystem;
-use crate::tracer::kernel::{paraxial_deflect, refract, unit_direction};
+use crate::tracer::kernel::{paraxial_deflect, reflect, refract, unit_direction, GRAZING_COS};
 use crate::tracer::RayStatus;
 use glam::DVec3;
 use rand::{Rng, SeedableRng};
@@ -395,7 +404,30 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
                                 break (RayStatus::BounceLimit, surface);
                             }
                         }
-                        _ => unreachable!("optical solids are interfaces or the detector"),
+                        Role::Mirror { .. } => {
+                            // A perfect reflector: one reflected ray with the whole power (no Fresnel
+                            // split, no transmitted child, not a ghost); grazing → missed, never NaN.
+                            if dl.dot(normal).abs().is_nan() || dl.dot(normal).abs() <= GRAZING_COS {
+                                tree.ledger.escaped += power;
+                                break (RayStatus::Missed, surface);
+                            }
+                            let k_in = node.d;
+                            node.p = obj.frame.point_to_global(p);
+                            node.d = obj.frame.dir_to_global(reflect(dl, normal)).normalize();
+                            if model == FresnelModel::Polarized {
+                                // Perfect conductor: r_s = −1, r_p = +1 (|r| = 1: the power is kept).
+                                let basis = sp_basis(k_in, obj.frame.dir_to_global(normal), node.d);
+                                let (rs, rp) = (num_complex::Complex64::new(-1.0, 0.0), num_complex::Complex64::new(1.0, 0.0));
+                                node.e = node.e.map(|e| apply_prt(&e, basis, rs, rp));
+                            }
+                            node.exclude = Some(object);
+                            node.interactions += 1;
+                            if node.interactions >= options.max_bounces {
+                                tree.ledger.truncated += node.power(model);
+                                break (RayStatus::BounceLimit, surface);
+                            }
+                        }
+                        _ => unreachable!("optical solids are interfaces, mirrors or the detector"),
                     }
                 }
             }
@@ -437,6 +469,6 @@ fn roulette(node: &mut Node, w: f64, threshold: f64, model: FresnelModel, rng: &
 fn surface_of(role: &Role) -> u32 {
     match role {
         Role::Interface { surfaces, .. } => *surfaces.last().expect("an interface has surfaces") as u32,
-        Role::Detector { surface, .. } | Role::Blade { surface, .. } | Role::Wall { surface, .. } => *surface as u32,
+        Role::Mirror { surface, .. } | Role::Detector { surface, .. } | Role::Blade { surface, .. } | Role::Wall { surface, .. } => *surface as u32,
     }
 }
