@@ -51,7 +51,9 @@ use super::kernel::oriented_normal;
 use super::DiffSystem;
 use crate::error::{Error, Result};
 use crate::surfaces::{intersect, IntersectFailure, SurfaceShape};
-use crate::tracer::kernel::{paraxial_deflect, refract};
+use crate::surfaces::grating::{across_lines, diffract};
+use crate::system::Interaction;
+use crate::tracer::kernel::{paraxial_deflect, reflect, refract, GRAZING_COS};
 use crate::tracer::RayStatus;
 use glam::{DMat3, DVec3};
 
@@ -118,6 +120,10 @@ struct StepState {
     /// Indices before and after the surface.
     n1: f64,
     n2: f64,
+    /// A grating's kick g = mλT ([`crate::surfaces::grating::Grating::kick`]) and the outgoing direction
+    /// (0 and unused elsewhere).
+    g: f64,
+    d_out: DVec3,
 }
 
 /// One ray's sensitivities at one step (added to [`AdjointSums`] once the whole ray is known finite).
@@ -128,6 +134,8 @@ struct StepSens {
     shape: [f64; SHAPE_FIELDS],
     n1: f64,
     n2: f64,
+    /// A grating's wavelength entry of the index table (`wavelength_slot`): ∂L/∂λ there.
+    nl: f64,
 }
 
 /// The forward pass of one ray (its per-step states) and scratch space for its reverse sweep; reused
@@ -168,14 +176,8 @@ impl AdjointPlan {
     /// index at one of them).
     pub fn new(ds: &DiffSystem, wavelengths_nm: &[f64]) -> Result<Self> {
         let kk = ds.k();
-        // The reverse sweep transposes refraction and the ideal lens only (the forward tangents, diff::kernel,
-        // also cover mirrors and gratings).
-        if let Some(what) = ds.system.special_surface() {
-            return Err(crate::error::Error::invalid(format!(
-                "system `{}`: {what}; the reverse-mode gradient of the acquisition (render::gradient) is implemented for refracting surfaces only (forward-mode Jacobians, DiffSystem::trace, cover it)",
-                ds.system.name()
-            )));
-        }
+        // The reverse sweep transposes refraction, the ideal lens, mirrors and gratings (the forward tangents of
+        // diff::kernel, step by step), on every surface figure the hit derivative knows (Toroidal included).
         let ns = ds.system.indices(ds.system.spec.primary_wavelength_nm)?.len();
         let mut index_moves = vec![false; ns];
         for &w in wavelengths_nm {
@@ -195,7 +197,12 @@ impl AdjointPlan {
                 let focal = shape_fields.contains(&10);
                 let rotation = tan.rotation.iter().any(|r| *r != DMat3::ZERO);
                 let offset = tan.offset.iter().any(|o| *o != DVec3::ZERO);
-                StepPlan { shape_fields, index: s >= 1 && (index_moves[s - 1] || index_moves[s]), rotation, offset, focal }
+                // A grating's kick reads the wavelength entry of the index table too.
+                let slot = match step.interaction {
+                    Interaction::Grating { wavelength_slot, .. } => index_moves[wavelength_slot],
+                    _ => false,
+                };
+                StepPlan { shape_fields, index: s >= 1 && (index_moves[s - 1] || index_moves[s] || slot), rotation, offset, focal }
             })
             .collect();
         let first = steps.iter().position(|p| p.rotation || p.offset || p.index || !p.shape_fields.is_empty()).unwrap_or(steps.len());
@@ -229,12 +236,29 @@ impl AdjointPlan {
                 return Err((RayStatus::Vignetted, step.surface));
             }
             let (n1, n2) = (n[step.surface - 1], n[step.surface]);
-            let d2 = match step.shape {
-                SurfaceShape::Paraxial { focal_length } => paraxial_deflect(hit.point, d1, focal_length, n1, n2),
-                _ if n1 != n2 => refract(d1, hit.normal, n1, n2).ok_or((RayStatus::TotalInternalReflection, step.surface))?,
-                _ => d1,
+            let mut g = 0.0;
+            // The interactions of `tracer::kernel::trace_step`, operation for operation.
+            let d2 = match step.interaction {
+                Interaction::Reflect => {
+                    if d1.dot(hit.normal).abs() <= GRAZING_COS {
+                        return Err((RayStatus::Missed, step.surface));
+                    }
+                    reflect(d1, hit.normal)
+                }
+                Interaction::Grating { grating, reflective, wavelength_slot } => {
+                    if reflective && d1.dot(hit.normal).abs() <= GRAZING_COS {
+                        return Err((RayStatus::Missed, step.surface));
+                    }
+                    g = grating.kick(n[wavelength_slot]);
+                    diffract(d1, hit.normal, n1, n2, g, reflective).ok_or((RayStatus::Evanescent, step.surface))?
+                }
+                Interaction::Refract => match step.shape {
+                    SurfaceShape::Paraxial { focal_length } => paraxial_deflect(hit.point, d1, focal_length, n1, n2),
+                    _ if n1 != n2 => refract(d1, hit.normal, n1, n2).ok_or((RayStatus::TotalInternalReflection, step.surface))?,
+                    _ => d1,
+                },
             };
-            tape.states.push(StepState { pr, d0: d, d: d1, q: hit.point, normal: hit.normal, t: hit.t, n1, n2 });
+            tape.states.push(StepState { pr, d0: d, d: d1, q: hit.point, normal: hit.normal, t: hit.t, n1, n2, g, d_out: d2 });
             p = hit.point;
             d = d2;
         }
@@ -285,7 +309,57 @@ impl AdjointPlan {
             let (dd_bar, n_bar);
             // μ̄ and f̄ only where a parameter moves an index or the focal length.
             let (mut mu_bar, mut f_bar) = (0.0, 0.0);
-            match step.shape {
+            // A grating's index and wavelength adjoints (n̄₁, n̄₂, λ̄ of its kick), summed directly.
+            let mut grating_bar: Option<(f64, f64, f64)> = None;
+            match (step.interaction, &step.shape) {
+                // Mirror d′ = d − 2c N̂, c = d·N̂ (N̂ the traced normal, either orientation):
+                // d̄ = a − 2(a·N̂)N̂, N̂̄ = −2((a·N̂) d + c a).
+                (Interaction::Reflect, _) => {
+                    let nn = st.normal;
+                    let (c, an) = (d.dot(nn), ld.dot(nn));
+                    dd_bar = ld - nn * (2.0 * an);
+                    n_bar = (d * an + ld * c) * -2.0;
+                }
+                // Grating (the transpose of `diff::kernel::interact_tangents`' grating arm, line by line):
+                // v = n₁d − s g K, v_t = v − N(v·N), a = ±√(n₂² − |v_t|²), d′ = (v_t + N a)/n₂, with N the
+                // normal along d, K = normalise(ŷ − (ŷ·N̂)N̂) across the lines and g = mλT.
+                (Interaction::Grating { grating, reflective, .. }, _) => {
+                    let (nrm, _, sgn) = oriented_normal(d, st.normal);
+                    let (kv, inv_len) = across_lines(st.normal);
+                    let sg = if reflective { -1.0 } else { 1.0 };
+                    let (n1, n2, g, d_out) = (st.n1, st.n2, st.g, st.d_out);
+                    let v = d * n1 - kv * (sg * g);
+                    let vn = v.dot(nrm);
+                    let vt = v - nrm * vn;
+                    let a = (d_out * n2 - vt).dot(nrm);
+                    // δd′ = (δv_t + N δa + δN a)/n₂ − d′ δn₂/n₂.
+                    let mut dvt_bar = ld / n2;
+                    let da_bar = ld.dot(nrm) / n2;
+                    let mut dnrm_bar = ld * (a / n2);
+                    let mut dn2_bar = -ld.dot(d_out) / n2;
+                    // δa = δq/(2a), δq = 2n₂δn₂ − 2 v_t·δv_t.
+                    let dq_bar = da_bar / (2.0 * a);
+                    dn2_bar += 2.0 * n2 * dq_bar;
+                    dvt_bar -= vt * (2.0 * dq_bar);
+                    // δv_t = δv − N δv_n − δN v_n, δv_n = δv·N + v·δN.
+                    let dvn_bar = -nrm.dot(dvt_bar);
+                    let dv_bar = dvt_bar + nrm * dvn_bar;
+                    dnrm_bar += v * dvn_bar - dvt_bar * vn;
+                    // δv = d δn₁ + n₁ δd − s(K δg + g δK).
+                    let dn1_bar = d.dot(dv_bar);
+                    dd_bar = dv_bar * n1;
+                    let dg_bar = -sg * kv.dot(dv_bar);
+                    let dkv_bar = dv_bar * (-sg * g);
+                    // δK = (δk − K(K·δk))/|k|, δk = −(N̂ δN̂_y + δN̂ N̂_y), δN = sgn δN̂.
+                    let dk_bar = (dkv_bar - kv * kv.dot(dkv_bar)) * inv_len;
+                    let nn = st.normal;
+                    let mut nb = dnrm_bar * sgn - dk_bar * nn.y;
+                    nb.y -= dk_bar.dot(nn);
+                    n_bar = nb;
+                    // g = mλT·1e-3 is linear in the table's wavelength entry: λ̄ = kick(ḡ).
+                    grating_bar = Some((dn1_bar, dn2_bar, grating.kick(dg_bar)));
+                }
+                (Interaction::Refract, _) => match step.shape {
                 SurfaceShape::Paraxial { focal_length: f } => {
                     // tan = (d_x, d_y)/d_z, tan′ = μ tan − q/f, w = (tan′, 1), d′ = ±w/|w|.
                     let inv_dz = 1.0 / d.z;
@@ -330,6 +404,7 @@ impl AdjointPlan {
                     dd_bar = ld * mu + nrm * gamma;
                     n_bar = (ld * (sk - mu * cos_i) + d * gamma) * sgn;
                 }
+                },
             }
             let (ray_bar, partials_bar) = local.adjoint(d, q_bar, n_bar);
             // dray = δp + t δd.
@@ -344,10 +419,14 @@ impl AdjointPlan {
             let rotation = if plan.rotation { DMat3::from_cols(mp * pr.x + md * d0.x, mp * pr.y + md * d0.y, mp * pr.z + md * d0.z) } else { DMat3::ZERO };
             let rt = step.rotation.transpose();
             (lq, ld) = (rt * mp, rt * md);
-            let (n1, n2) = if plan.index { (mu_bar / st.n2, -mu * mu_bar / st.n2) } else { (0.0, 0.0) };
+            let (n1, n2, nl) = match (plan.index, grating_bar) {
+                (false, _) => (0.0, 0.0, 0.0),
+                (true, Some(gb)) => gb,
+                (true, None) => (mu_bar / st.n2, -mu * mu_bar / st.n2, 0.0),
+            };
             // −μ_p·(R δo) = (−Rᵀμ_p)·δo.
-            finite &= lq.is_finite() && ld.is_finite() && rotation.is_finite() && shape.iter().all(|v| v.is_finite()) && n1.is_finite() && n2.is_finite();
-            tape.sens.push(StepSens { rotation, offset: -lq, shape, n1, n2 });
+            finite &= lq.is_finite() && ld.is_finite() && rotation.is_finite() && shape.iter().all(|v| v.is_finite()) && n1.is_finite() && n2.is_finite() && nl.is_finite();
+            tape.sens.push(StepSens { rotation, offset: -lq, shape, n1, n2, nl });
         }
         if !finite {
             return false;
@@ -370,6 +449,9 @@ impl AdjointPlan {
                 let sf = path[s].surface;
                 sums.index[sf - 1] += sens.n1;
                 sums.index[sf] += sens.n2;
+                if let Interaction::Grating { wavelength_slot, .. } = path[s].interaction {
+                    sums.index[wavelength_slot] += sens.nl;
+                }
             }
         }
         true

@@ -325,9 +325,13 @@ impl AdjointPlan {
     /// image (image frame: `lambda` = [λ_px, λ_py, λ_pz, λ_dx, λ_dy, λ_dz]), for the lanes of `active`
     /// (lanes that arrived; others are ignored whatever their tape holds). Each active lane's
     /// sensitivities are added to its lane of `sums` unless one is not finite. Returns the lanes added.
+    /// The lanes transpose refraction and the ideal lens on rotationally symmetric figures: a system with a
+    /// mirror, a grating or a Toroidal surface ([`crate::system::SequentialSystem::special_surface`]) is
+    /// swept ray by ray ([`AdjointPlan::backward`]); given one here, this panics rather than sum wrong values.
     #[allow(clippy::too_many_arguments)]
     pub fn backward_lanes(&self, level: SimdLevel, ds: &DiffSystem, tape: &LaneTape, n: &[f64], lambda: &[Lf; 6], active: Lm, sums: &mut LaneSums) -> Lm {
         assert_eq!(tape.steps().len(), ds.system.path.len(), "backward_lanes: the tape holds a partial trace (no lane arrived)");
+        assert!(ds.system.special_surface().is_none(), "backward_lanes: {} (use the scalar sweep, AdjointPlan::backward)", ds.system.special_surface().unwrap_or_default());
         at_level(level, Sweep { plan: self, path: &ds.system.path, tape, n, lambda, active, sums })
     }
 }

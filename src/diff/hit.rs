@@ -225,6 +225,10 @@ pub struct SweepLocal {
     sag: SagLocal,
     normal: DVec3,
     flat: bool,
+    /// A Toroidal surface's Hessian (its figure is not a function of r²; [`SurfaceLocal`] keeps the same),
+    /// `None` for the rotationally symmetric figures. Only the scalar sweep meets it: the lane sweep
+    /// ([`super::adjoint_lanes`]) is not used for systems with Toroidal surfaces.
+    general_hessian: Option<(f64, f64, f64)>,
 }
 
 impl SweepLocal {
@@ -233,6 +237,13 @@ impl SweepLocal {
     pub fn at(shape: &SurfaceShape, q: DVec3, normal: DVec3) -> SweepLocal {
         let (x, y) = (q.x, q.y);
         let r2 = x * x + y * y;
+        if let SurfaceShape::Toroidal { curvature, conic, coefficients, rotation_curvature } = shape {
+            // As [`SurfaceLocal::at`]: the hit's motion along the surface (its Hessian) only; its figure
+            // parameters are not free parameters.
+            let t = crate::surfaces::toroidal::toroid_local(*curvature, *conic, coefficients, *rotation_curvature, x, y);
+            let sag = SagLocal { f1: 0.0, f2: 0.0, x, y, r2, c: 0.0, k: 0.0, s: 1.0 };
+            return SweepLocal { sag, normal, flat: false, general_hessian: Some(t.hessian) };
+        }
         let (c, k, alpha) = figure(shape).unwrap_or((0.0, 0.0, &[][..]));
         let (mut f1, mut f2, mut s) = (0.0, 0.0, 1.0);
         let flat = c == 0.0 && alpha.iter().all(|a| *a == 0.0);
@@ -245,7 +256,7 @@ impl SweepLocal {
         } else if !flat {
             (f1, f2, s) = sag_derivatives(c, k, alpha, r2);
         }
-        SweepLocal { sag: SagLocal { f1, f2, x, y, r2, c, k, s }, normal, flat }
+        SweepLocal { sag: SagLocal { f1, f2, x, y, r2, c, k, s }, normal, flat, general_hessian: None }
     }
 
     /// (∂sag/∂θ, ∂(sag_x)/∂θ, ∂(sag_y)/∂θ) along a shape tangent ([`figure_partials`]).
@@ -267,7 +278,7 @@ impl SweepLocal {
         let dq_bar = if self.flat {
             q_bar
         } else {
-            let (hxx, hxy, hyy) = self.sag.hessian();
+            let (hxx, hxy, hyy) = self.general_hessian.unwrap_or_else(|| self.sag.hessian());
             q_bar - DVec3::new(hxx * dm_bar.x + hxy * dm_bar.y, hxy * dm_bar.x + hyy * dm_bar.y, 0.0)
         };
         // δq = dray + d δt, δt = (δsag − m·dray)/(m·d), m = n/n_z: with r = (d·q̄′)/(n·d), δt̄ = r n_z

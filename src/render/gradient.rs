@@ -995,6 +995,7 @@ impl DiffRenderer {
                 let pin = PlaneInputs { scene, mask, gb: &gb, n, k0, k1, tw, nr, npix, hw, nb, wanted };
                 let mut px = PixelVals::new(n);
                 let mut taps = BlockTaps::new(n);
+                let lane_sweep = self.ds.system.special_surface().is_none();
                 if let Some(ms) = self.ds.system.coded_mask {
                     // The mask on a surface (dual-disperser): ray by ray on the scalar kernel and sweep.
                     self.for_rows(p, |_| Class::Open, |_, rays| self.grads_through_mask(ms, &idx, rays, &pin, &mut out, &mut tape, &mut sums));
@@ -1016,8 +1017,10 @@ impl DiffRenderer {
                         return;
                     }
                     // Traced with the per-step states kept, then swept backwards once — a block of
-                    // rays at a time on the SIMD lanes, or ray by ray with the scalar kernel.
-                    let Some(level) = self.simd else {
+                    // rays at a time on the SIMD lanes, or ray by ray with the scalar kernel. The lane
+                    // sweep transposes refraction and the ideal lens; a system with a mirror, a grating
+                    // or a Toroidal surface is swept ray by ray (the scalar sweep covers them).
+                    let Some(level) = self.simd.filter(|_| lane_sweep) else {
                         for i in 0..open.len() {
                             let Some(uv) = self.landing(self.plan.trace(&self.ds, &idx, open.origin(i), open.dir(i), &mut tape)) else { continue };
                             out.arrived += 1;
