@@ -369,6 +369,15 @@ fn catadioptric_obscuration_vignettes_its_zone_and_passes_the_rest() {
     }
     let f32 = diffcassi::tracer::AnalyticF32Tracer::new(SimdLevel::detect()).trace(&sys, &rays).unwrap();
     assert_eq!(f32.status, want.to_vec(), "the f32 lanes");
+    // Real ray aiming (`RAIM 0 2`) aims through the obscuration (the chief ray of an obscured system is still its
+    // reference): the chief ray is aimed and then vignetted on surface 2, rays of the clear annulus pass.
+    let raim = String::from_utf8(std::fs::read(&path).unwrap()).unwrap().replacen("RAIM 0 0 1", "RAIM 0 2 1", 1);
+    let aimed = SequentialSystem::build(&import(raim.as_bytes()).unwrap().spec).unwrap();
+    assert_eq!(aimed.spec.ray_aiming, diffcassi::spec::RayAiming::Real);
+    let rays = RayBatch::for_field(&aimed, [0.0, 0.5f64.to_radians()], &[[0.0, 0.0], [0.0, 0.8], [-0.8, 0.0]], 587.5618).unwrap();
+    let out = AnalyticTracer::with_kernel(Kernel::Scalar).trace(&aimed, &rays).unwrap();
+    assert_eq!(out.status, vec![RayStatus::Vignetted, RayStatus::Ok, RayStatus::Ok]);
+    assert_eq!(out.surface[0], 2);
     // Export writes the obscuration back: import → export → import is identical, bit for bit.
     let written = to_zmx(&imp.spec).unwrap();
     assert!(written.contains("  OBSC 0.0 25.0 0\n"), "{written}");

@@ -55,6 +55,12 @@ Convention differences, and how each is resolved (never by fitted offsets):
   outside the obscured zone (see `test_catadioptric_with_obscuration_agrees_with_rayoptics`); rays inside it are
   checked to be vignetted by diffcassi. Neither program has the Mangin mirrors' central holes (a sequential model
   passes every ray that meets a surface); the grid stays in the annulus the real lens transmits.
+
+Measured (rayoptics 0.9.8; relative to max(1 mm, the largest landing coordinate)): explicit rays 6.7e-11
+(Cassegrain), 3.0e-15 (fold), 3.1e-16 (cylinder), 2.1e-8 (grating), 4.1e-12 (US05331467-1, 96 rays); CLI rays
+5.8e-8, 9.8e-16, 3.5e-10, 8.0e-17; EFL and BFL equal to the last bit (Cassegrain, cylinder) or to 8.1e-15 / 1.9e-14
+(US05331467-1: EFL 999.636965 mm, BFL 75.380279 mm); pupil data within 9.4e-7, all of it rayoptics' 1e10-mm object
+(at 1e12 mm the largest, US05331467-1's exit pupil, falls to 4.7e-8).
 """
 import math
 import pathlib
