@@ -81,6 +81,9 @@ fn every_column_round_trips_bit_identical() {
     asph.comment = "asphere test".into();
     asph.thickness_mm = Cell::fixed(0.0);
     spec.surfaces.insert(18, asph);
+    // A circular obscuration (OBSC with its OBDC decentre), values that print long.
+    spec.surfaces[17].aperture =
+        Some(diffcassi::surfaces::Aperture::CircularObscuration { min_radius_mm: 0.1 + 0.2, max_radius_mm: 2.0 / 3.0, decenter_x_mm: -0.3, decenter_y_mm: 1e-7 });
     spec.surfaces[4].order = 1;
     let text = to_zmx(&spec).unwrap();
     let back = import_zmx(text.as_bytes(), "x.zmx", None, &ZmxOptions::default()).unwrap().spec;
@@ -260,6 +263,23 @@ fn bad_input_rows() {
     // FNUM and FLOA are read (tests/infinity.rs); the object cone angle is not.
     let t = good.replacen("OBNA 0.05 0", "OBSA 4 0", 1);
     refused("obsa.zmx", t.as_bytes(), &["line 5 `OBSA`", "aperture type not modelled"]);
+    // A circular obscuration (OBSC rmin rmax) with a negative, NaN or crossed radius: line, keyword, surface, value.
+    let with_obsc = |rec: &str| good.replacen("SURF 2\n", &format!("SURF 2\n  {rec}\n"), 1);
+    for (name, rec, says) in [
+        ("obsc-neg.zmx", "OBSC -1 2.5 0", vec!["surface 2", "minimum radius -1 mm", "≥ 0"]),
+        ("obsc-nan.zmx", "OBSC 0 NaN 0", vec!["surface 2", "argument 2 is NaN", "maximum radius"]),
+        ("obsc-inf.zmx", "OBSC 0 INFINITY 0", vec!["surface 2", "maximum radius inf mm"]),
+        ("obsc-order.zmx", "OBSC 3 2.5 0", vec!["surface 2", "radii 3 to 2.5 mm", "must not exceed"]),
+        ("obsc-text.zmx", "OBSC 0 big 0", vec!["surface 2", "`big` is not a number"]),
+    ] {
+        let t = with_obsc(rec);
+        let mut needles = vec![format!("line {} `OBSC`", line_of(&t, rec))];
+        needles.extend(says.iter().map(|s| s.to_string()));
+        refused(name, t.as_bytes(), &needles.iter().map(|s| s.as_str()).collect::<Vec<_>>());
+    }
+    // One aperture type per surface.
+    let t = with_obsc("OBSC 0 2.5 0\n  CLAP 0 9 0");
+    refused("obsc-clap.zmx", t.as_bytes(), &["surface 2", "CLAP", "OBSC", "one aperture type"]);
 }
 
 #[test]

@@ -6,6 +6,8 @@
 use diffcassi::materials::{builtin_catalogs, GlassCatalog, D_LINE_NM};
 use diffcassi::prelude::*;
 use diffcassi::spec::zmx::{import_zmx, import_zmx_file, to_zmx, zmx_glasses, TextEncoding, ZmxOptions};
+use diffcassi::tracer::{Kernel, SimdLevel};
+use glam::DVec3;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -128,6 +130,9 @@ fn final_line_break_and_records_cut_in_the_middle() {
     cut(&moff, &["`MOFF`", "unclosed quote"]);
     let moff = format!("{good}MOFF   0   1 \"\" 0 0");
     cut(&moff, &["`MOFF`", "5 of the 11 arguments"]);
+    // Zemax 12–14 wrote `MOFF` with 11 arguments (no last `0`): complete, as the Thorlabs cylinder file ends.
+    let old_moff = format!("{good}MOFF   0   1 \"\" 0 0 0 1 1 0 0.0 \"\"");
+    assert_eq!(import(old_moff.as_bytes()).unwrap().spec, import(good.as_bytes()).unwrap().spec);
     // A surface record cut: `DISZ` with no value, `PARM 4` without its value.
     let disz = &good[..good.rfind("DISZ").unwrap() + 4];
     cut(disz, &["`DISZ`", "argument 1 missing"]);
@@ -169,13 +174,14 @@ fn skipped_records_are_listed_and_unmodelled_ones_refused() {
 
     // An unmodelled keyword that carries optics: refused naming its line, keyword and surface; with
     // --ignore-unsupported listed, never skipped silently.
-    let bad = good.replacen("SURF 2\n", "SURF 2\n  OBSC 0 2.5 0\n", 1);
-    let line = bad.lines().position(|l| l.contains("OBSC")).unwrap() + 1;
+    // (An elliptical aperture, ELAP; OBSC, the circular obscuration, is modelled since issue 42.)
+    let bad = good.replacen("SURF 2\n", "SURF 2\n  ELAP 2.5 2 0\n", 1);
+    let line = bad.lines().position(|l| l.contains("ELAP")).unwrap() + 1;
     let e = import(bad.as_bytes()).unwrap_err().to_string();
-    assert!(e.contains(&format!("line {line} `OBSC`: surface 2 keyword not modelled")), "{e}");
+    assert!(e.contains(&format!("line {line} `ELAP`: surface 2 keyword not modelled")), "{e}");
     let loose = import_zmx(bad.as_bytes(), "t.zmx", None, &ZmxOptions { ignore_unsupported: true, ..Default::default() }).unwrap();
     assert_eq!(loose.ignored.len(), 1);
-    assert!(loose.skipped.iter().all(|u| u.keyword != "OBSC"));
+    assert!(loose.skipped.iter().all(|u| u.keyword != "ELAP"));
     // A merit-like row inside a surface block (indented) is not a merit row: refused.
     let bad = good.replacen("SURF 2\n", "SURF 2\n  REAY 13 2 0 1 0 0 2.254E+1 0 0 0\n", 1);
     assert!(import(bad.as_bytes()).unwrap_err().to_string().contains("`REAY`: surface 2 keyword not modelled"));
@@ -380,4 +386,74 @@ fn solves_pickups_and_floating_apertures_read_as_the_file_holds_them() {
     // sampling): its floating apertures, pickups and solves are read.
     let e = import_zmx_file(fixture("double_gauss_US583336.zmx"), &ZmxOptions::default()).unwrap_err().to_string();
     assert!(e.contains("3 item(s)") && e.contains("`VDYN`") && !e.contains("FLAP") && !e.contains("PZUP") && !e.contains("MAZH"), "{e}");
+}
+
+/// US 5,331,467 example 1 opens as it is, without `--ignore-unsupported`: its `OBSC 0 25 0` (line 90,
+/// surface 2, the rear of the front corrector) is OpticStudio's circular obscuration, the shadow of the
+/// secondary Mangin mirror. A ray from the object at infinity through the obscured zone (r ≤ 25 mm on
+/// surface 2) is vignetted there, by every kernel; one outside it reaches the image.
+#[test]
+fn catadioptric_obscuration_vignettes_its_zone_and_passes_the_rest() {
+    let path = fixture("US05331467-1.zmx");
+    let imp = import_zmx_file(&path, &ZmxOptions::default()).unwrap();
+    assert!(imp.ignored.is_empty(), "{:?}", imp.ignored);
+    let ap = imp.spec.surfaces[2].aperture.clone();
+    assert_eq!(ap, Some(diffcassi::surfaces::Aperture::CircularObscuration { min_radius_mm: 0.0, max_radius_mm: 25.0, decenter_x_mm: 0.0, decenter_y_mm: 0.0 }));
+    let sys = SequentialSystem::build(&imp.spec).unwrap();
+    assert!(sys.object_at_infinity());
+    // Rays parallel to the axis started on surface 1's vertex plane (the object frame at infinity): r = 10 and
+    // 24.9 mm land inside the obscuration on surface 2 (the corrector barely bends them), r = 30 and 45 mm pass.
+    let mut rays = RayBatch::default();
+    for (x, y) in [(0.0, 10.0), (-24.9, 0.0), (0.0, 30.0), (31.8, 31.8)] {
+        rays.push(DVec3::new(x, y, 0.0), DVec3::Z, 587.5618);
+    }
+    let want = [RayStatus::Vignetted, RayStatus::Vignetted, RayStatus::Ok, RayStatus::Ok];
+    let mut kernels = vec![Kernel::Scalar];
+    kernels.extend(SimdLevel::available().into_iter().map(|l| Kernel::Simd(Some(l))));
+    for kernel in kernels {
+        let out = AnalyticTracer::with_kernel(kernel).trace(&sys, &rays).unwrap();
+        for i in 0..want.len() {
+            assert_eq!(out.status[i], want[i], "{kernel:?} ray {i}");
+            if want[i] == RayStatus::Vignetted {
+                assert_eq!(out.surface[i], 2, "{kernel:?} ray {i}: vignetted on the obscured surface");
+            } else {
+                assert!(out.x[i].is_finite() && out.y[i].is_finite());
+            }
+        }
+    }
+    let f32 = diffcassi::tracer::AnalyticF32Tracer::new(SimdLevel::detect()).trace(&sys, &rays).unwrap();
+    assert_eq!(f32.status, want.to_vec(), "the f32 lanes");
+    // Real ray aiming (`RAIM 0 2`) aims through the obscuration (the chief ray of an obscured system is still its
+    // reference): the chief ray is aimed and then vignetted on surface 2, rays of the clear annulus pass.
+    let raim = String::from_utf8(std::fs::read(&path).unwrap()).unwrap().replacen("RAIM 0 0 1", "RAIM 0 2 1", 1);
+    let aimed = SequentialSystem::build(&import(raim.as_bytes()).unwrap().spec).unwrap();
+    assert_eq!(aimed.spec.ray_aiming, diffcassi::spec::RayAiming::Real);
+    let rays = RayBatch::for_field(&aimed, [0.0, 0.5f64.to_radians()], &[[0.0, 0.0], [0.0, 0.8], [-0.8, 0.0]], 587.5618).unwrap();
+    let out = AnalyticTracer::with_kernel(Kernel::Scalar).trace(&aimed, &rays).unwrap();
+    assert_eq!(out.status, vec![RayStatus::Vignetted, RayStatus::Ok, RayStatus::Ok]);
+    assert_eq!(out.surface[0], 2);
+    // Export writes the obscuration back: import → export → import is identical, bit for bit.
+    let written = to_zmx(&imp.spec).unwrap();
+    assert!(written.contains("  OBSC 0.0 25.0 0\n"), "{written}");
+    let back = import(written.as_bytes()).unwrap();
+    assert_eq!(back.spec, imp.spec);
+    // … and through the TOML and JSON spec formats (serde: `type = "circular_obscuration"`).
+    let dir = tempfile::tempdir().unwrap();
+    for ext in ["toml", "json"] {
+        let p = dir.path().join(format!("us.{ext}"));
+        diffcassi::spec::save_spec_file(&imp.spec, &p).unwrap();
+        assert!(std::fs::read_to_string(&p).unwrap().contains("circular_obscuration"), "{ext}");
+        assert_eq!(diffcassi::spec::load_spec_file(&p).unwrap(), imp.spec, "{ext}");
+    }
+    // `info` shows it; the GPU pack and the non-sequential solids refuse it by surface.
+    let o = run(&["info", "--system", path.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+    assert!(text(&o).contains("obsc 0–25"), "{}", text(&o));
+    // (This file's mirrors are refused there first; the SP preset with an obscuring ring outside its beam on
+    // surface 2 shows the refusal — a central one would vignette SP's chief-ray solve, as it should.)
+    let mut sp = diffcassi::presets::spec("sp").unwrap();
+    sp.surfaces[2].aperture = Some(diffcassi::surfaces::Aperture::CircularObscuration { min_radius_mm: 40.0, max_radius_mm: 45.0, decenter_x_mm: 0.0, decenter_y_mm: 0.0 });
+    let sp = SequentialSystem::build(&sp).unwrap();
+    let e = diffcassi::tracer::nonseq::Solids::build(&sp, &Default::default()).err().expect("refused").to_string();
+    assert!(e.contains("surface 2 has a circular obscuration") && e.contains("non-sequential"), "{e}");
 }

@@ -254,6 +254,7 @@ pub fn lde_table(system: &SequentialSystem) -> String {
             match &surf.aperture {
                 Some(crate::surfaces::Aperture::Circular { semi_diameter_mm, .. }) => format!("circ {semi_diameter_mm}"),
                 Some(crate::surfaces::Aperture::Rectangular { half_width_x_mm, half_width_y_mm, .. }) => format!("rect {half_width_x_mm}×{half_width_y_mm}"),
+                Some(crate::surfaces::Aperture::CircularObscuration { min_radius_mm, max_radius_mm, .. }) => format!("obsc {min_radius_mm}–{max_radius_mm}"),
                 _ => String::new(),
             },
             params

@@ -121,6 +121,14 @@ pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
                     step.aperture_kind = APERTURE_RECTANGULAR;
                     step.aperture = [half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm];
                 }
+                // The kernels' aperture test (dc_aperture_contains) and the prebuilt PTX know clear apertures
+                // only: an obscuration is refused by surface rather than passed as no aperture.
+                Aperture::CircularObscuration { min_radius_mm, max_radius_mm, .. } => {
+                    return Err(Error::invalid(format!(
+                        "surface {} has a circular obscuration ({min_radius_mm}–{max_radius_mm} mm), which the GPU kernels do not model: use --device cpu (the analytic tracer) for this system",
+                        s.surface
+                    )))
+                }
             }
             Ok(step)
         })

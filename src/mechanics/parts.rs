@@ -70,6 +70,8 @@ fn clear_radii(system: &SequentialSystem) -> Result<Vec<f64>> {
                 Aperture::Rectangular { half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm } => {
                     (half_width_x_mm + decenter_x_mm.abs()).hypot(half_width_y_mm + decenter_y_mm.abs())
                 }
+                // The obscuring disc or ring is part of the surface's hardware: it reaches at least its outer radius.
+                Aperture::CircularObscuration { max_radius_mm, decenter_x_mm, decenter_y_mm, .. } => max_radius_mm + decenter_x_mm.hypot(decenter_y_mm),
                 Aperture::None => 0.0,
             };
             s.semi_diameter_mm.unwrap_or(0.0).max(a).max(explicit)

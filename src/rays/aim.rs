@@ -1,5 +1,6 @@
 use crate::error::{Error, Result};
 use crate::spec::RayAiming;
+use crate::surfaces::Aperture;
 use crate::system::SequentialSystem;
 use crate::tracer::kernel::trace_steps;
 use glam::DVec3;
@@ -120,9 +121,21 @@ impl PupilAim {
 
 /// Where a ray from the object (object frame, `n` the indices at its wavelength) crosses the stop surface,
 /// in the stop's local (x, y) mm; `None` when it does not get there.
+///
+/// Obscurations before the stop do not stop the aiming trace: the aim point is a point of the stop surface
+/// whatever shadows it, and a central obscuration (a Cassegrain's secondary, `OBSC`) shadows the chief ray
+/// itself, which stays the field's reference ray. Whether the aimed ray is vignetted is decided when it is
+/// traced. Clear apertures (CLAP/SQAP) act on the aiming trace as before.
 pub fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3, d: DVec3) -> Option<(f64, f64)> {
     let probe = &system.stop_probe;
-    let (p, d) = trace_steps(&system.path[..probe.steps], n, origin, d).ok()?;
+    let before = &system.path[..probe.steps];
+    let obscured = |s: &crate::system::PathStep| matches!(s.aperture, Aperture::CircularObscuration { .. });
+    let (p, d) = if before.iter().any(obscured) {
+        let open: Vec<_> = before.iter().map(|s| if obscured(s) { crate::system::PathStep { aperture: Aperture::None, ..s.clone() } } else { s.clone() }).collect();
+        trace_steps(&open, n, origin, d).ok()?
+    } else {
+        trace_steps(before, n, origin, d).ok()?
+    };
     let step = &probe.probe;
     let (p, d) = (step.rotation * (p - step.offset), step.rotation * d);
     let hit = crate::surfaces::intersect(&step.shape, p, d).ok()?;

@@ -52,6 +52,9 @@ impl SurfacePatch {
         aperture.validate()?;
         let r_max = match aperture {
             Aperture::None => return Err("a surface patch needs a finite aperture (circular or rectangular)".into()),
+            Aperture::CircularObscuration { .. } => {
+                return Err("a surface patch needs a finite clear aperture (circular or rectangular); a circular obscuration passes every ray outside it and bounds nothing".into())
+            }
             Aperture::Circular { semi_diameter_mm, decenter_x_mm, decenter_y_mm, .. } => semi_diameter_mm + decenter_x_mm.hypot(decenter_y_mm),
             Aperture::Rectangular { half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm } => {
                 (half_width_x_mm + decenter_x_mm.abs()).hypot(half_width_y_mm + decenter_y_mm.abs())
@@ -84,7 +87,7 @@ impl SurfacePatch {
             Aperture::Circular { semi_diameter_mm: r, decenter_x_mm: dx, decenter_y_mm: dy, .. } => {
                 (DVec3::new(dx - r, dy - r, self.z_min), DVec3::new(dx + r, dy + r, self.z_max))
             }
-            Aperture::None => (DVec3::splat(-self.r_max), DVec3::splat(self.r_max)),
+            Aperture::None | Aperture::CircularObscuration { .. } => (DVec3::splat(-self.r_max), DVec3::splat(self.r_max)),
         };
         (lo, hi)
     }

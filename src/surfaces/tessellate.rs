@@ -108,6 +108,9 @@ pub fn tessellate_covering(shape: &SurfaceShape, aperture: &Aperture, resolution
 fn checked<'a>(shape: &'a SurfaceShape, aperture: &Aperture) -> Result<&'a SurfaceShape, String> {
     match *aperture {
         Aperture::None => return Err("tessellation needs a finite clear aperture (circular or rectangular), got none".into()),
+        Aperture::CircularObscuration { .. } => {
+            return Err("tessellation needs a finite clear aperture (circular or rectangular); a circular obscuration bounds nothing (it passes every ray outside it)".into())
+        }
         _ => aperture.validate()?,
     }
     // An ideal lens is a plane: tessellate it as one.
@@ -193,7 +196,7 @@ fn build(shape: &SurfaceShape, aperture: &Aperture, n: usize) -> Result<Triangle
             }
             Ok(finish(shape, vertices, triangles, 0.0, n))
         }
-        Aperture::None => unreachable!("checked by tessellate"),
+        Aperture::None | Aperture::CircularObscuration { .. } => unreachable!("checked by tessellate"),
     }
 }
 

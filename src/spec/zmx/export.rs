@@ -204,6 +204,10 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
                 let _ = writeln!(w, "  SQAP {} {} 0", f(*half_width_x_mm), f(*half_width_y_mm));
                 let _ = writeln!(w, "  OBDC {} {}", f(*decenter_x_mm), f(*decenter_y_mm));
             }
+            Some(Aperture::CircularObscuration { min_radius_mm, max_radius_mm, decenter_x_mm, decenter_y_mm }) => {
+                let _ = writeln!(w, "  OBSC {} {} 0", f(*min_radius_mm), f(*max_radius_mm));
+                let _ = writeln!(w, "  OBDC {} {}", f(*decenter_x_mm), f(*decenter_y_mm));
+            }
         }
         for col in s.present_columns() {
             let cell = s.cell(&col).expect("present column");

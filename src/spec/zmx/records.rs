@@ -66,9 +66,13 @@ pub const SURFACE_KEYWORDS: &[&str] = &[
 ];
 
 /// The number of arguments OpticStudio writes for keywords that carry no optics and often end a file (`MNUM 1 1`,
-/// `MOFF 0 1 "" 0 0 0 1 1 0 0.0 ""`, which newer versions follow with one more `0`: 11 is the least). A last record without a line break that has fewer is a record cut in
+/// `MOFF`, below). A last record without a line break that has fewer is a record cut in
 /// the middle. Keywords read for their values need what their reader needs (a missing argument is refused
 /// anyway).
+///
+/// `MOFF`: OpticStudio 16 and later write 12 arguments (`MOFF 0 1 "" 0 0 0 1 1 0 0.0 "" 0`), Zemax 12–14 wrote
+/// 11 (no last `0`: the fixtures `cylinder_thorlabs_LJ1598L1.zmx`, VERS 120928, which ends there without a line
+/// break, and `double_gauss_US583336.zmx`, VERS 140730); the fewer is the complete record.
 pub fn written_arity(keyword: &str) -> Option<usize> {
     match keyword {
         "MNUM" => Some(2),

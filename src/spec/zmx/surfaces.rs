@@ -9,7 +9,7 @@
 //! 2 = order), `GLAS name …` (`GLAS MIRROR`: a reflecting surface), `DCGE e` (diffcassi's own record: the
 //! grating order's efficiency),
 //! `STOP`, `DIAM sd …` (semi-diameter), `CLAP rmin rmax` / `SQAP hx hy` with `OBDC dx dy` (clipping
-//! apertures), `COMM text`; `VCUR`, `VDSZ`, `VCON`, `VPAR i` mark cells variable. Pickups and chief-ray
+//! apertures), `OBSC rmin rmax` with `OBDC dx dy` (a circular obscuration: the annulus blocks), `COMM text`; `VCUR`, `VDSZ`, `VCON`, `VPAR i` mark cells variable. Pickups and chief-ray
 //! solves are written by diffcassi as `DCPK column from_surface scale offset [source_column]` and
 //! `DCCR column`, `DCVR column` marks a variable cell. OpticStudio's own solve and pickup records (`CURV c 4`,
 //! `PZUP`, `PPAR`, `MAZH`, …) are read as the solved values the file holds, and listed.
@@ -47,6 +47,8 @@ pub(super) struct SurfaceBlock {
     /// semi-diameter the file holds (read as `CLAP` with those radii).
     pub flap: Option<(f64, f64)>,
     pub sqap: Option<(f64, f64)>,
+    /// `OBSC rmin rmax`: a circular obscuration (line, rmin, rmax), checked when read.
+    pub obsc: Option<(usize, f64, f64)>,
     pub obdc: (f64, f64),
     /// (line, column, driver) for pickups / chief-ray solves; (column) for variables.
     pub drivers: Vec<(usize, String, Driver)>,
@@ -157,6 +159,29 @@ impl SurfaceBlock {
             "DIAM" => self.diam = Some(finite(r, 0)?),
             "CLAP" => self.clap = Some((finite(r, 0)?, finite(r, 1)?)),
             "SQAP" => self.sqap = Some((finite(r, 0)?, finite(r, 1)?)),
+            "OBSC" => {
+                // OpticStudio's "Circular Obscuration" aperture type (User Manual, Surface Properties >
+                // Aperture): rays with rmin ≤ r ≤ rmax about the OBDC decentre are blocked, all others pass.
+                // The third number OpticStudio writes (as on CLAP/SQAP) is not read, as for CLAP.
+                let radius = |k: usize, what: &str| -> Result<f64, String> {
+                    let v = num(r, k).map_err(|m| format!("{m} (surface {}, obscuration {what} radius)", self.number))?;
+                    if !v.is_finite() || v < 0.0 {
+                        return Err(format!(
+                            "line {} `OBSC`: surface {} obscuration {what} radius {v} mm must be finite and ≥ 0",
+                            r.line, self.number
+                        ));
+                    }
+                    Ok(v)
+                };
+                let (rmin, rmax) = (radius(0, "minimum")?, radius(1, "maximum")?);
+                if rmin > rmax || rmax == 0.0 {
+                    return Err(format!(
+                        "line {} `OBSC`: surface {} obscuration radii {rmin} to {rmax} mm: the minimum must not exceed the maximum, and the maximum must be > 0",
+                        r.line, self.number
+                    ));
+                }
+                self.obsc = Some((r.line, rmin, rmax));
+            }
             "OBDC" => self.obdc = (finite(r, 0)?, finite(r, 1)?),
             "VCUR" => self.variables.push((r.line, "radius_mm".into())),
             "VDSZ" => self.variables.push((r.line, "thickness_mm".into())),
@@ -274,16 +299,28 @@ impl SurfaceBlock {
         }
         s.semi_diameter_mm = self.diam;
         let (dx, dy) = self.obdc;
-        // A floating aperture is the circular aperture of its radii (a `CLAP` record, if any, wins).
-        match (self.clap.or(self.flap), self.sqap) {
-            (Some(_), Some(_)) => return Err(format!("surface {} (line {line}): both a circular (CLAP) and a rectangular (SQAP) aperture", self.number)),
-            (Some((rmin, rmax)), None) => {
+        // A surface has one aperture type in OpticStudio: CLAP, SQAP and OBSC exclude each other.
+        let kinds = [self.clap.map(|_| "a circular aperture (CLAP)"), self.sqap.map(|_| "a rectangular aperture (SQAP)"), self.obsc.map(|_| "a circular obscuration (OBSC)")];
+        let given: Vec<&str> = kinds.iter().flatten().copied().collect();
+        if given.len() > 1 {
+            return Err(format!("surface {} (line {line}): {} — OpticStudio gives a surface one aperture type", self.number, given.join(" and ")));
+        }
+        match (self.clap, self.sqap, self.obsc) {
+            (Some((rmin, rmax)), _, _) => {
                 s.aperture = Some(Aperture::Circular { semi_diameter_mm: rmax, min_radius_mm: rmin, decenter_x_mm: dx, decenter_y_mm: dy })
             }
-            (None, Some((hx, hy))) => {
+            (_, Some((hx, hy)), _) => {
                 s.aperture = Some(Aperture::Rectangular { half_width_x_mm: hx, half_width_y_mm: hy, decenter_x_mm: dx, decenter_y_mm: dy })
             }
-            (None, None) => {}
+            (_, _, Some((_, rmin, rmax))) => {
+                s.aperture = Some(Aperture::CircularObscuration { min_radius_mm: rmin, max_radius_mm: rmax, decenter_x_mm: dx, decenter_y_mm: dy })
+            }
+            // A floating aperture (FLAP) is the circular aperture of its radii, where no other aperture is given.
+            (None, None, None) => {
+                if let Some((rmin, rmax)) = self.flap {
+                    s.aperture = Some(Aperture::Circular { semi_diameter_mm: rmax, min_radius_mm: rmin, decenter_x_mm: dx, decenter_y_mm: dy })
+                }
+            }
         }
         for &(pl, i, v) in &self.parm {
             if kind == SurfaceKind::CoordinateBreak && i == 6 {

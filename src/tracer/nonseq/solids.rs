@@ -263,6 +263,13 @@ fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<
     let mut groups: Vec<Group> = Vec::new();
     for (k, step) in system.path.iter().enumerate() {
         let s = step.surface;
+        // A central obscuration is a solid in the beam (a disc or ring held by a spider), which these solids
+        // (lens bodies between clear apertures, walls and aperture blades) do not build: refused by surface.
+        if let Aperture::CircularObscuration { min_radius_mm, max_radius_mm, .. } = step.aperture {
+            return Err(Error::invalid(format!(
+                "surface {s} has a circular obscuration ({min_radius_mm}–{max_radius_mm} mm): the non-sequential solids (Embree, ghost tracer) do not model obscurations; trace this system with the sequential tracer"
+            )));
+        }
         let mirror = step.interaction == Interaction::Reflect;
         // A mirror is never merged with a coincident plane (nor one into it): a merged group would have to
         // both reflect and refract.
@@ -330,7 +337,7 @@ fn rim_point(ap: &Aperture, a: f64) -> (f64, f64) {
             let k = (hx / c.abs().max(1e-300)).min(hy / s.abs().max(1e-300));
             (dx + k * c, dy + k * s)
         }
-        Aperture::None => (0.0, 0.0),
+        Aperture::None | Aperture::CircularObscuration { .. } => (0.0, 0.0),
     }
 }
 

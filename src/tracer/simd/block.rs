@@ -521,6 +521,12 @@ fn trace_step<T: Real, const N: usize, R: StepRecorder<T, N>>(step: &PathStep, n
         Aperture::Rectangular { half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm } => {
             (point.x - T::of(decenter_x_mm)).abs().le(Lanes::of(half_width_x_mm)) & (point.y - T::of(decenter_y_mm)).abs().le(Lanes::of(half_width_y_mm))
         }
+        Aperture::CircularObscuration { min_radius_mm, max_radius_mm, decenter_x_mm, decenter_y_mm } => {
+            // Aperture::contains: blocked on the closed annulus, r² < rmin² or r² > rmax² passes.
+            let (u, v) = (point.x - T::of(decenter_x_mm), point.y - T::of(decenter_y_mm));
+            let r2 = u * u + v * v;
+            r2.lt(Lanes::of(min_radius_mm * min_radius_mm)) | r2.gt(Lanes::of(max_radius_mm * max_radius_mm))
+        }
     };
     b.kill(!inside, RayStatus::Vignetted, s);
     // n₁/n₂ per lane, divided in f64 and rounded once; one scalar division when every lane has the same
