@@ -403,10 +403,12 @@ fn cli_render_scene_fov_deg_and_its_errors() {
     let o = tol("0.5", "tol-narrow");
     let out = String::from_utf8_lossy(&o.stdout).to_string() + &String::from_utf8_lossy(&o.stderr);
     assert!(o.status.success(), "{out}");
-    assert!(out.contains("fidelity: tolerance 3 µm → --backend analytic --rays ") && out.contains("left out"), "{out}");
+    // (analytic or its f32 lanes, whichever the timing predicts faster; the Embree candidates left out.)
+    assert!(out.contains("fidelity: tolerance 3 µm → --backend analytic") && out.contains("left out"), "{out}");
     let rays = serde_json::from_str::<serde_json::Value>(&std::fs::read_to_string(tmp("tol-narrow").join("render.json")).unwrap()).unwrap()["rays_per_pixel"].as_u64().unwrap();
     let (s_narrow, n) = (sigma(&out), rays as f64);
-    assert!(s_narrow / n.sqrt() <= 3.0 && s_narrow / (n - 1.0).sqrt() > 3.0 - 1e-9, "σ {s_narrow}, N {n}: the fewest rays within 3 µm");
+    // σ/√N within the tolerance, with no more rays than a 0.5 µm trace error would call for.
+    assert!(s_narrow / n.sqrt() <= 3.0 && n <= (s_narrow / 2.5).powi(2).ceil(), "σ {s_narrow}, N {n}");
     // 24× wider pixels (12° over 8 pixels) spread their landings more: refused as needing too many rays, naming σ.
     let o = tol("12", "tol-wide");
     let err = String::from_utf8_lossy(&o.stderr).to_string();
