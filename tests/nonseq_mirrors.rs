@@ -5,7 +5,7 @@
 //!
 //! `cargo test --release --test integration nonseq_mirrors:: -- --nocapture` prints the measured errors.
 use diffcassi::prelude::*;
-use diffcassi::spec::{SurfaceSpec, SystemAperture};
+use diffcassi::spec::SurfaceSpec;
 use diffcassi::tracer::nonseq::coating::CoatingOverride;
 use diffcassi::tracer::nonseq::{path_label, trace_trees, BruteForce, FresnelModel, Role, Solids, SolidsOptions, TreeOptions};
 use glam::DVec3;
@@ -19,58 +19,8 @@ fn text(o: &Output) -> String {
     format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
 
-fn system(name: &str, surfaces: Vec<SurfaceSpec>, na: f64) -> SystemSpec {
-    SystemSpec {
-        name: name.into(),
-        description: String::new(),
-        aperture: SystemAperture::ObjectSpaceNa(na),
-        ray_aiming: Default::default(),
-        wavelengths_nm: vec![450.0, 520.0, 650.0],
-        primary_wavelength_nm: 520.0,
-        fields_mm: vec![[0.0, 0.0], [0.0, 1.0], [1.0, 0.5]],
-        field_type: Default::default(),
-        fields_deg: vec![],
-        wavelength_policy: Default::default(),
-        air_index: 1.0,
-        glass_catalogs: vec![],
-        surfaces,
-        mechanics: None,
-    }
-}
-
-fn stop(mut s: SurfaceSpec) -> SurfaceSpec {
-    s.stop = true;
-    s
-}
-
-fn mirror(radius: Option<f64>, conic: Option<f64>, thickness: f64) -> SurfaceSpec {
-    let mut s = SurfaceSpec::standard(radius, thickness, Some("MIRROR"));
-    s.conic = conic.map(diffcassi::spec::Cell::fixed);
-    s
-}
-
-/// Two 45° fold mirrors built with Coordinate Breaks (break, mirror, break; the thickness after the first
-/// mirror's break is negative), then an N-BK7 singlet (a solid with side walls) and the image.
-fn fold_mirrors() -> SystemSpec {
-    let cb = |tx: f64, t: f64| SurfaceSpec::coordinate_break(0.0, 0.0, tx, 0.0, 0.0, t);
-    system(
-        "fold",
-        vec![
-            SurfaceSpec::standard(None, 40.0, None),
-            stop(SurfaceSpec::standard(None, 20.0, None)),
-            cb(45.0, 0.0),
-            mirror(None, None, 0.0),
-            cb(45.0, -30.0),
-            cb(-45.0, 0.0),
-            mirror(None, None, 0.0),
-            cb(-45.0, 20.0),
-            SurfaceSpec::standard(Some(30.0), 4.0, Some("N-BK7")),
-            SurfaceSpec::standard(Some(-30.0), 25.0, None),
-            SurfaceSpec::standard(None, 0.0, None),
-        ],
-        0.05,
-    )
-}
+// The systems' builders are `tests/surfaces.rs`'s (the sequential traces of the same mirrors).
+use crate::surfaces::{fold_mirrors, mirror, stop, system};
 
 /// The fold system unfolded: the same path lengths 20 + 30 + 20 mm in a straight line (singlet = 2, 3).
 fn unfolded() -> SystemSpec {

@@ -11,7 +11,7 @@ use diffcassi::spec::{SurfaceKind, SurfaceSpec, SystemAperture};
 use diffcassi::tracer::{Kernel, SimdLevel};
 use glam::DVec3;
 
-fn system(name: &str, surfaces: Vec<SurfaceSpec>, na: f64) -> SystemSpec {
+pub(crate) fn system(name: &str, surfaces: Vec<SurfaceSpec>, na: f64) -> SystemSpec {
     SystemSpec {
         name: name.into(),
         description: String::new(),
@@ -30,12 +30,12 @@ fn system(name: &str, surfaces: Vec<SurfaceSpec>, na: f64) -> SystemSpec {
     }
 }
 
-fn stop(mut s: SurfaceSpec) -> SurfaceSpec {
+pub(crate) fn stop(mut s: SurfaceSpec) -> SurfaceSpec {
     s.stop = true;
     s
 }
 
-fn mirror(radius: Option<f64>, conic: Option<f64>, thickness: f64) -> SurfaceSpec {
+pub(crate) fn mirror(radius: Option<f64>, conic: Option<f64>, thickness: f64) -> SurfaceSpec {
     let mut s = SurfaceSpec::standard(radius, thickness, Some("MIRROR"));
     s.conic = conic.map(diffcassi::spec::Cell::fixed);
     s
@@ -53,7 +53,7 @@ fn ellipsoid_mirror() -> SystemSpec {
 
 /// Two 45° fold mirrors built with Coordinate Breaks (OpticStudio's fold-mirror idiom: break, mirror, break;
 /// the thickness after the second break is negative), then a singlet and the image.
-fn fold_mirrors() -> SystemSpec {
+pub(crate) fn fold_mirrors() -> SystemSpec {
     let cb = |tx: f64, t: f64| SurfaceSpec::coordinate_break(0.0, 0.0, tx, 0.0, 0.0, t);
     system(
         "fold",

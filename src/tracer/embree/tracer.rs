@@ -471,16 +471,7 @@ impl EmbreeTracer {
     /// the media the sequential log gives a mirror step (before: `medium`, after: `surface`, the same medium).
     #[allow(clippy::too_many_arguments)]
     fn reflect_at(&self, scene: &OpticalScene, obj: &SceneObject, surface: usize, medium: usize, w: &mut Walk, hit: &Hit, log: Option<&mut Vec<HitRecord>>) {
-        let Some((p, normal, d)) = self.locate(scene, obj, w, hit) else {
-            w.finish(RayStatus::NoConvergence, surface);
-            return;
-        };
-        if self.options.refine == Refinement::F64 {
-            if let Some((s, _)) = obj.apertures.iter().find(|(_, ap)| !ap.contains(p.x, p.y)) {
-                w.finish(RayStatus::Vignetted, *s);
-                return;
-            }
-        }
+        let Some((p, normal, d)) = self.locate_within(scene, obj, w, hit, surface) else { return };
         // Grazing incidence: the ray touches the mirror without a defined reflection (the sequential
         // kernel's classification, `missed`), never a NaN direction.
         if d.dot(normal).abs().is_nan() || d.dot(normal).abs() <= GRAZING_COS {
@@ -513,18 +504,7 @@ impl EmbreeTracer {
             return w.finish(RayStatus::NoConvergence, w.last_surface as usize);
         };
         let surface = *surfaces.last().expect("an interface has surfaces");
-        let Some((p, normal, d)) = self.locate(scene, obj, w, hit) else {
-            w.finish(RayStatus::NoConvergence, surface);
-            return;
-        };
-        // With f64 refinement the explicit apertures are decided on the exact hit point (closed sets, as
-        // in the sequential tracer): f32 rounding may have let a ray one ulp outside reach the surface.
-        if self.options.refine == Refinement::F64 {
-            if let Some((s, _)) = obj.apertures.iter().find(|(_, ap)| !ap.contains(p.x, p.y)) {
-                w.finish(RayStatus::Vignetted, *s);
-                return;
-            }
-        }
+        let Some((p, normal, d)) = self.locate_within(scene, obj, w, hit, surface) else { return };
         // The normal points to the back side (+z): a ray with d·n > 0 goes front → back.
         let forward = d.dot(normal) > 0.0;
         let (m1, m2) = if forward { (*front_medium, *back_medium) } else { (*back_medium, *front_medium) };
@@ -577,6 +557,24 @@ impl EmbreeTracer {
 
     /// The hit point, the unit normal (oriented toward local +z) and the ray's direction, in the object's
     /// local frame.
+    /// [`Self::locate`], finishing the walk where it fails (`surface`: no convergence) and, with f64
+    /// refinement, where the exact hit point is outside one of the object's explicit apertures (decided on
+    /// the exact point, closed sets, as in the sequential tracer: f32 rounding may have let a ray one ulp
+    /// outside reach the surface). `None` when the walk finished.
+    fn locate_within(&self, scene: &OpticalScene, obj: &SceneObject, w: &mut Walk, hit: &Hit, surface: usize) -> Option<(DVec3, DVec3, DVec3)> {
+        let Some((p, normal, d)) = self.locate(scene, obj, w, hit) else {
+            w.finish(RayStatus::NoConvergence, surface);
+            return None;
+        };
+        if self.options.refine == Refinement::F64 {
+            if let Some((s, _)) = obj.apertures.iter().find(|(_, ap)| !ap.contains(p.x, p.y)) {
+                w.finish(RayStatus::Vignetted, *s);
+                return None;
+            }
+        }
+        Some((p, normal, d))
+    }
+
     fn locate(&self, scene: &OpticalScene, obj: &SceneObject, w: &mut Walk, hit: &Hit) -> Option<(DVec3, DVec3, DVec3)> {
         let patch = obj.patch.as_ref()?;
         let p0 = obj.frame.point_to_local(w.p);
