@@ -1,6 +1,5 @@
 use crate::error::{Error, Result};
 use crate::spec::RayAiming;
-use crate::surfaces::Aperture;
 use crate::system::SequentialSystem;
 use crate::tracer::kernel::trace_steps;
 use glam::DVec3;
@@ -128,14 +127,9 @@ impl PupilAim {
 /// traced. Clear apertures (CLAP/SQAP) act on the aiming trace as before.
 pub fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3, d: DVec3) -> Option<(f64, f64)> {
     let probe = &system.stop_probe;
-    let before = &system.path[..probe.steps];
-    let obscured = |s: &crate::system::PathStep| matches!(s.aperture, Aperture::CircularObscuration { .. });
-    let (p, d) = if before.iter().any(obscured) {
-        let open: Vec<_> = before.iter().map(|s| if obscured(s) { crate::system::PathStep { aperture: Aperture::None, ..s.clone() } } else { s.clone() }).collect();
-        trace_steps(&open, n, origin, d).ok()?
-    } else {
-        trace_steps(before, n, origin, d).ok()?
-    };
+    // The steps before the stop, their obscurations opened once when the system was built.
+    let before = probe.open_path.as_deref().unwrap_or(&system.path[..probe.steps]);
+    let (p, d) = trace_steps(before, n, origin, d).ok()?;
     let step = &probe.probe;
     let (p, d) = (step.rotation * (p - step.offset), step.rotation * d);
     let hit = crate::surfaces::intersect(&step.shape, p, d).ok()?;

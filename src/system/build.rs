@@ -151,7 +151,7 @@ impl SequentialSystem {
                         path: path.clone(),
                         // Before the stop is placed there is nothing to aim at: steps > path.len() says so.
                         coded_mask: None,
-                        stop_probe: stop_probe.clone().unwrap_or_else(|| StopProbe { steps: usize::MAX, probe: path_step(&Frame::IDENTITY, &Frame::IDENTITY, 0, SurfaceShape::Plane, Aperture::None, Interaction::Refract) }),
+                        stop_probe: stop_probe.clone().unwrap_or_else(|| StopProbe { steps: usize::MAX, probe: path_step(&Frame::IDENTITY, &Frame::IDENTITY, 0, SurfaceShape::Plane, Aperture::None, Interaction::Refract), open_path: None }),
                     };
                     if spec.field_type == crate::spec::FieldType::RealImageHeight {
                         return Err(sys_err(i, solved[0], "a chief-ray solve needs the object field before the system is built; real image height fields are found by tracing the built system: use another field type".into()));
@@ -241,7 +241,10 @@ impl SequentialSystem {
             if i == stop_index {
                 // The stop's own figure (a plane for a Coordinate Break stop), reached after the steps so far.
                 let probe_shape = shape.clone().unwrap_or(SurfaceShape::Plane);
-                stop_probe = Some(StopProbe { steps: path.len(), probe: path_step(&last_step_frame, &surface_frame, i, probe_shape, Aperture::None, Interaction::Refract) });
+                // Obscurations before the stop do not stop the aiming trace (`rays::aim::stop_crossing`).
+                let obscured = |st: &PathStep| matches!(st.aperture, Aperture::CircularObscuration { .. });
+                let open_path = path.iter().any(obscured).then(|| path.iter().map(|st| if obscured(st) { PathStep { aperture: Aperture::None, ..st.clone() } } else { st.clone() }).collect());
+                stop_probe = Some(StopProbe { steps: path.len(), probe: path_step(&last_step_frame, &surface_frame, i, probe_shape, Aperture::None, Interaction::Refract), open_path });
             }
             if let Some(m) = &s.coded_mask {
                 if !media[i - 1].is_air() {

@@ -59,6 +59,9 @@ pub struct SequentialSystem {
 pub(crate) struct StopProbe {
     pub steps: usize,
     pub probe: PathStep,
+    /// The path's first `steps` steps with their central obscurations opened (`Aperture::None`), for the
+    /// aiming trace ([`crate::rays::aim::stop_crossing`]); `None` when no step before the stop has one.
+    pub open_path: Option<Vec<PathStep>>,
 }
 
 /// Index of a medium at `wavelength_nm` under the spec's air index and wavelength policy.
