@@ -176,12 +176,12 @@ fn check(label: &str, spec: SystemSpec, free: &[&str], with_embree: bool) -> usi
     // The same Jacobians from the analytic hits through the hit-record path.
     let (traced, log) = sequential_hits(&ds.system, &rays).unwrap();
     let from_log = ds.jacobian_from_hits(&rays, &traced, &log).unwrap();
-    let worst = agreement(label, "sequential hits", &jb, &from_log);
+    let worst = agreement(label, "sequential hits", &jb, &from_log, 1e-15);
     assert!(worst <= 1e-11, "{label}: sequential hit records: {worst:e}");
     #[cfg(feature = "embree")]
     for (source, opts) in embree_backends().into_iter().filter(|_| with_embree) {
         let hj = ds.trace_embree(&EmbreeTracer::new(opts), &rays).unwrap();
-        agreement(label, source, &jb, &hj);
+        agreement(label, source, &jb, &hj, 1e-15);
         compared += against_fd(label, source, &set, &fds, &hj.batch);
     }
     compared
@@ -190,8 +190,8 @@ fn check(label: &str, spec: SystemSpec, free: &[&str], with_embree: bool) -> usi
 /// Compare Jacobians from recorded hits with the analytic ones: every ray that arrives analytically must
 /// have an available Jacobian, equal to ≤ 1e-9 of the largest magnitude of its column (the same output
 /// component and parameter over the batch; entries that are small by cancellation differ by f64
-/// rounding of the large terms). Returns that worst relative difference.
-fn agreement(label: &str, source: &str, jb: &JacobianBatch, hj: &HitJacobianBatch) -> f64 {
+/// rounding of the large terms), plus `abs_floor` absolute. Returns that worst relative difference.
+pub(crate) fn agreement(label: &str, source: &str, jb: &JacobianBatch, hj: &HitJacobianBatch, abs_floor: f64) -> f64 {
     let kk = jb.k();
     let mut scale = vec![0.0f64; 6 * kk];
     for i in (0..jb.len()).filter(|&i| jb.usable(i)) {
@@ -213,7 +213,7 @@ fn agreement(label: &str, source: &str, jb: &JacobianBatch, hj: &HitJacobianBatc
         for c in 0..6 {
             for (k, (a, b)) in jb.row(i, c).iter().zip(hj.batch.row(i, c)).enumerate() {
                 let (err, s) = ((a - b).abs(), scale[c * kk + k]);
-                assert!(err <= 1e-9 * s + 1e-15, "{label} {source}: ray {i} component {c} {}: {b:e} vs analytic {a:e} (column scale {s:e})", jb.params[k]);
+                assert!(err <= 1e-9 * s + abs_floor, "{label} {source}: ray {i} component {c} {}: {b:e} vs analytic {a:e} (column scale {s:e})", jb.params[k]);
                 if s > 1e-12 {
                     worst = worst.max(err / s);
                 }

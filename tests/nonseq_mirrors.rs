@@ -312,31 +312,11 @@ mod embree {
         let rays = workload(&ds.system);
         let jb = ds.trace(&rays).unwrap();
         let hj = ds.trace_embree(&EmbreeTracer::new(EmbreeOptions::user(Refinement::F64)), &rays).unwrap();
-        let kk = jb.k();
-        let mut scale = vec![0.0f64; 6 * kk];
-        for i in (0..jb.len()).filter(|&i| jb.usable(i)) {
-            for c in 0..6 {
-                for (k, a) in jb.row(i, c).iter().enumerate() {
-                    scale[c * kk + k] = scale[c * kk + k].max(a.abs());
-                }
-            }
-        }
-        let (mut worst, mut n) = (0.0f64, 0usize);
-        for i in (0..jb.len()).filter(|&i| jb.usable(i)) {
-            assert!(hj.unavailable[i].is_none(), "ray {i}: {:?}", hj.unavailable[i]);
-            n += 1;
-            for c in 0..6 {
-                for (k, (a, b)) in jb.row(i, c).iter().zip(hj.batch.row(i, c)).enumerate() {
-                    let s = scale[c * kk + k];
-                    // 1e-12 absolute: the image plane's z entries are 0 up to f64 rounding of the large terms.
-                    assert!((a - b).abs() <= 1e-9 * s + 1e-12, "ray {i} component {c} {}: {b:e} vs analytic {a:e}", free[k]);
-                    if s > 1e-12 {
-                        worst = worst.max((a - b).abs() / s);
-                    }
-                }
-            }
-        }
-        eprintln!("fold: Jacobians from Embree hits vs analytic: {n} rays, worst {worst:.1e} of the column's largest entry");
+        // `tests/derivatives.rs`'s comparison (≤ 1e-9 of each column's largest entry, the same statuses and
+        // landings), with 1e-12 absolute: the image plane's z entries are 0 up to f64 rounding of the large
+        // terms after the two mirrors.
+        crate::derivatives::agreement("fold", "embree-user f64", &jb, &hj, 1e-12);
+        let n = (0..jb.len()).filter(|&i| jb.usable(i)).count();
         assert_eq!(n, rays.len());
     }
 

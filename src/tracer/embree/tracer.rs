@@ -483,14 +483,7 @@ impl EmbreeTracer {
             let s = surface as u32;
             log.push(HitRecord { first_surface: s, last_surface: s, point: p, direction: d, medium_in: medium as u32, medium_out: s, kind: HitKind::Mirror });
         }
-        w.p = obj.frame.point_to_global(p);
-        w.d = obj.frame.dir_to_global(new_d).normalize();
-        w.exclude = obj.mask;
-        w.last_surface = surface as u32;
-        w.interactions = w.interactions.saturating_add(1);
-        if w.interactions as u32 >= self.options.max_bounces {
-            w.finish(RayStatus::BounceLimit, surface);
-        }
+        self.leave(obj, w, p, new_d, surface);
     }
 
     /// The ray meets interface `obj` (located from `hit`): refract, deflect (ideal lens) or reflect (TIR);
@@ -532,14 +525,7 @@ impl EmbreeTracer {
             let (medium_in, medium_out) = if kind == HitKind::Reflection { (m1, m1) } else { (m1, m2) };
             log.push(HitRecord { first_surface: surfaces[0] as u32, last_surface: surface as u32, point: p, direction: d, medium_in: medium_in as u32, medium_out: medium_out as u32, kind });
         }
-        w.p = obj.frame.point_to_global(p);
-        w.d = obj.frame.dir_to_global(new_d).normalize();
-        w.exclude = obj.mask;
-        w.last_surface = surface as u32;
-        w.interactions = w.interactions.saturating_add(1);
-        if w.interactions as u32 >= self.options.max_bounces {
-            w.finish(RayStatus::BounceLimit, surface);
-        }
+        self.leave(obj, w, p, new_d, surface);
     }
 
     /// The exact (f64) point where the ray meets `obj`'s figure near Embree's distance, local frame.
@@ -557,6 +543,20 @@ impl EmbreeTracer {
 
     /// The hit point, the unit normal (oriented toward local +z) and the ray's direction, in the object's
     /// local frame.
+    /// The walk leaves `obj` from the local hit point `p` in the local direction `new_d` after an interaction
+    /// at `surface` (a reflection, refraction or deflection): back to the global frame, `obj` excluded from
+    /// the next hit, and stopped at the bounce limit.
+    fn leave(&self, obj: &SceneObject, w: &mut Walk, p: DVec3, new_d: DVec3, surface: usize) {
+        w.p = obj.frame.point_to_global(p);
+        w.d = obj.frame.dir_to_global(new_d).normalize();
+        w.exclude = obj.mask;
+        w.last_surface = surface as u32;
+        w.interactions = w.interactions.saturating_add(1);
+        if w.interactions as u32 >= self.options.max_bounces {
+            w.finish(RayStatus::BounceLimit, surface);
+        }
+    }
+
     /// [`Self::locate`], finishing the walk where it fails (`surface`: no convergence) and, with f64
     /// refinement, where the exact hit point is outside one of the object's explicit apertures (decided on
     /// the exact point, closed sets, as in the sequential tracer: f32 rounding may have let a ray one ulp
