@@ -108,6 +108,7 @@ fn spec(name: &str, surfaces: Vec<SurfaceSpec>) -> SystemSpec {
         fields_mm: vec![[0.0, 0.0]],
         field_type: Default::default(),
         fields_deg: Vec::new(),
+        vignetting_factors: Vec::new(),
         wavelength_policy: Default::default(),
         air_index: 1.0,
         glass_catalogs: vec![],

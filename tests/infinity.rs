@@ -19,6 +19,7 @@ fn system_spec(name: &str, aperture: SystemAperture, surfaces: Vec<SurfaceSpec>)
         fields_mm: Vec::new(),
         field_type: FieldType::Angle,
         fields_deg: vec![[0.0, 0.0], [0.0, 5.0], [3.0, 4.0]],
+        vignetting_factors: Vec::new(),
         wavelength_policy: Default::default(),
         air_index: 1.0,
         glass_catalogs: vec![],

@@ -22,6 +22,7 @@ pub(crate) fn system(name: &str, surfaces: Vec<SurfaceSpec>, na: f64) -> SystemS
         fields_mm: vec![[0.0, 0.0], [0.0, 1.0], [1.0, 0.5]],
         field_type: Default::default(),
         fields_deg: vec![],
+        vignetting_factors: Vec::new(),
         wavelength_policy: Default::default(),
         air_index: 1.0,
         glass_catalogs: vec![],

@@ -25,6 +25,7 @@ fn singlet(asphere: &[f64]) -> SystemSpec {
         fields_mm: vec![[0.0, 0.0], [0.0, 3.0]],
         field_type: Default::default(),
         fields_deg: Vec::new(),
+        vignetting_factors: Vec::new(),
         wavelength_policy: Default::default(),
         air_index: 1.0,
         glass_catalogs: vec![],
@@ -118,16 +119,24 @@ fn entrance_pupil_diameter_and_telecentric_object_space() {
 
 #[test]
 fn real_ray_aiming_hits_the_stop_where_asked() {
+    // Paraxial aiming aims at the paraxial stop radius, real aiming at the real marginal ray's height there.
     let mut spec = presets::spec("ap").unwrap();
-    spec.ray_aiming = RayAiming::Real;
-    let sys = SequentialSystem::build(&spec).unwrap();
-    let n = sys.indices(450.0).unwrap();
-    let r_stop = sys.pupil.stop_radius_mm;
-    for (px, py) in [(0.0, 0.0), (1.0, 0.0), (0.3, -0.7)] {
-        let (o, d) = diffcassi::rays::aimed_ray(&sys, &n, [2.5, 2.5], px, py).unwrap();
-        let (x, y) = diffcassi::rays::stop_crossing(&sys, &n, o, d).unwrap();
-        assert!((x - px * r_stop).abs() < 1e-9 && (y - py * r_stop).abs() < 1e-9, "({px}, {py}) crosses the stop at ({x}, {y})");
+    let mut sys = None;
+    for mode in [RayAiming::Paraxial, RayAiming::Real] {
+        spec.ray_aiming = mode;
+        let s = SequentialSystem::build(&spec).unwrap();
+        let want = if mode == RayAiming::Real { diffcassi::rays::real_stop_radius(&s).unwrap() } else { s.pupil.stop_radius_mm };
+        assert_eq!(s.aim_stop_radius_mm, want, "{mode:?}");
+        let n = s.indices(450.0).unwrap();
+        let r_stop = s.aim_stop_radius_mm;
+        for (px, py) in [(0.0, 0.0), (1.0, 0.0), (0.3, -0.7)] {
+            let (o, d) = diffcassi::rays::aimed_ray(&s, &n, [2.5, 2.5], px, py).unwrap();
+            let (x, y) = diffcassi::rays::stop_crossing(&s, &n, o, d).unwrap();
+            assert!((x - px * r_stop).abs() < 1e-9 && (y - py * r_stop).abs() < 1e-9, "{mode:?} ({px}, {py}) crosses the stop at ({x}, {y})");
+        }
+        sys = Some(s);
     }
+    let sys = sys.unwrap();
     // SP's stop sits 3 mm off the unaimed chief ray: aiming moves the on-axis chief ray onto the stop's
     // vertex, which changes the chief-ray solve (Zemax shows 2.408 mm, obtained only with aiming off).
     let mut sp = presets::spec("sp").unwrap();

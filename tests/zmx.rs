@@ -85,9 +85,19 @@ fn every_column_round_trips_bit_identical() {
     spec.surfaces[17].aperture =
         Some(diffcassi::surfaces::Aperture::CircularObscuration { min_radius_mm: 0.1 + 0.2, max_radius_mm: 2.0 / 3.0, decenter_x_mm: -0.3, decenter_y_mm: 1e-7 });
     spec.surfaces[4].order = 1;
+    // Vignetting factors per field (VDXN … VCYN), values that print long.
+    spec.vignetting_factors = vec![[0.0; 4], [0.1 + 0.2, -1.0 / 3.0, 1e-9, -0.25], [0.0, 0.0, 0.0, 0.0], [2.0 / 7.0, 0.0, 0.999, 0.5]];
     let text = to_zmx(&spec).unwrap();
     let back = import_zmx(text.as_bytes(), "x.zmx", None, &ZmxOptions::default()).unwrap().spec;
     assert_eq!(back, spec);
+    // Paraxial ray aiming (`RAIM 0 1`) too.
+    let paraxial = {
+        let mut p = spec.clone();
+        p.ray_aiming = RayAiming::Paraxial;
+        p
+    };
+    assert!(to_zmx(&paraxial).unwrap().contains("RAIM 0 1 "));
+    assert_eq!(import_zmx(to_zmx(&paraxial).unwrap().as_bytes(), "x.zmx", None, &ZmxOptions::default()).unwrap().spec, paraxial);
     for (a, b) in spec.surfaces.iter().zip(&back.surfaces) {
         assert_eq!(a.radius_mm.as_ref().map(|c| c.value.to_bits()), b.radius_mm.as_ref().map(|c| c.value.to_bits()));
     }
@@ -152,8 +162,9 @@ fn import_zmx_command() {
 #[test]
 fn unsupported_items_refused_or_listed() {
     let text = to_zmx(&diffcassi::presets::spec("sp").unwrap()).unwrap();
-    let text = text.replace("VDXN 0 0 0 0", "VDXN 0 0.1 0 0").replace("MNUM 1 1", "MNUM 2 1\nTOL TTHI 1 2 0.1 -0.1");
-    let vdxn = text.lines().position(|l| l.starts_with("VDXN")).unwrap() + 1;
+    // A vignetting angle (VAN; the decentre and compression factors are modelled) and a second configuration.
+    let text = text.replace("VANN 0 0 0 0", "VANN 0 5 0 0").replace("MNUM 1 1", "MNUM 2 1\nTOL TTHI 1 2 0.1 -0.1");
+    let vdxn = text.lines().position(|l| l.starts_with("VANN")).unwrap() + 1;
     let path = tmp("unsupported.zmx");
     std::fs::write(&path, &text).unwrap();
     let out = tmp("unsupported.toml");
@@ -161,14 +172,14 @@ fn unsupported_items_refused_or_listed() {
     assert_eq!(o.status.code(), Some(1));
     let e = stderr(&o);
     // A tolerance operand carries no optics of the nominal system: skipped and listed, not refused (issue 42).
-    assert!(e.contains(&format!("line {vdxn} `VDXN`")) && e.contains("`MNUM`") && !e.contains("`TOL`") && e.contains("2 item(s)"), "{e}");
+    assert!(e.contains(&format!("line {vdxn} `VANN`")) && e.contains("`MNUM`") && !e.contains("`TOL`") && e.contains("2 item(s)"), "{e}");
     assert!(!out.exists());
     let o = run(&["info", "--system", path.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(1));
     let o = run(&["import-zmx", path.to_str().unwrap(), "--out", out.to_str().unwrap(), "--ignore-unsupported"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let e = stderr(&o);
-    assert!(e.contains("warning") && e.contains("2 item(s) ignored") && e.contains("`VDXN`"), "{e}");
+    assert!(e.contains("warning") && e.contains("2 item(s) ignored") && e.contains("`VANN`"), "{e}");
     let listed = String::from_utf8_lossy(&o.stdout);
     assert!(listed.contains("skipped, no optics") && listed.contains("TOL ×1") && listed.contains("tolerance operand `TTHI`"), "{listed}");
     assert!(out.exists());

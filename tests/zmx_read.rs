@@ -382,10 +382,127 @@ fn solves_pickups_and_floating_apertures_read_as_the_file_holds_them() {
         assert!(imp.spec.object_at_infinity(), "{name}");
         SequentialSystem::build(&imp.spec).unwrap_or_else(|e| panic!("{name}: {e}"));
     }
-    // The double Gauss now opens but for its vignetting factors (not modelled: they change OpticStudio's pupil
-    // sampling): its floating apertures, pickups and solves are read.
-    let e = import_zmx_file(fixture("double_gauss_US583336.zmx"), &ZmxOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("3 item(s)") && e.contains("`VDYN`") && !e.contains("FLAP") && !e.contains("PZUP") && !e.contains("MAZH"), "{e}");
+    // The double Gauss (floating apertures, pickups, a marginal-height solve, vignetting factors) and
+    // optiland's grating plate (OpticStudio 2022's `IWDP 0`, `EERA 0 0 0 10 10`) open as they are too.
+    for name in ["double_gauss_US583336.zmx", "grating_flat_transmission_optiland.zmx"] {
+        let imp = import_zmx_file(fixture(name), &ZmxOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(imp.ignored.is_empty(), "{name}");
+        SequentialSystem::build(&imp.spec).unwrap_or_else(|e| panic!("{name}: {e}"));
+    }
+}
+
+/// `IWDP` and `EERA`, system records of OpticStudio 2022 and later that no public description of the format
+/// documents: listed with the leading 0 the public files hold, refused (by line and keyword) otherwise.
+#[test]
+fn undocumented_opticstudio_2022_records_open_only_with_their_leading_zero() {
+    let good = sp_zmx();
+    let reference = import(good.as_bytes()).unwrap().spec;
+    let with = good.replacen("NAME", "IWDP 0\nEERA 0 0 0 10 10\nNAME", 1);
+    let imp = import(with.as_bytes()).unwrap();
+    assert_eq!(imp.spec, reference);
+    for (k, line) in [("IWDP", 1), ("EERA", 2)] {
+        let at = with.lines().position(|l| l.starts_with(k)).unwrap() + 1;
+        let u = imp.skipped.iter().find(|u| u.keyword == k).unwrap_or_else(|| panic!("{k}: {:?}", imp.skipped));
+        assert_eq!(u.line, at, "{k} {line}");
+        assert!(u.reason.contains("undocumented"), "{u}");
+    }
+    for (bad, k) in [("IWDP 1", "IWDP"), ("EERA 1 0 0 10 10", "EERA")] {
+        let t = good.replacen("NAME", &format!("{bad}\nNAME"), 1);
+        let line = t.lines().position(|l| l.starts_with(k)).unwrap() + 1;
+        let e = import(t.as_bytes()).unwrap_err().to_string();
+        assert!(e.contains(&format!("line {line} `{k}`: system keyword not modelled")), "{bad}: {e}");
+    }
+}
+
+/// Vignetting factors (src/system/vignetting.rs): the double Gauss's `VDXN`/`VDYN`/`VCXN`/`VCYN` rows are read
+/// per field as the file prints them, traced by `trace` as (VDX + px(1 − VCX), VDY + py(1 − VCY)) for a defined
+/// field (the whole pupil under `--full-pupil`, and for a field that is not a defined one), exported and read
+/// back bit-identical; a non-zero vignetting angle (`VANN`) and a compression ≥ 1 are refused by line.
+#[test]
+fn vignetting_factors_are_read_traced_and_round_trip() {
+    let path = fixture("double_gauss_US583336.zmx");
+    let imp = import_zmx_file(&path, &ZmxOptions::default()).unwrap();
+    let v = &imp.spec.vignetting_factors;
+    assert_eq!(v.len(), 3, "{v:?}");
+    assert_eq!(v[0], [0.0; 4]);
+    assert_eq!(v[1], [0.0, 6.208442661354e-2, 2.455956935883e-3, 1.556542586327e-1]);
+    assert_eq!(v[2], [0.0, 5.473246586901e-2, 2.0477435112e-3, 3.64762539196e-1]);
+    let back = import(to_zmx(&imp.spec).unwrap().as_bytes()).unwrap();
+    assert_eq!(back.spec, imp.spec, "exported and read back bit-identical");
+    let sys = SequentialSystem::build(&imp.spec).unwrap();
+    let wl = imp.spec.primary_wavelength_nm.to_string();
+
+    // OpticStudio's own numbers in the file referee both conventions. (1) Real ray aiming (`RAIM 0 2`) aims
+    // at the real stop radius: the stop's automatic semi-diameter, which OpticStudio computes from the real
+    // marginal ray, is 4.215000499256 mm; the paraxial stop radius is 0.8 % larger.
+    assert_eq!(sys.spec.ray_aiming, diffcassi::spec::RayAiming::Real);
+    let file_stop_sd = 4.215000499256;
+    assert!((sys.aim_stop_radius_mm - file_stop_sd).abs() <= 1e-9 * file_stop_sd, "{}", sys.aim_stop_radius_mm);
+    assert!(sys.pupil.stop_radius_mm / file_stop_sd - 1.0 > 5e-3, "{}", sys.pupil.stop_radius_mm);
+    // (2) OpticStudio's Set Vignetting chose the factors so that the four marginal rays of a field pass the
+    // apertures (here the floating apertures, to ~1e-5): the mapped edge rays (px, py) = (0, ±1) of the 17°
+    // and 24° fields pass, and the same rays 1e-4 further out are vignetted where an aperture limits them
+    // (the 17° field's upper edge is not limited by any aperture of the file).
+    let n = sys.indices(imp.spec.primary_wavelength_nm).unwrap();
+    let land = |field: [f64; 2], p: [f64; 2]| {
+        let (o, d) = diffcassi::rays::aimed_ray(&sys, &n, field, p[0], p[1]).unwrap();
+        let mut b = RayBatch::with_capacity(1);
+        b.push(o, d, imp.spec.primary_wavelength_nm);
+        AnalyticTracer::with_kernel(Kernel::Scalar).trace(&sys, &b).unwrap().status[0]
+    };
+    for (k, edges) in [(1, vec![-1.0]), (2, vec![-1.0, 1.0])] {
+        let f = diffcassi::system::VignettingFactors::from_row(v[k]);
+        for py in edges {
+            let edge = f.apply([0.0, py]);
+            assert_eq!(land(sys.fields[k], edge), RayStatus::Ok, "field {k} edge {py}: {edge:?}");
+            let beyond = [0.0, f.decenter[1] + (edge[1] - f.decenter[1]) * (1.0 + 1e-4)];
+            assert_eq!(land(sys.fields[k], beyond), RayStatus::Vignetted, "field {k} beyond edge {py}: {beyond:?}");
+        }
+    }
+
+    // `trace` of the 24° field: each pupil point lands where the mapped point lands with the whole pupil.
+    let dir = tempfile::tempdir().unwrap();
+    let pts = [[0.0, 1.0], [0.0, -1.0], [0.5, 0.25], [0.0, 0.0]];
+    let f = diffcassi::system::VignettingFactors::from_row(v[2]);
+    let mapped: Vec<[f64; 2]> = pts.iter().map(|p| f.apply(*p)).collect();
+    let write = |name: &str, pts: &[[f64; 2]]| {
+        let p = dir.path().join(name);
+        std::fs::write(&p, format!("px,py\n{}", pts.iter().map(|q| format!("{:?},{:?}\n", q[0], q[1])).collect::<String>())).unwrap();
+        p
+    };
+    let (given, at_mapped) = (write("given.csv", &pts), write("mapped.csv", &mapped));
+    let landing = |pupil: &PathBuf, field: &str, full: bool| -> Vec<(String, String)> {
+        let csv = dir.path().join("rays.csv");
+        let mut args = vec!["trace", "--system", path.to_str().unwrap(), "--wavelength-nm", &wl, "--field-deg", field, "--pupil-csv", pupil.to_str().unwrap(), "--csv", csv.to_str().unwrap()];
+        if full {
+            args.push("--full-pupil");
+        }
+        let o = run(&args);
+        assert_eq!(o.status.code(), Some(0), "{}", text(&o));
+        let body = std::fs::read_to_string(&csv).unwrap();
+        assert_eq!(body.contains("vignetting factors VDX"), !full && field == "0,24", "{body}");
+        body.lines().filter(|l| !l.starts_with('#')).skip(1).map(|l| {
+            let c: Vec<&str> = l.split(',').collect();
+            (c[2].to_string(), c[3].to_string())
+        }).collect()
+    };
+    let vignetted = landing(&given, "0,24", false);
+    assert_eq!(vignetted, landing(&at_mapped, "0,24", true), "trace maps the pupil points by the field's factors");
+    assert_ne!(vignetted, landing(&given, "0,24", true), "--full-pupil traces the whole pupil");
+    assert!(vignetted.iter().all(|(x, y)| !x.is_empty() && !y.is_empty()), "{vignetted:?}");
+    // A field point that is not a defined field: the whole pupil.
+    assert_eq!(landing(&given, "0,23", false), landing(&given, "0,23", true));
+
+    // Bad factors: a vignetting angle, a compression of 1, refused by line and keyword.
+    let text_of = String::from_utf8(std::fs::read(&path).unwrap()).unwrap();
+    let van = text_of.replacen("VANN 0 0 0", "VANN 0 0 5", 1);
+    let line = van.lines().position(|l| l.starts_with("VANN")).unwrap() + 1;
+    let e = import(van.as_bytes()).unwrap_err().to_string();
+    assert!(e.contains(&format!("line {line} `VANN`")) && e.contains("vignetting angle"), "{e}");
+    let squeezed = text_of.replacen("VCYN 0 1.556542586327E-1", "VCYN 0 1", 1);
+    let line = squeezed.lines().position(|l| l.starts_with("VCYN")).unwrap() + 1;
+    let e = import(squeezed.as_bytes()).unwrap_err().to_string();
+    assert!(e.contains(&format!("line {line} `VCYN`: field 2 compression factor 1")), "{e}");
 }
 
 /// US 5,331,467 example 1 opens as it is, without `--ignore-unsupported`: its `OBSC 0 25 0` (line 90,

@@ -191,6 +191,12 @@ impl PySystem {
         self.inner.spec.fields_deg.clone()
     }
 
+    /// The spec's vignetting factors, one `[VDX, VDY, VCX, VCY]` per field (empty: none).
+    #[getter]
+    fn vignetting_factors(&self) -> Vec<[f64; 4]> {
+        self.inner.spec.vignetting_factors.clone()
+    }
+
     /// The spec's field type: "object_height", "angle", "paraxial_image_height" or "real_image_height".
     #[getter]
     fn field_type(&self) -> String {
@@ -274,7 +280,10 @@ impl PySystem {
     /// wavelengths_nm (N,)), float64, object frame. `pupil` is an (N, 2) float64 array or a pattern
     /// (`chief`, `marginal`, `hexapolar:RINGS`, `grid:N`, `random:N:SEED`).
     /// For an object at infinity give `field_deg` (angles, degrees) instead of `field_mm`.
-    #[pyo3(signature = (field_mm, wavelength_nm, pupil = None, field_deg = None))]
+    /// `apply_vignetting` (default true): a defined field's pupil points are mapped by its vignetting factors
+    /// (`vignetting_factors`, OpticStudio's VDX, VDY, VCX, VCY) as `trace` and `spot` do; false traces the
+    /// whole pupil.
+    #[pyo3(signature = (field_mm, wavelength_nm, pupil = None, field_deg = None, apply_vignetting = true))]
     fn rays_for_field<'py>(
         &self,
         py: Python<'py>,
@@ -282,6 +291,7 @@ impl PySystem {
         wavelength_nm: f64,
         pupil: Option<&Bound<'py, PyAny>>,
         field_deg: Option<Vec<f64>>,
+        apply_vignetting: bool,
     ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
         use diffcassi::system::FieldUnit;
         let pts = pupil_points(pupil)?;
@@ -290,6 +300,7 @@ impl PySystem {
             (None, Some(f)) => self.inner.field_point(pair("field_deg", &f)?, FieldUnit::Deg, "field_deg").py()?,
             _ => return Err(crate::errors::value_error("give exactly one of field_mm (finite objects) and field_deg (objects at infinity)")),
         };
+        let pts = if apply_vignetting { self.inner.vignetted_pupil(field, &pts) } else { pts };
         let b = RayBatch::for_field(&self.inner, field, &pts, wavelength_nm).py()?;
         rays_out(py, &b)
     }

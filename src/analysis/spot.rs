@@ -74,10 +74,14 @@ impl SpotDiagram {
     }
 }
 
-/// Trace the normalised pupil points `pupil` of field `field_mm` at `wavelength_nm`.
+/// Trace the normalised pupil points `pupil` of field `field_mm` at `wavelength_nm`: mapped by the field's
+/// vignetting factors when it is a defined field that has some ([`SequentialSystem::vignetted_pupil`]);
+/// `SpotDiagram::pupil` keeps the points as given.
 pub fn spot_diagram(system: &SequentialSystem, tracer: &dyn Tracer, field_mm: [f64; 2], wavelength_nm: f64, pupil: &[[f64; 2]]) -> Result<SpotDiagram> {
-    let mut pts = pupil.to_vec();
-    pts.push([0.0, 0.0]); // the chief ray, traced alongside
+    // A defined field's vignetting factors map its pupil points (src/system/vignetting.rs); the chief ray,
+    // traced alongside, passes through the stop centre whatever they are.
+    let mut pts = system.vignetted_pupil(field_mm, pupil);
+    pts.push([0.0, 0.0]);
     let out = tracer.trace(system, &RayBatch::for_field(system, field_mm, &pts, wavelength_nm)?)?;
     let n = pupil.len();
     let chief_mm = (out.status[n] == RayStatus::Ok).then(|| [out.x[n], out.y[n]]);

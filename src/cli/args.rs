@@ -78,6 +78,10 @@ pub struct SpotArgs {
     /// Read normalised pupil coordinates from the `px,py` columns of a CSV (other columns and `#` lines ignored).
     #[arg(long = "pupil-csv")]
     pub pupil_csv: Option<PathBuf>,
+    /// Trace the whole pupil of every field: ignore the system's vignetting factors (by default a defined
+    /// field's pupil points are mapped by its factors, OpticStudio's VDX, VDY, VCX, VCY).
+    #[arg(long = "full-pupil")]
+    pub full_pupil: bool,
     /// Per-ray CSV: px,py,x_mm,y_mm,status (plus field and wavelength columns when several).
     #[arg(long)]
     pub csv: Option<PathBuf>,

@@ -198,6 +198,12 @@ pub fn lde_table(system: &SequentialSystem) -> String {
     if let Some(where_) = where_ {
         let _ = writeln!(s, "paraxial entrance pupil {where_}; stop surface {} (paraxial stop radius {:.4} mm)", system.stop_index, p.stop_radius_mm);
     }
+    if spec.ray_aiming != crate::spec::RayAiming::Off {
+        let _ = writeln!(s, "ray aiming {:?}: rays cross the stop at (px, py) × {:.9} mm", spec.ray_aiming, system.aim_stop_radius_mm);
+    }
+    if !spec.vignetting_factors.is_empty() {
+        let _ = writeln!(s, "vignetting factors [VDX, VDY, VCX, VCY] per field (applied by trace and spot; --full-pupil ignores them): {:?}", spec.vignetting_factors);
+    }
     let n = system.indices(spec.primary_wavelength_nm).unwrap_or_default();
     let _ = writeln!(s, "{:>3} {:<18} {:<14} {:>12} {:>12} {:<8} {:>9} {:>8} {:>9}  parameters (flags: V variable, Pn pickup, C chief-ray solve)", "#", "type", "comment", "radius", "thickness", "material", "n@primary", "semi-dia", "aperture");
     for (i, surf) in spec.surfaces.iter().enumerate() {
@@ -343,8 +349,25 @@ pub(super) fn export_spec(a: ExportArgs) -> Result<()> {
 
 // ---------------------------------------------------------------- trace / spot
 
+/// The system of `trace`/`spot`, its vignetting factors dropped under `--full-pupil`.
+fn spot_system(a: &SpotArgs) -> Result<SequentialSystem> {
+    let mut system = load_system(&a.system)?;
+    if a.full_pupil {
+        system.spec.vignetting_factors.clear();
+    }
+    Ok(system)
+}
+
+/// The comment saying which vignetting factors mapped a field's pupil points (empty when none did).
+fn vignetting_note(system: &SequentialSystem, field: [f64; 2]) -> String {
+    system
+        .vignetting_of(field)
+        .map(|v| format!("; pupil points traced at (VDX + px(1 − VCX), VDY + py(1 − VCY)), the field's vignetting factors VDX {} VDY {} VCX {} VCY {}", v.decenter[0], v.decenter[1], v.compression[0], v.compression[1]))
+        .unwrap_or_default()
+}
+
 pub(super) fn trace(a: SpotArgs) -> Result<()> {
-    let system = load_system(&a.system)?;
+    let system = spot_system(&a)?;
     let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
     let fs = fields(&a, &system)?;
     if ws.len() != 1 || fs.len() != 1 {
@@ -357,7 +380,7 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
     check_outputs(&a)?;
     let pupil = pupil_points(&a)?;
     check_spot_budget(pupil.len(), 1, 1)?;
-    let rays = RayBatch::for_field(&system, fs[0], &pupil, ws[0])?;
+    let rays = RayBatch::for_field(&system, fs[0], &system.vignetted_pupil(fs[0], &pupil), ws[0])?;
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, rays.len() as u64)?;
     let out = tracer.trace(&system, &rays)?;
     let ok = out.ok_count();
@@ -366,7 +389,7 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
     if let Some(path) = &a.csv {
         let path = &set.stage(path);
         let mut w = CsvWriter::new(path, &["px", "py", "x_mm", "y_mm", "dir_x", "dir_y", "dir_z", "status", "stop_surface"])?;
-        w.comment(&format!("system {}; field {}; wavelength {} nm; image-surface frame", system.name(), field_text(&system, fs[0]), ws[0]));
+        w.comment(&format!("system {}; field {}; wavelength {} nm; image-surface frame{}", system.name(), field_text(&system, fs[0]), ws[0], vignetting_note(&system, fs[0])));
         for i in 0..out.len() {
             let okr = out.status[i] == RayStatus::Ok;
             let num = |v: f64| if okr { CsvValue::F64(v) } else { CsvValue::Str("") };
@@ -506,7 +529,7 @@ fn check_outputs(a: &SpotArgs) -> Result<()> {
 
 pub(super) fn spot(a: SpotArgs) -> Result<()> {
     check_outputs(&a)?;
-    let system = load_system(&a.system)?;
+    let system = spot_system(&a)?;
     let ws = wavelengths_or_system(&a.wavelength_nm, &system)?;
     let fs = fields(&a, &system)?;
     let pupil = pupil_points(&a)?;

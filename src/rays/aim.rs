@@ -121,10 +121,11 @@ impl PupilAim {
 /// Where a ray from the object (object frame, `n` the indices at its wavelength) crosses the stop surface,
 /// in the stop's local (x, y) mm; `None` when it does not get there.
 ///
-/// Obscurations before the stop do not stop the aiming trace: the aim point is a point of the stop surface
-/// whatever shadows it, and a central obscuration (a Cassegrain's secondary, `OBSC`) shadows the chief ray
-/// itself, which stays the field's reference ray. Whether the aimed ray is vignetted is decided when it is
-/// traced. Clear apertures (CLAP/SQAP) act on the aiming trace as before.
+/// Apertures before the stop do not stop the aiming trace: the aim point is a point of the stop surface
+/// whatever shadows or clips the way to it. A central obscuration (a Cassegrain's secondary, `OBSC`)
+/// shadows the chief ray itself, which stays the field's reference ray; a clear aperture (`CLAP`, `SQAP`,
+/// a floating aperture `FLAP`) may clip an intermediate guess of the Newton iteration, or the aimed ray
+/// itself. Whether the aimed ray is vignetted is decided when it is traced (its status names the surface).
 pub fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3, d: DVec3) -> Option<(f64, f64)> {
     let probe = &system.stop_probe;
     // The steps before the stop, their obscurations opened once when the system was built.
@@ -136,11 +137,32 @@ pub fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3, d: DVe
     Some((hit.point.x, hit.point.y))
 }
 
+/// OpticStudio's real stop radius (mm), the radius "Real" ray aiming aims at: the radial height at which the
+/// real marginal ray — from the axial object point through the edge (0, 1) of the paraxial entrance pupil
+/// ([`object_ray`], aiming off; for an object at infinity the ray parallel to the axis at the pupil's
+/// radius), at the primary wavelength — crosses the stop surface (its apertures and those before it open).
+/// For a lens with spherical aberration before the stop it differs from the paraxial stop radius: 4.2150 mm
+/// against 4.2508 mm for the double Gauss of tests/fixtures/zmx, whose file holds OpticStudio's 4.215000499
+/// as the stop's automatic semi-diameter. Errors: the marginal ray does not reach the stop.
+pub fn real_stop_radius(system: &SequentialSystem) -> std::result::Result<f64, String> {
+    let n = system.indices(system.spec.primary_wavelength_nm).map_err(|e| e.to_string())?;
+    let (o, d) = object_ray(system, [0.0, 0.0], 0.0, 1.0);
+    let (x, y) = stop_crossing(system, &n, o, d)
+        .ok_or_else(|| "real ray aiming: the real marginal ray (axial object point, entrance-pupil edge, primary wavelength) does not reach the stop, so the real stop radius is undefined; use paraxial aiming".to_string())?;
+    let r = x.hypot(y);
+    if !(r.is_finite() && r > 0.0) {
+        return Err(format!("real ray aiming: the real marginal ray crosses the stop at radius {r} mm; use paraxial aiming"));
+    }
+    Ok(r)
+}
+
 /// The object-space ray for (field, px, py) at `wavelength_nm` under the system's ray-aiming mode.
 ///
-/// With [`RayAiming::Real`] the ray is aimed (Newton iteration, finite-difference Jacobian) so that it
-/// crosses the real stop surface at (px, py) × the paraxial stop radius from the stop's vertex, at its own
-/// wavelength — Zemax's ray aiming (the chief ray passes through the centre of the stop). `n` are the indices at `wavelength_nm` ([`SequentialSystem::indices`]).
+/// With aiming on ([`RayAiming::Paraxial`], [`RayAiming::Real`]) the ray is aimed (Newton iteration,
+/// finite-difference Jacobian) so that it crosses the real stop surface at (px, py) ×
+/// `system.aim_stop_radius_mm` (the paraxial or the real stop radius) from the stop's vertex, at its own
+/// wavelength — OpticStudio's ray aiming (the chief ray passes through the centre of the stop). `n` are
+/// the indices at `wavelength_nm` ([`SequentialSystem::indices`]).
 pub fn aimed_ray(system: &SequentialSystem, n: &[f64], field_mm: [f64; 2], px: f64, py: f64) -> Result<(DVec3, DVec3)> {
     if system.spec.ray_aiming == RayAiming::Off {
         return Ok(object_ray(system, field_mm, px, py));
@@ -151,7 +173,7 @@ pub fn aimed_ray(system: &SequentialSystem, n: &[f64], field_mm: [f64; 2], px: f
     let ray = |u: f64, v: f64| if aim.at_infinity { aim.parallel_ray(field_mm, u, v) } else { (origin, direction_through_pupil(system, origin, u, v)) };
     let r_ep = pupil_scale(system);
     let (mut u, mut v) = (px * r_ep, py * r_ep);
-    let r_stop = system.pupil.stop_radius_mm;
+    let r_stop = system.aim_stop_radius_mm;
     let (tx, ty) = (px * r_stop, py * r_stop);
     let (shown, unit) = system.field_display(field_mm);
     let fail = |why: &str| Error::invalid(format!("ray aiming failed for field ({}, {}) {unit}, pupil ({px}, {py}): {why}", shown[0], shown[1]));

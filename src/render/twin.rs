@@ -95,8 +95,8 @@ pub(crate) fn launch_constants(system: &SequentialSystem, scene: SceneGeometry<'
     if system.object_at_infinity() {
         return Err(Error::invalid("the GPU kernels start rays from object points on a finite object plane: an object at infinity is not on the device yet (render with --device cpu)"));
     }
-    if system.spec.ray_aiming == RayAiming::Real {
-        return Err(Error::invalid("the GPU kernels aim rays through the paraxial entrance pupil only: ray_aiming = \"real\" is not on the device yet (docs/gpu.md)"));
+    if system.spec.ray_aiming != RayAiming::Off {
+        return Err(Error::invalid("the GPU kernels aim rays through the paraxial entrance pupil only: ray aiming (\"paraxial\" or \"real\") is not on the device yet (docs/gpu.md)"));
     }
     let too_big = |what: &str, v: usize| Error::invalid(format!("GPU kernels: {what} = {v} exceeds u32"));
     let (h, w) = (u32::try_from(scene.height).map_err(|_| too_big("scene height", scene.height))?, u32::try_from(scene.width).map_err(|_| too_big("scene width", scene.width))?);

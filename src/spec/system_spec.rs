@@ -62,14 +62,23 @@ impl FieldType {
     }
 }
 
-/// How rays are aimed at the pupil (Zemax "Ray Aiming").
+/// How rays are aimed at the pupil (OpticStudio's "Ray Aiming": Off, Paraxial, Real).
+///
+/// With aiming on, every ray is aimed so that it crosses the real stop surface at (px, py) × a stop radius;
+/// the two modes differ only in that radius, "computed by tracing a marginal ray from the center of the
+/// object to the stop surface at the primary wavelength", paraxially or as a real ray (OpticStudio User
+/// Guide, "Ray Aiming"). Under float by stop size both use the stop's semi-diameter.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum RayAiming {
     /// Normalised pupil coordinates are positions on the paraxial entrance pupil (Zemax default).
     #[default]
     Off,
-    /// Rays are aimed so that they cross the stop surface at (px, py) × the paraxial stop radius.
+    /// Rays cross the stop surface at (px, py) × the paraxial stop radius (`RAIM 0 1`).
+    Paraxial,
+    /// Rays cross the stop surface at (px, py) × the real stop radius: the radial height at the stop of the
+    /// real marginal ray, from the axial object point through the paraxial entrance pupil's edge at the
+    /// primary wavelength (`RAIM 0 2`; [`crate::rays::real_stop_radius`]).
     Real,
 }
 
@@ -96,6 +105,11 @@ pub struct SystemSpec {
     /// Field angles (θx, θy), degrees, when `field_type` is `angle` (empty otherwise).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub fields_deg: Vec<[f64; 2]>,
+    /// OpticStudio's vignetting factors of each field, `[VDX, VDY, VCX, VCY]` (normalised pupil units; empty:
+    /// none). The pupil point (px, py) of a defined field is traced at (VDX + px(1 − VCX), VDY + py(1 − VCY))
+    /// by the analyses that sample a field's pupil (`trace`, `spot`): see [`crate::system::VignettingFactors`].
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub vignetting_factors: Vec<[f64; 4]>,
     /// Whether wavelengths outside a glass's catalogue range are an error (default) or extrapolated.
     #[serde(default)]
     pub wavelength_policy: WavelengthPolicy,
@@ -193,6 +207,22 @@ impl SystemSpec {
         for (i, f) in self.fields_deg.iter().enumerate() {
             if !(f[0].is_finite() && f[1].is_finite() && f[0].abs() < 90.0 && f[1].abs() < 90.0) {
                 return Err(format!("fields_deg[{i}] = {:?}: field angles must be finite and within (-90, 90) degrees", f));
+            }
+        }
+        let nf = self.field_values().len();
+        if !self.vignetting_factors.is_empty() && self.vignetting_factors.len() != nf {
+            return Err(format!("vignetting_factors: {} row(s) for {nf} field(s): give one [VDX, VDY, VCX, VCY] per field, or none", self.vignetting_factors.len()));
+        }
+        for (i, v) in self.vignetting_factors.iter().enumerate() {
+            if let Some(k) = v.iter().position(|x| !x.is_finite()) {
+                return Err(format!("vignetting_factors[{i}] = {v:?}: {} is not finite", ["VDX", "VDY", "VCX", "VCY"][k]));
+            }
+            if let Some(k) = (2..4).find(|&k| v[k] >= 1.0) {
+                return Err(format!(
+                    "vignetting_factors[{i}] = {v:?}: {} = {} ≥ 1 compresses the pupil to nothing (or flips it); compression factors are < 1",
+                    ["VDX", "VDY", "VCX", "VCY"][k],
+                    v[k]
+                ));
             }
         }
         let infinite = self.object_at_infinity();

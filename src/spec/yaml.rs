@@ -815,6 +815,7 @@ fn lower(model: &Model, name: &str, source_name: &str) -> R<(SystemSpec, Vec<(us
         fields_mm: vec![[0.0, 0.0], [2.5, 0.0], [0.0, 2.5], [2.5, 2.5]],
         field_type: Default::default(),
         fields_deg: Vec::new(),
+        vignetting_factors: Vec::new(),
         wavelength_policy: WavelengthPolicy::default(),
         air_index: PAPER_AIR_INDEX,
         glass_catalogs: Vec::new(),

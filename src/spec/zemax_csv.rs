@@ -242,6 +242,7 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
         fields_mm: data.fields_mm.clone(),
         field_type: Default::default(),
         fields_deg: Vec::new(),
+        vignetting_factors: Vec::new(),
         wavelength_policy: WavelengthPolicy::Strict,
         air_index: 1.0,
         glass_catalogs: Vec::new(),

@@ -148,6 +148,7 @@ impl SequentialSystem {
                         pupil,
                         first_order,
                         fields: fields.clone(),
+                        aim_stop_radius_mm: pupil.stop_radius_mm,
                         path: path.clone(),
                         // Before the stop is placed there is nothing to aim at: steps > path.len() says so.
                         coded_mask: None,
@@ -241,9 +242,10 @@ impl SequentialSystem {
             if i == stop_index {
                 // The stop's own figure (a plane for a Coordinate Break stop), reached after the steps so far.
                 let probe_shape = shape.clone().unwrap_or(SurfaceShape::Plane);
-                // Obscurations before the stop do not stop the aiming trace (`rays::aim::stop_crossing`).
-                let obscured = |st: &PathStep| matches!(st.aperture, Aperture::CircularObscuration { .. });
-                let open_path = path.iter().any(obscured).then(|| path.iter().map(|st| if obscured(st) { PathStep { aperture: Aperture::None, ..st.clone() } } else { st.clone() }).collect());
+                // Apertures before the stop (clear apertures and obscurations) do not stop the aiming trace
+                // (`rays::aim::stop_crossing`): they vignette the aimed ray when it is traced.
+                let limited = |st: &PathStep| !matches!(st.aperture, Aperture::None);
+                let open_path = path.iter().any(limited).then(|| path.iter().map(|st| PathStep { aperture: Aperture::None, ..st.clone() }).collect());
                 stop_probe = Some(StopProbe { steps: path.len(), probe: path_step(&last_step_frame, &surface_frame, i, probe_shape, Aperture::None, Interaction::Refract), open_path });
             }
             if let Some(m) = &s.coded_mask {
@@ -263,7 +265,11 @@ impl SequentialSystem {
             current = next.advanced(if i == 0 && at_infinity { 0.0 } else { thickness });
         }
         let stop_probe = stop_probe.expect("validated: the stop is a surface of the system");
-        let mut system = SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, first_order, fields: Vec::new(), path, stop_probe, coded_mask };
+        let mut system =
+            SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, first_order, fields: Vec::new(), aim_stop_radius_mm: pupil.stop_radius_mm, path, stop_probe, coded_mask };
+        if spec.ray_aiming == crate::spec::RayAiming::Real && spec.aperture != crate::spec::SystemAperture::FloatByStopSize {
+            system.aim_stop_radius_mm = crate::rays::real_stop_radius(&system).map_err(|m| Error::spec(&spec.name, m))?;
+        }
         if spec.field_type == crate::spec::FieldType::RealImageHeight {
             fields = super::fields::real_image_height_fields(&system, &fields).map_err(|m| Error::spec(&spec.name, m))?;
         }

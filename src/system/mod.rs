@@ -13,10 +13,12 @@ mod coded_mask;
 mod fields;
 mod paraxial;
 mod surface;
+mod vignetting;
 
 pub use coded_mask::{MaskSurface, MaskTaps};
 pub use paraxial::*;
 pub use surface::*;
+pub use vignetting::VignettingFactors;
 
 use crate::error::{Error, Result};
 use crate::spec::SystemSpec;
@@ -45,6 +47,10 @@ pub struct SequentialSystem {
     /// (x, y) in mm for a finite object, field angles (θx, θy) in radians for an object at infinity. Every
     /// ray-generating function (`rays::object_ray`, `aimed_ray`, `RayBatch::for_field`) takes such points.
     pub fields: Vec<[f64; 2]>,
+    /// The stop radius (mm) that ray aiming aims (px, py) at ([`crate::spec::RayAiming`]): the real stop
+    /// radius under `real` aiming (the real marginal ray's height at the stop), else the paraxial one
+    /// (`pupil.stop_radius_mm`; the stop's semi-diameter under float by stop size).
+    pub aim_stop_radius_mm: f64,
     /// The refracting surfaces after the object, in order, with frame-to-frame transforms.
     pub(crate) path: Vec<PathStep>,
     /// How to reach the stop for ray aiming: the first `steps` path steps, then `probe` (intersection only).
@@ -59,8 +65,9 @@ pub struct SequentialSystem {
 pub(crate) struct StopProbe {
     pub steps: usize,
     pub probe: PathStep,
-    /// The path's first `steps` steps with their central obscurations opened (`Aperture::None`), for the
-    /// aiming trace ([`crate::rays::aim::stop_crossing`]); `None` when no step before the stop has one.
+    /// The path's first `steps` steps with their apertures opened (`Aperture::None`: clear apertures and
+    /// obscurations), for the aiming trace ([`crate::rays::aim::stop_crossing`]); `None` when no step before
+    /// the stop has one.
     pub open_path: Option<Vec<PathStep>>,
 }
 

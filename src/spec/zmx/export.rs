@@ -99,6 +99,7 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
     }
     let aim = match spec.ray_aiming {
         crate::spec::RayAiming::Off => 0,
+        crate::spec::RayAiming::Paraxial => 1,
         crate::spec::RayAiming::Real => 2,
     };
     let _ = writeln!(w, "RAIM 0 {aim} 1 1 0 0 0 0 0");
@@ -110,9 +111,11 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
     let _ = writeln!(w, "XFLN {}", row(fields.iter().map(|p| f(p[0])).collect()));
     let _ = writeln!(w, "YFLN {}", row(fields.iter().map(|p| f(p[1])).collect()));
     let _ = writeln!(w, "FWGN {}", row(vec!["1".into(); nf]));
-    for k in ["VDXN", "VDYN", "VCXN", "VCYN", "VANN"] {
-        let _ = writeln!(w, "{k} {}", row(vec!["0".into(); nf]));
+    // Vignetting factors (one column of `vignetting_factors` per record; zeros when there are none), VAN 0.
+    for (c, k) in ["VDXN", "VDYN", "VCXN", "VCYN"].iter().enumerate() {
+        let _ = writeln!(w, "{k} {}", row((0..nf).map(|i| spec.vignetting_factors.get(i).map_or_else(|| "0".into(), |v| f(v[c]))).collect()));
     }
+    let _ = writeln!(w, "VANN {}", row(vec!["0".into(); nf]));
     for (i, nm) in spec.wavelengths_nm.iter().enumerate() {
         let um = preimage(*nm, nm / 1000.0, |u| u * 1000.0);
         let _ = writeln!(w, "WAVM {} {} 1", i + 1, f(um));

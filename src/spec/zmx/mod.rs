@@ -3,8 +3,8 @@
 //! [`import_zmx`] reads the sequential Lens Data Editor and system data of a `.zmx` file (UTF-16 with BOM,
 //! UTF-8 or ASCII) into a [`SystemSpec`]; [`to_zmx`] writes any spec as `.zmx` text that reads back to the
 //! identical spec (every value bit-identical). What the file holds that diffcassi does not model — a
-//! surface type it lacks, non-sequential mode, multi-configuration or tolerance data, vignetting factors,
-//! model glasses, OpticStudio solves — is never dropped silently: it is refused, listed by line and
+//! surface type it lacks, non-sequential mode, multi-configuration or tolerance data, a vignetting
+//! angle (VAN; the decentre and compression factors are read), model glasses, OpticStudio solves — is never dropped silently: it is refused, listed by line and
 //! keyword, or, with [`ZmxOptions::ignore_unsupported`], skipped and listed in [`ZmxImport::ignored`].
 //!
 //! ```
@@ -148,6 +148,12 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         } else if kw == "HYPR" && r.args.iter().all(|a| a == "0") {
             // OpticStudio's hyper-hemispheric option, off (its default): nothing changes. On, it is refused.
             Some("the hyper-hemispheric option, off (OpticStudio's default)".to_string())
+        } else if (kw == "IWDP" && r.args.iter().all(|a| a == "0")) || (kw == "EERA" && r.args.first().map(String::as_str) == Some("0")) {
+            // System records OpticStudio 2022 and later write (`IWDP 0`, `EERA 0 0 0 10 10`) that no public
+            // description of the format documents; rayoptics and optiland read such files without them. With
+            // a leading 0, as in the public files met (tests/fixtures/zmx), they are listed; any other value
+            // is refused ("system keyword not modelled"), since what it would change is unknown.
+            Some("OpticStudio 2022+ system record, undocumented; read only with its leading value 0, as public files hold it".to_string())
         } else if records::is_merit_row(r, !blocks.is_empty(), records::SURFACE_KEYWORDS.contains(&kw)) {
             Some("merit-function operand (an optimisation target)".to_string())
         } else {
@@ -289,12 +295,31 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
             "line {ftyp_line} `FTYP`: object heights (type 1) with the object at infinity (line {disz_line} `DISZ` INFINITY on surface 0): an object at infinity takes field angles (type 0) or image heights"
         )));
     }
-    let (fields_mm, fields_deg) = if field_type == FieldType::Angle { (Vec::new(), fields) } else { (fields, Vec::new()) };
+    // Vignetting factors, one column per record and one entry per field (src/system/vignetting.rs): the
+    // decentres VDX, VDY and compressions VCX, VCY are read; the angle VAN (rotation of the vignetted
+    // pupil) is not modelled and is refused when it is not zero.
+    let mut vignetting = vec![[0.0f64; 4]; fields.len()];
     for (line, k, vals) in &header.vignetting {
-        if vals.iter().take(nf).any(|v| *v != 0.0) {
-            unsupported.push(Unsupported { line: *line, keyword: k.clone(), reason: "vignetting factors are not modelled (they change the ray sampling)".into() });
+        let column = ["VDX", "VDY", "VCX", "VCY"].iter().position(|c| k.starts_with(c));
+        let Some(col) = column else {
+            if vals.iter().take(fields.len()).any(|v| *v != 0.0) {
+                unsupported.push(Unsupported {
+                    line: *line,
+                    keyword: k.clone(),
+                    reason: "vignetting angle VAN ≠ 0 (a rotated vignetted pupil) is not modelled; the decentre and compression factors are".into(),
+                });
+            }
+            continue;
+        };
+        for (i, v) in vals.iter().take(fields.len()).enumerate() {
+            if col >= 2 && *v >= 1.0 {
+                return Err(fail(format!("line {line} `{k}`: field {} compression factor {v} ≥ 1 compresses the pupil to nothing (factors are < 1)", i + 1)));
+            }
+            vignetting[i][col] = *v;
         }
     }
+    let vignetting_factors = if vignetting.iter().all(|v| *v == [0.0; 4]) { Vec::new() } else { vignetting };
+    let (fields_mm, fields_deg) = if field_type == FieldType::Angle { (Vec::new(), fields) } else { (fields, Vec::new()) };
 
     // Wavelengths (µm in the file, nm in the spec).
     let waves: Vec<(f64, f64)> = if !header.wavm.is_empty() {
@@ -374,6 +399,7 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         fields_mm,
         field_type,
         fields_deg,
+        vignetting_factors,
         wavelength_policy: if header.allow_extrapolation { WavelengthPolicy::AllowExtrapolation } else { WavelengthPolicy::Strict },
         air_index: header.air_index.unwrap_or(1.0),
         glass_catalogs: catalog_paths,

@@ -3,7 +3,7 @@
 //!
 //! Read as OpticStudio writes them (see `docs/zemax-files.md`): `ENPD d` (entrance pupil diameter, mm),
 //! `OBNA na` (object-space NA), `FNUM f …` (image-space F/#), `FLOA` (float by stop size),
-//! `RAIM a m …` (m = 0 off, 2 real), `FTYP type ? nfields nwaves …` with `XFLN`/`YFLN` (type 0: angles in
+//! `RAIM a m …` (m = 0 off, 1 paraxial, 2 real), `FTYP type ? nfields nwaves …` with `XFLN`/`YFLN` (type 0: angles in
 //! degrees; 1: object heights, 2: paraxial and 3: real image heights, mm), `WAVM i λ_µm weight` (or the older `WAVL`/`WWGT`),
 //! `PWAV i`, `GCAT names…`, `ENVD T P …`, `UNIT MM …`, `MODE SEQ`.
 use super::lexer::Record;
@@ -33,7 +33,7 @@ pub(super) struct Header {
     pub air_index: Option<f64>,
     pub allow_extrapolation: bool,
     pub catalog_paths: Vec<String>,
-    /// Vignetting factor records (`VDXN`…): only zeros are modelled.
+    /// Vignetting factor records (`VDXN`, `VDYN`, `VCXN`, `VCYN`, `VANN`; `…F` in older files): (line, keyword, values).
     pub vignetting: Vec<(usize, String, Vec<f64>)>,
 }
 
@@ -72,8 +72,9 @@ impl Header {
                 let (a, m) = (int(r, 0)?, int(r, 1)?);
                 match (a, m) {
                     (0, 0) => self.ray_aiming = RayAiming::Off,
+                    (0, 1) => self.ray_aiming = RayAiming::Paraxial,
                     (0, 2) => self.ray_aiming = RayAiming::Real,
-                    _ => skip(format!("ray aiming `{}`: only off (`RAIM 0 0 …`) and real (`RAIM 0 2 …`) are modelled", r.rest)),
+                    _ => skip(format!("ray aiming `{}`: only off (`RAIM 0 0 …`), paraxial (`RAIM 0 1 …`) and real (`RAIM 0 2 …`) are modelled", r.rest)),
                 }
             }
             "ENVD" => {
