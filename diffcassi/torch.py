@@ -785,6 +785,13 @@ class CassiRenderer(_TargetChecked):
     that does not require grad gets no scene gradient. The gradients computed are bit-identical to those of
     the backward that computes all three.
 
+    An object at infinity (``system.object_at_infinity``): give the scene's full angular extent across its
+    width, ``scene_fov_deg`` (degrees, in (0, 180)), as :func:`diffcassi.render` takes it: pixels are uniform in
+    field angle and each sample is the parallel ray of its field angles (direction ∝ (tan θx, tan θy, 1)) through
+    the sample's entrance-pupil point, the forward renderer's rays. Required at infinity, refused for a finite
+    object (a ``DiffcassiValueError`` naming the value, as for 0, 180 or NaN). As for a finite object, the rays are
+    fixed in object space while ``theta`` moves (the pupil aim is that of construction).
+
     A system with a coded-mask surface (dual-disperser CASSI, presets ``ddsp``/``mddsp``) reads the mask where
     each ray crosses that surface: every scene pixel's rays are traced, and ∂/∂theta includes the crossing
     point's term for ``bilinear`` mask sampling (docs/codesign.md, "Dual-disperser CASSI").
@@ -793,7 +800,8 @@ class CassiRenderer(_TargetChecked):
     def __init__(self, system: "diffcassi.System", H: int, W: int, free: Sequence[str] = ("prism_tilt_x",),
                  mask: Optional[np.ndarray] = None, rays: int = 4, planes: int = 28, seed: int = 0,
                  bands_nm: Optional[Sequence[float]] = None, airy: bool = True, temperature: float = 1.0,
-                 straight_through: bool = False, mask_seed: int = 0, memory_gb: float = 4.0):
+                 straight_through: bool = False, mask_seed: int = 0, memory_gb: float = 4.0,
+                 scene_fov_deg: Optional[float] = None):
         super().__init__()
         w = "CassiRenderer"
         diffcassi._budget(memory_gb)  # a DiffcassiValueError naming memory_gb when it is not a number ≥ 0
@@ -816,7 +824,7 @@ class CassiRenderer(_TargetChecked):
         names = _free_names(free)
         mask = _mask_array(mask, H, W, mask_seed)
         self._base = diffcassi._native.DiffRenderer(system, H, W, names, rays=rays, planes=planes, seed=seed,
-                                                    bands_nm=bands_nm, airy=bool(airy))
+                                                    bands_nm=bands_nm, airy=bool(airy), scene_fov_deg=scene_fov_deg)
         self.names: List[str] = list(self._base.names())
         self.bands_nm: List[float] = list(self._base.bands_nm())
         self.image_shape: Tuple[int, int] = tuple(self._base.image_shape())

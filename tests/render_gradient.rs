@@ -74,7 +74,12 @@ fn step_for(p: &Param) -> f64 {
 /// Central finite differences of the same-sample loss for every parameter, against the VJP; returns the
 /// largest relative error (|fd − vjp| / max(|vjp|, 1e-3 · max_k |vjp_k|)).
 fn check_same_sample(label: &str, spec: SystemSpec, free: &[&str]) -> f64 {
-    let r = renderer(spec, free, config(5, 3, 2, 7));
+    check_same_sample_with(label, spec, free, config(5, 3, 2, 7))
+}
+
+/// [`check_same_sample`] with the render settings `cfg` (e.g. an angular extent for an object at infinity).
+fn check_same_sample_with(label: &str, spec: SystemSpec, free: &[&str], cfg: RenderConfig) -> f64 {
+    let r = renderer(spec, free, cfg);
     let (scene, mask, g) = inputs(&r, 1);
     let v = r.vjp(&scene, 2, &mask, &g).unwrap();
     let x0 = r.values().unwrap();
@@ -353,6 +358,13 @@ fn vjp_matches_the_expected_image_within_two_percent() {
 #[test]
 fn mapping_cube_jacobian_matches_finite_differences() {
     let r = renderer(sp_like("msp"), &["s4.tilt_x_deg", "s16.curvature", "glass_nd:N-BK7"], config(4, 3, 1, 0));
+    let worst = mapping_jacobian_error(&r, "mapping Jacobian");
+    assert!(worst < 1e-6);
+}
+
+/// The largest difference between [`DiffRenderer::mapping_jacobian`] and central differences of the
+/// mapping cube, as a fraction of each column's largest entry.
+fn mapping_jacobian_error(r: &DiffRenderer, label: &str) -> f64 {
     let wl = [460.0, 640.0];
     let (pos, jac, valid) = r.mapping_jacobian(&wl).unwrap();
     assert!(valid.iter().all(|v| *v));
@@ -373,8 +385,102 @@ fn mapping_cube_jacobian_matches_finite_differences() {
             worst = worst.max((fd - jac[i * kk + k]).abs() / scale);
         }
     }
-    println!("mapping Jacobian: worst error {worst:.1e} of the column's largest entry");
-    assert!(worst < 1e-6);
+    println!("{label}: worst error {worst:.1e} of the column's largest entry");
+    worst
+}
+
+// ---------------------------------------------------------------- an object at infinity (issue 42)
+
+/// Render settings for [`common::singlet_at_infinity`]: a `size`² scene 0.5° wide (one pixel ≈ 1.5 mrad,
+/// ≈ 9 detector pixels at f ≈ 60 mm).
+fn config_at_infinity(size: usize, planes: usize, rays: usize, seed: u64) -> RenderConfig {
+    let mut cfg = config(size, planes, rays, seed);
+    cfg.scene_fov_deg = Some(0.5);
+    cfg
+}
+
+/// At infinity the differentiable renderer traces the production renderer's rays (the same samples, the
+/// pixel's field angles, [`diffcassi::rays::PupilAim::parallel_ray`]): the same acquisition, on the same
+/// detector, to the tolerance of the dual-disperser comparison (1e-5 of the peak: the production renderer
+/// sums its band images in f32); and the pitch is the angle of one pixel.
+#[test]
+fn differentiable_renderer_at_infinity_equals_the_renderer() {
+    use diffcassi::render::{Mask, Renderer};
+    use diffcassi::scene::synthetic_scene;
+    let size = 6;
+    let spec = common::singlet_at_infinity(false);
+    let sys = diffcassi::system::SequentialSystem::build(&spec).unwrap();
+    assert!(sys.object_at_infinity());
+    let tracer = diffcassi::tracer::AnalyticTracer::default();
+    let mask = Mask::random(size, size, 0.5, 7).unwrap();
+    let scene = synthetic_scene(size, size, &BANDS, 5);
+    let (hw, nb) = (size * size, BANDS.len());
+    // The cube is (H, W, B); the differentiable renderer takes (N, B, H, W).
+    let mut s64 = vec![0.0f64; nb * hw];
+    for q in 0..hw {
+        for b in 0..nb {
+            s64[b * hw + q] = scene.data[q * nb + b] as f64;
+        }
+    }
+    let m64: Vec<f64> = mask.values.iter().map(|v| *v as f64).collect();
+    for kernel in [diffcassi::tracer::Kernel::default(), diffcassi::tracer::Kernel::Scalar] {
+        let mut cfg = config_at_infinity(size, 3, 3, 5);
+        cfg.kernel = kernel;
+        let r = renderer(spec.clone(), &["s1.curvature"], cfg.clone());
+        assert_eq!(r.config.scene_pitch_mm, 0.5f64.to_radians() / size as f64, "one pixel's angle (rad)");
+        let production = Renderer::new(&sys, &tracer, cfg, mask.clone()).unwrap();
+        assert_eq!(production.detector, r.detector);
+        let reference = production.render(&scene, false, &|_| {}).unwrap();
+        assert!(reference.stats.arrived > 0, "{:?}", reference.stats);
+        let img = r.render(&s64, 1, &m64).unwrap();
+        assert_eq!(img.len(), reference.image.len());
+        let peak = reference.image.iter().cloned().fold(0.0, f64::max);
+        let worst = img.iter().zip(&reference.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        println!("{kernel:?}: differentiable vs production renderer at infinity: worst {worst:.2e} (peak {peak:.3}, detector {}×{})", r.detector.width, r.detector.height);
+        assert!(peak > 0.0 && worst <= 1e-5 * peak, "{kernel:?}: {worst} vs peak {peak}");
+    }
+}
+
+/// At infinity ∂L/∂θ equals central differences of the same-sample acquisition (1e-6) for a lens's
+/// curvature, radius, thickness, glass (n_d, V_d) and the image distance — the stop behind the lens, so
+/// the curvatures, thickness and glass move the entrance pupil, which the renderer keeps at its
+/// construction-time aim (rays fixed in object space, on both sides of the difference); and the chief-ray
+/// mapping's Jacobian equals central differences of the mapping cube.
+#[test]
+fn vjp_at_infinity_matches_same_sample_finite_differences() {
+    let free = ["s1.curvature", "s2.radius_mm", "s1.thickness_mm", "s3.thickness_mm", "glass_nd:N-BK7", "glass_vd:N-BK7"];
+    let worst = check_same_sample_with("singlet at infinity", common::singlet_at_infinity(false), &free, config_at_infinity(5, 3, 2, 7));
+    assert!(worst <= 1e-6, "{worst:e}");
+    let r = renderer(common::singlet_at_infinity(false), &free, config_at_infinity(4, 3, 1, 0));
+    assert!(mapping_jacobian_error(&r, "mapping Jacobian at infinity") < 1e-6);
+}
+
+/// The angular extent at infinity: required there, refused on a finite object, and only in (0, 180)
+/// degrees — the production renderer's errors, naming the value; no panic.
+#[test]
+fn scene_fov_deg_is_required_at_infinity_and_checked() {
+    let set = |spec: SystemSpec| ParamSet::new(spec, GlassCatalog::builtin(), vec![Param::parse("s1.curvature").unwrap()]).unwrap();
+    let err = |spec: SystemSpec, fov: Option<f64>| {
+        let mut cfg = config(4, 3, 1, 0);
+        cfg.scene_fov_deg = fov;
+        DiffRenderer::new(set(spec), cfg, BANDS.to_vec()).map(|_| ()).unwrap_err().to_string()
+    };
+    let e = err(common::singlet_at_infinity(false), None);
+    assert!(e.contains("object at infinity") && e.contains("scene_fov_deg"), "{e}");
+    for (bad, shown) in [(0.0, "0"), (180.0, "180"), (f64::NAN, "NaN"), (-5.0, "-5"), (f64::INFINITY, "inf")] {
+        let e = err(common::singlet_at_infinity(false), Some(bad));
+        assert!(e.contains(&format!("--scene-fov-deg {shown}:")) && e.contains("(0, 180) degrees"), "{bad}: {e}");
+    }
+    let e = err(sp_like("sp"), Some(10.0));
+    assert!(e.contains("--scene-fov-deg 10") && e.contains("finite object"), "{e}");
+    // A valid angle renders, with finite values only.
+    let mut cfg = config(4, 3, 1, 0);
+    cfg.scene_fov_deg = Some(1.0);
+    let r = DiffRenderer::new(set(common::singlet_at_infinity(false)), cfg, BANDS.to_vec()).unwrap();
+    let (scene, mask, g) = inputs(&r, 3);
+    assert!(r.render(&scene, 2, &mask).unwrap().iter().all(|v| v.is_finite()));
+    let v = r.vjp(&scene, 2, &mask, &g).unwrap();
+    assert!(v.params.iter().chain(&v.mask).chain(&v.scene).all(|v| v.is_finite()) && v.params[0] != 0.0);
 }
 
 #[test]

@@ -60,13 +60,37 @@ fn check_budget(height: usize, width: usize, bands: usize, planes: usize, rays: 
 
 #[pymethods]
 impl PyDiffRenderer {
-    /// `DiffRenderer(system, height, width, free, rays=4, planes=28, seed=0, bands_nm=None, airy=True)`:
-    /// `free` a list of parameter names (`calibrate --free` names, preset aliases such as `prism_tilt_x`),
-    /// scene bands `bands_nm` (default 28 bands 450–650 nm), `planes` spectral planes over them.
+    /// `DiffRenderer(system, height, width, free, rays=4, planes=28, seed=0, bands_nm=None, airy=True,
+    /// scene_fov_deg=None)`: `free` a list of parameter names (`calibrate --free` names, preset aliases such
+    /// as `prism_tilt_x`), scene bands `bands_nm` (default 28 bands 450–650 nm), `planes` spectral planes over
+    /// them. `scene_fov_deg`: for a system whose object is at infinity, the scene's full angular extent across
+    /// its width (degrees, in (0, 180); pixels uniform in field angle, as `render(..., scene_fov_deg=)`):
+    /// required there, refused on a finite object.
     #[new]
-    #[pyo3(signature = (system, height, width, free, rays = 4, planes = 28, seed = 0, bands_nm = None, airy = true))]
+    #[pyo3(signature = (system, height, width, free, rays = 4, planes = 28, seed = 0, bands_nm = None, airy = true, scene_fov_deg = None))]
     #[allow(clippy::too_many_arguments)]
-    fn new(py: Python<'_>, system: &PySystem, height: usize, width: usize, free: Vec<String>, rays: usize, planes: usize, seed: u64, bands_nm: Option<&Bound<'_, PyAny>>, airy: bool) -> PyResult<Self> {
+    fn new(
+        py: Python<'_>,
+        system: &PySystem,
+        height: usize,
+        width: usize,
+        free: Vec<String>,
+        rays: usize,
+        planes: usize,
+        seed: u64,
+        bands_nm: Option<&Bound<'_, PyAny>>,
+        airy: bool,
+        scene_fov_deg: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        // A number or None, as the render keywords take it (`settings::settings`); its range and whether the
+        // system wants it are the library's checks (`render::scene_pitch_for`, in `DiffRenderer::new`).
+        let scene_fov_deg = match scene_fov_deg {
+            Some(v) if !v.is_none() => Some(v.extract::<f64>().map_err(|_| {
+                let ty = v.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
+                value_error(format!("scene_fov_deg: expected a number (degrees) or None, got {ty} {}", v.repr().map(|r| r.to_string()).unwrap_or_default()))
+            })?),
+            _ => None,
+        };
         let bands = match bands_nm {
             Some(b) => f64_list("bands_nm", b)?,
             None => diffcassi::analysis::linspace(450.0, 650.0, 28),
@@ -82,6 +106,7 @@ impl PyDiffRenderer {
         cfg.rays_per_pixel = rays;
         cfg.seed = seed;
         cfg.airy = airy.then(AiryConfig::default);
+        cfg.scene_fov_deg = scene_fov_deg;
         let inner = run(py, move || DiffRenderer::new(set, cfg, bands)).py()?;
         let aim = PupilAim::of(&inner.ds.system);
         Ok(PyDiffRenderer { inner, aim })

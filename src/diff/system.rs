@@ -13,7 +13,9 @@
 //!   (the decenter is the crossing point, the tilts are atan2 of the direction), and differentiating that
 //!   closed form gives exactly −g_θ/g_s; ∂g/∂θ comes from tracing the primary chief ray with tangents
 //!   through the surfaces placed so far (the same per-ray kernel), from an object ray whose direction
-//!   moves with the paraxial entrance pupil (its y–nu trace is differentiated too).
+//!   moves with the paraxial entrance pupil (its y–nu trace is differentiated too). For an object at
+//!   infinity the chief ray's direction (tan θx, tan θy, 1) is fixed and its start on surface 1's vertex
+//!   plane, (−tan θx·z_p, −tan θy·z_p, 0), moves with the pupil distance z_p instead.
 //! - **Indices**: a model glass's n(λ; n_d, V_d) is differentiated analytically; dn/dλ of catalogue
 //!   glasses comes from [`super::dispersion`]. Chief-ray solves use the primary wavelength, so the ray
 //!   wavelength parameter does not move them.
@@ -269,7 +271,9 @@ impl DiffSystem {
                         .collect(),
                 );
             }
-            let thickness = dual(&dcell, i, "thickness_mm");
+            // An object at infinity: surface 0's thickness is the 0 of the start plane at surface 1's vertex
+            // (the build's), not the infinite distance the spec holds (which has no derivative to carry).
+            let thickness = if i == 0 && spec.object_at_infinity() { Dn::constant(0.0, kk) } else { dual(&dcell, i, "thickness_mm") };
             if i > 0 {
                 if let Some(shape) = shape_tangent {
                     let offset = last_step_frame.point_to_local(&surface_frame.o);
@@ -351,7 +355,8 @@ impl DiffSystem {
     }
 
     /// Distance object → paraxial entrance pupil as a dual (the y–nu trace of
-    /// [`crate::system::EntrancePupil`] differentiated); infinite (telecentric) has no tangent.
+    /// [`crate::system::EntrancePupil`] differentiated); infinite (telecentric) has no tangent. For an object
+    /// at infinity the distance from surface 1's vertex plane (the z = 0 plane the parallel rays start on).
     fn pupil_distance(&self, dcell: &[HashMap<String, Option<Vec<f64>>>], n: &[f64], dn: &[f64]) -> Result<Dn> {
         let kk = self.k();
         let spec = &self.system.spec;
@@ -387,10 +392,14 @@ impl DiffSystem {
                 SurfaceKind::CoordinateBreak => Dn::constant(0.0, kk),
             }
         };
+        // At infinity the trace starts on surface 1's plane: surface 0's thickness is 0 there (as the build's
+        // paraxial surfaces), and the distance is measured from that plane.
+        let at_infinity = self.system.object_at_infinity();
+        let thickness = |i: usize| if i == 0 && at_infinity { Dn::constant(0.0, kk) } else { dual(i, "thickness_mm") };
         let height = |y0: f64, nu0: f64| -> Dn {
             let (mut y, mut nu) = (Dn::constant(y0, kk), Dn::constant(nu0, kk));
             for i in 1..=stop {
-                y = &y + &(&(&dual(i - 1, "thickness_mm") * &nu) / &nd(i - 1));
+                y = &y + &(&(&thickness(i - 1) * &nu) / &nd(i - 1));
                 if i == stop {
                     break;
                 }
@@ -421,23 +430,40 @@ impl DiffSystem {
                 "surface {i}: derivatives of chief-ray solves under real ray aiming are not implemented (set ray_aiming = \"off\" or fix the solve)"
             )));
         }
-        if sys.object_at_infinity() {
-            return Err(Error::invalid(format!("surface {i}: derivatives of chief-ray solves for an object at infinity are not implemented")));
-        }
         let field = sys.fields.first().copied().unwrap_or([0.0, 0.0]);
-        let origin = DVec3::new(field[0], field[1], 0.0);
         let pd = pupil_distance.cloned().unwrap_or_else(|| Dn::constant(sys.pupil.distance_mm, kk));
-        let dir: V3 = if !pd.v.is_finite() {
-            v3_const(DVec3::Z, kk)
+        let (origin, dir): (V3, V3) = if sys.object_at_infinity() {
+            // An object at infinity: `field` holds the field angles (θx, θy) (rad). The chief ray has the fixed
+            // direction (tan θx, tan θy, 1) normalised and passes through the entrance-pupil centre, on the axis
+            // at z_p from surface 1's vertex plane ([`crate::rays::PupilAim::parallel_ray`] with a zero pupil
+            // point); it starts where it crosses that plane (z = 0), at (−tan θx·z_p, −tan θy·z_p, 0), which
+            // moves with the parameters through z_p.
+            if !pd.v.is_finite() {
+                // (The build refuses this system; a telecentric pupil has no centre a parallel beam can aim at.)
+                return Err(Error::invalid(format!(
+                    "surface {i}: chief-ray solve with the object at infinity and the entrance pupil at infinity too (pupil distance {} mm: the stop is at the front focal point): no pupil centre for the chief ray to pass through",
+                    pd.v
+                )));
+            }
+            let (tx, ty) = (field[0].tan(), field[1].tan());
+            let inv = 1.0 / (tx * tx + ty * ty + 1.0).sqrt();
+            ([pd.scale(-tx), pd.scale(-ty), Dn::constant(0.0, kk)], v3_const(DVec3::new(tx * inv, ty * inv, inv), kk))
         } else {
-            let w = [Dn::constant(-origin.x, kk), Dn::constant(-origin.y, kk), pd.clone()];
-            let w = if pd.v < 0.0 { v3_scale(&w, &Dn::constant(-1.0, kk)) } else { w };
-            v3_normalize(&w)
+            // A finite object: from the object point (x, y, 0) through the pupil centre (0, 0, z_p).
+            let origin = v3_const(DVec3::new(field[0], field[1], 0.0), kk);
+            let dir = if !pd.v.is_finite() {
+                v3_const(DVec3::Z, kk)
+            } else {
+                let w = [Dn::constant(-field[0], kk), Dn::constant(-field[1], kk), pd.clone()];
+                let w = if pd.v < 0.0 { v3_scale(&w, &Dn::constant(-1.0, kk)) } else { w };
+                v3_normalize(&w)
+            };
+            (origin, dir)
         };
-        let d0 = v3_value(&dir);
-        let mut dp = vec![DVec3::ZERO; kk];
+        let (o0, d0) = (v3_value(&origin), v3_value(&dir));
+        let mut dp: Vec<DVec3> = (0..kk).map(|k| v3_tangent(&origin, k)).collect();
         let mut dd: Vec<DVec3> = (0..kk).map(|k| v3_tangent(&dir, k)).collect();
-        let (p, d) = trace_tangents(&sys.path[..m], &self.steps[..m], n, dn, origin, d0, &mut dp, &mut dd)
+        let (p, d) = trace_tangents(&sys.path[..m], &self.steps[..m], n, dn, o0, d0, &mut dp, &mut dd)
             .map_err(|(st, s)| Error::invalid(format!("surface {i}: chief ray {} at surface {s} while differentiating its solve", st.label())))?;
         let (p, d) = (v3_from(p, &dp), v3_from(d, &dd));
         let pg = last.point_to_global(&p);

@@ -22,6 +22,17 @@
 //! gradient is that of the expected image away from those edges; the bias is measured in
 //! `docs/derivatives.md`.
 //!
+//! **An object at infinity** (`system.object_at_infinity()`): the scene is given by its angular extent
+//! (`config.scene_fov_deg`, required there and refused on a finite object, as by the production renderer:
+//! [`super::engine::scene_pitch_for`]), its pixels uniform in field angle. A scene pixel's rays are those of
+//! the production renderer — the same [`RaySampler`] samples, the sample's field angle (θx, θy) from the
+//! pixel's angular position, and for its pupil point [`PupilAim::parallel_ray`]: direction ∝
+//! (tan θx, tan θy, 1), through the construction-time entrance-pupil point, starting on surface 1's vertex
+//! plane. The convention is the finite object's: the rays are **fixed in object space** while θ moves (the
+//! pupil distance and radius of the aim are those at construction, kept by [`DiffRenderer::with_values`]),
+//! so a parameter that moves the paraxial pupil changes only which of those parallel rays the stop lets
+//! through.
+//!
 //! Cost: rays of closed mask pixels (value exactly 0) carry no light, so their mask gradient needs only
 //! where they land — they are traced with the production renderer's SIMD lanes, with no θ-adjoint, as
 //! are all rays of [`DiffRenderer::render`]; rays of open pixels (any non-zero value of a continuous mask)
@@ -429,8 +440,15 @@ impl DiffRenderer {
     /// A renderer for the free parameters of `set` (system parameters only: not `wavelength` or `ray.*`),
     /// render settings `config` (scene size, pitches, planes, rays, sampling, seed, Airy) and a scene with
     /// bands at `scene_wavelengths_nm`. Errors: a per-ray parameter, a parameter with no effect on the
-    /// detector, real ray aiming, bad settings.
-    pub fn new(set: ParamSet, config: RenderConfig, scene_wavelengths_nm: Vec<f64>) -> Result<Self> {
+    /// detector, real ray aiming, bad settings; for an object at infinity a missing `config.scene_fov_deg`,
+    /// on a finite object a given one, and an angle outside (0, 180) degrees (NaN included), each naming the
+    /// value ([`super::engine::scene_pitch_for`]). At infinity `config.scene_pitch_mm` is replaced by one
+    /// pixel's angle in radians (`scene_fov_deg` / width), as the production renderer does.
+    ///
+    /// The entrance-pupil aim is taken here, once ([`PupilAim::of`]) and kept while the parameters move
+    /// ([`Self::with_values`]): the object-space rays are fixed — from each object point through the
+    /// construction-time pupil, or at infinity the parallel beams of each field angle through it.
+    pub fn new(set: ParamSet, mut config: RenderConfig, scene_wavelengths_nm: Vec<f64>) -> Result<Self> {
         config.validate()?;
         if (config.scene_height * config.scene_width) as u64 > u32::MAX as u64 {
             return Err(Error::invalid(format!("scene size {}×{} is too large", config.scene_height, config.scene_width)));
@@ -450,9 +468,11 @@ impl DiffRenderer {
         if ds.system.spec.ray_aiming != RayAiming::Off {
             return Err(Error::invalid("the differentiable renderer aims rays at the paraxial entrance pupil: set ray_aiming = \"off\""));
         }
-        if ds.system.object_at_infinity() {
-            return Err(Error::invalid("the differentiable renderer starts rays from object points on a finite object plane: an object at infinity is not supported there yet"));
-        }
+        // The scene pitch in the system's field unit: mm on a finite object plane, or one pixel's angle (rad)
+        // for an object at infinity, from `scene_fov_deg` (the production renderer's function and errors:
+        // required at infinity, refused on a finite object, in (0, 180) degrees).
+        config.scene_pitch_mm = super::engine::scene_pitch_for(&ds.system, &config)?;
+        config.validate()?;
         let planes = &config.spectral.planes_nm;
         for &w in planes {
             ds.system.indices(w)?;
@@ -488,7 +508,9 @@ impl DiffRenderer {
         self.set.values()
     }
 
-    /// The same renderer (detector, pupil aim, samples, kernels) with the free parameters set to `x`.
+    /// The same renderer (detector, pupil aim, samples, kernels) with the free parameters set to `x`: the
+    /// object-space rays stay those of construction (at infinity too: each field's parallel beam keeps its
+    /// direction and its crossing of surface 1's vertex plane).
     /// Errors name the parameter: a non-finite value, a glass outside the catalogue's (n_d, V_d) range, a
     /// system that does not build.
     pub fn with_values(&self, x: &[f64]) -> Result<Self> {
@@ -599,6 +621,24 @@ impl DiffRenderer {
             v.resize(n, 0.0);
         }
         let centre_y = MappingCube::scene_xy(h, w, pitch, row, 0)[1];
+        if self.aim.at_infinity {
+            // An object at infinity: the sample's field angles (θx, θy) (rad) — the pixel's angular centre
+            // moved by the sample's position in the pixel of angular pitch `pitch`, the arithmetic of the
+            // production renderer's `PlaneContext::ray` — and the parallel ray of that field through the
+            // sample's pupil point ([`PupilAim::parallel_ray`], direction ∝ (tan θx, tan θy, 1), origin on
+            // surface 1's vertex plane), its direction divided by its length as the production lanes do
+            // before tracing (so the same rays bit for bit).
+            let r = self.aim.scale;
+            for t in 0..n {
+                let [px, py, sx, sy] = samples.get(t);
+                let field = [out.centre_x[t] + (sx - 0.5) * pitch, centre_y - (sy - 0.5) * pitch];
+                let (o, d) = self.aim.parallel_ray(field, px * r, py * r);
+                let len = (d.x * d.x + d.y * d.y + d.z * d.z).sqrt();
+                (out.ox[t], out.oy[t], out.dx[t], out.dy[t], out.dz[t]) = (o.x, o.y, d.x / len, d.y / len, d.z / len);
+                debug_assert_eq!(o.z, 0.0);
+            }
+            return;
+        }
         let level = self.simd.unwrap_or_else(crate::tracer::SimdLevel::detect);
         super::vector::run_at(level, RayGen { samples, centre_y, pitch_mm: pitch, aim: self.aim, out });
     }
@@ -1077,16 +1117,18 @@ impl DiffRenderer {
     /// Jacobians): where the chief ray of every scene pixel lands (image frame, mm), `positions[((q·L + l)·2
     /// + c)]` for pixel q, wavelength l, coordinate c (x, y); `jac[((q·L + l)·2 + c)·P + k]` = ∂/∂θ_k;
     /// `valid[q·L + l]` whether the ray arrived with finite derivatives (else zeros). Chief rays go through
-    /// the centre of the (fixed) paraxial entrance pupil, as [`crate::analysis::mapping_cube`]'s.
+    /// the centre of the (fixed) paraxial entrance pupil, as [`crate::analysis::mapping_cube`]'s; for an
+    /// object at infinity a pixel's chief ray is the parallel ray of its field angles through that centre.
     pub fn mapping_jacobian(&self, wavelengths_nm: &[f64]) -> Result<(Vec<f64>, Vec<f64>, Vec<bool>)> {
         let (h, w, pitch) = (self.config.scene_height, self.config.scene_width, self.config.scene_pitch_mm);
         let mut rays = crate::rays::RayBatch::with_capacity(h * w * wavelengths_nm.len());
         for row in 0..h {
             for col in 0..w {
                 let c = MappingCube::scene_xy(h, w, pitch, row, col);
-                let d = self.aim.direction(c[0], c[1], 0.0, 0.0);
+                // (At infinity c holds the pixel's field angles in radians.)
+                let (o, d) = if self.aim.at_infinity { self.aim.parallel_ray(c, 0.0, 0.0) } else { (DVec3::new(c[0], c[1], 0.0), DVec3::from(self.aim.direction(c[0], c[1], 0.0, 0.0))) };
                 for &l in wavelengths_nm {
-                    rays.push(DVec3::new(c[0], c[1], 0.0), DVec3::from(d), l);
+                    rays.push(o, d, l);
                 }
             }
         }

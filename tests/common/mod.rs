@@ -97,6 +97,44 @@ pub fn sp_like(name: &str) -> diffcassi::spec::SystemSpec {
     spec
 }
 
+/// A thick N-BK7 singlet with the **object at infinity** (issue 42): R1 = 50 mm, R2 = −80 mm, 6 mm thick
+/// (f ≈ 60 mm), the stop on a plane 5 mm behind it (so the paraxial entrance pupil, the stop's image through
+/// the lens, moves with the lens's curvatures, thickness and glass), entrance pupil 8 mm, the image 48 mm
+/// behind the stop (near the paraxial focus), fields (θx, θy) = (2°, 3°) first (an off-axis chief ray), then
+/// on axis; no clear apertures (no ray is vignetted, so none changes status under a small change).
+/// `chief_ray_break`: a Coordinate Break 20 mm after the stop whose decenters and tilts x, y are chief-ray
+/// solves (the image 28 mm after it).
+pub fn singlet_at_infinity(chief_ray_break: bool) -> diffcassi::spec::SystemSpec {
+    use diffcassi::spec::{Cell, FieldType, RayAiming, SurfaceKind, SurfaceSpec, SystemAperture, SystemSpec};
+    let mut stop = SurfaceSpec::standard(None, 48.0, None);
+    stop.stop = true;
+    let mut surfaces = vec![SurfaceSpec::standard(None, f64::INFINITY, None), SurfaceSpec::standard(Some(50.0), 6.0, Some("N-BK7")), SurfaceSpec::standard(Some(-80.0), 5.0, None), stop];
+    if chief_ray_break {
+        surfaces[3].thickness_mm = Cell::fixed(20.0);
+        let mut cb = SurfaceSpec::new(SurfaceKind::CoordinateBreak);
+        cb.thickness_mm = Cell::fixed(28.0);
+        (cb.decenter_x_mm, cb.decenter_y_mm, cb.tilt_x_deg, cb.tilt_y_deg) = (Some(Cell::chief_ray(0.0)), Some(Cell::chief_ray(0.0)), Some(Cell::chief_ray(0.0)), Some(Cell::chief_ray(0.0)));
+        surfaces.push(cb);
+    }
+    surfaces.push(SurfaceSpec::standard(None, 0.0, None));
+    SystemSpec {
+        name: "singlet at infinity".into(),
+        description: String::new(),
+        aperture: SystemAperture::EntrancePupilDiameter(8.0),
+        ray_aiming: RayAiming::Off,
+        wavelengths_nm: vec![450.0, 550.0, 650.0],
+        primary_wavelength_nm: 550.0,
+        fields_mm: Vec::new(),
+        field_type: FieldType::Angle,
+        fields_deg: vec![[2.0, 3.0], [0.0, 0.0]],
+        wavelength_policy: Default::default(),
+        air_index: 1.0,
+        glass_catalogs: vec![],
+        surfaces,
+        mechanics: None,
+    }
+}
+
 /// AP/mAP with the prism's entrance face (surface `entrance`) made a weak even asphere (radius 200 mm), so
 /// curvature, conic and asphere terms act on a refracting surface.
 pub fn ap_like(name: &str, entrance: usize) -> diffcassi::spec::SystemSpec {

@@ -1,4 +1,5 @@
-"""Objects at infinity from Python (issue 42): ``scene_fov_deg`` on ``render``, the operators and ``Transport``.
+"""Objects at infinity from Python (issue 42): ``scene_fov_deg`` on ``render``, the operators, ``Transport`` and
+the differentiable ``CassiRenderer``.
 
 The system is a public design at infinity opened as it is (tests/fixtures/zmx/cassegrain_mirrors_HoO_V2C18Ex03.zmx:
 rayoptics' Cassegrain telescope, F/4, EFL 80 mm, two mirrors). A scene at infinity is given by its angular extent across its width;
@@ -12,7 +13,7 @@ import numpy as np
 import pytest
 
 import diffcassi
-from conftest import random_cube
+from conftest import check_cassi_renderer_gradients, random_cube
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 DESIGN = ROOT / "tests" / "fixtures" / "zmx" / "cassegrain_mirrors_HoO_V2C18Ex03.zmx"
@@ -78,3 +79,80 @@ def test_angular_extent_on_a_finite_object_is_refused():
         diffcassi.render(diffcassi.System.preset("sp"), cube, SMALL["bands_nm"], scene_fov_deg=10.0, **SMALL)
     with pytest.raises(ValueError, match="scene_fov_deg: expected a number"):
         diffcassi.render(diffcassi.System.preset("sp"), cube, SMALL["bands_nm"], scene_fov_deg="wide", **SMALL)
+
+
+#: A thick N-BK7 singlet at infinity (R1 = 50 mm, R2 = −80 mm, 6 mm thick, f ≈ 60 mm), the stop on a plane 5 mm
+#: behind it (the entrance pupil moves with the lens), entrance pupil 8 mm, the image near the paraxial focus: the
+#: system of tests/render_gradient.rs's gradient tests at infinity (tests/common/mod.rs, ``singlet_at_infinity``).
+SINGLET = """
+name = "singlet at infinity"
+ray_aiming = "off"
+wavelengths_nm = [450.0, 550.0, 650.0]
+primary_wavelength_nm = 550.0
+fields_mm = []
+field_type = "angle"
+fields_deg = [[2.0, 3.0], [0.0, 0.0]]
+
+[aperture]
+type = "entrance_pupil_diameter"
+value = 8.0
+
+[[surfaces]]
+type = "standard"
+thickness_mm = "infinity"
+
+[[surfaces]]
+type = "standard"
+radius_mm = 50.0
+thickness_mm = 6.0
+material = "N-BK7"
+
+[[surfaces]]
+type = "standard"
+radius_mm = -80.0
+thickness_mm = 5.0
+
+[[surfaces]]
+type = "standard"
+stop = true
+thickness_mm = 48.0
+
+[[surfaces]]
+type = "standard"
+thickness_mm = 0.0
+"""
+
+
+@pytest.fixture(scope="module")
+def singlet():
+    sys = diffcassi.System.from_string(SINGLET)
+    assert sys.object_at_infinity
+    return sys
+
+
+def test_cassi_renderer_at_infinity_matches_finite_differences(singlet):
+    """The torch module at infinity (``scene_fov_deg``): the lens's curvature and glass against central
+    differences of the same-sample render (rays fixed in object space on both sides), the mask gradient exact."""
+    pytest.importorskip("torch", reason="PyTorch not installed (DIFFCASSI_TORCH=skip)")
+    worst = check_cassi_renderer_gradients(singlet, ["s1.curvature", "glass_nd:N-BK7"], [450.0, 550.0, 650.0],
+                                           [1e-8, 1e-7], scene_fov_deg=0.5)
+    print(f"CassiRenderer at infinity: worst relative difference from central differences {worst:.1e}")
+
+
+@pytest.mark.parametrize("fov", [None, 0.0, 180.0, -5.0, float("nan"), float("inf"), "wide"])
+def test_cassi_renderer_angular_extent_errors(singlet, fov):
+    """Missing at infinity, out of (0, 180) or not a number: a ValueError naming the value (the forward
+    renderer's errors); on a finite object a given extent is refused."""
+    pytest.importorskip("torch", reason="PyTorch not installed (DIFFCASSI_TORCH=skip)")
+    import diffcassi.torch as dt
+    with pytest.raises(ValueError, match="scene-fov-deg|scene_fov_deg"):
+        dt.CassiRenderer(singlet, 4, 4, free=["s1.curvature"], rays=1, planes=2, bands_nm=[500.0, 600.0],
+                         scene_fov_deg=fov)
+
+
+def test_cassi_renderer_refuses_an_angular_extent_on_a_finite_object():
+    pytest.importorskip("torch", reason="PyTorch not installed (DIFFCASSI_TORCH=skip)")
+    import diffcassi.torch as dt
+    with pytest.raises(ValueError, match="finite object"):
+        dt.CassiRenderer(diffcassi.System.preset("sp"), 4, 4, free=["prism_tilt_x"], rays=1, planes=2,
+                         bands_nm=[500.0, 600.0], scene_fov_deg=10.0)
