@@ -127,6 +127,7 @@ pub fn singlet_at_infinity(chief_ray_break: bool) -> diffcassi::spec::SystemSpec
         fields_mm: Vec::new(),
         field_type: FieldType::Angle,
         fields_deg: vec![[2.0, 3.0], [0.0, 0.0]],
+        vignetting_factors: Vec::new(),
         wavelength_policy: Default::default(),
         air_index: 1.0,
         glass_catalogs: vec![],
