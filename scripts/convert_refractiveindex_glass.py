@@ -11,7 +11,11 @@ vendor's Zemax catalogue, written in refractiveindex.info's own formula numberin
 * refractiveindex.info formula 3 ("polynomial"): n² = C1 + Σ Cᵢ λ^eᵢ with explicit exponents → the first AGF
   power series whose exponents hold every eᵢ: 1 (Schott: 2, −2, −4, −6, −8), 10 (Extended: + −10, −12),
   12 (Extended 2: + 4, 6), 13 (Extended 3: 2, 4, −2 … −12); the other slots are 0.
-* anything else (tabulated data only, other formulas) is skipped and reported.
+* a page with no formula but a `tabulated n` table of at least 2 points (SCHOTT's B270: a datasheet's n at 8
+  lines) → a tabulated glass in `data/glass/<VENDOR>.tabulated` (diffcassi's own format, beside the AGF: OpticStudio's
+  AGF has no tabulated formula; see `src/materials/builtin_catalogs.rs`): `NM name status`, `GC` as below, and one
+  `TN λ(µm) n` line per point, copied as the page prints them. The file is written only for a vendor that has one.
+* anything else (one tabulated point, other formulas) is skipped and reported.
 
 Every number is copied as the source prints it (no float formatting), so diffcassi's float parser reads the
 same f64 the source text denotes. Per glass the AGF holds: `NM name formula code nd vd 0 status` (nd, vd
@@ -125,7 +129,7 @@ def main():
     paths = [f"database/data/specs/{v}/{g}" for v, _, gs in VENDORS for g in gs]
     tar = tarfile.open(fileobj=io.BytesIO(git(["archive", commit] + paths, a.git_dir)))
     members = {m.name: m for m in tar.getmembers() if m.isfile() and m.name.endswith(".yml")}
-    total, skipped = 0, []
+    total, skipped, tab_total = 0, [], 0
     for vendor, catalog, groups in VENDORS:
         lines = [
             f"CC {catalog} optical glasses built into diffcassi, converted by scripts/convert_refractiveindex_glass.py",
@@ -134,6 +138,7 @@ def main():
         ]
         seen = set()
         count = 0
+        tabulated = []
         for group in groups:
             prefix = f"database/data/specs/{vendor}/{group}/"
             for name in sorted(n for n in members if n.startswith(prefix)):
@@ -142,7 +147,23 @@ def main():
                 rel = name[len("database/data/") :]
                 formulas = [d for d in page.get("DATA", []) if d.get("type", "").startswith("formula")]
                 if not formulas:
-                    skipped.append(f"{rel}: no dispersion formula (tabulated data only)")
+                    tables = [d for d in page.get("DATA", []) if d.get("type", "") == "tabulated n"]
+                    rows = [r.split() for r in tables[0]["data"].strip().splitlines()] if tables else []
+                    if len(rows) < 2:
+                        skipped.append(f"{rel}: no dispersion formula and {len(rows)} tabulated n point(s) (no dispersion)")
+                        continue
+                    if any(len(r) != 2 for r in rows):
+                        skipped.append(f"{rel}: a tabulated n row is not `λ n`")
+                        continue
+                    if glass.upper() in seen:
+                        skipped.append(f"{rel}: duplicate name {glass} in {catalog}")
+                        continue
+                    props = page.get("PROPERTIES", {}) or {}
+                    status = STATUS.get(str(props.get("glass_status", "standard")).lower(), 0)
+                    seen.add(glass.upper())
+                    tabulated.append(f"NM {glass} {status}")
+                    tabulated.append(f"GC {rel}; {reference_text(page.get('REFERENCES', ''))}")
+                    tabulated.extend(f"TN {w} {n}" for w, n in rows)
                     continue
                 conv = convert_formula(formulas[0])
                 if isinstance(conv, str):
@@ -170,10 +191,21 @@ def main():
         total += count
         with open(f"{a.out}/{catalog}.agf", "w", encoding="ascii", newline="\n") as f:
             f.write("\n".join(lines) + "\n")
-        print(f"{catalog}: {count} glasses", file=sys.stderr)
+        n_tab = sum(1 for t in tabulated if t.startswith("NM "))
+        if n_tab:
+            head = [
+                f"CC {catalog} tabulated-index glasses built into diffcassi (no dispersion formula published: n at the",
+                "CC vendor's wavelengths, interpolated by diffcassi), converted by scripts/convert_refractiveindex_glass.py",
+                f"CC from the refractiveindex.info database, commit {commit} ({date}), public domain (CC0 1.0)",
+                "CC records: NM name status; GC source page; vendor document; TN wavelength(um) n, as the page prints them",
+            ]
+            with open(f"{a.out}/{catalog}.tabulated", "w", encoding="ascii", newline="\n") as f:
+                f.write("\n".join(head + tabulated) + "\n")
+        tab_total += n_tab
+        print(f"{catalog}: {count} glasses, {n_tab} tabulated", file=sys.stderr)
     for s in skipped:
         print(f"skipped {s}", file=sys.stderr)
-    print(f"{total} glasses from commit {commit} ({date}); {len(skipped)} pages skipped", file=sys.stderr)
+    print(f"{total} glasses and {tab_total} tabulated from commit {commit} ({date}); {len(skipped)} pages skipped", file=sys.stderr)
 
 
 if __name__ == "__main__":

@@ -311,6 +311,44 @@ fn vendor_glasses_open_build_and_round_trip() {
     assert_eq!(user.glasses.iter().find(|g| g.name == "S-BSL7").unwrap().entry, agf.display().to_string());
 }
 
+/// Thorlabs' ACL3026U (`GCAT SCHOTT`, `GLAS B270`): SCHOTT publishes B 270 as a datasheet table only (n at 8
+/// lines, 4 decimals), which the built-in SCHOTT catalogue carries (`data/glass/SCHOTT.tabulated`). The file
+/// opens as it is, with no flag and no user catalogue; `info` names B270's formula and source; its index at the
+/// file's wavelengths is the built-in table's, between the datasheet's printed neighbours, and a wavelength off
+/// the table is refused by glass name with the table's range.
+#[test]
+fn thorlabs_b270_resolves_to_the_builtin_datasheet_table() {
+    let path = fixture("asphere_thorlabs_ACL3026U.zmx");
+    let o = run(&["info", "--system", path.to_str().unwrap()]);
+    let out = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{out}");
+    for needle in [
+        "B270",
+        "tabulated (8 points, monotone cubic (PCHIP) in λ)",
+        "builtin:SCHOTT",
+        "specs/schott/misc/B270.yml; B 270 datasheet, August 1993",
+        "commit ff11b58",
+    ] {
+        assert!(out.contains(needle), "`{needle}` not in:\n{out}");
+    }
+    let imp = import_zmx_file(&path, &ZmxOptions::default()).unwrap();
+    assert_eq!(imp.spec.glass_catalogs, vec!["builtin:SCHOTT".to_string()]);
+    let o = imp.glasses.iter().find(|g| g.name == "B270").unwrap();
+    assert_eq!((o.catalog.as_str(), o.entry.as_str()), ("SCHOTT", "builtin:SCHOTT"));
+    let b270 = builtin_catalogs::catalog("SCHOTT").unwrap().unwrap().get("B270").unwrap();
+    let sys = SequentialSystem::build(&imp.spec).unwrap();
+    let s = imp.spec.surfaces.iter().position(|s| s.material.as_deref() == Some("B270")).unwrap();
+    for wl in [587.0, 550.0] {
+        let n = sys.indices(wl).unwrap()[s];
+        assert_eq!(n, b270.refractive_index(wl).unwrap(), "{wl}");
+        // 546.07 nm: 1.5251, 587.56 nm: 1.5230 (datasheet).
+        assert!(n < 1.5251 && n > 1.5230, "{wl}: {n}");
+    }
+    assert_eq!(sys.indices(587.56).unwrap()[s], 1.5230);
+    let e = sys.indices(700.0).unwrap_err().to_string();
+    assert!(e.contains("B270") && e.contains("700") && e.contains("[435.83, 656.27]"), "{e}");
+}
+
 /// Every glass of the built-in OHARA, HIKARI and CDGM catalogues gives its printed n_d (6 decimals) to half a
 /// unit of the last decimal, HOYA's (5 decimals) to one unit (FDS18 and FDS18-W: 5.5e-6). SUMITA's formulas
 /// are further from their printed n_d for 44 of 176 glasses (up to 3.8e-5, mostly moulding grades): not

@@ -781,6 +781,20 @@ IT 3.10000E-01 2.50000E-01 2.50000E+01    \n";
         assert_eq!(g.len(), 1);
     }
 
+    /// The records of the built-in tabulated glasses (`NM name status`, `TN λ n`; `builtin_catalogs`) mean
+    /// nothing in a user's AGF: `TN` is an unknown record, ignored as before, and a glass with points but no
+    /// `CD`/`LD` is refused as before — no tabulated glass comes from a user's file.
+    #[test]
+    fn tabulated_records_are_unknown_in_a_users_agf() {
+        let g = parse_agf("NM A 2 0 1.5 60\nCD 1 0.01 0 0 0 0\nLD 0.3 2.5\nTN 0.5 1.6\nTN 0.6 1.7\n", "U.AGF").unwrap();
+        assert_eq!((g.len(), g[0].formula.agf_number()), (1, 2));
+        assert_eq!(g[0].refractive_index(500.0).unwrap(), g[0].formula.refractive_index(500.0));
+        let e = parse_agf("NM B270 0 0 1.523 58.5\nTN 0.5 1.6\nTN 0.6 1.7\n", "U.AGF").unwrap_err().to_string();
+        assert!(e.starts_with("U.AGF:1:") && e.contains("B270") && e.contains("formula number 0"), "{e}");
+        let e = parse_agf("NM B270 2 0 1.523 58.5\nTN 0.5 1.6\nTN 0.6 1.7\n", "U.AGF").unwrap_err().to_string();
+        assert!(e.starts_with("U.AGF:1:") && e.contains("B270") && e.contains("CD"), "{e}");
+    }
+
     #[test]
     fn catalog_names() {
         assert_eq!(catalog_name_from_source("/a/b/ohara.agf"), "OHARA");

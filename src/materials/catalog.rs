@@ -206,6 +206,11 @@ impl GlassCatalog {
         self.glasses.is_empty()
     }
 
+    /// Appends catalogue comment lines (the `CC` lines of a built-in catalogue's tabulated glasses).
+    pub fn extend_comments(&mut self, lines: impl IntoIterator<Item = String>) {
+        self.comments.extend(lines);
+    }
+
     /// `CC` comment lines of the merged catalogues.
     pub fn comments(&self) -> &[String] {
         &self.comments

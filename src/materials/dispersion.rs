@@ -1,4 +1,4 @@
-//! The 13 dispersion formulas of Zemax AGF glass catalogues.
+//! The 13 dispersion formulas of Zemax AGF glass catalogues, and a tabulated index.
 //!
 //! Each variant stores its coefficients **in the order of the AGF `CD` record**, and
 //! evaluates the formula of the Zemax OpticStudio manual ("The Glass Dispersion Formulas").
@@ -21,6 +21,12 @@
 //! | 11 | [`Sellmeier5`](DispersionFormula::Sellmeier5) | n² − 1 = Σ₁⁵ Kᵢλ²/(λ² − Lᵢ) |
 //! | 12 | [`Extended2`](DispersionFormula::Extended2) | n² = a0 + a1 λ² + a2 λ⁻² + a3 λ⁻⁴ + a4 λ⁻⁶ + a5 λ⁻⁸ + a6 λ⁴ + a7 λ⁶ |
 //! | 13 | [`Extended3`](DispersionFormula::Extended3) | n² = a0 + a1 λ² + a2 λ⁴ + a3 λ⁻² + a4 λ⁻⁴ + a5 λ⁻⁶ + a6 λ⁻⁸ + a7 λ⁻¹⁰ + a8 λ⁻¹² |
+//! | — | [`Tabulated`](DispersionFormula::Tabulated) | the vendor's (λ, n) points, monotone cubic (PCHIP) in λ ([`super::tabulated`]) |
+//!
+//! `Tabulated` is no AGF formula (OpticStudio's AGF has none): it holds a glass published as a table only
+//! (SCHOTT B 270), carried by the built-in catalogues ([`super::builtin_catalogs`]), never read from a
+//! user's AGF file. It has points, not coefficients ([`DispersionFormula::coefficients`] is empty, its
+//! [`agf_number`](DispersionFormula::agf_number) 0), and is defined on its table's range only.
 //!
 //! Formulas 1 (Schott) and 2 (Sellmeier 1) are the only ones used by the Schott catalogue
 //! and are validated against its `nd`/`vd` columns. Note on Sellmeier 2: the Zemax manual's
@@ -45,6 +51,7 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::tabulated::TabulatedIndex;
 use super::MaterialError;
 
 /// Helium d line, the wavelength of the catalogue `nd` column (nm).
@@ -95,6 +102,9 @@ pub enum DispersionFormula {
     /// AGF 13: n² = a0 + a1λ² + a2λ⁴ + a3λ⁻² + a4λ⁻⁴ + a5λ⁻⁶ + a6λ⁻⁸ + a7λ⁻¹⁰ + a8λ⁻¹².
     /// Coefficients `[a0..a8]`.
     Extended3([f64; 9]),
+    /// No AGF formula: n at the vendor's tabulated wavelengths, interpolated by a monotone cubic in λ
+    /// ([`TabulatedIndex`]). Built-in catalogues only (see the [module documentation](self)).
+    Tabulated(TabulatedIndex),
 }
 
 /// Copies the first `N` values; the caller has checked the length.
@@ -215,7 +225,7 @@ impl DispersionFormula {
         }
     }
 
-    /// The AGF formula number (1..=13).
+    /// The AGF formula number (1..=13); 0 for [`Tabulated`](Self::Tabulated), which has none.
     pub const fn agf_number(&self) -> u32 {
         match self {
             Self::Schott(_) => 1,
@@ -231,15 +241,36 @@ impl DispersionFormula {
             Self::Sellmeier5(_) => 11,
             Self::Extended2(_) => 12,
             Self::Extended3(_) => 13,
+            Self::Tabulated(_) => 0,
         }
     }
 
-    /// The Zemax name of this formula (e.g. `"Schott"`).
+    /// The Zemax name of this formula (e.g. `"Schott"`); `"Tabulated"` for a tabulated index.
     pub fn name(&self) -> &'static str {
-        Self::name_of(self.agf_number()).unwrap_or("?")
+        match self {
+            Self::Tabulated(_) => "Tabulated",
+            _ => Self::name_of(self.agf_number()).unwrap_or("?"),
+        }
     }
 
-    /// The coefficients in AGF `CD` order.
+    /// What `info` shows: `Sellmeier 1 (AGF 2)`, or `tabulated (8 points, monotone cubic (PCHIP) in λ)`.
+    pub fn label(&self) -> String {
+        match self {
+            Self::Tabulated(t) => t.label(),
+            _ => format!("{} (AGF {})", self.name(), self.agf_number()),
+        }
+    }
+
+    /// The table of a [`Tabulated`](Self::Tabulated) index, `None` for a formula.
+    pub fn tabulated(&self) -> Option<&TabulatedIndex> {
+        match self {
+            Self::Tabulated(t) => Some(t),
+            _ => None,
+        }
+    }
+
+    /// The coefficients in AGF `CD` order; empty for a [`Tabulated`](Self::Tabulated) index, which has
+    /// points instead ([`tabulated`](Self::tabulated)).
     pub fn coefficients(&self) -> &[f64] {
         match self {
             Self::Schott(c) | Self::Sellmeier1(c) | Self::Herzberger(c) => c,
@@ -249,6 +280,7 @@ impl DispersionFormula {
             Self::HandbookOfOptics1(c) | Self::HandbookOfOptics2(c) => c,
             Self::Sellmeier5(c) => c,
             Self::Extended3(c) => c,
+            Self::Tabulated(_) => &[],
         }
     }
 
@@ -260,7 +292,8 @@ impl DispersionFormula {
     }
 
     /// Relative index at `wavelength_um` (micrometres), evaluating the formula of the
-    /// variant (see the [module table](self)). No range or finiteness check.
+    /// variant (see the [module table](self)). No range or finiteness check (a tabulated index continues as
+    /// the straight line of its end slope outside its table: [`TabulatedIndex::index_um`]).
     pub fn refractive_index_um(&self, wavelength_um: f64) -> f64 {
         let w = wavelength_um;
         let l2 = w * w;
@@ -300,6 +333,7 @@ impl DispersionFormula {
                 let [i2, i4, i6, i8, i10, i12] = inverse_powers(l2);
                 series(a, &[l2, l2 * l2, i2, i4, i6, i8, i10, i12]).sqrt()
             }
+            Self::Tabulated(t) => t.index_um(w),
         }
     }
 }
@@ -449,5 +483,18 @@ mod tests {
         let s = serde_json::to_string(&f).unwrap();
         let g: DispersionFormula = serde_json::from_str(&s).unwrap();
         assert_eq!(f, g);
+        let t = DispersionFormula::Tabulated(TabulatedIndex::new(vec![(0.5, 1.52), (0.6, 1.51), (0.7, 1.505)]).unwrap());
+        let s = serde_json::to_string(&t).unwrap();
+        assert_eq!(serde_json::from_str::<DispersionFormula>(&s).unwrap(), t);
+    }
+
+    #[test]
+    fn tabulated_has_no_agf_number_nor_coefficients() {
+        let t = DispersionFormula::Tabulated(TabulatedIndex::new(vec![(0.5, 1.52), (0.6, 1.51)]).unwrap());
+        assert_eq!((t.agf_number(), t.name(), t.coefficients().len()), (0, "Tabulated", 0));
+        assert_eq!(t.label(), "tabulated (2 points, monotone cubic (PCHIP) in λ)");
+        assert_eq!(DispersionFormula::Sellmeier1(BK7).label(), "Sellmeier 1 (AGF 2)");
+        assert_eq!(t.refractive_index(500.0), 1.52);
+        assert!(t.tabulated().is_some() && DispersionFormula::Sellmeier1(BK7).tabulated().is_none());
     }
 }

@@ -192,13 +192,25 @@ impl Glass {
         }
     }
 
-    /// `true` if `wavelength_nm` lies in the catalogue range
-    /// `[min_wavelength_nm, max_wavelength_nm]` (inclusive, with 1e-9 nm slack for the
-    /// µm → nm conversion). `false` for NaN.
+    /// `true` if `wavelength_nm` lies in the valid range [`valid_range_nm`](Self::valid_range_nm)
+    /// (inclusive, with 1e-9 nm slack for the µm → nm conversion). `false` for NaN.
     #[inline]
     pub fn in_range(&self, wavelength_nm: f64) -> bool {
-        wavelength_nm >= self.min_wavelength_nm - RANGE_SLACK_NM
-            && wavelength_nm <= self.max_wavelength_nm + RANGE_SLACK_NM
+        let (lo, hi) = self.valid_range_nm();
+        wavelength_nm >= lo - RANGE_SLACK_NM && wavelength_nm <= hi + RANGE_SLACK_NM
+    }
+
+    /// The catalogue range `[min_wavelength_nm, max_wavelength_nm]`, narrowed for a tabulated index to its
+    /// table (so that a table is never extrapolated unless asked, whatever range a glass was built with).
+    #[inline]
+    pub fn valid_range_nm(&self) -> (f64, f64) {
+        match self.formula.tabulated() {
+            Some(t) => {
+                let (lo, hi) = t.range_um();
+                (self.min_wavelength_nm.max(lo * 1000.0), self.max_wavelength_nm.min(hi * 1000.0))
+            }
+            None => (self.min_wavelength_nm, self.max_wavelength_nm),
+        }
     }
 
     /// Relative refractive index at `wavelength_nm` from the catalogue dispersion formula.
@@ -210,11 +222,12 @@ impl Glass {
     pub fn refractive_index(&self, wavelength_nm: f64) -> Result<f64, MaterialError> {
         self.check_wavelength(wavelength_nm)?;
         if !self.in_range(wavelength_nm) {
+            let (min_nm, max_nm) = self.valid_range_nm();
             return Err(MaterialError::WavelengthOutOfRange {
                 glass: self.name.clone(),
                 wavelength_nm,
-                min_nm: self.min_wavelength_nm,
-                max_nm: self.max_wavelength_nm,
+                min_nm,
+                max_nm,
             });
         }
         self.checked_index(wavelength_nm)
@@ -338,6 +351,20 @@ mod tests {
     fn abbe_number_matches_catalogue() {
         let g = bk7();
         assert!((g.abbe_number().unwrap() - 64.17).abs() < 0.05);
+    }
+
+    /// A tabulated glass built with a wider range than its table is still refused outside the table, by
+    /// name and with the table's range.
+    #[test]
+    fn tabulated_glass_is_refused_outside_its_table() {
+        let t = crate::materials::TabulatedIndex::new(vec![(0.45, 1.53), (0.55, 1.525), (0.65, 1.52)]).unwrap();
+        let g = Glass::new("TAB", DispersionFormula::Tabulated(t), 1.523, 58.0, 300.0, 2500.0, "X");
+        assert_eq!(g.valid_range_nm(), (450.0, 650.0));
+        assert!(g.in_range(450.0) && g.in_range(650.0) && !g.in_range(449.9) && !g.in_range(650.1));
+        let e = g.refractive_index(700.0).unwrap_err().to_string();
+        assert!(e.contains("TAB") && e.contains("700") && e.contains("[450, 650]"), "{e}");
+        assert_eq!(g.refractive_index(550.0).unwrap(), 1.525);
+        assert!(g.refractive_index_extrapolated(700.0).unwrap() < 1.52);
     }
 
     #[test]

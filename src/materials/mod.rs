@@ -4,7 +4,8 @@
 //! refractive index:
 //!
 //! * [`agf`] reads Zemax `.AGF` glass catalogues (UTF-8, Latin-1 or UTF-16 with BOM),
-//! * [`dispersion`] evaluates the 13 AGF dispersion formulas (wavelength in µm inside),
+//! * [`dispersion`] evaluates the 13 AGF dispersion formulas (wavelength in µm inside) and a tabulated
+//!   index ([`tabulated`]: a vendor's (λ, n) points and their monotone cubic interpolant),
 //! * [`glass`] holds one catalogue entry ([`Glass`]) with its valid wavelength range,
 //! * [`catalog`] stores glasses by case-insensitive name ([`GlassCatalog`]), including a
 //!   small built-in table so the binary works without any catalogue file,
@@ -46,12 +47,14 @@ pub mod catalog;
 pub mod dispersion;
 pub mod glass;
 pub mod medium;
+pub mod tabulated;
 
 pub use agf::{decode_agf_bytes, parse_agf, parse_agf_document, AgfDocument};
 pub use catalog::GlassCatalog;
 pub use dispersion::{DispersionFormula, C_LINE_NM, D_LINE_NM, F_LINE_NM};
 pub use glass::{ExtraData, Glass, GlassInfo, GlassStatus, ThermalData, TransmissionPoint};
 pub use medium::{Medium, WavelengthPolicy};
+pub use tabulated::TabulatedIndex;
 
 /// Everything that can go wrong when reading catalogues or evaluating indices.
 ///

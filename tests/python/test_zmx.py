@@ -14,8 +14,11 @@ Conventions and how they are reconciled (both readers get the same file):
 * Field angles: OpticStudio's direction is (tan θx, tan θy, 1) normalised, rayoptics' (sin θx, sin θy, ·); they
   coincide for the fixtures' fields (θx = 0).
 * Glasses: both readers take the SCHOTT Sellmeier coefficients of rayoptics' catalogue (written to SCHOTT.AGF
-  for diffcassi, `--glass-dir`); names rayoptics does not hold as catalogue glasses (BK7 → a Buchdahl fit,
-  B270 → a constant index) are replaced by N-BK7 in the compared copy (the double Gauss is read unmodified).
+  for diffcassi, `--glass-dir`); BK7 (rayoptics: a Buchdahl fit; no public SCHOTT BK7 data) is replaced by
+  N-BK7 in the compared copy (the double Gauss is read unmodified). B270 stays: diffcassi takes it from its
+  built-in SCHOTT catalogue (the B 270 datasheet's table, monotone cubic in λ); rayoptics holds no B 270 and
+  gets a constant index equal to that table's interpolant at the traced wavelength (SciPy's PchipInterpolator
+  on the points of data/glass/SCHOTT.tabulated, the same interpolant computed independently).
 * Curvatures are read as 1/CURV by both; wavelengths µm (file) = nm/1000.
 """
 import math
@@ -35,6 +38,7 @@ from rayoptics.raytr.raytrace import trace as ro_trace  # noqa: E402
 from rayoptics.raytr.trace import trace_base  # noqa: E402
 from rayoptics.zemax import zmxread  # noqa: E402
 import opticalglass as og  # noqa: E402
+from opticalglass.opticalmedium import ConstantIndex  # noqa: E402
 from opticalglass import glassfactory  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
@@ -99,33 +103,44 @@ def test_rayoptics_opens_our_export(cli, tmp_path, preset):
 
 def compared_copy(path, out_dir):
     """The design as it is — object at infinity, field angles, F/# or pupil diameter, ray aiming — for both
-    readers. Only glass names rayoptics does not hold as catalogue glasses (BK7 → a Buchdahl fit, B270 → a
-    constant index) are replaced by N-BK7; when there are none, the original file itself is returned. Both
-    readers then take the SCHOTT Sellmeier coefficients of rayoptics' catalogue (written as SCHOTT.AGF into
-    `out_dir` for diffcassi's `--glass-dir`)."""
+    readers. Only BK7 (rayoptics: a Buchdahl fit) is replaced by N-BK7; when there is none, the original file
+    itself is returned. Both readers then take the SCHOTT Sellmeier coefficients of rayoptics' catalogue
+    (written as SCHOTT.AGF into `out_dir` for diffcassi's `--glass-dir`), but for B270, which diffcassi takes
+    from its built-in SCHOTT (no SCHOTT.AGF is written when B270 is the only glass; see `b270_index`)."""
     text = decode(path)
     changed = False
     out = []
     for line in text.splitlines():
         parts = line.split()
-        if parts[:1] == ["GLAS"] and parts[1] in ("BK7", "B270"):
+        if parts[:1] == ["GLAS"] and parts[1] == "BK7":
             parts[1] = "N-BK7"
             line = "  " + " ".join(parts)
             changed = True
         out.append(line)
     text = "\n".join(out) + "\n"
-    glasses = sorted({m.group(1) for m in re.finditer(r"^\s*GLAS (\S+)", text, re.M)})
+    glasses = sorted({m.group(1) for m in re.finditer(r"^\s*GLAS (\S+)", text, re.M)} - {"B270"})
     agf = []
     for g in glasses:
         glass = glassfactory.create_glass(g, "Schott")
         b1, b2, b3, c1, c2, c3 = (float(c) for c in glass.coefs[:6])
         agf.append(f"NM {g} 2 0 {glass.calc_rindex(587.5618):.6f} 50 0 0\nCD {b1!r} {c1!r} {b2!r} {c2!r} {b3!r} {c3!r}\nLD 0.3 2.5\n")
-    (out_dir / "SCHOTT.AGF").write_text("".join(agf))
+    if agf:
+        (out_dir / "SCHOTT.AGF").write_text("".join(agf))
     if not changed:
         return path
     copy = out_dir / path.name
     copy.write_text(text)
     return copy
+
+
+def b270_index(wl_nm):
+    """B270 at `wl_nm` as diffcassi's built-in SCHOTT has it: the monotone cubic (PCHIP) in λ through the
+    datasheet points of data/glass/SCHOTT.tabulated, here by SciPy (an independent implementation)."""
+    from scipy.interpolate import PchipInterpolator
+    rows = (ROOT / "data/glass/SCHOTT.tabulated").read_text().split("NM B270 ")[1].split("\nNM ")[0].splitlines()
+    pts = np.array([[float(v) for v in r.split()[1:]] for r in rows if r.startswith("TN ")])
+    assert len(pts) == 8 and pts[0, 0] * 1000 <= wl_nm <= pts[-1, 0] * 1000, (pts, wl_nm)
+    return float(PchipInterpolator(pts[:, 0], pts[:, 1])(wl_nm / 1000))
 
 
 def read_csv(path):
@@ -151,6 +166,11 @@ def test_public_designs_agree_with_rayoptics(cli, tmp_path, design):
     om, _ = zmxread.read_lens_file(copy)  # an ordinary lens: rayoptics' full model, first-order data included
     assert om["optical_spec"].conjugate_type("object") == "infinite"
     sm = om["seq_model"]
+    b270 = [i for i, s in enumerate(ours.surfaces) if s.get("material") == "B270"]
+    for i in b270:  # rayoptics holds no B 270: diffcassi's index at the traced wavelength (module docstring)
+        sm.gaps[i].medium = ConstantIndex(b270_index(ours.primary_wavelength_nm), "B270")
+    if b270:
+        om.update_model()
     assert len(sm.ifcs) == len(ours.surfaces)
     first_order_agrees(ours, om)
     wl = ours.primary_wavelength_nm

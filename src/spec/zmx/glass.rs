@@ -55,7 +55,7 @@ pub struct GlassOrigin {
     pub catalog: String,
     /// The `glass_catalogs` entry it was taken from (`builtin:OHARA`, a file path), or `built-in SCHOTT subset`.
     pub entry: String,
-    /// Its dispersion formula (`Schott (AGF 1)`).
+    /// Its dispersion formula (`Schott (AGF 1)`, `tabulated (8 points, monotone cubic (PCHIP) in λ)`).
     pub formula: String,
     /// The catalogue's n_d.
     pub nd: f64,
@@ -125,7 +125,7 @@ fn origin_in(loaded: &mut Loaded, entries: &[String], name: &str, line: usize, s
 }
 
 fn formula_label(g: &Glass) -> String {
-    format!("{} (AGF {})", g.formula.name(), g.formula.agf_number())
+    g.formula.label()
 }
 
 /// The catalogues of a file and where each of its glasses comes from.
