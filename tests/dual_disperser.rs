@@ -591,13 +591,7 @@ fn differentiable_renderer_through_the_mask_equals_the_renderer() {
         let reference = renderer.render(&scene, false, &|_| {}).unwrap();
         assert!(reference.stats.masked > 0, "{:?}", reference.stats);
         // The cube is (H, W, B); the differentiable renderer takes (N, B, H, W).
-        let (hw, nb) = (size * size, DD_BANDS.len());
-        let mut s64 = vec![0.0f64; nb * hw];
-        for q in 0..hw {
-            for b in 0..nb {
-                s64[b * hw + q] = scene.data[q * nb + b] as f64;
-            }
-        }
+        let s64 = crate::common::cube_nbhw(&scene);
         let m64: Vec<f64> = mask.values.iter().map(|v| *v as f64).collect();
         let img = r.render(&s64, 1, &m64).unwrap();
         assert_eq!(img.len(), reference.image.len());

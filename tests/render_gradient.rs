@@ -414,14 +414,8 @@ fn differentiable_renderer_at_infinity_equals_the_renderer() {
     let tracer = diffcassi::tracer::AnalyticTracer::default();
     let mask = Mask::random(size, size, 0.5, 7).unwrap();
     let scene = synthetic_scene(size, size, &BANDS, 5);
-    let (hw, nb) = (size * size, BANDS.len());
     // The cube is (H, W, B); the differentiable renderer takes (N, B, H, W).
-    let mut s64 = vec![0.0f64; nb * hw];
-    for q in 0..hw {
-        for b in 0..nb {
-            s64[b * hw + q] = scene.data[q * nb + b] as f64;
-        }
-    }
+    let s64 = common::cube_nbhw(&scene);
     let m64: Vec<f64> = mask.values.iter().map(|v| *v as f64).collect();
     for kernel in [diffcassi::tracer::Kernel::default(), diffcassi::tracer::Kernel::Scalar] {
         let mut cfg = config_at_infinity(size, 3, 3, 5);

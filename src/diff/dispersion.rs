@@ -106,19 +106,7 @@ mod tests {
             F::Extended2([2.27, -0.01, 0.0108, 1.2e-4, -3e-6, 2e-7, 1e-4, -1e-5]),
             F::Extended3([2.27, -0.01, 1e-4, 0.0108, 1.2e-4, -3e-6, 2e-7, 1e-8, -1e-9]),
             // SCHOTT B 270's datasheet table (no point within 0.1 nm of 450, 520, 650 nm).
-            F::Tabulated(
-                crate::materials::TabulatedIndex::new(vec![
-                    (0.43583, 1.5341),
-                    (0.47999, 1.5297),
-                    (0.48613, 1.5292),
-                    (0.54607, 1.5251),
-                    (0.58756, 1.5230),
-                    (0.58929, 1.5229),
-                    (0.64385, 1.5207),
-                    (0.65627, 1.5203),
-                ])
-                .unwrap(),
-            ),
+            F::Tabulated(crate::materials::TabulatedIndex::new(crate::materials::tabulated::B270.to_vec()).unwrap()),
         ];
         for f in &formulas {
             for w in [450.0, 520.0, 650.0] {

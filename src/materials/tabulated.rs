@@ -255,21 +255,23 @@ fn pchip_slopes(x: &[f64], y: &[f64]) -> Vec<f64> {
     d
 }
 
+/// SCHOTT B 270 datasheet (August 1993), as on refractiveindex.info `specs/schott/misc/B270.yml`: the
+/// tests' tabulated glass.
+#[cfg(test)]
+pub(crate) const B270: [(f64, f64); 8] = [
+    (0.43583, 1.5341),
+    (0.47999, 1.5297),
+    (0.48613, 1.5292),
+    (0.54607, 1.5251),
+    (0.58756, 1.5230),
+    (0.58929, 1.5229),
+    (0.64385, 1.5207),
+    (0.65627, 1.5203),
+];
+
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// SCHOTT B 270 datasheet (August 1993), as on refractiveindex.info `specs/schott/misc/B270.yml`.
-    const B270: [(f64, f64); 8] = [
-        (0.43583, 1.5341),
-        (0.47999, 1.5297),
-        (0.48613, 1.5292),
-        (0.54607, 1.5251),
-        (0.58756, 1.5230),
-        (0.58929, 1.5229),
-        (0.64385, 1.5207),
-        (0.65627, 1.5203),
-    ];
 
     fn b270() -> TabulatedIndex {
         TabulatedIndex::new(B270.to_vec()).unwrap()

@@ -234,3 +234,15 @@ pub fn wait_with_limit(child: &mut std::process::Child, start: std::time::Instan
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
 }
+
+/// A scene cube's values (H, W, B, f32) in the differentiable renderer's layout (N = 1, B, H, W), f64.
+pub fn cube_nbhw(scene: &diffcassi::scene::SpectralCube) -> Vec<f64> {
+    let (hw, nb) = (scene.height * scene.width, scene.wavelengths_nm.len());
+    let mut out = vec![0.0f64; nb * hw];
+    for q in 0..hw {
+        for b in 0..nb {
+            out[b * hw + q] = scene.data[q * nb + b] as f64;
+        }
+    }
+    out
+}
