@@ -335,3 +335,136 @@ fn the_mapping_cube_on_the_twin_equals_the_cpu_cube() {
         assert!(e.contains("--device cuda"), "{e}");
     }
 }
+
+// ---- mirrors, circular obscurations and objects at infinity (issue 41/42) ------------------------------
+
+fn zmx_system(name: &str) -> SequentialSystem {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/zmx").join(name);
+    let imp = diffcassi::spec::zmx::import_zmx_file(&path, &diffcassi::spec::zmx::ZmxOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+    SequentialSystem::build(&imp.spec).unwrap_or_else(|e| panic!("{name}: {e}"))
+}
+
+/// Each of the system's field points (object heights, or angles at infinity) and the axis, scaled by 0, ½, 1
+/// and 1.5 along each axis; hexapolar pupils (6 rings) and points past the rim, at three wavelengths.
+fn catalogue_batch(sys: &SequentialSystem) -> RayBatch {
+    let mut pupil = PupilPattern::Hexapolar { rings: 6 }.points();
+    pupil.extend([[1.3, 0.0], [0.0, -1.3], [0.95, 0.95], [3.0, 0.0], [0.0, -3.0]]);
+    let mut fields = Vec::new();
+    for f in sys.fields_or_axis() {
+        for s in [0.0, 0.5, 1.0, 1.5] {
+            fields.push([f[0] * s, f[1] * s]);
+            fields.push([f[1] * s, -f[0] * s]);
+        }
+    }
+    let mut batch = RayBatch::with_capacity(0);
+    for w in [486.1327, 587.5618, 656.2725] {
+        for field in &fields {
+            for p in &pupil {
+                let (o, d) = diffcassi::rays::object_ray(sys, *field, p[0], p[1]);
+                batch.push(o, d, w);
+            }
+        }
+    }
+    batch
+}
+
+/// The mirrors (`dc_reflect`, DC_INTERACTION_REFLECT) and circular obscurations (DC_APERTURE_OBSCURATION)
+/// of the trace kernels against the CPU kernels: the fold-mirror builder of tests/surfaces.rs (a finite
+/// object, two 45° mirrors between Coordinate Breaks), optiland's fold mirrors and rayoptics' Cassegrain
+/// (mirrors, object at infinity) and US 5,331,467 example 1 (a Mangin catadioptric at infinity with its
+/// `OBSC 0 25` on surface 2). The f64 twin equals the scalar kernel bit for bit (statuses and stopping
+/// surfaces included), the f32 twin the f32 lane kernel on every SIMD level; the batches must exercise
+/// arrivals, the obscuration and a mirror's reflection.
+#[test]
+fn trace_kernel_twins_equal_the_cpu_kernels_through_mirrors_and_obscurations() {
+    let systems = [
+        ("fold_mirrors (builder)".to_string(), SequentialSystem::build(&crate::surfaces::fold_mirrors()).unwrap()),
+        ("fold_mirrors_optiland.zmx".to_string(), zmx_system("fold_mirrors_optiland.zmx")),
+        ("cassegrain_mirrors_HoO_V2C18Ex03.zmx".to_string(), zmx_system("cassegrain_mirrors_HoO_V2C18Ex03.zmx")),
+        ("US05331467-1.zmx".to_string(), zmx_system("US05331467-1.zmx")),
+    ];
+    for (name, sys) in &systems {
+        assert!(sys.surfaces.iter().any(|s| s.interaction == diffcassi::system::Interaction::Reflect), "{name}: a mirror");
+        let rays = catalogue_batch(sys);
+        let rust = scalar().trace(sys, &rays).unwrap();
+        let twin = TwinTracer::default().trace(sys, &rays).unwrap();
+        assert_bits(&format!("{name} f64"), &twin, &rust);
+        let ok = rust.status.iter().filter(|&&s| s == RayStatus::Ok).count();
+        // Optiland's fold mirrors and the Cassegrain have no apertures: every ray arrives there; the other two
+        // also stop rays (apertures, the obscuration).
+        let stops = usize::from(name.contains("builder") || name.starts_with("US"));
+        assert!(ok > rust.len() / 10 && ok + stops <= rust.len(), "{name}: {ok} ok of {}: the batch must exercise arrivals and stops", rust.len());
+        // Past the last mirror: a ray that arrives went through every mirror of the path.
+        let twin32 = TwinTracer::f32().trace(sys, &rays).unwrap();
+        for level in SimdLevel::available() {
+            let rust32 = AnalyticF32Tracer::new(level).trace(sys, &rays).unwrap();
+            assert_bits(&format!("{name} f32 {}", level.name()), &twin32, &rust32);
+        }
+        // The f32 landings are the f64 ones to the f32 trace's accuracy: the twin is the f32 lane kernel (above), whose
+        // error here is its own (tests/f32.rs bounds it on the presets, 0.05 µm); these systems are up to metres
+        // long and fold the beam, so the bound is relative to the path's length, 1e-5 (≈ 80 f32 ulps).
+        let scale = 1.0 + sys.surfaces.iter().map(|s| s.thickness_mm.abs()).filter(|t| t.is_finite()).sum::<f64>();
+        let (mut worst, mut compared) = (0.0f64, 0);
+        for i in 0..rays.len() {
+            if rust.status[i] == RayStatus::Ok && twin32.status[i] == RayStatus::Ok {
+                worst = worst.max((twin32.x[i] - rust.x[i]).abs().max((twin32.y[i] - rust.y[i]).abs()));
+                compared += 1;
+            }
+        }
+        println!("{name}: {compared} rays, f32 twin vs f64 max {:.4} µm (path {scale:.0} mm)", worst * 1e3);
+        assert!(compared > 0 && worst <= 1e-5 * scale, "{name}: f32 {worst:e} mm from f64 (path {scale} mm)");
+    }
+    // US 5,331,467's obscuration on surface 2 stops rays in the twins as in the CPU kernel.
+    let (name, sys) = &systems[3];
+    let rays = catalogue_batch(sys);
+    let twin = TwinTracer::default().trace(sys, &rays).unwrap();
+    let obscured = (0..rays.len()).filter(|&i| twin.status[i] == RayStatus::Vignetted && twin.surface[i] == 2).count();
+    assert!(obscured > 0, "{name}: no ray vignetted by the obscuration on surface 2");
+    let mut on_axis = RayBatch::with_capacity(0);
+    on_axis.push(DVec3::new(0.0, 10.0, 0.0), DVec3::Z, 587.5618);
+    on_axis.push(DVec3::new(0.0, 30.0, 0.0), DVec3::Z, 587.5618);
+    let t = TwinTracer::default().trace(sys, &on_axis).unwrap();
+    assert_eq!((t.status[0], t.surface[0], t.status[1]), (RayStatus::Vignetted, 2, RayStatus::Ok), "{name}: r = 10 mm is obscured, r = 30 mm passes");
+}
+
+/// The landing kernel (sample, aim, trace, detector coordinates) through the fold mirrors of tests/surfaces.rs
+/// (a finite object): the renderer's steps composed in Rust, bit for bit.
+#[test]
+fn landing_kernel_twin_equals_the_renderers_steps_through_fold_mirrors() {
+    let sys = SequentialSystem::build(&crate::surfaces::fold_mirrors()).unwrap();
+    let detector = Detector { width: 400, height: 400, pitch_mm: 0.01, x_left_mm: -2.0, y_top_mm: 2.0 };
+    let scene = SceneGeometry { height: 8, width: 10, pitch_mm: 0.3, detector: &detector };
+    let pixels: Vec<u32> = (0..80).collect();
+    let sampler = RaySampler::new(9, Sampling::Stratified);
+    let twin = plane_landings(&sys, scene, &sampler, 5, 2, 520.0, &pixels).unwrap();
+    let (u, v, status) = rust_landings(&sys, scene, &sampler, 5, 2, 520.0, &pixels);
+    assert_eq!(twin.status, status, "statuses");
+    for i in 0..u.len() {
+        assert_eq!((twin.u[i].to_bits(), twin.v[i].to_bits()), (u[i].to_bits(), v[i].to_bits()), "ray {i}");
+    }
+    assert!(status.iter().any(|&s| s == RayStatus::Ok), "some rays must arrive");
+}
+
+/// A grating or a Toroidal surface is still refused by the GPU kernels, by surface and kind, before any device
+/// work; so is a render of an object at infinity (the kernels generate rays from a finite object plane).
+#[test]
+fn gpu_kernels_refuse_gratings_toroids_and_render_at_infinity_by_name() {
+    let grating = zmx_system("grating_flat_transmission_optiland.zmx");
+    let rays = catalogue_batch(&grating);
+    for tracer in [TwinTracer::default(), TwinTracer::f32()] {
+        let e = tracer.trace(&grating, &rays).err().expect("a grating is refused").to_string();
+        assert!(e.contains("is a diffraction grating") && e.contains("--device cpu"), "{e}");
+    }
+    let text = "MODE SEQ\nUNIT MM X W X CM MR CPMM\nOBNA 0.05 0\nFTYP 1 0 1 1 0 0 0\nXFLN 0\nYFLN 0\nWAVM 1 0.55 1\nPWAV 1\n\
+SURF 0\n  TYPE STANDARD\n  CURV 0.0 0 0 0 0 \"\"\n  DISZ 50\nSURF 1\n  STOP\n  TYPE TOROIDAL\n  CURV 0.05 0 0 0 0 \"\"\n  PARM 0 0\n  PARM 1 0\n  PARM 2 0\n  PARM 3 0\n  \
+XDAT 1 0.000000000000E+00 0 0 1.0 0.0 0 \"\"\n  XDAT 2 1.000000000000E+02 0 0 1.0 0.0 0 \"\"\n  DISZ 5\n  GLAS N-BK7 0 0 1.5 40 0 0 0 0 0 0\nSURF 2\n  TYPE STANDARD\n  DISZ 0\n";
+    let spec = diffcassi::spec::zmx::import_zmx(text.as_bytes(), "t.zmx", None, &diffcassi::spec::zmx::ZmxOptions::default()).unwrap().spec;
+    let toroid = SequentialSystem::build(&spec).unwrap();
+    let e = TwinTracer::default().trace(&toroid, &catalogue_batch(&toroid)).err().expect("a toroid is refused").to_string();
+    assert!(e.contains("surface 1 is a Toroidal surface"), "{e}");
+    let cass = zmx_system("cassegrain_mirrors_HoO_V2C18Ex03.zmx");
+    let detector = Detector { width: 10, height: 10, pitch_mm: 0.01, x_left_mm: -0.05, y_top_mm: 0.05 };
+    let scene = SceneGeometry { height: 2, width: 2, pitch_mm: 0.01, detector: &detector };
+    let e = plane_landings(&cass, scene, &RaySampler::new(2, Sampling::Stratified), 0, 0, 550.0, &[0]).err().expect("infinity refused").to_string();
+    assert!(e.contains("object at infinity"), "{e}");
+}

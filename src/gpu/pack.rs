@@ -14,6 +14,10 @@ const SHAPE_PARAXIAL: u32 = 3;
 const APERTURE_NONE: u32 = 0;
 const APERTURE_CIRCULAR: u32 = 1;
 const APERTURE_RECTANGULAR: u32 = 2;
+const APERTURE_OBSCURATION: u32 = 3;
+/// Interaction codes (`DC_INTERACTION_*`).
+const INTERACTION_REFRACT: u32 = 0;
+const INTERACTION_REFLECT: u32 = 1;
 /// `DC_MAX_COEF`: even-asphere terms r² … r¹⁶.
 pub(crate) const MAX_COEF: usize = 8;
 
@@ -34,6 +38,9 @@ pub(crate) struct Step {
     pub aperture_kind: u32,
     pub surface: u32,
     pub n_coef: u32,
+    /// `DC_INTERACTION_*`: refract, or reflect at a mirror.
+    pub interaction: u32,
+    pub pad: u32,
 }
 
 /// A batch in structure-of-arrays form (`dc_batch`): borrowed pointers, valid for one call.
@@ -75,15 +82,21 @@ pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
         .path
         .iter()
         .map(|s| {
-            // The kernels (dc_trace_tmpl.h, the C twin of tracer::kernel) refract only: a system with a
-            // mirror, a grating or a Toroidal surface is refused here, before any device work.
-            if s.interaction != crate::system::Interaction::Refract || matches!(s.shape, SurfaceShape::Toroidal { .. }) {
-                let what = system.special_surface().unwrap_or_else(|| format!("surface {} is not a refracting surface", s.surface));
+            // The kernels (dc_trace_tmpl.h, the C twin of tracer::kernel) refract or reflect (a mirror,
+            // dc_reflect); a grating or a Toroidal surface is refused here, by surface, before any device work.
+            let unmodelled = match (s.interaction, &s.shape) {
+                (crate::system::Interaction::Grating { .. }, _) => Some("a diffraction grating"),
+                (_, SurfaceShape::Toroidal { .. }) => Some("a Toroidal surface"),
+                _ => None,
+            };
+            if let Some(what) = unmodelled {
                 return Err(Error::invalid(format!(
-                    "the GPU kernels trace refracting surfaces only, and {what}: use --device cpu (the analytic tracer) for this system"
+                    "surface {} is {what}, which the GPU kernels do not trace (they model refracting surfaces and mirrors): use --device cpu (the analytic tracer) for this system",
+                    s.surface
                 )));
             }
-            let mut step = Step { rotation: s.rotation.to_cols_array(), offset: s.offset.to_array(), surface: s.surface as u32, ..Step::default() };
+            let interaction = if s.interaction == crate::system::Interaction::Reflect { INTERACTION_REFLECT } else { INTERACTION_REFRACT };
+            let mut step = Step { rotation: s.rotation.to_cols_array(), offset: s.offset.to_array(), surface: s.surface as u32, interaction, ..Step::default() };
             match &s.shape {
                 SurfaceShape::Plane => step.shape = SHAPE_PLANE,
                 SurfaceShape::Conic { curvature, conic } => {
@@ -121,13 +134,10 @@ pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
                     step.aperture_kind = APERTURE_RECTANGULAR;
                     step.aperture = [half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm];
                 }
-                // The kernels' aperture test (dc_aperture_contains) and the prebuilt PTX know clear apertures
-                // only: an obscuration is refused by surface rather than passed as no aperture.
-                Aperture::CircularObscuration { min_radius_mm, max_radius_mm, .. } => {
-                    return Err(Error::invalid(format!(
-                        "surface {} has a circular obscuration ({min_radius_mm}–{max_radius_mm} mm), which the GPU kernels do not model: use --device cpu (the analytic tracer) for this system",
-                        s.surface
-                    )))
+                // dc_aperture_contains's DC_APERTURE_OBSCURATION: the closed annulus blocks (Aperture::contains).
+                Aperture::CircularObscuration { min_radius_mm, max_radius_mm, decenter_x_mm, decenter_y_mm } => {
+                    step.aperture_kind = APERTURE_OBSCURATION;
+                    step.aperture = [min_radius_mm, max_radius_mm, decenter_x_mm, decenter_y_mm];
                 }
             }
             Ok(step)

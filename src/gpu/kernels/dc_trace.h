@@ -3,7 +3,8 @@
  * The per-ray physics of src/tracer/kernel.rs and src/surfaces/intersect.rs, expression for expression:
  * frame change p' = M(p − o), d' = M d; the exact intersection with a plane, a conic (the vertex-branch
  * root, Numerical Recipes §5.6) or an even asphere (guarded Newton from the conic's root, then the vertex
- * plane's); the clear aperture; vector Snell's law or the ideal (Paraxial) lens. A ray that stops is
+ * plane's); the clear aperture or a circular obscuration; vector Snell's law, the ideal (Paraxial) lens or a
+ * mirror's reflection (OpticStudio's sequential convention, as the CPU kernel). A ray that stops is
  * classified (missed, vignetted, TIR, no convergence, invalid input) with the surface where it stopped;
  * nothing here returns a NaN position. The status codes are those of `tracer::RayStatus`. The trace itself is
  * written once, in dc_trace_tmpl.h, and instantiated here in f64 (dc_trace_path: the scalar kernel's bits) and
@@ -33,6 +34,16 @@
 #define DC_APERTURE_NONE 0u
 #define DC_APERTURE_CIRCULAR 1u
 #define DC_APERTURE_RECTANGULAR 2u
+/* OpticStudio's Circular Obscuration (surfaces::Aperture::CircularObscuration): the closed annulus
+ * rmin ≤ r ≤ rmax blocks, everything else passes. */
+#define DC_APERTURE_OBSCURATION 3u
+
+/* What a step does to a ray after the aperture (system::Interaction): refract (vector Snell, or the
+ * Paraxial lens) or reflect (a mirror, `GLAS MIRROR`). Gratings are refused by gpu::pack. */
+#define DC_INTERACTION_REFRACT 0u
+#define DC_INTERACTION_REFLECT 1u
+/* tracer::kernel::GRAZING_COS: a mirror hit with |d·n̂| at or below it is grazing, and the ray `missed`. */
+#define DC_GRAZING_COS 1e-12
 
 /* At most 8 even-asphere terms (r² … r¹⁶), as spec::system_spec allows. */
 #define DC_MAX_COEF 8
@@ -44,12 +55,15 @@ typedef struct {
     double curvature;   /* 1/mm (conic, asphere) */
     double conic;       /* conic constant k */
     double focal_length; /* mm (paraxial) */
-    double aperture[4]; /* circular: semi-diameter, min radius, decenter x, y; rectangular: half x, half y, decenter x, y (mm) */
+    double aperture[4]; /* circular: semi-diameter, min radius, decenter x, y; rectangular: half x, half y, decenter x, y;
+                           obscuration: min radius, max radius, decenter x, y (mm) */
     double coef[DC_MAX_COEF]; /* even-asphere coefficients of r², r⁴, … */
     dc_u32 shape;       /* DC_SHAPE_* */
     dc_u32 aperture_kind; /* DC_APERTURE_* */
     dc_u32 surface;     /* the surface's index in the system */
     dc_u32 n_coef;      /* how many of coef are used */
+    dc_u32 interaction; /* DC_INTERACTION_* */
+    dc_u32 pad;
 } dc_step;
 
 /* The trace in f64 (dc_intersect, dc_trace_step, dc_trace_path, ...) and in f32 (the same names + _f32). */

@@ -237,6 +237,13 @@ DC_FN int DC_T(dc_aperture_contains)(const dc_step *s, DC_REAL x, DC_REAL y) {
         return r2 <= DC_R(a[0] * a[0]) && r2 >= DC_R(a[1] * a[1]);
     }
     case DC_APERTURE_RECTANGULAR: return DC_RFABS(x - DC_R(a[2])) <= DC_R(a[0]) && DC_RFABS(y - DC_R(a[3])) <= DC_R(a[1]);
+    case DC_APERTURE_OBSCURATION: {
+        /* Aperture::contains: the blocked annulus is closed (its edges block), r² < rmin² or r² > rmax²
+         * passes, and a NaN point passes neither. */
+        DC_REAL u = x - DC_R(a[2]), v = y - DC_R(a[3]);
+        DC_REAL r2 = u * u + v * v;
+        return r2 < DC_R(a[0] * a[0]) || r2 > DC_R(a[1] * a[1]);
+    }
     default: return 1;
     }
 }
@@ -255,6 +262,21 @@ DC_FN int DC_T(dc_refract)(DC_V3 d, DC_V3 normal, DC_REAL mu, DC_V3 *out) {
     return 1;
 }
 
+/* A mirror's specular reflection d′ = d − 2(d·n̂)n̂ (tracer::kernel::reflect), evaluated in f64 as the CPU
+ * does: the f32 lane kernel widens d and n̂ to f64, reflects and rounds the result once
+ * (tracer::simd::block::special_interaction), so the f32 instance does the same and the f64 one is the scalar
+ * kernel's expression. 0 at grazing incidence, |d·n̂| ≤ DC_GRAZING_COS (the ray is `missed`). The frame is
+ * not flipped (OpticStudio's sequential convention): the ray leaves toward local −z and the next offset is a
+ * negative thickness, so nothing else changes here. */
+DC_FN int DC_T(dc_reflect)(DC_V3 d, DC_V3 normal, DC_V3 *out) {
+    dc_v3 dk = dc_v3_make((double)d.x, (double)d.y, (double)d.z);
+    dc_v3 nk = dc_v3_make((double)normal.x, (double)normal.y, (double)normal.z);
+    if (DC_FABS(dc_dot(dk, nk)) <= DC_GRAZING_COS) return 0;
+    dc_v3 r = dc_sub(dk, dc_scale(nk, 2.0 * dc_dot(dk, nk)));
+    *out = DC_T(dc_v3_make)((DC_REAL)r.x, (DC_REAL)r.y, (DC_REAL)r.z);
+    return 1;
+}
+
 /* Zemax's Paraxial surface: tan′ = (n₁/n₂)·tan − h/f (tracer::kernel::paraxial_deflect), mu = n₁/n₂. */
 DC_FN DC_V3 DC_T(dc_paraxial_deflect)(DC_V3 p, DC_V3 d, double f_mm, DC_REAL mu) {
     DC_REAL f = DC_R(f_mm);
@@ -264,8 +286,8 @@ DC_FN DC_V3 DC_T(dc_paraxial_deflect)(DC_V3 p, DC_V3 d, double f_mm, DC_REAL mu)
     return d.z < DC_R(0.0) ? DC_T(dc_neg)(v) : v;
 }
 
-/* One step (tracer::kernel::trace_step): into the frame, intersect, clip, refract. `n` holds the index (f64)
- * after each surface. Returns DC_OK or the status at which the ray stopped. */
+/* One step (tracer::kernel::trace_step): into the frame, intersect, clip, then reflect (a mirror) or refract.
+ * `n` holds the index (f64) after each surface. Returns DC_OK or the status at which the ray stopped. */
 DC_FN dc_u32 DC_T(dc_trace_step)(const dc_step *s, const double *n, DC_V3 *p, DC_V3 *d) {
     DC_V3 off = DC_T(dc_v3_make)(DC_R(s->offset[0]), DC_R(s->offset[1]), DC_R(s->offset[2]));
     DC_V3 lp = DC_T(dc_m3_mul)(&s->rotation, DC_T(dc_sub)(*p, off));
@@ -276,7 +298,10 @@ DC_FN dc_u32 DC_T(dc_trace_step)(const dc_step *s, const double *n, DC_V3 *p, DC
     if (!DC_T(dc_aperture_contains)(s, q.x, q.y)) return DC_VIGNETTED;
     double n1 = n[s->surface - 1], n2 = n[s->surface];
     DC_REAL mu = DC_R(n1 / n2);
-    if (s->shape == DC_SHAPE_PARAXIAL) {
+    if (s->interaction == DC_INTERACTION_REFLECT) {
+        /* Interaction::Reflect, before the Paraxial and Snell branches as in trace_step. */
+        if (!DC_T(dc_reflect)(ld, normal, &ld)) return DC_MISSED;
+    } else if (s->shape == DC_SHAPE_PARAXIAL) {
         ld = DC_T(dc_paraxial_deflect)(q, ld, s->focal_length, mu);
     } else if (n1 != n2) {
         DC_V3 r;
