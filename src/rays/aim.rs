@@ -128,7 +128,7 @@ impl PupilAim {
 /// itself. Whether the aimed ray is vignetted is decided when it is traced (its status names the surface).
 pub fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3, d: DVec3) -> Option<(f64, f64)> {
     let probe = &system.stop_probe;
-    // The steps before the stop, their obscurations opened once when the system was built.
+    // The steps before the stop, their apertures (clear and obscuring) opened once when the system was built.
     let before = probe.open_path.as_deref().unwrap_or(&system.path[..probe.steps]);
     let (p, d) = trace_steps(before, n, origin, d).ok()?;
     let step = &probe.probe;
