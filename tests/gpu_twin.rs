@@ -34,10 +34,15 @@ fn full_batch(sys: &SequentialSystem) -> RayBatch {
     pupil.extend([[1.3, 0.0], [0.0, -1.3], [0.95, 0.95], [6.0, 0.0], [0.0, -6.0], [4.0, 4.0]]);
     let mut fields: Vec<[f64; 2]> = (0..49).map(|k| [-3.2 + (k / 7) as f64 * 6.4 / 6.0, -3.2 + (k % 7) as f64 * 6.4 / 6.0]).collect();
     fields.extend([[40.0, 0.0], [0.0, -40.0]]);
+    object_rays(sys, &fields, &pupil, &[450.0, 520.0, 650.0])
+}
+
+/// Every wavelength × field × pupil point's object ray (aiming off), in that order.
+fn object_rays(sys: &SequentialSystem, fields: &[[f64; 2]], pupil: &[[f64; 2]], wavelengths_nm: &[f64]) -> RayBatch {
     let mut batch = RayBatch::with_capacity(0);
-    for w in [450.0, 520.0, 650.0] {
-        for field in &fields {
-            for p in &pupil {
+    for &w in wavelengths_nm {
+        for field in fields {
+            for p in pupil {
                 let (o, d) = diffcassi::rays::object_ray(sys, *field, p[0], p[1]);
                 batch.push(o, d, w);
             }
@@ -356,16 +361,7 @@ fn catalogue_batch(sys: &SequentialSystem) -> RayBatch {
             fields.push([f[1] * s, -f[0] * s]);
         }
     }
-    let mut batch = RayBatch::with_capacity(0);
-    for w in [486.1327, 587.5618, 656.2725] {
-        for field in &fields {
-            for p in &pupil {
-                let (o, d) = diffcassi::rays::object_ray(sys, *field, p[0], p[1]);
-                batch.push(o, d, w);
-            }
-        }
-    }
-    batch
+    object_rays(sys, &fields, &pupil, &[486.1327, 587.5618, 656.2725])
 }
 
 /// The mirrors (`dc_reflect`, DC_INTERACTION_REFLECT) and circular obscurations (DC_APERTURE_OBSCURATION)
