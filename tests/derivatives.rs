@@ -297,6 +297,18 @@ fn jacobians_match_finite_differences_on_the_shipped_presets() {
     }
 }
 
+/// d(cell `col` of surface `surface`)/d(free parameter k) by central differences of the build's own solve,
+/// Richardson-extrapolated from steps h and h/2.
+fn solved_cell_derivative(set: &ParamSet, k: usize, h: f64, surface: usize, col: &str) -> f64 {
+    let val = |d: f64| {
+        let mut x = set.values().unwrap();
+        x[k] += d;
+        set.with_values(&x).unwrap().system().unwrap().spec.surfaces[surface].cell(col).unwrap().value
+    };
+    let fd = |h: f64| (val(h) - val(-h)) / (2.0 * h);
+    (4.0 * fd(h / 2.0) - fd(h)) / 3.0
+}
+
 #[test]
 fn chief_ray_solve_and_pickup_derivatives_are_those_of_the_build() {
     // d(solved cell)/dθ against finite differences of the build's own solve.
@@ -304,13 +316,7 @@ fn chief_ray_solve_and_pickup_derivatives_are_those_of_the_build() {
     let ds = set.build().unwrap();
     for (k, h) in [(0usize, 1e-3), (1, 1e-5)] {
         for col in ["decenter_x_mm", "decenter_y_mm", "tilt_y_deg"] {
-            let val = |d: f64| {
-                let mut x = set.values().unwrap();
-                x[k] += d;
-                set.with_values(&x).unwrap().system().unwrap().spec.surfaces[15].cell(col).unwrap().value
-            };
-            let fd = |h: f64| (val(h) - val(-h)) / (2.0 * h);
-            let rich = (4.0 * fd(h / 2.0) - fd(h)) / 3.0;
+            let rich = solved_cell_derivative(&set, k, h, 15, col);
             let j = ds.cell_tangents[15][col][k];
             assert!((j - rich).abs() <= (1e-6 * rich.abs()).max(1e-9), "s15.{col} / {}: {j} vs {rich}", set.free[k]);
         }
@@ -334,13 +340,7 @@ fn chief_ray_solve_derivatives_at_infinity_are_those_of_the_build() {
     let mut worst = 0.0f64;
     for (k, h) in [(0usize, 1e-5), (1, 1e-2), (2, 1e-3), (3, 1e-5)] {
         for col in ["decenter_x_mm", "decenter_y_mm", "tilt_x_deg", "tilt_y_deg"] {
-            let val = |d: f64| {
-                let mut x = set.values().unwrap();
-                x[k] += d;
-                set.with_values(&x).unwrap().system().unwrap().spec.surfaces[4].cell(col).unwrap().value
-            };
-            let fd = |h: f64| (val(h) - val(-h)) / (2.0 * h);
-            let rich = (4.0 * fd(h / 2.0) - fd(h)) / 3.0;
+            let rich = solved_cell_derivative(&set, k, h, 4, col);
             let j = ds.cell_tangents[4][col][k];
             let rel = (j - rich).abs() / rich.abs();
             println!("s4.{col:>13} / {:>15}: derivative {j:+.12e}  fd {rich:+.12e}  rel {rel:.1e}", free[k]);

@@ -32,6 +32,11 @@ fn import(bytes: &[u8]) -> diffcassi::Result<diffcassi::spec::zmx::ZmxImport> {
 }
 
 /// Decimal places of a printed number (`1.592701` → 6, `1.90138E+00` → 5).
+/// The 1-based number of the first line of `text` that starts with `prefix`.
+fn line_starting(text: &str, prefix: &str) -> usize {
+    text.lines().position(|l| l.starts_with(prefix)).unwrap_or_else(|| panic!("no line starts with `{prefix}`")) + 1
+}
+
 fn decimals(printed: &str) -> i32 {
     let mantissa = printed.split(['E', 'e']).next().unwrap();
     mantissa.split('.').nth(1).map(|d| d.len() as i32).unwrap_or(0)
@@ -439,14 +444,14 @@ fn undocumented_opticstudio_2022_records_open_only_with_their_leading_zero() {
     let imp = import(with.as_bytes()).unwrap();
     assert_eq!(imp.spec, reference);
     for (k, line) in [("IWDP", 1), ("EERA", 2)] {
-        let at = with.lines().position(|l| l.starts_with(k)).unwrap() + 1;
+        let at = line_starting(&with, k);
         let u = imp.skipped.iter().find(|u| u.keyword == k).unwrap_or_else(|| panic!("{k}: {:?}", imp.skipped));
         assert_eq!(u.line, at, "{k} {line}");
         assert!(u.reason.contains("undocumented"), "{u}");
     }
     for (bad, k) in [("IWDP 1", "IWDP"), ("EERA 1 0 0 10 10", "EERA")] {
         let t = good.replacen("NAME", &format!("{bad}\nNAME"), 1);
-        let line = t.lines().position(|l| l.starts_with(k)).unwrap() + 1;
+        let line = line_starting(&t, k);
         let e = import(t.as_bytes()).unwrap_err().to_string();
         assert!(e.contains(&format!("line {line} `{k}`: system keyword not modelled")), "{bad}: {e}");
     }
@@ -533,14 +538,12 @@ fn vignetting_factors_are_read_traced_and_round_trip() {
 
     // Bad factors: a vignetting angle, a compression of 1, refused by line and keyword.
     let text_of = String::from_utf8(std::fs::read(&path).unwrap()).unwrap();
-    let van = text_of.replacen("VANN 0 0 0", "VANN 0 0 5", 1);
-    let line = van.lines().position(|l| l.starts_with("VANN")).unwrap() + 1;
-    let e = import(van.as_bytes()).unwrap_err().to_string();
-    assert!(e.contains(&format!("line {line} `VANN`")) && e.contains("vignetting angle"), "{e}");
-    let squeezed = text_of.replacen("VCYN 0 1.556542586327E-1", "VCYN 0 1", 1);
-    let line = squeezed.lines().position(|l| l.starts_with("VCYN")).unwrap() + 1;
-    let e = import(squeezed.as_bytes()).unwrap_err().to_string();
-    assert!(e.contains(&format!("line {line} `VCYN`: field 2 compression factor 1")), "{e}");
+    for (from, to, k, says) in [("VANN 0 0 0", "VANN 0 0 5", "VANN", "vignetting angle"), ("VCYN 0 1.556542586327E-1", "VCYN 0 1", "VCYN", "field 2 compression factor 1")] {
+        let bad = text_of.replacen(from, to, 1);
+        let line = line_starting(&bad, k);
+        let e = import(bad.as_bytes()).unwrap_err().to_string();
+        assert!(e.contains(&format!("line {line} `{k}`: {says}")), "{e}");
+    }
 }
 
 /// US 5,331,467 example 1 opens as it is, without `--ignore-unsupported`: its `OBSC 0 25 0` (line 90,
