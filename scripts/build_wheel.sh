@@ -27,7 +27,7 @@
 # everything once, so this script always uses .venv's.
 #
 # `--profile NAME` builds with another cargo profile than `release`: the test command's check uses `wheel-check`
-# (Cargo.toml: release at opt-level 1, a shorter cold build, the same results bit for bit); a wheel to
+# (Cargo.toml: the workspace at opt-level 1, its dependencies at 0, a shorter cold build, the same results bit for bit); a wheel to
 # ship or carry to the GPU machine is built with the default.
 #
 # Usage: bash scripts/build_wheel.sh [--out DIR] [--profile NAME]   (default dist/, release; older diffcassi

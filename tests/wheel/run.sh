@@ -20,7 +20,7 @@ fi
 start=$SECONDS
 fail() { echo "tests/wheel: FAILED: $*" >&2; exit 1; }
 
-# The release settings at opt-level 1 (Cargo.toml `wheel-check`): the same packaging and results in less cold
+# The workspace at opt-level 1, its dependencies at 0 (Cargo.toml `wheel-check`): the same packaging and results in less cold
 # build time. Built into target/wheel-check-dist, not dist/: dist/ keeps the release wheels that
 # scripts/gpu_check.sh and scripts/gpu/train_run.sh carry.
 bash scripts/build_wheel.sh --profile wheel-check --out target/wheel-check-dist
