@@ -386,6 +386,33 @@ fn study_of_a_system_at_infinity_takes_scene_fov_deg() {
 }
 
 #[test]
+fn study_recomputes_a_system_file_whose_glass_catalogue_changed() {
+    let d = tempfile::tempdir().unwrap();
+    // The singlet at infinity in a glass of its own AGF catalogue (N-BK7's Sellmeier coefficients, named X1).
+    let agf = d.path().join("mine.agf");
+    let catalogue = |b1: &str| format!("CC test\nNM X1 2 0 1.5168 64.17 0 1\nCD {b1} 0.00600069867 0.231792344 0.0200179144 1.01046945 103.560653\nLD 0.3 2.5\n");
+    std::fs::write(&agf, catalogue("1.03961212")).unwrap();
+    let mut spec = common::singlet_at_infinity(false);
+    spec.glass_catalogs = vec![s(&agf).to_string()];
+    spec.surfaces[1].material = Some("X1".into());
+    let file = d.path().join("singlet.json");
+    diffcassi::spec::save_spec_file(&spec, &file).unwrap();
+    let out = d.path().join("study");
+    let args: Vec<&str> = TINY.iter().copied().chain(["--systems", s(&file), "--scene-fov-deg", "0.2", "--operators", "shift", "--out", s(&out)]).collect();
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("1 cells computed, 0 already done"), "{}", stdout(&o));
+    assert!(read_json(&out.join("cells/singlet/synthetic00/shift-gap-tv.json"))["config"]["glass_catalogs_crc32"][s(&agf)].is_string());
+    let o = run(&args);
+    assert!(stdout(&o).contains("0 cells computed, 1 already done"), "{}", stdout(&o));
+    // The catalogue edited, the spec file untouched: another glass, another render.
+    std::fs::write(&agf, catalogue("1.05")).unwrap();
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("1 cells computed, 0 already done"), "{}", stdout(&o));
+}
+
+#[test]
 fn study_system_file_errors_name_the_file_system_and_field() {
     let d = tempfile::tempdir().unwrap();
     let out = d.path().join("study");

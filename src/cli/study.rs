@@ -164,13 +164,21 @@ impl StudySystem {
     }
 
     /// What this system adds to the study's configuration (every setting that changes its numbers): for a
-    /// file, its resolved spec (editing the file recomputes its renders and cells); for an object at infinity,
-    /// the scenes' angular extent. Presets add nothing (their content is the code's; earlier study folders
-    /// stay resumable).
+    /// file, its resolved spec and the glass catalogue files it reads, by content (editing either recomputes its
+    /// renders and cells); for an object at infinity, the scenes' angular extent. Presets add nothing (their
+    /// content is the code's; earlier study folders stay resumable).
     fn configuration(&self, scene_fov_deg: Option<f64>) -> Vec<(&'static str, Value)> {
         let mut v = Vec::new();
         if self.file.is_some() {
             v.push(("system_spec", serde_json::to_value(&self.system.spec).unwrap_or(Value::Null)));
+            // (a built-in catalogue, `builtin:NAME`, is the code's; a file was read by the build just before)
+            let agf: serde_json::Map<String, Value> = (self.system.spec.glass_catalogs.iter())
+                .filter(|e| crate::materials::builtin_catalogs::entry_name(e).is_none())
+                .map(|e| (e.clone(), std::fs::read(e).map_or(Value::Null, |b| json!(crate::render::dataset::crc32_hex(&b)))))
+                .collect();
+            if !agf.is_empty() {
+                v.push(("glass_catalogs_crc32", Value::Object(agf)));
+            }
         }
         if let (true, Some(f)) = (self.system.object_at_infinity(), scene_fov_deg) {
             v.push(("scene_fov_deg", json!(f)));
