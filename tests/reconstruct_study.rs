@@ -1,5 +1,7 @@
 //! `make-scene`, `reconstruct` and `study` through the binary: outputs, bad input (clear error, exit 1,
 //! nothing written), and the study's resume.
+use crate::common;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -283,4 +285,156 @@ fn study_mask_file_is_centre_cropped_to_the_scene() {
             assert_eq!(used.values[r * 16 + c] as f64, values[(r + 2) * 20 + c + 2], "({r}, {c})");
         }
     }
+}
+
+// ---------------------------------------------------------------- study of system files (issue 42, item 1)
+
+/// The tiny study settings of the `--systems` tests: one 16² synthetic scene, 4 bands × 4 planes, 2 rays, 3 iterations.
+const TINY: [&str; 13] = ["study", "--synthetic", "1", "--scene-size", "16", "--bands", "450:650:4", "--planes", "4", "--rays", "2", "--iterations", "3"];
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// study.csv's rows as (system, preset, operator, psnr_db), fields unquoted (no field of these studies holds a
+/// comma; the CSV writer quotes an empty string, `""`, the preset of a system file).
+fn study_rows(out: &Path) -> Vec<(String, String, String, f64)> {
+    let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (sy, pr, op, ps) = (col("system"), col("preset"), col("operator"), col("psnr_db"));
+    let field = |f: &str| f.strip_prefix('"').and_then(|f| f.strip_suffix('"')).unwrap_or(f).replace("\"\"", "\"");
+    lines.map(|l| l.split(',').collect::<Vec<_>>()).map(|r| (field(r[sy]), field(r[pr]), field(r[op]), r[ps].parse().unwrap())).collect()
+}
+
+#[test]
+fn study_takes_system_files_beside_presets_and_recomputes_an_edited_file() {
+    let d = tempfile::tempdir().unwrap();
+    let file = d.path().join("my_ap.json");
+    let mut spec = diffcassi::presets::spec("ap").unwrap();
+    diffcassi::spec::save_spec_file(&spec, &file).unwrap();
+    let out = d.path().join("study");
+    let args: Vec<&str> = TINY.iter().copied().chain(["--presets", "sp", "--systems", s(&file), "--operators", "exact,shift", "--out", s(&out)]).collect();
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("4 cells computed, 0 already done"), "{}", stdout(&o));
+    // The file's rows are labelled by its stem, the preset's by its display name; every metric finite.
+    let rows = study_rows(&out);
+    let systems: Vec<(&str, &str)> = rows.iter().map(|r| (r.0.as_str(), r.1.as_str())).collect();
+    assert_eq!(systems, [("SP", "sp"), ("SP", "sp"), ("my_ap", ""), ("my_ap", "")]);
+    assert!(rows.iter().all(|r| r.3.is_finite() && r.3 > 5.0), "{rows:?}");
+    let md = std::fs::read_to_string(out.join("study.md")).unwrap();
+    assert!(md.contains("| metric | operator | SP | my_ap |"), "{md}");
+    // The file's spec is part of its renders' and cells' configuration; the preset's configuration is unchanged.
+    let r = read_json(&out.join("renders/my_ap/synthetic00/render.json"));
+    assert_eq!(r["study_config"]["system_spec"]["name"], spec.name.as_str());
+    assert!(read_json(&out.join("renders/sp/synthetic00/render.json"))["study_config"].get("system_spec").is_none());
+    let cell = read_json(&out.join("cells/my_ap/synthetic00/exact-gap-tv.json"));
+    assert_eq!((cell["system"].as_str(), cell["preset"].is_null(), cell["system_file"].as_str()), (Some("my_ap"), true, Some(s(&file))));
+    let study = read_json(&out.join("study.json"));
+    assert_eq!(study["systems"][1]["file"], s(&file));
+    // Resume: nothing recomputed. Edited file (image distance + 50 µm): its rows only, renders and cells.
+    let o = run(&args);
+    assert!(stdout(&o).contains("0 cells computed, 4 already done"), "{}", stdout(&o));
+    let sp_renders = mtimes(&out.join("renders/sp"));
+    let k = spec.surfaces.len() - 2;
+    spec.surfaces[k].thickness_mm.value += 0.05;
+    diffcassi::spec::save_spec_file(&spec, &file).unwrap();
+    let before = read_json(&out.join("renders/my_ap/synthetic00/render.json"))["acquisition_total"].as_f64().unwrap();
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("2 cells computed, 2 already done"), "{}", stdout(&o));
+    assert_eq!(mtimes(&out.join("renders/sp")), sp_renders);
+    let r = read_json(&out.join("renders/my_ap/synthetic00/render.json"));
+    assert_eq!(r["system_spec"]["surfaces"][k]["thickness_mm"].as_f64(), Some(spec.surfaces[k].thickness_mm.value));
+    assert_ne!(r["acquisition_total"].as_f64().unwrap(), before);
+}
+
+#[test]
+fn study_of_a_system_at_infinity_takes_scene_fov_deg() {
+    let d = tempfile::tempdir().unwrap();
+    let file = d.path().join("singlet.toml");
+    diffcassi::spec::save_spec_file(&common::singlet_at_infinity(false), &file).unwrap();
+    let out = d.path().join("study");
+    // The singlet at infinity beside SP (finite, 10 µm pixels); 0.2° over 16 pixels: ≈ 13 µm per pixel at
+    // the singlet's 60 mm focal length.
+    let args = |fov: &'static str| -> Vec<String> { TINY.iter().copied().chain(["--presets", "sp", "--systems", s(&file), "--scene-fov-deg", fov, "--operators", "exact,mapping,mapping-nearest,shift", "--out", s(&out)]).map(String::from).collect() };
+    let runs = |fov| Command::new(env!("CARGO_BIN_EXE_diffcassi")).args(args(fov)).output().unwrap();
+    let o = runs("0.2");
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("8 cells computed"), "{}", stdout(&o));
+    let rows: Vec<_> = study_rows(&out).into_iter().filter(|r| r.0 == "singlet").collect();
+    assert_eq!(rows.iter().map(|r| r.2.as_str()).collect::<Vec<_>>(), ["exact", "mapping", "mapping-nearest", "shift"]);
+    // Every operator reconstructs (finite metrics); the singlet's strong axial colour blur is modelled by the
+    // exact operator only, which reconstructs best.
+    assert!(rows.iter().all(|r| r.1.is_empty() && r.3.is_finite()), "{rows:?}");
+    assert!(rows[1..].iter().all(|r| r.3 < rows[0].3), "{rows:?}");
+    // Recorded as render records it: the angular extent, no pitch in mm; in study.json too. SP's render keeps its pitch.
+    let r = read_json(&out.join("renders/singlet/synthetic00/render.json"));
+    assert_eq!((r["scene_fov_deg"].as_f64(), r["scene_pitch_mm"].is_null()), (Some(0.2), true));
+    assert!((r["scene_pitch_rad"].as_f64().unwrap() - 0.2f64.to_radians() / 16.0).abs() < 1e-18);
+    assert_eq!(r["study_config"]["scene_fov_deg"].as_f64(), Some(0.2));
+    let r = read_json(&out.join("renders/sp/synthetic00/render.json"));
+    assert!(r.get("scene_fov_deg").is_none() && r["study_config"].get("scene_fov_deg").is_none() && r["scene_pitch_mm"].as_f64() == Some(0.01), "{}", r["study_config"]);
+    let study = read_json(&out.join("study.json"));
+    assert_eq!((study["scene_fov_deg"].as_f64(), study["systems"][1]["object_at_infinity"].as_bool()), (Some(0.2), Some(true)));
+    // Another angular extent is another render of the system at infinity: its cells recomputed, SP's kept.
+    let o = runs("0.25");
+    assert!(stdout(&o).contains("4 cells computed, 4 already done"), "{}", stdout(&o));
+    assert_eq!(read_json(&out.join("renders/singlet/synthetic00/render.json"))["scene_fov_deg"].as_f64(), Some(0.25));
+}
+
+#[test]
+fn study_recomputes_a_system_file_whose_glass_catalogue_changed() {
+    let d = tempfile::tempdir().unwrap();
+    // The singlet at infinity in a glass of its own AGF catalogue (N-BK7's Sellmeier coefficients, named X1).
+    let agf = d.path().join("mine.agf");
+    let catalogue = |b1: &str| format!("CC test\nNM X1 2 0 1.5168 64.17 0 1\nCD {b1} 0.00600069867 0.231792344 0.0200179144 1.01046945 103.560653\nLD 0.3 2.5\n");
+    std::fs::write(&agf, catalogue("1.03961212")).unwrap();
+    let mut spec = common::singlet_at_infinity(false);
+    spec.glass_catalogs = vec![s(&agf).to_string()];
+    spec.surfaces[1].material = Some("X1".into());
+    let file = d.path().join("singlet.json");
+    diffcassi::spec::save_spec_file(&spec, &file).unwrap();
+    let out = d.path().join("study");
+    let args: Vec<&str> = TINY.iter().copied().chain(["--systems", s(&file), "--scene-fov-deg", "0.2", "--operators", "shift", "--out", s(&out)]).collect();
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("1 cells computed, 0 already done"), "{}", stdout(&o));
+    assert!(read_json(&out.join("cells/singlet/synthetic00/shift-gap-tv.json"))["config"]["glass_catalogs_crc32"][s(&agf)].is_string());
+    let o = run(&args);
+    assert!(stdout(&o).contains("0 cells computed, 1 already done"), "{}", stdout(&o));
+    // The catalogue edited, the spec file untouched: another glass, another render.
+    std::fs::write(&agf, catalogue("1.05")).unwrap();
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("1 cells computed, 0 already done"), "{}", stdout(&o));
+}
+
+#[test]
+fn study_system_file_errors_name_the_file_system_and_field() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("study");
+    let inf = d.path().join("singlet.toml");
+    diffcassi::spec::save_spec_file(&common::singlet_at_infinity(false), &inf).unwrap();
+    let sp = d.path().join("sub").join("sp.json");
+    std::fs::create_dir_all(sp.parent().unwrap()).unwrap();
+    diffcassi::spec::save_spec_file(&diffcassi::presets::spec("sp").unwrap(), &sp).unwrap();
+    let other = d.path().join("singlet.json");
+    diffcassi::spec::save_spec_file(&common::singlet_at_infinity(false), &other).unwrap();
+    let missing = d.path().join("nope.toml");
+    let study = |extra: &[&str]| run(&["study", "--synthetic", "1", "--scene-size", "16", "--out", s(&out)].iter().copied().chain(extra.iter().copied()).collect::<Vec<_>>());
+    // A missing file; two files of one stem; a file of a preset's name.
+    assert_fails_cleanly(&study(&["--systems", s(&missing)]), &out, &["nope.toml", "no such file"]);
+    assert_fails_cleanly(&study(&["--systems", &format!("{},{}", s(&inf), s(&other)), "--scene-fov-deg", "1"]), &out, &["singlet.toml", "singlet.json", "`singlet`"]);
+    assert_fails_cleanly(&study(&["--presets", "sp", "--systems", s(&sp)]), &out, &["--presets sp", "sp.json", "`sp`"]);
+    // An object at infinity without --scene-fov-deg: the file and the flag named.
+    assert_fails_cleanly(&study(&["--systems", s(&inf)]), &out, &["singlet.toml", "object at infinity", "--scene-fov-deg"]);
+    // Bad angles, whatever the systems.
+    for bad in ["0", "180", "nan", "-5", "inf"] {
+        assert_fails_cleanly(&study(&["--systems", s(&inf), "--scene-fov-deg", bad]), &out, &["--scene-fov-deg", "(0, 180)"]);
+    }
+    // --scene-fov-deg where no system is at infinity: the systems named.
+    assert_fails_cleanly(&study(&["--presets", "ap", "--systems", s(&sp), "--scene-fov-deg", "5"]), &out, &["--scene-fov-deg 5", "AP, sp", "finite object"]);
 }

@@ -4,18 +4,24 @@
 //! ```text
 //! diffcassi study --presets ap,sp,map,msp --operators exact,mapping,shift --scenes data/scenes --scene-size 128 --out out/study
 //! diffcassi study --synthetic 2 --scene-size 24 --presets ap,sp --planes 28 --rays 4 --iterations 5 --out out/tiny
+//! diffcassi study --synthetic 2 --presets sp --systems my_cassi.toml,lens.zmx --scene-fov-deg 6 --out out/mine
 //! ```
 //!
-//! Layout of `--out`: `study.json` (the marker of a study folder: command, version, configuration), `mask.png` (the mask every render uses), `renders/<preset>/<scene>/` (complete render
-//! folders, readable by `reconstruct --from`), `recon/<preset>/<scene>/<operator>-<solver>/` (`cube.npy`,
-//! `rgb.png`, `reconstruct.json`), `cells/<preset>/<scene>/<operator>-<solver>.json` (one finished cell:
+//! Systems are presets (`--presets`, rows named as in the paper: SP, mAP…) and files (`--systems`, read as
+//! `--system` elsewhere; rows named by the file stem). For a system whose object is at infinity the scenes span
+//! `--scene-fov-deg` degrees across their width (as `render --scene-fov-deg`); finite systems keep 10 µm pixels.
+//!
+//! Layout of `--out`: `study.json` (the marker of a study folder: command, version, configuration, systems), `mask.png` (the mask every render uses), `renders/<system>/<scene>/` (complete render
+//! folders, readable by `reconstruct --from`; `<system>` is the preset's name or the file's stem), `recon/<system>/<scene>/<operator>-<solver>/` (`cube.npy`,
+//! `rgb.png`, `reconstruct.json`), `cells/<system>/<scene>/<operator>-<solver>.json` (one finished cell:
 //! its configuration, metrics and seconds), and, rebuilt from every cell at the end, `study.csv` (one row per
 //! scene × system × operator × solver), `study.md` (the paper-shaped table, mean ± std over scenes, and the
 //! ablation "reconstruct with the simplified model") and `study_psnr.png` (grouped bars).
 //!
 //! Resumable: a render whose `render.json` carries the same study configuration, and a cell whose result file
 //! carries the same configuration, are not recomputed; anything else is (the configuration is every setting
-//! that changes a number: bands, planes, rays, seeds, mask, Airy, scene size and fit, solver settings).
+//! that changes a number: bands, planes, rays, seeds, mask, Airy, scene size and fit, solver settings; for a
+//! system file its resolved spec, so that editing the file recomputes its rows; at infinity the angular extent).
 //! The exact operator of a system is traced once (seed = acquisition seed + 1, as `reconstruct`'s default) and
 //! reused for all its scenes; so are the other operators.
 use super::reconstruct::{reconstruction_rule, write_reconstruction, SolverTuning};
@@ -36,9 +42,17 @@ use std::time::Instant;
 
 #[derive(Args, Debug, Clone)]
 pub struct StudyArgs {
-    /// Systems (presets), comma-separated.
-    #[arg(long, default_value = "ap,sp,map,msp")]
-    pub presets: String,
+    /// Systems (presets), comma-separated [default: ap,sp,map,msp, unless --systems is given].
+    #[arg(long)]
+    pub presets: Option<String>,
+    /// System files, comma-separated (or repeated): .toml/.json (our spec), .yml/.yaml, .csv or .zmx, read as
+    /// `--system` elsewhere; each row is labelled by its file stem (`lens.zmx` → `lens`), unique among the systems.
+    #[arg(long, value_delimiter = ',')]
+    pub systems: Vec<PathBuf>,
+    /// For the systems whose object is at infinity: the scenes' full angular extent across their width (degrees,
+    /// in (0, 180)), as `render --scene-fov-deg`; refused when no system of the study has its object at infinity.
+    #[arg(long = "scene-fov-deg", allow_hyphen_values = true)]
+    pub scene_fov_deg: Option<f64>,
     /// Operators, comma-separated: exact, mapping (bilinear), mapping-nearest, shift.
     #[arg(long, default_value = "exact,mapping,shift")]
     pub operators: String,
@@ -56,7 +70,8 @@ pub struct StudyArgs {
     /// (e.g. KAIST EXRs whose channel names carry no wavelength). Not used for RGB photographs.
     #[arg(long = "scene-wavelengths")]
     pub scene_wavelengths: Option<String>,
-    /// Scene side (pixels of 10 µm); scenes are brought to S×S by --fit.
+    /// Scene side (pixels of 10 µm on a finite object plane; at infinity --scene-fov-deg / S each); scenes are
+    /// brought to S×S by --fit.
     #[arg(long = "scene-size", default_value_t = 128)]
     pub scene_size: usize,
     /// crop (centre) or resize (area average, then centre crop).
@@ -124,6 +139,118 @@ fn split_list(s: &str, what: &str) -> Result<Vec<String>> {
         return Err(Error::invalid(format!("--{what} `{s}` lists an entry twice")));
     }
     Ok(v)
+}
+
+/// A system of the study (a row of its tables): a preset or a file of `--systems`.
+struct StudySystem {
+    /// The folder name under `renders/`, `recon/` and `cells/`: the preset's name or the file's stem.
+    key: String,
+    /// The tables' name: the paper's display name of a preset ([`system_label`]), a file's stem.
+    label: String,
+    /// The preset it is (`None` for a file).
+    preset: Option<String>,
+    /// The file it was read from (`None` for a preset).
+    file: Option<PathBuf>,
+    system: SequentialSystem,
+}
+
+impl StudySystem {
+    /// Where an error about this system points: its file, or `--presets NAME`.
+    fn error(&self, message: impl std::fmt::Display) -> Error {
+        match &self.file {
+            Some(p) => Error::File { path: p.display().to_string(), message: format!("system `{}`: {message}", self.label) },
+            None => Error::invalid(format!("--presets {}: {message}", self.key)),
+        }
+    }
+
+    /// What this system adds to the study's configuration (every setting that changes its numbers): for a
+    /// file, its resolved spec and the glass catalogue files it reads, by content (editing either recomputes its
+    /// renders and cells); for an object at infinity, the scenes' angular extent. Presets add nothing (their
+    /// content is the code's; earlier study folders stay resumable).
+    fn configuration(&self, scene_fov_deg: Option<f64>) -> Vec<(&'static str, Value)> {
+        let mut v = Vec::new();
+        if self.file.is_some() {
+            v.push(("system_spec", serde_json::to_value(&self.system.spec).unwrap_or(Value::Null)));
+            // (a built-in catalogue, `builtin:NAME`, is the code's; a file was read by the build just before)
+            let agf: serde_json::Map<String, Value> = (self.system.spec.glass_catalogs.iter())
+                .filter(|e| crate::materials::builtin_catalogs::entry_name(e).is_none())
+                .map(|e| (e.clone(), std::fs::read(e).map_or(Value::Null, |b| json!(crate::render::dataset::crc32_hex(&b)))))
+                .collect();
+            if !agf.is_empty() {
+                v.push(("glass_catalogs_crc32", Value::Object(agf)));
+            }
+        }
+        if let (true, Some(f)) = (self.system.object_at_infinity(), scene_fov_deg) {
+            v.push(("scene_fov_deg", json!(f)));
+        }
+        v
+    }
+}
+
+/// The study's systems, presets then files, each built (a file with its own glass catalogues, as `--system`
+/// reads it) and labelled; two systems of one label (or folder name, compared without case) are refused.
+fn load_systems(a: &StudyArgs) -> Result<Vec<StudySystem>> {
+    let presets = match (&a.presets, a.systems.is_empty()) {
+        (Some(p), _) => split_list(p, "presets")?,
+        (None, true) => split_list("ap,sp,map,msp", "presets")?,
+        (None, false) => Vec::new(),
+    };
+    let mut out = Vec::new();
+    for p in presets {
+        let system = SequentialSystem::build(&crate::presets::spec(&p)?)?;
+        out.push(StudySystem { key: p.clone(), label: system_label(&p), preset: Some(p), file: None, system });
+    }
+    for path in &a.systems {
+        let ferr = |m: String| Error::File { path: path.display().to_string(), message: m };
+        if !path.is_file() {
+            return Err(ferr("--systems: no such file".into()));
+        }
+        let stem = path.file_stem().and_then(|s| s.to_str()).filter(|s| !s.is_empty()).ok_or_else(|| ferr("--systems: the file name has no UTF-8 stem to label its rows with".into()))?.to_string();
+        let spec = crate::spec::load_spec_file(path)?;
+        let system = SequentialSystem::build(&spec).map_err(|e| ferr(e.to_string()))?;
+        out.push(StudySystem { key: stem.clone(), label: stem, preset: None, file: Some(path.clone()), system });
+    }
+    for (i, s) in out.iter().enumerate() {
+        if let Some(t) = out[..i].iter().find(|t| t.key.eq_ignore_ascii_case(&s.key) || t.label.eq_ignore_ascii_case(&s.label)) {
+            let what = |x: &StudySystem| match (&x.file, &x.preset) {
+                (Some(f), _) => format!("--systems {}", f.display()),
+                (None, p) => format!("--presets {}", p.as_deref().unwrap_or("")),
+            };
+            let name = if t.key.eq_ignore_ascii_case(&s.key) { &s.key } else { &s.label };
+            return Err(Error::invalid(format!(
+                "{} and {} would both be named `{name}` (a file's rows and folders are named by its stem, a preset's by its name, compared without case): rename one of the files",
+                what(t), what(s)
+            )));
+        }
+    }
+    Ok(out)
+}
+
+/// The render configuration of system `s`: the study's, with the scenes' angular extent for an object at
+/// infinity; the system checked against it as the renderer will (an object at infinity without
+/// `--scene-fov-deg` is refused, naming the system).
+fn system_render_config(cfg: &RenderConfig, s: &StudySystem, scene_fov_deg: Option<f64>) -> Result<RenderConfig> {
+    let mut c = cfg.clone();
+    c.scene_fov_deg = if s.system.object_at_infinity() { scene_fov_deg } else { None };
+    crate::render::scene_pitch_for(&s.system, &c).map_err(|e| s.error(e))?;
+    Ok(c)
+}
+
+/// `--scene-fov-deg` against the systems: a valid angle, and at least one system at infinity to apply to.
+fn check_scene_fov(a: &StudyArgs, systems: &[StudySystem]) -> Result<()> {
+    let Some(f) = a.scene_fov_deg else { return Ok(()) };
+    crate::render::check_scene_fov_deg(f)?;
+    if !systems.iter().any(|s| s.system.object_at_infinity()) {
+        let names: Vec<&str> = systems.iter().map(|s| s.label.as_str()).collect();
+        return Err(Error::invalid(format!(
+            "--scene-fov-deg {}: no system of the study has its object at infinity ({} {} a finite object, where a scene pixel is {} mm on the object plane); --scene-fov-deg is for objects at infinity",
+            crate::limits::fmt_num(f),
+            names.join(", "),
+            if names.len() == 1 { "has" } else { "have" },
+            RenderConfig::paper(1).scene_pitch_mm
+        )));
+    }
+    Ok(())
 }
 
 /// A scene of the study: its name and the fitted cube (the truth).
@@ -305,7 +432,9 @@ fn render_scenes(system: &SequentialSystem, tracer: &dyn Tracer, cfg: &RenderCon
 /// One finished cell, read back from its result file.
 #[derive(Clone, Debug)]
 struct Cell {
-    preset: String,
+    /// The system's label (a preset's display name, a file's stem) and the preset it is (`None` for a file).
+    system: String,
+    preset: Option<String>,
     scene: String,
     operator: String,
     solver: String,
@@ -323,7 +452,8 @@ fn cell_from_json(v: &Value) -> Option<Cell> {
     let m = v.get("metrics")?;
     let metrics = METRIC_KEYS.iter().map(|k| Some((k.to_string(), m.get(*k)?.as_f64()?))).collect::<Option<BTreeMap<_, _>>>()?;
     Some(Cell {
-        preset: s("preset")?,
+        system: s("system")?,
+        preset: s("preset"),
         scene: s("scene")?,
         operator: s("operator")?,
         solver: s("solver")?,
@@ -366,8 +496,8 @@ pub const STUDY_MARKER: &str = "study.json";
 pub fn study(a: StudyArgs) -> Result<()> {
     let t0 = Instant::now();
     // ---- validate everything before any work ----
-    let presets = split_list(&a.presets, "presets")?;
-    let specs = presets.iter().map(|p| crate::presets::spec(p)).collect::<Result<Vec<_>>>()?;
+    let systems = load_systems(&a)?;
+    check_scene_fov(&a, &systems)?;
     let operators = split_list(&a.operators, "operators")?.iter().map(|o| OperatorKind::parse(o)).collect::<Result<Vec<_>>>()?;
     let solvers = split_list(&a.solvers, "solvers")?;
     for s in &solvers {
@@ -378,8 +508,8 @@ pub fn study(a: StudyArgs) -> Result<()> {
     }
     // The unrolled network: weights for every system (its own committed file, or the --weights file's system).
     if solvers.iter().any(|s| is_unrolled(s)) {
-        for spec in &specs {
-            crate::recon::pipeline::unrolled::check_system(a.tuning.weights.as_deref(), &spec.name)?;
+        for s in &systems {
+            crate::recon::pipeline::unrolled::check_system(a.tuning.weights.as_deref(), s.system.name()).map_err(|e| s.error(format!("--solvers unrolled: {e}")))?;
         }
     }
     if a.tuning.iterations == Some(0) {
@@ -393,13 +523,15 @@ pub fn study(a: StudyArgs) -> Result<()> {
     inputs.extend(a.mask.as_deref().map(|p| ("--mask", p)));
     inputs.extend(a.tuning.denoiser.as_deref().map(|p| ("--denoiser", p)));
     inputs.extend(a.tuning.weights.as_deref().map(|p| ("--weights", p)));
+    inputs.extend(a.systems.iter().map(|p| ("--systems", p.as_path())));
     crate::io::policy::check_out_folder(&a.out, &crate::io::policy::FolderRule { option: "--out", command: "study", marker: STUDY_MARKER, force: a.force }, &inputs)?;
     let bands = super::shared::parse_wavelengths(&a.bands)?;
     check_limits(&a, &bands, &solvers)?;
     let cfg = render_config(&a, &bands)?;
+    // Each system's render configuration (the angular extent for an object at infinity), checked now.
+    let cfgs = systems.iter().map(|s| system_render_config(&cfg, s, a.scene_fov_deg)).collect::<Result<Vec<_>>>()?;
     let mask = study_mask(&a)?;
     let scenes = load_scenes(&a, &bands)?;
-    let systems = specs.iter().map(SequentialSystem::build).collect::<Result<Vec<_>>>()?;
     let tracer = AnalyticTracer::default();
     let op_seed = operator_seed(a.seed, None)?;
     let budget = a.transport_memory_gb * 1e9;
@@ -423,9 +555,9 @@ pub fn study(a: StudyArgs) -> Result<()> {
     // The unrolled network's weights by content (CRC-32 per system), only when it runs.
     if solvers.iter().any(|s| is_unrolled(s)) {
         let mut crcs = serde_json::Map::new();
-        for spec in &specs {
-            let net = crate::recon::prior::unrolled::UnrolledNetwork::load(a.tuning.weights.as_deref(), &spec.name)?;
-            crcs.insert(spec.name.clone(), json!(net.crc32));
+        for s in &systems {
+            let net = crate::recon::prior::unrolled::UnrolledNetwork::load(a.tuning.weights.as_deref(), s.system.name())?;
+            crcs.insert(s.system.name().to_string(), json!(net.crc32));
         }
         if let Some(o) = config.as_object_mut() {
             o.insert("unrolled".into(), json!({"weights": a.tuning.weights.as_ref().map(|p| p.display().to_string()), "weights_crc32": crcs}));
@@ -454,29 +586,47 @@ pub fn study(a: StudyArgs) -> Result<()> {
     };
     std::fs::create_dir_all(&a.out).map_err(|e| Error::File { path: a.out.display().to_string(), message: format!("cannot create: {e}") })?;
     // The marker that makes --out recognisable as a study (resumed by the next run), written first.
-    write_json(&a.out.join(STUDY_MARKER), &json!({"command": "study", "version": env!("CARGO_PKG_VERSION"), "configuration": config}))?;
+    // Each system: where it came from and what it adds to the configuration of its renders and cells.
+    let listed: Vec<Value> = systems.iter().map(|s| {
+        let mut v = json!({"label": s.label, "folder": s.key, "preset": s.preset, "file": s.file.as_ref().map(|p| p.display().to_string()), "name": s.system.name(), "object_at_infinity": s.system.object_at_infinity()});
+        for (k, x) in s.configuration(a.scene_fov_deg) {
+            v[k] = x;
+        }
+        v
+    }).collect();
+    let mut marker = json!({"command": "study", "version": env!("CARGO_PKG_VERSION"), "configuration": config, "systems": listed});
+    if let Some(f) = a.scene_fov_deg {
+        marker["scene_fov_deg"] = json!(f);
+    }
+    write_json(&a.out.join(STUDY_MARKER), &marker)?;
     mask.save_png(&a.out.join("mask.png"))?;
     println!(
         "study: {} scenes {}×{} × {} systems × {} operators × {} solvers = {} cells → {}",
-        scenes.len(), a.scene_size, a.scene_size, presets.len(), operators.len(), solvers.len(),
-        scenes.len() * presets.len() * operators.len() * solvers.len(), a.out.display()
+        scenes.len(), a.scene_size, a.scene_size, systems.len(), operators.len(), solvers.len(),
+        scenes.len() * systems.len() * operators.len() * solvers.len(), a.out.display()
     );
     let mut computed = 0usize;
     let mut skipped = 0usize;
-    for (pi, preset) in presets.iter().enumerate() {
-        let system = &systems[pi];
+    for (si, sys) in systems.iter().enumerate() {
+        let (system, folder, label) = (&sys.system, &sys.key, &sys.label);
+        // This system's configuration: the study's plus its own (a file's spec, an angular extent).
+        let (mut config, mut render_key) = (config.clone(), render_key.clone());
+        for (k, v) in sys.configuration(a.scene_fov_deg) {
+            config[k] = v.clone();
+            render_key[k] = v;
+        }
         // ---- renders ----
-        let dirs: Vec<PathBuf> = scenes.iter().map(|s| a.out.join("renders").join(preset).join(&s.name)).collect();
+        let dirs: Vec<PathBuf> = scenes.iter().map(|s| a.out.join("renders").join(folder).join(&s.name)).collect();
         let todo: Vec<usize> = (0..scenes.len())
             .filter(|&i| !(output::outputs_complete(&dirs[i]) && same_config(read_json(&dirs[i].join("render.json")).as_ref().and_then(|j| j.get("study_config")), &render_key)))
             .collect();
         let tr = Instant::now();
-        render_scenes(system, &tracer, &cfg, &mask, &scenes, &dirs, &todo, &render_key, budget)?;
+        render_scenes(system, &tracer, &cfgs[si], &mask, &scenes, &dirs, &todo, &render_key, budget)?;
         if !todo.is_empty() {
-            println!("{}: rendered {} scenes in {:.1} s", system_label(preset), todo.len(), tr.elapsed().as_secs_f64());
+            println!("{}: rendered {} scenes in {:.1} s", label, todo.len(), tr.elapsed().as_secs_f64());
         }
         // ---- cells ----
-        let cell_path = |s: &str, op: OperatorKind, solver: &str| a.out.join("cells").join(preset).join(s).join(format!("{}-{solver}.json", op.name()));
+        let cell_path = |s: &str, op: OperatorKind, solver: &str| a.out.join("cells").join(folder).join(s).join(format!("{}-{solver}.json", op.name()));
         let done = |p: &Path| read_json(p).is_some_and(|j| same_config(j.get("config"), &config) && cell_from_json(&j).is_some());
         let record = RenderRecord::load(&dirs[0])?; // all scenes of a system share system, configuration and mask
         for &op_kind in &operators {
@@ -489,14 +639,15 @@ pub fn study(a: StudyArgs) -> Result<()> {
             let unrolled = if pending.iter().any(|(_, v)| is_unrolled(v)) {
                 let p = std::sync::Arc::new(crate::recon::pipeline::unrolled::prepare(a.tuning.weights.as_deref(), &record, op_seed)?);
                 for w in &p.check.warnings {
-                    eprintln!("warning: {}: {w}", system_label(preset));
+                    eprintln!("warning: {}: {w}", label);
                 }
                 Some(p)
             } else {
                 None
             };
             let t_op = Instant::now();
-            let op: Box<dyn Operator + '_> = build_operator(op_kind, &record, &tracer, op_seed, budget as u64, &|_| {})?;
+            // (an operator that cannot model this system is refused naming the system file and the operator)
+            let op: Box<dyn Operator + '_> = build_operator(op_kind, &record, &tracer, op_seed, budget as u64, &|_| {}).map_err(|e| sys.error(format!("--operators {}: {e}", op_kind.name())))?;
             // The data-driven δ (exact operator, `--noise-estimate spread`): the operator's twin (not for the
             // unrolled network, which has no δ).
             let twin_plan = noise_estimate(&record, op_kind, op_seed, record.config.rays_per_pixel, record.config.rays_per_pixel, cell_settings(&a, &solvers[0]).noise_model).spread;
@@ -505,7 +656,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 _ => None,
             };
             let seconds_operator = t_op.elapsed().as_secs_f64();
-            let pb = bar(pending.len() as u64, "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} cells, ETA {eta}", &format!("{} / {}", system_label(preset), op_kind.name()));
+            let pb = bar(pending.len() as u64, "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} cells, ETA {eta}", &format!("{} / {}", label, op_kind.name()));
             for (i, solver) in pending {
                 let scene = &scenes[i];
                 let rec = RenderRecord::load(&dirs[i])?;
@@ -527,17 +678,17 @@ pub fn study(a: StudyArgs) -> Result<()> {
                     "residual_definition": RESIDUAL_DEFINITION, "final_residual": final_residual, "stopping": solved.stopping, "threads": rayon::current_num_threads(),
                     "seconds_operator": seconds_operator, "seconds_solve": solved.seconds, "seconds": solved.seconds,
                 });
-                let rdir = a.out.join("recon").join(preset).join(&scene.name).join(format!("{}-{solver}", op_kind.name()));
+                let rdir = a.out.join("recon").join(folder).join(&scene.name).join(format!("{}-{solver}", op_kind.name()));
                 let set = crate::io::OutputSet::folder(&rdir, &reconstruction_rule(false), &[])?;
                 write_reconstruction(set, &estimate, &rjson, false)?;
                 let cell = json!({
-                    "config": config, "preset": preset, "system": system_label(preset), "scene": scene.name, "operator": op_kind.name(), "solver": solver,
+                    "config": config, "preset": sys.preset, "system": label, "system_file": sys.file.as_ref().map(|p| p.display().to_string()), "scene": scene.name, "operator": op_kind.name(), "solver": solver,
                     "metrics": ev.metrics, "truth_resampled": ev.truth_resampled, "iterations": solved.residuals.len(), "stopped_by": solved.stopping.get("stopped_by"), "final_residual": final_residual,
                     "seconds_solve": solved.seconds, "seconds_operator": seconds_operator, "reconstruction": rdir.display().to_string(),
                 });
                 write_json(&cell_path(&scene.name, op_kind, solver), &cell)?;
                 computed += 1;
-                pb.println(format!("{} {} {} {}: PSNR {:.2} dB, SSIM {:.3}, SAM {:.2}°, {:.1} s", system_label(preset), scene.name, op_kind.name(), solver, ev.metrics.psnr_db, ev.metrics.ssim, ev.metrics.sam_deg, solved.seconds));
+                pb.println(format!("{} {} {} {}: PSNR {:.2} dB, SSIM {:.3}, SAM {:.2}°, {:.1} s", label, scene.name, op_kind.name(), solver, ev.metrics.psnr_db, ev.metrics.ssim, ev.metrics.sam_deg, solved.seconds));
                 pb.inc(1);
             }
             pb.finish_and_clear();
@@ -545,23 +696,24 @@ pub fn study(a: StudyArgs) -> Result<()> {
     }
     // ---- collect every cell of this configuration ----
     let mut cells = Vec::new();
-    for preset in &presets {
+    for sys in &systems {
         for s in &scenes {
             for &op in &operators {
                 for v in &solvers {
-                    let p = a.out.join("cells").join(preset).join(&s.name).join(format!("{}-{v}.json", op.name()));
+                    let p = a.out.join("cells").join(&sys.key).join(&s.name).join(format!("{}-{v}.json", op.name()));
                     let c = read_json(&p).and_then(|j| cell_from_json(&j)).ok_or_else(|| Error::File { path: p.display().to_string(), message: "missing or unreadable cell result".into() })?;
                     cells.push(c);
                 }
             }
         }
     }
-    write_tables(&a, &presets, &operators, &solvers, &scenes, &cells, t0.elapsed().as_secs_f64())?;
+    let labels: Vec<String> = systems.iter().map(|s| s.label.clone()).collect();
+    write_tables(&a, &labels, &operators, &solvers, &scenes, &cells, t0.elapsed().as_secs_f64())?;
     println!("study: {computed} cells computed, {skipped} already done; {:.1} s → {}", t0.elapsed().as_secs_f64(), a.out.join("study.md").display());
     Ok(())
 }
 
-fn write_tables(a: &StudyArgs, presets: &[String], operators: &[OperatorKind], solvers: &[String], scenes: &[StudyScene], cells: &[Cell], seconds: f64) -> Result<()> {
+fn write_tables(a: &StudyArgs, labels: &[String], operators: &[OperatorKind], solvers: &[String], scenes: &[StudyScene], cells: &[Cell], seconds: f64) -> Result<()> {
     // study.csv, through the project's CSV writer (a scene name holding a comma is quoted); the numbers keep
     // their fixed formats, so the file is byte for byte what it was.
     let mut csv = crate::io::CsvWriter::new(
@@ -573,8 +725,8 @@ fn write_tables(a: &StudyArgs, presets: &[String], operators: &[OperatorKind], s
         let fixed = |v: f64| format!("{v:.6}");
         let cols = [
             c.scene.clone(),
-            system_label(&c.preset),
-            c.preset.clone(),
+            c.system.clone(),
+            c.preset.clone().unwrap_or_default(),
             c.operator.clone(),
             c.solver.clone(),
             fixed(m["psnr_db"]),
@@ -591,12 +743,11 @@ fn write_tables(a: &StudyArgs, presets: &[String], operators: &[OperatorKind], s
         csv.row(&cols.iter().map(|s| crate::io::CsvValue::Str(s)).collect::<Vec<_>>())?;
     }
     csv.finish()?;
-    let pick = |preset: &str, op: &str, solver: &str, key: &str| -> Vec<f64> { cells.iter().filter(|c| c.preset == preset && c.operator == op && c.solver == solver).map(|c| c.metrics[key]).collect() };
-    let labels: Vec<String> = presets.iter().map(|p| system_label(p)).collect();
+    let pick = |system: &str, op: &str, solver: &str, key: &str| -> Vec<f64> { cells.iter().filter(|c| c.system == system && c.operator == op && c.solver == solver).map(|c| c.metrics[key]).collect() };
     let mut md = String::new();
     md.push_str(&format!(
         "# Study: {} scenes ({}×{}), {} systems, operators {}, solvers {}\n\nGenerated by `diffcassi study` ({} s for this invocation; cells computed earlier are reused). Mean ± standard deviation over the scenes. PSNR: paper convention (one MSE over the cube, peak = max of the truth) and MST convention (mean of per-band PSNR, peak 1); SSIM 11×11 Gaussian σ = 1.5, mean over bands; SAM mean spectral angle. Scenes: {}.\n\n",
-        scenes.len(), a.scene_size, a.scene_size, presets.len(),
+        scenes.len(), a.scene_size, a.scene_size, labels.len(),
         operators.iter().map(|o| o.name()).collect::<Vec<_>>().join(", "), solvers.join(", "), seconds.round(),
         scenes.iter().map(|s| s.name.as_str()).collect::<Vec<_>>().join(", ")
     ));
@@ -605,15 +756,15 @@ fn write_tables(a: &StudyArgs, presets: &[String], operators: &[OperatorKind], s
         md.push_str(&format!("## {solver}\n\n| metric | operator | {} |\n|---|---|{}\n", labels.join(" | "), "---|".repeat(labels.len())));
         for (label, key, digits) in metric_rows {
             for op in operators {
-                let cols: Vec<String> = presets.iter().map(|p| {
+                let cols: Vec<String> = labels.iter().map(|p| {
                     let (m, s) = mean_std(&pick(p, op.name(), solver, key));
                     format!("{m:.digits$} ± {s:.digits$}")
                 }).collect();
                 md.push_str(&format!("| {label} | {} | {} |\n", op.name(), cols.join(" | ")));
             }
         }
-        let secs: Vec<String> = presets.iter().map(|p| {
-            let v: Vec<f64> = cells.iter().filter(|c| &c.preset == p && &c.solver == solver).map(|c| c.seconds_solve).collect();
+        let secs: Vec<String> = labels.iter().map(|p| {
+            let v: Vec<f64> = cells.iter().filter(|c| &c.system == p && &c.solver == solver).map(|c| c.seconds_solve).collect();
             format!("{:.1}", mean_std(&v).0)
         }).collect();
         md.push_str(&format!("| solve seconds (mean over operators and scenes) | | {} |\n\n", secs.join(" | ")));
@@ -624,9 +775,9 @@ fn write_tables(a: &StudyArgs, presets: &[String], operators: &[OperatorKind], s
             if !others.is_empty() {
                 md.push_str(&format!("### Ablation ({solver}): PSNR of each model minus PSNR with the exact operator (dB, per scene, mean ± std)\n\n| operator | {} |\n|---|{}\n", labels.join(" | "), "---|".repeat(labels.len())));
                 for op in others {
-                    let cols: Vec<String> = presets.iter().map(|p| {
+                    let cols: Vec<String> = labels.iter().map(|p| {
                         let d: Vec<f64> = scenes.iter().filter_map(|s| {
-                            let get = |o: &str| cells.iter().find(|c| &c.preset == p && c.scene == s.name && c.operator == o && &c.solver == solver).map(|c| c.metrics["psnr_db"]);
+                            let get = |o: &str| cells.iter().find(|c| &c.system == p && c.scene == s.name && c.operator == o && &c.solver == solver).map(|c| c.metrics["psnr_db"]);
                             Some(get(op.name())? - get(base)?)
                         }).collect();
                         let (m, sd) = mean_std(&d);
@@ -640,10 +791,10 @@ fn write_tables(a: &StudyArgs, presets: &[String], operators: &[OperatorKind], s
     }
     let plot = a.out.join("study_psnr.png");
     let series: Vec<crate::plot::BarSeries> = operators.iter().map(|op| {
-        let (mean, std): (Vec<f64>, Vec<f64>) = presets.iter().map(|p| mean_std(&pick(p, op.name(), &solvers[0], "psnr_db"))).unzip();
+        let (mean, std): (Vec<f64>, Vec<f64>) = labels.iter().map(|p| mean_std(&pick(p, op.name(), &solvers[0], "psnr_db"))).unzip();
         crate::plot::BarSeries { label: op.name().to_string(), mean, std }
     }).collect();
-    crate::plot::grouped_bars(&plot, &format!("PSNR by system and forward model ({}, {} scenes {}×{})", solvers[0], scenes.len(), a.scene_size, a.scene_size), "PSNR (dB)", &labels, &series)
+    crate::plot::grouped_bars(&plot, &format!("PSNR by system and forward model ({}, {} scenes {}×{})", solvers[0], scenes.len(), a.scene_size, a.scene_size), "PSNR (dB)", labels, &series)
         .map_err(|e| Error::File { path: plot.display().to_string(), message: e.to_string() })?;
     md.push_str(&format!("![PSNR by system and operator](study_psnr.png)\n\nRows of every cell: `study.csv`. Per-cell results: `cells/`, reconstructions: `recon/`, acquisitions: `renders/`.\n"));
     crate::io::write_atomic(a.out.join("study.md"), md.as_bytes())?;

@@ -149,7 +149,12 @@ impl ShiftOperator {
                     if out.status[k] == RayStatus::Ok {
                         Ok(det.to_pixel(out.x[k], out.y[k]))
                     } else {
-                        Err(Error::invalid(format!("shift operator: the chief ray of field ({:.4}, {:.4}) mm at {w} nm does not reach the detector ({:?})", fields[k][0], fields[k][1], out.status[k])))
+                        // The field in the system's unit: object height (mm), or at infinity the angle (rad → degrees).
+                        let field = match renderer.system.object_at_infinity() {
+                            true => format!("({:.4}°, {:.4}°)", fields[k][0].to_degrees(), fields[k][1].to_degrees()),
+                            false => format!("({:.4}, {:.4}) mm", fields[k][0], fields[k][1]),
+                        };
+                        Err(Error::invalid(format!("shift operator: the chief ray of field {field} at {w} nm does not reach the detector ({:?})", out.status[k])))
                     }
                 })
                 .collect()
