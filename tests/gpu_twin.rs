@@ -590,11 +590,13 @@ fn rust_landings_at_infinity(sys: &SequentialSystem, scene: SceneGeometry<'_>, s
 /// The landing kernel for an object at infinity (`dc_parallel_ray`: the pixel's field angles, tan from the
 /// platform's libm as Rust's f64::tan): the renderer's steps composed in Rust, bit for bit — the singlet at
 /// infinity of tests/common, rayoptics' Cassegrain (mirrors) and US 5,331,467's catadioptric (its obscuration),
-/// with scenes reaching past the field so that rays also stop.
+/// with scenes reaching past the field so that rays also stop; and the singlet with a scene 179.8° wide (the
+/// widest `--scene-fov-deg` allows: field angles within 0.1° of 90°, tan θ up to ~600), whose edge rays stop.
 #[test]
 fn landing_kernel_twin_equals_the_renderers_steps_at_infinity() {
     let systems = [
         ("singlet at infinity", SequentialSystem::build(&crate::common::singlet_at_infinity(false)).unwrap(), 0.002),
+        ("singlet at infinity, 179.8° scene", SequentialSystem::build(&crate::common::singlet_at_infinity(false)).unwrap(), 179.8f64.to_radians() / 12.0),
         ("cassegrain_mirrors_HoO_V2C18Ex03.zmx", zmx_system("cassegrain_mirrors_HoO_V2C18Ex03.zmx"), 0.0005),
         ("US05331467-1.zmx", zmx_system("US05331467-1.zmx"), 0.004),
     ];
@@ -617,6 +619,9 @@ fn landing_kernel_twin_equals_the_renderers_steps_at_infinity() {
         }
         println!("{name}: {statuses:?}");
         assert!(statuses.contains("Ok"), "{name}: some rays must arrive");
+        if name.contains("179.8") {
+            assert!(statuses.len() > 1, "{name}: the rays near 90° must stop: {statuses:?}");
+        }
     }
 }
 
