@@ -144,8 +144,10 @@ def gpu_check(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float]
               **settings: Any) -> Dict[str, Any]:
     """The GPU's figures on one render of ``scene`` (the keywords of :func:`render`): the acquisition on the
     CUDA device twice (time; ``runs_bit_identical``), on the CPU (``cpu_max_rel_diff``: the largest difference
-    relative to the CPU's peak), through the host twin (``twin_bit_identical``) when ``twin``, and the middle
-    plane's rays landed on both (``landing_max_diff_mm``, ``landing_status_mismatches``). Needs a CUDA device."""
+    relative to the CPU's peak), through the host twin (``twin_bit_identical``, ``twin_max_rel_diff``) when
+    ``twin``, and the middle plane's rays landed on both (``landing_max_diff_mm``, ``landing_status_mismatches``);
+    ``at_infinity``: the object is at infinity, where the device's ``tan`` may differ from the host's by 2 ulp
+    (docs/gpu.md). Needs a CUDA device."""
     _check_backend(settings.get("backend", "analytic"))
     return _json.loads(_native._gpu_check(system, scene, wavelengths_nm, twin, **settings))
 

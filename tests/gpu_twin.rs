@@ -441,26 +441,252 @@ fn landing_kernel_twin_equals_the_renderers_steps_through_fold_mirrors() {
     assert!(status.iter().any(|&s| s == RayStatus::Ok), "some rays must arrive");
 }
 
-/// A grating or a Toroidal surface is still refused by the GPU kernels, by surface and kind, before any device
-/// work; so is a render of an object at infinity (the kernels generate rays from a finite object plane).
-#[test]
-fn gpu_kernels_refuse_gratings_toroids_and_render_at_infinity_by_name() {
-    let grating = zmx_system("grating_flat_transmission_optiland.zmx");
-    let rays = catalogue_batch(&grating);
-    for tracer in [TwinTracer::default(), TwinTracer::f32()] {
-        let e = tracer.trace(&grating, &rays).err().expect("a grating is refused").to_string();
-        assert!(e.contains("is a diffraction grating") && e.contains("--device cpu"), "{e}");
-    }
+// ---- Toroidal surfaces, diffraction gratings and renders at infinity (issue 41/42) ------------------------
+
+/// The toroid of a `.zmx` text: a Toroidal stop (R 20 mm, radius of rotation 100 mm) 50 mm behind the object.
+fn inline_toroid() -> SequentialSystem {
     let text = "MODE SEQ\nUNIT MM X W X CM MR CPMM\nOBNA 0.05 0\nFTYP 1 0 1 1 0 0 0\nXFLN 0\nYFLN 0\nWAVM 1 0.55 1\nPWAV 1\n\
 SURF 0\n  TYPE STANDARD\n  CURV 0.0 0 0 0 0 \"\"\n  DISZ 50\nSURF 1\n  STOP\n  TYPE TOROIDAL\n  CURV 0.05 0 0 0 0 \"\"\n  PARM 0 0\n  PARM 1 0\n  PARM 2 0\n  PARM 3 0\n  \
 XDAT 1 0.000000000000E+00 0 0 1.0 0.0 0 \"\"\n  XDAT 2 1.000000000000E+02 0 0 1.0 0.0 0 \"\"\n  DISZ 5\n  GLAS N-BK7 0 0 1.5 40 0 0 0 0 0 0\nSURF 2\n  TYPE STANDARD\n  DISZ 0\n";
     let spec = diffcassi::spec::zmx::import_zmx(text.as_bytes(), "t.zmx", None, &diffcassi::spec::zmx::ZmxOptions::default()).unwrap().spec;
-    let toroid = SequentialSystem::build(&spec).unwrap();
-    let e = TwinTracer::default().trace(&toroid, &catalogue_batch(&toroid)).err().expect("a toroid is refused").to_string();
-    assert!(e.contains("surface 1 is a Toroidal surface"), "{e}");
-    let cass = zmx_system("cassegrain_mirrors_HoO_V2C18Ex03.zmx");
+    SequentialSystem::build(&spec).unwrap()
+}
+
+/// A reflective plane grating (`GLAS MIRROR` on a `DGRATING`, 0.3 lines/µm, order 1) behind a 10° tilt, folded
+/// back (the builder of tests/surfaces.rs's Jacobian tests).
+fn reflective_grating() -> diffcassi::spec::SystemSpec {
+    let mut r = crate::surfaces::plane_grating(0.3, 1);
+    r.surfaces[1].material = Some("MIRROR".into());
+    r.surfaces[1].thickness_mm = diffcassi::spec::Cell::fixed(-30.0);
+    r.surfaces.insert(1, diffcassi::spec::SurfaceSpec::coordinate_break(0.0, 0.0, 10.0, 0.0, 0.0, 0.0));
+    r
+}
+
+/// [`catalogue_batch`] plus a 5 × 5 grid of fields over ±3 mm (±0.05 rad at infinity) and pupil points far past the
+/// rim (up to 25×: rays that leave a toroid's domain), at three of the system's wavelengths.
+fn wide_batch(sys: &SequentialSystem) -> RayBatch {
+    let mut pupil = PupilPattern::Hexapolar { rings: 6 }.points();
+    pupil.extend([[1.3, 0.0], [0.0, -1.3], [0.95, 0.95], [3.0, 0.0], [0.0, -3.0], [10.0, 0.0], [0.0, 10.0], [25.0, 0.0], [0.0, -25.0], [18.0, 18.0]]);
+    let reach = if sys.object_at_infinity() { 0.05 } else { 3.0 };
+    let mut fields: Vec<[f64; 2]> = (0..25).map(|k| [reach * ((k / 5) as f64 / 2.0 - 1.0), reach * ((k % 5) as f64 / 2.0 - 1.0)]).collect();
+    for f in sys.fields_or_axis() {
+        for s in [0.5, 1.0, 1.5] {
+            fields.push([f[0] * s, f[1] * s]);
+        }
+    }
+    let w = &sys.spec.wavelengths_nm;
+    let wavelengths = [w[0], w[w.len() / 2], w[w.len() - 1]];
+    object_rays(sys, &fields, &pupil, &wavelengths)
+}
+
+/// Toroidal surfaces (`DC_SHAPE_TOROIDAL`: dc_toroid_local's sag and gradient, the guarded Newton from the
+/// vertex plane's root then the YZ conic's) and diffraction gratings (`dc_grating_step`: the vector grating
+/// equation, transmissive and reflective, evanescent orders) through the trace kernels against the CPU kernels:
+/// toroids of tests/surfaces.rs (a radius of rotation of 35 mm, a cylinder, a conic toroid with y⁴, y⁶ terms in
+/// `all_new_kinds`), Thorlabs' cylindrical lens LJ1598L1 and a `.zmx` text toroid; plane, curved and reflective
+/// gratings of tests/surfaces.rs, optiland's grating plate and the `gsp` preset (SP's prism a plane
+/// transmission grating). The f64 twin equals the scalar kernel bit for bit (statuses and stopping surfaces
+/// included), the f32 twin the f32 lane kernel on every SIMD level (both widen to f64 there alike); every output
+/// is finite (an evanescent or grazing ray stops with its status and zeros, never NaN).
+#[test]
+fn trace_kernel_twins_equal_the_cpu_kernels_through_toroids_and_gratings() {
+    use crate::surfaces::{all_new_kinds, curved_grating, plane_grating, toroid_lens};
+    let build = |spec: diffcassi::spec::SystemSpec| SequentialSystem::build(&spec).unwrap();
+    let systems = [
+        ("toroid R_rot 35 mm (builder)", build(toroid_lens(Some(35.0)))),
+        ("toroid, a cylinder (builder)", build(toroid_lens(None))),
+        ("all_new_kinds (builder)", build(all_new_kinds())),
+        ("cylinder_thorlabs_LJ1598L1.zmx", zmx_system("cylinder_thorlabs_LJ1598L1.zmx")),
+        ("toroid (zmx text)", inline_toroid()),
+        ("plane grating 0.6/µm (builder)", build(plane_grating(0.6, 1))),
+        ("plane grating 1.5/µm (builder)", build(plane_grating(1.5, 1))),
+        ("curved grating (builder)", build(curved_grating())),
+        ("reflective grating (builder)", build(reflective_grating())),
+        ("grating_flat_transmission_optiland.zmx", zmx_system("grating_flat_transmission_optiland.zmx")),
+        ("gsp", system("gsp")),
+    ];
+    let mut evanescent = 0;
+    for (name, sys) in &systems {
+        let toroid = sys.surfaces.iter().any(|s| matches!(s.shape, Some(diffcassi::surfaces::SurfaceShape::Toroidal { .. })));
+        assert!(toroid || sys.has_grating(), "{name}: a toroid or a grating");
+        let rays = wide_batch(sys);
+        let rust = scalar().trace(sys, &rays).unwrap();
+        let twin = TwinTracer::default().trace(sys, &rays).unwrap();
+        assert_bits(&format!("{name} f64"), &twin, &rust);
+        let ok = rust.status.iter().filter(|&&s| s == RayStatus::Ok).count();
+        assert!(ok > rust.len() / 10, "{name}: {ok} ok of {}: the batch must exercise arrivals", rust.len());
+        if toroid {
+            // Rays past the toroid's domain (|y| beyond its YZ curve's, or x beyond the radius of rotation's) stop
+            // on it, classified as on the CPU (compared above).
+            assert!(ok < rust.len(), "{name}: every ray arrived: the batch must also stop rays on the toroid");
+        }
+        evanescent += twin.status.iter().filter(|&&s| s == RayStatus::Evanescent).count();
+        let twin32 = TwinTracer::f32().trace(sys, &rays).unwrap();
+        for level in SimdLevel::available() {
+            let rust32 = AnalyticF32Tracer::new(level).trace(sys, &rays).unwrap();
+            assert_bits(&format!("{name} f32 {}", level.name()), &twin32, &rust32);
+        }
+        for t in [&twin, &twin32] {
+            assert!(t.x.iter().chain(&t.y).chain(&t.z).chain(&t.dir_x).chain(&t.dir_y).chain(&t.dir_z).all(|v| v.is_finite()), "{name}: no NaN leaves the twin");
+        }
+        let mut stops = std::collections::BTreeMap::new();
+        for (st, surf) in twin.status.iter().zip(&twin.surface).filter(|(s, _)| **s != RayStatus::Ok) {
+            *stops.entry(format!("{st:?} on {surf}")).or_insert(0usize) += 1;
+        }
+        println!("{name}: {} rays, {ok} ok; stops {stops:?}", rays.len());
+    }
+    assert!(evanescent > 0, "no evanescent order among the gratings' rays");
+    // An order that cannot propagate (2 lines/µm at 650 nm: |mλT| = 1.3 > 1, tests/surfaces.rs) stops every ray
+    // on the grating as evanescent, in both twins, with zeros out; and a ray grazing the reflective grating is
+    // missed there, as in the CPU kernels.
+    let sys = build(plane_grating(2.0, 1));
+    let rays = RayBatch::for_field(&sys, [0.0, 0.0], &[[0.0, 0.0], [0.5, 0.5]], 650.0).unwrap();
+    for (label, twin) in [("f64", TwinTracer::default().trace(&sys, &rays).unwrap()), ("f32", TwinTracer::f32().trace(&sys, &rays).unwrap())] {
+        assert!(twin.status.iter().all(|&s| s == RayStatus::Evanescent) && twin.surface.iter().all(|&s| s == 1), "{label}: {:?} {:?}", twin.status, twin.surface);
+        assert!(twin.x.iter().chain(&twin.dir_x).all(|&v| v == 0.0), "{label}");
+    }
+    // The reflective grating untilted (its vertex 50 mm down the axis): a ray from the vertex with d·n̂ = 1e-13
+    // grazes it (missed on surface 1); the axial ray is reflected into its order.
+    let mut flat = plane_grating(0.3, 1);
+    flat.surfaces[1].material = Some("MIRROR".into());
+    flat.surfaces[1].thickness_mm = diffcassi::spec::Cell::fixed(-30.0);
+    let sys = build(flat);
+    let mut grazing = RayBatch::with_capacity(0);
+    grazing.push(DVec3::new(0.0, 0.0, 50.0), DVec3::new(0.0, 1.0, 1e-13), 520.0);
+    grazing.push(DVec3::new(0.0, 0.0, 0.0), DVec3::Z, 520.0);
+    for (label, twin) in [("f64", TwinTracer::default().trace(&sys, &grazing).unwrap()), ("f32", TwinTracer::f32().trace(&sys, &grazing).unwrap())] {
+        assert_eq!((twin.status[0], twin.surface[0], twin.status[1]), (RayStatus::Missed, 1, RayStatus::Ok), "{label}: grazing, axial");
+        assert!(twin.dir_z[1] < 0.0, "{label}: the axial ray goes back after the reflective grating");
+    }
+    assert_bits("reflective grating, grazing", &TwinTracer::default().trace(&sys, &grazing).unwrap(), &scalar().trace(&sys, &grazing).unwrap());
+}
+
+/// The renderer's steps at infinity, composed from the library's Rust pieces: the sampler, the pixel's field
+/// angles (the pixel pitch an angle, rad), `rays::object_ray` (`PupilAim::parallel_ray`), the scalar trace and
+/// the detector coordinates.
+fn rust_landings_at_infinity(sys: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wl: f64, pixels: &[u32]) -> (Vec<f64>, Vec<f64>, Vec<RayStatus>) {
+    let mut batch = RayBatch::with_capacity(0);
+    let mut s = vec![[0.0; 4]; sampler.rays];
+    for &q in pixels {
+        sampler.fill(seed, plane, q as u64, &mut s);
+        let (row, col) = (q as usize / scene.width, q as usize % scene.width);
+        let c = MappingCube::scene_xy(scene.height, scene.width, scene.pitch_mm, row, col);
+        for smp in &s {
+            let field = [c[0] + (smp[2] - 0.5) * scene.pitch_mm, c[1] - (smp[3] - 0.5) * scene.pitch_mm];
+            let (o, d) = diffcassi::rays::object_ray(sys, field, smp[0], smp[1]);
+            batch.push(o, d, wl);
+        }
+    }
+    let t = scalar().trace(sys, &batch).unwrap();
+    let (mut u, mut v) = (Vec::new(), Vec::new());
+    for i in 0..t.len() {
+        let (a, b) = if t.status[i] == RayStatus::Ok { scene.detector.to_pixel(t.x[i], t.y[i]) } else { (f64::NAN, f64::NAN) };
+        u.push(a);
+        v.push(b);
+    }
+    (u, v, t.status)
+}
+
+/// The landing kernel for an object at infinity (`dc_parallel_ray`: the pixel's field angles, tan from the
+/// platform's libm as Rust's f64::tan): the renderer's steps composed in Rust, bit for bit — the singlet at
+/// infinity of tests/common, rayoptics' Cassegrain (mirrors) and US 5,331,467's catadioptric (its obscuration),
+/// with scenes reaching past the field so that rays also stop; and the singlet with a scene 179.8° wide (the
+/// widest `--scene-fov-deg` allows: field angles within 0.1° of 90°, tan θ up to ~600), whose edge rays stop.
+#[test]
+fn landing_kernel_twin_equals_the_renderers_steps_at_infinity() {
+    let systems = [
+        ("singlet at infinity", SequentialSystem::build(&crate::common::singlet_at_infinity(false)).unwrap(), 0.002),
+        ("singlet at infinity, 179.8° scene", SequentialSystem::build(&crate::common::singlet_at_infinity(false)).unwrap(), 179.8f64.to_radians() / 12.0),
+        ("cassegrain_mirrors_HoO_V2C18Ex03.zmx", zmx_system("cassegrain_mirrors_HoO_V2C18Ex03.zmx"), 0.0005),
+        ("US05331467-1.zmx", zmx_system("US05331467-1.zmx"), 0.004),
+    ];
+    let detector = Detector { width: 600, height: 600, pitch_mm: 0.05, x_left_mm: -15.0, y_top_mm: 15.0 };
+    for (name, sys, pitch_rad) in &systems {
+        assert!(sys.object_at_infinity(), "{name}");
+        let scene = SceneGeometry { height: 10, width: 12, pitch_mm: *pitch_rad, detector: &detector };
+        let pixels: Vec<u32> = (0..120).filter(|q| q % 4 != 1).collect();
+        let mut statuses = std::collections::BTreeSet::new();
+        for (rays, mode, seed, plane) in [(9, Sampling::Stratified, 5u64, 2u64), (4, Sampling::Independent, 77, 13)] {
+            let sampler = RaySampler::new(rays, mode);
+            let wl = sys.spec.primary_wavelength_nm;
+            let twin = plane_landings(sys, scene, &sampler, seed, plane, wl, &pixels).unwrap();
+            let (u, v, status) = rust_landings_at_infinity(sys, scene, &sampler, seed, plane, wl, &pixels);
+            assert_eq!(twin.status, status, "{name} {rays} {mode:?}: statuses");
+            for i in 0..u.len() {
+                assert_eq!((twin.u[i].to_bits(), twin.v[i].to_bits()), (u[i].to_bits(), v[i].to_bits()), "{name} {rays} {mode:?} ray {i}: ({}, {}) vs ({}, {})", twin.u[i], twin.v[i], u[i], v[i]);
+            }
+            statuses.extend(status.iter().map(|s| format!("{s:?}")));
+        }
+        println!("{name}: {statuses:?}");
+        assert!(statuses.contains("Ok"), "{name}: some rays must arrive");
+        if name.contains("179.8") {
+            assert!(statuses.len() > 1, "{name}: the rays near 90° must stop: {statuses:?}");
+        }
+    }
+}
+
+/// A small acquisition's light transport through the twin's landing and footprint kernels equals the CPU
+/// renderer's plane by plane (footprints, f32 weights, ray counts — evanescent ones included), in f64 and in
+/// f32, where the kernels now model more: a toroid, gratings (the `gsp` preset; a plane grating whose first
+/// order is evanescent over part of the beam at 650 nm) and objects at infinity (the singlet of tests/common and
+/// the Cassegrain, `scene_fov_deg`).
+#[test]
+fn plane_transport_through_the_twin_equals_the_cpu_renderer_on_toroids_gratings_and_at_infinity() {
+    use diffcassi::render::{Mask, RenderConfig, Renderer};
+    let build = |spec: diffcassi::spec::SystemSpec| SequentialSystem::build(&spec).unwrap();
+    // (name, system, scene_fov_deg at infinity, detector pitch: coarse where the diffracted beam lands ~100 mm off axis)
+    let cases = [
+        ("toroid (builder)", build(crate::surfaces::toroid_lens(Some(35.0))), None, None),
+        ("gsp", system("gsp"), None, None),
+        ("plane grating 1.5/µm (builder)", build(crate::surfaces::plane_grating(1.5, 1)), None, Some(0.5)),
+        ("singlet at infinity", build(crate::common::singlet_at_infinity(false)), Some(0.5), None),
+        ("cassegrain_mirrors_HoO_V2C18Ex03.zmx", zmx_system("cassegrain_mirrors_HoO_V2C18Ex03.zmx"), Some(0.2), None),
+    ];
+    let tracer = AnalyticTracer::default();
+    let mut evanescent = 0;
+    for (name, sys, fov_deg, det_pitch_mm) in &cases {
+        let (h, w) = (10, 12);
+        for precision in [Precision::F64, Precision::F32] {
+            let mut config = RenderConfig::paper(w);
+            config.scene_height = h;
+            config.scene_pitch_mm = 0.15;
+            config.scene_fov_deg = *fov_deg;
+            if let Some(p) = det_pitch_mm {
+                config.detector_pitch_mm = *p;
+            }
+            config.rays_per_pixel = 6;
+            config.spectral = diffcassi::render::SpectralSampling::new(vec![450.0, 650.0], 2).unwrap();
+            config.precision = precision;
+            let r = Renderer::new(sys, &tracer, config, Mask::random(h, w, 0.6, 7).unwrap()).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let ctx = r.plane_context();
+            let mut arrived = 0;
+            for (p, &wl) in r.config.spectral.planes_nm.iter().enumerate() {
+                let cpu = ctx.trace_plane(p, wl).unwrap();
+                let twin = diffcassi::render::twin::trace_plane(&ctx, p, wl).unwrap();
+                assert_eq!(twin.footprints, cpu.footprints, "{name} {precision} plane {p}: footprints");
+                assert_eq!(twin.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), cpu.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{name} {precision} plane {p}: weights");
+                assert_eq!(twin.stats, cpu.stats, "{name} {precision} plane {p}: ray counts");
+                arrived += cpu.stats.arrived;
+                evanescent += cpu.stats.evanescent;
+            }
+            assert!(arrived > 0, "{name} {precision}: no ray arrived");
+        }
+    }
+    assert!(evanescent > 0, "no evanescent ray in the grating renders");
+}
+
+/// What the kernels still do not model is refused by name before any device work: ray aiming `paraxial` or
+/// `real` in a render (the aim is iterative per ray), and a coded mask on a surface (dual-disperser CASSI).
+#[test]
+fn gpu_kernels_refuse_ray_aiming_and_a_mask_surface_by_name() {
+    let mut spec = presets::spec("sp").unwrap();
+    spec.ray_aiming = diffcassi::spec::RayAiming::Real;
+    let aimed = SequentialSystem::build(&spec).unwrap();
     let detector = Detector { width: 10, height: 10, pitch_mm: 0.01, x_left_mm: -0.05, y_top_mm: 0.05 };
     let scene = SceneGeometry { height: 2, width: 2, pitch_mm: 0.01, detector: &detector };
-    let e = plane_landings(&cass, scene, &RaySampler::new(2, Sampling::Stratified), 0, 0, 550.0, &[0]).err().expect("infinity refused").to_string();
-    assert!(e.contains("object at infinity"), "{e}");
+    let e = plane_landings(&aimed, scene, &RaySampler::new(2, Sampling::Stratified), 0, 0, 550.0, &[0]).err().expect("ray aiming refused").to_string();
+    assert!(e.contains("ray aiming") && e.contains("not on the device yet"), "{e}");
+    let dd = system("ddsp");
+    let e = plane_landings(&dd, scene, &RaySampler::new(2, Sampling::Stratified), 0, 0, 550.0, &[0]).err().expect("a mask surface refused").to_string();
+    assert!(e.contains("coded mask on surface") && e.contains("--device cpu"), "{e}");
 }

@@ -10,6 +10,7 @@ const SHAPE_PLANE: u32 = 0;
 const SHAPE_CONIC: u32 = 1;
 const SHAPE_ASPHERE: u32 = 2;
 const SHAPE_PARAXIAL: u32 = 3;
+const SHAPE_TOROIDAL: u32 = 4;
 /// Aperture codes (`DC_APERTURE_*`).
 const APERTURE_NONE: u32 = 0;
 const APERTURE_CIRCULAR: u32 = 1;
@@ -18,7 +19,9 @@ const APERTURE_OBSCURATION: u32 = 3;
 /// Interaction codes (`DC_INTERACTION_*`).
 const INTERACTION_REFRACT: u32 = 0;
 const INTERACTION_REFLECT: u32 = 1;
-/// `DC_MAX_COEF`: even-asphere terms r² … r¹⁶.
+const INTERACTION_GRATING: u32 = 2;
+const INTERACTION_GRATING_REFLECT: u32 = 3;
+/// `DC_MAX_COEF`: even-asphere terms r² … r¹⁶ (a toroid's y² … y¹⁶).
 pub(crate) const MAX_COEF: usize = 8;
 
 /// One surface of the path (`dc_step`).
@@ -34,13 +37,19 @@ pub(crate) struct Step {
     pub focal_length: f64,
     pub aperture: [f64; 4],
     pub coef: [f64; MAX_COEF],
+    /// A toroid's 1/(radius of rotation), 1/mm (0: a cylinder).
+    pub rotation_curvature: f64,
+    /// A grating's lines per µm and diffraction order.
+    pub grating_lines_per_um: f64,
+    pub grating_order: f64,
     pub shape: u32,
     pub aperture_kind: u32,
     pub surface: u32,
     pub n_coef: u32,
-    /// `DC_INTERACTION_*`: refract, or reflect at a mirror.
+    /// `DC_INTERACTION_*`: refract, reflect at a mirror, or diffract at a grating (transmissive or reflective).
     pub interaction: u32,
-    pub pad: u32,
+    /// A grating's wavelength slot in the index row ([`crate::system::Interaction::Grating`]).
+    pub wavelength_slot: u32,
 }
 
 /// A batch in structure-of-arrays form (`dc_batch`): borrowed pointers, valid for one call.
@@ -82,21 +91,24 @@ pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
         .path
         .iter()
         .map(|s| {
-            // The kernels (dc_trace_tmpl.h, the C twin of tracer::kernel) refract or reflect (a mirror,
-            // dc_reflect); a grating or a Toroidal surface is refused here, by surface, before any device work.
-            let unmodelled = match (s.interaction, &s.shape) {
-                (crate::system::Interaction::Grating { .. }, _) => Some("a diffraction grating"),
-                (_, SurfaceShape::Toroidal { .. }) => Some("a Toroidal surface"),
-                _ => None,
+            // The kernels (dc_trace_tmpl.h, the C twin of tracer::kernel) refract, reflect (a mirror, dc_reflect)
+            // or diffract into the grating's order (dc_grating_step, the vector grating equation of
+            // surfaces::grating), on every shape of SurfaceShape (a Toroidal surface: dc_toroid_local).
+            let mut step = Step { rotation: s.rotation.to_cols_array(), offset: s.offset.to_array(), surface: s.surface as u32, ..Step::default() };
+            step.interaction = match s.interaction {
+                crate::system::Interaction::Refract => INTERACTION_REFRACT,
+                crate::system::Interaction::Reflect => INTERACTION_REFLECT,
+                crate::system::Interaction::Grating { grating, reflective, wavelength_slot } => {
+                    step.grating_lines_per_um = grating.lines_per_um;
+                    step.grating_order = grating.order;
+                    step.wavelength_slot = u32::try_from(wavelength_slot).map_err(|_| Error::invalid(format!("surface {}: grating wavelength slot {wavelength_slot} exceeds u32", s.surface)))?;
+                    if reflective {
+                        INTERACTION_GRATING_REFLECT
+                    } else {
+                        INTERACTION_GRATING
+                    }
+                }
             };
-            if let Some(what) = unmodelled {
-                return Err(Error::invalid(format!(
-                    "surface {} is {what}, which the GPU kernels do not trace (they model refracting surfaces and mirrors): use --device cpu (the analytic tracer) for this system",
-                    s.surface
-                )));
-            }
-            let interaction = if s.interaction == crate::system::Interaction::Reflect { INTERACTION_REFLECT } else { INTERACTION_REFRACT };
-            let mut step = Step { rotation: s.rotation.to_cols_array(), offset: s.offset.to_array(), surface: s.surface as u32, interaction, ..Step::default() };
             match &s.shape {
                 SurfaceShape::Plane => step.shape = SHAPE_PLANE,
                 SurfaceShape::Conic { curvature, conic } => {
@@ -122,7 +134,17 @@ pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
                     step.shape = SHAPE_PARAXIAL;
                     step.focal_length = *focal_length;
                 }
-                SurfaceShape::Toroidal { .. } => unreachable!("refused above"),
+                SurfaceShape::Toroidal { curvature, conic, coefficients, rotation_curvature } => {
+                    if coefficients.len() > MAX_COEF {
+                        return Err(Error::invalid(format!("surface {}: {} Toroidal terms; the GPU kernels take at most {MAX_COEF}", s.surface, coefficients.len())));
+                    }
+                    step.shape = SHAPE_TOROIDAL;
+                    step.curvature = *curvature;
+                    step.conic = *conic;
+                    step.rotation_curvature = *rotation_curvature;
+                    step.coef[..coefficients.len()].copy_from_slice(coefficients);
+                    step.n_coef = coefficients.len() as u32;
+                }
             }
             match s.aperture {
                 Aperture::None => step.aperture_kind = APERTURE_NONE,
@@ -145,16 +167,17 @@ pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
         .collect()
 }
 
-/// Index tables: one row of `n_surfaces` refractive indices (the index after each surface) per distinct
-/// wavelength, in first-seen order, and each ray's row.
+/// Index tables: one row of [`SequentialSystem::indices`] per distinct wavelength (the index after each
+/// surface, then the wavelength itself in a system with gratings), in first-seen order, and each ray's row.
 pub(crate) struct IndexTables {
     pub tables: Vec<f64>,
     pub table_of_ray: Vec<u32>,
+    /// The length of a row (the batch's `n_surfaces` stride).
     pub n_surfaces: usize,
 }
 
 pub(crate) fn index_tables(system: &SequentialSystem, wavelengths_nm: &[f64]) -> Result<IndexTables> {
-    let n_surfaces = system.surfaces.len();
+    let n_surfaces = system.surfaces.len() + usize::from(system.has_grating());
     let mut rows: std::collections::HashMap<u64, u32> = std::collections::HashMap::new();
     let mut tables = Vec::new();
     let mut table_of_ray = Vec::with_capacity(wavelengths_nm.len());
@@ -195,7 +218,8 @@ pub(crate) struct Aim {
     pub magnification_sign: f64,
     pub distance_mm: f64,
     pub telecentric: u32,
-    pub pad: u32,
+    /// 1: the object is at infinity (`PupilAim::at_infinity`; fields are angles, rad).
+    pub at_infinity: u32,
 }
 
 /// Scene and detector geometry (`dc_scene`).

@@ -8,8 +8,8 @@ use super::pack::{Aim, AiryBatch, DepositBatch, LandingBatch, Sampler, Scene, St
 use crate::error::{Error, Result};
 use rayon::prelude::*;
 
-/// Status slots (`DC_STATUS_SLOTS`: `tracer::RayStatus` codes 0 … 8) and the off-detector slot after them.
-pub const STATUS_SLOTS: usize = 9;
+/// Status slots (`DC_STATUS_SLOTS`: `tracer::RayStatus` codes 0 … 9) and the off-detector slot after them.
+pub const STATUS_SLOTS: usize = 10;
 /// Fixed-point units of one ray's weight in the off-detector count (`DC_LOST_ONE`).
 pub const LOST_ONE: f64 = 16_777_216.0;
 /// Threads per block of every launch.

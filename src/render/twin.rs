@@ -2,8 +2,9 @@
 //! lands (`dc_landing_kernel`), then each open pixel's footprint (`dc_footprint_size_kernel`, a prefix sum,
 //! `dc_footprint_fill_kernel`). The code the device runs, tested where there is no GPU: it must give
 //! [`PlaneContext::trace_plane`]'s footprints, weights and counts bit for bit (tests/gpu_twin.rs), hence the
-//! same acquisition, in f64 and in f32 (`--precision f32`: `dc_landing_f32_kernel`). Ray aiming `real` is not
-//! on the device yet (an error).
+//! same acquisition, in f64 and in f32 (`--precision f32`: `dc_landing_f32_kernel`), on a finite object plane
+//! and for an object at infinity (the scene sampled in field angle). Ray aiming `paraxial` or `real` is not on
+//! the device yet (an error).
 use super::detector::Detector;
 use super::sampling::{RaySampler, Sampling};
 use super::transport::{Footprint, PlaneContext, PlaneTransport};
@@ -36,8 +37,9 @@ pub struct SceneGeometry<'a> {
 
 /// The device's landing kernel (`dc_landing_kernel`) run on the host: for each open scene pixel of
 /// `pixels` (row-major indices) the `sampler.rays` rays of (`seed`, `plane`) — sampled, aimed through the
-/// paraxial entrance pupil, traced at `wavelength_nm` — and where they land. The numbers the renderer
-/// (`render::transport`) computes before its splat; ray aiming `real` is not on the device yet (an error).
+/// paraxial entrance pupil (at infinity: parallel rays of the pixel's field angles), traced at `wavelength_nm` —
+/// and where they land. The numbers the renderer (`render::transport`) computes before its splat; ray aiming
+/// `paraxial` or `real` is not on the device yet (an error).
 #[allow(clippy::too_many_arguments)]
 pub fn plane_landings(system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wavelength_nm: f64, pixels: &[u32]) -> Result<PlaneLandings> {
     plane_landings_in(Precision::F64, system, scene, sampler, seed, plane, wavelength_nm, pixels)
@@ -90,11 +92,10 @@ pub fn plane_landings_in(precision: Precision, system: &SequentialSystem, scene:
 
 
 /// The constants of a plane launch (`dc_sampler`, `dc_aim`, `dc_scene`): the sampler's, the paraxial pupil
-/// aim's and the scene and detector geometry. Ray aiming `real` is not on the device yet (an error).
+/// aim's (for an object at infinity the parallel rays of field angles, `PupilAim::parallel_ray`; the scene's
+/// pitch is then an angle, rad) and the scene and detector geometry. Ray aiming `paraxial` or `real` is not on
+/// the device yet (an error).
 pub(crate) fn launch_constants(system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64) -> Result<(Sampler, Aim, Scene)> {
-    if system.object_at_infinity() {
-        return Err(Error::invalid("the GPU kernels start rays from object points on a finite object plane: an object at infinity is not on the device yet (render with --device cpu)"));
-    }
     if system.spec.ray_aiming != RayAiming::Off {
         return Err(Error::invalid("the GPU kernels aim rays through the paraxial entrance pupil only: ray aiming (\"paraxial\" or \"real\") is not on the device yet (docs/gpu.md)"));
     }
@@ -102,9 +103,10 @@ pub(crate) fn launch_constants(system: &SequentialSystem, scene: SceneGeometry<'
     let (h, w) = (u32::try_from(scene.height).map_err(|_| too_big("scene height", scene.height))?, u32::try_from(scene.width).map_err(|_| too_big("scene width", scene.width))?);
     let rays = u32::try_from(sampler.rays).map_err(|_| too_big("rays", sampler.rays))?;
     let (a, b) = sampler.grid();
-    let (telecentric, scale, sin_marginal, magnification_sign, distance_mm) = PupilAim::of(system).parts();
+    let pupil = PupilAim::of(system);
+    let (telecentric, scale, sin_marginal, magnification_sign, distance_mm) = pupil.parts();
     let sampler_c = Sampler { seed, rays, mode: if sampler.mode == Sampling::Independent { 1 } else { 0 }, grid_a: a as u32, grid_b: b as u32 };
-    let aim = Aim { scale, sin_marginal, magnification_sign, distance_mm, telecentric: telecentric as u32, pad: 0 };
+    let aim = Aim { scale, sin_marginal, magnification_sign, distance_mm, telecentric: telecentric as u32, at_infinity: pupil.at_infinity as u32 };
     let scene_c = Scene {
         scene_pitch_mm: scene.pitch_mm,
         detector_x_left_mm: scene.detector.x_left_mm,

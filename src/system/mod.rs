@@ -108,9 +108,9 @@ impl SequentialSystem {
         self.surfaces.iter().any(|s| matches!(s.interaction, Interaction::Grating { .. }))
     }
 
-    /// Whether the system holds a surface the GPU kernels, the lane reverse sweep (`diff::adjoint_lanes`;
-    /// the scalar sweep covers them) or the Embree backends (mirrors aside) do not model (a mirror, a
-    /// grating or a Toroidal surface): `None`, or what it is and where.
+    /// Whether the system holds a surface the lane reverse sweep (`diff::adjoint_lanes`; the scalar sweep
+    /// covers them) or the Embree backends (mirrors aside) do not model (a mirror, a grating or a Toroidal
+    /// surface; the GPU kernels model all three): `None`, or what it is and where.
     pub fn special_surface(&self) -> Option<String> {
         self.surfaces.iter().find_map(|s| {
             let what = match (s.interaction, &s.shape) {

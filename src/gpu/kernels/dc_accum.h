@@ -30,8 +30,8 @@
 #define DC_ADD_U64(p, v) (*(p) += (dc_u64)(v))
 #endif
 
-/* Status slots counted per plane: tracer::RayStatus codes 0 … 8. */
-#define DC_STATUS_SLOTS 9u
+/* Status slots counted per plane: tracer::RayStatus codes 0 … 9 (9: a grating's evanescent order). */
+#define DC_STATUS_SLOTS 10u
 /* Fixed-point units of one ray's weight in the off-detector count. */
 #define DC_LOST_ONE 16777216.0
 

@@ -36,6 +36,12 @@ typedef int64_t dc_i64;
 #define DC_FABS(x) fabs(x)
 #define DC_COPYSIGN(x, y) copysign(x, y)
 #define DC_ISFINITE(x) isfinite(x)
+/* tan, the one transcendental function of the library's that the kernels call (the field angles of an object at
+ * infinity, rays::PupilAim::parallel_ray). The host twin calls the platform's libm, as Rust's f64::tan does, so
+ * the twin has the CPU renderer's bits; CUDA's double tan (libdevice __nv_tan) is not correctly rounded — its
+ * documented bound is 2 ulp (CUDA C++ Programming Guide, "Mathematical Functions", double precision) — so on
+ * the device a ray at infinity may start a few ulp away from the CPU's: docs/gpu.md, scripts/gpu/render_check.py. */
+#define DC_TAN(x) tan(x)
 
 #define DC_EPSILON 2.220446049250313080847263336181640625e-16 /* f64::EPSILON */
 #define DC_EPSILON_F32 1.1920928955078125e-7f                 /* f32::EPSILON */

@@ -6,7 +6,8 @@
  * own stream (here replayed backwards for one position, without the array: the same π). The pupil point is
  * the concentric (Shirley–Chiu) disk map with the renderer's branch-free sin/cos (src/render/trig.rs, the
  * fdlibm kernels), and the object ray is PupilAim::direction's (src/rays/aim.rs) through the paraxial
- * entrance pupil (ray aiming off). Landing: Detector::to_pixel's continuous pixel coordinates.
+ * entrance pupil (ray aiming off) — for an object at infinity PupilAim::parallel_ray's, the scene sampled in
+ * field angle. Landing: Detector::to_pixel's continuous pixel coordinates.
  */
 #ifndef DC_SAMPLE_H
 #define DC_SAMPLE_H
@@ -133,7 +134,7 @@ typedef struct {
     double magnification_sign;
     double distance_mm; /* object plane → entrance pupil */
     dc_u32 telecentric;
-    dc_u32 pad;
+    dc_u32 at_infinity; /* the object is at infinity: fields are angles (rad), the rays of a field parallel */
 } dc_aim;
 
 /* PupilAim::direction: the unit direction from object point (x, y, 0) through normalised pupil (px, py). */
@@ -156,7 +157,23 @@ DC_FN dc_v3 dc_aim_direction(const dc_aim *aim, double x, double y, double px, d
     return dc_v3_make(wx * inv, wy * inv, wz * inv);
 }
 
-/* The scene geometry and the detector of a render. */
+/* PupilAim::parallel_ray (object at infinity): the ray of field angles (θx, θy) rad through the entrance-pupil
+ * point (u, v) = (px, py)·scale, direction ∝ (tan θx, tan θy, 1), starting where it crosses the object frame's
+ * z = 0 plane (surface 1's vertex). tan: DC_TAN (dc_common.h: the platform's libm on the host, bit for bit the
+ * CPU's; CUDA's within 2 ulp on the device). */
+DC_FN void dc_parallel_ray(const dc_aim *aim, double theta_x, double theta_y, double px, double py, dc_v3 *o, dc_v3 *d) {
+    double r = aim->scale;
+    double u = px * r, v = py * r;
+    double tx = DC_TAN(theta_x), ty = DC_TAN(theta_y);
+    double m = aim->magnification_sign;
+    double z = aim->distance_mm;
+    *o = dc_v3_make(m * u - tx * z, m * v - ty * z, 0.0);
+    double inv = 1.0 / DC_SQRT(tx * tx + ty * ty + 1.0);
+    *d = dc_v3_make(tx * inv, ty * inv, inv);
+}
+
+/* The scene geometry and the detector of a render (for an object at infinity the scene pitch is an angle,
+ * rad: render::engine::scene_pitch_for). */
 typedef struct {
     double scene_pitch_mm;
     double detector_x_left_mm, detector_y_top_mm, detector_pitch_mm;
@@ -169,13 +186,19 @@ DC_FN void dc_scene_xy(const dc_scene *sc, dc_u32 row, dc_u32 col, double *x, do
     *y = ((double)sc->scene_height / 2.0 - (double)row - 0.5) * sc->scene_pitch_mm;
 }
 
-/* The object ray of sample s of scene pixel (row, col): origin (fx, fy, 0), the unit aim direction
- * (render::sampling::object_rays, then the trace's own normalisation). */
+/* The object ray of sample s of scene pixel (row, col) (PlaneContext::ray, then the trace's own
+ * normalisation): the field point (fx, fy) jittered in the pixel; on a finite object plane the origin
+ * (fx, fy, 0) and the unit aim direction (render::sampling::object_rays); at infinity (fx, fy) are field angles
+ * (rad) and the ray is dc_parallel_ray's (rays::object_ray). */
 DC_FN void dc_object_ray(const dc_scene *sc, const dc_aim *aim, dc_u32 row, dc_u32 col, const double s[4], dc_v3 *o, dc_v3 *d) {
     double cx, cy;
     dc_scene_xy(sc, row, col, &cx, &cy);
     double fx = cx + (s[2] - 0.5) * sc->scene_pitch_mm;
     double fy = cy - (s[3] - 0.5) * sc->scene_pitch_mm;
+    if (aim->at_infinity) {
+        dc_parallel_ray(aim, fx, fy, s[0], s[1], o, d);
+        return;
+    }
     *o = dc_v3_make(fx, fy, 0.0);
     *d = dc_aim_direction(aim, fx, fy, s[0], s[1]);
 }

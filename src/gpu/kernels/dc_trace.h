@@ -4,8 +4,11 @@
  * frame change p' = M(p − o), d' = M d; the exact intersection with a plane, a conic (the vertex-branch
  * root, Numerical Recipes §5.6) or an even asphere (guarded Newton from the conic's root, then the vertex
  * plane's); the clear aperture or a circular obscuration; vector Snell's law, the ideal (Paraxial) lens or a
- * mirror's reflection (OpticStudio's sequential convention, as the CPU kernel). A ray that stops is
- * classified (missed, vignetted, TIR, no convergence, invalid input) with the surface where it stopped;
+ * mirror's reflection (OpticStudio's sequential convention, as the CPU kernel); OpticStudio's Toroidal surface
+ * (guarded Newton on its sag, src/surfaces/toroidal.rs) and the diffraction grating's vector grating equation
+ * (src/surfaces/grating.rs), both in f64 (the f32 instance widens the ray, as the f32 lane kernel does). A ray
+ * that stops is classified (missed, vignetted, TIR, no convergence, invalid input, evanescent order) with the
+ * surface where it stopped;
  * nothing here returns a NaN position. The status codes are those of `tracer::RayStatus`. The trace itself is
  * written once, in dc_trace_tmpl.h, and instantiated here in f64 (dc_trace_path: the scalar kernel's bits) and
  * in f32 (dc_trace_path_f32: the f32 lane kernel's bits, tracer::simd::block); each precision has its own
@@ -23,6 +26,8 @@
 #define DC_TIR 3u
 #define DC_NO_CONVERGENCE 4u
 #define DC_INVALID_INPUT 5u
+/* A grating order that does not propagate (RayStatus::Evanescent, the grating equation's "TIR"). */
+#define DC_EVANESCENT 9u
 /* `TracedBatch::surface` of a ray that arrived (u32::MAX). */
 #define DC_NO_SURFACE 0xFFFFFFFFu
 
@@ -30,6 +35,9 @@
 #define DC_SHAPE_CONIC 1u
 #define DC_SHAPE_ASPHERE 2u
 #define DC_SHAPE_PARAXIAL 3u
+/* OpticStudio's Toroidal surface (SurfaceShape::Toroidal): the YZ curve (curvature, conic, coef[] of y², y⁴, …)
+ * rotated about an axis parallel to y at the radius 1/rotation_curvature (0: a cylinder). */
+#define DC_SHAPE_TOROIDAL 4u
 
 #define DC_APERTURE_NONE 0u
 #define DC_APERTURE_CIRCULAR 1u
@@ -39,13 +47,16 @@
 #define DC_APERTURE_OBSCURATION 3u
 
 /* What a step does to a ray after the aperture (system::Interaction): refract (vector Snell, or the
- * Paraxial lens) or reflect (a mirror, `GLAS MIRROR`). Gratings are refused by gpu::pack. */
+ * Paraxial lens), reflect (a mirror, `GLAS MIRROR`), or diffract into one order of a grating (`DGRATING`),
+ * transmissive or reflective (a grating that is also a mirror). */
 #define DC_INTERACTION_REFRACT 0u
 #define DC_INTERACTION_REFLECT 1u
+#define DC_INTERACTION_GRATING 2u
+#define DC_INTERACTION_GRATING_REFLECT 3u
 /* tracer::kernel::GRAZING_COS: a mirror hit with |d·n̂| at or below it is grazing, and the ray `missed`. */
 #define DC_GRAZING_COS 1e-12
 
-/* At most 8 even-asphere terms (r² … r¹⁶), as spec::system_spec allows. */
+/* At most 8 even-asphere (r² … r¹⁶) or toroid (y² … y¹⁶) terms, as spec::system_spec allows. */
 #define DC_MAX_COEF 8
 
 /* One surface of the traced path (`system::PathStep`), laid out as `gpu::pack::Step` (repr(C)). */
@@ -57,26 +68,105 @@ typedef struct {
     double focal_length; /* mm (paraxial) */
     double aperture[4]; /* circular: semi-diameter, min radius, decenter x, y; rectangular: half x, half y, decenter x, y;
                            obscuration: min radius, max radius, decenter x, y (mm) */
-    double coef[DC_MAX_COEF]; /* even-asphere coefficients of r², r⁴, … */
+    double coef[DC_MAX_COEF]; /* even-asphere coefficients of r², r⁴, … (toroid: of y², y⁴, …) */
+    double rotation_curvature; /* toroid: 1/(radius of rotation), 1/mm; 0 for a cylinder */
+    double grating_lines_per_um; /* grating: T, lines per µm */
+    double grating_order;        /* grating: the diffraction order m */
     dc_u32 shape;       /* DC_SHAPE_* */
     dc_u32 aperture_kind; /* DC_APERTURE_* */
     dc_u32 surface;     /* the surface's index in the system */
     dc_u32 n_coef;      /* how many of coef are used */
     dc_u32 interaction; /* DC_INTERACTION_* */
-    dc_u32 pad;
+    dc_u32 wavelength_slot; /* grating: where the index row holds the wavelength, nm (SequentialSystem::indices) */
 } dc_step;
+
+/* ---- The f64 pieces the f32 instance also calls (on a ray widened to f64) ------------------------------ */
+
+/* The toroid's YZ curve at y (surfaces::toroidal::yz_curve, same operations in the same order): z_y and z_y′;
+ * NaN outside the conic's domain. (Its z_y″, used by the Jacobians only, is not needed to trace.) */
+DC_FN void dc_toroid_yz(const dc_step *s, double y, double *zy, double *zy1) {
+    double c = s->curvature, k = s->conic;
+    double y2 = y * y;
+    double disc = 1.0 - (1.0 + k) * c * c * y2;
+    if (disc < 0.0) {
+        *zy = DC_NAN;
+        *zy1 = DC_NAN;
+        return;
+    }
+    double sq = DC_SQRT(disc);
+    double z = c * y2 / (1.0 + sq);
+    /* f(y²) with f′ = c/(2s) and z_y′ = 2y f′ */
+    double f1 = c != 0.0 ? c / (2.0 * sq) : 0.0;
+    double pw = 1.0; /* y2^j */
+    for (dc_u32 j = 0; j < s->n_coef; ++j) {
+        double i = (double)(j + 1);
+        double a = s->coef[j];
+        z += a * pw * y2;
+        f1 += i * a * pw;
+        pw *= y2;
+    }
+    *zy = z;
+    *zy1 = 2.0 * y * f1;
+}
+
+/* The toroid at (x, y) (surfaces::toroidal::toroid_local): z = z_y + c_u x²/(1 + w), c_u = c_R/(1 − c_R z_y),
+ * w = √(1 − c_u² x²), and its gradient (c_u x/w, z_y′/w); NaN outside its domain. */
+DC_FN void dc_toroid_local(const dc_step *s, double x, double y, double *sag, double *gx, double *gy) {
+    double zy, zy1;
+    dc_toroid_yz(s, y, &zy, &zy1);
+    double cr = s->rotation_curvature;
+    double cu = cr / (1.0 - cr * zy);
+    double x2 = x * x;
+    double w2 = 1.0 - cu * cu * x2;
+    if (!(w2 >= 0.0) || !DC_ISFINITE(zy)) {
+        *sag = DC_NAN;
+        *gx = DC_NAN;
+        *gy = DC_NAN;
+        return;
+    }
+    double w = DC_SQRT(w2);
+    *sag = zy + cu * x2 / (1.0 + w);
+    *gx = cu * x / w;
+    *gy = zy1 / w;
+}
+
+/* The vector grating equation (surfaces::grating::diffract): unit d at unit normal n̂ (any orientation), from
+ * index n1 into n2, kick g = mλT; K = normalise(ŷ − (ŷ·n̂)n̂) across the lines, v = n₁d − s g K (s = −1 for a
+ * reflective grating), n₂d′ = v_t ± √(n₂² − |v_t|²) n̂ along the incoming side. 0 when the order is evanescent
+ * (or the kick is NaN). */
+DC_FN int dc_diffract(dc_v3 d, dc_v3 normal, double n1, double n2, double kick, int reflect, dc_v3 *out) {
+    double cos_i = dc_dot(d, normal);
+    dc_v3 nrm = cos_i < 0.0 ? dc_neg(normal) : normal;
+    /* glam: DVec3::Y − n̂·n̂_y, component-wise (0 − …, 1 − …, 0 − …: the signs of zeros as Rust's) */
+    dc_v3 k = dc_sub(dc_v3_make(0.0, 1.0, 0.0), dc_scale(normal, normal.y));
+    double inv = 1.0 / DC_SQRT(dc_dot(k, k));
+    k = dc_scale(k, inv);
+    double sg = reflect ? -1.0 : 1.0;
+    dc_v3 v = dc_sub(dc_scale(d, n1), dc_scale(k, sg * kick));
+    double vn = dc_dot(v, nrm);
+    dc_v3 vt = dc_sub(v, dc_scale(nrm, vn));
+    double q = n2 * n2 - dc_dot(vt, vt);
+    if (!(q >= 0.0)) return 0;
+    double along = reflect ? -DC_SQRT(q) : DC_SQRT(q);
+    *out = dc_div(dc_add(vt, dc_scale(nrm, along)), n2);
+    return 1;
+}
 
 /* The trace in f64 (dc_intersect, dc_trace_step, dc_trace_path, ...) and in f32 (the same names + _f32). */
 #define DC_P f64
 #define DC_SFX
+#define DC_F64_PASS 1
 #include "dc_trace_tmpl.h"
 #undef DC_P
 #undef DC_SFX
+#undef DC_F64_PASS
 #define DC_P f32
 #define DC_SFX _f32
+#define DC_F64_PASS 0
 #include "dc_trace_tmpl.h"
 #undef DC_P
 #undef DC_SFX
+#undef DC_F64_PASS
 
 /* The unit vector along a finite, non-zero direction (tracer::kernel::unit_direction); 0 if invalid. */
 DC_FN int dc_unit_direction(dc_v3 d, dc_v3 *out) {

@@ -4,7 +4,10 @@
  * same algorithm, with each system constant computed in f64 and rounded once (DC_R), the refractive index
  * tables kept in f64 (the index change decided on them, n₁/n₂ divided in f64 and rounded), and the f32
  * tolerances of dc_common.h. Every operation is an IEEE operation of DC_REAL in the Rust order, without
- * contraction, so each instance computes its Rust kernel's bits.
+ * contraction, so each instance computes its Rust kernel's bits. Where the f32 lane kernel itself works in
+ * f64 — a mirror, a grating, a Toroidal surface's intersection (tracer::simd::block: the ray widened, the
+ * scalar f64 functions, the result rounded once) — the f32 instance does the same with the f64 functions;
+ * DC_F64_PASS is 1 in the f64 instance, which alone defines those f64-only pieces (the toroid's solve).
  */
 
 /* The vertex plane z = 0: t = −p_z/d_z. Returns 0 on success. */
@@ -87,6 +90,13 @@ DC_FN void DC_T(dc_asphere_poly)(const dc_step *s, DC_REAL r2, DC_REAL *value, D
 DC_FN DC_REAL DC_T(dc_sag)(const dc_step *s, DC_REAL x, DC_REAL y) {
     DC_REAL r2 = x * x + y * y;
     DC_REAL v, dv;
+#if DC_F64_PASS
+    if (s->shape == DC_SHAPE_TOROIDAL) {
+        double gx, gy;
+        dc_toroid_local(s, x, y, &v, &gx, &gy);
+        return v;
+    }
+#endif
     switch (s->shape) {
     case DC_SHAPE_CONIC: return DC_T(dc_conic_sag)(s->curvature, s->conic, r2);
     case DC_SHAPE_ASPHERE:
@@ -99,6 +109,13 @@ DC_FN DC_REAL DC_T(dc_sag)(const dc_step *s, DC_REAL x, DC_REAL y) {
 DC_FN void DC_T(dc_sag_gradient)(const dc_step *s, DC_REAL x, DC_REAL y, DC_REAL *gx, DC_REAL *gy) {
     DC_REAL r2 = x * x + y * y;
     DC_REAL dz_dr2 = DC_R(0.0), v, dv;
+#if DC_F64_PASS
+    if (s->shape == DC_SHAPE_TOROIDAL) {
+        /* SurfaceShape::sag_gradient: the toroid's own (z_x, z_y) */
+        dc_toroid_local(s, x, y, &v, gx, gy);
+        return;
+    }
+#endif
     switch (s->shape) {
     case DC_SHAPE_CONIC: dz_dr2 = DC_T(dc_conic_dsag_dr2)(s->curvature, s->conic, r2); break;
     case DC_SHAPE_ASPHERE:
@@ -117,6 +134,7 @@ DC_FN DC_V3 DC_T(dc_normal)(const dc_step *s, DC_V3 q) {
     switch (s->shape) {
     case DC_SHAPE_CONIC: return DC_T(dc_normalize)(DC_T(dc_v3_make)(DC_R(-c) * q.x, DC_R(-c) * q.y, DC_R(1.0) - DC_R(c * (1.0 + k)) * q.z));
     case DC_SHAPE_ASPHERE:
+    case DC_SHAPE_TOROIDAL:
         DC_T(dc_sag_gradient)(s, q.x, q.y, &gx, &gy);
         return DC_T(dc_normalize)(DC_T(dc_v3_make)(-gx, -gy, DC_R(1.0)));
     default: return DC_T(dc_v3_make)(DC_R(0.0), DC_R(0.0), DC_R(1.0));
@@ -188,6 +206,30 @@ DC_FN dc_u32 DC_T(dc_asphere_newton)(const dc_step *s, DC_V3 p, DC_V3 d, DC_REAL
     return DC_NO_CONVERGENCE;
 }
 
+/* The guarded Newton solve of an even asphere or a toroid from the first of two starts that converges, the
+ * vertex plane's root and the base conic's (a failed start is skipped), then the hit and its normal (missed
+ * where the normal is not finite): surfaces::intersect::newton_hit. The even asphere tries the conic's root
+ * first, the toroid the plane's (`plane_first`), as intersect.rs orders them. */
+DC_FN dc_u32 DC_T(dc_newton_hit)(const dc_step *s, DC_V3 p, DC_V3 d, int plane_first, DC_V3 *point, DC_V3 *normal) {
+    DC_REAL starts[2], t;
+    int ok[2];
+    DC_V3 q;
+    int ic = plane_first ? 1 : 0, ip = 1 - ic;
+    ok[ic] = s->curvature != 0.0 && DC_T(dc_conic_root)(s->curvature, s->conic, p, d, &starts[ic]);
+    ok[ip] = DC_T(dc_intersect_plane)(p, d, &starts[ip], &q);
+    dc_u32 result = DC_MISSED;
+    for (int k = 0; k < 2; ++k) {
+        if (!ok[k]) continue;
+        result = DC_T(dc_asphere_newton)(s, p, d, starts[k], &t);
+        if (result == DC_OK) break;
+    }
+    if (result != DC_OK) return result;
+    *point = DC_T(dc_add)(p, DC_T(dc_scale)(d, t));
+    *normal = DC_T(dc_normal)(s, *point);
+    if (!DC_T(dc_v3_finite)(*normal)) return DC_MISSED;
+    return DC_OK;
+}
+
 /* The surface's intersection: DC_OK with the hit point and unit normal (toward local +z), or a failure. */
 DC_FN dc_u32 DC_T(dc_intersect)(const dc_step *s, DC_V3 p, DC_V3 d, DC_V3 *point, DC_V3 *normal) {
     DC_REAL t;
@@ -205,25 +247,23 @@ DC_FN dc_u32 DC_T(dc_intersect)(const dc_step *s, DC_V3 p, DC_V3 d, DC_V3 *point
         if (!DC_T(dc_intersect_plane)(p, d, &t, point)) return DC_MISSED;
         *normal = DC_T(dc_v3_make)(DC_R(0.0), DC_R(0.0), DC_R(1.0));
         return DC_OK;
-    case DC_SHAPE_ASPHERE: {
-        /* Starts: the base conic's root, then the vertex plane's (see intersect.rs). */
-        DC_REAL starts[2];
-        int ok[2];
-        DC_V3 q;
-        ok[0] = s->curvature != 0.0 && DC_T(dc_conic_root)(s->curvature, s->conic, p, d, &starts[0]);
-        ok[1] = DC_T(dc_intersect_plane)(p, d, &starts[1], &q);
-        dc_u32 result = DC_MISSED;
-        for (int k = 0; k < 2; ++k) {
-            if (!ok[k]) continue;
-            result = DC_T(dc_asphere_newton)(s, p, d, starts[k], &t);
-            if (result == DC_OK) break;
-        }
-        if (result != DC_OK) return result;
-        *point = DC_T(dc_add)(p, DC_T(dc_scale)(d, t));
-        *normal = DC_T(dc_normal)(s, *point);
-        if (!DC_T(dc_v3_finite)(*normal)) return DC_MISSED;
+#if DC_F64_PASS
+    /* One Newton for both (dc_sag and dc_sag_gradient switch on the shape): the toroid starts from the plane. */
+    case DC_SHAPE_ASPHERE:
+    case DC_SHAPE_TOROIDAL: return dc_newton_hit(s, p, d, s->shape == DC_SHAPE_TOROIDAL, point, normal);
+#else
+    case DC_SHAPE_ASPHERE: return DC_T(dc_newton_hit)(s, p, d, 0, point, normal);
+    case DC_SHAPE_TOROIDAL: {
+        /* In f64 (tracer::simd::block's Toroidal arm: the scalar intersection on the widened ray, its point and
+         * normal rounded once). */
+        dc_v3 qk, nk;
+        dc_u32 st = dc_newton_hit(s, dc_v3_make((double)p.x, (double)p.y, (double)p.z), dc_v3_make((double)d.x, (double)d.y, (double)d.z), 1, &qk, &nk);
+        if (st != DC_OK) return st;
+        *point = DC_T(dc_v3_make)((DC_REAL)qk.x, (DC_REAL)qk.y, (DC_REAL)qk.z);
+        *normal = DC_T(dc_v3_make)((DC_REAL)nk.x, (DC_REAL)nk.y, (DC_REAL)nk.z);
         return DC_OK;
     }
+#endif
     default: return DC_MISSED;
     }
 }
@@ -277,6 +317,22 @@ DC_FN int DC_T(dc_reflect)(DC_V3 d, DC_V3 normal, DC_V3 *out) {
     return 1;
 }
 
+/* A grating's diffraction into its order (tracer::kernel::trace_step's Interaction::Grating): a reflective
+ * grating at grazing incidence, |d·n̂| ≤ DC_GRAZING_COS, is missed; the kick mλT takes λ (nm) from the index
+ * row's wavelength slot (Grating::kick); an evanescent order stops the ray (DC_EVANESCENT). In f64 as the CPU
+ * does (the f32 lane kernel's special_interaction widens d and n̂, diffracts in f64 and rounds once). */
+DC_FN dc_u32 DC_T(dc_grating_step)(const dc_step *s, const double *n, DC_V3 d, DC_V3 normal, DC_V3 *out) {
+    dc_v3 dk = dc_v3_make((double)d.x, (double)d.y, (double)d.z);
+    dc_v3 nk = dc_v3_make((double)normal.x, (double)normal.y, (double)normal.z);
+    int reflective = s->interaction == DC_INTERACTION_GRATING_REFLECT;
+    if (reflective && DC_FABS(dc_dot(dk, nk)) <= DC_GRAZING_COS) return DC_MISSED;
+    double kick = s->grating_order * (n[s->wavelength_slot] * 1e-3) * s->grating_lines_per_um;
+    dc_v3 r;
+    if (!dc_diffract(dk, nk, n[s->surface - 1], n[s->surface], kick, reflective, &r)) return DC_EVANESCENT;
+    *out = DC_T(dc_v3_make)((DC_REAL)r.x, (DC_REAL)r.y, (DC_REAL)r.z);
+    return DC_OK;
+}
+
 /* Zemax's Paraxial surface: tan′ = (n₁/n₂)·tan − h/f (tracer::kernel::paraxial_deflect), mu = n₁/n₂. */
 DC_FN DC_V3 DC_T(dc_paraxial_deflect)(DC_V3 p, DC_V3 d, double f_mm, DC_REAL mu) {
     DC_REAL f = DC_R(f_mm);
@@ -286,7 +342,8 @@ DC_FN DC_V3 DC_T(dc_paraxial_deflect)(DC_V3 p, DC_V3 d, double f_mm, DC_REAL mu)
     return d.z < DC_R(0.0) ? DC_T(dc_neg)(v) : v;
 }
 
-/* One step (tracer::kernel::trace_step): into the frame, intersect, clip, then reflect (a mirror) or refract.
+/* One step (tracer::kernel::trace_step): into the frame, intersect, clip, then reflect (a mirror), diffract (a
+ * grating) or refract.
  * `n` holds the index (f64) after each surface. Returns DC_OK or the status at which the ray stopped. */
 DC_FN dc_u32 DC_T(dc_trace_step)(const dc_step *s, const double *n, DC_V3 *p, DC_V3 *d) {
     DC_V3 off = DC_T(dc_v3_make)(DC_R(s->offset[0]), DC_R(s->offset[1]), DC_R(s->offset[2]));
@@ -301,6 +358,9 @@ DC_FN dc_u32 DC_T(dc_trace_step)(const dc_step *s, const double *n, DC_V3 *p, DC
     if (s->interaction == DC_INTERACTION_REFLECT) {
         /* Interaction::Reflect, before the Paraxial and Snell branches as in trace_step. */
         if (!DC_T(dc_reflect)(ld, normal, &ld)) return DC_MISSED;
+    } else if (s->interaction == DC_INTERACTION_GRATING || s->interaction == DC_INTERACTION_GRATING_REFLECT) {
+        dc_u32 gs = DC_T(dc_grating_step)(s, n, ld, normal, &ld);
+        if (gs != DC_OK) return gs;
     } else if (s->shape == DC_SHAPE_PARAXIAL) {
         ld = DC_T(dc_paraxial_deflect)(q, ld, s->focal_length, mu);
     } else if (n1 != n2) {

@@ -39,8 +39,8 @@ extern "C" __global__ void dc_footprint_fill_kernel(const double *u, const doubl
 }
 
 /* One thread a ray of the plane: its taps added to the plane image (fixed-point atomics, dc_accum.h); its
- * status and off-detector weight counted per block in shared memory, then once per block into counts[0..9]
- * (statuses) and counts[9] (weight off the detector): integers, so the totals do not depend on the order. */
+ * status and off-detector weight counted per block in shared memory, then once per block into counts[0..10]
+ * (statuses) and counts[10] (weight off the detector): integers, so the totals do not depend on the order. */
 extern "C" __global__ void dc_deposit_kernel(dc_deposit_batch b, dc_u64 n_rays, dc_u64 *counts) {
     __shared__ unsigned long long block_counts[DC_STATUS_SLOTS + 1];
     if (threadIdx.x <= DC_STATUS_SLOTS) block_counts[threadIdx.x] = 0;

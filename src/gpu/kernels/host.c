@@ -40,8 +40,8 @@ void dc_footprint_fill_host(const double *u, const double *v, dc_u32 n, dc_windo
 
 dc_u64 dc_sizeof_window(void) { return (dc_u64)sizeof(dc_window); }
 
-/* Rays [begin, end) of a plane: the body of dc_deposit_kernel, into this worker's own plane image; counts[0..9]
- * by status, counts[9] the fixed-point weight off the detector. */
+/* Rays [begin, end) of a plane: the body of dc_deposit_kernel, into this worker's own plane image; counts[0..10]
+ * by status, counts[10] the fixed-point weight off the detector. */
 void dc_deposit_host(const dc_deposit_batch *b, dc_u64 begin, dc_u64 end, dc_u64 *counts) {
     for (dc_u64 t = begin; t < end; ++t) {
         dc_u64 lost;
