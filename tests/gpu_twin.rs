@@ -773,6 +773,7 @@ fn plane_transport_through_the_twin_equals_the_cpu_renderer_with_ray_aiming() {
     let tracer = AnalyticTracer::default();
     for (name, sys, pitch) in aimed_systems() {
         let (h, w) = (8, 10);
+        let mut weights_by_precision = Vec::new();
         for precision in [Precision::F64, Precision::F32] {
             let mut config = RenderConfig::paper(w);
             config.scene_height = h;
@@ -787,6 +788,7 @@ fn plane_transport_through_the_twin_equals_the_cpu_renderer_with_ray_aiming() {
             let r = Renderer::new(&sys, &tracer, config, Mask::random(h, w, 0.6, 7).unwrap()).unwrap_or_else(|e| panic!("{name}: {e}"));
             let ctx = r.plane_context();
             let mut arrived = 0;
+            let mut weights = Vec::new();
             for (p, &wl) in r.config.spectral.planes_nm.iter().enumerate() {
                 let cpu = ctx.trace_plane(p, wl).unwrap_or_else(|e| panic!("{name}: {e}"));
                 let twin = diffcassi::render::twin::trace_plane(&ctx, p, wl).unwrap();
@@ -794,9 +796,13 @@ fn plane_transport_through_the_twin_equals_the_cpu_renderer_with_ray_aiming() {
                 assert_eq!(twin.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), cpu.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{name} {precision} plane {p}: weights");
                 assert_eq!(twin.stats, cpu.stats, "{name} {precision} plane {p}: ray counts");
                 arrived += cpu.stats.arrived;
+                weights.extend(cpu.weights);
             }
             assert!(arrived > 0, "{name} {precision}: no ray arrived");
+            weights_by_precision.push(weights);
         }
+        // The f32 transport is not the f64 one (the f32 comparison above is not the f64 one again).
+        assert_ne!(weights_by_precision[0], weights_by_precision[1], "{name}: f32 and f64 transports are identical");
     }
 }
 
