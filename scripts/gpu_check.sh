@@ -8,12 +8,12 @@
 # site packages, prints the GPU, then runs
 #   scripts/gpu/render_check.py  — the paper-scale acquisition on the GPU (twice), the CPU and the host twin,
 #                                  the middle plane's landings on both;
-#   scripts/gpu/render_check.py --systems — the same checks on small renders of a grating (gsp), a toroid lens
-#                                  and an object at infinity (≈ 1 minute);
+#   scripts/gpu/render_check.py --systems — the same checks on small renders of a grating (gsp), a toroid lens,
+#                                  an object at infinity and SP with real ray aiming (≈ 1 minute);
 #   scripts/gpu/torch_check.py   — the exact operator and the torch modules on CUDA tensors (if present);
 # prints their tables and writes their JSON records to $OUT (or gpu_out/). Exits non-zero if any check fails.
 # Budget: ≤ 8 minutes on an H200 (the host twin dominates on few cores; RENDER_ARGS=--no-twin skips it; the
-# --systems step is three 128² renders and their twins, ≈ 1 minute, capped at 150 s).
+# --systems step is four 128² renders and their twins, ≈ 1 minute, capped at 150 s).
 set -uo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 wheel="${1:-$(ls -t "$root"/dist/diffcassi-*.whl 2>/dev/null | head -1)}"

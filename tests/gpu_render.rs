@@ -213,6 +213,59 @@ fn the_twin_render_models_toroids_gratings_and_objects_at_infinity() {
     }
 }
 
+/// The whole acquisition through the twin with ray aiming (`paraxial` and `real`: `dc_aimed_ray`, the CPU's
+/// `rays::aimed_ray` per ray) on SP and on the singlet at infinity of tests/common, f64 and f32: within 1e-9 of
+/// the f64 model of its landings, within the CPU's f32 rounding of the CPU render, the same ray counts; and
+/// where some aims fail (a scene far past SP's field), the CPU's error.
+#[test]
+fn the_twin_render_models_ray_aiming() {
+    use diffcassi::spec::RayAiming;
+    let scene = scene();
+    let tracer = AnalyticTracer::default();
+    let aimed = |mut spec: diffcassi::spec::SystemSpec, aiming: RayAiming| {
+        spec.ray_aiming = aiming;
+        SequentialSystem::build(&spec).unwrap()
+    };
+    let cases = [
+        ("sp paraxial", aimed(presets::spec("sp").unwrap(), RayAiming::Paraxial), None),
+        ("sp real", aimed(presets::spec("sp").unwrap(), RayAiming::Real), None),
+        ("singlet at infinity real", aimed(crate::common::singlet_at_infinity(false), RayAiming::Real), Some(0.5)),
+    ];
+    for (name, sys, fov_deg) in &cases {
+        for precision in [Precision::F64, Precision::F32] {
+            let mut c = config_in(true, precision);
+            c.scene_fov_deg = *fov_deg;
+            let r = Renderer::new(sys, &tracer, c, Mask::random(H, W, 0.6, 5).unwrap()).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let (twin, _) = render_on(&r, &scene, false, Executor::Twin).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let reference = f64_reference(&r, &scene);
+            let pk = peak(&reference);
+            assert!(pk > 1e-3, "{name} {precision}: an empty acquisition ({pk})");
+            let model = twin.image.iter().zip(&reference).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            let cpu = r.render(&scene, false, &|_| {}).unwrap();
+            let worst = twin.image.iter().zip(&cpu.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+            eprintln!("{name} {precision}: |twin − f64 model| = {:.2e}, |twin − cpu| = {:.2e} of the peak", model / pk, worst / peak(&cpu.image));
+            assert!(model <= 1e-9 * pk, "{name} {precision}: |twin − f64 model| = {model:e} of a peak {pk}");
+            assert!(worst <= 1e-6 * peak(&cpu.image), "{name} {precision}: |twin − cpu| = {worst:e} of a peak {}", peak(&cpu.image));
+            let (a, b) = (twin.stats, cpu.stats);
+            assert_eq!((a.traced, a.arrived, a.missed, a.vignetted, a.tir, a.no_convergence, a.invalid_input, a.out_of_range, a.evanescent), (b.traced, b.arrived, b.missed, b.vignetted, b.tir, b.no_convergence, b.invalid_input, b.out_of_range, b.evanescent), "{name} {precision}");
+            assert!(a.arrived > 0, "{name} {precision}");
+        }
+    }
+    // Aims that fail (the singlet's scene widened to 179.8° after the renderer is built: field angles up to ~84°,
+    // whose rays cannot reach the stop): the render stops with the CPU's error (one plane, so that the CPU's
+    // first error is defined).
+    let sys = aimed(crate::common::singlet_at_infinity(false), RayAiming::Real);
+    let mut c = config(false);
+    c.scene_fov_deg = Some(0.5);
+    c.spectral = SpectralSampling::new(vec![520.0], 1).unwrap();
+    let mut r = Renderer::new(&sys, &tracer, c, Mask::random(H, W, 0.6, 5).unwrap()).unwrap();
+    r.config.scene_pitch_mm = 179.8f64.to_radians() / W as f64;
+    let cpu = r.render(&scene, false, &|_| {}).err().expect("the CPU render must fail").to_string();
+    let twin = render_on(&r, &scene, false, Executor::Twin).err().expect("the twin render must fail").to_string();
+    assert_eq!(twin, cpu);
+    assert!(twin.contains("ray aiming failed"), "{twin}");
+}
+
 #[test]
 fn the_twin_render_has_the_same_bits_on_any_thread_count() {
     let scene = scene();

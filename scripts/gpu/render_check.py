@@ -14,7 +14,9 @@ time (kernels, and with uploads) is reported against the goal of 0.1 s.
 `--systems` checks instead, on small renders (128×128, 28 planes, 8 rays), what the kernels model beyond the
 paper's prisms (issue 41/42), one row group per system: `gsp` (a plane transmission grating, the vector grating
 equation), a toroid lens (OpticStudio's Toroidal surface, radius of rotation 35 mm, conic and y⁴ term) and a
-singlet with its object at infinity (the scene sampled in field angle, 0.5° across). Each: two GPU runs
+singlet with its object at infinity (the scene sampled in field angle, 0.5° across), and SP with real ray aiming
+(OpticStudio's RAIM 0 2: each ray aimed at the stop by a Newton solve, the aimed kernels
+dc_landing_aimed_kernel / dc_deposit_aimed_kernel). Each: two GPU runs
 bit-identical; the GPU within 2e-6 of the CPU's peak; the middle plane's landings ≤ 1e-12 mm from the host's, the
 same statuses; the GPU equal to the host twin bit for bit — except at infinity, where the device's `tan`
 (CUDA's libdevice, ≤ 2 ulp; the host calls the platform's libm as the CPU renderer does) may start a ray a few
@@ -106,14 +108,27 @@ thickness_mm = 0.0
 """
 
 
+def with_ray_aiming(system, aiming: str):
+    """`system` with ray_aiming set ("paraxial" or "real"), through its TOML."""
+    import re
+    import diffcassi
+    text = system.to_toml()
+    if re.search(r'^ray_aiming\s*=', text, flags=re.M):
+        text = re.sub(r'^ray_aiming\s*=.*$', f'ray_aiming = "{aiming}"', text, count=1, flags=re.M)
+    else:
+        text = f'ray_aiming = "{aiming}"\n' + text
+    return diffcassi.System.from_string(text)
+
+
 def systems_check(a) -> int:
-    """The --systems rows: a grating, a toroid, an object at infinity (see the module's docstring)."""
+    """The --systems rows: a grating, a toroid, an object at infinity, ray aiming (see the module's docstring)."""
     import diffcassi
     cube, wl = diffcassi.synthetic_scene(128, 128, seed=0)
     cases = [
         ("gsp (plane transmission grating)", diffcassi.System.preset("gsp"), None),
         ("toroid lens", diffcassi.System.from_string(TOROID_TOML), None),
         ("singlet at infinity", diffcassi.System.from_string(SINGLET_AT_INFINITY_TOML), 0.5),
+        ("sp, real ray aiming", with_ray_aiming(diffcassi.System.preset("sp"), "real"), None),
     ]
     rows, failed, record = [], [], {}
     for name, system, fov in cases:
@@ -180,7 +195,7 @@ def main() -> int:
     ap.add_argument("--preset", default="sp")
     ap.add_argument("--no-twin", action="store_true", help="skip the host twin (slow on few cores)")
     ap.add_argument("--out", default=None, help="folder for render_check.json")
-    ap.add_argument("--systems", action="store_true", help="the grating, toroid and object-at-infinity rows instead")
+    ap.add_argument("--systems", action="store_true", help="the grating, toroid, object-at-infinity and ray-aiming rows instead")
     a = ap.parse_args()
     if a.systems:
         return systems_check(a)

@@ -11,7 +11,7 @@
 //! sources. Every failure is an error naming each attempt, never a panic: the driver is probed first
 //! ([`super::probe`]) because cudarc panics when a library is absent.
 use super::pack::{self, Batch, Step};
-use super::plan::{PlanOutput, RenderPlan, BLOCK, STATUS_SLOTS};
+use super::plan::{initial_counts, PlanOutput, RenderPlan, BLOCK, COUNT_SLOTS};
 use super::{probe, CudaInfo};
 use crate::error::{Error, Result};
 use crate::system::SequentialSystem;
@@ -27,7 +27,12 @@ struct Launcher {
     trace_f32: sys::CUfunction,
     landing: sys::CUfunction,
     landing_f32: sys::CUfunction,
+    /// The same with ray aiming (`dc_aimed_ray`), launched when the plan aims: separate builds so that the
+    /// unaimed kernels keep their registers (docs/gpu.md).
+    landing_aimed: sys::CUfunction,
+    landing_aimed_f32: sys::CUfunction,
     deposit: sys::CUfunction,
+    deposit_aimed: sys::CUfunction,
     airy: sys::CUfunction,
     finish: sys::CUfunction,
     info: CudaInfo,
@@ -120,7 +125,7 @@ fn start() -> std::result::Result<Launcher, String> {
             ));
         };
         let f = |name: &str| cu::module::get_function(module, CString::new(name).expect("kernel name")).map_err(|e| cuda_err(&format!("cuModuleGetFunction({name})"), e));
-        Ok(Launcher { ctx, trace: f("dc_trace_kernel")?, trace_f32: f("dc_trace_f32_kernel")?, landing: f("dc_landing_kernel")?, landing_f32: f("dc_landing_f32_kernel")?, deposit: f("dc_deposit_kernel")?, airy: f("dc_airy_kernel")?, finish: f("dc_finish_kernel")?, info, source })
+        Ok(Launcher { ctx, trace: f("dc_trace_kernel")?, trace_f32: f("dc_trace_f32_kernel")?, landing: f("dc_landing_kernel")?, landing_f32: f("dc_landing_f32_kernel")?, landing_aimed: f("dc_landing_aimed_kernel")?, landing_aimed_f32: f("dc_landing_aimed_f32_kernel")?, deposit: f("dc_deposit_kernel")?, deposit_aimed: f("dc_deposit_aimed_kernel")?, airy: f("dc_airy_kernel")?, finish: f("dc_finish_kernel")?, info, source })
     }
 }
 
@@ -204,6 +209,7 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
     // Device memory first, against what the device has free.
     let taps: Vec<f32> = plan.kernels.iter().flat_map(|(_, t)| t.iter().copied()).collect();
     let bytes = std::mem::size_of_val(plan.steps.as_slice())
+        + std::mem::size_of_val(plan.aim_path.as_slice())
         + plan.indices.len() * 8
         + plan.pixels.len() * 4
         + std::mem::size_of_val(plan.cube)
@@ -215,7 +221,11 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
     if bytes > free {
         return Err(Error::invalid(format!("CUDA: the render needs {:.2} GB on the device, {:.2} GB are free", bytes as f64 / 1e9, free as f64 / 1e9)));
     }
+    if plan.rays_per_plane() >= 1 << 40 || plan.planes.len() as u64 >= 1 << 24 {
+        return Err(Error::invalid("CUDA: a plan of 2^40 rays a plane or 2^24 planes is beyond the aim-failure key (dc_aim_failure_key)"));
+    }
     let d_steps = DeviceBuffer::from(&plan.steps)?;
+    let d_aim = DeviceBuffer::from(&plan.aim_path)?;
     let d_n = DeviceBuffer::from(&plan.indices)?;
     let d_pixels = DeviceBuffer::from(&plan.pixels)?;
     let d_cube = DeviceBuffer::from(plan.cube)?;
@@ -225,7 +235,7 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
     let d_band = DeviceBuffer::zeroed(plan.bands * npix * 8)?;
     let d_out = DeviceBuffer::zeroed(npix * 8)?;
     let d_bands = if keep_bands { Some(DeviceBuffer::zeroed(plan.bands * npix * 4)?) } else { None };
-    let d_counts = DeviceBuffer::zeroed((STATUS_SLOTS + 1) * 8)?;
+    let d_counts = DeviceBuffer::from(&initial_counts())?;
     let mut tap_offset = Vec::with_capacity(plan.kernels.len());
     let mut off = 0usize;
     for (_, t) in &plan.kernels {
@@ -241,10 +251,10 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
             // SAFETY: the plane image is npix u64 values on the device.
             unsafe { cu::memset_d8_async(d_image.ptr, 0, npix * 8, std::ptr::null_mut()) }.map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("cuMemsetD8Async", e))))?;
             let n_off = d_n.ptr + (p * plan.n_surfaces * 8) as u64;
-            let land = plan.landing(p, d_steps.ptr as *const Step, n_off as *const f64, d_pixels.ptr as *const u32);
+            let land = plan.landing(p, d_steps.ptr as *const Step, d_aim.ptr as *const Step, n_off as *const f64, d_pixels.ptr as *const u32);
             let dep = plan.deposit(p, land, d_cube.ptr as *const f32, d_mask.ptr as *const f32, d_image.ptr as *mut u64);
             let counts = d_counts.ptr;
-            launch(l.deposit, n_rays, &mut [arg(&dep), arg(&n_rays), arg(&counts)])?;
+            launch(if plan.aim.aiming != 0 { l.deposit_aimed } else { l.deposit }, n_rays, &mut [arg(&dep), arg(&n_rays), arg(&counts)])?;
             let band = d_band.ptr + (plan.planes[p].band as usize * npix * 8) as u64;
             let taps_p = d_taps.ptr + (tap_offset[plan.planes[p].kernel] * 4) as u64;
             let airy = plan.airy(p, d_image.ptr as *const u64, band as *mut f64, taps_p as *const f32);
@@ -270,14 +280,15 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
         Some(b) => Some(b.read::<f32>(plan.bands * npix)?),
         None => None,
     };
-    let c: Vec<u64> = d_counts.read(STATUS_SLOTS + 1)?;
-    let mut counts = [0u64; STATUS_SLOTS + 1];
+    let c: Vec<u64> = d_counts.read(COUNT_SLOTS)?;
+    let mut counts = [0u64; COUNT_SLOTS];
     counts.copy_from_slice(&c);
-    Ok((PlanOutput { image, bands, counts }, DeviceTimes { kernels_ms, total_ms: t0.elapsed().as_secs_f64() * 1e3 }))
+    Ok((PlanOutput::from_counts(image, bands, &counts), DeviceTimes { kernels_ms, total_ms: t0.elapsed().as_secs_f64() * 1e3 }))
 }
 
 /// Where plane `p`'s rays land on the device (`dc_landing_kernel`, or `dc_landing_f32_kernel` for an f32 plan): detector column and row (NaN: none) and
-/// the status code of ray `q·N + k`, as `render::twin::plane_landings` computes them on the host.
+/// the status code of ray `q·N + k`, as `render::twin::plane_landings` computes them on the host (10,
+/// `DC_AIM_FAILED`: a ray whose aim failed).
 pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, Vec<u8>)> {
     let l = launcher()?;
     // SAFETY: the context was retained by the launcher.
@@ -287,14 +298,21 @@ pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, 
     }
     let n = plan.rays_per_plane() as usize;
     let d_steps = DeviceBuffer::from(&plan.steps)?;
+    let d_aim = DeviceBuffer::from(&plan.aim_path)?;
     let d_n = DeviceBuffer::from(&plan.indices[p * plan.n_surfaces..(p + 1) * plan.n_surfaces])?;
     let d_pixels = DeviceBuffer::from(&plan.pixels)?;
     let (d_u, d_v, d_s) = (DeviceBuffer::zeroed(n * 8)?, DeviceBuffer::zeroed(n * 8)?, DeviceBuffer::zeroed(n)?);
-    let mut b = plan.landing(p, d_steps.ptr as *const Step, d_n.ptr as *const f64, d_pixels.ptr as *const u32);
+    let mut b = plan.landing(p, d_steps.ptr as *const Step, d_aim.ptr as *const Step, d_n.ptr as *const f64, d_pixels.ptr as *const u32);
     b.u = d_u.ptr as *mut f64;
     b.v = d_v.ptr as *mut f64;
     b.status = d_s.ptr as *mut u8;
-    launch(if plan.f32 { l.landing_f32 } else { l.landing }, n as u64, &mut [arg(&b)])?;
+    let kernel = match (plan.f32, plan.aim.aiming != 0) {
+        (false, false) => l.landing,
+        (true, false) => l.landing_f32,
+        (false, true) => l.landing_aimed,
+        (true, true) => l.landing_aimed_f32,
+    };
+    launch(kernel, n as u64, &mut [arg(&b)])?;
     cu::ctx::synchronize().map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("the landing kernel", e))))?;
     Ok((d_u.read(n)?, d_v.read(n)?, d_s.read(n)?))
 }

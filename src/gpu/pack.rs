@@ -87,8 +87,29 @@ pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
             m.surface
         )));
     }
-    system
-        .path
+    pack_steps(&system.path)
+}
+
+/// Ray aiming's path (`dc_landing_batch::aim_path`, [`crate::rays::aim::stop_crossing`]): the steps before the
+/// stop with their apertures open (`StopProbe::open_path`), then the stop's probe (its figure, intersection
+/// only); empty with ray aiming off. The count of steps before the stop is `len − 1` (`dc_aim::aim_steps`).
+pub(crate) fn aim_path(system: &SequentialSystem) -> Result<Vec<Step>> {
+    if system.spec.ray_aiming == crate::spec::RayAiming::Off {
+        return Ok(Vec::new());
+    }
+    let probe = &system.stop_probe;
+    if probe.steps > system.path.len() {
+        return Err(Error::invalid(format!("system `{}`: ray aiming has no stop to aim at on the traced path (GPU kernels)", system.name())));
+    }
+    let before = probe.open_path.as_deref().unwrap_or(&system.path[..probe.steps]);
+    let mut out = pack_steps(before)?;
+    out.extend(pack_steps(std::slice::from_ref(&probe.probe))?);
+    Ok(out)
+}
+
+/// Path steps as kernel steps.
+fn pack_steps(path: &[crate::system::PathStep]) -> Result<Vec<Step>> {
+    path
         .iter()
         .map(|s| {
             // The kernels (dc_trace_tmpl.h, the C twin of tracer::kernel) refract, reflect (a mirror, dc_reflect)
@@ -220,6 +241,11 @@ pub(crate) struct Aim {
     pub telecentric: u32,
     /// 1: the object is at infinity (`PupilAim::at_infinity`; fields are angles, rad).
     pub at_infinity: u32,
+    /// Ray aiming (`rays::aimed_ray`): the stop radius it aims at (`SequentialSystem::aim_stop_radius_mm`),
+    /// 1 when on (paraxial or real), and the steps before the stop in the launch's aim path.
+    pub stop_radius_mm: f64,
+    pub aiming: u32,
+    pub aim_steps: u32,
 }
 
 /// Scene and detector geometry (`dc_scene`).
@@ -241,6 +267,8 @@ pub(crate) struct LandingBatch {
     pub path: *const Step,
     pub n: *const f64,
     pub pixels: *const u32,
+    /// Ray aiming's steps to the stop and its probe ([`aim_path`]); unread with aiming off.
+    pub aim_path: *const Step,
     pub u: *mut f64,
     pub v: *mut f64,
     pub status: *mut u8,

@@ -10,6 +10,9 @@ use rayon::prelude::*;
 
 /// Status slots (`DC_STATUS_SLOTS`: `tracer::RayStatus` codes 0 … 9) and the off-detector slot after them.
 pub const STATUS_SLOTS: usize = 10;
+/// The slots of a run's counts: the statuses, the off-detector weight, then (`DC_AIM_FAILURE_SLOT`) the first ray
+/// whose aim failed as `plane << 40 | ray` (the minimum; `u64::MAX` when none).
+pub(crate) const COUNT_SLOTS: usize = STATUS_SLOTS + 2;
 /// Fixed-point units of one ray's weight in the off-detector count (`DC_LOST_ONE`).
 pub const LOST_ONE: f64 = 16_777_216.0;
 /// Threads per block of every launch.
@@ -35,6 +38,8 @@ pub struct PlanePlan {
 /// [`super::cuda::render`].
 pub struct RenderPlan<'a> {
     pub(crate) steps: Vec<Step>,
+    /// Ray aiming's steps to the stop and its probe (`pack::aim_path`; empty with aiming off).
+    pub(crate) aim_path: Vec<Step>,
     /// The refractive index after each surface, `n_surfaces` per plane, in plane order.
     pub(crate) indices: Vec<f64>,
     pub(crate) n_surfaces: usize,
@@ -71,6 +76,26 @@ pub struct PlanOutput {
     pub bands: Option<Vec<f32>>,
     /// Rays by status code (`tracer::RayStatus`), then the off-detector weight in [`LOST_ONE`] units.
     pub counts: [u64; STATUS_SLOTS + 1],
+    /// The first ray whose aim failed (ray aiming on): (plane, ray of the plane), lowest plane first. The CPU
+    /// renderer stops with an error there; `render::device` returns the same error.
+    pub aim_failure: Option<(u64, u64)>,
+}
+
+impl PlanOutput {
+    /// The output of a run's counts ([`COUNT_SLOTS`]).
+    pub(crate) fn from_counts(image: Vec<f64>, bands: Option<Vec<f32>>, c: &[u64; COUNT_SLOTS]) -> Self {
+        let mut counts = [0u64; STATUS_SLOTS + 1];
+        counts.copy_from_slice(&c[..STATUS_SLOTS + 1]);
+        let key = c[STATUS_SLOTS + 1];
+        PlanOutput { image, bands, counts, aim_failure: (key != u64::MAX).then(|| (key >> 40, key & ((1u64 << 40) - 1))) }
+    }
+}
+
+/// A run's counts before its first ray: zero, the aim-failure slot at "none".
+pub(crate) fn initial_counts() -> [u64; COUNT_SLOTS] {
+    let mut c = [0u64; COUNT_SLOTS];
+    c[STATUS_SLOTS + 1] = u64::MAX;
+    c
 }
 
 /// The fixed-point scale 2^S of a plane image: the largest power of two for which no pixel can overflow,
@@ -99,11 +124,12 @@ impl<'a> RenderPlan<'a> {
     }
 
     /// Plane `p`'s landing launch, its arrays at the given addresses (host or device).
-    pub(crate) fn landing(&self, p: usize, path: *const Step, n: *const f64, pixels: *const u32) -> LandingBatch {
+    pub(crate) fn landing(&self, p: usize, path: *const Step, aim_path: *const Step, n: *const f64, pixels: *const u32) -> LandingBatch {
         LandingBatch {
             path,
             n,
             pixels,
+            aim_path,
             u: std::ptr::null_mut(),
             v: std::ptr::null_mut(),
             status: std::ptr::null_mut(),
@@ -162,21 +188,24 @@ impl<'a> RenderPlan<'a> {
         let npix = self.detector_pixels();
         let n_rays = self.rays_per_plane();
         let mut band = vec![0.0f64; self.bands * npix];
-        let counts: Vec<[u64; STATUS_SLOTS + 1]> = band
+        if self.rays_per_plane() >= 1 << 40 || self.planes.len() as u64 >= 1 << 24 {
+            return Err(Error::invalid("GPU kernels: a plan of 2^40 rays a plane or 2^24 planes is beyond the aim-failure key (dc_aim_failure_key)"));
+        }
+        let counts: Vec<[u64; COUNT_SLOTS]> = band
             .par_chunks_mut(npix.max(1))
             .enumerate()
             .map(|(b, band_img)| {
                 let mut img = vec![0u64; npix];
-                let mut counts = [0u64; STATUS_SLOTS + 1];
+                let mut counts = initial_counts();
                 for (p, pl) in self.planes.iter().enumerate() {
                     if pl.band as usize != b {
                         continue;
                     }
                     img.iter_mut().for_each(|v| *v = 0);
                     let n = &self.indices[p * self.n_surfaces..(p + 1) * self.n_surfaces];
-                    let land = self.landing(p, self.steps.as_ptr(), n.as_ptr(), self.pixels.as_ptr());
+                    let land = self.landing(p, self.steps.as_ptr(), self.aim_path.as_ptr(), n.as_ptr(), self.pixels.as_ptr());
                     let dep = self.deposit(p, land, self.cube.as_ptr(), self.mask.as_ptr(), img.as_mut_ptr());
-                    // SAFETY: the batch's arrays live for the call (steps, the plane's index row, the open
+                    // SAFETY: the batch's arrays live for the call (steps, the aim path, the plane's index row, the open
                     // pixels, the cube and mask of the sizes the plan was built for, this worker's own plane
                     // image of npix cells); rays [0, n_rays) index pixels[t / N] in bounds; layouts checked.
                     unsafe { dc_deposit_host(&dep, 0, n_rays, counts.as_mut_ptr()) };
@@ -187,18 +216,19 @@ impl<'a> RenderPlan<'a> {
                 counts
             })
             .collect();
-        let mut total = [0u64; STATUS_SLOTS + 1];
+        let mut total = initial_counts();
         for c in &counts {
-            for (a, b) in total.iter_mut().zip(c) {
+            for (a, b) in total[..STATUS_SLOTS + 1].iter_mut().zip(c) {
                 *a = a.wrapping_add(*b);
             }
+            total[STATUS_SLOTS + 1] = total[STATUS_SLOTS + 1].min(c[STATUS_SLOTS + 1]);
         }
         let mut image = vec![0.0f64; npix];
         let mut bands_f32 = keep_bands.then(|| vec![0.0f32; self.bands * npix]);
         let bp = bands_f32.as_mut().map_or(std::ptr::null_mut(), |b| b.as_mut_ptr());
         // SAFETY: band holds bands·npix values, image npix, bands_f32 bands·npix or is null.
         unsafe { dc_finish_host(band.as_ptr(), self.bands as u32, npix as u64, image.as_mut_ptr(), bp, 0, npix as u64) };
-        Ok(PlanOutput { image, bands: bands_f32, counts: total })
+        Ok(PlanOutput::from_counts(image, bands_f32, &total))
     }
 }
 

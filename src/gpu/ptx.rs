@@ -63,7 +63,7 @@ mod tests {
 
     #[test]
     fn embedded_ptx_holds_the_kernel_entry() {
-        for entry in ["dc_trace_kernel", "dc_trace_f32_kernel", "dc_landing_kernel", "dc_landing_f32_kernel"] {
+        for entry in ["dc_trace_kernel", "dc_trace_f32_kernel", "dc_landing_kernel", "dc_landing_f32_kernel", "dc_landing_aimed_kernel", "dc_landing_aimed_f32_kernel", "dc_deposit_aimed_kernel"] {
             assert!(TRACE_PTX.contains(&format!(".visible .entry {entry}")), "no {entry} entry in trace.ptx");
         }
         assert_eq!(ptx_source_hash().map(str::len), Some(64));
@@ -73,7 +73,7 @@ mod tests {
     fn the_amalgamated_source_holds_every_kernel_and_no_local_include() {
         let src = amalgamated_source();
         assert!(!src.contains("#include \"dc_") && !src.contains("#error"), "an include was not expanded");
-        for k in ["dc_trace_kernel", "dc_landing_kernel", "dc_deposit_kernel", "dc_airy_kernel", "dc_finish_kernel", "dc_landing_f32_kernel"] {
+        for k in ["dc_trace_kernel", "dc_landing_kernel", "dc_deposit_kernel", "dc_airy_kernel", "dc_finish_kernel", "dc_landing_f32_kernel", "dc_landing_aimed_kernel", "dc_landing_aimed_f32_kernel", "dc_deposit_aimed_kernel"] {
             assert!(src.contains(&format!("void {k}(")), "{k} missing");
             assert!(TRACE_PTX.contains(&format!(".visible .entry {k}")), "no {k} entry in trace.ptx");
         }

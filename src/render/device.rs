@@ -62,8 +62,9 @@ pub struct DeviceRecord {
 }
 
 /// The plan of `r`'s acquisition of `scene`: every array the kernels read, traced in the renderer's precision
-/// (f64, or the f32 trace of `--precision f32`). Errors for what the kernels do not model yet (ray aiming
-/// `paraxial` or `real`, a coded mask on a surface, another backend than the analytic one), naming the setting.
+/// (f64, or the f32 trace of `--precision f32`), rays aimed as the system says (ray aiming off, `paraxial` or
+/// `real`). Errors for what the kernels do not model yet (a coded mask on a surface, another backend than the
+/// analytic one), naming the setting.
 pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPlan<'a>> {
     r.check_scene(scene)?;
     if r.config.force_batched {
@@ -75,7 +76,7 @@ pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPl
     let ctx = r.plane_context();
     let (h, w) = (r.config.scene_height, r.config.scene_width);
     let geometry = SceneGeometry { height: h, width: w, pitch_mm: r.config.scene_pitch_mm, detector: &r.detector };
-    let (sampler, aim, scene_c) = launch_constants(r.system, geometry, ctx.sampler, ctx.seed)?;
+    let (sampler, aim, scene_c, aim_path) = launch_constants(r.system, geometry, ctx.sampler, ctx.seed)?;
     let steps = pack::steps(r.system)?;
     let sp = &r.config.spectral;
     let mut indices = Vec::new();
@@ -110,6 +111,7 @@ pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPl
     let unit = (1.0 / sampler.rays as f64) / scale;
     Ok(RenderPlan {
         steps,
+        aim_path,
         indices,
         n_surfaces,
         pixels,
@@ -179,6 +181,14 @@ pub fn render_on(r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, execu
             (out, record)
         }
     };
+    if let Some((p, t)) = out.aim_failure {
+        // The CPU renderer stops at a ray whose aim fails (PlaneContext::ray's error): the same error, for the
+        // first such ray of the lowest plane.
+        let (p, n) = (p as usize, plan.sampler.rays as u64);
+        let geometry = SceneGeometry { height: r.config.scene_height, width: r.config.scene_width, pitch_mm: r.config.scene_pitch_mm, detector: &r.detector };
+        let ctx = r.plane_context();
+        return Err(super::twin::aim_failure(r.system, geometry, ctx.sampler, ctx.seed, plan.planes[p].plane, r.config.spectral.planes_nm[p], plan.pixels[(t / n) as usize], (t % n) as usize));
+    }
     if let Some(bad) = out.image.iter().position(|v| !v.is_finite()) {
         return Err(Error::invalid(format!("internal: the device render produced a non-finite value at detector pixel {bad}")));
     }

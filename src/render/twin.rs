@@ -3,15 +3,18 @@
 //! `dc_footprint_fill_kernel`). The code the device runs, tested where there is no GPU: it must give
 //! [`PlaneContext::trace_plane`]'s footprints, weights and counts bit for bit (tests/gpu_twin.rs), hence the
 //! same acquisition, in f64 and in f32 (`--precision f32`: `dc_landing_f32_kernel`), on a finite object plane
-//! and for an object at infinity (the scene sampled in field angle). Ray aiming `paraxial` or `real` is not on
-//! the device yet (an error).
+//! and for an object at infinity (the scene sampled in field angle), with ray aiming off or on (`paraxial`,
+//! `real`: OpticStudio's ray aiming, `rays::aimed_ray`'s Newton solve per ray, `dc_aimed_ray`). A ray whose aim
+//! fails stops the CPU renderer with an error (`PlaneContext::ray`); the kernels flag it (`DC_AIM_FAILED`) and
+//! the host returns the CPU's error for the first such ray ([`aim_failure`]).
 use super::detector::Detector;
 use super::sampling::{RaySampler, Sampling};
 use super::transport::{Footprint, PlaneContext, PlaneTransport};
 use crate::error::{Error, Result};
 use crate::gpu::ffi::{dc_footprint_fill_host, dc_footprint_size_host, dc_landing_host, layouts_match, status_of};
-use crate::gpu::pack::{self, Aim, LandingBatch, Sampler, Scene, Window};
-use crate::rays::PupilAim;
+use crate::analysis::MappingCube;
+use crate::gpu::pack::{self, Aim, LandingBatch, Sampler, Scene, Step, Window};
+use crate::rays::{aimed_ray, PupilAim};
 use crate::spec::RayAiming;
 use crate::system::SequentialSystem;
 use crate::tracer::{Precision, RayStatus};
@@ -37,9 +40,9 @@ pub struct SceneGeometry<'a> {
 
 /// The device's landing kernel (`dc_landing_kernel`) run on the host: for each open scene pixel of
 /// `pixels` (row-major indices) the `sampler.rays` rays of (`seed`, `plane`) — sampled, aimed through the
-/// paraxial entrance pupil (at infinity: parallel rays of the pixel's field angles), traced at `wavelength_nm` —
-/// and where they land. The numbers the renderer (`render::transport`) computes before its splat; ray aiming
-/// `paraxial` or `real` is not on the device yet (an error).
+/// paraxial entrance pupil (at infinity: parallel rays of the pixel's field angles) or by ray aiming, traced at
+/// `wavelength_nm` — and where they land. The numbers the renderer (`render::transport`) computes before its
+/// splat; where an aim fails, the renderer's error for the first such ray.
 #[allow(clippy::too_many_arguments)]
 pub fn plane_landings(system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wavelength_nm: f64, pixels: &[u32]) -> Result<PlaneLandings> {
     plane_landings_in(Precision::F64, system, scene, sampler, seed, plane, wavelength_nm, pixels)
@@ -52,7 +55,7 @@ pub fn plane_landings_in(precision: Precision, system: &SequentialSystem, scene:
     if !layouts_match() {
         return Err(Error::invalid("internal: the GPU kernels' C structs and their Rust twins differ in size (src/gpu/pack.rs)"));
     }
-    let (sampler_c, aim, scene_c) = launch_constants(system, scene, sampler, seed)?;
+    let (sampler_c, aim, scene_c, aim_path) = launch_constants(system, scene, sampler, seed)?;
     let h = scene_c.scene_height;
     let w = scene_c.scene_width;
     if let Some(&p) = pixels.iter().find(|&&p| p as u64 >= h as u64 * w as u64) {
@@ -70,6 +73,7 @@ pub fn plane_landings_in(precision: Precision, system: &SequentialSystem, scene:
             path: steps.as_ptr(),
             n: n.as_ptr(),
             pixels: pixels.as_ptr(),
+            aim_path: aim_path.as_ptr(),
             u: uc.as_mut_ptr(),
             v: vc.as_mut_ptr(),
             status: sc.as_mut_ptr(),
@@ -87,18 +91,44 @@ pub fn plane_landings_in(precision: Precision, system: &SequentialSystem, scene:
         // slices (dc_landing_host); layouts were checked above.
         unsafe { dc_landing_host(&batch, begin as u64, (begin + uc.len()) as u64, (precision == Precision::F32) as i32) };
     });
+    if let Some(t) = status.iter().position(|&s| s == AIM_FAILED) {
+        return Err(aim_failure(system, scene, sampler, seed, plane, wavelength_nm, pixels[t / sampler.rays], t % sampler.rays));
+    }
     Ok(PlaneLandings { u, v, status: status.into_iter().map(status_of).collect() })
 }
 
+/// `DC_AIM_FAILED` (src/gpu/kernels/dc_render.h): the kernels found no aimed ray for this one.
+pub(crate) const AIM_FAILED: u8 = 10;
 
-/// The constants of a plane launch (`dc_sampler`, `dc_aim`, `dc_scene`): the sampler's, the paraxial pupil
-/// aim's (for an object at infinity the parallel rays of field angles, `PupilAim::parallel_ray`; the scene's
-/// pitch is then an angle, rad) and the scene and detector geometry. Ray aiming `paraxial` or `real` is not on
-/// the device yet (an error).
-pub(crate) fn launch_constants(system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64) -> Result<(Sampler, Aim, Scene)> {
-    if system.spec.ray_aiming != RayAiming::Off {
-        return Err(Error::invalid("the GPU kernels aim rays through the paraxial entrance pupil only: ray aiming (\"paraxial\" or \"real\") is not on the device yet (docs/gpu.md)"));
+/// The CPU renderer's error for ray `k` of scene pixel `pixel` at (`seed`, `plane`), whose aim the kernels
+/// flagged as failed (`DC_AIM_FAILED`): the same sample and field point ([`PlaneContext::ray`]) aimed by
+/// `rays::aimed_ray`, whose error names the field, the pupil point and why. An internal error if the CPU's
+/// aim succeeds there (the kernels and the CPU would disagree).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn aim_failure(system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wavelength_nm: f64, pixel: u32, k: usize) -> Error {
+    let n = match system.indices(wavelength_nm) {
+        Ok(n) => n,
+        Err(e) => return e,
+    };
+    let mut s = vec![[0.0; 4]; sampler.rays];
+    sampler.fill(seed, plane, pixel as u64, &mut s);
+    let (row, col) = (pixel as usize / scene.width, pixel as usize % scene.width);
+    let c = MappingCube::scene_xy(scene.height, scene.width, scene.pitch_mm, row, col);
+    let s = s[k];
+    let field = [c[0] + (s[2] - 0.5) * scene.pitch_mm, c[1] - (s[3] - 0.5) * scene.pitch_mm];
+    match aimed_ray(system, &n, field, s[0], s[1]) {
+        Err(e) => e,
+        Ok(_) => Error::invalid(format!("internal: the GPU kernels' ray aiming failed for ray {k} of scene pixel {pixel} (plane {plane}) where the CPU's succeeds")),
     }
+}
+
+
+/// The constants of a plane launch (`dc_sampler`, `dc_aim`, `dc_scene`) and ray aiming's path: the sampler's,
+/// the paraxial pupil aim's (for an object at infinity the parallel rays of field angles,
+/// `PupilAim::parallel_ray`; the scene's pitch is then an angle, rad), ray aiming's (`paraxial` or `real`: the
+/// stop radius aimed at and the steps to the stop, [`pack::aim_path`]) and the scene and detector geometry.
+pub(crate) fn launch_constants(system: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64) -> Result<(Sampler, Aim, Scene, Vec<Step>)> {
+    let aim_path = pack::aim_path(system)?;
     let too_big = |what: &str, v: usize| Error::invalid(format!("GPU kernels: {what} = {v} exceeds u32"));
     let (h, w) = (u32::try_from(scene.height).map_err(|_| too_big("scene height", scene.height))?, u32::try_from(scene.width).map_err(|_| too_big("scene width", scene.width))?);
     let rays = u32::try_from(sampler.rays).map_err(|_| too_big("rays", sampler.rays))?;
@@ -106,7 +136,18 @@ pub(crate) fn launch_constants(system: &SequentialSystem, scene: SceneGeometry<'
     let pupil = PupilAim::of(system);
     let (telecentric, scale, sin_marginal, magnification_sign, distance_mm) = pupil.parts();
     let sampler_c = Sampler { seed, rays, mode: if sampler.mode == Sampling::Independent { 1 } else { 0 }, grid_a: a as u32, grid_b: b as u32 };
-    let aim = Aim { scale, sin_marginal, magnification_sign, distance_mm, telecentric: telecentric as u32, at_infinity: pupil.at_infinity as u32 };
+    let aiming = system.spec.ray_aiming != RayAiming::Off;
+    let aim = Aim {
+        scale,
+        sin_marginal,
+        magnification_sign,
+        distance_mm,
+        telecentric: telecentric as u32,
+        at_infinity: pupil.at_infinity as u32,
+        stop_radius_mm: system.aim_stop_radius_mm,
+        aiming: aiming as u32,
+        aim_steps: aim_path.len().saturating_sub(1) as u32,
+    };
     let scene_c = Scene {
         scene_pitch_mm: scene.pitch_mm,
         detector_x_left_mm: scene.detector.x_left_mm,
@@ -115,7 +156,7 @@ pub(crate) fn launch_constants(system: &SequentialSystem, scene: SceneGeometry<'
         scene_height: h,
         scene_width: w,
     };
-    Ok((sampler_c, aim, scene_c))
+    Ok((sampler_c, aim, scene_c, aim_path))
 }
 
 /// [`PlaneContext::trace_plane`] through the GPU kernels' host twin, in the context's precision: the same
@@ -159,7 +200,6 @@ pub fn trace_plane(ctx: &PlaneContext<'_>, plane: usize, wavelength_nm: f64) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::analysis::MappingCube;
     use crate::tracer::simd::{trace_block_raw, BlockF32, LANES_F32};
     use crate::tracer::SimdLevel;
     use glam::DVec3;

@@ -32,6 +32,11 @@
 
 /* Status slots counted per plane: tracer::RayStatus codes 0 … 9 (9: a grating's evanescent order). */
 #define DC_STATUS_SLOTS 10u
+/* counts[DC_STATUS_SLOTS + 1]: the first ray whose aim failed (DC_AIM_FAILED), as dc_aim_failure_key — the
+ * minimum over the launch (order-free: an atomicMin on the device), ~0 when none. Such a ray is not counted by
+ * status: the CPU renderer stops with an error there, and so does the host after the run. */
+#define DC_AIM_FAILURE_SLOT (DC_STATUS_SLOTS + 1u)
+DC_FN dc_u64 dc_aim_failure_key(dc_u64 plane, dc_u64 t) { return (plane << 40) | t; }
 /* Fixed-point units of one ray's weight in the off-detector count. */
 #define DC_LOST_ONE 16777216.0
 
@@ -58,11 +63,11 @@ DC_FN float dc_plane_value(const dc_deposit_batch *b, dc_u32 pixel) {
     return ((1.0f - b->tw) * a + b->tw * c) * b->mask[pixel];
 }
 
-/* Ray t of the plane: trace it and add its taps. Returns its status; *lost gets the fixed-point weight of its
+/* Ray t of the plane: trace it (`aimed` as dc_land's) and add its taps. Returns its status; *lost gets the fixed-point weight of its
  * taps that fall off the detector (0 when it does not arrive). */
-DC_FN dc_u32 dc_deposit_ray(const dc_deposit_batch *b, dc_u64 t, dc_u64 *lost) {
+DC_FN dc_u32 dc_deposit_ray(const dc_deposit_batch *b, dc_u64 t, dc_u64 *lost, int aimed) {
     double u, v;
-    dc_u32 st = dc_land(&b->land, t, &u, &v, (int)b->f32);
+    dc_u32 st = dc_land(&b->land, t, &u, &v, (int)b->f32, aimed);
     *lost = 0;
     if (st != DC_OK) return st;
     float value = dc_plane_value(b, b->land.pixels[t / b->land.sampler.rays]);

@@ -13,11 +13,15 @@
 
 /* tracer::RayStatus::OutOfRange. */
 #define DC_OUT_OF_RANGE 8u
+/* Not a RayStatus: ray aiming found no ray through the aim point (rays::aimed_ray's error). The CPU renderer
+ * stops the render there (PlaneContext::ray's Err), so the host turns the first such ray into the same error. */
+#define DC_AIM_FAILED 10u
 
 typedef struct {
     const dc_step *path;
     const double *n;         /* the plane's indices after each surface */
     const dc_u32 *pixels;    /* open scene pixels, row-major index */
+    const dc_step *aim_path; /* ray aiming: aim.aim_steps steps before the stop (apertures open), then the stop's probe */
     double *u, *v;           /* landing, detector pixels (NaN: none) */
     unsigned char *status;   /* tracer::RayStatus code */
     dc_sampler sampler;
@@ -30,10 +34,90 @@ typedef struct {
     dc_u32 pad;
 } dc_landing_batch;
 
+/* rays::aim::stop_crossing: where the ray (o, d) (object frame, unit d) crosses the stop surface, in the stop's
+ * local (x, y) mm — traced through the steps before the stop with their apertures open, then intersected with
+ * the stop's figure (intersection only). 0 when it does not get there. */
+DC_FN int dc_stop_crossing(const dc_step *aim_path, dc_u32 n_before, const double *n, dc_v3 o, dc_v3 d, double *x, double *y) {
+    dc_u32 surface;
+    if (dc_trace_path(aim_path, n_before, n, &o, &d, &surface) != DC_OK) return 0;
+    const dc_step *s = &aim_path[n_before];
+    dc_v3 off = dc_v3_make(s->offset[0], s->offset[1], s->offset[2]);
+    dc_v3 lp = dc_m3_mul(&s->rotation, dc_sub(o, off));
+    dc_v3 ld = dc_m3_mul(&s->rotation, d);
+    dc_v3 q, normal;
+    if (dc_intersect(s, lp, ld, &q, &normal) != DC_OK) return 0;
+    *x = q.x;
+    *y = q.y;
+    return 1;
+}
+
+/* The object ray through entrance-pupil plane point (u, v) (mm; telecentric: normalised) of field (fx, fy): from
+ * the object point (fx, fy, 0), or at infinity parallel with the field's (tan θx, tan θy) = (tx, ty). */
+DC_FN void dc_pupil_ray(const dc_aim *aim, double fx, double fy, double tx, double ty, double u, double v, dc_v3 *o, dc_v3 *d) {
+    if (aim->at_infinity) {
+        dc_parallel_ray_tan(aim, tx, ty, u, v, o, d);
+        return;
+    }
+    *o = dc_v3_make(fx, fy, 0.0);
+    *d = dc_aim_through(aim, fx, fy, u, v);
+}
+
+/* OpticStudio's ray aiming (RAIM 0 1 paraxial, 0 2 real), rays::aimed_ray operation for operation: the
+ * entrance-pupil plane point (u, v), started at (px, py)·r_ep, is moved by Newton's method with a
+ * finite-difference Jacobian (step h = 1e-7·max(r_ep, 1)) until the ray crosses the stop at
+ * (px, py)·stop_radius_mm (|error| < 1e-13·(1 + r_stop) on both axes, or a step below 1e-14·(1 + r_ep)), at most
+ * 30 steps. The three evaluations of a step share one call site (one inlined trace, not three). DC_OK with the
+ * aimed ray, or DC_AIM_FAILED (a ray that does not reach the stop, a singular Jacobian, no convergence). */
+DC_FN dc_u32 dc_aimed_ray(const dc_aim *aim, const dc_step *aim_path, const double *n, double fx, double fy, double px, double py, dc_v3 *o, dc_v3 *d) {
+    double tnx = 0.0, tny = 0.0;
+    if (aim->at_infinity) {
+        tnx = DC_TAN(fx);
+        tny = DC_TAN(fy);
+    }
+    double r_ep = aim->scale;
+    double u = px * r_ep, v = py * r_ep;
+    double r_stop = aim->stop_radius_mm;
+    double tx = px * r_stop, ty = py * r_stop;
+    double h = 1e-7 * dc_max(r_ep, 1.0);
+    for (int it = 0; it < 30; ++it) {
+        double xs[3], ys[3], ex = 0.0, ey = 0.0;
+        for (int j = 0; j < 3; ++j) {
+            double uj = j == 1 ? u + h : u, vj = j == 2 ? v + h : v;
+            dc_v3 oj, dj;
+            dc_pupil_ray(aim, fx, fy, tnx, tny, uj, vj, &oj, &dj);
+            if (!dc_stop_crossing(aim_path, aim->aim_steps, n, oj, dj, &xs[j], &ys[j])) return DC_AIM_FAILED;
+            if (j == 0) {
+                ex = xs[0] - tx;
+                ey = ys[0] - ty;
+                if (DC_FABS(ex) < 1e-13 * (1.0 + r_stop) && DC_FABS(ey) < 1e-13 * (1.0 + r_stop)) {
+                    dc_pupil_ray(aim, fx, fy, tnx, tny, u, v, o, d);
+                    return DC_OK;
+                }
+            }
+        }
+        double a = (xs[1] - xs[0]) / h, c = (ys[1] - ys[0]) / h;
+        double b = (xs[2] - xs[0]) / h, dd = (ys[2] - ys[0]) / h;
+        double det = a * dd - b * c;
+        if (!(DC_FABS(det) > 0.0) || !DC_ISFINITE(det)) return DC_AIM_FAILED;
+        double du = (dd * ex - b * ey) / det;
+        double dv = (-c * ex + a * ey) / det;
+        u -= du;
+        v -= dv;
+        if (DC_FABS(du) < 1e-14 * (1.0 + r_ep) && DC_FABS(dv) < 1e-14 * (1.0 + r_ep)) {
+            dc_pupil_ray(aim, fx, fy, tnx, tny, u, v, o, d);
+            return DC_OK;
+        }
+    }
+    return DC_AIM_FAILED;
+}
+
 /* Ray t of the launch: its status, and where it lands (*u, *v; NaN when it does not arrive). `f32`: the
  * renderer's f32 trace (dc_trace_ray_raw_f32, as render::transport::trace_row_lanes_f32), its results widened
- * to f64 and landed like the f64 ones. */
-DC_FN dc_u32 dc_land(const dc_landing_batch *b, dc_u64 t, double *u_out, double *v_out, int f32) {
+ * to f64 and landed like the f64 ones. `aimed`: this build aims rays (b->aim.aiming: the host twin passes it;
+ * the device has an aimed kernel of each kind, chosen at launch, because the aim's trace to the stop costs
+ * ~70 registers a thread that the unaimed kernels should not pay). A launch with aiming on through a kernel
+ * built without it fails every ray (DC_AIM_FAILED; the host then reports the disagreement). */
+DC_FN dc_u32 dc_land(const dc_landing_batch *b, dc_u64 t, double *u_out, double *v_out, int f32, int aimed) {
     dc_u64 q = t / b->sampler.rays;
     dc_u32 k = (dc_u32)(t % b->sampler.rays);
     dc_u32 pixel = b->pixels[q];
@@ -42,7 +126,24 @@ DC_FN dc_u32 dc_land(const dc_landing_batch *b, dc_u64 t, double *u_out, double 
     dc_v3 o, d;
     dc_u32 surface;
     dc_sample_ray(&b->sampler, b->plane, pixel, k, s);
-    dc_object_ray(&b->scene, &b->aim, row, col, s, &o, &d);
+    if (!aimed && b->aim.aiming) {
+        *u_out = DC_NAN;
+        *v_out = DC_NAN;
+        return DC_AIM_FAILED;
+    }
+    if (aimed) {
+        /* PlaneContext::ray with ray aiming on: the field point jittered in the pixel, aimed in f64 (the f32
+         * renderer aims in f64 too, then rounds the aimed ray as any other: dc_trace_ray_raw_f32). */
+        double fx, fy;
+        dc_field_point(&b->scene, row, col, s, &fx, &fy);
+        if (dc_aimed_ray(&b->aim, b->aim_path, b->n, fx, fy, s[0], s[1], &o, &d) != DC_OK) {
+            *u_out = DC_NAN;
+            *v_out = DC_NAN;
+            return DC_AIM_FAILED;
+        }
+    } else {
+        dc_object_ray(&b->scene, &b->aim, row, col, s, &o, &d);
+    }
     dc_u32 st = f32 ? dc_trace_ray_raw_f32(b->path, b->n_steps, b->n, &o, &d, &surface) : dc_trace_ray(b->path, b->n_steps, b->n, &o, &d, &surface);
     double u = DC_NAN, v = DC_NAN;
     if (st == DC_OK) {
@@ -58,10 +159,10 @@ DC_FN dc_u32 dc_land(const dc_landing_batch *b, dc_u64 t, double *u_out, double 
 }
 
 /* Ray t of the launch, its outputs written at index `slot` of u, v and status (the device: slot = t; the host
- * twin: t − the first ray of its chunk, so that each chunk writes its own arrays); `f32` as dc_land's. */
-DC_FN void dc_landing_ray(const dc_landing_batch *b, dc_u64 t, dc_u64 slot, int f32) {
+ * twin: t − the first ray of its chunk, so that each chunk writes its own arrays); `f32`, `aimed` as dc_land's. */
+DC_FN void dc_landing_ray(const dc_landing_batch *b, dc_u64 t, dc_u64 slot, int f32, int aimed) {
     double u, v;
-    dc_u32 st = dc_land(b, t, &u, &v, f32);
+    dc_u32 st = dc_land(b, t, &u, &v, f32, aimed);
     b->u[slot] = u;
     b->v[slot] = v;
     b->status[slot] = (unsigned char)st;

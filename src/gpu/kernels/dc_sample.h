@@ -135,11 +135,18 @@ typedef struct {
     double distance_mm; /* object plane → entrance pupil */
     dc_u32 telecentric;
     dc_u32 at_infinity; /* the object is at infinity: fields are angles (rad), the rays of a field parallel */
+    /* Ray aiming (OpticStudio's RAIM; rays::aimed_ray): 0 off (the paraxial entrance pupil), 1 on — paraxial or
+     * real, which differ only in stop_radius_mm (SequentialSystem::aim_stop_radius_mm: the paraxial stop radius,
+     * or the real marginal ray's height at the stop). aim_steps: the path steps before the stop, their
+     * apertures opened (StopProbe::open_path), followed in the launch's aim_path by the stop's probe. */
+    double stop_radius_mm;
+    dc_u32 aiming;
+    dc_u32 aim_steps;
 } dc_aim;
 
-/* PupilAim::direction: the unit direction from object point (x, y, 0) through normalised pupil (px, py). */
-DC_FN dc_v3 dc_aim_direction(const dc_aim *aim, double x, double y, double px, double py) {
-    double u = px * aim->scale, v = py * aim->scale;
+/* PupilAim::through: the unit direction from object point (x, y, 0) through the entrance-pupil plane point (u, v)
+ * (telecentric: direction sines (u, v)·sin θ). */
+DC_FN dc_v3 dc_aim_through(const dc_aim *aim, double x, double y, double u, double v) {
     if (aim->telecentric) {
         double s = aim->sin_marginal;
         double sx = u * s, sy = v * s;
@@ -157,6 +164,22 @@ DC_FN dc_v3 dc_aim_direction(const dc_aim *aim, double x, double y, double px, d
     return dc_v3_make(wx * inv, wy * inv, wz * inv);
 }
 
+/* PupilAim::direction: the unit direction from object point (x, y, 0) through normalised pupil (px, py). */
+DC_FN dc_v3 dc_aim_direction(const dc_aim *aim, double x, double y, double px, double py) {
+    return dc_aim_through(aim, x, y, px * aim->scale, py * aim->scale);
+}
+
+/* PupilAim::parallel_ray after its two tan: the ray of direction ∝ (tx, ty, 1) through the entrance-pupil plane
+ * point (u, v) mm (ray aiming moves (u, v) and keeps the field's tan θ, computed once: tan is a function, so the
+ * bits are those of parallel_ray's own call). */
+DC_FN void dc_parallel_ray_tan(const dc_aim *aim, double tx, double ty, double u, double v, dc_v3 *o, dc_v3 *d) {
+    double m = aim->magnification_sign;
+    double z = aim->distance_mm;
+    *o = dc_v3_make(m * u - tx * z, m * v - ty * z, 0.0);
+    double inv = 1.0 / DC_SQRT(tx * tx + ty * ty + 1.0);
+    *d = dc_v3_make(tx * inv, ty * inv, inv);
+}
+
 /* PupilAim::parallel_ray (object at infinity): the ray of field angles (θx, θy) rad through the entrance-pupil
  * point (u, v) = (px, py)·scale, direction ∝ (tan θx, tan θy, 1), starting where it crosses the object frame's
  * z = 0 plane (surface 1's vertex). tan: DC_TAN (dc_common.h: the platform's libm on the host, bit for bit the
@@ -165,11 +188,7 @@ DC_FN void dc_parallel_ray(const dc_aim *aim, double theta_x, double theta_y, do
     double r = aim->scale;
     double u = px * r, v = py * r;
     double tx = DC_TAN(theta_x), ty = DC_TAN(theta_y);
-    double m = aim->magnification_sign;
-    double z = aim->distance_mm;
-    *o = dc_v3_make(m * u - tx * z, m * v - ty * z, 0.0);
-    double inv = 1.0 / DC_SQRT(tx * tx + ty * ty + 1.0);
-    *d = dc_v3_make(tx * inv, ty * inv, inv);
+    dc_parallel_ray_tan(aim, tx, ty, u, v, o, d);
 }
 
 /* The scene geometry and the detector of a render (for an object at infinity the scene pitch is an angle,
@@ -186,15 +205,21 @@ DC_FN void dc_scene_xy(const dc_scene *sc, dc_u32 row, dc_u32 col, double *x, do
     *y = ((double)sc->scene_height / 2.0 - (double)row - 0.5) * sc->scene_pitch_mm;
 }
 
+/* PlaneContext::ray's field point of sample s of scene pixel (row, col): the pixel centre jittered by s[2], s[3]. */
+DC_FN void dc_field_point(const dc_scene *sc, dc_u32 row, dc_u32 col, const double s[4], double *fx, double *fy) {
+    double cx, cy;
+    dc_scene_xy(sc, row, col, &cx, &cy);
+    *fx = cx + (s[2] - 0.5) * sc->scene_pitch_mm;
+    *fy = cy - (s[3] - 0.5) * sc->scene_pitch_mm;
+}
+
 /* The object ray of sample s of scene pixel (row, col) (PlaneContext::ray, then the trace's own
  * normalisation): the field point (fx, fy) jittered in the pixel; on a finite object plane the origin
  * (fx, fy, 0) and the unit aim direction (render::sampling::object_rays); at infinity (fx, fy) are field angles
  * (rad) and the ray is dc_parallel_ray's (rays::object_ray). */
 DC_FN void dc_object_ray(const dc_scene *sc, const dc_aim *aim, dc_u32 row, dc_u32 col, const double s[4], dc_v3 *o, dc_v3 *d) {
-    double cx, cy;
-    dc_scene_xy(sc, row, col, &cx, &cy);
-    double fx = cx + (s[2] - 0.5) * sc->scene_pitch_mm;
-    double fy = cy - (s[3] - 0.5) * sc->scene_pitch_mm;
+    double fx, fy;
+    dc_field_point(sc, row, col, s, &fx, &fy);
     if (aim->at_infinity) {
         dc_parallel_ray(aim, fx, fy, s[0], s[1], o, d);
         return;

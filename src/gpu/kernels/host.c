@@ -14,11 +14,12 @@ void dc_trace_batch_host(const dc_batch *b, dc_u64 begin, dc_u64 end, dc_u32 mod
 }
 
 /* Landings of rays [begin, end) of a plane launch: the body of dc_landing_kernel (f32 = 0) and
- * dc_landing_f32_kernel (f32 = 1). Here b->u, b->v and b->status point at the chunk's own outputs: ray t is
+ * dc_landing_f32_kernel (f32 = 1), or of their aimed builds (dc_landing_aimed*_kernel) when the launch aims. Here b->u, b->v and b->status point at the chunk's own outputs: ray t is
  * written at t − begin. */
 void dc_landing_host(const dc_landing_batch *b, dc_u64 begin, dc_u64 end, int f32) {
     dc_u64 n = b->n_pixels * (dc_u64)b->sampler.rays;
-    for (dc_u64 t = begin; t < end && t < n; ++t) dc_landing_ray(b, t, t - begin, f32);
+    int aimed = b->aim.aiming != 0;
+    for (dc_u64 t = begin; t < end && t < n; ++t) dc_landing_ray(b, t, t - begin, f32, aimed);
 }
 
 /* sizeof of the shared structs, so that the Rust side can check its repr(C) layouts. */
@@ -40,12 +41,17 @@ void dc_footprint_fill_host(const double *u, const double *v, dc_u32 n, dc_windo
 
 dc_u64 dc_sizeof_window(void) { return (dc_u64)sizeof(dc_window); }
 
-/* Rays [begin, end) of a plane: the body of dc_deposit_kernel, into this worker's own plane image; counts[0..10]
- * by status, counts[10] the fixed-point weight off the detector. */
+/* Rays [begin, end) of a plane: the body of dc_deposit_kernel (dc_deposit_aimed_kernel when the launch aims), into this worker's own plane image; counts[0..10]
+ * by status, counts[10] the fixed-point weight off the detector, counts[11] the first failed aim's key (min). */
 void dc_deposit_host(const dc_deposit_batch *b, dc_u64 begin, dc_u64 end, dc_u64 *counts) {
     for (dc_u64 t = begin; t < end; ++t) {
         dc_u64 lost;
-        dc_u32 st = dc_deposit_ray(b, t, &lost);
+        dc_u32 st = dc_deposit_ray(b, t, &lost, b->land.aim.aiming != 0);
+        if (st == DC_AIM_FAILED) {
+            dc_u64 key = dc_aim_failure_key(b->land.plane, t);
+            if (key < counts[DC_AIM_FAILURE_SLOT]) counts[DC_AIM_FAILURE_SLOT] = key;
+            continue;
+        }
         counts[st < DC_STATUS_SLOTS ? st : 5u] += 1;
         counts[DC_STATUS_SLOTS] += lost;
     }
