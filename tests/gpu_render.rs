@@ -174,12 +174,35 @@ fn the_twin_render_equals_the_cpu_render_to_its_f32_rounding() {
     }
 }
 
+/// The whole acquisition of `sys` (its scene `fov_deg` wide for an object at infinity) through the twin, in f64
+/// and f32: within 1e-9 of the f64 model of its landings, within the CPU's f32 rounding of the CPU render (the
+/// bound above), the same ray counts, some rays arrived.
+fn assert_twin_render_matches(name: &str, sys: &SequentialSystem, fov_deg: Option<f64>, scene: &SpectralCube) {
+    let tracer = AnalyticTracer::default();
+    for precision in [Precision::F64, Precision::F32] {
+        let mut c = config_in(true, precision);
+        c.scene_fov_deg = fov_deg;
+        let r = Renderer::new(sys, &tracer, c, Mask::random(H, W, 0.6, 5).unwrap()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let (twin, _) = render_on(&r, scene, false, Executor::Twin).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let reference = f64_reference(&r, scene);
+        let pk = peak(&reference);
+        assert!(pk > 1e-3, "{name} {precision}: an empty acquisition ({pk})");
+        let model = twin.image.iter().zip(&reference).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        let cpu = r.render(scene, false, &|_| {}).unwrap();
+        let worst = twin.image.iter().zip(&cpu.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+        eprintln!("{name} {precision}: |twin − f64 model| = {:.2e}, |twin − cpu| = {:.2e} of the peak", model / pk, worst / peak(&cpu.image));
+        assert!(model <= 1e-9 * pk, "{name} {precision}: |twin − f64 model| = {model:e} of a peak {pk}");
+        assert!(worst <= 1e-6 * peak(&cpu.image), "{name} {precision}: |twin − cpu| = {worst:e} of a peak {}", peak(&cpu.image));
+        let (a, b) = (twin.stats, cpu.stats);
+        assert_eq!((a.traced, a.arrived, a.missed, a.vignetted, a.tir, a.no_convergence, a.invalid_input, a.out_of_range, a.evanescent), (b.traced, b.arrived, b.missed, b.vignetted, b.tir, b.no_convergence, b.invalid_input, b.out_of_range, b.evanescent), "{name} {precision}");
+        assert!(a.arrived > 0, "{name} {precision}");
+    }
+}
+
 /// The whole acquisition through the twin where the kernels now model more (issue 41/42): a toroid
 /// (tests/surfaces.rs), the `gsp` grating CASSI, `all_new_kinds` (a conic toroid with y⁴, y⁶ terms, a curved
 /// grating passing 73 % of the power — `grating_efficiency`, carried by the plane weights — and a paraboloid
-/// mirror) and the singlet at infinity of tests/common (`scene_fov_deg`), in f64 and f32: within 1e-9 of the
-/// f64 model of its landings, within the CPU's f32 rounding of the CPU render (the bound above), the same ray
-/// counts.
+/// mirror) and the singlet at infinity of tests/common (`scene_fov_deg`), each as [`assert_twin_render_matches`].
 #[test]
 fn the_twin_render_models_toroids_gratings_and_objects_at_infinity() {
     let scene = scene();
@@ -190,33 +213,14 @@ fn the_twin_render_models_toroids_gratings_and_objects_at_infinity() {
         ("all_new_kinds", build(crate::surfaces::all_new_kinds()), None),
         ("singlet at infinity", build(crate::common::singlet_at_infinity(false)), Some(0.5)),
     ];
-    let tracer = AnalyticTracer::default();
     for (name, sys, fov_deg) in &cases {
-        for precision in [Precision::F64, Precision::F32] {
-            let mut c = config_in(true, precision);
-            c.scene_fov_deg = *fov_deg;
-            let r = Renderer::new(sys, &tracer, c, Mask::random(H, W, 0.6, 5).unwrap()).unwrap_or_else(|e| panic!("{name}: {e}"));
-            let (twin, _) = render_on(&r, &scene, false, Executor::Twin).unwrap();
-            let reference = f64_reference(&r, &scene);
-            let pk = peak(&reference);
-            assert!(pk > 1e-3, "{name} {precision}: an empty acquisition ({pk})");
-            let model = twin.image.iter().zip(&reference).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-            let cpu = r.render(&scene, false, &|_| {}).unwrap();
-            let worst = twin.image.iter().zip(&cpu.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-            eprintln!("{name} {precision}: |twin − f64 model| = {:.2e}, |twin − cpu| = {:.2e} of the peak", model / pk, worst / peak(&cpu.image));
-            assert!(model <= 1e-9 * pk, "{name} {precision}: |twin − f64 model| = {model:e} of a peak {pk}");
-            assert!(worst <= 1e-6 * peak(&cpu.image), "{name} {precision}: |twin − cpu| = {worst:e} of a peak {}", peak(&cpu.image));
-            let (a, b) = (twin.stats, cpu.stats);
-            assert_eq!((a.traced, a.arrived, a.missed, a.vignetted, a.tir, a.no_convergence, a.invalid_input, a.out_of_range, a.evanescent), (b.traced, b.arrived, b.missed, b.vignetted, b.tir, b.no_convergence, b.invalid_input, b.out_of_range, b.evanescent), "{name} {precision}");
-            assert!(a.arrived > 0, "{name} {precision}");
-        }
+        assert_twin_render_matches(name, sys, *fov_deg, &scene);
     }
 }
 
 /// The whole acquisition through the twin with ray aiming (`paraxial` and `real`: `dc_aimed_ray`, the CPU's
-/// `rays::aimed_ray` per ray) on SP and on the singlet at infinity of tests/common, f64 and f32: within 1e-9 of
-/// the f64 model of its landings, within the CPU's f32 rounding of the CPU render, the same ray counts; and
-/// where some aims fail (a scene far past SP's field), the CPU's error.
+/// `rays::aimed_ray` per ray) on SP and on the singlet at infinity of tests/common, each as
+/// [`assert_twin_render_matches`]; and where some aims fail (a scene far past the singlet's field), the CPU's error.
 #[test]
 fn the_twin_render_models_ray_aiming() {
     use diffcassi::spec::RayAiming;
@@ -232,24 +236,7 @@ fn the_twin_render_models_ray_aiming() {
         ("singlet at infinity real", aimed(crate::common::singlet_at_infinity(false), RayAiming::Real), Some(0.5)),
     ];
     for (name, sys, fov_deg) in &cases {
-        for precision in [Precision::F64, Precision::F32] {
-            let mut c = config_in(true, precision);
-            c.scene_fov_deg = *fov_deg;
-            let r = Renderer::new(sys, &tracer, c, Mask::random(H, W, 0.6, 5).unwrap()).unwrap_or_else(|e| panic!("{name}: {e}"));
-            let (twin, _) = render_on(&r, &scene, false, Executor::Twin).unwrap_or_else(|e| panic!("{name}: {e}"));
-            let reference = f64_reference(&r, &scene);
-            let pk = peak(&reference);
-            assert!(pk > 1e-3, "{name} {precision}: an empty acquisition ({pk})");
-            let model = twin.image.iter().zip(&reference).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-            let cpu = r.render(&scene, false, &|_| {}).unwrap();
-            let worst = twin.image.iter().zip(&cpu.image).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
-            eprintln!("{name} {precision}: |twin − f64 model| = {:.2e}, |twin − cpu| = {:.2e} of the peak", model / pk, worst / peak(&cpu.image));
-            assert!(model <= 1e-9 * pk, "{name} {precision}: |twin − f64 model| = {model:e} of a peak {pk}");
-            assert!(worst <= 1e-6 * peak(&cpu.image), "{name} {precision}: |twin − cpu| = {worst:e} of a peak {}", peak(&cpu.image));
-            let (a, b) = (twin.stats, cpu.stats);
-            assert_eq!((a.traced, a.arrived, a.missed, a.vignetted, a.tir, a.no_convergence, a.invalid_input, a.out_of_range, a.evanescent), (b.traced, b.arrived, b.missed, b.vignetted, b.tir, b.no_convergence, b.invalid_input, b.out_of_range, b.evanescent), "{name} {precision}");
-            assert!(a.arrived > 0, "{name} {precision}");
-        }
+        assert_twin_render_matches(name, sys, *fov_deg, &scene);
     }
     // Aims that fail (the singlet's scene widened to 179.8° after the renderer is built: field angles up to ~84°,
     // whose rays cannot reach the stop): the render stops with the CPU's error (one plane, so that the CPU's

@@ -179,6 +179,15 @@ fn f32_trace_kernel_twin_classifies_invalid_inputs_like_the_f32_lane_kernel() {
 /// centre, the aim, the scalar trace, the detector coordinates.
 fn rust_landings(sys: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wl: f64, pixels: &[u32]) -> (Vec<f64>, Vec<f64>, Vec<RayStatus>) {
     let aim = PupilAim::of(sys);
+    let ray = |[fx, fy]: [f64; 2], px: f64, py: f64| Ok((DVec3::new(fx, fy, 0.0), DVec3::from(aim.direction(fx, fy, px, py))));
+    landings_of_rays(sys, scene, sampler, seed, plane, wl, pixels, ray).unwrap()
+}
+
+/// The renderer's steps for one plane with `ray` (field point or angles, pupil px, py → origin and direction)
+/// as its ray generator: the sampler, the pixel centre and the sample's jitter in it (`PlaneContext::ray`), the
+/// scalar trace, the detector coordinates (NaN where a ray did not arrive); `ray`'s first error instead.
+#[allow(clippy::too_many_arguments)]
+fn landings_of_rays(sys: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wl: f64, pixels: &[u32], ray: impl Fn([f64; 2], f64, f64) -> Result<(DVec3, DVec3), String>) -> Result<(Vec<f64>, Vec<f64>, Vec<RayStatus>), String> {
     let mut batch = RayBatch::with_capacity(0);
     let mut s = vec![[0.0; 4]; sampler.rays];
     for &q in pixels {
@@ -186,10 +195,9 @@ fn rust_landings(sys: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &Ray
         let (row, col) = (q as usize / scene.width, q as usize % scene.width);
         let c = MappingCube::scene_xy(scene.height, scene.width, scene.pitch_mm, row, col);
         for smp in &s {
-            let fx = c[0] + (smp[2] - 0.5) * scene.pitch_mm;
-            let fy = c[1] - (smp[3] - 0.5) * scene.pitch_mm;
-            let d = aim.direction(fx, fy, smp[0], smp[1]);
-            batch.push(DVec3::new(fx, fy, 0.0), DVec3::from(d), wl);
+            let field = [c[0] + (smp[2] - 0.5) * scene.pitch_mm, c[1] - (smp[3] - 0.5) * scene.pitch_mm];
+            let (o, d) = ray(field, smp[0], smp[1])?;
+            batch.push(o, d, wl);
         }
     }
     let t = scalar().trace(sys, &batch).unwrap();
@@ -199,7 +207,7 @@ fn rust_landings(sys: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &Ray
         u.push(a);
         v.push(b);
     }
-    (u, v, t.status)
+    Ok((u, v, t.status))
 }
 
 #[test]
@@ -565,26 +573,7 @@ fn trace_kernel_twins_equal_the_cpu_kernels_through_toroids_and_gratings() {
 /// angles (the pixel pitch an angle, rad), `rays::object_ray` (`PupilAim::parallel_ray`), the scalar trace and
 /// the detector coordinates.
 fn rust_landings_at_infinity(sys: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wl: f64, pixels: &[u32]) -> (Vec<f64>, Vec<f64>, Vec<RayStatus>) {
-    let mut batch = RayBatch::with_capacity(0);
-    let mut s = vec![[0.0; 4]; sampler.rays];
-    for &q in pixels {
-        sampler.fill(seed, plane, q as u64, &mut s);
-        let (row, col) = (q as usize / scene.width, q as usize % scene.width);
-        let c = MappingCube::scene_xy(scene.height, scene.width, scene.pitch_mm, row, col);
-        for smp in &s {
-            let field = [c[0] + (smp[2] - 0.5) * scene.pitch_mm, c[1] - (smp[3] - 0.5) * scene.pitch_mm];
-            let (o, d) = diffcassi::rays::object_ray(sys, field, smp[0], smp[1]);
-            batch.push(o, d, wl);
-        }
-    }
-    let t = scalar().trace(sys, &batch).unwrap();
-    let (mut u, mut v) = (Vec::new(), Vec::new());
-    for i in 0..t.len() {
-        let (a, b) = if t.status[i] == RayStatus::Ok { scene.detector.to_pixel(t.x[i], t.y[i]) } else { (f64::NAN, f64::NAN) };
-        u.push(a);
-        v.push(b);
-    }
-    (u, v, t.status)
+    landings_of_rays(sys, scene, sampler, seed, plane, wl, pixels, |field, px, py| Ok(diffcassi::rays::object_ray(sys, field, px, py))).unwrap()
 }
 
 /// The landing kernel for an object at infinity (`dc_parallel_ray`: the pixel's field angles, tan from the
@@ -712,26 +701,7 @@ fn aimed_systems() -> Vec<(String, SequentialSystem, f64)> {
 /// first failed aim's error instead, as the renderer (its rays in this order).
 fn rust_landings_aimed(sys: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &RaySampler, seed: u64, plane: u64, wl: f64, pixels: &[u32]) -> Result<(Vec<f64>, Vec<f64>, Vec<RayStatus>), String> {
     let n = sys.indices(wl).unwrap();
-    let mut batch = RayBatch::with_capacity(0);
-    let mut s = vec![[0.0; 4]; sampler.rays];
-    for &q in pixels {
-        sampler.fill(seed, plane, q as u64, &mut s);
-        let (row, col) = (q as usize / scene.width, q as usize % scene.width);
-        let c = MappingCube::scene_xy(scene.height, scene.width, scene.pitch_mm, row, col);
-        for smp in &s {
-            let field = [c[0] + (smp[2] - 0.5) * scene.pitch_mm, c[1] - (smp[3] - 0.5) * scene.pitch_mm];
-            let (o, d) = diffcassi::rays::aimed_ray(sys, &n, field, smp[0], smp[1]).map_err(|e| e.to_string())?;
-            batch.push(o, d, wl);
-        }
-    }
-    let t = scalar().trace(sys, &batch).unwrap();
-    let (mut u, mut v) = (Vec::new(), Vec::new());
-    for i in 0..t.len() {
-        let (a, b) = if t.status[i] == RayStatus::Ok { scene.detector.to_pixel(t.x[i], t.y[i]) } else { (f64::NAN, f64::NAN) };
-        u.push(a);
-        v.push(b);
-    }
-    Ok((u, v, t.status))
+    landings_of_rays(sys, scene, sampler, seed, plane, wl, pixels, |field, px, py| diffcassi::rays::aimed_ray(sys, &n, field, px, py).map_err(|e| e.to_string()))
 }
 
 /// The landing kernel with ray aiming `paraxial` and `real` (`dc_aimed_ray`: rays::aimed_ray's Newton solve

@@ -81,46 +81,9 @@ def test_angular_extent_on_a_finite_object_is_refused():
         diffcassi.render(diffcassi.System.preset("sp"), cube, SMALL["bands_nm"], scene_fov_deg="wide", **SMALL)
 
 
-#: A thick N-BK7 singlet at infinity (R1 = 50 mm, R2 = −80 mm, 6 mm thick, f ≈ 60 mm), the stop on a plane 5 mm
-#: behind it (the entrance pupil moves with the lens), entrance pupil 8 mm, the image near the paraxial focus: the
-#: system of tests/render_gradient.rs's gradient tests at infinity (tests/common/mod.rs, ``singlet_at_infinity``).
-SINGLET = """
-name = "singlet at infinity"
-ray_aiming = "off"
-wavelengths_nm = [450.0, 550.0, 650.0]
-primary_wavelength_nm = 550.0
-fields_mm = []
-field_type = "angle"
-fields_deg = [[2.0, 3.0], [0.0, 0.0]]
-
-[aperture]
-type = "entrance_pupil_diameter"
-value = 8.0
-
-[[surfaces]]
-type = "standard"
-thickness_mm = "infinity"
-
-[[surfaces]]
-type = "standard"
-radius_mm = 50.0
-thickness_mm = 6.0
-material = "N-BK7"
-
-[[surfaces]]
-type = "standard"
-radius_mm = -80.0
-thickness_mm = 5.0
-
-[[surfaces]]
-type = "standard"
-stop = true
-thickness_mm = 48.0
-
-[[surfaces]]
-type = "standard"
-thickness_mm = 0.0
-"""
+#: A thick N-BK7 singlet at infinity (R1 = 50 mm, R2 = −80 mm, f ≈ 60 mm, entrance pupil 8 mm): the system of
+#: tests/render_gradient.rs's gradient tests at infinity (tests/common/mod.rs, ``singlet_at_infinity``).
+SINGLET = (ROOT / "tests" / "fixtures" / "systems" / "singlet_at_infinity.toml").read_text()
 
 
 @pytest.fixture(scope="module")
