@@ -73,6 +73,19 @@ thickness_mm = 0.0
 SINGLET_AT_INFINITY = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "tests", "fixtures", "systems", "singlet_at_infinity.toml")
 
 
+def finish(record: dict, failed: list, out, name: str) -> int:
+    """Record the failed checks in `record`, write it as `out`/`name` (JSON) when `out` is given, print each
+    failure; the exit status (1 on any failure)."""
+    record["failed"] = failed
+    if out:
+        os.makedirs(out, exist_ok=True)
+        with open(os.path.join(out, name), "w") as f:
+            json.dump(record, f, indent=1)
+    for m in failed:
+        print(f"render_check: FAILED: {m}", file=sys.stderr)
+    return 1 if failed else 0
+
+
 def with_ray_aiming(system, aiming: str):
     """`system` with ray_aiming set ("paraxial" or "real"), through its TOML."""
     import re
@@ -142,14 +155,7 @@ def systems_check(a) -> int:
     print("|---|---|---|")
     for w, v, b in rows:
         print(f"| {w} | {v} | {b} |")
-    record["failed"] = failed
-    if a.out:
-        os.makedirs(a.out, exist_ok=True)
-        with open(os.path.join(a.out, "render_systems_check.json"), "w") as f:
-            json.dump(record, f, indent=1)
-    for m in failed:
-        print(f"render_check: FAILED: {m}", file=sys.stderr)
-    return 1 if failed else 0
+    return finish(record, failed, a.out, "render_systems_check.json")
 
 
 def main() -> int:
@@ -240,14 +246,7 @@ def main() -> int:
     for prec, m in r["mapping"].items():
         if not m["bit_identical"]:
             failed.append(f"the {prec} mapping cube on the GPU differs from the CPU's")
-    r["failed"] = failed
-    if a.out:
-        os.makedirs(a.out, exist_ok=True)
-        with open(os.path.join(a.out, "render_check.json"), "w") as f:
-            json.dump(r, f, indent=1)
-    for m in failed:
-        print(f"render_check: FAILED: {m}", file=sys.stderr)
-    return 1 if failed else 0
+    return finish(r, failed, a.out, "render_check.json")
 
 
 if __name__ == "__main__":
