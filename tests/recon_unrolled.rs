@@ -198,8 +198,8 @@ fn cli_unrolled_committed_weights_and_record() {
     assert_eq!(diffcassi::io::read_npy_f64(out2.join("cube.npy")).unwrap().1, cube);
 }
 
-/// A render whose mask is the one the weights record (same SHA-256) and whose planes and rays match: no
-/// warning; a file's CRC-32 is the file's.
+/// A render whose mask and system are the ones the weights record (same SHA-256s) and whose planes and rays
+/// match: no warning; a file's CRC-32 is the file's.
 #[test]
 fn cli_unrolled_same_mask_no_warning() {
     let d = tempfile::tempdir().unwrap();
@@ -212,6 +212,7 @@ fn cli_unrolled_same_mask_no_warning() {
     set_meta(&mut st, "mask_sha256", &diffcassi::io::sha256::sha256_f32_hex(&mask.values));
     set_meta(&mut st, "planes", "28");
     set_meta(&mut st, "rays", "1");
+    set_meta(&mut st, "system_sha256", &diffcassi::spec::system_sha256(&SequentialSystem::build(&presets::spec("sp").unwrap()).unwrap().spec).unwrap());
     let bytes = serialize(&st);
     let w = d.path().join("w.safetensors");
     std::fs::write(&w, &bytes).unwrap();
@@ -327,4 +328,54 @@ fn cli_study_with_unrolled() {
     let o = bin(&["study", "--synthetic", "1", "--scene-size", "16", "--presets", "msp", "--operators", "exact", "--solvers", "unrolled", "--weights", s(&committed_path("sp")), "--planes", "28", "--rays", "1", "--out", s(&out2)]);
     assert!(!o.status.success() && stderr(&o).contains("metadata `system` = `sp`"), "{}", stderr(&o));
     assert!(!out2.exists());
+}
+
+/// A system is its prescription, not its name: the committed SP weights accept the preset (also read back
+/// from a TOML file) and refuse a file whose spec is named `sp` with one thickness moved, naming the field
+/// that differs; a weights file recording `system_sha256` is held to it, one recording none runs with a
+/// warning that only the name was checked; `study --systems` refuses the moved file before any work.
+#[test]
+fn weights_check_the_prescription_not_only_the_name() {
+    use diffcassi::spec::{load_spec_file, save_spec_file, system_sha256};
+    let d = tempfile::tempdir().unwrap();
+    let preset = diffcassi::presets::spec("sp").unwrap();
+    let file = d.path().join("sp.toml");
+    save_spec_file(&preset, &file).unwrap();
+    let same = SequentialSystem::build(&load_spec_file(&file).unwrap()).unwrap().spec;
+    let net = UnrolledNetwork::committed("sp").unwrap();
+    let (sha, warning) = net.check_system(&same).unwrap();
+    assert_eq!((sha.as_str(), warning), (system_sha256(&SequentialSystem::build(&preset).unwrap().spec).unwrap().as_str(), None));
+    // One gap moved by 0.5 mm, the name kept.
+    let k = (1..preset.surfaces.len()).find(|&i| preset.surfaces[i].thickness_mm.value > 1.0).unwrap();
+    let mut moved = same.clone();
+    moved.surfaces[k].thickness_mm.value += 0.5;
+    let e = net.check_system(&moved).unwrap_err().to_string();
+    for n in ["unrolled-gap-v1-sp.safetensors", "refused", "a system is its prescription", &format!("first difference from the preset `sp`: surfaces[{k}].thickness_mm")] {
+        assert!(e.contains(n), "`{n}` not in: {e}");
+    }
+    // A file that records the prescription it was trained for is held to it, whatever the name says.
+    let with = |sha: &str| {
+        let mut st = committed("sp");
+        set_meta(&mut st, "system_sha256", sha);
+        UnrolledNetwork::from_bytes(&serialize(&st), "recorded").unwrap()
+    };
+    assert!(with(&system_sha256(&moved).unwrap()).check_system(&moved).is_ok());
+    assert!(with(&system_sha256(&moved).unwrap()).check_system(&same).unwrap_err().to_string().contains("refused"));
+    let e = UnrolledNetwork::from_bytes(&serialize(&{
+        let mut st = committed("sp");
+        set_meta(&mut st, "system_sha256", "12ab");
+        st
+    }), "short").err().unwrap().to_string();
+    assert!(e.contains("metadata `system_sha256` = `12ab` is not 64 hex digits"), "{e}");
+    // A file that records none: its name is all that is checked, and said.
+    let (_, warning) = UnrolledNetwork::from_bytes(&serialize(&committed("sp")), "bare").unwrap().check_system(&moved).unwrap();
+    assert!(warning.is_some_and(|w| w.contains("metadata `system_sha256` not recorded")));
+    // The study refuses the moved file before any work.
+    let moved_file = d.path().join("moved").join("sp.toml");
+    std::fs::create_dir(moved_file.parent().unwrap()).unwrap();
+    save_spec_file(&moved, &moved_file).unwrap();
+    let out = d.path().join("study");
+    let o = bin(&["study", "--synthetic", "1", "--scene-size", "16", "--systems", s(&moved_file), "--operators", "exact", "--solvers", "unrolled", "--planes", "28", "--rays", "1", "--out", s(&out)]);
+    assert!(!o.status.success() && stderr(&o).contains(&format!("surfaces[{k}].thickness_mm")), "{}", stderr(&o));
+    assert!(!out.exists());
 }

@@ -412,6 +412,41 @@ fn study_recomputes_a_system_file_whose_glass_catalogue_changed() {
     assert!(stdout(&o).contains("1 cells computed, 0 already done"), "{}", stdout(&o));
 }
 
+/// `--glass-catalog` files join the system's spec (as absolute paths): the study's render records them, so a
+/// later `reconstruct --from` (from another working directory) reads the same glasses; `study --glass-catalog`
+/// applies to `--systems` files and is refused without one; a spec file's relative `glass_catalogs` entry is
+/// read beside the spec file, from any working directory.
+#[test]
+fn glass_catalogues_of_the_command_line_are_recorded_with_the_system() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::create_dir_all(d.path().join("cat")).unwrap();
+    std::fs::create_dir_all(d.path().join("spec")).unwrap();
+    // X1: N-BK7's Sellmeier coefficients under a name no built-in catalogue has.
+    let agf = d.path().join("cat/mine.agf");
+    std::fs::write(&agf, "CC test\nNM X1 2 0 1.5168 64.17 0 1\nCD 1.03961212 0.00600069867 0.231792344 0.0200179144 1.01046945 103.560653\nLD 0.3 2.5\n").unwrap();
+    let mut spec = common::singlet_at_infinity(false);
+    spec.surfaces[1].material = Some("X1".into());
+    let file = d.path().join("spec/singlet.json");
+    diffcassi::spec::save_spec_file(&spec, &file).unwrap();
+    let out = d.path().join("study");
+    let study = |extra: &[&str]| run(&TINY.iter().copied().chain(["--systems", s(&file), "--scene-fov-deg", "0.2", "--operators", "shift", "--out", s(&out)]).chain(extra.iter().copied()).collect::<Vec<_>>());
+    assert_fails_cleanly(&study(&[]), &out, &["X1"]);
+    assert_fails_cleanly(&run(&TINY.iter().copied().chain(["--presets", "sp", "--glass-catalog", s(&agf), "--out", s(&out)]).collect::<Vec<_>>()), &out, &["--glass-catalog applies to the files of --systems"]);
+    let o = study(&["--glass-catalog", s(&agf)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let render = out.join("renders/singlet/synthetic00");
+    let recorded = read_json(&render.join("render.json"))["system_spec"]["glass_catalogs"].clone();
+    assert_eq!(recorded, serde_json::json!([s(&std::path::absolute(&agf).unwrap())]));
+    let o = Command::new(env!("CARGO_BIN_EXE_diffcassi")).current_dir(d.path().join("cat")).args(["reconstruct", "--from", s(&render), "--solver", "gap-tv", "--iterations", "2", "--out", s(&d.path().join("r"))]).output().unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    // A spec file's own relative entry is read beside it, whatever the working directory.
+    spec.glass_catalogs = vec!["../cat/mine.agf".into()];
+    let relative = d.path().join("spec/relative.toml");
+    diffcassi::spec::save_spec_file(&spec, &relative).unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_diffcassi")).current_dir(d.path()).args(["info", "--system", s(&relative)]).output().unwrap();
+    assert!(o.status.success() && stdout(&o).contains("X1"), "{}{}", stdout(&o), stderr(&o));
+}
+
 #[test]
 fn study_system_file_errors_name_the_file_system_and_field() {
     let d = tempfile::tempdir().unwrap();

@@ -275,7 +275,7 @@ pub(super) fn info(a: InfoArgs) -> Result<()> {
         println!("{}", crate::spec::to_json(&system.spec)?);
     } else {
         print!("{}", lde_table(&system));
-        print!("{}", glass_table(&system, &a.system)?);
+        print!("{}", glass_table(&system)?);
         if let Some(path) = a.system.system.as_ref().filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"))) {
             let imported = crate::spec::zmx::import_zmx_file(path, &crate::spec::zmx::ZmxOptions::default())?;
             print!("{}", zmx_report(path, &imported));
@@ -285,10 +285,10 @@ pub(super) fn info(a: InfoArgs) -> Result<()> {
 }
 
 /// Where each glass comes from: catalogue, formula, n_d, the catalogue entry and the source.
-fn glass_table(system: &SequentialSystem, args: &super::args::SystemArgs) -> Result<String> {
+fn glass_table(system: &SequentialSystem) -> Result<String> {
     use std::fmt::Write as _;
-    let extra: Vec<String> = args.glass_catalogs.iter().map(|p| p.display().to_string()).collect();
-    let origins = crate::spec::zmx::glass_origins(&system.spec, &extra)?;
+    // (`--glass-catalog` files are in the system's spec already: `load_system`.)
+    let origins = crate::spec::zmx::glass_origins(&system.spec)?;
     let mut s = String::new();
     if origins.is_empty() {
         return Ok(s);

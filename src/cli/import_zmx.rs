@@ -44,11 +44,7 @@ pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
     let options = ZmxOptions { ignore_unsupported: a.ignore_unsupported, glass_dirs: a.glass_dirs.clone() };
     let imported = import_zmx_file(&a.input, &options)?;
     // Build it before writing: a file that imports but does not make a traceable system writes nothing.
-    let mut catalog = crate::materials::GlassCatalog::builtin();
-    for p in &imported.spec.glass_catalogs {
-        catalog.merge(crate::materials::GlassCatalog::from_entry(p)?);
-    }
-    crate::system::SequentialSystem::build_with_catalog(&imported.spec, &catalog)?;
+    crate::system::SequentialSystem::build(&imported.spec)?;
     crate::spec::save_spec_file(&imported.spec, &a.out)?;
     if !imported.ignored.is_empty() {
         eprintln!("warning: {}: {} item(s) ignored (--ignore-unsupported):", a.input.display(), imported.ignored.len());

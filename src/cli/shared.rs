@@ -11,12 +11,10 @@
 use super::args::{BackendArgs, SystemArgs};
 use crate::analysis::linspace;
 use crate::error::{Error, Result};
-use crate::materials::GlassCatalog;
 use crate::rays::PupilPattern;
 use crate::spec::SystemSpec;
 use crate::system::SequentialSystem;
 use crate::tracer::Tracer;
-use std::path::PathBuf;
 
 /// The spec named by `--preset` or `--system`.
 pub fn load_spec(args: &SystemArgs) -> Result<SystemSpec> {
@@ -38,12 +36,17 @@ pub fn system_inputs(args: &SystemArgs) -> Vec<(&'static str, &std::path::Path)>
 }
 
 pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
-    let spec = load_spec(args)?;
-    let mut catalog = GlassCatalog::builtin();
-    for path in spec.glass_catalogs.iter().map(PathBuf::from).chain(args.glass_catalogs.iter().cloned()) {
-        catalog.merge(GlassCatalog::from_entry(&path)?);
-    }
-    SequentialSystem::build_with_catalog(&spec, &catalog)
+    SequentialSystem::build(&load_spec_with_catalogs(args)?)
+}
+
+/// The spec named by the arguments with each `--glass-catalog` appended to its `glass_catalogs` (after the
+/// spec's own: a later catalogue wins, as in [`SequentialSystem::build`]), as an absolute path, so that the
+/// system's spec — what `render.json`, `study.json` and the spec's SHA-256 record — names every catalogue
+/// its glasses came from and a later `reconstruct --from` reads the same ones.
+pub fn load_spec_with_catalogs(args: &SystemArgs) -> Result<SystemSpec> {
+    let mut spec = load_spec(args)?;
+    spec.glass_catalogs.extend(args.glass_catalogs.iter().map(|p| crate::spec::catalog_entry(p)));
+    Ok(spec)
 }
 
 /// The tracer named by `--backend`, `--refine`, `--mesh-max-sag-um`, `--mesh-segments`.

@@ -49,6 +49,10 @@ pub struct StudyArgs {
     /// `--system` elsewhere; each row is labelled by its file stem (`lens.zmx` → `lens`), unique among the systems.
     #[arg(long, value_delimiter = ',')]
     pub systems: Vec<PathBuf>,
+    /// Extra AGF glass catalogue(s) for the `--systems` files, comma-separated (or repeated), loaded after each
+    /// file's own catalogues as `--glass-catalog` elsewhere (recorded in each file's resolved spec).
+    #[arg(long = "glass-catalog", value_delimiter = ',')]
+    pub glass_catalogs: Vec<PathBuf>,
     /// For the systems whose object is at infinity: the scenes' full angular extent across their width (degrees,
     /// in (0, 180)), as `render --scene-fov-deg`; refused when no system of the study has its object at infinity.
     #[arg(long = "scene-fov-deg", allow_hyphen_values = true)]
@@ -187,9 +191,12 @@ impl StudySystem {
     }
 }
 
-/// The study's systems, presets then files, each built (a file with its own glass catalogues, as `--system`
-/// reads it) and labelled; two systems of one label (or folder name, compared without case) are refused.
+/// The study's systems, presets then files, each built (a file with its own glass catalogues then those of
+/// `--glass-catalog`, as `--system` reads it) and labelled; two systems of one label (or folder name, compared without case) are refused.
 fn load_systems(a: &StudyArgs) -> Result<Vec<StudySystem>> {
+    if a.systems.is_empty() && !a.glass_catalogs.is_empty() {
+        return Err(Error::invalid("--glass-catalog applies to the files of --systems (a preset's glasses are built in), and none is given"));
+    }
     let presets = match (&a.presets, a.systems.is_empty()) {
         (Some(p), _) => split_list(p, "presets")?,
         (None, true) => split_list("ap,sp,map,msp", "presets")?,
@@ -206,7 +213,8 @@ fn load_systems(a: &StudyArgs) -> Result<Vec<StudySystem>> {
             return Err(ferr("--systems: no such file".into()));
         }
         let stem = path.file_stem().and_then(|s| s.to_str()).filter(|s| !s.is_empty()).ok_or_else(|| ferr("--systems: the file name has no UTF-8 stem to label its rows with".into()))?.to_string();
-        let spec = crate::spec::load_spec_file(path)?;
+        let mut spec = crate::spec::load_spec_file(path)?;
+        spec.glass_catalogs.extend(a.glass_catalogs.iter().map(crate::spec::catalog_entry));
         let system = SequentialSystem::build(&spec).map_err(|e| ferr(e.to_string()))?;
         out.push(StudySystem { key: stem.clone(), label: stem, preset: None, file: Some(path.clone()), system });
     }
@@ -509,7 +517,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     // The unrolled network: weights for every system (its own committed file, or the --weights file's system).
     if solvers.iter().any(|s| is_unrolled(s)) {
         for s in &systems {
-            crate::recon::pipeline::unrolled::check_system(a.tuning.weights.as_deref(), s.system.name()).map_err(|e| s.error(format!("--solvers unrolled: {e}")))?;
+            crate::recon::pipeline::unrolled::check_system(a.tuning.weights.as_deref(), &s.system.spec).map_err(|e| s.error(format!("--solvers unrolled: {e}")))?;
         }
     }
     if a.tuning.iterations == Some(0) {
@@ -524,6 +532,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     inputs.extend(a.tuning.denoiser.as_deref().map(|p| ("--denoiser", p)));
     inputs.extend(a.tuning.weights.as_deref().map(|p| ("--weights", p)));
     inputs.extend(a.systems.iter().map(|p| ("--systems", p.as_path())));
+    inputs.extend(a.glass_catalogs.iter().map(|p| ("--glass-catalog", p.as_path())));
     crate::io::policy::check_out_folder(&a.out, &crate::io::policy::FolderRule { option: "--out", command: "study", marker: STUDY_MARKER, force: a.force }, &inputs)?;
     let bands = super::shared::parse_wavelengths(&a.bands)?;
     check_limits(&a, &bands, &solvers)?;

@@ -34,13 +34,37 @@ pub fn load_spec_file(path: impl AsRef<Path>) -> Result<SystemSpec> {
         return super::zmx::import_zmx_file(path, &super::zmx::ZmxOptions::default()).map(|i| i.spec);
     }
     let text = crate::io::input::read_input_text(path, crate::limits::MAX_TEXT_FILE_BYTES)?;
+    // A spec file's glass catalogues are relative to the spec file (`glass_catalogs`' documentation).
+    let base = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
-        Some("toml") => from_toml(&text, &name),
-        Some("json") => from_json(&text, &name),
+        Some("toml") => from_toml(&text, &name).map(|s| with_catalogs_from(s, base)),
+        Some("json") => from_json(&text, &name).map(|s| with_catalogs_from(s, base)),
         Some("yml") | Some("yaml") => super::yaml::import_yaml(&text, &name),
         Some("csv") => super::zemax_csv::import_prescription(&text, &name, &super::zemax_csv::SystemData::paper_defaults()),
         other => Err(Error::spec(&name, format!("unknown spec extension {:?}: use .toml, .json, .yml, .csv or .zmx", other.unwrap_or("")))),
     }
+}
+
+/// The `glass_catalogs` entry of a catalogue named on the command line or found in a folder: `builtin:NAME`
+/// as it is, a file path made absolute (against the working directory), so that the entry reads the same
+/// file wherever the spec that records it is read again (a render's `render.json`, a saved spec).
+pub fn catalog_entry(entry: impl AsRef<Path>) -> String {
+    let p = entry.as_ref();
+    if p.to_str().and_then(crate::materials::builtin_catalogs::entry_name).is_some() {
+        return p.display().to_string();
+    }
+    std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf()).display().to_string()
+}
+
+/// `spec` with each relative catalogue file of its `glass_catalogs` taken relative to `base` (the spec
+/// file's folder) as an absolute path; absolute paths and `builtin:NAME` entries are kept as written.
+fn with_catalogs_from(mut spec: SystemSpec, base: &Path) -> SystemSpec {
+    for e in &mut spec.glass_catalogs {
+        if crate::materials::builtin_catalogs::entry_name(e).is_none() && Path::new(e.as_str()).is_relative() {
+            *e = catalog_entry(base.join(e.as_str()));
+        }
+    }
+    spec
 }
 
 /// Write a spec as TOML, JSON or a Zemax `.zmx` lens file, atomically; the format follows the extension

@@ -16,6 +16,7 @@
 //! ```
 mod cell;
 mod coded_mask;
+mod compare;
 mod format;
 mod mechanics;
 mod surface;
@@ -26,6 +27,7 @@ pub mod zmx;
 
 pub use cell::*;
 pub use coded_mask::*;
+pub use compare::*;
 pub use format::*;
 pub use mechanics::*;
 pub use surface::*;

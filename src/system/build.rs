@@ -13,7 +13,10 @@ use std::collections::HashMap;
 const CB_COLUMNS: [&str; 5] = ["decenter_x_mm", "decenter_y_mm", "tilt_x_deg", "tilt_y_deg", "tilt_z_deg"];
 
 impl SequentialSystem {
-    /// Build with the built-in glass table plus the spec's `glass_catalogs` (paths relative to the CWD).
+    /// Build with the built-in glass table plus the spec's `glass_catalogs`, merged in order (a later
+    /// catalogue's glass wins): the one place a spec's catalogues are assembled (the CLI's `--glass-catalog`
+    /// and a render record go through the spec). A relative file path is read against the working directory;
+    /// [`crate::spec::load_spec_file`] makes a spec file's relative entries absolute first.
     pub fn build(spec: &SystemSpec) -> Result<Self> {
         let mut catalog = GlassCatalog::builtin();
         for path in &spec.glass_catalogs {

@@ -57,11 +57,7 @@ impl RenderRecord {
         let text = std::fs::read_to_string(&jp).map_err(|e| ferr(&jp, format!("cannot read: {e}")))?;
         let json: Value = serde_json::from_str(&text).map_err(|e| ferr(&jp, format!("not valid JSON: {e}")))?;
         let spec: crate::spec::SystemSpec = serde_json::from_value(field(&json, &jp, "system_spec")?.clone()).map_err(|e| ferr(&jp, format!("field `system_spec`: {e}")))?;
-        let mut catalog = crate::materials::GlassCatalog::builtin();
-        for p in &spec.glass_catalogs {
-            catalog.merge(crate::materials::GlassCatalog::from_entry(Path::new(p))?);
-        }
-        let system = SequentialSystem::build_with_catalog(&spec, &catalog)?;
+        let system = SequentialSystem::build(&spec)?;
         // Every field is checked against the limits `render` applies, naming the field and its value, and the
         // memory is estimated, before anything is allocated (a tampered render.json cannot abort the process).
         let h = field_usize(&json, &jp, "scene_height")?;

@@ -6,7 +6,7 @@
 //! and `study` write it the same way).
 use super::record::RenderRecord;
 use super::solved::Solved;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::recon::prior::unrolled::{CheckReport, Target, UnrolledNetwork};
 use crate::recon::Operator;
 use std::path::Path;
@@ -39,17 +39,10 @@ pub fn check_weights_file(weights: Option<&Path>) -> Result<()> {
     Ok(())
 }
 
-/// Refuse, before any work, weights that cannot serve the system named `system` (a `--weights` file
-/// trained for another system, or no committed weights for it).
-pub fn check_system(weights: Option<&Path>, system: &str) -> Result<()> {
-    let net = UnrolledNetwork::load(weights, system)?;
-    if net.meta.system != system {
-        return Err(Error::File {
-            path: net.source.clone(),
-            message: format!("metadata `system` = `{}`: the network was trained for system `{}`, the acquisition is from `{system}` — refused (give weights trained for `{system}`)", net.meta.system, net.meta.system),
-        });
-    }
-    Ok(())
+/// Refuse, before any work, weights that cannot serve the system `spec` (a `--weights` file trained for
+/// another system or prescription, no committed weights for it: [`UnrolledNetwork::check_system`]).
+pub fn check_system(weights: Option<&Path>, spec: &crate::spec::SystemSpec) -> Result<()> {
+    UnrolledNetwork::load(weights, &spec.name)?.check_system(spec).map(|_| ())
 }
 
 /// The network for `record`: the `weights` file or the committed weights of the record's system, checked against
@@ -60,7 +53,7 @@ pub fn prepare(weights: Option<&Path>, record: &RenderRecord, operator_seed: u64
     let net = UnrolledNetwork::load(weights, system)?;
     let c = &record.config;
     let check = net.check(&Target {
-        system,
+        spec: &record.system.spec,
         bands_nm: record.bands_nm(),
         mask: &record.mask.values,
         mask_height: record.mask.height,

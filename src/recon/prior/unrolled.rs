@@ -48,6 +48,12 @@ pub fn committed(system: &str) -> Option<(&'static str, &'static [u8])> {
     }
 }
 
+/// The spec of preset `name` as its system is built (solved cells hold their solved values): the spec a
+/// render records and Python's `diffcassi.System.preset(name).to_json()` hashes.
+fn built_preset(name: &str) -> Result<crate::spec::SystemSpec> {
+    Ok(crate::system::SequentialSystem::build(&crate::presets::spec(name)?)?.spec)
+}
+
 /// The systems with committed weights.
 pub const COMMITTED_SYSTEMS: &str = "sp, msp";
 
@@ -62,6 +68,9 @@ pub struct UnrolledMeta {
     pub width: usize,
     pub bands_nm: Option<Vec<f64>>,
     pub mask_sha256: Option<String>,
+    /// SHA-256 of the training system's spec JSON ([`crate::spec::system_sha256`]; Python's
+    /// `diffcassi.unrolled.system_sha256`).
+    pub system_sha256: Option<String>,
     pub planes: Option<usize>,
     pub rays: Option<usize>,
     pub airy_diameter_px: Option<f64>,
@@ -105,6 +114,10 @@ pub struct UnrolledNetwork {
     pub crc32: u32,
     /// λ_k, the GAP step of each stage.
     pub steps: Vec<f32>,
+    /// The prescription the network was trained for: the metadata's `system_sha256`, or for the committed
+    /// weights (which record none) the SHA-256 of the preset they were trained on; `None`: only the system's
+    /// name is known.
+    pub trained_system_sha256: Option<String>,
     stages: Vec<Vec<Layer>>,
 }
 
@@ -116,8 +129,8 @@ impl std::fmt::Debug for UnrolledNetwork {
 
 /// The acquisition a network is checked against ([`UnrolledNetwork::check`]).
 pub struct Target<'a> {
-    /// The system's name (its spec's `name`: the preset name for presets).
-    pub system: &'a str,
+    /// The acquisition's system (its name: the preset name for presets; its prescription).
+    pub spec: &'a crate::spec::SystemSpec,
     pub bands_nm: &'a [f64],
     /// The mask, row-major, `mask_height` × `mask_width`.
     pub mask: &'a [f32],
@@ -143,7 +156,12 @@ impl UnrolledNetwork {
     /// The committed weights of `system` (a clear error naming the systems that have some).
     pub fn committed(system: &str) -> Result<Self> {
         let (path, bytes) = committed(system).ok_or_else(|| Error::invalid(format!("--solver unrolled: no committed {ARCH} weights for system `{system}` (committed: {COMMITTED_SYSTEMS}); give --weights FILE, trained for this system with scripts/train_unrolled.py")))?;
-        Self::from_bytes(bytes, &format!("{path} (embedded)"))
+        let mut net = Self::from_bytes(bytes, &format!("{path} (embedded)"))?;
+        // Trained on the preset of that name (diffcassi/weights/UNROLLED.md), before its files recorded it.
+        if net.trained_system_sha256.is_none() {
+            net.trained_system_sha256 = Some(crate::spec::system_sha256(&built_preset(system)?)?);
+        }
+        Ok(net)
     }
 
     /// Weights from a safetensors file (a regular file of at most 1 GiB).
@@ -194,12 +212,13 @@ impl UnrolledNetwork {
             }
         }
         let airy: Option<f64> = opt(&meta, source, "airy_diameter_px", "a number")?;
-        let mask_sha256 = meta.get("mask_sha256").map(|s| s.trim().to_ascii_lowercase());
-        if let Some(m) = &mask_sha256 {
-            if m.len() != 64 || !m.bytes().all(|c| c.is_ascii_hexdigit()) {
-                return Err(ferr(source, format!("metadata `mask_sha256` = `{m}` is not 64 hex digits")));
+        let sha = |k: &str| -> Result<Option<String>> {
+            match meta.get(k).map(|s| s.trim().to_ascii_lowercase()) {
+                Some(m) if m.len() != 64 || !m.bytes().all(|c| c.is_ascii_hexdigit()) => Err(ferr(source, format!("metadata `{k}` = `{m}` is not 64 hex digits"))),
+                m => Ok(m),
             }
-        }
+        };
+        let (mask_sha256, system_sha256) = (sha("mask_sha256")?, sha("system_sha256")?);
         let meta_out = UnrolledMeta {
             system,
             stages,
@@ -207,6 +226,7 @@ impl UnrolledNetwork {
             width,
             bands_nm,
             mask_sha256,
+            system_sha256: system_sha256.clone(),
             planes: opt(&meta, source, "planes", "a non-negative integer")?,
             rays: opt(&meta, source, "rays", "a non-negative integer")?,
             airy_diameter_px: airy,
@@ -242,7 +262,7 @@ impl UnrolledNetwork {
         if let Some(extra) = st.names().into_iter().find(|n| !expected.contains(*n)) {
             return Err(ferr(source, format!("tensor `{extra}` is not part of {ARCH} with stages = {stages} (expected {} tensors: denoisers.K.LAYER.weight|bias, steps)", expected.len())));
         }
-        Ok(UnrolledNetwork { meta: meta_out, source: source.to_string(), crc32: crc32fast::hash(bytes), steps, stages: all })
+        Ok(UnrolledNetwork { meta: meta_out, source: source.to_string(), crc32: crc32fast::hash(bytes), steps, trained_system_sha256: system_sha256, stages: all })
     }
 
     /// Check the network against an acquisition: system, band count and wavelengths refused when they
@@ -251,13 +271,11 @@ impl UnrolledNetwork {
     pub fn check(&self, t: &Target<'_>) -> Result<CheckReport> {
         let m = &self.meta;
         let src = &self.source;
-        if m.system != t.system {
-            return Err(ferr(src, format!("metadata `system` = `{}`: the network was trained for system `{}`, the acquisition is from `{}` — refused (give weights trained for `{}`)", m.system, m.system, t.system, t.system)));
-        }
+        let (system_sha256, unchecked) = self.check_system(t.spec)?;
         if m.bands != t.bands_nm.len() {
             return Err(ferr(src, format!("metadata `bands` = {}: the network is for {} bands, the acquisition has {}", m.bands, m.bands, t.bands_nm.len())));
         }
-        let mut warnings = Vec::new();
+        let mut warnings: Vec<String> = unchecked.into_iter().collect();
         match &m.bands_nm {
             Some(b) => {
                 if let Some(k) = (0..b.len()).find(|&k| (b[k] - t.bands_nm[k]).abs() > WAVELENGTH_TOLERANCE_NM) {
@@ -291,7 +309,8 @@ impl UnrolledNetwork {
         differs("rays", m.rays.map(|v| v as f64), Some(t.rays as f64));
         differs("airy_diameter_px", m.airy_diameter_px, t.airy_diameter_px);
         let record = serde_json::json!({
-            "system": t.system,
+            "system": t.spec.name,
+            "system_sha256": {"weights": self.trained_system_sha256, "acquisition": system_sha256, "match": self.trained_system_sha256.as_deref().map(|w| w == system_sha256)},
             "bands": m.bands,
             "bands_nm_checked": m.bands_nm.is_some(),
             "mask_sha256": {"weights": m.mask_sha256, "acquisition": render_sha, "match": m.mask_sha256.as_deref() == Some(render_sha.as_str())},
@@ -303,6 +322,35 @@ impl UnrolledNetwork {
             "warnings": warnings,
         });
         Ok(CheckReport { record, warnings })
+    }
+
+    /// The network against the acquisition's system, **refused** when it was trained for another: another
+    /// name, or — where the weights know their training prescription ([`Self::trained_system_sha256`]) —
+    /// another prescription under the same name (a user's file named `sp` that is not the preset, a moved or
+    /// re-glassed copy), the message naming the first field that differs when the name is a preset. Returns
+    /// the system's SHA-256, and a warning when only its name could be checked. `spec` is a built system's
+    /// ([`crate::system::SequentialSystem::spec`]: solved cells hold their solved values, as a render records it).
+    pub fn check_system(&self, spec: &crate::spec::SystemSpec) -> Result<(String, Option<String>)> {
+        let (m, src, name) = (&self.meta, &self.source, spec.name.as_str());
+        if m.system != name {
+            return Err(ferr(src, format!("metadata `system` = `{}`: the network was trained for system `{}`, the acquisition is from `{name}` — refused (give weights trained for `{name}`)", m.system, m.system)));
+        }
+        let here = crate::spec::system_sha256(spec)?;
+        let Some(want) = &self.trained_system_sha256 else {
+            return Ok((here, Some(format!("{src}: metadata `system_sha256` not recorded: only the system's name `{name}` is checked, not its prescription"))));
+        };
+        if *want != here {
+            let what = built_preset(name).ok().and_then(|p| crate::spec::first_difference(&p, spec)).map(|d| format!("; first difference from the preset `{name}`: {d}")).unwrap_or_default();
+            return Err(ferr(
+                src,
+                format!(
+                    "the network was trained for system `{name}` with the prescription of SHA-256 {}…, and the acquisition's system `{name}` is another (SHA-256 {}…{what}) — refused: a system is its prescription, not its name (give weights trained for this system)",
+                    &want[..12],
+                    &here[..12]
+                ),
+            ));
+        }
+        Ok((here, None))
     }
 
     /// A JSON record of the network (for `reconstruct.json`).

@@ -24,7 +24,8 @@ pub(super) fn find_catalog(name: &str, dirs: &[PathBuf]) -> Option<PathBuf> {
             entries.flatten().map(|e| e.path()).filter(|p| p.file_name().and_then(|f| f.to_str()).is_some_and(|f| f.to_ascii_lowercase() == want)).collect();
         hits.sort();
         if let Some(p) = hits.into_iter().next() {
-            return Some(p);
+            // Recorded as an absolute path: the imported spec may be saved (and read again) elsewhere.
+            return Some(std::path::absolute(&p).unwrap_or(p));
         }
     }
     None

@@ -61,16 +61,16 @@ pub struct ZmxImport {
 }
 
 /// Where each glass of a spec comes from, as the system build resolves it (the built-in subset, then the
-/// spec's `glass_catalogs` and `extra` entries, later ones winning): one row per surface with a glass.
-pub fn glass_origins(spec: &SystemSpec, extra: &[String]) -> Result<Vec<GlassOrigin>> {
-    let entries: Vec<String> = spec.glass_catalogs.iter().chain(extra).cloned().collect();
+/// spec's `glass_catalogs` entries, later ones winning): one row per surface with a glass.
+pub fn glass_origins(spec: &SystemSpec) -> Result<Vec<GlassOrigin>> {
+    let entries = &spec.glass_catalogs;
     let mut out = Vec::new();
     for (i, s) in spec.surfaces.iter().enumerate() {
         let Some(m) = &s.material else { continue };
         if m.eq_ignore_ascii_case("air") || s.kind == crate::spec::SurfaceKind::CoordinateBreak {
             continue;
         }
-        if let Some(o) = glass::origin(&entries, m, 0, i).map_err(|e| Error::spec(&spec.name, e))? {
+        if let Some(o) = glass::origin(entries, m, 0, i).map_err(|e| Error::spec(&spec.name, e))? {
             out.push(o);
         }
     }
