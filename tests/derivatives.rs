@@ -351,6 +351,64 @@ fn chief_ray_solve_derivatives_at_infinity_are_those_of_the_build() {
     println!("chief-ray solve at infinity: worst relative error {worst:.1e}");
 }
 
+/// The chief-ray solve for **every field type**: the traced field (object height, or field angle at
+/// infinity) is itself a function of the parameters when the spec gives it in another unit — an angle θ on a
+/// finite object is the height −z_p·tan θ, a paraxial image height h is h/k (finite) or atan(h/k) (at
+/// infinity), k the paraxial chief ray's image height per unit field — and the solve's derivative carries
+/// that term. The singlet of `singlet_at_infinity` with its chief-ray break, at infinity and with the object
+/// 100 mm before the lens; free: the object distance (finite), the lens's curvature, radius, thickness and
+/// glass, and the break's thickness (the image distance: it moves k only). d(solved decenters and tilts)/dθ
+/// against central differences (Richardson) of the build's own solve, 1e-6 relative, or 1e-9 absolute where
+/// the solve does not move (the image distance for heights and angles; the object distance for an angle on
+/// a finite object, which keeps the chief ray). Real image heights are refused by the build, naming the type
+/// and the surface.
+#[test]
+fn chief_ray_solve_derivatives_for_every_field_type_are_those_of_the_build() {
+    use diffcassi::spec::FieldType;
+    let finite = |field_type: FieldType, fields_mm: Vec<[f64; 2]>, fields_deg: Vec<[f64; 2]>| {
+        let mut spec = common::singlet_at_infinity(true);
+        spec.surfaces[0].thickness_mm = Cell::fixed(100.0);
+        (spec.field_type, spec.fields_mm, spec.fields_deg) = (field_type, fields_mm, fields_deg);
+        spec
+    };
+    let mut image_at_infinity = common::singlet_at_infinity(true);
+    (image_at_infinity.field_type, image_at_infinity.fields_mm, image_at_infinity.fields_deg) = (FieldType::ParaxialImageHeight, vec![[1.5, 2.5], [0.0, 0.0]], vec![]);
+    let cases = [
+        ("object height, finite", finite(FieldType::ObjectHeight, vec![[3.0, 4.0], [0.0, 0.0]], vec![])),
+        ("angle, finite", finite(FieldType::Angle, vec![], vec![[2.0, 3.0], [0.0, 0.0]])),
+        ("paraxial image height, finite", finite(FieldType::ParaxialImageHeight, vec![[1.5, 2.5], [0.0, 0.0]], vec![])),
+        ("angle, at infinity", common::singlet_at_infinity(true)),
+        ("paraxial image height, at infinity", image_at_infinity),
+    ];
+    let mut worst = 0.0f64;
+    for (label, spec) in cases {
+        let mut free = vec![("s1.curvature", 1e-5), ("s2.radius_mm", 1e-2), ("s1.thickness_mm", 1e-3), ("glass_nd:N-BK7", 1e-5), ("s4.thickness_mm", 1e-2)];
+        if !spec.object_at_infinity() {
+            free.push(("s0.thickness_mm", 1e-2));
+        }
+        let set = ParamSet::new(spec, GlassCatalog::builtin(), free.iter().map(|(t, _)| Param::parse(t).unwrap()).collect()).unwrap();
+        let ds = set.build().unwrap();
+        for (k, (name, h)) in free.iter().enumerate() {
+            for col in ["decenter_x_mm", "decenter_y_mm", "tilt_x_deg", "tilt_y_deg"] {
+                let rich = solved_cell_derivative(&set, k, *h, 4, col);
+                let j = ds.cell_tangents[4][col][k];
+                let rel = (j - rich).abs() / rich.abs();
+                println!("{label:>34}: s4.{col:>13} / {name:>15}: derivative {j:+.12e}  fd {rich:+.12e}  rel {rel:.1e}");
+                assert!((j - rich).abs() <= (1e-6 * rich.abs()).max(1e-9), "{label}: s4.{col} / {name}: {j} vs {rich}");
+                if rich.abs() > 1e-9 {
+                    worst = worst.max(rel);
+                }
+            }
+        }
+    }
+    println!("chief-ray solve, every field type: worst relative error {worst:.1e}");
+    // Real image heights: the object field is a real-ray solve of the built system; a chief-ray solve needs
+    // it before, so the build refuses the pair, naming the field type and the surface.
+    let real = finite(FieldType::RealImageHeight, vec![[1.5, 2.5]], vec![]);
+    let e = ParamSet::new(real, GlassCatalog::builtin(), vec![Param::parse("s1.curvature").unwrap()]).and_then(|set| set.build()).err().expect("refused").to_string();
+    assert!(e.contains("real image height") && e.contains("surface 4"), "{e}");
+}
+
 #[test]
 fn degenerate_requests_are_reported() {
     let set = ParamSet::new(presets::spec("ap").unwrap(), GlassCatalog::builtin(), vec![]).unwrap();

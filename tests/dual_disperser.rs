@@ -366,6 +366,34 @@ fn dd_diff_renderer(sampling: MaskSampling, free: &[&str], size: usize, seed: u6
 
 const DD_BANDS: [f64; 3] = [516.0, 520.0, 524.0];
 
+/// The differentiable renderer refuses a mask surface outside the beam with the forward renderer's message
+/// (one check, `render::engine::check_mask_in_beam`): at construction, and when new parameter values move
+/// the mask out of the beam (`with_values`). `ddsp` with a break before the mask (surface 20) and one after
+/// that undoes it (a pickup, scale −1), the first's decenter x free: 0 (in the beam), then 30 mm (out of it).
+#[test]
+fn diff_renderer_refuses_a_mask_surface_outside_the_beam_as_the_renderer_does() {
+    use diffcassi::diff::{Param, ParamSet};
+    use diffcassi::render::gradient::DiffRenderer;
+    let mut spec = presets::spec("ddsp").unwrap();
+    spec.surfaces.insert(19, SurfaceSpec::coordinate_break(0.0, 0.0, 0.0, 0.0, 0.0, 0.0));
+    spec.surfaces.insert(21, SurfaceSpec::coordinate_break(0.0, 0.0, 0.0, 0.0, 0.0, 0.0));
+    spec.surfaces[21].decenter_x_mm = Some(Cell::pickup(0.0, 19, -1.0));
+    let mut cfg = RenderConfig::paper(16);
+    cfg.spectral = SpectralSampling::new(DD_BANDS.to_vec(), 1).unwrap();
+    cfg.rays_per_pixel = 1;
+    let free = || vec![Param::parse("s19.decenter_x_mm").unwrap()];
+    let set = |spec: &diffcassi::spec::SystemSpec| ParamSet::new(spec.clone(), diffcassi::materials::GlassCatalog::builtin(), free()).unwrap();
+    let in_beam = DiffRenderer::new(set(&spec), cfg.clone(), DD_BANDS.to_vec()).unwrap();
+    let moved_out = in_beam.with_values(&[30.0]).err().expect("refused").to_string();
+    spec.surfaces[19].decenter_x_mm = Some(Cell::fixed(30.0));
+    let sys = SequentialSystem::build(&spec).unwrap();
+    let forward = Renderer::new(&sys, &AnalyticTracer::default(), cfg.clone(), Mask::open(16, 16)).err().expect("refused").to_string();
+    assert!(forward.contains("outside the beam") && forward.contains("surface 20"), "{forward}");
+    assert_eq!(moved_out, forward);
+    let built_out = DiffRenderer::new(set(&spec), cfg, DD_BANDS.to_vec()).err().expect("refused").to_string();
+    assert_eq!(built_out, forward);
+}
+
 /// A scene (N = 2), a mask with closed pixels and values in (0, 1], and an upstream gradient, from `seed`.
 fn dd_inputs(r: &diffcassi::render::gradient::DiffRenderer, seed: u64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);

@@ -57,6 +57,13 @@ impl Dn {
     pub fn recip(&self) -> Dn {
         self.chain(1.0 / self.v, -1.0 / (self.v * self.v))
     }
+    pub fn tan(&self) -> Dn {
+        let t = self.v.tan();
+        self.chain(t, 1.0 + t * t)
+    }
+    pub fn atan(&self) -> Dn {
+        self.chain(self.v.atan(), 1.0 / (1.0 + self.v * self.v))
+    }
     /// atan2(self, x): d = (x dy − y dx)/(x² + y²).
     pub fn atan2(&self, x: &Dn) -> Dn {
         let r2 = self.v * self.v + x.v * x.v;

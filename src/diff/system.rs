@@ -14,8 +14,13 @@
 //!   closed form gives exactly −g_θ/g_s; ∂g/∂θ comes from tracing the primary chief ray with tangents
 //!   through the surfaces placed so far (the same per-ray kernel), from an object ray whose direction
 //!   moves with the paraxial entrance pupil (its y–nu trace is differentiated too). For an object at
-//!   infinity the chief ray's direction (tan θx, tan θy, 1) is fixed and its start on surface 1's vertex
-//!   plane, (−tan θx·z_p, −tan θy·z_p, 0), moves with the pupil distance z_p instead.
+//!   infinity the chief ray's direction is (tan θx, tan θy, 1) and its start on surface 1's vertex plane,
+//!   (−tan θx·z_p, −tan θy·z_p, 0), moves with the pupil distance z_p. The traced field itself moves when the
+//!   spec gives it in another unit: an angle θ on a finite object is the height −z_p·tan θ, a paraxial image
+//!   height h is h/k (finite object) or the angle atan(h/k) (at infinity), k the paraxial chief ray's image
+//!   height per unit field (its y–nu trace through every surface, differentiated); those tangents enter the
+//!   chief ray's start and direction ([`DiffSystem::first_field`]). Real image heights are refused (the
+//!   build does not solve a break for them either).
 //! - **Indices**: a model glass's n(λ; n_d, V_d) is differentiated analytically; dn/dλ of catalogue
 //!   glasses comes from [`super::dispersion`]. Chief-ray solves use the primary wavelength, so the ray
 //!   wavelength parameter does not move them.
@@ -26,7 +31,7 @@ use super::kernel::{trace_tangents, StepTangent};
 use super::param::{Param, ParamSet};
 use crate::error::{Error, Result};
 use crate::materials::Medium;
-use crate::spec::{Driver, RayAiming, SurfaceKind, SystemSpec};
+use crate::spec::{Driver, FieldType, RayAiming, SurfaceKind, SystemSpec};
 use crate::system::SequentialSystem;
 use glam::{DMat3, DVec3};
 use std::collections::{BTreeMap, HashMap};
@@ -143,6 +148,87 @@ fn solve_break(p: &V3, d: &V3, v: &[Dn; 5], solved: [bool; 5], order: u8) -> [Dn
     v
 }
 
+/// Per surface, per column: a cell's tangent (`None` while it depends on a chief-ray solve not placed yet).
+type CellTangents = [HashMap<String, Option<Vec<f64>>>];
+
+/// Cell `col` of surface `i` as a dual: its resolved value with its tangent, or constant while it has none
+/// (or no such cell: value 0).
+fn cell_dual(spec: &SystemSpec, dcell: &CellTangents, i: usize, col: &str, kk: usize) -> Dn {
+    let value = spec.surfaces[i].cell(col).map(|c| c.value).unwrap_or(0.0);
+    match dcell[i].get(col) {
+        Some(Some(d)) => Dn::new(value, d.clone()),
+        _ => Dn::constant(value, kk),
+    }
+}
+
+/// The build's paraxial y–nu trace at the primary wavelength ([`crate::system::paraxial`]) with duals: per
+/// surface OpticStudio's signed index after it (each mirror flips the sign after it), its paraxial power
+/// (c + 2α₁ times the index step, or n′/f for a paraxial lens; 0 for a break) and the thickness the trace uses
+/// after it ([`SystemSpec::traced_thickness`]).
+struct Paraxial {
+    n: Vec<Dn>,
+    power: Vec<Dn>,
+    thickness: Vec<Dn>,
+}
+
+impl Paraxial {
+    fn new(ds: &DiffSystem, dcell: &CellTangents, n: &[f64], dn: &[f64]) -> Paraxial {
+        let kk = ds.k();
+        let spec = &ds.system.spec;
+        let dual = |i: usize, col: &str| cell_dual(spec, dcell, i, col, kk);
+        let signs: Vec<f64> = spec.surfaces.iter().scan(1.0, |sg, s| {
+            if s.is_mirror() {
+                *sg = -*sg;
+            }
+            Some(*sg)
+        }).collect();
+        let nd: Vec<Dn> = (0..spec.surfaces.len()).map(|i| Dn::new(n[i], dn[i * kk..(i + 1) * kk].to_vec()).scale(signs[i])).collect();
+        let power = |i: usize| -> Dn {
+            let s = &spec.surfaces[i];
+            match s.kind {
+                SurfaceKind::Standard | SurfaceKind::EvenAsphere | SurfaceKind::DiffractionGrating | SurfaceKind::Toroidal => {
+                    let c = match ds.params.iter().position(|p| *p == Param::Curvature { surface: i }) {
+                        Some(k) => Dn::seed(s.radius_mm.as_ref().map(|r| 1.0 / r.value).unwrap_or(0.0), kk, k),
+                        None if s.radius_mm.is_some() => dual(i, "radius_mm").recip(),
+                        None => Dn::constant(0.0, kk),
+                    };
+                    let c = if matches!(s.kind, SurfaceKind::EvenAsphere | SurfaceKind::Toroidal) && !s.asphere_coefficients.is_empty() { &c + &dual(i, "asphere_1").scale(2.0) } else { c };
+                    &c * &(&nd[i] - &nd[i - 1])
+                }
+                SurfaceKind::Paraxial => &nd[i] / &dual(i, "focal_length_mm"),
+                SurfaceKind::CoordinateBreak => Dn::constant(0.0, kk),
+            }
+        };
+        // (Surface 0, the object, has no power: it is never refracted at.)
+        let power = std::iter::once(Dn::constant(0.0, kk)).chain((1..spec.surfaces.len()).map(power)).collect();
+        let thickness = (0..spec.surfaces.len()).map(|i| spec.traced_thickness(i, Dn::constant(0.0, kk), || dual(i, "thickness_mm"))).collect();
+        Paraxial { n: nd, power, thickness }
+    }
+
+    /// (y, nu) just after surface `to` (refracted) of the ray with (y, nu) just after surface `from`.
+    fn trace_after(&self, from: usize, to: usize, y0: Dn, nu0: Dn) -> (Dn, Dn) {
+        let (mut y, mut nu) = (y0, nu0);
+        for i in from + 1..=to {
+            y = &y + &(&(&self.thickness[i - 1] * &nu) / &self.n[i - 1]);
+            nu = &nu - &(&y * &self.power[i]);
+        }
+        (y, nu)
+    }
+
+    /// Height at the stop (on it, not refracted) of the ray leaving the object plane with (y0, nu0).
+    fn height_at_stop(&self, stop: usize, y0: Dn, nu0: Dn) -> Dn {
+        let (mut y, mut nu) = (y0, nu0);
+        for i in 1..=stop {
+            y = &y + &(&(&self.thickness[i - 1] * &nu) / &self.n[i - 1]);
+            if i == stop {
+                break;
+            }
+            nu = &nu - &(&y * &self.power[i]);
+        }
+        y
+    }
+}
+
 /// Pass-1 tangent of a cell (`None` when it depends on a chief-ray solve), mirroring the build's resolve.
 fn cell_tangent(spec: &SystemSpec, free: &[Param], i: usize, col: &str, depth: usize) -> Result<Option<Vec<f64>>> {
     let kk = free.len();
@@ -192,19 +278,22 @@ impl DiffSystem {
             }
         }
         let value = |i: usize, col: &str| spec.surfaces[i].cell(col).map(|c| c.value).unwrap_or(0.0);
-        let dual = |dcell: &Vec<HashMap<String, Option<Vec<f64>>>>, i: usize, col: &str| -> Dn {
-            match dcell[i].get(col) {
-                Some(Some(d)) => Dn::new(value(i, col), d.clone()),
-                _ => Dn::constant(value(i, col), kk),
-            }
-        };
+        let dual = |dcell: &CellTangents, i: usize, col: &str| cell_dual(&spec, dcell, i, col, kk);
 
         // Indices at the primary wavelength and their tangents (no wavelength parameter: solves use the
         // primary wavelength whatever the rays' wavelength).
         let primary = spec.primary_wavelength_nm;
         let (n_primary, dn_primary) = ds.index_tangents_inner(primary, false)?;
         let has_solves = spec.surfaces.iter().any(|s| s.present_columns().iter().any(|c| s.cell(c).map(|c| c.driver == Driver::ChiefRay).unwrap_or(false)));
-        let pupil_distance = if has_solves { Some(ds.pupil_distance(&dcell, &n_primary, &dn_primary)?) } else { None };
+        // The paraxial trace and the pupil distance z_p the chief ray aims at (pass-1 cells: a solve moves no
+        // paraxial datum).
+        let paraxial = if has_solves {
+            let parax = Paraxial::new(&ds, &dcell, &n_primary, &dn_primary);
+            let pd = ds.pupil_distance(&parax)?;
+            Some((parax, pd))
+        } else {
+            None
+        };
 
         let mut current = DFrame::identity(kk);
         let mut last_step_frame = DFrame::identity(kk);
@@ -228,7 +317,8 @@ impl DiffSystem {
                 }
                 let solved: [bool; 5] = CB_COLUMNS.map(|c| s.cell(c).map(|c| c.driver == Driver::ChiefRay).unwrap_or(false));
                 if solved.iter().any(|b| *b) {
-                    let (p, d) = ds.chief_ray_at(i, &last_step_frame, &surface_frame, pupil_distance.as_ref(), &n_primary, &dn_primary)?;
+                    let (parax, pd) = paraxial.as_ref().expect("computed: the spec has solves");
+                    let (p, d) = ds.chief_ray_at(i, &last_step_frame, &surface_frame, parax, pd, &n_primary, &dn_primary)?;
                     // Unsolved columns keep their (possibly free or picked-up) values.
                     let v: [Dn; 5] = std::array::from_fn(|k| if solved[k] { Dn::constant(value(i, CB_COLUMNS[k]), kk) } else { dual(&dcell, i, CB_COLUMNS[k]) });
                     let sol = solve_break(&p, &d, &v, solved, s.order);
@@ -271,9 +361,8 @@ impl DiffSystem {
                         .collect(),
                 );
             }
-            // An object at infinity: surface 0's thickness is the 0 of the start plane at surface 1's vertex
-            // (the build's), not the infinite distance the spec holds (which has no derivative to carry).
-            let thickness = if i == 0 && spec.object_at_infinity() { Dn::constant(0.0, kk) } else { dual(&dcell, i, "thickness_mm") };
+            // (Surface 0's of an object at infinity is the 0 of the start plane at surface 1's vertex.)
+            let thickness = spec.traced_thickness(i, Dn::constant(0.0, kk), || dual(&dcell, i, "thickness_mm"));
             if i > 0 {
                 if let Some(shape) = shape_tangent {
                     let offset = last_step_frame.point_to_local(&surface_frame.o);
@@ -357,70 +446,85 @@ impl DiffSystem {
     /// Distance object → paraxial entrance pupil as a dual (the y–nu trace of
     /// [`crate::system::EntrancePupil`] differentiated); infinite (telecentric) has no tangent. For an object
     /// at infinity the distance from surface 1's vertex plane (the z = 0 plane the parallel rays start on).
-    fn pupil_distance(&self, dcell: &[HashMap<String, Option<Vec<f64>>>], n: &[f64], dn: &[f64]) -> Result<Dn> {
+    fn pupil_distance(&self, parax: &Paraxial) -> Result<Dn> {
         let kk = self.k();
-        let spec = &self.system.spec;
         let stop = self.system.stop_index;
-        let value = |i: usize, col: &str| spec.surfaces[i].cell(col).map(|c| c.value).unwrap_or(0.0);
-        let dual = |i: usize, col: &str| -> Dn {
-            match dcell[i].get(col) {
-                Some(Some(d)) => Dn::new(value(i, col), d.clone()),
-                _ => Dn::constant(value(i, col), kk),
-            }
-        };
-        // OpticStudio's signed paraxial indices (as the build's pupil): each mirror flips the sign after it.
-        let signs: Vec<f64> = spec.surfaces.iter().scan(1.0, |sg, s| {
-            if s.is_mirror() {
-                *sg = -*sg;
-            }
-            Some(*sg)
-        }).collect();
-        let nd = |i: usize| Dn::new(n[i], dn[i * kk..(i + 1) * kk].to_vec()).scale(signs[i]);
-        let power = |i: usize| -> Dn {
-            let s = &spec.surfaces[i];
-            match s.kind {
-                SurfaceKind::Standard | SurfaceKind::EvenAsphere | SurfaceKind::DiffractionGrating | SurfaceKind::Toroidal => {
-                    let c = match self.params.iter().position(|p| *p == Param::Curvature { surface: i }) {
-                        Some(k) => Dn::seed(s.radius_mm.as_ref().map(|r| 1.0 / r.value).unwrap_or(0.0), kk, k),
-                        None if s.radius_mm.is_some() => dual(i, "radius_mm").recip(),
-                        None => Dn::constant(0.0, kk),
-                    };
-                    let c = if matches!(s.kind, SurfaceKind::EvenAsphere | SurfaceKind::Toroidal) && !s.asphere_coefficients.is_empty() { &c + &dual(i, "asphere_1").scale(2.0) } else { c };
-                    &c * &(&nd(i) - &nd(i - 1))
-                }
-                SurfaceKind::Paraxial => &nd(i) / &dual(i, "focal_length_mm"),
-                SurfaceKind::CoordinateBreak => Dn::constant(0.0, kk),
-            }
-        };
-        // At infinity the trace starts on surface 1's plane: surface 0's thickness is 0 there (as the build's
-        // paraxial surfaces), and the distance is measured from that plane.
-        let at_infinity = self.system.object_at_infinity();
-        let thickness = |i: usize| if i == 0 && at_infinity { Dn::constant(0.0, kk) } else { dual(i, "thickness_mm") };
-        let height = |y0: f64, nu0: f64| -> Dn {
-            let (mut y, mut nu) = (Dn::constant(y0, kk), Dn::constant(nu0, kk));
-            for i in 1..=stop {
-                y = &y + &(&(&thickness(i - 1) * &nu) / &nd(i - 1));
-                if i == stop {
-                    break;
-                }
-                nu = &nu - &(&y * &power(i));
-            }
-            y
-        };
-        let (a, b) = (height(1.0, 0.0), height(0.0, 1.0));
+        // y_stop = A·y0 + B·nu0; the chief ray crosses the axis at z = n0·B/A from the object plane.
+        let (a, b) = (parax.height_at_stop(stop, Dn::constant(1.0, kk), Dn::constant(0.0, kk)), parax.height_at_stop(stop, Dn::constant(0.0, kk), Dn::constant(1.0, kk)));
         if a.v.abs() < 1e-14 * b.v.abs() {
             return Ok(Dn::constant(f64::INFINITY, kk));
         }
-        let d = &(&nd(0) * &b) / &a;
+        let d = &(&parax.n[0] * &b) / &a;
         if (d.v - self.system.pupil.distance_mm).abs() > 1e-9 * (1.0 + d.v.abs()) {
             return Err(Error::invalid(format!("pupil replay {} mm differs from the build's {} mm", d.v, self.system.pupil.distance_mm)));
         }
         Ok(d)
     }
 
-    /// The primary chief ray of the first field, traced with tangents through the steps placed so far and
-    /// met with the plane z = 0 of the break at surface `i`: (point, direction) in the break's frame.
-    fn chief_ray_at(&self, i: usize, last: &DFrame, brk: &DFrame, pupil_distance: Option<&Dn>, n: &[f64], dn: &[f64]) -> Result<(V3, V3)> {
+    /// The paraxial chief ray's image height per unit field k (mm per mm of object height, or per unit tan θ
+    /// at infinity) as a dual: [`crate::system::FirstOrder::chief_image_height_per_field`] differentiated —
+    /// the ray through the pupil centre (z_p = `pd`) from unit height, or at infinity with unit tan θ, traced
+    /// to the last surface before the image, then on to the image plane: k = y + t·nu/n there.
+    fn chief_image_height_per_field(&self, parax: &Paraxial, pd: &Dn) -> Dn {
+        let kk = self.k();
+        let last = self.system.spec.surfaces.len() - 2;
+        let n0 = &parax.n[0];
+        let (y0, nu0) = if self.system.object_at_infinity() {
+            (-pd, n0.clone())
+        } else if !pd.v.is_finite() {
+            (Dn::constant(1.0, kk), Dn::constant(0.0, kk))
+        } else {
+            (Dn::constant(1.0, kk), -&(n0 / pd))
+        };
+        let (y, nu) = parax.trace_after(0, last, y0, nu0);
+        &y + &(&(&parax.thickness[last] * &nu) / &parax.n[last])
+    }
+
+    /// The first field as the chief ray starts from it — an object height (mm) on a finite object, a field
+    /// angle (rad) at infinity — with its tangents: [`crate::system::fields`]'s conversion of the spec's field
+    /// type, differentiated. Object heights, and angles at infinity, are the spec's numbers (no tangent); an
+    /// angle θ on a finite object is the height −z_p·tan θ; a paraxial image height h is h/k on a finite
+    /// object and the angle atan(h/k) at infinity, k [`Self::chief_image_height_per_field`]. Values are the
+    /// build's (the replay checked against them), tangents the replay's. Real image heights (a real-ray
+    /// solve of the built system) are refused, as the build refuses a chief-ray solve with them.
+    fn first_field(&self, i: usize, parax: &Paraxial, pd: &Dn) -> Result<[Dn; 2]> {
+        let kk = self.k();
+        let spec = &self.system.spec;
+        let Some(&built) = self.system.fields.first() else { return Ok([Dn::constant(0.0, kk), Dn::constant(0.0, kk)]) };
+        let given = spec.field_values()[0];
+        let at_infinity = self.system.object_at_infinity();
+        let field: [Dn; 2] = match spec.field_type {
+            FieldType::ObjectHeight => return Ok(built.map(|f| Dn::constant(f, kk))),
+            FieldType::Angle if at_infinity => return Ok(built.map(|f| Dn::constant(f, kk))),
+            FieldType::Angle => given.map(|deg| pd.scale(-deg.to_radians().tan())),
+            FieldType::ParaxialImageHeight => {
+                let k = self.chief_image_height_per_field(parax, pd);
+                given.map(|h_mm| {
+                    let f = &Dn::constant(h_mm, kk) / &k;
+                    if at_infinity { f.atan() } else { f }
+                })
+            }
+            FieldType::RealImageHeight => {
+                return Err(Error::invalid(format!(
+                    "surface {i}: derivatives of a chief-ray solve with {} fields are not implemented (the object field is a real-ray solve of the built system, which the build does not do for a chief-ray solve either): use another field type",
+                    spec.field_type.label()
+                )))
+            }
+        };
+        for (f, b) in field.iter().zip(built) {
+            if (f.v - b).abs() > 1e-9 * (1.0 + b.abs()) {
+                return Err(Error::invalid(format!("surface {i}: field replay {} differs from the build's {b} ({})", f.v, spec.field_type.label())));
+            }
+        }
+        let [fx, fy] = field;
+        Ok([Dn::new(built[0], fx.d), Dn::new(built[1], fy.d)])
+    }
+
+    /// The primary chief ray of the first field ([`Self::first_field`]), aimed at the pupil centre `pd`,
+    /// traced with tangents through the steps placed so far and met with the plane z = 0 of the break at
+    /// surface `i`: (point, direction) in the break's frame.
+    #[allow(clippy::too_many_arguments)]
+    fn chief_ray_at(&self, i: usize, last: &DFrame, brk: &DFrame, parax: &Paraxial, pd: &Dn, n: &[f64], dn: &[f64]) -> Result<(V3, V3)> {
         let kk = self.k();
         let sys = &self.system;
         let m = self.steps.len();
@@ -430,14 +534,12 @@ impl DiffSystem {
                 "surface {i}: derivatives of chief-ray solves under real ray aiming are not implemented (set ray_aiming = \"off\" or fix the solve)"
             )));
         }
-        let field = sys.fields.first().copied().unwrap_or([0.0, 0.0]);
-        let pd = pupil_distance.cloned().unwrap_or_else(|| Dn::constant(sys.pupil.distance_mm, kk));
         let (origin, dir): (V3, V3) = if sys.object_at_infinity() {
-            // An object at infinity: `field` holds the field angles (θx, θy) (rad). The chief ray has the fixed
+            // An object at infinity: the field is the field angles (θx, θy) (rad). The chief ray has the
             // direction (tan θx, tan θy, 1) normalised and passes through the entrance-pupil centre, on the axis
             // at z_p from surface 1's vertex plane ([`crate::rays::PupilAim::parallel_ray`] with a zero pupil
             // point); it starts where it crosses that plane (z = 0), at (−tan θx·z_p, −tan θy·z_p, 0), which
-            // moves with the parameters through z_p.
+            // moves with the parameters through z_p (and θ, for a field given as an image height).
             if !pd.v.is_finite() {
                 // (The build refuses this system; a telecentric pupil has no centre a parallel beam can aim at.)
                 return Err(Error::invalid(format!(
@@ -445,20 +547,20 @@ impl DiffSystem {
                     pd.v
                 )));
             }
-            let (tx, ty) = (field[0].tan(), field[1].tan());
-            let inv = 1.0 / (tx * tx + ty * ty + 1.0).sqrt();
-            ([pd.scale(-tx), pd.scale(-ty), Dn::constant(0.0, kk)], v3_const(DVec3::new(tx * inv, ty * inv, inv), kk))
+            let [tx, ty] = self.first_field(i, parax, pd)?.map(|f| f.tan());
+            let inv = (&(&(&tx * &tx) + &(&ty * &ty)) + &Dn::constant(1.0, kk)).sqrt().recip();
+            ([-&(pd * &tx), -&(pd * &ty), Dn::constant(0.0, kk)], [&tx * &inv, &ty * &inv, inv])
         } else {
             // A finite object: from the object point (x, y, 0) through the pupil centre (0, 0, z_p).
-            let origin = v3_const(DVec3::new(field[0], field[1], 0.0), kk);
+            let [x, y] = self.first_field(i, parax, pd)?;
             let dir = if !pd.v.is_finite() {
                 v3_const(DVec3::Z, kk)
             } else {
-                let w = [Dn::constant(-field[0], kk), Dn::constant(-field[1], kk), pd.clone()];
+                let w = [-&x, -&y, pd.clone()];
                 let w = if pd.v < 0.0 { v3_scale(&w, &Dn::constant(-1.0, kk)) } else { w };
                 v3_normalize(&w)
             };
-            (origin, dir)
+            ([x, y, Dn::constant(0.0, kk)], dir)
         };
         let (o0, d0) = (v3_value(&origin), v3_value(&dir));
         let mut dp: Vec<DVec3> = (0..kk).map(|k| v3_tangent(&origin, k)).collect();

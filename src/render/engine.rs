@@ -260,7 +260,7 @@ impl<'a> Renderer<'a> {
             if config.precision == crate::tracer::Precision::F32 {
                 return Err(Error::invalid(format!("system `{}` holds its coded mask on surface {}: --precision f32 does not model a mask surface yet; render in f64", system.name(), m.surface)));
             }
-            check_mask_in_beam(system, &mask, m, config.scene_pitch_mm, h, w)?;
+            check_mask_in_beam(system, m, config.scene_pitch_mm, h, w)?;
         }
         Ok(Renderer { system, tracer, config, mask, object_mask, detector, kernels, sampler, simd })
     }
@@ -454,12 +454,16 @@ impl<'a> Renderer<'a> {
 
 /// A coded-mask surface must see the beam: the chief rays of the scene's corners and centre at the primary
 /// wavelength must cross it, and the scene's image there must overlap the mask's pixels. Otherwise every ray
-/// would be blocked (a black acquisition), which is an error naming the surface, not a result.
-fn check_mask_in_beam(system: &SequentialSystem, mask: &Mask, m: crate::system::MaskSurface, pitch_mm: f64, h: usize, w: usize) -> Result<()> {
+/// would be blocked (a black acquisition), which is an error naming the surface, not a result. The scene is
+/// h×w pixels of pitch `pitch_mm` (the system's field unit: mm, or radians at infinity); the mask has the
+/// scene's h×w pixels (both renderers require it), of pitch `m.pitch_mm` on the surface. Called by
+/// [`Renderer::new`] and by [`super::gradient::DiffRenderer`] (at construction and at each new set of
+/// parameter values).
+pub(crate) fn check_mask_in_beam(system: &SequentialSystem, m: crate::system::MaskSurface, pitch_mm: f64, h: usize, w: usize) -> Result<()> {
     let n = system.indices(system.primary_wavelength_nm())?;
     let arm1 = &system.path[..=m.step];
     let (hx, hy) = (0.5 * w as f64 * pitch_mm, 0.5 * h as f64 * pitch_mm);
-    let (mx, my) = (0.5 * mask.width as f64 * m.pitch_mm, 0.5 * mask.height as f64 * m.pitch_mm);
+    let (mx, my) = (0.5 * w as f64 * m.pitch_mm, 0.5 * h as f64 * m.pitch_mm);
     let mut inside = false;
     let mut crossed = 0;
     for field in [[0.0, 0.0], [-hx, -hy], [hx, -hy], [-hx, hy], [hx, hy]] {
@@ -484,8 +488,8 @@ fn check_mask_in_beam(system: &SequentialSystem, mask: &Mask, m: crate::system::
             "system `{}`: the scene's image on the coded-mask surface {} misses the {}×{} mask of pitch {} µm (the mask is outside the beam: check its position, tilt and pitch)",
             system.name(),
             m.surface,
-            mask.height,
-            mask.width,
+            h,
+            w,
             crate::limits::fmt_num(m.pitch_mm * 1e3)
         )));
     }

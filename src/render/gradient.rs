@@ -409,6 +409,16 @@ impl PixelVals {
 
 /// Which gradients [`DiffRenderer::vjp_wanted`] computes (as torch's `needs_input_grad`): the optical
 /// parameters' ∂L/∂θ, the mask's ∂L/∂mask, the scene's ∂L/∂scene. [`Wanted::ALL`] is the default.
+/// A coded mask on a surface of `system` (dual-disperser CASSI) must see the beam of the scene `config`
+/// describes (pitch in the system's field unit): the production renderer's check and message
+/// ([`super::engine::check_mask_in_beam`]), else every ray would be blocked and every gradient 0.
+fn check_mask_sees_the_beam(system: &crate::system::SequentialSystem, config: &RenderConfig) -> Result<()> {
+    match system.coded_mask {
+        Some(m) => super::engine::check_mask_in_beam(system, m, config.scene_pitch_mm, config.scene_height, config.scene_width),
+        None => Ok(()),
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Wanted {
     pub params: bool,
@@ -440,7 +450,8 @@ impl DiffRenderer {
     /// A renderer for the free parameters of `set` (system parameters only: not `wavelength` or `ray.*`),
     /// render settings `config` (scene size, pitches, planes, rays, sampling, seed, Airy) and a scene with
     /// bands at `scene_wavelengths_nm`. Errors: a per-ray parameter, a parameter with no effect on the
-    /// detector, real ray aiming, bad settings; for an object at infinity a missing `config.scene_fov_deg`,
+    /// detector, real ray aiming, bad settings, a coded-mask surface outside the beam (the production
+    /// renderer's check and message); for an object at infinity a missing `config.scene_fov_deg`,
     /// on a finite object a given one, and an angle outside (0, 180) degrees (NaN included), each naming the
     /// value ([`super::engine::scene_pitch_for`]). At infinity `config.scene_pitch_mm` is replaced by one
     /// pixel's angle in radians (`scene_fov_deg` / width), as the production renderer does.
@@ -473,6 +484,7 @@ impl DiffRenderer {
         // required at infinity, refused on a finite object, in (0, 180) degrees).
         config.scene_pitch_mm = super::engine::scene_pitch_for(&ds.system, &config)?;
         config.validate()?;
+        check_mask_sees_the_beam(&ds.system, &config)?;
         let planes = &config.spectral.planes_nm;
         for &w in planes {
             ds.system.indices(w)?;
@@ -512,7 +524,7 @@ impl DiffRenderer {
     /// object-space rays stay those of construction (at infinity too: each field's parallel beam keeps its
     /// direction and its crossing of surface 1's vertex plane).
     /// Errors name the parameter: a non-finite value, a glass outside the catalogue's (n_d, V_d) range, a
-    /// system that does not build.
+    /// system that does not build; and a coded-mask surface the values move out of the beam.
     pub fn with_values(&self, x: &[f64]) -> Result<Self> {
         for (p, v) in self.set.free.iter().zip(x) {
             let range = match p {
@@ -528,6 +540,7 @@ impl DiffRenderer {
         }
         let set = self.set.with_values(x)?;
         let ds = set.build()?;
+        check_mask_sees_the_beam(&ds.system, &self.config)?;
         for &w in &self.config.spectral.planes_nm {
             ds.system.indices(w)?;
         }

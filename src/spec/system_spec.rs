@@ -160,6 +160,20 @@ impl SystemSpec {
         self.surfaces.first().is_some_and(|s| s.thickness_mm.value == f64::INFINITY)
     }
 
+    /// The thickness (mm) the traces use after surface `i` — the frames and the paraxial (y–nu) trace alike —,
+    /// given the zero of its type and its cell's value (`cell`, evaluated only when used): an object at
+    /// infinity is traced from the plane of surface 1's vertex (the object frame's z = 0, where the parallel
+    /// rays start), so surface 0's thickness is 0 there, not the infinite distance the spec holds (which has no
+    /// derivative to carry); every other thickness is its cell's. Generic so that the build (f64) and the
+    /// derivatives (duals) read the one rule.
+    pub fn traced_thickness<T>(&self, i: usize, zero: T, cell: impl FnOnce() -> T) -> T {
+        if i == 0 && self.object_at_infinity() {
+            zero
+        } else {
+            cell()
+        }
+    }
+
     /// The field values as given, in the unit of `field_type` (mm or degrees).
     pub fn field_values(&self) -> &[[f64; 2]] {
         if self.field_type == FieldType::Angle {

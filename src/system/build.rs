@@ -106,7 +106,7 @@ impl SequentialSystem {
                 curvature: r.map(|r| 1.0 / r).unwrap_or(0.0) + 2.0 * alpha1,
                 focal_length_mm: value(&values, i, "focal_length_mm").unwrap_or(f64::INFINITY),
                 // An object at infinity is traced from the plane of surface 1's vertex (the object frame).
-                thickness_mm: if i == 0 && at_infinity { 0.0 } else { value(&values, i, "thickness_mm").ok_or_else(|| sys_err(i, "thickness_mm", "unresolved".into()))? },
+                thickness_mm: spec.traced_thickness(i, Ok(0.0), || value(&values, i, "thickness_mm").ok_or_else(|| sys_err(i, "thickness_mm", "unresolved".into())))?,
                 n_after: n_paraxial[i],
             });
         }
@@ -265,7 +265,7 @@ impl SequentialSystem {
             }
             surfaces.push(surface);
             // An object at infinity: surface 1 sits on the object frame's z = 0 plane, where rays start.
-            current = next.advanced(if i == 0 && at_infinity { 0.0 } else { thickness });
+            current = next.advanced(spec.traced_thickness(i, 0.0, || thickness));
         }
         let stop_probe = stop_probe.expect("validated: the stop is a surface of the system");
         let mut system =
