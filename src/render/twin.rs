@@ -364,9 +364,10 @@ mod tests {
                 let m = sys.coded_mask.unwrap();
                 let mask = SurfaceMask { surface: m, values: &values, height: h, width: w };
                 let (arm1, arm2) = sys.path.split_at(m.step + 1);
-                let (mut masked, mut before) = (0, 0);
-                // 10 µm pixels (the mask's) and 0.3 mm (past the mask and the field).
-                for (seed, plane, wl, pitch_mm) in [(4u64, 1u64, 520.0, 0.01), (9, 30, 470.0, 0.3)] {
+                let (mut masked, mut stopped) = (0, 0);
+                // 10 µm pixels (the mask's), 0.3 mm (past the mask: its opaque frame) and 20 mm (rays that miss the
+                // first arm's surfaces, before the mask).
+                for (seed, plane, wl, pitch_mm) in [(4u64, 1u64, 520.0, 0.01), (9, 30, 470.0, 0.3), (2, 5, 600.0, 20.0)] {
                     let scene = SceneGeometry { height: h, width: w, pitch_mm, detector: &detector };
                     let sampler = RaySampler::new(5, Sampling::Stratified);
                     let pixels: Vec<u32> = (0..(h * w) as u32).collect();
@@ -395,9 +396,9 @@ mod tests {
                         }
                     }
                     masked += (0..twin.u.len()).filter(|&t| twin.status[t] == RayStatus::Ok && twin.weight[t] == 0.0).count();
-                    before += (0..twin.u.len()).filter(|&t| twin.status[t] != RayStatus::Ok && twin.weight[t] == 0.0).count();
+                    stopped += (0..twin.u.len()).filter(|&t| twin.status[t] != RayStatus::Ok && twin.weight[t] == 0.0).count();
                 }
-                assert!(masked > 0 && before > 0, "{name} {sampling:?}: {masked} masked, {before} stopped before the mask");
+                assert!(masked > 0 && stopped > 0, "{name} {sampling:?}: {masked} masked, {stopped} stopped of weight 0");
             }
         }
     }

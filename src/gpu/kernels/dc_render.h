@@ -185,10 +185,10 @@ DC_FN dc_u32 dc_land(const dc_landing_batch *b, dc_u64 t, double *u_out, double 
     }
     /* The coded-mask surface: where the ray crosses its step (one trace, probed there; without a mask surface at
      * no step — always a probe of this frame, so that it stays in registers). */
-    int masked_path = b->surface_mask.values != 0;
-    dc_probe probe = {masked_path ? b->surface_mask.step : DC_NO_STEP, 0, 0.0, 0.0};
+    int has_mask = b->surface_mask.values != 0;
+    dc_probe probe = {has_mask ? b->surface_mask.step : DC_NO_STEP, 0, 0.0, 0.0};
     dc_u32 st = f32 ? dc_trace_ray_raw_f32(b->path, b->n_steps, b->n, &o, &d, &surface, &probe) : dc_trace_ray(b->path, b->n_steps, b->n, &o, &d, &surface, &probe);
-    *w_out = !masked_path ? 1.0 : probe.crossed ? dc_mask_transmission(&b->surface_mask, probe.x, probe.y) : 0.0;
+    *w_out = !has_mask ? 1.0 : probe.crossed ? dc_mask_transmission(&b->surface_mask, probe.x, probe.y) : 0.0;
     double u = DC_NAN, v = DC_NAN;
     if (st == DC_OK) {
         double m = dc_max(DC_FABS(o.x), dc_max(DC_FABS(o.y), DC_FABS(o.z)));
