@@ -27,6 +27,9 @@ pub const MAX_LENGTH_MM: f64 = 1e6;
 pub const MAX_CURVATURE_PER_MM: f64 = 1e6;
 /// Largest plausible |tilt| of a coordinate break, degrees (one full turn).
 pub const MAX_TILT_DEG: f64 = 360.0;
+/// Most polynomial terms of an even asphere (r², r⁴, …, r¹⁶) or a Toroidal surface's YZ curve (y², …, y¹⁶):
+/// OpticStudio's PARM 1–8 (a toroid's PARM 2–9). The GPU kernels carry this many (`DC_MAX_COEF`).
+pub const MAX_ASPHERE_TERMS: usize = 8;
 /// Largest plausible |coordinate| of a traced ray on the image surface, mm; a ray landing farther (or at a
 /// non-finite position) is classified [`crate::tracer::RayStatus::OutOfRange`], never reported `ok`.
 pub const MAX_IMAGE_COORD_MM: f64 = 1e6;

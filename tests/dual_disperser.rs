@@ -302,7 +302,8 @@ fn run_ok(args: &[&str]) -> String {
 }
 
 /// The command-line interfaces: `render --preset ddsp --scene-size N --out DIR`, `render-dataset`,
-/// `reconstruct` with every solver, and the refusals of what the mask surface does not support yet.
+/// `reconstruct` with every solver, `--device cpu-twin` (the GPU kernels), and the refusals of what the mask
+/// surface does not support yet.
 #[test]
 fn cli_renders_ddsp_and_reconstructs_with_every_solver() {
     let tmp = std::env::temp_dir().join(format!("diffcassi-dd-cli-{}", std::process::id()));
@@ -336,7 +337,14 @@ fn cli_renders_ddsp_and_reconstructs_with_every_solver() {
     std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/data/scenes/chelsea.png"), scenes.join("chelsea.png")).unwrap();
     let ds = tmp.join("dataset");
     run_ok(&["render-dataset", "--scenes", scenes.to_str().unwrap(), "--preset", "mddsp", "--scene-size", "16", "--planes", "8", "--rays", "2", "--out", ds.to_str().unwrap()]);
-    for refused in [&["--device", "cpu-twin"][..], &["--precision", "f32"], &["--backend", "embree-user"], &["--ghosts", "1"]] {
+    // The GPU kernels model the mask surface (docs/gpu.md): `--device cpu-twin` runs them on the CPU, each ray
+    // weighted where it crosses the mask, its blocked rays counted as on the CPU.
+    let twin = tmp.join("twin");
+    run_ok(&["render", "--preset", "ddsp", "--scene-size", "16", "--planes", "8", "--rays", "2", "--device", "cpu-twin", "--out", twin.to_str().unwrap()]);
+    let tw: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(twin.join("render.json")).unwrap()).unwrap();
+    assert_eq!(tw["device"]["device"].as_str().unwrap(), "cpu-twin");
+    assert_eq!(tw["ray_stats"]["masked"], rec["ray_stats"]["masked"], "the twin blocks the CPU's rays");
+    for refused in [&["--precision", "f32"][..], &["--backend", "embree-user"], &["--ghosts", "1"]] {
         let mut args = vec!["render", "--preset", "ddsp", "--scene-size", "8", "--planes", "2", "--rays", "1"];
         args.extend_from_slice(refused);
         let out = tmp.join("refused");

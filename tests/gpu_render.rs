@@ -8,7 +8,7 @@
 //! - itself bit for bit on any thread count (integer accumulation: the device's atomics give these bits).
 use diffcassi::presets;
 use diffcassi::render::device::{plan, render_for, render_on, Executor};
-use diffcassi::render::twin::{plane_landings_in, SceneGeometry};
+use diffcassi::render::twin::plane_landings_of;
 use diffcassi::render::{Device, Mask, RenderConfig, Renderer, SpectralSampling};
 use diffcassi::scene::SpectralCube;
 use diffcassi::system::SequentialSystem;
@@ -58,32 +58,34 @@ fn peak(v: &[f64]) -> f64 {
     v.iter().fold(0.0f64, |m, x| m.max(x.abs()))
 }
 
-/// The acquisition in f64 from the landing kernel's rays: Σ value·tap/N per plane, the plane's Airy kernel
-/// (AiryKernel's taps, zero outside), × w (× the gratings' efficiency) into its band, the bands summed — the
-/// device's model with no fixed point.
+/// The acquisition in f64 from the landing kernel's rays: Σ value·tap·t/N per plane (t: a ray's coded-mask
+/// transmission where it crossed the mask surface, 1 without one), the plane's Airy kernel (AiryKernel's taps,
+/// zero outside), × w (× the gratings' efficiency) into its band, the bands summed — the device's model with no
+/// fixed point.
 fn f64_reference(r: &Renderer<'_>, scene: &SpectralCube) -> Vec<f64> {
     let ctx = r.plane_context();
     let plane_weight = r.config.spectral.plane_weight * r.system.grating_efficiency();
     let det = r.detector;
     let (dw, dh) = (det.width, det.height);
     let sp = &r.config.spectral;
-    let pixels: Vec<u32> = (0..H * W).filter(|&q| r.mask.values[q] > 0.0).map(|q| q as u32).collect();
+    let object_mask = r.object_mask();
+    let pixels: Vec<u32> = (0..H * W).filter(|&q| object_mask[q] > 0.0).map(|q| q as u32).collect();
     let n = r.config.rays_per_pixel;
     let sb = scene.bands();
     let mut bands = vec![vec![0.0f64; dw * dh]; sp.bands_nm.len()];
     for p in 0..sp.planes() {
-        let geo = SceneGeometry { height: H, width: W, pitch_mm: r.config.scene_pitch_mm, detector: &det };
-        let land = plane_landings_in(r.config.precision, r.system, geo, ctx.sampler, ctx.seed, p as u64, sp.planes_nm[p], &pixels).unwrap();
+        let land = plane_landings_of(&ctx, p as u64, sp.planes_nm[p], &pixels).unwrap();
         let (k, tw) = scene.interpolation(sp.planes_nm[p]);
         let k1 = (k + 1).min(sb - 1);
         let tw = tw as f32;
         let mut img = vec![0.0f64; dw * dh];
         for (i, &q) in pixels.iter().enumerate() {
             let q = q as usize;
-            let value = ((1.0 - tw) * scene.data[q * sb + k] + tw * scene.data[q * sb + k1]) * r.mask.values[q];
+            let value = ((1.0 - tw) * scene.data[q * sb + k] + tw * scene.data[q * sb + k1]) * object_mask[q];
             for t in i * n..(i + 1) * n {
                 let (u, v) = (land.u[t], land.v[t]);
-                if u.is_nan() {
+                let transmission = land.weight.get(t).copied().unwrap_or(1.0);
+                if u.is_nan() || transmission == 0.0 {
                     continue;
                 }
                 let (fj, fi) = (u.floor(), v.floor());
@@ -92,7 +94,7 @@ fn f64_reference(r: &Renderer<'_>, scene: &SpectralCube) -> Vec<f64> {
                     for (dj, wj) in [(0i64, 1.0 - fu), (1, fu)] {
                         let (row, col) = (fi as i64 + di, fj as i64 + dj);
                         if row >= 0 && col >= 0 && (row as usize) < dh && (col as usize) < dw {
-                            img[row as usize * dw + col as usize] += value as f64 * wi * wj / n as f64;
+                            img[row as usize * dw + col as usize] += value as f64 * wi * wj * transmission / n as f64;
                         }
                     }
                 }
@@ -178,11 +180,16 @@ fn the_twin_render_equals_the_cpu_render_to_its_f32_rounding() {
 /// and f32: within 1e-9 of the f64 model of its landings, within the CPU's f32 rounding of the CPU render (the
 /// bound above), the same ray counts, some rays arrived.
 fn assert_twin_render_matches(name: &str, sys: &SequentialSystem, fov_deg: Option<f64>, scene: &SpectralCube) {
+    assert_twin_render_matches_with(name, sys, scene, &Mask::random(H, W, 0.6, 5).unwrap(), &[Precision::F64, Precision::F32], &|c| c.scene_fov_deg = fov_deg);
+}
+
+/// [`assert_twin_render_matches`] with `mask`, in `precisions`, the settings of [`config_in`] changed by `configure`.
+fn assert_twin_render_matches_with(name: &str, sys: &SequentialSystem, scene: &SpectralCube, mask: &Mask, precisions: &[Precision], configure: &dyn Fn(&mut RenderConfig)) {
     let tracer = AnalyticTracer::default();
-    for precision in [Precision::F64, Precision::F32] {
+    for &precision in precisions {
         let mut c = config_in(true, precision);
-        c.scene_fov_deg = fov_deg;
-        let r = Renderer::new(sys, &tracer, c, Mask::random(H, W, 0.6, 5).unwrap()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        configure(&mut c);
+        let r = Renderer::new(sys, &tracer, c, mask.clone()).unwrap_or_else(|e| panic!("{name}: {e}"));
         let (twin, _) = render_on(&r, scene, false, Executor::Twin).unwrap_or_else(|e| panic!("{name}: {e}"));
         let reference = f64_reference(&r, scene);
         let pk = peak(&reference);
@@ -194,9 +201,34 @@ fn assert_twin_render_matches(name: &str, sys: &SequentialSystem, fov_deg: Optio
         assert!(model <= 1e-9 * pk, "{name} {precision}: |twin − f64 model| = {model:e} of a peak {pk}");
         assert!(worst <= 1e-6 * peak(&cpu.image), "{name} {precision}: |twin − cpu| = {worst:e} of a peak {}", peak(&cpu.image));
         let (a, b) = (twin.stats, cpu.stats);
-        assert_eq!((a.traced, a.arrived, a.missed, a.vignetted, a.tir, a.no_convergence, a.invalid_input, a.out_of_range, a.evanescent), (b.traced, b.arrived, b.missed, b.vignetted, b.tir, b.no_convergence, b.invalid_input, b.out_of_range, b.evanescent), "{name} {precision}");
+        assert_eq!((a.traced, a.arrived, a.missed, a.vignetted, a.tir, a.no_convergence, a.invalid_input, a.out_of_range, a.evanescent, a.masked), (b.traced, b.arrived, b.missed, b.vignetted, b.tir, b.no_convergence, b.invalid_input, b.out_of_range, b.evanescent, b.masked), "{name} {precision}");
         assert!(a.arrived > 0, "{name} {precision}");
     }
+}
+
+/// The whole acquisition of the dual-disperser presets through the twin (the coded mask on a surface inside the
+/// system: every scene pixel traced, each ray weighted by the mask's transmission where it crosses that surface,
+/// `dc_mask_transmission`), `ddsp` and `mddsp`, nearest and bilinear, a graded mask with closed pixels, each as
+/// [`assert_twin_render_matches`] in f64 (the CPU renderer refuses f32 there) with the rays the mask blocks counted
+/// alike; a mask surface outside the beam is refused with the CPU renderer's error before any device work (the
+/// device renders a `Renderer`, which checks it).
+#[test]
+fn the_twin_render_models_a_coded_mask_on_a_surface() {
+    let scene = scene();
+    for (name, sys) in [("ddsp", "ddsp"), ("mddsp", "mddsp")] {
+        for sampling in [diffcassi::spec::MaskSampling::Nearest, diffcassi::spec::MaskSampling::Bilinear] {
+            let sys = crate::gpu_twin::dual_disperser(sys, sampling);
+            // The scene at the mask's pitch (10 µm), so that its image on the mask covers the mask's pixels.
+            assert_twin_render_matches_with(&format!("{name} {sampling:?}"), &sys, &scene, &crate::gpu_twin::graded_mask(H, W, 5), &[Precision::F64], &|c| c.scene_pitch_mm = 0.01);
+        }
+    }
+    // The mask surface decentred 30 mm (a break before it and back after it): outside the beam.
+    let mut s = presets::spec("ddsp").unwrap();
+    s.surfaces.insert(19, diffcassi::spec::SurfaceSpec::coordinate_break(30.0, 0.0, 0.0, 0.0, 0.0, 0.0));
+    s.surfaces.insert(21, diffcassi::spec::SurfaceSpec::coordinate_break(-30.0, 0.0, 0.0, 0.0, 0.0, 0.0));
+    let sys = SequentialSystem::build(&s).unwrap();
+    let e = Renderer::new(&sys, &AnalyticTracer::default(), config(true), Mask::random(H, W, 0.5, 1).unwrap()).err().expect("a mask outside the beam refused").to_string();
+    assert!(e.contains("outside the beam") && e.contains("surface 20"), "{e}");
 }
 
 /// The whole acquisition through the twin where the kernels now model more (issue 41/42): a toroid

@@ -664,15 +664,205 @@ fn plane_transport_through_the_twin_equals_the_cpu_renderer_on_toroids_gratings_
     assert!(evanescent > 0, "no evanescent ray in the grating renders");
 }
 
-/// A coded mask on a surface (dual-disperser CASSI), which the kernels still do not model, is refused by name
-/// before any device work.
+// ---- The coded mask on a surface inside the system (dual-disperser CASSI: `ddsp`, `mddsp`) -------------------
+
+/// `ddsp` or `mddsp` with its coded mask sampled `sampling` (nearest is the presets').
+pub(crate) fn dual_disperser(name: &str, sampling: diffcassi::spec::MaskSampling) -> SequentialSystem {
+    let mut spec = presets::spec(name).unwrap();
+    spec.surfaces.iter_mut().find_map(|s| s.coded_mask.as_mut()).expect("a mask surface").sampling = sampling;
+    SequentialSystem::build(&spec).unwrap()
+}
+
+/// An `h × w` mask of graded transmissions in (0.25, 1] with closed pixels (40 %), from `seed`: bilinear sampling
+/// interpolates between unequal values, and rays crossing a closed pixel are `masked`.
+pub(crate) fn graded_mask(h: usize, w: usize, seed: u64) -> diffcassi::render::Mask {
+    let open = diffcassi::render::Mask::random(h, w, 0.6, seed).unwrap();
+    let values = open.values.iter().enumerate().map(|(q, &v)| v * (0.25 + 0.75 * ((q * 37 % 101) as f32 / 100.0))).collect();
+    diffcassi::render::Mask { values, description: "graded".into(), ..open }
+}
+
+/// Every (system, sampling) of the dual-disperser tests.
+fn dual_dispersers() -> Vec<(String, SequentialSystem)> {
+    use diffcassi::spec::MaskSampling;
+    let mut out = Vec::new();
+    for name in ["ddsp", "mddsp"] {
+        for sampling in [MaskSampling::Nearest, MaskSampling::Bilinear] {
+            out.push((format!("{name} {sampling:?}"), dual_disperser(name, sampling)));
+        }
+    }
+    out
+}
+
+/// The trace kernels on `ddsp` and `mddsp`: the mask surface is a plain step of the trace (a thin plate in air), so
+/// the f64 twin equals the scalar kernel and the f32 twin the f32 lane kernel bit for bit, as on the other presets.
 #[test]
-fn gpu_kernels_refuse_a_mask_surface_by_name() {
+fn trace_kernel_twins_equal_the_cpu_kernels_on_the_dual_disperser_presets() {
+    for name in ["ddsp", "mddsp"] {
+        let sys = system(name);
+        let rays = full_batch(&sys);
+        assert_bits(&format!("{name} f64"), &TwinTracer::default().trace(&sys, &rays).unwrap(), &scalar().trace(&sys, &rays).unwrap());
+        let twin32 = TwinTracer::f32().trace(&sys, &rays).unwrap();
+        for level in SimdLevel::available() {
+            assert_bits(&format!("{name} f32 {}", level.name()), &twin32, &AnalyticF32Tracer::new(level).trace(&sys, &rays).unwrap());
+        }
+    }
+}
+
+/// The landing kernel through a coded-mask surface against the renderer's steps composed in Rust: the landings
+/// of [`rust_landings`] and each ray's weight — where its object ray crosses the mask surface
+/// (`SequentialSystem::point_on_mask`: the first arm of the path, `trace_steps(path[..=step])`) read by
+/// `MaskSurface::transmission` (nearest or bilinear), 0 where it stops before — bit for bit, on `ddsp` and
+/// `mddsp`, over a scene that reaches past the field (rays vignetted before and after the mask) and past the mask
+/// (its opaque frame).
+#[test]
+fn landing_kernel_twin_weights_rays_by_the_mask_surface_as_the_renderer() {
+    use diffcassi::render::{RenderConfig, Renderer};
+    let tracer = AnalyticTracer::default();
+    let (h, w) = (12, 16);
+    for (name, sys) in dual_dispersers() {
+        let m = sys.coded_mask.unwrap();
+        let mut config = RenderConfig::paper(w);
+        config.scene_height = h;
+        config.rays_per_pixel = 5;
+        config.spectral = diffcassi::render::SpectralSampling::new(vec![500.0, 560.0], 1).unwrap();
+        let mask = graded_mask(h, w, 3);
+        let mut r = Renderer::new(&sys, &tracer, config, mask.clone()).unwrap();
+        let (mut arrived, mut masked, mut before, mut fractional) = (0, 0, 0, 0);
+        // The renderer's pitch (10 µm: the mask's pixels), then 0.4 mm (a scene ±3.2 mm wide, far past the 12 × 16
+        // mask's 0.12 × 0.16 mm: its opaque frame) and 20 mm (±160 mm: rays that miss the first arm's surfaces,
+        // before the mask), changed after the renderer checked the beam.
+        for pitch_mm in [0.01, 0.4, 20.0] {
+            r.config.scene_pitch_mm = pitch_mm;
+            let ctx = r.plane_context();
+            let pixels: Vec<u32> = (0..(h * w) as u32).collect();
+            let scene = SceneGeometry { height: h, width: w, pitch_mm, detector: &r.detector };
+            for (p, &wl) in r.config.spectral.planes_nm.iter().enumerate() {
+                let twin = diffcassi::render::twin::plane_landings_of(&ctx, p as u64, wl, &pixels).unwrap();
+                let (u, v, status) = rust_landings(&sys, scene, ctx.sampler, ctx.seed, p as u64, wl, &pixels);
+                assert_eq!(twin.status, status, "{name} {pitch_mm} plane {p}: statuses");
+                let mut t = 0;
+                let mut s = vec![[0.0; 4]; ctx.sampler.rays];
+                for &q in &pixels {
+                    ctx.sampler.fill(ctx.seed, p as u64, q as u64, &mut s);
+                    let c = MappingCube::scene_xy(h, w, pitch_mm, q as usize / w, q as usize % w);
+                    for smp in &s {
+                        let field = [c[0] + (smp[2] - 0.5) * pitch_mm, c[1] - (smp[3] - 0.5) * pitch_mm];
+                        let weight = match sys.point_on_mask(field, [smp[0], smp[1]], wl).unwrap() {
+                            Some((x, y)) => m.transmission(&mask.values, h, w, x, y),
+                            None => {
+                                before += 1;
+                                0.0
+                            }
+                        };
+                        let label = format!("{name} {pitch_mm} plane {p} ray {t}");
+                        assert_eq!(twin.weight[t].to_bits(), weight.to_bits(), "{label}: weight {} vs {weight}", twin.weight[t]);
+                        assert_eq!((twin.u[t].to_bits(), twin.v[t].to_bits()), (u[t].to_bits(), v[t].to_bits()), "{label}");
+                        if status[t] == RayStatus::Ok {
+                            arrived += 1;
+                            masked += (weight == 0.0) as usize;
+                        }
+                        fractional += (weight > 0.0 && weight < 1.0 && mask.values.iter().all(|&v| v != weight as f32)) as usize;
+                        t += 1;
+                    }
+                }
+            }
+        }
+        println!("{name}: {arrived} arrived, {masked} of them masked, {before} stopped before the mask, {fractional} interpolated weights");
+        assert!(arrived > masked && masked > 0 && before > 0, "{name}: {arrived} arrived, {masked} masked, {before} stopped before the mask");
+        assert_eq!(fractional > 0, m.sampling == diffcassi::spec::MaskSampling::Bilinear, "{name}: interpolated weights only when bilinear");
+    }
+}
+
+/// The plane transport through the twin's landing and footprint kernels equals the CPU renderer's
+/// (`trace_through_mask`, the lanes split at the mask's step) on `ddsp` and `mddsp`, nearest and bilinear: the
+/// same footprints, f32 weights and ray counts (`masked` included), bit for bit, on a full detector and on one
+/// that clips the windows at its edges (weight lost off the detector, in rays × transmission). (f64 only: the CPU
+/// renderer does not model a mask surface in f32, and refuses it.)
+#[test]
+fn plane_transport_through_the_twin_equals_the_cpu_renderer_through_a_mask_surface() {
+    use diffcassi::render::transport::PlaneContext;
+    use diffcassi::render::{RenderConfig, Renderer};
+    let tracer = AnalyticTracer::default();
+    let (h, w) = (12, 16);
+    for (name, sys) in dual_dispersers() {
+        let mut config = RenderConfig::paper(w);
+        config.scene_height = h;
+        config.rays_per_pixel = 6;
+        config.spectral = diffcassi::render::SpectralSampling::new(vec![480.0, 520.0, 580.0], 2).unwrap();
+        let r = Renderer::new(&sys, &tracer, config, graded_mask(h, w, 7)).unwrap();
+        let full = r.detector;
+        let cropped = Detector { width: full.width * 2 / 5, height: full.height / 2, ..full };
+        let base = r.plane_context();
+        let (mut masked, mut arrived, mut lost) = (0, 0, 0.0);
+        for detector in [&full, &cropped] {
+            let ctx = PlaneContext { detector, ..base };
+            for (p, &wl) in r.config.spectral.planes_nm.iter().enumerate() {
+                let cpu = ctx.trace_plane(p, wl).unwrap();
+                let twin = diffcassi::render::twin::trace_plane(&ctx, p, wl).unwrap();
+                assert_eq!(twin.footprints, cpu.footprints, "{name} plane {p}: footprints");
+                assert_eq!(twin.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), cpu.weights.iter().map(|v| v.to_bits()).collect::<Vec<_>>(), "{name} plane {p}: weights");
+                assert_eq!(twin.stats, cpu.stats, "{name} plane {p}: ray counts");
+                masked += cpu.stats.masked;
+                arrived += cpu.stats.arrived;
+                lost += cpu.stats.off_detector;
+            }
+        }
+        // (Most of each band's dispersed image falls beside the 12 × 16 mask: masked rays outnumber the others.)
+        assert!(masked > 0 && arrived > 0, "{name}: {arrived} arrived, {masked} masked");
+        assert!(lost > 0.0 && lost.fract() != 0.0, "{name}: weight lost off the cropped detector {lost} (in rays × transmission)");
+    }
+}
+
+/// A system whose mask surface has no pattern given is refused by the landing function without a renderer, naming
+/// the one that takes it.
+#[test]
+fn landing_kernel_asks_for_the_mask_of_a_mask_surface() {
     let detector = Detector { width: 10, height: 10, pitch_mm: 0.01, x_left_mm: -0.05, y_top_mm: 0.05 };
     let scene = SceneGeometry { height: 2, width: 2, pitch_mm: 0.01, detector: &detector };
-    let dd = system("ddsp");
-    let e = plane_landings(&dd, scene, &RaySampler::new(2, Sampling::Stratified), 0, 0, 550.0, &[0]).err().expect("a mask surface refused").to_string();
-    assert!(e.contains("coded mask on surface") && e.contains("--device cpu"), "{e}");
+    let e = plane_landings(&system("ddsp"), scene, &RaySampler::new(2, Sampling::Stratified), 0, 0, 550.0, &[0]).err().expect("a mask surface without its pattern").to_string();
+    assert!(e.contains("coded mask on surface 19") && e.contains("plane_landings_of"), "{e}");
+}
+
+// ---- The highest asphere and toroid terms ------------------------------------------------------------------
+
+/// An even asphere and a toroid with every term the spec allows (`asphere_coefficients`: 8, r² … r¹⁶ and
+/// y² … y¹⁶; `DC_MAX_COEF`), the r¹⁶ (y¹⁶) term significant across the beam, through the trace kernels: the f64
+/// twin equals the scalar kernel and the f32 twin the f32 lane kernel bit for bit; a ninth term is refused by the
+/// spec itself, so no system the CPU traces has more.
+#[test]
+fn trace_kernel_twins_take_every_asphere_and_toroid_term_the_spec_allows() {
+    use diffcassi::spec::{Cell, SurfaceKind, SurfaceSpec};
+    // r^{2i}: at r = 4 mm each term moves the sag by 0.5–9 µm; the last (2e-12 · 4¹⁶ ≈ 8.6 µm) most.
+    let coef: Vec<Cell> = [1e-4, -2e-6, 1e-7, -1e-8, 1e-9, -1e-10, 1e-11, 2e-12].into_iter().map(Cell::fixed).collect();
+    let mut asphere = SurfaceSpec::standard(Some(20.0), 5.0, Some("N-BK7"));
+    asphere.kind = SurfaceKind::EvenAsphere;
+    asphere.asphere_coefficients = coef.clone();
+    asphere.stop = true;
+    let lens = crate::surfaces::system("asphere8", vec![SurfaceSpec::standard(None, 80.0, None), asphere, SurfaceSpec::standard(None, 40.0, None), SurfaceSpec::standard(None, 0.0, None)], 0.05);
+    let mut toroid = crate::surfaces::toroid_lens(Some(35.0));
+    toroid.surfaces[1].asphere_coefficients = coef.clone();
+    for spec in [lens, toroid] {
+        let name = spec.name.clone();
+        let sys = SequentialSystem::build(&spec).unwrap();
+        let rays = wide_batch(&sys);
+        let rust = scalar().trace(&sys, &rays).unwrap();
+        assert_bits(&format!("{name} f64"), &TwinTracer::default().trace(&sys, &rays).unwrap(), &rust);
+        let twin32 = TwinTracer::f32().trace(&sys, &rays).unwrap();
+        for level in SimdLevel::available() {
+            assert_bits(&format!("{name} f32 {}", level.name()), &twin32, &AnalyticF32Tracer::new(level).trace(&sys, &rays).unwrap());
+        }
+        // The last term matters: without it the rays land elsewhere.
+        let mut seven = spec.clone();
+        seven.surfaces[1].asphere_coefficients.truncate(7);
+        let other = scalar().trace(&SequentialSystem::build(&seven).unwrap(), &rays).unwrap();
+        let moved = (0..rays.len()).filter(|&i| rust.status[i] == RayStatus::Ok && other.status[i] == RayStatus::Ok && (rust.x[i] - other.x[i]).abs().max((rust.y[i] - other.y[i]).abs()) > 1e-6).count();
+        let ok = rust.status.iter().filter(|&&s| s == RayStatus::Ok).count();
+        assert!(moved > ok / 4, "{name}: the r¹⁶ term moves only {moved} of {ok} landings by > 1 nm");
+        let mut nine = spec.clone();
+        nine.surfaces[1].asphere_coefficients.push(Cell::fixed(1e-14));
+        let e = SequentialSystem::build(&nine).err().expect("a ninth term refused").to_string();
+        assert!(e.contains("at most 8"), "{e}");
+    }
 }
 
 /// `sys` with ray aiming set (OpticStudio's RAIM: `paraxial` aims at the paraxial stop radius, `real` at the

@@ -14,14 +14,17 @@ time (kernels, and with uploads) is reported against the goal of 0.1 s.
 `--systems` checks instead, on small renders (128×128, 28 planes, 8 rays), what the kernels model beyond the
 paper's prisms (issue 41/42), one row group per system: `gsp` (a plane transmission grating, the vector grating
 equation), a toroid lens (OpticStudio's Toroidal surface, radius of rotation 35 mm, conic and y⁴ term) and a
-singlet with its object at infinity (the scene sampled in field angle, 0.5° across), and SP with real ray aiming
+singlet with its object at infinity (the scene sampled in field angle, 0.5° across), SP with real ray aiming
 (OpticStudio's RAIM 0 2: each ray aimed at the stop by a Newton solve, the aimed kernels
-dc_landing_aimed_kernel / dc_deposit_aimed_kernel). Each: two GPU runs
+dc_landing_aimed_kernel / dc_deposit_aimed_kernel), and the dual-disperser `ddsp` and `mddsp` (the coded mask on a
+surface inside the system, nearest and bilinear sampling: each ray weighted by the mask's transmission where it
+crosses that surface, dc_mask_transmission). Each: two GPU runs
 bit-identical; the GPU within 2e-6 of the CPU's peak; the middle plane's landings ≤ 1e-12 mm from the host's, the
-same statuses; the GPU equal to the host twin bit for bit — except at infinity, where the device's `tan`
-(CUDA's libdevice, ≤ 2 ulp; the host calls the platform's libm as the CPU renderer does) may start a ray a few
-ulp away, so there the bound is 1e-9 of the peak (docs/gpu.md). In f32 (the finite systems): two runs
-bit-identical, landings identical, within 1e-4 of the CPU's f32 render.
+same statuses (and, with a mask surface, the same weights); the GPU equal to the host twin bit for bit — except at
+infinity, where the device's `tan` (CUDA's libdevice, ≤ 2 ulp; the host calls the platform's libm as the CPU
+renderer does) may start a ray a few ulp away, so there the bound is 1e-9 of the peak (docs/gpu.md). In f32 (the
+finite systems without a mask surface — the CPU renderer refuses f32 with one): two runs bit-identical, landings
+identical, within 1e-4 of the CPU's f32 render.
 
     python scripts/gpu/render_check.py [--size 512] [--planes 112] [--rays 20] [--no-twin] [--out DIR]
     python scripts/gpu/render_check.py --systems [--no-twin] [--out DIR]
@@ -98,18 +101,32 @@ def with_ray_aiming(system, aiming: str):
     return diffcassi.System.from_string(text)
 
 
+def with_bilinear_mask(system):
+    """`system` (with a coded-mask surface) with its mask sampled bilinearly, through its TOML."""
+    import re
+    import diffcassi
+    text, n = re.subn(r'sampling\s*=\s*"nearest"', 'sampling = "bilinear"', system.to_toml())
+    if n != 1:
+        raise RuntimeError(f"render_check: {n} coded-mask samplings in the system's TOML (expected 1)")
+    return diffcassi.System.from_string(text)
+
+
 def systems_check(a) -> int:
-    """The --systems rows: a grating, a toroid, an object at infinity, ray aiming (see the module's docstring)."""
+    """The --systems rows: a grating, a toroid, an object at infinity, ray aiming, a coded mask on a surface (see the
+    module's docstring)."""
     import diffcassi
     cube, wl = diffcassi.synthetic_scene(128, 128, seed=0)
+    # (name, system, scene_fov_deg at infinity, f32 rows: the CPU renders it in f32 too)
     cases = [
-        ("gsp (plane transmission grating)", diffcassi.System.preset("gsp"), None),
-        ("toroid lens", diffcassi.System.from_string(TOROID_TOML), None),
-        ("singlet at infinity", diffcassi.System.from_file(SINGLET_AT_INFINITY), 0.5),
-        ("sp, real ray aiming", with_ray_aiming(diffcassi.System.preset("sp"), "real"), None),
+        ("gsp (plane transmission grating)", diffcassi.System.preset("gsp"), None, True),
+        ("toroid lens", diffcassi.System.from_string(TOROID_TOML), None, True),
+        ("singlet at infinity", diffcassi.System.from_file(SINGLET_AT_INFINITY), 0.5, False),
+        ("sp, real ray aiming", with_ray_aiming(diffcassi.System.preset("sp"), "real"), None, True),
+        ("ddsp (coded mask on a surface, nearest)", diffcassi.System.preset("ddsp"), None, False),
+        ("mddsp (coded mask on a surface, bilinear)", with_bilinear_mask(diffcassi.System.preset("mddsp")), None, False),
     ]
     rows, failed, record = [], [], {}
-    for name, system, fov in cases:
+    for name, system, fov, f32 in cases:
         kw = dict(planes=28, rays=8, opening=0.5)
         if fov is not None:
             kw["scene_fov_deg"] = fov
@@ -136,7 +153,7 @@ def systems_check(a) -> int:
                 failed.append(f"{name}: the GPU differs from the host twin")
             if inf and not r["twin_max_rel_diff"] <= 1e-9:
                 failed.append(f"{name}: the GPU is farther than 1e-9 of the peak from the host twin")
-        if not inf:
+        if f32:
             r32 = diffcassi.gpu_check(system, cube, wl, twin=False, precision="f32", **kw)
             r["f32"] = r32
             rows += [
@@ -166,7 +183,7 @@ def main() -> int:
     ap.add_argument("--preset", default="sp")
     ap.add_argument("--no-twin", action="store_true", help="skip the host twin (slow on few cores)")
     ap.add_argument("--out", default=None, help="folder for render_check.json")
-    ap.add_argument("--systems", action="store_true", help="the grating, toroid, object-at-infinity and ray-aiming rows instead")
+    ap.add_argument("--systems", action="store_true", help="the grating, toroid, object-at-infinity, ray-aiming and dual-disperser rows instead")
     a = ap.parse_args()
     if a.systems:
         return systems_check(a)

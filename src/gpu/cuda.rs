@@ -214,6 +214,7 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
         + plan.pixels.len() * 4
         + std::mem::size_of_val(plan.cube)
         + std::mem::size_of_val(plan.mask)
+        + plan.surface_mask.map_or(0, |m| std::mem::size_of_val(m.values))
         + taps.len() * 4
         + npix * 8 * (2 + plan.bands)
         + if keep_bands { npix * 4 * plan.bands } else { 0 };
@@ -230,6 +231,7 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
     let d_pixels = DeviceBuffer::from(&plan.pixels)?;
     let d_cube = DeviceBuffer::from(plan.cube)?;
     let d_mask = DeviceBuffer::from(plan.mask)?;
+    let d_surface_mask = DeviceBuffer::from(plan.surface_mask.map_or(&[][..], |m| m.values))?;
     let d_taps = DeviceBuffer::from(&taps)?;
     let d_image = DeviceBuffer::zeroed(npix * 8)?;
     let d_band = DeviceBuffer::zeroed(plan.bands * npix * 8)?;
@@ -251,7 +253,7 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
             // SAFETY: the plane image is npix u64 values on the device.
             unsafe { cu::memset_d8_async(d_image.ptr, 0, npix * 8, std::ptr::null_mut()) }.map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("cuMemsetD8Async", e))))?;
             let n_off = d_n.ptr + (p * plan.n_surfaces * 8) as u64;
-            let land = plan.landing(p, d_steps.ptr as *const Step, d_aim.ptr as *const Step, n_off as *const f64, d_pixels.ptr as *const u32);
+            let land = plan.landing(p, d_steps.ptr as *const Step, d_aim.ptr as *const Step, n_off as *const f64, d_pixels.ptr as *const u32, d_surface_mask.ptr as *const f32);
             let dep = plan.deposit(p, land, d_cube.ptr as *const f32, d_mask.ptr as *const f32, d_image.ptr as *mut u64);
             let counts = d_counts.ptr;
             launch(if plan.aim.aiming != 0 { l.deposit_aimed } else { l.deposit }, n_rays, &mut [arg(&dep), arg(&n_rays), arg(&counts)])?;
@@ -286,10 +288,11 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
     Ok((PlanOutput::from_counts(image, bands, &counts), DeviceTimes { kernels_ms, total_ms: t0.elapsed().as_secs_f64() * 1e3 }))
 }
 
-/// Where plane `p`'s rays land on the device (`dc_landing_kernel`, or `dc_landing_f32_kernel` for an f32 plan): detector column and row (NaN: none) and
-/// the status code of ray `q·N + k`, as `render::twin::plane_landings` computes them on the host (10,
-/// `DC_AIM_FAILED`: a ray whose aim failed).
-pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, Vec<u8>)> {
+/// Where plane `p`'s rays land on the device (`dc_landing_kernel`, or `dc_landing_f32_kernel` for an f32 plan): detector column and row (NaN: none),
+/// the status code of ray `q·N + k` (11, `DC_AIM_FAILED`: a ray whose aim failed) and its weight (the coded-mask
+/// surface's transmission where it crossed it; 1 without one), as `render::twin::plane_landings_of` computes
+/// them on the host.
+pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, Vec<u8>, Vec<f64>)> {
     let l = launcher()?;
     // SAFETY: the context was retained by the launcher.
     unsafe { cu::ctx::set_current(l.ctx) }.map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("cuCtxSetCurrent", e))))?;
@@ -301,11 +304,13 @@ pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, 
     let d_aim = DeviceBuffer::from(&plan.aim_path)?;
     let d_n = DeviceBuffer::from(&plan.indices[p * plan.n_surfaces..(p + 1) * plan.n_surfaces])?;
     let d_pixels = DeviceBuffer::from(&plan.pixels)?;
-    let (d_u, d_v, d_s) = (DeviceBuffer::zeroed(n * 8)?, DeviceBuffer::zeroed(n * 8)?, DeviceBuffer::zeroed(n)?);
-    let mut b = plan.landing(p, d_steps.ptr as *const Step, d_aim.ptr as *const Step, d_n.ptr as *const f64, d_pixels.ptr as *const u32);
+    let d_surface_mask = DeviceBuffer::from(plan.surface_mask.map_or(&[][..], |m| m.values))?;
+    let (d_u, d_v, d_s, d_w) = (DeviceBuffer::zeroed(n * 8)?, DeviceBuffer::zeroed(n * 8)?, DeviceBuffer::zeroed(n)?, DeviceBuffer::zeroed(n * 8)?);
+    let mut b = plan.landing(p, d_steps.ptr as *const Step, d_aim.ptr as *const Step, d_n.ptr as *const f64, d_pixels.ptr as *const u32, d_surface_mask.ptr as *const f32);
     b.u = d_u.ptr as *mut f64;
     b.v = d_v.ptr as *mut f64;
     b.status = d_s.ptr as *mut u8;
+    b.w = d_w.ptr as *mut f64;
     let kernel = match (plan.f32, plan.aim.aiming != 0) {
         (false, false) => l.landing,
         (true, false) => l.landing_f32,
@@ -314,7 +319,7 @@ pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, 
     };
     launch(kernel, n as u64, &mut [arg(&b)])?;
     cu::ctx::synchronize().map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("the landing kernel", e))))?;
-    Ok((d_u.read(n)?, d_v.read(n)?, d_s.read(n)?))
+    Ok((d_u.read(n)?, d_v.read(n)?, d_s.read(n)?, d_w.read(n)?))
 }
 
 /// Trace `rays` through `system` on the device, one thread a ray: `dc_trace_kernel`, or `dc_trace_f32_kernel`

@@ -5,8 +5,8 @@ use super::pack::{AiryBatch, Batch, DepositBatch, LandingBatch, Step, Window};
 use crate::tracer::RayStatus;
 
 extern "C" {
-    pub(crate) fn dc_footprint_size_host(u: *const f64, v: *const f64, n: u32, det_w: i64, det_h: i64, wins: *mut Window, begin: u64, end: u64);
-    pub(crate) fn dc_footprint_fill_host(u: *const f64, v: *const f64, n: u32, wins: *mut Window, offsets: *const u64, scratch: *mut f64, weights: *mut f32, begin: u64, end: u64);
+    pub(crate) fn dc_footprint_size_host(u: *const f64, v: *const f64, w: *const f64, n: u32, det_w: i64, det_h: i64, wins: *mut Window, begin: u64, end: u64);
+    pub(crate) fn dc_footprint_fill_host(u: *const f64, v: *const f64, w: *const f64, n: u32, wins: *mut Window, offsets: *const u64, scratch: *mut f64, weights: *mut f32, begin: u64, end: u64);
     fn dc_sizeof_window() -> u64;
     pub(crate) fn dc_trace_batch_host(batch: *const Batch, begin: u64, end: u64, mode: u32);
     fn dc_sizeof_step() -> u64;

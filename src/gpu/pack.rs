@@ -3,7 +3,8 @@
 //! tests), built from a [`SequentialSystem`]'s path and its per-wavelength index tables.
 use crate::error::{Error, Result};
 use crate::surfaces::{Aperture, SurfaceShape};
-use crate::system::SequentialSystem;
+use crate::spec::MaskSampling;
+use crate::system::{MaskSurface, SequentialSystem};
 
 /// Shape codes (`DC_SHAPE_*`).
 const SHAPE_PLANE: u32 = 0;
@@ -21,8 +22,10 @@ const INTERACTION_REFRACT: u32 = 0;
 const INTERACTION_REFLECT: u32 = 1;
 const INTERACTION_GRATING: u32 = 2;
 const INTERACTION_GRATING_REFLECT: u32 = 3;
-/// `DC_MAX_COEF`: even-asphere terms r² … r¹⁶ (a toroid's y² … y¹⁶).
-pub(crate) const MAX_COEF: usize = 8;
+/// `DC_MAX_COEF`: even-asphere terms r² … r¹⁶ (a toroid's y² … y¹⁶) — every term the spec allows
+/// ([`crate::limits::MAX_ASPHERE_TERMS`]; a different `DC_MAX_COEF` would change `dc_step`'s size, which
+/// `ffi::layouts_match` checks).
+pub(crate) const MAX_COEF: usize = crate::limits::MAX_ASPHERE_TERMS;
 
 /// One surface of the path (`dc_step`).
 #[repr(C)]
@@ -78,15 +81,9 @@ pub(crate) struct Batch {
     pub n_surfaces: u32,
 }
 
-/// The system's traced path as kernel steps.
+/// The system's traced path as kernel steps (a coded-mask surface is a plain step: its mask weights a render's
+/// rays through [`SurfaceMask`], not the trace).
 pub(crate) fn steps(system: &SequentialSystem) -> Result<Vec<Step>> {
-    if let Some(m) = system.coded_mask {
-        return Err(Error::invalid(format!(
-            "system `{}` holds its coded mask on surface {} (dual-disperser CASSI): the GPU kernels weight rays by a mask on the object plane only; use --device cpu",
-            system.name(),
-            m.surface
-        )));
-    }
     pack_steps(&system.path)
 }
 
@@ -140,7 +137,7 @@ fn pack_steps(path: &[crate::system::PathStep]) -> Result<Vec<Step>> {
                 SurfaceShape::EvenAsphere { curvature, conic, coefficients } => {
                     if coefficients.len() > MAX_COEF {
                         return Err(Error::invalid(format!(
-                            "surface {}: {} even-asphere terms; the GPU kernels take at most {MAX_COEF}",
+                            "surface {}: {} even-asphere terms; the GPU kernels take at most {MAX_COEF} (the spec's limit)",
                             s.surface,
                             coefficients.len()
                         )));
@@ -157,7 +154,7 @@ fn pack_steps(path: &[crate::system::PathStep]) -> Result<Vec<Step>> {
                 }
                 SurfaceShape::Toroidal { curvature, conic, coefficients, rotation_curvature } => {
                     if coefficients.len() > MAX_COEF {
-                        return Err(Error::invalid(format!("surface {}: {} Toroidal terms; the GPU kernels take at most {MAX_COEF}", s.surface, coefficients.len())));
+                        return Err(Error::invalid(format!("surface {}: {} Toroidal terms; the GPU kernels take at most {MAX_COEF} (the spec's limit)", s.surface, coefficients.len())));
                     }
                     step.shape = SHAPE_TOROIDAL;
                     step.curvature = *curvature;
@@ -248,6 +245,40 @@ pub(crate) struct Aim {
     pub aim_steps: u32,
 }
 
+/// The coded mask on a surface inside the system (`dc_surface_mask`, dual-disperser CASSI): its pattern and where
+/// it lies on the path. A null `values` (the [`Default`]) is no mask surface.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SurfaceMask {
+    /// `height × width` transmissions, row-major (host or device memory).
+    pub values: *const f32,
+    pub pitch_mm: f64,
+    pub height: u32,
+    pub width: u32,
+    /// Its step on the traced path ([`MaskSurface::step`]).
+    pub step: u32,
+    /// [`MaskSampling`]: 0 nearest, 1 bilinear.
+    pub bilinear: u32,
+}
+
+impl Default for SurfaceMask {
+    fn default() -> Self {
+        SurfaceMask { values: std::ptr::null(), pitch_mm: 0.0, height: 0, width: 0, step: 0, bilinear: 0 }
+    }
+}
+
+/// The kernels' [`SurfaceMask`] of a `height × width` mask on `surface`, its values at `values` (a pointer of the
+/// memory the kernels read: host or device). Its step is an index of the path, as `n_steps` a u32.
+pub(crate) fn surface_mask(surface: &MaskSurface, height: u32, width: u32, values: *const f32) -> SurfaceMask {
+    SurfaceMask { values, pitch_mm: surface.pitch_mm, height, width, step: surface.step as u32, bilinear: (surface.sampling == MaskSampling::Bilinear) as u32 }
+}
+
+/// A mask's size as the kernels' u32 (`dc_surface_mask`), or an error naming it.
+pub(crate) fn mask_size(height: usize, width: usize) -> Result<(u32, u32)> {
+    let too_big = |what: &str, v: usize| Error::invalid(format!("GPU kernels: coded mask {what} = {v} exceeds u32"));
+    Ok((u32::try_from(height).map_err(|_| too_big("height", height))?, u32::try_from(width).map_err(|_| too_big("width", width))?))
+}
+
 /// Scene and detector geometry (`dc_scene`).
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
@@ -272,6 +303,9 @@ pub(crate) struct LandingBatch {
     pub u: *mut f64,
     pub v: *mut f64,
     pub status: *mut u8,
+    /// Each ray's coded-mask transmission where it crossed the mask surface (null: not written).
+    pub w: *mut f64,
+    pub surface_mask: SurfaceMask,
     pub sampler: Sampler,
     pub aim: Aim,
     pub scene: Scene,

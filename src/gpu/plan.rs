@@ -4,12 +4,16 @@
 //! (`src/gpu/kernels/dc_accum.h`): the plane images are sums of 64-bit fixed-point integers, so the twin's
 //! and the device's acquisitions have the same bits whatever the order of the rays (tests/gpu_render.rs).
 use super::ffi::{dc_airy_host, dc_deposit_host, dc_finish_host, layouts_match};
-use super::pack::{Aim, AiryBatch, DepositBatch, LandingBatch, Sampler, Scene, Step};
+use super::pack::{Aim, AiryBatch, DepositBatch, LandingBatch, Sampler, Scene, Step, SurfaceMask};
+use crate::system::MaskSurface;
 use crate::error::{Error, Result};
 use rayon::prelude::*;
 
-/// Status slots (`DC_STATUS_SLOTS`: `tracer::RayStatus` codes 0 … 9) and the off-detector slot after them.
-pub const STATUS_SLOTS: usize = 10;
+/// Status slots (`DC_STATUS_SLOTS`: `tracer::RayStatus` codes 0 … 9, then `DC_MASKED`, 10: rays the coded-mask
+/// surface blocks) and the off-detector slot after them.
+pub const STATUS_SLOTS: usize = 11;
+/// The slot of `DC_MASKED`: rays that arrived but were blocked by the coded-mask surface (`RayStats::masked`).
+pub const MASKED_SLOT: usize = 10;
 /// The slots of a run's counts: the statuses, the off-detector weight, then (`DC_AIM_FAILURE_SLOT`) the first ray
 /// whose aim failed as `plane << 40 | ray` (the minimum; `u64::MAX` when none).
 pub(crate) const COUNT_SLOTS: usize = STATUS_SLOTS + 2;
@@ -49,10 +53,12 @@ pub struct RenderPlan<'a> {
     pub(crate) aim: Aim,
     pub(crate) scene: Scene,
     pub(crate) max_coord_mm: f64,
-    /// The scene, `[pixel][band]`, and the mask, per pixel.
+    /// The scene, `[pixel][band]`, and the mask on the object plane, per pixel (all 1 with a mask surface).
     pub(crate) cube: &'a [f32],
     pub(crate) cube_bands: u32,
     pub(crate) mask: &'a [f32],
+    /// The coded mask on a surface inside the system (dual-disperser CASSI); `None` without one.
+    pub(crate) surface_mask: Option<PlanMask<'a>>,
     pub(crate) planes: Vec<PlanePlan>,
     /// Airy kernels: half-width and (2·half + 1)² taps (a single 1 for no blur).
     pub(crate) kernels: Vec<(usize, Vec<f32>)>,
@@ -65,6 +71,15 @@ pub struct RenderPlan<'a> {
     pub(crate) unit: f64,
     /// Trace in f32 (the renderer's `--precision f32` numbers) instead of f64.
     pub(crate) f32: bool,
+}
+
+/// The coded mask on a surface of a plan's system: where it is and its `height × width` pattern, row-major.
+#[derive(Clone, Copy, Debug)]
+pub struct PlanMask<'a> {
+    pub surface: MaskSurface,
+    pub height: u32,
+    pub width: u32,
+    pub values: &'a [f32],
 }
 
 /// What a run of the plan gives.
@@ -123,8 +138,10 @@ impl<'a> RenderPlan<'a> {
         self.det_w * self.det_h
     }
 
-    /// Plane `p`'s landing launch, its arrays at the given addresses (host or device).
-    pub(crate) fn landing(&self, p: usize, path: *const Step, aim_path: *const Step, n: *const f64, pixels: *const u32) -> LandingBatch {
+    /// Plane `p`'s landing launch, its arrays at the given addresses (host or device; `surface_mask`: the coded
+    /// mask surface's pattern, read only with one).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn landing(&self, p: usize, path: *const Step, aim_path: *const Step, n: *const f64, pixels: *const u32, surface_mask: *const f32) -> LandingBatch {
         LandingBatch {
             path,
             n,
@@ -133,6 +150,8 @@ impl<'a> RenderPlan<'a> {
             u: std::ptr::null_mut(),
             v: std::ptr::null_mut(),
             status: std::ptr::null_mut(),
+            w: std::ptr::null_mut(),
+            surface_mask: self.surface_mask.map_or_else(SurfaceMask::default, |m| super::pack::surface_mask(&m.surface, m.height, m.width, surface_mask)),
             sampler: self.sampler,
             aim: self.aim,
             scene: self.scene,
@@ -203,10 +222,10 @@ impl<'a> RenderPlan<'a> {
                     }
                     img.iter_mut().for_each(|v| *v = 0);
                     let n = &self.indices[p * self.n_surfaces..(p + 1) * self.n_surfaces];
-                    let land = self.landing(p, self.steps.as_ptr(), self.aim_path.as_ptr(), n.as_ptr(), self.pixels.as_ptr());
+                    let land = self.landing(p, self.steps.as_ptr(), self.aim_path.as_ptr(), n.as_ptr(), self.pixels.as_ptr(), self.surface_mask.map_or(std::ptr::null(), |m| m.values.as_ptr()));
                     let dep = self.deposit(p, land, self.cube.as_ptr(), self.mask.as_ptr(), img.as_mut_ptr());
                     // SAFETY: the batch's arrays live for the call (steps, the aim path, the plane's index row, the open
-                    // pixels, the cube and mask of the sizes the plan was built for, this worker's own plane
+                    // pixels, the cube, mask and surface mask of the sizes the plan was built for, this worker's own plane
                     // image of npix cells); rays [0, n_rays) index pixels[t / N] in bounds; layouts checked.
                     unsafe { dc_deposit_host(&dep, 0, n_rays, counts.as_mut_ptr()) };
                     let airy = self.airy(p, img.as_ptr(), band_img.as_mut_ptr(), self.kernels[pl.kernel].1.as_ptr());

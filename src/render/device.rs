@@ -28,7 +28,7 @@ use super::settings::Device;
 use super::transport::RayStats;
 use super::twin::{launch_constants, SceneGeometry};
 use crate::error::{Error, Result};
-use crate::gpu::plan::{fixed_scale, PlanOutput, PlanePlan, RenderPlan, LOST_ONE, STATUS_SLOTS};
+use crate::gpu::plan::{fixed_scale, PlanMask, PlanOutput, PlanePlan, RenderPlan, LOST_ONE, MASKED_SLOT, STATUS_SLOTS};
 use crate::gpu::{cuda, pack};
 use crate::scene::SpectralCube;
 use crate::tracer::Precision;
@@ -63,8 +63,9 @@ pub struct DeviceRecord {
 
 /// The plan of `r`'s acquisition of `scene`: every array the kernels read, traced in the renderer's precision
 /// (f64, or the f32 trace of `--precision f32`), rays aimed as the system says (ray aiming off, `paraxial` or
-/// `real`). Errors for what the kernels do not model yet (a coded mask on a surface, another backend than the
-/// analytic one), naming the setting.
+/// `real`), weighted by the coded mask on the object plane or, in a dual-disperser system, on its surface (every
+/// scene pixel traced, each ray weighted where it crosses the mask: `Renderer::surface_mask`). Errors for what the
+/// kernels do not model (another backend than the analytic one, the batched tracer path), naming the setting.
 pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPlan<'a>> {
     r.check_scene(scene)?;
     if r.config.force_batched {
@@ -86,7 +87,16 @@ pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPl
         n_surfaces = n.len();
         indices.extend_from_slice(&n);
     }
-    let pixels: Vec<u32> = (0..h * w).filter(|&q| r.mask.values[q] > 0.0).map(|q| q as u32).collect();
+    // The open pixels of the object plane's mask (every pixel when the mask is a surface of the system).
+    let object_mask = r.object_mask();
+    let pixels: Vec<u32> = (0..h * w).filter(|&q| object_mask[q] > 0.0).map(|q| q as u32).collect();
+    let surface_mask = match r.surface_mask() {
+        Some(sm) => {
+            let (height, width) = pack::mask_size(sm.height, sm.width)?;
+            Some(PlanMask { surface: sm.surface, height, width, values: sm.values })
+        }
+        None => None,
+    };
     let sb = scene.bands();
     // A diffraction grating passes the fraction `grating_efficiency` of the power into its traced order
     // (Renderer::trace_plane scales the footprints' weights by it): here each plane's weight into its band, in
@@ -103,7 +113,9 @@ pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPl
         });
     }
     // The largest |value| a ray can carry: max|scene| · max|mask| (the interpolation does not exceed it but
-    // for f32 rounding, which fixed_scale's factor 2 covers).
+    // for f32 rounding, which fixed_scale's factor 2 covers). With the mask on a surface the object plane's is 1
+    // and each tap is weighted by the mask's transmission, ≤ max|mask| (nearest: a value; bilinear: a convex
+    // combination of four).
     let max_scene = scene.data.iter().fold(0.0f64, |m, v| m.max((*v as f64).abs()));
     let max_mask = r.mask.values.iter().fold(0.0f64, |m, v| m.max((*v as f64).abs()));
     let rays = pixels.len() as u64 * sampler.rays as u64;
@@ -121,7 +133,8 @@ pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPl
         max_coord_mm: crate::limits::MAX_IMAGE_COORD_MM,
         cube: &scene.data,
         cube_bands: sb as u32,
-        mask: &r.mask.values,
+        mask: object_mask,
+        surface_mask,
         planes,
         kernels,
         det_w: r.detector.width,
@@ -149,7 +162,7 @@ fn stats(out: &PlanOutput, traced: u64) -> RayStats {
         bounce_limit: c[7],
         out_of_range: c[8],
         evanescent: c[9],
-        masked: 0, // systems with a coded-mask surface are refused by the GPU plan (gpu::pack::steps)
+        masked: c[MASKED_SLOT],
         off_detector: c[STATUS_SLOTS] as f64 / LOST_ONE,
     }
 }
@@ -276,15 +289,16 @@ pub fn check(r: &Renderer<'_>, scene: &SpectralCube, twin: bool) -> Result<Devic
     // The middle plane's landings: device and host kernels.
     let p = r.config.spectral.planes() / 2;
     let pl = plan(r, scene)?;
-    let (du, dv, ds) = cuda::landings(&pl, p)?;
-    let ctx = r.plane_context();
-    let geo = SceneGeometry { height: r.config.scene_height, width: r.config.scene_width, pitch_mm: r.config.scene_pitch_mm, detector: &r.detector };
-    let host = super::twin::plane_landings_in(r.config.precision, r.system, geo, ctx.sampler, ctx.seed, p as u64, r.config.spectral.planes_nm[p], &pl.pixels)?;
+    let (du, dv, ds, dw) = cuda::landings(&pl, p)?;
+    let host = super::twin::plane_landings_of(&r.plane_context(), p as u64, r.config.spectral.planes_nm[p], &pl.pixels)?;
     let pitch = r.detector.pitch_mm;
     let mut worst = 0.0f64;
     let mut mismatches = 0u64;
     for i in 0..du.len() {
-        if crate::gpu::ffi::status_of(ds[i]) != host.status[i] || du[i].is_nan() != host.u[i].is_nan() {
+        // With a coded-mask surface a ray's weight (its transmission, in [0, 1]) is part of its landing: it must
+        // agree too (to 1e-12; the same bits but at infinity, where the device's `tan` may move the ray).
+        let weight_differs = !host.weight.is_empty() && !((dw[i] - host.weight[i]).abs() <= 1e-12);
+        if crate::gpu::ffi::status_of(ds[i]) != host.status[i] || du[i].is_nan() != host.u[i].is_nan() || weight_differs {
             mismatches += 1;
         } else if !du[i].is_nan() {
             worst = worst.max((du[i] - host.u[i]).abs() * pitch).max((dv[i] - host.v[i]).abs() * pitch);

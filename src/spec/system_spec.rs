@@ -336,8 +336,8 @@ impl SystemSpec {
                     return Err(at("coded_mask", format!("material {:?}: the coded mask is a thin plate in air (no refraction at it)", s.material.as_deref().unwrap_or(""))));
                 }
             }
-            if s.asphere_coefficients.len() > 8 {
-                return Err(at("asphere_coefficients", format!("{} terms: at most 8 (r² … r¹⁶)", s.asphere_coefficients.len())));
+            if s.asphere_coefficients.len() > crate::limits::MAX_ASPHERE_TERMS {
+                return Err(at("asphere_coefficients", format!("{} terms: at most {} (r² … r¹⁶)", s.asphere_coefficients.len(), crate::limits::MAX_ASPHERE_TERMS)));
             }
             if !s.asphere_coefficients.is_empty() && !matches!(s.kind, SurfaceKind::EvenAsphere | SurfaceKind::Toroidal) {
                 return Err(at("asphere_coefficients", "only allowed on even_asphere and toroidal surfaces".into()));

@@ -30,8 +30,12 @@
 #define DC_ADD_U64(p, v) (*(p) += (dc_u64)(v))
 #endif
 
-/* Status slots counted per plane: tracer::RayStatus codes 0 … 9 (9: a grating's evanescent order). */
-#define DC_STATUS_SLOTS 10u
+/* Status slots counted per plane: tracer::RayStatus codes 0 … 9 (9: a grating's evanescent order), then
+ * DC_MASKED. */
+#define DC_STATUS_SLOTS 11u
+/* Not a RayStatus: the ray arrived, but the coded-mask surface's transmission is 0 where it crossed it
+ * (RayStats::masked; dual-disperser systems only). It deposits nothing. */
+#define DC_MASKED 10u
 /* counts[DC_STATUS_SLOTS + 1]: the first ray whose aim failed (DC_AIM_FAILED), as dc_aim_failure_key — the
  * minimum over the launch (order-free: an atomicMin on the device), ~0 when none. Such a ray is not counted by
  * status: the CPU renderer stops with an error there, and so does the host after the run. */
@@ -63,13 +67,15 @@ DC_FN float dc_plane_value(const dc_deposit_batch *b, dc_u32 pixel) {
     return ((1.0f - b->tw) * a + b->tw * c) * b->mask[pixel];
 }
 
-/* Ray t of the plane: trace it (`aimed` as dc_land's) and add its taps. Returns its status; *lost gets the fixed-point weight of its
- * taps that fall off the detector (0 when it does not arrive). */
+/* Ray t of the plane: trace it (`aimed` as dc_land's) and add its taps, each weighted by the ray's coded-mask
+ * transmission (1 without a mask surface). Returns its status (DC_MASKED for a ray the mask blocks); *lost gets
+ * the fixed-point weight of its taps that fall off the detector (0 when it does not arrive). */
 DC_FN dc_u32 dc_deposit_ray(const dc_deposit_batch *b, dc_u64 t, dc_u64 *lost, int aimed) {
-    double u, v;
-    dc_u32 st = dc_land(&b->land, t, &u, &v, (int)b->f32, aimed);
+    double u, v, w;
+    dc_u32 st = dc_land(&b->land, t, &u, &v, &w, (int)b->f32, aimed);
     *lost = 0;
     if (st != DC_OK) return st;
+    if (w == 0.0) return DC_MASKED;
     float value = dc_plane_value(b, b->land.pixels[t / b->land.sampler.rays]);
     double fj = floor(u), fi = floor(v);
     dc_i64 j = (dc_i64)fj, i = (dc_i64)fi;
@@ -78,7 +84,7 @@ DC_FN dc_u32 dc_deposit_ray(const dc_deposit_batch *b, dc_u64 t, dc_u64 *lost, i
     for (int di = 0; di < 2; ++di) {
         for (int dj = 0; dj < 2; ++dj) {
             dc_i64 r = i + di, c = j + dj;
-            double tap = wi[di] * wj[dj];
+            double tap = wi[di] * wj[dj] * w;
             if (r < 0 || r >= b->det_h || c < 0 || c >= b->det_w)
                 *lost += (dc_u64)dc_round_i64(tap * DC_LOST_ONE);
             else if (value != 0.0f)

@@ -56,7 +56,8 @@
 /* tracer::kernel::GRAZING_COS: a mirror hit with |d·n̂| at or below it is grazing, and the ray `missed`. */
 #define DC_GRAZING_COS 1e-12
 
-/* At most 8 even-asphere (r² … r¹⁶) or toroid (y² … y¹⁶) terms, as spec::system_spec allows. */
+/* At most 8 even-asphere (r² … r¹⁶) or toroid (y² … y¹⁶) terms: every term spec::system_spec allows
+ * (limits::MAX_ASPHERE_TERMS, OpticStudio's PARM 1–8; gpu::pack::MAX_COEF). */
 #define DC_MAX_COEF 8
 
 /* One surface of the traced path (`system::PathStep`), laid out as `gpu::pack::Step` (repr(C)). */
@@ -79,6 +80,18 @@ typedef struct {
     dc_u32 interaction; /* DC_INTERACTION_* */
     dc_u32 wavelength_slot; /* grating: where the index row holds the wavelength, nm (SequentialSystem::indices) */
 } dc_step;
+
+/* Where a ray crosses one step of the path (the coded-mask surface of a dual-disperser system, system::MaskSurface):
+ * dc_trace_path writes the ray's position after path[step] — in that surface's local frame, widened to f64 by the
+ * f32 instance — once the ray is past it, as render::transport::trace_through_mask reads it after the first arm
+ * path[..=step]. `crossed` stays 0 for a ray that stops before. */
+typedef struct {
+    dc_u32 step;
+    int crossed;
+    double x, y; /* mm */
+} dc_probe;
+/* A probe's step that no path has (the loop index stays below n_steps ≤ 2³² − 1). */
+#define DC_NO_STEP 0xFFFFFFFFu
 
 /* ---- The f64 pieces the f32 instance also calls (on a ray widened to f64) ------------------------------ */
 
@@ -185,15 +198,15 @@ DC_FN int dc_unit_direction(dc_v3 d, dc_v3 *out) {
 
 /* A whole ray in f64: validate the input (finite origin, unit_direction), then every step. On DC_OK, (p, d)
  * are on the last surface in its frame and *surface is DC_NO_SURFACE; otherwise *surface is where the ray
- * stopped (0 for invalid input). */
-DC_FN dc_u32 dc_trace_ray(const dc_step *path, dc_u32 n_steps, const double *n, dc_v3 *p, dc_v3 *d, dc_u32 *surface) {
+ * stopped (0 for invalid input). `probe` as dc_trace_path's (null: none). */
+DC_FN dc_u32 dc_trace_ray(const dc_step *path, dc_u32 n_steps, const double *n, dc_v3 *p, dc_v3 *d, dc_u32 *surface, dc_probe *probe) {
     dc_v3 u;
     if (!dc_unit_direction(*d, &u) || !dc_v3_finite(*p)) {
         *surface = 0;
         return DC_INVALID_INPUT;
     }
     *d = u;
-    return dc_trace_path(path, n_steps, n, p, d, surface);
+    return dc_trace_path(path, n_steps, n, p, d, surface, probe);
 }
 
 /* ---- f32 inputs: the two rules of the Rust f32 paths (tracer::simd::block::LaneBlock) -------------------- */
@@ -220,7 +233,7 @@ DC_FN dc_u32 dc_trace_ray_f32(const dc_step *path, dc_u32 n_steps, const double 
         *surface = 0;
         return DC_INVALID_INPUT;
     }
-    dc_u32 st = dc_trace_path_f32(path, n_steps, n, &pf, &df, surface);
+    dc_u32 st = dc_trace_path_f32(path, n_steps, n, &pf, &df, surface, 0);
     *p = dc_v3_make(pf.x, pf.y, pf.z);
     *d = dc_v3_make(df.x, df.y, df.z);
     return st;
@@ -229,8 +242,8 @@ DC_FN dc_u32 dc_trace_ray_f32(const dc_step *path, dc_u32 n_steps, const double 
 /* The f32 renderer's rule (render::transport::trace_row_lanes_f32: LaneBlock::set_raw, then normalize_inputs):
  * a direction whose largest component lies outside [1e-15, 1e15] is first divided by it (in f64), the origin
  * is checked and both are rounded to f32 (set_checked), then the ray is checked (finite p and d, |d| > 0) and
- * d divided by its length, in f32. */
-DC_FN dc_u32 dc_trace_ray_raw_f32(const dc_step *path, dc_u32 n_steps, const double *n, dc_v3 *p, dc_v3 *d, dc_u32 *surface) {
+ * d divided by its length, in f32. `probe` as dc_trace_path's. */
+DC_FN dc_u32 dc_trace_ray_raw_f32(const dc_step *path, dc_u32 n_steps, const double *n, dc_v3 *p, dc_v3 *d, dc_u32 *surface, dc_probe *probe) {
     dc_v3 dd = *d;
     dc_v3_f32 pf, df;
     double m = dc_max(DC_FABS(dd.x), dc_max(DC_FABS(dd.y), DC_FABS(dd.z)));
@@ -245,7 +258,7 @@ DC_FN dc_u32 dc_trace_ray_raw_f32(const dc_step *path, dc_u32 n_steps, const dou
         *surface = 0;
         return DC_INVALID_INPUT;
     }
-    dc_u32 st = dc_trace_path_f32(path, n_steps, n, &pf, &df, surface);
+    dc_u32 st = dc_trace_path_f32(path, n_steps, n, &pf, &df, surface, probe);
     *p = dc_v3_make(pf.x, pf.y, pf.z);
     *d = dc_v3_make(df.x, df.y, df.z);
     return st;
@@ -275,8 +288,8 @@ typedef struct {
 DC_FN dc_u32 dc_trace_ray_as(dc_u32 mode, const dc_step *path, dc_u32 n_steps, const double *n, dc_v3 *p, dc_v3 *d, dc_u32 *surface) {
     switch (mode) {
     case DC_TRACE_F32: return dc_trace_ray_f32(path, n_steps, n, p, d, surface);
-    case DC_TRACE_F32_RAW: return dc_trace_ray_raw_f32(path, n_steps, n, p, d, surface);
-    default: return dc_trace_ray(path, n_steps, n, p, d, surface);
+    case DC_TRACE_F32_RAW: return dc_trace_ray_raw_f32(path, n_steps, n, p, d, surface, 0);
+    default: return dc_trace_ray(path, n_steps, n, p, d, surface, 0);
     }
 }
 

@@ -374,13 +374,19 @@ DC_FN dc_u32 DC_T(dc_trace_step)(const dc_step *s, const double *n, DC_V3 *p, DC
 }
 
 /* Every step of the path for a checked ray (p finite, d a unit vector). On DC_OK, (p, d) are on the last
- * surface in its frame and *surface is DC_NO_SURFACE; otherwise *surface is where the ray stopped. */
-DC_FN dc_u32 DC_T(dc_trace_path)(const dc_step *path, dc_u32 n_steps, const double *n, DC_V3 *p, DC_V3 *d, dc_u32 *surface) {
+ * surface in its frame and *surface is DC_NO_SURFACE; otherwise *surface is where the ray stopped. `probe`
+ * (null: none) gets the ray's local (x, y) on step probe->step once it is past it (dc_probe). */
+DC_FN dc_u32 DC_T(dc_trace_path)(const dc_step *path, dc_u32 n_steps, const double *n, DC_V3 *p, DC_V3 *d, dc_u32 *surface, dc_probe *probe) {
     for (dc_u32 i = 0; i < n_steps; ++i) {
         dc_u32 st = DC_T(dc_trace_step)(&path[i], n, p, d);
         if (st != DC_OK) {
             *surface = path[i].surface;
             return st;
+        }
+        if (probe && i == probe->step) {
+            probe->x = (double)p->x;
+            probe->y = (double)p->y;
+            probe->crossed = 1;
         }
     }
     *surface = DC_NO_SURFACE;

@@ -40,20 +40,22 @@ extern "C" __global__ void dc_landing_aimed_f32_kernel(dc_landing_batch b) {
     if (t < b.n_pixels * (dc_u64)b.sampler.rays) dc_landing_ray(&b, t, t, 1, 1);
 }
 
-extern "C" __global__ void dc_footprint_size_kernel(const double *u, const double *v, dc_u32 n, dc_i64 det_w, dc_i64 det_h, dc_window *wins, dc_u64 n_pixels) {
+/* `w`: each ray's coded-mask transmission (dc_landing_batch::w), or null without a mask surface. */
+extern "C" __global__ void dc_footprint_size_kernel(const double *u, const double *v, const double *w, dc_u32 n, dc_i64 det_w, dc_i64 det_h, dc_window *wins, dc_u64 n_pixels) {
     dc_u64 q = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
-    if (q < n_pixels) dc_footprint_size(u + q * n, v + q * n, n, det_w, det_h, &wins[q]);
+    if (q < n_pixels) dc_footprint_size(u + q * n, v + q * n, w ? w + q * n : 0, n, det_w, det_h, &wins[q]);
 }
 
-extern "C" __global__ void dc_footprint_fill_kernel(const double *u, const double *v, dc_u32 n, dc_window *wins, const dc_u64 *offsets, double *scratch, float *weights, dc_u64 n_pixels) {
+extern "C" __global__ void dc_footprint_fill_kernel(const double *u, const double *v, const double *w, dc_u32 n, dc_window *wins, const dc_u64 *offsets, double *scratch, float *weights, dc_u64 n_pixels) {
     dc_u64 q = (dc_u64)blockIdx.x * (dc_u64)blockDim.x + (dc_u64)threadIdx.x;
-    if (q < n_pixels && wins[q].w > 0) dc_footprint_fill(u + q * n, v + q * n, n, &wins[q], scratch + offsets[q], weights + offsets[q]);
+    if (q < n_pixels && wins[q].w > 0) dc_footprint_fill(u + q * n, v + q * n, w ? w + q * n : 0, n, &wins[q], scratch + offsets[q], weights + offsets[q]);
 }
 
 /* One thread a ray of the plane: its taps added to the plane image (fixed-point atomics, dc_accum.h); its
- * status and off-detector weight counted per block in shared memory, then once per block into counts[0..10]
- * (statuses) and counts[10] (weight off the detector): integers, so the totals do not depend on the order. A
- * ray whose aim failed (ray aiming on) lowers counts[11] to its key (atomicMin: the first such ray, any order). */
+ * status and off-detector weight counted per block in shared memory, then once per block into counts[0..11]
+ * (statuses, 10: DC_MASKED) and counts[11] (weight off the detector): integers, so the totals do not depend on
+ * the order. A ray whose aim failed (ray aiming on) lowers counts[12] to its key (atomicMin: the first such ray,
+ * any order). */
 static __device__ __forceinline__ void dc_deposit_body(const dc_deposit_batch &b, dc_u64 n_rays, dc_u64 *counts, int aimed) {
     __shared__ unsigned long long block_counts[DC_STATUS_SLOTS + 1];
     if (threadIdx.x <= DC_STATUS_SLOTS) block_counts[threadIdx.x] = 0;

@@ -29,20 +29,21 @@ dc_u64 dc_sizeof_landing_batch(void) { return (dc_u64)sizeof(dc_landing_batch); 
 
 /* Footprint windows of open pixels [begin, end): pass 1 of dc_footprint_*_kernel. Pixel q's rays are
  * u/v[q·n .. q·n + n]. */
-void dc_footprint_size_host(const double *u, const double *v, dc_u32 n, dc_i64 det_w, dc_i64 det_h, dc_window *wins, dc_u64 begin, dc_u64 end) {
-    for (dc_u64 q = begin; q < end; ++q) dc_footprint_size(u + q * n, v + q * n, n, det_w, det_h, &wins[q]);
+void dc_footprint_size_host(const double *u, const double *v, const double *w, dc_u32 n, dc_i64 det_w, dc_i64 det_h, dc_window *wins, dc_u64 begin, dc_u64 end) {
+    for (dc_u64 q = begin; q < end; ++q) dc_footprint_size(u + q * n, v + q * n, w ? w + q * n : 0, n, det_w, det_h, &wins[q]);
 }
 
-/* Pass 2: the windows' taps; offsets[q] is where pixel q's cells start in scratch and weights. */
-void dc_footprint_fill_host(const double *u, const double *v, dc_u32 n, dc_window *wins, const dc_u64 *offsets, double *scratch, float *weights, dc_u64 begin, dc_u64 end) {
+/* Pass 2: the windows' taps; offsets[q] is where pixel q's cells start in scratch and weights. `w`: each ray's
+ * coded-mask transmission, or null (dc_footprint_size's too). */
+void dc_footprint_fill_host(const double *u, const double *v, const double *w, dc_u32 n, dc_window *wins, const dc_u64 *offsets, double *scratch, float *weights, dc_u64 begin, dc_u64 end) {
     for (dc_u64 q = begin; q < end; ++q)
-        if (wins[q].w > 0) dc_footprint_fill(u + q * n, v + q * n, n, &wins[q], scratch + offsets[q], weights + offsets[q]);
+        if (wins[q].w > 0) dc_footprint_fill(u + q * n, v + q * n, w ? w + q * n : 0, n, &wins[q], scratch + offsets[q], weights + offsets[q]);
 }
 
 dc_u64 dc_sizeof_window(void) { return (dc_u64)sizeof(dc_window); }
 
-/* Rays [begin, end) of a plane: the body of dc_deposit_kernel (dc_deposit_aimed_kernel when the launch aims), into this worker's own plane image; counts[0..10]
- * by status, counts[10] the fixed-point weight off the detector, counts[11] the first failed aim's key (min). */
+/* Rays [begin, end) of a plane: the body of dc_deposit_kernel (dc_deposit_aimed_kernel when the launch aims), into this worker's own plane image; counts[0..11]
+ * by status (10: DC_MASKED), counts[11] the fixed-point weight off the detector, counts[12] the first failed aim's key (min). */
 void dc_deposit_host(const dc_deposit_batch *b, dc_u64 begin, dc_u64 end, dc_u64 *counts) {
     for (dc_u64 t = begin; t < end; ++t) {
         dc_u64 lost;
