@@ -214,6 +214,55 @@ fn obscurations_stop_the_rays_the_sequential_tracer_vignettes() {
     }
 }
 
+/// A Mangin mirror (an N-BK7 meniscus silvered at its back) tilted 10° with a Coordinate Break, the image
+/// 60 mm in front of it beside the incoming beam: its front face is crossed on the way in and, after the
+/// reflection, on the way out toward −z (the sequential file lists it twice: surfaces 2 and 4). The solids
+/// hold it once, with its media by side, and every ray lands where the analytic tracer lands.
+#[test]
+fn a_mangin_mirror_face_crossed_twice_is_one_face() {
+    use crate::surfaces::{mirror, stop, system};
+    let cb = |tx: f64, t: f64| SurfaceSpec::coordinate_break(0.0, 0.0, tx, 0.0, 0.0, t);
+    let spec = system(
+        "mangin",
+        vec![
+            SurfaceSpec::standard(None, 100.0, None),
+            cb(10.0, 0.0),
+            stop(SurfaceSpec::standard(Some(-150.0), 5.0, Some("N-BK7"))),
+            mirror(Some(-120.0), None, -5.0),
+            SurfaceSpec::standard(Some(-150.0), -60.0, None),
+            SurfaceSpec::standard(None, 0.0, None),
+        ],
+        0.02,
+    );
+    let sys = build(&spec);
+    // The detector beside the incoming beam: no margin (as tests/nonseq_mirrors.rs's tilted ellipsoid).
+    let options = SolidsOptions { detector_margin_mm: 0.0, ..Default::default() };
+    let solids = Solids::build(&sys, &options).unwrap();
+    let faces: Vec<(Vec<usize>, usize, usize)> = solids.objects.iter().filter_map(|o| if let Role::Interface { surfaces, front_medium, back_medium, .. } = &o.role { Some((surfaces.clone(), *front_medium, *back_medium)) } else { None }).collect();
+    assert_eq!(faces, vec![(vec![2], 1, 2)], "one face: air on its −z side, glass (after surface 2) on its +z side");
+    let rays = workload(&sys, 1.0);
+    let exact = analytic(&sys, &rays);
+    let kernel = BruteForce::new(&sys, &options).unwrap();
+    let got: Vec<Outcome> = trace_trees(&kernel, &sys, &rays, &TreeOptions { order: 0, model: FresnelModel::Off, ..Default::default() })
+        .unwrap()
+        .iter()
+        .map(|t| {
+            let a = t.arrivals.first();
+            Outcome { status: t.main_status.unwrap(), surface: t.main_surface, point: a.map_or(DVec3::NAN, |a| a.point), dir: a.map_or(DVec3::NAN, |a| a.direction) }
+        })
+        .collect();
+    let (ok, _) = agree("mangin brute", &exact, &got);
+    assert_eq!(ok, rays.len());
+    #[cfg(feature = "embree")]
+    {
+        use diffcassi::tracer::embree::{EmbreeOptions, EmbreeTracer, Refinement, SceneOptions};
+        let opts = EmbreeOptions { scene: SceneOptions { detector_margin_mm: 0.0, ..Default::default() }, ..EmbreeOptions::user(Refinement::F64) };
+        let t = EmbreeTracer::new(opts).trace(&sys, &rays).unwrap();
+        let got: Vec<Outcome> = (0..rays.len()).map(|i| Outcome { status: t.status[i], surface: t.surface[i], point: DVec3::new(t.x[i], t.y[i], t.z[i]), dir: DVec3::new(t.dir_x[i], t.dir_y[i], t.dir_z[i]) }).collect();
+        assert_eq!(agree("mangin embree-user", &exact, &got).0, rays.len());
+    }
+}
+
 /// US05331467-1 (tests/fixtures/zmx: an obscuration on the corrector's back, two Mangin mirrors, at
 /// infinity) builds its solids — refused before — and its obscuration is its face's own aperture (no
 /// absorber in the beam: the face is real), the face widened to cover it; the rays it obscures are stopped
