@@ -284,6 +284,7 @@ fn the_catadioptric_patent_lens_builds_its_solids() {
     // solids too; the others are reported, not compared (see above).
     let rays = workload(&sys, 0.5f64.to_radians());
     let exact = analytic(&sys, &rays);
+    #[cfg_attr(not(feature = "embree"), allow(unused_mut))]
     let mut kernels = vec![("brute", brute(&sys, &rays))];
     #[cfg(feature = "embree")]
     {
