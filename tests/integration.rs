@@ -37,6 +37,7 @@ mod mechanics;
 mod metrics;
 mod noise;
 mod nonseq;
+mod nonseq_lens_files;
 mod nonseq_mirrors;
 mod output_policy;
 mod presets;

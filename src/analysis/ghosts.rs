@@ -3,7 +3,10 @@
 //!
 //! For each source — a point source at each of the system's fields, and a uniform extended source (an
 //! N×N grid of field points over the field box, equal power each) — and each wavelength (the system's,
-//! plus 520 nm), rays through a hexapolar pupil are split up to ghost order K. Per path:
+//! plus 520 nm), rays through a hexapolar pupil are split up to ghost order K. A field point is an object
+//! height (mm, source `point x,y`) for a finite object and a pair of field angles for an object at infinity
+//! (radians inside, degrees in the source's name: `point 0,2 deg`; its rays are the field's parallel beam,
+//! started in front of every solid, [`crate::tracer::nonseq::launch`]). Per path:
 //! * `energy_fraction`: detector power of the path / detector power of the main image (no reflection);
 //! * `x_mm`, `y_mm`: power-weighted centroid on the detector (image surface frame); `rms_radius_mm`;
 //! * `defocus_mm`: where the path's bundle is smallest along the detector normal (least-squares: the
@@ -82,6 +85,8 @@ pub struct GhostReport {
     pub system: String,
     pub order: u32,
     pub model: FresnelModel,
+    /// The name of the on-axis point source (`point 0,0`, or `point 0,0 deg` for an object at infinity).
+    pub on_axis_source: String,
     pub rays_traced: usize,
     /// Every (source, wavelength) row, main image excluded, ranked by peak ratio within each.
     pub paths: Vec<GhostPath>,
@@ -98,7 +103,24 @@ pub struct GhostReport {
 impl GhostReport {
     /// The rows of the on-axis point source at 520 nm (the CSV's rows).
     pub fn on_axis_520(&self) -> Vec<&GhostPath> {
-        self.paths.iter().filter(|p| p.source == "point 0,0" && p.wavelength_nm == Some(520.0)).collect()
+        self.paths.iter().filter(|p| p.source == self.on_axis_source && p.wavelength_nm == Some(520.0)).collect()
+    }
+}
+
+/// The name of the point source at field point `field` of `system`: `point x,y` (object height, mm) for a
+/// finite object, `point θx,θy deg` (field angles, degrees) for an object at infinity.
+pub fn point_source_name(system: &SequentialSystem, field: [f64; 2]) -> String {
+    match system.field_display(field) {
+        // Degrees from radians do not round-trip (3° → 3.0000000000000004): named to 1e-9°.
+        (f, "deg") => {
+            let deg = |v: f64| {
+                let t = format!("{v:.9}");
+                let t = t.trim_end_matches('0').trim_end_matches('.');
+                if t == "-0" { "0".to_string() } else { t.to_string() }
+            };
+            format!("point {},{} deg", deg(f[0]), deg(f[1]))
+        }
+        (f, _) => format!("point {},{}", f[0], f[1]),
     }
 }
 
@@ -291,6 +313,7 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
     let mut map_point = None;
     let mut map_uniform = None;
     let mut on_axis_trees: Option<RayBatch> = None;
+    let on_axis = point_source_name(system, [0.0, 0.0]);
     // Extended source: N×N field points over the box of the fields' magnitudes.
     let (fx, fy) = fields.iter().fold((0.0f64, 0.0f64), |(a, b), f| (a.max(f[0].abs()), b.max(f[1].abs())));
     let g = options.extended_grid;
@@ -303,7 +326,7 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
     for &w in &wavelengths {
         let mut sources: Vec<(String, RayBatch)> = Vec::new();
         for f in &fields {
-            sources.push((format!("point {},{}", f[0], f[1]), RayBatch::for_field(system, *f, &pupil, w)?));
+            sources.push((point_source_name(system, *f), RayBatch::for_field(system, *f, &pupil, w)?));
         }
         let mut ext = RayBatch::default();
         for f in &grid {
@@ -324,7 +347,7 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
                 e.1 += 1;
             }
             if w == 520.0 {
-                if name == "point 0,0" {
+                if name == on_axis {
                     map_point = Some(ghost_map(&trees, 256));
                     on_axis_trees = Some(rays.clone());
                 } else if name == "uniform" {
@@ -350,13 +373,14 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
         scalar_max_relative_error: 0.0,
         ledger,
         map_point: map_point.ok_or_else(|| Error::invalid("ghosts: the system has no on-axis field (0, 0)"))?,
+        on_axis_source: on_axis.clone(),
         map_uniform: map_uniform.expect("the uniform source is traced at 520 nm"),
     };
     if let Some(rays) = on_axis_trees {
         let scalar = TreeOptions { model: FresnelModel::Scalar, ..tree_opts };
         let polar = TreeOptions { model: FresnelModel::Polarized, ..tree_opts };
-        let s = rows("point 0,0", Some(520.0), &accumulate(&trace_trees(&kernel, system, &rays, &scalar)?))?;
-        let p = rows("point 0,0", Some(520.0), &accumulate(&trace_trees(&kernel, system, &rays, &polar)?))?;
+        let s = rows(&on_axis, Some(520.0), &accumulate(&trace_trees(&kernel, system, &rays, &scalar)?))?;
+        let p = rows(&on_axis, Some(520.0), &accumulate(&trace_trees(&kernel, system, &rays, &polar)?))?;
         report.scalar_energy_fraction = report.on_axis_520().iter().map(|g| s.iter().find(|x| x.path == g.path).map(|x| x.energy_fraction).unwrap_or(0.0)).collect();
         report.scalar_max_relative_error = p
             .iter()

@@ -160,8 +160,7 @@ pub fn calibrate_backends(system: &SequentialSystem, wavelengths_nm: &[f64], cac
                 match measure(system, cfg, &rays, &reference, 3) {
                     Ok((m, _)) => candidates.push(m),
                     // A backend that does not model this system (the Embree and f32 lane backends refuse
-                    // some surfaces and objects at infinity, naming them) is no candidate; the exact
-                    // reference must always be one.
+                    // some surfaces, naming them) is no candidate; the exact reference must always be one.
                     Err(e) if !is_reference(cfg) => eprintln!("fidelity: candidate --backend {} left out: {e}", backend_text(cfg)),
                     Err(e) => return Err(e),
                 }

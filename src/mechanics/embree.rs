@@ -113,6 +113,9 @@ impl crate::tracer::nonseq::ExtraGeometry for MechanicsScene {
     fn name(&self) -> &'static str {
         "mechanics-embree"
     }
+    fn lowest_z_mm(&self) -> f64 {
+        crate::tracer::nonseq::ExtraGeometry::lowest_z_mm(&self.mechanics)
+    }
     fn scatter(&self, hit: &crate::tracer::nonseq::ExtraHit, incoming: DVec3, seed: u64, ray: u64, bounce: u64) -> Option<(DVec3, f64)> {
         super::scatter::lambertian(hit.normal, incoming, hit.reflectance, seed, ray, bounce)
     }

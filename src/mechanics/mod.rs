@@ -180,6 +180,9 @@ impl crate::tracer::nonseq::ExtraGeometry for Mechanics {
     fn name(&self) -> &'static str {
         "mechanics-brute"
     }
+    fn lowest_z_mm(&self) -> f64 {
+        self.parts.iter().flat_map(|p| p.mesh.vertices.iter().map(|v| v.z)).fold(f64::INFINITY, f64::min)
+    }
     fn scatter(&self, hit: &crate::tracer::nonseq::ExtraHit, incoming: DVec3, seed: u64, ray: u64, bounce: u64) -> Option<(DVec3, f64)> {
         scatter::lambertian(hit.normal, incoming, hit.reflectance, seed, ray, bounce)
     }

@@ -8,9 +8,11 @@
 //! * plane / paraxial plane: t = −p_z/d_z;
 //! * conic: both roots of c(x²+y²+(1+k)z²) − 2z = 0 along the ray, in increasing t, each checked to lie on
 //!   the vertex branch (the sag formula's sheet) and inside the aperture;
-//! * even asphere: the ray is clipped to the patch's bounding cylinder and z-slab, f(t) = z − sag(x, y)
-//!   is sampled for the first sign change and the bracket refined by safeguarded Newton (Newton steps
-//!   that leave the bracket become bisections), so grazing rays cannot diverge.
+//! * even asphere and Toroidal surface (the sequential figure, [`super::toroidal`]): the ray is clipped to
+//!   the patch's bounding cylinder and z-slab, f(t) = z − sag(x, y) is sampled for the first sign change and
+//!   the bracket refined by safeguarded Newton (Newton steps that leave the bracket become bisections), so
+//!   grazing rays cannot diverge. A Toroidal figure's z-slab is sampled over the aperture itself (it is not
+//!   rotationally symmetric).
 //!
 //! [`SurfacePatch::nearest_root`] re-solves a hit already located approximately (an f32 Embree hit on a
 //! mesh or a user geometry) in f64: the root nearest to the approximate distance, without the aperture
@@ -45,6 +47,10 @@ pub struct SurfacePatch {
 /// Samples of f(t) along the clipped ray when searching an even asphere's first root.
 const ASPHERE_SAMPLES: usize = 64;
 
+/// Grid intervals per side when a figure that is not rotationally symmetric is bounded over its aperture
+/// ([`SurfacePatch::sag_range_over`]).
+const GRID: usize = 128;
+
 impl SurfacePatch {
     /// Errors: an aperture that is `None` (a patch must be bounded) or invalid, or a figure undefined
     /// somewhere over the aperture (a conic beyond its domain).
@@ -60,21 +66,65 @@ impl SurfacePatch {
                 (half_width_x_mm + decenter_x_mm.abs()).hypot(half_width_y_mm + decenter_y_mm.abs())
             }
         };
-        // z range: the sag is rotationally symmetric, so sample it radially over [0, r_max].
         let (mut z_min, mut z_max) = (0.0f64, 0.0f64);
-        const N: usize = 1024;
-        for i in 0..=N {
-            let r = r_max * i as f64 / N as f64;
-            let z = shape.sag(r, 0.0);
-            if !z.is_finite() {
-                return Err(format!("the surface is undefined at r = {r:.4} mm inside its aperture (r_max {r_max:.4} mm)"));
+        if let SurfaceShape::Toroidal { .. } = shape {
+            // A Toroidal figure is not rotationally symmetric: sample it over the aperture itself.
+            (z_min, z_max) = Self::sag_range_over(&shape, &aperture)?;
+        } else {
+            // z range: the sag is rotationally symmetric, so sample it radially over [0, r_max].
+            const N: usize = 1024;
+            for i in 0..=N {
+                let r = r_max * i as f64 / N as f64;
+                let z = shape.sag(r, 0.0);
+                if !z.is_finite() {
+                    return Err(format!("the surface is undefined at r = {r:.4} mm inside its aperture (r_max {r_max:.4} mm)"));
+                }
+                z_min = z_min.min(z);
+                z_max = z_max.max(z);
             }
-            z_min = z_min.min(z);
-            z_max = z_max.max(z);
         }
         // Margin for the sag between samples (a smooth sag varies by far less than this between samples).
         let pad = 1e-6 + 1e-3 * (z_max - z_min);
         Ok(SurfacePatch { shape, aperture, r_max, z_min: z_min - pad, z_max: z_max + pad })
+    }
+
+    /// The sag's range (min, max; the vertex's 0 included) over a bounded `aperture`, sampled on a
+    /// [`GRID`] × [`GRID`] grid of its box (points inside the aperture) and [`GRID`]·4 points of its rim: the
+    /// bounds of a figure that is not rotationally symmetric (a Toroidal surface), where a radial sweep
+    /// along x would miss the y profile. Error: the figure is undefined at a sample (a conic beyond its
+    /// domain inside the aperture), naming the point.
+    fn sag_range_over(shape: &SurfaceShape, aperture: &Aperture) -> Result<(f64, f64), String> {
+        let (cx, cy, hx, hy) = match *aperture {
+            Aperture::Circular { semi_diameter_mm: r, decenter_x_mm, decenter_y_mm, .. } => (decenter_x_mm, decenter_y_mm, r, r),
+            Aperture::Rectangular { half_width_x_mm, half_width_y_mm, decenter_x_mm, decenter_y_mm } => (decenter_x_mm, decenter_y_mm, half_width_x_mm, half_width_y_mm),
+            Aperture::None | Aperture::CircularObscuration { .. } => return Err("a bounded aperture is needed".into()),
+        };
+        // The (GRID + 1)² points of the aperture's box (those outside the aperture skipped below).
+        let grid = (0..(GRID + 1) * (GRID + 1)).map(|k| {
+            let (i, j) = (k % (GRID + 1), k / (GRID + 1));
+            (cx + hx * (2.0 * i as f64 / GRID as f64 - 1.0), cy + hy * (2.0 * j as f64 / GRID as f64 - 1.0))
+        });
+        let rim = (0..4 * GRID).map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / (4 * GRID) as f64;
+            match aperture {
+                Aperture::Circular { .. } => (cx + hx * a.cos(), cy + hy * a.sin()),
+                // The rectangle's edge where the ray from its centre at angle a leaves it.
+                _ => {
+                    let f = (hx / a.cos().abs().max(1e-300)).min(hy / a.sin().abs().max(1e-300));
+                    (cx + f * a.cos(), cy + f * a.sin())
+                }
+            }
+        });
+        let (mut z_min, mut z_max) = (0.0f64, 0.0f64);
+        for (x, y) in grid.filter(|&(x, y)| aperture.contains(x, y)).chain(rim) {
+            let z = shape.sag(x, y);
+            if !z.is_finite() {
+                return Err(format!("the surface is undefined at (x, y) = ({x:.4}, {y:.4}) mm inside its aperture"));
+            }
+            z_min = z_min.min(z);
+            z_max = z_max.max(z);
+        }
+        Ok((z_min, z_max))
     }
 
     /// Conservative local bounding box (lower, upper), mm.
@@ -424,6 +474,38 @@ mod tests {
         }
         let plane = SurfacePatch::new(SurfaceShape::Plane, Aperture::circular(5.0)).unwrap();
         assert_eq!(plane.first_hit(DVec3::new(-10.0, 0.0, 0.0), DVec3::X, 0.0, f64::INFINITY), None);
+    }
+
+    /// A saddle-shaped toroid (the YZ curve convex, the rotation concave) over a rectangle: the bounds
+    /// hold its figure everywhere on the aperture (a radial sweep along x alone sees only the concave
+    /// profile), and its first hits are the sequential tracer's roots.
+    #[test]
+    fn toroid_bounds_hold_the_figure_and_hits_are_the_sequential_roots() {
+        let shape = SurfaceShape::Toroidal { curvature: 1.0 / 20.0, conic: -0.5, coefficients: vec![1e-5], rotation_curvature: -1.0 / 40.0 };
+        let ap = Aperture::Rectangular { half_width_x_mm: 6.0, half_width_y_mm: 9.0, decenter_x_mm: 0.5, decenter_y_mm: 0.0 };
+        let t = SurfacePatch::new(shape.clone(), ap).unwrap();
+        let (lo, hi) = t.local_bounds();
+        let (mut zmin, mut zmax) = (f64::INFINITY, f64::NEG_INFINITY);
+        for i in 0..=200 {
+            for j in 0..=200 {
+                let (x, y) = (0.5 - 6.0 + 12.0 * i as f64 / 200.0, -9.0 + 18.0 * j as f64 / 200.0);
+                let z = shape.sag(x, y);
+                (zmin, zmax) = (zmin.min(z), zmax.max(z));
+                assert!(z >= lo.z && z <= hi.z, "sag {z} at ({x}, {y}) outside [{}, {}]", lo.z, hi.z);
+            }
+        }
+        assert!(zmin < -0.3 && zmax > 1.5, "a saddle: {zmin} … {zmax}");
+        for (x, y, dx, dy) in [(0.0, 0.0, 0.0, 0.0), (4.0, -7.0, 0.05, 0.1), (-5.0, 8.5, 0.05, 0.0), (6.4, 3.0, 0.0, -0.3)] {
+            let (p, d) = (DVec3::new(x, y, -5.0), DVec3::new(dx, dy, 1.0).normalize());
+            let hit = t.first_hit(p, d, 0.0, f64::INFINITY).unwrap();
+            let seq = crate::surfaces::intersect(&shape, p, d).unwrap().t;
+            assert!((hit - seq).abs() < 1e-12, "({x}, {y}): {hit} vs {seq}");
+            assert!((t.nearest_root(p, d, hit + 1e-3).unwrap() - seq).abs() < 1e-12);
+        }
+        // A YZ conic undefined inside the aperture is an error naming the point.
+        let steep = SurfaceShape::Toroidal { curvature: 1.0 / 5.0, conic: 0.0, coefficients: vec![], rotation_curvature: 0.0 };
+        let e = SurfacePatch::new(steep, Aperture::Rectangular { half_width_x_mm: 1.0, half_width_y_mm: 6.0, decenter_x_mm: 0.0, decenter_y_mm: 0.0 }).unwrap_err();
+        assert!(e.contains("undefined at (x, y)"), "{e}");
     }
 
     #[test]

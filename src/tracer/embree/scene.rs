@@ -38,7 +38,7 @@ use crate::error::{Error, Result};
 use crate::geometry::Frame;
 use crate::surfaces::{tessellate_covering, Aperture, MeshResolution, SurfacePatch, TriangleMesh};
 use crate::system::SequentialSystem;
-use crate::tracer::nonseq::{Solid, Solids, SolidsOptions};
+use crate::tracer::nonseq::{Solid, Solids, SolidsOptions, StartPlane};
 use crate::tracer::simd::block::{conic_roots_both, rotate};
 use crate::tracer::simd::lanes::{Lanes, V3};
 use crate::tracer::simd::{at_level, LaneKernel, SimdLevel};
@@ -111,6 +111,8 @@ pub struct OpticalScene {
     pub(crate) objects: Vec<SceneObject>,
     /// Sequential index of the image surface.
     pub image_surface: usize,
+    /// An object at infinity: the plane its rays start on ([`crate::tracer::nonseq::launch`]).
+    pub start_plane: Option<StartPlane>,
     /// Largest measured chord-sag error of the meshed surfaces (µm), 0 for user geometry.
     pub max_sag_error_um: f64,
     /// Triangles in the scene (surfaces + absorbers).
@@ -229,8 +231,8 @@ impl OpticalScene {
             objects.push(SceneObject { role, frame, patch, mesh, mask, apertures });
         }
         let scene = scene.commit().map_err(embree_err)?;
-        let image_surface = solids.image_surface;
-        Ok(OpticalScene { scene, objects, image_surface, max_sag_error_um, triangle_count, geometry_count: (interfaces, absorbers), _device: device })
+        let (image_surface, start_plane) = (solids.image_surface, solids.start_plane);
+        Ok(OpticalScene { scene, objects, image_surface, start_plane, max_sag_error_um, triangle_count, geometry_count: (interfaces, absorbers), _device: device })
     }
 }
 

@@ -289,7 +289,12 @@ impl EmbreeTracer {
         details: bool,
         queries: bool,
     ) -> (Vec<Walk>, Vec<Vec<HitRecord>>, Vec<Vec<QueryStep>>) {
-        let mut walks: Vec<Walk> = range.clone().map(|i| Walk::new(rays.origin(i), rays.direction(i), details)).collect();
+        // An object at infinity: each ray starts in front of every solid, on its own line (`nonseq::launch`).
+        let start = |i: usize| match &scene.start_plane {
+            Some(plane) => plane.start(rays.origin(i), rays.direction(i)),
+            None => rays.origin(i),
+        };
+        let mut walks: Vec<Walk> = range.clone().map(|i| Walk::new(start(i), rays.direction(i), details)).collect();
         let mut logs: Vec<Vec<HitRecord>> = if record { vec![Vec::new(); walks.len()] } else { Vec::new() };
         let mut steps: Vec<Vec<QueryStep>> = if queries && self.options.packets { vec![Vec::new(); walks.len()] } else { Vec::new() };
         let idx: Vec<&Vec<f64>> = range.map(|i| table.get(&rays.wavelength_nm[i].to_bits()).expect("every batch wavelength is in the table")).collect();

@@ -75,6 +75,8 @@ impl BruteForce {
 
     /// With extra geometry (mechanics) tested at every bounce, after the solids.
     pub fn with_extra(mut self, extra: Arc<dyn ExtraGeometry>) -> Self {
+        // An object at infinity: the rays start in front of the extra geometry too.
+        self.solids.start_plane = self.solids.start_plane.map(|p| p.in_front_of_z(extra.lowest_z_mm()));
         self.extra = Some(extra);
         self
     }

@@ -1,7 +1,7 @@
 //! Non-sequential tracing with ray splitting: ghost images from Fresnel reflections.
 //!
-//! * [`solids`]: a sequential system as solids (interfaces, walls, blades, detector), shared with the
-//!   Embree scene;
+//! * [`solids`]: a sequential system as solids (interfaces, walls, blades, obscurations, detector), shared
+//!   with the Embree scene; [`launch`]: where the rays of an object at infinity start;
 //! * [`fresnel`]: exact Fresnel amplitudes and 3-D polarisation ray tracing; [`coating`]: per-surface
 //!   coatings (given reflectance, quarter-wave MgF₂);
 //! * [`next_hit`]: the [`NextHit`] kernel interface; [`brute`]: its brute-force f64 implementation
@@ -25,12 +25,14 @@
 pub mod brute;
 pub mod coating;
 pub mod fresnel;
+pub mod launch;
 pub mod next_hit;
 pub mod solids;
 pub mod tree;
 
 pub use brute::BruteForce;
 pub use fresnel::FresnelModel;
+pub use launch::StartPlane;
 pub use next_hit::{Event, ExtraGeometry, ExtraHit, NextHit, Query};
 pub use solids::{Role, Solid, Solids, SolidsOptions};
 pub use tree::{path_label, trace_trees, walk_tree, Arrival, Ledger, RayTree, TreeOptions, MAX_GHOST_ORDER};

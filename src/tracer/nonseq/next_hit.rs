@@ -90,6 +90,11 @@ pub trait ExtraGeometry: Sync + Send {
     /// The unit direction and energy weight of the ray scattered at `hit` for a ray arriving along
     /// `incoming`, its random numbers keyed by (seed, ray, bounce) only; `None`: absorbed.
     fn scatter(&self, hit: &ExtraHit, incoming: DVec3, seed: u64, ray: u64, bounce: u64) -> Option<(DVec3, f64)>;
+    /// The lowest global z the geometry reaches (mm): the rays of an object at infinity start in front of
+    /// it ([`super::launch`]). `f64::INFINITY` (the default): nothing to start in front of.
+    fn lowest_z_mm(&self) -> f64 {
+        f64::INFINITY
+    }
 }
 
 /// A distance a few f32 ulps of the ray's coordinates long (the Embree tracer's tie and retry scale).

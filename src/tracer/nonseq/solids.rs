@@ -3,7 +3,9 @@
 //! ([`super::BruteForce`]) are both built from it, object for object in the same order.
 //!
 //! Every optical surface of the sequential path becomes one object over its clear aperture that knows the
-//! media on both sides: the *front* (−normal side, where the sequential ray comes from) and the *back*.
+//! media on both sides: the *front* (−normal side, where the sequential ray comes from unless it travels
+//! toward −z after a mirror) and the *back*. A face the path crosses twice (a Mangin mirror's refracting
+//! face: in, reflected at its back, out) is one object, not two coincident ones.
 //! A mirror (`GLAS MIRROR`, [`Interaction::Reflect`]) becomes a **mirror face** ([`Role::Mirror`]): a
 //! perfect reflector over its clear aperture, with the one medium it sits in (the sequential medium after a
 //! mirror is the medium before it). It is never merged with coincident surfaces nor made virtual, and both
@@ -16,6 +18,14 @@
 //!   lenses their rims);
 //! * **blades** (absorbers): an explicit aperture (Zemax's "(aper)") gets an annular (or rectangular-frame)
 //!   blade outside it in the surface's rim plane, like a stop blade or lens mount;
+//! * **obscurations** (absorbers): a circular obscuration (`OBSC`, [`Aperture::CircularObscuration`]) is an
+//!   opaque disc or ring *inside* the beam. On a real face (a lens surface, a Mangin mirror) the face
+//!   itself absorbs a ray whose exact hit lies in the obscured annulus (its apertures are tested at every
+//!   hit, as the sequential tracer tests them), from either side; its clear patch is widened to cover the
+//!   obscuration. On a virtual surface (a dummy plane in air, the usual place of a secondary mirror's
+//!   shadow) there is no face, so an absorbing annulus is built on the figure over the obscured zone
+//!   (a [`Role::Blade`]: its hits are re-decided on the exact figure like a blade's, so rays outside the
+//!   annulus pass);
 //! * the **detector**: the image surface.
 //!
 //! Zero-thickness and dummy surfaces are resolved explicitly, never left to floating-point ties between
@@ -29,6 +39,10 @@
 //! plus [`SolidsOptions::mechanical_margin_mm`]; the detector gets [`SolidsOptions::detector_margin_mm`]
 //! on top. Absorbers are triangle bands in f64 (the Embree scene rounds them to f32).
 //!
+//! Figures are the sequential surfaces' own ([`SurfaceShape`], Toroidal surfaces included: the bounded
+//! patch solves them like an even asphere). An object at infinity gets a [`StartPlane`] in front of every
+//! solid, where the walks start its rays ([`super::launch`]).
+//!
 //! ```
 //! use diffcassi::prelude::*;
 //! use diffcassi::tracer::nonseq::{Solids, SolidsOptions};
@@ -37,6 +51,7 @@
 //! assert!(solids.interfaces() >= 4);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
+use super::launch::StartPlane;
 use crate::analysis::mirrored_semi_diameters;
 use crate::error::{Error, Result};
 use crate::geometry::Frame;
@@ -66,7 +81,10 @@ impl Default for SolidsOptions {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Role {
     /// Refracting (or ideal-lens) interface. `surfaces`: the merged sequential surfaces; media are indices
-    /// into [`SequentialSystem::indices`].
+    /// into [`SequentialSystem::indices`]: `front_medium` on the −normal (local −z) side, `back_medium` on the
+    /// +normal side — the media before and after the surface in sequential order, swapped where the
+    /// sequential ray crosses it toward −z (after an odd number of mirrors, a Mangin mirror's face on the way
+    /// out). A face the sequential path crosses twice is one interface (its first crossing's surfaces).
     Interface { surfaces: Vec<usize>, front_medium: usize, back_medium: usize, paraxial_focal_mm: Option<f64> },
     /// A mirror (`GLAS MIRROR` on sequential surface `surface`): specular reflection d′ = d − 2(d·n̂)n̂ with
     /// reflectivity 1 on either side, no transmitted part. `medium`: the medium it sits in (index into
@@ -75,8 +93,9 @@ pub enum Role {
     /// The image surface, with the media before and after it: the sequential tracer refracts at the image
     /// surface like at any other, so the detector reports the same (refracted) direction.
     Detector { surface: usize, front_medium: usize, back_medium: usize },
-    /// Absorbing blade outside an explicit aperture of `surface` (→ vignetted). `interface`: the object
-    /// index of the group's refracting geometry (`None` for a virtual group, e.g. a stop in air).
+    /// Absorbing blade outside an explicit aperture of `surface`, or over the obscured annulus of a
+    /// circular obscuration on a virtual surface (→ vignetted). `interface`: the object index of the
+    /// group's refracting geometry (`None` for a virtual group, e.g. a stop in air).
     Blade { surface: usize, interface: Option<usize> },
     /// Absorbing side wall of the solid that starts at `surface` (→ absorbed). `ends`: the object indices
     /// of the refracting geometries whose rims the wall joins.
@@ -112,12 +131,26 @@ pub struct Solids {
     pub objects: Vec<Solid>,
     /// Sequential index of the image surface.
     pub image_surface: usize,
+    /// An object at infinity: the plane its rays start on, in front of every solid ([`super::launch`]).
+    pub start_plane: Option<StartPlane>,
+}
+
+impl Solids {
+    /// Where the walk starts a launched ray: moved back to the [`StartPlane`] for an object at infinity,
+    /// unchanged for a finite object.
+    #[inline]
+    pub fn launch_origin(&self, origin: DVec3, d: DVec3) -> DVec3 {
+        match &self.start_plane {
+            Some(plane) => plane.start(origin, d),
+            None => origin,
+        }
+    }
 }
 
 impl Solids {
     /// Build the solids of `system`. Errors: negative margins, a virtual object (negative object
-    /// distance: non-sequential tracers follow rays forward only), an object at infinity, a diffraction
-    /// grating or a Toroidal surface (not modelled here), a figure undefined over its aperture.
+    /// distance: non-sequential tracers follow rays forward only), a diffraction grating (not modelled
+    /// here), a figure undefined over its aperture.
     pub fn build(system: &SequentialSystem, options: &SolidsOptions) -> Result<Self> {
         if !(options.mechanical_margin_mm.is_finite() && options.mechanical_margin_mm >= 0.0)
             || !(options.detector_margin_mm.is_finite() && options.detector_margin_mm >= 0.0)
@@ -128,22 +161,18 @@ impl Solids {
         // A negative object distance puts the object after surface 1 (a virtual object, reached by
         // propagating rays backwards as a sequential tracer may); a non-sequential tracer only follows rays
         // forward, so every ray would silently miss. Refuse it with the reason instead.
-        // Gratings and Toroidal surfaces have no solids here yet: refuse them rather than let a grating
-        // become a plain refracting face (no diffraction) that rays would silently pass. Mirrors are modelled
-        // (mirror faces, `Role::Mirror`).
+        // Gratings have no solids here: refuse them rather than let a grating become a plain refracting
+        // face (no diffraction) that rays would silently pass (docs/ghosts.md says why they are not modelled
+        // yet). Mirrors are modelled (mirror faces, `Role::Mirror`), Toroidal surfaces by their figure.
         if let Some(what) = unmodelled_surface(system) {
             return Err(Error::invalid(format!(
-                "system `{}`: {what}; the non-sequential backends (Embree, brute force, ghosts) model refracting surfaces and mirrors only (use the analytic backend)",
+                "system `{}`: {what}; the non-sequential backends (Embree, brute force, ghosts) model refracting surfaces, mirrors and obscurations, not diffraction (use the analytic backend)",
                 system.name()
             )));
         }
+        // An object at infinity: surface 0's thickness is the 0 of the start plane at surface 1, and the
+        // walks start the rays in front of every solid instead (`launch`).
         let object_mm = system.surfaces[0].thickness_mm;
-        if system.object_at_infinity() {
-            return Err(Error::invalid(format!(
-                "system `{}`: the object is at infinity; the non-sequential backends (Embree, brute force) are not set up for it (rays start on surface 1's vertex plane, which a curved first surface may lie behind): use the analytic backend",
-                system.name()
-            )));
-        }
         if object_mm < 0.0 {
             return Err(Error::invalid(format!(
                 "system `{}`: surface 0 thickness {object_mm} mm < 0 is a virtual object; the non-sequential backends (Embree, brute force) trace rays forward only (use the analytic backend)",
@@ -156,17 +185,28 @@ impl Solids {
         let mut walls: Vec<(usize, usize)> = Vec::new();
         for (gi, g) in groups.iter().enumerate() {
             let mut interface_object = None;
-            if !g.virtual_ {
+            if let Some(k) = (!g.virtual_ && !g.is_image && !g.mirror).then(|| same_face(&objects, system, g)).flatten() {
+                // A face the sequential path crosses again (a Mangin mirror's refracting face, crossed on the
+                // way in and on the way out) is the one object it already is; a larger mechanical aperture
+                // of the second crossing widens it.
+                interface_object = Some(k);
+                if let (Some(Aperture::Circular { semi_diameter_mm: have, .. }), Aperture::Circular { semi_diameter_mm: want, .. }) = (objects[k].patch.as_ref().map(|p| &p.aperture), &g.clear) {
+                    if want > have && g.explicit.is_empty() && objects[k].apertures.is_empty() {
+                        objects[k].patch = Some(SurfacePatch::new(g.shape.clone(), g.clear.clone()).map_err(|e| Error::invalid(format!("surface {}: {e}", g.surfaces[0])))?);
+                    }
+                }
+            } else if !g.virtual_ {
                 let patch = SurfacePatch::new(g.shape.clone(), g.clear.clone()).map_err(|e| Error::invalid(format!("surface {}: {e}", g.surfaces[0])))?;
                 let role = if g.is_image {
-                    Role::Detector { surface: g.surfaces[0], front_medium: g.front_medium, back_medium: g.back_medium }
+                    Role::Detector { surface: g.surfaces[0], front_medium: g.medium_before, back_medium: g.medium_after }
                 } else if g.mirror {
-                    Role::Mirror { surface: g.surfaces[0], medium: g.front_medium }
+                    Role::Mirror { surface: g.surfaces[0], medium: g.medium_before }
                 } else {
+                    let (front_medium, back_medium) = g.sides();
                     Role::Interface {
                         surfaces: g.surfaces.clone(),
-                        front_medium: g.front_medium,
-                        back_medium: g.back_medium,
+                        front_medium,
+                        back_medium,
                         paraxial_focal_mm: match g.shape {
                             SurfaceShape::Paraxial { focal_length } => Some(focal_length),
                             _ => None,
@@ -177,16 +217,21 @@ impl Solids {
                 objects.push(Solid { role, frame: g.frame, patch: Some(patch), vertices: Vec::new(), triangles: Vec::new(), apertures: g.explicit.clone() });
             }
             group_interface.push(interface_object);
-            // Blades outside explicit apertures.
+            // Blades outside explicit clear apertures; an absorbing annulus over an obscuration on a
+            // virtual surface (a real face absorbs in its obscured zone by its own aperture test).
             for (surface, ap) in &g.explicit {
-                let (vertices, triangles) = blade_mesh(g, ap, options.blade_width_mm);
+                let (vertices, triangles) = match ap {
+                    Aperture::CircularObscuration { .. } if !g.virtual_ => continue,
+                    Aperture::CircularObscuration { .. } => obscuration_mesh(g, ap),
+                    _ => blade_mesh(g, ap, options.blade_width_mm),
+                };
                 let patch = SurfacePatch::new(g.shape.clone(), g.clear.clone()).ok();
                 let role = Role::Blade { surface: *surface, interface: interface_object };
                 objects.push(Solid { role, frame: g.frame, patch, vertices, triangles, apertures: g.explicit.clone() });
             }
             // Side walls of the solid between this group and the next, when the medium between is glass.
             if let Some(next) = groups.get(gi + 1) {
-                if !system.surfaces[g.back_medium].medium_after.is_air() {
+                if !system.surfaces[g.medium_after].medium_after.is_air() {
                     let (vertices, triangles) = wall_mesh(g, next);
                     walls.push((objects.len(), gi));
                     objects.push(Solid { role: Role::Wall { surface: g.surfaces[0], ends: Vec::new() }, frame: g.frame, patch: None, vertices, triangles, apertures: Vec::new() });
@@ -198,7 +243,8 @@ impl Solids {
                 *ends = [group_interface[gi], group_interface.get(gi + 1).copied().flatten()].into_iter().flatten().collect();
             }
         }
-        Ok(Solids { objects, image_surface: system.surfaces.len() - 1 })
+        let start_plane = system.object_at_infinity().then(|| StartPlane::in_front_of(&objects));
+        Ok(Solids { objects, image_surface: system.surfaces.len() - 1, start_plane })
     }
 
     /// Number of optical objects (interfaces + detector).
@@ -212,14 +258,13 @@ impl Solids {
     }
 }
 
-/// The first surface of `system` the solids do not model — a diffraction grating (reflective or not) or a
-/// Toroidal surface — as "surface i is …", or `None`. Mirrors are modelled.
+/// The first surface of `system` the solids do not model — a diffraction grating (reflective or not) — as
+/// "surface i is …", or `None`. Mirrors and Toroidal surfaces are modelled.
 fn unmodelled_surface(system: &SequentialSystem) -> Option<String> {
     system.surfaces.iter().find_map(|s| {
-        let what = match (s.interaction, &s.shape) {
-            (Interaction::Grating { reflective: true, .. }, _) => "a reflective diffraction grating",
-            (Interaction::Grating { .. }, _) => "a diffraction grating",
-            (_, Some(SurfaceShape::Toroidal { .. })) => "a Toroidal surface",
+        let what = match s.interaction {
+            Interaction::Grating { reflective: true, .. } => "a reflective diffraction grating",
+            Interaction::Grating { .. } => "a diffraction grating",
             _ => return None,
         };
         Some(format!("surface {} is {what}", s.index))
@@ -237,12 +282,51 @@ struct Group {
     explicit: Vec<(usize, Aperture)>,
     /// Clear aperture used for the geometry and the rim.
     clear: Aperture,
-    front_medium: usize,
-    back_medium: usize,
+    /// The media before and after the group in sequential order (indices into
+    /// [`SequentialSystem::indices`]).
+    medium_before: usize,
+    medium_after: usize,
+    /// The sequential ray crosses the group toward its local −z ([`travels_backward`]).
+    backward: bool,
     virtual_: bool,
     is_image: bool,
     /// A mirror ([`Interaction::Reflect`]): one surface, never merged, never virtual.
     mirror: bool,
+}
+
+impl Group {
+    /// The media on the group's −normal (local −z) and +normal sides: before and after it in sequential
+    /// order, swapped where the sequential ray crosses it toward −z.
+    fn sides(&self) -> (usize, usize) {
+        if self.backward {
+            (self.medium_after, self.medium_before)
+        } else {
+            (self.medium_before, self.medium_after)
+        }
+    }
+}
+
+/// Whether the sequential ray reaches surface `s` travelling toward its local −z: OpticStudio's
+/// convention, a ray moves along +z of the current frame over a positive thickness and along −z over a
+/// negative one (after a mirror; coordinate breaks turn the frame, not the sign), so the sign of the last
+/// non-zero thickness before `s` says which way it crosses `s` (+z when there is none).
+fn travels_backward(system: &SequentialSystem, s: usize) -> bool {
+    system.surfaces[..s].iter().rev().map(|x| x.thickness_mm).find(|t| *t != 0.0).is_some_and(|t| t < 0.0)
+}
+
+/// The refracting face among `objects` that group `g` is again — the same figure at the same place (to
+/// 1e-9 mm and 1e-12 in the rotation), with the same media on the same sides — or `None`.
+fn same_face(objects: &[Solid], system: &SequentialSystem, g: &Group) -> Option<usize> {
+    let medium = |m: usize| &system.surfaces[m].medium_after;
+    let (front, back) = g.sides();
+    objects.iter().position(|o| {
+        let Role::Interface { front_medium, back_medium, paraxial_focal_mm: None, .. } = &o.role else { return false };
+        o.patch.as_ref().is_some_and(|p| p.shape == g.shape)
+            && (o.frame.origin - g.frame.origin).abs().max_element() <= 1e-9 * (1.0 + g.frame.origin.abs().max_element())
+            && (o.frame.rotation - g.frame.rotation).to_cols_array().iter().all(|v| v.abs() < 1e-12)
+            && medium(*front_medium) == medium(front)
+            && medium(*back_medium) == medium(back)
+    })
 }
 
 /// Is the step transform the identity (coincident frames)?
@@ -263,13 +347,6 @@ fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<
     let mut groups: Vec<Group> = Vec::new();
     for (k, step) in system.path.iter().enumerate() {
         let s = step.surface;
-        // A central obscuration is a solid in the beam (a disc or ring held by a spider), which these solids
-        // (lens bodies between clear apertures, walls and aperture blades) do not build: refused by surface.
-        if let Aperture::CircularObscuration { min_radius_mm, max_radius_mm, .. } = step.aperture {
-            return Err(Error::invalid(format!(
-                "surface {s} has a circular obscuration ({min_radius_mm}–{max_radius_mm} mm): the non-sequential solids (Embree, ghost tracer) do not model obscurations; trace this system with the sequential tracer"
-            )));
-        }
         let mirror = step.interaction == Interaction::Reflect;
         // A mirror is never merged with a coincident plane (nor one into it): a merged group would have to
         // both reflect and refract.
@@ -281,7 +358,7 @@ fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<
         if merge {
             let g = groups.last_mut().unwrap();
             g.surfaces.push(s);
-            g.back_medium = s;
+            g.medium_after = s;
             if step.aperture != Aperture::None {
                 g.explicit.push((s, step.aperture.clone()));
             }
@@ -293,24 +370,36 @@ fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<
             shape: step.shape.clone(),
             explicit: if step.aperture != Aperture::None { vec![(s, step.aperture.clone())] } else { vec![] },
             clear: Aperture::None,
-            front_medium: s - 1,
-            back_medium: s,
+            medium_before: s - 1,
+            medium_after: s,
+            backward: travels_backward(system, s),
             virtual_: false,
             is_image: k == last,
             mirror,
         });
     }
     for g in &mut groups {
-        let same_media = system.surfaces[g.front_medium].medium_after == system.surfaces[g.back_medium].medium_after;
+        let same_media = system.surfaces[g.medium_before].medium_after == system.surfaces[g.medium_after].medium_after;
         // A mirror has the same medium on both sides yet is real geometry: it reflects.
         g.virtual_ = !g.is_image && !g.mirror && same_media && !matches!(g.shape, SurfaceShape::Paraxial { .. });
         let mechanical = g.surfaces.iter().map(|&s| sd_of(s)).fold(0.0, f64::max) + options.mechanical_margin_mm
             + if g.is_image { options.detector_margin_mm } else { 0.0 };
-        // Several explicit apertures on coincident surfaces: each gets its blade; the clear geometry uses
-        // the first (the blades of the others clip what it would let through).
-        g.clear = match g.explicit.first() {
+        // A face with an obscuration covers it (its outer edge plus the mechanical margin): the face absorbs
+        // in the obscured annulus, so no ray may pass beside it there.
+        let obscured = g
+            .explicit
+            .iter()
+            .filter_map(|(_, ap)| match *ap {
+                Aperture::CircularObscuration { max_radius_mm, decenter_x_mm, decenter_y_mm, .. } => Some(max_radius_mm + decenter_x_mm.hypot(decenter_y_mm) + options.mechanical_margin_mm),
+                _ => None,
+            })
+            .fold(0.0, f64::max);
+        // Several explicit clear apertures on coincident surfaces: each gets its blade; the clear geometry
+        // uses the first (the blades of the others clip what it would let through). Obscurations bound
+        // nothing: without a clear aperture the mechanical one is used.
+        g.clear = match g.explicit.iter().find(|(_, ap)| ap.is_bounded()) {
             Some((_, ap)) => ap.clone(),
-            None => Aperture::circular(mechanical),
+            None => Aperture::circular(mechanical.max(obscured)),
         };
     }
     Ok(groups)
@@ -409,4 +498,38 @@ fn blade_mesh(g: &Group, ap: &Aperture, width: f64) -> (Vec<DVec3>, Vec<[u32; 3]
         vertices.push(g.frame.point_to_global(DVec3::new(x, y, z_of(ix, iy))));
     }
     (vertices, band_triangles())
+}
+
+/// Rings of the absorbing annulus over an obscuration ([`obscuration_mesh`]), inner edge to outer edge.
+const OBSCURATION_RINGS: usize = 16;
+
+/// An absorbing annulus (a disc when `min_radius_mm` = 0) over the obscured zone of a circular obscuration,
+/// on the group's figure: [`OBSCURATION_RINGS`] + 1 rings of [`RIM_SAMPLES`] vertices at the figure's sag
+/// (exact on a plane, within the chord error on a curved figure), the outer one *circumscribed* about the
+/// obscuration's outer circle and the inner one *inscribed* in its inner circle, so the mesh covers the
+/// whole obscured annulus; its hits are re-decided on the exact figure (rays outside the annulus pass).
+fn obscuration_mesh(g: &Group, ap: &Aperture) -> (Vec<DVec3>, Vec<[u32; 3]>) {
+    let Aperture::CircularObscuration { min_radius_mm, max_radius_mm, decenter_x_mm: dx, decenter_y_mm: dy } = *ap else {
+        return (Vec::new(), Vec::new());
+    };
+    let out = 1.0 / (std::f64::consts::PI / RIM_SAMPLES as f64).cos();
+    let n = RIM_SAMPLES as u32;
+    let mut vertices = Vec::with_capacity((OBSCURATION_RINGS + 1) * RIM_SAMPLES);
+    for k in 0..=OBSCURATION_RINGS {
+        let f = k as f64 / OBSCURATION_RINGS as f64;
+        let r = if k == OBSCURATION_RINGS { max_radius_mm * out } else { min_radius_mm + f * (max_radius_mm - min_radius_mm) };
+        for i in 0..RIM_SAMPLES {
+            let a = std::f64::consts::TAU * i as f64 / RIM_SAMPLES as f64;
+            let (x, y) = (dx + r * a.cos(), dy + r * a.sin());
+            let z = g.shape.sag(x, y);
+            vertices.push(g.frame.point_to_global(DVec3::new(x, y, if z.is_finite() { z } else { 0.0 })));
+        }
+    }
+    // Consecutive rings joined as a band; a disc's innermost ring is its centre (its triangles there have
+    // one vertex repeated: zero area, never hit), so the next band closes it.
+    let triangles = (0..OBSCURATION_RINGS as u32)
+        .flat_map(|k| band_triangles().into_iter().map(move |t| t.map(|v| v + k * n)))
+        .filter(|t| !(min_radius_mm == 0.0 && t.iter().filter(|&&v| v < n).count() >= 2))
+        .collect();
+    (vertices, triangles)
 }

@@ -220,6 +220,8 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
     };
     let mut rng = ChaCha8Rng::seed_from_u64(stream_seed(options.seed, index));
     tree.ledger.launched = 1.0;
+    // An object at infinity: the ray starts in front of every solid, on its own line (`launch`).
+    let origin = kernel.solids().launch_origin(origin, d0);
     let root = Node { p: origin, d: d0, w: 1.0, e: unpolarized(d0, 1.0), path: Vec::new(), exclude: None, tnear: 0.0, interactions: 0, scatters: 0 };
     let objects = &kernel.solids().objects;
     let mut scatter_count = 0u32;
