@@ -187,14 +187,9 @@ impl Solids {
             let mut interface_object = None;
             if let Some(k) = (!g.virtual_ && !g.is_image && !g.mirror).then(|| same_face(&objects, system, g)).flatten() {
                 // A face the sequential path crosses again (a Mangin mirror's refracting face, crossed on the
-                // way in and on the way out) is the one object it already is; a larger mechanical aperture
-                // of the second crossing widens it.
+                // way in and on the way out) is the one object it already is (its clear aperture covers both
+                // crossings: `group_surfaces`).
                 interface_object = Some(k);
-                if let (Some(Aperture::Circular { semi_diameter_mm: have, .. }), Aperture::Circular { semi_diameter_mm: want, .. }) = (objects[k].patch.as_ref().map(|p| &p.aperture), &g.clear) {
-                    if want > have && g.explicit.is_empty() && objects[k].apertures.is_empty() {
-                        objects[k].patch = Some(SurfacePatch::new(g.shape.clone(), g.clear.clone()).map_err(|e| Error::invalid(format!("surface {}: {e}", g.surfaces[0])))?);
-                    }
-                }
             } else if !g.virtual_ {
                 let patch = SurfacePatch::new(g.shape.clone(), g.clear.clone()).map_err(|e| Error::invalid(format!("surface {}: {e}", g.surfaces[0])))?;
                 let role = if g.is_image {
@@ -317,16 +312,21 @@ fn travels_backward(system: &SequentialSystem, s: usize) -> bool {
 /// The refracting face among `objects` that group `g` is again — the same figure at the same place (to
 /// 1e-9 mm and 1e-12 in the rotation), with the same media on the same sides — or `None`.
 fn same_face(objects: &[Solid], system: &SequentialSystem, g: &Group) -> Option<usize> {
-    let medium = |m: usize| &system.surfaces[m].medium_after;
-    let (front, back) = g.sides();
     objects.iter().position(|o| {
         let Role::Interface { front_medium, back_medium, paraxial_focal_mm: None, .. } = &o.role else { return false };
-        o.patch.as_ref().is_some_and(|p| p.shape == g.shape)
-            && (o.frame.origin - g.frame.origin).abs().max_element() <= 1e-9 * (1.0 + g.frame.origin.abs().max_element())
-            && (o.frame.rotation - g.frame.rotation).to_cols_array().iter().all(|v| v.abs() < 1e-12)
-            && medium(*front_medium) == medium(front)
-            && medium(*back_medium) == medium(back)
+        o.patch.as_ref().is_some_and(|p| coincident_faces(system, (&p.shape, &o.frame, (*front_medium, *back_medium)), (&g.shape, &g.frame, g.sides())))
     })
+}
+
+/// Two faces that are one: the same figure in the same frame (to rounding) with the same media on each side
+/// (`(shape, frame, (front medium, back medium))`, media as surface indices).
+fn coincident_faces(system: &SequentialSystem, a: (&SurfaceShape, &Frame, (usize, usize)), b: (&SurfaceShape, &Frame, (usize, usize))) -> bool {
+    let medium = |m: usize| &system.surfaces[m].medium_after;
+    a.0 == b.0
+        && (a.1.origin - b.1.origin).abs().max_element() <= 1e-9 * (1.0 + b.1.origin.abs().max_element())
+        && (a.1.rotation - b.1.rotation).to_cols_array().iter().all(|v| v.abs() < 1e-12)
+        && medium(a.2 .0) == medium(b.2 .0)
+        && medium(a.2 .1) == medium(b.2 .1)
 }
 
 /// Is the step transform the identity (coincident frames)?
@@ -401,6 +401,22 @@ fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<
             Some((_, ap)) => ap.clone(),
             None => Aperture::circular(mechanical.max(obscured)),
         };
+    }
+    // A face the path crosses twice (a Mangin mirror's refracting face) is one solid: its mechanical clear
+    // aperture covers both crossings, before any rim is built from it (the walls of the glass meet the
+    // widened rim; a wall left at the first crossing's rim stood in the way of the second's outer rays).
+    for j in 0..groups.len() {
+        for i in 0..j {
+            let real = |g: &Group| !g.virtual_ && !g.is_image && !g.mirror && g.explicit.is_empty() && !matches!(g.shape, SurfaceShape::Paraxial { .. });
+            let (a, b) = (&groups[i], &groups[j]);
+            if real(a) && real(b) && coincident_faces(system, (&a.shape, &a.frame, a.sides()), (&b.shape, &b.frame, b.sides())) {
+                if let (Aperture::Circular { semi_diameter_mm: ra, .. }, Aperture::Circular { semi_diameter_mm: rb, .. }) = (&a.clear, &b.clear) {
+                    let r = ra.max(*rb);
+                    groups[i].clear = Aperture::circular(r);
+                    groups[j].clear = Aperture::circular(r);
+                }
+            }
+        }
     }
     Ok(groups)
 }
