@@ -192,7 +192,8 @@ impl StudySystem {
 }
 
 /// The study's systems, presets then files, each built (a file with its own glass catalogues then those of
-/// `--glass-catalog`, as `--system` reads it) and labelled; two systems of one label (or folder name, compared without case) are refused.
+/// `--glass-catalog`, as `--system` reads it) and labelled; two systems of one label (or folder name,
+/// compared without case) are refused.
 fn load_systems(a: &StudyArgs) -> Result<Vec<StudySystem>> {
     if a.systems.is_empty() && !a.glass_catalogs.is_empty() {
         return Err(Error::invalid("--glass-catalog applies to the files of --systems (a preset's glasses are built in), and none is given"));
