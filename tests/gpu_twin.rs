@@ -193,9 +193,8 @@ fn landings_of_rays(sys: &SequentialSystem, scene: SceneGeometry<'_>, sampler: &
     for &q in pixels {
         sampler.fill(seed, plane, q as u64, &mut s);
         let (row, col) = (q as usize / scene.width, q as usize % scene.width);
-        let c = MappingCube::scene_xy(scene.height, scene.width, scene.pitch_mm, row, col);
         for smp in &s {
-            let field = [c[0] + (smp[2] - 0.5) * scene.pitch_mm, c[1] - (smp[3] - 0.5) * scene.pitch_mm];
+            let field = MappingCube::sample_xy(scene.height, scene.width, scene.pitch_mm, row, col, smp[2], smp[3]);
             let (o, d) = ray(field, smp[0], smp[1])?;
             batch.push(o, d, wl);
         }

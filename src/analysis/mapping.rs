@@ -51,6 +51,17 @@ impl MappingCube {
     pub fn scene_xy(height: usize, width: usize, pitch_mm: f64, row: usize, col: usize) -> [f64; 2] {
         [(col as f64 + 0.5 - width as f64 / 2.0) * pitch_mm, (height as f64 / 2.0 - row as f64 - 0.5) * pitch_mm]
     }
+
+    /// The renderer's sample point in pixel (row, col) for the jitter `sx`, `sy` ∈ [0, 1) of a sample
+    /// [px, py, sx, sy]: the pixel centre ([`Self::scene_xy`]) moved by (sx − ½) pitches along +x and (sy − ½)
+    /// along −y (mm; radians for an object at infinity, where the pitch is angular). One definition for the
+    /// scalar renderer (`PlaneContext::ray`), the tolerance probe, the GPU twin's checks and their tests; the
+    /// lane kernels (`render::sampling`) and the GPU kernels compute the same sums from their own centres.
+    pub fn sample_xy(height: usize, width: usize, pitch_mm: f64, row: usize, col: usize, sx: f64, sy: f64) -> [f64; 2] {
+        let c = Self::scene_xy(height, width, pitch_mm, row, col);
+        [c[0] + (sx - 0.5) * pitch_mm, c[1] - (sy - 0.5) * pitch_mm]
+    }
+
     pub fn get(&self, row: usize, col: usize, band: usize) -> Option<[f64; 2]> {
         let k = (row * self.width + col) * self.wavelength_nm.len() + band;
         (self.valid[k] == 1).then(|| [self.positions_mm[2 * k], self.positions_mm[2 * k + 1]])

@@ -411,10 +411,9 @@ pub fn calibrate_render(system: &SequentialSystem, config: &RenderConfig, cache:
                 for row in [0, h / 2, h - 1] {
                     for col in [0, w / 2, w - 1] {
                         sampler.fill(config.seed ^ 0xca11b, p as u64, (row * w + col) as u64, &mut samples);
-                        let c = MappingCube::scene_xy(h, w, pitch, row, col);
                         let mut batch = RayBatch::with_capacity(M);
                         for s in &samples {
-                            let field = [c[0] + (s[2] - 0.5) * pitch, c[1] - (s[3] - 0.5) * pitch];
+                            let field = MappingCube::sample_xy(h, w, pitch, row, col, s[2], s[3]);
                             let (o, d) = if system.spec.ray_aiming == RayAiming::Off { object_ray(system, field, s[0], s[1]) } else { aimed_ray(system, &n, field, s[0], s[1])? };
                             batch.push(o, d, wl);
                         }

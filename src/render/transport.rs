@@ -502,8 +502,7 @@ impl PlaneContext<'_> {
     /// Object-space ray of sample `s` = [px, py, sx, sy] of scene pixel (row, col).
     #[inline]
     pub(crate) fn ray(&self, n: &[f64], row: usize, col: usize, s: &[f64; 4]) -> Result<(DVec3, DVec3)> {
-        let c = MappingCube::scene_xy(self.scene_height, self.scene_width, self.scene_pitch_mm, row, col);
-        let field = [c[0] + (s[2] - 0.5) * self.scene_pitch_mm, c[1] - (s[3] - 0.5) * self.scene_pitch_mm];
+        let field = MappingCube::sample_xy(self.scene_height, self.scene_width, self.scene_pitch_mm, row, col, s[2], s[3]);
         if self.system.spec.ray_aiming == RayAiming::Off {
             Ok(object_ray(self.system, field, s[0], s[1]))
         } else {

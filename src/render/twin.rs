@@ -167,9 +167,8 @@ pub(crate) fn aim_failure(system: &SequentialSystem, scene: SceneGeometry<'_>, s
     let mut s = vec![[0.0; 4]; sampler.rays];
     sampler.fill(seed, plane, pixel as u64, &mut s);
     let (row, col) = (pixel as usize / scene.width, pixel as usize % scene.width);
-    let c = MappingCube::scene_xy(scene.height, scene.width, scene.pitch_mm, row, col);
     let s = s[k];
-    let field = [c[0] + (s[2] - 0.5) * scene.pitch_mm, c[1] - (s[3] - 0.5) * scene.pitch_mm];
+    let field = MappingCube::sample_xy(scene.height, scene.width, scene.pitch_mm, row, col, s[2], s[3]);
     match aimed_ray(system, &n, field, s[0], s[1]) {
         Err(e) => e,
         Ok(_) => Error::invalid(format!("internal: the GPU kernels' ray aiming failed for ray {k} of scene pixel {pixel} (plane {plane}) where the CPU's succeeds")),
@@ -282,9 +281,8 @@ mod tests {
         for &q in pixels {
             sampler.fill(seed, plane, q as u64, &mut s);
             let (row, col) = (q as usize / scene.width, q as usize % scene.width);
-            let c = MappingCube::scene_xy(scene.height, scene.width, scene.pitch_mm, row, col);
             for smp in &s {
-                let (fx, fy) = (c[0] + (smp[2] - 0.5) * scene.pitch_mm, c[1] - (smp[3] - 0.5) * scene.pitch_mm);
+                let [fx, fy] = MappingCube::sample_xy(scene.height, scene.width, scene.pitch_mm, row, col, smp[2], smp[3]);
                 object.push((DVec3::new(fx, fy, 0.0), DVec3::from(aim.direction(fx, fy, smp[0], smp[1]))));
             }
         }
