@@ -290,10 +290,7 @@ impl EmbreeTracer {
         queries: bool,
     ) -> (Vec<Walk>, Vec<Vec<HitRecord>>, Vec<Vec<QueryStep>>) {
         // An object at infinity: each ray starts in front of every solid, on its own line (`nonseq::launch`).
-        let start = |i: usize| match &scene.start_plane {
-            Some(plane) => plane.start(rays.origin(i), rays.direction(i)),
-            None => rays.origin(i),
-        };
+        let start = |i: usize| crate::tracer::nonseq::launch::launch_origin(scene.start_plane.as_ref(), rays.origin(i), rays.direction(i));
         let mut walks: Vec<Walk> = range.clone().map(|i| Walk::new(start(i), rays.direction(i), details)).collect();
         let mut logs: Vec<Vec<HitRecord>> = if record { vec![Vec::new(); walks.len()] } else { Vec::new() };
         let mut steps: Vec<Vec<QueryStep>> = if queries && self.options.packets { vec![Vec::new(); walks.len()] } else { Vec::new() };

@@ -32,6 +32,16 @@
 use super::solids::Solid;
 use glam::DVec3;
 
+/// Where a walk starts a launched ray: moved back to `plane` ([`StartPlane::start`]) for an object at
+/// infinity, unchanged without one (a finite object).
+#[inline]
+pub fn launch_origin(plane: Option<&StartPlane>, origin: DVec3, d: DVec3) -> DVec3 {
+    match plane {
+        Some(plane) => plane.start(origin, d),
+        None => origin,
+    }
+}
+
 /// Distance of the start plane in front of the nearest solid (mm): far above the f32 resolution of the
 /// Embree scene's coordinates (6e-5 mm at 1 m), far below any lens spacing.
 pub const START_MARGIN_MM: f64 = 0.01;

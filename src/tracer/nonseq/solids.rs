@@ -140,14 +140,9 @@ impl Solids {
     /// unchanged for a finite object.
     #[inline]
     pub fn launch_origin(&self, origin: DVec3, d: DVec3) -> DVec3 {
-        match &self.start_plane {
-            Some(plane) => plane.start(origin, d),
-            None => origin,
-        }
+        super::launch::launch_origin(self.start_plane.as_ref(), origin, d)
     }
-}
 
-impl Solids {
     /// Build the solids of `system`. Errors: negative margins, a virtual object (negative object
     /// distance: non-sequential tracers follow rays forward only), a diffraction grating (not modelled
     /// here), a figure undefined over its aperture.
