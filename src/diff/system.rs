@@ -217,15 +217,12 @@ impl Paraxial {
 
     /// Height at the stop (on it, not refracted) of the ray leaving the object plane with (y0, nu0).
     fn height_at_stop(&self, stop: usize, y0: Dn, nu0: Dn) -> Dn {
-        let (mut y, mut nu) = (y0, nu0);
-        for i in 1..=stop {
-            y = &y + &(&(&self.thickness[i - 1] * &nu) / &self.n[i - 1]);
-            if i == stop {
-                break;
-            }
-            nu = &nu - &(&y * &self.power[i]);
+        if stop == 0 {
+            return y0;
         }
-        y
+        // Traced and refracted up to the surface before the stop, then carried to it.
+        let (y, nu) = self.trace_after(0, stop - 1, y0, nu0);
+        &y + &(&(&self.thickness[stop - 1] * &nu) / &self.n[stop - 1])
     }
 }
 

@@ -407,8 +407,6 @@ impl PixelVals {
     }
 }
 
-/// Which gradients [`DiffRenderer::vjp_wanted`] computes (as torch's `needs_input_grad`): the optical
-/// parameters' ∂L/∂θ, the mask's ∂L/∂mask, the scene's ∂L/∂scene. [`Wanted::ALL`] is the default.
 /// A coded mask on a surface of `system` (dual-disperser CASSI) must see the beam of the scene `config`
 /// describes (pitch in the system's field unit): the production renderer's check and message
 /// ([`super::engine::check_mask_in_beam`]), else every ray would be blocked and every gradient 0.
@@ -419,6 +417,8 @@ fn check_mask_sees_the_beam(system: &crate::system::SequentialSystem, config: &R
     }
 }
 
+/// Which gradients [`DiffRenderer::vjp_wanted`] computes (as torch's `needs_input_grad`): the optical
+/// parameters' ∂L/∂θ, the mask's ∂L/∂mask, the scene's ∂L/∂scene. [`Wanted::ALL`] is the default.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Wanted {
     pub params: bool,
