@@ -484,8 +484,9 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
     Checked, each failure a DiffcassiValueError naming the file and the problem (a missing file, a folder, a FIFO or
     device, a file over 1 GiB: a DiffcassiFileError; ``phi`` not an operator module: a TypeError naming it): the
     format and ``arch``; ``stages``, ``bands``, ``width`` integers ≥ 1; ``bands`` equal to ``phi``'s band count;
-    ``system`` equal to the system the weights were trained for — a preset name, or a :class:`diffcassi.System`
-    (then its name *and* prescription, :func:`system_sha256`, where the file records it); ``mask`` (when given)
+    ``system`` equal to the system the weights were trained for — a preset name (then its name and, where the
+    file records one, the preset's prescription, :func:`system_sha256`), or a :class:`diffcassi.System` (its name
+    *and* prescription, where the file records it); ``mask`` (when given)
     equal to the training mask (SHA-256); every tensor present with its shape, finite, and no other.
 
     For ``unrolled-dauhst-v2`` the system is **required** and a mismatch is **refused** (an error, not a warning):
@@ -516,9 +517,17 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
             raise TypeError(f"load_unrolled: system: expected a preset name or a diffcassi.System, got {type(system).__name__}")
         if meta.get("system") != name:
             raise _Error(f"unrolled weights {path}: trained for system {meta.get('system')!r}, not {name!r} (refused)")
-        if not isinstance(system, str) and "system_sha256" in meta and meta["system_sha256"] != system_sha256(system):
+        # A preset name stands for that preset's prescription, as the Rust side checks it (a name that is no
+        # preset can only be checked by name: pass the diffcassi.System itself).
+        built = system
+        if isinstance(system, str) and "system_sha256" in meta:
+            try:
+                built = diffcassi.System.preset(system)
+            except diffcassi.DiffcassiValueError:
+                built = None
+        if not isinstance(built, (str, type(None))) and "system_sha256" in meta and meta["system_sha256"] != system_sha256(built):
             raise _Error(f"unrolled weights {path}: trained for another prescription of system {name!r} "
-                         f"(system SHA-256 {meta['system_sha256']}, this one {system_sha256(system)}; refused)")
+                         f"(system SHA-256 {meta['system_sha256']}, this one {system_sha256(built)}; refused)")
     if mask is not None and meta.get("mask_sha256") not in (None, mask_sha256(mask)):
         raise _Error(f"unrolled weights {path}: trained with another mask (SHA-256 {meta.get('mask_sha256')}, "
                      f"this one {mask_sha256(mask)})")

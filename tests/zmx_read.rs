@@ -354,6 +354,54 @@ fn thorlabs_b270_resolves_to_the_builtin_datasheet_table() {
     assert!(e.contains("B270") && e.contains("700") && e.contains("[435.83, 656.27]"), "{e}");
 }
 
+/// Edmund's 55-278 achromat pair (`GCAT SCHOTT INFRARED MISC`, `GLAS SF5`, `GLAS BK7`): SCHOTT's old BK7 is in
+/// no file and no built-in vendor catalogue, so it comes from the legacy SCHOTT1980 (Robb & Mercado's 1983
+/// Buchdahl fit of the 1980 catalogue), said in a note naming the line; SF5 stays the current SCHOTT's. The
+/// file opens as it is, its spec names both catalogues and exports to `.zmx` and back bit-identical; the
+/// indices are the legacy glass's, BK7's n_d SCHOTT's 1.51680 to the fit's largest error; a wavelength
+/// outside the fit's 400–700 nm is refused by name; a user's BK7 wins; a glass in none is still refused.
+#[test]
+fn edmund_bk7_resolves_to_the_legacy_schott1980_catalogue() {
+    let path = fixture("achromat_pair_edmund_55278.zmx");
+    let o = run(&["info", "--system", path.to_str().unwrap()]);
+    let out = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{out}");
+    for needle in ["SCHOTT1980", "Buchdahl quadratic about 0.574 µm", "Robb & Mercado 1983 Table V, SCHOTT BK7", "line 49 `GLAS`: glass `BK7` of surface 2", "legacy catalogue SCHOTT1980"] {
+        assert!(out.contains(needle), "`{needle}` not in:\n{out}");
+    }
+    let imp = import_zmx_file(&path, &ZmxOptions::default()).unwrap();
+    assert_eq!(imp.spec.glass_catalogs, vec!["builtin:SCHOTT1980".to_string(), "builtin:SCHOTT".to_string()]);
+    let by_name = |n: &str| imp.glasses.iter().find(|g| g.name == n).unwrap();
+    assert_eq!((by_name("BK7").catalog.as_str(), by_name("BK7").entry.as_str()), ("SCHOTT1980", "builtin:SCHOTT1980"));
+    assert_eq!((by_name("SF5").catalog.as_str(), by_name("SF5").entry.as_str()), ("SCHOTT", "builtin:SCHOTT"));
+    assert_eq!(imp.notes.iter().filter(|n| n.contains("legacy catalogue SCHOTT1980")).count(), 2, "{:?}", imp.notes);
+    let bk7 = builtin_catalogs::catalog("SCHOTT1980").unwrap().unwrap().get("BK7").unwrap();
+    let sys = SequentialSystem::build(&imp.spec).unwrap();
+    let s = imp.spec.surfaces.iter().position(|s| s.material.as_deref() == Some("BK7")).unwrap();
+    for wl in [486.1, 587.6, 656.3] {
+        assert_eq!(sys.indices(wl).unwrap()[s], bk7.refractive_index(wl).unwrap(), "{wl}");
+    }
+    assert!((sys.indices(D_LINE_NM).unwrap()[s] - 1.51680).abs() <= 6e-6);
+    let e = sys.indices(380.0).unwrap_err().to_string();
+    assert!(e.contains("BK7") && e.contains("[400, 700]"), "{e}");
+    let back = import(to_zmx(&imp.spec).unwrap().as_bytes()).unwrap();
+    assert_eq!(back.spec, imp.spec);
+
+    // A user's MISC.AGF holding BK7 wins over the legacy glass.
+    let dir = tempfile::tempdir().unwrap();
+    let agf = dir.path().join("MISC.AGF");
+    std::fs::write(&agf, "NM BK7 2 517642 1.5168 64.17 0 0\nCD 1.03961212 0.00600069867 0.231792344 0.0200179144 1.01046945 103.560653\nLD 0.3 2.5\n").unwrap();
+    let user = import_zmx_file(&path, &ZmxOptions { glass_dirs: vec![dir.path().to_path_buf()], ..Default::default() }).unwrap();
+    assert_eq!(user.glasses.iter().find(|g| g.name == "BK7").unwrap().entry, agf.display().to_string());
+    assert!(!user.spec.glass_catalogs.iter().any(|e| e.contains("SCHOTT1980")), "{:?}", user.spec.glass_catalogs);
+
+    // A glass in no catalogue, legacy ones included, is refused by line and name.
+    let good = sp_zmx();
+    let t = good.replacen("GLAS N-BK7 ", "GLAS BK77 ", 1);
+    let e = import(t.as_bytes()).unwrap_err().to_string();
+    assert!(e.contains("`BK77`") && e.contains("built-in SCHOTT1980"), "{e}");
+}
+
 /// Every glass of the built-in OHARA, HIKARI and CDGM catalogues gives its printed n_d (6 decimals) to half a
 /// unit of the last decimal, HOYA's (5 decimals) to one unit (FDS18 and FDS18-W: 5.5e-6). SUMITA's formulas
 /// are further from their printed n_d for 44 of 176 glasses (up to 3.8e-5, mostly moulding grades): not

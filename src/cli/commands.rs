@@ -295,7 +295,7 @@ fn glass_table(system: &SequentialSystem) -> Result<String> {
     }
     let _ = writeln!(s, "\nglasses (surface, glass, catalogue, formula, catalogue n_d, from, source):");
     for o in &origins {
-        let _ = writeln!(s, "{:>3} {:<14} {:<8} {:<22} {:<10} {}  {}", o.surface, o.name, o.catalog, o.formula, o.nd, o.entry, o.source);
+        let _ = writeln!(s, "{:>3} {:<14} {:<10} {:<22} {:<10} {}  {}", o.surface, o.name, o.catalog, o.formula, o.nd, o.entry, o.source);
     }
     Ok(s)
 }

@@ -1,6 +1,7 @@
 //! dn/dλ of the 13 AGF dispersion formulas, exact (differentiated by hand; checked against the value
-//! formula of [`crate::materials::DispersionFormula`] and against finite differences), and of a tabulated
-//! index (the derivative of its monotone cubic, [`crate::materials::TabulatedIndex::slope_um`]).
+//! formula of [`crate::materials::DispersionFormula`] and against finite differences), of a tabulated
+//! index (the derivative of its monotone cubic, [`crate::materials::TabulatedIndex::slope_um`]) and of
+//! Buchdahl's model ((ν1 + 2ν2 ω) dω/dλ, dω/dλ = 1/(1 + 2.5 Δλ)²).
 //!
 //! All but Conrady are functions of x = λ² (µm²): for n² = G(x), dn/dλ = G′(x)·λ/n; for n = H(x),
 //! dn/dλ = 2λ H′(x).
@@ -80,6 +81,10 @@ pub fn index_and_slope(formula: &DispersionFormula, wavelength_nm: f64) -> (f64,
             g * l / n
         }
         F::Tabulated(t) => t.slope_um(l),
+        F::Buchdahl(c) => {
+            let (o, dodl) = crate::materials::dispersion::buchdahl_omega(l, c[0]);
+            (c[2] + 2.0 * c[3] * o) * dodl
+        }
     };
     (n, slope_um / 1000.0)
 }
@@ -107,6 +112,8 @@ mod tests {
             F::Extended3([2.27, -0.01, 1e-4, 0.0108, 1.2e-4, -3e-6, 2e-7, 1e-8, -1e-9]),
             // SCHOTT B 270's datasheet table (no point within 0.1 nm of 450, 520, 650 nm).
             F::Tabulated(crate::materials::TabulatedIndex::new(crate::materials::tabulated::B270.to_vec()).unwrap()),
+            // Robb & Mercado's (1983) SCHOTT SF5 row, about 0.574 µm.
+            F::Buchdahl([0.574, 1.674185, -0.11374, 0.036167]),
         ];
         for f in &formulas {
             for w in [450.0, 520.0, 650.0] {

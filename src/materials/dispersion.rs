@@ -22,11 +22,19 @@
 //! | 12 | [`Extended2`](DispersionFormula::Extended2) | n² = a0 + a1 λ² + a2 λ⁻² + a3 λ⁻⁴ + a4 λ⁻⁶ + a5 λ⁻⁸ + a6 λ⁴ + a7 λ⁶ |
 //! | 13 | [`Extended3`](DispersionFormula::Extended3) | n² = a0 + a1 λ² + a2 λ⁴ + a3 λ⁻² + a4 λ⁻⁴ + a5 λ⁻⁶ + a6 λ⁻⁸ + a7 λ⁻¹⁰ + a8 λ⁻¹² |
 //! | — | [`Tabulated`](DispersionFormula::Tabulated) | the vendor's (λ, n) points, monotone cubic (PCHIP) in λ ([`super::tabulated`]) |
+//! | — | [`Buchdahl`](DispersionFormula::Buchdahl) | n = n0 + ν1 ω + ν2 ω², ω = (λ − λ0)/(1 + 2.5 (λ − λ0)) |
 //!
 //! `Tabulated` is no AGF formula (OpticStudio's AGF has none): it holds a glass published as a table only
 //! (SCHOTT B 270), carried by the built-in catalogues ([`super::builtin_catalogs`]), never read from a
 //! user's AGF file. It has points, not coefficients ([`DispersionFormula::coefficients`] is empty, its
 //! [`agf_number`](DispersionFormula::agf_number) 0), and is defined on its table's range only.
+//!
+//! `Buchdahl` is no AGF formula either: the quadratic model in Buchdahl's chromatic coordinate ω (H. A.
+//! Buchdahl, *Optical Aberration Coefficients*, 1954; α = 2.5 for optical glasses), in which P. N. Robb and
+//! R. I. Mercado published fits of the 1980 glass catalogues ("Calculation of refractive indices using
+//! Buchdahl's chromatic coordinate", Appl. Opt. 22, 1198 (1983), Table V). It holds the legacy glasses of
+//! the built-in `SCHOTT1980` catalogue ([`super::builtin_catalogs`]) and is never read from a user's AGF
+//! file; its [`coefficients`](DispersionFormula::coefficients) are `[λ0 (µm), n0, ν1, ν2]`.
 //!
 //! Formulas 1 (Schott) and 2 (Sellmeier 1) are the only ones used by the Schott catalogue
 //! and are validated against its `nd`/`vd` columns. Note on Sellmeier 2: the Zemax manual's
@@ -105,6 +113,21 @@ pub enum DispersionFormula {
     /// No AGF formula: n at the vendor's tabulated wavelengths, interpolated by a monotone cubic in λ
     /// ([`TabulatedIndex`]). Built-in catalogues only (see the [module documentation](self)).
     Tabulated(TabulatedIndex),
+    /// No AGF formula: Buchdahl's quadratic model n = n0 + ν1 ω + ν2 ω² in the chromatic coordinate
+    /// ω = (λ − λ0)/(1 + 2.5 (λ − λ0)) (λ, λ0 in µm; n0 the index at λ0). Coefficients `[λ0, n0, ν1, ν2]`.
+    /// Built-in legacy catalogues only (see the [module documentation](self)).
+    Buchdahl([f64; 4]),
+}
+
+/// Buchdahl's α for optical glasses: ω = Δλ/(1 + α Δλ), Δλ in µm (Robb & Mercado 1983 use 2.5).
+pub const BUCHDAHL_ALPHA_PER_UM: f64 = 2.5;
+
+/// Buchdahl's chromatic coordinate ω of `wavelength_um` about `base_um`, and dω/dλ (µm⁻¹).
+#[inline]
+pub fn buchdahl_omega(wavelength_um: f64, base_um: f64) -> (f64, f64) {
+    let d = wavelength_um - base_um;
+    let q = 1.0 + BUCHDAHL_ALPHA_PER_UM * d;
+    (d / q, 1.0 / (q * q))
 }
 
 /// Copies the first `N` values; the caller has checked the length.
@@ -241,22 +264,26 @@ impl DispersionFormula {
             Self::Sellmeier5(_) => 11,
             Self::Extended2(_) => 12,
             Self::Extended3(_) => 13,
-            Self::Tabulated(_) => 0,
+            Self::Tabulated(_) | Self::Buchdahl(_) => 0,
         }
     }
 
-    /// The Zemax name of this formula (e.g. `"Schott"`); `"Tabulated"` for a tabulated index.
+    /// The Zemax name of this formula (e.g. `"Schott"`); `"Tabulated"` for a tabulated index, `"Buchdahl"`
+    /// for Buchdahl's model.
     pub fn name(&self) -> &'static str {
         match self {
             Self::Tabulated(_) => "Tabulated",
+            Self::Buchdahl(_) => "Buchdahl",
             _ => Self::name_of(self.agf_number()).unwrap_or("?"),
         }
     }
 
-    /// What `info` shows: `Sellmeier 1 (AGF 2)`, or `tabulated (8 points, monotone cubic (PCHIP) in λ)`.
+    /// What `info` shows: `Sellmeier 1 (AGF 2)`, `tabulated (8 points, monotone cubic (PCHIP) in λ)`, or
+    /// `Buchdahl quadratic about 0.574 µm`.
     pub fn label(&self) -> String {
         match self {
             Self::Tabulated(t) => t.label(),
+            Self::Buchdahl(c) => format!("Buchdahl quadratic about {} µm", c[0]),
             _ => format!("{} (AGF {})", self.name(), self.agf_number()),
         }
     }
@@ -270,7 +297,7 @@ impl DispersionFormula {
     }
 
     /// The coefficients in AGF `CD` order; empty for a [`Tabulated`](Self::Tabulated) index, which has
-    /// points instead ([`tabulated`](Self::tabulated)).
+    /// points instead ([`tabulated`](Self::tabulated)); `[λ0 (µm), n0, ν1, ν2]` for [`Buchdahl`](Self::Buchdahl).
     pub fn coefficients(&self) -> &[f64] {
         match self {
             Self::Schott(c) | Self::Sellmeier1(c) | Self::Herzberger(c) => c,
@@ -280,6 +307,7 @@ impl DispersionFormula {
             Self::HandbookOfOptics1(c) | Self::HandbookOfOptics2(c) => c,
             Self::Sellmeier5(c) => c,
             Self::Extended3(c) => c,
+            Self::Buchdahl(c) => c,
             Self::Tabulated(_) => &[],
         }
     }
@@ -334,6 +362,10 @@ impl DispersionFormula {
                 series(a, &[l2, l2 * l2, i2, i4, i6, i8, i10, i12]).sqrt()
             }
             Self::Tabulated(t) => t.index_um(w),
+            Self::Buchdahl(c) => {
+                let (o, _) = buchdahl_omega(w, c[0]);
+                c[1] + c[2] * o + c[3] * o * o
+            }
         }
     }
 }
@@ -486,6 +518,22 @@ mod tests {
         let t = DispersionFormula::Tabulated(TabulatedIndex::new(vec![(0.5, 1.52), (0.6, 1.51), (0.7, 1.505)]).unwrap());
         let s = serde_json::to_string(&t).unwrap();
         assert_eq!(serde_json::from_str::<DispersionFormula>(&s).unwrap(), t);
+    }
+
+    /// Buchdahl's model written out (Robb & Mercado's SCHOTT BK7 row: n0 1.517385 at 0.574 µm): n0 at λ0, the
+    /// closed form elsewhere, no AGF number, its label and serde round trip.
+    #[test]
+    fn buchdahl_quadratic_in_the_chromatic_coordinate() {
+        let c = [0.574, 1.517385, -0.44736e-1, -0.32737e-2];
+        let f = DispersionFormula::Buchdahl(c);
+        assert_eq!(f.refractive_index_um(0.574), 1.517385);
+        let w: f64 = 0.48613;
+        let o = (w - 0.574) / (1.0 + 2.5 * (w - 0.574));
+        assert!((f.refractive_index_um(w) - (1.517385 - 0.44736e-1 * o - 0.32737e-2 * o * o)).abs() < 1e-15);
+        assert_eq!((f.agf_number(), f.name(), f.coefficients()), (0, "Buchdahl", &c[..]));
+        assert_eq!(f.label(), "Buchdahl quadratic about 0.574 µm");
+        let s = serde_json::to_string(&f).unwrap();
+        assert_eq!(serde_json::from_str::<DispersionFormula>(&s).unwrap(), f);
     }
 
     #[test]

@@ -210,6 +210,14 @@ def test_v2_weights_load_with_checks_and_refuse_another_system(tmp_path):
               tmp_path / "nan.safetensors", metadata=meta)
     with pytest.raises(diffcassi.DiffcassiValueError, match="tensor priors.0.linear.weight has NaN"):
         load_unrolled(tmp_path / "nan.safetensors", phi, system="sp")
+    # A preset name stands for the preset's prescription: weights recorded for an edited "sp" are refused under
+    # system="sp"; a name that is no preset is checked by name only (the System itself carries its prescription).
+    save_file(tensors, tmp_path / "edited.safetensors", metadata=dict(meta, system_sha256="0" * 64))
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"another prescription of system 'sp' \(system SHA-256 0{64}, this one "
+                       + system_sha256(sp)):
+        load_unrolled(tmp_path / "edited.safetensors", phi, system="sp", mask=t.mask)
+    save_file(tensors, tmp_path / "mine.safetensors", metadata=dict(meta, system="my_relay", system_sha256="0" * 64))
+    assert isinstance(load_unrolled(tmp_path / "mine.safetensors", phi, system="my_relay"), UnrolledDAUHST)
     save_file(tensors, tmp_path / "shape.safetensors", metadata=dict(meta, width="8"))
     with pytest.raises(diffcassi.DiffcassiValueError, match=r"has shape .* expected .*width=8"):
         load_unrolled(tmp_path / "shape.safetensors", phi, system="sp")

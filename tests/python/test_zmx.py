@@ -14,8 +14,11 @@ Conventions and how they are reconciled (both readers get the same file):
 * Field angles: OpticStudio's direction is (tan θx, tan θy, 1) normalised, rayoptics' (sin θx, sin θy, ·); they
   coincide for the fixtures' fields (θx = 0).
 * Glasses: both readers take the SCHOTT Sellmeier coefficients of rayoptics' catalogue (written to SCHOTT.AGF
-  for diffcassi, `--glass-dir`); BK7 (rayoptics: a Buchdahl fit; no public SCHOTT BK7 data) is replaced by
-  N-BK7 in the compared copy (the double Gauss is read unmodified). B270 stays: diffcassi takes it from its
+  for diffcassi, `--glass-dir`). The Edmund pair's old SCHOTT BK7 (OpticStudio's MISC catalogue; in no current
+  catalogue) stays: diffcassi takes it from its built-in legacy SCHOTT1980 (Robb & Mercado's 1983 Buchdahl fit
+  of the 1980 SCHOTT catalogue, about λ0 = 0.574 µm); rayoptics substitutes a Robb1983 row too, but its OHARA
+  one and about the d line, 5.9e-4 off in index, so its medium is replaced by opticalglass's own Buchdahl model
+  of the SCHOTT row about 0.574 µm (`legacy_bk7`: the same published model, evaluated independently). B270 stays: diffcassi takes it from its
   built-in SCHOTT catalogue (the B 270 datasheet's table, monotone cubic in λ); rayoptics holds no B 270 and
   gets a constant index equal to that table's interpolant at the traced wavelength (SciPy's PchipInterpolator
   on the points of data/glass/SCHOTT.tabulated, the same interpolant computed independently).
@@ -102,23 +105,13 @@ def test_rayoptics_opens_our_export(cli, tmp_path, preset):
 
 
 def compared_copy(path, out_dir):
-    """The design as it is — object at infinity, field angles, F/# or pupil diameter, ray aiming — for both
-    readers. Only BK7 (rayoptics: a Buchdahl fit) is replaced by N-BK7; when there is none, the original file
-    itself is returned. Both readers then take the SCHOTT Sellmeier coefficients of rayoptics' catalogue
-    (written as SCHOTT.AGF into `out_dir` for diffcassi's `--glass-dir`), but for B270, which diffcassi takes
-    from its built-in SCHOTT (no SCHOTT.AGF is written when B270 is the only glass; see `b270_index`)."""
+    """The design as it is — object at infinity, field angles, F/# or pupil diameter, ray aiming, its glass
+    names — for both readers: the original file itself. Both readers take the SCHOTT Sellmeier coefficients of
+    rayoptics' catalogue (written as SCHOTT.AGF into `out_dir` for diffcassi's `--glass-dir`), but for B270,
+    which diffcassi takes from its built-in SCHOTT (see `b270_index`), and the old BK7, which it takes from its
+    legacy SCHOTT1980 (see `legacy_bk7`); no SCHOTT.AGF is written when those are the only glasses."""
     text = decode(path)
-    changed = False
-    out = []
-    for line in text.splitlines():
-        parts = line.split()
-        if parts[:1] == ["GLAS"] and parts[1] == "BK7":
-            parts[1] = "N-BK7"
-            line = "  " + " ".join(parts)
-            changed = True
-        out.append(line)
-    text = "\n".join(out) + "\n"
-    glasses = sorted({m.group(1) for m in re.finditer(r"^\s*GLAS (\S+)", text, re.M)} - {"B270"})
+    glasses = sorted({m.group(1) for m in re.finditer(r"^\s*GLAS (\S+)", text, re.M)} - {"B270", "BK7"})
     agf = []
     for g in glasses:
         glass = glassfactory.create_glass(g, "Schott")
@@ -126,11 +119,16 @@ def compared_copy(path, out_dir):
         agf.append(f"NM {g} 2 0 {glass.calc_rindex(587.5618):.6f} 50 0 0\nCD {b1!r} {c1!r} {b2!r} {c2!r} {b3!r} {c3!r}\nLD 0.3 2.5\n")
     if agf:
         (out_dir / "SCHOTT.AGF").write_text("".join(agf))
-    if not changed:
-        return path
-    copy = out_dir / path.name
-    copy.write_text(text)
-    return copy
+    return path
+
+
+def legacy_bk7():
+    """SCHOTT's old BK7 as diffcassi's legacy SCHOTT1980 has it, computed independently: opticalglass's Buchdahl
+    model (buchdahl.Buchdahl) of the SCHOTT BK7 row of its own Robb1983 table, about the paper's λ0 = 0.574 µm."""
+    from opticalglass import buchdahl
+    from opticalglass.glass import Robb1983Catalog
+    _, n0, nu1, nu2 = Robb1983Catalog().glass_db["Robb1983.SCHOTT"]["BK7"]
+    return buchdahl.Buchdahl(0.574, n0, (nu1, nu2), mat="BK7", cat="SCHOTT1980")
 
 
 def b270_index(wl_nm):
@@ -169,7 +167,13 @@ def test_public_designs_agree_with_rayoptics(cli, tmp_path, design):
     b270 = [i for i, s in enumerate(ours.surfaces) if s.get("material") == "B270"]
     for i in b270:  # rayoptics holds no B 270: diffcassi's index at the traced wavelength (module docstring)
         sm.gaps[i].medium = ConstantIndex(b270_index(ours.primary_wavelength_nm), "B270")
-    if b270:
+    bk7 = [i for i, s in enumerate(ours.surfaces) if s.get("material") == "BK7"]
+    if bk7:  # the old SCHOTT BK7: diffcassi's legacy SCHOTT1980, rayoptics given the same model (module docstring)
+        assert "builtin:SCHOTT1980" in tomllib.loads(toml.read_text())["glass_catalogs"]
+        assert "legacy catalogue SCHOTT1980" in done.stdout, done.stdout
+        for i in bk7:
+            sm.gaps[i].medium = legacy_bk7()
+    if b270 or bk7:
         om.update_model()
     assert len(sm.ifcs) == len(ours.surfaces)
     first_order_agrees(ours, om)

@@ -9,8 +9,10 @@
 //! that stand in for the `GCAT` names not found as files (`SUMITA_AUG2011` → SUMITA, said in a note), the
 //! first in `GCAT` order that holds it; the catalogues so used are recorded as `builtin:NAME` entries, before
 //! the files (a user's file wins over a built-in copy), so the built system resolves every glass the way it
-//! was resolved here (checked). A glass found nowhere is an error naming its line, surface and name, and
-//! which catalogues were missing.
+//! was resolved here (checked). A glass in none of these either — an obsolete glass of an old file, SCHOTT's
+//! `BK7` of Edmund's achromats — is taken, as the last resort and said in a note naming its line, from the
+//! legacy catalogues ([`builtin_catalogs`]'s "Legacy catalogues": `SCHOTT1980`), recorded first of all.
+//! A glass found nowhere is an error naming its line, surface and name, and which catalogues were missing.
 use crate::materials::{builtin_catalogs, Glass, GlassCatalog};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -115,8 +117,8 @@ fn origin_in(loaded: &mut Loaded, entries: &[String], name: &str, line: usize, s
             break;
         }
     }
-    let source = if builtin_catalogs::entry_name(&entry).is_some() && !g.info.comment.is_empty() {
-        format!("{} ({})", g.info.comment, builtin_catalogs::SOURCE)
+    let source = if let Some(b) = builtin_catalogs::entry_name(&entry).filter(|_| !g.info.comment.is_empty()) {
+        format!("{} ({})", g.info.comment, builtin_catalogs::source(b))
     } else if entry == SUBSET {
         "typed in from SCHOTT.AGF (December 2024)".to_string()
     } else {
@@ -163,8 +165,11 @@ pub(super) fn resolve(
         }
     }
     let base = loaded.merged(&files)?;
-    // Glasses in no file nor the subset: the first stand-in (GCAT order) that holds them.
+    // Glasses in no file nor the subset: the first stand-in (GCAT order) that holds them, else (the last
+    // resort, said in a note) the first legacy catalogue that does.
     let mut used: Vec<usize> = Vec::new();
+    let mut legacy_used: Vec<&'static str> = Vec::new();
+    let mut notes = Vec::new();
     for (line, surface, name) in uses {
         if base.contains(name) {
             continue;
@@ -180,9 +185,27 @@ pub(super) fn resolve(
             }
         }
         if !found {
+            for l in builtin_catalogs::legacy_names() {
+                if let Some(g) = loaded.get(&format!("{}{l}", builtin_catalogs::ENTRY_PREFIX))?.find(name) {
+                    let (lo, hi) = g.valid_range_nm();
+                    notes.push(format!(
+                        "line {line} `GLAS`: glass `{name}` of surface {surface} is in no catalogue of the file nor any built-in vendor catalogue; taken from the built-in legacy catalogue {l} ({}, valid {lo}–{hi} nm; {})",
+                        g.formula.label(),
+                        builtin_catalogs::source(l)
+                    ));
+                    if !legacy_used.contains(&l) {
+                        legacy_used.push(l);
+                    }
+                    found = true;
+                    break;
+                }
+            }
+        }
+        if !found {
             let gl = gcat.map(|g| format!(" (`GCAT` line {})", g.0)).unwrap_or_default();
             let loaded_list: String = files.iter().map(|p| format!(", {p}")).collect();
-            let builtins: Vec<String> = stand_ins.iter().map(|s| format!("built-in {}", s.1)).collect();
+            let builtins: Vec<String> =
+                stand_ins.iter().map(|s| s.1).chain(builtin_catalogs::legacy_names()).map(|b| format!("built-in {b}")).collect();
             let looked = if builtins.is_empty() { String::new() } else { format!(", {}", builtins.join(", ")) };
             let why = if missing.is_empty() {
                 "no catalogue of the file holds it".to_string()
@@ -190,7 +213,7 @@ pub(super) fn resolve(
                 format!(
                     "the file's catalogue(s) {} were not found{gl} and are not built in (built in: {}): put {} in {} or set DIFFCASSI_GLASS_DIR",
                     missing.join(", "),
-                    builtin_catalogs::names().collect::<Vec<_>>().join(", "),
+                    builtin_catalogs::vendor_names().collect::<Vec<_>>().join(", "),
                     missing.iter().map(|m| format!("{m}.AGF")).collect::<Vec<_>>().join(", "),
                     dirs.iter().map(|d| d.display().to_string()).collect::<Vec<_>>().join(", ")
                 )
@@ -201,8 +224,13 @@ pub(super) fn resolve(
         }
     }
     used.sort_unstable();
-    // Built-ins first (the first in GCAT order last, so it wins among them), then the files.
-    let mut builtin_entries: Vec<String> = used.iter().rev().map(|&k| format!("{}{}", builtin_catalogs::ENTRY_PREFIX, stand_ins[k].1)).collect();
+    // Built-ins first — the legacy ones first of all (they hold only what nothing else does), then the
+    // stand-ins (the first in GCAT order last, so it wins among them) — then the files.
+    let mut builtin_entries: Vec<String> = legacy_used
+        .iter()
+        .map(|l| format!("{}{l}", builtin_catalogs::ENTRY_PREFIX))
+        .chain(used.iter().rev().map(|&k| format!("{}{}", builtin_catalogs::ENTRY_PREFIX, stand_ins[k].1)))
+        .collect();
     let chosen = |loaded: &mut Loaded, entries: &[String]| -> Result<Vec<Option<Glass>>, String> {
         let m = loaded.merged(entries)?;
         Ok(uses.iter().map(|u| m.find(&u.2).map(|g| (**g).clone())).collect())
@@ -231,7 +259,6 @@ pub(super) fn resolve(
             uses[k].0, uses[k].2, uses[k].1, entries.join(", ")
         ));
     }
-    let mut notes = Vec::new();
     for &k in &used {
         let (n, b) = &stand_ins[k];
         if !n.eq_ignore_ascii_case(b) {
