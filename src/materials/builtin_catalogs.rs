@@ -322,6 +322,11 @@ mod tests {
         assert!(total >= 1600, "{total}");
     }
 
+    /// The current SCHOTT glass a SCHOTT1980 row was checked against (named in its `GC` comment).
+    fn checked_against(g: &Glass) -> &str {
+        g.info.comment.split(" of SCHOTT ").nth(1).and_then(|t| t.split_whitespace().next()).unwrap()
+    }
+
     /// The legacy SCHOTT1980 catalogue: every glass is a Buchdahl fit about 0.574 µm, names its source row and
     /// the current glass it was checked against, and still agrees with that glass (read from the built-in
     /// SCHOTT) to 1e-3 at every nm of its range; BK7 is N-BK7's predecessor to 6.2e-6, its n_d SCHOTT's 1.51680
@@ -336,7 +341,7 @@ mod tests {
             assert_eq!((g.catalog.as_str(), g.formula.name(), g.valid_range_nm()), ("SCHOTT1980", "Buchdahl", (400.0, 700.0)), "{}", g.name);
             assert_eq!(g.formula.coefficients()[0], 0.574, "{}", g.name);
             assert!(g.info.comment.starts_with(&format!("Robb & Mercado 1983 Table V, SCHOTT {} (", g.name)), "{}", g.info.comment);
-            let succ = g.info.comment.split(" of SCHOTT ").nth(1).and_then(|t| t.split_whitespace().next()).unwrap();
+            let succ = checked_against(g);
             let c = current.get(succ).unwrap();
             let dev = (400..=700).map(|nm| (g.refractive_index(nm as f64).unwrap() - c.refractive_index(nm as f64).unwrap()).abs()).fold(0.0, f64::max);
             assert!(dev <= 1e-3, "{} vs {succ}: {dev}", g.name);
@@ -365,7 +370,7 @@ mod tests {
             let mut d: Vec<f64> = legacy
                 .iter()
                 .map(|g| {
-                    let succ = g.info.comment.split(" of SCHOTT ").nth(1).and_then(|t| t.split_whitespace().next()).unwrap();
+                    let succ = checked_against(g);
                     let c = current.get(succ).unwrap();
                     let mut k = g.formula.coefficients().to_vec();
                     k[0] = base;
