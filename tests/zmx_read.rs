@@ -402,6 +402,26 @@ fn edmund_bk7_resolves_to_the_legacy_schott1980_catalogue() {
     assert!(e.contains("`BK77`") && e.contains("built-in SCHOTT1980"), "{e}");
 }
 
+/// A spec naming a glass its catalogues lack is refused by surface and name, and the error says which built-in
+/// catalogues hold it and how to name them (a vendor's, the legacy SCHOTT1980); naming it then builds.
+#[test]
+fn an_unknown_glass_points_to_the_builtin_catalogue_that_holds_it() {
+    let mut spec = diffcassi::presets::spec("sp").unwrap();
+    let s = spec.surfaces.iter().position(|s| s.material.as_deref() == Some("N-BK7")).unwrap();
+    for (glass, catalogue) in [("S-BSL7", "OHARA"), ("BK7", "SCHOTT1980")] {
+        spec.surfaces[s].material = Some(glass.to_string());
+        spec.glass_catalogs.clear();
+        let e = SequentialSystem::build(&spec).unwrap_err().to_string();
+        let want = format!("it is in the built-in catalogue {catalogue}: add \"builtin:{catalogue}\" to the spec's glass_catalogs");
+        assert!(e.contains(&format!("surface {s}")) && e.contains(&format!("unknown glass '{glass}'")) && e.contains(&want), "{e}");
+        spec.glass_catalogs = vec![format!("builtin:{catalogue}")];
+        SequentialSystem::build(&spec).unwrap();
+    }
+    spec.surfaces[s].material = Some("NOPE-7".into());
+    let e = SequentialSystem::build(&spec).unwrap_err().to_string();
+    assert!(e.contains("unknown glass 'NOPE-7'") && !e.contains("built-in catalogue"), "{e}");
+}
+
 /// Every glass of the built-in OHARA, HIKARI and CDGM catalogues gives its printed n_d (6 decimals) to half a
 /// unit of the last decimal, HOYA's (5 decimals) to one unit (FDS18 and FDS18-W: 5.5e-6). SUMITA's formulas
 /// are further from their printed n_d for 44 of 176 glasses (up to 3.8e-5, mostly moulding grades): not

@@ -10,7 +10,8 @@
 //! * [`catalog`] stores glasses by case-insensitive name ([`GlassCatalog`]), including a
 //!   small built-in table so the binary works without any catalogue file,
 //! * [`builtin_catalogs`] embeds the SCHOTT, OHARA, HOYA, CDGM, SUMITA and HIKARI optical glasses
-//!   (converted from the refractiveindex.info database, CC0), loaded by name (`builtin:OHARA`),
+//!   (converted from the refractiveindex.info database, CC0), loaded by name (`builtin:OHARA`), and the
+//!   legacy SCHOTT1980 (the 1980 SCHOTT glasses of old lens files, Robb & Mercado's Buchdahl fits),
 //! * [`medium`] is what a surface of the ray tracer refracts into ([`Medium`]).
 //!
 //! All public wavelengths are in **nanometres** (`wavelength_nm`); the conversion to the

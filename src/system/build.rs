@@ -10,6 +10,23 @@ use crate::surfaces::{Aperture, SurfaceShape};
 use glam::DVec3;
 use std::collections::HashMap;
 
+/// For a glass the spec's catalogues lack: the built-in catalogues that hold it and how to name them
+/// (`; it is in the built-in catalogue OHARA: add "builtin:OHARA" to glass_catalogs …`), or nothing.
+fn builtin_hint(name: &str) -> String {
+    let holding = crate::materials::builtin_catalogs::holding(name);
+    if holding.is_empty() {
+        return String::new();
+    }
+    let entries: Vec<String> = holding.iter().map(|c| format!("\"builtin:{c}\"")).collect();
+    format!(
+        "; it is in the built-in catalogue{} {}: add {} to the spec's glass_catalogs (or --glass-catalog builtin:{})",
+        if holding.len() > 1 { "s" } else { "" },
+        holding.join(", "),
+        entries.join(" or "),
+        holding[0]
+    )
+}
+
 const CB_COLUMNS: [&str; 5] = ["decenter_x_mm", "decenter_y_mm", "tilt_x_deg", "tilt_y_deg", "tilt_z_deg"];
 
 impl SequentialSystem {
@@ -45,7 +62,7 @@ impl SequentialSystem {
                 (Some(name), _) if crate::spec::is_mirror_material(name) => media[i - 1].clone(),
                 (None, _) => Medium::Air,
                 (Some(name), _) if name.eq_ignore_ascii_case("air") => Medium::Air,
-                (Some(name), _) => Medium::Glass(catalog.get(name).map_err(|e| sys_err(i, "material", e.to_string()))?),
+                (Some(name), _) => Medium::Glass(catalog.get(name).map_err(|e| sys_err(i, "material", format!("{e}{}", builtin_hint(name))))?),
             };
             media.push(m);
         }
