@@ -189,7 +189,7 @@ pub(super) fn resolve(
                 if let Some(g) = loaded.get(&format!("{}{l}", builtin_catalogs::ENTRY_PREFIX))?.find(name) {
                     let (lo, hi) = g.valid_range_nm();
                     notes.push(format!(
-                        "line {line} `GLAS`: glass `{name}` of surface {surface} is in no catalogue of the file nor any built-in vendor catalogue; taken from the built-in legacy catalogue {l} ({}, valid {lo}–{hi} nm; {})",
+                        "line {line} `GLAS`: glass `{name}` of surface {surface} is in none of the catalogues the file names (nor their built-in stand-ins); taken from the built-in legacy catalogue {l} ({}, valid {lo}–{hi} nm; {})",
                         g.formula.label(),
                         builtin_catalogs::source(l)
                     ));
