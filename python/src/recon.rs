@@ -353,7 +353,7 @@ fn denoise<'py>(py: Python<'py>, cube: &Bound<'py, PyAny>, sigma: f64, weights: 
 /// The unrolled network (`unrolled-gap-v1`, `diffcassi::recon::unrolled`: the Rust inference of
 /// `reconstruct --solver unrolled`) on `acquisition` (h, w) float32 through `operator`. `weights`: a
 /// safetensors file, or `None` for the committed weights of `system` (`sp`, `msp`); with both, the file must
-/// be trained for `system`. Returns (cube (H, W, B) float32, record JSON: the network, the scale, the
+/// be trained for `system` (for a preset name: its prescription, where the file records one). Returns (cube (H, W, B) float32, record JSON: the network, the scale, the
 /// per-stage residuals, seconds). For tests and comparisons with `diffcassi.unrolled.UnrolledGAP`.
 #[pyfunction]
 #[pyo3(signature = (operator, acquisition, weights = None, system = None))]
@@ -367,6 +367,12 @@ fn _unrolled<'py>(py: Python<'py>, operator: &PyOperator, acquisition: &Bound<'p
     if let Some(s) = &system {
         if &net.meta.system != s {
             return Err(value_error(format!("{}: metadata `system` = `{}`: trained for system `{}`, not `{s}` — refused", net.source, net.meta.system, net.meta.system)));
+        }
+        // A preset name stands for the preset's prescription, checked as `reconstruct` checks a render's
+        // system (a name that is no preset can be checked by name only).
+        if let Ok(spec) = diffcassi::presets::spec(s) {
+            let built = diffcassi::system::SequentialSystem::build(&spec).py()?;
+            net.check_system(&built.spec).py()?;
         }
     }
     let i = operator.op.image_shape();

@@ -81,6 +81,13 @@ def test_rust_forward_equals_pytorch_on_random_weights(tmp_path, size):
     # Weights for another system are refused.
     with pytest.raises(diffcassi.DiffcassiValueError, match="trained for system `sp`, not `msp`"):
         _native._unrolled(op, y, str(path), "msp")
+    # A preset name stands for the preset's prescription: weights recorded for another prescription named "sp"
+    # are refused (the library's check, naming both hashes).
+    edited = tmp_path / "edited.safetensors"
+    save_unrolled(net, edited, {"system": "sp", "system_sha256": "0" * 64, "bands_nm": BANDS4, "planes": 8, "rays": 2,
+                                "mask_sha256": mask_sha256(t.mask)})
+    with pytest.raises(diffcassi.DiffcassiFileError, match=r"prescription of SHA-256 000000000000…, and the acquisition's system `sp` is another"):
+        _native._unrolled(op, y, str(edited), "sp")
 
 
 @pytest.mark.parametrize("system", ["sp", "msp"])
