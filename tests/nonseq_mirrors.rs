@@ -97,18 +97,93 @@ fn mirror_faces_are_one_surface_each_and_reflect() {
 
 /// The brute-force walk with reflections off (order 0): the main path is the non-sequential trace.
 fn brute_trace(sys: &SequentialSystem, rays: &RayBatch) -> Vec<diffcassi::tracer::nonseq::RayTree> {
-    let brute = BruteForce::new(sys, &solids_options(sys)).unwrap();
+    brute_trace_with(sys, rays, &solids_options(sys))
+}
+
+/// [`brute_trace`] with the given margins.
+fn brute_trace_with(sys: &SequentialSystem, rays: &RayBatch, options: &SolidsOptions) -> Vec<diffcassi::tracer::nonseq::RayTree> {
+    let brute = BruteForce::new(sys, options).unwrap();
     trace_trees(&brute, sys, rays, &TreeOptions { order: 0, model: FresnelModel::Off, ..Default::default() }).unwrap()
 }
 
 #[test]
 fn brute_force_lands_where_the_analytic_tracer_lands() {
+    compare_brute_force_with_the_analytic_tracer(solids_options);
+}
+
+/// The same comparison with the **default** margins: the design-beam check shrinks the ellipsoid's
+/// detector margin by itself, so no test needs to set it to 0 any more.
+#[test]
+fn brute_force_lands_where_the_analytic_tracer_lands_with_default_margins() {
+    compare_brute_force_with_the_analytic_tracer(|_| SolidsOptions::default());
+}
+
+/// The default solids of the folded systems build; the ellipsoid's detector disc, which with the default
+/// 25 mm margin stood in the incoming beam, is shrunk (read back, with its note); the fold keeps its margin.
+#[test]
+fn the_design_beam_shrinks_a_detector_in_the_beam() {
+    let sys = build(&tilted_ellipsoid());
+    let solids = Solids::build(&sys, &SolidsOptions::default()).unwrap();
+    eprintln!("tilted ellipsoid: detector margin {} mm; {:?}", solids.detector_margin_mm, solids.design_beam_note);
+    assert!(solids.detector_margin_mm < 25.0 && solids.detector_margin_mm >= 0.0, "{}", solids.detector_margin_mm);
+    let note = solids.design_beam_note.as_deref().expect("a shrunk margin says why");
+    assert!(note.contains("shrunk") && note.contains("image surface 4") && note.contains("design ray"), "{note}");
+    // The detector disc is the one of margin 0 plus the shrunk margin.
+    let margin0 = Solids::build(&sys, &SolidsOptions { detector_margin_mm: 0.0, ..Default::default() }).unwrap();
+    assert_eq!(margin0.detector_margin_mm, 0.0);
+    assert!(margin0.design_beam_note.is_none());
+    let r = |s: &Solids| match s.objects.iter().find(|o| matches!(o.role, Role::Detector { .. })).unwrap().patch.as_ref().unwrap().aperture {
+        diffcassi::surfaces::Aperture::Circular { semi_diameter_mm, .. } => semi_diameter_mm,
+        ref a => panic!("{a:?}"),
+    };
+    assert!((r(&solids) - r(&margin0) - solids.detector_margin_mm).abs() < 1e-9, "{} vs {} + {}", r(&solids), r(&margin0), solids.detector_margin_mm);
+    let fold = Solids::build(&build(&fold_mirrors()), &SolidsOptions::default()).unwrap();
+    assert_eq!(fold.detector_margin_mm, 25.0);
+    assert!(fold.design_beam_note.is_none(), "{:?}", fold.design_beam_note);
+}
+
+/// The four CASSI presets (unfolded) keep their solids: the design beam crosses no face, so nothing is
+/// shrunk and nothing refused.
+#[test]
+fn the_presets_keep_their_solids() {
+    for name in ["sp", "ap", "msp", "map"] {
+        let sys = build(&presets::spec(name).unwrap());
+        let solids = Solids::build(&sys, &SolidsOptions::default()).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(solids.detector_margin_mm, 25.0, "{name}: {:?}", solids.design_beam_note);
+        assert!(solids.design_beam_note.is_none(), "{name}: {:?}", solids.design_beam_note);
+    }
+}
+
+/// A face other than the detector whose mechanical disc reaches into the beam is an error naming the
+/// surface: the fold mirrors with a 45 mm mechanical margin (their discs then cross the beam 30 mm beside
+/// them, at r ≈ 42.4 mm); the singlet gets explicit apertures so that its spheres (R 30 mm) stay defined.
+#[test]
+fn a_mechanical_face_in_the_design_beam_is_an_error() {
+    let mut spec = fold_mirrors();
+    for s in [8, 9] {
+        spec.surfaces[s].aperture = Some(diffcassi::surfaces::Aperture::circular(10.0));
+    }
+    let sys = build(&spec);
+    let wide = SolidsOptions { mechanical_margin_mm: 45.0, ..Default::default() };
+    let e = Solids::build(&sys, &wide).unwrap_err().to_string();
+    eprintln!("{e}");
+    assert!(e.contains("stands in the design beam") && (e.contains("surface 3 stands") || e.contains("surface 6 stands")), "{e}");
+    assert!(e.contains("mechanical") && e.contains("explicit clear aperture") && e.contains("field"), "{e}");
+    let e = BruteForce::new(&sys, &wide).unwrap_err().to_string();
+    assert!(e.contains("stands in the design beam"), "{e}");
+    // With the default margin the same system builds.
+    assert!(Solids::build(&sys, &SolidsOptions::default()).is_ok());
+}
+
+/// The brute-force main path lands where the analytic tracer lands, for the fold and the tilted ellipsoid
+/// with the margins `options` gives each.
+fn compare_brute_force_with_the_analytic_tracer(options: fn(&SequentialSystem) -> SolidsOptions) {
     for spec in [fold_mirrors(), tilted_ellipsoid()] {
         let sys = build(&spec);
         let rays = workload(&sys);
         let exact = AnalyticTracer::default().trace(&sys, &rays).unwrap();
         assert_eq!(exact.ok_count(), rays.len(), "{}: every reference ray arrives", sys.name());
-        let trees = brute_trace(&sys, &rays);
+        let trees = brute_trace_with(&sys, &rays, &options(&sys));
         let (mut max_um, mut max_dir) = (0.0f64, 0.0f64);
         for (i, t) in trees.iter().enumerate() {
             assert_eq!(t.main_status, Some(RayStatus::Ok), "{} ray {i}: {:?} at surface {}", sys.name(), t.main_status, t.main_surface);
@@ -241,6 +316,24 @@ mod embree {
     fn scene_options(sys: &SequentialSystem) -> SceneOptions {
         let s = solids_options(sys);
         SceneOptions { detector_margin_mm: s.detector_margin_mm, ..Default::default() }
+    }
+
+    /// The Embree scene with the **default** margins: it is built from the same checked solids, so the
+    /// tilted ellipsoid's detector is the shrunk disc and every ray lands where the analytic tracer lands
+    /// (with the 25 mm disc in the incoming beam they would stop on the detector).
+    #[test]
+    fn embree_uses_the_detector_margin_the_design_beam_allows() {
+        let sys = build(&tilted_ellipsoid());
+        let rays = workload(&sys);
+        let exact = AnalyticTracer::default().trace(&sys, &rays).unwrap();
+        let out = EmbreeTracer::new(EmbreeOptions::user(Refinement::F64)).trace(&sys, &rays).unwrap();
+        let mut max_um = 0.0f64;
+        for i in 0..rays.len() {
+            assert_eq!(out.status[i], exact.status[i], "ray {i} at surface {}", out.surface[i]);
+            max_um = max_um.max(1e3 * (out.x[i] - exact.x[i]).hypot(out.y[i] - exact.y[i]));
+        }
+        eprintln!("tilted ellipsoid embree-user default margins: {} rays, max {max_um:.3e} µm", rays.len());
+        assert!(max_um <= 1e-3, "max error {max_um} µm");
     }
 
     /// The Embree backend (user geometry and 1 µm meshes, f64 refinement) on a fold-mirror system and a

@@ -25,7 +25,9 @@
 //! Surfaces without an explicit aperture (Zemax semi-diameters do not clip) get a *mechanical* clear
 //! aperture: the larger of Zemax's semi-diameter and the automatic semi-diameter of the system's fields
 //! mirrored to all four quadrants at its wavelengths, plus [`SceneOptions::mechanical_margin_mm`]; the
-//! detector gets [`SceneOptions::detector_margin_mm`] on top.
+//! detector gets [`SceneOptions::detector_margin_mm`] on top — or less, where the detector disc would stand
+//! in the design beam of a folded system: the scene is built from [`Solids::build`]'s objects, which shrink
+//! it ([`crate::tracer::nonseq::design_beam`]), so the Embree and brute-force detectors are the same disc.
 //!
 //! The analytic user geometry answers the lanes of a callback's packet together, with the SIMD kernel's
 //! lane code (`AnalyticSurface::intersect_exact_lanes`): each lane gets bit for bit what the scalar solve

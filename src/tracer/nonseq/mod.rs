@@ -24,6 +24,7 @@
 //! ```
 pub mod brute;
 pub mod coating;
+pub mod design_beam;
 pub mod fresnel;
 pub mod launch;
 pub mod next_hit;

@@ -39,6 +39,11 @@
 //! plus [`SolidsOptions::mechanical_margin_mm`]; the detector gets [`SolidsOptions::detector_margin_mm`]
 //! on top. Absorbers are triangle bands in f64 (the Embree scene rounds them to f32).
 //!
+//! The solids are checked against the system's **design beam** ([`super::design_beam`]): a detector disc
+//! that would stand in the beam on its way to an earlier surface (a folded system) gets the largest margin
+//! that clears it ([`Solids::detector_margin_mm`], [`Solids::design_beam_note`]); the image disc itself in
+//! the beam, or another face whose mechanical margin reaches into it, is an error.
+//!
 //! Figures are the sequential surfaces' own ([`SurfaceShape`], Toroidal surfaces included: the bounded
 //! patch solves them like an even asphere). An object at infinity gets a [`StartPlane`] in front of every
 //! solid, where the walks start its rays ([`super::launch`]).
@@ -51,6 +56,7 @@
 //! assert!(solids.interfaces() >= 4);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
+use super::design_beam::DesignBeam;
 use super::launch::StartPlane;
 use crate::analysis::mirrored_semi_diameters;
 use crate::error::{Error, Result};
@@ -133,6 +139,11 @@ pub struct Solids {
     pub image_surface: usize,
     /// An object at infinity: the plane its rays start on, in front of every solid ([`super::launch`]).
     pub start_plane: Option<StartPlane>,
+    /// The detector margin the solids were built with (mm): [`SolidsOptions::detector_margin_mm`], or less
+    /// where the detector disc stood in the design beam ([`super::design_beam`]).
+    pub detector_margin_mm: f64,
+    /// Why the detector margin was shrunk, for people (`None`: it was not).
+    pub design_beam_note: Option<String>,
 }
 
 impl Solids {
@@ -143,10 +154,29 @@ impl Solids {
         super::launch::launch_origin(self.start_plane.as_ref(), origin, d)
     }
 
-    /// Build the solids of `system`. Errors: negative margins, a virtual object (negative object
+    /// Build the solids of `system`, checked against its design beam ([`super::design_beam`]): a detector
+    /// disc that stands in the beam gets a smaller margin ([`Solids::detector_margin_mm`],
+    /// [`Solids::design_beam_note`]). Errors: negative margins, a virtual object (negative object
     /// distance: non-sequential tracers follow rays forward only), a diffraction grating (not modelled
-    /// here), a figure undefined over its aperture.
+    /// here), a figure undefined over its aperture, the image disc (without margin) or a face's mechanical
+    /// margin standing in the design beam.
     pub fn build(system: &SequentialSystem, options: &SolidsOptions) -> Result<Self> {
+        let solids = Self::build_with_margins(system, options)?;
+        let beam = DesignBeam::trace(system, solids.start_plane.as_ref());
+        let fit = beam.detector_margin_mm(system, &solids, options)?;
+        let mut solids = if fit.margin_mm < options.detector_margin_mm {
+            Self::build_with_margins(system, &SolidsOptions { detector_margin_mm: fit.margin_mm, ..*options })?
+        } else {
+            solids
+        };
+        beam.check_faces(system, &solids, options)?;
+        solids.detector_margin_mm = fit.margin_mm;
+        solids.design_beam_note = fit.note;
+        Ok(solids)
+    }
+
+    /// The solids of `system` with the margins of `options` as given (no design-beam check).
+    fn build_with_margins(system: &SequentialSystem, options: &SolidsOptions) -> Result<Self> {
         if !(options.mechanical_margin_mm.is_finite() && options.mechanical_margin_mm >= 0.0)
             || !(options.detector_margin_mm.is_finite() && options.detector_margin_mm >= 0.0)
             || !(options.blade_width_mm.is_finite() && options.blade_width_mm > 0.0)
@@ -234,7 +264,7 @@ impl Solids {
             }
         }
         let start_plane = system.object_at_infinity().then(|| StartPlane::in_front_of(&objects));
-        Ok(Solids { objects, image_surface: system.surfaces.len() - 1, start_plane })
+        Ok(Solids { objects, image_surface: system.surfaces.len() - 1, start_plane, detector_margin_mm: options.detector_margin_mm, design_beam_note: None })
     }
 
     /// Number of optical objects (interfaces + detector).
