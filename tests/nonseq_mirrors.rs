@@ -9,12 +9,15 @@ use diffcassi::spec::SurfaceSpec;
 use diffcassi::tracer::nonseq::coating::CoatingOverride;
 use diffcassi::tracer::nonseq::{path_label, trace_trees, BruteForce, FresnelModel, Role, Solids, SolidsOptions, TreeOptions};
 use glam::DVec3;
+#[cfg(feature = "embree")]
 use std::process::{Command, Output};
 
+#[cfg(feature = "embree")]
 fn run(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_diffcassi")).args(args).output().expect("the binary runs")
 }
 
+#[cfg(feature = "embree")]
 fn text(o: &Output) -> String {
     format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }

@@ -73,13 +73,15 @@ pub(super) fn ghosts(a: GhostsArgs) -> Result<()> {
     crate::limits::check_memory(&what, e.bytes)?;
     let t0 = std::time::Instant::now();
     let report = ghost_analysis(&system, &options)?;
+    design_beam_note(&system)?;
     let rows = report.on_axis_520();
     println!("ghosts of {} (order {}, {} model, brute-force f64 kernel): on-axis point source, 520 nm, ranked by peak irradiance / main image", report.system, report.order, model.label());
     println!("{:>14} {:>13} {:>10} {:>10} {:>10} {:>11} {:>11}", "path", "energy/main", "x_mm", "y_mm", "rms_mm", "defocus_mm", "peak/main");
     for p in &rows {
         println!("{:>14} {:>13.4e} {:>10.4} {:>10.4} {:>10.4} {:>11.3} {:>11.3e}", p.path, p.energy_fraction, p.x_mm, p.y_mm, p.rms_radius_mm, p.defocus_mm, p.peak_ratio);
     }
-    let total: f64 = rows.iter().map(|p| p.energy_fraction).sum();
+    // `+ 0.0`: an empty or all-zero sum of f64 is −0.0, printed "-0.0000e0".
+    let total: f64 = rows.iter().map(|p| p.energy_fraction).sum::<f64>() + 0.0;
     println!("total ghost energy / main: {total:.4e}; scalar model vs polarised: largest relative error {:.3e} over the paths", report.scalar_max_relative_error);
     let l = &report.ledger;
     println!(
@@ -152,4 +154,14 @@ fn draw(img: &mut image::RgbImage, map: &GhostMap, x_off: u32) {
             img.put_pixel(x_off + i as u32, (map.n - 1 - j) as u32, image::Rgb([c.0, c.1, c.2]));
         }
     }
+}
+
+/// Prints what the design-beam check of the solids changed (a detector margin shrunk in a folded system;
+/// [`crate::tracer::nonseq::Solids::design_beam_note`]), so that no margin changes unsaid.
+pub(crate) fn design_beam_note(system: &crate::system::SequentialSystem) -> Result<()> {
+    let solids = crate::tracer::nonseq::Solids::build(system, &crate::tracer::nonseq::SolidsOptions::default())?;
+    if let Some(n) = solids.design_beam_note {
+        eprintln!("note: {n}");
+    }
+    Ok(())
 }

@@ -88,6 +88,7 @@ impl GhostPass {
         let extra: Option<(Arc<dyn ExtraGeometry>, String, usize)> = if a.mechanics { Some(mechanics(sys_args, system, a.ghost_backend.as_deref())?) } else { None };
         let default = if cfg!(feature = "embree") { "embree-user" } else { "brute" };
         let backend = a.ghost_backend.clone().unwrap_or_else(|| default.to_string());
+        super::ghosts::design_beam_note(system)?;
         let kernel = match backend.as_str() {
             "brute" => {
                 let k = BruteForce::new(system, &SolidsOptions::default())?;
