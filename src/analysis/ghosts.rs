@@ -98,6 +98,10 @@ pub struct GhostReport {
     pub ledger: Ledger,
     pub map_point: GhostMap,
     pub map_uniform: GhostMap,
+    /// What the solids' design-beam check changed ([`crate::tracer::nonseq::Solids::design_beam_note`]: a
+    /// detector margin shrunk in a folded system); absent from the JSON when nothing was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub design_beam_note: Option<String>,
 }
 
 impl GhostReport {
@@ -375,6 +379,7 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
         map_point: map_point.ok_or_else(|| Error::invalid("ghosts: the system has no on-axis field (0, 0)"))?,
         on_axis_source: on_axis.clone(),
         map_uniform: map_uniform.expect("the uniform source is traced at 520 nm"),
+        design_beam_note: kernel.solids.design_beam_note.clone(),
     };
     if let Some(rays) = on_axis_trees {
         let scalar = TreeOptions { model: FresnelModel::Scalar, ..tree_opts };

@@ -9,6 +9,14 @@ use glam::DVec3;
 /// (the non-sequential solids of `tracer::nonseq::solids` and the mounts of `mechanics::parts`).
 pub fn mirrored_semi_diameters(system: &SequentialSystem) -> Result<Vec<(usize, f64)>> {
     let mut mirrored = system.clone();
+    mirrored.fields = mirrored_fields(system);
+    automatic_semi_diameters(&mirrored, 0.0, 32)
+}
+
+/// The system's fields (the axis when it has none) mirrored to all four quadrants, each once (0.0 and −0.0
+/// are one field), in a fixed order: the fields of [`mirrored_semi_diameters`] and of the non-sequential
+/// solids' design beam (`crate::tracer::nonseq::design_beam`).
+pub fn mirrored_fields(system: &SequentialSystem) -> Vec<[f64; 2]> {
     let mut fields = Vec::new();
     for f in system.fields_or_axis() {
         for (sx, sy) in [(1.0, 1.0), (-1.0, 1.0), (1.0, -1.0), (-1.0, -1.0)] {
@@ -18,8 +26,7 @@ pub fn mirrored_semi_diameters(system: &SequentialSystem) -> Result<Vec<(usize, 
             }
         }
     }
-    mirrored.fields = fields;
-    automatic_semi_diameters(&mirrored, 0.0, 32)
+    fields
 }
 
 /// Zemax's automatic semi-diameters: for every traced surface, the largest radial height at which the

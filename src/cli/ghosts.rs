@@ -73,7 +73,9 @@ pub(super) fn ghosts(a: GhostsArgs) -> Result<()> {
     crate::limits::check_memory(&what, e.bytes)?;
     let t0 = std::time::Instant::now();
     let report = ghost_analysis(&system, &options)?;
-    design_beam_note(&system)?;
+    if let Some(n) = &report.design_beam_note {
+        eprintln!("note: {n}");
+    }
     let rows = report.on_axis_520();
     println!("ghosts of {} (order {}, {} model, brute-force f64 kernel): on-axis point source, 520 nm, ranked by peak irradiance / main image", report.system, report.order, model.label());
     println!("{:>14} {:>13} {:>10} {:>10} {:>10} {:>11} {:>11}", "path", "energy/main", "x_mm", "y_mm", "rms_mm", "defocus_mm", "peak/main");
@@ -154,14 +156,4 @@ fn draw(img: &mut image::RgbImage, map: &GhostMap, x_off: u32) {
             img.put_pixel(x_off + i as u32, (map.n - 1 - j) as u32, image::Rgb([c.0, c.1, c.2]));
         }
     }
-}
-
-/// Prints what the design-beam check of the solids changed (a detector margin shrunk in a folded system;
-/// [`crate::tracer::nonseq::Solids::design_beam_note`]), so that no margin changes unsaid.
-pub(crate) fn design_beam_note(system: &crate::system::SequentialSystem) -> Result<()> {
-    let solids = crate::tracer::nonseq::Solids::build(system, &crate::tracer::nonseq::SolidsOptions::default())?;
-    if let Some(n) = solids.design_beam_note {
-        eprintln!("note: {n}");
-    }
-    Ok(())
 }

@@ -14,7 +14,7 @@ use crate::render::{Acquisition, Renderer};
 use crate::scene::SpectralCube;
 use crate::system::SequentialSystem;
 use crate::tracer::nonseq::coating::CoatingOverride;
-use crate::tracer::nonseq::{BruteForce, ExtraGeometry, SolidsOptions, MAX_GHOST_ORDER};
+use crate::tracer::nonseq::{BruteForce, ExtraGeometry, NextHit, SolidsOptions, MAX_GHOST_ORDER};
 use clap::Args;
 use std::sync::Arc;
 use std::time::Instant;
@@ -88,7 +88,6 @@ impl GhostPass {
         let extra: Option<(Arc<dyn ExtraGeometry>, String, usize)> = if a.mechanics { Some(mechanics(sys_args, system, a.ghost_backend.as_deref())?) } else { None };
         let default = if cfg!(feature = "embree") { "embree-user" } else { "brute" };
         let backend = a.ghost_backend.clone().unwrap_or_else(|| default.to_string());
-        super::ghosts::design_beam_note(system)?;
         let kernel = match backend.as_str() {
             "brute" => {
                 let k = BruteForce::new(system, &SolidsOptions::default())?;
@@ -112,6 +111,15 @@ impl GhostPass {
             }
             b => return Err(Error::invalid(format!("--ghost-backend {b}: this build has no Embree (use brute)"))),
         };
+        // What the solids' design-beam check changed (a detector margin shrunk in a folded system).
+        let note = match &kernel {
+            Kernel::Brute(k) => k.solids().design_beam_note.clone(),
+            #[cfg(feature = "embree")]
+            Kernel::Embree(k) => k.solids().design_beam_note.clone(),
+        };
+        if let Some(n) = note {
+            eprintln!("note: {n}");
+        }
         let coating = a.coating.as_ref().map_or_else(|| "spec".to_string(), |c| c.text.clone());
         let backend = match &extra {
             Some((e, ..)) => format!("{backend}+{}", e.name()),

@@ -89,7 +89,7 @@ impl DesignBeam {
     /// of an object at infinity. Never fails: rays that cannot be aimed or traced are left out.
     pub fn trace(system: &SequentialSystem, start_plane: Option<&StartPlane>) -> Self {
         let wavelength_nm = system.primary_wavelength_nm();
-        let fields = mirrored_fields(system);
+        let fields = crate::analysis::mirrored_fields(system);
         let mut segments = Vec::new();
         for field in fields {
             // The chief ray first: a field whose chief ray cannot be aimed or does not arrive is skipped.
@@ -187,22 +187,6 @@ impl DesignBeam {
         }
         Ok(())
     }
-}
-
-/// The system's fields (the axis when it has none) mirrored to all four quadrants, as its mechanical
-/// semi-diameters are ([`crate::analysis::mirrored_semi_diameters`]), without repeats, in a fixed order.
-fn mirrored_fields(system: &SequentialSystem) -> Vec<[f64; 2]> {
-    let mut out: Vec<[f64; 2]> = Vec::new();
-    for [x, y] in system.fields_or_axis() {
-        for f in [[x, y], [-x, y], [x, -y], [-x, -y]] {
-            // -0.0 and 0.0 are one field.
-            let f = [f[0] + 0.0, f[1] + 0.0];
-            if !out.contains(&f) {
-                out.push(f);
-            }
-        }
-    }
-    out
 }
 
 /// The segments of one arrived design ray: from where the walk starts it (the object point, or the start
