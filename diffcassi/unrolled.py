@@ -424,9 +424,11 @@ def mask_sha256(mask: Any) -> str:
 
 
 def system_sha256(system: Any) -> str:
-    """SHA-256 of a :class:`diffcassi.System`'s JSON (its full prescription): the weights record the training
-    system's, so a system renamed or edited is told apart from the preset."""
-    return hashlib.sha256(system.to_json().encode()).hexdigest()
+    """SHA-256 of a :class:`diffcassi.System`'s prescription (``System.prescription_sha256``, the library's
+    ``diffcassi::spec::system_sha256``: its JSON with solved and picked-up values left out — they follow from the
+    rest — and other floats to 12 significant digits, so that the last bit of a platform's libm does not change
+    it): the weights record the training system's, so a system renamed or edited is told apart from the preset."""
+    return system.prescription_sha256()
 
 
 def save_unrolled(net: nn.Module, path: Any, metadata: Dict[str, Any]) -> None:

@@ -272,6 +272,12 @@ impl PySystem {
         diffcassi::spec::to_json(&self.inner.spec).py()
     }
 
+    /// SHA-256 (hex) of the system's prescription (`diffcassi::spec::system_sha256`: solved and picked-up
+    /// values left out, other floats to 12 significant digits): the identity learned weights record.
+    fn prescription_sha256(&self) -> PyResult<String> {
+        diffcassi::spec::system_sha256(&self.inner.spec).py()
+    }
+
     fn __repr__(&self) -> String {
         format!("System('{}', {} surfaces)", self.inner.name(), self.inner.surfaces.len())
     }
