@@ -141,15 +141,17 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
 
 
 def gpu_check(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], twin: bool = True,
-              **settings: Any) -> Dict[str, Any]:
+              dry_run: bool = False, **settings: Any) -> Dict[str, Any]:
     """The GPU's figures on one render of ``scene`` (the keywords of :func:`render`): the acquisition on the
     CUDA device twice (time; ``runs_bit_identical``), on the CPU (``cpu_max_rel_diff``: the largest difference
     relative to the CPU's peak), through the host twin (``twin_bit_identical``, ``twin_max_rel_diff``) when
     ``twin``, and the middle plane's rays landed on both (``landing_max_diff_mm``, ``landing_status_mismatches``);
     ``at_infinity``: the object is at infinity, where the device's ``tan`` may differ from the host's by 2 ulp
-    (docs/gpu.md). Needs a CUDA device."""
+    (docs/gpu.md). Needs a CUDA device — except with ``dry_run``: the host twin stands in for the device (the same
+    plan, renders, landings and comparisons; ``dry_run`` is True in the report and no figure is a GPU's), to check
+    the check on a machine without a GPU (``scripts/gpu_check.sh`` with ``DRY_RUN=1``)."""
     _check_backend(settings.get("backend", "analytic"))
-    return _json.loads(_native._gpu_check(system, scene, wavelengths_nm, twin, **settings))
+    return _json.loads(_native._gpu_check(system, scene, wavelengths_nm, twin, bool(dry_run), **settings))
 
 
 def exact(system: System, height: int, width: int, mask: Optional[np.ndarray] = None, **settings: Any) -> Operator:

@@ -4,14 +4,20 @@
 #
 #     bash scripts/gpu_check.sh [WHEEL]        # default: the newest dist/diffcassi-*.whl
 #
-# Installs the wheel with `pip install --no-deps --no-index` into a throwaway venv that sees the machine's
-# site packages, prints the GPU, then runs
+# Installs the wheel with `pip install --no-deps --no-index --target` into a throwaway folder put first on
+# PYTHONPATH — not into a venv: the GPU machine's python3 is itself a venv (/opt/torch/.venv), and a venv made
+# from a venv sees the *base* interpreter's packages, not the torch and numpy of the one it was made from —,
+# checks that `import diffcassi` is the wheel's, prints the GPU, then runs
 #   scripts/gpu/render_check.py  — the paper-scale acquisition on the GPU (twice), the CPU and the host twin,
 #                                  the middle plane's landings on both;
 #   scripts/gpu/render_check.py --systems — the same checks on small renders of a grating (gsp), a toroid lens,
 #                                  an object at infinity and SP with real ray aiming (≈ 1 minute);
 #   scripts/gpu/torch_check.py   — the exact operator and the torch modules on CUDA tensors (if present);
 # prints their tables and writes their JSON records to $OUT (or gpu_out/). Exits non-zero if any check fails.
+# DRY_RUN=1: the same script on a machine without a GPU (scripts/gpu/prepare.sh runs it before a GPU machine is
+# used): no nvidia-smi or nvcc, the host twin stands in for the device (render_check.py --dry-run) on small renders
+# (DRY_SIZE, default 32: 4 planes, 2 rays), torch_check.py --cpu at tiny sizes; the tables say DRY RUN and no
+# figure is a GPU's. PYTHON names the interpreter (default python3; a venv is fine, as on the GPU machine).
 # Budget: ≤ 8 minutes on an H200 (the host twin dominates on few cores; RENDER_ARGS=--no-twin skips it; the
 # --systems step is four 128² renders and their twins, ≈ 1 minute, capped at 150 s).
 set -uo pipefail
@@ -21,35 +27,66 @@ if [[ -z "$wheel" || ! -f "$wheel" ]]; then
     echo "gpu_check: no wheel given and none in dist/ (build one with scripts/build_wheel.sh)" >&2
     exit 2
 fi
+wheel="$(cd "$(dirname "$wheel")" && pwd)/$(basename "$wheel")"
 out="${OUT:-$root/gpu_out}"
 mkdir -p "$out"
+out="$(cd "$out" && pwd)"
 py="${PYTHON:-python3}"
+dry="${DRY_RUN:-0}"
 work="$(mktemp -d)"
-"$py" -m venv --system-site-packages "$work/venv" || { echo "gpu_check: cannot make a venv with $py" >&2; exit 2; }
-"$work/venv/bin/pip" install -q --no-deps --no-index "$wheel" || { echo "gpu_check: pip could not install $wheel" >&2; exit 2; }
-vpy="$work/venv/bin/python"
-echo "gpu_check: $(basename "$wheel") into $("$vpy" -c 'import sys; print(sys.version.split()[0])'); $(date -u +%FT%TZ)"
-nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader 2>&1 | tee "$out/gpu.txt"
-# Run from an empty folder, so that `import diffcassi` is the wheel's and not a source tree's.
+trap 'rm -rf "$work"' EXIT
+"$py" -m pip install -q --disable-pip-version-check --no-deps --no-index --target "$work/site" "$wheel" \
+    || { echo "gpu_check: pip could not install $wheel into $work/site" >&2; exit 2; }
+export PYTHONPATH="$work/site${PYTHONPATH:+:$PYTHONPATH}"
+vpy="$py"
+# Run from an empty folder, so that `import diffcassi` is the wheel's and not a source tree's; say so, and what
+# numpy and torch are.
 cd "$work"
-# A driver older than the NVRTC that wrote the embedded PTX refuses it: the launcher then reads DIFFCASSI_PTX,
-# built here with the machine's own nvcc from the kernel source the wheel carries.
-if command -v nvcc >/dev/null 2>&1 && [[ -z "${DIFFCASSI_PTX:-}" ]]; then
-    if "$vpy" -c 'import diffcassi._native as n; print(n._gpu_kernel_source())' > "$work/kernels.cu" \
-        && nvcc -ptx -arch=compute_90 --fmad=false -o "$work/kernels.ptx" "$work/kernels.cu" 2> "$out/nvcc.txt"; then
-        export DIFFCASSI_PTX="$work/kernels.ptx"
-    else
-        echo "gpu_check: nvcc could not build the fallback PTX ($out/nvcc.txt); the embedded PTX only"
+"$vpy" - "$work/site" <<'PY' || { echo "gpu_check: the wheel's diffcassi does not import (above)" >&2; exit 2; }
+import os, sys
+import numpy
+import diffcassi
+site = os.path.realpath(sys.argv[1])
+assert os.path.realpath(diffcassi.__file__).startswith(site + os.sep), f"imported {diffcassi.__file__}, not the wheel's in {site}"
+try:
+    import torch
+    t = f"torch {torch.__version__}, CUDA {'available' if torch.cuda.is_available() else 'not available'}"
+except Exception as e:  # torch_check.py needs it; the render checks do not
+    t = f"no torch ({e})"
+print(f"gpu_check: diffcassi {diffcassi.__version__} (the wheel's), numpy {numpy.__version__}, {t}, Python {sys.version.split()[0]} at {sys.executable}")
+PY
+echo "gpu_check: $(basename "$wheel"); $(date -u +%FT%TZ)$([[ "$dry" == 1 ]] && echo "; DRY RUN: no GPU, the host twin stands in for it")"
+if [[ "$dry" == 1 ]]; then
+    echo "dry run: no GPU" | tee "$out/gpu.txt"
+    s="${DRY_SIZE:-32}"
+    render_args=(--dry-run --size "$s" --planes 4 --rays 2)
+    systems_args=(--dry-run --size "$s" --planes 4 --rays 2)
+    torch_args=(--cpu --size 16 --bands 4 --planes 4 --unrolled-size 8 --renderer-size 8 --inference-size 8 --inference-planes 4
+        --inference-rays 1 --reps 3 --threads 1)
+else
+    nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader 2>&1 | tee "$out/gpu.txt"
+    render_args=()
+    systems_args=()
+    torch_args=()
+    # A driver older than the NVRTC that wrote the embedded PTX refuses it: the launcher then reads DIFFCASSI_PTX,
+    # built here with the machine's own nvcc from the kernel source the wheel carries.
+    if command -v nvcc >/dev/null 2>&1 && [[ -z "${DIFFCASSI_PTX:-}" ]]; then
+        if "$vpy" -c 'import diffcassi._native as n; print(n._gpu_kernel_source())' > "$work/kernels.cu" \
+            && nvcc -ptx -arch=compute_90 --fmad=false -o "$work/kernels.ptx" "$work/kernels.cu" 2> "$out/nvcc.txt"; then
+            export DIFFCASSI_PTX="$work/kernels.ptx"
+        else
+            echo "gpu_check: nvcc could not build the fallback PTX ($out/nvcc.txt); the embedded PTX only"
+        fi
     fi
 fi
 status=0
-timeout 420 "$vpy" "$root/scripts/gpu/render_check.py" --out "$out" ${RENDER_ARGS:-} 2>&1 | tee "$out/render_check.txt"
+timeout 420 "$vpy" "$root/scripts/gpu/render_check.py" --out "$out" "${render_args[@]}" ${RENDER_ARGS:-} 2>&1 | tee "$out/render_check.txt"
 [[ ${PIPESTATUS[0]} -eq 0 ]] || status=1
-timeout 150 "$vpy" "$root/scripts/gpu/render_check.py" --systems --out "$out" ${RENDER_ARGS:-} 2>&1 | tee "$out/render_systems_check.txt"
+timeout 150 "$vpy" "$root/scripts/gpu/render_check.py" --systems --out "$out" "${systems_args[@]}" ${RENDER_ARGS:-} 2>&1 | tee "$out/render_systems_check.txt"
 [[ ${PIPESTATUS[0]} -eq 0 ]] || status=1
 if [[ -f "$root/scripts/gpu/torch_check.py" ]]; then
-    timeout 240 "$vpy" "$root/scripts/gpu/torch_check.py" --out "$out" 2>&1 | tee "$out/torch_check.txt"
+    timeout 240 "$vpy" "$root/scripts/gpu/torch_check.py" --out "$out" "${torch_args[@]}" 2>&1 | tee "$out/torch_check.txt"
     [[ ${PIPESTATUS[0]} -eq 0 ]] || status=1
 fi
-echo "gpu_check: $([[ $status -eq 0 ]] && echo passed || echo FAILED); records in $out"
+echo "gpu_check: $([[ $dry == 1 ]] && echo "DRY RUN ")$([[ $status -eq 0 ]] && echo passed || echo FAILED); records in $out"
 exit $status

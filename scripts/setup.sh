@@ -81,6 +81,18 @@ python_setup() {
     # (nvidia-cuda-nvrtc); ptxas, which assembles the PTX so that compile errors, registers and spills show
     # without a GPU, from nvidia-cuda-nvcc at NVRTC's own version (no GPU or driver is needed for either).
     [[ "${DIFFCASSI_TORCH:-install}" == skip ]] && return 0
+    # The GPU machine has no colour-science and no network: scripts/gpu/train_run.sh installs the wheel carried in
+    # .whl/ (pure Python, 9 MB), downloaded here from PyPI at the version .venv holds. Not needed by the tests: a
+    # failed download is a warning.
+    local cs_version
+    cs_version=$("$venv/bin/python" -c "import importlib.metadata as m; print(m.version('colour-science'))" 2>/dev/null) || cs_version=""
+    if [[ -n "$cs_version" ]] && ! compgen -G "$REPO_ROOT/.whl/colour_science-$cs_version-*.whl" >/dev/null; then
+        if "$venv/bin/pip" download -q --disable-pip-version-check --no-deps --only-binary=:all: -d "$REPO_ROOT/.whl" "colour-science==$cs_version"; then
+            echo "setup.sh: downloaded colour-science $cs_version's wheel into .whl/ (carried to the GPU machine)"
+        else
+            echo "setup.sh: warning: could not download colour-science $cs_version's wheel into .whl/ (only a GPU training run needs it)" >&2
+        fi
+    fi
     local nvrtc_version nvcc_version
     nvrtc_version=$("$venv/bin/python" -c "import importlib.metadata as m; print(m.version('nvidia-cuda-nvrtc'))" 2>/dev/null) || nvrtc_version=""
     if [[ -z "$nvrtc_version" ]]; then

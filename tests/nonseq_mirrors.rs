@@ -9,15 +9,12 @@ use diffcassi::spec::SurfaceSpec;
 use diffcassi::tracer::nonseq::coating::CoatingOverride;
 use diffcassi::tracer::nonseq::{path_label, trace_trees, BruteForce, FresnelModel, Role, Solids, SolidsOptions, TreeOptions};
 use glam::DVec3;
-#[cfg(feature = "embree")]
 use std::process::{Command, Output};
 
-#[cfg(feature = "embree")]
 fn run(args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_diffcassi")).args(args).output().expect("the binary runs")
 }
 
-#[cfg(feature = "embree")]
 fn text(o: &Output) -> String {
     format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr))
 }
@@ -119,6 +116,27 @@ fn brute_force_lands_where_the_analytic_tracer_lands() {
 #[test]
 fn brute_force_lands_where_the_analytic_tracer_lands_with_default_margins() {
     compare_brute_force_with_the_analytic_tracer(|_| SolidsOptions::default());
+}
+
+/// `render --ghosts` on the tilted ellipsoid prints the design-beam note and records it in render.json
+/// (`ghosts.design_beam_note`, as `ghosts`' JSON does); SP's record has none.
+#[test]
+fn render_ghosts_records_the_design_beam_note() {
+    let dir = tempfile::tempdir().unwrap();
+    let toml = dir.path().join("ellipsoid.toml");
+    std::fs::write(&toml, diffcassi::spec::to_toml(&tilted_ellipsoid()).unwrap()).unwrap();
+    let tiny = ["--scene-size", "8", "--planes", "2", "--bands", "480,560", "--rays", "2", "--no-mapping", "--ghosts", "1", "--ghost-backend", "brute"];
+    let (ell, sp) = (dir.path().join("ell"), dir.path().join("sp"));
+    let o = run(&[&["render", "--system", toml.to_str().unwrap(), "--out", ell.to_str().unwrap()][..], &tiny].concat());
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("note: ") && text(&o).contains("shrunk"), "{}", text(&o));
+    let rec: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(ell.join("render.json")).unwrap()).unwrap();
+    let note = rec["ghosts"]["design_beam_note"].as_str().unwrap_or_else(|| panic!("no design_beam_note: {}", rec["ghosts"]));
+    assert!(note.contains("shrunk") && note.contains("image surface 4"), "{note}");
+    let o = run(&[&["render", "--preset", "sp", "--out", sp.to_str().unwrap()][..], &tiny].concat());
+    assert!(o.status.success(), "{}", text(&o));
+    let rec: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(sp.join("render.json")).unwrap()).unwrap();
+    assert!(rec["ghosts"].is_object() && rec["ghosts"].get("design_beam_note").is_none(), "{}", rec["ghosts"]);
 }
 
 /// The default solids of the folded systems build; the ellipsoid's detector disc, which with the default

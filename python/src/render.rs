@@ -104,22 +104,26 @@ fn _render<'py>(
 
 /// The GPU's figures on one render (`diffcassi.gpu_check`): `render` on the CUDA device twice, on the CPU,
 /// through the host twin (`twin`), and the middle plane's landings on both ([`diffcassi::render::device::check`]),
-/// as JSON text. Needs a CUDA device (an error naming what is missing otherwise).
+/// as JSON text. Needs a CUDA device (an error naming what is missing otherwise), except with `dry_run`: the host
+/// twin stands in for the device ([`diffcassi::render::device::check_on`]; the report says `dry_run`).
 #[pyfunction]
-#[pyo3(signature = (system, scene, wavelengths_nm, twin = true, **settings))]
-fn _gpu_check<'py>(py: Python<'py>, system: &PySystem, scene: &Bound<'py, PyAny>, wavelengths_nm: &Bound<'py, PyAny>, twin: bool, settings: Option<&Bound<'py, PyDict>>) -> PyResult<String> {
+#[pyo3(signature = (system, scene, wavelengths_nm, twin = true, dry_run = false, **settings))]
+fn _gpu_check<'py>(py: Python<'py>, system: &PySystem, scene: &Bound<'py, PyAny>, wavelengths_nm: &Bound<'py, PyAny>, twin: bool, dry_run: bool, settings: Option<&Bound<'py, PyDict>>) -> PyResult<String> {
     let s = crate::settings::settings(py, settings, &[])?;
     let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
     let cube = scene_cube(scene, ws)?;
     let (cfg, m) = configure(cube.height, cube.width, &s.options, None)?;
-    if let Some(why) = diffcassi::render::Device::Cuda.unavailable() {
-        return Err(value_error(format!("gpu_check: no CUDA device to check: {why}")));
+    if !dry_run {
+        if let Some(why) = diffcassi::render::Device::Cuda.unavailable() {
+            return Err(value_error(format!("gpu_check: no CUDA device to check: {why}")));
+        }
     }
+    let executor = if dry_run { diffcassi::render::device::Executor::Twin } else { diffcassi::render::device::Executor::Cuda };
     let t = tracer(s.backend.as_str())?;
     let sys = Arc::clone(&system.inner);
     let report = run(py, move || -> diffcassi::Result<_> {
         let r = Renderer::new(&sys, t.as_ref(), cfg, m)?;
-        diffcassi::render::device::check(&r, &cube, twin)
+        diffcassi::render::device::check_on(&r, &cube, twin, executor)
     })
     .py()?;
     serde_json::to_string(&report).map_err(|e| value_error(format!("gpu_check: {e}")))

@@ -26,8 +26,13 @@ renderer does) may start a ray a few ulp away, so there the bound is 1e-9 of the
 finite systems without a mask surface — the CPU renderer refuses f32 with one): two runs bit-identical, landings
 identical, within 1e-4 of the CPU's f32 render.
 
-    python scripts/gpu/render_check.py [--size 512] [--planes 112] [--rays 20] [--no-twin] [--out DIR]
-    python scripts/gpu/render_check.py --systems [--no-twin] [--out DIR]
+`--dry-run` runs every step on a machine without a GPU, the host twin standing in for the device (the same plan,
+renders, landings, comparisons, table and JSON, marked as a dry run; no figure is a GPU's): `scripts/gpu_check.sh`
+with `DRY_RUN=1` and `scripts/gpu/prepare.sh` run it before a GPU machine is used, so that the check itself is
+known to work.
+
+    python scripts/gpu/render_check.py [--size 512] [--planes 112] [--rays 20] [--no-twin] [--dry-run] [--out DIR]
+    python scripts/gpu/render_check.py --systems [--size 128] [--planes 28] [--rays 8] [--no-twin] [--dry-run] [--out DIR]
 """
 import argparse
 import json
@@ -76,6 +81,14 @@ thickness_mm = 0.0
 SINGLET_AT_INFINITY = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "tests", "fixtures", "systems", "singlet_at_infinity.toml")
 
 
+DRY_TITLE = " — DRY RUN: the host twin stands in for the GPU, no figure is a GPU's"
+
+
+def kernels_ms(r: dict) -> float:
+    """The device kernels' time of a report (CUDA events); in a dry run, which has none, the twin's wall clock."""
+    return r["gpu_kernels_ms"] if r["gpu_kernels_ms"] is not None else r["gpu_total_ms"]
+
+
 def finish(record: dict, failed: list, out, name: str) -> int:
     """Record the failed checks in `record`, write it as `out`/`name` (JSON) when `out` is given, print each
     failure; the exit status (1 on any failure)."""
@@ -115,7 +128,9 @@ def systems_check(a) -> int:
     """The --systems rows: a grating, a toroid, an object at infinity, ray aiming, a coded mask on a surface (see the
     module's docstring)."""
     import diffcassi
-    cube, wl = diffcassi.synthetic_scene(128, 128, seed=0)
+    print(f"diffcassi {diffcassi.__version__} from {os.path.dirname(diffcassi.__file__)}")
+    size = a.size or 128
+    cube, wl = diffcassi.synthetic_scene(size, size, seed=0)
     # (name, system, scene_fov_deg at infinity, f32 rows: the CPU renders it in f32 too)
     cases = [
         ("gsp (plane transmission grating)", diffcassi.System.preset("gsp"), None, True),
@@ -127,15 +142,15 @@ def systems_check(a) -> int:
     ]
     rows, failed, record = [], [], {}
     for name, system, fov, f32 in cases:
-        kw = dict(planes=28, rays=8, opening=0.5)
+        kw = dict(planes=a.planes or 28, rays=a.rays or 8, opening=0.5)
         if fov is not None:
             kw["scene_fov_deg"] = fov
         t = time.time()
-        r = diffcassi.gpu_check(system, cube, wl, twin=not a.no_twin, **kw)
+        r = diffcassi.gpu_check(system, cube, wl, twin=not a.no_twin, dry_run=a.dry_run, **kw)
         r["check_seconds"] = time.time() - t
         inf = r["at_infinity"]
         rows += [
-            (f"{name}: rays, GPU kernels", f"{r['rays']}, {r['gpu_kernels_ms']:.1f} ms", ""),
+            (f"{name}: rays, GPU kernels", f"{r['rays']}, {kernels_ms(r):.1f} ms", ""),
             (f"{name}: two GPU runs bit-identical", str(r["runs_bit_identical"]), "must be True"),
             (f"{name}: max |GPU − CPU| / CPU peak", f"{r['cpu_max_rel_diff']:.2e}", "≤ 2e-6"),
             (f"{name}: landings: rays, max |Δ| mm, status mismatches", f"{r['landing_rays']}, {r['landing_max_diff_mm']:.2e}, {r['landing_status_mismatches']}", "≤ 1e-12 mm, 0"),
@@ -154,7 +169,7 @@ def systems_check(a) -> int:
             if inf and not r["twin_max_rel_diff"] <= 1e-9:
                 failed.append(f"{name}: the GPU is farther than 1e-9 of the peak from the host twin")
         if f32:
-            r32 = diffcassi.gpu_check(system, cube, wl, twin=False, precision="f32", **kw)
+            r32 = diffcassi.gpu_check(system, cube, wl, twin=False, precision="f32", dry_run=a.dry_run, **kw)
             r["f32"] = r32
             rows += [
                 (f"{name} f32: two GPU runs bit-identical", str(r32["runs_bit_identical"]), "must be True"),
@@ -168,7 +183,8 @@ def systems_check(a) -> int:
             if r32["landing_status_mismatches"] != 0 or not r32["landing_max_diff_mm"] <= 0.0:
                 failed.append(f"{name}: f32 device landings differ from the host's")
         record[name] = r
-    print("| systems check (128×128, 28 planes, 8 rays, opening 0.5) | value | bound |")
+    record["dry_run"] = a.dry_run
+    print(f"| systems check ({size}×{size}, {kw['planes']} planes, {kw['rays']} rays, opening 0.5){DRY_TITLE if a.dry_run else ''} | value | bound |")
     print("|---|---|---|")
     for w, v, b in rows:
         print(f"| {w} | {v} | {b} |")
@@ -177,25 +193,27 @@ def systems_check(a) -> int:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=int, default=512)
-    ap.add_argument("--planes", type=int, default=112)
-    ap.add_argument("--rays", type=int, default=20)
+    ap.add_argument("--size", type=int, default=None, help="scene size (default 512; --systems: 128)")
+    ap.add_argument("--planes", type=int, default=None, help="render planes (default 112; --systems: 28)")
+    ap.add_argument("--rays", type=int, default=None, help="rays per pixel per plane (default 20; --systems: 8)")
     ap.add_argument("--preset", default="sp")
     ap.add_argument("--no-twin", action="store_true", help="skip the host twin (slow on few cores)")
     ap.add_argument("--out", default=None, help="folder for render_check.json")
     ap.add_argument("--systems", action="store_true", help="the grating, toroid, object-at-infinity, ray-aiming and dual-disperser rows instead")
+    ap.add_argument("--dry-run", action="store_true", help="no GPU: the host twin stands in for the device (checks the check)")
     a = ap.parse_args()
     if a.systems:
         return systems_check(a)
+    a.size, a.planes, a.rays = a.size or 512, a.planes or 112, a.rays or 20
     import diffcassi
     print(f"diffcassi {diffcassi.__version__} from {os.path.dirname(diffcassi.__file__)}")
     system = diffcassi.System.preset(a.preset)
     cube, wl = diffcassi.synthetic_scene(a.size, a.size, seed=0)
     t = time.time()
-    r = diffcassi.gpu_check(system, cube, wl, twin=not a.no_twin, planes=a.planes, rays=a.rays, opening=0.5)
+    r = diffcassi.gpu_check(system, cube, wl, twin=not a.no_twin, dry_run=a.dry_run, planes=a.planes, rays=a.rays, opening=0.5)
     r["check_seconds"] = time.time() - t
     # f32: the renderer's f32 trace on the device, against the CPU's f32 render (the twin is not rerun).
-    r32 = diffcassi.gpu_check(system, cube, wl, twin=False, planes=a.planes, rays=a.rays, opening=0.5, precision="f32")
+    r32 = diffcassi.gpu_check(system, cube, wl, twin=False, dry_run=a.dry_run, planes=a.planes, rays=a.rays, opening=0.5, precision="f32")
     r["f32"] = r32
     r["workload"] = f"{a.preset}, {a.size}x{a.size}, {a.planes} planes, {a.rays} rays, opening 0.5"
     # mapping --device cuda: the chief-ray cube (size² pixels × 28 bands) by the device's trace kernel, against
@@ -204,18 +222,19 @@ def main() -> int:
     import numpy as np
     bands = list(np.linspace(450.0, 650.0, 28))
     r["mapping"] = {}
+    device = "cpu-twin" if a.dry_run else "cuda"
     for prec in ("f64", "f32"):
         t = time.time()
         cpu, cpu_ok = diffcassi.mapping(system, a.size, a.size, bands, precision=prec)
         cpu_s = time.time() - t
-        diffcassi.mapping(system, 8, 8, bands, device="cuda", precision=prec)  # the launcher started, untimed
+        diffcassi.mapping(system, 8, 8, bands, device=device, precision=prec)  # the launcher started, untimed
         t = time.time()
-        gpu, gpu_ok = diffcassi.mapping(system, a.size, a.size, bands, device="cuda", precision=prec)
+        gpu, gpu_ok = diffcassi.mapping(system, a.size, a.size, bands, device=device, precision=prec)
         gpu_s = time.time() - t
         same = bool(np.array_equal(cpu_ok, gpu_ok) and np.array_equal(cpu.view(np.uint64), gpu.view(np.uint64)))
         r["mapping"][prec] = {"cpu_seconds": cpu_s, "gpu_seconds": gpu_s, "bit_identical": same, "entries": int(cpu_ok.size)}
     rays = r["rays"]
-    k_s, t_s = r["gpu_kernels_ms"] / 1e3, r["gpu_total_ms"] / 1e3
+    k_s, t_s = kernels_ms(r) / 1e3, r["gpu_total_ms"] / 1e3
     rows = [
         ("workload", r["workload"], ""),
         ("GPU", f"{r['gpu']} (driver {r['driver']}; {r['ptx']})", ""),
@@ -223,7 +242,7 @@ def main() -> int:
         ("GPU f64, kernels", f"{k_s:.4f} s, {rays / k_s / 1e9:.2f} G rays/s", "goal ≤ 0.1 s"),
         ("GPU f64, with plan, uploads, copy", f"{t_s:.4f} s", ""),
         ("CPU f64 (this machine's cores)", f"{r['cpu_seconds']:.3f} s ({r['cpu_seconds'] / k_s:.0f}× the GPU kernels)", ""),
-        ("GPU f32, kernels", f"{r32['gpu_kernels_ms'] / 1e3:.4f} s, {rays / (r32['gpu_kernels_ms'] / 1e3) / 1e9:.2f} G rays/s", ""),
+        ("GPU f32, kernels", f"{kernels_ms(r32) / 1e3:.4f} s, {rays / (kernels_ms(r32) / 1e3) / 1e9:.2f} G rays/s", ""),
         ("CPU f32", f"{r32['cpu_seconds']:.3f} s", ""),
         ("f32: two GPU runs bit-identical", str(r32["runs_bit_identical"]), "must be True"),
         ("f32: max |GPU − CPU| / CPU peak", f"{r32['cpu_max_rel_diff']:.2e}", "≤ 1e-4"),
@@ -241,7 +260,8 @@ def main() -> int:
         rows.append((f"mapping {prec} ({m['entries']} chief rays): GPU (with uploads) / CPU",
                      f"{m['gpu_seconds']:.3f} s / {m['cpu_seconds']:.3f} s", ""))
         rows.append((f"mapping {prec}: GPU = CPU bit for bit", str(m["bit_identical"]), "must be True"))
-    print("| render check | value | bound |")
+    r["dry_run"] = a.dry_run
+    print(f"| render check{DRY_TITLE if a.dry_run else ''} | value | bound |")
     print("|---|---|---|")
     for w, v, b in rows:
         print(f"| {w} | {v} | {b} |")

@@ -17,7 +17,9 @@ Checks (each a row: value, bound, PASS/FAIL):
 6. ``CassiRenderer`` on device cubes against the Rust render of the same seed (≤ 1e-6 of the peak), and its
    cube gradient against the Rust VJP;
 7. one ``UnrolledGAP`` training step at ``--unrolled-size``² on the device: on CUDA, torch's profiler must show no
-   host↔device copy of the cube or the acquisition (``diffcassi._gpu_check.unrolled_step``).
+   host↔device copy of the cube or the acquisition (``diffcassi._gpu_check.unrolled_step``);
+8. ``UnrolledDAUHST`` inference at ``--inference-size``² × 28 with the realistic exact operator (issue 43's speed
+   line: ≤ 50 ms on the GPU), median time.
 Checks 1–5 run under ``torch.use_deterministic_algorithms(True)``: an op torch does not guarantee deterministic on
 the device raises there (a FAIL row).
 """
@@ -168,6 +170,32 @@ def unrolled_checks(a, dev):
     row(f"UnrolledGAP training step {a.unrolled_size}² on {dev.type}", value, bound, np.isfinite(out["loss"]))
 
 
+def inference_checks(a, dev):
+    """Issue 43's GPU speed line: ``UnrolledDAUHST`` (v2 at its defaults, 1.1 M parameters) inference at
+    ``--inference-size``² × 28 with the exact operator in the realistic setting (112 planes, 20 rays; the gather
+    tables on the device), weights drawn N(0, 0.02) as ``scripts/bench_unrolled.py`` draws them (the time does not
+    depend on their values; an untrained network's zero output layers would skip work). Bound ≤ 50 ms on CUDA."""
+    n = a.inference_size
+    t = time.perf_counter()
+    op = diffcassi.exact(diffcassi.System.preset("sp"), n, n, planes=a.inference_planes, rays=a.inference_rays, seed=1)
+    phi = dt.CassiOperator.from_operator(op, matrix_free=True, memory_gb=a.memory_gb).to(dev)
+    t_op = time.perf_counter() - t
+    net = dt.UnrolledDAUHST(phi)
+    torch.manual_seed(0)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.normal_(0, 0.02)
+    net = net.to(dev).eval()
+    y = torch.rand(1, *phi.image_shape, generator=torch.Generator().manual_seed(5)).to(dev)
+    with torch.no_grad():
+        tm, t_min = median_time(lambda: net(y), dev, max(3, a.reps // 4), warm=2)
+        out = net(y)
+    timed = dev.type == "cuda"
+    row(f"UnrolledDAUHST inference sp {n}²×{net.bands} ({a.inference_planes} planes, {a.inference_rays} rays) on {dev.type}, median (min)",
+        f"{tm * 1e3:.1f} ms ({t_min * 1e3:.1f}); operator {t_op:.1f} s", "≤ 50 ms" if timed else "info (CPU)",
+        bool(torch.isfinite(out).all()) and out.device == y.device and (not timed or tm * 1e3 <= 50.0))
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--cpu", action="store_true", help="run the checks on the CPU (no GPU needed)")
@@ -180,6 +208,9 @@ def main():
     ap.add_argument("--time-bound-ms", type=float, default=10.0)
     ap.add_argument("--unrolled-size", type=int, default=128)
     ap.add_argument("--renderer-size", type=int, default=64)
+    ap.add_argument("--inference-size", type=int, default=256, help="the unrolled v2 inference row's scene size")
+    ap.add_argument("--inference-planes", type=int, default=112)
+    ap.add_argument("--inference-rays", type=int, default=20)
     ap.add_argument("--threads", type=int, default=0, help="CPU threads of torch and the library (0: their defaults)")
     ap.add_argument("--out", default=None, help="folder for torch_check.json (the rows)")
     a = ap.parse_args()
@@ -201,7 +232,7 @@ def main():
     print(f"# torch_check: {name}; torch {torch.__version__} (CUDA {torch.version.cuda}); diffcassi {diffcassi.__file__}; "
           f"{time.strftime('%Y-%m-%d %H:%M:%S %Z')}")
     t0 = time.perf_counter()
-    for part in (operator_checks, renderer_checks, unrolled_checks):
+    for part in (operator_checks, renderer_checks, unrolled_checks, inference_checks):
         # The operator's table is built and applied with torch's deterministic-algorithms mode on: an op torch
         # does not guarantee deterministic on this device raises there. Not the training step: the U-Net's
         # determinism is not what is checked here, and cuBLAS-backed ops would need CUBLAS_WORKSPACE_CONFIG.

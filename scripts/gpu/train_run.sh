@@ -9,14 +9,14 @@
 # Environment: OUT (default gpu_out/train), RESUME (a checkpoint; the next run resumes from the previous run's
 # $OUT/unrolled-dauhst-v2-sp-checkpoint.pt, carried back), BUDGET_S (the training's wall-time budget, default 450:
 # with the install the call stays under 9 minutes), WORKERS (processes making the cubes, default nproc − 2),
-# PYTHON (default python3), DEVICE (default cuda; DEVICE=cpu NO_VENV=1 with a tiny RESUME is the dry run on a
-# development machine: the same steps without a GPU or a throwaway venv). The settings (system, size, schedule, mask, seeds) are the checkpoint's.
+# PYTHON (default python3; a venv is fine, as on the GPU machine), DEVICE (default cuda; DEVICE=cpu with a tiny
+# RESUME is the dry run on a development machine: scripts/gpu/prepare.sh runs it on a copy of the tree, since
+# this script puts the wheel's compiled module into the tree's diffcassi/). The settings (system, size, schedule, mask, seeds) are the checkpoint's.
 #
 # Needs: the diffcassi wheel (its compiled module is used with this tree's Python files, so the tree's
 # diffcassi/unrolled.py and training_data.py are the ones that run), torch with CUDA, safetensors, scikit-image
-# (its shipped sample images) and colour-science — absent from the GPU image: put its wheel in .whl/
-# (`python3 -m pip download --no-deps --only-binary=:all: -d .whl colour-science==0.4.7`, pure Python) and carry
-# `.whl` and `dist`. Exits 0 when the run saved its outputs, 2 when something it needs is missing (nothing run),
+# (its shipped sample images) and colour-science — absent from the GPU image: scripts/setup.sh puts its wheel
+# (pure Python) in .whl/; carry `.whl` and `dist`. Exits 0 when the run saved its outputs, 2 when something it needs is missing (nothing run),
 # else the training's exit status.
 set -uo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
@@ -37,12 +37,12 @@ if [[ ! -f "$resume" ]]; then
 fi
 device="${DEVICE:-cuda}"
 work="$(mktemp -d)"
-if [[ "${NO_VENV:-0}" == 1 ]]; then
-    vpy="$py"
-else
-    "$py" -m venv --system-site-packages "$work/venv" || { echo "train_run: cannot make a venv with $py" >&2; exit 2; }
-    vpy="$work/venv/bin/python"
-fi
+trap 'rm -rf "$work"' EXIT
+# A package the machine lacks (colour-science) goes into a folder on PYTHONPATH, not into a venv: the GPU
+# machine's python3 is itself a venv (/opt/torch/.venv), and a venv made from a venv sees the base interpreter's
+# packages, not the torch and numpy of the one it was made from.
+vpy="$py"
+export PYTHONPATH="$work/site${PYTHONPATH:+:$PYTHONPATH}"
 # The wheel's compiled module beside this tree's Python files (train_unrolled.py imports the tree's diffcassi).
 "$vpy" - "$wheel" "$root/diffcassi" <<'EOF' || { echo "train_run: no compiled module in $wheel" >&2; exit 2; }
 import sys, zipfile, pathlib
@@ -59,7 +59,8 @@ if ! "$vpy" -c 'import colour' 2>/dev/null; then
         echo "train_run: colour-science is not installed and no .whl/colour_science-*.whl was carried" >&2
         exit 2
     fi
-    "$vpy" -m pip install -q --no-deps --no-index "$cs" || { echo "train_run: pip could not install $cs" >&2; exit 2; }
+    "$vpy" -m pip install -q --disable-pip-version-check --no-deps --no-index --target "$work/site" "$cs" \
+        || { echo "train_run: pip could not install $cs into $work/site" >&2; exit 2; }
 fi
 "$vpy" - "$device" <<'EOF' || exit 2
 import sys

@@ -68,6 +68,8 @@ pub struct GhostPass {
     coating: String,
     mechanics: Option<(String, usize)>,
     setup_seconds: f64,
+    /// What the solids' design-beam check changed (`Solids::design_beam_note`), for render.json.
+    design_beam_note: Option<String>,
 }
 
 impl GhostPass {
@@ -117,7 +119,7 @@ impl GhostPass {
             #[cfg(feature = "embree")]
             Kernel::Embree(k) => k.solids().design_beam_note.clone(),
         };
-        if let Some(n) = note {
+        if let Some(n) = &note {
             eprintln!("note: {n}");
         }
         let coating = a.coating.as_ref().map_or_else(|| "spec".to_string(), |c| c.text.clone());
@@ -125,7 +127,7 @@ impl GhostPass {
             Some((e, ..)) => format!("{backend}+{}", e.name()),
             None => backend,
         };
-        Ok(Some(GhostPass { config, kernel, backend, coating, mechanics: extra.map(|(_, name, tri)| (name, tri)), setup_seconds: t0.elapsed().as_secs_f64() }))
+        Ok(Some(GhostPass { config, kernel, backend, coating, mechanics: extra.map(|(_, name, tri)| (name, tri)), setup_seconds: t0.elapsed().as_secs_f64(), design_beam_note: note }))
     }
 
     fn images(&self, renderer: &Renderer, scene: &SpectralCube, keep_bands: bool) -> Result<GhostImages> {
@@ -172,7 +174,7 @@ impl GhostPass {
             e.share(e.absorbed),
             e.share(e.escaped),
         );
-        Ok(serde_json::json!({
+        let mut record = serde_json::json!({
             "order": self.config.order,
             "model": self.config.model.label(),
             "coating": self.coating,
@@ -206,7 +208,12 @@ impl GhostPass {
             "out_of_range": r.out_of_range,
             "energy": e,
             "notes": "ghost_share and stray_share: of the acquisition's energy (main + ghost + stray); the other shares: of the power launched by the ray trees (per ray 1, not weighted by the scene). The main image is the sequential render (no Fresnel loss); reconstruct uses the ghost-free operator.",
-        }))
+        });
+        // As `ghosts`' JSON: present only when the design-beam check changed something.
+        if let (Some(n), Some(obj)) = (&self.design_beam_note, record.as_object_mut()) {
+            obj.insert("design_beam_note".into(), n.clone().into());
+        }
+        Ok(record)
     }
 }
 

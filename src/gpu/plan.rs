@@ -3,7 +3,7 @@
 //! the host twin. [`super::cuda`] runs the same plan on a CUDA device with the same kernels
 //! (`src/gpu/kernels/dc_accum.h`): the plane images are sums of 64-bit fixed-point integers, so the twin's
 //! and the device's acquisitions have the same bits whatever the order of the rays (tests/gpu_render.rs).
-use super::ffi::{dc_airy_host, dc_deposit_host, dc_finish_host, layouts_match};
+use super::ffi::{dc_airy_host, dc_deposit_host, dc_finish_host, dc_landing_host, layouts_match};
 use super::pack::{Aim, AiryBatch, DepositBatch, LandingBatch, Sampler, Scene, Step, SurfaceMask};
 use crate::system::MaskSurface;
 use crate::error::{Error, Result};
@@ -195,6 +195,33 @@ impl<'a> RenderPlan<'a> {
             unit: self.unit,
             weight: pl.weight,
         }
+    }
+
+    /// Where plane `p`'s rays land, computed on the host from this plan's own launch arguments: what
+    /// [`super::cuda::landings`] computes on the device (column, row, status code, weight of ray `q·N + k`),
+    /// with the host-compiled kernel. The GPU check's dry run (`render::device::check_on` with
+    /// [`crate::render::device::Executor::Twin`]) compares it with `render::twin::plane_landings_of`, which builds
+    /// its own launch: so the plan's packing is checked without a device.
+    pub fn landings_twin(&self, p: usize) -> Result<(Vec<f64>, Vec<f64>, Vec<u8>, Vec<f64>)> {
+        if !layouts_match() {
+            return Err(Error::invalid("internal: the GPU kernels' C structs and their Rust twins differ in size (src/gpu/pack.rs)"));
+        }
+        if p >= self.planes.len() {
+            return Err(Error::invalid(format!("plane {p}: the plan has {} planes", self.planes.len())));
+        }
+        let n = self.rays_per_plane() as usize;
+        let idx = &self.indices[p * self.n_surfaces..(p + 1) * self.n_surfaces];
+        let (mut u, mut v, mut s, mut w) = (vec![0.0f64; n], vec![0.0f64; n], vec![0u8; n], vec![0.0f64; n]);
+        let mut b = self.landing(p, self.steps.as_ptr(), self.aim_path.as_ptr(), idx.as_ptr(), self.pixels.as_ptr(), self.surface_mask.map_or(std::ptr::null(), |m| m.values.as_ptr()));
+        b.u = u.as_mut_ptr();
+        b.v = v.as_mut_ptr();
+        b.status = s.as_mut_ptr();
+        b.w = w.as_mut_ptr();
+        // SAFETY: rays [0, n) read pixels[t / N] (in bounds), the path, the aim path, the plane's index row, the
+        // surface mask of the size the plan was built for, and write u/v/status/w[t], each of n cells; layouts
+        // checked above.
+        unsafe { dc_landing_host(&b, 0, n as u64, self.f32 as i32) };
+        Ok((u, v, s, w))
     }
 
     /// Run the plan on the host: the device's kernels compiled for the CPU (host.c), bands in parallel,

@@ -237,6 +237,9 @@ pub fn record_json(r: &Renderer<'_>, record: Option<&DeviceRecord>) -> serde_jso
 /// `scripts/gpu_check.sh` print them).
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct DeviceCheck {
+    /// A dry run ([`check_on`] with [`Executor::Twin`]): the host twin stood in for the device, so no figure is
+    /// a GPU's — the run checks the check (its plan, launches, comparisons and report) on a machine without one.
+    pub dry_run: bool,
     pub gpu: String,
     pub driver: String,
     pub ptx: String,
@@ -270,9 +273,18 @@ pub struct DeviceCheck {
 /// Render `scene` with `r` on the CUDA device twice, on the CPU, and (if `twin`) through the host twin, and
 /// land the middle plane's rays on both: the figures of [`DeviceCheck`].
 pub fn check(r: &Renderer<'_>, scene: &SpectralCube, twin: bool) -> Result<DeviceCheck> {
-    let (a, _) = render_on(r, scene, false, Executor::Cuda)?;
+    check_on(r, scene, twin, Executor::Cuda)
+}
+
+/// [`check`] with the "device" runs on `executor`: [`Executor::Cuda`] is the GPU check; [`Executor::Twin`] is its
+/// dry run on a machine without a GPU (`diffcassi.gpu_check(..., dry_run=True)`, `scripts/gpu_check.sh` with
+/// `DRY_RUN=1`): the same plan, renders, landings and comparisons, the device's renders and landings done by the
+/// host-compiled kernels from the plan's own launch arguments ([`crate::gpu::plan::RenderPlan::landings_twin`]), and
+/// the report marked `dry_run` (its times are no GPU's).
+pub fn check_on(r: &Renderer<'_>, scene: &SpectralCube, twin: bool, executor: Executor) -> Result<DeviceCheck> {
+    let (a, _) = render_on(r, scene, false, executor)?;
     let t = std::time::Instant::now();
-    let (b, rec) = render_on(r, scene, false, Executor::Cuda)?;
+    let (b, rec) = render_on(r, scene, false, executor)?;
     let gpu_total_ms = t.elapsed().as_secs_f64() * 1e3;
     let runs_bit_identical = a.same_bits(&b);
     let t = std::time::Instant::now();
@@ -289,7 +301,10 @@ pub fn check(r: &Renderer<'_>, scene: &SpectralCube, twin: bool) -> Result<Devic
     // The middle plane's landings: device and host kernels.
     let p = r.config.spectral.planes() / 2;
     let pl = plan(r, scene)?;
-    let (du, dv, ds, dw) = cuda::landings(&pl, p)?;
+    let (du, dv, ds, dw) = match executor {
+        Executor::Cuda => cuda::landings(&pl, p)?,
+        Executor::Twin => pl.landings_twin(p)?,
+    };
     let host = super::twin::plane_landings_of(&r.plane_context(), p as u64, r.config.spectral.planes_nm[p], &pl.pixels)?;
     let pitch = r.detector.pitch_mm;
     let mut worst = 0.0f64;
@@ -304,10 +319,13 @@ pub fn check(r: &Renderer<'_>, scene: &SpectralCube, twin: bool) -> Result<Devic
             worst = worst.max((du[i] - host.u[i]).abs() * pitch).max((dv[i] - host.v[i]).abs() * pitch);
         }
     }
+    let dry_run = executor == Executor::Twin;
+    let none = |what: &str| if dry_run { what.to_string() } else { String::new() };
     Ok(DeviceCheck {
-        gpu: rec.gpu.unwrap_or_default(),
-        driver: rec.driver.unwrap_or_default(),
-        ptx: rec.ptx.unwrap_or_default(),
+        dry_run,
+        gpu: rec.gpu.unwrap_or_else(|| none("none (dry run: the host twin stands in for the device)")),
+        driver: rec.driver.unwrap_or_else(|| none("none")),
+        ptx: rec.ptx.unwrap_or_else(|| none("none (host-compiled kernels)")),
         accumulation: rec.accumulation,
         rays: b.stats.traced,
         gpu_kernels_ms: rec.kernels_ms.unwrap_or(f64::NAN),

@@ -272,7 +272,9 @@ def test_memcpy_trace_parser(tmp_path):
 def test_gpu_check_script_runs_on_the_cpu():
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     p = subprocess.run([sys.executable, str(ROOT / "scripts" / "gpu" / "torch_check.py"), "--cpu", "--size", "16", "--bands", "4", "--planes", "4",
-                        "--unrolled-size", "8", "--renderer-size", "8", "--reps", "3", "--threads", "1"],
+                        "--unrolled-size", "8", "--renderer-size", "8", "--inference-size", "8", "--inference-planes", "4",
+                        "--inference-rays", "1", "--reps", "3", "--threads", "1"],
                        cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert p.returncode == 0, p.stdout + p.stderr
     assert "| check |" in p.stdout and "FAIL" not in p.stdout and "all checks passed" in p.stdout
+    assert "UnrolledDAUHST inference sp 8²×28" in p.stdout

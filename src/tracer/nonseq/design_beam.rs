@@ -8,7 +8,9 @@
 //!
 //! The design beam: per field of the system (the axis when it has none; mirrored to all four quadrants,
 //! as the mechanical semi-diameters are), at the primary wavelength, the
-//! chief ray and the four marginal rays (pupil ±x, ±y), traced by the analytic sequential tracer with its
+//! chief ray and eight rim rays (pupil ±x, ±y and the four diagonals at radius 1: the pupil's outline as an
+//! octagon, so that a face reaching into the beam between the axes is seen too), traced by the analytic
+//! sequential tracer with its
 //! point on every real face ([`sequential_hits`]; points on virtual surfaces — dummies between equal media —
 //! are left out: no solid stands there, and a dummy placed behind the next face would make a segment that
 //! no real ray runs). Rays the sequential tracer vignettes or fails are skipped (only rays that arrive
@@ -36,8 +38,19 @@ use crate::tracer::hits::{sequential_hits, HitKind, HitRecord};
 use crate::tracer::RayStatus;
 use glam::DVec3;
 
-/// Normalised pupil points of the design rays: the chief ray, then the marginal rays ±x, ±y.
-const DESIGN_PUPIL: [[f64; 2]; 5] = [[0.0, 0.0], [1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]];
+/// Normalised pupil points of the design rays: the chief ray, the marginal rays ±x, ±y, then the four
+/// diagonal rim rays (radius 1).
+const DESIGN_PUPIL: [[f64; 2]; 9] = [
+    [0.0, 0.0],
+    [1.0, 0.0],
+    [-1.0, 0.0],
+    [0.0, 1.0],
+    [0.0, -1.0],
+    [std::f64::consts::FRAC_1_SQRT_2, std::f64::consts::FRAC_1_SQRT_2],
+    [-std::f64::consts::FRAC_1_SQRT_2, std::f64::consts::FRAC_1_SQRT_2],
+    [std::f64::consts::FRAC_1_SQRT_2, -std::f64::consts::FRAC_1_SQRT_2],
+    [-std::f64::consts::FRAC_1_SQRT_2, -std::f64::consts::FRAC_1_SQRT_2],
+];
 
 /// What a shrunk detector rim keeps between itself and the nearest crossing of the design beam (mm).
 pub const DETECTOR_CLEARANCE_MM: f64 = 1e-3;

@@ -1,0 +1,118 @@
+#!/usr/bin/env bash
+# Make ready what a lent GPU machine runs (issues 41 and 43), and run it here first without a GPU, so that the
+# machine's few minutes go to GPU work and not to a script's mistake (docs/gpu.md, "A GPU session"):
+#
+#   1. the release wheel: scripts/build_wheel.sh → dist/ (incremental after the first build; --no-build keeps
+#      the wheel that is there);
+#   2. colour-science's wheel in .whl/ (scripts/setup.sh downloads it; the GPU image lacks the package);
+#   3. the carry — the tree as the device tool copies it (tracked files and untracked ones git does not ignore)
+#      plus dist/ and .whl/ — against the tool's 64 MiB;
+#   4. a copy of that carry in a temporary folder (what the GPU machine gets), and in it, with .venv's Python
+#      standing in for the GPU machine's python3 (both are venvs, which is what broke the scripts' first form):
+#      - DRY_RUN=1 bash scripts/gpu_check.sh: the wheel installed as there, every check with the host twin
+#        standing in for the device;
+#      - DEVICE=cpu bash scripts/gpu/train_run.sh from a tiny checkpoint (made here with .venv's package):
+#        the module taken from the wheel, the package checks, the resume, the budget stop, the outputs;
+#      - colour-science's carried wheel installed as train_run.sh installs it, and imported;
+#   5. prints the device tool's call for the GPU session.
+#
+# Usage: bash scripts/gpu/prepare.sh [--no-build] [--keep]   (--keep: leave the copy and its outputs)
+# Exit 0 when everything is ready; the dry runs' outputs are under the copy's gpu_out/ (printed).
+set -uo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
+cd "$root"
+build=1
+keep=0
+for a in "$@"; do
+    case "$a" in
+        --no-build) build=0 ;;
+        --keep) keep=1 ;;
+        -h | --help) sed -n '2,/^set -uo/p' "$0" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
+        *) echo "prepare.sh: unknown argument '$a' (usage: bash scripts/gpu/prepare.sh [--no-build] [--keep])" >&2; exit 2 ;;
+    esac
+done
+die() { echo "prepare.sh: error: $*" >&2; exit 1; }
+py="$root/.venv/bin/python"
+[[ -x "$py" ]] || die "no .venv: run bash scripts/setup.sh"
+start=$SECONDS
+
+# 1. The wheel.
+if ((build)); then
+    bash scripts/build_wheel.sh || die "scripts/build_wheel.sh failed (above)"
+fi
+shopt -s nullglob
+wheels=(dist/diffcassi-*.whl)
+((${#wheels[@]} == 1)) || die "expected one wheel in dist/, found ${#wheels[@]} (run without --no-build)"
+wheel="${wheels[0]}"
+
+# 2. colour-science.
+cs=(.whl/colour_science-*.whl)
+((${#cs[@]} >= 1)) || die "no .whl/colour_science-*.whl: run bash scripts/setup.sh (it downloads it)"
+
+# 3. The carry, as the device tool copies it.
+copy="$(mktemp -d /tmp/diffcassi-carry.XXXXXX)"
+((keep)) || trap 'rm -rf "$copy"' EXIT
+git ls-files -z --cached --others --exclude-standard | while IFS= read -r -d '' f; do [[ -e "$f" ]] && printf '%s\0' "$f"; done \
+    | tar --null -T - -cf - | tar -xf - -C "$copy" || die "could not copy the tree to $copy"
+mkdir -p "$copy/dist" "$copy/.whl"
+cp "$wheel" "$copy/dist/" && cp "${cs[@]}" "$copy/.whl/" || die "could not copy dist/ and .whl/"
+bytes=$(du -sb --exclude=.git "$copy" | cut -f1)
+limit=$((64 * 1024 * 1024))
+echo "prepare.sh: carry $((bytes / 1024 / 1024)) MiB of 64 MiB (tree + $(basename "$wheel") + ${cs[*]##*/})"
+((bytes <= limit)) || die "the carry is $bytes bytes, over the device tool's 64 MiB"
+
+status=0
+# 4a. The GPU check, dry.
+echo "prepare.sh: DRY_RUN=1 scripts/gpu_check.sh in $copy"
+if ! (cd "$copy" && DRY_RUN=1 PYTHON="$py" OUT="$copy/gpu_out/check" bash scripts/gpu_check.sh "dist/$(basename "$wheel")") > "$copy/gpu_check.log" 2>&1; then
+    tail -40 "$copy/gpu_check.log"
+    echo "prepare.sh: FAILED: the GPU check's dry run (log $copy/gpu_check.log)" >&2
+    status=1
+else
+    grep -E "^gpu_check:|^\| (render check|systems check|check) " "$copy/gpu_check.log"
+fi
+
+# 4b. The training run, dry, from a tiny checkpoint.
+echo "prepare.sh: DEVICE=cpu scripts/gpu/train_run.sh in $copy (a tiny checkpoint)"
+tiny="$copy/gpu_out/tiny"
+# (made by this tree's train_unrolled.py with .venv's package: the copy has no compiled module until train_run.sh
+# takes the wheel's)
+if ! (cd "$root" && "$py" scripts/train_unrolled.py --arch unrolled-dauhst-v2 --system sp --size 8 --bands 3 --stages 1 --width 2 \
+        --planes 4 --rays 1 --steps 100000 --batch 2 --warmup 1 --stop-at 0 --threads 1 --workers 0 --out "$tiny") > "$copy/tiny.log" 2>&1; then
+    tail -20 "$copy/tiny.log"
+    echo "prepare.sh: FAILED: the tiny checkpoint (log $copy/tiny.log)" >&2
+    status=1
+elif ! (cd "$copy" && DEVICE=cpu PYTHON="$py" RESUME="$tiny/unrolled-dauhst-v2-sp-checkpoint.pt" OUT="$copy/gpu_out/train" BUDGET_S=8 WORKERS=1 \
+        bash scripts/gpu/train_run.sh "dist/$(basename "$wheel")") > "$copy/train_run.log" 2>&1; then
+    tail -40 "$copy/train_run.log"
+    echo "prepare.sh: FAILED: the training run's dry run (log $copy/train_run.log)" >&2
+    status=1
+else
+    grep -E "^train_run:|^stopped|^done" "$copy/train_run.log"
+    for f in unrolled-dauhst-v2-sp.safetensors unrolled-dauhst-v2-sp-checkpoint.pt unrolled-dauhst-v2-sp-log.jsonl unrolled-dauhst-v2-sp-manifest.json; do
+        [[ -s "$copy/gpu_out/train/$f" ]] || { echo "prepare.sh: FAILED: the training run wrote no $f" >&2; status=1; }
+    done
+fi
+
+# 4c. colour-science from the carried wheel, as train_run.sh installs it where the package is missing.
+site="$copy/gpu_out/colour-site"
+if "$py" -m pip install -q --disable-pip-version-check --no-deps --no-index --target "$site" "$copy/.whl/$(basename "${cs[0]}")" \
+    && PYTHONPATH="$site" "$py" -c "import colour, os, sys; assert os.path.realpath(colour.__file__).startswith(os.path.realpath(sys.argv[1])), colour.__file__; print('prepare.sh: colour-science', colour.__version__, 'from the carried wheel')" "$site"; then
+    :
+else
+    echo "prepare.sh: FAILED: colour-science's carried wheel does not install or import" >&2
+    status=1
+fi
+
+if ((status)); then
+    echo "prepare.sh: NOT READY ($((SECONDS - start)) s); the copy is kept: $copy" >&2
+    trap - EXIT
+    exit 1
+fi
+cat <<EOF
+prepare.sh: ready ($((SECONDS - start)) s). For the GPU session (device tool \`run\`, carry ["dist", ".whl"]):
+  OUT=\$OUT/check timeout 420 bash scripts/gpu_check.sh; OUT=\$OUT/train BUDGET_S=120 bash scripts/gpu/train_run.sh
+(one call, ≤ 10 minutes; docs/gpu.md "A GPU session" says how to split it and what to commit of \$OUT)
+EOF
+((keep)) && echo "prepare.sh: the copy and its dry-run outputs: $copy"
+exit 0
