@@ -40,7 +40,11 @@ fn unknown_glass() {
 fn wavelength_outside_glass_range() {
     let mut s = sp();
     s.wavelengths_nm = vec![200.0, 520.0];
-    assert_mentions(&build_err(&s), &["surface 6", "N-BK7", "200"]);
+    // The message says how to allow it in a spec file, and the key it names is the one a spec file reads.
+    assert_mentions(&build_err(&s), &["surface 6", "N-BK7", "200", "wavelength_policy = \"AllowExtrapolation\""]);
+    let text: String = diffcassi::spec::to_toml(&s).unwrap().lines().filter(|l| !l.starts_with("wavelength_policy")).map(|l| format!("{l}\n")).collect();
+    let allowed = diffcassi::spec::from_toml(&format!("wavelength_policy = \"AllowExtrapolation\"\n{text}"), "allowed.toml").unwrap();
+    assert!(SequentialSystem::build(&allowed).is_ok());
     // …unless extrapolation is explicitly allowed.
     s.wavelength_policy = diffcassi::materials::WavelengthPolicy::AllowExtrapolation;
     assert!(SequentialSystem::build(&s).is_ok());

@@ -328,6 +328,19 @@ fn cli_renders_ddsp_and_reconstructs_with_every_solver() {
             assert!(out.join("cube.npy").is_file() && out.join("reconstruct.json").is_file(), "{solver} {op}");
         }
     }
+    // Two bands at 480 and 560 nm on a 16² scene: the dispersion carries every chief ray past the 16×16 mask in
+    // both bands, so the mapping and shift operators are zero — refused (every solver would return 0 with
+    // residual 1, silently), nothing written; the exact operator, whose planes lie between the bands, runs.
+    let two = tmp.join("two-bands");
+    run_ok(&["render", "--preset", "ddsp", "--scene-size", "16", "--planes", "4", "--bands", "480,560", "--rays", "2", "--out", two.to_str().unwrap()]);
+    for op in ["mapping", "shift"] {
+        let out = tmp.join(format!("zero-{op}"));
+        let o = bin().args(["reconstruct", "--from", two.to_str().unwrap(), "--operator", op, "--iterations", "3", "--out", out.to_str().unwrap()]).output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert!(!o.status.success() && err.contains(&format!("the operator `{op}")) && err.contains("maps no voxel") && err.contains("16×16×2"), "{op}: {err}");
+        assert!(!out.join("cube.npy").exists() && !out.join("reconstruct.json").exists(), "{op}: nothing written");
+    }
+    run_ok(&["reconstruct", "--from", two.to_str().unwrap(), "--operator", "exact", "--iterations", "3", "--out", tmp.join("two-exact").to_str().unwrap()]);
     // --tolerance-um chooses among what a mask surface supports (the analytic f64 path).
     let tol = tmp.join("tol");
     let text = run_ok(&["render", "--preset", "ddsp", "--scene-size", "8", "--planes", "4", "--tolerance-um", "2", "--calibration-cache", tmp.join("cache").to_str().unwrap(), "--out", tol.to_str().unwrap()]);

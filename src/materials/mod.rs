@@ -75,7 +75,8 @@ pub enum MaterialError {
     /// The wavelength is outside the catalogue's `LD` range of the glass.
     #[error(
         "wavelength {wavelength_nm} nm is outside the valid range [{min_nm}, {max_nm}] nm \
-         of glass {glass} (use WavelengthPolicy::AllowExtrapolation to evaluate anyway)"
+         of glass {glass} (to evaluate its formula there anyway, set `wavelength_policy = \"AllowExtrapolation\"` in the \
+         system spec; Rust: WavelengthPolicy::AllowExtrapolation)"
     )]
     WavelengthOutOfRange {
         /// Glass name.

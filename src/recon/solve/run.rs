@@ -61,6 +61,19 @@ impl<'a, 'd> Run<'a, 'd> {
         let t0 = Instant::now();
         let shape = op.cube_shape();
         let pre = Preconditioner::new(op);
+        // A zero operator (ΦΦᵀ𝟙 = 0 everywhere, so Φ = 0: the operators are non-negative) makes every solver
+        // return the zero cube with residual 1 — a silently wrong result; refuse it.
+        if !(pre.max() > 0.0) {
+            return Err(crate::error::Error::invalid(format!(
+                "the operator `{}` maps no voxel of the {}×{}×{} cube onto any of the {}×{} detector pixels (ΦΦᵀ𝟙 = 0 everywhere): every solver would return 0 — it does not model this acquisition (in a dual-disperser system the mask has the scene's pixel count, and a scene this small can be carried past the mask by the dispersion in every band: use a larger scene or the exact operator)",
+                op.name(),
+                shape.height,
+                shape.width,
+                shape.bands,
+                op.image_shape().height,
+                op.image_shape().width
+            )));
+        }
         let (ny, nyw) = (scale(y), pre.weighted_norm(y).max(f64::MIN_POSITIVE));
         let theta = match init {
             Some(x) => x.to_vec(),
