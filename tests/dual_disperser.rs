@@ -341,6 +341,20 @@ fn cli_renders_ddsp_and_reconstructs_with_every_solver() {
         assert!(!out.join("cube.npy").exists() && !out.join("reconstruct.json").exists(), "{op}: nothing written");
     }
     run_ok(&["reconstruct", "--from", two.to_str().unwrap(), "--operator", "exact", "--iterations", "3", "--out", tmp.join("two-exact").to_str().unwrap()]);
+    // A mask of 1e-9 µm pixels blocks every ray: the render writes the zero acquisition and says so; the exact
+    // operator is zero too, and reconstruct refuses it.
+    let mut fine = diffcassi::presets::spec("ddsp").unwrap();
+    fine.surfaces.iter_mut().find_map(|s| s.coded_mask.as_mut()).unwrap().pitch_um = 1e-9;
+    let spec = tmp.join("fine.toml");
+    std::fs::write(&spec, diffcassi::spec::to_toml(&fine).unwrap()).unwrap();
+    let dark = tmp.join("dark");
+    let text = run_ok(&["render", "--system", spec.to_str().unwrap(), "--scene-size", "8", "--planes", "2", "--rays", "1", "--out", dark.to_str().unwrap()]);
+    assert!(text.contains("warning: the acquisition is zero everywhere (no ray delivered light"), "{text}");
+    let o = bin().args(["reconstruct", "--from", dark.to_str().unwrap(), "--iterations", "3", "--out", tmp.join("dark-rec").to_str().unwrap()]).output().unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("the operator `exact` maps no voxel"), "{err}");
+    let plain = run_ok(&["render", "--preset", "ddsp", "--scene-size", "16", "--planes", "8", "--rays", "2", "--out", tmp.join("lit").to_str().unwrap()]);
+    assert!(!plain.contains("warning: the acquisition is zero"), "{plain}");
     // --tolerance-um chooses among what a mask surface supports (the analytic f64 path).
     let tol = tmp.join("tol");
     let text = run_ok(&["render", "--preset", "ddsp", "--scene-size", "8", "--planes", "4", "--tolerance-um", "2", "--calibration-cache", tmp.join("cache").to_str().unwrap(), "--out", tol.to_str().unwrap()]);

@@ -211,13 +211,16 @@ fn evanescent_orders_and_bad_gratings_are_classified_or_refused() {
         assert!(out.x.iter().chain(&out.y).chain(&out.dir_x).all(|v| *v == 0.0));
     }
     assert_eq!(RayStatus::Evanescent.label(), "evanescent");
-    for (lines, what) in [(0.0, "0"), (-1.0, "-1"), (f64::NAN, "NaN")] {
+    for (lines, what) in [(0.0, "0"), (-1.0, "-1"), (f64::NAN, "NaN"), (f64::INFINITY, "inf")] {
         let e = SequentialSystem::build(&plane_grating(lines, 1)).unwrap_err().to_string();
         assert!(e.contains("grating_lines_per_um") && e.contains(what), "{e}");
     }
     let mut half = plane_grating(0.5, 1);
     half.surfaces[1].grating_order = Some(diffcassi::spec::Cell::fixed(0.5));
     assert!(SequentialSystem::build(&half).unwrap_err().to_string().contains("grating_order"));
+    half.surfaces[1].grating_order = Some(diffcassi::spec::Cell::fixed(1e12));
+    let e = SequentialSystem::build(&half).unwrap_err().to_string();
+    assert!(e.contains("grating_order") && e.contains("magnitude at most 10⁶"), "{e}");
     let mut eff = plane_grating(0.5, 1);
     eff.surfaces[1].grating_efficiency = Some(1.5);
     assert!(SequentialSystem::build(&eff).unwrap_err().to_string().contains("grating_efficiency"));

@@ -385,6 +385,11 @@ pub fn render(a: RenderArgs) -> Result<()> {
         t0.elapsed().as_secs_f64(),
         out.display()
     );
+    // A zero acquisition is written (it is what the system delivers), but said: nothing reconstructs from it.
+    if !(acq.total() > 0.0) {
+        let why = if acq.stats.transmission() > 0.0 { "rays arrived, but the scene is dark where they came from" } else { "no ray delivered light to the detector: render.json's ray_stats say where they went" };
+        eprintln!("warning: the acquisition is zero everywhere ({why})");
+    }
     Ok(())
 }
 

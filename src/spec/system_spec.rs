@@ -400,7 +400,7 @@ impl SystemSpec {
                 SurfaceKind::DiffractionGrating => {
                     match &s.grating_lines_per_um {
                         None => return Err(at("grating_lines_per_um", "missing".into())),
-                        Some(c) if !(c.value > 0.0) => {
+                        Some(c) if !(c.value > 0.0 && c.value.is_finite()) => {
                             return Err(at("grating_lines_per_um", format!("{}: must be finite and > 0 lines per µm", c.value)))
                         }
                         _ => {}
@@ -408,7 +408,7 @@ impl SystemSpec {
                     match &s.grating_order {
                         None => return Err(at("grating_order", "missing".into())),
                         Some(c) if c.value.fract() != 0.0 || c.value.abs() > 1e6 => {
-                            return Err(at("grating_order", format!("{}: a diffraction order is an integer", c.value)))
+                            return Err(at("grating_order", format!("{}: a diffraction order is an integer of magnitude at most 10⁶", c.value)))
                         }
                         _ => {}
                     }
