@@ -4,6 +4,7 @@ CPU ≤ 10 s; on the GPU ≤ 50 ms):
 
     .venv/bin/python scripts/bench_unrolled.py --size 256 --threads 2 --reps 3           # v2, random weights
     .venv/bin/python scripts/bench_unrolled.py --weights W.safetensors --system sp --device cuda
+    .venv/bin/python scripts/bench_unrolled.py --size 256 --threads 2 --reps 3 --rust     # the Rust inference (candle)
 
 The operator is the exact one in the realistic setting (112 planes, 20 rays, seed 1; the paper mask's centre crop
 with --mask, else the library's random mask). Without --weights the network is ``unrolled-dauhst-v2`` at its
@@ -35,6 +36,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mask", default=None, help="mask NPY, centre-cropped to --size")
     ap.add_argument("--weights", default=None)
     ap.add_argument("--device", default="cpu")
+    ap.add_argument("--rust", action="store_true", help="time the Rust inference (reconstruct --solver unrolled's) "
+                    "on the same operator and weights (written to a temporary safetensors file) instead of PyTorch")
     a = ap.parse_args(argv)
     torch.set_num_threads(a.threads)
     diffcassi.set_num_threads(a.threads)
@@ -56,6 +59,28 @@ def main(argv=None) -> int:
             for p in net.parameters():
                 p.normal_(0, 0.02)
     net.eval()
+    if a.rust:
+        import json
+        import tempfile
+        from diffcassi import _native
+        from diffcassi.unrolled import mask_sha256, save_unrolled, system_sha256
+        with tempfile.TemporaryDirectory() as d:
+            path = os.path.join(d, "w.safetensors")
+            if a.weights:
+                path = a.weights
+            else:
+                save_unrolled(net, path, {"system": a.system, "mask_sha256": mask_sha256(op.mask if hasattr(op, "mask") else np.zeros((1, 1))),
+                                          "system_sha256": system_sha256(diffcassi.System.preset(a.system))})
+            y = np.random.default_rng(0).uniform(0, 1, op.image_shape).astype(np.float32)
+            ts = []
+            for _ in range(a.reps):
+                t = time.time()
+                x, rec = _native._unrolled(op, y, path, a.system)
+                ts.append(time.time() - t)
+            rec = json.loads(rec)
+        print(f"Rust {rec['network']['name']} ({count_parameters(net)} parameters), {a.system} {a.size}×{a.size}×{x.shape[2]}, "
+              f"{a.threads} threads: forward {[round(v, 3) for v in ts]} s; load average {os.getloadavg()[0]:.2f}")
+        return 0
     y = torch.rand(1, *phi.image_shape, device=phi.device)
     sync = torch.cuda.synchronize if phi.device.type == "cuda" else (lambda: None)
     ts = []

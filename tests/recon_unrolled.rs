@@ -379,3 +379,82 @@ fn weights_check_the_prescription_not_only_the_name() {
     assert!(!o.status.success() && stderr(&o).contains(&format!("surfaces[{k}].thickness_mm")), "{}", stderr(&o));
     assert!(!out.exists());
 }
+
+/// A v2 (`unrolled-dauhst-v2`) weights file for SP at `bands` bands: every tensor of
+/// `DauhstV2::tensor_shapes`, values from a fixed sequence (small, both signs; the layer norms' scales near 1),
+/// the estimators' last layer set so that μ = softplus(0.5) and σ = softplus(−2).
+fn v2_file(stages: usize, bands: usize, width: usize) -> St {
+    use diffcassi::recon::prior::unrolled_v2::DauhstV2;
+    let mut tensors = Vec::new();
+    let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+    for (name, shape) in DauhstV2::tensor_shapes(stages, bands, width).unwrap() {
+        let n: usize = shape.iter().product();
+        let mut vals: Vec<f32> = (0..n)
+            .map(|_| {
+                seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+                ((seed >> 40) as f32 / (1u64 << 24) as f32 - 0.5) * 0.2
+            })
+            .collect();
+        if name.ends_with(".n1.weight") || name.ends_with(".n2.weight") || name.ends_with("temperature") {
+            vals.iter_mut().for_each(|v| *v += 1.0);
+        }
+        if name.ends_with("mlp.2.weight") {
+            vals.iter_mut().for_each(|v| *v *= 0.1);
+        }
+        if name.ends_with("mlp.2.bias") {
+            vals = vec![0.5, -2.0];
+        }
+        tensors.push((name, shape, vals));
+    }
+    let mut meta = Map::new();
+    for (k, v) in [("arch", "unrolled-dauhst-v2".to_string()), ("system", "sp".into()), ("stages", stages.to_string()), ("bands", bands.to_string()), ("width", width.to_string())] {
+        meta.insert(k.into(), Value::String(v));
+    }
+    St { meta, tensors }
+}
+
+/// `reconstruct --solver unrolled --weights V2` runs the v2 graph (issue 43: the best learned method through the
+/// CLI and `study`): the record names the architecture and each stage's (μ, σ); a v2 file with a tensor missing,
+/// an extra one or a wrong shape is refused naming it, nothing written. The numbers against PyTorch:
+/// tests/python/test_unrolled_rust.py.
+#[test]
+fn cli_unrolled_v2_weights() {
+    let d = tempfile::tempdir().unwrap();
+    let r = d.path().join("render");
+    render(&r, "sp", "450:650:28", &[]);
+    let w = d.path().join("v2.safetensors");
+    std::fs::write(&w, serialize(&v2_file(2, 28, 4))).unwrap();
+    let out = d.path().join("rec");
+    let o = bin(&["reconstruct", "--from", s(&r), "--solver", "unrolled", "--weights", s(&w), "--out", s(&out)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let j = read_json(&out.join("reconstruct.json"));
+    assert_eq!(j["solver_settings"]["network"]["name"], "unrolled-dauhst-v2");
+    let est = j["solver_settings"]["estimates"].as_array().unwrap();
+    assert_eq!(est.len(), 2);
+    for e in est {
+        let (mu, sigma) = (e["mu"].as_f64().unwrap(), e["sigma"].as_f64().unwrap());
+        assert!((mu - 0.974).abs() < 0.05 && (sigma - 0.127).abs() < 0.05, "{e}");
+    }
+    assert_eq!(j["residual"].as_array().unwrap().len(), 2);
+    let (shape, cube) = diffcassi::io::read_npy_f64(out.join("cube.npy")).unwrap();
+    assert_eq!(shape, vec![16, 16, 28]);
+    assert!(cube.iter().all(|v| v.is_finite()) && cube.iter().any(|v| *v != 0.0));
+    let net = UnrolledNetwork::from_file(&w).unwrap();
+    assert_eq!((net.arch(), net.stages()), ("unrolled-dauhst-v2", 2));
+    // Damaged files: refused, naming the tensor; nothing written.
+    let mut missing = v2_file(2, 28, 4);
+    missing.tensors.retain(|(n, ..)| n != "priors.1.mid.0.attn.temperature");
+    let mut extra = v2_file(2, 28, 4);
+    extra.tensors.push(("bonus".into(), vec![1], vec![0.0]));
+    let mut shaped = v2_file(2, 28, 4);
+    let t = shaped.tensors.iter_mut().find(|(n, ..)| n == "estimators.0.mlp.0.weight").unwrap();
+    t.1 = vec![16, 64];
+    for (name, st, want) in [("missing", missing, "tensor `priors.1.mid.0.attn.temperature` is missing (unrolled-dauhst-v2 needs it"), ("extra", extra, "tensor `bonus` is not part of unrolled-dauhst-v2"), ("shaped", shaped, "tensor `estimators.0.mlp.0.weight` has shape [16, 64], expected [32, 32]")] {
+        let f = d.path().join(format!("{name}.safetensors"));
+        std::fs::write(&f, serialize(&st)).unwrap();
+        let o2 = d.path().join(format!("rec-{name}"));
+        let o = bin(&["reconstruct", "--from", s(&r), "--solver", "unrolled", "--weights", s(&f), "--out", s(&o2)]);
+        assert!(!o.status.success() && stderr(&o).contains(want), "{name}: {}", stderr(&o));
+        assert!(!o2.exists(), "{name}: nothing written");
+    }
+}

@@ -1,11 +1,12 @@
-//! The unrolled network's forward pass (arch `unrolled-gap-v1`, `UnrolledGAP.forward` in
-//! `diffcassi/unrolled.py`) around any [`Operator`]: K GAP stages, each followed by its learned denoiser
-//! ([`UnrolledNetwork`], [`crate::recon::prior::unrolled`]). With d = ΦΦᵀ𝟙 and D⁻¹ = 1/d where
-//! d > 10⁻⁶·max d, else 0 (the solvers' [`Preconditioner`]):
+//! The unrolled network's forward pass around any [`Operator`] (`UnrolledGAP.forward` and
+//! `UnrolledDAUHST.forward` in `diffcassi/unrolled.py`): K GAP stages, each followed by its learned prior
+//! ([`UnrolledNetwork`], [`crate::recon::prior::unrolled`], [`crate::recon::prior::unrolled_v2`]). With d = ΦΦᵀ𝟙
+//! and D⁻¹ = 1/d where d > 10⁻⁶·max d, else 0 (the solvers' [`Preconditioner`]):
 //!
 //! ```text
-//! x₀ = Φᵀ(y ⊙ D⁻¹);  s = mean(x₀) (1 where ≤ 0)
-//! for k = 1 … K:  v_k = x_{k−1} + λ_k Φᵀ((y − Φ x_{k−1}) ⊙ D⁻¹);  x_k = s · D_k(v_k / s)
+//! x₀ = Φᵀ(y ⊙ D⁻¹);  s = mean(x₀) (1 where ≤ 0);  r_k = Φᵀ((y − Φ x_{k−1}) ⊙ D⁻¹)
+//! unrolled-gap-v1:     v_k = x_{k−1} + λ_k r_k;                                 x_k = s · D_k(v_k / s)
+//! unrolled-dauhst-v2:  (μ_k, σ_k) = E_k(x_{k−1}/s, r_k/s);  v_k = x_{k−1} + μ_k r_k;  x_k = s · P_k(v_k / s, σ_k)
 //! ```
 //!
 //! Nothing iterates to a tolerance: the cost is fixed — 1 + K applications of Φ and 2 + K of Φᵀ (the
@@ -28,6 +29,8 @@ pub struct UnrolledOutput {
     pub residuals: Vec<f64>,
     /// ‖y − Φx_K‖₂/‖y‖₂ of the returned cube.
     pub final_residual: f64,
+    /// v2: the per-stage degradation estimates (μ_k, σ_k); empty for v1.
+    pub estimates: Vec<(f32, f32)>,
     pub seconds: f64,
 }
 
@@ -68,7 +71,8 @@ pub fn unrolled(op: &dyn Operator, y: &[f32], net: &UnrolledNetwork, on_stage: &
     let mut g = vec![0.0f32; cs.len()];
     let mut v = vec![0.0f32; cs.len()];
     let mut residuals = Vec::with_capacity(net.stages());
-    for (k, lam) in net.steps.iter().enumerate() {
+    let mut estimates = Vec::new();
+    for k in 0..net.stages() {
         op.apply_into(&x, &mut phi);
         for i in 0..r.len() {
             r[i] = y[i] - phi[i];
@@ -78,11 +82,27 @@ pub fn unrolled(op: &dyn Operator, y: &[f32], net: &UnrolledNetwork, on_stage: &
             *ri *= w;
         }
         op.adjoint_into(&r, &mut g);
-        // v = (x + λ g) / s, denoised into x, then · s.
-        for i in 0..v.len() {
-            v[i] = (x[i] + lam * g[i]) / s;
+        match net.v2() {
+            None => {
+                // v = (x + λ g) / s, denoised into x, then · s.
+                let lam = net.steps[k];
+                for i in 0..v.len() {
+                    v[i] = (x[i] + lam * g[i]) / s;
+                }
+                net.denoise_stage(k, &v, &mut x, cs.height, cs.width)?;
+            }
+            Some(v2) => {
+                // (μ, σ) from (x/s, g/s); v = (x + μ g) / s, through the prior at σ into x, then · s.
+                let xs: Vec<f32> = x.iter().map(|a| a / s).collect();
+                let gs: Vec<f32> = g.iter().map(|a| a / s).collect();
+                let (mu, sigma) = v2.estimate(k, &xs, &gs, cs.height, cs.width)?;
+                estimates.push((mu, sigma));
+                for i in 0..v.len() {
+                    v[i] = (x[i] + mu * g[i]) / s;
+                }
+                v2.prior(k, &v, sigma, &mut x, cs.height, cs.width)?;
+            }
         }
-        net.denoise_stage(k, &v, &mut x, cs.height, cs.width)?;
         for xi in x.iter_mut() {
             *xi *= s;
         }
@@ -96,5 +116,5 @@ pub fn unrolled(op: &dyn Operator, y: &[f32], net: &UnrolledNetwork, on_stage: &
         r[i] = y[i] - phi[i];
     }
     let final_residual = rel(norm(&r));
-    Ok(UnrolledOutput { cube: x, scale: s, residuals, final_residual, seconds: t0.elapsed().as_secs_f64() })
+    Ok(UnrolledOutput { cube: x, scale: s, residuals, final_residual, estimates, seconds: t0.elapsed().as_secs_f64() })
 }

@@ -102,3 +102,52 @@ def test_rust_forward_equals_pytorch_with_the_committed_weights(system):
     import zlib
     assert record["network"]["weights_crc32"] == zlib.crc32(path.read_bytes())
     _compare(rust, _reference(path, op, y, system=system), f"committed {system} weights 16×16×28, 6 stages, width 16")
+
+
+@pytest.mark.parametrize("size", [(14, 18), (16, 16)])
+def test_rust_forward_equals_pytorch_for_v2_on_random_weights(tmp_path, size):
+    """``unrolled-dauhst-v2`` (src/recon/prior/unrolled_v2.rs): estimators, spectral-attention U-Nets, the
+    learned per-sample step and noise level, against ``UnrolledDAUHST`` in float64; the estimates (μ_k, σ_k)
+    too."""
+    from diffcassi.unrolled import UnrolledDAUHST, system_sha256
+    torch.set_num_threads(1)
+    h, w = size
+    sp = diffcassi.System.preset("sp")
+    t = diffcassi.Transport(sp, h, w, bands_nm=BANDS4, planes=8, rays=2, seed=5)
+    op = diffcassi.exact(sp, h, w, bands_nm=BANDS4, planes=8, rays=2, seed=6)
+    y = np.ascontiguousarray(t.apply(_smooth_cube(h, w, 4, 3)), dtype=np.float32)
+    torch.manual_seed(12)
+    net = UnrolledDAUHST(dt.CassiOperator.from_operator(op, matrix_free=True), stages=2, width=4)
+    with torch.no_grad():
+        for name, p in net.named_parameters():
+            if name.endswith("temperature"):
+                p.uniform_(0.5, 2.0)
+            elif ".n1." in name or ".n2." in name:
+                p.normal_(1.0 if name.endswith("weight") else 0.0, 0.1)
+            else:
+                torch.nn.init.normal_(p, std=0.1)
+        # Keep the learned step and noise level in a plausible range (softplus of ~0.5 and ~-2).
+        for est in net.estimators:
+            est.mlp[2].weight.mul_(0.1)
+            est.mlp[2].bias.copy_(torch.tensor([0.5, -2.0]))
+    path = tmp_path / "v2.safetensors"
+    save_unrolled(net, path, {"system": "sp", "bands_nm": BANDS4, "planes": 8, "rays": 2, "operator_seed": 6,
+                              "acquisition_seed": 5, "mask_sha256": mask_sha256(t.mask), "height": h, "width_px": w,
+                              "system_sha256": system_sha256(sp)})
+    rust, record = _native._unrolled(op, y, str(path), "sp")
+    record = json.loads(record)
+    assert record["network"]["name"] == "unrolled-dauhst-v2" and record["network"]["metadata"]["stages"] == 2
+    assert len(record["residuals"]) == 2 and len(record["estimates"]) == 2
+    phi = dt.CassiOperator.from_operator(op)
+    ref_net = load_unrolled(path, phi, system=sp, mask=t.mask).to(torch.float64)
+    with torch.no_grad():
+        ref, (mus, sigmas) = ref_net(torch.from_numpy(y.astype(np.float64)), return_estimates=True)
+    ref = ref.numpy().transpose(1, 2, 0)
+    est = np.array(record["estimates"])
+    print(f"v2 estimates Rust {est.tolist()} PyTorch {torch.stack([mus[:, 0], sigmas[:, 0]], 1).tolist()}")
+    assert np.allclose(est, torch.stack([mus[:, 0], sigmas[:, 0]], 1).numpy(), rtol=1e-4, atol=1e-6)
+    assert not np.allclose(est[:, 0], 1.0), "the learned steps are exercised (not GAP's 1)"
+    _compare(rust, ref, f"v2 random weights {h}×{w}×4, 2 stages, width 4")
+    # Positively homogeneous, as the graph: N(a·y) = a·N(y).
+    rust3, _ = _native._unrolled(op, np.ascontiguousarray(3 * y), str(path), "sp")
+    assert np.allclose(rust3, 3 * rust, rtol=1e-4, atol=1e-5 * float(np.abs(rust).max()))

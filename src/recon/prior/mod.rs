@@ -28,6 +28,7 @@
 pub mod dihedral;
 pub mod network;
 pub mod unrolled;
+pub mod unrolled_v2;
 pub mod tv;
 
 use super::operator::CubeShape;

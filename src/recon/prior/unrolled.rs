@@ -25,6 +25,7 @@
 //! **Committed weights** ([`committed`]): `diffcassi/weights/unrolled-gap-v1-{sp,msp}.safetensors`, embedded
 //! with `include_bytes!` (2 × 1.24 MB), so the CLI, the Python wheel and an installed binary need no path.
 use super::network::{cerr, ferr, load_tensor, read_weights_as, Layer};
+pub use super::unrolled_v2::ARCH_V2;
 use crate::error::{Error, Result};
 use candle_core::{Device, Tensor};
 use std::path::Path;
@@ -119,11 +120,13 @@ pub struct UnrolledNetwork {
     /// name is known.
     pub trained_system_sha256: Option<String>,
     stages: Vec<Vec<Layer>>,
+    /// The v2 network's estimators and priors ([`super::unrolled_v2`]); `None` for `unrolled-gap-v1`.
+    v2: Option<super::unrolled_v2::DauhstV2>,
 }
 
 impl std::fmt::Debug for UnrolledNetwork {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "UnrolledNetwork({ARCH}, {}, system {}, {} stages, {} bands, width {}, CRC-32 {:08x})", self.source, self.meta.system, self.meta.stages, self.meta.bands, self.meta.width, self.crc32)
+        write!(f, "UnrolledNetwork({}, {}, system {}, {} stages, {} bands, width {}, CRC-32 {:08x})", self.arch(), self.source, self.meta.system, self.meta.stages, self.meta.bands, self.meta.width, self.crc32)
     }
 }
 
@@ -184,10 +187,11 @@ impl UnrolledNetwork {
         let st = safetensors::SafeTensors::deserialize(bytes).map_err(bad)?;
         let (_, header) = safetensors::SafeTensors::read_metadata(bytes).map_err(bad)?;
         let meta = header.metadata().clone().unwrap_or_default();
-        let get = |k: &str| meta.get(k).ok_or_else(|| ferr(source, format!("metadata field `{k}` is missing (an {ARCH} file has arch, system, stages, bands, width)")));
+        let get = |k: &str| meta.get(k).ok_or_else(|| ferr(source, format!("metadata field `{k}` is missing (an {ARCH} or {ARCH_V2} file has arch, system, stages, bands, width)")));
         let arch = get("arch")?;
-        if arch != ARCH {
-            return Err(ferr(source, format!("metadata `arch` = `{arch}`: this inference implements `{ARCH}` only")));
+        let v2 = arch == ARCH_V2;
+        if arch != ARCH && !v2 {
+            return Err(ferr(source, format!("metadata `arch` = `{arch}`: this inference implements `{ARCH}` and `{ARCH_V2}` only")));
         }
         let num = |k: &str, max: usize| -> Result<usize> {
             let v = get(k)?;
@@ -236,6 +240,11 @@ impl UnrolledNetwork {
             acquisition_seed: opt(&meta, source, "acquisition_seed", "a non-negative integer")?,
             training_step: opt(&meta, source, "training_step", "a non-negative integer")?,
         };
+        if v2 {
+            let (net, taken) = super::unrolled_v2::DauhstV2::read(&st, source, stages, bands, width)?;
+            super::unrolled_v2::refuse_extra(&st, source, &taken, stages)?;
+            return Ok(UnrolledNetwork { meta: meta_out, source: source.to_string(), crc32: crc32fast::hash(bytes), steps: Vec::new(), trained_system_sha256: system_sha256, stages: Vec::new(), v2: Some(net) });
+        }
         let mut expected = std::collections::BTreeSet::new();
         let mut all = Vec::with_capacity(stages);
         for k in 0..stages {
@@ -262,7 +271,7 @@ impl UnrolledNetwork {
         if let Some(extra) = st.names().into_iter().find(|n| !expected.contains(*n)) {
             return Err(ferr(source, format!("tensor `{extra}` is not part of {ARCH} with stages = {stages} (expected {} tensors: denoisers.K.LAYER.weight|bias, steps)", expected.len())));
         }
-        Ok(UnrolledNetwork { meta: meta_out, source: source.to_string(), crc32: crc32fast::hash(bytes), steps, trained_system_sha256: system_sha256, stages: all })
+        Ok(UnrolledNetwork { meta: meta_out, source: source.to_string(), crc32: crc32fast::hash(bytes), steps, trained_system_sha256: system_sha256, stages: all, v2: None })
     }
 
     /// Check the network against an acquisition: system, band count and wavelengths refused when they
@@ -355,12 +364,26 @@ impl UnrolledNetwork {
 
     /// A JSON record of the network (for `reconstruct.json`).
     pub fn describe(&self) -> serde_json::Value {
-        serde_json::json!({ "name": ARCH, "weights": self.source, "weights_crc32": self.crc32, "steps": self.steps, "metadata": self.meta })
+        serde_json::json!({ "name": self.arch(), "weights": self.source, "weights_crc32": self.crc32, "steps": self.steps, "metadata": self.meta })
     }
 
     /// Number of stages K.
     pub fn stages(&self) -> usize {
-        self.stages.len()
+        self.meta.stages
+    }
+
+    /// The architecture: [`ARCH`] or [`ARCH_V2`].
+    pub fn arch(&self) -> &'static str {
+        if self.v2.is_some() {
+            ARCH_V2
+        } else {
+            ARCH
+        }
+    }
+
+    /// The v2 network's estimators and priors (`None` for `unrolled-gap-v1`).
+    pub fn v2(&self) -> Option<&super::unrolled_v2::DauhstV2> {
+        self.v2.as_ref()
     }
 
     /// `out` ← D_k(`v`) for an h×w cube `[row][col][band]` of the network's band count (stage `k` < K).
