@@ -262,6 +262,21 @@ def test_tiny_v2_run_writes_weights_log_manifest(runs):
     assert man["runs"][0]["device"] == "cpu" and man["runs"][0]["start_utc"] <= man["runs"][0]["end_utc"]
 
 
+def test_trained_v2_weights_run_in_rust_as_in_pytorch(runs):
+    """What the training writes is what `reconstruct --solver unrolled` reads: the Rust inference accepts the
+    file's metadata (system and prescription, bands, mask) and gives PyTorch's output (float64 reference)."""
+    from diffcassi import _native
+    a, _, _ = runs
+    op = diffcassi.exact(diffcassi.System.preset("sp"), 8, 8, bands_nm=BANDS3, planes=6, rays=1, seed=6)
+    y = np.ascontiguousarray(np.random.default_rng(4).uniform(0.2, 1.0, op.image_shape), dtype=np.float32)
+    rust, record = _native._unrolled(op, y, str(a / NM["w"]), "sp")
+    assert json.loads(record)["network"]["name"] == ARCH_V2
+    net = load_unrolled(a / NM["w"], dt.CassiOperator.from_operator(op), system="sp").to(torch.float64)
+    with torch.no_grad():
+        ref = net(torch.from_numpy(y.astype(np.float64))).numpy().transpose(1, 2, 0)
+    assert np.abs(rust - ref).max() <= 1e-5 * np.abs(ref).max(), float(np.abs(rust - ref).max() / np.abs(ref).max())
+
+
 def test_resume_continues_the_steps_and_appends_a_run(runs):
     a, b, first = runs
     assert [(r["steps_from"], r["steps_to"]) for r in first["runs"]] == [(0, 2)]
