@@ -483,6 +483,26 @@ impl SpectralUNet {
     }
 }
 
+/// `out` ← (v + L v) + U(v), PyTorch's order of the sums, for the unrolled networks' stage priors: `v` the
+/// `h × w × b` cube ([row][col][band]), `lin` = L v and `tail` = U(v) as (1, b, hp, wp) tensors of the padded
+/// planes ([`padded_band_planes`]), cropped back to h × w.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn add_residual_cropped(v: &[f32], lin: Tensor, tail: Tensor, out: &mut [f32], h: usize, w: usize, b: usize, wp: usize) -> Result<()> {
+    let flat = |t: Tensor| t.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(cerr);
+    let (lin, tail) = (flat(lin)?, flat(tail)?);
+    let plane = lin.len() / b.max(1);
+    for r in 0..h {
+        for c in 0..w {
+            let o = (r * w + c) * b;
+            for j in 0..b {
+                let i = j * plane + r * wp + c;
+                out[o + j] = (v[o + j] + lin[i]) + tail[i];
+            }
+        }
+    }
+    Ok(())
+}
+
 /// A `h × w × b` cube ([row][col][band]) as `b` band planes (band-major, the (1, B, Hp, Wp) tensor layout) of
 /// `hp × wp`, the sides rounded up to multiples of 4 and padded at the bottom and right by edge replication
 /// (what the U-Nets' two 2× downsamplings need). Returns the planes, hp and wp.

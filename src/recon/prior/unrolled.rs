@@ -395,7 +395,6 @@ impl UnrolledNetwork {
         let l = &self.stages[k];
         // (1, B, Hp, Wp), padded at the bottom/right by edge replication.
         let (input, hp, wp) = super::network::padded_band_planes(v, h, w, b);
-        let plane = hp * wp;
         let x = Tensor::from_vec(input, (1, b, hp, wp), &Device::Cpu).map_err(cerr)?;
         let lin = l[LINEAR].conv(&x, 0, 1, false)?;
         let e1 = l[1].conv(&x, 1, 1, true)?;
@@ -408,18 +407,6 @@ impl UnrolledNetwork {
         let z = l[8].up(&z, &e1)?;
         let z = l[9].conv(&z, 1, 1, true)?;
         let tail = l[TAIL].conv(&z, 1, 1, false)?;
-        let flat = |t: Tensor| t.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(cerr);
-        let (lin, tail) = (flat(lin)?, flat(tail)?);
-        // Cropped, back to [row][col][band]: (v + L v) + U(v), PyTorch's order.
-        for r in 0..h {
-            for c in 0..w {
-                let o = (r * w + c) * b;
-                for j in 0..b {
-                    let i = j * plane + r * wp + c;
-                    out[o + j] = (v[o + j] + lin[i]) + tail[i];
-                }
-            }
-        }
-        Ok(())
+        super::network::add_residual_cropped(v, lin, tail, out, h, w, b, wp)
     }
 }

@@ -366,7 +366,6 @@ impl DauhstV2 {
         let b = self.bands;
         let p = &self.priors[k];
         let (input, hp, wp) = super::network::padded_band_planes(v, h, w, b);
-        let plane = hp * wp;
         let x = Tensor::from_vec(input, (1, b, hp, wp), &Device::Cpu).map_err(cerr)?;
         let s = Tensor::full(sigma, (1, 1, hp, wp), &Device::Cpu).map_err(cerr)?;
         let cat = |a: &Tensor, c: &Tensor| Tensor::cat(&[a, c], 1).map_err(cerr);
@@ -377,19 +376,7 @@ impl DauhstV2 {
         let z = p.dec1.apply(&p.fuse1.apply(&cat(&p.up1.up(&z)?, &e1)?, 0, 1)?)?;
         let lin = p.linear.apply(&x, 0, 1)?;
         let tail = p.out.apply(&z, 1, 1)?;
-        let flat = |t: Tensor| t.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(cerr);
-        let (lin, tail) = (flat(lin)?, flat(tail)?);
-        // Cropped, back to [row][col][band]: (v + L v) + U(v), PyTorch's order.
-        for r in 0..h {
-            for c in 0..w {
-                let o = (r * w + c) * b;
-                for j in 0..b {
-                    let i = j * plane + r * wp + c;
-                    out[o + j] = (v[o + j] + lin[i]) + tail[i];
-                }
-            }
-        }
-        Ok(())
+        super::network::add_residual_cropped(v, lin, tail, out, h, w, b, wp)
     }
 }
 
