@@ -47,7 +47,9 @@ def main(argv=None) -> int:
         r0, c0 = (m.shape[0] - a.size) // 2, (m.shape[1] - a.size) // 2
         mask = np.ascontiguousarray(m[r0:r0 + a.size, c0:c0 + a.size])
     t = time.time()
-    op = diffcassi.exact(diffcassi.System.preset(a.system), a.size, a.size, mask=mask, planes=a.planes, rays=a.rays, seed=1)
+    # Transport(...).operator is exact(...) with the same settings (one trace); it also gives the mask it used.
+    transport = diffcassi.Transport(diffcassi.System.preset(a.system), a.size, a.size, mask=mask, planes=a.planes, rays=a.rays, seed=1)
+    op = transport.operator
     phi = dt.CassiOperator.from_operator(op, matrix_free=True).to(a.device)
     print(f"trace {time.time() - t:.1f} s", flush=True)
     if a.weights:
@@ -69,7 +71,7 @@ def main(argv=None) -> int:
             if a.weights:
                 path = a.weights
             else:
-                save_unrolled(net, path, {"system": a.system, "mask_sha256": mask_sha256(op.mask if hasattr(op, "mask") else np.zeros((1, 1))),
+                save_unrolled(net, path, {"system": a.system, "mask_sha256": mask_sha256(transport.mask),
                                           "system_sha256": system_sha256(diffcassi.System.preset(a.system))})
             y = np.random.default_rng(0).uniform(0, 1, op.image_shape).astype(np.float32)
             ts = []

@@ -383,8 +383,7 @@ fn _unrolled<'py>(py: Python<'py>, operator: &PyOperator, acquisition: &Bound<'p
     let y = a.slice();
     let op = &operator.op;
     let out = run(py, || diffcassi::recon::unrolled::unrolled(op.as_ref(), y, &net, &mut |_, _, _| {})).py()?;
-    let estimates: Vec<[f32; 2]> = out.estimates.iter().map(|(m, s)| [*m, *s]).collect();
-    let record = serde_json::json!({"network": net.describe(), "scale": out.scale, "residuals": out.residuals, "final_residual": out.final_residual, "estimates": estimates, "seconds": out.seconds});
+    let record = serde_json::json!({"network": net.describe(), "scale": out.scale, "residuals": out.residuals, "final_residual": out.final_residual, "estimates": out.estimates_json(), "seconds": out.seconds});
     Ok((output(py, out.cube, &[c.height, c.width, c.bands])?, record.to_string()))
 }
 

@@ -34,6 +34,14 @@ pub struct UnrolledOutput {
     pub seconds: f64,
 }
 
+impl UnrolledOutput {
+    /// The v2 estimates as JSON, `[{"mu": μ_1, "sigma": σ_1}, …]` (empty for v1): what `reconstruct.json`
+    /// (`solver_settings.estimates`) and Python's `_native._unrolled` record.
+    pub fn estimates_json(&self) -> serde_json::Value {
+        serde_json::json!(self.estimates.iter().map(|(m, s)| serde_json::json!({"mu": m, "sigma": s})).collect::<Vec<_>>())
+    }
+}
+
 fn norm(v: &[f32]) -> f64 {
     v.iter().map(|x| (*x as f64) * (*x as f64)).sum::<f64>().sqrt()
 }

@@ -143,7 +143,7 @@ def test_rust_forward_equals_pytorch_for_v2_on_random_weights(tmp_path, size):
     with torch.no_grad():
         ref, (mus, sigmas) = ref_net(torch.from_numpy(y.astype(np.float64)), return_estimates=True)
     ref = ref.numpy().transpose(1, 2, 0)
-    est = np.array(record["estimates"])
+    est = np.array([[e["mu"], e["sigma"]] for e in record["estimates"]])
     print(f"v2 estimates Rust {est.tolist()} PyTorch {torch.stack([mus[:, 0], sigmas[:, 0]], 1).tolist()}")
     assert np.allclose(est, torch.stack([mus[:, 0], sigmas[:, 0]], 1).numpy(), rtol=1e-4, atol=1e-6)
     assert not np.allclose(est[:, 0], 1.0), "the learned steps are exercised (not GAP's 1)"

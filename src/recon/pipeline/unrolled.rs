@@ -87,7 +87,7 @@ pub fn solve_unrolled(op: &dyn Operator, y: &[f32], p: &PreparedUnrolled, truth:
     let mut settings = serde_json::json!({"network": p.net.describe(), "scale": out.scale, "checks": p.check.record});
     if !out.estimates.is_empty() {
         // v2: each stage's degradation estimate (the learned step μ_k and noise level σ_k).
-        settings["estimates"] = serde_json::json!(out.estimates.iter().map(|(m, s)| serde_json::json!({"mu": m, "sigma": s})).collect::<Vec<_>>());
+        settings["estimates"] = out.estimates_json();
     }
     Ok(Solved { cube: out.cube, residuals: out.residuals, final_residual: out.final_residual, settings, stopping, seconds: out.seconds })
 }

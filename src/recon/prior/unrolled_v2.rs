@@ -24,6 +24,7 @@
 //! assert_eq!(diffcassi::recon::prior::unrolled_v2::ARCH_V2, "unrolled-dauhst-v2");
 //! ```
 use super::network::{cerr, ferr, load_tensor};
+use crate::recon::layout::to_band_major;
 use crate::error::Result;
 use candle_core::{Device, Tensor, D};
 use std::collections::BTreeSet;
@@ -100,8 +101,8 @@ struct Conv {
 
 impl Conv {
     fn apply(&self, x: &Tensor, padding: usize, stride: usize) -> Result<Tensor> {
-        if self.groups > 1 {
-            return self.depthwise(x, padding, stride);
+        if self.groups > 1 && stride == 1 && x.dims4().is_ok_and(|(n, c, ..)| n == 1 && c == self.groups) {
+            return self.depthwise(x, padding);
         }
         let y = x.conv2d(&self.weight, padding, stride, 1, self.groups).map_err(cerr)?;
         match &self.bias {
@@ -113,16 +114,11 @@ impl Conv {
     /// A depth-wise convolution (groups = channels: the blocks' 3×3 position and FFN layers), computed directly
     /// per channel: candle runs a grouped convolution as one small convolution per group, which dominated the
     /// forward pass. The same sums as PyTorch's (zero padding; taps in row-major order, then the bias).
-    fn depthwise(&self, x: &Tensor, padding: usize, stride: usize) -> Result<Tensor> {
+    /// One image (n = 1) with as many channels as groups, stride 1 (what [`Self::apply`] sends here).
+    fn depthwise(&self, x: &Tensor, padding: usize) -> Result<Tensor> {
         use rayon::prelude::*;
-        let (n, c, h, w) = x.dims4().map_err(cerr)?;
-        let (co, _, kh, kw) = self.weight.dims4().map_err(cerr)?;
-        if n != 1 || co != c || self.groups != c || stride != 1 {
-            return x.conv2d(&self.weight, padding, stride, 1, self.groups).and_then(|y| match &self.bias {
-                Some(b) => y.broadcast_add(b),
-                None => Ok(y),
-            }).map_err(cerr);
-        }
+        let (_, c, h, w) = x.dims4().map_err(cerr)?;
+        let (_, _, kh, kw) = self.weight.dims4().map_err(cerr)?;
         let input = x.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(cerr)?;
         let k = self.weight.flatten_all().and_then(|t| t.to_vec1::<f32>()).map_err(cerr)?;
         let bias = match &self.bias {
@@ -265,17 +261,6 @@ fn softplus(x: f32) -> f32 {
     }
 }
 
-/// A `h × w × b` cube ([row][col][band]) as a (1, b, h, w) tensor.
-fn planes(x: &[f32], h: usize, w: usize, b: usize) -> Vec<f32> {
-    let mut out = vec![0.0f32; x.len()];
-    for p in 0..h * w {
-        for k in 0..b {
-            out[k * h * w + p] = x[p * b + k];
-        }
-    }
-    out
-}
-
 /// The v2 network's learned part: per stage an estimator and a prior.
 pub struct DauhstV2 {
     bands: usize,
@@ -333,6 +318,16 @@ impl DauhstV2 {
         Ok(DauhstV2 { bands, width, estimators, priors })
     }
 
+    /// Stage `k` exists and every cube of `cubes` is h×w×B (an error, not a panic, from the public calls).
+    fn check(&self, k: usize, cubes: &[&[f32]], h: usize, w: usize) -> Result<()> {
+        let n = h * w * self.bands;
+        if k >= self.priors.len() || h == 0 || w == 0 || cubes.iter().any(|c| c.len() != n) {
+            let lens: Vec<usize> = cubes.iter().map(|c| c.len()).collect();
+            return Err(crate::error::Error::invalid(format!("{ARCH_V2} stage {k}: a {h}×{w}×{} cube needs {n} values (got {lens:?}; {} stages)", self.bands, self.priors.len())));
+        }
+        Ok(())
+    }
+
     /// Stages K.
     pub fn stages(&self) -> usize {
         self.priors.len()
@@ -346,9 +341,10 @@ impl DauhstV2 {
     /// (μ_k, σ_k) = E_k(x, r) for h×w cubes `[row][col][band]` already divided by the scale s (stage `k` < K).
     pub fn estimate(&self, k: usize, x: &[f32], r: &[f32], h: usize, w: usize) -> Result<(f32, f32)> {
         let b = self.bands;
+        self.check(k, &[x, r], h, w)?;
         let e = &self.estimators[k];
-        let mut input = planes(x, h, w, b);
-        input.extend(planes(r, h, w, b));
+        let mut input = to_band_major(x, h * w, b);
+        input.extend(to_band_major(r, h * w, b));
         let t = Tensor::from_vec(input, (1, 2 * b, h, w), &Device::Cpu).map_err(cerr)?;
         let z = e.conv0.apply(&t, 1, 2)?.relu().map_err(cerr)?;
         let z = e.conv2.apply(&z, 1, 2)?.relu().map_err(cerr)?;
@@ -364,6 +360,7 @@ impl DauhstV2 {
     /// `out` ← P_k(`v`, σ) for an h×w cube `[row][col][band]` of the network's band count (stage `k` < K).
     pub fn prior(&self, k: usize, v: &[f32], sigma: f32, out: &mut [f32], h: usize, w: usize) -> Result<()> {
         let b = self.bands;
+        self.check(k, &[v, &*out], h, w)?;
         let p = &self.priors[k];
         let (input, hp, wp) = super::network::padded_band_planes(v, h, w, b);
         let x = Tensor::from_vec(input, (1, b, hp, wp), &Device::Cpu).map_err(cerr)?;
@@ -386,4 +383,34 @@ pub fn refuse_extra(st: &safetensors::SafeTensors<'_>, source: &str, taken: &BTr
         return Err(ferr(source, format!("tensor `{extra}` is not part of {ARCH_V2} with stages = {stages} (expected {} tensors: estimators.K.…, priors.K.…)", taken.len())));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A network of zero weights (the listing reader's), so the shapes and the checks run without a file.
+    fn zero_net(stages: usize, bands: usize, width: usize) -> DauhstV2 {
+        let mut r = Reader { st: None, source: "(test)", taken: BTreeSet::new(), listing: Vec::new() };
+        DauhstV2::read_with(&mut r, stages, bands, width).unwrap()
+    }
+
+    #[test]
+    fn wrong_sizes_and_stages_are_errors_and_zero_weights_give_softplus_0_and_the_identity() {
+        let net = zero_net(1, 3, 2);
+        let (h, w) = (5, 6);
+        let x: Vec<f32> = (0..h * w * 3).map(|i| (i % 7) as f32 * 0.1).collect();
+        let (mu, sigma) = net.estimate(0, &x, &x, h, w).unwrap();
+        assert_eq!((mu, sigma), (softplus(0.0), softplus(0.0)));
+        assert!((mu - std::f32::consts::LN_2).abs() < 1e-7);
+        // Zero L and U: P(v) = v.
+        let mut out = vec![f32::NAN; x.len()];
+        net.prior(0, &x, 0.05, &mut out, h, w).unwrap();
+        assert_eq!(out, x);
+        let e = net.estimate(0, &x[1..], &x, h, w).unwrap_err().to_string();
+        assert!(e.contains("stage 0: a 5×6×3 cube needs 90 values") && e.contains("[89, 90]"), "{e}");
+        assert!(net.prior(1, &x, 0.05, &mut out, h, w).unwrap_err().to_string().contains("1 stages"));
+        assert!(net.prior(0, &x, 0.05, &mut out[1..], h, w).is_err());
+        assert!(net.estimate(0, &[], &[], 0, 0).is_err());
+    }
 }
