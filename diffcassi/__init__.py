@@ -63,8 +63,9 @@ System.surfaces = property(surfaces, doc=surfaces.__doc__)  # type: ignore[attr-
 def spot(system: System, field_mm: Sequence[float], wavelength_nm: float, pupil: Union[str, np.ndarray, None] = None,
          backend: str = "analytic") -> Dict[str, Any]:
     """Spot diagram of one field (x, y mm) at one wavelength: a dict with ``x_mm``, ``y_mm``, ``status``,
-    ``pupil``, ``chief_mm``, ``stats`` (centroid_mm, rms_radius_um, geo_radius_um) and
-    ``rms_radius_chief_um``. ``pupil``: a pattern (default ``hexapolar:12``, as the CLI) or (N, 2) float64
+    ``pupil``, ``chief_mm``, ``stats`` (centroid_mm, rms_radius_um, geo_radius_um),
+    ``rms_radius_chief_um`` and ``lost`` (the lost rays by outcome and stopping surface, most first: dicts
+    ``{status, surface, count}``). ``pupil``: a pattern (default ``hexapolar:12``, as the CLI) or (N, 2) float64
     normalised pupil points. Arrays are returned as NumPy float64."""
     d = _json.loads(_native._spot(system, _pair("field_mm", field_mm), _number("wavelength_nm", wavelength_nm), pupil,
                                   _check_backend(backend)))

@@ -60,6 +60,41 @@ fn spot_interface_reads_pupil_csv() {
     assert_eq!(rows[1][0].parse::<f64>().unwrap(), 0.5);
 }
 
+/// A spot whose every ray is lost (a grating of 10 lines/µm: its first order cannot propagate at 520 nm) is a
+/// warning that says why — the outcome, the surface, the count — and appears in the JSON as `rays_lost`; a
+/// `--png` of nothing is refused, nothing written.
+#[test]
+fn spot_says_why_no_ray_arrived() {
+    let mut spec = diffcassi::presets::spec("gsp").unwrap();
+    let g = spec.surfaces.iter().position(|s| s.grating_lines_per_um.is_some()).unwrap();
+    spec.surfaces[g].grating_lines_per_um = Some(10.0.into());
+    for s in &mut spec.surfaces {
+        for c in [&mut s.decenter_x_mm, &mut s.decenter_y_mm, &mut s.tilt_y_deg].into_iter().flatten() {
+            c.driver = diffcassi::spec::Driver::Fixed;
+        }
+    }
+    let sys = tmp("gsp10.toml");
+    std::fs::write(&sys, diffcassi::spec::to_toml(&spec).unwrap()).unwrap();
+    let (json, png) = (tmp("gsp10_spot.json"), tmp("gsp10_spot.png"));
+    let o = run(&["spot", "--system", sys.to_str().unwrap(), "--wavelength-nm", "520", "--field-mm", "0,0", "--pupil", "hexapolar:2", "--json", json.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(e.contains("no ray reached the image") && e.contains(&format!("19 evanescent at surface {g}")) && e.contains("grating order"), "{e}");
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let spot = &v["spots"][0];
+    assert_eq!(spot["rays_ok"], 0);
+    assert_eq!(spot["rays_lost"], serde_json::json!([{"status": "evanescent", "surface": g, "count": 19}]));
+    let o = run(&["spot", "--system", sys.to_str().unwrap(), "--wavelength-nm", "520", "--pupil", "hexapolar:2", "--png", png.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains("--png") && stderr(&o).contains("nothing to plot"), "{}", stderr(&o));
+    assert!(!png.exists());
+    // A working system loses no ray: `rays_lost` is empty and nothing is said.
+    let o = run(&["spot", "--preset", "sp", "--wavelength-nm", "520", "--field-mm", "0,0", "--pupil", "hexapolar:2", "--json", json.to_str().unwrap()]);
+    assert!(o.status.success() && !stderr(&o).contains("warning"), "{}", stderr(&o));
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(v["spots"][0]["rays_lost"], serde_json::json!([]));
+}
+
 #[test]
 fn spot_interface_matches_zemax_export_on_axis() {
     let refdir = match common::reference_dir() {

@@ -55,6 +55,45 @@ pub struct SpotDiagram {
     pub stats: Option<SpotStats>,
     /// RMS radius about the chief ray (µm), Zemax's default reference.
     pub rms_radius_chief_um: Option<f64>,
+    /// The rays that did not reach the image, by outcome and the surface where they stopped (most first);
+    /// kept by [`SpotDiagram::keep_statistics_only`], so a spot with no ray arrived can say why.
+    pub lost: Vec<LostRays>,
+}
+
+/// Rays of one spot that stopped with the same outcome at the same surface.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct LostRays {
+    /// Written as its label (`evanescent`, `vignetted`, …), as the CSV tables write a ray's status.
+    #[serde(serialize_with = "status_label")]
+    pub status: RayStatus,
+    /// Surface index (the object is 0) where the rays stopped.
+    pub surface: u32,
+    pub count: usize,
+}
+
+/// Count the failed rays of `status`/`surface` (a tracer's per-ray outcome and stopping surface) by
+/// (outcome, surface), most frequent first; ties in (surface, outcome) order, so the list is deterministic.
+pub fn lost_rays(status: &[RayStatus], surface: &[u32]) -> Vec<LostRays> {
+    let mut counts = std::collections::BTreeMap::<(u32, u8), (RayStatus, usize)>::new();
+    for (s, k) in status.iter().zip(surface) {
+        if *s != RayStatus::Ok {
+            counts.entry((*k, *s as u8)).or_insert((*s, 0)).1 += 1;
+        }
+    }
+    let mut lost: Vec<LostRays> = counts.into_iter().map(|((surface, _), (status, count))| LostRays { status, surface, count }).collect();
+    lost.sort_by(|a, b| b.count.cmp(&a.count));
+    lost
+}
+
+fn status_label<S: serde::Serializer>(s: &RayStatus, out: S) -> std::result::Result<S::Ok, S::Error> {
+    out.serialize_str(s.label())
+}
+
+impl LostRays {
+    /// "19 evanescent at surface 4 (a grating order that does not propagate)".
+    pub fn describe(&self) -> String {
+        format!("{} {} at surface {} ({})", self.count, self.status.label(), self.surface, self.status.meaning())
+    }
 }
 
 impl SpotDiagram {
@@ -106,6 +145,7 @@ pub fn spot_diagram(system: &SequentialSystem, tracer: &dyn Tracer, field_mm: [f
         chief_mm,
         stats,
         rms_radius_chief_um,
+        lost: lost_rays(&out.status[..n], &out.surface[..n]),
     })
 }
 
@@ -129,5 +169,35 @@ mod tests {
         assert_eq!(lean.chief_mm, full.chief_mm);
         assert_eq!(lean.rms_radius_chief_um, full.rms_radius_chief_um);
         assert!(full.stats.unwrap().count > 0);
+        assert_eq!(lean.lost, full.lost);
+    }
+
+    /// Lost rays are counted by (outcome, surface), most first, and account for every failed ray; a spot
+    /// whose every ray is lost says why (here: a grating of 10 lines/µm, whose first order cannot propagate
+    /// at 520 nm, so every ray is evanescent at the grating).
+    #[test]
+    fn lost_rays_say_why() {
+        use RayStatus::*;
+        let lost = lost_rays(&[Ok, Vignetted, Missed, Vignetted, Vignetted, Ok], &[u32::MAX, 3, 5, 3, 7, u32::MAX]);
+        assert_eq!(lost, vec![LostRays { status: Vignetted, surface: 3, count: 2 }, LostRays { status: Missed, surface: 5, count: 1 }, LostRays { status: Vignetted, surface: 7, count: 1 }]);
+        assert_eq!(lost[0].describe(), "2 vignetted at surface 3 (outside the surface's aperture)");
+
+        let mut spec = crate::presets::spec("gsp").unwrap();
+        let g = spec.surfaces.iter().position(|s| s.grating_lines_per_um.is_some()).unwrap();
+        spec.surfaces[g].grating_lines_per_um = Some(10.0.into());
+        for s in &mut spec.surfaces {
+            for c in [&mut s.decenter_x_mm, &mut s.decenter_y_mm, &mut s.tilt_y_deg] {
+                if let Some(c) = c.as_mut() {
+                    c.driver = crate::spec::Driver::Fixed;
+                }
+            }
+        }
+        let system = SequentialSystem::build(&spec).unwrap();
+        let pupil = crate::rays::PupilPattern::Hexapolar { rings: 2 }.points();
+        let spot = spot_diagram(&system, &AnalyticTracer::default(), [0.0, 0.0], 520.0, &pupil).unwrap();
+        assert!(spot.stats.is_none());
+        assert_eq!(spot.lost, vec![LostRays { status: Evanescent, surface: g as u32, count: pupil.len() }]);
+        let sp = spot_diagram(&SequentialSystem::build(&crate::presets::spec("sp").unwrap()).unwrap(), &AnalyticTracer::default(), [0.0, 0.0], 520.0, &pupil).unwrap();
+        assert!(sp.lost.is_empty() && sp.stats.unwrap().count == pupil.len());
     }
 }

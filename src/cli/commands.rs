@@ -422,6 +422,7 @@ fn spot_summary(system: &SequentialSystem, s: &SpotDiagram) -> serde_json::Value
         "rms_radius_um": s.stats.map(|t| t.rms_radius_um),
         "geo_radius_um": s.stats.map(|t| t.geo_radius_um),
         "rms_radius_chief_um": s.rms_radius_chief_um,
+        "rays_lost": s.lost,
     })
 }
 
@@ -444,6 +445,12 @@ fn print_spot_table(system: &SequentialSystem, spots: &[SpotDiagram]) {
             g,
             s.rms_radius_chief_um.map(|v| format!("{v:.3}")).unwrap_or_default()
         );
+    }
+    // A spot whose every ray was lost has an empty row: say why (the three largest causes).
+    for s in spots.iter().filter(|s| s.stats.is_none() && s.rays > 0) {
+        let f = system.field_display(s.field_mm).0;
+        let why: Vec<String> = s.lost.iter().take(3).map(|l| l.describe()).collect();
+        eprintln!("warning: field ({}, {}) {unit} at {} nm: no ray reached the image: {}", f[0], f[1], s.wavelength_nm, why.join("; "));
     }
 }
 
@@ -537,6 +544,9 @@ pub(super) fn spot(a: SpotArgs) -> Result<()> {
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, ((pupil.len() + 1) * fs.len() * ws.len()) as u64)?;
     let spots = compute_spots(&system, tracer.as_ref(), &fs, &ws, &pupil, a.csv.is_some() || a.png.is_some())?;
     print_spot_table(&system, &spots);
+    if let Some(png) = a.png.as_ref().filter(|_| spots.iter().all(|s| s.stats.is_none())) {
+        return Err(Error::invalid(format!("--png {}: no ray of any spot reached the image (the warnings above say why): nothing to plot; nothing written", png.display())));
+    }
     let mut set = crate::io::OutputSet::files();
     if let Some(path) = &a.csv {
         write_spot_csv(&set.stage(path), &system, &spots)?;

@@ -100,4 +100,20 @@ impl RayStatus {
             RayStatus::Evanescent => "evanescent",
         }
     }
+
+    /// What the outcome means, in a few words, for messages that explain lost rays.
+    pub fn meaning(self) -> &'static str {
+        match self {
+            RayStatus::Ok => "arrived",
+            RayStatus::Missed => "no intersection with the surface",
+            RayStatus::Vignetted => "outside the surface's aperture",
+            RayStatus::TotalInternalReflection => "total internal reflection",
+            RayStatus::NoConvergence => "the asphere intersection did not converge",
+            RayStatus::InvalidInput => "a non-finite or zero-length input ray",
+            RayStatus::Absorbed => "absorbed by a side wall of a solid",
+            RayStatus::BounceLimit => "more interactions than the bounce limit",
+            RayStatus::OutOfRange => "arrived at a non-finite or implausible position",
+            RayStatus::Evanescent => "the grating order does not propagate",
+        }
+    }
 }

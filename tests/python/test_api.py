@@ -73,6 +73,15 @@ def test_mapping_equals_the_cli_bit_for_bit(cli, preset, tmp_path):
 def test_analyses(system):
     sp = diffcassi.spot(system, [0.0, 0.0], 520.0)
     assert sp["stats"]["count"] > 100 and sp["x_mm"].shape == sp["y_mm"].shape
+    assert sp["lost"] == [] and sp["stats"]["count"] == sp["rays"]
+    # Far off axis (SP and mSP vignette part of the beam at 9 mm, all of it at 12 mm): the lost rays are
+    # counted by outcome and surface, and account for every ray that did not arrive.
+    for x_mm in (9.0, 12.0):
+        far = diffcassi.spot(system, [x_mm, 0.0], 520.0)
+        arrived = far["stats"]["count"] if far["stats"] else 0
+        assert all(l["status"] != "ok" and l["count"] > 0 for l in far["lost"])
+        assert arrived + sum(l["count"] for l in far["lost"]) == far["rays"]
+        assert int(np.sum(np.asarray(far["status"]) != "Ok")) == far["rays"] - arrived
     g = diffcassi.distortion(system, grid=5)
     assert len(g["points"]) == 25 and math.isfinite(g["max_distortion_pct"])
     d = diffcassi.dispersion(system, np.linspace(450, 650, 5))
