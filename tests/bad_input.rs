@@ -1,7 +1,7 @@
 //! Bad input: every case is a clear error naming the file/surface, the field and the value — never a
 //! panic, never a silent wrong number.
 use diffcassi::prelude::*;
-use diffcassi::spec::{self, Cell, Driver, Pickup};
+use diffcassi::spec::{self, Cell, Driver, Pickup, SurfaceKind, SurfaceSpec};
 
 fn sp() -> SystemSpec {
     presets::spec("sp").unwrap()
@@ -139,6 +139,46 @@ fn material_on_a_coordinate_break() {
     let mut s = sp();
     s.surfaces[3].material = Some("N-BK7".into());
     assert_mentions(&build_err(&s), &["surface 3", "material", "Coordinate Break"]);
+}
+
+/// A spec file cut short between two surfaces reads as a shorter system whose last surface, a lens's face,
+/// became the image in glass. SP cut after every surface: each cut whose image would refract into another
+/// medium is refused naming the surface and both media; an image in the medium before it (an immersed
+/// detector, as tests/extremes.rs builds) stays legal, and so does the whole SP.
+#[test]
+fn a_spec_cut_between_surfaces_is_refused_when_its_image_would_refract() {
+    let whole = sp();
+    assert!(SequentialSystem::build(&whole).is_ok());
+    let mut refused = 0;
+    for n in 3..whole.surfaces.len() {
+        let mut s = whole.clone();
+        s.surfaces.truncate(n);
+        if s.surfaces.iter().filter(|t| t.stop).count() == 0 || s.surfaces[n - 1].kind == SurfaceKind::CoordinateBreak {
+            continue; // refused for other reasons (no stop, a break as the image), tested elsewhere
+        }
+        let last = s.surfaces[n - 1].material.clone();
+        let before = s.medium_before(n - 1).map(str::to_string);
+        match last.filter(|m| Some(m) != before.as_ref()) {
+            Some(m) => {
+                assert_mentions(&build_err(&s), &[&format!("surface {}", n - 1), "image surface", &m, before.as_deref().unwrap_or("air"), "cut short"]);
+                refused += 1;
+            }
+            None => {
+                let text = spec::to_toml(&s).unwrap();
+                let outcome = spec::from_toml(&text, "user.toml").and_then(|read| SequentialSystem::build(&read).map(|_| ()));
+                if let Err(e) = outcome {
+                    assert!(!e.to_string().contains("image surface (the last)"), "cut at {n}: {e}");
+                }
+            }
+        }
+    }
+    assert!(refused >= 3, "{refused} cuts refused");
+    // An immersed detector: the image in the glass it lies in.
+    let mut s = whole.clone();
+    s.surfaces.truncate(17);
+    let glass = s.surfaces[16].material.clone().unwrap();
+    s.surfaces.push(SurfaceSpec::standard(None, 0.0, Some(&glass)));
+    assert!(SequentialSystem::build(&s).is_ok());
 }
 
 #[test]

@@ -146,6 +146,59 @@ fn final_line_break_and_records_cut_in_the_middle() {
     assert!(e.contains("MNU"), "{e}");
 }
 
+/// A file cut between two surfaces (at a line break, every record whole) used to read as a shorter system
+/// whose last surface became the image, in glass. Cut at every line of SP's surfaces: each cut whose last
+/// surface has a glass or a thickness is refused as truncated, naming that surface and record; the cuts that
+/// read are exactly those that end at an air surface with `DISZ 0` (indistinguishable from an image surface),
+/// and a complete file whose image has a glass reads, the glass skipped and listed (no ray enters it).
+#[test]
+fn a_file_cut_between_surfaces_is_refused_when_its_last_surface_cannot_be_an_image() {
+    let good = sp_zmx();
+    let lines: Vec<&str> = good.lines().collect();
+    let first = line_starting(&good, "SURF 2");
+    let trailer = line_starting(&good, "TOL");
+    let (mut refused, mut read) = (0, 0);
+    for end in first..trailer - 1 {
+        let cut = format!("{}\n", lines[..end].join("\n"));
+        let last_surf = lines[..end].iter().rposition(|l| l.starts_with("SURF ")).unwrap();
+        let block = &lines[last_surf + 1..end];
+        let glass = block.iter().find(|l| l.trim_start().starts_with("GLAS ") && !l.contains("MIRROR"));
+        let thick = block.iter().find(|l| l.trim_start().starts_with("DISZ ") && l.split_whitespace().nth(1).and_then(|v| v.parse::<f64>().ok()) != Some(0.0));
+        match import(cut.as_bytes()) {
+            Ok(_) => {
+                assert!(glass.is_none() && thick.is_none(), "cut after line {end} read, though its last surface has {glass:?} {thick:?}");
+                read += 1;
+            }
+            Err(e) => {
+                let e = e.to_string();
+                if glass.is_some() || thick.is_some() {
+                    assert!(e.contains("truncated") && e.contains(&format!("surface {}", lines[last_surf].split_whitespace().nth(1).unwrap())), "cut after line {end}: {e}");
+                    let named = glass.or(thick).unwrap().trim();
+                    assert!(e.contains(named.split_whitespace().next().unwrap()), "cut after line {end}: `{named}` not named: {e}");
+                    refused += 1;
+                } else {
+                    // Other checks may refuse a short system (fewer than three surfaces, no stop…): never silently.
+                    assert!(!e.is_empty());
+                }
+            }
+        }
+    }
+    assert!(refused > 20 && read > 0, "refused {refused}, read {read}");
+    // A whole file whose image surface carries a glass: records follow the surfaces, so it is not a cut file.
+    let image = line_starting(&good, &format!("SURF {}", import(good.as_bytes()).unwrap().spec.surfaces.len() - 1));
+    let mut glassy: Vec<String> = lines.iter().map(|l| l.to_string()).collect();
+    glassy.insert(image, "  GLAS N-BK7 0 0 1.5 40 0 0 0 0 0 0".to_string());
+    let glassy = format!("{}\n", glassy.join("\n"));
+    let read = import(glassy.as_bytes()).unwrap();
+    assert_eq!(read.spec.surfaces.last().unwrap().material, None);
+    assert_eq!(read.spec, import(good.as_bytes()).unwrap().spec);
+    assert!(read.skipped.iter().any(|u| u.keyword == "GLAS" && u.line == image + 1 && u.reason.contains("image surface")), "{:?}", read.skipped);
+    // The same without what follows the surfaces: refused.
+    let cut_glassy = &glassy[..glassy.find("TOL").unwrap()];
+    let e = import(cut_glassy.as_bytes()).unwrap_err().to_string();
+    assert!(e.contains("GLAS N-BK7") && e.contains("truncated"), "{e}");
+}
+
 /// Records that carry no optics (editor, display, tolerancing, merit-function rows) are skipped and listed
 /// by `info --system FILE.zmx` and `import-zmx`; an unmodelled keyword with optics is refused naming the
 /// line, the keyword and the surface.

@@ -16,24 +16,39 @@
 #      - colour-science's carried wheel installed as train_run.sh installs it, and imported;
 #   5. prints the device tool's call for the GPU session.
 #
-# Usage: bash scripts/gpu/prepare.sh [--no-build] [--keep]   (--keep: leave the copy and its outputs)
+# Usage: bash scripts/gpu/prepare.sh [--no-build] [--keep] [--python PY]
+#   --keep: leave the copy and its outputs; --python PY: the interpreter that stands in for the GPU machine's
+#   python3 in step 4 (default .venv's) — e.g. a venv with the GPU machine's torch (2.11), so that its torch reads
+#   the checkpoints this machine's torch wrote (docs/gpu.md, "Another torch in the dry run").
 # Exit 0 when everything is ready; the dry runs' outputs are under the copy's gpu_out/ (printed).
 set -uo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 cd "$root"
 build=1
 keep=0
-for a in "$@"; do
+gpu_py=""
+while (($#)); do
+    a="$1"
+    shift
     case "$a" in
         --no-build) build=0 ;;
         --keep) keep=1 ;;
+        --python)
+            (($#)) || { echo "prepare.sh: --python needs an interpreter" >&2; exit 2; }
+            gpu_py="$1"
+            shift
+            ;;
         -h | --help) sed -n '2,/^set -uo/p' "$0" | sed '$d; s/^# \{0,1\}//'; exit 0 ;;
-        *) echo "prepare.sh: unknown argument '$a' (usage: bash scripts/gpu/prepare.sh [--no-build] [--keep])" >&2; exit 2 ;;
+        *) echo "prepare.sh: unknown argument '$a' (usage: bash scripts/gpu/prepare.sh [--no-build] [--keep] [--python PY])" >&2; exit 2 ;;
     esac
 done
 die() { echo "prepare.sh: error: $*" >&2; exit 1; }
 py="$root/.venv/bin/python"
 [[ -x "$py" ]] || die "no .venv: run bash scripts/setup.sh"
+# The GPU machine's stand-in (step 4); .venv's Python makes the tiny checkpoint either way.
+gpu_py="${gpu_py:-$py}"
+command -v "$gpu_py" > /dev/null || die "--python $gpu_py: no such interpreter"
+echo "prepare.sh: the GPU machine's python3 stands as $gpu_py ($("$gpu_py" -c 'import sys, torch, numpy; print("Python", sys.version.split()[0], "torch", torch.__version__, "numpy", numpy.__version__)' 2>&1 | tail -1))"
 start=$SECONDS
 
 # 1. The wheel.
@@ -64,7 +79,7 @@ echo "prepare.sh: carry $((bytes / 1024 / 1024)) MiB of 64 MiB (tree + $(basenam
 status=0
 # 4a. The GPU check, dry.
 echo "prepare.sh: DRY_RUN=1 scripts/gpu_check.sh in $copy"
-if ! (cd "$copy" && DRY_RUN=1 PYTHON="$py" OUT="$copy/gpu_out/check" bash scripts/gpu_check.sh "dist/$(basename "$wheel")") > "$copy/gpu_check.log" 2>&1; then
+if ! (cd "$copy" && DRY_RUN=1 PYTHON="$gpu_py" OUT="$copy/gpu_out/check" bash scripts/gpu_check.sh "dist/$(basename "$wheel")") > "$copy/gpu_check.log" 2>&1; then
     tail -40 "$copy/gpu_check.log"
     echo "prepare.sh: FAILED: the GPU check's dry run (log $copy/gpu_check.log)" >&2
     status=1
@@ -82,7 +97,7 @@ if ! (cd "$root" && "$py" scripts/train_unrolled.py --arch unrolled-dauhst-v2 --
     tail -20 "$copy/tiny.log"
     echo "prepare.sh: FAILED: the tiny checkpoint (log $copy/tiny.log)" >&2
     status=1
-elif ! (cd "$copy" && DEVICE=cpu PYTHON="$py" RESUME="$tiny/unrolled-dauhst-v2-sp-checkpoint.pt" OUT="$copy/gpu_out/train" BUDGET_S=8 WORKERS=1 \
+elif ! (cd "$copy" && DEVICE=cpu PYTHON="$gpu_py" RESUME="$tiny/unrolled-dauhst-v2-sp-checkpoint.pt" OUT="$copy/gpu_out/train" BUDGET_S=8 WORKERS=1 \
         bash scripts/gpu/train_run.sh "dist/$(basename "$wheel")") > "$copy/train_run.log" 2>&1; then
     tail -40 "$copy/train_run.log"
     echo "prepare.sh: FAILED: the training run's dry run (log $copy/train_run.log)" >&2
@@ -96,8 +111,8 @@ fi
 
 # 4c. colour-science from the carried wheel, as train_run.sh installs it where the package is missing.
 site="$copy/gpu_out/colour-site"
-if "$py" -m pip install -q --disable-pip-version-check --no-deps --no-index --target "$site" "$copy/.whl/$(basename "${cs[0]}")" \
-    && PYTHONPATH="$site" "$py" -c "import colour, os, sys; assert os.path.realpath(colour.__file__).startswith(os.path.realpath(sys.argv[1])), colour.__file__; print('prepare.sh: colour-science', colour.__version__, 'from the carried wheel')" "$site"; then
+if "$gpu_py" -m pip install -q --disable-pip-version-check --no-deps --no-index --target "$site" "$copy/.whl/$(basename "${cs[0]}")" \
+    && PYTHONPATH="$site" "$gpu_py" -c "import colour, os, sys; assert os.path.realpath(colour.__file__).startswith(os.path.realpath(sys.argv[1])), colour.__file__; print('prepare.sh: colour-science', colour.__version__, 'from the carried wheel')" "$site"; then
     :
 else
     echo "prepare.sh: FAILED: colour-science's carried wheel does not install or import" >&2

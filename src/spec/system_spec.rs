@@ -155,6 +155,17 @@ impl SystemSpec {
         }
     }
 
+    /// The medium the rays travel in before surface `i` (its material name; `None` for air): the material of
+    /// the nearest surface before it that is neither a Coordinate Break nor a mirror (both keep the medium).
+    pub fn medium_before(&self, i: usize) -> Option<&str> {
+        self.surfaces[..i]
+            .iter()
+            .rev()
+            .find(|s| s.kind != SurfaceKind::CoordinateBreak && !s.is_mirror())
+            .and_then(|s| s.material.as_deref())
+            .filter(|m| !m.eq_ignore_ascii_case("air"))
+    }
+
     /// Whether the object is at infinity (object thickness +∞, Zemax `DISZ INFINITY` on surface 0).
     pub fn object_at_infinity(&self) -> bool {
         self.surfaces.first().is_some_and(|s| s.thickness_mm.value == f64::INFINITY)
@@ -293,6 +304,23 @@ impl SystemSpec {
             let at = |field: &str, msg: String| format!("surface {i} ({}) {field}: {msg}", s.kind.label());
             if (i == 0 || i == last) && s.kind == SurfaceKind::CoordinateBreak {
                 return Err(at("type", "the object and image surfaces cannot be Coordinate Breaks".into()));
+            }
+            // A material on the image sets the medium its traced direction is given in: the medium before it
+            // (no refraction: an immersed detector) is the one use. A different one, refracting at the image,
+            // is what a file cut short between two surfaces reads as (a lens's face became the image).
+            if i == last && i > 0 && !s.is_mirror() {
+                if let Some(m) = s.material.as_deref().filter(|m| !m.eq_ignore_ascii_case("air")) {
+                    let before = self.medium_before(i);
+                    if !before.is_some_and(|b| b.eq_ignore_ascii_case(m)) {
+                        return Err(at(
+                            "material",
+                            format!(
+                                "{m:?}: the image surface (the last) would refract from {} into {m}; an image takes no material, or the medium before it (an immersed detector). A file cut short between two surfaces reads this way: restore the missing surfaces, or remove the material",
+                                before.unwrap_or("air")
+                            ),
+                        ));
+                    }
+                }
             }
             if s.kind == SurfaceKind::CoordinateBreak && s.material.is_some() {
                 return Err(at("material", format!("{:?}: a Coordinate Break keeps the previous medium", s.material)));

@@ -220,6 +220,30 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     if blocks.len() < 3 {
         return Err(fail(format!("{} surfaces: a system needs an object, a surface and an image (truncated?)", blocks.len())));
     }
+    // A file cut between two surfaces reads whole: its last surface becomes the image. OpticStudio writes the
+    // image surface in air with `DISZ 0`, and records after the surfaces (`TOL`, `MNUM`, merit rows…); a file
+    // whose last surface has a glass or a thickness, with nothing after it, was cut inside the lens. In a whole
+    // file a glass on the image is never traversed (nothing follows the image): skipped and listed.
+    let whole = {
+        let image = &blocks.last().expect("three blocks").0;
+        recs.iter().any(|r| r.line > image.line && !r.indented)
+    };
+    let image = &mut blocks.last_mut().expect("three blocks").0;
+    if !whole {
+        let why = match (&image.glass, image.disz) {
+            (Some((line, g)), _) => Some(format!("line {line} `GLAS {g}`: the image would be inside glass")),
+            (None, Some((line, t))) if t != 0.0 => Some(format!("line {line} `DISZ {t}`: the image would have a thickness")),
+            _ => None,
+        };
+        if let Some(why) = why {
+            return Err(fail(format!(
+                "the file ends in surface {} (line {}) with nothing after it, and {why}; OpticStudio writes the image surface in air with `DISZ 0`, followed by other records: the file looks truncated",
+                image.number, image.line
+            )));
+        }
+    } else if let Some((line, g)) = image.glass.take() {
+        skipped.push(Unsupported { line, keyword: "GLAS".into(), reason: format!("glass `{g}` on the image surface: nothing follows the image, so no ray enters it") });
+    }
     // Solves and pickups read as their saved values: listed with the records that carry no optics.
     for (b, _) in &blocks {
         skipped.extend(b.frozen.iter().cloned());
