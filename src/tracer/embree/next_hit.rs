@@ -38,7 +38,10 @@ pub struct EmbreeNextHit {
 
 impl EmbreeNextHit {
     pub fn new(system: &SequentialSystem, options: &SceneOptions) -> Result<Self> {
-        Ok(EmbreeNextHit { scene: OpticalScene::build(system, options)?, solids: Solids::build(system, &options.solids())?, extra: None })
+        // One build of the solids: the scene is made of them, object for object, and the walk reads them.
+        OpticalScene::check_options(options)?;
+        let solids = Solids::build(system, &options.solids())?;
+        Ok(EmbreeNextHit { scene: OpticalScene::from_solids(system, options, solids.clone())?, solids, extra: None })
     }
 
     /// With extra geometry (mechanics) tested at every bounce, after the solids.

@@ -152,7 +152,25 @@ impl OpticalScene {
 
     /// Build the scene of `system`.
     pub fn build(system: &SequentialSystem, options: &SceneOptions) -> Result<Self> {
-        Self::build_with(system, options, false)
+        Self::check_options(options)?;
+        Self::build_with(system, options, Solids::build(system, &options.solids())?, false)
+    }
+
+    /// The options' margins finite and ≥ 0, the blade width > 0 (checked before the solids are built).
+    pub fn check_options(options: &SceneOptions) -> Result<()> {
+        if !(options.mechanical_margin_mm.is_finite() && options.mechanical_margin_mm >= 0.0)
+            || !(options.detector_margin_mm.is_finite() && options.detector_margin_mm >= 0.0)
+            || !(options.blade_width_mm.is_finite() && options.blade_width_mm > 0.0)
+        {
+            return Err(Error::invalid(format!("Embree scene options {options:?}: margins must be finite and ≥ 0, blade width > 0")));
+        }
+        Ok(())
+    }
+
+    /// Build the scene of `system` from its solids, already built with `options.solids()` (a caller that
+    /// keeps the solids too, as [`super::EmbreeNextHit`] does, builds them once).
+    pub fn from_solids(system: &SequentialSystem, options: &SceneOptions, solids: Solids) -> Result<Self> {
+        Self::build_with(system, options, solids, false)
     }
 
     /// The same scene (same geometries, bounds, masks and order) with the analytic user geometries'
@@ -162,22 +180,17 @@ impl OpticalScene {
         if options.representation != SurfaceRepresentation::User {
             return Err(Error::invalid("the oracle scene replaces analytic user geometry: it needs SurfaceRepresentation::User"));
         }
-        Self::build_with(system, options, true)
+        Self::check_options(options)?;
+        Self::build_with(system, options, Solids::build(system, &options.solids())?, true)
     }
 
-    fn build_with(system: &SequentialSystem, options: &SceneOptions, oracle: bool) -> Result<Self> {
-        if !(options.mechanical_margin_mm.is_finite() && options.mechanical_margin_mm >= 0.0)
-            || !(options.detector_margin_mm.is_finite() && options.detector_margin_mm >= 0.0)
-            || !(options.blade_width_mm.is_finite() && options.blade_width_mm > 0.0)
-        {
-            return Err(Error::invalid(format!("Embree scene options {options:?}: margins must be finite and ≥ 0, blade width > 0")));
-        }
+    fn build_with(system: &SequentialSystem, options: &SceneOptions, solids: Solids, oracle: bool) -> Result<Self> {
+        Self::check_options(options)?;
         let device = Device::new("").map_err(embree_err)?;
         if !device.supports_ray_masks() {
             return Err(Error::invalid("this Embree build does not support ray masks (RTC_DEVICE_PROPERTY_RAY_MASK_SUPPORTED), which the tracer needs"));
         }
         // The kernel-independent description (shared with the brute-force tracer, object for object).
-        let solids = Solids::build(system, &options.solids())?;
         let interfaces = solids.interfaces();
         if interfaces > MAX_INTERFACES {
             return Err(Error::invalid(format!(
