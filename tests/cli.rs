@@ -62,7 +62,7 @@ fn spot_interface_reads_pupil_csv() {
 
 /// A spot whose every ray is lost (a grating of 10 lines/µm: its first order cannot propagate at 520 nm) is a
 /// warning that says why — the outcome, the surface, the count — and appears in the JSON as `rays_lost`; a
-/// `--png` of nothing is refused, nothing written.
+/// `--png` of nothing is refused, nothing written. `trace`, `distortion` and `mapping` say why too.
 #[test]
 fn spot_says_why_no_ray_arrived() {
     let mut spec = diffcassi::presets::spec("gsp").unwrap();
@@ -88,6 +88,18 @@ fn spot_says_why_no_ray_arrived() {
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("--png") && stderr(&o).contains("nothing to plot"), "{}", stderr(&o));
     assert!(!png.exists());
+    // trace, distortion and mapping say the same: the outcome, the surface, the count.
+    let o = run(&["trace", "--system", sys.to_str().unwrap(), "--wavelength-nm", "520", "--field-mm", "0,0", "--pupil", "hexapolar:2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("0 ok, 19 failed") && out.contains(&format!("failed: 19 evanescent at surface {g}")), "{out}");
+    let o = run(&["distortion", "--system", sys.to_str().unwrap(), "--wavelength-nm", "520", "--grid", "3"]);
+    assert_eq!(o.status.code(), Some(1));
+    assert!(stderr(&o).contains(&format!("5 evanescent at surface {g}")), "{}", stderr(&o));
+    let npy = tmp("gsp10_map.npy");
+    let o = run(&["mapping", "--system", sys.to_str().unwrap(), "--wavelengths-nm", "520", "--height", "4", "--width", "4", "--npy", npy.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("no chief ray reached the image") && stderr(&o).contains(&format!("520 nm: evanescent at surface {g}")), "{}", stderr(&o));
     // A working system loses no ray: `rays_lost` is empty and nothing is said.
     let o = run(&["spot", "--preset", "sp", "--wavelength-nm", "520", "--field-mm", "0,0", "--pupil", "hexapolar:2", "--json", json.to_str().unwrap()]);
     assert!(o.status.success() && !stderr(&o).contains("warning"), "{}", stderr(&o));

@@ -385,6 +385,13 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
     let out = tracer.trace(&system, &rays)?;
     let ok = out.ok_count();
     println!("traced {} rays of field {} at {} nm: {} ok, {} failed", out.len(), field_text(&system, fs[0]), ws[0], ok, out.len() - ok);
+    if ok < out.len() {
+        // Why they failed, most first (every cause is in the CSV's status and stop_surface columns).
+        let lost = analysis::lost_rays(&out.status, &out.surface);
+        let why: Vec<String> = lost.iter().take(3).map(|l| l.describe()).collect();
+        let more = if lost.len() > 3 { format!("; {} more causes in the CSV", lost.len() - 3) } else { String::new() };
+        println!("failed: {}{more}", why.join("; "));
+    }
     let mut set = crate::io::OutputSet::files();
     if let Some(path) = &a.csv {
         let path = &set.stage(path);
@@ -738,6 +745,18 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
         println!("{}: mapping {}×{}×{} = {n} entries in {secs:.2} s ({:.2} M entries/s; chief rays every {stride} pixels, cubic interpolation between)", system.name(), a.height, a.width, ws.len(), n as f64 / secs / 1e6);
     } else {
         println!("{}: mapping {}×{}×{} = {n} chief rays in {secs:.2} s ({:.2} M rays/s), {} did not arrive", system.name(), a.height, a.width, ws.len(), n as f64 / secs / 1e6, cube.invalid_count());
+    }
+    if cube.invalid_count() == n {
+        // Every entry invalid: say why, from the on-axis chief ray at each wavelength (the cube is still written:
+        // its validity flags are all false, as they should be).
+        let mut why = Vec::new();
+        for &w in &ws {
+            let out = tracer.trace(&system, &crate::rays::RayBatch::chief_rays(&system, &[[0.0, 0.0]], w)?)?;
+            if let Some(l) = analysis::lost_rays(&out.status, &out.surface).first() {
+                why.push(format!("{w} nm: {} at surface {} ({})", l.status.label(), l.surface, l.status.meaning()));
+            }
+        }
+        eprintln!("warning: no chief ray reached the image; the on-axis chief ray: {}", if why.is_empty() { "arrives (the scene's chief rays are all off the image)".to_string() } else { why.iter().take(3).cloned().collect::<Vec<_>>().join("; ") });
     }
     let shape = [a.height, a.width, ws.len(), 2];
     // A valid entry must hold a finite position in the written precision (an f64 beyond f32::MAX would
