@@ -193,6 +193,11 @@ fn a_file_cut_between_surfaces_is_refused_when_its_last_surface_cannot_be_an_ima
     assert_eq!(read.spec.surfaces.last().unwrap().material, None);
     assert_eq!(read.spec, import(good.as_bytes()).unwrap().spec);
     assert!(read.skipped.iter().any(|u| u.keyword == "GLAS" && u.line == image + 1 && u.reason.contains("image surface")), "{:?}", read.skipped);
+    // Not one of the file's glasses either (the catalogue step alone), even one no catalogue holds.
+    let glasses = |t: &str| zmx_glasses(t.as_bytes(), "t.zmx", None, &ZmxOptions::default()).map(|g| g.0.len());
+    assert_eq!(glasses(&glassy).unwrap(), glasses(&good).unwrap());
+    let unknown = glassy.replace("GLAS N-BK7 0 0 1.5 40", "GLAS NO-SUCH-GLASS 0 0 1.5 40");
+    assert!(import(unknown.as_bytes()).is_ok() && glasses(&unknown).is_ok());
     // The same without what follows the surfaces: refused.
     let cut_glassy = &glassy[..glassy.find("TOL").unwrap()];
     let e = import(cut_glassy.as_bytes()).unwrap_err().to_string();

@@ -88,11 +88,20 @@ pub fn zmx_glasses(bytes: &[u8], source_name: &str, source_path: Option<&Path>, 
     let mut dcgc: Vec<String> = Vec::new();
     let mut uses: Vec<(usize, usize, String)> = Vec::new();
     let mut surface: Option<usize> = None;
+    // (line, number) of the last `SURF`, and whether an unindented record follows it (a whole file: a glass on
+    // its image surface is skipped by `import_zmx`, so it is not one of the file's glasses).
+    let (mut last_surf, mut whole) = (None::<(usize, usize)>, false);
     for r in lexer::records(&text) {
+        if last_surf.is_some_and(|(line, _)| r.line > line) && !r.indented {
+            whole = true;
+        }
         match r.keyword.as_str() {
             "GCAT" => gcat = Some((r.line, r.args.clone())),
             "DCGC" => dcgc.push(r.rest.trim().trim_matches('"').to_string()),
-            "SURF" => surface = Some(records::int(&r, 0).map_err(&fail)?.max(0) as usize),
+            "SURF" => {
+                let n = records::int(&r, 0).map_err(&fail)?.max(0) as usize;
+                (surface, last_surf, whole) = (Some(n), Some((r.line, n)), false);
+            }
             "GLAS" => {
                 let name = r.args.first().cloned().unwrap_or_default();
                 let catalogue_glass = !(name.is_empty() || name.eq_ignore_ascii_case("MIRROR") || name == "___BLANK" || name.chars().all(|c| c.is_ascii_digit() || c == '.'));
@@ -102,6 +111,9 @@ pub fn zmx_glasses(bytes: &[u8], source_name: &str, source_path: Option<&Path>, 
             }
             _ => {}
         }
+    }
+    if let (Some((_, image)), true) = (last_surf, whole) {
+        uses.retain(|(_, n, _)| *n != image);
     }
     let dirs = glass::search_dirs(source_path, &options.glass_dirs);
     let res = glass::resolve(gcat.as_ref(), &dcgc, &uses, &dirs).map_err(&fail)?;
