@@ -90,7 +90,7 @@ fn status_label<S: serde::Serializer>(s: &RayStatus, out: S) -> std::result::Res
 }
 
 impl LostRays {
-    /// "19 evanescent at surface 4 (a grating order that does not propagate)".
+    /// "19 evanescent at surface 4 (the grating order does not propagate)".
     pub fn describe(&self) -> String {
         format!("{} {} at surface {} ({})", self.count, self.status.label(), self.surface, self.status.meaning())
     }

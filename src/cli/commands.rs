@@ -756,7 +756,7 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
                 why.push(format!("{w} nm: {} at surface {} ({})", l.status.label(), l.surface, l.status.meaning()));
             }
         }
-        eprintln!("warning: no chief ray reached the image; the on-axis chief ray: {}", if why.is_empty() { "arrives (the scene's chief rays are all off the image)".to_string() } else { why.iter().take(3).cloned().collect::<Vec<_>>().join("; ") });
+        eprintln!("warning: no chief ray reached the image; the on-axis chief ray: {}", if why.is_empty() { "arrives at every wavelength (only the scene's off-axis points are lost)".to_string() } else { why.iter().take(3).cloned().collect::<Vec<_>>().join("; ") });
     }
     let shape = [a.height, a.width, ws.len(), 2];
     // A valid entry must hold a finite position in the written precision (an f64 beyond f32::MAX would
