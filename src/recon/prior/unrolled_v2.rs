@@ -413,4 +413,53 @@ mod tests {
         assert!(net.prior(0, &x, 0.05, &mut out[1..], h, w).is_err());
         assert!(net.estimate(0, &[], &[], 0, 0).is_err());
     }
+
+    /// The direct depth-wise path equals candle's grouped convolution, which it replaces, to rounding, and
+    /// the sum in PyTorch's order (taps in row-major order from +0, padding skipped, then the bias) bit for
+    /// bit, on 3×3 with and without padding and 1×1 kernels, signed zeros in the input.
+    #[test]
+    fn depthwise_rows_equal_the_direct_sum_bit_for_bit() {
+        let (c, h, w) = (3usize, 7usize, 9usize);
+        let mut state = 12345u64;
+        let mut rnd = || {
+            state = state.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+        };
+        let mut input: Vec<f32> = (0..c * h * w).map(|_| rnd()).collect();
+        input[10] = 0.0;
+        input[11] = -0.0;
+        for (k, padding) in [(3usize, 1usize), (1, 0), (3, 0)] {
+            let weights: Vec<f32> = (0..c * k * k).map(|_| rnd()).collect();
+            let bias: Vec<f32> = (0..c).map(|_| rnd()).collect();
+            let conv = Conv {
+                weight: Tensor::from_vec(weights.clone(), (c, 1, k, k), &Device::Cpu).unwrap(),
+                bias: Some(Tensor::from_vec(bias.clone(), c, &Device::Cpu).unwrap().reshape((1, c, 1, 1)).unwrap()),
+                groups: c,
+            };
+            let x = Tensor::from_vec(input.clone(), (1, c, h, w), &Device::Cpu).unwrap();
+            let got = conv.depthwise(&x, padding).unwrap().flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let (ho, wo) = (h + 2 * padding + 1 - k, w + 2 * padding + 1 - k);
+            let mut want = vec![0.0f32; c * ho * wo];
+            for ch in 0..c {
+                for r in 0..ho {
+                    for col in 0..wo {
+                        let mut acc = 0.0f32;
+                        for i in 0..k {
+                            for j in 0..k {
+                                let (rr, cc) = ((r + i) as isize - padding as isize, (col + j) as isize - padding as isize);
+                                if rr >= 0 && rr < h as isize && cc >= 0 && cc < w as isize {
+                                    acc += input[ch * h * w + rr as usize * w + cc as usize] * weights[ch * k * k + i * k + j];
+                                }
+                            }
+                        }
+                        want[ch * ho * wo + r * wo + col] = acc + bias[ch];
+                    }
+                }
+            }
+            assert!(got.iter().zip(&want).all(|(a, b)| a.to_bits() == b.to_bits()), "k {k}, padding {padding}");
+            let grouped = x.conv2d(&conv.weight, padding, 1, 1, c).unwrap().broadcast_add(conv.bias.as_ref().unwrap()).unwrap();
+            let grouped = grouped.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            assert!(got.iter().zip(&grouped).all(|(a, b)| (a - b).abs() <= 1e-6), "k {k}: candle's grouped convolution");
+        }
+    }
 }
