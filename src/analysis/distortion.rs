@@ -79,8 +79,8 @@ fn grid_core(system: &SequentialSystem, tracer: &dyn Tracer, wavelength_nm: f64,
     let probes = [[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]];
     let pr = tracer.trace(system, &RayBatch::chief_rays(system, &to_fields(&probes), wavelength_nm)?)?;
     if pr.status.iter().any(|s| *s != RayStatus::Ok) {
-        let why: Vec<String> = super::lost_rays(&pr.status, &pr.surface).iter().map(|l| l.describe()).collect();
-        return Err(Error::invalid(format!("the near-axis chief rays do not reach the image at {wavelength_nm} nm: of 5, {}", why.join("; "))));
+        let why = super::describe_lost(&super::lost_rays(&pr.status, &pr.surface), usize::MAX);
+        return Err(Error::invalid(format!("the near-axis chief rays do not reach the image at {wavelength_nm} nm: of 5, {why}")));
     }
     let reference_mm = [pr.x[0], pr.y[0]];
     let a = (pr.x[1] - pr.x[2]) / (2.0 * h);

@@ -89,6 +89,15 @@ fn status_label<S: serde::Serializer>(s: &RayStatus, out: S) -> std::result::Res
     out.serialize_str(s.label())
 }
 
+/// The first `at_most` causes of `lost` described and joined by "; ", then how many more there are.
+pub fn describe_lost(lost: &[LostRays], at_most: usize) -> String {
+    let mut text = lost.iter().take(at_most).map(LostRays::describe).collect::<Vec<_>>().join("; ");
+    if lost.len() > at_most {
+        text += &format!("; {} more causes", lost.len() - at_most);
+    }
+    text
+}
+
 impl LostRays {
     /// "19 evanescent at surface 4 (the grating order does not propagate)".
     pub fn describe(&self) -> String {
@@ -181,6 +190,8 @@ mod tests {
         let lost = lost_rays(&[Ok, Vignetted, Missed, Vignetted, Vignetted, Ok], &[u32::MAX, 3, 5, 3, 7, u32::MAX]);
         assert_eq!(lost, vec![LostRays { status: Vignetted, surface: 3, count: 2 }, LostRays { status: Missed, surface: 5, count: 1 }, LostRays { status: Vignetted, surface: 7, count: 1 }]);
         assert_eq!(lost[0].describe(), "2 vignetted at surface 3 (outside the surface's aperture)");
+        assert_eq!(describe_lost(&lost, 1), "2 vignetted at surface 3 (outside the surface's aperture); 2 more causes");
+        assert_eq!(describe_lost(&lost, 3).matches("; ").count(), 2);
 
         let mut spec = crate::presets::spec("gsp").unwrap();
         let g = spec.surfaces.iter().position(|s| s.grating_lines_per_um.is_some()).unwrap();

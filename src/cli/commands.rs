@@ -387,10 +387,7 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
     println!("traced {} rays of field {} at {} nm: {} ok, {} failed", out.len(), field_text(&system, fs[0]), ws[0], ok, out.len() - ok);
     if ok < out.len() {
         // Why they failed, most first (every cause is in the CSV's status and stop_surface columns).
-        let lost = analysis::lost_rays(&out.status, &out.surface);
-        let why: Vec<String> = lost.iter().take(3).map(|l| l.describe()).collect();
-        let more = if lost.len() > 3 { format!("; {} more causes in the CSV", lost.len() - 3) } else { String::new() };
-        println!("failed: {}{more}", why.join("; "));
+        println!("failed: {}", analysis::describe_lost(&analysis::lost_rays(&out.status, &out.surface), 3));
     }
     let mut set = crate::io::OutputSet::files();
     if let Some(path) = &a.csv {
@@ -453,11 +450,10 @@ fn print_spot_table(system: &SequentialSystem, spots: &[SpotDiagram]) {
             s.rms_radius_chief_um.map(|v| format!("{v:.3}")).unwrap_or_default()
         );
     }
-    // A spot whose every ray was lost has an empty row: say why (the three largest causes).
+    // A spot whose every ray was lost has an empty row: say why (the three largest causes, and how many more).
     for s in spots.iter().filter(|s| s.stats.is_none() && s.rays > 0) {
         let f = system.field_display(s.field_mm).0;
-        let why: Vec<String> = s.lost.iter().take(3).map(|l| l.describe()).collect();
-        eprintln!("warning: field ({}, {}) {unit} at {} nm: no ray reached the image: {}", f[0], f[1], s.wavelength_nm, why.join("; "));
+        eprintln!("warning: field ({}, {}) {unit} at {} nm: no ray reached the image: {}", f[0], f[1], s.wavelength_nm, analysis::describe_lost(&s.lost, 3));
     }
 }
 

@@ -88,20 +88,12 @@ pub fn zmx_glasses(bytes: &[u8], source_name: &str, source_path: Option<&Path>, 
     let mut dcgc: Vec<String> = Vec::new();
     let mut uses: Vec<(usize, usize, String)> = Vec::new();
     let mut surface: Option<usize> = None;
-    // (line, number) of the last `SURF`, and whether an unindented record follows it (a whole file: a glass on
-    // its image surface is skipped by `import_zmx`, so it is not one of the file's glasses).
-    let (mut last_surf, mut whole) = (None::<(usize, usize)>, false);
-    for r in lexer::records(&text) {
-        if last_surf.is_some_and(|(line, _)| r.line > line) && !r.indented {
-            whole = true;
-        }
+    let recs = lexer::records(&text);
+    for r in &recs {
         match r.keyword.as_str() {
             "GCAT" => gcat = Some((r.line, r.args.clone())),
             "DCGC" => dcgc.push(r.rest.trim().trim_matches('"').to_string()),
-            "SURF" => {
-                let n = records::int(&r, 0).map_err(&fail)?.max(0) as usize;
-                (surface, last_surf, whole) = (Some(n), Some((r.line, n)), false);
-            }
+            "SURF" => surface = Some(records::int(r, 0).map_err(&fail)?.max(0) as usize),
             "GLAS" => {
                 let name = r.args.first().cloned().unwrap_or_default();
                 let catalogue_glass = !(name.is_empty() || name.eq_ignore_ascii_case("MIRROR") || name == "___BLANK" || name.chars().all(|c| c.is_ascii_digit() || c == '.'));
@@ -112,7 +104,8 @@ pub fn zmx_glasses(bytes: &[u8], source_name: &str, source_path: Option<&Path>, 
             _ => {}
         }
     }
-    if let (Some((_, image)), true) = (last_surf, whole) {
+    // A whole file's glass on its image surface (the last `SURF`) is skipped by `import_zmx`: not one of its glasses.
+    if let (Some(image), true) = (surface, records::records_follow_surfaces(&recs)) {
         uses.retain(|(_, n, _)| *n != image);
     }
     let dirs = glass::search_dirs(source_path, &options.glass_dirs);
@@ -236,12 +229,8 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     // image surface in air with `DISZ 0`, and records after the surfaces (`TOL`, `MNUM`, merit rows…); a file
     // whose last surface has a glass or a thickness, with nothing after it, was cut inside the lens. In a whole
     // file a glass on the image is never traversed (nothing follows the image): skipped and listed.
-    let whole = {
-        let image = &blocks.last().expect("three blocks").0;
-        recs.iter().any(|r| r.line > image.line && !r.indented)
-    };
     let image = &mut blocks.last_mut().expect("three blocks").0;
-    if !whole {
+    if !records::records_follow_surfaces(&recs) {
         let why = match (&image.glass, image.disz) {
             (Some((line, g)), _) => Some(format!("line {line} `GLAS {g}`: the image would be inside glass")),
             (None, Some((line, t))) if t != 0.0 => Some(format!("line {line} `DISZ {t}`: the image would have a thickness")),

@@ -44,6 +44,12 @@ pub fn cosmetic_reason(keyword: &str) -> &'static str {
     }
 }
 
+/// Whether an unindented record follows the last `SURF` block. OpticStudio writes records after the surfaces
+/// (`TOL`, `MNUM`, merit rows…), so a file that has them was not cut inside its surfaces; false without `SURF`.
+pub fn records_follow_surfaces(recs: &[Record]) -> bool {
+    recs.iter().rposition(|r| r.keyword == "SURF").is_some_and(|k| recs[k + 1..].iter().any(|r| !r.indented))
+}
+
 /// A merit-function operand row (`REAY 13 2 0 1 0 0 22.54 0 0 0`): OpticStudio writes the Merit Function
 /// Editor after the surfaces, one unindented record per row, a 4-character operand name and exactly ten
 /// numbers. Optimisation targets, no optics: skipped and listed. `known_surface_keyword` excludes the keywords
