@@ -29,6 +29,7 @@ mod fuzz;
 mod ghosts_cli;
 mod ghosts_mechanics;
 mod ghosts_mesh;
+mod gpu_launcher;
 mod gpu_render;
 mod gpu_twin;
 mod infinity;

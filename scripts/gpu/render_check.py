@@ -183,6 +183,9 @@ def systems_check(a) -> int:
             if r32["landing_status_mismatches"] != 0 or not r32["landing_max_diff_mm"] <= 0.0:
                 failed.append(f"{name}: f32 device landings differ from the host's")
         record[name] = r
+        if "gpu" not in record:  # the device, once (the figures committed name it)
+            record.update(gpu=r["gpu"], driver=r["driver"], ptx=r["ptx"])
+            rows.insert(0, ("GPU", f"{r['gpu']} (driver {r['driver']}; {r['ptx']})", ""))
     record["dry_run"] = a.dry_run
     print(f"| systems check ({size}×{size}, {kw['planes']} planes, {kw['rays']} rays, opening 0.5){DRY_TITLE if a.dry_run else ''} | value | bound |")
     print("|---|---|---|")
