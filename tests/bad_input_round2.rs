@@ -342,6 +342,43 @@ fn tampered_render_json_names_the_field() {
             |j| j["planes"] = "many".into(),
             &["field `planes` = \"many\""],
         ),
+        // The noise block (the stopping rule's sensor term is computed from it; a damaged one made the term 0) and
+        // the mask's file name (a path out of the folder read another mask): found by a held-out battery.
+        (
+            "noise sources bogus",
+            |j| j["noise"] = serde_json::json!({"sources": ["bogus"], "electrons_per_unit": 10.0}),
+            &["field `noise.sources`", "\"bogus\""],
+        ),
+        (
+            "noise a string",
+            |j| j["noise"] = "garbage".into(),
+            &["field `noise` = \"garbage\""],
+        ),
+        (
+            "noise exposure 0",
+            |j| j["noise"] = serde_json::json!({"sources": ["shot"], "electrons_per_unit": 0.0}),
+            &["field `noise.electrons_per_unit` = 0.0"],
+        ),
+        (
+            "noise read -1",
+            |j| j["noise"] = serde_json::json!({"sources": ["shot", "read"], "electrons_per_unit": 5.0, "read_noise_e": -1.0}),
+            &["field `noise.read_noise_e` = -1.0"],
+        ),
+        (
+            "noise adc twice",
+            |j| j["noise"] = serde_json::json!({"sources": ["adc", "adc"], "electrons_per_unit": 5.0, "adc_gain_e_per_dn": 2.0}),
+            &["lists \"adc\" twice"],
+        ),
+        (
+            "mask file outside",
+            |j| j["mask_file"] = "../other/mask.png".into(),
+            &["field `mask_file` = \"../other/mask.png\"", "plain file name"],
+        ),
+        (
+            "mask file absolute",
+            |j| j["mask_file"] = "/etc/passwd".into(),
+            &["field `mask_file` = \"/etc/passwd\""],
+        ),
     ];
     let mut failures = Vec::new();
     for (name, edit, says) in cases {

@@ -313,3 +313,42 @@ fn render_budget_counts_the_detector() {
     let (code, text, _) = run_in(d.path(), &a);
     assert_eq!(code, Some(0), "{text}");
 }
+
+/// Found by a held-out battery (30 Nov 2026): `make-scene` wrote band lists every reader refuses (decreasing,
+/// repeated) — now refused naming `--bands`; a scene whose bands all lie outside the render's planes (a
+/// 1000–1300 nm cube rendered at 450–650 nm) rendered as its end band's constant — now refused naming both
+/// ranges; shot noise at a mean count below ~1e-16 e⁻ wrote −1 electron, and a tiny exposure with read noise
+/// wrote inf — now 0, and an error naming the exposure. Nothing written in each refusal.
+#[test]
+fn scene_bands_and_noise_extremes_are_refused_or_exact() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let s = |v: &str| v.to_string();
+    for bands in ["650:450:4", "500:500:3", "450,450,500"] {
+        let (code, out, _) = run_in(dir, &[s("make-scene"), s("--synthetic"), s("1"), s("--size"), s("8"), s("--bands"), s(bands), s("--out"), s("f.npy")]);
+        assert_eq!(code, Some(1), "{bands}: {out}");
+        assert!(out.contains(&format!("--bands `{bands}`")) && out.contains("increase strictly"), "{bands}: {out}");
+        assert!(listing(dir).is_empty(), "{bands}: wrote {:?}", listing(dir));
+    }
+    // A SWIR cube rendered in the visible: refused, no folder.
+    let ws = [1000.0, 1100.0, 1200.0, 1300.0];
+    let cube = diffcassi::scene::SpectralCube::new(8, 8, ws.to_vec(), vec![0.5; 8 * 8 * 4], "test").unwrap();
+    diffcassi::scene::save_npy(&cube, &dir.join("swir.npy")).unwrap();
+    let (code, out, _) = run_in(dir, &args("render --preset sp --scene swir.npy --scene-size 8 --bands 450:650:4 --planes 4 --rays 2 --out r", &[]));
+    assert_eq!(code, Some(1), "{out}");
+    assert!(out.contains("1000 – 1300 nm") && out.contains("outside the render's planes"), "{out}");
+    assert!(!dir.join("r").exists());
+    // A dim background under shot noise: never a negative count (exposure given so that λ ≈ 1e-19 e⁻ there).
+    let mut data = vec![1e-22f32; 8 * 8 * 4];
+    data[(4 * 8 + 4) * 4..(4 * 8 + 4) * 4 + 4].fill(1.0);
+    let dim = diffcassi::scene::SpectralCube::new(8, 8, vec![450.0, 516.0, 583.0, 650.0], data, "test").unwrap();
+    diffcassi::scene::save_npy(&dim, &dir.join("dim.npy")).unwrap();
+    let (code, out, _) = run_in(dir, &args("render --preset sp --scene dim.npy --scene-size 8 --bands 450:650:4 --planes 4 --rays 2 --noise shot --out n", &[]));
+    assert_eq!(code, Some(0), "{out}");
+    let img = diffcassi::io::exr::read_exr(&dir.join("n/acquisition.exr")).unwrap();
+    assert!(img.channels[0].data.iter().all(|v| *v >= 0.0), "a negative photon count was written");
+    let (code, out, _) = run_in(dir, &args("render --preset sp --scene dim.npy --scene-size 8 --bands 450:650:4 --planes 4 --rays 2 --noise read --read-noise-e 2 --electrons-per-unit 1e-300 --out n2", &[]));
+    assert_eq!(code, Some(1), "{out}");
+    assert!(out.contains("f32's range") && out.contains("electrons per unit"), "{out}");
+    assert!(!dir.join("n2").exists());
+}

@@ -249,3 +249,23 @@ fn a_failing_scene_does_not_stop_the_others() {
     assert!(diffcassi::render::dataset::leftovers(&out).is_empty());
     assert_eq!(status(&out).1["counts"]["missing"], 1);
 }
+
+/// A scene whose output folder would take a name of the dataset's own outputs (`mapping.npy.npy` → the folder
+/// `mapping.npy`, replacing the shared mapping cube; `dataset.json.npy` → the manifest, after which no run could
+/// resume) is refused before anything is written, naming the scene and the reserved names (found by a held-out
+/// battery: such a run replaced the shared outputs and exited 0).
+#[test]
+fn a_scene_named_like_a_shared_output_is_refused() {
+    for reserved in diffcassi::render::dataset::ROOT_OUTPUTS {
+        let d = tempfile::tempdir().unwrap();
+        let sc = d.path().join("scenes");
+        make_scenes(&sc, 1);
+        std::fs::copy(sc.join("s00.npy"), sc.join(format!("{reserved}.npy"))).unwrap();
+        let out = d.path().join("out");
+        let o = render_dataset(&sc, &out, &[]);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{reserved}: {e}");
+        assert!(e.contains(&format!("{reserved}.npy")) && e.contains(&format!("named `{reserved}`")) && e.contains("rename the scene"), "{reserved}: {e}");
+        assert!(!out.exists(), "{reserved}: the refused run wrote {}", out.display());
+    }
+}

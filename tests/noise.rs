@@ -91,6 +91,8 @@ fn render_noise_bad_options_exit_1_and_write_nothing() {
         (&["--noise", "adc", "--adc-bits", "40"][..], "bit depth"),
         (&["--noise", "read", "--read-noise-e=-1"][..], "read noise"),
         (&["--noise", "shot", "--electrons-per-unit", "0"][..], "electrons per unit"),
+        (&["--noise", "shot,read,shot", "--read-noise-e", "2"][..], "`shot` is listed twice"),
+        (&["--noise", "read", "--read-noise-e", "1e308"][..], "read noise 1e308"),
     ] {
         let o = run(&out, extra);
         let e = String::from_utf8_lossy(&o.stderr);

@@ -347,7 +347,13 @@ fn pupil_points(pupil: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<[f64; 2]>> {
         None => Ok("hexapolar:12".parse::<diffcassi::rays::PupilPattern>().py()?.points()),
         Some(p) => match p.extract::<String>() {
             Ok(text) => Ok(text.parse::<diffcassi::rays::PupilPattern>().py()?.points()),
-            Err(_) => points2("pupil", p),
+            Err(_) => {
+                let pts = points2("pupil", p)?;
+                if let Some((i, q)) = diffcassi::analysis::first_point_outside_pupil(&pts) {
+                    return Err(value_error(format!("pupil row {i} (px, py) = ({}, {}): normalised pupil coordinates must satisfy px² + py² ≤ 1", q[0], q[1])));
+                }
+                Ok(pts)
+            }
         },
     }
 }

@@ -21,7 +21,7 @@ fn pupil_points(a: &SpotArgs) -> Result<Vec<[f64; 2]>> {
                 return Err(Error::File { path: path.display().to_string(), message: "no pupil rows".into() });
             }
             // Normalised pupil coordinates live in the unit disc (a tiny tolerance for exported rims).
-            if let Some((i, p)) = pts.iter().enumerate().find(|(_, p)| !(p[0].is_finite() && p[1].is_finite() && p[0].hypot(p[1]) <= 1.0 + 1e-9)) {
+            if let Some((i, p)) = crate::analysis::first_point_outside_pupil(&pts) {
                 return Err(Error::File {
                     path: path.display().to_string(),
                     message: format!("pupil row {} (px, py) = ({}, {}): normalised pupil coordinates must satisfy px² + py² ≤ 1", i + 1, p[0], p[1]),

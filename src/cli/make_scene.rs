@@ -6,7 +6,7 @@
 //! diffcassi make-scene --rgb data/scenes/coffee.png --out out/coffee.npy          # + coffee_wavelengths_nm.npy, coffee_rgb.png
 //! diffcassi make-scene --colour-checker --size 256 --bands 450:650:28 --out out/chart.exr
 //! ```
-use super::shared::parse_wavelengths;
+use super::shared::parse_wavelengths_for;
 use crate::error::{Error, Result};
 use crate::io::{write_npy_f32, write_npy_f64, OutputSet};
 use crate::scene::{colorimetry, natural, save_exr, synthetic_scene, Fit};
@@ -50,7 +50,8 @@ pub struct MakeSceneArgs {
 }
 
 pub fn make_scene(a: MakeSceneArgs) -> Result<()> {
-    let ws = parse_wavelengths(&a.bands)?;
+    let ws = parse_wavelengths_for("--bands", &a.bands)?;
+    crate::scene::check_wavelengths(&ws, &format!("--bands `{}`", a.bands))?;
     if a.size == Some(0) {
         return Err(Error::invalid("--size must be ≥ 1"));
     }

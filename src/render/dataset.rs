@@ -73,6 +73,14 @@ pub fn find_scenes(dir: &Path) -> Result<Vec<DatasetScene>> {
         }
     }
     out.sort_by(|a, b| a.name.cmp(&b.name).then(a.path.cmp(&b.path)));
+    // A scene's folder beside the shared outputs must not take one of their names (a scene `mapping.npy.npy`
+    // would replace the shared mapping cube by its folder, `dataset.json.npy` the manifest), nor a temporary's.
+    if let Some(s) = out.iter().find(|s| ROOT_OUTPUTS.contains(&s.name.as_str()) || is_leftover_of(&s.name, None)) {
+        return Err(Error::File {
+            path: s.path.display().to_string(),
+            message: format!("the scene's output folder would be named `{}`, a name the dataset's own outputs use ({}): rename the scene", s.name, ROOT_OUTPUTS.join(", ")),
+        });
+    }
     for w in out.windows(2) {
         if w[0].name == w[1].name {
             return Err(Error::File { path: dir.display().to_string(), message: format!("two scenes would share the output folder `{}`: {} and {}", w[0].name, w[0].path.display(), w[1].path.display()) });
@@ -428,11 +436,14 @@ pub fn check_shared(out: &Path, requested: Option<&Value>) -> SceneState {
     check_sidecar(out, MANIFEST, "shared_outputs", requested)
 }
 
+/// Every name the dataset writes at its root: the manifest, the mask, the mapping cube's three files.
+pub const ROOT_OUTPUTS: [&str; 5] = [MANIFEST, "mask.png", "mapping.npy", "mapping_valid.npy", "mapping_wavelengths_nm.npy"];
+
 /// The shared outputs' file names for a configuration (`"mapping": true` adds the mapping cube).
 pub fn shared_output_names(configuration: &Value) -> Vec<&'static str> {
-    let mut v = vec!["mask.png"];
+    let mut v = vec![ROOT_OUTPUTS[1]];
     if configuration["mapping"].as_bool().unwrap_or(false) {
-        v.extend(["mapping.npy", "mapping_valid.npy", "mapping_wavelengths_nm.npy"]);
+        v.extend(&ROOT_OUTPUTS[2..]);
     }
     v
 }

@@ -340,6 +340,21 @@ impl<'a> Renderer<'a> {
                 scene.height, scene.width, self.config.scene_height, self.config.scene_width
             )));
         }
+        // The scene's spectrum is interpolated at each plane and held constant beyond its range (render.json's
+        // `spectral_interpolation`); a scene whose bands all lie outside the render's planes (a 1000–1300 nm cube
+        // rendered at 450–650 nm) would be rendered as its end band's constant: refused, naming both ranges.
+        let (ws, planes) = (&scene.wavelengths_nm, &self.config.spectral.planes_nm);
+        if let (Some(&lo), Some(&hi), Some(&p0), Some(&p1)) = (ws.first(), ws.last(), planes.first(), planes.last()) {
+            if ws.len() > 1 && (p1 < lo || p0 > hi) {
+                return Err(Error::invalid(format!(
+                    "the scene's bands ({} – {} nm) lie outside the render's planes ({} – {} nm): nothing of its spectrum would be rendered; choose --bands within the scene's range",
+                    crate::limits::fmt_num(lo),
+                    crate::limits::fmt_num(hi),
+                    crate::limits::fmt_num(p0),
+                    crate::limits::fmt_num(p1)
+                )));
+            }
+        }
         Ok(())
     }
 

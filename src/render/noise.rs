@@ -84,15 +84,15 @@ impl NoiseConfig {
 
     /// Check every number (finite, in range).
     pub fn validate(&self) -> Result<()> {
-        if !(self.read_noise_e.is_finite() && self.read_noise_e >= 0.0) {
-            return Err(Error::invalid(format!("read noise {} e⁻ must be finite and ≥ 0", self.read_noise_e)));
+        if !(self.read_noise_e.is_finite() && self.read_noise_e >= 0.0 && self.read_noise_e <= MAX_ELECTRONS) {
+            return Err(Error::invalid(format!("read noise {} e⁻ must be finite, in [0, {MAX_ELECTRONS:e}]", crate::limits::fmt_num(self.read_noise_e))));
         }
         if !(self.full_well_e.is_finite() && self.full_well_e >= 1.0 && self.full_well_e <= MAX_ELECTRONS) {
-            return Err(Error::invalid(format!("full well {} e⁻ must be finite, in [1, {MAX_ELECTRONS:e}]", self.full_well_e)));
+            return Err(Error::invalid(format!("full well {} e⁻ must be finite, in [1, {MAX_ELECTRONS:e}]", crate::limits::fmt_num(self.full_well_e))));
         }
         if let Some(k) = self.electrons_per_unit {
             if !(k.is_finite() && k > 0.0) {
-                return Err(Error::invalid(format!("electrons per unit {k} must be finite and > 0")));
+                return Err(Error::invalid(format!("electrons per unit {} must be finite and > 0", crate::limits::fmt_num(k))));
             }
         }
         if let Some(b) = self.adc_bits {
@@ -111,7 +111,7 @@ impl NoiseConfig {
             None => return Err(Error::invalid("the acquisition is black (peak 0): noise with auto exposure needs --electrons-per-unit")),
         };
         if k * peak > MAX_ELECTRONS {
-            return Err(Error::invalid(format!("{k} electrons per unit put {:e} e⁻ in the peak pixel; at most {MAX_ELECTRONS:e} are supported", k * peak)));
+            return Err(Error::invalid(format!("{} electrons per unit put {:e} e⁻ in the peak pixel; at most {MAX_ELECTRONS:e} are supported", crate::limits::fmt_num(k), k * peak)));
         }
         Ok(k)
     }
@@ -138,11 +138,16 @@ impl NoiseConfig {
         read_rng.set_stream(1);
         let read = Normal::new(0.0, self.read_noise_e).map_err(|e| Error::invalid(format!("read noise: {e}")))?;
         let max_dn = self.adc_bits.map(|b| ((1u64 << b) - 1) as f64).unwrap_or(0.0);
-        for v in image.iter_mut() {
+        // Into a copy, so that an error leaves `image` as it was.
+        let mut noisy = Vec::with_capacity(image.len());
+        for v in image.iter() {
             let mean_e = (*v * k).max(0.0);
             let mut e = mean_e;
             if self.shot {
-                e = if mean_e > 0.0 {
+                // rand_distr 0.4's Knuth sampler returns −1 when e^{−λ} rounds to 1 (λ ≲ 1.1e-16): there the
+                // Poisson draw is 0 with probability 1 − λ, i.e. to f64's resolution; the sampler draws no
+                // random number for such λ either, so the other pixels' draws are unchanged.
+                e = if mean_e > 0.0 && (-mean_e).exp() < 1.0 {
                     Poisson::new(mean_e).map_err(|err| Error::invalid(format!("shot noise at {mean_e} e⁻: {err}")))?.sample(&mut shot_rng)
                 } else {
                     0.0
@@ -158,8 +163,19 @@ impl NoiseConfig {
                 }
                 e = dn.clamp(0.0, max_dn) * g;
             }
-            *v = e / k;
+            let v = e / k;
+            // Written as f32 (EXR, NPY): a noisy value beyond f32's range (a tiny exposure K dividing the
+            // electrons back) is refused, naming the settings, rather than written as inf.
+            if !(v.abs() <= f32::MAX as f64) {
+                return Err(Error::invalid(format!(
+                    "the noisy acquisition leaves f32's range ({e:e} e⁻ / {k:e} electrons per unit = {:e}): raise the exposure (electrons per unit) or lower the read noise ({} e⁻)",
+                    e / k,
+                    self.read_noise_e
+                )));
+            }
+            noisy.push(v);
         }
+        image.copy_from_slice(&noisy);
         report.noisy_total = image.iter().sum();
         Ok(report)
     }
@@ -300,6 +316,27 @@ mod tests {
         assert_eq!(d, img);
     }
 
+    /// Pixels whose mean count λ is so small that e^{−λ} rounds to 1 (rand_distr's Knuth sampler returned −1
+    /// there: a negative photon count, found by a held-out battery) draw 0, and the other pixels' draws stay
+    /// those of the same stream.
+    #[test]
+    fn shot_noise_is_never_negative_at_tiny_counts() {
+        let mut img = vec![1e-22; 64];
+        img[10] = 1.0;
+        img[20] = 1e-3;
+        let cfg = NoiseConfig { shot: true, seed: 5, ..NoiseConfig::default() };
+        let mut a = img.clone();
+        let r = cfg.apply(&mut a).unwrap();
+        assert!(r.electrons_per_unit * 1e-22 < 1e-16);
+        assert!(a.iter().all(|v| *v >= 0.0), "{a:?}");
+        assert!(a.iter().enumerate().all(|(i, v)| i == 10 || i == 20 || *v == 0.0));
+        // The bright pixels' draws are those of the stream without the tiny ones (they consume no draw).
+        let mut b = vec![0.0; 64];
+        (b[10], b[20]) = (1.0, 1e-3);
+        cfg.apply(&mut b).unwrap();
+        assert_eq!((a[10], a[20]), (b[10], b[20]));
+    }
+
     #[test]
     fn bad_settings_are_refused() {
         let mut img = vec![0.5; 4];
@@ -311,6 +348,9 @@ mod tests {
             (NoiseConfig { adc_bits: Some(0), ..NoiseConfig::default() }, "bit depth"),
             (NoiseConfig { adc_bits: Some(32), ..NoiseConfig::default() }, "bit depth"),
             (NoiseConfig { electrons_per_unit: Some(1e12), shot: true, ..NoiseConfig::default() }, "at most"),
+            (NoiseConfig { read_noise_e: 1e308, ..NoiseConfig::default() }, "read noise"),
+            // A tiny exposure divides the electrons back into values beyond f32 (written as inf before).
+            (NoiseConfig { read_noise_e: 2.0, electrons_per_unit: Some(1e-300), ..NoiseConfig::default() }, "f32's range"),
         ] {
             let e = cfg.apply(&mut img).unwrap_err().to_string();
             assert!(e.contains(what), "{e}");

@@ -339,7 +339,12 @@ impl NoiseSettings {
         let mut cfg = NoiseConfig::default();
         let (mut read, mut adc) = (false, false);
         if list != "none" {
+            let mut seen: Vec<&str> = Vec::new();
             for item in list.split(',').map(str::trim) {
+                if seen.contains(&item) {
+                    return Err(Error::invalid(format!("--noise `{list}`: `{item}` is listed twice")));
+                }
+                seen.push(item);
                 match item {
                     "shot" => cfg.shot = true,
                     "read" => read = true,

@@ -24,6 +24,20 @@ pub enum Fit {
     Resize,
 }
 
+/// A cube's band wavelengths (nm): each finite and > 0, strictly increasing — what every reader of a scene
+/// requires, so that a writer (`make-scene`) refuses what they would refuse. `what` names the source.
+pub fn check_wavelengths(wavelengths_nm: &[f64], what: &str) -> Result<()> {
+    for (k, w) in wavelengths_nm.iter().enumerate() {
+        if !(w.is_finite() && *w > 0.0) {
+            return Err(Error::invalid(format!("{what}: wavelength {k} = {w} nm must be finite and > 0")));
+        }
+        if k > 0 && !(*w > wavelengths_nm[k - 1]) {
+            return Err(Error::invalid(format!("{what}: wavelengths must increase strictly ({} then {w} nm)", wavelengths_nm[k - 1])));
+        }
+    }
+    Ok(())
+}
+
 impl SpectralCube {
     /// Check shape, finiteness and wavelength order; `what` names the source in messages.
     pub fn new(height: usize, width: usize, wavelengths_nm: Vec<f64>, data: Vec<f32>, what: &str) -> Result<Self> {
@@ -33,14 +47,7 @@ impl SpectralCube {
         if data.len() != height * width * wavelengths_nm.len() {
             return Err(Error::invalid(format!("{what}: {} values for a {height}×{width}×{} cube", data.len(), wavelengths_nm.len())));
         }
-        for (k, w) in wavelengths_nm.iter().enumerate() {
-            if !(w.is_finite() && *w > 0.0) {
-                return Err(Error::invalid(format!("{what}: wavelength {k} = {w} nm must be finite and > 0")));
-            }
-            if k > 0 && !(*w > wavelengths_nm[k - 1]) {
-                return Err(Error::invalid(format!("{what}: wavelengths must increase strictly ({} then {w} nm)", wavelengths_nm[k - 1])));
-            }
-        }
+        check_wavelengths(&wavelengths_nm, what)?;
         if let Some(i) = data.iter().position(|v| !v.is_finite()) {
             let b = wavelengths_nm.len();
             return Err(Error::invalid(format!("{what}: value at row {}, col {}, band {} is {} (not finite)", i / b / width, (i / b) % width, i % b, data[i])));

@@ -168,3 +168,12 @@ def test_metrics_match_definitions():
     assert m["rmse"] == pytest.approx(math.sqrt(mse), rel=1e-6)
     assert m["psnr_db"] == pytest.approx(10 * math.log10(t.max() ** 2 / mse), rel=1e-6)
     assert 0 < m["ssim"] < 1 and m["sam_deg"] == pytest.approx(math.degrees(m["sam_rad"]))
+
+
+def test_spot_refuses_pupil_points_outside_the_unit_disc():
+    # As the CLI's --pupil-csv (analysis::first_point_outside_pupil); traced as "Ok" before (a held-out battery).
+    sp = diffcassi.System.preset("sp")
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"pupil row 1 \(px, py\) = \(2, 0\).*px² \+ py² ≤ 1"):
+        diffcassi.spot(sp, (0.0, 0.0), 520.0, pupil=np.array([[0.0, 0.5], [2.0, 0.0]]))
+    d = diffcassi.spot(sp, (0.0, 0.0), 520.0, pupil=np.array([[0.0, 0.5], [1.0, 0.0]]))
+    assert len(d["pupil"]) == 2

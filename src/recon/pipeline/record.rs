@@ -44,6 +44,47 @@ fn field_usize(json: &Value, path: &Path, name: &str) -> Result<usize> {
     v.as_u64().and_then(|x| usize::try_from(x).ok()).ok_or_else(|| ferr(path, format!("field `{name}` = {v} is not a non-negative integer")))
 }
 
+/// `name` is one path component naming a file (no folder, no `..`, not absolute).
+fn is_plain_file_name(name: &str) -> bool {
+    let mut c = Path::new(name).components();
+    matches!((c.next(), c.next()), (Some(std::path::Component::Normal(_)), None))
+}
+
+/// render.json's `noise` object (what `render --noise` wrote, [`crate::render::noise::NoiseConfig::to_json`]):
+/// absent or null for a clean acquisition; otherwise `sources` a list of distinct `shot`, `read`, `adc`, and each
+/// number the sources need finite and > 0 — the stopping rule's sensor term is computed from them, so a tampered
+/// or damaged block is an error naming the field, never a term silently 0.
+fn check_noise(json: &Value, jp: &Path) -> Result<()> {
+    let noise = match json.get("noise") {
+        None | Some(Value::Null) => return Ok(()),
+        Some(Value::Object(o)) => o,
+        Some(v) => return Err(ferr(jp, format!("field `noise` = {v} is not an object (render --noise writes one) or null"))),
+    };
+    let sources = noise.get("sources").and_then(Value::as_array).ok_or_else(|| ferr(jp, "field `noise.sources` is missing or not a list"))?;
+    let mut seen: Vec<&str> = Vec::new();
+    for s in sources {
+        let name = s.as_str().filter(|n| ["shot", "read", "adc"].contains(n)).ok_or_else(|| ferr(jp, format!("field `noise.sources`: {s} is not one of \"shot\", \"read\", \"adc\"")))?;
+        if seen.contains(&name) {
+            return Err(ferr(jp, format!("field `noise.sources` lists \"{name}\" twice")));
+        }
+        seen.push(name);
+    }
+    let positive = |key: &str| -> Result<()> {
+        let v = noise.get(key).ok_or_else(|| ferr(jp, format!("field `noise.{key}` is missing")))?;
+        v.as_f64().filter(|x| x.is_finite() && *x > 0.0).map(|_| ()).ok_or_else(|| ferr(jp, format!("field `noise.{key}` = {v} is not a finite number > 0")))
+    };
+    if !seen.is_empty() {
+        positive("electrons_per_unit")?;
+    }
+    if seen.contains(&"read") {
+        positive("read_noise_e")?;
+    }
+    if seen.contains(&"adc") {
+        positive("adc_gain_e_per_dn")?;
+    }
+    Ok(())
+}
+
 impl RenderRecord {
     /// Read `dir/render.json`, `dir/mask.png` and `dir/acquisition.exr` and rebuild the system and configuration.
     pub fn load(dir: &Path) -> Result<Self> {
@@ -56,6 +97,7 @@ impl RenderRecord {
         }
         let text = std::fs::read_to_string(&jp).map_err(|e| ferr(&jp, format!("cannot read: {e}")))?;
         let json: Value = serde_json::from_str(&text).map_err(|e| ferr(&jp, format!("not valid JSON: {e}")))?;
+        check_noise(&json, &jp)?;
         let spec: crate::spec::SystemSpec = serde_json::from_value(field(&json, &jp, "system_spec")?.clone()).map_err(|e| ferr(&jp, format!("field `system_spec`: {e}")))?;
         let system = SequentialSystem::build(&spec)?;
         // Every field is checked against the limits `render` applies, naming the field and its value, and the
@@ -146,7 +188,10 @@ impl RenderRecord {
         cfg.seed = field(&json, &jp, "seed")?.as_u64().ok_or_else(|| ferr(&jp, "field `seed` is not a non-negative integer"))?;
         cfg.sampling = serde_json::from_value::<Sampling>(field(&json, &jp, "sampling")?.clone()).map_err(|e| ferr(&jp, format!("field `sampling`: {e}")))?;
         cfg.airy = airy;
-        let mask_name = json.get("mask_file").and_then(Value::as_str).unwrap_or("mask.png");
+        let mask_name = match json.get("mask_file") {
+            None | Some(Value::Null) => "mask.png",
+            Some(v) => v.as_str().filter(|n| is_plain_file_name(n)).ok_or_else(|| ferr(&jp, format!("field `mask_file` = {v} must name a file in the render folder (a plain file name)")))?,
+        };
         let mask_path = dir.join(mask_name);
         if !mask_path.is_file() {
             return Err(ferr(&mask_path, "missing: the render folder's mask is needed to rebuild the operator"));
