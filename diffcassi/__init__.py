@@ -121,7 +121,9 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
     The memory and ray budgets are the CLI's defaults unless :func:`set_limits` changed them.
 
     Returns ``(acquisition, info)``: the detector image (h, w) float64 and a dict with ``render.json``'s
-    keys (``acquisition_total``, ``detector``, ``bands_nm``, ``planes_nm``, ``rays_traced``, ...).
+    keys (``acquisition_total``, ``detector``, ``bands_nm``, ``planes_nm``, ``rays_traced``, ...). Planes that lie
+    more than one band beyond the scene's bands (its spectrum held constant there) give a ``UserWarning`` and
+    ``info["spectral_extrapolation"]``; a scene entirely outside the render's planes is refused.
     """
     nz: Dict[str, Any] = {}
     if isinstance(noise, str):
@@ -138,7 +140,11 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
                                 sampling=sampling, opening=opening, mask_seed=mask_seed, airy_diameter_px=airy_diameter_px,
                                 airy=airy, backend=_check_backend(backend), device=device, precision=precision,
                                 scene_fov_deg=scene_fov_deg, **nz)
-    return acq, _json.loads(info)
+    info = _json.loads(info)
+    if "spectral_extrapolation" in info:  # planes beyond the scene's bands, held at its end band (as the CLI warns)
+        import warnings
+        warnings.warn(info["spectral_extrapolation"]["message"], stacklevel=2)
+    return acq, info
 
 
 def gpu_check(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], twin: bool = True,
@@ -179,6 +185,13 @@ def _number(name: str, v: Any) -> float:
         return float(v)
     except OverflowError:
         raise DiffcassiValueError(f"{name}: {v!r} is beyond the float64 range") from None
+
+
+def _rays(name: str, v: Any) -> int:
+    """A ray count: an integer ≥ 1 (a float such as 1.5 was truncated by ``int``), else a DiffcassiValueError naming it."""
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v < 2 ** 63:
+        raise DiffcassiValueError(f"{name}: expected an integer ≥ 1, got {type(v).__name__} {v!r}")
+    return int(v)
 
 
 def _pair(name: str, v: Any) -> list:
@@ -316,13 +329,14 @@ def monte_carlo_noise_norm(acquisition: np.ndarray, acquisition_rays: int, opera
     (the CLI's ``--noise-estimate model``); the default estimate is from the data (``noise_twin`` of
     :func:`reconstruct`): the model overestimates δ on smoother, larger scenes."""
     acq = np.ascontiguousarray(acquisition, dtype=np.float32)
-    return float(_native.monte_carlo_noise_norm(acq, int(acquisition_rays), int(operator_rays), float(planes_per_band)))
+    return float(_native.monte_carlo_noise_norm(acq, _rays("acquisition_rays", acquisition_rays), _rays("operator_rays", operator_rays),
+                                                _number("planes_per_band", planes_per_band)))
 
 
 def spread_noise_factor(acquisition_rays: int, operator_rays: int) -> float:
     """((1 + R_o/R_a)/2)^½: scales an exact operator's spread against its twin, ‖(Φ − Φ')θ‖, to the expected
     ‖y − Φx_true‖ of an acquisition traced with R_a rays (``noise_factor`` of :func:`reconstruct`)."""
-    return float(_native.spread_noise_factor(int(acquisition_rays), int(operator_rays)))
+    return float(_native.spread_noise_factor(_rays("acquisition_rays", acquisition_rays), _rays("operator_rays", operator_rays)))
 
 
 __all__ += ["mapping_operator", "shift_operator", "reconstruct", "monte_carlo_noise_norm", "spread_noise_factor"]

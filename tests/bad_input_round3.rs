@@ -338,6 +338,23 @@ fn scene_bands_and_noise_extremes_are_refused_or_exact() {
     assert_eq!(code, Some(1), "{out}");
     assert!(out.contains("1000 – 1300 nm") && out.contains("outside the render's planes"), "{out}");
     assert!(!dir.join("r").exists());
+    // A scene covering part of the render's planes (450–583 nm at 450–650 nm): rendered, with a warning and a
+    // record (its spectrum is held at 583 nm beyond); one at the render's bands: neither.
+    let part = diffcassi::scene::SpectralCube::new(8, 8, vec![450.0, 494.4, 538.9, 583.3], vec![0.5; 8 * 8 * 4], "test").unwrap();
+    diffcassi::scene::save_npy(&part, &dir.join("part.npy")).unwrap();
+    let (code, out, _) = run_in(dir, &args("render --preset sp --scene part.npy --scene-size 8 --bands 450:650:4 --planes 8 --rays 2 --out p", &[]));
+    assert_eq!(code, Some(0), "{out}");
+    assert!(out.contains("warning: ") && out.contains("lie beyond the scene's bands (450.0–583.3 nm)"), "{out}");
+    let rec: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("p/render.json")).unwrap()).unwrap();
+    let x = &rec["spectral_extrapolation"];
+    assert!(x["planes"].as_u64().unwrap() >= 1 && x["beyond_nm"].as_f64().unwrap() > 66.0 && x["of_planes"] == 8, "{x}");
+    let full = diffcassi::scene::SpectralCube::new(8, 8, vec![450.0, 516.7, 583.3, 650.0], vec![0.5; 8 * 8 * 4], "test").unwrap();
+    diffcassi::scene::save_npy(&full, &dir.join("full.npy")).unwrap();
+    let (code, out, _) = run_in(dir, &args("render --preset sp --scene full.npy --scene-size 8 --bands 450:650:4 --planes 8 --rays 2 --out f", &[]));
+    assert_eq!(code, Some(0), "{out}");
+    assert!(!out.contains("beyond the scene's bands"), "{out}");
+    let rec: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join("f/render.json")).unwrap()).unwrap();
+    assert!(rec.get("spectral_extrapolation").is_none());
     // A dim background under shot noise: never a negative count (exposure given so that λ ≈ 1e-19 e⁻ there).
     let mut data = vec![1e-22f32; 8 * 8 * 4];
     data[(4 * 8 + 4) * 4..(4 * 8 + 4) * 4 + 4].fill(1.0);
@@ -351,4 +368,20 @@ fn scene_bands_and_noise_extremes_are_refused_or_exact() {
     assert_eq!(code, Some(1), "{out}");
     assert!(out.contains("f32's range") && out.contains("electrons per unit"), "{out}");
     assert!(!dir.join("n2").exists());
+}
+
+/// Spec plausibility from the same battery: an entrance pupil of 1e308 mm (a `.zmx` `ENPD 1e308` traced 468 of
+/// 469 rays out of range) and a radius of rotation of 1e-300 mm are refused, naming the field.
+#[test]
+fn implausible_pupils_and_radii_are_refused() {
+    let mut s = common::singlet_at_infinity(false);
+    s.aperture = diffcassi::spec::SystemAperture::EntrancePupilDiameter(1e308);
+    let e = diffcassi::system::SequentialSystem::build(&s).unwrap_err().to_string();
+    assert!(e.contains("entrance_pupil_diameter = 1e308 mm"), "{e}");
+    let mut t = common::singlet_at_infinity(false);
+    t.surfaces[1].kind = diffcassi::spec::SurfaceKind::Toroidal;
+    t.surfaces[1].rotation_radius_mm = Some(diffcassi::spec::Cell::fixed(1e-300));
+    let t = diffcassi::system::SequentialSystem::build(&t).map(|_| ());
+    let e = t.unwrap_err().to_string();
+    assert!(e.contains("rotation_radius_mm = 1e-300 mm") && e.contains("1 nm"), "{e}");
 }

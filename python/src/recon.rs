@@ -437,6 +437,9 @@ fn monte_carlo_noise_norm(acquisition: &Bound<'_, PyAny>, acquisition_rays: usiz
         return Err(value_error(format!("planes_per_band = {planes_per_band}: must be finite and ≥ 1")));
     }
     let a = input::<f32>("acquisition", acquisition, "float32", 2, "(h, w)")?;
+    if a.slice().is_empty() {
+        return Err(value_error(format!("acquisition: an empty {:?} array", a.shape)));
+    }
     check_finite("acquisition", a.slice(), &a.shape)?;
     let n = a.slice().iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
     Ok(diffcassi::recon::solver::monte_carlo_noise_norm(n, acquisition_rays, operator_rays, planes_per_band))

@@ -95,6 +95,9 @@ fn _render<'py>(
         let mut info = render_output::sidecar(&r, &acq, &scene_description(&cube), scale, t0.elapsed().as_secs_f64(), threads);
         info["noise"] = noise_json;
         info["device"] = diffcassi::render::device::record_json(&r, record.as_ref());
+        if let Some(x) = r.spectral_extrapolation(&cube) {
+            info["spectral_extrapolation"] = x.to_json();
+        }
         Ok((acq, info))
     })
     .py()?;

@@ -284,7 +284,11 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
             let scene_noise = noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() });
             let noise_json = apply_noise(scene_noise.as_ref(), &mut acq, "", true)?;
             let partial = dataset::partial_dir(&a.out, &s.name)?;
-            let extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref())});
+            let mut extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref())});
+            if let Some(x) = renderer.spectral_extrapolation(&scene) {
+                eprintln!("warning: {}: {}", s.name, x.message());
+                extra["spectral_extrapolation"] = x.to_json();
+            }
             let written = write_scene(&partial, &renderer, &acq, &desc, &configuration, extra, ts.elapsed().as_secs_f64()).and_then(|()| {
                 if let Some(d) = delay {
                     std::thread::sleep(d);

@@ -73,7 +73,7 @@ pub struct AmiciArgs {
 }
 
 fn spec_of(text: &str) -> Result<SystemSpec> {
-    if crate::presets::NAMES.contains(&text.to_ascii_lowercase().as_str()) {
+    if crate::presets::ALL_NAMES.contains(&text.to_ascii_lowercase().as_str()) {
         crate::presets::spec(text)
     } else {
         crate::spec::load_spec_file(Path::new(text))

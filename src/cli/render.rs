@@ -363,6 +363,10 @@ pub fn render(a: RenderArgs) -> Result<()> {
     // Sensor noise on the acquisition (the per-band images of --cube stay clean).
     let noise_json = apply_noise(noise.as_ref(), &mut acq, a.noise.noise.as_deref().unwrap_or(""), false)?;
     let mut extra = serde_json::json!({"noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref())});
+    if let Some(x) = renderer.spectral_extrapolation(&scene) {
+        eprintln!("warning: {}", x.message());
+        extra["spectral_extrapolation"] = x.to_json();
+    }
     if !ghosts_json.is_null() {
         extra["ghosts"] = ghosts_json;
     }

@@ -358,6 +358,23 @@ impl<'a> Renderer<'a> {
         Ok(())
     }
 
+    /// Where the render's planes reach beyond the scene's bands by more than one render band (the scene's
+    /// spectrum is held constant there, at its end band): `None` for a scene that spans the render's bands
+    /// (whose outer planes lie half a band beyond its first and last band, by construction). `render`,
+    /// `render-dataset` and the bindings warn with [`SpectralExtrapolation::message`] and record it in render.json.
+    pub fn spectral_extrapolation(&self, scene: &SpectralCube) -> Option<SpectralExtrapolation> {
+        let (ws, bands, planes) = (&scene.wavelengths_nm, &self.config.spectral.bands_nm, &self.config.spectral.planes_nm);
+        if ws.len() < 2 || bands.len() < 2 {
+            return None;
+        }
+        let (lo, hi) = (ws[0], ws[ws.len() - 1]);
+        let step = (bands[bands.len() - 1] - bands[0]) / (bands.len() - 1) as f64;
+        let beyond = |w: f64| (lo - w).max(w - hi).max(0.0);
+        let far: Vec<f64> = planes.iter().map(|&w| beyond(w)).filter(|&d| d > step).collect();
+        let beyond_nm = far.iter().cloned().fold(0.0, f64::max);
+        (!far.is_empty()).then(|| SpectralExtrapolation { planes: far.len(), of_planes: planes.len(), beyond_nm, scene_nm: [lo, hi] })
+    }
+
     /// Render `scene`, tracing every plane (per-scene mode). `keep_bands` keeps the per-band images.
     pub fn render(&self, scene: &SpectralCube, keep_bands: bool, progress: &(dyn Fn(u64) + Sync)) -> Result<Acquisition> {
         self.render_with(scene, None, keep_bands, progress)
@@ -512,6 +529,34 @@ pub(crate) fn check_mask_in_beam(system: &SequentialSystem, m: crate::system::Ma
 }
 
 /// Check `--scene-fov-deg` (the full angle across the scene's width, degrees): finite and in (0, 180).
+/// Render planes beyond a scene's bands ([`Renderer::spectral_extrapolation`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct SpectralExtrapolation {
+    /// Planes farther than one render band beyond the scene's first or last band, of all planes.
+    pub planes: usize,
+    pub of_planes: usize,
+    /// The farthest such plane's distance beyond the scene's range, nm.
+    pub beyond_nm: f64,
+    /// The scene's first and last band, nm.
+    pub scene_nm: [f64; 2],
+}
+
+impl SpectralExtrapolation {
+    /// render.json's `spectral_extrapolation`: the fields and the message.
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut v = serde_json::json!(self);
+        v["message"] = self.message().into();
+        v
+    }
+
+    pub fn message(&self) -> String {
+        format!(
+            "{} of {} render planes lie beyond the scene's bands ({:.1}–{:.1} nm), by up to {:.1} nm: the scene's spectrum is held constant there (its end band); choose --bands within its range",
+            self.planes, self.of_planes, self.scene_nm[0], self.scene_nm[1], self.beyond_nm
+        )
+    }
+}
+
 pub fn check_scene_fov_deg(fov: f64) -> Result<()> {
     if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
         return Err(Error::invalid(format!("--scene-fov-deg {}: the scene's angular extent must be finite and in (0, 180) degrees", crate::limits::fmt_num(fov))));

@@ -267,7 +267,7 @@ impl SystemSpec {
             SystemAperture::ObjectSpaceNa(_) if infinite => {
                 return Err("aperture object_space_na: an object at infinity has no object-space NA; use entrance_pupil_diameter, image_space_f_number or float_by_stop_size".into())
             }
-            SystemAperture::ImageSpaceFNumber(f) if !(f.is_finite() && f > 0.0) => return Err(format!("aperture image_space_f_number = {f}: must be finite and > 0")),
+            SystemAperture::ImageSpaceFNumber(f) if !(f.is_finite() && f > 0.0) => return Err(format!("aperture image_space_f_number = {}: must be finite and > 0", crate::limits::fmt_num(f))),
             SystemAperture::FloatByStopSize => {
                 let stop = self.stop_index();
                 match self.surfaces.get(stop).and_then(|s| s.semi_diameter_mm) {
@@ -286,8 +286,8 @@ impl SystemSpec {
             SystemAperture::ObjectSpaceNa(na) if !(na.is_finite() && na > 0.0 && na < 1.0) => {
                 return Err(format!("aperture object_space_na = {na}: must be in (0, 1)"))
             }
-            SystemAperture::EntrancePupilDiameter(d) if !(d.is_finite() && d > 0.0) => {
-                return Err(format!("aperture entrance_pupil_diameter = {d}: must be finite and > 0"))
+            SystemAperture::EntrancePupilDiameter(d) if !(d.is_finite() && d > 0.0 && d <= crate::limits::MAX_LENGTH_MM) => {
+                return Err(format!("aperture entrance_pupil_diameter = {} mm: must be finite, in (0, {}] mm", crate::limits::fmt_num(d), crate::limits::fmt_num(crate::limits::MAX_LENGTH_MM)))
             }
             _ => {}
         }

@@ -177,3 +177,13 @@ def test_spot_refuses_pupil_points_outside_the_unit_disc():
         diffcassi.spot(sp, (0.0, 0.0), 520.0, pupil=np.array([[0.0, 0.5], [2.0, 0.0]]))
     d = diffcassi.spot(sp, (0.0, 0.0), 520.0, pupil=np.array([[0.0, 0.5], [1.0, 0.0]]))
     assert len(d["pupil"]) == 2
+
+
+def test_render_warns_when_planes_lie_beyond_the_scene_bands():
+    sp = diffcassi.System.preset("sp")
+    cube = np.full((8, 8, 4), 0.5, np.float32)
+    with pytest.warns(UserWarning, match=r"beyond the scene's bands \(450.0–583.3 nm\)"):
+        _, info = diffcassi.render(sp, cube, [450.0, 494.4, 538.9, 583.3], bands_nm=[450.0, 516.7, 583.3, 650.0], planes=8, rays=2)
+    assert info["spectral_extrapolation"]["planes"] >= 1
+    with pytest.raises(diffcassi.DiffcassiValueError, match="lie outside the render's planes"):
+        diffcassi.render(sp, cube, [1000.0, 1100.0, 1200.0, 1300.0], bands_nm=[450.0, 516.7, 583.3, 650.0], planes=8, rays=2)

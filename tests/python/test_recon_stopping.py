@@ -56,6 +56,16 @@ def test_bad_stopping_settings_are_clear_errors():
             diffcassi.reconstruct(op, y, "gap-tv", **{k: v})
     with pytest.raises(diffcassi.DiffcassiValueError, match="planes_per_band"):
         diffcassi.monte_carlo_noise_norm(y, 20, 20, float("nan"))
+    # Ray counts are integers ≥ 1 (1.5 was truncated to 1; −1 and 2**70 were bare OverflowErrors), and an
+    # empty acquisition is refused (its norm was −0.0): a held-out battery.
+    for bad in (1.5, -1, 0, 2 ** 70, float("nan"), True):
+        with pytest.raises(diffcassi.DiffcassiValueError, match="acquisition_rays: expected an integer ≥ 1"):
+            diffcassi.spread_noise_factor(bad, 1)
+        with pytest.raises(diffcassi.DiffcassiValueError, match="operator_rays: expected an integer ≥ 1"):
+            diffcassi.monte_carlo_noise_norm(y, 2, bad, 1.0)
+    assert diffcassi.spread_noise_factor(np.int64(4), 4) == diffcassi.spread_noise_factor(4, 4)
+    with pytest.raises(diffcassi.DiffcassiValueError, match="empty"):
+        diffcassi.monte_carlo_noise_norm(np.ones((0, 2), np.float32), 2, 2, 1.0)
 
 
 def test_monte_carlo_noise_norm_is_the_cli_model():
