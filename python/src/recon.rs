@@ -3,7 +3,7 @@
 //! An `Operator` wraps any `diffcassi::recon::Operator` (float32 cube (H, W, B) ↔ image (h, w)). Its
 //! sparse matrix (`_csr`) is the library's CSR export (`diffcassi::recon::sparse`), built from the
 //! operator's footprints, kernels and interpolation table under a memory budget.
-use crate::arrays::{check_finite, input, output, output_arg, size_arg};
+use crate::arrays::{check_bounded, check_finite, input, output, output_arg, size_arg};
 use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::render::{check_shape, owned_exact};
@@ -61,7 +61,7 @@ impl PyOperator {
         let c = self.op.cube_shape();
         let a = input::<f32>("cube", cube, "float32", 3, "(H, W, B)")?;
         check_shape("cube", &a.shape, &[c.height, c.width, c.bands])?;
-        check_finite("cube", a.slice(), &a.shape)?;
+        check_bounded("cube", a.slice(), &a.shape)?;
         let i = self.op.image_shape();
         let mut img = vec![0.0f32; i.len()];
         let x = a.slice();
@@ -74,7 +74,7 @@ impl PyOperator {
         let i = self.op.image_shape();
         let a = input::<f32>("image", image, "float32", 2, "(h, w)")?;
         check_shape("image", &a.shape, &[i.height, i.width])?;
-        check_finite("image", a.slice(), &a.shape)?;
+        check_bounded("image", a.slice(), &a.shape)?;
         let c = self.op.cube_shape();
         let mut cube = vec![0.0f32; c.len()];
         let y = a.slice();
@@ -131,7 +131,7 @@ impl PyOperator {
         let i = self.op.image_shape();
         let a = input::<f32>("acquisition", acquisition, "float32", 2, "(h, w)")?;
         check_shape("acquisition", &a.shape, &[i.height, i.width])?;
-        check_finite("acquisition", a.slice(), &a.shape)?;
+        check_bounded("acquisition", a.slice(), &a.shape)?;
         let acq = a.slice();
         let cube = run(py, || m.initialisation(acq)).py()?;
         let c = self.op.cube_shape();
@@ -295,12 +295,12 @@ fn _reconstruct<'py>(
     let c = operator.op.cube_shape();
     let a = input::<f32>("acquisition", acquisition, "float32", 2, "(h, w)")?;
     check_shape("acquisition", &a.shape, &[i.height, i.width])?;
-    check_finite("acquisition", a.slice(), &a.shape)?;
+    check_bounded("acquisition", a.slice(), &a.shape)?;
     let init = match init {
         Some(x) => {
             let x = input::<f32>("init", x, "float32", 3, "(H, W, B)")?;
             check_shape("init", &x.shape, &[c.height, c.width, c.bands])?;
-            check_finite("init", x.slice(), &x.shape)?;
+            check_bounded("init", x.slice(), &x.shape)?;
             Some(x.slice().to_vec())
         }
         None => None,
@@ -379,7 +379,7 @@ fn _unrolled<'py>(py: Python<'py>, operator: &PyOperator, acquisition: &Bound<'p
     let c = operator.op.cube_shape();
     let a = input::<f32>("acquisition", acquisition, "float32", 2, "(h, w)")?;
     check_shape("acquisition", &a.shape, &[i.height, i.width])?;
-    check_finite("acquisition", a.slice(), &a.shape)?;
+    check_bounded("acquisition", a.slice(), &a.shape)?;
     let y = a.slice();
     let op = &operator.op;
     let out = run(py, || diffcassi::recon::unrolled::unrolled(op.as_ref(), y, &net, &mut |_, _, _| {})).py()?;

@@ -131,6 +131,12 @@ pub fn main() -> i32 {
         eprintln!("error: {e}");
         return 2;
     }
+    if cli.threads.is_none() {
+        if let Err(e) = crate::limits::check_rayon_env() {
+            eprintln!("error: {e}");
+            return 2;
+        }
+    }
     if let Some(n) = cli.threads {
         if let Err(e) = crate::limits::check_threads(n) {
             eprintln!("error: {e}");

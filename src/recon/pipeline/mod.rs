@@ -131,10 +131,14 @@ pub struct Reconstructed {
 }
 
 /// `--truth`: the true cube (.npy with its wavelengths file, as `evaluate --truth`), checked against the
-/// record's scene (size and bands).
+/// record's scene size and brought to the render's bands as `evaluate` does: used as it is at the same
+/// wavelengths, resampled (linear in λ) when its bands differ but cover the render's, refused when a render band
+/// lies outside them. (Its wavelengths were ignored before: a truth at other wavelengths with the right band
+/// count gave wrong PSNRs, a held-out battery.)
 pub fn load_truth(record: &RenderRecord, path: &Path) -> Result<SpectralCube> {
     let t = crate::scene::load_scene(path, None).map_err(|e| Error::invalid(format!("--truth {}: {e}", path.display())))?;
-    if t.height != record.config.scene_height || t.width != record.config.scene_width || t.bands() != record.bands_nm().len() {
+    let bands = record.bands_nm();
+    if t.height != record.config.scene_height || t.width != record.config.scene_width {
         return Err(Error::invalid(format!(
             "--truth {}: {}×{}×{} cube, the render's scene is {}×{}×{}",
             path.display(),
@@ -143,10 +147,25 @@ pub fn load_truth(record: &RenderRecord, path: &Path) -> Result<SpectralCube> {
             t.bands(),
             record.config.scene_height,
             record.config.scene_width,
-            record.bands_nm().len()
+            bands.len()
         )));
     }
-    Ok(t)
+    let same = t.bands() == bands.len() && t.wavelengths_nm.iter().zip(bands).all(|(a, b)| (a - b).abs() <= 1e-9);
+    if same {
+        return Ok(t);
+    }
+    let (lo, hi) = (t.wavelengths_nm[0], t.wavelengths_nm[t.bands() - 1]);
+    if let Some(w) = bands.iter().find(|&&w| w < lo - 1e-6 || w > hi + 1e-6) {
+        return Err(Error::invalid(format!(
+            "--truth {}: its bands ({} – {} nm, {}) do not cover the render's band at {} nm; give the truth at the render's bands",
+            path.display(),
+            crate::limits::fmt_num(lo),
+            crate::limits::fmt_num(hi),
+            t.bands(),
+            crate::limits::fmt_num(*w)
+        )));
+    }
+    t.resample(bands)
 }
 
 /// The whole pipeline for one render record (checked by [`Request::validate`] first): the operator with its
