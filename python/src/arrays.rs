@@ -49,15 +49,20 @@ pub fn input<'py, T: Element>(name: &str, obj: &Bound<'py, PyAny>, dtype: &str, 
 /// Check every value is finite; the message names the argument and the first bad index.
 pub fn check_finite<T: Copy + Into<f64>>(name: &str, values: &[T], shape: &[usize]) -> PyResult<()> {
     if let Some(i) = values.iter().position(|v| !(*v).into().is_finite()) {
-        let mut idx = vec![0usize; shape.len()];
-        let mut r = i;
-        for (k, d) in shape.iter().enumerate().rev() {
-            idx[k] = r % d.max(&1);
-            r /= d.max(&1);
-        }
-        return Err(value_error(format!("{name}: value {} at index {idx:?} is not finite", (values[i]).into())));
+        return Err(value_error(format!("{name}: value {} at index {:?} is not finite", (values[i]).into(), index_of(i, shape))));
     }
     Ok(())
+}
+
+/// The C-order index of flat position `i` in an array of `shape` (for messages).
+fn index_of(i: usize, shape: &[usize]) -> Vec<usize> {
+    let mut idx = vec![0usize; shape.len()];
+    let mut r = i;
+    for (k, d) in shape.iter().enumerate().rev() {
+        idx[k] = r % d.max(&1);
+        r /= d.max(&1);
+    }
+    idx
 }
 
 /// [`check_finite`], then |v| ≤ [`diffcassi::limits::MAX_SCENE_VALUE`] (f32's range / 10⁹, the scene radiance
@@ -67,13 +72,7 @@ pub fn check_bounded(name: &str, values: &[f32], shape: &[usize]) -> PyResult<()
     check_finite(name, values, shape)?;
     let max = diffcassi::limits::MAX_SCENE_VALUE;
     if let Some(i) = values.iter().position(|v| (v.abs() as f64) > max) {
-        let mut idx = vec![0usize; shape.len()];
-        let mut r = i;
-        for (k, d) in shape.iter().enumerate().rev() {
-            idx[k] = r % d.max(&1);
-            r /= d.max(&1);
-        }
-        return Err(value_error(format!("{name}: value {:e} at index {idx:?} is beyond ±{max:.3e} (f32's range / 10⁹) that the operators' and solvers' f32 sums allow; rescale it", values[i])));
+        return Err(value_error(format!("{name}: value {:e} at index {:?} is beyond ±{max:.3e} (f32's range / 10⁹) that the operators' and solvers' f32 sums allow; rescale it", values[i], index_of(i, shape))));
     }
     Ok(())
 }
