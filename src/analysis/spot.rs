@@ -122,9 +122,6 @@ impl SpotDiagram {
     }
 }
 
-/// Trace the normalised pupil points `pupil` of field `field_mm` at `wavelength_nm`: mapped by the field's
-/// vignetting factors when it is a defined field that has some ([`SequentialSystem::vignetted_pupil`]);
-/// `SpotDiagram::pupil` keeps the points as given.
 /// Normalised pupil points (px, py) must lie in the unit disc (a 1e-9 tolerance for exported rims): the first
 /// one that does not, as (its index, the point) — `spot --pupil-csv` and the bindings' `spot(pupil=...)` both
 /// refuse it, naming the row.
@@ -132,6 +129,9 @@ pub fn first_point_outside_pupil(points: &[[f64; 2]]) -> Option<(usize, [f64; 2]
     points.iter().enumerate().find(|(_, p)| !(p[0].is_finite() && p[1].is_finite() && p[0].hypot(p[1]) <= 1.0 + 1e-9)).map(|(i, p)| (i, *p))
 }
 
+/// Trace the normalised pupil points `pupil` of field `field_mm` at `wavelength_nm`: mapped by the field's
+/// vignetting factors when it is a defined field that has some ([`SequentialSystem::vignetted_pupil`]);
+/// `SpotDiagram::pupil` keeps the points as given.
 pub fn spot_diagram(system: &SequentialSystem, tracer: &dyn Tracer, field_mm: [f64; 2], wavelength_nm: f64, pupil: &[[f64; 2]]) -> Result<SpotDiagram> {
     // A defined field's vignetting factors map its pupil points (src/system/vignetting.rs); the chief ray,
     // traced alongside, passes through the stop centre whatever they are.

@@ -528,7 +528,6 @@ pub(crate) fn check_mask_in_beam(system: &SequentialSystem, m: crate::system::Ma
     Ok(())
 }
 
-/// Check `--scene-fov-deg` (the full angle across the scene's width, degrees): finite and in (0, 180).
 /// Render planes beyond a scene's bands ([`Renderer::spectral_extrapolation`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct SpectralExtrapolation {
@@ -557,6 +556,7 @@ impl SpectralExtrapolation {
     }
 }
 
+/// Check `--scene-fov-deg` (the full angle across the scene's width, degrees): finite and in (0, 180).
 pub fn check_scene_fov_deg(fov: f64) -> Result<()> {
     if !(fov.is_finite() && fov > 0.0 && fov < 180.0) {
         return Err(Error::invalid(format!("--scene-fov-deg {}: the scene's angular extent must be finite and in (0, 180) degrees", crate::limits::fmt_num(fov))));
