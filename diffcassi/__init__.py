@@ -24,11 +24,8 @@ from . import _native
 from ._errors import DiffcassiError, DiffcassiFileError, DiffcassiValueError
 
 # rayon sizes its default pool by RAYON_NUM_THREADS: a huge value would start that many threads at the first
-# heavy call (100 000 hung). Refused at import, as the CLI refuses it (limits::check_rayon_env).
-_rayon_env = os.environ.get("RAYON_NUM_THREADS", "").strip()
-if _rayon_env.isdigit() and int(_rayon_env) > _native.MAX_THREADS:
-    raise DiffcassiValueError(f"environment RAYON_NUM_THREADS={_rayon_env}: must be in 1..={_native.MAX_THREADS} "
-                              "(or unset: all cores; diffcassi.set_num_threads sets it per process)")
+# heavy call (100 000 hung). Refused at import, by the CLI's check (limits::check_rayon_env).
+_native._check_rayon_env()
 from ._native import (Operator, System, Transport, get_limits, get_num_threads, jacobian, load_scene, mapping, read_exr,
                       set_limits, set_num_threads, synthetic_scene, trace, uplift_srgb)
 

@@ -229,7 +229,7 @@ pub fn check_rayon_env() -> Result<()> {
     if let Ok(v) = std::env::var("RAYON_NUM_THREADS") {
         if let Ok(n) = v.trim().parse::<u64>() {
             if n > MAX_THREADS as u64 {
-                return Err(Error::invalid(format!("environment RAYON_NUM_THREADS={n}: must be in 1..={MAX_THREADS} (or unset: all cores; --threads sets it per command)")));
+                return Err(Error::invalid(format!("environment RAYON_NUM_THREADS={n}: must be in 1..={MAX_THREADS} (or unset: all cores; `--threads` or `diffcassi.set_num_threads` sets the count)")));
             }
         }
     }

@@ -28,7 +28,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     limits::init()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("EMBREE", cfg!(feature = "embree"))?;
-    m.add("MAX_THREADS", diffcassi::limits::MAX_THREADS)?;
+    m.add_function(wrap_pyfunction!(pool::_check_rayon_env, m)?)?;
     m.add_function(wrap_pyfunction!(pool::set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(pool::get_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(limits::set_limits, m)?)?;

@@ -108,6 +108,13 @@ pub fn set_num_threads(n: &Bound<'_, PyAny>) -> PyResult<()> {
 }
 
 /// Threads the heavy calls use.
+/// The environment's `RAYON_NUM_THREADS` checked as the CLI checks it (`limits::check_rayon_env`); the package
+/// calls it at import, before any pool starts.
+#[pyfunction]
+pub fn _check_rayon_env() -> PyResult<()> {
+    diffcassi::limits::check_rayon_env().map_err(crate::errors::to_py)
+}
+
 #[pyfunction]
 pub fn get_num_threads() -> PyResult<usize> {
     Ok(match current()? {

@@ -46,7 +46,7 @@
 //! ```
 use super::operator::CubeShape;
 use crate::error::{Error, Result};
-use crate::scene::SpectralCube;
+use crate::scene::{AtWavelengths, SpectralCube};
 
 /// SSIM window: Gaussian σ (pixels), radius (11×11 window), and the constants K₁, K₂, data range L.
 pub const SSIM_SIGMA_PX: f64 = 1.5;
@@ -263,20 +263,20 @@ pub fn evaluate(truth: &SpectralCube, estimate: &SpectralCube) -> Result<Evaluat
             truth.height, truth.width, truth.bands(), estimate.height, estimate.width, estimate.bands()
         )));
     }
-    let same = truth.bands() == estimate.bands() && truth.wavelengths_nm.iter().zip(&estimate.wavelengths_nm).all(|(a, b)| (a - b).abs() <= 1e-9);
     let resampled;
-    let t = if same {
-        truth
-    } else {
-        let (lo, hi) = (truth.wavelengths_nm[0], truth.wavelengths_nm[truth.bands() - 1]);
-        if let Some(w) = estimate.wavelengths_nm.iter().find(|&&w| w < lo - 1e-6 || w > hi + 1e-6) {
+    let (t, same) = match truth.at_wavelengths(&estimate.wavelengths_nm)? {
+        AtWavelengths::Same => (truth, true),
+        AtWavelengths::Resampled(r) => {
+            resampled = r;
+            (&resampled, false)
+        }
+        AtWavelengths::Outside(w) => {
+            let (lo, hi) = (truth.wavelengths_nm[0], truth.wavelengths_nm[truth.bands() - 1]);
             return Err(Error::invalid(format!(
                 "cannot resample the truth ({lo}–{hi} nm, {} bands) to the estimate's band at {w} nm: outside the truth's range",
                 truth.bands()
             )));
         }
-        resampled = truth.resample(&estimate.wavelengths_nm)?;
-        &resampled
     };
     let shape = CubeShape { height: estimate.height, width: estimate.width, bands: estimate.bands() };
     let truth_peak = t.data.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v as f64));

@@ -38,6 +38,14 @@ pub fn check_wavelengths(wavelengths_nm: &[f64], what: &str) -> Result<()> {
     Ok(())
 }
 
+/// [`SpectralCube::at_wavelengths`]: the cube as it is, resampled, or the first wavelength outside its range (nm).
+#[derive(Clone, Debug)]
+pub enum AtWavelengths {
+    Same,
+    Resampled(SpectralCube),
+    Outside(f64),
+}
+
 impl SpectralCube {
     /// Check shape, finiteness and wavelength order; `what` names the source in messages.
     pub fn new(height: usize, width: usize, wavelengths_nm: Vec<f64>, data: Vec<f32>, what: &str) -> Result<Self> {
@@ -109,6 +117,21 @@ impl SpectralCube {
             }
         }
         SpectralCube::new(self.height, self.width, wavelengths_nm.to_vec(), data, "resampled cube")
+    }
+
+    /// This cube brought to `wavelengths_nm` for a comparison (`evaluate`, `reconstruct --truth`): the same
+    /// wavelengths (within 1e-9 nm), resampled when its bands cover them (within 1e-6 nm; linear in λ, never
+    /// extrapolated), or the first wavelength outside its range. Callers word the refusal.
+    pub fn at_wavelengths(&self, wavelengths_nm: &[f64]) -> Result<AtWavelengths> {
+        let same = self.bands() == wavelengths_nm.len() && self.wavelengths_nm.iter().zip(wavelengths_nm).all(|(a, b)| (a - b).abs() <= 1e-9);
+        if same {
+            return Ok(AtWavelengths::Same);
+        }
+        let (lo, hi) = (self.wavelengths_nm[0], self.wavelengths_nm[self.bands() - 1]);
+        match wavelengths_nm.iter().find(|&&w| w < lo - 1e-6 || w > hi + 1e-6) {
+            Some(&w) => Ok(AtWavelengths::Outside(w)),
+            None => Ok(AtWavelengths::Resampled(self.resample(wavelengths_nm)?)),
+        }
     }
 
     /// The `h × w` window starting at (row0, col0).

@@ -136,6 +136,7 @@ pub struct Reconstructed {
 /// lies outside them. (Its wavelengths were ignored before: a truth at other wavelengths with the right band
 /// count gave wrong PSNRs, a held-out battery.)
 pub fn load_truth(record: &RenderRecord, path: &Path) -> Result<SpectralCube> {
+    use crate::scene::AtWavelengths;
     let t = crate::scene::load_scene(path, None).map_err(|e| Error::invalid(format!("--truth {}: {e}", path.display())))?;
     let bands = record.bands_nm();
     if t.height != record.config.scene_height || t.width != record.config.scene_width {
@@ -150,22 +151,18 @@ pub fn load_truth(record: &RenderRecord, path: &Path) -> Result<SpectralCube> {
             bands.len()
         )));
     }
-    let same = t.bands() == bands.len() && t.wavelengths_nm.iter().zip(bands).all(|(a, b)| (a - b).abs() <= 1e-9);
-    if same {
-        return Ok(t);
-    }
-    let (lo, hi) = (t.wavelengths_nm[0], t.wavelengths_nm[t.bands() - 1]);
-    if let Some(w) = bands.iter().find(|&&w| w < lo - 1e-6 || w > hi + 1e-6) {
-        return Err(Error::invalid(format!(
+    match t.at_wavelengths(bands)? {
+        AtWavelengths::Same => Ok(t),
+        AtWavelengths::Resampled(r) => Ok(r),
+        AtWavelengths::Outside(w) => Err(Error::invalid(format!(
             "--truth {}: its bands ({} – {} nm, {}) do not cover the render's band at {} nm; give the truth at the render's bands",
             path.display(),
-            crate::limits::fmt_num(lo),
-            crate::limits::fmt_num(hi),
+            crate::limits::fmt_num(t.wavelengths_nm[0]),
+            crate::limits::fmt_num(t.wavelengths_nm[t.bands() - 1]),
             t.bands(),
-            crate::limits::fmt_num(*w)
-        )));
+            crate::limits::fmt_num(w)
+        ))),
     }
-    t.resample(bands)
 }
 
 /// The whole pipeline for one render record (checked by [`Request::validate`] first): the operator with its
