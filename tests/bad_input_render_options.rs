@@ -66,7 +66,7 @@ fn conflicting_render_options_are_refused() {
 #[test]
 fn device_cpu_renders_and_cuda_without_a_gpu_is_refused() {
     let d = tempfile::tempdir().unwrap();
-    if diffcassi::gpu::probe().is_err() {
+    if diffcassi::gpu::probe(0).is_err() {
         // What is missing here: the driver (or a device), named; nothing written.
         let o = render(d.path(), &["--device", "cuda"]);
         refused(&o, 1, &["--device cuda: ", "use --device cpu"]);

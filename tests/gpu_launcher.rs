@@ -44,7 +44,7 @@ fn run_with(dir: &Path, args: &[&str], env: &[(&str, &str)], extra_lib: Option<&
     }
     let mut c = Command::new(env!("CARGO_BIN_EXE_diffcassi"));
     c.current_dir(dir).args(args).env("LD_LIBRARY_PATH", path).env_remove("DIFFCASSI_PTX").env_remove("DIFFCASSI_CUDA_DRIVER");
-    for v in ["CUDA_EMU_PTX_ISA", "CUDA_EMU_REFUSE_PTX", "CUDA_EMU_DRIVER_VERSION", "CUDA_EMU_DEVICES", "CUDA_EMU_INIT_ERROR", "CUDA_EMU_FREE_BYTES"] {
+    for v in ["CUDA_EMU_PTX_ISA", "CUDA_EMU_REFUSE_PTX", "CUDA_EMU_DRIVER_VERSION", "CUDA_EMU_DEVICES", "CUDA_EMU_UNAVAILABLE", "CUDA_EMU_INIT_ERROR", "CUDA_EMU_FREE_BYTES"] {
         c.env_remove(v);
     }
     c.envs(env.iter().copied());
@@ -226,4 +226,38 @@ fn the_launcher_falls_back_and_fails_clearly_on_an_emulated_device() {
     refused(&run_with(dir, &render("none"), &[("CUDA_EMU_DEVICES", "0")], None), "none", &["--device cuda", "reports no CUDA device"]);
     refused(&run_with(dir, &render("init"), &[("CUDA_EMU_INIT_ERROR", "999")], None), "init", &["--device cuda", "cuInit failed with CUDA error 999"]);
     refused(&run_with(dir, &render("small"), &[("CUDA_EMU_FREE_BYTES", "4096")], None), "small", &["GB on the device", "are free"]);
+}
+
+/// `--device cuda:N` on a driver with two devices, the first held by another process (its context refused:
+/// CUDA_ERROR_DEVICE_UNAVAILABLE): `cuda:1` renders (and maps) the twin's bits on the second device, whose
+/// context, memory and module are its own (the emulator refuses another device's handles), and render.json
+/// names it; `cuda` (device 0) fails naming the driver's error; `cuda:2` is refused naming the devices there are;
+/// a malformed ordinal is refused before the driver is asked. Nothing is written by a refused command.
+#[test]
+fn the_launcher_renders_on_the_device_an_ordinal_names() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let two = [("CUDA_EMU_DEVICES", "2"), ("CUDA_EMU_UNAVAILABLE", "0")];
+    let render = |device: &str, out: &str| -> Output { run_with(dir, &["render", "--preset", "sp", "--scene-size", "12", "--planes", "2", "--rays", "2", "--seed", "3", "--device", device, "--out", out], &two, None) };
+    ok(&render("cuda:1", "gpu1"), "render cuda:1");
+    ok(&render("cpu-twin", "twin"), "render cpu-twin");
+    assert_same_render(&dir.join("gpu1"), &dir.join("twin"), "cuda:1");
+    let dev = json(&dir.join("gpu1/render.json"))["device"].clone();
+    assert_eq!(dev["device"], "cuda:1", "{dev}");
+    assert!(dev["gpu"].as_str().unwrap().contains("emulator, device 1"), "{dev}");
+    let o = run_with(dir, &["render", "--preset", "sp", "--scene-size", "12", "--planes", "2", "--rays", "2", "--seed", "3", "--device", "cuda:0", "--out", "gpu0"], &[("CUDA_EMU_DEVICES", "2")], None);
+    ok(&o, "render cuda:0");
+    assert_eq!(json(&dir.join("gpu0/render.json"))["device"]["device"], "cuda", "cuda:0 is recorded as cuda");
+    let m = |device: &str, out: &str| -> Output { run_with(dir, &["mapping", "--preset", "sp", "--height", "6", "--width", "5", "--device", device, "--npy", out], &two, None) };
+    ok(&m("cuda:1", "map1.npy"), "mapping cuda:1");
+    ok(&m("cpu-twin", "map_twin.npy"), "mapping cpu-twin");
+    assert!(std::fs::read(dir.join("map1.npy")).unwrap() == std::fs::read(dir.join("map_twin.npy")).unwrap(), "mapping on cuda:1 differs from the twin");
+    for (device, says) in [("cuda", "CUDA_ERROR_DEVICE_UNAVAILABLE"), ("cuda:2", "reports 2 CUDA device(s) (cuda:0 … cuda:1), not cuda:2"), ("cuda:x", "after `cuda:` give a device ordinal"), ("cuda:64", "at most 64 CUDA devices")] {
+        let o = render(device, "refused");
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{device}: {e}");
+        assert!(e.contains(&format!("--device {device}")) || e.contains(&format!("--device `{device}`")), "{device}: {e}");
+        assert!(e.contains(says) && !e.contains("panicked"), "{device}: {e}");
+        assert!(!dir.join("refused").exists(), "{device}: a refused render wrote its folder");
+    }
 }

@@ -322,8 +322,8 @@ fn a_black_scene_renders_black_and_bad_settings_are_named() {
     let e = plan(&rt, &scene()).err().expect("another backend refused").to_string();
     assert!(e.contains("--backend gpu-twin-f64"), "{e}");
     // Without a CUDA driver (CI), --device cuda is one clear error.
-    if diffcassi::gpu::probe().is_err() {
-        let e = render_for(Device::Cuda, &r, &scene(), false, &|_| {}).err().expect("no CUDA here").to_string();
+    if diffcassi::gpu::probe(0).is_err() {
+        let e = render_for(Device::Cuda(0), &r, &scene(), false, &|_| {}).err().expect("no CUDA here").to_string();
         assert!(e.contains("NVIDIA driver") || e.contains("CUDA"), "{e}");
     }
 }

@@ -342,8 +342,8 @@ fn the_mapping_cube_on_the_twin_equals_the_cpu_cube() {
             }
         }
     }
-    if diffcassi::gpu::probe().is_err() {
-        let e = Device::Cuda.tracer(Precision::F64).err().expect("no CUDA here").to_string();
+    if diffcassi::gpu::probe(0).is_err() {
+        let e = Device::Cuda(0).tracer(Precision::F64).err().expect("no CUDA here").to_string();
         assert!(e.contains("--device cuda"), "{e}");
     }
 }

@@ -117,11 +117,11 @@ fn _gpu_check<'py>(py: Python<'py>, system: &PySystem, scene: &Bound<'py, PyAny>
     let cube = scene_cube(scene, ws)?;
     let (cfg, m) = configure(cube.height, cube.width, &s.options, None)?;
     if !dry_run {
-        if let Some(why) = diffcassi::render::Device::Cuda.unavailable() {
+        if let Some(why) = diffcassi::render::Device::Cuda(0).unavailable() {
             return Err(value_error(format!("gpu_check: no CUDA device to check: {why}")));
         }
     }
-    let executor = if dry_run { diffcassi::render::device::Executor::Twin } else { diffcassi::render::device::Executor::Cuda };
+    let executor = if dry_run { diffcassi::render::device::Executor::Twin } else { diffcassi::render::device::Executor::Cuda(0) };
     let t = tracer(s.backend.as_str())?;
     let sys = Arc::clone(&system.inner);
     let report = run(py, move || -> diffcassi::Result<_> {

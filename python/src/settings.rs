@@ -78,7 +78,7 @@ impl Options {
         // refused on a finite object, required at infinity, in (0, 180) degrees).
         s.scene_fov_deg = self.scene_fov_deg;
         if let Some(d) = &self.device {
-            s.device = d.parse::<Device>().map_err(|_| value_error(format!("device `{d}`: use \"cpu\" or \"cuda\"")))?;
+            s.device = parse_device(d)?;
             if let Some(why) = s.device.unavailable() {
                 return Err(value_error(format!("device \"{d}\": {why} (use device=\"cpu\")")));
             }
@@ -166,6 +166,16 @@ pub fn extra<'py, T: FromPyObject<'py>>(s: &Settings<'py>, name: &str, what: &st
         Some(v) => get(name, &v, what).map(Some),
         None => Ok(None),
     }
+}
+
+/// `device` as the library reads it (`cpu`, `cuda`, `cuda:N`, `cpu-twin`), its error in keyword spelling
+/// (`device "cuda:x": after `cuda:` give a device ordinal …`).
+pub fn parse_device(d: &str) -> PyResult<Device> {
+    d.parse::<Device>().map_err(|e| {
+        let msg = e.to_string();
+        let why = msg.split_once("`: ").map_or(msg.as_str(), |(_, w)| w);
+        value_error(format!("device \"{d}\": {why}"))
+    })
 }
 
 /// Refuse a `device` other than `"cpu"` where the call computes on the host (`exact`, the model operators,

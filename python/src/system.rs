@@ -538,7 +538,7 @@ fn _dispersion(py: Python<'_>, system: &PySystem, field_mm: Vec<f64>, wavelength
 }
 
 /// The chief-ray mapping cube: positions (H, W, L, 2) float64 detector mm and valid (H, W, L) bool.
-/// `device` "cuda" traces the chief rays with the GPU trace kernels (`mapping --device cuda`), "cpu-twin" with
+/// `device` "cuda" (or "cuda:N") traces the chief rays with the GPU trace kernels (`mapping --device cuda`), "cpu-twin" with
 /// the same kernels on the CPU; `precision` "f32" with the f32 kernels. A device other than the CPU takes
 /// the default backend only.
 #[pyfunction]
@@ -555,7 +555,7 @@ fn mapping<'py>(
     device: &str,
     precision: &str,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<bool>>)> {
-    let dev = device.parse::<diffcassi::render::Device>().map_err(|_| value_error(format!("device `{device}`: use \"cpu\", \"cuda\" or \"cpu-twin\"")))?;
+    let dev = crate::settings::parse_device(device)?;
     let prec = precision.parse::<diffcassi::tracer::Precision>().map_err(|_| value_error(format!("precision `{precision}`: use \"f64\" or \"f32\"")))?;
     if (dev != diffcassi::render::Device::Cpu || prec != diffcassi::tracer::Precision::F64) && backend != "analytic" {
         return Err(value_error(format!("device=\"{device}\", precision=\"{precision}\": the GPU kernels and the f32 kernel trace on their own; backend=\"{backend}\" cannot be combined with them")));

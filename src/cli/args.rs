@@ -175,10 +175,10 @@ pub struct MappingArgs {
     /// error against f64 measured by `bench tradeoff`, see docs/performance.md).
     #[arg(long, value_name = "f64|f32", value_parser = <crate::tracer::Precision as std::str::FromStr>::from_str)]
     pub precision: Option<crate::tracer::Precision>,
-    /// Where the chief rays are traced: cpu (the default), cuda (the GPU trace kernels on the first CUDA
-    /// device, in --precision; docs/gpu.md) or cpu-twin (the same kernels on the CPU: the device's numbers,
+    /// Where the chief rays are traced: cpu (the default), cuda / cuda:N (the GPU trace kernels on CUDA device
+    /// 0 / N, in --precision; docs/gpu.md) or cpu-twin (the same kernels on the CPU: the device's numbers,
     /// slowly, where there is no GPU).
-    #[arg(long, default_value = "cpu", value_name = "cpu|cuda|cpu-twin")]
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]|cpu-twin")]
     pub device: String,
 }
 

@@ -86,9 +86,9 @@ pub struct RenderCommon {
     /// --tolerance-um, chosen.
     #[arg(long, value_name = "f64|f32", value_parser = <crate::tracer::Precision as std::str::FromStr>::from_str)]
     pub precision: Option<crate::tracer::Precision>,
-    /// Where to render: cpu, or cuda (the first CUDA device: the GPU kernels, f64; docs/gpu.md), or cpu-twin
-    /// (the GPU kernels run on the CPU, slowly: the device's bits where there is no GPU).
-    #[arg(long, default_value = "cpu", value_name = "cpu|cuda|cpu-twin")]
+    /// Where to render: cpu, or cuda / cuda:N (the GPU kernels on CUDA device 0 / N, f64; docs/gpu.md), or
+    /// cpu-twin (the GPU kernels run on the CPU, slowly: the device's bits where there is no GPU).
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]|cpu-twin")]
     pub device: String,
 }
 
@@ -219,9 +219,10 @@ pub struct BenchRenderArgs {
     /// fidelity calibration (`--tolerance-um`), is within it.
     #[arg(long = "mapping-tolerance-um", default_value_t = 1e-3)]
     pub mapping_tolerance_um: f64,
-    /// cuda: also render the acquisition on the first CUDA device (the GPU kernels, f64), twice, beside the
-    /// CPU's rows: its time, whether the two runs are bit-identical, its largest difference from the CPU.
-    #[arg(long, default_value = "cpu", value_name = "cpu|cuda")]
+    /// cuda (or cuda:N): also render the acquisition on CUDA device 0 (N) (the GPU kernels, f64), twice,
+    /// beside the CPU's rows: its time, whether the two runs are bit-identical, its largest difference from
+    /// the CPU.
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]")]
     pub device: String,
 }
 
@@ -427,8 +428,8 @@ fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Rende
     let acq = renderer.render(scene, false, &|_| {})?;
     row(&format!("acquisition, {} kernel {first_p} (setup {setup:.2} s + render)", first.name()), t.elapsed().as_secs_f64() + setup, acq.stats.traced);
     let peak = acq.image.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    if device == crate::render::Device::Cuda {
-        bench_gpu(renderer, scene, &acq, row)?;
+    if let crate::render::Device::Cuda(ordinal) = device {
+        bench_gpu(renderer, scene, &acq, ordinal, row)?;
     }
     for &(k, p) in &variants[1..] {
         let mut c = renderer.config.clone();
@@ -453,13 +454,13 @@ fn bench_acquisitions(system: &crate::system::SequentialSystem, renderer: &Rende
     Ok(())
 }
 
-/// The acquisition on the CUDA device, twice (the second run is timed; both must have the same bits), against
-/// the CPU's acquisition `cpu` of the same seed.
-fn bench_gpu(renderer: &Renderer, scene: &SpectralCube, cpu: &crate::render::Acquisition, row: &dyn Fn(&str, f64, u64)) -> Result<()> {
+/// The acquisition on CUDA device `ordinal`, twice (the second run is timed; both must have the same bits),
+/// against the CPU's acquisition `cpu` of the same seed.
+fn bench_gpu(renderer: &Renderer, scene: &SpectralCube, cpu: &crate::render::Acquisition, ordinal: usize, row: &dyn Fn(&str, f64, u64)) -> Result<()> {
     use crate::render::device::{render_on, Executor};
-    let (a, _) = render_on(renderer, scene, false, Executor::Cuda)?;
+    let (a, _) = render_on(renderer, scene, false, Executor::Cuda(ordinal))?;
     let t = Instant::now();
-    let (b, rec) = render_on(renderer, scene, false, Executor::Cuda)?;
+    let (b, rec) = render_on(renderer, scene, false, Executor::Cuda(ordinal))?;
     let wall = t.elapsed().as_secs_f64();
     let same = a.same_bits(&b);
     let kernels_s = rec.kernels_ms.unwrap_or(0.0) / 1e3;
@@ -467,7 +468,7 @@ fn bench_gpu(renderer: &Renderer, scene: &SpectralCube, cpu: &crate::render::Acq
     row(&format!("acquisition, GPU f64 with plan, uploads and copy back (max |Δ| vs CPU {:.1e} of the peak; two runs bit-identical: {})", b.max_diff_of_peak(cpu), if same { "yes" } else { "NO" }), wall, b.stats.traced);
     println!("(GPU: {}, driver {}, {}; {})", rec.gpu.unwrap_or_default(), rec.driver.unwrap_or_default(), rec.ptx.unwrap_or_default(), rec.accumulation);
     if !same {
-        return Err(Error::invalid("bench-render --device cuda: two GPU runs of the same render differ (the accumulation must be deterministic)"));
+        return Err(Error::invalid(format!("bench-render --device {}: two GPU runs of the same render differ (the accumulation must be deterministic)", crate::render::Device::Cuda(ordinal))));
     }
     Ok(())
 }

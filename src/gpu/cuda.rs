@@ -1,4 +1,4 @@
-//! The device launcher: the embedded PTX (`kernels/trace.ptx`) loaded with the CUDA driver API (`cudarc`'s
+//! The device launcher, one per CUDA device used (`cuda:N`, started on its first use): the embedded PTX (`kernels/trace.ptx`) loaded with the CUDA driver API (`cudarc`'s
 //! thin `driver::result` layer, the driver library opened at run time), a [`RenderPlan`] uploaded and run
 //! plane by plane on one stream — `dc_deposit_kernel` (one thread a ray), `dc_airy_kernel` (one thread a
 //! detector pixel) — then `dc_finish_kernel`, and the acquisition copied back. The kernels are the host
@@ -12,6 +12,7 @@
 //! ([`super::probe`]) because cudarc panics when a library is absent.
 use super::pack::{self, Batch, Step};
 use super::plan::{initial_counts, PlanOutput, RenderPlan, BLOCK, COUNT_SLOTS};
+use super::device::MAX_DEVICES;
 use super::{probe, CudaInfo};
 use crate::error::{Error, Result};
 use crate::system::SequentialSystem;
@@ -20,7 +21,7 @@ use cudarc::driver::{result as cu, sys};
 use std::ffi::{c_void, CString};
 use std::sync::OnceLock;
 
-/// The loaded module and its kernels, on the first device's primary context.
+/// The loaded module and its kernels, on one device's primary context.
 struct Launcher {
     ctx: sys::CUcontext,
     trace: sys::CUfunction,
@@ -45,20 +46,29 @@ struct Launcher {
 unsafe impl Send for Launcher {}
 unsafe impl Sync for Launcher {}
 
-static LAUNCHER: OnceLock<std::result::Result<Launcher, String>> = OnceLock::new();
+/// A launcher per device ordinal, each started once (its error kept, so a failing device fails alike on
+/// every call).
+static LAUNCHERS: [OnceLock<std::result::Result<Launcher, String>>; MAX_DEVICES] = [const { OnceLock::new() }; MAX_DEVICES];
 
 fn cuda_err(what: &str, e: cu::DriverError) -> String {
     format!("{what} failed ({e:?})")
 }
 
-/// The device and the PTX's origin, once the launcher is up (for records: `render.json`'s `device`).
-pub fn device_info() -> Result<(CudaInfo, String)> {
-    let l = launcher()?;
+/// Device `ordinal` and the PTX's origin, once its launcher is up (for records: `render.json`'s `device`).
+pub fn device_info(ordinal: usize) -> Result<(CudaInfo, String)> {
+    let l = launcher(ordinal)?;
     Ok((l.info.clone(), l.source.clone()))
 }
 
-fn launcher() -> Result<&'static Launcher> {
-    LAUNCHER.get_or_init(start).as_ref().map_err(|e| Error::invalid(format!("CUDA: {e}")))
+/// Device `ordinal`'s launcher, its context made current on the calling thread.
+fn launcher(ordinal: usize) -> Result<&'static Launcher> {
+    let Some(slot) = LAUNCHERS.get(ordinal) else {
+        return Err(Error::invalid(format!("CUDA: cuda:{ordinal}: at most {MAX_DEVICES} devices (cuda:0 … cuda:{}) are supported", MAX_DEVICES - 1)));
+    };
+    let l = slot.get_or_init(|| start(ordinal)).as_ref().map_err(|e| Error::invalid(format!("CUDA: {e}")))?;
+    // SAFETY: the context was retained by the launcher.
+    unsafe { cu::ctx::set_current(l.ctx) }.map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("cuCtxSetCurrent", e))))?;
+    Ok(l)
 }
 
 fn load_module(ptx: &str) -> std::result::Result<sys::CUmodule, String> {
@@ -87,12 +97,12 @@ fn nvrtc_ptx() -> std::result::Result<String, String> {
     }
 }
 
-fn start() -> std::result::Result<Launcher, String> {
-    let info = probe().map_err(|e| e.to_string())?;
+fn start(ordinal: usize) -> std::result::Result<Launcher, String> {
+    let info = probe(ordinal).map_err(|e| e.to_string())?;
     // SAFETY: the driver library is present (probed); each call's result is checked.
     unsafe {
         cu::init().map_err(|e| cuda_err("cuInit", e))?;
-        let dev = cu::device::get(0).map_err(|e| cuda_err("cuDeviceGet", e))?;
+        let dev = cu::device::get(ordinal as i32).map_err(|e| cuda_err("cuDeviceGet", e))?;
         let ctx = cu::primary_ctx::retain(dev).map_err(|e| cuda_err("cuDevicePrimaryCtxRetain", e))?;
         cu::ctx::set_current(ctx).map_err(|e| cuda_err("cuCtxSetCurrent", e))?;
         let mut tried = Vec::new();
@@ -198,12 +208,10 @@ fn arg<T>(v: &T) -> *mut c_void {
     v as *const T as *mut c_void
 }
 
-/// Run `plan` on the first CUDA device: the same kernels as [`RenderPlan::run_twin`], hence its bits.
-pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, DeviceTimes)> {
-    let l = launcher()?;
+/// Run `plan` on CUDA device `ordinal`: the same kernels as [`RenderPlan::run_twin`], hence its bits.
+pub fn render(ordinal: usize, plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, DeviceTimes)> {
+    let l = launcher(ordinal)?;
     let t0 = std::time::Instant::now();
-    // SAFETY: the context was retained by the launcher.
-    unsafe { cu::ctx::set_current(l.ctx) }.map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("cuCtxSetCurrent", e))))?;
     let npix = plan.detector_pixels();
     let n_rays = plan.rays_per_plane();
     // Device memory first, against what the device has free.
@@ -291,11 +299,9 @@ pub fn render(plan: &RenderPlan<'_>, keep_bands: bool) -> Result<(PlanOutput, De
 /// Where plane `p`'s rays land on the device (`dc_landing_kernel`, or `dc_landing_f32_kernel` for an f32 plan): detector column and row (NaN: none),
 /// the status code of ray `q·N + k` (11, `DC_AIM_FAILED`: a ray whose aim failed) and its weight (the coded-mask
 /// surface's transmission where it crossed it; 1 without one), as `render::twin::plane_landings_of` computes
-/// them on the host.
-pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, Vec<u8>, Vec<f64>)> {
-    let l = launcher()?;
-    // SAFETY: the context was retained by the launcher.
-    unsafe { cu::ctx::set_current(l.ctx) }.map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("cuCtxSetCurrent", e))))?;
+/// them on the host; on CUDA device `ordinal`.
+pub fn landings(ordinal: usize, plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, Vec<u8>, Vec<f64>)> {
+    let l = launcher(ordinal)?;
     if p >= plan.planes.len() {
         return Err(Error::invalid(format!("plane {p}: the plan has {} planes", plan.planes.len())));
     }
@@ -324,11 +330,9 @@ pub fn landings(plan: &RenderPlan<'_>, p: usize) -> Result<(Vec<f64>, Vec<f64>, 
 
 /// Trace `rays` through `system` on the device, one thread a ray: `dc_trace_kernel`, or `dc_trace_f32_kernel`
 /// when `f32`, the kernels [`super::TwinTracer`] runs on the host, hence its numbers ray for ray (the
-/// [`super::CudaTracer`] behind `mapping --device cuda`).
-pub fn trace(system: &SequentialSystem, rays: RaySlices<'_>, f32: bool) -> Result<TracedBatch> {
-    let l = launcher()?;
-    // SAFETY: the context was retained by the launcher.
-    unsafe { cu::ctx::set_current(l.ctx) }.map_err(|e| Error::invalid(format!("CUDA: {}", cuda_err("cuCtxSetCurrent", e))))?;
+/// [`super::CudaTracer`] behind `mapping --device cuda`); on CUDA device `ordinal`.
+pub fn trace(ordinal: usize, system: &SequentialSystem, rays: RaySlices<'_>, f32: bool) -> Result<TracedBatch> {
+    let l = launcher(ordinal)?;
     let steps = pack::steps(system)?;
     let tables = pack::index_tables(system, rays.wavelength_nm())?;
     let n = rays.len();

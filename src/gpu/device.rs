@@ -2,14 +2,21 @@
 //! on the CPU), and every failure is one message that says what is missing — no driver library, a driver
 //! that fails to initialise, no device — never a panic (a plain `dlopen`, then `cuInit` and
 //! `cuDeviceGetCount`; cudarc's `CudaContext::new` panics when libcuda.so is absent, so the probe comes first).
+//! Devices are named as torch and the command line name them: `cuda` is device 0, `cuda:N` device N of the
+//! devices the driver shows (after `CUDA_VISIBLE_DEVICES`); asking for one it lacks names how many it has.
 use std::ffi::{c_char, c_int, c_void, CStr};
+
+/// Device ordinals accepted (`cuda:0` … `cuda:63`): a launcher each, started on first use.
+pub const MAX_DEVICES: usize = 64;
 
 /// What the probe found.
 #[derive(Clone, Debug, PartialEq)]
 pub struct CudaInfo {
     /// Devices the driver reports.
     pub devices: usize,
-    /// The first device's name (`cuDeviceGetName`).
+    /// The device probed (its ordinal: `cuda:N`).
+    pub ordinal: usize,
+    /// That device's name (`cuDeviceGetName`).
     pub name: String,
     /// The driver's CUDA version, e.g. 13020 for 13.2 (`cuDriverGetVersion`).
     pub driver_version: i32,
@@ -25,6 +32,8 @@ pub enum DeviceError {
     Driver(String),
     #[error("the NVIDIA driver reports no CUDA device")]
     NoDevice,
+    #[error("the NVIDIA driver reports {devices} CUDA device(s) (cuda:0 … cuda:{last}), not cuda:{ordinal}", last = .devices - 1)]
+    NoSuchDevice { ordinal: usize, devices: usize },
     #[error("a CUDA device was found but the kernels could not be started on it: {0}")]
     Launcher(String),
 }
@@ -44,9 +53,10 @@ fn dlerror_text() -> String {
     }
 }
 
-/// Probe the CUDA driver: library, initialisation, device count, the first device's name and the driver
-/// version. Environment `DIFFCASSI_CUDA_DRIVER` names another driver library (tests use a missing path).
-pub fn probe() -> Result<CudaInfo, DeviceError> {
+/// Probe the CUDA driver for device `ordinal` (0 for `cuda`): library, initialisation, device count, that
+/// device's name and the driver version. Environment `DIFFCASSI_CUDA_DRIVER` names another driver library
+/// (tests use a missing path, or the emulator of `tests/cuda_emu`).
+pub fn probe(ordinal: usize) -> Result<CudaInfo, DeviceError> {
     let names: Vec<String> = match std::env::var("DIFFCASSI_CUDA_DRIVER") {
         Ok(p) if !p.is_empty() => vec![p],
         _ => DRIVER_NAMES.iter().map(|s| s.to_string()).collect(),
@@ -94,24 +104,27 @@ pub fn probe() -> Result<CudaInfo, DeviceError> {
         if count(&mut n) != 0 || n <= 0 {
             return Err(DeviceError::NoDevice);
         }
+        if ordinal >= n as usize {
+            return Err(DeviceError::NoSuchDevice { ordinal, devices: n as usize });
+        }
         let mut dev: c_int = 0;
         let mut buf = [0 as c_char; 256];
-        let dev_name = if get(&mut dev, 0) == 0 && name(buf.as_mut_ptr(), buf.len() as c_int, dev) == 0 {
+        let dev_name = if get(&mut dev, ordinal as c_int) == 0 && name(buf.as_mut_ptr(), buf.len() as c_int, dev) == 0 {
             CStr::from_ptr(buf.as_ptr()).to_string_lossy().into_owned()
         } else {
             "unknown device".into()
         };
         let mut v: c_int = 0;
         version(&mut v);
-        Ok(CudaInfo { devices: n as usize, name: dev_name, driver_version: v })
+        Ok(CudaInfo { devices: n as usize, ordinal, name: dev_name, driver_version: v })
     }
 }
 
-/// What `--device cuda` checks before anything is written: the driver, a device, and the kernels loaded on
-/// it ([`super::cuda`]'s launcher, started once per process).
-pub fn require_cuda() -> Result<CudaInfo, DeviceError> {
-    probe()?;
-    super::cuda::device_info().map(|(info, _)| info).map_err(|e| DeviceError::Launcher(e.to_string()))
+/// What `--device cuda[:N]` checks before anything is written: the driver, device `ordinal`, and the
+/// kernels loaded on it ([`super::cuda`]'s launcher, started once per process and device).
+pub fn require_cuda(ordinal: usize) -> Result<CudaInfo, DeviceError> {
+    probe(ordinal)?;
+    super::cuda::device_info(ordinal).map(|(info, _)| info).map_err(|e| DeviceError::Launcher(e.to_string()))
 }
 
 #[cfg(test)]
@@ -132,8 +145,14 @@ mod tests {
     #[test]
     fn require_cuda_agrees_with_the_probe() {
         // Without a driver (CI) both fail alike; with one, require_cuda also loads the kernels.
-        if probe().is_err() {
-            assert_eq!(require_cuda().unwrap_err(), probe().unwrap_err());
+        if probe(0).is_err() {
+            assert_eq!(require_cuda(0).unwrap_err(), probe(0).unwrap_err());
         }
+    }
+
+    #[test]
+    fn a_missing_ordinal_names_the_devices_there_are() {
+        let msg = DeviceError::NoSuchDevice { ordinal: 3, devices: 2 }.to_string();
+        assert_eq!(msg, "the NVIDIA driver reports 2 CUDA device(s) (cuda:0 … cuda:1), not cuda:3");
     }
 }

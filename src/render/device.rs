@@ -38,14 +38,14 @@ use crate::tracer::Precision;
 pub enum Executor {
     /// On the host: the kernels' CPU twin (the same source compiled for the CPU).
     Twin,
-    /// On the first CUDA device.
-    Cuda,
+    /// On CUDA device N (`cuda:N`; 0 is `cuda`).
+    Cuda(usize),
 }
 
 /// What a device render records beside its acquisition (`render.json`'s `device`).
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct DeviceRecord {
-    /// `cuda` or `cpu-twin`.
+    /// `cuda`, `cuda:N` (N > 0) or `cpu-twin`.
     pub device: String,
     /// The GPU's name and the driver's CUDA version (CUDA only).
     pub gpu: Option<String>,
@@ -178,11 +178,11 @@ pub fn render_on(r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, execu
             let out = plan.run_twin(keep_bands)?;
             (out, DeviceRecord { device: "cpu-twin".into(), gpu: None, driver: None, precision: r.config.precision.name().into(), accumulation, kernels_ms: None, total_ms: None, ptx: None })
         }
-        Executor::Cuda => {
-            let (info, ptx) = cuda::device_info()?;
-            let (out, times) = cuda::render(&plan, keep_bands)?;
+        Executor::Cuda(ordinal) => {
+            let (info, ptx) = cuda::device_info(ordinal)?;
+            let (out, times) = cuda::render(ordinal, &plan, keep_bands)?;
             let record = DeviceRecord {
-                device: "cuda".into(),
+                device: Device::Cuda(ordinal).to_string(),
                 gpu: Some(info.name.clone()),
                 driver: Some(format!("{}.{}", info.driver_version / 1000, (info.driver_version % 1000) / 10)),
                 precision: r.config.precision.name().into(),
@@ -213,12 +213,13 @@ pub fn render_on(r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, execu
 }
 
 /// Render on the device a setting names: the CPU renderer for [`Device::Cpu`] (no record), the GPU kernels on
-/// the first CUDA device for [`Device::Cuda`], on the host for [`Device::CpuTwin`].
+/// CUDA device N for [`Device::Cuda`]`(N)`, on the host for [`Device::CpuTwin`].
 pub fn render_for(device: Device, r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, progress: &(dyn Fn(u64) + Sync)) -> Result<(Acquisition, Option<DeviceRecord>)> {
     match device {
         Device::Cpu => Ok((r.render(scene, keep_bands, progress)?, None)),
-        Device::Cuda | Device::CpuTwin => {
-            let (acq, rec) = render_on(r, scene, keep_bands, if device == Device::Cuda { Executor::Cuda } else { Executor::Twin })?;
+        Device::Cuda(_) | Device::CpuTwin => {
+            let executor = if let Device::Cuda(n) = device { Executor::Cuda(n) } else { Executor::Twin };
+            let (acq, rec) = render_on(r, scene, keep_bands, executor)?;
             progress(acq.stats.traced);
             Ok((acq, Some(rec)))
         }
@@ -270,10 +271,10 @@ pub struct DeviceCheck {
     pub landing_status_mismatches: u64,
 }
 
-/// Render `scene` with `r` on the CUDA device twice, on the CPU, and (if `twin`) through the host twin, and
-/// land the middle plane's rays on both: the figures of [`DeviceCheck`].
+/// Render `scene` with `r` on the first CUDA device twice, on the CPU, and (if `twin`) through the host twin,
+/// and land the middle plane's rays on both: the figures of [`DeviceCheck`].
 pub fn check(r: &Renderer<'_>, scene: &SpectralCube, twin: bool) -> Result<DeviceCheck> {
-    check_on(r, scene, twin, Executor::Cuda)
+    check_on(r, scene, twin, Executor::Cuda(0))
 }
 
 /// [`check`] with the "device" runs on `executor`: [`Executor::Cuda`] is the GPU check; [`Executor::Twin`] is its
@@ -302,7 +303,7 @@ pub fn check_on(r: &Renderer<'_>, scene: &SpectralCube, twin: bool, executor: Ex
     let p = r.config.spectral.planes() / 2;
     let pl = plan(r, scene)?;
     let (du, dv, ds, dw) = match executor {
-        Executor::Cuda => cuda::landings(&pl, p)?,
+        Executor::Cuda(ordinal) => cuda::landings(ordinal, &pl, p)?,
         Executor::Twin => pl.landings_twin(p)?,
     };
     let host = super::twin::plane_landings_of(&r.plane_context(), p as u64, r.config.spectral.planes_nm[p], &pl.pixels)?;

@@ -10,7 +10,7 @@
 //! let mut s = RenderSettings { scene_size: 16, planes: 8, rays: Some(2), ..RenderSettings::default() };
 //! let (cfg, mask) = s.config()?;
 //! assert_eq!((cfg.scene_height, cfg.spectral.planes(), mask.width), (16, 8, 16));
-//! s.device = Device::Cuda;
+//! s.device = Device::Cuda(0);
 //! assert!(s.config().unwrap_err().to_string().contains("--device cuda: ")); // no launcher (or driver) here
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
@@ -23,15 +23,17 @@ use std::path::PathBuf;
 /// Rays per scene pixel per plane when none are given (and no fidelity tolerance chooses them).
 pub const DEFAULT_RAYS: usize = 20;
 
-/// Where a render runs, chosen in one place for every front end. `Cuda` is the GPU backend (docs/gpu.md): the
-/// kernels tested through their CPU twin, launched on the first CUDA device ([`super::device::render_for`]);
-/// [`Device::check`] refuses it, before anything is written, with what is missing (the driver, a device, or
-/// kernels the driver could load: [`crate::gpu::require_cuda`]).
+/// Where a render runs, chosen in one place for every front end. `Cuda(N)` is the GPU backend (docs/gpu.md):
+/// the kernels tested through their CPU twin, launched on CUDA device N ([`super::device::render_for`]),
+/// spelt as torch spells it — `cuda` (device 0) or `cuda:N`, N counting the devices the driver shows after
+/// `CUDA_VISIBLE_DEVICES`; [`Device::check`] refuses it, before anything is written, with what is missing
+/// (the driver, that device, or kernels the driver could load: [`crate::gpu::require_cuda`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Device {
     #[default]
     Cpu,
-    Cuda,
+    /// CUDA device N.
+    Cuda(usize),
     /// The GPU kernels run on the CPU (their host twin): the device's arithmetic and bits, slowly — to check
     /// a GPU's results where there is none.
     CpuTwin,
@@ -39,11 +41,11 @@ pub enum Device {
 
 impl Device {
     /// Why this build cannot render on the device (`None`: it can): for `Cuda`, what is missing — the NVIDIA
-    /// driver, a device, or kernels it can load ([`crate::gpu::require_cuda`]).
+    /// driver, the device, or kernels it can load ([`crate::gpu::require_cuda`]).
     pub fn unavailable(self) -> Option<String> {
         match self {
             Device::Cpu | Device::CpuTwin => None,
-            Device::Cuda => crate::gpu::require_cuda().err().map(|e| e.to_string()),
+            Device::Cuda(n) => crate::gpu::require_cuda(n).err().map(|e| e.to_string()),
         }
     }
 
@@ -63,37 +65,55 @@ impl Device {
         match self {
             Device::Cpu => precision.tracer(Kernel::default()),
             Device::CpuTwin => Ok(Box::new(crate::gpu::TwinTracer { precision, ..Default::default() })),
-            Device::Cuda => {
+            Device::Cuda(ordinal) => {
                 self.check()?;
-                Ok(Box::new(crate::gpu::CudaTracer { precision }))
+                Ok(Box::new(crate::gpu::CudaTracer { precision, ordinal }))
             }
         }
     }
 
-    pub fn name(self) -> &'static str {
+    /// The kind of device: `cpu`, `cuda` (any ordinal) or `cpu-twin`; [`Device`]'s `Display` adds the ordinal.
+    pub fn kind(self) -> &'static str {
         match self {
             Device::Cpu => "cpu",
-            Device::Cuda => "cuda",
+            Device::Cuda(_) => "cuda",
             Device::CpuTwin => "cpu-twin",
         }
+    }
+
+    /// A GPU device (`cuda`, `cuda:N`).
+    pub fn is_cuda(self) -> bool {
+        matches!(self, Device::Cuda(_))
     }
 }
 
 impl std::str::FromStr for Device {
     type Err = Error;
+    /// `cpu`, `cuda` (device 0), `cuda:N` (N a decimal ordinal < [`crate::gpu::device::MAX_DEVICES`]) or
+    /// `cpu-twin`.
     fn from_str(s: &str) -> Result<Self> {
+        let max = crate::gpu::device::MAX_DEVICES;
         match s.trim() {
             "cpu" => Ok(Device::Cpu),
-            "cuda" => Ok(Device::Cuda),
+            "cuda" => Ok(Device::Cuda(0)),
             "cpu-twin" => Ok(Device::CpuTwin),
-            _ => Err(Error::invalid(format!("--device `{s}`: use cpu or cuda (or cpu-twin: the GPU kernels on the CPU)"))),
+            t if t.starts_with("cuda:") => match t["cuda:".len()..].parse::<usize>() {
+                Ok(n) if n < max && t["cuda:".len()..].bytes().all(|b| b.is_ascii_digit()) => Ok(Device::Cuda(n)),
+                Ok(n) if n >= max => Err(Error::invalid(format!("--device `{s}`: device ordinal {n}: at most {max} CUDA devices (cuda:0 … cuda:{}) are supported", max - 1))),
+                _ => Err(Error::invalid(format!("--device `{s}`: after `cuda:` give a device ordinal (0, 1, …), e.g. cuda:1"))),
+            },
+            _ => Err(Error::invalid(format!("--device `{s}`: use cpu, cuda or cuda:N (or cpu-twin: the GPU kernels on the CPU)"))),
         }
     }
 }
 
 impl std::fmt::Display for Device {
+    /// `cpu`, `cuda` (device 0), `cuda:N` or `cpu-twin`: what [`FromStr`](std::str::FromStr) reads back.
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
+        match self {
+            Device::Cuda(n) if *n > 0 => write!(f, "cuda:{n}"),
+            d => f.write_str(d.kind()),
+        }
     }
 }
 
@@ -404,8 +424,8 @@ mod tests {
 
     #[test]
     fn device_cuda_without_a_driver_is_refused_and_unknown_names_are_errors() {
-        let s = RenderSettings { scene_size: 4, planes: 2, device: Device::Cuda, ..RenderSettings::default() };
-        if crate::gpu::probe().is_err() {
+        let s = RenderSettings { scene_size: 4, planes: 2, device: Device::Cuda(0), ..RenderSettings::default() };
+        if crate::gpu::probe(0).is_err() {
             // No driver here (CI): refused with what is missing.
             let e = s.config().unwrap_err().to_string();
             assert!(e.starts_with("--device cuda: ") && e.ends_with("use --device cpu"), "{e}");
@@ -413,6 +433,22 @@ mod tests {
         }
         assert_eq!("cpu".parse::<Device>().unwrap(), Device::Cpu);
         assert!("tpu".parse::<Device>().unwrap_err().to_string().contains("--device `tpu`"));
+    }
+
+    #[test]
+    fn cuda_devices_are_spelt_as_torch_spells_them() {
+        for (text, device, shown) in [("cuda", Device::Cuda(0), "cuda"), ("cuda:0", Device::Cuda(0), "cuda"), ("cuda:3", Device::Cuda(3), "cuda:3"), (" cuda:63 ", Device::Cuda(63), "cuda:63"), ("cpu-twin", Device::CpuTwin, "cpu-twin")] {
+            let d: Device = text.parse().unwrap();
+            assert_eq!((d, d.to_string().as_str()), (device, shown), "{text}");
+            assert_eq!(d.to_string().parse::<Device>().unwrap(), d);
+        }
+        for bad in ["cuda:", "cuda:-1", "cuda:+1", "cuda:1.0", "cuda: 1", "cuda:x", "cuda:1:2"] {
+            let e = bad.parse::<Device>().unwrap_err().to_string();
+            assert!(e.contains(&format!("--device `{bad}`")) && e.contains("give a device ordinal"), "{bad}: {e}");
+        }
+        let e = "cuda:64".parse::<Device>().unwrap_err().to_string();
+        assert!(e.contains("at most 64 CUDA devices (cuda:0 … cuda:63)"), "{e}");
+        assert!("cuda:99999999999999999999999".parse::<Device>().unwrap_err().to_string().contains("give a device ordinal"));
     }
 
     #[test]

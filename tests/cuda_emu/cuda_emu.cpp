@@ -10,9 +10,11 @@
  *    of a kernel the PTX lacks: CUDA_ERROR_NOT_FOUND) and each entry's parameter sizes, which must equal the
  *    host build's (sizeof of each parameter of the same function here): so NVRTC's struct layouts, the host
  *    compiler's and, through the launches, the Rust side's agree;
- *  - device memory is host memory, but every copy and memset must lie inside one live allocation, and every
- *    call needs cuInit and a current context on the calling thread (CUDA_ERROR_INVALID_CONTEXT otherwise),
- *    as a real driver requires;
+ *  - device memory is host memory, but every copy and memset must lie inside one live allocation of the current
+ *    context's device, and every call needs cuInit and a current context on the calling thread
+ *    (CUDA_ERROR_INVALID_CONTEXT otherwise), as a real driver requires; with CUDA_EMU_DEVICES > 1 each device has
+ *    its own primary context, memory count and name, and a module, function or allocation of one device used
+ *    while another's context is current is refused (what `--device cuda:N` must never do);
  *  - a launch runs the entry point's body (the same source as the PTX, device branch: atomics, shared memory,
  *    __syncthreads) block by block, each block's threads as fibers where the kernel synchronises, synchronously
  *    and in block order; grids and blocks beyond the hardware's limits are refused.
@@ -22,8 +24,8 @@
  *
  * Environment: CUDA_EMU_PTX_ISA (e.g. "9.0": the newest PTX ISA the emulated driver takes; default any),
  * CUDA_EMU_REFUSE_PTX (refuse, as an unsupported PTX version, an image that holds this text: e.g. the embedded
- * PTX's header line, so that a fallback's PTX is the one loaded), CUDA_EMU_DRIVER_VERSION (default 13020), CUDA_EMU_DEVICES (default 1), CUDA_EMU_INIT_ERROR (cuInit's result,
- * default 0), CUDA_EMU_FREE_BYTES (cuMemGetInfo's free memory, default 8 GiB).
+ * PTX's header line, so that a fallback's PTX is the one loaded), CUDA_EMU_DRIVER_VERSION (default 13020), CUDA_EMU_DEVICES (default 1), CUDA_EMU_UNAVAILABLE (ordinals whose
+ * context cannot be had, e.g. "0"), CUDA_EMU_INIT_ERROR (cuInit's result, default 0), CUDA_EMU_FREE_BYTES (cuMemGetInfo's free memory, default 8 GiB).
  * Built by tests/cuda_emu/build.sh (g++, -ffp-contract=off as the host twin); used by tests/gpu_launcher.rs and
  * tests/python/test_gpu_emulated.py through LD_LIBRARY_PATH.
  */
@@ -210,9 +212,11 @@ typedef void *CUcontext;
 typedef void *CUstream;
 struct EmuModule {
     std::map<std::string, std::vector<size_t>> entries; /* entry name → its .param sizes, from the PTX */
+    int device;                                          /* the device whose context loaded it */
 };
 struct EmuFunction {
     const Kernel *kernel;
+    int device;
 };
 struct EmuEvent {
     double ms;
@@ -227,6 +231,7 @@ enum {
     CUDA_ERROR_INVALID_VALUE = 1,
     CUDA_ERROR_OUT_OF_MEMORY = 2,
     CUDA_ERROR_NOT_INITIALIZED = 3,
+    CUDA_ERROR_DEVICE_UNAVAILABLE = 46,
     CUDA_ERROR_NO_DEVICE = 100,
     CUDA_ERROR_INVALID_DEVICE = 101,
     CUDA_ERROR_INVALID_IMAGE = 200,
@@ -245,20 +250,38 @@ enum {
 
 static std::mutex g_lock;
 static bool g_initialised = false;
-static int g_primary_context = 0; /* its address is the one context */
+/* Device d's primary context is &g_contexts[d] (the emulator's devices: CUDA_EMU_DEVICES ≤ 64). */
+static const int MAX_EMU_DEVICES = 64;
+static int g_contexts[MAX_EMU_DEVICES];
 static thread_local CUcontext t_current = nullptr;
-static std::map<CUdeviceptr, size_t> g_allocations;
-static size_t g_allocated = 0;
+struct EmuAllocation {
+    size_t bytes;
+    int device;
+};
+static std::map<CUdeviceptr, EmuAllocation> g_allocations;
+static size_t g_allocated[MAX_EMU_DEVICES];
 
 static long env_long(const char *name, long fallback) {
     const char *v = getenv(name);
     return v && *v ? strtol(v, nullptr, 10) : fallback;
 }
 
-static size_t free_bytes() {
+static int device_count() {
+    long n = env_long("CUDA_EMU_DEVICES", 1);
+    return n < 0 ? 0 : n > MAX_EMU_DEVICES ? MAX_EMU_DEVICES : (int)n;
+}
+
+/* The current context's device (a context is current: ready() was checked). */
+static int current_device() { return (int)((int *)t_current - g_contexts); }
+
+static size_t total_bytes() {
     const char *v = getenv("CUDA_EMU_FREE_BYTES");
-    size_t total = v && *v ? (size_t)strtoull(v, nullptr, 10) : ((size_t)8 << 30);
-    return total > g_allocated ? total - g_allocated : 0;
+    return v && *v ? (size_t)strtoull(v, nullptr, 10) : ((size_t)8 << 30);
+}
+
+static size_t free_bytes() {
+    size_t used = g_allocated[current_device()];
+    return total_bytes() > used ? total_bytes() - used : 0;
 }
 
 static CUresult ready() {
@@ -267,12 +290,12 @@ static CUresult ready() {
     return CUDA_SUCCESS;
 }
 
-/* [p, p + n) inside one live allocation. */
+/* [p, p + n) inside one live allocation of the current context's device. */
 static bool inside(CUdeviceptr p, size_t n) {
     auto it = g_allocations.upper_bound(p);
     if (it == g_allocations.begin()) return false;
     --it;
-    return p >= it->first && p + n <= it->first + it->second;
+    return p >= it->first && p + n <= it->first + it->second.bytes && it->second.device == current_device();
 }
 
 static double now_ms() {
@@ -299,14 +322,14 @@ EMU_API CUresult cuDriverGetVersion(int *v) {
 EMU_API CUresult cuDeviceGetCount(int *n) {
     if (!g_initialised) return CUDA_ERROR_NOT_INITIALIZED;
     if (!n) return CUDA_ERROR_INVALID_VALUE;
-    *n = (int)env_long("CUDA_EMU_DEVICES", 1);
+    *n = device_count();
     return CUDA_SUCCESS;
 }
 
 EMU_API CUresult cuDeviceGet(CUdevice *d, int ordinal) {
     if (!g_initialised) return CUDA_ERROR_NOT_INITIALIZED;
     if (!d) return CUDA_ERROR_INVALID_VALUE;
-    if (ordinal < 0 || ordinal >= env_long("CUDA_EMU_DEVICES", 1)) return CUDA_ERROR_INVALID_DEVICE;
+    if (ordinal < 0 || ordinal >= device_count()) return CUDA_ERROR_INVALID_DEVICE;
     *d = ordinal;
     return CUDA_SUCCESS;
 }
@@ -314,24 +337,37 @@ EMU_API CUresult cuDeviceGet(CUdevice *d, int ordinal) {
 EMU_API CUresult cuDeviceGetName(char *name, int len, CUdevice d) {
     if (!g_initialised) return CUDA_ERROR_NOT_INITIALIZED;
     if (!name || len <= 0) return CUDA_ERROR_INVALID_VALUE;
-    if (d != 0) return CUDA_ERROR_INVALID_DEVICE;
-    snprintf(name, (size_t)len, "%s", "diffcassi CUDA emulator (host, not a GPU)");
+    if (d < 0 || d >= device_count()) return CUDA_ERROR_INVALID_DEVICE;
+    if (d == 0)
+        snprintf(name, (size_t)len, "%s", "diffcassi CUDA emulator (host, not a GPU)");
+    else
+        snprintf(name, (size_t)len, "diffcassi CUDA emulator, device %d (host, not a GPU)", d);
     return CUDA_SUCCESS;
 }
 
 EMU_API CUresult cuDevicePrimaryCtxRetain(CUcontext *ctx, CUdevice d) {
     if (!g_initialised) return CUDA_ERROR_NOT_INITIALIZED;
     if (!ctx) return CUDA_ERROR_INVALID_VALUE;
-    if (d != 0) return CUDA_ERROR_INVALID_DEVICE;
-    *ctx = &g_primary_context;
+    if (d < 0 || d >= device_count()) return CUDA_ERROR_INVALID_DEVICE;
+    /* CUDA_EMU_UNAVAILABLE: devices (a comma-separated list of ordinals) held by another process, as a GPU in
+     * exclusive-process mode is: their context cannot be had. */
+    const char *busy = getenv("CUDA_EMU_UNAVAILABLE");
+    for (const char *at = busy; at && *at;) {
+        char *end = nullptr;
+        long b = strtol(at, &end, 10);
+        if (end == at) break;
+        if (b == d) return CUDA_ERROR_DEVICE_UNAVAILABLE;
+        at = *end == ',' ? end + 1 : end;
+    }
+    *ctx = &g_contexts[d];
     return CUDA_SUCCESS;
 }
 
-EMU_API CUresult cuDevicePrimaryCtxRelease_v2(CUdevice d) { return d == 0 ? CUDA_SUCCESS : CUDA_ERROR_INVALID_DEVICE; }
+EMU_API CUresult cuDevicePrimaryCtxRelease_v2(CUdevice d) { return d >= 0 && d < device_count() ? CUDA_SUCCESS : CUDA_ERROR_INVALID_DEVICE; }
 
 EMU_API CUresult cuCtxSetCurrent(CUcontext ctx) {
     if (!g_initialised) return CUDA_ERROR_NOT_INITIALIZED;
-    if (ctx != nullptr && ctx != &g_primary_context) return CUDA_ERROR_INVALID_CONTEXT;
+    if (ctx != nullptr && !((int *)ctx >= g_contexts && (int *)ctx < g_contexts + device_count())) return CUDA_ERROR_INVALID_CONTEXT;
     t_current = ctx;
     return CUDA_SUCCESS;
 }
@@ -387,6 +423,7 @@ EMU_API CUresult cuModuleLoadData(CUmodule *module, const void *image) {
     size_t t = ptx.find("\n.target sm_");
     if (t == std::string::npos || atoi(ptx.c_str() + t + 12) > 90) return CUDA_ERROR_NO_BINARY_FOR_GPU;
     EmuModule *m = new EmuModule();
+    m->device = current_device();
     for (size_t at = ptx.find(".entry "); at != std::string::npos; at = ptx.find(".entry ", at + 7)) {
         size_t open = ptx.find('(', at), close = ptx.find(')', at);
         if (open == std::string::npos || close == std::string::npos) break;
@@ -413,6 +450,7 @@ EMU_API CUresult cuModuleGetFunction(CUfunction *f, CUmodule m, const char *name
     CUresult r = ready();
     if (r) return r;
     if (!f || !m || !name) return CUDA_ERROR_INVALID_VALUE;
+    if (m->device != current_device()) return CUDA_ERROR_INVALID_CONTEXT; /* another device's module */
     auto e = m->entries.find(name);
     if (e == m->entries.end()) return CUDA_ERROR_NOT_FOUND;
     for (const Kernel &k : kernels()) {
@@ -425,7 +463,7 @@ EMU_API CUresult cuModuleGetFunction(CUfunction *f, CUmodule m, const char *name
             fprintf(stderr, " bytes)\n");
             return CUDA_ERROR_INVALID_IMAGE;
         }
-        *f = new EmuFunction{&k};
+        *f = new EmuFunction{&k, m->device};
         return CUDA_SUCCESS;
     }
     return CUDA_ERROR_NOT_FOUND; /* in the PTX but not an entry point of device.cu: a stale PTX */
@@ -436,8 +474,7 @@ EMU_API CUresult cuMemGetInfo_v2(size_t *free_, size_t *total) {
     CUresult r = ready();
     if (r) return r;
     if (!free_ || !total) return CUDA_ERROR_INVALID_VALUE;
-    const char *v = getenv("CUDA_EMU_FREE_BYTES");
-    *total = v && *v ? (size_t)strtoull(v, nullptr, 10) : ((size_t)8 << 30);
+    *total = total_bytes();
     *free_ = free_bytes();
     return CUDA_SUCCESS;
 }
@@ -453,8 +490,8 @@ EMU_API CUresult cuMemAlloc_v2(CUdeviceptr *p, size_t bytes) {
     /* Fresh device memory is not zero: a launcher that reads before it writes shows it. */
     memset(m, 0xA5, bytes);
     *p = (CUdeviceptr)(uintptr_t)m;
-    g_allocations[*p] = bytes;
-    g_allocated += bytes;
+    g_allocations[*p] = EmuAllocation{bytes, current_device()};
+    g_allocated[current_device()] += bytes;
     return CUDA_SUCCESS;
 }
 
@@ -463,8 +500,8 @@ EMU_API CUresult cuMemFree_v2(CUdeviceptr p) {
     CUresult r = ready();
     if (r) return r;
     auto it = g_allocations.find(p);
-    if (it == g_allocations.end()) return CUDA_ERROR_INVALID_VALUE;
-    g_allocated -= it->second;
+    if (it == g_allocations.end() || it->second.device != current_device()) return CUDA_ERROR_INVALID_VALUE;
+    g_allocated[it->second.device] -= it->second.bytes;
     g_allocations.erase(it);
     free((void *)(uintptr_t)p);
     return CUDA_SUCCESS;
@@ -504,7 +541,7 @@ EMU_API CUresult cuLaunchKernel(CUfunction f, unsigned gx, unsigned gy, unsigned
     std::lock_guard<std::mutex> g(g_lock);
     CUresult r = ready();
     if (r) return r;
-    if (!f || !f->kernel) return CUDA_ERROR_INVALID_HANDLE;
+    if (!f || !f->kernel || f->device != current_device()) return CUDA_ERROR_INVALID_HANDLE; /* another device's kernel */
     if (stream != nullptr || extra != nullptr || (params == nullptr && !f->kernel->param_sizes.empty())) return CUDA_ERROR_INVALID_VALUE;
     /* sm_90's limits: 1024 threads a block, grid x < 2^31, y and z < 2^16; the kernels use no dynamic shared memory. */
     if (bx == 0 || by == 0 || bz == 0 || gx == 0 || gy == 0 || gz == 0) return CUDA_ERROR_INVALID_VALUE;
@@ -591,6 +628,7 @@ static const char *error_name(CUresult r) {
     case CUDA_ERROR_INVALID_VALUE: return "CUDA_ERROR_INVALID_VALUE";
     case CUDA_ERROR_OUT_OF_MEMORY: return "CUDA_ERROR_OUT_OF_MEMORY";
     case CUDA_ERROR_NOT_INITIALIZED: return "CUDA_ERROR_NOT_INITIALIZED";
+    case CUDA_ERROR_DEVICE_UNAVAILABLE: return "CUDA_ERROR_DEVICE_UNAVAILABLE";
     case CUDA_ERROR_NO_DEVICE: return "CUDA_ERROR_NO_DEVICE";
     case CUDA_ERROR_INVALID_DEVICE: return "CUDA_ERROR_INVALID_DEVICE";
     case CUDA_ERROR_INVALID_IMAGE: return "CUDA_ERROR_INVALID_IMAGE";
