@@ -113,7 +113,7 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
     bit. ``noise``: sensor noise as the CLI's ``--noise`` options: ``"shot,read,adc"`` or a dict
     ``{"noise": "shot,read", "full_well_e": 20000, "read_noise_e": 2, "adc_bits": 12, "noise_seed": 0,
     "electrons_per_unit": ...}`` (``None``: a clean acquisition, the default); ``info["noise"]`` reports it.
-    ``device``: ``"cpu"`` (the default), ``"cuda"`` (the GPU kernels on the first CUDA device, f64; refused with
+    ``device``: ``"cpu"`` (the default), ``"cuda"`` / ``"cuda:N"`` (the GPU kernels on CUDA device 0 / N, f64; refused with
     what is missing where there is none; ``info["device"]`` names the GPU, the driver and the accumulation) or
     ``"cpu-twin"`` (the GPU kernels run on the CPU: the device's bits, slowly). docs/gpu.md. ``precision``:
     ``"f64"`` (the default) or ``"f32"`` (the ray kernel in f32, as ``--precision``; on any device).
@@ -233,7 +233,10 @@ def _to_scipy(self: Operator, memory_gb: float = 4.0):
 
 def _save_npz(self: Operator, path, memory_gb: float = 4.0, compressed: bool = True) -> None:
     """Write Φ in ``scipy.sparse.save_npz``'s own layout (keys indices, indptr, format=b"csr", shape, data),
-    with NumPy only: ``scipy.sparse.load_npz(path)`` reads it without diffcassi installed."""
+    with NumPy only: ``scipy.sparse.load_npz(path)`` reads it without diffcassi installed. Two more keys,
+    ``cube_shape`` (H, W, B) and ``image_shape`` (h, w) (int64; SciPy ignores them), let
+    :meth:`diffcassi.torch.CassiOperator.from_npz` check the shapes it is given. ``path`` must end in .npz and its
+    folder exist (else a DiffcassiValueError / DiffcassiFileError naming it)."""
     # NumPy appends ".npz" to a name without it (a folder `d` became `d.npz` beside it, silently): the path is
     # written as given, whole — staged beside it and renamed into place, so a failure leaves any old file intact.
     target = os.fspath(path)
@@ -241,13 +244,25 @@ def _save_npz(self: Operator, path, memory_gb: float = 4.0, compressed: bool = T
         raise DiffcassiValueError(f"save_npz: path {target!r} must end in .npz")
     if os.path.isdir(target):
         raise DiffcassiFileError(f"save_npz: {target} is a folder")
+    # Checked before the export (which may take seconds) and named by the target: the first failing call was the
+    # stage file's open, whose FileNotFoundError named `.NAME.PID.stage.npz`, a file the caller never asked for.
+    folder = os.path.dirname(os.path.abspath(target))
+    if not os.path.isdir(folder):
+        what = "is not a folder" if os.path.exists(folder) else "does not exist"
+        raise DiffcassiFileError(f"save_npz: cannot write {target}: its folder {folder} {what}")
     indptr, indices, data, shape = _csr_arrays(self, memory_gb)
     save = np.savez_compressed if compressed else np.savez
-    stage = os.path.join(os.path.dirname(os.path.abspath(target)), f".{os.path.basename(target)}.{os.getpid()}.stage.npz")
+    # The operator's own shapes beside SciPy's keys (scipy.sparse.load_npz ignores extra keys): the matrix shows
+    # only the products h·w and H·W·B, so CassiOperator.from_npz checks the shapes it is given against these.
+    shapes = {k: np.array(getattr(self, k), dtype=np.int64) for k in ("cube_shape", "image_shape") if hasattr(self, k)}
+    stage = os.path.join(folder, f".{os.path.basename(target)}.{os.getpid()}.stage.npz")
     try:
         with open(stage, "wb") as f:
-            save(f, indices=indices, indptr=indptr, format=np.array(b"csr"), shape=np.array(shape, dtype=np.int64), data=data)
+            save(f, indices=indices, indptr=indptr, format=np.array(b"csr"), shape=np.array(shape, dtype=np.int64), data=data,
+                 **shapes)
         os.replace(stage, target)
+    except OSError as e:  # named by the target, not the stage file (a full disk, a folder removed meanwhile, …)
+        raise DiffcassiFileError(f"save_npz: cannot write {target}: {e.strerror or e}") from None
     finally:
         if os.path.exists(stage):
             os.remove(stage)
@@ -316,7 +331,16 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     a noiseless acquisition), ``noise_factor`` = :func:`spread_noise_factor` (1 for equal ray counts).
     Returns ``(cube, record)``; the record holds the settings, per-iteration residuals, seconds and
     ``stopping`` (the rule, τ, δ, the cap, ``iterations_run``, ``stopped_by``, ``noise_estimator``,
-    ``noise_norm_per_estimate``), as ``reconstruct.json``."""
+    ``noise_norm_per_estimate``), as ``reconstruct.json``. An unknown keyword is a DiffcassiValueError naming it
+    and the valid ones (those of the native solve's signature)."""
+    # The keywords the native solve takes, read from its own signature (PyO3's text signature of `_reconstruct`,
+    # generated from the Rust one): one source, so this list cannot drift. Python's own TypeError named
+    # `_reconstruct` and not the valid keywords.
+    import inspect
+    valid = [k for k in inspect.signature(_native._reconstruct).parameters if k not in ("operator", "acquisition", "solver", "init")]
+    unknown = [k for k in settings if k not in valid]
+    if unknown:
+        raise DiffcassiValueError(f"reconstruct: unexpected keyword `{unknown[0]}` (valid: {', '.join(valid)})")
     op = operator.operator if isinstance(operator, Transport) else operator
     if not isinstance(op, Operator):
         raise DiffcassiValueError(f"operator: expected a diffcassi.Operator or Transport, got {type(operator).__name__}")
@@ -367,9 +391,18 @@ def denoise(cube: np.ndarray, sigma: float, weights: Optional[str] = None, neutr
     cubes of peak ≈ 1). ``weights``: a safetensors file (default: the embedded checkpoint). Equal to
     :class:`diffcassi.denoiser.SpectralUNet` within 1e-4 of the peak. ``neutral`` (mean-colour
     neutralisation, default off) and ``ensemble`` (the geometric self-ensemble, 8× the time) as in
-    :func:`diffcassi.denoiser.denoise`."""
+    :func:`diffcassi.denoiser.denoise`. ``sigma``: a real number ≥ 0 (a string, a bool or None is a
+    DiffcassiValueError naming ``sigma`` and the value)."""
     _weights_file("weights", weights)
-    return _native.denoise(cube, float(sigma), None if weights is None else str(weights), bool(neutral), bool(ensemble))
+    # Any real number (NumPy and 0-dim torch scalars included, as float() took them); float("a") and float(None)
+    # raised bare errors that named neither sigma nor the value; bools and strings are no noise levels.
+    try:
+        if isinstance(sigma, (bool, np.bool_, str, bytes)):
+            raise TypeError
+        s = float(sigma)
+    except (TypeError, ValueError, OverflowError):
+        raise DiffcassiValueError(f"sigma: expected a number (the noise level, finite and ≥ 0), got {type(sigma).__name__} {sigma!r}") from None
+    return _native.denoise(cube, s, None if weights is None else str(weights), bool(neutral), bool(ensemble))
 
 
 def _weights_file(name: str, path: Any) -> None:

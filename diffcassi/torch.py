@@ -59,6 +59,18 @@ def _shape(name: str, value: Any, n: int) -> Tuple[int, ...]:
     return tuple(int(v) for v in t)
 
 
+def _int_entries(what: str, value: Any, n: int, lo: int) -> Tuple[int, ...]:
+    """``n`` integer entries ≥ ``lo`` (an integer array or sequence: a float such as 22.5 was truncated by ``int``,
+    silently), else a DiffcassiValueError naming ``what`` and the value."""
+    try:
+        a = np.asarray(value)
+    except (TypeError, ValueError):
+        a = np.asarray(None)
+    if a.dtype.kind not in "iu" or a.size != n or (a.size and a.min() < lo):
+        raise _Error(f"{what}: expected {n} integers ≥ {lo}, got {value!r}")
+    return tuple(int(v) for v in a.ravel())
+
+
 def _check_csr(indptr: Any, indices: Any, data: Any, shape: Any, cube_shape: Any, image_shape: Any,
                source: str) -> Tuple[np.ndarray, np.ndarray, np.ndarray, Tuple[int, int], Tuple[int, int, int], Tuple[int, int]]:
     """Validate a CSR matrix before any tensor is built from it (a column index out of range would make
@@ -67,12 +79,7 @@ def _check_csr(indptr: Any, indices: Any, data: Any, shape: Any, cube_shape: Any
     image shapes. Errors name ``source``, the array, the first bad position and its value."""
     cube = _shape("cube_shape", cube_shape, 3)
     image = _shape("image_shape", image_shape, 2)
-    try:
-        sh = tuple(int(v) for v in np.asarray(shape).ravel())
-    except (TypeError, ValueError):
-        raise _Error(f"{source}: shape: expected 2 integers, got {shape!r}") from None
-    if len(sh) != 2 or min(sh) < 0:
-        raise _Error(f"{source}: shape: expected 2 integers ≥ 0, got {shape!r}")
+    sh = _int_entries(f"{source}: shape", shape, 2, 0)
     rows, cols = sh
     (H, W, B), (h, w) = cube, image
     if rows != h * w or cols != H * W * B:
@@ -268,7 +275,9 @@ class CassiOperator(_DeviceChecked):
     @classmethod
     def from_scipy(cls, matrix: Any, cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int],
                    device: Any = "cpu") -> "CassiOperator":
-        """From a SciPy sparse matrix (converted to CSR; indices, indptr, values and shape validated first)."""
+        """From a SciPy sparse matrix (converted to CSR; indices, indptr, values and shape validated first). A
+        matrix carries no cube or image shape, so only h·w (rows) and H·W·bands (columns) can be checked: prefer
+        :meth:`from_npz` of a diffcassi ``save_npz`` file, which checks the shapes themselves."""
         if not hasattr(matrix, "tocsr"):
             raise TypeError(f"CassiOperator.from_scipy: matrix: expected a scipy.sparse matrix, got {type(matrix).__name__}")
         m = matrix.tocsr()
@@ -278,9 +287,11 @@ class CassiOperator(_DeviceChecked):
     def from_npz(cls, path: Union[str, os.PathLike], cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int],
                  device: Any = "cpu") -> "CassiOperator":
         """From a ``save_npz`` file (NumPy only; no SciPy needed). The file's arrays are validated (keys,
-        dtypes, indptr, column indices, values, shape) before any tensor is built: a damaged or tampered file
-        is a DiffcassiValueError naming the path and the bad entry (a missing or unreadable file: a
-        DiffcassiFileError)."""
+        dtypes, indptr, column indices, values, shape: integers, never truncated) before any tensor is built: a
+        damaged or tampered file is a DiffcassiValueError naming the path and the bad entry (a missing or
+        unreadable file: a DiffcassiFileError). A file written by diffcassi's ``save_npz`` records the operator's
+        ``cube_shape`` and ``image_shape``: the shapes given must equal them (a transposed image shape has the
+        same h·w and scrambled every output); a file without them (SciPy's own) is checked by the products only."""
         name = os.fspath(path)
         try:
             z = np.load(name, allow_pickle=False)
@@ -294,14 +305,24 @@ class CassiOperator(_DeviceChecked):
             missing = [k for k in ("format", "indptr", "indices", "data", "shape") if k not in z.files]
             if missing:
                 raise _Error(f"{name}: missing {', '.join(missing)} (a scipy.sparse.save_npz CSR file has format, indptr, indices, data, shape)")
+            # diffcassi's save_npz also records the operator's cube_shape and image_shape (SciPy ignores them).
+            recorded = [k for k in ("cube_shape", "image_shape") if k in z.files]
             try:
                 fmt = z["format"].item()
-                arrays = {k: z[k] for k in ("indptr", "indices", "data", "shape")}
+                arrays = {k: z[k] for k in ("indptr", "indices", "data", "shape", *recorded)}
             except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
                 raise diffcassi.DiffcassiFileError(f"{name}: damaged archive ({e})") from None
         fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
         if fmt != "csr":
             raise _Error(f"{name}: format {fmt!r}, expected 'csr'")
+        # Only the products h·w and H·W·bands show in the matrix: a wrongly factored shape (image (119, 22) for a
+        # (22, 119) operator) would scramble every output silently. Checked against the file's record when it has one.
+        for key, given, n in (("cube_shape", cube_shape, 3), ("image_shape", image_shape, 2)):
+            if key in arrays:
+                own = _int_entries(f"{name}: {key} (in the file)", arrays[key], n, 1)
+                g = _shape(key, given, n)
+                if g != own:
+                    raise _Error(f"{name}: {key} {g} given, but the file was written for {key} {own} (the operator's own)")
         return cls(arrays["indptr"], arrays["indices"], arrays["data"], arrays["shape"], cube_shape, image_shape,
                    _source=name, device=device)
 
@@ -496,10 +517,12 @@ def _resample(cube: np.ndarray, from_nm: Sequence[float], to_nm: Sequence[float]
         return cube
     # As the renderer (Renderer::check_scene, spectral_extrapolation): a scene whose bands all lie outside the
     # transport's is refused (its truth was its end band repeated, a held-out battery); bands more than one band
-    # step beyond it warn.
-    if len(f) > 1 and len(t) > 0 and (t[-1] < f[0] or t[0] > f[-1]):
-        raise _Error(f"CassiDataset: the scene's bands ({f[0]:g} – {f[-1]:g} nm) lie outside the transport's "
-                     f"({t[0]:g} – {t[-1]:g} nm): nothing of its spectrum would be rendered")
+    # step beyond it warn. A one-band scene too: its band outside the transport's range (a 5000 nm scene rendered
+    # as if inside, a later battery) is refused; inside, it is a flat spectrum by construction (no warning).
+    if len(f) > 0 and len(t) > 0 and (t[-1] < f[0] or t[0] > f[-1]):
+        which = f"scene's band ({f[0]:g} nm) lies" if len(f) == 1 else f"scene's bands ({f[0]:g} – {f[-1]:g} nm) lie"
+        raise _Error(f"CassiDataset: the {which} outside the transport's ({t[0]:g} – {t[-1]:g} nm): nothing of its "
+                     "spectrum would be rendered")
     if len(f) > 1 and len(t) > 1:
         step = (t[-1] - t[0]) / (len(t) - 1)
         beyond = np.maximum(f[0] - t, t - f[-1]).max()
@@ -520,6 +543,40 @@ def _int_arg(name: str, v: Any, lo: int) -> int:
     return int(v)
 
 
+_I64 = 2 ** 63 - 1
+
+
+def _epoch_arg(v: Any) -> int:
+    """An epoch: an integer in 0..=2⁶³−1 (it is held in a shared int64 tensor), else a DiffcassiValueError."""
+    e = _int_arg("epoch", v, 0)
+    if e > _I64:
+        raise _Error(f"CassiDataset: epoch: expected an integer in 0..={_I64}, got {e}")
+    return e
+
+
+def _epoch_cell(epoch: int) -> torch.Tensor:
+    """The epoch as a 0-dim int64 tensor in shared memory: a forked DataLoader worker maps the same memory and a
+    spawned one receives it by handle (torch.multiprocessing), so ``set_epoch`` reaches workers that already hold
+    the dataset (``persistent_workers=True``; a plain attribute stayed at the value they were started with)."""
+    return torch.tensor(epoch, dtype=torch.int64).share_memory_()
+
+
+def _index_arg(index: Any, length: int) -> int:
+    """A dataset index: a Python int, a NumPy integer or a 0-dim integer tensor in 0..length (no negative
+    indices: the DataLoader's samplers give 0..length-1; a bool is refused as in every integer argument here),
+    else a TypeError (not an integer) or an IndexError (out of range) naming CassiDataset and the index."""
+    ok = isinstance(index, (int, np.integer)) and not isinstance(index, bool)
+    if isinstance(index, torch.Tensor):
+        ok = index.dim() == 0 and not index.dtype.is_floating_point and not index.dtype.is_complex and index.dtype != torch.bool
+    if not ok:
+        raise TypeError(f"CassiDataset: index: expected an integer (a Python int, a NumPy integer or a 0-dim integer tensor), "
+                        f"got {type(index).__name__} {index!r}")
+    i = int(index)
+    if not 0 <= i < length:
+        raise IndexError(f"CassiDataset: index {i} is out of range for a dataset of length {length} (0 ≤ index < {length})")
+    return i
+
+
 class CassiDataset(torch.utils.data.Dataset):
     """Training samples rendered on the fly: item ``index`` of epoch ``epoch`` takes scene ``index % len(scenes)``,
     a random ``size`` × ``size`` crop, a random horizontal/vertical flip and a random number of 90° rotations —
@@ -530,7 +587,10 @@ class CassiDataset(torch.utils.data.Dataset):
     CLI's loaders), a list of paths, or a list of ``(cube (H, W, B) float32, wavelengths_nm)``. Cubes are
     resampled to the transport's bands. ``transport``: keywords of :class:`~diffcassi.Transport` (bands_nm,
     planes, rays, seed, mask_seed, ...). Each item is a tuple of float32 tensors
-    ``(acquisition (h, w), mask (H, W), truth (bands, H, W), initialisation (bands, H, W))``.
+    ``(acquisition (h, w), mask (H, W), truth (bands, H, W), initialisation (bands, H, W))``. Cubes must hold real
+    values (a complex, bool, object or string dtype is refused naming the scene); an index is an integer in
+    0..length (a float or a bool is a TypeError, out of range an IndexError, both naming the index). The epoch
+    (:meth:`set_epoch`) is shared with DataLoader workers, persistent ones included.
     """
 
     def __init__(self, scenes: Union[str, os.PathLike, List[Any]], system: Union[str, "diffcassi.System"], size: int,
@@ -540,7 +600,8 @@ class CassiDataset(torch.utils.data.Dataset):
         self.system_spec = system if isinstance(system, str) else system.to_toml()
         self.system_is_preset = isinstance(system, str)
         self.size = _int_arg("size", size, 1)
-        self.seed, self.epoch = _int_arg("seed", seed, 0), _int_arg("epoch", epoch, 0)
+        self.seed = _int_arg("seed", seed, 0)
+        self._epoch = _epoch_cell(_epoch_arg(epoch))
         if transport is not None and not isinstance(transport, dict):
             raise TypeError(f"CassiDataset: transport: expected a dict of Transport keywords, got {type(transport).__name__}")
         self.transport_kwargs = dict(transport or {})
@@ -568,6 +629,14 @@ class CassiDataset(torch.utils.data.Dataset):
                 if not (isinstance(s, (tuple, list)) and len(s) == 2):
                     raise _Error(f"CassiDataset: {name}: expected a path or a (cube (H, W, B) float32, wavelengths_nm) pair, got {type(s).__name__}")
                 cube, wl = s
+            dtype = getattr(cube, "dtype", None)
+            if not isinstance(dtype, np.dtype):  # a list, or a tensor (torch dtypes are not NumPy's)
+                dtype = np.asarray(cube).dtype
+            # Real values only: a complex cube was cast with only NumPy's ComplexWarning (its imaginary part
+            # dropped), bools, objects and strings are no radiances (diffcassi.Operator.apply refuses them too).
+            if dtype.kind not in "fiu":
+                raise _Error(f"CassiDataset: {name}: cube dtype {dtype} is not real: expected float32 (or another real "
+                             "floating-point or integer dtype, converted to float32)")
             cube = np.ascontiguousarray(cube, dtype=np.float32)
             if cube.ndim != 3 or cube.shape[0] < self.size or cube.shape[1] < self.size:
                 raise _Error(f"CassiDataset: {name}: scene of shape {cube.shape}: expected (H, W, B) with H, W ≥ size = {self.size}")
@@ -592,9 +661,36 @@ class CassiDataset(torch.utils.data.Dataset):
         d["_state"] = None  # the Transport is rebuilt in each worker
         return d
 
+    def __setstate__(self, state: Dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        # A DataLoader worker started by spawn/forkserver receives the parent's shared cell by handle (torch's
+        # reductions): already shared, kept, so set_epoch reaches it. pickle.loads and copy.deepcopy give a
+        # private copy of the value: moved to shared memory, so the copy's own workers follow its set_epoch.
+        self._epoch.share_memory_()
+
+    def __copy__(self) -> "CassiDataset":
+        # copy.copy gets its own epoch too (as deepcopy and pickling): set_epoch on a copy never moves the original.
+        new = type(self).__new__(type(self))
+        new.__dict__.update(self.__getstate__())
+        new._epoch = _epoch_cell(self.epoch)
+        return new
+
+    @property
+    def epoch(self) -> int:
+        """The epoch of the augmentations (:meth:`set_epoch`; assigning it is the same)."""
+        return int(self._epoch)
+
+    @epoch.setter
+    def epoch(self, epoch: int) -> None:
+        self.set_epoch(epoch)
+
     def set_epoch(self, epoch: int) -> None:
-        """Choose the epoch (its augmentations differ from every other epoch's)."""
-        self.epoch = _int_arg("epoch", epoch, 0)
+        """Choose the epoch (its augmentations differ from every other epoch's). The value is held in shared
+        memory, so it reaches DataLoader workers that already hold the dataset (``persistent_workers=True``,
+        fork or spawn): items are those of ``num_workers=0`` for the same epoch. Call it between epochs, before
+        ``iter(loader)``: items the workers prefetched before the call keep the old epoch. A copy
+        (``copy.copy``, ``copy.deepcopy``, ``pickle``) has its own epoch, starting at this one's value."""
+        self._epoch.fill_(_epoch_arg(epoch))
 
     def _ready(self) -> Dict[str, Any]:
         if self._state is None:
@@ -614,8 +710,7 @@ class CassiDataset(torch.utils.data.Dataset):
         return self.length
 
     def __getitem__(self, index: int):
-        if not 0 <= index < self.length:
-            raise IndexError(index)
+        index = _index_arg(index, self.length)
         if torch.utils.data.get_worker_info() is not None and self._pool_pid != os.getpid():
             # A forked DataLoader worker inherits no live rayon threads: give it its own pool (1 thread per
             # worker; the workers are the parallelism). Results do not depend on the thread count.
@@ -623,7 +718,7 @@ class CassiDataset(torch.utils.data.Dataset):
             self._pool_pid = os.getpid()
         st = self._ready()
         t = st["transport"]
-        rng = np.random.default_rng([self.seed, int(index), self.epoch])
+        rng = np.random.default_rng([self.seed, index, self.epoch])
         cube, wl = self.scenes[index % len(self.scenes)]
         H, W, _ = cube.shape
         r0 = int(rng.integers(0, H - self.size + 1))
@@ -743,6 +838,21 @@ def _count(where: str, name: str, v: Any, lo: int) -> int:
     return int(v)
 
 
+def _temperature(name: str, v: Any) -> float:
+    """The mask's temperature: a finite real number > 0 (0 divides the logits by zero: NaN gradients; a negative
+    value inverts the mask), else a DiffcassiValueError naming ``name`` and the value. One check for the
+    constructor and the ``CassiRenderer.temperature`` setter (training anneals by assigning it)."""
+    if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise diffcassi.DiffcassiValueError(f"{name} = {v!r}: must be a finite number > 0, got {type(v).__name__}")
+    try:
+        f = float(v)
+    except OverflowError:  # an int beyond the float64 range
+        f = float("inf")
+    if not (np.isfinite(f) and f > 0):
+        raise diffcassi.DiffcassiValueError(f"{name} = {v!r}: must be a finite number > 0")
+    return f
+
+
 def _free_names(free: Any) -> List[str]:
     """``free``: a parameter name or a list/tuple of non-empty names."""
     if isinstance(free, str):
@@ -831,9 +941,7 @@ class CassiRenderer(_TargetChecked):
         for name, v in (("airy", airy), ("straight_through", straight_through)):
             if not isinstance(v, (bool, np.bool_)):
                 raise TypeError(f"{w}: {name}: expected True or False, got {type(v).__name__} {v!r}")
-        if isinstance(temperature, bool) or not (isinstance(temperature, (int, float, np.integer, np.floating))
-                                                 and np.isfinite(temperature) and temperature > 0):
-            raise diffcassi.DiffcassiValueError(f"temperature = {temperature!r}: must be a finite number > 0")
+        temperature = _temperature("temperature", temperature)  # before the native renderer is built
         names = _free_names(free)
         mask = _mask_array(mask, H, W, mask_seed)
         self._base = diffcassi._native.DiffRenderer(system, H, W, names, rays=rays, planes=planes, seed=seed,
@@ -842,7 +950,7 @@ class CassiRenderer(_TargetChecked):
         self.bands_nm: List[float] = list(self._base.bands_nm())
         self.image_shape: Tuple[int, int] = tuple(self._base.image_shape())
         self.H, self.W = H, W
-        self.temperature = float(temperature)
+        self.temperature = temperature
         self.straight_through = bool(straight_through)
         if mask.shape != (self.H, self.W):
             raise diffcassi.DiffcassiValueError(f"mask: expected shape ({self.H}, {self.W}), got {mask.shape}")
@@ -869,6 +977,18 @@ class CassiRenderer(_TargetChecked):
                 raise diffcassi.DiffcassiValueError(f"free parameter {given}: {e}") from None
             self._cache = (values, r)
         return self._cache[1]
+
+    @property
+    def temperature(self) -> float:
+        """The mask's temperature T (``mask = sigmoid(mask_logits / T)``): set it to anneal the mask. Checked on
+        every assignment as in the constructor — a finite real number > 0 (a Python or NumPy int or float, not a
+        bool or a tensor); 0 made the gradients NaN and a negative value inverted the mask silently."""
+        return self._temperature
+
+    @temperature.setter
+    def temperature(self, value: Any) -> None:
+        # A plain attribute as before (not in state_dict); only the assignment is checked.
+        self._temperature = _temperature("CassiRenderer.temperature", value)
 
     def mask(self) -> torch.Tensor:
         """The continuous mask sigmoid(logits / temperature) in [0, 1], (H, W)."""
