@@ -12,8 +12,8 @@ Graph (``stages`` = K, ``width`` = C; d = Φ Φᵀ 𝟙 the GAP preconditioner o
 ≤ 1e-6·max d get D⁻¹ = 0 like the Rust solvers)::
 
     x₀ = Φᵀ(y ⊘ d)                                            the GAP initialisation (no TV, no learning)
-    s  = mean(x₀)  per sample (1 where ≤ 0)                    the scale: the whole network is
-                                                              positively homogeneous, N(a·y) = a·N(y)
+    s  = mean|x₀|  per sample (x₀ = 0: the output is 0)        the scale: the whole network is
+                                                              positively homogeneous, N(a·y) = a·N(y), a ≥ 0
     for k = 1 … K:
         v_k = x_{k−1} + λ_k Φᵀ((y − Φ x_{k−1}) ⊘ d)           GAP data step, λ_k learned (starts at 1)
         x_k = s · D_k(v_k / s)                                 stage denoiser, own weights per stage
@@ -55,6 +55,9 @@ import numpy as np
 import torch
 from torch import nn
 import torch.nn.functional as F
+
+#: The largest |y| the networks take: f32's range / 10⁹, the operators' limit (``limits::MAX_SCENE_VALUE``).
+_MAX_VALUE = float(np.finfo(np.float32).max) / 1e9
 
 import diffcassi
 from .denoiser import check_weights_file, pad_to_multiple
@@ -168,10 +171,12 @@ class UnrolledGAP(nn.Module):
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         if not isinstance(y, torch.Tensor) or not y.dtype.is_floating_point:
             raise TypeError(f"UnrolledGAP.forward: y: expected a floating-point torch.Tensor, got {type(y).__name__}")
-        # Every operator form refuses a non-finite y (the CSR table's gathers passed NaN through: an all-NaN cube,
-        # a held-out battery); checked once here, before any stage.
-        if y.device.type != "meta" and not torch.isfinite(y).all():  # (a meta tensor: the device check below)
-            raise _Error(f"UnrolledGAP.forward: y holds NaN or infinite values")
+        # A y that is not finite, or beyond ±{_MAX_VALUE:.3e} (f32's range / 10⁹, Operator.apply's limit: the operator's
+        # sums overflow past it, NaN by the last stage), is refused once here, before any stage — one host
+        # synchronisation a call on CUDA, where the operators themselves do not check (docs/python.md).
+        if y.device.type != "meta" and not bool((torch.isfinite(y) & (y.abs() <= _MAX_VALUE)).all()):  # (meta: the device check below)
+            raise _Error(f"UnrolledGAP.forward: y holds NaN or infinite values, or values beyond ±{_MAX_VALUE:.3e} "
+                         "(f32's range / 10⁹, the operators' limit); rescale it")
         h, w = self.phi.image_shape
         single = y.dim() == 2
         if single:
@@ -183,11 +188,16 @@ class UnrolledGAP(nn.Module):
                          "move one with .to(device)")
         y = y.to(self.steps.dtype)  # the network's dtype (float32 unless .to(dtype) changed it)
         x = self.initial(y)
-        s = x.detach().flatten(1).mean(1)
-        s = torch.where(s > 0, s, torch.ones_like(s)).view(-1, 1, 1, 1)
+        # s = mean|x₀| (= mean(x₀) for an acquisition ≥ 0, the trained case): N(a·y) = a·N(y) for a > 0, and an
+        # x₀ of zero (a dark frame) reconstructs as zero — a scale of 1 there let the stages' biases through, a
+        # bright cube from a black acquisition (a held-out battery). As src/recon/unrolled.rs.
+        s = x.detach().flatten(1).abs().mean(1).view(-1, 1, 1, 1)
+        live = s > 0
+        s = torch.where(live, s, torch.ones_like(s))
         for k, den in enumerate(self.denoisers):
             v = self._data_step(x, y, self.steps[k])
             x = s * den(v / s)
+        x = torch.where(live, x, torch.zeros_like(x))
         return x[0] if single else x
 
     def metadata(self) -> Dict[str, str]:
@@ -306,7 +316,7 @@ class SpectralSpatialUNet(nn.Module):
 
 #: softplus⁻¹(1): the step estimate's initial bias (μ = 1, GAP's step).
 _SOFTPLUS_INV_1 = math.log(math.e - 1.0)
-#: The noise-level estimate's initial value (σ on the cube's scale, the scale s = mean(x₀)).
+#: The noise-level estimate's initial value (σ on the cube's scale, the scale s = mean|x₀|).
 SIGMA_INIT = 0.05
 
 
@@ -336,7 +346,7 @@ class UnrolledDAUHST(nn.Module):
     prior around a fixed operator ``phi`` (as :class:`UnrolledGAP`: anything with ``forward``, ``adjoint``,
     ``cube_shape``, ``image_shape``; the operator is not a parameter and not saved). Graph (d = Φ Φᵀ 𝟙)::
 
-        x₀ = Φᵀ(y ⊘ d);  s = mean(x₀) per sample (1 where ≤ 0)         N(a·y) = a·N(y) exactly
+        x₀ = Φᵀ(y ⊘ d);  s = mean|x₀| per sample (x₀ = 0: output 0)   N(a·y) = a·N(y) exactly, a ≥ 0
         for k = 1 … K:
             r_k = Φᵀ((y − Φ x_{k−1}) ⊘ d)                                 exact Φ and Φᵀ in every stage
             (μ_k, σ_k) = E_k(x_{k−1}/s, r_k/s)                            DegradationEstimator (own weights)
@@ -371,10 +381,12 @@ class UnrolledDAUHST(nn.Module):
     def forward(self, y: torch.Tensor, return_estimates: bool = False):
         if not isinstance(y, torch.Tensor) or not y.dtype.is_floating_point:
             raise TypeError(f"UnrolledDAUHST.forward: y: expected a floating-point torch.Tensor, got {type(y).__name__}")
-        # Every operator form refuses a non-finite y (the CSR table's gathers passed NaN through: an all-NaN cube,
-        # a held-out battery); checked once here, before any stage.
-        if y.device.type != "meta" and not torch.isfinite(y).all():  # (a meta tensor: the device check below)
-            raise _Error(f"UnrolledDAUHST.forward: y holds NaN or infinite values")
+        # A y that is not finite, or beyond ±{_MAX_VALUE:.3e} (f32's range / 10⁹, Operator.apply's limit: the operator's
+        # sums overflow past it, NaN by the last stage), is refused once here, before any stage — one host
+        # synchronisation a call on CUDA, where the operators themselves do not check (docs/python.md).
+        if y.device.type != "meta" and not bool((torch.isfinite(y) & (y.abs() <= _MAX_VALUE)).all()):  # (meta: the device check below)
+            raise _Error(f"UnrolledDAUHST.forward: y holds NaN or infinite values, or values beyond ±{_MAX_VALUE:.3e} "
+                         "(f32's range / 10⁹, the operators' limit); rescale it")
         h, w = self.phi.image_shape
         single = y.dim() == 2
         if single:
@@ -386,8 +398,10 @@ class UnrolledDAUHST(nn.Module):
             raise _Error(f"UnrolledDAUHST.forward: y is on {y.device} but the network on {pdev}; move one with .to(device)")
         y = y.to(pdt)
         x = self.phi.adjoint(y * self.dinv)
-        s = x.detach().flatten(1).mean(1)
-        s = torch.where(s > 0, s, torch.ones_like(s)).view(-1, 1, 1, 1)
+        # s = mean|x₀|; an x₀ of zero reconstructs as zero (UnrolledGAP.forward says why).
+        s = x.detach().flatten(1).abs().mean(1).view(-1, 1, 1, 1)
+        live = s > 0
+        s = torch.where(live, s, torch.ones_like(s))
         mus, sigmas = [], []
         for est, prior in zip(self.estimators, self.priors):
             r = self.phi.adjoint((y - self.phi(x)) * self.dinv)
@@ -396,6 +410,7 @@ class UnrolledDAUHST(nn.Module):
             x = s * prior(v / s, sigma)
             mus.append(mu)
             sigmas.append(sigma)
+        x = torch.where(live, x, torch.zeros_like(x))
         out = x[0] if single else x
         if return_estimates:
             return out, (torch.stack(mus), torch.stack(sigmas))

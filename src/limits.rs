@@ -224,16 +224,23 @@ pub fn check_count(option: &str, value: usize, max: usize) -> Result<usize> {
 
 /// The environment's `RAYON_NUM_THREADS` (rayon's default pool size when `--threads` / `set_num_threads` is
 /// not given): a number above [`MAX_THREADS`] would start that many threads (100 000 hung a render); refused,
-/// naming the variable. Unset, empty, 0 or not a number: rayon's own default (the core count).
+/// naming the variable. Unset, empty or 0: rayon's own default (the core count). Anything else that is not a
+/// whole number (`abc`, `-1`, `2.5`, one beyond u64) is refused too: rayon ignores it silently, so a typo ran
+/// on every core while the user believed otherwise.
 pub fn check_rayon_env() -> Result<()> {
-    if let Ok(v) = std::env::var("RAYON_NUM_THREADS") {
-        if let Ok(n) = v.trim().parse::<u64>() {
-            if n > MAX_THREADS as u64 {
-                return Err(Error::invalid(format!("environment RAYON_NUM_THREADS={n}: must be in 1..={MAX_THREADS} (or unset: all cores; `--threads` or `diffcassi.set_num_threads` sets the count)")));
-            }
-        }
+    let Some(v) = std::env::var_os("RAYON_NUM_THREADS") else { return Ok(()) };
+    let help = format!("must be a whole number in 1..={MAX_THREADS}, or 0 / unset for all cores; `--threads` or `diffcassi.set_num_threads` sets the count");
+    let Some(text) = v.to_str() else {
+        return Err(Error::invalid(format!("environment RAYON_NUM_THREADS={}: {help}", v.to_string_lossy())));
+    };
+    let t = text.trim();
+    if t.is_empty() {
+        return Ok(());
     }
-    Ok(())
+    match t.parse::<u64>() {
+        Ok(n) if n <= MAX_THREADS as u64 => Ok(()),
+        _ => Err(Error::invalid(format!("environment RAYON_NUM_THREADS={text}: {help}"))),
+    }
 }
 
 /// `--threads`: 1..=[`MAX_THREADS`].

@@ -114,7 +114,7 @@ const CASES: &[Case] = &[
     Case { args: "render --preset sp --scene-size 8 --planes 4 --ghosts 2 --coating 0=R0.1 --out {out}", code: 1, says: &["--coating", "surface 0 is the object surface"] },
     // mapping --device: a name it knows, not beside --backend/--tolerance-um, and (CI has no GPU) cuda refused
     // with what is missing.
-    Case { args: "mapping --preset sp --height 4 --width 4 --device tpu --npy {out}.npy", code: 1, says: &["--device `tpu`", "cpu or cuda"] },
+    Case { args: "mapping --preset sp --height 4 --width 4 --device tpu --npy {out}.npy", code: 1, says: &["--device `tpu`", "cpu, cuda or cuda:N"] },
     Case { args: "mapping --preset sp --height 4 --width 4 --device cpu-twin --backend analytic --npy {out}.npy", code: 1, says: &["--device cpu-twin", "--backend"] },
     Case { args: "mapping --preset sp --height 4 --width 4 --device cuda --tolerance-um 1 --npy {out}.npy", code: 1, says: &["--device cuda", "--tolerance-um"] },
     // Inputs are regular files of bounded size.
@@ -435,4 +435,15 @@ fn a_huge_rayon_num_threads_is_refused() {
     assert!(e.contains("RAYON_NUM_THREADS=100000") && e.contains("1..=1024"), "{e}");
     let o = run(&["--threads", "2", "info", "--preset", "sp"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // Not a whole number (rayon ignores it silently: a typo ran on every core): refused alike (round 5).
+    for v in ["abc", "-1", "2.5", "99999999999999999999"] {
+        let o = bin().args(["info", "--preset", "sp"]).env("RAYON_NUM_THREADS", v).output().unwrap();
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{v}: {e}");
+        assert!(e.contains(&format!("RAYON_NUM_THREADS={v}: must be a whole number")), "{v}: {e}");
+    }
+    for v in ["", "0", "2"] {
+        let o = bin().args(["info", "--preset", "sp"]).env("RAYON_NUM_THREADS", v).output().unwrap();
+        assert!(o.status.success(), "{v:?}: {}", String::from_utf8_lossy(&o.stderr));
+    }
 }

@@ -123,6 +123,16 @@ fn zero_denoisers_give_plain_gap_with_the_learned_steps() {
     let a3 = unrolled(&op, &y3, &real, &mut |_, _, _| {}).unwrap().cube;
     let peak = a.iter().fold(0.0f32, |m, v| m.max(v.abs()));
     assert!(a.iter().zip(&a3).all(|(p, q)| (3.0 * p - q).abs() <= 1e-4 * 3.0 * peak));
+    // … down to a = 0: a dark frame reconstructs as zero (a scale of 1 there let the stages' biases through, a
+    // bright cube — a held-out battery), every stage reported, the residual 0 of 0.
+    let mut stages = 0;
+    let z = unrolled(&op, &vec![0.0; y.len()], &real, &mut |_, _, _| stages += 1).unwrap();
+    assert!(z.cube.iter().all(|&v| v == 0.0) && z.cube.len() == a.len(), "a dark frame reconstructed as a non-zero cube");
+    assert_eq!((stages, z.residuals.len(), z.final_residual, z.scale), (6, 6, 0.0, 0.0));
+    // A negative acquisition: the scale is mean|x₀|, so N(−y) is finite and no larger than N(y)'s order.
+    let yn: Vec<f32> = y.iter().map(|v| -v).collect();
+    let n = unrolled(&op, &yn, &real, &mut |_, _, _| {}).unwrap();
+    assert!(n.scale > 0.0 && n.cube.iter().all(|v| v.is_finite() && v.abs() <= 10.0 * peak));
     // The library refuses a band-count mismatch.
     let op4 = ShiftOperator::new(CubeShape { height: 8, width: 8, bands: 4 }, ImageShape { height: 8, width: 11 }, &Mask::random(8, 8, 0.5, 3).unwrap(), 0, (0..4).collect(), 1, 1).unwrap();
     let e = unrolled(&op4, &vec![0.5; 88], &real, &mut |_, _, _| {}).err().unwrap().to_string();

@@ -180,6 +180,13 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     if let Some(o) = configuration.as_object_mut() {
         // Sensor noise is part of what a scene's files hold: a request with other noise is another configuration.
         o.insert("noise".into(), serde_json::to_value(&noise).map_err(|e| Error::invalid(format!("noise settings: {e}")))?);
+        // The GPU kernels accumulate in fixed point, the CPU renderer in f32 (docs/gpu.md): other bytes, so
+        // another configuration — a dataset is never a mix of the two (a held-out battery resumed a CPU
+        // dataset on the twin, scene by scene). `cuda` and `cpu-twin` give the same bits: one configuration,
+        // so a dataset started on a GPU node resumes on the twin and back. CPU datasets keep their records.
+        if a.common.device.parse::<crate::render::Device>()? != crate::render::Device::Cpu {
+            o.insert("accumulation".into(), serde_json::json!("gpu-kernels"));
+        }
     }
 
     // Decide everything before writing anything.

@@ -147,8 +147,10 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
         .map(|(o, t)| (o, Path::new(t)))
         .collect();
     check_outputs(&a.system_out, &a.report, &inputs)?;
-    if !(a.noise_um.is_finite() && a.noise_um >= 0.0) {
-        return Err(Error::invalid(format!("--noise-um {}: must be finite and ≥ 0", a.noise_um)));
+    // Noise on the centroids is bounded by the detector's scale (1 cm = 1e4 µm): beyond it the fit is of noise
+    // alone, and 1e300 µm made an infinite residual written as `null` (a held-out battery).
+    if !(a.noise_um.is_finite() && a.noise_um >= 0.0 && a.noise_um <= MAX_NOISE_UM) {
+        return Err(Error::invalid(format!("--noise-um {}: must be in [0, {MAX_NOISE_UM:e}] µm", crate::limits::fmt_num(a.noise_um))));
     }
     let setup = match a.setup.as_str() {
         "standard" => CalibrationSetup::standard(),
@@ -180,6 +182,9 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
             add_noise(&mut obs, noise, seed);
         }
         let fit = calibrate(&set, &obs, &setup)?;
+        if !(fit.residual_um.is_finite() && fit.max_residual_um.is_finite() && fit.x.iter().all(|v| v.is_finite())) {
+            return Err(Error::invalid(format!("calibrate: the fit (noise {} µm) did not converge to finite values (residual {} µm); nothing was written", crate::limits::fmt_num(noise), fit.residual_um)));
+        }
         let mut rec = serde_json::Map::new();
         let mut err = serde_json::Map::new();
         for (k, name) in a.free.iter().enumerate() {
@@ -228,6 +233,9 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
     };
     write_outputs(a.report.as_deref().map(|p| (p, &report)), a.system_out.as_deref().zip(fitted.as_ref()))
 }
+
+/// The largest `--noise-um` (µm): a centimetre, the detector's scale.
+const MAX_NOISE_UM: f64 = 1e4;
 
 pub(super) fn design_cmd(a: DesignArgs) -> Result<()> {
     match a.command {

@@ -59,6 +59,11 @@ pub fn make_scene(a: MakeSceneArgs) -> Result<()> {
     if !matches!(ext.as_deref(), Some("npy") | Some("exr")) {
         return Err(Error::File { path: a.out.display().to_string(), message: "--out must end in .npy or .exr".into() });
     }
+    // `X_wavelengths_nm.npy` is the wavelength list of the cube `X.npy` beside it: a cube of that name would
+    // replace another scene's list (a held-out battery: `X.npy` then read 448 wavelengths for 28 bands).
+    if a.out.file_name().and_then(|n| n.to_str()).is_some_and(|n| n.to_ascii_lowercase().ends_with("_wavelengths_nm.npy")) {
+        return Err(Error::File { path: a.out.display().to_string(), message: "--out: a name ending in `_wavelengths_nm.npy` is a cube's wavelength list (written beside `NAME.npy`); choose another name".into() });
+    }
     // Limits before any allocation: the method's wavelength range (no silent extrapolation) and the memory
     // of the cube (an RGB photograph's own size is checked from its PNG header before decoding).
     let range = if a.rgb.is_some() {

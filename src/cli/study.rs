@@ -382,8 +382,10 @@ fn same_config(stored: Option<&Value>, config: &Value) -> bool {
     stored.is_some_and(|s| crate::render::dataset::configuration_differences(s, config).is_empty())
 }
 
+/// A cell's or render's JSON record; `None` when missing, unreadable or not JSON (the cell is computed again).
+/// Through `io::input`: a FIFO planted as a record is not waited on (it blocked `study`: a held-out battery).
 fn read_json(path: &Path) -> Option<Value> {
-    serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
+    serde_json::from_str(&crate::io::input::read_input_text(path, crate::limits::MAX_TEXT_FILE_BYTES).ok()?).ok()
 }
 
 fn write_json(path: &Path, v: &Value) -> Result<()> {
@@ -724,33 +726,34 @@ pub fn study(a: StudyArgs) -> Result<()> {
 }
 
 fn write_tables(a: &StudyArgs, labels: &[String], operators: &[OperatorKind], solvers: &[String], scenes: &[StudyScene], cells: &[Cell], seconds: f64) -> Result<()> {
-    // study.csv, through the project's CSV writer (a scene name holding a comma is quoted); the numbers keep
-    // their fixed formats, so the file is byte for byte what it was.
+    // study.csv, through the project's CSV writer (a scene name holding a comma is quoted), its numbers in the
+    // writer's shortest round-trip form like every other table: they read back as the cells' own values (they
+    // were rounded to 6 decimals, 3 for seconds, before — a held-out battery; the cells' JSON keeps them too).
     let mut csv = crate::io::CsvWriter::new(
         a.out.join("study.csv"),
         &["scene", "system", "preset", "operator", "solver", "psnr_db", "psnr_band_db", "ssim", "sam_rad", "sam_deg", "rmse", "iterations", "final_residual", "seconds_solve", "seconds_operator"],
     )?;
     for c in cells {
+        use crate::io::CsvValue::{Int, Str, F64};
         let m = &c.metrics;
-        let fixed = |v: f64| format!("{v:.6}");
-        let cols = [
-            c.scene.clone(),
-            c.system.clone(),
-            c.preset.clone().unwrap_or_default(),
-            c.operator.clone(),
-            c.solver.clone(),
-            fixed(m["psnr_db"]),
-            fixed(m["psnr_band_db"]),
-            fixed(m["ssim"]),
-            fixed(m["sam_rad"]),
-            fixed(m["sam_deg"]),
-            fixed(m["rmse"]),
-            c.iterations.to_string(),
-            format!("{:.6e}", c.residual),
-            format!("{:.3}", c.seconds_solve),
-            format!("{:.3}", c.seconds_operator),
-        ];
-        csv.row(&cols.iter().map(|s| crate::io::CsvValue::Str(s)).collect::<Vec<_>>())?;
+        let preset = c.preset.clone().unwrap_or_default();
+        csv.row(&[
+            Str(&c.scene),
+            Str(&c.system),
+            Str(&preset),
+            Str(&c.operator),
+            Str(&c.solver),
+            F64(m["psnr_db"]),
+            F64(m["psnr_band_db"]),
+            F64(m["ssim"]),
+            F64(m["sam_rad"]),
+            F64(m["sam_deg"]),
+            F64(m["rmse"]),
+            Int(c.iterations as i64),
+            F64(c.residual),
+            F64(c.seconds_solve),
+            F64(c.seconds_operator),
+        ])?;
     }
     csv.finish()?;
     let pick = |system: &str, op: &str, solver: &str, key: &str| -> Vec<f64> { cells.iter().filter(|c| c.system == system && c.operator == op && c.solver == solver).map(|c| c.metrics[key]).collect() };

@@ -35,7 +35,7 @@ use std::fs::{self, File, OpenOptions};
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use super::policy::{check_out_folder, FolderRule, FolderState};
+use super::policy::{check_out_folder, check_replaceable_file, output_target, FolderRule, FolderState};
 use super::{stale, IoError};
 
 /// Atomically replace (or create) `path` with `bytes`.
@@ -47,12 +47,18 @@ pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<(), IoError>
 ///
 /// `write` receives a buffered writer on a temporary file; returning an error aborts the whole
 /// operation (the destination is not touched, the temporary file is deleted) and the error is
-/// reported with the destination path.
+/// reported with the destination path. A symbolic link is written through (its target replaced, the link
+/// kept); a destination that is a named pipe, a device or a socket is refused before anything is written
+/// ([`super::policy`]).
 pub fn write_atomic_with<F>(path: impl AsRef<Path>, write: F) -> Result<(), IoError>
 where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
-    let path = path.as_ref();
+    let target = output_target("the output", path.as_ref())?;
+    let path = target.as_path();
+    if !path.is_dir() {
+        check_replaceable_file("the output", path)?;
+    }
     path.file_name().ok_or_else(|| {
         IoError::io(
             path,
@@ -247,8 +253,10 @@ impl OutputSet {
     /// A set replacing the folder `dest`, checked against the output policy and the command's `inputs`
     /// (option, path) first ([`super::policy::check_out_folder`]); write into [`OutputSet::stage_dir`].
     pub fn folder(dest: impl AsRef<Path>, rule: &FolderRule, inputs: &[(&str, &Path)]) -> Result<Self, IoError> {
-        let dest = dest.as_ref().to_path_buf();
-        check_out_folder(&dest, rule, inputs)?;
+        // A link is written through: the set replaces its target, the link stays (a dangling one is refused by
+        // the policy check, on the path as given).
+        check_out_folder(dest.as_ref(), rule, inputs)?;
+        let dest = output_target(rule.option, dest.as_ref())?;
         let parent = dest.parent().map(Path::to_path_buf).unwrap_or_default();
         if !parent.as_os_str().is_empty() {
             fs::create_dir_all(&parent).map_err(|e| IoError::io(&parent, "cannot create directory", e))?;
@@ -267,7 +275,8 @@ impl OutputSet {
 
     /// Where to write the file that will end up at `dest` (a loose file of a [`OutputSet::files`] set).
     pub fn stage(&mut self, dest: impl AsRef<Path>) -> PathBuf {
-        let dest = dest.as_ref().to_path_buf();
+        // Through a symbolic link to its target (a link to nothing stays as given: refused at the commit).
+        let dest = output_target("the output", dest.as_ref()).unwrap_or_else(|_| dest.as_ref().to_path_buf());
         // Housekeeping: a killed run's staged copies of this destination.
         let _ = stale::remove_stale(&dest);
         let tmp = stale::temp_path(&dest);
@@ -278,6 +287,14 @@ impl OutputSet {
     /// Move everything into place.
     pub fn commit(mut self) -> Result<(), IoError> {
         test_pause("commit");
+        // Every destination checked before any is replaced: a named pipe or a device is never renamed over, and
+        // a set is moved into place whole or not at all.
+        for (tmp, dest) in &self.staged {
+            if tmp.exists() {
+                output_target("the output", dest)?;
+                check_replaceable_file("the output", dest)?;
+            }
+        }
         for (tmp, dest) in &self.staged {
             if tmp.exists() {
                 fs::rename(tmp, dest).map_err(|e| IoError::io(dest, "cannot move the output into place", e))?;

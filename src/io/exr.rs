@@ -57,6 +57,11 @@ pub fn write_exr(path: impl AsRef<Path>, width: usize, height: usize, channels: 
         if c.name.is_empty() || !c.name.is_ascii() {
             return Err(exr_err(path, format!("channel name `{}` must be non-empty ASCII", c.name)));
         }
+        // Every EXR the project writes (acquisitions, cubes, scenes) goes through here: a NaN or inf is refused
+        // before the file exists (a sub-pixel Airy disk once put NaN in a dataset's acquisitions, exit 0).
+        if let Some(i) = c.data.iter().position(|v| !v.is_finite()) {
+            return Err(exr_err(path, format!("channel {}: pixel {i} (row {}, col {}) is {}; refusing to write a non-finite value", c.name, i / width, i % width, c.data[i])));
+        }
         list.push(AnyChannel::new(c.name.as_str(), FlatSamples::F32(c.data.clone())));
     }
     let layer = Layer::new((width, height), LayerAttributes::named("diffcassi"), Encoding::SMALL_LOSSLESS, AnyChannels::sort(list));
@@ -140,6 +145,20 @@ mod tests {
         std::fs::write(&p, &bytes).unwrap();
         let e = read_exr(&p).unwrap_err().to_string();
         assert!(e.contains("h.exr") && e.contains("declares"), "{e}");
+    }
+
+    /// A non-finite value is refused before the file exists, naming the channel and the pixel.
+    #[test]
+    fn non_finite_values_are_never_written() {
+        let dir = tempfile::tempdir().unwrap();
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            let p = dir.path().join("n.exr");
+            let mut data = vec![0.25f32; 12];
+            data[7] = bad;
+            let e = write_exr(&p, 4, 3, &[ExrChannel { name: "Y".into(), data }]).unwrap_err().to_string();
+            assert!(e.contains("n.exr") && e.contains("channel Y: pixel 7 (row 1, col 3)") && e.contains("non-finite"), "{e}");
+            assert!(!p.exists(), "{bad}: a refused image was written");
+        }
     }
 
     #[test]

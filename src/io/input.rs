@@ -28,8 +28,8 @@ fn refused(path: &Path, reason: String) -> IoError {
     IoError::Input { path: path.to_path_buf(), reason }
 }
 
-/// What a non-regular file is, for messages.
-fn kind(t: std::fs::FileType) -> &'static str {
+/// What a non-regular file is, for messages (inputs here, outputs in [`super::policy`]).
+pub(crate) fn kind(t: std::fs::FileType) -> &'static str {
     if t.is_dir() {
         "a folder"
     } else if t.is_fifo() {

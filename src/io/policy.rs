@@ -11,8 +11,11 @@
 //!   `reconstruct --out` equal to, inside or containing `--from` is refused, `--force` or not. Paths are
 //!   compared after resolving symbolic links and `..` (the part of the path that does not exist yet is
 //!   compared as written).
-//! * An output **file** may be new or an existing file (it is replaced atomically); never a folder, never an
-//!   input file.
+//! * An output **file** may be new or an existing regular file (it is replaced atomically); never a folder, a
+//!   named pipe, a device or a socket (`--json /dev/null` as root would have replaced the system's
+//!   `/dev/null` with a regular file), never an input file.
+//! * An output path that is a **symbolic link** is written at the link's target, the link kept — files and
+//!   folders alike ([`output_target`]); a link to nothing is refused.
 //!
 //! ```
 //! use diffcassi::io::policy::{check_out_folder, FolderRule, FolderState};
@@ -217,6 +220,31 @@ pub fn check_out_folder_owned(
     ))
 }
 
+/// Where an output at `out` is written: `out` itself, or — a symbolic link — its final target (the link is kept
+/// and the output replaces what it points at, as a writer through the link would). A link to nothing is
+/// refused: not ours to replace, and no target to write.
+pub fn output_target(option: &str, out: &Path) -> Result<PathBuf, IoError> {
+    match fs::symlink_metadata(out) {
+        Ok(m) if m.file_type().is_symlink() => fs::canonicalize(out).map_err(|_| {
+            refused(out, format!("{option} is a symbolic link to nothing; nothing was written"))
+        }),
+        _ => Ok(out.to_path_buf()),
+    }
+}
+
+/// An output file's destination (after [`output_target`]) may be absent or a regular file; a folder, a named
+/// pipe, a device or a socket is refused, naming it — an output is a regular file renamed into place, which
+/// would replace the node itself.
+pub fn check_replaceable_file(option: &str, out: &Path) -> Result<(), IoError> {
+    match fs::metadata(out) {
+        Ok(m) if !m.is_file() => Err(refused(
+            out,
+            format!("{option} is {}, not a regular file; an output never replaces one: nothing was written", super::input::kind(m.file_type())),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Check an output file: not a folder, not one of the `inputs`, and its folder can be written: the nearest
 /// existing ancestor is a folder (not a file: `ro/g.json` where `ro` is a file) that this process may write
 /// into (missing folders below it are created at the commit). A multi-file output set checks every file
@@ -228,8 +256,10 @@ pub fn check_out_file(option: &str, out: &Path, inputs: &[(&str, &Path)]) -> Res
             format!("{option} is a folder, not a file; nothing was written"),
         ));
     }
+    let target = output_target(option, out)?;
+    check_replaceable_file(option, &target)?;
     check_not_input(option, out, inputs, false)?;
-    check_writable_parent(option, out)
+    check_writable_parent(option, &target)
 }
 
 /// The nearest existing ancestor of `out` must be a folder this process may create entries in.

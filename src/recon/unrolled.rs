@@ -4,7 +4,7 @@
 //! and D⁻¹ = 1/d where d > 10⁻⁶·max d, else 0 (the solvers' [`Preconditioner`]):
 //!
 //! ```text
-//! x₀ = Φᵀ(y ⊙ D⁻¹);  s = mean(x₀) (1 where ≤ 0);  r_k = Φᵀ((y − Φ x_{k−1}) ⊙ D⁻¹)
+//! x₀ = Φᵀ(y ⊙ D⁻¹);  s = mean|x₀| (x₀ = 0: the output is 0);  r_k = Φᵀ((y − Φ x_{k−1}) ⊙ D⁻¹)
 //! unrolled-gap-v1:     v_k = x_{k−1} + λ_k r_k;                                 x_k = s · D_k(v_k / s)
 //! unrolled-dauhst-v2:  (μ_k, σ_k) = E_k(x_{k−1}/s, r_k/s);  v_k = x_{k−1} + μ_k r_k;  x_k = s · P_k(v_k / s, σ_k)
 //! ```
@@ -68,12 +68,22 @@ pub fn unrolled(op: &dyn Operator, y: &[f32], net: &UnrolledNetwork, on_stage: &
     let dinv = &pre.inverse;
     let ny = norm(y);
     let rel = |r: f64| if ny > 0.0 { r / ny } else { 0.0 };
-    // x₀ = Φᵀ(y ⊙ D⁻¹), s = mean(x₀).
+    // x₀ = Φᵀ(y ⊙ D⁻¹), s = mean|x₀| (= mean(x₀) for an acquisition ≥ 0, the trained case). The network is
+    // applied at scale s — N(a·y) = a·N(y) for a > 0 — so an x₀ of zero (a dark frame, or y only where no ray
+    // lands) reconstructs as zero: a scale of 1 there let the stages' biases through, a bright cube from a
+    // black acquisition (a held-out battery; as did a negative-mean x₀).
     let e: Vec<f32> = y.iter().zip(dinv).map(|(a, w)| a * w).collect();
     let mut x = vec![0.0f32; cs.len()];
     op.adjoint_into(&e, &mut x);
-    let mean = x.iter().map(|v| *v as f64).sum::<f64>() / x.len().max(1) as f64;
-    let s = if mean > 0.0 { mean as f32 } else { 1.0 };
+    let mean = x.iter().map(|v| v.abs() as f64).sum::<f64>() / x.len().max(1) as f64;
+    if !(mean > 0.0) {
+        let r0 = rel(ny);
+        for k in 1..=net.stages() {
+            on_stage(k, &x, r0);
+        }
+        return Ok(UnrolledOutput { cube: x, scale: 0.0, residuals: vec![r0; net.stages()], final_residual: r0, estimates: Vec::new(), seconds: t0.elapsed().as_secs_f64() });
+    }
+    let s = mean as f32;
     let mut phi = vec![0.0f32; is.len()];
     let mut r = vec![0.0f32; is.len()];
     let mut g = vec![0.0f32; cs.len()];

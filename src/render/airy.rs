@@ -57,6 +57,12 @@ impl AiryKernel {
             return Err(Error::invalid(format!("Airy kernel: truncation ring {rings} must be in 1..={}", J1_ZEROS.len())));
         }
         let rt = r0_px * J1_ZEROS[rings - 1] / J1_ZEROS[0];
+        if rt <= 0.5 {
+            // The truncated disk lies inside the centre pixel (half-width 0.5 px): integrated over pixels, all its
+            // energy is that pixel's — the identity kernel, exactly. (Sampled, a disk narrower than the sub-pixel
+            // grid's first sample, r < 0.088 px, met no sample: a kernel of 0/0, NaN acquisitions.)
+            return Ok(AiryKernel { first_zero_radius_px: r0_px, truncation_radius_px: rt, half: 0, weights: vec![1.0] });
+        }
         let half = (rt + 0.5).ceil() as usize;
         let n = 2 * half + 1;
         const SUB: usize = 8;
@@ -167,6 +173,22 @@ mod tests {
         let cy: f64 = out.iter().enumerate().map(|(i, &v)| (i / w) as f64 * v as f64).sum::<f64>() / total;
         assert!((cx - 10.0).abs() < 1e-5 && (cy - 8.0).abs() < 1e-5);
         assert!(out[8 * w + 10] > out[8 * w + 11]);
+    }
+
+    /// A disk inside the centre pixel (truncation radius ≤ 0.5 px) is the identity kernel: a held-out battery's
+    /// `--airy-diameter-px 0.01` (first-zero radius 0.005 px) gave a kernel of 0/0 and NaN acquisitions.
+    #[test]
+    fn a_disk_inside_one_pixel_is_the_identity() {
+        for r0 in [1e-300, 0.005, 0.03, 0.5 * J1_ZEROS[0] / J1_ZEROS[2]] {
+            let k = AiryKernel::new(r0, 3).unwrap();
+            assert_eq!((k.half, k.weights.as_slice()), (0, &[1.0f32][..]), "r0 {r0}");
+            let img = [0.0f32, 1.0, 2.0, 3.0, 4.0, 5.0];
+            assert_eq!(k.convolve(&img, 3, 2), img.to_vec());
+        }
+        // Just past it the sampled kernel starts (every weight finite, summing to 1).
+        let k = AiryKernel::new(0.51 * J1_ZEROS[0] / J1_ZEROS[2], 3).unwrap();
+        assert!(k.half >= 1 && k.weights.iter().all(|w| w.is_finite()));
+        assert!((k.weights.iter().map(|&w| w as f64).sum::<f64>() - 1.0).abs() < 1e-6);
     }
 
     /// Bad kernel inputs are errors naming the value (a render.json with `airy.reference_nm: 0` panicked).

@@ -103,6 +103,8 @@ pub struct Shard {
 /// Environment variables `--shard slurm` reads (set by Slurm in every task of a job array).
 pub const SLURM_TASK_ID: &str = "SLURM_ARRAY_TASK_ID";
 pub const SLURM_TASK_COUNT: &str = "SLURM_ARRAY_TASK_COUNT";
+/// The array's first task ID (`--array=1-3`: 1); `slurm` without N needs it to be 0.
+pub const SLURM_TASK_MIN: &str = "SLURM_ARRAY_TASK_MIN";
 
 impl Shard {
     /// Everything in one shard (no `--shard`).
@@ -123,7 +125,7 @@ impl Shard {
     /// `env` looks up environment variables (`|k| std::env::var(k).ok()` in the command line).
     pub fn parse(text: &str, env: impl Fn(&str) -> Option<String>) -> std::result::Result<Shard, String> {
         let usage = "use K/N (0 ≤ K < N), slurm, or slurm/N";
-        let whole = |s: &str, what: &str| -> std::result::Result<usize, String> { s.trim().parse::<usize>().map_err(|_| format!("{what} `{s}` is not a whole number ≥ 0; {usage}")) };
+        let whole = |s: &str, what: &str, min: usize| -> std::result::Result<usize, String> { s.trim().parse::<usize>().map_err(|_| format!("{what} `{s}` is not a whole number ≥ {min}; {usage}")) };
         let t = text.trim();
         let (k_text, n_text) = t.split_once('/').map(|(k, n)| (k, Some(n))).unwrap_or((t, None));
         if k_text.eq_ignore_ascii_case("slurm") {
@@ -131,8 +133,15 @@ impl Shard {
                 env(name).filter(|v| !v.trim().is_empty()).ok_or_else(|| format!("`{text}` needs the Slurm variable {name}, which is not set (not inside a Slurm job array?); outside Slurm {usage}"))
             };
             let k: usize = var(SLURM_TASK_ID)?.trim().parse().map_err(|_| format!("{SLURM_TASK_ID}=`{}` is not a whole number", env(SLURM_TASK_ID).unwrap_or_default()))?;
+            // An array numbered from 1 (`--array=1-3`) gives IDs 1…N: task N failed, the others rendered shards
+            // 1…N−1 and shard 0 never (a held-out battery). With N from Slurm the array must start at 0.
+            if n_text.is_none() {
+                if let Some(min) = env(SLURM_TASK_MIN).filter(|v| v.trim() != "0" && !v.trim().is_empty()) {
+                    return Err(format!("{SLURM_TASK_MIN}={}: `{text}` takes the shard count from Slurm, so the array must be numbered from 0 (--array=0-(N-1)); a subset of an array must give N: --shard slurm/N", min.trim()));
+                }
+            }
             let n = match n_text {
-                Some(n) => whole(n, "shard count N")?,
+                Some(n) => whole(n, "shard count N", 1)?,
                 None => var(SLURM_TASK_COUNT)?.trim().parse().map_err(|_| format!("{SLURM_TASK_COUNT}=`{}` is not a whole number", env(SLURM_TASK_COUNT).unwrap_or_default()))?,
             };
             return Shard::new(k, n).map_err(|e| {
@@ -141,7 +150,7 @@ impl Shard {
             });
         }
         let Some(n_text) = n_text else { return Err(format!("`{text}`: {usage}")) };
-        Shard::new(whole(k_text, "shard index K")?, whole(n_text, "shard count N")?)
+        Shard::new(whole(k_text, "shard index K", 0)?, whole(n_text, "shard count N", 1)?)
     }
 
     /// Whether the scene at `scene_index` of the full sorted list belongs to this shard.
@@ -295,7 +304,10 @@ pub fn crc32_hex(bytes: &[u8]) -> String {
 }
 
 fn file_crc32(path: &Path) -> std::io::Result<(u64, String)> {
-    let mut f = std::fs::File::open(path)?;
+    // A regular file only (a FIFO in place of an output would block the open): `io::input`'s check, after the
+    // plain lookup that reports a missing file as such.
+    std::fs::metadata(path)?;
+    let (mut f, _) = crate::io::input::open_input(path, u64::MAX).map_err(|e| std::io::Error::other(e.to_string()))?;
     let mut h = crc32fast::Hasher::new();
     let mut buf = vec![0u8; 1 << 16];
     let mut n = 0u64;
@@ -379,7 +391,9 @@ impl SceneState {
 /// Read a JSON sidecar: `Err(problem)` when unreadable or not JSON.
 fn read_json(path: &Path) -> std::result::Result<Value, String> {
     let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{name}: unreadable ({e})"))?;
+    // Through `io::input`: a FIFO or a device planted as a sidecar is refused, not waited on (it blocked
+    // `render-dataset` and `dataset-status`: a held-out battery), and the size is bounded.
+    let text = crate::io::input::read_input_text(path, crate::limits::MAX_TEXT_FILE_BYTES).map_err(|e| format!("{name}: unreadable ({e})"))?;
     serde_json::from_str(&text).map_err(|e| format!("{name}: not valid JSON ({e}): truncated or damaged"))
 }
 
@@ -691,6 +705,20 @@ mod tests {
         assert!(Shard::parse("slurm", env("x", "4")).unwrap_err().contains("x"));
         assert!(Shard::parse("slurm", env("1", "")).unwrap_err().contains(SLURM_TASK_COUNT));
         assert!(Shard::parse("slurm/0", env("0", "1")).is_err());
+        // An array numbered from 1: refused in every task when N comes from Slurm; with N given, K is the ID.
+        let from1 = |id: &'static str| move |k: &str| match k {
+            SLURM_TASK_ID => Some(id.to_string()),
+            SLURM_TASK_COUNT => Some("3".to_string()),
+            SLURM_TASK_MIN => Some("1".to_string()),
+            _ => None,
+        };
+        for id in ["1", "2", "3"] {
+            let e = Shard::parse("slurm", from1(id)).unwrap_err();
+            assert!(e.contains("SLURM_ARRAY_TASK_MIN=1") && e.contains("--array=0-(N-1)"), "{e}");
+        }
+        assert_eq!(Shard::parse("slurm/4", from1("2")), Ok(Shard { index: 2, count: 4 }));
+        // N is a count ≥ 1, and says so.
+        assert!(Shard::parse("1/1/1", none).unwrap_err().contains("whole number ≥ 1"));
     }
 
     fn write(p: &Path, bytes: &[u8]) {

@@ -69,10 +69,10 @@ pub struct DeviceRecord {
 pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPlan<'a>> {
     r.check_scene(scene)?;
     if r.config.force_batched {
-        return Err(Error::invalid("--device cuda traces with the GPU's own kernels, not through the batched tracer path (force_batched)"));
+        return Err(Error::invalid("the GPU kernels (--device cuda or cpu-twin) trace with their own code, not through the batched tracer path (force_batched)"));
     }
     if r.tracer.name() != "analytic-f64" {
-        return Err(Error::invalid(format!("--device cuda traces with the GPU's own analytic kernels: --backend {} is not available on it (use --backend analytic)", r.tracer.name())));
+        return Err(Error::invalid(format!("the GPU kernels (--device cuda or cpu-twin) are the analytic tracer's own: --backend {} is not available on them (use --backend analytic)", r.tracer.name())));
     }
     let ctx = r.plane_context();
     let (h, w) = (r.config.scene_height, r.config.scene_width);

@@ -342,16 +342,18 @@ impl<'a> Renderer<'a> {
         }
         // The scene's spectrum is interpolated at each plane and held constant beyond its range (render.json's
         // `spectral_interpolation`); a scene whose bands all lie outside the render's planes (a 1000–1300 nm cube
-        // rendered at 450–650 nm) would be rendered as its end band's constant: refused, naming both ranges.
+        // rendered at 450–650 nm) would be rendered as its end band's constant: refused, naming both ranges. A
+        // one-band scene is a flat spectrum where its band lies among the planes, and refused where it does not
+        // (a band at 5000 nm was rendered at 450–650 nm as if it were there: a held-out battery).
         let (ws, planes) = (&scene.wavelengths_nm, &self.config.spectral.planes_nm);
         if let (Some(&lo), Some(&hi), Some(&p0), Some(&p1)) = (ws.first(), ws.last(), planes.first(), planes.last()) {
-            if ws.len() > 1 && (p1 < lo || p0 > hi) {
+            if p1 < lo || p0 > hi {
+                let fmt = crate::limits::fmt_num;
+                let scene_bands = if ws.len() == 1 { format!("band ({} nm) lies", fmt(lo)) } else { format!("bands ({} – {} nm) lie", fmt(lo), fmt(hi)) };
                 return Err(Error::invalid(format!(
-                    "the scene's bands ({} – {} nm) lie outside the render's planes ({} – {} nm): nothing of its spectrum would be rendered; choose --bands within the scene's range",
-                    crate::limits::fmt_num(lo),
-                    crate::limits::fmt_num(hi),
-                    crate::limits::fmt_num(p0),
-                    crate::limits::fmt_num(p1)
+                    "the scene's {scene_bands} outside the render's planes ({} – {} nm): nothing of its spectrum would be rendered; choose --bands within the scene's range",
+                    fmt(p0),
+                    fmt(p1)
                 )));
             }
         }

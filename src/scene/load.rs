@@ -156,7 +156,7 @@ pub fn load_npy(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<SpectralC
             let stem = path.file_stem().unwrap_or_default().to_string_lossy();
             let wl = path.with_file_name(format!("{stem}_wavelengths_nm.npy"));
             if !wl.exists() {
-                return Err(file_err(path, format!("no wavelength list: expected {} or --scene-wavelengths", wl.display())));
+                return Err(file_err(path, format!("no wavelength list: expected {} beside it (`render` and `render-dataset` also take --scene-wavelengths)", wl.display())));
             }
             let (ws_shape, ws) = read_npy_f64(&wl)?;
             if ws_shape.len() != 1 || ws.len() != shape[2] {

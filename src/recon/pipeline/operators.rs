@@ -47,7 +47,7 @@ pub fn build_operator<'a>(kind: OperatorKind, record: &'a RenderRecord, tracer: 
     if kind == OperatorKind::Exact {
         // The exact operator traces what the render traced: the same ray budget (`--max-rays`).
         let c = &record.config;
-        let what = format!("scene_height × scene_width × planes × rays_per_pixel ({} × {} × {} × {})", c.scene_height, c.scene_width, c.spectral.planes(), c.rays_per_pixel);
+        let what = format!("scene_height × scene_width × planes × rays per pixel (render.json's rays_per_pixel, or --operator-rays) ({} × {} × {} × {})", c.scene_height, c.scene_width, c.spectral.planes(), c.rays_per_pixel);
         crate::limits::check_rays(&what, c.scene_height as f64 * c.scene_width as f64 * c.spectral.planes() as f64 * c.rays_per_pixel as f64).map_err(|e| ferr(&record.dir.join("render.json"), e.to_string()))?;
     }
     let renderer = record.renderer(tracer, seed)?;
