@@ -64,15 +64,16 @@ def surfaces(system: System) -> list:
 System.surfaces = property(surfaces, doc=surfaces.__doc__)  # type: ignore[attr-defined]
 
 
-def spot(system: System, field_mm: Sequence[float], wavelength_nm: float, pupil: Union[str, np.ndarray, None] = None,
-         backend: str = "analytic") -> Dict[str, Any]:
-    """Spot diagram of one field (x, y mm) at one wavelength: a dict with ``x_mm``, ``y_mm``, ``status``,
+def spot(system: System, field_mm: Optional[Sequence[float]], wavelength_nm: float, pupil: Union[str, np.ndarray, None] = None,
+         backend: str = "analytic", field_deg: Optional[Sequence[float]] = None) -> Dict[str, Any]:
+    """Spot diagram of one field (x, y mm; at infinity ``field_mm=None, field_deg=(x, y)`` in degrees, as
+    :meth:`System.rays_for_field`) at one wavelength: a dict with ``x_mm``, ``y_mm``, ``status``,
     ``pupil``, ``chief_mm``, ``stats`` (centroid_mm, rms_radius_um, geo_radius_um),
     ``rms_radius_chief_um`` and ``lost`` (the lost rays by outcome and stopping surface, most first: dicts
     ``{status, surface, count}``). ``pupil``: a pattern (default ``hexapolar:12``, as the CLI) or (N, 2) float64
     normalised pupil points. Arrays are returned as NumPy float64."""
-    d = _json.loads(_native._spot(system, _pair("field_mm", field_mm), _number("wavelength_nm", wavelength_nm), pupil,
-                                  _check_backend(backend)))
+    d = _json.loads(_native._spot(system, None if field_mm is None else _pair("field_mm", field_mm), _number("wavelength_nm", wavelength_nm),
+                                  pupil, _check_backend(backend), None if field_deg is None else _pair("field_deg", field_deg)))
     for k in ("x_mm", "y_mm", "pupil"):
         d[k] = np.asarray(d[k], dtype=np.float64)
     return d
@@ -88,10 +89,15 @@ def distortion(system: System, wavelength_nm: Optional[float] = None, grid: int 
 
 
 def dispersion(system: System, wavelengths_nm: Sequence[float] = tuple(np.linspace(450, 650, 28)),
-               field_mm: Sequence[float] = (0.0, 0.0), backend: str = "analytic") -> Dict[str, Any]:
+               field_mm: Optional[Sequence[float]] = None, backend: str = "analytic",
+               field_deg: Optional[Sequence[float]] = None) -> Dict[str, Any]:
     """Chief-ray positions of one field over wavelength (the paper's spreading curve): dict with
-    ``wavelength_nm``, ``x_mm``, ``y_mm`` (NumPy arrays) and ``spread_um``."""
-    d = _json.loads(_native._dispersion(system, _pair("field_mm", field_mm), wavelengths_nm, _check_backend(backend)))
+    ``wavelength_nm``, ``x_mm``, ``y_mm`` (NumPy arrays) and ``spread_um``. The field: ``field_mm`` (an object
+    height) or, at infinity, ``field_deg`` (angles); neither: the axis, in the system's own unit."""
+    if field_mm is None and field_deg is None:
+        field_deg, field_mm = ((0.0, 0.0), None) if system.object_at_infinity else (None, (0.0, 0.0))
+    d = _json.loads(_native._dispersion(system, None if field_mm is None else _pair("field_mm", field_mm), wavelengths_nm,
+                                        _check_backend(backend), None if field_deg is None else _pair("field_deg", field_deg)))
     for k in ("wavelength_nm", "x_mm", "y_mm"):
         d[k] = np.asarray(d[k], dtype=np.float64)
     return d
@@ -351,7 +357,7 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     eq = settings.get("equivariant")
     if eq is not None and not isinstance(eq, (bool, np.bool_)):
         raise DiffcassiValueError(f"equivariant: expected True or False, got {type(eq).__name__} {eq!r}")
-    acq = np.ascontiguousarray(acquisition, dtype=np.float32) if getattr(acquisition, "dtype", None) == np.float64 else acquisition
+    acq = _as_f32("acquisition", acquisition)
     twin = settings.get("noise_twin")
     if twin is not None:
         twin = twin.operator if isinstance(twin, Transport) else twin
@@ -363,6 +369,26 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     return cube, _json.loads(record)
 
 
+#: The largest |value| the operators and solvers take (f32's range / 10⁹: their f32 sums must not overflow),
+#: as the library's ``limits::MAX_SCENE_VALUE``.
+_MAX_VALUE = float(np.finfo(np.float32).max) / 1e9
+
+
+def _as_f32(name: str, a: Any) -> Any:
+    """A float64 array as float32 for the native calls, checked first — finite and within ±``_MAX_VALUE`` — so that
+    a value float32 cannot hold (1e300) is named as given, not as the inf NumPy's cast makes of it (with an overflow
+    warning). Anything else is passed on for the native call's own checks."""
+    if getattr(a, "dtype", None) != np.float64:
+        return a
+    v = np.asarray(a)
+    bad = ~np.isfinite(v) | (np.abs(v) > _MAX_VALUE)
+    if bad.any():
+        k = np.unravel_index(int(np.argmax(bad)), v.shape)
+        raise DiffcassiValueError(f"{name}: value {v[k]:e} at index {list(map(int, k))} is not finite or beyond ±{_MAX_VALUE:.3e} "
+                                  "(f32's range / 10⁹) that the operators' and solvers' f32 sums allow; rescale it")
+    return np.ascontiguousarray(v, dtype=np.float32)
+
+
 def monte_carlo_noise_norm(acquisition: np.ndarray, acquisition_rays: int, operator_rays: int, planes_per_band: float) -> float:
     """δ for the discrepancy stop of :func:`reconstruct` (``noise_norm``), as the CLI estimates its Monte-Carlo
     term: 0.062·((1/R_a + 1/R_o)/F)^½·‖y‖ for an exact operator traced with another seed (R_o rays per pixel per
@@ -370,7 +396,7 @@ def monte_carlo_noise_norm(acquisition: np.ndarray, acquisition_rays: int, opera
     "Defaults and stopping"). Add the sensor noise yourself when the acquisition has any. The constant model
     (the CLI's ``--noise-estimate model``); the default estimate is from the data (``noise_twin`` of
     :func:`reconstruct`): the model overestimates δ on smoother, larger scenes."""
-    acq = np.ascontiguousarray(acquisition, dtype=np.float32)
+    acq = np.ascontiguousarray(_as_f32("acquisition", acquisition), dtype=np.float32)
     return float(_native.monte_carlo_noise_norm(acq, _rays("acquisition_rays", acquisition_rays), _rays("operator_rays", operator_rays),
                                                 _number("planes_per_band", planes_per_band)))
 

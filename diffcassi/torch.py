@@ -131,6 +131,22 @@ def _float_input(name: str, t: Any, where: str) -> torch.Tensor:
     return t
 
 
+def _check_values(name: str, t: torch.Tensor, where: str) -> None:
+    """On the CPU: every value finite and within ±``_MAX_RADIANCE`` (f32's range / 10⁹, the limit of
+    ``Operator.apply``: beyond it the operator's sums overflow to inf), else a DiffcassiValueError naming the
+    argument, the first bad index and its value. On a CUDA device nothing is checked here: a check is a host
+    synchronisation in every call of a training loop (the unrolled networks check their input once, at the
+    entry; docs/python.md, "Bad input on CUDA tensors")."""
+    if t.device.type != "cpu" or t.numel() == 0:
+        return
+    d = t.detach()
+    bad = ~torch.isfinite(d) | (d.abs() > _MAX_RADIANCE)
+    if bool(bad.any()):
+        k = np.unravel_index(int(torch.argmax(bad.flatten().to(torch.uint8))), tuple(d.shape))
+        raise _Error(f"{where}: {name}: value {float(d[k]):e} at index {list(map(int, k))} is not finite or beyond "
+                     f"±{_MAX_RADIANCE:.3e} (f32's range / 10⁹) that the operator's sums allow; rescale it")
+
+
 def _batched(name: str, t: torch.Tensor, trailing: Tuple[int, ...], where: str) -> Tuple[torch.Tensor, bool]:
     """(B, *trailing) or (*trailing) → (B, *trailing) and whether it was a single item."""
     single = t.dim() == len(trailing)
@@ -335,6 +351,7 @@ class CassiOperator(_DeviceChecked):
         where = "CassiOperator.forward"
         x, single = _batched("x", _float_input("x", x, where), (B, H, W), where)
         _check_same_device("x", x, self.device, where)
+        _check_values("x", x, where)
         dtype = x.dtype
         if dtype in _HALF:
             x = x.to(torch.float32)
@@ -348,6 +365,7 @@ class CassiOperator(_DeviceChecked):
         where = "CassiOperator.adjoint"
         y, single = _batched("y", _float_input("y", y, where), self.image_shape, where)
         _check_same_device("y", y, self.device, where)
+        _check_values("y", y, where)
         dtype = y.dtype
         if dtype in _HALF:
             y = y.to(torch.float32)
@@ -481,6 +499,7 @@ class MatrixFreeCassiOperator(_DeviceChecked):
         H, W, B = self.cube_shape
         where = "MatrixFreeCassiOperator.forward"
         x, single = _batched("x", _float_input("x", x, where), (B, H, W), where)
+        _check_values("x", x, where)  # before _prepare's cast to float32 (1e300 named as given, not as inf)
         x, dtype = self._prepare("x", x, where)
         if self.phi_table is None:
             y = _RustApply.apply(x, self.op, False)
@@ -495,6 +514,7 @@ class MatrixFreeCassiOperator(_DeviceChecked):
         H, W, B = self.cube_shape
         where = "MatrixFreeCassiOperator.adjoint"
         y, single = _batched("y", _float_input("y", y, where), self.image_shape, where)
+        _check_values("y", y, where)  # before _prepare's cast to float32 (1e300 named as given, not as inf)
         y, dtype = self._prepare("y", y, where)
         if self.phi_table is None:
             x = _RustApply.apply(y, self.op, True)

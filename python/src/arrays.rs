@@ -77,6 +77,17 @@ pub fn check_bounded(name: &str, values: &[f32], shape: &[usize]) -> PyResult<()
     Ok(())
 }
 
+/// [`check_bounded`] for float64 values about to be narrowed to float32: checked before the conversion, so the
+/// message shows the value given (1e300), not the inf the conversion would make of it.
+pub fn check_bounded_f64(name: &str, values: &[f64], shape: &[usize]) -> PyResult<()> {
+    check_finite(name, values, shape)?;
+    let max = diffcassi::limits::MAX_SCENE_VALUE;
+    if let Some(i) = values.iter().position(|v| v.abs() > max) {
+        return Err(value_error(format!("{name}: value {:e} at index {:?} is beyond ±{max:.3e} (f32's range / 10⁹) that the operators' and solvers' f32 sums allow; rescale it", values[i], index_of(i, shape))));
+    }
+    Ok(())
+}
+
 /// A Rust vector as a NumPy array of `shape` (no copy).
 pub fn output<'py, T: Element>(py: Python<'py>, data: Vec<T>, shape: &[usize]) -> PyResult<Bound<'py, PyArrayDyn<T>>> {
     let a = ndarray::ArrayD::from_shape_vec(ndarray::IxDyn(shape), data).map_err(|e| value_error(format!("internal: result shape {shape:?}: {e}")))?;

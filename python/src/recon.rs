@@ -84,8 +84,9 @@ impl PyOperator {
 
     /// Φ of a batch, in place (the matrix-free torch operator, `diffcassi.torch`): `cubes` (N, H, W, B)
     /// float32 C-contiguous is read where it lies, `out` (N, h, w) float32 C-contiguous is written where it
-    /// lies (every element overwritten); the GIL is released for the whole batch. A finite check of the
-    /// input (as `apply`'s) precedes the work.
+    /// lies (every element overwritten); the GIL is released for the whole batch. The input is checked as
+    /// `apply`'s (finite, within ±[`diffcassi::limits::MAX_SCENE_VALUE`]: beyond it the f32 sums overflow)
+    /// before the work.
     fn _apply_batch(&self, py: Python<'_>, cubes: &Bound<'_, PyAny>, out: &Bound<'_, PyAny>) -> PyResult<()> {
         let (c, i) = (self.op.cube_shape(), self.op.image_shape());
         let x = input::<f32>("x", cubes, "float32", 4, "(N, H, W, B)")?;
@@ -94,7 +95,7 @@ impl PyOperator {
         let mut y = output_arg("out", out, &[n, i.height, i.width])?;
         let ys = y.as_slice_mut().map_err(|e| value_error(format!("out: {e}")))?;
         let xs = x.slice();
-        check_finite("x", xs, &x.shape)?;
+        check_bounded("x", xs, &x.shape)?;
         let op = &self.op;
         run(py, || {
             for (xc, yc) in xs.chunks_exact(c.len().max(1)).zip(ys.chunks_exact_mut(i.len().max(1))) {
@@ -114,7 +115,7 @@ impl PyOperator {
         let mut x = output_arg("out", out, &[n, c.height, c.width, c.bands])?;
         let xs = x.as_slice_mut().map_err(|e| value_error(format!("out: {e}")))?;
         let ys = y.slice();
-        check_finite("y", ys, &y.shape)?;
+        check_bounded("y", ys, &y.shape)?;
         let op = &self.op;
         run(py, || {
             for (yc, xc) in ys.chunks_exact(i.len().max(1)).zip(xs.chunks_exact_mut(c.len().max(1))) {

@@ -3,7 +3,7 @@
 //! The settings keywords are parsed in one place ([`crate::settings`]): every setting the caller leaves at
 //! `None` takes the library's default (the CLI's too), so `render(system, scene, wl)` and
 //! `diffcassi render --scene FILE --scene-size N` give the same acquisition bit for bit.
-use crate::arrays::{check_finite, f64_list, input, output, seed_arg, size_arg, Input};
+use crate::arrays::{check_bounded, check_bounded_f64, check_finite, f64_list, input, output, seed_arg, size_arg, Input};
 use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::settings::{configure, extra};
@@ -284,18 +284,21 @@ impl PyTransport {
     /// cube (H, W, B) float32 at the transport's bands (the exact operator's adjoint).
     fn adjoint<'py>(&self, py: Python<'py>, image: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let (h, w) = self.detector_shape();
+        // Bounded as `Operator.adjoint`'s image (beyond ±MAX_SCENE_VALUE the f32 sums overflow to inf); a
+        // float64 image before it is narrowed, so the message shows the value given.
         let img: Vec<f32> = match input::<f64>("image", image, "float64", 2, "(h, w)") {
             Ok(a) => {
                 check_shape("image", &a.shape, &[h, w])?;
+                check_bounded_f64("image", a.slice(), &a.shape)?;
                 a.slice().iter().map(|&v| v as f32).collect()
             }
             Err(_) => {
                 let a = input::<f32>("image", image, "float32", 2, "(h, w)")?;
                 check_shape("image", &a.shape, &[h, w])?;
+                check_bounded("image", a.slice(), &a.shape)?;
                 a.slice().to_vec()
             }
         };
-        check_finite("image", &img, &[h, w])?;
         let c = self.exact.cube_shape();
         let mut cube = vec![0.0f32; c.len()];
         run(py, || self.exact.adjoint_into(&img, &mut cube));

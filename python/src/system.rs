@@ -124,6 +124,20 @@ impl PySystem {
     }
 }
 
+impl PySystem {
+    /// One field point in the system's own unit from exactly one of `field_mm` (a finite object) and
+    /// `field_deg` (an object at infinity), as `rays_for_field`, `spot` and `dispersion` take it: a height in mm
+    /// where the object is at infinity (read as radians before: a held-out battery) is refused, naming it.
+    fn field_of(&self, field_mm: Option<&[f64]>, field_deg: Option<&[f64]>, mm: &str, deg: &str) -> PyResult<[f64; 2]> {
+        use diffcassi::system::FieldUnit;
+        match (field_mm, field_deg) {
+            (Some(f), None) => self.inner.field_point(pair(mm, f)?, FieldUnit::Mm, mm).py(),
+            (None, Some(f)) => self.inner.field_point(pair(deg, f)?, FieldUnit::Deg, deg).py(),
+            _ => Err(crate::errors::value_error(format!("give exactly one of {mm} (finite objects) and {deg} (objects at infinity)"))),
+        }
+    }
+}
+
 #[pymethods]
 impl PySystem {
     /// One of the presets: `sp`, `ap`, `msp`, `map`, `gsp` (case-insensitive).
@@ -282,6 +296,14 @@ impl PySystem {
         format!("System('{}', {} surfaces)", self.inner.name(), self.inner.surfaces.len())
     }
 
+    /// Pickling, `copy.copy` and `copy.deepcopy` (a model holding a system, snapshotted for EMA or the best
+    /// checkpoint): rebuilt by `System.from_string` from the spec as JSON, whose floats read back bit-identical
+    /// (`to_json`), so the copy traces the original's numbers.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (String, &'static str))> {
+        let rebuild = py.get_type::<PySystem>().getattr("from_string")?;
+        Ok((rebuild, (diffcassi::spec::to_json(&self.inner.spec).py()?, "json")))
+    }
+
     /// The rays of one field through normalised pupil points: (origins (N, 3), directions (N, 3),
     /// wavelengths_nm (N,)), float64, object frame. `pupil` is an (N, 2) float64 array or a pattern
     /// (`chief`, `marginal`, `hexapolar:RINGS`, `grid:N`, `random:N:SEED`).
@@ -299,26 +321,29 @@ impl PySystem {
         field_deg: Option<Vec<f64>>,
         apply_vignetting: bool,
     ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
-        use diffcassi::system::FieldUnit;
         let pts = pupil_points(pupil)?;
-        let field = match (field_mm, field_deg) {
-            (Some(f), None) => self.inner.field_point(pair("field_mm", &f)?, FieldUnit::Mm, "field_mm").py()?,
-            (None, Some(f)) => self.inner.field_point(pair("field_deg", &f)?, FieldUnit::Deg, "field_deg").py()?,
-            _ => return Err(crate::errors::value_error("give exactly one of field_mm (finite objects) and field_deg (objects at infinity)")),
-        };
+        let field = self.field_of(field_mm.as_deref(), field_deg.as_deref(), "field_mm", "field_deg")?;
         let pts = if apply_vignetting { self.inner.vignetted_pupil(field, &pts) } else { pts };
         let b = RayBatch::for_field(&self.inner, field, &pts, wavelength_nm).py()?;
         rays_out(py, &b)
     }
 
-    /// Chief rays of the (N, 2) float64 field points (mm) at one wavelength.
+    /// Chief rays of the (N, 2) float64 field points at one wavelength: `fields_mm` (object heights, a finite
+    /// object) or `fields_deg` (field angles, an object at infinity; give `fields_mm=None`).
+    #[pyo3(signature = (fields_mm, wavelength_nm, fields_deg = None))]
     fn chief_rays<'py>(
         &self,
         py: Python<'py>,
-        fields_mm: &Bound<'py, PyAny>,
+        fields_mm: Option<&Bound<'py, PyAny>>,
         wavelength_nm: f64,
+        fields_deg: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
-        let f = points2("fields_mm", fields_mm)?;
+        let (mm, deg) = (fields_mm.map(|f| points2("fields_mm", f)).transpose()?, fields_deg.map(|f| points2("fields_deg", f)).transpose()?);
+        let f = match (&mm, &deg) {
+            (Some(p), None) => p.iter().map(|q| self.field_of(Some(&q[..]), None, "fields_mm", "fields_deg")).collect::<PyResult<Vec<_>>>()?,
+            (None, Some(p)) => p.iter().map(|q| self.field_of(None, Some(&q[..]), "fields_mm", "fields_deg")).collect::<PyResult<Vec<_>>>()?,
+            _ => return Err(value_error("give exactly one of fields_mm (finite objects) and fields_deg (objects at infinity)")),
+        };
         let b = RayBatch::chief_rays(&self.inner, &f, wavelength_nm).py()?;
         rays_out(py, &b)
     }
@@ -497,10 +522,10 @@ fn _time_rust_trace(
 
 /// Spot diagram of one field and wavelength (JSON; `diffcassi.spot` parses it).
 #[pyfunction]
-#[pyo3(signature = (system, field_mm, wavelength_nm, pupil = None, backend = "analytic"))]
-fn _spot(py: Python<'_>, system: &PySystem, field_mm: Vec<f64>, wavelength_nm: f64, pupil: Option<&Bound<'_, PyAny>>, backend: &str) -> PyResult<String> {
+#[pyo3(signature = (system, field_mm, wavelength_nm, pupil = None, backend = "analytic", field_deg = None))]
+fn _spot(py: Python<'_>, system: &PySystem, field_mm: Option<Vec<f64>>, wavelength_nm: f64, pupil: Option<&Bound<'_, PyAny>>, backend: &str, field_deg: Option<Vec<f64>>) -> PyResult<String> {
     let pts = pupil_points(pupil)?;
-    let f = pair("field_mm", &field_mm)?;
+    let f = system.field_of(field_mm.as_deref(), field_deg.as_deref(), "field_mm", "field_deg")?;
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
     let s = run(py, move || analysis::spot_diagram(&sys, t.as_ref(), f, wavelength_nm, &pts)).py()?;
@@ -527,10 +552,10 @@ fn _distortion(py: Python<'_>, system: &PySystem, wavelength_nm: f64, grid: Opti
 
 /// Chief-ray dispersion curve of one field (JSON).
 #[pyfunction]
-#[pyo3(signature = (system, field_mm, wavelengths_nm, backend = "analytic"))]
-fn _dispersion(py: Python<'_>, system: &PySystem, field_mm: Vec<f64>, wavelengths_nm: &Bound<'_, PyAny>, backend: &str) -> PyResult<String> {
+#[pyo3(signature = (system, field_mm, wavelengths_nm, backend = "analytic", field_deg = None))]
+fn _dispersion(py: Python<'_>, system: &PySystem, field_mm: Option<Vec<f64>>, wavelengths_nm: &Bound<'_, PyAny>, backend: &str, field_deg: Option<Vec<f64>>) -> PyResult<String> {
     let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
-    let f = pair("field_mm", &field_mm)?;
+    let f = system.field_of(field_mm.as_deref(), field_deg.as_deref(), "field_mm", "field_deg")?;
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
     let c = run(py, move || analysis::dispersion_curve(&sys, t.as_ref(), f, &ws)).py()?;
@@ -540,9 +565,10 @@ fn _dispersion(py: Python<'_>, system: &PySystem, field_mm: Vec<f64>, wavelength
 /// The chief-ray mapping cube: positions (H, W, L, 2) float64 detector mm and valid (H, W, L) bool.
 /// `device` "cuda" (or "cuda:N") traces the chief rays with the GPU trace kernels (`mapping --device cuda`), "cpu-twin" with
 /// the same kernels on the CPU; `precision` "f32" with the f32 kernels. A device other than the CPU takes
-/// the default backend only.
+/// the default backend only. At infinity give `scene_fov_deg` (the full angle across `width`, degrees) as
+/// `mapping --scene-fov-deg`; `pitch_mm` is then not used.
 #[pyfunction]
-#[pyo3(signature = (system, height, width, wavelengths_nm, pitch_mm = 0.01, backend = "analytic", device = "cpu", precision = "f64"))]
+#[pyo3(signature = (system, height, width, wavelengths_nm, pitch_mm = 0.01, backend = "analytic", device = "cpu", precision = "f64", scene_fov_deg = None))]
 #[allow(clippy::too_many_arguments)]
 fn mapping<'py>(
     py: Python<'py>,
@@ -554,6 +580,7 @@ fn mapping<'py>(
     backend: &str,
     device: &str,
     precision: &str,
+    scene_fov_deg: Option<f64>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<bool>>)> {
     let dev = crate::settings::parse_device(device)?;
     let prec = precision.parse::<diffcassi::tracer::Precision>().map_err(|_| value_error(format!("precision `{precision}`: use \"f64\" or \"f32\"")))?;
@@ -569,6 +596,11 @@ fn mapping<'py>(
     if !(pitch_mm.is_finite() && pitch_mm > 0.0 && pitch_mm <= diffcassi::limits::MAX_LENGTH_MM) {
         return Err(value_error(format!("pitch_mm {}: must be in (0, {:e}] mm", diffcassi::limits::fmt_num(pitch_mm), diffcassi::limits::MAX_LENGTH_MM)));
     }
+    // The scene pitch in the system's field unit, as `mapping --scene-fov-deg`: mm on a finite object plane, a
+    // pixel's angle at infinity (`pitch_mm` was read as radians there: a held-out battery) — required there.
+    let mut cfg = diffcassi::render::RenderConfig::paper(1);
+    (cfg.scene_width, cfg.scene_pitch_mm, cfg.scene_fov_deg) = (width, pitch_mm, scene_fov_deg);
+    let pitch_mm = diffcassi::render::scene_pitch_for(&system.inner, &cfg).py()?;
     let what = format!("height × width × wavelengths_nm ({height} × {width} × {})", ws.len());
     diffcassi::limits::check_memory(&what, diffcassi::limits::bytes_mapping(height, width, ws.len())).py()?;
     diffcassi::limits::check_rays(&what, height as f64 * width as f64 * ws.len() as f64).py()?;

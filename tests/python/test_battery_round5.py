@@ -255,3 +255,62 @@ def test_reconstruct_names_an_unknown_keyword_and_the_valid_ones(op):
     assert set(diffcassi._SOLVER_INTS) <= set(native) and documented <= set(native)
     cube, record = diffcassi.reconstruct(op, y, iterations=1)
     assert cube.shape == op.cube_shape
+
+
+# ------------------------------------------------------------------ the unrolled network at scale 0
+def test_the_unrolled_network_reconstructs_a_dark_frame_as_zero():
+    """s = mean|x₀|: a zero acquisition gives a zero cube (a scale of 1 there let the stages' biases through: a
+    cube of mean 0.25 from a black frame), in PyTorch and in Rust alike; N(a·y) = a·N(y) down to a = 0."""
+    T = diffcassi.Transport(diffcassi.System.preset("sp"), 16, 16, rays=1, planes=28)
+    phi = dt.CassiOperator.from_operator(T, matrix_free=True)
+    net = dt.load_unrolled(str(diffcassi.__path__[0]) + "/weights/unrolled-gap-v1-sp.safetensors", phi, system="sp")
+    y = torch.from_numpy(T.apply(np.random.default_rng(0).random((16, 16, 28)).astype(np.float32)).astype(np.float32))
+    with torch.no_grad():
+        assert torch.count_nonzero(net(torch.zeros_like(y))) == 0
+        big, tiny = net(y), net(1e-30 * y)
+        assert torch.allclose(1e-30 * big, tiny, rtol=1e-3, atol=0)
+        assert torch.isfinite(net(-y)).all()
+    # The Rust network (`reconstruct --solver unrolled`): tests/recon_unrolled.rs, zero_denoisers_give_plain_gap….
+
+
+# ------------------------------------------------------------------ values beyond the operators' f32 range
+def test_operator_modules_refuse_values_beyond_the_f32_range(op):
+    """The torch operators refuse, on CPU tensors, what Operator.apply refuses (|v| > f32 max / 1e9): 3e38
+    gave inf, 1e36 through an unrolled network NaN; float64 1e300 is named as given, not as inf."""
+    mf = dt.CassiOperator.from_operator(op, matrix_free=True)
+    csr = dt.CassiOperator.from_operator(op)
+    H, W, B = op.cube_shape
+    for module in (mf, csr):
+        name = type(module).__name__
+        for v, dtype in ((3e38, torch.float32), (1e35, torch.float32), (1e300, torch.float64), (float("nan"), torch.float32)):
+            with pytest.raises(diffcassi.DiffcassiValueError, match=rf"{name}\.forward: x: value .* at index \[0, 0, 0, 0\] is not finite or beyond"):
+                module(torch.full((1, B, H, W), v, dtype=dtype))
+            with pytest.raises(diffcassi.DiffcassiValueError, match=rf"{name}\.adjoint: y: value .* is not finite or beyond"):
+                module.adjoint(torch.full((1, *op.image_shape), v, dtype=dtype))
+        ok = module(torch.full((1, B, H, W), 1e29))  # within the limit: finite
+        assert torch.isfinite(ok).all()
+    # The numpy paths: a float64 value float32 cannot hold is named as given.
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"acquisition: value 1(\.0+)?e\+?300 at index \[0, 0\]"):
+        diffcassi.reconstruct(op, np.full(op.image_shape, 1e300))
+    T = diffcassi.Transport(diffcassi.System.preset("sp"), 8, 8, bands_nm=BANDS4, planes=4, rays=1)
+    for v in (3.4e38, 1e300):
+        with pytest.raises(diffcassi.DiffcassiValueError, match=r"image: value .* beyond"):
+            T.adjoint(np.full(T.detector_shape, v))
+
+
+def test_unrolled_networks_refuse_values_beyond_the_f32_range():
+    T = diffcassi.Transport(diffcassi.System.preset("sp"), 16, 16, rays=1, planes=28)
+    phi = dt.CassiOperator.from_operator(T)
+    net = dt.load_unrolled(str(diffcassi.__path__[0]) + "/weights/unrolled-gap-v1-sp.safetensors", phi, system="sp")
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"UnrolledGAP\.forward: y holds .* values beyond"):
+        net(torch.full(phi.image_shape, 1e36))
+
+
+# ------------------------------------------------------------------ pickling a System
+def test_a_system_pickles_and_copies_bit_for_bit():
+    s = diffcassi.System.preset("gsp")
+    for c in (pickle.loads(pickle.dumps(s)), copy.copy(s), copy.deepcopy(s)):
+        assert c.to_json() == s.to_json() and c.prescription_sha256() == s.prescription_sha256()
+        fields = np.array([[0.0, 0.0], [1.0, -2.0]])
+        o, d, w = s.chief_rays(fields, 520.0)
+        assert all(np.array_equal(a, b) for a, b in zip(c.chief_rays(fields, 520.0), (o, d, w)))

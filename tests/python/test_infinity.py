@@ -119,3 +119,32 @@ def test_cassi_renderer_refuses_an_angular_extent_on_a_finite_object():
     with pytest.raises(ValueError, match="finite object"):
         dt.CassiRenderer(diffcassi.System.preset("sp"), 4, 4, free=["prism_tilt_x"], rays=1, planes=2,
                          bands_nm=[500.0, 600.0], scene_fov_deg=10.0)
+
+
+def test_ray_tools_at_infinity_take_angles_and_refuse_heights(telescope):
+    """``spot``, ``dispersion``, ``System.chief_rays`` and ``mapping`` at infinity: a field is an angle
+    (``field_deg`` / ``fields_deg``), a pixel's extent comes from ``scene_fov_deg``; a height in mm (or a pitch in
+    mm) is refused naming it — it was read as radians (a 5 mm field traced at 5 rad: a held-out battery)."""
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"field_mm \(0, 0\.1\): system .* has its object at infinity"):
+        diffcassi.spot(telescope, (0.0, 0.1), 550.0)
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"field_mm .* has its object at infinity"):
+        diffcassi.dispersion(telescope, [500.0, 600.0], field_mm=(0.0, 0.1))
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"fields_mm .* has its object at infinity"):
+        telescope.chief_rays(np.array([[0.0, 0.1]]), 550.0)
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"has its object at infinity: give the scene's angular extent"):
+        diffcassi.mapping(telescope, 4, 4, [550.0], pitch_mm=1.0)
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"field_deg \(0, 95\): field angles must be finite and within"):
+        diffcassi.spot(telescope, None, 550.0, field_deg=(0.0, 95.0))
+    # Angles agree across the tools: the spot's chief ray is chief_rays' and rays_for_field's, at 0.1°.
+    s = diffcassi.spot(telescope, None, 550.0, field_deg=(0.0, 0.1), pupil="chief")
+    o, d, _ = telescope.chief_rays(None, 550.0, fields_deg=np.array([[0.0, 0.1]]))
+    o2, d2, _ = telescope.rays_for_field(None, 550.0, pupil="chief", field_deg=[0.0, 0.1])
+    assert np.array_equal(o, o2) and np.array_equal(d, d2)
+    assert abs(d[0, 1] / d[0, 2] - np.tan(np.radians(0.1))) < 1e-12
+    c = diffcassi.dispersion(telescope, [550.0, 600.0], field_deg=(0.0, 0.1))
+    assert abs(c["y_mm"][0] - s["chief_mm"][1]) < 1e-9 and abs(c["y_mm"][0]) > 0.05  # EFL 80 mm · tan 0.1° ≈ 0.14 mm
+    axis = diffcassi.dispersion(telescope, [500.0, 600.0])  # neither: the axis, in degrees at infinity
+    assert np.allclose(axis["y_mm"], 0.0, atol=1e-9)
+    # The mapping at infinity: scene_fov_deg across the width, as `mapping --scene-fov-deg`.
+    pos, valid = diffcassi.mapping(telescope, 4, 4, [550.0], scene_fov_deg=0.4)
+    assert valid.all() and np.isfinite(pos).all() and np.ptp(pos[..., 0]) > 0
