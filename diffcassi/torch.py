@@ -369,7 +369,7 @@ class CassiOperator(_DeviceChecked):
         dtype = y.dtype
         if dtype in _HALF:
             y = y.to(torch.float32)
-        x = _gather.gather_apply(y.reshape(y.shape[0], -1), self.adjoint_table, self.phi_table)
+        x = _gather.gather_apply(y.reshape(y.shape[0], self.image_shape[0] * self.image_shape[1]), self.adjoint_table, self.phi_table)
         x = x.reshape(y.shape[0], B, H, W).to(dtype)
         return x[0] if single else x
 
@@ -519,7 +519,7 @@ class MatrixFreeCassiOperator(_DeviceChecked):
         if self.phi_table is None:
             x = _RustApply.apply(y, self.op, True)
         else:
-            x = _gather.gather_apply(y.reshape(y.shape[0], -1), self.adjoint_table, self.phi_table)
+            x = _gather.gather_apply(y.reshape(y.shape[0], self.image_shape[0] * self.image_shape[1]), self.adjoint_table, self.phi_table)
             x = x.reshape(y.shape[0], B, H, W)
         x = x.to(dtype)
         return x[0] if single else x

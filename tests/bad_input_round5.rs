@@ -183,3 +183,22 @@ fn a_fifo_planted_in_a_dataset_is_not_waited_on() {
         assert!(!is_fifo(&dir.join(victim)) && dir.join(victim).is_file(), "{victim}");
     }
 }
+
+/// `study` refuses a black scene before any render, naming it; `reconstruct` with a model operator records no
+/// operator seed or rays (they are the exact operator's: the shift operator's record claimed them).
+#[test]
+fn a_black_study_scene_is_named_and_model_operators_record_no_rays() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    std::fs::create_dir(dir.join("scenes")).unwrap();
+    let black = diffcassi::scene::SpectralCube::new(8, 8, vec![450.0, 550.0, 650.0], vec![0.0; 8 * 8 * 3], "black").unwrap();
+    diffcassi::scene::save_npy(&black, &dir.join("scenes/night.npy")).unwrap();
+    let (code, msg) = run(dir, &["study", "--scenes", "scenes", "--scene-size", "8", "--presets", "sp", "--operators", "shift", "--bands", "450:650:3", "--planes", "3", "--rays", "1", "--iterations", "1", "--out", "st"]);
+    assert_eq!(code, Some(1), "{msg}");
+    assert!(msg.contains("night.npy") && msg.contains("maximum"), "{msg}");
+    assert!(!dir.join("st/renders").exists(), "{msg}");
+    ok(dir, &["render", "--preset", "sp", "--scene-size", "8", "--planes", "28", "--rays", "1", "--out", "r"]);
+    ok(dir, &["reconstruct", "--from", "r", "--operator", "shift", "--iterations", "1", "--out", "x"]);
+    let j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("x/reconstruct.json")).unwrap()).unwrap();
+    assert!(j["operator_seed"].is_null() && j["operator_rays"].is_null() && j["oracle"] == false, "{j}");
+}

@@ -332,8 +332,10 @@ fn _reconstruct<'py>(
 #[pyfunction]
 #[pyo3(signature = (cube, sigma, weights = None, neutral = false, ensemble = false))]
 fn denoise<'py>(py: Python<'py>, cube: &Bound<'py, PyAny>, sigma: f64, weights: Option<String>, neutral: bool, ensemble: bool) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
-    if !(sigma.is_finite() && sigma >= 0.0) {
-        return Err(value_error(format!("sigma = {sigma}: must be finite and ≥ 0")));
+    // σ is on the cube's scale and the denoiser computes in f32: bounded as the cube's values are (1e300 was
+    // refused as "σ = inf", the value after the cast).
+    if !(sigma.is_finite() && sigma >= 0.0 && sigma <= diffcassi::limits::MAX_SCENE_VALUE) {
+        return Err(value_error(format!("sigma = {}: must be finite, ≥ 0 and ≤ {:.3e} (f32's range / 10⁹)", diffcassi::limits::fmt_num(sigma), diffcassi::limits::MAX_SCENE_VALUE)));
     }
     let a = input::<f32>("cube", cube, "float32", 3, "(H, W, B)")?;
     check_finite("cube", a.slice(), &a.shape)?;

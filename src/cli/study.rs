@@ -292,6 +292,12 @@ fn load_scenes(a: &StudyArgs, bands: &[f64]) -> Result<Vec<StudyScene>> {
                     let ws = if crate::scene::natural::is_rgb_image(&s.path) { Some(bands) } else { given.as_deref() };
                     let raw = load_scene(&s.path, ws)?;
                     let cube = raw.fit(n, fit).map_err(|e| Error::File { path: s.path.display().to_string(), message: e.to_string() })?;
+                    // The metrics take the scene's maximum as PSNR's peak: a black scene is refused before any
+                    // render, naming it (it failed after its renders and solves with "the truth's maximum is 0").
+                    let peak = cube.data.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
+                    if !(peak > 0.0) {
+                        return Err(Error::File { path: s.path.display().to_string(), message: format!("the scene's maximum (at --scene-size {n}) is {peak}: PSNR (peak = max of the truth) is undefined for it; remove it from the study") });
+                    }
                     let source = json!({"source": s.path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "fit": fit});
                     Ok(StudyScene { name: s.name, cube, source })
                 })
@@ -681,7 +687,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, &|_, _| {}, twin.as_deref())?;
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
-                let ev = evaluate(&scene.cube, &estimate)?;
+                let ev = evaluate(&scene.cube, &estimate).map_err(|e| Error::invalid(format!("study: scene `{}` ({label}, {}, {solver}): {e}", scene.name, op_kind.name())))?;
                 let final_residual = solved.final_residual;
                 let rjson = json!({
                     "from": dirs[i].display().to_string(), "system": system.name(), "operator": op_kind.name(), "operator_seed": op_seed,

@@ -238,6 +238,8 @@ def test_denoise_names_sigma():
         assert np.array_equal(diffcassi.denoise(x, same), ref)
     with pytest.raises(diffcassi.DiffcassiValueError, match="sigma = -1"):
         diffcassi.denoise(x, -1)
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"sigma = 1e300: must be finite, ≥ 0 and ≤ 3\.403e29"):
+        diffcassi.denoise(x, 1e300)  # named as given, not as the inf of its f32 cast
 
 
 def test_reconstruct_names_an_unknown_keyword_and_the_valid_ones(op):
@@ -314,3 +316,11 @@ def test_a_system_pickles_and_copies_bit_for_bit():
         fields = np.array([[0.0, 0.0], [1.0, -2.0]])
         o, d, w = s.chief_rays(fields, 520.0)
         assert all(np.array_equal(a, b) for a, b in zip(c.chief_rays(fields, 520.0), (o, d, w)))
+
+
+def test_an_empty_batch_goes_both_ways(op):
+    """A batch of 0 through the adjoint (a bare torch reshape error before: `-1` is ambiguous for 0 elements)."""
+    csr = dt.CassiOperator.from_operator(op)
+    H, W, B = op.cube_shape
+    assert csr.adjoint(torch.zeros(0, *op.image_shape)).shape == (0, B, H, W)
+    assert csr(torch.zeros(0, B, H, W)).shape == (0, *op.image_shape)
