@@ -297,7 +297,7 @@ impl Glass {
     fn checked_index(&self, wavelength_nm: f64) -> Result<f64, MaterialError> {
         let n = self.formula.refractive_index(wavelength_nm);
         if n.is_finite() && n > 0.0 && !(MIN_INDEX..=MAX_INDEX).contains(&n) {
-            return Err(MaterialError::ImplausibleIndex { glass: self.name.clone(), catalog: self.catalog.clone(), wavelength_nm, index: n });
+            return Err(MaterialError::ImplausibleIndex { glass: self.name.clone(), catalog: self.catalog.clone(), wavelength_nm, index: n, extrapolated: !self.in_range(wavelength_nm) });
         }
         if n.is_finite() && n > 0.0 {
             Ok(n)

@@ -120,11 +120,12 @@ pub enum MaterialError {
     /// [`glass::MIN_INDEX`, `glass::MAX_INDEX`] at a wavelength used (a damaged catalogue: `CD 1e300 …` gave
     /// n = 1e153 and every ray TIR; `CD -0.5 …` gave n = 0.696).
     #[error(
-        "glass {glass} (catalogue {catalog}): its dispersion formula gives n = {} at {} nm, outside the physical range [{}, {}] of a refractive index: the catalogue's formula coefficients (CD line) are damaged",
+        "glass {glass} (catalogue {catalog}): its dispersion formula gives n = {} at {} nm, outside the physical range [{}, {}] of a refractive index: {}",
         crate::limits::fmt_num(*.index),
         crate::limits::fmt_num(*.wavelength_nm),
         glass::MIN_INDEX,
-        glass::MAX_INDEX
+        glass::MAX_INDEX,
+        if *.extrapolated { "the wavelength is outside the glass's catalogue range, where its formula (extrapolated) means nothing" } else { "the catalogue's formula coefficients (CD line) are damaged" }
     )]
     ImplausibleIndex {
         /// Glass name.
@@ -135,6 +136,8 @@ pub enum MaterialError {
         wavelength_nm: f64,
         /// The implausible result.
         index: f64,
+        /// The wavelength is outside the glass's catalogue range (extrapolation was allowed).
+        extrapolated: bool,
     },
 
     /// Malformed AGF text. `source_name` is the file name/path given to the parser
