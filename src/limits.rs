@@ -23,6 +23,9 @@ use std::sync::RwLock;
 /// Largest plausible |length| of a resolved system (thickness, decenter), mm:
 /// 1 km. A bench-top CASSI is ~0.3 m long; anything beyond is a typo or an overflowing pickup.
 pub const MAX_LENGTH_MM: f64 = 1e6;
+/// Smallest plausible entrance pupil diameter, mm (1 nm, the smallest plausible radius): given (`ENPD`,
+/// `entrance_pupil_diameter`) or produced by an image-space F/# (EFL / F/#; `FNUM 1e300` gave a 1e-302 mm pupil).
+pub const MIN_PUPIL_DIAMETER_MM: f64 = 1e-6;
 /// Largest plausible |curvature| of a surface, mm⁻¹ (`.zmx` `CURV`): a radius of at least 1 nm.
 pub const MAX_CURVATURE_PER_MM: f64 = 1e6;
 /// Largest plausible |tilt| of a coordinate break, degrees (one full turn).

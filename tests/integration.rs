@@ -67,3 +67,4 @@ mod yaml_import;
 mod zemax_reference;
 mod zmx;
 mod zmx_read;
+mod zmx_round5;

@@ -153,10 +153,22 @@ impl PySystem {
         if path.is_dir() {
             return Err(file_error(format!("{}: is a directory, not a system file", path.display())));
         }
-        if !path.is_file() {
+        // Only a missing path is "no such file"; a named pipe (FIFO) or a device (/dev/zero, /dev/null) is named
+        // as such by the reader's own input check (diffcassi::io::input), which refuses it before reading.
+        if std::fs::metadata(&path).is_err() {
             return Err(file_error(format!("{}: no such file", path.display())));
         }
-        run(py, move || SequentialSystem::build(&diffcassi::spec::load_spec_file(&path)?)).py().map(Self::wrap)
+        let is_zmx = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"));
+        run(py, move || {
+            let built = SequentialSystem::build(&diffcassi::spec::load_spec_file(&path)?);
+            if is_zmx {
+                built.map_err(diffcassi::spec::zmx::with_zmx_hints)
+            } else {
+                built
+            }
+        })
+        .py()
+        .map(Self::wrap)
     }
 
     /// A TOML or JSON spec held in a string (`format`: `toml`, `json`).
@@ -224,8 +236,10 @@ impl PySystem {
     }
 
     /// First-order data at the primary wavelength as a dict: efl_mm, bfl_mm, enp_from_surface1_mm,
-    /// enp_diameter_mm, exp_from_last_surface_mm, exp_from_image_mm, chief_image_height_per_field.
-    fn first_order(&self) -> std::collections::BTreeMap<String, f64> {
+    /// enp_diameter_mm, exp_from_last_surface_mm, exp_from_image_mm, chief_image_height_per_field. A value that
+    /// is not finite is None: an afocal system (a flat grating) has efl_mm None (its EFL is infinite), never
+    /// -inf; its BFL and exit pupil may be None too.
+    fn first_order(&self) -> std::collections::BTreeMap<String, Option<f64>> {
         let f = &self.inner.first_order;
         [
             ("efl_mm", f.efl_mm),
@@ -237,7 +251,7 @@ impl PySystem {
             ("chief_image_height_per_field", f.chief_image_height_per_field),
         ]
         .into_iter()
-        .map(|(k, v)| (k.to_string(), v))
+        .map(|(k, v)| (k.to_string(), v.is_finite().then_some(v)))
         .collect()
     }
 

@@ -173,14 +173,18 @@ pub fn lde_table(system: &SequentialSystem) -> String {
             system.stop_index,
             p.stop_radius_mm
         );
+        // An afocal system (a flat grating, a telescope) has no finite EFL, BFL or F/#: said in words, never
+        // `-inf` (the output policy: no inf in an output).
+        let mm = |v: f64, none: &str| if v.is_finite() { format!("{v:.6} mm") } else { none.to_string() };
+        let fno = fo.efl_mm.abs() / fo.enp_diameter_mm;
         let _ = writeln!(
             s,
-            "first order (primary wavelength): EFL {:.6} mm, BFL {:.6} mm, exit pupil {:.6} mm from the last surface ({:.6} mm from the image), F/# {:.6}",
-            fo.efl_mm,
-            fo.bfl_mm,
-            fo.exp_from_last_surface_mm,
-            fo.exp_from_image_mm,
-            fo.efl_mm.abs() / fo.enp_diameter_mm
+            "first order (primary wavelength): EFL {}, BFL {}, exit pupil {} from the last surface ({} from the image), F/# {}",
+            mm(fo.efl_mm, "afocal (infinite)"),
+            mm(fo.bfl_mm, "none (afocal)"),
+            mm(fo.exp_from_last_surface_mm, "at infinity"),
+            mm(fo.exp_from_image_mm, "at infinity"),
+            if fno.is_finite() { format!("{fno:.6}") } else { "none (afocal)".to_string() }
         );
     }
     let where_ = if system.object_at_infinity() {
@@ -277,7 +281,8 @@ pub(super) fn info(a: InfoArgs) -> Result<()> {
         print!("{}", lde_table(&system));
         print!("{}", glass_table(&system)?);
         if let Some(path) = a.system.system.as_ref().filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"))) {
-            let imported = crate::spec::zmx::import_zmx_file(path, &crate::spec::zmx::ZmxOptions::default())?;
+            let glass_catalogs = a.system.glass_catalogs.iter().map(crate::spec::catalog_entry).collect();
+            let imported = crate::spec::zmx::import_zmx_file(path, &crate::spec::zmx::ZmxOptions { glass_catalogs, ..Default::default() })?;
             print!("{}", zmx_report(path, &imported));
         }
     }

@@ -41,10 +41,13 @@ pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
             Err(e) => return Err(Error::invalid(format!("--glass-dir {}: no such folder ({e})", d.display()))),
         }
     }
-    let options = ZmxOptions { ignore_unsupported: a.ignore_unsupported, glass_dirs: a.glass_dirs.clone() };
+    let options = ZmxOptions { ignore_unsupported: a.ignore_unsupported, glass_dirs: a.glass_dirs.clone(), ..Default::default() };
     let imported = import_zmx_file(&a.input, &options)?;
     // Build it before writing: a file that imports but does not make a traceable system writes nothing.
-    crate::system::SequentialSystem::build(&imported.spec)?;
+    let system = crate::system::SequentialSystem::build(&imported.spec).map_err(crate::spec::zmx::with_zmx_hints)?;
+    for w in system.glass_warnings() {
+        eprintln!("warning: {w}");
+    }
     crate::spec::save_spec_file(&imported.spec, &a.out)?;
     if !imported.ignored.is_empty() {
         eprintln!("warning: {}: {} item(s) ignored (--ignore-unsupported):", a.input.display(), imported.ignored.len());

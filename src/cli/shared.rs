@@ -36,16 +36,32 @@ pub fn system_inputs(args: &SystemArgs) -> Vec<(&'static str, &std::path::Path)>
 }
 
 pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
-    SequentialSystem::build(&load_spec_with_catalogs(args)?)
+    let built = SequentialSystem::build(&load_spec_with_catalogs(args)?);
+    if let Ok(system) = &built {
+        for w in system.glass_warnings() {
+            eprintln!("warning: {w}");
+        }
+    }
+    // A `.zmx` file's errors name the file's own fixes (its `DCWP` record, not a spec's field).
+    if args.system.as_ref().is_some_and(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"))) {
+        return built.map_err(crate::spec::zmx::with_zmx_hints);
+    }
+    built
 }
 
 /// The spec named by the arguments with each `--glass-catalog` appended to its `glass_catalogs` (after the
 /// spec's own: a later catalogue wins, as in [`SequentialSystem::build`]), as an absolute path, so that the
 /// system's spec — what `render.json`, `study.json` and the spec's SHA-256 record — names every catalogue
 /// its glasses came from and a later `reconstruct --from` reads the same ones.
+/// A `.zmx` file's glasses are looked up in them too, after the file's `GCAT` catalogues
+/// ([`crate::spec::load_spec_file_with_catalogs`]).
 pub fn load_spec_with_catalogs(args: &SystemArgs) -> Result<SystemSpec> {
+    let extra: Vec<String> = args.glass_catalogs.iter().map(|p| crate::spec::catalog_entry(p)).collect();
+    if let (None, Some(path)) = (&args.preset, &args.system) {
+        return crate::spec::load_spec_file_with_catalogs(path, &extra);
+    }
     let mut spec = load_spec(args)?;
-    spec.glass_catalogs.extend(args.glass_catalogs.iter().map(|p| crate::spec::catalog_entry(p)));
+    spec.glass_catalogs.extend(extra);
     Ok(spec)
 }
 

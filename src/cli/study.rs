@@ -210,13 +210,18 @@ fn load_systems(a: &StudyArgs) -> Result<Vec<StudySystem>> {
     }
     for path in &a.systems {
         let ferr = |m: String| Error::File { path: path.display().to_string(), message: m };
-        if !path.is_file() {
-            return Err(ferr("--systems: no such file".into()));
+        // The input check every reader uses (a FIFO, a folder or a device is named as such, not "no such file").
+        match crate::io::input::open_input(path, crate::limits::MAX_TEXT_FILE_BYTES) {
+            Ok(_) => {}
+            Err(crate::io::IoError::Io { source, .. }) if source.kind() == std::io::ErrorKind::NotFound => return Err(ferr("--systems: no such file".into())),
+            Err(crate::io::IoError::Input { reason, .. }) => return Err(ferr(format!("--systems: {reason}"))),
+            Err(e) => return Err(ferr(format!("--systems: {e}"))),
         }
         let stem = path.file_stem().and_then(|s| s.to_str()).filter(|s| !s.is_empty()).ok_or_else(|| ferr("--systems: the file name has no UTF-8 stem to label its rows with".into()))?.to_string();
-        let mut spec = crate::spec::load_spec_file(path)?;
-        spec.glass_catalogs.extend(a.glass_catalogs.iter().map(crate::spec::catalog_entry));
-        let system = SequentialSystem::build(&spec).map_err(|e| ferr(e.to_string()))?;
+        let extra: Vec<String> = a.glass_catalogs.iter().map(crate::spec::catalog_entry).collect();
+        let spec = crate::spec::load_spec_file_with_catalogs(path, &extra)?;
+        let is_zmx = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"));
+        let system = SequentialSystem::build(&spec).map_err(|e| ferr(if is_zmx { crate::spec::zmx::with_zmx_hints(e) } else { e }.to_string()))?;
         out.push(StudySystem { key: stem.clone(), label: stem, preset: None, file: Some(path.clone()), system });
     }
     for (i, s) in out.iter().enumerate() {

@@ -167,6 +167,13 @@ pub struct GlassInfo {
     pub transmission: Vec<TransmissionPoint>,
 }
 
+/// The physical range of a (relative) refractive index at the wavelengths diffcassi traces (100 nm–20 µm):
+/// optical glasses are 1.4–2.1, crystals and infrared materials up to germanium's ~4.1. A formula outside it is
+/// a damaged catalogue, refused by [`Glass::refractive_index`] naming glass, catalogue, wavelength and value.
+pub const MIN_INDEX: f64 = 1.0;
+/// See [`MIN_INDEX`].
+pub const MAX_INDEX: f64 = 5.0;
+
 impl Glass {
     /// A glass with the given core data; [`thermal`](Self::thermal) is `None` and
     /// [`info`](Self::info) is empty.
@@ -270,8 +277,28 @@ impl Glass {
         }
     }
 
+    /// How far the formula's n at the d line (587.5618 nm) may be from the catalogue's `NM` n_d before
+    /// [`nd_mismatch`](Self::nd_mismatch) reports it: 1e-3, a unit of the third decimal. Vendor catalogues agree
+    /// to ~1e-5 (SUMITA's formulas to 3.8e-5, the legacy SCHOTT1980 Buchdahl fit to its fit error): every
+    /// built-in catalogue and SCHOTT's AGF pass (tests/zmx_round5.rs); a damaged `CD` line does not.
+    pub const ND_TOLERANCE: f64 = 1e-3;
+
+    /// The formula's n at 587.5618 nm and the catalogue n_d, when they differ by more than
+    /// [`ND_TOLERANCE`](Self::ND_TOLERANCE) (or the formula gives no index there); `None` when they agree or
+    /// the d line is outside the glass's range.
+    pub fn nd_mismatch(&self) -> Option<(f64, f64)> {
+        if !self.in_range(D_LINE_NM) || !self.nd.is_finite() || self.nd == 0.0 {
+            return None;
+        }
+        let n = self.formula.refractive_index(D_LINE_NM);
+        (!(n.is_finite() && (n - self.nd).abs() <= Self::ND_TOLERANCE)).then_some((n, self.nd))
+    }
+
     fn checked_index(&self, wavelength_nm: f64) -> Result<f64, MaterialError> {
         let n = self.formula.refractive_index(wavelength_nm);
+        if n.is_finite() && n > 0.0 && !(MIN_INDEX..=MAX_INDEX).contains(&n) {
+            return Err(MaterialError::ImplausibleIndex { glass: self.name.clone(), catalog: self.catalog.clone(), wavelength_nm, index: n, extrapolated: !self.in_range(wavelength_nm) });
+        }
         if n.is_finite() && n > 0.0 {
             Ok(n)
         } else {

@@ -57,6 +57,12 @@ pub use glass::{ExtraData, Glass, GlassInfo, GlassStatus, ThermalData, Transmiss
 pub use medium::{Medium, WavelengthPolicy};
 pub use tabulated::TabulatedIndex;
 
+/// How a spec file allows extrapolation, in [`MaterialError::WavelengthOutOfRange`]'s message.
+pub const EXTRAPOLATION_HINT: &str = "set `wavelength_policy = \"AllowExtrapolation\"` in the system spec; Rust: WavelengthPolicy::AllowExtrapolation";
+/// How a `.zmx` file allows it: its own record (`crate::spec::zmx::with_zmx_hints` puts it in the message of a
+/// system read from a `.zmx` file).
+pub const EXTRAPOLATION_HINT_ZMX: &str = "add the record `DCWP allow_extrapolation` to the .zmx file's system data (before its first SURF)";
+
 /// Everything that can go wrong when reading catalogues or evaluating indices.
 ///
 /// Every message names the glass (or medium) and the offending value; parse errors name the
@@ -74,9 +80,9 @@ pub enum MaterialError {
 
     /// The wavelength is outside the catalogue's `LD` range of the glass.
     #[error(
-        "wavelength {wavelength_nm} nm is outside the valid range [{min_nm}, {max_nm}] nm \
-         of glass {glass} (to evaluate its formula there anyway, set `wavelength_policy = \"AllowExtrapolation\"` in the \
-         system spec; Rust: WavelengthPolicy::AllowExtrapolation)"
+        "wavelength {} nm is outside the valid range [{min_nm}, {max_nm}] nm of glass {glass} (to evaluate its formula there anyway, {})",
+        crate::limits::fmt_num(*.wavelength_nm),
+        EXTRAPOLATION_HINT
     )]
     WavelengthOutOfRange {
         /// Glass name.
@@ -108,6 +114,30 @@ pub enum MaterialError {
         wavelength_nm: f64,
         /// The invalid result.
         index: f64,
+    },
+
+    /// The dispersion formula gives a finite index outside the physical range
+    /// [`glass::MIN_INDEX`, `glass::MAX_INDEX`] at a wavelength used (a damaged catalogue: `CD 1e300 …` gave
+    /// n = 1e153 and every ray TIR; `CD -0.5 …` gave n = 0.696).
+    #[error(
+        "glass {glass} (catalogue {catalog}): its dispersion formula gives n = {} at {} nm, outside the physical range [{}, {}] of a refractive index: {}",
+        crate::limits::fmt_num(*.index),
+        crate::limits::fmt_num(*.wavelength_nm),
+        glass::MIN_INDEX,
+        glass::MAX_INDEX,
+        if *.extrapolated { "the wavelength is outside the glass's catalogue range, where its formula (extrapolated) means nothing" } else { "the catalogue's formula coefficients (CD line) are damaged" }
+    )]
+    ImplausibleIndex {
+        /// Glass name.
+        glass: String,
+        /// The catalogue it comes from.
+        catalog: String,
+        /// Wavelength at which the formula was evaluated.
+        wavelength_nm: f64,
+        /// The implausible result.
+        index: f64,
+        /// The wavelength is outside the glass's catalogue range (extrapolation was allowed).
+        extrapolated: bool,
     },
 
     /// Malformed AGF text. `source_name` is the file name/path given to the parser

@@ -45,6 +45,20 @@ pub fn load_spec_file(path: impl AsRef<Path>) -> Result<SystemSpec> {
     }
 }
 
+/// [`load_spec_file`] with the user's catalogues `extra` (`--glass-catalog`, as [`catalog_entry`] writes them)
+/// appended to the spec's `glass_catalogs` (after the spec's own: a later catalogue wins). A `.zmx` file's
+/// glasses are looked up in them too (after the file's `GCAT` catalogues), so a glass only they hold is found.
+pub fn load_spec_file_with_catalogs(path: impl AsRef<Path>, extra: &[String]) -> Result<SystemSpec> {
+    let path = path.as_ref();
+    if path.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("zmx")) {
+        let options = super::zmx::ZmxOptions { glass_catalogs: extra.to_vec(), ..Default::default() };
+        return super::zmx::import_zmx_file(path, &options).map(|i| i.spec);
+    }
+    let mut spec = load_spec_file(path)?;
+    spec.glass_catalogs.extend(extra.iter().cloned());
+    Ok(spec)
+}
+
 /// The `glass_catalogs` entry of a catalogue named on the command line or found in a folder: `builtin:NAME`
 /// as it is, a file path made absolute (against the working directory), so that the entry reads the same
 /// file wherever the spec that records it is read again (a render's `render.json`, a saved spec).

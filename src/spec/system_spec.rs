@@ -228,6 +228,17 @@ impl SystemSpec {
             if !(f[0].is_finite() && f[1].is_finite()) {
                 return Err(format!("fields_mm[{i}] = {:?}: not finite", f));
             }
+            // The range of the command line's --field-mm (a height of 1e300 mm was taken, and an image height
+            // converted to a 90° field).
+            if let Some(v) = f.iter().find(|v| v.abs() > crate::limits::MAX_LENGTH_MM) {
+                return Err(format!(
+                    "fields_mm[{i}] = ({}, {}): {} mm is outside ±{:e} mm (the range of --field-mm)",
+                    crate::limits::fmt_num(f[0]),
+                    crate::limits::fmt_num(f[1]),
+                    crate::limits::fmt_num(*v),
+                    crate::limits::MAX_LENGTH_MM
+                ));
+            }
         }
         for (i, f) in self.fields_deg.iter().enumerate() {
             if !(f[0].is_finite() && f[1].is_finite() && f[0].abs() < 90.0 && f[1].abs() < 90.0) {
@@ -251,6 +262,11 @@ impl SystemSpec {
             }
         }
         let infinite = self.object_at_infinity();
+        // Rays from an object at infinity start on surface 1's vertex plane: an aperture on surface 0 would be
+        // kept, shown and without effect.
+        if infinite && self.surfaces.first().is_some_and(|s| s.aperture.is_some()) {
+            return Err("surfaces[0].aperture: the object (surface 0) is at infinity, where no ray meets it, so an aperture there has no effect: remove it or put it on a surface the rays cross".into());
+        }
         match self.field_type {
             FieldType::Angle if !self.fields_mm.is_empty() => {
                 return Err(format!("field_type angle takes its values from fields_deg, but fields_mm holds {} point(s): move them to fields_deg (degrees)", self.fields_mm.len()))
@@ -286,8 +302,13 @@ impl SystemSpec {
             SystemAperture::ObjectSpaceNa(na) if !(na.is_finite() && na > 0.0 && na < 1.0) => {
                 return Err(format!("aperture object_space_na = {na}: must be in (0, 1)"))
             }
-            SystemAperture::EntrancePupilDiameter(d) if !(d.is_finite() && d > 0.0 && d <= crate::limits::MAX_LENGTH_MM) => {
-                return Err(format!("aperture entrance_pupil_diameter = {} mm: must be finite, in (0, {}] mm", crate::limits::fmt_num(d), crate::limits::fmt_num(crate::limits::MAX_LENGTH_MM)))
+            SystemAperture::EntrancePupilDiameter(d) if !(d.is_finite() && d >= crate::limits::MIN_PUPIL_DIAMETER_MM && d <= crate::limits::MAX_LENGTH_MM) => {
+                return Err(format!(
+                    "aperture entrance_pupil_diameter = {} mm: must be finite, in [{}, {}] mm",
+                    crate::limits::fmt_num(d),
+                    crate::limits::fmt_num(crate::limits::MIN_PUPIL_DIAMETER_MM),
+                    crate::limits::fmt_num(crate::limits::MAX_LENGTH_MM)
+                ))
             }
             _ => {}
         }

@@ -37,9 +37,41 @@ pub(crate) fn object_fields(spec: &SystemSpec, pupil: &EntrancePupil, fo: &First
                     spec.field_type.label()
                 ));
             }
-            Ok(values.iter().map(|f| if infinite { [(f[0] / k).atan(), (f[1] / k).atan()] } else { [f[0] / k, f[1] / k] }).collect())
+            let out: Vec<[f64; 2]> = values.iter().map(|f| if infinite { [(f[0] / k).atan(), (f[1] / k).atan()] } else { [f[0] / k, f[1] / k] }).collect();
+            check_converted(spec, infinite, &out)?;
+            Ok(out)
         }
     }
+}
+
+/// Fields converted from image heights (or, for real image heights, found by the chief ray) within the limits
+/// of the fields a user gives: an angle within (−90, 90)° (`--field-deg`), an object height within ±1e6 mm
+/// (`--field-mm`). An image height of 1e300 mm converted to exactly 90° and was traced; a tiny chief-ray
+/// height per field turns a moderate image height into an absurd object height.
+fn check_converted(spec: &SystemSpec, infinite: bool, fields: &[[f64; 2]]) -> Result<(), String> {
+    for (i, (f, given)) in fields.iter().zip(&spec.fields_mm).enumerate() {
+        let bad = if infinite {
+            f.iter().any(|a| !(a.is_finite() && a.abs() < std::f64::consts::FRAC_PI_2) || a.to_degrees().abs() >= 90.0)
+        } else {
+            f.iter().any(|h| !(h.is_finite() && h.abs() <= crate::limits::MAX_LENGTH_MM))
+        };
+        if bad {
+            let (shown, unit, range) = if infinite {
+                ([f[0].to_degrees(), f[1].to_degrees()], "°", "within (-90, 90) degrees (the range of --field-deg)".to_string())
+            } else {
+                (*f, " mm", format!("within ±{:e} mm (the range of --field-mm)", crate::limits::MAX_LENGTH_MM))
+            };
+            return Err(format!(
+                "fields_mm[{i}] = ({}, {}) mm ({}) converts to the field ({}, {}){unit}, which is not {range}",
+                crate::limits::fmt_num(given[0]),
+                crate::limits::fmt_num(given[1]),
+                spec.field_type.label(),
+                crate::limits::fmt_num(shown[0]),
+                crate::limits::fmt_num(shown[1]),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Real image heights: the object fields whose real chief rays (primary wavelength, the system's ray
@@ -83,5 +115,6 @@ pub(crate) fn real_image_height_fields(system: &SequentialSystem, guess: &[[f64;
         }
         out.push(f);
     }
+    check_converted(&system.spec, system.object_at_infinity(), &out)?;
     Ok(out)
 }

@@ -180,7 +180,20 @@ pub(crate) fn entrance_pupil(
             if !(efl.is_finite() && efl != 0.0) {
                 return Err(format!("image-space F/# {fno}: the system has no finite paraxial focal length (afocal), so the F/# defines no pupil"));
             }
-            SystemAperture::EntrancePupilDiameter(efl.abs() / fno)
+            // The pupil the F/# gives is held to the limits of a given one (`entrance_pupil_diameter`).
+            let d = efl.abs() / fno;
+            let (lo, hi) = (crate::limits::MIN_PUPIL_DIAMETER_MM, crate::limits::MAX_LENGTH_MM);
+            if !(d.is_finite() && (lo..=hi).contains(&d)) {
+                return Err(format!(
+                    "image-space F/# {} gives an entrance pupil diameter of {} mm (EFL {} mm / F/#), outside the plausible [{}, {}] mm of a given entrance pupil",
+                    crate::limits::fmt_num(fno),
+                    crate::limits::fmt_num(d),
+                    crate::limits::fmt_num(efl.abs()),
+                    crate::limits::fmt_num(lo),
+                    crate::limits::fmt_num(hi)
+                ));
+            }
+            SystemAperture::EntrancePupilDiameter(d)
         }
         other => other,
     };

@@ -33,16 +33,24 @@ pub(super) fn find_catalog(name: &str, dirs: &[PathBuf]) -> Option<PathBuf> {
     None
 }
 
-/// The folders searched for the catalogues of the file at `source`.
-pub(super) fn search_dirs(source: Option<&Path>, extra: &[PathBuf]) -> Vec<PathBuf> {
+/// The folders searched for the catalogues of the file at `source`. Each folder of `DIFFCASSI_GLASS_DIR` must
+/// exist and be a folder, as `--glass-dir` must (a missing one was listed as searched, a file ignored); empty
+/// entries (`a::b`, an empty variable) are no folder and are skipped.
+pub(super) fn search_dirs(source: Option<&Path>, extra: &[PathBuf]) -> Result<Vec<PathBuf>, String> {
     let mut dirs: Vec<PathBuf> = extra.to_vec();
     if let Some(dir) = source.and_then(Path::parent) {
         dirs.push(if dir.as_os_str().is_empty() { PathBuf::from(".") } else { dir.to_path_buf() });
     }
     if let Some(v) = std::env::var_os("DIFFCASSI_GLASS_DIR") {
-        dirs.extend(std::env::split_paths(&v));
+        for d in std::env::split_paths(&v).filter(|d| !d.as_os_str().is_empty()) {
+            match std::fs::metadata(&d) {
+                Ok(m) if m.is_dir() => dirs.push(d),
+                Ok(_) => return Err(format!("DIFFCASSI_GLASS_DIR: {} is a file, not a folder (give the folders holding the .AGF catalogues)", d.display())),
+                Err(e) => return Err(format!("DIFFCASSI_GLASS_DIR: {}: no such folder ({e})", d.display())),
+            }
+        }
     }
-    dirs
+    Ok(dirs)
 }
 
 /// Where one glass of a file (or spec) comes from.
@@ -139,11 +147,14 @@ pub(super) struct Resolution {
     pub notes: Vec<String>,
 }
 
-/// Resolve the glasses `uses` = (line, surface, name) of a file with `GCAT` names `gcat` (and its line) and
-/// diffcassi's own `DCGC` entries; errors name the line, surface and glass.
+/// Resolve the glasses `uses` = (line, surface, name) of a file with `GCAT` names `gcat` (and its line),
+/// diffcassi's own `DCGC` entries and the user's catalogues `user` (`--glass-catalog`: after the file's, so a
+/// glass in both is the user's, as for a TOML spec); errors name the line, surface and glass, and every
+/// catalogue searched.
 pub(super) fn resolve(
     gcat: Option<&(usize, Vec<String>)>,
     dcgc: &[String],
+    user: &[String],
     uses: &[(usize, usize, String)],
     dirs: &[PathBuf],
 ) -> Result<Resolution, String> {
@@ -153,7 +164,7 @@ pub(super) fn resolve(
     // (GCAT name, built-in catalogue) for the names found as no file, in GCAT order.
     let mut stand_ins: Vec<(String, &'static str)> = Vec::new();
     for n in gcat.map(|g| g.1.as_slice()).unwrap_or(&[]) {
-        if files.iter().any(|p| entry_catalog_name(p).eq_ignore_ascii_case(n)) {
+        if files.iter().chain(user).any(|p| entry_catalog_name(p).eq_ignore_ascii_case(n)) {
             continue;
         }
         match find_catalog(n, dirs) {
@@ -162,6 +173,11 @@ pub(super) fn resolve(
                 Some(b) => stand_ins.push((n.clone(), b)),
                 None => missing.push(n.clone()),
             },
+        }
+    }
+    for u in user {
+        if !files.contains(u) {
+            files.push(u.clone());
         }
     }
     let base = loaded.merged(&files)?;
@@ -208,7 +224,7 @@ pub(super) fn resolve(
                 stand_ins.iter().map(|s| s.1).chain(builtin_catalogs::legacy_names()).map(|b| format!("built-in {b}")).collect();
             let looked = if builtins.is_empty() { String::new() } else { format!(", {}", builtins.join(", ")) };
             let why = if missing.is_empty() {
-                "no catalogue of the file holds it".to_string()
+                "no catalogue searched holds it".to_string()
             } else {
                 format!(
                     "the file's catalogue(s) {} were not found{gl} and are not built in (built in: {}): put {} in {} or set DIFFCASSI_GLASS_DIR",

@@ -29,7 +29,7 @@ pub use records::Unsupported;
 
 use crate::error::{Error, Result};
 use crate::materials::WavelengthPolicy;
-use crate::spec::{FieldType, SystemSpec};
+use crate::spec::{FieldType, SystemAperture, SystemSpec};
 use std::path::{Path, PathBuf};
 use surfaces::SurfaceBlock;
 use system_data::Header;
@@ -42,6 +42,11 @@ pub struct ZmxOptions {
     /// Extra folders searched for the `NAME.AGF` catalogues of `GCAT` (before the file's own folder and
     /// `DIFFCASSI_GLASS_DIR`).
     pub glass_dirs: Vec<PathBuf>,
+    /// Catalogue entries given by the user (`--glass-catalog FILE.agf`, `builtin:NAME`), searched for the
+    /// file's glasses after the file's own catalogues (`DCGC`, then the `GCAT` ones); as for a TOML spec, a
+    /// later catalogue wins, so a glass in both is the user's. A `GCAT NAME` whose `NAME.AGF` is among them is
+    /// taken as found. Recorded at the end of the spec's `glass_catalogs`.
+    pub glass_catalogs: Vec<String>,
 }
 
 /// An imported file: the spec and what was skipped (empty unless `ignore_unsupported`).
@@ -108,9 +113,23 @@ pub fn zmx_glasses(bytes: &[u8], source_name: &str, source_path: Option<&Path>, 
     if let (Some(image), true) = (surface, records::records_follow_surfaces(&recs)) {
         uses.retain(|(_, n, _)| *n != image);
     }
-    let dirs = glass::search_dirs(source_path, &options.glass_dirs);
-    let res = glass::resolve(gcat.as_ref(), &dcgc, &uses, &dirs).map_err(&fail)?;
+    let dirs = glass::search_dirs(source_path, &options.glass_dirs).map_err(&fail)?;
+    let res = glass::resolve(gcat.as_ref(), &dcgc, &options.glass_catalogs, &uses, &dirs).map_err(&fail)?;
     Ok((res.glasses, res.notes))
+}
+
+/// An error of building a system read from a `.zmx` file, with the fixes a `.zmx` user has: a glass's
+/// wavelength range is widened by the file's `DCWP allow_extrapolation` record, not by a spec's
+/// `wavelength_policy` (which the message of a spec names).
+pub fn with_zmx_hints(e: Error) -> Error {
+    use crate::materials::{EXTRAPOLATION_HINT, EXTRAPOLATION_HINT_ZMX};
+    match e {
+        Error::System { system, surface, field, message } => {
+            Error::System { system, surface, field, message: message.replace(EXTRAPOLATION_HINT, EXTRAPOLATION_HINT_ZMX) }
+        }
+        Error::Spec { source_name, message } => Error::Spec { source_name, message: message.replace(EXTRAPOLATION_HINT, EXTRAPOLATION_HINT_ZMX) },
+        other => other,
+    }
 }
 
 /// Import a `.zmx` file from disk (see [`import_zmx`]).
@@ -135,6 +154,8 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     let mut unsupported: Vec<Unsupported> = Vec::new();
     let mut skipped: Vec<Unsupported> = Vec::new();
     let mut blocks: Vec<(SurfaceBlock, usize)> = Vec::new(); // (block, number of records)
+    // Records defined once (records::once_key) and where: (line, keyword).
+    let mut seen: std::collections::HashMap<(Option<usize>, String), (usize, String)> = std::collections::HashMap::new();
     for r in &recs {
         if r.keyword == "SURF" {
             let n = records::int(r, 0).map_err(&fail)?;
@@ -170,6 +191,20 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
                 *count += 1;
             }
             continue;
+        }
+        // A record defined twice (in one surface, or the system data; two system apertures): refused, naming both.
+        if let Some(key) = records::once_key(r, blocks.len().checked_sub(1)) {
+            if let Some((l1, k1)) = seen.get(&key) {
+                let what = match key.0 {
+                    None if records::APERTURE_RECORDS.contains(&k1.as_str()) => {
+                        format!("a second system aperture (the first: line {l1} `{k1}`); OpticStudio gives a system one aperture (ENPD, FNUM, OBNA or FLOA)")
+                    }
+                    None => format!("{} given twice in the system data (the first: line {l1} `{k1}`); OpticStudio writes it once", key.1),
+                    Some(n) => format!("{} given twice in surface {n} (the first: line {l1} `{k1}`); OpticStudio writes it once per surface", key.1),
+                };
+                return Err(fail(format!("line {} `{}`: {what}, and which one it means is unknown: remove one", r.line, r.keyword)));
+            }
+            seen.insert(key, (r.line, r.keyword.clone()));
         }
         if header.read(r, &mut unsupported).map_err(&fail)? {
             continue;
@@ -284,6 +319,18 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     }
     let ftyp_line = header.ftyp.map(|f| f.0).unwrap_or(0);
     let at_infinity = blocks[0].0.disz.is_some_and(|(_, t)| t == f64::INFINITY);
+    // An aperture on the object surface at infinity has no effect (rays start on surface 1's vertex plane as
+    // plane waves; none meets the object surface): refused as not modelled (dropped and listed with
+    // --ignore-unsupported) rather than kept, shown by `info` and silently without effect.
+    if at_infinity && surfaces[0].aperture.is_some() {
+        let (line, keyword) = blocks[0].0.aperture_at.clone().unwrap_or((blocks[0].0.line, "CLAP".into()));
+        unsupported.push(Unsupported {
+            line,
+            keyword,
+            reason: "an aperture on the object surface (surface 0), which is at infinity: no ray meets that surface, so the aperture would have no effect; put it on a surface the rays cross".into(),
+        });
+        surfaces[0].aperture = None;
+    }
     let field_type = match ftype {
         Some(0) => FieldType::Angle,
         Some(1) => FieldType::ObjectHeight,
@@ -297,20 +344,33 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
                 FieldType::ObjectHeight
             }
         }
+        // Never skipped (not even with --ignore-unsupported): off-axis fields of another type (4: theodolite
+        // angles) read as ordinary angles or heights would be other fields, not a dropped item.
         Some(t) => {
-            unsupported.push(Unsupported {
-                line: ftyp_line,
-                keyword: "FTYP".into(),
-                reason: format!("field type {t} (theodolite angles or another type): diffcassi reads angles (0), object heights (1), paraxial (2) and real (3) image heights"),
-            });
-            if at_infinity {
-                FieldType::Angle
-            } else {
-                FieldType::ObjectHeight
-            }
+            return Err(fail(format!(
+                "line {ftyp_line} `FTYP`: field type {t} ({}): diffcassi reads angles (0), object heights (1), paraxial (2) and real (3) image heights, and fields of another type cannot be read as one of these (--ignore-unsupported does not apply); change the field type in OpticStudio (System Explorer → Fields → Type) and save the file again",
+                if t == 4 { "theodolite angles" } else { "not a field type of OpticStudio" }
+            )))
         }
         None => return Err(fail("fields given without `FTYP`: their type (angle or height) is unknown".into())),
     };
+    // Each field the file defines, by line, within the limits of the command line's fields: an angle within
+    // (−90, 90)° (`--field-deg`), a height (object, paraxial or real image) within ±1e6 mm (`--field-mm`).
+    // A 1e300 mm image height was converted to a 90° field and traced.
+    for (i, p) in fields.iter().enumerate() {
+        for (v, (line, kw)) in [(p[0], &header.xfln_at), (p[1], &header.yfln_at)] {
+            let why = if field_type == FieldType::Angle {
+                (v.abs() >= 90.0).then(|| format!("angle {}° is outside (-90, 90) degrees (the range of --field-deg)", crate::limits::fmt_num(v)))
+            } else {
+                (v.abs() > crate::limits::MAX_LENGTH_MM).then(|| {
+                    format!("{} {} mm is outside ±{:e} mm (the range of --field-mm)", field_type.label(), crate::limits::fmt_num(v), crate::limits::MAX_LENGTH_MM)
+                })
+            };
+            if let Some(why) = why {
+                return Err(fail(format!("line {line} `{kw}`: field {} {why}", i + 1)));
+            }
+        }
+    }
     if fields.is_empty() {
         fields.push([0.0, 0.0]);
     }
@@ -346,29 +406,37 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     let vignetting_factors = if vignetting.iter().all(|v| *v == [0.0; 4]) { Vec::new() } else { vignetting };
     let (fields_mm, fields_deg) = if field_type == FieldType::Angle { (Vec::new(), fields) } else { (fields, Vec::new()) };
 
-    // Wavelengths (µm in the file, nm in the spec).
-    let waves: Vec<(f64, f64)> = if !header.wavm.is_empty() {
+    // Wavelengths (µm in the file, nm in the spec), each with the line and keyword it came from.
+    let waves: Vec<(f64, f64, usize, &str)> = if !header.wavm.is_empty() {
         let mut w = header.wavm.clone();
         w.sort_by_key(|x| x.0);
         let n = nw.unwrap_or(w.len());
         let mut out = Vec::new();
         for i in 1..=n {
             match w.iter().find(|x| x.0 == i) {
-                Some(x) => out.push((x.1, x.2)),
+                Some(x) => out.push((x.1, x.2, x.3, "WAVM")),
                 None => return Err(fail(format!("wavelength {i} of {n} (FTYP): no `WAVM {i}` record (truncated?)"))),
             }
         }
         out
     } else {
         let n = nw.unwrap_or(header.wavl.len()).min(header.wavl.len());
-        (0..n).map(|i| (header.wavl[i], header.wwgt.get(i).copied().unwrap_or(1.0))).collect()
+        (0..n).map(|i| (header.wavl[i], header.wwgt.get(i).copied().unwrap_or(1.0), header.wavl_line, "WAVL")).collect()
     };
     if waves.is_empty() {
         return Err(fail("no wavelength (`WAVM` or `WAVL` records)".into()));
     }
-    for (um, _) in &waves {
-        if *um <= 0.0 {
-            return Err(fail(format!("wavelength {um} µm: must be > 0")));
+    // Each wavelength within the range of the command line's --wavelength-nm, by line (`WAVM 1 1e300` was
+    // printed with 309 digits by the glass check, without its line).
+    let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
+    for (um, _, line, kw) in &waves {
+        if !(*um * 1000.0 >= lo && *um * 1000.0 <= hi) {
+            return Err(fail(format!(
+                "line {line} `{kw}`: wavelength {} µm is outside {}–{} µm ({lo}–{hi} nm, the range of --wavelength-nm)",
+                crate::limits::fmt_num(*um),
+                lo / 1000.0,
+                hi / 1000.0
+            )));
         }
     }
     if waves.iter().any(|w| w.1 != waves[0].1) {
@@ -387,14 +455,14 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     };
 
     // Glass catalogues: files, the built-in subset, built-in vendor catalogues standing in for missing files.
-    let dirs = glass::search_dirs(source_path, &options.glass_dirs);
+    let dirs = glass::search_dirs(source_path, &options.glass_dirs).map_err(&fail)?;
     // Catalogue glasses only: a mirror is no glass of any catalogue.
     let uses: Vec<(usize, usize, String)> = blocks
         .iter()
         .filter_map(|(b, _)| b.glass.as_ref().map(|(l, g)| (*l, b.number, g.clone())))
         .filter(|u| !u.2.eq_ignore_ascii_case("MIRROR"))
         .collect();
-    let resolution = glass::resolve(header.gcat.as_ref(), &header.catalog_paths, &uses, &dirs).map_err(&fail)?;
+    let resolution = glass::resolve(header.gcat.as_ref(), &header.catalog_paths, &options.glass_catalogs, &uses, &dirs).map_err(&fail)?;
     let catalog_paths = resolution.entries.clone();
 
     if !unsupported.is_empty() && !options.ignore_unsupported {
@@ -432,5 +500,16 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         mechanics: None,
     };
     spec.validate().map_err(&fail)?;
+    // The entrance pupil an F/# gives (EFL / F/#) is held to the limits of `ENPD` when the system is built;
+    // checked here too, so that the error names the `FNUM` record and its line (`FNUM 1e-300` gave a 1e302 mm
+    // pupil). Any other failure of the build is left to the build that uses the spec.
+    if let (Some((line, _)), SystemAperture::ImageSpaceFNumber(_)) = (&header.aperture, spec.aperture) {
+        if let Err(e) = crate::system::SequentialSystem::build(&spec) {
+            let m = e.to_string();
+            if let Some(k) = m.find("image-space F/#") {
+                return Err(fail(format!("line {line} `FNUM`: {}", &m[k..])));
+            }
+        }
+    }
     Ok(ZmxImport { spec, ignored: unsupported, skipped, encoding, glasses: resolution.glasses, notes: resolution.notes })
 }

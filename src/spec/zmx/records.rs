@@ -44,10 +44,16 @@ pub fn cosmetic_reason(keyword: &str) -> &'static str {
     }
 }
 
-/// Whether an unindented record follows the last `SURF` block. OpticStudio writes records after the surfaces
-/// (`TOL`, `MNUM`, merit rows…), so a file that has them was not cut inside its surfaces; false without `SURF`.
+/// Whether an unindented record that is not a surface record follows the last `SURF` block. OpticStudio writes
+/// records after the surfaces (`TOL`, `MNUM`, merit rows…), so a file that has them was not cut inside its
+/// surfaces; false without `SURF`. A surface record ([`SURFACE_KEYWORDS`]: `GLAS`, `DISZ`, …) belongs to the
+/// surface above it whatever its indentation (the reader gives every record after a `SURF` line to that
+/// surface), so an unindented `GLAS F2` as the last line is the image's glass in a file cut there, exactly as
+/// the indented one: it does not mark the end of the surfaces.
 pub fn records_follow_surfaces(recs: &[Record]) -> bool {
-    recs.iter().rposition(|r| r.keyword == "SURF").is_some_and(|k| recs[k + 1..].iter().any(|r| !r.indented))
+    recs.iter()
+        .rposition(|r| r.keyword == "SURF")
+        .is_some_and(|k| recs[k + 1..].iter().any(|r| !r.indented && !SURFACE_KEYWORDS.contains(&r.keyword.as_str())))
 }
 
 /// A merit-function operand row (`REAY 13 2 0 1 0 0 22.54 0 0 0`): OpticStudio writes the Merit Function
@@ -131,4 +137,46 @@ pub fn num_or(r: &Record, k: usize, default: f64) -> Result<f64, String> {
     } else {
         Ok(default)
     }
+}
+
+/// System-data records OpticStudio writes once (a second one is refused, naming both lines): the reader would
+/// keep one of the two silently. `NOTE` (OpticStudio writes several `NOTE 0` lines), `DCGC` (one per
+/// catalogue file) and the records without optics are not among them.
+const HEADER_ONCE: &[&str] = &[
+    "NAME", "MODE", "UNIT", "RAIM", "ENVD", "FTYP", "XFLN", "YFLN", "XFLD", "YFLD", "VDXN", "VDYN", "VCXN", "VCYN", "VANN", "VDXF",
+    "VDYF", "VCXF", "VCYF", "VANF", "WAVL", "WWGT", "PWAV", "GCAT", "DCAI", "DCWP", "MNUM",
+];
+/// The system aperture records: one of them, once (`ENPD 10` with `FNUM 5 0` took the F/# silently).
+pub const APERTURE_RECORDS: &[&str] = &["ENPD", "FNUM", "OBNA", "FLOA"];
+/// Surface records a surface holds once.
+const SURFACE_ONCE: &[&str] = &["TYPE", "STOP", "COMM", "CURV", "DISZ", "GLAS", "CONI", "DIAM", "CLAP", "SQAP", "OBSC", "OBDC", "FLAP", "DCGE", "VCUR", "VDSZ", "VCON"];
+/// Surface records indexed by their first argument (`PARM 1 …`, `XDAT 2 …`, `VPAR 3`, diffcassi's `DCPK column …`):
+/// once per index; several indices are how OpticStudio writes them.
+const SURFACE_INDEXED: &[&str] = &["PARM", "XDAT", "VPAR", "DCVR", "DCCR", "DCPK"];
+
+/// What a record defines that may be defined once — `None` for records that may repeat. The scope is the
+/// system data (`Some((None, key))`) or the surface being read (`Some((Some(surface), key))`); `surface` is the
+/// surface the record belongs to, if any. The same key twice in one scope is refused by the importer, naming
+/// both lines: OpticStudio writes each once, and taking the first or the last silently (as the reader did:
+/// the last `CURV`, the first `WAVM 1`) is a guess.
+pub fn once_key(r: &Record, surface: Option<usize>) -> Option<(Option<usize>, String)> {
+    let kw = r.keyword.as_str();
+    let first = || r.args.first().cloned().unwrap_or_default();
+    if APERTURE_RECORDS.contains(&kw) {
+        return Some((None, "the system aperture".into()));
+    }
+    if HEADER_ONCE.contains(&kw) {
+        return Some((None, format!("`{kw}`")));
+    }
+    if kw == "WAVM" {
+        return Some((None, format!("wavelength {}", first())));
+    }
+    let s = surface?;
+    if SURFACE_ONCE.contains(&kw) {
+        return Some((Some(s), format!("`{kw}`")));
+    }
+    if SURFACE_INDEXED.contains(&kw) {
+        return Some((Some(s), format!("`{kw} {}`", first())));
+    }
+    None
 }

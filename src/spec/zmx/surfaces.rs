@@ -50,6 +50,8 @@ pub(super) struct SurfaceBlock {
     /// `OBSC rmin rmax`: a circular obscuration (line, rmin, rmax), checked when read.
     pub obsc: Option<(usize, f64, f64)>,
     pub obdc: (f64, f64),
+    /// (line, keyword) of the aperture record (`CLAP`, `SQAP`, `OBSC`, `FLAP`), for messages.
+    pub aperture_at: Option<(usize, String)>,
     /// (line, column, driver) for pickups / chief-ray solves; (column) for variables.
     pub drivers: Vec<(usize, String, Driver)>,
     pub variables: Vec<(usize, String)>,
@@ -94,6 +96,9 @@ impl SurfaceBlock {
     /// Read one record of the surface; everything not understood is reported in `unsupported`.
     pub fn read(&mut self, r: &Record, unsupported: &mut Vec<Unsupported>) -> Result<(), String> {
         let mut skip = |reason: String| unsupported.push(Unsupported { line: r.line, keyword: r.keyword.clone(), reason });
+        if matches!(r.keyword.as_str(), "CLAP" | "SQAP" | "OBSC" | "FLAP") {
+            self.aperture_at = Some((r.line, r.keyword.clone()));
+        }
         match r.keyword.as_str() {
             "TYPE" => {
                 let t = r.args.first().cloned().unwrap_or_default();
@@ -119,6 +124,15 @@ impl SurfaceBlock {
                         crate::limits::fmt_num(1.0 / c),
                         crate::limits::MAX_CURVATURE_PER_MM,
                         1.0 / crate::limits::MAX_CURVATURE_PER_MM
+                    ));
+                }
+                // A subnormal curvature (1e-320) has no finite radius: refused here by line, not later as
+                // "radius_mm: inf is not finite".
+                if c != 0.0 && !(1.0 / c).is_finite() {
+                    return Err(format!(
+                        "line {} `CURV`: curvature {} mm⁻¹ is so small that its radius 1/c is not a finite number: write `CURV 0` for a flat surface",
+                        r.line,
+                        crate::limits::fmt_num(c)
                     ));
                 }
                 self.curv = Some(c);

@@ -21,11 +21,16 @@ pub(super) struct Header {
     pub ftyp: Option<(usize, i64, usize, usize)>,
     pub xfln: Vec<f64>,
     pub yfln: Vec<f64>,
+    /// (line, keyword) of the record the x and the y field values came from (`XFLN`/`XFLD`, `YFLN`/`YFLD`).
+    pub xfln_at: (usize, String),
+    pub yfln_at: (usize, String),
     /// Old-style field lists (`XFLD`/`YFLD`): every entry is a field.
     pub old_fields: bool,
     /// (index, λ µm, weight, line).
     pub wavm: Vec<(usize, f64, f64, usize)>,
     pub wavl: Vec<f64>,
+    /// Line of the `WAVL` record.
+    pub wavl_line: usize,
     pub wwgt: Vec<f64>,
     pub pwav: Option<(usize, usize)>,
     pub gcat: Option<(usize, Vec<String>)>,
@@ -57,8 +62,15 @@ impl Header {
                 }
             }
             "UNIT" => {
-                if r.args.first().map(String::as_str) != Some("MM") {
-                    skip(format!("lens units `{}`: only millimetres (MM) are read", r.args.first().cloned().unwrap_or_default()));
+                // Never skipped (not even with --ignore-unsupported): every length of the file (CURV, DISZ, DIAM,
+                // CLAP, ENPD, field heights, …) is in the lens units, so reading inches as millimetres would make
+                // every number 25.4× wrong, not drop one item.
+                let unit = r.args.first().cloned().unwrap_or_default();
+                if unit != "MM" {
+                    return Err(format!(
+                        "line {} `UNIT {unit}`: lens units `{unit}`: diffcassi reads millimetres (MM) only, and every length of the file is in the lens units, so the file cannot be read with another unit (--ignore-unsupported does not apply); convert the lens to millimetres in OpticStudio (Scale Lens, \"Convert units\" to Millimeters) and save it again",
+                        r.line
+                    ));
                 }
             }
             "ENPD" => self.aperture = Some((r.line, SystemAperture::EntrancePupilDiameter(finite(r, 0)?))),
@@ -87,15 +99,15 @@ impl Header {
                 let n = |k: usize| -> Result<usize, String> { Ok(int(r, k)?.max(0) as usize) };
                 self.ftyp = Some((r.line, int(r, 0)?, n(2)?, n(3)?));
             }
-            "XFLN" => self.xfln = nums(r)?,
-            "YFLN" => self.yfln = nums(r)?,
-            "XFLD" => {
+            "XFLN" | "XFLD" => {
                 self.xfln = nums(r)?;
-                self.old_fields = true
+                self.xfln_at = (r.line, r.keyword.clone());
+                self.old_fields |= r.keyword == "XFLD"
             }
-            "YFLD" => {
+            "YFLN" | "YFLD" => {
                 self.yfln = nums(r)?;
-                self.old_fields = true
+                self.yfln_at = (r.line, r.keyword.clone());
+                self.old_fields |= r.keyword == "YFLD"
             }
             "VDXN" | "VDYN" | "VCXN" | "VCYN" | "VANN" | "VDXF" | "VDYF" | "VCXF" | "VCYF" | "VANF" => {
                 self.vignetting.push((r.line, r.keyword.clone(), nums(r)?))
@@ -107,7 +119,10 @@ impl Header {
                 }
                 self.wavm.push((i as usize, finite(r, 1)?, num_or(r, 2, 1.0)?, r.line));
             }
-            "WAVL" => self.wavl = nums(r)?,
+            "WAVL" => {
+                self.wavl = nums(r)?;
+                self.wavl_line = r.line
+            }
             "WWGT" => self.wwgt = nums(r)?,
             "PWAV" => self.pwav = Some((r.line, int(r, 0)?.max(0) as usize)),
             "GCAT" => self.gcat = Some((r.line, r.args.clone())),
