@@ -62,10 +62,11 @@ fn sub_pixel_airy_disks_render_as_no_blur() {
     assert!(exr(&dir.join("ds/s1/acquisition.exr")).iter().all(|v| v.is_finite()));
 }
 
-/// Outputs never replace a named pipe (nor a device: the same check, `--json /dev/null` as root), and a symbolic
-/// link is written through — its target replaced, the link kept — for files and folders alike.
+/// Outputs never replace a named pipe (nor a device: the same check, `--json /dev/null` as root); an output file
+/// named by a symbolic link is refused, an output folder named by one is written through (the link kept); an
+/// input's wavelength list is an input.
 #[test]
-fn outputs_never_replace_pipes_and_write_through_links() {
+fn outputs_never_replace_pipes_or_links_and_folders_are_written_through() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
     ok(dir, &["make-scene", "--synthetic", "2", "--size", "12", "--bands", "450:650:4", "--out", "t.npy"]);
@@ -80,15 +81,26 @@ fn outputs_never_replace_pipes_and_write_through_links() {
         assert!(msg.contains(out) && msg.contains("named pipe") && !msg.contains("panicked"), "{args:?}: {msg}");
         assert!(is_fifo(&dir.join(out)), "{args:?}: the pipe was replaced");
     }
-    // Links: the target is written, the link stays a link; a link to nothing is refused, nothing created.
+    // A file output named by a link is refused (written in its place it would replace the link; written through,
+    // two outputs could land on one file), the target untouched; a link to nothing alike.
     std::os::unix::fs::symlink("target.json", dir.join("link.json")).unwrap();
-    let (code, msg) = run(dir, &["evaluate", "--truth", "t.npy", "--estimate", "t.npy", "--json", "link.json"]);
+    for target in [None, Some("old")] {
+        if let Some(t) = target {
+            std::fs::write(dir.join("target.json"), t).unwrap();
+        }
+        let (code, msg) = run(dir, &["evaluate", "--truth", "t.npy", "--estimate", "t.npy", "--json", "link.json"]);
+        assert_eq!(code, Some(1), "{msg}");
+        assert!(msg.contains("--json is a symbolic link (to target.json)"), "{msg}");
+        assert!(std::fs::symlink_metadata(dir.join("link.json")).unwrap().file_type().is_symlink());
+        assert_eq!(std::fs::read_to_string(dir.join("target.json")).ok().as_deref(), target);
+    }
+    // An input's wavelength list is an input: `--json t_wavelengths_nm.npy` replaced the truth's list.
+    let list = std::fs::read(dir.join("t_wavelengths_nm.npy")).unwrap();
+    let (code, msg) = run(dir, &["evaluate", "--truth", "t.npy", "--estimate", "t.npy", "--json", "t_wavelengths_nm.npy"]);
     assert_eq!(code, Some(1), "{msg}");
-    assert!(msg.contains("symbolic link to nothing") && !dir.join("target.json").exists(), "{msg}");
-    std::fs::write(dir.join("target.json"), "old").unwrap();
-    ok(dir, &["evaluate", "--truth", "t.npy", "--estimate", "t.npy", "--json", "link.json"]);
-    assert!(std::fs::symlink_metadata(dir.join("link.json")).unwrap().file_type().is_symlink());
-    assert!(std::fs::read_to_string(dir.join("target.json")).unwrap().contains("psnr"));
+    assert!(msg.contains("(its wavelength list)"), "{msg}");
+    assert_eq!(std::fs::read(dir.join("t_wavelengths_nm.npy")).unwrap(), list);
+    // Output folders named by a link are written through, the link kept.
     std::fs::create_dir(dir.join("r1")).unwrap();
     std::os::unix::fs::symlink("r1", dir.join("rlink")).unwrap();
     ok(dir, &["render", "--preset", "sp", "--scene-size", "8", "--planes", "2", "--rays", "1", "--out", "rlink"]);
@@ -201,4 +213,31 @@ fn a_black_study_scene_is_named_and_model_operators_record_no_rays() {
     ok(dir, &["reconstruct", "--from", "r", "--operator", "shift", "--iterations", "1", "--out", "x"]);
     let j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("x/reconstruct.json")).unwrap()).unwrap();
     assert!(j["operator_seed"].is_null() && j["operator_rays"].is_null() && j["oracle"] == false, "{j}");
+}
+
+/// A symbolic link planted inside a dataset's folder, in place of one of its own files, is replaced on resume,
+/// never followed: a regression of the write-through rule once made `render-dataset` write its mask onto a
+/// scene (an input) through `ds/mask.png -> ../scenes/b.npy`.
+#[test]
+fn a_link_planted_in_a_dataset_is_replaced_not_followed() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    std::fs::create_dir(dir.join("scenes")).unwrap();
+    for i in ["1", "2"] {
+        ok(dir, &["make-scene", "--synthetic", i, "--size", "8", "--bands", "450:650:4", "--out", &format!("scenes/s{i}.npy")]);
+    }
+    let ds = |shard: Option<&str>| {
+        let mut a = vec!["render-dataset", "--scenes", "scenes", "--preset", "sp", "--scene-size", "8", "--planes", "2", "--rays", "1", "--bands", "450:650:4", "--out", "ds"];
+        if let Some(s) = shard {
+            a.extend(["--shard", s]);
+        }
+        ok(dir, &a);
+    };
+    ds(Some("0/2"));
+    let scene = std::fs::read(dir.join("scenes/s2.npy")).unwrap();
+    std::fs::remove_file(dir.join("ds/mask.png")).unwrap();
+    std::os::unix::fs::symlink("../scenes/s2.npy", dir.join("ds/mask.png")).unwrap();
+    ds(None);
+    assert_eq!(std::fs::read(dir.join("scenes/s2.npy")).unwrap(), scene, "the scene was overwritten through the planted link");
+    assert!(std::fs::symlink_metadata(dir.join("ds/mask.png")).unwrap().file_type().is_file(), "the link was not replaced");
 }

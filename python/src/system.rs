@@ -621,6 +621,10 @@ fn mapping<'py>(
     let t = if dev == diffcassi::render::Device::Cpu && prec == diffcassi::tracer::Precision::F64 {
         tracer(backend)?
     } else {
+        // Python's spelling, as `render(device=)`'s: the library's reason without the CLI's `--device` words.
+        if let Some(why) = dev.unavailable() {
+            return Err(value_error(format!("device \"{device}\": {why} (use device=\"cpu\")")));
+        }
         dev.tracer(prec).map_err(|e| value_error(format!("device=\"{device}\": {e}")))?
     };
     let sys = Arc::clone(&system.inner);

@@ -31,7 +31,7 @@ pub struct ImportZmxArgs {
 pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
     // The output policy (docs/robustness.md): a file, never a folder, never the .zmx it reads (a spec written
     // beside the catalogues of a --glass-dir is fine: they are only read).
-    crate::io::policy::check_out_file("--out", &a.out, &[("the input .zmx", a.input.as_path())])?;
+    crate::io::policy::check_out_file("--out", &a.out, &[("(the .zmx file)", a.input.as_path())])?;
     // A --glass-dir that is missing or a file would be searched in vain (and the GCAT catalogues reported
     // missing, or found elsewhere): refused, naming it.
     for d in &a.glass_dirs {

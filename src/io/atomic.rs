@@ -35,7 +35,7 @@ use std::fs::{self, File, OpenOptions};
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use super::policy::{check_out_folder, check_replaceable_file, output_target, FolderRule, FolderState};
+use super::policy::{check_out_folder, check_own_file, output_target, FolderRule, FolderState};
 use super::{stale, IoError};
 
 /// Atomically replace (or create) `path` with `bytes`.
@@ -47,17 +47,16 @@ pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<(), IoError>
 ///
 /// `write` receives a buffered writer on a temporary file; returning an error aborts the whole
 /// operation (the destination is not touched, the temporary file is deleted) and the error is
-/// reported with the destination path. A symbolic link is written through (its target replaced, the link
-/// kept); a destination that is a named pipe, a device or a socket is refused before anything is written
-/// ([`super::policy`]).
+/// reported with the destination path. A destination that is a named pipe, a device or a socket is refused
+/// before anything is written; a symbolic link is replaced, never followed ([`super::policy::check_own_file`]:
+/// the user's own output paths are checked by the commands, `policy::check_out_file`, which refuses links).
 pub fn write_atomic_with<F>(path: impl AsRef<Path>, write: F) -> Result<(), IoError>
 where
     F: FnOnce(&mut dyn Write) -> std::io::Result<()>,
 {
-    let target = output_target("the output", path.as_ref())?;
-    let path = target.as_path();
+    let path = path.as_ref();
     if !path.is_dir() {
-        check_replaceable_file("the output", path)?;
+        check_own_file("the output", path)?;
     }
     path.file_name().ok_or_else(|| {
         IoError::io(
@@ -275,8 +274,7 @@ impl OutputSet {
 
     /// Where to write the file that will end up at `dest` (a loose file of a [`OutputSet::files`] set).
     pub fn stage(&mut self, dest: impl AsRef<Path>) -> PathBuf {
-        // Through a symbolic link to its target (a link to nothing stays as given: refused at the commit).
-        let dest = output_target("the output", dest.as_ref()).unwrap_or_else(|_| dest.as_ref().to_path_buf());
+        let dest = dest.as_ref().to_path_buf();
         // Housekeeping: a killed run's staged copies of this destination.
         let _ = stale::remove_stale(&dest);
         let tmp = stale::temp_path(&dest);
@@ -291,8 +289,7 @@ impl OutputSet {
         // a set is moved into place whole or not at all.
         for (tmp, dest) in &self.staged {
             if tmp.exists() {
-                output_target("the output", dest)?;
-                check_replaceable_file("the output", dest)?;
+                check_own_file("the output", dest)?;
             }
         }
         for (tmp, dest) in &self.staged {

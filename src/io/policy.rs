@@ -14,8 +14,13 @@
 //! * An output **file** may be new or an existing regular file (it is replaced atomically); never a folder, a
 //!   named pipe, a device or a socket (`--json /dev/null` as root would have replaced the system's
 //!   `/dev/null` with a regular file), never an input file.
-//! * An output path that is a **symbolic link** is written at the link's target, the link kept — files and
-//!   folders alike ([`output_target`]); a link to nothing is refused.
+//! * An output **folder** named by a symbolic link is written at the link's target, the link kept
+//!   ([`output_target`]); an output **file** named by a symbolic link is refused (written in its place it would
+//!   replace the link; written through, two outputs of one command could land on one file, and the files
+//!   written beside it — `NAME_wavelengths_nm.npy` — would land beside the link). A link to nothing is refused.
+//!   Files a command writes inside its own folder replace a link there, never follow it (a planted link would
+//!   make a resume write outside the folder, onto an input).
+//! * A `.npy` input's wavelength list beside it (`NAME_wavelengths_nm.npy`) is an input too.
 //!
 //! ```
 //! use diffcassi::io::policy::{check_out_folder, FolderRule, FolderState};
@@ -122,8 +127,16 @@ pub fn check_not_input(
     folder: bool,
 ) -> Result<(), IoError> {
     let o = resolved(out);
-    for (opt, input) in inputs {
-        let i = resolved(input);
+    // A cube's wavelength list, read beside it, is as much an input as the cube (`evaluate --json
+    // t_wavelengths_nm.npy` replaced the truth's list: a held-out battery).
+    let sidecars: Vec<(String, PathBuf)> = inputs
+        .iter()
+        .filter(|(_, p)| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("npy")))
+        .filter_map(|(opt, p)| p.file_stem().map(|s| (format!("{opt} (its wavelength list)"), p.with_file_name(format!("{}_wavelengths_nm.npy", s.to_string_lossy())))))
+        .collect();
+    let all = inputs.iter().map(|(o, p)| (o.to_string(), p.to_path_buf())).chain(sidecars);
+    for (opt, input) in all {
+        let i = resolved(&input);
         let relation = if o == i {
             "is"
         } else if o.starts_with(&i) {
@@ -220,28 +233,48 @@ pub fn check_out_folder_owned(
     ))
 }
 
-/// Where an output at `out` is written: `out` itself, or — a symbolic link — its final target (the link is kept
-/// and the output replaces what it points at, as a writer through the link would). A link to nothing is
-/// refused: not ours to replace, and no target to write.
+/// Where an output folder named `out` is written: `out` itself, or — a symbolic link — its final target (the
+/// link is kept and the folder it points at is the output). A link whose target cannot be reached (to nothing,
+/// a cycle) is refused: not ours to replace, and no target to write.
 pub fn output_target(option: &str, out: &Path) -> Result<PathBuf, IoError> {
     match fs::symlink_metadata(out) {
-        Ok(m) if m.file_type().is_symlink() => fs::canonicalize(out).map_err(|_| {
-            refused(out, format!("{option} is a symbolic link to nothing; nothing was written"))
+        Ok(m) if m.file_type().is_symlink() => fs::canonicalize(out).map_err(|e| {
+            let why = if e.raw_os_error() == Some(libc::ELOOP) { "a cycle of symbolic links".to_string() } else { format!("a symbolic link whose target cannot be reached ({e})") };
+            refused(out, format!("{option} is {why}; nothing was written"))
         }),
         _ => Ok(out.to_path_buf()),
     }
 }
 
-/// An output file's destination (after [`output_target`]) may be absent or a regular file; a folder, a named
+/// An output file may be absent or a regular file: a symbolic link (named by the user), a folder, a named
 /// pipe, a device or a socket is refused, naming it — an output is a regular file renamed into place, which
-/// would replace the node itself.
+/// would replace the node itself (`--json /dev/null` as root replaced the system's `/dev/null`).
 pub fn check_replaceable_file(option: &str, out: &Path) -> Result<(), IoError> {
-    match fs::metadata(out) {
+    match fs::symlink_metadata(out) {
+        Ok(m) if m.file_type().is_symlink() => Err(refused(
+            out,
+            format!("{option} is a symbolic link (to {}); an output file is written in its place, which would replace the link: give the link's target instead; nothing was written", fs::read_link(out).map(|t| t.display().to_string()).unwrap_or_else(|_| "?".into())),
+        )),
         Ok(m) if !m.is_file() => Err(refused(
             out,
             format!("{option} is {}, not a regular file; an output never replaces one: nothing was written", super::input::kind(m.file_type())),
         )),
         _ => Ok(()),
+    }
+}
+
+/// A file a command writes inside its own folder (or any output it names itself) may be absent, a regular file
+/// or a symbolic link — a link is *replaced*, never followed: a link planted in a dataset's folder would make a
+/// resume write onto its target (an input, another file). A named pipe, a device, a socket or a folder is
+/// refused as by [`check_replaceable_file`].
+pub fn check_own_file(option: &str, out: &Path) -> Result<(), IoError> {
+    match fs::symlink_metadata(out) {
+        Ok(m) if m.file_type().is_symlink() || m.is_file() => Ok(()),
+        Ok(m) => Err(refused(
+            out,
+            format!("{option} is {}, not a regular file; an output never replaces one: nothing was written", super::input::kind(m.file_type())),
+        )),
+        Err(_) => Ok(()),
     }
 }
 
@@ -256,10 +289,9 @@ pub fn check_out_file(option: &str, out: &Path, inputs: &[(&str, &Path)]) -> Res
             format!("{option} is a folder, not a file; nothing was written"),
         ));
     }
-    let target = output_target(option, out)?;
-    check_replaceable_file(option, &target)?;
+    check_replaceable_file(option, out)?;
     check_not_input(option, out, inputs, false)?;
-    check_writable_parent(option, &target)
+    check_writable_parent(option, out)
 }
 
 /// The nearest existing ancestor of `out` must be a folder this process may create entries in.
