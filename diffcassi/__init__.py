@@ -20,6 +20,8 @@ from typing import Any, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
+from . import _files
+
 from . import _native
 from ._errors import DiffcassiError, DiffcassiFileError, DiffcassiValueError
 
@@ -248,30 +250,21 @@ def _save_npz(self: Operator, path, memory_gb: float = 4.0, compressed: bool = T
     target = os.fspath(path)
     if not isinstance(target, str) or not target.endswith(".npz"):
         raise DiffcassiValueError(f"save_npz: path {target!r} must end in .npz")
-    if os.path.isdir(target):
-        raise DiffcassiFileError(f"save_npz: {target} is a folder")
-    # Checked before the export (which may take seconds) and named by the target: the first failing call was the
-    # stage file's open, whose FileNotFoundError named `.NAME.PID.stage.npz`, a file the caller never asked for.
-    folder = os.path.dirname(os.path.abspath(target))
-    if not os.path.isdir(folder):
-        what = "is not a folder" if os.path.exists(folder) else "does not exist"
-        raise DiffcassiFileError(f"save_npz: cannot write {target}: its folder {folder} {what}")
+    # Checked before the export (which may take seconds) and named by the target (a missing folder was the stage
+    # file's FileNotFoundError, naming `.NAME.PID.stage.npz`); a folder, a pipe, a device or a link refused.
+    _files.check_output_file("save_npz", target)
     indptr, indices, data, shape = _csr_arrays(self, memory_gb)
     save = np.savez_compressed if compressed else np.savez
     # The operator's own shapes beside SciPy's keys (scipy.sparse.load_npz ignores extra keys): the matrix shows
     # only the products h·w and H·W·B, so CassiOperator.from_npz checks the shapes it is given against these.
     shapes = {k: np.array(getattr(self, k), dtype=np.int64) for k in ("cube_shape", "image_shape") if hasattr(self, k)}
-    stage = os.path.join(folder, f".{os.path.basename(target)}.{os.getpid()}.stage.npz")
-    try:
-        with open(stage, "wb") as f:
+
+    def write(stage: str) -> None:
+        with open(stage, "wb") as f:  # a file object: NumPy appends nothing to its name
             save(f, indices=indices, indptr=indptr, format=np.array(b"csr"), shape=np.array(shape, dtype=np.int64), data=data,
                  **shapes)
-        os.replace(stage, target)
-    except OSError as e:  # named by the target, not the stage file (a full disk, a folder removed meanwhile, …)
-        raise DiffcassiFileError(f"save_npz: cannot write {target}: {e.strerror or e}") from None
-    finally:
-        if os.path.exists(stage):
-            os.remove(stage)
+
+    _files.write_staged("save_npz", target, write, suffix=".npz")
 
 
 Operator.to_scipy = _to_scipy  # type: ignore[attr-defined]

@@ -250,18 +250,17 @@ def denoise(net: SpectralUNet, x: torch.Tensor, sigma, neutral: bool = False, en
 
 def save_weights(net: SpectralUNet, path, extra_metadata: Optional[Dict[str, str]] = None) -> None:
     """Writes ``net``'s state dict to the safetensors file ``path`` with :meth:`SpectralUNet.metadata` (plus
-    ``extra_metadata``, strings), atomically (a temporary file renamed over ``path``: never a half-written file)."""
-    import os
+    ``extra_metadata``, strings), atomically (:func:`diffcassi._files.write_staged`: never a half-written file, never
+    over a folder, a pipe, a device or a link)."""
     from safetensors.torch import save_file
+    from ._files import write_staged
     tensors = {k: v.detach().to("cpu", torch.float32).contiguous().clone() for k, v in net.state_dict().items()}
     for k, v in tensors.items():
         if not torch.isfinite(v).all():
             raise ValueError(f"save_weights: tensor {k} has non-finite values; {path} not written")
     meta = dict(net.metadata())
     meta.update({str(k): str(v) for k, v in (extra_metadata or {}).items()})
-    tmp = f"{path}.tmp{os.getpid()}"
-    save_file(tensors, tmp, metadata=meta)
-    os.replace(tmp, path)
+    write_staged("save_weights", path, lambda stage: save_file(tensors, stage, metadata=meta))
 
 
 #: The largest weights file read: 1 GiB (as the Rust loader, ``recon::prior::network::MAX_WEIGHTS_BYTES``).

@@ -60,6 +60,7 @@ import torch.nn.functional as F
 _MAX_VALUE = float(np.finfo(np.float32).max) / 1e9
 
 import diffcassi
+from ._files import write_staged
 from .denoiser import check_weights_file, pad_to_multiple
 
 ARCH = "unrolled-gap-v1"
@@ -457,8 +458,8 @@ def system_sha256(system: Any) -> str:
 def save_unrolled(net: nn.Module, path: Any, metadata: Dict[str, Any]) -> None:
     """Writes ``net``'s weights (:class:`UnrolledGAP` or :class:`UnrolledDAUHST`; not the operator) to the
     safetensors file ``path`` with the network's ``metadata()`` plus ``metadata`` (must name ``system``; a v2
-    network also ``mask_sha256``; values stored as strings, non-strings as JSON), atomically (a temporary file
-    renamed over ``path``); refuses non-finite weights (nothing written)."""
+    network also ``mask_sha256``; values stored as strings, non-strings as JSON), atomically
+    (:func:`diffcassi._files.write_staged`); refuses non-finite weights (nothing written)."""
     from safetensors.torch import save_file
     path = os.fspath(path)
     if "system" not in metadata:
@@ -472,13 +473,7 @@ def save_unrolled(net: nn.Module, path: Any, metadata: Dict[str, Any]) -> None:
             raise _Error(f"save_unrolled: tensor {k} has non-finite values; {path} not written")
     meta = net.metadata()
     meta.update({str(k): v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()})
-    tmp = f"{path}.tmp{os.getpid()}"
-    try:
-        save_file(tensors, tmp, metadata=meta)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.remove(tmp)
+    write_staged("save_unrolled", path, lambda stage: save_file(tensors, stage, metadata=meta))
 
 
 def read_metadata(path: Any) -> Dict[str, str]:

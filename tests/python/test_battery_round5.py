@@ -7,6 +7,7 @@ naming the stage file), and `denoise`/`reconstruct` errors that named neither th
 Tiny sizes only (8–16 px, few planes and rays)."""
 import copy
 import inspect
+import re
 import pickle
 import warnings
 
@@ -324,3 +325,26 @@ def test_an_empty_batch_goes_both_ways(op):
     H, W, B = op.cube_shape
     assert csr.adjoint(torch.zeros(0, *op.image_shape)).shape == (0, B, H, W)
     assert csr(torch.zeros(0, B, H, W)).shape == (0, *op.image_shape)
+
+
+def test_the_python_writers_never_write_over_a_pipe_a_link_or_a_folder(op, tmp_path):
+    """`save_npz`, `save_weights` and `save_unrolled` go through one staged writer (diffcassi._files), which refuses
+    what the command line's output policy refuses: a named pipe or a device (renamed over, the node was replaced),
+    a symbolic link (written in its place, the link was replaced), a folder, a missing folder."""
+    import os
+    from diffcassi.denoiser import SpectralUNet, save_weights
+    fifo = tmp_path / "pipe.npz"
+    os.mkfifo(fifo)
+    (tmp_path / "real.npz").write_bytes(b"keep")
+    os.symlink("real.npz", tmp_path / "link.npz")
+    (tmp_path / "dir.npz").mkdir()
+    for bad, says in ((fifo, "is a named pipe"), (tmp_path / "link.npz", "is a symbolic link (to real.npz)"), (tmp_path / "dir.npz", "is a folder")):
+        with pytest.raises(diffcassi.DiffcassiFileError, match=rf"save_npz: .*{re.escape(says)}"):
+            op.save_npz(bad)
+    assert os.path.islink(tmp_path / "link.npz") and (tmp_path / "real.npz").read_bytes() == b"keep"
+    import stat
+    assert stat.S_ISFIFO(os.lstat(fifo).st_mode)
+    with pytest.raises(diffcassi.DiffcassiFileError, match=r"save_weights: .*is a named pipe"):
+        save_weights(SpectralUNet(bands=4, width=4), fifo)
+    save_weights(SpectralUNet(bands=4, width=4), tmp_path / "w.safetensors")  # a regular path still writes
+    assert (tmp_path / "w.safetensors").stat().st_size > 0 and not list(tmp_path.glob(".*stage*"))
