@@ -808,7 +808,7 @@ class _RenderFn(torch.autograd.Function):
 
 
 #: The radiance limit of ``diffcassi render`` (f32 range / 10⁹), checked on the device path too.
-_MAX_RADIANCE = float(np.finfo(np.float32).max) / 1e9
+_MAX_RADIANCE = diffcassi._MAX_VALUE
 
 
 class _TableRenderFn(torch.autograd.Function):

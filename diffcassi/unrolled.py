@@ -56,11 +56,11 @@ import torch
 from torch import nn
 import torch.nn.functional as F
 
-#: The largest |y| the networks take: f32's range / 10⁹, the operators' limit (``limits::MAX_SCENE_VALUE``).
-_MAX_VALUE = float(np.finfo(np.float32).max) / 1e9
-
 import diffcassi
 from ._files import write_staged
+
+#: The largest |y| the networks take: the operators' limit (``diffcassi._MAX_VALUE``, ``limits::MAX_SCENE_VALUE``).
+_MAX_VALUE = diffcassi._MAX_VALUE
 from .denoiser import check_weights_file, pad_to_multiple
 
 ARCH = "unrolled-gap-v1"

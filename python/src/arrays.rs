@@ -68,21 +68,12 @@ fn index_of(i: usize, shape: &[usize]) -> Vec<usize> {
 /// [`check_finite`], then |v| ≤ [`diffcassi::limits::MAX_SCENE_VALUE`] (f32's range / 10⁹, the scene radiance
 /// limit the CLI applies to acquisitions too): the operators and solvers sum in f32, so a larger value
 /// (3e38, 1e36) overflowed to inf or NaN in their outputs (a held-out battery); refused, naming the index.
-pub fn check_bounded(name: &str, values: &[f32], shape: &[usize]) -> PyResult<()> {
+/// Float64 values are checked before they are narrowed to float32, so the message shows the value given (1e300),
+/// not the inf the conversion would make of it.
+pub fn check_bounded<T: Copy + Into<f64> + std::fmt::LowerExp>(name: &str, values: &[T], shape: &[usize]) -> PyResult<()> {
     check_finite(name, values, shape)?;
     let max = diffcassi::limits::MAX_SCENE_VALUE;
-    if let Some(i) = values.iter().position(|v| (v.abs() as f64) > max) {
-        return Err(value_error(format!("{name}: value {:e} at index {:?} is beyond ±{max:.3e} (f32's range / 10⁹) that the operators' and solvers' f32 sums allow; rescale it", values[i], index_of(i, shape))));
-    }
-    Ok(())
-}
-
-/// [`check_bounded`] for float64 values about to be narrowed to float32: checked before the conversion, so the
-/// message shows the value given (1e300), not the inf the conversion would make of it.
-pub fn check_bounded_f64(name: &str, values: &[f64], shape: &[usize]) -> PyResult<()> {
-    check_finite(name, values, shape)?;
-    let max = diffcassi::limits::MAX_SCENE_VALUE;
-    if let Some(i) = values.iter().position(|v| v.abs() > max) {
+    if let Some(i) = values.iter().position(|&v| v.into().abs() > max) {
         return Err(value_error(format!("{name}: value {:e} at index {:?} is beyond ±{max:.3e} (f32's range / 10⁹) that the operators' and solvers' f32 sums allow; rescale it", values[i], index_of(i, shape))));
     }
     Ok(())

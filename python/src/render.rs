@@ -3,7 +3,7 @@
 //! The settings keywords are parsed in one place ([`crate::settings`]): every setting the caller leaves at
 //! `None` takes the library's default (the CLI's too), so `render(system, scene, wl)` and
 //! `diffcassi render --scene FILE --scene-size N` give the same acquisition bit for bit.
-use crate::arrays::{check_bounded, check_bounded_f64, check_finite, f64_list, input, output, seed_arg, size_arg, Input};
+use crate::arrays::{check_bounded, check_finite, f64_list, input, output, seed_arg, size_arg, Input};
 use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::settings::{configure, extra};
@@ -289,7 +289,7 @@ impl PyTransport {
         let img: Vec<f32> = match input::<f64>("image", image, "float64", 2, "(h, w)") {
             Ok(a) => {
                 check_shape("image", &a.shape, &[h, w])?;
-                check_bounded_f64("image", a.slice(), &a.shape)?;
+                check_bounded("image", a.slice(), &a.shape)?;
                 a.slice().iter().map(|&v| v as f32).collect()
             }
             Err(_) => {

@@ -299,10 +299,7 @@ fn load_scenes(a: &StudyArgs, bands: &[f64]) -> Result<Vec<StudyScene>> {
                     let cube = raw.fit(n, fit).map_err(|e| Error::File { path: s.path.display().to_string(), message: e.to_string() })?;
                     // The metrics take the scene's maximum as PSNR's peak: a black scene is refused before any
                     // render, naming it (it failed after its renders and solves with "the truth's maximum is 0").
-                    let peak = cube.data.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
-                    if !(peak > 0.0) {
-                        return Err(Error::File { path: s.path.display().to_string(), message: format!("the scene's maximum (at --scene-size {n}) is {peak}: PSNR (peak = max of the truth) is undefined for it; remove it from the study") });
-                    }
+                    crate::recon::metrics::truth_peak(&cube.data).map_err(|e| Error::File { path: s.path.display().to_string(), message: format!("as a truth at --scene-size {n}: {e}; remove it from the study") })?;
                     let source = json!({"source": s.path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "fit": fit});
                     Ok(StudyScene { name: s.name, cube, source })
                 })

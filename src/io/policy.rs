@@ -255,12 +255,14 @@ pub fn check_replaceable_file(option: &str, out: &Path) -> Result<(), IoError> {
             out,
             format!("{option} is a symbolic link (to {}); an output file is written in its place, which would replace the link: give the link's target instead; nothing was written", fs::read_link(out).map(|t| t.display().to_string()).unwrap_or_else(|_| "?".into())),
         )),
-        Ok(m) if !m.is_file() => Err(refused(
-            out,
-            format!("{option} is {}, not a regular file; an output never replaces one: nothing was written", super::input::kind(m.file_type())),
-        )),
+        Ok(m) if !m.is_file() => Err(not_a_regular_file(option, out, m.file_type())),
         _ => Ok(()),
     }
+}
+
+/// The refusal of an output path that is a folder, a named pipe, a device or a socket.
+fn not_a_regular_file(option: &str, out: &Path, t: fs::FileType) -> IoError {
+    refused(out, format!("{option} is {}, not a regular file; an output never replaces one: nothing was written", super::input::kind(t)))
 }
 
 /// A file a command writes inside its own folder (or any output it names itself) may be absent, a regular file
@@ -270,10 +272,7 @@ pub fn check_replaceable_file(option: &str, out: &Path) -> Result<(), IoError> {
 pub fn check_own_file(option: &str, out: &Path) -> Result<(), IoError> {
     match fs::symlink_metadata(out) {
         Ok(m) if m.file_type().is_symlink() || m.is_file() => Ok(()),
-        Ok(m) => Err(refused(
-            out,
-            format!("{option} is {}, not a regular file; an output never replaces one: nothing was written", super::input::kind(m.file_type())),
-        )),
+        Ok(m) => Err(not_a_regular_file(option, out, m.file_type())),
         Err(_) => Ok(()),
     }
 }

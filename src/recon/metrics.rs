@@ -125,14 +125,22 @@ fn psnr_from_mse(peak: f64, mse: f64) -> f64 {
     }
 }
 
+/// The truth's maximum, PSNR's peak in the paper's convention: an error when it is not > 0 (an all-zero or
+/// empty truth), where that PSNR is undefined. Callers that take a truth (`reconstruct --truth`, `study`'s
+/// scenes) check it before any work and name the file.
+pub fn truth_peak(truth: &[f32]) -> Result<f64> {
+    let peak = truth.iter().fold(f64::NEG_INFINITY, |m, &t| m.max(t as f64));
+    if !(peak > 0.0) {
+        return Err(Error::invalid(format!("the truth's maximum is {peak}: the paper's PSNR (peak = max of the truth) is undefined")));
+    }
+    Ok(peak)
+}
+
 /// PSNR in the paper's convention: one MSE over the cube (estimate clamped to [0, 1]), peak = max of the
 /// truth. Errors when the truth's maximum is ≤ 0.
 pub fn psnr_db(truth: &[f32], estimate: &[f32], shape: CubeShape) -> Result<f64> {
     check(truth, estimate, shape)?;
-    let peak = truth.iter().fold(f64::NEG_INFINITY, |m, &t| m.max(t as f64));
-    if peak <= 0.0 {
-        return Err(Error::invalid(format!("the truth's maximum is {peak}: the paper's PSNR (peak = max of the truth) is undefined")));
-    }
+    let peak = truth_peak(truth)?;
     let s: f64 = truth.iter().zip(estimate).map(|(&t, &e)| (clamp01(e) - t as f64).powi(2)).sum();
     Ok(psnr_from_mse(peak, s / shape.len() as f64))
 }

@@ -153,10 +153,7 @@ pub fn load_truth(record: &RenderRecord, path: &Path) -> Result<SpectralCube> {
     }
     // PSNR takes the truth's maximum as its peak (`evaluate` refuses a truth of maximum ≤ 0): refused here before
     // the solve, not recorded as a column of `null` PSNRs (a held-out battery's all-zero truth, exit 0).
-    let peak = t.data.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
-    if !(peak > 0.0) {
-        return Err(Error::invalid(format!("--truth {}: the truth's maximum is {peak}: the paper's PSNR (peak = max of the truth) is undefined; give the true cube", path.display())));
-    }
+    crate::recon::metrics::truth_peak(&t.data).map_err(|e| Error::invalid(format!("--truth {}: {e}; give the true cube", path.display())))?;
     match t.at_wavelengths(bands)? {
         AtWavelengths::Same => Ok(t),
         AtWavelengths::Resampled(r) => Ok(r),
