@@ -218,7 +218,7 @@ def _pair(name: str, v: Any) -> list:
 
 
 #: Integer settings of :func:`reconstruct` and their ranges (the CLI's: at most 10⁵ iterations).
-_SOLVER_INTS = {"iterations": (0, 100_000), "tv_iterations": (0, 100_000), "equivariant_seed": (0, 2**64 - 1)}
+_SOLVER_INTS = {"iterations": (0, 100_000), "tv_iterations": (0, 100_000), "tv_warmup": (0, 100_000), "equivariant_seed": (0, 2**64 - 1)}
 
 
 def _csr_arrays(op: Operator, memory_gb: float = 4.0):
@@ -253,6 +253,8 @@ def _save_npz(self: Operator, path, memory_gb: float = 4.0, compressed: bool = T
     # Checked before the export (which may take seconds) and named by the target (a missing folder was the stage
     # file's FileNotFoundError, naming `.NAME.PID.stage.npz`); a folder, a pipe, a device or a link refused.
     _files.check_output_file("save_npz", target)
+    if not isinstance(compressed, (bool, np.bool_)):  # "no" was taken as true
+        raise DiffcassiValueError(f"save_npz: compressed: expected True or False, got {type(compressed).__name__} {compressed!r}")
     indptr, indices, data, shape = _csr_arrays(self, memory_gb)
     save = np.savez_compressed if compressed else np.savez
     # The operator's own shapes beside SciPy's keys (scipy.sparse.load_npz ignores extra keys): the matrix shows
@@ -316,7 +318,7 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     ``diffcassi reconstruct``, or ``pnp-gap`` / ``pnp-admm`` (plug-and-play with the learned denoiser: a TV
     phase, then the network; docs/reconstruction.md). ``settings`` (default: the library's, as the CLI's):
     iterations (the cap: 300 GAP-TV, 100 ADMM-TV, 305 PnP: the TV phase and 5 network steps), step (1), tv_weight (0.1), tv_iterations (5),
-    tv_coupling (``vectorial`` | ``per_band``), accelerated (GAP-TV and PnP-GAP: True), admm_eta (0.01);
+    tv_coupling (``vectorial`` | ``per_band``), accelerated (GAP-TV and PnP-GAP only: True), admm_eta (ADMM-TV and PnP-ADMM only: 0.01);
     the stopping rules as the CLI's: discrepancy (τ; 0.65 TV, see the docs for PnP) with noise_norm (δ, the
     expected ‖y − Φx_true‖₂ in acquisition units, e.g. :func:`monte_carlo_noise_norm`; 0 or absent: the rule is
     off), tolerance (relative change; 0 for TV); for PnP tv_warmup (the TV phase's cap), sigma_max, sigma_min
@@ -331,7 +333,8 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     Returns ``(cube, record)``; the record holds the settings, per-iteration residuals, seconds and
     ``stopping`` (the rule, τ, δ, the cap, ``iterations_run``, ``stopped_by``, ``noise_estimator``,
     ``noise_norm_per_estimate``), as ``reconstruct.json``. An unknown keyword is a DiffcassiValueError naming it
-    and the valid ones (those of the native solve's signature)."""
+    and the valid ones (those of the native solve's signature); so is a keyword of another solver (the PnP ones,
+    ``accelerated`` or ``admm_eta`` where they do not apply), never ignored."""
     # The keywords the native solve takes, read from its own signature (PyO3's text signature of `_reconstruct`,
     # generated from the Rust one): one source, so this list cannot drift. Python's own TypeError named
     # `_reconstruct` and not the valid keywords.
@@ -431,3 +434,16 @@ def _weights_file(name: str, path: Any) -> None:
 
 
 __all__ += ["denoise"]
+
+
+def _rebuild(factory: str, args: tuple, kwargs: Dict[str, Any], values: Optional[Sequence[float]] = None) -> Any:
+    """Unpickling of the native objects (:class:`Operator`, :class:`Transport`, ``DiffRenderer``): the factory
+    that built the object is called again with its arguments, recorded at construction (their ``__reduce__``;
+    python/src/recipe.rs) — the same seeds trace the same numbers, so the copy equals the original bit for
+    bit, at the cost of tracing again; ``values``: then ``with_values(values)`` (a moved ``DiffRenderer``)."""
+    table = {"exact": exact, "mapping_operator": mapping_operator, "shift_operator": shift_operator,
+             "Transport": Transport, "DiffRenderer": _native.DiffRenderer}
+    if factory not in table:
+        raise DiffcassiValueError(f"_rebuild: unknown factory {factory!r} (a pickle from another diffcassi version?)")
+    obj = table[factory](*args, **kwargs)
+    return obj if values is None else obj.with_values(list(values))

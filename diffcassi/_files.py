@@ -15,10 +15,33 @@ sees the old file or the complete new one. Errors name the destination, never th
 from __future__ import annotations
 
 import os
+import secrets
 import stat
+import threading
 from typing import Any, Callable
 
 from ._errors import DiffcassiFileError
+
+
+def _kind(mode: int) -> str:
+    """What a file that is not a regular one is, for messages."""
+    return ("a folder" if stat.S_ISDIR(mode) else "a named pipe (FIFO)" if stat.S_ISFIFO(mode)
+            else "a character device" if stat.S_ISCHR(mode) else "a block device" if stat.S_ISBLK(mode)
+            else "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+
+
+def check_input_file(where: str, path: Any) -> str:
+    """``path`` as a string, when it is a regular file to read (following links); a missing file is left to the
+    reader (its own "no such file"); a named pipe, a device, a socket or a folder is a :class:`DiffcassiFileError`
+    naming ``where`` — a reader would wait on a pipe forever (``src/io/input.rs`` is the CLI's twin)."""
+    target = os.fspath(path)
+    try:
+        st = os.stat(target)
+    except OSError:
+        return target
+    if not stat.S_ISREG(st.st_mode):
+        raise DiffcassiFileError(f"{where}: {target} is {_kind(st.st_mode)}, not a regular file: refusing to read it")
+    return target
 
 
 def check_output_file(where: str, path: Any) -> str:
@@ -34,10 +57,7 @@ def check_output_file(where: str, path: Any) -> str:
             raise DiffcassiFileError(f"{where}: {target} is a symbolic link (to {os.readlink(target)}); a file written in its "
                                      "place would replace the link: give the link's target instead; nothing was written")
         if not stat.S_ISREG(st.st_mode):
-            kind = ("a folder" if stat.S_ISDIR(st.st_mode) else "a named pipe (FIFO)" if stat.S_ISFIFO(st.st_mode)
-                    else "a character device" if stat.S_ISCHR(st.st_mode) else "a block device" if stat.S_ISBLK(st.st_mode)
-                    else "a socket" if stat.S_ISSOCK(st.st_mode) else "not a regular file")
-            raise DiffcassiFileError(f"{where}: {target} is {kind}, not a regular file; a file is never written over one: nothing was written")
+            raise DiffcassiFileError(f"{where}: {target} is {_kind(st.st_mode)}, not a regular file; a file is never written over one: nothing was written")
     folder = os.path.dirname(os.path.abspath(target))
     if not os.path.isdir(folder):
         what = "is not a folder" if os.path.exists(folder) else "does not exist"
@@ -47,11 +67,14 @@ def check_output_file(where: str, path: Any) -> str:
 
 def write_staged(where: str, path: Any, write: Callable[[str], Any], suffix: str = "") -> None:
     """Write ``path`` whole: checked by :func:`check_output_file`, then ``write(stage)`` fills a hidden file beside
-    it (``.NAME.PID.stage`` + ``suffix``: a writer that chooses its format by the extension gets it), which is
-    renamed over ``path``; the staged file is removed on any failure. An ``OSError`` is re-raised as a
+    it (``.NAME.PID-THREAD-RANDOM.stage`` + ``suffix``: a writer that chooses its format by the extension gets it),
+    which is renamed over ``path``; the staged file is removed on any failure. The stage is the call's own — two
+    threads saving to one path each rename a whole file, the last one wins (with ``.PID.stage`` they wrote into one
+    stage and renamed a corrupt file into place: a held-out battery, round 6). An ``OSError`` is re-raised as a
     :class:`DiffcassiFileError` naming ``path``."""
     target = check_output_file(where, path)
-    stage = os.path.join(os.path.dirname(os.path.abspath(target)), f".{os.path.basename(target)}.{os.getpid()}.stage{suffix}")
+    tag = f"{os.getpid()}-{threading.get_ident()}-{secrets.token_hex(4)}"
+    stage = os.path.join(os.path.dirname(os.path.abspath(target)), f".{os.path.basename(target)}.{tag}.stage{suffix}")
     try:
         write(stage)
         os.replace(stage, target)

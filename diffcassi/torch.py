@@ -33,11 +33,12 @@ import numpy as np
 try:
     import torch
     from torch import nn
+    from torch.autograd.function import once_differentiable
 except ImportError as _e:  # pragma: no cover - depends on the environment
     raise ImportError("diffcassi.torch needs PyTorch: pip install torch") from _e
 
 import diffcassi
-from . import _gather
+from . import _files, _gather
 
 __all__ = ["CassiOperator", "MatrixFreeCassiOperator", "CassiDataset"]
 
@@ -69,6 +70,10 @@ def _int_entries(what: str, value: Any, n: int, lo: int) -> Tuple[int, ...]:
     if a.dtype.kind not in "iu" or a.size != n or (a.size and a.min() < lo):
         raise _Error(f"{what}: expected {n} integers ≥ {lo}, got {value!r}")
     return tuple(int(v) for v in a.ravel())
+
+
+#: The largest absolute row or column sum of a CSR operator: float32's range over the input limit ``_MAX_VALUE``.
+_MAX_GAIN = 1e9
 
 
 def _check_csr(indptr: Any, indices: Any, data: Any, shape: Any, cube_shape: Any, image_shape: Any,
@@ -117,6 +122,15 @@ def _check_csr(indptr: Any, indices: Any, data: Any, shape: Any, cube_shape: Any
         if not np.isfinite(dv).all():
             k = int(np.argmax(~np.isfinite(dv)))
             raise _Error(f"{source}: data[{k}] = {dv[k]} is not finite")
+        # Inputs are bounded by ±_MAX_VALUE (float32's range / 10⁹): a row (Φ) or column (Φᵀ) whose absolute sum
+        # stays within 10⁹ cannot overflow float32 (a matrix of 1e300 gave inf for float32 inputs).
+        a64 = np.abs(dv.astype(np.float64))
+        rows_of = np.repeat(np.arange(rows), steps)
+        for what, sums in (("row", np.bincount(rows_of, weights=a64, minlength=rows)), ("column", np.bincount(ix, weights=a64, minlength=cols))):
+            if sums.size and sums.max() > _MAX_GAIN:
+                k = int(np.argmax(sums))
+                raise _Error(f"{source}: {what} {k}'s absolute sum {sums[k]:.6g} exceeds {_MAX_GAIN:.0e}: its products with inputs "
+                             f"up to ±{diffcassi._MAX_VALUE:.3e} would overflow float32; rescale the matrix")
     # float32 values (the library's export) are kept as they are; any other floating dtype as float64.
     dv = dv if dv.dtype == np.float32 else dv.astype(np.float64)
     return ip.astype(np.int64), ix.astype(np.int64), dv, (rows, cols), cube, image
@@ -145,6 +159,20 @@ def _check_values(name: str, t: torch.Tensor, where: str) -> None:
         k = np.unravel_index(int(torch.argmax(bad.flatten().to(torch.uint8))), tuple(d.shape))
         raise _Error(f"{where}: {name}: value {float(d[k]):e} at index {list(map(int, k))} is not finite or beyond "
                      f"±{_MAX_RADIANCE:.3e} (f32's range / 10⁹) that the operator's sums allow; rescale it")
+
+
+def _cast_back(t: torch.Tensor, dtype: torch.dtype, what: str, where: str) -> torch.Tensor:
+    """An operator's float32/float64 result cast back to the input's ``dtype``. float16 holds at most 65504: on the
+    CPU a result beyond it is refused, naming the peak (a cast would write inf); bfloat16 has float32's range. On a
+    CUDA device nothing is checked (a host synchronisation per call, as :func:`_check_values`; torch's GradScaler
+    is the mixed-precision guard there)."""
+    out = t.to(dtype)
+    # The cast's own rounding decides (65 504.004 rounds to 65 504; from 65 520 on it is inf): inf where t is finite.
+    if dtype == torch.float16 and t.device.type == "cpu" and t.numel() and bool(torch.isinf(out.detach()).any()):
+        peak, top = float(t.detach().abs().amax()), float(torch.finfo(torch.float16).max)
+        raise _Error(f"{where}: the {what} reaches {peak:.6g}, beyond float16's range (largest {top:.6g}); "
+                     "pass float32, float64 or bfloat16 tensors, or scale the input down")
+    return out
 
 
 def _batched(name: str, t: torch.Tensor, trailing: Tuple[int, ...], where: str) -> Tuple[torch.Tensor, bool]:
@@ -309,6 +337,8 @@ class CassiOperator(_DeviceChecked):
         ``cube_shape`` and ``image_shape``: the shapes given must equal them (a transposed image shape has the
         same h·w and scrambled every output); a file without them (SciPy's own) is checked by the products only."""
         name = os.fspath(path)
+        # A regular file only: np.load waited forever on a named pipe (a held-out battery, round 6).
+        _files.check_input_file("CassiOperator.from_npz", name)
         try:
             z = np.load(name, allow_pickle=False)
         except FileNotFoundError:
@@ -328,6 +358,8 @@ class CassiOperator(_DeviceChecked):
                 arrays = {k: z[k] for k in ("indptr", "indices", "data", "shape", *recorded)}
             except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile) as e:
                 raise diffcassi.DiffcassiFileError(f"{name}: damaged archive ({e})") from None
+            except MemoryError as e:  # an array header claiming terabytes
+                raise diffcassi.DiffcassiFileError(f"{name}: damaged or tampered archive: an array larger than memory ({e})") from None
         fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
         if fmt != "csr":
             raise _Error(f"{name}: format {fmt!r}, expected 'csr'")
@@ -356,7 +388,7 @@ class CassiOperator(_DeviceChecked):
         if dtype in _HALF:
             x = x.to(torch.float32)
         y = _gather.gather_apply(x.reshape(x.shape[0], B * H * W), self.phi_table, self.adjoint_table)
-        y = y.reshape(x.shape[0], *self.image_shape).to(dtype)
+        y = _cast_back(y.reshape(x.shape[0], *self.image_shape), dtype, "acquisition Φx", where)
         return y[0] if single else y
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
@@ -370,7 +402,7 @@ class CassiOperator(_DeviceChecked):
         if dtype in _HALF:
             y = y.to(torch.float32)
         x = _gather.gather_apply(y.reshape(y.shape[0], self.image_shape[0] * self.image_shape[1]), self.adjoint_table, self.phi_table)
-        x = x.reshape(y.shape[0], B, H, W).to(dtype)
+        x = _cast_back(x.reshape(y.shape[0], B, H, W), dtype, "cube Φᵀy", where)
         return x[0] if single else x
 
     def extra_repr(self) -> str:
@@ -387,7 +419,7 @@ def _rust_batch(op: "diffcassi.Operator", t: torch.Tensor, adjoint: bool) -> tor
     tensor preallocated for it; the GIL is released during the Rust call."""
     H, W, B = op.cube_shape
     h, w = op.image_shape
-    src = t.detach().numpy()  # shares the tensor's memory, with its strides
+    src = t.detach().resolve_neg().numpy()  # shares the tensor's memory, with its strides (a negative view is materialised)
     if adjoint:
         out = torch.empty((src.shape[0], H, W, B), dtype=torch.float32)
         op._adjoint_batch(np.ascontiguousarray(src), out.numpy())
@@ -410,6 +442,8 @@ class _RustApply(torch.autograd.Function):
     def backward(ctx, g):  # type: ignore[override]
         if not ctx.needs_input_grad[0]:
             return None, None, None
+        # Named as what it is (the Rust adjoint/apply would name it as its own input, `y` or `x`).
+        _check_values("the upstream gradient (grad_output)", g, "MatrixFreeCassiOperator." + ("adjoint" if ctx.adjoint else "forward") + " backward")
         return _RustApply.apply(g, ctx.op, not ctx.adjoint), None, None
 
 
@@ -506,7 +540,7 @@ class MatrixFreeCassiOperator(_DeviceChecked):
         else:
             y = _gather.gather_apply(x.reshape(x.shape[0], B * H * W), self.phi_table, self.adjoint_table)
             y = y.reshape(x.shape[0], *self.image_shape)
-        y = y.to(dtype)
+        y = _cast_back(y, dtype, "acquisition Φx", where)
         return y[0] if single else y
 
     def adjoint(self, y: torch.Tensor) -> torch.Tensor:
@@ -521,7 +555,7 @@ class MatrixFreeCassiOperator(_DeviceChecked):
         else:
             x = _gather.gather_apply(y.reshape(y.shape[0], self.image_shape[0] * self.image_shape[1]), self.adjoint_table, self.phi_table)
             x = x.reshape(y.shape[0], B, H, W)
-        x = x.to(dtype)
+        x = _cast_back(x, dtype, "cube Φᵀy", where)
         return x[0] if single else x
 
     def extra_repr(self) -> str:
@@ -658,17 +692,20 @@ class CassiDataset(torch.utils.data.Dataset):
                 raise _Error(f"CassiDataset: {name}: cube dtype {dtype} is not real: expected float32 (or another real "
                              "floating-point or integer dtype, converted to float32)")
             cube = np.ascontiguousarray(cube, dtype=np.float32)
-            if cube.ndim != 3 or cube.shape[0] < self.size or cube.shape[1] < self.size:
-                raise _Error(f"CassiDataset: {name}: scene of shape {cube.shape}: expected (H, W, B) with H, W ≥ size = {self.size}")
+            if cube.ndim != 3 or cube.shape[0] < self.size or cube.shape[1] < self.size or cube.shape[2] < 1:
+                raise _Error(f"CassiDataset: {name}: scene of shape {cube.shape}: expected (H, W, B) with H, W ≥ size = {self.size} and B ≥ 1")
             w = np.asarray(wl, dtype=np.float64).ravel()
             if w.size != cube.shape[2]:
                 raise _Error(f"CassiDataset: {name}: {cube.shape[2]} bands (shape {cube.shape}) but {w.size} wavelengths_nm; "
                              "give one wavelength per band")
             if not np.isfinite(w).all() or (w.size > 1 and not (np.diff(w) > 0).all()):
                 raise _Error(f"CassiDataset: {name}: wavelengths_nm {w.tolist()} must be finite and strictly increasing")
-            if not np.isfinite(cube).all():
-                k = np.unravel_index(int(np.argmax(~np.isfinite(cube))), cube.shape)
-                raise _Error(f"CassiDataset: {name}: value {cube[k]} at index {list(map(int, k))} is not finite")
+            # The renderer's radiance limits, here rather than in a DataLoader worker at the first item.
+            bad = ~np.isfinite(cube) | (cube < 0) | (cube > _MAX_RADIANCE)
+            if bad.any():
+                k = np.unravel_index(int(np.argmax(bad)), cube.shape)
+                raise _Error(f"CassiDataset: {name}: value {cube[k]} at index {list(map(int, k))} is not a radiance: "
+                             f"values must be finite, ≥ 0 and ≤ {_MAX_RADIANCE:.3e} (as `diffcassi render` requires)")
             self.scenes.append((cube, w.tolist()))
         self.length = len(self.scenes) if length is None else _int_arg("length", length, 0)
         self._state: Optional[Dict[str, Any]] = None
@@ -795,8 +832,10 @@ class _RenderFn(torch.autograd.Function):
         return _narrow(out, cube.dtype, "acquisition")
 
     @staticmethod
+    @once_differentiable
     def backward(ctx, g):  # type: ignore[override]
-        # Only the gradients autograd asks for are computed (a frozen mask, cube or θ does not pay: no reverse
+        # First derivatives only (the Rust VJP's results are NumPy arrays: a second derivative was silently
+        # zero; now torch refuses it). Only the gradients autograd asks for are computed (a frozen mask, cube or θ does not pay: no reverse
         # sweep without θ, the closed mask pixels' rays not traced without the mask); the others are None.
         want_cube, want_mask, want_theta = ctx.needs_input_grad[:3]
         if not (want_cube or want_mask or want_theta):
@@ -829,7 +868,9 @@ class _TableRenderFn(torch.autograd.Function):
         return y.to(cube.dtype)
 
     @staticmethod
+    @once_differentiable
     def backward(ctx, g):  # type: ignore[override]
+        # First derivatives only, as the CPU path's (θ's comes from the Rust VJP).
         want_cube, want_mask, want_theta = ctx.needs_input_grad[:3]
         cube, mask = ctx.saved_tensors
         a, at = ctx.tables
@@ -870,7 +911,16 @@ def _temperature(name: str, v: Any) -> float:
         f = float("inf")
     if not (np.isfinite(f) and f > 0):
         raise diffcassi.DiffcassiValueError(f"{name} = {v!r}: must be a finite number > 0")
+    lo, hi = _TEMPERATURE_RANGE
+    if not lo <= f <= hi:
+        raise diffcassi.DiffcassiValueError(f"{name} = {v!r}: must be in [{lo:g}, {hi:g}] (the float32 logits T·logit(m) "
+                                            "underflow or overflow beyond it: inf gradients or a NaN mask)")
     return f
+
+
+#: The temperatures a CassiRenderer takes: float32 logits T·logit(m) (|logit| ≤ 2.95 at construction) and the
+#: gradients' 1/T stay far inside float32's range.
+_TEMPERATURE_RANGE = (1e-6, 1e6)
 
 
 def _free_names(free: Any) -> List[str]:
@@ -1001,14 +1051,42 @@ class CassiRenderer(_TargetChecked):
     @property
     def temperature(self) -> float:
         """The mask's temperature T (``mask = sigmoid(mask_logits / T)``): set it to anneal the mask. Checked on
-        every assignment as in the constructor — a finite real number > 0 (a Python or NumPy int or float, not a
-        bool or a tensor); 0 made the gradients NaN and a negative value inverted the mask silently."""
+        every assignment as in the constructor — a real number in [1e-6, 1e6] (a Python or NumPy int or float, not a
+        bool or a tensor); 0 made the gradients NaN, a negative value inverted the mask silently, 1e-40 gave inf
+        gradients and 1e300 a NaN mask. Saved in ``state_dict`` (its ``_extra_state``) with the logits."""
         return self._temperature
 
     @temperature.setter
     def temperature(self, value: Any) -> None:
-        # A plain attribute as before (not in state_dict); only the assignment is checked.
         self._temperature = _temperature("CassiRenderer.temperature", value)
+
+    # The temperature travels with the state: an annealed renderer restored from a checkpoint renders as it did
+    # (it was a plain attribute, and a restored renderer kept its constructor's: the acquisition moved by 4 %).
+    def get_extra_state(self) -> Dict[str, Any]:
+        return {"temperature": self._temperature}
+
+    def set_extra_state(self, state: Any) -> None:
+        if not (isinstance(state, dict) and "temperature" in state):
+            raise diffcassi.DiffcassiValueError(f"CassiRenderer.load_state_dict: _extra_state: expected {{'temperature': T}}, got {state!r}")
+        self.temperature = state["temperature"]
+
+    def _load_from_state_dict(self, state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs):
+        # A checkpoint from before the temperature was saved keeps the module's own.
+        state_dict.setdefault(prefix + "_extra_state", self.get_extra_state())
+        super()._load_from_state_dict(state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs)
+
+    def _apply(self, fn, recurse=True):
+        # θ holds optical parameters in the spec's units (mm, degrees): float64 always. `.half()`, `.bfloat16()`,
+        # `.float()` move it with the module but never round it (float16 made a 33.34 mm radius 33.34375: the
+        # acquisition moved by 2 %); the mask logits follow the module's dtype.
+        theta = self.theta.detach().clone()
+        grad = None if self.theta.grad is None else self.theta.grad.detach().clone()
+        out = super()._apply(fn, recurse)
+        if self.theta.dtype != torch.float64:
+            self.theta.data = theta.to(device=self.theta.device, dtype=torch.float64)
+            if grad is not None:
+                self.theta.grad = grad.to(device=self.theta.device, dtype=torch.float64)
+        return out
 
     def mask(self) -> torch.Tensor:
         """The continuous mask sigmoid(logits / temperature) in [0, 1], (H, W)."""

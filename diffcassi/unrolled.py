@@ -191,8 +191,10 @@ class UnrolledGAP(nn.Module):
         x = self.initial(y)
         # s = mean|x₀| (= mean(x₀) for an acquisition ≥ 0, the trained case): N(a·y) = a·N(y) for a > 0, and an
         # x₀ of zero (a dark frame) reconstructs as zero — a scale of 1 there let the stages' biases through, a
-        # bright cube from a black acquisition (a held-out battery). As src/recon/unrolled.rs.
-        s = x.detach().flatten(1).abs().mean(1).view(-1, 1, 1, 1)
+        # bright cube from a black acquisition (a held-out battery). As src/recon/unrolled.rs. Not detached: the
+        # network depends on s, so ∂/∂y (a renderer upstream, co-design) must go through it (it was detached: the
+        # y-gradient was off by ~1 % once the weights are trained; the parameters' gradients are the same either way).
+        s = x.flatten(1).abs().mean(1).view(-1, 1, 1, 1)
         live = s > 0
         s = torch.where(live, s, torch.ones_like(s))
         for k, den in enumerate(self.denoisers):
@@ -399,8 +401,8 @@ class UnrolledDAUHST(nn.Module):
             raise _Error(f"UnrolledDAUHST.forward: y is on {y.device} but the network on {pdev}; move one with .to(device)")
         y = y.to(pdt)
         x = self.phi.adjoint(y * self.dinv)
-        # s = mean|x₀|; an x₀ of zero reconstructs as zero (UnrolledGAP.forward says why).
-        s = x.detach().flatten(1).abs().mean(1).view(-1, 1, 1, 1)
+        # s = mean|x₀|, differentiable; an x₀ of zero reconstructs as zero (UnrolledGAP.forward says why).
+        s = x.flatten(1).abs().mean(1).view(-1, 1, 1, 1)
         live = s > 0
         s = torch.where(live, s, torch.ones_like(s))
         mus, sigmas = [], []
@@ -472,7 +474,23 @@ def save_unrolled(net: nn.Module, path: Any, metadata: Dict[str, Any]) -> None:
         if not torch.isfinite(v).all():
             raise _Error(f"save_unrolled: tensor {k} has non-finite values; {path} not written")
     meta = net.metadata()
-    meta.update({str(k): v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()})
+    # The network's own keys (arch, stages, bands, width) are its architecture: a caller's value would write a file
+    # that does not load (`{"stages": 5}` for 3 stages); values are strings or finite JSON numbers, lists, dicts
+    # (None became 'null', NaN an unreadable 'NaN').
+    text = lambda v: v if isinstance(v, str) else json.dumps(v)  # noqa: E731
+    clash = sorted(str(k) for k, v in metadata.items() if str(k) in meta and text(v) != meta[str(k)])
+    if clash:
+        raise _Error(f"save_unrolled: {path}: metadata {clash} differ from the network's own (its architecture: {net.metadata()}); "
+                     "drop them or give the network's values")
+    for k, v in metadata.items():
+        if v is None:
+            raise _Error(f"save_unrolled: {path}: metadata {k!r} is None; give a value or leave the key out")
+        if not isinstance(v, str):
+            try:
+                json.dumps(v, allow_nan=False)
+            except (TypeError, ValueError) as e:
+                raise _Error(f"save_unrolled: {path}: metadata {k!r} = {v!r} is not a string or finite JSON value ({e})") from None
+    meta.update({str(k): text(v) for k, v in metadata.items()})
     write_staged("save_unrolled", path, lambda stage: save_file(tensors, stage, metadata=meta))
 
 

@@ -237,7 +237,7 @@ def check_rollout(weights: str, sigmas, size: int = 32, equivariant_seed=None) -
     _, theta = gap_rollout(op, y32, theta0, x1, load_weights(weights, bands=len(BANDS_NM)), sigmas, transforms=tr)
     ref, _ = diffcassi.reconstruct(op, y32, "pnp-gap", denoiser=weights, noise_norm=delta, discrepancy=0.0,
                                    tolerance=0.0, tv_warmup=TV_CAP, iterations=TV_CAP + n, sigma_max=sigmas[0],
-                                   sigma_min=sigmas[-1], equivariant=eq, equivariant_seed=equivariant_seed or 0)
+                                   sigma_min=sigmas[-1], equivariant=eq, **({"equivariant_seed": equivariant_seed} if eq else {}))
     return float(np.abs(theta - ref).max() / ref.max())
 
 

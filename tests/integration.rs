@@ -15,6 +15,7 @@ mod bad_input_render_options;
 mod bad_input_round2;
 mod bad_input_round3;
 mod bad_input_round5;
+mod bad_input_round6;
 mod cli;
 mod csv_outputs;
 mod dataset;

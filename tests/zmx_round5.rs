@@ -332,3 +332,29 @@ fn study_systems_names_a_fifo_and_a_folder() {
     assert!(t.elapsed().as_secs() < 30);
     assert!(!d.path().join("st").exists());
 }
+
+/// `import-zmx --glass-catalog` (round 6; every other command reading a `.zmx` took it): the file's glass is
+/// found in the given catalogue, which the written spec records (as an absolute path), so the spec builds
+/// again on its own; the catalogue is an input (never the `--out`).
+#[test]
+fn import_zmx_takes_glass_catalogs() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::create_dir(d.path().join("cat")).unwrap();
+    std::fs::write(d.path().join("cat/EXTRA.agf"), "NM MYGL 2 0 1.6 50 0 0\nCD 1.5 0.01 0 0 0 0\nLD 0.3 2.5\n").unwrap();
+    std::fs::write(d.path().join("g.zmx"), edited(&[("GLAS N-BK7", "GLAS MYGL")])).unwrap();
+    let (code, out) = run(d.path(), &["import-zmx", "g.zmx", "--out", "g.toml"]);
+    assert_eq!(code, Some(1), "{out}");
+    assert!(out.contains("`MYGL`") && !d.path().join("g.toml").exists(), "{out}");
+    let (code, out) = run(d.path(), &["import-zmx", "g.zmx", "--glass-catalog", "cat/EXTRA.agf", "--out", "g.toml"]);
+    assert_eq!(code, Some(0), "{out}");
+    let toml = std::fs::read_to_string(d.path().join("g.toml")).unwrap();
+    let entry = d.path().join("cat/EXTRA.agf").display().to_string();
+    assert!(toml.contains(&entry), "{toml}");
+    let (code, out) = run(d.path(), &["info", "--system", "g.toml"]);
+    assert_eq!(code, Some(0), "{out}");
+    assert!(out.contains("MYGL") && out.contains("EXTRA.agf"), "{out}");
+    let (code, out) = run(d.path(), &["import-zmx", "g.zmx", "--glass-catalog", "cat/EXTRA.agf", "--out", "cat/EXTRA.agf"]);
+    assert_eq!(code, Some(1), "{out}");
+    assert!(out.contains("--glass-catalog"), "{out}");
+    assert!(std::fs::read_to_string(d.path().join("cat/EXTRA.agf")).unwrap().starts_with("NM MYGL"));
+}

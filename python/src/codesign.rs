@@ -20,6 +20,8 @@ pub struct PyDiffRenderer {
     /// The entrance-pupil aim at construction (the renderer keeps it fixed; [`Self::_csr`] needs the
     /// current system's to equal it).
     aim: PupilAim,
+    /// How it was built, for pickling ([`crate::recipe`]).
+    recipe: std::sync::Arc<crate::recipe::Recipe>,
 }
 
 type Arr<'py> = Bound<'py, PyArrayDyn<f64>>;
@@ -99,6 +101,18 @@ impl PyDiffRenderer {
             return Err(value_error("free: name ≥ 1 parameter (e.g. [\"prism_tilt_x\"])"));
         }
         check_budget(height, width, bands.len(), planes, rays, airy)?;
+        let recipe = {
+            let sys = Py::new(py, PySystem { inner: std::sync::Arc::clone(&system.inner) })?;
+            let args = pyo3::types::PyTuple::new(py, [sys.into_any(), height.into_pyobject(py)?.into_any().unbind(), width.into_pyobject(py)?.into_any().unbind(), free.clone().into_pyobject(py)?.into_any().unbind()])?;
+            let kw = pyo3::types::PyDict::new(py);
+            kw.set_item("rays", rays)?;
+            kw.set_item("planes", planes)?;
+            kw.set_item("seed", seed)?;
+            kw.set_item("bands_nm", bands.clone())?;
+            kw.set_item("airy", airy)?;
+            kw.set_item("scene_fov_deg", scene_fov_deg)?;
+            crate::recipe::Recipe::new(py, "DiffRenderer", args, Some(&kw))?
+        };
         let set = ParamSet::for_system(&system.inner, &free.join(",")).py()?;
         let mut cfg = RenderConfig::paper(height.max(1));
         (cfg.scene_height, cfg.scene_width) = (height, width);
@@ -109,7 +123,14 @@ impl PyDiffRenderer {
         cfg.scene_fov_deg = scene_fov_deg;
         let inner = run(py, move || DiffRenderer::new(set, cfg, bands)).py()?;
         let aim = PupilAim::of(&inner.ds.system);
-        Ok(PyDiffRenderer { inner, aim })
+        Ok(PyDiffRenderer { inner, aim, recipe })
+    }
+
+    /// Pickling, `copy.copy` and `copy.deepcopy` (a `CassiRenderer` saved with `torch.save` or snapshotted):
+    /// rebuilt by `DiffRenderer(...)` with the same arguments (the same seed: the same samples), then moved to
+    /// this renderer's parameter values when `with_values` made it ([`crate::recipe`]).
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (&'static str, Py<pyo3::types::PyTuple>, Py<pyo3::types::PyDict>, Option<Vec<f64>>))> {
+        self.recipe.reduce(py)
     }
 
     /// The free parameters' names.
@@ -140,7 +161,7 @@ impl PyDiffRenderer {
             return Err(value_error(format!("values: {} values for {} free parameters", x.len(), self.inner.set.free.len())));
         }
         let inner = run(py, || self.inner.with_values(&x)).py()?;
-        Ok(PyDiffRenderer { inner, aim: self.aim })
+        Ok(PyDiffRenderer { inner, aim: self.aim, recipe: self.recipe.with_values(py, x) })
     }
 
     /// Acquisitions (N, h, w) float64 of `scene` (N, B, H, W) float64 through `mask` (H, W) float64.

@@ -17,6 +17,7 @@ mod codesign;
 mod errors;
 mod limits;
 mod pool;
+mod recipe;
 mod recon;
 mod render;
 mod settings;

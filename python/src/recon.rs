@@ -6,11 +6,12 @@
 use crate::arrays::{check_bounded, check_finite, input, output, output_arg, size_arg};
 use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
+use crate::recipe::Recipe;
 use crate::render::{check_shape, owned_exact};
 use crate::settings::configure;
 use crate::system::PySystem;
 use diffcassi::recon::pipeline::run_solver;
-use diffcassi::recon::solver::SPREAD_EVERY;
+use diffcassi::recon::solver::{SettingScope, SPREAD_EVERY};
 use diffcassi::recon::{metrics, CubeShape, MonteCarloSpread, Denoiser, SpectralUNet, MappingInterpolation, MappingOperator, Operator, ShiftOperator, SolverConfig, SolverKind, SparseExport, TvCoupling};
 use diffcassi::render::Renderer;
 use diffcassi::scene::SpectralCube;
@@ -27,11 +28,13 @@ pub struct PyOperator {
     sparse: Arc<dyn SparseExport>,
     /// The mapping operator's own type, for its initialisation I = A ∘ f.
     mapping: Option<Arc<MappingOperator>>,
+    /// How it was built, for pickling ([`crate::recipe`]).
+    recipe: Arc<Recipe>,
 }
 
 impl PyOperator {
-    pub fn new<T: SparseExport + 'static>(op: Arc<T>) -> Self {
-        PyOperator { op: op.clone(), sparse: op, mapping: None }
+    pub fn new<T: SparseExport + 'static>(op: Arc<T>, recipe: Arc<Recipe>) -> Self {
+        PyOperator { op: op.clone(), sparse: op, mapping: None, recipe }
     }
 }
 
@@ -40,6 +43,13 @@ impl PyOperator {
     #[getter]
     fn name(&self) -> String {
         self.op.name().to_string()
+    }
+
+    /// Pickling, `copy.copy` and `copy.deepcopy`: rebuilt by the factory that built it (`exact`,
+    /// `mapping_operator`, `shift_operator`) with the same arguments — the same seeds, so the same numbers bit
+    /// for bit; an exact operator is traced again ([`crate::recipe`]).
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (&'static str, Py<pyo3::types::PyTuple>, Py<PyDict>, Option<Vec<f64>>))> {
+        self.recipe.reduce(py)
     }
 
     /// (H, W, B) of the cubes.
@@ -176,7 +186,8 @@ fn exact_operator(py: Python<'_>, system: &PySystem, height: &Bound<'_, PyAny>, 
     let s = crate::settings::settings(py, settings, &[])?;
     let (cfg, m) = configure(height, width, &s.options, mask)?;
     crate::settings::host_only(&s.options, "exact")?;
-    Ok(PyOperator::new(Arc::new(owned_exact(py, &system.inner, cfg, m, &s.backend)?)))
+    let recipe = Recipe::render_settings(py, "exact", system, height, width, mask.is_some().then_some(&m), settings)?;
+    Ok(PyOperator::new(Arc::new(owned_exact(py, &system.inner, cfg, m, &s.backend)?), recipe))
 }
 
 /// The `mapping` (keyword `interpolation`: `nearest`, the default, or `bilinear`) or `shift` operator of
@@ -207,6 +218,7 @@ fn model_operator(
         return Err(value_error(format!("operator `{kind}`: use exact, mapping or shift")));
     }
     let tr = crate::system::tracer(&s.backend)?;
+    let recipe = Recipe::render_settings(py, if kind == "mapping" { "mapping_operator" } else { "shift_operator" }, system, height, width, mask.is_some().then_some(&m), settings)?;
     let sys = Arc::clone(&system.inner);
     let kind = kind.to_string();
     run(py, move || -> diffcassi::Result<PyOperator> {
@@ -214,9 +226,9 @@ fn model_operator(
         let r = Renderer::new(&sys, tr.as_ref(), cfg, m)?;
         Ok(if kind == "mapping" {
             let op = Arc::new(MappingOperator::from_renderer(&r, &bands, interp)?);
-            PyOperator { op: op.clone(), sparse: op.clone(), mapping: Some(op) }
+            PyOperator { op: op.clone(), sparse: op.clone(), mapping: Some(op), recipe }
         } else {
-            PyOperator::new(Arc::new(ShiftOperator::from_renderer(&r, &bands)?))
+            PyOperator::new(Arc::new(ShiftOperator::from_renderer(&r, &bands)?), recipe)
         })
     })
     .py()
@@ -259,6 +271,23 @@ fn _reconstruct<'py>(
     equivariant_seed: Option<u64>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, String)> {
     let kind: SolverKind = solver.parse().py()?;
+    // A keyword of another solver is refused, never ignored (the library's rule, as the CLI's).
+    let given: Vec<(&str, &str)> = [
+        ("accelerated", accelerated.is_some()),
+        ("admm_eta", admm_eta.is_some()),
+        ("sigma_max", sigma_max.is_some()),
+        ("sigma_min", sigma_min.is_some()),
+        ("sigma_auto", sigma_auto.is_some()),
+        ("tv_warmup", tv_warmup.is_some()),
+        ("denoiser", denoiser.is_some()),
+        ("equivariant", equivariant.is_some()),
+        ("equivariant_seed", equivariant_seed.is_some()),
+    ]
+    .into_iter()
+    .filter(|g| g.1)
+    .map(|(k, _)| (k, k))
+    .collect();
+    SettingScope::check(kind, &given).py()?;
     let mut cfg = SolverConfig::for_solver(kind);
     cfg.iterations = iterations.unwrap_or(cfg.iterations);
     cfg.step = step.unwrap_or(cfg.step);
@@ -273,15 +302,12 @@ fn _reconstruct<'py>(
     cfg.discrepancy = discrepancy.unwrap_or(cfg.discrepancy);
     cfg.noise_norm = noise_norm.unwrap_or(cfg.noise_norm);
     cfg.sigma_auto = sigma_auto.unwrap_or(cfg.sigma_auto);
-    if (equivariant.is_some() || equivariant_seed.is_some()) && !kind.is_pnp() {
-        return Err(value_error(format!("equivariant / equivariant_seed: apply to pnp-gap and pnp-admm only, not `{solver}`")));
-    }
     cfg.equivariant = equivariant.unwrap_or(cfg.equivariant);
+    if let (Some(seed), false) = (equivariant_seed, cfg.equivariant) {
+        return Err(value_error(format!("equivariant_seed {seed}: seeds equivariant PnP's transforms, which are off (give equivariant=True too)")));
+    }
     cfg.equivariant_seed = equivariant_seed.unwrap_or(cfg.equivariant_seed);
     if denoiser.is_some() {
-        if !kind.is_pnp() {
-            return Err(value_error(format!("denoiser: applies to pnp-gap and pnp-admm only, not `{solver}`")));
-        }
         cfg.denoiser = denoiser;
     }
     if let Some(c) = tv_coupling {

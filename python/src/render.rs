@@ -215,6 +215,8 @@ pub struct PyTransport {
     system: Arc<SequentialSystem>,
     /// The last scene's buffer, reused by the next `apply` (see [`scene_cube_in`]).
     scratch: std::sync::Mutex<Vec<f32>>,
+    /// How it was built, for pickling ([`crate::recipe`]).
+    recipe: Arc<crate::recipe::Recipe>,
 }
 
 impl PyTransport {
@@ -234,8 +236,16 @@ impl PyTransport {
         let (cfg, m) = configure(height, width, &s.options, mask)?;
         crate::settings::host_only(&s.options, "Transport")?;
         let backend = s.backend.as_str();
+        let recipe = crate::recipe::Recipe::render_settings(py, "Transport", system, height, width, mask.is_some().then_some(&m), settings)?;
         let exact = owned_exact(py, &system.inner, cfg, m, backend)?;
-        Ok(PyTransport { exact: Arc::new(exact), system: Arc::clone(&system.inner), scratch: Default::default() })
+        Ok(PyTransport { exact: Arc::new(exact), system: Arc::clone(&system.inner), scratch: Default::default(), recipe })
+    }
+
+    /// Pickling, `copy.copy` and `copy.deepcopy` (a dataset holding a transport, sent to spawn/forkserver
+    /// DataLoader workers): rebuilt by `Transport(...)` with the same arguments — traced again, the same numbers
+    /// bit for bit ([`crate::recipe`]).
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (&'static str, Py<pyo3::types::PyTuple>, Py<PyDict>, Option<Vec<f64>>))> {
+        self.recipe.reduce(py)
     }
 
     /// Render `scene` ((H, W, B) float32; bands at `wavelengths_nm`, default the transport's bands):
@@ -307,8 +317,8 @@ impl PyTransport {
 
     /// The exact operator Φ of this transport (float32 cube (H, W, B) → image (h, w)), sharing its trace.
     #[getter]
-    fn operator(&self) -> crate::recon::PyOperator {
-        crate::recon::PyOperator::new(self.exact.clone())
+    fn operator(&self, py: Python<'_>) -> crate::recon::PyOperator {
+        crate::recon::PyOperator::new(self.exact.clone(), self.recipe.with_factory(py, "exact"))
     }
 
     /// (h, w) of the detector images.
@@ -454,6 +464,8 @@ fn synthetic_scene<'py>(py: Python<'py>, height: &Bound<'py, PyAny>, width: &Bou
     if let Some(w) = ws.iter().find(|w| !(lo..=hi).contains(*w)) {
         return Err(value_error(format!("wavelengths_nm: {} nm is outside {lo}–{hi} nm", diffcassi::limits::fmt_num(*w))));
     }
+    // Strictly increasing, as every reader of a scene requires (`[500, 400]` was accepted).
+    diffcassi::scene::check_wavelengths(&ws, "wavelengths_nm").py()?;
     // The cube (4 bytes per entry), refused before it is allocated.
     let what = format!("height × width × wavelengths_nm ({height} × {width} × {})", ws.len());
     diffcassi::limits::check_memory(&what, 4.0 * height as f64 * width as f64 * ws.len() as f64).py()?;

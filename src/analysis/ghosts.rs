@@ -263,6 +263,7 @@ pub struct GhostEstimate {
 /// rings) at 520 nm from the on-axis field and the four corners of the extended source, walked with the
 /// analysis' own options (milliseconds).
 pub fn ghost_estimate(system: &SequentialSystem, options: &GhostOptions) -> Result<GhostEstimate> {
+    crate::render::ghosts::refuse_mask_surface(system, "the ghost analysis")?;
     let tree_opts = TreeOptions { order: options.order, model: options.model, threshold: options.threshold, seed: options.seed, ..Default::default() };
     tree_opts.validate()?;
     let r = options.rings as f64;
@@ -292,6 +293,7 @@ pub fn ghost_estimate(system: &SequentialSystem, options: &GhostOptions) -> Resu
 /// Run the analysis (brute-force kernel). Errors: invalid options (ghost order above the maximum …), a
 /// source whose main image misses the detector.
 pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Result<GhostReport> {
+    crate::render::ghosts::refuse_mask_surface(system, "the ghost analysis")?;
     let tree_opts = TreeOptions { order: options.order, model: options.model, threshold: options.threshold, seed: options.seed, ..Default::default() };
     tree_opts.validate()?;
     if options.model == FresnelModel::Off {

@@ -143,7 +143,12 @@ fn cell_text(c: Option<&crate::spec::Cell>) -> String {
                 (Driver::Fixed, true) => " V".into(),
                 _ => String::new(),
             };
-            format!("{:.4}{flag}", c.value)
+            // OpticStudio's Lens Data Editor writes an infinite radius or thickness as "Infinity".
+            if c.value.is_infinite() {
+                format!("{}Infinity{flag}", if c.value < 0.0 { "-" } else { "" })
+            } else {
+                format!("{:.4}{flag}", c.value)
+            }
         }
     }
 }
@@ -233,7 +238,7 @@ pub fn lde_table(system: &SequentialSystem) -> String {
                     t += &format!("conic {}", cell_text(Some(k)));
                 }
                 if surf.kind == SurfaceKind::Toroidal {
-                    t += &format!(" rotation radius {}", surf.rotation_radius_mm.as_ref().map(|c| cell_text(Some(c))).unwrap_or_else(|| "inf (cylinder)".into()));
+                    t += &format!(" rotation radius {}", surf.rotation_radius_mm.as_ref().map(|c| cell_text(Some(c))).unwrap_or_else(|| "Infinity (cylinder)".into()));
                 }
                 for (k, a) in surf.asphere_coefficients.iter().enumerate() {
                     let var = if surf.kind == SurfaceKind::Toroidal { "y" } else { "a" };
@@ -256,7 +261,7 @@ pub fn lde_table(system: &SequentialSystem) -> String {
             i,
             kind,
             surf.comment.chars().take(14).collect::<String>(),
-            surf.radius_mm.as_ref().map(|r| cell_text(Some(r))).unwrap_or_else(|| if surf.kind == SurfaceKind::CoordinateBreak { String::new() } else { "inf".into() }),
+            surf.radius_mm.as_ref().map(|r| cell_text(Some(r))).unwrap_or_else(|| if surf.kind == SurfaceKind::CoordinateBreak { String::new() } else { "Infinity".into() }),
             cell_text(Some(&surf.thickness_mm)),
             surf.material.clone().unwrap_or_default(),
             n.get(i).map(|v| format!("{v:.6}")).unwrap_or_default(),

@@ -199,7 +199,15 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
         mismatched.push(format!("{} ({})", dataset::MANIFEST, d.join("; ")));
     }
     for s in &mine {
-        match dataset::check_scene(&a.out, &s.name, Some(&configuration)) {
+        // Done and rendered from the same scene content (a scene file replaced since is rendered again).
+        let state = match dataset::check_scene(&a.out, &s.name, Some(&configuration)) {
+            SceneState::Done => match dataset::check_scene_input(&a.out, s) {
+                changes if changes.is_empty() => SceneState::Done,
+                changes => SceneState::Mismatch(changes),
+            },
+            other => other,
+        };
+        match state {
             SceneState::Done => skipped.push(*s),
             SceneState::Missing => todo.push(*s),
             SceneState::Damaged(p) => {
@@ -278,6 +286,8 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
         let result = (|| -> Result<()> {
             // This shard owns the scene: what a killed task left for it is garbage.
             dataset::remove_leftovers(&a.out, &s.name)?;
+            // The scene's files as they are before it is read (a change during the render shows next time).
+            let scene_input = dataset::scene_input_record(s)?;
             let (scene, desc) = load_fitted(&s.path, &a.common)?;
             let (mut acq, device_record) = match &cached {
                 Some(t) => (renderer.render_cached(&scene, t, a.common.cube, &|_| {})?, None),
@@ -291,7 +301,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
             let scene_noise = noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() });
             let noise_json = apply_noise(scene_noise.as_ref(), &mut acq, "", true)?;
             let partial = dataset::partial_dir(&a.out, &s.name)?;
-            let mut extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref())});
+            let mut extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref()), "scene_input": scene_input});
             if let Some(x) = renderer.spectral_extrapolation(&scene) {
                 eprintln!("warning: {}: {}", s.name, x.message());
                 extra["spectral_extrapolation"] = x.to_json();
@@ -333,11 +343,18 @@ pub fn dataset_status(a: DatasetStatusArgs) -> Result<()> {
     if !a.dir.is_dir() {
         return Err(Error::File { path: a.dir.display().to_string(), message: "not a folder (the --out of render-dataset)".into() });
     }
-    let names = match &a.scenes {
-        Some(src) => Some(dataset::find_scenes(src)?.into_iter().map(|s| s.name).collect::<Vec<_>>()),
-        None => None,
-    };
-    let st = DatasetStatus::check(&a.dir, names, None)?;
+    let found = a.scenes.as_ref().map(|src| dataset::find_scenes(src)).transpose()?;
+    let names = found.as_ref().map(|v| v.iter().map(|s| s.name.clone()).collect::<Vec<_>>());
+    let mut st = DatasetStatus::check(&a.dir, names, None)?;
+    // With --scenes: a scene done from files that have changed since is to be rendered again.
+    for s in st.scenes.iter_mut().filter(|s| matches!(s.state, SceneState::Done)) {
+        if let Some(f) = found.iter().flatten().find(|f| f.name == s.scene) {
+            let changes = dataset::check_scene_input(&a.dir, f);
+            if !changes.is_empty() {
+                s.state = SceneState::Mismatch(changes);
+            }
+        }
+    }
     if st.scenes.is_empty() {
         let source = match &a.scenes {
             Some(src) => format!("--scenes {} holds no scenes (.exr, .npy, or folders of .png)", src.display()),

@@ -3,6 +3,7 @@
 //! ```text
 //! diffcassi import-zmx design.zmx --out design.toml
 //! diffcassi import-zmx design.zmx --out design.toml --ignore-unsupported   # lists what it skipped
+//! diffcassi import-zmx design.zmx --glass-catalog vendor.agf --out design.toml  # glasses the file's GCAT lacks
 //! ```
 //! Without `--ignore-unsupported` anything the file holds that diffcassi does not model is refused (exit 1,
 //! nothing written) with every such item listed by line and keyword (`docs/zemax-files.md`).
@@ -26,12 +27,19 @@ pub struct ImportZmxArgs {
     /// DIFFCASSI_GLASS_DIR.
     #[arg(long = "glass-dir")]
     pub glass_dirs: Vec<PathBuf>,
+    /// Extra AGF glass catalogue(s) (or `builtin:NAME`), searched for the file's glasses after its own
+    /// catalogues, as `--glass-catalog` of `info`, `render` and the other commands reading a `.zmx`; recorded in
+    /// the written spec's `glass_catalogs` (absolute paths), so it reads the same glasses again.
+    #[arg(long = "glass-catalog")]
+    pub glass_catalogs: Vec<PathBuf>,
 }
 
 pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
     // The output policy (docs/robustness.md): a file, never a folder, never the .zmx it reads (a spec written
     // beside the catalogues of a --glass-dir is fine: they are only read).
-    crate::io::policy::check_out_file("--out", &a.out, &[("(the .zmx file)", a.input.as_path())])?;
+    let mut inputs = vec![("(the .zmx file)", a.input.as_path())];
+    inputs.extend(a.glass_catalogs.iter().map(|p| ("--glass-catalog", p.as_path())));
+    crate::io::policy::check_out_file("--out", &a.out, &inputs)?;
     // A --glass-dir that is missing or a file would be searched in vain (and the GCAT catalogues reported
     // missing, or found elsewhere): refused, naming it.
     for d in &a.glass_dirs {
@@ -41,7 +49,8 @@ pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
             Err(e) => return Err(Error::invalid(format!("--glass-dir {}: no such folder ({e})", d.display()))),
         }
     }
-    let options = ZmxOptions { ignore_unsupported: a.ignore_unsupported, glass_dirs: a.glass_dirs.clone(), ..Default::default() };
+    let glass_catalogs = a.glass_catalogs.iter().map(crate::spec::catalog_entry).collect();
+    let options = ZmxOptions { ignore_unsupported: a.ignore_unsupported, glass_dirs: a.glass_dirs.clone(), glass_catalogs };
     let imported = import_zmx_file(&a.input, &options)?;
     // Build it before writing: a file that imports but does not make a traceable system writes nothing.
     let system = crate::system::SequentialSystem::build(&imported.spec).map_err(crate::spec::zmx::with_zmx_hints)?;

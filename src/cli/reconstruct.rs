@@ -60,9 +60,10 @@ pub struct ReconstructArgs {
     /// acquisition approach the expected transport (less Monte-Carlo mismatch, more memory and tracing).
     #[arg(long = "operator-rays")]
     pub operator_rays: Option<usize>,
-    /// Keep the exact operator's light transport in memory up to this size (GB); beyond it, re-trace on the fly.
-    #[arg(long = "transport-memory-gb", default_value_t = 4.0)]
-    pub transport_memory_gb: f64,
+    /// Keep the exact operator's light transport in memory up to this size (GB); beyond it, re-trace on the fly
+    /// [default: 4]. Exact operator only.
+    #[arg(long = "transport-memory-gb")]
+    pub transport_memory_gb: Option<f64>,
     /// Evaluation only: the true cube (.npy with its wavelengths file, as `evaluate --truth`); records the
     /// PSNR of every iterate and ‖y − Φx_true‖/‖y‖ in reconstruct.json `stopping` (the solver never sees it).
     #[arg(long)]
@@ -162,6 +163,10 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     }
     if a.backend.calibration_cache.is_some() {
         return Err(Error::invalid("--calibration-cache: only used with --tolerance-um, which reconstruct does not take"));
+    }
+    if let (Some(e), false) = (&a.tuning.noise_estimate, kind == OperatorKind::Exact) {
+        // A model operator has no Monte-Carlo term to estimate (the record said `model` whatever was asked).
+        return Err(Error::invalid(format!("--noise-estimate {e}: applies to the exact operator only (how its Monte-Carlo mismatch is estimated), not `{}`", kind.name())));
     }
     request.validate()?;
     // The output policy before any work: --out never an input (--from, --denoiser, --truth), inside one or
@@ -299,8 +304,9 @@ pub struct SolverTuning {
     /// operator's memory and tracing, one more Φ every 5 iterations); `model` — the constant relative
     /// mismatch measured on 128² crops (cheaper; miscalibrated on smoother, larger scenes)
     /// [docs/reconstruction.md, "Defaults and stopping"].
-    #[arg(long = "noise-estimate", default_value = "spread", value_parser = ["spread", "model"])]
-    pub noise_estimate: String,
+    /// Exact operator only [default: spread].
+    #[arg(long = "noise-estimate", value_parser = ["spread", "model"])]
+    pub noise_estimate: Option<String>,
 }
 
 impl SolverTuning {
@@ -326,7 +332,7 @@ impl SolverTuning {
             tv_warmup: self.tv_warmup,
             discrepancy: self.discrepancy,
             noise: None,
-            noise_model: if self.noise_estimate == "model" { NoiseModel::Model } else { NoiseModel::Spread },
+            noise_model: if self.noise_estimate.as_deref() == Some("model") { NoiseModel::Model } else { NoiseModel::Spread },
             weights: self.weights.clone(),
             unrolled: None,
         }

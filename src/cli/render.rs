@@ -262,6 +262,10 @@ pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
 pub(super) fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &mut RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
     // Traced pixels: the open ones, or every pixel when the mask is a surface inside the system.
     let open = if system.coded_mask.is_some() { mask.values.len() } else { mask.values.iter().filter(|&&v| v > 0.0).count() };
+    if let (Some(t), crate::tracer::Kernel::Scalar) = (a.backend.tolerance_um, cfg.kernel) {
+        // Before the calibration (seconds): its choice may be the f32 lanes, which the scalar kernel lacks.
+        return Err(Error::invalid(format!("--tolerance-um {t} chooses among the SIMD kernel's f64 and f32 lanes; --kernel scalar (f64 only, the reference) cannot take its choice: drop one of them")));
+    }
     let (tracer, rays, precision) = super::fidelity::render_for(&a.backend, a.rays, a.precision, system, cfg, open)?;
     cfg.precision = precision;
     Ok((tracer, rays))
@@ -572,6 +576,14 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
             println!("(f32 rows left out: system `{}` holds its coded mask on surface {}, which the f32 kernel does not model yet)", system.name(), m.surface);
         }
     }
+    // --parts before the table's header (an empty or repeated list printed it, then failed or ran a part twice).
+    let parts: Vec<&str> = a.parts.split(',').map(str::trim).collect();
+    if let Some(bad) = parts.iter().find(|p| !["mapping", "acquisition", "dataset"].contains(p)) {
+        return Err(Error::invalid(format!("--parts: unknown part `{bad}` (use mapping, acquisition, dataset)")));
+    }
+    if let Some(k) = (1..parts.len()).find(|&k| parts[..k].contains(&parts[k])) {
+        return Err(Error::invalid(format!("--parts: `{}` is listed twice", parts[k])));
+    }
     let (first, first_p) = variants[0];
     cfg.kernel = first;
     cfg.precision = first_p;
@@ -590,10 +602,6 @@ pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
         cpu0.set(now);
         println!("| {what} | {secs:.2} | {cpu} | {rays} | {:.2} |", if secs > 0.0 { rays as f64 / secs / 1e6 } else { 0.0 })
     };
-    let parts: Vec<&str> = a.parts.split(',').map(str::trim).collect();
-    if let Some(bad) = parts.iter().find(|p| !["mapping", "acquisition", "dataset"].contains(p)) {
-        return Err(Error::invalid(format!("--parts: unknown part `{bad}` (use mapping, acquisition, dataset)")));
-    }
     // The chief-ray mapping cube (n × n × planes) through each kernel, side by side.
     let mut mapping_ref: Option<crate::analysis::MappingCube> = None;
     for &(k, p) in variants.iter().filter(|_| parts.contains(&"mapping")) {

@@ -71,7 +71,8 @@ pub struct StudyArgs {
     #[arg(long)]
     pub synthetic: Option<usize>,
     /// Wavelengths (nm) of the scene files' bands (list or first:last:count), overriding what the files say
-    /// (e.g. KAIST EXRs whose channel names carry no wavelength). Not used for RGB photographs.
+    /// (e.g. KAIST EXRs whose channel names carry no wavelength); for RGB photographs, the wavelengths they are
+    /// uplifted at, as `render --scene-wavelengths` [default for them: the render bands].
     #[arg(long = "scene-wavelengths")]
     pub scene_wavelengths: Option<String>,
     /// Scene side (pixels of 10 µm on a finite object plane; at infinity --scene-fov-deg / S each); scenes are
@@ -79,7 +80,7 @@ pub struct StudyArgs {
     #[arg(long = "scene-size", default_value_t = 128)]
     pub scene_size: usize,
     /// crop (centre) or resize (area average, then centre crop).
-    #[arg(long, default_value = "resize")]
+    #[arg(long, default_value = "resize", conflicts_with = "synthetic")]
     pub fit: String,
     /// Bands: list or first:last:count (nm).
     #[arg(long, default_value = "450:650:28")]
@@ -95,7 +96,7 @@ pub struct StudyArgs {
     pub seed: u64,
     /// Mask file ((H, W) NPY or PNG, e.g. ../shared/reference/paper_mask_512.npy), centre-cropped to the scene size;
     /// default a random binary mask of --opening.
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["opening", "mask_seed"])]
     pub mask: Option<PathBuf>,
     #[arg(long, default_value_t = 0.5)]
     pub opening: f64,
@@ -272,6 +273,18 @@ struct StudyScene {
     name: String,
     cube: SpectralCube,
     source: Value,
+    /// SHA-256 of the fitted cube's values and wavelengths (`scene_sha256` in its render.json and cells): a
+    /// resumed study renders and solves again a scene whose file changed (it kept the old results).
+    digest: String,
+}
+
+impl StudyScene {
+    fn new(name: String, cube: SpectralCube, source: Value) -> Self {
+        let mut bytes: Vec<u8> = cube.wavelengths_nm.iter().flat_map(|w| w.to_le_bytes()).collect();
+        bytes.extend(cube.data.iter().flat_map(|v| v.to_le_bytes()));
+        let digest = crate::io::sha256::sha256_hex(&bytes);
+        StudyScene { name, cube, source, digest }
+    }
 }
 
 fn load_scenes(a: &StudyArgs, bands: &[f64]) -> Result<Vec<StudyScene>> {
@@ -293,15 +306,16 @@ fn load_scenes(a: &StudyArgs, bands: &[f64]) -> Result<Vec<StudyScene>> {
             found
                 .into_iter()
                 .map(|s| {
-                    // RGB photographs are uplifted directly at the render bands; cubes keep their own bands.
-                    let ws = if crate::scene::natural::is_rgb_image(&s.path) { Some(bands) } else { given.as_deref() };
+                    // RGB photographs are uplifted at --scene-wavelengths as `render` does (it was ignored for them),
+                    // else directly at the render bands; cubes keep their own bands unless --scene-wavelengths.
+                    let ws = if crate::scene::natural::is_rgb_image(&s.path) { given.as_deref().or(Some(bands)) } else { given.as_deref() };
                     let raw = load_scene(&s.path, ws)?;
                     let cube = raw.fit(n, fit).map_err(|e| Error::File { path: s.path.display().to_string(), message: e.to_string() })?;
                     // The metrics take the scene's maximum as PSNR's peak: a black scene is refused before any
                     // render, naming it (it failed after its renders and solves with "the truth's maximum is 0").
                     crate::recon::metrics::truth_peak(&cube.data).map_err(|e| Error::File { path: s.path.display().to_string(), message: format!("as a truth at --scene-size {n}: {e}; remove it from the study") })?;
                     let source = json!({"source": s.path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "fit": fit});
-                    Ok(StudyScene { name: s.name, cube, source })
+                    Ok(StudyScene::new(s.name, cube, source))
                 })
                 .collect()
         }
@@ -309,7 +323,7 @@ fn load_scenes(a: &StudyArgs, bands: &[f64]) -> Result<Vec<StudyScene>> {
             if k == 0 {
                 return Err(Error::invalid("--synthetic must be ≥ 1"));
             }
-            Ok((0..k).map(|s| StudyScene { name: format!("synthetic{s:02}"), cube: synthetic_scene(n, n, &synthetic_wavelengths(), s as u64), source: json!({"source": "synthetic", "synthetic_seed": s}) }).collect())
+            Ok((0..k).map(|s| StudyScene::new(format!("synthetic{s:02}"), synthetic_scene(n, n, &synthetic_wavelengths(), s as u64), json!({"source": "synthetic", "synthetic_seed": s}))).collect())
         }
         _ => Err(Error::invalid("give --scenes DIR or --synthetic N")),
     }
@@ -345,6 +359,11 @@ fn check_limits(a: &StudyArgs, bands: &[f64], solvers: &[String]) -> Result<()> 
     }
     if !(a.opening.is_finite() && (0.0..=1.0).contains(&a.opening)) {
         return Err(Error::invalid(format!("--opening {}: the mask's opening ratio must be in [0, 1]", a.opening)));
+    }
+    if a.opening == 0.0 && a.mask.is_none() {
+        // A closed mask lets no light through: every acquisition is black, every reconstruction fails (it did so
+        // after the renders).
+        return Err(Error::invalid("--opening 0: a closed mask lets no light through, so there is nothing to reconstruct; give an opening in (0, 1]"));
     }
     if !(a.transport_memory_gb.is_finite() && a.transport_memory_gb >= 0.0) {
         return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0 (0: never keep the transport)", a.transport_memory_gb)));
@@ -393,7 +412,7 @@ fn same_config(stored: Option<&Value>, config: &Value) -> bool {
 /// A cell's or render's JSON record; `None` when missing, unreadable or not JSON (the cell is computed again).
 /// Through `io::input`: a FIFO planted as a record is not waited on (it blocked `study`: a held-out battery).
 fn read_json(path: &Path) -> Option<Value> {
-    serde_json::from_str(&crate::io::input::read_input_text(path, crate::limits::MAX_TEXT_FILE_BYTES).ok()?).ok()
+    crate::io::input::read_sidecar_json(path).ok()
 }
 
 fn write_json(path: &Path, v: &Value) -> Result<()> {
@@ -439,6 +458,7 @@ fn render_scenes(system: &SequentialSystem, tracer: &dyn Tracer, cfg: &RenderCon
         let mut j = output::sidecar(&renderer, &acq, &scenes[i].source, scale, ts.elapsed().as_secs_f64(), rayon::current_num_threads());
         if let Some(o) = j.as_object_mut() {
             o.insert("study_config".into(), config.clone());
+            o.insert("scene_sha256".into(), json!(scenes[i].digest));
             o.insert("transport_cached".into(), json!(cached.is_some()));
             o.insert("transport_seconds".into(), json!(transport_seconds));
             o.insert("noise".into(), Value::Null);
@@ -501,6 +521,34 @@ fn cell_settings(a: &StudyArgs, solver: &str) -> SolveSettings {
     s
 }
 
+/// An option that no solver of `--solvers` takes is refused: each cell drops the options of other solvers
+/// ([`cell_settings`]), so with none of its solvers listed it would be ignored by every cell (e.g.
+/// `--iterations` with `--solvers unrolled`, whose stages are fixed).
+fn check_options_apply(a: &StudyArgs, solvers: &[String]) -> Result<()> {
+    use crate::recon::solver::SettingScope;
+    let t = &a.tuning;
+    for (key, flag, on) in [
+        ("iterations", "--iterations", t.iterations.is_some()),
+        ("tv_weight", "--tv-weight", t.tv_weight.is_some()),
+        ("tolerance", "--tolerance", t.tolerance.is_some()),
+        ("discrepancy", "--discrepancy", t.discrepancy.is_some()),
+        ("denoiser", "--denoiser", t.denoiser.is_some()),
+        ("sigma_max", "--sigma-max", t.sigma_max.is_some()),
+        ("sigma_min", "--sigma-min", t.sigma_min.is_some()),
+        ("sigma_auto", "--sigma-auto", t.sigma_auto),
+        ("tv_warmup", "--tv-warmup", t.tv_warmup.is_some()),
+        ("equivariant", "--equivariant / --no-equivariant", t.equivariant || t.no_equivariant),
+        ("equivariant_seed", "--equivariant-seed", t.equivariant_seed.is_some()),
+    ] {
+        let scope = SettingScope::of(key);
+        if on && !solvers.iter().any(|s| s.parse::<crate::recon::SolverKind>().is_ok_and(|k| scope.contains(k))) {
+            let takes = if scope == SettingScope::Every { "the iterative solvers (gap-tv, admm-tv, pnp-gap, pnp-admm; unrolled has a fixed number of stages)" } else { scope.solvers() };
+            return Err(Error::invalid(format!("{flag}: applies to {takes}, and --solvers `{}` has none of them", a.solvers)));
+        }
+    }
+    Ok(())
+}
+
 fn mean_std(v: &[f64]) -> (f64, f64) {
     let n = v.len().max(1) as f64;
     let m = v.iter().sum::<f64>() / n;
@@ -521,6 +569,10 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let solvers = split_list(&a.solvers, "solvers")?;
     for s in &solvers {
         check_solver(&cell_settings(&a, s))?;
+    }
+    check_options_apply(&a, &solvers)?;
+    if let (Some(e), false) = (&a.tuning.noise_estimate, operators.contains(&OperatorKind::Exact)) {
+        return Err(Error::invalid(format!("--noise-estimate {e}: applies to the exact operator only, and --operators `{}` has none", a.operators)));
     }
     if a.tuning.weights.is_some() && !solvers.iter().any(|s| is_unrolled(s)) {
         return Err(Error::invalid(format!("--weights applies to the unrolled solver only, and --solvers `{}` has none", a.solvers)));
@@ -547,6 +599,21 @@ pub fn study(a: StudyArgs) -> Result<()> {
     crate::io::policy::check_out_folder(&a.out, &crate::io::policy::FolderRule { option: "--out", command: "study", marker: STUDY_MARKER, force: a.force }, &inputs)?;
     let bands = super::shared::parse_wavelengths(&a.bands)?;
     check_limits(&a, &bands, &solvers)?;
+    // The PnP denoiser's band count before any render (a mismatch failed after the renders and the other
+    // solvers' cells: hours in at paper scale; a held-out battery, round 6).
+    if solvers.iter().any(|s| s.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp())) {
+        let d = crate::recon::prior::network::SpectralUNet::load_pnp(a.tuning.denoiser.as_deref())?;
+        if d.bands != bands.len() {
+            return Err(Error::invalid(format!(
+                "--solvers `{}`: the PnP denoiser{} was trained for {} bands, but --bands `{}` gives {}",
+                a.solvers,
+                a.tuning.denoiser.as_deref().map(|p| format!(" {}", p.display())).unwrap_or_default(),
+                d.bands,
+                a.bands,
+                bands.len()
+            )));
+        }
+    }
     let cfg = render_config(&a, &bands)?;
     // Each system's render configuration (the angular extent for an object at infinity), checked now.
     let cfgs = systems.iter().map(|s| system_render_config(&cfg, s, a.scene_fov_deg)).collect::<Result<Vec<_>>>()?;
@@ -589,7 +656,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
     if let Some(o) = config.as_object_mut() {
         // The stopping rule: τ as given and the library's TV defaults (a cell computed under other defaults
         // is recomputed).
-        o.insert("stopping".into(), json!({"discrepancy": a.tuning.discrepancy, "gap_tv": crate::recon::SolverConfig::gap_tv(), "admm_tv": crate::recon::SolverConfig::admm_tv(), "mc_mismatch_per_ray": MC_MISMATCH_PER_RAY, "noise_estimate": a.tuning.noise_estimate, "spread_every": crate::recon::solver::SPREAD_EVERY}));
+        o.insert("stopping".into(), json!({"discrepancy": a.tuning.discrepancy, "gap_tv": crate::recon::SolverConfig::gap_tv(), "admm_tv": crate::recon::SolverConfig::admm_tv(), "mc_mismatch_per_ray": MC_MISMATCH_PER_RAY, "noise_estimate": a.tuning.noise_estimate.as_deref().unwrap_or("spread"), "spread_every": crate::recon::solver::SPREAD_EVERY}));
     }
     if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
         o.insert("scene_wavelengths".into(), json!(w));
@@ -638,7 +705,11 @@ pub fn study(a: StudyArgs) -> Result<()> {
         // ---- renders ----
         let dirs: Vec<PathBuf> = scenes.iter().map(|s| a.out.join("renders").join(folder).join(&s.name)).collect();
         let todo: Vec<usize> = (0..scenes.len())
-            .filter(|&i| !(output::outputs_complete(&dirs[i]) && same_config(read_json(&dirs[i].join("render.json")).as_ref().and_then(|j| j.get("study_config")), &render_key)))
+            .filter(|&i| {
+                let j = read_json(&dirs[i].join("render.json"));
+                let same_scene = j.as_ref().and_then(|j| j.get("scene_sha256")).and_then(Value::as_str) == Some(scenes[i].digest.as_str());
+                !(output::outputs_complete(&dirs[i]) && same_scene && same_config(j.as_ref().and_then(|j| j.get("study_config")), &render_key))
+            })
             .collect();
         let tr = Instant::now();
         render_scenes(system, &tracer, &cfgs[si], &mask, &scenes, &dirs, &todo, &render_key, budget)?;
@@ -647,10 +718,11 @@ pub fn study(a: StudyArgs) -> Result<()> {
         }
         // ---- cells ----
         let cell_path = |s: &str, op: OperatorKind, solver: &str| a.out.join("cells").join(folder).join(s).join(format!("{}-{solver}.json", op.name()));
-        let done = |p: &Path| read_json(p).is_some_and(|j| same_config(j.get("config"), &config) && cell_from_json(&j).is_some());
+        // A cell is done for this configuration and this scene's content.
+        let done = |p: &Path, digest: &str| read_json(p).is_some_and(|j| same_config(j.get("config"), &config) && j.get("scene_sha256").and_then(Value::as_str) == Some(digest) && cell_from_json(&j).is_some());
         let record = RenderRecord::load(&dirs[0])?; // all scenes of a system share system, configuration and mask
         for &op_kind in &operators {
-            let pending: Vec<(usize, &String)> = scenes.iter().enumerate().flat_map(|(i, s)| solvers.iter().map(move |v| (i, v)).filter(move |(_, v)| !done(&cell_path(&s.name, op_kind, v)))).collect();
+            let pending: Vec<(usize, &String)> = scenes.iter().enumerate().flat_map(|(i, s)| solvers.iter().map(move |v| (i, v)).filter(move |(_, v)| !done(&cell_path(&s.name, op_kind, v), &s.digest))).collect();
             skipped += scenes.len() * solvers.len() - pending.len();
             if pending.is_empty() {
                 continue;
@@ -702,7 +774,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 let set = crate::io::OutputSet::folder(&rdir, &reconstruction_rule(false), &[])?;
                 write_reconstruction(set, &estimate, &rjson, false)?;
                 let cell = json!({
-                    "config": config, "preset": sys.preset, "system": label, "system_file": sys.file.as_ref().map(|p| p.display().to_string()), "scene": scene.name, "operator": op_kind.name(), "solver": solver,
+                    "config": config, "preset": sys.preset, "system": label, "system_file": sys.file.as_ref().map(|p| p.display().to_string()), "scene": scene.name, "scene_sha256": scene.digest, "operator": op_kind.name(), "solver": solver,
                     "metrics": ev.metrics, "truth_resampled": ev.truth_resampled, "iterations": solved.residuals.len(), "stopped_by": solved.stopping.get("stopped_by"), "final_residual": final_residual,
                     "seconds_solve": solved.seconds, "seconds_operator": seconds_operator, "reconstruction": rdir.display().to_string(),
                 });

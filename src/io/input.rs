@@ -79,6 +79,15 @@ pub fn read_input_text(path: &Path, max_bytes: u64) -> Result<String, IoError> {
     String::from_utf8(read_input(path, max_bytes)?).map_err(|e| refused(path, format!("not UTF-8 text (byte {} is invalid)", e.utf8_error().valid_up_to())))
 }
 
+/// A JSON sidecar the program wrote (`render.json`, `dataset.json`, a study cell), read as [`read_input_text`]
+/// within [`MAX_TEXT_FILE_BYTES`](crate::limits::MAX_TEXT_FILE_BYTES); the error names the file by its name
+/// and says whether it was unreadable or damaged (a resume treats either as an output to redo).
+pub fn read_sidecar_json(path: &Path) -> Result<serde_json::Value, String> {
+    let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
+    let text = read_input_text(path, crate::limits::MAX_TEXT_FILE_BYTES).map_err(|e| format!("{name}: unreadable ({e})"))?;
+    serde_json::from_str(&text).map_err(|e| format!("{name}: not valid JSON ({e}): truncated or damaged"))
+}
+
 /// The limit of a binary input decoded into memory (NPY, EXR, PNG): the memory budget
 /// ([`crate::limits::budget`], `--max-memory-gb`).
 pub fn binary_limit() -> u64 {

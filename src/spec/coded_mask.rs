@@ -22,7 +22,9 @@
 //! // The tag the .zmx export writes in the surface comment reads back exactly.
 //! let c = m.tagged_comment("mask");
 //! assert_eq!(c, "mask [CODED MASK pitch 10 um, nearest sampling]");
-//! assert_eq!(CodedMaskSpec::from_comment(&c), Some((m, "mask".to_string())));
+//! assert_eq!(CodedMaskSpec::from_comment(&c), Ok(Some((m, "mask".to_string()))));
+//! assert_eq!(CodedMaskSpec::from_comment("coded mask plane"), Ok(None));
+//! assert!(CodedMaskSpec::from_comment("mask [CODED MASK pitch 10um, nearest sampling]").is_err());
 //! ```
 use serde::{Deserialize, Serialize};
 
@@ -90,18 +92,28 @@ impl CodedMaskSpec {
     }
 
     /// The mask and the comment without its tag, if `comment` ends with one ([`Self::tagged_comment`]).
-    pub fn from_comment(comment: &str) -> Option<(CodedMaskSpec, String)> {
+    /// A comment that looks like a tag but is not one exactly (`CODED MASK pitch 10um, nearest`, a `[CODED MASK …]`
+    /// with another unit or sampling) is an error naming the expected form: read as a plain comment, it turned a
+    /// dual-disperser system into a maskless one, silently (a held-out battery, round 6). A comment that only
+    /// mentions a coded mask (`CODED MASK`, `coded mask plane`) is a comment.
+    pub fn from_comment(comment: &str) -> Result<Option<(CodedMaskSpec, String)>, String> {
+        let lower = comment.to_ascii_lowercase();
+        if !(lower.contains("coded mask pitch") || lower.contains("[coded mask")) {
+            return Ok(None);
+        }
+        let bad = || format!("comment `{comment}`: a coded-mask tag must read `CODED MASK pitch P um, nearest sampling` (or `bilinear sampling`), alone or in brackets at the end of the comment, as diffcassi's export writes it (P in µm)");
         let (rest, tag) = match comment.strip_suffix(']').and_then(|c| c.rsplit_once(" [")) {
             Some((rest, tag)) => (rest.to_string(), tag),
-            None => (String::new(), comment),
+            None => (String::new(), comment.strip_prefix('[').and_then(|c| c.strip_suffix(']')).unwrap_or(comment)),
         };
-        let body = tag.strip_prefix("CODED MASK pitch ")?;
-        let (pitch, sampling) = body.split_once(" um, ")?;
-        let sampling = match sampling.strip_suffix(" sampling")? {
+        let body = tag.strip_prefix("CODED MASK pitch ").ok_or_else(bad)?;
+        let (pitch, sampling) = body.split_once(" um, ").ok_or_else(bad)?;
+        let sampling = match sampling.strip_suffix(" sampling").ok_or_else(bad)? {
             "nearest" => MaskSampling::Nearest,
             "bilinear" => MaskSampling::Bilinear,
-            _ => return None,
+            _ => return Err(bad()),
         };
-        Some((CodedMaskSpec { pitch_um: pitch.parse().ok()?, sampling }, rest))
+        let pitch_um = pitch.parse().map_err(|_| bad())?;
+        Ok(Some((CodedMaskSpec { pitch_um, sampling }, rest)))
     }
 }

@@ -47,7 +47,9 @@ def test_renderer_temperature_is_checked_on_assignment():
     cube = torch.rand(1, 2, 8, 8, dtype=torch.float64)
     r(cube).sum().backward()
     assert torch.isfinite(r.mask_logits.grad).all() and float(r.mask_logits.grad.abs().sum()) > 0
-    assert set(r.state_dict()) == keys == {"mask_logits", "theta"}  # temperature is not in the state_dict, as before
+    # Since round 6 the temperature is saved with the state (`_extra_state`): a restored renderer renders alike.
+    assert set(r.state_dict()) == keys == {"mask_logits", "theta", "_extra_state"}
+    assert r.state_dict()["_extra_state"] == {"temperature": 0.25}
 
 
 # ------------------------------------------------------------------ 2: set_epoch and persistent workers

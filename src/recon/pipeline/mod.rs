@@ -40,6 +40,9 @@ use serde_json::Value;
 use std::path::Path;
 use std::time::Instant;
 
+/// The exact operator's default transport budget (GB): its light transport is kept in memory up to this size.
+pub const TRANSPORT_MEMORY_GB: f64 = 4.0;
+
 /// What [`reconstruct`] does with a render record: the operator, its seed and rays, the transport memory
 /// budget and the solver settings (`reconstruct`'s options).
 #[derive(Clone, Debug)]
@@ -49,15 +52,16 @@ pub struct Request {
     pub operator_seed: Option<String>,
     /// The exact operator's rays per scene pixel per plane (`None`: the acquisition's).
     pub operator_rays: Option<usize>,
-    /// Keep the exact operator's transport in memory up to this size (GB); beyond it, re-trace on the fly.
-    pub transport_memory_gb: f64,
+    /// Keep the exact operator's transport in memory up to this size (GB); beyond it, re-trace on the fly
+    /// (`None`: [`TRANSPORT_MEMORY_GB`]; exact operator only).
+    pub transport_memory_gb: Option<f64>,
     pub settings: SolveSettings,
 }
 
 impl Request {
-    /// `operator` with `settings`, the default seed and rays, and a 4 GB transport budget.
+    /// `operator` with `settings`, the default seed and rays, and the default transport budget ([`TRANSPORT_MEMORY_GB`]).
     pub fn new(operator: OperatorKind, settings: SolveSettings) -> Self {
-        Request { operator, operator_seed: None, operator_rays: None, transport_memory_gb: 4.0, settings }
+        Request { operator, operator_seed: None, operator_rays: None, transport_memory_gb: None, settings }
     }
 
     /// Check everything that needs no render record, naming the option and its value: iterations, TV weight,
@@ -73,8 +77,13 @@ impl Request {
                 return Err(Error::invalid(format!("--tv-weight {w}: must be finite and ≥ 0")));
             }
         }
-        if !(self.transport_memory_gb.is_finite() && self.transport_memory_gb >= 0.0) {
-            return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0", self.transport_memory_gb)));
+        if let Some(gb) = self.transport_memory_gb {
+            if !(gb.is_finite() && gb >= 0.0) {
+                return Err(Error::invalid(format!("--transport-memory-gb {gb}: must be finite and ≥ 0")));
+            }
+            if self.operator != OperatorKind::Exact {
+                return Err(Error::invalid(format!("--transport-memory-gb {gb}: applies to the exact operator only (its traced transport), not `{}`", self.operator.name())));
+            }
         }
         if self.operator_seed.is_some() && self.operator != OperatorKind::Exact {
             return Err(Error::invalid(format!("--operator-seed applies to the exact operator only (its traced rays), not `{}`", self.operator.name())));
@@ -92,7 +101,7 @@ impl Request {
     }
 
     fn budget_bytes(&self) -> u64 {
-        (self.transport_memory_gb * 1e9) as u64
+        (self.transport_memory_gb.unwrap_or(TRANSPORT_MEMORY_GB) * 1e9) as u64
     }
 }
 

@@ -188,6 +188,12 @@ impl RenderRecord {
         cfg.seed = field(&json, &jp, "seed")?.as_u64().ok_or_else(|| ferr(&jp, "field `seed` is not a non-negative integer"))?;
         cfg.sampling = serde_json::from_value::<Sampling>(field(&json, &jp, "sampling")?.clone()).map_err(|e| ferr(&jp, format!("field `sampling`: {e}")))?;
         cfg.airy = airy;
+        // The render's kernel precision (f32 renders trace another set of landing points than f64: an f64
+        // operator with `--operator-seed same` was no oracle for them, its mismatch ~10⁴× the f64 oracle's).
+        cfg.precision = match json.get("precision") {
+            None | Some(Value::Null) => crate::tracer::Precision::F64,
+            Some(v) => serde_json::from_value(v.clone()).map_err(|_| ferr(&jp, format!("field `precision` = {v}: expected \"f64\" or \"f32\"")))?,
+        };
         let mask_name = match json.get("mask_file") {
             None | Some(Value::Null) => "mask.png",
             Some(v) => v.as_str().filter(|n| is_plain_file_name(n)).ok_or_else(|| ferr(&jp, format!("field `mask_file` = {v} must name a file in the render folder (a plain file name)")))?,
@@ -199,6 +205,18 @@ impl RenderRecord {
         let mut mask = Mask::load(&mask_path)?;
         if (mask.height, mask.width) != (h, w) {
             return Err(ferr(&mask_path, format!("the mask is {}×{} but the scene (render.json) is {h}×{w}", mask.height, mask.width)));
+        }
+        // The mask the render used (its 16-bit codes' SHA-256; render.json since 30 Nov 2026, older records have
+        // none): a replaced mask file would give a silently wrong reconstruction.
+        if let Some(recorded) = json.get("mask_png_sha256") {
+            let recorded = recorded.as_str().ok_or_else(|| ferr(&jp, format!("field `mask_png_sha256` = {recorded} is not a string")))?;
+            let found = mask.png_sha256();
+            if recorded != found {
+                return Err(ferr(
+                    &mask_path,
+                    format!("not the mask this render used: its SHA-256 (16-bit codes) is {found}, render.json's `mask_png_sha256` is {recorded}; restore the render's mask file or render again"),
+                ));
+            }
         }
         if let Some(d) = json.get("mask").and_then(Value::as_str) {
             mask.description = d.to_string();

@@ -3,6 +3,7 @@
 //! before any work by [`check_solver`]).
 use super::noise::{NoiseEstimate, NoiseModel};
 use crate::error::{Error, Result};
+use crate::recon::solver::SettingScope;
 use crate::recon::{SolverConfig, SolverKind};
 use std::path::PathBuf;
 
@@ -83,16 +84,27 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
     if let Some(w) = s.tv_weight {
         cfg.tv_weight = w as f32;
     }
+    // Settings of other solvers are refused, never ignored (one rule for the CLI and the bindings).
+    let given: Vec<(&str, &str)> = [
+        ("accelerated", "--accelerated", s.accelerated),
+        ("plain", "--plain", s.plain),
+        ("denoiser", "--denoiser", s.denoiser.is_some()),
+        ("sigma_max", "--sigma-max", s.sigma_max.is_some()),
+        ("sigma_min", "--sigma-min", s.sigma_min.is_some()),
+        ("sigma_auto", "--sigma-auto", s.sigma_auto),
+        ("tv_warmup", "--tv-warmup", s.tv_warmup.is_some()),
+        ("equivariant", "--equivariant / --no-equivariant", s.equivariant.is_some()),
+        ("equivariant_seed", "--equivariant-seed", s.equivariant_seed.is_some()),
+    ]
+    .into_iter()
+    .filter(|g| g.2)
+    .map(|(k, shown, _)| (k, shown))
+    .collect();
+    SettingScope::check(kind, &given)?;
     if s.accelerated {
-        if !kind.is_gap() {
-            return Err(Error::invalid(format!("--accelerated applies to gap-tv and pnp-gap only, not `{}`", s.solver)));
-        }
         cfg.accelerated = true;
     }
     if s.plain {
-        if !kind.is_gap() {
-            return Err(Error::invalid(format!("--plain applies to gap-tv and pnp-gap only, not `{}`", s.solver)));
-        }
         if s.accelerated {
             return Err(Error::invalid("--plain and --accelerated: choose one"));
         }
@@ -105,16 +117,13 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
             }
         }
     }
-    if !kind.is_pnp() && (s.denoiser.is_some() || s.sigma_max.is_some() || s.sigma_min.is_some() || s.tv_warmup.is_some() || s.sigma_auto || s.equivariant.is_some() || s.equivariant_seed.is_some()) {
-        return Err(Error::invalid(format!(
-            "--denoiser / --sigma-max / --sigma-min / --sigma-auto / --tv-warmup / --equivariant / --no-equivariant / --equivariant-seed apply to pnp-gap and pnp-admm only, not `{}`",
-            s.solver
-        )));
-    }
     if let Some(on) = s.equivariant {
         cfg.equivariant = on;
     }
     if let Some(seed) = s.equivariant_seed {
+        if !cfg.equivariant {
+            return Err(Error::invalid(format!("--equivariant-seed {seed}: seeds equivariant PnP's transforms, which are off (give --equivariant too)")));
+        }
         cfg.equivariant_seed = seed;
     }
     if s.sigma_auto {
@@ -133,8 +142,8 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
         cfg.tolerance = v;
     }
     if let Some(v) = s.discrepancy {
-        if !v.is_finite() || v < 0.0 {
-            return Err(Error::invalid(format!("--discrepancy {v}: must be finite and ≥ 0")));
+        if !v.is_finite() || v < 0.0 || v > crate::recon::solver::MAX_DISCREPANCY {
+            return Err(Error::invalid(format!("--discrepancy {}: must be finite and in [0, {}] (τ ≈ 1 in theory; a larger τ stops before the first update)", crate::limits::fmt_num(v), crate::recon::solver::MAX_DISCREPANCY)));
         }
         cfg.discrepancy = v;
     }

@@ -40,6 +40,65 @@ impl SolverKind {
     }
 }
 
+/// The solvers a setting applies to: given to another solver it is refused, never ignored
+/// ([`SettingScope::check`]). The settings are named as [`SolverConfig`]'s fields (the Python keywords).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SettingScope {
+    /// Every solver (iterations, step, the TV settings — PnP's TV phase uses them —, the stopping rules).
+    Every,
+    /// GAP's data step: `accelerated` (and the CLI's `--plain`).
+    Gap,
+    /// ADMM's data step: `admm_eta`.
+    Admm,
+    /// The learned denoiser and its schedule: `denoiser`, `sigma_max`, `sigma_min`, `sigma_auto`, `tv_warmup`,
+    /// `equivariant`, `equivariant_seed`.
+    Pnp,
+}
+
+impl SettingScope {
+    /// The scope of the setting `key` (a [`SolverConfig`] field name; `plain` is GAP's).
+    pub fn of(key: &str) -> SettingScope {
+        match key {
+            "accelerated" | "plain" => SettingScope::Gap,
+            "admm_eta" => SettingScope::Admm,
+            "denoiser" | "sigma_max" | "sigma_min" | "sigma_auto" | "tv_warmup" | "equivariant" | "equivariant_seed" => SettingScope::Pnp,
+            _ => SettingScope::Every,
+        }
+    }
+
+    pub fn contains(self, solver: SolverKind) -> bool {
+        match self {
+            SettingScope::Every => true,
+            SettingScope::Gap => solver.is_gap(),
+            SettingScope::Admm => !solver.is_gap(),
+            SettingScope::Pnp => solver.is_pnp(),
+        }
+    }
+
+    /// The solvers of the scope, for messages.
+    pub fn solvers(self) -> &'static str {
+        match self {
+            SettingScope::Every => "every solver",
+            SettingScope::Gap => "gap-tv and pnp-gap only",
+            SettingScope::Admm => "admm-tv and pnp-admm only",
+            SettingScope::Pnp => "pnp-gap and pnp-admm only",
+        }
+    }
+
+    /// Refuse the given settings (`(key, shown)`: the field name and how the caller names it, e.g.
+    /// `("sigma_max", "--sigma-max")`) that do not apply to `solver`, all named in one message.
+    pub fn check(solver: SolverKind, given: &[(&str, &str)]) -> Result<()> {
+        let bad: Vec<(&str, SettingScope)> = given.iter().map(|&(k, shown)| (shown, SettingScope::of(k))).filter(|(_, s)| !s.contains(solver)).collect();
+        match bad.first() {
+            None => Ok(()),
+            Some(&(_, scope)) => {
+                let names: Vec<&str> = bad.iter().filter(|(_, s)| *s == scope).map(|(n, _)| *n).collect();
+                Err(Error::invalid(format!("{}: {} {}, not `{}` (a setting another solver would ignore is refused)", names.join(" / "), if names.len() == 1 { "applies to" } else { "apply to" }, scope.solvers(), solver.name())))
+            }
+        }
+    }
+}
+
 /// The names [`SolverKind`] parses, for messages.
 pub const SOLVER_NAMES: &str = "gap-tv, admm-tv, pnp-gap or pnp-admm";
 
@@ -233,6 +292,12 @@ impl SolverConfig {
                 return Err(Error::invalid(format!("stopping rule: {name} = {v} must be finite and ≥ 0")));
             }
         }
+        if self.discrepancy > MAX_DISCREPANCY {
+            return Err(Error::invalid(format!(
+                "stopping rule: discrepancy τ = {}: at most {MAX_DISCREPANCY} (τ ≈ 1 in theory, {GAP_TV_DISCREPANCY} by default; a larger τ stops every run before its first update, and τ·δ overflowed the record)",
+                crate::limits::fmt_num(self.discrepancy)
+            )));
+        }
         if self.solver.is_pnp() {
             for (name, v) in [("σ max (--sigma-max)", self.sigma_max), ("σ min (--sigma-min)", self.sigma_min)] {
                 if !(v.is_finite() && v > 0.0 && v <= 1.0) {
@@ -252,6 +317,8 @@ impl SolverConfig {
     }
 }
 
+/// The largest discrepancy factor τ accepted (τ ≈ 1 in theory; a larger one only stops before the first update).
+pub const MAX_DISCREPANCY: f64 = 1e3;
 /// GAP-TV default: the iteration cap (accelerated GAP peaks at 157–300 iterations on the natural scenes).
 pub const GAP_TV_ITERATIONS: usize = 300;
 /// GAP-TV default: τ of the discrepancy rule. Measured: accelerated GAP-TV's best iterate has
@@ -306,3 +373,30 @@ pub const PNP_EQUIVARIANT: bool = false;
 /// PnP default: the relative-change tolerance of the stopping rule: 0, off (the network phase runs its
 /// [`PNP_NETWORK_ITERATIONS`] calls, the schedule chosen on validation; [`PNP_DISCREPANCY`]).
 pub const PNP_TOLERANCE: f64 = 0.0;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Each setting belongs to its solvers; another solver refuses it, naming every foreign setting of one scope.
+    #[test]
+    fn settings_of_other_solvers_are_refused() {
+        use SolverKind::*;
+        for (key, ok, bad) in [("accelerated", PnpGap, AdmmTv), ("admm_eta", PnpAdmm, GapTv), ("sigma_max", PnpAdmm, GapTv), ("iterations", AdmmTv, AdmmTv)] {
+            assert!(SettingScope::check(ok, &[(key, key)]).is_ok(), "{key} on {}", ok.name());
+            if SettingScope::of(key) != SettingScope::Every {
+                let e = SettingScope::check(bad, &[(key, key)]).unwrap_err().to_string();
+                assert!(e.contains(&format!("{key}: applies to")) && e.contains(bad.name()), "{e}");
+            }
+        }
+        let e = SettingScope::check(GapTv, &[("sigma_max", "--sigma-max"), ("tv_warmup", "--tv-warmup")]).unwrap_err().to_string();
+        assert!(e.starts_with("--sigma-max / --tv-warmup: apply to pnp-gap and pnp-admm only, not `gap-tv`"), "{e}");
+    }
+
+    #[test]
+    fn the_discrepancy_factor_is_bounded() {
+        assert!(SolverConfig { discrepancy: MAX_DISCREPANCY, ..SolverConfig::gap_tv() }.validate().is_ok());
+        let e = SolverConfig { discrepancy: 1e308, ..SolverConfig::gap_tv() }.validate().unwrap_err().to_string();
+        assert!(e.contains("discrepancy τ = 1e308: at most 1000"), "{e}");
+    }
+}

@@ -260,7 +260,7 @@ impl SurfaceBlock {
         s.stop = self.stop;
         s.comment = self.comment.clone();
         // diffcassi's own export tags a coded-mask surface in its comment (spec::CodedMaskSpec::comment_tag).
-        if let Some((mask, rest)) = crate::spec::CodedMaskSpec::from_comment(&self.comment) {
+        if let Some((mask, rest)) = crate::spec::CodedMaskSpec::from_comment(&self.comment).map_err(|e| format!("surface {} (SURF at line {}), `COMM`: {e}", self.number, self.line))? {
             s.coded_mask = Some(mask);
             s.comment = rest;
         }

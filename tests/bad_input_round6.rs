@@ -1,0 +1,296 @@
+//! Bad input, round 6 (30 Nov 2026): what rounds 4–5 left noted, each now refused or fixed — a render folder
+//! whose mask file was replaced (reconstructed with the wrong mask, silently), `reconstruct
+//! --transport-memory-gb` with a model operator (accepted and ignored), `study` options that none of its
+//! solvers takes (`--iterations` with `--solvers unrolled`: ignored by every cell), `cuda:01` (read as
+//! `cuda:1`; torch refuses it), and `info`'s flat radius printed as `inf`. Each case runs the real binary:
+//! the exit code, a message naming the problem, nothing written.
+use std::path::Path;
+use std::process::Command;
+
+/// `diffcassi ARGS` in `dir`: (exit code, stdout + stderr).
+fn run(dir: &Path, args: &[&str]) -> (Option<i32>, String) {
+    let o = Command::new(env!("CARGO_BIN_EXE_diffcassi")).args(args).current_dir(dir).output().expect("diffcassi runs");
+    (o.status.code(), format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr)))
+}
+
+fn ok(dir: &Path, args: &[&str]) -> String {
+    let (code, out) = run(dir, args);
+    assert_eq!(code, Some(0), "{args:?}: {out}");
+    out
+}
+
+fn refused(dir: &Path, args: &[&str], needles: &[&str]) {
+    let (code, out) = run(dir, args);
+    assert_eq!(code, Some(1), "{args:?}: {out}");
+    assert!(!out.contains("panicked"), "{args:?}: {out}");
+    for n in needles {
+        assert!(out.contains(n), "{args:?}: `{n}` not in: {out}");
+    }
+}
+
+/// `render.json` records the SHA-256 of the mask's 16-bit codes (`mask_png_sha256`, [`Mask::png_sha256`]);
+/// `reconstruct` recomputes it from the mask file it reads and refuses another mask, naming the file and both
+/// digests. The render's own mask (and an 8-bit PNG of the same binary mask) pass; a record without the field
+/// (an older render) is read as before.
+///
+/// [`Mask::png_sha256`]: diffcassi::render::Mask::png_sha256
+#[test]
+fn a_replaced_mask_is_refused_by_reconstruct() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let base = ["render", "--preset", "sp", "--scene-size", "8", "--planes", "4", "--rays", "1"];
+    let mut a = base.to_vec();
+    a.extend(["--mask-seed", "1", "--out", "r"]);
+    ok(dir, &a);
+    let mut b = base.to_vec();
+    b.extend(["--mask-seed", "2", "--out", "other"]);
+    ok(dir, &b);
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join("r/render.json")).unwrap()).unwrap();
+    let recorded = json["mask_png_sha256"].as_str().expect("render.json records mask_png_sha256").to_string();
+    let mask = diffcassi::render::Mask::load(&dir.join("r/mask.png")).unwrap();
+    assert_eq!(mask.png_sha256(), recorded, "the mask read back from mask.png has the recorded digest");
+    ok(dir, &["reconstruct", "--from", "r", "--operator", "shift", "--iterations", "1", "--out", "x0"]);
+    // The same binary mask as an 8-bit PNG reads the same codes (k/255 → 257·k).
+    let bytes8: Vec<u8> = mask.values.iter().map(|&v| (v * 255.0).round() as u8).collect();
+    image::GrayImage::from_raw(8, 8, bytes8).unwrap().save(dir.join("r/mask.png")).unwrap();
+    ok(dir, &["reconstruct", "--from", "r", "--operator", "shift", "--iterations", "1", "--out", "x1"]);
+    // Another render's mask: refused, nothing written.
+    std::fs::copy(dir.join("other/mask.png"), dir.join("r/mask.png")).unwrap();
+    refused(dir, &["reconstruct", "--from", "r", "--operator", "shift", "--iterations", "1", "--out", "x2"], &["mask.png", "not the mask this render used", &recorded]);
+    assert!(!dir.join("x2").exists());
+    // An older record (no digest) is read as before.
+    let mut old = json.clone();
+    old.as_object_mut().unwrap().remove("mask_png_sha256");
+    std::fs::write(dir.join("r/render.json"), serde_json::to_string_pretty(&old).unwrap()).unwrap();
+    ok(dir, &["reconstruct", "--from", "r", "--operator", "shift", "--iterations", "1", "--out", "x3"]);
+    // A digest that is not a string is named.
+    let mut bad = json;
+    bad["mask_png_sha256"] = serde_json::json!(7);
+    std::fs::write(dir.join("r/render.json"), serde_json::to_string_pretty(&bad).unwrap()).unwrap();
+    refused(dir, &["reconstruct", "--from", "r", "--operator", "shift", "--iterations", "1", "--out", "x4"], &["mask_png_sha256", "not a string"]);
+}
+
+/// `--transport-memory-gb` is the exact operator's (its traced transport): with `shift` or `mapping` it is
+/// refused, as `--operator-seed` and `--operator-rays` are; with `exact` it is taken.
+#[test]
+fn the_transport_budget_is_the_exact_operators() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    ok(dir, &["render", "--preset", "sp", "--scene-size", "8", "--planes", "4", "--rays", "1", "--out", "r"]);
+    for op in ["shift", "mapping"] {
+        refused(dir, &["reconstruct", "--from", "r", "--operator", op, "--transport-memory-gb", "2", "--out", "x"], &["--transport-memory-gb 2", "exact operator only", op]);
+        assert!(!dir.join("x").exists());
+    }
+    ok(dir, &["reconstruct", "--from", "r", "--operator", "exact", "--transport-memory-gb", "0", "--iterations", "1", "--out", "x"]);
+    refused(dir, &["reconstruct", "--from", "r", "--transport-memory-gb", "nan", "--out", "y"], &["--transport-memory-gb NaN", "finite"]);
+}
+
+/// A `study` option no solver of `--solvers` takes is refused before any work: each cell drops the options of
+/// other solvers, so `--iterations` with `--solvers unrolled` (whose stages are fixed) was ignored by every
+/// cell, and `--sigma-max` with TV solvers likewise. With one solver that takes it, it is accepted (the
+/// others drop it, as documented).
+#[test]
+fn study_refuses_options_none_of_its_solvers_takes() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let tiny = ["study", "--synthetic", "1", "--scene-size", "16", "--presets", "sp", "--planes", "4", "--rays", "1", "--operators", "shift"];
+    for (extra, needles) in [
+        (vec!["--solvers", "unrolled", "--iterations", "5"], vec!["--iterations", "the iterative solvers", "unrolled"]),
+        (vec!["--solvers", "unrolled", "--tv-weight", "0.2"], vec!["--tv-weight", "--solvers `unrolled` has none of them"]),
+        (vec!["--solvers", "gap-tv,admm-tv", "--sigma-max", "0.2"], vec!["--sigma-max", "pnp-gap and pnp-admm only"]),
+        (vec!["--solvers", "gap-tv", "--tv-warmup", "3"], vec!["--tv-warmup", "pnp-gap and pnp-admm only"]),
+    ] {
+        let mut a = tiny.to_vec();
+        a.extend(extra.iter().copied());
+        a.extend(["--out", "st"]);
+        refused(dir, &a, &needles);
+        assert!(!dir.join("st").exists(), "{extra:?}");
+    }
+}
+
+/// `--device cuda:01` is refused as torch refuses it (`Invalid device string`); the message says why.
+#[test]
+fn device_ordinals_take_no_leading_zero() {
+    let d = tempfile::tempdir().unwrap();
+    for dev in ["cuda:01", "cuda:00"] {
+        refused(d.path(), &["render", "--preset", "sp", "--scene-size", "8", "--planes", "2", "--rays", "1", "--device", dev, "--out", "r"], &[dev, "no leading zero"]);
+        assert!(!d.path().join("r").exists());
+    }
+}
+
+/// `info` writes an infinite radius or thickness as OpticStudio's Lens Data Editor does, `Infinity` (it printed
+/// `inf`).
+#[test]
+fn info_writes_infinity_as_opticstudio_does() {
+    let d = tempfile::tempdir().unwrap();
+    let out = ok(d.path(), &["info", "--preset", "sp"]);
+    let table: Vec<&str> = out.lines().filter(|l| l.contains("Standard")).collect();
+    assert!(!table.is_empty(), "{out}");
+    assert!(table.iter().any(|l| l.contains("Infinity")), "{out}");
+    assert!(table.iter().all(|l| !l.split_whitespace().any(|w| w == "inf")), "{out}");
+}
+
+// ------------------------------------------------------------------ the round-6 prober's findings
+
+/// A `.zmx` whose coded-mask tag was edited out of its exact form (`pitch 10um`) is refused naming the surface
+/// and the form: read as a plain comment it turned the dual-disperser system into a maskless one (exit 0,
+/// transmission 1). The exact tag still reads back.
+#[test]
+fn a_mistyped_coded_mask_tag_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    ok(dir, &["export-spec", "--preset", "ddsp", "--format", "zmx", "--out", "dd.zmx"]);
+    let text = std::fs::read_to_string(dir.join("dd.zmx")).unwrap();
+    assert!(text.contains("CODED MASK pitch 10 um, nearest sampling"), "the export writes the tag");
+    ok(dir, &["info", "--system", "dd.zmx"]);
+    for (from, to) in [("pitch 10 um", "pitch 10um"), ("pitch 10 um", "pitch 10 mm"), ("nearest sampling", "cubic sampling"), ("CODED MASK pitch", "CODED MASK PITCH")] {
+        std::fs::write(dir.join("bad.zmx"), text.replace(from, to)).unwrap();
+        refused(dir, &["render", "--system", "bad.zmx", "--scene-size", "8", "--planes", "2", "--rays", "1", "--out", "r"], &["COMM", "CODED MASK pitch P um, nearest sampling"]);
+        assert!(!dir.join("r").exists(), "{to}");
+    }
+}
+
+/// `--discrepancy` beyond 1000 is refused (τ·δ/‖y‖ overflowed: reconstruct.json wrote `null`, exit 0).
+#[test]
+fn a_huge_discrepancy_factor_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    ok(dir, &["render", "--preset", "sp", "--scene-size", "8", "--planes", "4", "--rays", "1", "--out", "r"]);
+    refused(dir, &["reconstruct", "--from", "r", "--discrepancy", "1e308", "--out", "x"], &["--discrepancy 1e308", "[0, 1000]"]);
+    assert!(!dir.join("x").exists());
+    ok(dir, &["reconstruct", "--from", "r", "--operator", "shift", "--discrepancy", "1000", "--iterations", "2", "--out", "x"]);
+}
+
+/// The `ghosts` analysis refuses a dual-disperser system as `render --ghosts` does (it analysed the coded mask
+/// as air and printed energies, exit 0).
+#[test]
+fn ghosts_refuse_a_mask_surface() {
+    let d = tempfile::tempdir().unwrap();
+    refused(d.path(), &["ghosts", "--preset", "ddsp", "--order", "2", "--rings", "1", "--extended-grid", "1", "--json", "g.json"], &["coded mask on surface", "the ghost analysis does not model a mask surface"]);
+    assert!(!d.path().join("g.json").exists());
+}
+
+/// `reconstruct` rebuilds an f32 render's operator in f32: with `--operator-seed same` it is the oracle (the
+/// truth's residual ‖y − Φx‖/‖y‖ at f32 rounding, ~1e-7), where an f64 operator left 2.9e-4 while recording
+/// `"oracle": true`.
+#[test]
+fn an_f32_render_is_reconstructed_with_an_f32_operator() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    ok(dir, &["make-scene", "--synthetic", "1", "--size", "16", "--bands", "450:650:6", "--out", "a.npy"]);
+    let common = ["render", "--preset", "sp", "--scene", "a.npy", "--scene-size", "16", "--bands", "450:650:6", "--planes", "6", "--rays", "2"];
+    for (precision, limit) in [("f64", 1e-6), ("f32", 1e-5)] {
+        let out = format!("r{precision}");
+        let mut a = common.to_vec();
+        a.extend(["--precision", precision, "--out", &out]);
+        ok(dir, &a);
+        let rec = format!("x{precision}");
+        ok(dir, &["reconstruct", "--from", &out, "--operator-seed", "same", "--iterations", "2", "--truth", "a.npy", "--out", &rec]);
+        let j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join(&rec).join("reconstruct.json")).unwrap()).unwrap();
+        let r = j["stopping"]["truth_residual"].as_f64().unwrap_or_else(|| panic!("{j}"));
+        assert!(r < limit, "{precision}: the oracle's truth residual {r:e} ≥ {limit:e}");
+    }
+}
+
+/// A resumed `render-dataset` renders again a scene whose file changed since (it was kept, and `dataset-status
+/// --scenes` said done); the same bytes written again (a touched file) are still done.
+#[test]
+fn a_changed_scene_is_not_kept_by_a_resumed_dataset() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    std::fs::create_dir(dir.join("sc")).unwrap();
+    ok(dir, &["make-scene", "--synthetic", "1", "--size", "8", "--bands", "450:650:4", "--out", "sc/a.npy"]);
+    let ds = ["render-dataset", "--scenes", "sc", "--preset", "sp", "--scene-size", "8", "--planes", "2", "--rays", "1", "--bands", "450:650:4", "--out", "ds"];
+    ok(dir, &ds);
+    let first = std::fs::read(dir.join("ds/a/acquisition.exr")).unwrap();
+    // Touched: the same bytes, another modification time.
+    let bytes = std::fs::read(dir.join("sc/a.npy")).unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    std::fs::write(dir.join("sc/a.npy"), &bytes).unwrap();
+    let out = ok(dir, &ds);
+    assert!(out.contains("\"skipped\""), "{out}");
+    ok(dir, &["dataset-status", "ds", "--scenes", "sc"]);
+    // Replaced: another scene of the same shape.
+    std::fs::remove_file(dir.join("sc/a.npy")).unwrap();
+    std::fs::remove_file(dir.join("sc/a_rgb.png")).unwrap();
+    ok(dir, &["make-scene", "--synthetic", "2", "--size", "8", "--bands", "450:650:4", "--out", "sc/a.npy"]);
+    refused(dir, &["dataset-status", "ds", "--scenes", "sc"], &["a.npy changed since it was rendered"]);
+    refused(dir, &ds, &["a.npy changed since it was rendered", "--on-mismatch rerender"]);
+    let mut again = ds.to_vec();
+    again.extend(["--on-mismatch", "rerender"]);
+    ok(dir, &again);
+    assert_ne!(std::fs::read(dir.join("ds/a/acquisition.exr")).unwrap(), first, "the new scene was rendered");
+    ok(dir, &["dataset-status", "ds", "--scenes", "sc"]);
+}
+
+/// `make-scene --out x.NPY` beside another cube `x.npy` is refused: the two share `x_wavelengths_nm.npy` and
+/// `x_rgb.png` (the other cube then read this one's wavelengths).
+#[test]
+fn make_scene_refuses_a_cube_sharing_another_ones_sidecars() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    ok(dir, &["make-scene", "--synthetic", "1", "--size", "8", "--bands", "450:650:3", "--out", "x.npy"]);
+    let list = std::fs::read(dir.join("x_wavelengths_nm.npy")).unwrap();
+    for other in ["x.NPY", "x.exr"] {
+        refused(dir, &["make-scene", "--synthetic", "2", "--size", "8", "--bands", "500:600:3", "--out", other], &["x.npy", "same stem"]);
+        assert!(!dir.join(other).exists(), "{other}");
+    }
+    assert_eq!(std::fs::read(dir.join("x_wavelengths_nm.npy")).unwrap(), list);
+    // Writing x.npy again is replacing it (and its own sidecars).
+    ok(dir, &["make-scene", "--synthetic", "2", "--size", "8", "--bands", "500:600:3", "--out", "x.npy"]);
+}
+
+/// Options that change nothing are refused: `study --mask` with `--opening`/`--mask-seed`, `study --fit` with
+/// `--synthetic`, `reconstruct --noise-estimate` with a model operator (the record said `model` whatever was
+/// asked), `--equivariant-seed` without equivariant PnP, `render --full-well-e` with `--electrons-per-unit` and no
+/// ADC (recorded, unused), `study --noise-estimate` without an exact operator.
+#[test]
+fn options_that_change_nothing_are_refused() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    diffcassi::io::write_npy_f32(dir.join("m.npy"), &[16, 16], &vec![1.0f32; 256]).unwrap();
+    let study = ["study", "--synthetic", "1", "--scene-size", "16", "--presets", "sp", "--planes", "4", "--rays", "1", "--solvers", "gap-tv"];
+    for (extra, needle) in [
+        (vec!["--operators", "shift", "--mask", "m.npy", "--opening", "0.3"], "--opening"),
+        (vec!["--operators", "shift", "--mask", "m.npy", "--mask-seed", "7"], "--mask-seed"),
+        (vec!["--operators", "shift", "--fit", "crop"], "--synthetic"),
+        (vec!["--operators", "shift,mapping", "--noise-estimate", "model"], "--noise-estimate model: applies to the exact operator only"),
+    ] {
+        let mut a = study.to_vec();
+        a.extend(extra.iter().copied());
+        a.extend(["--out", "st"]);
+        let (code, out) = run(dir, &a);
+        assert_ne!(code, Some(0), "{extra:?}: {out}");
+        assert!(out.contains(needle) && !out.contains("panicked"), "{extra:?}: {out}");
+        assert!(!dir.join("st").exists(), "{extra:?}");
+    }
+    ok(dir, &["render", "--preset", "sp", "--scene-size", "8", "--planes", "4", "--rays", "1", "--out", "r"]);
+    refused(dir, &["reconstruct", "--from", "r", "--operator", "mapping", "--noise-estimate", "spread", "--out", "x"], &["--noise-estimate spread", "exact operator only", "mapping"]);
+    refused(dir, &["reconstruct", "--from", "r", "--solver", "pnp-gap", "--equivariant-seed", "3", "--out", "x"], &["--equivariant-seed 3", "give --equivariant too"]);
+    assert!(!dir.join("x").exists());
+    let noise = ["render", "--preset", "sp", "--scene-size", "8", "--planes", "2", "--rays", "1", "--noise", "shot", "--electrons-per-unit", "500"];
+    let mut a = noise.to_vec();
+    a.extend(["--full-well-e", "1", "--out", "n"]);
+    refused(dir, &a, &["--full-well-e 1", "no effect"]);
+    let mut b = noise.to_vec();
+    b.extend(["--out", "n"]);
+    ok(dir, &b);
+}
+
+/// Refused before any work (they failed after seconds of calibration, a printed table header, or renders):
+/// `render --tolerance-um --kernel scalar`, `bench-render --parts` empty or repeated, `study --opening 0`.
+#[test]
+fn late_failures_come_first() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let t = std::time::Instant::now();
+    refused(dir, &["render", "--preset", "sp", "--scene-size", "8", "--tolerance-um", "1", "--kernel", "scalar", "--out", "r"], &["--tolerance-um 1", "--kernel scalar"]);
+    assert!(t.elapsed().as_secs_f64() < 5.0, "refused only after the calibration: {:?}", t.elapsed());
+    for parts in ["", "mapping,mapping"] {
+        let (code, out) = run(dir, &["bench-render", "--scene-size", "8", "--planes", "2", "--rays", "1", "--parts", parts]);
+        assert_eq!(code, Some(1), "{out}");
+        assert!(out.contains("--parts") && !out.contains("| what |"), "{parts:?}: {out}");
+    }
+    refused(dir, &["study", "--synthetic", "1", "--scene-size", "8", "--presets", "sp", "--planes", "2", "--rays", "1", "--opening", "0", "--operators", "shift", "--out", "st"], &["--opening 0", "closed mask"]);
+    assert!(!dir.join("st/renders").exists());
+}
