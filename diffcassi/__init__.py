@@ -286,12 +286,23 @@ def metrics(truth: np.ndarray, estimate: np.ndarray, truth_wavelengths_nm: Optio
     (MST: mean of per-band PSNR on [0, 1]), ``ssim`` (11×11 Gaussian σ 1.5, mean over bands), ``sam_rad``,
     ``sam_deg``. With both wavelength lists the truth is resampled to the estimate's and the result also
     holds ``wavelengths_nm``, ``truth_resampled``, ``truth_peak`` (as ``diffcassi evaluate``). An infinite
-    PSNR (identical cubes) is ``inf``."""
+    PSNR (identical cubes within [0, 1]) is ``inf``. PSNR and SSIM clamp the estimate to [0, 1], the field's
+    convention: a truth beyond 1, or an infinite PSNR with a non-zero RMSE (the cubes differ only outside
+    [0, 1]), gives a ``UserWarning`` saying so (those numbers are not meaningful then)."""
     d = _json.loads(_native._metrics(truth, estimate, truth_wavelengths_nm, estimate_wavelengths_nm))
     m = d.get("metrics", d)
     for k in ("psnr_db", "psnr_band_db"):
         if m.get(k) is None:
             m[k] = float("inf")
+    import warnings
+    peak = float(np.max(truth)) if np.size(truth) else 0.0
+    if peak > 1.0:
+        warnings.warn(f"metrics: the truth's maximum is {peak:g} > 1, but PSNR and SSIM clamp the estimate to [0, 1] "
+                      "(the paper's and MST's convention): they are not meaningful; normalise both cubes to [0, 1]",
+                      UserWarning, stacklevel=2)
+    elif m["psnr_db"] == float("inf") and m.get("rmse", 0.0) > 0.0:
+        warnings.warn(f"metrics: psnr_db is inf with rmse = {m['rmse']:g}: the estimate differs from the truth only outside "
+                      "[0, 1], where PSNR and SSIM clamp it", UserWarning, stacklevel=2)
     return d
 
 

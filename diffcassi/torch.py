@@ -175,6 +175,21 @@ def _cast_back(t: torch.Tensor, dtype: torch.dtype, what: str, where: str) -> to
     return out
 
 
+def _widen(t: torch.Tensor, name: str, where: str) -> torch.Tensor:
+    """``t`` as float32 for the operator. A float16 input's gradient is cast back to float16 by autograd: on the
+    CPU a gradient that would become inf there is refused, naming the argument (``_cast_back`` guards the
+    forward results the same way)."""
+    w = t.to(torch.float32)
+    if t.dtype == torch.float16 and w.requires_grad and w.device.type == "cpu":
+        def check(g: torch.Tensor) -> torch.Tensor:
+            if bool(torch.isinf(g.to(torch.float16)).any()) and bool(torch.isfinite(g).all()):
+                raise _Error(f"{where} backward: the gradient of {name} reaches {float(g.abs().amax()):.6g}, beyond float16's range "
+                             f"(largest {float(torch.finfo(torch.float16).max):.6g}); use float32, float64 or bfloat16 tensors, or scale the loss down")
+            return g
+        w.register_hook(check)
+    return w
+
+
 def _batched(name: str, t: torch.Tensor, trailing: Tuple[int, ...], where: str) -> Tuple[torch.Tensor, bool]:
     """(B, *trailing) or (*trailing) → (B, *trailing) and whether it was a single item."""
     single = t.dim() == len(trailing)
@@ -386,7 +401,7 @@ class CassiOperator(_DeviceChecked):
         _check_values("x", x, where)
         dtype = x.dtype
         if dtype in _HALF:
-            x = x.to(torch.float32)
+            x = _widen(x, "x", where)
         y = _gather.gather_apply(x.reshape(x.shape[0], B * H * W), self.phi_table, self.adjoint_table)
         y = _cast_back(y.reshape(x.shape[0], *self.image_shape), dtype, "acquisition Φx", where)
         return y[0] if single else y
@@ -400,7 +415,7 @@ class CassiOperator(_DeviceChecked):
         _check_values("y", y, where)
         dtype = y.dtype
         if dtype in _HALF:
-            y = y.to(torch.float32)
+            y = _widen(y, "y", where)
         x = _gather.gather_apply(y.reshape(y.shape[0], self.image_shape[0] * self.image_shape[1]), self.adjoint_table, self.phi_table)
         x = _cast_back(x.reshape(y.shape[0], B, H, W), dtype, "cube Φᵀy", where)
         return x[0] if single else x
@@ -525,8 +540,8 @@ class MatrixFreeCassiOperator(_DeviceChecked):
                              "then kept on that device) or the tensor with .cpu()")
             raise _Error(f"{where}: {name} is on {t.device} but the operator on {dev}; move one with .to(device)")
         if self.phi_table is None:  # the Rust operator: float32
-            return (t if t.dtype == torch.float32 else t.to(torch.float32)), t.dtype
-        return (t.to(torch.float32) if t.dtype in _HALF else t), t.dtype
+            return (t if t.dtype == torch.float32 else _widen(t, name, where)), t.dtype
+        return (_widen(t, name, where) if t.dtype in _HALF else t), t.dtype
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """Φ x: x (B, bands, H, W) or (bands, H, W) → (B, h, w) or (h, w)."""
@@ -912,7 +927,7 @@ def _temperature(name: str, v: Any) -> float:
     if not (np.isfinite(f) and f > 0):
         raise diffcassi.DiffcassiValueError(f"{name} = {v!r}: must be a finite number > 0")
     lo, hi = _TEMPERATURE_RANGE
-    if not lo <= f <= hi:
+    if not lo * (1 - 1e-6) <= f <= hi * (1 + 1e-6):  # a float32 1e-6 is 9.99999997e-07
         raise diffcassi.DiffcassiValueError(f"{name} = {v!r}: must be in [{lo:g}, {hi:g}] (the float32 logits T·logit(m) "
                                             "underflow or overflow beyond it: inf gradients or a NaN mask)")
     return f

@@ -143,10 +143,24 @@ fn a_mistyped_coded_mask_tag_is_refused() {
     let text = std::fs::read_to_string(dir.join("dd.zmx")).unwrap();
     assert!(text.contains("CODED MASK pitch 10 um, nearest sampling"), "the export writes the tag");
     ok(dir, &["info", "--system", "dd.zmx"]);
-    for (from, to) in [("pitch 10 um", "pitch 10um"), ("pitch 10 um", "pitch 10 mm"), ("nearest sampling", "cubic sampling"), ("CODED MASK pitch", "CODED MASK PITCH")] {
+    for (from, to) in [
+        ("pitch 10 um", "pitch 10um"),
+        ("pitch 10 um", "pitch 10 mm"),
+        ("nearest sampling", "cubic sampling"),
+        ("CODED MASK pitch", "CODED MASK PITCH"),
+        ("CODED MASK pitch", "CODED  MASK pitch"),
+        ("CODED MASK pitch", "CODED_MASK pitch"),
+        ("CODED MASK pitch", "MASK pitch"),
+    ] {
         std::fs::write(dir.join("bad.zmx"), text.replace(from, to)).unwrap();
         refused(dir, &["render", "--system", "bad.zmx", "--scene-size", "8", "--planes", "2", "--rays", "1", "--out", "r"], &["COMM", "CODED MASK pitch P um, nearest sampling"]);
         assert!(!dir.join("r").exists(), "{to}");
+    }
+    // A comment that only mentions a mask stays a comment (the system then has no mask surface).
+    let tag = text.lines().find(|l| l.contains("CODED MASK pitch")).unwrap().trim().to_string();
+    for plain in ["COMM [coded mask plane]", "COMM plane [CODED MASK]", "COMM see the coded mask pitch note"] {
+        std::fs::write(dir.join("plain.zmx"), text.replace(&tag, plain)).unwrap();
+        ok(dir, &["info", "--system", "plain.zmx"]);
     }
 }
 
@@ -221,6 +235,27 @@ fn a_changed_scene_is_not_kept_by_a_resumed_dataset() {
     ok(dir, &again);
     assert_ne!(std::fs::read(dir.join("ds/a/acquisition.exr")).unwrap(), first, "the new scene was rendered");
     ok(dir, &["dataset-status", "ds", "--scenes", "sc"]);
+    // With --scene-wavelengths the list beside the cube is not read, so a change to it is no change of the scene.
+    let mut given = ds[..ds.len() - 2].to_vec();
+    given.extend(["--scene-wavelengths", "450:650:4", "--out", "ds2"]);
+    ok(dir, &given);
+    std::fs::write(dir.join("sc/a_wavelengths_nm.npy"), std::fs::read(dir.join("sc/a_wavelengths_nm.npy")).unwrap().iter().rev().copied().collect::<Vec<u8>>()).unwrap();
+    let out = ok(dir, &given);
+    assert!(out.contains("\"skipped\""), "{out}");
+    // A per-band PNG folder: its .png files are the scene, a stray file beside them is not.
+    std::fs::create_dir(dir.join("pf")).unwrap();
+    std::fs::create_dir(dir.join("pf/c")).unwrap();
+    for (k, w) in ["500", "550", "600"].iter().enumerate() {
+        image::GrayImage::from_pixel(8, 8, image::Luma([60 + 40 * k as u8])).save(dir.join(format!("pf/c/band_{w}.png"))).unwrap();
+    }
+    std::fs::write(dir.join("pf/c/wavelengths.txt"), "500\n550\n600\n").unwrap();
+    let pf = ["render-dataset", "--scenes", "pf", "--preset", "sp", "--scene-size", "8", "--planes", "2", "--rays", "1", "--bands", "500:600:3", "--out", "ds3"];
+    ok(dir, &pf);
+    std::fs::write(dir.join("pf/c/.DS_Store"), "x").unwrap();
+    let out = ok(dir, &pf);
+    assert!(out.contains("\"skipped\""), "{out}");
+    image::GrayImage::from_pixel(8, 8, image::Luma([7])).save(dir.join("pf/c/band_550.png")).unwrap();
+    refused(dir, &pf, &["scene input: band_550.png changed since it was rendered", "from scene files that have changed since"]);
 }
 
 /// `make-scene --out x.NPY` beside another cube `x.npy` is refused: the two share `x_wavelengths_nm.npy` and
@@ -236,8 +271,10 @@ fn make_scene_refuses_a_cube_sharing_another_ones_sidecars() {
         assert!(!dir.join(other).exists(), "{other}");
     }
     assert_eq!(std::fs::read(dir.join("x_wavelengths_nm.npy")).unwrap(), list);
-    // Writing x.npy again is replacing it (and its own sidecars).
+    // Writing x.npy again is replacing it (and its own sidecars); a folder of the same stem is no cube.
     ok(dir, &["make-scene", "--synthetic", "2", "--size", "8", "--bands", "500:600:3", "--out", "x.npy"]);
+    std::fs::create_dir(dir.join("w.npy")).unwrap();
+    ok(dir, &["make-scene", "--synthetic", "2", "--size", "8", "--bands", "500:600:3", "--out", "w.exr"]);
 }
 
 /// Options that change nothing are refused: `study --mask` with `--opening`/`--mask-seed`, `study --fit` with
@@ -293,4 +330,9 @@ fn late_failures_come_first() {
     }
     refused(dir, &["study", "--synthetic", "1", "--scene-size", "8", "--presets", "sp", "--planes", "2", "--rays", "1", "--opening", "0", "--operators", "shift", "--out", "st"], &["--opening 0", "closed mask"]);
     assert!(!dir.join("st/renders").exists());
+    // The unrolled network's bands, as the PnP denoiser's, before any render.
+    for solvers in ["gap-tv,unrolled", "gap-tv,pnp-gap"] {
+        refused(dir, &["study", "--synthetic", "1", "--scene-size", "16", "--presets", "sp", "--planes", "3", "--rays", "1", "--bands", "500:600:3", "--operators", "shift", "--solvers", solvers, "--out", "st"], &["trained for 28 bands", "--bands `500:600:3` gives 3"]);
+        assert!(!dir.join("st/renders").exists(), "{solvers}");
+    }
 }

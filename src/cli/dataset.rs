@@ -225,7 +225,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
             return Err(Error::File {
                 path: a.out.display().to_string(),
                 message: format!(
-                    "{} output(s) were rendered with another configuration than requested: {}. Nothing was written: rerun with --on-mismatch rerender to replace them, or choose another --out",
+                    "{} output(s) were rendered with another configuration than requested, or from scene files that have changed since: {}. Nothing was written: rerun with --on-mismatch rerender to replace them, or choose another --out",
                     mismatched.len(),
                     mismatched.join(", ")
                 ),
@@ -287,7 +287,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
             // This shard owns the scene: what a killed task left for it is garbage.
             dataset::remove_leftovers(&a.out, &s.name)?;
             // The scene's files as they are before it is read (a change during the render shows next time).
-            let scene_input = dataset::scene_input_record(s)?;
+            let scene_input = dataset::scene_input_record(s, a.common.scene_wavelengths.is_none())?;
             let (scene, desc) = load_fitted(&s.path, &a.common)?;
             let (mut acq, device_record) = match &cached {
                 Some(t) => (renderer.render_cached(&scene, t, a.common.cube, &|_| {})?, None),

@@ -72,6 +72,7 @@ pub fn make_scene(a: MakeSceneArgs) -> Result<()> {
         let parent = a.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
         let other = std::fs::read_dir(parent).into_iter().flatten().flatten().map(|e| e.path()).find(|p| {
             p.file_name() != Some(name)
+                && p.is_file()
                 && p.file_stem().is_some_and(|s| s.to_string_lossy() == stem)
                 && p.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("npy") || e.eq_ignore_ascii_case("exr"))
         });

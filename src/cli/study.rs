@@ -599,6 +599,16 @@ pub fn study(a: StudyArgs) -> Result<()> {
     crate::io::policy::check_out_folder(&a.out, &crate::io::policy::FolderRule { option: "--out", command: "study", marker: STUDY_MARKER, force: a.force }, &inputs)?;
     let bands = super::shared::parse_wavelengths(&a.bands)?;
     check_limits(&a, &bands, &solvers)?;
+    // The unrolled network's band count before any render, as the PnP denoiser's below (a mismatch failed after
+    // the renders: a held-out battery, round 6).
+    if solvers.iter().any(|s| is_unrolled(s)) {
+        for s in &systems {
+            let net = crate::recon::prior::unrolled::UnrolledNetwork::load(a.tuning.weights.as_deref(), &s.system.spec.name)?;
+            if net.meta.bands != bands.len() {
+                return Err(s.error(format!("--solvers unrolled: the network {} was trained for {} bands, but --bands `{}` gives {}", net.source, net.meta.bands, a.bands, bands.len())));
+            }
+        }
+    }
     // The PnP denoiser's band count before any render (a mismatch failed after the renders and the other
     // solvers' cells: hours in at paper scale; a held-out battery, round 6).
     if solvers.iter().any(|s| s.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp())) {

@@ -91,20 +91,23 @@ pub fn find_scenes(dir: &Path) -> Result<Vec<DatasetScene>> {
 
 // ---------------------------------------------------------------- scene inputs
 
-/// The files scene `scene` is read from: the `.exr`/`.npy`/`.png` file (a `.npy` with its wavelengths list,
-/// `<stem>_wavelengths_nm.npy` or `<stem>_wavelengths.npy`, when present), or every file of a folder of per-band
-/// PNGs, sorted.
-pub fn scene_input_files(scene: &DatasetScene) -> Vec<PathBuf> {
+/// The files scene `scene` is read from: the `.exr`/`.npy`/`.png` file, or a folder's per-band `.png` files
+/// (sorted); with `with_lists` (no `--scene-wavelengths`) also the wavelength list the loader reads, a `.npy`'s
+/// `<stem>_wavelengths_nm.npy` or a folder's `wavelengths.txt`/`wavelengths_nm.txt`, when present. Nothing
+/// else: a stray file beside the bands is not the scene.
+pub fn scene_input_files(scene: &DatasetScene, with_lists: bool) -> Vec<PathBuf> {
     let p = &scene.path;
+    let ext_is = |f: &Path, ext: &str| f.extension().and_then(|x| x.to_str()).is_some_and(|x| x.eq_ignore_ascii_case(ext));
     if p.is_dir() {
-        let mut v: Vec<PathBuf> = std::fs::read_dir(p).map(|r| r.flatten().map(|e| e.path()).filter(|f| f.is_file()).collect()).unwrap_or_default();
+        let list = |f: &Path| with_lists && f.file_name().is_some_and(|n| n == "wavelengths.txt" || n == "wavelengths_nm.txt");
+        let mut v: Vec<PathBuf> = std::fs::read_dir(p).map(|r| r.flatten().map(|e| e.path()).filter(|f| f.is_file() && (ext_is(f, "png") || list(f))).collect()).unwrap_or_default();
         v.sort();
         return v;
     }
     let mut v = vec![p.clone()];
-    if p.extension().and_then(|x| x.to_str()).is_some_and(|x| x.eq_ignore_ascii_case("npy")) {
+    if with_lists && ext_is(p, "npy") {
         let stem = p.file_stem().unwrap_or_default().to_string_lossy().into_owned();
-        v.extend(["_wavelengths_nm.npy", "_wavelengths.npy"].iter().map(|s| p.with_file_name(format!("{stem}{s}"))).filter(|f| f.is_file()));
+        v.extend(Some(p.with_file_name(format!("{stem}_wavelengths_nm.npy"))).filter(|f| f.is_file()));
     }
     v
 }
@@ -120,9 +123,9 @@ fn file_sha256(path: &Path) -> std::result::Result<String, String> {
 
 /// `render.json`'s `scene_input`: each input file's name, size, modification time (ns since the epoch) and
 /// SHA-256, so that a resume knows when the scene it rendered has changed ([`scene_input_changes`]).
-pub fn scene_input_record(scene: &DatasetScene) -> Result<Value> {
+pub fn scene_input_record(scene: &DatasetScene, with_lists: bool) -> Result<Value> {
     let mut files = Vec::new();
-    for f in scene_input_files(scene) {
+    for f in scene_input_files(scene, with_lists) {
         let m = std::fs::metadata(&f).map_err(|e| Error::File { path: f.display().to_string(), message: format!("cannot read: {e}") })?;
         let sha = file_sha256(&f).map_err(|e| Error::File { path: f.display().to_string(), message: e })?;
         files.push(json!({"name": f.file_name().unwrap_or_default().to_string_lossy(), "bytes": m.len(), "modified_ns": modified_ns(&m).map(|t| t.to_string()), "sha256": sha}));
@@ -133,12 +136,17 @@ pub fn scene_input_record(scene: &DatasetScene) -> Result<Value> {
 /// How scene `scene`'s input differs from what `recorded` ([`scene_input_record`]) says it was: empty when the
 /// same files are there with the same content. A file with the recorded size and modification time is taken as
 /// unchanged without reading it; otherwise its SHA-256 decides (a file copied or touched with the same bytes is
-/// unchanged). A render without the record (older diffcassi) is taken as it is.
-pub fn scene_input_changes(recorded: Option<&Value>, scene: &DatasetScene) -> Vec<String> {
+/// unchanged). A render without the record (older diffcassi) is taken as it is. Each difference starts with
+/// `scene input: `.
+pub fn scene_input_changes(recorded: Option<&Value>, scene: &DatasetScene, with_lists: bool) -> Vec<String> {
+    scene_input_differences(recorded, scene, with_lists).into_iter().map(|d| format!("scene input: {d}")).collect()
+}
+
+fn scene_input_differences(recorded: Option<&Value>, scene: &DatasetScene, with_lists: bool) -> Vec<String> {
     let Some(files) = recorded.and_then(|r| r.get("files")).and_then(Value::as_array) else {
         return vec![];
     };
-    let now = scene_input_files(scene);
+    let now = scene_input_files(scene, with_lists);
     let names = |v: &[PathBuf]| v.iter().map(|f| f.file_name().unwrap_or_default().to_string_lossy().into_owned()).collect::<Vec<_>>();
     let recorded_names: Vec<String> = files.iter().map(|f| f.get("name").and_then(Value::as_str).unwrap_or("").to_string()).collect();
     if names(&now) != recorded_names {
@@ -164,11 +172,15 @@ pub fn scene_input_changes(recorded: Option<&Value>, scene: &DatasetScene) -> Ve
     out
 }
 
-/// [`scene_input_changes`] of the scene rendered under `out` (its `render.json`'s `scene_input`).
+/// [`scene_input_changes`] of the scene rendered under `out` (its `render.json`'s `scene_input`; the wavelength
+/// lists count when its configuration has no `scene_wavelengths_nm`, as the loader then reads them).
 pub fn check_scene_input(out: &Path, scene: &DatasetScene) -> Vec<String> {
     match crate::io::input::read_sidecar_json(&out.join(&scene.name).join("render.json")) {
-        Ok(v) => scene_input_changes(v.get("scene_input"), scene),
-        Err(e) => vec![e],
+        Ok(v) => {
+            let with_lists = v.get("configuration").and_then(|c| c.get("scene_wavelengths_nm")).is_none_or(Value::is_null);
+            scene_input_changes(v.get("scene_input"), scene, with_lists)
+        }
+        Err(e) => vec![format!("scene input: {e}")],
     }
 }
 
@@ -466,7 +478,7 @@ impl SceneState {
         match self {
             SceneState::Done | SceneState::Missing => vec![],
             SceneState::Damaged(p) => p.clone(),
-            SceneState::Mismatch(d) => d.iter().map(|x| format!("configuration differs: {x}")).collect(),
+            SceneState::Mismatch(d) => d.iter().map(|x| if x.starts_with("scene input: ") { x.clone() } else { format!("configuration differs: {x}") }).collect(),
         }
     }
 }

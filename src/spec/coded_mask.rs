@@ -23,7 +23,12 @@
 //! let c = m.tagged_comment("mask");
 //! assert_eq!(c, "mask [CODED MASK pitch 10 um, nearest sampling]");
 //! assert_eq!(CodedMaskSpec::from_comment(&c), Ok(Some((m, "mask".to_string()))));
-//! assert_eq!(CodedMaskSpec::from_comment("coded mask plane"), Ok(None));
+//! for plain in ["coded mask plane", "[coded mask plane]", "plane [CODED MASK]", "see the coded mask pitch note"] {
+//!     assert_eq!(CodedMaskSpec::from_comment(plain), Ok(None));
+//! }
+//! for meant in ["[CODED  MASK pitch 10 um, nearest sampling]", "[MASK pitch 10 um, nearest sampling]", "x [CODED_MASK pitch 10 um, nearest sampling]"] {
+//!     assert!(CodedMaskSpec::from_comment(meant).is_err(), "{meant}");
+//! }
 //! assert!(CodedMaskSpec::from_comment("mask [CODED MASK pitch 10um, nearest sampling]").is_err());
 //! ```
 use serde::{Deserialize, Serialize};
@@ -92,19 +97,32 @@ impl CodedMaskSpec {
     }
 
     /// The mask and the comment without its tag, if `comment` ends with one ([`Self::tagged_comment`]).
-    /// A comment that looks like a tag but is not one exactly (`CODED MASK pitch 10um, nearest`, a `[CODED MASK …]`
-    /// with another unit or sampling) is an error naming the expected form: read as a plain comment, it turned a
-    /// dual-disperser system into a maskless one, silently (a held-out battery, round 6). A comment that only
-    /// mentions a coded mask (`CODED MASK`, `coded mask plane`) is a comment.
+    /// A comment meant as a tag but not one exactly — a closing `[…]` that names a mask and a pitch, or a comment
+    /// starting with a mask and naming a pitch, in any case or spacing (`CODED MASK pitch 10um, nearest`,
+    /// `[CODED_MASK pitch 10 um, …]`, `[MASK pitch …]`) — is an error naming the expected form: read as a plain
+    /// comment, it turned a dual-disperser system into a maskless one, silently (held-out batteries, round 6).
+    /// A comment that only mentions a coded mask (`CODED MASK`, `coded mask plane`, `[coded mask plane]`,
+    /// `see the coded mask pitch note`) is a comment.
     pub fn from_comment(comment: &str) -> Result<Option<(CodedMaskSpec, String)>, String> {
-        let lower = comment.to_ascii_lowercase();
-        if !(lower.contains("coded mask pitch") || lower.contains("[coded mask")) {
+        // What is meant as a tag: the comment's closing `[…]` holding a mask and a pitch, or a comment that
+        // starts with a mask and holds a pitch — compared on letters and digits alone, so that spacing,
+        // `_`/`-` and case do not hide one (`[CODED  MASK pitch …]`, `[MASK pitch …]` dropped the mask).
+        let norm = |t: &str| t.chars().filter(char::is_ascii_alphanumeric).collect::<String>().to_ascii_lowercase();
+        let bracket = comment.trim_end().strip_suffix(']').and_then(|c| c.rfind('[').map(|i| (c[..i].trim_end(), &c[i + 1..])));
+        let meant = match bracket {
+            Some((_, inner)) => norm(inner).contains("mask") && norm(inner).contains("pitch"),
+            None => {
+                let n = norm(comment);
+                (n.starts_with("codedmask") || n.starts_with("mask")) && n.contains("pitch")
+            }
+        };
+        if !meant {
             return Ok(None);
         }
         let bad = || format!("comment `{comment}`: a coded-mask tag must read `CODED MASK pitch P um, nearest sampling` (or `bilinear sampling`), alone or in brackets at the end of the comment, as diffcassi's export writes it (P in µm)");
-        let (rest, tag) = match comment.strip_suffix(']').and_then(|c| c.rsplit_once(" [")) {
-            Some((rest, tag)) => (rest.to_string(), tag),
-            None => (String::new(), comment.strip_prefix('[').and_then(|c| c.strip_suffix(']')).unwrap_or(comment)),
+        let (rest, tag) = match bracket {
+            Some((rest, inner)) => (rest.to_string(), inner),
+            None => (String::new(), comment),
         };
         let body = tag.strip_prefix("CODED MASK pitch ").ok_or_else(bad)?;
         let (pitch, sampling) = body.split_once(" um, ").ok_or_else(bad)?;

@@ -304,3 +304,65 @@ def test_small_argument_checks():
     phi = dt.CassiOperator.from_operator(op, matrix_free=True)
     x = torch.rand(1, 4, 8, 8)
     assert torch.equal(phi(torch._neg_view(x)), phi(-x))
+
+
+def test_metrics_warn_where_the_clamp_makes_them_meaningless():
+    import warnings
+    t = np.full((12, 12, 2), 0.5, np.float32)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        diffcassi.metrics(t, t * 1.1)  # within [0, 1]: no warning
+    with pytest.warns(UserWarning, match=r"truth's maximum is 100 > 1"):
+        diffcassi.metrics(t * 200, t * 200)
+    ones = np.ones((12, 12, 2), np.float32)
+    with pytest.warns(UserWarning, match=r"psnr_db is inf with rmse = 1"):
+        m = diffcassi.metrics(ones, 2 * ones)
+    assert m["metrics"]["psnr_db"] == float("inf") if "metrics" in m else m["psnr_db"] == float("inf")
+
+
+# ------------------------------------------------------------------ the regression prober's findings (round 6)
+def test_float16_gradients_that_would_be_inf_are_refused():
+    sparse = pytest.importorskip("scipy.sparse")
+    c = dt.CassiOperator.from_scipy(sparse.csr_matrix(np.full((16, 32), 0.25, np.float32)), (4, 4, 2), (4, 4))
+    x = torch.full((2, 4, 4), 8000.0, dtype=torch.float16, requires_grad=True)
+    y = c(x)
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"CassiOperator\.forward backward: the gradient of x reaches 80000"):
+        y.backward(torch.full_like(y, 20000.0))
+    x.grad = None
+    c(x).backward(torch.full_like(y, 1.0))
+    assert bool(torch.isfinite(x.grad).all())
+
+
+def test_a_mask_open_only_where_the_light_misses_renders_zero_not_an_error():
+    # θ = 19.5°: the light of columns 0–5 lands, that of columns 6–7 misses the detector (the prober's case).
+    r = dt.CassiRenderer(SP, 8, 8, free=["prism_tilt_x"], rays=1, planes=2, bands_nm=[500.0, 540.0, 580.0], seed=2)
+    with torch.no_grad():
+        r.theta[0] = 19.5
+    cube = torch.rand(1, 3, 8, 8, dtype=torch.float64)
+    full = r.render(cube, torch.ones(8, 8, dtype=torch.float64))
+    assert float(full.detach().sum()) > 0
+    # Find a column whose light misses at this θ: rendering it alone gives zero (and no error).
+    zero_cols = []
+    for col in range(8):
+        m = np.zeros((8, 8))
+        m[:, col] = 1.0
+        y = r.render(cube, torch.from_numpy(m))
+        if float(y.detach().abs().sum()) == 0.0:
+            zero_cols.append(col)
+    assert zero_cols, "no column misses the detector at 19.5°: the test needs another θ"
+    open_cols = np.zeros((8, 8))
+    open_cols[:, zero_cols] = 1.0
+    assert float(r.render(cube, torch.from_numpy(open_cols)).detach().abs().sum()) == 0.0
+    with torch.no_grad():
+        r.theta[0] = 30.0  # every pixel's light misses: refused, whatever the mask
+    with pytest.raises(diffcassi.DiffcassiValueError, match="no ray reaches the detector"):
+        r.render(cube, torch.from_numpy(open_cols))
+
+
+def test_settings_of_several_solvers_are_all_named_and_float32_temperatures_taken(small):
+    op, y = small
+    with pytest.raises(diffcassi.DiffcassiValueError,
+                       match=r"accelerated: applies to gap-tv and pnp-gap only; sigma_max: applies to pnp-gap and pnp-admm only, not `admm-tv`"):
+        diffcassi.reconstruct(op, y, "admm-tv", accelerated=True, sigma_max=0.2)
+    r = dt.CassiRenderer(SP, 4, 4, rays=1, planes=3, bands_nm=[450.0, 550.0, 650.0], temperature=np.float32(1e-6))
+    assert r.temperature == pytest.approx(1e-6, rel=1e-6)

@@ -318,3 +318,21 @@ def test_catadioptric_with_obscuration_agrees_with_rayoptics(cli, tmp_path):
     inner = np.array([[0.0, 5.0, 0.0], [10.0, -10.0, 0.0], [-20.0, 0.0, 0.0]])
     got = diffcassi.trace(ours, inner, np.tile([0.0, 0.0, 1.0], (3, 1)), np.full(3, wl))
     assert (got["status"] != 0).all(), got["status"]
+
+
+@pytest.mark.parametrize("curv, disz", [(-0.005, -100.0), (0.005, -100.0)], ids=["concave", "convex"])
+def test_a_single_mirror_first_order_agrees_with_rayoptics(tmp_path, curv, disz):
+    """A lone spherical mirror, object at infinity (round 6: its EFL sign had not been compared): OpticStudio's
+    signed-index convention gives a concave R = −200 mm mirror EFL −100 mm and a convex one +100 mm; rayoptics
+    (EFL = n_k/power, n_k = −1 after the reflection) gives the same, as do BFL and the pupils."""
+    from rayoptics.environment import open_model
+    text = ("MODE SEQ\nUNIT MM X W X CM MR CPMM\nENPD 20\nFTYP 0 0 1 1 0 0 0\nXFLN 0\nYFLN 0\nWAVM 1 0.5875618 1\nPWAV 1\n"
+            "SURF 0\n  DISZ INFINITY\nSURF 1\n  STOP\n  DISZ 50\n"
+            f"SURF 2\n  CURV {curv}\n  GLAS MIRROR\n  DISZ {disz}\nSURF 3\n  DISZ 0\n")
+    path = tmp_path / "mirror.zmx"
+    path.write_text(text)
+    ours = diffcassi.System.from_file(str(path))
+    om = open_model(str(path))
+    first_order_agrees(ours, om)
+    efl = ours.first_order()["efl_mm"]
+    assert efl == pytest.approx(-100.0 if curv < 0 else 100.0, rel=1e-12), efl

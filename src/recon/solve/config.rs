@@ -89,13 +89,24 @@ impl SettingScope {
     /// `("sigma_max", "--sigma-max")`) that do not apply to `solver`, all named in one message.
     pub fn check(solver: SolverKind, given: &[(&str, &str)]) -> Result<()> {
         let bad: Vec<(&str, SettingScope)> = given.iter().map(|&(k, shown)| (shown, SettingScope::of(k))).filter(|(_, s)| !s.contains(solver)).collect();
-        match bad.first() {
-            None => Ok(()),
-            Some(&(_, scope)) => {
-                let names: Vec<&str> = bad.iter().filter(|(_, s)| *s == scope).map(|(n, _)| *n).collect();
-                Err(Error::invalid(format!("{}: {} {}, not `{}` (a setting another solver would ignore is refused)", names.join(" / "), if names.len() == 1 { "applies to" } else { "apply to" }, scope.solvers(), solver.name())))
+        if bad.is_empty() {
+            return Ok(());
+        }
+        // Every foreign setting, grouped by the solvers it belongs to (in the order given).
+        let mut scopes: Vec<SettingScope> = Vec::new();
+        for (_, s) in &bad {
+            if !scopes.contains(s) {
+                scopes.push(*s);
             }
         }
+        let groups: Vec<String> = scopes
+            .iter()
+            .map(|&scope| {
+                let names: Vec<&str> = bad.iter().filter(|(_, s)| *s == scope).map(|(n, _)| *n).collect();
+                format!("{}: {} {}", names.join(" / "), if names.len() == 1 { "applies to" } else { "apply to" }, scope.solvers())
+            })
+            .collect();
+        Err(Error::invalid(format!("{}, not `{}` (a setting another solver would ignore is refused)", groups.join("; "), solver.name())))
     }
 }
 
@@ -391,6 +402,8 @@ mod tests {
         }
         let e = SettingScope::check(GapTv, &[("sigma_max", "--sigma-max"), ("tv_warmup", "--tv-warmup")]).unwrap_err().to_string();
         assert!(e.starts_with("--sigma-max / --tv-warmup: apply to pnp-gap and pnp-admm only, not `gap-tv`"), "{e}");
+        let e = SettingScope::check(AdmmTv, &[("accelerated", "accelerated"), ("sigma_max", "sigma_max")]).unwrap_err().to_string();
+        assert!(e.starts_with("accelerated: applies to gap-tv and pnp-gap only; sigma_max: applies to pnp-gap and pnp-admm only, not `admm-tv`"), "{e}");
     }
 
     #[test]
