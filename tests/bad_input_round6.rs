@@ -5,19 +5,8 @@
 //! `cuda:1`; torch refuses it), and `info`'s flat radius printed as `inf`. Each case runs the real binary:
 //! the exit code, a message naming the problem, nothing written.
 use std::path::Path;
-use std::process::Command;
 
-/// `diffcassi ARGS` in `dir`: (exit code, stdout + stderr).
-fn run(dir: &Path, args: &[&str]) -> (Option<i32>, String) {
-    let o = Command::new(env!("CARGO_BIN_EXE_diffcassi")).args(args).current_dir(dir).output().expect("diffcassi runs");
-    (o.status.code(), format!("{}{}", String::from_utf8_lossy(&o.stdout), String::from_utf8_lossy(&o.stderr)))
-}
-
-fn ok(dir: &Path, args: &[&str]) -> String {
-    let (code, out) = run(dir, args);
-    assert_eq!(code, Some(0), "{args:?}: {out}");
-    out
-}
+use crate::common::{ok_cli as ok, run_cli as run};
 
 fn refused(dir: &Path, args: &[&str], needles: &[&str]) {
     let (code, out) = run(dir, args);

@@ -121,14 +121,20 @@ fn records_given_twice_are_refused_naming_both_lines() {
     assert!(e.contains("`PARM 2` given twice in surface 2"), "{e}");
 }
 
-/// Finding 3: `--glass-catalog` takes part in the search for the file's glasses (after the file's `GCAT`
-/// catalogues); a glass found nowhere names every catalogue searched, the given one included.
-#[test]
-fn glass_catalog_option_is_searched_for_the_files_glasses() {
+/// A folder with `cat/EXTRA.agf` (one glass, `MYGL`) and `g.zmx`, the singlet in that glass.
+fn with_extra_catalog() -> tempfile::TempDir {
     let d = tempfile::tempdir().unwrap();
     std::fs::create_dir(d.path().join("cat")).unwrap();
     std::fs::write(d.path().join("cat/EXTRA.agf"), "NM MYGL 2 0 1.6 50 0 0\nCD 1.5 0.01 0 0 0 0\nLD 0.3 2.5\n").unwrap();
     std::fs::write(d.path().join("g.zmx"), edited(&[("GLAS N-BK7", "GLAS MYGL")])).unwrap();
+    d
+}
+
+/// Finding 3: `--glass-catalog` takes part in the search for the file's glasses (after the file's `GCAT`
+/// catalogues); a glass found nowhere names every catalogue searched, the given one included.
+#[test]
+fn glass_catalog_option_is_searched_for_the_files_glasses() {
+    let d = with_extra_catalog();
     std::fs::write(d.path().join("other.zmx"), edited(&[("GLAS N-BK7", "GLAS NOPE")])).unwrap();
     let (code, out) = run(d.path(), &["info", "--system", "g.zmx", "--glass-catalog", "cat/EXTRA.agf"]);
     assert_eq!(code, Some(0), "{out}");
@@ -338,10 +344,7 @@ fn study_systems_names_a_fifo_and_a_folder() {
 /// again on its own; the catalogue is an input (never the `--out`).
 #[test]
 fn import_zmx_takes_glass_catalogs() {
-    let d = tempfile::tempdir().unwrap();
-    std::fs::create_dir(d.path().join("cat")).unwrap();
-    std::fs::write(d.path().join("cat/EXTRA.agf"), "NM MYGL 2 0 1.6 50 0 0\nCD 1.5 0.01 0 0 0 0\nLD 0.3 2.5\n").unwrap();
-    std::fs::write(d.path().join("g.zmx"), edited(&[("GLAS N-BK7", "GLAS MYGL")])).unwrap();
+    let d = with_extra_catalog();
     let (code, out) = run(d.path(), &["import-zmx", "g.zmx", "--out", "g.toml"]);
     assert_eq!(code, Some(1), "{out}");
     assert!(out.contains("`MYGL`") && !d.path().join("g.toml").exists(), "{out}");
