@@ -325,3 +325,50 @@ fn late_failures_come_first() {
         assert!(!dir.join("st/renders").exists(), "{solvers}");
     }
 }
+
+/// `evaluate` says when the field's [0, 1] clamp makes PSNR and SSIM meaningless (a truth beyond 1), on stderr
+/// and in its JSON `warnings`; within [0, 1] it says nothing.
+#[test]
+fn evaluate_warns_where_the_clamp_makes_psnr_meaningless() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let ws = vec![500.0, 600.0];
+    for (name, scale) in [("unit", 0.5f32), ("big", 100.0)] {
+        let cube = diffcassi::scene::SpectralCube::new(12, 12, ws.clone(), (0..288).map(|i| scale * (1.0 + (i % 8) as f32) / 8.0).collect(), name).unwrap();
+        diffcassi::scene::save_npy(&cube, &dir.join(format!("{name}.npy"))).unwrap();
+        let out = ok(dir, &["evaluate", "--truth", &format!("{name}.npy"), "--estimate", &format!("{name}.npy"), "--json", &format!("{name}.json")]);
+        let j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(dir.join(format!("{name}.json"))).unwrap()).unwrap();
+        let warned = out.contains("warning: the truth's maximum is 100 > 1");
+        assert_eq!(warned, name == "big", "{out}");
+        assert_eq!(j["warnings"].as_array().map_or(0, |w| w.len()), usize::from(name == "big"), "{j}");
+    }
+}
+
+/// The analysis and design commands (a held-out battery of them, round 6): `calibrate --free glass_nd:…
+/// --system-out` wrote the nominal system; `calibrate` ignored a spec's own catalogues (so `design amici`'s
+/// output could not be calibrated); it read a system at infinity's setup fields as angles; `design amici
+/// --final-thickness-weight 1.7e308` wrote `null`; `mapping --npy a.NPY` replaced `a.npy`'s companions;
+/// `dispersion` of an unsorted list reported the wrong pair's spread; `distortion --half-width-mm 1e-12` reported
+/// noise as 100 % distortion; `--pupil grid:2` traced no ray.
+#[test]
+fn analysis_and_design_commands_refuse_what_they_got_wrong() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    refused(dir, &["calibrate", "--from", "sp", "--observed", "msp", "--free", "glass_nd:N-BK7", "--setup", "small", "--system-out", "c.toml"], &["--system-out c.toml", "glass_nd"]);
+    assert!(!dir.join("c.toml").exists());
+    ok(dir, &["design", "amici", "--iterations", "3", "--system-out", "d.toml"]);
+    let out = ok(dir, &["calibrate", "--from", "d.toml", "--observed", "d.toml", "--free", "s3.tilt_y_deg", "--setup", "small"]);
+    assert!(out.contains("residual"), "{out}");
+    let dg = concat!(env!("CARGO_MANIFEST_DIR"), "/tests/fixtures/zmx/double_gauss_US583336.zmx");
+    refused(dir, &["calibrate", "--from", dg, "--observed", dg, "--free", "s2.radius_mm", "--setup", "small"], &["object is at infinity", "finite object"]);
+    refused(dir, &["design", "amici", "--iterations", "3", "--final-thickness-weight", "1.7e308", "--report", "dd.json"], &["--final-thickness-weight 1.7e308", "[0, 1e6]"]);
+    assert!(!dir.join("dd.json").exists());
+    ok(dir, &["mapping", "--preset", "sp", "--height", "2", "--width", "2", "--wavelengths-nm", "450:650:3", "--npy", "a.npy"]);
+    let list = std::fs::read(dir.join("a_wavelengths_nm.npy")).unwrap();
+    refused(dir, &["mapping", "--preset", "sp", "--height", "2", "--width", "2", "--wavelengths-nm", "520", "--npy", "a.NPY"], &["a.npy", "same stem"]);
+    refused(dir, &["mapping", "--preset", "sp", "--height", "2", "--width", "2", "--wavelengths-nm", "520", "--npy", "a_valid.npy"], &["a_valid.npy is the companion (_valid.npy) of"]);
+    assert_eq!(std::fs::read(dir.join("a_wavelengths_nm.npy")).unwrap(), list);
+    refused(dir, &["dispersion", "--preset", "sp", "--wavelengths-nm", "450,650,520"], &["increasing wavelengths", "650 then 520"]);
+    refused(dir, &["distortion", "--preset", "sp", "--grid", "3", "--half-width-mm", "1e-12"], &["--half-width-mm 1e-12", "[1e-3"]);
+    refused(dir, &["spot", "--preset", "sp", "--wavelength-nm", "520", "--field-mm", "0,0", "--pupil", "grid:2"], &["grid:2 has no point inside the pupil"]);
+}

@@ -448,7 +448,14 @@ fn _metrics(
                 return Err(value_error(format!("shape mismatch: truth {ts:?}, estimate {es:?}")));
             }
             let shape = CubeShape { height: ts[0], width: ts[1], bands: ts[2] };
-            serde_json::to_value(run(py, || metrics::metrics(&t, &e, shape)).py()?)
+            let peak = t.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v as f64));
+            let m = run(py, || metrics::metrics(&t, &e, shape)).py()?;
+            serde_json::to_value(&m).map(|mut v| {
+                if let Some(w) = metrics::clamp_warning(peak, &m) {
+                    v["warnings"] = serde_json::json!([w]);
+                }
+                v
+            })
         }
         _ => return Err(value_error("give both truth_wavelengths_nm and estimate_wavelengths_nm, or neither")),
     };

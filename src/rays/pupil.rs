@@ -99,6 +99,10 @@ impl PupilPattern {
                 if n == 0 {
                     return Err(bad("grid:N needs N ≥ 1 (grid:1 is the chief ray)"));
                 }
+                if n == 2 {
+                    // Its four points (±1, ±1) lie outside the unit pupil: no ray would be traced (a spot of 0/0).
+                    return Err(bad("grid:2 has no point inside the pupil (its points are the corners (±1, ±1)); use grid:1 (the chief ray) or grid:3 and up"));
+                }
                 PupilPattern::Grid { n }
             }
             "grid-step" => {

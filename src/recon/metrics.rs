@@ -79,6 +79,23 @@ pub struct Evaluation {
     pub truth_resampled: bool,
     /// The (resampled) truth's maximum: the paper's PSNR peak.
     pub truth_peak: f64,
+    /// Where the field's [0, 1] clamp makes PSNR and SSIM meaningless ([`clamp_warning`]); empty otherwise.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
+}
+
+/// PSNR and SSIM clamp the estimate to [0, 1] (the paper's and MST's convention): a truth beyond 1, or an
+/// infinite PSNR with a non-zero RMSE (the cubes differ only outside [0, 1]), makes them meaningless — said
+/// rather than left to be read as a result (`evaluate`, `study`, Python `metrics`).
+pub fn clamp_warning(truth_peak: f64, m: &Metrics) -> Option<String> {
+    use crate::limits::fmt_num;
+    if truth_peak > 1.0 {
+        Some(format!("the truth's maximum is {} > 1, but PSNR and SSIM clamp the estimate to [0, 1] (the paper's and MST's convention): they are not meaningful; normalise both cubes to [0, 1]", fmt_num(truth_peak)))
+    } else if m.psnr_db == f64::INFINITY && m.rmse > 0.0 {
+        Some(format!("psnr_db is inf with rmse = {}: the estimate differs from the truth only outside [0, 1], where PSNR and SSIM clamp it", fmt_num(m.rmse)))
+    } else {
+        None
+    }
 }
 
 /// Check both slices have the shape's length and finite values.
@@ -288,7 +305,9 @@ pub fn evaluate(truth: &SpectralCube, estimate: &SpectralCube) -> Result<Evaluat
     };
     let shape = CubeShape { height: estimate.height, width: estimate.width, bands: estimate.bands() };
     let truth_peak = t.data.iter().fold(f64::NEG_INFINITY, |m, &v| m.max(v as f64));
-    Ok(Evaluation { metrics: metrics(&t.data, &estimate.data, shape)?, shape, wavelengths_nm: estimate.wavelengths_nm.clone(), truth_resampled: !same, truth_peak })
+    let metrics = metrics(&t.data, &estimate.data, shape)?;
+    let warnings = clamp_warning(truth_peak, &metrics).into_iter().collect();
+    Ok(Evaluation { metrics, shape, wavelengths_nm: estimate.wavelengths_nm.clone(), truth_resampled: !same, truth_peak, warnings })
 }
 
 #[cfg(test)]

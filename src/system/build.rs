@@ -35,11 +35,18 @@ impl SequentialSystem {
     /// and a render record go through the spec). A relative file path is read against the working directory;
     /// [`crate::spec::load_spec_file`] makes a spec file's relative entries absolute first.
     pub fn build(spec: &SystemSpec) -> Result<Self> {
+        Self::build_with_catalog(spec, &Self::catalog_of(spec)?)
+    }
+
+    /// The glass catalogue [`Self::build`] uses for `spec`: the built-in table plus the spec's `glass_catalogs`,
+    /// merged in order (also what `calibrate` fits glasses against: it took the built-in table alone, and a
+    /// spec whose glasses come from its own catalogues was refused).
+    pub fn catalog_of(spec: &SystemSpec) -> Result<GlassCatalog> {
         let mut catalog = GlassCatalog::builtin();
         for path in &spec.glass_catalogs {
             catalog.merge(GlassCatalog::from_entry(path)?);
         }
-        Self::build_with_catalog(spec, &catalog)
+        Ok(catalog)
     }
 
     /// Build against an explicit glass catalogue.
