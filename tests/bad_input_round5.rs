@@ -8,7 +8,7 @@
 use std::path::Path;
 use std::process::Command;
 
-use crate::common::{ok_cli as ok, run_cli as run};
+use crate::cli_run::{ok_cli as ok, run_cli as run};
 
 fn exr(path: &Path) -> Vec<f32> {
     diffcassi::io::exr::read_exr(path).unwrap_or_else(|e| panic!("{}: {e}", path.display())).channels.remove(0).data

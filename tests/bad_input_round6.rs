@@ -6,7 +6,7 @@
 //! the exit code, a message naming the problem, nothing written.
 use std::path::Path;
 
-use crate::common::{ok_cli as ok, run_cli as run};
+use crate::cli_run::{ok_cli as ok, run_cli as run};
 
 fn refused(dir: &Path, args: &[&str], needles: &[&str]) {
     let (code, out) = run(dir, args);
