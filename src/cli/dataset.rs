@@ -200,14 +200,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     }
     for s in &mine {
         // Done and rendered from the same scene content (a scene file replaced since is rendered again).
-        let state = match dataset::check_scene(&a.out, &s.name, Some(&configuration)) {
-            SceneState::Done => match dataset::check_scene_input(&a.out, s) {
-                changes if changes.is_empty() => SceneState::Done,
-                changes => SceneState::Mismatch(changes),
-            },
-            other => other,
-        };
-        match state {
+        match dataset::with_scene_input(dataset::check_scene(&a.out, &s.name, Some(&configuration)), &a.out, s) {
             SceneState::Done => skipped.push(*s),
             SceneState::Missing => todo.push(*s),
             SceneState::Damaged(p) => {
@@ -347,12 +340,9 @@ pub fn dataset_status(a: DatasetStatusArgs) -> Result<()> {
     let names = found.as_ref().map(|v| v.iter().map(|s| s.name.clone()).collect::<Vec<_>>());
     let mut st = DatasetStatus::check(&a.dir, names, None)?;
     // With --scenes: a scene done from files that have changed since is to be rendered again.
-    for s in st.scenes.iter_mut().filter(|s| matches!(s.state, SceneState::Done)) {
+    for s in st.scenes.iter_mut() {
         if let Some(f) = found.iter().flatten().find(|f| f.name == s.scene) {
-            let changes = dataset::check_scene_input(&a.dir, f);
-            if !changes.is_empty() {
-                s.state = SceneState::Mismatch(changes);
-            }
+            s.state = dataset::with_scene_input(s.state.clone(), &a.dir, f);
         }
     }
     if st.scenes.is_empty() {

@@ -526,22 +526,12 @@ fn cell_settings(a: &StudyArgs, solver: &str) -> SolveSettings {
 /// `--iterations` with `--solvers unrolled`, whose stages are fixed).
 fn check_options_apply(a: &StudyArgs, solvers: &[String]) -> Result<()> {
     use crate::recon::solver::SettingScope;
-    let t = &a.tuning;
-    for (key, flag, on) in [
-        ("iterations", "--iterations", t.iterations.is_some()),
-        ("tv_weight", "--tv-weight", t.tv_weight.is_some()),
-        ("tolerance", "--tolerance", t.tolerance.is_some()),
-        ("discrepancy", "--discrepancy", t.discrepancy.is_some()),
-        ("denoiser", "--denoiser", t.denoiser.is_some()),
-        ("sigma_max", "--sigma-max", t.sigma_max.is_some()),
-        ("sigma_min", "--sigma-min", t.sigma_min.is_some()),
-        ("sigma_auto", "--sigma-auto", t.sigma_auto),
-        ("tv_warmup", "--tv-warmup", t.tv_warmup.is_some()),
-        ("equivariant", "--equivariant / --no-equivariant", t.equivariant || t.no_equivariant),
-        ("equivariant_seed", "--equivariant-seed", t.equivariant_seed.is_some()),
-    ] {
+    // --accelerated and --plain are checked against gap-tv in `check_limits` (the study applies them to it only).
+    let mut given = a.tuning.settings("", false);
+    given.plain = false;
+    for (key, flag) in given.given() {
         let scope = SettingScope::of(key);
-        if on && !solvers.iter().any(|s| s.parse::<crate::recon::SolverKind>().is_ok_and(|k| scope.contains(k))) {
+        if !solvers.iter().any(|s| s.parse::<crate::recon::SolverKind>().is_ok_and(|k| scope.contains(k))) {
             let takes = if scope == SettingScope::Every { "the iterative solvers (gap-tv, admm-tv, pnp-gap, pnp-admm; unrolled has a fixed number of stages)" } else { scope.solvers() };
             return Err(Error::invalid(format!("{flag}: applies to {takes}, and --solvers `{}` has none of them", a.solvers)));
         }

@@ -172,6 +172,19 @@ fn scene_input_differences(recorded: Option<&Value>, scene: &DatasetScene, with_
     out
 }
 
+/// `state` ([`check_scene`]'s) of scene `scene` under `out`, a `Done` turned into a `Mismatch` when the scene's
+/// files changed since it was rendered ([`check_scene_input`]): what `render-dataset` and `dataset-status
+/// --scenes` skip or report.
+pub fn with_scene_input(state: SceneState, out: &Path, scene: &DatasetScene) -> SceneState {
+    match state {
+        SceneState::Done => match check_scene_input(out, scene) {
+            changes if changes.is_empty() => SceneState::Done,
+            changes => SceneState::Mismatch(changes),
+        },
+        other => other,
+    }
+}
+
 /// [`scene_input_changes`] of the scene rendered under `out` (its `render.json`'s `scene_input`; the wavelength
 /// lists count when its configuration has no `scene_wavelengths_nm`, as the loader then reads them).
 pub fn check_scene_input(out: &Path, scene: &DatasetScene) -> Vec<String> {

@@ -110,7 +110,10 @@ impl CodedMaskSpec {
         let norm = |t: &str| t.chars().filter(char::is_ascii_alphanumeric).collect::<String>().to_ascii_lowercase();
         let bracket = comment.trim_end().strip_suffix(']').and_then(|c| c.rfind('[').map(|i| (c[..i].trim_end(), &c[i + 1..])));
         let meant = match bracket {
-            Some((_, inner)) => norm(inner).contains("mask") && norm(inner).contains("pitch"),
+            Some((_, inner)) => {
+                let n = norm(inner);
+                n.contains("mask") && n.contains("pitch")
+            }
             None => {
                 let n = norm(comment);
                 (n.starts_with("codedmask") || n.starts_with("mask")) && n.contains("pitch")

@@ -69,6 +69,31 @@ impl SolveSettings {
             unrolled: None,
         }
     }
+
+    /// The iterative solvers' settings given (not left at their default), as (field name — the key of
+    /// [`SettingScope`] and of the Python keywords —, the command line's flag): what `unrolled` refuses whole,
+    /// what another solver refuses by [`SettingScope`], what `study` checks some solver of its list takes.
+    pub fn given(&self) -> Vec<(&'static str, &'static str)> {
+        [
+            ("iterations", "--iterations", self.iterations.is_some()),
+            ("tv_weight", "--tv-weight", self.tv_weight.is_some()),
+            ("accelerated", "--accelerated", self.accelerated),
+            ("plain", "--plain", self.plain),
+            ("denoiser", "--denoiser", self.denoiser.is_some()),
+            ("sigma_max", "--sigma-max", self.sigma_max.is_some()),
+            ("sigma_min", "--sigma-min", self.sigma_min.is_some()),
+            ("sigma_auto", "--sigma-auto", self.sigma_auto),
+            ("equivariant", "--equivariant / --no-equivariant", self.equivariant.is_some()),
+            ("equivariant_seed", "--equivariant-seed", self.equivariant_seed.is_some()),
+            ("tolerance", "--tolerance", self.tolerance.is_some()),
+            ("tv_warmup", "--tv-warmup", self.tv_warmup.is_some()),
+            ("discrepancy", "--discrepancy", self.discrepancy.is_some()),
+        ]
+        .into_iter()
+        .filter(|g| g.2)
+        .map(|(key, flag, _)| (key, flag))
+        .collect()
+    }
 }
 
 /// The solver configuration the settings describe (the solver's defaults, overridden by iterations / TV weight).
@@ -85,22 +110,7 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
         cfg.tv_weight = w as f32;
     }
     // Settings of other solvers are refused, never ignored (one rule for the CLI and the bindings).
-    let given: Vec<(&str, &str)> = [
-        ("accelerated", "--accelerated", s.accelerated),
-        ("plain", "--plain", s.plain),
-        ("denoiser", "--denoiser", s.denoiser.is_some()),
-        ("sigma_max", "--sigma-max", s.sigma_max.is_some()),
-        ("sigma_min", "--sigma-min", s.sigma_min.is_some()),
-        ("sigma_auto", "--sigma-auto", s.sigma_auto),
-        ("tv_warmup", "--tv-warmup", s.tv_warmup.is_some()),
-        ("equivariant", "--equivariant / --no-equivariant", s.equivariant.is_some()),
-        ("equivariant_seed", "--equivariant-seed", s.equivariant_seed.is_some()),
-    ]
-    .into_iter()
-    .filter(|g| g.2)
-    .map(|(k, shown, _)| (k, shown))
-    .collect();
-    SettingScope::check(kind, &given)?;
+    SettingScope::check(kind, &s.given())?;
     if s.accelerated {
         cfg.accelerated = true;
     }
@@ -177,26 +187,7 @@ pub fn check_solver(s: &SolveSettings) -> Result<()> {
 /// network has a fixed number of stages, its weights' `stages`), and a `--weights` file is read and checked
 /// (format, architecture, tensors).
 fn check_unrolled_settings(s: &SolveSettings) -> Result<()> {
-    let mut given: Vec<&str> = Vec::new();
-    for (flag, on) in [
-        ("--iterations", s.iterations.is_some()),
-        ("--tv-weight", s.tv_weight.is_some()),
-        ("--accelerated", s.accelerated),
-        ("--plain", s.plain),
-        ("--denoiser", s.denoiser.is_some()),
-        ("--sigma-max", s.sigma_max.is_some()),
-        ("--sigma-min", s.sigma_min.is_some()),
-        ("--sigma-auto", s.sigma_auto),
-        ("--equivariant / --no-equivariant", s.equivariant.is_some()),
-        ("--equivariant-seed", s.equivariant_seed.is_some()),
-        ("--tolerance", s.tolerance.is_some()),
-        ("--tv-warmup", s.tv_warmup.is_some()),
-        ("--discrepancy", s.discrepancy.is_some()),
-    ] {
-        if on {
-            given.push(flag);
-        }
-    }
+    let given: Vec<&str> = s.given().into_iter().map(|(_, flag)| flag).collect();
     if !given.is_empty() {
         return Err(Error::invalid(format!("{}: not options of --solver unrolled (a fixed number of stages, the weights' `stages`; no iterations, prior or stopping rule to set)", given.join(", "))));
     }
