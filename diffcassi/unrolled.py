@@ -11,12 +11,16 @@ per stage.
 Graph (``stages`` = K, ``width`` = C; d = Φ Φᵀ 𝟙 the GAP preconditioner of ``src/recon/gap.rs``, entries
 ≤ 1e-6·max d get D⁻¹ = 0 like the Rust solvers)::
 
+    c  = 2^⌊log₂ max(|y|, |y| d⁻¹)⌋  per sample; y ← y / c      exact (a power of two): the output is c · (…) bit
+                                                              for bit the unscaled graph's, and y ⊘ d stays within
+                                                              the operators' ±3.4·10²⁹ for every accepted y
     x₀ = Φᵀ(y ⊘ d)                                            the GAP initialisation (no TV, no learning)
     s  = mean|x₀|  per sample (x₀ = 0: the output is 0)        the scale: the whole network is
                                                               positively homogeneous, N(a·y) = a·N(y), a ≥ 0
     for k = 1 … K:
         v_k = x_{k−1} + λ_k Φᵀ((y − Φ x_{k−1}) ⊘ d)           GAP data step, λ_k learned (starts at 1)
         x_k = s · D_k(v_k / s)                                 stage denoiser, own weights per stage
+    output c · x_K
 
     D_k(v) = v + L_k v + U_k(v)
         L_k: a linear 1×1 convolution bands → bands (no bias): the linear spectral path (MODEL.md's round-2
@@ -127,6 +131,31 @@ def _int_at_least(name: str, v: Any, lo: int) -> int:
     return int(v)
 
 
+def _pow2_scale(y: torch.Tensor, dinv: torch.Tensor) -> torch.Tensor:
+    """The network's internal scale c of acquisitions ``y`` (N, h, w): per sample the power of two at or below the
+    peak of |y| and |y|·d⁻¹ (the largest values the data steps hand the operator), shape (N, 1, 1), detached; 1
+    for a sample whose peak is 0 (a dark frame) or below the dtype's normal range.
+
+    The networks are positively homogeneous, N(a·y) = a·N(y), and a power of two scales every floating-point
+    operation exactly (no rounding: the operator's sums, the scale s = mean|x₀|, v/s, the gradients), so
+    ``c · N(y / c)`` is N(y) bit for bit while the data steps run on values of order 1 — within the operators'
+    ±``_MAX_VALUE`` limit for every y the entry check accepts, however large d⁻¹ (y ⊘ d overflowed that limit
+    for |y| ≳ 10²⁴ at d⁻¹ ≈ 3·10⁵: round 7). No host synchronisation (device-side bit arithmetic)."""
+    with torch.no_grad():
+        a = y.abs()
+        # |y|·d⁻¹ may pass float32's range (a peak of 3.4·10²⁹ and d⁻¹ > 10⁹): clamped, so c stays finite.
+        peak = torch.maximum(a.flatten(1).amax(1), (a * dinv.to(a.dtype)).flatten(1).amax(1))
+        peak = peak.clamp(max=torch.finfo(a.dtype).max)
+        if a.dtype == torch.float32:
+            c = (peak.view(torch.int32) & 0x7F800000).view(torch.float32)  # the exponent alone: 2^⌊log₂ peak⌋
+        elif a.dtype == torch.float64:
+            c = (peak.view(torch.int64) & 0x7FF0000000000000).view(torch.float64)
+        else:  # float16/bfloat16: exact powers of two from exp2 of an integer
+            c = torch.exp2(torch.floor(torch.log2(peak)))
+        c = torch.where((c > 0) & torch.isfinite(c), c, torch.ones_like(c))  # 0 (dark) or subnormal peak: unscaled
+        return c.view(-1, 1, 1)
+
+
 class UnrolledGAP(nn.Module):
     """K GAP stages with learned denoisers around a fixed operator ``phi`` (a :class:`~diffcassi.torch.CassiOperator`
     or :class:`~diffcassi.torch.MatrixFreeCassiOperator`: anything with ``forward``, ``adjoint``, ``cube_shape``
@@ -188,6 +217,10 @@ class UnrolledGAP(nn.Module):
             raise _Error(f"UnrolledGAP.forward: y is on {y.device} but the network on {self.steps.device}; "
                          "move one with .to(device)")
         y = y.to(self.steps.dtype)  # the network's dtype (float32 unless .to(dtype) changed it)
+        # The network runs on y / c, c a power of two (_pow2_scale): N(y) = c·N(y/c) bit for bit, and y ⊘ d stays
+        # within the operators' limit for every y the entry check accepts (it overflowed for |y| ≳ 10²⁴).
+        c = _pow2_scale(y, self.dinv)
+        y = y / c
         x = self.initial(y)
         # s = mean|x₀| (= mean(x₀) for an acquisition ≥ 0, the trained case): N(a·y) = a·N(y) for a > 0, and an
         # x₀ of zero (a dark frame) reconstructs as zero — a scale of 1 there let the stages' biases through, a
@@ -200,7 +233,7 @@ class UnrolledGAP(nn.Module):
         for k, den in enumerate(self.denoisers):
             v = self._data_step(x, y, self.steps[k])
             x = s * den(v / s)
-        x = torch.where(live, x, torch.zeros_like(x))
+        x = torch.where(live, x, torch.zeros_like(x)) * c.unsqueeze(1)
         return x[0] if single else x
 
     def metadata(self) -> Dict[str, str]:
@@ -349,12 +382,14 @@ class UnrolledDAUHST(nn.Module):
     prior around a fixed operator ``phi`` (as :class:`UnrolledGAP`: anything with ``forward``, ``adjoint``,
     ``cube_shape``, ``image_shape``; the operator is not a parameter and not saved). Graph (d = Φ Φᵀ 𝟙)::
 
+        y ← y / c (c a power of two, as UnrolledGAP: exact, keeps y ⊘ d within the operators' limit)
         x₀ = Φᵀ(y ⊘ d);  s = mean|x₀| per sample (x₀ = 0: output 0)   N(a·y) = a·N(y) exactly, a ≥ 0
         for k = 1 … K:
             r_k = Φᵀ((y − Φ x_{k−1}) ⊘ d)                                 exact Φ and Φᵀ in every stage
             (μ_k, σ_k) = E_k(x_{k−1}/s, r_k/s)                            DegradationEstimator (own weights)
             v_k = x_{k−1} + μ_k r_k                                       GAP data step, learned per sample
             x_k = s · P_k(v_k/s, σ_k)                                     SpectralSpatialUNet (own weights)
+        output c · x_K
 
     Untrained (zero L, out and estimator outputs μ = 1) it is exactly K plain GAP steps. ``forward(y)``:
     (N, h, w) or (h, w) → (N, bands, H, W) or (bands, H, W). ``forward(y, return_estimates=True)`` also returns
@@ -400,6 +435,9 @@ class UnrolledDAUHST(nn.Module):
         if y.device != pdev:
             raise _Error(f"UnrolledDAUHST.forward: y is on {y.device} but the network on {pdev}; move one with .to(device)")
         y = y.to(pdt)
+        # On y / c, c a power of two: N(y) = c·N(y/c) bit for bit, y ⊘ d within the operators' limit (_pow2_scale).
+        c = _pow2_scale(y, self.dinv)
+        y = y / c
         x = self.phi.adjoint(y * self.dinv)
         # s = mean|x₀|, differentiable; an x₀ of zero reconstructs as zero (UnrolledGAP.forward says why).
         s = x.flatten(1).abs().mean(1).view(-1, 1, 1, 1)
@@ -413,7 +451,7 @@ class UnrolledDAUHST(nn.Module):
             x = s * prior(v / s, sigma)
             mus.append(mu)
             sigmas.append(sigma)
-        x = torch.where(live, x, torch.zeros_like(x))
+        x = torch.where(live, x, torch.zeros_like(x)) * c.unsqueeze(1)
         out = x[0] if single else x
         if return_estimates:
             return out, (torch.stack(mus), torch.stack(sigmas))

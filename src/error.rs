@@ -4,16 +4,16 @@ use crate::materials::MaterialError;
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// A spec (TOML/JSON/YAML/CSV prescription) could not be read or is invalid.
-    #[error("{source_name}: {message}")]
+    #[error("{source_name}: {}", tidy_numbers(message))]
     Spec { source_name: String, message: String },
     /// A built system is inconsistent (message names surface and field).
-    #[error("system `{system}`: surface {surface} ({field}): {message}")]
+    #[error("system `{system}`: surface {surface} ({field}): {}", tidy_numbers(message))]
     System { system: String, surface: usize, field: String, message: String },
     #[error(transparent)]
     Material(#[from] MaterialError),
-    #[error("{path}: {message}")]
+    #[error("{path}: {}", tidy_numbers(message))]
     File { path: String, message: String },
-    #[error("{0}")]
+    #[error("{}", tidy_numbers(.0))]
     Invalid(String),
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
@@ -29,5 +29,69 @@ impl Error {
     }
     pub fn invalid(message: impl Into<String>) -> Self {
         Error::Invalid(message.into())
+    }
+}
+
+/// `text` with every decimal number of more than 21 digits rewritten in exponent form (`1e-300`, not 300
+/// zeros): Rust's `{}` never writes an exponent, so a value given as `1e-300` would come back as a
+/// 302-character number in a message. The rewrite is exact (shortest round-trip digits in both forms); a
+/// digit run that touches a letter or an underscore (a hex digest, a name) is left as it is, and so are
+/// integers up to 21 digits (every u64 seed).
+pub fn tidy_numbers(text: &str) -> std::borrow::Cow<'_, str> {
+    const MAX_DIGITS: usize = 21;
+    let b = text.as_bytes();
+    let is_word = |c: u8| c.is_ascii_alphabetic() || c == b'_';
+    let mut out: Option<String> = None;
+    let (mut copied, mut i) = (0, 0);
+    while i < b.len() {
+        if !b[i].is_ascii_digit() {
+            i += 1;
+            continue;
+        }
+        let start = i;
+        while i < b.len() && (b[i].is_ascii_digit() || (b[i] == b'.' && i + 1 < b.len() && b[i + 1].is_ascii_digit())) {
+            i += 1;
+        }
+        let run = &text[start..i];
+        let digits = run.bytes().filter(u8::is_ascii_digit).count();
+        let touches_word = (start > 0 && (is_word(b[start - 1]) || b[start - 1] == b'.')) || (i < b.len() && is_word(b[i]));
+        if digits > MAX_DIGITS && !touches_word {
+            if let Ok(v) = run.parse::<f64>() {
+                if v.is_finite() {
+                    let o = out.get_or_insert_with(String::new);
+                    o.push_str(&text[copied..start]);
+                    o.push_str(&format!("{v:e}"));
+                    copied = i;
+                }
+            }
+        }
+    }
+    match out {
+        None => std::borrow::Cow::Borrowed(text),
+        Some(mut o) => {
+            o.push_str(&text[copied..]);
+            std::borrow::Cow::Owned(o)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn long_numbers_in_messages_take_the_exponent_form() {
+        let tiny = format!("--tolerance-um {}: too small", 1e-30f64);
+        assert_eq!(Error::invalid(tiny).to_string(), "--tolerance-um 1e-30: too small");
+        let huge = format!("value {} and {}", 1.7e308f64, -2.5e25f64);
+        assert_eq!(Error::invalid(huge).to_string(), "value 1.7e308 and -2.5e25");
+        assert_eq!(Error::spec("a.toml", format!("radius {}", 1e-300f64)).to_string(), "a.toml: radius 1e-300");
+        // Left alone: ordinary numbers, a u64 seed, digests, names with digits.
+        let kept = "seed 18446744073709551615, pitch 0.01 mm, 1e-30, sha 0123456789012345678901234567890123abc, x_12345678901234567890123";
+        assert_eq!(Error::invalid(kept).to_string(), kept);
+        // The rewrite is exact: the exponent form parses back to the same f64.
+        let v = 1.234567890123456789e-25f64;
+        let msg = Error::invalid(format!("{v}")).to_string();
+        assert!(msg.contains('e') && msg.parse::<f64>().unwrap() == v, "{msg}");
     }
 }

@@ -322,8 +322,8 @@ mod cli_table {
             c("spot --preset sp --pupil grid:300 --max-rays 1000 --csv {out}.csv", 1, "--max-rays"),
         ]),
         ("distortion", &[
-            c("distortion --preset sp --grid 3 --arrow-scale -1 --csv {out}.csv", 1, "--arrow-scale -1"),
-            c("distortion --preset sp --grid 3 --arrow-scale nan --csv {out}.csv", 1, "--arrow-scale NaN"),
+            c("distortion --preset sp --grid 3 --arrow-scale -1 --csv {out}.csv --png {out}.png", 1, "--arrow-scale -1"),
+            c("distortion --preset sp --grid 3 --arrow-scale nan --csv {out}.csv --png {out}.png", 1, "--arrow-scale NaN"),
             c("distortion --preset sp --grid 0 --csv {out}.csv", 1, "--grid 0"),
             c("distortion --preset sp --grid 18446744073709551615 --csv {out}.csv", 1, "--max-rays"),
             c("distortion --preset sp --half-width-mm -2 --csv {out}.csv", 1, "--half-width-mm -2"),

@@ -461,6 +461,11 @@ fn huge_acquisition_is_refused_naming_the_limit() {
             }
         }
         diffcassi::io::exr::write_exr(&acq, img.width, img.height, &channels).unwrap();
+        // The record names the acquisition it wrote: this test's acquisition stands in for a render's own.
+        let jp = render.join("render.json");
+        let mut j: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&jp).unwrap()).unwrap();
+        j["acquisition_f32le_sha256"] = serde_json::json!(diffcassi::render::engine::acquisition_sha256(&channels[0].data));
+        std::fs::write(&jp, serde_json::to_string_pretty(&j).unwrap()).unwrap();
     };
     // Three GAP-TV iterations of the render into `out`.
     let reconstruct = |out: &std::path::Path| {

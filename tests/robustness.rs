@@ -145,7 +145,7 @@ fn distortion_validates_before_writing() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     std::fs::write(d.join("g.csv"), "old").unwrap();
-    for bad in [&["--arrow-scale", "0"][..], &["--png", "g.gif"][..], &["--json", "blocker/g.json"][..]] {
+    for bad in [&["--arrow-scale", "0", "--png", "g.png"][..], &["--png", "g.gif"][..], &["--json", "blocker/g.json"][..]] {
         std::fs::write(d.join("blocker"), "a file").unwrap();
         let o = run(d, &[&["distortion", "--preset", "sp", "--grid", "5", "--csv", "g.csv"][..], bad].concat());
         assert_eq!(o.status.code(), Some(1), "{bad:?}: {}", stderr(&o));

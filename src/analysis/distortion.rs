@@ -25,6 +25,8 @@ pub struct DistortionPoint {
     pub pred_y_mm: f64,
     /// sign(|real−ref| − |pred−ref|) · 100 · |real − pred| / |pred − ref| (Zemax's definition).
     pub distortion_pct: f64,
+    /// Written as its label (`ok`, `tir`, …), as the CSV writes it.
+    #[serde(serialize_with = "RayStatus::serialize_label")]
     pub status: RayStatus,
 }
 

@@ -64,7 +64,7 @@ pub struct SpotDiagram {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct LostRays {
     /// Written as its label (`evanescent`, `vignetted`, …), as the CSV tables write a ray's status.
-    #[serde(serialize_with = "status_label")]
+    #[serde(serialize_with = "RayStatus::serialize_label")]
     pub status: RayStatus,
     /// Surface index (the object is 0) where the rays stopped.
     pub surface: u32,
@@ -83,10 +83,6 @@ pub fn lost_rays(status: &[RayStatus], surface: &[u32]) -> Vec<LostRays> {
     let mut lost: Vec<LostRays> = counts.into_iter().map(|((surface, _), (status, count))| LostRays { status, surface, count }).collect();
     lost.sort_by(|a, b| b.count.cmp(&a.count));
     lost
-}
-
-fn status_label<S: serde::Serializer>(s: &RayStatus, out: S) -> std::result::Result<S::Ok, S::Error> {
-    out.serialize_str(s.label())
 }
 
 /// The first `at_most` causes of `lost` described and joined by "; ", then how many more there are.

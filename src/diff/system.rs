@@ -241,6 +241,8 @@ fn cell_tangent(spec: &SystemSpec, free: &[Param], i: usize, col: &str, depth: u
             }
             Ok(Some(d))
         }
+        // Never free (ParamSet refuses system parameters beside one): it does not move.
+        Driver::UnknownPickup => Ok(Some(vec![0.0; kk])),
         Driver::ChiefRay => Ok(None),
         Driver::Pickup(p) => {
             let src = p.column.as_deref().unwrap_or(col);

@@ -305,10 +305,25 @@ impl OutputSet {
     }
 }
 
-/// The hidden file listing the entries of a folder output set (one name a line), written with the set: a later
+/// The hidden files listing the entries of a folder output set (one name a line), written with the set: a later
 /// run replaces the folder whole only when it holds nothing else, so files a user put beside the outputs
-/// (or the files of a `--force`d folder) are never deleted.
+/// (or the files of a `--force`d folder) are never deleted. One list per command, named after its marker
+/// (`.diffcassi-set.render.json`), so that a `--force`d write of another command (a reconstruction into a
+/// render's folder) does not take over the first command's list, which a later plain run of the first
+/// command would then read as its own and delete the other's outputs by (a held-out battery, round 7).
+/// Earlier versions wrote one list named `.diffcassi-set`: read as the set of the command whose marker it
+/// lists, and replaced by that command's own list when it next commits there.
 pub const SET_LIST: &str = ".diffcassi-set";
+
+/// The set list of the command whose marker file is `marker`.
+pub fn set_list_name(marker: &str) -> String {
+    format!("{SET_LIST}.{marker}")
+}
+
+/// Whether `name` is a set list (the legacy one or a command's).
+fn is_set_list(name: &str) -> bool {
+    name == SET_LIST || name.strip_prefix(SET_LIST).is_some_and(|r| r.starts_with('.'))
+}
 
 fn entry_names(dir: &Path) -> Result<Vec<String>, IoError> {
     let mut v = Vec::new();
@@ -320,19 +335,33 @@ fn entry_names(dir: &Path) -> Result<Vec<String>, IoError> {
 }
 
 fn commit_folder(f: &FolderStage) -> Result<(), IoError> {
-    let new_names: Vec<String> = entry_names(&f.stage)?.into_iter().filter(|n| n != SET_LIST).collect();
-    write_atomic(f.stage.join(SET_LIST), new_names.iter().map(|n| format!("{n}\n")).collect::<String>().as_bytes())?;
+    let list_name = set_list_name(&f.marker);
+    let new_names: Vec<String> = entry_names(&f.stage)?.into_iter().filter(|n| !is_set_list(n)).collect();
+    write_atomic(f.stage.join(&list_name), new_names.iter().map(|n| format!("{n}\n")).collect::<String>().as_bytes())?;
     // Checked again: the folder may have changed while the command ran.
     let rule = FolderRule { option: &f.option, command: &f.command, marker: &f.marker, force: f.force };
     let state = check_out_folder(&f.dest, &rule, &[])?;
     // What of the destination is an earlier set's (its list; without one, an earlier version's set: all of it).
+    let read_list = |name: &str| fs::read_to_string(f.dest.join(name)).ok().map(|t| t.lines().map(str::to_string).collect::<Vec<_>>());
+    // The legacy single list is ours when it lists our marker; another command's legacy list leaves us only
+    // our marker as certainly ours (the rest is kept, never deleted).
+    let mut legacy_is_ours = false;
     let old_list: Option<Vec<String>> = match state {
-        FolderState::Previous => fs::read_to_string(f.dest.join(SET_LIST)).ok().map(|t| t.lines().map(str::to_string).collect()),
+        FolderState::Previous => read_list(&list_name).or_else(|| {
+            read_list(SET_LIST).map(|l| {
+                legacy_is_ours = l.contains(&f.marker);
+                if legacy_is_ours {
+                    l
+                } else {
+                    vec![f.marker.clone()]
+                }
+            })
+        }),
         _ => None,
     };
     let foreign: Vec<String> = match (state, &old_list) {
         (FolderState::Foreign, _) => entry_names(&f.dest)?,
-        (FolderState::Previous, Some(list)) => entry_names(&f.dest)?.into_iter().filter(|n| n != SET_LIST && !list.contains(n) && !stale::is_temporary(n)).collect(),
+        (FolderState::Previous, Some(list)) => entry_names(&f.dest)?.into_iter().filter(|n| !is_set_list(n) && !list.contains(n) && !stale::is_temporary(n)).collect(),
         _ => Vec::new(),
     };
     if foreign.is_empty() && state != FolderState::Foreign {
@@ -350,7 +379,7 @@ fn commit_folder(f: &FolderStage) -> Result<(), IoError> {
     }
     let mut order = new_names.clone();
     order.sort_by_key(|n| (*n == f.marker, n.clone()));
-    order.push(SET_LIST.to_string());
+    order.push(list_name.clone());
     for n in &order {
         let to = f.dest.join(n);
         if ours(n) && fs::symlink_metadata(&to).is_ok_and(|m| m.is_dir()) {
@@ -358,9 +387,13 @@ fn commit_folder(f: &FolderStage) -> Result<(), IoError> {
         }
         fs::rename(f.stage.join(n), &to).map_err(|e| IoError::io(&to, "cannot move the output into place", e))?;
     }
-    for n in old_list.iter().flatten().filter(|n| !new_names.contains(n) && *n != SET_LIST) {
+    for n in old_list.iter().flatten().filter(|n| !new_names.contains(n) && !is_set_list(n)) {
         let p = f.dest.join(n);
         remove_any(&p).map_err(|e| IoError::io(&p, "cannot remove an earlier output the new set does not have", e))?;
+    }
+    if legacy_is_ours {
+        // Our own list replaces the legacy one.
+        let _ = fs::remove_file(f.dest.join(SET_LIST));
     }
     let _ = fs::remove_dir_all(&f.stage);
     Ok(())
@@ -488,6 +521,7 @@ mod tests {
     #[test]
     fn output_set_folder_replaces_a_previous_set_whole() {
         let tmp = tempfile::tempdir().unwrap();
+        let list = set_list_name("render.json");
         let out = tmp.path().join("out");
         fs::create_dir(&out).unwrap();
         fs::write(out.join("render.json"), "old").unwrap();
@@ -505,14 +539,14 @@ mod tests {
         fs::write(set.stage_dir().unwrap().join("acquisition.exr"), "new").unwrap();
         fs::write(set.stage_dir().unwrap().join("render.json"), "new").unwrap();
         set.commit().unwrap();
-        assert_eq!(entries(&out), vec![SET_LIST, "acquisition.exr", "render.json"]);
+        assert_eq!(entries(&out), vec![list.as_str(), "acquisition.exr", "render.json"]);
         assert_eq!(entries(tmp.path()), vec!["out"]);
         // A file the user put beside the set survives the next run; the old set's files the new one lacks go.
         fs::write(out.join("notes.txt"), "keep").unwrap();
         let set = OutputSet::folder(&out, &rule, &[]).unwrap();
         fs::write(set.stage_dir().unwrap().join("render.json"), "newer").unwrap();
         set.commit().unwrap();
-        assert_eq!(entries(&out), vec![SET_LIST, "notes.txt", "render.json"]);
+        assert_eq!(entries(&out), vec![list.as_str(), "notes.txt", "render.json"]);
         // An unrelated folder is refused, untouched; with --force it keeps its other files.
         let other = tmp.path().join("mine");
         fs::create_dir(&other).unwrap();
@@ -525,20 +559,59 @@ mod tests {
         let set = OutputSet::folder(&other, &forced, &[]).unwrap();
         fs::write(set.stage_dir().unwrap().join("render.json"), "new").unwrap();
         set.commit().unwrap();
-        assert_eq!(entries(&other), vec![SET_LIST, "notes.txt", "render.json", "sub"]);
+        assert_eq!(entries(&other), vec![list.as_str(), "notes.txt", "render.json", "sub"]);
         // Rerun without --force (the folder now holds render.json): the user's files still survive.
         let set = OutputSet::folder(&other, &rule, &[]).unwrap();
         fs::write(set.stage_dir().unwrap().join("render.json"), "again").unwrap();
         fs::write(set.stage_dir().unwrap().join("extra.csv"), "x").unwrap();
         set.commit().unwrap();
-        assert_eq!(entries(&other), vec![SET_LIST, "extra.csv", "notes.txt", "render.json", "sub"]);
+        assert_eq!(entries(&other), vec![list.as_str(), "extra.csv", "notes.txt", "render.json", "sub"]);
         assert_eq!(fs::read_to_string(other.join("notes.txt")).unwrap(), "keep");
         // A folder of an output's name that is not an earlier output's is never removed.
         let set = OutputSet::folder(&other, &forced, &[]).unwrap();
         fs::write(set.stage_dir().unwrap().join("sub"), "file").unwrap();
         assert!(set.commit().unwrap_err().to_string().contains("sub"));
-        assert_eq!(entries(&other), vec![SET_LIST, "extra.csv", "notes.txt", "render.json", "sub"]);
+        assert_eq!(entries(&other), vec![list.as_str(), "extra.csv", "notes.txt", "render.json", "sub"]);
         assert_eq!(entries(tmp.path()), vec!["mine", "out"]);
+    }
+
+    #[test]
+    fn a_forced_set_of_another_command_keeps_both_lists() {
+        let tmp = tempfile::tempdir().unwrap();
+        let out = tmp.path().join("both");
+        let render = FolderRule { option: "--out", command: "render", marker: "render.json", force: false };
+        let recon = FolderRule { option: "--out", command: "reconstruct", marker: "reconstruct.json", force: true };
+        let write = |rule: &FolderRule, names: &[&str]| {
+            let set = OutputSet::folder(&out, rule, &[]).unwrap();
+            for n in names {
+                fs::write(set.stage_dir().unwrap().join(n), "x").unwrap();
+            }
+            set.commit().unwrap();
+        };
+        write(&render, &["render.json", "acquisition.exr", "preview.png"]);
+        write(&recon, &["reconstruct.json", "cube.npy"]);
+        // A plain render again (its marker is there): it replaces its own set and nothing of the other's.
+        write(&render, &["render.json", "acquisition.exr"]);
+        let (lr, lc) = (set_list_name("render.json"), set_list_name("reconstruct.json"));
+        assert_eq!(entries(&out), vec![lc.as_str(), lr.as_str(), "acquisition.exr", "cube.npy", "reconstruct.json", "render.json"]);
+        // A legacy single list written by the other command: only our marker is certainly ours.
+        let legacy = tmp.path().join("legacy");
+        fs::create_dir(&legacy).unwrap();
+        for n in ["render.json", "acquisition.exr", "reconstruct.json", "cube.npy"] {
+            fs::write(legacy.join(n), "old").unwrap();
+        }
+        fs::write(legacy.join(SET_LIST), "reconstruct.json\ncube.npy\n").unwrap();
+        let set = OutputSet::folder(&legacy, &render, &[]).unwrap();
+        fs::write(set.stage_dir().unwrap().join("render.json"), "new").unwrap();
+        set.commit().unwrap();
+        assert_eq!(entries(&legacy), vec![SET_LIST, lr.as_str(), "acquisition.exr", "cube.npy", "reconstruct.json", "render.json"]);
+        // A legacy list of our own is read as ours, and replaced by our list.
+        fs::remove_file(legacy.join(&lr)).unwrap();
+        fs::write(legacy.join(SET_LIST), "render.json\nacquisition.exr\n").unwrap();
+        let set = OutputSet::folder(&legacy, &render, &[]).unwrap();
+        fs::write(set.stage_dir().unwrap().join("render.json"), "newer").unwrap();
+        set.commit().unwrap();
+        assert_eq!(entries(&legacy), vec![lr.as_str(), "cube.npy", "reconstruct.json", "render.json"]);
     }
 
     #[test]

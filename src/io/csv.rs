@@ -334,7 +334,8 @@ impl CsvWriter {
         } else {
             &mut self.body
         };
-        for line in text.lines() {
+        // Long numbers in exponent form (a field of 5e-324 mm is not 324 digits), as in error messages.
+        for line in crate::error::tidy_numbers(text).lines() {
             let _ = writeln!(target, "# {line}");
         }
         if text.is_empty() {

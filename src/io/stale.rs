@@ -63,13 +63,18 @@ pub fn host_name() -> &'static str {
 /// Start time of process `pid` (clock ticks since boot, field 22 of `/proc/PID/stat`); `None` when it cannot
 /// be read (no such process, or no `/proc`).
 fn start_time(pid: u32) -> std::io::Result<Option<u64>> {
+    Ok(proc_stat(pid)?.1)
+}
+
+/// `/proc/PID/stat`'s state letter (`R`, `S`, `Z`, …) and start time (clock ticks after boot).
+fn proc_stat(pid: u32) -> std::io::Result<(Option<char>, Option<u64>)> {
     let stat = fs::read_to_string(format!("/proc/{pid}/stat"))?;
     // The command name (field 2) is in parentheses and may hold spaces: count fields after the last ')'.
     let after = stat.rsplit_once(')').map(|(_, r)| r).unwrap_or("");
-    Ok(after
-        .split_whitespace()
-        .nth(19)
-        .and_then(|s| s.parse().ok()))
+    let mut fields = after.split_whitespace();
+    let state = fields.next().and_then(|s| s.chars().next());
+    // Start time is field 22 of the line, the 20th after the state.
+    Ok((state, fields.nth(18).and_then(|s| s.parse().ok())))
 }
 
 /// This process's identity in temporary names: `HOST-PID-START`.
@@ -126,9 +131,12 @@ impl Writer {
         if !Path::new("/proc/self/stat").exists() {
             return !pid_exists(self.pid);
         }
-        match start_time(self.pid) {
+        match proc_stat(self.pid) {
             Err(e) => e.kind() == std::io::ErrorKind::NotFound,
-            Ok(now) => match self.start {
+            // A zombie (killed, not yet reaped by its parent, e.g. under `timeout` or a Slurm step) writes
+            // nothing more: its temporaries are stale (a held-out battery, round 7).
+            Ok((Some('Z' | 'X'), _)) => true,
+            Ok((_, now)) => match self.start {
                 // Another process now holds the PID: ours is gone.
                 Some(s) => now.is_some_and(|t| t != s),
                 None => false,
@@ -324,6 +332,28 @@ mod tests {
         ] {
             assert!(temporary_of(not, "out").is_none(), "{not}");
         }
+    }
+
+    #[test]
+    fn a_zombie_writer_is_gone() {
+        if !Path::new("/proc/self/stat").exists() {
+            return;
+        }
+        // A child that exited and is not reaped yet: a zombie, as a `reconstruct` killed under `timeout`.
+        let mut child = std::process::Command::new("true").spawn().expect("spawn true");
+        let pid = child.id();
+        let start = start_time(pid).ok().flatten();
+        let mut zombie = false;
+        for _ in 0..200 {
+            if proc_stat(pid).is_ok_and(|(s, _)| s == Some('Z')) {
+                zombie = true;
+                break;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        assert!(zombie, "the child never became a zombie");
+        assert!(Writer { host: Some(host_name().into()), pid, start }.is_gone(), "a zombie writes nothing more");
+        child.wait().unwrap();
     }
 
     #[test]

@@ -35,9 +35,13 @@ use super::MaterialError;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum WavelengthPolicy {
     /// Outside the `LD` range is [`MaterialError::WavelengthOutOfRange`] (Zemax default).
+    /// (Also read as `strict`: specs spell their other keys in snake case.)
     #[default]
+    #[serde(alias = "strict")]
     Strict,
-    /// Evaluate the dispersion formula outside the `LD` range (explicit opt-in).
+    /// Evaluate the dispersion formula outside the `LD` range (explicit opt-in). Also read as
+    /// `allow_extrapolation` (the spelling docs/accuracy.md and the `.zmx` `DCWP` record use).
+    #[serde(alias = "allow_extrapolation")]
     AllowExtrapolation,
 }
 

@@ -91,6 +91,7 @@ pub fn spec(name: &str) -> Result<SystemSpec> {
     let mut data = SystemData::paper_defaults();
     data.name = p.name.to_string();
     data.pickups = p.pickups.iter().map(|&(surface, column, from_surface, scale)| PickupSource { surface, column, from_surface, scale }).collect();
+    data.keep_unsourced_pickups = true;
     let mut spec = import_prescription(p.csv, p.file, &data)?;
     spec.description = p.title.to_string();
     Ok(spec)

@@ -181,6 +181,11 @@ impl Acquisition {
     pub fn image_f32(&self) -> Vec<f32> {
         self.image.iter().map(|&v| v as f32).collect()
     }
+    /// SHA-256 of the f32 image as `acquisition.exr` holds it (little-endian values, row-major): render.json's
+    /// `acquisition_f32le_sha256`, which `reconstruct` checks ([`acquisition_sha256`]).
+    pub fn image_sha256(&self) -> String {
+        acquisition_sha256(&self.image_f32())
+    }
     /// Whether `other` has this acquisition's bits: every image value and every ray count.
     pub fn same_bits(&self, other: &Acquisition) -> bool {
         self.image.len() == other.image.len() && self.image.iter().zip(&other.image).all(|(a, b)| a.to_bits() == b.to_bits()) && self.stats == other.stats
@@ -194,7 +199,28 @@ impl Acquisition {
     }
 }
 
+/// SHA-256 of an f32 acquisition's little-endian values (see [`Acquisition::image_sha256`]).
+pub fn acquisition_sha256(values: &[f32]) -> String {
+    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+    crate::io::sha256::sha256_hex(&bytes)
+}
+
+/// The tracer name a record states for `name` traced at `precision` (see [`Renderer::tracer_name`]).
+pub fn tracer_of_record(name: String, precision: crate::tracer::Precision) -> String {
+    match (name.as_str(), precision) {
+        ("analytic-f64", crate::tracer::Precision::F32) => "analytic-f32".into(),
+        _ => name,
+    }
+}
+
 impl<'a> Renderer<'a> {
+    /// The tracer a record names for this render: the backend's name, except that an f32 render through the
+    /// analytic backend traced with its f32 twin (`analytic-f32`; `Precision::tracer`), whatever the f64
+    /// tracer object it was given. render.json's `tracer` and reconstruct.json's exact operator use it.
+    pub fn tracer_name(&self) -> String {
+        tracer_of_record(self.tracer.name(), self.config.precision)
+    }
+
     pub fn new(system: &'a SequentialSystem, tracer: &'a dyn Tracer, config: RenderConfig, mask: Mask) -> Result<Self> {
         let (h, w) = (config.scene_height, config.scene_width);
         if h == 0 || w == 0 {
@@ -214,8 +240,20 @@ impl<'a> Renderer<'a> {
         if !(config.scene_pitch_mm.is_finite() && config.scene_pitch_mm > 0.0) {
             return Err(Error::invalid(format!("scene pitch {} mm must be finite and > 0", config.scene_pitch_mm)));
         }
-        for &w in &config.spectral.planes_nm {
-            system.indices(w)?; // a plane outside a glass's range is an error now, not mid-render
+        // A plane outside a glass's range is an error now, not mid-render. The planes reach half a band beyond
+        // the first and last band: the message says which plane, of which bands (the user typed only the bands).
+        let sp = &config.spectral;
+        for (k, &w) in sp.planes_nm.iter().enumerate() {
+            system.indices(w).map_err(|e| {
+                let (b0, b1) = (sp.bands_nm[0], sp.bands_nm[sp.bands_nm.len() - 1]);
+                Error::invalid(format!(
+                    "render plane {k} at {} nm (the {} planes span the bands {}–{} nm and half a band beyond them): {e}",
+                    crate::limits::fmt_num((w * 1e6).round() / 1e6),
+                    sp.planes(),
+                    crate::limits::fmt_num(b0),
+                    crate::limits::fmt_num(b1)
+                ))
+            })?;
         }
         config.validate()?;
         let kernels: Vec<Option<AiryKernel>> = config
@@ -360,17 +398,20 @@ impl<'a> Renderer<'a> {
         Ok(())
     }
 
-    /// Where the render's planes reach beyond the scene's bands by more than one render band (the scene's
-    /// spectrum is held constant there, at its end band): `None` for a scene that spans the render's bands
+    /// Where the render's planes reach beyond the scene's bands by more than one render band, or by more than
+    /// the scene's own span (the scene's spectrum is held constant there, at its end band; a one-band scene:
+    /// every plane off its band): `None` for a scene that spans the render's bands
     /// (whose outer planes lie half a band beyond its first and last band, by construction). `render`,
     /// `render-dataset` and the bindings warn with [`SpectralExtrapolation::message`] and record it in render.json.
     pub fn spectral_extrapolation(&self, scene: &SpectralCube) -> Option<SpectralExtrapolation> {
         let (ws, bands, planes) = (&scene.wavelengths_nm, &self.config.spectral.bands_nm, &self.config.spectral.planes_nm);
-        if ws.len() < 2 || bands.len() < 2 {
-            return None;
-        }
-        let (lo, hi) = (ws[0], ws[ws.len() - 1]);
-        let step = (bands[bands.len() - 1] - bands[0]) / (bands.len() - 1) as f64;
+        let (&lo, &hi) = (ws.first()?, ws.last()?);
+        // One render band (the planes' spacing with one band), and no more than the scene's own span: a plane
+        // 1800 nm past a 400–700 nm scene was not reported when the render's bands were 2120 nm apart, and a
+        // one-band scene (a constant spectrum everywhere) never was (a held-out battery, round 7).
+        let spacing = |v: &[f64]| if v.len() >= 2 { (v[v.len() - 1] - v[0]) / (v.len() - 1) as f64 } else { f64::INFINITY };
+        let render_step = if bands.len() >= 2 { spacing(bands) } else { spacing(planes) };
+        let step = render_step.min(hi - lo);
         let beyond = |w: f64| (lo - w).max(w - hi).max(0.0);
         let far: Vec<f64> = planes.iter().map(|&w| beyond(w)).filter(|&d| d > step).collect();
         let beyond_nm = far.iter().cloned().fold(0.0, f64::max);

@@ -21,6 +21,15 @@ pub fn outputs_complete(dir: &Path) -> bool {
     REQUIRED_OUTPUTS.iter().all(|f| dir.join(f).is_file())
 }
 
+/// Whether `dir/acquisition.exr` is the acquisition its render.json (`json`) records (its `Y` channel's
+/// `acquisition_f32le_sha256`; a record without one, from before 30 Nov 2026, is taken as it is). A resumed
+/// study re-renders a scene whose acquisition was replaced instead of scoring another scene's data.
+pub fn acquisition_intact(dir: &Path, json: &serde_json::Value) -> bool {
+    let Some(recorded) = json.get("acquisition_f32le_sha256") else { return true };
+    let Ok(img) = crate::io::exr::read_exr(dir.join("acquisition.exr")) else { return false };
+    img.channels.iter().find(|c| c.name == "Y").is_some_and(|c| recorded.as_str() == Some(super::engine::acquisition_sha256(&c.data).as_str()))
+}
+
 /// The 16-bit preview's scale: 65535 / the acquisition's maximum (0 for a black acquisition); `render.json`
 /// records it as `preview_scale`.
 pub fn preview_scale(acq: &Acquisition) -> f64 {
@@ -36,6 +45,17 @@ pub fn preview_scale(acq: &Acquisition) -> f64 {
 /// scale (PNG value = min(65535, round(value × scale))).
 pub fn write_images(dir: &Path, renderer: &Renderer, acq: &Acquisition) -> Result<f64> {
     let det = &acq.detector;
+    // The acquisition sums the planes and concentrates light: a scene within the radiance limit can give
+    // values `reconstruct` refuses (its f32 sums; a held-out battery, round 7). Refused before anything is written.
+    if let Some((i, &v)) = acq.image.iter().enumerate().find(|(_, v)| v.abs() > crate::limits::MAX_SCENE_VALUE) {
+        return Err(crate::error::Error::invalid(format!(
+            "the acquisition reaches {} at detector pixel (row {}, col {}), beyond ±{:.3e}, what `reconstruct` accepts (its f32 sums could overflow): scale the scene's radiance down",
+            crate::limits::fmt_num(v),
+            i / det.width,
+            i % det.width,
+            crate::limits::MAX_SCENE_VALUE
+        )));
+    }
     let img = acq.image_f32();
     write_exr(dir.join("acquisition.exr"), det.width, det.height, &[ExrChannel { name: "Y".into(), data: img.clone() }])?;
     let scale = preview_scale(acq);
@@ -76,7 +96,7 @@ pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value
         "version": env!("CARGO_PKG_VERSION"),
         "system": renderer.system.name(),
         "system_spec": serde_json::to_value(&renderer.system.spec).unwrap_or(serde_json::Value::Null),
-        "tracer": renderer.tracer.name(),
+        "tracer": renderer.tracer_name(),
         "kernel": c.kernel.name(),
         "precision": c.precision,
         "scene": scene,
@@ -115,6 +135,8 @@ pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value
         "timings": acq.timings,
         "rays_per_second": if acq.timings.wall_seconds > 0.0 { traced as f64 / acq.timings.wall_seconds } else { 0.0 },
     });
+    // The acquisition.exr the render writes, by content (`reconstruct` and a resumed study check it).
+    v["acquisition_f32le_sha256"] = serde_json::json!(acq.image_sha256());
     // An object at infinity: the scene's angular extent (what `reconstruct` rebuilds the renderer from) and
     // the pixel's angle; there is no scene pitch in mm.
     if let Some(f) = c.scene_fov_deg {

@@ -46,6 +46,12 @@ pub fn wavelength_from_name(name: &str) -> Option<f64> {
 /// 28 bands 450–650 nm).
 pub fn load_scene(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<SpectralCube> {
     if path.is_dir() {
+        // A command's output folder is no PNG stack (its acquisition.png would be read as a band).
+        for (marker, what) in [("render.json", "a render folder"), ("reconstruct.json", "a reconstruction folder (its cube is cube.npy)"), ("dataset.json", "a render-dataset output"), ("study.json", "a study output")] {
+            if path.join(marker).is_file() {
+                return Err(file_err(path, &format!("{what}, not a scene: give a scene file (.npy, .exr, an RGB .png) or a folder of per-band PNGs")));
+            }
+        }
         return load_png_stack(path, wavelengths_nm);
     }
     if !path.exists() {

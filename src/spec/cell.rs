@@ -4,7 +4,7 @@ use serde::{Deserialize, Serialize};
 ///
 /// In a file a fixed cell is a bare number (`tilt_y_deg = -30.0`); otherwise a table:
 /// `{ value = 30.0, pickup = { surface = 7, scale = 1.0 } }`, `{ solve = "chief_ray" }`,
-/// `{ value = 50.0, variable = true }`.
+/// `{ value = 50.0, variable = true }`, `{ value = 30.0, unknown_pickup = true }`.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 #[serde(into = "CellRepr")]
 pub struct Cell {
@@ -24,6 +24,12 @@ pub enum Driver {
     Pickup(Pickup),
     /// Coordinate Break decenter/tilt solved so the primary-wavelength chief ray follows the new axis. ("C")
     ChiefRay,
+    /// A pickup ("P") whose source the file does not say (a Lens Data Editor transcription,
+    /// `spec::zemax_csv`): traced at its shown value, like a fixed cell, but it would not follow its source
+    /// when that changes, so no cell of its column (a pickup reads its own column unless it says otherwise)
+    /// may be freed for a fit or a design ([`crate::diff::ParamSet`] refuses, naming the cells). Written `{ value = 30.0, unknown_pickup = true }`;
+    /// replace it by `{ value = 30.0, pickup = { surface = 7, scale = -1.0 } }` once the source is known.
+    UnknownPickup,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -77,7 +83,7 @@ impl From<f64> for Cell {
 }
 
 /// What a cell may be written as, for messages.
-const CELL_FORMS: &str = "a number, or a table such as { value = 50.0, variable = true }, { pickup = { surface = 7, scale = 1.0, offset = 0.0 } } or { solve = \"chief_ray\" }";
+const CELL_FORMS: &str = "a number, or a table such as { value = 50.0, variable = true }, { pickup = { surface = 7, scale = 1.0, offset = 0.0 } }, { solve = \"chief_ray\" } or { value = 30.0, unknown_pickup = true }";
 
 /// Deserialized by hand (not `#[serde(untagged)]`) so that a wrong cell says which forms are accepted and,
 /// inside a table, which key is wrong — instead of serde's "did not match any variant of untagged enum".
@@ -110,6 +116,12 @@ impl<'de> Deserialize<'de> for Cell {
             }
             fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<Cell, A::Error> {
                 let t = CellTable::deserialize(serde::de::value::MapAccessDeserializer::new(map))?;
+                // One driver per cell: `pickup`, `solve` and `unknown_pickup` exclude one another.
+                let drivers = [t.pickup.is_some().then_some("pickup"), t.solve.is_some().then_some("solve"), t.unknown_pickup.then_some("unknown_pickup = true")];
+                let given: Vec<&str> = drivers.into_iter().flatten().collect();
+                if given.len() > 1 {
+                    return Err(serde::de::Error::custom(format!("a cell has one driver, not {}", given.join(" and "))));
+                }
                 Ok(Cell::from(CellRepr::Table(t)))
             }
         }
@@ -137,6 +149,9 @@ struct CellTable {
     pickup: Option<Pickup>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     solve: Option<SolveName>,
+    /// A pickup of unknown source ([`Driver::UnknownPickup`]).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    unknown_pickup: bool,
 }
 
 #[derive(Serialize, Deserialize, Clone, Copy)]
@@ -154,6 +169,7 @@ impl From<CellRepr> for Cell {
                 let driver = match (t.pickup, t.solve) {
                     (Some(p), _) => Driver::Pickup(p),
                     (None, Some(SolveName::ChiefRay)) => Driver::ChiefRay,
+                    (None, None) if t.unknown_pickup => Driver::UnknownPickup,
                     (None, None) => Driver::Fixed,
                 };
                 Cell { value: t.value, variable: t.variable, driver }
@@ -167,11 +183,12 @@ impl From<Cell> for CellRepr {
         match c.driver {
             Driver::Fixed if !c.variable && c.value == f64::INFINITY => CellRepr::Infinity("infinity"),
             Driver::Fixed if !c.variable => CellRepr::Value(c.value),
-            Driver::Fixed => CellRepr::Table(CellTable { value: c.value, variable: true, pickup: None, solve: None }),
-            Driver::Pickup(p) => CellRepr::Table(CellTable { value: c.value, variable: c.variable, pickup: Some(p), solve: None }),
+            Driver::Fixed => CellRepr::Table(CellTable { value: c.value, variable: true, pickup: None, solve: None, unknown_pickup: false }),
+            Driver::Pickup(p) => CellRepr::Table(CellTable { value: c.value, variable: c.variable, pickup: Some(p), solve: None, unknown_pickup: false }),
             Driver::ChiefRay => {
-                CellRepr::Table(CellTable { value: c.value, variable: c.variable, pickup: None, solve: Some(SolveName::ChiefRay) })
+                CellRepr::Table(CellTable { value: c.value, variable: c.variable, pickup: None, solve: Some(SolveName::ChiefRay), unknown_pickup: false })
             }
+            Driver::UnknownPickup => CellRepr::Table(CellTable { value: c.value, variable: c.variable, pickup: None, solve: None, unknown_pickup: true }),
         }
     }
 }

@@ -135,6 +135,20 @@ fn is_default_air_index(v: &f64) -> bool {
 }
 
 impl SystemSpec {
+    /// The cells that are pickups of unknown source ([`super::Driver::UnknownPickup`], a prescription
+    /// CSV's `P` cell), as `surface S column`: a fit or design may free no cell of their columns.
+    pub fn unknown_pickups(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for (i, s) in self.surfaces.iter().enumerate() {
+            for col in s.present_columns() {
+                if s.cell(&col).is_some_and(|c| c.driver == super::Driver::UnknownPickup) {
+                    out.push(format!("surface {i} {col}"));
+                }
+            }
+        }
+        out
+    }
+
     /// Why surface `i` cannot carry a coating, or `None` when it can: coatings act on the Fresnel reflection
     /// of a refracting interface, which the object surface, the image surface (the detector only absorbs),
     /// a Coordinate Break (no surface), a paraxial lens (an ideal, lossless thin lens) and a mirror (a perfect
@@ -351,6 +365,16 @@ impl SystemSpec {
             }
             if i == 0 && s.thickness_mm.value == f64::NEG_INFINITY {
                 return Err(at("thickness_mm", "-infinity: an object at infinity is +infinity".into()));
+            }
+            // Field points start on the flat plane at the object's vertex: a curved object surface (a finite
+            // object) would be shown and not traced (a held-out battery, round 7; rayoptics ignores it too).
+            if i == 0 && !infinite {
+                if let Some(r) = s.radius_mm.as_ref().map(|c| c.value).filter(|r| r.is_finite() && *r != 0.0) {
+                    return Err(at("radius_mm", format!("{}: a curved object surface is not modelled (field points start on the flat object plane); make the object flat (radius infinity)", crate::limits::fmt_num(r))));
+                }
+                if s.asphere_coefficients.iter().any(|c| c.value != 0.0) {
+                    return Err(at("asphere_coefficients", "an aspheric object surface is not modelled (field points start on the flat object plane)".into()));
+                }
             }
             if i == 0 && infinite && s.thickness_mm.driver != super::Driver::Fixed {
                 return Err(at("thickness_mm", "an infinite object distance must be a fixed value (no pickup or solve)".into()));

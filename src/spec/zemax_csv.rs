@@ -4,7 +4,10 @@
 //! Zemax's solve flag after it: `V` variable, `P` pickup, `C` chief-ray solve, `U` user semi-diameter.
 //! `(aper)` in the type or comment marks a surface with a clipping aperture (its semi-diameter).
 //! A transcription does not say where a pickup reads from; callers pass [`PickupSource`]s, and a `P` cell
-//! with no source is kept as its shown value (fixed) — the import never invents a source.
+//! with no source becomes [`Driver::UnknownPickup`]: traced at its shown value, but a fit or a design that
+//! frees a cell of its column is refused (the pickup would not follow its source) — the import never
+//! invents a source. (The presets, [`crate::presets`], keep such cells fixed at their shown value, as
+//! documented there: `SystemData::keep_unsourced_pickups`.)
 use super::{Cell, Driver, Pickup, RayAiming, SurfaceKind, SurfaceSpec, SystemAperture, SystemSpec};
 use crate::error::{Error, Result};
 use crate::materials::WavelengthPolicy;
@@ -20,6 +23,10 @@ pub struct SystemData {
     pub primary_wavelength_nm: f64,
     pub fields_mm: Vec<[f64; 2]>,
     pub pickups: Vec<PickupSource>,
+    /// What a `P` cell with no source in `pickups` becomes: [`Driver::UnknownPickup`] (a user's file), or a
+    /// fixed cell at its shown value (`true`: the presets, whose sources were identified from the values
+    /// shown and whose other `P` cells are documented to keep their value; [`crate::presets`]).
+    pub keep_unsourced_pickups: bool,
 }
 
 /// Where the pickup of (surface, column) reads from.
@@ -42,9 +49,13 @@ impl SystemData {
             primary_wavelength_nm: 520.0,
             fields_mm: vec![[0.0, 0.0], [2.5, 0.0], [0.0, 2.5], [2.5, 2.5]],
             pickups: Vec::new(),
+            keep_unsourced_pickups: false,
         }
     }
 }
+
+/// The columns of a transcription (`surf`, `type`, `radius`, `thickness`, `material`, `semi_diameter` required).
+const COLUMNS: [&str; 13] = ["surf", "type", "comment", "radius", "thickness", "material", "semi_diameter", "conic", "par1", "par2", "par3", "par4", "par5"];
 
 /// A value with its Zemax flag.
 struct Flagged {
@@ -96,12 +107,23 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
         }
         let fields: Vec<&str> = line.split(',').collect();
         let Some(cols) = &header else {
-            header = Some(fields.iter().map(|s| s.trim().to_string()).collect());
+            let names: Vec<String> = fields.iter().map(|s| s.trim().to_string()).collect();
             for needed in ["surf", "type", "radius", "thickness", "material", "semi_diameter"] {
-                if !header.as_ref().unwrap().iter().any(|c| c == needed) {
+                if !names.iter().any(|c| c == needed) {
                     return Err(Error::spec(source_name, format!("line {line_no}: header lacks column `{needed}`")));
                 }
             }
+            // A column the reader does not know would be dropped (a Coordinate Break's order flag in `par6`,
+            // an asphere's r¹² term): refused, naming it (a held-out battery, round 7).
+            for (k, c) in names.iter().enumerate() {
+                if !COLUMNS.contains(&c.as_str()) {
+                    return Err(Error::spec(source_name, format!("line {line_no}: unknown column `{c}` (a prescription CSV has {}; a Coordinate Break's order flag and terms beyond par5 are not read: give such a system as a .zmx or a TOML spec)", COLUMNS.join(","))));
+                }
+                if names[..k].contains(c) {
+                    return Err(Error::spec(source_name, format!("line {line_no}: column `{c}` given twice")));
+                }
+            }
+            header = Some(names);
             continue;
         };
         if fields.len() != cols.len() {
@@ -147,7 +169,7 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
                     .iter()
                     .find(|p| p.surface == surf && p.column == column)
                     .map(|p| Driver::Pickup(Pickup { surface: p.from_surface, scale: p.scale, offset: 0.0, column: None }))
-                    .unwrap_or(Driver::Fixed),
+                    .unwrap_or(if data.keep_unsourced_pickups { Driver::Fixed } else { Driver::UnknownPickup }),
                 _ => Driver::Fixed,
             };
             Cell { value: f.value, variable: f.flag == Some('V'), driver }
@@ -185,6 +207,21 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
             let name = format!("par{i}");
             parse_flagged(get(&name), &at(&name))
         };
+        // A cell the surface type does not have would be dropped: refused unless empty or 0 (the screenshots
+        // leave them blank). A Paraxial's par2 (OPD mode) changes no ray and is read as nothing.
+        let unused: &[&str] = match kind {
+            SurfaceKind::CoordinateBreak => &["radius", "conic"],
+            SurfaceKind::Paraxial => &["radius", "conic", "par3", "par4", "par5"],
+            SurfaceKind::Standard => &["par1", "par2", "par3", "par4", "par5"],
+            SurfaceKind::EvenAsphere | SurfaceKind::Toroidal | SurfaceKind::DiffractionGrating => &[],
+        };
+        for &name in unused {
+            if let Some(f) = parse_flagged(get(name), &at(name))? {
+                if f.value != 0.0 || f.flag.is_some() {
+                    return Err(at(name)(&format!("`{}`: a {} surface has no such cell (it would be ignored); leave it empty", get(name), kind.label())));
+                }
+            }
+        }
         match kind {
             SurfaceKind::Paraxial => {
                 let f = par(1)?.ok_or_else(|| at("par1")("a Paraxial surface needs its focal length in par1"))?;
@@ -204,10 +241,15 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
                 }
             }
             SurfaceKind::EvenAsphere => {
-                for i in 1..=5 {
-                    if let Some(a) = par(i)? {
-                        s.asphere_coefficients.push(Cell { value: a.value, variable: a.flag == Some('V'), driver: Driver::Fixed });
-                    }
+                // par k is the r^(2k) coefficient: an empty cell before a given one is 0, never a shift of
+                // the later terms to lower powers (a held-out battery, round 7).
+                let pars = (1..=5).map(par).collect::<Result<Vec<_>>>()?;
+                let given = pars.iter().rposition(Option::is_some).map_or(0, |k| k + 1);
+                for a in &pars[..given] {
+                    s.asphere_coefficients.push(match a {
+                        Some(a) => Cell { value: a.value, variable: a.flag == Some('V'), driver: Driver::Fixed },
+                        None => Cell::fixed(0.0),
+                    });
                 }
             }
             SurfaceKind::Standard | SurfaceKind::Toroidal | SurfaceKind::DiffractionGrating => {}

@@ -329,7 +329,8 @@ fn resolve_cell(spec: &SystemSpec, i: usize, col: &str, depth: usize) -> Result<
     }
     let cell = spec.surfaces[i].cell(col).ok_or_else(|| format!("surface {i} has no `{col}` column to pick up"))?;
     match &cell.driver {
-        Driver::Fixed => Ok(Some(cell.value)),
+        // A pickup of unknown source is traced at its shown value.
+        Driver::Fixed | Driver::UnknownPickup => Ok(Some(cell.value)),
         Driver::ChiefRay => Ok(None),
         Driver::Pickup(p) => {
             let src_col = p.column.as_deref().unwrap_or(col);

@@ -86,6 +86,12 @@ pub enum RayStatus {
 }
 
 impl RayStatus {
+    /// For `#[serde(serialize_with = "RayStatus::serialize_label")]`: a status field written as its label
+    /// (`ok`, `tir`, …), as the CSV tables and `trace` write it, so a JSON and a CSV of one analysis agree.
+    pub fn serialize_label<S: serde::Serializer>(s: &RayStatus, out: S) -> std::result::Result<S::Ok, S::Error> {
+        out.serialize_str(s.label())
+    }
+
     pub fn label(self) -> &'static str {
         match self {
             RayStatus::Ok => "ok",

@@ -244,7 +244,9 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
         "oracle": kind == OperatorKind::Exact && seed == record.config.seed && record.config.rays_per_pixel == acquisition_rays,
         "operator_rays": if kind == OperatorKind::Exact { serde_json::json!(record.config.rays_per_pixel) } else { serde_json::Value::Null },
         "acquisition_rays": acquisition_rays,
-        "tracer": tracer.name(),
+        // The exact operator traces in the render's precision (an f32 render: the f32 twin); the model
+        // operators trace chief rays with the f64 tracer.
+        "tracer": if kind == OperatorKind::Exact { crate::render::engine::tracer_of_record(tracer.name(), record.config.precision) } else { tracer.name() },
         "solver": settings.solver,
         "solver_settings": solved.settings,
         "shape": {"height": c.height, "width": c.width, "bands": c.bands},

@@ -93,6 +93,13 @@ impl RenderRecord {
         }
         let jp = dir.join("render.json");
         if !jp.is_file() {
+            // A render-dataset or study output holds render folders one or two levels down: say where.
+            if dir.join(crate::render::dataset::MANIFEST).is_file() {
+                return Err(ferr(dir, format!("a render-dataset output, not a render folder: give one scene's folder (`{}/SCENE`)", dir.display())));
+            }
+            if dir.join("study.json").is_file() {
+                return Err(ferr(dir, format!("a study output, not a render folder: its renders are `{}/renders/SYSTEM/SCENE`", dir.display())));
+            }
             return Err(ferr(&jp, "missing: not a (complete) render folder — run `diffcassi render --out` first"));
         }
         let text = std::fs::read_to_string(&jp).map_err(|e| ferr(&jp, format!("cannot read: {e}")))?;
@@ -206,6 +213,9 @@ impl RenderRecord {
         if (mask.height, mask.width) != (h, w) {
             return Err(ferr(&mask_path, format!("the mask is {}×{} but the scene (render.json) is {h}×{w}", mask.height, mask.width)));
         }
+        if mask.values.iter().all(|&v| v == 0.0) {
+            return Err(ferr(&mask_path, "the mask is closed at every pixel: no light of the scene reached the detector, there is nothing to reconstruct"));
+        }
         // The mask the render used (its 16-bit codes' SHA-256; render.json since 30 Nov 2026, older records have
         // none): a replaced mask file would give a silently wrong reconstruction.
         if let Some(recorded) = json.get("mask_png_sha256") {
@@ -226,7 +236,28 @@ impl RenderRecord {
             return Err(ferr(&ap, "missing: the render folder has no acquisition"));
         }
         let img = crate::io::exr::read_exr(&ap)?;
-        let ch = img.channels.iter().find(|c| c.name == "Y").or(img.channels.first()).ok_or_else(|| ferr(&ap, "no channel"))?;
+        // The render writes one channel `Y`; a file of several channels without it (a cube's EXR copied in) is
+        // not an acquisition (its first band was read as one; a held-out battery, round 7).
+        let ch = match img.channels.iter().find(|c| c.name == "Y") {
+            Some(c) => c,
+            None if img.channels.len() == 1 => &img.channels[0],
+            None => {
+                let names: Vec<&str> = img.channels.iter().map(|c| c.name.as_str()).collect();
+                return Err(ferr(&ap, format!("{} channels ({}) and no `Y`: not an acquisition (a render writes one channel `Y`)", names.len(), names.join(", "))));
+            }
+        };
+        // The acquisition the render wrote (render.json since 30 Nov 2026; older records have none): another
+        // run's acquisition.exr copied in would be reconstructed with this record's operator, exit 0.
+        if let Some(recorded) = json.get("acquisition_f32le_sha256") {
+            let recorded = recorded.as_str().ok_or_else(|| ferr(&jp, format!("field `acquisition_f32le_sha256` = {recorded} is not a string")))?;
+            let found = crate::render::engine::acquisition_sha256(&ch.data);
+            if recorded != found {
+                return Err(ferr(
+                    &ap,
+                    format!("not the acquisition this render wrote: its SHA-256 (f32 values) is {found}, render.json's `acquisition_f32le_sha256` is {recorded}; restore the render's acquisition.exr or render again"),
+                ));
+            }
+        }
         if let Some(i) = ch.data.iter().position(|v| !v.is_finite()) {
             return Err(ferr(&ap, format!("pixel {} (row {}, col {}) is {} (not finite)", i, i / img.width, i % img.width, ch.data[i])));
         }
@@ -258,7 +289,10 @@ impl RenderRecord {
 
     /// The tracer the render recorded (render.json `tracer`; analytic when it cannot be parsed).
     pub fn tracer(&self) -> Result<Box<dyn Tracer>> {
-        let cfg: crate::tracer::BackendConfig = self.tracer_name.parse().unwrap_or_else(|_| "analytic".parse().expect("analytic parses"));
+        // An f32 render records `analytic-f32` (the analytic backend's f32 twin, chosen by `precision`, which
+        // the renderer takes from the record): the backend to build is the analytic one.
+        let name = if self.tracer_name == "analytic-f32" { "analytic" } else { self.tracer_name.as_str() };
+        let cfg: crate::tracer::BackendConfig = name.parse().unwrap_or_else(|_| "analytic".parse().expect("analytic parses"));
         cfg.build()
     }
 

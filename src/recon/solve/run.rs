@@ -65,7 +65,7 @@ impl<'a, 'd> Run<'a, 'd> {
         // return the zero cube with residual 1 — a silently wrong result; refuse it.
         if !(pre.max() > 0.0) {
             return Err(crate::error::Error::invalid(format!(
-                "the operator `{}` maps no voxel of the {}×{}×{} cube onto any of the {}×{} detector pixels (ΦΦᵀ𝟙 = 0 everywhere): every solver would return 0 — it does not model this acquisition (a dual-disperser system's mask has the scene's pixel count: a small scene, or a fine mask pitch, lets the dispersion carry the image past the mask; the chief-ray operators see only the bands' centres)",
+                "the operator `{}` maps no voxel of the {}×{}×{} cube onto any of the {}×{} detector pixels (ΦΦᵀ𝟙 = 0 everywhere): every solver would return 0 — it does not model this acquisition (the mask is closed wherever the light lands: closed everywhere, or, in a dual-disperser system whose mask has the scene's pixel count, a small scene or a fine mask pitch lets the dispersion carry the image past the mask; the chief-ray operators see only the bands' centres)",
                 op.name(),
                 shape.height,
                 shape.width,

@@ -54,6 +54,12 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
     if spec.mechanics.is_some() {
         return Err(fail("the [mechanics] section (mounts and meshes) has no sequential .zmx equivalent: export as .toml or .json".into()));
     }
+    // A `.zmx` pickup names its source; written as a plain value it would lose the mark that keeps a fit
+    // from freeing its source (and OpticStudio would not follow it either).
+    let unknown = spec.unknown_pickups();
+    if !unknown.is_empty() {
+        return Err(fail(format!("pickups of unknown source ({}) cannot be written as .zmx pickups: give their sources in a .toml/.json spec first, or export as .toml or .json", unknown.join(", "))));
+    }
     if let Some((i, _)) = spec.surfaces.iter().enumerate().find(|(_, s)| s.coating.is_some()) {
         return Err(fail(format!("surface {i} has a coating, which the .zmx export cannot write (it would be dropped): export as .toml or .json")));
     }
@@ -218,7 +224,8 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
                 let _ = writeln!(w, "  DCVR {col}");
             }
             match &cell.driver {
-                Driver::Fixed => {}
+                // (A pickup of unknown source was refused above.)
+                Driver::Fixed | Driver::UnknownPickup => {}
                 Driver::ChiefRay => {
                     let _ = writeln!(w, "  DCCR {col}");
                 }

@@ -17,6 +17,9 @@ use crate::materials::{builtin_catalogs, Glass, GlassCatalog};
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
+/// The temperature of every imported system (°C): OpticStudio's default `ENVD 20 1`, the only one accepted.
+const SYSTEM_TEMPERATURE_C: f64 = 20.0;
+
 /// Find `NAME.AGF` (case-insensitive file name) in the folders.
 pub(super) fn find_catalog(name: &str, dirs: &[PathBuf]) -> Option<PathBuf> {
     let want = format!("{name}.agf").to_ascii_lowercase();
@@ -180,24 +183,49 @@ pub(super) fn resolve(
             files.push(u.clone());
         }
     }
-    let base = loaded.merged(&files)?;
-    // Glasses in no file nor the subset: the first stand-in (GCAT order) that holds them, else (the last
-    // resort, said in a note) the first legacy catalogue that does.
+    let subset = GlassCatalog::builtin();
+    // Each glass as OpticStudio finds it: in the file's catalogues (the files found, then the built-in
+    // stand-ins, the first in GCAT order that holds it) — HIKARI's SF10 for `GCAT HIKARI`, not the subset's
+    // SCHOTT SF10 (a held-out battery, round 7) — else the built-in SCHOTT subset (said in a note when the
+    // file names catalogues), else, the last resort (said in a note), the first legacy catalogue holding it.
+    // `wanted[i]`: the glass of `uses[i]` when it is not a file's (a file's is what `base` holds).
+    let mut wanted: Vec<Option<Glass>> = vec![None; uses.len()];
     let mut used: Vec<usize> = Vec::new();
     let mut legacy_used: Vec<&'static str> = Vec::new();
     let mut notes = Vec::new();
-    for (line, surface, name) in uses {
-        if base.contains(name) {
+    for (i, (line, surface, name)) in uses.iter().enumerate() {
+        let in_a_file = {
+            let mut hit = false;
+            for f in &files {
+                hit |= loaded.get(f)?.contains(name);
+            }
+            hit
+        };
+        if in_a_file {
             continue;
         }
         let mut found = false;
         for (k, (_, b)) in stand_ins.iter().enumerate() {
-            if loaded.get(&format!("{}{b}", builtin_catalogs::ENTRY_PREFIX))?.contains(name) {
-                if !used.contains(&k) {
+            if let Some(g) = loaded.get(&format!("{}{b}", builtin_catalogs::ENTRY_PREFIX))?.find(name).map(|g| (**g).clone()) {
+                // The built-in SCHOTT standing in for `GCAT SCHOTT` holds the subset's own data: no entry needed.
+                if subset.find(name).is_none_or(|s| **s != g) && !used.contains(&k) {
                     used.push(k);
                 }
+                wanted[i] = Some(g);
                 found = true;
                 break;
+            }
+        }
+        if !found {
+            if let Some(g) = subset.find(name) {
+                if let Some((gl, names)) = gcat.filter(|g| !g.1.is_empty()) {
+                    notes.push(format!(
+                        "line {line} `GLAS`: glass `{name}` of surface {surface} is in none of the file's catalogues (`GCAT {}`, line {gl}); taken from the {SUBSET}",
+                        names.join(" ")
+                    ));
+                }
+                wanted[i] = Some((**g).clone());
+                found = true;
             }
         }
         if !found {
@@ -212,6 +240,7 @@ pub(super) fn resolve(
                     if !legacy_used.contains(&l) {
                         legacy_used.push(l);
                     }
+                    wanted[i] = Some((**g).clone());
                     found = true;
                     break;
                 }
@@ -252,12 +281,9 @@ pub(super) fn resolve(
         Ok(uses.iter().map(|u| m.find(&u.2).map(|g| (**g).clone())).collect())
     };
     let want: Vec<Option<Glass>> = {
+        // A file's glass as the files merge (a later file wins); the others as chosen above.
         let w = chosen(&mut loaded, &files)?;
-        let mut full: Vec<String> = builtin_entries.clone();
-        full.extend(files.iter().cloned());
-        let f = chosen(&mut loaded, &full)?;
-        // A glass the subset or a file resolved keeps that glass; the others take the built-in's.
-        w.into_iter().zip(f).map(|(a, b)| a.or(b)).collect()
+        w.into_iter().zip(wanted).map(|(a, b)| b.or(a)).collect()
     };
     let mut entries: Vec<String> = builtin_entries.iter().cloned().chain(files.iter().cloned()).collect();
     if !builtin_entries.is_empty() && chosen(&mut loaded, &entries)? != want {
@@ -274,6 +300,16 @@ pub(super) fn resolve(
             "line {} `GLAS`: glass `{}` of surface {} is in more than one of the file's catalogues with different data ({}), and the spec's catalogue list cannot keep OpticStudio's choice: give it in one catalogue file only",
             uses[k].0, uses[k].2, uses[k].1, entries.join(", ")
         ));
+    }
+    // The system is at 20 °C (`ENVD` is refused otherwise): a glass whose data are referenced to another
+    // temperature (its `TD` record) would need the thermal index change, which is not modelled.
+    for ((line, surface, name), g) in uses.iter().zip(&got) {
+        if let Some(t) = g.as_ref().and_then(|g| g.thermal).filter(|t| t.reference_temperature_c != SYSTEM_TEMPERATURE_C) {
+            return Err(format!(
+                "line {line} `GLAS`: glass `{name}` of surface {surface} is referenced to {} °C (its catalogue's `TD` record) and the system is at {SYSTEM_TEMPERATURE_C} °C: the thermal change of its index (dn/dT) is not modelled; use the glass's data at {SYSTEM_TEMPERATURE_C} °C",
+                crate::limits::fmt_num(t.reference_temperature_c)
+            ));
+        }
     }
     for &k in &used {
         let (n, b) = &stand_ins[k];

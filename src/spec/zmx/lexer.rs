@@ -115,6 +115,8 @@ pub fn decode_with_encoding(bytes: &[u8], source_name: &str) -> Result<(String, 
         // C1 controls, which check_text refuses as binary).
         Err(_) => (encoding_rs::WINDOWS_1252.decode_without_bom_handling(body).0.into_owned(), TextEncoding::Windows1252),
     };
+    // Classic Mac OS line ends (CR alone) read as line ends too, not as one long line.
+    let text = if text.contains('\r') && !text.contains('\n') { text.replace('\r', "\n") } else { text };
     check_text(&text, source_name)?;
     Ok((text, enc))
 }
