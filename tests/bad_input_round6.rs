@@ -4,18 +4,8 @@
 //! solvers takes (`--iterations` with `--solvers unrolled`: ignored by every cell), `cuda:01` (read as
 //! `cuda:1`; torch refuses it), and `info`'s flat radius printed as `inf`. Each case runs the real binary:
 //! the exit code, a message naming the problem, nothing written.
-use std::path::Path;
 
-use crate::cli_run::{ok_cli as ok, run_cli as run};
-
-fn refused(dir: &Path, args: &[&str], needles: &[&str]) {
-    let (code, out) = run(dir, args);
-    assert_eq!(code, Some(1), "{args:?}: {out}");
-    assert!(!out.contains("panicked"), "{args:?}: {out}");
-    for n in needles {
-        assert!(out.contains(n), "{args:?}: `{n}` not in: {out}");
-    }
-}
+use crate::cli_run::{ok_cli as ok, refused_cli as refused, run_cli as run};
 
 /// `render.json` records the SHA-256 of the mask's 16-bit codes (`mask_png_sha256`, [`Mask::png_sha256`]);
 /// `reconstruct` recomputes it from the mask file it reads and refuses another mask, naming the file and both

@@ -3,16 +3,7 @@
 //! the library: what was silently wrong is refused or right, with a message naming the problem.
 use std::path::Path;
 
-use crate::cli_run::{ok_cli as ok, run_cli as run};
-
-fn refused(dir: &Path, args: &[&str], needles: &[&str]) {
-    let (code, out) = run(dir, args);
-    assert_eq!(code, Some(1), "{args:?}: {out}");
-    assert!(!out.contains("panicked"), "{args:?}: {out}");
-    for n in needles {
-        assert!(out.contains(n), "{args:?}: `{n}` not in: {out}");
-    }
-}
+use crate::cli_run::{ok_cli as ok, refused_cli as refused, run_cli as run};
 
 fn json(p: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()

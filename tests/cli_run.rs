@@ -13,3 +13,13 @@ pub fn ok_cli(dir: &std::path::Path, args: &[&str]) -> String {
     assert_eq!(code, Some(0), "{args:?}: {out}");
     out
 }
+
+/// [`run_cli`] that must be refused: exit 1, no panic, and every needle in the message.
+pub fn refused_cli(dir: &std::path::Path, args: &[&str], needles: &[&str]) {
+    let (code, out) = run_cli(dir, args);
+    assert_eq!(code, Some(1), "{args:?}: {out}");
+    assert!(!out.contains("panicked"), "{args:?}: {out}");
+    for n in needles {
+        assert!(out.contains(n), "{args:?}: `{n}` not in: {out}");
+    }
+}
