@@ -230,3 +230,25 @@ fn a_one_band_scene_is_reported_as_extrapolated() {
     let out = ok(dir, &["render", "--preset", "sp", "--scene", "full.npy", "--scene-size", "8", "--bands", "450:650:4", "--planes", "8", "--rays", "1", "--out", "f"]);
     assert!(!out.contains("beyond the scene's bands"), "{out}");
 }
+
+/// PnP's record says what ended its TV phase (`tv_phase_stopped_by`: the TV rule's τ, or --tv-warmup) beside
+/// what ended the run (it said `stopped_by: iterations` while τ had ended the TV phase); `from` is absolute.
+#[test]
+fn pnp_records_what_ended_its_tv_phase() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    ok(dir, &["render", "--preset", "sp", "--scene-size", "16", "--planes", "28", "--rays", "1", "--out", "r"]);
+    ok(dir, &["reconstruct", "--from", "r", "--solver", "pnp-gap", "--out", "p"]);
+    let j = json(&dir.join("p/reconstruct.json"));
+    let st = &j["stopping"];
+    let by = st["tv_phase_stopped_by"].as_str().unwrap_or_else(|| panic!("{st}"));
+    assert!(by == "discrepancy" || by == "iterations", "{st}");
+    assert!(st["tv_phase_iterations"].as_u64().is_some(), "{st}");
+    ok(dir, &["reconstruct", "--from", "r", "--solver", "pnp-gap", "--tv-warmup", "1", "--out", "p1"]);
+    let st = &json(&dir.join("p1/reconstruct.json"))["stopping"];
+    assert!(st["tv_phase_iterations"] == 1 || st["tv_phase_stopped_by"] == "discrepancy", "{st}");
+    assert!(Path::new(j["from"].as_str().unwrap()).is_absolute(), "{}", j["from"]);
+    let (code, out) = run(dir, &["distortion", "--preset", "sp", "--grid", "3"]);
+    assert_eq!(code, Some(0), "{out}");
+    assert!(out.contains("max distortion") && !out.contains("rays that arrived"), "{out}");
+}

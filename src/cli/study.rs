@@ -792,7 +792,7 @@ pub fn study(a: StudyArgs) -> Result<()> {
                 let cell = json!({
                     "config": config, "preset": sys.preset, "system": label, "system_file": sys.file.as_ref().map(|p| p.display().to_string()), "scene": scene.name, "scene_sha256": scene.digest, "operator": op_kind.name(), "solver": solver,
                     "metrics": ev.metrics, "warnings": ev.warnings, "truth_resampled": ev.truth_resampled, "iterations": solved.residuals.len(), "stopped_by": solved.stopping.get("stopped_by"), "final_residual": final_residual,
-                    "seconds_solve": solved.seconds, "seconds_operator": seconds_operator, "reconstruction": rdir.display().to_string(),
+                    "seconds_solve": solved.seconds, "seconds_operator": seconds_operator, "reconstruction": rdir.strip_prefix(&a.out).unwrap_or(&rdir).display().to_string(),
                 });
                 write_json(&cell_path(&scene.name, op_kind, solver), &cell)?;
                 computed += 1;

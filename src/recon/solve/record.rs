@@ -59,6 +59,9 @@ impl Reconstruction {
             "noise_estimate": noise_estimate,
             "iteration_cap": self.config.iterations,
             "tv_phase_iterations": self.denoiser.get("tv_warmup").and_then(|w| w.get("iterations_run")).cloned(),
+            // What ended PnP's TV phase (`discrepancy`: its τ rule; `iterations`: --tv-warmup); `stopped_by`
+            // is what ended the run, the network phase.
+            "tv_phase_stopped_by": self.denoiser.get("tv_warmup").and_then(|w| w.get("ended_by")).cloned(),
             "stopped_by": self.stopped_by,
             "iterations_run": self.iterations_run,
             "relative_changes": self.relative_changes,
