@@ -35,12 +35,12 @@ impl Error {
 /// `text` with every decimal number of more than 21 digits rewritten in exponent form (`1e-300`, not 300
 /// zeros): Rust's `{}` never writes an exponent, so a value given as `1e-300` would come back as a
 /// 302-character number in a message. The rewrite is exact (shortest round-trip digits in both forms); a
-/// digit run that touches a letter or an underscore (a hex digest, a name) is left as it is, and so are
-/// integers up to 21 digits (every u64 seed).
+/// digit run that touches a letter, an underscore or a path separator (a hex digest, a name, a folder) is
+/// left as it is, and so are integers up to 21 digits (every u64 seed).
 pub fn tidy_numbers(text: &str) -> std::borrow::Cow<'_, str> {
     const MAX_DIGITS: usize = 21;
     let b = text.as_bytes();
-    let is_word = |c: u8| c.is_ascii_alphabetic() || c == b'_';
+    let is_word = |c: u8| c.is_ascii_alphabetic() || matches!(c, b'_' | b'/' | b'\\');
     let mut out: Option<String> = None;
     let (mut copied, mut i) = (0, 0);
     while i < b.len() {
@@ -87,7 +87,7 @@ mod tests {
         assert_eq!(Error::invalid(huge).to_string(), "value 1.7e308 and -2.5e25");
         assert_eq!(Error::spec("a.toml", format!("radius {}", 1e-300f64)).to_string(), "a.toml: radius 1e-300");
         // Left alone: ordinary numbers, a u64 seed, digests, names with digits.
-        let kept = "seed 18446744073709551615, pitch 0.01 mm, 1e-30, sha 0123456789012345678901234567890123abc, x_12345678901234567890123";
+        let kept = "seed 18446744073709551615, pitch 0.01 mm, 1e-30, sha 0123456789012345678901234567890123abc, x_12345678901234567890123, /tmp/12345678901234567890123/f";
         assert_eq!(Error::invalid(kept).to_string(), kept);
         // The rewrite is exact: the exponent form parses back to the same f64.
         let v = 1.234567890123456789e-25f64;
