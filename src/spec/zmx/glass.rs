@@ -188,7 +188,7 @@ pub(super) fn resolve(
     // stand-ins, the first in GCAT order that holds it) — HIKARI's SF10 for `GCAT HIKARI`, not the subset's
     // SCHOTT SF10 (a held-out battery, round 7) — else the built-in SCHOTT subset (said in a note when the
     // file names catalogues), else, the last resort (said in a note), the first legacy catalogue holding it.
-    // `wanted[i]`: the glass of `uses[i]` when it is not a file's (a file's is what `base` holds).
+    // `wanted[i]`: the glass of `uses[i]` when no file holds it (a file's glass is the files' merge, `want` below).
     let mut wanted: Vec<Option<Glass>> = vec![None; uses.len()];
     let mut used: Vec<usize> = Vec::new();
     let mut legacy_used: Vec<&'static str> = Vec::new();
