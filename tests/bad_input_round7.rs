@@ -252,3 +252,23 @@ fn pnp_records_what_ended_its_tv_phase() {
     assert_eq!(code, Some(0), "{out}");
     assert!(out.contains("max distortion") && !out.contains("rays that arrived"), "{out}");
 }
+
+/// `reconstruct` rebuilds an Embree render's tracer from render.json (its name did not parse, and the exact
+/// operator was silently the analytic tracer's); a tracer name it cannot read is refused, naming the field.
+#[test]
+fn reconstruct_rebuilds_the_renders_tracer() {
+    if !diffcassi::tracer::BackendConfig::available(diffcassi::tracer::Backend::EmbreeUser) {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    ok(dir, &["render", "--preset", "sp", "--scene-size", "8", "--planes", "4", "--rays", "1", "--backend", "embree-user", "--out", "r"]);
+    assert_eq!(json(&dir.join("r/render.json"))["tracer"], "embree-user,refine=f64");
+    ok(dir, &["reconstruct", "--from", "r", "--iterations", "2", "--out", "x"]);
+    assert_eq!(json(&dir.join("x/reconstruct.json"))["tracer"], "embree-user,refine=f64");
+    let jp = dir.join("r/render.json");
+    let mut j = json(&jp);
+    j["tracer"] = serde_json::json!("raytracer");
+    std::fs::write(&jp, serde_json::to_string_pretty(&j).unwrap()).unwrap();
+    refused(dir, &["reconstruct", "--from", "r", "--iterations", "2", "--out", "y"], &["render.json", "field `tracer`", "raytracer", "--backend"]);
+}

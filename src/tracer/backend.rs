@@ -92,6 +92,42 @@ impl std::str::FromStr for Refine {
 }
 
 impl BackendConfig {
+    /// The configuration a tracer's [`Tracer::name`] describes (what render.json records as `tracer`):
+    /// `analytic-f64`, `analytic-f32`, `embree-user,refine=f64`, `embree-mesh(max-sag=1um),refine=none`,
+    /// `embree-mesh(segments=64),refine=f64` (a trailing `,single`, the packet mode, changes no result), or
+    /// the `--backend` text. `reconstruct` rebuilds the render's tracer from it (the Embree names did not
+    /// parse and the operator was silently the analytic tracer's).
+    pub fn from_tracer_name(name: &str) -> Result<Self> {
+        let bad = || Error::invalid(format!("tracer `{name}` is not one diffcassi names (analytic-f64, analytic-f32, embree-user,refine=…, embree-mesh(…),refine=…)"));
+        let mut parts = name.trim().split(',');
+        let head = parts.next().unwrap_or("");
+        let mut cfg = match head {
+            "embree-user" => BackendConfig { backend: Backend::EmbreeUser, ..Default::default() },
+            h if h.starts_with("embree-mesh(") && h.ends_with(')') => {
+                let inner = &h["embree-mesh(".len()..h.len() - 1];
+                let mesh = if let Some(n) = inner.strip_prefix("segments=") {
+                    MeshResolution::Segments(n.parse().map_err(|_| bad())?)
+                } else if let Some(e) = inner.strip_prefix("max-sag=").and_then(|e| e.strip_suffix("um")) {
+                    MeshResolution::MaxSagErrorUm(e.parse().map_err(|_| bad())?)
+                } else {
+                    return Err(bad());
+                };
+                BackendConfig { backend: Backend::EmbreeMesh, mesh, ..Default::default() }
+            }
+            _ if !name.contains(',') => return name.parse(),
+            _ => return Err(bad()),
+        };
+        for p in parts {
+            match p.trim() {
+                "refine=f64" => cfg.refine = Refine::F64,
+                "refine=none" => cfg.refine = Refine::None,
+                "single" => {}
+                _ => return Err(bad()),
+            }
+        }
+        Ok(cfg)
+    }
+
     /// Whether this build can construct `backend` (the Embree ones need the `embree` feature).
     pub fn available(backend: Backend) -> bool {
         matches!(backend, Backend::Analytic | Backend::AnalyticF32) || cfg!(feature = "embree")
@@ -116,6 +152,37 @@ impl BackendConfig {
             Backend::EmbreeUser | Backend::EmbreeMesh => {
                 Err(Error::invalid("the Embree backends are not in this build (rebuild with the default `embree` feature)"))
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every configuration's tracer name (render.json's `tracer`) reads back as that configuration.
+    #[test]
+    fn tracer_names_read_back_as_their_configuration() {
+        let mut configs = vec![BackendConfig::default()];
+        if BackendConfig::available(Backend::EmbreeUser) {
+            for refine in [Refine::F64, Refine::None] {
+                configs.push(BackendConfig { backend: Backend::EmbreeUser, refine, ..Default::default() });
+                for mesh in [MeshResolution::MaxSagErrorUm(0.1), MeshResolution::Segments(64)] {
+                    configs.push(BackendConfig { backend: Backend::EmbreeMesh, refine, mesh });
+                }
+            }
+        }
+        for cfg in configs {
+            let name = cfg.build().unwrap().name();
+            let back = BackendConfig::from_tracer_name(&name).unwrap_or_else(|e| panic!("{name}: {e}"));
+            assert_eq!(back.backend, cfg.backend, "{name}");
+            if cfg.backend != Backend::Analytic {
+                assert_eq!((back.refine, back.mesh), (cfg.refine, cfg.mesh), "{name}");
+            }
+        }
+        assert_eq!(BackendConfig::from_tracer_name("analytic-f32").unwrap().backend, Backend::AnalyticF32);
+        for bad in ["embree-user,refine=fast", "embree-mesh(max-sag=x),refine=f64", "raytracer", "embree-mesh(1um)"] {
+            assert!(BackendConfig::from_tracer_name(bad).is_err(), "{bad}");
         }
     }
 }

@@ -292,7 +292,7 @@ impl RenderRecord {
         // An f32 render records `analytic-f32` (the analytic backend's f32 twin, chosen by `precision`, which
         // the renderer takes from the record): the backend to build is the analytic one.
         let name = if self.tracer_name == "analytic-f32" { "analytic" } else { self.tracer_name.as_str() };
-        let cfg: crate::tracer::BackendConfig = name.parse().unwrap_or_else(|_| "analytic".parse().expect("analytic parses"));
+        let cfg = crate::tracer::BackendConfig::from_tracer_name(name).map_err(|e| ferr(&self.dir.join("render.json"), format!("field `tracer`: {e}; give the operator's tracer with --backend")))?;
         cfg.build()
     }
 
