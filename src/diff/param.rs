@@ -177,7 +177,7 @@ impl ParamSet {
                     Driver::Fixed => {}
                     Driver::Pickup(ref pk) => return Err(bad(format!("the cell is a pickup from surface {}: free its source instead", pk.surface))),
                     Driver::ChiefRay => return Err(bad("the cell is a chief-ray solve: it is determined by the system".into())),
-                    // Refused with every other system parameter below (`unknown_pickups`).
+                    // Refused above: its own column holds an unknown pickup (`unknown_pickups`).
                     Driver::UnknownPickup => {}
                 }
                 let figure_column = matches!(column.as_str(), "radius_mm" | "conic" | "rotation_radius_mm") || column.starts_with("asphere_");
