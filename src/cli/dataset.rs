@@ -179,7 +179,13 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     let mut configuration = dataset::configuration(&renderer, &options);
     if let Some(o) = configuration.as_object_mut() {
         // Sensor noise is part of what a scene's files hold: a request with other noise is another configuration.
-        o.insert("noise".into(), serde_json::to_value(&noise).map_err(|e| Error::invalid(format!("noise settings: {e}")))?);
+        // How its random numbers are drawn too: a dataset rendered with the earlier single row-major stream
+        // holds other noise for the same settings, so it is another configuration (`noise.rng`).
+        let mut noise_json = serde_json::to_value(&noise).map_err(|e| Error::invalid(format!("noise settings: {e}")))?;
+        if let Some(n) = noise_json.as_object_mut() {
+            n.insert("rng".into(), crate::render::noise::RNG.into());
+        }
+        o.insert("noise".into(), noise_json);
         // The GPU kernels accumulate in fixed point, the CPU renderer in f32 (docs/gpu.md): other bytes, so
         // another configuration — a dataset is never a mix of the two (a held-out battery resumed a CPU
         // dataset on the twin, scene by scene). `cuda` and `cpu-twin` give the same bits: one configuration,

@@ -13,9 +13,13 @@
 //! 5. The result is written back in acquisition units, v' = n / K, so noisy and clean acquisitions compare
 //!    directly and downstream code (reconstruction) needs no change.
 //!
-//! Randomness: ChaCha8 seeded with `seed`, one stream per noise source (shot = stream 0, read = stream 1),
-//! pixels in row-major order, so turning read noise on or off does not change the shot-noise draws, and the
-//! result does not depend on the thread count.
+//! Randomness: counter-based, one ChaCha8 stream per (pixel, source): key = `seed`, stream = 2·pixel + source
+//! (shot = 0, read = 1; pixel = row-major index), word position 0. A pixel's draws therefore depend on its own
+//! mean count only: the Poisson sampler's variable number of uniforms cannot shift the draws of the pixels
+//! after it (with one row-major stream it did, so clean acquisitions 1e-7 apart — `--device cpu` and
+//! `cuda` — took different noise over runs of hundreds of pixels; docs/gpu.md). Turning read noise on or off
+//! does not change the shot-noise draws, and the result does not depend on the thread count or the order
+//! the pixels are visited in.
 //!
 //! ```
 //! use diffcassi::render::noise::NoiseConfig;
@@ -30,11 +34,25 @@
 use crate::error::{Error, Result};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use rand_distr::{Distribution, Normal, Poisson};
 
 /// The largest mean electron count per pixel accepted (far beyond any sensor's well; keeps Poisson sampling
 /// in its accurate range).
 pub const MAX_ELECTRONS: f64 = 1e9;
+
+/// How the noise's random numbers are drawn (render.json's `noise.rng`, and part of a dataset's configuration,
+/// so a dataset rendered with the earlier single row-major stream is another configuration).
+pub const RNG: &str = "ChaCha8 per pixel: key = seed, stream = 2·pixel + source (0 shot, 1 read), pixel row-major";
+
+/// The random-number stream of one (pixel, source): a clone of the seeded generator moved to its own stream,
+/// word position 0.
+fn pixel_stream(base: &ChaCha8Rng, pixel: usize, source: u64) -> ChaCha8Rng {
+    let mut rng = base.clone();
+    rng.set_stream(2 * pixel as u64 + source);
+    rng.set_word_pos(0);
+    rng
+}
 
 /// Sensor-noise settings. [`NoiseConfig::default`] is the default sensor with every source off.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
@@ -132,50 +150,55 @@ impl NoiseConfig {
         let k = self.exposure(peak)?;
         let gain = self.adc_bits.map(|b| self.full_well_e / ((1u64 << b) - 1) as f64);
         let mut report = NoiseReport { electrons_per_unit: k, clean_peak: peak, peak_electrons: k * peak, adc_gain_e_per_dn: gain, saturated_pixels: 0, clean_total, noisy_total: clean_total };
-        let mut shot_rng = ChaCha8Rng::seed_from_u64(self.seed);
-        shot_rng.set_stream(0);
-        let mut read_rng = ChaCha8Rng::seed_from_u64(self.seed);
-        read_rng.set_stream(1);
+        let base = ChaCha8Rng::seed_from_u64(self.seed);
         let read = Normal::new(0.0, self.read_noise_e).map_err(|e| Error::invalid(format!("read noise: {e}")))?;
         let max_dn = self.adc_bits.map(|b| ((1u64 << b) - 1) as f64).unwrap_or(0.0);
-        // Into a copy, so that an error leaves `image` as it was.
-        let mut noisy = Vec::with_capacity(image.len());
-        for v in image.iter() {
-            let mean_e = (*v * k).max(0.0);
-            let mut e = mean_e;
-            if self.shot {
-                // rand_distr 0.4's Knuth sampler returns −1 when e^{−λ} rounds to 1 (λ ≲ 1.1e-16): there the
-                // Poisson draw is 0 with probability 1 − λ, i.e. to f64's resolution; the sampler draws no
-                // random number for such λ either, so the other pixels' draws are unchanged.
-                e = if mean_e > 0.0 && (-mean_e).exp() < 1.0 {
-                    Poisson::new(mean_e).map_err(|err| Error::invalid(format!("shot noise at {mean_e} e⁻: {err}")))?.sample(&mut shot_rng)
-                } else {
-                    0.0
-                };
-            }
-            if self.read_noise_e > 0.0 {
-                e += read.sample(&mut read_rng);
-            }
-            if let Some(g) = gain {
-                let dn = (e / g).round();
-                if dn > max_dn {
-                    report.saturated_pixels += 1;
+        // Into a copy, so that an error leaves `image` as it was. Each pixel draws from its own streams, so
+        // the pixels are independent and run in parallel; the first error in pixel order is reported.
+        let noisy: Vec<Result<(f64, bool)>> = image
+            .par_iter()
+            .enumerate()
+            .map(|(i, v)| {
+                let mean_e = (*v * k).max(0.0);
+                let mut e = mean_e;
+                if self.shot {
+                    // rand_distr 0.4's Knuth sampler returns −1 when e^{−λ} rounds to 1 (λ ≲ 1.1e-16): there
+                    // the Poisson draw is 0 with probability 1 − λ, i.e. to f64's resolution.
+                    e = if mean_e > 0.0 && (-mean_e).exp() < 1.0 {
+                        Poisson::new(mean_e).map_err(|err| Error::invalid(format!("shot noise at {mean_e} e⁻: {err}")))?.sample(&mut pixel_stream(&base, i, 0))
+                    } else {
+                        0.0
+                    };
                 }
-                e = dn.clamp(0.0, max_dn) * g;
-            }
-            let v = e / k;
-            // Written as f32 (EXR, NPY): a noisy value beyond f32's range (a tiny exposure K dividing the
-            // electrons back) is refused, naming the settings, rather than written as inf.
-            if !(v.abs() <= f32::MAX as f64) {
-                return Err(Error::invalid(format!(
-                    "the noisy acquisition leaves f32's range ({e:e} e⁻ / {k:e} electrons per unit = {:e}): raise the exposure (electrons per unit) or lower the read noise ({} e⁻)",
-                    e / k,
-                    self.read_noise_e
-                )));
-            }
-            noisy.push(v);
+                if self.read_noise_e > 0.0 {
+                    e += read.sample(&mut pixel_stream(&base, i, 1));
+                }
+                let mut saturated = false;
+                if let Some(g) = gain {
+                    let dn = (e / g).round();
+                    saturated = dn > max_dn;
+                    e = dn.clamp(0.0, max_dn) * g;
+                }
+                let v = e / k;
+                // Written as f32 (EXR, NPY): a noisy value beyond f32's range (a tiny exposure K dividing the
+                // electrons back) is refused, naming the settings, rather than written as inf.
+                if !(v.abs() <= f32::MAX as f64) {
+                    return Err(Error::invalid(format!(
+                        "the noisy acquisition leaves f32's range ({e:e} e⁻ / {k:e} electrons per unit = {:e}): raise the exposure (electrons per unit) or lower the read noise ({} e⁻)",
+                        e / k,
+                        self.read_noise_e
+                    )));
+                }
+                Ok((v, saturated))
+            })
+            .collect();
+        let mut values = Vec::with_capacity(image.len());
+        for r in noisy {
+            let (v, saturated) = r?;
+            report.saturated_pixels += saturated as u64;
+            values.push(v);
         }
-        image.copy_from_slice(&noisy);
+        image.copy_from_slice(&values);
         report.noisy_total = image.iter().sum();
         Ok(report)
     }
@@ -202,7 +225,7 @@ impl NoiseConfig {
             "clean_peak": report.clean_peak,
             "peak_electrons": report.peak_electrons,
             "seed": self.seed,
-            "rng": "ChaCha8, stream 0 shot, stream 1 read, pixels row-major",
+            "rng": RNG,
             "clean_total": report.clean_total,
             "noisy_total": report.noisy_total,
         });
@@ -335,6 +358,41 @@ mod tests {
         (b[10], b[20]) = (1.0, 1e-3);
         cfg.apply(&mut b).unwrap();
         assert_eq!((a[10], a[20]), (b[10], b[20]));
+    }
+
+    /// A pixel's noise depends on its own mean count only: changing another pixel's value (so that its
+    /// Poisson sampler draws another number of uniforms) leaves every other pixel's draw unchanged. With the
+    /// earlier single row-major stream it shifted the draws of the pixels after it (docs/gpu.md: CPU and GPU
+    /// acquisitions 1e-7 apart took different noise over 263 pixels).
+    #[test]
+    fn each_pixel_draws_from_its_own_streams() {
+        let img: Vec<f64> = (0..4000).map(|i| 0.05 + ((i * 37) % 101) as f64 / 100.0).collect();
+        let cfg = NoiseConfig { shot: true, read_noise_e: 3.0, adc_bits: Some(12), electrons_per_unit: Some(2_000.0), seed: 8, ..NoiseConfig::default() };
+        let mut a = img.clone();
+        cfg.apply(&mut a).unwrap();
+        // Pixel 100 across the Knuth/rejection boundary (λ 10 → 14 e⁻) and to 0: no other pixel changes.
+        for v in [0.005, 0.007, 0.0, 0.3] {
+            let mut changed = img.clone();
+            changed[100] = v;
+            cfg.apply(&mut changed).unwrap();
+            assert!(a.iter().zip(&changed).enumerate().all(|(i, (x, y))| i == 100 || x == y), "pixel 100 = {v} moved other pixels");
+        }
+        // The same pixels in a shorter image (a crop from the start) draw the same numbers.
+        let mut head = img[..1000].to_vec();
+        cfg.apply(&mut head).unwrap();
+        assert_eq!(head, a[..1000]);
+        // Independent of the thread count.
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            let mut t = img.clone();
+            pool.install(|| cfg.apply(&mut t)).unwrap();
+            assert_eq!(t, a, "{threads} threads");
+        }
+        // Neighbouring pixels are not correlated (their streams differ): lag-1 correlation of the residuals.
+        let r: Vec<f64> = a.iter().zip(&img).map(|(x, y)| x - y).collect();
+        let (m, var) = moments(&r);
+        let lag1 = r.windows(2).map(|w| (w[0] - m) * (w[1] - m)).sum::<f64>() / ((r.len() - 1) as f64 * var);
+        assert!(lag1.abs() < 5.0 / (r.len() as f64).sqrt(), "lag-1 correlation {lag1}");
     }
 
     #[test]
