@@ -411,6 +411,25 @@ def spread_noise_factor(acquisition_rays: int, operator_rays: int) -> float:
 __all__ += ["mapping_operator", "shift_operator", "reconstruct", "monte_carlo_noise_norm", "spread_noise_factor"]
 
 
+def study(out: Union[str, "os.PathLike[str]"], **settings: Any) -> Dict[str, Any]:
+    """The reference paper's four-system study (``diffcassi study``, the library's ``diffcassi::study``) into
+    the folder ``out``: every scene rendered through every system with one mask, reconstructed with every
+    operator and solver, and evaluated; ``study.csv``, ``study.md`` and ``study_psnr.png`` in ``out``, with the
+    same layout and resumption as the command (a second call with the same settings reuses every cell).
+
+    Keywords are the command's options in snake case, with its defaults: ``presets`` ("ap,sp,map,msp"),
+    ``systems`` (lens files), ``operators`` ("exact,mapping,shift"), ``solvers`` ("gap-tv"), ``scenes`` (a
+    folder) or ``synthetic`` (N), ``scene_size`` (128), ``bands`` ("450:650:28"), ``planes`` (112), ``rays``
+    (20), ``seed``, ``mask`` or ``opening``/``mask_seed``, ``airy_diameter_px``, the solver settings
+    (``iterations``, ``tv_weight``, ``denoiser``, ``weights``, …), ``force``. Lists are a comma string or a
+    sequence. Returns ``{"computed", "skipped", "seconds", "table"}``; bad settings raise
+    ``DiffcassiValueError`` / ``DiffcassiFileError`` before anything is written."""
+    return _json.loads(_native._study(os.fspath(out), **settings))
+
+
+__all__ += ["study"]
+
+
 def denoise(cube: np.ndarray, sigma: float, weights: Optional[str] = None, neutral: bool = False,
             ensemble: bool = False) -> np.ndarray:
     """The learned denoiser (``spectral-unet-v2``, the prior of ``pnp-gap``/``pnp-admm``; Rust inference) on

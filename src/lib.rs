@@ -7,7 +7,7 @@
 //! [`presets`]) → **system** ([`system`]: placed surfaces, pickups and chief-ray solves, paraxial pupil) →
 //! **tracer backend** ([`tracer`]: the [`tracer::Tracer`] trait, exact f64 [`tracer::AnalyticTracer`]) →
 //! **analyses** ([`analysis`]: spots, distortion grids, dispersion, mapping cube) → **outputs** ([`io`],
-//! [`plot`]). Glass data live in [`materials`], surface figures in [`surfaces`], frames in [`geometry`].
+//! [`plot`]); renders ([`render`]) → reconstruction ([`recon`]) → the four-system [`study`]. Glass data live in [`materials`], surface figures in [`surfaces`], frames in [`geometry`].
 //!
 //! ```
 //! use diffcassi::prelude::*;
@@ -38,6 +38,7 @@ pub mod recon;
 pub mod render;
 pub mod scene;
 pub mod spec;
+pub mod study;
 pub mod surfaces;
 pub mod system;
 pub mod tracer;

@@ -134,7 +134,7 @@ fn study_bad_input_is_a_clear_error() {
     assert!(!out.exists());
     let o = run(&["study", "--synthetic", "1", "--operators", "exact,magic", "--out", s(&out)]);
     assert_eq!(o.status.code(), Some(1));
-    assert!(stderr(&o).contains("magic"));
+    assert!(stderr(&o).contains("--operators `exact,magic`: entry `magic`: use exact"), "{}", stderr(&o));
     let o = run(&["study", "--out", s(&out)]);
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("--scenes"));
@@ -145,6 +145,13 @@ fn study_bad_input_is_a_clear_error() {
     assert_eq!(o.status.code(), Some(1));
     assert!(stderr(&o).contains("m.png") && stderr(&o).contains("8×8"), "{}", stderr(&o));
     assert!(!out.exists());
+    // Bands whose render planes leave a glass's range (half a band beyond 450–2000 nm at 2 bands reaches
+    // −311 nm): refused before anything is written (study.json and mask.png were, and the study then failed).
+    let o = run(&["study", "--synthetic", "1", "--scene-size", "8", "--presets", "sp", "--bands", "450,2000", "--planes", "112", "--rays", "1", "--out", s(&out)]);
+    assert_fails_cleanly(&o, &out, &["--presets sp", "render plane 0"]);
+    // A bad --bands names --bands (it was named --wavelength-nm).
+    let o = run(&["study", "--synthetic", "1", "--bands", "450:650:0", "--out", s(&out)]);
+    assert_fails_cleanly(&o, &out, &["--bands `450:650:0`"]);
 }
 
 fn read_json(p: &Path) -> serde_json::Value {

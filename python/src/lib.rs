@@ -21,6 +21,7 @@ mod recipe;
 mod recon;
 mod render;
 mod settings;
+mod study;
 mod system;
 
 #[pymodule]
@@ -38,5 +39,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     render::register(m)?;
     recon::register(m)?;
     codesign::register(m)?;
+    study::register(m)?;
     Ok(())
 }

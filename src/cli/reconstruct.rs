@@ -27,11 +27,9 @@
 use super::args::BackendArgs;
 use crate::error::{Error, Result};
 use crate::recon::pipeline::{self, NoiseModel, OperatorKind, RenderRecord, Request, SolveSettings};
-use crate::scene::{colorimetry, save_exr, save_npy, SpectralCube};
 use crate::tracer::Tracer;
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use serde_json::Value;
 use std::path::PathBuf;
 use std::sync::Mutex;
 use std::time::Instant;
@@ -206,27 +204,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     Ok(())
 }
 
-/// The output policy of a reconstruction folder: new, empty, a previous reconstruction (it holds
-/// `reconstruct.json`) or, with `force`, a folder of other files ([`crate::io::policy`]).
-pub fn reconstruction_rule(force: bool) -> crate::io::policy::FolderRule<'static> {
-    crate::io::policy::FolderRule { option: "--out", command: "reconstruct", marker: "reconstruct.json", force }
-}
-
-/// Write a reconstruction folder all or nothing through `set` (an [`OutputSet::folder`](crate::io::OutputSet)
-/// made with [`reconstruction_rule`] before the work): everything goes into its staging folder, which replaces
-/// `out` when complete. `exr`: also write `cube.exr`.
-pub fn write_reconstruction(set: crate::io::OutputSet, cube: &SpectralCube, json: &Value, exr: bool) -> Result<()> {
-    let tmp = set.stage_dir().ok_or_else(|| Error::invalid("write_reconstruction needs a folder output set"))?.to_path_buf();
-    save_npy(cube, &tmp.join("cube.npy"))?;
-    if exr {
-        save_exr(cube, &tmp.join("cube.exr"))?;
-    }
-    colorimetry::save_srgb_png(cube, 1.0, &tmp.join("rgb.png"))?;
-    let text = serde_json::to_string_pretty(json).map_err(|e| Error::invalid(format!("JSON encoding failed: {e}")))?;
-    crate::io::write_atomic(tmp.join("reconstruct.json"), text.as_bytes())?;
-    set.commit()?;
-    Ok(())
-}
+pub use crate::recon::pipeline::output::{reconstruction_rule, write_reconstruction};
 
 fn iteration_bar(n: u64, what: &str) -> ProgressBar {
     let pb = ProgressBar::new(n);

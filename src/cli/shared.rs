@@ -9,7 +9,6 @@
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
 use super::args::{BackendArgs, SystemArgs};
-use crate::analysis::linspace;
 use crate::error::{Error, Result};
 use crate::rays::PupilPattern;
 use crate::spec::SystemSpec;
@@ -91,32 +90,10 @@ pub fn parse_wavelengths(text: &str) -> Result<Vec<f64>> {
     parse_wavelengths_for("--wavelength-nm", text)
 }
 
-/// [`parse_wavelengths`] for the option named `option` (errors name it).
+/// [`parse_wavelengths`] for the option named `option` (errors name it): the library's
+/// [`crate::render::settings::parse_wavelengths`].
 pub fn parse_wavelengths_for(option: &str, text: &str) -> Result<Vec<f64>> {
-    let bad = |why: &str| Error::invalid(format!("{option} `{text}`: {why} (use 520, 450,520,650 or 450:650:28)"));
-    let num = |s: &str| -> Result<f64> {
-        let v: f64 = s.trim().parse().map_err(|_| bad(&format!("`{s}` is not a number")))?;
-        let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
-        if !(v.is_finite() && (lo..=hi).contains(&v)) {
-            return Err(bad(&format!("{v} nm is outside {lo}–{hi} nm")));
-        }
-        Ok(v)
-    };
-    if text.contains(':') {
-        let parts: Vec<&str> = text.split(':').collect();
-        if parts.len() != 3 {
-            return Err(bad("a range needs first:last:count"));
-        }
-        let count: usize = parts[2].trim().parse().map_err(|_| bad("count is not a whole number"))?;
-        if count == 0 || count > crate::limits::MAX_WAVELENGTHS {
-            return Err(bad(&format!("count {count} must be in 1..={}", crate::limits::MAX_WAVELENGTHS)));
-        }
-        return Ok(linspace(num(parts[0])?, num(parts[1])?, count));
-    }
-    if text.split(',').count() > crate::limits::MAX_WAVELENGTHS {
-        return Err(bad(&format!("more than {} wavelengths", crate::limits::MAX_WAVELENGTHS)));
-    }
-    text.split(',').map(num).collect()
+    crate::render::settings::parse_wavelengths(option, text)
 }
 
 /// `X,Y` → field angles (degrees) of `--field-deg`: each finite and within (−90, 90).

@@ -303,6 +303,36 @@ impl RenderSettings {
     }
 }
 
+/// `520`, `450,520,650` or `450:650:28` (first:last:count) → wavelengths in nm, each within
+/// [`crate::limits::WAVELENGTH_RANGE_NM`]; errors name `option` (the setting as the command line spells it) and
+/// the text. The clients' one parser of wavelength lists.
+pub fn parse_wavelengths(option: &str, text: &str) -> Result<Vec<f64>> {
+    let bad = |why: &str| Error::invalid(format!("{option} `{text}`: {why} (use 520, 450,520,650 or 450:650:28)"));
+    let num = |s: &str| -> Result<f64> {
+        let v: f64 = s.trim().parse().map_err(|_| bad(&format!("`{s}` is not a number")))?;
+        let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
+        if !(v.is_finite() && (lo..=hi).contains(&v)) {
+            return Err(bad(&format!("{v} nm is outside {lo}–{hi} nm")));
+        }
+        Ok(v)
+    };
+    if text.contains(':') {
+        let parts: Vec<&str> = text.split(':').collect();
+        if parts.len() != 3 {
+            return Err(bad("a range needs first:last:count"));
+        }
+        let count: usize = parts[2].trim().parse().map_err(|_| bad("count is not a whole number"))?;
+        if count == 0 || count > crate::limits::MAX_WAVELENGTHS {
+            return Err(bad(&format!("count {count} must be in 1..={}", crate::limits::MAX_WAVELENGTHS)));
+        }
+        return Ok(crate::analysis::linspace(num(parts[0])?, num(parts[1])?, count));
+    }
+    if text.split(',').count() > crate::limits::MAX_WAVELENGTHS {
+        return Err(bad(&format!("more than {} wavelengths", crate::limits::MAX_WAVELENGTHS)));
+    }
+    text.split(',').map(num).collect()
+}
+
 /// Wavelengths of a setting (`option`): 1..=[`crate::limits::MAX_WAVELENGTHS`] values, each finite and in
 /// [`crate::limits::WAVELENGTH_RANGE_NM`].
 pub fn check_wavelengths(option: &str, ws: &[f64]) -> Result<()> {

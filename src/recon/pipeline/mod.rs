@@ -19,6 +19,7 @@
 //! ```
 pub mod noise;
 pub mod operators;
+pub mod output;
 pub mod record;
 pub mod settings;
 pub mod solve;

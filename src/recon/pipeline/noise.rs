@@ -15,6 +15,25 @@ pub enum NoiseModel {
     Model,
 }
 
+impl NoiseModel {
+    /// The name `--noise-estimate` takes and the records write: `spread` or `model`.
+    pub fn name(self) -> &'static str {
+        match self {
+            NoiseModel::Spread => "spread",
+            NoiseModel::Model => "model",
+        }
+    }
+
+    /// The model named `name` (`spread` or `model`); errors name `option`.
+    pub fn parse(option: &str, name: &str) -> crate::error::Result<Self> {
+        match name {
+            "spread" => Ok(NoiseModel::Spread),
+            "model" => Ok(NoiseModel::Model),
+            other => Err(crate::error::Error::invalid(format!("{option} `{other}`: use spread or model"))),
+        }
+    }
+}
+
 /// The twin operator's ray seed for the data-driven δ: the operator's + 1, skipping the acquisition's (the
 /// twin must be independent of both).
 pub fn twin_seed(acquisition_seed: u64, operator_seed: u64) -> u64 {
