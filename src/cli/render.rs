@@ -12,7 +12,7 @@ use super::shared::{load_system, parse_wavelengths, parse_wavelengths_for};
 use crate::error::{Error, Result};
 use crate::render::settings::{MaskSource, NoiseSettings, RenderSettings};
 use crate::render::{output, Mask, NoiseConfig, RenderConfig, Renderer, Sampling, SpectralSampling};
-use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
+use crate::scene::{synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
 pub use crate::render::settings::{check_render_rays, check_scene_values};
 use crate::tracer::AnalyticTracer;
 use clap::Args;
@@ -245,11 +245,7 @@ fn parse_sampling(s: &str) -> Result<Sampling> {
 }
 
 pub(super) fn parse_fit(s: &str) -> Result<Fit> {
-    match s {
-        "crop" => Ok(Fit::Crop),
-        "resize" => Ok(Fit::Resize),
-        _ => Err(Error::invalid(format!("--fit `{s}`: use crop or resize"))),
-    }
+    Fit::parse(s)
 }
 
 /// The render settings and mask the arguments describe ([`RenderSettings::config`]).
@@ -275,15 +271,9 @@ pub(super) fn scene_wavelengths(a: &RenderCommon) -> Result<Option<Vec<f64>>> {
     a.scene_wavelengths.as_deref().map(parse_wavelengths).transpose()
 }
 
-/// Load and fit a scene file; returns the cube and its JSON description.
+/// Load and fit a scene file; returns the cube and its JSON description ([`crate::render::dataset::load_fitted`]).
 pub(super) fn load_fitted(path: &Path, a: &RenderCommon) -> Result<(SpectralCube, serde_json::Value)> {
-    let ws = scene_wavelengths(a)?;
-    let raw = load_scene(path, ws.as_deref())?;
-    let fit = parse_fit(&a.fit)?;
-    let cube = raw.fit(a.scene_size, fit).map_err(|e| Error::File { path: path.display().to_string(), message: e.to_string() })?;
-    check_scene_values(&cube).map_err(|m| Error::File { path: path.display().to_string(), message: m })?;
-    let desc = serde_json::json!({"source": path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "native_wavelengths_nm": raw.wavelengths_nm, "fit": fit});
-    Ok((cube, desc))
+    crate::render::dataset::load_fitted(path, a.scene_size, scene_wavelengths(a)?.as_deref(), parse_fit(&a.fit)?)
 }
 
 pub(super) fn progress_bar(total: u64, what: &str) -> ProgressBar {
@@ -404,11 +394,6 @@ pub fn render(a: RenderArgs) -> Result<()> {
         eprintln!("warning: the acquisition is zero everywhere ({why})");
     }
     Ok(())
-}
-
-/// 64-bit FNV-1a hash of a scene name (the per-scene noise seed offset).
-pub(super) fn name_hash(name: &str) -> u64 {
-    name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
 }
 
 /// Apply the sensor noise (if any) to an acquisition and describe it for render.json.

@@ -5,7 +5,8 @@
 //! (same footprints, applied in the same order).
 //!
 //! This module holds what `render-dataset` and `dataset-status` share, so that both commands agree on
-//! what "done" means:
+//! what "done" means; [`run`] is the `render-dataset` pipeline itself (the command line and the Python
+//! `render_dataset` are its clients):
 //!
 //! - [`Shard`]: a deterministic partition of the *full* sorted scene list (scene index mod N = K), computed
 //!   before finished scenes are skipped, so a re-run never moves a scene to another shard (Slurm job arrays).
@@ -30,6 +31,10 @@
 //! let env = |k: &str| match k { "SLURM_ARRAY_TASK_ID" => Some("2".to_string()), "SLURM_ARRAY_TASK_COUNT" => Some("4".to_string()), _ => None };
 //! assert_eq!(Shard::parse("slurm", env).unwrap(), Shard::new(2, 4).unwrap());
 //! ```
+pub mod run;
+
+pub use run::{check_out, load_fitted, name_hash, run, DatasetProgress, DatasetRequest, DatasetSummary, OnMismatch, SceneOutcome, SceneStatus, SilentDataset};
+
 use super::engine::Renderer;
 use crate::error::{Error, Result};
 use crate::scene::Fit;

@@ -24,6 +24,17 @@ pub enum Fit {
     Resize,
 }
 
+impl Fit {
+    /// `crop` or `resize` (the `--fit` option's words); an error names `--fit` and the text.
+    pub fn parse(text: &str) -> Result<Fit> {
+        match text {
+            "crop" => Ok(Fit::Crop),
+            "resize" => Ok(Fit::Resize),
+            other => Err(crate::error::Error::invalid(format!("--fit `{other}`: use crop or resize"))),
+        }
+    }
+}
+
 /// A cube's band wavelengths (nm): each finite and > 0, strictly increasing — what every reader of a scene
 /// requires, so that a writer (`make-scene`) refuses what they would refuse. `what` names the source.
 pub fn check_wavelengths(wavelengths_nm: &[f64], what: &str) -> Result<()> {

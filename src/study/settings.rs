@@ -103,15 +103,6 @@ impl StudySettings {
     }
 }
 
-/// `--fit`: crop or resize.
-pub fn parse_fit(s: &str) -> Result<Fit> {
-    match s {
-        "crop" => Ok(Fit::Crop),
-        "resize" => Ok(Fit::Resize),
-        other => Err(Error::invalid(format!("--fit `{other}`: use crop or resize"))),
-    }
-}
-
 /// A comma list of `--{what}`: no empty entry (a stray comma), no entry twice.
 pub fn split_list(s: &str, what: &str) -> Result<Vec<String>> {
     let v: Vec<String> = s.split(',').map(|x| x.trim().to_string()).collect();
@@ -153,7 +144,7 @@ pub(super) fn study_mask(a: &StudySettings) -> Result<Mask> {
 /// budget of each render; `--fit`, `--transport-memory-gb` and `--accelerated` validated so none is ignored.
 pub(super) fn check_limits(a: &StudySettings, bands: &[f64], solvers: &[String]) -> Result<()> {
     let n = a.scene_size;
-    parse_fit(&a.fit)?;
+    Fit::parse(&a.fit)?;
     if a.planes == 0 || a.planes > crate::limits::MAX_PLANES {
         return Err(Error::invalid(format!("--planes {}: must be in 1..={}", a.planes, crate::limits::MAX_PLANES)));
     }

@@ -1,0 +1,374 @@
+//! The `render-dataset` pipeline: a folder of scenes (whole, or one shard of a Slurm job array) rendered into
+//! one sub-folder each, resumably, with the rules of [`super`] (shards, the canonical configuration, what
+//! counts as done, all-or-nothing scene folders). The command line and the Python `render_dataset` are
+//! clients: they choose the system and the tracer, fill a [`DatasetRequest`] and show what
+//! [`DatasetProgress`] reports.
+//!
+//! ```no_run
+//! use diffcassi::render::dataset::{self, DatasetOptions, DatasetRequest, Shard};
+//! use diffcassi::render::settings::RenderSettings;
+//! use diffcassi::prelude::*;
+//! let system = SequentialSystem::build(&presets::spec("sp")?)?;
+//! let tracer = AnalyticTracer::default();
+//! let settings = RenderSettings { scene_size: 64, ..RenderSettings::default() };
+//! let (cfg, mask) = settings.config()?;
+//! let request = DatasetRequest::new("scenes/", "out/sp-dataset", DatasetOptions { fit: settings.fit, scene_wavelengths_nm: None, cube: false, mapping: true });
+//! let done = dataset::run(&request, &[], &system, &tracer, cfg, mask, &dataset::SilentDataset)?;
+//! println!("{} rendered, {} skipped", done.rendered, done.skipped);
+//! # Ok::<(), diffcassi::Error>(())
+//! ```
+use super::{check_scene, check_shared, commit_scene, configuration, file_records, find_scenes, manifest, partial_dir, remove_leftovers, scene_input_record, shared_output_names, with_scene_input, DatasetOptions, SceneState, Shard, MANIFEST};
+use crate::error::{Error, Result};
+use crate::render::Device;
+use crate::render::{output, Acquisition, Mask, NoiseConfig, PlaneTransport, RenderConfig, Renderer};
+use crate::scene::{load_scene, Fit, SpectralCube};
+use crate::system::SequentialSystem;
+use crate::tracer::Tracer;
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+/// What to do with a scene (or `dataset.json`) already rendered with another configuration.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OnMismatch {
+    /// Stop with an error before writing anything, naming the scenes and the differing settings.
+    Refuse,
+    /// Render those scenes again and replace their folders (and the shared outputs) whole.
+    Rerender,
+}
+
+/// A dataset render: where the scenes are, where they go, and what besides the render configuration shapes
+/// them. [`DatasetRequest::new`] holds the defaults (whole dataset, no noise, refuse mismatches, 4 GB of
+/// cached transport, the CPU).
+#[derive(Clone, Debug)]
+pub struct DatasetRequest {
+    /// Folder of scenes (.exr, .npy, RGB .png photographs, folders of per-band .png).
+    pub scenes: PathBuf,
+    /// Output folder: one sub-folder per scene, dataset.json, mask.png and the mapping cube.
+    pub out: PathBuf,
+    /// Accept an `out` folder that holds other files (not a previous dataset).
+    pub force: bool,
+    pub options: DatasetOptions,
+    /// Sensor noise; each scene's seed is the noise seed + [`name_hash`] of its name.
+    pub noise: Option<NoiseConfig>,
+    pub shard: Shard,
+    pub on_mismatch: OnMismatch,
+    /// Keep the traced light transport in memory up to this size (GB); beyond it, trace per scene.
+    pub transport_memory_gb: f64,
+    /// Where the scenes are rendered (a GPU traces every scene on the device).
+    pub device: Device,
+    /// A test hook: wait this long after writing each scene's temporary folder, before moving it into place.
+    pub scene_delay: Option<Duration>,
+}
+
+impl DatasetRequest {
+    pub fn new(scenes: impl Into<PathBuf>, out: impl Into<PathBuf>, options: DatasetOptions) -> Self {
+        DatasetRequest {
+            scenes: scenes.into(),
+            out: out.into(),
+            force: false,
+            options,
+            noise: None,
+            shard: Shard::WHOLE,
+            on_mismatch: OnMismatch::Refuse,
+            transport_memory_gb: crate::recon::pipeline::TRANSPORT_MEMORY_GB,
+            device: Device::Cpu,
+            scene_delay: None,
+        }
+    }
+}
+
+/// What happened to one scene of the shard.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SceneStatus {
+    Rendered,
+    Skipped,
+    Failed,
+}
+
+impl SceneStatus {
+    pub fn word(self) -> &'static str {
+        match self {
+            SceneStatus::Rendered => "rendered",
+            SceneStatus::Skipped => "skipped",
+            SceneStatus::Failed => "failed",
+        }
+    }
+}
+
+/// One scene's outcome (the command line prints it as a JSON line).
+#[derive(Clone, Debug)]
+pub struct SceneOutcome {
+    pub scene: String,
+    pub status: SceneStatus,
+    pub seconds: f64,
+    pub output: PathBuf,
+    /// Why it failed.
+    pub error: Option<String>,
+}
+
+/// What a client shows while a dataset renders; every method does nothing by default ([`SilentDataset`]).
+pub trait DatasetProgress: Sync {
+    /// A line for the user (the plan, the transport's size, warnings, the summary).
+    fn message(&self, _text: &str) {}
+    /// A scene of the shard is skipped (done), rendered or failed.
+    fn scene(&self, _outcome: &SceneOutcome) {}
+    /// Rays are being traced: the transport shared by all scenes, or one scene's render (`what` names it).
+    fn tracing_started(&self, _what: &str, _rays: u64) {}
+    fn rays(&self, _n: u64) {}
+    fn tracing_done(&self) {}
+    /// `n` scenes to render; then each starts ([`DatasetProgress::scene_started`]) and ends ([`DatasetProgress::scene`]).
+    fn scenes_started(&self, _n: u64) {}
+    fn scene_started(&self, _name: &str) {}
+    fn scenes_done(&self) {}
+}
+
+/// No progress reports.
+pub struct SilentDataset;
+
+impl DatasetProgress for SilentDataset {}
+
+/// What a run did.
+#[derive(Clone, Debug)]
+pub struct DatasetSummary {
+    pub rendered: usize,
+    pub skipped: usize,
+    pub seconds: f64,
+}
+
+/// 64-bit FNV-1a hash of a scene name: the offset of its noise seed, so a scene's noise does not depend on
+/// which other scenes are in the folder or shard.
+pub fn name_hash(name: &str) -> u64 {
+    name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
+}
+
+/// Load a scene file and fit it to `size × size`: the cube and its description for render.json (`source`,
+/// the native size and wavelengths, the fit). `wavelengths_nm` overrides the file's bands.
+pub fn load_fitted(path: &Path, size: usize, wavelengths_nm: Option<&[f64]>, fit: Fit) -> Result<(SpectralCube, Value)> {
+    let raw = load_scene(path, wavelengths_nm)?;
+    let cube = raw.fit(size, fit).map_err(|e| Error::File { path: path.display().to_string(), message: e.to_string() })?;
+    crate::render::settings::check_scene_values(&cube).map_err(|m| Error::File { path: path.display().to_string(), message: m })?;
+    let desc = serde_json::json!({"source": path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "native_wavelengths_nm": raw.wavelengths_nm, "fit": fit});
+    Ok((cube, desc))
+}
+
+/// The output policy of a dataset folder, checked before any work: `out` new, empty, a previous dataset (or
+/// `force`), never `scenes` or one of `inputs` (the system and mask files), inside one or containing one. A
+/// shard started beside others (or killed) before dataset.json exists leaves only the dataset's own files:
+/// the shared outputs, scene folders of this scene list, temporaries.
+pub fn check_out(request: &DatasetRequest, inputs: &[(&str, &Path)]) -> Result<()> {
+    let mut inputs = inputs.to_vec();
+    inputs.push(("--scenes", request.scenes.as_path()));
+    let listed: Vec<String> = find_scenes(&request.scenes).map(|v| v.into_iter().map(|s| s.name).collect()).unwrap_or_default();
+    let owned = |n: &str| n == MANIFEST || n == "mask.png" || (n.starts_with("mapping") && n.ends_with(".npy")) || listed.iter().any(|s| s == n) || (n.starts_with('.') && (n.contains(".partial-") || n.contains(".old-")));
+    let rule = crate::io::policy::FolderRule { option: "--out", command: "render-dataset", marker: MANIFEST, force: request.force };
+    crate::io::policy::check_out_folder_owned(&request.out, &rule, &inputs, &owned)?;
+    Ok(())
+}
+
+/// Write the outputs shared by all scenes and shards: mask.png, the mapping cube, then dataset.json
+/// (last; it records the others' sizes and CRC-32). Each file is replaced atomically; every shard of one
+/// request writes the same bytes, so concurrent shards may race harmlessly.
+fn write_shared(out: &Path, renderer: &Renderer, configuration: &Value, scene_names: &[String]) -> Result<()> {
+    renderer.mask.save_png(&out.join("mask.png"))?;
+    if configuration["mapping"].as_bool().unwrap_or(false) {
+        output::write_mapping(out, renderer)?;
+    }
+    let records = file_records(out, &shared_output_names(configuration))?;
+    let manifest = manifest(configuration, scene_names, records);
+    let text = serde_json::to_string_pretty(&manifest).map_err(|e| Error::invalid(format!("JSON encoding failed: {e}")))?;
+    crate::io::write_atomic(out.join(MANIFEST), text.as_bytes())?;
+    Ok(())
+}
+
+/// Write one scene's files into `dir` (its temporary folder): images, mask, then render.json with the
+/// configuration and every other file's size and CRC-32.
+fn write_scene(dir: &Path, renderer: &Renderer, acq: &Acquisition, scene: &Value, configuration: &Value, extra: Value, seconds: f64) -> Result<()> {
+    let scale = output::write_images(dir, renderer, acq)?;
+    renderer.mask.save_png(&dir.join("mask.png"))?;
+    let mut names = vec!["acquisition.exr", "acquisition.png", "mask.png"];
+    if acq.bands.is_some() {
+        names.push("cube.exr");
+    }
+    let records = file_records(dir, &names)?;
+    let mut json = output::sidecar(renderer, acq, scene, scale, seconds, rayon::current_num_threads());
+    if let (Some(o), Value::Object(e)) = (json.as_object_mut(), extra) {
+        o.extend(e);
+        o.insert("configuration".into(), configuration.clone());
+        o.insert("outputs".into(), records);
+    }
+    output::write_sidecar(dir, &json)
+}
+
+/// Render the dataset `request` describes through `system` with `tracer`, `cfg` (its rays per pixel as
+/// chosen) and `mask`; `inputs` are the files the output must not touch besides the scenes. Decides
+/// everything before writing anything; a scene that fails is reported and the others go on (the run then
+/// ends with an error naming the failed ones).
+#[allow(clippy::too_many_arguments)]
+pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &SequentialSystem, tracer: &dyn Tracer, cfg: RenderConfig, mask: Mask, progress: &dyn DatasetProgress) -> Result<DatasetSummary> {
+    let t0 = Instant::now();
+    let a = request;
+    if !(a.transport_memory_gb.is_finite() && a.transport_memory_gb >= 0.0) {
+        return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0", a.transport_memory_gb)));
+    }
+    check_out(a, inputs)?;
+    let scenes = find_scenes(&a.scenes)?;
+    if scenes.is_empty() {
+        return Err(Error::File { path: a.scenes.display().to_string(), message: "no scenes (.exr, .npy, or folders of .png)".into() });
+    }
+    let scene_names: Vec<String> = scenes.iter().map(|s| s.name.clone()).collect();
+    let shard = a.shard;
+    let renderer = Renderer::new(system, tracer, cfg, mask)?;
+    let mut configuration = configuration(&renderer, &a.options);
+    if let Some(o) = configuration.as_object_mut() {
+        // Sensor noise is part of what a scene's files hold: a request with other noise is another configuration.
+        // How its random numbers are drawn too: a dataset rendered with the earlier single row-major stream
+        // holds other noise for the same settings, so it is another configuration (`noise.rng`).
+        let mut noise_json = serde_json::to_value(&a.noise).map_err(|e| Error::invalid(format!("noise settings: {e}")))?;
+        if let Some(n) = noise_json.as_object_mut() {
+            n.insert("rng".into(), crate::render::noise::RNG.into());
+        }
+        o.insert("noise".into(), noise_json);
+        // The GPU kernels accumulate in fixed point, the CPU renderer in f32 (docs/gpu.md): other bytes, so
+        // another configuration — a dataset is never a mix of the two (a held-out battery resumed a CPU
+        // dataset on the twin, scene by scene). `cuda` and `cpu-twin` give the same bits: one configuration,
+        // so a dataset started on a GPU node resumes on the twin and back. CPU datasets keep their records.
+        if a.device != Device::Cpu {
+            o.insert("accumulation".into(), serde_json::json!("gpu-kernels"));
+        }
+    }
+
+    // Decide everything before writing anything.
+    let mine = shard.select(&scenes);
+    let shared_state = check_shared(&a.out, Some(&configuration));
+    let mut todo = Vec::new();
+    let mut skipped = Vec::new();
+    let mut mismatched: Vec<String> = Vec::new();
+    if let SceneState::Mismatch(d) = &shared_state {
+        mismatched.push(format!("{} ({})", MANIFEST, d.join("; ")));
+    }
+    for s in &mine {
+        // Done and rendered from the same scene content (a scene file replaced since is rendered again).
+        match with_scene_input(check_scene(&a.out, &s.name, Some(&configuration)), &a.out, s) {
+            SceneState::Done => skipped.push(*s),
+            SceneState::Missing => todo.push(*s),
+            SceneState::Damaged(p) => {
+                progress.message(&format!("{}: damaged, rendering again ({})", s.name, p.join("; ")));
+                todo.push(*s)
+            }
+            SceneState::Mismatch(d) => {
+                mismatched.push(format!("{} ({})", s.name, d.join("; ")));
+                todo.push(*s)
+            }
+        }
+    }
+    if !mismatched.is_empty() {
+        if a.on_mismatch == OnMismatch::Refuse {
+            return Err(Error::File {
+                path: a.out.display().to_string(),
+                message: format!(
+                    "{} output(s) were rendered with another configuration than requested, or from scene files that have changed since: {}. Nothing was written: rerun with --on-mismatch rerender to replace them, or choose another --out",
+                    mismatched.len(),
+                    mismatched.join(", ")
+                ),
+            });
+        }
+        progress.message(&format!("rendering again (--on-mismatch rerender): {}", mismatched.join(", ")));
+    }
+    progress.message(&format!("{} scenes in {}; shard {shard} holds {}: {} to render, {} complete (skipped)", scenes.len(), a.scenes.display(), mine.len(), todo.len(), skipped.len()));
+    for s in &skipped {
+        progress.scene(&SceneOutcome { scene: s.name.clone(), status: SceneStatus::Skipped, seconds: 0.0, output: a.out.join(&s.name), error: None });
+    }
+    if shared_state != SceneState::Done || !todo.is_empty() {
+        write_shared(&a.out, &renderer, &configuration, &scene_names)?;
+    }
+    if todo.is_empty() {
+        return Ok(DatasetSummary { rendered: 0, skipped: skipped.len(), seconds: t0.elapsed().as_secs_f64() });
+    }
+
+    // On the CPU: trace the transport once (if it fits the budget), then apply it to every scene. On a GPU
+    // every scene is traced on the device (its kernels trace and accumulate in one pass; docs/gpu.md).
+    let on_cpu = a.device == Device::Cpu;
+    let planes = renderer.config.spectral.planes();
+    let t_trace = Instant::now();
+    let probe = if on_cpu { renderer.trace_plane(planes / 2)? } else { PlaneTransport::default() };
+    let estimate = probe.bytes() as f64 * planes as f64 * 1.25;
+    let budget = a.transport_memory_gb * 1e9;
+    let cached: Option<Vec<PlaneTransport>> = if on_cpu && todo.len() > 1 && estimate <= budget {
+        progress.tracing_started("tracing the light transport", renderer.rays_per_render());
+        let t = renderer.trace_all(&|k| progress.rays(k));
+        progress.tracing_done();
+        let t = t?;
+        let bytes: usize = t.iter().map(|p| p.bytes()).sum();
+        progress.message(&format!("light transport traced in {:.2} s ({:.2} GB), reused for {} scenes", t_trace.elapsed().as_secs_f64(), bytes as f64 / 1e9, todo.len()));
+        Some(t)
+    } else {
+        if on_cpu && todo.len() > 1 {
+            progress.message(&format!("light transport would need ~{:.2} GB > {:.2} GB: tracing each scene", estimate / 1e9, a.transport_memory_gb));
+        }
+        None
+    };
+    let transport_seconds = t_trace.elapsed().as_secs_f64();
+    drop(probe);
+
+    progress.scenes_started(todo.len() as u64);
+    let mut failed: Vec<String> = Vec::new();
+    for s in &todo {
+        let ts = Instant::now();
+        progress.scene_started(&s.name);
+        let dest = a.out.join(&s.name);
+        let result = (|| -> Result<()> {
+            // This shard owns the scene: what a killed task left for it is garbage.
+            remove_leftovers(&a.out, &s.name)?;
+            // The scene's files as they are before it is read (a change during the render shows next time).
+            let scene_input = scene_input_record(s, a.options.scene_wavelengths_nm.is_none())?;
+            let (scene, desc) = load_fitted(&s.path, renderer.config.scene_height, a.options.scene_wavelengths_nm.as_deref(), a.options.fit)?;
+            let (mut acq, device_record) = match &cached {
+                Some(t) => (renderer.render_cached(&scene, t, a.options.cube, &|_| {})?, None),
+                None => {
+                    progress.tracing_started(&s.name, renderer.rays_per_render());
+                    let out = crate::render::device::render_for(a.device, &renderer, &scene, a.options.cube, &|k| progress.rays(k));
+                    progress.tracing_done();
+                    out?
+                }
+            };
+            let noise_json = match a.noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() }) {
+                Some(nc) => {
+                    let report = nc.apply(&mut acq.image)?;
+                    nc.to_json(&report)
+                }
+                None => Value::Null,
+            };
+            let partial = partial_dir(&a.out, &s.name)?;
+            let mut extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref()), "scene_input": scene_input});
+            if let Some(x) = renderer.spectral_extrapolation(&scene) {
+                progress.message(&format!("warning: {}: {}", s.name, x.message()));
+                extra["spectral_extrapolation"] = x.to_json();
+            }
+            let written = write_scene(&partial, &renderer, &acq, &desc, &configuration, extra, ts.elapsed().as_secs_f64()).and_then(|()| {
+                if let Some(d) = a.scene_delay {
+                    std::thread::sleep(d);
+                }
+                commit_scene(&partial, &a.out, &s.name)
+            });
+            if written.is_err() {
+                let _ = std::fs::remove_dir_all(&partial);
+            }
+            written
+        })();
+        let seconds = ts.elapsed().as_secs_f64();
+        match result {
+            Ok(()) => progress.scene(&SceneOutcome { scene: s.name.clone(), status: SceneStatus::Rendered, seconds, output: dest, error: None }),
+            Err(e) => {
+                progress.scene(&SceneOutcome { scene: s.name.clone(), status: SceneStatus::Failed, seconds, output: dest, error: Some(format!("{e:#}")) });
+                failed.push(s.name.clone());
+            }
+        }
+    }
+    progress.scenes_done();
+    progress.message(&format!("rendered {} of {} scenes of shard {shard} into {} in {:.2} s", todo.len() - failed.len(), todo.len(), a.out.display(), t0.elapsed().as_secs_f64()));
+    if !failed.is_empty() {
+        return Err(Error::invalid(format!("{} of {} scenes failed (their JSON lines say why): {}", failed.len(), todo.len(), failed.join(", "))));
+    }
+    Ok(DatasetSummary { rendered: todo.len(), skipped: skipped.len(), seconds: t0.elapsed().as_secs_f64() })
+}
