@@ -147,7 +147,7 @@ fn study_bad_input_is_a_clear_error() {
     assert!(!out.exists());
     // Bands whose render planes leave a glass's range (half a band beyond 450–2000 nm at 2 bands reaches
     // −311 nm): refused before anything is written (study.json and mask.png were, and the study then failed).
-    let o = run(&["study", "--synthetic", "1", "--scene-size", "8", "--presets", "sp", "--bands", "450,2000", "--planes", "112", "--rays", "1", "--out", s(&out)]);
+    let o = run(&["study", "--synthetic", "1", "--scene-size", "12", "--presets", "sp", "--bands", "450,2000", "--planes", "112", "--rays", "1", "--out", s(&out)]);
     assert_fails_cleanly(&o, &out, &["--presets sp", "render plane 0"]);
     // A bad --bands names --bands (it was named --wavelength-nm).
     let o = run(&["study", "--synthetic", "1", "--bands", "450:650:0", "--out", s(&out)]);
@@ -483,4 +483,58 @@ fn study_system_file_errors_name_the_file_system_and_field() {
     }
     // --scene-fov-deg where no system is at infinity: the systems named.
     assert_fails_cleanly(&study(&["--presets", "ap", "--systems", s(&sp), "--scene-fov-deg", "5"]), &out, &["--scene-fov-deg 5", "AP, sp", "finite object"]);
+}
+
+/// A resumed study trusts a cell only with the reconstruction it recorded (`cube_npy_sha256`) and a render
+/// folder only when it reads back whole: a run that failed between swapping in a reconstruction and writing
+/// its cell left another run's cube under a cell counted as done, and a deleted mask.png stopped the study at
+/// its first cell (a held-out battery, round 8).
+#[test]
+fn study_resume_checks_its_reconstructions_and_render_folders() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("study");
+    let args = ["study", "--synthetic", "2", "--scene-size", "12", "--presets", "sp", "--operators", "shift,exact", "--bands", "450:650:4", "--planes", "4", "--rays", "1", "--iterations", "3", "--out", s(&out)];
+    let stdout = |o: &Output| String::from_utf8_lossy(&o.stdout).into_owned();
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let cell = read_json(&out.join("cells/sp/synthetic01/exact-gap-tv.json"));
+    let cube = out.join(cell["reconstruction"].as_str().unwrap()).join("cube.npy");
+    assert_eq!(cell["cube_npy_sha256"].as_str().unwrap(), diffcassi::io::sha256::sha256_hex(&std::fs::read(&cube).unwrap()));
+    // Another cube in the cell's folder (another run's): that cell alone is computed again.
+    let other = out.join("recon/sp/synthetic00/exact-gap-tv/cube.npy");
+    std::fs::copy(&other, &cube).unwrap();
+    let o = run(&args);
+    assert!(stdout(&o).contains("1 cells computed, 3 already done"), "{}{}", stdout(&o), stderr(&o));
+    assert_eq!(read_json(&out.join("cells/sp/synthetic01/exact-gap-tv.json"))["cube_npy_sha256"], cell["cube_npy_sha256"]);
+    // A deleted cube: the same.
+    std::fs::remove_file(out.join("recon/sp/synthetic00/shift-gap-tv/cube.npy")).unwrap();
+    let o = run(&args);
+    assert!(stdout(&o).contains("1 cells computed, 3 already done"), "{}{}", stdout(&o), stderr(&o));
+    // A render folder without its mask is rendered again (the same bits: its cells stay done).
+    std::fs::remove_file(out.join("renders/sp/synthetic00/mask.png")).unwrap();
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("rendered 1 scenes") && stdout(&o).contains("0 cells computed, 4 already done"), "{}", stdout(&o));
+    assert!(out.join("renders/sp/synthetic00/mask.png").is_file());
+}
+
+/// A study refuses, before anything is written, the scenes `render` refuses (a negative radiance, one beyond
+/// the limit) and a scene size below SSIM's window (each failed after the study's first files).
+#[test]
+fn study_refuses_bad_scenes_and_sizes_before_writing() {
+    let d = tempfile::tempdir().unwrap();
+    let ws = diffcassi::scene::synthetic_wavelengths();
+    for (name, value, needle) in [("neg", -0.5f32, "≥ 0"), ("huge", 1e35f32, "3.403e29")] {
+        let scenes = d.path().join(name);
+        std::fs::create_dir_all(&scenes).unwrap();
+        let mut cube = diffcassi::scene::synthetic_scene(16, 16, &ws, 1);
+        cube.data[5 * 16 * ws.len() + 5] = value;
+        diffcassi::scene::save_npy(&cube, &scenes.join("a.npy")).unwrap();
+        let out = tmp_path(&d, &format!("study-{name}"));
+        let o = run(&["study", "--scenes", s(&scenes), "--presets", "sp", "--operators", "shift", "--scene-size", "16", "--planes", "4", "--rays", "1", "--out", s(&out)]);
+        assert_fails_cleanly(&o, &out, &["a.npy", needle]);
+    }
+    let out = tmp_path(&d, "study-small");
+    let o = run(&["study", "--synthetic", "1", "--presets", "sp", "--operators", "shift", "--scene-size", "8", "--planes", "4", "--rays", "1", "--out", s(&out)]);
+    assert_fails_cleanly(&o, &out, &["--scene-size 8", "≥ 11", "SSIM"]);
 }

@@ -93,6 +93,38 @@ pub fn run<T: Send>(py: Python<'_>, f: impl FnOnce() -> T + Send) -> T {
     })
 }
 
+/// [`run`] for a long call that stops early when asked: `f` runs on another thread (in the chosen pool)
+/// while this one — the thread that holds the GIL, the main thread of a script or a notebook — wakes every
+/// 50 ms to run Python's pending signal handlers. A raised `KeyboardInterrupt` (Ctrl-C) sets `stop`, which `f`
+/// polls; the call then waits for `f` and returns the exception with its result. (The signal handlers run only
+/// on the main thread: `f`'s own thread cannot see a Ctrl-C.)
+pub fn run_interruptible<T: Send>(py: Python<'_>, stop: &std::sync::atomic::AtomicBool, f: impl FnOnce() -> T + Send) -> (T, Option<PyErr>) {
+    let pool = current().unwrap_or(None);
+    let mut signal = None;
+    let out = py.allow_threads(|| {
+        std::thread::scope(|scope| {
+            let worker = scope.spawn(move || match pool {
+                Some(p) => p.install(f),
+                None => f(),
+            });
+            while !worker.is_finished() {
+                std::thread::sleep(std::time::Duration::from_millis(50));
+                if signal.is_none() {
+                    if let Err(e) = Python::with_gil(|py| py.check_signals()) {
+                        signal = Some(e);
+                        stop.store(true, std::sync::atomic::Ordering::SeqCst);
+                    }
+                }
+            }
+            worker.join()
+        })
+    });
+    match out {
+        Ok(v) => (v, signal),
+        Err(panic) => std::panic::resume_unwind(panic),
+    }
+}
+
 /// Use `n` threads for every following heavy call: 1..=1024 (the CLI's `--threads` range), or 0 for
 /// rayon's default (all cores or `RAYON_NUM_THREADS`).
 #[pyfunction]

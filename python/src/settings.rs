@@ -118,10 +118,16 @@ pub struct Settings<'py> {
 }
 
 fn get<'py, T: FromPyObject<'py>>(name: &str, v: &Bound<'py, PyAny>, what: &str) -> PyResult<T> {
-    v.extract::<T>().map_err(|_| {
+    let bad = || {
         let ty = v.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
         value_error(format!("{name}: expected {what} or None, got {ty} {}", v.repr().map(|r| r.to_string()).unwrap_or_default()))
-    })
+    };
+    // A bool is an int to Python: `planes=True` rendered one plane. Integer settings refuse it, as the
+    // positional integer arguments do (`arrays::uint_arg`).
+    if what.starts_with("an integer") && v.is_instance_of::<pyo3::types::PyBool>() {
+        return Err(bad());
+    }
+    v.extract::<T>().map_err(|_| bad())
 }
 
 /// Parse `kwargs`: the render keywords ([`RENDER_KEYS`]) and the call's `extra` ones; anything else is a

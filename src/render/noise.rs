@@ -128,7 +128,9 @@ impl NoiseConfig {
             None if peak > 0.0 => self.full_well_e / peak,
             None => return Err(Error::invalid("the acquisition is black (peak 0): noise with auto exposure needs --electrons-per-unit")),
         };
-        if k * peak > MAX_ELECTRONS {
+        // Auto exposure puts the full well (≤ MAX_ELECTRONS, validated) in the peak by construction; K·peak
+        // can round one ulp above it (a full well of 1e9 was refused, blaming electrons per unit nobody gave).
+        if self.electrons_per_unit.is_some() && k * peak > MAX_ELECTRONS {
             return Err(Error::invalid(format!("{} electrons per unit put {:e} e⁻ in the peak pixel; at most {MAX_ELECTRONS:e} are supported", crate::limits::fmt_num(k), k * peak)));
         }
         Ok(k)
@@ -413,6 +415,10 @@ mod tests {
             let e = cfg.apply(&mut img).unwrap_err().to_string();
             assert!(e.contains(what), "{e}");
         }
+        // The largest full well with auto exposure, whose K·peak rounds one ulp above it (0.23 × (1e9/0.23)).
+        let mut top = vec![0.23, 0.1];
+        let r = NoiseConfig { shot: true, full_well_e: MAX_ELECTRONS, ..NoiseConfig::default() }.apply(&mut top).unwrap();
+        assert!(r.peak_electrons > MAX_ELECTRONS && r.peak_electrons < MAX_ELECTRONS * (1.0 + 1e-15), "{}", r.peak_electrons);
         let mut black = vec![0.0; 4];
         assert!(NoiseConfig { shot: true, ..NoiseConfig::default() }.apply(&mut black).unwrap_err().to_string().contains("black"));
         assert_eq!(img, vec![0.5; 4]);

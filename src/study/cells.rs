@@ -59,3 +59,16 @@ pub(super) fn cell_from_json(v: &Value) -> Option<Cell> {
     })
 }
 
+
+/// SHA-256 of a file's bytes (`None` when it cannot be read).
+pub(super) fn file_sha256(path: &Path) -> Option<String> {
+    std::fs::read(path).ok().map(|b| crate::io::sha256::sha256_hex(&b))
+}
+
+/// Whether a cell's reconstruction folder (`reconstruction`, relative to the study folder `out`) holds the
+/// `cube.npy` the cell recorded (`cube_npy_sha256`); a cell without the digest (written before it existed) is
+/// not trusted.
+pub(super) fn reconstruction_intact(out: &Path, cell: &Value) -> bool {
+    let (Some(rel), Some(recorded)) = (cell.get("reconstruction").and_then(Value::as_str), cell.get("cube_npy_sha256").and_then(Value::as_str)) else { return false };
+    file_sha256(&out.join(rel).join("cube.npy")).as_deref() == Some(recorded)
+}

