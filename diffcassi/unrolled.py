@@ -53,7 +53,7 @@ import hashlib
 import json
 import math
 import os
-from typing import Any, Dict, Optional, Tuple
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
@@ -131,6 +131,20 @@ def _int_at_least(name: str, v: Any, lo: int) -> int:
     return int(v)
 
 
+def _check_size(what: str, stages: int, width: int, stage: Callable[[], Sequence[nn.Module]]) -> None:
+    """Refuse a network whose float32 weights exceed the memory budget (``diffcassi.set_limits``) before any is
+    allocated: one stage is built on the ``meta`` device (no memory) to count its parameters. ``stages=10**9`` took
+    all the machine's memory, ``width=10**6`` asked torch for 32 TB (a held-out battery, round 8)."""
+    with torch.device("meta"):
+        per_stage = sum(p.numel() for m in stage() for p in m.parameters())
+    need = 4.0 * per_stage * stages
+    limit = float(diffcassi.get_limits()["max_memory_gb"]) * 1e9
+    if need > limit:
+        raise _Error(f"{what}: stages = {stages}, width = {width}: {stages} × {per_stage} float32 parameters "
+                     f"({need / 1e9:.3g} GB) exceed the memory budget of {limit / 1e9:.3g} GB; use fewer stages or a smaller "
+                     "width, or raise the budget (diffcassi.set_limits(max_memory_gb=…))")
+
+
 def _pow2_scale(y: torch.Tensor, dinv: torch.Tensor) -> torch.Tensor:
     """The network's internal scale c of acquisitions ``y`` (N, h, w): per sample the power of two at or below the
     peak of |y| and |y|·d⁻¹ (the largest values the data steps hand the operator), shape (N, 1, 1), detached; 1
@@ -171,6 +185,7 @@ class UnrolledGAP(nn.Module):
         self.stages = _int_at_least("stages", stages, 1)
         self.width = _int_at_least("width", width, 1)
         self.bands = int(phi.cube_shape[2])
+        _check_size("UnrolledGAP", self.stages, self.width, lambda: [StageDenoiser(self.bands, self.width)])
         self.phi = phi
         # Everything is made on the operator's device (a CUDA operator: the whole network there).
         dev = operator_device(phi)
@@ -406,6 +421,8 @@ class UnrolledDAUHST(nn.Module):
         self.stages = _int_at_least("stages", stages, 1)
         self.width = _int_at_least("width", width, 1)
         self.bands = int(phi.cube_shape[2])
+        _check_size("UnrolledDAUHST", self.stages, self.width,
+                    lambda: [DegradationEstimator(self.bands), SpectralSpatialUNet(self.bands, self.width)])
         self.phi = phi
         dev = operator_device(phi)
         self.estimators = nn.ModuleList(DegradationEstimator(self.bands) for _ in range(self.stages)).to(dev)

@@ -82,6 +82,36 @@ pub fn observe(system: &SequentialSystem, setup: &CalibrationSetup) -> Result<Ve
         .collect()
 }
 
+/// How an observed system's optical surfaces differ in structure from the model's: their number, or the type
+/// of one — what no value of the model's free parameters can change (a glass can: `glass_nd`, `glass_vd`).
+/// Coordinate breaks and dummy planes (flat Standard surfaces with air on both sides) are left out: a
+/// misaligned copy adds its own (mAP is AP with a dummy plane and five more breaks). `None`: the same structure.
+pub fn structure_difference(model: &[crate::spec::SurfaceSpec], observed: &[crate::spec::SurfaceSpec]) -> Option<String> {
+    use crate::spec::SurfaceKind;
+    let optical = |v: &[crate::spec::SurfaceSpec]| {
+        let mut before_air = true;
+        let mut kinds = Vec::new();
+        for (i, s) in v.iter().enumerate() {
+            if s.kind == SurfaceKind::CoordinateBreak {
+                continue; // keeps the medium before it
+            }
+            let after_air = s.material.is_none();
+            let flat = s.radius_mm.as_ref().is_none_or(|r| r.value.is_infinite() || r.value == 0.0);
+            let dummy = s.kind == SurfaceKind::Standard && flat && before_air && after_air && i != 0 && i + 1 != v.len();
+            if !dummy {
+                kinds.push(s.kind);
+            }
+            before_air = after_air;
+        }
+        kinds
+    };
+    let (m, o) = (optical(model), optical(observed));
+    if m.len() != o.len() {
+        return Some(format!("{} optical surfaces against {} (coordinate breaks and dummy planes aside)", o.len(), m.len()));
+    }
+    m.iter().zip(&o).enumerate().find_map(|(i, (a, b))| (a != b).then(|| format!("optical surface {i} (coordinate breaks and dummy planes aside) is {}, not {}", b.label(), a.label())))
+}
+
 /// Add independent Gaussian noise of `sigma_um` (µm, per coordinate) to centroids, from a ChaCha8 stream
 /// seeded with `seed` (Box–Muller).
 pub fn add_noise(centroids: &mut [[f64; 2]], sigma_um: f64, seed: u64) {
@@ -162,4 +192,25 @@ pub fn calibrate(set: &ParamSet, observed: &[[f64; 2]], setup: &CalibrationSetup
     let residual_um = (d.iter().map(|v| v * v).sum::<f64>() / pairs as f64).sqrt();
     let max_residual_um = d.iter().cloned().fold(0.0, f64::max);
     Ok(CalibrationFit { x: report.x.clone(), residual_um, max_residual_um, report })
+}
+
+#[cfg(test)]
+mod structure_tests {
+    use super::*;
+
+    #[test]
+    fn structure_difference_names_what_no_parameter_changes() {
+        let spec = |p: &str| crate::presets::spec(p).unwrap();
+        assert_eq!(structure_difference(&spec("ap").surfaces, &spec("map").surfaces), None); // a misaligned copy
+        assert_eq!(structure_difference(&spec("sp").surfaces, &spec("msp").surfaces), None);
+        assert_eq!(structure_difference(&spec("map").surfaces, &spec("ap").surfaces), None);
+        assert!(structure_difference(&spec("ap").surfaces, &spec("sp").surfaces).is_some());
+        let d = structure_difference(&spec("sp").surfaces, &spec("ap").surfaces).unwrap();
+        assert!(d.contains("optical surfaces against") || d.contains("optical surface "), "{d}");
+        // Another glass is a value the fit can free (glass_nd, glass_vd), not another structure.
+        let mut glass = spec("sp");
+        let k = glass.surfaces.iter().position(|s| s.material.is_some()).unwrap();
+        glass.surfaces[k].material = Some("N-SF10".into());
+        assert_eq!(structure_difference(&spec("sp").surfaces, &glass.surfaces), None);
+    }
 }

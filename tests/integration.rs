@@ -17,6 +17,7 @@ mod bad_input_round3;
 mod bad_input_round5;
 mod bad_input_round6;
 mod bad_input_round7;
+mod bad_input_round8;
 mod cli;
 mod cli_run;
 mod csv_outputs;
