@@ -1,5 +1,4 @@
-//! `study`: the reference paper's four-system experiment, end to end (the pipeline is the library's
-//! [`crate::study`]; this module parses the options into its settings and draws the progress bars). Every scene is rendered through every
+//! `study`: the reference paper's four-system experiment, end to end. Every scene is rendered through every
 //! system with one mask, reconstructed with every operator and solver, and evaluated against the scene:
 //!
 //! ```text
@@ -8,23 +7,9 @@
 //! diffcassi study --synthetic 2 --presets sp --systems my_cassi.toml,lens.zmx --scene-fov-deg 6 --out out/mine
 //! ```
 //!
-//! Systems are presets (`--presets`, rows named as in the paper: SP, mAP…) and files (`--systems`, read as
-//! `--system` elsewhere; rows named by the file stem). For a system whose object is at infinity the scenes span
-//! `--scene-fov-deg` degrees across their width (as `render --scene-fov-deg`); finite systems keep 10 µm pixels.
-//!
-//! Layout of `--out`: `study.json` (the marker of a study folder: command, version, configuration, systems), `mask.png` (the mask every render uses), `renders/<system>/<scene>/` (complete render
-//! folders, readable by `reconstruct --from`; `<system>` is the preset's name or the file's stem), `recon/<system>/<scene>/<operator>-<solver>/` (`cube.npy`,
-//! `rgb.png`, `reconstruct.json`), `cells/<system>/<scene>/<operator>-<solver>.json` (one finished cell:
-//! its configuration, metrics and seconds), and, rebuilt from every cell at the end, `study.csv` (one row per
-//! scene × system × operator × solver), `study.md` (the paper-shaped table, mean ± std over scenes, and the
-//! ablation "reconstruct with the simplified model") and `study_psnr.png` (grouped bars).
-//!
-//! Resumable: a render whose `render.json` carries the same study configuration, and a cell whose result file
-//! carries the same configuration, are not recomputed; anything else is (the configuration is every setting
-//! that changes a number: bands, planes, rays, seeds, mask, Airy, scene size and fit, solver settings; for a
-//! system file its resolved spec, so that editing the file recomputes its rows; at infinity the angular extent).
-//! The exact operator of a system is traced once (seed = acquisition seed + 1, as `reconstruct`'s default) and
-//! reused for all its scenes; so are the other operators.
+//! The pipeline — systems, scenes, the folder layout, what a resumed study reuses, the tables — is the
+//! library's [`crate::study`] (its module docs); this module parses the options into its
+//! [`StudySettings`](crate::study::StudySettings) and draws the progress bars.
 use super::reconstruct::SolverTuning;
 use crate::error::Result;
 use crate::recon::pipeline::NoiseModel;

@@ -19,8 +19,9 @@
 //! scene × system × operator × solver), `study.md` (the paper-shaped table, mean ± std over scenes, and the
 //! ablation "reconstruct with the simplified model") and `study_psnr.png` (grouped bars).
 //!
-//! Resumable: a render whose `render.json` carries the same study configuration, and a cell whose result file
-//! carries the same configuration, are not recomputed; anything else is (the configuration is every setting
+//! Resumable: a render whose `render.json` carries the same study configuration (and whose folder reads back
+//! whole: acquisition, mask, record), and a cell whose result file carries the same configuration (and whose
+//! `recon/` folder holds the `cube.npy` it recorded, `cube_npy_sha256`), are not recomputed; anything else is (the configuration is every setting
 //! that changes a number: bands, planes, rays, seeds, mask, Airy, scene size and fit, solver settings; for a
 //! system file its resolved spec, so that editing the file recomputes its rows; at infinity the angular extent).
 //! The exact operator of a system is traced once (seed = acquisition seed + 1, as `reconstruct`'s default) and
