@@ -51,3 +51,19 @@ fn tv_weight_is_checked_as_given() {
         assert!(!d.path().join("st").exists());
     }
 }
+
+/// `render-dataset` reads its options once, through the library's render settings: a bad
+/// `--scene-wavelengths` is named as such (parsed on its own first, it was named `--wavelength-nm`).
+#[test]
+fn render_dataset_names_a_bad_scene_wavelengths() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::create_dir(d.path().join("scenes")).unwrap();
+    let ws = diffcassi::scene::synthetic_wavelengths();
+    diffcassi::scene::save_npy(&diffcassi::scene::synthetic_scene(8, 8, &ws, 1), &d.path().join("scenes/a.npy")).unwrap();
+    crate::cli_run::refused_cli(
+        d.path(),
+        &["render-dataset", "--scenes", "scenes", "--preset", "sp", "--scene-size", "8", "--planes", "3", "--rays", "1", "--scene-wavelengths", "450:650:0", "--out", "ds"],
+        &["--scene-wavelengths `450:650:0`"],
+    );
+    assert!(!d.path().join("ds").exists());
+}

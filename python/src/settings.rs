@@ -117,7 +117,9 @@ pub struct Settings<'py> {
     pub extra: Bound<'py, PyDict>,
 }
 
-fn get<'py, T: FromPyObject<'py>>(name: &str, v: &Bound<'py, PyAny>, what: &str) -> PyResult<T> {
+/// Keyword `name`'s value as `T`, or a `ValueError` naming it, `what` it must be and what it is (the render
+/// keywords' and `study`'s one reader).
+pub(crate) fn get<'py, T: FromPyObject<'py>>(name: &str, v: &Bound<'py, PyAny>, what: &str) -> PyResult<T> {
     let bad = || {
         let ty = v.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
         value_error(format!("{name}: expected {what} or None, got {ty} {}", v.repr().map(|r| r.to_string()).unwrap_or_default()))

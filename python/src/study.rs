@@ -2,6 +2,7 @@
 //! pipeline, folder layout and resumption as `diffcassi study`, silent. Keywords are the command line's
 //! options in snake case; lists are a comma string or a sequence.
 use crate::errors::{value_error, IntoPy};
+use crate::settings::get;
 use diffcassi::recon::pipeline::NoiseModel;
 use diffcassi::study::{self, StudyProgress, StudySettings};
 use pyo3::prelude::*;
@@ -27,15 +28,6 @@ fn list(key: &str, v: &Bound<'_, PyAny>) -> PyResult<String> {
         return Ok(items.iter().map(|x| format!("{x}")).collect::<Vec<_>>().join(","));
     }
     Err(value_error(format!("study: `{key}` must be a comma string or a sequence of strings or numbers")))
-}
-
-fn get<'py, T: FromPyObject<'py>>(key: &str, v: &Bound<'py, PyAny>, what: &str) -> PyResult<T> {
-    let bad = || value_error(format!("study: `{key}` must be {what} (got {})", v.repr().map(|r| r.to_string()).unwrap_or_default()));
-    // A bool is an int to Python (`planes=True` ran one plane): integer settings refuse it.
-    if what.starts_with("a whole number") && v.is_instance_of::<pyo3::types::PyBool>() {
-        return Err(bad());
-    }
-    v.extract::<T>().map_err(|_| bad())
 }
 
 /// Paths: a comma string (split as the command line splits `--systems a.toml,b.zmx`), one path-like, or a
@@ -83,22 +75,22 @@ fn settings(out: PathBuf, kw: Option<&Bound<'_, PyDict>>) -> PyResult<StudySetti
             "operators" => s.operators = list(&key, &v)?,
             "solvers" => s.solvers = list(&key, &v)?,
             "scenes" => s.scenes = Some(get(&key, &v, "a folder path")?),
-            "synthetic" => s.synthetic = Some(get(&key, &v, "a whole number ≥ 1")?),
+            "synthetic" => s.synthetic = Some(get(&key, &v, "an integer ≥ 1")?),
             "scene_wavelengths" => s.scene_wavelengths = Some(list(&key, &v)?),
-            "scene_size" => s.scene_size = get(&key, &v, "a whole number ≥ 1")?,
+            "scene_size" => s.scene_size = get(&key, &v, "an integer ≥ 1")?,
             "fit" => s.fit = get(&key, &v, "\"crop\" or \"resize\"")?,
             "bands" => s.bands = list(&key, &v)?,
-            "planes" => s.planes = get(&key, &v, "a whole number ≥ 1")?,
-            "rays" => s.rays = get(&key, &v, "a whole number ≥ 1")?,
-            "seed" => s.seed = get(&key, &v, "a whole number ≥ 0")?,
+            "planes" => s.planes = get(&key, &v, "an integer ≥ 1")?,
+            "rays" => s.rays = get(&key, &v, "an integer ≥ 1")?,
+            "seed" => s.seed = get(&key, &v, "an integer ≥ 0")?,
             "mask" => s.mask = Some(get(&key, &v, "a file path")?),
             "opening" => s.opening = get(&key, &v, "a number in [0, 1]")?,
-            "mask_seed" => s.mask_seed = get(&key, &v, "a whole number ≥ 0")?,
+            "mask_seed" => s.mask_seed = get(&key, &v, "an integer ≥ 0")?,
             "airy_diameter_px" => s.airy_diameter_px = get(&key, &v, "a number (pixels)")?,
             "transport_memory_gb" => s.transport_memory_gb = get(&key, &v, "a number (GB)")?,
             "force" => s.force = get(&key, &v, "True or False")?,
             "noise_estimate" => s.noise_estimate = Some(NoiseModel::parse("noise_estimate", &get::<String>(&key, &v, "\"spread\" or \"model\"")?).py()?),
-            "iterations" => t.iterations = Some(get(&key, &v, "a whole number ≥ 1")?),
+            "iterations" => t.iterations = Some(get(&key, &v, "an integer ≥ 1")?),
             "tv_weight" => t.tv_weight = Some(get(&key, &v, "a number")?),
             "accelerated" => t.accelerated = get(&key, &v, "True or False")?,
             "plain" => t.plain = get(&key, &v, "True or False")?,
@@ -108,8 +100,8 @@ fn settings(out: PathBuf, kw: Option<&Bound<'_, PyDict>>) -> PyResult<StudySetti
             "sigma_min" => t.sigma_min = Some(get(&key, &v, "a number")?),
             "sigma_auto" => t.sigma_auto = get(&key, &v, "True or False")?,
             "equivariant" => t.equivariant = Some(get(&key, &v, "True or False")?),
-            "equivariant_seed" => t.equivariant_seed = Some(get(&key, &v, "a whole number ≥ 0")?),
-            "tv_warmup" => t.tv_warmup = Some(get(&key, &v, "a whole number")?),
+            "equivariant_seed" => t.equivariant_seed = Some(get(&key, &v, "an integer ≥ 0")?),
+            "tv_warmup" => t.tv_warmup = Some(get(&key, &v, "an integer ≥ 0")?),
             "tolerance" => t.tolerance = Some(get(&key, &v, "a number ≥ 0")?),
             "discrepancy" => t.discrepancy = Some(get(&key, &v, "a number ≥ 0")?),
             other => return Err(value_error(format!("study: unknown setting `{other}` (threads and budgets: diffcassi.set_num_threads, diffcassi.set_limits; the options of `diffcassi study` in snake case: presets, systems, glass_catalogs, scene_fov_deg, operators, solvers, scenes, synthetic, scene_wavelengths, scene_size, fit, bands, planes, rays, seed, mask, opening, mask_seed, airy_diameter_px, transport_memory_gb, force, noise_estimate, iterations, tv_weight, accelerated, plain, denoiser, weights, sigma_max, sigma_min, sigma_auto, equivariant, equivariant_seed, tv_warmup, tolerance, discrepancy)"))),

@@ -12,15 +12,14 @@
 //! stdout of `render-dataset` is JSON Lines, one object per scene of the shard:
 //! `{"scene":"s03","status":"rendered","seconds":1.25,"output":"out/sp-dataset/s03"}` (`status` is
 //! `rendered`, `skipped` or `failed`; `failed` adds `"error"`). Progress and messages go to stderr.
+use super::bars::{bar, BarSlot};
 use super::shared::load_system;
-use super::render::{config_from, parse_fit, progress_bar, render_tracer, scene_wavelengths, NoiseArgs, RenderCommon};
+use super::render::{progress_bar, render_tracer, NoiseArgs, RenderCommon};
 use crate::error::{Error, Result};
 use crate::render::dataset::{self, DatasetOptions, DatasetProgress, DatasetRequest, DatasetStatus, SceneOutcome, Shard};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use std::io::Write;
 use std::path::PathBuf;
-use std::sync::Mutex;
 
 /// Environment variable (milliseconds) that makes `render-dataset` wait after writing each scene's
 /// temporary folder and before moving it into place. A test hook: it keeps a scene "in flight" long enough
@@ -122,17 +121,17 @@ fn debug_delay() -> Result<Option<std::time::Duration>> {
 
 /// The dataset's progress on the terminal: JSON lines on stdout (one per scene of the shard), messages and
 /// bars on stderr.
+#[derive(Default)]
 struct Terminal {
-    rays: Mutex<Option<ProgressBar>>,
-    scenes: Mutex<Option<ProgressBar>>,
+    rays: BarSlot,
+    scenes: BarSlot,
 }
 
 impl Terminal {
     /// A scene's line above the scenes bar (shown on a terminal only, like the bar).
     fn println(&self, text: String) {
-        match self.scenes.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
-            Some(pb) => pb.println(text),
-            None => eprintln!("{text}"),
+        if self.scenes.with(|pb| pb.println(&text)).is_none() {
+            eprintln!("{text}");
         }
     }
 }
@@ -140,9 +139,8 @@ impl Terminal {
 impl DatasetProgress for Terminal {
     /// Messages and warnings go to stderr always (the bars step aside).
     fn message(&self, text: &str) {
-        match self.scenes.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
-            Some(pb) => pb.suspend(|| eprintln!("{text}")),
-            None => eprintln!("{text}"),
+        if self.scenes.with(|pb| pb.suspend(|| eprintln!("{text}"))).is_none() {
+            eprintln!("{text}");
         }
     }
     fn scene(&self, o: &SceneOutcome) {
@@ -152,52 +150,42 @@ impl DatasetProgress for Terminal {
             (_, Some(e)) => self.println(format!("{}: failed: {e}", o.scene)),
             (_, None) => self.println(format!("{}: {:.2} s", o.scene, o.seconds)),
         }
-        if let Some(pb) = self.scenes.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
-            pb.inc(1);
-        }
+        self.scenes.with(|pb| pb.inc(1));
     }
     fn tracing_started(&self, what: &str, rays: u64) {
-        *self.rays.lock().unwrap_or_else(|e| e.into_inner()) = Some(progress_bar(rays, what));
+        self.rays.show(progress_bar(rays, what));
     }
     fn rays(&self, n: u64) {
-        if let Some(pb) = self.rays.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
-            pb.inc(n);
-        }
+        self.rays.with(|pb| pb.inc(n));
     }
     fn tracing_done(&self) {
-        if let Some(pb) = self.rays.lock().unwrap_or_else(|e| e.into_inner()).take() {
-            pb.finish_and_clear();
-        }
+        self.rays.clear();
     }
     fn scenes_started(&self, n: u64) {
-        let pb = ProgressBar::new(n);
-        pb.set_style(ProgressStyle::with_template("scenes [{elapsed_precise}] {wide_bar} {pos}/{len}, {per_sec}, ETA {eta} {msg}").unwrap_or_else(|_| ProgressStyle::default_bar()));
-        *self.scenes.lock().unwrap_or_else(|e| e.into_inner()) = Some(pb);
+        self.scenes.show(bar(n, "scenes [{elapsed_precise}] {wide_bar} {pos}/{len}, {per_sec}, ETA {eta} {msg}", ""));
     }
     fn scene_started(&self, name: &str) {
-        if let Some(pb) = self.scenes.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
-            pb.set_message(name.to_string());
-        }
+        self.scenes.with(|pb| pb.set_message(name.to_string()));
     }
     fn scenes_done(&self) {
-        if let Some(pb) = self.scenes.lock().unwrap_or_else(|e| e.into_inner()).take() {
-            pb.finish_and_clear();
-        }
+        self.scenes.clear();
     }
 }
 
 /// `render-dataset`: the library's [`dataset::run`] with the system, tracer and settings the options give.
 pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
+    // The options parsed once, into the library's render settings (their errors name each option).
+    let settings = a.common.settings()?;
     let request = DatasetRequest {
         scenes: a.scenes.clone(),
         out: a.out.clone(),
         force: a.force,
-        options: DatasetOptions { fit: parse_fit(&a.common.fit)?, scene_wavelengths_nm: scene_wavelengths(&a.common)?, cube: a.common.cube, mapping: !a.common.no_mapping },
+        options: DatasetOptions { fit: settings.fit, scene_wavelengths_nm: settings.scene_wavelengths_nm.clone(), cube: settings.cube, mapping: !a.common.no_mapping },
         noise: a.noise.config()?,
         shard: a.shard.unwrap_or(Shard::WHOLE),
         on_mismatch: a.on_mismatch.into(),
         transport_memory_gb: a.transport_memory_gb,
-        device: a.common.device.parse()?,
+        device: settings.device,
         scene_delay: debug_delay()?,
     };
     // The output policy before any work (the tracer's calibration may write its cache).
@@ -205,10 +193,10 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     inputs.extend(a.common.mask.as_deref().map(|p| ("--mask", p)));
     dataset::check_out(&request, &inputs)?;
     let system = load_system(&a.common.system)?;
-    let (mut cfg, mask) = config_from(&a.common)?;
+    let (mut cfg, mask) = settings.config()?;
     let (tracer, rays) = render_tracer(&a.common, &system, &mut cfg, &mask)?;
     cfg.rays_per_pixel = rays;
-    dataset::run(&request, &inputs, &system, tracer.as_ref(), cfg, mask, &Terminal { rays: Mutex::new(None), scenes: Mutex::new(None) })?;
+    dataset::run(&request, &inputs, &system, tracer.as_ref(), cfg, mask, &Terminal::default())?;
     Ok(())
 }
 

@@ -16,6 +16,7 @@
 //! diffcassi ghosts --preset sp --order 2 --csv ghosts.csv --png ghosts.png
 //! ```
 mod args;
+mod bars;
 mod commands;
 mod shared;
 mod dataset;

@@ -25,13 +25,13 @@
 //! [`Request`](crate::recon::pipeline::Request), applies the output policy, draws the progress bars, writes
 //! the folder and prints the summary.
 use super::args::BackendArgs;
+use super::bars::{bar, BarSlot};
 use crate::error::{Error, Result};
+use crate::recon::pipeline::output::{reconstruction_rule, write_reconstruction};
 use crate::recon::pipeline::{self, NoiseModel, OperatorKind, RenderRecord, Request, SolveSettings};
 use crate::tracer::Tracer;
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
-use std::sync::Mutex;
 use std::time::Instant;
 
 #[derive(Args, Debug, Clone)]
@@ -87,56 +87,29 @@ pub fn record_tracer(record: &RenderRecord, backend: &BackendArgs) -> Result<Box
 }
 
 /// The progress bars of `reconstruct`: the operator's traced rays, then the solver's iterations.
-struct Bars(Mutex<Option<ProgressBar>>);
-
-impl Bars {
-    fn show(&self, pb: ProgressBar) {
-        if let Ok(mut b) = self.0.lock() {
-            *b = Some(pb);
-        }
-    }
-
-    fn with(&self, f: impl FnOnce(&ProgressBar)) {
-        if let Ok(b) = self.0.lock() {
-            if let Some(pb) = b.as_ref() {
-                f(pb);
-            }
-        }
-    }
-
-    fn clear(&self) {
-        if let Ok(mut b) = self.0.lock() {
-            if let Some(pb) = b.take() {
-                pb.finish_and_clear();
-            }
-        }
-    }
-}
+struct Bars(BarSlot);
 
 impl pipeline::Progress for Bars {
     fn operator_started(&self, name: &str, rays: u64) {
-        let pb = ProgressBar::new(rays);
-        pb.set_style(ProgressStyle::with_template("{msg} [{elapsed_precise}] {wide_bar} {human_pos}/{human_len} rays, ETA {eta}").unwrap_or_else(|_| ProgressStyle::default_bar()));
-        pb.set_message(format!("operator {name}"));
-        self.show(pb);
+        self.0.show(bar(rays, "{msg} [{elapsed_precise}] {wide_bar} {human_pos}/{human_len} rays, ETA {eta}", &format!("operator {name}")));
     }
     fn rays(&self, n: u64) {
-        self.with(|pb| pb.inc(n));
+        self.0.with(|pb| pb.inc(n));
     }
     fn operator_done(&self) {
-        self.clear();
+        self.0.clear();
     }
     fn solve_started(&self, label: &str, iterations: usize) {
-        self.show(iteration_bar(iterations as u64, label));
+        self.0.show(bar(iterations as u64, "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} iterations, ETA {eta}", label));
     }
     fn iteration(&self, label: &str, _k: usize, residual: f64) {
-        self.with(|pb| {
+        self.0.with(|pb| {
             pb.set_message(format!("{label}: residual {residual:.3e}"));
             pb.inc(1);
         });
     }
     fn solve_done(&self) {
-        self.clear();
+        self.0.clear();
     }
     fn warning(&self, message: &str) {
         eprintln!("warning: {message}");
@@ -179,7 +152,7 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     // The staging folder, filled and swapped in at the end (a killed run's is removed by the next).
     let set = crate::io::OutputSet::folder(&a.out, &reconstruction_rule(a.force), &inputs)?;
     let tracer = record_tracer(&record, &a.backend)?;
-    let done = pipeline::reconstruct(record, &request, tracer.as_ref(), truth.as_ref(), &Bars(Mutex::new(None)))?;
+    let done = pipeline::reconstruct(record, &request, tracer.as_ref(), truth.as_ref(), &Bars(BarSlot::default()))?;
     let mut json = done.record;
     if let Some(o) = json.as_object_mut() {
         o.insert("seconds".into(), serde_json::json!(t0.elapsed().as_secs_f64()));
@@ -202,15 +175,6 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
         a.out.display()
     );
     Ok(())
-}
-
-pub use crate::recon::pipeline::output::{reconstruction_rule, write_reconstruction};
-
-fn iteration_bar(n: u64, what: &str) -> ProgressBar {
-    let pb = ProgressBar::new(n);
-    pb.set_style(ProgressStyle::with_template("{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} iterations, ETA {eta}").unwrap_or_else(|_| ProgressStyle::default_bar()));
-    pb.set_message(what.to_string());
-    pb
 }
 
 /// The solver options `reconstruct` and `study` share (one definition, so their flags and help agree).

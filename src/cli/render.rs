@@ -8,7 +8,7 @@
 //! diffcassi bench-render --preset sp                              # the paper-scale timing table
 //! ```
 use super::args::{BackendArgs, SystemArgs};
-use super::shared::{load_system, parse_wavelengths, parse_wavelengths_for};
+use super::shared::{load_system, parse_wavelengths_for};
 use crate::error::{Error, Result};
 use crate::render::settings::{MaskSource, NoiseSettings, RenderSettings};
 use crate::render::{output, Mask, NoiseConfig, RenderConfig, Renderer, Sampling, SpectralSampling};
@@ -16,7 +16,7 @@ use crate::scene::{synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
 pub use crate::render::settings::{check_render_rays, check_scene_values};
 use crate::tracer::AnalyticTracer;
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -109,7 +109,7 @@ impl RenderCommon {
             },
             airy_diameter_px: (!self.no_airy).then_some(self.airy_diameter_px),
             scene_wavelengths_nm: self.scene_wavelengths.as_deref().map(|t| parse_wavelengths_for("--scene-wavelengths", t)).transpose()?,
-            fit: parse_fit(&self.fit)?,
+            fit: Fit::parse(&self.fit)?,
             cube: self.cube,
             kernel: self.kernel.parse()?,
             precision: self.precision,
@@ -244,15 +244,6 @@ fn parse_sampling(s: &str) -> Result<Sampling> {
     }
 }
 
-pub(super) fn parse_fit(s: &str) -> Result<Fit> {
-    Fit::parse(s)
-}
-
-/// The render settings and mask the arguments describe ([`RenderSettings::config`]).
-pub fn config_from(a: &RenderCommon) -> Result<(RenderConfig, Mask)> {
-    a.settings()?.config()
-}
-
 /// The tracer and rays per pixel: as given, or chosen by `--tolerance-um`; sets `cfg.precision` (given,
 /// or chosen by the tolerance).
 pub(super) fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &mut RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize)> {
@@ -267,23 +258,9 @@ pub(super) fn render_tracer(a: &RenderCommon, system: &crate::system::Sequential
     Ok((tracer, rays))
 }
 
-pub(super) fn scene_wavelengths(a: &RenderCommon) -> Result<Option<Vec<f64>>> {
-    a.scene_wavelengths.as_deref().map(parse_wavelengths).transpose()
-}
-
-/// Load and fit a scene file; returns the cube and its JSON description ([`crate::render::dataset::load_fitted`]).
-pub(super) fn load_fitted(path: &Path, a: &RenderCommon) -> Result<(SpectralCube, serde_json::Value)> {
-    crate::render::dataset::load_fitted(path, a.scene_size, scene_wavelengths(a)?.as_deref(), parse_fit(&a.fit)?)
-}
-
+/// A bar of traced rays (`render`, `bench-render`, `render-dataset`).
 pub(super) fn progress_bar(total: u64, what: &str) -> ProgressBar {
-    let pb = ProgressBar::new(total);
-    pb.set_style(
-        ProgressStyle::with_template("{msg} [{elapsed_precise}] {wide_bar} {human_pos}/{human_len} rays, {per_sec}, ETA {eta}")
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-    );
-    pb.set_message(what.to_string());
-    pb
+    super::bars::bar(total, "{msg} [{elapsed_precise}] {wide_bar} {human_pos}/{human_len} rays, {per_sec}, ETA {eta}", what)
 }
 
 fn default_out(a: &RenderCommon) -> PathBuf {
@@ -319,7 +296,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
         // Accepted and ignored before: the synthetic scene has its own 31 bands.
         return Err(Error::invalid("--scene-wavelengths applies to a --scene file, not to the synthetic scene"));
     }
-    if a.scene.is_none() && parse_fit(&a.common.fit)? != crate::scene::Fit::Crop {
+    if a.scene.is_none() && Fit::parse(&a.common.fit)? != Fit::Crop {
         // Accepted and ignored before (the synthetic scene is made at N×N); `study` refuses it alike.
         return Err(Error::invalid(format!("--fit {}: brings a --scene file to N×N; the synthetic scene is made at N×N", a.common.fit)));
     }
@@ -332,11 +309,12 @@ pub fn render(a: RenderArgs) -> Result<()> {
     crate::io::policy::check_out_folder(&out, &rule, &inputs)?;
     let noise = a.noise.config()?;
     let system = load_system(&a.common.system)?;
-    let (mut cfg, mask) = config_from(&a.common)?;
+    let settings = a.common.settings()?;
+    let (mut cfg, mask) = settings.config()?;
     let n = a.common.scene_size;
     // The scene is loaded and checked before the (possibly long) tracer calibration and render.
     let (scene, desc) = match &a.scene {
-        Some(p) => load_fitted(p, &a.common)?,
+        Some(p) => crate::render::dataset::load_fitted(p, n, settings.scene_wavelengths_nm.as_deref(), settings.fit)?,
         None => {
             let seed = a.synthetic.unwrap_or(0);
             (synthetic_scene(n, n, &synthetic_wavelengths(), seed), serde_json::json!({"source": "synthetic", "synthetic_seed": seed, "native_wavelengths_nm": synthetic_wavelengths()}))
@@ -351,8 +329,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
     // All or nothing: the files go to a staging folder beside --out, which replaces --out at the end.
     let set = crate::io::OutputSet::folder(&out, &rule, &inputs)?;
     let pb = progress_bar(renderer.rays_per_render(), &format!("render {}", system.name()));
-    let device: crate::render::Device = a.common.device.parse()?;
-    let (mut acq, device_record) = crate::render::device::render_for(device, &renderer, &scene, a.common.cube, &|k| pb.inc(k))?;
+    let (mut acq, device_record) = crate::render::device::render_for(settings.device, &renderer, &scene, a.common.cube, &|k| pb.inc(k))?;
     pb.finish_and_clear();
     // Ghost and stray light (off by default): added to the acquisition before the sensor noise.
     let ghosts_json = match &ghost_pass {
@@ -360,7 +337,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
         None => serde_json::Value::Null,
     };
     // Sensor noise on the acquisition (the per-band images of --cube stay clean).
-    let noise_json = apply_noise(noise.as_ref(), &mut acq, a.noise.noise.as_deref().unwrap_or(""), false)?;
+    let noise_json = apply_noise(noise.as_ref(), &mut acq, a.noise.noise.as_deref().unwrap_or(""))?;
     let mut extra = serde_json::json!({"noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref())});
     if let Some(x) = renderer.spectral_extrapolation(&scene) {
         eprintln!("warning: {}", x.message());
@@ -396,18 +373,16 @@ pub fn render(a: RenderArgs) -> Result<()> {
     Ok(())
 }
 
-/// Apply the sensor noise (if any) to an acquisition and describe it for render.json.
-pub(super) fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::Acquisition, sources: &str, quiet: bool) -> Result<serde_json::Value> {
+/// Apply the sensor noise (if any) to an acquisition, say what it did, and describe it for render.json.
+fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::Acquisition, sources: &str) -> Result<serde_json::Value> {
     let Some(nc) = noise else { return Ok(serde_json::Value::Null) };
     let report = nc.apply(&mut acq.image)?;
-    if !quiet {
-        println!(
-            "sensor noise ({sources}): {:.4} e⁻ per unit, peak {:.0} e⁻{}",
-            report.electrons_per_unit,
-            report.peak_electrons,
-            report.adc_gain_e_per_dn.map(|g| format!(", ADC {:.4} e⁻/DN, {} saturated pixels", g, report.saturated_pixels)).unwrap_or_default()
-        );
-    }
+    println!(
+        "sensor noise ({sources}): {:.4} e⁻ per unit, peak {:.0} e⁻{}",
+        report.electrons_per_unit,
+        report.peak_electrons,
+        report.adc_gain_e_per_dn.map(|g| format!(", ADC {:.4} e⁻/DN, {} saturated pixels", g, report.saturated_pixels)).unwrap_or_default()
+    );
     Ok(nc.to_json(&report))
 }
 

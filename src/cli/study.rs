@@ -10,14 +10,13 @@
 //! The pipeline — systems, scenes, the folder layout, what a resumed study reuses, the tables — is the
 //! library's [`crate::study`] (its module docs); this module parses the options into its
 //! [`StudySettings`](crate::study::StudySettings) and draws the progress bars.
+use super::bars::{bar, BarSlot};
 use super::reconstruct::SolverTuning;
 use crate::error::Result;
 use crate::recon::pipeline::NoiseModel;
 use crate::study::{StudyProgress, StudySettings};
 use clap::Args;
-use indicatif::{ProgressBar, ProgressStyle};
 use std::path::PathBuf;
-use std::sync::Mutex;
 
 #[derive(Args, Debug, Clone)]
 pub struct StudyArgs {
@@ -134,26 +133,7 @@ impl StudyArgs {
 }
 
 /// The study's progress as bars on the terminal (one at a time), its lines printed above them.
-struct Bars(Mutex<Option<ProgressBar>>);
-
-impl Bars {
-    fn start(&self, n: u64, template: &str, what: &str) {
-        let pb = ProgressBar::new(n);
-        pb.set_style(ProgressStyle::with_template(template).unwrap_or_else(|_| ProgressStyle::default_bar()));
-        pb.set_message(what.to_string());
-        *self.0.lock().unwrap_or_else(|e| e.into_inner()) = Some(pb);
-    }
-    fn with(&self, f: impl FnOnce(&ProgressBar)) {
-        if let Some(pb) = self.0.lock().unwrap_or_else(|e| e.into_inner()).as_ref() {
-            f(pb)
-        }
-    }
-    fn clear(&self) {
-        if let Some(pb) = self.0.lock().unwrap_or_else(|e| e.into_inner()).take() {
-            pb.finish_and_clear();
-        }
-    }
-}
+struct Bars(BarSlot);
 
 impl StudyProgress for Bars {
     fn line(&self, text: &str) {
@@ -163,35 +143,33 @@ impl StudyProgress for Bars {
         eprintln!("warning: {text}");
     }
     fn transport_started(&self, what: &str, rays: u64) {
-        self.start(rays, "{msg} [{elapsed_precise}] {wide_bar} {human_pos}/{human_len} rays, ETA {eta}", what);
+        self.0.show(bar(rays, "{msg} [{elapsed_precise}] {wide_bar} {human_pos}/{human_len} rays, ETA {eta}", what));
     }
     fn rays(&self, n: u64) {
-        self.with(|pb| pb.inc(n));
+        self.0.with(|pb| pb.inc(n));
     }
     fn transport_done(&self) {
-        self.clear();
+        self.0.clear();
     }
     fn cells_started(&self, what: &str, cells: u64) {
-        self.start(cells, "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} cells, ETA {eta}", what);
+        self.0.show(bar(cells, "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} cells, ETA {eta}", what));
     }
     fn cell_done(&self, line: &str) {
-        let mut printed = false;
-        self.with(|pb| {
+        let shown = self.0.with(|pb| {
             pb.println(line);
             pb.inc(1);
-            printed = true;
         });
-        if !printed {
+        if shown.is_none() {
             println!("{line}");
         }
     }
     fn cells_done(&self) {
-        self.clear();
+        self.0.clear();
     }
 }
 
 pub fn study(a: StudyArgs) -> Result<()> {
-    let done = crate::study::run(&a.settings()?, &Bars(Mutex::new(None)))?;
+    let done = crate::study::run(&a.settings()?, &Bars(BarSlot::default()))?;
     println!("study: {} cells computed, {} already done; {:.1} s → {}", done.computed, done.skipped, done.seconds, done.table.display());
     Ok(())
 }
