@@ -11,13 +11,14 @@ use super::args::{BackendArgs, SystemArgs};
 use super::shared::{load_system, parse_wavelengths_for};
 use crate::error::{Error, Result};
 use crate::render::settings::{MaskSource, NoiseSettings, RenderSettings};
-use crate::render::{output, Mask, NoiseConfig, RenderConfig, Renderer, Sampling, SpectralSampling};
+use crate::render::folder::{self, RenderProgress, RenderRequest, SceneSource};
+use crate::render::{Mask, NoiseConfig, RenderConfig, Renderer, Sampling, SpectralSampling};
 use crate::scene::{synthetic_scene, synthetic_wavelengths, Fit, SpectralCube};
 pub use crate::render::settings::{check_render_rays, check_scene_values};
 use crate::tracer::AnalyticTracer;
 use clap::Args;
 use indicatif::ProgressBar;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 /// Settings shared by `render` and `render-dataset`: the command-line form of the library's
@@ -272,82 +273,66 @@ fn default_out(a: &RenderCommon) -> PathBuf {
     PathBuf::from("out").join(format!("render-{name}"))
 }
 
-pub(super) fn write_all(dir: &Path, renderer: &Renderer, acq: &crate::render::Acquisition, scene: &serde_json::Value, t0: Instant, extra: serde_json::Value, mapping: bool) -> Result<serde_json::Value> {
-    std::fs::create_dir_all(dir).map_err(|e| Error::File { path: dir.display().to_string(), message: format!("cannot create: {e}") })?;
-    crate::limits::check_finite_array("acquisition image", acq.image.iter().copied())?;
-    crate::limits::check_finite_array("acquisition image (float32)", acq.image.iter().map(|&v| v as f32 as f64))?;
-    let scale = output::write_images(dir, renderer, acq)?;
-    renderer.mask.save_png(&dir.join("mask.png"))?;
-    if mapping {
-        output::write_mapping(dir, renderer)?;
-    }
-    let mut json = output::sidecar(renderer, acq, scene, scale, t0.elapsed().as_secs_f64(), rayon::current_num_threads());
-    if let (Some(o), serde_json::Value::Object(e)) = (json.as_object_mut(), extra) {
-        o.extend(e);
-    }
-    crate::limits::check_json_finite("render.json", &json)?;
-    output::write_sidecar(dir, &json)?;
-    Ok(json)
+/// The terminal's view of a render: the rays' bar, warnings on stderr, the noise's line.
+#[derive(Default)]
+struct Terminal {
+    rays: super::bars::BarSlot,
+    what: String,
 }
 
+impl RenderProgress for Terminal {
+    fn warning(&self, text: &str) {
+        eprintln!("warning: {text}");
+    }
+    fn tracing_started(&self, rays: u64) {
+        self.rays.show(progress_bar(rays, &self.what));
+    }
+    fn rays(&self, n: u64) {
+        self.rays.with(|pb| pb.inc(n));
+    }
+    fn tracing_done(&self) {
+        self.rays.clear();
+    }
+    fn noise(&self, noise: &NoiseConfig, report: &crate::render::NoiseReport) {
+        println!(
+            "sensor noise ({}): {:.4} e⁻ per unit, peak {:.0} e⁻{}",
+            noise.sources().join(","),
+            report.electrons_per_unit,
+            report.peak_electrons,
+            report.adc_gain_e_per_dn.map(|g| format!(", ADC {:.4} e⁻/DN, {} saturated pixels", g, report.saturated_pixels)).unwrap_or_default()
+        );
+    }
+}
+
+/// `render`: the library's one-scene pipeline ([`crate::render::folder`]); this client chooses the system
+/// and the tracer (`--tolerance-um`) and prints.
 pub fn render(a: RenderArgs) -> Result<()> {
-    let t0 = Instant::now();
-    if a.scene.is_none() && a.common.scene_wavelengths.is_some() {
-        // Accepted and ignored before: the synthetic scene has its own 31 bands.
-        return Err(Error::invalid("--scene-wavelengths applies to a --scene file, not to the synthetic scene"));
-    }
-    if a.scene.is_none() && Fit::parse(&a.common.fit)? != Fit::Crop {
-        // Accepted and ignored before (the synthetic scene is made at N×N); `study` refuses it alike.
-        return Err(Error::invalid(format!("--fit {}: brings a --scene file to N×N; the synthetic scene is made at N×N", a.common.fit)));
-    }
-    // The output policy before any work: --out new, empty or a previous render (or --force), never an input.
-    let out = a.out.clone().unwrap_or_else(|| default_out(&a.common));
-    let mut inputs = super::shared::system_inputs(&a.common.system);
-    inputs.extend(a.scene.as_deref().map(|p| ("--scene", p)));
-    inputs.extend(a.common.mask.as_deref().map(|p| ("--mask", p)));
-    let rule = crate::io::policy::FolderRule { option: "--out", command: "render", marker: "render.json", force: a.force };
-    crate::io::policy::check_out_folder(&out, &rule, &inputs)?;
-    let noise = a.noise.config()?;
-    let system = load_system(&a.common.system)?;
     let settings = a.common.settings()?;
-    let (mut cfg, mask) = settings.config()?;
-    let n = a.common.scene_size;
-    // The scene is loaded and checked before the (possibly long) tracer calibration and render.
-    let (scene, desc) = match &a.scene {
-        Some(p) => crate::render::dataset::load_fitted(p, n, settings.scene_wavelengths_nm.as_deref(), settings.fit)?,
-        None => {
-            let seed = a.synthetic.unwrap_or(0);
-            (synthetic_scene(n, n, &synthetic_wavelengths(), seed), serde_json::json!({"source": "synthetic", "synthetic_seed": seed, "native_wavelengths_nm": synthetic_wavelengths()}))
-        }
+    let scene = match &a.scene {
+        Some(p) => SceneSource::File(p.clone()),
+        None => SceneSource::Synthetic(a.synthetic.unwrap_or(0)),
     };
+    let mut request = RenderRequest::new(scene, a.out.clone().unwrap_or_else(|| default_out(&a.common)), &settings);
+    request.force = a.force;
+    request.mapping = !a.common.no_mapping;
+    let mut inputs = super::shared::system_inputs(&a.common.system);
+    inputs.extend(a.common.mask.as_deref().map(|p| ("--mask", p)));
+    // The output policy before any work: --out new, empty or a previous render (or --force), never an input.
+    folder::check(&request, &inputs)?;
+    request.noise = a.noise.config()?;
+    let system = load_system(&a.common.system)?;
+    let (mut cfg, mask) = settings.config()?;
+    let n = settings.scene_size;
+    // The scene is loaded and checked before the (possibly long) tracer calibration and render.
+    let (scene, desc) = folder::load_scene(&request, n)?;
     let (tracer, rays) = render_tracer(&a.common, &system, &mut cfg, &mask)?;
     check_render_rays(n, cfg.spectral.planes(), rays)?;
     cfg.rays_per_pixel = rays;
     let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
     // The ghost pass's kernel (mechanics meshes loaded and checked) before anything is written.
     let ghost_pass = super::render_ghosts::GhostPass::prepare(&a.ghosts, &a.common.system, &system, renderer.config.rays_per_pixel, renderer.config.seed)?;
-    // All or nothing: the files go to a staging folder beside --out, which replaces --out at the end.
-    let set = crate::io::OutputSet::folder(&out, &rule, &inputs)?;
-    let pb = progress_bar(renderer.rays_per_render(), &format!("render {}", system.name()));
-    let (mut acq, device_record) = crate::render::device::render_for(settings.device, &renderer, &scene, a.common.cube, &|k| pb.inc(k))?;
-    pb.finish_and_clear();
-    // Ghost and stray light (off by default): added to the acquisition before the sensor noise.
-    let ghosts_json = match &ghost_pass {
-        Some(pass) => pass.run(&renderer, &scene, &mut acq)?,
-        None => serde_json::Value::Null,
-    };
-    // Sensor noise on the acquisition (the per-band images of --cube stay clean).
-    let noise_json = apply_noise(noise.as_ref(), &mut acq, a.noise.noise.as_deref().unwrap_or(""))?;
-    let mut extra = serde_json::json!({"noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref())});
-    if let Some(x) = renderer.spectral_extrapolation(&scene) {
-        eprintln!("warning: {}", x.message());
-        extra["spectral_extrapolation"] = x.to_json();
-    }
-    if !ghosts_json.is_null() {
-        extra["ghosts"] = ghosts_json;
-    }
-    let json = write_all(set.stage_dir().unwrap_or(&out), &renderer, &acq, &desc, t0, extra, !a.common.no_mapping)?;
-    set.commit()?;
+    let terminal = Terminal { what: format!("render {}", system.name()), ..Terminal::default() };
+    let done = folder::run(&request, &inputs, &renderer, &scene, &desc, ghost_pass.as_ref().map(|p| p as &dyn folder::AcquisitionPass), &terminal)?;
     println!(
         "{}: {}×{} scene, {} planes × {} rays: {} rays in {:.2} s ({:.2} M rays/s, {} threads), detector {}×{}, transmission {:.4}; total {:.2} s → {}",
         system.name(),
@@ -355,35 +340,17 @@ pub fn render(a: RenderArgs) -> Result<()> {
         n,
         renderer.config.spectral.planes(),
         renderer.config.rays_per_pixel,
-        acq.stats.traced,
-        acq.timings.wall_seconds,
-        json["rays_per_second"].as_f64().unwrap_or(0.0) / 1e6,
+        done.rays_traced,
+        done.render_seconds,
+        done.record["rays_per_second"].as_f64().unwrap_or(0.0) / 1e6,
         rayon::current_num_threads(),
-        acq.detector.width,
-        acq.detector.height,
-        acq.stats.transmission(),
-        t0.elapsed().as_secs_f64(),
-        out.display()
+        done.detector_width,
+        done.detector_height,
+        done.transmission,
+        done.total_seconds,
+        done.out.display()
     );
-    // A zero acquisition is written (it is what the system delivers), but said: nothing reconstructs from it.
-    if !(acq.total() > 0.0) {
-        let why = if acq.stats.transmission() > 0.0 { "rays arrived, but the scene is dark where they came from" } else { "no ray delivered light to the detector: render.json's ray_stats say where they went" };
-        eprintln!("warning: the acquisition is zero everywhere ({why})");
-    }
     Ok(())
-}
-
-/// Apply the sensor noise (if any) to an acquisition, say what it did, and describe it for render.json.
-fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut crate::render::Acquisition, sources: &str) -> Result<serde_json::Value> {
-    let Some(nc) = noise else { return Ok(serde_json::Value::Null) };
-    let report = nc.apply(&mut acq.image)?;
-    println!(
-        "sensor noise ({sources}): {:.4} e⁻ per unit, peak {:.0} e⁻{}",
-        report.electrons_per_unit,
-        report.peak_electrons,
-        report.adc_gain_e_per_dn.map(|g| format!(", ADC {:.4} e⁻/DN, {} saturated pixels", g, report.saturated_pixels)).unwrap_or_default()
-    );
-    Ok(nc.to_json(&report))
 }
 
 /// The acquisition rows of `bench-render`: `renderer` (the first kernel and precision), then each further

@@ -219,6 +219,12 @@ impl GhostPass {
 
 /// The mechanics of the spec (or the generated absorbing mounts) as the kernel's extra geometry: (geometry,
 /// description, triangles). Mesh paths are relative to the spec file.
+impl crate::render::folder::AcquisitionPass for GhostPass {
+    fn run(&self, renderer: &Renderer, scene: &SpectralCube, acq: &mut Acquisition) -> Result<serde_json::Value> {
+        GhostPass::run(self, renderer, scene, acq)
+    }
+}
+
 fn mechanics(sys_args: &SystemArgs, system: &SequentialSystem, backend: Option<&str>) -> Result<(Arc<dyn ExtraGeometry>, String, usize)> {
     let base = sys_args.system.as_ref().and_then(|p| p.parent().map(|d| d.to_path_buf())).unwrap_or_default();
     let spec = system.spec.mechanics.clone().unwrap_or_default();

@@ -34,6 +34,7 @@ pub mod dataset;
 pub mod detector;
 pub mod device;
 pub mod engine;
+pub mod folder;
 pub mod ghosts;
 pub mod gradient;
 pub mod mask;

@@ -205,9 +205,8 @@ impl NoiseConfig {
         Ok(report)
     }
 
-    /// The `noise` object of `render.json`: the settings and the report; keys of sources that are off are
-    /// left out (no null numbers).
-    pub fn to_json(&self, report: &NoiseReport) -> serde_json::Value {
+    /// The sources that are on, as `--noise` and render.json's `noise.sources` name them (shot, read, adc).
+    pub fn sources(&self) -> Vec<&'static str> {
         let mut sources = Vec::new();
         if self.shot {
             sources.push("shot");
@@ -218,6 +217,13 @@ impl NoiseConfig {
         if self.adc_bits.is_some() {
             sources.push("adc");
         }
+        sources
+    }
+
+    /// The `noise` object of `render.json`: the settings and the report; keys of sources that are off are
+    /// left out (no null numbers).
+    pub fn to_json(&self, report: &NoiseReport) -> serde_json::Value {
+        let sources = self.sources();
         let mut j = serde_json::json!({
             "sources": sources,
             "model": "electrons = Poisson(K·v) [shot] + N(0, read_noise_e²) [read]; ADC: DN = clamp(round(e/gain), 0, 2^bits−1), e = DN·gain; written back as e/K (acquisition units)",

@@ -33,6 +33,14 @@ impl Fit {
             other => Err(crate::error::Error::invalid(format!("--fit `{other}`: use crop or resize"))),
         }
     }
+
+    /// The word [`Fit::parse`] reads: `crop` or `resize`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Fit::Crop => "crop",
+            Fit::Resize => "resize",
+        }
+    }
 }
 
 /// A cube's band wavelengths (nm): each finite and > 0, strictly increasing — what every reader of a scene

@@ -332,13 +332,8 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
                     out?
                 }
             };
-            let noise_json = match a.noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() }) {
-                Some(nc) => {
-                    let report = nc.apply(&mut acq.image)?;
-                    nc.to_json(&report)
-                }
-                None => Value::Null,
-            };
+            let noise = a.noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() });
+            let noise_json = crate::render::folder::apply_noise(noise.as_ref(), &mut acq, &crate::render::folder::SilentRender)?;
             let partial = partial_dir(&a.out, &s.name)?;
             let mut extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref()), "scene_input": scene_input});
             if let Some(x) = renderer.spectral_extrapolation(&scene) {
