@@ -148,6 +148,13 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
                                       "read_noise_e, adc_bits, noise_seed: the CLI's --noise options)")
     elif noise is not None:
         raise DiffcassiValueError(f"noise: expected None, a string such as 'shot,read,adc' or a dict, got {type(noise).__name__}")
+    if device is not None:  # checked here: the native reader named only "cpu", and took " cpu" (trimmed)
+        if not isinstance(device, str):
+            raise TypeError(f'device: expected "cpu", "cuda", "cuda:N", "cpu-twin" or None, got '
+                                      f"{type(device).__name__} {device!r}")
+        if device != device.strip() or not device:
+            raise DiffcassiValueError(f'device {device!r}: expected "cpu", "cuda", "cuda:N" or "cpu-twin" (no spaces '
+                                      "around it)")
     acq, info = _native._render(system, scene, wavelengths_nm, mask, bands_nm=bands_nm, planes=planes, rays=rays, seed=seed,
                                 sampling=sampling, opening=opening, mask_seed=mask_seed, airy_diameter_px=airy_diameter_px,
                                 airy=airy, backend=_check_backend(backend), device=device, precision=precision,

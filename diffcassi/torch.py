@@ -274,6 +274,24 @@ def _check_same_device(name: str, t: torch.Tensor, device: torch.device, where: 
         raise _Error(f"{where}: {name} is on {t.device} but the operator on {device}; move one with .to(device)")
 
 
+def _operator_bands_nm(op: Any) -> Optional[List[float]]:
+    """The band wavelengths (nm) of a diffcassi Operator or Transport: the Transport's, or the ``bands_nm`` its
+    operator was built with (its pickling recipe), the library's default 450:650:28 when none was given; None
+    when they cannot be told."""
+    if isinstance(op, diffcassi.Transport):
+        return [float(b) for b in op.bands_nm]
+    try:
+        kwargs = op.__reduce__()[1][2]
+        given = kwargs.get("bands_nm")
+        bands = int(op.cube_shape[2])
+    except Exception:  # another object, or a recipe of another shape
+        return None
+    if given is None:
+        return [float(b) for b in np.linspace(450.0, 650.0, 28)] if bands == 28 else None
+    out = [float(b) for b in given]
+    return out if len(out) == bands else None
+
+
 class CassiOperator(_DeviceChecked):
     """Φ as a table applied by deterministic gathers (:mod:`diffcassi._gather`), on the CPU or a CUDA device.
 
@@ -295,6 +313,9 @@ class CassiOperator(_DeviceChecked):
         ip, ix, dv, (rows, cols), self.cube_shape, self.image_shape = _check_csr(indptr, indices, data, shape, cube_shape,
                                                                                   image_shape, _source)
         H, W, B = self.cube_shape
+        #: The bands' wavelengths (nm) where known (:meth:`from_operator`; None from CSR arrays or SciPy):
+        #: :func:`diffcassi.torch.load_unrolled` checks a network's against them.
+        self.bands_nm: Optional[List[float]] = None
         self.phi_table, self.adjoint_table = _gather.pair_from_csr(torch.from_numpy(ip), torch.from_numpy(ix),
                                                                    torch.from_numpy(dv), (rows, cols), dev,
                                                                    band_major=(H * W, B))
@@ -329,7 +350,9 @@ class CassiOperator(_DeviceChecked):
         if matrix_free:
             return MatrixFreeCassiOperator(op, memory_gb=memory_gb, device=dev)
         indptr, indices, data, shape = op.to_csr_arrays(memory_gb)
-        return cls(indptr, indices, data, shape, op.cube_shape, op.image_shape, _source=f"{op!r}", device=dev)
+        t = cls(indptr, indices, data, shape, op.cube_shape, op.image_shape, _source=f"{op!r}", device=dev)
+        t.bands_nm = _operator_bands_nm(op)
+        return t
 
     @classmethod
     def from_scipy(cls, matrix: Any, cube_shape: Tuple[int, int, int], image_shape: Tuple[int, int],
@@ -494,6 +517,8 @@ class MatrixFreeCassiOperator(_DeviceChecked):
         diffcassi._budget(memory_gb)  # a DiffcassiValueError naming memory_gb when it is not a number ≥ 0
         self.memory_gb = float(memory_gb)
         self.op = op
+        #: The bands' wavelengths (nm), from the operator's recipe (None where it cannot be told).
+        self.bands_nm: Optional[List[float]] = _operator_bands_nm(op)
         self.cube_shape = tuple(op.cube_shape)
         self.image_shape = tuple(op.image_shape)
         self.phi_table: Optional[_gather.GatherTable] = None
@@ -819,7 +844,8 @@ __all__.append("CassiRenderer")
 
 def _f64(t: torch.Tensor) -> np.ndarray:
     """A tensor of any floating dtype (bfloat16 included) as a C-contiguous float64 array."""
-    return np.ascontiguousarray(t.detach().to(device="cpu", dtype=torch.float64).numpy())
+    # resolve_conj/resolve_neg: a conjugate or negative view (x.conj().imag, torch._neg_view) has no numpy() of its own
+    return np.ascontiguousarray(t.detach().resolve_conj().resolve_neg().to(device="cpu", dtype=torch.float64).numpy())
 
 
 def _narrow(a: np.ndarray, dtype: torch.dtype, what: str) -> torch.Tensor:
@@ -956,7 +982,8 @@ def _mask_array(mask: Any, H: int, W: int, mask_seed: int) -> np.ndarray:
     if mask is None:
         return (np.random.default_rng(mask_seed).random((H, W)) < 0.5).astype(np.float64)
     if isinstance(mask, torch.Tensor):
-        mask = mask.detach().cpu().numpy() if mask.dtype != torch.bfloat16 else mask.detach().float().cpu().numpy()
+        mask = mask.detach().resolve_conj().resolve_neg()
+        mask = mask.cpu().numpy() if mask.dtype != torch.bfloat16 else mask.float().cpu().numpy()
     if not isinstance(mask, (np.ndarray, list, tuple)):
         raise TypeError(f"CassiRenderer: mask: expected None or an ({H}, {W}) array of values in [0, 1], got {type(mask).__name__} {mask!r}")
     a = np.asarray(mask)
@@ -1035,6 +1062,8 @@ class CassiRenderer(_TargetChecked):
                                                     bands_nm=bands_nm, airy=bool(airy), scene_fov_deg=scene_fov_deg)
         mask = _mask_array(mask, H, W, mask_seed)
         self.names: List[str] = list(self._base.names())
+        self._system_sha256: str = system.prescription_sha256()
+        self._system_name: str = system.name
         self.bands_nm: List[float] = list(self._base.bands_nm())
         self.image_shape: Tuple[int, int] = tuple(self._base.image_shape())
         self.H, self.W = H, W
@@ -1080,17 +1109,36 @@ class CassiRenderer(_TargetChecked):
 
     # The temperature travels with the state: an annealed renderer restored from a checkpoint renders as it did
     # (it was a plain attribute, and a restored renderer kept its constructor's: the acquisition moved by 4 %).
+    # θ's meaning travels with it too: the free parameters' names and the system's prescription (SHA-256) — a
+    # state of another free list or system loaded silently (θ of prism_tilt_x became prism_tilt_y: round 9).
     def get_extra_state(self) -> Dict[str, Any]:
-        return {"temperature": self._temperature}
+        state = {"temperature": self._temperature, "free": list(self.names)}
+        if getattr(self, "_system_sha256", None) is not None:
+            state["system_sha256"] = self._system_sha256
+        return state
 
     def set_extra_state(self, state: Any) -> None:
+        self._check_extra_state(state)
+        self.temperature = state["temperature"]
+
+    def _check_extra_state(self, state: Any) -> None:
         if not (isinstance(state, dict) and "temperature" in state):
             raise diffcassi.DiffcassiValueError(f"CassiRenderer.load_state_dict: _extra_state: expected {{'temperature': T}}, got {state!r}")
-        self.temperature = state["temperature"]
+        # A state from before the names and the system were saved has neither: loaded as before.
+        if "free" in state and list(state["free"]) != list(self.names):
+            raise diffcassi.DiffcassiValueError(f"CassiRenderer.load_state_dict: the state's θ is of the free parameters "
+                                                f"{list(state['free'])}, this renderer's of {list(self.names)}: build the "
+                                                "renderer with the state's free list")
+        if "system_sha256" in state and state["system_sha256"] != getattr(self, "_system_sha256", state["system_sha256"]):
+            raise diffcassi.DiffcassiValueError(f"CassiRenderer.load_state_dict: the state is of a system of prescription "
+                                                f"SHA-256 {state['system_sha256']}, this renderer's system "
+                                                f"{self._system_name!r} is another ({self._system_sha256}): build the "
+                                                "renderer with the state's system")
 
     def _load_from_state_dict(self, state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs):
         # A checkpoint from before the temperature was saved keeps the module's own.
         state_dict.setdefault(prefix + "_extra_state", self.get_extra_state())
+        self._check_extra_state(state_dict[prefix + "_extra_state"])  # before θ is copied: another θ is never loaded
         super()._load_from_state_dict(state_dict, prefix, local_metadata, strict, missing_keys, unexpected_keys, error_msgs)
 
     def _apply(self, fn, recurse=True):

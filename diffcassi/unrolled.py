@@ -75,6 +75,41 @@ __all__ = ["ARCH", "ARCH_V2", "ARCHS", "StageDenoiser", "UnrolledGAP", "Unrolled
            "DegradationEstimator", "save_unrolled", "load_unrolled", "mask_sha256", "system_sha256", "read_metadata"]
 
 _Error = diffcassi.DiffcassiValueError
+#: Band wavelengths that differ by more than this are other wavelengths (the Rust loader's WAVELENGTH_TOLERANCE_NM).
+_WAVELENGTH_TOLERANCE_NM = 0.01
+
+
+def _what(v: Any) -> str:
+    """A value's type for messages, with a tensor's dtype (``Tensor of dtype torch.int64``)."""
+    return f"Tensor of dtype {v.dtype}" if isinstance(v, torch.Tensor) else type(v).__name__
+
+
+def _path(where: str, path: Any) -> str:
+    """A file path as a string: str, bytes (decoded as the file system does) or os.PathLike; else a TypeError."""
+    try:
+        return os.fsdecode(os.fspath(path))
+    except TypeError:
+        raise TypeError(f"{where}: path: expected a str, bytes or os.PathLike, got {type(path).__name__}") from None
+
+
+def _bands_nm(where: str, value: Any, bands: int) -> list:
+    """Metadata ``bands_nm`` (a list, or its JSON text) as floats: ``bands`` finite, increasing wavelengths."""
+    v = value
+    if isinstance(v, str):
+        try:
+            v = json.loads(v)
+        except json.JSONDecodeError:
+            raise _Error(f"{where}: metadata bands_nm = {value!r} is not a JSON list of wavelengths") from None
+    if isinstance(v, np.ndarray):
+        v = v.tolist()
+    if not isinstance(v, (list, tuple)) or not all(isinstance(b, (int, float)) and not isinstance(b, bool) for b in v):
+        raise _Error(f"{where}: metadata bands_nm = {value!r}: expected a list of {bands} wavelengths (nm)")
+    v = [float(b) for b in v]
+    if len(v) != bands:
+        raise _Error(f"{where}: metadata bands_nm has {len(v)} wavelengths, the network {bands} bands")
+    if not all(math.isfinite(b) and b > 0 for b in v) or any(b >= c for b, c in zip(v, v[1:])):
+        raise _Error(f"{where}: metadata bands_nm = {v}: expected finite, positive, increasing wavelengths (nm)")
+    return v
 
 
 class StageDenoiser(nn.Module):
@@ -215,7 +250,7 @@ class UnrolledGAP(nn.Module):
 
     def forward(self, y: torch.Tensor) -> torch.Tensor:
         if not isinstance(y, torch.Tensor) or not y.dtype.is_floating_point:
-            raise TypeError(f"UnrolledGAP.forward: y: expected a floating-point torch.Tensor, got {type(y).__name__}")
+            raise TypeError(f"UnrolledGAP.forward: y: expected a floating-point torch.Tensor, got {_what(y)}")
         # A y that is not finite, or beyond ±{_MAX_VALUE:.3e} (f32's range / 10⁹, Operator.apply's limit: the operator's
         # sums overflow past it, NaN by the last stage), is refused once here, before any stage — one host
         # synchronisation a call on CUDA, where the operators themselves do not check (docs/python.md).
@@ -435,7 +470,7 @@ class UnrolledDAUHST(nn.Module):
 
     def forward(self, y: torch.Tensor, return_estimates: bool = False):
         if not isinstance(y, torch.Tensor) or not y.dtype.is_floating_point:
-            raise TypeError(f"UnrolledDAUHST.forward: y: expected a floating-point torch.Tensor, got {type(y).__name__}")
+            raise TypeError(f"UnrolledDAUHST.forward: y: expected a floating-point torch.Tensor, got {_what(y)}")
         # A y that is not finite, or beyond ±{_MAX_VALUE:.3e} (f32's range / 10⁹, Operator.apply's limit: the operator's
         # sums overflow past it, NaN by the last stage), is refused once here, before any stage — one host
         # synchronisation a call on CUDA, where the operators themselves do not check (docs/python.md).
@@ -518,7 +553,9 @@ def save_unrolled(net: nn.Module, path: Any, metadata: Dict[str, Any]) -> None:
     network also ``mask_sha256``; values stored as strings, non-strings as JSON), atomically
     (:func:`diffcassi._files.write_staged`); refuses non-finite weights (nothing written)."""
     from safetensors.torch import save_file
-    path = os.fspath(path)
+    path = _path("save_unrolled", path)
+    if not isinstance(metadata, dict):
+        raise TypeError(f"save_unrolled: metadata: expected a dict, got {type(metadata).__name__}")
     if "system" not in metadata:
         raise _Error(f"save_unrolled: {path}: metadata must name the system the network was trained for")
     if isinstance(net, UnrolledDAUHST) and "mask_sha256" not in metadata:
@@ -545,8 +582,30 @@ def save_unrolled(net: nn.Module, path: Any, metadata: Dict[str, Any]) -> None:
                 json.dumps(v, allow_nan=False)
             except (TypeError, ValueError) as e:
                 raise _Error(f"save_unrolled: {path}: metadata {k!r} = {v!r} is not a string or finite JSON value ({e})") from None
+    if "bands_nm" in metadata:  # the Rust loader compares them band by band: a file it would refuse is not written
+        _bands_nm(f"save_unrolled: {path}", metadata["bands_nm"], int(meta["bands"]))
     meta.update({str(k): text(v) for k, v in metadata.items()})
-    write_staged("save_unrolled", path, lambda stage: save_file(tensors, stage, metadata=meta))
+    mode = 0o666 & ~_umask()
+
+    def write(stage: str) -> None:
+        save_file(tensors, stage, metadata=meta)
+        os.chmod(stage, mode)  # safetensors creates 0600; a file is created as open() would (0666 & ~umask)
+
+    write_staged("save_unrolled", path, write)
+
+
+def _umask() -> int:
+    """The process's umask (from /proc where it is, else set and restored)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    um = os.umask(0o022)
+    os.umask(um)
+    return um
 
 
 def read_metadata(path: Any) -> Dict[str, str]:
@@ -557,7 +616,7 @@ def read_metadata(path: Any) -> Dict[str, str]:
 
 def _read(path: Any):
     from safetensors import safe_open
-    path = os.fspath(path)
+    path = _path("unrolled weights", path)
     check_weights_file(path, "unrolled weights", diffcassi.DiffcassiFileError)
     try:
         with safe_open(path, framework="pt") as f:
@@ -588,8 +647,8 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
         # Checked before the file is read (phi=None raised AttributeError after it, issue 39).
         raise TypeError(f"load_unrolled: phi: expected a diffcassi.torch.CassiOperator (or its matrix-free form), "
                         f"got {type(phi).__name__} without `cube_shape`")
+    path = _path("load_unrolled", path)
     meta, tensors = _read(path)
-    path = os.fspath(path)
     arch = meta["arch"]
     try:
         stages, bands, width = int(meta["stages"]), int(meta["bands"]), int(meta["width"])
@@ -607,6 +666,15 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
     have = int(phi.cube_shape[2])
     if bands != have:
         raise _Error(f"unrolled weights {path}: the network is for {bands} bands, the operator has {have}")
+    if "bands_nm" in meta:
+        trained = _bands_nm(f"unrolled weights {path}", meta["bands_nm"], bands)
+        here = getattr(phi, "bands_nm", None)  # CassiOperator / MatrixFreeCassiOperator: where known
+        if here is not None and len(here) == bands:
+            k = next((k for k in range(bands) if abs(trained[k] - float(here[k])) > _WAVELENGTH_TOLERANCE_NM), None)
+            if k is not None:
+                raise _Error(f"unrolled weights {path}: metadata bands_nm: band {k} is {trained[k]:g} nm, the operator's "
+                             f"is {float(here[k]):g} nm (tolerance {_WAVELENGTH_TOLERANCE_NM} nm): trained for other "
+                             "wavelengths (refused)")
     if system is None and arch == ARCH_V2:
         raise _Error(f"unrolled weights {path}: name the system of the acquisition (system='sp', … or a "
                      f"diffcassi.System): a {ARCH_V2} network is refused for any system but {meta.get('system')!r}")
@@ -627,6 +695,19 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
         if not isinstance(built, (str, type(None))) and "system_sha256" in meta and meta["system_sha256"] != system_sha256(built):
             raise _Error(f"unrolled weights {path}: trained for another prescription of system {name!r} "
                          f"(system SHA-256 {meta['system_sha256']}, this one {system_sha256(built)}; refused)")
+        if "system_sha256" not in meta and not isinstance(system, str):
+            # No prescription recorded (the committed v1 weights): the name stands for the preset of that name, as
+            # `reconstruct --weights` takes it — a System of that name with another prescription is warned about.
+            try:
+                preset = diffcassi.System.preset(name)
+            except diffcassi.DiffcassiValueError:
+                preset = None
+            if preset is not None and system_sha256(preset) != system_sha256(system):
+                import warnings
+                warnings.warn(f"unrolled weights {path}: metadata system_sha256 not recorded: only the system's name "
+                              f"{name!r} is checked, and the diffcassi.System given is not the preset {name!r} (prescription "
+                              f"SHA-256 {system_sha256(system)[:12]}…, the preset's {system_sha256(preset)[:12]}…): the "
+                              "network was presumably trained for the preset", UserWarning, stacklevel=2)
     if mask is not None and meta.get("mask_sha256") not in (None, mask_sha256(mask)):
         raise _Error(f"unrolled weights {path}: trained with another mask (SHA-256 {meta.get('mask_sha256')}, "
                      f"this one {mask_sha256(mask)})")
