@@ -50,16 +50,33 @@ def psnr_db(x, ref):
 
 
 def validation_records(log_path: pathlib.Path, prog: str, every: int = 1) -> List[dict]:
-    """The records of a JSONL training log that carry ``val_psnr_db``, in order (for a ``--summary EVERY``
-    table). ``every`` < 1, a file that cannot be read or parsed, or one without a validation record raises
-    ``ValueError`` naming ``prog`` and the problem."""
+    """The records of a JSONL training log that carry ``val_psnr_db``, by step — the **last** record of each step
+    (a resume validates again the step it resumes at; a run continued from an older checkpoint re-does steps) —
+    for a ``--summary EVERY`` table. A last line cut short (a run killed while writing it: no final newline) is
+    skipped with a note on stderr; any other line that is not JSON, ``every`` < 1, a file that cannot be read, or
+    one without a validation record raises ``ValueError`` naming ``prog``, the file and the line number."""
+    import sys
     if every < 1:
         raise ValueError(f"{prog}: error: --summary EVERY must be ≥ 1, got {every}")
     try:
-        recs = [json.loads(line) for line in log_path.read_text().splitlines() if line.strip()]
-    except (OSError, json.JSONDecodeError) as e:
+        text = log_path.read_text()
+    except (OSError, UnicodeDecodeError) as e:
         raise ValueError(f"{prog}: error: {log_path}: {e}") from e
-    vals = [r for r in recs if "val_psnr_db" in r]
-    if not vals:
+    lines = text.split("\n")
+    by_step: dict = {}
+    for number, line in enumerate(lines, 1):
+        if not line.strip():
+            continue
+        try:
+            r = json.loads(line)
+        except json.JSONDecodeError as e:
+            if number == len(lines):  # no newline after it: a write cut short (the run was killed)
+                print(f"{prog}: note: {log_path}: line {number} is cut short (a run stopped while writing it); "
+                      "skipped", file=sys.stderr)
+                continue
+            raise ValueError(f"{prog}: error: {log_path}: line {number}: not JSON ({e.msg}, column {e.colno})") from None
+        if isinstance(r, dict) and "val_psnr_db" in r and isinstance(r.get("step"), int):
+            by_step[r["step"]] = r
+    if not by_step:
         raise ValueError(f"{prog}: error: {log_path} has no validation records")
-    return vals
+    return [by_step[k] for k in sorted(by_step)]

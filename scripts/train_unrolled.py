@@ -28,11 +28,13 @@ Recipe of ``unrolled-gap-v1`` (diffcassi/weights/UNROLLED.md states the run's nu
   realistic setting, no oracle);
 * loss: L1 between the output and the cube; Adam (β 0.9/0.999), learning rate ``--lr`` with a linear warm-up and
   a cosine decay to ``--lr-min`` at ``--steps``; gradient-norm clipping ``--clip``; torch seed ``--seed``;
-* validation every ``--val-every`` steps: PSNR (peak 1) of the fixed validation cubes of both kinds;
-* outputs in ``--out``: ``unrolled-gap-v1-<system>.safetensors`` (the weights of the last step: the end of the
-  schedule, a validation-independent choice), ``unrolled-<system>-log.jsonl`` (one JSON line per validation,
-  appended on resume), ``unrolled-<system>-manifest.json`` (data sources and seed rules) and
-  ``unrolled-<system>-state.pt`` (the resume state; not committed).
+* validation every ``--val-every`` steps (default 25; kept in the checkpoint and restored on resume): PSNR (peak 1)
+  of the fixed validation cubes of both kinds; each validation saves the state, then the weights, then the manifest
+  of that step (so they always describe one step), then logs it;
+* outputs in ``--out``: ``unrolled-gap-v1-<system>.safetensors`` (the weights of the last step saved: at the end
+  the end of the schedule, a validation-independent choice), ``unrolled-<system>-log.jsonl`` (one JSON line per
+  validation, appended on resume; strict JSON: no NaN or infinity), ``unrolled-<system>-manifest.json`` (data
+  sources and seed rules) and ``unrolled-<system>-state.pt`` (the resume state; not committed).
 
 ``unrolled-dauhst-v2`` differs in the data and the bookkeeping: the cubes are :func:`diffcassi.training_data.sample`
 of seeds ``TRAIN_SEED_BASE_V2 + batch·s + i`` (measured-spectra and current dead leaves, scikit-image textures lifted
@@ -47,11 +49,29 @@ short GPU runs continue one training. ``--workers N`` makes the cubes and render
 Short runs: ``--time-budget-s`` (v2 default 450 s, a ≤ 9-minute GPU call with the wheel's install) stops the
 loop before the budget would be passed (measured step and validation times), validates, saves the checkpoint and
 the weights and exits 0. ``--resume CHECKPOINT`` continues from a checkpoint (model, optimiser, step, RNG state,
-the training mask and the runs so far); settings not given on the command line are the checkpoint's, and one given
-with another value — or a checkpoint of another architecture, system or band count, or a file that is truncated or
-not a checkpoint — is refused with a clear error (exit 2; a missing file: 1) **before anything is written**; so is a
-fresh v2 run into a folder that already holds a checkpoint (it would overwrite another training). On CUDA the
-convolutions and matrix products use TF32 and cuDNN's autotuning (speed; resumes there are not bit for bit).
+the training mask, ``--val-every`` and the runs so far); settings not given on the command line are the
+checkpoint's, and one given with another value — or a checkpoint of another architecture, system or band count, or
+a file that is truncated or not a checkpoint — is refused with a clear error (exit 2; a missing file: 1) **before
+anything is written**; so is a fresh run into a folder that already holds this system's and architecture's training
+files, and a resume into such a folder unless its checkpoint is the one resumed (the same file, or the same bytes):
+either would overwrite another training. On CUDA the convolutions and matrix products use TF32 and cuDNN's
+autotuning (speed; resumes there are not bit for bit).
+
+Bad options are usage errors (exit 2) naming the option before any work: ``--lr`` not in (0, 1], ``--lr-min`` not
+in [0, ``--lr``], ``--clip``/``--minutes``/``--time-budget-s`` not finite and positive, ``--warmup`` not below
+``--steps``, seeds outside 0 … 2⁶⁴ − 1, ``--threads``/``--workers`` beyond four per core (at most 1024),
+``--workers`` with v1, ``--stop-at`` < 0, ``--device cpu:N``, an ``--out`` under a file.
+
+Stops. **Ctrl-C** (SIGINT) asks for a stop at the next step boundary: the step is validated and saved (checkpoint,
+weights, manifest), the log gets a ``stop`` event of reason ``interrupted``, and the script exits 130 saying
+"interrupted at step N: the state keeps step N; continue with --resume …"; a Ctrl-C during a save waits for the
+save to end, another one outside a save stops at once (the last saved step is kept). **Divergence**: a step whose
+loss, validation PSNRs or parameters are not finite is never saved — the script stops (exit 1) naming that step and
+the last good step the folder keeps, and suggests a lower ``--lr``. At start a run removes its own staged
+``<file>.tmp`` files (a run killed while saving) and a log line cut short, and rewrites the manifest to describe
+what the folder's checkpoint holds (the runs so far). ``--summary`` keeps the last record of each step (a v2 resume
+validates the step it resumes at again), names the line of a record that is not JSON, and skips a last line cut
+short with a note on stderr.
 
 Every random choice derives from the seeds and the step: ``--resume`` continues exactly as the uninterrupted run
 (tested); ``--minutes``/``--time-budget-s`` only cap one invocation's wall time (the schedule depends on the step
@@ -60,11 +80,16 @@ alone).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
+import filecmp
 import json
+import math
 import os
 import pathlib
+import signal
 import sys
+import threading
 import time
 
 import numpy as np
@@ -263,6 +288,8 @@ def read_checkpoint(path, arch=None, system=None, bands=None) -> dict:
         raise CheckpointError(f"--resume {path}: checkpoint for {cfg.get('bands', 28)} bands, not --bands {bands}")
     if not isinstance(ck["step"], int) or ck["step"] < 0:
         raise CheckpointError(f"--resume {path}: step {ck['step']!r} is not an integer ≥ 0")
+    if "val_every" in ck and not (isinstance(ck["val_every"], int) and ck["val_every"] >= 1):
+        raise CheckpointError(f"--resume {path}: val_every {ck['val_every']!r} is not an integer ≥ 1")
     for k, v in ck["model"].items():
         if not isinstance(v, torch.Tensor) or not torch.isfinite(v).all():
             raise CheckpointError(f"--resume {path}: model tensor {k} is missing or not finite")
@@ -273,7 +300,117 @@ def utc_now() -> str:
     return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
+#: Seeds (--seed, --acquisition-seed, --operator-seed) are unsigned 64-bit integers.
+SEED_LIMIT = 2 ** 64
+#: The most --threads and --workers: four per core, at most 1024 (the library's set_num_threads limit).
+PROCESS_LIMIT = min(1024, 4 * (os.cpu_count() or 1))
+
+
+def _seed_arg(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer in 0 … 2**64 − 1, got {text!r}") from None
+    if not 0 <= v < SEED_LIMIT:
+        raise argparse.ArgumentTypeError(f"{v} is out of range: a seed is an integer in 0 … 2**64 − 1")
+    return v
+
+
+def _count_arg(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v > PROCESS_LIMIT:
+        raise argparse.ArgumentTypeError(f"{v} is more than this machine takes (at most {PROCESS_LIMIT}: four per core, "
+                                         "at most 1024)")
+    return v
+
+
+def _finite_arg(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return v
+
+
+def _same_file(a, b) -> bool:
+    """Whether two paths are one file, or two files of identical bytes."""
+    try:
+        if os.path.samefile(a, b):
+            return True
+        return os.path.getsize(a) == os.path.getsize(b) and filecmp.cmp(a, b, shallow=False)
+    except OSError:
+        return False
+
+
+class Diverged(Exception):
+    """The training left the finite numbers at ``step`` (``what`` says how); nothing of that step was saved."""
+
+    def __init__(self, step: int, what: str):
+        super().__init__(f"at step {step}: {what}")
+        self.step, self.what = step, what
+
+
+class StopRequest:
+    """SIGINT (Ctrl-C) during a training: the first one asks the loop to stop at the next step boundary (validate,
+    save, exit 130); another one stops at once — unless it arrives while the checkpoint, the weights and the
+    manifest are being written, when it waits for the save to be complete (they always describe one step)."""
+
+    def __init__(self):
+        self.requested = False
+        self._saving = False
+        self._deferred = False
+        self._old = None
+
+    def install(self) -> None:
+        if threading.current_thread() is threading.main_thread():
+            self._old = signal.signal(signal.SIGINT, self._handler)
+
+    def restore(self) -> None:
+        if self._old is not None:
+            signal.signal(signal.SIGINT, self._old)
+            self._old = None
+
+    def _handler(self, signum, frame) -> None:
+        if not self.requested:
+            self.requested = True
+            os.write(2, b"train_unrolled: Ctrl-C: stopping at the next step boundary (validate, save the state); "
+                        b"Ctrl-C again to stop at once\n")
+        elif self._saving:
+            self._deferred = True
+        else:
+            raise KeyboardInterrupt
+
+    @contextlib.contextmanager
+    def saving(self):
+        self._saving = True
+        try:
+            yield
+        finally:
+            self._saving = False
+        if self._deferred:
+            self._deferred = False
+            raise KeyboardInterrupt
+
+
+def _ignore_sigint(_worker_id: int) -> None:
+    """DataLoader workers leave Ctrl-C to the main process (which stops at a step boundary)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def main(argv=None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:  # a Ctrl-C before any output was written
+        print("train_unrolled: interrupted before the training started; nothing written", file=sys.stderr)
+        return 130
+
+
+def _main(argv=None) -> int:
     t_start = time.time()
     start_utc = utc_now()
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -287,25 +424,26 @@ def main(argv=None) -> int:
     ap.add_argument("--stages", type=int, default=None, help="stages (default 6 for v1, 3 for v2)")
     ap.add_argument("--width", type=int, default=None, help="network width C (default 16 for v1, 24 for v2)")
     ap.add_argument("--steps", type=int, default=None, help="total optimiser steps; the learning-rate schedule spans them (default 400)")
-    ap.add_argument("--minutes", type=float, default=None, help="wall-time cap of this invocation (stops early, state saved)")
-    ap.add_argument("--time-budget-s", type=float, default=None, help="wall-time budget of this invocation, set-up and "
+    ap.add_argument("--minutes", type=_finite_arg, default=None, help="wall-time cap of this invocation (stops early, state saved)")
+    ap.add_argument("--time-budget-s", type=_finite_arg, default=None, help="wall-time budget of this invocation, set-up and "
                     f"final save included: stop in time, save, exit 0 (v2 default {TIME_BUDGET_V2_S:g})")
     ap.add_argument("--stop-at", type=int, default=None, help="stop this invocation at this step (state saved; the "
                     "schedule still spans --steps)")
     ap.add_argument("--batch", type=int, default=None, help="cubes per step (default 2)")
-    ap.add_argument("--threads", type=int, default=1, help="torch and Rust threads")
-    ap.add_argument("--workers", type=int, default=0, help="v2: processes making the training cubes (0: in this one)")
+    ap.add_argument("--threads", type=_count_arg, default=1, help=f"torch and Rust threads (1 … {PROCESS_LIMIT})")
+    ap.add_argument("--workers", type=_count_arg, default=0, help="v2: processes making the training cubes (0: in this one)")
     ap.add_argument("--device", default="cpu", help="cpu or cuda[:N]: where the network and its operator run")
-    ap.add_argument("--seed", type=int, default=None, help="torch seed of the initial weights (default 0)")
-    ap.add_argument("--lr", type=float, default=None)
-    ap.add_argument("--lr-min", type=float, default=None)
-    ap.add_argument("--warmup", type=int, default=None)
-    ap.add_argument("--clip", type=float, default=None, help="gradient-norm clipping (default 1)")
-    ap.add_argument("--val-every", type=int, default=25, help="validate (and save the state) every N steps")
+    ap.add_argument("--seed", type=_seed_arg, default=None, help="torch seed of the initial weights (default 0)")
+    ap.add_argument("--lr", type=_finite_arg, default=None, help="peak learning rate, in (0, 1] (default 1e-3)")
+    ap.add_argument("--lr-min", type=_finite_arg, default=None, help="learning rate at the end of the cosine decay, in [0, --lr]")
+    ap.add_argument("--warmup", type=int, default=None, help="linear warm-up steps, fewer than --steps (default 20)")
+    ap.add_argument("--clip", type=_finite_arg, default=None, help="gradient-norm clipping (default 1)")
+    ap.add_argument("--val-every", type=int, default=None, help="validate (and save the state and the weights) every N "
+                    "steps (default 25, or the checkpoint's)")
     ap.add_argument("--planes", type=int, default=None)
     ap.add_argument("--rays", type=int, default=None)
-    ap.add_argument("--acquisition-seed", type=int, default=None, help="Monte-Carlo seed of the training renders (default 1000)")
-    ap.add_argument("--operator-seed", type=int, default=None, help="Monte-Carlo seed of the operator (default 1: "
+    ap.add_argument("--acquisition-seed", type=_seed_arg, default=None, help="Monte-Carlo seed of the training renders (default 1000)")
+    ap.add_argument("--operator-seed", type=_seed_arg, default=None, help="Monte-Carlo seed of the operator (default 1: "
                     "reconstruct's default for acquisitions of seed 0)")
     ap.add_argument("--resume", default=None, help="a checkpoint (…-state.pt, …-checkpoint.pt) to continue from")
     ap.add_argument("--summary", type=int, metavar="EVERY", default=None,
@@ -319,6 +457,16 @@ def main(argv=None) -> int:
         if a.system is None:
             ap.error("--summary needs --system")
         return summary(out / names(a.system, a.arch or ARCH)["log"], a.summary)
+    # --out: a folder, or to be made in one (a file on its path failed after the set-up, NotADirectoryError).
+    for p in [out, *out.parents]:
+        if p.exists() or p.is_symlink():
+            if not p.is_dir():
+                print(f"{prog}: error: --out {out} " + ("exists and is not a folder" if p == out else
+                      f"cannot be made: {p} is not a folder") + "; nothing written", file=sys.stderr)
+                return 2
+            break
+    if a.stop_at is not None and a.stop_at < 0:
+        ap.error(f"--stop-at must be ≥ 0 (got {a.stop_at})")
 
     # The checkpoint first (cheap, writes nothing): its architecture, system and band count, then its settings.
     ck = None
@@ -340,19 +488,43 @@ def main(argv=None) -> int:
     conf = dict(DEFAULTS, **ARCH_DEFAULTS[arch])
     conf.update({k: v for k, v in base.items() if k in conf})
     conf.update(given)
-    for name in ("size", "stages", "width", "steps", "batch", "warmup", "planes", "rays", "bands"):
+    # --val-every is no setting of the training (its schedule and data do not depend on it): not compared on
+    # resume, but kept in the checkpoint and taken from there when not given.
+    val_every = a.val_every if a.val_every is not None else (ck.get("val_every", 25) if ck else 25)
+    for name in ("size", "stages", "width", "steps", "batch", "planes", "rays", "bands"):
         if conf[name] < 1:
             ap.error(f"--{name.replace('_', '-')} must be at least 1 (got {conf[name]})")
-    for name in ("threads", "val_every"):
-        if getattr(a, name) < 1:
-            ap.error(f"--{name.replace('_', '-')} must be at least 1 (got {getattr(a, name)})")
+    if conf["warmup"] < 0:
+        ap.error(f"--warmup must be ≥ 0 (got {conf['warmup']})")
+    if conf["warmup"] >= conf["steps"]:
+        ap.error(f"--warmup {conf['warmup']} must be less than --steps {conf['steps']} (the learning rate would not "
+                 "reach --lr before the schedule ends)")
+    if a.threads < 1:
+        ap.error(f"--threads must be at least 1 (got {a.threads})")
+    if val_every < 1:
+        ap.error(f"--val-every must be at least 1 (got {val_every})")
     if a.workers < 0:
         ap.error(f"--workers must be ≥ 0 (got {a.workers})")
+    if a.workers > 0 and arch != ARCH_V2:
+        ap.error(f"--workers {a.workers}: only {ARCH_V2} makes its batches in worker processes (this is {arch}); "
+                 "leave --workers out")
     if conf["size"] < 8:
         ap.error(f"--size must be at least 8 (got {conf['size']})")
-    if not (conf["lr"] > 0 and conf["lr_min"] >= 0 and conf["clip"] > 0) or (a.minutes is not None and not a.minutes > 0) \
-            or (a.time_budget_s is not None and not a.time_budget_s > 0):
-        ap.error("--lr, --clip, --minutes and --time-budget-s must be positive, --lr-min non-negative")
+    for name in ("lr", "lr_min", "clip"):
+        if not math.isfinite(conf[name]):
+            ap.error(f"--{name.replace('_', '-')} must be a finite number (got {conf[name]})")
+    if not 0 < conf["lr"] <= 1:
+        ap.error(f"--lr must be in (0, 1] (got {conf['lr']:g})")
+    if not 0 <= conf["lr_min"] <= conf["lr"]:
+        ap.error(f"--lr-min must be in [0, --lr {conf['lr']:g}] (got {conf['lr_min']:g})")
+    if not conf["clip"] > 0:
+        ap.error(f"--clip must be positive (got {conf['clip']:g})")
+    for name in ("minutes", "time_budget_s"):
+        if getattr(a, name) is not None and not getattr(a, name) > 0:
+            ap.error(f"--{name.replace('_', '-')} must be positive (got {getattr(a, name):g})")
+    for name in ("seed", "acquisition_seed", "operator_seed"):
+        if not (isinstance(conf[name], int) and 0 <= conf[name] < SEED_LIMIT):
+            ap.error(f"--{name.replace('_', '-')} must be an integer in 0 … 2**64 − 1 (got {conf[name]!r})")
     if conf["acquisition_seed"] == conf["operator_seed"]:
         ap.error("--acquisition-seed and --operator-seed must differ (the realistic setting: no oracle)")
     budget = a.time_budget_s if a.time_budget_s is not None else (TIME_BUDGET_V2_S if arch == ARCH_V2 else None)
@@ -361,12 +533,30 @@ def main(argv=None) -> int:
     except RuntimeError:
         print(f"{prog}: error: --device {a.device!r}: expected cpu or cuda[:N]; nothing written", file=sys.stderr)
         return 2
-    if device.type not in ("cpu", "cuda") or (device.type == "cuda" and not torch.cuda.is_available()):
-        print(f"{prog}: error: --device {a.device}: {'no CUDA device here' if device.type == 'cuda' else 'expected cpu or cuda[:N]'}"
-              "; nothing written", file=sys.stderr)
+    if device.type not in ("cpu", "cuda") or (device.type == "cuda" and not torch.cuda.is_available()) \
+            or (device.type == "cpu" and device.index not in (None, 0)):
+        why = ("no CUDA device here" if device.type == "cuda" else
+               "the CPU has no device index: give cpu" if device.type == "cpu" else "expected cpu or cuda[:N]")
+        print(f"{prog}: error: --device {a.device}: {why}; nothing written", file=sys.stderr)
         return 2
 
     size, bands_nm = conf["size"], bands_nm_of(conf["bands"])
+    config = {"system": system, "size": size, "stages": conf["stages"], "width": conf["width"], "steps": conf["steps"],
+              "batch": conf["batch"], "seed": conf["seed"], "lr": conf["lr"], "lr_min": conf["lr_min"],
+              "warmup": conf["warmup"], "clip": conf["clip"], "planes": conf["planes"], "rays": conf["rays"],
+              "acquisition_seed": conf["acquisition_seed"], "operator_seed": conf["operator_seed"]}
+    if arch == ARCH_V2 or conf["bands"] != 28:
+        config["bands"] = conf["bands"]
+    if arch == ARCH_V2:
+        config = dict({"arch": arch}, **config, system_sha256=system_sha256(diffcassi.System.preset(system)))
+    if ck is not None:  # every setting but the mask's hash (that of the library's default mask needs the trace)
+        saved = ck["config"]
+        diff = {k: (saved.get(k), config.get(k)) for k in sorted(set(saved) | set(config))
+                if k != "mask_sha256" and saved.get(k) != config.get(k)}
+        if diff:
+            print(f"{prog}: error: --resume {a.resume} was made with other settings (saved, asked): {diff}; nothing "
+                  "written", file=sys.stderr)
+            return 2
     try:  # no --mask: the checkpoint's, else the library's random mask (opening 0.5, seed 0), render's default
         if a.mask:
             mask = load_mask(a.mask, size)
@@ -381,41 +571,28 @@ def main(argv=None) -> int:
         print(f"{prog}: error: the mask is {mask.shape[0]}×{mask.shape[1]}, the scene {size}×{size}; nothing written",
               file=sys.stderr)
         return 2
-    config = {"system": system, "size": size, "stages": conf["stages"], "width": conf["width"], "steps": conf["steps"],
-              "batch": conf["batch"], "seed": conf["seed"], "lr": conf["lr"], "lr_min": conf["lr_min"],
-              "warmup": conf["warmup"], "clip": conf["clip"], "planes": conf["planes"], "rays": conf["rays"],
-              "acquisition_seed": conf["acquisition_seed"], "operator_seed": conf["operator_seed"]}
-    if arch == ARCH_V2 or conf["bands"] != 28:
-        config["bands"] = conf["bands"]
-    if arch == ARCH_V2:
-        config = dict({"arch": arch}, **config, system_sha256=system_sha256(diffcassi.System.preset(system)))
     if ck is not None and mask is not None and base.get("mask_sha256") not in (None, mask_sha256(mask)) and a.mask:
         print(f"{prog}: error: --resume {a.resume} was trained with another mask (SHA-256 {base.get('mask_sha256')}, "
               f"--mask {a.mask}: {mask_sha256(mask)}); nothing written", file=sys.stderr)
         return 2
 
-    if ck is not None:  # every setting but the mask's hash (that of the library's default mask needs the trace)
-        saved = ck["config"]
-        diff = {k: (saved.get(k), config.get(k)) for k in sorted(set(saved) | set(config))
-                if k != "mask_sha256" and saved.get(k) != config.get(k)}
-        if diff:
-            print(f"{prog}: error: --resume {a.resume} was made with other settings (saved, asked): {diff}; nothing "
-                  "written", file=sys.stderr)
-            return 2
-
-    if out.exists() and not out.is_dir():
-        print(f"{prog}: error: --out {out} exists and is not a folder; nothing written", file=sys.stderr)
-        return 2
-    # A fresh run (no --resume) into a folder that holds another training's files would replace its weights and
-    # checkpoint and append to its log (v1 did, a held-out battery): refused, for every architecture.
+    # A run into a folder that holds another training's files would replace its weights and checkpoint and append
+    # to its log: refused, for every architecture — a fresh run (round 4), and a resume unless the folder's
+    # checkpoint is the one resumed (the same file, or the same bytes) (round 9: a resume replaced another training).
     run_files = names(system, arch)
     existing = out / run_files["state"]
     held = [n for n in run_files.values() if (out / n).exists()]
-    if ck is None and held:
+    if held:
         what = f"the checkpoint {existing.name}" if existing.exists() else "the files " + ", ".join(held)
-        print(f"{prog}: error: --out {out} already holds {what} of another training: --resume "
-              f"{existing}, or choose another folder; nothing written", file=sys.stderr)
-        return 2
+        if ck is None:
+            print(f"{prog}: error: --out {out} already holds {what} of another training: --resume "
+                  f"{existing}, or choose another folder; nothing written", file=sys.stderr)
+            return 2
+        if not (existing.is_file() and _same_file(a.resume, existing)):
+            print(f"{prog}: error: --out {out} already holds {what} of another training, not the checkpoint "
+                  f"--resume {a.resume}: resume in the folder of that checkpoint, or into a folder without "
+                  f"{system}'s {arch} files; nothing written", file=sys.stderr)
+            return 2
 
     torch.set_num_threads(a.threads)
     diffcassi.set_num_threads(a.threads)
@@ -454,18 +631,52 @@ def main(argv=None) -> int:
             torch.set_rng_state(ck["torch_rng"])
     step0 = step
 
-    # Outputs from here on.
+    # Outputs from here on. A Ctrl-C now stops at a step boundary with the state saved (StopRequest).
+    stop = StopRequest()
+    stop.install()
+    try:
+        return _train(a, prog, t_start, start_utc, out, arch, system, conf, config, size, bands_nm, mask, transport,
+                      phi, net, opt, device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop)
+    finally:
+        stop.restore()
+
+
+def _train(a, prog, t_start, start_utc, out, arch, system, conf, config, size, bands_nm, mask, transport, phi, net, opt,
+           device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop) -> int:
+    """The training loop and its outputs (``_main`` has checked everything and written nothing)."""
     nm = names(system, arch)
     out.mkdir(parents=True, exist_ok=True)
+    for n in nm.values():  # the staged files of a run killed while saving
+        stale = out / f"{n}.tmp"
+        if stale.is_file() and not stale.is_symlink():
+            stale.unlink()
     wpath, lpath, spath, mpath = out / nm["weights"], out / nm["log"], out / nm["state"], out / nm["manifest"]
+    _trim_cut_line(lpath, prog)
+    with open(lpath, "a") as log:
+        return _loop(a, prog, t_start, start_utc, out, arch, system, conf, config, size, bands_nm, mask, transport, phi,
+                     net, opt, device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop, log,
+                     wpath, spath, mpath)
+
+
+def _loop(a, prog, t_start, start_utc, out, arch, system, conf, config, size, bands_nm, mask, transport, phi, net, opt,
+          device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop, log, wpath, spath, mpath) -> int:
+    step = step0
     run = {"start_utc": start_utc, "end_utc": None, "device": str(device),
            "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
            "threads": a.threads, "workers": a.workers, "steps_from": step0, "steps_to": step0,
            "resumed_from": os.path.basename(a.resume) if a.resume else None, "time_budget_s": budget,
            "torch": torch.__version__, "diffcassi": getattr(diffcassi, "__version__", None),
            "tf32": device.type == "cuda"}
+    last_saved = None  # the step of the state, weights and manifest this run saved last (None: none yet)
+    losses: list = []
+    timing = {"val_s": 0.0, "save_s": 0.0}
+    t0 = time.time()
 
-    def write_manifest() -> None:
+    def log_line(rec: dict) -> None:  # never a NaN or an infinity: the log stays JSON
+        log.write(json.dumps(rec, allow_nan=False) + "\n")
+        log.flush()
+
+    def write_manifest(made_by: list, at_step: int) -> None:
         if arch == ARCH_V2:
             from diffcassi.training_data import manifest as data_manifest
             man = data_manifest(bands_nm)
@@ -479,43 +690,43 @@ def main(argv=None) -> int:
         man.update({"evaluation_scenes_used": [], "arch": arch, "config": config, "operator": repr(phi.op),
                     "acquisition_transport": repr(transport), "parameters": count_parameters(net)})
         if arch == ARCH_V2:
-            man["runs"] = runs + [run]
-            man["steps"] = step
+            man["runs"] = made_by
+            man["steps"] = at_step
         tmp = f"{mpath}.tmp"
-        pathlib.Path(tmp).write_text(json.dumps(man, indent=1) + "\n")
+        pathlib.Path(tmp).write_text(json.dumps(man, indent=1, allow_nan=False) + "\n")
         os.replace(tmp, mpath)
 
-    write_manifest()
-    if arch == ARCH_V2:
-        vs = val_seeds(arch)
-        val_acq, val_cube = render_v2(transport, vs, make_cubes_v2(vs, size, bands_nm))
-        val_groups = {"clean": [i for i, s in enumerate(vs) if not _noise_on(s)],
-                      "noisy": [i for i, s in enumerate(vs) if _noise_on(s)]}
-    else:
-        val_acq, val_cube = render_batch(transport, val_seeds() * 2, size, bands_nm, ["spectral"] * VAL_COUNT + ["rgb"] * VAL_COUNT)
-        val_groups = {"spectral": list(range(VAL_COUNT)), "rgb": list(range(VAL_COUNT, 2 * VAL_COUNT))}
-    val_acq, val_cube = val_acq.to(device), val_cube.to(device)
-    log = open(lpath, "a")
-    log.write(json.dumps({"event": "resume" if a.resume else "start", "step": step, "args": vars(a), "config": config,
-                          "setup_s": round(setup_s, 1), "params": count_parameters(net), "device": str(device),
-                          "torch": torch.__version__, "threads": a.threads, "utc": start_utc}) + "\n")
-    log.flush()
-    t0 = time.time()
-    losses: list = []
-    timing = {"val_s": 0.0, "save_s": 0.0}
+    def finite_parameters() -> bool:
+        return all(bool(torch.isfinite(p).all()) for p in net.parameters())
+
+    def forward(y):
+        try:
+            return net(y)
+        except diffcassi.DiffcassiValueError as e:  # the operator refuses a non-finite estimate
+            if finite_parameters():
+                raise
+            raise Diverged(step, f"the network's parameters are not finite ({e})") from None
 
     @torch.no_grad()
     def validate() -> dict:
         tv = time.time()
         net.eval()
         chunk = 2 if device.type == "cpu" else 8
-        p = psnr_db(torch.cat([net(val_acq[i:i + chunk]) for i in range(0, len(val_acq), chunk)]), val_cube)
+        p = psnr_db(torch.cat([forward(val_acq[i:i + chunk]) for i in range(0, len(val_acq), chunk)]), val_cube)
         net.train()
         timing["val_s"] = time.time() - tv
         return {k: float(p[idx].mean()) for k, idx in val_groups.items() if idx}
 
     def checkpoint():
+        """Validate, then save the state, the weights and the manifest of this step (in that order, each whole;
+        a Ctrl-C meanwhile waits) and log the validation. A non-finite validation or parameter saves nothing."""
+        nonlocal last_saved
         val = validate()
+        bad = sorted(k for k, v in val.items() if not math.isfinite(v))
+        if bad:
+            raise Diverged(step, "validation PSNR " + ", ".join(f"{k} {val[k]}" for k in bad))
+        if not finite_parameters():
+            raise Diverged(step, "the network's parameters are not finite")
         ts = time.time()
         elapsed = elapsed0 + time.time() - t0
         rec = {"step": step, "elapsed_s": round(elapsed, 1), "lr": opt.param_groups[0]["lr"],
@@ -523,87 +734,146 @@ def main(argv=None) -> int:
                "val_mean_db": float(np.mean(list(val.values())))}
         if arch == ARCH:
             rec["steps_lambda"] = [round(float(v), 4) for v in net.steps.detach()]
-        log.write(json.dumps(rec) + "\n")
-        log.flush()
-        losses.clear()
-        run["steps_to"], run["end_utc"] = step, utc_now()
-        run["train_seeds"] = ([train_seeds(step0, conf["batch"], arch)[0], train_seeds(step - 1, conf["batch"], arch)[-1]]
-                              if step > step0 else [])
+        made = dict(run, steps_to=step, end_utc=utc_now(),
+                    train_seeds=([train_seeds(step0, conf["batch"], arch)[0], train_seeds(step - 1, conf["batch"], arch)[-1]]
+                                 if step > step0 else []))
         state = {"format": CHECKPOINT_FORMAT, "model": {k: v.detach().cpu() for k, v in net.state_dict().items()
                                                          if not k.startswith("phi.")},
                  "optim": _to_cpu(opt.state_dict()), "step": step, "elapsed_s": elapsed, "config": config,
                  "torch_rng": torch.get_rng_state(), "mask": torch.from_numpy(np.ascontiguousarray(mask)),
-                 "runs": json.dumps(runs + [run])}
-        tmp = f"{spath}.tmp"
-        torch.save(state, tmp)
-        os.replace(tmp, spath)
+                 "runs": json.dumps(runs + [made]), "val_every": val_every}
+        meta = dict(config, bands_nm=bands_nm, height=size, width_px=size, training_step=step,
+                    trained_minutes=round(elapsed / 60, 1), airy_diameter_px=2.5, sampling="stratified")
+        meta.pop("width", None)
         if arch == ARCH_V2:
-            write_manifest()
+            meta["runs"] = len(runs) + 1
+        with stop.saving():  # checkpoint, weights, manifest (last): one step; then the log's record of it
+            tmp = f"{spath}.tmp"
+            torch.save(state, tmp)
+            os.replace(tmp, spath)
+            save_unrolled(net, wpath, meta)
+            write_manifest(runs + [made], step)
+            run.update(made)
+            last_saved = step
+            log_line(rec)
+        losses.clear()
         timing["save_s"] = time.time() - ts
         print(f"step {step} val {val} {elapsed / 60:.1f} min", flush=True)
 
-    if step == 0 or step == step0 and arch == ARCH_V2:
-        checkpoint()
-    net.train()
+    def kept() -> str:
+        if last_saved is not None:
+            return f"the state keeps step {last_saved}"
+        return f"this run saved nothing; --resume {a.resume} keeps step {step0}" if ck is not None else "nothing saved"
+
+    def resume_hint() -> str:
+        if last_saved is not None:
+            return f"{kept()}; continue with --resume {spath}"
+        return f"{kept()}; continue with --resume {a.resume}" if ck is not None else kept()
+
     stop_reason = "steps done"
-    loader = None
-    if arch == ARCH_V2 and a.workers > 0 and step < conf["steps"]:
-        targs = dict(system=system, seed=conf["acquisition_seed"], **setting(mask, conf["planes"], conf["rays"], bands_nm))
-        loader = iter(torch.utils.data.DataLoader(StepData(step, conf["steps"], conf["batch"], size, bands_nm, targs),
-                                                  batch_size=None, shuffle=False, num_workers=a.workers,
-                                                  prefetch_factor=4, persistent_workers=False))
-    step_s = None
-    while step < conf["steps"]:
-        now = time.time()
-        if a.minutes is not None and now - t0 > 60 * a.minutes:
-            stop_reason = "minutes"
-            break
-        if a.stop_at is not None and step >= a.stop_at:
-            stop_reason = "stop-at"
-            break
-        if budget is not None and step_s is not None and \
-                now - t_start + step_s + 1.5 * (timing["val_s"] + timing["save_s"]) + 5.0 > budget:
-            stop_reason = "time budget"
-            break
-        ts = time.time()
+    try:
+        # The manifest describes what the folder's checkpoint holds: the runs so far (this one joins at its first save).
+        write_manifest(runs, step0)
+        log_line({"event": "resume" if a.resume else "start", "step": step, "args": vars(a), "config": config,
+                  "val_every": val_every, "setup_s": round(setup_s, 1), "params": count_parameters(net),
+                  "device": str(device), "torch": torch.__version__, "threads": a.threads, "utc": start_utc})
         if arch == ARCH_V2:
-            if loader is not None:
-                k, seeds, acq, cube = next(loader)
-                assert k == step, (k, step)
-            else:
-                seeds = train_seeds(step, conf["batch"], arch)
-                acq, cube = render_v2(transport, seeds, make_cubes_v2(seeds, size, bands_nm))
+            vs = val_seeds(arch)
+            val_acq, val_cube = render_v2(transport, vs, make_cubes_v2(vs, size, bands_nm))
+            val_groups = {"clean": [i for i, s in enumerate(vs) if not _noise_on(s)],
+                          "noisy": [i for i, s in enumerate(vs) if _noise_on(s)]}
         else:
-            acq, cube = render_batch(transport, train_seeds(step, conf["batch"]), size, bands_nm)
-        acq, cube = acq.to(device, non_blocking=True), cube.to(device, non_blocking=True)
-        loss = l1_step(opt, net.parameters(), lr_at(step, conf["steps"], conf["lr"], conf["lr_min"], conf["warmup"]),
-                       conf["clip"], net(acq), cube)
-        if loss is None:
-            print(f"{prog}: error: non-finite loss at step {step}; the state keeps step {step - step % a.val_every}",
-                  file=sys.stderr)
-            return 1
-        losses.append(loss)
-        step += 1
-        dt_s = time.time() - ts
-        step_s = dt_s if step_s is None else max(dt_s, 0.8 * step_s + 0.2 * dt_s)
-        if step % a.val_every == 0 or step == conf["steps"]:
+            val_acq, val_cube = render_batch(transport, val_seeds() * 2, size, bands_nm,
+                                             ["spectral"] * VAL_COUNT + ["rgb"] * VAL_COUNT)
+            val_groups = {"spectral": list(range(VAL_COUNT)), "rgb": list(range(VAL_COUNT, 2 * VAL_COUNT))}
+        val_acq, val_cube = val_acq.to(device), val_cube.to(device)
+        if step == 0 or step == step0 and arch == ARCH_V2:
             checkpoint()
-    if step != run["steps_to"]:
-        checkpoint()
-    log.write(json.dumps({"event": "stop", "step": step, "reason": stop_reason, "utc": utc_now(),
-                          "wall_s": round(time.time() - t_start, 1)}) + "\n")
-    log.close()
-    if step < conf["steps"]:  # the weights below are then those of this step, before the end of the schedule
-        print(f"stopped at step {step} of {conf['steps']} ({stop_reason}): continue with --resume {spath}")
-    meta = dict(config, bands_nm=bands_nm, height=size, width_px=size, training_step=step,
-                trained_minutes=round((elapsed0 + time.time() - t0) / 60, 1), airy_diameter_px=2.5, sampling="stratified")
-    meta.pop("width", None)
-    if arch == ARCH_V2:
-        meta["runs"] = len(runs) + 1
-    save_unrolled(net, wpath, meta)
+        net.train()
+        loader = None
+        if arch == ARCH_V2 and a.workers > 0 and step < conf["steps"]:
+            targs = dict(system=system, seed=conf["acquisition_seed"], **setting(mask, conf["planes"], conf["rays"], bands_nm))
+            loader = iter(torch.utils.data.DataLoader(StepData(step, conf["steps"], conf["batch"], size, bands_nm, targs),
+                                                      batch_size=None, shuffle=False, num_workers=a.workers,
+                                                      prefetch_factor=4, persistent_workers=False,
+                                                      worker_init_fn=_ignore_sigint))
+        step_s = None
+        while step < conf["steps"]:
+            now = time.time()
+            if stop.requested:
+                stop_reason = "interrupted"
+                break
+            if a.minutes is not None and now - t0 > 60 * a.minutes:
+                stop_reason = "minutes"
+                break
+            if a.stop_at is not None and step >= a.stop_at:
+                stop_reason = "stop-at"
+                break
+            if budget is not None and step_s is not None and \
+                    now - t_start + step_s + 1.5 * (timing["val_s"] + timing["save_s"]) + 5.0 > budget:
+                stop_reason = "time budget"
+                break
+            ts = time.time()
+            if arch == ARCH_V2:
+                if loader is not None:
+                    k, seeds, acq, cube = next(loader)
+                    assert k == step, (k, step)
+                else:
+                    seeds = train_seeds(step, conf["batch"], arch)
+                    acq, cube = render_v2(transport, seeds, make_cubes_v2(seeds, size, bands_nm))
+            else:
+                acq, cube = render_batch(transport, train_seeds(step, conf["batch"]), size, bands_nm)
+            acq, cube = acq.to(device, non_blocking=True), cube.to(device, non_blocking=True)
+            loss = l1_step(opt, net.parameters(), lr_at(step, conf["steps"], conf["lr"], conf["lr_min"], conf["warmup"]),
+                           conf["clip"], forward(acq), cube)
+            if loss is None:
+                raise Diverged(step, "the training loss is not finite")
+            losses.append(loss)
+            step += 1
+            dt_s = time.time() - ts
+            step_s = dt_s if step_s is None else max(dt_s, 0.8 * step_s + 0.2 * dt_s)
+            if step % val_every == 0 or step == conf["steps"]:
+                checkpoint()
+        if step != last_saved:
+            checkpoint()
+    except Diverged as e:
+        log_line({"event": "stop", "step": e.step, "reason": "diverged", "detail": e.what, "saved_step": last_saved,
+                  "utc": utc_now(), "wall_s": round(time.time() - t_start, 1)})
+        where = f" (the state, weights and manifest in {out}: the last good step)" if last_saved is not None else ""
+        print(f"{prog}: error: the training diverged at step {e.step} ({e.what}); nothing of that step was saved: "
+              f"{kept()}{where}. The learning rate is too high for this network: train again with a lower --lr than "
+              f"{conf['lr']:g} (a --resume keeps its checkpoint's --lr)", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:  # a second Ctrl-C: at once (never inside a save)
+        log_line({"event": "stop", "step": step, "reason": "interrupted", "saved_step": last_saved, "utc": utc_now(),
+                  "wall_s": round(time.time() - t_start, 1)})
+        print(f"{prog}: interrupted at step {step}: {resume_hint()}", file=sys.stderr)
+        return 130
+    log_line({"event": "stop", "step": step, "reason": stop_reason, "utc": utc_now(),
+              "wall_s": round(time.time() - t_start, 1)})
     load_unrolled(wpath, phi, system=system, mask=mask)  # the file written reads back
+    if stop_reason == "interrupted":
+        print(f"{prog}: interrupted at step {step}: {resume_hint()}", file=sys.stderr)
+        return 130
+    if step < conf["steps"]:  # the weights are then those of this step, before the end of the schedule
+        print(f"stopped at step {step} of {conf['steps']} ({stop_reason}): continue with --resume {spath}")
     print(f"done at step {step}: {wpath} ({time.time() - t_start:.0f} s)")
     return 0
+
+
+def _trim_cut_line(path: pathlib.Path, prog: str) -> None:
+    """A log whose last line was cut short (a run killed while writing it) loses that line before a run appends to
+    it (appended to, it would join the next record on one unreadable line)."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return
+    if data and not data.endswith(b"\n"):
+        keep = data.rfind(b"\n") + 1
+        with open(path, "r+b") as f:
+            f.truncate(keep)
+        print(f"{prog}: note: {path}: removed its last line, cut short ({len(data) - keep} bytes: a run stopped while "
+              "writing it)", file=sys.stderr)
 
 
 def _noise_on(seed: int) -> bool:

@@ -100,7 +100,7 @@ def test_the_dataset_refuses_a_scene_outside_the_transport_bands():
 def test_a_fresh_v1_run_does_not_replace_another(tmp_path, capsys):
     train = load_script("train_unrolled")
     common = ["--system", "sp", "--size", "16", "--stages", "1", "--width", "2", "--planes", "4", "--rays", "1", "--bands", "4",
-              "--threads", "1", "--warmup", "1", "--val-every", "1", "--steps", "1", "--batch", "1"]
+              "--threads", "1", "--warmup", "0", "--val-every", "1", "--steps", "1", "--batch", "1"]
     out = tmp_path / "tx"
     assert train.main(common + ["--out", str(out)]) == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}

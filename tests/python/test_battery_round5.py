@@ -49,7 +49,9 @@ def test_renderer_temperature_is_checked_on_assignment():
     assert torch.isfinite(r.mask_logits.grad).all() and float(r.mask_logits.grad.abs().sum()) > 0
     # Since round 6 the temperature is saved with the state (`_extra_state`): a restored renderer renders alike.
     assert set(r.state_dict()) == keys == {"mask_logits", "theta", "_extra_state"}
-    assert r.state_dict()["_extra_state"] == {"temperature": 0.25}
+    # (since round 9 with θ's free parameters and the system's prescription: a state of another renderer is refused)
+    assert r.state_dict()["_extra_state"] == {"temperature": 0.25, "free": list(r.names),
+                                              "system_sha256": diffcassi.System.preset("sp").prescription_sha256()}
 
 
 # ------------------------------------------------------------------ 2: set_epoch and persistent workers

@@ -304,7 +304,7 @@ def test_bad_resumes_are_refused_and_write_nothing(train, runs, tmp_path, capsys
     # A v1 checkpoint resumed as v2.
     v1 = tmp_path / "v1"
     assert train.main(["--system", "sp", "--size", "8", "--bands", "3", "--stages", "1", "--width", "2", "--planes",
-                       "6", "--rays", "1", "--steps", "1", "--val-every", "1", "--out", str(v1)]) == 0
+                       "6", "--rays", "1", "--steps", "1", "--warmup", "0", "--val-every", "1", "--out", str(v1)]) == 0
     v1ck = v1 / "unrolled-sp-state.pt"
     truncated = tmp_path / "truncated.pt"
     truncated.write_bytes(ck.read_bytes()[: ck.stat().st_size // 2])
