@@ -69,6 +69,9 @@ pub const MAX_THREADS: usize = 1024;
 /// Radiance values of a scene must stay below this so that a pixel's sum over planes, rays and the Airy
 /// kernel cannot overflow the f32 images: f32::MAX / 10⁹.
 pub const MAX_SCENE_VALUE: f64 = f32::MAX as f64 / 1e9;
+/// The smallest brightest value of a scene that is not black: 1e-20, 10¹⁸ above f32's smallest normal number,
+/// so that an acquisition (the scene × 1/rays × B/K × the Airy kernel) keeps f32's full precision.
+pub const MIN_SCENE_PEAK: f64 = 1e-20;
 
 // ------------------------------------------------------------------ budget
 

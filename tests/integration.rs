@@ -18,6 +18,7 @@ mod bad_input_round5;
 mod bad_input_round6;
 mod bad_input_round7;
 mod bad_input_round8;
+mod bad_input_round9;
 mod cli;
 mod cli_run;
 mod csv_outputs;

@@ -51,6 +51,8 @@ int main() {
   expect_error("wrong band count", [&] { diffcassi::denoise(diffcassi::View<float>(cube.data(), h * w * 4), h, w, 4, 0.05); }, "trained for 28 bands");
   expect_error("wrong size", [&] { diffcassi::denoise(diffcassi::View<float>(cube.data(), 10), h, w, b, 0.05); }, "needs");
   expect_error("NaN sigma", [&] { diffcassi::denoise(cube, h, w, b, std::nan("")); }, "sigma");
+  // σ as given, not its f32 conversion (1e300 was reported as "σ = inf"; round 9).
+  expect_error("sigma beyond f32", [&] { diffcassi::denoise(cube, h, w, b, 1e300); }, "sigma = 1e300");
   expect_error("missing weights", [&] { diffcassi::denoise(cube, h, w, b, 0.05, "/nonexistent/w.safetensors"); }, "/nonexistent/w.safetensors");
   {
     const std::string path = "test_denoise_bad.safetensors";

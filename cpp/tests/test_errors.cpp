@@ -83,6 +83,21 @@ int main() {
   expect_error("pupil x/y lengths differ", [&] { sys.spot_diagram({0.0, 0.0}, 520.0, {0.0, 0.5}, {0.0}); }, {"pupil points"});
   expect_error("bad pupil pattern", [] { diffcassi::pupil_points("hexagonal:3"); }, {"unknown pattern"});
   expect_error("NaN field", [&] { sys.chief_rays({std::nan("")}, {0.0}, 520.0); }, {"not finite"});
+  // What the CLI and Python refused and C++ took (a held-out battery, round 9): pupil points outside the unit
+  // disc, a distortion grid 1e-12 mm wide, a scene 1e300 mm across, sizes beyond the memory budget (they
+  // aborted the process on allocation), NaN ends of linspace, and a NUL byte in a name (its message was cut).
+  expect_error("pupil point outside the disc", [&] { sys.rays_for_field({0.0, 0.0}, {2.0}, {0.0}, 520.0); }, {"px² + py² ≤ 1"});
+  expect_error("spot pupil outside the disc", [&] { sys.spot_diagram({0.0, 0.0}, 520.0, {0.0, 0.0}, {0.0, 1.5}); }, {"pupil point 1", "px² + py² ≤ 1"});
+  expect_error("distortion half width 1e-12", [&] { sys.distortion_grid(520.0, 5, 1e-12); }, {"half width", "[1e-3"});
+  expect_error("distortion half width 1e300", [&] { sys.distortion_grid(520.0, 3, 1e300); }, {"half width"});
+  expect_error("distortion grid beyond memory", [&] { sys.distortion_grid(520.0, 1u << 20, 2.5); }, {"memory"});
+  expect_error("mapping cube 1e300 mm pitch", [&] { sys.mapping_cube(2, 2, 1e300, {520.0}); }, {"from the axis"});
+  expect_error("mapping cube beyond memory", [&] { sys.mapping_cube(100000, 100000, 1e-4, {520.0, 600.0}); }, {"memory"});
+  expect_error("seeded workload beyond memory", [&] { sys.seeded_workload(std::size_t{1} << 33, {520.0}, 0); }, {"memory"});
+  expect_error("linspace beyond memory", [] { diffcassi::linspace(450.0, 650.0, std::size_t{1} << 40); }, {"memory"});
+  expect_error("linspace of NaN", [] { diffcassi::linspace(0.0, std::nan(""), 3); }, {"finite"});
+  expect_error("NUL in a preset name", [] { System::preset(std::string("sp\0x", 4)); }, {"NUL byte", "\\0x"});
+  CHECK(diffcassi::linspace(450.0, 650.0, 3).size() == 3);
 
   // Jacobians: parameter names and backends.
   expect_error("unknown parameter name", [&] { sys.jacobian(rays.columns(), {"s4.tilt_q_deg"}); }, {"free parameter `s4.tilt_q_deg`", "s<N>.<column>"});
@@ -125,6 +140,26 @@ int main() {
     bad = o;
     bad.rays_per_pixel = 0;
     expect_error("zero rays per pixel", [&] { sys.render_detector(4, 4, wl, bad); }, {"rays per pixel"});
+    expect_error("rays beyond the budget", [&] {
+      auto many = o;
+      many.rays_per_pixel = std::size_t{1} << 40;
+      sys.render_detector(4, 4, wl, many);
+    }, {"rays"});
+    expect_error("planes beyond the limit", [&] {
+      auto many = o;
+      many.planes = std::size_t{1} << 30;
+      sys.render_detector(4, 4, wl, many);
+    }, {"planes", "at most"});
+    expect_error("scene beyond memory", [&] { sys.render_detector(100000, 100000, wl, o); }, {"memory"});
+    {
+      std::vector<float> hot(scene.size(), 3.4e38f);
+      expect_error("radiance beyond the limit", [&] { sys.render_into(diffcassi::SceneView{4, 4, wl, hot}, {}, o, out.data(), out.size()); }, {"radiances must be finite, ≥ 0"});
+      hot.assign(scene.size(), 1.0f);
+      hot[7] = -1.0f;
+      expect_error("negative radiance", [&] { sys.render_into(diffcassi::SceneView{4, 4, wl, hot}, {}, o, out.data(), out.size()); }, {"radiances must be finite, ≥ 0"});
+      hot.assign(scene.size(), 1e-45f);
+      expect_error("subnormal scene", [&] { sys.render_into(diffcassi::SceneView{4, 4, wl, hot}, {}, o, out.data(), out.size()); }, {"brightest value", "scale the scene's radiance up"});
+    }
     auto one = o;
     one.planes = 1;
     expect_error("render wavelength out of range", [&] { sys.render_detector(4, 4, std::vector<double>{5000.0}, one); }, {"5000"});

@@ -48,6 +48,9 @@ pub struct DistortionGrid {
 /// The predicted (paraxial) coordinates use the first-order matrix of the real chief-ray map at the axis,
 /// computed by central differences over ±1e-4 of the half width: for a system with coordinate breaks this
 /// is what Zemax's "Predicted coordinate ABCD matrix" reports (e.g. A = −1.003 for SP).
+/// The smallest half width of a grid in mm (1 µm): below it the ABCD fit is rounding noise.
+pub const MIN_GRID_HALF_WIDTH_MM: f64 = 1e-3;
+
 pub fn grid_distortion(system: &SequentialSystem, tracer: &dyn Tracer, wavelength_nm: f64, n: usize, half_width_mm: f64) -> Result<DistortionGrid> {
     if system.object_at_infinity() {
         return Err(Error::invalid(format!("system `{}` has its object at infinity: its distortion grid is given in degrees (grid_distortion_angle, --half-width-deg)", system.name())));
@@ -77,6 +80,16 @@ fn grid_core(system: &SequentialSystem, tracer: &dyn Tracer, wavelength_nm: f64,
     if !(half_width_mm.is_finite() && half_width_mm > 0.0) {
         return Err(Error::invalid(format!("distortion half width {half_width_mm} mm: must be finite and > 0")));
     }
+    // From 1 µm to the largest plausible length: below it the ABCD fit to the grid is rounding noise (1e-12 mm
+    // reported 200 % distortion through C++ and Python; the CLI refused it since round 6).
+    if !tan && !(MIN_GRID_HALF_WIDTH_MM..=crate::limits::MAX_LENGTH_MM).contains(&half_width_mm) {
+        return Err(Error::invalid(format!(
+            "distortion half width {} mm: must be in [{MIN_GRID_HALF_WIDTH_MM:e}, {:e}] mm",
+            crate::limits::fmt_num(half_width_mm),
+            crate::limits::MAX_LENGTH_MM
+        )));
+    }
+    crate::limits::check_memory(&format!("distortion grid {n}×{n}"), (n as f64).powi(2) * 400.0)?;
     let h = 1e-4 * half_width_mm;
     let probes = [[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]];
     let pr = tracer.trace(system, &RayBatch::chief_rays(system, &to_fields(&probes), wavelength_nm)?)?;

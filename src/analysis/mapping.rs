@@ -214,6 +214,18 @@ pub fn mapping_cube(system: &SequentialSystem, tracer: &dyn Tracer, height: usiz
     if !(pixel_pitch_mm.is_finite() && pixel_pitch_mm > 0.0) {
         return Err(Error::invalid(format!("pixel pitch {pixel_pitch_mm} mm: must be finite and > 0")));
     }
+    // The scene's half extent within the plausible lengths (a 1e300 mm pitch gave an all-invalid cube and no
+    // error), and the cube within the memory budget (sizes from C++ aborted on allocation).
+    let half_extent_mm = pixel_pitch_mm * height.max(width) as f64 / 2.0;
+    if half_extent_mm > crate::limits::MAX_LENGTH_MM {
+        return Err(Error::invalid(format!(
+            "mapping cube {height}×{width} at a {} mm pitch: the scene reaches {} mm from the axis, beyond ±{:e} mm",
+            crate::limits::fmt_num(pixel_pitch_mm),
+            crate::limits::fmt_num(half_extent_mm),
+            crate::limits::MAX_LENGTH_MM
+        )));
+    }
+    crate::limits::check_memory(&format!("mapping cube {height}×{width}×{}", wavelengths_nm.len()), crate::limits::bytes_mapping(height, width, wavelengths_nm.len()))?;
     let bands = Bands::new(system, wavelengths_nm)?;
     let nl = bands.len();
     let mut positions_mm = vec![0.0; height * width * nl * 2];
@@ -307,9 +319,12 @@ mod tests {
     }
 
     #[test]
-    fn non_finite_fields_are_an_error() {
+    fn implausible_extents_are_an_error() {
+        // A scene beyond ±1e6 mm (1e308 mm: non-finite fields; 1e300 mm gave an all-invalid cube, no error).
         let sys = SequentialSystem::build(&crate::presets::spec("sp").unwrap()).unwrap();
-        let e = mapping_cube(&sys, &AnalyticTracer::default(), 8, 8, 1e308, &[520.0]).unwrap_err().to_string();
-        assert!(e.contains("not finite"), "{e}");
+        for pitch in [1e308, 1e300, 2.6e5] {
+            let e = mapping_cube(&sys, &AnalyticTracer::default(), 8, 8, pitch, &[520.0]).unwrap_err().to_string();
+            assert!(e.contains("from the axis") && e.contains("beyond ±1e6 mm"), "{e}");
+        }
     }
 }

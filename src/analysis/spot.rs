@@ -1,5 +1,5 @@
 use crate::rays::RayBatch;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::system::SequentialSystem;
 use crate::tracer::{RayStatus, Tracer};
 
@@ -129,6 +129,11 @@ pub fn first_point_outside_pupil(points: &[[f64; 2]]) -> Option<(usize, [f64; 2]
 /// vignetting factors when it is a defined field that has some ([`SequentialSystem::vignetted_pupil`]);
 /// `SpotDiagram::pupil` keeps the points as given.
 pub fn spot_diagram(system: &SequentialSystem, tracer: &dyn Tracer, field_mm: [f64; 2], wavelength_nm: f64, pupil: &[[f64; 2]]) -> Result<SpotDiagram> {
+    // Normalised pupil coordinates live in the unit disc: a point at radius 2 traced "ok" and tripled the RMS
+    // (C++; the CLI's --pupil-csv and Python refused it already).
+    if let Some((i, p)) = first_point_outside_pupil(pupil) {
+        return Err(Error::invalid(format!("pupil point {i} (px, py) = ({}, {}): normalised pupil coordinates must satisfy px² + py² ≤ 1", p[0], p[1])));
+    }
     // A defined field's vignetting factors map its pupil points (src/system/vignetting.rs); the chief ray,
     // traced alongside, passes through the stop centre whatever they are.
     let mut pts = system.vignetted_pupil(field_mm, pupil);

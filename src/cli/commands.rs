@@ -748,7 +748,7 @@ pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
 }
 
 /// The smallest `distortion --half-width-mm`: 1 µm.
-const MIN_GRID_HALF_WIDTH_MM: f64 = 1e-3;
+use crate::analysis::MIN_GRID_HALF_WIDTH_MM;
 
 pub(super) fn mapping(a: MappingArgs) -> Result<()> {
     check_extension("--npy", &Some(a.npy.clone()), &["npy"], &system_inputs(&a.system))?;

@@ -446,7 +446,8 @@ fn bench_interpolated_mapping(system: &crate::system::SequentialSystem, tracer: 
 
 
 pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
-    let device: crate::render::Device = a.device.parse()?;
+    // Its own message: the library's names cpu-twin, which bench-render refuses.
+    let device: crate::render::Device = a.device.parse().map_err(|_| Error::invalid(format!("--device `{}`: use cpu, cuda or cuda:N", a.device)))?;
     if device == crate::render::Device::CpuTwin {
         return Err(Error::invalid("bench-render --device cpu-twin: use cpu or cuda (the twin is for checking a GPU's results, `render --device cpu-twin`)"));
     }

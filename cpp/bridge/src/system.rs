@@ -29,19 +29,31 @@ fn wrap(system: SequentialSystem) -> Box<System> {
     Box::new(System { system, backends: BackendCache::default() })
 }
 
+/// A string from C++ without NUL bytes: C++ shows an error's text up to its first NUL, so a name holding one
+/// was reported cut (`unknown preset `sp`); refused, the name quoted with its NUL escaped.
+pub(crate) fn no_nul(what: &str, text: &str) -> Result<()> {
+    if text.contains('\0') {
+        return Err(Error::invalid(format!("{what} {text:?} contains a NUL byte")));
+    }
+    Ok(())
+}
+
 /// Load one of the presets (`sp`, `ap`, `msp`, `map`; case-insensitive).
 pub fn load_preset(name: &str) -> Result<Box<System>> {
+    no_nul("preset name", name)?;
     Ok(wrap(SequentialSystem::build(&diffcassi::presets::spec(name)?)?))
 }
 
 /// Load a spec file by extension (`.toml`, `.json`, `.yml`/`.yaml`, `.csv`).
 pub fn load_spec_file(path: &str) -> Result<Box<System>> {
+    no_nul("spec file path", path)?;
     Ok(wrap(SequentialSystem::build(&diffcassi::spec::load_spec_file(path)?)?))
 }
 
 /// Parse a spec held in memory: `format` is `toml`, `json` or `auto` (JSON when the first non-blank
 /// character is `{`, TOML otherwise).
 pub fn load_spec_string(text: &str, format: &str, source_name: &str) -> Result<Box<System>> {
+    no_nul("spec source name", source_name)?;
     let spec: SystemSpec = match format.to_ascii_lowercase().as_str() {
         "toml" => diffcassi::spec::from_toml(text, source_name)?,
         "json" => diffcassi::spec::from_json(text, source_name)?,
@@ -151,6 +163,10 @@ impl System {
     pub fn rays_for_field(&self, field_x_mm: f64, field_y_mm: f64, px: &[f64], py: &[f64], wavelength_nm: f64) -> Result<Box<Rays>> {
         check_same_len("pupil points", px, py)?;
         let pupil: Vec<[f64; 2]> = px.iter().zip(py).map(|(x, y)| [*x, *y]).collect();
+        // Normalised pupil coordinates live in the unit disc (px = 2 traced "ok"; the CLI and Python refuse it).
+        if let Some((i, p)) = analysis::first_point_outside_pupil(&pupil) {
+            return Err(Error::invalid(format!("pupil point {i} (px, py) = ({}, {}): normalised pupil coordinates must satisfy px² + py² ≤ 1", p[0], p[1])));
+        }
         Ok(Box::new(Rays(RayBatch::for_field(&self.system, [field_x_mm, field_y_mm], &pupil, wavelength_nm)?)))
     }
 
@@ -193,6 +209,7 @@ impl System {
     /// Seconds per trace of `rays`, `reps` times, timed in Rust around `Tracer::trace` (the reference the
     /// C++ bench compares its own calls with).
     pub fn time_rust_trace(&self, backend: &str, rays: &Rays, reps: usize) -> Result<Vec<f64>> {
+        diffcassi::limits::check_memory(&format!("{reps} repetitions"), reps as f64 * 8.0)?;
         let tracer = self.backends.get(&self.system, backend)?;
         let mut times = Vec::with_capacity(reps);
         for _ in 0..reps {
@@ -278,6 +295,20 @@ mod tests {
         assert!(e.contains("too large"), "{e}");
         let e = sys.seeded_workload(usize::MAX, &[450.0, 520.0], 1).err().unwrap().to_string();
         assert!(e.contains("too large"), "{e}");
+        // What the CLI and Python refused and C++ took (round 9): checked in the library or here.
+        let e = sys.distortion_grid("analytic", 520.0, 5, 1e-12).err().unwrap().to_string();
+        assert!(e.contains("half width") && e.contains("[1e-3"), "{e}");
+        let e = sys.mapping_cube("analytic", 2, 2, 1e300, &[520.0]).err().unwrap().to_string();
+        assert!(e.contains("from the axis"), "{e}");
+        let e = sys.rays_for_field(0.0, 0.0, &[2.0], &[0.0], 520.0).err().unwrap().to_string();
+        assert!(e.contains("px² + py² ≤ 1"), "{e}");
+        let e = sys.spot_diagram("analytic", 0.0, 0.0, 520.0, &[0.0, 1.5], &[0.0, 0.0]).err().unwrap().to_string();
+        assert!(e.contains("pupil point 1"), "{e}");
+        let e = sys.seeded_workload(1 << 33, &[520.0], 1).err().unwrap().to_string();
+        assert!(e.contains("memory"), "{e}");
+        assert!(crate::results::linspace(0.0, f64::NAN, 3).is_err());
+        let e = load_preset("sp\0x").err().unwrap().to_string();
+        assert!(e.contains("NUL byte") && e.contains("sp\\0x"), "{e}");
     }
 
     #[test]

@@ -1322,7 +1322,7 @@ private:
 void denoise(::rust::Slice<float const> cube, ::std::size_t height, ::std::size_t width, ::std::size_t bands, double sigma, ::rust::Str weights, ::rust::Slice<float > out);
 
 // `count` evenly spaced values from `first` to `last` (inclusive).
-::rust::Vec<double> linspace(double first, double last, ::std::size_t count) noexcept;
+::rust::Vec<double> linspace(double first, double last, ::std::size_t count);
 
 ::diffcassi::ffi::RenderOptions default_render_options() noexcept;
 } // namespace ffi

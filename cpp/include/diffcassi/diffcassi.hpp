@@ -478,8 +478,10 @@ inline std::vector<float> denoise(View<float> cube, std::size_t height, std::siz
   return out;
 }
 
+/// `count` evenly spaced values from `first` to `last` (both included); non-finite ends, or a count beyond the
+/// memory budget, throw diffcassi::Error.
 inline std::vector<double> linspace(double first, double last, std::size_t count) {
-  const auto v = ffi::linspace(first, last, count);
+  const auto v = detail::call([&] { return ffi::linspace(first, last, count); });
   return std::vector<double>(v.begin(), v.end());
 }
 

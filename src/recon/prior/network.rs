@@ -373,12 +373,13 @@ impl SpectralUNet {
         (y + self.conv(15, x, 0, 1, false)?).map_err(cerr)
     }
 
-    /// Memory of one call (bytes, f32 activations at their peak, about): for budgeting and docs.
-    pub fn activation_bytes(&self, height: usize, width: usize) -> usize {
-        let (h, w) = (height.div_ceil(4) * 4, width.div_ceil(4) * 4);
+    /// Memory of one call (bytes, f32 activations at their peak, about): the budget [`Denoiser::denoise`]
+    /// checks (in f64: sizes from C++ or Python may overflow a `usize` product).
+    pub fn activation_bytes(&self, height: usize, width: usize) -> f64 {
+        let (h, w) = (height.div_ceil(4) as f64 * 4.0, width.div_ceil(4) as f64 * 4.0);
         // input and output, the latent, e1 + two full-resolution temporaries, e2 and two half-resolution ones,
         // im2col tiles apart.
-        4 * h * w * (2 * self.bands + 2 * (self.latent + 1) + 3 * self.width + 3 * 2 * self.width / 4)
+        4.0 * h * w * (2 * self.bands + 2 * (self.latent + 1) + 3 * self.width + 3 * 2 * self.width / 4) as f64
     }
 }
 
@@ -398,6 +399,9 @@ impl Denoiser for SpectralUNet {
         if !sigma.is_finite() || sigma < 0.0 {
             return Err(Error::invalid(format!("denoiser: the noise level σ = {sigma} must be finite and ≥ 0")));
         }
+        // Its activations within the memory budget: a 2048×2048 cube asked for gigabytes and aborted the process
+        // on allocation (C++ and Python; a held-out battery, round 9).
+        crate::limits::check_memory(&format!("denoiser on a {h}×{w}×{b} cube (activations)"), self.activation_bytes(h, w) + 8.0 * shape.len() as f64)?;
         // Mean-colour neutralisation: shift_b = m_b − ḡ (f64 sums; PyTorch's f32 mean agrees to ~1e-7).
         let shift: Vec<f32> = if self.neutral {
             let mut m = vec![0.0f64; b];

@@ -274,6 +274,25 @@ impl UnrolledNetwork {
         Ok(UnrolledNetwork { meta: meta_out, source: source.to_string(), crc32: crc32fast::hash(bytes), steps, trained_system_sha256: system_sha256, stages: all, v2: None })
     }
 
+    /// Check the network's bands against `bands_nm` (an acquisition's, or a study's `--bands` before its
+    /// renders): another count, or a wavelength more than [`WAVELENGTH_TOLERANCE_NM`] off, refused; `Some`
+    /// warning when the weights do not record their wavelengths (only the count is checked).
+    pub fn check_bands(&self, bands_nm: &[f64]) -> Result<Option<String>> {
+        let (m, src) = (&self.meta, &self.source);
+        if m.bands != bands_nm.len() {
+            return Err(ferr(src, format!("metadata `bands` = {}: the network is for {} bands, the acquisition has {}", m.bands, m.bands, bands_nm.len())));
+        }
+        match &m.bands_nm {
+            Some(b) => {
+                if let Some(k) = (0..b.len()).find(|&k| (b[k] - bands_nm[k]).abs() > WAVELENGTH_TOLERANCE_NM) {
+                    return Err(ferr(src, format!("metadata `bands_nm`: band {k} is {} nm, the acquisition's is {} nm (tolerance {WAVELENGTH_TOLERANCE_NM} nm): trained for other wavelengths", b[k], bands_nm[k])));
+                }
+                Ok(None)
+            }
+            None => Ok(Some(format!("{src}: metadata `bands_nm` not recorded: the wavelengths are not checked (only the band count)"))),
+        }
+    }
+
     /// Check the network against an acquisition: system, band count and wavelengths refused when they
     /// differ; mask, planes, rays, Airy diameter warned about (see the module docs). Errors name the file,
     /// the metadata field and both values.
@@ -281,18 +300,8 @@ impl UnrolledNetwork {
         let m = &self.meta;
         let src = &self.source;
         let (system_sha256, unchecked) = self.check_system(t.spec)?;
-        if m.bands != t.bands_nm.len() {
-            return Err(ferr(src, format!("metadata `bands` = {}: the network is for {} bands, the acquisition has {}", m.bands, m.bands, t.bands_nm.len())));
-        }
         let mut warnings: Vec<String> = unchecked.into_iter().collect();
-        match &m.bands_nm {
-            Some(b) => {
-                if let Some(k) = (0..b.len()).find(|&k| (b[k] - t.bands_nm[k]).abs() > WAVELENGTH_TOLERANCE_NM) {
-                    return Err(ferr(src, format!("metadata `bands_nm`: band {k} is {} nm, the acquisition's is {} nm (tolerance {WAVELENGTH_TOLERANCE_NM} nm): trained for other wavelengths", b[k], t.bands_nm[k])));
-                }
-            }
-            None => warnings.push(format!("{src}: metadata `bands_nm` not recorded: the wavelengths are not checked (only the band count)")),
-        }
+        warnings.extend(self.check_bands(t.bands_nm)?);
         let render_sha = crate::io::sha256::sha256_f32_hex(t.mask);
         let trained_size = match (m.height, m.width_px) {
             (Some(h), Some(w)) => format!("{h}×{w}"),

@@ -136,6 +136,18 @@ pub struct DatasetSummary {
     pub seconds: f64,
 }
 
+/// A scene's render warnings as the dataset's messages, named by the scene.
+struct SceneWarnings<'a> {
+    progress: &'a dyn DatasetProgress,
+    scene: &'a str,
+}
+
+impl crate::render::folder::RenderProgress for SceneWarnings<'_> {
+    fn warning(&self, text: &str) {
+        self.progress.message(&format!("warning: {}: {text}", self.scene));
+    }
+}
+
 /// 64-bit FNV-1a hash of a scene name: the offset of its noise seed, so a scene's noise does not depend on
 /// which other scenes are in the folder or shard.
 pub fn name_hash(name: &str) -> u64 {
@@ -333,7 +345,7 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
                 }
             };
             let noise = a.noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() });
-            let noise_json = crate::render::folder::apply_noise(noise.as_ref(), &mut acq, &crate::render::folder::SilentRender)?;
+            let noise_json = crate::render::folder::apply_noise(noise.as_ref(), &mut acq, &SceneWarnings { progress, scene: &s.name })?;
             let partial = partial_dir(&a.out, &s.name)?;
             let mut extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref()), "scene_input": scene_input});
             if let Some(x) = renderer.spectral_extrapolation(&scene) {
