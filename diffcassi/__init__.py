@@ -135,7 +135,9 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
     Returns ``(acquisition, info)``: the detector image (h, w) float64 and a dict with ``render.json``'s
     keys (``acquisition_total``, ``detector``, ``bands_nm``, ``planes_nm``, ``rays_traced``, ...). Planes that lie
     more than one band beyond the scene's bands (its spectrum held constant there) give a ``UserWarning`` and
-    ``info["spectral_extrapolation"]``; a scene entirely outside the render's planes is refused.
+    ``info["spectral_extrapolation"]``; a scene entirely outside the render's planes is refused. As the CLI, a
+    zero acquisition, and sensor noise whose exposure puts less than one electron in the brightest pixel, give a
+    ``UserWarning`` naming why.
     """
     nz: Dict[str, Any] = {}
     if isinstance(noise, str):
@@ -160,8 +162,10 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
                                 airy=airy, backend=_check_backend(backend), device=device, precision=precision,
                                 scene_fov_deg=scene_fov_deg, **nz)
     info = _json.loads(info)
+    import warnings
+    for text in info.pop("warnings", []):  # the CLI's: an exposure below an electron, a zero acquisition
+        warnings.warn(text, stacklevel=2)
     if "spectral_extrapolation" in info:  # planes beyond the scene's bands, held at its end band (as the CLI warns)
-        import warnings
         warnings.warn(info["spectral_extrapolation"]["message"], stacklevel=2)
     return acq, info
 

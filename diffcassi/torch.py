@@ -859,6 +859,14 @@ def _narrow(a: np.ndarray, dtype: torch.dtype, what: str) -> torch.Tensor:
     return t.to(dtype)
 
 
+def _check_mask_logits_grad(grad: torch.Tensor) -> None:
+    """A backward hook of ``CassiRenderer.mask_logits``: a non-finite gradient is refused (autograd raises it
+    from ``backward()``), never accumulated into ``.grad``."""
+    if grad.numel() and not bool(torch.isfinite(grad).all()):
+        raise _Error("CassiRenderer backward: the gradient of mask_logits is not finite (it leaves "
+                     f"{grad.dtype}'s range through the mask's sigmoid); scale the cube down")
+
+
 class _RenderFn(torch.autograd.Function):
     """acquisition = render(cube, mask; θ) with fixed Monte-Carlo samples; backward is the Rust VJP. Computed
     in float64 whatever the inputs' floating dtypes; results are range-checked before they are cast back."""
@@ -1155,8 +1163,16 @@ class CassiRenderer(_TargetChecked):
         return out
 
     def mask(self) -> torch.Tensor:
-        """The continuous mask sigmoid(logits / temperature) in [0, 1], (H, W)."""
-        return torch.sigmoid(self.mask_logits / self.temperature)
+        """The continuous mask sigmoid(logits / temperature) in [0, 1], (H, W). Its logits' gradient is checked
+        finite when it arrives (:func:`_check_mask_logits_grad`)."""
+        p = self.mask_logits
+        # Once per parameter object (a deepcopy or an unpickled module has a new one): the rendered mask's
+        # gradient is range-checked in float64, but the sigmoid's own backward runs in the logits' float32 and
+        # overflowed to inf for float64 cubes of 1e20 (an Adam step then made the logits non-finite; round 9).
+        if getattr(self, "_checked_logits_id", None) != id(p):
+            p.register_hook(_check_mask_logits_grad)
+            self._checked_logits_id = id(p)
+        return torch.sigmoid(p / self.temperature)
 
     def binary_mask(self) -> np.ndarray:
         """The mask to build: the continuous mask thresholded at 0.5."""

@@ -211,7 +211,10 @@ pub fn check_rays(what: &str, rays: f64) -> Result<()> {
 }
 
 fn gb(bytes: f64) -> String {
-    if bytes.is_finite() && bytes < 1e15 {
+    // Budgets below 10 MB (`--max-memory-gb 0.000001`) were both "0.00 GB" (round 9).
+    if bytes.is_finite() && bytes < 1e7 {
+        format!("{:.3e} GB", bytes / 1e9)
+    } else if bytes.is_finite() && bytes < 1e15 {
         format!("{:.2} GB", bytes / 1e9)
     } else if bytes.is_finite() {
         format!("{:.2e} GB", bytes / 1e9)

@@ -79,6 +79,11 @@ fn noise_and_device_messages_name_what_applies() {
     let d = tempfile::tempdir().unwrap();
     let dir = d.path();
     refused(dir, &with(&["render", "--out", "r"], &["--noise", "none,shot"]), &["`none,shot`", "stands alone"]);
+    refused(dir, &with(&["render", "--out", "r"], &["--noise", "shot,"]), &["`shot,`", "an empty item"]);
+    // A closed mask traces no ray: said so (render.json's ray_stats are all zero).
+    diffcassi::io::npy::write_npy_f32(dir.join("closed.npy"), &[8, 8], &[0.0; 64]).unwrap();
+    let out = ok(dir, &with(&["render", "--mask", "closed.npy", "--out", "rc"], &[]));
+    assert!(out.contains("no ray was traced: the mask is closed everywhere"), "{out}");
     let (code, out) = run(dir, &["bench-render", "--device", "garbage", "--scene-size", "4"]);
     assert_eq!(code, Some(1), "{out}");
     assert!(out.contains("--device `garbage`: use cpu, cuda or cuda:N") && !out.contains("cpu-twin"), "{out}");

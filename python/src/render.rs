@@ -87,10 +87,12 @@ fn _render<'py>(
         let r = Renderer::new(&sys, t.as_ref(), cfg, m)?;
         // device="cuda": the GPU kernels (render::device), recorded in render.json's `device`.
         let (mut acq, record) = diffcassi::render::device::render_for(device, &r, &cube, false, &|_| {})?;
-        let noise_json = match &noise {
-            Some(nc) => nc.to_json(&nc.apply(&mut acq.image)?),
-            None => serde_json::Value::Null,
-        };
+        // The CLI's noise and its warnings (an exposure below an electron, a zero acquisition): raised as
+        // UserWarnings by diffcassi.render from info["warnings"] (Python was silent; round 9).
+        let said = Warnings::default();
+        let noise_json = diffcassi::render::folder::apply_noise(noise.as_ref(), &mut acq, &said)?;
+        let mut warnings = said.0.into_inner().unwrap_or_else(|p| p.into_inner());
+        warnings.extend(diffcassi::render::folder::zero_warning(&acq, &noise_json));
         let scale = render_output::preview_scale(&acq);
         let mut info = render_output::sidecar(&r, &acq, &scene_description(&cube), scale, t0.elapsed().as_secs_f64(), threads);
         info["noise"] = noise_json;
@@ -98,11 +100,24 @@ fn _render<'py>(
         if let Some(x) = r.spectral_extrapolation(&cube) {
             info["spectral_extrapolation"] = x.to_json();
         }
+        if !warnings.is_empty() {
+            info["warnings"] = warnings.into();
+        }
         Ok((acq, info))
     })
     .py()?;
     let (h, w) = (acq.detector.height, acq.detector.width);
     Ok((output(py, acq.image, &[h, w])?, info.to_string()))
+}
+
+/// A render's warnings, collected to be raised in Python.
+#[derive(Default)]
+struct Warnings(std::sync::Mutex<Vec<String>>);
+
+impl diffcassi::render::folder::RenderProgress for Warnings {
+    fn warning(&self, text: &str) {
+        self.0.lock().unwrap_or_else(|p| p.into_inner()).push(text.to_string());
+    }
 }
 
 /// The GPU's figures on one render (`diffcassi.gpu_check`): `render` on the CUDA device twice, on the CPU,

@@ -104,7 +104,7 @@ pub fn configure(height: usize, width: usize, o: &Options, mask: Option<&Bound<'
         if let Some(i) = v.iter().position(|x| !(0.0..=1.0).contains(x)) {
             return Err(value_error(format!("mask: value {} at index ({}, {}) is not in [0, 1]", v[i], i / width, i % width)));
         }
-        m = Mask { height, width, values: v.to_vec(), description: "caller-provided array".into() };
+        m = Mask { height, width, values: v.to_vec(), description: "caller-provided array".into() }.at_png_steps();
     }
     Ok((cfg, m))
 }

@@ -389,9 +389,9 @@ impl<'a> Renderer<'a> {
                 let fmt = crate::limits::fmt_num;
                 let scene_bands = if ws.len() == 1 { format!("band ({} nm) lies", fmt(lo)) } else { format!("bands ({} – {} nm) lie", fmt(lo), fmt(hi)) };
                 return Err(Error::invalid(format!(
-                    "the scene's {scene_bands} outside the render's planes ({} – {} nm): nothing of its spectrum would be rendered; choose --bands within the scene's range",
-                    fmt(p0),
-                    fmt(p1)
+                    "the scene's {scene_bands} outside the render's planes ({:.2} – {:.2} nm): nothing of its spectrum would be rendered; choose --bands within the scene's range",
+                    p0,
+                    p1
                 )));
             }
         }

@@ -178,12 +178,33 @@ pub fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut Acquisition, progress:
     if report.clean_peak > 0.0 && report.peak_electrons < 1.0 {
         let zeros = if acq.total() == 0.0 { ": the noisy acquisition is zero everywhere" } else { "" };
         progress.warning(&format!(
-            "the exposure puts {} e⁻ in the brightest pixel (< 1 electron; {} electrons per unit){zeros}: raise --electrons-per-unit",
-            crate::limits::fmt_num(report.peak_electrons),
-            crate::limits::fmt_num(report.electrons_per_unit)
+            "the exposure puts {:.3e} e⁻ in the brightest pixel (< 1 electron; {:.3e} electrons per unit){zeros}: raise --electrons-per-unit",
+            report.peak_electrons,
+            report.electrons_per_unit
         ));
     }
     Ok(nc.to_json(&report))
+}
+
+/// The warning a zero acquisition gets (it is written — it is what the system delivers — but nothing
+/// reconstructs from it), naming why; `noise` is its noise record ([`apply_noise`]). `None` for an acquisition
+/// with light, or one the sensor noise zeroed at an exposure below an electron ([`apply_noise`] said so).
+pub fn zero_warning(acq: &Acquisition, noise: &Value) -> Option<String> {
+    let positive = |key: &str| noise[key].as_f64().is_some_and(|v| v > 0.0);
+    let said = positive("clean_peak") && noise["peak_electrons"].as_f64().is_some_and(|p| p < 1.0);
+    if acq.total() > 0.0 || said {
+        return None;
+    }
+    let why = if positive("clean_total") {
+        "the sensor noise drew no electron in any pixel"
+    } else if acq.stats.traced == 0 {
+        "no ray was traced: the mask is closed everywhere"
+    } else if acq.stats.transmission() > 0.0 {
+        "rays arrived, but the scene is dark where they came from"
+    } else {
+        "no ray delivered light to the detector: render.json's ray_stats say where they went"
+    };
+    Some(format!("the acquisition is zero everywhere ({why})"))
 }
 
 /// Render `scene` (with its `scene_record`, from [`load_scene`]) through `renderer` into the request's folder:
@@ -213,12 +234,8 @@ pub fn run(request: &RenderRequest, inputs: &[(&str, &Path)], renderer: &Rendere
     }
     let record = write_folder(set.stage_dir().unwrap_or(&request.out), renderer, &acq, scene_record, request.started, extra, request.mapping)?;
     set.commit()?;
-    // A zero acquisition is written (it is what the system delivers), but said: nothing reconstructs from it.
-    // (One the sensor noise zeroed has been said by `apply_noise`.)
-    let zeroed_by_noise = request.noise.is_some() && noise["clean_total"].as_f64().is_some_and(|t| t > 0.0);
-    if !(acq.total() > 0.0) && !zeroed_by_noise {
-        let why = if acq.stats.transmission() > 0.0 { "rays arrived, but the scene is dark where they came from" } else { "no ray delivered light to the detector: render.json's ray_stats say where they went" };
-        progress.warning(&format!("the acquisition is zero everywhere ({why})"));
+    if let Some(w) = zero_warning(&acq, &noise) {
+        progress.warning(&w);
     }
     Ok(RenderSummary {
         out: request.out.clone(),

@@ -66,16 +66,23 @@ impl Mask {
         if let Some(v) = values.iter().find(|v| !(v.is_finite() && (0.0..=1.0).contains(*v))) {
             return Err(ferr(format!("mask value {v} is not a transmission in [0, 1]")));
         }
-        let mut mask = Mask { height: h, width: w, values, description: format!("file {}", path.display()) };
-        // An NPY's transmissions are taken at the 16-bit steps the render folder's mask.png keeps (t = code/65535,
-        // as a PNG reads back): otherwise the render used values its own mask.png does not hold, and the
-        // operator `reconstruct` rebuilds from that PNG was no oracle (5e-6 of the peak apart; a held-out battery,
-        // round 7). A binary mask is unchanged.
-        if mask.values.iter().zip(mask.png_codes()).any(|(&t, c)| t != c as f32 / 65535.0) {
-            mask.values = mask.png_codes().iter().map(|&c| c as f32 / 65535.0).collect();
-            mask.description += " (transmissions at 16-bit steps, as mask.png holds them)";
+        // An NPY's transmissions are taken at the 16-bit steps the render folder's mask.png keeps: otherwise the
+        // render used values its own mask.png does not hold, and the operator `reconstruct` rebuilds from that PNG
+        // was no oracle (5e-6 of the peak apart; a held-out battery, round 7).
+        Ok(Mask { height: h, width: w, values, description: format!("file {}", path.display()) }.at_png_steps())
+    }
+
+    /// The mask with its transmissions at the 16-bit steps `mask.png` keeps (t = code/65535, as a PNG reads
+    /// back; [`Mask::png_codes`]), so that what a render used is what its folder records. A binary mask (or one
+    /// already at those steps) is returned unchanged; otherwise the description says so. Mask files and the
+    /// arrays Python's render, `Transport` and `exact` take go through it (Python took a greyscale array as
+    /// given while recording the PNG's digest; round 9).
+    pub fn at_png_steps(mut self) -> Mask {
+        if self.values.iter().zip(self.png_codes()).any(|(&t, c)| t != c as f32 / 65535.0) {
+            self.values = self.png_codes().iter().map(|&c| c as f32 / 65535.0).collect();
+            self.description += " (transmissions at 16-bit steps, as mask.png holds them)";
         }
-        Ok(mask)
+        self
     }
 
     /// Fraction of the area open (mean transmission).

@@ -414,6 +414,9 @@ impl NoiseSettings {
         if list != "none" {
             let mut seen: Vec<&str> = Vec::new();
             for item in list.split(',').map(str::trim) {
+                if item.is_empty() {
+                    return Err(Error::invalid(format!("--noise `{list}`: an empty item (a stray comma?); use a comma list of shot, read, adc (or none)")));
+                }
                 if seen.contains(&item) {
                     return Err(Error::invalid(format!("--noise `{list}`: `{item}` is listed twice")));
                 }

@@ -168,7 +168,7 @@ def test_set_limits_sets_the_budgets_and_messages_name_the_keywords(sp, default_
         diffcassi.render(sp, random_cube(8, 8, 4), WL, **SMALL)
     diffcassi.set_limits(max_memory_gb=0.0001)
     assert diffcassi.get_limits()["memory_source"] == "max_memory_gb=0.0001"
-    with pytest.raises(diffcassi.DiffcassiValueError, match=r"over the budget of 0.00 GB \(max_memory_gb=0.0001\); .*raise max_memory_gb \(diffcassi.set_limits\)") as e:
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"over the budget of 1.000e-4 GB \(max_memory_gb=0.0001\); .*raise max_memory_gb \(diffcassi.set_limits\)") as e:
         diffcassi.Transport(sp, 64, 64, **SMALL)
     assert "--max-memory-gb" not in str(e.value)
     # Back to the defaults: the same call works.

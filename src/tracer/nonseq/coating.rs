@@ -135,7 +135,8 @@ impl std::str::FromStr for CoatingOverride {
                 return Err(format!("`{item}`: the coating `{value}` is not bare, R<reflectance> (e.g. R0.01) or mgf2@<nm> (e.g. mgf2@550)"));
             };
             if let Some(c) = &coating {
-                c.validate().map_err(|e| format!("`{item}`: {e}"))?;
+                // Tidied: clap prints a parser's message as it is (`mgf2@1e300` printed 300 digits; round 9).
+                c.validate().map_err(|e| crate::error::tidy_numbers(&format!("`{item}`: {e}")).into_owned())?;
             }
             items.push((target, coating));
         }
