@@ -172,6 +172,17 @@ pub fn set_budget_named(max_memory_gb: Option<f64>, max_rays: Option<f64>, names
     Ok(())
 }
 
+/// Name the budgets for a front end whose users set them by `names`, keeping their values, unless a front end
+/// named them already: the C++ library, which has no start-up hook, calls it on its first entry, so that a
+/// refusal names `diffcassi::set_limits` rather than the command line's options.
+pub fn name_budgets(names: BudgetNames) {
+    let mut guard = BUDGET.write().unwrap_or_else(|p| p.into_inner());
+    let b = guard.get_or_insert_with(Budget::default_for_machine);
+    if b.names == BudgetNames::cli() {
+        b.names = names;
+    }
+}
+
 /// The process-wide budget (a copy).
 pub fn budget() -> Budget {
     if let Some(b) = BUDGET.read().unwrap_or_else(|p| p.into_inner()).as_ref() {

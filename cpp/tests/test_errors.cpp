@@ -150,7 +150,13 @@ int main() {
       many.planes = std::size_t{1} << 30;
       sys.render_detector(4, 4, wl, many);
     }, {"planes", "at most"});
-    expect_error("scene beyond memory", [&] { sys.render_detector(100000, 100000, wl, o); }, {"memory"});
+    expect_error("scene beyond memory", [&] { sys.render_detector(100000, 100000, wl, o); }, {"memory", "raise max_memory_gb (diffcassi::set_limits)"});
+    // The budgets are C++'s to set: a tiny ray budget refuses a 48-ray render, naming it; the default again renders.
+    diffcassi::set_limits(std::nullopt, 10.0);
+    expect_error("render over a set ray budget", [&] { sys.render_detector(4, 4, wl, o); }, {"over the budget of 1.000e1", "max_rays (diffcassi::set_limits)"});
+    expect_error("bad memory budget", [] { diffcassi::set_limits(-1.0); }, {"max_memory_gb=-1", "> 0"});
+    diffcassi::set_limits();
+    CHECK(sys.render_detector(4, 4, wl, o).detector_width > 0);
     {
       std::vector<float> hot(scene.size(), 3.4e38f);
       expect_error("radiance beyond the limit", [&] { sys.render_into(diffcassi::SceneView{4, 4, wl, hot}, {}, o, out.data(), out.size()); }, {"radiances must be finite, ≥ 0"});

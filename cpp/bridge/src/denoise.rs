@@ -19,6 +19,7 @@ use diffcassi::recon::{CubeShape, Denoiser, SpectralUNet};
 
 /// `out` ← the denoised `cube` (see the [module docs](self)).
 pub fn denoise(cube: &[f32], height: usize, width: usize, bands: usize, sigma: f64, weights: &str, out: &mut [f32]) -> Result<()> {
+    crate::results::name_budgets();
     let shape = CubeShape { height, width, bands };
     let n = height.checked_mul(width).and_then(|v| v.checked_mul(bands)).ok_or_else(|| Error::invalid(format!("denoise: cube {height}×{width}×{bands} is too large")))?;
     if n == 0 {

@@ -53,7 +53,7 @@ pub use render::default_render_options;
 pub use results::{Mapping, Rays, Spot, Traced};
 pub use system::{load_preset, load_spec_file, load_spec_string, System};
 
-use results::{backend_names, linspace, preset_names, pupil_points, version};
+use results::{backend_names, linspace, preset_names, pupil_points, set_limits, version};
 
 #[cxx::bridge(namespace = "diffcassi::ffi")]
 pub mod ffi {
@@ -200,6 +200,8 @@ pub mod ffi {
         /// `count` evenly spaced values from `first` to `last` (inclusive).
         fn linspace(first: f64, last: f64, count: usize) -> Result<Vec<f64>>;
         fn default_render_options() -> RenderOptions;
+        /// The memory and ray budgets of every following call (`has_…` false: the default).
+        fn set_limits(has_memory: bool, max_memory_gb: f64, has_rays: bool, max_rays: f64) -> Result<()>;
 
         // ---- system data
         fn name(self: &System) -> &str;

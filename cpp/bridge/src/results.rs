@@ -179,7 +179,27 @@ pub(crate) fn pupil_points(pattern: &str) -> Result<PupilPoints> {
     Ok(PupilPoints { px: pts.iter().map(|p| p[0]).collect(), py: pts.iter().map(|p| p[1]).collect() })
 }
 
+/// The budgets' names in C++ messages: `max_memory_gb (diffcassi::set_limits)`.
+fn budget_names() -> diffcassi::limits::BudgetNames {
+    diffcassi::limits::BudgetNames { memory: "max_memory_gb".into(), rays: "max_rays".into(), separator: "=".into(), setter: "diffcassi::set_limits".into() }
+}
+
+/// Name the budgets for C++ once (the first load of a system, `linspace`, `denoise`, `set_limits`): a refusal
+/// then says how to raise them from C++.
+pub(crate) fn name_budgets() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| diffcassi::limits::name_budgets(budget_names()));
+}
+
+/// The memory (GB, > 0) and ray (≥ 1) budgets of every following call, process-wide; `has_…` false: the
+/// default (half of the physical memory; 2·10¹⁰ rays). Both are replaced at each call.
+pub(crate) fn set_limits(has_memory: bool, max_memory_gb: f64, has_rays: bool, max_rays: f64) -> diffcassi::error::Result<()> {
+    name_budgets();
+    diffcassi::limits::set_budget_named(has_memory.then_some(max_memory_gb), has_rays.then_some(max_rays), budget_names())
+}
+
 pub(crate) fn linspace(first: f64, last: f64, count: usize) -> diffcassi::error::Result<Vec<f64>> {
+    name_budgets();
     // Finite ends and a count within the memory budget (2⁴⁰ values aborted the process on allocation; NaN ends
     // gave NaNs; a held-out battery, round 9).
     if !(first.is_finite() && last.is_finite()) {

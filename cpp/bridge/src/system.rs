@@ -40,12 +40,14 @@ pub(crate) fn no_nul(what: &str, text: &str) -> Result<()> {
 
 /// Load one of the presets (`sp`, `ap`, `msp`, `map`; case-insensitive).
 pub fn load_preset(name: &str) -> Result<Box<System>> {
+    crate::results::name_budgets();
     no_nul("preset name", name)?;
     Ok(wrap(SequentialSystem::build(&diffcassi::presets::spec(name)?)?))
 }
 
 /// Load a spec file by extension (`.toml`, `.json`, `.yml`/`.yaml`, `.csv`).
 pub fn load_spec_file(path: &str) -> Result<Box<System>> {
+    crate::results::name_budgets();
     no_nul("spec file path", path)?;
     Ok(wrap(SequentialSystem::build(&diffcassi::spec::load_spec_file(path)?)?))
 }
@@ -53,6 +55,7 @@ pub fn load_spec_file(path: &str) -> Result<Box<System>> {
 /// Parse a spec held in memory: `format` is `toml`, `json` or `auto` (JSON when the first non-blank
 /// character is `{`, TOML otherwise).
 pub fn load_spec_string(text: &str, format: &str, source_name: &str) -> Result<Box<System>> {
+    crate::results::name_budgets();
     no_nul("spec source name", source_name)?;
     let spec: SystemSpec = match format.to_ascii_lowercase().as_str() {
         "toml" => diffcassi::spec::from_toml(text, source_name)?,

@@ -1325,6 +1325,9 @@ void denoise(::rust::Slice<float const> cube, ::std::size_t height, ::std::size_
 ::rust::Vec<double> linspace(double first, double last, ::std::size_t count);
 
 ::diffcassi::ffi::RenderOptions default_render_options() noexcept;
+
+// The memory and ray budgets of every following call (`has_…` false: the default).
+void set_limits(bool has_memory, double max_memory_gb, bool has_rays, double max_rays);
 } // namespace ffi
 } // namespace diffcassi
 

@@ -31,6 +31,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <string_view>
@@ -476,6 +477,13 @@ inline std::vector<float> denoise(View<float> cube, std::size_t height, std::siz
     ffi::denoise(detail::slice(cube), height, width, bands, sigma, detail::str(weights), rust::Slice<float>(out.data(), out.size()));
   });
   return out;
+}
+
+/// The memory budget (GB, > 0) and the ray budget (rays, ≥ 1) of every following call, process-wide (the CLI's
+/// --max-memory-gb / --max-rays, Python's diffcassi.set_limits); std::nullopt: the default (half of the physical
+/// memory; 2e10 rays). Both are replaced at each call; a bad value throws and leaves them as they were.
+inline void set_limits(std::optional<double> max_memory_gb = std::nullopt, std::optional<double> max_rays = std::nullopt) {
+  detail::call([&] { ffi::set_limits(max_memory_gb.has_value(), max_memory_gb.value_or(0.0), max_rays.has_value(), max_rays.value_or(0.0)); });
 }
 
 /// `count` evenly spaced values from `first` to `last` (both included); non-finite ends, or a count beyond the
