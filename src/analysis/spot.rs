@@ -125,15 +125,21 @@ pub fn first_point_outside_pupil(points: &[[f64; 2]]) -> Option<(usize, [f64; 2]
     points.iter().enumerate().find(|(_, p)| !(p[0].is_finite() && p[1].is_finite() && p[0].hypot(p[1]) <= 1.0 + 1e-9)).map(|(i, p)| (i, *p))
 }
 
+/// Refuse a normalised pupil point outside the unit disc ([`first_point_outside_pupil`]), naming its index.
+pub fn check_pupil_points(points: &[[f64; 2]]) -> Result<()> {
+    match first_point_outside_pupil(points) {
+        Some((i, p)) => Err(Error::invalid(format!("pupil point {i} (px, py) = ({}, {}): normalised pupil coordinates must satisfy px² + py² ≤ 1", p[0], p[1]))),
+        None => Ok(()),
+    }
+}
+
 /// Trace the normalised pupil points `pupil` of field `field_mm` at `wavelength_nm`: mapped by the field's
 /// vignetting factors when it is a defined field that has some ([`SequentialSystem::vignetted_pupil`]);
 /// `SpotDiagram::pupil` keeps the points as given.
 pub fn spot_diagram(system: &SequentialSystem, tracer: &dyn Tracer, field_mm: [f64; 2], wavelength_nm: f64, pupil: &[[f64; 2]]) -> Result<SpotDiagram> {
     // Normalised pupil coordinates live in the unit disc: a point at radius 2 traced "ok" and tripled the RMS
     // (C++; the CLI's --pupil-csv and Python refused it already).
-    if let Some((i, p)) = first_point_outside_pupil(pupil) {
-        return Err(Error::invalid(format!("pupil point {i} (px, py) = ({}, {}): normalised pupil coordinates must satisfy px² + py² ≤ 1", p[0], p[1])));
-    }
+    check_pupil_points(pupil)?;
     // A defined field's vignetting factors map its pupil points (src/system/vignetting.rs); the chief ray,
     // traced alongside, passes through the stop centre whatever they are.
     let mut pts = system.vignetted_pupil(field_mm, pupil);

@@ -98,8 +98,15 @@ impl RenderRequest {
 
 /// Check the request before any work: options that do not apply to the synthetic scene, and the output
 /// policy (`out` new, empty or a previous render, or `force`; never one of `inputs` — the system and mask
-/// files — nor the scene). [`run`] checks again; a client calls this first, before a long calibration.
+/// files — nor the scene). [`run`] checks both again; a client calls this first, before a long calibration.
 pub fn check(request: &RenderRequest, inputs: &[(&str, &Path)]) -> Result<()> {
+    check_scene_options(request)?;
+    crate::io::policy::check_out_folder(&request.out, &request.folder_rule(), &request.inputs(inputs))?;
+    Ok(())
+}
+
+/// The options that apply to a scene file only, refused for the synthetic scene.
+fn check_scene_options(request: &RenderRequest) -> Result<()> {
     if matches!(request.scene, SceneSource::Synthetic(_)) {
         if request.scene_wavelengths_nm.is_some() {
             // Accepted and ignored before: the synthetic scene has its own 31 bands.
@@ -110,7 +117,6 @@ pub fn check(request: &RenderRequest, inputs: &[(&str, &Path)]) -> Result<()> {
             return Err(Error::invalid(format!("--fit {}: brings a --scene file to N×N; the synthetic scene is made at N×N", request.fit.name())));
         }
     }
-    crate::io::policy::check_out_folder(&request.out, &request.folder_rule(), &request.inputs(inputs))?;
     Ok(())
 }
 
@@ -212,7 +218,8 @@ pub fn zero_warning(acq: &Acquisition, noise: &Value) -> Option<String> {
 /// staging folder that replaces `out` whole at the end (nothing is left half-written). `inputs` are the files
 /// the output must not touch besides the scene (the system's and the mask's).
 pub fn run(request: &RenderRequest, inputs: &[(&str, &Path)], renderer: &Renderer, scene: &SpectralCube, scene_record: &Value, pass: Option<&dyn AcquisitionPass>, progress: &dyn RenderProgress) -> Result<RenderSummary> {
-    check(request, inputs)?;
+    // The output policy is checked by the set itself (OutputSet::folder), as `check` checks it.
+    check_scene_options(request)?;
     let set = crate::io::OutputSet::folder(&request.out, &request.folder_rule(), &request.inputs(inputs))?;
     progress.tracing_started(renderer.rays_per_render());
     let rendered = super::device::render_for(request.device, renderer, scene, request.cube, &|k| progress.rays(k));

@@ -202,7 +202,7 @@ impl RenderSettings {
         }
         let mut cfg = self.checked(height.min(width))?;
         if width != height {
-            self.check_rectangle(height, width, &cfg)?;
+            check_render_budget(height, width, &cfg, self.rays_or_default())?;
         }
         cfg.scene_height = height;
         cfg.scene_width = width;
@@ -273,12 +273,6 @@ impl RenderSettings {
         }
         cfg.scene_fov_deg = self.scene_fov_deg;
         Ok(cfg)
-    }
-
-    /// The memory and ray budgets of a `height × width` render ([`Self::checked`] checks squares): the
-    /// same estimate ([`crate::limits::bytes_render_hw`]), naming the height and width.
-    fn check_rectangle(&self, height: usize, width: usize, cfg: &RenderConfig) -> Result<()> {
-        check_render_budget(height, width, cfg, self.rays_or_default())
     }
 
     fn make_mask(&self, height: usize, width: usize) -> Result<Mask> {

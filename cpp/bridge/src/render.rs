@@ -66,9 +66,6 @@ pub fn render_config(height: usize, width: usize, wavelengths_nm: &[f64], o: &Re
     if o.airy && !(o.airy_diameter_px.is_finite() && o.airy_diameter_px > 0.0) {
         return Err(Error::invalid(format!("render: Airy diameter {} px must be finite and > 0", o.airy_diameter_px)));
     }
-    if planes > diffcassi::limits::MAX_PLANES {
-        return Err(Error::invalid(format!("render: {planes} planes: at most {}", diffcassi::limits::MAX_PLANES)));
-    }
     let mut cfg = RenderConfig::paper(height);
     cfg.scene_height = height;
     cfg.scene_width = width;

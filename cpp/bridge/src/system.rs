@@ -167,9 +167,7 @@ impl System {
         check_same_len("pupil points", px, py)?;
         let pupil: Vec<[f64; 2]> = px.iter().zip(py).map(|(x, y)| [*x, *y]).collect();
         // Normalised pupil coordinates live in the unit disc (px = 2 traced "ok"; the CLI and Python refuse it).
-        if let Some((i, p)) = analysis::first_point_outside_pupil(&pupil) {
-            return Err(Error::invalid(format!("pupil point {i} (px, py) = ({}, {}): normalised pupil coordinates must satisfy px² + py² ≤ 1", p[0], p[1])));
-        }
+        analysis::check_pupil_points(&pupil)?;
         Ok(Box::new(Rays(RayBatch::for_field(&self.system, [field_x_mm, field_y_mm], &pupil, wavelength_nm)?)))
     }
 
