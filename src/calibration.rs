@@ -185,7 +185,8 @@ pub fn calibrate(set: &ParamSet, observed: &[[f64; 2]], setup: &CalibrationSetup
         .unzip();
     let bounds = Bounds::new(lo, hi)?;
     let mut loss = |x: &[f64], _it: usize| evaluate(set, observed, setup, x);
-    let report = levenberg_marquardt(&mut loss, &x0, &bounds, &LmOptions { max_iterations: 100, ..Default::default() })?;
+    let names = set.free.iter().map(|p| p.name()).collect();
+    let report = levenberg_marquardt(&mut loss, &x0, &bounds, &LmOptions { max_iterations: 100, names, ..Default::default() })?;
     let e = evaluate(set, observed, setup, &report.x)?;
     let pairs = e.residuals.len() / 2;
     let d: Vec<f64> = (0..pairs).map(|g| e.residuals[2 * g].hypot(e.residuals[2 * g + 1])).collect();

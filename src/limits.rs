@@ -30,6 +30,13 @@ pub const MIN_PUPIL_DIAMETER_MM: f64 = 1e-6;
 pub const MAX_CURVATURE_PER_MM: f64 = 1e6;
 /// Largest plausible |tilt| of a coordinate break, degrees (one full turn).
 pub const MAX_TILT_DEG: f64 = 360.0;
+/// The largest conic constant |k| a surface may have (real surfaces: |k| ≲ 10²).
+pub const MAX_CONIC: f64 = 1e6;
+/// The largest asphere coefficient |α_k| (mm^(1−2k)): keeps α·r^(2k) and its square finite out to ±[`MAX_LENGTH_MM`]
+/// for every term order (micro-optics reach 10⁶ at most).
+pub const MAX_ASPHERE_COEFFICIENT: f64 = 1e12;
+/// The largest grating frequency (lines/µm): a period of 1 nm (real gratings: ≲ 10 lines/µm).
+pub const MAX_GRATING_LINES_PER_UM: f64 = 1e3;
 /// Most polynomial terms of an even asphere (r², r⁴, …, r¹⁶) or a Toroidal surface's YZ curve (y², …, y¹⁶):
 /// OpticStudio's PARM 1–8 (a toroid's PARM 2–9). The GPU kernels carry this many (`DC_MAX_COEF`).
 pub const MAX_ASPHERE_TERMS: usize = 8;
@@ -309,7 +316,16 @@ pub fn check_plausible_tilt(field: &str, v: f64) -> std::result::Result<(), Stri
 /// radius and the focal length, which may be huge for a flat or an inert paraxial lens, f = 10¹⁵ mm) within ±[`MAX_LENGTH_MM`], tilts (`*_deg`) within ±[`MAX_TILT_DEG`], everything else (radius,
 /// conic, asphere coefficients) finite. `Err` holds the reason.
 pub fn check_resolved_cell(column: &str, v: f64) -> std::result::Result<(), String> {
-    if column.ends_with("_deg") {
+    if column == "conic" && v.is_finite() && v.abs() > MAX_CONIC {
+        // Conics, asphere terms and grating frequencies had no bound (a conic of 1e308 was printed with 309
+        // digits and missed every ray; `PARM 3 1e308` on a toroid missed even on axis; a held-out battery,
+        // round 10).
+        Err(format!("conic = {}: beyond ±{MAX_CONIC:e}, no real surface's", fmt_num(v)))
+    } else if column.starts_with("asphere_") && v.is_finite() && v.abs() > MAX_ASPHERE_COEFFICIENT {
+        Err(format!("{column} = {}: beyond ±{MAX_ASPHERE_COEFFICIENT:e} (mm^(1−2k) for the r^(2k) term), no real surface's", fmt_num(v)))
+    } else if column == "grating_lines_per_um" && v.is_finite() && v.abs() > MAX_GRATING_LINES_PER_UM {
+        Err(format!("grating_lines_per_um = {}: beyond {MAX_GRATING_LINES_PER_UM:e} lines/µm (a period below 1 nm), no real grating's", fmt_num(v)))
+    } else if column.ends_with("_deg") {
         check_plausible_tilt(column, v)
     } else if (column == "radius_mm" || column == "rotation_radius_mm") && v.is_finite() && v != 0.0 && v.abs() < 1.0 / MAX_CURVATURE_PER_MM {
         // The `.zmx` reader's bound on CURV, for every spec format (a radius of rotation of 1e-300 mm was taken).

@@ -74,8 +74,9 @@ fn device_cpu_renders_and_cuda_without_a_gpu_is_refused() {
         assert!(e.contains("no NVIDIA driver") || e.contains("no CUDA device") || e.contains("NVIDIA driver is installed but"), "{e}");
         assert!(!d.path().join("out").exists());
     }
+    // A value no device reads is a usage error, as clap's other bad values (exit 2), naming the option.
     let o = render(d.path(), &["--device", "tpu"]);
-    refused(&o, 1, &["--device `tpu`"]);
+    refused(&o, 2, &["'tpu'", "--device", "use cpu, cuda or cuda:N"]);
     let o = render(d.path(), &["--device", "cpu"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
 }
@@ -91,11 +92,14 @@ fn device_cpu_twin_renders_the_gpu_kernels_and_records_them() {
     assert_eq!(json["device"]["device"], "cpu-twin", "{}", json["device"]);
     assert_eq!(json["device"]["precision"], "f64");
     assert!(json["device"]["accumulation"].as_str().unwrap().contains("fixed point"));
+    // The code that traced: the GPU kernels' host twin (render.json named the CPU's SIMD kernel, unused).
+    assert_eq!(json["kernel"], "cuda-kernels-host-twin");
     let twin_total = json["acquisition_total"].as_f64().unwrap();
     let o = render(d.path(), &["--device", "cpu", "--force"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.path().join("out/render.json")).unwrap()).unwrap();
     assert_eq!(json["device"]["device"], "cpu");
+    assert!(json["kernel"].as_str().unwrap().starts_with("simd-") || json["kernel"] == "scalar", "{}", json["kernel"]);
     let cpu_total = json["acquisition_total"].as_f64().unwrap();
     assert!((twin_total - cpu_total).abs() <= 1e-6 * cpu_total, "{twin_total} vs {cpu_total}");
 }

@@ -114,7 +114,7 @@ const CASES: &[Case] = &[
     Case { args: "render --preset sp --scene-size 8 --planes 4 --ghosts 2 --coating 0=R0.1 --out {out}", code: 1, says: &["--coating", "surface 0 is the object surface"] },
     // mapping --device: a name it knows, not beside --backend/--tolerance-um, and (CI has no GPU) cuda refused
     // with what is missing.
-    Case { args: "mapping --preset sp --height 4 --width 4 --device tpu --npy {out}.npy", code: 1, says: &["--device `tpu`", "cpu, cuda or cuda:N"] },
+    Case { args: "mapping --preset sp --height 4 --width 4 --device tpu --npy {out}.npy", code: 2, says: &["'tpu'", "--device", "cpu, cuda or cuda:N"] },
     Case { args: "mapping --preset sp --height 4 --width 4 --device cpu-twin --backend analytic --npy {out}.npy", code: 1, says: &["--device cpu-twin", "--backend"] },
     Case { args: "mapping --preset sp --height 4 --width 4 --device cuda --tolerance-um 1 --npy {out}.npy", code: 1, says: &["--device cuda", "--tolerance-um"] },
     // Inputs are regular files of bounded size.

@@ -84,9 +84,16 @@ fn noise_and_device_messages_name_what_applies() {
     diffcassi::io::npy::write_npy_f32(dir.join("closed.npy"), &[8, 8], &[0.0; 64]).unwrap();
     let out = ok(dir, &with(&["render", "--mask", "closed.npy", "--out", "rc"], &[]));
     assert!(out.contains("no ray was traced: the mask is closed everywhere"), "{out}");
+    // A bad --device is a usage error (exit 2, as clap's other bad values; it was 1), naming option and value.
     let (code, out) = run(dir, &["bench-render", "--device", "garbage", "--scene-size", "4"]);
-    assert_eq!(code, Some(1), "{out}");
-    assert!(out.contains("--device `garbage`: use cpu, cuda or cuda:N") && !out.contains("cpu-twin"), "{out}");
+    assert_eq!(code, Some(2), "{out}");
+    assert!(out.contains("'garbage'") && out.contains("--device") && out.contains("use cpu, cuda or cuda:N") && !out.contains("cpu-twin"), "{out}");
+    let (code, out) = run(dir, &["bench-render", "--device", "cpu-twin", "--scene-size", "4"]);
+    assert_eq!(code, Some(2), "{out}");
+    assert!(out.contains("use cpu or cuda (the twin is for checking"), "{out}");
+    let (code, out) = run(dir, &["mapping", "--preset", "sp", "--device", "gpu", "--npy", "m.npy"]);
+    assert_eq!(code, Some(2), "{out}");
+    assert!(out.contains("'gpu'") && out.contains("--device"), "{out}");
 }
 
 /// A study with the unrolled solver and bands of the right count but other wavelengths failed after its

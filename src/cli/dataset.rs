@@ -186,6 +186,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
         on_mismatch: a.on_mismatch.into(),
         transport_memory_gb: a.transport_memory_gb,
         device: settings.device,
+        tolerance_um: a.common.backend.tolerance_um,
         scene_delay: debug_delay()?,
     };
     // The output policy before any work (the tracer's calibration may write its cache).

@@ -234,6 +234,10 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
         println!("{:16} {:>14.6} {:>14.8} {:>14} {:>16}", name.trim(), start[k], fit.x[k], t, e1);
     }
     println!("residual {:.4} µm RMS, {:.4} µm max ({} iterations, {})", fit.residual_um, fit.max_residual_um, fit.report.iterations, fit.report.stop_reason);
+    // The fit's warnings (parameters the data do not determine) on stderr too; the report keeps them.
+    for w in &fit.report.warnings {
+        eprintln!("warning: {w}");
+    }
     let mut rec = serde_json::Map::new();
     let mut tr = serde_json::Map::new();
     for (k, name) in a.free.iter().enumerate() {

@@ -77,7 +77,8 @@ pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
         "imported {} ({} surfaces, {} fields, {} wavelengths) → {}",
         a.input.display(),
         imported.spec.surfaces.len(),
-        imported.spec.fields_mm.len(),
+        // Heights or angles (at infinity): "0 fields" was printed for every file of angles.
+        imported.spec.fields_mm.len() + imported.spec.fields_deg.len(),
         imported.spec.wavelengths_nm.len(),
         a.out.display()
     );

@@ -135,10 +135,6 @@ pub fn reconstruct(a: ReconstructArgs) -> Result<()> {
     if a.backend.calibration_cache.is_some() {
         return Err(Error::invalid("--calibration-cache: only used with --tolerance-um, which reconstruct does not take"));
     }
-    if let (Some(e), false) = (&a.tuning.noise_estimate, kind == OperatorKind::Exact) {
-        // A model operator has no Monte-Carlo term to estimate (the record said `model` whatever was asked).
-        return Err(Error::invalid(format!("--noise-estimate {e}: applies to the exact operator only (how its Monte-Carlo mismatch is estimated), not `{}`", kind.name())));
-    }
     request.validate()?;
     // The output policy before any work: --out never an input (--from, --denoiser, --truth), inside one or
     // containing one.
@@ -274,7 +270,7 @@ impl SolverTuning {
             tv_warmup: self.tv_warmup,
             discrepancy: self.discrepancy,
             noise: None,
-            noise_model: if self.noise_estimate.as_deref() == Some("model") { NoiseModel::Model } else { NoiseModel::Spread },
+            noise_model: self.noise_estimate.as_deref().map(|e| if e == "model" { NoiseModel::Model } else { NoiseModel::Spread }),
             weights: self.weights.clone(),
             unrolled: None,
         }

@@ -89,8 +89,8 @@ pub struct RenderCommon {
     pub precision: Option<crate::tracer::Precision>,
     /// Where to render: cpu, or cuda / cuda:N (the GPU kernels on CUDA device 0 / N, f64; docs/gpu.md), or
     /// cpu-twin (the GPU kernels run on the CPU, slowly: the device's bits where there is no GPU).
-    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]|cpu-twin")]
-    pub device: String,
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]|cpu-twin", value_parser = device_arg)]
+    pub device: crate::render::Device,
 }
 
 impl RenderCommon {
@@ -114,7 +114,7 @@ impl RenderCommon {
             cube: self.cube,
             kernel: self.kernel.parse()?,
             precision: self.precision,
-            device: self.device.parse()?,
+            device: self.device,
             scene_fov_deg: self.scene_fov_deg,
         })
     }
@@ -223,11 +223,31 @@ pub struct BenchRenderArgs {
     /// cuda (or cuda:N): also render the acquisition on CUDA device 0 (N) (the GPU kernels, f64), twice,
     /// beside the CPU's rows: its time, whether the two runs are bit-identical, its largest difference from
     /// the CPU.
-    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]")]
-    pub device: String,
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]", value_parser = bench_device_arg)]
+    pub device: crate::render::Device,
 }
 
 /// A memory size in GB: finite and ≥ 0 (clap names the option in the error).
+/// A `--device` value (clap names the option and the value, and exits 2 as for any bad value): the library's
+/// parse, its message without the option's name.
+pub(super) fn device_arg(s: &str) -> std::result::Result<crate::render::Device, String> {
+    s.parse().map_err(|e: Error| {
+        let m = e.to_string();
+        m.split_once("`: ").map_or(m.clone(), |(_, why)| why.to_string())
+    })
+}
+
+/// `bench-render --device`: cpu or cuda[:N] (the twin is for checking a GPU's results, `render --device
+/// cpu-twin`).
+fn bench_device_arg(s: &str) -> std::result::Result<crate::render::Device, String> {
+    match device_arg(s) {
+        Ok(crate::render::Device::CpuTwin) => Err("use cpu or cuda (the twin is for checking a GPU's results, `render --device cpu-twin`)".into()),
+        Ok(d) => Ok(d),
+        Err(e) if e.contains("cpu-twin") => Err("use cpu, cuda or cuda:N".into()),
+        Err(e) => Err(e),
+    }
+}
+
 pub(super) fn positive_gb(s: &str) -> std::result::Result<f64, String> {
     let v: f64 = s.trim().parse().map_err(|_| format!("`{s}` is not a number of GB"))?;
     if v.is_finite() && v >= 0.0 {
@@ -315,6 +335,7 @@ pub fn render(a: RenderArgs) -> Result<()> {
     let mut request = RenderRequest::new(scene, a.out.clone().unwrap_or_else(|| default_out(&a.common)), &settings);
     request.force = a.force;
     request.mapping = !a.common.no_mapping;
+    request.tolerance_um = a.common.backend.tolerance_um;
     let mut inputs = super::shared::system_inputs(&a.common.system);
     inputs.extend(a.common.mask.as_deref().map(|p| ("--mask", p)));
     // The output policy before any work: --out new, empty or a previous render (or --force), never an input.
@@ -446,11 +467,8 @@ fn bench_interpolated_mapping(system: &crate::system::SequentialSystem, tracer: 
 
 
 pub fn bench_render(a: BenchRenderArgs) -> Result<()> {
-    // Its own message: the library's names cpu-twin, which bench-render refuses.
-    let device: crate::render::Device = a.device.parse().map_err(|_| Error::invalid(format!("--device `{}`: use cpu, cuda or cuda:N", a.device)))?;
-    if device == crate::render::Device::CpuTwin {
-        return Err(Error::invalid("bench-render --device cpu-twin: use cpu or cuda (the twin is for checking a GPU's results, `render --device cpu-twin`)"));
-    }
+    // cpu-twin is refused by the option's parser (bench_device_arg).
+    let device = a.device;
     device.check()?;
     let system = crate::system::SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let n = a.scene_size;

@@ -102,7 +102,7 @@ impl StudyArgs {
     /// The library's settings these options describe.
     pub fn settings(&self) -> Result<StudySettings> {
         let mut tuning = self.tuning.settings("", self.tuning.accelerated);
-        tuning.noise_model = NoiseModel::Spread;
+        tuning.noise_model = None;
         Ok(StudySettings {
             presets: self.presets.clone(),
             systems: self.systems.clone(),

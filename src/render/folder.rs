@@ -61,6 +61,9 @@ pub struct RenderRequest {
     /// Sensor noise on the acquisition (the per-band images stay clean).
     pub noise: Option<NoiseConfig>,
     pub device: Device,
+    /// The error tolerance (µm) that chose the rays per pixel and the precision (`--tolerance-um`), recorded
+    /// as render.json's `tolerance_um` (`null`: both as given).
+    pub tolerance_um: Option<f64>,
     /// When the request began: `render.json`'s `seconds_total` counts from here (set by [`RenderRequest::new`]).
     pub started: Instant,
 }
@@ -77,6 +80,7 @@ impl RenderRequest {
             mapping: true,
             noise: None,
             device: settings.device,
+            tolerance_um: None,
             started: Instant::now(),
         }
     }
@@ -231,7 +235,7 @@ pub fn run(request: &RenderRequest, inputs: &[(&str, &Path)], renderer: &Rendere
         None => Value::Null,
     };
     let noise = apply_noise(request.noise.as_ref(), &mut acq, progress)?;
-    let mut extra = serde_json::json!({"noise": noise, "device": super::device::record_json(renderer, device_record.as_ref())});
+    let mut extra = serde_json::json!({"noise": noise, "tolerance_um": request.tolerance_um});
     if let Some(x) = renderer.spectral_extrapolation(scene) {
         progress.warning(&x.message());
         extra["spectral_extrapolation"] = x.to_json();
@@ -239,7 +243,7 @@ pub fn run(request: &RenderRequest, inputs: &[(&str, &Path)], renderer: &Rendere
     if !ghosts.is_null() {
         extra["ghosts"] = ghosts;
     }
-    let record = write_folder(set.stage_dir().unwrap_or(&request.out), renderer, &acq, scene_record, request.started, extra, request.mapping)?;
+    let record = write_folder(set.stage_dir().unwrap_or(&request.out), renderer, &acq, device_record.as_ref(), scene_record, request.started, extra, request.mapping)?;
     set.commit()?;
     if let Some(w) = zero_warning(&acq, &noise) {
         progress.warning(&w);
@@ -258,7 +262,7 @@ pub fn run(request: &RenderRequest, inputs: &[(&str, &Path)], renderer: &Rendere
 
 /// Write a render's files into `dir`: images, mask, mapping cube (if asked), then `render.json` (last) with
 /// `extra` merged in. Every value is checked finite before the first file.
-fn write_folder(dir: &Path, renderer: &Renderer, acq: &Acquisition, scene: &Value, started: Instant, extra: Value, mapping: bool) -> Result<Value> {
+fn write_folder(dir: &Path, renderer: &Renderer, acq: &Acquisition, device: Option<&super::device::DeviceRecord>, scene: &Value, started: Instant, extra: Value, mapping: bool) -> Result<Value> {
     std::fs::create_dir_all(dir).map_err(|e| Error::File { path: dir.display().to_string(), message: format!("cannot create: {e}") })?;
     crate::limits::check_finite_array("acquisition image", acq.image.iter().copied())?;
     crate::limits::check_finite_array("acquisition image (float32)", acq.image.iter().map(|&v| v as f32 as f64))?;
@@ -267,7 +271,7 @@ fn write_folder(dir: &Path, renderer: &Renderer, acq: &Acquisition, scene: &Valu
     if mapping {
         output::write_mapping(dir, renderer)?;
     }
-    let mut json = output::sidecar(renderer, acq, scene, scale, started.elapsed().as_secs_f64(), rayon::current_num_threads());
+    let mut json = output::sidecar(renderer, acq, device, scene, scale, started.elapsed().as_secs_f64(), rayon::current_num_threads());
     if let (Some(o), Value::Object(e)) = (json.as_object_mut(), extra) {
         o.extend(e);
     }

@@ -88,16 +88,24 @@ pub fn write_mapping(dir: &Path, renderer: &Renderer) -> Result<()> {
     Ok(())
 }
 
-/// The sidecar's common part: everything needed to reproduce the render.
-pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value, preview_scale: f64, seconds_total: f64, threads: usize) -> serde_json::Value {
+/// The sidecar's common part: everything needed to reproduce the render. `device`: the record of a render on
+/// a device's kernels (`None`: the CPU renderer), written as `device`; `kernel` names the code that traced —
+/// the CPU's SIMD or scalar kernel, or the GPU kernels (`cuda-kernels`, or `cuda-kernels-host-twin` for
+/// `cpu-twin`: render.json named the CPU's SIMD kernel, which the twin does not use).
+pub fn sidecar(renderer: &Renderer, acq: &Acquisition, device: Option<&super::device::DeviceRecord>, scene: &serde_json::Value, preview_scale: f64, seconds_total: f64, threads: usize) -> serde_json::Value {
     let c = &renderer.config;
     let traced = acq.stats.traced;
+    let kernel = match device {
+        None => c.kernel.name(),
+        Some(d) if d.device == "cpu-twin" => "cuda-kernels-host-twin".to_string(),
+        Some(_) => "cuda-kernels".to_string(),
+    };
     let mut v = serde_json::json!({
         "version": env!("CARGO_PKG_VERSION"),
         "system": renderer.system.name(),
         "system_spec": serde_json::to_value(&renderer.system.spec).unwrap_or(serde_json::Value::Null),
         "tracer": renderer.tracer_name(),
-        "kernel": c.kernel.name(),
+        "kernel": kernel,
         "precision": c.precision,
         "scene": scene,
         "scene_size": c.scene_height,
@@ -136,6 +144,7 @@ pub fn sidecar(renderer: &Renderer, acq: &Acquisition, scene: &serde_json::Value
         "rays_per_second": if acq.timings.wall_seconds > 0.0 { traced as f64 / acq.timings.wall_seconds } else { 0.0 },
     });
     // The acquisition.exr the render writes, by content (`reconstruct` and a resumed study check it).
+    v["device"] = super::device::record_json(renderer, device);
     v["acquisition_f32le_sha256"] = serde_json::json!(acq.image_sha256());
     // An object at infinity: the scene's angular extent (what `reconstruct` rebuilds the renderer from) and
     // the pixel's angle; there is no scene pitch in mm.

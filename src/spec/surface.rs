@@ -271,6 +271,23 @@ impl SurfaceSpec {
         cols
     }
 
+    /// The column's cell, added at its default when the surface type takes it with one but the spec left it out:
+    /// a Coordinate Break's decentres and tilts (0) and a conic (0) — the values an absent cell is traced at, so
+    /// adding it changes nothing. `None` for a column the type does not take, or one without a default (the
+    /// radius, the grating's, a Paraxial focal length).
+    pub fn cell_or_default(&mut self, column: &str) -> Option<&mut Cell> {
+        let slot = match (self.kind, column) {
+            (SurfaceKind::CoordinateBreak, "decenter_x_mm") => &mut self.decenter_x_mm,
+            (SurfaceKind::CoordinateBreak, "decenter_y_mm") => &mut self.decenter_y_mm,
+            (SurfaceKind::CoordinateBreak, "tilt_x_deg") => &mut self.tilt_x_deg,
+            (SurfaceKind::CoordinateBreak, "tilt_y_deg") => &mut self.tilt_y_deg,
+            (SurfaceKind::CoordinateBreak, "tilt_z_deg") => &mut self.tilt_z_deg,
+            (SurfaceKind::Standard | SurfaceKind::EvenAsphere | SurfaceKind::Toroidal | SurfaceKind::DiffractionGrating, "conic") => &mut self.conic,
+            _ => return self.cell_mut(column),
+        };
+        Some(slot.get_or_insert_with(|| Cell::fixed(0.0)))
+    }
+
     /// Columns that are meaningful for this surface type (others are a spec error).
     pub fn allowed_columns(&self) -> &'static [&'static str] {
         match self.kind {

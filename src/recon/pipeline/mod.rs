@@ -86,6 +86,10 @@ impl Request {
                 return Err(Error::invalid(format!("--transport-memory-gb {gb}: applies to the exact operator only (its traced transport), not `{}`", self.operator.name())));
             }
         }
+        if let (Some(m), false) = (s.noise_model, self.operator == OperatorKind::Exact) {
+            // A model operator has no Monte-Carlo term to estimate (the record said `model` whatever was asked).
+            return Err(Error::invalid(format!("--noise-estimate {}: applies to the exact operator only (how its Monte-Carlo mismatch is estimated), not `{}`", m.name(), self.operator.name())));
+        }
         if self.operator_seed.is_some() && self.operator != OperatorKind::Exact {
             return Err(Error::invalid(format!("--operator-seed applies to the exact operator only (its traced rays), not `{}`", self.operator.name())));
         }
@@ -164,6 +168,9 @@ pub fn load_truth(record: &RenderRecord, path: &Path) -> Result<SpectralCube> {
     // PSNR takes the truth's maximum as its peak (`evaluate` refuses a truth of maximum ≤ 0): refused here before
     // the solve, not recorded as a column of `null` PSNRs (a held-out battery's all-zero truth, exit 0).
     crate::recon::metrics::truth_peak(&t.data).map_err(|e| Error::invalid(format!("--truth {}: {e}; give the true cube", path.display())))?;
+    // The scene limits a render applies (a truth of 3.3e38 wrote `null` residuals, exit 0; a held-out
+    // battery, round 10).
+    crate::render::settings::check_scene_values(&t).map_err(|m| Error::invalid(format!("--truth {}: {m}", path.display())))?;
     match t.at_wavelengths(bands)? {
         AtWavelengths::Same => Ok(t),
         AtWavelengths::Resampled(r) => Ok(r),
@@ -213,7 +220,21 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
         progress.operator_done();
         op
     };
-    let noise = noise_estimate(&record, kind, seed, record.config.rays_per_pixel, acquisition_rays, settings.noise_model);
+    let oracle = seed == record.config.seed && record.config.rays_per_pixel == acquisition_rays;
+    if let (Some(NoiseModel::Spread), true) = (settings.noise_model, oracle) {
+        // The record said `model` for an explicit `spread` (a held-out battery, round 10).
+        return Err(Error::invalid("--noise-estimate spread: the operator traces the acquisition's own rays (its seed and ray count), so there is no Monte-Carlo mismatch to estimate; drop --noise-estimate, or give the operator another --operator-seed"));
+    }
+    let mut noise = noise_estimate(&record, kind, seed, record.config.rays_per_pixel, acquisition_rays, settings.noise_model.unwrap_or(NoiseModel::Spread));
+    // δ unused (a TV solver with the rule off) and no truth to evaluate the estimator at
+    // (`truth_spread_estimate`): no twin is traced for it (it was, doubling the tracing).
+    if unrolled_net.is_none() && truth.is_none() && !settings::uses_noise_estimate(&solver_config(&settings)?) {
+        noise.spread = None;
+        if let Some(o) = noise.record.as_object_mut() {
+            o.remove("spread");
+            o.insert("estimator".into(), serde_json::json!("unused: the discrepancy rule is off (τ = 0), no twin traced"));
+        }
+    }
     // The data-driven δ: the operator's twin (same rays, another seed); the unrolled network has no δ.
     let twin = match (&noise.spread, &unrolled_net) {
         (Some(p), None) => Some(build_operator(kind, &record, tracer, p.twin_seed, request.budget_bytes(), &|_| {})?),

