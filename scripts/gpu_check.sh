@@ -18,7 +18,7 @@
 # used): no nvidia-smi or nvcc, the host twin stands in for the device (render_check.py --dry-run) on small renders
 # (DRY_SIZE, default 32: 4 planes, 2 rays), torch_check.py --cpu at tiny sizes; the tables say DRY RUN and no
 # figure is a GPU's. PYTHON names the interpreter (default python3; a venv is fine, as on the GPU machine).
-# Budget: BUDGET_S seconds in all (default 400, under the 420 s `timeout` of the prepared device command and the
+# Budget: CHECK_BUDGET_S seconds in all (default 400, under the 420 s `timeout` of the prepared device command and the
 # issue's 8 minutes): each step is capped at its own limit (render 300 s, --systems 150 s, torch 240 s) and at
 # what is left of the budget, so the caps can never add up past it (they summed to 810 s); a step with under
 # 20 s left is not started and counts as a failure. The host twin dominates on few cores (RENDER_ARGS=--no-twin
@@ -83,8 +83,8 @@ else
     fi
 fi
 status=0
-budget="${BUDGET_S:-400}"
-[[ "$budget" =~ ^[0-9]+$ ]] || { echo "gpu_check: BUDGET_S=$budget: give whole seconds" >&2; exit 2; }
+budget="${CHECK_BUDGET_S:-400}"
+[[ "$budget" =~ ^[0-9]+$ ]] || { echo "gpu_check: CHECK_BUDGET_S=$budget: give whole seconds" >&2; exit 2; }
 # The seconds a step may take: its own cap, at most what is left of the budget (0: too little left to start).
 cap() {
     local left=$(( budget - SECONDS ))
@@ -95,7 +95,7 @@ cap() {
 step() {
     local name="$1" t; t="$(cap "$2")"; local log="$3"; shift 3
     if (( t == 0 )); then
-        echo "gpu_check: $name not started: under 20 s left of BUDGET_S=$budget" | tee "$log"
+        echo "gpu_check: $name not started: under 20 s left of CHECK_BUDGET_S=$budget" | tee "$log"
         status=1
         return
     fi
