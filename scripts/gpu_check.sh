@@ -84,7 +84,8 @@ else
 fi
 status=0
 budget="${CHECK_BUDGET_S:-400}"
-[[ "$budget" =~ ^[0-9]+$ ]] || { echo "gpu_check: CHECK_BUDGET_S=$budget: give whole seconds" >&2; exit 2; }
+# Whole seconds, no leading zero (bash arithmetic would read 0400 as octal 256 and fail on 080).
+[[ "$budget" =~ ^(0|[1-9][0-9]{0,5})$ ]] || { echo "gpu_check: CHECK_BUDGET_S=$budget: give whole seconds (no leading zero)" >&2; exit 2; }
 # The seconds a step may take: its own cap, at most what is left of the budget (0: too little left to start).
 cap() {
     local left=$(( budget - SECONDS ))
@@ -101,7 +102,7 @@ step() {
     fi
     timeout "$t" "$@" 2>&1 | tee "$log"
     local rc=${PIPESTATUS[0]}
-    (( rc == 124 )) && echo "gpu_check: $name stopped at its cap of $t s"
+    (( rc == 124 )) && echo "gpu_check: $name stopped at its cap of $t s" | tee -a "$log"
     (( rc == 0 )) || status=1
 }
 step "render check" 300 "$out/render_check.txt" "$vpy" "$root/scripts/gpu/render_check.py" --out "$out" "${render_args[@]}" ${RENDER_ARGS:-}

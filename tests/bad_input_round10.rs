@@ -61,6 +61,7 @@ fn noise_estimates_that_change_nothing_are_refused() {
     let n = &json(dir.join("o/reconstruct.json"))["stopping"]["noise_estimate"];
     assert!(n["estimator"].as_str().unwrap().starts_with("unused"), "{n}");
     assert!(n.get("spread").is_none(), "{n}");
+    assert!(n["norm"].is_null() && n["monte_carlo_norm"].is_null(), "not estimated, not 0: {n}");
 }
 
 /// `--truth` of radiances beyond what a render takes wrote `null` residuals into reconstruct.json, exit 0.
@@ -72,7 +73,7 @@ fn a_truth_beyond_the_radiance_limit_is_refused() {
     let (b, n) = (4usize, 16usize);
     diffcassi::io::npy::write_npy_f32(dir.join("t.npy"), &[n, n, b], &vec![3.3e38f32; n * n * b]).unwrap();
     diffcassi::io::write_npy_f64(dir.join("t_wavelengths_nm.npy"), &[b], &[450.0, 516.6666666666666, 583.3333333333334, 650.0]).unwrap();
-    refused(dir, &["reconstruct", "--from", "r", "--iterations", "3", "--truth", "t.npy", "--out", "o"], &["--truth t.npy", "radiances must be finite"]);
+    refused(dir, &["reconstruct", "--from", "r", "--iterations", "3", "--truth", "t.npy", "--out", "o"], &["--truth t.npy", "value 3.3e38 at index 0 is beyond ±3.403e29"]);
     assert!(!dir.join("o").exists());
 }
 
@@ -168,8 +169,13 @@ fn calibration_names_parameters_the_data_cannot_separate() {
     // A column the type does not take names the type's columns.
     let e = ParamSet::new(spec.clone(), GlassCatalog::builtin(), vec![Param::parse(&format!("s{cb}.conic")).unwrap()]).unwrap_err().to_string();
     assert!(e.contains("has no `conic` column (it takes thickness_mm, decenter_x_mm"), "{e}");
-    // The mask surface's figure is not free.
-    for p in [format!("s{k}.curvature"), format!("s{k}.conic")] {
+    // A Standard surface takes no asphere terms (named as such, not "give it one"); an Even Asphere with fewer
+    // terms says how to give them.
+    let std_surface = spec.surfaces.iter().position(|s| s.kind == SurfaceKind::Standard && s.radius_mm.is_some() && s.coded_mask.is_none()).unwrap();
+    let e = ParamSet::new(spec.clone(), GlassCatalog::builtin(), vec![Param::parse(&format!("s{std_surface}.asphere_1")).unwrap()]).unwrap_err().to_string();
+    assert!(e.contains("has no `asphere_1` column"), "{e}");
+    // The mask surface's figure is not free (refused first, not "give it one").
+    for p in [format!("s{k}.curvature"), format!("s{k}.conic"), format!("s{k}.radius_mm")] {
         let e = ParamSet::new(presets::spec("ddsp").unwrap(), GlassCatalog::builtin(), vec![Param::parse(&p).unwrap()]).unwrap_err().to_string();
         assert!(e.contains("coded-mask surface"), "{p}: {e}");
     }

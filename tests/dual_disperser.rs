@@ -709,18 +709,27 @@ fn dd_shift_model_takes_the_traced_columns_and_refuses_a_turned_mask() {
     assert!(a.shifts_px().last().unwrap().abs() >= 5, "{:?}", a.shifts_px());
     let x: Vec<f32> = (0..size * size * bands.len()).map(|k| ((k * 7919) % 97) as f32 / 97.0).collect();
     assert_eq!((&a as &dyn Operator).apply(&x).unwrap(), (&b as &dyn Operator).apply(&x).unwrap(), "SP's shift operator");
-    // The mask turned by 90° between two Coordinate Breaks (tilt_z ±90°) on ddsp's mask surface.
-    let mut dd = presets::spec("ddsp").unwrap();
-    let k = dd.surfaces.iter().position(|s| s.coded_mask.is_some()).unwrap();
-    let mut turn = |z: f64, at: usize| {
-        let mut cb = SurfaceSpec::new(SurfaceKind::CoordinateBreak);
-        cb.tilt_z_deg = Some(Cell::fixed(z));
-        dd.surfaces.insert(at, cb);
+    // The mask turned by θ between two Coordinate Breaks (tilt_z ±θ) on ddsp's mask surface: beyond 10° the
+    // whole-pixel model cannot hold the shear (30° ran with a wrong model, 45° failed as "maps no voxel").
+    let turned = |deg: f64| {
+        let mut dd = presets::spec("ddsp").unwrap();
+        let k = dd.surfaces.iter().position(|s| s.coded_mask.is_some()).unwrap();
+        for (z, at) in [(-deg, k + 1), (deg, k)] {
+            let mut cb = SurfaceSpec::new(SurfaceKind::CoordinateBreak);
+            cb.tilt_z_deg = Some(Cell::fixed(z));
+            dd.surfaces.insert(at, cb);
+        }
+        SequentialSystem::build(&dd).unwrap()
     };
-    turn(-90.0, k + 1);
-    turn(90.0, k);
-    let turned = SequentialSystem::build(&dd).unwrap();
-    let r = Renderer::new(&turned, &tracer, cfg, mask).unwrap();
-    let e = ShiftOperator::from_renderer(&r, &bands).unwrap_err().to_string();
-    assert!(e.contains("turned against the scene") && e.contains("exact or mapping"), "{e}");
+    for deg in [90.0, 45.0, 30.0, 12.0] {
+        let sys = turned(deg);
+        let r = Renderer::new(&sys, &tracer, cfg.clone(), mask.clone()).unwrap();
+        let e = ShiftOperator::from_renderer(&r, &bands).unwrap_err().to_string();
+        assert!(e.contains("turned against the scene") && e.contains("beyond 10°") && e.contains("exact or mapping"), "{deg}°: {e}");
+    }
+    for deg in [5.0, 180.0] {
+        let sys = turned(deg);
+        let r = Renderer::new(&sys, &tracer, cfg.clone(), mask.clone()).unwrap();
+        ShiftOperator::from_renderer(&r, &bands).unwrap_or_else(|e| panic!("{deg}°: {e}"));
+    }
 }

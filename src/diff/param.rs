@@ -172,11 +172,19 @@ impl ParamSet {
         match &p {
             Param::Cell { surface, column } => {
                 let s = self.spec.surfaces.get_mut(*surface).ok_or_else(|| bad(format!("no surface {surface} (the system has {n})")))?;
+                let figure_column = matches!(column.as_str(), "radius_mm" | "conic" | "rotation_radius_mm") || column.starts_with("asphere_");
+                if s.coded_mask.is_some() && figure_column {
+                    // Accepted at its flat start, every step away refused later (a held-out battery, round 10).
+                    return Err(bad(format!("`{column}` of the coded-mask surface: the mask is a flat Standard surface, its figure is not a free parameter (its placement is)")));
+                }
                 // A cell the spec left out at its default (a Coordinate Break's tilt_y_deg, a conic) is freed from
                 // that default, 0; it was refused as "has no `tilt_y_deg` cell" (a held-out battery, round 10).
                 let (label, allowed) = (s.kind.label(), s.allowed_columns());
                 let cell = s.cell_or_default(column).ok_or_else(|| {
-                    if allowed.contains(&column.as_str()) || column.starts_with("asphere_") {
+                    let terms = column.strip_prefix("asphere_").filter(|_| label == SurfaceKind::EvenAsphere.label());
+                    if let Some(k) = terms {
+                        bad(format!("surface {surface} ({label}) has fewer than {k} asphere terms: give `asphere_coefficients` {k} entries (0 for the terms it lacks) to free it"))
+                    } else if allowed.contains(&column.as_str()) {
                         bad(format!("surface {surface} ({label}) has no `{column}` cell in its spec: give it one (e.g. `{column} = …`) to free it"))
                     } else {
                         bad(format!("a {label} surface has no `{column}` column (it takes {})", allowed.join(", ")))
@@ -190,11 +198,6 @@ impl ParamSet {
                     Driver::ChiefRay => return Err(bad("the cell is a chief-ray solve: it is determined by the system".into())),
                     // Refused above: its own column holds an unknown pickup (`unknown_pickups`).
                     Driver::UnknownPickup => {}
-                }
-                let figure_column = matches!(column.as_str(), "radius_mm" | "conic" | "rotation_radius_mm") || column.starts_with("asphere_");
-                if s.coded_mask.is_some() && figure_column {
-                    // Accepted at its flat start, every step away refused later (a held-out battery, round 10).
-                    return Err(bad(format!("`{column}` of the coded-mask surface: the mask is a flat Standard surface, its figure is not a free parameter (its placement is)")));
                 }
                 if s.kind == SurfaceKind::Toroidal && figure_column {
                     return Err(bad(format!("`{column}` of a Toroidal surface: the derivatives of its figure are not implemented (its placement and the rays through it are)")));

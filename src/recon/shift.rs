@@ -23,7 +23,7 @@
 //! 0.5 µm of x spread over 450–650 nm) they are one column, DD-CASSI's identity registration. A system whose
 //! mask surface leaves the dispersion on the detector keeps it (SP with its mask as a surface at the object
 //! plane is then SP's model; it was given the identity registration regardless, silently wrong: a held-out
-//! battery, round 10). The mask's axes must be the scene's (±x, ±y): a mask turned by about 90° is refused.
+//! battery, round 10). The mask's axes must be the scene's (±x, ±y) within [`MAX_MASK_TURN_DEG`]: a turned mask is refused.
 //!
 //! ```
 //! use diffcassi::recon::{shift::ShiftOperator, CubeShape, ImageShape, Operator};
@@ -41,6 +41,10 @@ use crate::rays::RayBatch;
 use crate::render::{Mask, Renderer};
 use crate::tracer::RayStatus;
 use rayon::prelude::*;
+
+/// The largest turn of a dual-disperser's mask against the scene (degrees) the shift model takes; the shear of
+/// a larger one is beyond whole-pixel shifts ([`ShiftOperator::from_renderer`] refuses it).
+pub const MAX_MASK_TURN_DEG: f64 = 10.0;
 
 /// The shift operator (see the [module docs](self)).
 #[derive(Clone, Debug)]
@@ -99,13 +103,17 @@ impl ShiftOperator {
         // One scene pixel along x must move along the mask's columns, along y along its rows: a mask turned by
         // about 90° (a transposed registration) has no τ = ±1 model; it gave an all-zero operator or "maps no
         // voxel" (a held-out battery, round 10).
+        // A mask turned by θ shears the registration by tan θ mask pixels per scene pixel, which whole-pixel shifts
+        // cannot hold: beyond MAX_MASK_TURN_DEG (30° ran with a wrong model, 45° failed as "maps no voxel").
         let (sx, sy) = ((px.0 - nx.0, px.1 - nx.1), (ny.0 - py.0, ny.1 - py.1));
-        if sx.0.abs() <= sx.1.abs() || sy.1.abs() <= sy.0.abs() {
+        let turn = (sx.1.abs() / sx.0.abs()).max(sy.0.abs() / sy.1.abs());
+        if !(turn <= MAX_MASK_TURN_DEG.to_radians().tan()) {
             return Err(Error::invalid(format!(
-                "shift operator: the coded mask on surface {} is turned against the scene (one scene pixel along x moves ({:.2}, {:.2}) mask pixels in (column, row)): the shift model takes scene columns to mask columns, ±1 each; use the exact or mapping operator",
+                "shift operator: the coded mask on surface {} is turned against the scene (one scene pixel along x moves ({:.2}, {:.2}) mask pixels in (column, row), a turn of about {:.0}°, beyond {MAX_MASK_TURN_DEG}°): the shift model takes scene columns to mask columns in whole pixels; use the exact or mapping operator",
                 ms.surface,
                 sx.0 / 2.0,
-                sx.1 / 2.0
+                sx.1 / 2.0,
+                turn.atan().to_degrees()
             )));
         }
         let tau_x = if sx.0 >= 0.0 { 1 } else { -1 };

@@ -168,9 +168,16 @@ pub fn load_truth(record: &RenderRecord, path: &Path) -> Result<SpectralCube> {
     // PSNR takes the truth's maximum as its peak (`evaluate` refuses a truth of maximum ≤ 0): refused here before
     // the solve, not recorded as a column of `null` PSNRs (a held-out battery's all-zero truth, exit 0).
     crate::recon::metrics::truth_peak(&t.data).map_err(|e| Error::invalid(format!("--truth {}: {e}; give the true cube", path.display())))?;
-    // The scene limits a render applies (a truth of 3.3e38 wrote `null` residuals, exit 0; a held-out
-    // battery, round 10).
-    crate::render::settings::check_scene_values(&t).map_err(|m| Error::invalid(format!("--truth {}: {m}", path.display())))?;
+    // Values within the radiance limit a render applies (a truth of 3.3e38 wrote `null` residuals, exit 0; a
+    // held-out battery, round 10); small negatives (dark-subtracted data) are a truth's, as `evaluate` takes them.
+    if let Some(i) = t.data.iter().position(|v| !((*v as f64).abs() <= crate::limits::MAX_SCENE_VALUE)) {
+        return Err(Error::invalid(format!(
+            "--truth {}: value {:e} at index {i} is beyond ±{:.3e}, the radiance limit of a render (f32's range / 10⁹)",
+            path.display(),
+            t.data[i],
+            crate::limits::MAX_SCENE_VALUE
+        )));
+    }
     match t.at_wavelengths(bands)? {
         AtWavelengths::Same => Ok(t),
         AtWavelengths::Resampled(r) => Ok(r),
@@ -233,6 +240,10 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
         if let Some(o) = noise.record.as_object_mut() {
             o.remove("spread");
             o.insert("estimator".into(), serde_json::json!("unused: the discrepancy rule is off (τ = 0), no twin traced"));
+            // Not estimated: null, not a δ of 0 (its Monte-Carlo part was left to the twin).
+            for k in ["norm", "monte_carlo_norm", "relative"] {
+                o.insert(k.into(), Value::Null);
+            }
         }
     }
     // The data-driven δ: the operator's twin (same rays, another seed); the unrolled network has no δ.
