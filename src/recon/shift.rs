@@ -100,11 +100,10 @@ impl ShiftOperator {
         let mid = bands_nm[bands_nm.len() / 2];
         let d = c.scene_pitch_mm;
         let (px, nx, py, ny, o) = (on_mask([d, 0.0], mid)?, on_mask([-d, 0.0], mid)?, on_mask([0.0, d], mid)?, on_mask([0.0, -d], mid)?, on_mask([0.0, 0.0], mid)?);
-        // One scene pixel along x must move along the mask's columns, along y along its rows: a mask turned by
-        // about 90° (a transposed registration) has no τ = ±1 model; it gave an all-zero operator or "maps no
-        // voxel" (a held-out battery, round 10).
-        // A mask turned by θ shears the registration by tan θ mask pixels per scene pixel, which whole-pixel shifts
-        // cannot hold: beyond MAX_MASK_TURN_DEG (30° ran with a wrong model, 45° failed as "maps no voxel").
+        // One scene pixel along x must move along the mask's columns, along y along its rows. A mask turned by θ
+        // shears the registration by tan θ mask pixels per scene pixel, which whole-pixel shifts cannot hold:
+        // beyond MAX_MASK_TURN_DEG it is refused (90° gave an all-zero operator, 45° failed as "maps no voxel",
+        // 30° ran with a wrong model; held-out batteries, round 10).
         let (sx, sy) = ((px.0 - nx.0, px.1 - nx.1), (ny.0 - py.0, ny.1 - py.1));
         let turn = (sx.1.abs() / sx.0.abs()).max(sy.0.abs() / sy.1.abs());
         if !(turn <= MAX_MASK_TURN_DEG.to_radians().tan()) {

@@ -206,6 +206,12 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
     }
     let record = record;
     let seed = operator_seed(record.config.seed, request.operator_seed.as_deref())?;
+    let oracle = seed == record.config.seed && record.config.rays_per_pixel == acquisition_rays;
+    if let (Some(NoiseModel::Spread), true) = (request.settings.noise_model, oracle) {
+        // The record said `model` for an explicit `spread` (a held-out battery, round 10); refused before the
+        // operator is traced.
+        return Err(Error::invalid("--noise-estimate spread: the operator traces the acquisition's own rays (its seed and ray count), so there is no Monte-Carlo mismatch to estimate; drop --noise-estimate, or give the operator another --operator-seed"));
+    }
     let mut settings = request.settings.clone();
     // The unrolled network: chosen and checked against the record before the operator is built.
     let unrolled_net = if is_unrolled(&settings.solver) {
@@ -227,11 +233,6 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
         progress.operator_done();
         op
     };
-    let oracle = seed == record.config.seed && record.config.rays_per_pixel == acquisition_rays;
-    if let (Some(NoiseModel::Spread), true) = (settings.noise_model, oracle) {
-        // The record said `model` for an explicit `spread` (a held-out battery, round 10).
-        return Err(Error::invalid("--noise-estimate spread: the operator traces the acquisition's own rays (its seed and ray count), so there is no Monte-Carlo mismatch to estimate; drop --noise-estimate, or give the operator another --operator-seed"));
-    }
     let mut noise = noise_estimate(&record, kind, seed, record.config.rays_per_pixel, acquisition_rays, settings.noise_model.unwrap_or(NoiseModel::Spread));
     // δ unused (a TV solver with the rule off) and no truth to evaluate the estimator at
     // (`truth_spread_estimate`): no twin is traced for it (it was, doubling the tracing).
