@@ -229,22 +229,18 @@ pub struct BenchRenderArgs {
 
 /// A memory size in GB: finite and ≥ 0 (clap names the option in the error).
 /// A `--device` value (clap names the option and the value, and exits 2 as for any bad value): the library's
-/// parse, its message without the option's name.
+/// parse ([`crate::render::Device::parse_value`]).
 pub(super) fn device_arg(s: &str) -> std::result::Result<crate::render::Device, String> {
-    s.parse().map_err(|e: Error| {
-        let m = e.to_string();
-        m.split_once("`: ").map_or(m.clone(), |(_, why)| why.to_string())
-    })
+    crate::render::Device::parse_value(s)
 }
 
 /// `bench-render --device`: cpu or cuda[:N] (the twin is for checking a GPU's results, `render --device
-/// cpu-twin`).
+/// cpu-twin`; the library's message for an unknown name offers it).
 fn bench_device_arg(s: &str) -> std::result::Result<crate::render::Device, String> {
-    match device_arg(s) {
+    match crate::render::Device::parse_value(s) {
         Ok(crate::render::Device::CpuTwin) => Err("use cpu or cuda (the twin is for checking a GPU's results, `render --device cpu-twin`)".into()),
-        Ok(d) => Ok(d),
-        Err(e) if e.contains("cpu-twin") => Err("use cpu, cuda or cuda:N".into()),
-        Err(e) => Err(e),
+        Err(_) if !s.trim().starts_with("cuda:") => Err("use cpu, cuda or cuda:N".into()),
+        other => other,
     }
 }
 

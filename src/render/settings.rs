@@ -92,6 +92,14 @@ impl std::str::FromStr for Device {
     /// `cpu`, `cuda` (device 0), `cuda:N` (N a decimal ordinal < [`crate::gpu::device::MAX_DEVICES`]) or
     /// `cpu-twin`.
     fn from_str(s: &str) -> Result<Self> {
+        Device::parse_value(s).map_err(|why| Error::invalid(format!("--device `{s}`: {why}")))
+    }
+}
+
+impl Device {
+    /// [`FromStr`](std::str::FromStr)'s parse, its error the reason alone (the command line's parser, whose
+    /// message clap prefixes with the option and the value).
+    pub fn parse_value(s: &str) -> std::result::Result<Self, String> {
         let max = crate::gpu::device::MAX_DEVICES;
         match s.trim() {
             "cpu" => Ok(Device::Cpu),
@@ -100,10 +108,10 @@ impl std::str::FromStr for Device {
             t if t.starts_with("cuda:") => match t["cuda:".len()..].parse::<usize>() {
                 // Decimal digits without a leading zero, as torch reads device strings (`cuda:01` is refused there too).
                 Ok(n) if n < max && t["cuda:".len()..].bytes().all(|b| b.is_ascii_digit()) && !(t.len() > "cuda:".len() + 1 && t.as_bytes()["cuda:".len()] == b'0') => Ok(Device::Cuda(n)),
-                Ok(n) if n >= max => Err(Error::invalid(format!("--device `{s}`: device ordinal {n}: at most {max} CUDA devices (cuda:0 … cuda:{}) are supported", max - 1))),
-                _ => Err(Error::invalid(format!("--device `{s}`: after `cuda:` give a device ordinal (0, 1, …, no leading zero), e.g. cuda:1"))),
+                Ok(n) if n >= max => Err(format!("device ordinal {n}: at most {max} CUDA devices (cuda:0 … cuda:{}) are supported", max - 1)),
+                _ => Err("after `cuda:` give a device ordinal (0, 1, …, no leading zero), e.g. cuda:1".into()),
             },
-            _ => Err(Error::invalid(format!("--device `{s}`: use cpu, cuda or cuda:N (or cpu-twin: the GPU kernels on the CPU)"))),
+            _ => Err("use cpu, cuda or cuda:N (or cpu-twin: the GPU kernels on the CPU)".into()),
         }
     }
 }
