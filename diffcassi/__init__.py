@@ -35,9 +35,9 @@ __version__: str = _native.__version__
 #: Whether the Embree backends (``embree-user``, ``embree-mesh``) were compiled in.
 EMBREE: bool = _native.EMBREE
 
-#: Ray status codes of :func:`trace` (``status`` array) and their names.
-STATUS = {0: "ok", 1: "missed", 2: "vignetted", 3: "total internal reflection", 4: "no convergence",
-          5: "invalid input", 6: "absorbed", 7: "bounce limit"}
+#: Ray status codes of :func:`trace` (``status`` array) and their names (the library's ``RayStatus``: every
+#: code it returns, 0 ``ok`` … 9 ``evanescent``).
+STATUS: dict = dict(_native.STATUS)
 
 __all__ = [
     "System", "Transport", "Operator", "exact", "metrics", "load_scene", "synthetic_scene", "uplift_srgb", "trace", "spot", "distortion", "dispersion", "mapping", "jacobian", "render", "gpu_check",
@@ -251,8 +251,9 @@ def _pair(name: str, v: Any) -> list:
     return t
 
 
-#: Integer settings of :func:`reconstruct` and their ranges (the CLI's: at most 10⁵ iterations).
-_SOLVER_INTS = {"iterations": (0, 100_000), "tv_iterations": (0, 100_000), "tv_warmup": (0, 100_000), "equivariant_seed": (0, 2**64 - 1)}
+#: Integer settings of :func:`reconstruct` and their ranges (the CLI's: 1 to 10⁵ iterations; 0 TV iterations only with
+#: tv_weight 0, which the library checks).
+_SOLVER_INTS = {"iterations": (1, 100_000), "tv_iterations": (0, 100_000), "tv_warmup": (0, 100_000), "equivariant_seed": (0, 2**64 - 1)}
 
 
 def _csr_arrays(op: Operator, memory_gb: float = 4.0):

@@ -8,6 +8,8 @@ import numpy.typing as npt
 
 __version__: str
 EMBREE: bool
+#: Ray status code → name (every code of the library's RayStatus).
+STATUS: dict[int, str]
 
 F64 = npt.NDArray[np.float64]
 F32 = npt.NDArray[np.float32]

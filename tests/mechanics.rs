@@ -255,7 +255,11 @@ fn cli_export_round_trip_and_bad_mesh_writes_nothing() {
     let st = std::process::Command::new(exe).args(["export-spec", "--system"]).arg(&input).arg("--out").arg(&out).output().unwrap();
     assert!(st.status.success(), "{}", String::from_utf8_lossy(&st.stderr));
     // (export-spec writes the system's resolved chief-ray solves; the mechanics section comes back as is.)
-    assert_eq!(diffcassi::spec::load_spec_file(&out).unwrap().mechanics, spec.mechanics);
+    // Mesh paths are read relative to the spec file and kept absolute (round 11: an export into another folder
+    // kept a relative path that no longer resolved).
+    let mut absolute = spec.mechanics.clone().unwrap();
+    absolute.meshes[0].path = std::path::absolute(dir.path().join("cube.obj")).unwrap().display().to_string();
+    assert_eq!(diffcassi::spec::load_spec_file(&out).unwrap().mechanics, Some(absolute));
     // The spec's mesh path is relative to the spec file: here it is missing, then non-manifold.
     for (mesh, want) in [(None, "cannot read the mesh file"), (Some("nonmanifold.obj"), "non-manifold edge")] {
         if let Some(src) = mesh {

@@ -246,9 +246,11 @@ fn coatings_on_a_mirror_are_refused_and_skipped_by_all() {
     assert!(e.contains("coating") && e.contains("surface 3 is a mirror"), "{e}");
     let spec = fold_mirrors();
     let coatings: Vec<_> = spec.surfaces.iter().map(|s| s.coating.clone()).collect();
-    let all = "all=R0.01".parse::<CoatingOverride>().unwrap().apply(&coatings, &|k| spec.not_an_interface(k)).unwrap();
+    let sites = diffcassi::tracer::nonseq::solids::coating_sites(&SequentialSystem::build(&spec).unwrap()).unwrap();
+    let site = |k: usize| sites[k].clone();
+    let all = "all=R0.01".parse::<CoatingOverride>().unwrap().apply(&coatings, &site).unwrap();
     assert!(all[3].is_none() && all[6].is_none() && all[8].is_some(), "{all:?}");
-    let e = "6=R0.01".parse::<CoatingOverride>().unwrap().apply(&coatings, &|k| spec.not_an_interface(k)).unwrap_err().to_string();
+    let e = "6=R0.01".parse::<CoatingOverride>().unwrap().apply(&coatings, &site).unwrap_err().to_string();
     assert!(e.contains("surface 6 is a mirror"), "{e}");
 }
 

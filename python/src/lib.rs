@@ -30,6 +30,12 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     limits::init()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("EMBREE", cfg!(feature = "embree"))?;
+    // The ray status codes of `trace` and their names, from the library's enum (every code it can return).
+    let status = pyo3::types::PyDict::new(m.py());
+    for s in diffcassi::tracer::RayStatus::ALL {
+        status.set_item(s as u8, s.words())?;
+    }
+    m.add("STATUS", status)?;
     m.add_function(wrap_pyfunction!(pool::_check_rayon_env, m)?)?;
     m.add_function(wrap_pyfunction!(pool::set_num_threads, m)?)?;
     m.add_function(wrap_pyfunction!(pool::get_num_threads, m)?)?;

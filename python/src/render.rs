@@ -100,7 +100,7 @@ fn _render<'py>(
             info["spectral_extrapolation"] = x.to_json();
         }
         if !warnings.is_empty() {
-            info["warnings"] = warnings.into();
+            info["warnings"] = warnings.iter().map(|w| crate::errors::pythonic(w)).collect::<Vec<_>>().into();
         }
         Ok((acq, info))
     })

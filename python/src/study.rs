@@ -135,7 +135,7 @@ fn _study(py: Python<'_>, out: &Bound<'_, PyAny>, settings_kw: Option<&Bound<'_,
     let progress = PyProgress { stop: AtomicBool::new(false), warnings: Mutex::new(Vec::new()) };
     let (result, signal) = crate::pool::run_interruptible(py, &progress.stop, || study::run(&s, &progress));
     for w in progress.warnings.lock().unwrap_or_else(|e| e.into_inner()).iter() {
-        PyErr::warn(py, py.get_type::<pyo3::exceptions::PyUserWarning>().as_any(), &std::ffi::CString::new(format!("study: {w}")).unwrap_or_default(), 1)?;
+        PyErr::warn(py, py.get_type::<pyo3::exceptions::PyUserWarning>().as_any(), &std::ffi::CString::new(format!("study: {}", crate::errors::pythonic(w))).unwrap_or_default(), 1)?;
     }
     // Stopped by Ctrl-C: the KeyboardInterrupt itself (the cells finished so far are kept).
     if let Some(e) = signal {

@@ -958,7 +958,8 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
     let system = SequentialSystem::build(&crate::presets::spec(&a.preset)?)?;
     let ws = linspace(450.0, 650.0, wavelengths);
     let batch = RayBatch::seeded_workload(&system, rays, &ws, 1000)?;
-    let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    // "All threads": the pool `--threads` set (default: every core).
+    let cores = rayon::current_num_threads();
     let reference = AnalyticTracer::with_kernel(crate::tracer::Kernel::Scalar).trace(&system, &batch)?;
     println!(
         "preset {}, {} rays ({} per wavelength × {} wavelengths, seeded pupil samples over the system's fields), {} sequential surfaces per ray, best of {}",

@@ -61,6 +61,9 @@ pub(super) fn ghosts(a: GhostsArgs) -> Result<()> {
         crate::limits::check_count(option, v, 64)?;
     }
     let system = load_system(&a.system)?;
+    if system.spec.mechanics.is_some() {
+        eprintln!("note: the spec's [mechanics] section is not used by `ghosts` (the Fresnel ghost paths of the optics alone); `render --ghosts K --mechanics` traces the mechanics");
+    }
     let model = if a.model == "scalar" { FresnelModel::Scalar } else { FresnelModel::Polarized };
     let options = GhostOptions { order: a.order, model, threshold: a.threshold, seed: a.seed, rings: a.rings, extended_grid: a.extended_grid };
     // The budgets before the analysis: trees from the options, paths per tree from a pilot.

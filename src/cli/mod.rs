@@ -88,7 +88,7 @@ pub enum Command {
     RenderDataset(dataset::RenderDatasetArgs),
     /// Which scenes of a render-dataset output are done, missing or corrupt (exit 1 unless all done).
     DatasetStatus(dataset::DatasetStatusArgs),
-    /// Reconstruct the cube from a render folder's acquisition (operator exact/mapping/shift, solver GAP-TV/ADMM-TV).
+    /// Reconstruct the cube from a render folder's acquisition (operators exact/mapping/mapping-nearest/shift; solvers GAP-TV, ADMM-TV, PnP, unrolled).
     Reconstruct(reconstruct::ReconstructArgs),
     /// The paper's four-system study: render scenes through every system, reconstruct with every operator, evaluate.
     Study(study::StudyArgs),

@@ -116,7 +116,8 @@ pub(super) fn bench_nonsequential(a: &BenchArgs) -> Result<()> {
     })?;
     let (rays_a, queries, brute_queries) = if a.quick { (2_000, 2_000, 200) } else { (rays, 100_000, 2_000) };
     check_budget(&system, a, rays_a, wavelengths, repeat, queries, brute_queries)?;
-    let cores = std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1);
+    // "All threads": the pool `--threads` set (default: every core).
+    let cores = rayon::current_num_threads();
     let mut csv = CsvWriter::new(a.csv.as_deref().unwrap_or(std::path::Path::new("bench.csv")), &CSV_COLUMNS)?;
     let t0 = Instant::now();
     println!("bench nonsequential: {}, {} mode, best of {repeat}", system.name(), if a.quick { "quick" } else { "full" });
@@ -392,7 +393,9 @@ fn check_budget(system: &SequentialSystem, a: &BenchArgs, rays_a: usize, wavelen
     use crate::limits::{check_memory, check_rays, BYTES_PER_RAY};
     let batch = rays_a as f64 * wavelengths as f64;
     let r = repeat as f64;
-    let what = if a.quick { format!("--quick × --wavelengths {wavelengths} × --repeat {repeat}") } else { format!("--rays {rays_a} × --wavelengths {wavelengths} × --repeat {repeat}") };
+    let rows_ab = if a.quick { format!("--quick × --wavelengths {wavelengths} × --repeat {repeat}") } else { format!("--rays {rays_a} × --wavelengths {wavelengths} × --repeat {repeat}") };
+    // Row (c)'s mechanics queries are fixed in number (--repeat times): named apart, since --rays does not set them.
+    let what = if a.floor { rows_ab } else { format!("{rows_ab} (rows a, b) and row (c)'s {} mechanics queries × --repeat {repeat}", queries + brute_queries) };
     let (traced, bytes) = if a.floor {
         // Row (a) (3 tracers) and the floor's 5 rows, each warmed up once; the recorded queries (4 kB a ray).
         (batch * (3.0 * (r + 1.0) + 5.0 * (r + 1.0) + 2.0), batch * (2.0 * BYTES_PER_RAY + 4096.0))

@@ -76,6 +76,10 @@ impl GhostPass {
     /// The pass the options ask for (`None` without --ghosts): coatings overridden, mechanics built (mesh
     /// files loaded and checked), kernel built. `rays_per_pixel`, `seed`: the render's.
     pub fn prepare(a: &GhostArgs, sys_args: &SystemArgs, system: &SequentialSystem, rays_per_pixel: usize, seed: u64) -> Result<Option<Self>> {
+        if system.spec.mechanics.is_some() && !a.mechanics {
+            // The section is read and checked with the spec, but only `--ghosts K --mechanics` traces it.
+            eprintln!("note: the spec's [mechanics] section is not used: only `render --ghosts K --mechanics` traces the mechanics (the main image is sequential)");
+        }
         let Some(order) = a.ghosts else { return Ok(None) };
         let t0 = Instant::now();
         if let Some(r) = a.ghost_rays.filter(|&r| r as usize > rays_per_pixel) {
@@ -84,7 +88,8 @@ impl GhostPass {
         let mut config = GhostConfig::new(order, system, a.ghost_rays.map_or(rays_per_pixel, |r| r as usize));
         config.seed = seed;
         if let Some(o) = &a.coating {
-            config.coatings = o.apply(&config.coatings, &|k| system.spec.not_an_interface(k))?;
+            let sites = crate::tracer::nonseq::solids::coating_sites(system)?;
+            config.coatings = o.apply(&config.coatings, &|k| sites.get(k).cloned().flatten())?;
         }
         config.validate(system)?;
         let extra: Option<(Arc<dyn ExtraGeometry>, String, usize)> = if a.mechanics { Some(mechanics(sys_args, system, a.ghost_backend.as_deref())?) } else { None };
@@ -142,24 +147,26 @@ impl GhostPass {
     pub fn run(&self, renderer: &Renderer, scene: &SpectralCube, acq: &mut Acquisition) -> Result<serde_json::Value> {
         let g = self.images(renderer, scene, acq.bands.is_some())?;
         let main_total = acq.total();
-        for ((a, x), y) in acq.image.iter_mut().zip(&g.ghost).zip(&g.stray) {
-            *a += x + y;
+        // main − blocked + ghost + stray; a pixel the mechanics block entirely is 0 up to the rounding of the
+        // render's f32 footprints, held at 0 (never a negative irradiance).
+        for (((a, x), y), b) in acq.image.iter_mut().zip(&g.ghost).zip(&g.stray).zip(&g.blocked) {
+            *a = (*a - b + x + y).max(0.0);
         }
         if let (Some(bands), Some(extra)) = (&mut acq.bands, &g.bands) {
             for (b, e) in bands.iter_mut().zip(extra) {
                 for (x, y) in b.iter_mut().zip(e) {
-                    *x += *y as f32;
+                    *x = (*x + *y as f32).max(0.0);
                 }
             }
         }
         let r = &g.report;
         let e = &r.energy;
-        let total = main_total + r.ghost_total + r.stray_total;
+        let total = main_total - r.blocked_total + r.ghost_total + r.stray_total;
         let share = |x: f64| if total > 0.0 { x / total } else { 0.0 };
         let plain = acq.timings.wall_seconds;
         let ratio = if plain > 0.0 { r.wall_seconds / plain } else { 0.0 };
         println!(
-            "ghosts: order {}, coating {}, mechanics {}, {} kernel: {} ray trees in {:.2} s ({:.1}× the plain render's {:.2} s); ghost share {:.3e}, stray share {:.3e} of the acquisition; per launched ray: main path {:.4}, absorbed {:.4}, escaped {:.4}",
+            "ghosts: order {}, coating {}, mechanics {}, {} kernel: {} ray trees in {:.2} s ({:.1}× the plain render's {:.2} s); ghost share {:.3e}, stray share {:.3e} of the acquisition; per launched ray: main path {:.4}, absorbed {:.4}, escaped {:.4}{}",
             self.config.order,
             self.coating,
             self.mechanics.as_ref().map_or("off".to_string(), |(n, t)| format!("on ({n}, {t} triangles)")),
@@ -173,6 +180,7 @@ impl GhostPass {
             e.share(e.main),
             e.share(e.absorbed),
             e.share(e.escaped),
+            if r.blocked_rays > 0 { format!("; the mechanics block {:.3e} of the main image ({} rays)", r.blocked_total / main_total.max(f64::MIN_POSITIVE), r.blocked_rays) } else { String::new() },
         );
         let mut record = serde_json::json!({
             "order": self.config.order,
@@ -194,6 +202,9 @@ impl GhostPass {
             "acquisition_main": main_total,
             "acquisition_ghost": r.ghost_total,
             "acquisition_stray": r.stray_total,
+            "acquisition_blocked": r.blocked_total,
+            "blocked_rays": r.blocked_rays,
+            "main_blocked_share": if main_total > 0.0 { r.blocked_total / main_total } else { 0.0 },
             "ghost_share": share(r.ghost_total),
             "stray_share": share(r.stray_total),
             "main_path_share": e.share(e.main),
@@ -207,7 +218,7 @@ impl GhostPass {
             "off_detector": r.off_detector,
             "out_of_range": r.out_of_range,
             "energy": e,
-            "notes": "ghost_share and stray_share: of the acquisition's energy (main + ghost + stray); the other shares: of the power launched by the ray trees (per ray 1, not weighted by the scene). The main image is the sequential render (no Fresnel loss); reconstruct uses the ghost-free operator.",
+            "notes": "the acquisition is main − blocked (the main image's rays the mechanics stop) + ghost + stray; ghost_share and stray_share: of its energy; the other shares: of the power launched by the ray trees (per ray 1, not weighted by the scene). The main image is the sequential render (no Fresnel loss); reconstruct uses the ghost-free operator.",
         });
         // As `ghosts`' JSON: present only when the design-beam check changed something.
         if let (Some(n), Some(obj)) = (&self.design_beam_note, record.as_object_mut()) {

@@ -157,6 +157,10 @@ fn zemax_max_distortion(sys: &crate::system::SequentialSystem) -> Result<(f64, V
     Ok((per.iter().map(|p| p[1]).fold(0.0, f64::max), per))
 }
 
+/// The continuous stage's parameters, as its warnings name them: the three angles (the last stage's
+/// parameters, in the same order) and the two Cauchy glasses' index and Abbe number.
+const STAGE1_NAMES: [&str; 7] = ["alpha_c_deg", "a1_deg", "a2_deg", "glass 1 nd", "glass 1 vd", "glass 2 nd", "glass 2 vd"];
+
 /// Run the three-stage design (see the module docs).
 pub fn design_amici(catalog: &(GlassCatalog, String), opts: &AmiciOptions) -> Result<AmiciDesign> {
     let (catalog, catalog_name) = catalog;
@@ -184,7 +188,7 @@ pub fn design_amici(catalog: &(GlassCatalog, String), opts: &AmiciOptions) -> Re
     let loss1 = AmiciLoss::new(amici::base_spec("M1", "M2")?, cat1, true, Some(&map), target)?;
     let bounds1 = Bounds::new(vec![-20.0, 5.0, 10.0, 1.45, 17.0, 1.45, 17.0], vec![20.0, 60.0, 100.0, 2.0, 95.0, 2.0, 95.0])?;
     let mut f1 = |u: &[f64], it: usize| loss1.evaluate_full(u, it).map(|e| e.0);
-    let adam_opts = AdamOptions { iterations: opts.iterations, learning_rate: vec![0.05, 0.05, 0.05, 1e-3, 0.1, 1e-3, 0.1], final_fraction: 1e-2, ..Default::default() };
+    let adam_opts = AdamOptions { iterations: opts.iterations, learning_rate: vec![0.05, 0.05, 0.05, 1e-3, 0.1, 1e-3, 0.1], final_fraction: 1e-2, names: STAGE1_NAMES.iter().map(|s| s.to_string()).collect(), ..Default::default() };
     let r1 = adam(&mut f1, &u0, &bounds1, &adam_opts)?;
     let (_, m1) = loss1.evaluate_full(&r1.x, 0)?;
     // Stage 2: snap each glass to its nearest catalogue glass.
@@ -195,7 +199,7 @@ pub fn design_amici(catalog: &(GlassCatalog, String), opts: &AmiciOptions) -> Re
     loss3.thickness_weight = opts.final_thickness_weight;
     let bounds3 = Bounds::new(vec![-20.0, 5.0, 10.0], vec![20.0, 60.0, 100.0])?;
     let mut f3 = |u: &[f64], it: usize| loss3.evaluate_full(u, it).map(|e| e.0);
-    let r3 = levenberg_marquardt(&mut f3, &r1.x[..3], &bounds3, &LmOptions { max_iterations: 200, ..Default::default() })?;
+    let r3 = levenberg_marquardt(&mut f3, &r1.x[..3], &bounds3, &LmOptions { max_iterations: 200, names: STAGE1_NAMES[..3].iter().map(|s| s.to_string()).collect(), ..Default::default() })?;
     let (_, m3): (_, Metrics) = loss3.evaluate_full(&r3.x, 0)?;
     let final_set = loss3.set.with_values(&loss3.values_of(&r3.x))?;
     let mut spec = final_set.spec.clone();

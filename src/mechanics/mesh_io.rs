@@ -93,7 +93,9 @@ impl Welder {
 /// starts with `solid`, else a (truncated or corrupt) binary file.
 pub fn parse_stl(bytes: &[u8], name: &str) -> Result<TriMesh> {
     let binary_size = (bytes.len() >= 84).then(|| 84 + 50 * u32::from_le_bytes([bytes[80], bytes[81], bytes[82], bytes[83]]) as u64);
-    if binary_size != Some(bytes.len() as u64) && bytes.trim_ascii_start().starts_with(b"solid") {
+    // A `solid` header with binary data after it is a binary STL whose size is wrong (some CAD programs
+    // start a binary file's header with `solid`): its error is the binary one, not "not valid UTF-8".
+    if binary_size != Some(bytes.len() as u64) && bytes.trim_ascii_start().starts_with(b"solid") && (std::str::from_utf8(bytes).is_ok() || looks_like_text(&bytes[84.min(bytes.len())..])) {
         return parse_stl_ascii(bytes, name);
     }
     if binary_size != Some(bytes.len() as u64) && looks_like_text(bytes) {
@@ -155,39 +157,58 @@ fn is_obj_text(bytes: &[u8]) -> bool {
         .any(|l| ["v ", "vn ", "vt ", "f ", "o ", "g ", "mtllib ", "usemtl "].iter().any(|k| l.starts_with(k)))
 }
 
+/// The non-blank lines of an ASCII STL as whitespace-split statements, with the line number.
+struct Statements<'a> {
+    lines: Box<dyn Iterator<Item = (usize, Vec<&'a str>)> + 'a>,
+    last_line: usize,
+    name: &'a str,
+}
+
+impl<'a> Statements<'a> {
+    /// The next statement, `None` at the end of the file.
+    fn next_or_end(&mut self) -> Option<(usize, Vec<&'a str>)> {
+        let (n, t) = self.lines.next()?;
+        self.last_line = n;
+        Some((n, t))
+    }
+
+    /// The next statement; the end of the file is an error naming what was expected.
+    fn next(&mut self, what: &str) -> Result<(usize, Vec<&'a str>)> {
+        let last = self.last_line;
+        self.next_or_end().ok_or_else(|| err(self.name, format!("truncated ASCII STL: the file ends after line {last}, expected `{what}`")))
+    }
+}
+
 fn parse_stl_ascii(bytes: &[u8], name: &str) -> Result<TriMesh> {
     let text = std::str::from_utf8(bytes).map_err(|e| err(name, format!("ASCII STL is not valid UTF-8 (byte {})", e.valid_up_to())))?;
-    let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.split_whitespace().collect::<Vec<_>>())).filter(|(_, t)| !t.is_empty());
-    let mut last_line = 0;
-    let mut next = |what: &str| -> Result<(usize, Vec<&str>)> {
-        match lines.next() {
-            Some((n, t)) => {
-                last_line = n;
-                Ok((n, t))
-            }
-            None => Err(err(name, format!("truncated ASCII STL: the file ends after line {last_line}, expected `{what}`"))),
-        }
-    };
-    let (n0, first) = next("solid")?;
+    let mut st = Statements { lines: Box::new(text.lines().enumerate().map(|(i, l)| (i + 1, l.split_whitespace().collect::<Vec<_>>())).filter(|(_, t)| !t.is_empty())), last_line: 0, name };
+    let (n0, first) = st.next("solid")?;
     if first[0] != "solid" {
         return Err(err(name, format!("line {n0}: expected `solid`, found `{}`", first.join(" "))));
     }
     let mut w = Welder::new();
-    loop {
-        let (n, t) = next("facet normal nx ny nz` or `endsolid")?;
+    // CAD exports write several bodies as consecutive `solid … endsolid` blocks: all of them are the mesh.
+    'solids: loop {
+        let (n, t) = st.next("facet normal nx ny nz` or `endsolid")?;
         match t[0] {
-            "endsolid" => break,
+            "endsolid" => {
+                let Some((n, t)) = st.next_or_end() else { break 'solids };
+                if t[0] != "solid" {
+                    return Err(err(name, format!("line {n}: expected `solid` (another body) or the end of the file after `endsolid`, found `{}`", t.join(" "))));
+                }
+                continue 'solids;
+            }
             "facet" if t.len() == 5 && t[1] == "normal" => {}
             _ => return Err(err(name, format!("line {n}: expected `facet normal nx ny nz` or `endsolid`, found `{}`", t.join(" ")))),
         }
         let facet_line = n;
-        let (n, t) = next("outer loop")?;
+        let (n, t) = st.next("outer loop")?;
         if t != ["outer", "loop"] {
             return Err(err(name, format!("line {n}: expected `outer loop`, found `{}`", t.join(" "))));
         }
         let mut v = [DVec3::ZERO; 3];
         for p in &mut v {
-            let (n, t) = next("vertex x y z")?;
+            let (n, t) = st.next("vertex x y z")?;
             if t.len() != 4 || t[0] != "vertex" {
                 return Err(err(name, format!("line {n}: expected `vertex x y z`, found `{}`", t.join(" "))));
             }
@@ -201,7 +222,7 @@ fn parse_stl_ascii(bytes: &[u8], name: &str) -> Result<TriMesh> {
             *p = DVec3::from_array(c);
         }
         for what in [&["endloop"][..], &["endfacet"][..]] {
-            let (n, t) = next(what[0])?;
+            let (n, t) = st.next(what[0])?;
             if t != what {
                 return Err(err(name, format!("line {n}: expected `{}`, found `{}`", what[0], t.join(" "))));
             }
@@ -225,8 +246,9 @@ pub fn parse_obj(bytes: &[u8], name: &str) -> Result<TriMesh> {
         let t: Vec<&str> = line.split_whitespace().collect();
         match t.first().copied() {
             Some("v") => {
-                if t.len() < 4 || t.len() > 5 {
-                    return Err(err(name, format!("line {n}: expected `v x y z [w]`, found `{}`", t.join(" "))));
+                // `v x y z [w]`, or `v x y z r g b` (vertex colours, as MeshLab writes them): only x y z are read.
+                if !matches!(t.len(), 4 | 5 | 7) {
+                    return Err(err(name, format!("line {n}: expected `v x y z [w]` (or `v x y z r g b`), found `{}`", t.join(" "))));
                 }
                 let mut c = [0.0; 3];
                 for (j, s) in t[1..4].iter().enumerate() {
@@ -255,8 +277,9 @@ pub fn parse_obj(bytes: &[u8], name: &str) -> Result<TriMesh> {
                 if mesh.triangles.len() + idx.len() - 2 > MAX_MESH_TRIANGLES {
                     return Err(err(name, format!("line {n}: more than the limit of {MAX_MESH_TRIANGLES} triangles")));
                 }
-                for j in 1..idx.len() - 1 {
-                    mesh.triangles.push([idx[0], idx[j], idx[j + 1]]);
+                let triangles = triangulate(&mesh.vertices, &idx).map_err(|e| err(name, format!("line {n}: a face of {} vertices {e}", idx.len())))?;
+                for t in triangles {
+                    mesh.triangles.push(t);
                     mesh.origin.push(format!("line {n}"));
                 }
             }
@@ -264,6 +287,79 @@ pub fn parse_obj(bytes: &[u8], name: &str) -> Result<TriMesh> {
         }
     }
     Ok(mesh)
+}
+
+/// Largest distance of a polygon's vertex from its plane, relative to the polygon's diameter, that is still
+/// planar (CAD exports round coordinates to f32: ~1e-7 relative).
+const PLANAR_TOLERANCE: f64 = 1e-6;
+
+/// Triangles of a planar polygon face (`idx` into `vertices`, in its winding order, which the triangles
+/// keep). A convex polygon is fanned from its first vertex (as OBJ readers do); a concave one is ear-clipped
+/// in its plane (a fan from a reflex vertex would cover its notch). Errors: a polygon that is not planar
+/// (which triangles it means is ambiguous) or not simple (its edges cross: no ear is left).
+fn triangulate(vertices: &[DVec3], idx: &[u32]) -> std::result::Result<Vec<[u32; 3]>, String> {
+    let fan = || (1..idx.len() - 1).map(|j| [idx[0], idx[j], idx[j + 1]]).collect::<Vec<_>>();
+    if idx.len() == 3 {
+        return Ok(fan());
+    }
+    let p: Vec<DVec3> = idx.iter().map(|&k| vertices[k as usize]).collect();
+    // Newell's normal: twice the vector area, well defined for concave polygons.
+    let mut normal = DVec3::ZERO;
+    for (a, b) in p.iter().zip(p.iter().cycle().skip(1)) {
+        normal += DVec3::new((a.y - b.y) * (a.z + b.z), (a.z - b.z) * (a.x + b.x), (a.x - b.x) * (a.y + b.y));
+    }
+    let Some(nz) = normal.try_normalize() else {
+        return Ok(fan()); // zero area: the mesh's validation names its degenerate triangles
+    };
+    let centroid = p.iter().copied().sum::<DVec3>() / p.len() as f64;
+    let diameter = p.iter().flat_map(|a| p.iter().map(move |b| (*a - *b).length())).fold(0.0, f64::max);
+    if let Some((j, off)) = p.iter().map(|v| (*v - centroid).dot(nz).abs()).enumerate().max_by(|a, b| a.1.total_cmp(&b.1)) {
+        if off > PLANAR_TOLERANCE * diameter {
+            return Err(format!("is not planar (its vertex {} lies {off:.3e} off the polygon's plane, whose diameter is {diameter:.3e}): split it into triangles", j + 1));
+        }
+    }
+    // In-plane coordinates, the polygon counter-clockwise about its Newell normal.
+    let u = nz.any_orthonormal_vector();
+    let w = nz.cross(u);
+    let q: Vec<(f64, f64)> = p.iter().map(|v| ((*v - centroid).dot(u), (*v - centroid).dot(w))).collect();
+    let cross = |a: (f64, f64), b: (f64, f64), c: (f64, f64)| (b.0 - a.0) * (c.1 - b.1) - (b.1 - a.1) * (c.0 - b.0);
+    let m = q.len();
+    // Simple: no two edges that do not share a vertex meet (a bow tie, a pentagram: no triangulation follows).
+    let meet = |(a, b): ((f64, f64), (f64, f64)), (c, d): ((f64, f64), (f64, f64))| {
+        let (d1, d2, d3, d4) = (cross(a, b, c), cross(a, b, d), cross(c, d, a), cross(c, d, b));
+        if (d1, d2, d3, d4) == (0.0, 0.0, 0.0, 0.0) {
+            // Collinear: they meet where their extents overlap.
+            let overlap = |p: fn((f64, f64)) -> f64| p(a).min(p(b)).max(p(c).min(p(d))) <= p(a).max(p(b)).min(p(c).max(p(d)));
+            return overlap(|v| v.0) && overlap(|v| v.1);
+        }
+        d1 * d2 <= 0.0 && d3 * d4 <= 0.0
+    };
+    let edge = |i: usize| (q[i], q[(i + 1) % m]);
+    if let Some((i, j)) = (0..m).flat_map(|i| (i + 2..m).filter(move |&j| (j + 1) % m != i).map(move |j| (i, j))).find(|&(i, j)| meet(edge(i), edge(j))) {
+        return Err(format!("is not a simple polygon (its edges {}–{} and {}–{} cross): split it into triangles", i + 1, (i + 1) % m + 1, j + 1, (j + 1) % m + 1));
+    }
+    if (0..m).all(|i| cross(q[(i + m - 1) % m], q[i], q[(i + 1) % m]) >= 0.0) {
+        return Ok(fan());
+    }
+    // Ear clipping: an ear is a convex corner whose triangle holds no other remaining vertex.
+    let inside = |t: [(f64, f64); 3], x: (f64, f64)| cross(t[0], t[1], x) >= 0.0 && cross(t[1], t[2], x) >= 0.0 && cross(t[2], t[0], x) >= 0.0;
+    let mut left: Vec<usize> = (0..m).collect();
+    let mut out = Vec::with_capacity(m - 2);
+    while left.len() > 3 {
+        let k = left.len();
+        let ear = (0..k).find(|&i| {
+            let (a, b, c) = (left[(i + k - 1) % k], left[i], left[(i + 1) % k]);
+            let t = [q[a], q[b], q[c]];
+            cross(t[0], t[1], t[2]) > 0.0 && left.iter().filter(|&&o| o != a && o != b && o != c).all(|&o| !inside(t, q[o]))
+        });
+        let Some(i) = ear else {
+            return Err("is not a simple polygon (its edges fold back on each other): split it into triangles".to_string());
+        };
+        out.push([idx[left[(i + k - 1) % k]], idx[left[i]], idx[left[(i + 1) % k]]]);
+        left.remove(i);
+    }
+    out.push([idx[left[0]], idx[left[1]], idx[left[2]]]);
+    Ok(out)
 }
 
 /// Binary STL bytes of `mesh` (f32 coordinates, zero normals and attribute words): the fixtures' writer.
@@ -334,5 +430,77 @@ mod tests {
         assert!(e.contains("line 2: face vertex index 2 out of range"), "{e}");
         let e = parse_mesh(b"", "x.ply", false).unwrap_err().to_string();
         assert!(e.contains("unknown mesh format"), "{e}");
+    }
+
+    /// Round 11: an ASCII STL of several bodies (`solid … endsolid` blocks, as CAD programs export "all bodies")
+    /// is all of them (the second was dropped); text after the last `endsolid` is an error naming its line.
+    #[test]
+    fn ascii_stl_of_several_bodies_is_every_body() {
+        let body = |name: &str, z: f64| {
+            let mut t = format!("solid {name}\n");
+            for tri in tet().triangles.iter() {
+                t += " facet normal 0 0 0\n  outer loop\n";
+                for &k in tri {
+                    let v = tet().vertices[k as usize];
+                    t += &format!("   vertex {} {} {}\n", v.x, v.y, v.z + z);
+                }
+                t += "  endloop\n endfacet\n";
+            }
+            t + &format!("endsolid {name}\n")
+        };
+        let two = body("bracket", 0.0) + &body("blocker", 5.0);
+        let m = parse_mesh(two.as_bytes(), "bodies.stl", true).unwrap();
+        assert_eq!((m.vertices.len(), m.triangles.len()), (8, 8));
+        let trailing = body("t", 0.0) + "this is not stl at all\n";
+        let e = parse_stl(trailing.as_bytes(), "t.stl").unwrap_err().to_string();
+        assert!(e.contains("t.stl: line 31") && e.contains("after `endsolid`") && e.contains("this is not stl at all"), "{e}");
+        // A binary file whose header starts with `solid` (SolidWorks) and whose size is wrong: the binary error.
+        let mut bin = write_stl_binary(&tet());
+        bin[..5].copy_from_slice(b"solid");
+        bin[84 + 10] = 0xff;
+        let e = parse_stl(&bin[..bin.len() - 50], "s.stl").unwrap_err().to_string();
+        assert!(e.contains("truncated binary STL") && e.contains("4 triangles"), "{e}");
+    }
+
+    /// Round 11: a concave polygon was fanned from its first vertex, covering its notch when that vertex sees
+    /// past it (an L-shaped face absorbed the light the notch lets through); it is ear-clipped, whatever vertex
+    /// the face starts from, and keeps its winding. A non-planar or self-crossing polygon is refused, naming the
+    /// line; `v x y z r g b` (vertex colours) is read.
+    #[test]
+    fn concave_obj_faces_are_ear_clipped() {
+        // The L: a 40 × 40 mm square without its x > 0, y > 0 quarter (area 1200 mm²), one face.
+        let l = [(-20.0, -20.0), (20.0, -20.0), (20.0, 0.0), (0.0, 0.0), (0.0, 20.0), (-20.0, 20.0)];
+        for start in 0..6 {
+            let mut text = String::new();
+            for (x, y) in l {
+                text += &format!("v {x} {y} 50 0.5 0.5 0.5\n");
+            }
+            let order: Vec<String> = (0..6).map(|k| ((start + k) % 6 + 1).to_string()).collect();
+            text += &format!("f {}\n", order.join(" "));
+            let m = parse_obj(text.as_bytes(), "l.obj").unwrap();
+            assert_eq!(m.triangles.len(), 4, "start {start}");
+            let mut area = 0.0;
+            for k in 0..m.triangles.len() {
+                let [a, b, c] = m.corners(k);
+                let n = (b - a).cross(c - a);
+                assert!(n.z > 0.0, "start {start}: triangle {k} keeps the face's (counter-clockwise) winding");
+                area += 0.5 * n.length();
+                // No triangle covers the notch's point (10, 10).
+                let p = DVec3::new(10.0, 10.0, 50.0);
+                let inside = [(a, b), (b, c), (c, a)].iter().all(|(u, v)| (*v - *u).cross(p - *u).z > 0.0);
+                assert!(!inside, "start {start}: triangle {k} covers the notch");
+            }
+            assert!((area - 1200.0).abs() < 1e-9, "start {start}: area {area}");
+        }
+        let e = parse_obj(b"v 0 0 0\nv 1 0 0\nv 1 1 0.5\nv 0 1 0\nf 1 2 3 4\n", "bent.obj").unwrap_err().to_string();
+        assert!(e.contains("bent.obj: line 5: a face of 4 vertices is not planar"), "{e}");
+        let e = parse_obj(b"v 0 0 0\nv 1 1 0\nv 1 0 0\nv 0 1 0\nv 0.5 -1 0\nf 1 2 3 4 5\n", "bow.obj").unwrap_err().to_string();
+        assert!(e.contains("line 6") && e.contains("not a simple polygon"), "{e}");
+        // A pentagram turns the same way at every corner: refused, not fanned.
+        let star: String = (0..5).map(|k| { let a = (2 * k) as f64 * std::f64::consts::TAU / 5.0; format!("v {} {} 0\n", a.cos(), a.sin()) }).collect::<String>() + "f 1 2 3 4 5\n";
+        let e = parse_obj(star.as_bytes(), "star.obj").unwrap_err().to_string();
+        assert!(e.contains("line 6") && e.contains("not a simple polygon"), "{e}");
+        let e = parse_obj(b"v 0 0 0 1 1\n", "c.obj").unwrap_err().to_string();
+        assert!(e.contains("line 1: expected `v x y z [w]`"), "{e}");
     }
 }

@@ -1,4 +1,4 @@
-use super::loss::{Bounds, Loss, OptimReport};
+use super::loss::{insensitive_warning, Bounds, Loss, OptimReport};
 use crate::error::{Error, Result};
 
 /// Adam settings (Kingma & Ba), with a cosine-annealed step as in the reference paper's optimiser.
@@ -12,11 +12,13 @@ pub struct AdamOptions {
     pub beta1: f64,
     pub beta2: f64,
     pub epsilon: f64,
+    /// The parameters' names for the warnings (empty: by index).
+    pub names: Vec<String>,
 }
 
 impl Default for AdamOptions {
     fn default() -> Self {
-        AdamOptions { iterations: 500, learning_rate: vec![1e-2], final_fraction: 1e-3, beta1: 0.9, beta2: 0.999, epsilon: 1e-12 }
+        AdamOptions { iterations: 500, learning_rate: vec![1e-2], final_fraction: 1e-3, beta1: 0.9, beta2: 0.999, epsilon: 1e-12, names: Vec::new() }
     }
 }
 
@@ -41,7 +43,7 @@ pub fn adam(loss: &mut dyn Loss, x0: &[f64], bounds: &Bounds, opts: &AdamOptions
     let mut history = Vec::with_capacity(opts.iterations);
     let mut warnings = Vec::new();
     if !insensitive.is_empty() {
-        warnings.push(format!("parameters {insensitive:?} do not affect the loss: left unchanged"));
+        warnings.push(insensitive_warning(&opts.names, &insensitive));
     }
     let mut stop = "iterations done".to_string();
     let mut e = e0;

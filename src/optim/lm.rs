@@ -1,4 +1,4 @@
-use super::loss::{solve_dense, Bounds, Loss, OptimReport};
+use super::loss::{insensitive_warning, parameter_name, solve_dense, Bounds, Loss, OptimReport};
 use crate::error::Result;
 
 /// Levenberg–Marquardt settings.
@@ -39,9 +39,9 @@ pub fn levenberg_marquardt(loss: &mut dyn Loss, x0: &[f64], bounds: &Bounds, opt
     let mut history = Vec::new();
     let mut warnings = Vec::new();
     if !insensitive.is_empty() {
-        warnings.push(format!("parameters {insensitive:?} do not affect the loss: left unchanged"));
+        warnings.push(insensitive_warning(&opts.names, &insensitive));
     }
-    let name = |j: usize| opts.names.get(j).cloned().unwrap_or_else(|| format!("parameter {j}"));
+    let name = |j: usize| parameter_name(&opts.names, j);
     for (j, span) in e.dependent() {
         let span: Vec<String> = span.into_iter().map(name).collect();
         warnings.push(format!(

@@ -92,6 +92,18 @@ impl Evaluation {
 /// own ([`Evaluation::dependent`]): an angle of 1e-6 rad to that span.
 pub const DEPENDENT_TOLERANCE: f64 = 1e-6;
 
+/// Parameter `j`'s name for a warning: `names[j]`, or `parameter j` where no name was given.
+pub fn parameter_name(names: &[String], j: usize) -> String {
+    names.get(j).cloned().unwrap_or_else(|| format!("parameter {j}"))
+}
+
+/// The warning for parameters whose Jacobian columns are identically zero, naming them ([`parameter_name`]).
+pub fn insensitive_warning(names: &[String], insensitive: &[usize]) -> String {
+    let listed: Vec<String> = insensitive.iter().map(|&j| parameter_name(names, j)).collect();
+    let verb = if listed.len() == 1 { "does" } else { "do" };
+    format!("{} {verb} not affect the loss: left unchanged", listed.join(", "))
+}
+
 /// A merit function: residuals and Jacobian at `x`; `iteration` lets terms change with the iteration
 /// (the paper's glass-distance weight grows with it).
 pub trait Loss {
@@ -207,5 +219,23 @@ mod tests {
         assert_eq!(e.dependent(), vec![(2, vec![0, 1]), (4, vec![0, 1]), (6, vec![0, 1, 5])]);
         let only = Evaluation::new(vec![0.0; 4], (0..4).flat_map(|i| [a[i], a[i] + 1e-3 * c[i]]).collect(), 2);
         assert!(only.dependent().is_empty(), "1e-3 rad off a's direction is determined");
+    }
+
+    /// Both optimisers name a parameter that does not move the loss (the name given, else its index), and
+    /// leave it unchanged.
+    #[test]
+    fn insensitive_parameters_are_named_in_the_warnings() {
+        // r = (x0 − 1, 2(x0 − 1)): x1 and x2 do not enter.
+        let mut loss = |x: &[f64], _it: usize| -> Result<Evaluation> {
+            Ok(Evaluation::new(vec![x[0] - 1.0, 2.0 * (x[0] - 1.0)], vec![1.0, 0.0, 0.0, 2.0, 0.0, 0.0], 3))
+        };
+        let names: Vec<String> = ["tilt_x_deg", "decenter_y_mm", "conic"].iter().map(|s| s.to_string()).collect();
+        let lm = crate::optim::levenberg_marquardt(&mut loss, &[0.0, 0.5, 0.25], &Bounds::unbounded(3), &crate::optim::LmOptions { names: names.clone(), ..Default::default() }).unwrap();
+        assert!(lm.warnings.iter().any(|w| w == "decenter_y_mm, conic do not affect the loss: left unchanged"), "{:?}", lm.warnings);
+        assert_eq!((lm.x[1], lm.x[2]), (0.5, 0.25));
+        let adam_opts = crate::optim::AdamOptions { iterations: 5, names: names[..2].to_vec(), ..Default::default() };
+        let ad = crate::optim::adam(&mut loss, &[0.0, 0.5, 0.25], &Bounds::unbounded(3), &adam_opts).unwrap();
+        assert!(ad.warnings.iter().any(|w| w == "decenter_y_mm, parameter 2 do not affect the loss: left unchanged"), "{:?}", ad.warnings);
+        assert_eq!(insensitive_warning(&[], &[4]), "parameter 4 does not affect the loss: left unchanged");
     }
 }

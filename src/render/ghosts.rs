@@ -12,6 +12,14 @@
 //! detector pixel centres at integer coordinates, taps off the detector lost); each plane is blurred by
 //! the same Airy kernel as the main image's plane and weighted by B/K, as the main image is.
 //!
+//! **Mechanics in the beam.** The sequential main image has no mechanics: a mechanical part across the
+//! beam (a user mesh, a baffle) would not dim it. So a tree whose order-0 path meets the extra geometry
+//! ([`RayTree::main_blocked`](crate::tracer::nonseq::RayTree)) also traces its ray sequentially, and where
+//! the main image counted it, the **blocked** image takes the same deposit (`value / rays_per_pixel` at the
+//! sequential landing, the same splat, blur and plane weight); the acquisition is main − blocked + ghost +
+//! stray. With every rendered ray's tree walked the blocked rays are removed exactly (to the rounding of the
+//! render's f32 footprints); a subsample (`rays_per_pixel` < the render's) removes them in expectation.
+//!
 //! **Units.** The main image counts an arrived ray with weight 1 (the sequential model has no Fresnel
 //! loss); ghost and stray arrivals carry their power relative to the launched ray (1), so the ghost share
 //! of the acquisition is the physical ghost power over the (lossless) main image's. The tree's own
@@ -93,14 +101,7 @@ impl GhostConfig {
         if self.coatings.len() != system.spec.surfaces.len() {
             return Err(Error::invalid(format!("{} coatings for {} surfaces", self.coatings.len(), system.spec.surfaces.len())));
         }
-        for (k, c) in self.coatings.iter().enumerate() {
-            if let Some(c) = c {
-                c.validate().map_err(|e| Error::invalid(format!("coating of surface {k}: {e}")))?;
-                if let Some(what) = system.spec.not_an_interface(k) {
-                    return Err(Error::invalid(format!("coating of surface {k}: surface {k} is {what}, not a refracting interface: a coating there would do nothing")));
-                }
-            }
-        }
+        check_coating_sites(system, &self.coatings)?;
         self.tree_options().validate()
     }
 
@@ -175,6 +176,10 @@ pub struct GhostReport {
     /// Ghost and stray energy added to the acquisition (acquisition units, after blur and plane weights).
     pub ghost_total: f64,
     pub stray_total: f64,
+    /// The main image's energy the mechanics block (acquisition units, after blur and plane weights; subtract it).
+    pub blocked_total: f64,
+    /// Trees whose order-0 path the mechanics stopped and that the main image counted.
+    pub blocked_rays: u64,
     /// Ghost/stray splat weight (acquisition units, before the blur) that fell off the detector.
     pub off_detector: f64,
     /// Arrivals at a non-finite or implausible position (not splatted).
@@ -187,7 +192,9 @@ pub struct GhostReport {
 pub struct GhostImages {
     pub ghost: Vec<f64>,
     pub stray: Vec<f64>,
-    /// Per band ghost + stray images, when asked.
+    /// The main image's light the mechanics block (subtract it; zero without mechanics in the beam).
+    pub blocked: Vec<f64>,
+    /// Per band ghost + stray − blocked images, when asked.
     pub bands: Option<Vec<Vec<f64>>>,
     pub report: GhostReport,
 }
@@ -196,6 +203,8 @@ pub struct GhostImages {
 struct PlaneResult {
     ghost: Vec<f64>,
     stray: Vec<f64>,
+    blocked: Vec<f64>,
+    blocked_rays: u64,
     energy: TreeEnergy,
     rays: u64,
     off: f64,
@@ -235,7 +244,7 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
         seed: c.seed,
     };
     let opts = cfg.tree_options();
-    let mut out = GhostImages { ghost: vec![0.0; npix], stray: vec![0.0; npix], bands: keep_bands.then(|| vec![vec![0.0; npix]; sp.bands_nm.len()]), report: GhostReport::default() };
+    let mut out = GhostImages { ghost: vec![0.0; npix], stray: vec![0.0; npix], blocked: vec![0.0; npix], bands: keep_bands.then(|| vec![vec![0.0; npix]; sp.bands_nm.len()]), report: GhostReport::default() };
     let planes: Vec<usize> = (0..sp.planes()).collect();
     for chunk in planes.chunks(PLANE_CHUNK) {
         let results: Vec<Result<PlaneResult>> = chunk.par_iter().map(|&p| plane(&ctx, renderer, kernel, scene, cfg, &opts, p)).collect();
@@ -247,11 +256,15 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
             for (a, b) in out.stray.iter_mut().zip(&r.stray) {
                 *a += b;
             }
+            for (a, b) in out.blocked.iter_mut().zip(&r.blocked) {
+                *a += b;
+            }
             if let Some(bands) = &mut out.bands {
-                for ((a, g), s) in bands[sp.plane_band[p]].iter_mut().zip(&r.ghost).zip(&r.stray) {
-                    *a += g + s;
+                for (((a, g), s), b) in bands[sp.plane_band[p]].iter_mut().zip(&r.ghost).zip(&r.stray).zip(&r.blocked) {
+                    *a += g + s - b;
                 }
             }
+            out.report.blocked_rays += r.blocked_rays;
             out.report.energy.add(&r.energy);
             out.report.rays_traced += r.rays;
             out.report.off_detector += r.off;
@@ -260,6 +273,7 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
     }
     out.report.ghost_total = out.ghost.iter().sum();
     out.report.stray_total = out.stray.iter().sum();
+    out.report.blocked_total = out.blocked.iter().sum();
     out.report.wall_seconds = t0.elapsed().as_secs_f64();
     Ok(out)
 }
@@ -274,8 +288,9 @@ fn plane<H: NextHit>(ctx: &PlaneContext, renderer: &Renderer, kernel: &H, scene:
     let values: Vec<f32> = scene.plane(wavelength_nm).iter().zip(&renderer.mask.values).map(|(v, m)| v * m).collect();
     let nr = cfg.rays_per_pixel;
     let weight = 1.0 / nr as f64;
-    let mut img = [vec![0.0f64; det.pixels()], vec![0.0f64; det.pixels()]];
-    let mut res = PlaneResult { ghost: Vec::new(), stray: Vec::new(), energy: TreeEnergy::default(), rays: 0, off: 0.0, out_of_range: 0 };
+    // Ghost, stray and blocked (the main image's light the mechanics stop) images.
+    let mut img = [vec![0.0f64; det.pixels()], vec![0.0f64; det.pixels()], vec![0.0f64; det.pixels()]];
+    let mut res = PlaneResult { ghost: Vec::new(), stray: Vec::new(), blocked: Vec::new(), blocked_rays: 0, energy: TreeEnergy::default(), rays: 0, off: 0.0, out_of_range: 0 };
     let mut samples = SampleRow::default();
     for row in 0..h {
         // Open pixels of the row with light on them (a zero coded value adds nothing).
@@ -295,6 +310,16 @@ fn plane<H: NextHit>(ctx: &PlaneContext, renderer: &Renderer, kernel: &H, scene:
                 let tree = walk_tree(kernel, &n, &cfg.coatings, wavelength_nm, o, d, index, opts);
                 res.rays += 1;
                 res.energy.add(&TreeEnergy::of(&tree));
+                if tree.main_blocked {
+                    // Where the sequential main image put this ray (if it did), the blocked image takes its deposit.
+                    let mut landed = None;
+                    super::transport::trace_interleaved(&ctx.system.path, &n, &[(o, d)], |r| landed = r.ok());
+                    if let Some((q, _)) = landed.filter(|(q, dq)| q.is_finite() && dq.is_finite() && q.abs().max_element() <= crate::limits::MAX_IMAGE_COORD_MM) {
+                        let (u, vv) = det.to_pixel(q.x, q.y);
+                        splat(&mut img[2], det.width, det.height, u, vv, v);
+                        res.blocked_rays += 1;
+                    }
+                }
                 for a in tree.arrivals.iter().filter(|a| a.scatters > 0 || !a.path.is_empty()) {
                     if !(a.point.is_finite() && a.point.abs().max_element() <= crate::limits::MAX_IMAGE_COORD_MM) {
                         res.out_of_range += 1;
@@ -307,7 +332,7 @@ fn plane<H: NextHit>(ctx: &PlaneContext, renderer: &Renderer, kernel: &H, scene:
         }
     }
     let pw = c.spectral.plane_weight;
-    let [ghost, stray] = img.map(|im| {
+    let [ghost, stray, blocked] = img.map(|im| {
         let im32: Vec<f32> = im.iter().map(|&x| x as f32).collect();
         let blurred = match &renderer.kernels[p] {
             Some(k) => k.convolve(&im32, det.width, det.height),
@@ -317,6 +342,7 @@ fn plane<H: NextHit>(ctx: &PlaneContext, renderer: &Renderer, kernel: &H, scene:
     });
     res.ghost = ghost;
     res.stray = stray;
+    res.blocked = blocked;
     Ok(res)
 }
 
@@ -338,6 +364,25 @@ fn splat(img: &mut [f64], width: usize, height: usize, u: f64, v: f64, w: f64) -
         }
     }
     lost
+}
+
+/// Each coating is valid and on a surface where it acts ([`crate::tracer::nonseq::solids::coating_sites`]):
+/// a coating the trees never read (a plane in air, a face merged into the coincident one before it) is
+/// refused, naming the surface and why, rather than recorded as applied.
+pub fn check_coating_sites(system: &SequentialSystem, coatings: &[Option<Coating>]) -> Result<()> {
+    if coatings.iter().all(Option::is_none) {
+        return Ok(());
+    }
+    let sites = crate::tracer::nonseq::solids::coating_sites(system)?;
+    for (k, c) in coatings.iter().enumerate() {
+        if let Some(c) = c {
+            c.validate().map_err(|e| Error::invalid(format!("coating of surface {k}: {e}")))?;
+            if let Some(what) = sites.get(k).cloned().flatten() {
+                return Err(Error::invalid(format!("coating of surface {k}: surface {k} is {what}: a coating there would do nothing")));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The non-sequential ghost and stray-light paths (`render --ghosts`, the `ghosts` analysis) do not model a

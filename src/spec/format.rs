@@ -70,12 +70,20 @@ pub fn catalog_entry(entry: impl AsRef<Path>) -> String {
     std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf()).display().to_string()
 }
 
-/// `spec` with each relative catalogue file of its `glass_catalogs` taken relative to `base` (the spec
-/// file's folder) as an absolute path; absolute paths and `builtin:NAME` entries are kept as written.
+/// `spec` with each relative catalogue file of its `glass_catalogs` and each relative mesh file of its
+/// `[mechanics]` taken relative to `base` (the spec file's folder) as an absolute path, so that a spec saved
+/// elsewhere (`export-spec`, a render's record) reads the same files; absolute paths, `builtin:NAME` entries
+/// and an empty mesh path (refused by the spec's checks) are kept as written.
 fn with_catalogs_from(mut spec: SystemSpec, base: &Path) -> SystemSpec {
     for e in &mut spec.glass_catalogs {
         if crate::materials::builtin_catalogs::entry_name(e).is_none() && Path::new(e.as_str()).is_relative() {
             *e = catalog_entry(base.join(e.as_str()));
+        }
+    }
+    for m in spec.mechanics.iter_mut().flat_map(|m| m.meshes.iter_mut()) {
+        if !m.path.is_empty() && Path::new(&m.path).is_relative() {
+            let p = base.join(&m.path);
+            m.path = std::path::absolute(&p).unwrap_or(p).display().to_string();
         }
     }
     spec

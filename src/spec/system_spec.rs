@@ -402,9 +402,15 @@ impl SystemSpec {
                 if i == 0 || i == last {
                     return Err(at("coded_mask", "the object and image surfaces cannot hold the coded mask (a mask on the object plane is single-disperser CASSI: remove coded_mask)".into()));
                 }
-                let flat = s.radius_mm.as_ref().map(|r| !r.value.is_finite() || r.value == 0.0).unwrap_or(true);
-                if s.kind != SurfaceKind::Standard || !flat || s.conic.as_ref().is_some_and(|c| c.value != 0.0) {
-                    return Err(at("coded_mask", "the coded mask must be a flat Standard surface (no radius, no conic)".into()));
+                // What makes the surface not a flat Standard one, named with its value.
+                let curved = s.radius_mm.as_ref().filter(|r| r.value.is_finite() && r.value != 0.0).map(|r| format!("radius_mm = {}", r.value));
+                let conic = s.conic.as_ref().filter(|c| c.value != 0.0).map(|c| format!("conic = {}", c.value));
+                let kind = (s.kind != SurfaceKind::Standard).then(|| format!("a {} surface", s.kind.label()));
+                if let Some(what) = kind.or(curved).or(conic) {
+                    return Err(at(
+                        "coded_mask",
+                        format!("{what}: the coded mask must be a flat Standard surface (radius_mm 0 or absent for flat, no conic): a mask on a curved or other surface is not modelled"),
+                    ));
                 }
                 if s.is_mirror() || s.material.as_deref().is_some_and(|m| !m.eq_ignore_ascii_case("air")) {
                     return Err(at("coded_mask", format!("material {:?}: the coded mask is a thin plate in air (no refraction at it)", s.material.as_deref().unwrap_or(""))));

@@ -86,6 +86,35 @@ pub enum RayStatus {
 }
 
 impl RayStatus {
+    /// Every status, in code order (`ALL[k] as u8 == k`; Python's `diffcassi.STATUS` is built from it).
+    ///
+    /// ```
+    /// use diffcassi::tracer::RayStatus;
+    /// assert!(RayStatus::ALL.iter().enumerate().all(|(k, s)| *s as usize == k));
+    /// assert_eq!(RayStatus::ALL[8].words(), "out of range");
+    /// assert_eq!(RayStatus::TotalInternalReflection.words(), "total internal reflection");
+    /// ```
+    pub const ALL: [RayStatus; 10] = [
+        RayStatus::Ok,
+        RayStatus::Missed,
+        RayStatus::Vignetted,
+        RayStatus::TotalInternalReflection,
+        RayStatus::NoConvergence,
+        RayStatus::InvalidInput,
+        RayStatus::Absorbed,
+        RayStatus::BounceLimit,
+        RayStatus::OutOfRange,
+        RayStatus::Evanescent,
+    ];
+
+    /// The status in words (`total internal reflection`, `out of range`): the label with spaces, `tir` spelt out.
+    pub fn words(self) -> String {
+        match self {
+            RayStatus::TotalInternalReflection => "total internal reflection".to_string(),
+            s => s.label().replace('_', " "),
+        }
+    }
+
     /// For `#[serde(serialize_with = "RayStatus::serialize_label")]`: a status field written as its label
     /// (`ok`, `tir`, …), as the CSV tables and `trace` write it, so a JSON and a CSV of one analysis agree.
     pub fn serialize_label<S: serde::Serializer>(s: &RayStatus, out: S) -> std::result::Result<S::Ok, S::Error> {

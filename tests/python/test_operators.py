@@ -91,7 +91,7 @@ def test_reconstruct_recovers_a_scene_through_the_exact_operator():
     assert diffcassi.metrics(x, est)["rmse"] < 0.5 * start
     est2, rec2 = diffcassi.reconstruct(t.operator, acq.astype(np.float32), solver="admm-tv", iterations=10)
     assert rec2["config"]["solver"] == "admm-tv" and np.isfinite(est2).all()
-    with pytest.raises(ValueError, match="iterations must be ≥ 1"):
+    with pytest.raises(ValueError, match=r"iterations: expected an integer in 1\.\.=100000"):
         diffcassi.reconstruct(t, acq, iterations=0)
     with pytest.raises(ValueError, match="unknown solver"):
         diffcassi.reconstruct(t, acq, solver="nope")

@@ -50,7 +50,7 @@ def test_study_from_python_equals_the_command_and_resumes(tmp_path, cli):
     (dict(synthetic=1, planes="many"), "planes: expected an integer ≥ 1"),
     (dict(synthetic=1, solvers="gap-tv,"), "empty entry"),
     (dict(synthetic=1, noise_estimate="guess"), "noise_estimate `guess`"),
-    (dict(synthetic=1, operators=[1, 2]), "--operators `1,2`: entry `1`: use exact"),
+    (dict(synthetic=1, operators=[1, 2]), "operators `1,2`: entry `1`: use exact"),
     (dict(synthetic=1, bands=[450.0, 2000.0], presets="sp", scene_size=12, rays=1), "render plane 0"),
 ])
 def test_bad_settings_are_refused_before_anything_is_written(tmp_path, settings, needle):

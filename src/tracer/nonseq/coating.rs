@@ -124,8 +124,13 @@ impl std::str::FromStr for CoatingOverride {
             let coating = if value == "bare" {
                 None
             } else if let Some(r) = value.strip_prefix('R').or_else(|| value.strip_prefix('r')) {
-                let r: f64 = r.parse().map_err(|_| format!("`{item}`: the reflectance `{r}` is not a number (a fraction in [0, 1], written without a space or suffix: R0.01)"))?;
-                Some(Coating::Reflectance(r))
+                let x: f64 = r.parse().map_err(|_| format!("`{item}`: the reflectance `{r}` is not a number (a fraction in [0, 1], written without a space or suffix: R0.01)"))?;
+                // A value that rounds to 0 is not the 0 written (R1e-400 read as 0): refused; −0 is 0.
+                let mantissa = r.split(['e', 'E']).next().unwrap_or("");
+                if x == 0.0 && mantissa.bytes().any(|b| (b'1'..=b'9').contains(&b)) {
+                    return Err(format!("`{item}`: the reflectance `{r}` is below f64's range and would be read as 0: write R0 for none"));
+                }
+                Some(Coating::Reflectance(x + 0.0))
             } else if let Some(w) = value.strip_prefix("mgf2@") {
                 // One rule for every value: a plain number, its unit implied (reflectance: a fraction; design
                 // wavelength: nm), no unit suffix and no space inside (`mgf2@550nm` and `R 0.01` alike refused).
@@ -146,17 +151,17 @@ impl std::str::FromStr for CoatingOverride {
 
 impl CoatingOverride {
     /// The coatings of `surfaces` (the spec's, one per sequential surface) with the override applied.
-    /// `not_an_interface(k)` says why surface k cannot carry a coating
-    /// ([`crate::spec::SystemSpec::not_an_interface`]): `all` coats every other surface; a surface index
+    /// `not_an_interface(k)` says why a coating on surface k would do nothing
+    /// ([`super::solids::coating_sites`]): `all` coats every other surface; a surface index
     /// beyond the system, or naming such a surface, is an error naming it.
-    pub fn apply(&self, surfaces: &[Option<Coating>], not_an_interface: &dyn Fn(usize) -> Option<&'static str>) -> crate::error::Result<Vec<Option<Coating>>> {
+    pub fn apply(&self, surfaces: &[Option<Coating>], not_an_interface: &dyn Fn(usize) -> Option<String>) -> crate::error::Result<Vec<Option<Coating>>> {
         let mut out = surfaces.to_vec();
         for (target, coating) in &self.items {
             match target {
                 None => out.iter_mut().enumerate().filter(|(k, _)| not_an_interface(*k).is_none()).for_each(|(_, c)| *c = coating.clone()),
                 Some(k) if *k < out.len() => {
                     if let (Some(what), Some(_)) = (not_an_interface(*k), coating) {
-                        return Err(crate::error::Error::invalid(format!("--coating `{}`: surface {k} is {what}, not a refracting interface: a coating there would do nothing", self.text)));
+                        return Err(crate::error::Error::invalid(format!("--coating `{}`: surface {k} is {what}: a coating there would do nothing", self.text)));
                     }
                     out[*k] = coating.clone()
                 }
@@ -177,7 +182,7 @@ mod tests {
         let c = o.apply(&[None, Some(Coating::Reflectance(0.5)), None, Some(Coating::Reflectance(0.2))], &|_| None).unwrap();
         assert_eq!(c, vec![Some(Coating::Mgf2QuarterWaveNm(550.0)), Some(Coating::Mgf2QuarterWaveNm(550.0)), Some(Coating::Reflectance(0.01)), None]);
         // `all` skips surfaces that are not interfaces; naming one is an error.
-        let object = |k: usize| (k == 0).then_some("the object surface");
+        let object = |k: usize| (k == 0).then(|| "the object surface, not a refracting interface".to_string());
         let c = "all=R0.01".parse::<CoatingOverride>().unwrap().apply(&[None, None], &object).unwrap();
         assert_eq!(c, vec![None, Some(Coating::Reflectance(0.01))]);
         let e = "0=R0.01".parse::<CoatingOverride>().unwrap().apply(&[None, None], &object).unwrap_err().to_string();
@@ -186,6 +191,11 @@ mod tests {
             let e = bad.parse::<CoatingOverride>().unwrap_err();
             assert!(e.contains(needle), "{bad}: {e}");
         }
+        // R1e-400 is not the 0 it would be read as; −0 is recorded as 0.
+        assert!("all=R1e-400".parse::<CoatingOverride>().unwrap_err().contains("below f64's range"));
+        let zero = "all=R-0".parse::<CoatingOverride>().unwrap();
+        assert!(matches!(zero.items[0].1, Some(Coating::Reflectance(r)) if r.to_bits() == 0));
+        assert!("all=R0e-400".parse::<CoatingOverride>().is_ok());
         let e = "7=R0".parse::<CoatingOverride>().unwrap().apply(&[None, None], &|_| None).unwrap_err().to_string();
         assert!(e.contains("surface 7"), "{e}");
     }

@@ -359,6 +359,34 @@ fn is_identity(rotation: &DMat3, offset: DVec3) -> bool {
     (*rotation - DMat3::IDENTITY).to_cols_array().iter().all(|v| v.abs() < 1e-12) && offset.abs().max_element() < 1e-12
 }
 
+/// Why a coating on each sequential surface would do nothing in the non-sequential model (`None` where it
+/// acts): what [`crate::spec::SystemSpec::not_an_interface`] says (the object and image surfaces, a mirror,
+/// a Coordinate Break, a paraxial lens), a surface with the same medium on both sides (a virtual interface:
+/// no geometry, nothing reflects there), and a plane merged into the coincident plane before it (one
+/// interface, which reads the first surface's coating, as [`super::walk_tree`] does). `--coating` and the
+/// ghost passes check coatings against it, so that no coating is recorded that nothing applies.
+pub fn coating_sites(system: &SequentialSystem) -> Result<Vec<Option<String>>> {
+    let spec = &system.spec;
+    let mut out: Vec<Option<String>> = (0..spec.surfaces.len()).map(|k| spec.not_an_interface(k).map(|what| format!("{what}, not a refracting interface"))).collect();
+    for g in group_surfaces(system, &SolidsOptions::default())? {
+        if g.is_image || g.mirror {
+            continue;
+        }
+        for (j, &s) in g.surfaces.iter().enumerate() {
+            if out[s].is_some() {
+                continue;
+            }
+            if g.virtual_ {
+                out[s] = Some(format!("a dummy surface (the same medium, {}, on both sides: nothing reflects there)", system.surfaces[g.medium_after].medium_after));
+            } else if j > 0 {
+                let first = g.surfaces[0];
+                out[s] = Some(format!("merged with surface {first} (coincident planes with nothing between them are one interface, which takes surface {first}'s coating)"));
+            }
+        }
+    }
+    Ok(out)
+}
+
 /// Merge coincident path surfaces, decide virtual interfaces and clear apertures.
 fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<Vec<Group>> {
     // Mechanical semi-diameters from the system's fields mirrored to all quadrants.

@@ -148,6 +148,9 @@ pub struct RayTree {
     /// How the order-0 path (all transmissions) ended, and where ([`RayStatus`] as the tracers classify).
     pub main_status: Option<RayStatus>,
     pub main_surface: u32,
+    /// The order-0 path met the kernel's extra geometry (a mechanical part) before the detector: the
+    /// sequential main image, which has no mechanics, counts a ray the mechanics stopped.
+    pub main_blocked: bool,
 }
 
 /// The label of a path: "5R 3R" (surfaces of its reflections), "main" for none.
@@ -249,6 +252,7 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
                         // The order-0 path ends here as far as the main image is concerned.
                         tree.main_status = Some(RayStatus::Absorbed);
                         tree.main_surface = last;
+                        tree.main_blocked = true;
                     }
                     let scattered = kernel.scatter(&hit, node.d, options.seed, index, u64::from(scatter_count));
                     scatter_count += 1;
