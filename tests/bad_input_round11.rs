@@ -88,6 +88,21 @@ fn a_mesh_across_the_beam_takes_its_light_from_the_main_image() {
     assert!(g["blocked_rays"].as_u64().unwrap() > 0);
     // Without a mesh in the beam nothing is taken: the record says 0.
     assert_eq!(json(dir.join("base/render.json"))["ghosts"]["acquisition_blocked"].as_f64(), Some(0.0));
+    // A ghost subsample (--ghost-rays below --rays) still takes every rendered ray the mechanics stop, from a
+    // pass over the render's own rays: a subsample's estimate, clamped at 0 per pixel, left 140 of 552 behind
+    // a box across the beam and 310–356 behind half of one (a second prober).
+    for (spec, want) in [("full.toml", 0.0), ("half.toml", 0.5)] {
+        let out = format!("sub-{spec}");
+        let mut a = vec!["render", "--system", spec];
+        a.extend(SMALL);
+        a.extend(["1", "--mechanics", "--ghost-rays", "1", "--cube", "--out", &out]);
+        ok(dir, &a);
+        let share = total(dir, &out) / base;
+        assert!((share - want).abs() < 0.02 && (want > 0.0 || share < 1e-6), "{spec}: {share} of the image is left, not {want}");
+        // The per-band images add up to the acquisition.
+        let bands: f64 = diffcassi::io::exr::read_exr(dir.join(&out).join("cube.exr")).unwrap().channels.iter().map(|c| c.data.iter().map(|&x| x as f64).sum::<f64>()).sum();
+        assert!((bands - total(dir, &out)).abs() <= 1e-6 * base, "{spec}: bands {bands} vs acquisition {}", total(dir, &out));
+    }
 }
 
 /// `ghosts` ignored the spec's `[mechanics]` silently (a missing mesh file, a box across the beam: the same
@@ -111,6 +126,23 @@ fn unused_mechanics_are_named_and_exported_mesh_paths_still_resolve() {
     a.extend(["2", "--mechanics", "--out", "moved"]);
     let out = ok(dir, &a);
     assert!(out.contains("the mechanics block 1.000e0"), "{out}");
+    // With the mesh paths absolute, a dataset of a project folder moved elsewhere saw "another configuration"
+    // (…/P/box.obj ≠ …/Q/box.obj) although `render-dataset` traces no mechanics: they are no part of it.
+    let p = dir.join("P");
+    std::fs::create_dir_all(p.join("scenes")).unwrap();
+    std::fs::copy(dir.join("box.obj"), p.join("box.obj")).unwrap();
+    std::fs::copy(dir.join("full.toml"), p.join("sys.toml")).unwrap();
+    for k in 0..2 {
+        let v: Vec<f32> = (0..8 * 8 * 3).map(|i| ((i * 7 + k * 3) % 11) as f32 / 11.0).collect();
+        diffcassi::io::npy::write_npy_f32(p.join(format!("scenes/s{k}.npy")), &[8, 8, 3], &v).unwrap();
+        diffcassi::io::npy::write_npy_f64(p.join(format!("scenes/s{k}_wavelengths_nm.npy")), &[3], &[450.0, 550.0, 650.0]).unwrap();
+    }
+    let args = ["render-dataset", "--system", "sys.toml", "--scenes", "scenes", "--scene-size", "8", "--bands", "450:650:3", "--planes", "3", "--rays", "2", "--no-mapping", "--out", "ds"];
+    ok(&p, &args);
+    std::fs::remove_dir_all(p.join("ds/s1")).unwrap();
+    std::fs::rename(&p, dir.join("Q")).unwrap();
+    let out = ok(&dir.join("Q"), &args);
+    assert!(out.contains("rendered 1 of 1 scenes"), "{out}");
 }
 
 /// A coating where nothing reflects was recorded and did nothing: on a dummy plane in air (render.json listed
@@ -222,4 +254,32 @@ fn a_curved_mask_surface_is_named_with_its_radius() {
     assert_ne!(curved, spec, "the mask surface's lines");
     std::fs::write(dir.join("curved.toml"), curved).unwrap();
     refused(dir, &["info", "--system", "curved.toml"], &["coded_mask: radius_mm = 1e308", "flat Standard surface"]);
+}
+
+/// A paraxial lens at zero thickness before a flat glass face: the non-sequential walk skipped the second hit
+/// (within the first's offset), so a reflectance-1 coating on the face let 42 % through (a second prober).
+/// Refused, naming both surfaces; 1 µm between them walks as it should (the coated face reflects everything).
+#[test]
+fn a_paraxial_lens_on_a_glass_face_is_refused_by_the_non_sequential_tracers() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let spec = |gap: &str| {
+        format!(
+            "name = \"t\"\nwavelengths_nm = [450.0, 520.0, 650.0]\nprimary_wavelength_nm = 520.0\nfields_mm = [[0.0, 0.0], [0.0, 0.05]]\n\
+             [aperture]\ntype = \"object_space_na\"\nvalue = 0.05\n\
+             [[surfaces]]\ntype = \"standard\"\nthickness_mm = 100.0\n\
+             [[surfaces]]\ntype = \"paraxial\"\nthickness_mm = {gap}\nfocal_length_mm = 1000.0\nsemi_diameter_mm = 8.0\n\
+             [[surfaces]]\ntype = \"standard\"\nstop = true\nthickness_mm = 4.0\nmaterial = \"N-BK7\"\nsemi_diameter_mm = 8.0\n\
+             [[surfaces]]\ntype = \"standard\"\nradius_mm = -26.0\nthickness_mm = 95.0\nsemi_diameter_mm = 8.0\n\
+             [[surfaces]]\ntype = \"standard\"\nsemi_diameter_mm = 5.0\n"
+        )
+    };
+    std::fs::write(dir.join("px0.toml"), spec("0.0")).unwrap();
+    std::fs::write(dir.join("px1.toml"), spec("0.001")).unwrap();
+    let base = ["render", "--scene-size", "8", "--planes", "2", "--rays", "4", "--no-mapping", "--ghosts", "1", "--coating", "2=R1"];
+    let with = |extra: &[&'static str]| -> Vec<&str> { base.iter().copied().chain(extra.iter().copied()).collect() };
+    refused(dir, &with(&["--system", "px0.toml", "--out", "o"]), &["paraxial lens of surface 1 and the face of surface 2 lie at one place"]);
+    refused(dir, &["ghosts", "--system", "px0.toml"], &["paraxial lens of surface 1"]);
+    let out = ok(dir, &with(&["--system", "px1.toml", "--out", "o1"]));
+    assert!(out.contains("main path 0.0000"), "{out}");
 }

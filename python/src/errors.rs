@@ -16,9 +16,10 @@ const OPTION_KEYWORDS: &[&str] = &[
     "solver", "iterations", "step", "tv_weight", "tv_iterations", "tv_coupling", "accelerated", "admm_eta", "sigma_max",
     "sigma_min", "tolerance", "denoiser", "tv_warmup", "discrepancy", "noise_norm", "sigma_auto", "noise_twin", "noise_factor",
     "equivariant", "equivariant_seed",
-    // study (its keywords are the command line's options in snake case)
+    // study (its keywords are the command line's options in snake case; not `bands`: `--bands` is `render`'s
+    // `bands_nm`, and the library's message says so)
     "presets", "systems", "glass_catalogs", "operators", "solvers", "scenes", "synthetic", "scene_wavelengths", "scene_size",
-    "fit", "bands", "mask", "transport_memory_gb", "force", "noise_estimate", "plain", "weights",
+    "fit", "mask", "transport_memory_gb", "force", "noise_estimate", "plain", "weights",
 ];
 
 /// `message` with each command-line option that has a Python keyword (`--read-noise-e`) written as that
@@ -31,9 +32,18 @@ pub fn pythonic(message: &str) -> String {
         out.push_str(before);
         let name_len = from[2..].find(|c: char| !(c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-')).unwrap_or(from.len() - 2);
         let name = from[2..2 + name_len].trim_end_matches('-');
-        let boundary = out.chars().last().map_or(true, |c| !(c.is_alphanumeric() || c == '-'));
+        // An option stands alone: after a space, a bracket or a quote and before a space or punctuation (not in
+        // a path such as `runs/--seed/x.npy`).
+        let before = out.chars().last().map_or(true, |c| c.is_whitespace() || "([`'\"".contains(c));
+        let next = &from[2 + name.len()..];
+        let after = match next.chars().next() {
+            None => true,
+            // A full stop, not a file name's extension (`--seed.npy`).
+            Some('.') => next[1..].chars().next().map_or(true, char::is_whitespace),
+            Some(c) => c.is_whitespace() || ",;:)]`'\"".contains(c),
+        };
         let snake = name.replace('-', "_");
-        if boundary && name.starts_with(|c: char| c.is_ascii_lowercase()) && OPTION_KEYWORDS.contains(&snake.as_str()) {
+        if before && after && name.starts_with(|c: char| c.is_ascii_lowercase()) && OPTION_KEYWORDS.contains(&snake.as_str()) {
             out.push_str(&snake);
             rest = &from[2 + name.len()..];
         } else {

@@ -194,7 +194,8 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
             let q = preset_alias(&a.observed, name.trim()).unwrap_or_else(|| p.clone());
             match q {
                 _ if structure.is_some() => None,
-                Param::Cell { surface, ref column } => observed_spec.surfaces.get(surface).and_then(|s| s.cell(column)).map(|c| c.value),
+                // A cell the observed spec leaves out (a Coordinate Break's tilt, a conic) is its default, 0.
+                Param::Cell { surface, ref column } => observed_spec.surfaces.get(surface).and_then(|s| s.clone().cell_or_default(column).map(|c| c.value)),
                 _ => None,
             }
         })

@@ -181,7 +181,12 @@ impl<'a> Statements<'a> {
 
 fn parse_stl_ascii(bytes: &[u8], name: &str) -> Result<TriMesh> {
     let text = std::str::from_utf8(bytes).map_err(|e| err(name, format!("ASCII STL is not valid UTF-8 (byte {})", e.valid_up_to())))?;
-    let mut st = Statements { lines: Box::new(text.lines().enumerate().map(|(i, l)| (i + 1, l.split_whitespace().collect::<Vec<_>>())).filter(|(_, t)| !t.is_empty())), last_line: 0, name };
+    // NUL bytes (a padded export's tail) separate statements like whitespace.
+    let mut st = Statements {
+        lines: Box::new(text.lines().enumerate().map(|(i, l)| (i + 1, l.split(|c: char| c.is_whitespace() || c == '\0').filter(|w| !w.is_empty()).collect::<Vec<_>>())).filter(|(_, t)| !t.is_empty())),
+        last_line: 0,
+        name,
+    };
     let (n0, first) = st.next("solid")?;
     if first[0] != "solid" {
         return Err(err(name, format!("line {n0}: expected `solid`, found `{}`", first.join(" "))));
@@ -194,8 +199,11 @@ fn parse_stl_ascii(bytes: &[u8], name: &str) -> Result<TriMesh> {
             "endsolid" => {
                 let Some((n, t)) = st.next_or_end() else { break 'solids };
                 if t[0] != "solid" {
-                    return Err(err(name, format!("line {n}: expected `solid` (another body) or the end of the file after `endsolid`, found `{}`", t.join(" "))));
+                    return Err(err(name, format!("line {n}: expected `solid` (another body) or the end of the file after `endsolid`, found `{}`", t.join(" ").escape_debug())));
                 }
+                // Each body is welded on its own: two bodies that touch (a shared face) stay two closed
+                // solids, not one non-manifold one (as two mesh files would).
+                w.index.clear();
                 continue 'solids;
             }
             "facet" if t.len() == 5 && t[1] == "normal" => {}
@@ -290,19 +298,25 @@ pub fn parse_obj(bytes: &[u8], name: &str) -> Result<TriMesh> {
 }
 
 /// Largest distance of a polygon's vertex from its plane, relative to the polygon's diameter, that is still
-/// planar (CAD exports round coordinates to f32: ~1e-7 relative).
-const PLANAR_TOLERANCE: f64 = 1e-6;
+/// planar: either triangulation of such a polygon is the same surface to 1e-3 of its size (CAD exports round
+/// coordinates to f32, or to a few decimals in text: a 1 mm quad written with 4 decimals is off by 5e-5).
+const PLANAR_TOLERANCE: f64 = 1e-3;
 
 /// Triangles of a planar polygon face (`idx` into `vertices`, in its winding order, which the triangles
 /// keep). A convex polygon is fanned from its first vertex (as OBJ readers do); a concave one is ear-clipped
 /// in its plane (a fan from a reflex vertex would cover its notch). Errors: a polygon that is not planar
 /// (which triangles it means is ambiguous) or not simple (its edges cross: no ear is left).
 fn triangulate(vertices: &[DVec3], idx: &[u32]) -> std::result::Result<Vec<[u32; 3]>, String> {
-    let fan = || (1..idx.len() - 1).map(|j| [idx[0], idx[j], idx[j + 1]]).collect::<Vec<_>>();
-    if idx.len() == 3 {
+    let n = idx.len();
+    let fan_from = |s: usize| (1..n - 1).map(|j| [idx[s], idx[(s + j) % n], idx[(s + j + 1) % n]]).collect::<Vec<_>>();
+    let fan = || fan_from(0);
+    if n == 3 {
         return Ok(fan());
     }
     let p: Vec<DVec3> = idx.iter().map(|&k| vertices[k as usize]).collect();
+    if let Some((i, j)) = (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).find(|&(i, j)| p[i] == p[j]) {
+        return Err(format!("has the same point twice (its vertices {} and {}): split it into triangles", i + 1, j + 1));
+    }
     // Newell's normal: twice the vector area, well defined for concave polygons.
     let mut normal = DVec3::ZERO;
     for (a, b) in p.iter().zip(p.iter().cycle().skip(1)) {
@@ -313,8 +327,10 @@ fn triangulate(vertices: &[DVec3], idx: &[u32]) -> std::result::Result<Vec<[u32;
     };
     let centroid = p.iter().copied().sum::<DVec3>() / p.len() as f64;
     let diameter = p.iter().flat_map(|a| p.iter().map(move |b| (*a - *b).length())).fold(0.0, f64::max);
+    // Plus the f32 rounding of coordinates far from the origin (a 0.5 mm face 1 m away).
+    let far = p.iter().map(|v| v.abs().max_element()).fold(0.0, f64::max);
     if let Some((j, off)) = p.iter().map(|v| (*v - centroid).dot(nz).abs()).enumerate().max_by(|a, b| a.1.total_cmp(&b.1)) {
-        if off > PLANAR_TOLERANCE * diameter {
+        if off > PLANAR_TOLERANCE * diameter + 4.0 * f32::EPSILON as f64 * far {
             return Err(format!("is not planar (its vertex {} lies {off:.3e} off the polygon's plane, whose diameter is {diameter:.3e}): split it into triangles", j + 1));
         }
     }
@@ -338,8 +354,13 @@ fn triangulate(vertices: &[DVec3], idx: &[u32]) -> std::result::Result<Vec<[u32;
     if let Some((i, j)) = (0..m).flat_map(|i| (i + 2..m).filter(move |&j| (j + 1) % m != i).map(move |j| (i, j))).find(|&(i, j)| meet(edge(i), edge(j))) {
         return Err(format!("is not a simple polygon (its edges {}–{} and {}–{} cross): split it into triangles", i + 1, (i + 1) % m + 1, j + 1, (j + 1) % m + 1));
     }
-    if (0..m).all(|i| cross(q[(i + m - 1) % m], q[i], q[(i + 1) % m]) >= 0.0) {
-        return Ok(fan());
+    let turn = |i: usize| cross(q[(i + m - 1) % m], q[i], q[(i + 1) % m]);
+    // A turn within rounding of 0 (the projection into the plane) is a straight corner.
+    let straight = 1e-12 * diameter * diameter;
+    if (0..m).all(|i| turn(i) >= -straight) {
+        // Convex: fanned from a vertex that lies on the line of its two edges, if any (a fan from elsewhere
+        // would have a zero-area triangle through it), else from the first.
+        return Ok(fan_from((0..m).find(|&i| turn(i).abs() <= straight).unwrap_or(0)));
     }
     // Ear clipping: an ear is a convex corner whose triangle holds no other remaining vertex.
     let inside = |t: [(f64, f64); 3], x: (f64, f64)| cross(t[0], t[1], x) >= 0.0 && cross(t[1], t[2], x) >= 0.0 && cross(t[2], t[0], x) >= 0.0;
@@ -350,7 +371,7 @@ fn triangulate(vertices: &[DVec3], idx: &[u32]) -> std::result::Result<Vec<[u32;
         let ear = (0..k).find(|&i| {
             let (a, b, c) = (left[(i + k - 1) % k], left[i], left[(i + 1) % k]);
             let t = [q[a], q[b], q[c]];
-            cross(t[0], t[1], t[2]) > 0.0 && left.iter().filter(|&&o| o != a && o != b && o != c).all(|&o| !inside(t, q[o]))
+            cross(t[0], t[1], t[2]) > straight && left.iter().filter(|&&o| o != a && o != b && o != c).all(|&o| !inside(t, q[o]))
         });
         let Some(i) = ear else {
             return Err("is not a simple polygon (its edges fold back on each other): split it into triangles".to_string());
@@ -502,5 +523,45 @@ mod tests {
         assert!(e.contains("line 6") && e.contains("not a simple polygon"), "{e}");
         let e = parse_obj(b"v 0 0 0 1 1\n", "c.obj").unwrap_err().to_string();
         assert!(e.contains("line 1: expected `v x y z [w]`"), "{e}");
+    }
+
+    /// A second prober of round 11: two bodies that touch (a shared face) are welded each on its own and load as
+    /// two closed solids; a flat face from an f32 or 4-decimal export, far from the origin, is planar; a convex
+    /// face with a straight corner next to its first vertex loads; a repeated point is named; NUL padding after
+    /// the last `endsolid` is blank.
+    #[test]
+    fn cad_exports_load_as_written() {
+        let cube = |x0: f64| -> String {
+            let c = |i: u32| DVec3::new(x0 + (i & 1) as f64, ((i >> 1) & 1) as f64, ((i >> 2) & 1) as f64);
+            let faces = [[0, 2, 3, 1], [4, 5, 7, 6], [0, 1, 5, 4], [1, 3, 7, 5], [3, 2, 6, 7], [2, 0, 4, 6]];
+            let mut t = format!("solid c{x0}\n");
+            for f in faces {
+                for tri in [[f[0], f[1], f[2]], [f[0], f[2], f[3]]] {
+                    t += " facet normal 0 0 0\n  outer loop\n";
+                    for k in tri {
+                        let v = c(k);
+                        t += &format!("   vertex {} {} {}\n", v.x, v.y, v.z);
+                    }
+                    t += "  endloop\n endfacet\n";
+                }
+            }
+            t + "endsolid\n"
+        };
+        let two = cube(0.0) + &cube(1.0) + "\0\0\0\0";
+        let m = parse_mesh(two.as_bytes(), "touching.stl", true).unwrap();
+        assert_eq!((m.vertices.len(), m.triangles.len()), (16, 24));
+        // A 0.7 mm quad 1 m from the origin in f32, and a 1 mm quad written with 4 decimals.
+        let (x, y) = (1000.123_f32, -999.877_f32);
+        let f32_quad = format!("v {} {} 500.5\nv {} {} 500.5\nv {} {} 500.5\nv {} {} 500.5\nf 1 2 3 4\n", x, y, x + 0.5, y, x + 0.5, y + 0.5, x, y + 0.5);
+        parse_obj(f32_quad.as_bytes(), "far.obj").unwrap();
+        parse_obj(b"v 0 0 0\nv 1.0000 0 0.00004\nv 1.0000 1.0000 -0.00004\nv 0 1.0000 0.00004\nf 1 2 3 4\n", "dec.obj").unwrap();
+        // A square with a point on its first edge, listed right after the first vertex: no zero-area triangle.
+        let m = parse_obj(b"v 0 0 0\nv 0.5 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4 5\n", "straight.obj").unwrap();
+        for k in 0..m.triangles.len() {
+            let [a, b, c] = m.corners(k);
+            assert!((b - a).cross(c - a).length() > 1e-9, "triangle {k} {:?}", m.triangles[k]);
+        }
+        let e = parse_obj(b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 1 0 0\nf 1 2 3 4 5\n", "twice.obj").unwrap_err().to_string();
+        assert!(e.contains("the same point twice (its vertices 2 and 5)"), "{e}");
     }
 }

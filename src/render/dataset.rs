@@ -332,17 +332,28 @@ pub struct DatasetOptions {
 /// Version of the layout of [`configuration`]; a change makes older outputs mismatch (and be re-rendered).
 pub const CONFIGURATION_FORMAT: u32 = 1;
 
+/// A spec's JSON without its `[mechanics]` section: a render traces no mechanics (only `render --ghosts K
+/// --mechanics` does), so their files — recorded as absolute paths — are no part of what a dataset rendered, and
+/// a project folder moved elsewhere resumes (round 11).
+fn spec_without_mechanics(mut spec: Value) -> Value {
+    if let Some(o) = spec.as_object_mut() {
+        o.remove("mechanics");
+    }
+    spec
+}
+
 /// The canonical configuration of a dataset render: everything that determines the outputs' bytes and
-/// nothing else (no timings, thread counts, paths of the output folder or diffcassi version). Two renders
-/// with equal configurations and scenes give identical files. The mask is identified by its content
-/// (CRC-32 of its f32 transmissions), not by the file it came from.
+/// nothing else (no timings, thread counts, paths of the output folder or diffcassi version; not the spec's
+/// mechanics, which a render does not trace). Two renders with equal configurations and scenes give
+/// identical files. The mask is identified by its content (CRC-32 of its f32 transmissions), not by the file
+/// it came from.
 pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
     let c = &renderer.config;
     let mask_bytes: Vec<u8> = renderer.mask.values.iter().flat_map(|v| v.to_le_bytes()).collect();
     let mut v = json!({
         "format": CONFIGURATION_FORMAT,
         "system": renderer.system.name(),
-        "system_spec": serde_json::to_value(&renderer.system.spec).unwrap_or(Value::Null),
+        "system_spec": spec_without_mechanics(serde_json::to_value(&renderer.system.spec).unwrap_or(Value::Null)),
         "tracer": renderer.tracer.name(),
         "scene_height": c.scene_height,
         "scene_width": c.scene_width,
@@ -378,6 +389,12 @@ pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
 /// `airy`), with both values. Numbers compare by value (`1` equals `1.0`; the records are written and read
 /// back bit-exactly, serde_json's `float_roundtrip`), so a mismatch is never an artefact of the JSON text.
 pub fn configuration_differences(recorded: &Value, requested: &Value) -> Vec<String> {
+    // A dataset recorded before the mechanics were left out compares without them too.
+    let mut recorded = recorded.clone();
+    if let Some(spec) = recorded.get_mut("system_spec") {
+        *spec = spec_without_mechanics(spec.take());
+    }
+    let recorded = &recorded;
     if !(recorded.is_object() && requested.is_object()) {
         return if same_json(recorded, requested) { vec![] } else { vec!["the configuration is not a JSON object".into()] };
     }

@@ -17,8 +17,10 @@
 //! ([`RayTree::main_blocked`](crate::tracer::nonseq::RayTree)) also traces its ray sequentially, and where
 //! the main image counted it, the **blocked** image takes the same deposit (`value / rays_per_pixel` at the
 //! sequential landing, the same splat, blur and plane weight); the acquisition is main − blocked + ghost +
-//! stray. With every rendered ray's tree walked the blocked rays are removed exactly (to the rounding of the
-//! render's f32 footprints); a subsample (`rays_per_pixel` < the render's) removes them in expectation.
+//! stray. The blocked rays are always every rendered ray's, so they leave exactly (to the rounding of the
+//! render's f32 footprints): with a ghost subsample (`rays_per_pixel` < the render's N) a second pass walks
+//! the order-0 path alone (`order` 0) of each of the render's N rays (a subsample's estimate, clamped at 0 per
+//! pixel, brightened what it should dim).
 //!
 //! **Units.** The main image counts an arrived ray with weight 1 (the sequential model has no Fresnel
 //! loss); ghost and stray arrivals carry their power relative to the launched ray (1), so the ghost share
@@ -77,13 +79,16 @@ pub struct GhostConfig {
     pub rays_per_pixel: usize,
     /// Coating of each sequential surface (the spec's, or overridden).
     pub coatings: Vec<Option<Coating>>,
+    /// The kernel holds mechanics (extra geometry) that may stop order-0 paths: the rays they stop leave the
+    /// main image ([module docs](self), "Mechanics in the beam").
+    pub mechanics: bool,
 }
 
 impl GhostConfig {
     /// Order `order`, polarised Fresnel, roulette below 1e-7, seed 0, `rays_per_pixel` rays, the spec's
     /// coatings.
     pub fn new(order: u32, system: &SequentialSystem, rays_per_pixel: usize) -> Self {
-        GhostConfig { order, model: FresnelModel::Polarized, threshold: 1e-7, seed: 0, rays_per_pixel, coatings: system.spec.surfaces.iter().map(|s| s.coating.clone()).collect() }
+        GhostConfig { order, model: FresnelModel::Polarized, threshold: 1e-7, seed: 0, rays_per_pixel, coatings: system.spec.surfaces.iter().map(|s| s.coating.clone()).collect(), mechanics: false }
     }
 
     /// Errors name the setting and its value.
@@ -244,32 +249,41 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
         seed: c.seed,
     };
     let opts = cfg.tree_options();
+    // The blocked rays come from the trees when they are the render's own rays, else from a pass over those.
+    let full = cfg.rays_per_pixel == c.rays_per_pixel;
+    let trees = Pass { arrivals: true, blocked: cfg.mechanics && full };
     let mut out = GhostImages { ghost: vec![0.0; npix], stray: vec![0.0; npix], blocked: vec![0.0; npix], bands: keep_bands.then(|| vec![vec![0.0; npix]; sp.bands_nm.len()]), report: GhostReport::default() };
     let planes: Vec<usize> = (0..sp.planes()).collect();
-    for chunk in planes.chunks(PLANE_CHUNK) {
-        let results: Vec<Result<PlaneResult>> = chunk.par_iter().map(|&p| plane(&ctx, renderer, kernel, scene, cfg, &opts, p)).collect();
-        for (&p, r) in chunk.iter().zip(results) {
-            let r = r?;
-            for (a, b) in out.ghost.iter_mut().zip(&r.ghost) {
-                *a += b;
-            }
-            for (a, b) in out.stray.iter_mut().zip(&r.stray) {
-                *a += b;
-            }
-            for (a, b) in out.blocked.iter_mut().zip(&r.blocked) {
-                *a += b;
-            }
-            if let Some(bands) = &mut out.bands {
-                for (((a, g), s), b) in bands[sp.plane_band[p]].iter_mut().zip(&r.ghost).zip(&r.stray).zip(&r.blocked) {
-                    *a += g + s - b;
+    // One pass over every plane's rays (of `ctx`'s sampler), its images and budget added to `out`.
+    let mut run = |ctx: &PlaneContext, opts: &TreeOptions, pass: Pass| -> Result<()> {
+        for chunk in planes.chunks(PLANE_CHUNK) {
+            let results: Vec<Result<PlaneResult>> = chunk.par_iter().map(|&p| plane(ctx, renderer, kernel, scene, cfg, opts, p, pass)).collect();
+            for (&p, r) in chunk.iter().zip(results) {
+                let r = r?;
+                for (image, add) in [(&mut out.ghost, &r.ghost), (&mut out.stray, &r.stray), (&mut out.blocked, &r.blocked)] {
+                    for (a, b) in image.iter_mut().zip(add) {
+                        *a += b;
+                    }
                 }
+                if let Some(bands) = &mut out.bands {
+                    for (((a, g), s), b) in bands[sp.plane_band[p]].iter_mut().zip(&r.ghost).zip(&r.stray).zip(&r.blocked) {
+                        *a += g + s - b;
+                    }
+                }
+                out.report.blocked_rays += r.blocked_rays;
+                out.report.energy.add(&r.energy);
+                out.report.rays_traced += r.rays;
+                out.report.off_detector += r.off;
+                out.report.out_of_range += r.out_of_range;
             }
-            out.report.blocked_rays += r.blocked_rays;
-            out.report.energy.add(&r.energy);
-            out.report.rays_traced += r.rays;
-            out.report.off_detector += r.off;
-            out.report.out_of_range += r.out_of_range;
         }
+        Ok(())
+    };
+    run(&ctx, &opts, trees)?;
+    if cfg.mechanics && !full {
+        // The render's N rays, their order-0 paths only: which of them the mechanics stop.
+        let sampler_n = RaySampler::new(c.rays_per_pixel, c.sampling);
+        run(&PlaneContext { sampler: &sampler_n, ..ctx.clone() }, &TreeOptions { order: 0, ..opts }, Pass { arrivals: false, blocked: true })?;
     }
     out.report.ghost_total = out.ghost.iter().sum();
     out.report.stray_total = out.stray.iter().sum();
@@ -278,15 +292,25 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
     Ok(out)
 }
 
-/// One plane: trees of every ray, splats, blur, plane weight.
-fn plane<H: NextHit>(ctx: &PlaneContext, renderer: &Renderer, kernel: &H, scene: &SpectralCube, cfg: &GhostConfig, opts: &TreeOptions, p: usize) -> Result<PlaneResult> {
+/// What a pass over a plane's rays keeps.
+#[derive(Clone, Copy)]
+struct Pass {
+    /// The ghost and stray arrivals and the trees' energy.
+    arrivals: bool,
+    /// The deposits of the rays whose order-0 path the mechanics stop.
+    blocked: bool,
+}
+
+/// One plane: trees of every ray of `ctx`'s sampler, splats, blur, plane weight.
+#[allow(clippy::too_many_arguments)]
+fn plane<H: NextHit>(ctx: &PlaneContext, renderer: &Renderer, kernel: &H, scene: &SpectralCube, cfg: &GhostConfig, opts: &TreeOptions, p: usize, pass: Pass) -> Result<PlaneResult> {
     let c = &renderer.config;
     let det = renderer.detector;
     let wavelength_nm = c.spectral.planes_nm[p];
     let n = ctx.system.indices(wavelength_nm)?;
     let (h, w) = (c.scene_height, c.scene_width);
     let values: Vec<f32> = scene.plane(wavelength_nm).iter().zip(&renderer.mask.values).map(|(v, m)| v * m).collect();
-    let nr = cfg.rays_per_pixel;
+    let nr = ctx.sampler.rays;
     let weight = 1.0 / nr as f64;
     // Ghost, stray and blocked (the main image's light the mechanics stop) images.
     let mut img = [vec![0.0f64; det.pixels()], vec![0.0f64; det.pixels()], vec![0.0f64; det.pixels()]];
@@ -309,8 +333,10 @@ fn plane<H: NextHit>(ctx: &PlaneContext, renderer: &Renderer, kernel: &H, scene:
                 let index = ((p as u64 * (h * w) as u64) + pixel as u64) * nr as u64 + s as u64;
                 let tree = walk_tree(kernel, &n, &cfg.coatings, wavelength_nm, o, d, index, opts);
                 res.rays += 1;
-                res.energy.add(&TreeEnergy::of(&tree));
-                if tree.main_blocked {
+                if pass.arrivals {
+                    res.energy.add(&TreeEnergy::of(&tree));
+                }
+                if pass.blocked && tree.main_blocked {
                     // Where the sequential main image put this ray (if it did), the blocked image takes its deposit.
                     let mut landed = None;
                     super::transport::trace_interleaved(&ctx.system.path, &n, &[(o, d)], |r| landed = r.ok());
@@ -320,7 +346,7 @@ fn plane<H: NextHit>(ctx: &PlaneContext, renderer: &Renderer, kernel: &H, scene:
                         res.blocked_rays += 1;
                     }
                 }
-                for a in tree.arrivals.iter().filter(|a| a.scatters > 0 || !a.path.is_empty()) {
+                for a in tree.arrivals.iter().filter(|a| pass.arrivals && (a.scatters > 0 || !a.path.is_empty())) {
                     if !(a.point.is_finite() && a.point.abs().max_element() <= crate::limits::MAX_IMAGE_COORD_MM) {
                         res.out_of_range += 1;
                         continue;

@@ -205,6 +205,7 @@ fn rows<const W: usize>(ws: &[f32], v: f32, image: &mut [f32], base: usize, stri
 }
 
 /// Everything fixed while tracing one plane.
+#[derive(Clone)]
 pub struct PlaneContext<'a> {
     pub system: &'a SequentialSystem,
     pub tracer: &'a dyn Tracer,

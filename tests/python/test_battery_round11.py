@@ -48,3 +48,16 @@ def test_reconstruct_iterations_range_starts_at_one(scene):
     for bad in (0, 2**70):
         with pytest.raises(diffcassi.DiffcassiValueError, match=r"iterations: expected an integer in 1\.\.=100000"):
             diffcassi.reconstruct(op, y, iterations=bad)
+
+
+def test_only_options_standing_alone_are_renamed(tmp_path, scene):
+    """A second prober: a path holding ``--seed`` lost its dashes, and ``--bands`` (``render``'s ``bands_nm``,
+    ``study``'s ``bands``) was renamed ``bands``."""
+    missing = tmp_path / "--seed" / "x--seed.npy"
+    with pytest.raises(diffcassi.DiffcassiFileError) as e:
+        diffcassi.load_scene(str(missing))
+    assert str(missing) in str(e.value), e.value
+    sp, cube, wl = scene
+    with pytest.raises(diffcassi.DiffcassiValueError) as e:
+        diffcassi.render(sp, cube, wl, rays=1, planes=2, bands_nm=[450.0, 450.0])
+    assert "--bands; Python `bands_nm`" in str(e.value), e.value

@@ -310,13 +310,14 @@ impl SolverConfig {
             )));
         }
         if self.solver.is_pnp() {
-            for (name, v) in [("σ max", self.sigma_max), ("σ min", self.sigma_min)] {
+            // Named by their command-line options (Python's keywords in the binding's messages).
+            for (name, v) in [("σ max (--sigma-max)", self.sigma_max), ("σ min (--sigma-min)", self.sigma_min)] {
                 if !(v.is_finite() && v > 0.0 && v <= 1.0) {
                     return Err(Error::invalid(format!("noise schedule: {name} = {v} must be finite, > 0 and ≤ 1 (relative to the cube's peak)")));
                 }
             }
             if self.sigma_min > self.sigma_max {
-                return Err(Error::invalid(format!("noise schedule: σ min {} is above σ max {} (the schedule decreases)", self.sigma_min, self.sigma_max)));
+                return Err(Error::invalid(format!("noise schedule: σ min (--sigma-min) {} is above σ max (--sigma-max) {} (the schedule decreases)", self.sigma_min, self.sigma_max)));
             }
             if self.tv_warmup >= self.iterations {
                 return Err(Error::invalid(format!("TV warm-up of {} iterations leaves none of the {} iterations to the network", self.tv_warmup, self.iterations)));
