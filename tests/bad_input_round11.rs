@@ -278,8 +278,15 @@ fn a_paraxial_lens_on_a_glass_face_is_refused_by_the_non_sequential_tracers() {
     std::fs::write(dir.join("px1.toml"), spec("0.001")).unwrap();
     let base = ["render", "--scene-size", "8", "--planes", "2", "--rays", "4", "--no-mapping", "--ghosts", "1", "--coating", "2=R1"];
     let with = |extra: &[&'static str]| -> Vec<&str> { base.iter().copied().chain(extra.iter().copied()).collect() };
-    refused(dir, &with(&["--system", "px0.toml", "--out", "o"]), &["paraxial lens of surface 1 and the face of surface 2 lie at one place"]);
+    refused(dir, &with(&["--system", "px0.toml", "--out", "o"]), &["paraxial lens of surface 1 and the face of surface 2 touch"]);
     refused(dir, &["ghosts", "--system", "px0.toml"], &["paraxial lens of surface 1"]);
     let out = ok(dir, &with(&["--system", "px1.toml", "--out", "o1"]));
     assert!(out.contains("main path 0.0000"), "{out}");
+    // A third prober: a curved face, and the detector, touching a paraxial lens lost light too (a ghost 5 %,
+    // the image 24 %, exit 0): refused alike.
+    std::fs::write(dir.join("curved.toml"), spec("0.0").replace("stop = true\n", "stop = true\nradius_mm = 40.0\n")).unwrap();
+    refused(dir, &["ghosts", "--system", "curved.toml"], &["paraxial lens of surface 1 and the face of surface 2 touch"]);
+    let at_image = spec("0.0").replace("thickness_mm = 95.0\nsemi_diameter_mm = 8.0\n", "thickness_mm = 95.0\nsemi_diameter_mm = 8.0\n[[surfaces]]\ntype = \"paraxial\"\nthickness_mm = 0.0\nfocal_length_mm = 1000.0\nsemi_diameter_mm = 8.0\n").replace("thickness_mm = 0.0\nfocal_length_mm = 1000.0\nsemi_diameter_mm = 8.0\n[[surfaces]]\ntype = \"standard\"\nstop", "thickness_mm = 0.001\nfocal_length_mm = 1000.0\nsemi_diameter_mm = 8.0\n[[surfaces]]\ntype = \"standard\"\nstop");
+    std::fs::write(dir.join("at_image.toml"), at_image).unwrap();
+    refused(dir, &["render", "--system", "at_image.toml", "--scene-size", "8", "--planes", "2", "--rays", "2", "--no-mapping", "--ghosts", "1", "--out", "o2"], &["the detector of surface 5 touch"]);
 }

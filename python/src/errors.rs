@@ -16,9 +16,9 @@ const OPTION_KEYWORDS: &[&str] = &[
     "solver", "iterations", "step", "tv_weight", "tv_iterations", "tv_coupling", "accelerated", "admm_eta", "sigma_max",
     "sigma_min", "tolerance", "denoiser", "tv_warmup", "discrepancy", "noise_norm", "sigma_auto", "noise_twin", "noise_factor",
     "equivariant", "equivariant_seed",
-    // study (its keywords are the command line's options in snake case; not `bands`: `--bands` is `render`'s
-    // `bands_nm`, and the library's message says so)
-    "presets", "systems", "glass_catalogs", "operators", "solvers", "scenes", "synthetic", "scene_wavelengths", "scene_size",
+    // study (its keywords are the command line's options in snake case; `--bands` is `render`'s `bands_nm` and
+    // `study`'s `bands`: written as both, [`pythonic`])
+    "bands", "presets", "systems", "glass_catalogs", "operators", "solvers", "scenes", "synthetic", "scene_wavelengths", "scene_size",
     "fit", "mask", "transport_memory_gb", "force", "noise_estimate", "plain", "weights",
 ];
 
@@ -44,7 +44,7 @@ pub fn pythonic(message: &str) -> String {
         };
         let snake = name.replace('-', "_");
         if before && after && name.starts_with(|c: char| c.is_ascii_lowercase()) && OPTION_KEYWORDS.contains(&snake.as_str()) {
-            out.push_str(&snake);
+            out.push_str(if snake == "bands" { "bands_nm (study: bands)" } else { &snake });
             rest = &from[2 + name.len()..];
         } else {
             out.push_str("--");

@@ -87,7 +87,6 @@ impl GhostPass {
         }
         let mut config = GhostConfig::new(order, system, a.ghost_rays.map_or(rays_per_pixel, |r| r as usize));
         config.seed = seed;
-        config.mechanics = a.mechanics;
         if let Some(o) = &a.coating {
             let sites = crate::tracer::nonseq::solids::coating_sites(system)?;
             config.coatings = o.apply(&config.coatings, &|k| sites.get(k).cloned().flatten())?;

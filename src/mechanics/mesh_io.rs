@@ -297,15 +297,22 @@ pub fn parse_obj(bytes: &[u8], name: &str) -> Result<TriMesh> {
     Ok(mesh)
 }
 
-/// Largest distance of a polygon's vertex from its plane, relative to the polygon's diameter, that is still
-/// planar: either triangulation of such a polygon is the same surface to 1e-3 of its size (CAD exports round
-/// coordinates to f32, or to a few decimals in text: a 1 mm quad written with 4 decimals is off by 5e-5).
-const PLANAR_TOLERANCE: f64 = 1e-3;
+/// Largest distance of a polygon's vertex from its plane, relative to the square root of its area (its width,
+/// not its length: a long thin twisted quad is not planar), that is still planar: either triangulation is then
+/// the same surface to 1 % of its size. CAD exports round coordinates to f32, or to a few decimals in text (a
+/// 0.1 mm face in metres with 6 decimals, Blender's default, is off by 5e-3 of its size).
+const PLANAR_TOLERANCE: f64 = 1e-2;
+
+/// Largest angle (rad, as its sine) between a corner's plane and the polygon's that is still planar: a long
+/// thin quad twisted at one end (its triangles 79° apart) tilts the best plane so that every vertex lies near
+/// it, but not its corners (a prober, round 11).
+const CORNER_TOLERANCE: f64 = 2e-2;
 
 /// Triangles of a planar polygon face (`idx` into `vertices`, in its winding order, which the triangles
-/// keep). A convex polygon is fanned from its first vertex (as OBJ readers do); a concave one is ear-clipped
-/// in its plane (a fan from a reflex vertex would cover its notch). Errors: a polygon that is not planar
-/// (which triangles it means is ambiguous) or not simple (its edges cross: no ear is left).
+/// keep). A convex polygon is fanned from its first vertex, as OBJ readers do (from a straight corner if it
+/// has one); a concave one is ear-clipped in its plane (a fan from a reflex vertex would cover its notch).
+/// Errors: a polygon that is not planar (which triangles it means is ambiguous), that holds a point twice, or
+/// that is not simple (two edges cross).
 fn triangulate(vertices: &[DVec3], idx: &[u32]) -> std::result::Result<Vec<[u32; 3]>, String> {
     let n = idx.len();
     let fan_from = |s: usize| (1..n - 1).map(|j| [idx[s], idx[(s + j) % n], idx[(s + j + 1) % n]]).collect::<Vec<_>>();
@@ -323,15 +330,27 @@ fn triangulate(vertices: &[DVec3], idx: &[u32]) -> std::result::Result<Vec<[u32;
         normal += DVec3::new((a.y - b.y) * (a.z + b.z), (a.z - b.z) * (a.x + b.x), (a.x - b.x) * (a.y + b.y));
     }
     let Some(nz) = normal.try_normalize() else {
-        return Ok(fan()); // zero area: the mesh's validation names its degenerate triangles
+        return Err("has zero area (its points are collinear, or it folds onto itself like a symmetric bow tie): remove it or split it into triangles".to_string());
     };
+    let size = (0.5 * normal.length()).sqrt();
     let centroid = p.iter().copied().sum::<DVec3>() / p.len() as f64;
     let diameter = p.iter().flat_map(|a| p.iter().map(move |b| (*a - *b).length())).fold(0.0, f64::max);
     // Plus the f32 rounding of coordinates far from the origin (a 0.5 mm face 1 m away).
     let far = p.iter().map(|v| v.abs().max_element()).fold(0.0, f64::max);
     if let Some((j, off)) = p.iter().map(|v| (*v - centroid).dot(nz).abs()).enumerate().max_by(|a, b| a.1.total_cmp(&b.1)) {
-        if off > PLANAR_TOLERANCE * diameter + 4.0 * f32::EPSILON as f64 * far {
-            return Err(format!("is not planar (its vertex {} lies {off:.3e} off the polygon's plane, whose diameter is {diameter:.3e}): split it into triangles", j + 1));
+        if off > PLANAR_TOLERANCE * size + 4.0 * f32::EPSILON as f64 * far {
+            return Err(format!("is not planar (its vertex {} lies {off:.3e} off the polygon's plane; its area is {:.3e}): split it into triangles", j + 1, size * size));
+        }
+    }
+    for i in 0..n {
+        let (a, b, c) = (p[(i + n - 1) % n], p[i], p[(i + 1) % n]);
+        let corner = (c - b).cross(a - b);
+        // A straight corner has no plane of its own.
+        if corner.length() > 1e-9 * diameter * diameter {
+            let sin = corner.normalize().cross(nz).length();
+            if sin > CORNER_TOLERANCE {
+                return Err(format!("is not planar (its corner at vertex {} turns {:.1}° out of the polygon's plane): split it into triangles", i + 1, sin.asin().to_degrees()));
+            }
         }
     }
     // In-plane coordinates, the polygon counter-clockwise about its Newell normal.
@@ -563,5 +582,12 @@ mod tests {
         }
         let e = parse_obj(b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 1 0 0\nf 1 2 3 4 5\n", "twice.obj").unwrap_err().to_string();
         assert!(e.contains("the same point twice (its vertices 2 and 5)"), "{e}");
+        // A third prober: a symmetric bow tie (zero area) and a 100 × 0.01 mm quad twisted at one end (its best
+        // plane tilts so that every vertex lies near it) are refused; a 50 µm face in metres with 6 decimals loads.
+        let e = parse_obj(b"v 0 0 0\nv 1 1 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 4\n", "bow.obj").unwrap_err().to_string();
+        assert!(e.contains("has zero area"), "{e}");
+        let e = parse_obj(b"v 0 0 0\nv 100 0 0\nv 100 0.01 0.05\nv 0 0.01 0\nf 1 2 3 4\n", "sliver.obj").unwrap_err().to_string();
+        assert!(e.contains("is not planar") && e.contains("out of the polygon's plane"), "{e}");
+        parse_obj(b"v 0.054486 0.033118 0.019233\nv 0.054532 0.033101 0.019226\nv 0.054532 0.033120 0.019180\nv 0.054486 0.033137 0.019187\nf 1 2 3 4\n", "m.obj").unwrap();
     }
 }

@@ -79,16 +79,13 @@ pub struct GhostConfig {
     pub rays_per_pixel: usize,
     /// Coating of each sequential surface (the spec's, or overridden).
     pub coatings: Vec<Option<Coating>>,
-    /// The kernel holds mechanics (extra geometry) that may stop order-0 paths: the rays they stop leave the
-    /// main image ([module docs](self), "Mechanics in the beam").
-    pub mechanics: bool,
 }
 
 impl GhostConfig {
     /// Order `order`, polarised Fresnel, roulette below 1e-7, seed 0, `rays_per_pixel` rays, the spec's
     /// coatings.
     pub fn new(order: u32, system: &SequentialSystem, rays_per_pixel: usize) -> Self {
-        GhostConfig { order, model: FresnelModel::Polarized, threshold: 1e-7, seed: 0, rays_per_pixel, coatings: system.spec.surfaces.iter().map(|s| s.coating.clone()).collect(), mechanics: false }
+        GhostConfig { order, model: FresnelModel::Polarized, threshold: 1e-7, seed: 0, rays_per_pixel, coatings: system.spec.surfaces.iter().map(|s| s.coating.clone()).collect() }
     }
 
     /// Errors name the setting and its value.
@@ -251,7 +248,9 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
     let opts = cfg.tree_options();
     // The blocked rays come from the trees when they are the render's own rays, else from a pass over those.
     let full = cfg.rays_per_pixel == c.rays_per_pixel;
-    let trees = Pass { arrivals: true, blocked: cfg.mechanics && full };
+    // Only a kernel with mechanics (extra geometry, [`NextHit::has_extra`]) stops order-0 paths.
+    let mechanics = kernel.has_extra();
+    let trees = Pass { arrivals: true, blocked: mechanics && full };
     let mut out = GhostImages { ghost: vec![0.0; npix], stray: vec![0.0; npix], blocked: vec![0.0; npix], bands: keep_bands.then(|| vec![vec![0.0; npix]; sp.bands_nm.len()]), report: GhostReport::default() };
     let planes: Vec<usize> = (0..sp.planes()).collect();
     // One pass over every plane's rays (of `ctx`'s sampler), its images and budget added to `out`.
@@ -272,7 +271,10 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
                 }
                 out.report.blocked_rays += r.blocked_rays;
                 out.report.energy.add(&r.energy);
-                out.report.rays_traced += r.rays;
+                // Trees walked; the order-0 pass's walks are not trees of the ghost pass.
+                if pass.arrivals {
+                    out.report.rays_traced += r.rays;
+                }
                 out.report.off_detector += r.off;
                 out.report.out_of_range += r.out_of_range;
             }
@@ -280,7 +282,7 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
         Ok(())
     };
     run(&ctx, &opts, trees)?;
-    if cfg.mechanics && !full {
+    if mechanics && !full {
         // The render's N rays, their order-0 paths only: which of them the mechanics stop.
         let sampler_n = RaySampler::new(c.rays_per_pixel, c.sampling);
         run(&PlaneContext { sampler: &sampler_n, ..ctx.clone() }, &TreeOptions { order: 0, ..opts }, Pass { arrivals: false, blocked: true })?;

@@ -263,7 +263,7 @@ impl RenderSettings {
         crate::limits::check_memory(&what, crate::limits::bytes_render(n, scene_bands, bands, self.planes, self.cube, self.airy_diameter_px))?;
         // The ray budget with the given (or default) rays per pixel; a tolerance's choice is checked again.
         check_render_rays(n, self.planes, self.rays_or_default())?;
-        let spectral = SpectralSampling::with_planes(self.bands_nm.clone(), self.planes).map_err(|e| Error::invalid(format!("the bands (--bands; Python `bands_nm`) and planes: {e}")))?;
+        let spectral = SpectralSampling::with_planes(self.bands_nm.clone(), self.planes).map_err(|e| Error::invalid(format!("the bands (--bands) and planes: {e}")))?;
         let mut cfg = RenderConfig::paper(n);
         cfg.spectral = spectral;
         cfg.rays_per_pixel = self.rays_or_default();

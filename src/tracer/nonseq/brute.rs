@@ -141,6 +141,10 @@ impl NextHit for BruteForce {
         &self.solids
     }
 
+    fn has_extra(&self) -> bool {
+        self.extra.is_some()
+    }
+
     fn scatter(&self, hit: &ExtraHit, incoming: DVec3, seed: u64, ray: u64, bounce: u64) -> Option<(DVec3, f64)> {
         self.extra.as_ref()?.scatter(hit, incoming, seed, ray, bounce)
     }

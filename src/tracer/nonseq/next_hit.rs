@@ -62,6 +62,10 @@ pub trait NextHit: Sync {
     fn solids(&self) -> &Solids;
     /// What the ray of `q` meets next.
     fn next_hit(&self, q: &Query) -> Event;
+    /// The kernel holds extra geometry (mechanics) that may stop a ray's order-0 path.
+    fn has_extra(&self) -> bool {
+        false
+    }
     /// The ray scattered at an [`Event::Extra`] hit (see [`ExtraGeometry::scatter`]); `None`: absorbed.
     fn scatter(&self, _hit: &ExtraHit, _incoming: DVec3, _seed: u64, _ray: u64, _bounce: u64) -> Option<(DVec3, f64)> {
         None
