@@ -282,7 +282,7 @@ fn a_paraxial_lens_on_a_glass_face_is_refused_by_the_non_sequential_tracers() {
     refused(dir, &["ghosts", "--system", "px0.toml"], &["paraxial lens of surface 1"]);
     let out = ok(dir, &with(&["--system", "px1.toml", "--out", "o1"]));
     assert!(out.contains("main path 0.0000"), "{out}");
-    // A third prober: a curved face, and the detector, touching a paraxial lens lost light too (a ghost 5 %,
+    // A fourth prober: a curved face, and the detector, touching a paraxial lens lost light too (a ghost 5 %,
     // the image 24 %, exit 0): refused alike.
     std::fs::write(dir.join("curved.toml"), spec("0.0").replace("stop = true\n", "stop = true\nradius_mm = 40.0\n")).unwrap();
     refused(dir, &["ghosts", "--system", "curved.toml"], &["paraxial lens of surface 1 and the face of surface 2 touch"]);

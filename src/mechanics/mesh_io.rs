@@ -582,7 +582,7 @@ mod tests {
         }
         let e = parse_obj(b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 1 0 0\nf 1 2 3 4 5\n", "twice.obj").unwrap_err().to_string();
         assert!(e.contains("the same point twice (its vertices 2 and 5)"), "{e}");
-        // A third prober: a symmetric bow tie (zero area) and a 100 × 0.01 mm quad twisted at one end (its best
+        // A fourth prober: a symmetric bow tie (zero area) and a 100 × 0.01 mm quad twisted at one end (its best
         // plane tilts so that every vertex lies near it) are refused; a 50 µm face in metres with 6 decimals loads.
         let e = parse_obj(b"v 0 0 0\nv 1 1 0\nv 1 0 0\nv 0 1 0\nf 1 2 3 4\n", "bow.obj").unwrap_err().to_string();
         assert!(e.contains("has zero area"), "{e}");
