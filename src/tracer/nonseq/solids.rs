@@ -350,10 +350,15 @@ fn same_face(objects: &[Solid], system: &SequentialSystem, g: &Group) -> Option<
 fn coincident_faces(system: &SequentialSystem, a: (&SurfaceShape, &Frame, (usize, usize)), b: (&SurfaceShape, &Frame, (usize, usize))) -> bool {
     let medium = |m: usize| &system.surfaces[m].medium_after;
     a.0 == b.0
-        && (a.1.origin - b.1.origin).abs().max_element() <= 1e-9 * (1.0 + b.1.origin.abs().max_element())
+        && same_origin(a.1, b.1)
         && (a.1.rotation - b.1.rotation).to_cols_array().iter().all(|v| v.abs() < 1e-12)
         && medium(a.2 .0) == medium(b.2 .0)
         && medium(a.2 .1) == medium(b.2 .1)
+}
+
+/// Do two frames have the same origin (to 1e-9 mm, relative beyond 1 mm)?
+fn same_origin(a: &Frame, b: &Frame) -> bool {
+    (a.origin - b.origin).abs().max_element() <= 1e-9 * (1.0 + b.origin.abs().max_element())
 }
 
 /// Is the step transform the identity (coincident frames)?
@@ -482,8 +487,7 @@ fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<
         let (a, b) = (&pair[0], &pair[1]);
         let paraxial = |g: &Group| matches!(g.shape, SurfaceShape::Paraxial { .. });
         let real = |g: &Group| !g.virtual_ && !paraxial(g);
-        let touching = (a.frame.origin - b.frame.origin).abs().max_element() <= 1e-9 * (1.0 + b.frame.origin.abs().max_element());
-        if touching && ((paraxial(a) && real(b)) || (real(a) && paraxial(b))) {
+        if same_origin(&a.frame, &b.frame) && ((paraxial(a) && real(b)) || (real(a) && paraxial(b))) {
             let (p, f) = if paraxial(a) { (a, b) } else { (b, a) };
             let face = f.surfaces.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(", ");
             return Err(Error::invalid(format!(
