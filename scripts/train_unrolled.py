@@ -50,7 +50,10 @@ Short runs: ``--time-budget-s`` (v2 default 450 s, a ≤ 9-minute GPU call with 
 loop before the budget would be passed (measured step and validation times), validates, saves the checkpoint and
 the weights and exits 0. ``--resume CHECKPOINT`` continues from a checkpoint (model, optimiser, step, RNG state,
 the training mask, ``--val-every`` and the runs so far); settings not given on the command line are the
-checkpoint's, and one given with another value — or a checkpoint of another architecture, system or band count, or
+checkpoint's. The optimiser's ``--lr``, ``--lr-min`` and ``--clip`` may be given with new values (a lower rate after
+a divergence, a longer decay's floor): the run's manifest entry records them under ``changed`` as
+``[checkpoint's, this run's]``. Any other setting given with another value — or a checkpoint of another
+architecture, system or band count, or
 a file that is truncated or not a checkpoint — is refused with a clear error (exit 2; a missing file: 1) **before
 anything is written**; so is a fresh run into a folder that already holds this system's and architecture's training
 files, and a resume into such a folder unless its checkpoint is the one resumed (the same file, or the same bytes):
@@ -117,6 +120,8 @@ PLANES, RAYS = 112, 20
 CHECKPOINT_FORMAT = "diffcassi-unrolled-checkpoint-1"
 #: Defaults of the settings that make a training (its config); None in argparse so that a resume can tell a
 #: setting given on the command line from one to take from the checkpoint.
+# Settings a --resume may change (given on its command line): the optimiser's, recorded in the run's "changed".
+RESUME_MAY_CHANGE = ("lr", "lr_min", "clip")
 DEFAULTS = {"size": 128, "steps": 400, "batch": 2, "seed": 0, "lr": 1e-3, "lr_min": 2e-5, "warmup": 20, "clip": 1.0,
             "planes": PLANES, "rays": RAYS, "acquisition_seed": 1000, "operator_seed": 1, "bands": 28}
 ARCH_DEFAULTS = {ARCH: {"stages": 6, "width": 16}, ARCH_V2: {"stages": 3, "width": 24}}
@@ -549,8 +554,13 @@ def _main(argv=None) -> int:
         config["bands"] = conf["bands"]
     if arch == ARCH_V2:
         config = dict({"arch": arch}, **config, system_sha256=system_sha256(diffcassi.System.preset(system)))
+    changed = {}  # the optimiser's settings a resume changes: {name: [checkpoint's, this run's]}
     if ck is not None:  # every setting but the mask's hash (that of the library's default mask needs the trace)
         saved = ck["config"]
+        # The optimiser's settings (--lr, --lr-min, --clip) may change on a resume when given: they shape the
+        # steps from here on, not the data, the network or the schedule's length; the run records the change.
+        changed = {k: [saved[k], config[k]] for k in RESUME_MAY_CHANGE if k in saved and saved[k] != config[k]}
+        saved = dict(saved, **{k: config[k] for k in changed})
         diff = {k: (saved.get(k), config.get(k)) for k in sorted(set(saved) | set(config))
                 if k != "mask_sha256" and saved.get(k) != config.get(k)}
         if diff:
@@ -602,7 +612,7 @@ def _main(argv=None) -> int:
                                      conf["operator_seed"], bands_nm)
     mask = transport.mask
     config["mask_sha256"] = mask_sha256(mask)
-    if ck is not None and ck["config"] != config:
+    if ck is not None and dict(ck["config"], **{k: config[k] for k in changed}) != config:
         saved = ck["config"]
         diff = {k: (saved.get(k), config.get(k)) for k in sorted(set(saved) | set(config)) if saved.get(k) != config.get(k)}
         print(f"{prog}: error: --resume {a.resume} was made with other settings (saved, asked): {diff}; nothing written",
@@ -667,6 +677,9 @@ def _loop(a, prog, t_start, start_utc, out, arch, system, conf, config, size, ba
            "resumed_from": os.path.basename(a.resume) if a.resume else None, "time_budget_s": budget,
            "torch": torch.__version__, "diffcassi": getattr(diffcassi, "__version__", None),
            "tf32": device.type == "cuda"}
+    if ck is not None:  # the optimiser's settings this resume changed (RESUME_MAY_CHANGE): {name: [before, now]}
+        saved = ck["config"]
+        run["changed"] = {k: [saved[k], config[k]] for k in RESUME_MAY_CHANGE if k in saved and saved[k] != config[k]}
     last_saved = None  # the step of the state, weights and manifest this run saved last (None: none yet)
     losses: list = []
     timing = {"val_s": 0.0, "save_s": 0.0}
@@ -842,7 +855,7 @@ def _loop(a, prog, t_start, start_utc, out, arch, system, conf, config, size, ba
         where = f" (the state, weights and manifest in {out}: the last good step)" if last_saved is not None else ""
         print(f"{prog}: error: the training diverged at step {e.step} ({e.what}); nothing of that step was saved: "
               f"{kept()}{where}. The learning rate is too high for this network: train again with a lower --lr than "
-              f"{conf['lr']:g} (a --resume keeps its checkpoint's --lr)", file=sys.stderr)
+              f"{conf['lr']:g} (or --resume the kept step with a lower --lr)", file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # a second Ctrl-C: at once (never inside a save)
         log_line({"event": "stop", "step": step, "reason": "interrupted", "saved_step": last_saved, "utc": utc_now(),

@@ -4,16 +4,16 @@ use crate::materials::MaterialError;
 #[derive(Debug, thiserror::Error)]
 pub enum Error {
     /// A spec (TOML/JSON/YAML/CSV prescription) could not be read or is invalid.
-    #[error("{source_name}: {}", tidy_numbers(message))]
+    #[error("{source_name}: {}", tidy(message))]
     Spec { source_name: String, message: String },
     /// A built system is inconsistent (message names surface and field).
-    #[error("system `{system}`: surface {surface} ({field}): {}", tidy_numbers(message))]
+    #[error("system `{system}`: surface {surface} ({field}): {}", tidy(message))]
     System { system: String, surface: usize, field: String, message: String },
     #[error(transparent)]
     Material(#[from] MaterialError),
-    #[error("{path}: {}", tidy_numbers(message))]
+    #[error("{path}: {}", tidy(message))]
     File { path: String, message: String },
-    #[error("{}", tidy_numbers(.0))]
+    #[error("{}", tidy(.0))]
     Invalid(String),
     #[error(transparent)]
     Io(#[from] crate::io::IoError),
@@ -29,6 +29,16 @@ impl Error {
     }
     pub fn invalid(message: impl Into<String>) -> Self {
         Error::Invalid(message.into())
+    }
+}
+
+/// A message as the process's front end reads it: [`tidy_numbers`], then the settings spelled as that front end
+/// names them ([`crate::frontend::spell`]: `--rays` is Python's `rays`, C++'s `RenderOptions::rays_per_pixel`).
+fn tidy(text: &str) -> std::borrow::Cow<'_, str> {
+    let frontend = crate::frontend::current();
+    match tidy_numbers(text) {
+        std::borrow::Cow::Borrowed(b) => crate::frontend::spell(b, frontend),
+        std::borrow::Cow::Owned(o) => std::borrow::Cow::Owned(crate::frontend::spell(&o, frontend).into_owned()),
     }
 }
 

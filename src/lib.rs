@@ -24,6 +24,7 @@ pub mod design;
 pub mod diff;
 pub mod error;
 pub mod fidelity;
+pub mod frontend;
 pub mod geometry;
 pub mod gpu;
 pub mod io;

@@ -58,8 +58,9 @@ fn ghosts_interface_on_sp_and_ap() {
 fn bad_input_writes_nothing() {
     let c = tmp("bad.csv");
     let o = run(&["ghosts", "--preset", "sp", "--order", "5", "--csv", c.to_str().unwrap()]);
-    assert_eq!(o.status.code(), Some(1), "{}", text(&o));
-    assert!(text(&o).contains("--order 5") && text(&o).contains("at most 4"), "{}", text(&o));
+    // A usage error (exit 2), as `render --ghosts 5`.
+    assert_eq!(o.status.code(), Some(2), "{}", text(&o));
+    assert!(text(&o).contains("--order") && text(&o).contains("ghost order 5") && text(&o).contains("at most 4"), "{}", text(&o));
     assert!(!c.exists());
     // A coating reflectance outside [0, 1] in the spec.
     let spec = tmp("coated.toml");

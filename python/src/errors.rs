@@ -4,55 +4,13 @@
 use pyo3::prelude::*;
 use pyo3::types::PyType;
 
-/// The keywords of the Python calls that stand for a command-line option of the same name in kebab case
-/// (`electrons_per_unit` for `--electrons-per-unit`): the render and noise keywords, `reconstruct`'s and
-/// `study`'s. The library's messages name the command line's options; [`pythonic`] names these keywords
-/// instead, so a Python user reads what to change in the call they made.
-const OPTION_KEYWORDS: &[&str] = &[
-    // render (`crate::settings::RENDER_KEYS`) and its noise keywords
-    "bands_nm", "planes", "rays", "seed", "sampling", "opening", "mask_seed", "airy_diameter_px", "airy", "backend", "device",
-    "precision", "scene_fov_deg", "noise", "full_well_e", "electrons_per_unit", "read_noise_e", "adc_bits", "noise_seed",
-    // reconstruct
-    "solver", "iterations", "step", "tv_weight", "tv_iterations", "tv_coupling", "accelerated", "admm_eta", "sigma_max",
-    "sigma_min", "tolerance", "denoiser", "tv_warmup", "discrepancy", "noise_norm", "sigma_auto", "noise_twin", "noise_factor",
-    "equivariant", "equivariant_seed",
-    // study (its keywords are the command line's options in snake case; `--bands` is `render`'s `bands_nm` and
-    // `study`'s `bands`: written as both, [`pythonic`])
-    "bands", "presets", "systems", "glass_catalogs", "operators", "solvers", "scenes", "synthetic", "scene_wavelengths", "scene_size",
-    "fit", "mask", "transport_memory_gb", "force", "noise_estimate", "plain", "weights",
-];
-
 /// `message` with each command-line option that has a Python keyword (`--read-noise-e`) written as that
-/// keyword (`read_noise_e`); other options (`--scene`, which Python takes as an argument) are left as written.
+/// keyword (`read_noise_e`): the library's table of the front ends' spellings
+/// ([`diffcassi::frontend::spell`]); other options (`--scene`, which Python takes as an argument) are left as
+/// written. Library errors are spelled so already (the module declares itself the Python front end); this
+/// spells the binding's own messages and the library's warnings.
 pub fn pythonic(message: &str) -> String {
-    let mut out = String::with_capacity(message.len());
-    let mut rest = message;
-    while let Some(at) = rest.find("--") {
-        let (before, from) = rest.split_at(at);
-        out.push_str(before);
-        let name_len = from[2..].find(|c: char| !(c.is_ascii_lowercase() || c.is_ascii_digit() || c == '-')).unwrap_or(from.len() - 2);
-        let name = from[2..2 + name_len].trim_end_matches('-');
-        // An option stands alone: after a space, a bracket or a quote and before a space or punctuation (not in
-        // a path such as `runs/--seed/x.npy`).
-        let before = out.chars().last().map_or(true, |c| c.is_whitespace() || "([`'\"".contains(c));
-        let next = &from[2 + name.len()..];
-        let after = match next.chars().next() {
-            None => true,
-            // A full stop, not a file name's extension (`--seed.npy`).
-            Some('.') => next[1..].chars().next().map_or(true, char::is_whitespace),
-            Some(c) => c.is_whitespace() || ",;:)]`'\"".contains(c),
-        };
-        let snake = name.replace('-', "_");
-        if before && after && name.starts_with(|c: char| c.is_ascii_lowercase()) && OPTION_KEYWORDS.contains(&snake.as_str()) {
-            out.push_str(if snake == "bands" { "bands_nm (study: bands)" } else { &snake });
-            rest = &from[2 + name.len()..];
-        } else {
-            out.push_str("--");
-            rest = &from[2..];
-        }
-    }
-    out.push_str(rest);
-    out
+    diffcassi::frontend::spell(message, diffcassi::frontend::Frontend::Python).into_owned()
 }
 
 fn raise(kind: &str, message: String) -> PyErr {

@@ -27,6 +27,8 @@ mod system;
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     pool::init();
+    // The library's messages name settings as Python's keywords (diffcassi::frontend).
+    diffcassi::frontend::set(diffcassi::frontend::Frontend::Python);
     limits::init()?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add("EMBREE", cfg!(feature = "embree"))?;

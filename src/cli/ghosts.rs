@@ -9,7 +9,7 @@ use super::shared::{load_system, system_inputs};
 use crate::analysis::ghosts::{ghost_analysis, ghost_estimate, GhostMap, GhostOptions, GhostReport};
 use crate::error::{Error, Result};
 use crate::io::{CsvValue, CsvWriter};
-use crate::tracer::nonseq::{FresnelModel, MAX_GHOST_ORDER};
+use crate::tracer::nonseq::FresnelModel;
 use clap::Args;
 use std::path::{Path, PathBuf};
 
@@ -18,7 +18,7 @@ pub struct GhostsArgs {
     #[command(flatten)]
     pub system: SystemArgs,
     /// Ghost order K: most Fresnel reflections on a path (0 ..= 4).
-    #[arg(long, default_value_t = 2)]
+    #[arg(long, default_value_t = 2, value_parser = |s: &str| super::render_ghosts::ghost_order_from(s, 0))]
     pub order: u32,
     /// Interface model: polarized (two incoherent states, polarisation ray tracing) or scalar (s/p-averaged reflectance).
     #[arg(long, default_value = "polarized", value_parser = ["polarized", "scalar"])]
@@ -47,9 +47,6 @@ pub struct GhostsArgs {
 }
 
 pub(super) fn ghosts(a: GhostsArgs) -> Result<()> {
-    if a.order > MAX_GHOST_ORDER {
-        return Err(Error::invalid(format!("--order {}: at most {MAX_GHOST_ORDER} (trees grow as interfaces^order)", a.order)));
-    }
     let inputs = system_inputs(&a.system);
     check_extension("--csv", &a.csv, &["csv"], &inputs)?;
     check_extension("--json", &a.json, &["json"], &inputs)?;

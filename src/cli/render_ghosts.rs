@@ -45,11 +45,17 @@ pub struct GhostArgs {
 }
 
 fn ghost_order(s: &str) -> std::result::Result<u32, String> {
-    let k: u32 = s.trim().parse().map_err(|_| format!("`{s}` is not a ghost order (an integer in 1..={MAX_GHOST_ORDER})"))?;
-    if (1..=MAX_GHOST_ORDER).contains(&k) {
+    ghost_order_from(s, 1)
+}
+
+/// A ghost order in `lowest..=MAX_GHOST_ORDER`, parsed by clap (a usage error, exit 2): `render --ghosts K`
+/// from 1, `ghosts --order K` from 0 (the main image alone).
+pub(super) fn ghost_order_from(s: &str, lowest: u32) -> std::result::Result<u32, String> {
+    let k: u32 = s.trim().parse().map_err(|_| format!("`{s}` is not a ghost order (an integer in {lowest}..={MAX_GHOST_ORDER})"))?;
+    if (lowest..=MAX_GHOST_ORDER).contains(&k) {
         Ok(k)
     } else {
-        Err(format!("ghost order {k}: must be in 1..={MAX_GHOST_ORDER} (trees grow as interfaces^order)"))
+        Err(format!("ghost order {k}: must be in {lowest}..={MAX_GHOST_ORDER}, at most {MAX_GHOST_ORDER} (trees grow as interfaces^order)"))
     }
 }
 

@@ -332,12 +332,29 @@ pub struct DatasetOptions {
 /// Version of the layout of [`configuration`]; a change makes older outputs mismatch (and be re-rendered).
 pub const CONFIGURATION_FORMAT: u32 = 1;
 
-/// A spec's JSON without its `[mechanics]` section: a render traces no mechanics (only `render --ghosts K
-/// --mechanics` does), so their files — recorded as absolute paths — are no part of what a dataset rendered, and
-/// a project folder moved elsewhere resumes (round 11).
-fn spec_without_mechanics(mut spec: Value) -> Value {
+/// A spec's JSON as a dataset's identity: without its `[mechanics]` section (a render traces no mechanics, only
+/// `render --ghosts K --mechanics` does, so their files are no part of what a dataset rendered; round 11), and
+/// with each glass catalogue file named by its content — `NAME (N bytes, crc32 XXXXXXXX)` — not by the absolute
+/// path a spec's relative entry becomes on load (round 12: a project folder moved elsewhere saw "another
+/// configuration"). `builtin:` entries and files that cannot be read stay as written (then their paths
+/// compare). Applied to the recorded configuration too, so a dataset recorded with paths resumes while its
+/// catalogues are still where they were.
+fn spec_identity(mut spec: Value) -> Value {
     if let Some(o) = spec.as_object_mut() {
         o.remove("mechanics");
+        if let Some(Value::Array(catalogs)) = o.get_mut("glass_catalogs") {
+            for entry in catalogs.iter_mut() {
+                let Some(path) = entry.as_str() else { continue };
+                if path.starts_with(crate::materials::builtin_catalogs::ENTRY_PREFIX) {
+                    continue;
+                }
+                let p = Path::new(path);
+                if let Ok((bytes, crc)) = file_crc32(p) {
+                    let name = p.file_name().map_or_else(|| path.to_string(), |n| n.to_string_lossy().into_owned());
+                    *entry = json!(format!("{name} ({bytes} bytes, crc32 {crc})"));
+                }
+            }
+        }
     }
     spec
 }
@@ -353,7 +370,7 @@ pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
     let mut v = json!({
         "format": CONFIGURATION_FORMAT,
         "system": renderer.system.name(),
-        "system_spec": spec_without_mechanics(serde_json::to_value(&renderer.system.spec).unwrap_or(Value::Null)),
+        "system_spec": spec_identity(serde_json::to_value(&renderer.system.spec).unwrap_or(Value::Null)),
         "tracer": renderer.tracer.name(),
         "scene_height": c.scene_height,
         "scene_width": c.scene_width,
@@ -389,10 +406,10 @@ pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
 /// `airy`), with both values. Numbers compare by value (`1` equals `1.0`; the records are written and read
 /// back bit-exactly, serde_json's `float_roundtrip`), so a mismatch is never an artefact of the JSON text.
 pub fn configuration_differences(recorded: &Value, requested: &Value) -> Vec<String> {
-    // A dataset recorded before the mechanics were left out compares without them too.
+    // A dataset recorded before the mechanics were left out, or with catalogue paths, compares as today's.
     let mut recorded = recorded.clone();
     if let Some(spec) = recorded.get_mut("system_spec") {
-        *spec = spec_without_mechanics(spec.take());
+        *spec = spec_identity(spec.take());
     }
     let recorded = &recorded;
     if !(recorded.is_object() && requested.is_object()) {

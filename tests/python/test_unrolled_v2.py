@@ -290,6 +290,25 @@ def test_resume_continues_the_steps_and_appends_a_run(runs):
         assert torch.equal(sa["model"][k], sb["model"][k]), k  # the same weights as the straight run, bit for bit
 
 
+def test_resume_may_lower_the_learning_rate_and_records_it(train, tmp_path):
+    """The optimiser's settings may change on a resume (a lower --lr after a divergence): the run records
+    them under "changed"; the checkpoint and the weights carry the new values; other settings stay refused."""
+    c = tmp_path / "c"
+    assert train.main(COMMON + ["--out", str(c), "--stop-at", "2"]) == 0
+    assert train.main(["--resume", str(c / NM["ck"]), "--out", str(c), "--lr", "5e-4", "--clip", "0.5"]) == 0
+    man = json.loads((c / NM["man"]).read_text())
+    assert [(r["steps_from"], r["steps_to"]) for r in man["runs"]] == [(0, 2), (2, 4)]
+    assert man["runs"][0].get("changed") is None and man["runs"][1]["changed"] == {"lr": [1e-3, 5e-4], "clip": [1.0, 0.5]}
+    assert man["config"]["lr"] == 5e-4 and torch.load(c / NM["ck"])["config"]["clip"] == 0.5
+    log = [json.loads(line) for line in (c / NM["log"]).read_text().splitlines()]
+    assert max(r["lr"] for r in log if r.get("step", 0) > 2 and "lr" in r) <= 5e-4
+    # The checkpoint's --lr-min (2e-5) above a new --lr is a usage error, before anything is written.
+    before = {p.name: p.read_bytes() for p in c.iterdir()}
+    with pytest.raises(SystemExit) as e:
+        train.main(["--resume", str(c / NM["ck"]), "--out", str(c), "--lr", "1e-5"])
+    assert e.value.code == 2 and {p.name: p.read_bytes() for p in c.iterdir()} == before
+
+
 def test_worker_processes_make_the_same_batches(train, runs, tmp_path):
     a, _, _ = runs
     w = tmp_path / "w"

@@ -63,8 +63,9 @@ pub fn render_config(height: usize, width: usize, wavelengths_nm: &[f64], o: &Re
             return Err(Error::invalid(format!("render: {what} {v} mm must be finite and > 0")));
         }
     }
-    if o.airy && !(o.airy_diameter_px.is_finite() && o.airy_diameter_px > 0.0) {
-        return Err(Error::invalid(format!("render: Airy diameter {} px must be finite and > 0", o.airy_diameter_px)));
+    let max_airy = diffcassi::limits::MAX_AIRY_DIAMETER_PX;
+    if o.airy && !(o.airy_diameter_px.is_finite() && o.airy_diameter_px > 0.0 && o.airy_diameter_px <= max_airy) {
+        return Err(Error::invalid(format!("render: Airy diameter {} px must be finite and in (0, {max_airy}]", diffcassi::limits::fmt_num(o.airy_diameter_px))));
     }
     let mut cfg = RenderConfig::paper(height);
     cfg.scene_height = height;
@@ -158,5 +159,29 @@ impl System {
         let acq = r.render(&cube, false, &|_| {})?;
         out.copy_from_slice(&acq.image);
         Ok(info(&r, acq.stats.traced, acq.stats.arrived))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// The library's refusals name the C++ settings (`RenderOptions::scene_fov_deg`), not the command line's
+    /// options (`--scene-fov-deg`): the bridge declares itself the C++ front end (`diffcassi::frontend`) on its
+    /// first call. An Airy diameter beyond the CLI's limit is named as such (it was a memory refusal).
+    #[test]
+    fn refusals_name_the_render_options() {
+        let sys = crate::load_preset("sp").unwrap();
+        let wl = [500.0, 520.0, 540.0];
+        let (scene, mut image) = (vec![1.0f32; 4 * 4 * 3], vec![0.0; 1 << 12]);
+        let mut refused = |f: &dyn Fn(&mut crate::ffi::RenderOptions)| {
+            let mut o = crate::default_render_options();
+            f(&mut o);
+            sys.render("analytic", 4, 4, &wl, &scene, &[], &o, &mut image).err().unwrap().to_string()
+        };
+        let e = refused(&|o| o.scene_fov_deg = 1.0);
+        assert!(e.contains("RenderOptions::scene_fov_deg 1: system `sp` has a finite object") && !e.contains("--"), "{e}");
+        let e = refused(&|o| o.rays_per_pixel = 1 << 40);
+        assert!(e.contains("raise max_rays (diffcassi::set_limits)") && !e.contains("--"), "{e}");
+        let e = refused(&|o| o.airy_diameter_px = 1e9);
+        assert!(e.contains("Airy diameter 1e9 px must be finite and in (0, 100]"), "{e}");
     }
 }

@@ -188,7 +188,11 @@ fn budget_names() -> diffcassi::limits::BudgetNames {
 /// then says how to raise them from C++.
 pub(crate) fn name_budgets() {
     static ONCE: std::sync::Once = std::sync::Once::new();
-    ONCE.call_once(|| diffcassi::limits::name_budgets(budget_names()));
+    ONCE.call_once(|| {
+        diffcassi::limits::name_budgets(budget_names());
+        // The library's messages name settings as C++ does (`RenderOptions::rays_per_pixel`, not `--rays`).
+        diffcassi::frontend::set(diffcassi::frontend::Frontend::Cpp);
+    });
 }
 
 /// The memory (GB, > 0) and ray (≥ 1) budgets of every following call, process-wide; `has_…` false: the
