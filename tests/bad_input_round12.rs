@@ -65,3 +65,115 @@ fn a_dataset_names_its_glass_catalogues_by_content() {
     assert_eq!(code, Some(1), "{text}");
     assert!(text.contains("glass_catalogs[0]") && text.contains("mine.agf ("), "{text}");
 }
+
+fn json(path: std::path::PathBuf) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap()
+}
+
+/// f32's rounding grows with the coordinates the rays carry: SP with a 950 mm gap before its doublet moved the
+/// f32 mapping by up to 1.08 µm (the documentation quoted ≤ 0.025 µm near the axis) and `render --precision
+/// f32` said nothing. An f32 render measures its chief rays in both precisions, records the figure in
+/// render.json (`f32_chief_ray_error`) and warns above the documented 0.1 µm.
+#[test]
+fn an_f32_render_measures_and_reports_its_rounding() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    ok(dir, &["export-spec", "--preset", "sp", "--out", "sp.json"]);
+    let mut spec = json(dir.join("sp.json"));
+    spec["name"] = "sp_long".into();
+    spec["fields_mm"] = serde_json::json!([[0.0, 0.0], [0.3, 0.0], [0.0, 0.3], [0.3, 0.3]]);
+    spec["surfaces"][15]["thickness_mm"] = 950.0.into();
+    for k in 16..=19 {
+        spec["surfaces"][k]["semi_diameter_mm"] = 20.0.into();
+        if spec["surfaces"][k]["aperture"].is_object() {
+            spec["surfaces"][k]["aperture"]["semi_diameter_mm"] = 20.0.into();
+        }
+    }
+    std::fs::write(dir.join("long.json"), spec.to_string()).unwrap();
+    let render = |system: &[&str], precision: &str, out: &str| {
+        let mut a = vec!["render"];
+        a.extend(system);
+        a.extend(["--scene-size", "16", "--bands", "450:650:4", "--planes", "4", "--rays", "1", "--no-mapping", "--precision", precision, "--out", out]);
+        ok(dir, &a)
+    };
+    let text = render(&["--system", "long.json"], "f32", "long32");
+    let f = &json(dir.join("long32/render.json"))["f32_chief_ray_error"];
+    let e = f["error_um"].as_f64().unwrap();
+    assert!(e > 0.2 && e < 2.0 && f["rays"].as_u64() == Some(27), "{f}");
+    assert!(text.contains("--precision f32 moves this system's chief rays by up to") && f["message"].is_string(), "{text}");
+    // The preset itself: measured, within the documented figure, no warning; an f64 render records nothing.
+    let text = render(&["--preset", "sp"], "f32", "sp32");
+    let f = &json(dir.join("sp32/render.json"))["f32_chief_ray_error"];
+    assert!(f["error_um"].as_f64().unwrap() < 0.03 && f.get("message").is_none() && !text.contains("moves this system"), "{f} {text}");
+    render(&["--system", "long.json"], "f64", "long64");
+    assert!(json(dir.join("long64/render.json")).get("f32_chief_ray_error").is_none());
+}
+
+/// An afocal system (EFL infinite) with a scene at infinity was refused with a detector of
+/// 18446744073709551615×18446744073709551615 pixels (the infinite EFL saturating the size): named as afocal.
+#[test]
+fn an_afocal_system_is_named_as_such() {
+    let d = tempfile::tempdir().unwrap();
+    let zmx = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/zmx/fold_mirrors_optiland.zmx");
+    let (code, text) = run(d.path(), &["render", "--system", zmx.to_str().unwrap(), "--scene-size", "8", "--planes", "2", "--bands", "450:650:2", "--rays", "1", "--scene-fov-deg", "1", "--out", "r"]);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("is afocal") && !text.contains("18446744073709551615"), "{text}");
+    assert!(!d.path().join("r").exists());
+}
+
+/// An interpolated mapping cube's error is measured at check pixels and three wavelengths: that sample maximum
+/// was 0.5–3.6 % below the whole cube's, so `--tolerance-um` between the two was exceeded (map, 64², pitch
+/// 0.4 mm, 8 wavelengths, tolerance 7.95 µm: stride 32 predicted 7.94 µm, actually 7.98). The measured error
+/// carries a 10 % margin (`fidelity::select::SAMPLED_ERROR_MARGIN`); the chosen cube meets the tolerance.
+#[test]
+fn an_interpolated_mapping_meets_its_tolerance_over_the_whole_cube() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let common = ["mapping", "--preset", "map", "--height", "64", "--width", "64", "--pitch-mm", "0.4", "--wavelengths-nm", "450:650:8", "--f64"];
+    let tolerance_um = 7.95;
+    let mut a = common.to_vec();
+    a.extend(["--tolerance-um", "7.95", "--npy", "chosen.npy"]);
+    let text = ok(dir, &a);
+    assert!(text.contains("fidelity: tolerance 7.95 µm → mapping"), "{text}");
+    let mut a = common.to_vec();
+    a.extend(["--npy", "exact.npy"]);
+    ok(dir, &a);
+    let (shape, chosen) = diffcassi::io::read_npy_f64(dir.join("chosen.npy")).unwrap();
+    let (_, exact) = diffcassi::io::read_npy_f64(dir.join("exact.npy")).unwrap();
+    assert_eq!(shape, vec![64, 64, 8, 2]);
+    let mut worst_um: f64 = 0.0;
+    for (c, e) in chosen.chunks(2).zip(exact.chunks(2)) {
+        if c.iter().chain(e).all(|v| v.is_finite()) {
+            worst_um = worst_um.max((c[0] - e[0]).hypot(c[1] - e[1]) * 1e3);
+        }
+    }
+    assert!(worst_um <= tolerance_um, "the chosen cube is {worst_um} µm from the exact one: {text}");
+    // `--tolerance-um 1e308` is written as typed, not as 309 digits.
+    let text = ok(dir, &["spot", "--preset", "sp", "--wavelength-nm", "520", "--tolerance-um", "1e308"]);
+    assert!(text.contains("fidelity: tolerance 1e308 µm") && !text.contains("100000000000000000000000"), "{text}");
+}
+
+/// The GPU kernels accumulate in 64-bit fixed point scaled by the scene's brightest value: a scene of one
+/// pixel 10¹² times brighter than the rest had its dim regions rendered to 2·10⁻⁴ of their level (0 beyond
+/// 10¹⁵), within the promise relative to the peak but silently coarse. The device render says so (a warning,
+/// render.json's `device.fixed_point_warning`); a range of 10⁶ does not warn; the CPU has no such limit.
+#[test]
+fn a_device_render_of_a_high_dynamic_range_scene_warns() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    for (name, peak) in [("h6", 1e6f32), ("h12", 1e12)] {
+        let mut v = vec![1.0f32; 16 * 16 * 3];
+        v[(3 * 16 + 4) * 3..(3 * 16 + 4) * 3 + 3].fill(peak);
+        diffcassi::io::npy::write_npy_f32(dir.join(format!("{name}.npy")), &[16, 16, 3], &v).unwrap();
+        diffcassi::io::npy::write_npy_f64(dir.join(format!("{name}_wavelengths_nm.npy")), &[3], &[450.0, 550.0, 650.0]).unwrap();
+    }
+    let render = |scene: &str, device: &str, out: &str| {
+        ok(dir, &["render", "--preset", "sp", "--scene", scene, "--scene-size", "16", "--bands", "450:650:3", "--planes", "4", "--rays", "2", "--opening", "1", "--device", device, "--no-mapping", "--out", out])
+    };
+    let text = render("h12.npy", "cpu-twin", "t12");
+    assert!(text.contains("fixed-point accumulation") && text.contains("render a scene of such dynamic range with --device cpu"), "{text}");
+    assert!(json(dir.join("t12/render.json"))["device"]["fixed_point_warning"].is_string());
+    let text = render("h6.npy", "cpu-twin", "t6");
+    assert!(!text.contains("fixed-point") && json(dir.join("t6/render.json"))["device"].get("fixed_point_warning").is_none(), "{text}");
+    assert!(!render("h12.npy", "cpu", "c12").contains("fixed-point"));
+}

@@ -184,8 +184,9 @@ impl PyOperator {
 fn exact_operator(py: Python<'_>, system: &PySystem, height: &Bound<'_, PyAny>, width: &Bound<'_, PyAny>, mask: Option<&Bound<'_, PyAny>>, settings: Option<&Bound<'_, PyDict>>) -> PyResult<PyOperator> {
     let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
     let s = crate::settings::settings(py, settings, &[])?;
-    let (cfg, m) = configure(height, width, &s.options, mask)?;
+    // Host-only before configure: its device probe would blame a missing driver (round 12).
     crate::settings::host_only(&s.options, "exact")?;
+    let (cfg, m) = configure(height, width, &s.options, mask)?;
     let recipe = Recipe::render_settings(py, "exact", system, height, width, mask.is_some().then_some(&m), settings)?;
     Ok(PyOperator::new(Arc::new(owned_exact(py, &system.inner, cfg, m, &s.backend)?), recipe))
 }
@@ -206,8 +207,9 @@ fn model_operator(
 ) -> PyResult<PyOperator> {
     let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
     let s = crate::settings::settings(py, settings, &["interpolation"])?;
-    let (cfg, m) = configure(height, width, &s.options, mask)?;
+    // Host-only before configure: its device probe would blame a missing driver (round 12).
     crate::settings::host_only(&s.options, &format!("{kind}_operator"))?;
+    let (cfg, m) = configure(height, width, &s.options, mask)?;
     let interpolation: Option<String> = crate::settings::extra(&s, "interpolation", "a string")?;
     let interp = match interpolation.as_deref().unwrap_or("nearest") {
         "nearest" => MappingInterpolation::Nearest,

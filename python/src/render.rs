@@ -99,6 +99,11 @@ fn _render<'py>(
         if let Some(x) = r.spectral_extrapolation(&cube) {
             info["spectral_extrapolation"] = x.to_json();
         }
+        warnings.extend(record.as_ref().and_then(|d| d.fixed_point_warning.clone()));
+        if let Some(f) = r.f32_chief_ray_error()? {
+            warnings.extend(f.message());
+            info["f32_chief_ray_error"] = f.to_json();
+        }
         if !warnings.is_empty() {
             info["warnings"] = warnings.iter().map(|w| crate::errors::pythonic(w)).collect::<Vec<_>>().into();
         }
@@ -247,8 +252,9 @@ impl PyTransport {
     fn new(py: Python<'_>, system: &PySystem, height: &Bound<'_, PyAny>, width: &Bound<'_, PyAny>, mask: Option<&Bound<'_, PyAny>>, settings: Option<&Bound<'_, PyDict>>) -> PyResult<Self> {
         let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
         let s = crate::settings::settings(py, settings, &[])?;
-        let (cfg, m) = configure(height, width, &s.options, mask)?;
+        // Host-only before configure: its device probe would blame a missing driver (round 12).
         crate::settings::host_only(&s.options, "Transport")?;
+        let (cfg, m) = configure(height, width, &s.options, mask)?;
         let backend = s.backend.as_str();
         let recipe = crate::recipe::Recipe::render_settings(py, "Transport", system, height, width, mask.is_some().then_some(&m), settings)?;
         let exact = owned_exact(py, &system.inner, cfg, m, backend)?;
@@ -407,7 +413,7 @@ pub fn check_shape(name: &str, actual: &[usize], expected: &[usize]) -> PyResult
     Ok(())
 }
 
-/// The channels of an EXR file: {name: (H, W) float32} (to read the CLI's `acquisition.exr`, `cube.exr`).
+/// The channels of an EXR file: a list of (name, (H, W) float32 array) pairs in the file's order — `dict(read_exr(p))` for a mapping (to read the CLI's `acquisition.exr`, `cube.exr`).
 #[pyfunction]
 fn read_exr<'py>(py: Python<'py>, path: std::path::PathBuf) -> PyResult<Vec<(String, Bound<'py, PyArrayDyn<f32>>)>> {
     let img = diffcassi::io::exr::read_exr(&path).map_err(|e| crate::errors::to_py(e.into()))?;

@@ -191,6 +191,8 @@ pub fn parse_device(d: &str) -> PyResult<Device> {
 pub fn host_only(o: &Options, what: &str) -> PyResult<()> {
     match o.device.as_deref() {
         None | Some("cpu") => Ok(()),
+        // A device string that is no device at all: configure's own message ("use cpu, cuda or cuda:N").
+        Some(d) if diffcassi::render::Device::parse_value(d).is_err() => Ok(()),
         Some(d) => Err(value_error(format!(
             "{what}: device=\"{d}\": {what} computes on the CPU (device=\"cpu\"); to apply the operator on a GPU, move its torch module: diffcassi.torch.CassiOperator.from_operator(op, matrix_free=True).to(\"cuda\")"
         ))),

@@ -87,7 +87,7 @@ pub struct RenderCommon {
     /// --tolerance-um, chosen.
     #[arg(long, value_name = "f64|f32", value_parser = <crate::tracer::Precision as std::str::FromStr>::from_str)]
     pub precision: Option<crate::tracer::Precision>,
-    /// Where to render: cpu, or cuda / cuda:N (the GPU kernels on CUDA device 0 / N, f64; docs/gpu.md), or
+    /// Where to render: cpu, or cuda / cuda:N (the GPU kernels on CUDA device 0 / N, in --precision f64 or f32; docs/gpu.md), or
     /// cpu-twin (the GPU kernels run on the CPU, slowly: the device's bits where there is no GPU).
     #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]|cpu-twin", value_parser = device_arg)]
     pub device: crate::render::Device,

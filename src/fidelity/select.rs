@@ -208,17 +208,19 @@ fn fmt_err(e: f64) -> String {
 /// Choose the backend for a job of `job_rays` rays at tolerance `tolerance_um` from a calibration.
 pub fn choose_backend(cal: &BackendCalibration, tolerance_um: f64, job_rays: u64) -> Result<Choice> {
     check_tolerance(tolerance_um)?;
+    // The tolerance as typed, not 309 digits for 1e308 (round 12).
+    let tol = crate::limits::fmt_num(tolerance_um);
     let cost = |m: &Measured| m.setup_seconds + job_rays as f64 / m.rays_per_s;
     let analytic = cal.candidates.iter().find(|m| m.backend == "analytic").ok_or_else(|| Error::invalid("calibration lacks the analytic reference"))?;
     let items: Vec<(&Measured, f64, f64, bool)> = cal.candidates.iter().filter(|m| !render_only(m) && m.error.within(tolerance_um)).map(|m| (m, m.error.max_um, cost(m), m.backend == "analytic")).collect();
-    let (m, err, secs) = pick(&items).ok_or_else(|| Error::invalid(format!("no configuration meets --tolerance-um {tolerance_um}")))?;
+    let (m, err, secs) = pick(&items).ok_or_else(|| Error::invalid(format!("no configuration meets --tolerance-um {tol}")))?;
     let list: Vec<String> = cal
         .candidates
         .iter()
         .map(|c| format!("{} {} µm{} {:.2} M rays/s", c.backend, fmt_err(c.error.max_um), if c.error.mismatches > 0 { format!(" ({} mismatches)", c.error.mismatches) } else { String::new() }, c.rays_per_s / 1e6))
         .collect();
     let explanation = format!(
-        "fidelity: tolerance {tolerance_um} µm → --backend {} (max error {} µm ≤ {tolerance_um}, predicted {:.3} s for {job_rays} rays; analytic {:.3} s)\n  candidates (max error vs analytic f64, throughput): {}",
+        "fidelity: tolerance {tol} µm → --backend {} (max error {} µm ≤ {tol}, predicted {:.3} s for {job_rays} rays; analytic {:.3} s)\n  candidates (max error vs analytic f64, throughput): {}",
         m.backend,
         fmt_err(err),
         secs,
@@ -244,6 +246,12 @@ pub struct StrideModel {
 pub struct MappingCalibration {
     pub strides: Vec<StrideModel>,
 }
+
+/// The factor on an interpolated cube's measured error before it is compared with `--tolerance-um` (and
+/// reported): the measurement is a maximum over [`check_pixels`] at three wavelengths, which a held-out battery
+/// (round 12) found 0.5–3.6 % below the whole cube's maximum (map and ap, 64² and 256², 8 wavelengths: the
+/// worst entries at a wavelength between the calibrated ones), so a tolerance between the two was exceeded.
+pub const SAMPLED_ERROR_MARGIN: f64 = 1.1;
 
 /// The check pixels: 256 seeded random pixels, the four corners and the centre, and for every stride the
 /// four pixels halfway between nodes in the corner cells of its node lattice (the outermost field, where
@@ -348,6 +356,8 @@ pub struct MappingChoice {
 /// Choose backend and stride for an H×W×Nλ cube at `tolerance_um`.
 pub fn choose_mapping(backends: &BackendCalibration, mapping: &MappingCalibration, tolerance_um: f64, wavelengths: usize) -> Result<MappingChoice> {
     check_tolerance(tolerance_um)?;
+    // The tolerance as typed, not 309 digits for 1e308 (round 12).
+    let tol = crate::limits::fmt_num(tolerance_um);
     let nl = wavelengths as f64;
     let analytic = backends.candidates.iter().find(|m| m.backend == "analytic").ok_or_else(|| Error::invalid("calibration lacks the analytic reference"))?;
     let exact = mapping.strides.iter().find(|s| s.stride == 1).ok_or_else(|| Error::invalid("mapping calibration lacks stride 1"))?;
@@ -359,17 +369,17 @@ pub fn choose_mapping(backends: &BackendCalibration, mapping: &MappingCalibratio
         all.push(((m.backend.clone(), 1), if m.error.mismatches > 0 { f64::INFINITY } else { m.error.max_um }, cost, m.backend == "analytic"));
     }
     for s in mapping.strides.iter().filter(|s| s.stride > 1) {
-        let e = s.error.map(|e| if e.mismatches > 0 { f64::INFINITY } else { e.max_um }).unwrap_or(f64::INFINITY);
+        let e = s.error.map(|e| if e.mismatches > 0 { f64::INFINITY } else { e.max_um * SAMPLED_ERROR_MARGIN }).unwrap_or(f64::INFINITY);
         all.push((("analytic".into(), s.stride), e, s.seconds_per_wavelength * nl, false));
     }
     let feasible: Vec<_> = all.iter().filter(|i| i.1 <= tolerance_um).cloned().collect();
-    let ((backend, stride), err, secs) = pick(&feasible).ok_or_else(|| Error::invalid(format!("no mapping model meets --tolerance-um {tolerance_um}")))?;
+    let ((backend, stride), err, secs) = pick(&feasible).ok_or_else(|| Error::invalid(format!("no mapping model meets --tolerance-um {tol}")))?;
     let list: Vec<String> = all
         .iter()
         .map(|((b, s), e, c, _)| format!("{b}{} {} µm {:.3} s", if *s > 1 { format!(" stride {s}") } else { String::new() }, if e.is_finite() { fmt_err(*e) } else { "n/a".into() }, c))
         .collect();
     let explanation = format!(
-        "fidelity: tolerance {tolerance_um} µm → mapping with --backend {backend}, {} (max error {} µm, predicted {secs:.3} s; exact analytic {exact_secs:.3} s)\n  candidates (max error vs exact analytic chief rays, predicted time): {}",
+        "fidelity: tolerance {tol} µm → mapping with --backend {backend}, {} (max error {} µm, predicted {secs:.3} s; exact analytic {exact_secs:.3} s)\n  candidates (max error vs exact analytic chief rays, predicted time): {}",
         if stride > 1 { format!("chief rays every {stride} pixels, cubic interpolation between") } else { "every chief ray traced".into() },
         fmt_err(err),
         list.join("; ")
@@ -447,6 +457,8 @@ pub struct RenderChoice {
 /// Choose backend and rays per pixel for a render of `rays_per_n` rays per unit N at `tolerance_um`.
 pub fn choose_render(backends: &BackendCalibration, render: &RenderCalibration, tolerance_um: f64, rays_per_n: u64) -> Result<RenderChoice> {
     check_tolerance(tolerance_um)?;
+    // The tolerance as typed, not 309 digits for 1e308 (round 12).
+    let tol = crate::limits::fmt_num(tolerance_um);
     let sigma = render.sigma_um;
     let mut items: Vec<((String, usize), f64, f64, bool)> = Vec::new();
     let mut notes = Vec::new();
@@ -475,13 +487,13 @@ pub fn choose_render(backends: &BackendCalibration, render: &RenderCalibration, 
     }
     let ((backend, n), err, secs) = pick(&items).ok_or_else(|| {
         Error::invalid(format!(
-            "--tolerance-um {tolerance_um}: a render's splat position has a Monte-Carlo standard error σ/√N with σ = {sigma:.2} µm here, so it needs N = {:.0} rays per pixel per plane, above the limit {MAX_RAYS_PER_PIXEL}; give a tolerance ≥ {:.3} µm",
+            "--tolerance-um {tol}: a render's splat position has a Monte-Carlo standard error σ/√N with σ = {sigma:.2} µm here, so it needs N = {:.0} rays per pixel per plane, above the limit {MAX_RAYS_PER_PIXEL}; give a tolerance ≥ {:.3} µm",
             (sigma / tolerance_um).powi(2).ceil(),
             sigma / (MAX_RAYS_PER_PIXEL as f64).sqrt()
         ))
     })?;
     let explanation = format!(
-        "fidelity: tolerance {tolerance_um} µm → --backend {backend} --rays {n} (error {} µm = trace error + σ/√N, σ = {sigma:.2} µm the RMS spread of one pixel's ray landings; predicted {secs:.2} s)\n  candidates: {}{}",
+        "fidelity: tolerance {tol} µm → --backend {backend} --rays {n} (error {} µm = trace error + σ/√N, σ = {sigma:.2} µm the RMS spread of one pixel's ray landings; predicted {secs:.2} s)\n  candidates: {}{}",
         fmt_err(err),
         items.iter().map(|((b, n), e, c, _)| format!("{b} N={n} {} µm {c:.2} s", fmt_err(*e))).collect::<Vec<_>>().join("; "),
         if notes.is_empty() { String::new() } else { format!("; {}", notes.join("; ")) }

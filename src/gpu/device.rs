@@ -26,7 +26,7 @@ pub struct CudaInfo {
 /// in front (`--device cuda: …`, `device="cuda": …`) and what to use instead after it.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum DeviceError {
-    #[error("no NVIDIA driver on this machine (libcuda.so.1 could not be loaded: {0})")]
+    #[error("no NVIDIA driver on this machine (the driver library could not be loaded: {0})")]
     NoDriver(String),
     #[error("the NVIDIA driver is installed but {0}")]
     Driver(String),

@@ -96,16 +96,31 @@ impl Detector {
         // A scene pixel's size on the detector: its pitch (mm, ~unit magnification) or, for an object at
         // infinity, its angle (rad) × |EFL|.
         let scene_px_mm = if system.object_at_infinity() { scene_pitch_mm * system.first_order.efl_mm.abs() } else { scene_pitch_mm };
+        if !scene_px_mm.is_finite() {
+            // An afocal system (EFL infinite): a scene at infinity is imaged at infinity, not on the image
+            // surface (the size was computed from the infinite EFL as 18446744073709551615 pixels; round 12).
+            return Err(Error::invalid(format!(
+                "system `{}` is afocal (effective focal length {} mm): a scene at infinity has no image on its image surface; add a focusing element (e.g. a paraxial lens) before the detector",
+                system.name(),
+                crate::limits::fmt_num(system.first_order.efl_mm)
+            )));
+        }
         let margin_mm = spot_mm + 0.75 * scene_px_mm + (airy_radius_px + 1.0 + extra_px as f64) * pitch_mm;
         let x_left_mm = ((xmin - margin_mm) / pitch_mm).floor() * pitch_mm;
         let x_right = ((xmax + margin_mm) / pitch_mm).ceil() * pitch_mm;
         let y_bottom = ((ymin - margin_mm) / pitch_mm).floor() * pitch_mm;
         let y_top_mm = ((ymax + margin_mm) / pitch_mm).ceil() * pitch_mm;
-        let width_px = ((x_right - x_left_mm) / pitch_mm).round() as usize;
-        let height_px = ((y_top_mm - y_bottom) / pitch_mm).round() as usize;
-        if width_px * height_px > 64 << 20 {
-            return Err(Error::invalid(format!("the dispersed footprint needs a {width_px}×{height_px} detector: too large")));
+        let (width_f, height_f) = (((x_right - x_left_mm) / pitch_mm).round(), ((y_top_mm - y_bottom) / pitch_mm).round());
+        // In floats first: a spot or an extent beyond f64's range must not saturate the pixel counts.
+        if !(width_f.is_finite() && height_f.is_finite() && width_f * height_f <= (64u64 << 20) as f64) {
+            return Err(Error::invalid(format!(
+                "the dispersed footprint needs a {}×{} detector (pitch {} mm): too large",
+                crate::limits::fmt_num(width_f),
+                crate::limits::fmt_num(height_f),
+                crate::limits::fmt_num(pitch_mm)
+            )));
         }
+        let (width_px, height_px) = (width_f as usize, height_f as usize);
         Ok(Detector { width: width_px, height: height_px, pitch_mm, x_left_mm, y_top_mm })
     }
 }

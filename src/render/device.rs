@@ -57,6 +57,10 @@ pub struct DeviceRecord {
     /// Device time of the kernels and the wall clock of the render with its transfers, ms (CUDA only).
     pub kernels_ms: Option<f64>,
     pub total_ms: Option<f64>,
+    /// The fixed-point accumulation's warning for a high-dynamic-range scene ([`fixed_point_warning`]): the
+    /// dimmest 1 % of the scene's lit values lose more than 10⁻³ of their level; absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fixed_point_warning: Option<String>,
     /// Where the PTX came from (CUDA only).
     pub ptx: Option<String>,
 }
@@ -146,6 +150,37 @@ pub fn plan<'a>(r: &'a Renderer<'_>, scene: &'a SpectralCube) -> Result<RenderPl
     })
 }
 
+/// The relative error above which [`fixed_point_warning`] speaks.
+pub const FIXED_POINT_DIM_ERROR: f64 = 1e-3;
+
+/// The fixed-point accumulation's resolution is one unit of 2^−S of the scene's values per ray tap, S set by the
+/// brightest value ([`fixed_scale`]); a pixel of value v, deposited by `rays_per_pixel` rays of four taps, is
+/// summed within 2·rays_per_pixel·2^−S, a relative error of 2·rays_per_pixel / (2^S·v). A warning when that
+/// exceeds [`FIXED_POINT_DIM_ERROR`] for the dimmest 1 % of the scene's positive values — a high-dynamic-range
+/// scene whose dim regions the kernels render coarsely, or as 0 beyond a range of ~10¹⁵/rays (a held-out
+/// battery, round 12: 2·10⁻⁴ of the dim level at a range of 10¹², 0 at 10¹⁶; the CPU renderer keeps them).
+pub fn fixed_point_warning(scene: &SpectralCube, fixed_scale: f64, rays_per_pixel: u64) -> Option<String> {
+    let mut positive: Vec<f32> = scene.data.iter().copied().filter(|v| *v > 0.0).collect();
+    if positive.is_empty() {
+        return None;
+    }
+    let k = positive.len() / 100;
+    let (_, dim, _) = positive.select_nth_unstable_by(k, f32::total_cmp);
+    let dim = *dim as f64;
+    let relative = 2.0 * rays_per_pixel as f64 / (fixed_scale * dim);
+    let brightest = scene.data.iter().fold(0.0f64, |m, v| m.max(*v as f64));
+    (relative > FIXED_POINT_DIM_ERROR).then(|| {
+        format!(
+            "the GPU kernels' deterministic fixed-point accumulation (2^{} units per scene unit, set by the brightest value {:.3e}) resolves the dimmest 1 % of this scene's lit values ({:.3e} and below, {:.1e} times dimmer) to only {:.1e} of their level: render a scene of such dynamic range with --device cpu",
+            fixed_scale.log2(),
+            brightest,
+            dim,
+            brightest / dim,
+            relative
+        )
+    })
+}
+
 /// The statistics of a run: ray counts by status, the off-detector weight.
 fn stats(out: &PlanOutput, traced: u64) -> RayStats {
     let c = &out.counts;
@@ -176,7 +211,7 @@ pub fn render_on(r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, execu
     let (out, record) = match executor {
         Executor::Twin => {
             let out = plan.run_twin(keep_bands)?;
-            (out, DeviceRecord { device: "cpu-twin".into(), gpu: None, driver: None, precision: r.config.precision.name().into(), accumulation, kernels_ms: None, total_ms: None, ptx: None })
+            (out, DeviceRecord { device: "cpu-twin".into(), gpu: None, driver: None, precision: r.config.precision.name().into(), accumulation, kernels_ms: None, total_ms: None, fixed_point_warning: fixed_point_warning(scene, plan.fixed_scale, plan.sampler.rays as u64), ptx: None })
         }
         Executor::Cuda(ordinal) => {
             let (info, ptx) = cuda::device_info(ordinal)?;
@@ -189,6 +224,7 @@ pub fn render_on(r: &Renderer<'_>, scene: &SpectralCube, keep_bands: bool, execu
                 accumulation,
                 kernels_ms: Some(times.kernels_ms),
                 total_ms: Some(times.total_ms),
+                fixed_point_warning: fixed_point_warning(scene, plan.fixed_scale, plan.sampler.rays as u64),
                 ptx: Some(ptx),
             };
             (out, record)

@@ -240,6 +240,15 @@ pub fn run(request: &RenderRequest, inputs: &[(&str, &Path)], renderer: &Rendere
         progress.warning(&x.message());
         extra["spectral_extrapolation"] = x.to_json();
     }
+    if let Some(w) = device_record.as_ref().and_then(|d| d.fixed_point_warning.as_ref()) {
+        progress.warning(w);
+    }
+    if let Some(f) = renderer.f32_chief_ray_error()? {
+        if let Some(m) = f.message() {
+            progress.warning(&m);
+        }
+        extra["f32_chief_ray_error"] = f.to_json();
+    }
     if !ghosts.is_null() {
         extra["ghosts"] = ghosts;
     }

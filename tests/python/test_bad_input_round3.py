@@ -235,6 +235,11 @@ def test_device_cpu_twin_and_cuda_without_a_gpu(sp):
     for call in (lambda: diffcassi.Transport(sp, 8, 8, device="cpu-twin", **SMALL), lambda: diffcassi.exact(sp, 8, 8, device="cpu-twin", **SMALL)):
         with pytest.raises(diffcassi.DiffcassiValueError, match=r'(Transport|exact): device="cpu-twin": .*computes on the CPU.*\.to\("cuda"\)'):
             call()
+    # device="cuda" too, with or without a driver (the device probe blamed a missing driver; round 12).
+    for call in (lambda: diffcassi.Transport(sp, 8, 8, device="cuda", **SMALL), lambda: diffcassi.exact(sp, 8, 8, device="cuda:1", **SMALL),
+                 lambda: diffcassi.shift_operator(sp, 8, 8, device="cuda", **SMALL)):
+        with pytest.raises(diffcassi.DiffcassiValueError, match=r'device="cuda(:1)?": .*computes on the CPU.*\.to\("cuda"\)'):
+            call()
     if not _has_cuda_driver():
         with pytest.raises(diffcassi.DiffcassiValueError, match='device "cuda": (no NVIDIA driver|no CUDA device|the NVIDIA driver is installed but).*use device="cpu"'):
             diffcassi.render(sp, cube, WL, device="cuda", **SMALL)

@@ -330,6 +330,11 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
     let transport_seconds = t_trace.elapsed().as_secs_f64();
     drop(probe);
 
+    // f32's rounding on this system (one measurement for every scene; `render`'s warning, once).
+    let f32_error = renderer.f32_chief_ray_error()?;
+    if let Some(m) = f32_error.and_then(|f| f.message()) {
+        progress.message(&format!("warning: {m}"));
+    }
     progress.scenes_started(todo.len() as u64);
     let mut failed: Vec<String> = Vec::new();
     for s in &todo {
@@ -358,6 +363,12 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
             if let Some(x) = renderer.spectral_extrapolation(&scene) {
                 progress.message(&format!("warning: {}: {}", s.name, x.message()));
                 extra["spectral_extrapolation"] = x.to_json();
+            }
+            if let Some(w) = device_record.as_ref().and_then(|d| d.fixed_point_warning.as_ref()) {
+                progress.message(&format!("warning: {}: {w}", s.name));
+            }
+            if let Some(f) = f32_error {
+                extra["f32_chief_ray_error"] = f.to_json();
             }
             let written = write_scene(&partial, &renderer, &acq, device_record.as_ref(), &desc, &configuration, extra, ts.elapsed().as_secs_f64()).and_then(|()| {
                 if let Some(d) = a.scene_delay {
