@@ -177,3 +177,24 @@ fn a_device_render_of_a_high_dynamic_range_scene_warns() {
     assert!(!text.contains("fixed-point") && json(dir.join("t6/render.json"))["device"].get("fixed_point_warning").is_none(), "{text}");
     assert!(!render("h12.npy", "cpu", "c12").contains("fixed-point"));
 }
+
+/// A dual-disperser system checked the mask against the beam at its primary wavelength only: at 16² the
+/// dispersion at ddsp's mask carries the scene's image off the mask at 450–487 and 561–650 nm, and those
+/// planes passed no light, unannounced (round 11). A warning names them and render.json's `mask_dark_planes`
+/// lists exactly the bands `--cube` finds dark; at 64² every plane sees the mask.
+#[test]
+fn planes_a_coded_mask_surface_passes_nothing_at_are_named() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    let render = |size: &str, out: &str| {
+        ok(dir, &["render", "--preset", "ddsp", "--scene-size", size, "--bands", "450:650:28", "--planes", "28", "--rays", "1", "--opening", "1", "--no-mapping", "--cube", "--out", out])
+    };
+    let text = render("16", "small");
+    assert!(text.contains("falls beyond the 16×16 mask") && text.contains("those planes pass no light"), "{text}");
+    let dark = json(dir.join("small/render.json"))["mask_dark_planes"]["planes_nm"].as_array().unwrap().len();
+    let cube = diffcassi::io::exr::read_exr(dir.join("small/cube.exr")).unwrap();
+    let zero = cube.channels.iter().filter(|c| c.data.iter().all(|v| *v == 0.0)).count();
+    assert!(cube.channels.len() == 28 && dark == zero && (10..28).contains(&zero), "{dark} dark planes, {zero} dark bands");
+    let text = render("64", "large");
+    assert!(!text.contains("falls beyond") && json(dir.join("large/render.json")).get("mask_dark_planes").is_none(), "{text}");
+}

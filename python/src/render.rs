@@ -100,6 +100,10 @@ fn _render<'py>(
             info["spectral_extrapolation"] = x.to_json();
         }
         warnings.extend(record.as_ref().and_then(|d| d.fixed_point_warning.clone()));
+        if let Some(d) = r.mask_dark_planes()? {
+            warnings.push(d.message());
+            info["mask_dark_planes"] = d.to_json();
+        }
         if let Some(f) = r.f32_chief_ray_error()? {
             warnings.extend(f.message());
             info["f32_chief_ray_error"] = f.to_json();

@@ -398,6 +398,42 @@ impl<'a> Renderer<'a> {
         Ok(())
     }
 
+    /// For a system whose coded mask is a surface (dual-disperser CASSI): the planes at which the scene's image
+    /// on that surface falls wholly beyond the mask (the chief rays of its centre and corners land outside the
+    /// mask's extent, on one side): they pass no light, while [`Renderer::new`] checked only the primary
+    /// wavelength. A small scene whose dispersion at the mask exceeds the mask's width (ddsp at 16²: 450 and
+    /// 650 nm dark, unannounced; a held-out battery, round 11). `None` when every plane sees the mask.
+    pub fn mask_dark_planes(&self) -> Result<Option<MaskDarkPlanes>> {
+        let Some(m) = self.system.coded_mask else { return Ok(None) };
+        let (h, w, pitch) = (self.config.scene_height, self.config.scene_width, self.config.scene_pitch_mm);
+        let (hx, hy) = (0.5 * w as f64 * pitch, 0.5 * h as f64 * pitch);
+        let (mx, my) = (0.5 * w as f64 * m.pitch_mm, 0.5 * h as f64 * m.pitch_mm);
+        let arm1 = &self.system.path[..=m.step];
+        let mut dark = Vec::new();
+        let mut runs: Vec<[f64; 2]> = Vec::new();
+        let mut last_dark: Option<usize> = None;
+        for (k, &wl) in self.config.spectral.planes_nm.iter().enumerate() {
+            let n = self.system.indices(wl)?;
+            let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
+            for field in [[0.0, 0.0], [-hx, -hy], [hx, -hy], [-hx, hy], [hx, hy]] {
+                let (o, d) = crate::rays::object_ray(self.system, field, 0.0, 0.0);
+                if let Ok((p, _)) = crate::tracer::kernel::trace_steps(arm1, &n, o, d / d.length()) {
+                    (x0, x1, y0, y1) = (x0.min(p.x), x1.max(p.x), y0.min(p.y), y1.max(p.y));
+                }
+            }
+            // No chief ray crossing, or the footprint's box wholly beside the mask's.
+            if !(x0 <= mx && x1 >= -mx && y0 <= my && y1 >= -my) {
+                dark.push(wl);
+                match runs.last_mut() {
+                    Some(r) if last_dark == Some(k.wrapping_sub(1)) => r[1] = wl,
+                    _ => runs.push([wl, wl]),
+                }
+                last_dark = Some(k);
+            }
+        }
+        Ok((!dark.is_empty()).then(|| MaskDarkPlanes { surface: m.surface, planes_nm: dark, runs_nm: runs, of_planes: self.config.spectral.planes(), mask: [h, w], mask_pitch_um: m.pitch_mm * 1e3 }))
+    }
+
     /// For an f32 render (`--precision f32`): f32's rounding on this system, measured — the largest distance
     /// (µm) between the f32 lane kernel's and the f64 tracer's chief-ray landings of the scene's centre, corners
     /// and edge midpoints at the first, middle and last planes. It grows with the coordinates the rays carry
@@ -601,6 +637,43 @@ pub(crate) fn check_mask_in_beam(system: &SequentialSystem, m: crate::system::Ma
         )));
     }
     Ok(())
+}
+
+/// Planes a coded-mask surface passes no light at ([`Renderer::mask_dark_planes`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct MaskDarkPlanes {
+    /// The mask's surface.
+    pub surface: usize,
+    /// The dark planes' wavelengths, nm, and their runs of consecutive planes (first, last), nm.
+    pub planes_nm: Vec<f64>,
+    pub runs_nm: Vec<[f64; 2]>,
+    pub of_planes: usize,
+    /// The mask's pixels (height, width) and pitch, µm.
+    pub mask: [usize; 2],
+    pub mask_pitch_um: f64,
+}
+
+impl MaskDarkPlanes {
+    /// render.json's `mask_dark_planes`: the fields and the message.
+    pub fn to_json(&self) -> serde_json::Value {
+        let mut v = serde_json::json!(self);
+        v["message"] = self.message().into();
+        v
+    }
+
+    pub fn message(&self) -> String {
+        let runs: Vec<String> = self.runs_nm.iter().map(|r| if r[0] == r[1] { format!("{:.1}", r[0]) } else { format!("{:.1}–{:.1}", r[0], r[1]) }).collect();
+        format!(
+            "at {} of {} render planes ({} nm) the scene's image on the coded-mask surface {} falls beyond the {}×{} mask of pitch {} µm: those planes pass no light (the dispersion at the mask exceeds the mask's extent); render a wider scene or narrower --bands",
+            self.planes_nm.len(),
+            self.of_planes,
+            runs.join(", "),
+            self.surface,
+            self.mask[0],
+            self.mask[1],
+            crate::limits::fmt_num(self.mask_pitch_um)
+        )
+    }
 }
 
 /// The f32 chief-ray error the documentation quotes for the presets' far field (docs/performance.md, "f32

@@ -243,6 +243,10 @@ pub fn run(request: &RenderRequest, inputs: &[(&str, &Path)], renderer: &Rendere
     if let Some(w) = device_record.as_ref().and_then(|d| d.fixed_point_warning.as_ref()) {
         progress.warning(w);
     }
+    if let Some(d) = renderer.mask_dark_planes()? {
+        progress.warning(&d.message());
+        extra["mask_dark_planes"] = d.to_json();
+    }
     if let Some(f) = renderer.f32_chief_ray_error()? {
         if let Some(m) = f.message() {
             progress.warning(&m);

@@ -335,6 +335,11 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
     if let Some(m) = f32_error.and_then(|f| f.message()) {
         progress.message(&format!("warning: {m}"));
     }
+    // Planes a coded-mask surface passes nothing at (the same for every scene of the dataset).
+    let mask_dark = renderer.mask_dark_planes()?;
+    if let Some(d) = &mask_dark {
+        progress.message(&format!("warning: {}", d.message()));
+    }
     progress.scenes_started(todo.len() as u64);
     let mut failed: Vec<String> = Vec::new();
     for s in &todo {
@@ -366,6 +371,9 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
             }
             if let Some(w) = device_record.as_ref().and_then(|d| d.fixed_point_warning.as_ref()) {
                 progress.message(&format!("warning: {}: {w}", s.name));
+            }
+            if let Some(d) = &mask_dark {
+                extra["mask_dark_planes"] = d.to_json();
             }
             if let Some(f) = f32_error {
                 extra["f32_chief_ray_error"] = f.to_json();
