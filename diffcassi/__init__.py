@@ -137,7 +137,10 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
     more than one band beyond the scene's bands (its spectrum held constant there) give a ``UserWarning`` and
     ``info["spectral_extrapolation"]``; a scene entirely outside the render's planes is refused. As the CLI, a
     zero acquisition, and sensor noise whose exposure puts less than one electron in the brightest pixel, give a
-    ``UserWarning`` naming why.
+    ``UserWarning`` naming why; so do a dual-disperser system whose mask passes nothing at some planes
+    (``info["mask_dark_planes"]``), an f32 render whose measured chief-ray error exceeds 0.1 µm
+    (``info["f32_chief_ray_error"]``, recorded for every f32 render), and a device render of a scene whose
+    dynamic range the fixed-point accumulation resolves coarsely (``info["device"]["fixed_point_warning"]``).
     """
     nz: Dict[str, Any] = {}
     if isinstance(noise, str):
