@@ -107,6 +107,15 @@ fn an_f32_render_measures_and_reports_its_rounding() {
     assert!(f["error_um"].as_f64().unwrap() < 0.03 && f.get("message").is_none() && !text.contains("moves this system"), "{f} {text}");
     render(&["--system", "long.json"], "f64", "long64");
     assert!(json(dir.join("long64/render.json")).get("f32_chief_ray_error").is_none());
+    // `mapping --precision f32` measures the same and warns; SP's does not.
+    let mapping = |system: &[&str]| {
+        let mut a = vec!["mapping"];
+        a.extend(system);
+        a.extend(["--height", "16", "--width", "16", "--wavelengths-nm", "450:650:4", "--precision", "f32", "--npy", "m.npy"]);
+        ok(dir, &a)
+    };
+    assert!(mapping(&["--system", "long.json"]).contains("warning: --precision f32 moves this system's chief rays"));
+    assert!(!mapping(&["--preset", "sp"]).contains("moves this system"));
 }
 
 /// An afocal system (EFL infinite) with a scene at infinity was refused with a detector of

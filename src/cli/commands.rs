@@ -785,6 +785,13 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
         }
         _ => super::fidelity::mapping_for(&a.backend, &system, a.height, a.width, a.pitch_mm, &ws)?,
     };
+    // f32's rounding on this system, measured (the render's check): a warning above the documented figure.
+    if a.precision == Some(crate::tracer::Precision::F32) {
+        let level = crate::tracer::Precision::F32.level(crate::tracer::Kernel::default())?;
+        if let Some(m) = crate::render::measure_f32_error(&system, a.height, a.width, a.pitch_mm, &ws, level)?.message() {
+            eprintln!("warning: {m}");
+        }
+    }
     let t0 = Instant::now();
     let cube = analysis::mapping_cube_interpolated(&system, tracer.as_ref(), a.height, a.width, a.pitch_mm, &ws, stride)?;
     let secs = t0.elapsed().as_secs_f64();

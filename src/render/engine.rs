@@ -443,27 +443,8 @@ impl<'a> Renderer<'a> {
         if self.config.precision != crate::tracer::Precision::F32 {
             return Ok(None);
         }
-        let (h, w) = (self.config.scene_height, self.config.scene_width);
-        let (h2, w2) = (h - 1, w - 1);
-        let probes: Vec<[f64; 2]> = [(0, 0), (0, w2), (h2, 0), (h2, w2), (0, w2 / 2), (h2, w2 / 2), (h2 / 2, 0), (h2 / 2, w2), (h2 / 2, w2 / 2)]
-            .iter()
-            .map(|&(r, c)| crate::analysis::MappingCube::scene_xy(h, w, self.config.scene_pitch_mm, r, c))
-            .collect();
-        let f64_tracer = crate::tracer::AnalyticTracer::default();
-        let f32_tracer = crate::tracer::AnalyticF32Tracer::new(self.config.precision.level(self.config.kernel)?);
-        let planes = &self.config.spectral.planes_nm;
-        let mut worst = F32Error { error_um: 0.0, threshold_um: F32_DOCUMENTED_ERROR_UM, rays: 0 };
-        for &k in &[0, planes.len() / 2, planes.len() - 1] {
-            let batch = crate::rays::RayBatch::chief_rays(self.system, &probes, planes[k])?;
-            let (a, b) = (f64_tracer.trace(self.system, &batch)?, f32_tracer.trace(self.system, &batch)?);
-            for i in 0..a.len() {
-                if a.status[i] == crate::tracer::RayStatus::Ok && b.status[i] == crate::tracer::RayStatus::Ok {
-                    worst.error_um = worst.error_um.max((a.x[i] - b.x[i]).hypot(a.y[i] - b.y[i]) * 1e3);
-                    worst.rays += 1;
-                }
-            }
-        }
-        Ok(Some(worst))
+        let level = self.config.precision.level(self.config.kernel)?;
+        measure_f32_error(self.system, self.config.scene_height, self.config.scene_width, self.config.scene_pitch_mm, &self.config.spectral.planes_nm, level).map(Some)
     }
 
     /// Where the render's planes reach beyond the scene's bands by more than one render band, or by more than
@@ -674,6 +655,35 @@ impl MaskDarkPlanes {
             crate::limits::fmt_num(self.mask_pitch_um)
         )
     }
+}
+
+/// f32's rounding on `system` for an `height`×`width` scene of pitch `pitch` (the system's field unit: mm, or
+/// radians at infinity): the largest distance (µm) between the f32 lane kernel's (`level`) and the f64
+/// tracer's chief-ray landings of the scene's centre, corners and edge midpoints at the first, middle and last
+/// of `wavelengths_nm` ([`Renderer::f32_chief_ray_error`]; `mapping --precision f32`).
+pub fn measure_f32_error(system: &SequentialSystem, height: usize, width: usize, pitch: f64, wavelengths_nm: &[f64], level: crate::tracer::SimdLevel) -> Result<F32Error> {
+    let (h2, w2) = (height.saturating_sub(1), width.saturating_sub(1));
+    let probes: Vec<[f64; 2]> = [(0, 0), (0, w2), (h2, 0), (h2, w2), (0, w2 / 2), (h2, w2 / 2), (h2 / 2, 0), (h2 / 2, w2), (h2 / 2, w2 / 2)]
+        .iter()
+        .map(|&(r, c)| crate::analysis::MappingCube::scene_xy(height, width, pitch, r, c))
+        .collect();
+    let f64_tracer = crate::tracer::AnalyticTracer::default();
+    let f32_tracer = crate::tracer::AnalyticF32Tracer::new(level);
+    let mut worst = F32Error { error_um: 0.0, threshold_um: F32_DOCUMENTED_ERROR_UM, rays: 0 };
+    if wavelengths_nm.is_empty() {
+        return Ok(worst);
+    }
+    for &k in &[0, wavelengths_nm.len() / 2, wavelengths_nm.len() - 1] {
+        let batch = crate::rays::RayBatch::chief_rays(system, &probes, wavelengths_nm[k])?;
+        let (a, b) = (f64_tracer.trace(system, &batch)?, f32_tracer.trace(system, &batch)?);
+        for i in 0..a.len() {
+            if a.status[i] == crate::tracer::RayStatus::Ok && b.status[i] == crate::tracer::RayStatus::Ok {
+                worst.error_um = worst.error_um.max((a.x[i] - b.x[i]).hypot(a.y[i] - b.y[i]) * 1e3);
+                worst.rays += 1;
+            }
+        }
+    }
+    Ok(worst)
 }
 
 /// The f32 chief-ray error the documentation quotes for the presets' far field (docs/performance.md, "f32
