@@ -406,12 +406,16 @@ pub fn configuration(renderer: &Renderer, options: &DatasetOptions) -> Value {
 /// `airy`), with both values. Numbers compare by value (`1` equals `1.0`; the records are written and read
 /// back bit-exactly, serde_json's `float_roundtrip`), so a mismatch is never an artefact of the JSON text.
 pub fn configuration_differences(recorded: &Value, requested: &Value) -> Vec<String> {
-    // A dataset recorded before the mechanics were left out, or with catalogue paths, compares as today's.
-    let mut recorded = recorded.clone();
-    if let Some(spec) = recorded.get_mut("system_spec") {
-        *spec = spec_identity(spec.take());
-    }
-    let recorded = &recorded;
+    // A dataset recorded before the mechanics were left out, or with catalogue paths, compares as today's; the
+    // requested side too, for callers that record the spec as loaded (the study's cells).
+    let identity = |v: &Value| {
+        let mut v = v.clone();
+        if let Some(spec) = v.get_mut("system_spec") {
+            *spec = spec_identity(spec.take());
+        }
+        v
+    };
+    let (recorded, requested) = (&identity(recorded), &identity(requested));
     if !(recorded.is_object() && requested.is_object()) {
         return if same_json(recorded, requested) { vec![] } else { vec!["the configuration is not a JSON object".into()] };
     }
