@@ -188,7 +188,8 @@ int main() {
     for (const double bad : {180.0, -5.0, std::nan(""), HUGE_VAL}) {
       auto b = o;
       b.scene_fov_deg = bad;
-      expect_error("bad angular extent", [&] { telescope.render_detector(4, 4, wl, b); }, {"scene-fov-deg", "(0, 180)"});
+      // Named as C++ sets it (the library's table of the front ends' spellings, src/frontend.rs), not `--scene-fov-deg`.
+      expect_error("bad angular extent", [&] { telescope.render_detector(4, 4, wl, b); }, {"RenderOptions::scene_fov_deg", "(0, 180)"});
     }
     auto at_inf = o;
     at_inf.scene_fov_deg = 0.2;
