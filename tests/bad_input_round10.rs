@@ -104,7 +104,12 @@ fn records_and_warnings_say_what_a_render_did() {
     assert_eq!(j["scene"]["native_wavelengths_nm"], serde_json::json!([460.0, 560.0, 640.0]));
     // --tolerance-um: the request is recorded beside the rays and precision it chose.
     ok(dir, &[&r[..9], &["--tolerance-um", "5", "--calibration-cache", "cache", "--out", "c"]].concat());
-    assert_eq!(json(dir.join("c/render.json"))["tolerance_um"], 5.0);
+    let c = json(dir.join("c/render.json"));
+    assert_eq!(c["tolerance_um"], 5.0);
+    // … with the error its choice predicts (round 13: render.json lacked it), within the tolerance.
+    let predicted = c["tolerance_predicted_error_um"].as_f64().expect("a predicted error");
+    assert!(predicted > 0.0 && predicted <= 5.0, "{predicted}");
+    assert_eq!(json(dir.join("a/render.json"))["tolerance_predicted_error_um"], serde_json::Value::Null);
 }
 
 /// `.zmx` messages and value ranges: a Coordinate Break's CURV named its SURF line; conics, asphere terms and

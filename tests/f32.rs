@@ -225,6 +225,58 @@ fn tolerance_picks_f32_for_a_loose_render_tolerance_and_not_for_a_tight_one() {
     }
 }
 
+/// A render's calibration covers its scene's field, not only the system's fields (round 13): a lens file with an
+/// axial field only was calibrated on the axis, where f32's rounding is smallest, and the chooser predicted a
+/// third of the f32 error the render's rays then had at the scene's edge.
+#[test]
+fn the_render_calibration_covers_the_scene_beyond_the_systems_fields() {
+    // SP with a 950 mm gap before its doublet (f32's rounding grows with the coordinates the rays carry;
+    // tests/bad_input_round12.rs) and an axial field only.
+    let mut spec = serde_json::to_value(presets::spec("sp").unwrap()).unwrap();
+    spec["fields_mm"] = serde_json::json!([[0.0, 0.0]]);
+    spec["surfaces"][15]["thickness_mm"] = 950.0.into();
+    for k in 16..=19 {
+        spec["surfaces"][k]["semi_diameter_mm"] = 20.0.into();
+        if spec["surfaces"][k]["aperture"].is_object() {
+            spec["surfaces"][k]["aperture"]["semi_diameter_mm"] = 20.0.into();
+        }
+    }
+    let sys = SequentialSystem::build(&serde_json::from_value(spec).unwrap()).unwrap();
+    let cfg = small_config(256); // ±1.28 mm
+    let half = 256.0 * cfg.scene_pitch_mm / 2.0;
+    // The calibration's ray sets, traced in both precisions (what `calibrate_backends` measures f32 on).
+    let f32_error = |set: fidelity::RaySetSpec| {
+        let rays = set.build(&sys, &cfg.spectral.planes_nm).unwrap();
+        let (max, _, n, mismatches) = compare(&AnalyticTracer::default().trace(&sys, &rays).unwrap(), &f32_tracer().trace(&sys, &rays).unwrap());
+        // (Most of the wide set is vignetted by the long system's doublet: compared where both arrive.)
+        assert!(n > 100 && mismatches == 0, "{n} of {} arrived, {mismatches} mismatches", rays.len());
+        (max, n)
+    };
+    let (axis, axis_rays) = f32_error(fidelity::RaySetSpec::calibration());
+    let (scene, scene_rays) = f32_error(fidelity::RaySetSpec::calibration().covering(&sys, half));
+    let level = Precision::F32.level(Kernel::default()).unwrap();
+    let chief = diffcassi::render::measure_f32_error(&sys, 256, 256, cfg.scene_pitch_mm, &cfg.spectral.planes_nm, level).unwrap();
+    println!("f32 max error: the system's calibration set {axis:.4} µm ({axis_rays} rays arriving), over the scene {scene:.4} µm ({scene_rays} rays arriving); the render's chief-ray check {:.4} µm", chief.error_um);
+    assert!(scene_rays > axis_rays);
+    assert!(scene > 2.0 * axis, "the scene's edge rounds worse than the axis: {scene} vs {axis} µm");
+    assert!(scene >= chief.error_um, "the calibration ({scene} µm) must not predict less than the render's own check measures ({} µm)", chief.error_um);
+    // A job inside the system's fields keeps the system's set (and its cache key).
+    let sp = system("sp");
+    assert_eq!(fidelity::RaySetSpec::calibration().covering(&sp, 1.0), fidelity::RaySetSpec::calibration());
+    assert_ne!(fidelity::RaySetSpec::calibration().covering(&sp, 1e3), fidelity::RaySetSpec::calibration());
+    // The chooser calibrates over its scene: SP at 64 px of 0.1 mm (±3.2 mm, beyond SP's fields) leaves the
+    // covering calibration in the cache, not the system's.
+    let dir = tempfile::tempdir().unwrap();
+    let cache = CacheOptions { dir: Some(dir.path().to_path_buf()) };
+    let mut wide = small_config(64);
+    wide.scene_pitch_mm = 0.1;
+    fidelity::choose_render_for(&sp, &wide, 50.0, 64 * 64, &cache).unwrap();
+    let (over, p) = fidelity::calibrate_backends_over(&sp, &wide.spectral.planes_nm, Some(3.2), &cache).unwrap();
+    assert!(matches!(p, fidelity::Provenance::Cached(_)), "{p:?}");
+    let (own, p) = fidelity::calibrate_backends(&sp, &wide.spectral.planes_nm, &cache).unwrap();
+    assert!(matches!(p, fidelity::Provenance::Measured { .. }) && over.rays > own.rays, "{p:?}");
+}
+
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_diffcassi"))
 }

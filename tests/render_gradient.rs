@@ -460,7 +460,8 @@ fn scene_fov_deg_is_required_at_infinity_and_checked() {
         DiffRenderer::new(set(spec), cfg, BANDS.to_vec()).map(|_| ()).unwrap_err().to_string()
     };
     let e = err(common::singlet_at_infinity(false), None);
-    assert!(e.contains("object at infinity") && e.contains("scene_fov_deg"), "{e}");
+    // (The library's spelling is the command line's; a Python or C++ caller reads its own, src/frontend.rs.)
+    assert!(e.contains("object at infinity") && e.contains("--scene-fov-deg D"), "{e}");
     for (bad, shown) in [(0.0, "0"), (180.0, "180"), (f64::NAN, "NaN"), (-5.0, "-5"), (f64::INFINITY, "inf")] {
         let e = err(common::singlet_at_infinity(false), Some(bad));
         assert!(e.contains(&format!("--scene-fov-deg {shown}:")) && e.contains("(0, 180) degrees"), "{bad}: {e}");

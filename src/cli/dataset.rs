@@ -176,7 +176,7 @@ impl DatasetProgress for Terminal {
 pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     // The options parsed once, into the library's render settings (their errors name each option).
     let settings = a.common.settings()?;
-    let request = DatasetRequest {
+    let mut request = DatasetRequest {
         scenes: a.scenes.clone(),
         out: a.out.clone(),
         force: a.force,
@@ -187,6 +187,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
         transport_memory_gb: a.transport_memory_gb,
         device: settings.device,
         tolerance_um: a.common.backend.tolerance_um,
+        tolerance_predicted_error_um: None,
         scene_delay: debug_delay()?,
     };
     // The output policy before any work (the tracer's calibration may write its cache).
@@ -195,7 +196,8 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     dataset::check_out(&request, &inputs)?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = settings.config()?;
-    let (tracer, rays) = render_tracer(&a.common, &system, &mut cfg, &mask)?;
+    let (tracer, rays, predicted_um) = render_tracer(&a.common, &system, &mut cfg, &mask)?;
+    request.tolerance_predicted_error_um = predicted_um;
     cfg.rays_per_pixel = rays;
     dataset::run(&request, &inputs, &system, tracer.as_ref(), cfg, mask, &Terminal::default())?;
     Ok(())

@@ -66,17 +66,20 @@ pub(super) fn tracer_for(a: &BackendArgs, system: &SequentialSystem, wavelengths
 pub(super) fn mapping_for(a: &BackendArgs, system: &SequentialSystem, height: usize, width: usize, pitch_mm: f64, wavelengths_nm: &[f64]) -> Result<(Box<dyn Tracer>, usize)> {
     let Some(t) = tolerance(a)? else { return Ok((make_tracer(a)?, 1)) };
     let cache = cache_options(a);
-    let (cal, prov) = fidelity::calibrate_backends(system, wavelengths_nm, &cache)?;
+    // Over the cube's field (to its outer pixel edges), not only the system's fields.
+    let half = height.max(width) as f64 * pitch_mm / 2.0;
+    let (cal, prov) = fidelity::calibrate_backends_over(system, wavelengths_nm, Some(half), &cache)?;
     let (map, prov2) = fidelity::calibrate_mapping(system, height, width, pitch_mm, wavelengths_nm, &cache)?;
     let choice = fidelity::choose_mapping(&cal, &map, t, wavelengths_nm.len())?;
     println!("{} [backends: {prov}; interpolation: {prov2}]", choice.explanation);
     Ok((choice.config.build()?, choice.stride))
 }
 
-/// The render's tracer, rays per pixel and precision: explicit (`--rays`, default 20; `--precision`,
-/// default f64) or chosen by the tolerance ([`fidelity::choose_render_for`], the library's choice).
-pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, precision: Option<Precision>, system: &SequentialSystem, config: &RenderConfig, open_pixels: usize) -> Result<(Box<dyn Tracer>, usize, Precision)> {
-    let Some(t) = tolerance(a)? else { return Ok((make_tracer(a)?, rays.unwrap_or(20), precision.unwrap_or_default())) };
+/// The render's tracer, rays per pixel, precision and the chooser's predicted error (µm): explicit (`--rays`,
+/// default 20; `--precision`, default f64; no prediction) or chosen by the tolerance
+/// ([`fidelity::choose_render_for`], the library's choice).
+pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, precision: Option<Precision>, system: &SequentialSystem, config: &RenderConfig, open_pixels: usize) -> Result<(Box<dyn Tracer>, usize, Precision, Option<f64>)> {
+    let Some(t) = tolerance(a)? else { return Ok((make_tracer(a)?, rays.unwrap_or(20), precision.unwrap_or_default(), None)) };
     if let Some(n) = rays {
         return Err(Error::invalid(format!("--tolerance-um {t} chooses the rays per pixel itself; it cannot be combined with --rays {n}")));
     }
@@ -85,7 +88,7 @@ pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, precision: Option
     }
     let (choice, prov) = fidelity::choose_render_for(system, config, t, open_pixels, &cache_options(a))?;
     println!("{} [{prov}]", choice.explanation);
-    Ok((choice.tracer()?, choice.rays_per_pixel, choice.precision()))
+    Ok((choice.tracer()?, choice.rays_per_pixel, choice.precision(), Some(choice.error_um)))
 }
 
 /// `diffcassi bench tradeoff`.

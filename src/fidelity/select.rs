@@ -6,7 +6,9 @@
 //! * **rays** (trace, spot, distortion, dispersion): the backends of [`candidate_configs`]
 //!   (analytic f64; Embree user geometry f64/none; Embree meshes at 10, 1, 0.1 µm chord-sag, f64/none),
 //!   each measured on the [`RaySetSpec::calibration`] set at the job's wavelengths: error (max over rays,
-//!   plus classification mismatches, which disqualify) and throughput in the same run.
+//!   plus classification mismatches, which disqualify) and throughput in the same run. A mapping or a
+//!   render measures them over its own field too ([`calibrate_backends_over`]: the cube's or the scene's
+//!   half width, where it is wider than the system's fields).
 //! * **mapping**: the backends (exact cube) and the interpolated cube of
 //!   [`crate::analysis::mapping_cube_interpolated`] at strides 2–32 on the analytic tracer, whose error is
 //!   measured at 281 check pixels (seeded random, corners, centre, and each stride's corner cells) at the
@@ -142,11 +144,27 @@ pub struct BackendCalibration {
     pub candidates: Vec<Measured>,
 }
 
-/// Measure every backend candidate (cached).
+/// Measure every backend candidate on the system's fields (cached).
 pub fn calibrate_backends(system: &SequentialSystem, wavelengths_nm: &[f64], cache: &CacheOptions) -> Result<(BackendCalibration, Provenance)> {
+    calibrate_backends_over(system, wavelengths_nm, None, cache)
+}
+
+/// [`calibrate_backends`] over a job's own field as well (`half_width`: the system's field unit, mm or rad;
+/// [`RaySetSpec::covering`]): a render's scene or a mapping's cube may reach beyond the system's fields,
+/// where f32's error is larger (a lens file with an axial field only was calibrated on the axis).
+pub fn calibrate_backends_over(system: &SequentialSystem, wavelengths_nm: &[f64], half_width: Option<f64>, cache: &CacheOptions) -> Result<(BackendCalibration, Provenance)> {
     let configs = candidate_configs(&SELECTOR_MESH_SAG_UM);
     let cfg_text: Vec<String> = configs.iter().map(backend_text).collect();
-    let key = CacheKey::new("backends", &[&spec_text(system), &floats_text(wavelengths_nm), &cfg_text.join(";")]);
+    let set = match half_width {
+        Some(h) => RaySetSpec::calibration().covering(system, h),
+        None => RaySetSpec::calibration(),
+    };
+    let mut parts = vec![spec_text(system), floats_text(wavelengths_nm), cfg_text.join(";")];
+    // (The system's own set keeps its key: caches written before the covering set stay valid.)
+    if let Some(h) = set.cover_half_width {
+        parts.push(format!("cover {:016x}", h.to_bits()));
+    }
+    let key = CacheKey::new("backends", &parts.iter().map(String::as_str).collect::<Vec<_>>());
     let n = configs.len();
     cached(
         cache,
@@ -155,7 +173,7 @@ pub fn calibrate_backends(system: &SequentialSystem, wavelengths_nm: &[f64], cac
             c.candidates.len() <= n && c.candidates.iter().any(|m| m.backend == "analytic") && c.candidates.iter().all(measured_ok) && same_floats(&c.wavelengths_nm, wavelengths_nm)
         },
         || {
-            let rays = RaySetSpec::calibration().build(system, wavelengths_nm)?;
+            let rays = set.build(system, wavelengths_nm)?;
             let reference = AnalyticTracer::default().trace(system, &rays)?;
             let mut candidates = Vec::new();
             for cfg in &configs {
@@ -530,7 +548,10 @@ impl RenderChoice {
 /// came from (measured or cached), for the explanation a front end prints.
 pub fn choose_render_for(system: &SequentialSystem, config: &RenderConfig, tolerance_um: f64, open_pixels: usize, cache: &CacheOptions) -> Result<(RenderChoice, String)> {
     check_tolerance(tolerance_um)?;
-    let (mut cal, prov) = calibrate_backends(system, &config.spectral.planes_nm, cache)?;
+    // Over the scene's field (to its outer pixel edges), not only the system's fields.
+    let pitch = crate::render::scene_pitch_for(system, config)?;
+    let half = config.scene_height.max(config.scene_width) as f64 * pitch / 2.0;
+    let (mut cal, prov) = calibrate_backends_over(system, &config.spectral.planes_nm, Some(half), cache)?;
     if system.coded_mask.is_some() {
         cal.candidates.retain(|m| m.backend == "analytic");
     }

@@ -4,7 +4,10 @@
 //!   field (13×13 over ±2.5 mm for the presets) plus full-pupil spots (uniform random pupil points from a
 //!   seeded ChaCha8 stream) of the system's fields, at every wavelength (28 from 450 to 650 nm).
 //! * [`RaySetSpec::calibration`]: the small set `--tolerance-um` measures candidates on: a 5×5 field grid
-//!   plus the system's fields, a hexapolar pupil of 3 rings (37 rays), at the job's own wavelengths.
+//!   plus the system's fields, a hexapolar pupil of 3 rings (37 rays), at the job's own wavelengths;
+//!   [`RaySetSpec::covering`] widens it to a job's own field (a render's scene, a mapping's cube) where that
+//!   reaches beyond the system's fields: f32's error grows with the field, and a lens file with only an axial
+//!   field was calibrated on the axis alone.
 //! * [`RaySetSpec::fresh`]: an independent check set (random fields inside the field extent, random pupil
 //!   points, another seed), for verifying a selection on rays it was not calibrated on.
 //!
@@ -31,21 +34,32 @@ pub struct RaySetSpec {
     /// Fields: the system's own (`None`), or `Some(k)` random fields inside the field extent from `seed`.
     pub random_fields: Option<usize>,
     pub seed: u64,
+    /// The job's own field half width (mm, or rad for an object at infinity: the unit of the system's
+    /// fields), where it is wider than the system's fields: the grid spans it and its four corners and four
+    /// edge midpoints join the pupil-sampled fields ([`RaySetSpec::covering`]; `None`: the system's fields).
+    pub cover_half_width: Option<f64>,
 }
 
 impl RaySetSpec {
     /// The trade-off bench set: `grid`² chief rays plus `pupil_rays` seeded full-pupil rays per system field.
     pub fn tradeoff(grid: usize, pupil_rays: usize, seed: u64) -> Self {
-        RaySetSpec { grid, pupil: PupilPattern::Random { n: pupil_rays, seed }, random_fields: None, seed }
+        RaySetSpec { grid, pupil: PupilPattern::Random { n: pupil_rays, seed }, random_fields: None, seed, cover_half_width: None }
     }
     /// The small calibration set of `--tolerance-um`.
     pub fn calibration() -> Self {
-        RaySetSpec { grid: 5, pupil: PupilPattern::Hexapolar { rings: 3 }, random_fields: None, seed: 0 }
+        RaySetSpec { grid: 5, pupil: PupilPattern::Hexapolar { rings: 3 }, random_fields: None, seed: 0, cover_half_width: None }
     }
     /// A fresh check set, independent of the calibration set: `fields` random fields × `pupil_rays` random
     /// pupil points each, seeded.
     pub fn fresh(fields: usize, pupil_rays: usize, seed: u64) -> Self {
-        RaySetSpec { grid: 0, pupil: PupilPattern::Random { n: pupil_rays, seed: seed ^ 0x5eed }, random_fields: Some(fields), seed }
+        RaySetSpec { grid: 0, pupil: PupilPattern::Random { n: pupil_rays, seed: seed ^ 0x5eed }, random_fields: Some(fields), seed, cover_half_width: None }
+    }
+    /// This set over a job's field of half width `half_width` (the system's unit) as well as the system's
+    /// fields: a width no wider than the system's changes nothing (the set, and its calibration cache key,
+    /// stay the system's).
+    pub fn covering(self, system: &SequentialSystem, half_width: f64) -> Self {
+        let wider = half_width.is_finite() && half_width > field_half_width_mm(system);
+        RaySetSpec { cover_half_width: wider.then_some(half_width), ..self }
     }
 
     /// Build the rays for `system` at `wavelengths_nm`.
@@ -53,7 +67,7 @@ impl RaySetSpec {
         if wavelengths_nm.is_empty() {
             return Err(Error::invalid("a ray set needs at least one wavelength"));
         }
-        let half = field_half_width_mm(system);
+        let half = self.cover_half_width.unwrap_or(0.0).max(field_half_width_mm(system));
         let mut grid_fields = Vec::with_capacity(self.grid * self.grid);
         if self.grid > 0 && half > 0.0 {
             let step = if self.grid > 1 { 2.0 * half / (self.grid - 1) as f64 } else { 0.0 };
@@ -68,7 +82,11 @@ impl RaySetSpec {
         }
         let fields: Vec<[f64; 2]> = match self.random_fields {
             None => {
-                system.fields_or_axis()
+                let mut f = system.fields_or_axis();
+                if let Some(h) = self.cover_half_width {
+                    f.extend([[-h, -h], [h, -h], [-h, h], [h, h], [0.0, h], [0.0, -h], [h, 0.0], [-h, 0.0]]);
+                }
+                f
             }
             Some(k) => {
                 let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(self.seed);

@@ -772,7 +772,7 @@ pub fn scene_pitch_for(system: &SequentialSystem, config: &RenderConfig) -> Resu
             config.scene_pitch_mm
         ))),
         (true, None) => Err(Error::invalid(format!(
-            "system `{}` has its object at infinity: give the scene's angular extent, --scene-fov-deg D (`scene_fov_deg` in Python and C++: the full angle across its width, degrees)",
+            "system `{}` has its object at infinity: give the scene's angular extent, --scene-fov-deg D (the full angle across its width, degrees)",
             system.name()
         ))),
         (true, Some(f)) => {

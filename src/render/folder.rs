@@ -64,6 +64,9 @@ pub struct RenderRequest {
     /// The error tolerance (µm) that chose the rays per pixel and the precision (`--tolerance-um`), recorded
     /// as render.json's `tolerance_um` (`null`: both as given).
     pub tolerance_um: Option<f64>,
+    /// The error (µm) the tolerance's choice predicts ([`crate::fidelity::RenderChoice::error_um`]), recorded
+    /// as `tolerance_predicted_error_um` (`null` without a tolerance).
+    pub tolerance_predicted_error_um: Option<f64>,
     /// When the request began: `render.json`'s `seconds_total` counts from here (set by [`RenderRequest::new`]).
     pub started: Instant,
 }
@@ -81,6 +84,7 @@ impl RenderRequest {
             noise: None,
             device: settings.device,
             tolerance_um: None,
+            tolerance_predicted_error_um: None,
             started: Instant::now(),
         }
     }
@@ -235,7 +239,7 @@ pub fn run(request: &RenderRequest, inputs: &[(&str, &Path)], renderer: &Rendere
         None => Value::Null,
     };
     let noise = apply_noise(request.noise.as_ref(), &mut acq, progress)?;
-    let mut extra = serde_json::json!({"noise": noise, "tolerance_um": request.tolerance_um});
+    let mut extra = serde_json::json!({"noise": noise, "tolerance_um": request.tolerance_um, "tolerance_predicted_error_um": request.tolerance_predicted_error_um});
     if let Some(x) = renderer.spectral_extrapolation(scene) {
         progress.warning(&x.message());
         extra["spectral_extrapolation"] = x.to_json();

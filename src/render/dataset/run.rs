@@ -60,6 +60,9 @@ pub struct DatasetRequest {
     /// The error tolerance (µm) that chose the rays per pixel and the precision, recorded in each scene's
     /// render.json as `tolerance_um` (`null`: both as given).
     pub tolerance_um: Option<f64>,
+    /// The error (µm) the tolerance's choice predicts ([`crate::fidelity::RenderChoice::error_um`]), recorded
+    /// as `tolerance_predicted_error_um` (`null` without a tolerance).
+    pub tolerance_predicted_error_um: Option<f64>,
     /// A test hook: wait this long after writing each scene's temporary folder, before moving it into place.
     pub scene_delay: Option<Duration>,
 }
@@ -77,6 +80,7 @@ impl DatasetRequest {
             transport_memory_gb: crate::recon::pipeline::TRANSPORT_MEMORY_GB,
             device: Device::Cpu,
             tolerance_um: None,
+            tolerance_predicted_error_um: None,
             scene_delay: None,
         }
     }
@@ -364,7 +368,7 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
             let noise = a.noise.as_ref().map(|n| NoiseConfig { seed: n.seed.wrapping_add(name_hash(&s.name)), ..n.clone() });
             let noise_json = crate::render::folder::apply_noise(noise.as_ref(), &mut acq, &SceneWarnings { progress, scene: &s.name })?;
             let partial = partial_dir(&a.out, &s.name)?;
-            let mut extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "scene_input": scene_input, "tolerance_um": a.tolerance_um});
+            let mut extra = serde_json::json!({"dataset_mode": true, "transport_cached": cached.is_some(), "transport_seconds": transport_seconds, "seconds_scene": ts.elapsed().as_secs_f64(), "noise": noise_json, "scene_input": scene_input, "tolerance_um": a.tolerance_um, "tolerance_predicted_error_um": a.tolerance_predicted_error_um});
             if let Some(x) = renderer.spectral_extrapolation(&scene) {
                 progress.message(&format!("warning: {}: {}", s.name, x.message()));
                 extra["spectral_extrapolation"] = x.to_json();
