@@ -2,38 +2,12 @@
 //! physics of rendering, noise and operators, and the non-sequential side (ghosts, stray light, mechanics,
 //! coatings). Each case failed before its fix (docs/robustness.md, "round 11").
 use crate::cli_run::{ok_cli as ok, refused_cli as refused, run_cli as run};
+/// A biconvex N-BK7 singlet (object 100 mm, NA 0.05), the prober's test system.
+use crate::common::SINGLET_TOML as SINGLET;
 
 fn json(path: std::path::PathBuf) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))).unwrap()
 }
-
-/// A biconvex N-BK7 singlet (object 100 mm, NA 0.05), the prober's test system.
-const SINGLET: &str = r#"name = "singlet"
-wavelengths_nm = [450.0, 520.0, 650.0]
-primary_wavelength_nm = 520.0
-fields_mm = [[0.0, 0.0], [0.0, 0.05]]
-[aperture]
-type = "object_space_na"
-value = 0.05
-[[surfaces]]
-type = "standard"
-thickness_mm = 100.0
-[[surfaces]]
-type = "standard"
-stop = true
-radius_mm = 51.0
-thickness_mm = 4.0
-material = "N-BK7"
-semi_diameter_mm = 8.0
-[[surfaces]]
-type = "standard"
-radius_mm = -51.0
-thickness_mm = 95.0
-semi_diameter_mm = 8.0
-[[surfaces]]
-type = "standard"
-semi_diameter_mm = 5.0
-"#;
 
 /// A closed unit cube, outward quads.
 const CUBE_OBJ: &str = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nv 0 0 1\nv 1 0 1\nv 0 1 1\nv 1 1 1\n\

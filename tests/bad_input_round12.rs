@@ -2,35 +2,13 @@
 //! fix (docs/robustness.md, "round 12").
 use crate::cli_run::{ok_cli as ok, run_cli as run};
 
-/// A biconvex singlet (object 100 mm, NA 0.05) in glass `X1` of a catalogue beside the spec (`cat/mine.agf`,
+/// The probers' singlet (`common::SINGLET_TOML`) in glass `X1` of a catalogue beside the spec (`cat/mine.agf`,
 /// N-BK7's Sellmeier coefficients with B1 = `b1`).
-const SINGLET_X1: &str = r#"name = "singlet"
-wavelengths_nm = [450.0, 520.0, 650.0]
-primary_wavelength_nm = 520.0
-fields_mm = [[0.0, 0.0], [0.0, 0.05]]
-glass_catalogs = ["cat/mine.agf"]
-[aperture]
-type = "object_space_na"
-value = 0.05
-[[surfaces]]
-type = "standard"
-thickness_mm = 100.0
-[[surfaces]]
-type = "standard"
-stop = true
-radius_mm = 51.0
-thickness_mm = 4.0
-material = "X1"
-semi_diameter_mm = 8.0
-[[surfaces]]
-type = "standard"
-radius_mm = -51.0
-thickness_mm = 95.0
-semi_diameter_mm = 8.0
-[[surfaces]]
-type = "standard"
-semi_diameter_mm = 5.0
-"#;
+fn singlet_x1() -> String {
+    let s = crate::common::SINGLET_TOML.replace("material = \"N-BK7\"", "material = \"X1\"").replace("[aperture]", "glass_catalogs = [\"cat/mine.agf\"]\n[aperture]");
+    assert!(s.contains("\"X1\"") && s.contains("glass_catalogs"));
+    s
+}
 
 fn catalogue(b1: &str) -> String {
     format!("CC test\nNM X1 2 0 1.5168 64.17 0 1\nCD {b1} 0.00600069867 0.231792344 0.0200179144 1.01046945 103.560653\nLD 0.3 2.5\n")
@@ -46,7 +24,7 @@ fn a_dataset_names_its_glass_catalogues_by_content() {
     std::fs::create_dir_all(p.join("scenes")).unwrap();
     std::fs::create_dir_all(p.join("cat")).unwrap();
     std::fs::write(p.join("cat/mine.agf"), catalogue("1.03961212")).unwrap();
-    std::fs::write(p.join("sys.toml"), SINGLET_X1).unwrap();
+    std::fs::write(p.join("sys.toml"), singlet_x1()).unwrap();
     for k in 0..2 {
         let v: Vec<f32> = (0..8 * 8 * 3).map(|i| ((i * 7 + k * 3) % 11) as f32 / 11.0).collect();
         diffcassi::io::npy::write_npy_f32(p.join(format!("scenes/s{k}.npy")), &[8, 8, 3], &v).unwrap();

@@ -246,3 +246,32 @@ pub fn cube_nbhw(scene: &diffcassi::scene::SpectralCube) -> Vec<f64> {
     }
     out
 }
+
+/// A biconvex N-BK7 singlet (object 100 mm, NA 0.05) as a spec file's text: the held-out probers' test system
+/// (rounds 11 and 12).
+pub const SINGLET_TOML: &str = r#"name = "singlet"
+wavelengths_nm = [450.0, 520.0, 650.0]
+primary_wavelength_nm = 520.0
+fields_mm = [[0.0, 0.0], [0.0, 0.05]]
+[aperture]
+type = "object_space_na"
+value = 0.05
+[[surfaces]]
+type = "standard"
+thickness_mm = 100.0
+[[surfaces]]
+type = "standard"
+stop = true
+radius_mm = 51.0
+thickness_mm = 4.0
+material = "N-BK7"
+semi_diameter_mm = 8.0
+[[surfaces]]
+type = "standard"
+radius_mm = -51.0
+thickness_mm = 95.0
+semi_diameter_mm = 8.0
+[[surfaces]]
+type = "standard"
+semi_diameter_mm = 5.0
+"#;
