@@ -106,11 +106,7 @@ fn unused_mechanics_are_named_and_exported_mesh_paths_still_resolve() {
     std::fs::create_dir_all(p.join("scenes")).unwrap();
     std::fs::copy(dir.join("box.obj"), p.join("box.obj")).unwrap();
     std::fs::copy(dir.join("full.toml"), p.join("sys.toml")).unwrap();
-    for k in 0..2 {
-        let v: Vec<f32> = (0..8 * 8 * 3).map(|i| ((i * 7 + k * 3) % 11) as f32 / 11.0).collect();
-        diffcassi::io::npy::write_npy_f32(p.join(format!("scenes/s{k}.npy")), &[8, 8, 3], &v).unwrap();
-        diffcassi::io::npy::write_npy_f64(p.join(format!("scenes/s{k}_wavelengths_nm.npy")), &[3], &[450.0, 550.0, 650.0]).unwrap();
-    }
+    crate::common::two_small_scenes(&p.join("scenes"));
     let args = ["render-dataset", "--system", "sys.toml", "--scenes", "scenes", "--scene-size", "8", "--bands", "450:650:3", "--planes", "3", "--rays", "2", "--no-mapping", "--out", "ds"];
     ok(&p, &args);
     std::fs::remove_dir_all(p.join("ds/s1")).unwrap();

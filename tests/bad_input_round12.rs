@@ -25,11 +25,7 @@ fn a_dataset_names_its_glass_catalogues_by_content() {
     std::fs::create_dir_all(p.join("cat")).unwrap();
     std::fs::write(p.join("cat/mine.agf"), catalogue("1.03961212")).unwrap();
     std::fs::write(p.join("sys.toml"), singlet_x1()).unwrap();
-    for k in 0..2 {
-        let v: Vec<f32> = (0..8 * 8 * 3).map(|i| ((i * 7 + k * 3) % 11) as f32 / 11.0).collect();
-        diffcassi::io::npy::write_npy_f32(p.join(format!("scenes/s{k}.npy")), &[8, 8, 3], &v).unwrap();
-        diffcassi::io::npy::write_npy_f64(p.join(format!("scenes/s{k}_wavelengths_nm.npy")), &[3], &[450.0, 550.0, 650.0]).unwrap();
-    }
+    crate::common::two_small_scenes(&p.join("scenes"));
     let args = ["render-dataset", "--system", "sys.toml", "--scenes", "scenes", "--scene-size", "8", "--bands", "450:650:3", "--planes", "3", "--rays", "2", "--no-mapping", "--out", "ds"];
     ok(&p, &args);
     std::fs::remove_dir_all(p.join("ds/s1")).unwrap();

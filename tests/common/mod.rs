@@ -275,3 +275,13 @@ semi_diameter_mm = 8.0
 type = "standard"
 semi_diameter_mm = 5.0
 "#;
+
+/// Two 8×8×3 scenes `s0.npy`, `s1.npy` (distinct patterns in [0, 1)) with their wavelengths (450, 550, 650 nm)
+/// in the existing folder `scenes`: the probers' small `render-dataset` input (rounds 11 and 12).
+pub fn two_small_scenes(scenes: &std::path::Path) {
+    for k in 0..2 {
+        let v: Vec<f32> = (0..8 * 8 * 3).map(|i| ((i * 7 + k * 3) % 11) as f32 / 11.0).collect();
+        diffcassi::io::npy::write_npy_f32(scenes.join(format!("s{k}.npy")), &[8, 8, 3], &v).unwrap();
+        diffcassi::io::npy::write_npy_f64(scenes.join(format!("s{k}_wavelengths_nm.npy")), &[3], &[450.0, 550.0, 650.0]).unwrap();
+    }
+}
