@@ -100,21 +100,26 @@ def test_ctrl_c_stops_a_study_between_cells_and_it_resumes(tmp_path):
     cells = lambda: sum(len(files) for _, _, files in os.walk(os.path.join(out, "cells")))
     # Ctrl-C once the first cell is on disk, not after a fixed delay: a timer of 0.2 s fired after the whole
     # study on a CI run (kept = 18), which tested nothing about stopping between cells.
-    sent = []
+    # (Never once the call has returned: a study that failed before its first cell must not interrupt pytest.)
+    sent, returned = [], threading.Event()
 
     def press_ctrl_c():
-        t0 = time.time()
-        while cells() == 0 and time.time() - t0 < 60:
-            time.sleep(0.002)
-        sent.append(cells())
-        os.kill(os.getpid(), signal.SIGINT)
+        while cells() == 0 and not returned.wait(0.002):
+            pass
+        if not returned.is_set():
+            sent.append(cells())
+            os.kill(os.getpid(), signal.SIGINT)
 
     watcher = threading.Thread(target=press_ctrl_c)
     t = time.time()
     watcher.start()
-    with pytest.raises(KeyboardInterrupt):
-        diffcassi.study(out, **settings)
-    watcher.join()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            diffcassi.study(out, **settings)
+    finally:
+        returned.set()
+        watcher.join()
+    assert sent, "the study wrote no cell"
     kept = cells()
     done = diffcassi.study(out, **settings)
     assert done["skipped"] == kept and done["computed"] == 18 - kept, (kept, done, time.time() - t)
