@@ -66,8 +66,8 @@ pub(super) fn tracer_for(a: &BackendArgs, system: &SequentialSystem, wavelengths
 pub(super) fn mapping_for(a: &BackendArgs, system: &SequentialSystem, height: usize, width: usize, pitch_mm: f64, wavelengths_nm: &[f64]) -> Result<(Box<dyn Tracer>, usize)> {
     let Some(t) = tolerance(a)? else { return Ok((make_tracer(a)?, 1)) };
     let cache = cache_options(a);
-    // Over the cube's field (to its outer pixel edges), not only the system's fields.
-    let half = height.max(width) as f64 * pitch_mm / 2.0;
+    // Over the cube's field, not only the system's fields.
+    let half = fidelity::workload::scene_half_width(height, width, pitch_mm);
     let (cal, prov) = fidelity::calibrate_backends_over(system, wavelengths_nm, Some(half), &cache)?;
     let (map, prov2) = fidelity::calibrate_mapping(system, height, width, pitch_mm, wavelengths_nm, &cache)?;
     let choice = fidelity::choose_mapping(&cal, &map, t, wavelengths_nm.len())?;

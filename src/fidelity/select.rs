@@ -31,7 +31,7 @@
 //! run's timing). Calibrations are cached ([`super::cache`]).
 use super::cache::{self, CacheKey, Lookup};
 use super::measure::{backend_text, candidate_configs, measure, time_best, Measured};
-use super::workload::RaySetSpec;
+use super::workload::{scene_half_width, RaySetSpec};
 use crate::analysis::{mapping_cube_interpolated, MappingCube, NodeGrid};
 use crate::error::{Error, Result};
 use crate::rays::{aimed_ray, object_ray, RayBatch};
@@ -548,9 +548,8 @@ impl RenderChoice {
 /// came from (measured or cached), for the explanation a front end prints.
 pub fn choose_render_for(system: &SequentialSystem, config: &RenderConfig, tolerance_um: f64, open_pixels: usize, cache: &CacheOptions) -> Result<(RenderChoice, String)> {
     check_tolerance(tolerance_um)?;
-    // Over the scene's field (to its outer pixel edges), not only the system's fields.
-    let pitch = crate::render::scene_pitch_for(system, config)?;
-    let half = config.scene_height.max(config.scene_width) as f64 * pitch / 2.0;
+    // Over the scene's field, not only the system's fields.
+    let half = scene_half_width(config.scene_height, config.scene_width, crate::render::scene_pitch_for(system, config)?);
     let (mut cal, prov) = calibrate_backends_over(system, &config.spectral.planes_nm, Some(half), cache)?;
     if system.coded_mask.is_some() {
         cal.candidates.retain(|m| m.backend == "analytic");

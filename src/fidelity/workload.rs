@@ -107,6 +107,13 @@ impl RaySetSpec {
     }
 }
 
+/// Half width of the square that holds a `height`×`width` scene or mapping cube of pixel pitch `pitch` (the
+/// system's field unit: mm, or rad at infinity), to its outer pixel edges: the field a render or a mapping
+/// calibrates over ([`RaySetSpec::covering`]).
+pub fn scene_half_width(height: usize, width: usize, pitch: f64) -> f64 {
+    height.max(width) as f64 * pitch / 2.0
+}
+
 /// Half width (mm, or rad for an object at infinity) of the square object field the system's fields span (largest |x| or |y|); 0 when the
 /// system has no off-axis field.
 pub fn field_half_width_mm(system: &SequentialSystem) -> f64 {
