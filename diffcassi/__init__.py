@@ -109,8 +109,9 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
            bands_nm: Optional[Sequence[float]] = None, planes: Optional[int] = None, rays: Optional[int] = None,
            seed: Optional[int] = None, sampling: Optional[str] = None, opening: Optional[float] = None,
            mask_seed: Optional[int] = None, airy_diameter_px: Optional[float] = None, airy: Optional[bool] = None,
-           backend: str = "analytic", noise: Optional[dict] = None, device: Optional[str] = None,
-           precision: Optional[str] = None, scene_fov_deg: Optional[float] = None) -> Tuple[np.ndarray, Dict[str, Any]]:
+           backend: Optional[str] = None, noise: Optional[dict] = None, device: Optional[str] = None,
+           precision: Optional[str] = None, scene_fov_deg: Optional[float] = None,
+           tolerance_um: Optional[float] = None, calibration_cache: Optional[str] = None) -> Tuple[np.ndarray, Dict[str, Any]]:
     """Render the coded acquisition of ``scene`` through ``system``.
 
     ``scene``: (H, W, B) float32, C-contiguous, finite, its bands at ``wavelengths_nm`` (B values).
@@ -130,6 +131,13 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
     uniform in field angle, and ``info["scene_fov_deg"]`` records it. Required at infinity, refused for a
     finite object (whose scene lies on the object plane at 10 µm per pixel). The operators (:func:`exact`,
     :func:`mapping_operator`, :func:`shift_operator`) and :class:`Transport` take it too.
+    ``backend``: the tracer (``None``: ``"analytic"``). ``tolerance_um``: instead of ``backend``, ``rays`` and
+    ``precision`` (refused beside them), the cheapest backend, rays per pixel and precision whose predicted error
+    of where a scene pixel's energy lands is within this many µm on the detector, calibrated on ``system`` over the
+    render's planes and scene (the CLI's ``--tolerance-um``; docs/tradeoff.md; seconds the first time, then cached
+    in ``calibration_cache`` or the CLI's default cache folder); ``info["tolerance_um"]``,
+    ``info["tolerance_predicted_error_um"]`` (``None`` without a tolerance) and ``info["fidelity_choice"]`` (the
+    choice and its candidates) record it. On ``device="cuda"`` it chooses the analytic f64 tracer's rays only.
     The memory and ray budgets are the CLI's defaults unless :func:`set_limits` changed them.
 
     Returns ``(acquisition, info)``: the detector image (h, w) float64 and a dict with ``render.json``'s
@@ -162,8 +170,9 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
                                       "around it)")
     acq, info = _native._render(system, scene, wavelengths_nm, mask, bands_nm=bands_nm, planes=planes, rays=rays, seed=seed,
                                 sampling=sampling, opening=opening, mask_seed=mask_seed, airy_diameter_px=airy_diameter_px,
-                                airy=airy, backend=_check_backend(backend), device=device, precision=precision,
-                                scene_fov_deg=scene_fov_deg, **nz)
+                                airy=airy, backend=None if backend is None else _check_backend(backend), device=device,
+                                precision=precision, scene_fov_deg=scene_fov_deg, tolerance_um=tolerance_um,
+                                calibration_cache=None if calibration_cache is None else os.fspath(calibration_cache), **nz)
     info = _json.loads(info)
     import warnings
     for text in info.pop("warnings", []):  # the CLI's: an exposure below an electron, a zero acquisition

@@ -80,6 +80,8 @@ pub const SETTINGS: &[Setting] = &[
     s("backend", "backend", Some("the backend argument")),
     s("device", "device", None),
     s("precision", "precision", None),
+    s("tolerance-um", "tolerance_um", None),
+    s("calibration-cache", "calibration_cache", None),
     s("scene-fov-deg", "scene_fov_deg", Some("RenderOptions::scene_fov_deg")),
     s("noise", "noise", None),
     s("full-well-e", "full_well_e", None),

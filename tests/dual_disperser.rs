@@ -631,10 +631,11 @@ fn tolerance_choice_for_a_mask_surface_is_the_analytic_f64_path() {
     let sys = system("ddsp");
     let mut cfg = RenderConfig::paper(8);
     cfg.spectral = SpectralSampling::new(DD_BANDS.to_vec(), 1).unwrap();
-    let (choice, prov) = diffcassi::fidelity::choose_render_for(&sys, &cfg, 2.0, 64, &diffcassi::fidelity::CacheOptions::none()).unwrap();
+    let (choice, prov) = diffcassi::fidelity::choose_render_for(&sys, &cfg, diffcassi::render::Device::Cpu, 2.0, 64, &diffcassi::fidelity::CacheOptions::none()).unwrap();
     println!("{} [{prov}]", choice.explanation);
     assert_eq!((choice.config.backend, choice.precision()), (diffcassi::tracer::Backend::Analytic, diffcassi::tracer::Precision::F64));
     assert!(choice.tracer().is_ok() && choice.rays_per_pixel >= 1 && choice.error_um <= 2.0);
+    assert!(choice.explanation.contains("a coded-mask surface renders on the analytic f64 direct path only"), "{}", choice.explanation);
 }
 
 /// The differentiable renderer reads the mask where each ray crosses the surface as the production renderer

@@ -270,7 +270,7 @@ fn the_render_calibration_covers_the_scene_beyond_the_systems_fields() {
     let cache = CacheOptions { dir: Some(dir.path().to_path_buf()) };
     let mut wide = small_config(64);
     wide.scene_pitch_mm = 0.1;
-    fidelity::choose_render_for(&sp, &wide, 50.0, 64 * 64, &cache).unwrap();
+    fidelity::choose_render_for(&sp, &wide, diffcassi::render::Device::Cpu, 50.0, 64 * 64, &cache).unwrap();
     let (over, p) = fidelity::calibrate_backends_over(&sp, &wide.spectral.planes_nm, Some(3.2), &cache).unwrap();
     assert!(matches!(p, fidelity::Provenance::Cached(_)), "{p:?}");
     let (own, p) = fidelity::calibrate_backends(&sp, &wide.spectral.planes_nm, &cache).unwrap();

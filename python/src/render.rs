@@ -63,7 +63,21 @@ fn _render<'py>(
     settings: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, String)> {
     let t0 = Instant::now();
-    let s = crate::settings::settings(py, settings, &NOISE_KEYS)?;
+    let s = crate::settings::settings(py, settings, &RENDER_EXTRA_KEYS)?;
+    // The tracer: the backend named, or the one `tolerance_um` chooses with the rays and the precision
+    // (`diffcassi::fidelity::RenderTracing`, the CLI's `--tolerance-um`).
+    let tolerance_um: Option<f64> = extra(&s, "tolerance_um", "a number (µm)")?;
+    let cache_dir: Option<std::path::PathBuf> = extra(&s, "calibration_cache", "a path")?;
+    let source = match tolerance_um {
+        Some(t) => {
+            if settings.map(|d| d.get_item("backend")).transpose()?.flatten().is_some_and(|v| !v.is_none()) {
+                return Err(value_error(format!("tolerance_um {t} chooses the backend and its precision itself; it cannot be combined with backend (drop one or the other)")));
+            }
+            diffcassi::fidelity::TracerSource::Tolerance { tolerance_um: t, cache: diffcassi::fidelity::CacheOptions::resolve(cache_dir.as_deref()) }
+        }
+        None if cache_dir.is_some() => return Err(value_error("calibration_cache applies to tolerance_um only")),
+        None => diffcassi::fidelity::TracerSource::Given(tracer(s.backend.as_str())?),
+    };
     // The library's noise settings and checks (the CLI's `render --noise ...`).
     let noise = NoiseSettings {
         noise: extra(&s, "noise", "a string")?,
@@ -78,13 +92,14 @@ fn _render<'py>(
     let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
     let cube = scene_cube(scene, ws)?;
     let (cfg, m) = configure(cube.height, cube.width, &s.options, mask)?;
-    let device = s.options.settings()?.device;
-    let backend = s.backend.as_str();
-    let t = tracer(backend)?;
+    let (mut cfg, m) = (cfg, m);
+    let render_settings = s.options.settings()?;
+    let device = render_settings.device;
     let sys = Arc::clone(&system.inner);
     let threads = crate::pool::get_num_threads()?;
     let (acq, info) = run(py, move || -> diffcassi::Result<_> {
-        let r = Renderer::new(&sys, t.as_ref(), cfg, m)?;
+        let tracing = diffcassi::fidelity::RenderTracing::resolve(source, &sys, &render_settings, &mut cfg, &m)?;
+        let r = Renderer::new(&sys, tracing.tracer.as_ref(), cfg, m)?;
         // device="cuda": the GPU kernels (render::device), recorded in render.json's `device`.
         let (mut acq, record) = diffcassi::render::device::render_for(device, &r, &cube, false, &|_| {})?;
         // The CLI's noise and its warnings (an exposure below an electron, a zero acquisition): raised as
@@ -96,6 +111,12 @@ fn _render<'py>(
         let scale = render_output::preview_scale(&acq);
         let mut info = render_output::sidecar(&r, &acq, record.as_ref(), &scene_description(&cube), scale, t0.elapsed().as_secs_f64(), threads);
         info["noise"] = noise_json;
+        // As render.json (`null` without a tolerance); the choice's explanation as the CLI prints it.
+        info["tolerance_um"] = tracing.tolerance_um.into();
+        info["tolerance_predicted_error_um"] = tracing.predicted_error_um.into();
+        if let Some(x) = &tracing.explanation {
+            info["fidelity_choice"] = crate::errors::pythonic(x).into();
+        }
         if let Some(x) = r.spectral_extrapolation(&cube) {
             info["spectral_extrapolation"] = x.to_json();
         }
@@ -162,8 +183,9 @@ fn _gpu_kernel_source() -> String {
     diffcassi::gpu::ptx::amalgamated_source()
 }
 
-/// The noise keywords of `render` (the CLI's `--noise` options).
-const NOISE_KEYS: [&str; 6] = ["noise", "full_well_e", "electrons_per_unit", "read_noise_e", "adc_bits", "noise_seed"];
+/// `render`'s own keywords: the noise's (the CLI's `--noise` options) and the tolerance's (`--tolerance-um`,
+/// `--calibration-cache`).
+const RENDER_EXTRA_KEYS: [&str; 8] = ["noise", "full_well_e", "electrons_per_unit", "read_noise_e", "adc_bits", "noise_seed", "tolerance_um", "calibration_cache"];
 
 /// The exact operator together with the system and tracer it borrows, owned as one value.
 pub struct OwnedExact {

@@ -196,10 +196,9 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     dataset::check_out(&request, &inputs)?;
     let system = load_system(&a.common.system)?;
     let (mut cfg, mask) = settings.config()?;
-    let (tracer, rays, predicted_um) = render_tracer(&a.common, &system, &mut cfg, &mask)?;
-    request.tolerance_predicted_error_um = predicted_um;
-    cfg.rays_per_pixel = rays;
-    dataset::run(&request, &inputs, &system, tracer.as_ref(), cfg, mask, &Terminal::default())?;
+    let tracing = render_tracer(&a.common, &settings, &system, &mut cfg, &mask)?;
+    request.tolerance_predicted_error_um = tracing.predicted_error_um;
+    dataset::run(&request, &inputs, &system, tracing.tracer.as_ref(), cfg, mask, &Terminal::default())?;
     Ok(())
 }
 

@@ -11,9 +11,8 @@ use super::commands::{bench_counts, check_extension, commit, say_written};
 use super::shared::make_tracer;
 use crate::error::{Error, Result};
 use crate::fidelity::{self, CacheOptions};
-use crate::render::RenderConfig;
 use crate::system::SequentialSystem;
-use crate::tracer::{Precision, Tracer};
+use crate::tracer::Tracer;
 
 fn cache_options(a: &BackendArgs) -> CacheOptions {
     CacheOptions::resolve(a.calibration_cache.as_deref())
@@ -75,20 +74,13 @@ pub(super) fn mapping_for(a: &BackendArgs, system: &SequentialSystem, height: us
     Ok((choice.config.build()?, choice.stride))
 }
 
-/// The render's tracer, rays per pixel, precision and the chooser's predicted error (µm): explicit (`--rays`,
-/// default 20; `--precision`, default f64; no prediction) or chosen by the tolerance
-/// ([`fidelity::choose_render_for`], the library's choice).
-pub(super) fn render_for(a: &BackendArgs, rays: Option<usize>, precision: Option<Precision>, system: &SequentialSystem, config: &RenderConfig, open_pixels: usize) -> Result<(Box<dyn Tracer>, usize, Precision, Option<f64>)> {
-    let Some(t) = tolerance(a)? else { return Ok((make_tracer(a)?, rays.unwrap_or(20), precision.unwrap_or_default(), None)) };
-    if let Some(n) = rays {
-        return Err(Error::invalid(format!("--tolerance-um {t} chooses the rays per pixel itself; it cannot be combined with --rays {n}")));
-    }
-    if let Some(p) = precision {
-        return Err(Error::invalid(format!("--tolerance-um {t} chooses the precision itself; it cannot be combined with --precision {p}")));
-    }
-    let (choice, prov) = fidelity::choose_render_for(system, config, t, open_pixels, &cache_options(a))?;
-    println!("{} [{prov}]", choice.explanation);
-    Ok((choice.tracer()?, choice.rays_per_pixel, choice.precision(), Some(choice.error_um)))
+/// Where the render's tracer comes from: the backend the flags name, or `--tolerance-um` (refused beside the
+/// backend flags), which [`fidelity::RenderTracing::resolve`] turns into a tracer, rays and precision.
+pub(super) fn render_source(a: &BackendArgs) -> Result<fidelity::TracerSource> {
+    Ok(match tolerance(a)? {
+        None => fidelity::TracerSource::Given(make_tracer(a)?),
+        Some(tolerance_um) => fidelity::TracerSource::Tolerance { tolerance_um, cache: cache_options(a) },
+    })
 }
 
 /// `diffcassi bench tradeoff`.

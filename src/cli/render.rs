@@ -261,18 +261,14 @@ fn parse_sampling(s: &str) -> Result<Sampling> {
     }
 }
 
-/// The tracer and rays per pixel: as given, or chosen by `--tolerance-um` (then with the error the choice
-/// predicts, µm, recorded in render.json); sets `cfg.precision` (given, or chosen by the tolerance).
-pub(super) fn render_tracer(a: &RenderCommon, system: &crate::system::SequentialSystem, cfg: &mut RenderConfig, mask: &Mask) -> Result<(Box<dyn crate::tracer::Tracer>, usize, Option<f64>)> {
-    // Traced pixels: the open ones, or every pixel when the mask is a surface inside the system.
-    let open = if system.coded_mask.is_some() { mask.values.len() } else { mask.values.iter().filter(|&&v| v > 0.0).count() };
-    if let (Some(t), crate::tracer::Kernel::Scalar) = (a.backend.tolerance_um, cfg.kernel) {
-        // Before the calibration (seconds): its choice may be the f32 lanes, which the scalar kernel lacks.
-        return Err(Error::invalid(format!("--tolerance-um {t} chooses among the SIMD kernel's f64 and f32 lanes; --kernel scalar (f64 only, the reference) cannot take its choice: drop one of them")));
+/// The render's tracer, rays per pixel and precision (set in `cfg`): as given, or chosen by `--tolerance-um`
+/// ([`crate::fidelity::RenderTracing::resolve`], the library's step; its explanation printed here).
+pub(super) fn render_tracer(a: &RenderCommon, settings: &crate::render::RenderSettings, system: &crate::system::SequentialSystem, cfg: &mut RenderConfig, mask: &Mask) -> Result<crate::fidelity::RenderTracing> {
+    let t = crate::fidelity::RenderTracing::resolve(super::fidelity::render_source(&a.backend)?, system, settings, cfg, mask)?;
+    if let Some(x) = &t.explanation {
+        println!("{x}");
     }
-    let (tracer, rays, precision, predicted_um) = super::fidelity::render_for(&a.backend, a.rays, a.precision, system, cfg, open)?;
-    cfg.precision = precision;
-    Ok((tracer, rays, predicted_um))
+    Ok(t)
 }
 
 /// A bar of traced rays (`render`, `bench-render`, `render-dataset`).
@@ -342,11 +338,9 @@ pub fn render(a: RenderArgs) -> Result<()> {
     let n = settings.scene_size;
     // The scene is loaded and checked before the (possibly long) tracer calibration and render.
     let (scene, desc) = folder::load_scene(&request, n)?;
-    let (tracer, rays, predicted_um) = render_tracer(&a.common, &system, &mut cfg, &mask)?;
-    request.tolerance_predicted_error_um = predicted_um;
-    check_render_rays(n, cfg.spectral.planes(), rays)?;
-    cfg.rays_per_pixel = rays;
-    let renderer = Renderer::new(&system, tracer.as_ref(), cfg, mask)?;
+    let tracing = render_tracer(&a.common, &settings, &system, &mut cfg, &mask)?;
+    request.tolerance_predicted_error_um = tracing.predicted_error_um;
+    let renderer = Renderer::new(&system, tracing.tracer.as_ref(), cfg, mask)?;
     // The ghost pass's kernel (mechanics meshes loaded and checked) before anything is written.
     let ghost_pass = super::render_ghosts::GhostPass::prepare(&a.ghosts, &a.common.system, &system, renderer.config.rays_per_pixel, renderer.config.seed)?;
     let terminal = Terminal { what: format!("render {}", system.name()), ..Terminal::default() };

@@ -8,6 +8,8 @@
 //! * [`tradeoff`]: `diffcassi bench tradeoff`, the speed/accuracy frontier (CSV, table, plot).
 //! * [`select`]: `--tolerance-um`: calibrate the candidates on the job's own system and wavelengths,
 //!   choose, explain; [`cache`] keeps calibrations.
+//! * [`render_tracing`]: a render's tracer, rays per pixel and precision, given or chosen for a tolerance
+//!   (what every front end resolves before it renders).
 //!
 //! ```
 //! use diffcassi::prelude::*;
@@ -21,11 +23,13 @@
 //! ```
 pub mod cache;
 pub mod measure;
+pub mod render_tracing;
 pub mod select;
 pub mod tradeoff;
 pub mod workload;
 
 pub use measure::{backend_text, candidate_configs, describe, ErrorAccumulator, ErrorStats, Measured};
+pub use render_tracing::{RenderTracing, TracerSource};
 pub use select::*;
 pub use tradeoff::{mapping_error, run_tradeoff, TradeoffOptions, TradeoffRow};
 pub use workload::RaySetSpec;

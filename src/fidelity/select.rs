@@ -541,22 +541,34 @@ impl RenderChoice {
 }
 
 /// The render fidelity `--tolerance-um` chooses for a render of `system` with `config` over `open_pixels`
-/// open scene pixels: the backends calibrated at the render's planes, σ of the render, then
-/// [`choose_render`] among the candidates this system's render can use — for a system with a coded-mask
-/// surface (dual-disperser CASSI), the analytic f64 direct path only (the renderer refuses the others; they
-/// stay measured, in the calibration, but are not offered). Returns the choice and where the calibrations
-/// came from (measured or cached), for the explanation a front end prints.
-pub fn choose_render_for(system: &SequentialSystem, config: &RenderConfig, tolerance_um: f64, open_pixels: usize, cache: &CacheOptions) -> Result<(RenderChoice, String)> {
+/// open scene pixels on `device`: the backends calibrated at the render's planes, σ of the render, then
+/// [`choose_render`] among the candidates this render can use — for a system with a coded-mask surface
+/// (dual-disperser CASSI), and on a device other than the CPU (the GPU kernels and their twin are the
+/// analytic tracer's; the candidates' throughputs and the f32 lanes' error are the CPU's, not the device's),
+/// the analytic f64 tracer only (the others stay measured, in the calibration, but are not offered).
+/// Returns the choice and where the calibrations came from (measured or cached), for the explanation a
+/// front end prints. Front ends call it through [`super::RenderTracing::resolve`].
+pub fn choose_render_for(system: &SequentialSystem, config: &RenderConfig, device: crate::render::Device, tolerance_um: f64, open_pixels: usize, cache: &CacheOptions) -> Result<(RenderChoice, String)> {
     check_tolerance(tolerance_um)?;
     // Over the scene's field, not only the system's fields.
     let half = scene_half_width(config.scene_height, config.scene_width, crate::render::scene_pitch_for(system, config)?);
     let (mut cal, prov) = calibrate_backends_over(system, &config.spectral.planes_nm, Some(half), cache)?;
-    if system.coded_mask.is_some() {
+    let only_f64 = if system.coded_mask.is_some() {
+        Some("a coded-mask surface renders on the analytic f64 direct path only".to_string())
+    } else if device != crate::render::Device::Cpu {
+        Some(format!("--device {device}: the GPU kernels are the analytic tracer's, chosen in f64 (the other candidates' speeds and the f32 lanes' error are the CPU's)"))
+    } else {
+        None
+    };
+    if only_f64.is_some() {
         cal.candidates.retain(|m| m.backend == "analytic");
     }
     let (rc, prov2) = calibrate_render(system, config, cache)?;
     let per_n = (open_pixels * config.spectral.planes()) as u64;
-    let choice = choose_render(&cal, &rc, tolerance_um, per_n)?;
+    let mut choice = choose_render(&cal, &rc, tolerance_um, per_n)?;
+    if let Some(why) = only_f64 {
+        choice.explanation.push_str(&format!("; {why}"));
+    }
     Ok((choice, format!("backends: {prov}; σ: {prov2}")))
 }
 
