@@ -266,6 +266,12 @@ def _pair(name: str, v: Any) -> list:
 #: Integer settings of :func:`reconstruct` and their ranges (the CLI's: 1 to 10⁵ iterations; 0 TV iterations only with
 #: tv_weight 0, which the library checks).
 _SOLVER_INTS = {"iterations": (1, 100_000), "tv_iterations": (0, 100_000), "tv_warmup": (0, 100_000), "equivariant_seed": (0, 2**64 - 1)}
+#: The solve's real-valued keywords: a bool is refused (``step=True`` was a step of 1, as ``iterations=True``
+#: was one iteration before the integers were checked); the values themselves are the library's to check.
+_SOLVER_FLOATS = ("step", "tv_weight", "admm_eta", "sigma_max", "sigma_min", "tolerance", "discrepancy", "noise_norm",
+                  "noise_factor")
+#: The solve's True/False keywords (``accelerated=1`` was PyO3's TypeError naming no keyword's use).
+_SOLVER_BOOLS = ("accelerated", "sigma_auto", "equivariant")
 
 
 def _csr_arrays(op: Operator, memory_gb: float = 4.0):
@@ -402,9 +408,14 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
         v = settings.get(k)
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= hi):
             raise DiffcassiValueError(f"{k}: expected an integer in {lo}..={hi}, got {type(v).__name__} {v!r}")
-    eq = settings.get("equivariant")
-    if eq is not None and not isinstance(eq, (bool, np.bool_)):
-        raise DiffcassiValueError(f"equivariant: expected True or False, got {type(eq).__name__} {eq!r}")
+    for k in _SOLVER_FLOATS:
+        v = settings.get(k)
+        if v is not None and (isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, float, np.integer, np.floating))):
+            raise DiffcassiValueError(f"{k}: expected a number, got {type(v).__name__} {v!r}")
+    for k in _SOLVER_BOOLS:
+        v = settings.get(k)
+        if v is not None and not isinstance(v, (bool, np.bool_)):
+            raise DiffcassiValueError(f"{k}: expected True or False, got {type(v).__name__} {v!r}")
     acq = _as_f32("acquisition", acquisition)
     twin = settings.get("noise_twin")
     if twin is not None:

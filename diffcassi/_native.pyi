@@ -67,10 +67,12 @@ class System:
 def trace(system: System, origins: F64, directions: F64, wavelengths_nm: F64, backend: str = "analytic") -> Dict[str, np.ndarray]:
     """{positions (N, 3) mm, directions (N, 3), status (N,) uint8 (0 = ok), surface (N,) uint32}, image frame."""
 
-def mapping(system: System, height: int, width: int, wavelengths_nm: Sequence[float], pitch_mm: float = 0.01,
-            backend: str = "analytic", device: str = "cpu", precision: str = "f64") -> Tuple[F64, npt.NDArray[np.bool_]]:
-    """Chief-ray mapping cube: positions (H, W, L, 2) detector mm, valid (H, W, L). device "cuda" (or
-    "cpu-twin") traces with the GPU kernels, precision "f32" with the f32 kernel."""
+def mapping(system: System, height: int, width: int, wavelengths_nm: Sequence[float], pitch_mm: Optional[float] = None,
+            backend: str = "analytic", device: str = "cpu", precision: str = "f64",
+            scene_fov_deg: Optional[float] = None) -> Tuple[F64, npt.NDArray[np.bool_]]:
+    """Chief-ray mapping cube: positions (H, W, L, 2) detector mm, valid (H, W, L). ``pitch_mm``: the scene's
+    pixel (None: 0.01 mm, the CLI's default). device "cuda" (or "cpu-twin") traces with the GPU kernels,
+    precision "f32" with the f32 kernel; at infinity ``scene_fov_deg`` (degrees across the width)."""
 
 def jacobian(system: System, parameters: Union[str, Sequence[str]], origins: F64, directions: F64, wavelengths_nm: F64,
              backend: str = "analytic") -> Dict[str, Any]:

@@ -91,12 +91,37 @@ pub fn f64_list(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<Vec<f64>> {
         if a.ndim() != 1 {
             return Err(value_error(format!("{name}: expected a 1-D sequence of numbers, got shape {:?}", a.shape())));
         }
+        if numpy::PyArrayDescrMethods::kind(&a.dtype()) == b'b' {
+            return Err(value_error(format!("{name}: expected a sequence of numbers, got an array of bools")));
+        }
         obj.call_method1("astype", ("float64",))?.extract::<Vec<f64>>()?
     } else {
+        // A bool is an int to Python: `[True, 520]` was 1 nm and 520 nm.
+        if let Ok(items) = obj.try_iter() {
+            if let Some(b) = items.flatten().find(|i| is_bool(i)) {
+                return Err(value_error(format!("{name}: expected a sequence of numbers, got {} in it", short_repr(&b))));
+            }
+        }
         obj.extract::<Vec<f64>>().map_err(|_| value_error(format!("{name}: expected a sequence of numbers, got {}", describe(obj))))?
     };
     check_finite(name, &v, &[v.len()])?;
     Ok(v)
+}
+
+/// A Python bool or a NumPy one (`np.True_`, whose type is `numpy.bool` or, before NumPy 2, `numpy.bool_`: not a
+/// subclass of `bool`, and read as 1.0 by a float extraction).
+pub fn is_bool(v: &Bound<'_, PyAny>) -> bool {
+    v.is_instance_of::<pyo3::types::PyBool>() || v.get_type().name().is_ok_and(|n| n.to_string() == "bool_" || n.to_string() == "bool")
+}
+
+/// A real-number argument: a Python or NumPy integer or float, finite or not (the caller checks its range);
+/// a bool (`pitch_mm=True` was 1 mm), a string or anything else is a `DiffcassiValueError` naming the argument.
+pub fn real_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<f64> {
+    let bad = || value_error(format!("{name}: expected a number, got {}", short_repr(obj)));
+    if is_bool(obj) || obj.is_instance_of::<pyo3::types::PyString>() {
+        return Err(bad());
+    }
+    obj.extract::<f64>().map_err(|_| bad())
 }
 
 /// A short `repr` of a Python object for messages (at most ~60 characters: `2**1000` is not printed whole).

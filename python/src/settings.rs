@@ -8,7 +8,7 @@
 //! ```text
 //! diffcassi.Transport(sp, 32, 32, rays=4, airy=False)   # -> Settings { options: rays 4, airy false, .. }
 //! ```
-use crate::arrays::{f64_list, input, Input};
+use crate::arrays::{f64_list, input, is_bool, Input};
 use crate::errors::{value_error, IntoPy};
 use diffcassi::render::{Device, Mask, MaskSource, RenderConfig, RenderSettings, Sampling};
 use pyo3::prelude::*;
@@ -124,9 +124,10 @@ pub(crate) fn get<'py, T: FromPyObject<'py>>(name: &str, v: &Bound<'py, PyAny>, 
         let ty = v.get_type().name().map(|n| n.to_string()).unwrap_or_else(|_| "?".into());
         value_error(format!("{name}: expected {what} or None, got {ty} {}", v.repr().map(|r| r.to_string()).unwrap_or_default()))
     };
-    // A bool is an int to Python: `planes=True` rendered one plane. Integer settings refuse it, as the
-    // positional integer arguments do (`arrays::uint_arg`).
-    if what.starts_with("an integer") && v.is_instance_of::<pyo3::types::PyBool>() {
+    // A bool is an int to Python: `planes=True` rendered one plane, `opening=True` an all-open mask and
+    // `tolerance_um=True` a 1 µm tolerance. Integer and number settings refuse it, as the positional integer
+    // arguments do (`arrays::uint_arg`): only a setting that wants True or False takes one.
+    if (what.starts_with("an integer") || what.starts_with("a number")) && is_bool(v) {
         return Err(bad());
     }
     v.extract::<T>().map_err(|_| bad())

@@ -330,11 +330,12 @@ impl PySystem {
         &self,
         py: Python<'py>,
         field_mm: Option<Vec<f64>>,
-        wavelength_nm: f64,
+        wavelength_nm: &Bound<'py, PyAny>,
         pupil: Option<&Bound<'py, PyAny>>,
         field_deg: Option<Vec<f64>>,
         apply_vignetting: bool,
     ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
+        let wavelength_nm = crate::arrays::real_arg("wavelength_nm", wavelength_nm)?;
         let pts = pupil_points(pupil)?;
         let field = self.field_of(field_mm.as_deref(), field_deg.as_deref(), "field_mm", "field_deg")?;
         let pts = if apply_vignetting { self.inner.vignetted_pupil(field, &pts) } else { pts };
@@ -349,9 +350,10 @@ impl PySystem {
         &self,
         py: Python<'py>,
         fields_mm: Option<&Bound<'py, PyAny>>,
-        wavelength_nm: f64,
+        wavelength_nm: &Bound<'py, PyAny>,
         fields_deg: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
+        let wavelength_nm = crate::arrays::real_arg("wavelength_nm", wavelength_nm)?;
         let (mm, deg) = (fields_mm.map(|f| points2("fields_mm", f)).transpose()?, fields_deg.map(|f| points2("fields_deg", f)).transpose()?);
         let f = match (&mm, &deg) {
             (Some(p), None) => p.iter().map(|q| self.field_of(Some(&q[..]), None, "fields_mm", "fields_deg")).collect::<PyResult<Vec<_>>>()?,
@@ -582,7 +584,7 @@ fn _dispersion(py: Python<'_>, system: &PySystem, field_mm: Option<Vec<f64>>, wa
 /// the default backend only. At infinity give `scene_fov_deg` (the full angle across `width`, degrees) as
 /// `mapping --scene-fov-deg`; `pitch_mm` is then not used.
 #[pyfunction]
-#[pyo3(signature = (system, height, width, wavelengths_nm, pitch_mm = 0.01, backend = "analytic", device = "cpu", precision = "f64", scene_fov_deg = None))]
+#[pyo3(signature = (system, height, width, wavelengths_nm, pitch_mm = None, backend = "analytic", device = "cpu", precision = "f64", scene_fov_deg = None))]
 #[allow(clippy::too_many_arguments)]
 fn mapping<'py>(
     py: Python<'py>,
@@ -590,12 +592,15 @@ fn mapping<'py>(
     height: &Bound<'py, PyAny>,
     width: &Bound<'py, PyAny>,
     wavelengths_nm: &Bound<'py, PyAny>,
-    pitch_mm: f64,
+    pitch_mm: Option<&Bound<'py, PyAny>>,
     backend: &str,
     device: &str,
     precision: &str,
-    scene_fov_deg: Option<f64>,
+    scene_fov_deg: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<bool>>)> {
+    // `None`: 10 µm, the CLI's default (`mapping --pitch-mm`).
+    let pitch_mm = pitch_mm.filter(|v| !v.is_none()).map_or(Ok(0.01), |v| crate::arrays::real_arg("pitch_mm", v))?;
+    let scene_fov_deg = scene_fov_deg.filter(|v| !v.is_none()).map(|v| crate::arrays::real_arg("scene_fov_deg", v)).transpose()?;
     let dev = crate::settings::parse_device(device)?;
     let prec = precision.parse::<diffcassi::tracer::Precision>().map_err(|_| value_error(format!("precision `{precision}`: use \"f64\" or \"f32\"")))?;
     if (dev != diffcassi::render::Device::Cpu || prec != diffcassi::tracer::Precision::F64) && backend != "analytic" {
