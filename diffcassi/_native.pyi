@@ -54,6 +54,10 @@ class System:
     @property
     def surfaces(self) -> List[Dict[str, Any]]:
         """The resolved Lens Data Editor, one dict per surface."""
+    @property
+    def warnings(self) -> List[str]:
+        """Load-time warnings (also raised as UserWarnings when the system was made): glasses whose catalogue
+        contradicts itself, semi-diameters beyond a surface's edge."""
     def to_toml(self) -> str: ...
     def to_json(self) -> str: ...
     def prescription_sha256(self) -> str:

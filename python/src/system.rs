@@ -122,6 +122,18 @@ impl PySystem {
     fn wrap(s: SequentialSystem) -> Self {
         PySystem { inner: Arc::new(s) }
     }
+
+    /// [`Self::wrap`], raising each of the system's load-time warnings ([`SequentialSystem::warnings`]: glasses
+    /// whose catalogue contradicts itself, semi-diameters beyond a surface's edge) as a `UserWarning`, as the
+    /// CLI prints them (a system unpickled in a worker does not warn again: `from_string` on a pickle's text is
+    /// the same call, so the warning is shown once per process by Python's default filter).
+    fn wrap_warned(py: Python<'_>, s: SequentialSystem) -> PyResult<Self> {
+        for w in s.warnings() {
+            let text = std::ffi::CString::new(crate::errors::pythonic(&w)).unwrap_or_default();
+            PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &text, 1)?;
+        }
+        Ok(Self::wrap(s))
+    }
 }
 
 impl PySystem {
@@ -144,7 +156,8 @@ impl PySystem {
     #[staticmethod]
     fn preset(py: Python<'_>, name: &str) -> PyResult<Self> {
         let name = name.to_string();
-        run(py, move || SequentialSystem::build(&diffcassi::presets::spec(&name)?)).py().map(Self::wrap)
+        let s = run(py, move || SequentialSystem::build(&diffcassi::presets::spec(&name)?)).py()?;
+        Self::wrap_warned(py, s)
     }
 
     /// A spec file, by extension: `.toml`, `.json`, `.yml`/`.yaml` (the paper's format), `.csv` (Zemax).
@@ -159,7 +172,7 @@ impl PySystem {
             return Err(file_error(format!("{}: no such file", path.display())));
         }
         let is_zmx = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"));
-        run(py, move || {
+        let s = run(py, move || {
             let built = SequentialSystem::build(&diffcassi::spec::load_spec_file(&path)?);
             if is_zmx {
                 built.map_err(diffcassi::spec::zmx::with_zmx_hints)
@@ -167,8 +180,8 @@ impl PySystem {
                 built
             }
         })
-        .py()
-        .map(Self::wrap)
+        .py()?;
+        Self::wrap_warned(py, s)
     }
 
     /// A TOML or JSON spec held in a string (`format`: `toml`, `json`).
@@ -181,7 +194,15 @@ impl PySystem {
             other => return Err(value_error(format!("format `{other}`: use toml or json"))),
         }
         .py()?;
-        run(py, move || SequentialSystem::build(&spec)).py().map(Self::wrap)
+        let s = run(py, move || SequentialSystem::build(&spec)).py()?;
+        Self::wrap_warned(py, s)
+    }
+
+    /// The system's load-time warnings (raised as `UserWarning`s when it was made): glasses whose catalogue
+    /// contradicts itself, semi-diameters beyond a surface's edge. Empty for a spec as its author meant it.
+    #[getter]
+    fn warnings(&self) -> Vec<String> {
+        self.inner.warnings().iter().map(|w| crate::errors::pythonic(w)).collect()
     }
 
     #[getter]

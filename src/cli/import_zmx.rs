@@ -54,7 +54,7 @@ pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
     let imported = import_zmx_file(&a.input, &options)?;
     // Build it before writing: a file that imports but does not make a traceable system writes nothing.
     let system = crate::system::SequentialSystem::build(&imported.spec).map_err(crate::spec::zmx::with_zmx_hints)?;
-    for w in system.glass_warnings() {
+    for w in system.warnings() {
         eprintln!("warning: {w}");
     }
     crate::spec::save_spec_file(&imported.spec, &a.out)?;

@@ -37,7 +37,7 @@ pub fn system_inputs(args: &SystemArgs) -> Vec<(&'static str, &std::path::Path)>
 pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
     let built = SequentialSystem::build(&load_spec_with_catalogs(args)?);
     if let Ok(system) = &built {
-        for w in system.glass_warnings() {
+        for w in system.warnings() {
             eprintln!("warning: {w}");
         }
     }

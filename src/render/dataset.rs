@@ -413,6 +413,12 @@ pub fn configuration_differences(recorded: &Value, requested: &Value) -> Vec<Str
         if let Some(spec) = v.get_mut("system_spec") {
             *spec = spec_identity(spec.take());
         }
+        // An f64 configuration records no precision (those of datasets from before f32 stay as they were):
+        // compared as "f64", so an f32 dataset resumed in f64 reads `recorded "f32" ≠ requested "f64"`, not
+        // `≠ requested absent`.
+        if let Some(o) = v.as_object_mut() {
+            o.entry("precision").or_insert_with(|| json!(crate::tracer::Precision::F64));
+        }
         v
     };
     let (recorded, requested) = (&identity(recorded), &identity(requested));
@@ -1063,6 +1069,9 @@ mod tests {
         assert!(d[1].contains("rays_per_pixel: recorded 20 ≠ requested 10"));
         assert!(d[2].starts_with("system_spec.x: recorded") && d[2].contains('…'));
         assert!(configuration_differences(&a, &a).is_empty());
+        // An f64 configuration records no precision; against an f32 one it reads as f64.
+        let f32_cfg = json!({"seed": 1, "precision": crate::tracer::Precision::F32});
+        assert_eq!(configuration_differences(&f32_cfg, &json!({"seed": 1})), vec!["precision: recorded \"f32\" ≠ requested \"f64\"".to_string()]);
     }
 
     /// Only the leaves that really differ are listed, by path; equal numbers written differently (1, 1.0)

@@ -14,6 +14,7 @@ mod fields;
 mod paraxial;
 mod surface;
 mod vignetting;
+mod warnings;
 
 pub use coded_mask::{MaskSurface, MaskTaps};
 pub use paraxial::*;
@@ -80,31 +81,6 @@ pub(crate) fn medium_index(m: &crate::materials::Medium, spec: &SystemSpec, wave
 impl SequentialSystem {
     pub fn name(&self) -> &str {
         &self.spec.name
-    }
-
-    /// Warnings about the glasses of the system whose catalogue is inconsistent: the formula's n at the d line
-    /// differs from the `NM` line's n_d by more than [`crate::materials::Glass::ND_TOLERANCE`] (`CD -0.5 …`
-    /// under `NM … 1.5 …` gave n = 0.696 unflagged). One line per glass; the CLI prints them as warnings.
-    pub fn glass_warnings(&self) -> Vec<String> {
-        let mut out: Vec<String> = Vec::new();
-        for s in &self.surfaces {
-            let Some(g) = s.medium_after.glass() else { continue };
-            if let Some((n, nd)) = g.nd_mismatch() {
-                let w = format!(
-                    "glass {} (catalogue {}): its dispersion formula gives n = {} at {} nm, but the catalogue's NM line says n_d = {} (they differ by more than {}): check the catalogue's CD line",
-                    g.name,
-                    g.catalog,
-                    crate::limits::fmt_num(n),
-                    crate::materials::D_LINE_NM,
-                    nd,
-                    crate::materials::Glass::ND_TOLERANCE
-                );
-                if !out.contains(&w) {
-                    out.push(w);
-                }
-            }
-        }
-        out
     }
 
     /// Refractive index after each surface at `wavelength_nm` (index 0: object space), honouring the

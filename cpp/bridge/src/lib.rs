@@ -208,6 +208,8 @@ pub mod ffi {
         fn description(self: &System) -> &str;
         fn surfaces(self: &System) -> Vec<SurfaceInfo>;
         fn surface_count(self: &System) -> usize;
+        /// Load-time warnings: glasses whose catalogue contradicts itself, semi-diameters beyond a surface's edge.
+        fn warnings(self: &System) -> Vec<String>;
         fn stop_index(self: &System) -> usize;
         fn wavelengths_nm(self: &System) -> &[f64];
         fn primary_wavelength_nm(self: &System) -> f64;

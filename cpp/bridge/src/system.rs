@@ -107,6 +107,10 @@ impl System {
     pub fn surface_count(&self) -> usize {
         self.system.surfaces.len()
     }
+    /// The system's load-time warnings ([`SequentialSystem::warnings`]), spelled for C++.
+    pub fn warnings(&self) -> Vec<String> {
+        self.system.warnings().iter().map(|w| diffcassi::frontend::spell(w, diffcassi::frontend::Frontend::Cpp).into_owned()).collect()
+    }
     pub fn stop_index(&self) -> usize {
         self.system.stop_index
     }

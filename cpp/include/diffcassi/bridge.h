@@ -1124,6 +1124,10 @@ struct System final : public ::rust::Opaque {
   ::rust::Str description() const noexcept;
   ::rust::Vec<::diffcassi::ffi::SurfaceInfo> surfaces() const noexcept;
   ::std::size_t surface_count() const noexcept;
+
+  // Load-time warnings: glasses whose catalogue contradicts itself, semi-diameters beyond a surface's edge.
+  ::rust::Vec<::rust::String> warnings() const noexcept;
+
   ::std::size_t stop_index() const noexcept;
   ::rust::Slice<double const> wavelengths_nm() const noexcept;
   double primary_wavelength_nm() const noexcept;

@@ -338,6 +338,10 @@ class System {
   /// The resolved Lens Data Editor (pickups and solves evaluated), surface 0 = object.
   rust::Vec<SurfaceInfo> surfaces() const { return raw_->surfaces(); }
   std::size_t surface_count() const noexcept { return raw_->surface_count(); }
+  /// Load-time warnings (the CLI prints them when it loads the system, Python raises them as UserWarnings):
+  /// glasses whose catalogue contradicts itself, semi-diameters beyond a surface's edge. Empty for a spec
+  /// as its author meant it.
+  std::vector<std::string> warnings() const { return detail::strings(raw_->warnings()); }
   std::size_t stop_index() const noexcept { return raw_->stop_index(); }
   View<double> wavelengths_nm() const noexcept { return raw_->wavelengths_nm(); }
   double primary_wavelength_nm() const noexcept { return raw_->primary_wavelength_nm(); }

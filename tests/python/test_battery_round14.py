@@ -1,4 +1,4 @@
-"""Round 13, seen from Python: a bool is not a number. ``opening=True`` rendered through an all-open mask,
+"""Round 14, seen from Python: a bool is not a number. ``opening=True`` rendered through an all-open mask,
 ``airy_diameter_px=True`` blurred by a 1-pixel disk, ``tolerance_um=True`` chose for 1 µm and ``step=True`` solved with
 a step of 1, all silently (the integer keywords refused a bool since round 9); ``accelerated=1`` was PyO3's TypeError.
 Every real-valued keyword now refuses a bool, naming the keyword, and nothing is rendered or written."""
@@ -83,3 +83,24 @@ def test_tracing_calls_refuse_bools_for_lengths_and_wavelengths(sp):
     b, _ = diffcassi.mapping(sp, 4, 4, np.array([520], dtype=np.int64), pitch_mm=np.float64(0.01))
     assert np.array_equal(a, b)
     assert sp.chief_rays(np.zeros((1, 2)), 520)[0].shape == (1, 3)
+
+
+def test_a_semi_diameter_beyond_the_surface_edge_warns_on_load(tmp_path):
+    """As the CLI prints it: a UserWarning when the System is made, naming the surface and the edge, and
+    ``System.warnings`` keeps it; a preset and a copy of a clean system are silent."""
+    import copy
+    import warnings
+    toml = diffcassi.System.preset("sp").to_toml()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        sp = diffcassi.System.from_string(toml)
+        assert sp.warnings == [] and copy.deepcopy(sp).warnings == []
+    spec = sp.to_json()
+    import json
+    d = json.loads(spec)
+    d["surfaces"][17]["semi_diameter_mm"] = 25.0
+    p = tmp_path / "wide.json"
+    p.write_text(json.dumps(d))
+    with pytest.warns(UserWarning, match="surface 17: semi-diameter 25 mm is beyond the surface's edge at r = 22.28 mm"):
+        wide = diffcassi.System.from_file(p)
+    assert len(wide.warnings) == 1 and "give a semi-diameter ≤ 22.28 mm" in wide.warnings[0]
