@@ -49,3 +49,25 @@ fn a_semi_diameter_beyond_the_surface_edge_is_named() {
     }
     assert!(files >= 8, "{files} lens files in {}", fixtures.display());
 }
+
+/// `--calibration-cache FILE` (a file named by mistake) was reported as "a corrupt calibration cache entry"
+/// at every lookup, on the library's own stderr, and the render went on without a cache: it is refused before
+/// any calibration, naming the option. A cache that cannot be written (its parent missing) is not an error,
+/// and what the cache could not do is said in the choice's explanation, not printed by the library.
+#[test]
+fn a_calibration_cache_that_is_a_file_is_refused() {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("afile"), "x").unwrap();
+    let args = |cache: &str| -> Vec<String> {
+        ["render", "--preset", "sp", "--scene-size", "8", "--planes", "4", "--tolerance-um", "5", "--calibration-cache", cache, "--out", "r", "--force"].iter().map(|s| s.to_string()).collect()
+    };
+    let a = args("afile");
+    let (code, text) = run(d.path(), &a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("--calibration-cache afile: not a directory") && !text.contains("calibrated now"), "{text}");
+    assert!(!d.path().join("r").exists());
+    let a = args("afile/sub");
+    let out = ok(d.path(), &a.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(out.contains("calibrated now") && out.contains("cache: not stored ("), "{out}");
+    assert!(!out.contains("fidelity: could not cache"), "{out}");
+}

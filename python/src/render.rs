@@ -73,7 +73,7 @@ fn _render<'py>(
             if settings.map(|d| d.get_item("backend")).transpose()?.flatten().is_some_and(|v| !v.is_none()) {
                 return Err(value_error(format!("tolerance_um {t} chooses the backend and its precision itself; it cannot be combined with backend (drop one or the other)")));
             }
-            diffcassi::fidelity::TracerSource::Tolerance { tolerance_um: t, cache: diffcassi::fidelity::CacheOptions::resolve(cache_dir.as_deref()) }
+            diffcassi::fidelity::TracerSource::Tolerance { tolerance_um: t, cache: diffcassi::fidelity::CacheOptions::checked(cache_dir.as_deref()).py()? }
         }
         None if cache_dir.is_some() => return Err(value_error("calibration_cache applies to tolerance_um only")),
         None => diffcassi::fidelity::TracerSource::Given(tracer(s.backend.as_str())?),

@@ -14,8 +14,8 @@ use crate::fidelity::{self, CacheOptions};
 use crate::system::SequentialSystem;
 use crate::tracer::Tracer;
 
-fn cache_options(a: &BackendArgs) -> CacheOptions {
-    CacheOptions::resolve(a.calibration_cache.as_deref())
+fn cache_options(a: &BackendArgs) -> Result<CacheOptions> {
+    CacheOptions::checked(a.calibration_cache.as_deref())
 }
 
 /// The tolerance, after checking it does not fight explicit backend flags.
@@ -55,7 +55,7 @@ fn tolerance(a: &BackendArgs) -> Result<Option<f64>> {
 /// chooses (printed with its reason).
 pub(super) fn tracer_for(a: &BackendArgs, system: &SequentialSystem, wavelengths_nm: &[f64], job_rays: u64) -> Result<Box<dyn Tracer>> {
     let Some(t) = tolerance(a)? else { return make_tracer(a) };
-    let (cal, prov) = fidelity::calibrate_backends(system, wavelengths_nm, &cache_options(a))?;
+    let (cal, prov) = fidelity::calibrate_backends(system, wavelengths_nm, &cache_options(a)?)?;
     let choice = fidelity::choose_backend(&cal, t, job_rays)?;
     println!("{} [{prov}]", choice.explanation);
     choice.config.build()
@@ -64,7 +64,7 @@ pub(super) fn tracer_for(a: &BackendArgs, system: &SequentialSystem, wavelengths
 /// The mapping model: tracer and interpolation stride (1 = exact).
 pub(super) fn mapping_for(a: &BackendArgs, system: &SequentialSystem, height: usize, width: usize, pitch_mm: f64, wavelengths_nm: &[f64]) -> Result<(Box<dyn Tracer>, usize)> {
     let Some(t) = tolerance(a)? else { return Ok((make_tracer(a)?, 1)) };
-    let cache = cache_options(a);
+    let cache = cache_options(a)?;
     // Over the cube's field, not only the system's fields.
     let half = fidelity::workload::scene_half_width(height, width, pitch_mm);
     let (cal, prov) = fidelity::calibrate_backends_over(system, wavelengths_nm, Some(half), &cache)?;
@@ -79,7 +79,7 @@ pub(super) fn mapping_for(a: &BackendArgs, system: &SequentialSystem, height: us
 pub(super) fn render_source(a: &BackendArgs) -> Result<fidelity::TracerSource> {
     Ok(match tolerance(a)? {
         None => fidelity::TracerSource::Given(make_tracer(a)?),
-        Some(tolerance_um) => fidelity::TracerSource::Tolerance { tolerance_um, cache: cache_options(a) },
+        Some(tolerance_um) => fidelity::TracerSource::Tolerance { tolerance_um, cache: cache_options(a)? },
     })
 }
 

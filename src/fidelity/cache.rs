@@ -79,7 +79,9 @@ pub fn load<T: DeserializeOwned>(dir: &Path, key: &CacheKey, valid: impl Fn(&T) 
     let path = dir.join(key.file_name());
     let text = match std::fs::read_to_string(&path) {
         Ok(t) => t,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Lookup::Miss,
+        // No entry: no file, or a directory that is not there (a path through a file: `--calibration-cache
+        // afile/sub`, whose store then fails, said as such).
+        Err(e) if matches!(e.kind(), std::io::ErrorKind::NotFound | std::io::ErrorKind::NotADirectory) => return Lookup::Miss,
         Err(e) => return Lookup::Corrupt(format!("{}: cannot read: {e}", path.display())),
     };
     let entry: Entry<T> = match serde_json::from_str(&text) {

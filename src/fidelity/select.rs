@@ -66,6 +66,18 @@ impl CacheOptions {
     pub fn resolve(explicit: Option<&Path>) -> Self {
         CacheOptions { dir: cache::cache_dir(explicit) }
     }
+
+    /// [`Self::resolve`] for a directory a caller named (`--calibration-cache DIR`): refused when it exists and
+    /// is not a directory (a file named by mistake was reported as a "corrupt entry" at every lookup). One that
+    /// does not exist yet is created when a calibration is stored.
+    pub fn checked(explicit: Option<&Path>) -> Result<Self> {
+        if let Some(p) = explicit {
+            if p.exists() && !p.is_dir() {
+                return Err(Error::invalid(format!("--calibration-cache {}: not a directory (the calibration cache is a folder of JSON files)", p.display())));
+            }
+        }
+        Ok(Self::resolve(explicit))
+    }
     pub fn none() -> Self {
         CacheOptions { dir: None }
     }
@@ -74,14 +86,17 @@ impl CacheOptions {
 /// Where a calibration came from, for the printed explanation.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Provenance {
-    Measured { rays: usize, seconds: f64 },
+    /// Calibrated now; `cache_note` says why the cache did not serve or keep it (a corrupt entry ignored, a
+    /// directory that cannot be written), `None` when it did or there is none.
+    Measured { rays: usize, seconds: f64, cache_note: Option<String> },
     Cached(PathBuf),
 }
 
 impl std::fmt::Display for Provenance {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
-            Provenance::Measured { rays, seconds } => write!(f, "calibrated now on {rays} rays in {seconds:.2} s"),
+            Provenance::Measured { rays, seconds, cache_note: None } => write!(f, "calibrated now on {rays} rays in {seconds:.2} s"),
+            Provenance::Measured { rays, seconds, cache_note: Some(n) } => write!(f, "calibrated now on {rays} rays in {seconds:.2} s; cache: {n}"),
             Provenance::Cached(p) => write!(f, "calibration from the cache {}", p.display()),
         }
     }
@@ -118,22 +133,26 @@ fn measured_ok(m: &Measured) -> bool {
 
 /// Load-or-compute through the cache; returns the payload and its provenance.
 fn cached<T: serde::Serialize + serde::de::DeserializeOwned>(cache: &CacheOptions, key: &CacheKey, valid: impl Fn(&T) -> bool, compute: impl FnOnce() -> Result<(T, usize)>) -> Result<(T, Provenance)> {
+    // What the cache could not do is said in the provenance (the explanation every front end shows), not on
+    // the library's own stderr.
+    let mut notes = Vec::new();
     if let Some(dir) = &cache.dir {
         match cache::load::<T>(dir, key, &valid) {
             Lookup::Hit(t) => return Ok((t, Provenance::Cached(dir.join(key.file_name())))),
             Lookup::Miss => {}
-            Lookup::Corrupt(why) => eprintln!("fidelity: ignoring a corrupt calibration cache entry ({why}); recomputing"),
+            Lookup::Corrupt(why) => notes.push(format!("ignored a corrupt entry ({why})")),
         }
     }
     let t0 = Instant::now();
     let (payload, rays) = compute()?;
-    let prov = Provenance::Measured { rays, seconds: t0.elapsed().as_secs_f64() };
+    let seconds = t0.elapsed().as_secs_f64();
     if let Some(dir) = &cache.dir {
         if let Err(e) = cache::store(dir, key, &payload) {
-            eprintln!("fidelity: could not cache the calibration: {e}");
+            notes.push(format!("not stored ({e})"));
         }
     }
-    Ok((payload, prov))
+    let cache_note = (!notes.is_empty()).then(|| notes.join("; "));
+    Ok((payload, Provenance::Measured { rays, seconds, cache_note }))
 }
 
 /// The backend candidates measured on the calibration set of `system` at `wavelengths_nm`.

@@ -74,3 +74,15 @@ def test_on_the_devices_twin_a_tolerance_chooses_f64_rays_only(tmp_path):
     assert info["precision"] == "f64" and info["tolerance_predicted_error_um"] <= 5.0
     assert "backend analytic rays" in info["fidelity_choice"] and "device cpu-twin" in info["fidelity_choice"]
     assert np.isfinite(acq).all() and acq.max() > 0
+
+
+def test_a_calibration_cache_that_is_a_file_is_refused(tmp_path):
+    """As the CLI: a file named as the cache is refused before any calibration; a cache that cannot be written
+    is said in ``fidelity_choice`` (the library printed it on stderr before)."""
+    sp = diffcassi.System.preset("sp")
+    cube = random_cube(8, 8, len(WL))
+    (tmp_path / "afile").write_text("x")
+    with pytest.raises(DiffcassiValueError, match="calibration_cache .*afile: not a directory"):
+        diffcassi.render(sp, cube, WL, planes=4, tolerance_um=5.0, calibration_cache=str(tmp_path / "afile"))
+    _, info = diffcassi.render(sp, cube, WL, planes=4, tolerance_um=5.0, calibration_cache=str(tmp_path / "afile" / "sub"))
+    assert "cache: not stored (" in info["fidelity_choice"]
