@@ -71,3 +71,21 @@ fn a_calibration_cache_that_is_a_file_is_refused() {
     assert!(out.contains("calibrated now") && out.contains("cache: not stored ("), "{out}");
     assert!(!out.contains("fidelity: could not cache"), "{out}");
 }
+
+/// A backend that does not model the system (Embree and a diffraction grating) was reported by the library on
+/// its own stderr, nine lines of the same reason; the choice's explanation now names them in one line per
+/// reason, and the calibration (cached) keeps them.
+#[test]
+fn candidates_left_out_are_said_in_the_choice() {
+    let sys = SequentialSystem::build(&diffcassi::presets::spec("gsp").unwrap()).unwrap();
+    let (cal, _) = diffcassi::fidelity::calibrate_backends(&sys, &[520.0], &diffcassi::fidelity::CacheOptions::none()).unwrap();
+    assert!(cal.left_out.len() >= 3 && cal.left_out.iter().all(|l| l.backend.starts_with("embree") && l.reason.contains("diffraction grating")), "{:?}", cal.left_out);
+    let choice = diffcassi::fidelity::choose_backend(&cal, 1.0, 1000).unwrap();
+    let lines: Vec<&str> = choice.explanation.lines().filter(|l| l.contains("left out:")).collect();
+    assert_eq!(lines.len(), 1, "{}", choice.explanation);
+    assert!(lines[0].contains("embree-user:f64, embree-user:none") && lines[0].contains("surface 4 is a diffraction grating"), "{}", lines[0]);
+    let d = tempfile::tempdir().unwrap();
+    let (code, text) = run(d.path(), &["spot", "--preset", "gsp", "--wavelength-nm", "520", "--tolerance-um", "1", "--calibration-cache", "cache"]);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(!text.contains("fidelity: candidate") && text.matches("left out:").count() == 1, "{text}");
+}

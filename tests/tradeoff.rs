@@ -55,6 +55,7 @@ fn selection_rule_prefers_cheaper_models_only_when_they_qualify() {
         wavelengths_nm: vec![500.0],
         rays: 100,
         candidates: vec![measured("analytic", 0.0, 0, 1e6), measured("embree-user:none", 0.007, user_mismatches, user_rate), measured("embree-mesh:10:none", 1.0, 0, 1e7)],
+        left_out: vec![],
     };
     let pick = |c: &BackendCalibration, tol: f64| fidelity::backend_text(&fidelity::choose_backend(c, tol, 1_000_000).unwrap().config);
     assert_eq!(pick(&cal(5e6, 0), 10.0), "embree-mesh:10:none"); // fastest within 10 µm

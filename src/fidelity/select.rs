@@ -161,6 +161,32 @@ pub struct BackendCalibration {
     pub wavelengths_nm: Vec<f64>,
     pub rays: usize,
     pub candidates: Vec<Measured>,
+    /// The candidates that do not model this system, each with why: said in every choice's explanation (the
+    /// library printed them on its own stderr before).
+    #[serde(default)]
+    pub left_out: Vec<LeftOut>,
+}
+
+/// A backend candidate that does not model the system (a diffraction grating for the Embree backends).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct LeftOut {
+    pub backend: String,
+    pub reason: String,
+}
+
+impl BackendCalibration {
+    /// The explanation's line for [`Self::left_out`], the backends grouped by reason (empty when every
+    /// candidate was measured).
+    fn left_out_line(&self) -> String {
+        let mut groups: Vec<(&str, Vec<&str>)> = Vec::new();
+        for l in &self.left_out {
+            match groups.iter_mut().find(|g| g.0 == l.reason) {
+                Some(g) => g.1.push(&l.backend),
+                None => groups.push((&l.reason, vec![&l.backend])),
+            }
+        }
+        groups.iter().map(|(why, b)| format!("\n  left out: {} ({why})", b.join(", "))).collect()
+    }
 }
 
 /// Measure every backend candidate on the system's fields (cached).
@@ -194,17 +220,17 @@ pub fn calibrate_backends_over(system: &SequentialSystem, wavelengths_nm: &[f64]
         || {
             let rays = set.build(system, wavelengths_nm)?;
             let reference = AnalyticTracer::default().trace(system, &rays)?;
-            let mut candidates = Vec::new();
+            let (mut candidates, mut left_out) = (Vec::new(), Vec::new());
             for cfg in &configs {
                 match measure(system, cfg, &rays, &reference, 3) {
                     Ok((m, _)) => candidates.push(m),
                     // A backend that does not model this system (the Embree and f32 lane backends refuse
                     // some surfaces, naming them) is no candidate; the exact reference must always be one.
-                    Err(e) if !is_reference(cfg) => eprintln!("fidelity: candidate --backend {} left out: {e}", backend_text(cfg)),
+                    Err(e) if !is_reference(cfg) => left_out.push(LeftOut { backend: backend_text(cfg), reason: e.to_string() }),
                     Err(e) => return Err(e),
                 }
             }
-            Ok((BackendCalibration { wavelengths_nm: wavelengths_nm.to_vec(), rays: rays.len(), candidates }, rays.len() * (3 * n + 1)))
+            Ok((BackendCalibration { wavelengths_nm: wavelengths_nm.to_vec(), rays: rays.len(), candidates, left_out }, rays.len() * (3 * n + 1)))
         },
     )
 }
@@ -263,7 +289,7 @@ pub fn choose_backend(cal: &BackendCalibration, tolerance_um: f64, job_rays: u64
         secs,
         cost(analytic),
         list.join("; ")
-    );
+    ) + &cal.left_out_line();
     Ok(Choice { config: m.backend.parse()?, error_um: err, predicted_seconds: secs, analytic_seconds: cost(analytic), explanation })
 }
 
@@ -420,7 +446,7 @@ pub fn choose_mapping(backends: &BackendCalibration, mapping: &MappingCalibratio
         if stride > 1 { format!("chief rays every {stride} pixels, cubic interpolation between") } else { "every chief ray traced".into() },
         fmt_err(err),
         list.join("; ")
-    );
+    ) + &backends.left_out_line();
     Ok(MappingChoice { config: backend.parse()?, stride, error_um: err, explanation })
 }
 
@@ -534,7 +560,7 @@ pub fn choose_render(backends: &BackendCalibration, render: &RenderCalibration, 
         fmt_err(err),
         items.iter().map(|((b, n), e, c, _)| format!("{b} N={n} {} µm {c:.2} s", fmt_err(*e))).collect::<Vec<_>>().join("; "),
         if notes.is_empty() { String::new() } else { format!("; {}", notes.join("; ")) }
-    );
+    ) + &backends.left_out_line();
     Ok(RenderChoice { config: backend.parse()?, rays_per_pixel: n, error_um: err, explanation })
 }
 
@@ -624,7 +650,7 @@ mod tests {
     fn a_render_choice_never_trades_more_rays_for_a_faster_kernel() {
         let rc = RenderCalibration { sigma_um: 10.0 };
         // Tolerance 5.5 µm: f64 (exact) needs N = ⌈(10/5.5)²⌉ = 4; f32 with 0.6 µm of trace error ⌈(10/4.9)²⌉ = 5.
-        let cal = BackendCalibration { wavelengths_nm: vec![520.0], rays: 100, candidates: vec![measured("analytic", 0.0, 1e7), measured("analytic-f32", 0.6, 1e9)] };
+        let cal = BackendCalibration { wavelengths_nm: vec![520.0], rays: 100, candidates: vec![measured("analytic", 0.0, 1e7), measured("analytic-f32", 0.6, 1e9)], left_out: vec![] };
         let c = choose_render(&cal, &rc, 5.5, 1000).unwrap();
         assert_eq!((c.config.backend, c.rays_per_pixel), (Backend::Analytic, 4), "{}", c.explanation);
         assert!(c.explanation.contains("analytic-f32 needs N=5 > the analytic N=4"), "{}", c.explanation);
