@@ -3,10 +3,12 @@
 use crate::cli_run::{ok_cli as ok, run_cli as run};
 use diffcassi::system::SequentialSystem;
 
-/// The probers' singlet with its stop surface of radius `r_mm` and semi-diameter `sd_mm`.
-fn singlet(r_mm: &str, sd_mm: &str) -> String {
-    let s = crate::common::SINGLET_TOML.replacen("radius_mm = 51.0", &format!("radius_mm = {r_mm}"), 1).replacen("semi_diameter_mm = 8.0", &format!("semi_diameter_mm = {sd_mm}"), 1);
-    assert!(s.contains(&format!("radius_mm = {r_mm}")) && s.contains(&format!("semi_diameter_mm = {sd_mm}")));
+/// `tests/fixtures/systems/beyond_hemisphere.toml` (the probers' singlet, its stop surface of radius 10 mm with a
+/// 12 mm semi-diameter) with that semi-diameter set to `sd_mm`.
+fn singlet(sd_mm: &str) -> String {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/systems/beyond_hemisphere.toml");
+    let s = std::fs::read_to_string(path).unwrap().replacen("semi_diameter_mm = 12.0", &format!("semi_diameter_mm = {sd_mm}"), 1);
+    assert!(s.contains(&format!("semi_diameter_mm = {sd_mm}")));
     s
 }
 
@@ -17,8 +19,8 @@ fn singlet(r_mm: &str, sd_mm: &str) -> String {
 #[test]
 fn a_semi_diameter_beyond_the_surface_edge_is_named() {
     let d = tempfile::tempdir().unwrap();
-    std::fs::write(d.path().join("beyond.toml"), singlet("10.0", "12.0")).unwrap();
-    std::fs::write(d.path().join("exact.toml"), singlet("10.0", "10.0")).unwrap();
+    std::fs::write(d.path().join("beyond.toml"), singlet("12.0")).unwrap();
+    std::fs::write(d.path().join("exact.toml"), singlet("10.0")).unwrap();
     let (code, text) = run(d.path(), &["spot", "--system", "beyond.toml", "--wavelength-nm", "520"]);
     assert_eq!(code, Some(0), "{text}");
     assert!(text.contains("warning: surface 1: semi-diameter 12 mm is beyond the surface's edge at r = 10 mm (radius 10 mm, conic 0)"), "{text}");
@@ -26,7 +28,7 @@ fn a_semi_diameter_beyond_the_surface_edge_is_named() {
     let out = ok(d.path(), &["spot", "--system", "exact.toml", "--wavelength-nm", "520"]);
     assert!(!out.contains("warning"), "{out}");
     // An oblate ellipsoid (k = 3) ends at 1/(|c|√(1+k)) = R/2; a paraboloid (k = −1) nowhere.
-    let mut spec = diffcassi::spec::from_toml(&singlet("10.0", "6.0"), "s.toml").unwrap();
+    let mut spec = diffcassi::spec::from_toml(&singlet("6.0"), "s.toml").unwrap();
     spec.surfaces[1].conic = Some(3.0.into());
     let w = SequentialSystem::build(&spec).unwrap().warnings();
     assert!(w.len() == 1 && w[0].contains("edge at r = 5 mm (radius 10 mm, conic 3)"), "{w:?}");

@@ -51,32 +51,7 @@ int main() {
   {
     // Load-time warnings: none for a preset; a semi-diameter beyond a sphere's hemisphere (R = 10 mm, 12 mm) is named.
     CHECK(System::preset("sp").warnings().empty());
-    const auto w = System::from_string(R"(name = "beyond the hemisphere"
-wavelengths_nm = [450.0, 520.0, 650.0]
-primary_wavelength_nm = 520.0
-fields_mm = [[0.0, 0.0]]
-[aperture]
-type = "object_space_na"
-value = 0.02
-[[surfaces]]
-type = "standard"
-thickness_mm = 100.0
-[[surfaces]]
-type = "standard"
-stop = true
-radius_mm = 10.0
-thickness_mm = 4.0
-material = "N-BK7"
-semi_diameter_mm = 12.0
-[[surfaces]]
-type = "standard"
-radius_mm = -51.0
-thickness_mm = 95.0
-semi_diameter_mm = 8.0
-[[surfaces]]
-type = "standard"
-semi_diameter_mm = 5.0
-)", "toml").warnings();
+    const auto w = System::from_file(DIFFCASSI_SOURCE_DIR "/../tests/fixtures/systems/beyond_hemisphere.toml").warnings();
     CHECK(w.size() == 1);
     CHECK(w[0].find("surface 1: semi-diameter 12 mm is beyond the surface's edge at r = 10 mm") != std::string::npos);
     std::printf("  %-28s -> %s\n", "semi-diameter warning", w[0].c_str());
