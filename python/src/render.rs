@@ -91,8 +91,7 @@ fn _render<'py>(
     .py()?;
     let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
     let cube = scene_cube(scene, ws)?;
-    let (cfg, m) = configure(cube.height, cube.width, &s.options, mask)?;
-    let (mut cfg, m) = (cfg, m);
+    let (mut cfg, m) = configure(cube.height, cube.width, &s.options, mask)?;
     let render_settings = s.options.settings()?;
     let device = render_settings.device;
     let sys = Arc::clone(&system.inner);

@@ -125,8 +125,8 @@ impl PySystem {
 
     /// [`Self::wrap`], raising each of the system's load-time warnings ([`SequentialSystem::warnings`]: glasses
     /// whose catalogue contradicts itself, semi-diameters beyond a surface's edge) as a `UserWarning`, as the
-    /// CLI prints them (a system unpickled in a worker does not warn again: `from_string` on a pickle's text is
-    /// the same call, so the warning is shown once per process by Python's default filter).
+    /// CLI prints them. Unpickling and copying (`from_string` on the spec's text) warn as any load does; Python's
+    /// default filter shows a warning once per place that raised it, so a training loop's copies do not repeat it.
     fn wrap_warned(py: Python<'_>, s: SequentialSystem) -> PyResult<Self> {
         for w in s.warnings() {
             let text = std::ffi::CString::new(crate::errors::pythonic(&w)).unwrap_or_default();
