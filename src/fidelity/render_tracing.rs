@@ -89,12 +89,13 @@ impl RenderTracing {
         } else {
             check_render_budget(h, w, cfg, choice.rays_per_pixel)?;
         }
+        let precision = choice.precision();
         cfg.rays_per_pixel = choice.rays_per_pixel;
-        cfg.precision = choice.precision();
+        cfg.precision = precision;
         Ok(RenderTracing {
             tracer: choice.tracer()?,
             rays_per_pixel: choice.rays_per_pixel,
-            precision: choice.precision(),
+            precision,
             tolerance_um: Some(tolerance_um),
             predicted_error_um: Some(choice.error_um),
             explanation: Some(format!("{} [{provenance}]", choice.explanation)),

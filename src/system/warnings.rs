@@ -71,12 +71,13 @@ impl SequentialSystem {
         let mut out = Vec::new();
         for s in &self.surfaces {
             let (Some(sd), Some(shape)) = (s.semi_diameter_mm, &s.shape) else { continue };
-            let (edge, what) = match shape {
-                SurfaceShape::Conic { curvature, conic } | SurfaceShape::EvenAsphere { curvature, conic, .. } => (conic_edge_mm(*curvature, *conic), "r"),
-                SurfaceShape::Toroidal { curvature, conic, .. } => (conic_edge_mm(*curvature, *conic), "|y|"),
-                SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => (None, ""),
+            // The conic that bounds the surface: its own, an even asphere's base conic, a toroid's YZ curve.
+            let (c, k, what) = match shape {
+                SurfaceShape::Conic { curvature, conic } | SurfaceShape::EvenAsphere { curvature, conic, .. } => (*curvature, *conic, "r"),
+                SurfaceShape::Toroidal { curvature, conic, .. } => (*curvature, *conic, "|y|"),
+                SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => continue,
             };
-            let Some(edge) = edge else { continue };
+            let Some(edge) = conic_edge_mm(c, k) else { continue };
             if sd > edge * (1.0 + 1e-9) {
                 let fmt = crate::limits::fmt_num;
                 out.push(format!(
@@ -84,26 +85,12 @@ impl SequentialSystem {
                     s.index,
                     fmt(sd),
                     fmt(edge),
-                    fmt(1.0 / curvature_of(shape)),
-                    fmt(conic_of(shape)),
+                    fmt(1.0 / c),
+                    fmt(k),
                     fmt(edge)
                 ));
             }
         }
         out
-    }
-}
-
-fn curvature_of(shape: &SurfaceShape) -> f64 {
-    match shape {
-        SurfaceShape::Conic { curvature, .. } | SurfaceShape::EvenAsphere { curvature, .. } | SurfaceShape::Toroidal { curvature, .. } => *curvature,
-        _ => 0.0,
-    }
-}
-
-fn conic_of(shape: &SurfaceShape) -> f64 {
-    match shape {
-        SurfaceShape::Conic { conic, .. } | SurfaceShape::EvenAsphere { conic, .. } | SurfaceShape::Toroidal { conic, .. } => *conic,
-        _ => 0.0,
     }
 }
