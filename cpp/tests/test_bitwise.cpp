@@ -4,8 +4,8 @@
 // bridge): cpp/bridge/examples/cpp_reference.rs. For every preset it holds a ray batch (seeded workload,
 // rays aimed outside the pupil, a backwards ray, a NaN origin, a zero direction) with its trace, a 13x13
 // grid distortion, a mapping cube, a spot diagram, the batch's Jacobians for five parameters named as C++
-// names them (analytic and Embree hits) and two small renders (a random mask from opening and seed; an
-// explicit mask), every double as its bit pattern in hex. This program rebuilds the batch in C++-owned
+// names them (analytic and Embree hits) and three small renders (a random mask from opening and seed, in f64
+// and in f32; an explicit mask), every double as its bit pattern in hex. This program rebuilds the batch in C++-owned
 // std::vectors, traces it through the C++ API, runs the same analyses, Jacobians and renders (scene and
 // mask filled in C++ by the reference's formulas), and compares every value's bits.
 //
@@ -103,8 +103,10 @@ std::pair<std::size_t, std::size_t> run_jacobian(const diffcassi::System& sys, c
 std::pair<std::size_t, std::size_t> run_render(const diffcassi::System& sys, const std::string& preset) {
   expect("render");
   const std::string backend = word();
+  const std::string precision = word();
   const auto h = static_cast<std::size_t>(integer()), w = static_cast<std::size_t>(integer()), nb = static_cast<std::size_t>(integer());
   auto o = diffcassi::default_render_options();
+  o.precision = precision == "f32" ? diffcassi::RenderPrecision::F32 : diffcassi::RenderPrecision::F64;
   o.planes = static_cast<std::size_t>(integer());
   o.rays_per_pixel = static_cast<std::size_t>(integer());
   o.seed = static_cast<std::uint64_t>(integer());
@@ -125,7 +127,7 @@ std::pair<std::size_t, std::size_t> run_render(const diffcassi::System& sys, con
   const diffcassi::SceneView view{h, w, wl, scene};
   const auto d = sys.render_detector(h, w, wl, o, backend);
   Counter c;
-  const std::string at = preset + " render " + backend + (explicit_mask ? " explicit mask" : " random mask");
+  const std::string at = preset + " render " + backend + " " + precision + (explicit_mask ? " explicit mask" : " random mask");
   c.same_int(static_cast<long long>(d.detector_height), integer(), at + " detector height");
   c.same_int(static_cast<long long>(d.detector_width), integer(), at + " detector width");
   c.same(d.detector_pitch_mm, hexd(), at + " pitch");
@@ -135,6 +137,9 @@ std::pair<std::size_t, std::size_t> run_render(const diffcassi::System& sys, con
   const auto info = sys.render_into(view, mask, o, image.data(), image.size(), backend);
   c.same_int(static_cast<long long>(info.rays_traced), integer(), at + " rays traced");
   c.same_int(static_cast<long long>(info.rays_arrived), integer(), at + " rays arrived");
+  // What traced it, as the options gave it.
+  CHECK(info.precision == o.precision && info.rays_per_pixel == o.rays_per_pixel && info.predicted_error_um == 0.0);
+  CHECK(std::string(info.tracer.data(), info.tracer.size()).rfind(backend, 0) == 0);
   double total = 0;
   for (std::size_t q = 0; q < image.size(); ++q) {
     c.same(image[q], hexd(), at + " pixel " + std::to_string(q));
@@ -267,12 +272,12 @@ void run_case(const std::string& preset) {
     jv += r.first;
     jm += r.second;
   }
-  for (int b = 0; b < 2; ++b) {
+  for (int b = 0; b < 3; ++b) {
     const auto r = run_render(sys, preset);
     rv += r.first;
     rm += r.second;
   }
-  std::printf("%-3s  jacobians (analytic, embree-user): %zu values, %zu differ | renders (random mask, explicit mask): %zu values, %zu differ\n",
+  std::printf("%-3s  jacobians (analytic, embree-user): %zu values, %zu differ | renders (random mask f64 and f32, explicit mask): %zu values, %zu differ\n",
               preset.c_str(), jv, jm, rv, rm);
   std::printf("%-3s  trace: %zu rays (%zu ok, %zu missed, %zu vignetted, %zu invalid), %zu values, %zu differ | "
               "distortion: %zu values, %zu differ | mapping: %zu values, %zu differ | spot: %zu values, %zu differ\n",

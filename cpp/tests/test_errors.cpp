@@ -159,6 +159,28 @@ int main() {
       sys.render_detector(4, 4, wl, many);
     }, {"planes", "at most"});
     expect_error("scene beyond memory", [&] { sys.render_detector(100000, 100000, wl, o); }, {"memory", "raise max_memory_gb (diffcassi::set_limits)"});
+    // A tolerance chooses the backend, the rays per pixel and the precision: each given beside it is refused,
+    // named as C++ sets it, before any calibration; so is a tolerance that is not a positive number.
+    {
+      auto t = o;
+      t.tolerance_um = 2.0;
+      expect_error("tolerance beside rays", [&] { sys.render_detector(4, 4, wl, t); },
+                   {"RenderOptions::tolerance_um 2", "RenderOptions::rays_per_pixel 1"});
+      t.rays_per_pixel = 0;
+      expect_error("tolerance beside a backend", [&] { sys.render_detector(4, 4, wl, t, "analytic"); },
+                   {"RenderOptions::tolerance_um 2 chooses the backend", "`analytic`"});
+      t.precision = diffcassi::RenderPrecision::F32;
+      expect_error("tolerance beside a precision", [&] { sys.render_detector(4, 4, wl, t); },
+                   {"RenderOptions::tolerance_um 2", "RenderOptions::precision f32"});
+      t.precision = diffcassi::RenderPrecision::Auto;
+      for (double v : {-1.0, std::nan(""), HUGE_VAL}) {
+        t.tolerance_um = v;
+        expect_error("tolerance not positive", [&] { sys.render_detector(4, 4, wl, t); }, {"RenderOptions::tolerance_um", "finite and > 0"});
+      }
+      auto p = o;
+      p.precision = static_cast<diffcassi::RenderPrecision>(7);
+      expect_error("precision out of the enum", [&] { sys.render_detector(4, 4, wl, p); }, {"RenderOptions::precision 7"});
+    }
     // The budgets are C++'s to set: a tiny ray budget refuses a 48-ray render, naming it; the default again renders.
     diffcassi::set_limits(std::nullopt, 10.0);
     expect_error("render over a set ray budget", [&] { sys.render_detector(4, 4, wl, o); }, {"over the budget of 1.000e1", "max_rays (diffcassi::set_limits)"});

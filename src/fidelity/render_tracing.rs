@@ -1,8 +1,9 @@
 //! A render's tracer, rays per pixel and precision: as the settings give them, or chosen for an error
 //! tolerance — one step every front end takes before it builds its [`crate::render::Renderer`].
 //!
-//! The CLI's `render` and `render-dataset` (`--tolerance-um`) and Python's `diffcassi.render(...,
-//! tolerance_um=)` resolve the same [`TracerSource`] here, with the same checks and the same choice
+//! The CLI's `render` and `render-dataset` (`--tolerance-um`), Python's `diffcassi.render(...,
+//! tolerance_um=)` and C++'s `System::render` (`RenderOptions::tolerance_um`) resolve the same
+//! [`TracerSource`] here, with the same checks and the same choice
 //! ([`super::choose_render_for`]): a tolerance chooses the rays per pixel and the precision itself, so it
 //! refuses rays or a precision given beside it, and the scalar kernel (f64 only, which cannot run the f32
 //! lanes it may choose). The chosen rays are checked against the ray budget before anything is traced.

@@ -1,8 +1,8 @@
 //! Reference values for the C++ bit-identity test (`cpp/tests/test_bitwise.cpp`), computed with the Rust
 //! API only (`diffcassi`, not this bridge) in a separate process: for each preset, a ray batch (seeded
 //! workload plus rays that fail in each way) and its trace, a 13×13 grid distortion, a mapping cube, a
-//! spot diagram, the batch's Jacobians for five named parameters (analytic and Embree hits) and two small
-//! renders (random mask from opening and seed; an explicit mask). Every f64 is written as its IEEE-754
+//! spot diagram, the batch's Jacobians for five named parameters (analytic and Embree hits) and three small
+//! renders (random mask from opening and seed, in f64 and in f32; an explicit mask). Every f64 is written as its IEEE-754
 //! bit pattern in hex, so the C++ side compares bits.
 //!
 //! ```text
@@ -14,7 +14,7 @@ use diffcassi::diff::{preset_alias, Param, ParamSet};
 use diffcassi::materials::GlassCatalog;
 use diffcassi::render::{AiryConfig, Mask, RenderConfig, Renderer, Sampling, SpectralSampling};
 use diffcassi::scene::SpectralCube;
-use diffcassi::tracer::BackendConfig;
+use diffcassi::tracer::{BackendConfig, Precision};
 use diffcassi::prelude::*;
 use glam::DVec3;
 use std::fmt::Write as _;
@@ -74,8 +74,9 @@ fn jacobian_record(s: &mut String, sys: &SequentialSystem, preset: &str, backend
     Ok(())
 }
 
-/// A render record: `explicit` selects the explicit mask, else the random one from (opening, seed).
-fn render_record(s: &mut String, sys: &SequentialSystem, backend: &str, explicit: bool) -> diffcassi::Result<()> {
+/// A render record: `explicit` selects the explicit mask, else the random one from (opening, seed);
+/// `precision` the ray kernel's (C++'s `RenderOptions::precision`).
+fn render_record(s: &mut String, sys: &SequentialSystem, backend: &str, precision: Precision, explicit: bool) -> diffcassi::Result<()> {
     let (h, w, wl) = (6usize, 5usize, vec![500.0, 520.0, 540.0]);
     let (planes, rays, seed, opening, mask_seed) = (6usize, 3usize, 5u64, 0.6, 2u64);
     let data = (0..h * w * wl.len()).map(|q| scene_value(q / wl.len() / w, (q / wl.len()) % w, q % wl.len())).collect();
@@ -91,11 +92,12 @@ fn render_record(s: &mut String, sys: &SequentialSystem, backend: &str, explicit
     cfg.spectral = SpectralSampling::with_planes(wl.clone(), planes)?;
     (cfg.rays_per_pixel, cfg.sampling, cfg.seed) = (rays, Sampling::Stratified, seed);
     cfg.airy = Some(AiryConfig { diameter_px: 2.5, ..AiryConfig::default() });
+    cfg.precision = precision;
     let tracer = backend.parse::<BackendConfig>()?.build()?;
     let r = Renderer::new(sys, tracer.as_ref(), cfg, mask)?;
     let acq = r.render(&scene, false, &|_| {})?;
     let d = r.detector;
-    writeln!(s, "render {backend} {h} {w} {} {planes} {rays} {seed} {} {} {mask_seed}", wl.len(), explicit as u8, hex(opening)).unwrap();
+    writeln!(s, "render {backend} {precision} {h} {w} {} {planes} {rays} {seed} {} {} {mask_seed}", wl.len(), explicit as u8, hex(opening)).unwrap();
     writeln!(s, "{}", wl.iter().map(|v| hex(*v)).collect::<Vec<_>>().join(" ")).unwrap();
     writeln!(s, "{} {} {} {} {} {} {}", d.height, d.width, hex(d.pitch_mm), hex(d.x_left_mm), hex(d.y_top_mm), acq.stats.traced, acq.stats.arrived).unwrap();
     for row in acq.image.chunks(d.width) {
@@ -159,8 +161,9 @@ fn main() -> diffcassi::Result<()> {
         for backend in ["analytic", "embree-user"] {
             jacobian_record(&mut s, &sys, preset, backend, &rays)?;
         }
-        render_record(&mut s, &sys, "analytic", false)?;
-        render_record(&mut s, &sys, if preset == "ap" { "embree-user" } else { "analytic" }, true)?;
+        render_record(&mut s, &sys, "analytic", Precision::F64, false)?;
+        render_record(&mut s, &sys, "analytic", Precision::F32, false)?;
+        render_record(&mut s, &sys, if preset == "ap" { "embree-user" } else { "analytic" }, Precision::F64, true)?;
     }
     s.push_str("end\n");
     diffcassi::io::write_atomic(std::path::Path::new(&path), s.as_bytes())?;

@@ -49,7 +49,7 @@ mod system;
 
 pub use denoise::denoise;
 pub use jacobian::Jacobian;
-pub use render::default_render_options;
+pub use render::{default_render_options, set_calibration_cache};
 pub use results::{Mapping, Rays, Spot, Traced};
 pub use system::{load_preset, load_spec_file, load_spec_string, System};
 
@@ -145,10 +145,24 @@ pub mod ffi {
         /// An object at infinity: the scene's full angular extent across its width (degrees, in (0, 180);
         /// pixels uniform in field angle; `scene_pitch_mm` unused). 0 for a finite object (the default).
         scene_fov_deg: f64,
+        /// The ray kernel's float precision (`Auto`: f64, or what `tolerance_um` chooses).
+        precision: RenderPrecision,
+        /// The error tolerance (µm, image plane) that chooses the backend, the rays per pixel and the
+        /// precision (the CLI's `--tolerance-um`): 0 for none (the default). With a tolerance,
+        /// `rays_per_pixel` must be 0, `precision` `Auto` and the backend argument empty.
+        tolerance_um: f64,
+    }
+
+    /// A render's float precision: `Auto` (f64 unless a tolerance chooses), or given.
+    #[derive(Debug)]
+    enum RenderPrecision {
+        Auto,
+        F64,
+        F32,
     }
 
     /// The detector of a render (and, after a render, its ray counts).
-    #[derive(Clone, Copy, Debug)]
+    #[derive(Clone, Debug)]
     struct RenderInfo {
         detector_height: usize,
         detector_width: usize,
@@ -159,6 +173,15 @@ pub mod ffi {
         planes: usize,
         rays_traced: u64,
         rays_arrived: u64,
+        /// What traced the render: the tracer's name as render.json's `tracer` records it (`analytic-f64`,
+        /// `analytic-f32`, `embree-user…`), the rays per pixel and the precision (`F64` or `F32`): the
+        /// options' or a tolerance's choice.
+        tracer: String,
+        rays_per_pixel: usize,
+        precision: RenderPrecision,
+        /// With a tolerance, the error its choice predicts (µm: trace error + σ/√N; render.json's
+        /// `tolerance_predicted_error_um`); 0 without one.
+        predicted_error_um: f64,
     }
 
     /// Normalised pupil points (px, py) of a pattern.
@@ -202,6 +225,10 @@ pub mod ffi {
         fn default_render_options() -> RenderOptions;
         /// The memory and ray budgets of every following call (`has_…` false: the default).
         fn set_limits(has_memory: bool, max_memory_gb: f64, has_rays: bool, max_rays: f64) -> Result<()>;
+        /// The folder of the render tolerance's calibration cache (the CLI's `--calibration-cache`) for every
+        /// following call; empty: the default (`$DIFFCASSI_CACHE_DIR`, `$XDG_CACHE_HOME/diffcassi`,
+        /// `~/.cache/diffcassi`). A path that exists and is not a folder is refused.
+        fn set_calibration_cache(dir: &str) -> Result<()>;
 
         // ---- system data
         fn name(self: &System) -> &str;

@@ -7,8 +7,17 @@
 //! `scene_pitch_mm`, bands = the scene's wavelengths, `SpectralSampling::with_planes(bands, planes)`
 //! (`planes` 0: 4 per band, the paper's), `rays_per_pixel`, stratified sampling, `seed`, detector pitch
 //! `detector_pitch_mm`, Airy blur of `airy_diameter_px` at 520 nm when `airy`; for an object at infinity,
-//! `scene_fov_deg` (the scene's angular extent across its width; 0 for a finite object). The image is
-//! `Renderer::render(..).image` of the Rust API, bit for bit.
+//! `scene_fov_deg` (the scene's angular extent across its width; 0 for a finite object), the kernel's
+//! `precision` (`Auto`: f64). The image is `Renderer::render(..).image` of the Rust API, bit for bit.
+//!
+//! **A tolerance** (`tolerance_um` > 0, the CLI's `--tolerance-um`) chooses the backend, the rays per pixel
+//! and the precision instead, as the CLI and Python do (`diffcassi::fidelity::RenderTracing`: the same
+//! choice, calibrated on this system over the render's planes and field, cached in the folder of
+//! [`set_calibration_cache`], by default where the CLI caches: `$DIFFCASSI_CACHE_DIR`, else
+//! `$XDG_CACHE_HOME/diffcassi`, else `~/.cache/diffcassi`). What it chose is
+//! in the returned [`RenderInfo`] (`tracer`, `rays_per_pixel`, `precision`, `predicted_error_um`). It needs
+//! what it chooses left open: `rays_per_pixel` 0, `precision` `Auto`, the backend argument empty (the C++
+//! wrappers' default; without a tolerance an empty backend is `analytic`).
 //!
 //! ```
 //! let sys = diffcassi_cpp::load_preset("ap")?;
@@ -25,11 +34,13 @@
 //! assert!(e.to_string().contains("output buffer"), "{e}");
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
-use crate::ffi::{RenderInfo, RenderOptions};
+use crate::ffi::{RenderInfo, RenderOptions, RenderPrecision};
 use crate::system::System;
 use diffcassi::error::{Error, Result};
-use diffcassi::render::{AiryConfig, Mask, RenderConfig, Renderer, Sampling, SpectralSampling};
+use diffcassi::fidelity::{CacheOptions, RenderTracing, TracerSource};
+use diffcassi::render::{AiryConfig, Mask, RenderConfig, RenderSettings, Renderer, Sampling, SpectralSampling};
 use diffcassi::scene::SpectralCube;
+use diffcassi::tracer::{Precision, Tracer};
 
 /// The paper's settings: 4 planes per band, 20 rays per pixel, seed 0, 10 µm scene and detector pixels,
 /// Airy disk 2.5 px at 520 nm, random mask of opening 0.5 with seed 0.
@@ -45,7 +56,58 @@ pub fn default_render_options() -> RenderOptions {
         mask_opening: 0.5,
         mask_seed: 0,
         scene_fov_deg: 0.0,
+        precision: RenderPrecision::Auto,
+        tolerance_um: 0.0,
     }
+}
+
+/// The options' precision: `None` for `Auto`. Another value of the enum (a C++ caller can cast any
+/// integer into it) is refused.
+fn given_precision(o: &RenderOptions) -> Result<Option<Precision>> {
+    match o.precision {
+        RenderPrecision::Auto => Ok(None),
+        RenderPrecision::F64 => Ok(Some(Precision::F64)),
+        RenderPrecision::F32 => Ok(Some(Precision::F32)),
+        other => Err(Error::invalid(format!("render: RenderOptions::precision {}: not Auto, F64 or F32", other.repr))),
+    }
+}
+
+fn precision_of(p: Precision) -> RenderPrecision {
+    match p {
+        Precision::F64 => RenderPrecision::F64,
+        Precision::F32 => RenderPrecision::F32,
+    }
+}
+
+/// The calibration cache's folder set by [`set_calibration_cache`]; `None`: the default.
+static CALIBRATION_CACHE: std::sync::Mutex<Option<std::path::PathBuf>> = std::sync::Mutex::new(None);
+
+/// Set the folder of the tolerance's calibration cache for every following render (empty: the default
+/// folder); refused when the path exists and is not a folder ([`CacheOptions::checked`]).
+pub fn set_calibration_cache(dir: &str) -> Result<()> {
+    crate::results::name_budgets();
+    crate::system::no_nul("calibration cache", dir)?;
+    let dir = (!dir.is_empty()).then(|| std::path::PathBuf::from(dir));
+    CacheOptions::checked(dir.as_deref())?;
+    *CALIBRATION_CACHE.lock().unwrap_or_else(|p| p.into_inner()) = dir;
+    Ok(())
+}
+
+fn calibration_cache() -> Result<CacheOptions> {
+    let dir = CALIBRATION_CACHE.lock().unwrap_or_else(|p| p.into_inner()).clone();
+    CacheOptions::checked(dir.as_deref())
+}
+
+/// The tolerance of the options: `None` for 0; else finite and > 0 (as `--tolerance-um`).
+fn tolerance(o: &RenderOptions) -> Result<Option<f64>> {
+    let t = o.tolerance_um;
+    if t == 0.0 {
+        return Ok(None);
+    }
+    if !(t.is_finite() && t > 0.0) {
+        return Err(Error::invalid(format!("render: RenderOptions::tolerance_um {}: must be finite and > 0 (0 for none)", diffcassi::limits::fmt_num(t))));
+    }
+    Ok(Some(t))
 }
 
 /// The Rust render settings the options describe.
@@ -55,8 +117,9 @@ pub fn render_config(height: usize, width: usize, wavelengths_nm: &[f64], o: &Re
         return Err(Error::invalid("render: no scene wavelengths"));
     }
     let planes = if o.planes == 0 { 4 * wavelengths_nm.len() } else { o.planes };
-    if o.rays_per_pixel == 0 {
-        return Err(Error::invalid("render: rays per pixel must be ≥ 1"));
+    let tolerance_um = tolerance(o)?;
+    if o.rays_per_pixel == 0 && tolerance_um.is_none() {
+        return Err(Error::invalid("render: rays per pixel must be ≥ 1 (0 only with RenderOptions::tolerance_um, which chooses them)"));
     }
     for (what, v) in [("scene pitch", o.scene_pitch_mm), ("detector pitch", o.detector_pitch_mm)] {
         if !(v.is_finite() && v > 0.0) {
@@ -73,7 +136,12 @@ pub fn render_config(height: usize, width: usize, wavelengths_nm: &[f64], o: &Re
     cfg.scene_pitch_mm = o.scene_pitch_mm;
     cfg.detector_pitch_mm = o.detector_pitch_mm;
     cfg.spectral = SpectralSampling::with_planes(wavelengths_nm.to_vec(), planes)?;
-    cfg.rays_per_pixel = o.rays_per_pixel;
+    // A tolerance's rays are set and checked against the budget when it has chosen them.
+    cfg.rays_per_pixel = o.rays_per_pixel.max(1);
+    cfg.precision = given_precision(o)?.unwrap_or_default();
+    if cfg.precision == Precision::F32 {
+        cfg.precision.level(cfg.kernel)?; // the f32 lanes of the SIMD kernel (there is no scalar f32)
+    }
     cfg.sampling = Sampling::Stratified;
     cfg.seed = o.seed;
     cfg.airy = o.airy.then_some(AiryConfig { diameter_px: o.airy_diameter_px, ..AiryConfig::default() });
@@ -85,7 +153,7 @@ pub fn render_config(height: usize, width: usize, wavelengths_nm: &[f64], o: &Re
     }
     // The memory and ray budgets the CLI and Python check (1e5×1e5 scenes and 2⁴⁰ rays per pixel aborted the
     // process on allocation; a held-out battery, round 9).
-    diffcassi::render::settings::check_render_budget(height, width, &cfg, o.rays_per_pixel)?;
+    diffcassi::render::settings::check_render_budget(height, width, &cfg, cfg.rays_per_pixel)?;
     Ok(cfg)
 }
 
@@ -104,7 +172,7 @@ pub fn render_mask(height: usize, width: usize, values: &[f32], o: &RenderOption
     Ok(Mask { height, width, values: values.to_vec(), description: "caller-provided".into() })
 }
 
-fn info(r: &Renderer<'_>, traced: u64, arrived: u64) -> RenderInfo {
+fn info(r: &Renderer<'_>, tracing: &Tracing, traced: u64, arrived: u64) -> RenderInfo {
     RenderInfo {
         detector_height: r.detector.height,
         detector_width: r.detector.width,
@@ -114,17 +182,67 @@ fn info(r: &Renderer<'_>, traced: u64, arrived: u64) -> RenderInfo {
         planes: r.config.spectral.planes(),
         rays_traced: traced,
         rays_arrived: arrived,
+        tracer: r.tracer_name(),
+        rays_per_pixel: r.config.rays_per_pixel,
+        precision: precision_of(r.config.precision),
+        predicted_error_um: tracing.predicted_error_um(),
+    }
+}
+
+/// A render's tracer: the backend named (from the system's cache of backends), or a tolerance's choice.
+enum Tracing {
+    Named(std::sync::Arc<dyn Tracer>),
+    Chosen(RenderTracing),
+}
+
+impl Tracing {
+    fn tracer(&self) -> &dyn Tracer {
+        match self {
+            Tracing::Named(t) => t.as_ref(),
+            Tracing::Chosen(c) => c.tracer.as_ref(),
+        }
+    }
+
+    fn predicted_error_um(&self) -> f64 {
+        match self {
+            Tracing::Named(_) => 0.0,
+            Tracing::Chosen(c) => c.predicted_error_um.unwrap_or(0.0),
+        }
     }
 }
 
 impl System {
+    /// The tracer of a render with `options`, `cfg` its configuration: the backend named (an empty name is
+    /// `analytic`), or, with a tolerance, the library's choice ([`RenderTracing::resolve`], which sets
+    /// `cfg`'s rays per pixel and precision; it refuses rays or a precision given beside the tolerance).
+    fn render_tracing(&self, backend: &str, options: &RenderOptions, cfg: &mut RenderConfig, mask: &Mask) -> Result<Tracing> {
+        let Some(tolerance_um) = tolerance(options)? else {
+            let name = if backend.is_empty() { "analytic" } else { backend };
+            return Ok(Tracing::Named(self.backends.get(self.system(), name)?));
+        };
+        if !backend.is_empty() {
+            return Err(Error::invalid(format!(
+                "render: RenderOptions::tolerance_um {} chooses the backend itself; it cannot be combined with the backend `{backend}` (pass an empty backend)",
+                diffcassi::limits::fmt_num(tolerance_um)
+            )));
+        }
+        // What the tolerance chooses, as given (the checks of `resolve`); the rest of the settings are `cfg`'s.
+        let settings = RenderSettings { rays: (options.rays_per_pixel != 0).then_some(options.rays_per_pixel), precision: given_precision(options)?, ..RenderSettings::default() };
+        let source = TracerSource::Tolerance { tolerance_um, cache: calibration_cache()? };
+        Ok(Tracing::Chosen(RenderTracing::resolve(source, self.system(), &settings, cfg, mask)?))
+    }
+
     /// The detector a render with these settings produces (size the output buffer with it). Cheap
-    /// relative to the render (chief rays of the scene's corners and edges only), deterministic.
+    /// relative to the render (chief rays of the scene's corners and edges only), deterministic; with a
+    /// tolerance, the choice is made first (a calibration the first time, cached: see the module's docs).
     pub fn render_detector(&self, backend: &str, height: usize, width: usize, wavelengths_nm: &[f64], options: &RenderOptions) -> Result<RenderInfo> {
-        let cfg = render_config(height, width, wavelengths_nm, options)?;
-        let tracer = self.backends.get(self.system(), backend)?;
-        let r = Renderer::new(self.system(), tracer.as_ref(), cfg, Mask::open(height, width))?;
-        Ok(info(&r, 0, 0))
+        let mut cfg = render_config(height, width, wavelengths_nm, options)?;
+        // A tolerance's choice weighs the rays the open pixels cost: those of the options' random mask (a
+        // caller's mask may tip it to another backend, whose detector is the same but for Embree's f32 hits).
+        let mask = if options.tolerance_um != 0.0 { render_mask(height, width, &[], options)? } else { Mask::open(height, width) };
+        let tracing = self.render_tracing(backend, options, &mut cfg, &mask)?;
+        let r = Renderer::new(self.system(), tracing.tracer(), cfg, mask)?;
+        Ok(info(&r, &tracing, 0, 0))
     }
 
     /// Render the coded acquisition of `scene` into `out` (detector height × width, row-major).
@@ -145,8 +263,9 @@ impl System {
         let cube = SpectralCube::new(height, width, wavelengths_nm.to_vec(), scene.to_vec(), "render scene")?;
         // The radiance range the CLI and Python take (3.4e38 rendered inf, negative values negative pixels).
         diffcassi::render::settings::check_scene_values(&cube).map_err(|e| Error::invalid(format!("render: {e}")))?;
-        let tracer = self.backends.get(self.system(), backend)?;
-        let r = Renderer::new(self.system(), tracer.as_ref(), cfg, mask)?;
+        let mut cfg = cfg;
+        let tracing = self.render_tracing(backend, options, &mut cfg, &mask)?;
+        let r = Renderer::new(self.system(), tracing.tracer(), cfg, mask)?;
         let pixels = r.detector.pixels();
         if out.len() != pixels {
             return Err(Error::invalid(format!(
@@ -158,12 +277,14 @@ impl System {
         }
         let acq = r.render(&cube, false, &|_| {})?;
         out.copy_from_slice(&acq.image);
-        Ok(info(&r, acq.stats.traced, acq.stats.arrived))
+        Ok(info(&r, &tracing, acq.stats.traced, acq.stats.arrived))
     }
 }
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     /// The library's refusals name the C++ settings (`RenderOptions::scene_fov_deg`), not the command line's
     /// options (`--scene-fov-deg`): the bridge declares itself the C++ front end (`diffcassi::frontend`) on its
     /// first call. An Airy diameter beyond the CLI's limit is named as such (it was a memory refusal).
@@ -183,5 +304,48 @@ mod tests {
         assert!(e.contains("raise max_rays (diffcassi::set_limits)") && !e.contains("--"), "{e}");
         let e = refused(&|o| o.airy_diameter_px = 1e9);
         assert!(e.contains("Airy diameter 1e9 px must be finite and in (0, 100]"), "{e}");
+    }
+
+    /// A tolerance renders what the library's choice renders (`RenderTracing::resolve`, the CLI's and
+    /// Python's step), bit for bit, and the render's info says what it chose; the choice's calibration is
+    /// cached in the folder set; an f32 precision is the f32 lanes' render.
+    #[test]
+    fn a_tolerance_renders_the_librarys_choice_and_says_what_it_chose() {
+        use diffcassi::fidelity::{CacheOptions, RenderTracing, TracerSource};
+        let dir = std::env::temp_dir().join(format!("diffcassi-cpp-cache-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        crate::set_calibration_cache(dir.to_str().unwrap()).unwrap();
+        let sys = crate::load_preset("sp").unwrap();
+        let (h, w, wl) = (6usize, 5usize, [500.0, 520.0, 540.0]);
+        let scene: Vec<f32> = (0..h * w * 3).map(|q| 0.2 + (q % 7) as f32 * 0.1).collect();
+        let mut o = crate::default_render_options();
+        (o.planes, o.rays_per_pixel, o.tolerance_um) = (3, 0, 5.0);
+        let d = sys.render_detector("", h, w, &wl, &o).unwrap();
+        let mut image = vec![0.0; d.detector_height * d.detector_width];
+        let got = sys.render("", h, w, &wl, &scene, &[], &o, &mut image).unwrap();
+        assert!(std::fs::read_dir(&dir).unwrap().count() > 0, "no calibration cached in {}", dir.display());
+        // The library's own step, on the same cache.
+        let mut cfg = render_config(h, w, &wl, &o).unwrap();
+        let mask = render_mask(h, w, &[], &o).unwrap();
+        let source = TracerSource::Tolerance { tolerance_um: 5.0, cache: CacheOptions::checked(Some(&dir)).unwrap() };
+        let settings = RenderSettings { rays: None, precision: None, ..RenderSettings::default() };
+        let t = RenderTracing::resolve(source, sys.system(), &settings, &mut cfg, &mask).unwrap();
+        let r = Renderer::new(sys.system(), t.tracer.as_ref(), cfg, mask).unwrap();
+        let cube = SpectralCube::new(h, w, wl.to_vec(), scene.clone(), "s").unwrap();
+        assert_eq!(image, r.render(&cube, false, &|_| {}).unwrap().image);
+        assert_eq!((got.rays_per_pixel, got.precision, got.tracer.as_str()), (t.rays_per_pixel, precision_of(t.precision), r.tracer_name().as_str()));
+        assert!(got.predicted_error_um > 0.0 && got.predicted_error_um <= 5.0, "{}", got.predicted_error_um);
+        assert_eq!((d.detector_height, d.detector_width), (got.detector_height, got.detector_width));
+        // Without a tolerance an empty backend is the analytic tracer; F32 its f32 lanes, recorded as such.
+        (o.rays_per_pixel, o.tolerance_um, o.precision) = (2, 0.0, RenderPrecision::F32);
+        let f32_info = sys.render("", h, w, &wl, &scene, &[], &o, &mut image).unwrap();
+        assert_eq!((f32_info.tracer.as_str(), f32_info.precision, f32_info.rays_per_pixel, f32_info.predicted_error_um), ("analytic-f32", RenderPrecision::F32, 2, 0.0));
+        // A file as the cache is refused, and the folder set stays.
+        let file = dir.join("not-a-folder");
+        std::fs::write(&file, b"x").unwrap();
+        let e = crate::set_calibration_cache(file.to_str().unwrap()).err().unwrap().to_string();
+        assert!(e.contains("not a directory"), "{e}");
+        crate::set_calibration_cache("").unwrap();
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -964,6 +964,7 @@ namespace diffcassi {
     struct DistortionPoint;
     struct DistortionGrid;
     struct RenderOptions;
+    enum class RenderPrecision : ::std::uint8_t;
     struct RenderInfo;
     struct PupilPoints;
     struct System;
@@ -1082,10 +1083,26 @@ struct RenderOptions final {
   // An object at infinity: the scene's full angular extent across its width (degrees, in (0, 180);
   // pixels uniform in field angle; `scene_pitch_mm` unused). 0 for a finite object (the default).
   double scene_fov_deg CXX_DEFAULT_VALUE(0);
+  // The ray kernel's float precision (`Auto`: f64, or what `tolerance_um` chooses).
+  ::diffcassi::ffi::RenderPrecision precision;
+  // The error tolerance (µm, image plane) that chooses the backend, the rays per pixel and the
+  // precision (the CLI's `--tolerance-um`): 0 for none (the default). With a tolerance,
+  // `rays_per_pixel` must be 0, `precision` `Auto` and the backend argument empty.
+  double tolerance_um CXX_DEFAULT_VALUE(0);
 
   using IsRelocatable = ::std::true_type;
 };
 #endif // CXXBRIDGE1_STRUCT_diffcassi$ffi$RenderOptions
+
+#ifndef CXXBRIDGE1_ENUM_diffcassi$ffi$RenderPrecision
+#define CXXBRIDGE1_ENUM_diffcassi$ffi$RenderPrecision
+// A render's float precision: `Auto` (f64 unless a tolerance chooses), or given.
+enum class RenderPrecision : ::std::uint8_t {
+  Auto = 0,
+  F64 = 1,
+  F32 = 2,
+};
+#endif // CXXBRIDGE1_ENUM_diffcassi$ffi$RenderPrecision
 
 #ifndef CXXBRIDGE1_STRUCT_diffcassi$ffi$RenderInfo
 #define CXXBRIDGE1_STRUCT_diffcassi$ffi$RenderInfo
@@ -1100,6 +1117,15 @@ struct RenderInfo final {
   ::std::size_t planes CXX_DEFAULT_VALUE(0);
   ::std::uint64_t rays_traced CXX_DEFAULT_VALUE(0);
   ::std::uint64_t rays_arrived CXX_DEFAULT_VALUE(0);
+  // What traced the render: the tracer's name as render.json's `tracer` records it (`analytic-f64`,
+  // `analytic-f32`, `embree-user…`), the rays per pixel and the precision (`F64` or `F32`): the
+  // options' or a tolerance's choice.
+  ::rust::String tracer;
+  ::std::size_t rays_per_pixel CXX_DEFAULT_VALUE(0);
+  ::diffcassi::ffi::RenderPrecision precision;
+  // With a tolerance, the error its choice predicts (µm: trace error + σ/√N; render.json's
+  // `tolerance_predicted_error_um`); 0 without one.
+  double predicted_error_um CXX_DEFAULT_VALUE(0);
 
   using IsRelocatable = ::std::true_type;
 };
@@ -1332,6 +1358,11 @@ void denoise(::rust::Slice<float const> cube, ::std::size_t height, ::std::size_
 
 // The memory and ray budgets of every following call (`has_…` false: the default).
 void set_limits(bool has_memory, double max_memory_gb, bool has_rays, double max_rays);
+
+// The folder of the render tolerance's calibration cache (the CLI's `--calibration-cache`) for every
+// following call; empty: the default (`$DIFFCASSI_CACHE_DIR`, `$XDG_CACHE_HOME/diffcassi`,
+// `~/.cache/diffcassi`). A path that exists and is not a folder is refused.
+void set_calibration_cache(::rust::Str dir);
 } // namespace ffi
 } // namespace diffcassi
 

@@ -108,6 +108,7 @@ using DistortionPoint = ffi::DistortionPoint;
 using DistortionGrid = ffi::DistortionGrid;
 using RenderOptions = ffi::RenderOptions;
 using RenderInfo = ffi::RenderInfo;
+using RenderPrecision = ffi::RenderPrecision;
 
 namespace detail {
 // Run a bridge call; a Rust error (rust::Error) or text that is not UTF-8 (rust::Str) becomes diffcassi::Error.
@@ -306,7 +307,9 @@ class Jacobian {
 };
 
 /// The paper's render settings (4 planes per band, 20 rays per pixel, seed 0, 10 µm pixels, Airy 2.5 px at
-/// 520 nm, random mask of opening 0.5, seed 0); change the fields you need.
+/// 520 nm, random mask of opening 0.5, seed 0, precision Auto: f64, no tolerance); change the fields you need.
+/// For the speed/accuracy choice (the CLI's --tolerance-um), set tolerance_um (µm) and rays_per_pixel = 0 and
+/// leave the backend argument empty: the render's RenderInfo says what was chosen.
 inline RenderOptions default_render_options() { return ffi::default_render_options(); }
 
 /// A hyperspectral scene held by the caller: height × width × bands floats, C order [row][col][band]
@@ -426,15 +429,17 @@ class System {
   // ---- rendering
   /// The detector a render of a height × width scene at these band wavelengths produces: size the output
   /// buffer render_into needs as detector_height * detector_width doubles.
+  /// An empty backend: analytic, or the choice of options.tolerance_um.
   RenderInfo render_detector(std::size_t height, std::size_t width, const View<double>& wavelengths_nm, const RenderOptions& options,
-                             std::string_view backend = "analytic") const {
+                             std::string_view backend = "") const {
     return detail::call([&] { return raw_->render_detector(detail::str(backend), height, width, detail::slice(wavelengths_nm), options); });
   }
   /// Render the coded acquisition of `scene` through the mask (height × width transmissions in [0, 1];
   /// an empty view: the random mask of options.mask_opening / mask_seed) into `out` (row-major detector
-  /// image, exactly render_detector's size, else diffcassi::Error). Returns the detector and ray counts.
+  /// image, exactly render_detector's size, else diffcassi::Error). Returns the detector, the ray counts and
+  /// what traced them (tracer, rays per pixel, precision; a tolerance's predicted error).
   RenderInfo render_into(const SceneView& scene, View<float> mask, const RenderOptions& options, double* out, std::size_t out_size,
-                         std::string_view backend = "analytic") const {
+                         std::string_view backend = "") const {
     return detail::call([&] {
       return raw_->render(detail::str(backend), scene.height, scene.width, detail::slice(scene.wavelengths_nm), detail::slice(scene.values),
                           detail::slice(mask), options, rust::Slice<double>(out, out_size));
@@ -442,7 +447,7 @@ class System {
   }
   /// render_detector + render_into into a new vector.
   std::vector<double> render(const SceneView& scene, View<float> mask, const RenderOptions& options, RenderInfo* info = nullptr,
-                             std::string_view backend = "analytic") const {
+                             std::string_view backend = "") const {
     const auto d = render_detector(scene.height, scene.width, scene.wavelengths_nm, options, backend);
     std::vector<double> out(d.detector_height * d.detector_width);
     const auto done = render_into(scene, mask, options, out.data(), out.size(), backend);
@@ -488,6 +493,13 @@ inline std::vector<float> denoise(View<float> cube, std::size_t height, std::siz
 /// memory; 2e10 rays). Both are replaced at each call; a bad value throws and leaves them as they were.
 inline void set_limits(std::optional<double> max_memory_gb = std::nullopt, std::optional<double> max_rays = std::nullopt) {
   detail::call([&] { ffi::set_limits(max_memory_gb.has_value(), max_memory_gb.value_or(0.0), max_rays.has_value(), max_rays.value_or(0.0)); });
+}
+
+/// The folder of the render tolerance's calibration cache (RenderOptions::tolerance_um; the CLI's
+/// --calibration-cache) for every following call; empty: the default ($DIFFCASSI_CACHE_DIR, else
+/// $XDG_CACHE_HOME/diffcassi, else ~/.cache/diffcassi). A path that exists and is not a folder is refused.
+inline void set_calibration_cache(std::string_view dir = "") {
+  detail::call([&] { ffi::set_calibration_cache(detail::str(dir)); });
 }
 
 /// `count` evenly spaced values from `first` to `last` (both included); non-finite ends, or a count beyond the
