@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json as _json
 import os
+import re
 from typing import Any, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -175,10 +176,10 @@ def render(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float], m
                                 calibration_cache=None if calibration_cache is None else os.fspath(calibration_cache), **nz)
     info = _json.loads(info)
     import warnings
-    for text in info.pop("warnings", []):  # the CLI's: an exposure below an electron, a zero acquisition
+    # The CLI's: an exposure below an electron, a zero acquisition, planes beyond the scene's bands (held at
+    # its end band), a dual disperser's dark planes, the f32 kernel's rounding.
+    for text in info.pop("warnings", []):
         warnings.warn(text, stacklevel=2)
-    if "spectral_extrapolation" in info:  # planes beyond the scene's bands, held at its end band (as the CLI warns)
-        warnings.warn(info["spectral_extrapolation"]["message"], stacklevel=2)
     return acq, info
 
 
@@ -343,14 +344,17 @@ def metrics(truth: np.ndarray, estimate: np.ndarray, truth_wavelengths_nm: Optio
     convention: a truth beyond 1, or an infinite PSNR with a non-zero RMSE (the cubes differ only outside
     [0, 1]), gives a ``UserWarning`` saying so (those numbers are not meaningful then)."""
     d = _json.loads(_native._metrics(truth, estimate, truth_wavelengths_nm, estimate_wavelengths_nm))
-    m = d.get("metrics", d)
+    # One flat dict either way, as `evaluate --json` (with wavelengths the library nests the metrics under
+    # "metrics", and m["psnr_db"] raised KeyError; round 15).
+    m = dict(d.get("metrics", d))
+    m.update({k: v for k, v in d.items() if k != "metrics"})
     for k in ("psnr_db", "psnr_band_db"):
         if m.get(k) is None:
             m[k] = float("inf")
     import warnings
     for w in d.get("warnings", []):  # the library's (recon::metrics::clamp_warning), as `diffcassi evaluate` prints them
         warnings.warn(f"metrics: {w}", UserWarning, stacklevel=2)
-    return d
+    return m
 
 
 def mapping_operator(system: System, height: int, width: int, mask: Optional[np.ndarray] = None,
@@ -390,7 +394,10 @@ def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, s
     a noiseless acquisition), ``noise_factor`` = :func:`spread_noise_factor` (1 for equal ray counts).
     Returns ``(cube, record)``; the record holds the settings, per-iteration residuals, seconds and
     ``stopping`` (the rule, τ, δ, the cap, ``iterations_run``, ``stopped_by``, ``noise_estimator``,
-    ``noise_norm_per_estimate``), as ``reconstruct.json``. An unknown keyword is a DiffcassiValueError naming it
+    ``noise_norm_per_estimate``), as ``reconstruct.json``'s ``stopping`` — the record is the solver's
+    (``residuals`` per iteration, the settings at its top level), not the file's whole layout (which adds the
+    render's provenance, ``residual``, and the settings under ``solver_settings``). ``noise_factor`` is at most
+    1e6 (:func:`spread_noise_factor` of ray counts within the budget is ≤ ~1e5). An unknown keyword is a DiffcassiValueError naming it
     and the valid ones (those of the native solve's signature); so is a keyword of another solver (the PnP ones,
     ``accelerated`` or ``admm_eta`` where they do not apply), never ignored."""
     # The keywords the native solve takes, read from its own signature (PyO3's text signature of `_reconstruct`,
@@ -483,7 +490,13 @@ def study(out: Union[str, "os.PathLike[str]"], **settings: Any) -> Dict[str, Any
     (``iterations``, ``tv_weight``, ``denoiser``, ``weights``, …), ``force``. Lists are a comma string or a
     sequence. Returns ``{"computed", "skipped", "seconds", "table"}``; bad settings raise
     ``DiffcassiValueError`` / ``DiffcassiFileError`` before anything is written."""
-    return _json.loads(_native._study(os.fspath(out), **settings))
+    try:
+        return _json.loads(_native._study(os.fspath(out), **settings))
+    except DiffcassiError as e:
+        # The library names the render bands as render's keyword (``bands_nm``); study's is ``bands``.
+        if "bands_nm" in str(e):
+            raise type(e)(re.sub(r"\bbands_nm\b", "bands", str(e))) from None
+        raise
 
 
 __all__ += ["study"]

@@ -352,6 +352,7 @@ class CassiOperator(_DeviceChecked):
         indptr, indices, data, shape = op.to_csr_arrays(memory_gb)
         t = cls(indptr, indices, data, shape, op.cube_shape, op.image_shape, _source=f"{op!r}", device=dev)
         t.bands_nm = _operator_bands_nm(op)
+        t.system = op.system  # the System it was built from (None for one read from a file): load_unrolled checks it
         return t
 
     @classmethod

@@ -641,8 +641,10 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
     *and* prescription, where the file records it); ``mask`` (when given)
     equal to the training mask (SHA-256); every tensor present with its shape, finite, and no other.
 
-    For ``unrolled-dauhst-v2`` the system is **required** and a mismatch is **refused** (an error, not a warning):
-    a network trained for one system is never run on another system's acquisition."""
+    ``system`` defaults to the system ``phi``'s operator was built from, where it knows it (``exact``,
+    ``mapping_operator``, ``shift_operator``; not an operator read from a file). For ``unrolled-dauhst-v2`` the
+    system is **required** and a mismatch is **refused** (an error, not a warning): a network trained for one
+    system is never run on another system's acquisition; so is a v1 network whose operator names its system."""
     if not hasattr(phi, "cube_shape"):
         # Checked before the file is read (phi=None raised AttributeError after it, issue 39).
         raise TypeError(f"load_unrolled: phi: expected a diffcassi.torch.CassiOperator (or its matrix-free form), "
@@ -675,6 +677,11 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
                 raise _Error(f"unrolled weights {path}: metadata bands_nm: band {k} is {trained[k]:g} nm, the operator's "
                              f"is {float(here[k]):g} nm (tolerance {_WAVELENGTH_TOLERANCE_NM} nm): trained for other "
                              "wavelengths (refused)")
+    if system is None:
+        # The operator's own system, where it knows it (one built by exact, mapping_operator or shift_operator):
+        # weights for another system are refused, as `reconstruct --weights` refuses them (an msp operator ran sp's
+        # v1 weights in silence; a held-out battery, round 15).
+        system = getattr(phi, "system", None) or getattr(getattr(phi, "op", None), "system", None)
     if system is None and arch == ARCH_V2:
         raise _Error(f"unrolled weights {path}: name the system of the acquisition (system='sp', … or a "
                      f"diffcassi.System): a {ARCH_V2} network is refused for any system but {meta.get('system')!r}")

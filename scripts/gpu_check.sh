@@ -18,7 +18,7 @@
 # used): no nvidia-smi or nvcc, the host twin stands in for the device (render_check.py --dry-run) on small renders
 # (DRY_SIZE, default 32: 4 planes, 2 rays), torch_check.py --cpu at tiny sizes; the tables say DRY RUN and no
 # figure is a GPU's. PYTHON names the interpreter (default python3; a venv is fine, as on the GPU machine).
-# Budget: CHECK_BUDGET_S seconds in all (default 400, under the 420 s `timeout` of the prepared device command and the
+# Budget: CHECK_BUDGET_S seconds in all (default 400; scripts/gpu/session.sh gives it 20 s under its own cap, and the
 # issue's 8 minutes): each step is capped at its own limit (render 300 s, --systems 150 s, torch 240 s) and at
 # what is left of the budget, so the caps can never add up past it (they summed to 810 s); a step with under
 # 20 s left is not started and counts as a failure. The host twin dominates on few cores (RENDER_ARGS=--no-twin
@@ -71,16 +71,28 @@ else
     render_args=()
     systems_args=()
     torch_args=()
-    # A driver older than the NVRTC that wrote the embedded PTX refuses it: the launcher then reads DIFFCASSI_PTX,
-    # built here with the machine's own nvcc from the kernel source the wheel carries.
-    if command -v nvcc >/dev/null 2>&1 && [[ -z "${DIFFCASSI_PTX:-}" ]]; then
-        if "$vpy" -c 'import diffcassi._native as n; print(n._gpu_kernel_source())' > "$work/kernels.cu" \
-            && nvcc -ptx -arch=compute_90 --fmad=false -o "$work/kernels.ptx" "$work/kernels.cu" 2> "$out/nvcc.txt"; then
-            export DIFFCASSI_PTX="$work/kernels.ptx"
-        else
-            echo "gpu_check: nvcc could not build the fallback PTX ($out/nvcc.txt); the embedded PTX only"
-        fi
+    # The embedded PTX is NVRTC 13.0's (ISA 9.0), which a CUDA 13.0 driver (the GPU machine's 580.159) takes. A driver
+    # older than that refuses it: the launcher then reads DIFFCASSI_PTX, built here with the machine's own nvcc from
+    # the kernel source the wheel carries, then tries the machine's NVRTC, which it looks up on the loader path:
+    # torch's pip copy (nvidia/cu13/lib) is on none, so its folder is added.
+    nvrtc_dir="$("$vpy" -c 'import glob, os, nvidia; print(next((os.path.dirname(p) for d in nvidia.__path__ for p in sorted(glob.glob(os.path.join(d, "cu*", "lib", "libnvrtc.so.*")))), ""))' 2>/dev/null)"
+    if [[ -n "$nvrtc_dir" ]]; then
+        export LD_LIBRARY_PATH="${LD_LIBRARY_PATH:+$LD_LIBRARY_PATH:}$nvrtc_dir"
     fi
+    if [[ -n "${DIFFCASSI_PTX:-}" ]]; then
+        echo "gpu_check: DIFFCASSI_PTX=$DIFFCASSI_PTX given: the launcher's fallback after the embedded PTX"
+    elif command -v nvcc >/dev/null 2>&1; then
+        if "$vpy" -c 'import diffcassi._native as n; print(n._gpu_kernel_source())' > "$work/kernels.cu" \
+            && nvcc -ptx -arch=compute_90 --fmad=false -o "$work/kernels.ptx" "$work/kernels.cu" 2> "$work/nvcc.txt"; then
+            export DIFFCASSI_PTX="$work/kernels.ptx"
+            echo "gpu_check: $(nvcc --version | tail -1): a fallback PTX for a driver that refuses the embedded one"
+        else
+            echo "gpu_check: nvcc could not build the fallback PTX: $(head -c 2000 "$work/nvcc.txt")"
+        fi
+    else
+        echo "gpu_check: no nvcc on PATH: no fallback PTX file"
+    fi
+    echo "gpu_check: NVRTC for the launcher's last fallback: ${nvrtc_dir:-none found beside torch}"
 fi
 status=0
 budget="${CHECK_BUDGET_S:-400}"

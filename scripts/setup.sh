@@ -77,9 +77,10 @@ python_setup() {
         "$venv/bin/pip" install -q "${missing_py[@]}" || die "pip install ${missing_py[*]} into .venv failed"
         echo "setup.sh: installed into .venv: ${missing_py[*]}"
     fi
-    # The GPU kernels' device build (docs/gpu.md, scripts/gpu/build_ptx.py): NVRTC comes with torch
-    # (nvidia-cuda-nvrtc); ptxas, which assembles the PTX so that compile errors, registers and spills show
-    # without a GPU, from nvidia-cuda-nvcc at NVRTC's own version (no GPU or driver is needed for either).
+    # The GPU kernels' device build (docs/gpu.md, scripts/gpu/build_ptx.py): NVRTC and ptxas at CUDA 13.0, the
+    # GPU machine's driver (580.159: a driver takes the PTX ISA of its own CUDA version and older ones, and NVRTC
+    # 13.2 — torch's — writes ISA 9.2, which that driver refuses), in a folder of their own (.venv/cuda-ptx:
+    # torch pins its own NVRTC). No GPU or driver is needed for either.
     [[ "${DIFFCASSI_TORCH:-install}" == skip ]] && return 0
     # The GPU machine has no colour-science and no network: scripts/gpu/train_run.sh installs the wheel carried in
     # .whl/ (pure Python, 9 MB), downloaded here from PyPI at the version .venv holds. Not needed by the tests: a
@@ -93,17 +94,13 @@ python_setup() {
             echo "setup.sh: warning: could not download colour-science $cs_version's wheel into .whl/ (only a GPU training run needs it)" >&2
         fi
     fi
-    local nvrtc_version nvcc_version
-    nvrtc_version=$("$venv/bin/python" -c "import importlib.metadata as m; print(m.version('nvidia-cuda-nvrtc'))" 2>/dev/null) || nvrtc_version=""
-    if [[ -z "$nvrtc_version" ]]; then
-        "$venv/bin/pip" install -q "nvidia-cuda-nvrtc==13.2.86" || die "pip install nvidia-cuda-nvrtc into .venv failed"
-        nvrtc_version=13.2.86
-        echo "setup.sh: installed into .venv: nvidia-cuda-nvrtc $nvrtc_version"
-    fi
-    nvcc_version=$("$venv/bin/python" -c "import importlib.metadata as m; print(m.version('nvidia-cuda-nvcc'))" 2>/dev/null) || nvcc_version=""
-    if [[ "$nvcc_version" != "$nvrtc_version" ]]; then
-        "$venv/bin/pip" install -q --no-deps "nvidia-cuda-nvcc==$nvrtc_version" || die "pip install nvidia-cuda-nvcc==$nvrtc_version into .venv failed"
-        echo "setup.sh: installed into .venv: nvidia-cuda-nvcc $nvrtc_version (ptxas)"
+    local ptx_dir="$venv/cuda-ptx" ptx_version=13.0.88
+    if [[ "$(cat "$ptx_dir/VERSION" 2>/dev/null)" != "$ptx_version" ]]; then
+        rm -rf "$ptx_dir"
+        "$venv/bin/pip" install -q --disable-pip-version-check --no-deps --target "$ptx_dir" \
+            "nvidia-cuda-nvrtc==$ptx_version" "nvidia-cuda-nvcc==$ptx_version" || die "pip install of NVRTC and ptxas $ptx_version into $ptx_dir failed"
+        echo "$ptx_version" > "$ptx_dir/VERSION"
+        echo "setup.sh: installed NVRTC and ptxas $ptx_version (the GPU machine's CUDA 13.0) into .venv/cuda-ptx"
     fi
 }
 

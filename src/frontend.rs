@@ -64,11 +64,11 @@ const fn s(cli: &'static str, python: &'static str, cpp: Option<&'static str>) -
 
 /// Every setting a front end spells otherwise than `--option`: `render`'s and its noise's (the Python keywords
 /// of `diffcassi.render`/`diffcassi.exact`, `render::settings::RENDER_KEYS`; C++'s `RenderOptions`),
-/// `reconstruct`'s, and `study`'s (`diffcassi.study`'s keywords). `--bands` is `render`'s `bands_nm` and
-/// `study`'s `bands` in Python: spelled as both.
+/// `reconstruct`'s, and `study`'s (`diffcassi.study`'s keywords). `--bands` is `render`'s `bands_nm` in Python
+/// (`diffcassi.study`, whose keyword is `bands`, respells it; "bands_nm (study: bands)" read awkwardly).
 pub const SETTINGS: &[Setting] = &[
     // render and its noise
-    s("bands", "bands_nm (study: bands)", Some("the scene's wavelengths_nm")),
+    s("bands", "bands_nm", Some("the scene's wavelengths_nm")),
     s("planes", "planes", Some("RenderOptions::planes")),
     s("rays", "rays", Some("RenderOptions::rays_per_pixel")),
     s("seed", "seed", Some("RenderOptions::seed")),
@@ -196,7 +196,7 @@ mod tests {
     #[test]
     fn options_stand_alone_or_are_left() {
         let py = |m| spell(m, Frontend::Python).into_owned();
-        assert_eq!(py("give --bands, e.g. (--seed 3)"), "give bands_nm (study: bands), e.g. (seed 3)");
+        assert_eq!(py("give --bands, e.g. (--seed 3)"), "give bands_nm, e.g. (seed 3)");
         assert_eq!(py("`--rays` at the end --rays"), "`rays` at the end rays");
         assert_eq!(py("--scene x.npy: --scene is an argument"), "--scene x.npy: --scene is an argument");
         assert_eq!(py("a --seed.npy file, --seed. Then"), "a --seed.npy file, seed. Then");

@@ -181,8 +181,9 @@ fn the_launcher_runs_datasets_mappings_and_the_bench_on_an_emulated_device() {
     assert!(text.contains("emulator"), "bench-render does not name the device:\n{text}");
 }
 
-/// The launcher's PTX fallbacks and its errors, against a driver that refuses what a real one refuses: an older
-/// driver (PTX ISA 9.0) refuses the embedded PTX (ISA 9.2) — with nothing else to try, one message naming each
+/// The launcher's PTX fallbacks and its errors, against a driver that refuses what a real one refuses. The GPU
+/// machine's driver (580.159: CUDA 13.0, PTX ISA 9.0) takes the embedded PTX (NVRTC 13.0's, ISA 9.0; NVRTC 13.2's
+/// ISA 9.2 was refused there: round 15). An older driver (CUDA 12.9, ISA 8.8) refuses it — with nothing else to try, one message naming each
 /// attempt, exit 1, nothing written; with `DIFFCASSI_PTX` naming a PTX it takes, that file (render.json says so),
 /// the twin's bits; with NVRTC on the library path, PTX compiled from the embedded sources. No device, a driver
 /// that fails to start, and a device without the memory a render needs: one message each, exit 1, nothing written.
@@ -192,7 +193,13 @@ fn the_launcher_falls_back_and_fails_clearly_on_an_emulated_device() {
     let dir = d.path();
     let render = |out: &'static str| vec!["render", "--preset", "sp", "--scene-size", "12", "--planes", "2", "--rays", "1", "--device", "cuda", "--out", out];
     ok(&run(dir, &["render", "--preset", "sp", "--scene-size", "12", "--planes", "2", "--rays", "1", "--device", "cpu-twin", "--out", "twin"]), "twin");
-    let old_driver = [("CUDA_EMU_PTX_ISA", "9.0"), ("CUDA_EMU_DRIVER_VERSION", "13000")];
+    // The GPU machine's driver: the embedded PTX, the twin's bits.
+    let gpu_machine = [("CUDA_EMU_PTX_ISA", "9.0"), ("CUDA_EMU_DRIVER_VERSION", "13000")];
+    ok(&run_with(dir, &render("cuda130"), &gpu_machine, None), "render on a CUDA 13.0 driver");
+    let dev = json(&dir.join("cuda130/render.json"))["device"].clone();
+    assert_eq!((dev["driver"].as_str(), dev["ptx"].as_str()), (Some("13.0"), Some("embedded PTX")), "{dev}");
+    assert_same_render(&dir.join("cuda130"), &dir.join("twin"), "the embedded PTX on a CUDA 13.0 driver");
+    let old_driver = [("CUDA_EMU_PTX_ISA", "8.8"), ("CUDA_EMU_DRIVER_VERSION", "12090")];
     let refused = |o: &Output, out: &str, says: &[&str]| {
         let e = String::from_utf8_lossy(&o.stderr);
         assert_eq!(o.status.code(), Some(1), "{e}");
@@ -204,12 +211,12 @@ fn the_launcher_falls_back_and_fails_clearly_on_an_emulated_device() {
     };
     // Nothing to fall back on.
     let o = run_with(dir, &render("old"), &old_driver, None);
-    refused(&o, "old", &["--device cuda", "driver 13.0", "the embedded PTX", "CUDA_ERROR_UNSUPPORTED_PTX_VERSION", "NVRTC: no NVRTC library", "DIFFCASSI_PTX"]);
-    // A PTX file the driver takes (the embedded kernels, written as ISA 9.0 here: the emulator reads the header).
-    let ptx = diffcassi::gpu::ptx::TRACE_PTX.replace("\n.version 9.2\n", "\n.version 9.0\n");
-    assert_ne!(ptx, diffcassi::gpu::ptx::TRACE_PTX, "the embedded PTX is no longer ISA 9.2: update this test");
-    std::fs::write(dir.join("k90.ptx"), &ptx).unwrap();
-    let file = dir.join("k90.ptx").display().to_string();
+    refused(&o, "old", &["--device cuda", "driver 12.9", "the embedded PTX", "CUDA_ERROR_UNSUPPORTED_PTX_VERSION", "NVRTC: no NVRTC library", "DIFFCASSI_PTX"]);
+    // A PTX file the driver takes (the embedded kernels, written as ISA 8.8 here: the emulator reads the header).
+    let ptx = diffcassi::gpu::ptx::TRACE_PTX.replace("\n.version 9.0\n", "\n.version 8.8\n");
+    assert_ne!(ptx, diffcassi::gpu::ptx::TRACE_PTX, "the embedded PTX is no longer ISA 9.0: update this test");
+    std::fs::write(dir.join("k88.ptx"), &ptx).unwrap();
+    let file = dir.join("k88.ptx").display().to_string();
     let mut env = old_driver.to_vec();
     env.push(("DIFFCASSI_PTX", &file));
     ok(&run_with(dir, &render("from_file"), &env, None), "render from DIFFCASSI_PTX");

@@ -23,6 +23,7 @@ mod bad_input_round10;
 mod bad_input_round11;
 mod bad_input_round12;
 mod bad_input_round14;
+mod bad_input_round15;
 mod cli;
 mod cli_run;
 mod csv_outputs;

@@ -144,7 +144,7 @@ int main() {
     expect_error("mask value out of range", [&] { sys.render_into(view, mask, o, out.data(), out.size()); }, {"row 1, col 1", "[0, 1]"});
     auto bad = o;
     bad.mask_opening = 1.5;
-    expect_error("mask opening out of range", [&] { sys.render_into(view, {}, bad, out.data(), out.size()); }, {"opening ratio 1.5"});
+    expect_error("mask opening out of range", [&] { sys.render_into(view, {}, bad, out.data(), out.size()); }, {"RenderOptions::mask_opening 1.5", "opening ratio"});
     bad = o;
     bad.rays_per_pixel = 0;
     expect_error("zero rays per pixel", [&] { sys.render_detector(4, 4, wl, bad); }, {"rays per pixel"});
@@ -180,6 +180,29 @@ int main() {
       auto p = o;
       p.precision = static_cast<diffcassi::RenderPrecision>(7);
       expect_error("precision out of the enum", [&] { sys.render_detector(4, 4, wl, p); }, {"RenderOptions::precision 7"});
+      // Each setting named as C++ sets it (the library's own refusals named none; round 15).
+      p = o;
+      p.mask_opening = std::nan("");
+      expect_error("NaN opening", [&] { sys.render_detector(4, 4, wl, p); }, {"RenderOptions::mask_opening NaN"});
+      p = o;
+      p.airy_diameter_px = std::nan("");
+      expect_error("NaN Airy diameter", [&] { sys.render_detector(4, 4, wl, p); }, {"RenderOptions::airy_diameter_px NaN"});
+      p = o;
+      p.scene_pitch_mm = 0.0;
+      expect_error("zero scene pitch", [&] { sys.render_detector(4, 4, wl, p); }, {"RenderOptions::scene_pitch_mm 0"});
+      expect_error("scene wavelength beyond the range", [&] { sys.render_detector(4, 4, std::vector<double>{500.0, 1e9}, o); },
+                   {"the scene's wavelengths_nm: 1e9 nm is outside"});
+    }
+    // A closed mask renders zeros, as the CLI does, and says so as the CLI warns.
+    {
+      auto closed = o;
+      closed.mask_opening = 0.0;
+      diffcassi::RenderInfo info;
+      sys.render(view, {}, closed, &info);
+      CHECK(info.rays_traced == 0 && info.warnings.size() == 1);
+      CHECK(std::string(info.warnings[0].data(), info.warnings[0].size()).find("zero everywhere") != std::string::npos);
+      sys.render(view, {}, o, &info);
+      CHECK(info.warnings.empty());
     }
     // The budgets are C++'s to set: a tiny ray budget refuses a 48-ray render, naming it; the default again renders.
     diffcassi::set_limits(std::nullopt, 10.0);

@@ -53,6 +53,12 @@ impl Recipe {
         Arc::new(Recipe { factory, args: self.args.clone_ref(py), kwargs: self.kwargs.clone_ref(py), values: self.values.clone() })
     }
 
+    /// The system the object was built from (its factory's first argument), when it is one.
+    pub fn system<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyAny>> {
+        let first = self.args.bind(py).get_item(0).ok()?;
+        first.downcast::<PySystem>().is_ok().then_some(first)
+    }
+
     /// The same recipe followed by `with_values(values)`.
     pub fn with_values(&self, py: Python<'_>, values: Vec<f64>) -> Arc<Recipe> {
         Arc::new(Recipe { factory: self.factory, args: self.args.clone_ref(py), kwargs: self.kwargs.clone_ref(py), values: Some(values) })

@@ -52,6 +52,13 @@ impl PyOperator {
         self.recipe.reduce(py)
     }
 
+    /// The `System` the operator was built from (`exact`, `mapping_operator`, `shift_operator`); `None` for one
+    /// read from a file (`from_npz`, `from_scipy`). `load_unrolled` checks weights against it.
+    #[getter]
+    fn system<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyAny>> {
+        self.recipe.system(py)
+    }
+
     /// (H, W, B) of the cubes.
     #[getter]
     fn cube_shape(&self) -> (usize, usize, usize) {
@@ -342,6 +349,7 @@ fn _reconstruct<'py>(
     if noise_factor.is_some() && noise_twin.is_none() {
         return Err(value_error("noise_factor: applies with noise_twin only (the data-driven δ)"));
     }
+    let noise_factor = noise_factor.map(MonteCarloSpread::check_factor).transpose().py()?;
     let op = &operator.op;
     let y = a.slice();
     if let Some(t) = &noise_twin {

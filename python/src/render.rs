@@ -116,17 +116,11 @@ fn _render<'py>(
         if let Some(x) = &tracing.explanation {
             info["fidelity_choice"] = crate::errors::pythonic(x).into();
         }
-        if let Some(x) = r.spectral_extrapolation(&cube) {
-            info["spectral_extrapolation"] = x.to_json();
-        }
-        warnings.extend(record.as_ref().and_then(|d| d.fixed_point_warning.clone()));
-        if let Some(d) = r.mask_dark_planes()? {
-            warnings.push(d.message());
-            info["mask_dark_planes"] = d.to_json();
-        }
-        if let Some(f) = r.f32_chief_ray_error()? {
-            warnings.extend(f.message());
-            info["f32_chief_ray_error"] = f.to_json();
+        // The CLI's notes (`render::folder::render_notes`: its warnings and render.json's fields).
+        let (notes, fields) = diffcassi::render::folder::render_notes(&r, &cube, record.as_ref())?;
+        warnings.extend(notes);
+        for (k, v) in fields {
+            info[k] = v;
         }
         if !warnings.is_empty() {
             info["warnings"] = warnings.iter().map(|w| crate::errors::pythonic(w)).collect::<Vec<_>>().into();

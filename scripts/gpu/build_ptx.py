@@ -1,9 +1,11 @@
 #!/usr/bin/env python3
 """Compile diffcassi's CUDA kernels (src/gpu/kernels/device.cu) to PTX with NVRTC and assemble them with ptxas.
 
-No GPU is needed: NVRTC (PyPI `nvidia-cuda-nvrtc`, a dependency of torch) compiles for a virtual
-architecture, and ptxas (PyPI `nvidia-cuda-nvcc`, installed by scripts/setup.sh) assembles the PTX for a
-real one, so compile errors, register counts and spills show on any machine.
+No GPU is needed: NVRTC (PyPI `nvidia-cuda-nvrtc`) compiles for a virtual architecture, and ptxas (PyPI
+`nvidia-cuda-nvcc`) assembles the PTX for a real one, so compile errors, register counts and spills show on any
+machine. Both at CUDA 13.0 (scripts/setup.sh puts them in .venv/cuda-ptx): a driver takes the PTX ISA of its
+own CUDA version and older ones, and the GPU machine's driver (580.159) is CUDA 13.0, ISA 9.0; NVRTC 13.2
+(torch's) writes ISA 9.2, which it refuses.
 
     python scripts/gpu/build_ptx.py            # check: compile, assemble for sm_90, print registers and
                                                # spills; fail if the committed trace.ptx is stale
@@ -47,12 +49,16 @@ def site_dirs():
     return [d for d in dirs if os.path.isdir(d)]
 
 
+# NVRTC and ptxas at the GPU machine's CUDA version, installed by scripts/setup.sh.
+PINNED = os.path.join(ROOT, ".venv", "cuda-ptx")
+
+
 def find_tool(env, subpath, name_re, fallbacks, usable):
-    """A CUDA tool: $env if set, else the newest match of nvidia/*/<subpath> in the venv's site-packages (the
-    PyPI wheels put them there), else the first usable fallback (a system CUDA)."""
+    """A CUDA tool: $env if set, else the newest match of nvidia/*/<subpath> in .venv/cuda-ptx (the pinned
+    CUDA 13.0 wheels), else in the venv's site-packages, else the first usable fallback (a system CUDA)."""
     if os.environ.get(env):
         return os.environ[env]
-    for d in site_dirs():
+    for d in [PINNED] + site_dirs():
         found = sorted(f for f in glob.glob(os.path.join(d, "nvidia", "*", subpath)) if re.search(name_re, f))
         if found:
             return found[-1]
@@ -94,6 +100,11 @@ def amalgamated():
 
 
 def nvrtc_compile(lib_path, src=None):
+    # NVRTC opens its builtins library by name: load the one beside it first (a --target install is on no
+    # loader path).
+    for builtins in sorted(glob.glob(os.path.join(os.path.dirname(lib_path), "libnvrtc-builtins.so.*"))):
+        if ".alt." not in builtins:
+            ctypes.CDLL(builtins, mode=ctypes.RTLD_GLOBAL)
     lib = ctypes.CDLL(lib_path)
     major, minor = ctypes.c_int(), ctypes.c_int()
     lib.nvrtcVersion(ctypes.byref(major), ctypes.byref(minor))

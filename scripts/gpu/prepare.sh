@@ -9,10 +9,11 @@
 #      plus dist/ and .whl/ — against the tool's 64 MiB;
 #   4. a copy of that carry in a temporary folder (what the GPU machine gets), and in it, with .venv's Python
 #      standing in for the GPU machine's python3 (both are venvs, which is what broke the scripts' first form):
-#      - DRY_RUN=1 bash scripts/gpu_check.sh: the wheel installed as there, every check with the host twin
-#        standing in for the device;
-#      - DEVICE=cpu bash scripts/gpu/train_run.sh from a tiny checkpoint (made here with .venv's package):
-#        the module taken from the wheel, the package checks, the resume, the budget stop, the outputs;
+#      - DRY_RUN=1 DEVICE=cpu bash scripts/gpu/session.sh, the session's one call: scripts/gpu_check.sh with
+#        the wheel installed as there and the host twin standing in for the device, then scripts/gpu/train_run.sh
+#        from a tiny checkpoint (made in the copy with the wheel's module): the module taken from the wheel, the
+#        package checks, the resume, the budget stop; then the outputs packed as the device tool brings them
+#        back (≤ 8 files, 16 MiB each), unpacked here and checked;
 #      - colour-science's carried wheel installed as train_run.sh installs it, and imported;
 #   5. prints the device tool's call for the GPU session.
 #
@@ -77,36 +78,48 @@ echo "prepare.sh: carry $((bytes / 1024 / 1024)) MiB of 64 MiB (tree + $(basenam
 ((bytes <= limit)) || die "the carry is $bytes bytes, over the device tool's 64 MiB"
 
 status=0
-# 4a. The GPU check, dry.
-echo "prepare.sh: DRY_RUN=1 scripts/gpu_check.sh in $copy"
-if ! (cd "$copy" && DRY_RUN=1 PYTHON="$gpu_py" OUT="$copy/gpu_out/check" bash scripts/gpu_check.sh "dist/$(basename "$wheel")") > "$copy/gpu_check.log" 2>&1; then
-    tail -40 "$copy/gpu_check.log"
-    echo "prepare.sh: FAILED: the GPU check's dry run (log $copy/gpu_check.log)" >&2
-    status=1
-else
-    grep -E "^gpu_check:|^\| (render check|systems check|check) " "$copy/gpu_check.log"
-fi
-
-# 4b. The training run, dry, from a tiny checkpoint.
-echo "prepare.sh: DEVICE=cpu scripts/gpu/train_run.sh in $copy (a tiny checkpoint)"
+# 4a. A tiny checkpoint for the training's dry run, made in the copy with the wheel's compiled module (the tree's
+# in-place module exists only after `maturin develop`, which setup.sh does not run; round 15).
 tiny="$copy/gpu_out/tiny"
-# (made by this tree's train_unrolled.py with .venv's package: the copy has no compiled module until train_run.sh
-# takes the wheel's)
-if ! (cd "$root" && "$py" scripts/train_unrolled.py --arch unrolled-dauhst-v2 --system sp --size 8 --bands 3 --stages 1 --width 2 \
-        --planes 4 --rays 1 --steps 100000 --batch 2 --warmup 1 --stop-at 0 --threads 1 --workers 0 --out "$tiny") > "$copy/tiny.log" 2>&1; then
+if ! "$py" - "$copy/dist/$(basename "$wheel")" "$copy/diffcassi" <<'PY' > "$copy/tiny.log" 2>&1; then
+import sys, zipfile, pathlib
+z = zipfile.ZipFile(sys.argv[1])
+so = [n for n in z.namelist() if n.startswith("diffcassi/_native") and n.endswith(".so")]
+pathlib.Path(sys.argv[2], pathlib.Path(so[0]).name).write_bytes(z.read(so[0]))
+PY
+    cat "$copy/tiny.log"
+    echo "prepare.sh: FAILED: the wheel's compiled module could not be put into the copy" >&2
+    status=1
+elif ! (cd "$copy" && "$py" scripts/train_unrolled.py --arch unrolled-dauhst-v2 --system sp --size 8 --bands 3 --stages 1 --width 2 \
+        --planes 4 --rays 1 --steps 100000 --batch 2 --warmup 1 --stop-at 0 --threads 1 --workers 0 --out "$tiny") >> "$copy/tiny.log" 2>&1; then
     tail -20 "$copy/tiny.log"
     echo "prepare.sh: FAILED: the tiny checkpoint (log $copy/tiny.log)" >&2
     status=1
-elif ! (cd "$copy" && DEVICE=cpu PYTHON="$gpu_py" RESUME="$tiny/unrolled-dauhst-v2-sp-checkpoint.pt" OUT="$copy/gpu_out/train" BUDGET_S=8 WORKERS=1 \
-        bash scripts/gpu/train_run.sh "dist/$(basename "$wheel")") > "$copy/train_run.log" 2>&1; then
-    tail -40 "$copy/train_run.log"
-    echo "prepare.sh: FAILED: the training run's dry run (log $copy/train_run.log)" >&2
-    status=1
-else
-    grep -E "^train_run:|^stopped|^done" "$copy/train_run.log"
-    for f in unrolled-dauhst-v2-sp.safetensors unrolled-dauhst-v2-sp-checkpoint.pt unrolled-dauhst-v2-sp-log.jsonl unrolled-dauhst-v2-sp-manifest.json; do
-        [[ -s "$copy/gpu_out/train/$f" ]] || { echo "prepare.sh: FAILED: the training run wrote no $f" >&2; status=1; }
-    done
+fi
+
+# 4b. The session's one call, dry: the GPU check with the host twin standing in for the device, the training on
+# the CPU from the tiny checkpoint, the outputs packed as the device tool brings them back (≤ 8 files).
+session="$copy/gpu_out/session"
+if ((status == 0)); then
+    echo "prepare.sh: DRY_RUN=1 DEVICE=cpu scripts/gpu/session.sh in $copy"
+    if ! (cd "$copy" && DRY_RUN=1 DEVICE=cpu PYTHON="$gpu_py" RESUME="$tiny/unrolled-dauhst-v2-sp-checkpoint.pt" TRAIN_BUDGET_S=8 WORKERS=1 \
+            OUT="$session" bash scripts/gpu/session.sh) > "$copy/session.log" 2>&1; then
+        tail -40 "$copy/session.log"
+        echo "prepare.sh: FAILED: the session's dry run (log $copy/session.log)" >&2
+        status=1
+    else
+        grep -E "^gpu_check:|^train_run:|^session:|^\| (render check|systems check|check) " "$copy/session.log"
+        grep -q "WARNING: beyond what the device tool brings back" "$copy/session.log" && { echo "prepare.sh: FAILED: the session's outputs exceed the device tool's limits" >&2; status=1; }
+        mkdir -p "$copy/gpu_out/unpacked"
+        for a in check train; do
+            tar -C "$copy/gpu_out/unpacked" -xzf "$session/$a.tar.gz" || { echo "prepare.sh: FAILED: no $a.tar.gz in the session's outputs" >&2; status=1; }
+        done
+        for f in "$session/unrolled-dauhst-v2-sp.safetensors" "$session/unrolled-dauhst-v2-sp-checkpoint.pt" \
+                "$copy/gpu_out/unpacked/train/unrolled-dauhst-v2-sp-log.jsonl" "$copy/gpu_out/unpacked/train/unrolled-dauhst-v2-sp-manifest.json" \
+                "$copy/gpu_out/unpacked/check/render_check.json" "$copy/gpu_out/unpacked/check/torch_check.json"; do
+            [[ -s "$f" ]] || { echo "prepare.sh: FAILED: the session brought back no ${f#$copy/gpu_out/}" >&2; status=1; }
+        done
+    fi
 fi
 
 # 4c. colour-science from the carried wheel, as train_run.sh installs it where the package is missing.
@@ -125,9 +138,10 @@ if ((status)); then
     exit 1
 fi
 cat <<EOF
-prepare.sh: ready ($((SECONDS - start)) s). For the GPU session (device tool \`run\`, carry ["dist", ".whl"]):
-  OUT=\$OUT/check timeout 420 bash scripts/gpu_check.sh; OUT=\$OUT/train BUDGET_S=120 bash scripts/gpu/train_run.sh
-(one call, ≤ 10 minutes; docs/gpu.md "A GPU session" says how to split it and what to commit of \$OUT)
+prepare.sh: ready ($((SECONDS - start)) s). For the GPU session (device tool \`run\`, carry ["dist", ".whl"], timeout_s 600):
+  bash scripts/gpu/session.sh
+(one call: the check, then the training in what is left of 540 s, packed into ≤ 8 files in \$OUT; docs/gpu.md
+"A GPU session" says what to commit of them)
 EOF
 ((keep)) && echo "prepare.sh: the copy and its dry-run outputs: $copy"
 exit 0

@@ -229,8 +229,11 @@ def main():
             print("torch_check: --reps must be ≥ 20 on CUDA", file=sys.stderr)
             return 2
     name = torch.cuda.get_device_name(dev) if dev.type == "cuda" else platform.processor() or platform.machine()
-    print(f"# torch_check: {name}; torch {torch.__version__} (CUDA {torch.version.cuda}); diffcassi {diffcassi.__file__}; "
-          f"{time.strftime('%Y-%m-%d %H:%M:%S %Z')}")
+    # On the CPU no figure is a GPU's: the table and the record say DRY RUN (`"dry_run": true`), as the render
+    # checks' do (round 15: this one did not).
+    dry = dev.type != "cuda"
+    print(f"# torch_check: {'DRY RUN (CPU, no GPU figure); ' if dry else ''}{name}; torch {torch.__version__} (CUDA {torch.version.cuda}); "
+          f"diffcassi {diffcassi.__file__}; {time.strftime('%Y-%m-%d %H:%M:%S %Z')}")
     t0 = time.perf_counter()
     for part in (operator_checks, renderer_checks, unrolled_checks, inference_checks):
         # The operator's table is built and applied with torch's deterministic-algorithms mode on: an op torch
@@ -242,7 +245,7 @@ def main():
         except Exception as e:  # a failed part is a FAIL row; the others still run
             traceback.print_exc()
             row(part.__name__, f"{type(e).__name__}: {str(e)[:200]}", "no error", False)
-    print("\n| check | value | bound | result |\n|---|---|---|---|")
+    print(("\nDRY RUN (CPU): no figure below is a GPU's\n" if dry else "") + "\n| check | value | bound | result |\n|---|---|---|---|")
     for r in ROWS:
         print("| " + " | ".join(str(v) for v in r) + " |")
     failed = [r for r in ROWS if r[3] == "FAIL"]
@@ -251,7 +254,7 @@ def main():
         import os
         os.makedirs(a.out, exist_ok=True)
         with open(os.path.join(a.out, "torch_check.json"), "w") as f:
-            json.dump({"device": name, "torch": torch.__version__, "rows": [dict(zip(("check", "value", "bound", "result"), map(str, r))) for r in ROWS]}, f, indent=1)
+            json.dump({"dry_run": dry, "device": name, "torch": torch.__version__, "rows": [dict(zip(("check", "value", "bound", "result"), map(str, r))) for r in ROWS]}, f, indent=1)
     print(f"\n{len(ROWS) - len(failed)}/{len(ROWS)} checks passed in {time.perf_counter() - t0:.1f} s"
           + ("; all checks passed" if not failed else f"; FAILED: {', '.join(r[0] for r in failed)}"))
     return 1 if failed else 0

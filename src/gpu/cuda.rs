@@ -5,7 +5,8 @@
 //! twin's (`RenderPlan::run_twin`), from the same source; their accumulation is integer (dc_accum.h), so two
 //! runs, and the twin, give the same bits.
 //!
-//! Loading: the embedded PTX first (NVRTC 13.2 writes PTX ISA 9.2, which a driver older than 13.2 refuses);
+//! Loading: the embedded PTX first (NVRTC 13.0's PTX ISA 9.0, which drivers of CUDA 13.0 on take: the GPU
+//! machine's is 580.159, CUDA 13.0; NVRTC 13.2's ISA 9.2 was refused there);
 //! then, if the environment names one, a PTX file (`DIFFCASSI_PTX`, e.g. compiled on the GPU machine by
 //! `nvcc -ptx` from [`super::ptx::amalgamated_source`]); then the machine's own NVRTC on the embedded
 //! sources. Every failure is an error naming each attempt, never a panic: the driver is probed first

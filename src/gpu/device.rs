@@ -62,7 +62,8 @@ pub fn probe(ordinal: usize) -> Result<CudaInfo, DeviceError> {
         _ => DRIVER_NAMES.iter().map(|s| s.to_string()).collect(),
     };
     let mut handle: *mut c_void = std::ptr::null_mut();
-    let mut why = String::new();
+    // Every name tried, each with its reason (the last alone named `libcuda.so` after `libcuda.so.1` was tried first).
+    let mut why: Vec<String> = Vec::new();
     for name in &names {
         let c = std::ffi::CString::new(name.as_str()).map_err(|_| DeviceError::NoDriver(format!("bad library name {name:?}")))?;
         // SAFETY: dlopen with a valid C string; the handle is checked for null.
@@ -70,10 +71,10 @@ pub fn probe(ordinal: usize) -> Result<CudaInfo, DeviceError> {
         if !handle.is_null() {
             break;
         }
-        why = dlerror_text();
+        why.push(dlerror_text());
     }
     if handle.is_null() {
-        return Err(DeviceError::NoDriver(why));
+        return Err(DeviceError::NoDriver(why.join("; ")));
     }
     let sym = |name: &CStr| -> Result<*mut c_void, DeviceError> {
         // SAFETY: dlsym on a live handle with a valid C string.

@@ -200,6 +200,29 @@ pub fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut Acquisition, progress:
     Ok(nc.to_json(&report))
 }
 
+/// What a render says beside its acquisition, in the order the front ends say it — planes beyond the scene's
+/// bands, the GPU's fixed-point resolution, a dual disperser's dark planes, the f32 kernel's measured
+/// rounding — as warnings, and the render.json fields that record them (`spectral_extrapolation`,
+/// `mask_dark_planes`, `f32_chief_ray_error`). The CLI's folder, Python's `render` and C++'s
+/// `RenderInfo::warnings` say the same ([`zero_warning`], after the noise, besides).
+pub fn render_notes(renderer: &Renderer, scene: &SpectralCube, device: Option<&super::device::DeviceRecord>) -> Result<(Vec<String>, serde_json::Map<String, Value>)> {
+    let (mut warnings, mut fields) = (Vec::new(), serde_json::Map::new());
+    if let Some(x) = renderer.spectral_extrapolation(scene) {
+        warnings.push(x.message());
+        fields.insert("spectral_extrapolation".into(), x.to_json());
+    }
+    warnings.extend(device.and_then(|d| d.fixed_point_warning.clone()));
+    if let Some(d) = renderer.mask_dark_planes()? {
+        warnings.push(d.message());
+        fields.insert("mask_dark_planes".into(), d.to_json());
+    }
+    if let Some(f) = renderer.f32_chief_ray_error()? {
+        warnings.extend(f.message());
+        fields.insert("f32_chief_ray_error".into(), f.to_json());
+    }
+    Ok((warnings, fields))
+}
+
 /// The warning a zero acquisition gets (it is written — it is what the system delivers — but nothing
 /// reconstructs from it), naming why; `noise` is its noise record ([`apply_noise`]). `None` for an acquisition
 /// with light, or one the sensor noise zeroed at an exposure below an electron ([`apply_noise`] said so).
@@ -240,22 +263,12 @@ pub fn run(request: &RenderRequest, inputs: &[(&str, &Path)], renderer: &Rendere
     };
     let noise = apply_noise(request.noise.as_ref(), &mut acq, progress)?;
     let mut extra = serde_json::json!({"noise": noise, "tolerance_um": request.tolerance_um, "tolerance_predicted_error_um": request.tolerance_predicted_error_um});
-    if let Some(x) = renderer.spectral_extrapolation(scene) {
-        progress.warning(&x.message());
-        extra["spectral_extrapolation"] = x.to_json();
-    }
-    if let Some(w) = device_record.as_ref().and_then(|d| d.fixed_point_warning.as_ref()) {
+    let (warnings, fields) = render_notes(renderer, scene, device_record.as_ref())?;
+    for w in &warnings {
         progress.warning(w);
     }
-    if let Some(d) = renderer.mask_dark_planes()? {
-        progress.warning(&d.message());
-        extra["mask_dark_planes"] = d.to_json();
-    }
-    if let Some(f) = renderer.f32_chief_ray_error()? {
-        if let Some(m) = f.message() {
-            progress.warning(&m);
-        }
-        extra["f32_chief_ray_error"] = f.to_json();
+    for (k, v) in fields {
+        extra[k] = v;
     }
     if !ghosts.is_null() {
         extra["ghosts"] = ghosts;

@@ -101,7 +101,12 @@ impl Device {
     /// message clap prefixes with the option and the value).
     pub fn parse_value(s: &str) -> std::result::Result<Self, String> {
         let max = crate::gpu::device::MAX_DEVICES;
-        match s.trim() {
+        // As torch reads device strings, and as Python's render refused them: `" cpu"` was taken by the CLI and
+        // `mapping`, refused by `render` (round 15).
+        if s.trim() != s {
+            return Err("no spaces around it: use cpu, cuda or cuda:N (or cpu-twin)".into());
+        }
+        match s {
             "cpu" => Ok(Device::Cpu),
             "cuda" => Ok(Device::Cuda(0)),
             "cpu-twin" => Ok(Device::CpuTwin),
@@ -504,10 +509,14 @@ mod tests {
 
     #[test]
     fn cuda_devices_are_spelt_as_torch_spells_them() {
-        for (text, device, shown) in [("cuda", Device::Cuda(0), "cuda"), ("cuda:0", Device::Cuda(0), "cuda"), ("cuda:3", Device::Cuda(3), "cuda:3"), (" cuda:63 ", Device::Cuda(63), "cuda:63"), ("cpu-twin", Device::CpuTwin, "cpu-twin")] {
+        for (text, device, shown) in [("cuda", Device::Cuda(0), "cuda"), ("cuda:0", Device::Cuda(0), "cuda"), ("cuda:3", Device::Cuda(3), "cuda:3"), ("cuda:63", Device::Cuda(63), "cuda:63"), ("cpu-twin", Device::CpuTwin, "cpu-twin")] {
             let d: Device = text.parse().unwrap();
             assert_eq!((d, d.to_string().as_str()), (device, shown), "{text}");
             assert_eq!(d.to_string().parse::<Device>().unwrap(), d);
+        }
+        // Spaces around it are refused, as torch refuses them (they were trimmed: round 15).
+        for bad in [" cuda:63 ", " cpu", "cuda "] {
+            assert!(bad.parse::<Device>().unwrap_err().to_string().contains("no spaces around it"), "{bad:?}");
         }
         for bad in ["cuda:", "cuda:-1", "cuda:+1", "cuda:1.0", "cuda: 1", "cuda:x", "cuda:1:2", "cuda:01", "cuda:00"] {
             let e = bad.parse::<Device>().unwrap_err().to_string();

@@ -155,21 +155,32 @@ impl SequentialSystem {
                 }
                 Ok([value[0].to_radians(), value[1].to_radians()])
             }
+            // The other unit's input, spelled as `option` is (`--field-mm` → `--field-deg`, Python's `fields_mm` →
+            // `fields_deg`): Python's `chief_rays` was told to give `--field-deg` (round 15).
             (FieldUnit::Mm, true) => Err(Error::invalid(format!(
-                "{option} ({}, {}): system `{}` has its object at infinity, where a field is an angle: give field angles in degrees (--field-deg X,Y)",
-                value[0], value[1], self.name()
+                "{option} ({}, {}): system `{}` has its object at infinity, where a field is an angle: give field angles in degrees ({} X,Y)",
+                value[0],
+                value[1],
+                self.name(),
+                option.replace("mm", "deg")
             ))),
             (FieldUnit::Deg, false) => Err(Error::invalid(format!(
-                "{option} ({}, {}): system `{}` has a finite object, where a field is an object height: give it in mm (--field-mm X,Y)",
-                value[0], value[1], self.name()
+                "{option} ({}, {}): system `{}` has a finite object, where a field is an object height: give it in mm ({} X,Y)",
+                value[0],
+                value[1],
+                self.name(),
+                option.replace("deg", "mm")
             ))),
         }
     }
 
     /// A field point as shown at the boundary: (value, unit) — mm for a finite object, degrees at infinity.
+    /// Degrees are rounded to 1e-12°, so that an angle typed in degrees shows as typed (3° went to radians and
+    /// back as 3.0000000000000004; round 15).
     pub fn field_display(&self, field: [f64; 2]) -> ([f64; 2], &'static str) {
         if self.object_at_infinity() {
-            ([field[0].to_degrees(), field[1].to_degrees()], "deg")
+            let deg = |r: f64| (r.to_degrees() * 1e12).round() / 1e12;
+            ([deg(field[0]), deg(field[1])], "deg")
         } else {
             (field, "mm")
         }

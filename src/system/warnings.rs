@@ -8,7 +8,9 @@
 //!   have. Rays beyond the edge miss the surface (`RayStatus::Miss`), and near it the sag's slope diverges, so
 //!   the f32 kernel's rounding grows without bound (83 µm was measured at 99.9 % of a sphere's radius). OpticStudio
 //!   draws such a surface only to its edge. The same bound holds for an even asphere's base conic and for a
-//!   toroid's YZ curve (in y).
+//!   toroid's YZ curve (in y); a toroid also ends in x, where the circle its YZ curve is rotated on does:
+//!   |x| ≤ |R − z_y(y)| for the radius of rotation R ([`toroid_x_edge_warning`]; a semi-diameter of 12 mm on
+//!   R = 10 mm loaded silently, its rays beyond |x| = 10 mm missing: a held-out battery, round 15).
 //!
 //! ```
 //! use diffcassi::system::SequentialSystem;
@@ -28,6 +30,50 @@ use crate::surfaces::SurfaceShape;
 pub fn conic_edge_mm(c: f64, k: f64) -> Option<f64> {
     let q = (1.0 + k) * c * c;
     (q > 0.0 && q.is_finite()).then(|| 1.0 / q.sqrt())
+}
+
+/// A toroid's edge in x: the YZ curve z_y(y) rotated about the axis at z = R (the radius of rotation, c_R =
+/// 1/R) reaches |x| = |R − z_y(y)| at height y (`surfaces::toroidal`). The warning for a semi-diameter
+/// reaching beyond it at some y of the aperture (the heights where the YZ curve is defined, sampled), naming
+/// the height where it reaches furthest beyond, and the largest semi-diameter inside the edge; `None` for a
+/// cylinder (c_R = 0) or a semi-diameter within it.
+pub fn toroid_x_edge_warning(index: usize, sd: f64, c: f64, k: f64, alpha: &[f64], c_rot: f64) -> Option<String> {
+    if c_rot == 0.0 || !(sd > 0.0) {
+        return None;
+    }
+    const N: usize = 2048;
+    // (|x| the aperture asks / |x| the surface reaches, y) at the worst height; the largest inside semi-diameter.
+    let (mut worst, mut largest_inside) = ((0.0f64, 0.0f64), sd);
+    for i in 0..=N {
+        let y = sd * i as f64 / N as f64;
+        let (zy, _, _) = crate::surfaces::toroidal::yz_curve(c, k, alpha, y);
+        if !zy.is_finite() {
+            continue; // beyond the YZ curve's own edge: its own warning
+        }
+        let reach = (1.0 / c_rot - zy).abs();
+        let asked = (sd * sd - y * y).max(0.0).sqrt();
+        if asked / reach > worst.0 {
+            worst = (asked / reach, y);
+        }
+        if asked > reach {
+            // The disc of radius √(reach² + y²) stays within the edge at this height.
+            largest_inside = largest_inside.min((reach * reach + y * y).sqrt());
+        }
+    }
+    if worst.0 <= 1.0 + 1e-9 {
+        return None;
+    }
+    let fmt = crate::limits::fmt_num;
+    let y = worst.1;
+    let reach = (1.0 / c_rot - crate::surfaces::toroidal::yz_curve(c, k, alpha, y).0).abs();
+    Some(format!(
+        "surface {index}: semi-diameter {} mm is beyond the toroid's edge in x: at y = {} mm the surface reaches |x| = {} mm (radius of rotation {} mm), so rays beyond it miss the surface; give a semi-diameter ≤ {} mm",
+        fmt(sd),
+        fmt((y * 1e6).round() / 1e6),
+        fmt((reach * 1e6).round() / 1e6),
+        fmt(1.0 / c_rot),
+        fmt((largest_inside * 1e6).floor() / 1e6)
+    ))
 }
 
 impl SequentialSystem {
@@ -77,6 +123,9 @@ impl SequentialSystem {
                 SurfaceShape::Toroidal { curvature, conic, .. } => (*curvature, *conic, "|y|"),
                 SurfaceShape::Plane | SurfaceShape::Paraxial { .. } => continue,
             };
+            if let SurfaceShape::Toroidal { curvature, conic, coefficients, rotation_curvature } = shape {
+                out.extend(toroid_x_edge_warning(s.index, sd, *curvature, *conic, coefficients, *rotation_curvature));
+            }
             let Some(edge) = conic_edge_mm(c, k) else { continue };
             if sd > edge * (1.0 + 1e-9) {
                 let fmt = crate::limits::fmt_num;
@@ -92,5 +141,24 @@ impl SequentialSystem {
             }
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A toroid of radius of rotation 10 mm ends at |x| = 10 mm (at y = 0; nearer where its YZ curve bends
+    /// toward the axis of rotation): a 12 mm semi-diameter is warned about, a 9.9 mm one and a cylinder are not.
+    #[test]
+    fn a_toroid_ends_in_x_where_its_circle_of_rotation_does() {
+        let (c, k, c_rot) = (1.0 / 20.0, -0.5, 1.0 / 10.0);
+        let w = toroid_x_edge_warning(1, 12.0, c, k, &[], c_rot).expect("beyond the edge in x");
+        assert!(w.starts_with("surface 1: semi-diameter 12 mm is beyond the toroid's edge in x: at y = 0 mm the surface reaches |x| = 10 mm (radius of rotation 10 mm)"), "{w}");
+        assert!(w.contains("give a semi-diameter ≤ 10 mm"), "{w}");
+        assert_eq!(toroid_x_edge_warning(1, 9.9, c, k, &[], c_rot), None);
+        assert_eq!(toroid_x_edge_warning(1, 12.0, c, k, &[], 0.0), None);
+        // A negative radius of rotation ends at |R| too.
+        assert!(toroid_x_edge_warning(1, 12.0, c, k, &[], -c_rot).is_some());
     }
 }

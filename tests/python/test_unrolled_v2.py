@@ -194,8 +194,13 @@ def test_v2_weights_load_with_checks_and_refuse_another_system(tmp_path):
     for system in ("sp", sp):
         back = load_unrolled(path, phi, system=system, mask=t.mask)
         assert isinstance(back, UnrolledDAUHST) and not back.training and torch.equal(back(y), net.eval()(y))
+    # The operator names the system it was built from (round 15): taken when none is given; an operator that
+    # names none (its table given as arrays) needs the system named.
+    assert torch.equal(load_unrolled(path, phi, mask=t.mask)(y), net.eval()(y))
+    op = phi.op
+    table = dt.CassiOperator(*op.to_csr_arrays(4.0), op.cube_shape, op.image_shape)
     with pytest.raises(diffcassi.DiffcassiValueError, match="name the system of the acquisition"):
-        load_unrolled(path, phi)
+        load_unrolled(path, table)
     with pytest.raises(diffcassi.DiffcassiValueError, match=r"trained for system 'sp', not 'msp' \(refused\)"):
         load_unrolled(path, phi, system="msp")
     with pytest.raises(diffcassi.DiffcassiValueError, match=r"trained for system 'sp', not 'msp' \(refused\)"):

@@ -82,7 +82,7 @@ fn render_record(s: &mut String, sys: &SequentialSystem, backend: &str, precisio
     let data = (0..h * w * wl.len()).map(|q| scene_value(q / wl.len() / w, (q / wl.len()) % w, q % wl.len())).collect();
     let scene = SpectralCube::new(h, w, wl.clone(), data, "reference scene")?;
     let mask = if explicit {
-        Mask { height: h, width: w, values: (0..h * w).map(|q| mask_value(q / w, q % w)).collect(), description: "explicit".into() }
+        Mask { height: h, width: w, values: (0..h * w).map(|q| mask_value(q / w, q % w)).collect(), description: "explicit".into() }.at_png_steps()
     } else {
         Mask::random(h, w, opening, mask_seed)?
     };

@@ -182,6 +182,10 @@ pub mod ffi {
         /// With a tolerance, the error its choice predicts (µm: trace error + σ/√N; render.json's
         /// `tolerance_predicted_error_um`); 0 without one.
         predicted_error_um: f64,
+        /// What the CLI warns about on the same render (and Python raises as UserWarnings): an acquisition
+        /// that is zero everywhere, planes beyond the scene's bands, a dual disperser's dark planes, the f32
+        /// kernel's measured rounding. Empty from `render_detector`.
+        warnings: Vec<String>,
     }
 
     /// Normalised pupil points (px, py) of a pattern.

@@ -113,22 +113,31 @@ fn tolerance(o: &RenderOptions) -> Result<Option<f64>> {
 /// The Rust render settings the options describe.
 pub fn render_config(height: usize, width: usize, wavelengths_nm: &[f64], o: &RenderOptions) -> Result<RenderConfig> {
     crate::system::checked_size("scene (height, width, bands)", &[height, width, wavelengths_nm.len()])?;
-    if wavelengths_nm.is_empty() {
-        return Err(Error::invalid("render: no scene wavelengths"));
+    // Every setting checked here, named as C++ sets it (the library's own refusals, `100001 spectral planes`,
+    // `mask opening ratio NaN`, named none; round 15); the scene's wavelengths in the range the CLI and
+    // Python take (1e9 nm was refused only by a glass's range).
+    let fmt = diffcassi::limits::fmt_num;
+    diffcassi::render::settings::check_wavelengths("--bands", wavelengths_nm)?;
+    let max_planes = diffcassi::limits::MAX_PLANES;
+    if o.planes > max_planes {
+        return Err(Error::invalid(format!("render: RenderOptions::planes {}: must be at most {max_planes} (0: 4 per band)", o.planes)));
     }
     let planes = if o.planes == 0 { 4 * wavelengths_nm.len() } else { o.planes };
     let tolerance_um = tolerance(o)?;
     if o.rays_per_pixel == 0 && tolerance_um.is_none() {
-        return Err(Error::invalid("render: rays per pixel must be ≥ 1 (0 only with RenderOptions::tolerance_um, which chooses them)"));
+        return Err(Error::invalid("render: RenderOptions::rays_per_pixel 0: must be ≥ 1 (0 only with RenderOptions::tolerance_um, which chooses the rays per pixel)"));
     }
-    for (what, v) in [("scene pitch", o.scene_pitch_mm), ("detector pitch", o.detector_pitch_mm)] {
+    for (what, v) in [("RenderOptions::scene_pitch_mm", o.scene_pitch_mm), ("RenderOptions::detector_pitch_mm", o.detector_pitch_mm)] {
         if !(v.is_finite() && v > 0.0) {
-            return Err(Error::invalid(format!("render: {what} {v} mm must be finite and > 0")));
+            return Err(Error::invalid(format!("render: {what} {}: must be finite and > 0 (mm)", fmt(v))));
         }
     }
     let max_airy = diffcassi::limits::MAX_AIRY_DIAMETER_PX;
     if o.airy && !(o.airy_diameter_px.is_finite() && o.airy_diameter_px > 0.0 && o.airy_diameter_px <= max_airy) {
-        return Err(Error::invalid(format!("render: Airy diameter {} px must be finite and in (0, {max_airy}]", diffcassi::limits::fmt_num(o.airy_diameter_px))));
+        return Err(Error::invalid(format!("render: RenderOptions::airy_diameter_px {}: the Airy diameter must be finite and in (0, {max_airy}] px", fmt(o.airy_diameter_px))));
+    }
+    if !(o.mask_opening.is_finite() && (0.0..=1.0).contains(&o.mask_opening)) {
+        return Err(Error::invalid(format!("render: RenderOptions::mask_opening {}: the mask's opening ratio must be in [0, 1]", fmt(o.mask_opening))));
     }
     let mut cfg = RenderConfig::paper(height);
     cfg.scene_height = height;
@@ -157,8 +166,9 @@ pub fn render_config(height: usize, width: usize, wavelengths_nm: &[f64], o: &Re
     Ok(cfg)
 }
 
-/// The mask: the caller's transmissions (H×W, each in [0, 1]) or, when `values` is empty, the random
-/// binary mask of the options.
+/// The mask: the caller's transmissions (H×W, each in [0, 1]; at the 16-bit steps of `mask.png`, as every
+/// front end takes a mask: [`Mask::at_png_steps`]) or, when `values` is empty, the random binary mask of the
+/// options.
 pub fn render_mask(height: usize, width: usize, values: &[f32], o: &RenderOptions) -> Result<Mask> {
     if values.is_empty() {
         return Mask::random(height, width, o.mask_opening, o.mask_seed);
@@ -169,7 +179,9 @@ pub fn render_mask(height: usize, width: usize, values: &[f32], o: &RenderOption
     if let Some(i) = values.iter().position(|v| !(0.0..=1.0).contains(v)) {
         return Err(Error::invalid(format!("render: mask value at row {}, col {} is {} (must be in [0, 1])", i / width, i % width, values[i])));
     }
-    Ok(Mask { height, width, values: values.to_vec(), description: "caller-provided".into() })
+    // At the 16-bit steps of mask.png, as the CLI reads a mask file and Python takes an array: the same
+    // render from every front end (a greyscale mask rendered 3140 other pixels from C++; round 15).
+    Ok(Mask { height, width, values: values.to_vec(), description: "caller-provided".into() }.at_png_steps())
 }
 
 fn info(r: &Renderer<'_>, tracing: &Tracing, traced: u64, arrived: u64) -> RenderInfo {
@@ -186,6 +198,7 @@ fn info(r: &Renderer<'_>, tracing: &Tracing, traced: u64, arrived: u64) -> Rende
         rays_per_pixel: r.config.rays_per_pixel,
         precision: precision_of(r.config.precision),
         predicted_error_um: tracing.predicted_error_um(),
+        warnings: Vec::new(),
     }
 }
 
@@ -277,7 +290,13 @@ impl System {
         }
         let acq = r.render(&cube, false, &|_| {})?;
         out.copy_from_slice(&acq.image);
-        Ok(info(&r, &tracing, acq.stats.traced, acq.stats.arrived))
+        let mut done = info(&r, &tracing, acq.stats.traced, acq.stats.arrived);
+        // The CLI's warnings on this render (`render::folder`), spelled as C++ sets the settings: a zero
+        // acquisition was returned in silence (round 15).
+        let (notes, _) = diffcassi::render::folder::render_notes(&r, &cube, None)?;
+        let zero = diffcassi::render::folder::zero_warning(&acq, &serde_json::Value::Null);
+        done.warnings = zero.into_iter().chain(notes).map(|w| diffcassi::frontend::spell(&w, diffcassi::frontend::Frontend::Cpp).into_owned()).collect();
+        Ok(done)
     }
 }
 
@@ -303,7 +322,7 @@ mod tests {
         let e = refused(&|o| o.rays_per_pixel = 1 << 40);
         assert!(e.contains("raise max_rays (diffcassi::set_limits)") && !e.contains("--"), "{e}");
         let e = refused(&|o| o.airy_diameter_px = 1e9);
-        assert!(e.contains("Airy diameter 1e9 px must be finite and in (0, 100]"), "{e}");
+        assert!(e.contains("RenderOptions::airy_diameter_px 1e9: the Airy diameter must be finite and in (0, 100] px"), "{e}");
     }
 
     /// A tolerance renders what the library's choice renders (`RenderTracing::resolve`, the CLI's and

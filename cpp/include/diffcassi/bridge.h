@@ -1126,6 +1126,10 @@ struct RenderInfo final {
   // With a tolerance, the error its choice predicts (µm: trace error + σ/√N; render.json's
   // `tolerance_predicted_error_um`); 0 without one.
   double predicted_error_um CXX_DEFAULT_VALUE(0);
+  // What the CLI warns about on the same render (and Python raises as UserWarnings): an acquisition
+  // that is zero everywhere, planes beyond the scene's bands, a dual disperser's dark planes, the f32
+  // kernel's measured rounding. Empty from `render_detector`.
+  ::rust::Vec<::rust::String> warnings;
 
   using IsRelocatable = ::std::true_type;
 };

@@ -114,7 +114,9 @@ pub fn noise_estimate(record: &RenderRecord, kind: OperatorKind, operator_seed: 
         "sensor_norm": sensor_sq.sqrt(),
         "sensor_sources": sources,
         "monte_carlo_norm": mc,
-        "estimator": if spread.is_some() { "monte-carlo-spread" } else { "model" },
+        // δ = 0 (a noiseless acquisition, no Monte-Carlo mismatch modelled: the oracle, a model operator)
+        // turns the discrepancy rule off; "model" claimed an estimator that did not run (round 15).
+        "estimator": if spread.is_some() { "monte-carlo-spread" } else if norm == 0.0 { "unused: δ = 0 (a noiseless acquisition and no Monte-Carlo mismatch), so the discrepancy rule is off" } else { "model" },
         "monte_carlo_model": format!("{MC_MISMATCH_PER_RAY}·((1/R_acquisition + 1/R_operator)/F)^½·‖y‖ (F planes per band) for the exact operator with another seed or ray count, else 0"),
         "monte_carlo_model_norm": mc_model,
         "planes_per_band": planes_per_band,

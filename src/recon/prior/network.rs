@@ -391,7 +391,8 @@ impl Denoiser for SpectralUNet {
     fn denoise(&mut self, x: &[f32], out: &mut [f32], shape: CubeShape, sigma: f32) -> Result<()> {
         let (h, w, b) = (shape.height, shape.width, shape.bands);
         if b != self.bands {
-            return Err(ferr(&self.source, format!("the denoiser was trained for {} bands, the cube has {b}", self.bands)));
+            // A mismatch of the data, not a bad file: a value error (Python raised an OSError; round 15).
+            return Err(Error::invalid(format!("{}: the denoiser was trained for {} bands, the cube has {b}", self.source, self.bands)));
         }
         if x.len() != shape.len() || out.len() != shape.len() || h == 0 || w == 0 {
             return Err(Error::invalid(format!("denoiser: the cube has {} values (output {}), shape {h}×{w}×{b} needs {}", x.len(), out.len(), shape.len())));

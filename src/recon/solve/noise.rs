@@ -51,7 +51,24 @@ pub struct MonteCarloSpread<'o> {
 /// Default period of [`MonteCarloSpread`]'s re-estimation (one extra Φ per this many iterations).
 pub const SPREAD_EVERY: usize = 5;
 
+/// The largest spread factor taken ([`MonteCarloSpread::check_factor`]): [`MonteCarloSpread::factor_for`] of
+/// ray counts within the ray budget is ≤ ~10⁵; a factor of 10³⁰⁰ made δ infinite and stopped a run at its
+/// first iteration with a record of `null`s (a held-out battery, round 15).
+pub const MAX_SPREAD_FACTOR: f64 = 1e6;
+
 impl MonteCarloSpread<'_> {
+    /// A caller's factor (Python's `noise_factor`): finite, > 0 and ≤ [`MAX_SPREAD_FACTOR`].
+    pub fn check_factor(factor: f64) -> Result<f64> {
+        if !(factor.is_finite() && factor > 0.0 && factor <= MAX_SPREAD_FACTOR) {
+            return Err(Error::invalid(format!(
+                "--noise-factor {}: must be finite, > 0 and at most {} (the factor ((1 + R_operator/R_acquisition)/2)^½ of ray counts within the ray budget is ≤ ~1e5)",
+                crate::limits::fmt_num(factor),
+                crate::limits::fmt_num(MAX_SPREAD_FACTOR)
+            )));
+        }
+        Ok(factor)
+    }
+
     /// ((1 + R_o/R_a)/2)^½: the factor from the twins' spread to the expected truth residual.
     pub fn factor_for(acquisition_rays: usize, operator_rays: usize) -> f64 {
         ((1.0 + operator_rays.max(1) as f64 / acquisition_rays.max(1) as f64) / 2.0).sqrt()

@@ -82,8 +82,10 @@ pub fn to_zmx(spec: &SystemSpec) -> Result<String> {
     }
     .ok();
     let _ = writeln!(w, "ENVD 20 1 0");
-    let mut gcat = vec!["SCHOTT".to_string()];
-    for p in &spec.glass_catalogs {
+    // In OpticStudio's search order (the first catalogue holding a glass wins): the spec's catalogues last
+    // first (in a spec a later one wins), then SCHOTT, which the built-in subset stands for (below them all).
+    let mut gcat: Vec<String> = Vec::new();
+    for p in spec.glass_catalogs.iter().rev().chain(std::iter::once(&"builtin:SCHOTT".to_string())) {
         // `builtin:OHARA` (a built-in catalogue) is OHARA in OpticStudio's list; a file is its stem.
         let stem = match crate::materials::builtin_catalogs::entry_name(p) {
             Some(n) => n.to_ascii_uppercase(),

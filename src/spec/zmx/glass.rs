@@ -166,18 +166,23 @@ pub(super) fn resolve(
     let mut missing: Vec<String> = Vec::new();
     // (GCAT name, built-in catalogue) for the names found as no file, in GCAT order.
     let mut stand_ins: Vec<(String, &'static str)> = Vec::new();
+    // The files found for GCAT names, in GCAT order; put in the list last first, so that, as the list
+    // merges (a later catalogue wins), a glass several of them hold is the first's — OpticStudio looks a glass
+    // up in its catalogues in GCAT order (as rayoptics reads it), and `GCAT SCHOTT MYCAT` took MYCAT's N-BK7.
+    let mut gcat_files: Vec<String> = Vec::new();
     for n in gcat.map(|g| g.1.as_slice()).unwrap_or(&[]) {
-        if files.iter().chain(user).any(|p| entry_catalog_name(p).eq_ignore_ascii_case(n)) {
+        if files.iter().chain(&gcat_files).chain(user).any(|p| entry_catalog_name(p).eq_ignore_ascii_case(n)) {
             continue;
         }
         match find_catalog(n, dirs) {
-            Some(p) => files.push(p.display().to_string()),
+            Some(p) => gcat_files.push(p.display().to_string()),
             None => match builtin_catalogs::standing_in_for(n) {
                 Some(b) => stand_ins.push((n.clone(), b)),
                 None => missing.push(n.clone()),
             },
         }
     }
+    files.extend(gcat_files.into_iter().rev());
     for u in user {
         if !files.contains(u) {
             files.push(u.clone());

@@ -241,7 +241,7 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
             if last.rest.matches('"').count() % 2 == 1 {
                 return Err(cut("an unclosed quote".into()));
             }
-            if unsupported.iter().any(|u| u.line == last.line && u.reason.ends_with("keyword not modelled")) {
+            if unsupported.iter().any(|u| u.line == last.line && (u.reason.ends_with("keyword not modelled") || u.reason.starts_with("not a .zmx record"))) {
                 return Err(cut("not a keyword of a .zmx file".into()));
             }
             if let Some(n) = records::written_arity(&last.keyword) {

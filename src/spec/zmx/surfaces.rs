@@ -236,6 +236,11 @@ impl SurfaceBlock {
                 }
                 self.flap = Some((rmin, rmax))
             }
+            // A word no OpticStudio record starts with (a stray line after the last surface read as its record):
+            // said as such, not as a keyword of that surface (round 15).
+            k if !(k.len() == 4 && k.chars().all(|c| c.is_ascii_uppercase() || c.is_ascii_digit())) => {
+                skip(format!("not a .zmx record (OpticStudio's keywords are four upper-case letters or digits; read in surface {}'s block)", self.number))
+            }
             _ => skip(format!("surface {} keyword not modelled", self.number)),
         }
         Ok(())
