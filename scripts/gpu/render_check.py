@@ -89,6 +89,19 @@ def kernels_ms(r: dict) -> float:
     return r["gpu_kernels_ms"] if r["gpu_kernels_ms"] is not None else r["gpu_total_ms"]
 
 
+def partial(record: dict, report: dict, out, stage: str) -> None:
+    """What is measured so far: one line printed (flushed) and `record` written as render_check.json with
+    `"partial": stage`, so that a step stopped at its cap still leaves its figures (they came only at the end,
+    with the table; a held-out battery, round 15). `report` is the render just measured."""
+    k = kernels_ms(report) / 1e3
+    print(f"render_check: {stage}: kernels {k:.4f} s ({report['rays'] / k / 1e9:.2f} G rays/s), two runs bit-identical "
+          f"{report['runs_bit_identical']}, max |GPU − CPU| / peak {report['cpu_max_rel_diff']:.2e}", flush=True)
+    if out:
+        os.makedirs(out, exist_ok=True)
+        with open(os.path.join(out, "render_check.json"), "w") as f:
+            json.dump({**record, "partial": stage}, f, indent=1)
+
+
 def finish(record: dict, failed: list, out, name: str) -> int:
     """Record the failed checks in `record`, write it as `out`/`name` (JSON) when `out` is given, print each
     failure; the exit status (1 on any failure)."""
@@ -215,10 +228,13 @@ def main() -> int:
     t = time.time()
     r = diffcassi.gpu_check(system, cube, wl, twin=not a.no_twin, dry_run=a.dry_run, planes=a.planes, rays=a.rays, opening=0.5)
     r["check_seconds"] = time.time() - t
+    r["workload"] = f"{a.preset}, {a.size}x{a.size}, {a.planes} planes, {a.rays} rays, opening 0.5"
+    r["dry_run"] = a.dry_run
+    partial(r, r, a.out, "f64 render")
     # f32: the renderer's f32 trace on the device, against the CPU's f32 render (the twin is not rerun).
     r32 = diffcassi.gpu_check(system, cube, wl, twin=False, dry_run=a.dry_run, planes=a.planes, rays=a.rays, opening=0.5, precision="f32")
     r["f32"] = r32
-    r["workload"] = f"{a.preset}, {a.size}x{a.size}, {a.planes} planes, {a.rays} rays, opening 0.5"
+    partial(r, r32, a.out, "f32 render")
     # mapping --device cuda: the chief-ray cube (size² pixels × 28 bands) by the device's trace kernel, against
     # the CPU's (bit for bit: the kernel is the twin's, which equals the scalar kernel in f64 and the f32 lane
     # kernel in f32; tests/gpu_twin.rs).
@@ -263,7 +279,6 @@ def main() -> int:
         rows.append((f"mapping {prec} ({m['entries']} chief rays): GPU (with uploads) / CPU",
                      f"{m['gpu_seconds']:.3f} s / {m['cpu_seconds']:.3f} s", ""))
         rows.append((f"mapping {prec}: GPU = CPU bit for bit", str(m["bit_identical"]), "must be True"))
-    r["dry_run"] = a.dry_run
     print(f"| render check{DRY_TITLE if a.dry_run else ''} | value | bound |")
     print("|---|---|---|")
     for w, v, b in rows:
