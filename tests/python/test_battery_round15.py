@@ -23,9 +23,15 @@ def test_an_operator_names_its_system_and_unrolled_weights_of_another_are_refuse
     phi = dt.CassiOperator.from_operator(op, matrix_free=True)
     with pytest.raises(diffcassi.DiffcassiValueError, match=r"trained for system 'sp', not 'msp' \(refused\)"):
         load_unrolled(V1_SP, phi)
+    # A system named that is not the operator's is refused too (a regression prober: system="sp" loaded sp's
+    # weights on the msp operator).
+    for named in ("sp", diffcassi.System.preset("sp")):
+        with pytest.raises(diffcassi.DiffcassiValueError, match=r"is not the system the operator was built from \('msp'; refused\)"):
+            load_unrolled(V1_SP, phi, system=named)
     sp = diffcassi.System.preset("sp")
     phi_sp = dt.CassiOperator.from_operator(diffcassi.exact(sp, 16, 16, planes=28, rays=1, seed=1), matrix_free=True)
     assert load_unrolled(V1_SP, phi_sp) is not None
+    assert load_unrolled(V1_SP, phi_sp, system="sp") is not None
 
 
 def test_noise_factor_is_bounded():

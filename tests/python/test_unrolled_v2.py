@@ -222,7 +222,10 @@ def test_v2_weights_load_with_checks_and_refuse_another_system(tmp_path):
                        + system_sha256(sp)):
         load_unrolled(tmp_path / "edited.safetensors", phi, system="sp", mask=t.mask)
     save_file(tensors, tmp_path / "mine.safetensors", metadata=dict(meta, system="my_relay", system_sha256="0" * 64))
-    assert isinstance(load_unrolled(tmp_path / "mine.safetensors", phi, system="my_relay"), UnrolledDAUHST)
+    assert isinstance(load_unrolled(tmp_path / "mine.safetensors", table, system="my_relay"), UnrolledDAUHST)
+    # An operator that names its system refuses another name (round 15: it ran the network on sp's operator).
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"system='my_relay' is not the system the operator was built from \('sp'; refused\)"):
+        load_unrolled(tmp_path / "mine.safetensors", phi, system="my_relay")
     save_file(tensors, tmp_path / "shape.safetensors", metadata=dict(meta, width="8"))
     with pytest.raises(diffcassi.DiffcassiValueError, match=r"has shape .* expected .*width=8"):
         load_unrolled(tmp_path / "shape.safetensors", phi, system="sp")

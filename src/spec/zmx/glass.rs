@@ -170,7 +170,11 @@ pub(super) fn resolve(
     // merges (a later catalogue wins), a glass several of them hold is the first's — OpticStudio looks a glass
     // up in its catalogues in GCAT order (as rayoptics reads it), and `GCAT SCHOTT MYCAT` took MYCAT's N-BK7.
     let mut gcat_files: Vec<String> = Vec::new();
-    for n in gcat.map(|g| g.1.as_slice()).unwrap_or(&[]) {
+    // A file diffcassi exported holds the spec's catalogues verbatim as `DCGC` lines, and writes `GCAT` for
+    // OpticStudio only (SCHOTT added for the built-in subset): its `GCAT` names are not looked up again, else a
+    // SCHOTT.AGF beside the export took over the `DCGC` catalogue's glass (a held-out battery, round 15).
+    let gcat_names: &[String] = if dcgc.is_empty() { gcat.map(|g| g.1.as_slice()).unwrap_or(&[]) } else { &[] };
+    for n in gcat_names {
         if files.iter().chain(&gcat_files).chain(user).any(|p| entry_catalog_name(p).eq_ignore_ascii_case(n)) {
             continue;
         }
@@ -223,7 +227,7 @@ pub(super) fn resolve(
         }
         if !found {
             if let Some(g) = subset.find(name) {
-                if let Some((gl, names)) = gcat.filter(|g| !g.1.is_empty()) {
+                if let Some((gl, names)) = gcat.filter(|g| !g.1.is_empty() && dcgc.is_empty()) {
                     notes.push(format!(
                         "line {line} `GLAS`: glass `{name}` of surface {surface} is in none of the file's catalogues (`GCAT {}`, line {gl}); taken from the {SUBSET}",
                         names.join(" ")
