@@ -93,13 +93,21 @@ fn height_at_stop(surfaces: &[ParaxialSurface], stop: usize, y0: f64, nu0: f64) 
 
 /// (y, nu) just after surface `to` (refracted) of the ray with (y, nu) just after surface `from`.
 fn trace_after(surfaces: &[ParaxialSurface], from: usize, to: usize, y0: f64, nu0: f64) -> (f64, f64) {
-    let (mut y, mut nu) = (y0, nu0);
+    let (y, nu, _) = trace_with_terms(surfaces, from, to, y0, nu0);
+    (y, nu)
+}
+
+/// [`trace_after`] and the largest refraction term |y φ| it subtracted from nu.
+fn trace_with_terms(surfaces: &[ParaxialSurface], from: usize, to: usize, y0: f64, nu0: f64) -> (f64, f64, f64) {
+    let (mut y, mut nu, mut largest) = (y0, nu0, 0.0f64);
     for i in from + 1..=to {
         let prev = &surfaces[i - 1];
         y += prev.thickness_mm * nu / prev.n_after;
-        nu -= y * power(surfaces, i);
+        let term = y * power(surfaces, i);
+        largest = largest.max(term.abs());
+        nu -= term;
     }
-    (y, nu)
+    (y, nu, largest)
 }
 
 /// [`trace_after`] of the ray parallel to the axis at unit height after surface 0, with its final reduced
@@ -108,14 +116,7 @@ fn trace_after(surfaces: &[ParaxialSurface], from: usize, to: usize, y0: f64, nu
 /// paraboloid and its confocal secondary; a held-out battery, round 15); a real system's EFL is within
 /// 10¹² of its elements' focal lengths.
 fn parallel_ray_after(surfaces: &[ParaxialSurface], last: usize) -> (f64, f64) {
-    let (mut y, mut nu, mut largest) = (1.0f64, 0.0f64, 0.0f64);
-    for i in 1..=last {
-        let prev = &surfaces[i - 1];
-        y += prev.thickness_mm * nu / prev.n_after;
-        let term = y * power(surfaces, i);
-        largest = largest.max(term.abs());
-        nu -= term;
-    }
+    let (y, mut nu, largest) = trace_with_terms(surfaces, 0, last, 1.0, 0.0);
     if nu.abs() <= 1e-12 * largest {
         nu = 0.0;
     }

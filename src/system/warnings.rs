@@ -42,8 +42,9 @@ pub fn toroid_x_edge_warning(index: usize, sd: f64, c: f64, k: f64, alpha: &[f64
         return None;
     }
     const N: usize = 2048;
-    // (|x| the aperture asks / |x| the surface reaches, y) at the worst height; the largest inside semi-diameter.
-    let (mut worst, mut largest_inside) = ((0.0f64, 0.0f64), sd);
+    // (|x| the aperture asks / |x| the surface reaches, y, that reach) at the worst height; the largest inside
+    // semi-diameter.
+    let (mut worst, mut largest_inside) = ((0.0f64, 0.0f64, 0.0f64), sd);
     for i in 0..=N {
         let y = sd * i as f64 / N as f64;
         let (zy, _, _) = crate::surfaces::toroidal::yz_curve(c, k, alpha, y);
@@ -53,7 +54,7 @@ pub fn toroid_x_edge_warning(index: usize, sd: f64, c: f64, k: f64, alpha: &[f64
         let reach = (1.0 / c_rot - zy).abs();
         let asked = (sd * sd - y * y).max(0.0).sqrt();
         if asked / reach > worst.0 {
-            worst = (asked / reach, y);
+            worst = (asked / reach, y, reach);
         }
         if asked > reach {
             // The disc of radius √(reach² + y²) stays within the edge at this height.
@@ -64,8 +65,7 @@ pub fn toroid_x_edge_warning(index: usize, sd: f64, c: f64, k: f64, alpha: &[f64
         return None;
     }
     let fmt = crate::limits::fmt_num;
-    let y = worst.1;
-    let reach = (1.0 / c_rot - crate::surfaces::toroidal::yz_curve(c, k, alpha, y).0).abs();
+    let (_, y, reach) = worst;
     Some(format!(
         "surface {index}: semi-diameter {} mm is beyond the toroid's edge in x: at y = {} mm the surface reaches |x| = {} mm (radius of rotation {} mm), so rays beyond it miss the surface; give a semi-diameter ≤ {} mm",
         fmt(sd),

@@ -271,12 +271,11 @@ impl System {
         options: &RenderOptions,
         out: &mut [f64],
     ) -> Result<RenderInfo> {
-        let cfg = render_config(height, width, wavelengths_nm, options)?;
+        let mut cfg = render_config(height, width, wavelengths_nm, options)?;
         let mask = render_mask(height, width, mask, options)?;
         let cube = SpectralCube::new(height, width, wavelengths_nm.to_vec(), scene.to_vec(), "render scene")?;
         // The radiance range the CLI and Python take (3.4e38 rendered inf, negative values negative pixels).
         diffcassi::render::settings::check_scene_values(&cube).map_err(|e| Error::invalid(format!("render: {e}")))?;
-        let mut cfg = cfg;
         let tracing = self.render_tracing(backend, options, &mut cfg, &mask)?;
         let r = Renderer::new(self.system(), tracing.tracer(), cfg, mask)?;
         let pixels = r.detector.pixels();
