@@ -21,7 +21,7 @@
 #
 # The training runs after a failed check too (a check can fail on one row; the training's figures are still the
 # GPU's), and session.txt says each step's status. Each `timeout` sends SIGKILL 15 s after SIGTERM (a hung CUDA
-# call may ignore SIGTERM). Outputs of an earlier session in $OUT are removed first.
+# call may ignore SIGTERM). An earlier session's outputs in $OUT are replaced; another non-empty $OUT is refused.
 #
 # Environment passed on: DRY_RUN (gpu_check.sh), DEVICE, RESUME, WORKERS (train_run.sh), PYTHON (both).
 # Exit: the check's status; else the training's; else 3 when the training was not started (no time left).
@@ -32,7 +32,13 @@ budget="${SESSION_BUDGET_S:-540}"
 [[ "$budget" =~ ^[1-9][0-9]{0,5}$ ]] && (( budget >= 200 )) || { echo "session: SESSION_BUDGET_S=$budget: give whole seconds, at least 200" >&2; exit 2; }
 mkdir -p "$out"
 out="$(cd "$out" && pwd)"
-rm -f "$out"/session.txt "$out"/check.tar.gz "$out"/train.tar.gz "$out"/*.safetensors* "$out"/*-checkpoint.pt*
+# An earlier session's outputs (its session.txt marks them) are replaced; a folder holding anything else is not
+# this script's to clear: refused.
+if [[ -n "$(ls -A "$out")" && ! -f "$out/session.txt" ]]; then
+    echo "session: $out is not empty and holds no earlier session's output (session.txt): give an empty OUT" >&2
+    exit 2
+fi
+rm -f "$out"/session.txt "$out"/check.tar.gz "$out"/train.tar.gz "$out"/unrolled-*.safetensors* "$out"/unrolled-*-checkpoint.pt*
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 log="$out/session.txt"
