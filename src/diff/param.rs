@@ -377,6 +377,12 @@ impl ParamSet {
 ///
 /// SP and mSP: surface 4 (its x and z tilts are undone by the pickups of surface 14). AP: the stop break,
 /// surface 3 (R = Rx·Ry(α_c)·Rz, the same rotation as mAP's surfaces 4 then 5). mAP: surface 4.
+///
+/// The alias is not the same quantity in AP and mAP: AP's surface 3 is the stop break that holds α_c (its y
+/// tilt, picked up by surface 14) and whose x and z tilts nothing undoes, so they tilt everything after it;
+/// mAP's surface 4 holds the 5° misalignment alone, undone by a fixed −5° x break at surface 19. A
+/// value fitted on one is no truth for the other, and `calibrate` reads truths only from an observed system
+/// that numbers its surfaces as the model does (a held-out battery, round 16).
 pub fn preset_alias(preset: &str, name: &str) -> Option<Param> {
     let axis = match name {
         "prism_tilt_x" => "tilt_x_deg",

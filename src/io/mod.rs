@@ -8,7 +8,8 @@
 //!   then rename; parent directories are created).
 //! * [`policy`]: what an output path may be (new, a previous output of the same command, never an input;
 //!   `--force`), checked before any work; [`stale`]: temporary names carrying their writer, and the removal
-//!   of those killed runs left; [`OutputSet`] stages multi-file outputs and swaps them in.
+//!   of those killed runs left; [`OutputSet`] stages multi-file outputs and swaps them in; [`lock`]: an
+//!   exclusive advisory lock on an output folder (concurrent runs into one folder).
 //! * [`npy`]: [`write_npy_f64`], [`write_npy_f32`], [`write_npy_u8`], [`write_npy_u16`] and
 //!   [`read_npy_f64`] (NPY format, little-endian, C order).
 //! * [`csv`]: [`read_columns`] (pick numeric columns by header name) and [`CsvWriter`].
@@ -43,6 +44,7 @@ pub mod atomic;
 pub mod csv;
 pub mod exr;
 pub mod input;
+pub mod lock;
 pub mod npy;
 pub mod png16;
 pub mod policy;

@@ -90,5 +90,7 @@ pub fn adam(loss: &mut dyn Loss, x0: &[f64], bounds: &Bounds, opts: &AdamOptions
             }
         }
     }
+    // A parameter that ends on its bound is named (a held-out battery, round 16).
+    warnings.extend(super::loss::bound_warnings(&opts.names, &best_x, bounds, &insensitive));
     Ok(OptimReport { x: best_x, loss: best, initial_loss, iterations: done, history, insensitive, stop_reason: stop, warnings })
 }

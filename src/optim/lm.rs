@@ -1,4 +1,4 @@
-use super::loss::{insensitive_warning, parameter_name, solve_dense, Bounds, Loss, OptimReport};
+use super::loss::{bound_warnings, insensitive_warning, parameter_name, solve_dense, Bounds, Loss, OptimReport};
 use crate::error::Result;
 
 /// Levenberg–Marquardt settings.
@@ -53,6 +53,7 @@ pub fn levenberg_marquardt(loss: &mut dyn Loss, x0: &[f64], bounds: &Bounds, opt
         ));
     }
     let mut stop = "max_iterations".to_string();
+    let mut converged = false;
     let mut it = 0;
     while it < opts.max_iterations {
         it += 1;
@@ -64,7 +65,17 @@ pub fn levenberg_marquardt(loss: &mut dyn Loss, x0: &[f64], bounds: &Bounds, opt
             .filter(|&j| !((x[j] <= bounds.lower[j] && g[j] > 0.0) || (x[j] >= bounds.upper[j] && g[j] < 0.0)))
             .collect();
         if free.is_empty() {
-            stop = "all parameters at bounds".into();
+            // Say which: a fit whose only parameter has no effect on the loss was reported "all parameters at
+            // bounds" while it sat nowhere near one (a held-out battery, round 16).
+            let held: Vec<String> = (0..n).filter(|j| !insensitive.contains(j)).map(name).collect();
+            let none: Vec<String> = insensitive.iter().map(|&j| name(j)).collect();
+            stop = if held.is_empty() {
+                format!("nothing to fit: no free parameter affects the loss ({} left unchanged)", none.join(", "))
+            } else if none.is_empty() {
+                format!("all parameters held at a bound by the gradient ({})", held.join(", "))
+            } else {
+                format!("nothing to fit: {} held at a bound by the gradient, {} not affecting the loss", held.join(", "), none.join(", "))
+            };
             break;
         }
         if free.iter().all(|&j| (g[j] * x[j].abs().max(1.0)).abs() < opts.g_tol * (1.0 + cost)) {
@@ -121,11 +132,15 @@ pub fn levenberg_marquardt(loss: &mut dyn Loss, x0: &[f64], bounds: &Bounds, opt
                 if gain < opts.f_tol || step < opts.x_tol {
                     stop = "converged (f_tol / x_tol)".into();
                     history.push(cost);
-                    return Ok(OptimReport { x, loss: cost, initial_loss, iterations: it, history, insensitive, stop_reason: stop, warnings });
+                    converged = true;
+                    break;
                 }
                 break;
             }
             lambda *= 10.0;
+        }
+        if converged {
+            break;
         }
         history.push(cost);
         if !accepted {
@@ -138,5 +153,7 @@ pub fn levenberg_marquardt(loss: &mut dyn Loss, x0: &[f64], bounds: &Bounds, opt
         warnings.truncate(20);
         warnings.push(format!("… {extra} more"));
     }
+    // Kept out of the truncation: a parameter on its bound is the one warning that must not be cut.
+    warnings.extend(bound_warnings(&opts.names, &x, bounds, &insensitive));
     Ok(OptimReport { x, loss: cost, initial_loss, iterations: it, history, insensitive, stop_reason: stop, warnings })
 }

@@ -76,7 +76,8 @@ pub fn unrolled(op: &dyn Operator, y: &[f32], net: &UnrolledNetwork, on_stage: &
     let mut x = vec![0.0f32; cs.len()];
     op.adjoint_into(&e, &mut x);
     let mean = x.iter().map(|v| v.abs() as f64).sum::<f64>() / x.len().max(1) as f64;
-    if !(mean > 0.0) {
+    // A mean below f32's normal range (an acquisition among the subnormals) is no scale to divide by: as a zero one.
+    if !(mean as f32 >= f32::MIN_POSITIVE) {
         let r0 = rel(ny);
         for k in 1..=net.stages() {
             on_stage(k, &x, r0);

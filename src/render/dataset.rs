@@ -261,37 +261,49 @@ impl Shard {
         let t = text.trim();
         let (k_text, n_text) = t.split_once('/').map(|(k, n)| (k, Some(n))).unwrap_or((t, None));
         if k_text.eq_ignore_ascii_case("slurm") {
-            let var = |name: &str| -> std::result::Result<String, String> {
-                env(name).filter(|v| !v.trim().is_empty()).ok_or_else(|| format!("`{text}` needs the Slurm variable {name}, which is not set (not inside a Slurm job array?); outside Slurm {usage}"))
+            // A variable set but empty is named as such, not as unset, and each message names the variable whose
+            // value is bad (`SLURM_ARRAY_TASK_COUNT=0` was reported as `SLURM_ARRAY_TASK_ID=1: the shard count N
+            // must be ≥ 1`; an empty SLURM_ARRAY_TASK_MAX was accepted silently: a held-out battery, round 16).
+            let var = |name: &str| -> std::result::Result<usize, String> {
+                match env(name) {
+                    None => Err(format!("`{text}` needs the Slurm variable {name}, which is not set (not inside a Slurm job array?); outside Slurm {usage}")),
+                    Some(v) if v.trim().is_empty() => Err(format!("{name} is set but empty: `{text}` needs it to hold a whole number (Slurm sets it in every task of a job array; is the job script overriding it?)")),
+                    Some(v) => v.trim().parse().map_err(|_| format!("{name}=`{v}` is not a whole number")),
+                }
             };
-            let k: usize = var(SLURM_TASK_ID)?.trim().parse().map_err(|_| format!("{SLURM_TASK_ID}=`{}` is not a whole number", env(SLURM_TASK_ID).unwrap_or_default()))?;
+            // The array's shape (first ID, step, last ID): unset is fine (older Slurm), set must be a number.
+            let shape = |name: &str| -> std::result::Result<Option<usize>, String> { if env(name).is_none() { Ok(None) } else { var(name).map(Some) } };
+            let k = var(SLURM_TASK_ID)?;
             // An array numbered from 1 (`--array=1-3`) gives IDs 1…N: task N failed, the others rendered shards
             // 1…N−1 and shard 0 never (a held-out battery). With N from Slurm the array must start at 0.
+            let mut max = None;
             if n_text.is_none() {
-                if let Some(min) = env(SLURM_TASK_MIN).filter(|v| v.trim() != "0" && !v.trim().is_empty()) {
-                    return Err(format!("{SLURM_TASK_MIN}={}: `{text}` takes the shard count from Slurm, so the array must be numbered from 0 (--array=0-(N-1)); a subset of an array must give N: --shard slurm/N", min.trim()));
+                if let Some(min) = shape(SLURM_TASK_MIN)?.filter(|&m| m != 0) {
+                    return Err(format!("{SLURM_TASK_MIN}={min}: `{text}` takes the shard count from Slurm, so the array must be numbered from 0 (--array=0-(N-1)); a subset of an array must give N: --shard slurm/N"));
                 }
                 // An array with a step (`--array=0-4:2`: IDs 0, 2, 4, count 3) rendered shards 0/3 and 2/3 and
                 // failed task 4, shard 1 never rendered (a held-out battery, round 9): refused in every task.
-                if let Some(step) = env(SLURM_TASK_STEP).filter(|v| v.trim() != "1" && !v.trim().is_empty()) {
-                    return Err(format!("{SLURM_TASK_STEP}={}: `{text}` takes the shard count from Slurm, so the array's IDs must be 0, 1, …, N−1 (--array=0-(N-1), no step)", step.trim()));
+                if let Some(step) = shape(SLURM_TASK_STEP)?.filter(|&s| s != 1) {
+                    return Err(format!("{SLURM_TASK_STEP}={step}: `{text}` takes the shard count from Slurm, so the array's IDs must be 0, 1, …, N−1 (--array=0-(N-1), no step)"));
                 }
-                if let (Some(max), Some(count)) = (env(SLURM_TASK_MAX), env(SLURM_TASK_COUNT)) {
-                    if let (Ok(max), Ok(count)) = (max.trim().parse::<usize>(), count.trim().parse::<usize>()) {
-                        if count >= 1 && max != count - 1 {
-                            return Err(format!("{SLURM_TASK_MAX}={max} with {SLURM_TASK_COUNT}={count}: `{text}` takes the shard count from Slurm, so the array's IDs must be 0, 1, …, N−1 (--array=0-(N-1)); a subset of an array must give N: --shard slurm/N"));
-                        }
-                    }
-                }
+                max = shape(SLURM_TASK_MAX)?;
             }
-            let n = match n_text {
-                Some(n) => whole(n, "shard count N", 1)?,
-                None => var(SLURM_TASK_COUNT)?.trim().parse().map_err(|_| format!("{SLURM_TASK_COUNT}=`{}` is not a whole number", env(SLURM_TASK_COUNT).unwrap_or_default()))?,
+            let hint = if n_text.is_none() { " (submit the array as --array=0-(N-1); a resubmitted subset of an array must give N: --shard slurm/N)" } else { " (submit the array as --array=0-(N-1))" };
+            // Where N came from, as messages name it.
+            let (n, n_source) = match n_text {
+                Some(n) => (whole(n, "shard count N", 1)?, format!("`{text}`")),
+                None => {
+                    let n = var(SLURM_TASK_COUNT)?;
+                    (n, format!("{SLURM_TASK_COUNT}={n}"))
+                }
             };
-            return Shard::new(k, n).map_err(|e| {
-                let hint = if n_text.is_none() { " (submit the array as --array=0-(N-1); a resubmitted subset of an array must give N: --shard slurm/N)" } else { " (submit the array as --array=0-(N-1))" };
-                format!("{SLURM_TASK_ID}={k}: {e}{hint}")
-            });
+            if n == 0 {
+                return Err(format!("{n_source}: the shard count N must be ≥ 1{hint}"));
+            }
+            if let Some(max) = max.filter(|&m| m != n - 1) {
+                return Err(format!("{SLURM_TASK_MAX}={max} with {SLURM_TASK_COUNT}={n}: `{text}` takes the shard count from Slurm, so the array's IDs must be 0, 1, …, N−1 (--array=0-(N-1)); a subset of an array must give N: --shard slurm/N"));
+            }
+            return Shard::new(k, n).map_err(|e| format!("{SLURM_TASK_ID}={k} with {n_source}: {e}{hint}"));
         }
         let Some(n_text) = n_text else { return Err(format!("`{text}`: {usage}")) };
         Shard::new(whole(k_text, "shard index K", 0)?, whole(n_text, "shard count N", 1)?)
@@ -591,7 +603,11 @@ fn check_sidecar(dir: &Path, sidecar: &str, records_key: &str, requested: Option
     let (Some(recorded), Some(records)) = (v.get("configuration"), v.get(records_key)) else {
         return SceneState::Mismatch(vec![format!("{sidecar} records no configuration or output checksums (written by an older diffcassi or by `render`)")]);
     };
-    let damaged = verify_records(dir, records);
+    let mut damaged = verify_records(dir, records);
+    // A record whose top-level fields contradict its own configuration was edited: not done (round 16).
+    if sidecar == "render.json" {
+        damaged.extend(crate::render::output::record_contradictions(&v).into_iter().map(|c| format!("{sidecar}: {c}")));
+    }
     if !damaged.is_empty() {
         return SceneState::Damaged(damaged);
     }
@@ -926,6 +942,30 @@ mod tests {
             assert!(e.contains("SLURM_ARRAY_TASK_MIN=1") && e.contains("--array=0-(N-1)"), "{e}");
         }
         assert_eq!(Shard::parse("slurm/4", from1("2")), Ok(Shard { index: 2, count: 4 }));
+        // Each message names the variable whose value is bad; set-but-empty is not "not set" (a held-out
+        // battery, round 16).
+        let e = Shard::parse("slurm", env("1", "0")).unwrap_err();
+        assert!(e.starts_with("SLURM_ARRAY_TASK_COUNT=0: the shard count N must be ≥ 1"), "{e}");
+        let e = Shard::parse("slurm", env("1", " ")).unwrap_err();
+        assert!(e.contains("SLURM_ARRAY_TASK_COUNT is set but empty") && !e.contains("not set"), "{e}");
+        let e = Shard::parse("slurm", env("", "4")).unwrap_err();
+        assert!(e.contains("SLURM_ARRAY_TASK_ID is set but empty"), "{e}");
+        let e = Shard::parse("slurm", env("5", "4")).unwrap_err();
+        assert!(e.starts_with("SLURM_ARRAY_TASK_ID=5 with SLURM_ARRAY_TASK_COUNT=4: shard index 5 is out of range"), "{e}");
+        let e = Shard::parse("slurm/0", env("0", "1")).unwrap_err();
+        assert!(e.starts_with("`slurm/0`: the shard count N must be ≥ 1"), "{e}");
+        for (var, value) in [(SLURM_TASK_MAX, ""), (SLURM_TASK_MAX, "x"), (SLURM_TASK_MIN, ""), (SLURM_TASK_STEP, " ")] {
+            let shaped = |k: &str| match k {
+                SLURM_TASK_ID => Some("1".to_string()),
+                SLURM_TASK_COUNT => Some("3".to_string()),
+                k if k == var => Some(value.to_string()),
+                _ => None,
+            };
+            let e = Shard::parse("slurm", shaped).unwrap_err();
+            assert!(e.starts_with(var) && !e.contains("not set"), "{var}={value}: {e}");
+            // With N given the array's shape is not consulted.
+            assert_eq!(Shard::parse("slurm/3", shaped), Ok(Shard { index: 1, count: 3 }));
+        }
         // N is a count ≥ 1, and says so.
         assert!(Shard::parse("1/1/1", none).unwrap_err().contains("whole number ≥ 1"));
     }

@@ -178,6 +178,11 @@ impl Acquisition {
     pub fn total(&self) -> f64 {
         self.image.iter().sum()
     }
+    /// Whether every pixel is zero as written (f32): a noisy acquisition whose read noise sums to ≤ 0 is not
+    /// zero (its total is no test; round 16).
+    pub fn is_zero(&self) -> bool {
+        self.image.iter().all(|&v| v as f32 == 0.0)
+    }
     pub fn image_f32(&self) -> Vec<f32> {
         self.image.iter().map(|&v| v as f32).collect()
     }

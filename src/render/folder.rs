@@ -190,7 +190,7 @@ pub fn apply_noise(noise: Option<&NoiseConfig>, acq: &mut Acquisition, progress:
     // blame the scene for the zeros (`--electrons-per-unit 1e-300` wrote all-zero acquisitions, exit 0; a
     // held-out battery, round 9).
     if report.clean_peak > 0.0 && report.peak_electrons < 1.0 {
-        let zeros = if acq.total() == 0.0 { ": the noisy acquisition is zero everywhere" } else { "" };
+        let zeros = if acq.is_zero() { ": the noisy acquisition is zero everywhere" } else { "" };
         progress.warning(&format!(
             "the exposure puts {:.3e} e⁻ in the brightest pixel (< 1 electron; {:.3e} electrons per unit){zeros}: raise --electrons-per-unit",
             report.peak_electrons,
@@ -229,7 +229,7 @@ pub fn render_notes(renderer: &Renderer, scene: &SpectralCube, device: Option<&s
 pub fn zero_warning(acq: &Acquisition, noise: &Value) -> Option<String> {
     let positive = |key: &str| noise[key].as_f64().is_some_and(|v| v > 0.0);
     let said = positive("clean_peak") && noise["peak_electrons"].as_f64().is_some_and(|p| p < 1.0);
-    if acq.total() > 0.0 || said {
+    if !acq.is_zero() || said {
         return None;
     }
     let why = if positive("clean_total") {

@@ -133,7 +133,32 @@ impl NoiseConfig {
         if self.electrons_per_unit.is_some() && k * peak > MAX_ELECTRONS {
             return Err(Error::invalid(format!("{} electrons per unit put {:.3e} e⁻ in the peak pixel; at most {MAX_ELECTRONS:e} are supported: lower --electrons-per-unit", crate::limits::fmt_num(k), k * peak)));
         }
+        self.check_steps(k)?;
         Ok(k)
+    }
+
+    /// One ADC step and the read noise's σ in acquisition units (g/K, σ/K) within the ±[`MAX_SCENE_VALUE`]
+    /// an acquisition holds: beyond it no pixel but 0 can be written, and the noise's norm, which
+    /// `reconstruct` estimates from them, is not a number (`--electrons-per-unit 1e-150` with the ADC on
+    /// wrote a zero acquisition, exit 0, that `reconstruct` refused as "δ = inf"; round 16).
+    ///
+    /// [`MAX_SCENE_VALUE`]: crate::limits::MAX_SCENE_VALUE
+    pub fn check_steps(&self, k: f64) -> Result<()> {
+        let max = crate::limits::MAX_SCENE_VALUE;
+        let gain = self.adc_bits.map(|b| self.full_well_e / ((1u64 << b) - 1) as f64);
+        for (what, e) in [("one ADC step", gain), ("the read noise σ", (self.read_noise_e > 0.0).then_some(self.read_noise_e))] {
+            if let Some(e) = e {
+                if !(e / k <= max) {
+                    return Err(Error::invalid(format!(
+                        "{what} ({:.4e} e⁻) is {:.3e} acquisition units at {} electrons per unit, beyond the ±{max:.3e} an acquisition holds within f32's range (what `reconstruct` reads): raise the exposure (--electrons-per-unit)",
+                        e,
+                        e / k,
+                        crate::limits::fmt_num(k)
+                    )));
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Apply the noise to `image` (acquisition units, in place; see the module docs). With every source off

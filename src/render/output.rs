@@ -30,6 +30,34 @@ pub fn acquisition_intact(dir: &Path, json: &serde_json::Value) -> bool {
     img.channels.iter().find(|c| c.name == "Y").is_some_and(|c| recorded.as_str() == Some(super::engine::acquisition_sha256(&c.data).as_str()))
 }
 
+/// [`record_contradictions`]' fields: a dataset scene's render.json holds each at its top level and in its
+/// `configuration`, in the same form.
+pub const RECORD_FIELDS_IN_CONFIGURATION: [&str; 13] =
+    ["seed", "rays_per_pixel", "planes_nm", "bands_nm", "scene_height", "scene_width", "scene_pitch_mm", "detector_pitch_mm", "detector_extra_px", "plane_weight", "sampling", "airy", "system"];
+
+/// Where a dataset scene's render.json contradicts itself: a top-level field that its `configuration` (the
+/// dataset's request, which resume and `dataset-status` compare) also holds, with another value — an edited
+/// record (`seed` 0 → 5 counted as done, and `reconstruct` traced the operator with the edited seed; a held-out
+/// battery, round 16). The fields compared are the ones `reconstruct` rebuilds the operator from and both
+/// levels record in one form ([`RECORD_FIELDS_IN_CONFIGURATION`]; `mask`, `noise` and `system_spec` are
+/// recorded in two forms: the request's settings, the render's report, catalogues by content). Empty for a
+/// record without `configuration` (`render`'s own folders).
+pub fn record_contradictions(json: &serde_json::Value) -> Vec<String> {
+    let (Some(top), Some(conf)) = (json.as_object(), json.get("configuration").and_then(serde_json::Value::as_object)) else { return Vec::new() };
+    let short = |v: &serde_json::Value| {
+        let t = v.to_string();
+        if t.chars().count() > 60 {
+            format!("{}…", t.chars().take(60).collect::<String>())
+        } else {
+            t
+        }
+    };
+    conf.iter()
+        .filter(|(k, _)| RECORD_FIELDS_IN_CONFIGURATION.contains(&k.as_str()))
+        .filter_map(|(k, c)| top.get(k).filter(|t| *t != c).map(|t| format!("`{k}` = {} but `configuration.{k}` = {} (an edited record)", short(t), short(c))))
+        .collect()
+}
+
 /// The 16-bit preview's scale: 65535 / the acquisition's maximum (0 for a black acquisition); `render.json`
 /// records it as `preview_scale`.
 pub fn preview_scale(acq: &Acquisition) -> f64 {

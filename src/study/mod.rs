@@ -116,6 +116,23 @@ pub struct StudySummary {
 /// by it ([`crate::io::policy`]).
 pub const STUDY_MARKER: &str = "study.json";
 
+/// The exclusive lock on the study folder `out` (existing), or the refusal when another study holds it.
+fn lock_study(out: &Path, progress: &dyn StudyProgress) -> Result<Option<crate::io::lock::FolderLock>> {
+    use crate::io::lock::{lock_folder, LockAttempt};
+    match lock_folder(out, false) {
+        Ok(LockAttempt::Held(l)) => Ok(Some(l)),
+        Ok(LockAttempt::Busy) => Err(Error::File {
+            path: out.display().to_string(),
+            message: "another study is writing this folder (it holds the folder's lock); nothing was written. Wait for it to end and run this one again (it resumes the folder), or choose another --out".into(),
+        }),
+        Ok(LockAttempt::Unsupported(e)) => {
+            progress.warning(&format!("{}: the file system cannot lock this folder ({e}): another study started on it at the same time would not be refused", out.display()));
+            Ok(None)
+        }
+        Err(e) => Err(Error::File { path: out.display().to_string(), message: format!("cannot open the folder to lock it: {e}") }),
+    }
+}
+
 /// Run (or resume) the study `a` describes, reporting to `progress`; see the module docs.
 pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySummary> {
     let t0 = Instant::now();
@@ -266,6 +283,10 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
         r
     };
     std::fs::create_dir_all(&a.out).map_err(|e| Error::File { path: a.out.display().to_string(), message: format!("cannot create: {e}") })?;
+    // One study at a time in a folder, for the whole run: two studies with other settings both ran and study.csv
+    // mixed their cells while study.json recorded one (a held-out battery, round 16). The kernel releases the
+    // lock when a run ends or is killed, so a study resumed afterwards goes on as before.
+    let _lock = lock_study(&a.out, progress)?;
     // The marker that makes --out recognisable as a study (resumed by the next run), written first.
     // Each system: where it came from and what it adds to the configuration of its renders and cells.
     let listed: Vec<Value> = systems.iter().map(|s| {
@@ -373,6 +394,9 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
                 let rays = rec.config.rays_per_pixel;
                 settings.noise = Some(noise_estimate(&rec, op_kind, op_seed, rays, rays, settings.noise_model.unwrap_or(NoiseModel::Spread)));
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, &|_, _| {}, twin.as_deref())?;
+                for w in solved.stopping.get("warnings").and_then(serde_json::Value::as_array).into_iter().flatten().filter_map(serde_json::Value::as_str) {
+                    progress.warning(&format!("{label} {} {} {solver}: {w}", scene.name, op_kind.name()));
+                }
                 let c = op.cube_shape();
                 let estimate = SpectralCube::new(c.height, c.width, bands.clone(), solved.cube, "reconstructed cube")?;
                 let ev = evaluate(&scene.cube, &estimate).map_err(|e| Error::invalid(format!("study: scene `{}` ({label}, {}, {solver}): {e}", scene.name, op_kind.name())))?;

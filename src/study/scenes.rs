@@ -53,6 +53,15 @@ pub(super) fn load_scenes(a: &StudySettings, bands: &[f64]) -> Result<Vec<StudyS
                     // The metrics take the scene's maximum as PSNR's peak: a black scene is refused before any
                     // render, naming it (it failed after its renders and solves with "the truth's maximum is 0").
                     crate::recon::metrics::truth_peak(&cube.data).map_err(|e| Error::File { path: s.path.display().to_string(), message: format!("as a truth at --scene-size {n}: {e}; remove it from the study") })?;
+                    // Every cell scores its estimate against this truth at the study's bands: a cube whose bands stop
+                    // short of them failed after the renders ("cannot resample the truth"; a held-out battery, round 16).
+                    if let crate::scene::AtWavelengths::Outside(w) = cube.at_wavelengths(bands)? {
+                        let (lo, hi) = (cube.wavelengths_nm[0], cube.wavelengths_nm[cube.bands() - 1]);
+                        return Err(Error::File {
+                            path: s.path.display().to_string(),
+                            message: format!("its bands ({} – {} nm) do not reach the study's band at {} nm (--bands): every cell scores the estimate against the scene at the study's bands; give --bands within the scene's range, or --scene-wavelengths", crate::limits::fmt_num(lo), crate::limits::fmt_num(hi), crate::limits::fmt_num(w)),
+                        });
+                    }
                     let source = json!({"source": s.path.display().to_string(), "native_height": raw.height, "native_width": raw.width, "fit": fit});
                     Ok(StudyScene::new(s.name, cube, source))
                 })

@@ -265,6 +265,9 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
     progress.solve_started(&label, cap);
     let solved = solve_observed(op.as_ref(), &record.acquisition, &settings, &|k, r| progress.iteration(&label, k, r), truth.map(|t| t.data.as_slice()), twin.as_deref())?;
     progress.solve_done();
+    for w in solved.stopping.get("warnings").and_then(Value::as_array).into_iter().flatten().filter_map(Value::as_str) {
+        progress.warning(w);
+    }
     let c = op.cube_shape();
     let cube = SpectralCube::new(c.height, c.width, record.bands_nm().to_vec(), solved.cube, "reconstructed cube")?;
     let mut json = serde_json::json!({

@@ -82,16 +82,19 @@ pub fn noise_estimate(record: &RenderRecord, kind: OperatorKind, operator_seed: 
     let num = |k: &str| noise.and_then(|n| n.get(k)).and_then(Value::as_f64).filter(|v| v.is_finite());
     let sources: Vec<String> = noise.and_then(|n| n.get("sources")).and_then(Value::as_array).map(|a| a.iter().filter_map(|s| s.as_str().map(str::to_string)).collect()).unwrap_or_default();
     let k = num("electrons_per_unit").filter(|k| *k > 0.0);
-    let mut sensor_sq = 0.0;
+    // Each source's norm on its own scale, then their quadrature sum by hypot: the squares of a tiny exposure's
+    // terms overflowed (δ = inf for a render `render` had written; round 16).
+    let mut sensor_norm = 0.0f64;
     if let Some(k) = k {
+        let n = (y.len() as f64).sqrt();
         if sources.iter().any(|s| s == "shot") {
-            sensor_sq += y.iter().map(|v| (*v as f64).max(0.0)).sum::<f64>() / k;
+            sensor_norm = sensor_norm.hypot(y.iter().map(|v| (*v as f64).max(0.0)).sum::<f64>().sqrt() / k.sqrt());
         }
         if let Some(r) = num("read_noise_e").filter(|_| sources.iter().any(|s| s == "read")) {
-            sensor_sq += y.len() as f64 * (r / k).powi(2);
+            sensor_norm = sensor_norm.hypot(n * (r / k));
         }
         if let Some(g) = num("adc_gain_e_per_dn").filter(|_| sources.iter().any(|s| s == "adc")) {
-            sensor_sq += y.len() as f64 * (g / k).powi(2) / 12.0;
+            sensor_norm = sensor_norm.hypot(n * (g / k) / 12f64.sqrt());
         }
     }
     let oracle = operator_seed == record.config.seed && operator_rays == acquisition_rays;
@@ -104,14 +107,14 @@ pub fn noise_estimate(record: &RenderRecord, kind: OperatorKind, operator_seed: 
     let spread = (model == NoiseModel::Spread && mc_model > 0.0).then(|| SpreadPlan {
         twin_seed: twin_seed(record.config.seed, operator_seed),
         factor: crate::recon::MonteCarloSpread::factor_for(acquisition_rays, operator_rays),
-        sensor_norm: sensor_sq.sqrt(),
+        sensor_norm,
     });
     let mc = if spread.is_some() { 0.0 } else { mc_model };
-    let norm = (sensor_sq + mc * mc).sqrt();
+    let norm = sensor_norm.hypot(mc);
     let mut rec = serde_json::json!({
         "norm": norm,
         "relative": if y_norm > 0.0 { norm / y_norm } else { 0.0 },
-        "sensor_norm": sensor_sq.sqrt(),
+        "sensor_norm": sensor_norm,
         "sensor_sources": sources,
         "monte_carlo_norm": mc,
         // δ = 0 (a noiseless acquisition, no Monte-Carlo mismatch modelled: the oracle, a model operator)

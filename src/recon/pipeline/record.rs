@@ -82,6 +82,18 @@ fn check_noise(json: &Value, jp: &Path) -> Result<()> {
     if seen.contains(&"adc") {
         positive("adc_gain_e_per_dn")?;
     }
+    // One ADC step and the read noise's σ in acquisition units within what an acquisition holds, as `render`
+    // checks them (NoiseConfig::check_steps): beyond it the noise's norm δ is not a number (round 16).
+    let k = noise.get("electrons_per_unit").and_then(Value::as_f64).unwrap_or(1.0);
+    for (key, source) in [("adc_gain_e_per_dn", "adc"), ("read_noise_e", "read")] {
+        let e = noise.get(key).and_then(Value::as_f64).unwrap_or(0.0);
+        if seen.contains(&source) && !(e / k <= crate::limits::MAX_SCENE_VALUE) {
+            return Err(ferr(
+                jp,
+                format!("field `noise.{key}` = {} at `noise.electrons_per_unit` = {} is {:.3e} acquisition units, beyond the ±{:.3e} an acquisition holds (render refuses it)", crate::limits::fmt_num(e), crate::limits::fmt_num(k), e / k, crate::limits::MAX_SCENE_VALUE),
+            ));
+        }
+    }
     Ok(())
 }
 
@@ -105,6 +117,9 @@ impl RenderRecord {
         let text = std::fs::read_to_string(&jp).map_err(|e| ferr(&jp, format!("cannot read: {e}")))?;
         let json: Value = serde_json::from_str(&text).map_err(|e| ferr(&jp, format!("not valid JSON: {e}")))?;
         check_noise(&json, &jp)?;
+        if let Some(c) = crate::render::output::record_contradictions(&json).first() {
+            return Err(ferr(&jp, format!("contradicts itself: {c}; render the scene again (`render-dataset` rerenders it)")));
+        }
         let spec: crate::spec::SystemSpec = serde_json::from_value(field(&json, &jp, "system_spec")?.clone()).map_err(|e| ferr(&jp, format!("field `system_spec`: {e}")))?;
         let system = SequentialSystem::build(&spec)?;
         // Every field is checked against the limits `render` applies, naming the field and its value, and the

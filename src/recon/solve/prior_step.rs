@@ -83,6 +83,14 @@ pub fn denoise_at_network_scale_transformed(
     transformed: &mut Vec<f32>,
 ) -> Result<NetworkScale> {
     let s = NetworkScale::of(x, scratch);
+    // No positive voxel (a zero iterate: a zero acquisition, or one whose values underflow): the network,
+    // trained on cubes ≥ 0 at peak ≈ 1, has no scale to see x at, and its biases at the fallback scale 1 made
+    // a cube of ±0.01 from a zero acquisition (a held-out battery, round 16); as N(0·x) = 0·N(x) the step
+    // keeps x.
+    if !(s.max > 0.0) {
+        out.copy_from_slice(x);
+        return Ok(s);
+    }
     let p = s.scale;
     scratch.resize(x.len(), 0.0);
     scratch.par_iter_mut().zip(x.par_iter()).for_each(|(s, x)| *s = *x / p);

@@ -65,6 +65,37 @@ impl Reconstruction {
             "stopped_by": self.stopped_by,
             "iterations_run": self.iterations_run,
             "relative_changes": self.relative_changes,
+            "warnings": self.warnings(y),
         })
+    }
+
+    /// What the caller should know of this run beyond its numbers (each front end says them: the CLI on
+    /// stderr and in `stopping.warnings`, Python as `UserWarning`s): a returned cube that fits `y` worse than
+    /// the zero cube (the iteration diverged), and a discrepancy threshold τδ at or above ‖y‖ (the zero cube
+    /// meets it, so the rule's stop says nothing; a data-driven δ measured at a diverging iterate grew past
+    /// ‖y‖ and stopped the run there as "discrepancy"; a held-out battery, round 16).
+    pub fn warnings(&self, y: &[f32]) -> Vec<String> {
+        let ny = dot(y, y).sqrt();
+        let mut w = Vec::new();
+        if !(ny > 0.0) {
+            return w;
+        }
+        if self.final_residual > 1.0 {
+            w.push(format!(
+                "the returned cube fits the acquisition worse than a zero cube (‖y − Φx‖/‖y‖ = {:.3} > 1): the iteration diverged on this acquisition, which the operator may not be able to produce (another system's, or an edited one); try the plain (not accelerated) iteration or fewer iterations",
+                self.final_residual
+            ));
+        }
+        let threshold = self.config.discrepancy * self.noise_norm;
+        if threshold >= ny {
+            w.push(format!(
+                "the discrepancy threshold τ·δ = {:.4e} is at least ‖y‖ = {:.4e} (δ = {:.4e}{}): the zero cube meets it, so `stopped_by` says nothing of the fit; the noise estimate is larger than the measurement",
+                threshold,
+                ny,
+                self.noise_norm,
+                if self.noise_estimates.is_empty() { "" } else { ", estimated from the data at the iterate" }
+            ));
+        }
+        w
     }
 }

@@ -17,7 +17,7 @@
 //! println!("{} rendered, {} skipped", done.rendered, done.skipped);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
-use super::{check_scene, check_shared, commit_scene, configuration, file_records, find_scenes, manifest, partial_dir, remove_leftovers, scene_input_record, shared_output_names, with_scene_input, DatasetOptions, SceneState, Shard, MANIFEST};
+use super::{check_scene, check_shared, commit_scene, configuration, configuration_differences, file_records, find_scenes, manifest, partial_dir, read_manifest, remove_leftovers, scene_input_record, shared_output_names, with_scene_input, DatasetOptions, SceneState, Shard, MANIFEST};
 use crate::error::{Error, Result};
 use crate::render::Device;
 use crate::render::{output, Acquisition, Mask, NoiseConfig, PlaneTransport, RenderConfig, Renderer};
@@ -204,6 +204,50 @@ fn write_shared(out: &Path, renderer: &Renderer, configuration: &Value, scene_na
     Ok(())
 }
 
+/// Lock the output folder `out` (created if new) against other `render-dataset` runs: waits while another
+/// holds it (checking or claiming the folder, or committing a scene: moments). `progress` hears of the
+/// wait, and of a file system that cannot lock the folder (the run then goes on unguarded, as before).
+fn lock_out(out: &Path, progress: Option<&dyn DatasetProgress>) -> Result<Option<crate::io::lock::FolderLock>> {
+    use crate::io::lock::{lock_folder, LockAttempt};
+    std::fs::create_dir_all(out).map_err(|e| Error::File { path: out.display().to_string(), message: format!("cannot create: {e}") })?;
+    let failed = |e: std::io::Error| Error::File { path: out.display().to_string(), message: format!("cannot open the folder to lock it: {e}") };
+    let mut attempt = lock_folder(out, false).map_err(failed)?;
+    if matches!(attempt, LockAttempt::Busy) {
+        if let Some(p) = progress {
+            p.message(&format!("waiting for another render-dataset run on {} (it is checking or claiming the folder)", out.display()));
+        }
+        attempt = lock_folder(out, true).map_err(failed)?;
+    }
+    match attempt {
+        LockAttempt::Held(l) => Ok(Some(l)),
+        LockAttempt::Busy => Ok(None),
+        LockAttempt::Unsupported(e) => {
+            if let Some(p) = progress {
+                p.message(&format!("warning: {}: the file system cannot lock this folder ({e}): runs with other settings started at the same moment are not told apart", out.display()));
+            }
+            Ok(None)
+        }
+    }
+}
+
+/// Move a scene's finished temporary folder into place, under the folder's lock, only while `dataset.json`
+/// still records this run's configuration: a run with other settings and `--on-mismatch rerender` that
+/// claimed the folder meanwhile would otherwise get this run's scenes under its dataset.json (a held-out
+/// battery, round 16).
+fn commit_claimed(partial: &Path, out: &Path, name: &str, configuration: &Value) -> Result<()> {
+    let _lock = lock_out(out, None)?;
+    if let Ok((recorded, _)) = read_manifest(out) {
+        let d = configuration_differences(&recorded, configuration);
+        if !d.is_empty() {
+            return Err(Error::File {
+                path: out.join(MANIFEST).display().to_string(),
+                message: format!("another render-dataset run claimed this folder for another configuration while this one ran ({}); this scene was not written", d.join("; ")),
+            });
+        }
+    }
+    commit_scene(partial, out, name)
+}
+
 /// Write one scene's files into `dir` (its temporary folder): images, mask, then render.json with the
 /// configuration and every other file's size and CRC-32.
 fn write_scene(dir: &Path, renderer: &Renderer, acq: &Acquisition, device: Option<&crate::render::device::DeviceRecord>, scene: &Value, configuration: &Value, extra: Value, seconds: f64) -> Result<()> {
@@ -263,13 +307,9 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
 
     // Decide everything before writing anything.
     let mine = shard.select(&scenes);
-    let shared_state = check_shared(&a.out, Some(&configuration));
     let mut todo = Vec::new();
     let mut skipped = Vec::new();
     let mut mismatched: Vec<String> = Vec::new();
-    if let SceneState::Mismatch(d) = &shared_state {
-        mismatched.push(format!("{} ({})", MANIFEST, d.join("; ")));
-    }
     for s in &mine {
         // Done and rendered from the same scene content (a scene file replaced since is rendered again).
         match with_scene_input(check_scene(&a.out, &s.name, Some(&configuration)), &a.out, s) {
@@ -284,6 +324,15 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
                 todo.push(*s)
             }
         }
+    }
+    // The folder's configuration is checked and claimed (dataset.json written) under the folder's lock: two
+    // runs with different settings both found no dataset.json, both wrote it and both exited 0 over a mixed
+    // folder (a held-out battery, round 16). Now the second sees the first's dataset.json and is refused as a
+    // mismatch, nothing written; shards of one configuration take the lock in turn and go on.
+    let claim = lock_out(&a.out, Some(progress))?;
+    let shared_state = check_shared(&a.out, Some(&configuration));
+    if let SceneState::Mismatch(d) = &shared_state {
+        mismatched.insert(0, format!("{} ({})", MANIFEST, d.join("; ")));
     }
     if !mismatched.is_empty() {
         if a.on_mismatch == OnMismatch::Refuse {
@@ -305,6 +354,7 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
     if shared_state != SceneState::Done || !todo.is_empty() {
         write_shared(&a.out, &renderer, &configuration, &scene_names)?;
     }
+    drop(claim);
     if todo.is_empty() {
         return Ok(DatasetSummary { rendered: 0, skipped: skipped.len(), seconds: t0.elapsed().as_secs_f64() });
     }
@@ -386,7 +436,7 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
                 if let Some(d) = a.scene_delay {
                     std::thread::sleep(d);
                 }
-                commit_scene(&partial, &a.out, &s.name)
+                commit_claimed(&partial, &a.out, &s.name, &configuration)
             });
             if written.is_err() {
                 let _ = std::fs::remove_dir_all(&partial);
