@@ -360,14 +360,16 @@ fn _reconstruct<'py>(
     let spread = twin.as_ref().map(|t| MonteCarloSpread { twin: t.as_ref(), factor: noise_factor.unwrap_or(1.0), sensor_norm: cfg.noise_norm, every: SPREAD_EVERY });
     // The library's solve (`recon::pipeline::run_solver`, as `reconstruct` and `study` run it).
     let (rec, _) = run(py, || run_solver(op.as_ref(), y, init.as_deref(), &cfg, spread.as_ref(), None, &|_, _| {})).py()?;
-    // What the CLI prints beside the numbers (a diverged iteration, a threshold the zero cube meets; round 16).
-    for w in rec.warnings(y) {
-        PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &std::ffi::CString::new(format!("reconstruct: {}", crate::errors::pythonic(&w))).unwrap_or_default(), 1)?;
-    }
     // The CLI's record: the solver's, with `stopping` as in reconstruct.json (δ is the caller's `noise_norm`).
+    let stopping = rec.stopping_record(y, None);
+    // What the CLI prints beside the numbers, `stopping.warnings` (a diverged iteration, a threshold the zero
+    // cube meets; round 16).
+    for w in stopping["warnings"].as_array().into_iter().flatten().filter_map(serde_json::Value::as_str) {
+        PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &std::ffi::CString::new(format!("reconstruct: {}", crate::errors::pythonic(w))).unwrap_or_default(), 1)?;
+    }
     let mut record = serde_json::to_value(&rec).map_err(|e| value_error(format!("internal: {e}")))?;
     if let Some(o) = record.as_object_mut() {
-        o.insert("stopping".into(), rec.stopping_record(y, None));
+        o.insert("stopping".into(), stopping);
     }
     let record = serde_json::to_string(&record).map_err(|e| value_error(format!("internal: {e}")))?;
     Ok((output(py, rec.cube, &[c.height, c.width, c.bands])?, record))

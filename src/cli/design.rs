@@ -205,10 +205,10 @@ pub(super) fn calibrate_cmd(a: CalibrateArgs) -> Result<()> {
     let truth: Vec<Option<f64>> = truth_or_why.iter().map(|t| t.as_ref().ok().copied()).collect();
     let mut truth_warnings = Vec::new();
     if structure.is_none() {
-        for (name, t) in a.free.iter().zip(&truth_or_why) {
+        for ((name, p), t) in a.free.iter().zip(&params).zip(&truth_or_why) {
             // A surface cell the observed spec could have held but that is another quantity there: a warning (a
             // glass or ray parameter is never read from a spec, which its `null` says in `truth_unknown`).
-            if let (Err(why), Some(Param::Cell { .. })) = (t, resolve_param(&a.from, name.trim()).ok()) {
+            if let (Err(why), Param::Cell { .. }) = (t, p) {
                 truth_warnings.push(format!("{}: no truth or error shown: {why}", name.trim()));
             }
         }

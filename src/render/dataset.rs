@@ -604,10 +604,9 @@ fn check_sidecar(dir: &Path, sidecar: &str, records_key: &str, requested: Option
         return SceneState::Mismatch(vec![format!("{sidecar} records no configuration or output checksums (written by an older diffcassi or by `render`)")]);
     };
     let mut damaged = verify_records(dir, records);
-    // A record whose top-level fields contradict its own configuration was edited: not done (round 16).
-    if sidecar == "render.json" {
-        damaged.extend(crate::render::output::record_contradictions(&v).into_iter().map(|c| format!("{sidecar}: {c}")));
-    }
+    // A record whose top-level fields contradict its own configuration was edited: not done (round 16; the
+    // manifest holds none of the fields compared at its top level).
+    damaged.extend(crate::render::output::record_contradictions(&v).into_iter().map(|c| format!("{sidecar}: {c}")));
     if !damaged.is_empty() {
         return SceneState::Damaged(damaged);
     }

@@ -137,6 +137,11 @@ impl NoiseConfig {
         Ok(k)
     }
 
+    /// The ADC gain (electrons per DN: the full well over the largest code), when the ADC is on.
+    pub fn adc_gain(&self) -> Option<f64> {
+        self.adc_bits.map(|b| self.full_well_e / ((1u64 << b) - 1) as f64)
+    }
+
     /// One ADC step and the read noise's σ in acquisition units (g/K, σ/K) within the ±[`MAX_SCENE_VALUE`]
     /// an acquisition holds: beyond it no pixel but 0 can be written, and the noise's norm, which
     /// `reconstruct` estimates from them, is not a number (`--electrons-per-unit 1e-150` with the ADC on
@@ -145,8 +150,7 @@ impl NoiseConfig {
     /// [`MAX_SCENE_VALUE`]: crate::limits::MAX_SCENE_VALUE
     pub fn check_steps(&self, k: f64) -> Result<()> {
         let max = crate::limits::MAX_SCENE_VALUE;
-        let gain = self.adc_bits.map(|b| self.full_well_e / ((1u64 << b) - 1) as f64);
-        for (what, e) in [("one ADC step", gain), ("the read noise σ", (self.read_noise_e > 0.0).then_some(self.read_noise_e))] {
+        for (what, e) in [("one ADC step", self.adc_gain()), ("the read noise σ", (self.read_noise_e > 0.0).then_some(self.read_noise_e))] {
             if let Some(e) = e {
                 if !(e / k <= max) {
                     return Err(Error::invalid(format!(
@@ -175,7 +179,7 @@ impl NoiseConfig {
             return Ok(NoiseReport { electrons_per_unit: k, clean_peak: peak, peak_electrons: k * peak, adc_gain_e_per_dn: None, saturated_pixels: 0, clean_total, noisy_total: clean_total });
         }
         let k = self.exposure(peak)?;
-        let gain = self.adc_bits.map(|b| self.full_well_e / ((1u64 << b) - 1) as f64);
+        let gain = self.adc_gain();
         let mut report = NoiseReport { electrons_per_unit: k, clean_peak: peak, peak_electrons: k * peak, adc_gain_e_per_dn: gain, saturated_pixels: 0, clean_total, noisy_total: clean_total };
         let base = ChaCha8Rng::seed_from_u64(self.seed);
         let read = Normal::new(0.0, self.read_noise_e).map_err(|e| Error::invalid(format!("read noise: {e}")))?;

@@ -394,7 +394,7 @@ pub fn run(a: &StudySettings, progress: &dyn StudyProgress) -> Result<StudySumma
                 let rays = rec.config.rays_per_pixel;
                 settings.noise = Some(noise_estimate(&rec, op_kind, op_seed, rays, rays, settings.noise_model.unwrap_or(NoiseModel::Spread)));
                 let solved = solve(op.as_ref(), &rec.acquisition, &settings, &|_, _| {}, twin.as_deref())?;
-                for w in solved.stopping.get("warnings").and_then(serde_json::Value::as_array).into_iter().flatten().filter_map(serde_json::Value::as_str) {
+                for w in solved.warnings() {
                     progress.warning(&format!("{label} {} {} {solver}: {w}", scene.name, op_kind.name()));
                 }
                 let c = op.cube_shape();

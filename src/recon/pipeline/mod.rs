@@ -265,7 +265,7 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
     progress.solve_started(&label, cap);
     let solved = solve_observed(op.as_ref(), &record.acquisition, &settings, &|k, r| progress.iteration(&label, k, r), truth.map(|t| t.data.as_slice()), twin.as_deref())?;
     progress.solve_done();
-    for w in solved.stopping.get("warnings").and_then(Value::as_array).into_iter().flatten().filter_map(Value::as_str) {
+    for w in solved.warnings() {
         progress.warning(w);
     }
     let c = op.cube_shape();

@@ -16,6 +16,14 @@ pub struct Solved {
     pub seconds: f64,
 }
 
+impl Solved {
+    /// What the run says beside its numbers (`stopping.warnings`: a diverged iteration, a threshold τδ at or
+    /// above ‖y‖; [`crate::recon::Reconstruction::warnings`]), for the front ends to print.
+    pub fn warnings(&self) -> impl Iterator<Item = &str> {
+        self.stopping.get("warnings").and_then(Value::as_array).into_iter().flatten().filter_map(Value::as_str)
+    }
+}
+
 /// Φx_true and ‖y − Φx_true‖₂/‖y‖₂ (0 for a black `y`): the record's `truth_residual`, evaluation only.
 pub(super) fn truth_residual(op: &dyn Operator, y: &[f32], truth: &[f32]) -> (Vec<f32>, f64) {
     let mut phi_t = vec![0.0f32; y.len()];
