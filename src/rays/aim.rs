@@ -137,23 +137,94 @@ pub fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3, d: DVe
     Some((hit.point.x, hit.point.y))
 }
 
-/// OpticStudio's real stop radius (mm), the radius "Real" ray aiming aims at: the radial height at which the
-/// real marginal ray — from the axial object point through the edge (0, 1) of the paraxial entrance pupil
-/// ([`object_ray`], aiming off; for an object at infinity the ray parallel to the axis at the pupil's
-/// radius), at the primary wavelength — crosses the stop surface (its apertures and those before it open).
-/// For a lens with spherical aberration before the stop it differs from the paraxial stop radius: 4.2150 mm
-/// against 4.2508 mm for the double Gauss of tests/fixtures/zmx, whose file holds OpticStudio's 4.215000499
-/// as the stop's automatic semi-diameter. Errors: the marginal ray does not reach the stop.
+/// OpticStudio's real stop radius (mm), the radius "Real" ray aiming aims at: the radius of the real axial
+/// beam at the stop, at the primary wavelength, the stop's apertures and those before it open. The beam is
+/// the paraxial entrance pupil's, centred where the real chief ray of the axial object point enters: that
+/// ray is aimed at the stop's centre (its local origin, as [`aimed_ray`] aims the chief ray), and the marginal
+/// ray leaves the same object point through the pupil-plane point a pupil radius above the chief ray's (for an
+/// object at infinity, the parallel ray that far from it). The radius is the distance, in the stop's local
+/// (x, y), from the chief ray's crossing (the centre) to the marginal ray's. For a lens with spherical
+/// aberration before the stop it differs from the paraxial stop radius: 4.2150 mm against 4.2508 mm for the
+/// double Gauss of tests/fixtures/zmx, whose file holds OpticStudio's 4.215000499 as the stop's automatic
+/// semi-diameter.
+///
+/// In a centred system the axial chief ray is the axis: the aim is (0, 0) at once and the marginal ray is
+/// the one through the pupil's edge (0, 1). With a stop decentred by a Coordinate Break the unaimed beam
+/// crosses the stop plane around the axis, not around the stop's centre, and its edge's distance from the
+/// centre is no radius of it (a 10 mm pupil before a stop decentred 4 mm gave 1 mm: F/39 for F/7.8). Centred
+/// on the aimed chief ray, real aiming differs from paraxial aiming by the pupil aberration only, as in a
+/// centred system. optiland's real stop radius (`RealReferenceStrategy`, its issue 654) is this one, and its
+/// iterative aiming lands these rays to 1e-13 mm (tests/zmx_round17.rs). Errors: the chief ray cannot be
+/// aimed at the stop's centre, or the marginal ray does not reach the stop.
 pub fn real_stop_radius(system: &SequentialSystem) -> std::result::Result<f64, String> {
     let n = system.indices(system.spec.primary_wavelength_nm).map_err(|e| e.to_string())?;
-    let (o, d) = object_ray(system, [0.0, 0.0], 0.0, 1.0);
-    let (x, y) = stop_crossing(system, &n, o, d)
-        .ok_or_else(|| "real ray aiming: the real marginal ray (axial object point, entrance-pupil edge, primary wavelength) does not reach the stop, so the real stop radius is undefined; use paraxial aiming".to_string())?;
-    let r = x.hypot(y);
+    let why = |m: String| format!("real ray aiming: {m}, so the real stop radius is undefined; use paraxial aiming");
+    let (u0, v0) = solve_pupil_point(system, &n, [0.0, 0.0], (0.0, 0.0), (0.0, 0.0), system.pupil.stop_radius_mm)
+        .map_err(|m| why(format!("the real chief ray of the axial object point (primary wavelength) cannot be aimed at the stop's centre ({m})")))?;
+    let ray = pupil_ray(system, [0.0, 0.0]);
+    let cross = |u: f64, v: f64| {
+        let (o, d) = ray(u, v);
+        stop_crossing(system, &n, o, d)
+    };
+    let unreached = || why("the real marginal ray (axial object point, entrance-pupil edge, primary wavelength) does not reach the stop".to_string());
+    let (xc, yc) = cross(u0, v0).ok_or_else(unreached)?;
+    let (x, y) = cross(u0, v0 + pupil_scale(system)).ok_or_else(unreached)?;
+    let r = (x - xc).hypot(y - yc);
     if !(r.is_finite() && r > 0.0) {
         return Err(format!("real ray aiming: the real marginal ray crosses the stop at radius {r} mm; use paraxial aiming"));
     }
     Ok(r)
+}
+
+/// The ray of field `field_mm` through pupil-plane point (u, v) (mm, or direction sines when telecentric),
+/// aiming off: from the object point (finite), or parallel at the field's angles (object at infinity).
+fn pupil_ray(system: &SequentialSystem, field_mm: [f64; 2]) -> impl Fn(f64, f64) -> (DVec3, DVec3) + '_ {
+    let origin = DVec3::new(field_mm[0], field_mm[1], 0.0);
+    let aim = PupilAim::of(system);
+    move |u: f64, v: f64| if aim.at_infinity { aim.parallel_ray(field_mm, u, v) } else { (origin, direction_through_pupil(system, origin, u, v)) }
+}
+
+/// The pupil-plane point (u, v) whose ray ([`pupil_ray`]) crosses the stop surface at local (tx, ty) (Newton
+/// iteration from `start`, finite-difference Jacobian); `r_stop` scales the tolerance. Errors say why, in words.
+fn solve_pupil_point(
+    system: &SequentialSystem,
+    n: &[f64],
+    field_mm: [f64; 2],
+    start: (f64, f64),
+    (tx, ty): (f64, f64),
+    r_stop: f64,
+) -> std::result::Result<(f64, f64), String> {
+    let ray = pupil_ray(system, field_mm);
+    let r_ep = pupil_scale(system);
+    let (mut u, mut v) = start;
+    let eval = |u: f64, v: f64| {
+        let (o, d) = ray(u, v);
+        stop_crossing(system, n, o, d).ok_or("the ray does not reach the stop")
+    };
+    let h = 1e-7 * r_ep.max(1.0);
+    for _ in 0..30 {
+        let (x, y) = eval(u, v)?;
+        let (ex, ey) = (x - tx, y - ty);
+        if ex.abs() < 1e-13 * (1.0 + r_stop) && ey.abs() < 1e-13 * (1.0 + r_stop) {
+            return Ok((u, v));
+        }
+        let (xu, yu) = eval(u + h, v)?;
+        let (xv, yv) = eval(u, v + h)?;
+        let (a, c) = ((xu - x) / h, (yu - y) / h);
+        let (b, d) = ((xv - x) / h, (yv - y) / h);
+        let det = a * d - b * c;
+        if !(det.abs() > 0.0) || !det.is_finite() {
+            return Err("singular aiming Jacobian".into());
+        }
+        let du = (d * ex - b * ey) / det;
+        let dv = (-c * ex + a * ey) / det;
+        u -= du;
+        v -= dv;
+        if du.abs() < 1e-14 * (1.0 + r_ep) && dv.abs() < 1e-14 * (1.0 + r_ep) {
+            return Ok((u, v));
+        }
+    }
+    Err("no convergence in 30 Newton steps".into())
 }
 
 /// The object-space ray for (field, px, py) at `wavelength_nm` under the system's ray-aiming mode.
@@ -167,44 +238,12 @@ pub fn aimed_ray(system: &SequentialSystem, n: &[f64], field_mm: [f64; 2], px: f
     if system.spec.ray_aiming == RayAiming::Off {
         return Ok(object_ray(system, field_mm, px, py));
     }
-    let origin = DVec3::new(field_mm[0], field_mm[1], 0.0);
-    let aim = PupilAim::of(system);
-    // The ray through pupil-plane point (u, v): from the object point (finite), or parallel (at infinity).
-    let ray = |u: f64, v: f64| if aim.at_infinity { aim.parallel_ray(field_mm, u, v) } else { (origin, direction_through_pupil(system, origin, u, v)) };
     let r_ep = pupil_scale(system);
-    let (mut u, mut v) = (px * r_ep, py * r_ep);
     let r_stop = system.aim_stop_radius_mm;
-    let (tx, ty) = (px * r_stop, py * r_stop);
     let (shown, unit) = system.field_display(field_mm);
-    let fail = |why: &str| Error::invalid(format!("ray aiming failed for field ({}, {}) {unit}, pupil ({px}, {py}): {why}", shown[0], shown[1]));
-    let eval = |u: f64, v: f64| {
-        let (o, d) = ray(u, v);
-        stop_crossing(system, n, o, d)
-    };
-    let h = 1e-7 * r_ep.max(1.0);
-    for _ in 0..30 {
-        let (x, y) = eval(u, v).ok_or_else(|| fail("the ray does not reach the stop"))?;
-        let (ex, ey) = (x - tx, y - ty);
-        if ex.abs() < 1e-13 * (1.0 + r_stop) && ey.abs() < 1e-13 * (1.0 + r_stop) {
-            return Ok(ray(u, v));
-        }
-        let (xu, yu) = eval(u + h, v).ok_or_else(|| fail("the ray does not reach the stop"))?;
-        let (xv, yv) = eval(u, v + h).ok_or_else(|| fail("the ray does not reach the stop"))?;
-        let (a, c) = ((xu - x) / h, (yu - y) / h);
-        let (b, d) = ((xv - x) / h, (yv - y) / h);
-        let det = a * d - b * c;
-        if !(det.abs() > 0.0) || !det.is_finite() {
-            return Err(fail("singular aiming Jacobian"));
-        }
-        let du = (d * ex - b * ey) / det;
-        let dv = (-c * ex + a * ey) / det;
-        u -= du;
-        v -= dv;
-        if du.abs() < 1e-14 * (1.0 + r_ep) && dv.abs() < 1e-14 * (1.0 + r_ep) {
-            return Ok(ray(u, v));
-        }
-    }
-    Err(fail("no convergence in 30 Newton steps"))
+    let (u, v) = solve_pupil_point(system, n, field_mm, (px * r_ep, py * r_ep), (px * r_stop, py * r_stop), r_stop)
+        .map_err(|why| Error::invalid(format!("ray aiming failed for field ({}, {}) {unit}, pupil ({px}, {py}): {why}", shown[0], shown[1])))?;
+    Ok(pupil_ray(system, field_mm)(u, v))
 }
 
 #[cfg(test)]

@@ -59,6 +59,7 @@ use super::layout::to_band_major;
 use super::operator::{CubeShape, ImageShape, Operator};
 use crate::analysis::{mapping_cube, MappingCube};
 use crate::error::{Error, Result};
+use crate::render::spectral::band_support_weights;
 use crate::render::{Detector, Mask, Renderer};
 use rayon::prelude::*;
 
@@ -119,6 +120,9 @@ pub struct MappingOperator {
     points: Vec<Point>,
     /// Per detector pixel: modelled (bilinear: coverage ≥ [`SUPPORT_FRACTION`] of the mean; nearest: all).
     supported: Vec<bool>,
+    /// Per band: its share of an acquisition relative to the mean, [`band_support_weights`] of the mapping's
+    /// wavelengths (1 for evenly spaced bands).
+    band_weight: Vec<f32>,
 }
 
 impl MappingOperator {
@@ -150,6 +154,7 @@ impl MappingOperator {
             mask: mask.values.clone(),
             points,
             supported: vec![true; detector.pixels()],
+            band_weight: band_support_weights(&mapping.wavelength_nm).iter().map(|&w| w as f32).collect(),
         };
         if interpolation == MappingInterpolation::Bilinear {
             op.supported = op.support();
@@ -216,6 +221,18 @@ impl MappingOperator {
         } else {
             self.mask[b * npix + q]
         }
+    }
+
+    /// Voxel (q, b)'s coefficient before the taps: the mask it sees times its band's weight
+    /// ([`band_support_weights`]; 1 for evenly spaced bands).
+    #[inline]
+    pub fn coefficient(&self, q: usize, b: usize) -> f32 {
+        self.mask_at(q, b) * self.band_weight[b]
+    }
+
+    /// Per band: its weight relative to the mean ([`band_support_weights`]).
+    pub fn band_weights(&self) -> &[f32] {
+        &self.band_weight
     }
 
     pub fn interpolation(&self) -> MappingInterpolation {
@@ -319,8 +336,9 @@ impl Operator for MappingOperator {
                 for b in range {
                     let (xs, ps) = (&bm[b * npix..(b + 1) * npix], &self.points[b * npix..(b + 1) * npix]);
                     let ms = if self.mask.len() == npix { &self.mask[..] } else { &self.mask[b * npix..(b + 1) * npix] };
+                    let bw = self.band_weight[b];
                     for ((x, p), m) in xs.iter().zip(ps).zip(ms) {
-                        let v = *x * *m;
+                        let v = *x * (*m * bw);
                         if v != 0.0 {
                             self.taps(p, |k, w| acc[k] += w * v);
                         }
@@ -339,7 +357,7 @@ impl Operator for MappingOperator {
         let (npix, nb) = (self.shape.height * self.shape.width, self.shape.bands);
         cube.par_chunks_mut(nb).enumerate().for_each(|(q, px)| {
             for (b, v) in px.iter_mut().enumerate() {
-                let m = self.mask_at(q, b);
+                let m = self.coefficient(q, b);
                 let mut s = 0.0f32;
                 if m != 0.0 {
                     self.taps(&self.points[b * npix + q], |k, w| s += w * image[k]);

@@ -38,6 +38,7 @@
 use super::operator::{CubeShape, ImageShape, Operator};
 use crate::error::{Error, Result};
 use crate::rays::RayBatch;
+use crate::render::spectral::band_support_weights;
 use crate::render::{Mask, Renderer};
 use crate::tracer::RayStatus;
 use rayon::prelude::*;
@@ -61,6 +62,9 @@ pub struct ShiftOperator {
     band_mask: Option<Vec<f32>>,
     /// Dual-disperser systems: the per-band mask column shift m_b − m_0 (mask pixels).
     mask_shifts: Vec<i64>,
+    /// Per band: its share of an acquisition relative to the mean ([`band_support_weights`] of the bands
+    /// [`ShiftOperator::from_renderer`] was given; 1 for evenly spaced bands and for [`ShiftOperator::new`]).
+    band_weight: Vec<f32>,
 }
 
 impl ShiftOperator {
@@ -79,7 +83,7 @@ impl ShiftOperator {
         if sigma_x.abs() != 1 || sigma_y.abs() != 1 {
             return Err(Error::invalid(format!("shift operator: orientation ({sigma_x}, {sigma_y}) must be ±1")));
         }
-        Ok(ShiftOperator { shape, image, mask: mask.values.clone(), row0, columns, sigma_x, sigma_y, band_mask: None, mask_shifts: Vec::new() })
+        Ok(ShiftOperator { shape, image, mask: mask.values.clone(), row0, columns, sigma_x, sigma_y, band_mask: None, mask_shifts: Vec::new(), band_weight: vec![1.0; shape.bands] })
     }
 
     /// The DD-CASSI shift model of a renderer whose system holds a coded-mask surface (see the
@@ -159,6 +163,24 @@ impl ShiftOperator {
         }
     }
 
+    /// Voxel (q, b)'s coefficient: the mask it sees times its band's weight ([`band_support_weights`]).
+    #[inline]
+    pub fn coefficient(&self, q: usize, b: usize) -> f32 {
+        self.mask_at(q, b) * self.band_weight[b]
+    }
+
+    /// Per band: its weight relative to the mean ([`band_support_weights`]).
+    pub fn band_weights(&self) -> &[f32] {
+        &self.band_weight
+    }
+
+    /// Weigh the bands as [`band_support_weights`]`(bands_nm)` says (what [`ShiftOperator::from_renderer`]
+    /// does with its bands).
+    fn weighed(mut self, bands_nm: &[f64]) -> Self {
+        self.band_weight = band_support_weights(bands_nm).iter().map(|&w| w as f32).collect();
+        self
+    }
+
     /// The model of the renderer's system at `bands_nm`, on the renderer's detector and mask (see the
     /// [module docs](self)).
     pub fn from_renderer(renderer: &Renderer<'_>, bands_nm: &[f64]) -> Result<Self> {
@@ -197,11 +219,11 @@ impl ShiftOperator {
         }
         if renderer.system.coded_mask.is_some() {
             // The traced columns: one column where the second disperser cancels the first (identity registration).
-            return Self::dual_disperser(renderer, bands_nm, row0, columns, (sigma_x, sigma_y));
+            return Ok(Self::dual_disperser(renderer, bands_nm, row0, columns, (sigma_x, sigma_y))?.weighed(bands_nm));
         }
         let shape = CubeShape { height: c.scene_height, width: c.scene_width, bands: bands_nm.len() };
         let image = ImageShape { height: det.height, width: det.width };
-        Self::new(shape, image, &renderer.mask, row0, columns, sigma_x, sigma_y)
+        Ok(Self::new(shape, image, &renderer.mask, row0, columns, sigma_x, sigma_y)?.weighed(bands_nm))
     }
 
     /// Per-band dispersion s(b) = c_b − c_0 (detector pixels).
@@ -276,7 +298,7 @@ impl Operator for ShiftOperator {
                 for c in 0..w {
                     if let Some(j) = self.col(b, c) {
                         let q = r * w + c;
-                        row[j] += self.mask_at(q, b) * cube[q * nb + b];
+                        row[j] += self.coefficient(q, b) * cube[q * nb + b];
                     }
                 }
             }
@@ -289,7 +311,7 @@ impl Operator for ShiftOperator {
             let det = self.det_row(r);
             for c in 0..w {
                 for b in 0..nb {
-                    let m = self.mask_at(r * w + c, b);
+                    let m = self.coefficient(r * w + c, b);
                     row[c * nb + b] = match (det, self.col(b, c)) {
                         (Some(i), Some(j)) => m * image[i * dw + j],
                         _ => 0.0,

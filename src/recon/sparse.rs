@@ -210,8 +210,8 @@ impl SparseExport for ShiftOperator {
             let (r, c) = (q / cs.width, q % cs.width);
             if let Some(i) = self.detector_row(r) {
                 for b in 0..cs.bands {
-                    // The mask the pixel sees in this band (per band for a dual-disperser system).
-                    let m = self.mask_at(q, b);
+                    // The mask the pixel sees in this band (per band for a dual-disperser system) times the band's weight.
+                    let m = self.coefficient(q, b);
                     if m == 0.0 {
                         continue;
                     }
@@ -234,8 +234,8 @@ impl SparseExport for MappingOperator {
         };
         assemble(self.name(), is.len(), npix, cs.bands, (npix * cs.bands * taps) as u64, memory_budget_bytes, |q, emit| {
             for b in 0..cs.bands {
-                // The mask the pixel sees in this band (per band for a dual-disperser system).
-                let m = self.mask_at(q, b);
+                // The mask the pixel sees in this band (per band for a dual-disperser system) times the band's weight.
+                let m = self.coefficient(q, b);
                 if m == 0.0 {
                     continue;
                 }

@@ -148,7 +148,8 @@ pub fn scene_input_record(scene: &DatasetScene, with_lists: bool) -> Result<Valu
     let mut files = Vec::new();
     for f in scene_input_files(scene, with_lists) {
         let m = std::fs::metadata(&f).map_err(|e| Error::File { path: f.display().to_string(), message: format!("cannot read: {e}") })?;
-        let sha = file_sha256(&f).map_err(|e| Error::File { path: f.display().to_string(), message: e })?;
+        // The reader's message already names the file (it was printed twice).
+        let sha = file_sha256(&f).map_err(|e| Error::File { path: f.display().to_string(), message: e.strip_prefix(&format!("{}: ", f.display())).map(str::to_string).unwrap_or(e) })?;
         files.push(json!({"name": f.file_name().unwrap_or_default().to_string_lossy(), "bytes": m.len(), "modified_ns": modified_ns(&m).map(|t| t.to_string()), "sha256": sha}));
     }
     Ok(json!({ "files": files }))

@@ -368,12 +368,13 @@ pub fn check_render_rays(n: usize, planes: usize, rays: usize) -> Result<()> {
 /// planes, rays and the Airy kernel cannot overflow the f32 images). `Err` holds the reason, naming the
 /// pixel and band.
 pub fn check_scene_values(cube: &SpectralCube) -> std::result::Result<(), String> {
-    for (i, &v) in cube.data.iter().enumerate() {
-        let v = v as f64;
+    for (i, &v32) in cube.data.iter().enumerate() {
+        let v = v32 as f64;
         if !v.is_finite() || v < 0.0 || v > crate::limits::MAX_SCENE_VALUE {
             let (b, px) = (i % cube.wavelengths_nm.len().max(1), i / cube.wavelengths_nm.len().max(1));
+            // The f32 value as stored (its shortest form: -0.001, not the widened -0.0010000000474974513).
             return Err(format!(
-                "scene value {v} at pixel ({}, {}), band {b}: radiances must be finite, ≥ 0 and ≤ {:.3e} (f32 range / 10⁹, so the acquisition cannot overflow)",
+                "scene value {v32} at pixel ({}, {}), band {b}: radiances must be finite, ≥ 0 and ≤ {:.3e} (f32 range / 10⁹, so the acquisition cannot overflow)",
                 px / cube.width.max(1),
                 px % cube.width.max(1),
                 crate::limits::MAX_SCENE_VALUE

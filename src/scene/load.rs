@@ -1,24 +1,26 @@
 //! Scene loaders: KAIST-style multichannel EXR, CAVE-style folders of per-band 16-bit PNGs, and NPY cubes
 //! with a wavelength list. Every failure names the file and what is wrong with it.
 //!
-//! Wavelengths come from, in order: the caller's explicit list; the channel / file names (the last number
-//! in a name that lies in 200–3000 nm, e.g. `w450nm`, `band_03_472.2nm`); for PNG folders a
+//! Wavelengths come from, in order: the caller's explicit list; the channel / file names (the number that
+//! carries the unit `nm`, 100–20 000 nm, e.g. `w450nm`, `band_03_472.2nm`; in a name with no `nm` number,
+//! the last number within 200–3000); for PNG folders a
 //! `wavelengths.txt` / `wavelengths_nm.txt` file, or CAVE's convention (31 files = 400–700 nm by 10 nm); for
 //! NPY cubes a companion `<stem>_wavelengths_nm.npy`.
 use super::SpectralCube;
 use crate::error::{Error, Result};
 use crate::io::exr::{read_exr, write_exr, ExrChannel};
 use crate::io::png16::{read_png_gray, write_png_gray16};
-use crate::io::{read_npy_f64, write_npy_f32, write_npy_f64};
+use crate::io::{read_npy_f32, read_npy_f64, write_npy_f32, write_npy_f64};
 use std::path::{Path, PathBuf};
 
 fn file_err(path: &Path, message: impl Into<String>) -> Error {
     Error::File { path: path.display().to_string(), message: message.into() }
 }
 
-/// The wavelength (nm) a channel or file name carries: its last number within 200–3000.
-pub fn wavelength_from_name(name: &str) -> Option<f64> {
-    let mut found = None;
+/// The numbers in a name, each with whether the unit `nm` follows it (directly or after one space,
+/// any case): `band_200_3500nm` → `[(200, false), (3500, true)]`.
+fn numbers_in_name(name: &str) -> Vec<(f64, bool)> {
+    let mut out = Vec::new();
     let bytes = name.as_bytes();
     let mut i = 0;
     while i < bytes.len() {
@@ -28,16 +30,41 @@ pub fn wavelength_from_name(name: &str) -> Option<f64> {
                 i += 1;
             }
             let text = name[s..i].trim_end_matches('.');
+            let rest = name[i..].strip_prefix(' ').unwrap_or(&name[i..]);
+            let nm = rest.len() >= 2 && rest.as_bytes()[..2].eq_ignore_ascii_case(b"nm");
             if let Ok(v) = text.parse::<f64>() {
-                if (200.0..=3000.0).contains(&v) {
-                    found = Some(v);
-                }
+                out.push((v, nm));
             }
         } else {
             i += 1;
         }
     }
-    found
+    out
+}
+
+/// The wavelength (nm) a channel or file name carries. The number that carries the unit `nm` (the last one,
+/// e.g. `w450nm`, `band_03_472.2nm`, `band_200_3500nm`) is the wavelength, read as written (bit for bit
+/// what [`band_channel_name`] wrote), and must lie in the wavelength window the program accepts
+/// ([`crate::limits::WAVELENGTH_RANGE_NM`], 100–20 000 nm); outside it the name carries **no** wavelength
+/// (an error for the caller), never another number in the name. Only a name with no `nm` number falls back
+/// to its last number within 200–3000 (`450.png`, CAVE-style names). The band index written before the
+/// wavelength (`band_200_…` for 201+ bands) was once read as 200 nm (a held-out battery, round 17).
+pub fn wavelength_from_name(name: &str) -> Option<f64> {
+    let numbers = numbers_in_name(name);
+    if let Some(&(v, _)) = numbers.iter().rev().find(|n| n.1) {
+        let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
+        return (lo..=hi).contains(&v).then_some(v);
+    }
+    numbers.iter().rev().map(|n| n.0).find(|v| (200.0..=3000.0).contains(v))
+}
+
+/// Why `name` carries no wavelength, for messages.
+fn no_wavelength_reason(name: &str) -> String {
+    let (lo, hi) = crate::limits::WAVELENGTH_RANGE_NM;
+    match numbers_in_name(name).iter().rev().find(|n| n.1) {
+        Some((v, _)) => format!("`{name}` names {v} nm, outside the {lo}–{hi} nm the program accepts"),
+        None => format!("`{name}` carries no wavelength in its name (a number followed by `nm`, {lo}–{hi} nm, or a bare number in 200–3000)"),
+    }
 }
 
 /// Load a scene from a `.exr` file, a `.npy` file, a folder of PNGs, or one RGB `.png` photograph (uplifted to
@@ -54,8 +81,10 @@ pub fn load_scene(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<Spectra
         }
         return load_png_stack(path, wavelengths_nm);
     }
-    if !path.exists() {
-        return Err(file_err(path, "no such file or folder"));
+    // `metadata` follows links: a missing file is "no such file", anything else (a symbolic-link loop, a
+    // permission) is said as the system says it (`exists()` called a link loop "no such file").
+    if let Err(e) = std::fs::metadata(path) {
+        return Err(file_err(path, if e.kind() == std::io::ErrorKind::NotFound { "no such file or folder".to_string() } else { format!("cannot read: {e}") }));
     }
     match path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() {
         Some("exr") => load_exr(path, wavelengths_nm),
@@ -75,6 +104,16 @@ fn check_override(path: &Path, given: Option<&[f64]>, bands: usize) -> Result<Op
 
 /// Assemble a cube from per-band planes (each `h × w`), sorted by wavelength.
 fn from_planes(path: &Path, h: usize, w: usize, mut bands: Vec<(f64, Vec<f32>)>) -> Result<SpectralCube> {
+    // Checked before sorting, so that the index is the band's in the file's order (a NaN sorted last was
+    // reported at another index).
+    super::check_wavelengths(&bands.iter().map(|b| b.0).collect::<Vec<_>>(), &path.display().to_string()).or_else(|e| {
+        // Only a bad value is reported here; the order is the sort's business.
+        if bands.iter().any(|b| !(b.0.is_finite() && b.0 > 0.0)) {
+            Err(e)
+        } else {
+            Ok(())
+        }
+    })?;
     bands.sort_by(|a, b| a.0.total_cmp(&b.0));
     let nb = bands.len();
     let mut data = vec![0.0f32; h * w * nb];
@@ -94,7 +133,7 @@ pub fn load_exr(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<SpectralC
         Some(w) => w,
         None => names
             .iter()
-            .map(|n| wavelength_from_name(n).ok_or_else(|| file_err(path, format!("channel `{n}` carries no wavelength in its name (200–3000 nm); give the wavelengths explicitly (--scene-wavelengths)"))))
+            .map(|n| wavelength_from_name(n).ok_or_else(|| file_err(path, format!("channel {}; give the wavelengths explicitly (--scene-wavelengths)", no_wavelength_reason(n)))))
             .collect::<Result<_>>()?,
     };
     let bands = ws.into_iter().zip(img.channels.into_iter().map(|c| c.data)).collect();
@@ -117,10 +156,17 @@ pub fn load_png_stack(dir: &Path, wavelengths_nm: Option<&[f64]>) -> Result<Spec
         w
     } else if let Some(list) = ["wavelengths.txt", "wavelengths_nm.txt"].iter().map(|n| dir.join(n)).find(|p| p.exists()) {
         let text = crate::io::input::read_input_text(&list, crate::limits::MAX_TEXT_FILE_BYTES)?;
+        let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
         let w: Vec<f64> = text
             .split(|c: char| c.is_whitespace() || c == ',')
             .filter(|s| !s.is_empty())
-            .map(|s| s.parse::<f64>().map_err(|_| file_err(&list, format!("`{s}` is not a number"))))
+            .enumerate()
+            .map(|(k, s)| match s.parse::<f64>() {
+                // `1e400` parses to inf: name the text, and the value's place in the file.
+                Ok(v) if !v.is_finite() => Err(file_err(&list, format!("wavelength {k} (`{s}`) is not a finite number"))),
+                Ok(v) => Ok(v),
+                Err(_) => Err(file_err(&list, format!("wavelength {k}: `{s}` is not a number"))),
+            })
             .collect::<Result<_>>()?;
         if w.len() != files.len() {
             return Err(file_err(&list, format!("{} wavelengths for {} PNG files", w.len(), files.len())));
@@ -128,6 +174,9 @@ pub fn load_png_stack(dir: &Path, wavelengths_nm: Option<&[f64]>) -> Result<Spec
         w
     } else if let Some(w) = stems.iter().map(|s| wavelength_from_name(s)).collect::<Option<Vec<f64>>>() {
         w
+    } else if let Some(s) = stems.iter().find(|s| wavelength_from_name(s).is_none() && numbers_in_name(s).iter().any(|n| n.1)) {
+        // A name that says `nm` but lies outside the window is an error, never CAVE's 400–700 nm.
+        return Err(file_err(dir, format!("file {}", no_wavelength_reason(s))));
     } else if files.len() == 31 {
         (0..31).map(|k| 400.0 + 10.0 * k as f64).collect() // CAVE: 400–700 nm in 10 nm steps
     } else {
@@ -152,7 +201,12 @@ pub fn load_png_stack(dir: &Path, wavelengths_nm: Option<&[f64]>) -> Result<Spec
 
 /// NPY cube of shape (H, W, B) (f32, f64, u8 or u16), wavelengths from `<stem>_wavelengths_nm.npy`.
 pub fn load_npy(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<SpectralCube> {
-    let (shape, data) = read_npy_f64(path)?;
+    // A value beyond float32 or a cube beyond the memory budget is a value error (as a NaN in the cube is),
+    // not an unreadable file.
+    let (shape, data) = read_npy_f32(path).map_err(|e| match e {
+        crate::io::IoError::NpyContent { .. } => Error::invalid(e.to_string()),
+        e => e.into(),
+    })?;
     if shape.len() != 3 {
         return Err(file_err(path, format!("a scene cube must have shape (H, W, B), found {shape:?}")));
     }
@@ -162,16 +216,19 @@ pub fn load_npy(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<SpectralC
             let stem = path.file_stem().unwrap_or_default().to_string_lossy();
             let wl = path.with_file_name(format!("{stem}_wavelengths_nm.npy"));
             if !wl.exists() {
-                return Err(file_err(path, format!("no wavelength list: expected {} beside it (`render` and `render-dataset` also take --scene-wavelengths)", wl.display())));
+                return Err(file_err(path, format!("no wavelength list: expected {} beside it, or give the wavelengths explicitly (--scene-wavelengths)", wl.display())));
             }
             let (ws_shape, ws) = read_npy_f64(&wl)?;
-            if ws_shape.len() != 1 || ws.len() != shape[2] {
+            if ws_shape.len() != 1 {
+                return Err(file_err(&wl, format!("a wavelength list must be 1-D (shape (B,)), found shape {ws_shape:?}")));
+            }
+            if ws.len() != shape[2] {
                 return Err(file_err(&wl, format!("{} wavelengths (shape {ws_shape:?}) for a cube with {} bands", ws.len(), shape[2])));
             }
             ws
         }
     };
-    SpectralCube::new(shape[0], shape[1], ws, data.iter().map(|&v| v as f32).collect(), &path.display().to_string())
+    SpectralCube::new(shape[0], shape[1], ws, data, &path.display().to_string())
 }
 
 /// Zero-padded channel name of band `k` (sorts in band order): `band_03_472.2222222222222nm`. The wavelength

@@ -4,14 +4,14 @@ use std::path::Path;
 
 /// Parse a TOML spec; errors carry `source_name` and TOML's line/column and field path.
 pub fn from_toml(text: &str, source_name: &str) -> Result<SystemSpec> {
-    let spec: SystemSpec = toml::from_str(text).map_err(|e| Error::spec(source_name, format!("invalid TOML spec: {e}")))?;
+    let spec: SystemSpec = toml::from_str(text.strip_prefix('\u{feff}').unwrap_or(text)).map_err(|e| Error::spec(source_name, format!("invalid TOML spec: {e}")))?;
     spec.validate().map_err(|m| Error::spec(source_name, m))?;
     Ok(spec)
 }
 
 /// Parse a JSON spec; errors carry `source_name`, line and column.
 pub fn from_json(text: &str, source_name: &str) -> Result<SystemSpec> {
-    let spec: SystemSpec = serde_json::from_str(text).map_err(|e| Error::spec(source_name, format!("invalid JSON spec: {e}")))?;
+    let spec: SystemSpec = serde_json::from_str(text.strip_prefix('\u{feff}').unwrap_or(text)).map_err(|e| Error::spec(source_name, format!("invalid JSON spec: {e}")))?;
     spec.validate().map_err(|m| Error::spec(source_name, m))?;
     Ok(spec)
 }
@@ -34,13 +34,16 @@ pub fn load_spec_file(path: impl AsRef<Path>) -> Result<SystemSpec> {
         return super::zmx::import_zmx_file(path, &super::zmx::ZmxOptions::default()).map(|i| i.spec);
     }
     let text = crate::io::input::read_input_text(path, crate::limits::MAX_TEXT_FILE_BYTES)?;
+    // A UTF-8 byte-order mark (Windows editors write one) is skipped, as the CSV, `.zmx` and AGF readers do:
+    // JSON called it "expected value at line 1 column 1" and YAML glued it to the first key's name.
+    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
     // A spec file's glass catalogues are relative to the spec file (`glass_catalogs`' documentation).
     let base = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     match path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase).as_deref() {
-        Some("toml") => from_toml(&text, &name).map(|s| with_catalogs_from(s, base)),
-        Some("json") => from_json(&text, &name).map(|s| with_catalogs_from(s, base)),
-        Some("yml") | Some("yaml") => super::yaml::import_yaml(&text, &name),
-        Some("csv") => super::zemax_csv::import_prescription(&text, &name, &super::zemax_csv::SystemData::paper_defaults()),
+        Some("toml") => from_toml(text, &name).map(|s| with_catalogs_from(s, base)),
+        Some("json") => from_json(text, &name).map(|s| with_catalogs_from(s, base)),
+        Some("yml") | Some("yaml") => super::yaml::import_yaml(text, &name),
+        Some("csv") => super::zemax_csv::import_prescription(text, &name, &super::zemax_csv::SystemData::paper_defaults()),
         other => Err(Error::spec(&name, format!("unknown spec extension {:?}: use .toml, .json, .yml, .csv or .zmx", other.unwrap_or("")))),
     }
 }

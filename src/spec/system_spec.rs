@@ -381,8 +381,10 @@ impl SystemSpec {
                 return Err(at("thickness_mm", "an infinite object distance must be a fixed value (no pickup or solve)".into()));
             }
             if let Some(sd) = s.semi_diameter_mm {
-                if !(sd.is_finite() && sd >= 0.0) {
-                    return Err(at("semi_diameter_mm", format!("{sd}: must be finite and >= 0")));
+                // A length as the others (docs/robustness.md's limits): 1e300 loaded and `embree-user` then failed
+                // on infinite bounds naming no surface (a held-out battery, round 17).
+                if !(sd.is_finite() && sd >= 0.0 && sd <= crate::limits::MAX_LENGTH_MM) {
+                    return Err(at("semi_diameter_mm", format!("{}: must be finite, >= 0 and <= {:e} mm (1 km)", crate::limits::fmt_num(sd), crate::limits::MAX_LENGTH_MM)));
                 }
             }
             if let Some(ap) = &s.aperture {

@@ -305,7 +305,8 @@ def test_load_unrolled_warns_about_a_system_of_a_preset_name_with_another_prescr
         load_unrolled(WEIGHTS_V1, _mf(), system=edited)
     recwarn.clear()
     load_unrolled(WEIGHTS_V1, _mf(), system=diffcassi.System.preset("sp"))  # the preset itself: no warning
-    assert not [w for w in recwarn if issubclass(w.category, UserWarning)]
+    # (but the operator's own: its 4 planes leave 24 of the 28 bands unsampled, said since round 17)
+    assert not [w for w in recwarn if issubclass(w.category, UserWarning) and "seen by no detector pixel" not in str(w.message)]
 
 
 # --------------------------------------------------------------------------------------------- findings 5, 11

@@ -1,6 +1,12 @@
 //! [`Reconstruction`]: what a solver returns — the cube and the record the CLI and the bindings serialise
 //! (settings, per-iteration residuals, the stopping rule and what ended the run).
-use super::config::SolverConfig;
+use super::config::{SolverConfig, SolverKind};
+
+/// The range of TV weight / cube peak outside which [`Reconstruction::warnings`] says the TV weight does not
+/// suit the cube's scale: the default 0.1 is tuned for peaks ≈ 1; the TV solution of k·y at weight w is not
+/// k times that of y (ROF is homogeneous only if w scales too): a scene ×100 reconstructed at 0.1 moved by
+/// 0.55 of its peak (a held-out battery, round 17).
+pub const TV_WEIGHT_TO_PEAK: (f64, f64) = (0.005, 2.0);
 use crate::recon::layout::dot;
 use crate::recon::operator::CubeShape;
 
@@ -39,6 +45,8 @@ pub struct Reconstruction {
     pub noise_estimates: Vec<(usize, f64)>,
     /// The prior: the denoiser's record (name, weights / TV settings).
     pub denoiser: serde_json::Value,
+    /// Bands (indices) no detector pixel sees (Φᵀ𝟙 = 0 over the band): their voxels are 0, not an estimate.
+    pub dark_bands: Vec<usize>,
 }
 
 impl Reconstruction {
@@ -84,6 +92,30 @@ impl Reconstruction {
             w.push(format!(
                 "the returned cube fits the acquisition worse than a zero cube (‖y − Φx‖/‖y‖ = {:.3} > 1): the iteration diverged on this acquisition, which the operator may not be able to produce (another system's, or an edited one); try the plain (not accelerated) iteration or fewer iterations",
                 self.final_residual
+            ));
+        }
+        if !self.dark_bands.is_empty() {
+            let mut list = self.dark_bands.iter().take(8).map(|b| b.to_string()).collect::<Vec<_>>().join(", ");
+            if self.dark_bands.len() > 8 {
+                list += &format!(", … {} more", self.dark_bands.len() - 8);
+            }
+            w.push(format!(
+                "{} of {} bands (index {list}) are seen by no detector pixel of the operator `{}` (Φᵀ𝟙 = 0 over the band): their reconstruction is 0, not an estimate (fewer render planes than bands left it unsampled, or the mask is closed or passed by where its light lands)",
+                self.dark_bands.len(),
+                self.shape.bands,
+                self.operator
+            ));
+        }
+        let peak = self.cube.iter().fold(0.0f32, |m, v| m.max(v.abs())) as f64;
+        let tv = self.config.tv_weight as f64;
+        let uses_tv = tv > 0.0 && (matches!(self.config.solver, SolverKind::GapTv | SolverKind::AdmmTv) || self.config.tv_warmup > 0);
+        if uses_tv && peak > 0.0 && !(TV_WEIGHT_TO_PEAK.0..=TV_WEIGHT_TO_PEAK.1).contains(&(tv / peak)) {
+            w.push(format!(
+                "the TV weight {} is {:.3e} of the returned cube's peak {:.4e}: the weight is absolute, in the cube's units (the default 0.1 is tuned for cubes of peak ≈ 1, as the paper's scenes), so this cube is {}; scale the weight with the data (about 0.1 × the peak) or the acquisition to peak ≈ 1",
+                self.config.tv_weight,
+                tv / peak,
+                peak,
+                if tv / peak < TV_WEIGHT_TO_PEAK.0 { "barely regularised" } else { "smoothed towards a constant" }
             ));
         }
         let threshold = self.config.discrepancy * self.noise_norm;

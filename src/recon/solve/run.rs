@@ -51,6 +51,7 @@ pub(crate) struct Run<'a, 'd> {
     pub(crate) discrepancy: Discrepancy,
     residuals: Vec<f64>,
     weighted: Vec<f64>,
+    dark_bands: Vec<usize>,
 }
 
 impl<'a, 'd> Run<'a, 'd> {
@@ -74,6 +75,14 @@ impl<'a, 'd> Run<'a, 'd> {
                 op.image_shape().width
             )));
         }
+        // Bands no detector pixel sees (Φᵀ𝟙 = 0 over the band): their voxels are 0 whatever the data, and
+        // the record says so (a ddsp 3×3 operator was zero in every band but one, an unevenly spaced band
+        // list left one band without a plane; both silent: a held-out battery, round 17). One adjoint.
+        let dark_bands = {
+            let mut sens = vec![0.0f32; shape.len()];
+            op.adjoint_into(&vec![1.0f32; op.image_shape().len()], &mut sens);
+            (0..shape.bands).filter(|&b| sens.iter().skip(b).step_by(shape.bands).all(|&v| !(v > 0.0))).collect()
+        };
         let (ny, nyw) = (scale(y), pre.weighted_norm(y).max(f64::MIN_POSITIVE));
         let theta = match init {
             Some(x) => x.to_vec(),
@@ -101,6 +110,7 @@ impl<'a, 'd> Run<'a, 'd> {
             discrepancy,
             residuals: Vec::with_capacity(config.iterations),
             weighted: Vec::with_capacity(config.iterations),
+            dark_bands,
         })
     }
 
@@ -158,6 +168,7 @@ impl<'a, 'd> Run<'a, 'd> {
             noise_estimates: self.noise.history,
             sigmas: self.sigmas,
             denoiser: denoiser_record,
+            dark_bands: self.dark_bands,
         }
     }
 }

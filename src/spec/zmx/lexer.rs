@@ -5,7 +5,7 @@
 //! [`decode`] reads, in this order: UTF-16 LE or BE with a byte-order mark; UTF-8 with or without its BOM
 //! (`EF BB BF`); and any other text, whose bytes are not valid UTF-8, as Windows-1252 (so `°`, `µ`, `é` of
 //! an ANSI `NOTE` or `COMM` come out as written; [`TextEncoding`] says which one was used). A record is a
-//! line: a keyword (`SURF`, `CURV`, `GLAS`…) followed by whitespace-separated arguments; an argument in
+//! line, ended by CRLF, LF or a CR alone (all three, in any mix, in every encoding): a keyword (`SURF`, `CURV`, `GLAS`…) followed by whitespace-separated arguments; an argument in
 //! double quotes may hold spaces. Refused, with a message naming the problem: UTF-16 without a byte-order
 //! mark (the NUL bytes of every other byte give it away), a binary file (a NUL byte anywhere, or control
 //! characters other than tab, CR, LF and form feed — in Windows-1252 also the five undefined bytes
@@ -82,6 +82,7 @@ pub fn decode_with_encoding(bytes: &[u8], source_name: &str) -> Result<(String, 
         let units: Vec<u16> =
             body.chunks_exact(2).map(|c| if be { u16::from_be_bytes([c[0], c[1]]) } else { u16::from_le_bytes([c[0], c[1]]) }).collect();
         let text = String::from_utf16(&units).map_err(|_| fail("invalid UTF-16 (an unpaired surrogate): not a Zemax .zmx text file".into()))?;
+        let text = unify_line_ends(text);
         check_text(&text, source_name)?;
         Ok(text)
     };
@@ -115,13 +116,24 @@ pub fn decode_with_encoding(bytes: &[u8], source_name: &str) -> Result<(String, 
         // C1 controls, which check_text refuses as binary).
         Err(_) => (encoding_rs::WINDOWS_1252.decode_without_bom_handling(body).0.into_owned(), TextEncoding::Windows1252),
     };
-    // Classic Mac OS line ends (CR alone) read as line ends too, not as one long line.
-    let text = if text.contains('\r') && !text.contains('\n') { text.replace('\r', "\n") } else { text };
+    let text = unify_line_ends(text);
     check_text(&text, source_name)?;
     Ok((text, enc))
 }
 
-/// Control characters other than tab, CR, LF and form feed mark a binary file.
+/// Every line end as LF: CRLF (OpticStudio), LF, and a CR alone (classic Mac OS; a stray one in a file of
+/// other line ends) each end a line, in every encoding, as Python's universal newlines read them (optiland,
+/// rayoptics). A lone CR read as whitespace joined two records into one line (`CURV 0.02 0 0 0 0 "" DISZ 5`:
+/// the thickness lost), and a UTF-16 file with CR line ends read as one line ("no `SURF` record").
+fn unify_line_ends(text: String) -> String {
+    if text.contains('\r') {
+        text.replace("\r\n", "\n").replace('\r', "\n")
+    } else {
+        text
+    }
+}
+
+/// Control characters other than tab, CR, LF and form feed mark a binary file (CR is gone by then: every line end is LF).
 fn check_text(text: &str, source_name: &str) -> Result<()> {
     for (i, line) in text.lines().enumerate() {
         if let Some(c) = line.chars().find(|c| c.is_control() && !matches!(c, '\t' | '\r' | '\x0c')) {
@@ -205,7 +217,7 @@ mod tests {
         let (t, e) = decode_with_encoding(b"\xEF\xBB\xBFNOTE 0 \xC2\xB5m\n", "a").unwrap();
         assert_eq!((t.as_str(), e), ("NOTE 0 µm\n", TextEncoding::Utf8Bom));
         let (t, e) = decode_with_encoding(b"NOTE 0 20\xB0 \xB5m caf\xE9 \x80\r\n", "a").unwrap();
-        assert_eq!((t.as_str(), e), ("NOTE 0 20° µm café €\r\n", TextEncoding::Windows1252));
+        assert_eq!((t.as_str(), e), ("NOTE 0 20° µm café €\n", TextEncoding::Windows1252));
         // A UTF-8 BOM before invalid UTF-8, an undefined Windows-1252 byte, control bytes: refused.
         assert!(decode(b"\xEF\xBB\xBFNOTE \xB5\n", "a").unwrap_err().to_string().contains("invalid UTF-8"));
         assert!(decode(b"NOTE \x81 \xB5\n", "a").unwrap_err().to_string().contains("binary"));

@@ -199,6 +199,10 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
                     None if records::APERTURE_RECORDS.contains(&k1.as_str()) => {
                         format!("a second system aperture (the first: line {l1} `{k1}`); OpticStudio gives a system one aperture (ENPD, FNUM, OBNA or FLOA)")
                     }
+                    None if *k1 != r.keyword => format!(
+                        "{} given twice in the system data, as `{k1}` and `{}`, two spellings of one list (the first: line {l1} `{k1}`); OpticStudio writes it once",
+                        key.1, r.keyword
+                    ),
                     None => format!("{} given twice in the system data (the first: line {l1} `{k1}`); OpticStudio writes it once", key.1),
                     Some(n) => format!("{} given twice in surface {n} (the first: line {l1} `{k1}`); OpticStudio writes it once per surface", key.1),
                 };
@@ -399,6 +403,14 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     // pupil) is not modelled and is refused when it is not zero.
     let mut vignetting = vec![[0.0f64; 4]; fields.len()];
     for (line, k, vals) in &header.vignetting {
+        // One value per field, as for `XFLN`/`YFLN` (refused when too short): a short list left the last fields'
+        // factors 0 silently. The on-axis default field (none listed) needs none.
+        if vals.len() < nf {
+            return Err(fail(format!(
+                "line {line} `{k}`: {} value(s) for {nf} fields (one per field, as `XFLN`/`YFLN` give them): too few (truncated?)",
+                vals.len()
+            )));
+        }
         let column = ["VDX", "VDY", "VCX", "VCY"].iter().position(|c| k.starts_with(c));
         let Some(col) = column else {
             if vals.iter().take(fields.len()).any(|v| *v != 0.0) {
@@ -434,6 +446,17 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
         }
         out
     } else {
+        // As for `WAVM` (a missing `WAVM i` is refused): a `WAVL` list shorter than FTYP's count of wavelengths
+        // was read with fewer wavelengths, silently. A longer one is how old files write it (the unused ones after).
+        if let (Some(n), Some((fl, ..))) = (nw, header.ftyp) {
+            if header.wavl_line != 0 && header.wavl.len() < n {
+                return Err(fail(format!(
+                    "line {} `WAVL`: {} wavelength(s) for the {n} of line {fl} `FTYP` (its fourth value): too few (truncated?)",
+                    header.wavl_line,
+                    header.wavl.len()
+                )));
+            }
+        }
         let n = nw.unwrap_or(header.wavl.len()).min(header.wavl.len());
         (0..n).map(|i| (header.wavl[i], header.wwgt.get(i).copied().unwrap_or(1.0), header.wavl_line, "WAVL")).collect()
     };
@@ -479,6 +502,42 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     let resolution = glass::resolve(header.gcat.as_ref(), &header.catalog_paths, &options.glass_catalogs, &uses, &dirs).map_err(&fail)?;
     let catalog_paths = resolution.entries.clone();
 
+    // `OBNA θ 1`, the object cone angle: NA = n sin θ, n the object space's index — exact for an object in air
+    // (index `air_index`, 1 unless `DCAI` says otherwise). An object in glass, whose index depends on the
+    // wavelength, is refused rather than given one wavelength's NA; at infinity a cone angle means nothing.
+    if let Some((line, theta)) = header.cone_angle {
+        if at_infinity {
+            return Err(fail(format!(
+                "line {line} `OBNA`: an object cone angle ({}°) with the object at infinity (surface 0 `DISZ INFINITY`): an object at infinity has no cone; use ENPD, FNUM or FLOA",
+                crate::limits::fmt_num(theta)
+            )));
+        }
+        match &blocks[0].0.glass {
+            Some((gl, g)) if !g.eq_ignore_ascii_case("AIR") => {
+                unsupported.push(Unsupported {
+                    line,
+                    keyword: "OBNA".into(),
+                    reason: format!(
+                        "object cone angle {}° with the object in glass `{g}` (line {gl}): NA = n sin θ with n the glass's index is not modelled; give the object-space NA (`OBNA na 0`)",
+                        crate::limits::fmt_num(theta)
+                    ),
+                });
+                header.aperture = None;
+            }
+            _ => {
+                let n_air = header.air_index.unwrap_or(1.0);
+                header.aperture = Some((line, SystemAperture::ObjectSpaceNa(n_air * theta.to_radians().sin())));
+            }
+        }
+    }
+    if let Some(line) = header.afocal_line {
+        skipped.push(Unsupported {
+            line,
+            keyword: "FTYP".into(),
+            reason: "afocal image space (the seventh value): in OpticStudio it changes how the analyses are reported (angles, not image positions), no ray; diffcassi reports positions on the image surface (mm)".into(),
+        });
+        skipped.sort_by_key(|u| u.line);
+    }
     if !unsupported.is_empty() && !options.ignore_unsupported {
         let list: Vec<String> = unsupported.iter().map(|u| format!("  {u}")).collect();
         return Err(fail(format!(

@@ -99,12 +99,25 @@ pub fn written_arity(keyword: &str) -> Option<usize> {
 /// A record's numeric argument `k` (0-based), or a message naming the line, keyword and text.
 pub fn num(r: &Record, k: usize) -> Result<f64, String> {
     let t = r.args.get(k).ok_or_else(|| format!("line {} `{}`: argument {} missing (a truncated record)", r.line, r.keyword, k + 1))?;
-    let v = if t.eq_ignore_ascii_case("INFINITY") || t.eq_ignore_ascii_case("INF") {
+    // Only the word INFINITY (as OpticStudio writes an infinite radius or object distance) is infinite. Rust's
+    // parser also reads `inf` and an overflowing `1e999` as infinity: `DISZ 1e999` on the object was an object
+    // at infinity while `DISZ 1e7` was refused as out of range. Those are refused here, naming the text.
+    let v = if t.eq_ignore_ascii_case("INFINITY") || t.eq_ignore_ascii_case("+INFINITY") {
         f64::INFINITY
-    } else if t.eq_ignore_ascii_case("-INFINITY") || t.eq_ignore_ascii_case("-INF") {
+    } else if t.eq_ignore_ascii_case("-INFINITY") {
         f64::NEG_INFINITY
     } else {
-        t.parse::<f64>().map_err(|_| format!("line {} `{}`: argument {} `{t}` is not a number", r.line, r.keyword, k + 1))?
+        let v = t.parse::<f64>().map_err(|_| format!("line {} `{}`: argument {} `{t}` is not a number", r.line, r.keyword, k + 1))?;
+        if v.is_infinite() {
+            return Err(format!(
+                "line {} `{}`: argument {} `{t}` is not finite ({}); only the word INFINITY means infinity, as OpticStudio writes it",
+                r.line,
+                r.keyword,
+                k + 1,
+                if t.chars().any(|c| c.is_ascii_digit()) { "it overflows the range of a double" } else { "not the word INFINITY" }
+            ));
+        }
+        v
     };
     if v.is_nan() {
         return Err(format!("line {} `{}`: argument {} is NaN", r.line, r.keyword, k + 1));
@@ -166,7 +179,17 @@ pub fn once_key(r: &Record, surface: Option<usize>) -> Option<(Option<usize>, St
         return Some((None, "the system aperture".into()));
     }
     if HEADER_ONCE.contains(&kw) {
-        return Some((None, format!("`{kw}`")));
+        // Two spellings of one list (`XFLN`/`XFLD` the x fields, `YFLN`/`YFLD` the y fields, `VDXN`/`VDXF`… a
+        // vignetting column; the `…D`/`…F` ones from older files): one key, so that `YFLN` then `YFLD` is refused
+        // as a list given twice (the later one replaced the first silently).
+        let canonical = match kw {
+            "XFLD" => "XFLN",
+            "YFLD" => "YFLN",
+            k if k.len() == 4 && k.starts_with('V') && k.ends_with('F') => &k[..3],
+            k => k,
+        };
+        let alias = (canonical.len() == 3).then(|| format!("{canonical}N"));
+        return Some((None, format!("`{}`", alias.as_deref().unwrap_or(canonical))));
     }
     if kw == "WAVM" {
         return Some((None, format!("wavelength {}", first())));
