@@ -201,11 +201,10 @@ def _warn_dark_bands(op: Operator, what: str) -> Operator:
     """Warn (``UserWarning``) when no detector pixel sees some band of ``op`` (Φᵀ𝟙 = 0 over the band): a
     reconstruction gives 0 there, not an estimate. ``render`` warns of planes the mask passes no light at; an
     operator of the same settings was built silently (ddsp at 3×3: zero in every band but one; a held-out
-    battery, round 17). One adjoint of the operator."""
-    h, w, b = op.cube_shape
-    seen = op.adjoint(np.ones(op.image_shape, np.float32)).reshape(h * w, b).max(axis=0) > 0
-    dark = [int(k) for k in np.flatnonzero(~seen)]
+    battery, round 17). One adjoint of the operator (``Operator.dark_bands``, as the solvers find them)."""
+    dark = op.dark_bands()
     if dark:
+        b = op.cube_shape[2]
         import warnings
 
         bands, settings_bands = None, None

@@ -86,6 +86,12 @@ impl PyOperator {
         output(py, img, &[i.height, i.width])
     }
 
+    /// The bands (indices) no detector pixel sees (Φᵀ𝟙 = 0 over the band: a reconstruction is 0 there), as
+    /// the library's solvers find them.
+    fn dark_bands(&self, py: Python<'_>) -> Vec<usize> {
+        run(py, || self.op.dark_bands())
+    }
+
     /// Φᵀ image: `image` (h, w) float32 → cube (H, W, B) float32.
     fn adjoint<'py>(&self, py: Python<'py>, image: &Bound<'py, PyAny>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let i = self.op.image_shape();

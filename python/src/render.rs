@@ -444,11 +444,7 @@ fn read_exr<'py>(py: Python<'py>, path: std::path::PathBuf) -> PyResult<Vec<(Str
 #[pyfunction]
 #[pyo3(signature = (path, wavelengths_nm = None))]
 fn load_scene<'py>(py: Python<'py>, path: std::path::PathBuf, wavelengths_nm: Option<&Bound<'py, PyAny>>) -> PyResult<(Bound<'py, PyArrayDyn<f32>>, Vec<f64>)> {
-    // `metadata` follows links: a symbolic-link loop is said as such, not "no such file".
-    if let Err(e) = std::fs::metadata(&path) {
-        let why = if e.kind() == std::io::ErrorKind::NotFound { "no such file or folder".to_string() } else { format!("cannot read: {e}") };
-        return Err(crate::errors::file_error(format!("{}: {why}", path.display())));
-    }
+    diffcassi::scene::check_present(&path).py()?;
     let ws = wavelengths_nm.map(|w| f64_list("wavelengths_nm", w)).transpose()?;
     check_scene_file_memory(&path, ws.as_ref().map(Vec::len))?;
     // The library's hint names the CLI's option (spelled `scene_wavelengths`); here it is this keyword.

@@ -77,4 +77,16 @@ impl dyn Operator + '_ {
         self.adjoint_into(image, &mut cube);
         Ok(cube)
     }
+
+    /// The bands (indices) no detector pixel sees: Φᵀ𝟙 has no positive voxel in the band (the operators are
+    /// non-negative), so a reconstruction is 0 there whatever the data — too few render planes for the bands,
+    /// or the mask closed or passed by where the band's light lands. One adjoint. The solvers record them
+    /// ([`Reconstruction::dark_bands`](crate::recon::Reconstruction::dark_bands)); Python's operator builders
+    /// warn of them.
+    pub fn dark_bands(&self) -> Vec<usize> {
+        let (c, i) = (self.cube_shape(), self.image_shape());
+        let mut sens = vec![0.0f32; c.len()];
+        self.adjoint_into(&vec![1.0f32; i.len()], &mut sens);
+        (0..c.bands).filter(|&b| sens.iter().skip(b).step_by(c.bands).all(|&v| !(v > 0.0))).collect()
+    }
 }

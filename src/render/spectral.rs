@@ -71,31 +71,10 @@ impl SpectralSampling {
         edges.push(bands_nm[b - 1] + 0.5 * (bands_nm[b - 1] - bands_nm[b - 2]));
         let (lo, hi) = (edges[0], edges[b]);
         let planes_nm: Vec<f64> = (0..planes).map(|j| lo + (hi - lo) * (j as f64 + 0.5) / planes as f64).collect();
-        // The scene is interpolated linearly between the bands at each plane, so band k enters the render (and
-        // the exact operator) only through planes strictly between its neighbours (the outer bands: up to the
-        // outer edges, where the spectrum is held at them). Unevenly spaced bands with too few planes could
-        // leave a band with none: the acquisition is blind to it and its reconstruction is 0, silently (450,
-        // 451, 650 nm with 6 planes 50 nm apart; a held-out battery, round 17). Refused, naming the band, when
-        // there are at least as many planes as bands (evenly spaced bands then always get one); fewer planes
-        // than bands is a coarse render by choice (28 bands, 3 planes), and the reconstruction's record says
-        // which bands no pixel sees.
-        for k in (0..b).filter(|_| planes >= b) {
-            let below = if k == 0 { lo } else { bands_nm[k - 1] };
-            let above = if k + 1 == b { hi } else { bands_nm[k + 1] };
-            if !planes_nm.iter().any(|&w| w > below && w < above) {
-                let gap = bands_nm.windows(2).map(|p| p[1] - p[0]).fold(f64::INFINITY, f64::min);
-                let needed = ((hi - lo) / gap).ceil().max(planes as f64 + 1.0);
-                let fmt = |v: f64| crate::limits::fmt_num((v * 1e3).round() / 1e3);
-                return Err(Error::invalid(format!(
-                    "band {k} ({} nm) gets no render plane: the {planes} planes are {} nm apart and none lies between {} and {} nm, where the band is sampled, so the acquisition is blind to it and its reconstruction would be 0; use at least {needed} planes (laid evenly over {} – {} nm) or more evenly spaced bands",
-                    fmt(bands_nm[k]),
-                    fmt((hi - lo) / planes as f64),
-                    fmt(below),
-                    fmt(above),
-                    fmt(lo),
-                    fmt(hi)
-                )));
-            }
+        // Fewer planes than bands is a coarse render by choice (28 bands, 3 planes; the reconstruction's record
+        // says which bands no pixel sees); with as many planes as bands, every band must get one.
+        if planes >= b {
+            check_every_band_sampled(&bands_nm, &planes_nm, lo, hi)?;
         }
         let plane_band = planes_nm.iter().map(|&w| (edges.partition_point(|&e| e <= w).max(1) - 1).min(b - 1)).collect();
         Ok(SpectralSampling { oversampling: planes / b, planes_nm, plane_band, plane_weight: b as f64 / planes as f64, bands_nm })
@@ -104,6 +83,36 @@ impl SpectralSampling {
     pub fn planes(&self) -> usize {
         self.planes_nm.len()
     }
+}
+
+/// That each band has a plane strictly between its neighbours (the outer bands: up to the outer edges `lo`,
+/// `hi`, where the spectrum is held at them): the scene is interpolated linearly between the bands at each
+/// plane, so band k enters the render (and the exact operator) only through those planes. Unevenly spaced bands
+/// with too few planes could leave a band with none: the acquisition was blind to it and its reconstruction 0,
+/// silently (450, 451, 650 nm with 6 planes 50 nm apart; a held-out battery, round 17). Refused, naming the
+/// band and a plane count that samples every band (evenly spaced bands with as many planes always pass).
+fn check_every_band_sampled(bands_nm: &[f64], planes_nm: &[f64], lo: f64, hi: f64) -> Result<()> {
+    let (b, planes) = (bands_nm.len(), planes_nm.len());
+    for k in 0..b {
+        let below = if k == 0 { lo } else { bands_nm[k - 1] };
+        let above = if k + 1 == b { hi } else { bands_nm[k + 1] };
+        if planes_nm.iter().any(|&w| w > below && w < above) {
+            continue;
+        }
+        let gap = bands_nm.windows(2).map(|p| p[1] - p[0]).fold(f64::INFINITY, f64::min);
+        let needed = ((hi - lo) / gap).ceil().max(planes as f64 + 1.0);
+        let fmt = |v: f64| crate::limits::fmt_num((v * 1e3).round() / 1e3);
+        return Err(Error::invalid(format!(
+            "band {k} ({} nm) gets no render plane: the {planes} planes are {} nm apart and none lies between {} and {} nm, where the band is sampled, so the acquisition is blind to it and its reconstruction would be 0; use at least {needed} planes (laid evenly over {} – {} nm) or more evenly spaced bands",
+            fmt(bands_nm[k]),
+            fmt((hi - lo) / planes as f64),
+            fmt(below),
+            fmt(above),
+            fmt(lo),
+            fmt(hi)
+        )));
+    }
+    Ok(())
 }
 
 /// The weight of each band in an acquisition of evenly spread planes, relative to the mean (1 for evenly

