@@ -75,10 +75,13 @@ def spot(system: System, field_mm: Optional[Sequence[float]], wavelength_nm: flo
     ``rms_radius_chief_um`` and ``lost`` (the lost rays by outcome and stopping surface, most first: dicts
     ``{status, surface, count}``). ``pupil``: a pattern (default ``hexapolar:12``, as the CLI) or (N, 2) float64
     normalised pupil points. Arrays are returned as NumPy float64."""
-    d = _json.loads(_native._spot(system, None if field_mm is None else _pair("field_mm", field_mm), _number("wavelength_nm", wavelength_nm),
-                                  pupil, _check_backend(backend), None if field_deg is None else _pair("field_deg", field_deg)))
-    for k in ("x_mm", "y_mm", "pupil"):
-        d[k] = np.asarray(d[k], dtype=np.float64)
+    # The native call returns the small parts as JSON and the per-ray parts as arrays and a list, made
+    # without the GIL (a JSON of a million rays parsed here held it for seconds).
+    text, (pupil_pts, x, y, status) = _native._spot(system, None if field_mm is None else _pair("field_mm", field_mm),
+                                                    _number("wavelength_nm", wavelength_nm), pupil, _check_backend(backend),
+                                                    None if field_deg is None else _pair("field_deg", field_deg))
+    d = _json.loads(text)
+    d.update(pupil=pupil_pts, x_mm=x, y_mm=y, status=status)
     return d
 
 
@@ -88,7 +91,10 @@ def distortion(system: System, wavelength_nm: Optional[float] = None, grid: int 
     ``wavelength_nm`` (default: the primary): dict with ``reference_mm``, ``abcd``, ``max_distortion_pct`` and
     ``points`` (one dict per grid point, as the CLI's CSV)."""
     w = system.primary_wavelength_nm if wavelength_nm is None else _number("wavelength_nm", wavelength_nm)
-    return _json.loads(_native._distortion(system, w, grid, _number("half_width_mm", half_width_mm), _check_backend(backend)))
+    text, points = _native._distortion(system, w, grid, _number("half_width_mm", half_width_mm), _check_backend(backend))
+    d = _json.loads(text)
+    d["points"] = points
+    return d
 
 
 def dispersion(system: System, wavelengths_nm: Sequence[float] = tuple(np.linspace(450, 650, 28)),

@@ -19,6 +19,9 @@ pub enum Error {
     Io(#[from] crate::io::IoError),
     #[error(transparent)]
     Plot(#[from] crate::plot::PlotError),
+    /// The computation was stopped by its [`crate::cancel::Cancel`] token (Ctrl-C in Python); nothing was returned.
+    #[error("interrupted: the computation was cancelled before it finished (nothing was returned)")]
+    Interrupted,
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

@@ -19,6 +19,7 @@
 //! ```
 pub mod analysis;
 pub mod calibration;
+pub mod cancel;
 pub mod cli;
 pub mod design;
 pub mod diff;

@@ -102,7 +102,7 @@ impl PyDiffRenderer {
         }
         check_budget(height, width, bands.len(), planes, rays, airy)?;
         let recipe = {
-            let sys = Py::new(py, PySystem { inner: std::sync::Arc::clone(&system.inner) })?;
+            let sys = Py::new(py, system.share())?;
             let args = pyo3::types::PyTuple::new(py, [sys.into_any(), height.into_pyobject(py)?.into_any().unbind(), width.into_pyobject(py)?.into_any().unbind(), free.clone().into_pyobject(py)?.into_any().unbind()])?;
             let kw = pyo3::types::PyDict::new(py);
             kw.set_item("rays", rays)?;

@@ -94,26 +94,39 @@ pub fn run<T: Send>(py: Python<'_>, f: impl FnOnce() -> T + Send) -> T {
 }
 
 /// [`run`] for a long call that stops early when asked: `f` runs on another thread (in the chosen pool)
-/// while this one — the thread that holds the GIL, the main thread of a script or a notebook — wakes every
-/// 50 ms to run Python's pending signal handlers. A raised `KeyboardInterrupt` (Ctrl-C) sets `stop`, which `f`
-/// polls; the call then waits for `f` and returns the exception with its result. (The signal handlers run only
-/// on the main thread: `f`'s own thread cannot see a Ctrl-C.)
-pub fn run_interruptible<T: Send>(py: Python<'_>, stop: &std::sync::atomic::AtomicBool, f: impl FnOnce() -> T + Send) -> (T, Option<PyErr>) {
+/// while this one — the thread that holds the GIL, the main thread of a script or a notebook — waits for it,
+/// waking every 50 ms to run Python's pending signal handlers. A raised `KeyboardInterrupt` (Ctrl-C) cancels
+/// `stop` ([`diffcassi::cancel::Cancel`]), which `f` polls (the library's render rows, operator planes, solver
+/// iterations); the call then waits for `f` — a poll away — and returns the exception with its result. (The
+/// signal handlers run only on the main thread: `f`'s own thread cannot see a Ctrl-C, and a call made from
+/// another Python thread is never interrupted; each call has its own token, so one call's Ctrl-C stops no
+/// other.) A call that ends before the first wake returns at once (the worker says so on a channel).
+pub fn run_interruptible<T: Send>(py: Python<'_>, stop: &diffcassi::cancel::Cancel, f: impl FnOnce() -> T + Send) -> (T, Option<PyErr>) {
     let pool = current().unwrap_or(None);
     let mut signal = None;
     let out = py.allow_threads(|| {
         std::thread::scope(|scope| {
-            let worker = scope.spawn(move || match pool {
-                Some(p) => p.install(f),
-                None => f(),
+            let (done, finished) = std::sync::mpsc::channel::<()>();
+            let worker = scope.spawn(move || {
+                let v = match pool {
+                    Some(p) => p.install(f),
+                    None => f(),
+                };
+                // Dropped on a panic too: the wait below then sees the channel closed.
+                let _ = done.send(());
+                v
             });
-            while !worker.is_finished() {
-                std::thread::sleep(std::time::Duration::from_millis(50));
-                if signal.is_none() {
-                    if let Err(e) = Python::with_gil(|py| py.check_signals()) {
-                        signal = Some(e);
-                        stop.store(true, std::sync::atomic::Ordering::SeqCst);
+            loop {
+                match finished.recv_timeout(std::time::Duration::from_millis(50)) {
+                    Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                        if signal.is_none() {
+                            if let Err(e) = Python::with_gil(|py| py.check_signals()) {
+                                signal = Some(e);
+                                stop.cancel();
+                            }
+                        }
                     }
+                    _ => break,
                 }
             }
             worker.join()
@@ -123,6 +136,21 @@ pub fn run_interruptible<T: Send>(py: Python<'_>, stop: &std::sync::atomic::Atom
         Ok(v) => (v, signal),
         Err(panic) => std::panic::resume_unwind(panic),
     }
+}
+
+/// A library call that stops on Ctrl-C: `f` gets a fresh [`diffcassi::cancel::Cancel`] to hand to the library
+/// (a render's [`diffcassi::render::Renderer::with_cancel`], a solve's `cancel`) and runs through
+/// [`run_interruptible`]. A Ctrl-C during the call raises the `KeyboardInterrupt` itself (whatever `f` returned:
+/// its `Interrupted` error, or a result finished between the last poll and the signal, which is dropped);
+/// otherwise `f`'s result, its error as the Python exception.
+pub fn run_cancellable<T: Send>(py: Python<'_>, f: impl FnOnce(&diffcassi::cancel::Cancel) -> diffcassi::Result<T> + Send) -> PyResult<T> {
+    let stop = diffcassi::cancel::Cancel::new();
+    let token = stop.clone();
+    let (out, signal) = run_interruptible(py, &stop, move || f(&token));
+    if let Some(e) = signal {
+        return Err(e);
+    }
+    crate::errors::IntoPy::py(out)
 }
 
 /// Use `n` threads for every following heavy call: 1..=1024 (the CLI's `--threads` range), or 0 for

@@ -34,7 +34,7 @@ impl Recipe {
     /// system shared (it is immutable), the mask as the float32 array the object was built with (`None`: the
     /// settings' random mask), the settings deep-copied.
     pub fn render_settings(py: Python<'_>, factory: &'static str, system: &PySystem, height: usize, width: usize, mask: Option<&Mask>, settings: Option<&Bound<'_, PyDict>>) -> PyResult<Arc<Recipe>> {
-        let system = Py::new(py, PySystem { inner: Arc::clone(&system.inner) })?.into_any();
+        let system = Py::new(py, system.share())?.into_any();
         let mask: PyObject = match mask {
             Some(m) => m.values.clone().into_pyarray(py).reshape([m.height, m.width])?.into_any().unbind(),
             None => py.None(),

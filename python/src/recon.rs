@@ -236,9 +236,10 @@ fn model_operator(
     let recipe = Recipe::render_settings(py, if kind == "mapping" { "mapping_operator" } else { "shift_operator" }, system, height, width, mask.is_some().then_some(&m), settings)?;
     let sys = Arc::clone(&system.inner);
     let kind = kind.to_string();
-    run(py, move || -> diffcassi::Result<PyOperator> {
+    // Ctrl-C stops the build (`run_cancellable`; the renderer polls the token where it traces).
+    crate::pool::run_cancellable(py, move |cancel| -> diffcassi::Result<PyOperator> {
         let bands = cfg.spectral.bands_nm.clone();
-        let r = Renderer::new(&sys, tr.as_ref(), cfg, m)?;
+        let r = Renderer::new(&sys, tr.as_ref(), cfg, m)?.with_cancel(cancel.clone());
         Ok(if kind == "mapping" {
             let op = Arc::new(MappingOperator::from_renderer(&r, &bands, interp)?);
             PyOperator { op: op.clone(), sparse: op.clone(), mapping: Some(op), recipe }
@@ -246,7 +247,6 @@ fn model_operator(
             PyOperator::new(Arc::new(ShiftOperator::from_renderer(&r, &bands)?), recipe)
         })
     })
-    .py()
 }
 
 /// Reconstruct a cube from `acquisition` (h, w) float32 through `operator` with GAP-TV, ADMM-TV or PnP
@@ -365,7 +365,8 @@ fn _reconstruct<'py>(
     let twin = noise_twin.as_ref().map(|t| t.op.clone());
     let spread = twin.as_ref().map(|t| MonteCarloSpread { twin: t.as_ref(), factor: noise_factor.unwrap_or(1.0), sensor_norm: cfg.noise_norm, every: SPREAD_EVERY });
     // The library's solve (`recon::pipeline::run_solver`, as `reconstruct` and `study` run it).
-    let (rec, _) = run(py, || run_solver(op.as_ref(), y, init.as_deref(), &cfg, spread.as_ref(), None, &|_, _| {})).py()?;
+    // Ctrl-C stops the solve at its next iteration (`run_cancellable`: the solver polls the token).
+    let (rec, _) = crate::pool::run_cancellable(py, |cancel| run_solver(op.as_ref(), y, init.as_deref(), &cfg, spread.as_ref(), None, &|_, _| {}, Some(cancel)))?;
     // The CLI's record: the solver's, with `stopping` as in reconstruct.json (δ is the caller's `noise_norm`).
     let stopping = rec.stopping_record(y, None);
     // What the CLI prints beside the numbers, `stopping.warnings` (a diverged iteration, a threshold the zero
@@ -427,15 +428,16 @@ fn denoise<'py>(py: Python<'py>, cube: &Bound<'py, PyAny>, sigma: f64, weights: 
     check_finite("cube", a.slice(), &a.shape)?;
     let shape = CubeShape { height: a.shape[0], width: a.shape[1], bands: a.shape[2] };
     let x = a.slice();
-    let out = run(py, || -> diffcassi::Result<Vec<f32>> {
+    // Ctrl-C stops the network at its next layer (`run_cancellable`; the self-ensemble is 8 passes).
+    let out = crate::pool::run_cancellable(py, |cancel| -> diffcassi::Result<Vec<f32>> {
         let mut net = SpectralUNet::load(weights.as_deref().map(std::path::Path::new))?;
         net.neutral = neutral;
         net.self_ensemble = ensemble;
+        net.set_cancel(Some(cancel.clone()));
         let mut out = vec![0.0f32; shape.len()];
         net.denoise(x, &mut out, shape, sigma as f32)?;
         Ok(out)
-    })
-    .py()?;
+    })?;
     output(py, out, &[shape.height, shape.width, shape.bands])
 }
 

@@ -96,9 +96,10 @@ fn _render<'py>(
     let device = render_settings.device;
     let sys = Arc::clone(&system.inner);
     let threads = crate::pool::get_num_threads()?;
-    let (acq, info) = run(py, move || -> diffcassi::Result<_> {
+    // Ctrl-C stops the render at its next scene row (`run_cancellable`: the renderer polls the token).
+    let (acq, info) = crate::pool::run_cancellable(py, move |cancel| -> diffcassi::Result<_> {
         let tracing = diffcassi::fidelity::RenderTracing::resolve(source, &sys, &render_settings, &mut cfg, &m)?;
-        let r = Renderer::new(&sys, tracing.tracer.as_ref(), cfg, m)?;
+        let r = Renderer::new(&sys, tracing.tracer.as_ref(), cfg, m)?.with_cancel(cancel.clone());
         // device="cuda": the GPU kernels (render::device), recorded in render.json's `device`.
         let (mut acq, record) = diffcassi::render::device::render_for(device, &r, &cube, false, &|_| {})?;
         // The CLI's noise and its warnings (an exposure below an electron, a zero acquisition): raised as
@@ -126,8 +127,7 @@ fn _render<'py>(
             info["warnings"] = warnings.iter().map(|w| crate::errors::pythonic(w)).collect::<Vec<_>>().into();
         }
         Ok((acq, info))
-    })
-    .py()?;
+    })?;
     let (h, w) = (acq.detector.height, acq.detector.width);
     Ok((output(py, acq.image, &[h, w])?, info.to_string()))
 }
@@ -233,14 +233,15 @@ pub fn owned_exact(py: Python<'_>, system: &Arc<SequentialSystem>, cfg: RenderCo
     // them, is declared first so it is dropped before them.
     let sys_ref: &'static SequentialSystem = unsafe { &*Arc::as_ptr(&system) };
     let tr_ref: &'static dyn Tracer = unsafe { &*(tr.as_ref() as *const dyn Tracer) };
-    let op = run(py, move || -> diffcassi::Result<_> {
-        let r = Renderer::new(sys_ref, tr_ref, cfg, mask)?;
+    // Ctrl-C stops the trace at its next scene row (`run_cancellable`).
+    let op = crate::pool::run_cancellable(py, move |cancel| -> diffcassi::Result<_> {
+        let r = Renderer::new(sys_ref, tr_ref, cfg, mask)?.with_cancel(cancel.clone());
         check_transport_memory(&r)?;
         let t = r.trace_all(&|_| {})?;
+        // `from_traced` keeps the renderer without the token (the transport's later `apply`s are not this call's).
         let bands = r.config.spectral.bands_nm.clone();
         ExactOperator::from_traced(r, &bands, t)
-    })
-    .py()?;
+    })?;
     Ok(OwnedExact { op, _system: system, _tracer: tr })
 }
 
@@ -435,7 +436,8 @@ pub fn check_shape(name: &str, actual: &[usize], expected: &[usize]) -> PyResult
 /// The channels of an EXR file: a list of (name, (H, W) float32 array) pairs in the file's order — `dict(read_exr(p))` for a mapping (to read the CLI's `acquisition.exr`, `cube.exr`).
 #[pyfunction]
 fn read_exr<'py>(py: Python<'py>, path: std::path::PathBuf) -> PyResult<Vec<(String, Bound<'py, PyArrayDyn<f32>>)>> {
-    let img = diffcassi::io::exr::read_exr(&path).map_err(|e| crate::errors::to_py(e.into()))?;
+    // Reading and decompressing the file: without the GIL (a large EXR takes a while; round 18's audit).
+    let img = run(py, || diffcassi::io::exr::read_exr(&path)).map_err(|e| crate::errors::to_py(e.into()))?;
     img.channels.into_iter().map(|c| Ok((c.name, output(py, c.data, &[img.height, img.width])?))).collect()
 }
 

@@ -8,7 +8,6 @@ use diffcassi::study::{self, StudyProgress, StudySettings};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyString};
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Mutex;
 
 /// A list setting: a comma string as given, or a sequence of strings or numbers joined with commas (numbers in
@@ -113,7 +112,7 @@ fn settings(out: PathBuf, kw: Option<&Bound<'_, PyDict>>) -> PyResult<StudySetti
 /// The study's progress seen from Python: silent, but stopped between cells by Ctrl-C
 /// ([`crate::pool::run_interruptible`] sets `stop`), its warnings raised as `UserWarning`s.
 struct PyProgress {
-    stop: AtomicBool,
+    stop: diffcassi::cancel::Cancel,
     warnings: Mutex<Vec<String>>,
 }
 
@@ -122,7 +121,7 @@ impl StudyProgress for PyProgress {
         self.warnings.lock().unwrap_or_else(|e| e.into_inner()).push(text.to_string());
     }
     fn interrupted(&self) -> bool {
-        self.stop.load(Ordering::SeqCst)
+        self.stop.is_cancelled()
     }
 }
 
@@ -132,7 +131,7 @@ impl StudyProgress for PyProgress {
 fn _study(py: Python<'_>, out: &Bound<'_, PyAny>, settings_kw: Option<&Bound<'_, PyDict>>) -> PyResult<String> {
     let out: PathBuf = out.extract().map_err(|_| value_error(format!("study: `out` must be a folder path (str or os.PathLike), got {}", out.repr().map(|r| r.to_string()).unwrap_or_default())))?;
     let s = settings(out, settings_kw)?;
-    let progress = PyProgress { stop: AtomicBool::new(false), warnings: Mutex::new(Vec::new()) };
+    let progress = PyProgress { stop: diffcassi::cancel::Cancel::new(), warnings: Mutex::new(Vec::new()) };
     let (result, signal) = crate::pool::run_interruptible(py, &progress.stop, || study::run(&s, &progress));
     for w in progress.warnings.lock().unwrap_or_else(|e| e.into_inner()).iter() {
         PyErr::warn(py, py.get_type::<pyo3::exceptions::PyUserWarning>().as_any(), &std::ffi::CString::new(format!("study: {}", crate::errors::pythonic(w))).unwrap_or_default(), 1)?;

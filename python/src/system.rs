@@ -18,6 +18,10 @@ use std::time::Instant;
 #[pyclass(name = "System", module = "diffcassi", frozen)]
 pub struct PySystem {
     pub inner: Arc<SequentialSystem>,
+    /// The content identities of the spec's glass catalogue files, `(entry, identity)`, taken when the system
+    /// was built from them ([`SequentialSystem::catalog_identities`]): a copy (pickle, `copy`) carries them
+    /// and is refused when a file changed since, instead of tracing the glasses it holds now.
+    pub catalogs: Arc<Vec<(String, String)>>,
 }
 
 /// The tracer of a backend name (`analytic`, `embree-user[:f64|:none]`, `embree-mesh[:SAG_UM][:f64|:none]`).
@@ -80,59 +84,121 @@ pub fn ray_batch(origins: &Bound<'_, PyAny>, directions: &Bound<'_, PyAny>, wave
     })
 }
 
-/// The rays of a batch as the tuple (origins (N, 3), directions (N, 3), wavelengths_nm (N,)).
-fn rays_out<'py>(py: Python<'py>, b: &RayBatch) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
-    let n = b.len();
-    let mut o = Vec::with_capacity(3 * n);
-    let mut d = Vec::with_capacity(3 * n);
-    for i in 0..n {
-        o.extend_from_slice(&[b.origin_x[i], b.origin_y[i], b.origin_z[i]]);
-        d.extend_from_slice(&[b.dir_x[i], b.dir_y[i], b.dir_z[i]]);
+/// A ray batch interleaved as plain vectors: origins (3N, row-major (N, 3)), directions (3N) and wavelengths
+/// (N). Computed without the GIL ([`run`]); [`rays_out`] wraps the vectors as NumPy arrays without a copy.
+struct RayArrays {
+    origins: Vec<f64>,
+    directions: Vec<f64>,
+    wavelengths_nm: Vec<f64>,
+}
+
+impl RayArrays {
+    fn of(b: RayBatch) -> Self {
+        let n = b.len();
+        let mut origins = Vec::with_capacity(3 * n);
+        let mut directions = Vec::with_capacity(3 * n);
+        for i in 0..n {
+            origins.extend_from_slice(&[b.origin_x[i], b.origin_y[i], b.origin_z[i]]);
+            directions.extend_from_slice(&[b.dir_x[i], b.dir_y[i], b.dir_z[i]]);
+        }
+        RayArrays { origins, directions, wavelengths_nm: b.wavelength_nm }
     }
-    Ok((output(py, o, &[n, 3])?, output(py, d, &[n, 3])?, output(py, b.wavelength_nm.clone(), &[n])?))
+}
+
+/// The rays as the tuple (origins (N, 3), directions (N, 3), wavelengths_nm (N,)) — the vectors handed to
+/// NumPy as they are (no copy, so no work with the GIL held).
+fn rays_out<'py>(py: Python<'py>, r: RayArrays) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
+    let n = r.wavelengths_nm.len();
+    Ok((output(py, r.origins, &[n, 3])?, output(py, r.directions, &[n, 3])?, output(py, r.wavelengths_nm, &[n])?))
+}
+
+/// A traced batch as plain vectors: positions and directions (3N, row-major (N, 3)) in the image-surface
+/// frame, status codes and stopping surfaces (N). Computed without the GIL; [`traced_out`] wraps them.
+pub struct TracedArrays {
+    positions: Vec<f64>,
+    directions: Vec<f64>,
+    status: Vec<u8>,
+    surface: Vec<u32>,
+}
+
+impl TracedArrays {
+    pub fn of(t: TracedBatch) -> Self {
+        let n = t.len();
+        let interleave = |a: &[f64], b: &[f64], c: &[f64]| -> Vec<f64> {
+            let mut v = vec![0.0; 3 * n];
+            for (((o, x), y), z) in v.chunks_exact_mut(3).zip(a).zip(b).zip(c) {
+                o.copy_from_slice(&[*x, *y, *z]);
+            }
+            v
+        };
+        TracedArrays {
+            positions: interleave(&t.x, &t.y, &t.z),
+            directions: interleave(&t.dir_x, &t.dir_y, &t.dir_z),
+            status: t.status.iter().map(|s| *s as u8).collect(),
+            surface: t.surface,
+        }
+    }
 }
 
 /// A traced batch as a dict: positions (N, 3) mm and directions (N, 3) in the image-surface frame, status
 /// (N,) uint8 (0 = ok; `diffcassi.STATUS` names the codes), surface (N,) uint32 (where a ray stopped).
-pub fn traced_out<'py>(py: Python<'py>, t: TracedBatch) -> PyResult<Bound<'py, PyDict>> {
-    let n = t.len();
-    let interleave = |a: &[f64], b: &[f64], c: &[f64]| -> Vec<f64> {
-        let mut v = vec![0.0; 3 * n];
-        for (((o, x), y), z) in v.chunks_exact_mut(3).zip(a).zip(b).zip(c) {
-            o.copy_from_slice(&[*x, *y, *z]);
-        }
-        v
-    };
-    let p = interleave(&t.x, &t.y, &t.z);
-    let d = interleave(&t.dir_x, &t.dir_y, &t.dir_z);
-    let status: Vec<u8> = t.status.iter().map(|s| *s as u8).collect();
+pub fn traced_out<'py>(py: Python<'py>, t: TracedArrays) -> PyResult<Bound<'py, PyDict>> {
+    let n = t.status.len();
     let dict = PyDict::new(py);
-    dict.set_item("positions", output(py, p, &[n, 3])?)?;
-    dict.set_item("directions", output(py, d, &[n, 3])?)?;
-    dict.set_item("status", output(py, status, &[n])?)?;
+    dict.set_item("positions", output(py, t.positions, &[n, 3])?)?;
+    dict.set_item("directions", output(py, t.directions, &[n, 3])?)?;
+    dict.set_item("status", output(py, t.status, &[n])?)?;
     dict.set_item("surface", output(py, t.surface, &[n])?)?;
     Ok(dict)
 }
 
+/// Let another Python thread run: release the GIL and take it back (CPython hands it over when a thread
+/// is waiting for it). Called between chunks while a large result is turned into Python objects, which
+/// needs the GIL, so that a long conversion does not stall the caller's other threads (as Python's own
+/// interpreter loop switches every few milliseconds).
+fn yield_gil(py: Python<'_>) {
+    py.allow_threads(|| ());
+}
+
+/// Result points (a dict each) made into Python objects per [`yield_gil`].
+const POINTS_PER_YIELD: usize = 2048;
+
 fn json(v: &impl serde::Serialize) -> PyResult<String> {
-    serde_json::to_string(v).map_err(|e| value_error(format!("internal: JSON encoding failed: {e}")))
+    json_text(v).py()
+}
+
+/// [`json`] for use without the GIL (inside [`run`]).
+fn json_text(v: &impl serde::Serialize) -> diffcassi::Result<String> {
+    serde_json::to_string(v).map_err(|e| diffcassi::Error::invalid(format!("internal: JSON encoding failed: {e}")))
 }
 
 impl PySystem {
-    fn wrap(s: SequentialSystem) -> Self {
-        PySystem { inner: Arc::new(s) }
+    fn wrap(s: SequentialSystem, catalogs: Vec<(String, String)>) -> Self {
+        PySystem { inner: Arc::new(s), catalogs: Arc::new(catalogs) }
+    }
+
+    /// Another Python object of this same system (shared: it is immutable), with its catalogue identities.
+    pub fn share(&self) -> Self {
+        PySystem { inner: Arc::clone(&self.inner), catalogs: Arc::clone(&self.catalogs) }
+    }
+
+    /// Build `spec` (without the GIL), its catalogue files' identities taken first
+    /// ([`SequentialSystem::catalog_identities`]: before the files are read for the build).
+    fn build_recorded(spec: &diffcassi::spec::SystemSpec) -> diffcassi::Result<(SequentialSystem, Vec<(String, String)>)> {
+        let catalogs = SequentialSystem::catalog_identities(spec);
+        Ok((SequentialSystem::build(spec)?, catalogs))
     }
 
     /// [`Self::wrap`], raising each of the system's load-time warnings ([`SequentialSystem::warnings`]: glasses
     /// whose catalogue contradicts itself, semi-diameters beyond a surface's edge) as a `UserWarning`, as the
     /// CLI prints them. Unpickling and copying (`from_string` on the spec's text) warn as any load does; Python's
     /// default filter shows a warning once per place that raised it, so a training loop's copies do not repeat it.
-    fn wrap_warned(py: Python<'_>, s: SequentialSystem) -> PyResult<Self> {
+    fn wrap_warned(py: Python<'_>, (s, catalogs): (SequentialSystem, Vec<(String, String)>)) -> PyResult<Self> {
         for w in s.warnings() {
             let text = std::ffi::CString::new(crate::errors::pythonic(&w)).unwrap_or_default();
             PyErr::warn(py, &py.get_type::<pyo3::exceptions::PyUserWarning>(), &text, 1)?;
         }
-        Ok(Self::wrap(s))
+        Ok(Self::wrap(s, catalogs))
     }
 }
 
@@ -156,7 +222,7 @@ impl PySystem {
     #[staticmethod]
     fn preset(py: Python<'_>, name: &str) -> PyResult<Self> {
         let name = name.to_string();
-        let s = run(py, move || SequentialSystem::build(&diffcassi::presets::spec(&name)?)).py()?;
+        let s = run(py, move || Self::build_recorded(&diffcassi::presets::spec(&name)?)).py()?;
         Self::wrap_warned(py, s)
     }
 
@@ -173,7 +239,7 @@ impl PySystem {
         }
         let is_zmx = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"));
         let s = run(py, move || {
-            let built = SequentialSystem::build(&diffcassi::spec::load_spec_file(&path)?);
+            let built = Self::build_recorded(&diffcassi::spec::load_spec_file(&path)?);
             if is_zmx {
                 built.map_err(diffcassi::spec::zmx::with_zmx_hints)
             } else {
@@ -194,7 +260,22 @@ impl PySystem {
             other => return Err(value_error(format!("format `{other}`: use toml or json"))),
         }
         .py()?;
-        let s = run(py, move || SequentialSystem::build(&spec)).py()?;
+        let s = run(py, move || Self::build_recorded(&spec)).py()?;
+        Self::wrap_warned(py, s)
+    }
+
+    /// The rebuild of a copy (`__reduce__`): the spec as JSON and the catalogue identities recorded when the
+    /// original was built. Each catalogue file is checked against its identity first (a file edited since is
+    /// refused, naming it: the copy would trace other glasses with the same prescription); the copy keeps
+    /// the recorded identities, so a copy of a copy checks against the original's files.
+    #[staticmethod]
+    fn _from_copy(py: Python<'_>, text: &str, catalogs: Vec<(String, String)>) -> PyResult<Self> {
+        let spec = diffcassi::spec::from_json(text, "<copy>").py()?;
+        let s = run(py, move || -> diffcassi::Result<_> {
+            SequentialSystem::check_catalog_identities(&catalogs)?;
+            Ok((SequentialSystem::build(&spec)?, catalogs))
+        })
+        .py()?;
         Self::wrap_warned(py, s)
     }
 
@@ -332,11 +413,14 @@ impl PySystem {
     }
 
     /// Pickling, `copy.copy` and `copy.deepcopy` (a model holding a system, snapshotted for EMA or the best
-    /// checkpoint): rebuilt by `System.from_string` from the spec as JSON, whose floats read back bit-identical
-    /// (`to_json`), so the copy traces the original's numbers.
-    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (String, &'static str))> {
-        let rebuild = py.get_type::<PySystem>().getattr("from_string")?;
-        Ok((rebuild, (diffcassi::spec::to_json(&self.inner.spec).py()?, "json")))
+    /// checkpoint): rebuilt by `System._from_copy` from the spec as JSON, whose floats read back bit-identical
+    /// (`to_json`), and the content identities of its glass catalogue files taken when it was built — the
+    /// rebuild reads the files again, and refuses one whose content changed since, so the copy traces the
+    /// original's numbers or none. (Pickles made before carried no identities: `System.from_string(text,
+    /// "json")`, which still loads them.)
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<(Bound<'py, PyAny>, (String, Vec<(String, String)>))> {
+        let rebuild = py.get_type::<PySystem>().getattr("_from_copy")?;
+        Ok((rebuild, (diffcassi::spec::to_json(&self.inner.spec).py()?, self.catalogs.as_ref().clone())))
     }
 
     /// The rays of one field through normalised pupil points: (origins (N, 3), directions (N, 3),
@@ -357,11 +441,17 @@ impl PySystem {
         apply_vignetting: bool,
     ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
         let wavelength_nm = crate::arrays::real_arg("wavelength_nm", wavelength_nm)?;
-        let pts = pupil_points(pupil)?;
+        let pupil = pupil_arg(pupil)?;
         let field = self.field_of(field_mm.as_deref(), field_deg.as_deref(), "field_mm", "field_deg")?;
-        let pts = if apply_vignetting { self.inner.vignetted_pupil(field, &pts) } else { pts };
-        let b = RayBatch::for_field(&self.inner, field, &pts, wavelength_nm).py()?;
-        rays_out(py, &b)
+        let sys = Arc::clone(&self.inner);
+        // The pupil points (a `random:N` pattern draws them), the rays and their interleaving: without the GIL.
+        let rays = run(py, move || -> diffcassi::Result<_> {
+            let pts = pupil.points();
+            let pts = if apply_vignetting { sys.vignetted_pupil(field, &pts) } else { pts };
+            Ok(RayArrays::of(RayBatch::for_field(&sys, field, &pts, wavelength_nm)?))
+        })
+        .py()?;
+        rays_out(py, rays)
     }
 
     /// Chief rays of the (N, 2) float64 field points at one wavelength: `fields_mm` (object heights, a finite
@@ -375,14 +465,21 @@ impl PySystem {
         fields_deg: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>)> {
         let wavelength_nm = crate::arrays::real_arg("wavelength_nm", wavelength_nm)?;
+        use diffcassi::system::FieldUnit;
         let (mm, deg) = (fields_mm.map(|f| points2("fields_mm", f)).transpose()?, fields_deg.map(|f| points2("fields_deg", f)).transpose()?);
-        let f = match (&mm, &deg) {
-            (Some(p), None) => p.iter().map(|q| self.field_of(Some(&q[..]), None, "fields_mm", "fields_deg")).collect::<PyResult<Vec<_>>>()?,
-            (None, Some(p)) => p.iter().map(|q| self.field_of(None, Some(&q[..]), "fields_mm", "fields_deg")).collect::<PyResult<Vec<_>>>()?,
+        let (points, unit, name) = match (mm, deg) {
+            (Some(p), None) => (p, FieldUnit::Mm, "fields_mm"),
+            (None, Some(p)) => (p, FieldUnit::Deg, "fields_deg"),
             _ => return Err(value_error("give exactly one of fields_mm (finite objects) and fields_deg (objects at infinity)")),
         };
-        let b = RayBatch::chief_rays(&self.inner, &f, wavelength_nm).py()?;
-        rays_out(py, &b)
+        let sys = Arc::clone(&self.inner);
+        // Each point checked in the system's field unit (`field_point`, as `field_of`), then the rays: without the GIL.
+        let rays = run(py, move || -> diffcassi::Result<_> {
+            let f = points.iter().map(|q| sys.field_point(*q, unit, name)).collect::<diffcassi::Result<Vec<_>>>()?;
+            Ok(RayArrays::of(RayBatch::chief_rays(&sys, &f, wavelength_nm)?))
+        })
+        .py()?;
+        rays_out(py, rays)
     }
 
     /// `n` seeded random rays per wavelength over the fields and the pupil (the benchmarks' workload).
@@ -399,22 +496,39 @@ impl PySystem {
         let n = rays_per_wavelength as f64 * ws.len() as f64;
         diffcassi::limits::check_rays(&what, n).py()?;
         diffcassi::limits::check_memory(&what, n * diffcassi::limits::BYTES_PER_RAY).py()?;
-        let b = RayBatch::seeded_workload(&self.inner, rays_per_wavelength, &ws, seed).py()?;
-        rays_out(py, &b)
+        let sys = Arc::clone(&self.inner);
+        let rays = run(py, move || RayBatch::seeded_workload(&sys, rays_per_wavelength, &ws, seed).map(RayArrays::of)).py()?;
+        rays_out(py, rays)
     }
 }
 
-fn pupil_points(pupil: Option<&Bound<'_, PyAny>>) -> PyResult<Vec<[f64; 2]>> {
+/// A `pupil` argument: a pattern (its points drawn later, without the GIL: `random:N` makes N of them) or
+/// (N, 2) points given, checked in the unit disc.
+enum Pupil {
+    Pattern(diffcassi::rays::PupilPattern),
+    Points(Vec<[f64; 2]>),
+}
+
+impl Pupil {
+    fn points(self) -> Vec<[f64; 2]> {
+        match self {
+            Pupil::Pattern(p) => p.points(),
+            Pupil::Points(v) => v,
+        }
+    }
+}
+
+fn pupil_arg(pupil: Option<&Bound<'_, PyAny>>) -> PyResult<Pupil> {
     match pupil {
-        None => Ok("hexapolar:12".parse::<diffcassi::rays::PupilPattern>().py()?.points()),
+        None => Ok(Pupil::Pattern("hexapolar:12".parse::<diffcassi::rays::PupilPattern>().py()?)),
         Some(p) => match p.extract::<String>() {
-            Ok(text) => Ok(text.parse::<diffcassi::rays::PupilPattern>().py()?.points()),
+            Ok(text) => Ok(Pupil::Pattern(text.parse::<diffcassi::rays::PupilPattern>().py()?)),
             Err(_) => {
                 let pts = points2("pupil", p)?;
                 if let Some((i, q)) = diffcassi::analysis::first_point_outside_pupil(&pts) {
                     return Err(value_error(format!("pupil row {i} (px, py) = ({}, {}): normalised pupil coordinates must satisfy px² + py² ≤ 1", q[0], q[1])));
                 }
-                Ok(pts)
+                Ok(Pupil::Points(pts))
             }
         },
     }
@@ -557,22 +671,62 @@ fn _time_rust_trace(
     .py()
 }
 
-/// Spot diagram of one field and wavelength (JSON; `diffcassi.spot` parses it).
+/// The per-ray parts of a spot diagram, as NumPy arrays and a list: pupil (N, 2), x_mm (N,), y_mm (N,),
+/// status (N statuses by name, `Ok`, `Vignetted`, …).
+type SpotRays<'py> = (Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<f64>>, Bound<'py, pyo3::types::PyList>);
+
+/// Spot diagram of one field and wavelength: (the diagram as JSON with its per-ray vectors left empty, the
+/// per-ray parts); `diffcassi.spot` parses the one and puts the other in. Everything but wrapping the
+/// vectors runs without the GIL — the pupil's points, the trace, the JSON — so that a large spot (a
+/// million rays) does not stall the caller's other Python threads (a JSON of the rays parsed in Python
+/// held the GIL for seconds: a held-out battery, round 18).
 #[pyfunction]
 #[pyo3(signature = (system, field_mm, wavelength_nm, pupil = None, backend = "analytic", field_deg = None))]
-fn _spot(py: Python<'_>, system: &PySystem, field_mm: Option<Vec<f64>>, wavelength_nm: f64, pupil: Option<&Bound<'_, PyAny>>, backend: &str, field_deg: Option<Vec<f64>>) -> PyResult<String> {
-    let pts = pupil_points(pupil)?;
+fn _spot<'py>(
+    py: Python<'py>,
+    system: &PySystem,
+    field_mm: Option<Vec<f64>>,
+    wavelength_nm: f64,
+    pupil: Option<&Bound<'py, PyAny>>,
+    backend: &str,
+    field_deg: Option<Vec<f64>>,
+) -> PyResult<(String, SpotRays<'py>)> {
+    let pupil = pupil_arg(pupil)?;
     let f = system.field_of(field_mm.as_deref(), field_deg.as_deref(), "field_mm", "field_deg")?;
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
-    let s = run(py, move || analysis::spot_diagram(&sys, t.as_ref(), f, wavelength_nm, &pts)).py()?;
-    json(&s)
+    let (text, pupil, x, y, status) = run(py, move || -> diffcassi::Result<_> {
+        let mut s = analysis::spot_diagram(&sys, t.as_ref(), f, wavelength_nm, &pupil.points())?;
+        let pupil: Vec<f64> = std::mem::take(&mut s.pupil).into_iter().flatten().collect();
+        let (x, y, status) = (std::mem::take(&mut s.x_mm), std::mem::take(&mut s.y_mm), std::mem::take(&mut s.status));
+        Ok((json_text(&s)?, pupil, x, y, status))
+    })
+    .py()?;
+    let n = x.len();
+    // The status names as the JSON wrote them (serde's variant names): one Python string per distinct status.
+    let mut names: std::collections::HashMap<u8, Bound<'py, pyo3::types::PyString>> = std::collections::HashMap::new();
+    let mut items = Vec::with_capacity(n);
+    for s in status {
+        let name = match names.entry(s as u8) {
+            std::collections::hash_map::Entry::Occupied(e) => e.get().clone(),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                let label = serde_json::to_value(s).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_else(|| s.label().to_string());
+                e.insert(pyo3::types::PyString::new(py, &label)).clone()
+            }
+        };
+        items.push(name);
+    }
+    let status = pyo3::types::PyList::new(py, items)?;
+    Ok((text, (output(py, pupil, &[n, 2])?, output(py, x, &[n])?, output(py, y, &[n])?, status)))
 }
 
-/// Zemax-style grid distortion (JSON).
+/// Zemax-style grid distortion: (the grid as JSON with `points` left empty, the points as a list of dicts,
+/// one per grid point, keys in the JSON's order); `diffcassi.distortion` puts the list in. The trace and the
+/// JSON run without the GIL; the dicts (which need it) are made in chunks with the GIL handed over between
+/// them ([`yield_gil`]), so a large grid does not stall the caller's other Python threads (round 18).
 #[pyfunction]
 #[pyo3(signature = (system, wavelength_nm, grid = None, half_width_mm = 2.5, backend = "analytic"))]
-fn _distortion(py: Python<'_>, system: &PySystem, wavelength_nm: f64, grid: Option<&Bound<'_, PyAny>>, half_width_mm: f64, backend: &str) -> PyResult<String> {
+fn _distortion<'py>(py: Python<'py>, system: &PySystem, wavelength_nm: f64, grid: Option<&Bound<'py, PyAny>>, half_width_mm: f64, backend: &str) -> PyResult<(String, Bound<'py, pyo3::types::PyList>)> {
     let grid = grid.map(|g| size_arg("grid", g)).transpose()?.unwrap_or(13);
     // The CLI's checks (`diffcassi distortion`), naming the Python arguments.
     if !(half_width_mm.is_finite() && half_width_mm > 0.0 && half_width_mm <= diffcassi::limits::MAX_LENGTH_MM) {
@@ -583,8 +737,47 @@ fn _distortion(py: Python<'_>, system: &PySystem, wavelength_nm: f64, grid: Opti
     diffcassi::limits::check_memory(&format!("grid {grid}"), n * 250.0).py()?;
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
-    let g = run(py, move || analysis::grid_distortion(&sys, t.as_ref(), wavelength_nm, grid, half_width_mm)).py()?;
-    json(&g)
+    let (text, points) = run(py, move || -> diffcassi::Result<_> {
+        let mut g = analysis::grid_distortion(&sys, t.as_ref(), wavelength_nm, grid, half_width_mm)?;
+        let points = std::mem::take(&mut g.points);
+        Ok((json_text(&g)?, points))
+    })
+    .py()?;
+    Ok((text, distortion_points(py, &points)?))
+}
+
+/// The distortion points as Python dicts, exactly as `json.loads` of their JSON gave them (the keys in the
+/// struct's order, `x_field_deg`/`y_field_deg` only when present, a float that is not finite as None —
+/// JSON's null — and the status by its label), handing the GIL over every [`POINTS_PER_YIELD`] points.
+fn distortion_points<'py>(py: Python<'py>, points: &[analysis::DistortionPoint]) -> PyResult<Bound<'py, pyo3::types::PyList>> {
+    use pyo3::intern;
+    use pyo3::IntoPyObjectExt;
+    let num = |v: f64| -> PyResult<Bound<'py, PyAny>> { if v.is_finite() { v.into_bound_py_any(py) } else { Ok(py.None().into_bound(py)) } };
+    let list = pyo3::types::PyList::empty(py);
+    for (k, p) in points.iter().enumerate() {
+        if k > 0 && k % POINTS_PER_YIELD == 0 {
+            yield_gil(py);
+        }
+        let d = PyDict::new(py);
+        d.set_item(intern!(py, "i"), p.i)?;
+        d.set_item(intern!(py, "j"), p.j)?;
+        d.set_item(intern!(py, "x_field_mm"), num(p.x_field_mm)?)?;
+        d.set_item(intern!(py, "y_field_mm"), num(p.y_field_mm)?)?;
+        if let Some(v) = p.x_field_deg {
+            d.set_item(intern!(py, "x_field_deg"), num(v)?)?;
+        }
+        if let Some(v) = p.y_field_deg {
+            d.set_item(intern!(py, "y_field_deg"), num(v)?)?;
+        }
+        d.set_item(intern!(py, "real_x_mm"), num(p.real_x_mm)?)?;
+        d.set_item(intern!(py, "real_y_mm"), num(p.real_y_mm)?)?;
+        d.set_item(intern!(py, "pred_x_mm"), num(p.pred_x_mm)?)?;
+        d.set_item(intern!(py, "pred_y_mm"), num(p.pred_y_mm)?)?;
+        d.set_item(intern!(py, "distortion_pct"), num(p.distortion_pct)?)?;
+        d.set_item(intern!(py, "status"), p.status.label())?;
+        list.append(d)?;
+    }
+    Ok(list)
 }
 
 /// Chief-ray dispersion curve of one field (JSON).
@@ -655,9 +848,11 @@ fn mapping<'py>(
     };
     let sys = Arc::clone(&system.inner);
     let l = ws.len();
-    let cube = run(py, move || analysis::mapping_cube(&sys, t.as_ref(), height, width, pitch_mm, &ws)).py()?;
-    let valid: Vec<bool> = cube.valid.iter().map(|&v| v == 1).collect();
-    Ok((output(py, cube.positions_mm, &[height, width, l, 2])?, output(py, valid, &[height, width, l])?))
+    let (positions, valid) = run(py, move || {
+        analysis::mapping_cube(&sys, t.as_ref(), height, width, pitch_mm, &ws).map(|cube| (cube.positions_mm, cube.valid.iter().map(|&v| v == 1).collect::<Vec<bool>>()))
+    })
+    .py()?;
+    Ok((output(py, positions, &[height, width, l, 2])?, output(py, valid, &[height, width, l])?))
 }
 
 /// Trace rays with their Jacobians with respect to the named free parameters (comma-separated or a list;
@@ -682,13 +877,16 @@ fn jacobian<'py>(
     let rays = ray_batch(origins, directions, wavelengths_nm)?;
     let config: BackendConfig = backend.parse().py()?;
     let sys = Arc::clone(&system.inner);
-    let hj = run(py, move || ParamSet::for_system(&sys, &list)?.build()?.trace_with_backend(&config, &rays)).py()?;
-    let (n, k) = (hj.batch.len(), hj.batch.k());
-    let available: Vec<bool> = hj.unavailable.iter().map(Option::is_none).collect();
-    let reasons: Vec<String> = hj.unavailable.into_iter().map(Option::unwrap_or_default).collect();
-    let params = hj.batch.params;
-    let jac = hj.batch.jac;
-    let dict = traced_out(py, hj.batch.traced)?;
+    // The trace and the reshaping into the returned arrays: without the GIL.
+    let (n, k, available, reasons, params, jac, traced) = run(py, move || -> diffcassi::Result<_> {
+        let hj = ParamSet::for_system(&sys, &list)?.build()?.trace_with_backend(&config, &rays)?;
+        let (n, k) = (hj.batch.len(), hj.batch.k());
+        let available: Vec<bool> = hj.unavailable.iter().map(Option::is_none).collect();
+        let reasons: Vec<String> = hj.unavailable.into_iter().map(Option::unwrap_or_default).collect();
+        Ok((n, k, available, reasons, hj.batch.params, hj.batch.jac, TracedArrays::of(hj.batch.traced)))
+    })
+    .py()?;
+    let dict = traced_out(py, traced)?;
     dict.set_item("jacobian", output(py, jac, &[n, 6, k])?)?;
     dict.set_item("parameters", params)?;
     dict.set_item("available", output(py, available, &[n])?)?;

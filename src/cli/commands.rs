@@ -417,7 +417,7 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, rays.len() as u64)?;
     let out = tracer.trace(&system, &rays)?;
     let ok = out.ok_count();
-    println!("traced {} rays of field {} at {} nm: {} ok, {} failed", out.len(), field_text(&system, fs[0]), ws[0], ok, out.len() - ok);
+    println!("traced {} rays of field {} at {} nm: {} ok, {} failed", out.len(), field_text(&system, fs[0]), shown(ws[0]), ok, out.len() - ok);
     if ok < out.len() {
         // Why they failed, most first (every cause is in the CSV's status and stop_surface columns).
         println!("failed: {}", analysis::describe_lost(&analysis::lost_rays(&out.status, &out.surface), 3));
@@ -426,7 +426,7 @@ pub(super) fn trace(a: SpotArgs) -> Result<()> {
     if let Some(path) = &a.csv {
         let path = &set.stage(path);
         let mut w = CsvWriter::new(path, &["px", "py", "x_mm", "y_mm", "dir_x", "dir_y", "dir_z", "status", "stop_surface"])?;
-        w.comment(&format!("system {}; field {}; wavelength {} nm; image-surface frame{}", system.name(), field_text(&system, fs[0]), ws[0], vignetting_note(&system, fs[0])));
+        w.comment(&format!("system {}; field {}; wavelength {} nm; image-surface frame{}", system.name(), field_text(&system, fs[0]), shown(ws[0]), vignetting_note(&system, fs[0])));
         for i in 0..out.len() {
             let okr = out.status[i] == RayStatus::Ok;
             let num = |v: f64| if okr { CsvValue::F64(v) } else { CsvValue::Str("") };
@@ -473,9 +473,9 @@ fn print_spot_table(system: &SequentialSystem, spots: &[SpotDiagram]) {
             "{:>16} {:>9} {:>11} {:>24} {:>10} {:>10} {:>10}",
             {
                 let f = system.field_display(s.field_mm).0;
-                format!("({}, {})", f[0], f[1])
+                format!("({}, {})", shown(f[0]), shown(f[1]))
             },
-            s.wavelength_nm,
+            shown(s.wavelength_nm),
             format!("{ok}/{}", s.rays),
             c,
             r,
@@ -486,7 +486,7 @@ fn print_spot_table(system: &SequentialSystem, spots: &[SpotDiagram]) {
     // A spot whose every ray was lost has an empty row: say why (the three largest causes, and how many more).
     for s in spots.iter().filter(|s| s.stats.is_none() && s.rays > 0) {
         let f = system.field_display(s.field_mm).0;
-        eprintln!("warning: field ({}, {}) {unit} at {} nm: no ray reached the image: {}", f[0], f[1], s.wavelength_nm, analysis::describe_lost(&s.lost, 3));
+        eprintln!("warning: field ({}, {}) {unit} at {} nm: no ray reached the image: {}", shown(f[0]), shown(f[1]), shown(s.wavelength_nm), analysis::describe_lost(&s.lost, 3));
     }
 }
 
@@ -502,9 +502,9 @@ fn spot_plot(path: &Path, system: &SequentialSystem, title: &str, spots: &[SpotD
             }
             let k = fields.iter().position(|f| *f == s.field_mm).map(|k| format!("F{} ", k + 1)).unwrap_or_default();
             Some(plot::SpotPanel {
-                label: format!("{k}{} · {} nm", field_text(system, s.field_mm), s.wavelength_nm),
+                label: format!("{k}{} · {} nm", field_text(system, s.field_mm), shown(s.wavelength_nm)),
                 series: vec![plot::SpotSeries {
-                    label: format!("{} nm", s.wavelength_nm),
+                    label: format!("{} nm", shown(s.wavelength_nm)),
                     x_um: ok.iter().map(|&i| s.x_mm[i] * 1e3).collect(),
                     y_um: ok.iter().map(|&i| s.y_mm[i] * 1e3).collect(),
                 }],
@@ -606,7 +606,7 @@ fn write_distortion_csv(path: &Path, system: &SequentialSystem, g: &DistortionGr
         &["i", "j", "x_field_mm", "y_field_mm", "r_field_mm", "pred_x_mm", "pred_y_mm", "real_x_mm", "real_y_mm", "distortion_pct", "status"]
     };
     let mut w = CsvWriter::new(path, header)?;
-    w.comment(&format!("system {}; wavelength {} nm; positions absolute in the image surface's frame (mm)", system.name(), g.wavelength_nm));
+    w.comment(&format!("system {}; wavelength {} nm; positions absolute in the image surface's frame (mm)", system.name(), shown(g.wavelength_nm)));
     w.comment(&format!("reference (on-axis chief ray) Xref_mm={} Yref_mm={}", g.reference_mm[0], g.reference_mm[1]));
     w.comment(&format!("predicted = ref + ABCD·field, A={} B={} C={} D={}; max distortion {}%", g.abcd[0], g.abcd[1], g.abcd[2], g.abcd[3], g.max_distortion_pct));
     for p in &g.points {
@@ -638,7 +638,7 @@ fn distortion_plot(path: &Path, system: &SequentialSystem, g: &DistortionGrid, a
         .filter(|p| p.status == RayStatus::Ok)
         .map(|p| plot::DistortionPoint { paraxial_x_mm: p.pred_x_mm, paraxial_y_mm: p.pred_y_mm, real_x_mm: p.real_x_mm, real_y_mm: p.real_y_mm })
         .collect();
-    plot::distortion_map(path, &format!("{} grid distortion at {} nm (max {:.3} %)", system.name(), g.wavelength_nm, g.max_distortion_pct), &pts, arrow_scale)?;
+    plot::distortion_map(path, &format!("{} grid distortion at {} nm (max {:.3} %)", system.name(), shown(g.wavelength_nm), g.max_distortion_pct), &pts, arrow_scale)?;
     say_written(path);
     Ok(())
 }
@@ -694,9 +694,9 @@ pub(super) fn distortion(a: DistortionArgs) -> Result<()> {
         _ => format!("max distortion {:.4} % ({max_disp_um:.2} µm)", g.max_distortion_pct),
     };
     println!(
-        "{}: {}×{} grid at {w} nm over ±{}: reference ({:.6}, {:.6}) mm, ABCD [{:.5}, {:.5}, {:.5}, {:.5}], {max_text}, {failed} rays failed",
-        system.name(), a.grid, a.grid,
-        if system.object_at_infinity() { format!("{}° (tan θ grid)", g.points.last().and_then(|p| p.y_field_deg).unwrap_or(0.0)) } else { format!("{} mm", a.half_width_mm) },
+        "{}: {}×{} grid at {} nm over ±{}: reference ({:.6}, {:.6}) mm, ABCD [{:.5}, {:.5}, {:.5}, {:.5}], {max_text}, {failed} rays failed",
+        system.name(), a.grid, a.grid, shown(w),
+        if system.object_at_infinity() { format!("{}° (tan θ grid)", shown(g.points.last().and_then(|p| p.y_field_deg).unwrap_or(0.0))) } else { format!("{} mm", shown(a.half_width_mm)) },
         g.reference_mm[0], g.reference_mm[1], g.abcd[0], g.abcd[1], g.abcd[2], g.abcd[3]
     );
     let mut set = crate::io::OutputSet::files();
@@ -726,7 +726,7 @@ pub(super) fn dispersion(a: DispersionArgs) -> Result<()> {
     let field = parse_fields_for(&system, a.field_mm.as_slice(), a.field_deg.as_slice())?.map(|f| f[0]).unwrap_or([0.0, 0.0]);
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &ws, ws.len() as u64)?;
     let c = analysis::dispersion_curve(&system, tracer.as_ref(), field, &ws)?;
-    println!("{}: field {}, {}–{} nm: spatio-spectral spreading {:.2} µm ({:.1} px of 10 µm)", system.name(), field_text(&system, field), ws[0], ws[ws.len() - 1], c.spread_um, c.spread_um / 10.0);
+    println!("{}: field {}, {}–{} nm: spatio-spectral spreading {:.2} µm ({:.1} px of 10 µm)", system.name(), field_text(&system, field), shown(ws[0]), shown(ws[ws.len() - 1]), c.spread_um, c.spread_um / 10.0);
     let mut set = crate::io::OutputSet::files();
     if let Some(p) = &a.csv {
         let p = &set.stage(p);
@@ -814,7 +814,7 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
         for &w in &ws {
             let out = tracer.trace(&system, &crate::rays::RayBatch::chief_rays(&system, &[[0.0, 0.0]], w)?)?;
             if let Some(l) = analysis::lost_rays(&out.status, &out.surface).first() {
-                why.push(format!("{w} nm: {} at surface {} ({})", l.status.label(), l.surface, l.status.meaning()));
+                why.push(format!("{} nm: {} at surface {} ({})", shown(w), l.status.label(), l.surface, l.status.meaning()));
             }
         }
         eprintln!("warning: no chief ray reached the image; the on-axis chief ray: {}", if why.is_empty() { "arrives at every wavelength (only the scene's off-axis points are lost)".to_string() } else { why.iter().take(3).cloned().collect::<Vec<_>>().join("; ") });
@@ -893,7 +893,7 @@ pub(super) fn report(a: ReportArgs) -> Result<()> {
         };
         write_distortion_csv(&out.join(format!("distortion_{}nm.csv", w)), &system, &g)?;
         distortion_plot(&out.join(format!("distortion_{}nm.png", w)), &system, &g, 10.0)?;
-        println!("distortion at {w} nm: max {:.4} %", g.max_distortion_pct);
+        println!("distortion at {} nm: max {:.4} %", shown(w), g.max_distortion_pct);
         grids.push(serde_json::json!({"wavelength_nm": w, "reference_mm": g.reference_mm, "abcd": g.abcd, "max_distortion_pct": g.max_distortion_pct}));
     }
     let c = analysis::dispersion_curve(&system, tracer, [0.0, 0.0], &bands)?;

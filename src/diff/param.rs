@@ -364,10 +364,9 @@ impl ParamSet {
     /// spec, with the built-in glasses plus the spec's catalogues, as [`SequentialSystem::build`] loads them.
     pub fn for_system(system: &SequentialSystem, list: &str) -> Result<ParamSet> {
         let params = parse_parameter_list(system.name(), list)?;
-        let mut catalog = GlassCatalog::builtin();
-        for path in &system.spec.glass_catalogs {
-            catalog.merge(GlassCatalog::from_agf_file(path)?);
-        }
+        // The build's own assembly (`builtin:NAME` entries included: read as file paths here, they failed
+        // "cannot read glass catalogue builtin:OHARA"; round 18).
+        let catalog = SequentialSystem::catalog_of(&system.spec)?;
         ParamSet::new(system.spec.clone(), catalog, params)
     }
 }

@@ -88,6 +88,35 @@ pub fn read_sidecar_json(path: &Path) -> Result<serde_json::Value, String> {
     serde_json::from_str(&text).map_err(|e| format!("{name}: not valid JSON ({e}): truncated or damaged"))
 }
 
+/// The size and CRC-32 (IEEE, 8 hex digits) of a regular file's bytes, read in blocks (any size).
+pub fn file_crc32(path: &Path) -> std::io::Result<(u64, String)> {
+    // A regular file only (a FIFO in place of an output would block the open): [`open_input`]'s check, after
+    // the plain lookup that reports a missing file as such.
+    std::fs::metadata(path)?;
+    let (mut f, _) = open_input(path, u64::MAX).map_err(|e| std::io::Error::other(e.to_string()))?;
+    let mut h = crc32fast::Hasher::new();
+    let mut buf = vec![0u8; 1 << 16];
+    let mut n = 0u64;
+    loop {
+        let k = f.read(&mut buf)?;
+        if k == 0 {
+            break;
+        }
+        h.update(&buf[..k]);
+        n += k as u64;
+    }
+    Ok((n, format!("{:08x}", h.finalize())))
+}
+
+/// A file named by its content, `NAME (N bytes, crc32 X)` (its file name, size and [`file_crc32`]): the
+/// identity records keep of an input that is not part of the program (a dataset's glass catalogues, a
+/// copied `System`'s), so that equal identities mean equal bytes wherever the file lies.
+pub fn content_identity(path: &Path) -> std::io::Result<String> {
+    let (bytes, crc) = file_crc32(path)?;
+    let name = path.file_name().map_or_else(|| path.display().to_string(), |n| n.to_string_lossy().into_owned());
+    Ok(format!("{name} ({bytes} bytes, crc32 {crc})"))
+}
+
 /// The limit of a binary input decoded into memory (NPY, EXR, PNG): the memory budget
 /// ([`crate::limits::budget`], `--max-memory-gb`).
 pub fn binary_limit() -> u64 {

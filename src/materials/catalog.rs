@@ -111,6 +111,19 @@ impl GlassCatalog {
         }
     }
 
+    /// The content identity of one entry of a spec's `glass_catalogs`: `None` for a built-in catalogue
+    /// (`builtin:NAME`, part of the program), else the file named by its content,
+    /// `NAME (N bytes, crc32 X)` ([`crate::io::input::content_identity`]). A dataset's configuration names its
+    /// catalogues so (the same glasses wherever the file lies); a copied `System` (Python's pickle and
+    /// `copy`) carries the identities recorded when it was built, to refuse a file edited since
+    /// ([`crate::system::SequentialSystem::check_catalog_identities`]).
+    pub fn entry_identity(entry: &str) -> Option<std::io::Result<String>> {
+        if super::builtin_catalogs::entry_name(entry).is_some() {
+            return None;
+        }
+        Some(crate::io::input::content_identity(Path::new(entry)))
+    }
+
     /// Parses AGF text; `source_name` is used in error messages and (file stem) as the
     /// catalogue name.
     pub fn from_agf_str(text: &str, source_name: &str) -> Result<Self, MaterialError> {

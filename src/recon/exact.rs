@@ -133,7 +133,11 @@ impl<'a> ExactOperator<'a> {
 
     /// [`ExactOperator::new`] reporting traced rays to `progress` (for a progress bar; the total is
     /// [`Renderer::rays_per_render`]).
-    pub fn with_progress(renderer: Renderer<'a>, bands_nm: &[f64], memory_budget_bytes: u64, progress: &(dyn Fn(u64) + Sync)) -> Result<Self> {
+    ///
+    /// A renderer given a stop request ([`Renderer::with_cancel`]) stops the build at its next scene row once
+    /// cancelled ([`crate::Error::Interrupted`]); the operator keeps the renderer without it (its applies are
+    /// not the build's, and a streaming operator re-traces planes that must not fail).
+    pub fn with_progress(mut renderer: Renderer<'a>, bands_nm: &[f64], memory_budget_bytes: u64, progress: &(dyn Fn(u64) + Sync)) -> Result<Self> {
         let interp = interpolation_table(&renderer, bands_nm)?;
         let layout = layout(&renderer);
         let planes = renderer.config.spectral.planes();
@@ -161,6 +165,7 @@ impl<'a> ExactOperator<'a> {
             None
         };
         let bytes = compact.as_ref().map_or(0, |c| c.iter().map(|p| p.bytes()).sum());
+        renderer.take_cancel();
         Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, compact, transport: None, layout, transport_bytes: bytes, scratch: Mutex::default(), buffers: Mutex::default() })
     }
 
@@ -375,8 +380,9 @@ impl Operator for ExactOperator<'_> {
 /// bit-exact dataset-mode render and the operator).
 impl<'a> ExactOperator<'a> {
     /// Φ from `transport` = `renderer.trace_all(..)` of this very renderer (not traced again; kept whatever
-    /// its size).
-    pub fn from_traced(renderer: Renderer<'a>, bands_nm: &[f64], transport: Vec<PlaneTransport>) -> Result<Self> {
+    /// its size). The operator keeps the renderer without its stop request ([`Renderer::with_cancel`]).
+    pub fn from_traced(mut renderer: Renderer<'a>, bands_nm: &[f64], transport: Vec<PlaneTransport>) -> Result<Self> {
+        renderer.take_cancel();
         if transport.len() != renderer.config.spectral.planes() {
             return Err(crate::error::Error::invalid(format!("exact operator: {} traced planes for a render of {}", transport.len(), renderer.config.spectral.planes())));
         }

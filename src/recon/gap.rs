@@ -29,7 +29,7 @@
 //! let y = vec![1.0f32; 80];
 //! let config = SolverConfig { iterations: 3, ..SolverConfig::gap_tv() };
 //! let mut tv = TvDenoiser::new(config.tv_weight, config.tv_iterations, config.tv_coupling);
-//! let problem = Problem { op: &op, y: &y, init: None, config: &config, progress: &|_, _| {}, observe: &mut |_, _| {}, spread: None };
+//! let problem = Problem { op: &op, y: &y, init: None, config: &config, progress: &|_, _| {}, observe: &mut |_, _| {}, spread: None, cancel: None };
 //! let rec = gap(problem, &mut tv)?;
 //! assert_eq!(rec.cube.len(), 128);
 //! # Ok::<(), diffcassi::Error>(())

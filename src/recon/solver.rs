@@ -75,10 +75,17 @@ pub fn reconstruct_estimated(
     observe: &mut dyn FnMut(usize, &[f32]),
     spread: Option<&MonteCarloSpread<'_>>,
 ) -> Result<Reconstruction> {
-    if let Some(s) = spread {
+    solve_problem(Problem { op, y, init, config, progress, observe, spread, cancel: None }, denoiser)
+}
+
+/// The solve of a [`Problem`] (GAP's or ADMM's data step per `config.solver`, `denoiser` the prior): what
+/// [`reconstruct_estimated`] runs, and with the problem's `cancel` a solve that stops at the next iteration
+/// once cancelled ([`crate::Error::Interrupted`]; [`crate::recon::pipeline::run_solver`]'s `cancel`).
+pub fn solve_problem(problem: Problem<'_>, denoiser: &mut dyn Denoiser) -> Result<Reconstruction> {
+    let (op, config) = (problem.op, problem.config);
+    if let Some(s) = problem.spread {
         s.check(op)?;
     }
-    let problem = Problem { op, y, init, config, progress, observe, spread };
     if config.solver.is_gap() {
         super::gap::gap(problem, denoiser)
     } else {

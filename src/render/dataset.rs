@@ -37,10 +37,10 @@ pub use run::{check_out, load_fitted, name_hash, run, DatasetProgress, DatasetRe
 
 use super::engine::Renderer;
 use crate::error::{Error, Result};
+use crate::io::input::file_crc32;
 use crate::scene::Fit;
 use serde_json::{json, Map, Value};
 use std::fmt;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// A scene found in a dataset folder.
@@ -358,13 +358,8 @@ fn spec_identity(mut spec: Value) -> Value {
         if let Some(Value::Array(catalogs)) = o.get_mut("glass_catalogs") {
             for entry in catalogs.iter_mut() {
                 let Some(path) = entry.as_str() else { continue };
-                if path.starts_with(crate::materials::builtin_catalogs::ENTRY_PREFIX) {
-                    continue;
-                }
-                let p = Path::new(path);
-                if let Ok((bytes, crc)) = file_crc32(p) {
-                    let name = p.file_name().map_or_else(|| path.to_string(), |n| n.to_string_lossy().into_owned());
-                    *entry = json!(format!("{name} ({bytes} bytes, crc32 {crc})"));
+                if let Some(Ok(identity)) = crate::materials::GlassCatalog::entry_identity(path) {
+                    *entry = json!(identity);
                 }
             }
         }
@@ -504,24 +499,6 @@ pub fn crc32_hex(bytes: &[u8]) -> String {
     format!("{:08x}", crc32fast::hash(bytes))
 }
 
-fn file_crc32(path: &Path) -> std::io::Result<(u64, String)> {
-    // A regular file only (a FIFO in place of an output would block the open): `io::input`'s check, after the
-    // plain lookup that reports a missing file as such.
-    std::fs::metadata(path)?;
-    let (mut f, _) = crate::io::input::open_input(path, u64::MAX).map_err(|e| std::io::Error::other(e.to_string()))?;
-    let mut h = crc32fast::Hasher::new();
-    let mut buf = vec![0u8; 1 << 16];
-    let mut n = 0u64;
-    loop {
-        let k = f.read(&mut buf)?;
-        if k == 0 {
-            break;
-        }
-        h.update(&buf[..k]);
-        n += k as u64;
-    }
-    Ok((n, format!("{:08x}", h.finalize())))
-}
 
 /// `{"NAME": {"bytes": N, "crc32": "…"}}` for the files `names` of `dir` (recorded when they are written,
 /// checked by [`verify_records`]).

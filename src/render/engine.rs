@@ -147,6 +147,9 @@ pub struct Renderer<'a> {
     sampler: RaySampler,
     /// The resolved SIMD level of `config.kernel` (`None`: scalar).
     simd: Option<crate::tracer::SimdLevel>,
+    /// The caller's stop request ([`Renderer::with_cancel`]), polled before each scene row of every plane
+    /// traced and before each plane rendered; `None`: never stopped.
+    cancel: Option<crate::cancel::Cancel>,
 }
 
 /// Wall-clock split of a render (s).
@@ -305,7 +308,25 @@ impl<'a> Renderer<'a> {
             }
             check_mask_in_beam(system, m, config.scene_pitch_mm, h, w)?;
         }
-        Ok(Renderer { system, tracer, config, mask, object_mask, detector, kernels, sampler, simd })
+        Ok(Renderer { system, tracer, config, mask, object_mask, detector, kernels, sampler, simd, cancel: None })
+    }
+
+    /// This renderer stopped by `cancel`: once it is cancelled, tracing (a render, [`Renderer::trace_all`], an
+    /// operator built from this renderer) returns [`Error::Interrupted`] at the next scene row or plane. Polling
+    /// changes no number: an uncancelled render is bit-identical to one without a token ([`crate::cancel`]).
+    pub fn with_cancel(mut self, cancel: crate::cancel::Cancel) -> Self {
+        self.cancel = Some(cancel);
+        self
+    }
+
+    /// The stop request of [`Renderer::with_cancel`], if any.
+    pub fn cancel(&self) -> Option<&crate::cancel::Cancel> {
+        self.cancel.as_ref()
+    }
+
+    /// Remove the stop request (a renderer kept beyond the call it was given for: the exact operator's).
+    pub fn take_cancel(&mut self) -> Option<crate::cancel::Cancel> {
+        self.cancel.take()
     }
 
     /// The transmission per scene pixel on the object plane: the mask for single-disperser CASSI; all 1 when
@@ -340,6 +361,7 @@ impl<'a> Renderer<'a> {
             surface_mask: self.surface_mask(),
             sampler: &self.sampler,
             seed: self.config.seed,
+            cancel: self.cancel.as_ref(),
         }
     }
 
@@ -509,6 +531,7 @@ impl<'a> Renderer<'a> {
                     let mut stats = RayStats::default();
                     let mut secs = [0.0f64; 3];
                     for &p in planes {
+                        crate::cancel::check(self.cancel.as_ref())?;
                         let t = Instant::now();
                         let owned;
                         let tr = match cached {

@@ -244,6 +244,7 @@ pub fn render_ghosts<H: NextHit>(renderer: &Renderer, kernel: &H, scene: &Spectr
         surface_mask: None,
         sampler: &sampler,
         seed: c.seed,
+        cancel: renderer.cancel(),
     };
     let opts = cfg.tree_options();
     // The blocked rays come from the trees when they are the render's own rays, else from a pass over those.

@@ -226,6 +226,8 @@ pub struct PlaneContext<'a> {
     pub surface_mask: Option<SurfaceMask<'a>>,
     pub sampler: &'a RaySampler,
     pub seed: u64,
+    /// The caller's stop request, polled before each scene row ([`crate::cancel`]); `None`: never stopped.
+    pub cancel: Option<&'a crate::cancel::Cancel>,
 }
 
 /// The coded mask on a surface of the system: where it is ([`MaskSurface`]) and its pattern (`height`×`width`,
@@ -536,6 +538,7 @@ impl PlaneContext<'_> {
         let aim = (self.system.spec.ray_aiming == RayAiming::Off && !self.system.object_at_infinity()).then(|| PupilAim::of(self.system));
         let mut centre_x: Vec<f64> = Vec::new();
         for row in 0..h {
+            crate::cancel::check(self.cancel)?;
             sc.open.clear();
             sc.open.extend((0..w).filter(|&c| self.mask[row * w + c] > 0.0));
             if sc.open.is_empty() {

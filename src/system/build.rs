@@ -49,6 +49,34 @@ impl SequentialSystem {
         Ok(catalog)
     }
 
+    /// The content identities of `spec`'s catalogue files, `(entry, identity)` in the spec's order
+    /// ([`GlassCatalog::entry_identity`]; built-in catalogues have none). Take them *before* building
+    /// from the files: a file edited in between then reads as changed (a copy refused), never the other way
+    /// (a copy silently tracing other glasses). A file that cannot be read is left out: [`Self::build`]
+    /// names it.
+    pub fn catalog_identities(spec: &SystemSpec) -> Vec<(String, String)> {
+        spec.glass_catalogs.iter().filter_map(|e| Some((e.clone(), GlassCatalog::entry_identity(e)?.ok()?))).collect()
+    }
+
+    /// Check catalogue files against the identities recorded when a system was built
+    /// ([`Self::catalog_identities`]) before a copy of it is rebuilt from its spec, which reads the files
+    /// again (Python's pickle, `copy.deepcopy`, a spawned worker): a file whose content changed since is an
+    /// error naming it — the copy would trace other refractive indices than the original, with the same
+    /// prescription. A file that is gone is left to the rebuild, which names it.
+    pub fn check_catalog_identities(recorded: &[(String, String)]) -> Result<()> {
+        for (entry, then) in recorded {
+            if let Some(Ok(now)) = GlassCatalog::entry_identity(entry) {
+                if &now != then {
+                    return Err(Error::invalid(format!(
+                        "glass catalogue {entry}: its content changed since the system was built (then {then}, now {now}): a copy rebuilt from it \
+                         would trace other refractive indices than the original; restore the file, or build the system again from its spec file to use the catalogue as it is now"
+                    )));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Build against an explicit glass catalogue.
     pub fn build_with_catalog(spec: &SystemSpec, catalog: &GlassCatalog) -> Result<Self> {
         spec.validate().map_err(|m| Error::spec(&spec.name, m))?;

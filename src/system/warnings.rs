@@ -11,6 +11,9 @@
 //!   toroid's YZ curve (in y); a toroid also ends in x, where the circle its YZ curve is rotated on does:
 //!   |x| ≤ |R − z_y(y)| for the radius of rotation R ([`toroid_x_edge_warning`]; a semi-diameter of 12 mm on
 //!   R = 10 mm loaded silently, its rays beyond |x| = 10 mm missing: a held-out battery, round 15).
+//! * **Real ray aiming at a beam that is not round** ([`SequentialSystem::real_aiming_warnings`]): the stop
+//!   radius real aiming aims at is measured along +y, as OpticStudio does; where the beam's radius along the
+//!   other pupil directions differs, the traced beam depends on the system's orientation (round 18).
 //!
 //! ```
 //! use diffcassi::system::SequentialSystem;
@@ -83,8 +86,41 @@ impl SequentialSystem {
     pub fn warnings(&self) -> Vec<String> {
         let mut out = self.glass_warnings();
         out.extend(self.surface_edge_warnings());
+        out.extend(self.real_aiming_warnings());
         out
     }
+
+    /// Real ray aiming (`RAIM 0 2`, `ray_aiming = "real"`) aims every ray at (px, py) × one stop radius, the
+    /// real axial beam's along +y (OpticStudio's and optiland's convention, [`crate::rays::real_stop_radius`]).
+    /// Where the beam at the stop is not round (a stop decentred behind a lens with coma, an anamorphic beam),
+    /// its radius along −y, +x and −x differs, and the traced beam, F/# and spots depend on the system's
+    /// orientation about its axis ([`crate::rays::real_stop_radii`]). One warning where they differ by more
+    /// than [`Self::REAL_STOP_RADIUS_SPREAD`] of the +y radius, naming the four radii and the paraxial one.
+    pub fn real_aiming_warnings(&self) -> Vec<String> {
+        if self.spec.ray_aiming != crate::spec::RayAiming::Real || self.spec.aperture == crate::spec::SystemAperture::FloatByStopSize {
+            return Vec::new();
+        }
+        let Some(r) = crate::rays::real_stop_radii(self) else { return Vec::new() };
+        let (lo, hi) = r.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), &v| (lo.min(v), hi.max(v)));
+        if (hi - lo) <= Self::REAL_STOP_RADIUS_SPREAD * r[0] {
+            return Vec::new();
+        }
+        let f = |v: f64| crate::limits::fmt_num((v * 1e6).round() / 1e6);
+        vec![format!(
+            "real ray aiming: the real axial beam at the stop (surface {}) is not round: its radius is {} mm along +y, {} mm along -y, {} mm along +x, {} mm along -x (paraxial {} mm); rays are aimed at the +y radius, as OpticStudio does, so the traced beam depends on how the system is turned about its axis (a spread of {:.1} %); paraxial aiming does not",
+            self.stop_index,
+            f(r[0]),
+            f(r[1]),
+            f(r[2]),
+            f(r[3]),
+            f(self.pupil.stop_radius_mm),
+            100.0 * (hi - lo) / r[0]
+        )]
+    }
+
+    /// The relative spread of the real axial beam's radii at the stop beyond which
+    /// [`Self::real_aiming_warnings`] warns: 1 %.
+    pub const REAL_STOP_RADIUS_SPREAD: f64 = 0.01;
 
     /// Warnings about the glasses of the system whose catalogue is inconsistent: the formula's n at the d line
     /// differs from the `NM` line's n_d by more than [`crate::materials::Glass::ND_TOLERANCE`] (`CD -0.5 …`

@@ -18,7 +18,9 @@ pub fn solve(op: &dyn Operator, y: &[f32], s: &SolveSettings, progress: &(dyn Fn
 /// The solver `cfg` names on `op` and `y` from `init` (0 when `None`), with its denoiser
 /// ([`crate::recon::solver::config_denoiser`]), δ re-estimated from the data when `spread` is given, and with a
 /// `truth` cube (same shape) the PSNR (paper convention) of every iterate θ_k (the second value; empty
-/// without a truth). `progress(k, residual)` after each iteration.
+/// without a truth). `progress(k, residual)` after each iteration. `cancel`: the caller's stop request, polled
+/// once per iteration ([`Error::Interrupted`] once cancelled; [`crate::cancel`]); `None`: never stopped.
+#[allow(clippy::too_many_arguments)]
 pub fn run_solver(
     op: &dyn Operator,
     y: &[f32],
@@ -27,24 +29,19 @@ pub fn run_solver(
     spread: Option<&MonteCarloSpread<'_>>,
     truth: Option<&[f32]>,
     progress: &(dyn Fn(usize, f64) + Sync),
+    cancel: Option<&crate::cancel::Cancel>,
 ) -> Result<(Reconstruction, Vec<f64>)> {
+    crate::cancel::check(cancel)?;
     let mut denoiser = crate::recon::solver::config_denoiser(cfg)?;
     let shape = op.cube_shape();
     let mut psnrs: Vec<f64> = Vec::new();
-    let rec = crate::recon::reconstruct_estimated(
-        op,
-        y,
-        init,
-        cfg,
-        denoiser.as_mut(),
-        progress,
-        &mut |_, theta| {
-            if let Some(t) = truth {
-                psnrs.push(crate::recon::metrics::psnr_db(t, theta, shape).unwrap_or(f64::NAN));
-            }
-        },
-        spread,
-    )?;
+    let mut observe = |_: usize, theta: &[f32]| {
+        if let Some(t) = truth {
+            psnrs.push(crate::recon::metrics::psnr_db(t, theta, shape).unwrap_or(f64::NAN));
+        }
+    };
+    let problem = crate::recon::Problem { op, y, init, config: cfg, progress, observe: &mut observe, spread, cancel };
+    let rec = crate::recon::solve_problem(problem, denoiser.as_mut())?;
     Ok((rec, psnrs))
 }
 
@@ -67,7 +64,7 @@ pub fn solve_observed(op: &dyn Operator, y: &[f32], s: &SolveSettings, progress:
         (Some(_), None) => return Err(Error::invalid("internal: the data-driven noise estimate needs the operator's twin")),
         _ => None,
     };
-    let (rec, psnrs) = run_solver(op, y, None, &cfg, spread.as_ref(), truth, progress)?;
+    let (rec, psnrs) = run_solver(op, y, None, &cfg, spread.as_ref(), truth, progress, None)?;
     if let Some(i) = rec.cube.iter().position(|v| !v.is_finite()) {
         let peak = y.iter().fold(0.0f32, |m, v| m.max(v.abs()));
         return Err(Error::invalid(format!(

@@ -50,4 +50,8 @@ pub trait Denoiser: Send {
     fn describe(&self) -> serde_json::Value {
         serde_json::json!({ "name": self.name() })
     }
+    /// The caller's stop request for the following calls ([`crate::cancel`]; `None`: never stopped): a slow
+    /// denoiser (the network: per layer) polls it inside a call and returns [`crate::Error::Interrupted`] once
+    /// it is cancelled. A fast one (TV: one solver iteration's worth) ignores it, the solver polling between calls.
+    fn set_cancel(&mut self, _cancel: Option<crate::cancel::Cancel>) {}
 }

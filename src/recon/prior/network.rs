@@ -160,6 +160,8 @@ pub struct SpectralUNet {
     /// (quarter turns × a width flip, in [`DIHEDRAL`]'s order), as `denoise(…, ensemble=True)`.
     pub self_ensemble: bool,
     layers: Vec<Layer>,
+    /// The caller's stop request ([`Denoiser::set_cancel`]), polled before each layer.
+    cancel: Option<crate::cancel::Cancel>,
 }
 
 /// The self-ensemble's transforms, in the order both inferences sum them: (quarter turns k, flip) = a rotation
@@ -334,7 +336,7 @@ impl SpectralUNet {
         if let Some(extra) = st.names().into_iter().find(|n| !expected.contains(*n)) {
             return Err(ferr(source, format!("tensor `{extra}` is not part of {ARCH} (expected {} tensors: lat_enc, head, …, tail, lat_dec, bypass)", expected.len())));
         }
-        Ok(SpectralUNet { bands, width, latent, source: source.to_string(), crc32: crc32fast::hash(bytes), stage, neutral: false, self_ensemble: false, layers })
+        Ok(SpectralUNet { bands, width, latent, source: source.to_string(), crc32: crc32fast::hash(bytes), stage, neutral: false, self_ensemble: false, layers, cancel: None })
     }
 
     /// Tensor `name` of the file, checked: present, f32, of `shape`, finite.
@@ -343,6 +345,8 @@ impl SpectralUNet {
     }
 
     fn conv(&self, i: usize, x: &Tensor, padding: usize, stride: usize, relu: bool) -> Result<Tensor> {
+        // The network's stop poll: one forward pass is ~0.5 s at 128² (seconds at 512²), 16 convolutions.
+        crate::cancel::check(self.cancel.as_ref())?;
         self.layers[i].conv(x, padding, stride, relu)
     }
 
@@ -386,6 +390,10 @@ impl SpectralUNet {
 impl Denoiser for SpectralUNet {
     fn name(&self) -> String {
         ARCH.into()
+    }
+
+    fn set_cancel(&mut self, cancel: Option<crate::cancel::Cancel>) {
+        self.cancel = cancel;
     }
 
     fn denoise(&mut self, x: &[f32], out: &mut [f32], shape: CubeShape, sigma: f32) -> Result<()> {

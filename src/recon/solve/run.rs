@@ -17,7 +17,8 @@ use std::time::Instant;
 /// `progress(k, residual)` after each iteration k (1-based, relative residual), `observe(k, θ_k)` after each
 /// prior step (evaluation against a known truth; the solver never reads what it computes), and δ
 /// re-estimated from the data every few iterations (`spread`, [`MonteCarloSpread`]; `None`: the fixed
-/// `config.noise_norm`).
+/// `config.noise_norm`), and the caller's stop request (`cancel`, polled before each iteration's prior step:
+/// [`crate::Error::Interrupted`] once cancelled; `None`: never stopped).
 pub struct Problem<'a> {
     pub op: &'a dyn Operator,
     pub y: &'a [f32],
@@ -26,6 +27,7 @@ pub struct Problem<'a> {
     pub progress: &'a (dyn Fn(usize, f64) + Sync),
     pub observe: &'a mut dyn FnMut(usize, &[f32]),
     pub spread: Option<&'a MonteCarloSpread<'a>>,
+    pub cancel: Option<&'a crate::cancel::Cancel>,
 }
 
 /// The state of one run (see the [module docs](self)); the solver owns its own buffers beside it.
@@ -35,6 +37,7 @@ pub(crate) struct Run<'a, 'd> {
     pub(crate) config: &'a SolverConfig,
     progress: &'a (dyn Fn(usize, f64) + Sync),
     observe: &'a mut dyn FnMut(usize, &[f32]),
+    cancel: Option<&'a crate::cancel::Cancel>,
     t0: Instant,
     pub(crate) shape: CubeShape,
     pub(crate) pre: Preconditioner,
@@ -57,8 +60,10 @@ pub(crate) struct Run<'a, 'd> {
 impl<'a, 'd> Run<'a, 'd> {
     /// Check the request and set up the run: D, the norms of y, θ₀, the prior step, the rules.
     pub(crate) fn start(p: Problem<'a>, denoiser: &'d mut dyn Denoiser) -> Result<Self> {
-        let Problem { op, y, init, config, progress, observe, spread } = p;
+        let Problem { op, y, init, config, progress, observe, spread, cancel } = p;
         check_inputs(op, y, init, config)?;
+        // The network polls the request per layer (a call can take seconds); `None` clears an earlier one.
+        denoiser.set_cancel(cancel.cloned());
         let t0 = Instant::now();
         let shape = op.cube_shape();
         let pre = Preconditioner::new(op);
@@ -92,6 +97,7 @@ impl<'a, 'd> Run<'a, 'd> {
             config,
             progress,
             observe,
+            cancel,
             t0,
             shape,
             pre,
@@ -120,6 +126,9 @@ impl<'a, 'd> Run<'a, 'd> {
     /// recorded for PnP), then the observer. Returns whether the network ran (the relative-change rule
     /// applies from then on: PnP's TV phase always completes).
     pub(crate) fn prior_step(&mut self, k: usize, x: &[f32]) -> Result<bool> {
+        // The solve's stop poll: once per iteration, before its most expensive step (the TV iterations or the
+        // network); an interrupted solve returns nothing.
+        crate::cancel::check(self.cancel)?;
         self.stopping.remember(&self.theta);
         let network = !self.prior.in_tv_phase();
         if self.config.solver.is_pnp() {
