@@ -113,6 +113,9 @@ impl PyDiffRenderer {
             kw.set_item("scene_fov_deg", scene_fov_deg)?;
             crate::recipe::Recipe::new(py, "DiffRenderer", args, Some(&kw))?
         };
+        // The free parameters' glasses come from the catalogue files, read again here: refused if one changed since
+        // the system was built (as a copy of it is; round 18).
+        diffcassi::system::SequentialSystem::check_catalog_identities(&system.catalogs).py()?;
         let set = ParamSet::for_system(&system.inner, &free.join(",")).py()?;
         let mut cfg = RenderConfig::paper(height.max(1));
         (cfg.scene_height, cfg.scene_width) = (height, width);

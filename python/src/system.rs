@@ -876,9 +876,12 @@ fn jacobian<'py>(
     };
     let rays = ray_batch(origins, directions, wavelengths_nm)?;
     let config: BackendConfig = backend.parse().py()?;
-    let sys = Arc::clone(&system.inner);
+    let (sys, catalogs) = (Arc::clone(&system.inner), Arc::clone(&system.catalogs));
     // The trace and the reshaping into the returned arrays: without the GIL.
     let (n, k, available, reasons, params, jac, traced) = run(py, move || -> diffcassi::Result<_> {
+        // The parameter set reads the catalogue files again: refused if one changed since the system was built
+        // (as a copy of it is; round 18).
+        SequentialSystem::check_catalog_identities(&catalogs)?;
         let hj = ParamSet::for_system(&sys, &list)?.build()?.trace_with_backend(&config, &rays)?;
         let (n, k) = (hj.batch.len(), hj.batch.k());
         let available: Vec<bool> = hj.unavailable.iter().map(Option::is_none).collect();

@@ -131,3 +131,15 @@ def test_preset_copies_carry_no_catalogues():
     sp = diffcassi.System.preset("sp")
     assert sp.__reduce__()[1][1] == []
     assert pickle.loads(pickle.dumps(sp)).prescription_sha256() == sp.prescription_sha256()
+
+
+def test_jacobian_refuses_a_catalogue_edited_since_the_system_was_built(folder):
+    """`jacobian` (and `CassiRenderer`'s free parameters) assemble their glasses from the catalogue files again:
+    an edit since the System was built is refused, naming the file, as a copy is — it traced the new glasses."""
+    s = load(folder)
+    rays = s.seeded_rays(8, [587.5618], 1)
+    before = diffcassi.jacobian(s, "wavelength", *rays)["jacobian"]
+    assert np.isfinite(before).all()
+    edit_nbk7(folder)
+    with pytest.raises(diffcassi.DiffcassiValueError, match="SCHOTT.AGF: its content changed since the system was built"):
+        diffcassi.jacobian(s, "wavelength", *rays)
