@@ -160,7 +160,7 @@ fn yield_gil(py: Python<'_>) {
     py.allow_threads(|| ());
 }
 
-/// Result points (a dict each) made into Python objects per [`yield_gil`].
+/// Distortion points per JSON chunk: each chunk is parsed into Python dicts with the GIL handed over ([`yield_gil`]) between chunks.
 const POINTS_PER_YIELD: usize = 2048;
 
 fn json(v: &impl serde::Serialize) -> PyResult<String> {
@@ -722,8 +722,9 @@ fn _spot<'py>(
 
 /// Zemax-style grid distortion: (the grid as JSON with `points` left empty, the points as a list of dicts,
 /// one per grid point, keys in the JSON's order); `diffcassi.distortion` puts the list in. The trace and the
-/// JSON run without the GIL; the dicts (which need it) are made in chunks with the GIL handed over between
-/// them ([`yield_gil`]), so a large grid does not stall the caller's other Python threads (round 18).
+/// JSON — the points' in chunks of [`POINTS_PER_YIELD`] — run without the GIL; the chunks are parsed by
+/// Python's `json.loads` (which needs it) with the GIL handed over between them ([`yield_gil`]), so a large
+/// grid does not stall the caller's other Python threads (round 18).
 #[pyfunction]
 #[pyo3(signature = (system, wavelength_nm, grid = None, half_width_mm = 2.5, backend = "analytic"))]
 fn _distortion<'py>(py: Python<'py>, system: &PySystem, wavelength_nm: f64, grid: Option<&Bound<'py, PyAny>>, half_width_mm: f64, backend: &str) -> PyResult<(String, Bound<'py, pyo3::types::PyList>)> {
@@ -737,47 +738,22 @@ fn _distortion<'py>(py: Python<'py>, system: &PySystem, wavelength_nm: f64, grid
     diffcassi::limits::check_memory(&format!("grid {grid}"), n * 250.0).py()?;
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
-    let (text, points) = run(py, move || -> diffcassi::Result<_> {
+    let (text, chunks) = run(py, move || -> diffcassi::Result<_> {
         let mut g = analysis::grid_distortion(&sys, t.as_ref(), wavelength_nm, grid, half_width_mm)?;
         let points = std::mem::take(&mut g.points);
-        Ok((json_text(&g)?, points))
+        let chunks = points.chunks(POINTS_PER_YIELD).map(|c| json_text(&c)).collect::<diffcassi::Result<Vec<_>>>()?;
+        Ok((json_text(&g)?, chunks))
     })
     .py()?;
-    Ok((text, distortion_points(py, &points)?))
-}
-
-/// The distortion points as Python dicts, exactly as `json.loads` of their JSON gave them (the keys in the
-/// struct's order, `x_field_deg`/`y_field_deg` only when present, a float that is not finite as None —
-/// JSON's null — and the status by its label), handing the GIL over every [`POINTS_PER_YIELD`] points.
-fn distortion_points<'py>(py: Python<'py>, points: &[analysis::DistortionPoint]) -> PyResult<Bound<'py, pyo3::types::PyList>> {
-    use pyo3::intern;
-    use pyo3::IntoPyObjectExt;
-    let num = |v: f64| -> PyResult<Bound<'py, PyAny>> { if v.is_finite() { v.into_bound_py_any(py) } else { Ok(py.None().into_bound(py)) } };
-    let list = pyo3::types::PyList::empty(py);
-    for (k, p) in points.iter().enumerate() {
-        if k > 0 && k % POINTS_PER_YIELD == 0 {
+    let loads = py.import("json")?.getattr("loads")?;
+    let points = pyo3::types::PyList::empty(py);
+    for (k, chunk) in chunks.iter().enumerate() {
+        if k > 0 {
             yield_gil(py);
         }
-        let d = PyDict::new(py);
-        d.set_item(intern!(py, "i"), p.i)?;
-        d.set_item(intern!(py, "j"), p.j)?;
-        d.set_item(intern!(py, "x_field_mm"), num(p.x_field_mm)?)?;
-        d.set_item(intern!(py, "y_field_mm"), num(p.y_field_mm)?)?;
-        if let Some(v) = p.x_field_deg {
-            d.set_item(intern!(py, "x_field_deg"), num(v)?)?;
-        }
-        if let Some(v) = p.y_field_deg {
-            d.set_item(intern!(py, "y_field_deg"), num(v)?)?;
-        }
-        d.set_item(intern!(py, "real_x_mm"), num(p.real_x_mm)?)?;
-        d.set_item(intern!(py, "real_y_mm"), num(p.real_y_mm)?)?;
-        d.set_item(intern!(py, "pred_x_mm"), num(p.pred_x_mm)?)?;
-        d.set_item(intern!(py, "pred_y_mm"), num(p.pred_y_mm)?)?;
-        d.set_item(intern!(py, "distortion_pct"), num(p.distortion_pct)?)?;
-        d.set_item(intern!(py, "status"), p.status.label())?;
-        list.append(d)?;
+        points.call_method1("extend", (loads.call1((chunk,))?,))?;
     }
-    Ok(list)
+    Ok((text, points))
 }
 
 /// Chief-ray dispersion curve of one field (JSON).

@@ -157,6 +157,19 @@ pub fn stop_crossing(system: &SequentialSystem, n: &[f64], origin: DVec3, d: DVe
 /// iterative aiming lands these rays to 1e-13 mm (tests/zmx_round17.rs). Errors: the chief ray cannot be
 /// aimed at the stop's centre, or the marginal ray does not reach the stop.
 pub fn real_stop_radius(system: &SequentialSystem) -> std::result::Result<f64, String> {
+    let [r] = axial_beam_radii(system, [(0.0, 1.0)])?;
+    if !(r.is_finite() && r > 0.0) {
+        return Err(format!("real ray aiming: the real marginal ray crosses the stop at radius {r} mm; use paraxial aiming"));
+    }
+    Ok(r)
+}
+
+/// The real axial beam's radius at the stop (mm) towards each pupil direction (du, dv) (unit vectors): the
+/// real chief ray of the axial object point aimed at the stop's centre, the ray of the same point through
+/// the paraxial-pupil-plane point one pupil radius from the chief ray's towards (du, dv), and the distance
+/// between their crossings of the stop in its local frame (primary wavelength). [`real_stop_radius`] is the
+/// +y one; [`real_stop_radii`] the four axis directions. Errors say which ray failed, in words.
+fn axial_beam_radii<const K: usize>(system: &SequentialSystem, directions: [(f64, f64); K]) -> std::result::Result<[f64; K], String> {
     let n = system.indices(system.spec.primary_wavelength_nm).map_err(|e| e.to_string())?;
     let why = |m: String| format!("real ray aiming: {m}, so the real stop radius is undefined; use paraxial aiming");
     let (u0, v0) = solve_pupil_point(system, &n, [0.0, 0.0], (0.0, 0.0), (0.0, 0.0), system.pupil.stop_radius_mm)
@@ -168,12 +181,13 @@ pub fn real_stop_radius(system: &SequentialSystem) -> std::result::Result<f64, S
     };
     let unreached = || why("the real marginal ray (axial object point, entrance-pupil edge, primary wavelength) does not reach the stop".to_string());
     let (xc, yc) = cross(u0, v0).ok_or_else(unreached)?;
-    let (x, y) = cross(u0, v0 + pupil_scale(system)).ok_or_else(unreached)?;
-    let r = (x - xc).hypot(y - yc);
-    if !(r.is_finite() && r > 0.0) {
-        return Err(format!("real ray aiming: the real marginal ray crosses the stop at radius {r} mm; use paraxial aiming"));
+    let s = pupil_scale(system);
+    let mut out = [0.0; K];
+    for (r, (du, dv)) in out.iter_mut().zip(directions) {
+        let (x, y) = cross(u0 + s * du, v0 + s * dv).ok_or_else(unreached)?;
+        *r = (x - xc).hypot(y - yc);
     }
-    Ok(r)
+    Ok(out)
 }
 
 /// The real axial beam's radius at the stop (mm) along the four pupil directions +y, −y, +x, −x, measured as
@@ -188,24 +202,8 @@ pub fn real_stop_radius(system: &SequentialSystem) -> std::result::Result<f64, S
 /// RMS spot 1497, 1558 and 1528 µm. [`SequentialSystem::real_aiming_warnings`](crate::system::SequentialSystem::real_aiming_warnings)
 /// says so on load.
 pub fn real_stop_radii(system: &SequentialSystem) -> Option<[f64; 4]> {
-    let n = system.indices(system.spec.primary_wavelength_nm).ok()?;
-    let (u0, v0) = solve_pupil_point(system, &n, [0.0, 0.0], (0.0, 0.0), (0.0, 0.0), system.pupil.stop_radius_mm).ok()?;
-    let ray = pupil_ray(system, [0.0, 0.0]);
-    let cross = |u: f64, v: f64| {
-        let (o, d) = ray(u, v);
-        stop_crossing(system, &n, o, d)
-    };
-    let (xc, yc) = cross(u0, v0)?;
-    let s = pupil_scale(system);
-    let mut out = [0.0; 4];
-    for (r, (du, dv)) in out.iter_mut().zip([(0.0, s), (0.0, -s), (s, 0.0), (-s, 0.0)]) {
-        let (x, y) = cross(u0 + du, v0 + dv)?;
-        *r = (x - xc).hypot(y - yc);
-        if !(r.is_finite() && *r > 0.0) {
-            return None;
-        }
-    }
-    Some(out)
+    let r = axial_beam_radii(system, [(0.0, 1.0), (0.0, -1.0), (1.0, 0.0), (-1.0, 0.0)]).ok()?;
+    r.iter().all(|v| v.is_finite() && *v > 0.0).then_some(r)
 }
 
 /// The ray of field `field_mm` through pupil-plane point (u, v) (mm, or direction sines when telecentric),
