@@ -1302,6 +1302,9 @@ class CassiRenderer(_TargetChecked):
                                                 f"{self.theta.device}: move them to one device (module.to(device))")
         if cube.device.type == "cuda" or self.table_on_cpu:
             return self._render_table(cube, mask, logits)
+        # The batch against the budgets before its float64 copy and the render's buffers are allocated (the
+        # constructor counts one scene; round 19: a batch of 4 peaked at 4× its estimate).
+        self._base._check_batch(int(cube.shape[0]))
         return _RenderFn.apply(cube, mask, self.theta, self, logits)
 
     def table(self, device: Any = "cpu") -> Tuple["_gather.GatherTable", "_gather.GatherTable"]:

@@ -45,11 +45,15 @@ fn tidy(text: &str) -> std::borrow::Cow<'_, str> {
     }
 }
 
-/// `text` with every decimal number of more than 21 digits rewritten in exponent form (`1e-300`, not 300
-/// zeros): Rust's `{}` never writes an exponent, so a value given as `1e-300` would come back as a
-/// 302-character number in a message. The rewrite is exact (shortest round-trip digits in both forms); a
-/// digit run that touches a letter, an underscore or a path separator (a hex digest, a name, a folder) is
-/// left as it is, and so are integers up to 21 digits (every u64 seed).
+/// `text` with every decimal number of more than 21 digits, and every decimal fraction below 1e-4 in
+/// magnitude (not 0), rewritten in exponent form (`1e-300`, not 300 zeros; `1e-20`, not 20): Rust's `{}` never
+/// writes an exponent, so a value given as `1e-300` would come back as a 302-character number in a message.
+/// The fraction bound is [`crate::limits::fmt_num`]'s, so a number reads the same whether its message
+/// formatted it with `fmt_num` or with `{}` (`PARM 9 1e-20` was refused as `0.00000000000000000001`, 21
+/// digits, one short of the old bound, while `1e-300` was printed short; round 19). The rewrite is exact
+/// (shortest round-trip digits in both forms); a digit run that touches a letter, an underscore or a path
+/// separator (a hex digest, a name, a folder) is left as it is, and so are integers up to 21 digits (every
+/// u64 seed).
 pub fn tidy_numbers(text: &str) -> std::borrow::Cow<'_, str> {
     const MAX_DIGITS: usize = 21;
     let b = text.as_bytes();
@@ -68,7 +72,8 @@ pub fn tidy_numbers(text: &str) -> std::borrow::Cow<'_, str> {
         let run = &text[start..i];
         let digits = run.bytes().filter(u8::is_ascii_digit).count();
         let touches_word = (start > 0 && (is_word(b[start - 1]) || b[start - 1] == b'.')) || (i < b.len() && is_word(b[i]));
-        if digits > MAX_DIGITS && !touches_word {
+        let small_fraction = || run.contains('.') && run.parse::<f64>().is_ok_and(|v| v != 0.0 && v.abs() < 1e-4);
+        if (digits > MAX_DIGITS || small_fraction()) && !touches_word {
             if let Ok(v) = run.parse::<f64>() {
                 if v.is_finite() {
                     let o = out.get_or_insert_with(String::new);
@@ -103,6 +108,10 @@ mod tests {
         let kept = "seed 18446744073709551615, pitch 0.01 mm, 1e-30, sha 0123456789012345678901234567890123abc, x_12345678901234567890123, /tmp/12345678901234567890123/f";
         assert_eq!(Error::invalid(kept).to_string(), kept);
         // The rewrite is exact: the exponent form parses back to the same f64.
+        // A fraction below fmt_num's 1e-4 takes the exponent form at any length (1e-20 is 21 digits, not 22);
+        // 1e-4 and above, and 0, stay as written.
+        assert_eq!(Error::invalid(format!("parameter 9 = {} and {}", 1e-20f64, -3e-5f64)).to_string(), "parameter 9 = 1e-20 and -3e-5");
+        assert_eq!(Error::invalid("0.0001 0.5 0.000000 10.00001").to_string(), "0.0001 0.5 0.000000 10.00001");
         let v = 1.234567890123456789e-25f64;
         let msg = Error::invalid(format!("{v}")).to_string();
         assert!(msg.contains('e') && msg.parse::<f64>().unwrap() == v, "{msg}");

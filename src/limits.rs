@@ -9,7 +9,7 @@
 //!
 //! ```
 //! use diffcassi::limits;
-//! // 10⁶ × 10⁶ mapping entries at ~150 bytes each: refused, naming the options and the estimate.
+//! // 10⁶ × 10⁶ × 28 mapping entries at ~19 bytes each: refused, naming the options and the estimate.
 //! let e = limits::check_memory("--height/--width/--wavelengths-nm", limits::bytes_mapping(1_000_000, 1_000_000, 28)).unwrap_err();
 //! assert!(e.to_string().contains("--max-memory-gb"));
 //! assert!(limits::check_plausible_length("thickness_mm", 50.0).is_ok());
@@ -71,6 +71,23 @@ pub const MAX_REPEAT: usize = 1000;
 /// lens file is a few kB, the Schott catalogue 1 MB). Binary inputs (NPY, EXR, PNG) are bounded by the
 /// memory budget instead, meshes by [`crate::mechanics::mesh_io::MAX_MESH_FILE_BYTES`].
 pub const MAX_TEXT_FILE_BYTES: u64 = 64 << 20;
+/// Most surfaces of a sequential system, in every reader (`.zmx`, TOML/JSON/YAML specs, prescription CSVs) and
+/// in the build: 10 000. A CASSI has 20–40 surfaces and the largest real lens files (zooms, lithography
+/// objectives) a few hundred, so the bound is ≥ 25× any real design. A system costs ~4 kB per surface once read
+/// and built (measured round 19: 0.39 GB at 10⁵ `SURF`/`DISZ` pairs, 1.58 GB at 4·10⁵), so the bound keeps any
+/// system under ~50 MB, the order of the process's own fixed overhead, which the memory budget does not count.
+/// Without it the [`MAX_TEXT_FILE_BYTES`] limit let a 64 MiB `.zmx` of ~3.6 million surfaces reach ~14 GB.
+pub const MAX_SURFACES: usize = 10_000;
+
+/// A system of `count` surfaces: at most [`MAX_SURFACES`]. `Err` holds the reason (the caller names the file).
+pub fn check_surface_count(count: usize) -> std::result::Result<(), String> {
+    if count > MAX_SURFACES {
+        return Err(format!(
+            "{count} surfaces: more than the {MAX_SURFACES} a system may have (real lens files have a few hundred; a system holds ~4 kB per surface)"
+        ));
+    }
+    Ok(())
+}
 /// Most worker threads (`--threads`); results do not depend on the count.
 pub const MAX_THREADS: usize = 1024;
 /// Radiance values of a scene must stay below this so that a pixel's sum over planes, rays and the Airy
@@ -199,12 +216,18 @@ pub fn budget() -> Budget {
     guard.get_or_insert_with(Budget::default_for_machine).clone()
 }
 
-/// Refuse `bytes` over the memory budget, naming the options that set the size (`what`).
+/// Refuse `bytes` over the memory budget, naming the options that set the size (`what`). What the process
+/// holds already ([`hold`]: a render record, an exact operator's kept transport, a solver's arrays) counts
+/// against the budget too, and a refusal names it.
 pub fn check_memory(what: &str, bytes: f64) -> Result<()> {
     let b = budget();
-    if !(bytes <= b.memory_bytes) {
+    let (held, terms) = held_now();
+    if !(bytes + held <= b.memory_bytes) {
+        // The held memory after the budget, so that every refusal reads "needs an estimated X of memory,
+        // over the budget of B" whatever the process holds.
+        let with = if terms.is_empty() { String::new() } else { format!(" with the {} held already ({})", gb(held), terms.join(", ")) };
         return Err(Error::invalid(format!(
-            "{what}: needs an estimated {} of memory, over the budget of {} ({}); reduce {what} or raise {}",
+            "{what}: needs an estimated {} of memory, over the budget of {} ({}){with}; reduce {what} or raise {}",
             gb(bytes),
             gb(b.memory_bytes),
             b.memory_source,
@@ -214,18 +237,67 @@ pub fn check_memory(what: &str, bytes: f64) -> Result<()> {
     Ok(())
 }
 
+/// Memory the process holds while a [`Held`] lives (bytes, with what it is), counted by every
+/// [`check_memory`] meanwhile: a solver's denoiser is checked beside the solver's arrays, the operator's
+/// transport and the render record, not against the whole budget as if nothing else were resident
+/// (round 19: a PnP run peaked at 0.92 GB under a 0.5 GB budget).
+static HELD: std::sync::Mutex<Vec<(u64, String, f64)>> = std::sync::Mutex::new(Vec::new());
+static HELD_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+
+/// What [`hold`] registered; released when dropped.
+#[derive(Debug)]
+pub struct Held(u64);
+
+impl Drop for Held {
+    fn drop(&mut self) {
+        HELD.lock().unwrap_or_else(|p| p.into_inner()).retain(|(id, ..)| *id != self.0);
+    }
+}
+
+/// Register `bytes` held by the caller (`what`: "the render record") until the returned [`Held`] is dropped.
+pub fn hold(what: impl Into<String>, bytes: f64) -> Held {
+    let id = HELD_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    HELD.lock().unwrap_or_else(|p| p.into_inner()).push((id, what.into(), if bytes.is_finite() { bytes.max(0.0) } else { f64::MAX }));
+    Held(id)
+}
+
+/// The bytes held now ([`hold`]) and each term for messages ("the render record 0.06 GB").
+pub fn held_now() -> (f64, Vec<String>) {
+    let h = HELD.lock().unwrap_or_else(|p| p.into_inner());
+    (h.iter().map(|(_, _, b)| b).sum(), h.iter().map(|(_, w, b)| format!("{w} {}", gb(*b))).collect())
+}
+
 /// Refuse more than the ray budget, naming the options that set the count (`what`).
 pub fn check_rays(what: &str, rays: f64) -> Result<()> {
     let b = budget();
     if !(rays <= b.rays) {
         return Err(Error::invalid(format!(
-            "{what}: {rays:.3e} rays to trace, over the budget of {:.3e} ({}; default {DEFAULT_MAX_RAYS:.0e}, 34 paper-scale acquisitions); reduce {what} or raise {}",
-            b.rays,
+            "{what}: {} rays to trace, over the budget of {} ({}; default {DEFAULT_MAX_RAYS:.0e}, 34 paper-scale acquisitions); reduce {what} or raise {}",
+            fmt_count(rays),
+            fmt_count(b.rays),
             b.names.rays,
             b.names.raise(&b.names.rays)
         )));
     }
     Ok(())
+}
+
+/// A ray count for messages, so that two different counts never print alike (`2.294e5 rays … over the budget
+/// of 2.294e5` hid 229 376 against 229 375; round 19): a whole number below 10¹⁵ exactly (229376), anything
+/// else in the shortest form that tells it from every other f64 (`1.3e23`, `229375.5`).
+pub fn fmt_count(v: f64) -> String {
+    if v.is_finite() && v.fract() == 0.0 && v.abs() < 1e15 {
+        format!("{v:.0}")
+    } else if v.is_finite() && (1e-4..1e15).contains(&v.abs()) {
+        format!("{v}")
+    } else {
+        format!("{v:e}")
+    }
+}
+
+/// `bytes` as messages print them ("0.24 GB", "3.120e-3 GB" below 10 MB).
+pub fn fmt_gb(bytes: f64) -> String {
+    gb(bytes)
 }
 
 fn gb(bytes: f64) -> String {
@@ -366,10 +438,46 @@ pub fn check_json_finite<T: serde::Serialize + ?Sized>(what: &str, value: &T) ->
 /// Bytes per traced ray held by `trace`/`spot` (ray batch 56 B, traced batch 60 B, spot columns ~40 B).
 pub const BYTES_PER_RAY: f64 = 160.0;
 
-/// Mapping cube H×W×Nλ: f64 positions (16 B), validity (1 B), the f32/f64 copy written (8–16 B) and the
-/// chief-ray batch and its traced copy (~116 B) ≈ 150 B per entry.
+/// Bytes one entry (pixel × wavelength) of a traced mapping cube ([`crate::analysis::MappingCube`]) holds:
+/// the chief ray's landing point as two f64 detector coordinates (16 B) and its validity flag (1 B).
+pub const BYTES_PER_MAPPING_ENTRY: f64 = 17.0;
+/// Bytes per entry of the float32 copy written as `mapping.npy` (two f32 coordinates); float64 output
+/// (`mapping --f64`) writes the cube's own positions, no copy.
+pub const BYTES_PER_MAPPING_ENTRY_F32_COPY: f64 = 8.0;
+/// Margin on the mapping figures, which are the exact sizes of the buffers (allocator slack, the process's
+/// own pages): 10 %. Measured (round 19, SP, 28 wavelengths): peak RSS 0.73 GB for a 1024² cube written as
+/// float32 (24.4 B per entry, the estimate 27.5 B), 0.50 GB as float64 (16.6 B, the estimate 18.7 B).
+const MAPPING_MARGIN: f64 = 1.1;
+
+/// Memory of [`crate::analysis::mapping_cube`] for an H×W×Nλ cube: [`BYTES_PER_MAPPING_ENTRY`] per entry
+/// (≈ 18.7 B with the margin). The analytic tracer traces each scene row in place (a row's fields only); any
+/// other tracer ([`bytes_mapping_batch`]) holds one wavelength's chief-ray batch at a time beside it.
 pub fn bytes_mapping(height: usize, width: usize, wavelengths: usize) -> f64 {
-    height as f64 * width as f64 * wavelengths as f64 * 150.0
+    height as f64 * width as f64 * wavelengths as f64 * BYTES_PER_MAPPING_ENTRY * MAPPING_MARGIN
+}
+
+/// [`bytes_mapping`] plus what writing it costs: the float32 copy of the positions (`mapping.npy`, 8 B per
+/// entry; none for float64 output): ≈ 27.5 B per entry as float32, 18.7 B as float64.
+pub fn bytes_mapping_written(height: usize, width: usize, wavelengths: usize, float64: bool) -> f64 {
+    let copy = if float64 { 0.0 } else { BYTES_PER_MAPPING_ENTRY_F32_COPY };
+    height as f64 * width as f64 * wavelengths as f64 * (BYTES_PER_MAPPING_ENTRY + copy) * MAPPING_MARGIN
+}
+
+/// The batched route of a mapping cube (a tracer other than the analytic one: one batch of every pixel's
+/// chief ray per wavelength): the fields (16 B), the ray batch and its traced copy ([`BYTES_PER_RAY`]) per
+/// scene pixel.
+pub fn bytes_mapping_batch(height: usize, width: usize) -> f64 {
+    height as f64 * width as f64 * (16.0 + BYTES_PER_RAY)
+}
+
+/// Bytes per point of a distortion grid ([`crate::analysis::grid_distortion`] and its clients): the field,
+/// its chief ray and traced copy, the grid point's record, the CSV/JSON rows written; measured 440 B per
+/// point at 1000² and 1500² (round 19: 250 B was assumed), with a 10 % margin.
+pub const BYTES_PER_DISTORTION_POINT: f64 = 480.0;
+
+/// Memory of a `grid × grid` distortion grid ([`BYTES_PER_DISTORTION_POINT`] per point).
+pub fn bytes_distortion(grid: usize) -> f64 {
+    (grid as f64).powi(2) * BYTES_PER_DISTORTION_POINT
 }
 
 /// A render of an N×N scene: the scene cube (8 B per pixel and scene band), mapping cube (16 B per pixel
@@ -386,7 +494,26 @@ pub fn bytes_render(n: usize, scene_bands: usize, bands: usize, planes: usize, c
 /// and the Airy kernels.
 pub fn bytes_render_scene(pixels: f64, scene_bands: usize, bands: usize, planes: usize, airy_diameter_px: Option<f64>) -> f64 {
     let taps = airy_diameter_px.map(|d| (2.0 * (1.33 * d * 1.3 + 1.5) + 1.0).powi(2)).unwrap_or(0.0);
-    pixels * (8.0 * scene_bands as f64 + 16.0 * bands as f64 + 8.0) + planes as f64 * (taps * 12.0 + 64.0)
+    pixels * (8.0 * scene_bands as f64 + 8.0) + bytes_render_mapping(pixels, bands) + planes as f64 * (taps * 12.0 + 64.0)
+}
+
+/// The mapping cube's term of a render's estimate ([`bytes_render_scene`]), 16 B per scene pixel and band: it is
+/// traced and written after the acquisition, whose per-band images and tracing buffers are freed by then, so it
+/// adds this much to the render's peak (measured round 19, SP 28 bands: +0.118 GB at 512², +0.47 GB at 1024²,
+/// 16.1 B per entry), not the whole [`bytes_mapping_written`] (27.5 B).
+pub fn bytes_render_mapping(pixels: f64, bands: usize) -> f64 {
+    pixels * 16.0 * bands as f64
+}
+
+/// Bytes per surface of the system for a `--tolerance-um` calibration: the Embree candidates' scenes (the
+/// finest mesh tessellates each surface to 0.1 µm of sag) dominate; measured round 19: 0.06 GB for SP (20
+/// surfaces), 0.11 GB for DDSP (~40), i.e. ≤ 3 MB per surface, estimated at 4 MB.
+pub const BYTES_CALIBRATION_PER_SURFACE: f64 = 4e6;
+
+/// A `--tolerance-um` calibration of a render or mapping: [`BYTES_CALIBRATION_PER_SURFACE`] per surface and the
+/// ray set (`rays`: the set of each wavelength, all wavelengths) with its reference and one candidate's traces.
+pub fn bytes_calibration(surfaces: usize, rays: f64) -> f64 {
+    surfaces as f64 * BYTES_CALIBRATION_PER_SURFACE + 3.0 * rays * BYTES_PER_RAY
 }
 
 /// The buffers of a render the size of its **detector** (known only once the dispersed footprint is traced,
@@ -637,7 +764,9 @@ mod tests {
     #[test]
     fn estimates_grow_with_the_options() {
         assert!(bytes_mapping(512, 512, 28) < 2e9);
-        assert!(bytes_mapping(100_000, 100_000, 28) > 1e13);
+        // 2.8·10¹¹ entries × 17 B × 1.1 (two f64 coordinates and a flag each): 5.2 TB.
+        assert!(bytes_mapping(100_000, 100_000, 28) > 5e12);
+        assert!(bytes_mapping_written(512, 512, 28, false) > bytes_mapping_written(512, 512, 28, true) && bytes_mapping_written(512, 512, 28, true) == bytes_mapping(512, 512, 28));
         let paper = bytes_render(512, 31, 28, 112, false, Some(2.5));
         assert!(paper > 1e8 && paper < 2e9, "{paper}");
         assert!(bytes_render(512, 31, 28, 112, false, Some(1e6)) > 1e15);

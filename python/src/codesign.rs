@@ -39,11 +39,34 @@ impl PyDiffRenderer {
             let idx = [i / (b * h * w), i / (h * w) % b, i / w % h, i % w];
             return Err(value_error(format!("scene: value {} at index {idx:?}: radiances must be ≤ {max:.3e} in magnitude (f32 range / 10⁹, as `diffcassi render` requires, so the acquisition cannot overflow)", diffcassi::limits::fmt_num(values[i]))));
         }
-        let (n, planes, rays) = (scene[0], self.inner.config.spectral.planes(), self.inner.config.rays_per_pixel);
+        self.check_batch_of(scene[0])?;
+        Ok(scene[0])
+    }
+
+    /// A batch of `n` scenes within the ray and memory budgets ([`bytes_renderer`]).
+    fn check_batch_of(&self, n: usize) -> PyResult<()> {
+        let (h, w) = (self.inner.config.scene_height, self.inner.config.scene_width);
+        let (planes, rays, bands) = (self.inner.config.spectral.planes(), self.inner.config.rays_per_pixel, self.inner.scene_wavelengths_nm.len());
         let what = format!("N × H × W × planes × rays ({n} × {h} × {w} × {planes} × {rays})");
         diffcassi::limits::check_rays(&what, n as f64 * h as f64 * w as f64 * planes as f64 * rays as f64).py()?;
-        Ok(n)
+        let airy = self.inner.config.airy.is_some();
+        diffcassi::limits::check_memory(&what, bytes_renderer(h, w, bands, planes, rays, airy, n)).py()
     }
+}
+
+/// Memory of a differentiable render of `n` scenes with its backward pass, as Python's `CassiRenderer` runs it
+/// (forward and `backward()`): per scene, the buffers of an H × W render ([`limits::bytes_render_hw`]) and the
+/// float64 scene, acquisition and their gradients torch holds beside them (16 B per pixel and 8 B per
+/// pixel-band, at float32 half of the float64 copies); for the renderer, its traced transport, kept for the
+/// backward pass (16 B per pixel-plane), and the sampler's tables (24 B per ray of a pixel). Round 19 measured
+/// the peak rise over `import torch` against this: 0.098 GB at 256² × 28 planes (estimate 0.098), 0.164 GB at
+/// 112 planes (0.186), 0.239 GB for a batch of 4 (0.30), 0.63 GB at 512² × 112 (0.74); the old estimate
+/// (one render's buffers) ignored both planes and the batch.
+fn bytes_renderer(height: usize, width: usize, bands: usize, planes: usize, rays: usize, airy: bool, n: usize) -> f64 {
+    use diffcassi::limits;
+    let pixels = height as f64 * width as f64;
+    let per_scene = limits::bytes_render_hw(height, width, bands, bands, planes, false, airy.then_some(2.5)) + pixels * (16.0 + 4.0 * bands as f64);
+    n as f64 * per_scene + pixels * planes as f64 * 16.0 + 24.0 * rays as f64
 }
 
 /// The ray and memory budgets of a renderer, before anything of its size is allocated: one scene's rays
@@ -56,8 +79,7 @@ fn check_budget(height: usize, width: usize, bands: usize, planes: usize, rays: 
     }
     let what = format!("H × W × planes × rays ({height} × {width} × {planes} × {rays})");
     limits::check_rays(&what, height as f64 * width as f64 * planes as f64 * rays as f64).py()?;
-    let bytes = limits::bytes_render_hw(height, width, bands, bands, planes, false, airy.then_some(2.5)) + 24.0 * rays as f64;
-    limits::check_memory(&what, bytes).py()
+    limits::check_memory(&what, bytes_renderer(height, width, bands, planes, rays, airy, 1)).py()
 }
 
 #[pymethods]
@@ -165,6 +187,12 @@ impl PyDiffRenderer {
         }
         let inner = run(py, || self.inner.with_values(&x)).py()?;
         Ok(PyDiffRenderer { inner, aim: self.aim, recipe: self.recipe.with_values(py, x) })
+    }
+
+    /// `_check_batch(n)`: a batch of `n` scenes within the ray and memory budgets (forward and backward), checked
+    /// by `CassiRenderer` before its float64 copy of the batch is made.
+    fn _check_batch(&self, n: usize) -> PyResult<()> {
+        self.check_batch_of(n)
     }
 
     /// Acquisitions (N, h, w) float64 of `scene` (N, B, H, W) float64 through `mask` (H, W) float64.

@@ -63,11 +63,12 @@ fn _render<'py>(
     settings: Option<&Bound<'py, PyDict>>,
 ) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, String)> {
     let t0 = Instant::now();
-    let s = crate::settings::settings(py, settings, &RENDER_EXTRA_KEYS)?;
+    let mut s = crate::settings::settings(py, settings, &RENDER_EXTRA_KEYS)?;
     // The tracer: the backend named, or the one `tolerance_um` chooses with the rays and the precision
     // (`diffcassi::fidelity::RenderTracing`, the CLI's `--tolerance-um`).
     let tolerance_um: Option<f64> = extra(&s, "tolerance_um", "a number (µm)")?;
     let cache_dir: Option<std::path::PathBuf> = extra(&s, "calibration_cache", "a path")?;
+    s.options.tolerance_chooses_rays = tolerance_um.is_some();
     let source = match tolerance_um {
         Some(t) => {
             if settings.map(|d| d.get_item("backend")).transpose()?.flatten().is_some_and(|v| !v.is_none()) {
@@ -212,16 +213,13 @@ impl SparseExport for OwnedExact {
     }
 }
 
-/// Refuse a transport that would not fit the memory budget, before tracing it: the middle plane is traced
-/// and measured (as the CLI's dataset mode and `ExactOperator::new` do), × planes × 1.25, × 2 for the
-/// footprints and the operator's compact copy that a Python `Transport` both keeps (2.48 GB against the
-/// CLI's 1.46 GB at 512×512, docs/python.md).
+/// Refuse a transport that would not fit the memory budget, before tracing it: the library's estimate from
+/// the middle plane (`TransportMemory`, the one `reconstruct`'s exact operator and `render-dataset`'s cache
+/// use), the footprints and the operator's compact copy that a Python `Transport` both keeps (2.48 GB
+/// against the CLI's 1.46 GB at 512×512, docs/python.md).
 fn check_transport_memory(r: &Renderer<'_>) -> diffcassi::Result<()> {
-    let planes = r.config.spectral.planes();
-    let probe = r.trace_plane(planes / 2)?.bytes() as f64;
-    let c = &r.config;
-    let what = format!("the light transport of a {}×{} scene × {} planes × {} rays", c.scene_height, c.scene_width, planes, c.rays_per_pixel);
-    diffcassi::limits::check_memory(&what, probe * planes as f64 * 1.25 * 2.0)
+    let (memory, _probe) = diffcassi::recon::exact::TransportMemory::probe(r)?;
+    memory.check_traced(r)
 }
 
 /// Trace the light transport of `system` with these settings once and keep it as the exact operator.

@@ -34,12 +34,17 @@ pub struct Options {
     pub precision: Option<String>,
     /// An object at infinity: the scene's full angular extent across its width (degrees, `--scene-fov-deg`).
     pub scene_fov_deg: Option<f64>,
+    /// `render`'s `tolerance_um` chooses the rays ([`RenderSettings::tolerance_chooses_rays`]): the ray
+    /// budget is checked at the rays it may choose, not at the default it replaces.
+    pub tolerance_chooses_rays: bool,
 }
 
 impl Options {
     /// The library's settings: its defaults, overridden by the keywords given.
     pub fn settings(&self) -> PyResult<RenderSettings> {
-        let mut s = RenderSettings::default();
+        // Python's calls write no chief-ray mapping cube (the CLI's `render` does, unless `--no-mapping`): its
+        // memory term is not theirs.
+        let mut s = RenderSettings { mapping: false, ..RenderSettings::default() };
         if let Some(b) = &self.bands_nm {
             if b.is_empty() {
                 return Err(value_error("bands_nm: empty"));
@@ -50,6 +55,7 @@ impl Options {
             s.planes = p;
         }
         s.rays = self.rays;
+        s.tolerance_chooses_rays = self.tolerance_chooses_rays;
         s.seed = self.seed.unwrap_or(s.seed);
         if let Some(name) = &self.sampling {
             s.sampling = match name.as_str() {

@@ -185,8 +185,15 @@ impl PySystem {
     /// Build `spec` (without the GIL), its catalogue files' identities taken first
     /// ([`SequentialSystem::catalog_identities`]: before the files are read for the build).
     fn build_recorded(spec: &diffcassi::spec::SystemSpec) -> diffcassi::Result<(SequentialSystem, Vec<(String, String)>)> {
+        Self::build_recorded_from(spec, diffcassi::system::SystemOrigin::Spec)
+    }
+
+    /// [`Self::build_recorded`] for a spec read from a file of `origin`: a `.zmx` system's errors, at the
+    /// build and later (a `trace` wavelength outside a glass's range), name the file's own fixes
+    /// ([`diffcassi::system::SystemOrigin`]).
+    fn build_recorded_from(spec: &diffcassi::spec::SystemSpec, origin: diffcassi::system::SystemOrigin) -> diffcassi::Result<(SequentialSystem, Vec<(String, String)>)> {
         let catalogs = SequentialSystem::catalog_identities(spec);
-        Ok((SequentialSystem::build(spec)?, catalogs))
+        Ok((SequentialSystem::build_from(spec, origin)?, catalogs))
     }
 
     /// [`Self::wrap`], raising each of the system's load-time warnings ([`SequentialSystem::warnings`]: glasses
@@ -237,16 +244,8 @@ impl PySystem {
         if std::fs::metadata(&path).is_err() {
             return Err(file_error(format!("{}: no such file", path.display())));
         }
-        let is_zmx = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"));
-        let s = run(py, move || {
-            let built = Self::build_recorded(&diffcassi::spec::load_spec_file(&path)?);
-            if is_zmx {
-                built.map_err(diffcassi::spec::zmx::with_zmx_hints)
-            } else {
-                built
-            }
-        })
-        .py()?;
+        let origin = diffcassi::system::SystemOrigin::of_path(&path);
+        let s = run(py, move || Self::build_recorded_from(&diffcassi::spec::load_spec_file(&path)?, origin)).py()?;
         Self::wrap_warned(py, s)
     }
 
@@ -735,7 +734,7 @@ fn _distortion<'py>(py: Python<'py>, system: &PySystem, wavelength_nm: f64, grid
     }
     let n = grid as f64 * grid as f64;
     diffcassi::limits::check_rays(&format!("grid {grid}"), n).py()?;
-    diffcassi::limits::check_memory(&format!("grid {grid}"), n * 250.0).py()?;
+    diffcassi::limits::check_memory(&format!("grid {grid}"), diffcassi::limits::bytes_distortion(grid)).py()?;
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
     let (text, chunks) = run(py, move || -> diffcassi::Result<_> {
@@ -811,7 +810,11 @@ fn mapping<'py>(
     (cfg.scene_width, cfg.scene_pitch_mm, cfg.scene_fov_deg) = (width, pitch_mm, scene_fov_deg);
     let pitch_mm = diffcassi::render::scene_pitch_for(&system.inner, &cfg).py()?;
     let what = format!("height × width × wavelengths_nm ({height} × {width} × {})", ws.len());
-    diffcassi::limits::check_memory(&what, diffcassi::limits::bytes_mapping(height, width, ws.len())).py()?;
+    // The cube returned (float64 positions, a bool per entry) and, off the analytic kernel (another backend, a
+    // GPU device), one wavelength's chief-ray batch: the library's figures, as `diffcassi mapping --f64`.
+    let batched = dev != diffcassi::render::Device::Cpu || backend != "analytic";
+    let batch = if batched { diffcassi::limits::bytes_mapping_batch(height, width) } else { 0.0 };
+    diffcassi::limits::check_memory(&what, diffcassi::limits::bytes_mapping_written(height, width, ws.len(), true) + batch).py()?;
     diffcassi::limits::check_rays(&what, height as f64 * width as f64 * ws.len() as f64).py()?;
     let t = if dev == diffcassi::render::Device::Cpu && prec == diffcassi::tracer::Precision::F64 {
         tracer(backend)?

@@ -89,7 +89,7 @@ fn grid_core(system: &SequentialSystem, tracer: &dyn Tracer, wavelength_nm: f64,
             crate::limits::MAX_LENGTH_MM
         )));
     }
-    crate::limits::check_memory(&format!("distortion grid {n}×{n}"), (n as f64).powi(2) * 400.0)?;
+    crate::limits::check_memory(&format!("distortion grid {n}×{n}"), crate::limits::bytes_distortion(n))?;
     let h = 1e-4 * half_width_mm;
     let probes = [[0.0, 0.0], [h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]];
     let pr = tracer.trace(system, &RayBatch::chief_rays(system, &to_fields(&probes), wavelength_nm)?)?;

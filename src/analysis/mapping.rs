@@ -225,12 +225,17 @@ pub fn mapping_cube(system: &SequentialSystem, tracer: &dyn Tracer, height: usiz
             crate::limits::MAX_LENGTH_MM
         )));
     }
-    crate::limits::check_memory(&format!("mapping cube {height}×{width}×{}", wavelengths_nm.len()), crate::limits::bytes_mapping(height, width, wavelengths_nm.len()))?;
+    // The cube (two f64 coordinates and a validity flag per entry) and, off the analytic kernel's direct route,
+    // one wavelength's batch of every pixel's chief ray. Front ends check their whole job (a render, the copy
+    // written) before any work; this is the library's own check, for callers that did not.
+    let route = Route::of(tracer)?;
+    let batch = if matches!(route, Route::Batched(_)) { crate::limits::bytes_mapping_batch(height, width) } else { 0.0 };
+    crate::limits::check_memory(&format!("mapping cube height × width × wavelengths ({height} × {width} × {})", wavelengths_nm.len()), crate::limits::bytes_mapping(height, width, wavelengths_nm.len()) + batch)?;
     let bands = Bands::new(system, wavelengths_nm)?;
     let nl = bands.len();
     let mut positions_mm = vec![0.0; height * width * nl * 2];
     let mut valid = vec![0u8; height * width * nl];
-    match Route::of(tracer)? {
+    match route {
         Route::Direct(kernel, precision) => {
             let results: Vec<Result<()>> = positions_mm
                 .par_chunks_mut(width * nl * 2)

@@ -660,7 +660,7 @@ pub(super) fn distortion(a: DistortionArgs) -> Result<()> {
     }
     let n = (a.grid as f64).powi(2);
     crate::limits::check_rays(&format!("--grid {}", a.grid), n)?;
-    crate::limits::check_memory(&format!("--grid {}", a.grid), n * 250.0)?;
+    crate::limits::check_memory(&format!("--grid {}", a.grid), crate::limits::bytes_distortion(a.grid))?;
     let system = load_system(&a.system)?;
     let w = a.wavelength_nm.unwrap_or(system.primary_wavelength_nm());
     let tracer = super::fidelity::tracer_for(&a.backend, &system, &[w], (a.grid * a.grid + 5) as u64)?;
@@ -767,7 +767,11 @@ pub(super) fn mapping(a: MappingArgs) -> Result<()> {
         return Err(Error::invalid(format!("--pitch-mm {}: must be in (0, {:e}] mm", a.pitch_mm, crate::limits::MAX_LENGTH_MM)));
     }
     let what = format!("--height × --width × --wavelengths-nm ({} × {} × {})", a.height, a.width, ws.len());
-    crate::limits::check_memory(&what, crate::limits::bytes_mapping(a.height, a.width, ws.len()))?;
+    // The cube and its written copy (float32 unless --f64), and with a tracer other than the analytic kernel
+    // (a --backend, a GPU --device, or one --tolerance-um may choose) one wavelength's chief-ray batch.
+    let batched = a.device != crate::render::Device::Cpu || (a.precision != Some(crate::tracer::Precision::F32) && (a.backend.backend.as_deref().is_some_and(|b| b != "analytic") || a.backend.tolerance_um.is_some()));
+    let batch = if batched { crate::limits::bytes_mapping_batch(a.height, a.width) } else { 0.0 };
+    crate::limits::check_memory(&what, crate::limits::bytes_mapping_written(a.height, a.width, ws.len(), a.f64) + batch)?;
     crate::limits::check_rays(&what, a.height as f64 * a.width as f64 * ws.len() as f64)?;
     let device = a.device;
     let system = load_system(&a.system)?;
@@ -1029,10 +1033,8 @@ pub(super) fn bench(a: BenchArgs) -> Result<()> {
                 let t = Instant::now();
                 let out = pool.install(|| tracer.trace(&system, &batch))?;
                 best = best.min(t.elapsed().as_secs_f64());
-                if let (Some(a), Some(b)) = (c, cpu_seconds()) {
-                    if b > a {
-                        best_cpu = best_cpu.min(b - a);
-                    }
+                if let Some(d) = cpu_interval(c, cpu_seconds()) {
+                    best_cpu = best_cpu.min(d);
                 }
                 std::hint::black_box(out);
             }

@@ -91,8 +91,19 @@ pub fn evaluate(a: EvaluateArgs) -> Result<()> {
     if let Some(out) = &a.json {
         crate::io::policy::check_out_file("--json", out, &[("--truth", a.truth.as_path()), ("--estimate", a.estimate.as_path())])?;
     }
+    // Both cubes are resident while the metrics run: the truth is counted while the estimate is read (whose
+    // reader checks its file and f32 copy beside it), and both while the metrics' buffers are checked (each
+    // reader checked its cube alone against the whole budget: 0.35 GB under a 0.24 GB budget, round 19).
     let truth = load("truth", &a.truth, a.truth_wavelengths.as_deref())?;
+    let _truth_held = crate::limits::hold(format!("the --truth cube {}×{}×{}", truth.height, truth.width, truth.bands()), 4.0 * truth.data.len() as f64);
     let estimate = load("estimate", &a.estimate, a.estimate_wavelengths.as_deref())?;
+    let _estimate_held = crate::limits::hold(format!("the --estimate cube {}×{}×{}", estimate.height, estimate.width, estimate.bands()), 4.0 * estimate.data.len() as f64);
+    // The metrics' own buffers: the truth resampled to the estimate's bands (f32, when their bands differ) and
+    // SSIM's per-band planes (about ten f64 H×W maps: the two bands, their squares and product, and their
+    // filtered copies).
+    let plane = estimate.height as f64 * estimate.width as f64;
+    let work = 4.0 * estimate.data.len() as f64 + 10.0 * 8.0 * plane;
+    crate::limits::check_memory(&format!("evaluate's metrics on {}×{}×{} (H×W×B)", estimate.height, estimate.width, estimate.bands()), work)?;
     let ev = evaluate_cubes(&truth, &estimate).map_err(|e| Error::invalid(format!("{} vs {}: {e}", a.truth.display(), a.estimate.display())))?;
     for w in &ev.warnings {
         eprintln!("warning: {w}");

@@ -53,7 +53,7 @@ pub fn import_zmx(a: ImportZmxArgs) -> Result<()> {
     let options = ZmxOptions { ignore_unsupported: a.ignore_unsupported, glass_dirs: a.glass_dirs.clone(), glass_catalogs };
     let imported = import_zmx_file(&a.input, &options)?;
     // Build it before writing: a file that imports but does not make a traceable system writes nothing.
-    let system = crate::system::SequentialSystem::build(&imported.spec).map_err(crate::spec::zmx::with_zmx_hints)?;
+    let system = crate::system::SequentialSystem::build_from(&imported.spec, crate::system::SystemOrigin::Zmx)?;
     for w in system.warnings() {
         eprintln!("warning: {w}");
     }

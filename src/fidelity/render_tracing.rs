@@ -81,10 +81,22 @@ impl RenderTracing {
             // Before the calibration (seconds): its choice may be the f32 lanes, which the scalar kernel lacks.
             return Err(Error::invalid(format!("--tolerance-um {t} chooses among the SIMD kernel's f64 and f32 lanes; --kernel scalar (f64 only, the reference) cannot take its choice: drop one of them")));
         }
+        // The calibration's memory beside the render's, before it runs: its Embree meshes and ray set stay in
+        // the allocator's pages while the render runs (round 19: left out, the estimate was 0.47× the peak at
+        // 256²). Counted whether or not the cache will serve it.
+        let (h, w) = (cfg.scene_height, cfg.scene_width);
+        let half = super::workload::scene_half_width(h, w, crate::render::scene_pitch_for(system, cfg)?);
+        let set = super::workload::RaySetSpec::calibration().covering(system, half).build(system, &cfg.spectral.planes_nm)?.len();
+        let calibration = crate::limits::bytes_calibration(system.spec.surfaces.len(), set as f64);
+        let render = if h == w {
+            settings.memory_bytes(h, settings.scene_bands())
+        } else {
+            crate::limits::bytes_render_hw(h, w, settings.scene_bands(), settings.bands_nm.len(), settings.planes, settings.cube, settings.airy_diameter_px)
+        };
+        crate::limits::check_memory(&format!("--tolerance-um {t}'s calibration ({} surfaces, {set} rays) beside the {h}×{w} render", system.spec.surfaces.len()), calibration + render)?;
         // Traced pixels: the open ones, or every pixel when the mask is a surface inside the system.
         let open = if system.coded_mask.is_some() { mask.values.len() } else { mask.values.iter().filter(|&&v| v > 0.0).count() };
         let (choice, provenance) = choose_render_for(system, cfg, settings.device, tolerance_um, open, &cache)?;
-        let (h, w) = (cfg.scene_height, cfg.scene_width);
         if h == w {
             check_render_rays(h, cfg.spectral.planes(), choice.rays_per_pixel)?;
         } else {

@@ -78,7 +78,23 @@ impl TradeoffOptions {
     /// per backend configuration, (repeat + 1) × (the ray set, the mapping cube, a render), the references,
     /// the high-ray reference render and the rays-per-pixel ladder; memory for the ray set and its traces, two
     /// mapping cubes and the renders (scene, detector images and the traced transports of every plane).
-    pub fn estimate(&self) -> (f64, f64) {
+    ///
+    /// The Embree mesh candidates add their scene ([`mesh_scene_bytes`] of the finest `max-sag`, which does not
+    /// depend on `--wavelengths`): round 19 measured 0.52 GB under an estimate of 0.04 GB at `--wavelengths 1`,
+    /// the 0.01 µm mesh of SP holding ~0.45 GB.
+    pub fn estimate(&self, system: &SequentialSystem) -> Result<(f64, f64)> {
+        let (bytes, traced) = self.estimate_workloads();
+        let mesh = if BackendConfig::available(Backend::EmbreeMesh) {
+            let finest = self.mesh_sag_um().into_iter().fold(f64::INFINITY, f64::min);
+            mesh_scene_bytes(system, finest)?
+        } else {
+            0.0
+        };
+        Ok((bytes + mesh, traced))
+    }
+
+    /// The workloads' part of [`Self::estimate`] (no mesh scene).
+    fn estimate_workloads(&self) -> (f64, f64) {
         let wl = self.wavelengths as f64;
         let r = self.repeat as f64 + 1.0;
         let configs = super::measure::candidate_configs(&self.mesh_sag_um()).len() as f64;
@@ -92,11 +108,48 @@ impl TradeoffOptions {
             + pixel_planes * (3.0 * self.render_reference_rays() as f64 + 2.0 * r * ladder as f64)
             + rays + mapping;
         let bytes = 3.0 * rays * crate::limits::BYTES_PER_RAY
-            + 2.0 * crate::limits::bytes_mapping(ms, ms, self.wavelengths)
+            + 2.0 * (crate::limits::bytes_mapping(ms, ms, self.wavelengths) + crate::limits::bytes_mapping_batch(ms, ms))
             + 3.0 * crate::limits::bytes_render_hw(rs, rs, 31, self.wavelengths, self.wavelengths, false, Some(2.5))
             + 3.0 * pixel_planes * 256.0;
         (bytes, traced)
     }
+}
+
+/// Bytes one Embree mesh scene holds per triangle: the tessellation (f64 vertices, ~½ per triangle, and the
+/// index triple), Embree's f32 copy with its BVH, and the per-vertex normals the tracer keeps for refinement;
+/// fitted to round 19's measurement (SP at `max-sag=0.01um`: ~0.45 GB over the estimated triangle count).
+pub const BYTES_PER_MESH_TRIANGLE: f64 = 200.0;
+
+/// Triangles of the covering mesh of `patch` at a chord-sag tolerance `tol_um`, without building it (the finest
+/// mesh takes ~30 s to tessellate): the mesh at 1 µm (or `tol_um` if coarser) is built, and its ring count scaled
+/// as the chord sag falls, 1/n² (so n ∝ 1/√tol): a circular aperture has 6n² triangles in its uniform rings plus
+/// a graded band of ≈ 3 per boundary segment, m = the fewest segments whose overshoot r(1/cos(π/m) − 1) is
+/// ≤ tol; a rectangle's n × n grid has 2n².
+pub fn mesh_triangles(patch: &crate::surfaces::SurfacePatch, tol_um: f64) -> Result<f64> {
+    use crate::surfaces::{tessellate_covering, Aperture, MeshResolution};
+    let tol0 = tol_um.max(1.0);
+    let mesh = tessellate_covering(&patch.shape, &patch.aperture, MeshResolution::MaxSagErrorUm(tol0)).map_err(Error::invalid)?;
+    let k = (tol0 / tol_um).sqrt();
+    let n = (mesh.segments as f64 * k).ceil();
+    Ok(match patch.aperture {
+        Aperture::Circular { semi_diameter_mm: r, .. } => {
+            let half_step = (1.0 / (1.0 + tol_um * 1e-3 / r)).acos();
+            let m = 6.0 * (std::f64::consts::PI / half_step / 6.0).ceil();
+            (6.0 * n * n + 3.0 * (m - 6.0 * n).max(0.0)).max(mesh.triangles.len() as f64)
+        }
+        _ => (mesh.triangles.len() as f64 * k * k).max(2.0 * n * n),
+    })
+}
+
+/// Memory of one Embree mesh scene of `system` at a chord-sag tolerance `tol_um` (µm): [`BYTES_PER_MESH_TRIANGLE`]
+/// per triangle of every optical surface's covering mesh ([`mesh_triangles`]).
+pub fn mesh_scene_bytes(system: &SequentialSystem, tol_um: f64) -> Result<f64> {
+    let solids = crate::tracer::nonseq::solids::Solids::build(system, &Default::default())?;
+    let mut triangles = 0.0;
+    for patch in solids.objects.iter().filter(|o| o.is_optical()).filter_map(|o| o.patch.as_ref()) {
+        triangles += mesh_triangles(patch, tol_um)?;
+    }
+    Ok(triangles * BYTES_PER_MESH_TRIANGLE)
 }
 
 /// One row of the trade-off table.

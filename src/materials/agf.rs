@@ -28,7 +28,11 @@
 //!
 //! Text encodings: UTF-8 (with or without BOM), UTF-16 LE/BE with BOM (Zemax writes
 //! UTF-16 LE), BOM-less UTF-16 recognised from a zero byte in the first code unit, and any
-//! non-UTF-8 byte text decoded as Latin-1. LF and CRLF line ends are accepted.
+//! non-UTF-8 byte text decoded as Windows-1252 — the `.zmx` reader's rule
+//! ([`crate::spec::zmx::lexer::decode_windows_1252`]), so a glass name with a byte in 0x80–0x9F reads the
+//! same in a lens file and its catalogue. Line ends as in a `.zmx` file
+//! ([`crate::spec::zmx::lexer::unify_line_ends`]): CRLF, LF and a CR alone each end a record, in any mix
+//! and in every encoding.
 //!
 //! # Example
 //!
@@ -102,7 +106,8 @@ pub fn catalog_name_from_source(source_name: &str) -> String {
 
 /// Decodes catalogue bytes to text: BOM-detected UTF-8 / UTF-16 LE / UTF-16 BE,
 /// BOM-less UTF-16 (zero byte in the first code unit), else UTF-8, falling back to
-/// Latin-1 for byte sequences that are not valid UTF-8.
+/// Windows-1252 for byte sequences that are not valid UTF-8 (as the `.zmx` reader does). Every line end
+/// of the result is LF: CRLF and a CR alone are line ends too, as in a `.zmx` file.
 ///
 /// # Errors
 /// [`MaterialError::Encoding`] for UTF-16 input with an odd number of bytes.
@@ -110,8 +115,20 @@ pub fn decode_agf_bytes<'a>(
     bytes: &'a [u8],
     source_name: &str,
 ) -> Result<Cow<'a, str>, MaterialError> {
+    let text = decode_agf_encoding(bytes, source_name)?;
+    Ok(if text.contains('\r') {
+        Cow::Owned(crate::spec::zmx::lexer::unify_line_ends(text.into_owned()))
+    } else {
+        text
+    })
+}
+
+fn decode_agf_encoding<'a>(
+    bytes: &'a [u8],
+    source_name: &str,
+) -> Result<Cow<'a, str>, MaterialError> {
     if let Some(rest) = bytes.strip_prefix(&[0xEF, 0xBB, 0xBF]) {
-        return Ok(utf8_or_latin1(rest));
+        return Ok(utf8_or_windows_1252(rest));
     }
     if let Some(rest) = bytes.strip_prefix(&[0xFF, 0xFE]) {
         return decode_utf16(rest, false, source_name).map(Cow::Owned);
@@ -127,13 +144,13 @@ pub fn decode_agf_bytes<'a>(
             return decode_utf16(bytes, true, source_name).map(Cow::Owned);
         }
     }
-    Ok(utf8_or_latin1(bytes))
+    Ok(utf8_or_windows_1252(bytes))
 }
 
-fn utf8_or_latin1(bytes: &[u8]) -> Cow<'_, str> {
+fn utf8_or_windows_1252(bytes: &[u8]) -> Cow<'_, str> {
     match std::str::from_utf8(bytes) {
         Ok(s) => Cow::Borrowed(s),
-        Err(_) => Cow::Owned(bytes.iter().map(|&b| char::from(b)).collect()),
+        Err(_) => Cow::Owned(crate::spec::zmx::lexer::decode_windows_1252(bytes)),
     }
 }
 
@@ -218,10 +235,12 @@ impl<'s> Parser<'s> {
 
     fn run(mut self, text: &str) -> Result<AgfDocument, MaterialError> {
         let text = text.strip_prefix('\u{FEFF}').unwrap_or(text);
+        // `text` comes from `decode_agf_bytes`: every line end is LF (CRLF and a lone CR included).
         for (idx, raw) in text.lines().enumerate() {
             // A catalogue is text: control characters (other than tab, form feed and the DOS end-of-file
-            // mark) or decoding replacement characters mean a binary or corrupt file, not records to skip.
-            if let Some(c) = raw.chars().find(|&c| ((c as u32) < 0x20 && !matches!(c, '\t' | '\r' | '\x0c' | '\x1a')) || c == '\x7f' || c == char::REPLACEMENT_CHARACTER) {
+            // mark; C1 controls included, as the `.zmx` reader refuses them: the five bytes Windows-1252 leaves
+            // undefined) or decoding replacement characters mean a binary or corrupt file, not records to skip.
+            if let Some(c) = raw.chars().find(|&c| (c.is_control() && !matches!(c, '\t' | '\x0c' | '\x1a')) || c == char::REPLACEMENT_CHARACTER) {
                 return Err(self.err(idx + 1, format!("not an AGF text file: byte/character U+{:04X} (binary or corrupt data)", c as u32)));
             }
             self.line(idx + 1, raw)?;
@@ -439,8 +458,10 @@ impl<'s> Parser<'s> {
             return Err(self.err(
                 line,
                 format!(
-                    "glass {}: invalid LD wavelength range [{min_um}, {max_um}] µm (need 0 < min < max)",
-                    cur.name
+                    "glass {}: invalid LD wavelength range [{}, {}] µm (need 0 < min < max)",
+                    cur.name,
+                    crate::limits::fmt_num(min_um),
+                    crate::limits::fmt_num(max_um)
                 ),
             ));
         }

@@ -130,7 +130,7 @@ impl GlassCatalog {
         Self::from_agf_bytes(text.as_bytes(), source_name)
     }
 
-    /// Parses AGF bytes (UTF-8, Latin-1 or UTF-16); see [`from_agf_str`](Self::from_agf_str).
+    /// Parses AGF bytes (UTF-8, Windows-1252 or UTF-16); see [`from_agf_str`](Self::from_agf_str).
     pub fn from_agf_bytes(bytes: &[u8], source_name: &str) -> Result<Self, MaterialError> {
         let doc = parse_agf_document(bytes, source_name)?;
         let mut catalog = Self {

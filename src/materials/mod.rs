@@ -3,7 +3,7 @@
 //! This module reproduces how Zemax OpticStudio turns a glass name into a
 //! refractive index:
 //!
-//! * [`agf`] reads Zemax `.AGF` glass catalogues (UTF-8, Latin-1 or UTF-16 with BOM),
+//! * [`agf`] reads Zemax `.AGF` glass catalogues (UTF-8, Windows-1252 or UTF-16; any line end, as a `.zmx` file),
 //! * [`dispersion`] evaluates the 13 AGF dispersion formulas (wavelength in µm inside) and a tabulated
 //!   index ([`tabulated`]: a vendor's (λ, n) points and their monotone cubic interpolant),
 //! * [`glass`] holds one catalogue entry ([`Glass`]) with its valid wavelength range,

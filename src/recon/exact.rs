@@ -115,8 +115,86 @@ pub struct ExactOperator<'a> {
     /// Padded layout of the detector images.
     layout: PaddedLayout,
     transport_bytes: usize,
+    /// The kept transport registered with the memory budget while the operator lives
+    /// ([`crate::limits::hold`]): what is checked later (a twin, the denoiser) counts it.
+    _held: crate::limits::Held,
     scratch: Mutex<Vec<Scratch>>,
     buffers: Mutex<Vec<Vec<f32>>>,
+}
+
+/// The memory an exact operator holds, estimated from its middle plane before the others are traced
+/// (bytes; each "all planes" term is the middle plane's × planes × 1.25, the spread between planes).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TransportMemory {
+    /// Every plane's traced footprints ([`PlaneTransport`]): kept by [`ExactOperator::from_traced`] (the
+    /// Python `Transport`) and by `render-dataset`'s cache.
+    pub footprints: f64,
+    /// Every plane re-laid for the operator ([`CompactPlane`]): what [`ExactOperator::new`] keeps.
+    pub operator: f64,
+    /// The planes traced at once, one per worker thread (at most the plane count), each holding its
+    /// footprints and its re-laid copy until it is dropped: at construction, and at every apply/adjoint of
+    /// a streaming operator.
+    pub in_flight: f64,
+    pub planes: usize,
+}
+
+impl TransportMemory {
+    /// The estimate from the middle plane's footprints (`probe`, traced by [`Renderer::trace_plane`]) and
+    /// its re-laid copy (bytes).
+    pub fn from_probe(footprint_bytes: f64, compact_bytes: f64, planes: usize) -> Self {
+        let threads = rayon::current_num_threads().clamp(1, planes.max(1)) as f64;
+        TransportMemory { footprints: footprint_bytes * planes as f64 * 1.25, operator: compact_bytes * planes as f64 * 1.25, in_flight: threads * (footprint_bytes + compact_bytes), planes }
+    }
+
+    /// Trace `renderer`'s middle plane and estimate from it; returns the plane's footprints too (for callers
+    /// that keep it).
+    pub fn probe(renderer: &Renderer<'_>) -> Result<(Self, PlaneTransport)> {
+        let planes = renderer.config.spectral.planes();
+        let t = renderer.trace_plane(planes / 2)?;
+        let c = CompactPlane::new(&t, renderer.object_mask(), &layout(renderer)).bytes() as f64;
+        Ok((Self::from_probe(t.bytes() as f64, c, planes), t))
+    }
+
+    /// What [`ExactOperator::new`] holds with a transport budget of `budget_bytes`: the re-laid transport
+    /// when it fits that budget (else none: streamed), and the planes in flight.
+    pub fn held(&self, budget_bytes: u64) -> f64 {
+        self.kept(budget_bytes) + self.in_flight
+    }
+
+    /// The re-laid transport [`ExactOperator::new`] keeps with a transport budget of `budget_bytes`.
+    pub fn kept(&self, budget_bytes: u64) -> f64 {
+        if self.operator <= budget_bytes as f64 {
+            self.operator
+        } else {
+            0.0
+        }
+    }
+
+    /// Refuse an operator that [`ExactOperator::new`] would build over the memory budget
+    /// ([`crate::limits::check_memory`], beside what the process holds already: the render record, another
+    /// operator), naming the kept transport, its budget and the footprints in flight.
+    pub fn check_new(&self, renderer: &Renderer<'_>, budget_bytes: u64) -> Result<()> {
+        let kept = self.kept(budget_bytes);
+        let kept_text = if kept > 0.0 {
+            format!("{:.3} GB of light transport kept (its budget: {} GB, --transport-memory-gb; 0 keeps none and re-traces the planes at every apply and adjoint, slower, same numbers)", kept / 1e9, budget_bytes as f64 / 1e9)
+        } else {
+            format!("the light transport re-traced at every apply and adjoint ({:.3} GB would exceed its budget of {} GB, --transport-memory-gb)", self.operator / 1e9, budget_bytes as f64 / 1e9)
+        };
+        let what = format!("the exact operator of {} ({kept_text}, and {:.3} GB of footprints of the planes traced at once by {} threads, --threads)", transport_label(renderer), self.in_flight / 1e9, rayon::current_num_threads().min(self.planes.max(1)));
+        crate::limits::check_memory(&what, self.held(budget_bytes))
+    }
+
+    /// Refuse the traced transport that [`ExactOperator::from_traced`] keeps (footprints and the re-laid
+    /// copy: the Python `Transport` and `exact`) over the memory budget, before it is traced.
+    pub fn check_traced(&self, renderer: &Renderer<'_>) -> Result<()> {
+        crate::limits::check_memory(&format!("the light transport of {} (footprints and the operator's copy)", transport_label(renderer)), self.footprints + self.operator)
+    }
+}
+
+/// "a 512×512 scene × 112 planes × 2 rays", for messages.
+fn transport_label(renderer: &Renderer<'_>) -> String {
+    let c = &renderer.config;
+    format!("a {}×{} scene × {} planes × {} rays", c.scene_height, c.scene_width, c.spectral.planes(), c.rays_per_pixel)
 }
 
 impl<'a> ExactOperator<'a> {
@@ -143,10 +221,12 @@ impl<'a> ExactOperator<'a> {
         let planes = renderer.config.spectral.planes();
         let mask = renderer.object_mask();
         // Probe the memory with the middle plane, then trace all planes (in parallel, each re-laid and its
-        // footprints dropped at once) if they should fit.
-        let middle = CompactPlane::new(&renderer.trace_plane(planes / 2)?, mask, &layout);
-        let estimate = middle.bytes() as f64 * planes as f64 * 1.25;
-        drop(middle);
+        // footprints dropped at once) if they should fit. What the operator will hold (the kept transport and
+        // the planes in flight) is checked against the memory budget first, beside what is resident already.
+        let (memory, probe) = TransportMemory::probe(&renderer)?;
+        drop(probe);
+        memory.check_new(&renderer, memory_budget_bytes)?;
+        let estimate = memory.operator;
         let compact = if estimate <= memory_budget_bytes as f64 {
             let all: Vec<CompactPlane> = (0..planes)
                 .into_par_iter()
@@ -166,7 +246,8 @@ impl<'a> ExactOperator<'a> {
         };
         let bytes = compact.as_ref().map_or(0, |c| c.iter().map(|p| p.bytes()).sum());
         renderer.take_cancel();
-        Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, compact, transport: None, layout, transport_bytes: bytes, scratch: Mutex::default(), buffers: Mutex::default() })
+        let _held = hold_transport(&renderer, bytes);
+        Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, compact, transport: None, layout, transport_bytes: bytes, _held, scratch: Mutex::default(), buffers: Mutex::default() })
     }
 
     pub fn renderer(&self) -> &Renderer<'a> {
@@ -390,7 +471,8 @@ impl<'a> ExactOperator<'a> {
         let layout = layout(&renderer);
         let compact: Vec<CompactPlane> = transport.par_iter().map(|t| CompactPlane::new(t, renderer.object_mask(), &layout)).collect();
         let bytes = transport.iter().map(|t| t.bytes()).sum::<usize>() + compact.iter().map(|c| c.bytes()).sum::<usize>();
-        Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, compact: Some(compact), transport: Some(transport), layout, transport_bytes: bytes, scratch: Mutex::default(), buffers: Mutex::default() })
+        let _held = hold_transport(&renderer, bytes);
+        Ok(ExactOperator { renderer, bands_nm: bands_nm.to_vec(), interp, compact: Some(compact), transport: Some(transport), layout, transport_bytes: bytes, _held, scratch: Mutex::default(), buffers: Mutex::default() })
     }
 
     /// Per plane: (lower band k, upper band min(k + 1, B − 1), weight t of the upper band) of the
@@ -404,6 +486,11 @@ impl<'a> ExactOperator<'a> {
     pub fn transport(&self) -> Option<&[PlaneTransport]> {
         self.transport.as_deref()
     }
+}
+
+/// Register an operator's kept transport (`bytes`) with the memory budget while it lives.
+fn hold_transport(renderer: &Renderer<'_>, bytes: usize) -> crate::limits::Held {
+    crate::limits::hold(format!("an exact operator's light transport ({})", transport_label(renderer)), bytes as f64)
 }
 
 /// The padded detector layout for `renderer`'s kernels.

@@ -279,7 +279,10 @@ impl<'a> Renderer<'a> {
         // its buffers, with the scene-sized ones, within the memory budget before any is allocated.
         let bands = config.spectral.bands_nm.len();
         let threads = rayon::current_num_threads();
-        let scene_side = crate::limits::bytes_render_scene((h * w) as f64, 0, bands, config.spectral.planes(), config.airy.map(|a| a.diameter_px));
+        // (Not the mapping cube's term: a front end traces it after the acquisition, once these buffers are
+        // freed, and counts it in its own estimate, `RenderSettings::memory_bytes`.)
+        let pixels = (h * w) as f64;
+        let scene_side = crate::limits::bytes_render_scene(pixels, 0, bands, config.spectral.planes(), config.airy.map(|a| a.diameter_px)) - crate::limits::bytes_render_mapping(pixels, bands);
         crate::limits::check_memory(
             &format!("the {}×{} detector (the dispersed footprint of the {h}×{w} scene; {bands} bands, {threads} threads)", detector.width, detector.height),
             scene_side + crate::limits::bytes_detector(detector.pixels() as f64, bands, threads),

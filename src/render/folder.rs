@@ -42,7 +42,7 @@ pub enum SceneSource {
 
 /// One render into a folder: the scene, where it goes, and what besides the render configuration shapes it.
 /// [`RenderRequest::new`] takes the scene options of a [`RenderSettings`] (fit, scene wavelengths, per-band
-/// images, device) and holds the other defaults (no noise, the mapping cube written, no `force`).
+/// images, device, whether the mapping cube is written) and holds the other defaults (no noise, no `force`).
 #[derive(Clone, Debug)]
 pub struct RenderRequest {
     pub scene: SceneSource,
@@ -80,7 +80,7 @@ impl RenderRequest {
             fit: settings.fit,
             scene_wavelengths_nm: settings.scene_wavelengths_nm.clone(),
             cube: settings.cube,
-            mapping: true,
+            mapping: settings.mapping,
             noise: None,
             device: settings.device,
             tolerance_um: None,

@@ -182,7 +182,7 @@ pub struct GhostReport {
     pub blocked_total: f64,
     /// Trees whose order-0 path the mechanics stopped and that the main image counted.
     pub blocked_rays: u64,
-    /// Ghost/stray splat weight (acquisition units, before the blur) that fell off the detector.
+    /// Ghost/stray splat weight (acquisition units: with the plane weights, before the blur) that fell off the detector.
     pub off_detector: f64,
     /// Arrivals at a non-finite or implausible position (not splatted).
     pub out_of_range: u64,
@@ -361,6 +361,9 @@ fn plane<H: NextHit>(ctx: &PlaneContext, renderer: &Renderer, kernel: &H, scene:
         }
     }
     let pw = c.spectral.plane_weight;
+    // The off-detector weight in the images' units: the plane weight (bands per plane) scales both alike
+    // (it was left out, so `off_detector` read B/K times too small against `ghost_total`; round 19).
+    res.off *= pw;
     let [ghost, stray, blocked] = img.map(|im| {
         let im32: Vec<f32> = im.iter().map(|&x| x as f32).collect();
         let blurred = match &renderer.kernels[p] {

@@ -171,6 +171,13 @@ pub struct RenderSettings {
     /// An object at infinity: the scene's full angular extent across its width (degrees, `--scene-fov-deg`);
     /// `None` for a finite object. The renderer checks it against the system ([`super::scene_pitch_for`]).
     pub scene_fov_deg: Option<f64>,
+    /// Write the chief-ray mapping cube beside the render (`mapping.npy`; `--no-mapping`: false): its term of
+    /// the memory estimate ([`crate::limits::bytes_render_mapping`]) counts only when it is written.
+    pub mapping: bool,
+    /// A fidelity tolerance (`--tolerance-um`) chooses the rays per pixel: without `rays` given, [`Self::config`]
+    /// checks the ray budget at the fewest it may choose (1 per pixel and plane) rather than the default it
+    /// replaces, and [`crate::fidelity::RenderTracing::resolve`] checks its choice, and the calibration's memory.
+    pub tolerance_chooses_rays: bool,
 }
 
 impl Default for RenderSettings {
@@ -193,6 +200,8 @@ impl Default for RenderSettings {
             precision: None,
             device: Device::Cpu,
             scene_fov_deg: None,
+            mapping: true,
+            tolerance_chooses_rays: false,
         }
     }
 }
@@ -215,7 +224,7 @@ impl RenderSettings {
         }
         let mut cfg = self.checked(height.min(width))?;
         if width != height {
-            check_render_budget(height, width, &cfg, self.rays_or_default())?;
+            check_render_budget(height, width, &cfg, self.rays_to_check())?;
         }
         cfg.scene_height = height;
         cfg.scene_width = width;
@@ -223,9 +232,37 @@ impl RenderSettings {
         Ok((cfg, mask))
     }
 
+    /// The memory estimate of an `n × n` render of these settings with `scene_bands` scene bands
+    /// ([`crate::limits::bytes_render`]; the mapping cube's term only when it is written, [`Self::mapping`]).
+    pub fn memory_bytes(&self, n: usize, scene_bands: usize) -> f64 {
+        let bands = self.bands_nm.len();
+        let all = crate::limits::bytes_render(n, scene_bands, bands, self.planes, self.cube, self.airy_diameter_px);
+        if self.mapping {
+            all
+        } else {
+            all - crate::limits::bytes_render_mapping((n as f64).powi(2), bands)
+        }
+    }
+
+    /// The scene bands the memory estimate counts: the scene file's (`--scene-wavelengths`), else at least 31
+    /// (the synthetic scene's).
+    pub fn scene_bands(&self) -> usize {
+        self.scene_wavelengths_nm.as_ref().map_or(self.bands_nm.len().max(31), Vec::len)
+    }
+
     /// The rays per pixel given, or the default.
     pub fn rays_or_default(&self) -> usize {
         self.rays.unwrap_or(DEFAULT_RAYS)
+    }
+
+    /// The rays per pixel and plane the ray budget is checked at before the render: the given or default
+    /// rays, or 1 — the fewest a tolerance may choose — when [`Self::tolerance_chooses_rays`] and none were
+    /// given (its choice is checked again once made).
+    pub fn rays_to_check(&self) -> usize {
+        match self.rays {
+            None if self.tolerance_chooses_rays => 1,
+            _ => self.rays_or_default(),
+        }
     }
 
     /// Every check and the configuration of an `n × n` render (no mask).
@@ -264,10 +301,11 @@ impl RenderSettings {
             }
             None => bands.max(31),
         };
-        let what = format!("--scene-size {n} × --planes {} (× {bands} bands)", self.planes);
-        crate::limits::check_memory(&what, crate::limits::bytes_render(n, scene_bands, bands, self.planes, self.cube, self.airy_diameter_px))?;
-        // The ray budget with the given (or default) rays per pixel; a tolerance's choice is checked again.
-        check_render_rays(n, self.planes, self.rays_or_default())?;
+        let what = if self.mapping { format!("--scene-size {n} × --planes {} (× {bands} bands, with the mapping cube, which --no-mapping leaves out)", self.planes) } else { format!("--scene-size {n} × --planes {} (× {bands} bands)", self.planes) };
+        crate::limits::check_memory(&what, self.memory_bytes(n, scene_bands))?;
+        // The ray budget with the given (or default) rays per pixel; a tolerance's choice is checked again
+        // (`RenderTracing::resolve`), and before it the fewest rays it may choose, not the default it replaces.
+        check_render_rays(n, self.planes, self.rays_to_check())?;
         let spectral = SpectralSampling::with_planes(self.bands_nm.clone(), self.planes).map_err(|e| Error::invalid(format!("the bands (--bands) and planes: {e}")))?;
         let mut cfg = RenderConfig::paper(n);
         cfg.spectral = spectral;

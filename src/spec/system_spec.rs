@@ -121,6 +121,9 @@ pub struct SystemSpec {
     /// Extra AGF catalogues to load (paths relative to the spec file); the built-in glasses are always there.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub glass_catalogs: Vec<String>,
+    /// At most [`crate::limits::MAX_SURFACES`], refused as they are read (a JSON spec is read straight into
+    /// this list: 4·10⁵ surfaces held 0.4 GB before any check could count them; round 19).
+    #[serde(deserialize_with = "bounded_surfaces")]
     pub surfaces: Vec<SurfaceSpec>,
     /// Mounts, housings and user meshes for non-sequential tracing (optional; see [`MechanicsSpec`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -218,6 +221,9 @@ impl SystemSpec {
         if let Some(m) = &self.mechanics {
             m.validate()?;
         }
+        // The surface count first: every reader's spec and every build passes here (round 19: 4·10⁵ surfaces of
+        // a TOML spec took 1.2 GB under `--max-memory-gb 0.1`).
+        crate::limits::check_surface_count(self.surfaces.len())?;
         if self.surfaces.len() < 3 {
             return Err(format!(
                 "a system needs at least an object, one surface and an image surface (found {} surfaces)",
@@ -510,4 +516,30 @@ impl SystemSpec {
         }
         Ok(())
     }
+}
+
+/// `surfaces` read one at a time, refused at the first beyond [`crate::limits::MAX_SURFACES`] (before the rest is
+/// read and held).
+fn bounded_surfaces<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Vec<SurfaceSpec>, D::Error> {
+    struct Bounded;
+    impl<'de> serde::de::Visitor<'de> for Bounded {
+        type Value = Vec<SurfaceSpec>;
+        fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+            write!(f, "a list of at most {} surfaces", crate::limits::MAX_SURFACES)
+        }
+        fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> std::result::Result<Self::Value, A::Error> {
+            let mut out = Vec::new();
+            while let Some(s) = seq.next_element::<SurfaceSpec>()? {
+                if out.len() == crate::limits::MAX_SURFACES {
+                    return Err(serde::de::Error::custom(format!(
+                        "surfaces: more than the {} a system may have (real lens files have a few hundred; a system holds ~4 kB per surface)",
+                        crate::limits::MAX_SURFACES
+                    )));
+                }
+                out.push(s);
+            }
+            Ok(out)
+        }
+    }
+    d.deserialize_seq(Bounded)
 }

@@ -143,6 +143,8 @@ pub fn import_prescription(text: &str, source_name: &str, data: &SystemData) -> 
         if surf != surfaces.len() {
             return Err(at("surf")(&format!("surface {surf} out of order (expected {})", surfaces.len())));
         }
+        // The surface count as the rows are gathered (a row is read line by line, a surface kept ~4 kB).
+        crate::limits::check_surface_count(surfaces.len() + 1).map_err(|m| Error::spec(source_name, format!("line {line_no}: {m}")))?;
         let type_text = get("type");
         let upper = type_text.to_ascii_uppercase();
         let is_stop = upper.starts_with("STOP ");

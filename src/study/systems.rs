@@ -95,8 +95,7 @@ pub(super) fn load_systems(a: &StudySettings) -> Result<Vec<StudySystem>> {
         let stem = path.file_stem().and_then(|s| s.to_str()).filter(|s| !s.is_empty()).ok_or_else(|| ferr("--systems: the file name has no UTF-8 stem to label its rows with".into()))?.to_string();
         let extra: Vec<String> = a.glass_catalogs.iter().map(crate::spec::catalog_entry).collect();
         let spec = crate::spec::load_spec_file_with_catalogs(path, &extra)?;
-        let is_zmx = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx"));
-        let system = SequentialSystem::build(&spec).map_err(|e| ferr(if is_zmx { crate::spec::zmx::with_zmx_hints(e) } else { e }.to_string()))?;
+        let system = SequentialSystem::build_from(&spec, crate::system::SystemOrigin::of_path(path)).map_err(|e| ferr(e.to_string()))?;
         out.push(StudySystem { key: stem.clone(), label: stem, preset: None, file: Some(path.clone()), system });
     }
     for (i, s) in out.iter().enumerate() {

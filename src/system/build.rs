@@ -38,6 +38,15 @@ impl SequentialSystem {
         Self::build_with_catalog(spec, &Self::catalog_of(spec)?)
     }
 
+    /// [`Self::build`] for a spec read from a file of `origin` ([`SystemOrigin::of_path`]): the build's errors
+    /// and the system's later ones (a run-time wavelength outside a glass's range) name that file's fixes —
+    /// a `.zmx` file's `DCWP allow_extrapolation` record, not a spec's `wavelength_policy`.
+    pub fn build_from(spec: &SystemSpec, origin: super::SystemOrigin) -> Result<Self> {
+        let mut system = Self::build(spec).map_err(|e| origin.hints(e))?;
+        system.origin = origin;
+        Ok(system)
+    }
+
     /// The glass catalogue [`Self::build`] uses for `spec`: the built-in table plus the spec's `glass_catalogs`,
     /// merged in order (also what `calibrate` fits glasses against: it took the built-in table alone, and a
     /// spec whose glasses come from its own catalogues was refused).
@@ -207,6 +216,7 @@ impl SequentialSystem {
                         path: path.clone(),
                         // Before the stop is placed there is nothing to aim at: steps > path.len() says so.
                         coded_mask: None,
+                        origin: Default::default(),
                         stop_probe: stop_probe.clone().unwrap_or_else(|| StopProbe { steps: usize::MAX, probe: path_step(&Frame::IDENTITY, &Frame::IDENTITY, 0, SurfaceShape::Plane, Aperture::None, Interaction::Refract), open_path: None }),
                     };
                     if spec.field_type == crate::spec::FieldType::RealImageHeight {
@@ -321,7 +331,7 @@ impl SequentialSystem {
         }
         let stop_probe = stop_probe.expect("validated: the stop is a surface of the system");
         let mut system =
-            SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, first_order, fields: Vec::new(), aim_stop_radius_mm: pupil.stop_radius_mm, path, stop_probe, coded_mask };
+            SequentialSystem { spec: resolved_spec, surfaces, stop_index, pupil, first_order, fields: Vec::new(), aim_stop_radius_mm: pupil.stop_radius_mm, path, stop_probe, coded_mask, origin: Default::default() };
         if spec.ray_aiming == crate::spec::RayAiming::Real && spec.aperture != crate::spec::SystemAperture::FloatByStopSize {
             system.aim_stop_radius_mm = crate::rays::real_stop_radius(&system).map_err(|m| Error::spec(&spec.name, m))?;
         }

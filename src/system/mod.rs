@@ -33,6 +33,41 @@ pub enum FieldUnit {
     Deg,
 }
 
+/// Where a system's spec was read from, which chooses the fix its messages name: a spec's field
+/// (`wavelength_policy = "AllowExtrapolation"`) or a `.zmx` file's own record (`DCWP allow_extrapolation`).
+/// One rule for every entry point (CLI, Python, studies): the build's errors and every later one — a
+/// wavelength given at run time (`trace --wavelength-nm`, Python `trace`) outside a glass's range — name the
+/// fix of the file the user has ([`SequentialSystem::build_from`]; round 19: a run-time wavelength of a `.zmx`
+/// system named the spec's field and a Rust enum).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum SystemOrigin {
+    /// A spec (TOML, JSON, YAML, CSV), a preset, a spec built in code.
+    #[default]
+    Spec,
+    /// A Zemax `.zmx` lens file.
+    Zmx,
+}
+
+impl SystemOrigin {
+    /// The origin of a system read from `path`: by its extension (`.zmx`, any case), as the spec loader
+    /// ([`crate::spec::load_spec_file`]) chooses the reader.
+    pub fn of_path(path: &std::path::Path) -> Self {
+        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zmx")) {
+            Self::Zmx
+        } else {
+            Self::Spec
+        }
+    }
+
+    /// `e` with the fixes a user of this origin has ([`crate::spec::zmx::with_zmx_hints`] for a `.zmx` file).
+    pub fn hints(self, e: Error) -> Error {
+        match self {
+            Self::Spec => e,
+            Self::Zmx => crate::spec::zmx::with_zmx_hints(e),
+        }
+    }
+}
+
 /// A sequential system ready to trace.
 #[derive(Clone, Debug)]
 pub struct SequentialSystem {
@@ -59,6 +94,8 @@ pub struct SequentialSystem {
     /// The coded-mask surface, when the mask sits inside the system (dual-disperser CASSI); `None`: the mask
     /// is on the object plane (single-disperser CASSI).
     pub coded_mask: Option<MaskSurface>,
+    /// Where the spec was read from ([`SystemOrigin`]; [`Self::build_from`]): the fixes its errors name.
+    pub(crate) origin: SystemOrigin,
 }
 
 /// Where the stop sits relative to the traced path (used by ray aiming).
@@ -83,6 +120,11 @@ impl SequentialSystem {
         &self.spec.name
     }
 
+    /// Where the system's spec was read from ([`SystemOrigin`]).
+    pub fn origin(&self) -> SystemOrigin {
+        self.origin
+    }
+
     /// Refractive index after each surface at `wavelength_nm` (index 0: object space), honouring the
     /// spec's wavelength policy (out-of-range is an error unless extrapolation is allowed). A system with a
     /// diffraction grating appends one entry, the wavelength itself (nm), which the grating steps read
@@ -91,7 +133,13 @@ impl SequentialSystem {
         if !(wavelength_nm.is_finite() && wavelength_nm > 0.0) {
             return Err(Error::invalid(format!("wavelength {wavelength_nm} nm: must be finite and > 0")));
         }
-        let mut n: Vec<f64> = self.surfaces.iter().map(|s| medium_index(&s.medium_after, &self.spec, wavelength_nm)).collect::<Result<_>>()?;
+        // A wavelength outside a glass's range names the fix of the file the system came from (its origin).
+        let mut n: Vec<f64> = self
+            .surfaces
+            .iter()
+            .map(|s| medium_index(&s.medium_after, &self.spec, wavelength_nm))
+            .collect::<Result<_>>()
+            .map_err(|e| self.origin.hints(e))?;
         if self.has_grating() {
             n.push(wavelength_nm);
         }

@@ -161,7 +161,7 @@ def test_set_limits_sets_the_budgets_and_messages_name_the_keywords(sp, default_
     assert d["max_rays"] == 2e10 and d["max_memory_gb"] > 0
     diffcassi.set_limits(max_rays=100)
     assert diffcassi.get_limits()["max_rays"] == 100
-    with pytest.raises(diffcassi.DiffcassiValueError, match=r"\(4 × 4 × 3 × 4\): 1.920e2 rays to trace, over the budget of 1.000e2 \(max_rays; .*raise max_rays \(diffcassi.set_limits\)") as e:
+    with pytest.raises(diffcassi.DiffcassiValueError, match=r"\(4 × 4 × 3 × 4\): 192 rays to trace, over the budget of 100 \(max_rays; .*raise max_rays \(diffcassi.set_limits\)") as e:
         dt.CassiRenderer(sp, 4, 4, rays=4, planes=3, bands_nm=BANDS)
     assert "--max-rays" not in str(e.value)
     with pytest.raises(diffcassi.DiffcassiValueError, match=r"rays to trace, over the budget.*raise max_rays \(diffcassi.set_limits\)"):

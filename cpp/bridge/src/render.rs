@@ -240,7 +240,7 @@ impl System {
             )));
         }
         // What the tolerance chooses, as given (the checks of `resolve`); the rest of the settings are `cfg`'s.
-        let settings = RenderSettings { rays: (options.rays_per_pixel != 0).then_some(options.rays_per_pixel), precision: given_precision(options)?, ..RenderSettings::default() };
+        let settings = RenderSettings { rays: (options.rays_per_pixel != 0).then_some(options.rays_per_pixel), precision: given_precision(options)?, mapping: false, ..RenderSettings::default() };
         let source = TracerSource::Tolerance { tolerance_um, cache: calibration_cache()? };
         Ok(Tracing::Chosen(RenderTracing::resolve(source, self.system(), &settings, cfg, mask)?))
     }
@@ -346,7 +346,7 @@ mod tests {
         let mut cfg = render_config(h, w, &wl, &o).unwrap();
         let mask = render_mask(h, w, &[], &o).unwrap();
         let source = TracerSource::Tolerance { tolerance_um: 5.0, cache: CacheOptions::checked(Some(&dir)).unwrap() };
-        let settings = RenderSettings { rays: None, precision: None, ..RenderSettings::default() };
+        let settings = RenderSettings { rays: None, precision: None, mapping: false, ..RenderSettings::default() };
         let t = RenderTracing::resolve(source, sys.system(), &settings, &mut cfg, &mask).unwrap();
         let r = Renderer::new(sys.system(), t.tracer.as_ref(), cfg, mask).unwrap();
         let cube = SpectralCube::new(h, w, wl.to_vec(), scene.clone(), "s").unwrap();

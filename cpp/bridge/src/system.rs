@@ -45,11 +45,13 @@ pub fn load_preset(name: &str) -> Result<Box<System>> {
     Ok(wrap(SequentialSystem::build(&diffcassi::presets::spec(name)?)?))
 }
 
-/// Load a spec file by extension (`.toml`, `.json`, `.yml`/`.yaml`, `.csv`).
+/// Load a spec file by extension (`.toml`, `.json`, `.yml`/`.yaml`, `.csv`, `.zmx`); a `.zmx` system's errors
+/// name the file's own fixes (`diffcassi::system::SystemOrigin`).
 pub fn load_spec_file(path: &str) -> Result<Box<System>> {
     crate::results::name_budgets();
     no_nul("spec file path", path)?;
-    Ok(wrap(SequentialSystem::build(&diffcassi::spec::load_spec_file(path)?)?))
+    let origin = diffcassi::system::SystemOrigin::of_path(std::path::Path::new(path));
+    Ok(wrap(SequentialSystem::build_from(&diffcassi::spec::load_spec_file(path)?, origin)?))
 }
 
 /// Parse a spec held in memory: `format` is `toml`, `json` or `auto` (JSON when the first non-blank

@@ -252,6 +252,9 @@ pub fn reconstruct(mut record: RenderRecord, request: &Request, tracer: &dyn Tra
         (Some(p), None) => Some(build_operator(kind, &record, tracer, p.twin_seed, request.budget_bytes(), &|_| {})?),
         _ => None,
     };
+    // The record is resident through the solve: the denoiser's check counts it ([`crate::limits::hold`]; the
+    // operators' checks count it in `build_operator`).
+    let _record_held = record.hold();
     let seconds_operator = t_op.elapsed().as_secs_f64();
     let (solver_name, cap) = match &unrolled_net {
         Some(p) => (unrolled::SOLVER, p.net.stages()),

@@ -51,6 +51,9 @@ pub fn build_operator<'a>(kind: OperatorKind, record: &'a RenderRecord, tracer: 
         crate::limits::check_rays(&what, c.scene_height as f64 * c.scene_width as f64 * c.spectral.planes() as f64 * c.rays_per_pixel as f64).map_err(|e| ferr(&record.dir.join("render.json"), e.to_string()))?;
     }
     let renderer = record.renderer(tracer, seed)?;
+    // The record is resident beside the operator: the exact operator's memory check counts it (held after the
+    // renderer is built: its detector check is part of the record's own estimate).
+    let _record_held = record.hold();
     let bands = record.bands_nm().to_vec();
     Ok(match kind {
         OperatorKind::Exact => Box::new(ExactOperator::with_progress(renderer, &bands, budget_bytes, progress)?),

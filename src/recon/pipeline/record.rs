@@ -97,7 +97,28 @@ fn check_noise(json: &Value, jp: &Path) -> Result<()> {
     Ok(())
 }
 
+/// A render record read back and what rebuilding its renderer and solving with it hold beside the operator:
+/// [`crate::limits::bytes_render`] of the scene (cube, mapping, mask, Airy kernels, images) and the
+/// acquisition in f64 (8 B per detector pixel).
+fn record_bytes(h: usize, w: usize, bands: usize, planes: usize, airy_diameter_px: Option<f64>, dh: usize, dw: usize) -> f64 {
+    let n = ((h as f64) * (w as f64)).sqrt().ceil() as usize;
+    crate::limits::bytes_render(n, bands, bands, planes, false, airy_diameter_px) + dh as f64 * dw as f64 * 8.0
+}
+
 impl RenderRecord {
+    /// The memory estimate checked when the record was read ([`RenderRecord::load`]): what the record, its
+    /// renderer and a solve's cube-sized arrays hold beside an operator (bytes).
+    pub fn memory_bytes(&self) -> f64 {
+        let c = &self.config;
+        record_bytes(c.scene_height, c.scene_width, c.spectral.bands_nm.len(), c.spectral.planes(), c.airy.as_ref().map(|a| a.diameter_px), self.detector_height, self.detector_width)
+    }
+
+    /// Register [`RenderRecord::memory_bytes`] with the memory budget until dropped ([`crate::limits::hold`]):
+    /// the operators and the denoiser built beside it are checked with it counted.
+    pub fn hold(&self) -> crate::limits::Held {
+        crate::limits::hold(format!("the render record of {}", self.dir.display()), self.memory_bytes())
+    }
+
     /// Read `dir/render.json`, `dir/mask.png` and `dir/acquisition.exr` and rebuild the system and configuration.
     pub fn load(dir: &Path) -> Result<Self> {
         if !dir.is_dir() {
@@ -188,9 +209,8 @@ impl RenderRecord {
         if dh == 0 || dw == 0 || dh > u16::MAX as usize || dw > u16::MAX as usize {
             return Err(ferr(&jp, format!("field `detector` is {dh}×{dw} pixels: each side must be in 1..=65535")));
         }
-        let n = ((h as f64) * (w as f64)).sqrt().ceil() as usize;
         let what = format!("scene_height × scene_width × planes ({h} × {w} × {planes}, {} bands)", bands.len());
-        crate::limits::check_memory(&what, crate::limits::bytes_render(n, bands.len(), bands.len(), planes, false, airy.map(|a| a.diameter_px)) + dh as f64 * dw as f64 * 8.0).map_err(|e| ferr(&jp, e.to_string()))?;
+        crate::limits::check_memory(&what, record_bytes(h, w, bands.len(), planes, airy.map(|a| a.diameter_px), dh, dw)).map_err(|e| ferr(&jp, e.to_string()))?;
         let spectral = SpectralSampling::with_planes(bands, planes).map_err(|e| ferr(&jp, format!("fields `bands_nm`/`planes`: {e}")))?;
         if let Some(recorded) = json.get("planes_nm").and_then(|v| serde_json::from_value::<Vec<f64>>(v.clone()).ok()) {
             if recorded.len() != spectral.planes() || recorded.iter().zip(&spectral.planes_nm).any(|(a, b)| (a - b).abs() > 1e-9) {

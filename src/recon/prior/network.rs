@@ -381,9 +381,12 @@ impl SpectralUNet {
     /// checks (in f64: sizes from C++ or Python may overflow a `usize` product).
     pub fn activation_bytes(&self, height: usize, width: usize) -> f64 {
         let (h, w) = (height.div_ceil(4) as f64 * 4.0, width.div_ceil(4) as f64 * 4.0);
-        // input and output, the latent, e1 + two full-resolution temporaries, e2 and two half-resolution ones,
-        // im2col tiles apart.
-        4.0 * h * w * (2 * self.bands + 2 * (self.latent + 1) + 3 * self.width + 3 * 2 * self.width / 4) as f64
+        // The band planes three times (the padded input, the output tensor and its flattened copy), the latent
+        // and its σ-concatenated copy, at full resolution five C-channel tensors at once (e1, kept to the
+        // end, and at dec1/up1: the layer's input, candle's NHWC copy of it, the convolution's output and
+        // its bias-added copy; measured 0.69 GB at 512² where the earlier 3 C gave 0.48 GB, round 19), e2 and
+        // two half-resolution temporaries; im2col tiles apart.
+        4.0 * h * w * (3 * self.bands + 2 * (self.latent + 1) + 5 * self.width + 3 * 2 * self.width / 4) as f64
     }
 }
 
@@ -410,6 +413,8 @@ impl Denoiser for SpectralUNet {
         }
         // Its activations within the memory budget: a 2048×2048 cube asked for gigabytes and aborted the process
         // on allocation (C++ and Python; a held-out battery, round 9).
+        // Checked beside what the process holds (the solver's arrays, the operator's transport, the render
+        // record: [`crate::limits::hold`]), not against the whole budget (round 19: 0.92 GB under 0.5 GB).
         crate::limits::check_memory(&format!("denoiser on a {h}×{w}×{b} cube (activations)"), self.activation_bytes(h, w) + 8.0 * shape.len() as f64)?;
         // Mean-colour neutralisation: shift_b = m_b − ḡ (f64 sums; PyTorch's f32 mean agrees to ~1e-7).
         let shift: Vec<f32> = if self.neutral {

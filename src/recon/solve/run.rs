@@ -55,6 +55,9 @@ pub(crate) struct Run<'a, 'd> {
     residuals: Vec<f64>,
     weighted: Vec<f64>,
     dark_bands: Vec<usize>,
+    /// The run's cube- and image-sized arrays, registered with the memory budget while it lasts
+    /// ([`crate::limits::hold`]): the denoiser's own check counts them (round 19).
+    _held: crate::limits::Held,
 }
 
 impl<'a, 'd> Run<'a, 'd> {
@@ -91,6 +94,15 @@ impl<'a, 'd> Run<'a, 'd> {
         };
         let noise = NoiseTrack::new(spread);
         let discrepancy = if noise.is_tracked() { Discrepancy::tracked(config) } else { Discrepancy::new(config) };
+        let prior = PriorStep::new(denoiser, config);
+        let stopping = Stopping::new(config.tolerance);
+        // Resident through the run: θ, the solver's own cube-sized buffers (GAP: 2, ADMM: 4), the prior's
+        // and the stopping rule's, f32 each; the preconditioner and 2 image-sized buffers (Φθ, the residual).
+        let own = if config.solver.is_gap() { 2 } else { 4 };
+        let cubes = 1 + own + prior.cube_buffers() + stopping.cube_buffers();
+        let image = op.image_shape().len() as f64;
+        let held_bytes = 4.0 * (cubes as f64 * shape.len() as f64 + 3.0 * image);
+        let _held = crate::limits::hold(format!("the {} solver's arrays ({cubes} cubes of {}×{}×{})", config.solver.name(), shape.height, shape.width, shape.bands), held_bytes);
         Ok(Run {
             op,
             y,
@@ -104,8 +116,8 @@ impl<'a, 'd> Run<'a, 'd> {
             ny,
             nyw,
             theta,
-            prior: PriorStep::new(denoiser, config),
-            stopping: Stopping::new(config.tolerance),
+            prior,
+            stopping,
             sigmas: Vec::new(),
             stopped_by: "iterations",
             noise,
@@ -113,6 +125,7 @@ impl<'a, 'd> Run<'a, 'd> {
             residuals: Vec::with_capacity(config.iterations),
             weighted: Vec::with_capacity(config.iterations),
             dark_bands,
+            _held,
         })
     }
 

@@ -364,10 +364,19 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
     let on_cpu = a.device == Device::Cpu;
     let planes = renderer.config.spectral.planes();
     let t_trace = Instant::now();
-    let probe = if on_cpu { renderer.trace_plane(planes / 2)? } else { PlaneTransport::default() };
-    let estimate = probe.bytes() as f64 * planes as f64 * 1.25;
+    let probe = if on_cpu { Some(crate::recon::exact::TransportMemory::probe(&renderer)?) } else { None };
+    // The cache holds every plane's footprints (the exact operator's estimate from the middle plane, ×planes
+    // ×1.25); it lives beside each scene's render (its cube, images and kernels), so both count against the
+    // memory budget (`--max-memory-gb`): a cache over it is not kept, each scene traced instead (round 19: the
+    // cache was added on top of the budget unchecked).
+    let estimate = probe.as_ref().map_or(0.0, |(m, _)| m.footprints);
+    let c = &renderer.config;
+    let scene_bytes = crate::limits::bytes_render_hw(c.scene_height, c.scene_width, c.spectral.bands_nm.len().max(31), c.spectral.bands_nm.len(), planes, a.options.cube, c.airy.as_ref().map(|a| a.diameter_px));
+    let memory = crate::limits::budget();
+    let (held, _) = crate::limits::held_now();
+    let over_memory = !(estimate + scene_bytes + held <= memory.memory_bytes);
     let budget = a.transport_memory_gb * 1e9;
-    let cached: Option<Vec<PlaneTransport>> = if on_cpu && todo.len() > 1 && estimate <= budget {
+    let cached: Option<Vec<PlaneTransport>> = if on_cpu && todo.len() > 1 && estimate <= budget && !over_memory {
         progress.tracing_started("tracing the light transport", renderer.rays_per_render());
         let t = renderer.trace_all(&|k| progress.rays(k));
         progress.tracing_done();
@@ -376,11 +385,21 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
         progress.message(&format!("light transport traced in {:.2} s ({:.2} GB), reused for {} scenes", t_trace.elapsed().as_secs_f64(), bytes as f64 / 1e9, todo.len()));
         Some(t)
     } else {
-        if on_cpu && todo.len() > 1 {
-            progress.message(&format!("light transport would need ~{:.2} GB > {:.2} GB: tracing each scene", estimate / 1e9, a.transport_memory_gb));
+        if on_cpu && todo.len() > 1 && estimate > budget {
+            progress.message(&format!("light transport would need ~{:.2} GB > {:.2} GB (--transport-memory-gb): tracing each scene", estimate / 1e9, a.transport_memory_gb));
+        } else if on_cpu && todo.len() > 1 {
+            progress.message(&format!(
+                "light transport would need ~{} beside ~{} for each scene's render{}, over the memory budget of {} ({}): tracing each scene",
+                crate::limits::fmt_gb(estimate),
+                crate::limits::fmt_gb(scene_bytes),
+                if held > 0.0 { format!(" and {} held already", crate::limits::fmt_gb(held)) } else { String::new() },
+                crate::limits::fmt_gb(memory.memory_bytes),
+                memory.memory_source
+            ));
         }
         None
     };
+    let _cache_held = cached.as_ref().map(|t| crate::limits::hold("render-dataset's cached light transport", t.iter().map(|p| p.bytes()).sum::<usize>() as f64));
     let transport_seconds = t_trace.elapsed().as_secs_f64();
     drop(probe);
 

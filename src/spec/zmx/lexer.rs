@@ -114,18 +114,32 @@ pub fn decode_with_encoding(bytes: &[u8], source_name: &str) -> Result<(String, 
         }
         // ANSI text: every byte is a character of Windows-1252 (encoding_rs maps its five undefined bytes to
         // C1 controls, which check_text refuses as binary).
-        Err(_) => (encoding_rs::WINDOWS_1252.decode_without_bom_handling(body).0.into_owned(), TextEncoding::Windows1252),
+        Err(_) => (decode_windows_1252(body), TextEncoding::Windows1252),
     };
     let text = unify_line_ends(text);
     check_text(&text, source_name)?;
     Ok((text, enc))
 }
 
+/// ANSI text (bytes that are not valid UTF-8, no byte-order mark) as Windows-1252, OpticStudio's code page in
+/// western locales: the one 8-bit rule of every Zemax text file diffcassi reads, `.zmx` and AGF catalogues
+/// alike ([`crate::materials::decode_agf_bytes`]), so that a glass name with a byte in 0x80–0x9F (`™` 0x99,
+/// `€` 0x80) reads the same in a lens file and in its catalogue (the AGF reader used Latin-1, where those bytes
+/// are C1 controls: `GLAS G™X` was "in none of the loaded catalogues" though its catalogue held it; round 19).
+/// The five bytes Windows-1252 leaves undefined (0x81, 0x8D, 0x8F, 0x90, 0x9D) come out as C1 controls, which
+/// both readers refuse as binary.
+pub fn decode_windows_1252(bytes: &[u8]) -> String {
+    encoding_rs::WINDOWS_1252.decode_without_bom_handling(bytes).0.into_owned()
+}
+
 /// Every line end as LF: CRLF (OpticStudio), LF, and a CR alone (classic Mac OS; a stray one in a file of
 /// other line ends) each end a line, in every encoding, as Python's universal newlines read them (optiland,
 /// rayoptics). A lone CR read as whitespace joined two records into one line (`CURV 0.02 0 0 0 0 "" DISZ 5`:
-/// the thickness lost), and a UTF-16 file with CR line ends read as one line ("no `SURF` record").
-fn unify_line_ends(text: String) -> String {
+/// the thickness lost), and a UTF-16 file with CR line ends read as one line ("no `SURF` record"). The one line
+/// splitter of the Zemax text readers: the AGF reader uses it too ([`crate::materials::decode_agf_bytes`]; with
+/// `str::lines`, which ends a line at LF only, a glass after a CR-ended `LD` or `GC` record was swallowed and
+/// the built-in glass of its name used instead; round 19).
+pub fn unify_line_ends(text: String) -> String {
     if text.contains('\r') {
         text.replace("\r\n", "\n").replace('\r', "\n")
     } else {

@@ -138,7 +138,7 @@ pub fn finite(r: &Record, k: usize) -> Result<f64, String> {
 pub fn int(r: &Record, k: usize) -> Result<i64, String> {
     let v = finite(r, k)?;
     if v.fract() != 0.0 || v.abs() > 1e9 {
-        return Err(format!("line {} `{}`: argument {} = {v} is not an integer", r.line, r.keyword, k + 1));
+        return Err(format!("line {} `{}`: argument {} = {} is not an integer", r.line, r.keyword, k + 1, crate::limits::fmt_num(v)));
     }
     Ok(v as i64)
 }

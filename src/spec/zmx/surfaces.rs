@@ -183,8 +183,8 @@ impl SurfaceBlock {
                     let v = num(r, k).map_err(|m| format!("{m} (surface {}, obscuration {what} radius)", self.number))?;
                     if !v.is_finite() || v < 0.0 {
                         return Err(format!(
-                            "line {} `OBSC`: surface {} obscuration {what} radius {v} mm must be finite and ≥ 0",
-                            r.line, self.number
+                            "line {} `OBSC`: surface {} obscuration {what} radius {} mm must be finite and ≥ 0",
+                            r.line, self.number, crate::limits::fmt_num(v)
                         ));
                     }
                     Ok(v)
@@ -260,6 +260,42 @@ impl SurfaceBlock {
         }
     }
 
+    /// A Diffraction Grating's `PARM 1` (T, lines per µm) and `PARM 2` (order m), by line and record (the
+    /// spec's check named its field and no line; round 19). T > 0: 0 lines per µm is no grating, and a negative
+    /// T is refused rather than read as a convention — in the grating equation n₂ sin θ₂ = n₁ sin θ₁ − mλT a
+    /// frequency −T in order m is T in order −m, which the message says how to write; OpticStudio's own reading
+    /// of T < 0 is not established (optiland's grating takes a positive period only). m an integer of
+    /// magnitude ≤ 10⁶ (the spec's bound): a diffraction order is a whole number of wavelengths of path.
+    fn check_grating_parms(&self) -> Result<(), String> {
+        let n = self.number;
+        let parm = |i: usize| self.parm.iter().rev().find(|p| p.1 == i).map(|p| (p.0, p.2));
+        let fmt = crate::limits::fmt_num;
+        match parm(1) {
+            None => return Err(format!("surface {n} (SURF at line {}) is a Diffraction Grating with no `PARM 1` (its lines per µm)", self.line)),
+            Some((l, t)) if t == 0.0 => {
+                return Err(format!("line {l} `PARM`: surface {n} (Diffraction Grating) parameter 1, lines per µm, is 0: a grating has > 0 lines per µm (0 lines per µm is no grating: make the surface `TYPE STANDARD`)"))
+            }
+            Some((l, t)) if !(t > 0.0) => {
+                let m = parm(2).map(|p| p.1).unwrap_or(1.0);
+                return Err(format!(
+                    "line {l} `PARM`: surface {n} (Diffraction Grating) parameter 1, lines per µm, is {}: a grating has > 0 lines per µm (in the grating equation a frequency −T in order m diffracts as T in order −m: write `PARM 1 {}` and `PARM 2 {}`)",
+                    fmt(t),
+                    fmt(-t),
+                    fmt(if m == 0.0 { 0.0 } else { -m })
+                ));
+            }
+            Some(_) => {}
+        }
+        match parm(2) {
+            None => Err(format!("surface {n} (SURF at line {}) is a Diffraction Grating with no `PARM 2` (its diffraction order)", self.line)),
+            Some((l, m)) if m.fract() != 0.0 || m.abs() > 1e6 => Err(format!(
+                "line {l} `PARM`: surface {n} (Diffraction Grating) parameter 2, the diffraction order, is {}: an order is a whole number (an integer of magnitude at most 10⁶)",
+                fmt(m)
+            )),
+            Some(_) => Ok(()),
+        }
+    }
+
     /// The record that set `column` to `value` (line, keyword), for messages: `CURV`, `CONI`, `DISZ`, or the
     /// `PARM` record holding the value; the `SURF` line when none does.
     pub fn record_of(&self, column: &str, value: f64) -> (usize, &'static str) {
@@ -313,9 +349,9 @@ impl SurfaceBlock {
             match (kind, i) {
                 (SurfaceKind::Toroidal, 1) if v == 0.0 => {}
                 (SurfaceKind::Toroidal, 2) if self.xdat.iter().all(|x| x.1 != 1 || x.2 == 0.0) => {} // normalisation radius of no terms
-                (SurfaceKind::Toroidal, 1) => unsupported.push(Unsupported { line: xl, keyword: "XDAT".into(), reason: format!("{v} Zernike terms on a Toroidal surface: not modelled") }),
+                (SurfaceKind::Toroidal, 1) => unsupported.push(Unsupported { line: xl, keyword: "XDAT".into(), reason: format!("{} Zernike terms on a Toroidal surface: not modelled", crate::limits::fmt_num(v)) }),
                 _ if v == 0.0 => {}
-                _ => unsupported.push(Unsupported { line: xl, keyword: "XDAT".into(), reason: format!("extra data {i} = {v} on a {} surface: not modelled", kind.label()) }),
+                _ => unsupported.push(Unsupported { line: xl, keyword: "XDAT".into(), reason: format!("extra data {i} = {} on a {} surface: not modelled", crate::limits::fmt_num(v), kind.label()) }),
             }
         }
         if let Some((el, e)) = self.efficiency {
@@ -359,7 +395,7 @@ impl SurfaceBlock {
         for &(pl, i, v) in &self.parm {
             if kind == SurfaceKind::CoordinateBreak && i == 6 {
                 if v != 0.0 && v != 1.0 {
-                    return Err(format!("line {pl} `PARM`: Coordinate Break order {v} (0 or 1)"));
+                    return Err(format!("line {pl} `PARM`: Coordinate Break order {} (0 or 1)", crate::limits::fmt_num(v)));
                 }
                 s.order = v as u8;
                 continue;
@@ -397,9 +433,12 @@ impl SurfaceBlock {
                 None => unsupported.push(Unsupported {
                     line: pl,
                     keyword: "PARM".into(),
-                    reason: format!("parameter {i} = {v} has no meaning on a {} surface in diffcassi", kind.label()),
+                    reason: format!("parameter {i} = {} has no meaning on a {} surface in diffcassi", crate::limits::fmt_num(v), kind.label()),
                 }),
             }
+        }
+        if kind == SurfaceKind::DiffractionGrating {
+            self.check_grating_parms()?;
         }
         for (vl, col) in &self.variables {
             let col = match col.strip_prefix("#PARM") {
