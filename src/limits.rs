@@ -220,14 +220,26 @@ pub fn budget() -> Budget {
 /// holds already ([`hold`]: a render record, an exact operator's kept transport, a solver's arrays) counts
 /// against the budget too, and a refusal names it.
 pub fn check_memory(what: &str, bytes: f64) -> Result<()> {
+    memory_within_budget(what, bytes, true)
+}
+
+/// [`check_memory`] for a workload no option sizes (`what` says what it is): a refusal names only the budget
+/// to raise, not `what` to reduce (`design amici`'s 13×13 distortion grids said "reduce distortion grid
+/// 13×13", not an option of `design`; round 19).
+pub fn check_fixed_memory(what: &str, bytes: f64) -> Result<()> {
+    memory_within_budget(what, bytes, false)
+}
+
+fn memory_within_budget(what: &str, bytes: f64, reducible: bool) -> Result<()> {
     let b = budget();
     let (held, terms) = held_now();
     if !(bytes + held <= b.memory_bytes) {
         // The held memory after the budget, so that every refusal reads "needs an estimated X of memory,
         // over the budget of B" whatever the process holds.
         let with = if terms.is_empty() { String::new() } else { format!(" with the {} held already ({})", gb(held), terms.join(", ")) };
+        let reduce = if reducible { format!("reduce {what} or ") } else { String::new() };
         return Err(Error::invalid(format!(
-            "{what}: needs an estimated {} of memory, over the budget of {} ({}){with}; reduce {what} or raise {}",
+            "{what}: needs an estimated {} of memory, over the budget of {} ({}){with}; {reduce}raise {}",
             gb(bytes),
             gb(b.memory_bytes),
             b.memory_source,

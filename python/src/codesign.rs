@@ -43,14 +43,10 @@ impl PyDiffRenderer {
         Ok(scene[0])
     }
 
-    /// A batch of `n` scenes within the ray and memory budgets ([`bytes_renderer`]).
+    /// A batch of `n` scenes within the ray and memory budgets ([`check_budget`]).
     fn check_batch_of(&self, n: usize) -> PyResult<()> {
-        let (h, w) = (self.inner.config.scene_height, self.inner.config.scene_width);
-        let (planes, rays, bands) = (self.inner.config.spectral.planes(), self.inner.config.rays_per_pixel, self.inner.scene_wavelengths_nm.len());
-        let what = format!("N × H × W × planes × rays ({n} × {h} × {w} × {planes} × {rays})");
-        diffcassi::limits::check_rays(&what, n as f64 * h as f64 * w as f64 * planes as f64 * rays as f64).py()?;
-        let airy = self.inner.config.airy.is_some();
-        diffcassi::limits::check_memory(&what, bytes_renderer(h, w, bands, planes, rays, airy, n)).py()
+        let c = &self.inner.config;
+        check_budget(c.scene_height, c.scene_width, self.inner.scene_wavelengths_nm.len(), c.spectral.planes(), c.rays_per_pixel, c.airy.is_some(), Some(n))
     }
 }
 
@@ -69,17 +65,21 @@ fn bytes_renderer(height: usize, width: usize, bands: usize, planes: usize, rays
     n as f64 * per_scene + pixels * planes as f64 * 16.0 + 24.0 * rays as f64
 }
 
-/// The ray and memory budgets of a renderer, before anything of its size is allocated: one scene's rays
-/// (H × W × planes × rays), the buffers of an H × W render and the sampler's tables (24 bytes per ray of a
-/// pixel).
-fn check_budget(height: usize, width: usize, bands: usize, planes: usize, rays: usize, airy: bool) -> PyResult<()> {
+/// The ray and memory budgets of a renderer, before anything of its size is allocated: its rays (H × W ×
+/// planes × rays per scene) and [`bytes_renderer`], for one scene at construction (`batch` `None`) or for a
+/// batch of N before a forward pass.
+fn check_budget(height: usize, width: usize, bands: usize, planes: usize, rays: usize, airy: bool, batch: Option<usize>) -> PyResult<()> {
     use diffcassi::limits;
     if planes == 0 || planes > limits::MAX_PLANES {
         return Err(value_error(format!("planes {planes}: must be in 1..={}", limits::MAX_PLANES)));
     }
-    let what = format!("H × W × planes × rays ({height} × {width} × {planes} × {rays})");
-    limits::check_rays(&what, height as f64 * width as f64 * planes as f64 * rays as f64).py()?;
-    limits::check_memory(&what, bytes_renderer(height, width, bands, planes, rays, airy, 1)).py()
+    let what = match batch {
+        None => format!("H × W × planes × rays ({height} × {width} × {planes} × {rays})"),
+        Some(n) => format!("N × H × W × planes × rays ({n} × {height} × {width} × {planes} × {rays})"),
+    };
+    let n = batch.unwrap_or(1);
+    limits::check_rays(&what, n as f64 * height as f64 * width as f64 * planes as f64 * rays as f64).py()?;
+    limits::check_memory(&what, bytes_renderer(height, width, bands, planes, rays, airy, n)).py()
 }
 
 #[pymethods]
@@ -122,7 +122,7 @@ impl PyDiffRenderer {
         if free.is_empty() {
             return Err(value_error("free: name ≥ 1 parameter (e.g. [\"prism_tilt_x\"])"));
         }
-        check_budget(height, width, bands.len(), planes, rays, airy)?;
+        check_budget(height, width, bands.len(), planes, rays, airy, None)?;
         let recipe = {
             let sys = Py::new(py, system.share())?;
             let args = pyo3::types::PyTuple::new(py, [sys.into_any(), height.into_pyobject(py)?.into_any().unbind(), width.into_pyobject(py)?.into_any().unbind(), free.clone().into_pyobject(py)?.into_any().unbind()])?;

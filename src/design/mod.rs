@@ -162,21 +162,11 @@ fn zemax_max_distortion(sys: &crate::system::SequentialSystem) -> Result<(f64, V
 }
 
 /// The design's largest buffer, the 13×13 distortion grid of each scoring ([`zemax_max_distortion`]), against the
-/// memory budget before any work: its size is fixed (no option of `design` sets it), so the refusal says so and
-/// names the budget alone (it came after 0.3 s of work from the grid's own check, "reduce distortion grid
-/// 13×13", not an option of `design`; round 19).
+/// memory budget before any work: its size is fixed (no option of `design` sets it), so the refusal names the
+/// budget alone ([`crate::limits::check_fixed_memory`]; it came after 0.3 s of work from the grid's own check,
+/// "reduce distortion grid 13×13", not an option of `design`; round 19).
 fn check_fixed_workload() -> Result<()> {
-    let bytes = crate::limits::bytes_distortion(13);
-    crate::limits::check_memory("design amici", bytes).map_err(|_| {
-        let b = crate::limits::budget();
-        let raise = if b.names.setter.is_empty() { b.names.memory.clone() } else { format!("{} ({})", b.names.memory, b.names.setter) };
-        Error::invalid(format!(
-            "design amici: its fixed workload (a 13×13 distortion grid per scoring; no option of `design` sets its size) needs {} of memory, over the budget of {} ({}); raise {raise}",
-            crate::limits::fmt_gb(bytes),
-            crate::limits::fmt_gb(b.memory_bytes),
-            b.memory_source
-        ))
-    })
+    crate::limits::check_fixed_memory("design amici: its fixed workload (a 13×13 distortion grid per scoring; no option of `design` sets its size)", crate::limits::bytes_distortion(13))
 }
 
 /// The continuous stage's parameters, as its warnings name them: the three angles (the last stage's

@@ -88,11 +88,7 @@ impl RenderTracing {
         let half = super::workload::scene_half_width(h, w, crate::render::scene_pitch_for(system, cfg)?);
         let set = super::workload::RaySetSpec::calibration().covering(system, half).build(system, &cfg.spectral.planes_nm)?.len();
         let calibration = crate::limits::bytes_calibration(system.spec.surfaces.len(), set as f64);
-        let render = if h == w {
-            settings.memory_bytes(h, settings.scene_bands())
-        } else {
-            crate::limits::bytes_render_hw(h, w, settings.scene_bands(), settings.bands_nm.len(), settings.planes, settings.cube, settings.airy_diameter_px)
-        };
+        let render = settings.memory_bytes(h, w);
         crate::limits::check_memory(&format!("--tolerance-um {t}'s calibration ({} surfaces, {set} rays) beside the {h}×{w} render", system.spec.surfaces.len()), calibration + render)?;
         // Traced pixels: the open ones, or every pixel when the mask is a surface inside the system.
         let open = if system.coded_mask.is_some() { mask.values.len() } else { mask.values.iter().filter(|&&v| v > 0.0).count() };

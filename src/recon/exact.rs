@@ -136,14 +136,16 @@ pub struct TransportMemory {
     /// a streaming operator.
     pub in_flight: f64,
     pub planes: usize,
+    /// The planes traced at once: the worker threads, at most the plane count.
+    pub threads: usize,
 }
 
 impl TransportMemory {
     /// The estimate from the middle plane's footprints (`probe`, traced by [`Renderer::trace_plane`]) and
     /// its re-laid copy (bytes).
     pub fn from_probe(footprint_bytes: f64, compact_bytes: f64, planes: usize) -> Self {
-        let threads = rayon::current_num_threads().clamp(1, planes.max(1)) as f64;
-        TransportMemory { footprints: footprint_bytes * planes as f64 * 1.25, operator: compact_bytes * planes as f64 * 1.25, in_flight: threads * (footprint_bytes + compact_bytes), planes }
+        let threads = rayon::current_num_threads().clamp(1, planes.max(1));
+        TransportMemory { footprints: footprint_bytes * planes as f64 * 1.25, operator: compact_bytes * planes as f64 * 1.25, in_flight: threads as f64 * (footprint_bytes + compact_bytes), planes, threads }
     }
 
     /// Trace `renderer`'s middle plane and estimate from it; returns the plane's footprints too (for callers
@@ -180,7 +182,7 @@ impl TransportMemory {
         } else {
             format!("the light transport re-traced at every apply and adjoint ({:.3} GB would exceed its budget of {} GB, --transport-memory-gb)", self.operator / 1e9, budget_bytes as f64 / 1e9)
         };
-        let what = format!("the exact operator of {} ({kept_text}, and {:.3} GB of footprints of the planes traced at once by {} threads, --threads)", transport_label(renderer), self.in_flight / 1e9, rayon::current_num_threads().min(self.planes.max(1)));
+        let what = format!("the exact operator of {} ({kept_text}, and {:.3} GB of footprints of the planes traced at once by {} threads, --threads)", transport_label(renderer), self.in_flight / 1e9, self.threads);
         crate::limits::check_memory(&what, self.held(budget_bytes))
     }
 

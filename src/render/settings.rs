@@ -232,15 +232,15 @@ impl RenderSettings {
         Ok((cfg, mask))
     }
 
-    /// The memory estimate of an `n × n` render of these settings with `scene_bands` scene bands
-    /// ([`crate::limits::bytes_render`]; the mapping cube's term only when it is written, [`Self::mapping`]).
-    pub fn memory_bytes(&self, n: usize, scene_bands: usize) -> f64 {
+    /// The memory estimate of a `height × width` render of these settings ([`crate::limits::bytes_render_hw`]
+    /// with [`Self::scene_bands`]; the mapping cube's term only when it is written, [`Self::mapping`]).
+    pub fn memory_bytes(&self, height: usize, width: usize) -> f64 {
         let bands = self.bands_nm.len();
-        let all = crate::limits::bytes_render(n, scene_bands, bands, self.planes, self.cube, self.airy_diameter_px);
+        let all = crate::limits::bytes_render_hw(height, width, self.scene_bands(), bands, self.planes, self.cube, self.airy_diameter_px);
         if self.mapping {
             all
         } else {
-            all - crate::limits::bytes_render_mapping((n as f64).powi(2), bands)
+            all - crate::limits::bytes_render_mapping(height as f64 * width as f64, bands)
         }
     }
 
@@ -294,15 +294,11 @@ impl RenderSettings {
             }
         }
         let bands = self.bands_nm.len();
-        let scene_bands = match &self.scene_wavelengths_nm {
-            Some(ws) => {
-                check_wavelengths("--scene-wavelengths", ws)?;
-                ws.len()
-            }
-            None => bands.max(31),
-        };
+        if let Some(ws) = &self.scene_wavelengths_nm {
+            check_wavelengths("--scene-wavelengths", ws)?;
+        }
         let what = if self.mapping { format!("--scene-size {n} × --planes {} (× {bands} bands, with the mapping cube, which --no-mapping leaves out)", self.planes) } else { format!("--scene-size {n} × --planes {} (× {bands} bands)", self.planes) };
-        crate::limits::check_memory(&what, self.memory_bytes(n, scene_bands))?;
+        crate::limits::check_memory(&what, self.memory_bytes(n, n))?;
         // The ray budget with the given (or default) rays per pixel; a tolerance's choice is checked again
         // (`RenderTracing::resolve`), and before it the fewest rays it may choose, not the default it replaces.
         check_render_rays(n, self.planes, self.rays_to_check())?;

@@ -530,13 +530,8 @@ fn bounded_surfaces<'de, D: serde::Deserializer<'de>>(d: D) -> std::result::Resu
         fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> std::result::Result<Self::Value, A::Error> {
             let mut out = Vec::new();
             while let Some(s) = seq.next_element::<SurfaceSpec>()? {
-                if out.len() == crate::limits::MAX_SURFACES {
-                    return Err(serde::de::Error::custom(format!(
-                        "surfaces: more than the {} a system may have (real lens files have a few hundred; a system holds ~4 kB per surface)",
-                        crate::limits::MAX_SURFACES
-                    )));
-                }
                 out.push(s);
+                crate::limits::check_surface_count(out.len()).map_err(serde::de::Error::custom)?;
             }
             Ok(out)
         }
