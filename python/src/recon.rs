@@ -501,6 +501,13 @@ fn _metrics(
         (Some(tw), Some(ew)) => {
             let tw = crate::arrays::f64_list("truth_wavelengths_nm", tw)?;
             let ew = crate::arrays::f64_list("estimate_wavelengths_nm", ew)?;
+            // Name the list, not the cube, when the counts disagree (the CLI's `--truth-wavelengths` says the
+            // same; round 20: "truth: 1280 values for a 16×16×4 cube" blamed the array).
+            for (name, list, shape, cube) in [("truth_wavelengths_nm", &tw, &ts, "truth"), ("estimate_wavelengths_nm", &ew, &es, "estimate")] {
+                if list.len() != shape[2] {
+                    return Err(value_error(format!("{name}: {} wavelengths given for the {cube}'s {} bands", list.len(), shape[2])));
+                }
+            }
             let tc = SpectralCube::new(ts[0], ts[1], tw, t, "truth").py()?;
             let ec = SpectralCube::new(es[0], es[1], ew, e, "estimate").py()?;
             serde_json::to_value(run(py, || metrics::evaluate(&tc, &ec)).py()?)

@@ -86,7 +86,7 @@ fn _render<'py>(
         electrons_per_unit: extra(&s, "electrons_per_unit", "a number")?,
         read_noise_e: extra(&s, "read_noise_e", "a number")?,
         adc_bits: extra(&s, "adc_bits", "an integer ≥ 0")?,
-        noise_seed: extra(&s, "noise_seed", "an integer ≥ 0")?,
+        noise_seed: extra(&s, "noise_seed", crate::arrays::SEED)?,
     }
     .config()
     .py()?;

@@ -14,7 +14,7 @@
 //! `rendered`, `skipped` or `failed`; `failed` adds `"error"`). Progress and messages go to stderr.
 use super::bars::{bar, BarSlot};
 use super::shared::load_system;
-use super::render::{progress_bar, render_tracer, NoiseArgs, RenderCommon};
+use super::render::{progress_bar, NoiseArgs, RenderCommon};
 use crate::error::{Error, Result};
 use crate::render::dataset::{self, DatasetOptions, DatasetProgress, DatasetRequest, DatasetStatus, SceneOutcome, Shard};
 use clap::Args;
@@ -66,7 +66,8 @@ pub struct RenderDatasetArgs {
     /// scene's noise does not depend on which other scenes are in the folder or shard.
     #[command(flatten)]
     pub noise: NoiseArgs,
-    /// Render only shard K of N: the scenes whose index in the full sorted list is ≡ K (mod N). `slurm`
+    /// Render only shard K of N: the scenes whose index in the dataset's list is ≡ K (mod N) (the list
+    /// dataset.json recorded, then scenes new in --scenes appended; at first the sorted folder). `slurm`
     /// takes K and N from SLURM_ARRAY_TASK_ID / SLURM_ARRAY_TASK_COUNT; `slurm/N` takes K from Slurm and N
     /// as given (for a resubmitted subset of an array).
     #[arg(long, value_name = "K/N|slurm|slurm/N", value_parser = parse_shard_arg)]
@@ -195,7 +196,7 @@ impl DatasetProgress for Terminal {
 pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     // The options parsed once, into the library's render settings (their errors name each option).
     let settings = a.common.settings()?;
-    let mut request = DatasetRequest {
+    let request = DatasetRequest {
         scenes: a.scenes.clone(),
         out: a.out.clone(),
         force: a.force,
@@ -207,6 +208,7 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
         device: settings.device,
         tolerance_um: a.common.backend.tolerance_um,
         tolerance_predicted_error_um: None,
+        tolerance_backend: None,
         scene_delay: debug_delay()?,
     };
     // The output policy before any work (the tracer's calibration may write its cache).
@@ -214,10 +216,11 @@ pub fn render_dataset(a: RenderDatasetArgs) -> Result<()> {
     inputs.extend(a.common.mask.as_deref().map(|p| ("--mask", p)));
     dataset::check_out(&request, &inputs)?;
     let system = load_system(&a.common.system)?;
-    let (mut cfg, mask) = settings.config()?;
-    let tracing = render_tracer(&a.common, &settings, &system, &mut cfg, &mask)?;
-    request.tolerance_predicted_error_um = tracing.predicted_error_um;
-    dataset::run(&request, &inputs, &system, tracing.tracer.as_ref(), cfg, mask, &Terminal::default())?;
+    let (cfg, mask) = settings.config()?;
+    // The tracer as given, or chosen for --tolerance-um — or the choice dataset.json records for it, so that
+    // every shard of one array renders with one choice (the library's step; its explanation on stderr).
+    let source = super::fidelity::render_source(&a.common.backend)?;
+    dataset::run_with_source(&request, &inputs, &system, source, &settings, cfg, mask, &Terminal::default())?;
     audit_lost()
 }
 
@@ -226,15 +229,10 @@ pub fn dataset_status(a: DatasetStatusArgs) -> Result<()> {
         return Err(Error::File { path: a.dir.display().to_string(), message: "not a folder (the --out of render-dataset)".into() });
     }
     let found = a.scenes.as_ref().map(|src| dataset::find_scenes(src)).transpose()?;
-    let names = found.as_ref().map(|v| v.iter().map(|s| s.name.clone()).collect::<Vec<_>>());
-    let mut st = DatasetStatus::check(&a.dir, names, None)?;
-    // With --scenes: a scene done from files that have changed since is to be rendered again.
-    for s in st.scenes.iter_mut() {
-        if let Some(f) = found.iter().flatten().find(|f| f.name == s.scene) {
-            s.state = dataset::with_scene_input(s.state.clone(), &a.dir, f);
-        }
-    }
-    if st.scenes.is_empty() {
+    // With --scenes: render-dataset's list (the recorded one, then new scenes), each done scene's files compared.
+    let st = DatasetStatus::check_scenes(&a.dir, found.as_deref())?;
+    // An empty --scenes folder is refused as render-dataset refuses it, whatever dataset.json lists.
+    if st.scenes.is_empty() || found.as_ref().is_some_and(|f| f.is_empty()) {
         let source = match &a.scenes {
             Some(src) => format!("--scenes {} holds no scenes (.exr, .npy, or folders of .png)", src.display()),
             None => format!("its {} lists no scenes", dataset::MANIFEST),
@@ -250,6 +248,7 @@ pub fn dataset_status(a: DatasetStatusArgs) -> Result<()> {
         println!("{:<8} {}{}", st.shared.word(), dataset::MANIFEST, if shared_problems.is_empty() { String::new() } else { format!(": {}", shared_problems.join("; ")) });
         for s in &st.scenes {
             let p = s.state.problems();
+            let p: Vec<String> = p.into_iter().chain(s.note.clone()).collect();
             println!("{:<8} {}{}", s.state.word(), s.scene, if p.is_empty() { String::new() } else { format!(": {}", p.join("; ")) });
         }
         for l in &st.leftovers {

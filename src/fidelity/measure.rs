@@ -141,9 +141,12 @@ pub struct Measured {
     /// `--backend` text of the configuration.
     pub backend: String,
     pub error: ErrorStats,
-    /// Rays traced per second (best of the repeats, scene already built).
+    /// Rays traced per second, scene already built: in `bench tradeoff` the best of the repeats; in a
+    /// `--tolerance-um` calibration the throughput the choice credits the candidate with (the analytic
+    /// tracer's median over interleaved rounds, × for any other candidate its smallest speed-up over the
+    /// analytic in one round: [`super::select`]).
     pub rays_per_s: f64,
-    /// Seconds of the best repeat.
+    /// Seconds of one trace of the set: the best repeat (`bench tradeoff`), the median round (a calibration).
     pub seconds: f64,
     /// One-time set-up (Embree scene construction), s; 0 for the analytic tracer.
     pub setup_seconds: f64,

@@ -37,6 +37,23 @@ pub enum TracerSource {
     /// energy lands is within `tolerance_um` (µm, image plane), calibrated on this system over the
     /// render's planes and field ([`super::choose_render_for`]); calibrations cached in `cache`.
     Tolerance { tolerance_um: f64, cache: CacheOptions },
+    /// A tolerance's choice made before and recorded, taken as it is without calibrating again: a dataset's
+    /// shards and a resumed array render with the choice its `dataset.json` records for the same tolerance
+    /// (`crate::render::dataset::run_with_source`), not with one of their own timings (a held-out battery,
+    /// round 20: shards on fresh caches chose f32 or f64 by the machine's timing noise and refused each
+    /// other). `backend` is the choice's `--backend` text (`analytic`, `analytic-f32`, `embree-user:f64`…);
+    /// `origin` names the record for the explanation.
+    Recorded { tolerance_um: f64, backend: String, rays_per_pixel: usize, predicted_error_um: f64, origin: String },
+}
+
+impl TracerSource {
+    /// The tolerance (µm) of a [`TracerSource::Tolerance`] or [`TracerSource::Recorded`] source.
+    pub fn tolerance_um(&self) -> Option<f64> {
+        match self {
+            TracerSource::Given(_) => None,
+            TracerSource::Tolerance { tolerance_um, .. } | TracerSource::Recorded { tolerance_um, .. } => Some(*tolerance_um),
+        }
+    }
 }
 
 /// A resolved [`TracerSource`].
@@ -48,6 +65,9 @@ pub struct RenderTracing {
     pub tolerance_um: Option<f64>,
     /// The error the choice predicts (µm: trace error + σ/√N), `None` when given.
     pub predicted_error_um: Option<f64>,
+    /// The choice's `--backend` text (`analytic-f32` for the f32 lanes), `None` when given: what a dataset
+    /// records so that its other shards take the same choice ([`TracerSource::Recorded`]).
+    pub backend: Option<String>,
     /// The choice, its candidates and where the calibrations came from, for a front end to show; `None`
     /// when given.
     pub explanation: Option<String>,
@@ -66,9 +86,10 @@ impl RenderTracing {
                 let (rays_per_pixel, precision) = (settings.rays_or_default(), settings.precision.unwrap_or_default());
                 cfg.rays_per_pixel = rays_per_pixel;
                 cfg.precision = precision;
-                return Ok(RenderTracing { tracer, rays_per_pixel, precision, tolerance_um: None, predicted_error_um: None, explanation: None });
+                return Ok(RenderTracing { tracer, rays_per_pixel, precision, tolerance_um: None, predicted_error_um: None, backend: None, explanation: None });
             }
-            TracerSource::Tolerance { tolerance_um, cache } => (tolerance_um, cache),
+            TracerSource::Tolerance { tolerance_um, cache } => (tolerance_um, Ok(cache)),
+            TracerSource::Recorded { tolerance_um, backend, rays_per_pixel, predicted_error_um, origin } => (tolerance_um, Err((backend, rays_per_pixel, predicted_error_um, origin))),
         };
         let t = crate::limits::fmt_num(tolerance_um);
         if let Some(n) = settings.rays {
@@ -81,18 +102,33 @@ impl RenderTracing {
             // Before the calibration (seconds): its choice may be the f32 lanes, which the scalar kernel lacks.
             return Err(Error::invalid(format!("--tolerance-um {t} chooses among the SIMD kernel's f64 and f32 lanes; --kernel scalar (f64 only, the reference) cannot take its choice: drop one of them")));
         }
-        // The calibration's memory beside the render's, before it runs: its Embree meshes and ray set stay in
-        // the allocator's pages while the render runs (round 19: left out, the estimate was 0.47× the peak at
-        // 256²). Counted whether or not the cache will serve it.
         let (h, w) = (cfg.scene_height, cfg.scene_width);
-        let half = super::workload::scene_half_width(h, w, crate::render::scene_pitch_for(system, cfg)?);
-        let set = super::workload::RaySetSpec::calibration().covering(system, half).build(system, &cfg.spectral.planes_nm)?.len();
-        let calibration = crate::limits::bytes_calibration(system.spec.surfaces.len(), set as f64);
-        let render = settings.memory_bytes(h, w);
-        crate::limits::check_memory(&format!("--tolerance-um {t}'s calibration ({} surfaces, {set} rays) beside the {h}×{w} render", system.spec.surfaces.len()), calibration + render)?;
-        // Traced pixels: the open ones, or every pixel when the mask is a surface inside the system.
-        let open = if system.coded_mask.is_some() { mask.values.len() } else { mask.values.iter().filter(|&&v| v > 0.0).count() };
-        let (choice, provenance) = choose_render_for(system, cfg, settings.device, tolerance_um, open, &cache)?;
+        let (choice, provenance) = match cache {
+            Ok(cache) => {
+                // The calibration's memory beside the render's, before it runs: its Embree meshes and ray set
+                // stay in the allocator's pages while the render runs (round 19: left out, the estimate was
+                // 0.47× the peak at 256²). Counted whether or not the cache will serve it.
+                let half = super::workload::scene_half_width(h, w, crate::render::scene_pitch_for(system, cfg)?);
+                let set = super::workload::RaySetSpec::calibration().covering(system, half).build(system, &cfg.spectral.planes_nm)?.len();
+                let calibration = crate::limits::bytes_calibration(system.spec.surfaces.len(), set as f64);
+                let render = settings.memory_bytes(h, w);
+                crate::limits::check_memory(&format!("--tolerance-um {t}'s calibration ({} surfaces, {set} rays) beside the {h}×{w} render", system.spec.surfaces.len()), calibration + render)?;
+                // Traced pixels: the open ones, or every pixel when the mask is a surface inside the system.
+                let open = if system.coded_mask.is_some() { mask.values.len() } else { mask.values.iter().filter(|&&v| v > 0.0).count() };
+                choose_render_for(system, cfg, settings.device, tolerance_um, open, &cache)?
+            }
+            Err((backend, n, predicted, origin)) => {
+                // Nothing is calibrated: the choice is taken as recorded, where this render can run it (the f32
+                // lanes and the Embree backends on the CPU, a coded-mask system on the analytic f64 path).
+                let config: crate::tracer::BackendConfig = backend.parse().map_err(|e| Error::invalid(format!("{origin}: the recorded choice of --tolerance-um {t}: backend `{backend}`: {e}")))?;
+                let only_f64 = system.coded_mask.is_some() || settings.device != crate::render::Device::Cpu;
+                if (only_f64 && config.backend != crate::tracer::Backend::Analytic) || n == 0 || !(predicted.is_finite() && predicted > 0.0 && predicted <= tolerance_um) {
+                    return Err(Error::invalid(format!("{origin}: the recorded choice of --tolerance-um {t} (--backend {backend} --rays {n}, predicted error {predicted} µm) cannot be taken by this render")));
+                }
+                let explanation = format!("fidelity: tolerance {t} µm → --backend {backend} --rays {n} (error {predicted:.2e} µm), the choice {origin} records: taken as it is, not chosen again on this run's timings");
+                (super::select::RenderChoice { config, rays_per_pixel: n, error_um: predicted, explanation }, "no calibration".to_string())
+            }
+        };
         if h == w {
             check_render_rays(h, cfg.spectral.planes(), choice.rays_per_pixel)?;
         } else {
@@ -107,6 +143,7 @@ impl RenderTracing {
             precision,
             tolerance_um: Some(tolerance_um),
             predicted_error_um: Some(choice.error_um),
+            backend: Some(super::measure::backend_text(&choice.config)),
             explanation: Some(format!("{} [{provenance}]", choice.explanation)),
         })
     }

@@ -28,9 +28,11 @@
 //! the margin [`SPEED_MARGIN`], so timing noise alone never trades exactness for nothing — and, for a
 //! render, only at no more rays per pixel than the analytic tracer needs (a faster kernel paying for more
 //! rays is decided by throughputs within a few % of each other, so the acquisition would depend on the
-//! run's timing). Calibrations are cached ([`super::cache`]).
+//! run's timing). Throughputs are timed in interleaved rounds and a candidate is credited with its smallest
+//! speed-up over the analytic tracer in one round ([`TIMING_ROUNDS`]), so a disturbed round can only keep the
+//! exact tracer. Calibrations are cached ([`super::cache`]), first writer wins: one cache, one choice.
 use super::cache::{self, CacheKey, Lookup};
-use super::measure::{backend_text, candidate_configs, measure, time_best, Measured};
+use super::measure::{backend_text, candidate_configs, time_best, Measured};
 use super::workload::{scene_half_width, RaySetSpec};
 use crate::analysis::{mapping_cube_interpolated, MappingCube, NodeGrid};
 use crate::error::{Error, Result};
@@ -90,6 +92,10 @@ pub enum Provenance {
     /// directory that cannot be written), `None` when it did or there is none.
     Measured { rays: usize, seconds: f64, cache_note: Option<String> },
     Cached(PathBuf),
+    /// Calibrated now (`seconds`), but another process stored this key's calibration first while this one
+    /// ran: that entry is used and this measurement dropped, so every process on one cache makes one choice
+    /// ([`cache::store_first`]).
+    Adopted { path: PathBuf, seconds: f64 },
 }
 
 impl std::fmt::Display for Provenance {
@@ -98,6 +104,7 @@ impl std::fmt::Display for Provenance {
             Provenance::Measured { rays, seconds, cache_note: None } => write!(f, "calibrated now on {rays} rays in {seconds:.2} s"),
             Provenance::Measured { rays, seconds, cache_note: Some(n) } => write!(f, "calibrated now on {rays} rays in {seconds:.2} s; cache: {n}"),
             Provenance::Cached(p) => write!(f, "calibration from the cache {}", p.display()),
+            Provenance::Adopted { path, seconds } => write!(f, "calibration from the cache {}, stored by another run while this one calibrated ({seconds:.2} s, its own measurement dropped: one cache, one choice)", path.display()),
         }
     }
 }
@@ -147,8 +154,12 @@ fn cached<T: serde::Serialize + serde::de::DeserializeOwned>(cache: &CacheOption
     let (payload, rays) = compute()?;
     let seconds = t0.elapsed().as_secs_f64();
     if let Some(dir) = &cache.dir {
-        if let Err(e) = cache::store(dir, key, &payload) {
-            notes.push(format!("not stored ({e})"));
+        // First writer wins: a process that stored this key meanwhile (shards started together on a fresh
+        // cache) decides for all of them; this one takes its entry instead of choosing on its own timings.
+        match cache::store_first(dir, key, &payload, &valid) {
+            Ok(cache::Stored::Mine(_)) => {}
+            Ok(cache::Stored::Theirs(theirs, path)) => return Ok((theirs, Provenance::Adopted { path, seconds: t0.elapsed().as_secs_f64() })),
+            Err(e) => notes.push(format!("not stored ({e})")),
         }
     }
     let cache_note = (!notes.is_empty()).then(|| notes.join("; "));
@@ -220,19 +231,101 @@ pub fn calibrate_backends_over(system: &SequentialSystem, wavelengths_nm: &[f64]
         || {
             let rays = set.build(system, wavelengths_nm)?;
             let reference = AnalyticTracer::default().trace(system, &rays)?;
-            let (mut candidates, mut left_out) = (Vec::new(), Vec::new());
+            let (mut prepared, mut left_out) = (Vec::new(), Vec::new());
             for cfg in &configs {
-                match measure(system, cfg, &rays, &reference, 3) {
-                    Ok((m, _)) => candidates.push(m),
+                match prepare(system, cfg, &rays, &reference) {
+                    Ok(p) => prepared.push(p),
                     // A backend that does not model this system (the Embree and f32 lane backends refuse
                     // some surfaces, naming them) is no candidate; the exact reference must always be one.
                     Err(e) if !is_reference(cfg) => left_out.push(LeftOut { backend: backend_text(cfg), reason: e.to_string() }),
                     Err(e) => return Err(e),
                 }
             }
-            Ok((BackendCalibration { wavelengths_nm: wavelengths_nm.to_vec(), rays: rays.len(), candidates, left_out }, rays.len() * (3 * n + 1)))
+            let (candidates, traced) = time_interleaved(system, prepared, &rays)?;
+            Ok((BackendCalibration { wavelengths_nm: wavelengths_nm.to_vec(), rays: rays.len(), candidates, left_out }, traced))
         },
     )
+}
+
+/// Timing rounds of a backend calibration: every candidate is timed once per round, in an order rotated
+/// each round (interleaved, so a slow spell of a shared machine hits every candidate alike).
+pub const TIMING_ROUNDS: usize = 7;
+/// A timing sample repeats a fast candidate's trace until it lasts at least this long (s): one trace of
+/// the calibration set takes ~0.3 ms on the analytic tracer, within a thread pool's wake-up noise.
+pub const TIMING_SAMPLE_SECONDS: f64 = 2e-3;
+
+/// A candidate built, its scene set up (timed), its error measured, ready for the timing rounds.
+struct Prepared {
+    cfg: BackendConfig,
+    tracer: Box<dyn Tracer>,
+    setup_seconds: f64,
+    error: super::ErrorStats,
+    /// Traces per timing sample (≥ 1).
+    repeats: usize,
+}
+
+fn prepare(system: &SequentialSystem, cfg: &BackendConfig, rays: &RayBatch, reference: &crate::tracer::TracedBatch) -> Result<Prepared> {
+    let tracer = cfg.build()?;
+    // Set-up: the first trace of one ray builds an Embree scene.
+    let t = Instant::now();
+    tracer.trace(system, &super::measure::first_ray(rays))?;
+    let setup_seconds = if matches!(cfg.backend, Backend::Analytic | Backend::AnalyticF32) { 0.0 } else { t.elapsed().as_secs_f64() };
+    // The error, from an untimed trace of the whole set (also the timing's warm-up).
+    let t = Instant::now();
+    let out = tracer.trace(system, rays)?;
+    let once = t.elapsed().as_secs_f64().max(1e-9);
+    let error = super::ErrorStats::compare(reference, &out);
+    let repeats = ((TIMING_SAMPLE_SECONDS / once).ceil() as usize).clamp(1, 64);
+    Ok(Prepared { cfg: cfg.clone(), tracer, setup_seconds, error, repeats })
+}
+
+/// Time the candidates in [`TIMING_ROUNDS`] interleaved rounds and credit each with a throughput: the
+/// analytic reference with its median; every other candidate with the reference's median × its *smallest*
+/// speed-up over the reference in the same round (the two timed back to back). A candidate therefore
+/// counts as faster by the choice's [`SPEED_MARGIN`] only if it was that much faster in every round: a
+/// disturbed round can only keep the exact tracer, never trade it away (a held-out battery, round 20: the
+/// f32 lanes' best-of-3 speed-up on SP was 1.23–1.27× run to run, 1.5–1.8× in a disturbed run, around the
+/// 1.25× margin, so a fresh calibration chose f32 or f64 by chance). Returns the candidates and the rays
+/// traced.
+fn time_interleaved(system: &SequentialSystem, prepared: Vec<Prepared>, rays: &RayBatch) -> Result<(Vec<Measured>, usize)> {
+    let n = prepared.len();
+    let mut times = vec![Vec::with_capacity(TIMING_ROUNDS); n];
+    let mut traced = rays.len() * (1 + 2 * n);
+    for round in 0..TIMING_ROUNDS {
+        for k in 0..n {
+            let i = (k + round) % n;
+            let p = &prepared[i];
+            let t = Instant::now();
+            for _ in 0..p.repeats {
+                p.tracer.trace(system, rays)?;
+            }
+            times[i].push((t.elapsed().as_secs_f64() / p.repeats as f64).max(1e-9));
+            traced += rays.len() * p.repeats;
+        }
+    }
+    let median = |v: &[f64]| {
+        let mut s = v.to_vec();
+        s.sort_by(f64::total_cmp);
+        s[s.len() / 2]
+    };
+    let r = prepared.iter().position(|p| is_reference(&p.cfg)).ok_or_else(|| Error::invalid("calibration lacks the analytic reference"))?;
+    let ref_median = median(&times[r]);
+    let candidates = prepared
+        .iter()
+        .zip(&times)
+        .enumerate()
+        .map(|(i, (p, t))| {
+            let seconds = median(t);
+            let rays_per_s = if i == r {
+                rays.len() as f64 / ref_median
+            } else {
+                let speedup = t.iter().zip(&times[r]).map(|(c, a)| a / c).fold(f64::INFINITY, f64::min);
+                rays.len() as f64 / ref_median * speedup
+            };
+            Measured { backend: backend_text(&p.cfg), error: p.error, rays_per_s, seconds, setup_seconds: p.setup_seconds }
+        })
+        .collect();
+    Ok((candidates, traced))
 }
 
 /// A chosen configuration and why.

@@ -8,8 +8,9 @@
 //! what "done" means; [`run`] is the `render-dataset` pipeline itself (the command line and the Python
 //! `render_dataset` are its clients):
 //!
-//! - [`Shard`]: a deterministic partition of the *full* sorted scene list (scene index mod N = K), computed
+//! - [`Shard`]: a deterministic partition of the dataset's *full* scene list (scene index mod N = K), computed
 //!   before finished scenes are skipped, so a re-run never moves a scene to another shard (Slurm job arrays).
+//!   The list is [`SceneOrder`]'s: the one `dataset.json` recorded, then scenes new in the folder, appended.
 //! - [`configuration`]: the canonical description of a render request (system, tracer, sizes, bands,
 //!   planes, rays, seeds, mask content, options), free of timings. Every scene's `render.json` records it
 //!   under `"configuration"`, and `dataset.json` at the root of the output folder records the request of
@@ -32,8 +33,10 @@
 //! assert_eq!(Shard::parse("slurm", env).unwrap(), Shard::new(2, 4).unwrap());
 //! ```
 pub mod run;
+pub mod tolerance;
 
-pub use run::{check_out, load_fitted, name_hash, run, DatasetProgress, DatasetRequest, DatasetSummary, OnMismatch, SceneOutcome, SceneStatus, SilentDataset};
+pub use tolerance::run_with_source;
+pub use run::{check_out, load_fitted, name_hash, requested_configuration, run, DatasetProgress, DatasetRequest, DatasetSummary, OnMismatch, SceneOutcome, SceneStatus, SilentDataset};
 
 use super::engine::Renderer;
 use crate::error::{Error, Result};
@@ -221,7 +224,8 @@ pub fn check_scene_input(out: &Path, scene: &DatasetScene) -> Vec<String> {
 
 // ---------------------------------------------------------------- shards
 
-/// Shard `index` of `count`: the scenes whose index in the full sorted scene list is ≡ `index` (mod `count`).
+/// Shard `index` of `count`: the scenes whose index in the full scene list ([`SceneOrder`]: the recorded list,
+/// then new scenes; a fresh folder's sorted list) is ≡ `index` (mod `count`).
 /// Round-robin rather than contiguous blocks, so shards get similar mixes when scene sizes drift with
 /// their names.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -310,7 +314,7 @@ impl Shard {
         Shard::new(whole(k_text, "shard index K", 0)?, whole(n_text, "shard count N", 1)?)
     }
 
-    /// Whether the scene at `scene_index` of the full sorted list belongs to this shard.
+    /// Whether the scene at `scene_index` of the full list ([`SceneOrder::names`]) belongs to this shard.
     pub fn contains(&self, scene_index: usize) -> bool {
         scene_index % self.count == self.index
     }
@@ -324,6 +328,79 @@ impl Shard {
 impl fmt::Display for Shard {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+/// The dataset's scene list in partition order: the list `dataset.json` recorded (in its order), then the
+/// scenes of the folder it does not hold, sorted by name. Shards index this list ([`Shard::contains`]), and
+/// round-robin keeps an index's shard when the list only grows at its end, so a scene added to `--scenes` in
+/// the middle of an array never moves a recorded scene to another shard (round 20: `a04.npy`, sorting first,
+/// shifted every index; shard 1/2 then held shard 0's scenes, skipped them as done, exited 0, and its own
+/// were never rendered). Without a recorded list it is the folder's sorted list.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SceneOrder {
+    /// Every scene, recorded ones first: what shards index, and what the next `dataset.json` records.
+    pub names: Vec<String>,
+    /// Scenes of the folder that the recorded list does not hold, appended in this order.
+    pub added: Vec<String>,
+    /// Recorded scenes no longer in the folder: they keep their places (so no other scene moves), but no
+    /// task can render them.
+    pub gone: Vec<String>,
+}
+
+impl SceneOrder {
+    /// The order for the recorded list `recorded` (`None`: no `dataset.json` yet) and the folder's scenes
+    /// `found` ([`find_scenes`], sorted).
+    pub fn new(recorded: Option<&[String]>, found: &[DatasetScene]) -> SceneOrder {
+        let present: std::collections::HashSet<&str> = found.iter().map(|s| s.name.as_str()).collect();
+        let mut seen = std::collections::HashSet::new();
+        let mut names: Vec<String> = recorded.unwrap_or(&[]).iter().filter(|n| seen.insert(n.as_str())).cloned().collect();
+        let gone = names.iter().filter(|n| !present.contains(n.as_str())).cloned().collect();
+        let added: Vec<String> = found.iter().filter(|s| !seen.contains(s.name.as_str())).map(|s| s.name.clone()).collect();
+        names.extend(added.iter().cloned());
+        SceneOrder { names, added: if recorded.is_some() { added } else { vec![] }, gone }
+    }
+
+    /// The order for `out`'s recorded list (an unreadable `dataset.json` counts as none) and `found`.
+    pub fn of(out: &Path, found: &[DatasetScene]) -> SceneOrder {
+        let recorded = read_manifest(out).ok().map(|(_, n)| n);
+        SceneOrder::new(recorded.as_deref(), found)
+    }
+
+    /// Whether `name` is a recorded scene no longer in the folder.
+    pub fn is_gone(&self, name: &str) -> bool {
+        self.gone.iter().any(|g| g == name)
+    }
+
+    /// Shard `shard`'s scene names, in list order. Depends on the list only, never on which scenes are done.
+    pub fn select(&self, shard: Shard) -> Vec<&str> {
+        self.names.iter().enumerate().filter(|(i, _)| shard.contains(*i)).map(|(_, n)| n.as_str()).collect()
+    }
+
+    /// What changed against the recorded list, for the user (`None` when nothing did): new scenes are
+    /// appended, recorded ones gone from `dir` keep their places.
+    pub fn changes_message(&self, dir: &Path) -> Option<String> {
+        let list = |v: &[String]| if v.len() > 8 { format!("{}, … ({} in all)", v[..8].join(", "), v.len()) } else { v.join(", ") };
+        let mut parts = Vec::new();
+        if !self.added.is_empty() {
+            let first = self.names.len() - self.added.len();
+            parts.push(format!(
+                "{} scene(s) in {} are new since {MANIFEST} recorded its list ({}): appended as {} of the list, so no recorded scene moves to another shard",
+                self.added.len(),
+                dir.display(),
+                list(&self.added),
+                if self.added.len() == 1 { format!("scene {first}") } else { format!("scenes {first}–{}", self.names.len() - 1) }
+            ));
+        }
+        if !self.gone.is_empty() {
+            parts.push(format!(
+                "{} scene(s) of {MANIFEST}'s list are no longer in {} ({}): they keep their places in the list (so no other scene moves); one already rendered stays done, one not rendered cannot be (restore its file)",
+                self.gone.len(),
+                dir.display(),
+                list(&self.gone)
+            ));
+        }
+        (!parts.is_empty()).then(|| parts.join("; "))
     }
 }
 
@@ -745,6 +822,8 @@ pub fn commit_scene(partial: &Path, out: &Path, name: &str) -> Result<()> {
 pub struct SceneReport {
     pub scene: String,
     pub state: SceneState,
+    /// Said beside the state: a recorded scene no longer in the `--scenes` folder.
+    pub note: Option<String>,
 }
 
 /// What `dataset-status` reports about an output folder.
@@ -768,8 +847,25 @@ impl DatasetStatus {
             (Err(e), None) => return Err(Error::File { path: out.display().to_string(), message: format!("no scene list: {e} (give --scenes SRC)") }),
         };
         let shared = check_shared(out, requested.as_ref());
-        let scenes = names.into_iter().map(|s| SceneReport { state: check_scene(out, &s, requested.as_ref()), scene: s }).collect();
+        let scenes = names.into_iter().map(|s| SceneReport { state: check_scene(out, &s, requested.as_ref()), scene: s, note: None }).collect();
         Ok(DatasetStatus { shared, scenes, leftovers: leftovers(out) })
+    }
+
+    /// `dataset-status`: check `out` for the scenes `render-dataset` would render from `found` (a `--scenes`
+    /// folder's, [`find_scenes`]), in its partition order ([`SceneOrder`]: the recorded list, then the folder's
+    /// new scenes), or for the recorded list alone (`None`). A scene done from files that have changed since is
+    /// a mismatch; a recorded scene no longer in the folder is reported by its output folder, with a note.
+    pub fn check_scenes(out: &Path, found: Option<&[DatasetScene]>) -> Result<DatasetStatus> {
+        let Some(found) = found else { return DatasetStatus::check(out, None, None) };
+        let order = SceneOrder::of(out, found);
+        let mut st = DatasetStatus::check(out, Some(order.names.clone()), None)?;
+        for s in st.scenes.iter_mut() {
+            match found.iter().find(|f| f.name == s.scene) {
+                Some(f) => s.state = with_scene_input(s.state.clone(), out, f),
+                None => s.note = Some(format!("listed in {MANIFEST} but no longer in the --scenes folder (it keeps its place in the list; it cannot be rendered again)")),
+            }
+        }
+        Ok(st)
     }
 
     /// (done, missing, corrupt) scene counts.
@@ -789,7 +885,13 @@ impl DatasetStatus {
             "clean": self.is_clean(),
             "counts": {"scenes": self.scenes.len(), "done": done, "missing": missing, "corrupt": corrupt},
             "shared": {"status": self.shared.word(), "problems": self.shared.problems()},
-            "scenes": self.scenes.iter().map(|s| json!({"scene": s.scene, "status": s.state.word(), "problems": s.state.problems()})).collect::<Vec<_>>(),
+            "scenes": self.scenes.iter().map(|s| {
+                let mut v = json!({"scene": s.scene, "status": s.state.word(), "problems": s.state.problems()});
+                if let Some(n) = &s.note {
+                    v["note"] = json!(n);
+                }
+                v
+            }).collect::<Vec<_>>(),
             "leftovers": self.leftovers.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
         })
     }

@@ -29,8 +29,7 @@ pub fn intersect(shape: &SurfaceShape, p: DVec3, d: DVec3) -> Result<Hit, Inters
             if *curvature == 0.0 {
                 return intersect_plane(p, d);
             }
-            let t = conic_root(*curvature, *conic, p, d)?;
-            let point = p + d * t;
+            let (t, point) = conic_root(*curvature, *conic, p, d)?;
             Ok(Hit { t, point, normal: shape.normal(point) })
         }
         SurfaceShape::EvenAsphere { curvature, conic, .. } => {
@@ -39,14 +38,14 @@ pub fn intersect(shape: &SurfaceShape, p: DVec3, d: DVec3) -> Result<Hit, Inters
             // conic's domain, even behind the ray, where strong aspheric terms have bent the figure away
             // — and Newton from there leaves the domain; the plane root is then the better start.
             let plane = intersect_plane(p, d).map(|h| h.t);
-            let conic_start = if *curvature == 0.0 { Err(IntersectFailure::Missed) } else { conic_root(*curvature, *conic, p, d) };
+            let conic_start = if *curvature == 0.0 { Err(IntersectFailure::Missed) } else { conic_root(*curvature, *conic, p, d).map(|(t, _)| t) };
             newton_hit(shape, p, d, [conic_start, plane])
         }
         SurfaceShape::Toroidal { curvature, conic, .. } => {
             // Starts: the vertex plane's root (the toroid is smooth through its vertex), then the root of the
             // YZ curve's rotationally symmetric conic (closer for steep surfaces).
             let plane = intersect_plane(p, d).map(|h| h.t);
-            let conic_start = if *curvature == 0.0 { Err(IntersectFailure::Missed) } else { conic_root(*curvature, *conic, p, d) };
+            let conic_start = if *curvature == 0.0 { Err(IntersectFailure::Missed) } else { conic_root(*curvature, *conic, p, d).map(|(t, _)| t) };
             newton_hit(shape, p, d, [plane, conic_start])
         }
     }
@@ -99,21 +98,27 @@ pub(crate) fn on_conic_vertex_branch(point: DVec3, c: f64, kk: f64) -> bool {
     (point.z - sag).abs() <= 1e-9 * (1.0 + point.z.abs())
 }
 
-/// Vertex-branch root of c(x²+y²+(1+k)z²) − 2z = 0 along p + t d.
+/// Vertex-branch root of c(x²+y²+(1+k)z²) − 2z = 0 along p + t d: (t, the point).
 ///
-/// With A t² + 2B′ t + C = 0 the two roots are t₁ = C / q and t₂ = q / A, q = −(B′ + sign(B′)√(B′² − AC)),
-/// both free of cancellation (Numerical Recipes §5.6). t₁ is the one that tends to the plane root
-/// −p_z/d_z as c → 0, and it is taken when it lies on the vertex branch (the sheet the sag formula
-/// describes). It does not always: once the ray starts beyond the centre of curvature (c·p_z > 1 for a
-/// ray along z, e.g. 14 mm in front of a concave R = −10 mm sphere) B′ changes sign, t₁ becomes the
-/// crossing of the far half of the sphere and t₂ the vertex-branch one. Each root is therefore tested
-/// against the branch, t₁ first.
+/// The quadratic is solved from the line's point nearest the vertex, p₀ = p + t₀·d with t₀ = −p·d (d unit),
+/// not from p: the constant term C = c(x²+y²+kk·z²) − 2z of a start far in front carries c·kk·z² (2·10⁸ for
+/// R = 50 mm at 100 m) and the discriminant B′² − AC lost every digit the branch test needs — rays of a
+/// finite object 30 m away were reported missed (round 20; OpticStudio likewise transfers to the vertex
+/// region before it intersects). From p₀, C is of the order of c·r² over the aperture.
+///
+/// With A s² + 2B′ s + C = 0 the two roots are s₁ = C / q and s₂ = q / A, q = −(B′ + sign(B′)√(B′² − AC)),
+/// both free of cancellation (Numerical Recipes §5.6); t = t₀ + s. A line can cross the vertex branch twice
+/// (a steep ray through the rim of a deep sphere) and the root then taken is the one nearest the ray's
+/// start, |t| smallest (as the quadratic in p's own parameter picks it: its C / q is the smaller root), each
+/// tested against the branch (the sheet the sag formula describes) at p₀ + s·d, nearest first.
 #[inline(always)]
-fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<f64, IntersectFailure> {
+fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<(f64, DVec3), IntersectFailure> {
     let kk = 1.0 + k;
+    let t0 = -(p.x * d.x + p.y * d.y + p.z * d.z);
+    let p0 = DVec3::new(p.x + d.x * t0, p.y + d.y * t0, p.z + d.z * t0);
     let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
-    let b = c * (p.x * d.x + p.y * d.y + kk * p.z * d.z) - d.z;
-    let cc = c * (p.x * p.x + p.y * p.y + kk * p.z * p.z) - 2.0 * p.z;
+    let b = c * (p0.x * d.x + p0.y * d.y + kk * p0.z * d.z) - d.z;
+    let cc = c * (p0.x * p0.x + p0.y * p0.y + kk * p0.z * p0.z) - 2.0 * p0.z;
     let disc = b * b - a * cc;
     if !(disc >= 0.0) {
         return Err(IntersectFailure::Missed);
@@ -122,14 +127,15 @@ fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<f64, IntersectFailur
     if q == 0.0 {
         return Err(IntersectFailure::Missed);
     }
-    let on_branch = |t: f64| t.is_finite() && on_conic_vertex_branch(p + d * t, c, kk);
-    let t1 = cc / q;
-    if on_branch(t1) {
-        return Ok(t1);
-    }
-    let t2 = q / a;
-    if a != 0.0 && on_branch(t2) {
-        return Ok(t2);
+    let s1 = cc / q;
+    let s2 = if a != 0.0 { q / a } else { f64::NAN };
+    let (r1, r2) = (t0 + s1, t0 + s2);
+    let order = if (r2).abs() < r1.abs() { [(s2, r2), (s1, r1)] } else { [(s1, r1), (s2, r2)] };
+    for (s, t) in order {
+        let point = p0 + d * s;
+        if s.is_finite() && t.is_finite() && on_conic_vertex_branch(point, c, kk) {
+            return Ok((t, point));
+        }
     }
     Err(IntersectFailure::Missed)
 }

@@ -371,18 +371,25 @@ fn plane_root(p: DVec3, d: DVec3) -> Option<f64> {
 }
 
 /// Both roots (ascending, each `None` if absent or off the vertex branch) of c(x²+y²+(1+k)z²) − 2z = 0
-/// along p + t·d, computed without cancellation (Numerical Recipes §5.6).
+/// along p + t·d, computed without cancellation (Numerical Recipes §5.6) from the line's point nearest the
+/// vertex p₀ = p + t₀·d, t₀ = −p·d, as the sequential `intersect::conic_root` (a start far in front loses the
+/// discriminant's digits otherwise; round 20); the roots are t₀ + s.
 fn conic_roots(c: f64, k: f64, p: DVec3, d: DVec3) -> (Option<f64>, Option<f64>) {
     if c == 0.0 {
         return (plane_root(p, d), None);
     }
     let kk = 1.0 + k;
+    let t0 = -(p.x * d.x + p.y * d.y + p.z * d.z);
+    let p0 = DVec3::new(p.x + d.x * t0, p.y + d.y * t0, p.z + d.z * t0);
     let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
-    let b = c * (p.x * d.x + p.y * d.y + kk * p.z * d.z) - d.z;
-    let cc = c * (p.x * p.x + p.y * p.y + kk * p.z * p.z) - 2.0 * p.z;
-    let on_branch = |t: f64| -> Option<f64> { (t.is_finite() && on_conic_vertex_branch(p + d * t, c, kk)).then_some(t) };
+    let b = c * (p0.x * d.x + p0.y * d.y + kk * p0.z * d.z) - d.z;
+    let cc = c * (p0.x * p0.x + p0.y * p0.y + kk * p0.z * p0.z) - 2.0 * p0.z;
+    let on_branch = |s: f64| -> Option<f64> {
+        let t = t0 + s;
+        (s.is_finite() && t.is_finite() && on_conic_vertex_branch(p0 + d * s, c, kk)).then_some(t)
+    };
     if a == 0.0 {
-        // Linear: 2 b t + cc = 0.
+        // Linear: 2 b s + cc = 0.
         return (if b != 0.0 { on_branch(-cc / (2.0 * b)) } else { None }, None);
     }
     let disc = b * b - a * cc;

@@ -21,8 +21,8 @@ DC_FN int DC_T(dc_intersect_plane)(DC_V3 p, DC_V3 d, DC_REAL *t_out, DC_V3 *poin
     return 1;
 }
 
-/* Whether `q`, reached at parameter t, lies on the vertex branch of c(x²+y²+kk·z²) − 2z = 0 (where the sag
- * formula holds). */
+/* Whether `q`, reached at distance t from the solve's start, lies on the vertex branch of c(x²+y²+kk·z²) − 2z = 0
+ * (where the sag formula holds; the f32 tolerance grows with t). */
 DC_FN int DC_T(dc_on_conic_vertex_branch)(DC_V3 q, DC_REAL t, double c, double kk) {
     DC_REAL r2 = q.x * q.x + q.y * q.y;
     DC_REAL domain = DC_R(1.0) - DC_R(kk * c * c) * r2;
@@ -32,31 +32,37 @@ DC_FN int DC_T(dc_on_conic_vertex_branch)(DC_V3 q, DC_REAL t, double c, double k
     return DC_RFABS(q.z - sag) <= DC_BRANCH_TOL(q.z, t);
 }
 
-DC_FN int DC_T(dc_on_branch_at)(DC_V3 p, DC_V3 d, DC_REAL t, double c, double kk) {
-    return isfinite(t) && DC_T(dc_on_conic_vertex_branch)(DC_T(dc_add)(p, DC_T(dc_scale)(d, t)), t, c, kk);
-}
-
-/* Vertex-branch root of the conic along p + t d (the cancellation-free pair t₁ = C/q, t₂ = q/A). */
-DC_FN int DC_T(dc_conic_root)(double c, double k, DC_V3 p, DC_V3 d, DC_REAL *t_out) {
+/* Vertex-branch root of the conic along p + t d, solved from the line's point nearest the vertex
+ * p0 = p + t0·d, t0 = −p·d (a start far in front otherwise loses the discriminant's digits), in the
+ * cancellation-free pair s₁ = C/q, s₂ = q/A; the root nearest the ray's start (|t0 + s| smallest) is tested
+ * first: surfaces::intersect::conic_root. Gives t = t0 + s and the point p0 + s·d. */
+DC_FN int DC_T(dc_conic_root)(double c, double k, DC_V3 p, DC_V3 d, DC_REAL *t_out, DC_V3 *point_out) {
     double kk = 1.0 + k;
     DC_REAL cl = DC_R(c), kl = DC_R(kk);
+    DC_REAL t0 = -DC_T(dc_dot)(p, d);
+    DC_V3 p0 = DC_T(dc_add)(p, DC_T(dc_scale)(d, t0));
     DC_REAL a = cl * (d.x * d.x + d.y * d.y + kl * d.z * d.z);
-    DC_REAL b = cl * (p.x * d.x + p.y * d.y + kl * p.z * d.z) - d.z;
-    DC_REAL cc = cl * (p.x * p.x + p.y * p.y + kl * p.z * p.z) - DC_R(2.0) * p.z;
+    DC_REAL b = cl * (p0.x * d.x + p0.y * d.y + kl * p0.z * d.z) - d.z;
+    DC_REAL cc = cl * (p0.x * p0.x + p0.y * p0.y + kl * p0.z * p0.z) - DC_R(2.0) * p0.z;
     DC_REAL disc = b * b - a * cc;
     if (!(disc >= DC_R(0.0))) return 0;
     /* Rust's signum: ±1 by the sign bit (b is not NaN here: disc would be NaN). */
     DC_REAL q = -(b + DC_RCOPYSIGN(DC_R(1.0), b) * DC_RSQRT(disc));
     if (q == DC_R(0.0)) return 0;
-    DC_REAL t1 = cc / q;
-    if (DC_T(dc_on_branch_at)(p, d, t1, c, kk)) {
-        *t_out = t1;
-        return 1;
-    }
-    DC_REAL t2 = q / a;
-    if (a != DC_R(0.0) && DC_T(dc_on_branch_at)(p, d, t2, c, kk)) {
-        *t_out = t2;
-        return 1;
+    DC_REAL s[2], r[2];
+    s[0] = cc / q;
+    s[1] = q / a; /* ±inf or NaN when a = 0: never finite, never swapped */
+    r[0] = t0 + s[0];
+    r[1] = t0 + s[1];
+    int first = DC_RFABS(r[1]) < DC_RFABS(r[0]) ? 1 : 0;
+    for (int i = 0; i < 2; ++i) {
+        int j = i == 0 ? first : 1 - first;
+        DC_V3 q_pt = DC_T(dc_add)(p0, DC_T(dc_scale)(d, s[j]));
+        if (isfinite(s[j]) && isfinite(r[j]) && DC_T(dc_on_conic_vertex_branch)(q_pt, s[j], c, kk)) {
+            *t_out = r[j];
+            *point_out = q_pt;
+            return 1;
+        }
     }
     return 0;
 }
@@ -213,9 +219,9 @@ DC_FN dc_u32 DC_T(dc_asphere_newton)(const dc_step *s, DC_V3 p, DC_V3 d, DC_REAL
 DC_FN dc_u32 DC_T(dc_newton_hit)(const dc_step *s, DC_V3 p, DC_V3 d, int plane_first, DC_V3 *point, DC_V3 *normal) {
     DC_REAL starts[2], t;
     int ok[2];
-    DC_V3 q;
+    DC_V3 q, q_conic; /* the starts' points, unused: the solve keeps t */
     int ic = plane_first ? 1 : 0, ip = 1 - ic;
-    ok[ic] = s->curvature != 0.0 && DC_T(dc_conic_root)(s->curvature, s->conic, p, d, &starts[ic]);
+    ok[ic] = s->curvature != 0.0 && DC_T(dc_conic_root)(s->curvature, s->conic, p, d, &starts[ic], &q_conic);
     ok[ip] = DC_T(dc_intersect_plane)(p, d, &starts[ip], &q);
     dc_u32 result = DC_MISSED;
     for (int k = 0; k < 2; ++k) {
@@ -236,8 +242,7 @@ DC_FN dc_u32 DC_T(dc_intersect)(const dc_step *s, DC_V3 p, DC_V3 d, DC_V3 *point
     switch (s->shape) {
     case DC_SHAPE_CONIC:
         if (s->curvature != 0.0) {
-            if (!DC_T(dc_conic_root)(s->curvature, s->conic, p, d, &t)) return DC_MISSED;
-            *point = DC_T(dc_add)(p, DC_T(dc_scale)(d, t));
+            if (!DC_T(dc_conic_root)(s->curvature, s->conic, p, d, &t, point)) return DC_MISSED;
             *normal = DC_T(dc_normal)(s, *point);
             return DC_OK;
         }

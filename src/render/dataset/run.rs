@@ -17,7 +17,7 @@
 //! println!("{} rendered, {} skipped", done.rendered, done.skipped);
 //! # Ok::<(), diffcassi::Error>(())
 //! ```
-use super::{check_scene, check_shared, commit_scene, configuration, configuration_differences, file_records, find_scenes, manifest, partial_dir, read_manifest, remove_leftovers, scene_input_record, shared_output_names, with_scene_input, DatasetOptions, SceneState, Shard, MANIFEST};
+use super::{check_scene, check_shared, commit_scene, configuration, configuration_differences, file_records, find_scenes, manifest, partial_dir, read_manifest, remove_leftovers, scene_input_record, shared_output_names, with_scene_input, DatasetOptions, DatasetScene, SceneOrder, SceneState, Shard, MANIFEST};
 use crate::error::{Error, Result};
 use crate::render::Device;
 use crate::render::{output, Acquisition, Mask, NoiseConfig, PlaneTransport, RenderConfig, Renderer};
@@ -63,6 +63,10 @@ pub struct DatasetRequest {
     /// The error (µm) the tolerance's choice predicts ([`crate::fidelity::RenderChoice::error_um`]), recorded
     /// as `tolerance_predicted_error_um` (`null` without a tolerance).
     pub tolerance_predicted_error_um: Option<f64>,
+    /// The `--backend` text of the tolerance's choice (`analytic-f32`: the f32 lanes), recorded with the
+    /// tolerance in dataset.json so that the dataset's other shards take the same choice
+    /// ([`super::tolerance::run_with_source`]; `None` without a tolerance).
+    pub tolerance_backend: Option<String>,
     /// A test hook: wait this long after writing each scene's temporary folder, before moving it into place.
     pub scene_delay: Option<Duration>,
 }
@@ -81,6 +85,7 @@ impl DatasetRequest {
             device: Device::Cpu,
             tolerance_um: None,
             tolerance_predicted_error_um: None,
+            tolerance_backend: None,
             scene_delay: None,
         }
     }
@@ -192,13 +197,23 @@ pub fn check_out(request: &DatasetRequest, inputs: &[(&str, &Path)]) -> Result<(
 /// Write the outputs shared by all scenes and shards: mask.png, the mapping cube, then dataset.json
 /// (last; it records the others' sizes and CRC-32). Each file is replaced atomically; every shard of one
 /// request writes the same bytes, so concurrent shards may race harmlessly.
-fn write_shared(out: &Path, renderer: &Renderer, configuration: &Value, scene_names: &[String]) -> Result<()> {
+fn write_shared(out: &Path, renderer: &Renderer, configuration: &Value, scene_names: &[String], tolerance: Option<Value>) -> Result<()> {
     renderer.mask.save_png(&out.join("mask.png"))?;
     if configuration["mapping"].as_bool().unwrap_or(false) {
         output::write_mapping(out, renderer)?;
     }
     let records = file_records(out, &shared_output_names(configuration))?;
-    let manifest = manifest(configuration, scene_names, records);
+    let mut manifest = manifest(configuration, scene_names, records);
+    // The tolerance's choice, which the other shards take (`super::tolerance`); a run without a tolerance
+    // keeps the one recorded for this same configuration.
+    let kept = || {
+        let v = crate::io::input::read_sidecar_json(&out.join(MANIFEST)).ok()?;
+        let same = configuration_differences(v.get("configuration")?, configuration).is_empty();
+        same.then(|| v.get(super::tolerance::TOLERANCE_KEY).cloned()).flatten()
+    };
+    if let Some(t) = tolerance.or_else(kept) {
+        manifest[super::tolerance::TOLERANCE_KEY] = t;
+    }
     let text = serde_json::to_string_pretty(&manifest).map_err(|e| Error::invalid(format!("JSON encoding failed: {e}")))?;
     crate::io::write_atomic(out.join(MANIFEST), text.as_bytes())?;
     Ok(())
@@ -267,26 +282,67 @@ fn write_scene(dir: &Path, renderer: &Renderer, acq: &Acquisition, device: Optio
     output::write_sidecar(dir, &json)
 }
 
-/// Render the dataset `request` describes through `system` with `tracer`, `cfg` (its rays per pixel as
-/// chosen) and `mask`; `inputs` are the files the output must not touch besides the scenes. Decides
-/// everything before writing anything; a scene that fails is reported and the others go on (the run then
-/// ends with an error naming the failed ones).
-#[allow(clippy::too_many_arguments)]
-pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &SequentialSystem, tracer: &dyn Tracer, cfg: RenderConfig, mask: Mask, progress: &dyn DatasetProgress) -> Result<DatasetSummary> {
-    let t0 = Instant::now();
-    let a = request;
-    if !(a.transport_memory_gb.is_finite() && a.transport_memory_gb >= 0.0) {
-        return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0", a.transport_memory_gb)));
+/// What a run will do with its shard's scenes, decided before anything is written.
+struct Plan {
+    /// The list the shard indexes.
+    order: SceneOrder,
+    /// Scenes to render (missing, damaged, or mismatching).
+    todo: Vec<DatasetScene>,
+    /// Scenes complete with this configuration (from unchanged files), by name.
+    skipped: Vec<String>,
+    /// Mismatching scenes with their differences.
+    mismatched: Vec<String>,
+    /// Messages for the user (damaged scenes rendered again, recorded scenes gone but done).
+    notes: Vec<String>,
+    /// Recorded scenes of this shard no longer in the folder and not done: (name, why), reported failed.
+    gone_failed: Vec<(String, String)>,
+}
+
+impl Plan {
+    fn new(a: &DatasetRequest, order: SceneOrder, found: Vec<DatasetScene>, configuration: &Value) -> Plan {
+        let mut p = Plan { order, todo: vec![], skipped: vec![], mismatched: vec![], notes: vec![], gone_failed: vec![] };
+        let mine: Vec<String> = p.order.select(a.shard).into_iter().map(String::from).collect();
+        for name in mine {
+            let Some(s) = found.iter().find(|f| f.name == name) else {
+                // A recorded scene no longer in the folder keeps its place (no other scene moves); what it left
+                // stands when done, otherwise nothing can render it.
+                match check_scene(&a.out, &name, Some(configuration)) {
+                    SceneState::Done => {
+                        p.notes.push(format!("{name}: no longer in {}, kept as rendered (its input cannot be compared)", a.scenes.display()));
+                        p.skipped.push(name);
+                    }
+                    state => {
+                        let why = match state.problems() {
+                            v if v.is_empty() => String::new(),
+                            v => format!(" (its folder: {})", v.join("; ")),
+                        };
+                        p.gone_failed.push((name.clone(), format!("{MANIFEST} lists the scene but {} no longer holds it, and it is not rendered{why}: restore its file, or render into another --out (the list keeps its place so that no other scene moves to another shard)", a.scenes.display())));
+                    }
+                }
+                continue;
+            };
+            // Done and rendered from the same scene content (a scene file replaced since is rendered again).
+            match with_scene_input(check_scene(&a.out, &s.name, Some(configuration)), &a.out, s) {
+                SceneState::Done => p.skipped.push(s.name.clone()),
+                SceneState::Missing => p.todo.push(s.clone()),
+                SceneState::Damaged(d) => {
+                    p.notes.push(format!("{}: damaged, rendering again ({})", s.name, d.join("; ")));
+                    p.todo.push(s.clone())
+                }
+                SceneState::Mismatch(d) => {
+                    p.mismatched.push(format!("{} ({})", s.name, d.join("; ")));
+                    p.todo.push(s.clone())
+                }
+            }
+        }
+        p
     }
-    check_out(a, inputs)?;
-    let scenes = find_scenes(&a.scenes)?;
-    if scenes.is_empty() {
-        return Err(Error::File { path: a.scenes.display().to_string(), message: "no scenes (.exr, .npy, or folders of .png)".into() });
-    }
-    let scene_names: Vec<String> = scenes.iter().map(|s| s.name.clone()).collect();
-    let shard = a.shard;
-    let renderer = Renderer::new(system, tracer, cfg, mask)?;
-    let mut configuration = configuration(&renderer, &a.options);
+}
+
+/// The configuration `request` asks for with `renderer` (what dataset.json and each render.json record and
+/// a resume compares): [`configuration`], the sensor noise and, on a GPU, its accumulation.
+pub fn requested_configuration(a: &DatasetRequest, renderer: &Renderer) -> Result<Value> {
+    let mut configuration = configuration(renderer, &a.options);
     if let Some(o) = configuration.as_object_mut() {
         // Sensor noise is part of what a scene's files hold: a request with other noise is another configuration.
         // How its random numbers are drawn too: a dataset rendered with the earlier single row-major stream
@@ -304,32 +360,45 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
             o.insert("accumulation".into(), serde_json::json!("gpu-kernels"));
         }
     }
+    Ok(configuration)
+}
 
-    // Decide everything before writing anything.
-    let mine = shard.select(&scenes);
-    let mut todo = Vec::new();
-    let mut skipped = Vec::new();
-    let mut mismatched: Vec<String> = Vec::new();
-    for s in &mine {
-        // Done and rendered from the same scene content (a scene file replaced since is rendered again).
-        match with_scene_input(check_scene(&a.out, &s.name, Some(&configuration)), &a.out, s) {
-            SceneState::Done => skipped.push(*s),
-            SceneState::Missing => todo.push(*s),
-            SceneState::Damaged(p) => {
-                progress.message(&format!("{}: damaged, rendering again ({})", s.name, p.join("; ")));
-                todo.push(*s)
-            }
-            SceneState::Mismatch(d) => {
-                mismatched.push(format!("{} ({})", s.name, d.join("; ")));
-                todo.push(*s)
-            }
-        }
+/// Render the dataset `request` describes through `system` with `tracer`, `cfg` (its rays per pixel as
+/// chosen) and `mask`; `inputs` are the files the output must not touch besides the scenes. Decides
+/// everything before writing anything; a scene that fails is reported and the others go on (the run then
+/// ends with an error naming the failed ones).
+#[allow(clippy::too_many_arguments)]
+pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &SequentialSystem, tracer: &dyn Tracer, cfg: RenderConfig, mask: Mask, progress: &dyn DatasetProgress) -> Result<DatasetSummary> {
+    let t0 = Instant::now();
+    let a = request;
+    if !(a.transport_memory_gb.is_finite() && a.transport_memory_gb >= 0.0) {
+        return Err(Error::invalid(format!("--transport-memory-gb {}: must be finite and ≥ 0", a.transport_memory_gb)));
     }
+    check_out(a, inputs)?;
+    let scenes = find_scenes(&a.scenes)?;
+    if scenes.is_empty() {
+        return Err(Error::File { path: a.scenes.display().to_string(), message: "no scenes (.exr, .npy, or folders of .png)".into() });
+    }
+    let shard = a.shard;
+    let renderer = Renderer::new(system, tracer, cfg, mask)?;
+    let configuration = requested_configuration(a, &renderer)?;
+
+    // Decide everything before writing anything. The shard indexes the dataset's list (SceneOrder: the one
+    // dataset.json recorded, then scenes new in the folder), not the folder's sorted listing alone.
+    let mut plan = Plan::new(a, SceneOrder::of(&a.out, &scenes), scenes, &configuration);
     // The folder's configuration is checked and claimed (dataset.json written) under the folder's lock: two
     // runs with different settings both found no dataset.json, both wrote it and both exited 0 over a mixed
     // folder (a held-out battery, round 16). Now the second sees the first's dataset.json and is refused as a
     // mismatch, nothing written; shards of one configuration take the lock in turn and go on.
     let claim = lock_out(&a.out, Some(progress))?;
+    // A task that claimed the folder meanwhile may have recorded another list (a scene added between the two
+    // tasks' starts): plan again from it, so every task of the array partitions the same list.
+    let found = find_scenes(&a.scenes)?;
+    let order = SceneOrder::of(&a.out, &found);
+    if order != plan.order {
+        plan = Plan::new(a, order, found, &configuration);
+    }
+    let Plan { order, todo, skipped, mut mismatched, notes, gone_failed } = plan;
     let shared_state = check_shared(&a.out, Some(&configuration));
     if let SceneState::Mismatch(d) = &shared_state {
         mismatched.insert(0, format!("{} ({})", MANIFEST, d.join("; ")));
@@ -347,15 +416,45 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
         }
         progress.message(&format!("rendering again (--on-mismatch rerender): {}", mismatched.join(", ")));
     }
-    progress.message(&format!("{} scenes in {}; shard {shard} holds {}: {} to render, {} complete (skipped)", scenes.len(), a.scenes.display(), mine.len(), todo.len(), skipped.len()));
-    for s in &skipped {
-        progress.scene(&SceneOutcome { scene: s.name.clone(), status: SceneStatus::Skipped, seconds: 0.0, output: a.out.join(&s.name), error: None });
+    if let Some(m) = order.changes_message(&a.scenes) {
+        progress.message(&m);
     }
-    if shared_state != SceneState::Done || !todo.is_empty() {
-        write_shared(&a.out, &renderer, &configuration, &scene_names)?;
+    if let (true, Err(e)) = (a.out.join(MANIFEST).exists(), read_manifest(&a.out)) {
+        progress.message(&format!("warning: {e}: its scene list is unreadable, so shards index the folder's sorted list (scenes added since the list was recorded may now fall to other shards)"));
+    }
+    for n in &notes {
+        progress.message(n);
+    }
+    let held = order.select(shard).len();
+    progress.message(&format!(
+        "{} scenes in the list of {}; shard {shard} holds {held}: {} to render, {} complete (skipped){}",
+        order.names.len(),
+        a.scenes.display(),
+        todo.len(),
+        skipped.len(),
+        if gone_failed.is_empty() { String::new() } else { format!(", {} no longer in the folder and not rendered (failed)", gone_failed.len()) }
+    ));
+    for s in &skipped {
+        progress.scene(&SceneOutcome { scene: s.clone(), status: SceneStatus::Skipped, seconds: 0.0, output: a.out.join(s), error: None });
+    }
+    let mut failed: Vec<String> = Vec::new();
+    for (name, why) in &gone_failed {
+        progress.scene(&SceneOutcome { scene: name.clone(), status: SceneStatus::Failed, seconds: 0.0, output: a.out.join(name), error: Some(why.clone()) });
+        failed.push(name.clone());
+    }
+    // The list is recorded as soon as it grows, so a later addition is appended after this one whichever
+    // task sees it first (two additions appended at once are sorted; one after the other, in turn).
+    let recorded = read_manifest(&a.out).ok().map(|(_, n)| n);
+    if shared_state != SceneState::Done || !todo.is_empty() || recorded.as_ref() != Some(&order.names) {
+        write_shared(&a.out, &renderer, &configuration, &order.names, super::tolerance::choice_record(a, renderer.config.rays_per_pixel))?;
     }
     drop(claim);
+    let n_failed_gone = failed.len();
+    let failed_error = |failed: &[String], of: usize| Error::invalid(format!("{} of {} scenes failed (their JSON lines say why): {}", failed.len(), of, failed.join(", ")));
     if todo.is_empty() {
+        if !failed.is_empty() {
+            return Err(failed_error(&failed, n_failed_gone));
+        }
         return Ok(DatasetSummary { rendered: 0, skipped: skipped.len(), seconds: t0.elapsed().as_secs_f64() });
     }
 
@@ -414,7 +513,6 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
         progress.message(&format!("warning: {}", d.message()));
     }
     progress.scenes_started(todo.len() as u64);
-    let mut failed: Vec<String> = Vec::new();
     for s in &todo {
         let ts = Instant::now();
         progress.scene_started(&s.name);
@@ -475,9 +573,9 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
         }
     }
     progress.scenes_done();
-    progress.message(&format!("rendered {} of {} scenes of shard {shard} into {} in {:.2} s", todo.len() - failed.len(), todo.len(), a.out.display(), t0.elapsed().as_secs_f64()));
+    progress.message(&format!("rendered {} of {} scenes of shard {shard} into {} in {:.2} s", todo.len() + n_failed_gone - failed.len(), todo.len(), a.out.display(), t0.elapsed().as_secs_f64()));
     if !failed.is_empty() {
-        return Err(Error::invalid(format!("{} of {} scenes failed (their JSON lines say why): {}", failed.len(), todo.len(), failed.join(", "))));
+        return Err(failed_error(&failed, todo.len() + n_failed_gone));
     }
     Ok(DatasetSummary { rendered: todo.len(), skipped: skipped.len(), seconds: t0.elapsed().as_secs_f64() })
 }

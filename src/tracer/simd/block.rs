@@ -202,25 +202,35 @@ fn conic_quadratic<T: Real, const N: usize>(c: f64, kk: f64, p: V3<T, N>, d: V3<
     (a, b, cc)
 }
 
-/// The conic's vertex-branch root (`conic_root` of the scalar code, the stable form
-/// q = −(b + sgn b·√disc), t = c/q or q/a) for the lanes of `live`: (found, t). The second root is
-/// computed only when a live lane needs it (as the scalar code does per ray).
+/// The conic's vertex-branch root (`conic_root` of the scalar code, the same operations in the same order:
+/// solved from the line's point nearest the vertex p₀ = p + t₀·d, t₀ = −p·d, in the stable form
+/// q = −(b + sgn b·√disc), s = c/q or q/a, the root nearest the ray's start tested first) for the lanes of
+/// `live`: (found, t = t₀ + s, the point p₀ + s·d). The farther root is tested only when a live lane needs
+/// it (as the scalar code does per ray).
 #[inline(always)]
-fn conic_root<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>, live: Mask<N>) -> (Mask<N>, Lanes<T, N>) {
+fn conic_root<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>, live: Mask<N>) -> (Mask<N>, Lanes<T, N>, V3<T, N>) {
     let kk = 1.0 + k;
     let zero = Lanes::of(0.0);
-    let (a, b, cc) = conic_quadratic(c, kk, p, d);
+    let t0 = -p.dot(d);
+    let p0 = p.along(d, t0);
+    let (a, b, cc) = conic_quadratic(c, kk, p0, d);
     let disc = b * b - a * cc;
     let q = -(b + b.signum() * disc.sqrt());
     let ok = disc.ge(zero) & q.ne(zero);
-    let t1 = cc / q;
-    let on1 = t1.is_finite() & on_vertex_branch(p.along(d, t1), t1, c, kk);
-    if !(live & ok & !on1).any() {
-        return (ok & on1, t1);
+    let (s1, s2) = (cc / q, q / a);
+    let (r1, r2) = (t0 + s1, t0 + s2);
+    // Nearest the start first; a = 0 (s₂ = ±∞ or NaN) never swaps, as the scalar code's NaN.
+    let swap = r2.abs().lt(r1.abs());
+    let (s_near, t_near) = (Lanes::select(swap, s2, s1), Lanes::select(swap, r2, r1));
+    let point_near = p0.along(d, s_near);
+    let on_near = s_near.is_finite() & t_near.is_finite() & on_vertex_branch(point_near, s_near, c, kk);
+    if !(live & ok & !on_near).any() {
+        return (ok & on_near, t_near, point_near);
     }
-    let t2 = q / a;
-    let on2 = a.ne(zero) & t2.is_finite() & on_vertex_branch(p.along(d, t2), t2, c, kk);
-    (ok & (on1 | on2), Lanes::select(on1, t1, t2))
+    let (s_far, t_far) = (Lanes::select(swap, s1, s2), Lanes::select(swap, r1, r2));
+    let point_far = p0.along(d, s_far);
+    let on_far = s_far.is_finite() & t_far.is_finite() & on_vertex_branch(point_far, s_far, c, kk);
+    (ok & (on_near | on_far), Lanes::select(on_near, t_near, t_far), V3::select(on_near, point_near, point_far))
 }
 
 /// Both roots of the conic c(x²+y²+(1+k)z²) − 2z = 0 along the lines p + t·d that lie on its vertex branch,
@@ -233,11 +243,15 @@ fn conic_root<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>,
 pub(crate) fn conic_roots_both<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>) -> (Mask<N>, Lanes<T, N>, Mask<N>, Lanes<T, N>) {
     let kk = 1.0 + k;
     let zero = Lanes::of(0.0);
-    let (a, b, cc) = conic_quadratic(c, kk, p, d);
-    // a = 0: linear, 2 b t + cc = 0.
+    // From the line's point nearest the vertex (`conic_roots`: t = t₀ + s).
+    let t0 = -p.dot(d);
+    let p0 = p.along(d, t0);
+    let (a, b, cc) = conic_quadratic(c, kk, p0, d);
+    let on_branch = |s: Lanes<T, N>| s.is_finite() & (t0 + s).is_finite() & on_vertex_branch(p0.along(d, s), s, c, kk);
+    // a = 0: linear, 2 b s + cc = 0.
     let linear = a.eq(zero);
-    let t_lin = -cc / (Lanes::of(2.0) * b);
-    let lin_ok = linear & b.ne(zero) & t_lin.is_finite() & on_vertex_branch(p.along(d, t_lin), t_lin, c, kk);
+    let s_lin = -cc / (Lanes::of(2.0) * b);
+    let lin_ok = linear & b.ne(zero) & on_branch(s_lin);
     let disc = b * b - a * cc;
     let quad = !linear & disc.ge(zero);
     let sign = Lanes::select(b.ge(zero), Lanes::of(1.0), Lanes::of(-1.0));
@@ -246,12 +260,12 @@ pub(crate) fn conic_roots_both<T: Real, const N: usize>(c: f64, k: f64, p: V3<T,
     let (r1, r2) = (Lanes::select(q0, zero, cc / q), Lanes::select(q0, zero, q / a));
     let ordered = r1.le(r2);
     let (lo, hi) = (Lanes::select(ordered, r1, r2), Lanes::select(ordered, r2, r1));
-    let lo_ok = quad & lo.is_finite() & on_vertex_branch(p.along(d, lo), lo, c, kk);
-    let hi_ok = quad & hi.is_finite() & on_vertex_branch(p.along(d, hi), hi, c, kk);
+    let lo_ok = quad & on_branch(lo);
+    let hi_ok = quad & on_branch(hi);
     // (None, h) → (h, None).
-    let first = Lanes::select(linear, t_lin, Lanes::select(lo_ok, lo, hi));
+    let first = t0 + Lanes::select(linear, s_lin, Lanes::select(lo_ok, lo, hi));
     let first_ok = (linear & lin_ok) | (lo_ok | hi_ok);
-    (first_ok, first, lo_ok & hi_ok, hi)
+    (first_ok, first, lo_ok & hi_ok, t0 + hi)
 }
 
 /// The even asphere's sag and gradient terms at parameter `t` along the lines: (f, f′) of the scalar
@@ -453,8 +467,7 @@ fn trace_step<T: Real, const N: usize, R: StepRecorder<T, N>>(step: &PathStep, n
                 let (hit, t, point) = plane(p, d);
                 (hit, t, point, z_axis)
             } else {
-                let (hit, t) = conic_root(c, k, p, d, b.alive);
-                let point = p.along(d, t);
+                let (hit, t, point) = conic_root(c, k, p, d, b.alive);
                 let ck = c * (1.0 + k);
                 let normal = V3 { x: Lanes::of(-c) * point.x, y: Lanes::of(-c) * point.y, z: Lanes::of(1.0) - Lanes::of(ck) * point.z }.normalize();
                 (hit, t, point, normal)
@@ -463,7 +476,7 @@ fn trace_step<T: Real, const N: usize, R: StepRecorder<T, N>>(step: &PathStep, n
         SurfaceShape::EvenAsphere { curvature, conic, coefficients } => {
             let (c, k) = (*curvature, *conic);
             let (plane_ok, plane_t, _) = plane(p, d);
-            let (conic_ok, conic_t) = if c == 0.0 { (Mask::splat(false), Lanes::of(0.0)) } else { conic_root(c, k, p, d, b.alive) };
+            let (conic_ok, conic_t) = if c == 0.0 { (Mask::splat(false), Lanes::of(0.0)) } else { let (ok, t, _) = conic_root(c, k, p, d, b.alive); (ok, t) };
             let first = b.alive & conic_ok;
             let (mut ok, mut nc, mut t) = (Mask::splat(false), Mask::splat(false), Lanes::of(0.0));
             if first.any() {

@@ -45,7 +45,7 @@ pub trait Real: Copy + Default + PartialEq + PartialOrd + std::fmt::Debug + Send
     /// arrays became an address select and a gather (`vgatherqps`) in the f32 kernel.
     fn blend(m: bool, a: Self, b: Self) -> Self;
     /// Tolerance of the conic vertex-branch test |z − sag| ≤ tol at a hit point of local height `z`
-    /// reached at parameter `t`.
+    /// reached at distance `t` from the solve's start.
     fn branch_tol<const N: usize>(z: Lanes<Self, N>, t: Lanes<Self, N>) -> Lanes<Self, N>;
     /// Newton's step test on the even asphere: |t_next − t| ≤ tol.
     fn newton_step_tol<const N: usize>(t: Lanes<Self, N>) -> Lanes<Self, N>;
@@ -135,7 +135,8 @@ impl Real for f32 {
         let mask = (m as u32).wrapping_neg();
         f32::from_bits((a.to_bits() & mask) | (b.to_bits() & !mask))
     }
-    /// ≈ 80 ε·(1 + |z| + |t|): the hit point's z carries the rounding of p_z + t·d_z, ~ε·|t|.
+    /// ≈ 80 ε·(1 + |z| + |t|): the hit point's z carries the rounding of p₀_z + t·d_z, ~ε·|t| (t: the distance
+    /// from the solve's start p₀, the line's point nearest the vertex).
     #[inline(always)]
     fn branch_tol<const N: usize>(z: Lanes<f32, N>, t: Lanes<f32, N>) -> Lanes<f32, N> {
         Lanes::splat(1e-5) * (Lanes::splat(1.0) + z.abs() + t.abs())
