@@ -157,6 +157,8 @@ pub fn size_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<usize> {
 /// arguments through [`seed_arg`]): the whole range of a u64. "an integer ≥ 0" refused 2**64, a value it
 /// allowed (a held-out battery, round 20).
 pub const SEED: &str = "an integer in 0..=18446744073709551615";
+/// A count setting's range as refusals state it (planes, rays, sizes, iterations: `usize`, 64-bit).
+pub const COUNT: &str = "an integer in 1..=18446744073709551615";
 
 /// A seed: any integer in `0..=2⁶⁴ − 1` (refused as [`SEED`] says).
 pub fn seed_arg(name: &str, obj: &Bound<'_, PyAny>) -> PyResult<u64> {

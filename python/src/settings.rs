@@ -152,8 +152,8 @@ pub fn settings<'py>(py: Python<'py>, kwargs: Option<&Bound<'py, PyDict>>, extra
         let o = &mut s.options;
         match key.as_str() {
             "bands_nm" => o.bands_nm = Some(f64_list("bands_nm", &v)?),
-            "planes" => o.planes = Some(get(&key, &v, "an integer ≥ 1")?),
-            "rays" => o.rays = Some(get(&key, &v, "an integer ≥ 1")?),
+            "planes" => o.planes = Some(get(&key, &v, crate::arrays::COUNT)?),
+            "rays" => o.rays = Some(get(&key, &v, crate::arrays::COUNT)?),
             "seed" => o.seed = Some(get(&key, &v, crate::arrays::SEED)?),
             "sampling" => o.sampling = Some(get(&key, &v, "a string")?),
             "opening" => o.opening = Some(get(&key, &v, "a number")?),

@@ -59,3 +59,19 @@ def test_the_range_is_the_one_synthetic_scene_states_and_its_ends_are_accepted(s
     cube, wl = scene
     top = diffcassi.render(sp, cube, wl, seed=2**64 - 1, mask_seed=np.uint64(2**64 - 1), rays=1, planes=28)[1]
     assert top["seed"] == 2**64 - 1
+
+
+@pytest.mark.parametrize("value", [2**64, 2**70, 0])
+def test_count_keywords_state_their_range(sp, scene, value):
+    # The same contradiction for counts: `rays=2**70` said "expected an integer ≥ 1" (a usize: 1..=2⁶⁴ − 1).
+    # (0 passes the type and is refused by the library's own check, naming the keyword.)
+    cube, wl = scene
+    for kw in ("rays", "planes"):
+        args = dict(rays=1, planes=28)
+        args[kw] = value
+        with pytest.raises(diffcassi.DiffcassiValueError) as e:
+            diffcassi.render(sp, cube, wl, **args)
+        msg = str(e.value)
+        assert kw in msg, msg
+        if value > 0:
+            assert f"{kw}: expected an integer in 1..=18446744073709551615" in msg, msg

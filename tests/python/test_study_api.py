@@ -47,7 +47,7 @@ def test_study_from_python_equals_the_command_and_resumes(tmp_path, cli):
     (dict(mask="m.npy", opening=0.3), "give one"),
     (dict(scenes="x", synthetic=1), "give one"),
     (dict(synthetic=1, fit="crop"), "`fit` applies"),
-    (dict(synthetic=1, planes="many"), "planes: expected an integer ≥ 1"),
+    (dict(synthetic=1, planes="many"), "planes: expected an integer in 1..=18446744073709551615"),
     (dict(synthetic=1, solvers="gap-tv,"), "empty entry"),
     (dict(synthetic=1, noise_estimate="guess"), "noise_estimate `guess`"),
     (dict(synthetic=1, operators=[1, 2]), "operators `1,2`: entry `1`: use exact"),
@@ -74,7 +74,7 @@ def test_keywords_read_as_the_command_reads_its_options(tmp_path):
     assert done["computed"] == 2, done
     done = diffcassi.study(str(tmp_path / "none"), presets="sp", mask=None, tv_weight=None, accelerated=False, plain=False, **small)
     assert done["computed"] == 1, done
-    for bad, needle in [(dict(planes=True), "planes: expected an integer ≥ 1"), (dict(rays=False), "rays: expected an integer ≥ 1"),
+    for bad, needle in [(dict(planes=True), "planes: expected an integer in 1..="), (dict(rays=False), "rays: expected an integer in 1..="),
                         (dict(presets=b"sp"), "not bytes"), (dict(accelerated=True, plain=True), "give one")]:
         out = tmp_path / "bad"
         with pytest.raises(diffcassi.DiffcassiValueError, match=needle):
