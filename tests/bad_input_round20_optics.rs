@@ -126,3 +126,44 @@ fn a_line_crossing_the_vertex_branch_twice_takes_the_crossing_nearest_its_start(
     let far = intersect(&shape, DVec3::new(0.0, -1e5, 5.0), DVec3::Y).unwrap();
     assert!((far.point.y + y).abs() < 1e-10 && (far.point.z - 5.0).abs() < 1e-12, "{far:?}");
 }
+
+#[test]
+fn an_image_without_a_material_after_glass_is_in_air_and_one_with_the_glass_is_immersed() {
+    // docs/zemax-files.md: an image with no material is in air whatever precedes it, so a ray steeper than the
+    // critical angle in the glass before it stops there as total internal reflection; giving the image that
+    // glass reads an immersed detector. (Round 20: the docs said any image medium "different from the medium
+    // before it" was an error; a blank one is air and accepted.)
+    let spec = |image_material: &str| {
+        from_json(
+            &format!(
+                r#"{{"name":"imm","wavelengths_nm":[587.6],"primary_wavelength_nm":587.6,"fields_mm":[[0,0]],
+                    "aperture":{{"type":"entrance_pupil_diameter","value":2.0}},
+                    "surfaces":[{{"type":"standard","thickness_mm":10.0,"material":"N-BK7"}},
+                      {{"type":"standard","stop":true,"thickness_mm":5.0,"material":"N-BK7"}},
+                      {{"type":"standard","thickness_mm":0.0{image_material}}}]}}"#
+            ),
+            "imm.json",
+        )
+    };
+    let mut rays = RayBatch::with_capacity(0);
+    for deg in [10.0f64, 35.0, 50.0] {
+        let a = deg.to_radians();
+        rays.push(DVec3::ZERO, DVec3::new(0.0, a.sin(), a.cos()), 587.6);
+    }
+    let tracer = AnalyticTracer::with_kernel(Kernel::Scalar);
+    let air = tracer.trace(&SequentialSystem::build(&spec("").unwrap()).unwrap(), &rays).unwrap();
+    // N-BK7 (n ≈ 1.5168) into air: critical angle ≈ 41.2°.
+    assert_eq!(air.status, vec![RayStatus::Ok, RayStatus::Ok, RayStatus::TotalInternalReflection]);
+    assert_eq!(air.surface[2], 2, "stopped at the image surface");
+    let immersed = tracer.trace(&SequentialSystem::build(&spec(r#","material":"N-BK7""#).unwrap()).unwrap(), &rays).unwrap();
+    assert!(immersed.status.iter().all(|&s| s == RayStatus::Ok), "{:?}", immersed.status);
+    // The landing does not depend on the image's medium; the direction does (refracted into air, or kept).
+    for i in 0..2 {
+        assert_eq!(air.y[i], immersed.y[i]);
+    }
+    assert!((immersed.dir_y[2] - 50f64.to_radians().sin()).abs() < 1e-15);
+    assert!(air.dir_y[1] > immersed.dir_y[1], "refracted away from the normal into air");
+    // A different glass on the image is still refused, naming both media.
+    let e = spec(r#","material":"F2""#).map(|_| ()).unwrap_err().to_string();
+    assert!(e.contains("F2") && e.contains("N-BK7"), "{e}");
+}
