@@ -98,6 +98,31 @@ pub(crate) fn on_conic_vertex_branch(point: DVec3, c: f64, kk: f64) -> bool {
     (point.z - sag).abs() <= 1e-9 * (1.0 + point.z.abs())
 }
 
+/// The conic c(x²+y²+kk·z²) − 2z = 0 along the line p + t·d as a quadratic a s² + 2b s + cc = 0 in the
+/// parameter s from the line's point nearest the vertex, p₀ = p + t₀·d, t₀ = −p·d (d unit): t = t₀ + s.
+/// Shared by the sequential root ([`conic_root`]) and the patches' two roots (`patch::conic_roots`); the SIMD
+/// lanes (`tracer::simd::block::nearest_quadratic`) and the GPU kernels compute the same operations in order.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct NearestQuadratic {
+    pub t0: f64,
+    pub p0: DVec3,
+    pub a: f64,
+    pub b: f64,
+    pub cc: f64,
+}
+
+impl NearestQuadratic {
+    #[inline(always)]
+    pub(crate) fn new(c: f64, kk: f64, p: DVec3, d: DVec3) -> NearestQuadratic {
+        let t0 = -(p.x * d.x + p.y * d.y + p.z * d.z);
+        let p0 = DVec3::new(p.x + d.x * t0, p.y + d.y * t0, p.z + d.z * t0);
+        let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
+        let b = c * (p0.x * d.x + p0.y * d.y + kk * p0.z * d.z) - d.z;
+        let cc = c * (p0.x * p0.x + p0.y * p0.y + kk * p0.z * p0.z) - 2.0 * p0.z;
+        NearestQuadratic { t0, p0, a, b, cc }
+    }
+}
+
 /// Vertex-branch root of c(x²+y²+(1+k)z²) − 2z = 0 along p + t d: (t, the point).
 ///
 /// The quadratic is solved from the line's point nearest the vertex, p₀ = p + t₀·d with t₀ = −p·d (d unit),
@@ -114,11 +139,7 @@ pub(crate) fn on_conic_vertex_branch(point: DVec3, c: f64, kk: f64) -> bool {
 #[inline(always)]
 fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<(f64, DVec3), IntersectFailure> {
     let kk = 1.0 + k;
-    let t0 = -(p.x * d.x + p.y * d.y + p.z * d.z);
-    let p0 = DVec3::new(p.x + d.x * t0, p.y + d.y * t0, p.z + d.z * t0);
-    let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
-    let b = c * (p0.x * d.x + p0.y * d.y + kk * p0.z * d.z) - d.z;
-    let cc = c * (p0.x * p0.x + p0.y * p0.y + kk * p0.z * p0.z) - 2.0 * p0.z;
+    let NearestQuadratic { t0, p0, a, b, cc } = NearestQuadratic::new(c, kk, p, d);
     let disc = b * b - a * cc;
     if !(disc >= 0.0) {
         return Err(IntersectFailure::Missed);
@@ -130,7 +151,7 @@ fn conic_root(c: f64, k: f64, p: DVec3, d: DVec3) -> Result<(f64, DVec3), Inters
     let s1 = cc / q;
     let s2 = if a != 0.0 { q / a } else { f64::NAN };
     let (r1, r2) = (t0 + s1, t0 + s2);
-    let order = if (r2).abs() < r1.abs() { [(s2, r2), (s1, r1)] } else { [(s1, r1), (s2, r2)] };
+    let order = if r2.abs() < r1.abs() { [(s2, r2), (s1, r1)] } else { [(s1, r1), (s2, r2)] };
     for (s, t) in order {
         let point = p0 + d * s;
         if s.is_finite() && t.is_finite() && on_conic_vertex_branch(point, c, kk) {

@@ -27,7 +27,7 @@
 //! // From inside the glass going back toward −z, the same surface is met from behind.
 //! assert!(lens.first_hit(DVec3::new(3.0, 0.0, 2.0), -DVec3::Z, 0.0, f64::INFINITY).is_some());
 //! ```
-use super::intersect::on_conic_vertex_branch;
+use super::intersect::{on_conic_vertex_branch, NearestQuadratic};
 use super::{Aperture, SurfaceShape};
 use glam::DVec3;
 
@@ -379,11 +379,7 @@ fn conic_roots(c: f64, k: f64, p: DVec3, d: DVec3) -> (Option<f64>, Option<f64>)
         return (plane_root(p, d), None);
     }
     let kk = 1.0 + k;
-    let t0 = -(p.x * d.x + p.y * d.y + p.z * d.z);
-    let p0 = DVec3::new(p.x + d.x * t0, p.y + d.y * t0, p.z + d.z * t0);
-    let a = c * (d.x * d.x + d.y * d.y + kk * d.z * d.z);
-    let b = c * (p0.x * d.x + p0.y * d.y + kk * p0.z * d.z) - d.z;
-    let cc = c * (p0.x * p0.x + p0.y * p0.y + kk * p0.z * p0.z) - 2.0 * p0.z;
+    let NearestQuadratic { t0, p0, a, b, cc } = NearestQuadratic::new(c, kk, p, d);
     let on_branch = |s: f64| -> Option<f64> {
         let t = t0 + s;
         (s.is_finite() && t.is_finite() && on_conic_vertex_branch(p0 + d * s, c, kk)).then_some(t)

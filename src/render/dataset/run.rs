@@ -393,8 +393,11 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
     let claim = lock_out(&a.out, Some(progress))?;
     // A task that claimed the folder meanwhile may have recorded another list (a scene added between the two
     // tasks' starts): plan again from it, so every task of the array partitions the same list.
+    // (dataset.json is read once here, under the lock: the list, the warning below and the comparison before
+    // writing all use this reading.)
     let found = find_scenes(&a.scenes)?;
-    let order = SceneOrder::of(&a.out, &found);
+    let recorded = read_manifest(&a.out);
+    let order = SceneOrder::new(recorded.as_ref().ok().map(|(_, n)| n.as_slice()), &found);
     if order != plan.order {
         plan = Plan::new(a, order, found, &configuration);
     }
@@ -419,7 +422,7 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
     if let Some(m) = order.changes_message(&a.scenes) {
         progress.message(&m);
     }
-    if let (true, Err(e)) = (a.out.join(MANIFEST).exists(), read_manifest(&a.out)) {
+    if let (true, Err(e)) = (a.out.join(MANIFEST).exists(), &recorded) {
         progress.message(&format!("warning: {e}: its scene list is unreadable, so shards index the folder's sorted list (scenes added since the list was recorded may now fall to other shards)"));
     }
     for n in &notes {
@@ -444,8 +447,8 @@ pub fn run(request: &DatasetRequest, inputs: &[(&str, &Path)], system: &Sequenti
     }
     // The list is recorded as soon as it grows, so a later addition is appended after this one whichever
     // task sees it first (two additions appended at once are sorted; one after the other, in turn).
-    let recorded = read_manifest(&a.out).ok().map(|(_, n)| n);
-    if shared_state != SceneState::Done || !todo.is_empty() || recorded.as_ref() != Some(&order.names) {
+    let recorded_names = recorded.as_ref().ok().map(|(_, n)| n);
+    if shared_state != SceneState::Done || !todo.is_empty() || recorded_names != Some(&order.names) {
         write_shared(&a.out, &renderer, &configuration, &order.names, super::tolerance::choice_record(a, renderer.config.rays_per_pixel))?;
     }
     drop(claim);

@@ -191,15 +191,19 @@ fn on_vertex_branch<T: Real, const N: usize>(point: V3<T, N>, t: Lanes<T, N>, c:
     !domain.lt(Lanes::of(0.0)) & (point.z - sag).abs().le(T::branch_tol(point.z, t))
 }
 
-/// The quadratic a t² + 2 b t + cc = 0 of the conic c(x²+y²+kk·z²) − 2z = 0 (kk = 1 + k) along the lines
-/// p + t·d, in the scalar `conic_roots`' operation order: (a, b, cc).
+/// The quadratic a s² + 2 b s + cc = 0 of the conic c(x²+y²+kk·z²) − 2z = 0 (kk = 1 + k) along the lines
+/// p + t·d, in s from the lines' points nearest the vertex p₀ = p + t₀·d, t₀ = −p·d (t = t₀ + s): the scalar
+/// `surfaces::NearestQuadratic`'s operations in its order, (t₀, p₀, a, b, cc).
 #[inline(always)]
-fn conic_quadratic<T: Real, const N: usize>(c: f64, kk: f64, p: V3<T, N>, d: V3<T, N>) -> (Lanes<T, N>, Lanes<T, N>, Lanes<T, N>) {
+#[allow(clippy::type_complexity)]
+fn nearest_quadratic<T: Real, const N: usize>(c: f64, kk: f64, p: V3<T, N>, d: V3<T, N>) -> (Lanes<T, N>, V3<T, N>, Lanes<T, N>, Lanes<T, N>, Lanes<T, N>) {
+    let t0 = -p.dot(d);
+    let p0 = p.along(d, t0);
     let (cl, kl) = (Lanes::<T, N>::of(c), Lanes::<T, N>::of(kk));
     let a = cl * (d.x * d.x + d.y * d.y + kl * d.z * d.z);
-    let b = cl * (p.x * d.x + p.y * d.y + kl * p.z * d.z) - d.z;
-    let cc = cl * (p.x * p.x + p.y * p.y + kl * p.z * p.z) - Lanes::of(2.0) * p.z;
-    (a, b, cc)
+    let b = cl * (p0.x * d.x + p0.y * d.y + kl * p0.z * d.z) - d.z;
+    let cc = cl * (p0.x * p0.x + p0.y * p0.y + kl * p0.z * p0.z) - Lanes::of(2.0) * p0.z;
+    (t0, p0, a, b, cc)
 }
 
 /// The conic's vertex-branch root (`conic_root` of the scalar code, the same operations in the same order:
@@ -211,9 +215,7 @@ fn conic_quadratic<T: Real, const N: usize>(c: f64, kk: f64, p: V3<T, N>, d: V3<
 fn conic_root<T: Real, const N: usize>(c: f64, k: f64, p: V3<T, N>, d: V3<T, N>, live: Mask<N>) -> (Mask<N>, Lanes<T, N>, V3<T, N>) {
     let kk = 1.0 + k;
     let zero = Lanes::of(0.0);
-    let t0 = -p.dot(d);
-    let p0 = p.along(d, t0);
-    let (a, b, cc) = conic_quadratic(c, kk, p0, d);
+    let (t0, p0, a, b, cc) = nearest_quadratic(c, kk, p, d);
     let disc = b * b - a * cc;
     let q = -(b + b.signum() * disc.sqrt());
     let ok = disc.ge(zero) & q.ne(zero);
@@ -244,9 +246,7 @@ pub(crate) fn conic_roots_both<T: Real, const N: usize>(c: f64, k: f64, p: V3<T,
     let kk = 1.0 + k;
     let zero = Lanes::of(0.0);
     // From the line's point nearest the vertex (`conic_roots`: t = t₀ + s).
-    let t0 = -p.dot(d);
-    let p0 = p.along(d, t0);
-    let (a, b, cc) = conic_quadratic(c, kk, p0, d);
+    let (t0, p0, a, b, cc) = nearest_quadratic(c, kk, p, d);
     let on_branch = |s: Lanes<T, N>| s.is_finite() & (t0 + s).is_finite() & on_vertex_branch(p0.along(d, s), s, c, kk);
     // a = 0: linear, 2 b s + cc = 0.
     let linear = a.eq(zero);
