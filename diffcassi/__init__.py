@@ -57,6 +57,30 @@ def _check_backend(backend: str) -> str:
     return backend
 
 
+# The native ray-batch calls, each behind the same backend check as `spot`, `render`, … so that a build without
+# Embree (the wheel) names the fix a wheel user can act on (round 21: these four said "rebuild with the default
+# `embree` feature", cargo's). `Transport` takes its backend among the render keywords; the library's own
+# refusal (`tracer::embree_missing`) gives it the same text.
+_native_trace, _native_jacobian, _native_mapping = trace, jacobian, mapping
+
+
+def trace(system: System, origins: Any, directions: Any, wavelengths_nm: Any, backend: str = "analytic") -> Dict[str, Any]:
+    return _native_trace(system, origins, directions, wavelengths_nm, _check_backend(backend))
+
+
+def jacobian(system: System, parameters: Any, origins: Any, directions: Any, wavelengths_nm: Any, backend: str = "analytic") -> Dict[str, Any]:
+    return _native_jacobian(system, parameters, origins, directions, wavelengths_nm, _check_backend(backend))
+
+
+def mapping(system: System, height: int, width: int, wavelengths_nm: Sequence[float], pitch_mm: Optional[float] = None,
+            backend: str = "analytic", device: str = "cpu", precision: str = "f64", scene_fov_deg: Optional[float] = None) -> Any:
+    return _native_mapping(system, height, width, wavelengths_nm, pitch_mm=pitch_mm, backend=_check_backend(backend), device=device,
+                           precision=precision, scene_fov_deg=scene_fov_deg)
+
+
+trace.__doc__, jacobian.__doc__, mapping.__doc__ = _native_trace.__doc__, _native_jacobian.__doc__, _native_mapping.__doc__
+
+
 def surfaces(system: System) -> list:
     """The resolved Lens Data Editor of ``system``: one dict per surface (index, kind, material, radius_mm,
     thickness_mm, conic, semi_diameter_mm, decenters, tilts, vertex_global_mm)."""

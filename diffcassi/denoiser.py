@@ -47,9 +47,12 @@ from __future__ import annotations
 
 from typing import Dict, Optional
 
-import torch
-from torch import nn
-import torch.nn.functional as F
+try:
+    import torch
+    from torch import nn
+    import torch.nn.functional as F
+except ImportError as _e:  # pragma: no cover - depends on the environment
+    raise ImportError("diffcassi.denoiser needs PyTorch: pip install torch") from _e
 
 ARCH = "spectral-unet-v2"
 

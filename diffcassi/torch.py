@@ -752,7 +752,12 @@ class CassiDataset(torch.utils.data.Dataset):
             if dtype.kind not in "fiu":
                 raise _Error(f"CassiDataset: {name}: cube dtype {dtype} is not real: expected float32 (or another real "
                              "floating-point or integer dtype, converted to float32)")
-            cube = np.ascontiguousarray(cube, dtype=np.float32)
+            # A copy of the caller's array (np.array copies even a float32 C-contiguous one): the radiance check
+            # below is made once, here, and a later in-place change of the caller's array would bypass it and
+            # change the truths of later items silently (a held-out battery, round 21). A scene read from a file
+            # is this dataset's own already.
+            cube = np.ascontiguousarray(cube, dtype=np.float32) if isinstance(s, (str, bytes, os.PathLike)) \
+                else np.array(cube, dtype=np.float32, order="C", copy=True)
             if cube.ndim != 3 or cube.shape[0] < self.size or cube.shape[1] < self.size or cube.shape[2] < 1:
                 raise _Error(f"CassiDataset: {name}: scene of shape {cube.shape}: expected (H, W, B) with H, W ≥ size = {self.size} and B ≥ 1")
             w = np.asarray(wl, dtype=np.float64).ravel()
@@ -850,7 +855,10 @@ class CassiDataset(torch.utils.data.Dataset):
         truth = np.ascontiguousarray(_resample(np.ascontiguousarray(crop), wl, t.bands_nm), dtype=np.float32)
         acq = t.apply(truth).astype(np.float32)
         init = st["mapping"].initialisation(acq)
-        return (torch.from_numpy(acq), torch.from_numpy(st["mask"]),
+        # Each item gets its own copy of the mask (H·W floats, small beside the cube): a shared array let an in-place
+        # edit of one item's mask (an augmentation) change every later item's, whose acquisition was still rendered
+        # with the transport's mask — an inconsistent pair, silently (a held-out battery, round 21).
+        return (torch.from_numpy(acq), torch.from_numpy(st["mask"].copy()),
                 torch.from_numpy(np.ascontiguousarray(truth.transpose(2, 0, 1))),
                 torch.from_numpy(np.ascontiguousarray(init.transpose(2, 0, 1))))
 

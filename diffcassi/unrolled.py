@@ -56,9 +56,12 @@ import os
 from typing import Any, Callable, Dict, Optional, Sequence, Tuple
 
 import numpy as np
-import torch
-from torch import nn
-import torch.nn.functional as F
+try:
+    import torch
+    from torch import nn
+    import torch.nn.functional as F
+except ImportError as _e:  # pragma: no cover - depends on the environment
+    raise ImportError("diffcassi.unrolled needs PyTorch: pip install torch") from _e
 
 import diffcassi
 from ._files import write_staged
@@ -72,7 +75,7 @@ ARCH = "unrolled-gap-v1"
 ARCH_V2 = "unrolled-dauhst-v2"
 
 __all__ = ["ARCH", "ARCH_V2", "ARCHS", "StageDenoiser", "UnrolledGAP", "UnrolledDAUHST", "SpectralSpatialUNet",
-           "DegradationEstimator", "save_unrolled", "load_unrolled", "mask_sha256", "system_sha256", "read_metadata"]
+           "DegradationEstimator", "activation_bytes", "check_network_size", "save_unrolled", "load_unrolled", "mask_sha256", "system_sha256", "read_metadata"]
 
 _Error = diffcassi.DiffcassiValueError
 #: Band wavelengths that differ by more than this are other wavelengths (the Rust loader's WAVELENGTH_TOLERANCE_NM).
@@ -178,6 +181,52 @@ def _check_size(what: str, stages: int, width: int, stage: Callable[[], Sequence
         raise _Error(f"{what}: stages = {stages}, width = {width}: {stages} × {per_stage} float32 parameters "
                      f"({need / 1e9:.3g} GB) exceed the memory budget of {limit / 1e9:.3g} GB; use fewer stages or a smaller "
                      "width, or raise the budget (diffcassi.set_limits(max_memory_gb=…))")
+
+
+#: Activation floats per padded pixel per sample per stage, a·width + b·bands + c, kept for the backward pass of a
+#: forward under grad, and the fraction f of one stage's count live at the peak of a forward without grad (one
+#: stage's intermediates at a time, besides the 3 cube-sized tensors x, y/c, v). The graph's count (module docs:
+#: UnrolledGAP's U-Net keeps e1, its ReLU and the up-path sums, the data step and residual paths a few cubes;
+#: UnrolledDAUHST's spectral–spatial blocks ≈ 24 C floats each at their level: layer norms, q/k/v and their
+#: normalisations, the FFN's 2C GELUs) scales as these terms; the coefficients are fitted to the peak resident
+#: memory of forward + backward on the CPU at 64²–256², batches 1–4 (float32, torch 2.15) and rounded up: the
+#: estimate is 0.98–1.27× the measured peak (docs/python.md, "Memory of the unrolled networks").
+_ACT_COEF = {ARCH: (4.5, 4.0, 0.0, 1.2), ARCH_V2: (72.0, 14.0, 16.0, 0.25)}
+
+
+def activation_bytes(arch: str, bands: int, width: int, stages: int, height: int, width_px: int, batch: int,
+                     grad: bool = True, dtype_bytes: int = 4) -> float:
+    """Estimated peak memory (bytes) of the activations of one ``forward`` of an unrolled network of architecture
+    ``arch`` (:data:`ARCH` or :data:`ARCH_V2`) on ``batch`` acquisitions of a ``height`` × ``width_px`` scene —
+    with ``grad`` those kept for ``backward`` (every stage's), else one stage's at a time. The weights are not
+    included (:func:`_check_size` counts them). The networks check it against the memory budget
+    (``diffcassi.set_limits(max_memory_gb=…)``) before running, as ``CassiRenderer`` does; ``train_unrolled.py``
+    checks a training step with it before tracing anything."""
+    a, b, c, f = _ACT_COEF[arch]
+    # The denoisers pad to multiples of 4 (edge replication).
+    px = float(-(-int(height) // 4) * 4) * float(-(-int(width_px) // 4) * 4)
+    per_stage = (a * width + b * bands + c) * px * float(batch) * dtype_bytes
+    if grad:
+        return per_stage * float(stages)
+    return per_stage * f + 3.0 * bands * px * float(batch) * dtype_bytes
+
+
+def _check_activations(net: nn.Module, who: str, y: torch.Tensor) -> None:
+    """Refuse a ``forward`` whose activations (:func:`activation_bytes`; those kept for backward when grad is on
+    and the network or y requires it) exceed the memory budget — before any stage runs. ``UnrolledDAUHST`` at 128²
+    with batch 2 took 0.82 GB under a 0.3 GB budget, and 512² with batch 8 ran until the OOM killer (a held-out
+    battery, round 21)."""
+    grad = torch.is_grad_enabled() and (y.requires_grad or any(p.requires_grad for p in net.parameters()))
+    H, W = int(net.phi.cube_shape[0]), int(net.phi.cube_shape[1])
+    n = int(y.shape[0])
+    elt = max(4, torch.empty((), dtype=y.dtype).element_size()) if y.dtype.is_floating_point else 4
+    need = activation_bytes(net.arch, net.bands, net.width, net.stages, H, W, n, grad=grad, dtype_bytes=elt)
+    limit = float(diffcassi.get_limits()["max_memory_gb"]) * 1e9
+    if need > limit:
+        raise _Error(f"{who}.forward: batch {n} of {H}×{W} × {net.bands} bands, stages = {net.stages}, width = "
+                     f"{net.width}: its activations{' (kept for backward)' if grad else ''} need an estimated "
+                     f"{need / 1e9:.3g} GB, over the memory budget of {limit / 1e9:.3g} GB; use a smaller batch (split "
+                     "it), or raise the budget (diffcassi.set_limits(max_memory_gb=…))")
 
 
 def _pow2_scale(y: torch.Tensor, dinv: torch.Tensor) -> torch.Tensor:
@@ -291,6 +340,7 @@ class UnrolledGAP(_Float32Dinv):
         if y.device != self.steps.device:
             raise _Error(f"UnrolledGAP.forward: y is on {y.device} but the network on {self.steps.device}; "
                          "move one with .to(device)")
+        _check_activations(self, "UnrolledGAP", y)
         pdt = self.steps.dtype  # the network's dtype (float32 unless .to(dtype) changed it)
         work = _work_dtype(pdt)  # float32 data steps for a float16/bfloat16 network (round 16)
         y = y.to(work)
@@ -513,6 +563,7 @@ class UnrolledDAUHST(_Float32Dinv):
         pdev, pdt = self.device, self.priors[0].linear.weight.dtype
         if y.device != pdev:
             raise _Error(f"UnrolledDAUHST.forward: y is on {y.device} but the network on {pdev}; move one with .to(device)")
+        _check_activations(self, "UnrolledDAUHST", y)
         work = _work_dtype(pdt)  # float32 data steps for a float16/bfloat16 network (UnrolledGAP; round 16)
         y = y.to(work)
         # On y / c, c a power of two: N(y) = c·N(y/c) bit for bit, y ⊘ d within the operators' limit (_pow2_scale).
@@ -555,6 +606,21 @@ def make_unrolled(arch: str, phi: nn.Module, stages: int, width: int) -> nn.Modu
     if arch not in ARCHS:
         raise _Error(f"unrolled network: arch {arch!r} is not one of {sorted(ARCHS)}")
     return ARCHS[arch](phi, stages=stages, width=width)
+
+
+def check_network_size(arch: str, bands: int, stages: int, width: int) -> None:
+    """Refuse, before any operator is traced, a network of architecture ``arch`` whose float32 weights exceed the
+    memory budget (the check the networks' constructors make; ``train_unrolled.py`` makes it before tracing its
+    operators: ``--bands 100000`` was refused only after both were traced, a held-out battery, round 21)."""
+    if arch not in ARCHS:
+        raise _Error(f"unrolled network: arch {arch!r} is not one of {sorted(ARCHS)}")
+    what = ARCHS[arch].__name__
+    bands = _int_at_least("bands", bands, 1)
+    stages, width = _int_at_least("stages", stages, 1), _int_at_least("width", width, 1)
+    if arch == ARCH_V2:
+        _check_size(what, stages, width, lambda: [DegradationEstimator(bands), SpectralSpatialUNet(bands, width)])
+    else:
+        _check_size(what, stages, width, lambda: [StageDenoiser(bands, width)])
 
 
 def count_parameters(net: nn.Module) -> int:

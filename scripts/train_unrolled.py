@@ -55,7 +55,12 @@ a divergence, a longer decay's floor): the run's manifest entry records them und
 ``[checkpoint's, this run's]``. Any other setting given with another value — or a checkpoint of another
 architecture, system or band count, or
 a file that is truncated or not a checkpoint — is refused with a clear error (exit 2; a missing file: 1) **before
-anything is written**; so is a fresh run into a folder that already holds this system's and architecture's training
+anything is written**; so is, strictly (round 21), a checkpoint without the format tag or of another one, whose model
+misses a tensor of the network, has another or one of another shape, whose Adam moments are gone after step 0, whose
+step is beyond ``--steps``, or with a corrupt field (``torch_rng``, ``elapsed_s``, ``runs``, ``threads``, ``mask``
+outside [0, 1], a config value of another type), each named with the file; the checkpoint records ``--threads``
+and a resume with another count warns (torch's CPU gradients depend on its thread count: not bit for bit) and
+records it; so is a fresh run into a folder that already holds this system's and architecture's training
 files, and a resume into such a folder unless its checkpoint is the one resumed (the same file, or the same bytes):
 either would overwrite another training. On CUDA the convolutions and matrix products use TF32 and cuDNN's
 autotuning (speed; resumes there are not bit for bit).
@@ -63,7 +68,10 @@ autotuning (speed; resumes there are not bit for bit).
 Bad options are usage errors (exit 2) naming the option before any work: ``--lr`` not in (0, 1], ``--lr-min`` not
 in [0, ``--lr``], ``--clip``/``--minutes``/``--time-budget-s`` not finite and positive, ``--warmup`` not below
 ``--steps``, seeds outside 0 … 2⁶⁴ − 1, ``--threads``/``--workers`` beyond four per core (at most 1024),
-``--workers`` with v1, ``--stop-at`` < 0, ``--device cpu:N``, an ``--out`` under a file.
+``--workers`` with v1, ``--stop-at`` < 0, ``--device cpu:N``, an ``--out`` under a file; before tracing: a network
+whose weights (``--bands``, ``--stages``, ``--width``) or a training step whose memory (``--batch`` × ``--size``²:
+activations and cubes, :func:`step_memory_bytes`) exceeds the budget; the operators' own refusals (``--planes``,
+``--rays``, ``--size``) are one line naming the options.
 
 Stops. **Ctrl-C** (SIGINT) asks for a stop at the next step boundary: the step is validated and saved (checkpoint,
 weights, manifest), the log gets a ``stop`` event of reason ``interrupted``, and the script exits 130 saying
@@ -104,8 +112,9 @@ sys.path.insert(0, str(ROOT))
 import diffcassi  # noqa: E402
 import diffcassi.torch as dt  # noqa: E402
 from diffcassi.deadleaves import BANDS_NM, dead_leaves, sources_manifest  # noqa: E402
-from diffcassi.unrolled import (ARCH, ARCH_V2, ARCHS, count_parameters, load_unrolled, make_unrolled,  # noqa: E402
-                                mask_sha256, save_unrolled, system_sha256)
+from diffcassi.unrolled import (ARCH, ARCH_V2, ARCHS, activation_bytes, check_network_size,  # noqa: E402
+                                count_parameters, load_unrolled, make_unrolled, mask_sha256, save_unrolled,
+                                system_sha256)
 from diffcassi._training import l1_step, lr_at, psnr_db, validation_records  # noqa: E402
 
 #: Train seeds are TRAIN_SEED_BASE + batch·step + i; validation seeds 0 … VAL_COUNT−1 (of each kind).
@@ -172,6 +181,15 @@ def load_mask(path, size: int) -> np.ndarray:
         raise diffcassi.DiffcassiValueError(f"{path}: mask values must be finite and in [0, 1]")
     r0, c0 = (m.shape[0] - size) // 2, (m.shape[1] - size) // 2
     return np.ascontiguousarray(m[r0:r0 + size, c0:c0 + size])
+
+
+def step_memory_bytes(arch: str, bands: int, stages: int, width: int, size: int, batch: int) -> float:
+    """Estimated memory (bytes) of one training step: the network's activations kept for backward
+    (:func:`diffcassi.unrolled.activation_bytes`, 0.98–1.27× the measured peak) and the batch's data — each cube
+    made (bands·size² floats), its transposed copy for the render and the stacked batch, and the acquisitions
+    (≲ 2·size² each) — float32. ``--batch 1e9`` wrote the step-0 checkpoint, then died in a MemoryError (round 21)."""
+    data = float(batch) * (3.0 * bands + 2.0) * float(size) ** 2 * 4.0
+    return activation_bytes(arch, bands, width, stages, size, size, batch, grad=True) + data
 
 
 def setting(mask, planes: int, rays: int, bands_nm) -> dict:
@@ -295,10 +313,113 @@ def read_checkpoint(path, arch=None, system=None, bands=None) -> dict:
         raise CheckpointError(f"--resume {path}: step {ck['step']!r} is not an integer ≥ 0")
     if "val_every" in ck and not (isinstance(ck["val_every"], int) and ck["val_every"] >= 1):
         raise CheckpointError(f"--resume {path}: val_every {ck['val_every']!r} is not an integer ≥ 1")
+    # The format tag: a checkpoint without it, or of another (a future) format, is refused (its fields may mean
+    # other things; round 21: both were resumed, exit 0).
+    if ck.get("format") != CHECKPOINT_FORMAT:
+        raise CheckpointError(f"--resume {path}: format {ck.get('format')!r}: expected {CHECKPOINT_FORMAT!r} (a "
+                              "checkpoint written by another version of train_unrolled.py, or edited)")
+    if not isinstance(ck["model"], dict) or not ck["model"]:
+        raise CheckpointError(f"--resume {path}: field model is empty (no tensors of the network)")
     for k, v in ck["model"].items():
         if not isinstance(v, torch.Tensor) or not torch.isfinite(v).all():
             raise CheckpointError(f"--resume {path}: model tensor {k} is missing or not finite")
+    _check_fields(path, ck, cfg)
     return ck
+
+
+#: The config's integer settings and its number settings (a checkpoint's config is checked field by field: a
+#: "16" for size ended in a TypeError traceback, round 21).
+_INT_SETTINGS = ("size", "stages", "width", "steps", "batch", "seed", "warmup", "planes", "rays", "acquisition_seed",
+                 "operator_seed", "bands")
+_NUM_SETTINGS = ("lr", "lr_min", "clip")
+
+
+def _check_fields(path, ck: dict, cfg: dict) -> None:
+    """The checkpoint's other fields, each of its type and range, so that a corrupt value is refused naming the
+    field and the value rather than ending in a traceback after the set-up (round 21): the config's settings,
+    ``elapsed_s``, ``runs`` (a JSON list), ``torch_rng`` (torch's CPU generator state: a uint8 tensor of that
+    size), ``mask`` (a finite (H, W) tensor in [0, 1]), ``threads``, ``optim``."""
+    def bad(field, why):
+        return CheckpointError(f"--resume {path}: field {field} = {_short(ck.get(field) if '.' not in field else cfg.get(field.split('.', 1)[1]))}: {why}")
+    for k in _INT_SETTINGS:
+        if k in cfg and (isinstance(cfg[k], bool) or not isinstance(cfg[k], int) or cfg[k] < 0):
+            raise bad(f"config.{k}", "expected an integer ≥ 0")
+    for k in _NUM_SETTINGS:
+        if k in cfg and (isinstance(cfg[k], bool) or not isinstance(cfg[k], (int, float)) or not math.isfinite(cfg[k])):
+            raise bad(f"config.{k}", "expected a finite number")
+    if "system" in cfg and not isinstance(cfg["system"], str):
+        raise bad("config.system", "expected a preset name")
+    el = ck.get("elapsed_s", 0.0)
+    if isinstance(el, bool) or not isinstance(el, (int, float)) or not (math.isfinite(el) and el >= 0):
+        raise bad("elapsed_s", "expected a finite number of seconds ≥ 0")
+    if "runs" in ck:
+        try:
+            runs = json.loads(ck["runs"]) if isinstance(ck["runs"], str) else None
+        except json.JSONDecodeError as e:
+            raise bad("runs", f"not JSON ({e})") from None
+        if not isinstance(runs, list) or not all(isinstance(r, dict) for r in runs):
+            raise bad("runs", "expected a JSON list of the runs so far")
+    if "torch_rng" in ck:
+        want = torch.get_rng_state()
+        r = ck["torch_rng"]
+        if not isinstance(r, torch.Tensor) or r.dtype != want.dtype or r.shape != want.shape:
+            raise bad("torch_rng", f"expected torch's CPU generator state, a {want.dtype} tensor of shape "
+                                   f"{tuple(want.shape)}")
+    if "mask" in ck:
+        m = ck["mask"]
+        if not isinstance(m, torch.Tensor) or m.dim() != 2 or not m.dtype.is_floating_point:
+            raise bad("mask", "expected an (H, W) floating-point tensor")
+        if not bool((torch.isfinite(m) & (m >= 0) & (m <= 1)).all()):
+            i = int((~(torch.isfinite(m) & (m >= 0) & (m <= 1))).flatten().nonzero()[0])
+            raise CheckpointError(f"--resume {path}: field mask: value {float(m.flatten()[i])} at index "
+                                  f"{divmod(i, m.shape[1])} is not in [0, 1]")
+    if "threads" in ck and (isinstance(ck["threads"], bool) or not isinstance(ck["threads"], int) or ck["threads"] < 1):
+        raise bad("threads", "expected an integer ≥ 1")
+    o = ck.get("optim")
+    if not isinstance(o, dict) or not isinstance(o.get("state"), dict) or not isinstance(o.get("param_groups"), list):
+        raise CheckpointError(f"--resume {path}: field optim: not an optimiser state (state, param_groups)")
+
+
+def _short(v) -> str:
+    r = repr(v)
+    return r if len(r) <= 80 else r[:77] + "…"
+
+
+def check_resume_fit(path, ck: dict, net, opt_state_needed: bool) -> None:
+    """The checkpoint's model and optimiser against the network built for it, strictly: every tensor of the
+    network present (``missing``), none other (``unexpected``), each of the network's shape; and from step 1 on the
+    optimiser state of every parameter (Adam's moments: a checkpoint without them resumed with fresh moments, and a
+    partial model kept the missing tensors' fresh initialisation, exit 0 — round 21)."""
+    want = {k: v for k, v in net.state_dict().items() if not k.startswith("phi.")}
+    have = ck["model"]
+    missing = sorted(set(want) - set(have))
+    unexpected = sorted(set(have) - set(want))
+    shapes = [f"{k} {tuple(have[k].shape)} (the network's {tuple(want[k].shape)})" for k in sorted(set(want) & set(have))
+              if tuple(have[k].shape) != tuple(want[k].shape)]
+    probs = []
+    if missing:
+        probs.append(f"{len(missing)} missing tensor(s) {', '.join(missing[:4])}{' …' if len(missing) > 4 else ''}")
+    if unexpected:
+        probs.append(f"{len(unexpected)} unexpected tensor(s) {', '.join(unexpected[:4])}{' …' if len(unexpected) > 4 else ''}")
+    if shapes:
+        probs.append("other shapes: " + "; ".join(shapes[:4]))
+    if probs:
+        raise CheckpointError(f"--resume {path}: field model does not fit this network: " + "; ".join(probs))
+    st, groups = ck["optim"]["state"], ck["optim"]["param_groups"]
+    n = sum(1 for _ in net.parameters())
+    ids = [i for g in groups if isinstance(g, dict) for i in g.get("params", [])]
+    if len(ids) != n:
+        raise CheckpointError(f"--resume {path}: field optim: {len(ids)} parameters in its groups, the network has {n}")
+    if opt_state_needed:
+        params = list(net.parameters())
+        for j, i in enumerate(ids):
+            s = st.get(i)
+            if not isinstance(s, dict) or not all(isinstance(s.get(k), torch.Tensor) for k in ("step", "exp_avg", "exp_avg_sq")):
+                raise CheckpointError(f"--resume {path}: field optim: no Adam state (step, exp_avg, exp_avg_sq) of "
+                                      f"parameter {i} at step {ck['step']} > 0 (its moments were dropped)")
+            if tuple(s["exp_avg"].shape) != tuple(params[j].shape) or tuple(s["exp_avg_sq"].shape) != tuple(params[j].shape):
+                raise CheckpointError(f"--resume {path}: field optim: the Adam moments of parameter {i} have shape "
+                                      f"{tuple(s['exp_avg'].shape)}, the parameter {tuple(params[j].shape)}")
 
 
 def utc_now() -> str:
@@ -545,6 +666,51 @@ def _main(argv=None) -> int:
         print(f"{prog}: error: --device {a.device}: {why}; nothing written", file=sys.stderr)
         return 2
 
+    if ck is not None and ck["step"] > conf["steps"]:
+        print(f"{prog}: error: --resume {a.resume}: field step = {ck['step']} is beyond --steps {conf['steps']} (the "
+              "schedule's end; a checkpoint of another training, or edited); nothing written", file=sys.stderr)
+        return 2
+    # Checks that need no trace, before the operators are traced (round 21: --bands 100000 and --stages 100000 were
+    # refused only after both operators were traced): the network's weights and one training step's memory against
+    # the budget (diffcassi.set_limits).
+    try:
+        check_network_size(arch, conf["bands"], conf["stages"], conf["width"])
+    except diffcassi.DiffcassiValueError as e:
+        print(f"{prog}: error: --bands {conf['bands']}, --stages {conf['stages']}, --width {conf['width']}: {e}; "
+              "nothing written", file=sys.stderr)
+        return 2
+    need = step_memory_bytes(arch, conf["bands"], conf["stages"], conf["width"], conf["size"], conf["batch"])
+    limit = float(diffcassi.get_limits()["max_memory_gb"]) * 1e9
+    if need > limit:
+        print(f"{prog}: error: --batch {conf['batch']} at --size {conf['size']} (× {conf['bands']} bands, --stages "
+              f"{conf['stages']}, --width {conf['width']}): a training step needs an estimated {need / 1e9:.3g} GB "
+              f"(the network's activations and the batch's cubes), over the memory budget of {limit / 1e9:.3g} GB "
+              f"({diffcassi.get_limits().get('memory_source', '')}); use a smaller --batch or --size; nothing written",
+              file=sys.stderr)
+        return 2
+    threads_changed = None
+    if ck is not None:
+        # torch's CPU convolutions (their backward above all) sum in an order that depends on its intra-op thread
+        # count, so the parameters' gradients — and the whole training from here on — differ in their last bits
+        # with another --threads (diffcassi's own part does not: its sums are thread-invariant). Such a resume is
+        # allowed (the numbers are as valid; a longer run may want more threads) but is loud, and recorded in
+        # the run's "changed". Not at step 0 (no gradient yet) and not on CUDA (TF32, not bit for bit anyway).
+        before = ck.get("threads")
+        if before is None:  # a checkpoint of before round 21: the threads of its last run
+            prev = json.loads(ck["runs"]) if isinstance(ck.get("runs"), str) else []
+            before = prev[-1].get("threads") if prev and isinstance(prev[-1].get("threads"), int) else None
+        last_dev = ""
+        if isinstance(ck.get("runs"), str):
+            prev = json.loads(ck["runs"])
+            last_dev = str(prev[-1].get("device", "")) if prev else ""
+        if before is not None and before != a.threads and ck["step"] > 0 and device.type == "cpu" \
+                and not last_dev.startswith("cuda"):
+            threads_changed = [before, a.threads]
+            print(f"{prog}: WARNING: --resume {a.resume} was trained with --threads {before}, this run uses --threads "
+                  f"{a.threads}: torch's CPU gradients depend on its thread count, so the training continues with "
+                  "other rounding than the uninterrupted run (not bit for bit; recorded in the manifest's runs under "
+                  f"\"changed\"); resume with --threads {before} to continue it exactly", file=sys.stderr)
+
     size, bands_nm = conf["size"], bands_nm_of(conf["bands"])
     config = {"system": system, "size": size, "stages": conf["stages"], "width": conf["width"], "steps": conf["steps"],
               "batch": conf["batch"], "seed": conf["seed"], "lr": conf["lr"], "lr_min": conf["lr_min"],
@@ -574,8 +740,9 @@ def _main(argv=None) -> int:
             mask = np.ascontiguousarray(ck["mask"].numpy(), dtype=np.float32)
         else:
             mask = None
-    except (OSError, ValueError) as e:
-        print(f"{prog}: error: --mask: {e}", file=sys.stderr)
+    except (OSError, ValueError, EOFError) as e:  # EOFError: an empty file (/dev/null), round 21
+        print(f"{prog}: error: --mask {a.mask}: {type(e).__name__ if isinstance(e, EOFError) else ''}"
+              f"{': ' if isinstance(e, EOFError) else ''}{e or 'empty file'}; nothing written", file=sys.stderr)
         return 1
     if mask is not None and mask.shape != (size, size):
         print(f"{prog}: error: the mask is {mask.shape[0]}×{mask.shape[1]}, the scene {size}×{size}; nothing written",
@@ -608,8 +775,13 @@ def _main(argv=None) -> int:
     diffcassi.set_num_threads(a.threads)
     torch.manual_seed(conf["seed"])
     t_setup = time.time()
-    transport, phi = build_operators(system, size, mask, conf["planes"], conf["rays"], conf["acquisition_seed"],
-                                     conf["operator_seed"], bands_nm)
+    try:  # the library's refusals (planes, rays, memory) name their values: one line, not a traceback (round 21)
+        transport, phi = build_operators(system, size, mask, conf["planes"], conf["rays"], conf["acquisition_seed"],
+                                         conf["operator_seed"], bands_nm)
+    except diffcassi.DiffcassiValueError as e:
+        print(f"{prog}: error: the operators of --size {size}, --planes {conf['planes']}, --rays {conf['rays']}, "
+              f"--bands {conf['bands']}: {e}; nothing written", file=sys.stderr)
+        return 2
     mask = transport.mask
     config["mask_sha256"] = mask_sha256(mask)
     if ck is not None and dict(ck["config"], **{k: config[k] for k in changed}) != config:
@@ -624,13 +796,23 @@ def _main(argv=None) -> int:
         torch.backends.cuda.matmul.allow_tf32 = True
         phi = phi.to(device)
     setup_s = time.time() - t_setup
-    net = make_unrolled(arch, phi, conf["stages"], conf["width"])
+    try:
+        net = make_unrolled(arch, phi, conf["stages"], conf["width"])
+    except diffcassi.DiffcassiValueError as e:
+        print(f"{prog}: error: --stages {conf['stages']}, --width {conf['width']}: {e}; nothing written", file=sys.stderr)
+        return 2
     opt = torch.optim.Adam(net.parameters(), lr=conf["lr"])
     step, elapsed0, runs = 0, 0.0, []
     if ck is not None:
         try:
-            net.load_state_dict(ck["model"], strict=False)
+            # Strict: every tensor of the network, none other, each of its shape; the optimiser's moments from
+            # step 1 on (check_resume_fit names what is wrong; strict=False kept a partial model's fresh tensors).
+            check_resume_fit(a.resume, ck, net, opt_state_needed=ck["step"] > 0)
+            net.load_state_dict(ck["model"], strict=True)
             opt.load_state_dict(ck["optim"])
+        except CheckpointError as e:
+            print(f"{prog}: error: {e}; nothing written", file=sys.stderr)
+            return 2
         except (RuntimeError, KeyError, ValueError) as e:
             print(f"{prog}: error: --resume {a.resume}: its model or optimiser does not fit this network ({e}); "
                   "nothing written", file=sys.stderr)
@@ -646,13 +828,13 @@ def _main(argv=None) -> int:
     stop.install()
     try:
         return _train(a, prog, t_start, start_utc, out, arch, system, conf, config, size, bands_nm, mask, transport,
-                      phi, net, opt, device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop)
+                      phi, net, opt, device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop, threads_changed)
     finally:
         stop.restore()
 
 
 def _train(a, prog, t_start, start_utc, out, arch, system, conf, config, size, bands_nm, mask, transport, phi, net, opt,
-           device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop) -> int:
+           device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop, threads_changed=None) -> int:
     """The training loop and its outputs (``_main`` has checked everything and written nothing)."""
     nm = names(system, arch)
     out.mkdir(parents=True, exist_ok=True)
@@ -665,11 +847,12 @@ def _train(a, prog, t_start, start_utc, out, arch, system, conf, config, size, b
     with open(lpath, "a") as log:
         return _loop(a, prog, t_start, start_utc, out, arch, system, conf, config, size, bands_nm, mask, transport, phi,
                      net, opt, device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop, log,
-                     wpath, spath, mpath)
+                     wpath, spath, mpath, threads_changed)
 
 
 def _loop(a, prog, t_start, start_utc, out, arch, system, conf, config, size, bands_nm, mask, transport, phi, net, opt,
-          device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop, log, wpath, spath, mpath) -> int:
+          device, budget, val_every, setup_s, ck, step0, elapsed0, runs, stop, log, wpath, spath, mpath,
+          threads_changed=None) -> int:
     step = step0
     run = {"start_utc": start_utc, "end_utc": None, "device": str(device),
            "device_name": torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu",
@@ -680,6 +863,8 @@ def _loop(a, prog, t_start, start_utc, out, arch, system, conf, config, size, ba
     if ck is not None:  # the optimiser's settings this resume changed (RESUME_MAY_CHANGE): {name: [before, now]}
         saved = ck["config"]
         run["changed"] = {k: [saved[k], config[k]] for k in RESUME_MAY_CHANGE if k in saved and saved[k] != config[k]}
+        if threads_changed is not None:
+            run["changed"]["threads"] = threads_changed
     last_saved = None  # the step of the state, weights and manifest this run saved last (None: none yet)
     losses: list = []
     timing = {"val_s": 0.0, "save_s": 0.0}
@@ -754,7 +939,7 @@ def _loop(a, prog, t_start, start_utc, out, arch, system, conf, config, size, ba
                                                          if not k.startswith("phi.")},
                  "optim": _to_cpu(opt.state_dict()), "step": step, "elapsed_s": elapsed, "config": config,
                  "torch_rng": torch.get_rng_state(), "mask": torch.from_numpy(np.ascontiguousarray(mask)),
-                 "runs": json.dumps(runs + [made]), "val_every": val_every}
+                 "runs": json.dumps(runs + [made]), "val_every": val_every, "threads": a.threads}
         meta = dict(config, bands_nm=bands_nm, height=size, width_px=size, training_step=step,
                     trained_minutes=round(elapsed / 60, 1), airy_diameter_px=2.5, sampling="stratified")
         meta.pop("width", None)
@@ -789,7 +974,8 @@ def _loop(a, prog, t_start, start_utc, out, arch, system, conf, config, size, ba
         write_manifest(runs, step0)
         log_line({"event": "resume" if a.resume else "start", "step": step, "args": vars(a), "config": config,
                   "val_every": val_every, "setup_s": round(setup_s, 1), "params": count_parameters(net),
-                  "device": str(device), "torch": torch.__version__, "threads": a.threads, "utc": start_utc})
+                  "device": str(device), "torch": torch.__version__, "threads": a.threads, "utc": start_utc,
+                  **({"threads_changed": threads_changed} if threads_changed is not None else {})})
         if arch == ARCH_V2:
             vs = val_seeds(arch)
             val_acq, val_cube = render_v2(transport, vs, make_cubes_v2(vs, size, bands_nm))

@@ -34,6 +34,7 @@ pub mod materials;
 pub mod mechanics;
 pub mod optim;
 pub mod plot;
+pub mod pool;
 pub mod presets;
 pub mod rays;
 pub mod recon;

@@ -144,6 +144,13 @@ impl BudgetNames {
 
 /// Default ray budget: 2·10¹⁰ rays, 34 paper-scale acquisitions (512² × 112 planes × 20 rays = 5.9·10⁸).
 pub const DEFAULT_MAX_RAYS: f64 = 2e10;
+/// The largest memory budget (GB) any front end accepts (`--max-memory-gb`, Python's and C++'s `set_limits`):
+/// 2⁴⁷ bytes, the user address space of a 64-bit process (x86-64's and AArch64's 47/48-bit virtual
+/// addresses). A larger budget cannot protect anything: every request under it that the machine cannot map
+/// reached the allocator, which aborts (round 21: `set_limits(1e300)`).
+pub const MAX_MEMORY_GB: f64 = 140_737.488_355_328;
+/// The largest ray budget: 2⁵³, the largest count an f64 holds exactly.
+pub const MAX_RAYS_BUDGET: f64 = 9_007_199_254_740_992.0;
 /// Fallback memory budget when /proc/meminfo is unreadable: 16 GB.
 pub const FALLBACK_MEMORY_BYTES: f64 = 16e9;
 
@@ -182,12 +189,24 @@ pub fn set_budget_named(max_memory_gb: Option<f64>, max_rays: Option<f64>, names
         if !(gb.is_finite() && gb > 0.0) {
             return Err(Error::invalid(format!("{}: must be a finite number of GB > 0", names.with_value(&names.memory, gb))));
         }
+        if gb > MAX_MEMORY_GB {
+            return Err(Error::invalid(format!(
+                "{}: beyond the {MAX_MEMORY_GB:.0} GB a 64-bit process can address (2⁴⁷ bytes): such a budget protects nothing, and a \
+                 request under it fails in the allocator; give at most {MAX_MEMORY_GB:.0} (the default is half of the physical memory)",
+                format!("{}{}{}", names.memory, names.separator, fmt_num(gb))
+            )));
+        }
         b.memory_bytes = gb * 1e9;
         b.memory_source = names.with_value(&names.memory, gb);
     }
     if let Some(r) = max_rays {
         if !(r.is_finite() && r >= 1.0) {
             return Err(Error::invalid(format!("{}: must be a finite count ≥ 1", names.with_value(&names.rays, r))));
+        }
+        // A ray count is a whole number; 1.5 was accepted and meant 1 (round 21). Above 2⁵³ an f64 no longer
+        // holds every count exactly.
+        if r.fract() != 0.0 || r > MAX_RAYS_BUDGET {
+            return Err(Error::invalid(format!("{}{}{}: must be a whole number of rays, 1..={MAX_RAYS_BUDGET:.0}", names.rays, names.separator, fmt_num(r))));
         }
         b.rays = r;
     }
@@ -220,24 +239,31 @@ pub fn budget() -> Budget {
 /// holds already ([`hold`]: a render record, an exact operator's kept transport, a solver's arrays) counts
 /// against the budget too, and a refusal names it.
 pub fn check_memory(what: &str, bytes: f64) -> Result<()> {
-    memory_within_budget(what, bytes, true)
+    memory_within_budget(what, bytes, Some(what))
+}
+
+/// [`check_memory`] where `what` carries figures beside the options (`--order 4 × --rings 12 (3.2e4 ray trees,
+/// 118 detector paths each)`): a refusal names `what` once, then `reduce` (the options alone) after "reduce"
+/// (round 21: the whole figure string was repeated there).
+pub fn check_memory_reducing(what: &str, reduce: &str, bytes: f64) -> Result<()> {
+    memory_within_budget(what, bytes, Some(reduce))
 }
 
 /// [`check_memory`] for a workload no option sizes (`what` says what it is): a refusal names only the budget
 /// to raise, not `what` to reduce (`design amici`'s 13×13 distortion grids said "reduce distortion grid
 /// 13×13", not an option of `design`; round 19).
 pub fn check_fixed_memory(what: &str, bytes: f64) -> Result<()> {
-    memory_within_budget(what, bytes, false)
+    memory_within_budget(what, bytes, None)
 }
 
-fn memory_within_budget(what: &str, bytes: f64, reducible: bool) -> Result<()> {
+fn memory_within_budget(what: &str, bytes: f64, reducible: Option<&str>) -> Result<()> {
     let b = budget();
     let (held, terms) = held_now();
     if !(bytes + held <= b.memory_bytes) {
         // The held memory after the budget, so that every refusal reads "needs an estimated X of memory,
         // over the budget of B" whatever the process holds.
         let with = if terms.is_empty() { String::new() } else { format!(" with the {} held already ({})", gb(held), terms.join(", ")) };
-        let reduce = if reducible { format!("reduce {what} or ") } else { String::new() };
+        let reduce = reducible.map(|r| format!("reduce {r} or ")).unwrap_or_default();
         return Err(Error::invalid(format!(
             "{what}: needs an estimated {} of memory, over the budget of {} ({}){with}; {reduce}raise {}",
             gb(bytes),
@@ -281,10 +307,16 @@ pub fn held_now() -> (f64, Vec<String>) {
 
 /// Refuse more than the ray budget, naming the options that set the count (`what`).
 pub fn check_rays(what: &str, rays: f64) -> Result<()> {
+    check_rays_reducing(what, what, rays)
+}
+
+/// [`check_rays`] naming `what` once and `reduce` (the options alone) after "reduce", as
+/// [`check_memory_reducing`].
+pub fn check_rays_reducing(what: &str, reduce: &str, rays: f64) -> Result<()> {
     let b = budget();
     if !(rays <= b.rays) {
         return Err(Error::invalid(format!(
-            "{what}: {} rays to trace, over the budget of {} ({}; default {DEFAULT_MAX_RAYS:.0e}, 34 paper-scale acquisitions); reduce {what} or raise {}",
+            "{what}: {} rays to trace, over the budget of {} ({}; default {DEFAULT_MAX_RAYS:.0e}, 34 paper-scale acquisitions); reduce {reduce} or raise {}",
             fmt_count(rays),
             fmt_count(b.rays),
             b.names.rays,
@@ -545,6 +577,56 @@ pub fn bytes_cube(height: usize, width: usize, bands: usize) -> f64 {
 /// Decoding an H×W RGB(A) photograph: the decoded 8/16-bit pixels (≤ 8 B) and the f32 RGB copy (12 B).
 pub fn bytes_rgb_decode(height: usize, width: usize) -> f64 {
     height as f64 * width as f64 * 20.0
+}
+
+/// [`crate::diff::DiffSystem::trace`] of `rays` rays for `params` free parameters: the Jacobian, ∂ of the six
+/// image coordinates per parameter (48·K B per ray, allocated once and written in place), the finite flags
+/// (1 B), and the traced columns (53 B: six f64, a status, a u32 surface) held twice while the chunks are
+/// gathered: 107 + 48·K B per ray.
+pub fn bytes_jacobian_trace(rays: f64, params: usize) -> f64 {
+    rays * (107.0 + 48.0 * params as f64)
+}
+
+/// A ray-batch Jacobian as the bindings return it (Python's `diffcassi.jacobian`): the caller's rays copied
+/// into a batch (56 B per ray), [`bytes_jacobian_trace`], then beside the Jacobian the per-ray reasons (two
+/// 24 B vectors, a flag, an 8 B list entry) and the interleaved positions/directions/status/surface copy
+/// (53 B): 220 + 48·K B per ray, with a 10 % margin (allocator slack). Measured round 21 (SP, analytic, peak
+/// RSS over the process before the call): see `docs/python.md` "Limits".
+pub fn bytes_jacobian(rays: f64, params: usize) -> f64 {
+    rays * (220.0 + 48.0 * params as f64) * JACOBIAN_MARGIN
+}
+
+/// Margin on the Jacobian figures, which are the buffers' exact sizes: 10 %.
+const JACOBIAN_MARGIN: f64 = 1.1;
+
+/// Rays per block of [`crate::render::DiffRenderer::mapping_jacobian`]: it traces its H·W·L chief rays a block
+/// at a time into the returned arrays, so only one block's batch and Jacobian are alive beside them.
+pub const MAPPING_JACOBIAN_BLOCK: usize = 1 << 16;
+
+/// [`crate::render::DiffRenderer::mapping_jacobian`] of an H×W scene at `wavelengths` wavelengths for `params`
+/// free parameters: the returned positions (16 B per entry), Jacobian (2 coordinates × K × 8 B) and validity
+/// (1 B), plus one block of [`MAPPING_JACOBIAN_BLOCK`] rays (the ray batch, 56 B, and its
+/// [`bytes_jacobian_trace`]), with a 10 % margin.
+pub fn bytes_mapping_jacobian(height: usize, width: usize, wavelengths: usize, params: usize) -> f64 {
+    let entries = height as f64 * width as f64 * wavelengths as f64;
+    let block = entries.min(MAPPING_JACOBIAN_BLOCK as f64);
+    (entries * (17.0 + 16.0 * params as f64) + block * 56.0 + bytes_jacobian_trace(block, params)) * JACOBIAN_MARGIN
+}
+
+/// The budgets of tracing `rays` rays given by the caller (the command line's `trace`/`spot`, Python's
+/// `trace`, `System.seeded_rays`): the ray budget, and [`BYTES_PER_RAY`] each against the memory budget.
+/// `what` names the workload, `reduce` what sets the count (the options, or the arguments).
+pub fn check_traced_rays(what: &str, reduce: &str, rays: f64) -> Result<()> {
+    check_rays_reducing(what, reduce, rays)?;
+    check_memory_reducing(what, reduce, rays * BYTES_PER_RAY)
+}
+
+/// The budgets of a ray-batch Jacobian ([`bytes_jacobian`]) of `rays` rays for `params` parameters: the ray
+/// budget and the memory budget, before anything of its size is allocated. `what` names the workload,
+/// `reduce` what sets its size.
+pub fn check_jacobian(what: &str, reduce: &str, rays: f64, params: usize) -> Result<()> {
+    check_rays_reducing(what, reduce, rays)?;
+    check_memory_reducing(what, reduce, bytes_jacobian(rays, params))
 }
 
 // ------------------------------------------------------------------ JSON finiteness checker

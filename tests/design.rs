@@ -96,6 +96,7 @@ fn double_amici_design_meets_the_targets() {
     assert!(r.max_distortion_um <= 10.0, "distortion {} µm", r.max_distortion_um);
     assert!(r.deviation_mrad <= 1.0, "deviation {} mrad", r.deviation_mrad);
     assert!((r.target_dispersion_deg - 0.95).abs() < 0.005);
+    assert!(r.continuous_stage["stop_reason"].as_str().unwrap().starts_with("converged"), "{}", r.continuous_stage);
     // Deterministic for a seed; the written spec traces to the same dispersion.
     let again = design_amici(&catalog, &AmiciOptions::default()).unwrap();
     assert_eq!(serde_json::to_string(&again.report).unwrap(), serde_json::to_string(&out.report).unwrap());
@@ -129,6 +130,9 @@ fn cli_calibrate_and_design_write_their_reports() {
     }
     assert_eq!(v["apex_deg"].as_array().unwrap().len(), 3);
     assert_eq!(v["glasses"].as_array().unwrap().len(), 3);
+    // The default iterations converge: the continuous stage says so and warns of nothing (round 21).
+    assert!(v["continuous_stage"]["stop_reason"].as_str().unwrap().starts_with("converged"), "{}", v["continuous_stage"]);
+    assert_eq!(v["continuous_stage"]["warnings"], serde_json::json!([]), "{}", v["continuous_stage"]);
     SequentialSystem::build(&diffcassi::spec::load_spec_file(&spec).unwrap()).unwrap();
 
     // Bad requests: a clear error and exit status 1.

@@ -52,8 +52,10 @@ int main() {
     // Load-time warnings: none for a preset; a semi-diameter beyond a sphere's hemisphere (R = 10 mm, 12 mm) is named.
     CHECK(System::preset("sp").warnings().empty());
     const auto w = System::from_file(DIFFCASSI_SOURCE_DIR "/../tests/fixtures/systems/beyond_hemisphere.toml").warnings();
-    CHECK(w.size() == 1);
+    // And its faces (R 10 mm, R -51 mm, 4 mm apart) cross at r = 7.55 mm, inside that semi-diameter (round 21).
+    CHECK(w.size() == 2);
     CHECK(w[0].find("surface 1: semi-diameter 12 mm is beyond the surface's edge at r = 10 mm") != std::string::npos);
+    CHECK(w[1].find("cross at r = 7.5464 mm") != std::string::npos);
     std::printf("  %-28s -> %s\n", "semi-diameter warning", w[0].c_str());
   }
   {

@@ -3,7 +3,7 @@
 //! parameters, the mask and the scenes. Thin: arrays are borrowed (float64, C-contiguous), the GIL is
 //! released while Rust works, results are handed to NumPy without a copy. `diffcassi.torch.CassiRenderer`
 //! wraps it as an `nn.Module`.
-use crate::arrays::{f64_list, input, output};
+use crate::arrays::{f64_list, input, output, seed_arg, size_arg};
 use crate::errors::{value_error, IntoPy};
 use crate::pool::run;
 use crate::system::PySystem;
@@ -91,21 +91,28 @@ impl PyDiffRenderer {
     /// its width (degrees, in (0, 180); pixels uniform in field angle, as `render(..., scene_fov_deg=)`):
     /// required there, refused on a finite object.
     #[new]
-    #[pyo3(signature = (system, height, width, free, rays = 4, planes = 28, seed = 0, bands_nm = None, airy = true, scene_fov_deg = None))]
+    #[pyo3(signature = (system, height, width, free, rays = None, planes = None, seed = None, bands_nm = None, airy = true, scene_fov_deg = None))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         py: Python<'_>,
         system: &PySystem,
-        height: usize,
-        width: usize,
+        height: &Bound<'_, PyAny>,
+        width: &Bound<'_, PyAny>,
         free: Vec<String>,
-        rays: usize,
-        planes: usize,
-        seed: u64,
+        rays: Option<&Bound<'_, PyAny>>,
+        planes: Option<&Bound<'_, PyAny>>,
+        seed: Option<&Bound<'_, PyAny>>,
         bands_nm: Option<&Bound<'_, PyAny>>,
         airy: bool,
         scene_fov_deg: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
+        // Counts and the seed are read by the shared argument readers, so 2**64, -1, 2.5 or True are refused
+        // naming the argument and its range (`arrays::size_arg`, `seed_arg`), not as a bare OverflowError or
+        // TypeError from the binding's conversion; None keeps the default.
+        let (height, width) = (size_arg("height", height)?, size_arg("width", width)?);
+        let rays = rays.map(|v| size_arg("rays", v)).transpose()?.unwrap_or(4);
+        let planes = planes.map(|v| size_arg("planes", v)).transpose()?.unwrap_or(28);
+        let seed = seed.map(|v| seed_arg("seed", v)).transpose()?.unwrap_or(0);
         // A number or None, as the render keywords take it (`settings::settings`); its range and whether the
         // system wants it are the library's checks (`render::scene_pitch_for`, in `DiffRenderer::new`).
         let scene_fov_deg = match scene_fov_deg {

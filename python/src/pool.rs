@@ -19,67 +19,16 @@
 use crate::arrays::uint_arg;
 use crate::errors::value_error;
 use pyo3::prelude::*;
-use std::sync::{Arc, RwLock};
 
-/// The pool of this process: the thread count asked for (0: rayon's default), the pool (`None`: rayon's
-/// global pool) and the process that built it.
-struct State {
-    requested: usize,
-    pool: Option<Arc<rayon::ThreadPool>>,
-    pid: u32,
-}
-
-static POOL: RwLock<Option<State>> = RwLock::new(None);
-
-/// Record the importing process (the one whose threads exist); called at module initialisation.
+/// Record the importing process (the one whose threads exist); called at module initialisation. The pool
+/// itself, its fork check and the thread count live in the library ([`diffcassi::pool`]), shared with the C++ API.
 pub fn init() {
-    let mut st = POOL.write().unwrap_or_else(|p| p.into_inner());
-    if st.is_none() {
-        *st = Some(State { requested: 0, pool: None, pid: std::process::id() });
-    }
+    diffcassi::pool::init();
 }
 
-/// rayon's default thread count: `RAYON_NUM_THREADS` when set to a positive integer, else the cores.
-fn default_threads() -> usize {
-    std::env::var("RAYON_NUM_THREADS")
-        .ok()
-        .and_then(|v| v.trim().parse::<usize>().ok())
-        .filter(|&n| n > 0)
-        .unwrap_or_else(|| std::thread::available_parallelism().map(|c| c.get()).unwrap_or(1))
-}
-
-fn build(n: usize) -> PyResult<Arc<rayon::ThreadPool>> {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(n)
-        .build()
-        .map(Arc::new)
-        .map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(format!("set_num_threads({n}): cannot start the threads: {e}")))
-}
-
-/// The pool of this process (`None`: rayon's global pool), rebuilt first when this process is a fork
-/// child of the one that built it.
-fn current() -> PyResult<Option<Arc<rayon::ThreadPool>>> {
-    let pid = std::process::id();
-    {
-        let st = POOL.read().unwrap_or_else(|p| p.into_inner());
-        match &*st {
-            Some(s) if s.pid == pid => return Ok(s.pool.clone()),
-            None => return Ok(None),
-            Some(_) => {}
-        }
-    }
-    let mut st = POOL.write().unwrap_or_else(|p| p.into_inner());
-    let Some(s) = st.as_mut() else { return Ok(None) };
-    if s.pid != pid {
-        // A fork child: the pool's threads (and the global pool's, if the parent used it) are gone.
-        let n = if s.requested > 0 { s.requested } else { default_threads() };
-        let fresh = build(n)?;
-        if let Some(stale) = s.pool.replace(fresh) {
-            std::mem::forget(stale);
-        }
-        s.pid = pid;
-    }
-    Ok(s.pool.clone())
+/// The pool of this process (`None`: rayon's global pool), rebuilt first in a fork child.
+fn current() -> PyResult<Option<std::sync::Arc<rayon::ThreadPool>>> {
+    diffcassi::pool::current().map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(format!("set_num_threads: {e}")))
 }
 
 /// Run `f` without the GIL, inside the chosen pool (a fresh one in a fork child, see the module docs).
@@ -161,10 +110,7 @@ pub fn set_num_threads(n: &Bound<'_, PyAny>) -> PyResult<()> {
     let n = uint_arg("set_num_threads: n", n, 0, max as u64)
         .map_err(|e| value_error(format!("{} (0: all cores; results do not depend on the thread count; the CLI's --threads takes 1..={max})", e.value(n.py()))))?
         as usize;
-    let pool = if n == 0 { None } else { Some(build(n)?) };
-    let mut st = POOL.write().unwrap_or_else(|p| p.into_inner());
-    *st = Some(State { requested: n, pool, pid: std::process::id() });
-    Ok(())
+    diffcassi::pool::set_num_threads(n, "set_num_threads").map_err(|e| pyo3::exceptions::PyRuntimeError::new_err(e.to_string()))
 }
 
 /// Threads the heavy calls use.

@@ -493,8 +493,7 @@ impl PySystem {
         let ws = f64_list("wavelengths_nm", wavelengths_nm)?;
         let what = format!("rays_per_wavelength × wavelengths_nm ({rays_per_wavelength} × {})", ws.len());
         let n = rays_per_wavelength as f64 * ws.len() as f64;
-        diffcassi::limits::check_rays(&what, n).py()?;
-        diffcassi::limits::check_memory(&what, n * diffcassi::limits::BYTES_PER_RAY).py()?;
+        diffcassi::limits::check_traced_rays(&what, &what, n).py()?;
         let sys = Arc::clone(&self.inner);
         let rays = run(py, move || RayBatch::seeded_workload(&sys, rays_per_wavelength, &ws, seed).map(RayArrays::of)).py()?;
         rays_out(py, rays)
@@ -540,6 +539,9 @@ fn trace<'py>(py: Python<'py>, system: &PySystem, origins: &Bound<'py, PyAny>, d
     let (o, d, w) = ray_arrays(origins, directions, wavelengths_nm)?;
     let n = w.shape[0];
     let t = tracer(backend)?;
+    // The CLI's budgets of a trace (`diffcassi trace`/`spot`), before the outputs are allocated (round 21: 18 000
+    // rays were traced under max_rays=1000).
+    diffcassi::limits::check_traced_rays(&format!("trace of N = {n} rays"), "the rays", n as f64).py()?;
     let sys = Arc::clone(&system.inner);
     // The outputs are allocated by NumPy (zeroed lazily by the OS: first touched by the threads that fill them).
     let positions = PyArray2::<f64>::zeros(py, [n, 3], false);
@@ -853,15 +855,26 @@ fn jacobian<'py>(
         Ok(s) => s,
         Err(_) => parameters.extract::<Vec<String>>().map_err(|_| value_error("parameters: expected a comma-separated string or a list of names"))?.join(","),
     };
-    let rays = ray_batch(origins, directions, wavelengths_nm)?;
+    let n_rays = ray_arrays(origins, directions, wavelengths_nm)?.2.shape[0];
     let config: BackendConfig = backend.parse().py()?;
     let (sys, catalogs) = (Arc::clone(&system.inner), Arc::clone(&system.catalogs));
-    // The trace and the reshaping into the returned arrays: without the GIL.
-    let (n, k, available, reasons, params, jac, traced) = run(py, move || -> diffcassi::Result<_> {
+    // The parameter set first (its count K sizes the result), without the GIL.
+    let ds = run(py, move || -> diffcassi::Result<_> {
         // The parameter set reads the catalogue files again: refused if one changed since the system was built
         // (as a copy of it is; round 18).
         SequentialSystem::check_catalog_identities(&catalogs)?;
-        let hj = ParamSet::for_system(&sys, &list)?.build()?.trace_with_backend(&config, &rays)?;
+        ParamSet::for_system(&sys, &list)?.build()
+    })
+    .py()?;
+    // The ray and memory budgets before the rays are copied or anything N × K is allocated: the (N, 6, K)
+    // Jacobian is a K-fold amplification of the input (round 21: 10⁶ rays × 24 parameters peaked at 1.43 GB
+    // under a 0.5 GB budget, unchecked).
+    let what = format!("jacobian of N × K = {n_rays} rays × {} parameters", ds.k());
+    diffcassi::limits::check_jacobian(&what, "the rays or the parameters", n_rays as f64, ds.k()).py()?;
+    let rays = ray_batch(origins, directions, wavelengths_nm)?;
+    // The trace and the reshaping into the returned arrays: without the GIL.
+    let (n, k, available, reasons, params, jac, traced) = run(py, move || -> diffcassi::Result<_> {
+        let hj = ds.trace_with_backend(&config, &rays)?;
         let (n, k) = (hj.batch.len(), hj.batch.k());
         let available: Vec<bool> = hj.unavailable.iter().map(Option::is_none).collect();
         let reasons: Vec<String> = hj.unavailable.into_iter().map(Option::unwrap_or_default).collect();

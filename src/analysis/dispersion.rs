@@ -41,6 +41,44 @@ pub fn linspace(first: f64, last: f64, n: usize) -> Vec<f64> {
     match n {
         0 => vec![],
         1 => vec![first],
-        _ => (0..n).map(|i| first + (last - first) * i as f64 / (n - 1) as f64).collect(),
+        _ => {
+            let span = last - first;
+            if (span * (n - 1) as f64).is_finite() {
+                // The usual form, whose bits the presets' band centres and the tests pin.
+                (0..n).map(|i| first + span * i as f64 / (n - 1) as f64).collect()
+            } else {
+                // Finite ends whose difference (or its product with the index) overflows: the weighted mean
+                // a·(1−t) + b·t, each term within the ends' magnitude, stays finite and ends exactly at `last`
+                // (round 21: linspace(-1e308, 1e308, 3) gave [NaN, inf, inf]).
+                (0..n)
+                    .map(|i| {
+                        let t = i as f64 / (n - 1) as f64;
+                        first * (1.0 - t) + last * t
+                    })
+                    .collect()
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod linspace_tests {
+    use super::linspace;
+
+    /// Finite ends give finite values even when their difference overflows f64 (round 21), ending exactly at
+    /// the ends; ordinary ranges keep the usual form's bits (the presets' bands).
+    #[test]
+    fn finite_ends_stay_finite_and_ordinary_ranges_keep_their_bits() {
+        assert_eq!(linspace(-1e308, 1e308, 3), vec![-1e308, 0.0, 1e308]);
+        for (a, b, n) in [(-1.7e308, 1.7e308, 5), (0.0, f64::MAX, 4), (-f64::MAX, f64::MAX, 1001), (f64::MAX, -f64::MAX, 7)] {
+            let v = linspace(a, b, n);
+            assert!(v.iter().all(|x| x.is_finite()), "{a} {b} {n}: {v:?}");
+            assert_eq!((v[0], v[n - 1]), (a, b));
+            assert!(v.windows(2).all(|w| (b > a && w[1] >= w[0]) || (b < a && w[1] <= w[0])), "{a} {b} {n}: not monotone");
+        }
+        for (a, b, n) in [(450.0, 650.0, 28), (400.0, 700.0, 31), (-2.5, 2.5, 13), (0.0, 1.0, 1000)] {
+            let usual: Vec<f64> = (0..n).map(|i| a + (b - a) * i as f64 / (n - 1) as f64).collect();
+            assert_eq!(linspace(a, b, n), usual);
+        }
     }
 }

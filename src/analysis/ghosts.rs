@@ -3,7 +3,7 @@
 //!
 //! For each source — a point source at each of the system's fields, and a uniform extended source (an
 //! N×N grid of field points over the field box, equal power each) — and each wavelength (the system's,
-//! plus 520 nm), rays through a hexapolar pupil are split up to ghost order K. A field point is an object
+//! plus 520 nm, the reference at which every system's table is read: [`reference_wavelength`]), rays through a hexapolar pupil are split up to ghost order K. A field point is an object
 //! height (mm, source `point x,y`) for a finite object and a pair of field angles for an object at infinity
 //! (radians inside, degrees in the source's name: `point 0,2 deg`; its rays are the field's parallel beam,
 //! started in front of every solid, [`crate::tracer::nonseq::launch`]). Per path:
@@ -90,7 +90,7 @@ pub struct GhostReport {
     pub rays_traced: usize,
     /// Every (source, wavelength) row, main image excluded, ranked by peak ratio within each.
     pub paths: Vec<GhostPath>,
-    /// On-axis point source at 520 nm: energy fractions of the scalar model, per path (same order as
+    /// On-axis point source at the reference wavelength (520 nm): energy fractions of the scalar model, per path (same order as
     /// [`GhostReport::on_axis_520`]), and the largest relative error of the scalar against the polarised.
     pub scalar_energy_fraction: Vec<f64>,
     pub scalar_max_relative_error: f64,
@@ -98,6 +98,13 @@ pub struct GhostReport {
     pub ledger: Ledger,
     pub map_point: GhostMap,
     pub map_uniform: GhostMap,
+    /// The wavelength of the CSV rows, the PNG maps and the scalar-model comparison (nm): 520 nm, or the
+    /// system's primary wavelength when a glass of the system does not cover 520 nm
+    /// ([`reference_wavelength`]; then `reference_note` says why).
+    pub reference_wavelength_nm: f64,
+    /// Why the reference wavelength is not 520 nm; absent from the JSON when it is.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reference_note: Option<String>,
     /// What the solids' design-beam check changed ([`crate::tracer::nonseq::Solids::design_beam_note`]: a
     /// detector margin shrunk in a folded system); absent from the JSON when nothing was.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -105,9 +112,10 @@ pub struct GhostReport {
 }
 
 impl GhostReport {
-    /// The rows of the on-axis point source at 520 nm (the CSV's rows).
+    /// The rows of the on-axis point source at the reference wavelength (the CSV's rows): 520 nm unless a
+    /// glass of the system does not cover it ([`GhostReport::reference_wavelength_nm`]).
     pub fn on_axis_520(&self) -> Vec<&GhostPath> {
-        self.paths.iter().filter(|p| p.source == self.on_axis_source && p.wavelength_nm == Some(520.0)).collect()
+        self.paths.iter().filter(|p| p.source == self.on_axis_source && p.wavelength_nm == Some(self.reference_wavelength_nm)).collect()
     }
 }
 
@@ -245,13 +253,21 @@ fn ghost_map(trees: &[RayTree], n: usize) -> GhostMap {
     GhostMap { n, x0_mm: x0, y0_mm: y0, pixel_mm: pixel, power }
 }
 
-/// Bytes one detector arrival of a ray tree holds (its reflection list, point, direction, power), with the
-/// tree's share of the per-path accumulation.
-pub const BYTES_PER_ARRIVAL: f64 = 160.0;
+/// Bytes of one detector arrival slot of a ray tree (`Arrival`: its reflection list's header, point,
+/// direction, power, scatters), counted over the arrivals `Vec`'s capacity (it grows by doubling: at order 4
+/// on a Cooke triplet 144 arrivals sit in 216 slots on average).
+pub const BYTES_PER_ARRIVAL: f64 = 88.0;
+/// Bytes of a ghost arrival's heap path label (`Vec<u32>` of ≤ 4 surfaces: the allocator's smallest chunk,
+/// 32 B); the main image's empty label allocates nothing.
+pub const BYTES_PER_LABEL: f64 = 32.0;
+/// Bytes per arrival of the ghost map's copy (point, power) of the reference wavelength's sources.
+pub const BYTES_PER_MAP_POINT: f64 = 32.0;
+/// The process before the analysis (binary, system, solids): 16.8 MB resident measured on a Cooke triplet.
+pub const BYTES_BASE: f64 = 17e6;
 /// Bytes one ray tree of the source being traced holds besides its arrivals: the source's ray (56 B), the tree
-/// and its ledger (88 B), allocator and grouping overhead. Measured: AP, order 4, 2.0 paths per tree, rings 16 and
+/// and its ledger (80 B), allocator and grouping overhead. Measured: AP, order 4, 2.0 paths per tree, rings 16 and
 /// 32 with an extended grid of 16 (2.1·10⁵ and 8.1·10⁵ trees in the largest source) peaked at 147 MB and 506 MB
-/// resident, 600–620 B per tree; this constant and [`BYTES_PER_ARRIVAL`] give 620 B.
+/// resident, 600–620 B per tree.
 pub const BYTES_PER_TREE: f64 = 300.0;
 
 /// What [`ghost_analysis`] will trace and hold, estimated before the analysis runs.
@@ -266,25 +282,96 @@ pub struct GhostEstimate {
     pub paths_per_tree: f64,
     /// Rays traced: every tree's walk and each of its detector paths, trees × (1 + paths per tree).
     pub rays: f64,
-    /// Peak memory: the largest source's rays, trees and detector paths ([`BYTES_PER_TREE`],
-    /// [`BYTES_PER_ARRIVAL`]).
+    /// Peak memory: the process ([`BYTES_BASE`]) and the largest source's rays, trees and detector paths
+    /// ([`BYTES_PER_TREE`]; per arrival slot [`BYTES_PER_ARRIVAL`], per ghost label [`BYTES_PER_LABEL`], per
+    /// map point [`BYTES_PER_MAP_POINT`], each counted on the pilot's own trees).
     pub bytes: f64,
+}
+
+/// Refuse a coating that transmits nothing (`reflectance = 1`). The main image of a sequential system crosses
+/// every coated surface (a coating on a mirror, a Coordinate Break or the image is refused by
+/// [`crate::render::ghosts::check_coating_sites`]), so such a coating stops every order-0 ray and the ghosts
+/// have no main image to be normalised by; named here rather than as "no main-image ray reached the
+/// detector" after the trace (round 21).
+fn refuse_opaque_coatings(coatings: &[Option<crate::spec::Coating>]) -> Result<()> {
+    let opaque: Vec<String> = coatings
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| matches!(c, Some(crate::spec::Coating::Reflectance(r)) if *r >= 1.0))
+        .map(|(k, _)| k.to_string())
+        .collect();
+    if opaque.is_empty() {
+        return Ok(());
+    }
+    let (which, verb) = if opaque.len() == 1 { (format!("surface {}'s coating", opaque[0]), "transmits") } else { (format!("the coatings of surfaces {}", opaque.join(", ")), "transmit") };
+    Err(Error::invalid(format!(
+        "ghosts: {which} (reflectance 1) {verb} nothing: every main-image ray stops there, so there is no main image to normalise the ghosts by; give a reflectance below 1"
+    )))
+}
+
+/// The wavelength at which ghost tables of different systems compare (nm): the presets' primary, the middle
+/// of the visible band.
+pub const REFERENCE_WAVELENGTH_NM: f64 = 520.0;
+
+/// The wavelength of the CSV rows and the PNG maps (nm), and why it is not [`REFERENCE_WAVELENGTH_NM`] when it
+/// is not. 520 nm is traced beside the system's wavelengths so that every system's ghost table is read at one
+/// wavelength; a glass whose data do not reach 520 nm (germanium, ZnSe in an LWIR lens: valid 2–14 µm) has no
+/// index there (its formula, extrapolated far below its range, may give n² < 0), so such a system is read at
+/// its primary wavelength instead, and 520 nm is not traced at all.
+pub fn reference_wavelength(system: &SequentialSystem) -> (f64, Option<String>) {
+    let w = REFERENCE_WAVELENGTH_NM;
+    let outside = system.surfaces.iter().filter_map(|s| s.medium_after.glass()).find(|g| !g.in_range(w));
+    match outside {
+        None => (w, None),
+        Some(g) => {
+            let (lo, hi) = g.valid_range_nm();
+            let p = system.primary_wavelength_nm();
+            let f = crate::limits::fmt_num;
+            (
+                p,
+                Some(format!(
+                    "the ghosts' reference wavelength {} nm is outside the valid range [{}, {}] nm of glass {}: the on-axis rows (CSV, table), the ghost maps (PNG) and the scalar-model comparison are at the system's primary wavelength {} nm instead, and {} nm is not traced",
+                    f(w),
+                    f(lo),
+                    f(hi),
+                    g.name,
+                    f(p),
+                    f(w)
+                )),
+            )
+        }
+    }
+}
+
+/// The wavelengths a ghost analysis traces: the system's, plus the reference ([`reference_wavelength`]).
+fn analysis_wavelengths(system: &SequentialSystem, reference: f64) -> Vec<f64> {
+    let mut w = system.spec.wavelengths_nm.clone();
+    if !w.contains(&reference) {
+        w.push(reference);
+    }
+    w
 }
 
 /// Estimate a ghost analysis before running it (the CLI checks it against `--max-rays`/`--max-memory-gb`).
 /// The trees are counted from the options; the paths a tree keeps depend on the system, the order and the
-/// roulette threshold (from 1 to thousands), so they are measured on a pilot: 19 pupil rays (2 hexapolar
-/// rings) at 520 nm from the on-axis field and the four corners of the extended source, walked with the
-/// analysis' own options (milliseconds).
+/// roulette threshold (from 1 to thousands), so they are measured on a pilot: the extended source itself, made
+/// small (up to 4×4 of its own field points, each weighted by the grid points nearest to it, through up to 6
+/// hexapolar rings: the same weighting of pupil zones), at the reference wavelength, walked with the analysis' own options
+/// (0.1 s at order 2, 1 s at order 4 on 2 cores). The old pilot (2 rings, the on-axis field and the box's 4 corners, whose vignetted rays
+/// keep fewest paths) counted 118 paths per tree where the Cooke triplet's extended source kept 144 at order 4.
+/// Memory is counted from the pilot trees' own allocations (arrival slots, labels): on that triplet at orders
+/// 2, 3 and 4 (rings 6–32, grids 8–16) the estimate is 1.03–1.08 of the measured peak resident memory.
 pub fn ghost_estimate(system: &SequentialSystem, options: &GhostOptions) -> Result<GhostEstimate> {
     crate::render::ghosts::refuse_mask_surface(system, "the ghost analysis")?;
     let coatings: Vec<Option<crate::spec::Coating>> = system.spec.surfaces.iter().map(|s| s.coating.clone()).collect();
     crate::render::ghosts::check_coating_sites(system, &coatings)?;
+    refuse_opaque_coatings(&coatings)?;
     let tree_opts = TreeOptions { order: options.order, model: options.model, threshold: options.threshold, seed: options.seed, ..Default::default() };
     tree_opts.validate()?;
     let r = options.rings as f64;
     let pupil = 1.0 + 3.0 * r * (r + 1.0);
-    let wavelengths = system.spec.wavelengths_nm.len() + usize::from(!system.spec.wavelengths_nm.contains(&520.0));
+    let (reference, _) = reference_wavelength(system);
+    let wavelengths = analysis_wavelengths(system, reference).len();
     let fields = system.fields.len() + usize::from(!system.fields.contains(&[0.0, 0.0]));
     let grid = (options.extended_grid as f64).powi(2);
     let largest_source = grid.max(1.0) * pupil;
@@ -292,17 +379,34 @@ pub fn ghost_estimate(system: &SequentialSystem, options: &GhostOptions) -> Resu
     // The pilot.
     let kernel = BruteForce::new(system, &SolidsOptions::default())?;
     let (fx, fy) = system.fields.iter().fold((0.0f64, 0.0f64), |(a, b), f| (a.max(f[0].abs()), b.max(f[1].abs())));
-    let sample = PupilPattern::Hexapolar { rings: 2 }.points();
+    let sample = PupilPattern::Hexapolar { rings: options.rings.clamp(1, 6) }.points();
+    // Up to 4 of the grid's own indices per axis, each weighted by the grid points nearest to it (a stratified
+    // sample: the box's edges, vignetted, keep fewer paths than its inside).
+    let g = options.extended_grid.max(1);
+    let n = g.min(4);
+    let picks: Vec<usize> = (0..n).map(|j| if n == 1 { g / 2 } else { (j * (g - 1) + (n - 1) / 2) / (n - 1) }).collect();
+    let mut weight = vec![0.0f64; n];
+    for i in 0..g {
+        let j = (0..n).min_by_key(|&j| picks[j].abs_diff(i)).unwrap_or(0);
+        weight[j] += 1.0;
+    }
+    let s = |i: usize| if g == 1 { 0.0 } else { -1.0 + 2.0 * i as f64 / (g - 1) as f64 };
     let mut rays = RayBatch::default();
-    for f in [[0.0, 0.0], [fx, fy], [-fx, fy], [fx, -fy], [-fx, -fy]] {
-        if let Ok(b) = RayBatch::for_field(system, f, &sample, 520.0) {
-            rays.extend(&b);
+    let mut ray_weight: Vec<f64> = Vec::new();
+    for (a, b) in (0..n * n).map(|k| (k % n, k / n)) {
+        if let Ok(batch) = RayBatch::for_field(system, [fx * s(picks[a]), fy * s(picks[b])], &sample, reference) {
+            ray_weight.extend(std::iter::repeat_n(weight[a] * weight[b], batch.len()));
+            rays.extend(&batch);
         }
     }
     let pilot = trace_trees(&kernel, system, &rays, &tree_opts)?;
-    let paths_per_tree = pilot.iter().map(|t| t.arrivals.len()).sum::<usize>() as f64 / pilot.len().max(1) as f64;
+    let total: f64 = ray_weight.iter().sum::<f64>().max(1e-300);
+    let per_tree = |f: &dyn Fn(&RayTree) -> usize| pilot.iter().zip(&ray_weight).map(|(t, w)| f(t) as f64 * w).sum::<f64>() / total;
+    let paths_per_tree = per_tree(&|t| t.arrivals.len());
+    let slots = per_tree(&|t| t.arrivals.capacity());
+    let labels = per_tree(&|t| t.arrivals.iter().filter(|a| a.path.capacity() > 0).count());
     let rays = trees * (1.0 + paths_per_tree);
-    let bytes = largest_source * (BYTES_PER_TREE + paths_per_tree * BYTES_PER_ARRIVAL);
+    let bytes = BYTES_BASE + largest_source * (BYTES_PER_TREE + slots * BYTES_PER_ARRIVAL + labels * BYTES_PER_LABEL + paths_per_tree * BYTES_PER_MAP_POINT);
     Ok(GhostEstimate { trees, largest_source, paths_per_tree, rays, bytes })
 }
 
@@ -312,6 +416,7 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
     crate::render::ghosts::refuse_mask_surface(system, "the ghost analysis")?;
     let coatings: Vec<Option<crate::spec::Coating>> = system.spec.surfaces.iter().map(|s| s.coating.clone()).collect();
     crate::render::ghosts::check_coating_sites(system, &coatings)?;
+    refuse_opaque_coatings(&coatings)?;
     let tree_opts = TreeOptions { order: options.order, model: options.model, threshold: options.threshold, seed: options.seed, ..Default::default() };
     tree_opts.validate()?;
     if options.model == FresnelModel::Off {
@@ -322,10 +427,8 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
     }
     let kernel = BruteForce::new(system, &SolidsOptions::default())?;
     let pupil = PupilPattern::Hexapolar { rings: options.rings }.points();
-    let mut wavelengths = system.spec.wavelengths_nm.clone();
-    if !wavelengths.contains(&520.0) {
-        wavelengths.push(520.0);
-    }
+    let (reference, reference_note) = reference_wavelength(system);
+    let wavelengths = analysis_wavelengths(system, reference);
     let mut fields = system.fields.clone();
     if !fields.contains(&[0.0, 0.0]) {
         fields.insert(0, [0.0, 0.0]);
@@ -370,7 +473,7 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
                 e.0 += p.energy_fraction;
                 e.1 += 1;
             }
-            if w == 520.0 {
+            if w == reference {
                 if name == on_axis {
                     map_point = Some(ghost_map(&trees, 256));
                     on_axis_trees = Some(rays.clone());
@@ -386,7 +489,7 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
         p.energy_fraction = sum / nw;
         paths.push(p);
     }
-    // The scalar model on the on-axis source at 520 nm, against the polarised one.
+    // The scalar model on the on-axis source at the reference wavelength, against the polarised one.
     let mut report = GhostReport {
         system: system.name().to_string(),
         order: options.order,
@@ -398,14 +501,16 @@ pub fn ghost_analysis(system: &SequentialSystem, options: &GhostOptions) -> Resu
         ledger,
         map_point: map_point.ok_or_else(|| Error::invalid("ghosts: the system has no on-axis field (0, 0)"))?,
         on_axis_source: on_axis.clone(),
-        map_uniform: map_uniform.expect("the uniform source is traced at 520 nm"),
+        map_uniform: map_uniform.expect("the uniform source is traced at the reference wavelength"),
+        reference_wavelength_nm: reference,
+        reference_note,
         design_beam_note: kernel.solids.design_beam_note.clone(),
     };
     if let Some(rays) = on_axis_trees {
         let scalar = TreeOptions { model: FresnelModel::Scalar, ..tree_opts };
         let polar = TreeOptions { model: FresnelModel::Polarized, ..tree_opts };
-        let s = rows(&on_axis, Some(520.0), &accumulate(&trace_trees(&kernel, system, &rays, &scalar)?))?;
-        let p = rows(&on_axis, Some(520.0), &accumulate(&trace_trees(&kernel, system, &rays, &polar)?))?;
+        let s = rows(&on_axis, Some(reference), &accumulate(&trace_trees(&kernel, system, &rays, &scalar)?))?;
+        let p = rows(&on_axis, Some(reference), &accumulate(&trace_trees(&kernel, system, &rays, &polar)?))?;
         report.scalar_energy_fraction = report.on_axis_520().iter().map(|g| s.iter().find(|x| x.path == g.path).map(|x| x.energy_fraction).unwrap_or(0.0)).collect();
         report.scalar_max_relative_error = p
             .iter()

@@ -37,8 +37,7 @@ fn pupil_points(a: &SpotArgs) -> Result<Vec<[f64; 2]>> {
 fn check_spot_budget(pupil: usize, fields: usize, wavelengths: usize) -> Result<()> {
     let n = (pupil as f64 + 1.0) * fields as f64 * wavelengths as f64;
     let what = format!("--pupil × --field-mm × --wavelength-nm ({pupil} × {fields} × {wavelengths})");
-    crate::limits::check_rays(&what, n)?;
-    crate::limits::check_memory(&what, n * crate::limits::BYTES_PER_RAY)
+    crate::limits::check_traced_rays(&what, &what, n)
 }
 
 /// The fields of `--field-mm`/`--field-deg` as object-space field points (mm, or rad at infinity), or the

@@ -35,13 +35,13 @@ pub struct GhostsArgs {
     /// The uniform extended source is an N×N grid of field points (1..=64).
     #[arg(long = "extended-grid", default_value_t = 5)]
     pub extended_grid: usize,
-    /// Ghost paths of the on-axis point source at 520 nm (path, energy_fraction, x_mm, y_mm, …).
+    /// Ghost paths of the on-axis point source at 520 nm, or the primary wavelength when a glass does not cover 520 nm (path, energy_fraction, x_mm, y_mm, …).
     #[arg(long)]
     pub csv: Option<PathBuf>,
     /// Every source and wavelength, the averages, the ledger and the scalar-model error.
     #[arg(long)]
     pub json: Option<PathBuf>,
-    /// Ghost maps (log scale): on-axis point source | uniform field, 520 nm.
+    /// Ghost maps (log scale): on-axis point source | uniform field, 520 nm (or the primary wavelength, as the CSV).
     #[arg(long)]
     pub png: Option<PathBuf>,
 }
@@ -69,15 +69,23 @@ pub(super) fn ghosts(a: GhostsArgs) -> Result<()> {
         "--order {} × --rings {} × --extended-grid {} ({:.3e} ray trees, {:.1} detector paths each)",
         a.order, a.rings, a.extended_grid, e.trees, e.paths_per_tree
     );
-    crate::limits::check_rays(&what, e.rays)?;
-    crate::limits::check_memory(&what, e.bytes)?;
+    let reduce = "--order, --rings or --extended-grid";
+    crate::limits::check_rays_reducing(&what, reduce, e.rays)?;
+    crate::limits::check_memory_reducing(&what, reduce, e.bytes)?;
+    if let Some(n) = super::shared::zmx_coating_note(&a.system, "`ghosts`") {
+        eprintln!("note: {n}");
+    }
     let t0 = std::time::Instant::now();
     let report = ghost_analysis(&system, &options)?;
     if let Some(n) = &report.design_beam_note {
         eprintln!("note: {n}");
     }
+    if let Some(n) = &report.reference_note {
+        eprintln!("note: {n}");
+    }
+    let reference = crate::limits::fmt_num(report.reference_wavelength_nm);
     let rows = report.on_axis_520();
-    println!("ghosts of {} (order {}, {} model, brute-force f64 kernel): on-axis point source, 520 nm, ranked by peak irradiance / main image", report.system, report.order, model.label());
+    println!("ghosts of {} (order {}, {} model, brute-force f64 kernel): on-axis point source, {reference} nm, ranked by peak irradiance / main image", report.system, report.order, model.label());
     println!("{:>14} {:>13} {:>10} {:>10} {:>10} {:>11} {:>11}", "path", "energy/main", "x_mm", "y_mm", "rms_mm", "defocus_mm", "peak/main");
     for p in &rows {
         println!("{:>14} {:>13.4e} {:>10.4} {:>10.4} {:>10.4} {:>11.3} {:>11.3e}", p.path, p.energy_fraction, p.x_mm, p.y_mm, p.rms_radius_mm, p.defocus_mm, p.peak_ratio);
@@ -113,7 +121,7 @@ pub(super) fn ghosts(a: GhostsArgs) -> Result<()> {
 
 fn write_csv(path: &Path, r: &GhostReport) -> Result<()> {
     let mut w = CsvWriter::new(path, &["path", "order", "energy_fraction", "x_mm", "y_mm", "rms_radius_mm", "defocus_mm", "peak_ratio", "energy_fraction_scalar"])?;
-    w.comment(&format!("system {}; ghost order {}; model {}; on-axis point source at 520 nm; energies relative to the main image; positions in the image surface's frame (mm)", r.system, r.order, r.model.label()));
+    w.comment(&format!("system {}; ghost order {}; model {}; on-axis point source at {} nm{}; energies relative to the main image; positions in the image surface's frame (mm)", r.system, r.order, r.model.label(), crate::limits::fmt_num(r.reference_wavelength_nm), if r.reference_note.is_some() { " (the system's primary: a glass does not cover 520 nm)" } else { "" }));
     for (k, p) in r.on_axis_520().iter().enumerate() {
         w.row(&[
             CsvValue::Str(&p.path),

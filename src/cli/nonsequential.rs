@@ -432,7 +432,7 @@ fn check_budget(system: &SequentialSystem, a: &BenchArgs, rays_a: usize, wavelen
         let traced_a = batch * 3.0 * (r + 1.0);
         let traced_b = trees * paths * 3.0 * r;
         let traced_c = 3.0 * (queries + brute_queries) as f64 * r + 10.0 * (queries / 10 + brute_queries) as f64 * r;
-        let bytes = batch * 2.0 * BYTES_PER_RAY + 2.0 * trees * paths * crate::analysis::ghosts::BYTES_PER_ARRIVAL + queries as f64 * 96.0;
+        let bytes = batch * 2.0 * BYTES_PER_RAY + 2.0 * trees * paths * BENCH_BYTES_PER_PATH + queries as f64 * 96.0;
         (traced_a + traced_b + traced_c, bytes)
     };
     check_memory(&what, bytes)?;
@@ -447,3 +447,7 @@ pub fn crossover(curve: &[(f64, f64)]) -> Option<f64> {
         (x0 + (x1 - x0) * (0.0 - y0) / (y1 - y0)).exp()
     })
 }
+
+/// Bytes one detector path of a held ray tree costs in row (b) (an arrival slot with its share of the
+/// arrivals `Vec`'s growth, and its heap label): docs/robustness.md's 160 B.
+const BENCH_BYTES_PER_PATH: f64 = 160.0;

@@ -87,6 +87,9 @@ impl GhostPass {
             eprintln!("note: the spec's [mechanics] section is not used: only `render --ghosts K --mechanics` traces the mechanics (the main image is sequential)");
         }
         let Some(order) = a.ghosts else { return Ok(None) };
+        if let Some(n) = super::shared::zmx_coating_note(sys_args, "`render --ghosts` (unless --coating gives a surface's)") {
+            eprintln!("note: {n}");
+        }
         let t0 = Instant::now();
         if let Some(r) = a.ghost_rays.filter(|&r| r as usize > rays_per_pixel) {
             return Err(Error::invalid(format!("--ghost-rays {r}: at most the render's {rays_per_pixel} rays per pixel (a subsample of the rendered rays)")));

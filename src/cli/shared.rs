@@ -47,6 +47,16 @@ pub fn load_system(args: &SystemArgs) -> Result<SequentialSystem> {
     built
 }
 
+/// The note of a `.zmx` system's skipped `COAT` records ([`crate::spec::zmx::ZmxImport::coating_note`]) for
+/// `command`, a Fresnel ghost path command whose numbers coatings change; `None` for any other system. The file
+/// is read again (milliseconds): the loaded system keeps no record of what its reader skipped.
+pub(super) fn zmx_coating_note(args: &SystemArgs, command: &str) -> Option<String> {
+    let path = args.system.as_deref().filter(|p| args.preset.is_none() && crate::system::SystemOrigin::of_path(p) == crate::system::SystemOrigin::Zmx)?;
+    let extra: Vec<String> = args.glass_catalogs.iter().map(|p| crate::spec::catalog_entry(p)).collect();
+    let options = crate::spec::zmx::ZmxOptions { glass_catalogs: extra, ..Default::default() };
+    crate::spec::zmx::import_zmx_file(path, &options).ok()?.coating_note(command)
+}
+
 /// The spec named by the arguments with each `--glass-catalog` appended to its `glass_catalogs` (after the
 /// spec's own: a later catalogue wins, as in [`SequentialSystem::build`]), as an absolute path, so that the
 /// system's spec — what `render.json`, `study.json` and the spec's SHA-256 record — names every catalogue

@@ -248,7 +248,7 @@ pub fn design_amici(catalog: &(GlassCatalog, String), opts: &AmiciOptions) -> Re
         continuous_stage: serde_json::json!({
             "optimizer": "adam", "iterations": r1.iterations, "initial_loss": r1.initial_loss, "loss": r1.loss,
             "angles": angles(&r1.x), "glasses_nd_vd": [[r1.x[3], r1.x[4]], [r1.x[5], r1.x[6]]],
-            "nearest_glasses": near, "metrics": m1, "warnings": r1.warnings,
+            "nearest_glasses": near, "metrics": m1, "stop_reason": r1.stop_reason, "warnings": r1.warnings,
         }),
         final_stage: serde_json::json!({
             "optimizer": "levenberg_marquardt", "iterations": r3.iterations, "initial_loss": r3.initial_loss, "loss": r3.loss,

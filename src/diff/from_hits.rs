@@ -198,7 +198,7 @@ impl DiffSystem {
             }
             #[cfg(not(feature = "embree"))]
             crate::tracer::Backend::EmbreeUser | crate::tracer::Backend::EmbreeMesh => {
-                Err(Error::invalid("the Embree backends are not in this build (rebuild with the default `embree` feature)"))
+                Err(crate::tracer::embree_missing(config.backend, crate::frontend::current()))
             }
         }
     }

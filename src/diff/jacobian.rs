@@ -57,12 +57,6 @@ impl JacobianBatch {
     }
 }
 
-struct ChunkOut {
-    traced: TracedBatch,
-    jac: Vec<f64>,
-    finite: Vec<bool>,
-}
-
 /// Rays per rayon task.
 const CHUNK: usize = 512;
 
@@ -93,13 +87,21 @@ impl DiffSystem {
             })
             .collect();
         let n = rays.len();
-        let chunks: Vec<ChunkOut> = (0..n.div_ceil(CHUNK))
-            .into_par_iter()
-            .map(|c| {
+        // The Jacobian (48·K B per ray, the batch's bulk) is allocated once at its full size and each chunk
+        // writes its rows in place; only the traced columns (53 B per ray) are gathered from the chunks. A
+        // per-chunk Jacobian concatenated afterwards held it twice at the peak (round 21: 10⁶ rays × 24
+        // parameters peaked at 1.43 GB for a 1.15 GB Jacobian); [`crate::limits::bytes_jacobian_trace`]
+        // models this layout.
+        let mut jac = vec![0.0; n * 6 * kk];
+        let mut finite = vec![true; n];
+        let chunks: Vec<TracedBatch> = jac
+            .par_chunks_mut(CHUNK * 6 * kk)
+            .zip(finite.par_chunks_mut(CHUNK))
+            .enumerate()
+            .map(|(c, (jac_rows, finite))| {
                 let lo = c * CHUNK;
-                let hi = (lo + CHUNK).min(n);
-                let m = hi - lo;
-                let mut out = ChunkOut { traced: TracedBatch::zeroed(m), jac: vec![0.0; m * 6 * kk], finite: vec![true; m] };
+                let m = finite.len();
+                let mut traced = TracedBatch::zeroed(m);
                 let mut dp = vec![DVec3::ZERO; kk];
                 let mut dd = vec![DVec3::ZERO; kk];
                 for j in 0..m {
@@ -109,8 +111,8 @@ impl DiffSystem {
                     let d = rays.direction(i);
                     let len = d.length();
                     if !(o.is_finite() && d.is_finite()) || !(len > 0.0) {
-                        out.traced.status[j] = RayStatus::InvalidInput;
-                        out.traced.surface[j] = 0;
+                        traced.status[j] = RayStatus::InvalidInput;
+                        traced.surface[j] = 0;
                         continue;
                     }
                     let u = d / len;
@@ -129,16 +131,16 @@ impl DiffSystem {
                     }
                     match trace_tangents(&self.system.path, &self.steps, idx, didx, o, u, &mut dp, &mut dd) {
                         Ok((p, dir)) => {
-                            out.traced.x[j] = p.x;
-                            out.traced.y[j] = p.y;
-                            out.traced.z[j] = p.z;
-                            out.traced.dir_x[j] = dir.x;
-                            out.traced.dir_y[j] = dir.y;
-                            out.traced.dir_z[j] = dir.z;
+                            traced.x[j] = p.x;
+                            traced.y[j] = p.y;
+                            traced.z[j] = p.z;
+                            traced.dir_x[j] = dir.x;
+                            traced.dir_y[j] = dir.y;
+                            traced.dir_z[j] = dir.z;
                             let ok = dp.iter().chain(dd.iter()).all(|v| v.is_finite());
-                            out.finite[j] = ok;
+                            finite[j] = ok;
                             if ok {
-                                let row = &mut out.jac[j * 6 * kk..(j + 1) * 6 * kk];
+                                let row = &mut jac_rows[j * 6 * kk..(j + 1) * 6 * kk];
                                 for k in 0..kk {
                                     for c in 0..3 {
                                         row[c * kk + k] = dp[k][c];
@@ -148,28 +150,33 @@ impl DiffSystem {
                             }
                         }
                         Err((status, surface)) => {
-                            out.traced.status[j] = status;
-                            out.traced.surface[j] = surface as u32;
+                            traced.status[j] = status;
+                            traced.surface[j] = surface as u32;
                         }
                     }
                 }
-                out
+                traced
             })
             .collect();
-        let mut traced = TracedBatch::default();
-        let mut jac = Vec::with_capacity(n * 6 * kk);
-        let mut finite = Vec::with_capacity(n);
+        let mut traced = TracedBatch {
+            x: Vec::with_capacity(n),
+            y: Vec::with_capacity(n),
+            z: Vec::with_capacity(n),
+            dir_x: Vec::with_capacity(n),
+            dir_y: Vec::with_capacity(n),
+            dir_z: Vec::with_capacity(n),
+            status: Vec::with_capacity(n),
+            surface: Vec::with_capacity(n),
+        };
         for c in chunks {
-            traced.x.extend(c.traced.x);
-            traced.y.extend(c.traced.y);
-            traced.z.extend(c.traced.z);
-            traced.dir_x.extend(c.traced.dir_x);
-            traced.dir_y.extend(c.traced.dir_y);
-            traced.dir_z.extend(c.traced.dir_z);
-            traced.status.extend(c.traced.status);
-            traced.surface.extend(c.traced.surface);
-            jac.extend(c.jac);
-            finite.extend(c.finite);
+            traced.x.extend(c.x);
+            traced.y.extend(c.y);
+            traced.z.extend(c.z);
+            traced.dir_x.extend(c.dir_x);
+            traced.dir_y.extend(c.dir_y);
+            traced.dir_z.extend(c.dir_z);
+            traced.status.extend(c.status);
+            traced.surface.extend(c.surface);
         }
         Ok(JacobianBatch { traced, params: self.params.iter().map(|p| p.name()).collect(), jac, finite })
     }

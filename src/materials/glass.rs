@@ -304,8 +304,11 @@ impl Glass {
         } else {
             Err(MaterialError::NonFiniteIndex {
                 glass: self.name.clone(),
+                catalog: self.catalog.clone(),
+                formula: self.formula.label(),
                 wavelength_nm,
                 index: n,
+                extrapolated: (!self.in_range(wavelength_nm)).then(|| self.valid_range_nm()),
             })
         }
     }

@@ -105,15 +105,29 @@ pub enum MaterialError {
     },
 
     /// The dispersion formula produced NaN, ±∞ or a non-positive index
-    /// (e.g. a negative n² far outside the fitted range).
-    #[error("glass {glass}: dispersion formula gives invalid index {index} at {wavelength_nm} nm")]
+    /// (e.g. a negative n² far outside the fitted range: a Sellmeier term past its pole). The message names
+    /// the formula and, when the wavelength is outside the catalogue range (extrapolation allowed), says
+    /// that the extrapolation is what failed (round 21: "set AllowExtrapolation" led to a bare "invalid
+    /// index NaN at 520 nm").
+    #[error(
+        "glass {glass} (catalogue {catalog}): its dispersion formula {formula} gives no refractive index at {} nm (n = {index}{}): {}",
+        crate::limits::fmt_num(*.wavelength_nm),
+        if .index.is_nan() { ", n² < 0" } else { "" },
+        match .extrapolated { Some((lo, hi)) => format!("{} nm is outside the glass's valid range [{}, {}] nm and the formula extrapolated there fails; allowing extrapolation cannot help at this wavelength: use wavelengths inside the range, or a glass (catalogue) whose data cover {} nm", crate::limits::fmt_num(*.wavelength_nm), crate::limits::fmt_num(*lo), crate::limits::fmt_num(*hi), crate::limits::fmt_num(*.wavelength_nm)), None => "the catalogue's formula coefficients (CD line) are damaged".to_string() }
+    )]
     NonFiniteIndex {
         /// Glass name.
         glass: String,
+        /// The catalogue it comes from.
+        catalog: String,
+        /// The formula's label (`Sellmeier 1 (AGF 2)`).
+        formula: String,
         /// Wavelength at which the formula was evaluated.
         wavelength_nm: f64,
         /// The invalid result.
         index: f64,
+        /// The glass's valid range (nm) when the wavelength is outside it (extrapolation was allowed).
+        extrapolated: Option<(f64, f64)>,
     },
 
     /// The dispersion formula gives a finite index outside the physical range

@@ -27,6 +27,30 @@ impl RayBatch {
             wavelength_nm: Vec::with_capacity(n),
         }
     }
+
+    /// [`RayBatch::with_capacity`] that reports an allocation the system refuses as an error rather than
+    /// aborting the process (`what` names the request). The memory budget is checked before, but a budget set
+    /// near the address space (round 21: `set_limits(1e300)` then 2⁴⁰ seeded rays from C++) passed that check
+    /// and the allocator's failure aborted the caller's program (SIGABRT) instead of returning the error the
+    /// API promises.
+    pub fn try_with_capacity(n: usize, what: &str) -> Result<Self> {
+        fn column(n: usize, what: &str) -> Result<Vec<f64>> {
+            let mut v = Vec::new();
+            v.try_reserve_exact(n).map_err(|e| {
+                Error::invalid(format!("{what}: cannot allocate {} rays ({} per column): {e}", n, crate::limits::fmt_gb(n as f64 * 8.0)))
+            })?;
+            Ok(v)
+        }
+        Ok(RayBatch {
+            origin_x: column(n, what)?,
+            origin_y: column(n, what)?,
+            origin_z: column(n, what)?,
+            dir_x: column(n, what)?,
+            dir_y: column(n, what)?,
+            dir_z: column(n, what)?,
+            wavelength_nm: column(n, what)?,
+        })
+    }
     pub fn len(&self) -> usize {
         self.origin_x.len()
     }
@@ -99,10 +123,13 @@ impl RayBatch {
     /// system's fields (the axis if it has none), pupil points uniform in the disk from a ChaCha8 stream
     /// seeded with `seed + wavelength index`, aimed as the system says.
     pub fn seeded_workload(system: &SequentialSystem, rays_per_wavelength: usize, wavelengths_nm: &[f64], seed: u64) -> Result<Self> {
-        // 7 f64 columns per ray, within the memory budget (8 G rays from C++ aborted on allocation).
-        crate::limits::check_memory(&format!("seeded workload of {rays_per_wavelength} rays × {} wavelengths", wavelengths_nm.len()), rays_per_wavelength as f64 * wavelengths_nm.len() as f64 * 56.0)?;
+        // 7 f64 columns per ray, within the memory budget (8 G rays from C++ aborted on allocation), plus one
+        // wavelength's pupil points (2 f64 per ray).
+        let what = format!("seeded workload of {rays_per_wavelength} rays × {} wavelengths", wavelengths_nm.len());
+        crate::limits::check_memory(&what, rays_per_wavelength as f64 * (wavelengths_nm.len() as f64 * 56.0 + 16.0))?;
         let fields = system.fields_or_axis();
-        let mut batch = RayBatch::with_capacity(rays_per_wavelength * wavelengths_nm.len());
+        let total = rays_per_wavelength.checked_mul(wavelengths_nm.len()).ok_or_else(|| Error::invalid(format!("{what}: too many rays")))?;
+        let mut batch = RayBatch::try_with_capacity(total, &what)?;
         for (k, &w) in wavelengths_nm.iter().enumerate() {
             let n = system.indices(w)?;
             let pupil = super::PupilPattern::Random { n: rays_per_wavelength, seed: seed + k as u64 }.points();
@@ -121,5 +148,20 @@ fn check_field(field_mm: [f64; 2]) -> Result<()> {
         Ok(())
     } else {
         Err(Error::invalid(format!("field point ({}, {}) mm is not finite", field_mm[0], field_mm[1])))
+    }
+}
+
+#[cfg(test)]
+mod try_capacity_tests {
+    use super::RayBatch;
+
+    /// An allocation the system refuses is an error naming the request, not an abort (round 21); a usual
+    /// size gives an empty batch with the room asked for.
+    #[test]
+    fn refused_allocation_is_an_error() {
+        let e = RayBatch::try_with_capacity(usize::MAX / 4, "seeded workload of 2⁶² rays").unwrap_err().to_string();
+        assert!(e.contains("seeded workload of 2⁶² rays: cannot allocate"), "{e}");
+        let b = RayBatch::try_with_capacity(100, "x").unwrap();
+        assert!(b.is_empty() && b.origin_x.capacity() >= 100 && b.wavelength_nm.capacity() >= 100);
     }
 }

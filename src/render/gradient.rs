@@ -1163,30 +1163,51 @@ impl DiffRenderer {
     /// `valid[q·L + l]` whether the ray arrived with finite derivatives (else zeros). Chief rays go through
     /// the centre of the (fixed) paraxial entrance pupil, as [`crate::analysis::mapping_cube`]'s; for an
     /// object at infinity a pixel's chief ray is the parallel ray of its field angles through that centre.
+    ///
+    /// Before allocating it checks the ray budget (H·W·L chief rays) and the memory budget
+    /// ([`crate::limits::bytes_mapping_jacobian`]: the returned arrays and one block of the trace), naming
+    /// H × W × L and the parameter count; the rays are traced [`crate::limits::MAPPING_JACOBIAN_BLOCK`] at a time
+    /// straight into the returned arrays (each ray is independent: the result does not depend on the block).
     pub fn mapping_jacobian(&self, wavelengths_nm: &[f64]) -> Result<(Vec<f64>, Vec<f64>, Vec<bool>)> {
         let (h, w, pitch) = (self.config.scene_height, self.config.scene_width, self.config.scene_pitch_mm);
-        let mut rays = crate::rays::RayBatch::with_capacity(h * w * wavelengths_nm.len());
-        for row in 0..h {
-            for col in 0..w {
-                let c = MappingCube::scene_xy(h, w, pitch, row, col);
-                // (At infinity c holds the pixel's field angles in radians.)
-                let (o, d) = if self.aim.at_infinity { self.aim.parallel_ray(c, 0.0, 0.0) } else { (DVec3::new(c[0], c[1], 0.0), DVec3::from(self.aim.direction(c[0], c[1], 0.0, 0.0))) };
-                for &l in wavelengths_nm {
-                    rays.push(o, d, l);
-                }
-            }
-        }
-        let j = self.ds.trace(&rays)?;
-        let kk = self.ds.k();
-        let m = rays.len();
+        let (l, kk) = (wavelengths_nm.len(), self.ds.k());
+        let what = format!("mapping Jacobian: H × W × wavelengths ({h} × {w} × {l}) chief rays, {kk} free parameters");
+        let reduce = "the scene size or the wavelengths";
+        let m = h as f64 * w as f64 * l as f64;
+        crate::limits::check_rays_reducing(&what, reduce, m)?;
+        crate::limits::check_memory_reducing(&what, reduce, crate::limits::bytes_mapping_jacobian(h, w, l, kk))?;
+        let m = h * w * l;
         let (mut pos, mut jac, mut valid) = (vec![0.0; 2 * m], vec![0.0; 2 * m * kk], vec![false; m]);
-        for i in 0..m {
-            if j.usable(i) {
-                valid[i] = true;
-                pos[2 * i] = j.traced.x[i];
-                pos[2 * i + 1] = j.traced.y[i];
-                jac[2 * i * kk..(2 * i + 1) * kk].copy_from_slice(j.row(i, 0));
-                jac[(2 * i + 1) * kk..(2 * i + 2) * kk].copy_from_slice(j.row(i, 1));
+        // The chief ray of entry i = q·L + l (pixel q = row·W + col, wavelength l).
+        let chief = |q: usize| {
+            let c = MappingCube::scene_xy(h, w, pitch, q / w, q % w);
+            // (At infinity c holds the pixel's field angles in radians.)
+            if self.aim.at_infinity { self.aim.parallel_ray(c, 0.0, 0.0) } else { (DVec3::new(c[0], c[1], 0.0), DVec3::from(self.aim.direction(c[0], c[1], 0.0, 0.0))) }
+        };
+        let block = crate::limits::MAPPING_JACOBIAN_BLOCK;
+        for start in (0..m).step_by(block) {
+            let end = (start + block).min(m);
+            let mut rays = crate::rays::RayBatch::with_capacity(end - start);
+            let mut q_prev = usize::MAX;
+            let mut od = (DVec3::ZERO, DVec3::ZERO);
+            for i in start..end {
+                let q = i / l;
+                if q != q_prev {
+                    od = chief(q);
+                    q_prev = q;
+                }
+                rays.push(od.0, od.1, wavelengths_nm[i % l]);
+            }
+            let j = self.ds.trace(&rays)?;
+            for r in 0..rays.len() {
+                let i = start + r;
+                if j.usable(r) {
+                    valid[i] = true;
+                    pos[2 * i] = j.traced.x[r];
+                    pos[2 * i + 1] = j.traced.y[r];
+                    jac[2 * i * kk..(2 * i + 1) * kk].copy_from_slice(j.row(r, 0));
+                    jac[(2 * i + 1) * kk..(2 * i + 2) * kk].copy_from_slice(j.row(r, 1));
+                }
             }
         }
         Ok((pos, jac, valid))

@@ -28,6 +28,31 @@ pub fn from_json(text: &str, source_name: &str) -> Result<SystemSpec> {
     Ok(spec)
 }
 
+/// Parse a spec held in memory in `format`: `toml`, `json`, or `auto`/empty (case-insensitive): JSON when the
+/// first non-blank character after an optional UTF-8 byte-order mark is `{`, TOML otherwise. The mark is
+/// skipped before sniffing, as [`load_spec_file`] does (round 21: a JSON spec string with a BOM was sniffed as
+/// TOML, and its error was TOML's "invalid key" at line 1).
+///
+/// ```
+/// let json = format!("\u{feff}{}", diffcassi::spec::to_json(&diffcassi::presets::spec("sp")?)?);
+/// assert_eq!(diffcassi::spec::from_text(&json, "auto", "sp.json")?.name, "sp");
+/// # Ok::<(), diffcassi::Error>(())
+/// ```
+pub fn from_text(text: &str, format: &str, source_name: &str) -> Result<SystemSpec> {
+    match format.to_ascii_lowercase().as_str() {
+        "toml" => from_toml(text, source_name),
+        "json" => from_json(text, source_name),
+        "auto" | "" => {
+            if text.strip_prefix('\u{feff}').unwrap_or(text).trim_start().starts_with('{') {
+                from_json(text, source_name)
+            } else {
+                from_toml(text, source_name)
+            }
+        }
+        other => Err(Error::spec(source_name, format!("unknown spec format `{other}` (use toml, json or auto)"))),
+    }
+}
+
 pub fn to_toml(spec: &SystemSpec) -> Result<String> {
     toml::to_string_pretty(spec).map_err(|e| Error::invalid(format!("cannot write spec `{}` as TOML: {e}", spec.name)))
 }

@@ -10,6 +10,7 @@
 //! ```
 mod build;
 mod coded_mask;
+mod edge_thickness;
 mod fields;
 mod paraxial;
 mod surface;
@@ -17,6 +18,7 @@ mod vignetting;
 mod warnings;
 
 pub use coded_mask::{MaskSurface, MaskTaps};
+pub use edge_thickness::{faces_crossing_radius, FaceCrossing};
 pub use paraxial::*;
 pub use surface::*;
 pub use vignetting::VignettingFactors;

@@ -11,6 +11,8 @@
 //!   toroid's YZ curve (in y); a toroid also ends in x, where the circle its YZ curve is rotated on does:
 //!   |x| ≤ |R − z_y(y)| for the radius of rotation R ([`toroid_x_edge_warning`]; a semi-diameter of 12 mm on
 //!   R = 10 mm loaded silently, its rays beyond |x| = 10 mm missing: a held-out battery, round 15).
+//! * **Faces of one glass crossing inside a semi-diameter** ([`SequentialSystem::edge_crossing_warnings`],
+//!   `edge_thickness`): a negative edge thickness (round 21).
 //! * **Real ray aiming at a beam that is not round** ([`SequentialSystem::real_aiming_warnings`]): the stop
 //!   radius real aiming aims at is measured along +y, as OpticStudio does; where the beam's radius along the
 //!   other pupil directions differs, the traced beam depends on the system's orientation (round 18).
@@ -80,13 +82,16 @@ pub fn toroid_x_edge_warning(index: usize, sd: f64, c: f64, k: f64, alpha: &[f64
 }
 
 impl SequentialSystem {
-    /// Every load-time warning: [`Self::glass_warnings`] then [`Self::surface_edge_warnings`]. The CLI prints
+    /// Every load-time warning: [`Self::glass_warnings`], [`Self::surface_edge_warnings`],
+    /// [`Self::real_aiming_warnings`] and [`Self::edge_crossing_warnings`] (two faces of one glass crossing
+    /// inside a semi-diameter). The CLI prints
     /// them on stderr (`warning: …`), Python raises them as `UserWarning`s when a `System` is made, C++ returns
     /// them from `System::warnings()`.
     pub fn warnings(&self) -> Vec<String> {
         let mut out = self.glass_warnings();
         out.extend(self.surface_edge_warnings());
         out.extend(self.real_aiming_warnings());
+        out.extend(self.edge_crossing_warnings());
         out
     }
 

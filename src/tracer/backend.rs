@@ -149,15 +149,40 @@ impl BackendConfig {
                 Ok(Box::new(EmbreeTracer::new(options)))
             }
             #[cfg(not(feature = "embree"))]
-            Backend::EmbreeUser | Backend::EmbreeMesh => {
-                Err(Error::invalid("the Embree backends are not in this build (rebuild with the default `embree` feature)"))
-            }
+            Backend::EmbreeUser | Backend::EmbreeMesh => Err(embree_missing(self.backend, crate::frontend::current())),
         }
     }
 }
 
+/// The refusal of an Embree backend by a build without Embree (the `embree` feature off: the Python wheel), with
+/// the fix a user of `frontend` can act on. A wheel user cannot "rebuild with the default `embree` feature" (a
+/// cargo instruction, round 21: Python's `trace`, `jacobian`, `mapping` and `Transport` said so); Python's text
+/// is the one `diffcassi._check_backend` gives.
+pub fn embree_missing(backend: Backend, frontend: crate::frontend::Frontend) -> Error {
+    let name = if backend == Backend::EmbreeMesh { "embree-mesh" } else { "embree-user" };
+    Error::invalid(match frontend {
+        crate::frontend::Frontend::Python => format!(
+            "backend `{name}`: this diffcassi was built without Embree; install Embree 4.3 (bash scripts/setup.sh) and reinstall (pip install .), or use backend='analytic'"
+        ),
+        _ => format!(
+            "backend `{name}`: this diffcassi was built without Embree (the default `embree` feature of the Rust crate); install Embree 4.3 (bash scripts/setup.sh) and rebuild with default features, or use the analytic backend"
+        ),
+    })
+}
+
 #[cfg(test)]
 mod tests {
+    /// The refusal names a fix the caller can act on: Python's the reinstall (as `_check_backend`), never cargo's
+    /// feature alone (round 21).
+    #[test]
+    fn embree_missing_names_each_front_ends_fix() {
+        use crate::frontend::Frontend;
+        let py = super::embree_missing(super::Backend::EmbreeUser, Frontend::Python).to_string();
+        assert!(py.contains("backend `embree-user`: this diffcassi was built without Embree") && py.contains("pip install .") && py.contains("backend='analytic'"), "{py}");
+        let cli = super::embree_missing(super::Backend::EmbreeMesh, Frontend::Cpp).to_string();
+        assert!(cli.contains("backend `embree-mesh`") && cli.contains("scripts/setup.sh") && !cli.contains("pip"), "{cli}");
+    }
+
     use super::*;
 
     /// Every configuration's tracer name (render.json's `tracer`) reads back as that configuration.

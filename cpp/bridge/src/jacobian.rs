@@ -64,23 +64,37 @@ impl System {
         dir_z: &[f64],
         wavelength_nm: &[f64],
     ) -> Result<Box<Jacobian>> {
-        let rays = RaySlices::new(origin_x, origin_y, origin_z, dir_x, dir_y, dir_z, wavelength_nm)?.to_batch();
-        let config: BackendConfig = backend.parse()?;
-        let set = parameter_set(self.system(), parameters)?;
-        let hj = set.build()?.trace_with_backend(&config, &rays)?;
-        let (n, kk) = (hj.batch.len(), hj.batch.k());
-        crate::system::checked_size("Jacobian (rays, 6, parameters)", &[n, 6, kk])?;
-        let mut values = vec![0.0; 6 * kk * n];
-        for i in 0..n {
-            for c in 0..6 {
-                for (k, v) in hj.batch.row(i, c).iter().enumerate() {
-                    values[(c * kk + k) * n + i] = *v;
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            let slices = RaySlices::new(origin_x, origin_y, origin_z, dir_x, dir_y, dir_z, wavelength_nm)?;
+            let config: BackendConfig = backend.parse()?;
+            let set = parameter_set(self.system(), parameters)?;
+            // The ray and memory budgets before the rays are copied or anything N × K is allocated (round 21: 4·10⁵
+            // rays × 70 parameters peaked at 2.7 GB under a 1 GB budget, unchecked): the library's figure for a
+            // bindings' Jacobian (Python's, `limits::bytes_jacobian`) plus this bridge's transposed copy of the
+            // values (48·K B per ray, alive beside the library's until it returns).
+            let (n_rays, k) = (origin_x.len(), set.len());
+            let what = format!("Jacobian of N × K = {n_rays} rays × {k} parameters");
+            let reduce = "the rays or the parameters";
+            diffcassi::limits::check_rays_reducing(&what, reduce, n_rays as f64)?;
+            let transposed = n_rays as f64 * 48.0 * k as f64 * 1.1;
+            diffcassi::limits::check_memory_reducing(&what, reduce, diffcassi::limits::bytes_jacobian(n_rays as f64, k) + transposed)?;
+            let rays = slices.to_batch();
+            let hj = set.build()?.trace_with_backend(&config, &rays)?;
+            let (n, kk) = (hj.batch.len(), hj.batch.k());
+            crate::system::checked_size("Jacobian (rays, 6, parameters)", &[n, 6, kk])?;
+            let mut values = vec![0.0; 6 * kk * n];
+            for i in 0..n {
+                for c in 0..6 {
+                    for (k, v) in hj.batch.row(i, c).iter().enumerate() {
+                        values[(c * kk + k) * n + i] = *v;
+                    }
                 }
             }
-        }
-        let available = hj.unavailable.iter().map(|r| r.is_none() as u8).collect();
-        let reasons = hj.unavailable.into_iter().map(Option::unwrap_or_default).collect();
-        Ok(Box::new(Jacobian { traced: hj.batch.traced, params: hj.batch.params, values, available, reasons }))
+            let available = hj.unavailable.iter().map(|r| r.is_none() as u8).collect();
+            let reasons = hj.unavailable.into_iter().map(Option::unwrap_or_default).collect();
+            Ok(Box::new(Jacobian { traced: hj.batch.traced, params: hj.batch.params, values, available, reasons }))
+        })
     }
 }
 

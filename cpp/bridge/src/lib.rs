@@ -25,8 +25,9 @@
 //!
 //! ## Thread safety
 //! A loaded [`System`] is immutable: every method takes `&self`, the type is `Send + Sync` (checked at
-//! compile time below), and traces from several C++ threads on one `System` run concurrently on rayon's
-//! global pool with results identical to sequential calls (each ray is independent; see
+//! compile time below), and traces from several C++ threads on one `System` run concurrently on the library's
+//! pool ([`diffcassi::pool`]: rayon's global pool, or `set_num_threads`'s; a fresh one in a `fork()` child)
+//! with results identical to sequential calls (each ray is independent; see
 //! `cpp/tests/test_threads.cpp`). The only shared mutable state is the per-system backend cache, behind a
 //! mutex held just long enough to look a backend up. Result objects (`Traced`, `Spot`, `Mapping`, `Rays`)
 //! are owned values: read them from any thread, move them between threads.
@@ -53,7 +54,7 @@ pub use render::{default_render_options, set_calibration_cache};
 pub use results::{Mapping, Rays, Spot, Traced};
 pub use system::{load_preset, load_spec_file, load_spec_string, System};
 
-use results::{backend_names, linspace, preset_names, pupil_points, set_limits, version};
+use results::{backend_names, get_num_threads, linspace, preset_names, pupil_points, set_limits, set_num_threads, version};
 
 #[cxx::bridge(namespace = "diffcassi::ffi")]
 pub mod ffi {
@@ -213,7 +214,7 @@ pub mod ffi {
         fn load_preset(name: &str) -> Result<Box<System>>;
         /// `.toml`, `.json` (our format), `.yml` (the paper's), `.csv` (Zemax prescription).
         fn load_spec_file(path: &str) -> Result<Box<System>>;
-        /// `format`: "toml", "json" or "auto" (JSON if the text starts with `{`); `source_name` names the
+        /// `format`: "toml", "json" or "auto" (JSON if the text starts with `{`, after blanks and a byte-order mark); `source_name` names the
         /// text in error messages.
         fn load_spec_string(text: &str, format: &str, source_name: &str) -> Result<Box<System>>;
         fn preset_names() -> Vec<String>;
@@ -229,6 +230,10 @@ pub mod ffi {
         fn default_render_options() -> RenderOptions;
         /// The memory and ray budgets of every following call (`has_…` false: the default).
         fn set_limits(has_memory: bool, max_memory_gb: f64, has_rays: bool, max_rays: f64) -> Result<()>;
+        /// The threads of every following call (0: all cores or `RAYON_NUM_THREADS`; at most 1024).
+        fn set_num_threads(n: usize) -> Result<()>;
+        /// The threads the following calls use.
+        fn get_num_threads() -> Result<usize>;
         /// The folder of the render tolerance's calibration cache (the CLI's `--calibration-cache`) for every
         /// following call; empty: the default (`$DIFFCASSI_CACHE_DIR`, `$XDG_CACHE_HOME/diffcassi`,
         /// `~/.cache/diffcassi`). A path that exists and is not a folder is refused.

@@ -249,13 +249,16 @@ impl System {
     /// relative to the render (chief rays of the scene's corners and edges only), deterministic; with a
     /// tolerance, the choice is made first (a calibration the first time, cached: see the module's docs).
     pub fn render_detector(&self, backend: &str, height: usize, width: usize, wavelengths_nm: &[f64], options: &RenderOptions) -> Result<RenderInfo> {
-        let mut cfg = render_config(height, width, wavelengths_nm, options)?;
-        // A tolerance's choice weighs the rays the open pixels cost: those of the options' random mask (a
-        // caller's mask may tip it to another backend, whose detector is the same but for Embree's f32 hits).
-        let mask = if options.tolerance_um != 0.0 { render_mask(height, width, &[], options)? } else { Mask::open(height, width) };
-        let tracing = self.render_tracing(backend, options, &mut cfg, &mask)?;
-        let r = Renderer::new(self.system(), tracing.tracer(), cfg, mask)?;
-        Ok(info(&r, &tracing, 0, 0))
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            let mut cfg = render_config(height, width, wavelengths_nm, options)?;
+            // A tolerance's choice weighs the rays the open pixels cost: those of the options' random mask (a
+            // caller's mask may tip it to another backend, whose detector is the same but for Embree's f32 hits).
+            let mask = if options.tolerance_um != 0.0 { render_mask(height, width, &[], options)? } else { Mask::open(height, width) };
+            let tracing = self.render_tracing(backend, options, &mut cfg, &mask)?;
+            let r = Renderer::new(self.system(), tracing.tracer(), cfg, mask)?;
+            Ok(info(&r, &tracing, 0, 0))
+        })
     }
 
     /// Render the coded acquisition of `scene` into `out` (detector height × width, row-major).
@@ -271,31 +274,34 @@ impl System {
         options: &RenderOptions,
         out: &mut [f64],
     ) -> Result<RenderInfo> {
-        let mut cfg = render_config(height, width, wavelengths_nm, options)?;
-        let mask = render_mask(height, width, mask, options)?;
-        let cube = SpectralCube::new(height, width, wavelengths_nm.to_vec(), scene.to_vec(), "render scene")?;
-        // The radiance range the CLI and Python take (3.4e38 rendered inf, negative values negative pixels).
-        diffcassi::render::settings::check_scene_values(&cube).map_err(|e| Error::invalid(format!("render: {e}")))?;
-        let tracing = self.render_tracing(backend, options, &mut cfg, &mask)?;
-        let r = Renderer::new(self.system(), tracing.tracer(), cfg, mask)?;
-        let pixels = r.detector.pixels();
-        if out.len() != pixels {
-            return Err(Error::invalid(format!(
-                "render: the output buffer has {} values but the detector is {}×{} = {pixels} pixels (size it with render_detector)",
-                out.len(),
-                r.detector.height,
-                r.detector.width
-            )));
-        }
-        let acq = r.render(&cube, false, &|_| {})?;
-        out.copy_from_slice(&acq.image);
-        let mut done = info(&r, &tracing, acq.stats.traced, acq.stats.arrived);
-        // The CLI's warnings on this render (`render::folder`), spelled as C++ sets the settings: a zero
-        // acquisition was returned in silence (round 15).
-        let (notes, _) = diffcassi::render::folder::render_notes(&r, &cube, None)?;
-        let zero = diffcassi::render::folder::zero_warning(&acq, &serde_json::Value::Null);
-        done.warnings = zero.into_iter().chain(notes).map(|w| diffcassi::frontend::spell(&w, diffcassi::frontend::Frontend::Cpp).into_owned()).collect();
-        Ok(done)
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            let mut cfg = render_config(height, width, wavelengths_nm, options)?;
+            let mask = render_mask(height, width, mask, options)?;
+            let cube = SpectralCube::new(height, width, wavelengths_nm.to_vec(), scene.to_vec(), "render scene")?;
+            // The radiance range the CLI and Python take (3.4e38 rendered inf, negative values negative pixels).
+            diffcassi::render::settings::check_scene_values(&cube).map_err(|e| Error::invalid(format!("render: {e}")))?;
+            let tracing = self.render_tracing(backend, options, &mut cfg, &mask)?;
+            let r = Renderer::new(self.system(), tracing.tracer(), cfg, mask)?;
+            let pixels = r.detector.pixels();
+            if out.len() != pixels {
+                return Err(Error::invalid(format!(
+                    "render: the output buffer has {} values but the detector is {}×{} = {pixels} pixels (size it with render_detector)",
+                    out.len(),
+                    r.detector.height,
+                    r.detector.width
+                )));
+            }
+            let acq = r.render(&cube, false, &|_| {})?;
+            out.copy_from_slice(&acq.image);
+            let mut done = info(&r, &tracing, acq.stats.traced, acq.stats.arrived);
+            // The CLI's warnings on this render (`render::folder`), spelled as C++ sets the settings: a zero
+            // acquisition was returned in silence (round 15).
+            let (notes, _) = diffcassi::render::folder::render_notes(&r, &cube, None)?;
+            let zero = diffcassi::render::folder::zero_warning(&acq, &serde_json::Value::Null);
+            done.warnings = zero.into_iter().chain(notes).map(|w| diffcassi::frontend::spell(&w, diffcassi::frontend::Frontend::Cpp).into_owned()).collect();
+            Ok(done)
+        })
     }
 }
 

@@ -175,6 +175,9 @@ pub(crate) fn version() -> String {
 }
 
 pub(crate) fn pupil_points(pattern: &str) -> Result<PupilPoints> {
+    // Like every entry point, name the budgets first: a refusal as the first call named the CLI's
+    // `--max-memory-gb` (round 21).
+    name_budgets();
     let pts = pattern.parse::<diffcassi::rays::PupilPattern>()?.points();
     Ok(PupilPoints { px: pts.iter().map(|p| p[0]).collect(), py: pts.iter().map(|p| p[1]).collect() })
 }
@@ -184,15 +187,32 @@ fn budget_names() -> diffcassi::limits::BudgetNames {
     diffcassi::limits::BudgetNames { memory: "max_memory_gb".into(), rays: "max_rays".into(), separator: "=".into(), setter: "diffcassi::set_limits".into() }
 }
 
-/// Name the budgets for C++ once (the first load of a system, `linspace`, `denoise`, `set_limits`): a refusal
-/// then says how to raise them from C++.
+/// Name the budgets for C++ once (the first load of a system, `linspace`, `pupil_points`, `denoise`, `set_limits`,
+/// `set_num_threads`, `set_calibration_cache`): a refusal then says how to raise them from C++.
 pub(crate) fn name_budgets() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
+        // This process owns the threads from here on: a fork() child's calls build their own pool
+        // (`diffcassi::pool`).
+        diffcassi::pool::init();
         diffcassi::limits::name_budgets(budget_names());
         // The library's messages name settings as C++ does (`RenderOptions::rays_per_pixel`, not `--rays`).
         diffcassi::frontend::set(diffcassi::frontend::Frontend::Cpp);
     });
+}
+
+/// The threads of every following call: 1..=1024 (the CLI's `--threads` range), or 0 for rayon's default (all
+/// cores or `RAYON_NUM_THREADS`); results do not depend on it. Shared with Python's `set_num_threads`
+/// (`diffcassi::pool`).
+pub(crate) fn set_num_threads(n: usize) -> diffcassi::error::Result<()> {
+    name_budgets();
+    diffcassi::pool::set_num_threads(n, "diffcassi::set_num_threads")
+}
+
+/// The threads the following calls use.
+pub(crate) fn get_num_threads() -> diffcassi::error::Result<usize> {
+    name_budgets();
+    diffcassi::pool::num_threads()
 }
 
 /// The memory (GB, > 0) and ray (≥ 1) budgets of every following call, process-wide; `has_…` false: the

@@ -40,38 +40,36 @@ pub(crate) fn no_nul(what: &str, text: &str) -> Result<()> {
 
 /// Load one of the presets (`sp`, `ap`, `msp`, `map`; case-insensitive).
 pub fn load_preset(name: &str) -> Result<Box<System>> {
-    crate::results::name_budgets();
-    no_nul("preset name", name)?;
-    Ok(wrap(SequentialSystem::build(&diffcassi::presets::spec(name)?)?))
+    // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+    diffcassi::pool::install(|| {
+        crate::results::name_budgets();
+        no_nul("preset name", name)?;
+        Ok(wrap(SequentialSystem::build(&diffcassi::presets::spec(name)?)?))
+    })
 }
 
 /// Load a spec file by extension (`.toml`, `.json`, `.yml`/`.yaml`, `.csv`, `.zmx`); a `.zmx` system's errors
 /// name the file's own fixes (`diffcassi::system::SystemOrigin`).
 pub fn load_spec_file(path: &str) -> Result<Box<System>> {
-    crate::results::name_budgets();
-    no_nul("spec file path", path)?;
-    let origin = diffcassi::system::SystemOrigin::of_path(std::path::Path::new(path));
-    Ok(wrap(SequentialSystem::build_from(&diffcassi::spec::load_spec_file(path)?, origin)?))
+    // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+    diffcassi::pool::install(|| {
+        crate::results::name_budgets();
+        no_nul("spec file path", path)?;
+        let origin = diffcassi::system::SystemOrigin::of_path(std::path::Path::new(path));
+        Ok(wrap(SequentialSystem::build_from(&diffcassi::spec::load_spec_file(path)?, origin)?))
+    })
 }
 
 /// Parse a spec held in memory: `format` is `toml`, `json` or `auto` (JSON when the first non-blank
-/// character is `{`, TOML otherwise).
+/// character after an optional UTF-8 byte-order mark is `{`, TOML otherwise; [`diffcassi::spec::from_text`]).
 pub fn load_spec_string(text: &str, format: &str, source_name: &str) -> Result<Box<System>> {
-    crate::results::name_budgets();
-    no_nul("spec source name", source_name)?;
-    let spec: SystemSpec = match format.to_ascii_lowercase().as_str() {
-        "toml" => diffcassi::spec::from_toml(text, source_name)?,
-        "json" => diffcassi::spec::from_json(text, source_name)?,
-        "auto" | "" => {
-            if text.trim_start().starts_with('{') {
-                diffcassi::spec::from_json(text, source_name)?
-            } else {
-                diffcassi::spec::from_toml(text, source_name)?
-            }
-        }
-        other => return Err(Error::spec(source_name, format!("unknown spec format `{other}` (use toml, json or auto)"))),
-    };
-    Ok(wrap(SequentialSystem::build(&spec)?))
+    // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+    diffcassi::pool::install(|| {
+        crate::results::name_budgets();
+        no_nul("spec source name", source_name)?;
+        let spec: SystemSpec = diffcassi::spec::from_text(text, format, source_name)?;
+        Ok(wrap(SequentialSystem::build(&spec)?))
+    })
 }
 
 fn value(c: &Option<Cell>) -> f64 {
@@ -170,22 +168,31 @@ impl System {
     // ---------------------------------------------------------------- rays
 
     pub fn rays_for_field(&self, field_x_mm: f64, field_y_mm: f64, px: &[f64], py: &[f64], wavelength_nm: f64) -> Result<Box<Rays>> {
-        check_same_len("pupil points", px, py)?;
-        let pupil: Vec<[f64; 2]> = px.iter().zip(py).map(|(x, y)| [*x, *y]).collect();
-        // Normalised pupil coordinates live in the unit disc (px = 2 traced "ok"; the CLI and Python refuse it).
-        analysis::check_pupil_points(&pupil)?;
-        Ok(Box::new(Rays(RayBatch::for_field(&self.system, [field_x_mm, field_y_mm], &pupil, wavelength_nm)?)))
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            check_same_len("pupil points", px, py)?;
+            let pupil: Vec<[f64; 2]> = px.iter().zip(py).map(|(x, y)| [*x, *y]).collect();
+            // Normalised pupil coordinates live in the unit disc (px = 2 traced "ok"; the CLI and Python refuse it).
+            analysis::check_pupil_points(&pupil)?;
+            Ok(Box::new(Rays(RayBatch::for_field(&self.system, [field_x_mm, field_y_mm], &pupil, wavelength_nm)?)))
+        })
     }
 
     pub fn chief_rays(&self, field_x_mm: &[f64], field_y_mm: &[f64], wavelength_nm: f64) -> Result<Box<Rays>> {
-        check_same_len("field points", field_x_mm, field_y_mm)?;
-        let fields: Vec<[f64; 2]> = field_x_mm.iter().zip(field_y_mm).map(|(x, y)| [*x, *y]).collect();
-        Ok(Box::new(Rays(RayBatch::chief_rays(&self.system, &fields, wavelength_nm)?)))
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            check_same_len("field points", field_x_mm, field_y_mm)?;
+            let fields: Vec<[f64; 2]> = field_x_mm.iter().zip(field_y_mm).map(|(x, y)| [*x, *y]).collect();
+            Ok(Box::new(Rays(RayBatch::chief_rays(&self.system, &fields, wavelength_nm)?)))
+        })
     }
 
     pub fn seeded_workload(&self, rays_per_wavelength: usize, wavelengths_nm: &[f64], seed: u64) -> Result<Box<Rays>> {
-        checked_size("seeded workload (rays per wavelength, wavelengths)", &[rays_per_wavelength, wavelengths_nm.len()])?;
-        Ok(Box::new(Rays(RayBatch::seeded_workload(&self.system, rays_per_wavelength, wavelengths_nm, seed)?)))
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            checked_size("seeded workload (rays per wavelength, wavelengths)", &[rays_per_wavelength, wavelengths_nm.len()])?;
+            Ok(Box::new(Rays(RayBatch::seeded_workload(&self.system, rays_per_wavelength, wavelengths_nm, seed)?)))
+        })
     }
 
     // ---------------------------------------------------------------- tracing
@@ -203,73 +210,91 @@ impl System {
         dir_z: &[f64],
         wavelength_nm: &[f64],
     ) -> Result<Box<Traced>> {
-        let rays = RaySlices::new(origin_x, origin_y, origin_z, dir_x, dir_y, dir_z, wavelength_nm)?;
-        let tracer = self.backends.get(&self.system, backend)?;
-        Ok(Box::new(Traced(tracer.trace_slices(&self.system, rays)?)))
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            let rays = RaySlices::new(origin_x, origin_y, origin_z, dir_x, dir_y, dir_z, wavelength_nm)?;
+            let tracer = self.backends.get(&self.system, backend)?;
+            Ok(Box::new(Traced(tracer.trace_slices(&self.system, rays)?)))
+        })
     }
 
     pub fn trace_rays(&self, backend: &str, rays: &Rays) -> Result<Box<Traced>> {
-        let tracer = self.backends.get(&self.system, backend)?;
-        Ok(Box::new(Traced(tracer.trace(&self.system, &rays.0)?)))
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            let tracer = self.backends.get(&self.system, backend)?;
+            Ok(Box::new(Traced(tracer.trace(&self.system, &rays.0)?)))
+        })
     }
 
     /// Seconds per trace of `rays`, `reps` times, timed in Rust around `Tracer::trace` (the reference the
     /// C++ bench compares its own calls with).
     pub fn time_rust_trace(&self, backend: &str, rays: &Rays, reps: usize) -> Result<Vec<f64>> {
-        diffcassi::limits::check_memory(&format!("{reps} repetitions"), reps as f64 * 8.0)?;
-        let tracer = self.backends.get(&self.system, backend)?;
-        let mut times = Vec::with_capacity(reps);
-        for _ in 0..reps {
-            let t = Instant::now();
-            let out = tracer.trace(&self.system, &rays.0)?;
-            times.push(t.elapsed().as_secs_f64());
-            std::hint::black_box(&out);
-        }
-        Ok(times)
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            diffcassi::limits::check_memory(&format!("{reps} repetitions"), reps as f64 * 8.0)?;
+            let tracer = self.backends.get(&self.system, backend)?;
+            let mut times = Vec::with_capacity(reps);
+            for _ in 0..reps {
+                let t = Instant::now();
+                let out = tracer.trace(&self.system, &rays.0)?;
+                times.push(t.elapsed().as_secs_f64());
+                std::hint::black_box(&out);
+            }
+            Ok(times)
+        })
     }
 
     // ---------------------------------------------------------------- analyses
 
     #[allow(clippy::too_many_arguments)]
     pub fn spot_diagram(&self, backend: &str, field_x_mm: f64, field_y_mm: f64, wavelength_nm: f64, px: &[f64], py: &[f64]) -> Result<Box<Spot>> {
-        check_same_len("pupil points", px, py)?;
-        let pupil: Vec<[f64; 2]> = px.iter().zip(py).map(|(x, y)| [*x, *y]).collect();
-        let tracer = self.backends.get(&self.system, backend)?;
-        Ok(Box::new(Spot(analysis::spot_diagram(&self.system, tracer.as_ref(), [field_x_mm, field_y_mm], wavelength_nm, &pupil)?)))
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            check_same_len("pupil points", px, py)?;
+            let pupil: Vec<[f64; 2]> = px.iter().zip(py).map(|(x, y)| [*x, *y]).collect();
+            let tracer = self.backends.get(&self.system, backend)?;
+            Ok(Box::new(Spot(analysis::spot_diagram(&self.system, tracer.as_ref(), [field_x_mm, field_y_mm], wavelength_nm, &pupil)?)))
+        })
     }
 
     pub fn distortion_grid(&self, backend: &str, wavelength_nm: f64, n: usize, half_width_mm: f64) -> Result<DistortionGrid> {
-        checked_size("distortion grid", &[n, n])?;
-        let tracer = self.backends.get(&self.system, backend)?;
-        let g = analysis::grid_distortion(&self.system, tracer.as_ref(), wavelength_nm, n, half_width_mm)?;
-        Ok(DistortionGrid {
-            wavelength_nm: g.wavelength_nm,
-            reference_mm: g.reference_mm,
-            abcd: g.abcd,
-            max_distortion_pct: g.max_distortion_pct,
-            points: g
-                .points
-                .iter()
-                .map(|p| DistortionPoint {
-                    i: p.i,
-                    j: p.j,
-                    x_field_mm: p.x_field_mm,
-                    y_field_mm: p.y_field_mm,
-                    real_x_mm: p.real_x_mm,
-                    real_y_mm: p.real_y_mm,
-                    pred_x_mm: p.pred_x_mm,
-                    pred_y_mm: p.pred_y_mm,
-                    distortion_pct: p.distortion_pct,
-                    status: p.status as u8,
-                })
-                .collect(),
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            checked_size("distortion grid", &[n, n])?;
+            let tracer = self.backends.get(&self.system, backend)?;
+            let g = analysis::grid_distortion(&self.system, tracer.as_ref(), wavelength_nm, n, half_width_mm)?;
+            Ok(DistortionGrid {
+                wavelength_nm: g.wavelength_nm,
+                reference_mm: g.reference_mm,
+                abcd: g.abcd,
+                max_distortion_pct: g.max_distortion_pct,
+                points: g
+                    .points
+                    .iter()
+                    .map(|p| DistortionPoint {
+                        i: p.i,
+                        j: p.j,
+                        x_field_mm: p.x_field_mm,
+                        y_field_mm: p.y_field_mm,
+                        real_x_mm: p.real_x_mm,
+                        real_y_mm: p.real_y_mm,
+                        pred_x_mm: p.pred_x_mm,
+                        pred_y_mm: p.pred_y_mm,
+                        distortion_pct: p.distortion_pct,
+                        status: p.status as u8,
+                    })
+                    .collect(),
+            })
         })
     }
 
     pub fn mapping_cube(&self, backend: &str, height: usize, width: usize, pixel_pitch_mm: f64, wavelengths_nm: &[f64]) -> Result<Box<Mapping>> {
-        checked_size("mapping cube (height, width, wavelengths, xy)", &[height, width, wavelengths_nm.len(), 2])?;
-        let tracer = self.backends.get(&self.system, backend)?;
-        Ok(Box::new(Mapping(analysis::mapping_cube(&self.system, tracer.as_ref(), height, width, pixel_pitch_mm, wavelengths_nm)?)))
+        // In this process's pool: a fresh one in a fork() child (diffcassi::pool).
+        diffcassi::pool::install(|| {
+            checked_size("mapping cube (height, width, wavelengths, xy)", &[height, width, wavelengths_nm.len(), 2])?;
+            let tracer = self.backends.get(&self.system, backend)?;
+            Ok(Box::new(Mapping(analysis::mapping_cube(&self.system, tracer.as_ref(), height, width, pixel_pitch_mm, wavelengths_nm)?)))
+        })
     }
 }
 

@@ -1338,7 +1338,7 @@ private:
 // `.toml`, `.json` (our format), `.yml` (the paper's), `.csv` (Zemax prescription).
 ::rust::Box<::diffcassi::ffi::System> load_spec_file(::rust::Str path);
 
-// `format`: "toml", "json" or "auto" (JSON if the text starts with `{`); `source_name` names the
+// `format`: "toml", "json" or "auto" (JSON if the text starts with `{`, after blanks and a byte-order mark); `source_name` names the
 // text in error messages.
 ::rust::Box<::diffcassi::ffi::System> load_spec_string(::rust::Str text, ::rust::Str format, ::rust::Str source_name);
 
@@ -1362,6 +1362,12 @@ void denoise(::rust::Slice<float const> cube, ::std::size_t height, ::std::size_
 
 // The memory and ray budgets of every following call (`has_…` false: the default).
 void set_limits(bool has_memory, double max_memory_gb, bool has_rays, double max_rays);
+
+// The threads of every following call (0: all cores or `RAYON_NUM_THREADS`; at most 1024).
+void set_num_threads(::std::size_t n);
+
+// The threads the following calls use.
+::std::size_t get_num_threads();
 
 // The folder of the render tolerance's calibration cache (the CLI's `--calibration-cache`) for every
 // following call; empty: the default (`$DIFFCASSI_CACHE_DIR`, `$XDG_CACHE_HOME/diffcassi`,

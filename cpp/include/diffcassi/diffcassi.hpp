@@ -1,9 +1,11 @@
 // diffcassi C++ API: the idiomatic wrapper over the generated cxx bridge (diffcassi/bridge.h).
 //
-// C++17. RAII handles (move-only; the Rust objects are freed when they go out of scope), read-only
+// C++17. RAII handles (move-only; the Rust objects are freed when they go out of scope; a moved-from handle
+// may only be destroyed or assigned to: any other use throws diffcassi::Error "use of a moved-from
+// diffcassi::System", never dereferences a null pointer), read-only
 // span-like views of Rust-owned columns (no copy out), caller-owned input columns read in place (no copy
 // in), and exceptions: every error raised in Rust arrives as diffcassi::Error whose what() is the Rust
-// message (e.g. "unknown preset `xyz` (presets: sp, ap, msp, map)").
+// message (e.g. "unknown preset `xyz` (presets: sp, ap, msp, map, gsp, ddsp, mddsp)").
 //
 //   #include <diffcassi/diffcassi.hpp>
 //   auto sys  = diffcassi::System::preset("sp");
@@ -17,7 +19,10 @@
 //
 // Thread safety: a System is immutable once loaded; every member function is const and may be called
 // concurrently from several threads on one System (tests/test_threads.cpp). Traces run on the library's
-// rayon thread pool and their results do not depend on which thread called or how many threads run.
+// rayon thread pool and their results do not depend on which thread called or how many threads run
+// (set_num_threads, else RAYON_NUM_THREADS or all cores). fork(): a child process's calls build a fresh pool
+// of the same size (the parent's threads do not exist in the child), so a pre-fork server may trace in its
+// parent and then in its workers; results are the same bits.
 // Result objects (Traced, Spot, Mapping, Rays) are independent values: read them from any thread.
 //
 // Also: Jacobians (free parameters by name, SoA derivatives in one allocation; System::jacobian) and
@@ -122,6 +127,16 @@ auto call(F&& f) -> decltype(f()) {
     throw Error(std::string("invalid argument: ") + e.what());
   }
 }
+// The object behind a handle, or diffcassi::Error when the handle was moved from (its Box is then null): a
+// moved-from System, Traced, … dereferenced a null pointer and crashed with SIGSEGV (round 21).
+template <class T>
+const T& live(const rust::Box<T>& box, const char* type) {
+  const T* p = box.operator->();
+  if (p == nullptr)
+    throw Error(std::string("use of a moved-from diffcassi::") + type + ": its contents were moved into another " + type +
+                "; use that one (a moved-from handle may only be destroyed or assigned to)");
+  return *p;
+}
 inline rust::Str str(std::string_view s) { return rust::Str(s.data(), s.size()); }
 template <class T>
 rust::Slice<const T> slice(View<T> v) noexcept { return rust::Slice<const T>(v.data(), v.size()); }
@@ -168,23 +183,24 @@ struct RayBuffer {
 class Rays {
  public:
   explicit Rays(rust::Box<ffi::Rays> raw) : raw_(std::move(raw)) {}
-  std::size_t size() const noexcept { return raw_->len(); }
-  View<double> origin_x() const noexcept { return raw_->origin_x(); }
-  View<double> origin_y() const noexcept { return raw_->origin_y(); }
-  View<double> origin_z() const noexcept { return raw_->origin_z(); }
-  View<double> dir_x() const noexcept { return raw_->dir_x(); }
-  View<double> dir_y() const noexcept { return raw_->dir_y(); }
-  View<double> dir_z() const noexcept { return raw_->dir_z(); }
-  View<double> wavelength_nm() const noexcept { return raw_->wavelength_nm(); }
-  RayColumns columns() const noexcept { return {origin_x(), origin_y(), origin_z(), dir_x(), dir_y(), dir_z(), wavelength_nm()}; }
+  std::size_t size() const { return get().len(); }
+  View<double> origin_x() const { return get().origin_x(); }
+  View<double> origin_y() const { return get().origin_y(); }
+  View<double> origin_z() const { return get().origin_z(); }
+  View<double> dir_x() const { return get().dir_x(); }
+  View<double> dir_y() const { return get().dir_y(); }
+  View<double> dir_z() const { return get().dir_z(); }
+  View<double> wavelength_nm() const { return get().wavelength_nm(); }
+  RayColumns columns() const { return {origin_x(), origin_y(), origin_z(), dir_x(), dir_y(), dir_z(), wavelength_nm()}; }
   /// A C++-owned copy.
   RayBuffer to_buffer() const {
     return {origin_x().to_vector(), origin_y().to_vector(), origin_z().to_vector(), dir_x().to_vector(),
             dir_y().to_vector(),    dir_z().to_vector(),    wavelength_nm().to_vector()};
   }
-  const ffi::Rays& raw() const noexcept { return *raw_; }
+  const ffi::Rays& raw() const { return get(); }
 
  private:
+  const ffi::Rays& get() const { return detail::live(raw_, "Rays"); }
   rust::Box<ffi::Rays> raw_;
 };
 
@@ -194,22 +210,23 @@ class Rays {
 class Traced {
  public:
   explicit Traced(rust::Box<ffi::Traced> raw) : raw_(std::move(raw)) {}
-  std::size_t size() const noexcept { return raw_->len(); }
-  std::size_t ok_count() const noexcept { return raw_->ok_count(); }
-  View<double> x() const noexcept { return raw_->x(); }
-  View<double> y() const noexcept { return raw_->y(); }
-  View<double> z() const noexcept { return raw_->z(); }
-  View<double> dir_x() const noexcept { return raw_->dir_x(); }
-  View<double> dir_y() const noexcept { return raw_->dir_y(); }
-  View<double> dir_z() const noexcept { return raw_->dir_z(); }
+  std::size_t size() const { return get().len(); }
+  std::size_t ok_count() const { return get().ok_count(); }
+  View<double> x() const { return get().x(); }
+  View<double> y() const { return get().y(); }
+  View<double> z() const { return get().z(); }
+  View<double> dir_x() const { return get().dir_x(); }
+  View<double> dir_y() const { return get().dir_y(); }
+  View<double> dir_z() const { return get().dir_z(); }
   /// RayStatus values as bytes.
-  View<std::uint8_t> status_codes() const noexcept { return raw_->status(); }
+  View<std::uint8_t> status_codes() const { return get().status(); }
   RayStatus status(std::size_t i) const { return static_cast<RayStatus>(status_codes().at(i)); }
   /// Surface index where a failed ray stopped (0xFFFFFFFF for arrived rays).
-  View<std::uint32_t> surface() const noexcept { return raw_->surface(); }
-  const ffi::Traced& raw() const noexcept { return *raw_; }
+  View<std::uint32_t> surface() const { return get().surface(); }
+  const ffi::Traced& raw() const { return get(); }
 
  private:
+  const ffi::Traced& get() const { return detail::live(raw_, "Traced"); }
   rust::Box<ffi::Traced> raw_;
 };
 
@@ -217,19 +234,20 @@ class Traced {
 class Spot {
  public:
   explicit Spot(rust::Box<ffi::Spot> raw) : raw_(std::move(raw)) {}
-  std::array<double, 2> field_mm() const noexcept { return raw_->field_mm(); }
-  double wavelength_nm() const noexcept { return raw_->wavelength_nm(); }
-  View<double> x_mm() const noexcept { return raw_->x_mm(); }
-  View<double> y_mm() const noexcept { return raw_->y_mm(); }
-  View<std::uint8_t> status_codes() const noexcept { return raw_->status(); }
-  bool has_chief() const noexcept { return raw_->has_chief(); }
+  std::array<double, 2> field_mm() const { return get().field_mm(); }
+  double wavelength_nm() const { return get().wavelength_nm(); }
+  View<double> x_mm() const { return get().x_mm(); }
+  View<double> y_mm() const { return get().y_mm(); }
+  View<std::uint8_t> status_codes() const { return get().status(); }
+  bool has_chief() const { return get().has_chief(); }
   /// Chief-ray position (mm); (0, 0) when !has_chief().
-  std::array<double, 2> chief_mm() const noexcept { return raw_->chief_mm(); }
-  SpotStats stats() const noexcept { return raw_->stats(); }
-  double rms_radius_chief_um() const noexcept { return raw_->rms_radius_chief_um(); }
-  const ffi::Spot& raw() const noexcept { return *raw_; }
+  std::array<double, 2> chief_mm() const { return get().chief_mm(); }
+  SpotStats stats() const { return get().stats(); }
+  double rms_radius_chief_um() const { return get().rms_radius_chief_um(); }
+  const ffi::Spot& raw() const { return get(); }
 
  private:
+  const ffi::Spot& get() const { return detail::live(raw_, "Spot"); }
   rust::Box<ffi::Spot> raw_;
 };
 
@@ -237,16 +255,16 @@ class Spot {
 class Mapping {
  public:
   explicit Mapping(rust::Box<ffi::Mapping> raw) : raw_(std::move(raw)) {}
-  std::size_t height() const noexcept { return raw_->height(); }
-  std::size_t width() const noexcept { return raw_->width(); }
-  double pixel_pitch_mm() const noexcept { return raw_->pixel_pitch_mm(); }
-  View<double> wavelength_nm() const noexcept { return raw_->wavelength_nm(); }
+  std::size_t height() const { return get().height(); }
+  std::size_t width() const { return get().width(); }
+  double pixel_pitch_mm() const { return get().pixel_pitch_mm(); }
+  View<double> wavelength_nm() const { return get().wavelength_nm(); }
   /// Detector (x, y) mm, C order [row][col][band][xy]; 0 where valid() is 0.
-  View<double> positions_mm() const noexcept { return raw_->positions_mm(); }
+  View<double> positions_mm() const { return get().positions_mm(); }
   /// 1 where the chief ray arrived, C order [row][col][band].
-  View<std::uint8_t> valid() const noexcept { return raw_->valid(); }
-  std::size_t invalid_count() const noexcept { return raw_->invalid_count(); }
-  std::size_t index(std::size_t row, std::size_t col, std::size_t band) const noexcept {
+  View<std::uint8_t> valid() const { return get().valid(); }
+  std::size_t invalid_count() const { return get().invalid_count(); }
+  std::size_t index(std::size_t row, std::size_t col, std::size_t band) const {
     return (row * width() + col) * wavelength_nm().size() + band;
   }
   bool valid(std::size_t row, std::size_t col, std::size_t band) const { return valid().at(index(row, col, band)) == 1; }
@@ -254,9 +272,10 @@ class Mapping {
     const std::size_t k = index(row, col, band);
     return {positions_mm().at(2 * k), positions_mm().at(2 * k + 1)};
   }
-  const ffi::Mapping& raw() const noexcept { return *raw_; }
+  const ffi::Mapping& raw() const { return get(); }
 
  private:
+  const ffi::Mapping& get() const { return detail::live(raw_, "Mapping"); }
   rust::Box<ffi::Mapping> raw_;
 };
 
@@ -271,15 +290,15 @@ class Jacobian {
   /// Output components, in the order of the c index.
   enum Component : std::size_t { X = 0, Y = 1, Z = 2, DirX = 3, DirY = 4, DirZ = 5 };
   explicit Jacobian(rust::Box<ffi::Jacobian> raw) : raw_(std::move(raw)) {}
-  std::size_t size() const noexcept { return raw_->len(); }
-  std::size_t parameter_count() const noexcept { return raw_->parameter_count(); }
+  std::size_t size() const { return get().len(); }
+  std::size_t parameter_count() const { return get().parameter_count(); }
   /// Canonical parameter names in column order (aliases such as prism_tilt_x resolved to s<N>.<column>).
   std::vector<std::string> parameters() const {
     std::vector<std::string> out;
-    for (const auto& s : raw_->parameters()) out.push_back(detail::string(s));
+    for (const auto& s : get().parameters()) out.push_back(detail::string(s));
     return out;
   }
-  View<double> values() const noexcept { return raw_->values(); }
+  View<double> values() const { return get().values(); }
   /// d(component c)/d(parameter k) for every ray.
   View<double> column(std::size_t c, std::size_t k) const {
     const std::size_t n = size(), kk = parameter_count();
@@ -287,22 +306,23 @@ class Jacobian {
     return View<double>(values().data() + (c * kk + k) * n, n);
   }
   double at(std::size_t ray, std::size_t c, std::size_t k) const { return column(c, k).at(ray); }
-  bool available(std::size_t i) const { return View<std::uint8_t>(raw_->available()).at(i) == 1; }
-  View<std::uint8_t> available_flags() const noexcept { return raw_->available(); }
+  bool available(std::size_t i) const { return View<std::uint8_t>(get().available()).at(i) == 1; }
+  View<std::uint8_t> available_flags() const { return get().available(); }
   /// Why ray i's Jacobian is unavailable ("" if it is available).
-  std::string reason(std::size_t i) const { return std::string(raw_->reason(i)); }
+  std::string reason(std::size_t i) const { return std::string(get().reason(i)); }
   // The traced values (as Traced's columns).
-  View<double> x() const noexcept { return raw_->traced_x(); }
-  View<double> y() const noexcept { return raw_->traced_y(); }
-  View<double> z() const noexcept { return raw_->traced_z(); }
-  View<double> dir_x() const noexcept { return raw_->traced_dir_x(); }
-  View<double> dir_y() const noexcept { return raw_->traced_dir_y(); }
-  View<double> dir_z() const noexcept { return raw_->traced_dir_z(); }
-  View<std::uint8_t> status_codes() const noexcept { return raw_->traced_status(); }
+  View<double> x() const { return get().traced_x(); }
+  View<double> y() const { return get().traced_y(); }
+  View<double> z() const { return get().traced_z(); }
+  View<double> dir_x() const { return get().traced_dir_x(); }
+  View<double> dir_y() const { return get().traced_dir_y(); }
+  View<double> dir_z() const { return get().traced_dir_z(); }
+  View<std::uint8_t> status_codes() const { return get().traced_status(); }
   RayStatus status(std::size_t i) const { return static_cast<RayStatus>(status_codes().at(i)); }
-  const ffi::Jacobian& raw() const noexcept { return *raw_; }
+  const ffi::Jacobian& raw() const { return get(); }
 
  private:
+  const ffi::Jacobian& get() const { return detail::live(raw_, "Jacobian"); }
   rust::Box<ffi::Jacobian> raw_;
 };
 
@@ -327,65 +347,67 @@ class System {
   static System preset(std::string_view name) {
     return System(detail::call([&] { return ffi::load_preset(detail::str(name)); }));
   }
-  /// A spec file: .toml/.json (diffcassi's format), .yml (the paper's), .csv (Zemax prescription).
+  /// A spec file: .toml/.json (diffcassi's format), .yml (the paper's), .csv (Zemax prescription), .zmx (a Zemax
+  /// lens file).
   static System from_file(std::string_view path) {
     return System(detail::call([&] { return ffi::load_spec_file(detail::str(path)); }));
   }
-  /// A spec held in memory; format "toml", "json" or "auto"; source_name names it in error messages.
+  /// A spec held in memory; format "toml", "json" or "auto" (JSON when the first non-blank character, after an
+  /// optional UTF-8 byte-order mark, is `{`); source_name names it in error messages.
   static System from_string(std::string_view text, std::string_view format = "auto", std::string_view source_name = "<string>") {
     return System(detail::call([&] { return ffi::load_spec_string(detail::str(text), detail::str(format), detail::str(source_name)); }));
   }
 
-  std::string name() const { return std::string(raw_->name()); }
-  std::string description() const { return std::string(raw_->description()); }
+  std::string name() const { return std::string(get().name()); }
+  std::string description() const { return std::string(get().description()); }
   /// The resolved Lens Data Editor (pickups and solves evaluated), surface 0 = object.
-  rust::Vec<SurfaceInfo> surfaces() const { return raw_->surfaces(); }
-  std::size_t surface_count() const noexcept { return raw_->surface_count(); }
+  rust::Vec<SurfaceInfo> surfaces() const { return get().surfaces(); }
+  std::size_t surface_count() const { return get().surface_count(); }
   /// Load-time warnings (the CLI prints them when it loads the system, Python raises them as UserWarnings):
   /// glasses whose catalogue contradicts itself, semi-diameters beyond a surface's edge. Empty for a spec
   /// as its author meant it.
-  std::vector<std::string> warnings() const { return detail::strings(raw_->warnings()); }
-  std::size_t stop_index() const noexcept { return raw_->stop_index(); }
-  View<double> wavelengths_nm() const noexcept { return raw_->wavelengths_nm(); }
-  double primary_wavelength_nm() const noexcept { return raw_->primary_wavelength_nm(); }
+  std::vector<std::string> warnings() const { return detail::strings(get().warnings()); }
+  std::size_t stop_index() const { return get().stop_index(); }
+  View<double> wavelengths_nm() const { return get().wavelengths_nm(); }
+  double primary_wavelength_nm() const { return get().primary_wavelength_nm(); }
   std::vector<std::array<double, 2>> fields_mm() const {
-    const auto flat = raw_->fields_mm();
+    const auto flat = get().fields_mm();
     std::vector<std::array<double, 2>> out;
     for (std::size_t i = 0; i + 1 < flat.size(); i += 2) out.push_back({flat[i], flat[i + 1]});
     return out;
   }
-  std::size_t surfaces_per_ray() const noexcept { return raw_->surfaces_per_ray(); }
-  std::string to_toml() const { return detail::string(detail::call([&] { return raw_->to_toml(); })); }
-  std::string to_json() const { return detail::string(detail::call([&] { return raw_->to_json(); })); }
+  std::size_t surfaces_per_ray() const { return get().surfaces_per_ray(); }
+  std::string to_toml() const { return detail::string(detail::call([&] { return get().to_toml(); })); }
+  std::string to_json() const { return detail::string(detail::call([&] { return get().to_json(); })); }
 
   // ---- rays
   /// Rays of one field point (mm) through normalised pupil points (px, py) at one wavelength (nm).
   Rays rays_for_field(std::array<double, 2> field_mm, const std::vector<double>& px, const std::vector<double>& py, double wavelength_nm) const {
-    return Rays(detail::call([&] { return raw_->rays_for_field(field_mm[0], field_mm[1], detail::slice(px), detail::slice(py), wavelength_nm); }));
+    return Rays(detail::call([&] { return get().rays_for_field(field_mm[0], field_mm[1], detail::slice(px), detail::slice(py), wavelength_nm); }));
   }
   Rays chief_rays(const std::vector<double>& field_x_mm, const std::vector<double>& field_y_mm, double wavelength_nm) const {
-    return Rays(detail::call([&] { return raw_->chief_rays(detail::slice(field_x_mm), detail::slice(field_y_mm), wavelength_nm); }));
+    return Rays(detail::call([&] { return get().chief_rays(detail::slice(field_x_mm), detail::slice(field_y_mm), wavelength_nm); }));
   }
   /// A reproducible workload: rays_per_wavelength rays per wavelength over the system's fields, pupil
   /// points uniform in the disk from a ChaCha8 stream seeded with seed + wavelength index.
   Rays seeded_workload(std::size_t rays_per_wavelength, const std::vector<double>& wavelengths_nm, std::uint64_t seed) const {
-    return Rays(detail::call([&] { return raw_->seeded_workload(rays_per_wavelength, detail::slice(wavelengths_nm), seed); }));
+    return Rays(detail::call([&] { return get().seeded_workload(rays_per_wavelength, detail::slice(wavelengths_nm), seed); }));
   }
 
   // ---- tracing
   /// Trace caller-owned columns (read in place) with a backend ("analytic"; see backend_names()).
   Traced trace(const RayColumns& r, std::string_view backend = "analytic") const {
     return Traced(detail::call([&] {
-      return raw_->trace(detail::str(backend), detail::slice(r.origin_x), detail::slice(r.origin_y), detail::slice(r.origin_z),
+      return get().trace(detail::str(backend), detail::slice(r.origin_x), detail::slice(r.origin_y), detail::slice(r.origin_z),
                          detail::slice(r.dir_x), detail::slice(r.dir_y), detail::slice(r.dir_z), detail::slice(r.wavelength_nm));
     }));
   }
   Traced trace(const Rays& rays, std::string_view backend = "analytic") const {
-    return Traced(detail::call([&] { return raw_->trace_rays(detail::str(backend), rays.raw()); }));
+    return Traced(detail::call([&] { return get().trace_rays(detail::str(backend), rays.raw()); }));
   }
   /// Bench helper: seconds per trace of `rays`, timed natively in Rust around Tracer::trace, reps times.
   std::vector<double> time_rust_trace(const Rays& rays, std::size_t reps, std::string_view backend = "analytic") const {
-    const auto t = detail::call([&] { return raw_->time_rust_trace(detail::str(backend), rays.raw(), reps); });
+    const auto t = detail::call([&] { return get().time_rust_trace(detail::str(backend), rays.raw(), reps); });
     return std::vector<double>(t.begin(), t.end());
   }
 
@@ -393,17 +415,17 @@ class System {
   Spot spot_diagram(std::array<double, 2> field_mm, double wavelength_nm, const std::vector<double>& px, const std::vector<double>& py,
                     std::string_view backend = "analytic") const {
     return Spot(detail::call([&] {
-      return raw_->spot_diagram(detail::str(backend), field_mm[0], field_mm[1], wavelength_nm, detail::slice(px), detail::slice(py));
+      return get().spot_diagram(detail::str(backend), field_mm[0], field_mm[1], wavelength_nm, detail::slice(px), detail::slice(py));
     }));
   }
   /// Zemax-style Grid Distortion: n × n chief rays over ±half_width_mm of object field.
   DistortionGrid distortion_grid(double wavelength_nm, std::size_t n, double half_width_mm, std::string_view backend = "analytic") const {
-    return detail::call([&] { return raw_->distortion_grid(detail::str(backend), wavelength_nm, n, half_width_mm); });
+    return detail::call([&] { return get().distortion_grid(detail::str(backend), wavelength_nm, n, half_width_mm); });
   }
   /// The H × W × Nλ mapping cube (scene pixel centres on a pixel_pitch_mm grid, row 0 at +y).
   Mapping mapping_cube(std::size_t height, std::size_t width, double pixel_pitch_mm, const std::vector<double>& wavelengths_nm,
                        std::string_view backend = "analytic") const {
-    return Mapping(detail::call([&] { return raw_->mapping_cube(detail::str(backend), height, width, pixel_pitch_mm, detail::slice(wavelengths_nm)); }));
+    return Mapping(detail::call([&] { return get().mapping_cube(detail::str(backend), height, width, pixel_pitch_mm, detail::slice(wavelengths_nm)); }));
   }
 
   // ---- Jacobians
@@ -420,7 +442,7 @@ class System {
       list += p;
     }
     return Jacobian(detail::call([&] {
-      return raw_->trace_jacobian(detail::str(backend), detail::str(list), detail::slice(r.origin_x), detail::slice(r.origin_y),
+      return get().trace_jacobian(detail::str(backend), detail::str(list), detail::slice(r.origin_x), detail::slice(r.origin_y),
                                   detail::slice(r.origin_z), detail::slice(r.dir_x), detail::slice(r.dir_y), detail::slice(r.dir_z),
                                   detail::slice(r.wavelength_nm));
     }));
@@ -432,7 +454,7 @@ class System {
   /// An empty backend: analytic, or the choice of options.tolerance_um.
   RenderInfo render_detector(std::size_t height, std::size_t width, const View<double>& wavelengths_nm, const RenderOptions& options,
                              std::string_view backend = "") const {
-    return detail::call([&] { return raw_->render_detector(detail::str(backend), height, width, detail::slice(wavelengths_nm), options); });
+    return detail::call([&] { return get().render_detector(detail::str(backend), height, width, detail::slice(wavelengths_nm), options); });
   }
   /// Render the coded acquisition of `scene` through the mask (height × width transmissions in [0, 1];
   /// an empty view: the random mask of options.mask_opening / mask_seed) into `out` (row-major detector
@@ -441,7 +463,7 @@ class System {
   RenderInfo render_into(const SceneView& scene, View<float> mask, const RenderOptions& options, double* out, std::size_t out_size,
                          std::string_view backend = "") const {
     return detail::call([&] {
-      return raw_->render(detail::str(backend), scene.height, scene.width, detail::slice(scene.wavelengths_nm), detail::slice(scene.values),
+      return get().render(detail::str(backend), scene.height, scene.width, detail::slice(scene.wavelengths_nm), detail::slice(scene.values),
                           detail::slice(mask), options, rust::Slice<double>(out, out_size));
     });
   }
@@ -455,9 +477,10 @@ class System {
     return out;
   }
 
-  const ffi::System& raw() const noexcept { return *raw_; }
+  const ffi::System& raw() const { return get(); }
 
  private:
+  const ffi::System& get() const { return detail::live(raw_, "System"); }
   explicit System(rust::Box<ffi::System> raw) : raw_(std::move(raw)) {}
   rust::Box<ffi::System> raw_;
 };
@@ -488,11 +511,22 @@ inline std::vector<float> denoise(View<float> cube, std::size_t height, std::siz
   return out;
 }
 
-/// The memory budget (GB, > 0) and the ray budget (rays, ≥ 1) of every following call, process-wide (the CLI's
-/// --max-memory-gb / --max-rays, Python's diffcassi.set_limits); std::nullopt: the default (half of the physical
-/// memory; 2e10 rays). Both are replaced at each call; a bad value throws and leaves them as they were.
+/// The memory budget (GB, > 0 and at most 140737, the 2^47 bytes a 64-bit process can address) and the ray
+/// budget (a whole number of rays, ≥ 1) of every following call, process-wide (the CLI's --max-memory-gb /
+/// --max-rays, Python's diffcassi.set_limits, with the same checks); std::nullopt: the default (half of the
+/// physical memory; 2e10 rays). Both are replaced at each call; a bad value throws and leaves them as they were.
 inline void set_limits(std::optional<double> max_memory_gb = std::nullopt, std::optional<double> max_rays = std::nullopt) {
   detail::call([&] { ffi::set_limits(max_memory_gb.has_value(), max_memory_gb.value_or(0.0), max_rays.has_value(), max_rays.value_or(0.0)); });
+}
+
+/// The threads of every following call, process-wide (the CLI's --threads, Python's diffcassi.set_num_threads):
+/// 1..=1024, or 0 for the default (RAYON_NUM_THREADS, else all cores). Results do not depend on it.
+inline void set_num_threads(std::size_t n) {
+  detail::call([&] { ffi::set_num_threads(n); });
+}
+/// The threads the following calls use.
+inline std::size_t get_num_threads() {
+  return detail::call([&] { return ffi::get_num_threads(); });
 }
 
 /// The folder of the render tolerance's calibration cache (RenderOptions::tolerance_um; the CLI's

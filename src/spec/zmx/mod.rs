@@ -63,6 +63,42 @@ pub struct ZmxImport {
     pub glasses: Vec<glass::GlassOrigin>,
     /// Remarks on the catalogues (a built-in catalogue standing in for a `GCAT` name with a date suffix).
     pub notes: Vec<String>,
+    /// The surfaces' `COAT` records (also in `skipped`): the sequential trace has no coatings, but the
+    /// Fresnel ghost paths (`ghosts`, `render --ghosts`) would change with them, so those commands say which
+    /// were dropped ([`ZmxImport::coating_note`]).
+    pub skipped_coatings: Vec<SkippedCoating>,
+}
+
+/// A `COAT` record of a surface, skipped by the reader.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SkippedCoating {
+    /// The file's surface number (`SURF n`: the spec's surface index).
+    pub surface: usize,
+    /// 1-based line of the record.
+    pub line: usize,
+    /// The coating's name as written (`MGF2`, `I.0`); empty when the record has none.
+    pub name: String,
+}
+
+impl ZmxImport {
+    /// A note for the commands whose numbers coatings change (the Fresnel ghost paths): the file's `COAT`
+    /// records the reader skipped, so that uncoated ghost energies are not read as the coated design's
+    /// (round 21: an ideal AR coating `I.0` would remove a ghost that `ghosts` reported unchanged). `None`
+    /// when the file has no coating.
+    pub fn coating_note(&self, command: &str) -> Option<String> {
+        if self.skipped_coatings.is_empty() {
+            return None;
+        }
+        let list: Vec<String> = self
+            .skipped_coatings
+            .iter()
+            .map(|c| format!("surface {} `COAT {}` (line {})", c.surface, c.name, c.line))
+            .collect();
+        Some(format!(
+            "the .zmx file's coatings are not read ({}): {command} treats every face as bare (uncoated Fresnel reflection); give the spec's `coating` of each surface (export-spec, then `coating = {{ reflectance = R }}` or `{{ mgf2_quarter_wave_nm = λ }}`) to model them",
+            list.join(", ")
+        ))
+    }
 }
 
 /// Where each glass of a spec comes from, as the system build resolves it (the built-in subset, then the
@@ -177,6 +213,7 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
     let mut header = Header::default();
     let mut unsupported: Vec<Unsupported> = Vec::new();
     let mut skipped: Vec<Unsupported> = Vec::new();
+    let mut skipped_coatings: Vec<SkippedCoating> = Vec::new();
     let mut blocks: Vec<(SurfaceBlock, usize)> = Vec::new(); // (block, number of records)
     // Records defined once (records::once_key) and where: (line, keyword).
     let mut seen: std::collections::HashMap<(Option<usize>, String), (usize, String)> = std::collections::HashMap::new();
@@ -210,6 +247,11 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
             None
         };
         if let Some(reason) = no_optics {
+            if kw == "COAT" {
+                if let Some((b, _)) = blocks.last() {
+                    skipped_coatings.push(SkippedCoating { surface: b.number, line: r.line, name: r.args.join(" ") });
+                }
+            }
             skipped.push(Unsupported { line: r.line, keyword: r.keyword.clone(), reason });
             if let Some((_, count)) = blocks.last_mut() {
                 *count += 1;
@@ -608,5 +650,5 @@ pub fn import_zmx(bytes: &[u8], source_name: &str, source_path: Option<&Path>, o
             }
         }
     }
-    Ok(ZmxImport { spec, ignored: unsupported, skipped, encoding, glasses: resolution.glasses, notes: resolution.notes })
+    Ok(ZmxImport { spec, ignored: unsupported, skipped, encoding, glasses: resolution.glasses, notes: resolution.notes, skipped_coatings })
 }

@@ -495,7 +495,7 @@ impl EmbreeTracer {
         if let Role::Mirror { surface, medium } = &obj.role {
             return self.reflect_at(scene, obj, *surface, *medium, w, hit, log);
         }
-        let Role::Interface { surfaces, front_medium, back_medium, paraxial_focal_mm } = &obj.role else {
+        let Role::Interface { surfaces, front_medium, back_medium, paraxial_focal_mm, .. } = &obj.role else {
             return w.finish(RayStatus::NoConvergence, w.last_surface as usize);
         };
         let surface = *surfaces.last().expect("an interface has surfaces");

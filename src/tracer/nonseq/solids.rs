@@ -93,7 +93,14 @@ pub enum Role {
     /// +normal side — the media before and after the surface in sequential order, swapped where the
     /// sequential ray crosses it toward −z (after an odd number of mirrors, a Mangin mirror's face on the way
     /// out). A face the sequential path crosses twice is one interface (its first crossing's surfaces).
-    Interface { surfaces: Vec<usize>, front_medium: usize, back_medium: usize, paraxial_focal_mm: Option<f64> },
+    ///
+    /// `side_surfaces`: the sequential surface at which the sequential path meets the face from its front
+    /// (−normal) side and from its back side — the label of a reflection there from that side (the ghost
+    /// path labels, `5R 3R`). Both are `surfaces[0]` for a face crossed once; a face crossed twice (a Mangin
+    /// mirror's front face, surfaces 2 and 4) gets each crossing's own surface on the side its ray comes
+    /// from, so the reflection off it from the air (`2R`) and from the glass (`4R`), two different ghosts,
+    /// keep different labels.
+    Interface { surfaces: Vec<usize>, front_medium: usize, back_medium: usize, paraxial_focal_mm: Option<f64>, side_surfaces: [usize; 2] },
     /// A mirror (`GLAS MIRROR` on sequential surface `surface`): specular reflection d′ = d − 2(d·n̂)n̂ with
     /// reflectivity 1 on either side, no transmitted part. `medium`: the medium it sits in (index into
     /// [`SequentialSystem::indices`]: the medium before the mirror, which is also the one after it).
@@ -206,10 +213,13 @@ impl Solids {
                 system.name()
             )));
         }
-        let groups = group_surfaces(system, options)?;
+        let mut groups = group_surfaces(system, options)?;
+        end_solids_at_knife_edges(system, &mut groups);
         let mut objects: Vec<Solid> = Vec::new();
         let mut group_interface: Vec<Option<usize>> = Vec::with_capacity(groups.len());
         let mut walls: Vec<(usize, usize)> = Vec::new();
+        // Per object: the side (0 front, 1 back) the first crossing of an interface meets it from.
+        let mut first_side: std::collections::HashMap<usize, usize> = std::collections::HashMap::new();
         for (gi, g) in groups.iter().enumerate() {
             let mut interface_object = None;
             if let Some(k) = (!g.virtual_ && !g.is_image && !g.mirror).then(|| same_face(&objects, system, g)).flatten() {
@@ -217,6 +227,15 @@ impl Solids {
                 // way in and on the way out) is the one object it already is (its clear aperture covers both
                 // crossings: `group_surfaces`).
                 interface_object = Some(k);
+                // This crossing's ray meets the face from the side its medium before lies on (the same media
+                // are on the same sides: `coincident_faces`); reflections from that side are labelled by it,
+                // unless an earlier crossing came from that side already (that one keeps the label).
+                let side = usize::from(g.backward);
+                if let (Role::Interface { side_surfaces, .. }, Some(&first_side)) = (&mut objects[k].role, first_side.get(&k)) {
+                    if side != first_side && side_surfaces[side] == side_surfaces[first_side] {
+                        side_surfaces[side] = g.surfaces[0];
+                    }
+                }
             } else if !g.virtual_ {
                 let patch = SurfacePatch::new(g.shape.clone(), g.clear.clone()).map_err(|e| Error::invalid(format!("surface {}: {e}", g.surfaces[0])))?;
                 let role = if g.is_image {
@@ -229,6 +248,7 @@ impl Solids {
                         surfaces: g.surfaces.clone(),
                         front_medium,
                         back_medium,
+                        side_surfaces: [g.surfaces[0]; 2],
                         paraxial_focal_mm: match g.shape {
                             SurfaceShape::Paraxial { focal_length } => Some(focal_length),
                             _ => None,
@@ -236,6 +256,7 @@ impl Solids {
                     }
                 };
                 interface_object = Some(objects.len());
+                first_side.insert(objects.len(), usize::from(g.backward));
                 objects.push(Solid { role, frame: g.frame, patch: Some(patch), vertices: Vec::new(), triangles: Vec::new(), apertures: g.explicit.clone() });
             }
             group_interface.push(interface_object);
@@ -265,6 +286,7 @@ impl Solids {
                 *ends = [group_interface[gi], group_interface.get(gi + 1).copied().flatten()].into_iter().flatten().collect();
             }
         }
+        check_edge_thickness(system, &groups, options)?;
         let start_plane = system.object_at_infinity().then(|| StartPlane::in_front_of(&objects));
         Ok(Solids { objects, image_surface: system.surfaces.len() - 1, start_plane, detector_margin_mm: options.detector_margin_mm, design_beam_note: None })
     }
@@ -293,6 +315,84 @@ fn unmodelled_surface(system: &SequentialSystem) -> Option<String> {
     })
 }
 
+/// Consecutive real faces (dummies skipped) with glass between them, as group indices.
+fn glass_pairs(system: &SequentialSystem, groups: &[Group]) -> Vec<(usize, usize)> {
+    let real: Vec<usize> = (0..groups.len()).filter(|&i| !groups[i].virtual_ && !matches!(groups[i].shape, SurfaceShape::Paraxial { .. })).collect();
+    real.windows(2).filter(|w| !system.surfaces[groups[w[0]].medium_after].medium_after.is_air()).map(|w| (w[0], w[1])).collect()
+}
+
+/// A lens whose faces cross outside the beam ends there: a knife edge, as a real patent lens has just outside
+/// its clear aperture (US05331467-1's surfaces 12 and 13 cross at r = 17.379 mm, semi-diameters 16.50 and
+/// 16.46 mm), or a semi-diameter drawn wider than the glass can be while the beam (the automatic
+/// semi-diameters of the system's fields) stays inside the crossing: the mechanical clear radius of both faces
+/// is cut to the crossing (the glass ends where its faces meet; the wall between the rims shrinks to nothing),
+/// and the sequential commands warn at load that the semi-diameter claims glass beyond it
+/// ([`crate::system::SequentialSystem::edge_crossing_warnings`]). A crossing the beam reaches is refused by
+/// [`check_edge_thickness`].
+fn end_solids_at_knife_edges(system: &SequentialSystem, groups: &mut [Group]) {
+    for (i, j) in glass_pairs(system, groups) {
+        let mechanical = |g: &Group| !g.explicit.iter().any(|(_, ap)| ap.is_bounded()) && matches!(g.clear, Aperture::Circular { .. });
+        if !(mechanical(&groups[i]) && mechanical(&groups[j])) {
+            continue;
+        }
+        let (a, b) = (&groups[i], &groups[j]);
+        let Some(rc) = crate::system::faces_crossing_radius((&a.shape, &a.frame, &a.clear), (&b.shape, &b.frame, &b.clear)) else { continue };
+        if rc > a.auto_sd_mm.max(b.auto_sd_mm) {
+            let r = rc - 1e-9;
+            for k in [i, j] {
+                if let Aperture::Circular { semi_diameter_mm, .. } = &mut groups[k].clear {
+                    *semi_diameter_mm = semi_diameter_mm.min(r);
+                }
+            }
+        }
+    }
+}
+
+/// Refuse a glass whose two faces cross inside the clear apertures the solid is built to (a negative edge
+/// thickness: [`crate::system::faces_crossing_radius`]). Beyond the crossing the back face stands in front of
+/// the front face, and the walk meets them in the wrong order: a refracting singlet at infinity reported an
+/// order-1 ghost (one reflection, which sends light back toward the object) with 1.1 % of the image, and
+/// Embree disagreed silently with the analytic tracer (round 21). A sequential tracer traces such a lens
+/// (virtual propagation between the faces' extensions); a solid cannot be built, so it is refused, naming the
+/// faces, the glass, where they cross and how far the solid reaches, rather than modelled as a knife edge
+/// the designer did not draw. Pairs: consecutive real faces (mirrors included, dummies skipped) with glass
+/// between them, as the side walls join them. Faces whose axes are parallel are checked (coaxial, decentred,
+/// turned about the axis); faces tilted relative to each other (a prism's, meant to meet at its apex) are
+/// not: the walls join their rims whatever the angle.
+fn check_edge_thickness(system: &SequentialSystem, groups: &[Group], options: &SolidsOptions) -> Result<()> {
+    for (i, j) in glass_pairs(system, groups) {
+        let (a, b) = (&groups[i], &groups[j]);
+        let glass = &system.surfaces[a.medium_after].medium_after;
+        let Some(rc) = crate::system::faces_crossing_radius((&a.shape, &a.frame, &a.clear), (&b.shape, &b.frame, &b.clear)) else { continue };
+        let f = |v: f64| crate::limits::fmt_num((v * 1e4).round() / 1e4);
+        let names = |g: &Group| g.surfaces.iter().map(|s| s.to_string()).collect::<Vec<_>>().join("+");
+        let built = |g: &Group| match (g.explicit.iter().any(|(_, ap)| ap.is_bounded()), &g.clear) {
+            (false, Aperture::Circular { semi_diameter_mm, .. }) => {
+                format!("surface {} to r = {} mm (semi-diameter {} mm + mechanical margin {} mm)", names(g), f(*semi_diameter_mm), f(g.sd_mm), f(options.mechanical_margin_mm))
+            }
+            _ => format!("surface {} to its clear aperture", names(g)),
+        };
+        // A crossing outside the beam was cut to (`end_solids_at_knife_edges`); what reaches here is a crossing
+        // the beam reaches, or clear apertures given explicitly (which are not cut).
+        let beam = a.auto_sd_mm.max(b.auto_sd_mm);
+        let advice = if beam < rc {
+            format!("give the faces a semi_diameter_mm below {} mm (the beam reaches r = {} mm there; the solid then ends at the crossing), or thicken the lens", f(rc), f(beam))
+        } else {
+            format!("the beam itself reaches r = {} mm there (its automatic semi-diameter), beyond the crossing: thicken the lens (or change its radii)", f(beam))
+        };
+        return Err(Error::invalid(format!(
+            "system `{}`: surfaces {} and {} ({glass} between them) cross at r = {} mm, inside the radius the non-sequential solid needs ({}; {}): the lens has a negative edge thickness there, a solid that cannot exist; {advice}",
+            system.name(),
+            names(a),
+            names(b),
+            f(rc),
+            built(a),
+            built(b),
+        )));
+    }
+    Ok(())
+}
+
 /// Samples on a rim polygon (walls and blades).
 pub const RIM_SAMPLES: usize = 192;
 
@@ -314,6 +414,10 @@ struct Group {
     is_image: bool,
     /// A mirror ([`Interaction::Reflect`]): one surface, never merged, never virtual.
     mirror: bool,
+    /// The semi-diameter its mechanical clear aperture adds the margin to (mm): the larger of Zemax's and
+    /// the automatic one of the mirrored fields, over the merged surfaces; and the automatic one alone.
+    sd_mm: f64,
+    auto_sd_mm: f64,
 }
 
 impl Group {
@@ -375,15 +479,29 @@ fn is_identity(rotation: &DMat3, offset: DVec3) -> bool {
 pub fn coating_sites(system: &SequentialSystem) -> Result<Vec<Option<String>>> {
     let spec = &system.spec;
     let mut out: Vec<Option<String>> = (0..spec.surfaces.len()).map(|k| spec.not_an_interface(k).map(|what| format!("{what}, not a refracting interface"))).collect();
-    for g in group_surfaces(system, &SolidsOptions::default())? {
+    let groups = group_surfaces(system, &SolidsOptions::default())?;
+    for (gi, g) in groups.iter().enumerate() {
         if g.is_image || g.mirror {
             continue;
         }
+        // A face the sequential path crosses again (a Mangin mirror's refracting face, in and out) is one
+        // object, built from its first crossing, whose coating both crossings read (`build`, `same_face`): a
+        // coating given on the later crossing's surface would be silently unused (round 21).
+        let again = (!g.virtual_)
+            .then(|| {
+                groups[..gi].iter().find(|e| {
+                    !e.virtual_ && !e.is_image && !e.mirror && coincident_faces(system, (&e.shape, &e.frame, e.sides()), (&g.shape, &g.frame, g.sides()))
+                })
+            })
+            .flatten();
         for (j, &s) in g.surfaces.iter().enumerate() {
             if out[s].is_some() {
                 continue;
             }
-            if g.virtual_ {
+            if let Some(e) = again {
+                let first = e.surfaces[0];
+                out[s] = Some(format!("the face of surface {first} crossed again by the sequential path (one face, whose coating is surface {first}'s: give the coating there)"));
+            } else if g.virtual_ {
                 out[s] = Some(format!("a dummy surface (the same medium, {}, on both sides: nothing reflects there)", system.surfaces[g.medium_after].medium_after));
             } else if j > 0 {
                 let first = g.surfaces[0];
@@ -398,11 +516,8 @@ pub fn coating_sites(system: &SequentialSystem) -> Result<Vec<Option<String>>> {
 fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<Vec<Group>> {
     // Mechanical semi-diameters from the system's fields mirrored to all quadrants.
     let auto = mirrored_semi_diameters(system)?;
-    let sd_of = |surface: usize| -> f64 {
-        let zemax = system.surfaces[surface].semi_diameter_mm.unwrap_or(0.0);
-        let a = auto.iter().find(|(s, _)| *s == surface).map(|(_, v)| *v).unwrap_or(0.0);
-        zemax.max(a)
-    };
+    let auto_of = |surface: usize| -> f64 { auto.iter().find(|(s, _)| *s == surface).map(|(_, v)| *v).unwrap_or(0.0) };
+    let sd_of = |surface: usize| -> f64 { system.surfaces[surface].semi_diameter_mm.unwrap_or(0.0).max(auto_of(surface)) };
     let last = system.path.len() - 1;
     let mut groups: Vec<Group> = Vec::new();
     for (k, step) in system.path.iter().enumerate() {
@@ -436,13 +551,17 @@ fn group_surfaces(system: &SequentialSystem, options: &SolidsOptions) -> Result<
             virtual_: false,
             is_image: k == last,
             mirror,
+            sd_mm: 0.0,
+            auto_sd_mm: 0.0,
         });
     }
     for g in &mut groups {
         let same_media = system.surfaces[g.medium_before].medium_after == system.surfaces[g.medium_after].medium_after;
         // A mirror has the same medium on both sides yet is real geometry: it reflects.
         g.virtual_ = !g.is_image && !g.mirror && same_media && !matches!(g.shape, SurfaceShape::Paraxial { .. });
-        let mechanical = g.surfaces.iter().map(|&s| sd_of(s)).fold(0.0, f64::max) + options.mechanical_margin_mm
+        g.sd_mm = g.surfaces.iter().map(|&s| sd_of(s)).fold(0.0, f64::max);
+        g.auto_sd_mm = g.surfaces.iter().map(|&s| auto_of(s)).fold(0.0, f64::max);
+        let mechanical = g.sd_mm + options.mechanical_margin_mm
             + if g.is_image { options.detector_margin_mm } else { 0.0 };
         // A face with an obscuration covers it (its outer edge plus the mechanical margin): the face absorbs
         // in the obscured annulus, so no ray may pass beside it there.

@@ -333,7 +333,7 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
                                 }
                             }
                         }
-                        Role::Interface { surfaces, front_medium, back_medium, paraxial_focal_mm } => {
+                        Role::Interface { surfaces, front_medium, back_medium, paraxial_focal_mm, side_surfaces } => {
                             let forward = dl.dot(normal) > 0.0;
                             let (m1, m2) = if forward { (*front_medium, *back_medium) } else { (*back_medium, *front_medium) };
                             let (n1, n2) = (n[m1], n[m2]);
@@ -377,7 +377,9 @@ pub fn walk_tree<H: NextHit>(kernel: &H, n: &[f64], coatings: &[Option<Coating>]
                                                 child.d = kr;
                                                 child.exclude = Some(object);
                                                 child.interactions = node.interactions + 1;
-                                                child.path.push(surfaces[0] as u32);
+                                                // Labelled by the sequential surface the face is from the side the ray
+                                                // meets it (a face crossed twice: 2R from the air, 4R from the glass).
+                                                child.path.push(side_surfaces[usize::from(!forward)] as u32);
                                                 if roulette(&mut child, cp, options.threshold, model, &mut rng, &mut tree.ledger) {
                                                     stack.push(child);
                                                 }
