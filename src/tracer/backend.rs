@@ -54,7 +54,7 @@ impl std::str::FromStr for BackendConfig {
     /// `analytic` (alias `analytic-f64`), `embree-user[:f64|:none]`, `embree-mesh[:SAG_UM][:f64|:none]`
     /// (defaults: f64 refinement, 1 µm chord-sag bound).
     fn from_str(text: &str) -> Result<Self> {
-        let bad = |why: &str| Error::invalid(format!("backend `{text}`: {why} (use analytic, embree-user[:f64|:none] or embree-mesh[:SAG_UM][:f64|:none])"));
+        let bad = |why: &str| Error::invalid(format!("backend `{text}`: {why} ({})", BackendConfig::usage()));
         let parts: Vec<&str> = text.trim().split(':').collect();
         let backend = match parts[0] {
             "analytic" | "analytic-f64" => Backend::Analytic,
@@ -133,6 +133,17 @@ impl BackendConfig {
         matches!(backend, Backend::Analytic | Backend::AnalyticF32) || cfg!(feature = "embree")
     }
 
+    /// The backends this build can trace with, as a refusal of a backend text lists them: a build without
+    /// Embree (the wheel) lists the analytic backend alone and says what the Embree ones need (round 21: the
+    /// wheel's `trace(backend="warp")` offered `embree-user`, which it then refused).
+    pub fn usage() -> &'static str {
+        if Self::available(Backend::EmbreeUser) {
+            "use analytic, embree-user[:f64|:none] or embree-mesh[:SAG_UM][:f64|:none]"
+        } else {
+            "use analytic; embree-user and embree-mesh need a build with Embree 4.3"
+        }
+    }
+
     /// The tracer this configuration names.
     pub fn build(&self) -> Result<Box<dyn Tracer>> {
         match self.backend {
@@ -184,6 +195,16 @@ mod tests {
     }
 
     use super::*;
+
+    /// An unknown backend's refusal lists what this build can trace with: the Embree backends only where they
+    /// are built in (the wheel has none).
+    #[test]
+    fn an_unknown_backend_lists_the_backends_of_this_build() {
+        let e = "warp".parse::<BackendConfig>().unwrap_err().to_string();
+        assert!(e.starts_with("backend `warp`: unknown backend `warp` (use analytic"), "{e}");
+        assert_eq!(e.contains("embree-user[:f64|:none]"), cfg!(feature = "embree"), "{e}");
+        assert_eq!(e.contains("need a build with Embree"), !cfg!(feature = "embree"), "{e}");
+    }
 
     /// Every configuration's tracer name (render.json's `tracer`) reads back as that configuration.
     #[test]
