@@ -16,8 +16,8 @@
 //! join their rims by a ruled wall whatever the angle.
 //!
 //! [`SequentialSystem::edge_crossing_warnings`] warns (at load, once per pair) where the crossing lies inside
-//! a face's semi-diameter; the non-sequential solids (`tracer::nonseq::solids`) refuse a crossing inside
-//! the radius they are built to.
+//! both faces' semi-diameters; the non-sequential solids (`tracer::nonseq::solids`) end the glass at a
+//! crossing outside the system's beam and refuse one the beam reaches.
 //!
 //! ```
 //! use diffcassi::system::SequentialSystem;

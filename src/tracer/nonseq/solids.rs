@@ -348,14 +348,15 @@ fn end_solids_at_knife_edges(system: &SequentialSystem, groups: &mut [Group]) {
     }
 }
 
-/// Refuse a glass whose two faces cross inside the clear apertures the solid is built to (a negative edge
-/// thickness: [`crate::system::faces_crossing_radius`]). Beyond the crossing the back face stands in front of
-/// the front face, and the walk meets them in the wrong order: a refracting singlet at infinity reported an
-/// order-1 ghost (one reflection, which sends light back toward the object) with 1.1 % of the image, and
-/// Embree disagreed silently with the analytic tracer (round 21). A sequential tracer traces such a lens
-/// (virtual propagation between the faces' extensions); a solid cannot be built, so it is refused, naming the
-/// faces, the glass, where they cross and how far the solid reaches, rather than modelled as a knife edge
-/// the designer did not draw. Pairs: consecutive real faces (mirrors included, dummies skipped) with glass
+/// Refuse a glass whose two faces still cross inside the clear apertures the solid is built to once
+/// [`end_solids_at_knife_edges`] has cut those outside the beam (a negative edge thickness where the system's
+/// beam goes, or inside an explicit clear aperture: [`crate::system::faces_crossing_radius`]). Beyond the
+/// crossing the back face stands in front of the front face, and the walk meets them in the wrong order: a
+/// refracting singlet at infinity reported an order-1 ghost (one reflection, which sends light back toward the
+/// object) with 1.1 % of the image, and Embree disagreed silently with the analytic tracer (round 21). A
+/// sequential tracer traces such a lens (virtual propagation between the faces' extensions); where the beam
+/// crosses the knife edge no solid models it, so it is refused, naming the faces, the glass, where they cross
+/// and how far the solid reaches. Pairs: consecutive real faces (mirrors included, dummies skipped) with glass
 /// between them, as the side walls join them. Faces whose axes are parallel are checked (coaxial, decentred,
 /// turned about the axis); faces tilted relative to each other (a prism's, meant to meet at its apex) are
 /// not: the walls join their rims whatever the angle.
