@@ -17,7 +17,7 @@ from __future__ import annotations
 import json as _json
 import os
 import re
-from typing import Any, Dict, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -115,8 +115,13 @@ def distortion(system: System, wavelength_nm: Optional[float] = None, grid: int 
     ``wavelength_nm`` (default: the primary): dict with ``reference_mm``, ``abcd``, ``max_distortion_pct`` and
     ``points`` (one dict per grid point, as the CLI's CSV)."""
     w = system.primary_wavelength_nm if wavelength_nm is None else _number("wavelength_nm", wavelength_nm)
-    text, points = _native._distortion(system, w, grid, _number("half_width_mm", half_width_mm), _check_backend(backend))
+    text, chunks = _native._distortion(system, w, grid, _number("half_width_mm", half_width_mm), _check_backend(backend))
     d = _json.loads(text)
+    # One chunk per iteration of a Python loop: the interpreter hands the GIL to a waiting thread between two
+    # (a native loop did not; see `_distortion` in python/src/system.rs).
+    points: List[Dict[str, Any]] = []
+    for chunk in chunks:
+        points.extend(_json.loads(chunk))
     d["points"] = points
     return d
 

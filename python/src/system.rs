@@ -152,15 +152,8 @@ pub fn traced_out<'py>(py: Python<'py>, t: TracedArrays) -> PyResult<Bound<'py, 
     Ok(dict)
 }
 
-/// Let another Python thread run: release the GIL and take it back (CPython hands it over when a thread
-/// is waiting for it). Called between chunks while a large result is turned into Python objects, which
-/// needs the GIL, so that a long conversion does not stall the caller's other threads (as Python's own
-/// interpreter loop switches every few milliseconds).
-fn yield_gil(py: Python<'_>) {
-    py.allow_threads(|| ());
-}
-
-/// Distortion points per JSON chunk: each chunk is parsed into Python dicts with the GIL handed over ([`yield_gil`]) between chunks.
+/// Distortion points per JSON chunk: `diffcassi.distortion` parses the chunks one by one in a Python loop, where
+/// CPython's switch interval hands the GIL to a waiting thread between two chunks.
 const POINTS_PER_YIELD: usize = 2048;
 
 fn json(v: &impl serde::Serialize) -> PyResult<String> {
@@ -721,14 +714,17 @@ fn _spot<'py>(
     Ok((text, (output(py, pupil, &[n, 2])?, output(py, x, &[n])?, output(py, y, &[n])?, status)))
 }
 
-/// Zemax-style grid distortion: (the grid as JSON with `points` left empty, the points as a list of dicts,
-/// one per grid point, keys in the JSON's order); `diffcassi.distortion` puts the list in. The trace and the
-/// JSON — the points' in chunks of [`POINTS_PER_YIELD`] — run without the GIL; the chunks are parsed by
-/// Python's `json.loads` (which needs it) with the GIL handed over between them ([`yield_gil`]), so a large
-/// grid does not stall the caller's other Python threads (round 18).
+/// Zemax-style grid distortion: (the grid as JSON with `points` left empty, the points as JSON arrays of at
+/// most [`POINTS_PER_YIELD`] dicts, keys in the JSON's order); `diffcassi.distortion` parses the chunks and
+/// puts the list in. The trace and the JSON run without the GIL. The chunks are parsed by Python's
+/// `json.loads` (which needs the GIL) in a Python loop, not here: CPython hands the GIL to a thread that has
+/// waited a switch interval (5 ms) only from its interpreter loop, and a native loop that released and took
+/// back the GIL between chunks kept it whenever a chunk took less than that interval (the waiting thread,
+/// woken by each release, found the GIL taken again and never asked for it: a 0.2–0.4 s stall of the
+/// caller's other threads in about one grid=501 call in three; round 18, again in round 22).
 #[pyfunction]
 #[pyo3(signature = (system, wavelength_nm, grid = None, half_width_mm = 2.5, backend = "analytic"))]
-fn _distortion<'py>(py: Python<'py>, system: &PySystem, wavelength_nm: f64, grid: Option<&Bound<'py, PyAny>>, half_width_mm: f64, backend: &str) -> PyResult<(String, Bound<'py, pyo3::types::PyList>)> {
+fn _distortion(py: Python<'_>, system: &PySystem, wavelength_nm: f64, grid: Option<&Bound<'_, PyAny>>, half_width_mm: f64, backend: &str) -> PyResult<(String, Vec<String>)> {
     let grid = grid.map(|g| size_arg("grid", g)).transpose()?.unwrap_or(13);
     // The CLI's checks (`diffcassi distortion`), naming the Python arguments.
     if !(half_width_mm.is_finite() && half_width_mm > 0.0 && half_width_mm <= diffcassi::limits::MAX_LENGTH_MM) {
@@ -739,22 +735,13 @@ fn _distortion<'py>(py: Python<'py>, system: &PySystem, wavelength_nm: f64, grid
     diffcassi::limits::check_memory(&format!("grid {grid}"), diffcassi::limits::bytes_distortion(grid)).py()?;
     let t = tracer(backend)?;
     let sys = Arc::clone(&system.inner);
-    let (text, chunks) = run(py, move || -> diffcassi::Result<_> {
+    run(py, move || -> diffcassi::Result<_> {
         let mut g = analysis::grid_distortion(&sys, t.as_ref(), wavelength_nm, grid, half_width_mm)?;
         let points = std::mem::take(&mut g.points);
         let chunks = points.chunks(POINTS_PER_YIELD).map(|c| json_text(&c)).collect::<diffcassi::Result<Vec<_>>>()?;
         Ok((json_text(&g)?, chunks))
     })
-    .py()?;
-    let loads = py.import("json")?.getattr("loads")?;
-    let points = pyo3::types::PyList::empty(py);
-    for (k, chunk) in chunks.iter().enumerate() {
-        if k > 0 {
-            yield_gil(py);
-        }
-        points.call_method1("extend", (loads.call1((chunk,))?,))?;
-    }
-    Ok((text, points))
+    .py()
 }
 
 /// Chief-ray dispersion curve of one field (JSON).

@@ -4,7 +4,11 @@ call, but `System.seeded_rays`, `rays_for_field` and `chief_rays` made their ray
 stalled for 64–100 % of such a call (seeded_rays 2e6 × 3: 0.78 s of 1.22 s; rays_for_field random:2e6: 0.29 s of
 0.29 s; spot random:1e6: 1.40 s of 2.25 s; distortion grid=401: 0.40 s of 0.45 s). Now the rays, the trace and
 the JSON are made without the GIL, a large result's arrays are handed to NumPy without a copy and a distortion
-grid's dicts are made in chunks with the GIL handed over between them.
+grid's dicts are made in chunks, one per iteration of a Python loop. (Round 22: the chunks were first parsed in a
+native loop that released the GIL and took it back between two; CPython then hands the GIL to a waiting thread only
+if that thread has waited a whole switch interval, and each release woke it early to find the GIL taken again: the
+distortion test stalled for 0.2–0.4 s of a 0.5 s call in about one run in three and failed a CI run. A Python loop
+lets the interpreter switch every 5 ms: the longest gap is now 6–9 ms in 16 runs.)
 
 Each test runs one call (≈ 0.2–0.4 s here) in a worker thread while this thread spins a pure-Python loop, and
 checks that the loop's longest gap is under a third of the call (it was most of it)."""
